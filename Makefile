@@ -1,0 +1,41 @@
+# bodystudio: two commands for a fresh machine.
+#   make demo   set up, run the main job on the built-in synthetic studio, write a report
+#   make test   set up, run the test suite
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+# Debian packages the wheels need at run time (open3d: libusb; VTK/Open3D rendering: GL, EGL, X render).
+APT_PACKAGES := libusb-1.0-0 libgomp1 libgl1 libegl1 libxrender1
+DEMO_OUT ?= demo-out
+PYTEST_ARGS ?=
+
+.PHONY: setup demo test test-fast bench lint clean
+
+setup: $(VENV)/.installed
+	@$(PY) -m bodystudio.body.assets --quiet
+
+$(VENV)/.installed: pyproject.toml scripts/setup_system.sh
+	@bash scripts/setup_system.sh $(APT_PACKAGES)
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@$(PY) -m pip install -q --upgrade pip
+	@$(PY) -m pip install -q -e '.[dev]'
+	@touch $@
+
+demo: setup
+	$(VENV)/bin/bodystudio demo --out $(DEMO_OUT)
+
+test: setup
+	$(PY) -m pytest -q $(PYTEST_ARGS)
+
+test-fast: setup
+	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+
+bench: setup
+	$(PY) -m benchmarks.run --out docs/BENCHMARKS.md
+
+lint: setup
+	$(VENV)/bin/ruff check bodystudio tests benchmarks
+
+clean:
+	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache

@@ -1,0 +1,80 @@
+"""``bodystudio body ...``: export, inspect and measure MakeHuman bodies."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from bodystudio.errors import InputError
+
+app = typer.Typer(no_args_is_help=True)
+
+
+def parse_assignments(items: list[str] | None, what: str) -> dict[str, float]:
+    """Parse ``NAME=VALUE`` pairs; malformed ones raise a one-line InputError."""
+    out: dict[str, float] = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        try:
+            if not sep or not name:
+                raise ValueError
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise InputError(f"{what} {item!r} is not NAME=VALUE with a number, e.g. upperarm-fat-decr-incr=0.5") from None
+    return out
+
+
+@app.command("export")
+def export(
+    out: Path = typer.Argument(..., help="output mesh: .ply, .obj or .glb"),
+    gender: float = typer.Option(0.5, help="0 female .. 1 male"),
+    age: float = typer.Option(0.5, help="0 = 1 year, 0.1875 = 11, 0.5 = 25, 1 = 90 years"),
+    muscle: float = typer.Option(0.5),
+    weight: float = typer.Option(0.5),
+    height: float = typer.Option(0.5),
+    proportions: float = typer.Option(0.5),
+    local: Optional[list[str]] = typer.Option(None, "--local", help="local modifier NAME=VALUE in [-1, 1] (repeat)"),
+    pose: Optional[Path] = typer.Option(None, "--pose", help="pose JSON (axis-angle 'rotations' or MPFB 'bone_rotations')"),
+    resolution: str = typer.Option("full", help="full | 6k | 2k"),
+    rig: str = typer.Option("game_engine", help="game_engine | default | default_no_toes | cmu_mb"),
+    skinning: str = typer.Option("lbs", help="lbs | dqs"),
+) -> None:
+    """Build a body from phenotype and local modifiers, optionally pose it, and write the mesh."""
+    from bodystudio.body import Phenotype, build_body, load_pose
+    from bodystudio.geometry.mesh import Mesh, save_mesh
+
+    if out.suffix.lower() not in (".ply", ".obj", ".glb"):
+        raise InputError(f"{out}: unsupported output format; use .ply, .obj or .glb")
+    phenotype = Phenotype.from_dict(dict(gender=gender, age=age, muscle=muscle, weight=weight, height=height,
+                                         proportions=proportions))
+    body = build_body(phenotype, parse_assignments(local, "--local"), resolution=resolution, rig=rig)
+    vertices = body.vertices
+    if pose is not None:
+        vertices, _ = body.pose(load_pose(pose, body.skeleton.bone_names), method=skinning)
+    save_mesh(out, Mesh(vertices, body.faces))
+    typer.echo(f"wrote {out} ({body.n_vertices} vertices, {len(body.faces)} triangles, "
+               f"stature {body.vertices[:, 1].max():.3f} m)")
+
+
+@app.command("info")
+def info(
+    modifiers: bool = typer.Option(False, "--modifiers", help="list the local modifier names"),
+    rig: str = typer.Option("game_engine", help="rig whose joints are counted"),
+) -> None:
+    """Vertex, face and joint counts of each template resolution, and the default body's stature."""
+    from bodystudio.body import RESOLUTIONS, build_body
+    from bodystudio.body.makehuman import load_base
+    from bodystudio.body.phenotype import local_modifiers
+
+    if modifiers:
+        typer.echo("\n".join(sorted(local_modifiers(load_base().data_dir))))
+        return
+    report = {}
+    for res in RESOLUTIONS:
+        body = build_body(resolution=res, rig=rig)
+        report[res] = {"vertices": body.n_vertices, "faces": len(body.faces), "joints": body.skeleton.n_bones}
+    report["default_body"] = {"stature_m": round(float(body.vertices[:, 1].max()), 4), "rig": rig}
+    typer.echo(json.dumps(report, indent=2))

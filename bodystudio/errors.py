@@ -1,0 +1,21 @@
+"""User-facing error types. The CLI prints their message as one line and exits with code 2."""
+
+
+class BodyStudioError(Exception):
+    """Base class of every error caused by user input (files, parameters, environment)."""
+
+
+class InputError(BodyStudioError):
+    """A parameter, name or value given by the user is invalid."""
+
+
+class FileFormatError(BodyStudioError):
+    """A file exists but cannot be read as what it should be."""
+
+
+class AssetError(BodyStudioError):
+    """The body assets are missing, corrupt or cannot be fetched."""
+
+
+class SessionError(BodyStudioError):
+    """A capture session is incomplete, inconsistent or corrupted."""
