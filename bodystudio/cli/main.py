@@ -22,9 +22,12 @@ def _root(verbose: bool = typer.Option(False, "--verbose", "-v", help="log progr
 
 
 def _register() -> None:
-    from bodystudio.cli import body
+    # Stage modules add their commands to the shared ``synth`` and ``eval`` groups when imported.
+    from bodystudio.cli import body, eval, synth
 
     app.add_typer(body.app, name="body", help="MakeHuman body model: export, info, measure.")
+    app.add_typer(synth.app, name="synth", help="Synthetic studio data with ground truth.")
+    app.add_typer(eval.app, name="eval", help="Score results against ground truth (JSON).")
 
 
 _register()
