@@ -27,6 +27,10 @@ class Pose:
     rotations: np.ndarray
     translation: np.ndarray
 
+    def __post_init__(self):
+        object.__setattr__(self, "rotations", np.asarray(self.rotations, dtype=np.float64).reshape(-1, 3))
+        object.__setattr__(self, "translation", np.asarray(self.translation, dtype=np.float64).reshape(3))
+
     @classmethod
     def rest(cls, n_bones: int) -> Pose:
         return cls(np.zeros((n_bones, 3)), np.zeros(3))
