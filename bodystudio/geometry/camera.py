@@ -349,7 +349,7 @@ def ring_rig(n: int = 10, width: int = 640, height: int = 480, radius: float = 3
         h = heights[i % len(heights)]
         eye = np.array([radius * np.sin(angle), h, radius * np.cos(angle)])
         distance = np.linalg.norm(eye - target)
-        f = fx if fx is not None else 0.5 * height * (distance - 1.0) / (0.5 * volume_height + 0.1)
+        f = fx if fx is not None else 0.5 * height * (distance - 0.8) / (0.5 * volume_height + 0.1)
         name = f"cam_{i:02d}"
         cams[name] = Camera.look_at(name, eye, target, fx=f, width=width, height=height, dist=distortion)
     return CameraRig(cams)
