@@ -1,0 +1,652 @@
+"""The capture session: one folder holding a studio recording (real or synthetic) and its ground truth.
+
+Layout (documented in ``docs/session-format.md``)::
+
+    session.json                      manifest, written last: version, cameras, frames, streams, sha256 of every file
+    calibration/cameras.json          the studio cameras (public format, ``bodystudio.geometry.camera``)
+    cam_00/rgb/00000.png              colour frames (8-bit RGB PNG)
+    cam_00/mask/00000.png             silhouettes used downstream (8-bit, 0 / 255)
+    cam_00/background/00000.png       empty-studio frames for background subtraction
+    kinect/calibration.json           Kinect depth and colour cameras in the studio frame
+    kinect/depth/00000.png            16-bit depth in millimetres (0 = no measurement)
+    kinect/rgb/00000.png              Kinect colour frames
+    kinect/joints/00000.json          body-tracker joints (studio frame, metres)
+    gt/phenotype.json, gt/meshes/00000.ply, gt/joints/00000.json, gt/pose/00000.json, gt/masks/cam_00/00000.png
+
+Writes go through :class:`SessionWriter`: every file is first written atomically into ``.staging/``;
+:meth:`SessionWriter.commit` writes ``.staging/commit.json`` (the commit point), moves the staged files
+into place and writes ``session.json`` last. A write killed before the commit point leaves the previous
+session untouched (the leftover ``.staging`` is reported by :func:`open_session`); one killed after it is
+completed by :func:`recover_session`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import re
+import shutil
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from bodystudio.errors import FileFormatError, SessionError
+from bodystudio.fileio import atomic_write, read_json
+
+log = logging.getLogger(__name__)
+
+SESSION_FORMAT = "bodystudio-session"
+SESSION_VERSION = 1
+MANIFEST = "session.json"
+STAGING = ".staging"
+COMMIT = "commit.json"
+CAMERAS_JSON = "calibration/cameras.json"
+KINECT_CALIBRATION = "kinect/calibration.json"
+GT_PHENOTYPE = "gt/phenotype.json"
+
+# Stream name -> relative path pattern ({cam}: camera name, {frame}: 5-digit frame id).
+CAMERA_STREAMS = {
+    "rgb": "{cam}/rgb/{frame:05d}.png",
+    "mask": "{cam}/mask/{frame:05d}.png",
+    "gt_mask": "gt/masks/{cam}/{frame:05d}.png",
+}
+FRAME_STREAMS = {
+    "kinect_depth": "kinect/depth/{frame:05d}.png",
+    "kinect_rgb": "kinect/rgb/{frame:05d}.png",
+    "kinect_joints": "kinect/joints/{frame:05d}.json",
+    "gt_mesh": "gt/meshes/{frame:05d}.ply",
+    "gt_joints": "gt/joints/{frame:05d}.json",
+    "gt_pose": "gt/pose/{frame:05d}.json",
+}
+BACKGROUND = "{cam}/background/{index:05d}.png"
+DEPTH_MM_PER_M = 1000.0
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+
+def stream_path(stream: str, frame: int, camera: str | None = None) -> str:
+    """Relative path of one file of ``stream`` (a key of CAMERA_STREAMS or FRAME_STREAMS)."""
+    if stream in CAMERA_STREAMS:
+        return CAMERA_STREAMS[stream].format(cam=camera, frame=frame)
+    return FRAME_STREAMS[stream].format(frame=frame)
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+# ---------------------------------------------------------------------------------------------- encoding
+
+def encode_png(image: np.ndarray, what: str = "image") -> bytes:
+    """PNG bytes of an RGB (H, W, 3) uint8, grey (H, W) uint8 or 16-bit (H, W) uint16 image."""
+    image = np.asarray(image)
+    if image.dtype == bool:
+        image = image.astype(np.uint8) * 255
+    if image.dtype not in (np.uint8, np.uint16) or image.ndim not in (2, 3):
+        raise ValueError(f"{what}: PNG needs (H, W[, 3]) uint8 or uint16, got {image.dtype} {image.shape}")
+    if image.ndim == 3:
+        image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise ValueError(f"{what}: PNG encoding failed")
+    return buf.tobytes()
+
+
+def decode_png(data: bytes, source: str, color: bool) -> np.ndarray:
+    """Decode PNG bytes (RGB uint8 if ``color``, else the stored single channel, 8 or 16 bit)."""
+    flag = cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flag)
+    if image is None:
+        raise SessionError(f"{source}: unreadable image (not a valid PNG); re-import or regenerate the session")
+    if color:
+        return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    if image.ndim == 3:
+        image = image[..., 0]
+    return image
+
+
+def depth_to_png_mm(depth_m: np.ndarray) -> np.ndarray:
+    """Depth in metres (0 or non-finite = missing) -> uint16 millimetres, the session's depth encoding."""
+    d = np.asarray(depth_m, dtype=np.float64)
+    d = np.where(np.isfinite(d) & (d > 0), d, 0.0)
+    mm = np.rint(d * DEPTH_MM_PER_M)
+    if mm.max(initial=0) > 65535:
+        raise ValueError(f"depth up to {d.max():.1f} m does not fit 16-bit millimetres (max 65.535 m)")
+    return mm.astype(np.uint16)
+
+
+def _json_bytes(data: Any) -> bytes:
+    from bodystudio.fileio import _json_default
+
+    return (json.dumps(data, indent=1, default=_json_default) + "\n").encode()
+
+
+def mesh_ply_bytes(V: np.ndarray, F: np.ndarray) -> bytes:
+    """Binary little-endian PLY of a triangle mesh (float64 vertices keep ground truth exact)."""
+    V = np.ascontiguousarray(V, dtype="<f8")
+    F = np.asarray(F)
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"element vertex {len(V)}\nproperty double x\nproperty double y\nproperty double z\n"
+              f"element face {len(F)}\nproperty list uchar int vertex_indices\nend_header\n").encode()
+    faces = np.empty(len(F), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    faces["n"] = 3
+    faces["i"] = F
+    return header + V.tobytes() + faces.tobytes()
+
+
+def parse_ply_bytes(data: bytes, source: str) -> tuple[np.ndarray, np.ndarray]:
+    """Read the binary PLY written by :func:`mesh_ply_bytes` (other PLYs go through geometry.mesh.load_mesh)."""
+    end = data.find(b"end_header\n")
+    header = data[:end].decode("ascii", "replace").splitlines() if end > 0 else []
+    nv = [int(l.split()[2]) for l in header if l.startswith("element vertex")]
+    nf = [int(l.split()[2]) for l in header if l.startswith("element face")]
+    if not header or header[0] != "ply" or not nv or not nf or "property double x" not in header:
+        raise SessionError(f"{source}: not a bodystudio ground-truth PLY; regenerate the session")
+    body = data[end + len(b"end_header\n"):]
+    need = nv[0] * 24 + nf[0] * 13
+    if len(body) != need:
+        raise SessionError(f"{source}: truncated PLY ({len(body)} of {need} bytes); regenerate the session")
+    V = np.frombuffer(body[: nv[0] * 24], dtype="<f8").reshape(-1, 3).astype(np.float64)
+    faces = np.frombuffer(body[nv[0] * 24:], dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    return V, faces["i"].astype(np.int64)
+
+
+# ---------------------------------------------------------------------------------------------- Kinect
+
+def kinect_calibration_to_dict(sensor) -> dict:
+    """``kinect/calibration.json`` of an :class:`~bodystudio.geometry.camera.RGBDSensor`."""
+    return {"format_version": 1, "depth_unit": "mm", **sensor.to_dict()}
+
+
+def kinect_calibration_from_dict(data: Any, source: str):
+    """An RGBDSensor from ``kinect/calibration.json``; only ``depth`` and ``color`` cameras are required.
+
+    ``version`` (tracker joint set v1/v2) defaults to v2, ``depth_to_color`` is derived from the two
+    camera poses, ``baseline_m`` defaults to 0.075 and ``depth_range_m`` to [0.5, 4.5].
+    """
+    from bodystudio.errors import InputError
+    from bodystudio.geometry.camera import Camera, RGBDSensor
+
+    try:
+        if not isinstance(data, dict):
+            raise TypeError("top level must be an object")
+        name = str(data.get("name", "kinect"))
+        version = data.get("version", "v2")
+        if version not in ("v1", "v2"):
+            raise ValueError(f"version must be v1 or v2, got {version!r}")
+        depth = Camera.from_dict(f"{name}_depth", data["depth"])
+        color = Camera.from_dict(f"{name}_color", data["color"])
+        if "depth_to_color" in data:
+            T = np.asarray(data["depth_to_color"], dtype=np.float64).reshape(4, 4)
+        else:
+            T = np.eye(4)
+            T[:3, :3] = color.R @ depth.R.T
+            T[:3, 3] = color.t - T[:3, :3] @ depth.t
+        return RGBDSensor(name, version, depth, color, T, float(data.get("baseline_m", 0.075)),
+                          tuple(float(x) for x in data.get("depth_range_m", (0.5, 4.5))))
+    except (KeyError, TypeError, ValueError, InputError) as exc:
+        raise FileFormatError(f"{source}: not a Kinect calibration ({type(exc).__name__}: {exc}); it needs "
+                              "'depth' and 'color' cameras as in calibration/cameras.json") from None
+
+
+def load_kinect_calibration(path: str | os.PathLike):
+    return kinect_calibration_from_dict(read_json(path, "Kinect calibration"), str(path))
+
+
+# ---------------------------------------------------------------------------------------------- reading
+
+class _LazyFiles(Mapping):
+    """A read-only mapping camera -> array whose files are decoded (and checksum-checked) on first access."""
+
+    def __init__(self, session: Session, stream: str, frame: int, loader):
+        self._session, self._stream, self._frame, self._loader = session, stream, frame, loader
+        self._cache: dict[str, Any] = {}
+        self._cameras = [c for c in session.camera_names
+                         if stream_path(stream, frame, c) in session.files]
+
+    def __getitem__(self, camera: str):
+        if camera not in self._cache:
+            if camera not in self._cameras:
+                raise KeyError(f"{camera}: no {self._stream} for frame {self._frame} in {self._session.path}")
+            self._cache[camera] = self._loader(stream_path(self._stream, self._frame, camera))
+        return self._cache[camera]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._cameras)
+
+    def __len__(self) -> int:
+        return len(self._cameras)
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """One synchronised frame of a session; every stream is read from disk on first access."""
+
+    session: Session
+    frame_id: int
+
+    @cached_property
+    def images(self) -> Mapping[str, np.ndarray]:
+        """Camera name -> RGB uint8 (H, W, 3)."""
+        return _LazyFiles(self.session, "rgb", self.frame_id, lambda rel: self.session.read_image(rel, True))
+
+    @cached_property
+    def masks(self) -> Mapping[str, np.ndarray]:
+        """Camera name -> bool (H, W) silhouette (ground truth in synthetic sessions until segmented)."""
+        return _LazyFiles(self.session, "mask", self.frame_id, lambda rel: self.session.read_image(rel, False) > 127)
+
+    @cached_property
+    def gt_masks(self) -> Mapping[str, np.ndarray]:
+        """Camera name -> bool (H, W) rendered ground-truth silhouette (synthetic sessions)."""
+        return _LazyFiles(self.session, "gt_mask", self.frame_id,
+                          lambda rel: self.session.read_image(rel, False) > 127)
+
+    def _optional(self, stream: str):
+        rel = stream_path(stream, self.frame_id)
+        return rel if rel in self.session.files else None
+
+    @cached_property
+    def kinect_depth_m(self) -> np.ndarray | None:
+        """Kinect depth in metres, float64 (H, W); 0 where the sensor measured nothing."""
+        rel = self._optional("kinect_depth")
+        if rel is None:
+            return None
+        raw = self.session.read_image(rel, False)
+        if raw.dtype != np.uint16:
+            raise SessionError(f"{self.session.path / rel}: depth must be a 16-bit PNG in millimetres, "
+                               f"got {raw.dtype}; re-import with the right --depth-scale")
+        return raw.astype(np.float64) / DEPTH_MM_PER_M
+
+    @cached_property
+    def kinect_rgb(self) -> np.ndarray | None:
+        rel = self._optional("kinect_rgb")
+        return None if rel is None else self.session.read_image(rel, True)
+
+    @cached_property
+    def kinect_joints(self) -> dict | None:
+        """``{"names": [...], "positions": (J, 3) metres in the studio frame, "tracked": (J,) bool}``."""
+        rel = self._optional("kinect_joints")
+        if rel is None:
+            return None
+        data = self.session.read_json(rel)
+        try:
+            pos = np.asarray(data["positions"], dtype=np.float64).reshape(len(data["names"]), 3)
+            tracked = np.asarray(data.get("tracked", [True] * len(pos)), dtype=bool)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise SessionError(f"{self.session.path / rel}: malformed joints ({exc}); needs names and positions") from None
+        return {"names": list(data["names"]), "positions": pos, "tracked": tracked,
+                "joint_set": data.get("joint_set")}
+
+    @cached_property
+    def gt_mesh(self):
+        """Ground-truth posed mesh (:class:`bodystudio.geometry.mesh.Mesh`) of a synthetic session."""
+        from bodystudio.geometry.mesh import Mesh
+
+        rel = self._optional("gt_mesh")
+        if rel is None:
+            return None
+        V, F = parse_ply_bytes(self.session.read_bytes(rel), str(self.session.path / rel))
+        return Mesh(V, F)
+
+    @cached_property
+    def gt_joints(self) -> dict | None:
+        """``{"bone_names", "heads" (B, 3), "tails" (B, 3)}`` of the posed ground-truth skeleton."""
+        rel = self._optional("gt_joints")
+        if rel is None:
+            return None
+        data = self.session.read_json(rel)
+        return {"bone_names": list(data["bone_names"]), "heads": np.asarray(data["heads"], dtype=np.float64),
+                "tails": np.asarray(data["tails"], dtype=np.float64)}
+
+    @cached_property
+    def gt_pose(self):
+        """Ground-truth :class:`bodystudio.body.Pose` (bone order of ``gt_joints``)."""
+        from bodystudio.body.pose import pose_from_dict
+
+        rel = self._optional("gt_pose")
+        if rel is None:
+            return None
+        data = self.session.read_json(rel)
+        bones = tuple(data.get("bone_names") or self.gt_joints["bone_names"])
+        return pose_from_dict(data, bones, str(self.session.path / rel))
+
+
+@dataclass(frozen=True, eq=False)
+class Session:
+    """An opened session folder: manifest, cameras and lazily read frames."""
+
+    path: Path
+    manifest: dict
+    interrupted_write: str | None = None  # description of a leftover, uncommitted write (previous state shown)
+
+    @property
+    def files(self) -> dict[str, str]:
+        """Relative path -> sha256 of every file the manifest lists."""
+        return self.manifest["files"]
+
+    @property
+    def camera_names(self) -> list[str]:
+        return list(self.manifest["cameras"])
+
+    @property
+    def frame_ids(self) -> list[int]:
+        return list(self.manifest["frames"])
+
+    @property
+    def streams(self) -> list[str]:
+        return list(self.manifest["streams"])
+
+    @property
+    def source(self) -> str:
+        return self.manifest.get("source", "unknown")
+
+    @property
+    def metadata(self) -> dict:
+        return self.manifest.get("metadata", {})
+
+    @cached_property
+    def cameras(self):
+        """The studio cameras (:class:`bodystudio.geometry.camera.CameraRig`)."""
+        from bodystudio.geometry.camera import load_cameras_json
+
+        self.read_bytes(CAMERAS_JSON)  # checksum check before parsing
+        return load_cameras_json(self.path / CAMERAS_JSON)
+
+    @cached_property
+    def kinect(self):
+        """The RGB-D sensor (:class:`~bodystudio.geometry.camera.RGBDSensor`, studio frame) or None."""
+        if KINECT_CALIBRATION not in self.files:
+            return None
+        return kinect_calibration_from_dict(self.read_json(KINECT_CALIBRATION), str(self.path / KINECT_CALIBRATION))
+
+    @cached_property
+    def gt_subject(self) -> dict | None:
+        """``{"phenotype": {...}, "local": {...}, "resolution", "rig", "faces"?}`` of a synthetic session."""
+        return self.read_json(GT_PHENOTYPE) if GT_PHENOTYPE in self.files else None
+
+    def frame(self, frame_id: int) -> Frame:
+        if frame_id not in self.manifest["frames"]:
+            raise SessionError(f"{self.path / MANIFEST}: no frame {frame_id}; frames are "
+                               f"{_ranges(self.frame_ids)}")
+        return Frame(self, int(frame_id))
+
+    def __iter__(self) -> Iterator[Frame]:
+        return (Frame(self, f) for f in self.frame_ids)
+
+    def __len__(self) -> int:
+        return len(self.manifest["frames"])
+
+    def background_frames(self, camera: str) -> list[np.ndarray]:
+        """The empty-studio RGB frames of one camera (for background models)."""
+        rels = sorted(r for r in self.files if r.startswith(f"{camera}/background/"))
+        return [self.read_image(r, True) for r in rels]
+
+    # -- raw access, every read is checked against the manifest's sha256
+    def read_bytes(self, rel: str) -> bytes:
+        path = self.path / rel
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            raise SessionError(f"{path}: missing (listed in {MANIFEST}); the session is incomplete, "
+                               "re-import or regenerate it") from None
+        expected = self.files.get(rel)
+        if expected is not None and sha256_bytes(data) != expected:
+            raise SessionError(f"{path}: corrupted (sha256 differs from {MANIFEST}); re-import or regenerate it")
+        return data
+
+    def read_image(self, rel: str, color: bool) -> np.ndarray:
+        return decode_png(self.read_bytes(rel), str(self.path / rel), color)
+
+    def read_json(self, rel: str) -> Any:
+        try:
+            return json.loads(self.read_bytes(rel))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise SessionError(f"{self.path / rel}: not valid JSON ({exc}); regenerate the session") from None
+
+    def verify(self) -> int:
+        """Check every listed file's sha256; raise SessionError naming the first bad file. Returns the count."""
+        bad = []
+        for rel, expected in self.files.items():
+            path = self.path / rel
+            if not path.is_file():
+                bad.append(f"{path}: missing")
+            elif sha256_file(path) != expected:
+                bad.append(f"{path}: corrupted (sha256 mismatch)")
+        if bad:
+            more = f" (and {len(bad) - 1} more problems)" if len(bad) > 1 else ""
+            raise SessionError(f"{bad[0]}{more}; re-import or regenerate the session")
+        return len(self.files)
+
+
+def _ranges(ids: list[int]) -> str:
+    if not ids:
+        return "none"
+    return f"{ids[0]}..{ids[-1]} ({len(ids)} frames)" if ids == list(range(ids[0], ids[-1] + 1)) else str(ids)
+
+
+def open_session(path: str | os.PathLike) -> Session:
+    """Open a session folder, checking the manifest and that every file it lists exists.
+
+    A leftover ``.staging`` folder of an interrupted write is reported (warning and
+    ``Session.interrupted_write``) while the previous, committed state is returned; a write
+    interrupted after its commit point raises and names :func:`recover_session` as the fix.
+    """
+    path = Path(path)
+    manifest_path = path / MANIFEST
+    staging = path / STAGING
+    if not path.is_dir():
+        raise SessionError(f"{path}: no such session folder")
+    if (staging / COMMIT).is_file():
+        raise SessionError(f"{staging / COMMIT}: a write was interrupted while committing; run "
+                           f"`bodystudio capture recover {path}` to finish it")
+    interrupted = None
+    if staging.is_dir():
+        n = sum(1 for p in staging.rglob("*") if p.is_file())
+        interrupted = f"{staging}: an interrupted write left {n} uncommitted files"
+    if not manifest_path.is_file():
+        what = f" ({interrupted})" if interrupted else ""
+        raise SessionError(f"{manifest_path}: missing, the session was never completed{what}; "
+                           "regenerate or re-import it")
+    try:
+        manifest = json.loads(manifest_path.read_bytes())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SessionError(f"{manifest_path}: corrupted manifest ({exc}); regenerate or re-import the session") from None
+    _check_manifest(manifest, manifest_path)
+    for rel in manifest["files"]:
+        if not (path / rel).is_file():
+            raise SessionError(f"{path / rel}: missing (listed in {MANIFEST}); the session is incomplete, "
+                               "re-import or regenerate it")
+    if interrupted:
+        log.warning("%s; showing the last committed state (run `bodystudio capture recover %s` to discard it)",
+                    interrupted, path)
+    return Session(path, manifest, interrupted)
+
+
+def _check_manifest(m: Any, source: Path) -> None:
+    if not isinstance(m, dict) or m.get("format") != SESSION_FORMAT:
+        raise SessionError(f"{source}: not a bodystudio session manifest (format != {SESSION_FORMAT!r})")
+    if m.get("version") != SESSION_VERSION:
+        raise SessionError(f"{source}: session format version {m.get('version')!r} is not supported "
+                           f"(this bodystudio reads version {SESSION_VERSION}); upgrade bodystudio or re-import")
+    for key, kind in (("cameras", list), ("frames", list), ("streams", list), ("files", dict)):
+        if not isinstance(m.get(key), kind):
+            raise SessionError(f"{source}: manifest field {key!r} is missing or not a {kind.__name__}")
+    if CAMERAS_JSON not in m["files"]:
+        raise SessionError(f"{source}: lists no {CAMERAS_JSON}; every session needs the studio calibration")
+
+
+def recover_session(path: str | os.PathLike) -> str:
+    """Finish a write interrupted after its commit point, or discard one interrupted before it."""
+    path = Path(path)
+    staging = path / STAGING
+    if not staging.is_dir():
+        return "nothing to recover"
+    commit = staging / COMMIT
+    if commit.is_file():
+        plan = read_json(commit, "session commit record")
+        _apply_commit(path, plan)
+        return f"completed the interrupted write ({len(plan['moves'])} files)"
+    n = sum(1 for p in staging.rglob("*") if p.is_file())
+    shutil.rmtree(staging)
+    return f"discarded an uncommitted write ({n} files)"
+
+
+def _apply_commit(path: Path, plan: dict) -> None:
+    staging = path / STAGING
+    for rel in plan["moves"]:
+        src, dst = staging / rel, path / rel
+        if src.is_file():  # already moved when a previous recovery ran
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(src, dst)
+    for rel in plan.get("deletes", []):
+        (path / rel).unlink(missing_ok=True)
+    with atomic_write(path / MANIFEST, "wb") as f:
+        f.write(_json_bytes(plan["manifest"]))
+    shutil.rmtree(staging)
+
+
+# ---------------------------------------------------------------------------------------------- writing
+
+@dataclass
+class SessionWriter:
+    """Write a new session, or update an existing one (``update=True``), frame by frame.
+
+    >>> with SessionWriter(out, rig, source="synthetic") as w:
+    ...     w.write_image("cam_00", 0, rgb)
+    ...     w.write_mask("cam_00", 0, mask)
+
+    Nothing becomes visible before :meth:`commit` (called on a clean exit of the ``with`` block); an
+    exception inside the block leaves the previous state and the staged files for inspection.
+    """
+
+    path: Path
+    cameras: Any = None  # CameraRig; required for a new session
+    source: str = "import"
+    update: bool = False
+    metadata: dict = field(default_factory=dict)
+    _manifest: dict = field(init=False, repr=False)
+    _staged: dict = field(init=False, repr=False, default_factory=dict)
+    _deletes: set = field(init=False, repr=False, default_factory=set)
+
+    def __post_init__(self):
+        self.path = Path(self.path)
+        if (self.path / STAGING).exists():
+            raise SessionError(f"{self.path / STAGING}: another write is in progress or was interrupted; run "
+                               f"`bodystudio capture recover {self.path}` first")
+        if self.update:
+            self._manifest = json.loads(json.dumps(open_session(self.path).manifest))
+            self._manifest.setdefault("metadata", {}).update(self.metadata)
+        else:
+            if (self.path / MANIFEST).exists():
+                raise SessionError(f"{self.path}: already holds a session; choose a new folder or delete it")
+            if self.cameras is None:
+                raise ValueError("a new session needs its cameras (CameraRig)")
+            names = list(self.cameras.cameras)
+            for name in names:
+                if not _NAME.match(name):
+                    raise SessionError(f"camera name {name!r} cannot be a folder name; use letters, digits, _ . -")
+            self._manifest = {"format": SESSION_FORMAT, "version": SESSION_VERSION, "source": self.source,
+                              "cameras": names, "frames": [], "streams": [], "files": {},
+                              "metadata": dict(self.metadata)}
+            self._stage(CAMERAS_JSON, _json_bytes(self.cameras.to_dict()))
+        (self.path / STAGING).mkdir(parents=True, exist_ok=True)
+
+    def __enter__(self) -> SessionWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.commit()
+
+    @property
+    def camera_names(self) -> list[str]:
+        return list(self._manifest["cameras"])
+
+    def _stage(self, rel: str, data: bytes, stream: str | None = None, frame: int | None = None) -> None:
+        with atomic_write(self.path / STAGING / rel, "wb") as f:
+            f.write(data)
+        self._staged[rel] = sha256_bytes(data)
+        if stream is not None and stream not in self._manifest["streams"]:
+            self._manifest["streams"].append(stream)
+        if frame is not None and frame not in self._manifest["frames"]:
+            self._manifest["frames"].append(int(frame))
+
+    def _check_camera(self, camera: str) -> None:
+        if camera not in self._manifest["cameras"]:
+            raise SessionError(f"camera {camera!r} is not in this session's calibration "
+                               f"({', '.join(self._manifest['cameras'])})")
+
+    def write_image(self, camera: str, frame: int, rgb: np.ndarray) -> None:
+        self._check_camera(camera)
+        self._stage(stream_path("rgb", frame, camera), encode_png(rgb, f"{camera} frame {frame}"), "rgb", frame)
+
+    def write_mask(self, camera: str, frame: int, mask: np.ndarray, ground_truth: bool = False) -> None:
+        self._check_camera(camera)
+        m = (np.asarray(mask) > 0).astype(np.uint8) * 255
+        stream = "gt_mask" if ground_truth else "mask"
+        self._stage(stream_path(stream, frame, camera), encode_png(m), stream, frame)
+
+    def write_background(self, camera: str, index: int, rgb: np.ndarray) -> None:
+        self._check_camera(camera)
+        self._stage(BACKGROUND.format(cam=camera, index=index), encode_png(rgb), "background")
+
+    def write_kinect_calibration(self, sensor) -> None:
+        """The RGB-D sensor (RGBDSensor: depth and colour cameras in the studio frame)."""
+        self._stage(KINECT_CALIBRATION, _json_bytes(kinect_calibration_to_dict(sensor)))
+
+    def write_kinect_depth(self, frame: int, depth_m: np.ndarray) -> None:
+        self._stage(stream_path("kinect_depth", frame), encode_png(depth_to_png_mm(depth_m)), "kinect_depth", frame)
+
+    def write_kinect_rgb(self, frame: int, rgb: np.ndarray) -> None:
+        self._stage(stream_path("kinect_rgb", frame), encode_png(rgb), "kinect_rgb", frame)
+
+    def write_kinect_joints(self, frame: int, names: list[str], positions: np.ndarray,
+                            tracked: np.ndarray | None = None, joint_set: str | None = None) -> None:
+        positions = np.asarray(positions, dtype=np.float64).reshape(len(names), 3)
+        data = {"joint_set": joint_set, "frame": "studio", "unit": "m", "names": list(names),
+                "positions": positions,
+                "tracked": (np.ones(len(names), bool) if tracked is None else np.asarray(tracked, bool)).tolist()}
+        self._stage(stream_path("kinect_joints", frame), _json_bytes(data), "kinect_joints", frame)
+
+    def write_gt_subject(self, phenotype: dict, local: dict, **extra) -> None:
+        self._stage(GT_PHENOTYPE, _json_bytes({"phenotype": phenotype, "local": local, **extra}))
+
+    def write_gt_mesh(self, frame: int, V: np.ndarray, F: np.ndarray) -> None:
+        self._stage(stream_path("gt_mesh", frame), mesh_ply_bytes(V, F), "gt_mesh", frame)
+
+    def write_gt_joints(self, frame: int, bone_names, heads: np.ndarray, tails: np.ndarray) -> None:
+        data = {"bone_names": list(bone_names), "heads": np.asarray(heads), "tails": np.asarray(tails)}
+        self._stage(stream_path("gt_joints", frame), _json_bytes(data), "gt_joints", frame)
+
+    def write_gt_pose(self, frame: int, pose, bone_names) -> None:
+        from bodystudio.body.pose import pose_to_dict
+
+        data = {**pose_to_dict(pose, tuple(bone_names)), "bone_names": list(bone_names)}
+        self._stage(stream_path("gt_pose", frame), _json_bytes(data), "gt_pose", frame)
+
+    def commit(self) -> Session:
+        """Make the staged files visible: commit record, moves, manifest last. Returns the opened session."""
+        manifest = self._manifest
+        manifest["frames"] = sorted(manifest["frames"])
+        manifest["files"] = {**manifest["files"], **self._staged}
+        manifest["files"] = dict(sorted(manifest["files"].items()))
+        plan = {"moves": sorted(self._staged), "deletes": sorted(self._deletes), "manifest": manifest}
+        with atomic_write(self.path / STAGING / COMMIT, "wb") as f:
+            f.write(_json_bytes(plan))
+        _apply_commit(self.path, plan)
+        self._staged = {}
+        return open_session(self.path)
