@@ -1,0 +1,225 @@
+"""Whole scenes for what ``bodystudio view`` opens: a mesh or scan, a rigged avatar, a capture session.
+
+``open_viewable(path)`` decides what a path is (one-line errors otherwise); ``build_view`` turns it into
+a plotter; the ``scene_for_*`` functions are the pieces, usable on any plotter without a window.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bodystudio.errors import FileFormatError, InputError, SessionError
+from bodystudio.geometry.mesh import MESH_SUFFIXES, Mesh, load_mesh
+from bodystudio.viewer import scene as sc
+from bodystudio.viewer.avatar import Avatar, glb_has_skin, load_avatar
+
+log = logging.getLogger(__name__)
+
+SESSION_MANIFEST = "session.json"
+IMAGE_LAYERS = ("image", "mask", "none")
+MAX_TEXTURE_WIDTH = 320  # camera images are shown small; keeps the HTML export light
+
+
+@dataclass(frozen=True)
+class Viewable:
+    """What a path holds: ``kind`` is ``mesh``, ``avatar`` or ``session``; ``data`` the loaded object."""
+
+    path: Path
+    kind: str
+    data: Any
+
+
+def open_viewable(path: str | Path) -> Viewable:
+    """Open a session folder, a mesh/scan (PLY, OBJ, STL, OFF, GLB) or a skinned avatar (.glb)."""
+    path = Path(path)
+    if path.is_dir():
+        if not (path / SESSION_MANIFEST).is_file():
+            raise SessionError(f"{path}: not a session folder (no {SESSION_MANIFEST}); give a session folder "
+                               f"or a mesh file ({', '.join(MESH_SUFFIXES)})")
+        from bodystudio.capture.session import open_session
+
+        return Viewable(path, "session", open_session(path))
+    if not path.exists():
+        raise InputError(f"{path}: no such file or folder; give a session folder or a mesh file")
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        raise FileFormatError(f"{path}: not a session folder or mesh; give a session folder or a mesh file "
+                              f"({', '.join(MESH_SUFFIXES)})")
+    if suffix in (".glb", ".gltf") and glb_has_skin(path):
+        return Viewable(path, "avatar", load_avatar(path))
+    return Viewable(path, "mesh", load_mesh(path))
+
+
+def scene_for_mesh(mesh: Mesh, plotter=None, reference: Mesh | None = None, title: str | None = None,
+                   key_help: bool = True, floor: bool = True):
+    """A mesh or scan; with ``reference`` (ground truth) it is coloured by its distance to it in mm."""
+    plotter = plotter if plotter is not None else sc.make_plotter()
+    if reference is not None:
+        sc.add_mesh(plotter, reference, color=sc.GT_COLOR, opacity=0.25, name="reference")
+        sc.add_error_map(plotter, mesh, sc.vertex_errors_mm(mesh.vertices, reference))
+    else:
+        sc.add_mesh(plotter, mesh)
+    if floor and mesh.n_vertices:
+        sc.add_floor(plotter, mesh.bounds.mean(0), size=max(2.0, 1.5 * float(np.ptp(mesh.vertices[:, 0]))))
+    if title:
+        sc.add_title(plotter, title)
+    if key_help:
+        sc.add_key_help(plotter)
+    sc.frame_front(plotter, mesh.bounds)
+    return plotter
+
+
+def scene_for_avatar(avatar: Avatar, plotter=None, bone: str | None = None, skeleton: bool = True,
+                     title: str | None = None, key_help: bool = True):
+    """A rigged avatar: skin (translucent, or the weights of ``bone``) with bones and joints."""
+    plotter = plotter if plotter is not None else sc.make_plotter()
+    if bone is not None:
+        sc.add_skin_weights(plotter, avatar.mesh, avatar.weights, avatar.bone_names, bone)
+    else:
+        sc.add_mesh(plotter, avatar.mesh, opacity=0.45 if skeleton else 1.0)
+    if skeleton:
+        sc.add_skeleton(plotter, avatar.heads, avatar.tails)
+    sc.add_floor(plotter, avatar.mesh.bounds.mean(0))
+    if title:
+        sc.add_title(plotter, title)
+    if key_help:
+        sc.add_key_help(plotter)
+    sc.frame_front(plotter, avatar.mesh.bounds)
+    return plotter
+
+
+def _downsample(image: np.ndarray) -> np.ndarray:
+    step = max(1, int(np.ceil(image.shape[1] / MAX_TEXTURE_WIDTH)))
+    return image[::step, ::step]
+
+
+def kinect_points(session, frame, stride: int = 4) -> np.ndarray:
+    """The frame's Kinect depth back-projected to studio-frame points (every ``stride``-th pixel)."""
+    depth = frame.kinect_depth_m
+    sensor = session.kinect
+    if depth is None or sensor is None:
+        return np.zeros((0, 3))
+    v, u = np.mgrid[0:depth.shape[0]:stride, 0:depth.shape[1]:stride]
+    d = depth[v, u].ravel()
+    ok = d > 0
+    uv = np.c_[u.ravel(), v.ravel()][ok].astype(np.float64)
+    return sensor.depth.unproject(uv, d[ok])
+
+
+def reconstructed_mesh_path(session_path: Path, frame_id: int) -> Path | None:
+    """The reconstruct stage's mesh of a frame: ``reconstruct/**/<name ending in the frame number>.ply``."""
+    folder = Path(session_path) / "reconstruct"
+    if not folder.is_dir():
+        return None
+    for p in sorted(folder.rglob("*")):
+        m = re.search(r"(\d+)$", p.stem)
+        if p.suffix.lower() in (".ply", ".obj") and m and int(m.group(1)) == frame_id:
+            return p
+    return None
+
+
+def _session_bounds(session, gt: Mesh | None) -> np.ndarray:
+    if gt is not None:
+        return gt.bounds
+    return np.array([[-0.5, 0.0, -0.5], [0.5, 1.9, 0.5]])
+
+
+def scene_for_frame(session, frame_id: int, plotter, images: str = "image", cloud: bool = True,
+                    skeleton: bool = True):
+    """The per-frame layers of a session (replaced when the time slider moves)."""
+    if images not in IMAGE_LAYERS:
+        raise InputError(f"unknown image layer {images!r}; valid: {', '.join(IMAGE_LAYERS)}")
+    frame = session.frame(frame_id)
+    rig = session.cameras
+    for cam in rig:
+        picture = None
+        if images == "image" and cam.name in frame.images:
+            picture = _downsample(frame.images[cam.name])
+        elif images == "mask" and cam.name in frame.masks:
+            picture = _downsample(frame.masks[cam.name])
+        if picture is not None:
+            sc.add_camera(plotter, cam, picture, far=0.35)
+    gt = frame.gt_mesh
+    recon_path = reconstructed_mesh_path(session.path, frame_id)
+    recon = load_mesh(recon_path) if recon_path is not None else None
+    if recon is not None and gt is not None:
+        sc.add_mesh(plotter, gt, color=sc.GT_COLOR, opacity=0.25, name="gt")
+        sc.add_error_map(plotter, recon, sc.vertex_errors_mm(recon.vertices, gt), name="recon")
+    elif recon is not None:
+        sc.add_mesh(plotter, recon, name="recon")
+    elif gt is not None:
+        sc.add_mesh(plotter, gt, color=sc.GT_COLOR, name="gt")
+    else:
+        plotter.remove_actor("gt")
+        plotter.remove_actor("recon")
+    if cloud:
+        sc.add_point_cloud(plotter, kinect_points(session, frame), point_size=2.0, name="kinect")
+    joints = frame.gt_joints
+    if skeleton and joints is not None:
+        sc.add_skeleton(plotter, joints["heads"], joints["tails"], radius=0.005, name="gt-skeleton")
+    return plotter
+
+
+def scene_for_session(session, frame_id: int | None = None, plotter=None, images: str = "image",
+                      cloud: bool = True, skeleton: bool = True, title: str | None = None, key_help: bool = True):
+    """A capture session at one frame: camera frusta with their images (or silhouettes), the Kinect point
+    cloud, the ground-truth mesh and skeleton, and the reconstruction coloured by its error in mm."""
+    if not session.frame_ids:
+        raise SessionError(f"{session.path}: the session has no frames; regenerate or re-import it")
+    frame_id = session.frame_ids[0] if frame_id is None else int(frame_id)
+    plotter = plotter if plotter is not None else sc.make_plotter()
+    for cam in session.cameras:  # frusta stay when frames change
+        sc.add_camera(plotter, cam, None, far=0.35)
+    scene_for_frame(session, frame_id, plotter, images, cloud, skeleton)
+    gt = session.frame(frame_id).gt_mesh
+    sc.add_floor(plotter, _session_bounds(session, gt).mean(0), size=4.0)
+    sc.add_title(plotter, title or f"{session.path.name}  frame {frame_id}")
+    if key_help:
+        sc.add_key_help(plotter, sc.KEY_HELP + ("\nslider: frame" if len(session.frame_ids) > 1 else ""))
+    centers = np.array([c.center for c in session.cameras]) if len(session.cameras) else np.zeros((0, 3))
+    b = _session_bounds(session, gt)
+    if len(centers):
+        b = np.array([np.minimum(b[0], centers.min(0)), np.maximum(b[1], centers.max(0))])
+    sc.frame_front(plotter, b, direction=(0.3, 0.6, 1.0))
+    return plotter
+
+
+def add_time_slider(plotter, session, images: str = "image", cloud: bool = True, skeleton: bool = True):
+    """A slider over the session's frames that swaps the per-frame layers (interactive windows)."""
+    ids = session.frame_ids
+    if len(ids) < 2:
+        return plotter
+
+    def on_change(value: float) -> None:
+        k = int(np.argmin(np.abs(np.asarray(ids) - value)))
+        scene_for_frame(session, ids[k], plotter, images, cloud, skeleton)
+        sc.add_title(plotter, f"{session.path.name}  frame {ids[k]}")
+
+    plotter.add_slider_widget(on_change, [ids[0], ids[-1]], value=ids[0], title="frame", fmt="%.0f",
+                              pointa=(0.25, 0.92), pointb=(0.75, 0.92), style="modern")
+    return plotter
+
+
+def build_view(path: str | Path, bone: str | None = None, frame: int | None = None, images: str = "image",
+               off_screen: bool = True, window_size: tuple[int, int] = sc.WINDOW_SIZE, reference: str | Path | None = None):
+    """The plotter ``bodystudio view`` shows for a path (session, mesh, scan or avatar)."""
+    item = open_viewable(path)
+    plotter = sc.make_plotter(off_screen=off_screen, window_size=window_size)
+    if item.kind == "session":
+        scene_for_session(item.data, frame, plotter, images=images)
+        if not off_screen:
+            add_time_slider(plotter, item.data, images=images)
+    elif item.kind == "avatar":
+        scene_for_avatar(item.data, plotter, bone=bone, title=item.path.name)
+    else:
+        if bone is not None:
+            raise InputError(f"{item.path}: --bone needs an avatar (a skinned .glb), this is a plain mesh")
+        ref = load_mesh(reference) if reference is not None else None
+        scene_for_mesh(item.data, plotter, reference=ref, title=item.path.name)
+    return plotter
