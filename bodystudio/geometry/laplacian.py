@@ -1,0 +1,77 @@
+"""Cotangent-weighted delta coordinates (Laplacian mesh editing, Sorkine et al. 2004; Rapid Skin §III.B).
+
+Weights come from libigl's cotangent matrix, clamped to be non-negative (obtuse triangles give negative
+cotangents, which would let a vertex's delta coordinate point outside its 1-ring) and normalised so
+that each row sums to one, as Eq. 8 of Rapid Skin asks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import igl
+import numpy as np
+import scipy.sparse as sp
+
+#: Relative floor of a cotangent weight (fraction of the row's mean), keeps every 1-ring edge alive.
+_WEIGHT_FLOOR = 1e-3
+
+
+@dataclass(frozen=True, eq=False)
+class DeltaOperator:
+    """Row-normalised cotangent weights in CSR form: ``delta_i = v_i - sum_j w_ij v_j``."""
+
+    indptr: np.ndarray  # (n + 1,) int64
+    indices: np.ndarray  # (nnz,) int64 neighbour ids
+    weights: np.ndarray  # (nnz,) float64, each row sums to 1
+    reverse: np.ndarray  # (nnz,) position of entry (j, i) for entry (i, j)
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.indptr) - 1
+
+    @property
+    def matrix(self) -> sp.csr_matrix:
+        """``L = I - W`` with ``W`` the normalised weights, so ``L @ V`` are the delta coordinates."""
+        n = self.n_vertices
+        W = sp.csr_matrix((self.weights, self.indices, self.indptr), shape=(n, n))
+        return (sp.identity(n, format="csr") - W).tocsr()
+
+    def apply(self, V: np.ndarray) -> np.ndarray:
+        """Delta coordinates ``(n, 3)`` of vertex positions ``V``, Eq. 8 of Rapid Skin."""
+        return self.matrix @ V
+
+
+def cotangent_weights(V: np.ndarray, F: np.ndarray) -> DeltaOperator:
+    """Cotangent weights of every 1-ring, normalised to sum 1 (Eq. 8 of Rapid Skin)."""
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    C = sp.csr_matrix(igl.cotmatrix(V, F))
+    C.setdiag(0.0)
+    C.eliminate_zeros()
+    # The adjacency structure comes from the faces, so zero-cotangent edges keep their entry.
+    A = sp.csr_matrix(igl.adjacency_matrix(F).astype(np.float64))
+    C = (A.multiply(1e-30) + C.maximum(0.0)).tocsr()
+    C.sort_indices()
+    n = len(V)
+    indptr = C.indptr.astype(np.int64)
+    indices = C.indices.astype(np.int64)
+    w = C.data.astype(np.float64)
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    row_sum = np.bincount(rows, weights=w, minlength=n)
+    row_count = np.maximum(np.diff(indptr), 1)
+    floor = _WEIGHT_FLOOR * (row_sum / row_count)
+    w = np.maximum(w, floor[rows])
+    w /= np.bincount(rows, weights=w, minlength=n)[rows]
+    # Entry (j, i) for each (i, j): the adjacency is symmetric, so sorting keys finds it.
+    key = rows * n + indices
+    rkey = indices * n + rows
+    order = np.argsort(key)
+    reverse = order[np.searchsorted(key[order], rkey)]
+    return DeltaOperator(indptr, indices, w, reverse.astype(np.int64))
+
+
+def cotangent_delta_coordinates(V: np.ndarray, F: np.ndarray) -> tuple[DeltaOperator, np.ndarray]:
+    """Normalised cotangent weights and the delta coordinates ``(n, 3)`` of ``V``, Eq. 8 of Rapid Skin."""
+    op = cotangent_weights(V, F)
+    return op, op.apply(np.asarray(V, dtype=np.float64))

@@ -1,0 +1,168 @@
+"""Pose and size initialisation from 3D joint positions, Rapid Skin §IV.A-B (Eq. 11-12).
+
+A global similarity ``T_G`` (rotation, uniform scale, translation; Umeyama 1991) aligns the template's
+upper-body joints with the tracked ones. Down each kinematic chain, a local transform ``T_L_k``
+rotates the template bone about its (already placed) parent joint onto the tracked child joint and
+stretches it along its axis to the tracked length (Fig. 4a), so the template adopts the user's bone
+lengths. Bones are transformed by ``T_k = (prod T_L along the chain) T_G`` (Eq. 11) and the skin by
+linear blend skinning (Eq. 12).
+
+Joints are Kinect v2 tracker joints (``bodystudio.body.kinect``); missing or untracked joints are NaN
+and their segments follow the parent's transform.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bodystudio.body.kinect import kinect_joint_names, kinect_joints
+from bodystudio.body.skinning import linear_blend_skinning
+from bodystudio.errors import InputError
+
+#: Upper-body joints fitted by the global transform T_G.
+TORSO_JOINTS = ("SpineBase", "SpineMid", "SpineShoulder", "Neck", "ShoulderLeft", "ShoulderRight", "HipLeft",
+                "HipRight")
+
+#: Limb segments (bones moved together, parent joint, child joint), in kinematic-chain order.
+SEGMENTS = (
+    (("spine_01",), "SpineBase", "SpineMid"),
+    (("spine_02", "spine_03"), "SpineMid", "SpineShoulder"),
+    (("neck_01", "head"), "Neck", "Head"),
+    (("clavicle_l",), "SpineShoulder", "ShoulderLeft"),
+    (("clavicle_r",), "SpineShoulder", "ShoulderRight"),
+    (("upperarm_l",), "ShoulderLeft", "ElbowLeft"),
+    (("upperarm_r",), "ShoulderRight", "ElbowRight"),
+    (("lowerarm_l",), "ElbowLeft", "WristLeft"),
+    (("lowerarm_r",), "ElbowRight", "WristRight"),
+    (("hand_l",), "WristLeft", "HandTipLeft"),
+    (("hand_r",), "WristRight", "HandTipRight"),
+    (("thigh_l",), "HipLeft", "KneeLeft"),
+    (("thigh_r",), "HipRight", "KneeRight"),
+    (("calf_l",), "KneeLeft", "AnkleLeft"),
+    (("calf_r",), "KneeRight", "AnkleRight"),
+    (("foot_l",), "AnkleLeft", "FootLeft"),
+    (("foot_r",), "AnkleRight", "FootRight"),
+)
+
+_SCALE_RANGE = (0.6, 1.6)
+
+
+@dataclass(frozen=True, eq=False)
+class PoseInit:
+    """The posed, resized template: vertices, per-bone transforms (B, 4, 4) and its tracker joints."""
+
+    vertices: np.ndarray
+    bone_transforms: np.ndarray
+    joints: np.ndarray  # (J, 3) template Kinect joints after the transform
+    global_scale: float
+
+
+def similarity_transform(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Least-squares rotation, uniform scale and translation (4x4) mapping ``src`` onto ``dst`` (Umeyama)."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    a, b = src - mu_s, dst - mu_d
+    U, S, Vt = np.linalg.svd(b.T @ a / len(src))
+    D = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        D[2, 2] = -1.0
+    R = U @ D @ Vt
+    var = np.sum(a * a) / len(src)
+    s = float(np.trace(np.diag(S) @ D) / var) if var > 0 else 1.0
+    T = np.eye(4)
+    T[:3, :3] = s * R
+    T[:3, 3] = mu_d - s * R @ mu_s
+    return T
+
+
+def _rotation_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Smallest rotation taking unit vector ``u`` to unit vector ``v``."""
+    w = np.cross(u, v)
+    c = float(np.dot(u, v))
+    if c < -1.0 + 1e-9:
+        axis = np.cross(u, [1.0, 0, 0]) if abs(u[0]) < 0.9 else np.cross(u, [0, 1.0, 0])
+        axis /= np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    return np.eye(3) + K + K @ K / (1.0 + c)
+
+
+def _apply(T: np.ndarray, p: np.ndarray) -> np.ndarray:
+    return T[:3, :3] @ p + T[:3, 3]
+
+
+def limb_transform(parent: np.ndarray, a0: np.ndarray, b0: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Local limb transform of Fig. 4a: rotate and stretch the bone ``a0 -> b0`` (after ``parent``)
+    about its placed parent joint so that its end lands on the tracked joint ``b``; returns ``T_L T_parent``."""
+    a_p, b_p = _apply(parent, a0), _apply(parent, b0)
+    rest = b_p - a_p
+    target = b - a_p
+    lr, lt = np.linalg.norm(rest), np.linalg.norm(target)
+    if lr < 1e-9 or lt < 1e-9:
+        return parent
+    u, v = rest / lr, target / lt
+    s = float(np.clip(lt / lr, *_SCALE_RANGE))
+    M = _rotation_between(u, v) @ (np.eye(3) + (s - 1.0) * np.outer(u, u))
+    TL = np.eye(4)
+    TL[:3, :3] = M
+    TL[:3, 3] = a_p - M @ a_p
+    return TL @ parent
+
+
+def joints_from_mapping(joints: dict, names: list[str]) -> np.ndarray:
+    """``(J, 3)`` array in ``names`` order from a name -> xyz mapping; missing or non-finite joints are NaN."""
+    out = np.full((len(names), 3), np.nan)
+    for k, name in enumerate(names):
+        if name in joints and joints[name] is not None:
+            p = np.asarray(joints[name], dtype=np.float64).reshape(-1)
+            if p.shape == (3,) and np.all(np.isfinite(p)):
+                out[k] = p
+    return out
+
+
+def initialise_pose(body, joints: np.ndarray, version: str = "v2") -> PoseInit:
+    """Pose and resize the template ``body`` to tracked joints ``(J, 3)`` (NaN = untracked), Eq. 11-12."""
+    names = kinect_joint_names(version)
+    joints = np.asarray(joints, dtype=np.float64)
+    if joints.shape != (len(names), 3):
+        raise InputError(f"pose initialisation needs {len(names)} Kinect {version} joints (J, 3), got {joints.shape}")
+    valid = np.all(np.isfinite(joints), axis=1)
+    index = {n: i for i, n in enumerate(names)}
+    skel = body.skeleton
+    rest = kinect_joints(skel, skel.heads, skel.tails, version)
+    torso = [index[n] for n in TORSO_JOINTS if n in index and valid[index[n]]]
+    if len(torso) < 3:
+        raise InputError(f"no valid joints: pose initialisation needs at least 3 tracked upper-body joints "
+                         f"({', '.join(TORSO_JOINTS)}), got {len(torso)}")
+    TG = similarity_transform(rest[torso], joints[torso])
+    B = skel.n_bones
+    driver = {}
+    for bones, a, b in SEGMENTS:
+        if a in index and b in index:
+            for bone in bones:
+                if bone in skel.bone_names:
+                    driver[skel.bone_names.index(bone)] = (bones, index[a], index[b])
+    T = np.empty((B, 4, 4))
+    done = {}
+    for j in range(B):
+        p = skel.parents[j]
+        parent = TG if p < 0 else T[p]
+        seg = driver.get(j)
+        if seg is None:
+            T[j] = TG if p < 0 else parent
+            continue
+        bones, ia, ib = seg
+        if bones in done:  # later bones of a multi-bone segment share its transform
+            T[j] = done[bones]
+            continue
+        if valid[ib]:
+            T[j] = limb_transform(parent, rest[ia], rest[ib], joints[ib])
+        else:
+            T[j] = parent
+        done[bones] = T[j]
+    V = linear_blend_skinning(body.vertices, body.weights, T)
+    heads = np.einsum("bij,bj->bi", T[:, :3, :3], skel.heads) + T[:, :3, 3]
+    tails = np.einsum("bij,bj->bi", T[:, :3, :3], skel.tails) + T[:, :3, 3]
+    posed = kinect_joints(skel, heads, tails, version)
+    return PoseInit(V, T, posed, float(np.cbrt(np.linalg.det(TG[:3, :3]))))

@@ -1,0 +1,124 @@
+"""Rapid Skin's per-frame shape estimation: Algorithm 1 (§III.C) around the constraint solver.
+
+Line 1 computes the delta coordinates of the initial (posed) template; each of the ``No`` outer
+iterations recomputes normals, re-matches rim vertices with the silhouette contours (and, when asked,
+vertices with Kinect depth points) and runs ``Ni`` inner iterations of the chosen solver. Solver and
+matching times are kept apart, as in the paper's Fig. 9.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bodystudio.errors import InputError
+from bodystudio.geometry.laplacian import DeltaOperator, cotangent_delta_coordinates
+from bodystudio.geometry.mesh import vertex_normals
+from bodystudio.reconstruct.depth import DepthObservation, depth_constraints
+from bodystudio.reconstruct.silhouette import check_masks, silhouette_constraints
+from bodystudio.reconstruct.solver import (
+    SOLVERS,
+    ConstraintSet,
+    DepthConstraints,
+    SilhouetteConstraints,
+    laplacian_gram_matrix,
+    solve_constraints,
+)
+
+CONSTRAINT_KINDS = ("silhouette", "depth")
+
+
+@dataclass(frozen=True)
+class RapidSkinParams:
+    """Algorithm 1 settings; defaults are the paper's for 640x480 images (§V.A)."""
+
+    outer_iterations: int = 8
+    inner_iterations: int = 8
+    tau_px: float = 30.0
+    alpha_px: float = 40.0
+    rim_cos: float = 0.2
+    solver: str = "gs"
+    constraints: tuple[str, ...] = ("silhouette",)
+    depth_sigma_m: float = 0.02
+    depth_max_m: float = 0.05
+    jacobi_iterations_factor: int = 4
+
+    def __post_init__(self):
+        if self.solver not in SOLVERS:
+            raise InputError(f"unknown solver {self.solver!r}; valid: {', '.join(SOLVERS)}")
+        bad = [c for c in self.constraints if c not in CONSTRAINT_KINDS]
+        if bad or not self.constraints:
+            raise InputError(f"constraints must be a non-empty subset of {', '.join(CONSTRAINT_KINDS)}, "
+                             f"got {','.join(self.constraints) or 'nothing'}")
+        if self.outer_iterations < 1 or self.inner_iterations < 1:
+            raise InputError("outer and inner iterations must be >= 1")
+
+
+@dataclass
+class DeformResult:
+    """Deformed vertices plus timings (seconds) and per-outer-iteration constraint counts."""
+
+    vertices: np.ndarray
+    solver_s: float = 0.0
+    matching_s: float = 0.0
+    n_silhouette: list = field(default_factory=list)
+    n_depth: list = field(default_factory=list)
+
+
+def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: dict | None,
+                           params: RapidSkinParams = RapidSkinParams(), depth: DepthObservation | None = None,
+                           delta: DeltaOperator | None = None, laplacian_gram=None,
+                           callback=None) -> DeformResult:
+    """Algorithm 1 of Rapid Skin: deform ``V_init`` until its rims match the silhouettes in ``masks``.
+
+    ``cameras`` is an iterable of ``Camera``; ``masks`` maps camera names to ``(H, W)`` silhouettes.
+    ``depth`` adds point-to-plane constraints when ``"depth"`` is in ``params.constraints``.
+    ``callback(outer, V)`` sees the mesh after every outer iteration.
+    """
+    cameras = list(cameras)
+    use_sil = "silhouette" in params.constraints
+    use_depth = "depth" in params.constraints
+    if use_sil:
+        if masks is None:
+            raise InputError("silhouette constraints need masks")
+        check_masks(masks, cameras)
+    if use_depth and depth is None:
+        raise InputError("depth constraints need a Kinect depth observation; the session has none "
+                         "(use --constraints silhouette)")
+    V = np.array(V_init, dtype=np.float64)
+    if delta is None:
+        delta, delta_rest = cotangent_delta_coordinates(V, F)
+    else:
+        delta_rest = delta.apply(V)
+    if params.solver in ("cholesky", "cg") and laplacian_gram is None:
+        t0 = time.perf_counter()
+        laplacian_gram = laplacian_gram_matrix(delta)
+        solver_s = time.perf_counter() - t0
+    else:
+        solver_s = 0.0
+    result = DeformResult(V)
+    result.solver_s = solver_s
+    inner = params.inner_iterations
+    if params.solver == "jacobi":
+        inner *= params.jacobi_iterations_factor
+    for outer in range(params.outer_iterations):
+        t0 = time.perf_counter()
+        N = vertex_normals(V, F)
+        sil = (silhouette_constraints(V, F, N, cameras, masks, params.tau_px, params.alpha_px, params.rim_cos)
+               if use_sil else SilhouetteConstraints.empty())
+        dep = (depth_constraints(V, N, depth, params.depth_sigma_m, params.depth_max_m)
+               if use_depth else DepthConstraints.empty())
+        t1 = time.perf_counter()
+        cs = ConstraintSet(delta, delta_rest, sil, dep)
+        V = solve_constraints(V, cs, params.solver, inner, laplacian_gram)
+        t2 = time.perf_counter()
+        result.matching_s += t1 - t0
+        result.solver_s += t2 - t1
+        result.n_silhouette.append(len(sil))
+        result.n_depth.append(len(dep))
+        if callback is not None:
+            callback(outer + 1, V)
+    result.vertices = V
+    return result

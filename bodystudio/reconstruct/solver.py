@@ -1,0 +1,397 @@
+"""The constraint solver of Rapid Skin §III.A/C (Algorithm 1, lines 4-8) and the §V linear baselines.
+
+Constraints on the vertices ``V``:
+
+* smoothness ``C_sm_i = sum_j w_ij (v_i - v_j) - delta_i`` (Eq. 9, cotangent weights summing to 1);
+* silhouette ``C_sil_j = d_pl(R_j, v_i)``: distance of vertex ``i`` to the viewing ray ``R_j`` (Eq. 7);
+* depth ``C_d = n . (v_i - q)``: point-to-plane distance to a Kinect depth point (our extension).
+
+``gauss_seidel`` projects them one after the other with the Newton step of Eq. 3-4 and the
+per-projection weight ``k' = 1 - (1 - k)^(1/Ni)``; ``jacobi`` computes every step from the same
+positions and averages them per vertex (the paper's parallel/GPU path). ``cholesky`` and
+``conjugate_gradient`` minimise the same energy ``sum k ||C||^2`` as linear Laplacian mesh editing
+(LME) over all 3n coordinates (a ray constraint couples x, y and z).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from bodystudio.errors import InputError
+from bodystudio.geometry.laplacian import DeltaOperator
+
+SOLVERS = ("gs", "jacobi", "cholesky", "cg")
+
+
+@dataclass(frozen=True, eq=False)
+class SilhouetteConstraints:
+    """Rim-vertex / viewing-ray pairs: vertex ids, ray origins and unit directions, weights ``k_sil``."""
+
+    vertex: np.ndarray  # (m,) int64
+    origin: np.ndarray  # (m, 3)
+    direction: np.ndarray  # (m, 3) unit
+    k: np.ndarray  # (m,) Eq. 10 weights in [0, 1]
+    camera: np.ndarray | None = None  # (m,) camera index, for reports
+    pixel_distance: np.ndarray | None = None  # (m,) initial |v_c - p_c| in pixels
+
+    def __len__(self) -> int:
+        return len(self.vertex)
+
+    @classmethod
+    def empty(cls) -> SilhouetteConstraints:
+        return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
+                   np.zeros(0, np.int64), np.zeros(0))
+
+
+@dataclass(frozen=True, eq=False)
+class DepthConstraints:
+    """Vertex / oriented depth point pairs for point-to-plane constraints."""
+
+    vertex: np.ndarray  # (m,) int64
+    point: np.ndarray  # (m, 3)
+    normal: np.ndarray  # (m, 3) unit
+    k: np.ndarray  # (m,)
+
+    def __len__(self) -> int:
+        return len(self.vertex)
+
+    @classmethod
+    def empty(cls) -> DepthConstraints:
+        return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+
+
+@dataclass(frozen=True, eq=False)
+class ConstraintSet:
+    """Everything one inner solve sees (Algorithm 1, line 3 output)."""
+
+    delta: DeltaOperator
+    delta_rest: np.ndarray  # (n, 3) delta coordinates of the initial mesh
+    silhouette: SilhouetteConstraints
+    depth: DepthConstraints
+    k_sm: float = 1.0
+
+
+def projection_weight(k: np.ndarray | float, inner_iterations: int) -> np.ndarray:
+    """Per-projection weight ``k' = 1 - (1 - k)^(1/Ni)`` of Rapid Skin §III.C (from Müller et al. 2007)."""
+    k = np.clip(np.asarray(k, dtype=np.float64), 0.0, 1.0)
+    return 1.0 - (1.0 - k) ** (1.0 / max(int(inner_iterations), 1))
+
+
+def point_to_ray_distance(P: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Shortest distance ``d_pl`` of points to 3D lines, Eq. 7 of Rapid Skin."""
+    p = P - origin
+    perp = p - np.sum(p * direction, axis=1, keepdims=True) * direction
+    return np.linalg.norm(perp, axis=1)
+
+
+def constraint_energy(V: np.ndarray, cs: ConstraintSet) -> float:
+    """Energy ``sum k_sm ||C_sm||^2 + sum k_sil C_sil^2 + sum k_d C_d^2`` (Eq. 5 with squared norms)."""
+    r_sm = cs.delta.apply(V) - cs.delta_rest
+    e = cs.k_sm * float(np.sum(r_sm * r_sm))
+    sil = cs.silhouette
+    if len(sil):
+        d = point_to_ray_distance(V[sil.vertex], sil.origin, sil.direction)
+        e += float(np.sum(sil.k * d * d))
+    dep = cs.depth
+    if len(dep):
+        r = np.sum((V[dep.vertex] - dep.point) * dep.normal, axis=1)
+        e += float(np.sum(dep.k * r * r))
+    return e
+
+
+# --- Gauss-Seidel constraint projection (Algorithm 1, lines 4-8) ---------------------------------
+
+@numba.njit(cache=True)
+def _gauss_seidel_sweeps(V, indptr, indices, weights, delta_rest, k_sm_prime, sil_vertex, sil_origin, sil_dir,
+                         sil_k, dep_vertex, dep_point, dep_normal, dep_k, n_sweeps):
+    n = V.shape[0]
+    # 1 / |grad C_sm_i|^2 = 1 / (1 + sum_j w_ij^2) for the vector-valued smoothness constraint.
+    inv_grad2 = np.empty(n)
+    for i in range(n):
+        s = 1.0
+        for e in range(indptr[i], indptr[i + 1]):
+            s += weights[e] * weights[e]
+        inv_grad2[i] = 1.0 / s
+    for _ in range(n_sweeps):
+        # Silhouette constraints (Eq. 7): |grad d_pl| = 1, so the step removes k' of the offset to the ray.
+        for c in range(sil_vertex.shape[0]):
+            i = sil_vertex[c]
+            px = V[i, 0] - sil_origin[c, 0]
+            py = V[i, 1] - sil_origin[c, 1]
+            pz = V[i, 2] - sil_origin[c, 2]
+            t = px * sil_dir[c, 0] + py * sil_dir[c, 1] + pz * sil_dir[c, 2]
+            k = sil_k[c]
+            V[i, 0] -= k * (px - t * sil_dir[c, 0])
+            V[i, 1] -= k * (py - t * sil_dir[c, 1])
+            V[i, 2] -= k * (pz - t * sil_dir[c, 2])
+        # Depth constraints: point-to-plane distance, gradient = the plane normal.
+        for c in range(dep_vertex.shape[0]):
+            i = dep_vertex[c]
+            r = ((V[i, 0] - dep_point[c, 0]) * dep_normal[c, 0] + (V[i, 1] - dep_point[c, 1]) * dep_normal[c, 1]
+                 + (V[i, 2] - dep_point[c, 2]) * dep_normal[c, 2])
+            k = dep_k[c] * r
+            V[i, 0] -= k * dep_normal[c, 0]
+            V[i, 1] -= k * dep_normal[c, 1]
+            V[i, 2] -= k * dep_normal[c, 2]
+        # Smoothness constraints (Eq. 9), Newton step of Eq. 4 on v_i and its 1-ring.
+        for i in range(n):
+            rx = V[i, 0] - delta_rest[i, 0]
+            ry = V[i, 1] - delta_rest[i, 1]
+            rz = V[i, 2] - delta_rest[i, 2]
+            for e in range(indptr[i], indptr[i + 1]):
+                j = indices[e]
+                w = weights[e]
+                rx -= w * V[j, 0]
+                ry -= w * V[j, 1]
+                rz -= w * V[j, 2]
+            f = k_sm_prime * inv_grad2[i]
+            rx *= f
+            ry *= f
+            rz *= f
+            V[i, 0] -= rx
+            V[i, 1] -= ry
+            V[i, 2] -= rz
+            for e in range(indptr[i], indptr[i + 1]):
+                j = indices[e]
+                w = weights[e]
+                V[j, 0] += w * rx
+                V[j, 1] += w * ry
+                V[j, 2] += w * rz
+    return V
+
+
+def _check(V: np.ndarray, cs: ConstraintSet) -> np.ndarray:
+    V = np.array(V, dtype=np.float64, order="C", copy=True)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) != cs.delta.n_vertices:
+        raise InputError(f"vertices must be ({cs.delta.n_vertices}, 3) for this template, got {V.shape}")
+    return V
+
+
+def gauss_seidel(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8,
+                 callback=None) -> np.ndarray:
+    """Sequential constraint projection, Eq. 3-4 and Algorithm 1 of Rapid Skin (lines 4-8).
+
+    Runs ``inner_iterations`` sweeps over all constraints with weights ``k' = 1 - (1 - k)^(1/Ni)``.
+    ``callback(iteration, V)`` is called after every sweep when given (for convergence plots).
+    """
+    V = _check(V, cs)
+    sil, dep = cs.silhouette, cs.depth
+    k_sil = projection_weight(sil.k, inner_iterations)
+    k_dep = projection_weight(dep.k, inner_iterations)
+    k_sm = float(projection_weight(cs.k_sm, inner_iterations))
+    args = (cs.delta.indptr, cs.delta.indices, cs.delta.weights, np.ascontiguousarray(cs.delta_rest), k_sm,
+            sil.vertex.astype(np.int64), np.ascontiguousarray(sil.origin), np.ascontiguousarray(sil.direction), k_sil,
+            dep.vertex.astype(np.int64), np.ascontiguousarray(dep.point), np.ascontiguousarray(dep.normal), k_dep)
+    if callback is None:
+        return _gauss_seidel_sweeps(V, *args, int(inner_iterations))
+    for it in range(int(inner_iterations)):
+        V = _gauss_seidel_sweeps(V, *args, 1)
+        callback(it + 1, V)
+    return V
+
+
+# --- Jacobi (parallel) variant ------------------------------------------------------------------
+
+@numba.njit(cache=True, parallel=True)
+def _jacobi_sweeps(V, indptr, indices, weights, reverse, delta_rest, k_sm_prime, sil_ptr, sil_origin, sil_dir, sil_k,
+                   dep_ptr, dep_point, dep_normal, dep_k, relaxation, n_sweeps):
+    n = V.shape[0]
+    inv_grad2 = np.empty(n)
+    for i in range(n):
+        s = 1.0
+        for e in range(indptr[i], indptr[i + 1]):
+            s += weights[e] * weights[e]
+        inv_grad2[i] = 1.0 / s
+    step = np.empty((n, 3))  # k' * C_sm_i / |grad C_sm_i|^2
+    move = np.empty((n, 3))
+    for _ in range(n_sweeps):
+        for i in numba.prange(n):
+            rx = V[i, 0] - delta_rest[i, 0]
+            ry = V[i, 1] - delta_rest[i, 1]
+            rz = V[i, 2] - delta_rest[i, 2]
+            for e in range(indptr[i], indptr[i + 1]):
+                j = indices[e]
+                rx -= weights[e] * V[j, 0]
+                ry -= weights[e] * V[j, 1]
+                rz -= weights[e] * V[j, 2]
+            f = k_sm_prime * inv_grad2[i]
+            step[i, 0] = f * rx
+            step[i, 1] = f * ry
+            step[i, 2] = f * rz
+        # Gather every constraint's correction of vertex i (no two threads write one vertex), then average.
+        for i in numba.prange(n):
+            ax = -step[i, 0]
+            ay = -step[i, 1]
+            az = -step[i, 2]
+            count = 1.0
+            for e in range(indptr[i], indptr[i + 1]):
+                j = indices[e]
+                w = weights[reverse[e]]  # weight of i in j's 1-ring
+                ax += w * step[j, 0]
+                ay += w * step[j, 1]
+                az += w * step[j, 2]
+                count += 1.0
+            for c in range(sil_ptr[i], sil_ptr[i + 1]):
+                px = V[i, 0] - sil_origin[c, 0]
+                py = V[i, 1] - sil_origin[c, 1]
+                pz = V[i, 2] - sil_origin[c, 2]
+                t = px * sil_dir[c, 0] + py * sil_dir[c, 1] + pz * sil_dir[c, 2]
+                k = sil_k[c]
+                ax -= k * (px - t * sil_dir[c, 0])
+                ay -= k * (py - t * sil_dir[c, 1])
+                az -= k * (pz - t * sil_dir[c, 2])
+                count += 1.0
+            for c in range(dep_ptr[i], dep_ptr[i + 1]):
+                r = ((V[i, 0] - dep_point[c, 0]) * dep_normal[c, 0] + (V[i, 1] - dep_point[c, 1]) * dep_normal[c, 1]
+                     + (V[i, 2] - dep_point[c, 2]) * dep_normal[c, 2])
+                k = dep_k[c] * r
+                ax -= k * dep_normal[c, 0]
+                ay -= k * dep_normal[c, 1]
+                az -= k * dep_normal[c, 2]
+                count += 1.0
+            g = relaxation / count
+            move[i, 0] = ax * g
+            move[i, 1] = ay * g
+            move[i, 2] = az * g
+        for i in numba.prange(n):
+            V[i, 0] += move[i, 0]
+            V[i, 1] += move[i, 1]
+            V[i, 2] += move[i, 2]
+    return V
+
+
+def _grouped(vertex: np.ndarray, n: int, *arrays):
+    """Sort per-constraint arrays by vertex and return CSR pointers (n + 1,) plus the sorted arrays."""
+    order = np.argsort(vertex, kind="stable")
+    ptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(vertex, minlength=n), out=ptr[1:])
+    return (ptr, *[np.ascontiguousarray(a[order]) for a in arrays])
+
+
+def jacobi(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 32, relaxation: float = 1.5,
+           callback=None) -> np.ndarray:
+    """Parallel constraint projection: every step of Eq. 4 from the same ``V``, averaged per vertex.
+
+    Rapid Skin §III.C's GPU variant; it needs more inner iterations than :func:`gauss_seidel`. The
+    per-projection weights use ``inner_iterations`` as ``Ni``; ``relaxation`` scales the averaged step.
+    """
+    V = _check(V, cs)
+    n = len(V)
+    sil, dep = cs.silhouette, cs.depth
+    sil_ptr, sil_origin, sil_dir, sil_k = _grouped(sil.vertex, n, sil.origin, sil.direction,
+                                                   projection_weight(sil.k, inner_iterations))
+    dep_ptr, dep_point, dep_normal, dep_k = _grouped(dep.vertex, n, dep.point, dep.normal,
+                                                     projection_weight(dep.k, inner_iterations))
+    k_sm = float(projection_weight(cs.k_sm, inner_iterations))
+    args = (cs.delta.indptr, cs.delta.indices, cs.delta.weights, cs.delta.reverse,
+            np.ascontiguousarray(cs.delta_rest), k_sm, sil_ptr, sil_origin, sil_dir, sil_k,
+            dep_ptr, dep_point, dep_normal, dep_k, float(relaxation))
+    if callback is None:
+        return _jacobi_sweeps(V, *args, int(inner_iterations))
+    for it in range(int(inner_iterations)):
+        V = _jacobi_sweeps(V, *args, 1)
+        callback(it + 1, V)
+    return V
+
+
+# --- Linear Laplacian mesh editing baselines (Rapid Skin §V) -----------------------------------
+
+def lme_normal_equations(cs: ConstraintSet, laplacian_gram: sp.spmatrix | None = None
+                         ) -> tuple[sp.csc_matrix, np.ndarray]:
+    """Normal equations ``A x = b`` of the energy of :func:`constraint_energy` over ``x = V.ravel()``.
+
+    ``A = k_sm (L^T L) (x) I3 + sum_j k_j e_i e_i^T (x) (I - d d^T) + sum k n n^T``. ``laplacian_gram``
+    (``kron(L^T L, I3)``) may be passed in when it was built before for the same template.
+    """
+    n = cs.delta.n_vertices
+    L = cs.delta.matrix
+    if laplacian_gram is None:
+        laplacian_gram = laplacian_gram_matrix(cs.delta)
+    b = (cs.k_sm * (L.T @ cs.delta_rest)).ravel()
+    rows, cols, vals = [], [], []
+    sil = cs.silhouette
+    if len(sil):
+        d = sil.direction
+        P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]  # (m, 3, 3) projector orthogonal to the ray
+        kP = sil.k[:, None, None] * P
+        base = 3 * sil.vertex
+        rows.append((base[:, None, None] + np.arange(3)[None, :, None] + 0 * np.arange(3)[None, None, :]).ravel())
+        cols.append((base[:, None, None] + 0 * np.arange(3)[None, :, None] + np.arange(3)[None, None, :]).ravel())
+        vals.append(kP.ravel())
+        np.add.at(b, (base[:, None] + np.arange(3)[None, :]).ravel(), np.einsum("mij,mj->mi", kP, sil.origin).ravel())
+    dep = cs.depth
+    if len(dep):
+        nn = dep.k[:, None, None] * dep.normal[:, :, None] * dep.normal[:, None, :]
+        base = 3 * dep.vertex
+        rows.append((base[:, None, None] + np.arange(3)[None, :, None] + 0 * np.arange(3)[None, None, :]).ravel())
+        cols.append((base[:, None, None] + 0 * np.arange(3)[None, :, None] + np.arange(3)[None, None, :]).ravel())
+        vals.append(nn.ravel())
+        rhs = (dep.k * np.sum(dep.normal * dep.point, axis=1))[:, None] * dep.normal
+        np.add.at(b, (base[:, None] + np.arange(3)[None, :]).ravel(), rhs.ravel())
+    A = cs.k_sm * laplacian_gram
+    if rows:
+        C = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * n, 3 * n))
+        A = A + C
+    return sp.csc_matrix(A), b
+
+
+def laplacian_gram_matrix(delta: DeltaOperator) -> sp.csr_matrix:
+    """``kron(L^T L, I3)``: the smoothness part of the LME normal equations over interleaved xyz."""
+    L = delta.matrix
+    return sp.kron(L.T @ L, sp.identity(3), format="csr")
+
+
+def cholesky(V: np.ndarray, cs: ConstraintSet, laplacian_gram: sp.spmatrix | None = None) -> np.ndarray:
+    """Exact LME minimiser by a sparse direct factorisation (SuperLU, scipy), Rapid Skin §V baseline.
+
+    The constraint set changes at every contour re-matching, so the matrix is factored anew each call
+    (the paper's argument for why LME cannot prefactor here); only ``L^T L`` is reused.
+    """
+    V = _check(V, cs)
+    A, b = lme_normal_equations(cs, laplacian_gram)
+    x = spla.splu(A, permc_spec="MMD_AT_PLUS_A").solve(b)
+    return x.reshape(-1, 3)
+
+
+def conjugate_gradient(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8,
+                       laplacian_gram: sp.spmatrix | None = None, callback=None) -> np.ndarray:
+    """``inner_iterations`` conjugate-gradient steps on the LME normal equations, warm-started at ``V``."""
+    V = _check(V, cs)
+    A, b = lme_normal_equations(cs, laplacian_gram)
+    A = sp.csr_matrix(A)
+    x = V.ravel().copy()
+    r = b - A @ x
+    p = r.copy()
+    rr = float(r @ r)
+    for it in range(int(inner_iterations)):
+        if rr <= 1e-30:
+            break
+        Ap = A @ p
+        alpha = rr / float(p @ Ap)
+        x += alpha * p
+        r -= alpha * Ap
+        rr_new = float(r @ r)
+        p = r + (rr_new / rr) * p
+        rr = rr_new
+        if callback is not None:
+            callback(it + 1, x.reshape(-1, 3))
+    return x.reshape(-1, 3)
+
+
+def solve_constraints(V: np.ndarray, cs: ConstraintSet, solver: str = "gs", inner_iterations: int = 8,
+                      laplacian_gram: sp.spmatrix | None = None) -> np.ndarray:
+    """One inner solve (Algorithm 1, lines 4-8) with the chosen solver: gs, jacobi, cholesky or cg."""
+    if solver == "gs":
+        return gauss_seidel(V, cs, inner_iterations)
+    if solver == "jacobi":
+        return jacobi(V, cs, inner_iterations)
+    if solver == "cholesky":
+        return cholesky(V, cs, laplacian_gram)
+    if solver == "cg":
+        return conjugate_gradient(V, cs, inner_iterations, laplacian_gram)
+    raise InputError(f"unknown solver {solver!r}; valid: {', '.join(SOLVERS)}")
