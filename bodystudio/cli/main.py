@@ -28,6 +28,14 @@ def _register() -> None:
     app.add_typer(body.app, name="body", help="MakeHuman body model: export, info, measure.")
     app.add_typer(synth.app, name="synth", help="Synthetic studio data with ground truth.")
     app.add_typer(eval.app, name="eval", help="Score results against ground truth (JSON).")
+    from bodystudio.cli import capture
+
+    app.add_typer(capture.app, name="capture", help="Studio sessions: import recordings, silhouettes, verify.")
+    from bodystudio.cli import demo, viewer
+
+    app.command("view")(viewer.view)
+    app.command("report")(viewer.report)
+    app.command("demo")(demo.demo)
 
 
 _register()

@@ -1,0 +1,69 @@
+"""``bodystudio view PATH`` and ``bodystudio report RUN_OR_SESSION``: look at data, write HTML reports."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from bodystudio.errors import InputError
+
+
+def view(
+    path: Path = typer.Argument(..., help="session folder, mesh/scan (.ply .obj .stl .off .glb) or avatar (.glb)"),
+    bone: Optional[str] = typer.Option(None, "--bone", help="show the skin weights of this bone (avatars)"),
+    frame: Optional[int] = typer.Option(None, "--frame", help="session frame to show first"),
+    images: str = typer.Option("image", "--images", help="what camera frusta show: image | mask | none"),
+    reference: Optional[Path] = typer.Option(None, "--reference", help="ground-truth mesh: colour PATH by error (mm)"),
+    screenshot: Optional[Path] = typer.Option(None, "--screenshot", help="render offscreen to this PNG and exit"),
+    html: Optional[Path] = typer.Option(None, "--html", help="write a standalone HTML page of the scene and exit"),
+    size: str = typer.Option("1024x768", "--size", help="window / screenshot size WxH"),
+) -> None:
+    """Open a session, mesh, scan or avatar in the 3D viewer (or save a screenshot / HTML page)."""
+    from bodystudio.viewer.scene import save_screenshot
+    from bodystudio.viewer.views import build_view
+    from bodystudio.viewer.webgl import save_scene_html
+
+    window_size = _parse_size(size)
+    off_screen = screenshot is not None or html is not None
+    for out, suffixes in ((screenshot, (".png",)), (html, (".html", ".htm"))):
+        if out is not None and out.suffix.lower() not in suffixes:
+            raise InputError(f"{out}: output must end in {' or '.join(suffixes)}")
+    plotter = build_view(path, bone=bone, frame=frame, images=images, off_screen=off_screen,
+                         window_size=window_size, reference=reference)
+    try:
+        if not off_screen:
+            plotter.show(title=f"bodystudio view {path}")
+            return
+        if screenshot is not None:
+            save_screenshot(plotter, screenshot)
+            typer.echo(f"wrote {screenshot}")
+        if html is not None:
+            save_scene_html(plotter, html, title=f"bodystudio view {path.name}")
+            typer.echo(f"wrote {html}")
+    finally:
+        plotter.close()
+
+
+def _parse_size(size: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in size.lower().split("x"))
+        if w < 64 or h < 64 or w > 8192 or h > 8192:
+            raise ValueError
+    except ValueError:
+        raise InputError(f"--size {size!r} is not WxH between 64 and 8192, e.g. 1024x768") from None
+    return w, h
+
+
+def report(
+    path: Path = typer.Argument(..., help="a run folder (e.g. the demo's output) or a session folder"),
+    out: Path = typer.Option(..., "--out", help="the report page to write (.html)"),
+    no_3d: bool = typer.Option(False, "--no-3d", help="leave out the embedded 3D view"),
+) -> None:
+    """Write one self-contained HTML report: metrics tables, plots, screenshots and a 3D view."""
+    from bodystudio.viewer.report import write_report
+
+    result = write_report(path, out, with_3d=not no_3d)
+    typer.echo(f"wrote {result.path} ({len(result.tables)} tables, {len(result.plots)} plots, "
+               f"{len(result.screenshots)} screenshots, {'a' if result.has_3d else 'no'} 3D view)")

@@ -1,0 +1,412 @@
+"""The self-contained HTML report of a run or session: metrics tables, plots, screenshots, a 3D view.
+
+Stages write their metrics as JSON (calibration report, per-frame reconstruction metrics, rig
+evaluation, body measurements). The report reads every metrics JSON under the folder, whatever its
+stage, and turns it into tables; it draws a plot only when its data exists:
+
+* error per frame: a table of records with a frame column and error columns (``*err*``, ``*_mm``)
+* error histogram: a long list of errors (``*err*``), or per-vertex errors of reconstructed meshes
+  against the session's ground truth
+* solver convergence: lists named ``*energy*``, ``*cost*``, ``*loss*``, ``*objective*``, ``*history*``,
+  ``*convergence*``
+* calibration residuals: ``*residual*`` lists (histogram) or per-camera values (bars)
+
+Images are embedded as base64 PNG and the 3D view as inline WebGL (:mod:`bodystudio.viewer.webgl`),
+so the page opens from disk without a server or network.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+import io
+import json
+import logging
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bodystudio.errors import InputError
+from bodystudio.fileio import atomic_write
+
+log = logging.getLogger(__name__)
+
+# Session data streams and big inputs are not metrics.
+_SKIP_PARTS = re.compile(r"^(cam_[^/]*|kinect|gt|\.staging|calibration_images|background|rgb|mask)$")
+_SKIP_NAMES = {"session.json", "cameras.json", "commit.json"}
+MAX_JSON_BYTES = 2_000_000
+MAX_ROWS = 200
+MAX_SCREENSHOTS = 12
+FRAME_KEYS = ("frame", "frame_id", "frame_index", "frame_idx")
+_ERR = re.compile(r"err|_mm$|rmse|mae|distance", re.I)
+_CONV = re.compile(r"energy|cost|loss|objective|history|convergence", re.I)
+_RESID = re.compile(r"residual|reproj", re.I)
+
+
+@dataclass(frozen=True)
+class Table:
+    title: str
+    columns: list[str]
+    rows: list[list[Any]]
+
+
+@dataclass(frozen=True)
+class Plot:
+    title: str
+    png: bytes
+
+
+@dataclass(frozen=True)
+class ReportResult:
+    path: Path
+    tables: list[Table] = field(default_factory=list)
+    plots: list[Plot] = field(default_factory=list)
+    screenshots: list[tuple[str, bytes]] = field(default_factory=list)
+    has_3d: bool = False
+
+
+def _is_scalar(v: Any) -> bool:
+    return v is None or isinstance(v, (bool, int, float, str))
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _is_numeric_list(v: Any) -> bool:
+    return isinstance(v, list) and len(v) > 0 and all(_is_number(x) for x in v)
+
+
+def _is_record(v: Any) -> bool:
+    return isinstance(v, dict) and len(v) > 0 and all(_is_scalar(x) for x in v.values())
+
+
+def _records_table(title: str, records: list[dict], index_name: str | None = None,
+                   index: list[str] | None = None) -> Table:
+    columns: list[str] = []
+    for r in records:
+        columns += [k for k in r if k not in columns]
+    rows = [[r.get(c) for c in columns] for r in records[:MAX_ROWS]]
+    if index is not None:
+        columns = [index_name or ""] + columns
+        rows = [[name] + row for name, row in zip(index, rows)]
+    return Table(title, columns, rows)
+
+
+def tables_from_json(title: str, data: Any) -> list[Table]:
+    """Tables of a metrics JSON: scalars as key/value rows, record lists and record maps as tables."""
+    tables: list[Table] = []
+
+    def walk(prefix: str, obj: Any) -> None:
+        if isinstance(obj, list) and obj and all(_is_record(r) for r in obj):
+            tables.append(_records_table(prefix, obj))
+            return
+        if not isinstance(obj, dict):
+            return
+        start = len(tables)
+        kv: list[list[Any]] = []
+        for key, value in obj.items():
+            name = f"{prefix} / {key}" if prefix != title else f"{title} / {key}"
+            if _is_scalar(value):
+                kv.append([str(key), value])
+            elif _is_numeric_list(value):
+                a = np.asarray(value, dtype=np.float64)
+                kv.append([f"{key} (n={len(a)})", f"mean {a.mean():.4g}, min {a.min():.4g}, max {a.max():.4g}"])
+            elif isinstance(value, dict) and len(value) > 0 and all(_is_record(v) for v in value.values()):
+                tables.append(_records_table(name, list(value.values()), "name", [str(k) for k in value]))
+            else:
+                walk(name, value)
+        if kv:
+            tables.insert(start, Table(prefix, ["quantity", "value"], kv))
+
+    walk(title, data)
+    return tables
+
+
+def _series(data: Any, prefix: str = "") -> list[tuple[str, Any]]:
+    """Every (key path, value) pair in a JSON tree."""
+    out = []
+    if isinstance(data, dict):
+        for k, v in data.items():
+            path = f"{prefix}.{k}" if prefix else str(k)
+            out.append((path, v))
+            out += _series(v, path)
+    elif isinstance(data, list) and data and all(isinstance(x, dict) for x in data):
+        for i, v in enumerate(data[:MAX_ROWS]):
+            out += _series(v, f"{prefix}[{i}]")
+    return out
+
+
+def _figure_png(fig) -> bytes:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.tight_layout()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _new_figure(title: str):
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    ax.set_title(title, fontsize=11)
+    ax.grid(True, alpha=0.3)
+    return fig, ax
+
+
+def _frame_records(data: Any) -> list[tuple[str, list[dict]]]:
+    """Lists of per-frame records (each with a frame key) anywhere in a JSON tree."""
+    found = []
+    candidates = [("", data)] + _series(data)
+    for path, v in candidates:
+        if isinstance(v, list) and len(v) >= 1 and all(_is_record(r) for r in v):
+            if all(any(k in r for k in FRAME_KEYS) for r in v):
+                found.append((path, v))
+        elif isinstance(v, dict) and v and all(re.fullmatch(r"\d+", str(k)) for k in v) and all(
+                _is_record(r) for r in v.values()):
+            found.append((path, [{"frame": int(k), **r} for k, r in v.items()]))
+    return found
+
+
+def plots_from_json(name: str, data: Any) -> list[Plot]:
+    """The plots a metrics JSON has data for (see the module docstring)."""
+    plots: list[Plot] = []
+    for path, records in _frame_records(data):
+        fkey = next(k for k in FRAME_KEYS if k in records[0])
+        frames = [r.get(fkey) for r in records]
+        cols = [k for k in records[0] if k != fkey and _ERR.search(k) and all(_is_number(r.get(k)) for r in records)]
+        if cols and len(records) >= 1:
+            fig, ax = _new_figure(f"error per frame: {name}{' ' + path if path else ''}")
+            for c in cols[:6]:
+                ax.plot(frames, [r[c] for r in records], marker="o", label=c)
+            ax.set_xlabel("frame")
+            ax.set_ylabel("error" + (" (mm)" if any(c.endswith("mm") for c in cols) else ""))
+            ax.legend(fontsize=8)
+            plots.append(Plot(f"Error per frame ({name})", _figure_png(fig)))
+    for path, v in _series(data):
+        key = path.rsplit(".", 1)[-1]
+        if _is_numeric_list(v) and len(v) >= 3 and _CONV.search(key):
+            a = np.asarray(v, dtype=np.float64)
+            fig, ax = _new_figure(f"solver convergence: {name} {path}")
+            ax.plot(np.arange(len(a)), a, marker=".")
+            if np.all(a > 0) and a.max() / max(a.min(), 1e-300) > 20:
+                ax.set_yscale("log")
+            ax.set_xlabel("iteration")
+            ax.set_ylabel(key)
+            plots.append(Plot(f"Solver convergence ({name}: {path})", _figure_png(fig)))
+        elif _is_numeric_list(v) and len(v) >= 10 and (_RESID.search(key) or _ERR.search(key)):
+            a = np.asarray(v, dtype=np.float64)
+            kind = "Calibration residuals" if _RESID.search(key) else "Error histogram"
+            fig, ax = _new_figure(f"{kind.lower()}: {name} {path}")
+            ax.hist(a[np.isfinite(a)], bins=40, color="#4a7fb5")
+            ax.set_xlabel(key)
+            ax.set_ylabel("count")
+            plots.append(Plot(f"{kind} ({name}: {path})", _figure_png(fig)))
+        elif isinstance(v, dict) and len(v) >= 2 and _RESID.search(key) and all(_is_number(x) for x in v.values()):
+            fig, ax = _new_figure(f"calibration residuals: {name} {path}")
+            ax.bar(list(map(str, v)), list(v.values()), color="#4a7fb5")
+            ax.set_ylabel(key)
+            ax.tick_params(axis="x", rotation=45, labelsize=8)
+            plots.append(Plot(f"Calibration residuals ({name}: {path})", _figure_png(fig)))
+    return plots
+
+
+def error_histogram(err_mm: np.ndarray, title: str) -> Plot:
+    """Histogram of per-vertex errors in millimetres."""
+    fig, ax = _new_figure(title)
+    err = np.asarray(err_mm, dtype=np.float64)
+    ax.hist(err, bins=50, color="#c0504d")
+    ax.axvline(float(np.mean(err)), color="k", linestyle="--", label=f"mean {np.mean(err):.1f} mm")
+    ax.set_xlabel("error (mm)")
+    ax.set_ylabel("vertices")
+    ax.legend(fontsize=8)
+    return Plot(title, _figure_png(fig))
+
+
+def metrics_files(root: Path) -> list[Path]:
+    """Metrics JSON files under ``root`` (session streams, manifests and camera files left out)."""
+    files = []
+    for p in sorted(root.rglob("*.json")):
+        rel = p.relative_to(root)
+        if p.name in _SKIP_NAMES or any(_SKIP_PARTS.match(part) for part in rel.parts[:-1]):
+            continue
+        if p.name.startswith(".") or p.stat().st_size > MAX_JSON_BYTES:
+            continue
+        files.append(p)
+    return files
+
+
+def screenshot_files(root: Path, exclude: Path | None = None) -> list[Path]:
+    shots = []
+    for p in sorted(root.rglob("*.png")):
+        rel = p.relative_to(root)
+        if any(_SKIP_PARTS.match(part) for part in rel.parts[:-1]) or p.name.startswith("."):
+            continue
+        if exclude is not None and p.resolve() == exclude.resolve():
+            continue
+        shots.append(p)
+    return shots[:MAX_SCREENSHOTS]
+
+
+def _sessions_under(root: Path) -> list[Path]:
+    if (root / "session.json").is_file():
+        return [root]
+    return sorted(p.parent for p in root.glob("*/session.json"))
+
+
+def session_figures(session_path: Path) -> tuple[list[Plot], list[Table]]:
+    """Per-vertex error histogram and per-frame error of reconstructed meshes against the ground truth."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.geometry.mesh import load_mesh
+    from bodystudio.viewer.scene import vertex_errors_mm
+    from bodystudio.viewer.views import reconstructed_mesh_path
+
+    session = open_session(session_path)
+    errors, rows = [], []
+    for fid in session.frame_ids:
+        path = reconstructed_mesh_path(session.path, fid)
+        gt = session.frame(fid).gt_mesh if path is not None else None
+        if path is None or gt is None:
+            continue
+        err = vertex_errors_mm(load_mesh(path).vertices, gt)
+        errors.append(err)
+        rows.append([fid, float(err.mean()), float(np.sqrt(np.mean(err ** 2))), float(np.percentile(err, 95)),
+                     float(err.max())])
+    if not rows:
+        return [], []
+    table = Table(f"{session.path.name}: reconstruction vs ground truth (per-vertex distance, mm)",
+                  ["frame", "mean_mm", "rms_mm", "p95_mm", "max_mm"], rows)
+    plots = [error_histogram(np.concatenate(errors), f"Error histogram, {session.path.name}, all frames")]
+    if len(rows) > 1:
+        fig, ax = _new_figure(f"error per frame: {session.path.name}")
+        f = [r[0] for r in rows]
+        for k, label in ((1, "mean"), (3, "p95")):
+            ax.plot(f, [r[k] for r in rows], marker="o", label=label)
+        ax.set_xlabel("frame")
+        ax.set_ylabel("error (mm)")
+        ax.legend(fontsize=8)
+        plots.insert(0, Plot(f"Error per frame ({session.path.name})", _figure_png(fig)))
+    return plots, [table]
+
+
+def default_scene(root: Path):
+    """The plotter the report embeds: a session, else an avatar, else a mesh found under ``root``."""
+    from bodystudio.geometry.mesh import MESH_SUFFIXES
+    from bodystudio.viewer.views import build_view, open_viewable
+
+    sessions = _sessions_under(root)
+    if sessions:
+        return build_view(sessions[0])
+    meshes = [p for p in sorted(root.rglob("*")) if p.suffix.lower() in MESH_SUFFIXES
+              and not any(_SKIP_PARTS.match(part) for part in p.relative_to(root).parts[:-1])]
+    avatars = [p for p in meshes if open_viewable(p).kind == "avatar"] if meshes else []
+    pick = avatars[0] if avatars else (meshes[0] if meshes else None)
+    return build_view(pick) if pick is not None else None
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "n/a"
+        return f"{v:.4g}"
+    return html.escape(str(v))
+
+
+def _table_html(t: Table) -> str:
+    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in t.columns)
+    body = "".join("<tr>" + "".join(f"<td>{_fmt(v)}</td>" for v in row) + "</tr>" for row in t.rows)
+    return f"<h3>{html.escape(t.title)}</h3><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>\n"
+
+
+def _img_tag(png: bytes, alt: str) -> str:
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode("ascii")}">'
+
+
+REPORT_CSS = """
+body{margin:0 auto;max-width:1150px;padding:12px 20px;font-family:system-ui,sans-serif;color:#222;background:#fafafa}
+h1{font-size:22px}h2{font-size:18px;border-bottom:1px solid #ccc;padding-bottom:4px;margin-top:28px}
+h3{font-size:14px;margin:16px 0 4px}table{border-collapse:collapse;font-size:13px;margin-bottom:8px}
+td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}th{background:#eee}td:first-child{text-align:left}
+.grid{display:flex;flex-wrap:wrap;gap:12px}.grid figure{margin:0}.grid img{max-width:540px;border:1px solid #ddd}
+figcaption{font-size:12px;color:#555}.meta{color:#666;font-size:13px}
+"""
+
+
+def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title: str | None = None,
+                 scenes: list[tuple[str, Any]] | None = None, notes: list[str] | None = None) -> ReportResult:
+    """Write the report of a run or session folder to ``out`` (one self-contained .html file).
+
+    ``scenes`` (caption, plotter) pairs override the embedded 3D views (by default a session, avatar or
+    mesh found under ``path``); ``notes`` are shown at the top (e.g. which stages ran).
+    """
+    from bodystudio.viewer.webgl import page_head, scene_payload, viewer_fragment
+
+    root = Path(path)
+    out = Path(out)
+    if not root.is_dir():
+        raise InputError(f"{root}: not a folder; give a run folder (e.g. the demo's output) or a session folder")
+    if out.suffix.lower() not in (".html", ".htm"):
+        raise InputError(f"{out}: the report is an HTML page; give a path ending in .html")
+    tables: list[Table] = []
+    plots: list[Plot] = []
+    for f in metrics_files(root):
+        name = str(f.relative_to(root))
+        try:
+            data = json.loads(f.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            log.warning("%s: skipped, not valid JSON (%s)", f, exc)
+            continue
+        tables += tables_from_json(name, data)
+        plots += plots_from_json(name, data)
+    for s in _sessions_under(root):
+        p, t = session_figures(s)
+        plots += p
+        tables += t
+    shots = [(str(p.relative_to(root)), p.read_bytes()) for p in screenshot_files(root, exclude=out)]
+    view_html = ""
+    if with_3d:
+        owned = scenes is None
+        if owned:
+            scene = default_scene(root)
+            scenes = [("", scene)] if scene is not None else []
+        for k, (caption, scene) in enumerate(scenes):
+            if caption:
+                view_html += f"<h3>{html.escape(caption)}</h3>"
+            view_html += viewer_fragment(scene_payload(scene), f"view3d_{k}")
+            if owned:
+                scene.close()
+    title = title or f"bodystudio report: {root.resolve().name}"
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    parts = [page_head(title, REPORT_CSS), "<body>", f"<h1>{html.escape(title)}</h1>",
+             f'<p class="meta">{html.escape(str(root.resolve()))} &middot; {stamp}</p>']
+    if notes:
+        parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
+    if view_html:
+        parts += ["<h2>3D view</h2>", view_html]
+    if shots:
+        parts.append("<h2>Screenshots</h2><div class=\"grid\">")
+        parts += [f"<figure>{_img_tag(png, name)}<figcaption>{html.escape(name)}</figcaption></figure>"
+                  for name, png in shots]
+        parts.append("</div>")
+    if plots:
+        parts.append("<h2>Plots</h2><div class=\"grid\">")
+        parts += [f"<figure>{_img_tag(p.png, p.title)}<figcaption>{html.escape(p.title)}</figcaption></figure>"
+                  for p in plots]
+        parts.append("</div>")
+    parts.append("<h2>Metrics</h2>")
+    parts += [_table_html(t) for t in tables] or ["<p>No metrics JSON found under this folder.</p>"]
+    parts.append("</body></html>\n")
+    with atomic_write(out, "w") as fh:
+        fh.write("\n".join(parts))
+    log.info("wrote %s", out)
+    return ReportResult(out, tables, plots, shots, bool(view_html))
