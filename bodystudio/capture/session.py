@@ -432,6 +432,14 @@ class Session:
         return len(self.files)
 
 
+def progress_bar(enabled: bool):
+    """A rich progress bar (disabled: a silent stand-in with the same API) for long session writes."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                    disable=not enabled)
+
+
 def _ranges(ids: list[int]) -> str:
     if not ids:
         return "none"
@@ -530,7 +538,8 @@ class SessionWriter:
     ...     w.write_mask("cam_00", 0, mask)
 
     Nothing becomes visible before :meth:`commit` (called on a clean exit of the ``with`` block); an
-    exception inside the block leaves the previous state and the staged files for inspection.
+    exception inside the block discards the staged files (:meth:`abort`). A process killed before the
+    commit leaves the previous state and a ``.staging`` folder that :func:`open_session` reports.
     """
 
     path: Path
@@ -571,6 +580,15 @@ class SessionWriter:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
             self.commit()
+        else:
+            self.abort()
+
+    def abort(self) -> None:
+        """Discard the staged files (the previous state stays); a new session's empty folder goes too."""
+        shutil.rmtree(self.path / STAGING, ignore_errors=True)
+        self._staged = {}
+        if not self.update and self.path.is_dir() and not any(self.path.iterdir()):
+            self.path.rmdir()
 
     @property
     def camera_names(self) -> list[str]:

@@ -133,10 +133,9 @@ def test_incomplete_session_says_what_is_missing(tmp_path, damage, message):
 def test_update_interrupted_before_commit_keeps_previous_state(tmp_path):
     data = write_small(tmp_path / "s")
     root = tmp_path / "s"
-    with pytest.raises(RuntimeError):
-        with SessionWriter(root, update=True) as w:
-            w.write_mask("cam_00", 0, np.ones((H, W), bool))
-            raise RuntimeError("killed")
+    w = SessionWriter(root, update=True)
+    w.write_mask("cam_00", 0, np.ones((H, W), bool))
+    del w  # the process dies here: no commit, no abort
     s = open_session(root)
     assert s.interrupted_write is not None and "1 uncommitted files" in s.interrupted_write
     assert np.array_equal(s.frame(0).masks["cam_00"], data[0][1]["cam_00"])
@@ -197,6 +196,14 @@ def test_killed_process_leaves_a_reported_incomplete_session(tmp_path):
         proc.wait()
     with pytest.raises(SessionError, match=r"session\.json: missing, the session was never completed .*uncommitted"):
         open_session(root)
+
+
+def test_exception_inside_writer_discards_the_new_session(tmp_path):
+    with pytest.raises(RuntimeError):
+        with SessionWriter(tmp_path / "new", small_rig()) as w:
+            w.write_image("cam_00", 0, np.zeros((H, W, 3), np.uint8))
+            raise RuntimeError("bad input found halfway")
+    assert not (tmp_path / "new").exists()
 
 
 def test_writer_refuses_existing_session_and_unknown_camera(tmp_path):

@@ -1,0 +1,621 @@
+"""Import real recordings into a session (``docs/session-format.md``).
+
+Inputs, each optional except the cameras:
+
+* cameras: our ``cameras.json`` or EasyMocap's OpenCV-YAML pair ``intri.yml`` / ``extri.yml``
+  (``names``, ``K_<cam>``, ``dist_<cam>``, ``Rot_<cam>`` or ``R_<cam>`` (Rodrigues), ``T_<cam>``,
+  optional ``H_<cam>``/``W_<cam>``), read with ``cv2.FileStorage``;
+* studio frames: one folder of images per camera (``images/<cam>/*.png|jpg``) or one video per camera
+  (``videos/<cam>.avi|mp4|...``, decoded with ``cv2.VideoCapture``), synchronised by frame index or,
+  with ``timestamps/<cam>.txt`` (one time in seconds per frame), by nearest timestamp;
+* empty-studio frames for background subtraction: ``backgrounds/<cam>/`` images, ``<cam>.png`` or a video;
+* Kinect: a TUM RGB-D folder (``depth.txt``, ``rgb.txt``, ``depth/*.png`` 16-bit, 5000 units per metre;
+  depth and colour associated by timestamp as TUM's ``associate.py``) with a Kinect calibration JSON;
+* tracker joints: a folder of per-frame JSON, one JSON with all frames, or a CSV ``frame,joint,x,y,z``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bodystudio.capture.session import Session, SessionWriter, load_kinect_calibration, open_session
+from bodystudio.errors import FileFormatError, InputError
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v")
+#: TUM RGB-D depth images store 5000 units per metre.
+TUM_DEPTH_SCALE = 5000.0
+#: Median body depth a Kinect can plausibly see, used to tell depth units apart (metres).
+PLAUSIBLE_DEPTH_M = (0.5, 6.0)
+#: TUM's associate.py default: depth and colour frames further apart than this are not paired (s).
+TUM_MAX_DIFFERENCE_S = 0.02
+
+
+# ---------------------------------------------------------------------------------------------- cameras
+
+def load_studio_cameras(path: str | os.PathLike, image_sizes: dict[str, tuple[int, int]] | None = None):
+    """Cameras from ``cameras.json``, or from EasyMocap ``intri.yml``/``extri.yml`` (a folder or either file)."""
+    from bodystudio.geometry.camera import load_cameras_json
+
+    path = Path(path)
+    if path.suffix.lower() == ".json":
+        return load_cameras_json(path)
+    folder = path if path.is_dir() else path.parent
+    intri, extri = folder / "intri.yml", folder / "extri.yml"
+    for p in (intri, extri):
+        if not p.is_file():
+            raise FileFormatError(f"{p}: not found; give cameras.json or a folder with EasyMocap intri.yml and extri.yml")
+    return load_easymocap_cameras(intri, extri, image_sizes)
+
+
+def _read_storage(path: Path) -> cv2.FileStorage:
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        raise FileFormatError(f"{path}: not an OpenCV YAML file ({str(exc).splitlines()[-1]})") from None
+    if not fs.isOpened():
+        raise FileFormatError(f"{path}: cannot be opened as OpenCV YAML")
+    return fs
+
+
+def _storage_names(fs: cv2.FileStorage, path: Path) -> list[str]:
+    node = fs.getNode("names")
+    if node.empty() or not node.isSeq():
+        raise FileFormatError(f"{path}: no 'names' list of cameras (EasyMocap layout)")
+    return [node.at(i).string() or str(int(node.at(i).real())) for i in range(node.size())]
+
+
+def _storage_mat(fs: cv2.FileStorage, key: str, path: Path, required: bool = True) -> np.ndarray | None:
+    node = fs.getNode(key)
+    m = None if node.empty() else node.mat()
+    if m is None:
+        if required:
+            raise FileFormatError(f"{path}: missing matrix {key!r}; EasyMocap files need K_, dist_, Rot_/R_ and T_ per camera")
+        return None
+    return np.asarray(m, dtype=np.float64)
+
+
+def load_easymocap_cameras(intri: Path, extri: Path, image_sizes: dict[str, tuple[int, int]] | None = None):
+    """Cameras from EasyMocap's ``intri.yml`` and ``extri.yml`` (translations in metres, OpenCV axes)."""
+    from bodystudio.geometry.camera import Camera, CameraRig
+
+    fi, fe = _read_storage(intri), _read_storage(extri)
+    names = _storage_names(fi, intri)
+    cams = {}
+    for name in names:
+        K = _storage_mat(fi, f"K_{name}", intri)
+        dist = _storage_mat(fi, f"dist_{name}", intri, required=False)
+        dist = np.zeros(5) if dist is None else np.r_[dist.ravel(), np.zeros(5)][:5]
+        R = _storage_mat(fe, f"Rot_{name}", extri, required=False)
+        if R is None:
+            R = cv2.Rodrigues(_storage_mat(fe, f"R_{name}", extri))[0]
+        T = _storage_mat(fe, f"T_{name}", extri).ravel()
+        w, h = fi.getNode(f"W_{name}"), fi.getNode(f"H_{name}")
+        if not w.empty() and not h.empty():
+            size = (int(w.real()), int(h.real()))
+        elif image_sizes and name in image_sizes:
+            size = image_sizes[name]
+        else:
+            raise FileFormatError(f"{intri}: no image size for camera {name} (W_{name}/H_{name}) and no frames "
+                                  "to take it from; add them or import with --images/--videos")
+        try:
+            cams[_safe_name(name)] = Camera(_safe_name(name), K, dist, R, T, *size)
+        except InputError as exc:
+            raise FileFormatError(f"{intri}: {exc}") from None
+    fi.release()
+    fe.release()
+    return CameraRig(cams)
+
+
+def save_easymocap_cameras(folder: str | os.PathLike, rig) -> None:
+    """Write a rig as EasyMocap ``intri.yml``/``extri.yml`` (for exchange and tests)."""
+    from bodystudio.fileio import atomic_path
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for fname, write in (("intri.yml", _write_intri), ("extri.yml", _write_extri)):
+        with atomic_path(folder / fname) as tmp:
+            fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
+            fs.startWriteStruct("names", cv2.FileNode_SEQ)
+            for cam in rig:
+                fs.write("", cam.name)
+            fs.endWriteStruct()
+            for cam in rig:
+                write(fs, cam)
+            fs.release()
+
+
+def _write_intri(fs, cam):
+    fs.write(f"K_{cam.name}", np.asarray(cam.K))
+    fs.write(f"dist_{cam.name}", np.asarray(cam.dist)[None])
+    fs.write(f"H_{cam.name}", cam.height)
+    fs.write(f"W_{cam.name}", cam.width)
+
+
+def _write_extri(fs, cam):
+    fs.write(f"R_{cam.name}", cv2.Rodrigues(np.asarray(cam.R))[0])
+    fs.write(f"Rot_{cam.name}", np.asarray(cam.R))
+    fs.write(f"T_{cam.name}", np.asarray(cam.t)[:, None])
+
+
+def _safe_name(name: str) -> str:
+    return name if re.match(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$", name) else re.sub(r"[^A-Za-z0-9_.-]", "_", name)
+
+
+# ---------------------------------------------------------------------------------------------- frame sources
+
+def read_image_file(path: Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
+    """Read an image (RGB for colour); an unreadable file raises a one-line FileFormatError naming it."""
+    image = cv2.imread(str(path), flags)
+    if image is None:
+        raise FileFormatError(f"{path}: unreadable image (missing, truncated or not an image); replace or remove it")
+    if flags == cv2.IMREAD_COLOR:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    return image
+
+
+def image_files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+
+
+class ImageFolderSource:
+    """The frames of one camera as an image sequence (sorted by file name)."""
+
+    def __init__(self, folder: Path):
+        self.where = folder
+        self.files = image_files(folder)
+        if not self.files:
+            raise FileFormatError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in this camera folder")
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def read(self, k: int) -> tuple[np.ndarray, str]:
+        return read_image_file(self.files[k]), str(self.files[k])
+
+    def close(self) -> None:
+        pass
+
+
+class VideoSource:
+    """The frames of one camera as a video file, decoded in order with cv2.VideoCapture."""
+
+    def __init__(self, path: Path):
+        self.where = path
+        self.capture = cv2.VideoCapture(str(path))
+        if not self.capture.isOpened():
+            raise FileFormatError(f"{path}: cannot open the video (unsupported codec or not a video); "
+                                  "convert it (e.g. ffmpeg -c:v mjpeg) or export an image folder")
+        self.n = int(self.capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        self.next = 0
+
+    def __len__(self) -> int:
+        return self.n
+
+    def read(self, k: int) -> tuple[np.ndarray, str]:
+        if k < self.next:
+            raise ValueError("video frames must be read in increasing order")
+        while self.next < k:
+            if not self.capture.grab():
+                break
+            self.next += 1
+        ok, image = self.capture.read() if self.next == k else (False, None)
+        self.next += 1
+        if not ok or image is None:
+            raise FileFormatError(f"{self.where}: frame {k} cannot be decoded (the video has {self.n} frames "
+                                  "by its header); the file is truncated or damaged")
+        return cv2.cvtColor(image, cv2.COLOR_BGR2RGB), f"{self.where} frame {k}"
+
+    def close(self) -> None:
+        self.capture.release()
+
+
+def camera_sources(root: Path, names: list[str], videos: bool):
+    """One frame source per camera: ``root/<cam>/`` image folders or ``root/<cam>.<video>`` files."""
+    sources = {}
+    for name in names:
+        if videos:
+            found = [root / f"{name}{s}" for s in VIDEO_SUFFIXES if (root / f"{name}{s}").is_file()]
+            if not found:
+                present = sorted(p.name for p in root.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+                raise FileFormatError(f"{root / name}.*: no video for camera {name} (the calibration lists it); "
+                                      f"found {', '.join(present) or 'no videos'}; name each video after its camera")
+            sources[name] = VideoSource(found[0])
+        else:
+            if not (root / name).is_dir():
+                present = sorted(p.name for p in root.iterdir() if p.is_dir())
+                raise FileFormatError(f"{root / name}: missing image folder for camera {name} (the calibration "
+                                      f"lists it); found {', '.join(present) or 'no folders'}")
+            sources[name] = ImageFolderSource(root / name)
+    return sources
+
+
+def read_timestamps(path: Path) -> np.ndarray:
+    """Frame times in seconds, one per non-comment line (first column)."""
+    if not path.is_file():
+        raise FileFormatError(f"{path}: timestamps file not found; give one <camera>.txt per camera")
+    out = []
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        try:
+            out.append(float(line.replace(",", " ").split()[0]))
+        except ValueError:
+            raise FileFormatError(f"{path}:{n}: {line!r} is not a time in seconds") from None
+    if not out:
+        raise FileFormatError(f"{path}: no timestamps")
+    return np.asarray(out)
+
+
+def synchronise_by_timestamps(times: dict[str, np.ndarray], tolerance_s: float | None = None) -> list[dict[str, int]]:
+    """Frame index per camera for each reference-camera frame that every camera saw within ``tolerance_s``.
+
+    The first camera is the reference; the tolerance defaults to half its median frame period.
+    """
+    names = list(times)
+    ref = times[names[0]]
+    if tolerance_s is None:
+        tolerance_s = 0.5 * float(np.median(np.diff(ref))) if len(ref) > 1 else np.inf
+    frames = []
+    for k, t in enumerate(ref):
+        match = {names[0]: k}
+        for name in names[1:]:
+            j = int(np.argmin(np.abs(times[name] - t)))
+            if abs(times[name][j] - t) > tolerance_s:
+                break
+            match[name] = j
+        else:
+            frames.append(match)
+    return frames
+
+
+# ---------------------------------------------------------------------------------------------- TUM depth
+
+def read_tum_list(path: Path) -> list[tuple[float, str]]:
+    """A TUM ``depth.txt``/``rgb.txt``: ``timestamp filename`` lines, ``#`` comments."""
+    if not path.is_file():
+        raise FileFormatError(f"{path}: not found; a TUM RGB-D folder has depth.txt and rgb.txt")
+    out = []
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        parts = line.split()
+        try:
+            out.append((float(parts[0]), parts[1]))
+        except (ValueError, IndexError):
+            raise FileFormatError(f"{path}:{n}: expected 'timestamp filename', got {line.strip()!r}") from None
+    return out
+
+
+def associate_tum(depth: list[tuple[float, str]], rgb: list[tuple[float, str]],
+                  max_difference_s: float = TUM_MAX_DIFFERENCE_S) -> list[tuple[float, str, str]]:
+    """Pair depth and colour frames by timestamp (TUM's associate.py: greedy on the closest pairs)."""
+    candidates = sorted((abs(td - tr), i, j) for i, (td, _) in enumerate(depth) for j, (tr, _) in enumerate(rgb)
+                        if abs(td - tr) < max_difference_s)
+    used_d, used_r, pairs = set(), set(), []
+    for _, i, j in candidates:
+        if i not in used_d and j not in used_r:
+            used_d.add(i)
+            used_r.add(j)
+            pairs.append((depth[i][0], depth[i][1], rgb[j][1]))
+    return sorted(pairs)
+
+
+def depth_scale_of(raw: np.ndarray, source: str, depth_scale: float | None, default: float = TUM_DEPTH_SCALE) -> float:
+    """Units per metre of a raw depth image, checked against the depth a Kinect sees a body at.
+
+    With an explicit ``depth_scale`` only the dtype is checked. Otherwise the TUM scale is expected;
+    depth that looks like millimetres (or anything implausible) raises a one-line error naming the fix.
+    """
+    if raw.dtype.kind == "f":
+        if depth_scale is None:
+            raise FileFormatError(f"{source}: depth is stored as floating point (metres?); pass --depth-scale 1 "
+                                  "for metres, or store 16-bit PNG in TUM units (5000 per metre)")
+        return depth_scale
+    if raw.dtype != np.uint16:
+        raise FileFormatError(f"{source}: depth must be a 16-bit PNG, got {raw.dtype} (8-bit images lose the "
+                              "depth); export 16-bit depth")
+    if depth_scale is not None:
+        return depth_scale
+    valid = raw[raw > 0]
+    if valid.size == 0:
+        return default
+    median = float(np.median(valid))
+    lo, hi = PLAUSIBLE_DEPTH_M
+    if lo <= median / default <= hi:
+        return default
+    guess = {1000.0: "millimetres", 1.0: "metres", 10000.0: "0.1 mm"}
+    for scale, unit in guess.items():
+        if lo <= median / scale <= hi:
+            raise FileFormatError(f"{source}: depth looks like {unit} (median {median / scale:.2f} m at {scale:g} "
+                                  f"per metre, {median / default:.2f} m at TUM's {default:g}); pass --depth-scale "
+                                  f"{scale:g}")
+    raise FileFormatError(f"{source}: depth values (median {median:g}) are not in a known unit; pass --depth-scale "
+                          "(units per metre)")
+
+
+# ---------------------------------------------------------------------------------------------- joints
+
+@dataclass(frozen=True)
+class JointTrack:
+    names: list[str]
+    positions: np.ndarray  # (T, J, 3) metres
+    tracked: np.ndarray  # (T, J) bool
+
+
+def load_joints(path: str | os.PathLike) -> JointTrack:
+    """Tracker joints: folder of per-frame JSON, one JSON (``names`` + ``frames``) or CSV ``frame,joint,x,y,z[,tracked]``."""
+    path = Path(path)
+    if path.is_dir():
+        files = sorted(path.glob("*.json"))
+        if not files:
+            raise FileFormatError(f"{path}: no per-frame joint JSON files")
+        per_frame = [_joint_frame(json_or_error(f), f) for f in files]
+        names = per_frame[0][0]
+        for (n, _, _), f in zip(per_frame, files):
+            if n != names:
+                raise FileFormatError(f"{f}: joint names differ from {files[0].name}; every frame needs the same joints")
+        track = JointTrack(names, np.stack([p for _, p, _ in per_frame]), np.stack([t for _, _, t in per_frame]))
+    elif path.suffix.lower() == ".json":
+        data = json_or_error(path)
+        try:
+            names = list(data["names"])
+            pos = np.asarray(data["frames"], dtype=np.float64).reshape(-1, len(names), 3)
+            tracked = np.asarray(data.get("tracked", np.ones(pos.shape[:2], bool)), bool).reshape(pos.shape[:2])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise FileFormatError(f"{path}: joints JSON needs 'names' and 'frames' (T x J x 3 metres): {exc}") from None
+        track = JointTrack(names, pos, tracked)
+    elif path.suffix.lower() == ".csv":
+        track = _joints_csv(path)
+    else:
+        raise FileFormatError(f"{path}: joints must be a folder of JSON, a .json or a .csv file")
+    if not np.all(np.isfinite(track.positions)):
+        raise FileFormatError(f"{path}: joint positions contain NaN or infinity")
+    if np.abs(track.positions).max(initial=0) > 20.0:
+        raise FileFormatError(f"{path}: joint coordinates up to {np.abs(track.positions).max():.0f} look like "
+                              "millimetres; give metres")
+    return track
+
+
+def json_or_error(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise FileFormatError(f"{path}: not valid JSON ({exc})") from None
+
+
+def _joint_frame(data, source: Path):
+    try:
+        if "joints" in data:
+            names = list(data["joints"])
+            pos = np.asarray([data["joints"][n] for n in names], dtype=np.float64).reshape(-1, 3)
+        else:
+            names = list(data["names"])
+            pos = np.asarray(data["positions"], dtype=np.float64).reshape(len(names), 3)
+        tracked = np.asarray(data.get("tracked", [True] * len(names)), bool)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FileFormatError(f"{source}: joints need 'names' + 'positions' or a 'joints' object ({exc})") from None
+    return names, pos, tracked
+
+
+def _joints_csv(path: Path) -> JointTrack:
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    need = {"frame", "joint", "x", "y", "z"}
+    if not rows or not need <= set(rows[0]):
+        raise FileFormatError(f"{path}: CSV needs a header with columns frame,joint,x,y,z[,tracked]")
+    names = list(dict.fromkeys(r["joint"] for r in rows))
+    frames = sorted({int(r["frame"]) for r in rows})
+    index = {f: i for i, f in enumerate(frames)}
+    pos = np.full((len(frames), len(names), 3), np.nan)
+    tracked = np.zeros((len(frames), len(names)), bool)
+    jn = {n: j for j, n in enumerate(names)}
+    for line, r in enumerate(rows, 2):
+        try:
+            i, j = index[int(r["frame"])], jn[r["joint"]]
+            pos[i, j] = float(r["x"]), float(r["y"]), float(r["z"])
+            tracked[i, j] = str(r.get("tracked", "1")).strip().lower() not in ("0", "false", "no")
+        except ValueError:
+            raise FileFormatError(f"{path}:{line}: frame, x, y, z must be numbers") from None
+    missing = np.argwhere(np.isnan(pos[..., 0]))
+    if len(missing):
+        i, j = missing[0]
+        raise FileFormatError(f"{path}: frame {frames[i]} has no row for joint {names[j]}")
+    return JointTrack(names, pos, tracked)
+
+
+# ---------------------------------------------------------------------------------------------- import
+
+def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None = None,
+                     images: str | os.PathLike | None = None, videos: str | os.PathLike | None = None,
+                     timestamps: str | os.PathLike | None = None, backgrounds: str | os.PathLike | None = None,
+                     tum: str | os.PathLike | None = None, kinect_calibration: str | os.PathLike | None = None,
+                     depth_scale: float | None = None, joints: str | os.PathLike | None = None,
+                     n_frames: int | None = None, progress: bool = False) -> Session:
+    """Convert a recording into the session folder ``out``; every input problem is a one-line error.
+
+    Studio frames come from ``images`` (folder per camera) or ``videos`` (file per camera), synchronised
+    by index or, with ``timestamps`` (``<cam>.txt`` per camera), by time. ``tum`` adds Kinect depth and
+    colour (needs ``kinect_calibration``); ``joints`` adds tracker joints, one entry per session frame.
+    """
+    from bodystudio.capture.session import progress_bar
+
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise InputError(f"{out}: output folder exists and is not empty; choose a new folder")
+    if images and videos:
+        raise InputError("give --images or --videos, not both")
+    frame_root = Path(images or videos) if (images or videos) else None
+    if frame_root is not None and not frame_root.is_dir():
+        raise FileFormatError(f"{frame_root}: no such folder")
+    if cameras is None and tum is None:
+        raise InputError("give --cameras (cameras.json or EasyMocap intri.yml/extri.yml)")
+    if tum is not None and kinect_calibration is None:
+        raise InputError(f"{tum}: Kinect depth needs --kinect-calibration (JSON with 'depth' and 'color' cameras, "
+                         "see docs/session-format.md)")
+    sensor = load_kinect_calibration(kinect_calibration) if kinect_calibration else None
+    rig = _cameras_for_import(cameras, frame_root, videos is not None, sensor)
+    names = list(rig.cameras)
+
+    # -- studio frame plan: one {camera: source frame index} per session frame
+    sources = camera_sources(frame_root, names, videos is not None) if frame_root is not None else {}
+    if timestamps is not None and sources:
+        ts = {n: read_timestamps(Path(timestamps) / f"{n}.txt") for n in names}
+        for n in names:
+            if len(ts[n]) != len(sources[n]):
+                raise FileFormatError(f"{Path(timestamps) / (n + '.txt')}: {len(ts[n])} timestamps but "
+                                      f"{sources[n].where} has {len(sources[n])} frames")
+        plan = synchronise_by_timestamps(ts)
+        frame_times = [float(ts[names[0]][p[names[0]]]) for p in plan]
+    elif sources:
+        counts = {n: len(s) for n, s in sources.items()}
+        n_common = min(counts.values())
+        if len(set(counts.values())) > 1 and n_frames is None:
+            worst = min(counts, key=counts.get)
+            raise FileFormatError(f"{sources[worst].where}: {counts[worst]} frames but {sources[names[0]].where} has "
+                                  f"{counts[names[0]]}; give a timestamps folder to synchronise, or --frames "
+                                  f"{n_common} to use the first frames")
+        plan = [{n: k for n in names} for k in range(n_common)]
+        frame_times = None
+    else:
+        plan, frame_times = None, None
+
+    tum_pairs = None
+    if tum is not None:
+        tum = Path(tum)
+        tum_pairs = associate_tum(read_tum_list(tum / "depth.txt"), read_tum_list(tum / "rgb.txt"))
+        if not tum_pairs:
+            raise FileFormatError(f"{tum / 'depth.txt'}: no depth frame has a colour frame within "
+                                  f"{TUM_MAX_DIFFERENCE_S} s in rgb.txt")
+        if frame_times is not None:
+            stamps = np.array([p[0] for p in tum_pairs])
+            nearest = [int(np.argmin(np.abs(stamps - t))) for t in frame_times]
+            tum_pairs = [tum_pairs[j] if abs(stamps[j] - t) <= TUM_MAX_DIFFERENCE_S else None
+                         for j, t in zip(nearest, frame_times)]
+    track = load_joints(joints) if joints is not None else None
+
+    total = len(plan) if plan is not None else len(tum_pairs) if tum_pairs is not None else None
+    if total is None:
+        raise InputError("nothing to import: give --images, --videos or --tum")
+    if n_frames is not None:
+        total = min(total, n_frames)
+    for what, available, where in (("TUM depth/colour pairs", len(tum_pairs) if tum_pairs is not None else None,
+                                    tum / "depth.txt" if tum is not None else None),
+                                   ("joint frames", len(track.positions) if track is not None else None, joints)):
+        if available is not None and available < total:
+            raise FileFormatError(f"{where}: {available} {what} but the recording has {total} frames; "
+                                  f"pass --frames {available}")
+
+    scale = None
+    metadata = {"generator": "bodystudio capture import", "inputs": {
+        k: str(v) for k, v in dict(cameras=cameras, images=images, videos=videos, timestamps=timestamps,
+                                   backgrounds=backgrounds, tum=tum, kinect_calibration=kinect_calibration,
+                                   joints=joints).items() if v is not None}}
+    try:
+        with progress_bar(progress) as bar, SessionWriter(out, rig, source="import", metadata=metadata) as writer:
+            task = bar.add_task("import", total=total)
+            if sensor is not None:
+                writer.write_kinect_calibration(sensor)
+            if backgrounds is not None:
+                _import_backgrounds(writer, Path(backgrounds), rig)
+            for i in range(total):
+                if plan is not None:
+                    for name in names:
+                        image, where = sources[name].read(plan[i][name])
+                        _check_size(image, rig[name], where)
+                        writer.write_image(name, i, image)
+                if tum_pairs is not None and tum_pairs[i] is not None:
+                    _, depth_file, rgb_file = tum_pairs[i]
+                    raw = read_image_file(tum / depth_file, cv2.IMREAD_UNCHANGED)
+                    if scale is None:
+                        scale = depth_scale_of(raw, str(tum / depth_file), depth_scale)
+                    elif raw.dtype.kind != "f" and raw.dtype != np.uint16:
+                        depth_scale_of(raw, str(tum / depth_file), depth_scale)
+                    _check_size(raw, sensor.depth, str(tum / depth_file))
+                    writer.write_kinect_depth(i, raw.astype(np.float64) / scale)
+                    color = read_image_file(tum / rgb_file)
+                    _check_size(color, sensor.color, str(tum / rgb_file))
+                    writer.write_kinect_rgb(i, color)
+                if track is not None:
+                    writer.write_kinect_joints(i, track.names, track.positions[i], track.tracked[i],
+                                               joint_set=sensor.version if sensor is not None else None)
+                bar.advance(task)
+    finally:
+        for s in sources.values():
+            s.close()
+    log.info("imported %d frames of %d cameras into %s", total, len(names), out)
+    return open_session(out)
+
+
+def _cameras_for_import(cameras, frame_root, videos, sensor):
+    from bodystudio.geometry.camera import CameraRig
+
+    if cameras is None:
+        # A Kinect-only recording: its colour camera is the session's one studio camera.
+        return CameraRig({"kinect_color": sensor.color.with_name("kinect_color")})
+    sizes = None
+    cameras = Path(cameras)
+    if cameras.suffix.lower() != ".json" and frame_root is not None:
+        sizes = _frame_sizes(frame_root, videos)
+    return load_studio_cameras(cameras, sizes)
+
+
+def _frame_sizes(root: Path, videos: bool) -> dict[str, tuple[int, int]]:
+    """Image size per camera from its first frame (EasyMocap calibrations may not store it)."""
+    sizes = {}
+    for p in sorted(root.iterdir()):
+        if videos and p.suffix.lower() in VIDEO_SUFFIXES:
+            cap = cv2.VideoCapture(str(p))
+            if cap.isOpened():
+                sizes[p.stem] = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+            cap.release()
+        elif not videos and p.is_dir():
+            files = image_files(p)
+            if files:
+                h, w = read_image_file(files[0]).shape[:2]
+                sizes[p.name] = (w, h)
+    return sizes
+
+
+def _check_size(image: np.ndarray, camera, where: str) -> None:
+    h, w = image.shape[:2]
+    if (w, h) != (camera.width, camera.height):
+        raise FileFormatError(f"{where}: image is {w}x{h} but the calibration of {camera.name} says "
+                              f"{camera.width}x{camera.height}; use the matching calibration or frames")
+
+
+def _import_backgrounds(writer: SessionWriter, root: Path, rig) -> None:
+    """Empty-studio frames: ``root/<cam>/`` images, ``root/<cam>.<image>`` or ``root/<cam>.<video>``."""
+    if not root.is_dir():
+        raise FileFormatError(f"{root}: no such backgrounds folder")
+    for cam in rig:
+        frames: list[tuple[np.ndarray, str]] = []
+        if (root / cam.name).is_dir():
+            src = ImageFolderSource(root / cam.name)
+            frames = [src.read(k) for k in range(len(src))]
+        else:
+            files = [root / f"{cam.name}{s}" for s in IMAGE_SUFFIXES + VIDEO_SUFFIXES if (root / f"{cam.name}{s}").is_file()]
+            if not files:
+                raise FileFormatError(f"{root / cam.name}: no empty-studio frames for camera {cam.name} "
+                                      "(a folder, an image or a video named after the camera)")
+            if files[0].suffix.lower() in VIDEO_SUFFIXES:
+                src = VideoSource(files[0])
+                frames = [src.read(k) for k in range(len(src))]
+                src.close()
+            else:
+                frames = [(read_image_file(files[0]), str(files[0]))]
+        for k, (image, where) in enumerate(frames):
+            _check_size(image, cam, where)
+            writer.write_background(cam.name, k, image)
