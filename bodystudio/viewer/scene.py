@@ -118,7 +118,7 @@ def add_skin_weights(plotter, mesh: Mesh, weights: np.ndarray, bone_names, bone:
     return plotter
 
 
-def add_skeleton(plotter, heads: np.ndarray, tails: np.ndarray, radius: float = 0.006, name: str = "skeleton"):
+def add_skeleton(plotter, heads: np.ndarray, tails: np.ndarray, radius: float = 0.008, name: str = "skeleton"):
     """Bones as tubes from head to tail and joints (bone heads) as spheres."""
     import pyvista as pv
 

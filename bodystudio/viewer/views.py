@@ -82,7 +82,7 @@ def scene_for_avatar(avatar: Avatar, plotter=None, bone: str | None = None, skel
     if bone is not None:
         sc.add_skin_weights(plotter, avatar.mesh, avatar.weights, avatar.bone_names, bone)
     else:
-        sc.add_mesh(plotter, avatar.mesh, opacity=0.45 if skeleton else 1.0)
+        sc.add_mesh(plotter, avatar.mesh, opacity=0.3 if skeleton else 1.0)
     if skeleton:
         sc.add_skeleton(plotter, avatar.heads, avatar.tails)
     sc.add_floor(plotter, avatar.mesh.bounds.mean(0))
