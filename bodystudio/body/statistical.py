@@ -20,6 +20,7 @@ component's population standard deviation.
 from __future__ import annotations
 
 import logging
+import zipfile
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -124,11 +125,13 @@ class StatisticalBodyModel:
         if unknown:
             raise InputError(f"unknown attribute(s) {', '.join(unknown)}; valid: {', '.join(self.attribute_names)}")
 
-    def attributes_to_coeffs(self, attributes: dict[str, float]) -> np.ndarray:
+    def attributes_to_coeffs(self, attributes: dict[str, float], refine: bool = True) -> np.ndarray:
         """Shape coefficients of given attribute values: the linear map f(gamma) of Avatar Reshaping §5.1.
 
         Attributes left out take their population expectation given the ones supplied (Gaussian
         conditioning on the training attributes), so {"stature_m": 1.9} gives a typical 1.9 m person.
+        With ``refine`` a few Newton steps along the supplied attributes' directions then make the
+        measured values of the supplied mesh attributes match exactly (mass is not linear in shape).
         """
         self._check_names(attributes)
         A = self.training_attributes
@@ -139,7 +142,9 @@ class StatisticalBodyModel:
             a[given] = [float(attributes[n]) for n in np.array(self.attribute_names)[given]]
             if (~given).any():
                 a[~given] += cov[np.ix_(~given, given)] @ np.linalg.solve(cov[np.ix_(given, given)], a[given] - mu[given])
-        return np.append(a, 1.0) @ self.attribute_map
+        c = np.append(a, 1.0) @ self.attribute_map
+        targets = {n: float(attributes[n]) for n in MESH_ATTRIBUTE_NAMES if n in attributes}
+        return self._match_measured(c, targets) if refine and targets else c
 
     @property
     def semantic_directions(self) -> np.ndarray:
@@ -157,25 +162,29 @@ class StatisticalBodyModel:
         self._check_names(deltas)
         c0 = self._coeffs(coeffs)
         step = np.array([float(deltas.get(n, 0.0)) for n in self.attribute_names])
-        c = c0 + step @ self.semantic_directions
         before = self.measure(c0)
-        names = MESH_ATTRIBUTE_NAMES
-        target = np.array([before[n] + float(deltas.get(n, 0.0)) for n in names])
+        targets = {n: before[n] + float(deltas.get(n, 0.0)) for n in MESH_ATTRIBUTE_NAMES}
+        return self._match_measured(c0 + step @ self.semantic_directions, targets, iterations)
+
+    def _match_measured(self, c: np.ndarray, targets: dict[str, float], iterations: int = 5) -> np.ndarray:
+        """Newton steps along the targets' semantic directions until the measured attributes equal ``targets``."""
+        names = list(targets)
+        goal = np.array([targets[n] for n in names])
         tol = np.array([_TOLERANCE[n] for n in names])
         h = np.array([_FD_STEP[n] for n in names])
-        D = self.semantic_directions[[self.attribute_names.index(n) for n in names]]  # (7, k)
+        D = self.semantic_directions[[self.attribute_names.index(n) for n in names]]
         for _ in range(iterations):
-            m = self._mesh_attributes(c)
-            residual = target - m
+            m = self._mesh_attributes(c, names)
+            residual = goal - m
             if np.all(np.abs(residual) < tol):
                 break
-            J = np.stack([(self._mesh_attributes(c + h[j] * D[j]) - m) / h[j] for j in range(len(names))], axis=1)
+            J = np.stack([(self._mesh_attributes(c + h[j] * D[j], names) - m) / h[j] for j in range(len(names))], 1)
             c = c + np.linalg.lstsq(J, residual, rcond=None)[0] @ D
         return c
 
-    def _mesh_attributes(self, c: np.ndarray) -> np.ndarray:
+    def _mesh_attributes(self, c: np.ndarray, names: list[str]) -> np.ndarray:
         m = self.measure(c)
-        return np.array([m[n] for n in MESH_ATTRIBUTE_NAMES])
+        return np.array([m[n] for n in names])
 
 
 def population_shapes(subjects, vertex_ids: np.ndarray | None, rig: str = DEFAULT_RIG,
@@ -306,7 +315,7 @@ def read_statistical_model(path: str | Path) -> StatisticalBodyModel:
                                         bone_names=tuple(str(b) for b in z["bone_names"]),
                                         attribute_names=tuple(str(a) for a in z["attribute_names"]),
                                         vertex_ids=ids if len(ids) else None, **arrays)
-    except (OSError, ValueError, KeyError) as exc:
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
         raise FileFormatError(f"{path}: not a readable statistical body model ({exc}); delete it to rebuild") from None
 
 
