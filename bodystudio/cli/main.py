@@ -36,6 +36,9 @@ def _register() -> None:
     app.command("view")(viewer.view)
     app.command("report")(viewer.report)
     app.command("demo")(demo.demo)
+    from bodystudio.cli import reconstruct
+
+    app.command("reconstruct")(reconstruct.reconstruct)
 
 
 _register()

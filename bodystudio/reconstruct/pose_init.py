@@ -121,8 +121,13 @@ def joints_from_mapping(joints: dict, names: list[str]) -> np.ndarray:
     return out
 
 
-def initialise_pose(body, joints: np.ndarray, version: str = "v2") -> PoseInit:
-    """Pose and resize the template ``body`` to tracked joints ``(J, 3)`` (NaN = untracked), Eq. 11-12."""
+def initialise_pose(body, joints: np.ndarray, version: str = "v2", rest_vertices: np.ndarray | None = None
+                    ) -> PoseInit:
+    """Pose and resize the template ``body`` to tracked joints ``(J, 3)`` (NaN = untracked), Eq. 11-12.
+
+    ``rest_vertices`` replaces the template's rest shape (a warm start: the previous frame's result
+    un-skinned by :func:`unpose`); the skeleton and skin weights stay the template's.
+    """
     names = kinect_joint_names(version)
     joints = np.asarray(joints, dtype=np.float64)
     if joints.shape != (len(names), 3):
@@ -161,8 +166,20 @@ def initialise_pose(body, joints: np.ndarray, version: str = "v2") -> PoseInit:
         else:
             T[j] = parent
         done[bones] = T[j]
-    V = linear_blend_skinning(body.vertices, body.weights, T)
+    V0 = body.vertices if rest_vertices is None else np.asarray(rest_vertices, dtype=np.float64)
+    V = linear_blend_skinning(V0, body.weights, T)
     heads = np.einsum("bij,bj->bi", T[:, :3, :3], skel.heads) + T[:, :3, 3]
     tails = np.einsum("bij,bj->bi", T[:, :3, :3], skel.tails) + T[:, :3, 3]
     posed = kinect_joints(skel, heads, tails, version)
     return PoseInit(V, T, posed, float(np.cbrt(np.linalg.det(TG[:3, :3]))))
+
+
+def unpose(V: np.ndarray, weights: np.ndarray, bone_transforms: np.ndarray) -> np.ndarray:
+    """Inverse of Eq. 12: rest-pose positions whose LBS with ``bone_transforms`` gives ``V``.
+
+    Each vertex's blended affine map ``sum_k rho_ik T_k`` is inverted (it is invertible for the
+    rotations and moderate stretches of :func:`initialise_pose`).
+    """
+    A = np.einsum("nb,bij->nij", weights, bone_transforms[:, :3, :3])
+    t = weights @ bone_transforms[:, :3, 3]
+    return np.linalg.solve(A, (V - t)[:, :, None])[:, :, 0]

@@ -1,0 +1,248 @@
+"""Rapid Skin over a capture session: per-frame pose initialisation, deformation, outputs and scores.
+
+Frames are processed in order. Each is initialised from its joints (§IV.A) and *warm-started* from the
+previous frame: the previous result is un-skinned into the template's rest pose (inverting the blended
+LBS transforms) and that shape, not the generic one, is posed for the new frame, so the subject's
+shape carries over and only the motion has to be explained by the joints. Results go to
+``SESSION/reconstruct/``: ``meshes/NNNNN.ply``, ``frames.json`` (per-frame timings, constraint
+counts and, for synthetic sessions, errors) and ``run.json`` (parameters).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from bodystudio.body.kinect import kinect_joint_names, kinect_joints
+from bodystudio.errors import InputError, SessionError
+from bodystudio.fileio import read_json, write_json
+from bodystudio.geometry.laplacian import cotangent_weights
+from bodystudio.geometry.mesh import Mesh, load_mesh, save_mesh
+from bodystudio.reconstruct.depth import depth_observation
+from bodystudio.reconstruct.evaluate import (
+    joint_error_mm,
+    region_errors,
+    silhouette_iou,
+    surface_error,
+    vertex_regions,
+    visible_vertices,
+)
+from bodystudio.reconstruct.pose_init import initialise_pose, joints_from_mapping, unpose
+from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
+from bodystudio.reconstruct.solver import laplacian_gram_matrix
+
+log = logging.getLogger(__name__)
+
+TEMPLATES = {"13k": "full", "6k": "6k", "2k": "2k", "full": "full", "2.5k": "2k"}
+JOINT_SOURCES = ("tracker", "file")
+OUTPUT_DIR = "reconstruct"
+#: Kinect v1 joint names that have a v2 counterpart.
+V1_TO_V2 = {"HipCenter": "SpineBase", "Spine": "SpineMid", "ShoulderCenter": "SpineShoulder"}
+
+
+def parse_frames(text: str | None, frame_ids: list[int]) -> list[int]:
+    """``"A:B"`` (B exclusive, either side optional) or ``"N"`` -> the session frames selected."""
+    if text is None or text == "":
+        return list(frame_ids)
+    try:
+        if ":" in text:
+            a, b = text.split(":", 1)
+            lo = int(a) if a.strip() else min(frame_ids)
+            hi = int(b) if b.strip() else max(frame_ids) + 1
+        else:
+            lo = int(text)
+            hi = lo + 1
+    except ValueError:
+        raise InputError(f"--frames {text!r} must be A:B (B exclusive) or a single frame number") from None
+    sel = [f for f in frame_ids if lo <= f < hi]
+    if not sel:
+        raise InputError(f"--frames {text!r} selects no frame; the session has frames "
+                         f"{min(frame_ids)}..{max(frame_ids)}")
+    return sel
+
+
+def joints_v2(names: list[str], positions: np.ndarray, tracked: np.ndarray | None = None) -> np.ndarray:
+    """Kinect v2 joint array (25, 3) from named joints (v1 or v2 names); untracked -> NaN."""
+    pos = np.asarray(positions, dtype=np.float64).reshape(len(names), 3).copy()
+    if tracked is not None:
+        pos[~np.asarray(tracked, bool)] = np.nan
+    mapping = {V1_TO_V2.get(n, n): pos[k] for k, n in enumerate(names)}
+    return joints_from_mapping(mapping, kinect_joint_names("v2"))
+
+
+def frame_joints(session, frame, source: str, joints_dir: Path | None) -> np.ndarray:
+    """The frame's tracker joints (studio frame) from the session or a folder of per-frame JSON files."""
+    where = f"{session.path} frame {frame.frame_id}"
+    if source == "tracker":
+        data = frame.kinect_joints
+        if data is None:
+            raise SessionError(f"{where}: no Kinect tracker joints; use --joints file --joints-path DIR")
+        J = joints_v2(data["names"], data["positions"], data["tracked"])
+    elif source == "file":
+        if joints_dir is None:
+            raise InputError("--joints file needs --joints-path DIR with NNNNN.json files ({names, positions})")
+        data = read_json(Path(joints_dir) / f"{frame.frame_id:05d}.json", "joints file")
+        try:
+            J = joints_v2(list(data["names"]), np.asarray(data["positions"], float), data.get("tracked"))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{joints_dir}/{frame.frame_id:05d}.json: needs names and positions ({exc})") from None
+    else:
+        raise InputError(f"unknown joint source {source!r}; valid: {', '.join(JOINT_SOURCES)}")
+    if np.count_nonzero(np.all(np.isfinite(J), axis=1)) < 3:
+        raise InputError(f"{where}: no valid joints (fewer than 3 tracked); check the tracker output")
+    return J
+
+
+def gt_kinect_joints(frame, skeleton_names) -> np.ndarray | None:
+    """Ground-truth Kinect v2 joints of a synthetic frame (from the posed GT skeleton)."""
+    gt = frame.gt_joints
+    if gt is None:
+        return None
+    from bodystudio.body.skeleton import Skeleton
+
+    n = len(gt["bone_names"])
+    sk = Skeleton(tuple(gt["bone_names"]), np.full(n, -1), gt["heads"], gt["tails"], np.zeros(n))
+    try:
+        return kinect_joints(sk, gt["heads"], gt["tails"], "v2")
+    except InputError:
+        return None
+
+
+def score_frame(V: np.ndarray, F: np.ndarray, frame, cameras, regions=None, joints=None) -> dict | None:
+    """Errors of one reconstructed frame against the session's ground truth (None without GT)."""
+    gt = frame.gt_mesh
+    if gt is None:
+        return None
+    visible = visible_vertices(gt.vertices, gt.faces, cameras)
+    err = surface_error(V, F, gt.vertices, gt.faces, visible)
+    out = err.as_dict()
+    masks = frame.gt_masks if "gt_mask" in frame.session.streams else frame.masks
+    iou = silhouette_iou(V, F, cameras, {c.name: masks[c.name] for c in cameras})
+    out["iou"] = iou
+    out["iou_min"] = min(iou.values())
+    if regions is not None:
+        out["regions"] = region_errors(V, gt.vertices, gt.faces, regions)
+    if joints is not None:
+        gtj = gt_kinect_joints(frame, None)
+        if gtj is not None:
+            out["joint_error_mm"] = joint_error_mm(joints, gtj)
+    return out
+
+
+def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "13k", joints: str = "tracker",
+                        constraints: tuple[str, ...] = ("silhouette",), frames: str | None = None,
+                        joints_path: str | Path | None = None, params: RapidSkinParams | None = None,
+                        warm_start: bool = True, score: bool = True, progress: bool = False) -> dict:
+    """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary."""
+    from bodystudio.body import build_body
+    from bodystudio.capture.session import open_session, progress_bar
+
+    if template not in TEMPLATES:
+        raise InputError(f"unknown template {template!r}; valid: 13k, 6k, 2k")
+    if joints not in JOINT_SOURCES:
+        raise InputError(f"unknown joint source {joints!r}; valid: {', '.join(JOINT_SOURCES)} "
+                         "(visual-hull joints are not implemented)")
+    session = open_session(path)
+    params = params or RapidSkinParams(solver=solver, constraints=tuple(constraints))
+    cameras = list(session.cameras)
+    if set(session.camera_names) != {c.name for c in cameras}:
+        raise SessionError(f"{session.path}: the manifest lists cameras {', '.join(session.camera_names)} but "
+                           f"calibration/cameras.json has {', '.join(c.name for c in cameras)}; "
+                           "camera/session mismatch")
+    selected = parse_frames(frames, session.frame_ids)
+    sensor = session.kinect
+    if "depth" in params.constraints and sensor is None:
+        raise SessionError(f"{session.path}: no Kinect calibration, so no depth constraints; "
+                           "use --constraints silhouette")
+    body = build_body(resolution=TEMPLATES[template])
+    F = body.faces
+    regions = vertex_regions(body) if score else None
+    out_dir = session.path / OUTPUT_DIR
+    rest = body.vertices.copy()
+    records = []
+    with progress_bar(progress) as bar:
+        task = bar.add_task(f"rapid skin {solver} {template}", total=len(selected))
+        for fid in selected:
+            frame = session.frame(fid)
+            J = frame_joints(session, frame, joints, Path(joints_path) if joints_path else None)
+            t0 = time.perf_counter()
+            init = initialise_pose(body, J, rest_vertices=rest)
+            t_init = time.perf_counter() - t0
+            depth = None
+            if "depth" in params.constraints:
+                D = frame.kinect_depth_m
+                if D is None:
+                    raise SessionError(f"{session.path} frame {fid}: no Kinect depth image; "
+                                       "use --constraints silhouette")
+                depth = depth_observation(D, sensor.depth)
+            masks = None
+            if "silhouette" in params.constraints:
+                masks = {name: frame.masks[name] for name in frame.masks}
+            delta = cotangent_weights(init.vertices, F)
+            gram = laplacian_gram_matrix(delta) if params.solver in ("cholesky", "cg") else None
+            result = deform_to_observations(init.vertices, F, cameras, masks, params, depth=depth, delta=delta,
+                                            laplacian_gram=gram)
+            V = result.vertices
+            save_mesh(out_dir / "meshes" / f"{fid:05d}.ply", Mesh(V, F))
+            if warm_start:
+                rest = unpose(V, body.weights, init.bone_transforms)
+            rec = {"frame": fid, "solver_ms": 1000 * result.solver_s, "matching_ms": 1000 * result.matching_s,
+                   "init_ms": 1000 * t_init, "n_silhouette": result.n_silhouette, "n_depth": result.n_depth,
+                   "ms_per_frame": 1000 * (result.solver_s + result.matching_s + t_init)}
+            if score:
+                rec["metrics"] = score_frame(V, F, frame, cameras, regions, init.joints)
+            records.append(rec)
+            bar.advance(task)
+    write_json(out_dir / "frames.json", {"frames": records})
+    write_json(out_dir / "run.json", {"solver": params.solver, "template": template, "joints": joints,
+                                      "constraints": list(params.constraints), "frames": selected,
+                                      "warm_start": warm_start, "params": asdict(params),
+                                      "n_vertices": int(len(body.vertices))})
+    return summarize(records)
+
+
+def summarize(records: list[dict]) -> dict:
+    """Session summary: timings and, when scored, visible-surface errors (mean over frames of each figure)."""
+    out = {"frames": len(records),
+           "ms_per_frame": float(np.mean([r["ms_per_frame"] for r in records])),
+           "solver_ms": float(np.mean([r["solver_ms"] for r in records])),
+           "matching_ms": float(np.mean([r["matching_ms"] for r in records]))}
+    scored = [r["metrics"] for r in records if r.get("metrics")]
+    if scored:
+        out.update({
+            "median_mm": float(np.mean([m["visible_median_mm"] for m in scored])),
+            "p90_mm": float(np.mean([m["visible_p90_mm"] for m in scored])),
+            "hausdorff_mm": float(np.max([m["hausdorff_mm"] for m in scored])),
+            "pct_under_10mm": float(np.mean([m["pct_under_10mm"] for m in scored])),
+            "iou_min": float(np.min([m["iou_min"] for m in scored])),
+            "median_all_mm": float(np.mean([m["median_mm"] for m in scored])),
+            "p90_all_mm": float(np.mean([m["p90_mm"] for m in scored])),
+        })
+        je = [m["joint_error_mm"] for m in scored if "joint_error_mm" in m]
+        if je:
+            out["init_joint_error_mm"] = float(np.mean(je))
+    return out
+
+
+def evaluate_session(path: str | Path) -> dict:
+    """Score the meshes in ``SESSION/reconstruct/`` against the session's ground truth (JSON-ready dict)."""
+    from bodystudio.capture.session import open_session
+
+    session = open_session(path)
+    out_dir = session.path / OUTPUT_DIR
+    if not (out_dir / "frames.json").is_file():
+        raise SessionError(f"{out_dir}: no reconstruction yet; run `bodystudio reconstruct {session.path}` first")
+    run = read_json(out_dir / "frames.json", "reconstruction record")["frames"]
+    cameras = list(session.cameras)
+    records = []
+    for rec in run:
+        frame = session.frame(rec["frame"])
+        if frame.gt_mesh is None:
+            raise SessionError(f"{session.path}: frame {rec['frame']} has no ground-truth mesh to score against")
+        mesh = load_mesh(out_dir / "meshes" / f"{rec['frame']:05d}.ply")
+        records.append(dict(rec, metrics=score_frame(mesh.vertices, mesh.faces, frame, cameras)))
+    return summarize(records)
