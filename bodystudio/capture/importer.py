@@ -36,8 +36,8 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v")
 #: TUM RGB-D depth images store 5000 units per metre.
 TUM_DEPTH_SCALE = 5000.0
-#: Median body depth a Kinect can plausibly see, used to tell depth units apart (metres).
-PLAUSIBLE_DEPTH_M = (0.5, 6.0)
+#: The Kinect's valid range: the median depth of a frame must fall inside it, which tells units apart (m).
+PLAUSIBLE_DEPTH_M = (0.5, 4.5)
 #: TUM's associate.py default: depth and colour frames further apart than this are not paired (s).
 TUM_MAX_DIFFERENCE_S = 0.02
 
@@ -334,14 +334,18 @@ def depth_scale_of(raw: np.ndarray, source: str, depth_scale: float | None, defa
         return default
     median = float(np.median(valid))
     lo, hi = PLAUSIBLE_DEPTH_M
-    if lo <= median / default <= hi:
+    units = {default: "TUM units", 1000.0: "millimetres", 1.0: "metres"}
+    plausible = [scale for scale in units if lo <= median / scale <= hi]
+    if plausible == [default]:
         return default
-    guess = {1000.0: "millimetres", 1.0: "metres", 10000.0: "0.1 mm"}
-    for scale, unit in guess.items():
-        if lo <= median / scale <= hi:
-            raise FileFormatError(f"{source}: depth looks like {unit} (median {median / scale:.2f} m at {scale:g} "
-                                  f"per metre, {median / default:.2f} m at TUM's {default:g}); pass --depth-scale "
-                                  f"{scale:g}")
+    if len(plausible) > 1:
+        readings = " or ".join(f"{median / sc:.2f} m as {units[sc]}" for sc in plausible)
+        raise FileFormatError(f"{source}: depth units are ambiguous (median {readings}); pass --depth-scale "
+                              f"{' or --depth-scale '.join(f'{sc:g}' for sc in plausible)}")
+    if plausible:
+        scale = plausible[0]
+        raise FileFormatError(f"{source}: depth looks like {units[scale]} (median {median / scale:.2f} m at {scale:g} "
+                              f"per metre, {median / default:.2f} m at TUM's {default:g}); pass --depth-scale {scale:g}")
     raise FileFormatError(f"{source}: depth values (median {median:g}) are not in a known unit; pass --depth-scale "
                           "(units per metre)")
 
@@ -483,7 +487,7 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
         counts = {n: len(s) for n, s in sources.items()}
         n_common = min(counts.values())
         if len(set(counts.values())) > 1 and n_frames is None:
-            worst = min(counts, key=counts.get)
+            worst = next(n for n in names if counts[n] != counts[names[0]])
             raise FileFormatError(f"{sources[worst].where}: {counts[worst]} frames but {sources[names[0]].where} has "
                                   f"{counts[names[0]]}; give a timestamps folder to synchronise, or --frames "
                                   f"{n_common} to use the first frames")

@@ -93,7 +93,9 @@ def background_model(frames: list[np.ndarray], std_floor: float = 1.0, single_fr
         # Expected values for pure sensor noise of std s: CD ~ chi with 2 dof, alpha - 1 ~ s / |E|.
         cd_rms = float(np.sqrt(2.0))
         alpha_rms = float(np.median(np.sqrt(1.0 / np.maximum(((mean / std) ** 2).sum(-1), 1e-6))))
-    return BackgroundModel(mean, std.astype(np.float32), max(alpha_rms, 1e-3), max(cd_rms, 1e-3), len(frames))
+    # Compressed or denoised footage varies less over time than between frames with and without the
+    # subject; a floor on b keeps the classifier from becoming overconfident (unit = one model std).
+    return BackgroundModel(mean, std.astype(np.float32), max(alpha_rms, 1e-3), max(cd_rms, 1.0), len(frames))
 
 
 def brightness_chromaticity_distortion(image: np.ndarray, model: BackgroundModel) -> tuple[np.ndarray, np.ndarray]:
