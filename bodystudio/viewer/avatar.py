@@ -59,10 +59,14 @@ def glb_has_skin(path: str | Path) -> bool:
 
 
 def _load_gltf(path: Path):
+    import warnings
+
     import pygltflib
 
     try:
-        return pygltflib.GLTF2().load(str(path))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # pygltflib warns, then fails, on files that are not glTF
+            return pygltflib.GLTF2().load(str(path))
     except Exception as exc:  # pygltflib raises many types for broken files
         raise FileFormatError(f"{path}: cannot read glTF ({type(exc).__name__}: {exc})") from None
 

@@ -42,10 +42,12 @@ _SKIP_NAMES = {"session.json", "cameras.json", "commit.json"}
 MAX_JSON_BYTES = 2_000_000
 MAX_ROWS = 200
 MAX_SCREENSHOTS = 12
+MAX_PLOTS_PER_FILE = 8
 FRAME_KEYS = ("frame", "frame_id", "frame_index", "frame_idx")
 _ERR = re.compile(r"err|_mm$|rmse|mae|distance", re.I)
 _CONV = re.compile(r"energy|cost|loss|objective|history|convergence", re.I)
 _RESID = re.compile(r"residual|reproj", re.I)
+_MAIN_ERR = re.compile(r"median|mean|p90|rms", re.I)
 
 
 @dataclass(frozen=True)
@@ -86,6 +88,26 @@ def _is_record(v: Any) -> bool:
     return isinstance(v, dict) and len(v) > 0 and all(_is_scalar(x) for x in v.values())
 
 
+def flatten_record(record: dict, prefix: str = "", depth: int = 2) -> dict:
+    """Scalars of a (nested) dict with dotted keys; lists and deeper levels are left out."""
+    out = {}
+    for k, v in record.items():
+        key = f"{prefix}{k}"
+        if _is_scalar(v):
+            out[key] = v
+        elif isinstance(v, dict) and depth > 0:
+            out.update(flatten_record(v, f"{key}.", depth - 1))
+    return out
+
+
+def _record_list(v: Any) -> list[dict] | None:
+    """A list of dicts as flat records (None when it is not one)."""
+    if not (isinstance(v, list) and v and all(isinstance(r, dict) for r in v)):
+        return None
+    flat = [flatten_record(r) for r in v]
+    return flat if all(flat) else None
+
+
 def _records_table(title: str, records: list[dict], index_name: str | None = None,
                    index: list[str] | None = None) -> Table:
     columns: list[str] = []
@@ -103,8 +125,9 @@ def tables_from_json(title: str, data: Any) -> list[Table]:
     tables: list[Table] = []
 
     def walk(prefix: str, obj: Any) -> None:
-        if isinstance(obj, list) and obj and all(_is_record(r) for r in obj):
-            tables.append(_records_table(prefix, obj))
+        records = _record_list(obj)
+        if records is not None:
+            tables.append(_records_table(prefix, records))
             return
         if not isinstance(obj, dict):
             return
@@ -169,9 +192,10 @@ def _frame_records(data: Any) -> list[tuple[str, list[dict]]]:
     found = []
     candidates = [("", data)] + _series(data)
     for path, v in candidates:
-        if isinstance(v, list) and len(v) >= 1 and all(_is_record(r) for r in v):
-            if all(any(k in r for k in FRAME_KEYS) for r in v):
-                found.append((path, v))
+        records = _record_list(v)
+        if records is not None:
+            if all(any(k in r for k in FRAME_KEYS) for r in records):
+                found.append((path, records))
         elif isinstance(v, dict) and v and all(re.fullmatch(r"\d+", str(k)) for k in v) and all(
                 _is_record(r) for r in v.values()):
             found.append((path, [{"frame": int(k), **r} for k, r in v.items()]))
@@ -185,6 +209,7 @@ def plots_from_json(name: str, data: Any) -> list[Plot]:
         fkey = next(k for k in FRAME_KEYS if k in records[0])
         frames = [r.get(fkey) for r in records]
         cols = [k for k in records[0] if k != fkey and _ERR.search(k) and all(_is_number(r.get(k)) for r in records)]
+        cols.sort(key=lambda c: (not _MAIN_ERR.search(c), "region" in c, c.count(".")))
         if cols and len(records) >= 1:
             fig, ax = _new_figure(f"error per frame: {name}{' ' + path if path else ''}")
             for c in cols[:6]:
@@ -194,6 +219,8 @@ def plots_from_json(name: str, data: Any) -> list[Plot]:
             ax.legend(fontsize=8)
             plots.append(Plot(f"Error per frame ({name})", _figure_png(fig)))
     for path, v in _series(data):
+        if len(plots) >= MAX_PLOTS_PER_FILE:
+            break
         key = path.rsplit(".", 1)[-1]
         if _is_numeric_list(v) and len(v) >= 3 and _CONV.search(key):
             a = np.asarray(v, dtype=np.float64)

@@ -24,6 +24,8 @@ log = logging.getLogger(__name__)
 SESSION_MANIFEST = "session.json"
 IMAGE_LAYERS = ("image", "mask", "none")
 MAX_TEXTURE_WIDTH = 320  # camera images are shown small; keeps the HTML export light
+FRUSTUM_M = 0.5  # depth at which camera frusta end and their images are drawn
+KINECT_COLOR = (0.3, 0.9, 0.5)
 
 
 @dataclass(frozen=True)
@@ -144,7 +146,7 @@ def scene_for_frame(session, frame_id: int, plotter, images: str = "image", clou
         elif images == "mask" and cam.name in frame.masks:
             picture = _downsample(frame.masks[cam.name])
         if picture is not None:
-            sc.add_camera(plotter, cam, picture, far=0.35)
+            sc.add_camera(plotter, cam, picture, far=FRUSTUM_M)
     gt = frame.gt_mesh
     recon_path = reconstructed_mesh_path(session.path, frame_id)
     recon = load_mesh(recon_path) if recon_path is not None else None
@@ -159,7 +161,7 @@ def scene_for_frame(session, frame_id: int, plotter, images: str = "image", clou
         plotter.remove_actor("gt")
         plotter.remove_actor("recon")
     if cloud:
-        sc.add_point_cloud(plotter, kinect_points(session, frame), point_size=2.0, name="kinect")
+        sc.add_point_cloud(plotter, kinect_points(session, frame), point_size=2.0, name="kinect", color=KINECT_COLOR)
     joints = frame.gt_joints
     if skeleton and joints is not None:
         sc.add_skeleton(plotter, joints["heads"], joints["tails"], radius=0.005, name="gt-skeleton")
@@ -175,7 +177,9 @@ def scene_for_session(session, frame_id: int | None = None, plotter=None, images
     frame_id = session.frame_ids[0] if frame_id is None else int(frame_id)
     plotter = plotter if plotter is not None else sc.make_plotter()
     for cam in session.cameras:  # frusta stay when frames change
-        sc.add_camera(plotter, cam, None, far=0.35)
+        sc.add_camera(plotter, cam, None, far=FRUSTUM_M)
+    if session.kinect is not None:
+        sc.add_camera(plotter, session.kinect.depth, None, far=FRUSTUM_M, color=KINECT_COLOR, name="kinect-frustum")
     scene_for_frame(session, frame_id, plotter, images, cloud, skeleton)
     gt = session.frame(frame_id).gt_mesh
     sc.add_floor(plotter, _session_bounds(session, gt).mean(0), size=4.0)

@@ -56,7 +56,10 @@ def run_chromium(html_path: Path, size=(1200, 1000), timeout: float = 90.0) -> d
         subprocess.run([exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}/p", f"--window-size={size[0]},{size[1]}",
                         "--virtual-time-budget=8000", f"--screenshot={shot}", url], capture_output=True, timeout=timeout)
         image = np.asarray(Image.open(shot).convert("RGB")) if shot.is_file() else None
-    console = [line for line in dom.stderr.splitlines() if ":CONSOLE" in line]
+    # Chromium's software GL reports its own performance notes ("GL Driver Message (..., Performance,
+    # ...): GPU stall due to ReadPixels") through the page console; they are not page errors.
+    console = [line for line in dom.stderr.splitlines()
+               if ":CONSOLE" in line and not ("GL Driver Message" in line and "Performance" in line)]
     return {"dom": dom.stdout, "console": console, "stderr": dom.stderr, "screenshot": image}
 
 
@@ -102,3 +105,22 @@ def write_skinned_glb(path: Path, V: np.ndarray, F: np.ndarray, weights: np.ndar
         accessors=acc, bufferViews=views, buffers=[g.Buffer(byteLength=len(data))])
     gltf.set_binary_blob(data)
     gltf.save_binary(str(path))
+
+
+@pytest.fixture
+def drawn():
+    """``drawn(img)``: True where a pixel differs from the viewer background."""
+    return background_mask
+
+
+@pytest.fixture
+def chromium():
+    """``chromium(html_path)``: load a page in headless Chromium (skips when it is not installed)."""
+    if chromium_binary() is None:
+        pytest.skip("headless Chromium not installed (Debian package 'chromium'; `make setup` installs it)")
+    return run_chromium
+
+
+@pytest.fixture
+def skinned_glb():
+    return write_skinned_glb

@@ -7,7 +7,6 @@ from bodystudio.errors import InputError
 from bodystudio.geometry.mesh import Mesh
 from bodystudio.viewer import scene as sc
 from bodystudio.viewer.views import scene_for_avatar, scene_for_mesh
-from tests.viewer.conftest import background_mask
 
 SIZE = (320, 240)
 
@@ -22,7 +21,7 @@ def _screen_box(plotter, bounds):
     return uv.min(0), uv.max(0)
 
 
-def test_mesh_pixels_fall_inside_its_projected_bounding_box(body_mesh):
+def test_mesh_pixels_fall_inside_its_projected_bounding_box(body_mesh, drawn):
     # Shift the body off-centre so a renderer that ignored the camera would fail the test.
     mesh = body_mesh.with_vertices(body_mesh.vertices + [0.4, 0.0, 0.0])
     plotter = sc.make_plotter(window_size=SIZE)
@@ -30,9 +29,8 @@ def test_mesh_pixels_fall_inside_its_projected_bounding_box(body_mesh):
     sc.frame_front(plotter, mesh.bounds + [[-0.6, 0, 0], [0.2, 0, 0]])  # the body sits right of centre
     img = sc.render_image(plotter)
     assert img.shape == (SIZE[1], SIZE[0], 3)
-    drawn = background_mask(img)
     (u0, v0), (u1, v1) = _screen_box(plotter, mesh.bounds)
-    ys, xs = np.nonzero(drawn)
+    ys, xs = np.nonzero(drawn(img))
     assert len(xs) > 500
     margin = 2
     assert xs.min() >= u0 - margin and xs.max() <= u1 + margin
