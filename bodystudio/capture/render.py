@@ -17,6 +17,7 @@ from __future__ import annotations
 import zlib
 from dataclasses import dataclass
 
+import igl
 import numpy as np
 from numba import njit
 
@@ -143,6 +144,29 @@ def _rasterize(uv, z, F, width, height, zbuf, tri_id, bary):
                         bary[py, px, 2] = p2
 
 
+@njit(cache=True)
+def _project(V, R, t, K, dist, uv, z):
+    """Vertices into pixels with the OpenCV distortion model (same maths as ``Camera.project_with_depth``)."""
+    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+    for i in range(V.shape[0]):
+        xc = R[0, 0] * V[i, 0] + R[0, 1] * V[i, 1] + R[0, 2] * V[i, 2] + t[0]
+        yc = R[1, 0] * V[i, 0] + R[1, 1] * V[i, 1] + R[1, 2] * V[i, 2] + t[1]
+        zc = R[2, 0] * V[i, 0] + R[2, 1] * V[i, 1] + R[2, 2] * V[i, 2] + t[2]
+        z[i] = zc
+        if zc <= 0.0:
+            uv[i, 0] = np.nan
+            uv[i, 1] = np.nan
+            continue
+        x = xc / zc
+        y = yc / zc
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        uv[i, 0] = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
+        uv[i, 1] = K[1, 1] * yd + K[1, 2]
+
+
 def _check_mesh(V, F) -> tuple[np.ndarray, np.ndarray]:
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
@@ -159,12 +183,13 @@ def render(V: np.ndarray, F: np.ndarray, camera: Camera) -> RenderResult:
     Both triangle orientations are drawn (no back-face culling); the nearest surface wins.
     """
     V, F = _check_mesh(V, F)
-    uv, z = camera.project_with_depth(V)
+    uv, z = np.empty((len(V), 2)), np.empty(len(V))
+    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
     H, W = camera.height, camera.width
     zbuf = np.full((H, W), np.inf)
     tri_id = np.full((H, W), -1, dtype=np.int32)
     bary = np.zeros((H, W, 3), dtype=np.float32)
-    _rasterize(np.ascontiguousarray(uv), np.ascontiguousarray(z), F, W, H, zbuf, tri_id, bary)
+    _rasterize(uv, z, F, W, H, zbuf, tri_id, bary)
     mask = tri_id >= 0
     depth = np.where(mask, zbuf, 0.0).astype(np.float32)
     return RenderResult(mask, depth, tri_id, bary)
@@ -176,13 +201,9 @@ def render_depth(V: np.ndarray, F: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 def vertex_normals_area_weighted(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Unit vertex normals as the area-weighted sum of incident face normals (vectorised)."""
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    N = np.zeros_like(V)
-    for k in range(3):
-        np.add.at(N, F[:, k], n)
-    length = np.linalg.norm(N, axis=1, keepdims=True)
-    return N / np.maximum(length, 1e-20)
+    """Unit vertex normals, area-weighted mean of incident face normals (libigl ``per_vertex_normals``)."""
+    return igl.per_vertex_normals(np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(F, dtype=np.int64),
+                                  igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA)
 
 
 def lambert_shading(normals: np.ndarray, lights=STUDIO_LIGHTS, ambient: float = AMBIENT) -> np.ndarray:
@@ -195,46 +216,55 @@ def lambert_shading(normals: np.ndarray, lights=STUDIO_LIGHTS, ambient: float = 
     return shade
 
 
-def shade_pixels(result: RenderResult, V: np.ndarray, F: np.ndarray, camera: Camera,
-                 vertex_colors: np.ndarray | None = None, skin_color=SKIN_COLOR, lights=STUDIO_LIGHTS,
-                 ambient: float = AMBIENT, normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Lambert-shaded colours (K, 3) in [0, 1] of the covered pixels, with their (row, col) (K, 2).
-
-    Smooth shading: vertex normals are interpolated with the pixel's barycentrics; normals that face
-    away from the camera (seen through a hole or on a thin part) are flipped.
-    """
-    V, F = _check_mesh(V, F)
-    N = vertex_normals_area_weighted(V, F) if normals is None else np.asarray(normals, dtype=np.float64)
-    rows, cols = np.nonzero(result.mask)
-    tri = F[result.triangle_id[rows, cols]]
-    b = result.barycentric[rows, cols].astype(np.float64)
-    n = np.einsum("kj,kjd->kd", b, N[tri])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
-    P = np.einsum("kj,kjd->kd", b, V[tri])
-    facing_away = np.einsum("kd,kd->k", n, P - camera.center) > 0
-    n[facing_away] *= -1.0
-    if vertex_colors is None:
-        albedo = np.broadcast_to(np.asarray(skin_color, dtype=np.float64), (len(rows), 3))
-    else:
-        C = np.asarray(vertex_colors, dtype=np.float64)
-        if C.shape != V.shape:
-            raise InputError(f"vertex_colors must be (n, 3) like the vertices, got {C.shape}")
-        if C.max(initial=0.0) > 1.0:
-            C = C / 255.0
-        albedo = np.einsum("kj,kjd->kd", b, C[tri])
-    colors = albedo * lambert_shading(n, lights, ambient)[:, None]
-    return np.clip(colors, 0.0, 1.0), np.stack([rows, cols], axis=1)
+@njit(cache=True)
+def _shade(tri_id, bary, V, F, N, albedo, per_vertex_albedo, center, light_dirs, light_intensity, ambient, image):
+    """Smooth Lambert shading of every covered pixel, written into ``image`` (uint8)."""
+    H, W = tri_id.shape
+    for py in range(H):
+        for px in range(W):
+            f = tri_id[py, px]
+            if f < 0:
+                continue
+            n = np.zeros(3)
+            p = np.zeros(3)
+            c = np.zeros(3)
+            for k in range(3):
+                v = F[f, k]
+                b = bary[py, px, k]
+                for d in range(3):
+                    n[d] += b * N[v, d]
+                    p[d] += b * V[v, d]
+                    if per_vertex_albedo:
+                        c[d] += b * albedo[v, d]
+            if not per_vertex_albedo:
+                for d in range(3):
+                    c[d] = albedo[0, d]
+            length = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+            if length > 0.0:
+                n /= length
+            # normals facing away from the camera (thin parts, holes) are flipped: two-sided lighting
+            if n[0] * (p[0] - center[0]) + n[1] * (p[1] - center[1]) + n[2] * (p[2] - center[2]) > 0.0:
+                n = -n
+            shade = ambient
+            for li in range(light_dirs.shape[0]):
+                cos = n[0] * light_dirs[li, 0] + n[1] * light_dirs[li, 1] + n[2] * light_dirs[li, 2]
+                if cos > 0.0:
+                    shade += light_intensity[li] * cos
+            for d in range(3):
+                value = c[d] * shade * 255.0 + 0.5
+                image[py, px, d] = np.uint8(min(max(value, 0.0), 255.0))
 
 
 def render_rgb(V: np.ndarray, F: np.ndarray, camera: Camera, vertex_colors: np.ndarray | None = None,
                background: np.ndarray | None = None, skin_color=SKIN_COLOR, lights=STUDIO_LIGHTS,
                ambient: float = AMBIENT, result: RenderResult | None = None, noise_std: float = 0.0,
-               rng: np.random.Generator | None = None) -> np.ndarray:
+               rng: np.random.Generator | None = None, normals: np.ndarray | None = None) -> np.ndarray:
     """Lambert-shaded colour image (H, W, 3) uint8 of the mesh over ``background`` (default mid grey).
 
     ``vertex_colors`` (n, 3) in [0, 1] or 0..255, else a flat ``skin_color``; ``lights`` are
     directional (direction towards the light, intensity) in world coordinates. ``noise_std`` adds
-    Gaussian sensor noise (in 0..255 units) with ``rng``. Pass ``result`` to reuse a rasterisation.
+    Gaussian sensor noise (in 0..255 units) with ``rng``. Pass ``result`` to reuse a rasterisation
+    and ``normals`` (vertex normals of this frame) to share them between the views of a rig.
     """
     H, W = camera.height, camera.width
     if background is None:
@@ -243,9 +273,22 @@ def render_rgb(V: np.ndarray, F: np.ndarray, camera: Camera, vertex_colors: np.n
         image = np.array(background, dtype=np.uint8, copy=True)
         if image.shape != (H, W, 3):
             raise InputError(f"background must be ({H}, {W}, 3) for camera {camera.name}, got {image.shape}")
+    V, F = _check_mesh(V, F)
     result = render(V, F, camera) if result is None else result
-    colors, rc = shade_pixels(result, V, F, camera, vertex_colors, skin_color, lights, ambient)
-    image[rc[:, 0], rc[:, 1]] = np.round(colors * 255.0).astype(np.uint8)
+    N = vertex_normals_area_weighted(V, F) if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
+    if vertex_colors is None:
+        albedo, per_vertex = np.asarray(skin_color, dtype=np.float64).reshape(1, 3), False
+    else:
+        albedo, per_vertex = np.ascontiguousarray(vertex_colors, dtype=np.float64), True
+        if albedo.shape != V.shape:
+            raise InputError(f"vertex_colors must be (n, 3) like the vertices, got {albedo.shape}")
+        if albedo.max(initial=0.0) > 1.0:
+            albedo = albedo / 255.0
+    directions = np.array([d for d, _ in lights], dtype=np.float64).reshape(-1, 3)
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    intensities = np.array([i for _, i in lights], dtype=np.float64)
+    _shade(result.triangle_id, result.barycentric, V, F, N, albedo, per_vertex, camera.center, directions,
+           intensities, float(ambient), image)
     if noise_std > 0:
         rng = np.random.default_rng() if rng is None else rng
         noisy = image.astype(np.float32) + rng.normal(0.0, noise_std, image.shape).astype(np.float32)

@@ -122,3 +122,20 @@ def test_render_rgb_composites_over_background_plate(body_2k):
         render_rgb(V, F, rig[0], background=np.zeros((10, 10, 3), np.uint8))
     with pytest.raises(InputError):
         render(V, F + len(V), rig[0])
+
+
+def test_flat_plane_colour_is_lambert():
+    from bodystudio.capture.render import SKIN_COLOR, lambert_shading
+    cam = _front_camera()
+    n = np.array([0.2, 0.5, 1.0]); n /= np.linalg.norm(n)  # plane normal (towards the camera side)
+    a = np.cross(n, [0, 1, 0]); a /= np.linalg.norm(a); b = np.cross(n, a)
+    p0 = np.array([0.0, 0.0, -2.0])
+    V = np.array([p0 + 3 * (sa * a + sb * b) for sa, sb in [(-1, -1), (1, -1), (1, 1), (-1, 1)]])
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    img = render_rgb(V, F, cam)
+    expected = np.round(np.clip(np.array(SKIN_COLOR) * lambert_shading(n[None])[0], 0, 1) * 255)
+    assert np.abs(img.reshape(-1, 3).astype(float) - expected).max() <= 1
+    colours = np.tile([[0.2, 0.4, 0.9]], (4, 1))
+    img2 = render_rgb(V, F, cam, vertex_colors=colours)
+    expected2 = np.round(np.clip(colours[0] * lambert_shading(n[None])[0], 0, 1) * 255)
+    assert np.abs(img2.reshape(-1, 3).astype(float) - expected2).max() <= 1
