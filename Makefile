@@ -5,8 +5,9 @@ SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-# Debian packages the wheels need at run time (open3d: libusb; VTK/Open3D rendering: GL, EGL, X render).
-APT_PACKAGES := libusb-1.0-0 libgomp1 libgl1 libegl1 libxrender1
+# Debian packages the wheels need at run time (open3d: libusb; VTK/Open3D rendering: GL, EGL, X render;
+# chromium: headless check that HTML reports load and draw).
+APT_PACKAGES := libusb-1.0-0 libgomp1 libgl1 libegl1 libxrender1 chromium
 DEMO_OUT ?= demo-out
 PYTEST_ARGS ?=
 
