@@ -14,6 +14,7 @@ Pixel convention (OpenCV): the centre of pixel ``(row, col)`` is at image coordi
 
 from __future__ import annotations
 
+import collections
 import zlib
 from dataclasses import dataclass
 
@@ -324,7 +325,29 @@ def background_plate(camera: Camera, seed: int = 0, wall_radius_m: float = 5.0) 
     The studio is a cylindrical curtain wall (radius ``wall_radius_m``) with folds and a mottled
     texture, standing on a tiled floor at y = 0. Textures live in world coordinates, so all cameras
     see the same studio; ``seed`` and the camera name vary the texture and a slight per-camera gain.
+    Plates are cached per camera and seed (a fresh copy is returned each call).
     """
+    key = (camera.name, camera.K.tobytes(), camera.dist.tobytes(), camera.R.tobytes(), camera.t.tobytes(),
+           camera.width, camera.height, int(seed), float(wall_radius_m))
+    return _cached_plate(key, camera, int(seed), float(wall_radius_m)).copy()
+
+
+_PLATES: "collections.OrderedDict[tuple, np.ndarray]" = collections.OrderedDict()
+
+
+def _cached_plate(key, camera: Camera, seed: int, wall_radius_m: float) -> np.ndarray:
+    if key in _PLATES:
+        _PLATES.move_to_end(key)
+        return _PLATES[key]
+    plate = _studio_plate(camera, seed, wall_radius_m)
+    plate.setflags(write=False)
+    _PLATES[key] = plate
+    while len(_PLATES) > 32:
+        _PLATES.popitem(last=False)
+    return plate
+
+
+def _studio_plate(camera: Camera, seed: int, wall_radius_m: float) -> np.ndarray:
     H, W = camera.height, camera.width
     cols, rows = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     origins, dirs = camera.rays(np.stack([cols.ravel(), rows.ravel()], axis=1))

@@ -171,8 +171,13 @@ class Camera:
         target = (np.c_[uv, np.ones(len(uv))] @ Kinv.T)[:, :2]
         for _ in range(4):
             residual = distort_normalized(xy, self.dist) - target
+            if np.abs(residual).max() < 1e-14:
+                break
             J = _distortion_jacobian(xy, self.dist)
-            xy = xy - np.linalg.solve(J, residual[:, :, None])[:, :, 0]
+            det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+            dx = (J[:, 1, 1] * residual[:, 0] - J[:, 0, 1] * residual[:, 1]) / det
+            dy = (J[:, 0, 0] * residual[:, 1] - J[:, 1, 0] * residual[:, 0]) / det
+            xy = xy - np.stack([dx, dy], axis=1)
         if normalized:
             return xy
         return (np.c_[xy, np.ones(len(xy))] @ self.K.T)[:, :2]

@@ -107,6 +107,9 @@ def test_render_rgb_composites_over_background_plate(body_2k):
     bg = background_plate(rig[0], seed=3)
     assert bg.shape == (120, 160, 3) and bg.dtype == np.uint8
     assert np.array_equal(bg, background_plate(rig[0], seed=3))
+    scribbled = background_plate(rig[0], seed=3)
+    scribbled[:] = 0  # callers own their copy; the cache is unaffected
+    assert np.array_equal(bg, background_plate(rig[0], seed=3))
     assert not np.array_equal(bg, background_plate(rig[0], seed=4))
     assert not np.array_equal(bg, background_plate(rig[1], seed=3))
     assert bg.std() > 10  # textured, not flat
