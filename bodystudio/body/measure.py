@@ -8,7 +8,7 @@ the way a tailor or an anthropometric survey (ISO 8559-1) would, on the rest pos
 * ``mass_kg``: enclosed volume x 1010 kg/m^3 (average body density). Boundary loops, if the mesh has
   any, are fan-filled first so the divergence-theorem volume is that of a closed surface.
 * ``chest_m``, ``waist_m``, ``hip_m``: horizontal planar cross-sections. Of each section's closed
-  curves the torso's is the one whose convex hull is largest (arms and hands give separate, smaller
+  curves the torso's is the one with the largest bounding box (arms and hands give separate, smaller
   curves); the girth is the perimeter of that curve's convex hull, which is what a tape measure laid
   around the body reads (it spans the hollow between the breasts and the small of the back).
   Chest: at bust-point height. Waist: the narrowest torso section in a band between crotch and bust
@@ -29,8 +29,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
+from numba import njit
 from scipy.spatial import ConvexHull
 
 from bodystudio.errors import InputError
@@ -143,7 +142,7 @@ def close_boundary_loops(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.n
     loops = [np.asarray(loop, dtype=np.int64) for loop in igl.boundary_loop_all(F) if len(loop) >= 3]
     if not loops:
         return V, F
-    directed = set(zip(F[:, [0, 1, 2]].ravel().tolist(), F[:, [1, 2, 0]].ravel().tolist()))
+    directed = set(zip(F.ravel().tolist(), F[:, [1, 2, 0]].ravel().tolist(), strict=True))
     new_V, new_F = [V], [F]
     n = len(V)
     for loop in loops:
@@ -189,22 +188,47 @@ def horizontal_section_curves(V: np.ndarray, F: np.ndarray, height: float) -> li
     lo, hi = keys // len(V), keys % len(V)
     t = (height - V[lo, 1]) / (V[hi, 1] - V[lo, 1])
     points = V[lo][:, [0, 2]] + t[:, None] * (V[hi] - V[lo])[:, [0, 2]]
-    seg = point_of.reshape(-1, 2)
-    G = sp.coo_matrix((np.ones(len(seg)), (seg[:, 0], seg[:, 1])), shape=(len(keys), len(keys)))
-    n_curves, label = connected_components(G, directed=False)
-    return [points[label == c] for c in range(n_curves)]
+    label = _segment_components(point_of.reshape(-1, 2), len(keys))
+    return [points[label == c] for c in range(label.max() + 1)]
+
+
+@njit(cache=True)
+def _segment_components(segments: np.ndarray, n_points: int) -> np.ndarray:
+    """Connected-component label of each point linked by ``segments`` (union-find with path halving)."""
+    parent = np.arange(n_points)
+    for a, b in segments:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        while parent[b] != b:
+            parent[b] = parent[parent[b]]
+            b = parent[b]
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+    label = np.empty(n_points, dtype=np.int64)
+    n_labels = 0
+    for i in range(n_points):
+        root = i
+        while parent[root] != root:
+            root = parent[root]
+        if root == i:
+            label[i] = n_labels
+            n_labels += 1
+        else:
+            label[i] = label[root]  # roots are the smallest index of their component, labelled first
+    return label
 
 
 def torso_girth(V: np.ndarray, F: np.ndarray, height: float) -> float:
-    """Tape-measure girth at ``height``: convex-hull perimeter of the section curve with the largest hull."""
-    best_area, best_perimeter = -1.0, float("nan")
-    for pts in horizontal_section_curves(V, F, height):
-        if len(pts) < 3:
-            continue
-        hull = ConvexHull(pts)
-        if hull.volume > best_area:  # 2-D hull: .volume is the area, .area the perimeter
-            best_area, best_perimeter = hull.volume, hull.area
-    return float(best_perimeter)
+    """Tape-measure girth at ``height``: convex-hull perimeter of the section's largest curve.
+
+    The largest curve is the one with the largest bounding box in (x, z): the torso, not an arm or hand.
+    """
+    curves = [pts for pts in horizontal_section_curves(V, F, height) if len(pts) >= 3]
+    if not curves:
+        return float("nan")
+    torso = max(curves, key=lambda pts: float(np.prod(np.ptp(pts, axis=0))))
+    return float(ConvexHull(torso).area)  # of a 2-D hull, .area is the perimeter
 
 
 def _resolve_vertex_ids(n_vertices: int, resolution: str | None, vertex_ids: np.ndarray | None):

@@ -39,7 +39,8 @@ def test_model_is_learned_from_300_bodies_with_20_components(sm):
 
 def test_population_shapes_equal_build_body():
     subjects = sample_population(3, seed=7)
-    for (phenotype, local), (V, heads, tails) in zip(subjects, population_shapes(subjects, build_body(resolution="2k").vertex_ids)):
+    shapes = list(population_shapes(subjects, build_body(resolution="2k").vertex_ids))
+    for (phenotype, local), (V, heads, tails) in zip(subjects, shapes, strict=True):
         body = build_body(phenotype, local, resolution="2k")
         np.testing.assert_allclose(V, body.vertices, atol=1e-12)
         np.testing.assert_allclose(heads, body.skeleton.heads, atol=1e-12)
