@@ -108,7 +108,8 @@ def grazing_mask(V: np.ndarray, F: np.ndarray, result: RenderResult, sensor: RGB
     return out
 
 
-def flying_pixels(depth_m: np.ndarray, rng: np.random.Generator, model: KinectNoiseModel = KINECT_NOISE) -> np.ndarray:
+def flying_pixels(depth_m: np.ndarray, rng: np.random.Generator,
+                  model: KinectNoiseModel = KINECT_NOISE) -> np.ndarray:
     """Depth (H, W) with flying pixels: at discontinuities, mixtures of foreground and background depth.
 
     Pixels whose 3x3 window spans a depth jump above ``discontinuity_m`` (empty counts as far) take,
@@ -151,7 +152,8 @@ def quantized_disparity_depth(depth_m: np.ndarray, focal_px: float, baseline_m: 
     return out
 
 
-def random_holes(shape: tuple[int, int], rng: np.random.Generator, model: KinectNoiseModel = KINECT_NOISE) -> np.ndarray:
+def random_holes(shape: tuple[int, int], rng: np.random.Generator,
+                 model: KinectNoiseModel = KINECT_NOISE) -> np.ndarray:
     """Mask of missing pixels: 3x3 blobs around random seeds plus isolated dropouts."""
     seeds = (rng.random(shape) < model.hole_rate).astype(np.uint8)
     blobs = cv2.dilate(seeds, np.ones((3, 3), np.uint8)) > 0
@@ -168,7 +170,8 @@ def simulate_kinect_depth(V: np.ndarray, F: np.ndarray, sensor: RGBDSensor, rng:
     disparity noise with 1/8-pixel quantisation (axial sigma 1.425e-3 Z^2), the 0.5-4.5 m range, holes.
     """
     if not isinstance(sensor, RGBDSensor):
-        raise InputError(f"simulate_kinect_depth needs an RGBDSensor (kinect_v1() / kinect_v2()), got {type(sensor).__name__}")
+        raise InputError("simulate_kinect_depth needs an RGBDSensor (kinect_v1() / kinect_v2()), "
+                         f"got {type(sensor).__name__}")
     result = render(V, F, sensor.depth) if result is None else result
     depth = result.depth.astype(np.float64)
     lo, hi = sensor.depth_range_m

@@ -181,7 +181,8 @@ def _check_mesh(V, F) -> tuple[np.ndarray, np.ndarray]:
 def render(V: np.ndarray, F: np.ndarray, camera: Camera) -> RenderResult:
     """Rasterise mesh ``(V, F)`` into ``camera``: silhouette, depth, triangle ids and barycentrics.
 
-    Both triangle orientations are drawn (no back-face culling); the nearest surface wins.
+    Both triangle orientations are drawn (no back-face culling); the nearest surface wins. There is
+    no near-plane clipping: triangles with a vertex less than 1 mm in front of the camera are skipped.
     """
     V, F = _check_mesh(V, F)
     uv, z = np.empty((len(V), 2)), np.empty(len(V))
@@ -332,7 +333,7 @@ def background_plate(camera: Camera, seed: int = 0, wall_radius_m: float = 5.0) 
     return _cached_plate(key, camera, int(seed), float(wall_radius_m)).copy()
 
 
-_PLATES: "collections.OrderedDict[tuple, np.ndarray]" = collections.OrderedDict()
+_PLATES: collections.OrderedDict[tuple, np.ndarray] = collections.OrderedDict()
 
 
 def _cached_plate(key, camera: Camera, seed: int, wall_radius_m: float) -> np.ndarray:

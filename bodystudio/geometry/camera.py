@@ -12,9 +12,9 @@ projector-camera baseline used by the depth model of Khoshelham & Elberink (2012
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Iterator
 
 import cv2
 import numpy as np
@@ -210,7 +210,7 @@ class Camera:
         return self.unproject(uv, depth)
 
     # --- construction and serialisation -------------------------------------------------------
-    def with_name(self, name: str) -> "Camera":
+    def with_name(self, name: str) -> Camera:
         return Camera(name, self.K, self.dist, self.R, self.t, self.width, self.height)
 
     def to_dict(self) -> dict:
@@ -219,20 +219,21 @@ class Camera:
                 "width": self.width, "height": self.height}
 
     @classmethod
-    def from_dict(cls, name: str, d: dict) -> "Camera":
+    def from_dict(cls, name: str, d: dict) -> Camera:
         """Camera from a cameras.json entry; a malformed entry raises InputError."""
         try:
             return cls(name, np.asarray(d["K"], float), np.asarray(d.get("dist", [0.0] * 5), float),
                        np.asarray(d["R"], float), np.asarray(d["t"], float), int(d["width"]), int(d["height"]))
         except KeyError as exc:
-            raise InputError(f"camera {name}: missing key {exc.args[0]!r} (need K, dist, R, t, width, height)") from None
+            raise InputError(f"camera {name}: missing key {exc.args[0]!r} (need K, dist, R, t, width, height)") \
+                from None
         except (TypeError, ValueError) as exc:
             raise InputError(f"camera {name}: malformed entry ({exc})") from None
 
     @classmethod
     def look_at(cls, name: str, eye, target, up=(0.0, 1.0, 0.0), fx: float = 600.0, width: int = 640,
                 height: int = 480, fy: float | None = None, cx: float | None = None, cy: float | None = None,
-                dist=None) -> "Camera":
+                dist=None) -> Camera:
         """A camera at ``eye`` looking at ``target`` with world ``up`` pointing up in the image."""
         eye = np.asarray(eye, dtype=np.float64)
         forward = np.asarray(target, dtype=np.float64) - eye
@@ -295,14 +296,14 @@ class CameraRig:
         """Camera centres (C, 3) in world coordinates."""
         return np.array([c.center for c in self]).reshape(-1, 3)
 
-    def subset(self, names) -> "CameraRig":
+    def subset(self, names) -> CameraRig:
         return CameraRig({n: self[n] for n in names})
 
     def to_dict(self) -> dict:
         return {"version": CAMERAS_JSON_VERSION, "cameras": {n: c.to_dict() for n, c in self.cameras.items()}}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "CameraRig":
+    def from_dict(cls, d: dict) -> CameraRig:
         cams = d["cameras"]
         return cls({str(n): Camera.from_dict(str(n), e) for n, e in cams.items()})
 
@@ -389,7 +390,7 @@ class RGBDSensor:
                 "baseline_m": self.baseline_m, "depth_range_m": list(self.depth_range_m)}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "RGBDSensor":
+    def from_dict(cls, d: dict) -> RGBDSensor:
         name = d["name"]
         return cls(name, d["version"], Camera.from_dict(f"{name}_depth", d["depth"]),
                    Camera.from_dict(f"{name}_color", d["color"]), np.asarray(d["depth_to_color"], float),

@@ -8,7 +8,14 @@ from hypothesis import strategies as st
 
 from bodystudio.errors import FileFormatError, InputError
 from bodystudio.geometry.camera import (
-    Camera, CameraRig, kinect_v1, kinect_v2, load_cameras_json, ring_rig, save_cameras_json)
+    Camera,
+    CameraRig,
+    kinect_v1,
+    kinect_v2,
+    load_cameras_json,
+    ring_rig,
+    save_cameras_json,
+)
 
 
 def _random_camera(rng, dist_scale=1.0):
@@ -87,7 +94,7 @@ def test_ring_rig_sees_the_capture_volume():
     ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
     pts = np.array([[np.cos(a) * 0.6, y, np.sin(a) * 0.6] for a in ang for y in (0.0, 2.0)])
     uv = rig.project(pts)
-    for cam, uvc in zip(rig, uv):
+    for cam, uvc in zip(rig, uv, strict=True):
         assert cam.in_image(uvc).all(), cam.name
     radii = np.linalg.norm(rig.centers()[:, [0, 2]], axis=1)
     np.testing.assert_allclose(radii, 3.0)

@@ -3,10 +3,19 @@
 import numpy as np
 import pytest
 
-from bodystudio.capture.kinect import (
-    KINECT_NOISE, KinectNoiseModel, depth_to_millimetres, kinect_parent_indices, millimetres_to_depth,
-    projector_shadow_mask, read_depth_png, simulate_kinect_depth, simulate_tracker_joints, write_depth_png)
 from bodystudio.body.kinect import kinect_joints
+from bodystudio.capture.kinect import (
+    KINECT_NOISE,
+    KinectNoiseModel,
+    depth_to_millimetres,
+    kinect_parent_indices,
+    millimetres_to_depth,
+    projector_shadow_mask,
+    read_depth_png,
+    simulate_kinect_depth,
+    simulate_tracker_joints,
+    write_depth_png,
+)
 from bodystudio.errors import FileFormatError
 from bodystudio.geometry.camera import kinect_v1
 
@@ -45,7 +54,8 @@ def test_axial_noise_matches_khoshelham_model(z0):
     assert abs(residual.mean()) < 0.1 * step
     # direct depth-domain check at the plane centre rows: spread grows like z^2
     depth_std = np.std(measured[ok] - ideal[ok])
-    expected = np.sqrt((1.425e-3 * z0**2) ** 2 + KINECT_NOISE.depth_resolution_m(z0, SENSOR.depth.fx, SENSOR.baseline_m) ** 2 / 12)
+    resolution = KINECT_NOISE.depth_resolution_m(z0, SENSOR.depth.fx, SENSOR.baseline_m)
+    expected = np.sqrt((1.425e-3 * z0**2) ** 2 + resolution**2 / 12)
     assert abs(depth_std / expected - 1.0) < 0.25
 
 

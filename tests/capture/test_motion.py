@@ -22,7 +22,7 @@ def test_motions_are_valid_standing_sequences(name, body_2k):
     poses = motion_sequence(name, 12, sk, seed=3)
     assert len(poses) == 12
     again = motion_sequence(name, 12, sk, seed=3)
-    for p, q in zip(poses, again):
+    for p, q in zip(poses, again, strict=True):
         assert np.all(np.isfinite(p.rotations)) and p.rotations.shape == (sk.n_bones, 3)
         assert np.array_equal(p.rotations, q.rotations)
     for p in poses[::3]:

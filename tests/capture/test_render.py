@@ -12,6 +12,16 @@ from bodystudio.geometry.camera import Camera, ring_rig
 DIST = (-0.12, 0.04, 0.001, -0.0008, 0.0)
 
 
+def _plane_quad(p0, normal, half_size):
+    """A square (V, F) of side 2 * half_size centred at p0 with unit normal ``normal``."""
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    a = np.cross(n, [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
+    V = np.array([p0 + half_size * (sa * a + sb * b) for sa, sb in [(-1, -1), (1, -1), (1, 1), (-1, 1)]])
+    return V, np.array([[0, 1, 2], [0, 2, 3]])
+
+
 def _front_camera(dist=None, width=160, height=120, fx=150.0):
     return Camera.look_at("c", eye=(0.0, 0.0, 0.0), target=(0.0, 0.0, -1.0), fx=fx, width=width, height=height,
                           dist=dist)
@@ -20,11 +30,9 @@ def _front_camera(dist=None, width=160, height=120, fx=150.0):
 def test_tilted_plane_depth_is_exact():
     cam = _front_camera()
     # plane through (0, 0, -2) with normal n; big quad covering the image
-    n = np.array([0.3, -0.2, 1.0]); n /= np.linalg.norm(n)
+    n = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
     p0 = np.array([0.0, 0.0, -2.0])
-    a = np.cross(n, [0, 1, 0]); a /= np.linalg.norm(a); b = np.cross(n, a)
-    V = np.array([p0 + 3 * (sa * a + sb * b) for sa, sb in [(-1, -1), (1, -1), (1, 1), (-1, 1)]])
-    F = np.array([[0, 1, 2], [0, 2, 3]])
+    V, F = _plane_quad(p0, n, 3.0)
     res = render(V, F, cam)
     assert res.mask.all()
     rows, cols = np.nonzero(res.mask)
@@ -130,11 +138,8 @@ def test_render_rgb_composites_over_background_plate(body_2k):
 def test_flat_plane_colour_is_lambert():
     from bodystudio.capture.render import SKIN_COLOR, lambert_shading
     cam = _front_camera()
-    n = np.array([0.2, 0.5, 1.0]); n /= np.linalg.norm(n)  # plane normal (towards the camera side)
-    a = np.cross(n, [0, 1, 0]); a /= np.linalg.norm(a); b = np.cross(n, a)
-    p0 = np.array([0.0, 0.0, -2.0])
-    V = np.array([p0 + 3 * (sa * a + sb * b) for sa, sb in [(-1, -1), (1, -1), (1, 1), (-1, 1)]])
-    F = np.array([[0, 1, 2], [0, 2, 3]])
+    n = np.array([0.2, 0.5, 1.0]) / np.linalg.norm([0.2, 0.5, 1.0])  # plane normal, towards the camera side
+    V, F = _plane_quad(np.array([0.0, 0.0, -2.0]), n, 3.0)
     img = render_rgb(V, F, cam)
     expected = np.round(np.clip(np.array(SKIN_COLOR) * lambert_shading(n[None])[0], 0, 1) * 255)
     assert np.abs(img.reshape(-1, 3).astype(float) - expected).max() <= 1
