@@ -29,10 +29,10 @@ ARUCO_DICTIONARIES = {name: getattr(cv2.aruco, name) for name in dir(cv2.aruco)
 class CharucoBoardSpec:
     """A ChArUco board: ``squares_x`` by ``squares_y`` chessboard squares with ArUco markers in the white ones."""
 
-    squares_x: int = 7
-    squares_y: int = 5
-    square_m: float = 0.12
-    marker_m: float = 0.09
+    squares_x: int = 10
+    squares_y: int = 7
+    square_m: float = 0.10
+    marker_m: float = 0.075
     dictionary: str = "DICT_4X4_50"
     legacy_pattern: bool = False
 

@@ -73,7 +73,7 @@ def visible_corners(camera: Camera, spec: CharucoBoardSpec, board_to_world: np.n
 
 
 def calibration_board_poses(rig: CameraRig, spec: CharucoBoardSpec, n_poses: int, rng: np.random.Generator,
-                            min_cameras: int = 2, volume_radius_m: float = 0.6) -> np.ndarray:
+                            min_cameras: int = 2, volume_radius_m: float = 1.1) -> np.ndarray:
     """(n_poses, 4, 4) board->world transforms: frame 0 lies on the floor, the rest face camera groups."""
     if n_poses < 2:
         raise InputError(f"a calibration capture needs at least 2 board poses, got {n_poses}")
@@ -88,14 +88,15 @@ def calibration_board_poses(rig: CameraRig, spec: CharucoBoardSpec, n_poses: int
         k = len(poses) - 1
         azimuth = 2 * np.pi * (k + rng.uniform(-0.3, 0.3)) / max(n_poses - 1, 1) * 2.0
         toward = np.array([np.sin(azimuth), 0.0, np.cos(azimuth)])
-        center = toward * rng.uniform(0.0, volume_radius_m) + np.array([0.0, rng.uniform(0.7, 1.6), 0.0])
-        # Aim at the mean height of the cameras on that side, tilted up or down a little.
-        elevation = rng.uniform(-0.35, 0.45)
-        yaw = rng.uniform(-0.5, 0.5)
+        # Boards nearer the cameras they face, at many heights and strongly tilted: tilt and image-wide
+        # coverage are what separate focal length from distance and principal point from rotation.
+        center = toward * rng.uniform(0.2, volume_radius_m) + np.array([0.0, rng.uniform(0.5, 1.8), 0.0])
+        elevation = rng.uniform(-0.5, 0.7)
+        yaw = rng.uniform(-0.8, 0.8)
         cy, sy = np.cos(yaw), np.sin(yaw)
         toward_yawed = np.array([cy * toward[0] + sy * toward[2], 0.0, -sy * toward[0] + cy * toward[2]])
         facing = toward_yawed * np.cos(elevation) + np.array([0.0, np.sin(elevation), 0.0])
-        pose = board_pose_facing(center, facing, rng.uniform(-0.5, 0.5), spec)
+        pose = board_pose_facing(center, facing, rng.uniform(-0.6, 0.6), spec)
         n_seen = sum(visible_corners(cam, spec, pose).sum() >= spec.n_corners for cam in rig)
         if n_seen >= min_cameras:
             poses.append(pose)
