@@ -23,6 +23,7 @@ from bodystudio.errors import BodyStudioError, InputError
 log = logging.getLogger(__name__)
 
 N_POPULATION = 3
+PREVIEW_RESOLUTION = "2k"  # bodies in the report's 3D views: keeps the page a few MB
 POPULATION_SEED = 2026
 
 
@@ -34,7 +35,8 @@ class DemoContext:
     resolution: tuple[int, int]
     console: object
     progress: object
-    bodies: dict = field(default_factory=dict)  # name -> BodyModel
+    bodies: dict = field(default_factory=dict)  # name -> BodyModel (full resolution: exported, measured)
+    previews: dict = field(default_factory=dict)  # name -> the same body on the 2k template (3D views)
     session: object = None
     scenes: list = field(default_factory=list)  # (caption, plotter) for the report
     stages: list = field(default_factory=list)  # rows for demo.json
@@ -83,6 +85,7 @@ def stage_bodies(ctx: DemoContext) -> str:
     for name, phenotype, local in specs:
         body = build_body(phenotype, local)
         ctx.bodies[name] = body
+        ctx.previews[name] = build_body(phenotype, local, resolution=PREVIEW_RESOLUTION)
         save_mesh(folder / f"{name}.ply", body.mesh)
         m = measure_body(body)
         measurements[name] = {"gender": round(phenotype.gender, 3), **{k: round(float(v), 4) for k, v in m.items()}}
@@ -130,15 +133,15 @@ def _body_screenshots(ctx: DemoContext) -> None:
     from bodystudio.viewer.views import scene_for_avatar
 
     shots = ctx.out / "screenshots"
-    lineup = _lineup_plotter(ctx.bodies)
+    lineup = _lineup_plotter(ctx.previews)
     save_screenshot(lineup, shots / "bodies.png")
     ctx.scenes.append(("bodies", lineup))
-    female = ctx.bodies["female"]
+    female = ctx.previews["female"]
     bone = "upperarm_l" if "upperarm_l" in female.skeleton.bone_names else female.skeleton.bone_names[1]
     rigged = scene_for_avatar(avatar_from_body(female), bone=bone, title=f"female: skin weights of {bone}")
     save_screenshot(rigged, shots / "female_weights.png")
     rigged.close()
-    skeleton = scene_for_avatar(avatar_from_body(ctx.bodies["male"]), title="male: skeleton")
+    skeleton = scene_for_avatar(avatar_from_body(ctx.previews["male"]), title="male: skeleton")
     save_screenshot(skeleton, shots / "male_skeleton.png")
     ctx.scenes.append(("male: skeleton", skeleton))
 
@@ -153,35 +156,74 @@ def stage_session(ctx: DemoContext) -> str:
 
         shutil.rmtree(path)  # the demo owns its output folder; a rerun starts fresh
     ctx.session = synth_session(path, n_cameras=ctx.cameras, n_frames=ctx.frames, motion="walk", kinect="v2",
-                                resolution=ctx.resolution, progress=False)
+                                resolution=ctx.resolution, n_background=2, progress=False)
     return f"{ctx.cameras} cameras x {ctx.frames} frames with Kinect in {path}"
 
 
-def _session_screenshot(ctx: DemoContext) -> None:
-    from bodystudio.viewer.scene import save_screenshot
-    from bodystudio.viewer.views import scene_for_session
-
-    plotter = scene_for_session(ctx.session)
-    save_screenshot(plotter, ctx.out / "screenshots" / "session.png")
-    ctx.scenes.insert(0, ("session (frame 0): cameras, images, Kinect cloud, ground truth", plotter))
+CALIBRATION_SIZE = (640, 480)  # ChArUco corners need more pixels than the demo's session images
+CALIBRATION_POSES = 20  # 4 cameras x 20 poses: ~35 s on 2 cores, centre error a few cm
 
 
 def stage_calibrate(ctx: DemoContext) -> str:
-    """Calibrate the studio cameras from a synthetic ChArUco capture."""
-    _need("bodystudio.calib", "calibrate")
-    raise StageUnavailable("calibration API not wired into the demo yet")
+    """Calibrate a synthetic ChArUco capture of the studio ring and score it against the true cameras."""
+    (write_synthetic_calibration,) = _need("bodystudio.calib.synthetic", "write_synthetic_calibration")
+    (detect_capture,) = _need("bodystudio.calib.observations", "detect_capture")
+    (calibrate_cameras,) = _need("bodystudio.calib.calibrate", "calibrate_cameras")
+    (evaluate_calibration,) = _need("bodystudio.calib.evaluate", "evaluate_calibration")
+    (load_board_json,) = _need("bodystudio.calib.board", "load_board_json")
+    from bodystudio.fileio import write_json
+    from bodystudio.geometry.camera import load_cameras_json, ring_rig, save_cameras_json
+
+    folder = ctx.out / "calibration"
+    capture = folder / "capture"
+    w, h = CALIBRATION_SIZE
+    write_synthetic_calibration(capture, n_cameras=ctx.cameras, n_poses=CALIBRATION_POSES, seed=0, width=w, height=h,
+                                rig=ring_rig(ctx.cameras, width=w, height=h))
+    spec = load_board_json(capture / "board.json")
+    obs, _quality = detect_capture(capture, spec)
+    result = calibrate_cameras(obs, spec)
+    report = result.report()
+    residuals = np.linalg.norm(result.residuals_px[result.inliers], axis=1)
+    report["residuals_px"] = [round(float(r), 4) for r in residuals]
+    scores = evaluate_calibration(result.rig, load_cameras_json(capture / "gt" / "cameras.json"), report)
+    save_cameras_json(folder / "cameras.json", result.rig)
+    write_json(folder / "report.json", report)
+    write_json(folder / "eval.json", scores)
+    overall = scores.get("overall", {})
+    return (f"{ctx.cameras} cameras from {CALIBRATION_POSES} board poses: reprojection RMS "
+            f"{result.rms_px:.3f} px, camera centre error {overall.get('center_err_mm', float('nan')):.0f} mm")
 
 
 def stage_reconstruct(ctx: DemoContext) -> str:
-    """Deform the template to the session's silhouettes and depth, frame by frame."""
-    _need("bodystudio.reconstruct", "reconstruct_session")
-    raise StageUnavailable("reconstruction API not wired into the demo yet")
+    """Rapid Skin over the session: template deformed to silhouettes and Kinect depth, frame by frame."""
+    (reconstruct_session,) = _need("bodystudio.reconstruct.sequence", "reconstruct_session")
+    if ctx.session is None:
+        raise StageUnavailable("needs the synthetic session, which did not run")
+    summary = reconstruct_session(ctx.session.path, solver="gs", template="2k", joints="tracker",
+                                  constraints=("silhouette", "depth"), progress=False)
+    from bodystudio.fileio import write_json
+
+    write_json(ctx.out / "reconstruct_summary.json", summary)
+    err = f", visible median error {summary['median_mm']:.1f} mm" if "median_mm" in summary else ""
+    return f"{summary['frames']} frames, {summary['ms_per_frame']:.0f} ms per frame{err}"
 
 
 def stage_rig(ctx: DemoContext) -> str:
     """Fit the template to a synthetic scan and transfer skeleton and skin weights."""
     _need("bodystudio.rig", "rig_scan")
     raise StageUnavailable("rigging API not wired into the demo yet")
+
+
+def _session_views(ctx: DemoContext) -> None:
+    """Screenshot and 3D view of the session (with the reconstruction's error map when it ran)."""
+    from bodystudio.viewer.scene import save_screenshot
+    from bodystudio.viewer.views import scene_for_session
+
+    frame = ctx.session.frame_ids[-1]
+    plotter = scene_for_session(ctx.session, frame)
+    save_screenshot(plotter, ctx.out / "screenshots" / "session.png")
+    ctx.scenes.insert(0, (f"session, frame {frame}: cameras with images, Kinect cloud, ground truth "
+                          "and reconstruction error", plotter))
 
 
 STAGES: list[tuple[str, Callable[[DemoContext], str]]] = [
@@ -208,7 +250,10 @@ def run_demo(out: Path, cameras: int = 4, frames: int = 3, resolution: tuple[int
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder; choose a folder for the demo output")
     out.mkdir(parents=True, exist_ok=True)
-    console = console or Console()
+    import sys
+
+    # Without a terminal rich assumes 80 columns, which truncates the measurement table in logs.
+    console = console or (Console() if sys.stdout.isatty() else Console(width=120))
     with Progress(TextColumn("{task.description:<12}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeElapsedColumn(), console=console, transient=False) as progress:
         ctx = DemoContext(out, cameras, frames, resolution, console, progress)
@@ -218,8 +263,6 @@ def run_demo(out: Path, cameras: int = 4, frames: int = 3, resolution: tuple[int
             t0 = time.perf_counter()
             try:
                 summary = fn(ctx)
-                if name == "session" and ctx.session is not None:
-                    _session_screenshot(ctx)
                 status = "done"
             except StageUnavailable as exc:
                 status, summary = "not available yet", str(exc)
@@ -234,6 +277,8 @@ def run_demo(out: Path, cameras: int = 4, frames: int = 3, resolution: tuple[int
             console.print(f"[{style}]{name}: {status}[/] ({seconds:.1f} s) {summary}")
             progress.advance(overall)
         progress.update(overall, description="demo: report")
+        if ctx.session is not None:
+            _session_views(ctx)
         write_json(out / "demo.json", {"stages": ctx.stages})
         notes = [f"{r['stage']}: {r['status']}, {r['summary']}" for r in ctx.stages]
         report = write_report(out, out / "report.html", with_3d=with_3d, title="bodystudio demo",
