@@ -130,7 +130,7 @@ def _rasterize(uv, z, F, width, height, zbuf, tri_id, bary):
                 b2 = w2 / wsum
                 inv_depth = b0 * iz0 + b1 * iz1 + b2 * iz2
                 depth = 1.0 / inv_depth
-                if depth < zbuf[py, px]:
+                if depth < zbuf[py, px]:  # float32 buffer: ties closer than ~1e-7 z are resolved by order
                     zbuf[py, px] = depth
                     tri_id[py, px] = f
                     p0 = b0 * iz0 * depth
@@ -188,12 +188,12 @@ def render(V: np.ndarray, F: np.ndarray, camera: Camera) -> RenderResult:
     uv, z = np.empty((len(V), 2)), np.empty(len(V))
     _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
     H, W = camera.height, camera.width
-    zbuf = np.full((H, W), np.inf)
+    depth = np.full((H, W), np.inf, dtype=np.float32)  # the z-buffer; empty pixels become 0 below
     tri_id = np.full((H, W), -1, dtype=np.int32)
     bary = np.zeros((H, W, 3), dtype=np.float32)
-    _rasterize(uv, z, F, W, H, zbuf, tri_id, bary)
+    _rasterize(uv, z, F, W, H, depth, tri_id, bary)
     mask = tri_id >= 0
-    depth = np.where(mask, zbuf, 0.0).astype(np.float32)
+    depth[~mask] = 0.0
     return RenderResult(mask, depth, tri_id, bary)
 
 
