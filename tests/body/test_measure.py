@@ -158,3 +158,22 @@ def test_cli_measure(tmp_path, body_2k, capsys):
     assert main(["body", "measure", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "cube.ply" in err and "13380" in err
+
+
+def test_landmarks_sit_where_their_names_say(default_body):
+    V = default_body.vertices
+    L = landmark_vertices()
+    assert abs(V[L.crotch, 0]) < 1e-6 and V[L.crotch, 1] < V[L.bust[0], 1]
+    for left, right in (L.bust, L.acromion, L.elbow, L.wrist):
+        assert V[left, 0] > 0.05 and V[right, 0] == pytest.approx(-V[left, 0], abs=1e-3)
+    assert V[L.acromion[0], 1] > V[L.bust[0], 1] > V[L.wrist[0], 1]
+    assert V[L.acromion[0], 1] > V[L.elbow[0], 1] > V[L.wrist[0], 1]
+    assert V[L.bust[0], 2] > 0.1  # on the front of the chest
+
+
+def test_cli_info_reports_default_body_attributes(capsys):
+    from bodystudio.cli.main import main
+
+    assert main(["body", "info"]) == 0
+    attributes = json.loads(capsys.readouterr().out)["default_body"]["attributes"]
+    assert 1.6 < attributes["stature_m"] < 1.7 and 45 < attributes["mass_kg"] < 70
