@@ -1,0 +1,103 @@
+"""``bodystudio rig``, ``bodystudio synth scan`` and ``bodystudio eval rig`` (issue 6)."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import typer
+
+from bodystudio.cli import eval as eval_cli
+from bodystudio.cli import synth as synth_cli
+
+
+def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: str = "6k", texture: bool = False,
+                 weights: str = "harmonic", bvh: Path | None = None, show_progress: bool = False) -> dict:
+    """Load, rig, optionally reshape and export one scan; returns the rig description written beside it."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from bodystudio.errors import InputError
+    from bodystudio.register.scan import load_scan
+    from bodystudio.rig.evaluate import held_out_poses, rig_json_path
+    from bodystudio.rig.export import rig_description, write_bvh, write_glb
+    from bodystudio.rig.pipeline import load_template_model, rig_scan
+    from bodystudio.rig.reshape import parse_reshape, reshape_avatar
+
+    if out.suffix.lower() != ".glb":
+        raise InputError(f"--out {out}: the avatar is written as glTF binary; give a .glb path")
+    deltas = parse_reshape(reshape) if reshape else None
+    stages = ["load", "fit", "skeleton", "weights"] + (["reshape"] if deltas else []) + ["export"]
+    t0 = time.perf_counter()
+    with Progress(TextColumn("{task.description:<10}"), BarColumn(), TimeElapsedColumn(),
+                  disable=not show_progress, transient=True) as progress:
+        tasks = {s: progress.add_task(s, total=1) for s in stages}
+
+        def finish(name: str) -> None:
+            progress.update(tasks[name], completed=1)
+
+        mesh, report = load_scan(scan)
+        model = load_template_model(template)
+        finish("load")
+        result = rig_scan(mesh, model, weights=weights, stage=finish)
+        avatar = result.avatar
+        if deltas:
+            avatar, _ = reshape_avatar(avatar, result.fit, model, deltas)
+            finish("reshape")
+        avatar.metadata["scan"] = report.as_dict()
+        avatar.metadata["template"] = template
+        avatar.metadata["seconds"] = time.perf_counter() - t0
+        avatar.metadata["stage_seconds"] = result.seconds
+        write_glb(out, avatar, texture=texture)
+        description = rig_description(avatar)
+        from bodystudio.fileio import write_json
+
+        write_json(rig_json_path(out), description)
+        if bvh is not None:
+            write_bvh(bvh, avatar, held_out_poses(avatar.bone_names))
+        finish("export")
+    description["seconds"] = time.perf_counter() - t0
+    return description
+
+
+def rig(scan: Path = typer.Argument(..., help="body scan: PLY, OBJ, GLB/GLTF or STL"),
+        out: Path = typer.Option(..., "--out", "-o", help="avatar .glb (a .rig.json is written beside it)"),
+        reshape: str = typer.Option(None, "--reshape", help="semantic edit, e.g. stature=+0.05,mass=-5"),
+        template: str = typer.Option("6k", "--template", help="model template: 6k, 13k (or 2k)"),
+        texture: bool = typer.Option(False, "--texture/--vertex-colors",
+                                     help="bake colours into an xatlas UV texture (slow on big scans)"),
+        weights: str = typer.Option("harmonic", "--weights", help="skin weight transfer: harmonic or barycentric"),
+        bvh: Path = typer.Option(None, "--bvh", help="also write a BVH of sample poses on the avatar's skeleton")) -> None:
+    """Rig a body scan: fit the body model, transfer skeleton and skin weights, export glTF."""
+    desc = rig_to_files(scan, out, reshape, template, texture, weights, bvh, show_progress=True)
+    typer.echo(f"wrote {out} ({desc['n_vertices']} vertices, {len(desc['bones'])} bones, "
+               f"fit {desc['fit_err_mm_median']:.1f} mm, {desc['seconds']:.1f} s)")
+
+
+@synth_cli.app.command("scan")
+def synth_scan(out: Path = typer.Argument(..., help="scan file to write (.ply, .obj, .glb, .stl)"),
+               subject_seed: int = typer.Option(0, "--subject-seed", help="population subject"),
+               pose: str = typer.Option("a", "--pose", help="a, t or random"),
+               vertices: int = typer.Option(100_000, "--vertices", help="scan vertex count (about)"),
+               noise_mm: float = typer.Option(1.0, "--noise-mm", help="normal-direction noise, mm"),
+               holes: bool = typer.Option(True, "--holes/--no-holes", help="unscanned soles and patches")) -> None:
+    """A synthetic body scan with ground truth in OUT.gt/."""
+    from bodystudio.register.synthetic import save_synthetic_scan, synthetic_scan
+
+    scan, gt = synthetic_scan(subject_seed, pose, vertices, noise_mm, holes)
+    gt_dir = save_synthetic_scan(out, scan, gt)
+    typer.echo(f"wrote {out} ({scan.n_vertices} vertices) and {gt_dir}/")
+
+
+@eval_cli.app.command("rig")
+def eval_rig(avatar: Path = typer.Argument(..., help="avatar .glb written by bodystudio rig"),
+             gt: Path = typer.Option(..., "--gt", help="ground-truth folder OUT.gt/ of the synthetic scan")) -> None:
+    """Score a rigged avatar against its synthetic scan's ground truth; prints JSON."""
+    from bodystudio.register.synthetic import load_ground_truth
+    from bodystudio.rig.evaluate import evaluate_rig, load_avatar
+
+    av = load_avatar(avatar)
+    scan_meta = av.metadata.get("scan", {})
+    result = evaluate_rig(av, load_ground_truth(gt), scan_meta.get("to_canonical"))
+    result["seconds"] = av.metadata.get("seconds")
+    typer.echo(json.dumps(result, indent=2))

@@ -1,0 +1,295 @@
+"""Morphable model fitting, §4.3 of Avatar Reshaping (eq. 5): pose θ and shape β of the statistical model.
+
+``argmin_{θ,β} sum_{(a,b) in C} || T(θ, v'_a(β)) - z_b ||^2`` over compatible closest-point pairs (the
+normals agree within :data:`COMPATIBLE_COS`), a random tenth of them per iteration (Masuda et al. 1996),
+alternating a pose step and a shape step until the error stops improving.
+
+* Pose step: non-linear least squares in the local axis-angle rotations of the body bones and the root
+  translation; the residual and its exact Jacobian are casadi functions (casadi plays Ceres' role),
+  minimised by Levenberg-Marquardt.
+* Shape step: with the bones' posed rotations fixed, every posed vertex and joint is affine in β
+  (``T v = sum_j w_j (R_j (v - h_j) + h'_j)`` with rest heads ``h_j`` and posed heads ``h'_j`` both
+  linear in β through the model's joint basis), so the step is a Tikhonov-regularised linear least
+  squares with the PCA prior ``sum (β_i / σ_i)^2``.
+Pairs run both ways (model vertex -> nearest compatible scan vertex, scan vertex -> closest compatible
+model point), so holes in the scan and limbs the model misses both pull correctly.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from bodystudio.body import Pose, Skeleton
+from bodystudio.body.skinning import forward_kinematics, linear_blend_skinning, skinning_transforms
+from bodystudio.geometry.mesh import Mesh, vertex_normals
+from bodystudio.register.initial_pose import coarse_scan_skeleton, initial_pose
+
+log = logging.getLogger(__name__)
+
+COMPATIBLE_COS = 0.5  # normals within 60 degrees
+SAMPLE_FRACTION = 0.1  # Masuda's random tenth
+N_SAMPLES = 1500  # fixed size of the casadi residual (pairs drawn per iteration)
+FREE_BONES = ("Root", "pelvis", "spine_01", "spine_02", "spine_03", "neck_01", "head", "clavicle_l", "clavicle_r",
+              "upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r", "hand_l", "hand_r", "thigh_l", "thigh_r",
+              "calf_l", "calf_r", "foot_l", "foot_r")
+
+
+@dataclass(frozen=True, eq=False)
+class ModelFit:
+    """The fitted morphable model M' = M(θ', β') (eq. 3) and how well it matches the scan."""
+
+    coeffs: np.ndarray  # β'
+    pose: Pose  # θ'
+    skeleton: Skeleton  # rest skeleton of β'
+    rest_vertices: np.ndarray  # V'(β')
+    vertices: np.ndarray  # T(θ', V'(β')), the posed model
+    faces: np.ndarray
+    weights: np.ndarray
+    fit_err_mm_median: float  # scan -> model surface distance
+    fit_err_mm_p90: float
+    iterations: int
+    history: tuple[float, ...]
+
+    @property
+    def mesh(self) -> Mesh:
+        return Mesh(self.vertices, self.faces)
+
+
+def _rodrigues(ca, r):
+    theta = ca.sqrt(ca.dot(r, r) + 1e-16)
+    k = r / theta
+    K = ca.vertcat(ca.horzcat(0, -k[2], k[1]), ca.horzcat(k[2], 0, -k[0]), ca.horzcat(-k[1], k[0], 0))
+    return ca.MX.eye(3) + ca.sin(theta) * K + (1 - ca.cos(theta)) * (K @ K)
+
+
+@lru_cache(maxsize=8)
+def bone_transform_function(parents: tuple[int, ...], free: tuple[int, ...]):
+    """casadi ``(x, fixed_rot, C, A_inv) -> (S, dS/dx)``: the skinning transforms ``S_j = M_j A_j^-1`` of all
+    bones (rows of the top 3x4 blocks, stacked) and their exact Jacobian w.r.t. the pose parameters.
+
+    ``x`` = free bones' axis-angle (3 each) + root translation; ``C`` stacks ``A_parent^-1 A_j`` (B 4x4
+    blocks side by side), ``A_inv`` the inverse rest frames. The residuals of eq. 5 are linear in the
+    ``S_j`` (``r_i = sum_j w_ij S_j [v_i; 1] - z_i``), so the chain rule to the residuals is a product.
+    """
+    import casadi as ca
+
+    B = len(parents)
+    x = ca.MX.sym("x", 3 * len(free) + 3)
+    fixed = ca.MX.sym("fixed_rot", 3, B)
+    C = ca.MX.sym("C", 4, 4 * B)
+    A_inv = ca.MX.sym("A_inv", 4, 4 * B)
+    slot = {j: i for i, j in enumerate(free)}
+    t = x[3 * len(free):]
+    M: list = [None] * B
+    blocks = []
+    for j in range(B):
+        r = x[3 * slot[j]: 3 * slot[j] + 3] if j in slot else fixed[:, j]
+        Rj = _rodrigues(ca, r)
+        L = ca.vertcat(ca.horzcat(Rj, ca.MX.zeros(3, 1)), ca.horzcat(ca.MX.zeros(1, 3), ca.MX.ones(1, 1)))
+        Cj = C[:, 4 * j: 4 * j + 4]
+        if parents[j] < 0:
+            T = ca.vertcat(ca.horzcat(ca.MX.eye(3), t), ca.horzcat(ca.MX.zeros(1, 3), ca.MX.ones(1, 1)))
+            M[j] = T @ Cj @ L
+        else:
+            M[j] = M[parents[j]] @ Cj @ L
+        S = M[j] @ A_inv[:, 4 * j: 4 * j + 4]
+        blocks.append(ca.vec(S[:3, :].T))  # row-major 3x4
+    S_all = ca.vertcat(*blocks)
+    return ca.Function("bone_transforms", [x, fixed, C, A_inv], [S_all, ca.jacobian(S_all, x)])
+
+
+def _frames_blocks(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    A = skeleton.rest_frames
+    C = np.empty_like(A)
+    for j, p in enumerate(skeleton.parents):
+        C[j] = A[j] if p < 0 else np.linalg.solve(A[p], A[j])
+    A_inv = np.linalg.inv(A)
+    return np.concatenate(list(C), axis=1), np.concatenate(list(A_inv), axis=1)
+
+
+def fit_pose_step(skeleton: Skeleton, pose: Pose, V: np.ndarray, W: np.ndarray, Z: np.ndarray,
+                  free: tuple[int, ...], lm_iterations: int = 8, prior: float = 1e-4) -> Pose:
+    """Levenberg-Marquardt on the pose part of eq. 5, exact Jacobian (casadi kinematics + chain rule)."""
+    B = skeleton.n_bones
+    f = bone_transform_function(tuple(int(p) for p in skeleton.parents), free)
+    C, A_inv = _frames_blocks(skeleton)
+    fixed = pose.rotations.T.copy()
+    x = np.concatenate([pose.rotations[list(free)].ravel(), pose.translation])
+    Vh = np.c_[V, np.ones(len(V))]
+    reg = np.full(len(x), prior * len(V))
+    reg[-3:] = 0.0
+    reg[:3] = 0.0  # the root's orientation is free
+
+    def cost(xv):
+        S, dS = f(xv, fixed, C, A_inv)
+        S = np.asarray(S).reshape(B, 3, 4)
+        dS = np.asarray(dS).reshape(B, 3, 4, len(xv))
+        r = (np.einsum("nb,bij,nj->ni", W, S, Vh) - Z).ravel()
+        dSw = (W @ dS.reshape(B, -1)).reshape(len(W), 3, 4, len(xv))
+        J = np.einsum("nj,nijk->nik", Vh, dSw).reshape(-1, len(xv))
+        return r, J, float(r @ r + (reg * xv) @ xv)
+
+    r, J, e = cost(x)
+    lam = 1e-3
+    for _ in range(lm_iterations):
+        H = J.T @ J + np.diag(2 * reg)
+        g = J.T @ r + 2 * reg * x
+        step = -np.linalg.solve(H + lam * (np.diag(np.diag(H)) + 1e-9 * np.eye(len(x))), g)
+        r2, J2, e2 = cost(x + step)
+        if e2 < e:
+            x, r, J, e, lam = x + step, r2, J2, e2, lam * 0.3
+            if np.linalg.norm(step) < 1e-6:
+                break
+        else:
+            lam *= 10.0
+    rot = pose.rotations.copy()
+    rot[list(free)] = x[:-3].reshape(-1, 3)
+    return Pose(rot, x[-3:].copy())
+
+
+def posed_affine_in_shape(model, coeffs: np.ndarray, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """Posed model vertices ``P0 (n, 3)`` and their exact derivative ``D (n, 3, k)`` w.r.t. β at fixed posed
+    bone rotations: ``T v = sum_j w_j (R_j (v - h_j) + h'_j)``, ``h'_j = h'_p + R_p (h_j - h_p)``."""
+    sk = model.skeleton(coeffs)
+    S = skinning_transforms(sk, pose)
+    R = S[:, :3, :3]
+    Hb = model.joint_basis_heads.transpose(1, 2, 0)  # (B, 3, k)
+    dposed = np.empty_like(Hb)
+    for j, p in enumerate(sk.parents):
+        dposed[j] = Hb[j] if p < 0 else dposed[p] + R[p] @ (Hb[j] - Hb[p])
+    Vb = model.basis.transpose(1, 2, 0)  # (n, 3, k)
+    Wm = model.weights
+    Rblend = np.einsum("nb,bij->nij", Wm, R)
+    D = np.einsum("nij,njk->nik", Rblend, Vb) + np.einsum("nb,bik->nik", Wm, dposed - np.einsum("bij,bjk->bik", R, Hb))
+    P0 = linear_blend_skinning(model.vertices(coeffs), Wm, S)
+    return P0, D
+
+
+def fit_shape_step(model, coeffs: np.ndarray, pose: Pose, idx: np.ndarray, bary: np.ndarray, Z: np.ndarray,
+                   residual_std_m: float = 0.005) -> np.ndarray:
+    """The shape part of eq. 5: linear least squares in β at fixed posed rotations, PCA prior.
+
+    The prior is the Gaussian one of the PCA, ``sum (β_i / σ_i)^2``, weighted against the squared
+    residuals by the pairs' expected residual variance (``residual_std_m``^2)."""
+    P0, D = posed_affine_in_shape(model, coeffs, pose)
+    P = np.einsum("nk,nki->ni", bary, P0[idx])
+    Dp = np.einsum("nk,nkil->nil", bary, D[idx])  # (s, 3, k)
+    A = Dp.reshape(-1, Dp.shape[2])
+    b = (Z - P).ravel()
+    reg = residual_std_m ** 2 / np.maximum(model.stddev, 1e-9) ** 2
+    delta = np.linalg.solve(A.T @ A + np.diag(reg), A.T @ b - reg * coeffs)
+    return coeffs + delta
+
+
+def compatible_pairs(model_V: np.ndarray, model_F: np.ndarray, model_N: np.ndarray, scan_V: np.ndarray,
+                     scan_N: np.ndarray, scan_tree: cKDTree, max_dist: float, scan_sample: np.ndarray,
+                     k: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Compatible closest-point pairs both ways: ``(model triangle corners (s, 3), barycentrics (s, 3),
+    scan points (s, 3))``. A pair counts when the normals agree within 60° and the points are within
+    ``max_dist``; model vertices map to scan vertices, scan vertices to the nearest compatible model vertex's
+    position (model vertices are dense enough for that at the template resolutions)."""
+    d, nn = scan_tree.query(model_V, k=k, distance_upper_bound=max_dist)
+    ok = np.isfinite(d)
+    nn_safe = np.where(ok, nn, 0)
+    compat = ok & (np.einsum("nkc,nc->nk", scan_N[nn_safe], model_N) > COMPATIBLE_COS)
+    first = np.argmax(compat, axis=1)
+    has = compat[np.arange(len(model_V)), first]
+    a1 = np.flatnonzero(has)
+    b1 = nn_safe[a1, first[a1]]
+    mtree = cKDTree(model_V)
+    Zs = scan_V[scan_sample]
+    d2, nn2 = mtree.query(Zs, k=k, distance_upper_bound=max_dist)
+    ok2 = np.isfinite(d2)
+    nn2_safe = np.where(ok2, nn2, 0)
+    compat2 = ok2 & (np.einsum("nkc,nc->nk", model_N[nn2_safe], scan_N[scan_sample]) > COMPATIBLE_COS)
+    first2 = np.argmax(compat2, axis=1)
+    has2 = compat2[np.arange(len(Zs)), first2]
+    a2 = nn2_safe[has2, first2[has2]]
+    corners = np.concatenate([a1, a2])[:, None].repeat(3, axis=1)
+    bary = np.zeros((len(corners), 3))
+    bary[:, 0] = 1.0
+    Z = np.concatenate([scan_V[b1], Zs[has2]])
+    return corners, bary, Z
+
+
+def surface_distance_mm(points: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Distance of each point to the triangle mesh (V, F), millimetres."""
+    import igl
+
+    d2, _, _ = igl.point_mesh_squared_distance(points, V, F)
+    return 1000.0 * np.sqrt(d2)
+
+
+def fit_model(model, scan: Mesh, max_iterations: int = 40, seed: int = 0, tolerance: float = 1e-3,
+              progress=None) -> ModelFit:
+    """Fit the statistical model to a canonical scan: initial pose (§4.3), then eq. 5 alternating θ and β."""
+    rng = np.random.default_rng(seed)
+    Zv = scan.vertices
+    Zn = scan.vertex_normals
+    tree = cKDTree(Zv)
+    coarse = coarse_scan_skeleton(Zv)
+    coeffs = np.zeros(model.n_components)
+    # Start from the population's typical body of the scan's stature (scans in A/T pose stand upright).
+    if "stature_m" in model.attribute_names and 1.0 < coarse.stature_m < 2.3:
+        coeffs = model.attributes_to_coeffs({"stature_m": coarse.stature_m})
+    skeleton = model.skeleton(coeffs)
+    Vr = model.vertices(coeffs)
+    pose = initial_pose(skeleton, model.weights, Vr, Zv, coarse)
+    names = skeleton.bone_names
+    free = tuple(names.index(b) for b in FREE_BONES if b in names)
+    F = model.faces
+    history: list[float] = []
+    best = None
+    stall = 0
+    n_scan_sample = min(len(Zv), 4 * len(Vr))
+    for it in range(max_iterations):
+        skeleton = model.skeleton(coeffs)
+        Vr = model.vertices(coeffs)
+        posed = linear_blend_skinning(Vr, model.weights, skinning_transforms(skeleton, pose))
+        max_dist = max(0.25 * 0.8 ** it, 0.03)
+        scan_sample = rng.choice(len(Zv), n_scan_sample, replace=False)
+        corners, bary, Zp = compatible_pairs(posed, F, vertex_normals(posed, F), Zv, Zn, tree, max_dist, scan_sample)
+        if len(Zp) == 0:
+            break
+        err = float(np.mean(np.sum((np.einsum("nk,nki->ni", bary, posed[corners]) - Zp) ** 2, axis=1)))
+        history.append(1000.0 * np.sqrt(err))
+        if best is not None and err > best * (1 - tolerance):
+            stall += 1
+            if stall >= 5 and it > 10:
+                break
+        else:
+            stall = 0
+        best = err if best is None else min(best, err)
+        # Masuda: a random tenth of the pairs (at least enough to constrain every limb).
+        n_use = min(len(Zp), max(int(SAMPLE_FRACTION * len(Zp)), N_SAMPLES))
+        pick = rng.choice(len(Zp), n_use, replace=False)
+        V = np.einsum("nk,nki->ni", bary[pick], Vr[corners[pick]])
+        W = np.einsum("nk,nkb->nb", bary[pick], model.weights[corners[pick]])
+        pose = fit_pose_step(skeleton, pose, V, W, Zp[pick], free)
+        if it >= 2:
+            coeffs = fit_shape_step(model, coeffs, pose, corners[pick], bary[pick], Zp[pick])
+        if progress is not None:
+            progress(it, history[-1])
+    skeleton = model.skeleton(coeffs)
+    Vr = model.vertices(coeffs)
+    posed = linear_blend_skinning(Vr, model.weights, skinning_transforms(skeleton, pose))
+    sample = rng.choice(len(Zv), min(len(Zv), 20000), replace=False)
+    d = surface_distance_mm(Zv[sample], posed, F)
+    log.info("model fit: %d iterations, median scan-model distance %.2f mm", len(history), np.median(d))
+    return ModelFit(coeffs, pose, skeleton, Vr, posed, F, model.weights, float(np.median(d)),
+                    float(np.percentile(d, 90)), len(history), tuple(history))
+
+
+def posed_frames(fit: ModelFit) -> np.ndarray:
+    """Posed bone frames ``(B, 4, 4)`` of the fitted model."""
+    return forward_kinematics(fit.skeleton, fit.pose)
+
+
+def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
+    return np.degrees(np.linalg.norm(Rotation.from_matrix(R).as_rotvec(), axis=-1))

@@ -1,0 +1,226 @@
+"""Scan input (issue 6 §1): read a body scan, clean it up, and bring it to metres, y up, facing +z.
+
+Avatar Reshaping §4.3 fits the morphable model to a scan ``Y = {Z, F}``; this module produces that
+``Y``. Files: PLY, OBJ, GLB/GLTF, STL (trimesh), with vertex colours or a texture (sampled to vertex
+colours). Clean-up (pymeshlab): duplicate vertices and faces, null faces, non-manifold edges, small
+connected components. Units and the up axis are detected from the shape and logged: a standing adult is
+0.3 to 3 units tall in metres, 30 to 300 in centimetres, 300 to 3000 in millimetres.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bodystudio.errors import FileFormatError, InputError
+from bodystudio.geometry.mesh import MESH_SUFFIXES, Mesh
+
+log = logging.getLogger(__name__)
+
+MAX_SCAN_VERTICES = 300_000
+UNIT_SCALES = (("m", 1.0, (0.3, 3.0)), ("cm", 0.01, (30.0, 300.0)), ("mm", 0.001, (300.0, 3000.0)))
+# Components smaller than this fraction of the scan's diagonal are scanner debris.
+MIN_COMPONENT_FRACTION = 0.05
+
+
+@dataclass(frozen=True)
+class ScanReport:
+    """What loading assumed and changed: units, axes, clean-up counts (for logs and the rig JSON)."""
+
+    source: str
+    units: str
+    up_axis: str
+    facing_axis: str
+    to_canonical: np.ndarray  # (3, 3) similarity (rotation x scale) applied to the file's coordinates
+    removed_vertices: int
+    removed_faces: int
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    def as_dict(self) -> dict:
+        return {"source": self.source, "units": self.units, "up_axis": self.up_axis,
+                "facing_axis": self.facing_axis, "to_canonical": self.to_canonical.tolist(),
+                "removed_vertices": self.removed_vertices, "removed_faces": self.removed_faces,
+                "notes": list(self.notes)}
+
+
+def read_scan_file(path: str | Path) -> Mesh:
+    """Read a triangle mesh with vertex colours (textures are sampled to vertex colours)."""
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileFormatError(f"{path}: no such scan file")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise FileFormatError(f"{path}: unsupported scan format {path.suffix!r}; use one of {', '.join(MESH_SUFFIXES)}")
+    if path.stat().st_size == 0:
+        raise FileFormatError(f"{path}: empty file; give a triangle mesh scan")
+    try:
+        loaded = trimesh.load(path, process=False)
+    except Exception as exc:  # trimesh raises many types for broken files
+        raise FileFormatError(f"{path}: not a readable mesh ({type(exc).__name__}: {exc})") from None
+    if isinstance(loaded, trimesh.Scene):
+        geoms = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh)] if loaded.geometry else []
+        if not geoms:
+            points = sum(len(getattr(g, "vertices", [])) for g in loaded.geometry.values())
+            raise FileFormatError(f"{path}: found no triangles ({points} points); give a triangle mesh, "
+                                  "not a point cloud")
+        loaded = trimesh.util.concatenate(geoms)
+    if isinstance(loaded, trimesh.PointCloud):
+        raise FileFormatError(f"{path}: found a point cloud of {len(loaded.vertices)} points and no triangles; "
+                              "mesh it first (e.g. screened Poisson) and give a triangle mesh")
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        n = len(getattr(loaded, "vertices", []))
+        raise FileFormatError(f"{path}: found {n} vertices and no triangles; give a triangle mesh scan")
+    colors = None
+    visual = loaded.visual
+    try:
+        if visual.kind == "texture":
+            visual = visual.to_color()
+        if visual.kind == "vertex":
+            colors = np.asarray(visual.vertex_colors)[:, :3].astype(np.uint8)
+        elif visual.kind == "face":
+            colors = np.asarray(visual.to_color().vertex_colors)[:, :3].astype(np.uint8)
+    except Exception as exc:  # a broken texture must not stop the geometry from loading
+        log.warning("%s: cannot read colours (%s); continuing without", path, exc)
+    V = np.asarray(loaded.vertices, dtype=np.float64)
+    if not np.all(np.isfinite(V)):
+        raise FileFormatError(f"{path}: {int((~np.isfinite(V)).any(1).sum())} vertices are NaN or infinite")
+    return Mesh(V, np.asarray(loaded.faces, dtype=np.int64), colors, {"source": str(path)})
+
+
+def clean_scan(mesh: Mesh) -> tuple[Mesh, int, int]:
+    """pymeshlab clean-up: duplicates, null faces, non-manifold edges, small components, unreferenced."""
+    import pymeshlab
+
+    n_v, n_f = mesh.n_vertices, mesh.n_faces
+    kwargs = {}
+    if mesh.vertex_colors is not None:
+        kwargs["v_color_matrix"] = np.c_[mesh.vertex_colors / 255.0, np.ones(n_v)]
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(mesh.vertices, mesh.faces, **kwargs))
+    ms.meshing_remove_duplicate_vertices()
+    ms.meshing_remove_duplicate_faces()
+    ms.meshing_remove_null_faces()
+    ms.meshing_repair_non_manifold_edges(method="Remove Faces")
+    ms.meshing_remove_connected_component_by_diameter(
+        mincomponentdiag=pymeshlab.PercentageValue(100 * MIN_COMPONENT_FRACTION), removeunref=True)
+    ms.meshing_remove_unreferenced_vertices()
+    out = ms.current_mesh()
+    V, F = out.vertex_matrix().astype(np.float64), out.face_matrix().astype(np.int64)
+    colors = None
+    if mesh.vertex_colors is not None:
+        colors = np.clip(np.round(out.vertex_color_matrix()[:, :3] * 255), 0, 255).astype(np.uint8)
+    return Mesh(V, F, colors, dict(mesh.metadata)), n_v - len(V), n_f - len(F)
+
+
+def detect_units(extent: float, source: str) -> tuple[str, float]:
+    """Units of a standing human from its height in file units; outside every range is a user error."""
+    for name, scale, (lo, hi) in UNIT_SCALES:
+        if lo <= extent <= hi:
+            return name, scale
+    raise InputError(f"{source}: the scan is {extent:.4g} units tall, which is no standing adult in m, cm or mm; "
+                     "rescale it to metres")
+
+
+def _central_fraction(x: np.ndarray, w: np.ndarray) -> float:
+    lo, hi = x.min(), x.max()
+    mid = (x > lo + 0.35 * (hi - lo)) & (x < hi - 0.35 * (hi - lo))
+    return float(w[mid].sum() / w.sum())
+
+
+def detect_orientation(V: np.ndarray, area: np.ndarray) -> tuple[np.ndarray, str, str]:
+    """Rotation taking a standing scan to y up, facing +z, with the axis names assumed.
+
+    The depth (front-back) axis has the smallest extent. Of the other two, the lateral axis holds most
+    surface near its middle (torso, head and legs; only arms reach out), the vertical one does not. The
+    feet are wider apart than the head is wide, which signs "up"; the feet point forward, which signs
+    "facing" (the lowest slice lies in front of the ankles' slice).
+    """
+    ext = V.max(0) - V.min(0)
+    depth = int(np.argmin(ext))
+    a, b = [k for k in range(3) if k != depth]
+    up = a if _central_fraction(V[:, a], area) < _central_fraction(V[:, b], area) else b
+    lateral = 3 - up - depth
+    y = V[:, up]
+    h = y.max() - y.min()
+    bottom = y < y.min() + 0.08 * h
+    top = y > y.max() - 0.08 * h
+    if np.ptp(V[bottom, lateral]) < np.ptp(V[top, lateral]):
+        up_sign = -1.0
+        bottom, top = top, bottom
+    else:
+        up_sign = 1.0
+    lowest = y * up_sign < (y * up_sign).min() + 0.03 * h
+    shin = (y * up_sign > (y * up_sign).min() + 0.08 * h) & (y * up_sign < (y * up_sign).min() + 0.2 * h)
+    face_sign = 1.0 if np.average(V[lowest, depth], weights=area[lowest] + 1e-12) >= \
+        np.average(V[shin, depth], weights=area[shin] + 1e-12) else -1.0
+    R = np.zeros((3, 3))
+    R[1, up] = up_sign
+    R[2, depth] = face_sign
+    # x = y cross z keeps a right-handed frame (a mirror would swap left and right).
+    R[0] = np.cross(R[1], R[2])
+    names = "xyz"
+    return R, ("+" if up_sign > 0 else "-") + names[up], ("+" if face_sign > 0 else "-") + names[depth]
+
+
+def _vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    fa = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    out = np.zeros(len(V))
+    for k in range(3):
+        np.add.at(out, F[:, k], fa / 3.0)
+    return out
+
+
+def load_scan(path: str | Path, units: str | None = None, up_axis: str | None = None) -> tuple[Mesh, ScanReport]:
+    """Read, clean and canonicalise a body scan (metres, y up, facing +z); the report says what was assumed.
+
+    ``units`` (m, cm, mm) and ``up_axis`` (e.g. ``+y``, ``+z``) override the detection. Translation is
+    kept, so the avatar stays where the scan was (only rotation and scale change).
+    """
+    path = Path(path)
+    raw = read_scan_file(path)
+    if raw.n_vertices > MAX_SCAN_VERTICES:
+        raise InputError(f"{path}: the scan has {raw.n_vertices} vertices, more than the {MAX_SCAN_VERTICES} "
+                         "supported; decimate it first")
+    if raw.n_vertices < 100:
+        raise InputError(f"{path}: found only {raw.n_vertices} vertices; a body scan has thousands")
+    mesh, removed_v, removed_f = clean_scan(raw)
+    if mesh.n_faces == 0:
+        raise FileFormatError(f"{path}: no triangles left after removing duplicates and debris")
+    notes = []
+    if removed_v or removed_f:
+        notes.append(f"clean-up removed {removed_v} vertices and {removed_f} faces")
+    area = _vertex_areas(mesh.vertices, mesh.faces)
+    if up_axis is None:
+        R, up_name, facing_name = detect_orientation(mesh.vertices, area)
+        notes.append(f"assumed up axis {up_name}, facing {facing_name} (detected from the body's shape)")
+    else:
+        axes = {"+x": (0, 1.0), "-x": (0, -1.0), "+y": (1, 1.0), "-y": (1, -1.0), "+z": (2, 1.0), "-z": (2, -1.0)}
+        if up_axis not in axes:
+            raise InputError(f"unknown up axis {up_axis!r}; valid: {', '.join(axes)}")
+        k, s = axes[up_axis]
+        R0 = np.zeros((3, 3))
+        R0[1, k] = s
+        R0[2, (k + 1) % 3] = 1.0
+        R0[0] = np.cross(R0[1], R0[2])
+        R, _, facing_name = detect_orientation(mesh.vertices @ R0.T, area)
+        R = R @ R0
+        up_name = up_axis
+    height = float(np.ptp(mesh.vertices @ R[1]))
+    if units is None:
+        unit_name, scale = detect_units(height, str(path))
+        notes.append(f"assumed units {unit_name} (scan is {height:.4g} units tall)")
+    else:
+        table = {n: s for n, s, _ in UNIT_SCALES}
+        if units not in table:
+            raise InputError(f"unknown units {units!r}; valid: {', '.join(table)}")
+        unit_name, scale = units, table[units]
+    to_canonical = scale * R
+    for note in notes:
+        log.info("%s: %s", path.name, note)
+    canonical = Mesh(mesh.vertices @ to_canonical.T, mesh.faces, mesh.vertex_colors, {"source": str(path)})
+    return canonical, ScanReport(str(path), unit_name, up_name, facing_name, to_canonical, removed_v, removed_f,
+                                 tuple(notes))

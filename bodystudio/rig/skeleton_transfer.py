@@ -1,0 +1,118 @@
+"""Skeleton transfer, §4.2 (eq. 4) and §5.2 (eq. 6) of Avatar Reshaping.
+
+Each joint is a combination of the fitted model's vertices, its mean value coordinates
+(Ju, Schaefer and Warren 2005): ``b_j = sum_i m_j(v_i) v_i`` (eq. 4). The coordinates are carried to the
+scan through each scan vertex's closest model triangle, weighted by the scan vertex's area and
+normalised (eq. 6), so the scan's joints are combinations of scan vertices and follow any reshaping.
+"""
+
+from __future__ import annotations
+
+import igl
+import numpy as np
+import scipy.sparse as sp
+
+EPS = 1e-10
+
+
+def close_holes(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fan-fill every boundary loop to its centroid: ``(V', F', P)`` with ``V' = P @ V`` (P sparse (n', n)).
+
+    Mean value coordinates reproduce linear functions only for closed surfaces; the centroid vertices
+    are themselves linear in ``V``, so coordinates on ``V'`` fold back onto ``V`` exactly through ``P``.
+    """
+    loops = igl.boundary_loop_all(F) if len(F) else []
+    n = len(V)
+    P_rows = [sp.identity(n, format="csr")]
+    new_faces = []
+    for k, loop in enumerate(loops):
+        loop = np.asarray(loop)
+        P_rows.append(sp.csr_matrix((np.full(len(loop), 1.0 / len(loop)), (np.zeros(len(loop), int), loop)),
+                                    shape=(1, n)))
+        c = n + k
+        directed = set(zip(F[:, 0], F[:, 1])) | set(zip(F[:, 1], F[:, 2])) | set(zip(F[:, 2], F[:, 0]))
+        if (loop[1], loop[0]) in directed:  # keep the surface's orientation: fill edges run opposite
+            loop = loop[::-1]
+        new_faces.append(np.c_[np.roll(loop, -1), loop, np.full(len(loop), c)])
+    P = sp.vstack(P_rows).tocsr()
+    F2 = np.vstack([F] + new_faces) if new_faces else F
+    return P @ V, F2, P
+
+
+def mean_value_coordinates(points: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """3D mean value coordinates ``(p, n)`` of points w.r.t. a closed triangle mesh (Ju et al. 2005), eq. 4."""
+    points = np.atleast_2d(points)
+    D = V[None] - points[:, None]  # (p, n, 3)
+    d = np.linalg.norm(D, axis=2)
+    U = D / np.maximum(d, EPS)[:, :, None]
+    u = U[:, F]  # (p, m, 3 corners, 3)
+    l = np.linalg.norm(u[:, :, [1, 2, 0]] - u[:, :, [2, 0, 1]], axis=3)  # edge opposite corner i
+    theta = 2.0 * np.arcsin(np.clip(l / 2.0, 0.0, 1.0))
+    h = theta.sum(2) / 2.0
+    sin_t = np.sin(theta)
+    denom = sin_t[:, :, [1, 2, 0]] * sin_t[:, :, [2, 0, 1]]
+    c = 2.0 * np.sin(h)[:, :, None] * np.sin(h[:, :, None] - theta) / np.where(np.abs(denom) > EPS, denom, 1.0) - 1.0
+    sign = np.sign(np.linalg.det(u))[:, :, None]
+    s = sign * np.sqrt(np.clip(1.0 - c ** 2, 0.0, None))
+    valid = np.all(np.abs(s) > EPS, axis=2) & np.all(np.abs(denom) > EPS, axis=2)
+    s_prev = s[:, :, [2, 0, 1]]
+    w = (theta - c[:, :, [1, 2, 0]] * theta[:, :, [2, 0, 1]] - c[:, :, [2, 0, 1]] * theta[:, :, [1, 2, 0]]) / (
+        np.maximum(d[:, F], EPS) * sin_t[:, :, [1, 2, 0]] * np.where(np.abs(s_prev) > EPS, s_prev, 1.0))
+    w[~valid] = 0.0
+    out = np.zeros((len(points), len(V)))
+    for k in range(3):
+        for row in range(len(points)):
+            out[row] += np.bincount(F[:, k], weights=w[row, :, k], minlength=len(V))
+    out /= out.sum(1, keepdims=True)
+    # Points on a vertex or inside a triangle: the coordinates are the vertex / the barycentric ones.
+    for row in np.flatnonzero((d.min(1) < EPS) | np.any(np.pi - h < 1e-9, axis=1)):
+        out[row] = 0.0
+        if d[row].min() < EPS:
+            out[row, np.argmin(d[row])] = 1.0
+        else:
+            t = int(np.flatnonzero(np.pi - h[row] < 1e-9)[0])
+            tri = V[F[t]]
+            out[row, F[t]] = igl.barycentric_coordinates(points[[row]], tri[[0]], tri[[1]], tri[[2]])[0]
+    return out
+
+
+def joint_mean_value_coordinates(joints: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Eq. 4 on a possibly open template: ``(B, n)`` coordinates with ``joints = M @ V`` (holes fan-filled)."""
+    Vc, Fc, P = close_holes(V, F)
+    out = np.vstack([mean_value_coordinates(joints[i:i + 8], Vc, Fc) for i in range(0, len(joints), 8)])
+    return np.asarray((P.T @ out.T).T)
+
+
+def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Barycentric vertex areas (a third of each incident triangle)."""
+    fa = 0.5 * igl.doublearea(V, F)
+    A = np.zeros(len(V))
+    for k in range(3):
+        np.add.at(A, F[:, k], fa / 3.0)
+    return A
+
+
+def closest_points(points: np.ndarray, V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest triangle of ``(V, F)`` to each point, barycentric coordinates there, distances."""
+    d2, tri, C = igl.point_mesh_squared_distance(points, V, F)
+    T = V[F[tri]]
+    lam = igl.barycentric_coordinates(C, T[:, 0].copy(), T[:, 1].copy(), T[:, 2].copy())
+    lam = np.clip(lam, 0.0, 1.0)
+    lam /= lam.sum(1, keepdims=True)
+    return tri, lam, np.sqrt(d2)
+
+
+def transfer_joint_coordinates(mvc: np.ndarray, model_V: np.ndarray, model_F: np.ndarray, scan_V: np.ndarray,
+                               scan_F: np.ndarray) -> np.ndarray:
+    """Eq. 6: ``m_j(z_i) ∝ A(z_i) sum_k λ_k(z_i) m_j(v_k)``, normalised so each joint's row sums to 1.
+
+    The model coordinates are divided by the model vertex areas first (a coordinate is a mass; this
+    interpolates its density), so a scan region contributes what the model region it covers did,
+    whatever the two meshes' resolutions. Returns ``(B, |Z|)``; scan joints are ``result @ scan_V``.
+    """
+    tri, lam, _ = closest_points(scan_V, model_V, model_F)
+    density = mvc / np.maximum(vertex_areas(model_V, model_F), 1e-12)[None]  # (B, n)
+    corners = model_F[tri]  # (|Z|, 3)
+    interp = sum(lam[:, k][None] * density[:, corners[:, k]] for k in range(3))
+    M = interp * vertex_areas(scan_V, scan_F)[None]
+    return M / M.sum(1, keepdims=True)

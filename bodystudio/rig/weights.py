@@ -1,0 +1,165 @@
+"""Skin weight transfer, §5.2 of Avatar Reshaping: barycentric (baseline) and harmonic (eq. 7), plus a
+purely geometric baseline, bounded biharmonic weights (Jacobson et al. 2011) on the transferred skeleton.
+
+* Barycentric: each scan vertex takes the weights interpolated at its closest point on the fitted model.
+* Harmonic, eq. 7: each fitted-model vertex gives its weights to its closest compatible scan vertex
+  (normals within 60°); those are Dirichlet values of ``L h = 0`` over the scan (``L`` the cotangent
+  Laplace-Beltrami operator of libigl, or robust-laplacian's intrinsic-Delaunay one for non-manifold
+  scans), which interpolates them smoothly everywhere else.
+All results keep at most 4 influences per vertex and are renormalised (what game engines take).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import igl
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+from scipy.sparse.linalg import splu
+from scipy.spatial import cKDTree
+
+from bodystudio.rig.skeleton_transfer import closest_points
+
+log = logging.getLogger(__name__)
+
+MAX_INFLUENCES = 4
+COMPATIBLE_COS = 0.5
+MAX_CORRESPONDENCE_M = 0.03
+
+
+def limit_influences(W: np.ndarray, k: int = MAX_INFLUENCES) -> np.ndarray:
+    """Keep each row's ``k`` largest weights (clipped to >= 0) and renormalise to sum 1."""
+    W = np.clip(np.asarray(W, dtype=np.float64), 0.0, None)
+    if W.shape[1] > k:
+        drop = np.argpartition(-W, k, axis=1)[:, k:]
+        W = W.copy()
+        np.put_along_axis(W, drop, 0.0, axis=1)
+    total = W.sum(1, keepdims=True)
+    return W / np.where(total > 0, total, 1.0)
+
+
+def barycentric_weight_transfer(scan_V: np.ndarray, model_V: np.ndarray, model_F: np.ndarray,
+                                model_W: np.ndarray) -> np.ndarray:
+    """Baseline of §5.2: weights interpolated at each scan vertex's closest point on the fitted model."""
+    tri, lam, _ = closest_points(scan_V, model_V, model_F)
+    corners = model_F[tri]
+    W = sum(lam[:, k, None] * model_W[corners[:, k]] for k in range(3))
+    return limit_influences(W)
+
+
+def compatible_correspondences(model_V: np.ndarray, model_N: np.ndarray, scan_V: np.ndarray, scan_N: np.ndarray,
+                               max_dist: float = MAX_CORRESPONDENCE_M, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """``C_M'`` of §5.2: (model vertex a, closest compatible scan vertex b) pairs, one per model vertex at most."""
+    d, nn = cKDTree(scan_V).query(model_V, k=k, distance_upper_bound=max_dist)
+    ok = np.isfinite(d)
+    nn = np.where(ok, nn, 0)
+    compat = ok & (np.einsum("akc,ac->ak", scan_N[nn], model_N) > COMPATIBLE_COS)
+    first = np.argmax(compat, axis=1)
+    a = np.flatnonzero(compat[np.arange(len(model_V)), first])
+    return a, nn[a, first[a]]
+
+
+def scan_laplacian(V: np.ndarray, F: np.ndarray, method: str = "cotan") -> sp.csc_matrix:
+    """Negative semi-definite Laplace-Beltrami matrix of the scan: libigl cotangent or robust-laplacian."""
+    if method == "cotan":
+        return igl.cotmatrix(V, F).tocsc()
+    if method == "robust":
+        import robust_laplacian
+
+        L, _ = robust_laplacian.mesh_laplacian(np.asarray(V), np.asarray(F))
+        return (-L).tocsc()
+    raise ValueError(f"unknown Laplacian {method!r}; valid: cotan, robust")
+
+
+def harmonic_weight_transfer(scan_V: np.ndarray, scan_F: np.ndarray, model_V: np.ndarray, model_F: np.ndarray,
+                             model_W: np.ndarray, laplacian: str = "cotan") -> np.ndarray:
+    """Harmonic skin weight transfer, eq. 7 of Avatar Reshaping: ``L h = 0`` with ``w(z_b) = w(v_a)`` on ``C_M'``.
+
+    Scan vertices in a component without any correspondence (none after clean-up, normally) keep the
+    barycentric weights. Bones that no constraint touches are left out of the solve (their weight is 0).
+    """
+    from bodystudio.geometry.mesh import vertex_normals
+
+    n = len(scan_V)
+    a, b = compatible_correspondences(model_V, vertex_normals(model_V, model_F), scan_V, vertex_normals(scan_V, scan_F))
+    # Several model vertices may pick one scan vertex: average their weights there.
+    bc_sum = np.zeros((n, model_W.shape[1]))
+    np.add.at(bc_sum, b, model_W[a])
+    count = np.bincount(b, minlength=n)
+    fixed = np.flatnonzero(count > 0)
+    bc = bc_sum[fixed] / count[fixed, None]
+    L = scan_laplacian(scan_V, scan_F, laplacian)
+    is_free = np.ones(n, bool)
+    is_free[fixed] = False
+    # Free vertices cut off from every constraint would make L_ff singular: give them barycentric weights.
+    n_comp, label = connected_components(L, directed=False)
+    constrained = np.zeros(n_comp, bool)
+    constrained[label[fixed]] = True
+    orphan = is_free & ~constrained[label]
+    W = np.zeros((n, model_W.shape[1]))
+    W[fixed] = bc
+    if orphan.any():
+        log.info("harmonic transfer: %d scan vertices in components without correspondences", orphan.sum())
+        W[orphan] = barycentric_weight_transfer(scan_V[orphan], model_V, model_F, model_W)
+        is_free &= ~orphan
+    free = np.flatnonzero(is_free)
+    known = np.flatnonzero(~is_free)
+    cols = np.flatnonzero(np.abs(W[known]).sum(0) > 0)
+    L_ff = (-L[free][:, free]).tocsc()
+    L_fk = L[free][:, known]
+    lu = splu(L_ff, permc_spec="MMD_AT_PLUS_A")
+    W[np.ix_(free, cols)] = lu.solve(np.asarray(L_fk @ W[np.ix_(known, cols)]))
+    return limit_influences(W)
+
+
+def bone_segments(heads: np.ndarray, rotations: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Tails of bones from heads, frames (column 1 along the bone) and lengths."""
+    return heads + rotations[:, :, 1] * lengths[:, None]
+
+
+def bounded_biharmonic_weights(scan_V: np.ndarray, scan_F: np.ndarray, heads: np.ndarray, tails: np.ndarray,
+                               bones: np.ndarray, n_work: int = 3000) -> np.ndarray:
+    """Geometric baseline: libigl bounded biharmonic weights of ``bones`` on a decimated copy of the scan.
+
+    Handles: the scan vertices nearest each bone segment (within 5 mm of that bone's nearest distance)
+    get weight 1 for it. The result is carried back to every scan vertex barycentrically. Weights of
+    bones not in ``bones`` are 0. Returns ``(n, B)`` with at most 4 influences.
+    """
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(scan_V, scan_F))
+    if len(scan_V) > n_work:
+        ms.meshing_decimation_quadric_edge_collapse(targetfacenum=2 * n_work, preservetopology=True)
+    ms.meshing_remove_unreferenced_vertices()
+    Vd, Fd = ms.current_mesh().vertex_matrix(), ms.current_mesh().face_matrix().astype(np.int64)
+    dist = np.stack([_segment_distance(Vd, heads[j], tails[j]) for j in bones], axis=1)  # (n, nb)
+    nearest = np.argmin(dist, axis=1)
+    handles, values = [], []
+    for col, j in enumerate(bones):
+        mine = np.flatnonzero(nearest == col)
+        if len(mine) == 0:
+            continue
+        pick = mine[dist[mine, col] < dist[mine, col].min() + 0.005]
+        handles.append(pick)
+        values.append(np.full(len(pick), col))
+    b = np.concatenate(handles)
+    bc = np.zeros((len(b), len(bones)))
+    bc[np.arange(len(b)), np.concatenate(values)] = 1.0
+    Wd = igl.bbw(Vd, Fd, b, bc, partition_unity=True, max_iter=20)
+    Wd = np.clip(Wd, 0, None)
+    Wd /= np.maximum(Wd.sum(1, keepdims=True), 1e-12)
+    tri, lam, _ = closest_points(scan_V, Vd, Fd)
+    corners = Fd[tri]
+    W_sub = sum(lam[:, k, None] * Wd[corners[:, k]] for k in range(3))
+    W = np.zeros((len(scan_V), len(heads)))
+    W[:, bones] = W_sub
+    return limit_influences(W)
+
+
+def _segment_distance(P: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ab = b - a
+    t = np.clip((P - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
+    return np.linalg.norm(P - (a + t[:, None] * ab), axis=1)
