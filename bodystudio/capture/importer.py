@@ -55,7 +55,8 @@ def load_studio_cameras(path: str | os.PathLike, image_sizes: dict[str, tuple[in
     intri, extri = folder / "intri.yml", folder / "extri.yml"
     for p in (intri, extri):
         if not p.is_file():
-            raise FileFormatError(f"{p}: not found; give cameras.json or a folder with EasyMocap intri.yml and extri.yml")
+            raise FileFormatError(f"{p}: not found; give cameras.json or a folder with EasyMocap "
+                                  "intri.yml and extri.yml")
     return load_easymocap_cameras(intri, extri, image_sizes)
 
 
@@ -81,7 +82,8 @@ def _storage_mat(fs: cv2.FileStorage, key: str, path: Path, required: bool = Tru
     m = None if node.empty() else node.mat()
     if m is None:
         if required:
-            raise FileFormatError(f"{path}: missing matrix {key!r}; EasyMocap files need K_, dist_, Rot_/R_ and T_ per camera")
+            raise FileFormatError(f"{path}: missing matrix {key!r}; EasyMocap files need K_, dist_, Rot_/R_ "
+                                  "and T_ per camera")
         return None
     return np.asarray(m, dtype=np.float64)
 
@@ -344,8 +346,9 @@ def depth_scale_of(raw: np.ndarray, source: str, depth_scale: float | None, defa
                               f"{' or --depth-scale '.join(f'{sc:g}' for sc in plausible)}")
     if plausible:
         scale = plausible[0]
-        raise FileFormatError(f"{source}: depth looks like {units[scale]} (median {median / scale:.2f} m at {scale:g} "
-                              f"per metre, {median / default:.2f} m at TUM's {default:g}); pass --depth-scale {scale:g}")
+        raise FileFormatError(f"{source}: depth looks like {units[scale]} (median {median / scale:.2f} m at "
+                              f"{scale:g} per metre, {median / default:.2f} m at TUM's {default:g}); "
+                              f"pass --depth-scale {scale:g}")
     raise FileFormatError(f"{source}: depth values (median {median:g}) are not in a known unit; pass --depth-scale "
                           "(units per metre)")
 
@@ -360,7 +363,7 @@ class JointTrack:
 
 
 def load_joints(path: str | os.PathLike) -> JointTrack:
-    """Tracker joints: folder of per-frame JSON, one JSON (``names`` + ``frames``) or CSV ``frame,joint,x,y,z[,tracked]``."""
+    """Tracker joints: per-frame JSON folder, one JSON (``names`` + ``frames``) or CSV ``frame,joint,x,y,z``."""
     path = Path(path)
     if path.is_dir():
         files = sorted(path.glob("*.json"))
@@ -368,9 +371,10 @@ def load_joints(path: str | os.PathLike) -> JointTrack:
             raise FileFormatError(f"{path}: no per-frame joint JSON files")
         per_frame = [_joint_frame(json_or_error(f), f) for f in files]
         names = per_frame[0][0]
-        for (n, _, _), f in zip(per_frame, files):
+        for (n, _, _), f in zip(per_frame, files, strict=True):
             if n != names:
-                raise FileFormatError(f"{f}: joint names differ from {files[0].name}; every frame needs the same joints")
+                raise FileFormatError(f"{f}: joint names differ from {files[0].name}; every frame needs the "
+                                      "same joints")
         track = JointTrack(names, np.stack([p for _, p, _ in per_frame]), np.stack([t for _, _, t in per_frame]))
     elif path.suffix.lower() == ".json":
         data = json_or_error(path)
@@ -507,7 +511,7 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
             stamps = np.array([p[0] for p in tum_pairs])
             nearest = [int(np.argmin(np.abs(stamps - t))) for t in frame_times]
             tum_pairs = [tum_pairs[j] if abs(stamps[j] - t) <= TUM_MAX_DIFFERENCE_S else None
-                         for j, t in zip(nearest, frame_times)]
+                         for j, t in zip(nearest, frame_times, strict=True)]
     track = load_joints(joints) if joints is not None else None
 
     total = len(plan) if plan is not None else len(tum_pairs) if tum_pairs is not None else None
@@ -610,7 +614,8 @@ def _import_backgrounds(writer: SessionWriter, root: Path, rig) -> None:
             src = ImageFolderSource(root / cam.name)
             frames = [src.read(k) for k in range(len(src))]
         else:
-            files = [root / f"{cam.name}{s}" for s in IMAGE_SUFFIXES + VIDEO_SUFFIXES if (root / f"{cam.name}{s}").is_file()]
+            files = [root / f"{cam.name}{s}" for s in IMAGE_SUFFIXES + VIDEO_SUFFIXES
+                     if (root / f"{cam.name}{s}").is_file()]
             if not files:
                 raise FileFormatError(f"{root / cam.name}: no empty-studio frames for camera {cam.name} "
                                       "(a folder, an image or a video named after the camera)")

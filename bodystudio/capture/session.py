@@ -287,7 +287,8 @@ class Frame:
             pos = np.asarray(data["positions"], dtype=np.float64).reshape(len(data["names"]), 3)
             tracked = np.asarray(data.get("tracked", [True] * len(pos)), dtype=bool)
         except (KeyError, TypeError, ValueError) as exc:
-            raise SessionError(f"{self.session.path / rel}: malformed joints ({exc}); needs names and positions") from None
+            raise SessionError(f"{self.session.path / rel}: malformed joints ({exc}); "
+                               "needs names and positions") from None
         return {"names": list(data["names"]), "positions": pos, "tracked": tracked,
                 "joint_set": data.get("joint_set")}
 
@@ -434,10 +435,12 @@ class Session:
 
 def progress_bar(enabled: bool):
     """A rich progress bar (disabled: a silent stand-in with the same API) for long session writes."""
+    from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+    # stderr, so that commands printing JSON on stdout stay parseable
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                    disable=not enabled)
+                    console=Console(stderr=True), disable=not enabled)
 
 
 def _ranges(ids: list[int]) -> str:
@@ -472,7 +475,8 @@ def open_session(path: str | os.PathLike) -> Session:
     try:
         manifest = json.loads(manifest_path.read_bytes())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SessionError(f"{manifest_path}: corrupted manifest ({exc}); regenerate or re-import the session") from None
+        raise SessionError(f"{manifest_path}: corrupted manifest ({exc}); "
+                           "regenerate or re-import the session") from None
     _check_manifest(manifest, manifest_path)
     for rel in manifest["files"]:
         if not (path / rel).is_file():

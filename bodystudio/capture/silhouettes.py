@@ -69,7 +69,8 @@ class SegmentationParams:
     max_hole_fraction: float = 0.0001
 
 
-def background_model(frames: list[np.ndarray], std_floor: float = 1.0, single_frame_std: float = 3.0) -> BackgroundModel:
+def background_model(frames: list[np.ndarray], std_floor: float = 1.0,
+                     single_frame_std: float = 3.0) -> BackgroundModel:
     """Learn the background statistics of one camera from empty-studio RGB frames (Horprasert Sec. 4.1).
 
     The per-pixel std is floored by the camera's median std (so a pixel whose few samples happened to
@@ -86,7 +87,7 @@ def background_model(frames: list[np.ndarray], std_floor: float = 1.0, single_fr
         std = np.full_like(mean, single_frame_std)
     model = BackgroundModel(mean, std.astype(np.float32), 1.0, 1.0, len(frames))
     if len(frames) > 1:
-        alphas, cds = zip(*(brightness_chromaticity_distortion(f, model) for f in frames))
+        alphas, cds = zip(*(brightness_chromaticity_distortion(f, model) for f in frames), strict=True)
         alpha_rms = float(np.sqrt(np.mean((np.stack(alphas) - 1.0) ** 2)))
         cd_rms = float(np.sqrt(np.mean(np.stack(cds) ** 2)))
     else:
@@ -114,7 +115,8 @@ def brightness_chromaticity_distortion(image: np.ndarray, model: BackgroundModel
     return alpha, cd
 
 
-def foreground_pixels(image: np.ndarray, model: BackgroundModel, params: SegmentationParams = SegmentationParams()) -> np.ndarray:
+def foreground_pixels(image: np.ndarray, model: BackgroundModel,
+                      params: SegmentationParams = SegmentationParams()) -> np.ndarray:
     """Raw per-pixel foreground (H, W) bool: Horprasert's classification with shadows as background.
 
     A pixel is foreground when its normalised CD exceeds ``tau_cd``, or it is darker than a shadow
@@ -166,7 +168,8 @@ def fill_small_holes(mask: np.ndarray, max_hole_px: float) -> np.ndarray:
     return out
 
 
-def segment_silhouette(image: np.ndarray, model: BackgroundModel, params: SegmentationParams = SegmentationParams()) -> np.ndarray:
+def segment_silhouette(image: np.ndarray, model: BackgroundModel,
+                       params: SegmentationParams = SegmentationParams()) -> np.ndarray:
     """Silhouette (H, W) bool of the subject in ``image`` against the background ``model``."""
     return clean_mask(foreground_pixels(image, model, params), params)
 
@@ -211,8 +214,7 @@ def segment_session(path: str | os.PathLike, params: SegmentationParams = Segmen
     The update is atomic as a whole: masks are staged and committed with the new manifest at the end.
     Ground-truth masks (``gt/masks``) of synthetic sessions are untouched and give the reported IoU.
     """
-    from bodystudio.capture.session import SessionWriter, open_session
-    from bodystudio.capture.session import progress_bar
+    from bodystudio.capture.session import SessionWriter, open_session, progress_bar
 
     session = open_session(Path(path))
     if "rgb" not in session.streams:

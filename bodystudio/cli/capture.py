@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -20,7 +19,7 @@ def synth_session(
     frames: int = typer.Option(30, "--frames", help="frames to render"),
     motion: str = typer.Option("walk", "--motion", help="motion name (capture.motion.MOTIONS)"),
     subject_seed: int = typer.Option(7, "--subject-seed", help="subject drawn from the population"),
-    kinect: Optional[str] = typer.Option("v2", "--kinect", help="simulated Kinect: v1, v2 or none"),
+    kinect: str | None = typer.Option("v2", "--kinect", help="simulated Kinect: v1, v2 or none"),
     resolution: str = typer.Option("640x480", "--resolution", help="studio camera image size WxH"),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="camera sensor and Kinect noise"),
     seed: int = typer.Option(0, "--seed", help="motion variation, noise and background texture"),
@@ -39,16 +38,17 @@ def synth_session(
 @app.command("import")
 def import_cmd(
     out: Path = typer.Argument(..., help="new session folder"),
-    cameras: Optional[Path] = typer.Option(None, "--cameras", help="cameras.json, or a folder / file of EasyMocap intri.yml+extri.yml"),
-    images: Optional[Path] = typer.Option(None, "--images", help="folder with one image folder per camera"),
-    videos: Optional[Path] = typer.Option(None, "--videos", help="folder with one video per camera (<cam>.avi ...)"),
-    timestamps: Optional[Path] = typer.Option(None, "--timestamps", help="folder with <cam>.txt frame times (s)"),
-    backgrounds: Optional[Path] = typer.Option(None, "--backgrounds", help="empty-studio frames per camera"),
-    tum: Optional[Path] = typer.Option(None, "--tum", help="TUM RGB-D folder (depth.txt, rgb.txt, depth/, rgb/)"),
-    kinect_calibration: Optional[Path] = typer.Option(None, "--kinect-calibration", help="Kinect calibration JSON"),
-    depth_scale: Optional[float] = typer.Option(None, "--depth-scale", help="depth units per metre (TUM: 5000)"),
-    joints: Optional[Path] = typer.Option(None, "--joints", help="tracker joints: JSON folder, .json or .csv"),
-    frames: Optional[int] = typer.Option(None, "--frames", help="import at most this many frames"),
+    cameras: Path | None = typer.Option(None, "--cameras",
+                                        help="cameras.json, or a folder / file of EasyMocap intri.yml+extri.yml"),
+    images: Path | None = typer.Option(None, "--images", help="folder with one image folder per camera"),
+    videos: Path | None = typer.Option(None, "--videos", help="folder with one video per camera (<cam>.avi ...)"),
+    timestamps: Path | None = typer.Option(None, "--timestamps", help="folder with <cam>.txt frame times (s)"),
+    backgrounds: Path | None = typer.Option(None, "--backgrounds", help="empty-studio frames per camera"),
+    tum: Path | None = typer.Option(None, "--tum", help="TUM RGB-D folder (depth.txt, rgb.txt, depth/, rgb/)"),
+    kinect_calibration: Path | None = typer.Option(None, "--kinect-calibration", help="Kinect calibration JSON"),
+    depth_scale: float | None = typer.Option(None, "--depth-scale", help="depth units per metre (TUM: 5000)"),
+    joints: Path | None = typer.Option(None, "--joints", help="tracker joints: JSON folder, .json or .csv"),
+    frames: int | None = typer.Option(None, "--frames", help="import at most this many frames"),
 ) -> None:
     """Import a real recording (image folders or videos, TUM depth, joints) as a session."""
     from bodystudio.capture.importer import import_recording

@@ -58,7 +58,7 @@ def write_joints_csv(path, src):
     lines = ["frame,joint,x,y,z,tracked"]
     for f in src:
         j = f.kinect_joints
-        for n, p, t in zip(j["names"], j["positions"], j["tracked"]):
+        for n, p, t in zip(j["names"], j["positions"], j["tracked"], strict=True):
             lines.append(f"{f.frame_id},{n},{float(p[0])!r},{float(p[1])!r},{float(p[2])!r},{int(t)}")
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -81,7 +81,7 @@ def test_image_folders_easymocap_cameras_tum_depth_and_csv_joints(src, tmp_path)
         a, b = s.cameras[cam], src.cameras[cam]
         assert np.allclose(a.K, b.K) and np.allclose(a.R, b.R) and np.allclose(a.t, b.t) and np.allclose(a.dist, b.dist)
         assert (a.width, a.height) == (b.width, b.height)
-    for f, g in zip(s, src):
+    for f, g in zip(s, src, strict=True):
         for cam in src.camera_names:
             assert np.array_equal(f.images[cam], g.images[cam])
         assert np.abs(f.kinect_depth_m - g.kinect_depth_m).max() <= 0.0006  # 1/5000 m then mm rounding
@@ -134,11 +134,12 @@ def test_videos_synchronised_by_timestamps_then_segmented(src, tmp_path):
     s = import_recording(tmp_path / "out", cameras=tmp_path / "cameras.json", videos=videos,
                          timestamps=videos / "timestamps", backgrounds=bgs)
     assert s.frame_ids == src.frame_ids  # the leading blank frames were synchronised away
-    for f, g in zip(s, src):
+    for f, g in zip(s, src, strict=True):
         for cam in src.camera_names:
             assert np.array_equal(f.images[cam], g.images[cam]), f"{cam} frame {f.frame_id}"
     report = segment_session(s.path)
-    ious = [mask_iou(f.masks[c], g.gt_masks[c]) for f, g in zip(open_session(s.path), src) for c in src.camera_names]
+    ious = [mask_iou(f.masks[c], g.gt_masks[c])
+            for f, g in zip(open_session(s.path), src, strict=True) for c in src.camera_names]
     print(f"silhouette IoU after FFV1 video import: mean {np.mean(ious):.4f} min {np.min(ious):.4f}")
     assert report.n_masks == 12 and np.mean(ious) >= 0.98
 
@@ -149,11 +150,12 @@ def test_mjpg_videos_by_frame_index(src, tmp_path):
     shutil.copy(src.path / "calibration" / "cameras.json", tmp_path / "cameras.json")
     s = import_recording(tmp_path / "out", cameras=tmp_path / "cameras.json", videos=videos)
     assert s.frame_ids == src.frame_ids
-    for f, g in zip(s, src):
+    for f, g in zip(s, src, strict=True):
         for cam in src.camera_names:
             err = np.abs(f.images[cam].astype(float) - g.images[cam]).mean()
             assert err < 4.0, f"{cam} frame {f.frame_id}: MJPG frame differs by {err:.1f} grey levels"
-            others = [np.abs(f.images[cam].astype(float) - o.images[cam]).mean() for o in src if o.frame_id != g.frame_id]
+            others = [np.abs(f.images[cam].astype(float) - o.images[cam]).mean()
+                      for o in src if o.frame_id != g.frame_id]
             assert err < min(others), "frame matched to the wrong time"
 
 
@@ -176,7 +178,8 @@ def test_mismatched_image_size_names_the_file(image_setup, tmp_path):
     images, cams = image_setup
     bad = images / "cam_02" / "000001.png"
     cv2.imwrite(str(bad), np.zeros((120, 160, 3), np.uint8))
-    with pytest.raises(FileFormatError, match=r"cam_02/000001\.png: image is 160x120 but the calibration of cam_02 says 320x240"):
+    with pytest.raises(FileFormatError,
+                       match=r"cam_02/000001\.png: image is 160x120 but the calibration of cam_02 says 320x240"):
         import_recording(tmp_path / "out", cameras=cams, images=images)
     assert not (tmp_path / "out").exists()  # no half-written session
 
@@ -219,7 +222,8 @@ def test_joints_json_folder_and_cli_error(src, image_setup, tmp_path, capsys):
     jdir.mkdir()
     for f in src:
         j = f.kinect_joints
-        (jdir / f"{f.frame_id:04d}.json").write_text(json.dumps({"joints": dict(zip(j["names"], j["positions"].tolist()))}))
+        joints = dict(zip(j["names"], j["positions"].tolist(), strict=True))
+        (jdir / f"{f.frame_id:04d}.json").write_text(json.dumps({"joints": joints}))
     assert main(["capture", "import", str(tmp_path / "out"), "--cameras", str(cams), "--images", str(images),
                  "--joints", str(jdir)]) == 0
     s = open_session(tmp_path / "out")

@@ -86,3 +86,18 @@ def test_background_subtraction_reaches_iou_098_on_synthetic_session(small_synth
     cam = s.camera_names[0]
     assert mask_iou(f.masks[cam], f.gt_masks[cam]) >= 0.97  # the written masks are the segmented ones
     assert not np.array_equal(f.masks[cam], f.gt_masks[cam])
+
+
+@pytest.mark.slow
+def test_default_studio_end_to_end_through_the_cli(tmp_path, capsys):
+    """The rapid-skin studio (10 cameras, 640x480, Kinect v2, walk) from the CLI, then silhouettes: IoU >= 0.98."""
+    from bodystudio.cli.main import main
+
+    out = tmp_path / "studio"
+    assert main(["synth", "session", str(out), "--frames", "4", "--motion", "walk"]) == 0
+    capsys.readouterr()
+    assert main(["capture", "silhouettes", str(out)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    print("default studio silhouette IoU", report["iou_mean"], report["iou_min"])
+    assert report["n_masks"] == 40 and report["iou_mean"] >= 0.98 and report["iou_min"] >= 0.97
+    assert main(["capture", "verify", str(out)]) == 0

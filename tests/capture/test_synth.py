@@ -69,7 +69,7 @@ def test_kinect_depth_and_joints_follow_the_ground_truth(session):
     sigma = 1.425e-3 * np.median(truth[both]) ** 2  # Khoshelham axial noise at the body's distance
     assert abs(np.median(err)) < sigma and np.median(np.abs(err)) < 3 * sigma
     # tracker joints: ground-truth Kinect joints plus a centimetre of noise and bone-length jitter
-    from bodystudio.body import build_body, Phenotype
+    from bodystudio.body import Phenotype, build_body
 
     subject = session.gt_subject
     skeleton = build_body(Phenotype.from_dict(subject["phenotype"]), subject["local"], resolution="2k").skeleton
