@@ -125,6 +125,21 @@ class StatisticalBodyModel:
         if unknown:
             raise InputError(f"unknown attribute(s) {', '.join(unknown)}; valid: {', '.join(self.attribute_names)}")
 
+    @cached_property
+    def _attribute_moments(self) -> tuple[np.ndarray, np.ndarray]:
+        A = self.training_attributes
+        return A.mean(0), np.cov(A, rowvar=False)
+
+    def _conditional_change(self, given: dict[str, float]) -> np.ndarray:
+        """Expected change of every attribute given changes of some (Gaussian conditioning on the population)."""
+        _, cov = self._attribute_moments
+        mask = np.array([n in given for n in self.attribute_names])
+        delta = np.zeros(len(self.attribute_names))
+        delta[mask] = [float(given[n]) for n in np.array(self.attribute_names)[mask]]
+        if mask.any() and (~mask).any():
+            delta[~mask] = cov[np.ix_(~mask, mask)] @ np.linalg.solve(cov[np.ix_(mask, mask)], delta[mask])
+        return delta
+
     def attributes_to_coeffs(self, attributes: dict[str, float], refine: bool = True) -> np.ndarray:
         """Shape coefficients of given attribute values: the linear map f(gamma) of Avatar Reshaping §5.1.
 
@@ -134,15 +149,9 @@ class StatisticalBodyModel:
         measured values of the supplied mesh attributes match exactly (mass is not linear in shape).
         """
         self._check_names(attributes)
-        A = self.training_attributes
-        mu, cov = A.mean(0), np.cov(A, rowvar=False)
-        given = np.array([n in attributes for n in self.attribute_names])
-        a = mu.copy()
-        if given.any():
-            a[given] = [float(attributes[n]) for n in np.array(self.attribute_names)[given]]
-            if (~given).any():
-                regression = np.linalg.solve(cov[np.ix_(given, given)], a[given] - mu[given])
-                a[~given] += cov[np.ix_(~given, given)] @ regression
+        mu, _ = self._attribute_moments
+        offsets = {n: float(v) - mu[self.attribute_names.index(n)] for n, v in attributes.items()}
+        a = mu + self._conditional_change(offsets)
         c = np.append(a, 1.0) @ self.attribute_map
         targets = {n: float(attributes[n]) for n in MESH_ATTRIBUTE_NAMES if n in attributes}
         return self._match_measured(c, targets) if refine and targets else c
@@ -152,19 +161,29 @@ class StatisticalBodyModel:
         """(len(attribute_names), k) coefficient change per unit of each attribute, the others fixed (eq. 4 w_i)."""
         return self.attribute_map[:-1]
 
-    def edit(self, coeffs, deltas: dict[str, float], iterations: int = 5) -> np.ndarray:
+    def edit(self, coeffs, deltas: dict[str, float], others: str = "held", iterations: int = 5) -> np.ndarray:
         """Semantic edit, eq. 4 of Real-time Reshaping: ``c + sum_i lambda_i w_i``, then Newton on the mesh.
 
         The linear step moves along the attribute directions; a few Newton steps (Jacobian by finite
-        differences of the measured attributes, in the span of the mesh-measurable directions) then make
-        the measured attributes hit ``measured(c) + deltas`` while holding every other measured attribute
-        at its value before the edit. A muscularity change uses the linear step only (not measurable).
+        differences of the measured attributes) then make the measured attributes hit
+        ``measured(c) + deltas``. ``others="held"`` holds every other measured attribute at its value
+        before the edit (the regression directions' meaning); ``others="follow"`` lets them change as
+        the population's correlations predict (a heavier body also gets wider girths; give a 0 delta to
+        hold one, e.g. ``{"mass_kg": 10, "stature_m": 0}``, a heavier body of the same height). A muscularity
+        change uses the linear step only (it is not measurable on the mesh).
         """
         self._check_names(deltas)
+        if others not in ("held", "follow"):
+            raise InputError(f"others={others!r}; valid: held, follow")
         c0 = self._coeffs(coeffs)
-        step = np.array([float(deltas.get(n, 0.0)) for n in self.attribute_names])
+        if others == "held":
+            step = np.array([float(deltas.get(n, 0.0)) for n in self.attribute_names])
+            names = MESH_ATTRIBUTE_NAMES
+        else:
+            step = self._conditional_change(deltas)
+            names = tuple(n for n in MESH_ATTRIBUTE_NAMES if n in deltas)
         before = self.measure(c0)
-        targets = {n: before[n] + float(deltas.get(n, 0.0)) for n in MESH_ATTRIBUTE_NAMES}
+        targets = {n: before[n] + float(deltas.get(n, 0.0)) for n in names}
         return self._match_measured(c0 + step @ self.semantic_directions, targets, iterations)
 
     def _match_measured(self, c: np.ndarray, targets: dict[str, float], iterations: int = 5) -> np.ndarray:

@@ -87,6 +87,21 @@ def test_semantic_edit_hits_stature_and_mass(sm, held_out, start):
     assert abs(heavier["stature_m"] - before["stature_m"]) < 0.005
 
 
+def test_edit_with_correlated_attributes_following(sm):
+    """others="follow": the unasked attributes change as the population predicts, the asked ones exactly."""
+    c0 = np.zeros(sm.n_components)
+    before = sm.measure(c0)
+    c = sm.edit(c0, {"mass_kg": 10.0, "stature_m": 0.0}, others="follow")
+    after = sm.measure(c)
+    assert after["mass_kg"] - before["mass_kg"] == pytest.approx(10.0, abs=1.0)
+    assert after["stature_m"] == pytest.approx(before["stature_m"], abs=0.005)
+    assert after["waist_m"] - before["waist_m"] > 0.02  # a heavier body of the same height is wider
+    # and it stays a plausible member of the population, unlike holding every girth fixed
+    assert np.abs(c / sm.stddev).max() < np.abs(sm.edit(c0, {"mass_kg": 10.0}) / sm.stddev).max()
+    with pytest.raises(InputError, match="valid: held, follow"):
+        sm.edit(c0, {"mass_kg": 1.0}, others="free")
+
+
 def test_linear_step_alone_is_eq4(sm):
     """Without Newton steps the edit is exactly c + lambda w_i, and moves stature the right way."""
     c0 = np.zeros(sm.n_components)
