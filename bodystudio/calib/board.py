@@ -144,7 +144,8 @@ def write_board_pdf(path: str | os.PathLike, spec: CharucoBoardSpec, margin_m: f
     page_w, page_h = w + 2 * margin_m, h + 2 * margin_m
     fig = plt.figure(figsize=(page_w / 0.0254, page_h / 0.0254))
     ax = fig.add_axes((margin_m / page_w, margin_m / page_h, w / page_w, h / page_h))
-    ax.imshow(board_image(spec, px_per_m=600 / 0.0254), cmap="gray", vmin=0, vmax=255,
+    # ~200 px per square keeps marker edges crisp without a gigapixel page (the PDF stores the raster).
+    ax.imshow(board_image(spec, px_per_m=200 / spec.square_m), cmap="gray", vmin=0, vmax=255,
               interpolation="nearest", extent=(0, w, h, 0))
     ax.set_axis_off()
     fig.text(0.5 * margin_m / page_w, 0.2 * margin_m / page_h,

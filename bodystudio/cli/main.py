@@ -42,6 +42,10 @@ def _register() -> None:
     from bodystudio.cli import rig
 
     app.command("rig")(rig.rig)
+    from bodystudio.cli import calib
+
+    app.command("calibrate")(calib.calibrate)
+    app.add_typer(calib.app, name="calib", help="ChArUco boards; rig export/import (EasyMocap, COLMAP).")
 
 
 _register()

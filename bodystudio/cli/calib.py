@@ -1,0 +1,169 @@
+"""``bodystudio calibrate``, ``bodystudio calib ...``, ``synth calibration`` and ``eval calib``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from bodystudio.cli import eval as eval_cli
+from bodystudio.cli import synth as synth_cli
+from bodystudio.errors import InputError
+
+app = typer.Typer(no_args_is_help=True, help="ChArUco boards, rig export/import.")
+console = Console(stderr=True)
+
+
+def _progress() -> Progress:
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    console=console, transient=True)
+
+
+@app.command("board")
+def board(out: Path = typer.Argument(..., help="board image: .png or .pdf (true size); board.json is written beside"),
+          squares_x: int = typer.Option(10, help="squares along x"),
+          squares_y: int = typer.Option(7, help="squares along y"),
+          square_mm: float = typer.Option(100.0, help="square side, mm"),
+          marker_mm: float = typer.Option(75.0, help="ArUco marker side, mm"),
+          dictionary: str = typer.Option("DICT_4X4_50", help="ArUco dictionary"),
+          dpi: float = typer.Option(300.0, help="PNG resolution")) -> None:
+    """Write a printable ChArUco board (PNG at DPI, or PDF at true size) and its board.json."""
+    from bodystudio.calib.board import CharucoBoardSpec, save_board_json, write_board_pdf, write_board_png
+
+    spec = CharucoBoardSpec(squares_x, squares_y, square_mm / 1000, marker_mm / 1000, dictionary)
+    suffix = out.suffix.lower()
+    if suffix == ".pdf":
+        write_board_pdf(out, spec)
+    elif suffix == ".png":
+        write_board_png(out, spec, dpi=dpi)
+    else:
+        raise InputError(f"{out}: board image must end in .png or .pdf")
+    save_board_json(out.with_name("board.json"), spec)
+    w, h = spec.size_m
+    typer.echo(f"wrote {out} ({w * 1000:.0f} x {h * 1000:.0f} mm) and {out.with_name('board.json')}")
+
+
+def _capture_folder(path: Path) -> tuple[Path, Path]:
+    """(folder with cam_NN images, default output) for a session or a plain capture folder."""
+    if (path / "calibration_images").is_dir():
+        return path / "calibration_images", path / "calibration" / "cameras.json"
+    return path, path / "cameras.json"
+
+
+def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with calibration_images/) or capture "
+                                                                  "folder of cam_NN/FFFFF.png board images"),
+              board: Optional[Path] = typer.Option(None, help="board.json (default: FOLDER/board.json)"),
+              out: Optional[Path] = typer.Option(None, help="cameras.json to write (report beside it)"),
+              floor_frame: int = typer.Option(0, help="frame number whose board lies on the floor (world frame)"),
+              reference_camera: Optional[str] = typer.Option(None, help="use this camera's frame as the world "
+                                                                         "instead of the floor board"),
+              distortion_terms: int = typer.Option(5, help="4: k1 k2 p1 p2, 5: also k3"),
+              easymocap: Optional[Path] = typer.Option(None, help="also write intri.yml/extri.yml into this folder"),
+              colmap: Optional[Path] = typer.Option(None, help="also write a COLMAP text model into this folder")) -> None:
+    """Calibrate all studio cameras from ChArUco images: intrinsics, bundle adjustment, floor world frame."""
+    from bodystudio.calib.board import load_board_json
+    from bodystudio.calib.calibrate import CalibrationOptions, calibrate_cameras
+    from bodystudio.calib.io import save_colmap_model, save_easymocap_yaml
+    from bodystudio.calib.observations import detect_capture
+    from bodystudio.fileio import write_json
+    from bodystudio.geometry.camera import save_cameras_json
+
+    folder, default_out = _capture_folder(session_or_folder)
+    board = board or folder / "board.json"
+    if not board.is_file():
+        raise InputError(f"{board}: board description not found; pass --board or write one with `bodystudio calib board`")
+    spec = load_board_json(board)
+    out = out or default_out
+    options = CalibrationOptions(distortion_terms=distortion_terms,
+                                 floor_frame=None if reference_camera else floor_frame,
+                                 reference_camera=reference_camera)
+    with _progress() as progress:
+        obs, quality = detect_capture(folder, spec, progress=progress)
+        task = progress.add_task("bundle adjustment", total=None)
+        result = calibrate_cameras(obs, spec, options)
+        progress.update(task, total=1, completed=1)
+    report = result.report()
+    report["detections"] = quality
+    save_cameras_json(out, result.rig)
+    write_json(out.with_name(out.stem + ".report.json"), report)
+    if easymocap:
+        save_easymocap_yaml(easymocap, result.rig)
+    if colmap:
+        save_colmap_model(colmap, result.rig)
+    table = Table(title=f"calibration: {len(obs)} corners, {report['n_outliers']} outliers, "
+                        f"{result.seconds:.1f} s, world = {result.world_frame}")
+    for col in ("camera", "views", "corners", "outliers", "RMS px", "fx", "fy"):
+        table.add_column(col, justify="right")
+    for name, entry in report["cameras"].items():
+        cam = result.rig[name]
+        table.add_row(name, str(entry["n_views"]), str(entry["n_corners"]), str(entry["n_outliers"]),
+                      f"{entry['reproj_rms_px']:.3f}", f"{cam.fx:.1f}", f"{cam.fy:.1f}")
+    table.add_row("all", "", str(len(obs)), str(report["n_outliers"]), f"{result.rms_px:.3f}", "", "")
+    Console().print(table)
+    typer.echo(f"wrote {out}")
+
+
+@app.command("export")
+def export(cameras: Path = typer.Argument(..., help="cameras.json"),
+           easymocap: Optional[Path] = typer.Option(None, help="folder for intri.yml / extri.yml"),
+           colmap: Optional[Path] = typer.Option(None, help="folder for a COLMAP text model")) -> None:
+    """Convert cameras.json to EasyMocap YAML and/or a COLMAP text model."""
+    from bodystudio.calib.io import save_colmap_model, save_easymocap_yaml
+    from bodystudio.geometry.camera import load_cameras_json
+
+    if not easymocap and not colmap:
+        raise InputError("nothing to export: give --easymocap DIR and/or --colmap DIR")
+    rig = load_cameras_json(cameras)
+    if easymocap:
+        save_easymocap_yaml(easymocap, rig)
+        typer.echo(f"wrote {easymocap}/intri.yml, extri.yml")
+    if colmap:
+        save_colmap_model(colmap, rig)
+        typer.echo(f"wrote COLMAP model {colmap}")
+
+
+@app.command("import")
+def import_(source: Path = typer.Argument(..., help="COLMAP model folder or EasyMocap folder (intri.yml)"),
+            out: Path = typer.Option(..., help="cameras.json to write")) -> None:
+    """Convert a COLMAP model or EasyMocap intri/extri.yml to cameras.json."""
+    from bodystudio.calib.io import load_colmap_model, load_easymocap_yaml
+    from bodystudio.geometry.camera import save_cameras_json
+
+    rig = load_easymocap_yaml(source) if (source / "intri.yml").is_file() else load_colmap_model(source)
+    save_cameras_json(out, rig)
+    typer.echo(f"wrote {out} ({len(rig)} cameras)")
+
+
+@synth_cli.app.command("calibration")
+def synth_calibration(out: Path = typer.Argument(..., help="output capture folder"),
+                      cameras: int = typer.Option(10, help="cameras on the studio ring"),
+                      poses: int = typer.Option(30, help="board poses (frame 0 lies on the floor)"),
+                      seed: int = typer.Option(0),
+                      width: int = typer.Option(1280), height: int = typer.Option(960)) -> None:
+    """Render a ChArUco calibration capture of the studio ring with ground truth (OUT/gt/cameras.json)."""
+    from bodystudio.calib.synthetic import write_synthetic_calibration
+
+    with _progress() as progress:
+        summary = write_synthetic_calibration(out, cameras, poses, seed, width, height, progress=progress)
+    typer.echo(json.dumps(summary))
+
+
+@eval_cli.app.command("calib")
+def eval_calib(est: Path = typer.Argument(..., help="estimated cameras.json"),
+               gt: Path = typer.Argument(..., help="ground-truth cameras.json"),
+               report: Optional[Path] = typer.Option(None, help="calibration report (default: EST.report.json)"),
+               align: str = typer.Option("floor", help="floor: compare world frames as they are; similarity: "
+                                                       "Umeyama-align camera centres first")) -> None:
+    """Score a calibration against ground truth; prints JSON (overall means, worst camera, per camera)."""
+    from bodystudio.calib.evaluate import evaluate_calibration
+    from bodystudio.fileio import read_json
+    from bodystudio.geometry.camera import load_cameras_json
+
+    report = report or est.with_name(est.stem + ".report.json")
+    rep = read_json(report, "calibration report") if report.is_file() else None
+    typer.echo(json.dumps(evaluate_calibration(load_cameras_json(est), load_cameras_json(gt), rep, align), indent=2))
