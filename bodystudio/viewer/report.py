@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 
 # Session data streams and big inputs are not metrics.
 _SKIP_PARTS = re.compile(r"^(cam_[^/]*|kinect|gt|\.staging|calibration_images|background|rgb|mask)$")
-_SKIP_NAMES = {"session.json", "cameras.json", "commit.json"}
+_SKIP_NAMES = {"session.json", "cameras.json", "commit.json", "board.json"}
 MAX_JSON_BYTES = 2_000_000
 MAX_ROWS = 200
 MAX_SCREENSHOTS = 12
@@ -116,7 +116,7 @@ def _records_table(title: str, records: list[dict], index_name: str | None = Non
     rows = [[r.get(c) for c in columns] for r in records[:MAX_ROWS]]
     if index is not None:
         columns = [index_name or ""] + columns
-        rows = [[name] + row for name, row in zip(index, rows)]
+        rows = [[name] + row for name, row in zip(index, rows, strict=False)]
     return Table(title, columns, rows)
 
 
@@ -413,7 +413,7 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
             if owned:
                 scene.close()
     title = title or f"bodystudio report: {root.resolve().name}"
-    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     parts = [page_head(title, REPORT_CSS), "<body>", f"<h1>{html.escape(title)}</h1>",
              f'<p class="meta">{html.escape(str(root.resolve()))} &middot; {stamp}</p>']
     if notes:

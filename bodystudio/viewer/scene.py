@@ -218,8 +218,11 @@ def add_title(plotter, text: str):
     return plotter
 
 
-def frame_front(plotter, bounds: np.ndarray | None = None, direction=(0.0, 0.15, 1.0)):
-    """Point the plotter's camera at ``bounds`` (2, 3) from the front (+z, the body faces +z), y up."""
+def frame_front(plotter, bounds: np.ndarray | None = None, direction=(0.0, 0.15, 1.0), margin: float = 1.1):
+    """Point the plotter's camera at ``bounds`` (2, 3) from the front (+z, the body faces +z), y up.
+
+    ``margin`` scales the distance that fits the bounds' sphere in view (below 1 crops its edges).
+    """
     if bounds is None:
         b = np.asarray(plotter.bounds, dtype=np.float64)
         bounds = np.array([[b[0], b[2], b[4]], [b[1], b[3], b[5]]])
@@ -229,7 +232,7 @@ def frame_front(plotter, bounds: np.ndarray | None = None, direction=(0.0, 0.15,
     d = np.asarray(direction, dtype=np.float64)
     d /= np.linalg.norm(d)
     view_angle = np.radians(plotter.camera.view_angle)
-    distance = 1.1 * max(radius, 1e-3) / np.sin(view_angle / 2)
+    distance = margin * max(radius, 1e-3) / np.sin(view_angle / 2)
     plotter.camera_position = [tuple(center + distance * d), tuple(center), (0.0, 1.0, 0.0)]
     plotter.reset_camera_clipping_range()
     return plotter

@@ -25,7 +25,7 @@ SESSION_MANIFEST = "session.json"
 IMAGE_LAYERS = ("image", "mask", "none")
 MAX_TEXTURE_WIDTH = 320  # camera images are shown small; keeps the HTML export light
 FRUSTUM_M = 0.5  # depth at which camera frusta end and their images are drawn
-KINECT_COLOR = (0.3, 0.9, 0.5)
+KINECT_COLOR = (0.95, 0.35, 0.85)  # magenta: not in the error colour map
 
 
 @dataclass(frozen=True)
@@ -190,7 +190,7 @@ def scene_for_session(session, frame_id: int | None = None, plotter=None, images
     b = _session_bounds(session, gt)
     if len(centers):
         b = np.array([np.minimum(b[0], centers.min(0)), np.maximum(b[1], centers.max(0))])
-    sc.frame_front(plotter, b, direction=(0.3, 0.6, 1.0))
+    sc.frame_front(plotter, b, direction=(0.3, 0.6, 1.0), margin=0.75)
     return plotter
 
 
@@ -211,7 +211,8 @@ def add_time_slider(plotter, session, images: str = "image", cloud: bool = True,
 
 
 def build_view(path: str | Path, bone: str | None = None, frame: int | None = None, images: str = "image",
-               off_screen: bool = True, window_size: tuple[int, int] = sc.WINDOW_SIZE, reference: str | Path | None = None):
+               off_screen: bool = True, window_size: tuple[int, int] = sc.WINDOW_SIZE,
+               reference: str | Path | None = None):
     """The plotter ``bodystudio view`` shows for a path (session, mesh, scan or avatar)."""
     item = open_viewable(path)
     plotter = sc.make_plotter(off_screen=off_screen, window_size=window_size)

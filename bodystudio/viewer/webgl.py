@@ -181,7 +181,7 @@ VIEWER_CSS = """
 .bs-bar .grad{position:absolute;left:0;top:18px;bottom:0;width:18px;border:1px solid #ccc}
 .bs-bar .t{position:absolute;top:0;left:0;white-space:nowrap;font-weight:bold}
 .bs-bar .hi{position:absolute;left:24px;top:14px}.bs-bar .lo{position:absolute;left:24px;bottom:-4px}
-"""
+"""  # noqa: E501  (inline script and style)
 
 # The viewer script: WebGL 1 with OES_element_index_uint, a headlight, orbit / pan / zoom with the mouse.
 VIEWER_JS = r"""
@@ -284,7 +284,7 @@ window.bodystudioView=function(canvas, scene){
   draw();return {draw:draw};
 };
 })();
-"""
+"""  # noqa: E501  (inline script and style)
 
 
 def _color_bar_html(bar: dict) -> str:
@@ -317,7 +317,7 @@ function bodystudioMount(id){try{var c=document.getElementById(id);
   bodystudioView(c,JSON.parse(document.getElementById(id+"-data").textContent));
   var n=Number(document.body.getAttribute("data-views-drawn")||0)+1;document.body.setAttribute("data-views-drawn",String(n));}
   catch(e){window.bodystudioErrors.push(id+": "+e.message);}bodystudioStatus();}
-"""
+"""  # noqa: E501  (inline script and style)
 
 
 def page_head(title: str, extra_css: str = "") -> str:

@@ -54,7 +54,8 @@ def run_chromium(html_path: Path, size=(1200, 1000), timeout: float = 90.0) -> d
     with tempfile.TemporaryDirectory() as profile:
         shot = Path(profile) / "shot.png"
         subprocess.run([exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}/p", f"--window-size={size[0]},{size[1]}",
-                        "--virtual-time-budget=8000", f"--screenshot={shot}", url], capture_output=True, timeout=timeout)
+                        "--virtual-time-budget=8000", f"--screenshot={shot}", url],
+                       capture_output=True, timeout=timeout)
         image = np.asarray(Image.open(shot).convert("RGB")) if shot.is_file() else None
     # Chromium's software GL reports its own performance notes ("GL Driver Message (..., Performance,
     # ...): GPU stall due to ReadPixels") through the page console; they are not page errors.
@@ -78,7 +79,7 @@ def write_skinned_glb(path: Path, V: np.ndarray, F: np.ndarray, weights: np.ndar
     ibm = ibm.transpose(0, 2, 1).astype(np.float32)  # column-major
     blobs = [V.astype(np.float32), F.astype(np.uint32).ravel(), J, W, ibm]
     data, views, offset = b"", [], 0
-    for arr, target in zip(blobs, [34962, 34963, 34962, 34962, None]):
+    for arr, target in zip(blobs, [34962, 34963, 34962, 34962, None], strict=True):
         raw = np.ascontiguousarray(arr).tobytes()
         views.append(g.BufferView(buffer=0, byteOffset=offset, byteLength=len(raw), target=target))
         data += raw + b"\0" * (-len(raw) % 4)

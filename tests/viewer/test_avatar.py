@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from bodystudio.errors import FileFormatError
-from bodystudio.geometry.mesh import Mesh, save_mesh
+from bodystudio.geometry.mesh import save_mesh
 from bodystudio.viewer.avatar import glb_has_skin, load_avatar
 from bodystudio.viewer.views import open_viewable
 

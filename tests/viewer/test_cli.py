@@ -3,7 +3,6 @@
 import json
 
 import numpy as np
-import pytest
 
 from bodystudio.cli.main import main
 from bodystudio.geometry.mesh import save_mesh

@@ -9,7 +9,7 @@ import pytest
 
 from bodystudio.viewer import scene as sc
 from bodystudio.viewer.views import scene_for_mesh
-from bodystudio.viewer.webgl import save_scene_html, scene_payload
+from bodystudio.viewer.webgl import save_scene_html
 
 
 def _payload_from_page(text: str) -> dict:

@@ -1,7 +1,6 @@
 """The HTML report: tables and plots appear exactly when their data exists; bad input is one line."""
 
 import base64
-import json
 import re
 
 import numpy as np
@@ -19,7 +18,8 @@ def _run_folder(tmp_path, body_mesh):
     write_json(run / "calibration" / "report.json", {
         "reproj_rms_px": 0.31, "n_observations": 500,
         "residuals_px": rng.normal(0, 0.3, 200).tolist(),
-        "cameras": {"cam_00": {"reproj_rms_px": 0.3, "n_corners": 250}, "cam_01": {"reproj_rms_px": 0.32, "n_corners": 250}},
+        "cameras": {"cam_00": {"reproj_rms_px": 0.3, "n_corners": 250},
+                    "cam_01": {"reproj_rms_px": 0.32, "n_corners": 250}},
     })
     write_json(run / "reconstruct" / "frames.json", {"frames": [
         {"frame": f, "solver_ms": 40.0 + f, "metrics": {"visible_median_mm": 4.0 + f, "p90_mm": 9.0 + f}}
