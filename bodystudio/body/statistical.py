@@ -99,7 +99,11 @@ class StatisticalBodyModel:
         return Skeleton(self.bone_names, self.parents, heads, tails, self.rolls)
 
     def body(self, coeffs) -> BodyModel:
-        """A posable :class:`BodyModel` of the shape ``coeffs`` with the template's rig and skin weights."""
+        """A posable :class:`BodyModel` of the shape ``coeffs`` with the template's rig and skin weights.
+
+        A PCA shape has no MakeHuman phenotype: the BodyModel carries the default one, so take its
+        attributes from :meth:`measure`, not from ``body.phenotype``.
+        """
         return BodyModel(self.vertices(coeffs), self.faces, self.skeleton(coeffs), self.weights,
                          self.resolution, self.rig, vertex_ids=self.vertex_ids)
 
