@@ -195,6 +195,28 @@ class SilhouetteReport:
                 "iou_per_camera": self.iou_per_camera}
 
 
+def silhouette_scores(session) -> SilhouetteReport:
+    """IoU of a session's current masks (``cam_NN/mask``) against its ground-truth masks (``gt/masks``)."""
+    if "gt_mask" not in session.streams:
+        raise SessionError(f"{session.path / 'session.json'}: no ground-truth masks to score against "
+                           "(only synthetic sessions have gt/masks)")
+    ious: dict[str, list[float]] = {c: [] for c in session.camera_names}
+    n = 0
+    for frame in session:
+        for cam in frame.gt_masks:
+            if cam in frame.masks:
+                ious[cam].append(mask_iou(frame.masks[cam], frame.gt_masks[cam]))
+                n += 1
+    return _report(n, ious)
+
+
+def _report(n: int, ious: dict[str, list[float]]) -> SilhouetteReport:
+    per_camera = {c: float(np.mean(v)) for c, v in ious.items() if v}
+    all_ious = [x for v in ious.values() for x in v]
+    return SilhouetteReport(n, float(np.mean(all_ious)) if all_ious else None,
+                            float(np.min(all_ious)) if all_ious else None, per_camera)
+
+
 def session_background_models(session, params: SegmentationParams = SegmentationParams()) -> dict[str, BackgroundModel]:
     """One background model per camera from the session's ``cam_NN/background/`` frames."""
     models = {}
@@ -237,9 +259,6 @@ def segment_session(path: str | os.PathLike, params: SegmentationParams = Segmen
                     if cam in frame.gt_masks:
                         ious[cam].append(mask_iou(mask, frame.gt_masks[cam]))
                 bar.advance(task)
-    per_camera = {c: float(np.mean(v)) for c, v in ious.items() if v}
-    all_ious = [x for v in ious.values() for x in v]
-    report = SilhouetteReport(n, float(np.mean(all_ious)) if all_ious else None,
-                              float(np.min(all_ious)) if all_ious else None, per_camera)
+    report = _report(n, ious)
     log.info("segmented %d masks in %s (IoU mean %s)", n, session.path, report.iou_mean)
     return report

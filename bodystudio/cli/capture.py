@@ -1,4 +1,4 @@
-"""``bodystudio capture ...`` (import, silhouettes, verify, recover) and ``bodystudio synth session``."""
+"""``bodystudio capture ...`` (import, silhouettes, verify, recover), ``synth session`` and ``eval silhouettes``."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from bodystudio.cli import eval as eval_cli
 from bodystudio.cli import synth
 
 app = typer.Typer(no_args_is_help=True)
@@ -71,6 +72,15 @@ def silhouettes_cmd(
 
     params = SegmentationParams(tau_cd=tau_cd, close_px=close_px, open_px=open_px)
     typer.echo(json.dumps(segment_session(session, params, progress=True).to_dict(), indent=2))
+
+
+@eval_cli.app.command("silhouettes")
+def eval_silhouettes(session: Path = typer.Argument(..., help="synthetic session folder")) -> None:
+    """IoU of the session's masks against its ground-truth masks (JSON)."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.capture.silhouettes import silhouette_scores
+
+    typer.echo(json.dumps(silhouette_scores(open_session(session)).to_dict(), indent=2))
 
 
 @app.command("verify")

@@ -7,6 +7,8 @@ import shutil
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bodystudio.capture.importer import import_recording, save_easymocap_cameras
 from bodystudio.capture.session import open_session
@@ -238,3 +240,32 @@ def test_joints_json_folder_and_cli_error(src, image_setup, tmp_path, capsys):
 
 def test_errors_are_body_studio_errors():
     assert issubclass(FileFormatError, BodyStudioError)
+
+
+def test_truncated_video_names_the_file_and_frame(src, tmp_path):
+    videos = write_videos(tmp_path / "videos", src, {})
+    shutil.copy(src.path / "calibration" / "cameras.json", tmp_path / "cameras.json")
+    bad = videos / "cam_01.avi"
+    data = bad.read_bytes()
+    bad.write_bytes(data[: len(data) // 2])
+    with pytest.raises(FileFormatError, match=r"cam_01\.avi: (frame \d cannot be decoded|cannot open the video)"):
+        import_recording(tmp_path / "out", cameras=tmp_path / "cameras.json", videos=videos)
+    assert not (tmp_path / "out").exists()
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 5), st.integers(0, 5), st.floats(0.0, 0.01), st.integers(2, 30))
+def test_timestamp_synchronisation_recovers_the_common_frames(lead_a, lead_b, jitter, n):
+    """Cameras that start at different times (leading frames) and tick with jitter well below the
+    frame period (here up to 15%) are realigned: every common frame is matched, to the right index."""
+    from bodystudio.capture.importer import synchronise_by_timestamps
+
+    period = 1 / 15
+    rng = np.random.default_rng(n)
+    truth = 5.0 + period * np.arange(n)
+    times = {"ref": truth + rng.uniform(-jitter, jitter, n)}
+    times["a"] = np.r_[truth[0] - period * np.arange(lead_a, 0, -1), truth] + rng.uniform(-jitter, jitter, n + lead_a)
+    times["b"] = np.r_[truth[0] - period * np.arange(lead_b, 0, -1), truth][: n + lead_b - 1] + jitter / 2
+    plan = synchronise_by_timestamps(times)
+    assert [p["ref"] for p in plan] == list(range(n - 1))  # b stopped one frame early
+    assert all(p["a"] == p["ref"] + lead_a and p["b"] == p["ref"] + lead_b for p in plan)

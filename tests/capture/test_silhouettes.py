@@ -13,6 +13,7 @@ from bodystudio.capture.silhouettes import (
     mask_iou,
     segment_session,
     segment_silhouette,
+    silhouette_scores,
 )
 
 
@@ -76,8 +77,11 @@ def test_background_subtraction_reaches_iou_098_on_synthetic_session(small_synth
     shutil.copytree(small_synth_session, path)
     s = open_session(path)
     assert s.metadata["noise_std"] > 0
+    before = silhouette_scores(open_session(path))
+    assert before.iou_mean == 1.0  # synthetic sessions start with the ground-truth masks
     report = segment_session(path)
     print("silhouette IoU", json.dumps(report.to_dict()))
+    assert silhouette_scores(open_session(path)).to_dict() == report.to_dict()
     assert report.n_masks == len(s.camera_names) * len(s)
     assert report.iou_mean >= 0.98 and report.iou_min >= 0.97
     s = open_session(path)
@@ -101,3 +105,6 @@ def test_default_studio_end_to_end_through_the_cli(tmp_path, capsys):
     print("default studio silhouette IoU", report["iou_mean"], report["iou_min"])
     assert report["n_masks"] == 40 and report["iou_mean"] >= 0.98 and report["iou_min"] >= 0.97
     assert main(["capture", "verify", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["eval", "silhouettes", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["iou_mean"] == report["iou_mean"]
