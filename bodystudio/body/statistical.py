@@ -350,8 +350,18 @@ def read_statistical_model(path: str | Path) -> StatisticalBodyModel:
 
 
 def statistical_model_path(resolution: str, n_components: int, n_samples: int, seed: int, rig: str) -> Path:
-    return (bodystudio_home() / "compiled" /
-            f"statistical-{resolution}-{rig}-k{n_components}-n{n_samples}-s{seed}-v{STATISTICAL_MODEL_VERSION}.npz")
+    """Cache file of a model; its name fingerprints the inputs so a changed population or asset set rebuilds."""
+    import hashlib
+
+    from bodystudio.body.model import shaped_vertices, template_topology
+    from bodystudio.body.population import sample_population
+
+    ids, faces = template_topology(resolution)
+    inputs = hashlib.sha1(repr(sample_population(4, seed)).encode())
+    for array in (shaped_vertices().round(7), faces, np.array([]) if ids is None else ids):
+        inputs.update(np.ascontiguousarray(array).tobytes())
+    return (bodystudio_home() / "compiled" / f"statistical-{resolution}-{rig}-k{n_components}-n{n_samples}-s{seed}"
+            f"-v{STATISTICAL_MODEL_VERSION}-{inputs.hexdigest()[:10]}.npz")
 
 
 def load_statistical_model(resolution: str = "6k", n_components: int = 20, n_samples: int = DEFAULT_SAMPLES,
