@@ -49,6 +49,36 @@ def avatar_from_body(body) -> Avatar:
                   np.asarray(body.weights))
 
 
+def as_avatar(obj) -> Avatar:
+    """A viewer :class:`Avatar` from a BodyModel, the rig stage's avatar, or an Avatar (duck-typed).
+
+    Bone tails come from ``skeleton.tails``, else from ``bind_rotations`` (y runs head -> tail) and
+    ``bone_lengths``, else from the children's heads.
+    """
+    if isinstance(obj, Avatar):
+        return obj
+    if hasattr(obj, "skeleton") and hasattr(obj, "weights"):
+        return avatar_from_body(obj)
+    heads = np.asarray(obj.heads, dtype=np.float64)
+    parents = np.asarray(obj.parents)
+    if getattr(obj, "bind_rotations", None) is not None and getattr(obj, "bone_lengths", None) is not None:
+        tails = heads + np.asarray(obj.bind_rotations)[:, :, 1] * np.asarray(obj.bone_lengths)[:, None]
+    else:
+        tails = _tails_from_children(heads, parents)
+    return Avatar(obj.mesh, tuple(obj.bone_names), parents, heads, tails, np.asarray(obj.weights))
+
+
+def _tails_from_children(heads: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    tails = heads.copy()
+    for k in range(len(heads)):
+        children = np.flatnonzero(parents == k)
+        if len(children):
+            tails[k] = heads[children[0]]
+        elif parents[k] >= 0:
+            tails[k] = heads[k] + 0.5 * (heads[k] - heads[parents[k]])
+    return tails
+
+
 def glb_has_skin(path: str | Path) -> bool:
     """Whether a .glb/.gltf file holds a skinned mesh (False for plain meshes or unreadable files)."""
     try:
@@ -166,12 +196,6 @@ def load_avatar(path: str | Path) -> Avatar:
         for c in gltf.nodes[j].children or []:
             if c in joint_index:
                 parents[joint_index[c]] = k
-    tails = heads.copy()
-    for k in range(B):
-        children = np.flatnonzero(parents == k)
-        if len(children):
-            tails[k] = heads[children[0]]
-        elif parents[k] >= 0:
-            tails[k] = heads[k] + 0.5 * (heads[k] - heads[parents[k]])
+    tails = _tails_from_children(heads, parents)
     names = tuple(gltf.nodes[j].name or f"joint{k}" for k, j in enumerate(skin.joints))
     return Avatar(Mesh(V, F), names, parents, heads, tails, W)
