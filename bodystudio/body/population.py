@@ -5,7 +5,11 @@ Used to learn the statistical model (PCA, attribute map) and to pick synthetic s
 
 * gender ~ Bernoulli(0.5) mixed towards the middle: 0.05 + 0.9 * B + N(0, 0.05), clipped to [0, 1]
 * age ~ U(0.5, 0.875)  (25 to ~60 years; adults only)
-* muscle ~ Beta(4, 4), weight ~ Beta(3, 3) scaled to [0.15, 0.95], height ~ Beta(4, 4)
+* muscle ~ Beta(4, 4), weight ~ Beta(3, 3) scaled to [0.15, 0.95]
+* height: a stature z-score z ~ N(0, 1) mapped to MakeHuman's height so that stature varies by about
+  7 cm per standard deviation, as in adult populations (MakeHuman's height modifier is about twice as
+  strong above 0.5 as below: h = 0.5 + 0.096 z for z < 0, 0.5 + 0.048 z otherwise, clipped to
+  [0.2, 0.7])
 * proportions ~ U(0.3, 0.8)
 * ethnic weights ~ Dirichlet(1, 1, 1)
 * local modifiers: each of ``LOCAL_SPREAD`` ~ N(0, sigma) clipped to [-1, 1], both sides alike
@@ -34,6 +38,10 @@ LOCAL_SPREAD: dict[str, float] = {
 }
 
 
+def _height_from_zscore(z: float) -> float:
+    return float(np.clip(0.5 + (0.096 if z < 0 else 0.048) * z, 0.2, 0.7))
+
+
 def sample_subject(seed: int | np.random.Generator) -> tuple[Phenotype, dict[str, float]]:
     """One adult subject (phenotype, local modifier values) from the population; same seed, same person."""
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
@@ -44,7 +52,7 @@ def sample_subject(seed: int | np.random.Generator) -> tuple[Phenotype, dict[str
         age=float(rng.uniform(0.5, 0.875)),
         muscle=float(rng.beta(4, 4)),
         weight=float(0.15 + 0.8 * rng.beta(3, 3)),
-        height=float(rng.beta(4, 4)),
+        height=_height_from_zscore(float(rng.normal())),
         proportions=float(rng.uniform(0.3, 0.8)),
         african=float(ethnic[0]), asian=float(ethnic[1]), caucasian=float(ethnic[2]),
     )
