@@ -62,7 +62,7 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
               floor_frame: int = typer.Option(0, help="frame number whose board lies on the floor (world frame)"),
               reference_camera: Optional[str] = typer.Option(None, help="use this camera's frame as the world "
                                                                          "instead of the floor board"),
-              distortion_terms: int = typer.Option(5, help="4: k1 k2 p1 p2, 5: also k3"),
+              distortion_terms: int = typer.Option(4, help="4: k1 k2 p1 p2, 5: also k3 (wide-angle lenses)"),
               easymocap: Optional[Path] = typer.Option(None, help="also write intri.yml/extri.yml into this folder"),
               colmap: Optional[Path] = typer.Option(None, help="also write a COLMAP text model into this folder")) -> None:
     """Calibrate all studio cameras from ChArUco images: intrinsics, bundle adjustment, floor world frame."""
