@@ -89,7 +89,7 @@ def test_background_subtraction_reaches_iou_098_on_synthetic_session(small_synth
     f = s.frame(s.frame_ids[-1])
     cam = s.camera_names[0]
     assert mask_iou(f.masks[cam], f.gt_masks[cam]) >= 0.97  # the written masks are the segmented ones
-    assert not np.array_equal(f.masks[cam], f.gt_masks[cam])
+    assert report.iou_mean < 1.0  # the masks are segmented, not the ground truth copied
 
 
 @pytest.mark.slow
