@@ -355,6 +355,21 @@ def depth_scale_of(raw: np.ndarray, source: str, depth_scale: float | None, defa
 
 # ---------------------------------------------------------------------------------------------- joints
 
+JOINT_FRAMES = ("studio", "kinect-sdk")
+#: Kinect SDK camera space (x left, y up, z forward) -> OpenCV camera axes (x right, y down, z forward).
+_SDK_TO_OPENCV = np.diag([-1.0, -1.0, 1.0])
+
+
+def kinect_sdk_to_studio(points: np.ndarray, sensor) -> np.ndarray:
+    """Joints (J, 3) in the Kinect SDK's camera space (metres, depth camera origin) -> studio frame."""
+    return sensor.depth.camera_to_world(np.asarray(points, dtype=np.float64) @ _SDK_TO_OPENCV.T)
+
+
+def studio_to_kinect_sdk(points: np.ndarray, sensor) -> np.ndarray:
+    """Inverse of :func:`kinect_sdk_to_studio`."""
+    return sensor.depth.world_to_camera(points) @ _SDK_TO_OPENCV
+
+
 @dataclass(frozen=True)
 class JointTrack:
     names: list[str]
@@ -451,12 +466,16 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
                      timestamps: str | os.PathLike | None = None, backgrounds: str | os.PathLike | None = None,
                      tum: str | os.PathLike | None = None, kinect_calibration: str | os.PathLike | None = None,
                      depth_scale: float | None = None, joints: str | os.PathLike | None = None,
-                     n_frames: int | None = None, progress: bool = False) -> Session:
+                     n_frames: int | None = None, masks: str | os.PathLike | None = None,
+                     joints_frame: str = "studio", progress: bool = False) -> Session:
     """Convert a recording into the session folder ``out``; every input problem is a one-line error.
 
     Studio frames come from ``images`` (folder per camera) or ``videos`` (file per camera), synchronised
     by index or, with ``timestamps`` (``<cam>.txt`` per camera), by time. ``tum`` adds Kinect depth and
-    colour (needs ``kinect_calibration``); ``joints`` adds tracker joints, one entry per session frame.
+    colour (needs ``kinect_calibration``); ``joints`` adds tracker joints, one entry per session frame,
+    given in the studio frame or (``joints_frame="kinect-sdk"``) in the Kinect SDK's camera space (x left,
+    y up, z forward from the depth camera; converted with the Kinect calibration). ``masks`` imports
+    existing silhouettes (``masks/<cam>/`` image folders, same order as the frames; non-zero = subject).
     """
     from bodystudio.capture.session import progress_bar
 
@@ -473,9 +492,14 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
     if tum is not None and kinect_calibration is None:
         raise InputError(f"{tum}: Kinect depth needs --kinect-calibration (JSON with 'depth' and 'color' cameras, "
                          "see docs/session-format.md)")
+    if joints_frame not in JOINT_FRAMES:
+        raise InputError(f"--joints-frame {joints_frame!r} is not one of {', '.join(JOINT_FRAMES)}")
+    if joints_frame != "studio" and kinect_calibration is None:
+        raise InputError(f"--joints-frame {joints_frame} needs --kinect-calibration to place the Kinect in the studio")
     sensor = load_kinect_calibration(kinect_calibration) if kinect_calibration else None
     rig = _cameras_for_import(cameras, frame_root, videos is not None, sensor)
     names = list(rig.cameras)
+    mask_sources = camera_sources(Path(masks), names, videos=False) if masks is not None else {}
 
     # -- studio frame plan: one {camera: source frame index} per session frame
     sources = camera_sources(frame_root, names, videos is not None) if frame_root is not None else {}
@@ -556,8 +580,19 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
                     color = read_image_file(tum / rgb_file)
                     _check_size(color, sensor.color, str(tum / rgb_file))
                     writer.write_kinect_rgb(i, color)
+                for name, source in mask_sources.items():
+                    k = plan[i][name] if plan is not None else i
+                    if k >= len(source):
+                        raise FileFormatError(f"{source.where}: {len(source)} masks but frame {k} is needed; "
+                                              "give one mask per frame")
+                    mask = read_image_file(source.files[k], cv2.IMREAD_GRAYSCALE)
+                    _check_size(mask, rig[name], str(source.files[k]))
+                    writer.write_mask(name, i, mask > 0)
                 if track is not None:
-                    writer.write_kinect_joints(i, track.names, track.positions[i], track.tracked[i],
+                    positions = track.positions[i]
+                    if joints_frame == "kinect-sdk":
+                        positions = kinect_sdk_to_studio(positions, sensor)
+                    writer.write_kinect_joints(i, track.names, positions, track.tracked[i],
                                                joint_set=sensor.version if sensor is not None else None)
                 bar.advance(task)
     finally:

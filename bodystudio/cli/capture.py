@@ -50,12 +50,14 @@ def import_cmd(
     depth_scale: float | None = typer.Option(None, "--depth-scale", help="depth units per metre (TUM: 5000)"),
     joints: Path | None = typer.Option(None, "--joints", help="tracker joints: JSON folder, .json or .csv"),
     frames: int | None = typer.Option(None, "--frames", help="import at most this many frames"),
+    masks: Path | None = typer.Option(None, "--masks", help="existing silhouettes: one image folder per camera"),
+    joints_frame: str = typer.Option("studio", "--joints-frame", help="studio, or kinect-sdk (camera space)"),
 ) -> None:
     """Import a real recording (image folders or videos, TUM depth, joints) as a session."""
     from bodystudio.capture.importer import import_recording
 
     session = import_recording(out, cameras, images, videos, timestamps, backgrounds, tum, kinect_calibration,
-                               depth_scale, joints, frames, progress=True)
+                               depth_scale, joints, frames, masks, joints_frame, progress=True)
     typer.echo(f"wrote {out}: {len(session.camera_names)} cameras x {len(session)} frames, "
                f"streams {', '.join(session.streams)}")
 

@@ -269,3 +269,34 @@ def test_timestamp_synchronisation_recovers_the_common_frames(lead_a, lead_b, ji
     plan = synchronise_by_timestamps(times)
     assert [p["ref"] for p in plan] == list(range(n - 1))  # b stopped one frame early
     assert all(p["a"] == p["ref"] + lead_a and p["b"] == p["ref"] + lead_b for p in plan)
+
+
+def test_existing_masks_and_kinect_sdk_joints(src, image_setup, tmp_path):
+    """Silhouettes from another tool (mask folders) and tracker joints in the Kinect SDK's camera space
+    (x left, y up, metres from the depth camera) come back as the session's masks and studio-frame joints."""
+    from bodystudio.capture.importer import studio_to_kinect_sdk
+
+    images, cams = image_setup
+    masks = tmp_path / "masks"
+    for cam in src.camera_names:
+        (masks / cam).mkdir(parents=True)
+        for f in src:
+            cv2.imwrite(str(masks / cam / f"{f.frame_id:06d}.png"), f.gt_masks[cam].astype(np.uint8) * 255)
+    sensor = src.kinect
+    lines = ["frame,joint,x,y,z"]
+    for f in src:
+        j = f.kinect_joints
+        for n, p in zip(j["names"], studio_to_kinect_sdk(j["positions"], sensor), strict=True):
+            lines.append(f"{f.frame_id},{n},{float(p[0])!r},{float(p[1])!r},{float(p[2])!r}")
+    (tmp_path / "sdk.csv").write_text("\n".join(lines) + "\n")
+    s = import_recording(tmp_path / "out", cameras=cams, images=images, masks=masks, joints=tmp_path / "sdk.csv",
+                         joints_frame="kinect-sdk",
+                         kinect_calibration=write_kinect_calibration(tmp_path / "k.json", src))
+    head = s.frame(0).kinect_joints["positions"][s.frame(0).kinect_joints["names"].index("Head")]
+    assert head[1] > 1.3  # y up in the studio: the head is high
+    for f, g in zip(s, src, strict=True):
+        assert np.abs(f.kinect_joints["positions"] - g.kinect_joints["positions"]).max() < 1e-9
+        for cam in src.camera_names:
+            assert np.array_equal(f.masks[cam], g.gt_masks[cam])
+    sdk = studio_to_kinect_sdk(np.array([head]), sensor)[0]
+    assert sdk[1] > 0 and sdk[2] > 1.0  # above the sensor's axis (y up) and in front of it
