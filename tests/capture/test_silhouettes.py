@@ -108,3 +108,48 @@ def test_default_studio_end_to_end_through_the_cli(tmp_path, capsys):
     capsys.readouterr()
     assert main(["eval", "silhouettes", str(out)]) == 0
     assert json.loads(capsys.readouterr().out)["iou_mean"] == report["iou_mean"]
+
+
+def test_silhouettes_killed_midway_leave_the_previous_masks(small_synth_session, tmp_path):
+    """SIGKILL `segment_session` halfway: the session still opens with its previous (ground-truth) masks,
+    the interrupted write is reported, and recovery discards it."""
+    import os
+    import shutil
+    import signal
+    import subprocess
+    import sys
+    import textwrap
+    import time
+
+    from bodystudio.capture.session import open_session, recover_session
+
+    path = tmp_path / "s"
+    shutil.copytree(small_synth_session, path)
+    script = textwrap.dedent(f"""
+        import time
+        import bodystudio.capture.silhouettes as sil
+        real = sil.segment_silhouette
+        def slow(*args, **kwargs):
+            time.sleep(0.3)
+            return real(*args, **kwargs)
+        sil.segment_silhouette = slow
+        sil.segment_session({str(path)!r})
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=os.getcwd())
+    staged = path / ".staging" / "cam_01" / "mask" / "00000.png"
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not staged.exists():
+            time.sleep(0.05)
+        assert proc.poll() is None, "segmentation finished before it could be killed"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    s = open_session(path)
+    assert s.interrupted_write is not None
+    s.verify()
+    for frame in s:
+        for cam in s.camera_names:
+            assert np.array_equal(frame.masks[cam], frame.gt_masks[cam])  # the previous state
+    assert "discarded" in recover_session(path)
+    assert open_session(path).interrupted_write is None
