@@ -22,8 +22,8 @@ from bodystudio.reconstruct.solver import (
     SOLVERS,
     ConstraintSet,
     DepthConstraints,
+    LMESystem,
     SilhouetteConstraints,
-    laplacian_gram_matrix,
     solve_constraints,
 )
 
@@ -69,7 +69,7 @@ class DeformResult:
 
 def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: dict | None,
                            params: RapidSkinParams = RapidSkinParams(), depth: DepthObservation | None = None,
-                           delta: DeltaOperator | None = None, laplacian_gram=None,
+                           delta: DeltaOperator | None = None, lme: LMESystem | None = None,
                            callback=None) -> DeformResult:
     """Algorithm 1 of Rapid Skin: deform ``V_init`` until its rims match the silhouettes in ``masks``.
 
@@ -92,9 +92,9 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
         delta, delta_rest = cotangent_delta_coordinates(V, F)
     else:
         delta_rest = delta.apply(V)
-    if params.solver in ("cholesky", "cg") and laplacian_gram is None:
+    if params.solver in ("cholesky", "cg") and lme is None:
         t0 = time.perf_counter()
-        laplacian_gram = laplacian_gram_matrix(delta)
+        lme = LMESystem(delta)
         solver_s = time.perf_counter() - t0
     else:
         solver_s = 0.0
@@ -112,7 +112,7 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
                if use_depth else DepthConstraints.empty())
         t1 = time.perf_counter()
         cs = ConstraintSet(delta, delta_rest, sil, dep)
-        V = solve_constraints(V, cs, params.solver, inner, laplacian_gram)
+        V = solve_constraints(V, cs, params.solver, inner, lme)
         t2 = time.perf_counter()
         result.matching_s += t1 - t0
         result.solver_s += t2 - t1

@@ -33,7 +33,6 @@ from bodystudio.reconstruct.evaluate import (
 )
 from bodystudio.reconstruct.pose_init import initialise_pose, joints_from_mapping, unpose
 from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
-from bodystudio.reconstruct.solver import laplacian_gram_matrix
 
 log = logging.getLogger(__name__)
 
@@ -183,9 +182,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
             if "silhouette" in params.constraints:
                 masks = {name: frame.masks[name] for name in frame.masks}
             delta = cotangent_weights(init.vertices, F)
-            gram = laplacian_gram_matrix(delta) if params.solver in ("cholesky", "cg") else None
-            result = deform_to_observations(init.vertices, F, cameras, masks, params, depth=depth, delta=delta,
-                                            laplacian_gram=gram)
+            result = deform_to_observations(init.vertices, F, cameras, masks, params, depth=depth, delta=delta)
             V = result.vertices
             save_mesh(out_dir / "meshes" / f"{fid:05d}.ply", Mesh(V, F))
             if warm_start:

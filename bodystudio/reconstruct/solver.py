@@ -301,43 +301,11 @@ def jacobi(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 32, relaxat
 
 # --- Linear Laplacian mesh editing baselines (Rapid Skin §V) -----------------------------------
 
-def lme_normal_equations(cs: ConstraintSet, laplacian_gram: sp.spmatrix | None = None
-                         ) -> tuple[sp.csc_matrix, np.ndarray]:
-    """Normal equations ``A x = b`` of the energy of :func:`constraint_energy` over ``x = V.ravel()``.
-
-    ``A = k_sm (L^T L) (x) I3 + sum_j k_j e_i e_i^T (x) (I - d d^T) + sum k n n^T``. ``laplacian_gram``
-    (``kron(L^T L, I3)``) may be passed in when it was built before for the same template.
-    """
-    n = cs.delta.n_vertices
-    L = cs.delta.matrix
-    if laplacian_gram is None:
-        laplacian_gram = laplacian_gram_matrix(cs.delta)
-    b = (cs.k_sm * (L.T @ cs.delta_rest)).ravel()
-    rows, cols, vals = [], [], []
-    sil = cs.silhouette
-    if len(sil):
-        d = sil.direction
-        P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]  # (m, 3, 3) projector orthogonal to the ray
-        kP = sil.k[:, None, None] * P
-        base = 3 * sil.vertex
-        rows.append((base[:, None, None] + np.arange(3)[None, :, None] + 0 * np.arange(3)[None, None, :]).ravel())
-        cols.append((base[:, None, None] + 0 * np.arange(3)[None, :, None] + np.arange(3)[None, None, :]).ravel())
-        vals.append(kP.ravel())
-        np.add.at(b, (base[:, None] + np.arange(3)[None, :]).ravel(), np.einsum("mij,mj->mi", kP, sil.origin).ravel())
-    dep = cs.depth
-    if len(dep):
-        nn = dep.k[:, None, None] * dep.normal[:, :, None] * dep.normal[:, None, :]
-        base = 3 * dep.vertex
-        rows.append((base[:, None, None] + np.arange(3)[None, :, None] + 0 * np.arange(3)[None, None, :]).ravel())
-        cols.append((base[:, None, None] + 0 * np.arange(3)[None, :, None] + np.arange(3)[None, None, :]).ravel())
-        vals.append(nn.ravel())
-        rhs = (dep.k * np.sum(dep.normal * dep.point, axis=1))[:, None] * dep.normal
-        np.add.at(b, (base[:, None] + np.arange(3)[None, :]).ravel(), rhs.ravel())
-    A = cs.k_sm * laplacian_gram
-    if rows:
-        C = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * n, 3 * n))
-        A = A + C
-    return sp.csc_matrix(A), b
+#: Weight of a tiny Tikhonov term on every vertex: keeps the normal equations positive definite (L has
+#: the translations in its null space) and their sparsity pattern fixed, so CHOLMOD's symbolic analysis
+#: is done once per frame and only the numeric factorisation is redone after each re-matching.
+_TIKHONOV = 1e-12
+_PATTERN_FILL = 1e-30
 
 
 def laplacian_gram_matrix(delta: DeltaOperator) -> sp.csr_matrix:
@@ -346,23 +314,85 @@ def laplacian_gram_matrix(delta: DeltaOperator) -> sp.csr_matrix:
     return sp.kron(L.T @ L, sp.identity(3), format="csr")
 
 
-def cholesky(V: np.ndarray, cs: ConstraintSet, laplacian_gram: sp.spmatrix | None = None) -> np.ndarray:
-    """Exact LME minimiser by a sparse direct factorisation (SuperLU, scipy), Rapid Skin §V baseline.
+class LMESystem:
+    """Linear Laplacian mesh editing on one template/frame: ``L^T L`` built once, Cholesky analysed once.
 
-    The constraint set changes at every contour re-matching, so the matrix is factored anew each call
-    (the paper's argument for why LME cannot prefactor here); only ``L^T L`` is reused.
+    The energy is :func:`constraint_energy`; a ray constraint ``|(I - d d^T)(v - o)|^2`` couples the
+    x, y, z of its vertex, so the unknowns are all ``3n`` coordinates (interleaved xyz).
     """
-    V = _check(V, cs)
-    A, b = lme_normal_equations(cs, laplacian_gram)
-    x = spla.splu(A, permc_spec="MMD_AT_PLUS_A").solve(b)
-    return x.reshape(-1, 3)
+
+    def __init__(self, delta: DeltaOperator):
+        self.delta = delta
+        self.gram = laplacian_gram_matrix(delta)
+        n = delta.n_vertices
+        base = 3 * np.arange(n)
+        a = np.arange(3)
+        self._block_rows = (base[:, None, None] + a[None, :, None] + 0 * a[None, None, :]).ravel()
+        self._block_cols = (base[:, None, None] + 0 * a[None, :, None] + a[None, None, :]).ravel()
+        fill = np.full((n, 3, 3), _PATTERN_FILL) + (_TIKHONOV - _PATTERN_FILL) * np.eye(3)[None]
+        self._block_fill = fill.ravel()
+        self._symbolic = None
+
+    def normal_equations(self, cs: ConstraintSet) -> tuple[sp.csc_matrix, np.ndarray]:
+        """``A x = b`` minimising :func:`constraint_energy` (plus the negligible Tikhonov term)."""
+        n = self.delta.n_vertices
+        L = self.delta.matrix
+        b = (cs.k_sm * (L.T @ cs.delta_rest)).ravel()
+        blocks = np.zeros((n, 3, 3))
+        sil = cs.silhouette
+        if len(sil):
+            d = sil.direction
+            kP = sil.k[:, None, None] * (np.eye(3)[None] - d[:, :, None] * d[:, None, :])
+            np.add.at(blocks, sil.vertex, kP)
+            np.add.at(b.reshape(-1, 3), sil.vertex, np.einsum("mij,mj->mi", kP, sil.origin))
+        dep = cs.depth
+        if len(dep):
+            nn = dep.k[:, None, None] * dep.normal[:, :, None] * dep.normal[:, None, :]
+            np.add.at(blocks, dep.vertex, nn)
+            rhs = (dep.k * np.sum(dep.normal * dep.point, axis=1))[:, None] * dep.normal
+            np.add.at(b.reshape(-1, 3), dep.vertex, rhs)
+        C = sp.csr_matrix((blocks.ravel() + self._block_fill, (self._block_rows, self._block_cols)),
+                          shape=(3 * n, 3 * n))
+        return sp.csc_matrix(cs.k_sm * self.gram + C), b
+
+    def cholesky(self, cs: ConstraintSet) -> np.ndarray:
+        """Exact minimiser by sparse Cholesky (CHOLMOD through cvxopt; SuperLU if cvxopt is missing)."""
+        A, b = self.normal_equations(cs)
+        try:
+            import cvxopt
+            import cvxopt.cholmod
+        except ImportError:  # pragma: no cover - cvxopt is a dependency; keep a working fallback
+            return spla.splu(A, permc_spec="COLAMD").solve(b).reshape(-1, 3)
+        coo = A.tocoo()
+        M = cvxopt.spmatrix(coo.data, coo.row.astype(int), coo.col.astype(int), size=A.shape)
+        if self._symbolic is None:
+            self._symbolic = cvxopt.cholmod.symbolic(M)
+        cvxopt.cholmod.numeric(M, self._symbolic)
+        x = cvxopt.matrix(b)
+        cvxopt.cholmod.solve(self._symbolic, x)
+        return np.array(x).reshape(-1, 3)
 
 
-def conjugate_gradient(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8,
-                       laplacian_gram: sp.spmatrix | None = None, callback=None) -> np.ndarray:
+def lme_normal_equations(cs: ConstraintSet) -> tuple[sp.csc_matrix, np.ndarray]:
+    """Normal equations of :func:`constraint_energy` over ``x = V.ravel()`` (see :class:`LMESystem`)."""
+    return LMESystem(cs.delta).normal_equations(cs)
+
+
+def cholesky(V: np.ndarray, cs: ConstraintSet, lme: LMESystem | None = None) -> np.ndarray:
+    """Exact LME minimiser by sparse Cholesky, Rapid Skin §V baseline.
+
+    The constraint set changes at every contour re-matching, so the matrix is factored numerically
+    anew each call (the paper's argument); ``L^T L`` and the symbolic analysis are reused via ``lme``.
+    """
+    _check(V, cs)
+    return (lme or LMESystem(cs.delta)).cholesky(cs)
+
+
+def conjugate_gradient(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8, lme: LMESystem | None = None,
+                       callback=None) -> np.ndarray:
     """``inner_iterations`` conjugate-gradient steps on the LME normal equations, warm-started at ``V``."""
     V = _check(V, cs)
-    A, b = lme_normal_equations(cs, laplacian_gram)
+    A, b = (lme or LMESystem(cs.delta)).normal_equations(cs)
     A = sp.csr_matrix(A)
     x = V.ravel().copy()
     r = b - A @ x
@@ -384,14 +414,14 @@ def conjugate_gradient(V: np.ndarray, cs: ConstraintSet, inner_iterations: int =
 
 
 def solve_constraints(V: np.ndarray, cs: ConstraintSet, solver: str = "gs", inner_iterations: int = 8,
-                      laplacian_gram: sp.spmatrix | None = None) -> np.ndarray:
+                      lme: LMESystem | None = None) -> np.ndarray:
     """One inner solve (Algorithm 1, lines 4-8) with the chosen solver: gs, jacobi, cholesky or cg."""
     if solver == "gs":
         return gauss_seidel(V, cs, inner_iterations)
     if solver == "jacobi":
         return jacobi(V, cs, inner_iterations)
     if solver == "cholesky":
-        return cholesky(V, cs, laplacian_gram)
+        return cholesky(V, cs, lme)
     if solver == "cg":
-        return conjugate_gradient(V, cs, inner_iterations, laplacian_gram)
+        return conjugate_gradient(V, cs, inner_iterations, lme)
     raise InputError(f"unknown solver {solver!r}; valid: {', '.join(SOLVERS)}")

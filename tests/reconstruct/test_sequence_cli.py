@@ -1,0 +1,67 @@
+"""Sessions end to end through the CLI: reconstruct, eval reconstruct, and one-line errors."""
+
+import json
+
+import numpy as np
+import pytest
+
+from bodystudio.cli.main import main
+from bodystudio.errors import InputError
+from bodystudio.reconstruct.sequence import joints_v2, parse_frames
+
+
+@pytest.fixture(scope="module")
+def tiny_session(tmp_path_factory):
+    from bodystudio.capture.synth import synth_session
+
+    out = tmp_path_factory.mktemp("rs") / "walk"
+    return synth_session(out, n_cameras=4, n_frames=2, motion="walk", subject_seed=23, resolution=(320, 240),
+                         template="2k", noise=False)
+
+
+def test_parse_frames_and_joint_names():
+    assert parse_frames("1:3", [0, 1, 2, 3]) == [1, 2]
+    assert parse_frames(None, [0, 1]) == [0, 1]
+    assert parse_frames(":1", [0, 1]) == [0]
+    with pytest.raises(InputError, match="selects no frame"):
+        parse_frames("7:9", [0, 1])
+    with pytest.raises(InputError, match="A:B"):
+        parse_frames("x", [0, 1])
+    J = joints_v2(["HipCenter", "ElbowLeft"], np.array([[0, 1, 0], [1, 1, 1.0]]), np.array([True, False]))
+    assert np.allclose(J[0], [0, 1, 0]) and np.all(np.isnan(J[5])) and np.all(np.isnan(J[2]))
+
+
+@pytest.mark.slow
+def test_cli_reconstruct_and_eval(tiny_session, capsys):
+    path = str(tiny_session.path)
+    assert main(["reconstruct", path, "--template", "2k", "--outer", "6"]) == 0
+    assert (tiny_session.path / "reconstruct" / "meshes" / "00001.ply").is_file()
+    capsys.readouterr()
+    assert main(["eval", "reconstruct", path]) == 0
+    out = json.loads(capsys.readouterr().out)
+    for key in ("median_mm", "p90_mm", "hausdorff_mm", "pct_under_10mm", "iou_min", "ms_per_frame"):
+        assert key in out
+    # 4 cameras at 320x240 (one pixel ~ 1.5 cm): coarse, but well inside a centimetre at the median
+    assert out["median_mm"] < 8.0
+    assert out["iou_min"] > 0.9
+    assert main(["reconstruct", path, "--template", "2k", "--constraints", "silhouette,depth", "--frames", "0:1",
+                 "--outer", "3", "--no-score"]) == 0
+
+
+@pytest.mark.slow
+def test_cli_errors_are_one_line(tiny_session, capsys, tmp_path):
+    path = str(tiny_session.path)
+    cases = [
+        (["reconstruct", str(tmp_path / "nothing")], "no such session"),
+        (["reconstruct", path, "--template", "20k"], "unknown template"),
+        (["reconstruct", path, "--solver", "lu"], "unknown solver"),
+        (["reconstruct", path, "--frames", "50:60"], "selects no frame"),
+        (["reconstruct", path, "--joints", "file"], "--joints-path"),
+        (["reconstruct", path, "--constraints", "shading"], "--constraints"),
+        (["eval", "reconstruct", str(tmp_path)], "session"),
+    ]
+    for argv, message in cases:
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and message in err, (argv, err)
