@@ -145,6 +145,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     if joints not in JOINT_SOURCES:
         raise InputError(f"unknown joint source {joints!r}; valid: {', '.join(JOINT_SOURCES)} "
                          "(visual-hull joints are not implemented)")
+    if joints == "file" and joints_path is None:
+        raise InputError("--joints file needs --joints-path DIR with NNNNN.json files ({names, positions})")
     session = open_session(path)
     params = params or RapidSkinParams(solver=solver, constraints=tuple(constraints))
     cameras = list(session.cameras)
