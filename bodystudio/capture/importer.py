@@ -99,9 +99,12 @@ def load_easymocap_cameras(intri: Path, extri: Path, image_sizes: dict[str, tupl
         K = _storage_mat(fi, f"K_{name}", intri)
         dist = _storage_mat(fi, f"dist_{name}", intri, required=False)
         dist = np.zeros(5) if dist is None else np.r_[dist.ravel(), np.zeros(5)][:5]
-        R = _storage_mat(fe, f"Rot_{name}", extri, required=False)
-        if R is None:
-            R = cv2.Rodrigues(_storage_mat(fe, f"R_{name}", extri))[0]
+        # Prefer the Rodrigues vector: 6-decimal rotation matrices are not orthonormal to 1e-6.
+        rvec = _storage_mat(fe, f"R_{name}", extri, required=False)
+        if rvec is not None and rvec.size == 3:
+            R = cv2.Rodrigues(rvec.reshape(3, 1))[0]
+        else:
+            R = _nearest_rotation(_storage_mat(fe, f"Rot_{name}", extri), extri, name)
         T = _storage_mat(fe, f"T_{name}", extri).ravel()
         w, h = fi.getNode(f"W_{name}"), fi.getNode(f"H_{name}")
         if not w.empty() and not h.empty():
@@ -118,6 +121,15 @@ def load_easymocap_cameras(intri: Path, extri: Path, image_sizes: dict[str, tupl
     fi.release()
     fe.release()
     return CameraRig(cams)
+
+
+def _nearest_rotation(M: np.ndarray, source: Path, name: str) -> np.ndarray:
+    """The rotation closest to a rounded rotation matrix (SVD); anything far from one is an error."""
+    U, _, Vt = np.linalg.svd(M.reshape(3, 3))
+    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    if np.abs(R - M.reshape(3, 3)).max() > 1e-3:
+        raise FileFormatError(f"{source}: Rot_{name} is not a rotation matrix; fix the calibration")
+    return R
 
 
 def save_easymocap_cameras(folder: str | os.PathLike, rig) -> None:

@@ -300,3 +300,36 @@ def test_existing_masks_and_kinect_sdk_joints(src, image_setup, tmp_path):
             assert np.array_equal(f.masks[cam], g.gt_masks[cam])
     sdk = studio_to_kinect_sdk(np.array([head]), sensor)[0]
     assert sdk[1] > 0 and sdk[2] > 1.0  # above the sensor's axis (y up) and in front of it
+
+
+def test_easymocap_text_layout(tmp_path):
+    """intri.yml/extri.yml as EasyMocap's own writer lays them out (%YAML:1.0, CRLF, quoted names,
+    6-decimal !!opencv-matrix rows); image sizes come from the frames when W_/H_ are absent."""
+    from bodystudio.capture.importer import load_studio_cameras
+    from bodystudio.geometry.camera import Camera
+
+    cam = Camera.look_at("01", (0.5, 1.2, 3.0), (0, 1, 0), fx=800.0, width=64, height=48,
+                         dist=(0.1, -0.05, 0, 0, 0))
+
+    def mat(key, m):
+        m = np.atleast_2d(m)
+        data = ", ".join(f"{x:.6f}" for x in m.ravel())
+        return (f"{key}: !!opencv-matrix\r\n  rows: {m.shape[0]}\r\n  cols: {m.shape[1]}\r\n  dt: d\r\n"
+                f"  data: [{data}]\r\n")
+
+    head = '%YAML:1.0\r\n---\r\nnames:\r\n  - "01"\r\n'
+    (tmp_path / "intri.yml").write_text(head + mat("K_01", cam.K) + mat("dist_01", cam.dist[None]), newline="")
+    rvec = cv2.Rodrigues(cam.R)[0]
+    extri = head + mat("R_01", rvec) + mat("Rot_01", cam.R) + mat("T_01", cam.t[:, None])
+    (tmp_path / "extri.yml").write_text(extri, newline="")
+    rig = load_studio_cameras(tmp_path, image_sizes={"01": (64, 48)})
+    got = rig["01"]
+    assert np.allclose(got.K, cam.K, atol=1e-6) and np.allclose(got.R, cam.R, atol=1e-5)
+    assert np.allclose(got.t, cam.t, atol=1e-6) and np.allclose(got.dist, cam.dist) and got.width == 64
+    with pytest.raises(FileFormatError, match=r"intri\.yml: no image size for camera 01"):
+        load_studio_cameras(tmp_path / "intri.yml")
+    # rotation matrix only (no Rodrigues vector), rounded to 6 decimals: snapped back to a rotation
+    extri = head + mat("Rot_01", cam.R) + mat("T_01", cam.t[:, None])
+    (tmp_path / "extri.yml").write_text(extri, newline="")
+    got = load_studio_cameras(tmp_path, image_sizes={"01": (64, 48)})["01"]
+    assert np.allclose(got.R, cam.R, atol=1e-5) and np.allclose(got.R @ got.R.T, np.eye(3), atol=1e-12)
