@@ -114,7 +114,7 @@ def _frames_blocks(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit_pose_step(skeleton: Skeleton, pose: Pose, V: np.ndarray, W: np.ndarray, Z: np.ndarray,
-                  free: tuple[int, ...], lm_iterations: int = 8, prior: float = 1e-4) -> Pose:
+                  free: tuple[int, ...], lm_iterations: int = 8, prior: float = 1e-6) -> Pose:
     """Levenberg-Marquardt on the pose part of eq. 5, exact Jacobian (casadi kinematics + chain rule)."""
     B = skeleton.n_bones
     f = bone_transform_function(tuple(int(p) for p in skeleton.parents), free)

@@ -134,15 +134,19 @@ def _central_fraction(x: np.ndarray, w: np.ndarray) -> float:
 def detect_orientation(V: np.ndarray, area: np.ndarray) -> tuple[np.ndarray, str, str]:
     """Rotation taking a standing scan to y up, facing +z, with the axis names assumed.
 
-    The depth (front-back) axis has the smallest extent. Of the other two, the lateral axis holds most
-    surface near its middle (torso, head and legs; only arms reach out), the vertical one does not. The
+    The depth (front-back) axis has the smallest extent. Of the other two, the longer one is vertical when
+    it is clearly longer; when they are alike (arms spread), the lateral axis holds most surface near its
+    middle (torso, head and legs; only arms reach out), the vertical one does not. The
     feet are wider apart than the head is wide, which signs "up"; the feet point forward, which signs
     "facing" (the lowest slice lies in front of the ankles' slice).
     """
     ext = V.max(0) - V.min(0)
     depth = int(np.argmin(ext))
     a, b = [k for k in range(3) if k != depth]
-    up = a if _central_fraction(V[:, a], area) < _central_fraction(V[:, b], area) else b
+    if max(ext[a], ext[b]) > 1.3 * min(ext[a], ext[b]):
+        up = a if ext[a] > ext[b] else b  # arms down or bent: the body is taller than wide
+    else:  # arms spread (T-pose): the vertical axis has less surface near its middle
+        up = a if _central_fraction(V[:, a], area) < _central_fraction(V[:, b], area) else b
     lateral = 3 - up - depth
     y = V[:, up]
     h = y.max() - y.min()
