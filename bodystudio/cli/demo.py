@@ -212,10 +212,40 @@ def stage_reconstruct(ctx: DemoContext) -> str:
     return f"{summary['frames']} frames, {summary['ms_per_frame']:.0f} ms per frame{err}"
 
 
+RIG_SUBJECT = 3  # population subject of the synthetic scan
+RIG_SCAN_VERTICES = 20_000
+RIG_TEMPLATE = "6k"
+
+
 def stage_rig(ctx: DemoContext) -> str:
-    """Fit the template to a synthetic scan and transfer skeleton and skin weights."""
-    _need("bodystudio.rig", "rig_scan")
-    raise StageUnavailable("rigging API not wired into the demo yet")
+    """Rig a synthetic scan: fit the body model, transfer skeleton and skin weights, export glTF, score."""
+    synthetic_scan, save_synthetic_scan, load_ground_truth = _need(
+        "bodystudio.register.synthetic", "synthetic_scan", "save_synthetic_scan", "load_ground_truth")
+    (rig_to_files,) = _need("bodystudio.cli.rig", "rig_to_files")
+    evaluate_rig, load_rig_avatar = _need("bodystudio.rig.evaluate", "evaluate_rig", "load_avatar")
+    from bodystudio.fileio import write_json
+    from bodystudio.viewer.avatar import load_avatar
+    from bodystudio.viewer.scene import save_screenshot
+    from bodystudio.viewer.views import scene_for_avatar
+
+    folder = ctx.out / "rig"
+    scan, gt = synthetic_scan(RIG_SUBJECT, "a", n_vertices=RIG_SCAN_VERTICES, noise_mm=1.0, holes=True)
+    gt_dir = save_synthetic_scan(folder / "scan.ply", scan, gt)
+    glb = folder / "avatar.glb"
+    description = rig_to_files(folder / "scan.ply", glb, template=RIG_TEMPLATE)
+    rigged = load_rig_avatar(glb)
+    scores = evaluate_rig(rigged, load_ground_truth(gt_dir), rigged.metadata.get("scan", {}).get("to_canonical"))
+    write_json(folder / "eval.json", scores)
+    avatar = load_avatar(glb)  # what a user's glTF viewer sees
+    bone = "upperarm_l" if "upperarm_l" in avatar.bone_names else avatar.bone_names[1]
+    view = scene_for_avatar(avatar, bone=bone, title=f"rigged scan: skin weights of {bone}")
+    save_screenshot(view, ctx.out / "screenshots" / "avatar_weights.png")
+    view.close()
+    view = scene_for_avatar(avatar, title="rigged scan: transferred skeleton")
+    save_screenshot(view, ctx.out / "screenshots" / "avatar_skeleton.png")
+    ctx.scenes.append(("rigged scan (avatar.glb): skeleton", view))
+    fit = description.get("fit_err_mm_median", float("nan"))
+    return f"{scan.n_vertices}-vertex scan rigged to {glb} (fit {fit:.1f} mm median)"
 
 
 def _session_views(ctx: DemoContext) -> None:
@@ -240,14 +270,20 @@ STAGES: list[tuple[str, Callable[[DemoContext], str]]] = [
 
 
 def run_demo(out: Path, cameras: int = 4, frames: int = 3, resolution: tuple[int, int] = (320, 240),
-             with_3d: bool = True, console=None) -> tuple[Path, list[dict]]:
-    """Run every available stage into ``out`` and write ``out/report.html``; returns (report, stage rows)."""
+             with_3d: bool = True, console=None, skip: tuple[str, ...] = ()) -> tuple[Path, list[dict]]:
+    """Run every available stage (except ``skip``) into ``out`` and write ``out/report.html``.
+
+    Returns the report's path and one row per stage (stage, status, seconds, summary).
+    """
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from bodystudio.fileio import write_json
     from bodystudio.viewer.report import write_report
 
+    unknown = [s for s in skip if s not in dict(STAGES)]
+    if unknown:
+        raise InputError(f"--skip {unknown[0]}: not a demo stage; stages are {', '.join(n for n, _ in STAGES)}")
     if cameras < 1 or frames < 1:
         raise InputError(f"need at least one camera and one frame, got --cameras {cameras} --frames {frames}")
     out = Path(out)
@@ -266,10 +302,13 @@ def run_demo(out: Path, cameras: int = 4, frames: int = 3, resolution: tuple[int
             progress.update(overall, description=f"demo: {name}")
             t0 = time.perf_counter()
             try:
+                if name in skip:
+                    raise StageUnavailable("skipped (--skip)")
                 summary = fn(ctx)
                 status = "done"
             except StageUnavailable as exc:
-                status, summary = "not available yet", str(exc)
+                status = "skipped" if name in skip else "not available yet"
+                summary = str(exc)
             except BodyStudioError as exc:
                 status, summary = "failed", str(exc)
             except Exception as exc:  # a stage bug must not hide the other stages' results
@@ -299,11 +338,14 @@ def demo(
     frames: int = typer.Option(3, "--frames", help="frames in the synthetic session"),
     resolution: str = typer.Option("320x240", "--resolution", help="camera image size WxH"),
     no_3d: bool = typer.Option(False, "--no-3d", help="leave the 3D views out of the report"),
+    skip: list[str] | None = typer.Option(None, "--skip", help="stage to leave out (repeat): " + ", ".join(
+        n for n, _ in STAGES if n != "bodies")),
 ) -> None:
     """Run the main job on the built-in synthetic studio and write an HTML report."""
     from bodystudio.cli.viewer import _parse_size
 
-    report, stages = run_demo(out, cameras, frames, _parse_size(resolution), with_3d=not no_3d)
+    report, stages = run_demo(out, cameras, frames, _parse_size(resolution), with_3d=not no_3d,
+                              skip=tuple(skip or ()))
     missing = [r["stage"] for r in stages if r["status"] == "not available yet"]
     failed = [r["stage"] for r in stages if r["status"] == "failed"]
     if missing:

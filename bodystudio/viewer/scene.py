@@ -218,10 +218,12 @@ def add_title(plotter, text: str):
     return plotter
 
 
-def frame_front(plotter, bounds: np.ndarray | None = None, direction=(0.0, 0.15, 1.0), margin: float = 1.1):
+def frame_front(plotter, bounds: np.ndarray | None = None, direction=(0.0, 0.15, 1.0), margin: float = 1.1,
+                fit: str = "box"):
     """Point the plotter's camera at ``bounds`` (2, 3) from the front (+z, the body faces +z), y up.
 
-    ``margin`` scales the distance that fits the bounds' sphere in view (below 1 crops its edges).
+    ``fit="box"`` fits the box's height and width to the window (front views); ``"sphere"`` fits its
+    bounding sphere (any direction). ``margin`` scales the distance (below 1 crops the edges).
     """
     if bounds is None:
         b = np.asarray(plotter.bounds, dtype=np.float64)
@@ -232,7 +234,14 @@ def frame_front(plotter, bounds: np.ndarray | None = None, direction=(0.0, 0.15,
     d = np.asarray(direction, dtype=np.float64)
     d /= np.linalg.norm(d)
     view_angle = np.radians(plotter.camera.view_angle)
-    distance = margin * max(radius, 1e-3) / np.sin(view_angle / 2)
+    if fit == "sphere":
+        distance = margin * max(radius, 1e-3) / np.sin(view_angle / 2)
+    else:
+        width, height = plotter.window_size
+        half_h = np.tan(view_angle / 2)
+        half_w = half_h * width / height
+        size = bounds[1] - bounds[0]
+        distance = margin * max(size[1] / 2 / half_h, max(size[0], size[2]) / 2 / half_w, 1e-3) + size[2] / 2
     plotter.camera_position = [tuple(center + distance * d), tuple(center), (0.0, 1.0, 0.0)]
     plotter.reset_camera_clipping_range()
     return plotter

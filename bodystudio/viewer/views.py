@@ -190,7 +190,7 @@ def scene_for_session(session, frame_id: int | None = None, plotter=None, images
     b = _session_bounds(session, gt)
     if len(centers):
         b = np.array([np.minimum(b[0], centers.min(0)), np.maximum(b[1], centers.max(0))])
-    sc.frame_front(plotter, b, direction=(0.3, 0.6, 1.0), margin=0.75)
+    sc.frame_front(plotter, b, direction=(0.3, 0.6, 1.0), margin=0.75, fit="sphere")
     return plotter
 
 

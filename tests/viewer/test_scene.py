@@ -56,7 +56,7 @@ def test_error_map_draws_a_colour_bar_with_the_colour_map(body_mesh):
     cmap = (np.asarray(matplotlib.colormaps[sc.ERROR_CMAP](np.linspace(0, 1, 64)))[:, :3] * 255).astype(int)
 
     def colour_map_pixels(image):
-        strip = image[int(0.3 * h):int(0.7 * h), int(0.8 * w):].reshape(-1, 3).astype(int)
+        strip = image[int(0.3 * h):int(0.7 * h), int(0.85 * w):].reshape(-1, 3).astype(int)
         dist = np.abs(strip[:, None, :] - cmap[None]).max(-1)
         close = dist.min(1) <= 12
         return close.sum(), np.unique(dist.argmin(1)[close] // 16)
