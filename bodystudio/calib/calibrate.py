@@ -97,7 +97,9 @@ class CalibrationResult:
                              "n_views": int(len(np.unique(obs.frame[m])))}
         return {"reproj_rms_px": self.rms_px, "n_observations": len(obs), "n_outliers": int((~self.inliers).sum()),
                 "n_parameters": self.n_parameters, "world_frame": self.world_frame, "seconds": self.seconds,
-                "stages_s": self.stages_s, "cameras": per_cam}
+                "stages_s": self.stages_s, "cameras": per_cam,
+                "board_to_world": {str(fid): T.tolist() for fid, T in zip(obs.frame_ids, self.board_to_world)
+                                   if np.isfinite(T[0, 0])}}
 
 
 # --- vectorised geometry ------------------------------------------------------------------------
