@@ -44,15 +44,20 @@ def world_to_local_rotvecs(skeleton: Skeleton, world_rotvecs: np.ndarray) -> np.
     return np.einsum("bji,bj->bi", skeleton.rest_rotations, world_rotvecs)
 
 
-def keyframes_to_poses(skeleton: Skeleton, keyframes: list[Keyframe], n_frames: int) -> list[Pose]:
-    """Sample ``n_frames`` poses uniformly over [0, 1] from keyframes joined by rotation splines."""
+def keyframes_to_poses(skeleton: Skeleton, keyframes: list[Keyframe], n_frames: int,
+                       cyclic: bool = False) -> list[Pose]:
+    """Sample ``n_frames`` poses uniformly over [0, 1] from keyframes joined by rotation splines.
+
+    A ``cyclic`` motion ends where it starts, so its last sample stops one step short of the end
+    (otherwise short sequences would repeat the first pose).
+    """
     if n_frames < 1:
         raise InputError(f"a motion needs at least one frame, got n_frames={n_frames}")
     keyframes = sorted(keyframes, key=lambda k: k.time)
     times = np.array([k.time for k in keyframes], dtype=np.float64)
     if np.any(np.diff(times) <= 0):
         raise InputError("motion keyframe times must be distinct")
-    t = np.linspace(times[0], times[-1], n_frames)
+    t = np.linspace(times[0], times[-1], n_frames, endpoint=not cyclic or n_frames == 1)
     bones = sorted({b for k in keyframes for b in k.rotations})
     world = np.zeros((n_frames, skeleton.n_bones, 3))
     for bone in bones:
@@ -176,7 +181,7 @@ def _walk_keys(skeleton, rng, cycles: int = 2) -> list[Keyframe]:
     keys = []
     steps = 8 * cycles
     for k in range(steps + 1):
-        phase = 2 * np.pi * k / 8
+        phase = 2 * np.pi * k / 8 + np.pi / 2  # start mid-stride (left knee up): no two half-cycles look alike
         lift_l, lift_r = max(0.0, np.sin(phase)), max(0.0, -np.sin(phase))
         rot = {
             "thigh_l": _rot(-X, hip * lift_l), "calf_l": _rot(X, knee * lift_l), "foot_l": _rot(X, 15 * lift_l),
@@ -223,21 +228,31 @@ def _arm_flex_keys(skeleton, rng, cycles: int = 2) -> list[Keyframe]:
     return keys
 
 
-def motion_keyframes(name: str, skeleton: Skeleton, seed: int = 0) -> list[Keyframe]:
-    """The keyframes of motion ``name`` (one of MOTIONS) for ``skeleton``, varied by ``seed``."""
+CYCLIC_MOTIONS = ("walk", "turn", "arm_flex")
+
+
+def motion_keyframes(name: str, skeleton: Skeleton, seed: int = 0, cycles: int = 2) -> list[Keyframe]:
+    """The keyframes of motion ``name`` (one of MOTIONS) for ``skeleton``, varied by ``seed``.
+
+    ``cycles`` is the number of strides of ``walk`` and elbow cycles of ``arm_flex``.
+    """
     if name not in MOTIONS:
         raise InputError(f"unknown motion {name!r}; valid motions: {', '.join(MOTIONS)}")
     rng = np.random.default_rng(seed)
     if name == "a_pose":
         return [Keyframe(0.0)]
-    return {"t_pose": _t_pose_keys, "arms_raise": _arms_raise_keys, "walk": _walk_keys, "turn": _turn_keys,
-            "arm_flex": _arm_flex_keys}[name](skeleton, rng)
+    if name in ("walk", "arm_flex"):
+        return {"walk": _walk_keys, "arm_flex": _arm_flex_keys}[name](skeleton, rng, cycles)
+    return {"t_pose": _t_pose_keys, "arms_raise": _arms_raise_keys, "turn": _turn_keys}[name](skeleton, rng)
 
 
 def motion_sequence(name: str, n_frames: int, skeleton: Skeleton, seed: int = 0) -> list[Pose]:
     """Ground-truth pose sequence of ``n_frames`` frames for motion ``name`` (see MOTIONS).
 
     ``a_pose`` is the static rest pose; ``t_pose`` a static T-pose; ``arms_raise``, ``walk`` (on the
-    spot), ``turn`` (a full turn about the vertical) and ``arm_flex`` span the whole sequence.
+    spot), ``turn`` (a full turn about the vertical) and ``arm_flex`` span the whole sequence. Walks
+    and arm flexions shorter than 60 frames make one cycle, so even a few frames show distinct poses.
     """
-    return keyframes_to_poses(skeleton, motion_keyframes(name, skeleton, seed), n_frames)
+    cycles = 1 if n_frames < 60 else 2
+    keys = motion_keyframes(name, skeleton, seed, cycles)
+    return keyframes_to_poses(skeleton, keys, n_frames, cyclic=name in CYCLIC_MOTIONS)

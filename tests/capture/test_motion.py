@@ -77,14 +77,22 @@ def test_t_pose_and_arms_raise_and_turn(body_2k):
     heads, _ = posed_joints(sk, mid)
     assert _joint(sk, heads, "hand_l")[1] > _joint(sk, heads, "head")[1]
     assert _joint(sk, heads, "hand_r")[1] > _joint(sk, heads, "head")[1]
-    turn = motion_sequence("turn", 9, sk, seed=0)
+    turn = motion_sequence("turn", 8, sk, seed=0)  # cyclic: frames at 0, 45, ..., 315 degrees
     hip_axis = []
-    for p in (turn[0], turn[2], turn[4], turn[8]):
+    for p in (turn[0], turn[2], turn[4], turn[6]):
         heads, _ = posed_joints(sk, p)
         hip_axis.append(_joint(sk, heads, "thigh_l") - _joint(sk, heads, "thigh_r"))
     assert _angle_deg(hip_axis[0], hip_axis[1]) == pytest.approx(90, abs=5)
     assert _angle_deg(hip_axis[0], hip_axis[2]) == pytest.approx(180, abs=5)
-    assert _angle_deg(hip_axis[0], hip_axis[3]) < 5
+    assert _angle_deg(hip_axis[0], hip_axis[3]) == pytest.approx(90, abs=5)
+
+
+def test_short_cyclic_motions_show_distinct_poses(body_2k):
+    for name in ("walk", "arm_flex", "turn"):
+        for n in (2, 3, 5):
+            poses = motion_sequence(name, n, body_2k.skeleton, seed=1)
+            change = [np.abs(p.rotations - poses[0].rotations).max() for p in poses[1:]]
+            assert min(change) > 0.2, (name, n, change)
 
 
 def test_unknown_motion_is_a_user_error(body_2k):
