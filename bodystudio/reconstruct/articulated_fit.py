@@ -1,0 +1,280 @@
+"""Joints without a tracker: an articulated fit of the body model to the visual hull, Rapid Skin Sec. IV.
+
+Rapid Skin initialises its template from skeleton joints (Sec. IV.A) and, instead of a Kinect, derives
+them from a volumetric model of the silhouettes (contribution 4). We replace the depth-map pose
+estimator the paper borrows from OpenNI by an articulated ICP of our own skinned template to the visual
+hull (:mod:`bodystudio.reconstruct.visual_hull`):
+
+- unknowns: root translation and rotation and the local rotations of the main bones (spine, neck,
+  upper and lower arms, thighs, calves); all other bones keep the initial pose;
+- data terms, re-matched every iteration: template vertex -> closest hull surface point and hull
+  surface point -> closest template vertex, both point-to-plane, with normal compatibility and Huber
+  weights (the hull is a superset of the body, so template points inside the hull are down-weighted);
+- a Gauss-Newton step in world-frame rotation increments about each bone's head (the Jacobian of linear
+  blend skinning is then ``d v_i = sum_j dw_j x (q_ij - a_ij p_j)``, with ``q_ij`` the part of vertex i
+  carried by bone j's subtree), Levenberg damping, and a weak prior towards the initial local rotations
+  (the hull cannot see limb twist);
+- initialised from the previous frame's pose, or from the A-pose (rest pose) at the hull centroid under
+  a few root yaw angles, keeping the best.
+
+The fitted skeleton gives Kinect v2 joints (:func:`bodystudio.body.kinect.kinect_joints`), so the result
+feeds the same pose initialisation (:func:`bodystudio.reconstruct.pose_init.initialise_pose`) as a tracker.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import igl
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+from threadpoolctl import threadpool_limits
+
+from bodystudio.body.kinect import kinect_joint_names, kinect_joints
+from bodystudio.body.pose import Pose
+from bodystudio.body.skinning import forward_kinematics, posed_joints
+from bodystudio.errors import InputError
+from bodystudio.reconstruct.visual_hull import VisualHull, visual_hull
+
+log = logging.getLogger(__name__)
+
+#: Bones whose rotations the fit estimates (plus the root translation).
+FIT_BONES = ("Root", "spine_02", "neck_01", "upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r",
+             "thigh_l", "thigh_r", "calf_l", "calf_r")
+#: Kinect v2 joints the fitted bones determine (hands, feet tips and thumbs follow unfitted bones).
+MAJOR_JOINTS = ("SpineBase", "SpineMid", "Neck", "Head", "SpineShoulder", "ShoulderLeft", "ElbowLeft",
+                "WristLeft", "ShoulderRight", "ElbowRight", "WristRight", "HipLeft", "KneeLeft", "AnkleLeft",
+                "HipRight", "KneeRight", "AnkleRight")
+
+
+@dataclass(frozen=True)
+class ArticulatedFitParams:
+    """Settings of the articulated hull fit.
+
+    ``robust_m``: Huber threshold of the point-to-plane residuals; ``inside_weight``: weight of template
+    points inside the hull (the hull over-estimates the body); ``prior_weight``: weight of the prior on
+    local bone rotations (cost per squared radian; a data residual of 1 cm costs 1e-4); ``yaw_candidates_deg``: root yaw
+    angles tried from the A-pose; ``coarse_iterations``: iterations spent on each yaw candidate.
+    """
+
+    iterations: int = 40
+    coarse_iterations: int = 12
+    robust_m: float = 0.03
+    inside_weight: float = 0.5
+    prior_weight: float = 0.05
+    damping: float = 1e-3
+    max_step_rad: float = 0.25
+    max_step_m: float = 0.10
+    hull_samples: int = 3000
+    yaw_candidates_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
+    tolerance: float = 1e-4
+
+
+@dataclass(frozen=True, eq=False)
+class ArticulatedFit:
+    """Result of one fit: the pose, its Kinect v2 joints (25, 3), the fit error and the iterations run."""
+
+    pose: Pose
+    joints: np.ndarray
+    fit_error_m: float
+    iterations: int
+
+
+def _fit_bone_indices(skeleton) -> np.ndarray:
+    missing = [b for b in FIT_BONES if b not in skeleton.bone_names]
+    if missing:
+        raise InputError(f"articulated fit needs the game_engine rig; bones {', '.join(missing)} are missing")
+    return np.array([skeleton.index(b) for b in FIT_BONES])
+
+
+def _subtree_matrix(skeleton, bones: np.ndarray) -> np.ndarray:
+    """``D[k, j]``: bone k lies in the subtree of fitted bone ``bones[j]`` (itself included)."""
+    B = skeleton.n_bones
+    D = np.zeros((B, len(bones)))
+    for j, b in enumerate(bones):
+        inside = np.zeros(B, bool)
+        inside[b] = True
+        for k in range(B):  # parents come before children
+            p = skeleton.parents[k]
+            if p >= 0 and inside[p]:
+                inside[k] = True
+        D[:, j] = inside
+    return D
+
+
+def _sparse_weights(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Skin weights as the ``K`` (max non-zeros per vertex) largest: bone indices and weights ``(n, K)``."""
+    K = int(max(1, (weights > 0).sum(axis=1).max()))
+    idx = np.argsort(-weights, axis=1)[:, :K]
+    return idx, np.take_along_axis(weights, idx, axis=1)
+
+
+def _skin_parts(body, pose: Pose, bone_idx: np.ndarray, bone_w: np.ndarray):
+    """Weighted per-influence skinned positions ``C (n, K, 3)`` (``w_ik S_k v_i``), posed frames ``M``."""
+    M = forward_kinematics(body.skeleton, pose)
+    S = M @ np.linalg.inv(body.skeleton.rest_frames)
+    Sk = S[bone_idx]  # (n, K, 4, 4)
+    Sv = np.einsum("nkij,nj->nki", Sk[:, :, :3, :3], body.vertices) + Sk[:, :, :3, 3]
+    return bone_w[:, :, None] * Sv, M
+
+
+def _huber_weights(r: np.ndarray, delta: float) -> np.ndarray:
+    a = np.abs(r)
+    return np.where(a <= delta, 1.0, delta / np.maximum(a, 1e-12))
+
+
+def symmetric_hull_distance(V: np.ndarray, F: np.ndarray, hull: VisualHull) -> float:
+    """Fit error (m): mean of the mean surface distances template -> hull and hull -> template."""
+    d_th = np.sqrt(igl.point_mesh_squared_distance(V, hull.vertices, hull.faces)[0])
+    d_ht = np.sqrt(igl.point_mesh_squared_distance(hull.vertices, V, F)[0])
+    return float(0.5 * (d_th.mean() + d_ht.mean()))
+
+
+def a_pose_at_hull(body, hull: VisualHull, yaw_deg: float = 0.0) -> Pose:
+    """The template's rest (A-) pose turned by ``yaw_deg`` about the vertical and centred on the hull centroid."""
+    skel = body.skeleton
+    root = _fit_bone_indices(skel)[0]
+    A = skel.rest_frames[root]
+    R_world = Rotation.from_euler("y", yaw_deg, degrees=True).as_matrix()
+    rotations = np.zeros((skel.n_bones, 3))
+    rotations[root] = Rotation.from_matrix(A[:3, :3].T @ R_world @ A[:3, :3]).as_rotvec()
+    head = A[:3, 3]
+    center = body.vertices.mean(axis=0)
+    translation = hull.centroid - (head + R_world @ (center - head))
+    return Pose(rotations, translation)
+
+
+def articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitParams | None = None,
+                    iterations: int | None = None) -> ArticulatedFit:
+    """Articulated ICP of the skinned template ``body`` to the visual hull from pose ``init`` (Sec. IV)."""
+    # The normal equations are tiny (36 unknowns): multi-threaded BLAS only adds contention.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _articulated_fit(body, hull, init, params or ArticulatedFitParams(), iterations)
+
+
+def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitParams,
+                     iterations: int | None) -> ArticulatedFit:
+    n_iter = params.iterations if iterations is None else iterations
+    skel = body.skeleton
+    bones = _fit_bone_indices(skel)
+    D = _subtree_matrix(skel, bones)
+    a = body.weights @ D  # (n, J): weight of each fitted subtree on each vertex
+    bone_idx, bone_w = _sparse_weights(body.weights)
+    Dk = D[bone_idx]  # (n, K, J): influence k of vertex i lies in fitted subtree j
+    nJ = len(bones)
+    n_par = 3 + 3 * nJ
+    prior = np.asarray(init.rotations, dtype=np.float64)[bones]
+    rotations = np.array(init.rotations, dtype=np.float64)
+    translation = np.array(init.translation, dtype=np.float64)
+    hull_pts = hull.vertices
+    hull_nrm = hull.normals
+    step = max(1, len(hull_pts) // max(params.hull_samples, 1))
+    sample = np.arange(0, len(hull_pts), step)
+    hull_tree = cKDTree(hull_pts)
+    prior_sqrt = np.sqrt(params.prior_weight)
+    it = 0
+    for it in range(1, n_iter + 1):
+        pose = Pose(rotations, translation)
+        C, M = _skin_parts(body, pose, bone_idx, bone_w)
+        V = C.sum(axis=1)
+        N = np.nan_to_num(igl.per_vertex_normals(V, body.faces))
+        heads = M[bones, :3, 3]
+        lever = np.einsum("nkd,nkj->njd", C, Dk) - a[:, :, None] * heads[None]  # r_ij (n, J, 3)
+
+        # template -> hull: point-to-plane on the hull's tangent plane
+        _, k = hull_tree.query(V)
+        n_h = hull_nrm[k]
+        ok1 = np.einsum("ij,ij->i", N, n_h) > 0.2
+        r1 = np.einsum("ij,ij->i", V - hull_pts[k], n_h)
+        w1 = _huber_weights(r1, params.robust_m) * np.where(r1 < 0, params.inside_weight, 1.0) * ok1
+        J1 = np.concatenate([n_h, np.cross(lever, n_h[:, None, :]).reshape(len(V), -1)], axis=1)
+
+        # hull -> template: point-to-plane on the template's tangent plane
+        P = hull_pts[sample]
+        _, i2 = cKDTree(V).query(P)
+        n_t = N[i2]
+        ok2 = np.einsum("ij,ij->i", n_t, hull_nrm[sample]) > 0.2
+        r2 = np.einsum("ij,ij->i", V[i2] - P, n_t)
+        w2 = _huber_weights(r2, params.robust_m) * ok2
+        J2 = np.concatenate([n_t, np.cross(lever[i2], n_t[:, None, :]).reshape(len(P), -1)], axis=1)
+
+        J = np.concatenate([J1, J2])
+        r = np.concatenate([r1, r2])
+        w = np.concatenate([w1, w2])
+        H = J.T @ (w[:, None] * J)
+        g = J.T @ (w * r)
+        # prior on local rotations of the limbs (not the root): d theta_local ~ P_j^T d omega_world
+        local_frames = M[bones, :3, :3] @ Rotation.from_rotvec(rotations[bones]).as_matrix().transpose(0, 2, 1)
+        for j in range(1, nJ):
+            Pj = local_frames[j]
+            cols = slice(3 + 3 * j, 6 + 3 * j)
+            rp = prior_sqrt * (rotations[bones[j]] - prior[j])
+            Jp = prior_sqrt * Pj.T
+            H[cols, cols] += Jp.T @ Jp
+            g[cols] += Jp.T @ rp
+        H[np.diag_indices(n_par)] += params.damping * (np.diag(H).mean() + 1e-12)
+        delta = -np.linalg.solve(H, g)
+        dt = delta[:3]
+        dw = delta[3:].reshape(nJ, 3)
+        # Clamp the step (Gauss-Newton on a linearised rotation is only trusted near the current pose).
+        scale = min(1.0, params.max_step_m / max(np.linalg.norm(dt), 1e-12),
+                    params.max_step_rad / max(np.linalg.norm(dw, axis=1).max(), 1e-12))
+        dt, dw = dt * scale, dw * scale
+        translation = translation + dt
+        for j, b in enumerate(bones):
+            local = Rotation.from_rotvec(local_frames[j].T @ dw[j]) * Rotation.from_rotvec(rotations[b])
+            rotations[b] = local.as_rotvec()
+        if np.linalg.norm(dt) < params.tolerance and np.abs(dw).max() < params.tolerance * 10:
+            break
+    pose = Pose(rotations, translation)
+    V, _ = body.pose(pose)
+    heads, tails = posed_joints(skel, pose)
+    joints = kinect_joints(skel, heads, tails, "v2")
+    return ArticulatedFit(pose, joints, symmetric_hull_distance(V, body.faces, hull), it)
+
+
+def fit_body_to_hull(body, hull: VisualHull, previous_pose: Pose | None = None,
+                     params: ArticulatedFitParams | None = None) -> ArticulatedFit:
+    """Pose of ``body`` fitted to ``hull``: warm-started from ``previous_pose``, else from the A-pose at the
+    hull centroid under each candidate root yaw (the best after a coarse fit is refined)."""
+    params = params or ArticulatedFitParams()
+    if previous_pose is not None:
+        if previous_pose.rotations.shape != (body.skeleton.n_bones, 3):
+            raise InputError(f"previous pose has {len(previous_pose.rotations)} bones, the body "
+                             f"{body.skeleton.n_bones}")
+        return articulated_fit(body, hull, previous_pose, params)
+    if not params.yaw_candidates_deg:
+        raise InputError("articulated fit from the A-pose needs at least one root yaw candidate")
+    candidates = [articulated_fit(body, hull, a_pose_at_hull(body, hull, yaw), params, params.coarse_iterations)
+                  for yaw in params.yaw_candidates_deg]
+    errors = [c.fit_error_m for c in candidates]
+    log.debug("hull fit: yaw candidates %s -> fit errors %s m", params.yaw_candidates_deg, np.round(errors, 4))
+    best = candidates[int(np.argmin(errors))]
+    refined = articulated_fit(body, hull, best.pose, params)
+    return refined if refined.fit_error_m <= best.fit_error_m else best
+
+
+def hull_joints(cameras, masks, body, previous_pose: Pose | None = None, voxel_m: float = 0.015,
+                params: ArticulatedFitParams | None = None, bounds=None) -> tuple[np.ndarray, Pose, float]:
+    """Kinect v2 joints ``(25, 3)`` from silhouettes alone, Rapid Skin contribution 4 / Sec. IV.
+
+    Visual hull of ``masks`` (camera name -> (H, W) bool) seen by ``cameras``, then the articulated fit
+    of ``body`` to it. Returns ``(joints_v2, pose, fit_error_m)``; pass ``pose`` of one frame as
+    ``previous_pose`` of the next.
+    """
+    hull = visual_hull(cameras, masks, bounds=bounds, voxel_m=voxel_m)
+    fit = fit_body_to_hull(body, hull, previous_pose, params)
+    return fit.joints, fit.pose, fit.fit_error_m
+
+
+def joint_error_m(joints: np.ndarray, joints_gt: np.ndarray, names=MAJOR_JOINTS) -> float:
+    """Mean Euclidean error (m) of Kinect v2 ``joints`` against ground truth over the joints ``names``."""
+    index = {n: i for i, n in enumerate(kinect_joint_names("v2"))}
+    unknown = [n for n in names if n not in index]
+    if unknown:
+        raise InputError(f"unknown Kinect v2 joint(s): {', '.join(unknown)}")
+    sel = [index[n] for n in names]
+    J, G = np.asarray(joints, float)[sel], np.asarray(joints_gt, float)[sel]
+    return float(np.mean(np.linalg.norm(J - G, axis=1)))
