@@ -258,3 +258,57 @@ def rgbd_board_poses(sensor: RGBDSensor, spec: CharucoBoardSpec, n_poses: int, r
         if visible_corners(c, spec, T).sum() == spec.n_corners:
             poses.append(T)
     return np.array(poses)
+
+
+# --- capture folders ----------------------------------------------------------------------------------
+
+def detect_rgbd_capture(folder, spec: CharucoBoardSpec, min_corners: int = 6) -> tuple[list[int], list[RGBDBoardView]]:
+    """Board views of ``FOLDER/kinect/rgb/FFFFF.png`` + ``FOLDER/kinect/depth/FFFFF.png`` (16-bit mm).
+
+    Frames whose colour image shows no board are skipped. Returns (frame numbers, views).
+    """
+    from pathlib import Path
+
+    from bodystudio.calib.board import detect_charuco, read_image_grey
+    from bodystudio.capture.kinect import read_depth_png
+
+    folder = Path(folder)
+    rgb_dir, depth_dir = folder / "kinect" / "rgb", folder / "kinect" / "depth"
+    if not rgb_dir.is_dir() or not depth_dir.is_dir():
+        raise SessionError(f"{folder}: no kinect/rgb and kinect/depth folders; record the boards with the Kinect too")
+    frames, views = [], []
+    for rgb in sorted(rgb_dir.glob("*.png")):
+        if not rgb.stem.isdigit():
+            continue
+        depth_path = depth_dir / rgb.name
+        if not depth_path.is_file():
+            raise SessionError(f"camera kinect: frame {rgb.stem} has a colour image but no depth image "
+                               f"({depth_path}); export both streams")
+        det = detect_charuco(read_image_grey(rgb), spec, min_corners)
+        if det.n_corners:
+            frames.append(int(rgb.stem))
+            views.append(RGBDBoardView(det.corner_ids, det.corners_px, read_depth_png(depth_path).astype(np.float64)))
+    if not views:
+        raise SessionError(f"camera kinect: no ChArUco board found in {rgb_dir}; capture the board in front of the Kinect")
+    return frames, views
+
+
+def write_synthetic_kinect_views(out, sensor: RGBDSensor, spec: CharucoBoardSpec, board_to_world: np.ndarray,
+                                 rng: np.random.Generator, progress=None) -> int:
+    """Render the Kinect's colour images and noisy depth of every board pose into ``out/kinect/{rgb,depth}``."""
+    from pathlib import Path
+
+    from bodystudio.calib.synthetic import render_board_view, visible_corners, write_png
+    from bodystudio.capture.kinect import quantized_disparity_depth, write_depth_png
+
+    out = Path(out)
+    task = progress.add_task("rendering Kinect colour + depth", total=len(board_to_world)) if progress else None
+    n_seen = 0
+    for f, T in enumerate(board_to_world):
+        n_seen += int(visible_corners(sensor.color, spec, T).sum() >= 6)
+        write_png(out / "kinect" / "rgb" / f"{f:05d}.png", render_board_view(sensor.color, spec, T, rng))
+        z = quantized_disparity_depth(render_board_depth(sensor.depth, spec, T), sensor.depth.fx, sensor.baseline_m, rng)
+        write_depth_png(out / "kinect" / "depth" / f"{f:05d}.png", z)
+        if task is not None:
+            progress.advance(task)
+    return n_seen

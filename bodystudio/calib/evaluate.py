@@ -67,3 +67,15 @@ def evaluate_calibration(est: CameraRig, gt: CameraRig, report: dict | None = No
         overall["reproj_rms_px"] = float(report["reproj_rms_px"])
     worst = {k: float(np.max([p[k] for p in per.values()])) for k in keys}
     return {"align": align, "overall": overall, "max": worst, "cameras": per}
+
+
+def evaluate_rgbd_sensor(est, gt) -> dict:
+    """Depth->colour and studio-pose errors of a calibrated RGB-D sensor (RGBDSensor) against ground truth."""
+    D, G = np.asarray(est.depth_to_color), np.asarray(gt.depth_to_color)
+    out = {"depth_to_color_t_err_mm": float(1000 * np.linalg.norm(D[:3, 3] - G[:3, 3])),
+           "depth_to_color_rot_err_deg": rotation_angle_deg(D[:3, :3] @ G[:3, :3].T)}
+    for which in ("color", "depth"):
+        e, g = getattr(est, which), getattr(gt, which)
+        out[f"{which}_center_err_mm"] = float(1000 * np.linalg.norm(e.center - g.center))
+        out[f"{which}_rot_err_deg"] = rotation_angle_deg(e.R @ g.R.T)
+    return out

@@ -220,9 +220,11 @@ def write_png(path: Path, img: np.ndarray) -> None:
 
 def write_synthetic_calibration(out: str | os.PathLike, n_cameras: int = 10, n_poses: int = 30, seed: int = 0,
                                 width: int = 1280, height: int = 960, spec: CharucoBoardSpec | None = None,
-                                rig: CameraRig | None = None, progress=None) -> dict:
+                                rig: CameraRig | None = None, progress=None, kinect: str | None = None) -> dict:
     """Render a calibration capture into ``out``: ``cam_NN/FFFFF.png``, ``board.json``, ``gt/cameras.json``,
-    ``gt/board_poses.json``. Frame 0 is the board lying on the floor. Returns a summary dict."""
+    ``gt/board_poses.json``. Frame 0 is the board lying on the floor. With ``kinect`` ("v1"/"v2") the
+    Kinect's colour and depth views are written too (``kinect/rgb``, ``kinect/depth``, ``gt/kinect.json``).
+    Returns a summary dict."""
     out = Path(out)
     spec = spec or CharucoBoardSpec()
     rng = np.random.default_rng(seed)
@@ -237,8 +239,19 @@ def write_synthetic_calibration(out: str | os.PathLike, n_cameras: int = 10, n_p
             write_png(out / cam.name / f"{f:05d}.png", render_board_view(cam, spec, T, rng))
             if task is not None:
                 progress.advance(task)
+    summary = {}
+    if kinect is not None:
+        from bodystudio.calib.depth import write_synthetic_kinect_views
+        from bodystudio.capture.session import kinect_calibration_to_dict
+        from bodystudio.geometry.camera import kinect_v1, kinect_v2
+
+        if kinect not in ("v1", "v2"):
+            raise InputError(f"kinect must be v1 or v2, got {kinect!r}")
+        sensor = kinect_v2() if kinect == "v2" else kinect_v1()
+        summary["kinect_views_with_board"] = write_synthetic_kinect_views(out, sensor, spec, poses, rng, progress)
+        write_json(out / "gt" / "kinect.json", kinect_calibration_to_dict(sensor))
     save_board_json(out / "board.json", spec)
     write_json(out / "gt" / "board_poses.json", {"floor_frame": 0, "board_to_world": poses})
     save_cameras_json(out / "gt" / "cameras.json", rig)
     return {"cameras": len(rig), "poses": len(poses), "images": total, "views_with_board": n_visible,
-            "out": str(out)}
+            "out": str(out), **summary}

@@ -108,6 +108,59 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
     typer.echo(f"wrote {out}")
 
 
+@app.command("kinect")
+def kinect(folder: Path = typer.Argument(..., help="capture folder with kinect/rgb and kinect/depth board frames"),
+           report: Optional[Path] = typer.Option(None, help="studio calibration report (board poses) to place the "
+                                                            "Kinect in the studio frame"),
+           sensor: Optional[Path] = typer.Option(None, help="Kinect calibration.json with the intrinsics to keep "
+                                                            "(default: nominal --model intrinsics)"),
+           model: str = typer.Option("v2", help="v1 or v2: nominal intrinsics when no --sensor is given"),
+           out: Path = typer.Option(..., help="Kinect calibration.json to write")) -> None:
+    """Calibrate a Kinect: depth<->colour from board planes; Kinect<->studio from shared board poses."""
+    import numpy as np
+
+    from bodystudio.calib.board import load_board_json
+    from bodystudio.calib.depth import calibrate_rgbd_sensor, detect_rgbd_capture
+    from bodystudio.capture.session import kinect_calibration_to_dict, load_kinect_calibration
+    from bodystudio.fileio import read_json, write_json
+    from bodystudio.geometry.camera import kinect_v1, kinect_v2
+
+    spec = load_board_json(folder / "board.json")
+    if sensor is not None:
+        rgbd = load_kinect_calibration(sensor)
+    elif model in ("v1", "v2"):
+        rgbd = kinect_v2() if model == "v2" else kinect_v1()
+    else:
+        raise InputError(f"--model must be v1 or v2, got {model!r}")
+    frames, views = detect_rgbd_capture(folder, spec)
+    board_to_world = None
+    if report is not None:
+        poses = read_json(report, "calibration report").get("board_to_world", {})
+        board_to_world = [np.asarray(poses[str(f)], float) if str(f) in poses else np.full((4, 4), np.nan)
+                          for f in frames]
+        shared = [k for k, T in enumerate(board_to_world) if np.isfinite(T[0, 0])]
+        if not shared:
+            raise InputError(f"{report}: none of the Kinect's board frames ({frames[:5]}...) was seen by the studio "
+                             "cameras; capture boards seen by both")
+        views_w = [views[k] for k in shared]
+        board_to_world = [board_to_world[k] for k in shared]
+    calibrated, rep = calibrate_rgbd_sensor(rgbd, spec, views, None)
+    if board_to_world is not None:
+        from bodystudio.calib.depth import sensor_to_studio
+        from bodystudio.calib.world import rigid_inverse
+        from bodystudio.geometry.camera import Camera, RGBDSensor
+
+        W = sensor_to_studio(calibrated.color, spec, views_w, board_to_world)
+        Wd = rigid_inverse(calibrated.depth_to_color) @ W
+        c, d = calibrated.color, calibrated.depth
+        calibrated = RGBDSensor(rgbd.name, rgbd.version,
+                                Camera(d.name, d.K, d.dist, Wd[:3, :3], Wd[:3, 3], d.width, d.height),
+                                Camera(c.name, c.K, c.dist, W[:3, :3], W[:3, 3], c.width, c.height),
+                                calibrated.depth_to_color, rgbd.baseline_m, rgbd.depth_range_m)
+    write_json(out, kinect_calibration_to_dict(calibrated))
+    typer.echo(json.dumps({"frames": frames, **rep, "in_studio_frame": board_to_world is not None}))
+
+
 @app.command("export")
 def export(cameras: Path = typer.Argument(..., help="cameras.json"),
            easymocap: Optional[Path] = typer.Option(None, help="folder for intri.yml / extri.yml"),
@@ -144,12 +197,15 @@ def synth_calibration(out: Path = typer.Argument(..., help="output capture folde
                       cameras: int = typer.Option(10, help="cameras on the studio ring"),
                       poses: int = typer.Option(30, help="board poses (frame 0 lies on the floor)"),
                       seed: int = typer.Option(0),
-                      width: int = typer.Option(1280), height: int = typer.Option(960)) -> None:
+                      width: int = typer.Option(1280), height: int = typer.Option(960),
+                      kinect: Optional[str] = typer.Option(None, help="also render a Kinect (v1 or v2): colour "
+                                                                      "and depth of every board pose")) -> None:
     """Render a ChArUco calibration capture of the studio ring with ground truth (OUT/gt/cameras.json)."""
     from bodystudio.calib.synthetic import write_synthetic_calibration
 
     with _progress() as progress:
-        summary = write_synthetic_calibration(out, cameras, poses, seed, width, height, progress=progress)
+        summary = write_synthetic_calibration(out, cameras, poses, seed, width, height, progress=progress,
+                                              kinect=kinect)
     typer.echo(json.dumps(summary))
 
 
@@ -158,12 +214,20 @@ def eval_calib(est: Path = typer.Argument(..., help="estimated cameras.json"),
                gt: Path = typer.Argument(..., help="ground-truth cameras.json"),
                report: Optional[Path] = typer.Option(None, help="calibration report (default: EST.report.json)"),
                align: str = typer.Option("floor", help="floor: compare world frames as they are; similarity: "
-                                                       "Umeyama-align camera centres first")) -> None:
+                                                       "Umeyama-align camera centres first"),
+               kinect: Optional[list[Path]] = typer.Option(None, help="estimated and ground-truth Kinect "
+                                                                      "calibration.json (give the option twice)")) -> None:
     """Score a calibration against ground truth; prints JSON (overall means, worst camera, per camera)."""
-    from bodystudio.calib.evaluate import evaluate_calibration
+    from bodystudio.calib.evaluate import evaluate_calibration, evaluate_rgbd_sensor
+    from bodystudio.capture.session import load_kinect_calibration
     from bodystudio.fileio import read_json
     from bodystudio.geometry.camera import load_cameras_json
 
     report = report or est.with_name(est.stem + ".report.json")
     rep = read_json(report, "calibration report") if report.is_file() else None
-    typer.echo(json.dumps(evaluate_calibration(load_cameras_json(est), load_cameras_json(gt), rep, align), indent=2))
+    scores = evaluate_calibration(load_cameras_json(est), load_cameras_json(gt), rep, align)
+    if kinect:
+        if len(kinect) != 2:
+            raise InputError("--kinect needs the estimated and the ground-truth calibration.json: give it twice")
+        scores["kinect"] = evaluate_rgbd_sensor(load_kinect_calibration(kinect[0]), load_kinect_calibration(kinect[1]))
+    typer.echo(json.dumps(scores, indent=2))

@@ -58,13 +58,20 @@ def test_board_and_eval_commands(tmp_path, capsys):
 def test_rendered_capture_end_to_end(tmp_path, capsys):
     """Render a 4-camera capture, detect, calibrate through the CLI and score against ground truth."""
     cap = tmp_path / "cap"
-    assert main(["synth", "calibration", str(cap), "--cameras", "4", "--poses", "12", "--seed", "3"]) == 0
-    assert main(["calibrate", str(cap), "--out", str(tmp_path / "est" / "cameras.json"),
-                 "--easymocap", str(tmp_path / "em")]) == 0
+    assert main(["synth", "calibration", str(cap), "--cameras", "4", "--poses", "12", "--seed", "3",
+                 "--kinect", "v2"]) == 0
+    est = tmp_path / "est"
+    assert main(["calibrate", str(cap), "--out", str(est / "cameras.json"), "--easymocap", str(tmp_path / "em")]) == 0
     assert (tmp_path / "em" / "extri.yml").is_file()
+    assert main(["calib", "kinect", str(cap), "--report", str(est / "cameras.report.json"),
+                 "--out", str(est / "kinect.json")]) == 0
     capsys.readouterr()
-    assert main(["eval", "calib", str(tmp_path / "est" / "cameras.json"), str(cap / "gt" / "cameras.json")]) == 0
+    assert main(["eval", "calib", str(est / "cameras.json"), str(cap / "gt" / "cameras.json"),
+                 "--kinect", str(est / "kinect.json"), "--kinect", str(cap / "gt" / "kinect.json")]) == 0
     scores = json.loads(capsys.readouterr().out)
+    assert scores["kinect"]["depth_to_color_t_err_mm"] < 3.0
+    assert scores["kinect"]["depth_to_color_rot_err_deg"] < 0.3
+    assert scores["kinect"]["color_center_err_mm"] < 20.0
     assert scores["overall"]["reproj_rms_px"] < 0.6
     assert scores["max"]["center_err_mm"] < 40
     assert scores["max"]["rot_err_deg"] < 1.0
