@@ -219,10 +219,12 @@ RIG_TEMPLATE = "6k"
 
 def stage_rig(ctx: DemoContext) -> str:
     """Rig a synthetic scan: fit the body model, transfer skeleton and skin weights, export glTF, score."""
-    synthetic_scan, save_synthetic_scan, load_ground_truth = _need(
-        "bodystudio.register.synthetic", "synthetic_scan", "save_synthetic_scan", "load_ground_truth")
-    (rig_to_files,) = _need("bodystudio.cli.rig", "rig_to_files")
-    evaluate_rig, load_rig_avatar = _need("bodystudio.rig.evaluate", "evaluate_rig", "load_avatar")
+    synthetic_scan, save_synthetic_scan = _need("bodystudio.register.synthetic", "synthetic_scan",
+                                                "save_synthetic_scan")
+    (load_scan,) = _need("bodystudio.register.scan", "load_scan")
+    load_template_model, rig_scan = _need("bodystudio.rig.pipeline", "load_template_model", "rig_scan")
+    write_glb, rig_description = _need("bodystudio.rig.export", "write_glb", "rig_description")
+    evaluate_rig, rig_json_path = _need("bodystudio.rig.evaluate", "evaluate_rig", "rig_json_path")
     from bodystudio.fileio import write_json
     from bodystudio.viewer.avatar import load_avatar
     from bodystudio.viewer.scene import save_screenshot
@@ -230,11 +232,17 @@ def stage_rig(ctx: DemoContext) -> str:
 
     folder = ctx.out / "rig"
     scan, gt = synthetic_scan(RIG_SUBJECT, "a", n_vertices=RIG_SCAN_VERTICES, noise_mm=1.0, holes=True)
-    gt_dir = save_synthetic_scan(folder / "scan.ply", scan, gt)
+    save_synthetic_scan(folder / "scan.ply", scan, gt)
+    mesh, scan_report = load_scan(folder / "scan.ply")
+    result = rig_scan(mesh, load_template_model(RIG_TEMPLATE))
+    rigged = result.avatar
+    rigged.metadata.update(scan=scan_report.as_dict(), template=RIG_TEMPLATE, stage_seconds=result.seconds)
     glb = folder / "avatar.glb"
-    description = rig_to_files(folder / "scan.ply", glb, template=RIG_TEMPLATE)
-    rigged = load_rig_avatar(glb)
-    scores = evaluate_rig(rigged, load_ground_truth(gt_dir), rigged.metadata.get("scan", {}).get("to_canonical"))
+    write_glb(glb, rigged)
+    write_json(rig_json_path(glb), rig_description(rigged))
+    scores = evaluate_rig(rigged, gt, scan_report.to_canonical)
+    scores["fit_history_mm"] = [round(float(h), 3) for h in result.fit.history]  # convergence plot
+    scores["stage_seconds"] = result.seconds
     write_json(folder / "eval.json", scores)
     avatar = load_avatar(glb)  # what a user's glTF viewer sees
     bone = "upperarm_l" if "upperarm_l" in avatar.bone_names else avatar.bone_names[1]
@@ -244,8 +252,8 @@ def stage_rig(ctx: DemoContext) -> str:
     view = scene_for_avatar(avatar, title="rigged scan: transferred skeleton")
     save_screenshot(view, ctx.out / "screenshots" / "avatar_skeleton.png")
     ctx.scenes.append(("rigged scan (avatar.glb): skeleton", view))
-    fit = description.get("fit_err_mm_median", float("nan"))
-    return f"{scan.n_vertices}-vertex scan rigged to {glb} (fit {fit:.1f} mm median)"
+    return (f"{scan.n_vertices}-vertex scan rigged to {glb}: fit {result.fit.fit_err_mm_median:.1f} mm median, "
+            f"joint error {scores.get('joint_err_mm_mean', float('nan')):.1f} mm mean")
 
 
 def _session_views(ctx: DemoContext) -> None:
