@@ -53,6 +53,9 @@ MAJOR_JOINTS = ("SpineBase", "SpineMid", "Neck", "Head", "SpineShoulder", "Shoul
 class ArticulatedFitParams:
     """Settings of the articulated hull fit.
 
+    ``arm_raise_candidates_deg``: from the A-pose, each arm is also tried reset to the A-pose and raised
+    by these angles in the frontal plane (ICP alone does not swing an arm from the body's side to
+    above the shoulder, and may fold the elbow to explain a raised arm);
     ``robust_m``: Huber threshold of the point-to-plane residuals; ``inside_weight``: weight of template
     points inside the hull (the hull over-estimates the body); ``prior_weight``: weight of the prior on
     local bone rotations (cost per squared radian; a data residual of 1 cm costs 1e-4); ``yaw_candidates_deg``: root yaw
@@ -62,6 +65,7 @@ class ArticulatedFitParams:
     iterations: int = 40
     coarse_iterations: int = 12
     robust_m: float = 0.03
+    robust_start_m: float = 0.03
     inside_weight: float = 0.5
     prior_weight: float = 0.05
     damping: float = 1e-3
@@ -69,6 +73,7 @@ class ArticulatedFitParams:
     max_step_m: float = 0.10
     hull_samples: int = 3000
     yaw_candidates_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
+    arm_raise_candidates_deg: tuple[float, ...] = (0.0, 50.0, 100.0)
     tolerance: float = 1e-4
 
 
@@ -146,6 +151,28 @@ def a_pose_at_hull(body, hull: VisualHull, yaw_deg: float = 0.0) -> Pose:
     return Pose(rotations, translation)
 
 
+def _root_forward(body, pose: Pose) -> np.ndarray:
+    """The body's facing direction (rest +z turned by the root rotation)."""
+    root = _fit_bone_indices(body.skeleton)[0]
+    A = body.skeleton.rest_frames[root, :3, :3]
+    R_world = A @ Rotation.from_rotvec(pose.rotations[root]).as_matrix() @ A.T
+    return R_world @ np.array([0.0, 0.0, 1.0])
+
+
+def raise_arm(body, pose: Pose, side: str, degrees: float) -> Pose:
+    """``pose`` with the upper arm ``side`` ('l' or 'r') abducted by ``degrees`` in the body's frontal plane."""
+    skel = body.skeleton
+    j = skel.index(f"upperarm_{side}")
+    M = forward_kinematics(skel, pose)
+    P = M[j, :3, :3] @ Rotation.from_rotvec(pose.rotations[j]).as_matrix().T  # parent frame of the bone
+    # Facing +z, the left arm points to +x and rises by a positive rotation about the facing axis.
+    sign = 1.0 if side == "l" else -1.0
+    omega = sign * np.radians(degrees) * _root_forward(body, pose)
+    rotations = np.array(pose.rotations, dtype=np.float64)
+    rotations[j] = (Rotation.from_rotvec(P.T @ omega) * Rotation.from_rotvec(rotations[j])).as_rotvec()
+    return Pose(rotations, np.array(pose.translation, dtype=np.float64))
+
+
 def articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitParams | None = None,
                     iterations: int | None = None) -> ArticulatedFit:
     """Articulated ICP of the skinned template ``body`` to the visual hull from pose ``init`` (Sec. IV)."""
@@ -176,6 +203,10 @@ def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitP
     prior_sqrt = np.sqrt(params.prior_weight)
     it = 0
     for it in range(1, n_iter + 1):
+        # Huber threshold annealed from robust_start_m to robust_m over the first half of the iterations:
+        # far-away hull parts (a raised arm) pull first, then outliers are damped.
+        frac = min(1.0, it / max(1.0, 0.5 * n_iter))
+        robust = params.robust_start_m * (params.robust_m / params.robust_start_m) ** frac
         pose = Pose(rotations, translation)
         C, M = _skin_parts(body, pose, bone_idx, bone_w)
         V = C.sum(axis=1)
@@ -188,7 +219,7 @@ def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitP
         n_h = hull_nrm[k]
         ok1 = np.einsum("ij,ij->i", N, n_h) > 0.2
         r1 = np.einsum("ij,ij->i", V - hull_pts[k], n_h)
-        w1 = _huber_weights(r1, params.robust_m) * np.where(r1 < 0, params.inside_weight, 1.0) * ok1
+        w1 = _huber_weights(r1, robust) * np.where(r1 < 0, params.inside_weight, 1.0) * ok1
         J1 = np.concatenate([n_h, np.cross(lever, n_h[:, None, :]).reshape(len(V), -1)], axis=1)
 
         # hull -> template: point-to-plane on the template's tangent plane
@@ -197,7 +228,7 @@ def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitP
         n_t = N[i2]
         ok2 = np.einsum("ij,ij->i", n_t, hull_nrm[sample]) > 0.2
         r2 = np.einsum("ij,ij->i", V[i2] - P, n_t)
-        w2 = _huber_weights(r2, params.robust_m) * ok2
+        w2 = _huber_weights(r2, robust) * ok2
         J2 = np.concatenate([n_t, np.cross(lever[i2], n_t[:, None, :]).reshape(len(P), -1)], axis=1)
 
         J = np.concatenate([J1, J2])
@@ -252,6 +283,18 @@ def fit_body_to_hull(body, hull: VisualHull, previous_pose: Pose | None = None,
     errors = [c.fit_error_m for c in candidates]
     log.debug("hull fit: yaw candidates %s -> fit errors %s m", params.yaw_candidates_deg, np.round(errors, 4))
     best = candidates[int(np.argmin(errors))]
+    for side in ("l", "r"):
+        reset = np.array(best.pose.rotations)
+        for bone in (f"upperarm_{side}", f"lowerarm_{side}"):
+            reset[body.skeleton.index(bone)] = 0.0
+        straight = Pose(reset, best.pose.translation)
+        trials = [articulated_fit(body, hull, raise_arm(body, straight, side, deg), params,
+                                 params.coarse_iterations) for deg in params.arm_raise_candidates_deg]
+        for trial in trials:
+            if trial.fit_error_m < best.fit_error_m:
+                best = trial
+        log.debug("hull fit: arm %s raise candidates -> fit errors %s m", side,
+                  np.round([t.fit_error_m for t in trials], 4))
     refined = articulated_fit(body, hull, best.pose, params)
     return refined if refined.fit_error_m <= best.fit_error_m else best
 
