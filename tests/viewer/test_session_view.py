@@ -76,3 +76,23 @@ def test_session_html_draws_in_chromium(session, tmp_path, chromium):
     page = chromium(tmp_path / "s.html", size=(900, 800))
     assert page["console"] == [], page["console"]
     assert 'data-viewer-status="ok"' in page["dom"]
+
+
+def test_time_slider_swaps_the_frame(session):
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    from bodystudio.viewer.views import add_time_slider
+
+    plotter = scene_for_session(session, 0, plotter=sc.make_plotter(window_size=(320, 240)))
+    add_time_slider(plotter, session)
+    (slider,) = plotter.widgets.slider_widgets
+
+    def gt_points():
+        return vtk_to_numpy(plotter.renderer.actors["gt"].GetMapper().GetInput().GetPoints().GetData()).copy()
+
+    np.testing.assert_allclose(gt_points(), session.frame(0).gt_mesh.vertices, atol=1e-9)
+    slider.GetRepresentation().SetValue(1.0)
+    slider.InvokeEvent("EndInteractionEvent")
+    np.testing.assert_allclose(gt_points(), session.frame(1).gt_mesh.vertices, atol=1e-9)
+    assert "frame 1" in plotter.renderer.actors["title"].GetText(2)
+    plotter.close()
