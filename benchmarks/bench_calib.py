@@ -38,7 +38,8 @@ def _synthetic_case(n_cameras: int, n_poses: int, width: int, height: int, seed:
     for terms in (4, 5):
         options = CalibrationOptions(distortion_terms=terms)
         result = calibrate_cameras(obs, spec, options)
-        seconds = median_seconds(lambda: calibrate_cameras(obs, spec, options), repeats=repeats, warmup=0)
+        seconds = median_seconds(lambda options=options: calibrate_cameras(obs, spec, options), repeats=repeats,
+                                 warmup=0)
         rows.append(_row(f"bundle adjustment (k1..{'k3' if terms == 5 else 'p2'})",
                          evaluate_calibration(result.rig, rig), result.rms_px, result.expected_rms_px(NOISE_PX),
                          seconds))

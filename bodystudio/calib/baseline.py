@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import scipy.sparse
+from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 
 from bodystudio.calib.board import CharucoBoardSpec, board_corners
 from bodystudio.calib.calibrate import (
@@ -21,8 +23,6 @@ from bodystudio.calib.calibrate import (
 from bodystudio.calib.observations import CharucoObservations
 from bodystudio.calib.world import rigid, rigid_inverse
 from bodystudio.geometry.camera import CameraRig
-from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
-import scipy.sparse
 
 
 def chained_stereo_calibration(obs: CharucoObservations, spec: CharucoBoardSpec,

@@ -124,7 +124,8 @@ def board_texture_px_per_m(spec: CharucoBoardSpec, px_per_m: float) -> float:
     return max(int(round(spec.square_m * px_per_m)), 4) / spec.square_m
 
 
-def write_board_png(path: str | os.PathLike, spec: CharucoBoardSpec, dpi: float = 300.0, margin_m: float = 0.01) -> None:
+def write_board_png(path: str | os.PathLike, spec: CharucoBoardSpec, dpi: float = 300.0,
+                    margin_m: float = 0.01) -> None:
     """Printable PNG at ``dpi``; the physical size is stored in the PNG's pHYs chunk by matplotlib."""
     import matplotlib.image
 

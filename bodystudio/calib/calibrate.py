@@ -98,7 +98,8 @@ class CalibrationResult:
         return {"reproj_rms_px": self.rms_px, "n_observations": len(obs), "n_outliers": int((~self.inliers).sum()),
                 "n_parameters": self.n_parameters, "world_frame": self.world_frame, "seconds": self.seconds,
                 "stages_s": self.stages_s, "cameras": per_cam,
-                "board_to_world": {str(fid): T.tolist() for fid, T in zip(obs.frame_ids, self.board_to_world)
+                "board_to_world": {str(fid): T.tolist()
+                                   for fid, T in zip(obs.frame_ids, self.board_to_world, strict=True)
                                    if np.isfinite(T[0, 0])}}
 
 
@@ -468,7 +469,7 @@ def calibrate_cameras(obs: CharucoObservations, spec: CharucoBoardSpec,
     intr = np.concatenate([Ks[:, 0, 0:1], Ks[:, 1, 1:2], Ks[:, 0, 2:3], Ks[:, 1, 2:3], dists], axis=1)
     intr[:, 4 + options.distortion_terms:] = 0.0
     # Views whose pose could not be initialised (and frames nobody resolved) stay out of the adjustment.
-    usable = np.array([(c, f) in view_poses for c, f in zip(obs.camera, obs.frame)], bool)
+    usable = np.array([(c, f) in view_poses for c, f in zip(obs.camera, obs.frame, strict=True)], bool)
     usable &= np.isfinite(boards[obs.frame, 0, 0])
     t1 = time.perf_counter()
     intr, cams, boards, _, nfev1 = bundle_adjust(obs, spec, intr, cam_from_root, boards, root, usable,

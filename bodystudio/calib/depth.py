@@ -150,10 +150,11 @@ def calibrate_depth_to_color(views: list[RGBDBoardView], depth_cam: Camera, colo
         # Refine: colour-frame board corners must lie on their depth planes.
         Xc = [corners @ board_in_color[k][:3, :3].T + board_in_color[k][:3, 3] for k in used]
 
-        def residuals(x):
+        def residuals(x, Xc=Xc, planes=planes):
             M = rvec_t_to_rigid(x[:3], x[3:])
             Minv = rigid_inverse(M)
-            return np.concatenate([(X @ Minv[:3, :3].T + Minv[:3, 3]) @ n + d for X, (n, d, _) in zip(Xc, planes)])
+            return np.concatenate([(X @ Minv[:3, :3].T + Minv[:3, 3]) @ n + d
+                                   for X, (n, d, _) in zip(Xc, planes, strict=True)])
 
         x0 = np.r_[cv2.Rodrigues(T[:3, :3])[0].ravel(), T[:3, 3]]
         sol = least_squares(residuals, x0, loss="soft_l1", f_scale=0.005)
@@ -169,7 +170,7 @@ def sensor_to_studio(color: Camera, spec: CharucoBoardSpec, views: list[RGBDBoar
     """World->colour-camera 4x4 transform from one PnP of every board corner (world coordinates from the
     studio calibration's board poses) against the Kinect colour detections."""
     P, uv = [], []
-    for v, T in zip(views, board_to_world):
+    for v, T in zip(views, board_to_world, strict=True):
         if np.isfinite(T[0, 0]):
             P.append(board_corners(spec)[v.corner_ids] @ T[:3, :3].T + T[:3, 3])
             uv.append(v.corners_px)
@@ -235,7 +236,8 @@ def synthetic_rgbd_views(sensor: RGBDSensor, spec: CharucoBoardSpec, board_to_wo
         if vis.sum() < 6:
             continue
         ids = np.flatnonzero(vis)
-        uv = sensor.color.project(board_corners(spec)[ids] @ T[:3, :3].T + T[:3, 3]) + rng.normal(0, noise_px, (len(ids), 2))
+        uv = sensor.color.project(board_corners(spec)[ids] @ T[:3, :3].T + T[:3, 3])
+        uv = uv + rng.normal(0, noise_px, uv.shape)
         z = render_board_depth(sensor.depth, spec, T)
         z = quantized_disparity_depth(z, sensor.depth.fx, sensor.baseline_m, rng)
         views.append(RGBDBoardView(ids, uv, z))
@@ -289,7 +291,8 @@ def detect_rgbd_capture(folder, spec: CharucoBoardSpec, min_corners: int = 6) ->
             frames.append(int(rgb.stem))
             views.append(RGBDBoardView(det.corner_ids, det.corners_px, read_depth_png(depth_path).astype(np.float64)))
     if not views:
-        raise SessionError(f"camera kinect: no ChArUco board found in {rgb_dir}; capture the board in front of the Kinect")
+        raise SessionError(f"camera kinect: no ChArUco board found in {rgb_dir}; capture the board in front of "
+                           "the Kinect")
     return frames, views
 
 
@@ -307,7 +310,8 @@ def write_synthetic_kinect_views(out, sensor: RGBDSensor, spec: CharucoBoardSpec
     for f, T in enumerate(board_to_world):
         n_seen += int(visible_corners(sensor.color, spec, T).sum() >= 6)
         write_png(out / "kinect" / "rgb" / f"{f:05d}.png", render_board_view(sensor.color, spec, T, rng))
-        z = quantized_disparity_depth(render_board_depth(sensor.depth, spec, T), sensor.depth.fx, sensor.baseline_m, rng)
+        z = render_board_depth(sensor.depth, spec, T)
+        z = quantized_disparity_depth(z, sensor.depth.fx, sensor.baseline_m, rng)
         write_depth_png(out / "kinect" / "depth" / f"{f:05d}.png", z)
         if task is not None:
             progress.advance(task)

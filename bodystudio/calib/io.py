@@ -74,7 +74,8 @@ def load_easymocap_yaml(folder: str | os.PathLike, default_size: tuple[int, int]
         K, dist = intri.getNode(f"K_{n}").mat(), intri.getNode(f"dist_{n}").mat()
         Rot, R_vec, T = extri.getNode(f"Rot_{n}").mat(), extri.getNode(f"R_{n}").mat(), extri.getNode(f"T_{n}").mat()
         if K is None or T is None or (Rot is None and R_vec is None):
-            raise FileFormatError(f"{folder}: camera {n} lacks K_{n}, T_{n} or R_{n}/Rot_{n}; re-export the calibration")
+            raise FileFormatError(f"{folder}: camera {n} lacks K_{n}, T_{n} or R_{n}/Rot_{n}; "
+                                  "re-export the calibration")
         R = Rot if Rot is not None else cv2.Rodrigues(R_vec)[0]
         d = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
         d = np.r_[d, np.zeros(5)][:5]

@@ -56,7 +56,8 @@ class CharucoObservations:
         order = np.argsort(key, kind="stable")
         uniq, start = np.unique(key[order], return_index=True)
         groups = np.split(order, start[1:])
-        return {(int(k) // max(self.n_frames, 1), int(k) % max(self.n_frames, 1)): g for k, g in zip(uniq, groups)}
+        n = max(self.n_frames, 1)
+        return {(int(k) // n, int(k) % n): g for k, g in zip(uniq, groups, strict=True)}
 
     def subset(self, mask: np.ndarray) -> CharucoObservations:
         return CharucoObservations(self.camera_names, self.image_sizes, self.frame_ids, self.camera[mask],
@@ -78,7 +79,9 @@ def observations_from_views(camera_names, image_sizes, frame_ids, views: dict) -
         frames.append(np.full(len(cid), f))
         ids.append(np.asarray(cid, int))
         uvs.append(np.asarray(uv, float).reshape(-1, 2))
-    cat = (lambda a, dt: np.concatenate(a).astype(dt) if a else np.zeros(0, dt))
+    def cat(a, dt):
+        return np.concatenate(a).astype(dt) if a else np.zeros(0, dt)
+
     return CharucoObservations(tuple(camera_names), tuple(tuple(map(int, s)) for s in image_sizes),
                                tuple(int(f) for f in frame_ids), cat(cams, np.int64), cat(frames, np.int64),
                                cat(ids, np.int64), np.concatenate(uvs) if uvs else np.zeros((0, 2)))

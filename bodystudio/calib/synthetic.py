@@ -73,7 +73,9 @@ def visible_corners(camera: Camera, spec: CharucoBoardSpec, board_to_world: np.n
 
 
 def calibration_board_poses(rig: CameraRig, spec: CharucoBoardSpec, n_poses: int, rng: np.random.Generator,
-                            min_cameras: int = 2, volume_radius_m: float = 1.1) -> np.ndarray:
+                            min_cameras: int = 2, volume_radius_m: float = 1.1,
+                            min_visible_fraction: float = 1.0, heights_m: tuple[float, float] = (0.5, 1.8),
+                            elevation_rad: tuple[float, float] = (-0.5, 0.7)) -> np.ndarray:
     """(n_poses, 4, 4) board->world transforms: frame 0 lies on the floor, the rest face camera groups."""
     if n_poses < 2:
         raise InputError(f"a calibration capture needs at least 2 board poses, got {n_poses}")
@@ -90,14 +92,14 @@ def calibration_board_poses(rig: CameraRig, spec: CharucoBoardSpec, n_poses: int
         toward = np.array([np.sin(azimuth), 0.0, np.cos(azimuth)])
         # Boards nearer the cameras they face, at many heights and strongly tilted: tilt and image-wide
         # coverage are what separate focal length from distance and principal point from rotation.
-        center = toward * rng.uniform(0.2, volume_radius_m) + np.array([0.0, rng.uniform(0.5, 1.8), 0.0])
-        elevation = rng.uniform(-0.5, 0.7)
+        center = toward * rng.uniform(0.2, volume_radius_m) + np.array([0.0, rng.uniform(*heights_m), 0.0])
+        elevation = rng.uniform(*elevation_rad)
         yaw = rng.uniform(-0.8, 0.8)
         cy, sy = np.cos(yaw), np.sin(yaw)
         toward_yawed = np.array([cy * toward[0] + sy * toward[2], 0.0, -sy * toward[0] + cy * toward[2]])
         facing = toward_yawed * np.cos(elevation) + np.array([0.0, np.sin(elevation), 0.0])
         pose = board_pose_facing(center, facing, rng.uniform(-0.6, 0.6), spec)
-        n_seen = sum(visible_corners(cam, spec, pose).sum() >= spec.n_corners for cam in rig)
+        n_seen = sum(visible_corners(cam, spec, pose).sum() >= min_visible_fraction * spec.n_corners for cam in rig)
         if n_seen >= min_cameras:
             poses.append(pose)
     del centers

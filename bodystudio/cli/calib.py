@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.console import Console
@@ -57,14 +56,14 @@ def _capture_folder(path: Path) -> tuple[Path, Path]:
 
 def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with calibration_images/) or capture "
                                                                   "folder of cam_NN/FFFFF.png board images"),
-              board: Optional[Path] = typer.Option(None, help="board.json (default: FOLDER/board.json)"),
-              out: Optional[Path] = typer.Option(None, help="cameras.json to write (report beside it)"),
+              board: Path | None = typer.Option(None, help="board.json (default: FOLDER/board.json)"),
+              out: Path | None = typer.Option(None, help="cameras.json to write (report beside it)"),
               floor_frame: int = typer.Option(0, help="frame number whose board lies on the floor (world frame)"),
-              reference_camera: Optional[str] = typer.Option(None, help="use this camera's frame as the world "
+              reference_camera: str | None = typer.Option(None, help="use this camera's frame as the world "
                                                                          "instead of the floor board"),
               distortion_terms: int = typer.Option(4, help="4: k1 k2 p1 p2, 5: also k3 (wide-angle lenses)"),
-              easymocap: Optional[Path] = typer.Option(None, help="also write intri.yml/extri.yml into this folder"),
-              colmap: Optional[Path] = typer.Option(None, help="also write a COLMAP text model into this folder")) -> None:
+              easymocap: Path | None = typer.Option(None, help="also write intri.yml/extri.yml into this folder"),
+              colmap: Path | None = typer.Option(None, help="also write a COLMAP text model into this folder")) -> None:
     """Calibrate all studio cameras from ChArUco images: intrinsics, bundle adjustment, floor world frame."""
     from bodystudio.calib.board import load_board_json
     from bodystudio.calib.calibrate import CalibrationOptions, calibrate_cameras
@@ -76,7 +75,8 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
     folder, default_out = _capture_folder(session_or_folder)
     board = board or folder / "board.json"
     if not board.is_file():
-        raise InputError(f"{board}: board description not found; pass --board or write one with `bodystudio calib board`")
+        raise InputError(f"{board}: board description not found; pass --board or write one with "
+                         "`bodystudio calib board`")
     spec = load_board_json(board)
     out = out or default_out
     options = CalibrationOptions(distortion_terms=distortion_terms,
@@ -110,9 +110,9 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
 
 @app.command("kinect")
 def kinect(folder: Path = typer.Argument(..., help="capture folder with kinect/rgb and kinect/depth board frames"),
-           report: Optional[Path] = typer.Option(None, help="studio calibration report (board poses) to place the "
+           report: Path | None = typer.Option(None, help="studio calibration report (board poses) to place the "
                                                             "Kinect in the studio frame"),
-           sensor: Optional[Path] = typer.Option(None, help="Kinect calibration.json with the intrinsics to keep "
+           sensor: Path | None = typer.Option(None, help="Kinect calibration.json with the intrinsics to keep "
                                                             "(default: nominal --model intrinsics)"),
            model: str = typer.Option("v2", help="v1 or v2: nominal intrinsics when no --sensor is given"),
            out: Path = typer.Option(..., help="Kinect calibration.json to write")) -> None:
@@ -163,8 +163,8 @@ def kinect(folder: Path = typer.Argument(..., help="capture folder with kinect/r
 
 @app.command("export")
 def export(cameras: Path = typer.Argument(..., help="cameras.json"),
-           easymocap: Optional[Path] = typer.Option(None, help="folder for intri.yml / extri.yml"),
-           colmap: Optional[Path] = typer.Option(None, help="folder for a COLMAP text model")) -> None:
+           easymocap: Path | None = typer.Option(None, help="folder for intri.yml / extri.yml"),
+           colmap: Path | None = typer.Option(None, help="folder for a COLMAP text model")) -> None:
     """Convert cameras.json to EasyMocap YAML and/or a COLMAP text model."""
     from bodystudio.calib.io import save_colmap_model, save_easymocap_yaml
     from bodystudio.geometry.camera import load_cameras_json
@@ -198,7 +198,7 @@ def synth_calibration(out: Path = typer.Argument(..., help="output capture folde
                       poses: int = typer.Option(30, help="board poses (frame 0 lies on the floor)"),
                       seed: int = typer.Option(0),
                       width: int = typer.Option(1280), height: int = typer.Option(960),
-                      kinect: Optional[str] = typer.Option(None, help="also render a Kinect (v1 or v2): colour "
+                      kinect: str | None = typer.Option(None, help="also render a Kinect (v1 or v2): colour "
                                                                       "and depth of every board pose")) -> None:
     """Render a ChArUco calibration capture of the studio ring with ground truth (OUT/gt/cameras.json)."""
     from bodystudio.calib.synthetic import write_synthetic_calibration
@@ -212,11 +212,11 @@ def synth_calibration(out: Path = typer.Argument(..., help="output capture folde
 @eval_cli.app.command("calib")
 def eval_calib(est: Path = typer.Argument(..., help="estimated cameras.json"),
                gt: Path = typer.Argument(..., help="ground-truth cameras.json"),
-               report: Optional[Path] = typer.Option(None, help="calibration report (default: EST.report.json)"),
+               report: Path | None = typer.Option(None, help="calibration report (default: EST.report.json)"),
                align: str = typer.Option("floor", help="floor: compare world frames as they are; similarity: "
                                                        "Umeyama-align camera centres first"),
-               kinect: Optional[list[Path]] = typer.Option(None, help="estimated and ground-truth Kinect "
-                                                                      "calibration.json (give the option twice)")) -> None:
+               kinect: list[Path] | None = typer.Option(
+                   None, help="estimated and ground-truth Kinect calibration.json (give the option twice)")) -> None:
     """Score a calibration against ground truth; prints JSON (overall means, worst camera, per camera)."""
     from bodystudio.calib.evaluate import evaluate_calibration, evaluate_rgbd_sensor
     from bodystudio.capture.session import load_kinect_calibration

@@ -12,10 +12,9 @@ from bodystudio.calib.board import (
     write_board_pdf,
     write_board_png,
 )
-from bodystudio.calib.synthetic import render_board_view, visible_corners
+from bodystudio.calib.synthetic import board_pose_facing, render_board_view, visible_corners
 from bodystudio.errors import InputError
 from bodystudio.geometry.camera import Camera
-from bodystudio.calib.synthetic import board_pose_facing
 
 
 def test_spec_validation_and_json(tmp_path):

@@ -62,7 +62,7 @@ def test_rodrigues_matches_opencv():
     rv = np.random.default_rng(3).normal(size=(20, 3))
     rv[0] = 0
     ours = rodrigues(rv)
-    for v, R in zip(rv, ours):
+    for v, R in zip(rv, ours, strict=True):
         np.testing.assert_allclose(R, cv2.Rodrigues(v)[0], atol=1e-12)
 
 
@@ -74,7 +74,7 @@ def test_camera_never_covisible_is_named(small_capture):
         if c == 2:
             continue
         views[(c, f)] = (obs.corner_id[idx], obs.uv[idx])
-    lone = next(((c, f) for (c, f) in obs.views() if c == 2))
+    lone = next((c, f) for (c, f) in obs.views() if c == 2)
     idx = obs.views()[lone]
     views[(2, obs.n_frames)] = (obs.corner_id[idx], obs.uv[idx])
     for k in range(1, 4):  # enough views for its intrinsics

@@ -12,7 +12,7 @@ from bodystudio.geometry.camera import Camera, CameraRig, ring_rig
 
 def _assert_same(a: CameraRig, b: CameraRig, tol: float) -> None:
     assert a.names == b.names
-    for ca, cb in zip(a, b):
+    for ca, cb in zip(a, b, strict=True):
         np.testing.assert_allclose(cb.K, ca.K, atol=tol, rtol=0)
         np.testing.assert_allclose(cb.dist, ca.dist, atol=tol, rtol=0)
         np.testing.assert_allclose(cb.R, ca.R, atol=tol, rtol=0)
