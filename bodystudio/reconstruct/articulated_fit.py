@@ -6,7 +6,7 @@ estimator the paper borrows from OpenNI by an articulated ICP of our own skinned
 hull (:mod:`bodystudio.reconstruct.visual_hull`):
 
 - unknowns: root translation and rotation and the local rotations of the main bones (spine, neck,
-  upper and lower arms, thighs, calves); all other bones keep the initial pose;
+  clavicles, upper and lower arms, thighs, calves); all other bones keep the initial pose;
 - data terms, re-matched every iteration: template vertex -> closest hull surface point and hull
   surface point -> closest template vertex, both point-to-plane, with normal compatibility and Huber
   weights (the hull is a superset of the body, so template points inside the hull are down-weighted);
@@ -41,8 +41,8 @@ from bodystudio.reconstruct.visual_hull import VisualHull, visual_hull
 log = logging.getLogger(__name__)
 
 #: Bones whose rotations the fit estimates (plus the root translation).
-FIT_BONES = ("Root", "spine_02", "neck_01", "upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r",
-             "thigh_l", "thigh_r", "calf_l", "calf_r")
+FIT_BONES = ("Root", "spine_02", "neck_01", "clavicle_l", "clavicle_r", "upperarm_l", "upperarm_r",
+             "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
 #: Kinect v2 joints the fitted bones determine (hands, feet tips and thumbs follow unfitted bones).
 MAJOR_JOINTS = ("SpineBase", "SpineMid", "Neck", "Head", "SpineShoulder", "ShoulderLeft", "ElbowLeft",
                 "WristLeft", "ShoulderRight", "ElbowRight", "WristRight", "HipLeft", "KneeLeft", "AnkleLeft",
@@ -63,7 +63,7 @@ class ArticulatedFitParams:
     """
 
     iterations: int = 40
-    coarse_iterations: int = 12
+    coarse_iterations: int = 10
     robust_m: float = 0.03
     robust_start_m: float = 0.03
     inside_weight: float = 0.5
@@ -73,7 +73,7 @@ class ArticulatedFitParams:
     max_step_m: float = 0.10
     hull_samples: int = 3000
     yaw_candidates_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
-    arm_raise_candidates_deg: tuple[float, ...] = (0.0, 50.0, 100.0)
+    arm_raise_candidates_deg: tuple[float, ...] = (45.0, 90.0)
     tolerance: float = 1e-4
 
 
