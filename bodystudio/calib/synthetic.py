@@ -220,6 +220,18 @@ def write_png(path: Path, img: np.ndarray) -> None:
         f.write(buf.tobytes())
 
 
+def board_for_resolution(image_width: int) -> CharucoBoardSpec:
+    """The studio board (about 1.0 x 0.7 m) with a pattern the cameras can decode on the floor.
+
+    Below ~1000 px wide the default 100 mm squares lying on the floor are too foreshortened for the
+    upper ring cameras to decode the markers (measured: floor board found by 0 of 4 cameras at 640x480);
+    7x5 squares of 140 mm are (2 of 2 upper cameras).
+    """
+    if image_width < 1000:
+        return CharucoBoardSpec(7, 5, 0.14, 0.105)
+    return CharucoBoardSpec()
+
+
 def write_synthetic_calibration(out: str | os.PathLike, n_cameras: int = 10, n_poses: int = 30, seed: int = 0,
                                 width: int = 1280, height: int = 960, spec: CharucoBoardSpec | None = None,
                                 rig: CameraRig | None = None, progress=None, kinect: str | None = None) -> dict:
@@ -228,9 +240,9 @@ def write_synthetic_calibration(out: str | os.PathLike, n_cameras: int = 10, n_p
     Kinect's colour and depth views are written too (``kinect/rgb``, ``kinect/depth``, ``gt/kinect.json``).
     Returns a summary dict."""
     out = Path(out)
-    spec = spec or CharucoBoardSpec()
     rng = np.random.default_rng(seed)
     rig = rig or ring_rig(n_cameras, width=width, height=height)
+    spec = spec or board_for_resolution(min(c.width for c in rig))
     poses = calibration_board_poses(rig, spec, n_poses, rng)
     total = len(rig) * len(poses)
     task = progress.add_task("rendering calibration images", total=total) if progress is not None else None

@@ -79,3 +79,19 @@ def test_back_of_board_is_not_detected():
     pose = board_pose_facing([0, 1.0, 0], [0, 0, -1.0], 0.0, spec)  # printed face away from the camera
     assert visible_corners(cam, spec, pose).sum() == 0
     assert detect_charuco(render_board_view(cam, spec, pose, np.random.default_rng(0)), spec).n_corners == 0
+
+
+def test_floor_board_is_detected_by_upper_cameras_at_vga():
+    """The world frame needs the floor board: the board chosen for 640x480 rigs must decode there."""
+    from bodystudio.calib.synthetic import board_for_resolution
+    from bodystudio.calib.world import floor_board_to_world
+    from bodystudio.geometry.camera import ring_rig
+
+    rig = ring_rig(4, width=640, height=480)
+    spec = board_for_resolution(640)
+    upper = rig["cam_01"]  # odd cameras stand on the upper ring
+    pose = floor_board_to_world(spec)
+    det = detect_charuco(render_board_view(upper, spec, pose, np.random.default_rng(0)), spec)
+    assert det.n_corners >= 6
+    truth = upper.project(board_corners(spec)[det.corner_ids] @ pose[:3, :3].T + pose[:3, 3])
+    assert np.sqrt(((det.corners_px - truth) ** 2).sum(1).mean()) < 0.6
