@@ -16,7 +16,11 @@ from bodystudio.calib.baseline import chained_stereo_calibration
 from bodystudio.calib.board import CharucoBoardSpec
 from bodystudio.calib.calibrate import CalibrationOptions, calibrate_cameras
 from bodystudio.calib.evaluate import evaluate_calibration
-from bodystudio.calib.synthetic import calibration_board_poses, synthetic_charuco_observations
+from bodystudio.calib.synthetic import (
+    board_for_resolution,
+    calibration_board_poses,
+    synthetic_charuco_observations,
+)
 from bodystudio.geometry.camera import ring_rig
 
 NOISE_PX = 0.2
@@ -29,7 +33,7 @@ def _row(label: str, scores: dict, rms: float | str, expected: float | str, seco
 
 
 def _synthetic_case(n_cameras: int, n_poses: int, width: int, height: int, seed: int, repeats: int):
-    spec = CharucoBoardSpec()
+    spec = board_for_resolution(width)
     rig = ring_rig(n_cameras, width=width, height=height)
     rng = np.random.default_rng(seed)
     poses = calibration_board_poses(rig, spec, n_poses, rng)
@@ -47,6 +51,22 @@ def _synthetic_case(n_cameras: int, n_poses: int, width: int, height: int, seed:
     seconds = median_seconds(lambda: chained_stereo_calibration(obs, spec), repeats=repeats, warmup=0)
     rows.append(_row("chained cv2.stereoCalibrate", evaluate_calibration(chained, rig), "-", "-", seconds))
     return rows, len(obs)
+
+
+def _noise_scaling(n_cameras: int, n_poses: int) -> str:
+    """Errors against corner noise on one capture: zero at zero noise and linear in it means no bias."""
+    spec = CharucoBoardSpec()
+    rig = ring_rig(n_cameras, width=1280, height=960)
+    poses = calibration_board_poses(rig, spec, n_poses, np.random.default_rng(1))
+    rows = []
+    for noise in (0.0, 0.05, 0.2):
+        obs = synthetic_charuco_observations(rig, spec, poses, noise, np.random.default_rng(5))
+        result = calibrate_cameras(obs, spec)
+        s = evaluate_calibration(result.rig, rig)
+        rows.append([noise, result.rms_px, s["overall"]["center_err_mm"], s["max"]["center_err_mm"],
+                     s["overall"]["rot_err_deg"], s["max"]["rot_err_deg"], s["max"]["focal_err_pct"]])
+    return markdown_table(["noise px", "RMS px", "centre mm (mean)", "centre mm (max)", "rot deg (mean)",
+                           "rot deg (max)", "focal % (max)"], rows)
 
 
 def _rendered_case(tmp, n_cameras: int, n_poses: int) -> list:
@@ -114,9 +134,16 @@ def run(quick: bool = False) -> str:
             "",
             markdown_table(header, rows),
             "",
-            f"Same layout at 640x480 ({n_obs_vga} observations, single run):",
+            f"Same layout at 640x480 with the VGA board (7x5 squares of 0.14 m; {n_obs_vga} observations, "
+            "single run):",
             "",
             markdown_table(header, rows_vga),
+            "",
+            "Error against corner noise (same poses, fresh noise): the bundle adjustment recovers the rig "
+            "exactly from exact corners and its error grows linearly with the noise, i.e. what remains is "
+            "the information 30 poses carry, not a bias:",
+            "",
+            _noise_scaling(n_cams, n_poses),
             "",
             f"Image pipeline: {rendered[0]} ({n_det} corners detected, {n_out} rejected as outliers; rendering "
             f"took {t_render:.1f} s, detection {t_detect:.1f} s, single run):",
