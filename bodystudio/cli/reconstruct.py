@@ -32,6 +32,7 @@ def reconstruct(
     inner: int = typer.Option(8, help="inner solver iterations Ni"),
     tau: float = typer.Option(30.0, help="contour search range tau (pixels)"),
     alpha: float = typer.Option(40.0, help="silhouette weight width alpha (pixels)"),
+    warm_start: bool = typer.Option(True, help="carry the subject's shape over from previous frames"),
     score: bool = typer.Option(True, help="score against ground truth when the session has it"),
 ) -> None:
     """Deform the template to every frame's silhouettes (Rapid Skin); writes SESSION/reconstruct/."""
@@ -45,7 +46,8 @@ def reconstruct(
                              solver=solver, constraints=_constraints(constraints))
     summary = reconstruct_session(session, solver=solver, template=template, joints=joints,
                                   constraints=params.constraints, frames=frames, joints_path=joints_path,
-                                  params=params, score=score, progress=True)
+                                  params=params, warm_start=warm_start, score=score,
+                                  progress=True)
     table = Table(title=f"Rapid Skin: {session} ({solver}, {template}, {constraints})")
     table.add_column("figure")
     table.add_column("value", justify="right")

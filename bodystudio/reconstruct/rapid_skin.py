@@ -70,11 +70,13 @@ class DeformResult:
 def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: dict | None,
                            params: RapidSkinParams = RapidSkinParams(), depth: DepthObservation | None = None,
                            delta: DeltaOperator | None = None, lme: LMESystem | None = None,
-                           callback=None) -> DeformResult:
+                           smooth_reference: np.ndarray | None = None, callback=None) -> DeformResult:
     """Algorithm 1 of Rapid Skin: deform ``V_init`` until its rims match the silhouettes in ``masks``.
 
     ``cameras`` is an iterable of ``Camera``; ``masks`` maps camera names to ``(H, W)`` silhouettes.
     ``depth`` adds point-to-plane constraints when ``"depth"`` is in ``params.constraints``.
+    ``smooth_reference`` is the mesh whose delta coordinates the smoothness constraints keep
+    (default ``V_init``, Algorithm 1 line 1); ``delta`` may carry its precomputed cotangent weights.
     ``callback(outer, V)`` sees the mesh after every outer iteration.
     """
     cameras = list(cameras)
@@ -88,10 +90,11 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
         raise InputError("depth constraints need a Kinect depth observation; the session has none "
                          "(use --constraints silhouette)")
     V = np.array(V_init, dtype=np.float64)
+    reference = V if smooth_reference is None else np.asarray(smooth_reference, dtype=np.float64)
     if delta is None:
-        delta, delta_rest = cotangent_delta_coordinates(V, F)
+        delta, delta_rest = cotangent_delta_coordinates(reference, F)
     else:
-        delta_rest = delta.apply(V)
+        delta_rest = delta.apply(reference)
     if params.solver in ("cholesky", "cg") and lme is None:
         t0 = time.perf_counter()
         lme = LMESystem(delta)

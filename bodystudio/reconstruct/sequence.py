@@ -163,7 +163,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     F = body.faces
     regions = vertex_regions(body) if score else None
     out_dir = session.path / OUTPUT_DIR
-    rest = body.vertices.copy()
+    rest = body.vertices
+    shape_sum, n_seen = body.vertices.copy(), 1
     records = []
     with progress_bar(progress) as bar:
         task = bar.add_task(f"rapid skin {solver} {template}", total=len(selected))
@@ -172,6 +173,9 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
             J = frame_joints(session, frame, joints, Path(joints_path) if joints_path else None)
             t0 = time.perf_counter()
             init = initialise_pose(body, J, rest_vertices=rest)
+            # The smoothness prior keeps the generic template's delta coordinates, so shape errors in
+            # regions no silhouette sees are not baked in and carried from frame to frame.
+            reference = init.vertices if rest is body.vertices else initialise_pose(body, J).vertices
             t_init = time.perf_counter() - t0
             depth = None
             if "depth" in params.constraints:
@@ -183,12 +187,17 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
             masks = None
             if "silhouette" in params.constraints:
                 masks = {name: frame.masks[name] for name in frame.masks}
-            delta = cotangent_weights(init.vertices, F)
-            result = deform_to_observations(init.vertices, F, cameras, masks, params, depth=depth, delta=delta)
+            delta = cotangent_weights(reference, F)
+            result = deform_to_observations(init.vertices, F, cameras, masks, params, depth=depth, delta=delta,
+                                            smooth_reference=reference)
             V = result.vertices
             save_mesh(out_dir / "meshes" / f"{fid:05d}.ply", Mesh(V, F))
             if warm_start:
-                rest = unpose(V, body.weights, init.bone_transforms)
+                # Running mean of the un-skinned results: the subject's shape accumulates while each
+                # frame's correction of its own tracker-joint error (independent per frame) averages out.
+                n_seen += 1
+                shape_sum += unpose(V, body.weights, init.bone_transforms)
+                rest = shape_sum / n_seen
             rec = {"frame": fid, "solver_ms": 1000 * result.solver_s, "matching_ms": 1000 * result.matching_s,
                    "init_ms": 1000 * t_init, "n_silhouette": result.n_silhouette, "n_depth": result.n_depth,
                    "ms_per_frame": 1000 * (result.solver_s + result.matching_s + t_init)}
