@@ -352,7 +352,8 @@ def _fmt(v: Any) -> str:
 def _table_html(t: Table) -> str:
     head = "".join(f"<th>{html.escape(str(c))}</th>" for c in t.columns)
     body = "".join("<tr>" + "".join(f"<td>{_fmt(v)}</td>" for v in row) + "</tr>" for row in t.rows)
-    return f"<h3>{html.escape(t.title)}</h3><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>\n"
+    return (f'<h3>{html.escape(t.title)}</h3><div class="scroll"><table><thead><tr>{head}</tr></thead>'
+            f"<tbody>{body}</tbody></table></div>\n")
 
 
 def _img_tag(png: bytes, alt: str) -> str:
@@ -365,7 +366,7 @@ h1{font-size:22px}h2{font-size:18px;border-bottom:1px solid #ccc;padding-bottom:
 h3{font-size:14px;margin:16px 0 4px}table{border-collapse:collapse;font-size:13px;margin-bottom:8px}
 td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}th{background:#eee}td:first-child{text-align:left}
 .grid{display:flex;flex-wrap:wrap;gap:12px}.grid figure{margin:0}.grid img{max-width:540px;border:1px solid #ddd}
-figcaption{font-size:12px;color:#555}.meta{color:#666;font-size:13px}
+figcaption{font-size:12px;color:#555}.meta{color:#666;font-size:13px}.scroll{overflow-x:auto;max-width:100%}
 """
 
 
