@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -12,12 +11,12 @@ from bodystudio.errors import InputError
 
 def view(
     path: Path = typer.Argument(..., help="session folder, mesh/scan (.ply .obj .stl .off .glb) or avatar (.glb)"),
-    bone: Optional[str] = typer.Option(None, "--bone", help="show the skin weights of this bone (avatars)"),
-    frame: Optional[int] = typer.Option(None, "--frame", help="session frame to show first"),
+    bone: str | None = typer.Option(None, "--bone", help="show the skin weights of this bone (avatars)"),
+    frame: int | None = typer.Option(None, "--frame", help="session frame to show first"),
     images: str = typer.Option("image", "--images", help="what camera frusta show: image | mask | none"),
-    reference: Optional[Path] = typer.Option(None, "--reference", help="ground-truth mesh: colour PATH by error (mm)"),
-    screenshot: Optional[Path] = typer.Option(None, "--screenshot", help="render offscreen to this PNG and exit"),
-    html: Optional[Path] = typer.Option(None, "--html", help="write a standalone HTML page of the scene and exit"),
+    reference: Path | None = typer.Option(None, "--reference", help="ground-truth mesh: colour PATH by error (mm)"),
+    screenshot: Path | None = typer.Option(None, "--screenshot", help="render offscreen to this PNG and exit"),
+    html: Path | None = typer.Option(None, "--html", help="write a standalone HTML page of the scene and exit"),
     size: str = typer.Option("1024x768", "--size", help="window / screenshot size WxH"),
 ) -> None:
     """Open a session, mesh, scan or avatar in the 3D viewer (or save a screenshot / HTML page)."""
