@@ -356,6 +356,14 @@ def _table_html(t: Table) -> str:
             f"<tbody>{body}</tbody></table></div>\n")
 
 
+def _png_bytes(image: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG")
+    return buf.getvalue()
+
+
 def _img_tag(png: bytes, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode("ascii")}">'
 
@@ -377,6 +385,7 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
     ``scenes`` (caption, plotter) pairs override the embedded 3D views (by default a session, avatar or
     mesh found under ``path``); ``notes`` are shown at the top (e.g. which stages ran).
     """
+    from bodystudio.viewer.scene import render_image
     from bodystudio.viewer.webgl import page_head, scene_payload, viewer_fragment
 
     root = Path(path)
@@ -411,6 +420,8 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
             if caption:
                 view_html += f"<h3>{html.escape(caption)}</h3>"
             view_html += viewer_fragment(scene_payload(scene), f"view3d_{k}")
+            if owned and not shots:  # a still of the view, for readers without WebGL
+                shots.append(("3D view (rendered)", _png_bytes(render_image(scene))))
             if owned:
                 scene.close()
     title = title or f"bodystudio report: {root.resolve().name}"

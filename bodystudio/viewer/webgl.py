@@ -177,6 +177,7 @@ VIEWER_CSS = """
 .bs-view{position:relative;width:100%;max-width:1100px;aspect-ratio:4/3;background:#292b33;border-radius:6px;overflow:hidden}
 .bs-view canvas{width:100%;height:100%;display:block;cursor:grab;touch-action:none}
 .bs-help{position:absolute;left:8px;bottom:6px;color:#ddd;font:12px sans-serif;opacity:.8;pointer-events:none}
+.bs-msg{position:absolute;left:20px;top:20px;color:#f88;font:14px sans-serif}
 .bs-bar{position:absolute;right:10px;top:15%;height:60%;width:130px;color:#eee;font:12px sans-serif;pointer-events:none}
 .bs-bar .grad{position:absolute;left:0;top:18px;bottom:0;width:18px;border:1px solid #ccc}
 .bs-bar .t{position:absolute;top:0;left:0;white-space:nowrap;font-weight:bold}
@@ -316,7 +317,9 @@ window.addEventListener("error",function(e){window.bodystudioErrors.push(String(
 function bodystudioMount(id){try{var c=document.getElementById(id);
   bodystudioView(c,JSON.parse(document.getElementById(id+"-data").textContent));
   var n=Number(document.body.getAttribute("data-views-drawn")||0)+1;document.body.setAttribute("data-views-drawn",String(n));}
-  catch(e){window.bodystudioErrors.push(id+": "+e.message);}bodystudioStatus();}
+  catch(e){window.bodystudioErrors.push(id+": "+e.message);var m=document.createElement("div");m.className="bs-msg";
+    m.textContent="3D view unavailable: "+e.message;var c2=document.getElementById(id);if(c2&&c2.parentNode)c2.parentNode.appendChild(m);}
+  bodystudioStatus();}
 """  # noqa: E501  (inline script and style)
 
 
