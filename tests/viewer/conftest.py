@@ -38,7 +38,7 @@ def chromium_binary() -> str | None:
     return None
 
 
-def run_chromium(html_path: Path, size=(1200, 1000), timeout: float = 90.0) -> dict:
+def run_chromium(html_path: Path, size=(1200, 1000), timeout: float = 90.0, extra_flags=(), screenshot=True) -> dict:
     """Load a page headless: its DOM after scripts ran, console lines, and a screenshot (H, W, 3)."""
     from PIL import Image
 
@@ -47,21 +47,27 @@ def run_chromium(html_path: Path, size=(1200, 1000), timeout: float = 90.0) -> d
         pytest.skip("headless Chromium not installed (Debian package 'chromium'; `make setup` installs it)")
     url = Path(html_path).resolve().as_uri()
     with tempfile.TemporaryDirectory() as profile:
-        base = [exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}",
-                "--virtual-time-budget=8000"]
+        base = [exe, *CHROMIUM_FLAGS, *extra_flags, f"--user-data-dir={profile}",
+                f"--window-size={size[0]},{size[1]}", "--virtual-time-budget=8000"]
         dom = subprocess.run([*base, "--enable-logging=stderr", "--v=0", "--dump-dom", url], capture_output=True,
                              text=True, timeout=timeout)
+    image = None
+    if not screenshot:
+        return {"dom": dom.stdout, "console": _console(dom.stderr), "stderr": dom.stderr, "screenshot": image}
     with tempfile.TemporaryDirectory() as profile:
         shot = Path(profile) / "shot.png"
         subprocess.run([exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}/p", f"--window-size={size[0]},{size[1]}",
                         "--virtual-time-budget=8000", f"--screenshot={shot}", url],
                        capture_output=True, timeout=timeout)
         image = np.asarray(Image.open(shot).convert("RGB")) if shot.is_file() else None
+    return {"dom": dom.stdout, "console": _console(dom.stderr), "stderr": dom.stderr, "screenshot": image}
+
+
+def _console(stderr: str) -> list[str]:
     # Chromium's software GL reports its own performance notes ("GL Driver Message (..., Performance,
     # ...): GPU stall due to ReadPixels") through the page console; they are not page errors.
-    console = [line for line in dom.stderr.splitlines()
-               if ":CONSOLE" in line and not ("GL Driver Message" in line and "Performance" in line)]
-    return {"dom": dom.stdout, "console": console, "stderr": dom.stderr, "screenshot": image}
+    return [line for line in stderr.splitlines()
+            if ":CONSOLE" in line and not ("GL Driver Message" in line and "Performance" in line)]
 
 
 def write_skinned_glb(path: Path, V: np.ndarray, F: np.ndarray, weights: np.ndarray, heads: np.ndarray,

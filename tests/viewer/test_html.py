@@ -62,3 +62,12 @@ def test_scene_html_draws_in_headless_chromium(body_mesh, tmp_path, chromium):
     assert is_bg.mean() > 0.3  # the canvas cleared to the scene background
     skin = (canvas.mean(-1) > 120) & ~is_bg
     assert skin.sum() > 2000
+
+
+def test_page_reports_a_browser_without_webgl(body_mesh, tmp_path, chromium):
+    # The status check can fail: with WebGL switched off the page records the error and says so.
+    plotter = scene_for_mesh(body_mesh, plotter=sc.make_plotter(window_size=(320, 240)))
+    out = save_scene_html(plotter, tmp_path / "scene.html")
+    page = chromium(out, extra_flags=("--disable-webgl", "--disable-3d-apis"), screenshot=False)
+    assert 'data-viewer-status="error: view3d: WebGL is not available' in page["dom"]
+    assert "3D view unavailable" in page["dom"]
