@@ -187,6 +187,12 @@ def _new_figure(title: str):
     return fig, ax
 
 
+def _integer_ticks(ax) -> None:
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+
+
 def _frame_records(data: Any) -> list[tuple[str, list[dict]]]:
     """Lists of per-frame records (each with a frame key) anywhere in a JSON tree."""
     found = []
@@ -215,6 +221,7 @@ def plots_from_json(name: str, data: Any) -> list[Plot]:
             for c in cols[:6]:
                 ax.plot(frames, [r[c] for r in records], marker="o", label=c)
             ax.set_xlabel("frame")
+            _integer_ticks(ax)
             ax.set_ylabel("error" + (" (mm)" if any(c.endswith("mm") for c in cols) else ""))
             ax.legend(fontsize=8)
             plots.append(Plot(f"Error per frame ({name})", _figure_png(fig)))
@@ -320,6 +327,7 @@ def session_figures(session_path: Path) -> tuple[list[Plot], list[Table]]:
         for k, label in ((1, "mean"), (3, "p95")):
             ax.plot(f, [r[k] for r in rows], marker="o", label=label)
         ax.set_xlabel("frame")
+        _integer_ticks(ax)
         ax.set_ylabel("error (mm)")
         ax.legend(fontsize=8)
         plots.insert(0, Plot(f"Error per frame ({session.path.name})", _figure_png(fig)))
