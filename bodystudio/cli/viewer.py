@@ -21,15 +21,19 @@ def view(
 ) -> None:
     """Open a session, mesh, scan or avatar in the 3D viewer (or save a screenshot / HTML page)."""
     from bodystudio.viewer.scene import save_screenshot
-    from bodystudio.viewer.views import build_view
+    from bodystudio.viewer.views import build_view, open_viewable
     from bodystudio.viewer.webgl import save_scene_html
 
     window_size = _parse_size(size)
     off_screen = screenshot is not None or html is not None
+    item = open_viewable(path)
+    if not off_screen and not has_display():
+        raise InputError("no display to open a window ($DISPLAY is not set); add --screenshot OUT.png or "
+                         "--html OUT.html, or run under a desktop / ssh -X")
     for out, suffixes in ((screenshot, (".png",)), (html, (".html", ".htm"))):
         if out is not None and out.suffix.lower() not in suffixes:
             raise InputError(f"{out}: output must end in {' or '.join(suffixes)}")
-    plotter = build_view(path, bone=bone, frame=frame, images=images, off_screen=off_screen,
+    plotter = build_view(item, bone=bone, frame=frame, images=images, off_screen=off_screen,
                          window_size=window_size, reference=reference)
     try:
         if not off_screen:
@@ -43,6 +47,16 @@ def view(
             typer.echo(f"wrote {html}")
     finally:
         plotter.close()
+
+
+def has_display() -> bool:
+    """Whether an interactive window can open (X11 or Wayland on Linux; always elsewhere)."""
+    import os
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 def _parse_size(size: str) -> tuple[int, int]:

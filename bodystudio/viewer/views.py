@@ -210,11 +210,11 @@ def add_time_slider(plotter, session, images: str = "image", cloud: bool = True,
     return plotter
 
 
-def build_view(path: str | Path, bone: str | None = None, frame: int | None = None, images: str = "image",
+def build_view(path: str | Path | Viewable, bone: str | None = None, frame: int | None = None, images: str = "image",
                off_screen: bool = True, window_size: tuple[int, int] = sc.WINDOW_SIZE,
                reference: str | Path | None = None):
-    """The plotter ``bodystudio view`` shows for a path (session, mesh, scan or avatar)."""
-    item = open_viewable(path)
+    """The plotter ``bodystudio view`` shows for a path (session, mesh, scan or avatar) or an opened one."""
+    item = path if isinstance(path, Viewable) else open_viewable(path)
     plotter = sc.make_plotter(off_screen=off_screen, window_size=window_size)
     if item.kind == "session":
         scene_for_session(item.data, frame, plotter, images=images)

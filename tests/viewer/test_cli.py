@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from bodystudio.cli.main import main
 from bodystudio.geometry.mesh import save_mesh
@@ -69,3 +70,15 @@ def test_report_cli(tmp_path, capsys):
     assert main(["report", str(tmp_path / "run"), "--out", str(tmp_path / "r.html")]) == 0
     assert "1 tables" in capsys.readouterr().out
     _one_line_error(capsys, ["report", str(tmp_path / "nope"), "--out", str(tmp_path / "r.html")], "nope")
+
+
+def test_view_without_display_asks_for_offscreen_output(tmp_path, body_mesh, capsys, monkeypatch):
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("display detection is for Linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    mesh_path = tmp_path / "scan.ply"
+    save_mesh(mesh_path, body_mesh)
+    _one_line_error(capsys, ["view", str(mesh_path)], "--screenshot", "--html")
