@@ -132,6 +132,19 @@ def _session_bounds(session, gt: Mesh | None) -> np.ndarray:
     return np.array([[-0.5, 0.0, -0.5], [0.5, 1.9, 0.5]])
 
 
+FRAME_LAYERS = ("gt", "recon", "kinect", "gt-skeleton-bones", "gt-skeleton-joints")
+
+
+def _clear_frame_layers(plotter, rig) -> None:
+    """Remove the previous frame's layers, so a frame lacking one (no reconstruction) shows none."""
+    names = set(plotter.renderer.actors)
+    for name in [*FRAME_LAYERS, *(f"camera-{c.name}-image" for c in rig)]:
+        if name in names:
+            plotter.remove_actor(name)
+    if "error (mm)" in plotter.scalar_bars:
+        plotter.remove_scalar_bar("error (mm)")
+
+
 def scene_for_frame(session, frame_id: int, plotter, images: str = "image", cloud: bool = True,
                     skeleton: bool = True):
     """The per-frame layers of a session (replaced when the time slider moves)."""
@@ -139,6 +152,7 @@ def scene_for_frame(session, frame_id: int, plotter, images: str = "image", clou
         raise InputError(f"unknown image layer {images!r}; valid: {', '.join(IMAGE_LAYERS)}")
     frame = session.frame(frame_id)
     rig = session.cameras
+    _clear_frame_layers(plotter, rig)
     for cam in rig:
         picture = None
         if images == "image" and cam.name in frame.images:
@@ -157,9 +171,6 @@ def scene_for_frame(session, frame_id: int, plotter, images: str = "image", clou
         sc.add_mesh(plotter, recon, name="recon")
     elif gt is not None:
         sc.add_mesh(plotter, gt, color=sc.GT_COLOR, name="gt")
-    else:
-        plotter.remove_actor("gt")
-        plotter.remove_actor("recon")
     if cloud:
         sc.add_point_cloud(plotter, kinect_points(session, frame), point_size=2.0, name="kinect", color=KINECT_COLOR)
     joints = frame.gt_joints
