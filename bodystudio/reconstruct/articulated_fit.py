@@ -55,7 +55,9 @@ class ArticulatedFitParams:
 
     ``arm_raise_candidates_deg``: from the A-pose, each arm is also tried reset to the A-pose and raised
     by these angles in the frontal plane (ICP alone does not swing an arm from the body's side to
-    above the shoulder, and may fold the elbow to explain a raised arm);
+    above the shoulder, and may fold the elbow to explain a raised arm); ``fit_scale``: also estimate
+    a uniform scale of the template about the world origin (a generic template for any subject, as
+    Rapid Skin Sec. IV.A scales its template to the tracked skeleton);
     ``robust_m``: Huber threshold of the point-to-plane residuals; ``inside_weight``: weight of template
     points inside the hull (the hull over-estimates the body); ``prior_weight``: weight of the prior on
     local bone rotations (cost per squared radian; a data residual of 1 cm costs 1e-4); ``yaw_candidates_deg``: root yaw
@@ -75,16 +77,22 @@ class ArticulatedFitParams:
     yaw_candidates_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
     arm_raise_candidates_deg: tuple[float, ...] = (45.0, 90.0)
     tolerance: float = 1e-4
+    fit_scale: bool = True
+    max_step_log_scale: float = 0.03
 
 
 @dataclass(frozen=True, eq=False)
 class ArticulatedFit:
-    """Result of one fit: the pose, its Kinect v2 joints (25, 3), the fit error and the iterations run."""
+    """Result of one fit: pose, Kinect v2 joints (25, 3), fit error, iterations run and template scale.
+
+    ``pose`` poses the template scaled by ``scale`` about the world origin (:func:`scaled_body`).
+    """
 
     pose: Pose
     joints: np.ndarray
     fit_error_m: float
     iterations: int
+    scale: float = 1.0
 
 
 def _fit_bone_indices(skeleton) -> np.ndarray:
@@ -173,16 +181,32 @@ def raise_arm(body, pose: Pose, side: str, degrees: float) -> Pose:
     return Pose(rotations, np.array(pose.translation, dtype=np.float64))
 
 
+def scaled_body(body, scale: float):
+    """The template ``body`` uniformly scaled by ``scale`` about the world origin (feet stay on y = 0)."""
+    from dataclasses import replace
+
+    skel = body.skeleton
+    return replace(body, vertices=body.vertices * scale,
+                   skeleton=replace(skel, heads=skel.heads * scale, tails=skel.tails * scale))
+
+
 def articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitParams | None = None,
-                    iterations: int | None = None) -> ArticulatedFit:
-    """Articulated ICP of the skinned template ``body`` to the visual hull from pose ``init`` (Sec. IV)."""
-    # The normal equations are tiny (36 unknowns): multi-threaded BLAS only adds contention.
+                    iterations: int | None = None, scale: float = 1.0) -> ArticulatedFit:
+    """Articulated ICP of the skinned template ``body`` to the visual hull from pose ``init`` (Sec. IV).
+
+    ``init`` poses the template scaled by ``scale`` (the initial scale, refined when ``fit_scale``).
+    """
+    if not scale > 0:
+        raise InputError(f"template scale must be positive, got {scale}")
+    # The normal equations are tiny (40 unknowns): multi-threaded BLAS only adds contention.
     with threadpool_limits(limits=1, user_api="blas"):
-        return _articulated_fit(body, hull, init, params or ArticulatedFitParams(), iterations)
+        return _articulated_fit(body, hull, init, params or ArticulatedFitParams(), iterations, float(scale))
 
 
 def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitParams,
-                     iterations: int | None) -> ArticulatedFit:
+                     iterations: int | None, scale: float) -> ArticulatedFit:
+    # Posing the template scaled by s with root translation t equals s times the unscaled template
+    # posed with translation t / s, so the fit runs on the unscaled template and d v / d log s = v.
     n_iter = params.iterations if iterations is None else iterations
     skel = body.skeleton
     bones = _fit_bone_indices(skel)
@@ -191,10 +215,10 @@ def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitP
     bone_idx, bone_w = _sparse_weights(body.weights)
     Dk = D[bone_idx]  # (n, K, J): influence k of vertex i lies in fitted subtree j
     nJ = len(bones)
-    n_par = 3 + 3 * nJ
+    n_par = 4 + 3 * nJ
     prior = np.asarray(init.rotations, dtype=np.float64)[bones]
     rotations = np.array(init.rotations, dtype=np.float64)
-    translation = np.array(init.translation, dtype=np.float64)
+    translation = np.array(init.translation, dtype=np.float64) / scale  # of the unscaled template
     hull_pts = hull.vertices
     hull_nrm = hull.normals
     step = max(1, len(hull_pts) // max(params.hull_samples, 1))
@@ -209,10 +233,10 @@ def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitP
         robust = params.robust_start_m * (params.robust_m / params.robust_start_m) ** frac
         pose = Pose(rotations, translation)
         C, M = _skin_parts(body, pose, bone_idx, bone_w)
-        V = C.sum(axis=1)
+        V = scale * C.sum(axis=1)
         N = np.nan_to_num(igl.per_vertex_normals(V, body.faces))
         heads = M[bones, :3, 3]
-        lever = np.einsum("nkd,nkj->njd", C, Dk) - a[:, :, None] * heads[None]  # r_ij (n, J, 3)
+        lever = scale * (np.einsum("nkd,nkj->njd", C, Dk) - a[:, :, None] * heads[None])  # r_ij (n, J, 3)
 
         # template -> hull: point-to-plane on the hull's tangent plane
         _, k = hull_tree.query(V)
@@ -220,7 +244,8 @@ def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitP
         ok1 = np.einsum("ij,ij->i", N, n_h) > 0.2
         r1 = np.einsum("ij,ij->i", V - hull_pts[k], n_h)
         w1 = _huber_weights(r1, robust) * np.where(r1 < 0, params.inside_weight, 1.0) * ok1
-        J1 = np.concatenate([n_h, np.cross(lever, n_h[:, None, :]).reshape(len(V), -1)], axis=1)
+        J1 = np.concatenate([scale * n_h, np.einsum("ij,ij->i", n_h, V)[:, None],
+                             np.cross(lever, n_h[:, None, :]).reshape(len(V), -1)], axis=1)
 
         # hull -> template: point-to-plane on the template's tangent plane
         P = hull_pts[sample]
@@ -229,7 +254,8 @@ def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitP
         ok2 = np.einsum("ij,ij->i", n_t, hull_nrm[sample]) > 0.2
         r2 = np.einsum("ij,ij->i", V[i2] - P, n_t)
         w2 = _huber_weights(r2, robust) * ok2
-        J2 = np.concatenate([n_t, np.cross(lever[i2], n_t[:, None, :]).reshape(len(P), -1)], axis=1)
+        J2 = np.concatenate([scale * n_t, np.einsum("ij,ij->i", n_t, V[i2])[:, None],
+                             np.cross(lever[i2], n_t[:, None, :]).reshape(len(P), -1)], axis=1)
 
         J = np.concatenate([J1, J2])
         r = np.concatenate([r1, r2])
@@ -240,42 +266,51 @@ def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitP
         local_frames = M[bones, :3, :3] @ Rotation.from_rotvec(rotations[bones]).as_matrix().transpose(0, 2, 1)
         for j in range(1, nJ):
             Pj = local_frames[j]
-            cols = slice(3 + 3 * j, 6 + 3 * j)
+            cols = slice(4 + 3 * j, 7 + 3 * j)
             rp = prior_sqrt * (rotations[bones[j]] - prior[j])
             Jp = prior_sqrt * Pj.T
             H[cols, cols] += Jp.T @ Jp
             g[cols] += Jp.T @ rp
+        if not params.fit_scale:
+            H[3, :], H[:, 3], g[3] = 0.0, 0.0, 0.0
         H[np.diag_indices(n_par)] += params.damping * (np.diag(H).mean() + 1e-12)
         delta = -np.linalg.solve(H, g)
-        dt = delta[:3]
-        dw = delta[3:].reshape(nJ, 3)
+        dt, dlog_s = delta[:3], delta[3]
+        dw = delta[4:].reshape(nJ, 3)
         # Clamp the step (Gauss-Newton on a linearised rotation is only trusted near the current pose).
-        scale = min(1.0, params.max_step_m / max(np.linalg.norm(dt), 1e-12),
-                    params.max_step_rad / max(np.linalg.norm(dw, axis=1).max(), 1e-12))
-        dt, dw = dt * scale, dw * scale
+        shrink = min(1.0, params.max_step_m / max(np.linalg.norm(dt) * scale, 1e-12),
+                     params.max_step_rad / max(np.linalg.norm(dw, axis=1).max(), 1e-12),
+                     params.max_step_log_scale / max(abs(dlog_s), 1e-12))
+        dt, dw, dlog_s = dt * shrink, dw * shrink, dlog_s * shrink
+        # world-frame increments: v -> v + s dt + v dlog_s + dw x lever; in the unscaled frame the
+        # translation moves by dt and, as all of v is scaled, nothing else changes
         translation = translation + dt
+        scale *= float(np.exp(dlog_s))
         for j, b in enumerate(bones):
             local = Rotation.from_rotvec(local_frames[j].T @ dw[j]) * Rotation.from_rotvec(rotations[b])
             rotations[b] = local.as_rotvec()
-        if np.linalg.norm(dt) < params.tolerance and np.abs(dw).max() < params.tolerance * 10:
+        if (np.linalg.norm(dt) * scale < params.tolerance and np.abs(dw).max() < params.tolerance * 10
+                and abs(dlog_s) < params.tolerance):
             break
     pose = Pose(rotations, translation)
     V, _ = body.pose(pose)
     heads, tails = posed_joints(skel, pose)
-    joints = kinect_joints(skel, heads, tails, "v2")
-    return ArticulatedFit(pose, joints, symmetric_hull_distance(V, body.faces, hull), it)
+    joints = scale * kinect_joints(skel, heads, tails, "v2")
+    return ArticulatedFit(Pose(rotations, scale * translation), joints,
+                          symmetric_hull_distance(scale * V, body.faces, hull), it, scale)
 
 
 def fit_body_to_hull(body, hull: VisualHull, previous_pose: Pose | None = None,
-                     params: ArticulatedFitParams | None = None) -> ArticulatedFit:
-    """Pose of ``body`` fitted to ``hull``: warm-started from ``previous_pose``, else from the A-pose at the
-    hull centroid under each candidate root yaw (the best after a coarse fit is refined)."""
+                     params: ArticulatedFitParams | None = None, previous_scale: float = 1.0) -> ArticulatedFit:
+    """Pose of ``body`` fitted to ``hull``: warm-started from ``previous_pose`` (of the template scaled by
+    ``previous_scale``, as a previous :class:`ArticulatedFit` gives them), else from the A-pose at the
+    hull centroid under each candidate root yaw, then per-arm raise hypotheses, the best refined."""
     params = params or ArticulatedFitParams()
     if previous_pose is not None:
         if previous_pose.rotations.shape != (body.skeleton.n_bones, 3):
             raise InputError(f"previous pose has {len(previous_pose.rotations)} bones, the body "
                              f"{body.skeleton.n_bones}")
-        return articulated_fit(body, hull, previous_pose, params)
+        return articulated_fit(body, hull, previous_pose, params, scale=previous_scale)
     if not params.yaw_candidates_deg:
         raise InputError("articulated fit from the A-pose needs at least one root yaw candidate")
     candidates = [articulated_fit(body, hull, a_pose_at_hull(body, hull, yaw), params, params.coarse_iterations)
@@ -289,26 +324,28 @@ def fit_body_to_hull(body, hull: VisualHull, previous_pose: Pose | None = None,
             reset[body.skeleton.index(bone)] = 0.0
         straight = Pose(reset, best.pose.translation)
         trials = [articulated_fit(body, hull, raise_arm(body, straight, side, deg), params,
-                                 params.coarse_iterations) for deg in params.arm_raise_candidates_deg]
+                                  params.coarse_iterations, best.scale) for deg in params.arm_raise_candidates_deg]
         for trial in trials:
             if trial.fit_error_m < best.fit_error_m:
                 best = trial
         log.debug("hull fit: arm %s raise candidates -> fit errors %s m", side,
                   np.round([t.fit_error_m for t in trials], 4))
-    refined = articulated_fit(body, hull, best.pose, params)
+    refined = articulated_fit(body, hull, best.pose, params, scale=best.scale)
     return refined if refined.fit_error_m <= best.fit_error_m else best
 
 
 def hull_joints(cameras, masks, body, previous_pose: Pose | None = None, voxel_m: float = 0.015,
-                params: ArticulatedFitParams | None = None, bounds=None) -> tuple[np.ndarray, Pose, float]:
+                params: ArticulatedFitParams | None = None, bounds=None,
+                previous_scale: float = 1.0) -> tuple[np.ndarray, Pose, float]:
     """Kinect v2 joints ``(25, 3)`` from silhouettes alone, Rapid Skin contribution 4 / Sec. IV.
 
     Visual hull of ``masks`` (camera name -> (H, W) bool) seen by ``cameras``, then the articulated fit
     of ``body`` to it. Returns ``(joints_v2, pose, fit_error_m)``; pass ``pose`` of one frame as
-    ``previous_pose`` of the next.
+    ``previous_pose`` of the next (the template scale is re-estimated every frame; pass the previous
+    :attr:`ArticulatedFit.scale` as ``previous_scale`` to start from it, see :func:`fit_body_to_hull`).
     """
     hull = visual_hull(cameras, masks, bounds=bounds, voxel_m=voxel_m)
-    fit = fit_body_to_hull(body, hull, previous_pose, params)
+    fit = fit_body_to_hull(body, hull, previous_pose, params, previous_scale)
     return fit.joints, fit.pose, fit.fit_error_m
 
 
