@@ -24,7 +24,7 @@ def reconstruct(
     session: Path = typer.Argument(..., help="capture session folder"),
     solver: str = typer.Option("gs", help="gs | jacobi | cholesky | cg"),
     template: str = typer.Option("13k", help="template resolution: 13k | 6k | 2k"),
-    joints: str = typer.Option("tracker", help="joint source: tracker (session Kinect joints) | file"),
+    joints: str = typer.Option("tracker", help="joint source: tracker (session Kinect joints) | file | hull (visual hull fit)"),
     joints_path: Path | None = typer.Option(None, help="folder of NNNNN.json joint files for --joints file"),
     constraints: str = typer.Option("silhouette", help="silhouette, depth or silhouette,depth"),
     frames: str | None = typer.Option(None, help="frame range A:B (B exclusive)"),

@@ -37,7 +37,7 @@ from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observa
 log = logging.getLogger(__name__)
 
 TEMPLATES = {"13k": "full", "6k": "6k", "2k": "2k", "full": "full", "2.5k": "2k"}
-JOINT_SOURCES = ("tracker", "file")
+JOINT_SOURCES = ("tracker", "file", "hull")
 OUTPUT_DIR = "reconstruct"
 #: Kinect v1 joint names that have a v2 counterpart.
 V1_TO_V2 = {"HipCenter": "SpineBase", "Spine": "SpineMid", "ShoulderCenter": "SpineShoulder"}
@@ -143,8 +143,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     if template not in TEMPLATES:
         raise InputError(f"unknown template {template!r}; valid: 13k, 6k, 2k")
     if joints not in JOINT_SOURCES:
-        raise InputError(f"unknown joint source {joints!r}; valid: {', '.join(JOINT_SOURCES)} "
-                         "(visual-hull joints are not implemented)")
+        raise InputError(f"unknown joint source {joints!r}; valid: {', '.join(JOINT_SOURCES)}")
     if joints == "file" and joints_path is None:
         raise InputError("--joints file needs --joints-path DIR with NNNNN.json files ({names, positions})")
     session = open_session(path)
@@ -165,12 +164,25 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     out_dir = session.path / OUTPUT_DIR
     rest = body.vertices
     shape_sum, n_seen = body.vertices.copy(), 1
+    hull_body, hull_pose = None, None
     records = []
     with progress_bar(progress) as bar:
         task = bar.add_task(f"rapid skin {solver} {template}", total=len(selected))
         for fid in selected:
             frame = session.frame(fid)
-            J = frame_joints(session, frame, joints, Path(joints_path) if joints_path else None)
+            masks = None
+            if "silhouette" in params.constraints or joints == "hull":
+                masks = {name: frame.masks[name] for name in frame.masks}
+            if joints == "hull":
+                # Rapid Skin contribution 4: joints from the silhouettes' visual hull (articulated fit of a
+                # 2.5K template, warm-started from the previous frame's pose).
+                from bodystudio.reconstruct.articulated_fit import hull_joints
+
+                if hull_body is None:
+                    hull_body = build_body(resolution="2k")
+                J, hull_pose, _ = hull_joints(cameras, masks, hull_body, previous_pose=hull_pose)
+            else:
+                J = frame_joints(session, frame, joints, Path(joints_path) if joints_path else None)
             t0 = time.perf_counter()
             init = initialise_pose(body, J, rest_vertices=rest)
             # The smoothness prior keeps the generic template's delta coordinates, so shape errors in
@@ -184,9 +196,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                     raise SessionError(f"{session.path} frame {fid}: no Kinect depth image; "
                                        "use --constraints silhouette")
                 depth = depth_observation(D, sensor.depth)
-            masks = None
-            if "silhouette" in params.constraints:
-                masks = {name: frame.masks[name] for name in frame.masks}
+            if "silhouette" not in params.constraints:
+                masks = None
             delta = cotangent_weights(reference, F)
             result = deform_to_observations(init.vertices, F, cameras, masks, params, depth=depth, delta=delta,
                                             smooth_reference=reference)
