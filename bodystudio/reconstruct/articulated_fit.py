@@ -43,6 +43,7 @@ log = logging.getLogger(__name__)
 #: Bones whose rotations the fit estimates (plus the root translation).
 FIT_BONES = ("Root", "spine_02", "neck_01", "clavicle_l", "clavicle_r", "upperarm_l", "upperarm_r",
              "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
+WARM_FALLBACKS = ("never", "unconverged", "always")
 #: Kinect v2 joints the fitted bones determine (hands, feet tips and thumbs follow unfitted bones).
 MAJOR_JOINTS = ("SpineBase", "SpineMid", "Neck", "Head", "SpineShoulder", "ShoulderLeft", "ElbowLeft",
                 "WristLeft", "ShoulderRight", "ElbowRight", "WristRight", "HipLeft", "KneeLeft", "AnkleLeft",
@@ -57,7 +58,10 @@ class ArticulatedFitParams:
     by these angles in the frontal plane (ICP alone does not swing an arm from the body's side to
     above the shoulder, and may fold the elbow to explain a raised arm); ``fit_scale``: also estimate
     a uniform scale of the template about the world origin (a generic template for any subject, as
-    Rapid Skin Sec. IV.A scales its template to the tracked skeleton);
+    Rapid Skin Sec. IV.A scales its template to the tracked skeleton); ``warm_fallback``: when a
+    warm start from the previous pose also runs the A-pose initialisation and keeps the better fit:
+    ``never``, ``unconverged`` (the warm fit hit the iteration limit, the sign of a wrong basin after
+    a large motion between frames) or ``always``;
     ``robust_m``: Huber threshold of the point-to-plane residuals; ``inside_weight``: weight of template
     points inside the hull (the hull over-estimates the body); ``prior_weight``: weight of the prior on
     local bone rotations (cost per squared radian; a data residual of 1 cm costs 1e-4); ``yaw_candidates_deg``: root yaw
@@ -78,6 +82,7 @@ class ArticulatedFitParams:
     arm_raise_candidates_deg: tuple[float, ...] = (45.0, 90.0)
     tolerance: float = 1e-4
     fit_scale: bool = True
+    warm_fallback: str = "unconverged"
     max_step_log_scale: float = 0.03
 
 
@@ -93,6 +98,7 @@ class ArticulatedFit:
     fit_error_m: float
     iterations: int
     scale: float = 1.0
+    converged: bool = True
 
 
 def _fit_bone_indices(skeleton) -> np.ndarray:
@@ -159,8 +165,8 @@ def a_pose_at_hull(body, hull: VisualHull, yaw_deg: float = 0.0) -> Pose:
     return Pose(rotations, translation)
 
 
-def _root_forward(body, pose: Pose) -> np.ndarray:
-    """The body's facing direction (rest +z turned by the root rotation)."""
+def body_facing(body, pose: Pose) -> np.ndarray:
+    """The body's facing direction (rest +z turned by the root rotation), e.g. for the virtual depth camera."""
     root = _fit_bone_indices(body.skeleton)[0]
     A = body.skeleton.rest_frames[root, :3, :3]
     R_world = A @ Rotation.from_rotvec(pose.rotations[root]).as_matrix() @ A.T
@@ -175,7 +181,7 @@ def raise_arm(body, pose: Pose, side: str, degrees: float) -> Pose:
     P = M[j, :3, :3] @ Rotation.from_rotvec(pose.rotations[j]).as_matrix().T  # parent frame of the bone
     # Facing +z, the left arm points to +x and rises by a positive rotation about the facing axis.
     sign = 1.0 if side == "l" else -1.0
-    omega = sign * np.radians(degrees) * _root_forward(body, pose)
+    omega = sign * np.radians(degrees) * body_facing(body, pose)
     rotations = np.array(pose.rotations, dtype=np.float64)
     rotations[j] = (Rotation.from_rotvec(P.T @ omega) * Rotation.from_rotvec(rotations[j])).as_rotvec()
     return Pose(rotations, np.array(pose.translation, dtype=np.float64))
@@ -225,7 +231,7 @@ def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitP
     sample = np.arange(0, len(hull_pts), step)
     hull_tree = cKDTree(hull_pts)
     prior_sqrt = np.sqrt(params.prior_weight)
-    it = 0
+    it, converged = 0, False
     for it in range(1, n_iter + 1):
         # Huber threshold annealed from robust_start_m to robust_m over the first half of the iterations:
         # far-away hull parts (a raised arm) pull first, then outliers are damped.
@@ -291,13 +297,14 @@ def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitP
             rotations[b] = local.as_rotvec()
         if (np.linalg.norm(dt) * scale < params.tolerance and np.abs(dw).max() < params.tolerance * 10
                 and abs(dlog_s) < params.tolerance):
+            converged = True
             break
     pose = Pose(rotations, translation)
     V, _ = body.pose(pose)
     heads, tails = posed_joints(skel, pose)
     joints = scale * kinect_joints(skel, heads, tails, "v2")
     return ArticulatedFit(Pose(rotations, scale * translation), joints,
-                          symmetric_hull_distance(scale * V, body.faces, hull), it, scale)
+                          symmetric_hull_distance(scale * V, body.faces, hull), it, scale, converged)
 
 
 def fit_body_to_hull(body, hull: VisualHull, previous_pose: Pose | None = None,
@@ -306,11 +313,23 @@ def fit_body_to_hull(body, hull: VisualHull, previous_pose: Pose | None = None,
     ``previous_scale``, as a previous :class:`ArticulatedFit` gives them), else from the A-pose at the
     hull centroid under each candidate root yaw, then per-arm raise hypotheses, the best refined."""
     params = params or ArticulatedFitParams()
+    if params.warm_fallback not in WARM_FALLBACKS:
+        raise InputError(f"unknown warm_fallback {params.warm_fallback!r}; valid: {', '.join(WARM_FALLBACKS)}")
     if previous_pose is not None:
         if previous_pose.rotations.shape != (body.skeleton.n_bones, 3):
             raise InputError(f"previous pose has {len(previous_pose.rotations)} bones, the body "
                              f"{body.skeleton.n_bones}")
-        return articulated_fit(body, hull, previous_pose, params, scale=previous_scale)
+        warm = articulated_fit(body, hull, previous_pose, params, scale=previous_scale)
+        if params.warm_fallback == "always" or (params.warm_fallback == "unconverged" and not warm.converged):
+            cold = _fit_from_a_pose(body, hull, params)
+            log.debug("hull fit: warm start %s (%.4f m), A-pose start %.4f m",
+                      "converged" if warm.converged else "did not converge", warm.fit_error_m, cold.fit_error_m)
+            return warm if warm.fit_error_m <= cold.fit_error_m else cold
+        return warm
+    return _fit_from_a_pose(body, hull, params)
+
+
+def _fit_from_a_pose(body, hull: VisualHull, params: ArticulatedFitParams) -> ArticulatedFit:
     if not params.yaw_candidates_deg:
         raise InputError("articulated fit from the A-pose needs at least one root yaw candidate")
     candidates = [articulated_fit(body, hull, a_pose_at_hull(body, hull, yaw), params, params.coarse_iterations)
