@@ -3,7 +3,8 @@
 Bone ``j`` has bind frame ``[R_bind_j | h_j]`` (the fitted model's posed bone frame, with the head the
 scan's transferred joint) and a canonical rest frame ``R_rest_j`` (the fitted model's rest pose) that
 poses are expressed in, so any pose of the body model (local axis-angle rotations in rest frames)
-drives the avatar: global rotations ``G_j`` follow from forward kinematics on the rest frames, heads
+drives the avatar: global rotations ``G_j`` follow from forward kinematics on the rest frames (the root
+keeping its bind orientation), heads
 from the bind offsets (``h_j' = h_p' + G_p R_bind_p^T (h_j - h_p)``, as in a glTF node hierarchy), and
 bone ``j`` moves bind-pose vertices by ``S_j = [G_j R_bind_j^T | h_j' - G_j R_bind_j^T h_j]``.
 """
@@ -62,12 +63,17 @@ class Avatar:
         return A
 
     def global_rotations(self, pose: Pose) -> np.ndarray:
-        """``G_j``: world rotations of the bones for local rotations in the canonical rest frames."""
+        """``G_j``: world rotations of the bones for local rotations in the canonical rest frames.
+
+        A root keeps its bind orientation (the scan's facing and lean) with the pose's root rotation on
+        top: the root's rest frame is a short floor-level bone whose direction varies by degrees with the
+        fitted shape, and the fit's root rotation already absorbed that difference.
+        """
         R = self.rest_rotations
         local = Rotation.from_rotvec(pose.rotations).as_matrix()
         G = np.empty_like(R)
         for j, p in enumerate(self.parents):
-            G[j] = R[j] @ local[j] if p < 0 else G[p] @ R[p].T @ R[j] @ local[j]
+            G[j] = self.bind_rotations[j] @ local[j] if p < 0 else G[p] @ R[p].T @ R[j] @ local[j]
         return G
 
     def skinning_transforms(self, pose: Pose) -> np.ndarray:
