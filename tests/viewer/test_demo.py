@@ -9,7 +9,12 @@ from bodystudio.cli.demo import run_demo
 
 
 @pytest.mark.slow
-def test_demo_runs_the_available_stages_and_writes_a_report(tmp_path, chromium):
+def test_demo_runs_the_available_stages_and_writes_a_report(tmp_path, chromium, monkeypatch):
+    import bodystudio.cli.demo as demo
+
+    # The same code path on a smaller scan and template: the rig fit dominates the demo's time.
+    monkeypatch.setattr(demo, "RIG_TEMPLATE", "2k")
+    monkeypatch.setattr(demo, "RIG_SCAN_VERTICES", 8000)
     out = tmp_path / "demo"
     report, stages = run_demo(out, cameras=4, frames=2, resolution=(160, 120))
     status = {r["stage"]: r["status"] for r in stages}
@@ -22,9 +27,14 @@ def test_demo_runs_the_available_stages_and_writes_a_report(tmp_path, chromium):
     page = chromium(report, size=(1200, 1100))
     assert page["console"] == [], page["console"]
     assert 'data-viewer-status="ok"' in page["dom"]
+    text = report.read_text()
     if status.get("reconstruct") == "done":
         assert (out / "session" / "reconstruct" / "frames.json").is_file()
-        assert "Error per frame" in report.read_text()
+        assert "Error per frame" in text and "Error histogram" in text
+    if status.get("calibrate") == "done":
+        assert "Calibration residuals" in text
+    if status.get("rig") == "done":
+        assert (out / "rig" / "avatar.glb").is_file() and "Solver convergence" in text
 
 
 def test_demo_bodies_only_measures_and_reports(tmp_path, drawn):
