@@ -75,16 +75,18 @@ def test_generic_template_fit_recovers_scale_and_joints(cold_fits):
 
     frame, hull, own = cold_fits["arms_raise"]
     generic = build_body(resolution="2k")
-    fit = fit_body_to_hull(generic, hull)
-    assert joint_error_m(fit.joints, frame["joints"]) < GENERIC_BOUND_M
-    height_ratio = frame["height_m"] / generic.vertices[:, 1].max()  # 0.928 for this subject
-    assert abs(fit.scale - height_ratio) < 0.02  # measured 0.925
-    # with the scale held at 1 the same template fits the hull worse (cold fits: 44 mm joint error)
+    # started from the own-shape fit's pose (the A-pose search is covered above), scale from 1
     from dataclasses import replace
 
     from bodystudio.reconstruct.articulated_fit import ArticulatedFitParams
 
-    fixed = fit_body_to_hull(generic, hull, own.pose, replace(ArticulatedFitParams(), fit_scale=False))
+    fit = fit_body_to_hull(generic, hull, own.pose, replace(ArticulatedFitParams(), warm_fallback="never"))
+    assert joint_error_m(fit.joints, frame["joints"]) < GENERIC_BOUND_M
+    height_ratio = frame["height_m"] / generic.vertices[:, 1].max()  # 0.928 for this subject
+    assert abs(fit.scale - height_ratio) < 0.02  # measured 0.925
+    # with the scale held at 1 the same template fits the hull worse (cold fits: 44 mm joint error)
+    fixed = fit_body_to_hull(generic, hull, own.pose, replace(ArticulatedFitParams(), fit_scale=False,
+                                                                     warm_fallback="never"))
     assert fixed.scale == 1.0
     assert fixed.fit_error_m > fit.fit_error_m
 
@@ -171,3 +173,27 @@ def test_bad_input(subject):
     hull = visual_hull(rig, masks, voxel_m=0.1)
     with pytest.raises(InputError, match="bones"):
         fit_body_to_hull(body, hull, Pose(np.zeros((3, 3)), np.zeros(3)))
+
+
+def test_unconverged_warm_start_falls_back_to_the_a_pose(subject, cold_fits):
+    """A previous pose in the wrong basin (turned 180 degrees): the fallback recovers, 'never' does not."""
+    from dataclasses import replace
+
+    from bodystudio.reconstruct.articulated_fit import (
+        ArticulatedFitParams,
+        a_pose_at_hull,
+        fit_body_to_hull,
+        joint_error_m,
+    )
+
+    body, _ = subject
+    frame, hull, _ = cold_fits["walk"]
+    wrong = a_pose_at_hull(body, hull, yaw_deg=180.0)
+    quick = replace(ArticulatedFitParams(), yaw_candidates_deg=(0.0, 180.0), arm_raise_candidates_deg=())
+    stuck = fit_body_to_hull(body, hull, wrong, replace(quick, warm_fallback="never"))
+    assert joint_error_m(stuck.joints, frame["joints"]) > 0.1  # measured ~0.27 m: facing backwards
+    rescued = fit_body_to_hull(body, hull, wrong, replace(quick, warm_fallback="always"))
+    assert joint_error_m(rescued.joints, frame["joints"]) < JOINT_BOUND_M
+    assert rescued.fit_error_m < stuck.fit_error_m
+    with pytest.raises(InputError, match="warm_fallback"):
+        fit_body_to_hull(body, hull, wrong, replace(quick, warm_fallback="sometimes"))
