@@ -15,7 +15,9 @@ hull (:mod:`bodystudio.reconstruct.visual_hull`):
   carried by bone j's subtree), Levenberg damping, and a weak prior towards the initial local rotations
   (the hull cannot see limb twist);
 - initialised from the previous frame's pose, or from the A-pose (rest pose) at the hull centroid under
-  a few root yaw angles, keeping the best.
+  a few root yaw angles and per-arm raise hypotheses, keeping the best by the symmetric surface
+  distance; a warm start that does not converge falls back to the A-pose initialisation;
+- a uniform template scale is estimated too, so a generic template fits any subject's proportions.
 
 The fitted skeleton gives Kinect v2 joints (:func:`bodystudio.body.kinect.kinect_joints`), so the result
 feeds the same pose initialisation (:func:`bodystudio.reconstruct.pose_init.initialise_pose`) as a tracker.
@@ -24,7 +26,7 @@ feeds the same pose initialisation (:func:`bodystudio.reconstruct.pose_init.init
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import igl
 import numpy as np
@@ -43,6 +45,7 @@ log = logging.getLogger(__name__)
 #: Bones whose rotations the fit estimates (plus the root translation).
 FIT_BONES = ("Root", "spine_02", "neck_01", "clavicle_l", "clavicle_r", "upperarm_l", "upperarm_r",
              "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
+#: When a warm start also runs the A-pose initialisation (ArticulatedFitParams.warm_fallback).
 WARM_FALLBACKS = ("never", "unconverged", "always")
 #: Kinect v2 joints the fitted bones determine (hands, feet tips and thumbs follow unfitted bones).
 MAJOR_JOINTS = ("SpineBase", "SpineMid", "Neck", "Head", "SpineShoulder", "ShoulderLeft", "ElbowLeft",
@@ -54,24 +57,23 @@ MAJOR_JOINTS = ("SpineBase", "SpineMid", "Neck", "Head", "SpineShoulder", "Shoul
 class ArticulatedFitParams:
     """Settings of the articulated hull fit.
 
-    ``arm_raise_candidates_deg``: from the A-pose, each arm is also tried reset to the A-pose and raised
-    by these angles in the frontal plane (ICP alone does not swing an arm from the body's side to
-    above the shoulder, and may fold the elbow to explain a raised arm); ``fit_scale``: also estimate
-    a uniform scale of the template about the world origin (a generic template for any subject, as
-    Rapid Skin Sec. IV.A scales its template to the tracked skeleton); ``warm_fallback``: when a
-    warm start from the previous pose also runs the A-pose initialisation and keeps the better fit:
-    ``never``, ``unconverged`` (the warm fit hit the iteration limit, the sign of a wrong basin after
-    a large motion between frames) or ``always``;
-    ``robust_m``: Huber threshold of the point-to-plane residuals; ``inside_weight``: weight of template
-    points inside the hull (the hull over-estimates the body); ``prior_weight``: weight of the prior on
-    local bone rotations (cost per squared radian; a data residual of 1 cm costs 1e-4); ``yaw_candidates_deg``: root yaw
-    angles tried from the A-pose; ``coarse_iterations``: iterations spent on each yaw candidate.
+    ``iterations``: Gauss-Newton iterations (each re-matches); ``coarse_iterations``: per hypothesis of
+    the A-pose search; ``robust_m``: Huber threshold of the point-to-plane residuals; ``inside_weight``:
+    weight of template points inside the hull (the hull over-estimates the body); ``prior_weight``:
+    prior on the limbs' local rotations, cost per squared radian (a 1 cm data residual costs 1e-4);
+    ``hull_samples``: hull surface points matched to the template; ``yaw_candidates_deg``: root yaws
+    tried from the A-pose; ``arm_raise_candidates_deg``: each arm is also tried reset to the A-pose and
+    raised by these angles in the frontal plane (ICP alone does not swing an arm from the body's side to
+    above the shoulder, and may fold the elbow instead); ``fit_scale``: also estimate a uniform template
+    scale about the world origin (a generic template for any subject, as Sec. IV.A scales its template
+    to the skeleton); ``warm_fallback``: when a warm start also runs the A-pose search and keeps the
+    better fit: ``never``, ``unconverged`` (the warm fit hit the iteration limit, the sign of a wrong
+    basin after a large motion between frames) or ``always``.
     """
 
     iterations: int = 40
     coarse_iterations: int = 10
     robust_m: float = 0.03
-    robust_start_m: float = 0.03
     inside_weight: float = 0.5
     prior_weight: float = 0.05
     damping: float = 1e-3
@@ -189,8 +191,6 @@ def raise_arm(body, pose: Pose, side: str, degrees: float) -> Pose:
 
 def scaled_body(body, scale: float):
     """The template ``body`` uniformly scaled by ``scale`` about the world origin (feet stay on y = 0)."""
-    from dataclasses import replace
-
     skel = body.skeleton
     return replace(body, vertices=body.vertices * scale,
                    skeleton=replace(skel, heads=skel.heads * scale, tails=skel.tails * scale))
@@ -231,12 +231,10 @@ def _articulated_fit(body, hull: VisualHull, init: Pose, params: ArticulatedFitP
     sample = np.arange(0, len(hull_pts), step)
     hull_tree = cKDTree(hull_pts)
     prior_sqrt = np.sqrt(params.prior_weight)
+    robust = params.robust_m
     it, converged = 0, False
-    for it in range(1, n_iter + 1):
-        # Huber threshold annealed from robust_start_m to robust_m over the first half of the iterations:
-        # far-away hull parts (a raised arm) pull first, then outliers are damped.
-        frac = min(1.0, it / max(1.0, 0.5 * n_iter))
-        robust = params.robust_start_m * (params.robust_m / params.robust_start_m) ** frac
+    while it < n_iter:
+        it += 1
         pose = Pose(rotations, translation)
         C, M = _skin_parts(body, pose, bone_idx, bone_w)
         V = scale * C.sum(axis=1)

@@ -197,3 +197,23 @@ def test_unconverged_warm_start_falls_back_to_the_a_pose(subject, cold_fits):
     assert rescued.fit_error_m < stuck.fit_error_m
     with pytest.raises(InputError, match="warm_fallback"):
         fit_body_to_hull(body, hull, wrong, replace(quick, warm_fallback="sometimes"))
+
+
+def test_fit_pose_and_joints_refer_to_the_scaled_template(subject, cold_fits):
+    """Posing the template scaled by s with translation t is s x the template posed with t / s; the
+    returned joints are those of ``scaled_body(body, fit.scale)`` posed with ``fit.pose``."""
+    from bodystudio.body.kinect import kinect_joints
+    from bodystudio.body.pose import Pose
+    from bodystudio.body.skinning import posed_joints
+    from bodystudio.reconstruct.articulated_fit import scaled_body
+
+    body, _ = subject
+    _, _, fit = cold_fits["walk"]
+    s = 1.07
+    pose = Pose(fit.pose.rotations, fit.pose.translation)
+    V_s, _ = scaled_body(body, s).pose(pose)
+    V_1, _ = body.pose(Pose(pose.rotations, pose.translation / s))
+    np.testing.assert_allclose(V_s, s * V_1, atol=1e-9)
+    big = scaled_body(body, fit.scale)
+    heads, tails = posed_joints(big.skeleton, fit.pose)
+    np.testing.assert_allclose(kinect_joints(big.skeleton, heads, tails), fit.joints, atol=1e-9)
