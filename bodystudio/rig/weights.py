@@ -27,6 +27,7 @@ log = logging.getLogger(__name__)
 MAX_INFLUENCES = 4
 COMPATIBLE_COS = 0.5
 MAX_CORRESPONDENCE_M = 0.03
+DIRECT_SOLVE_MAX = 30_000  # free vertices up to which SuperLU beats conjugate gradients
 
 
 def limit_influences(W: np.ndarray, k: int = MAX_INFLUENCES) -> np.ndarray:
@@ -41,12 +42,12 @@ def limit_influences(W: np.ndarray, k: int = MAX_INFLUENCES) -> np.ndarray:
 
 
 def barycentric_weight_transfer(scan_V: np.ndarray, model_V: np.ndarray, model_F: np.ndarray,
-                                model_W: np.ndarray) -> np.ndarray:
+                                model_W: np.ndarray, limit: bool = True) -> np.ndarray:
     """Baseline of §5.2: weights interpolated at each scan vertex's closest point on the fitted model."""
     tri, lam, _ = closest_points(scan_V, model_V, model_F)
     corners = model_F[tri]
     W = sum(lam[:, k, None] * model_W[corners[:, k]] for k in range(3))
-    return limit_influences(W)
+    return limit_influences(W) if limit else W
 
 
 def compatible_correspondences(model_V: np.ndarray, model_N: np.ndarray, scan_V: np.ndarray, scan_N: np.ndarray,
@@ -107,11 +108,41 @@ def harmonic_weight_transfer(scan_V: np.ndarray, scan_F: np.ndarray, model_V: np
     free = np.flatnonzero(is_free)
     known = np.flatnonzero(~is_free)
     cols = np.flatnonzero(np.abs(W[known]).sum(0) > 0)
-    L_ff = (-L[free][:, free]).tocsc()
-    L_fk = L[free][:, known]
-    lu = splu(L_ff, permc_spec="MMD_AT_PLUS_A")
-    W[np.ix_(free, cols)] = lu.solve(np.asarray(L_fk @ W[np.ix_(known, cols)]))
+    L_ff = (-L[free][:, free]).tocsr()
+    rhs = np.asarray(L[free][:, known] @ W[np.ix_(known, cols)])
+    if len(free) <= DIRECT_SOLVE_MAX:
+        W[np.ix_(free, cols)] = splu(L_ff.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
+    else:
+        # Big scans: the barycentric weights are already close to harmonic between the dense constraints,
+        # so preconditioned CG from them converges in a few dozen sweeps (a direct factorisation of a
+        # 100K-vertex Laplacian costs minutes of fill-in with SuperLU).
+        guess = barycentric_weight_transfer(scan_V[free], model_V, model_F, model_W, limit=False)[:, cols]
+        W[np.ix_(free, cols)] = block_conjugate_gradient(L_ff, rhs, guess)
     return limit_influences(W)
+
+
+def block_conjugate_gradient(A: sp.csr_matrix, B: np.ndarray, X0: np.ndarray, rtol: float = 1e-3,
+                             max_iterations: int = 400) -> np.ndarray:
+    """Jacobi-preconditioned conjugate gradients for ``A X = B`` with SPD ``A``, all columns at once."""
+    d = A.diagonal()
+    X = X0.copy()
+    R = B - A @ X
+    Z = R / d[:, None]
+    P = Z.copy()
+    rz = np.einsum("ij,ij->j", R, Z)
+    b_norm = np.maximum(np.linalg.norm(B, axis=0), 1e-30)
+    for _ in range(max_iterations):
+        if np.all(np.linalg.norm(R, axis=0) <= rtol * b_norm):
+            break
+        AP = A @ P
+        alpha = rz / np.maximum(np.einsum("ij,ij->j", P, AP), 1e-300)
+        X += alpha * P
+        R -= alpha * AP
+        Z = R / d[:, None]
+        rz_new = np.einsum("ij,ij->j", R, Z)
+        P = Z + (rz_new / np.maximum(rz, 1e-300)) * P
+        rz = rz_new
+    return X
 
 
 def bone_segments(heads: np.ndarray, rotations: np.ndarray, lengths: np.ndarray) -> np.ndarray:

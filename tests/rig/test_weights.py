@@ -25,3 +25,18 @@ def test_transfer_from_2k_to_full_body_recovers_its_weights(body_2k):
     l1_bary = np.abs(bary - true).sum(1).mean()
     l1_harm = np.abs(harm - true).sum(1).mean()
     assert l1_bary < 0.15 and l1_harm < 0.15, (l1_bary, l1_harm)
+
+
+def test_block_conjugate_gradient_matches_direct_solve(body_2k):
+    import igl
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import spsolve
+
+    from bodystudio.rig.weights import block_conjugate_gradient
+
+    L = -igl.cotmatrix(body_2k.vertices, body_2k.faces)
+    A = (L + 1e-3 * sp.identity(L.shape[0])).tocsr()
+    B = np.random.default_rng(0).normal(size=(A.shape[0], 3))
+    X = block_conjugate_gradient(A, B, np.zeros_like(B), rtol=1e-10, max_iterations=5000)
+    exact = np.column_stack([spsolve(A.tocsc(), B[:, k]) for k in range(3)])
+    assert np.abs(X - exact).max() < 1e-6 * np.abs(exact).max()
