@@ -108,7 +108,7 @@ def _as_camera_list(cameras, masks) -> tuple[list[Camera], list[np.ndarray]]:
             raise InputError(f"visual hull: {len(mask_list)} masks for {len(cams)} cameras")
     else:
         raise InputError("visual hull: masks must be a mapping camera name -> (H, W) mask or a list")
-    for cam, m in zip(cams, mask_list):
+    for cam, m in zip(cams, mask_list, strict=True):
         if m.shape != (cam.height, cam.width):
             raise InputError(f"visual hull: mask of camera {cam.name} is {m.shape}, camera image is "
                              f"{(cam.height, cam.width)}")
@@ -129,7 +129,7 @@ def _consistent_views(cameras, masks, distances, centers: np.ndarray, radius_m: 
     ``radius_m = 0`` is the plain voxel-centre test.
     """
     count = np.zeros(len(centers), dtype=np.int32)
-    for cam, mask, dist in zip(cameras, masks, distances):
+    for cam, mask, dist in zip(cameras, masks, distances, strict=True):
         uv, z = cam.project_with_depth(centers)
         # Far outside the field of view the distortion polynomial folds back into the image: only
         # points within 1.5x the normalised radius of the image corners are projected.
