@@ -196,7 +196,8 @@ def scene_for_session(session, frame_id: int | None = None, plotter=None, images
     sc.add_floor(plotter, _session_bounds(session, gt).mean(0), size=4.0)
     sc.add_title(plotter, title or f"{session.path.name}  frame {frame_id}")
     if key_help:
-        sc.add_key_help(plotter, sc.KEY_HELP + ("\nslider: frame" if len(session.frame_ids) > 1 else ""))
+        sc.add_key_help(plotter, sc.KEY_HELP + ("\nslider or n / p: next / previous frame"
+                                                if len(session.frame_ids) > 1 else ""))
     centers = np.array([c.center for c in session.cameras]) if len(session.cameras) else np.zeros((0, 3))
     b = _session_bounds(session, gt)
     if len(centers):
@@ -205,19 +206,34 @@ def scene_for_session(session, frame_id: int | None = None, plotter=None, images
     return plotter
 
 
-def add_time_slider(plotter, session, images: str = "image", cloud: bool = True, skeleton: bool = True):
-    """A slider over the session's frames that swaps the per-frame layers (interactive windows)."""
+def add_time_slider(plotter, session, images: str = "image", cloud: bool = True, skeleton: bool = True,
+                    frame_id: int | None = None):
+    """A slider over the session's frames that swaps the per-frame layers, and keys n / p for the next and
+    previous frame (interactive windows)."""
     ids = session.frame_ids
     if len(ids) < 2:
         return plotter
+    state = {"k": ids.index(frame_id) if frame_id in ids else 0}
 
-    def on_change(value: float) -> None:
-        k = int(np.argmin(np.abs(np.asarray(ids) - value)))
+    def show(k: int) -> None:
+        state["k"] = k
         scene_for_frame(session, ids[k], plotter, images, cloud, skeleton)
         sc.add_title(plotter, f"{session.path.name}  frame {ids[k]}")
 
-    plotter.add_slider_widget(on_change, [ids[0], ids[-1]], value=ids[0], title="frame", fmt="%.0f",
-                              pointa=(0.25, 0.92), pointb=(0.75, 0.92), style="modern")
+    def on_change(value: float) -> None:
+        show(int(np.argmin(np.abs(np.asarray(ids) - value))))
+
+    slider = plotter.add_slider_widget(on_change, [ids[0], ids[-1]], value=ids[state["k"]], title="frame",
+                                       fmt="%.0f", pointa=(0.25, 0.92), pointb=(0.75, 0.92), style="modern")
+
+    def step(delta: int) -> None:
+        k = min(max(state["k"] + delta, 0), len(ids) - 1)
+        slider.GetRepresentation().SetValue(ids[k])
+        show(k)
+        plotter.render()
+
+    plotter.add_key_event("n", lambda: step(1))
+    plotter.add_key_event("p", lambda: step(-1))
     return plotter
 
 
@@ -230,7 +246,7 @@ def build_view(path: str | Path | Viewable, bone: str | None = None, frame: int 
     if item.kind == "session":
         scene_for_session(item.data, frame, plotter, images=images)
         if not off_screen:
-            add_time_slider(plotter, item.data, images=images)
+            add_time_slider(plotter, item.data, images=images, frame_id=frame)
     elif item.kind == "avatar":
         scene_for_avatar(item.data, plotter, bone=bone, title=item.path.name)
     else:

@@ -95,4 +95,12 @@ def test_time_slider_swaps_the_frame(session):
     slider.InvokeEvent("EndInteractionEvent")
     np.testing.assert_allclose(gt_points(), session.frame(1).gt_mesh.vertices, atol=1e-9)
     assert "frame 1" in plotter.renderer.actors["title"].GetText(2)
+    # Keys p / n step back and forth (the callbacks pyvista would call on a key press).
+    keys = plotter.iren._key_press_event_callbacks
+    keys["p"][0]()
+    np.testing.assert_allclose(gt_points(), session.frame(0).gt_mesh.vertices, atol=1e-9)
+    keys["p"][0]()  # already at the first frame: stays
+    assert "frame 0" in plotter.renderer.actors["title"].GetText(2)
+    keys["n"][0]()
+    assert "frame 1" in plotter.renderer.actors["title"].GetText(2)
     plotter.close()
