@@ -24,7 +24,7 @@ def reconstruct(
     session: Path = typer.Argument(..., help="capture session folder"),
     solver: str = typer.Option("gs", help="gs | jacobi | cholesky | cg"),
     template: str = typer.Option("13k", help="template resolution: 13k | 6k | 2k"),
-    joints: str = typer.Option("tracker", help="joint source: tracker (session Kinect joints) | file | hull (visual hull fit)"),
+    joints: str = typer.Option("tracker", help="tracker (session Kinect joints) | file | hull (visual hull)"),
     joints_path: Path | None = typer.Option(None, help="folder of NNNNN.json joint files for --joints file"),
     constraints: str = typer.Option("silhouette", help="silhouette, depth or silhouette,depth"),
     frames: str | None = typer.Option(None, help="frame range A:B (B exclusive)"),
@@ -32,7 +32,7 @@ def reconstruct(
     inner: int = typer.Option(8, help="inner solver iterations Ni"),
     tau: float = typer.Option(30.0, help="contour search range tau (pixels)"),
     alpha: float = typer.Option(40.0, help="silhouette weight width alpha (pixels)"),
-    warm_start: bool = typer.Option(True, help="carry the subject's shape over from previous frames"),
+    warm_start: bool = typer.Option(False, help="carry the shape over from earlier frames"),
     score: bool = typer.Option(True, help="score against ground truth when the session has it"),
 ) -> None:
     """Deform the template to every frame's silhouettes (Rapid Skin); writes SESSION/reconstruct/."""

@@ -65,3 +65,22 @@ def test_cli_errors_are_one_line(tiny_session, capsys, tmp_path):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and message in err, (argv, err)
+
+
+@pytest.mark.slow
+def test_joint_sources_file_and_hull(tiny_session, capsys, tmp_path):
+    from bodystudio.fileio import write_json
+
+    path = str(tiny_session.path)
+    for fid in tiny_session.frame_ids:
+        j = tiny_session.frame(fid).kinect_joints
+        write_json(tmp_path / f"{fid:05d}.json", {"names": j["names"], "positions": j["positions"]})
+    assert main(["reconstruct", path, "--template", "2k", "--joints", "file", "--joints-path", str(tmp_path)]) == 0
+    capsys.readouterr()
+    assert main(["eval", "reconstruct", path]) == 0
+    assert json.loads(capsys.readouterr().out)["median_mm"] < 8.0
+    # joints from the silhouettes' visual hull: no tracker at all
+    assert main(["reconstruct", path, "--template", "2k", "--joints", "hull"]) == 0
+    capsys.readouterr()
+    assert main(["eval", "reconstruct", path]) == 0
+    assert json.loads(capsys.readouterr().out)["median_mm"] < 8.0
