@@ -96,16 +96,23 @@ def _load_gltf(path: Path):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # pygltflib warns, then fails, on files that are not glTF
-            return pygltflib.GLTF2().load(str(path))
+            gltf = pygltflib.GLTF2().load(str(path))
+            if gltf is not None and any(b.uri is not None for b in gltf.buffers):
+                gltf.convert_buffers(pygltflib.BufferFormat.BINARYBLOB)  # external .bin files and data URIs
     except Exception as exc:  # pygltflib raises many types for broken files
         raise FileFormatError(f"{path}: cannot read glTF ({type(exc).__name__}: {exc})") from None
+    if gltf is None:
+        raise FileFormatError(f"{path}: cannot read glTF (empty or not glTF); give a .glb or .gltf file")
+    if gltf.buffers and gltf.binary_blob() is None:
+        uri = gltf.buffers[0].uri
+        raise FileFormatError(f"{path}: cannot read its buffer {uri!r}; keep the .bin file beside the .gltf")
+    return gltf
 
 
 def _accessor(gltf, index: int) -> np.ndarray:
     acc = gltf.accessors[index]
     view = gltf.bufferViews[acc.bufferView]
-    data = gltf.binary_blob() if gltf.buffers[view.buffer].uri is None else gltf.get_data_from_buffer_uri(
-        gltf.buffers[view.buffer].uri)
+    data = gltf.binary_blob()
     dtype = np.dtype(_COMPONENT_DTYPES[acc.componentType])
     size = _TYPE_SIZES[acc.type]
     start = (view.byteOffset or 0) + (acc.byteOffset or 0)

@@ -39,3 +39,19 @@ def test_plain_glb_is_a_mesh_and_broken_glb_is_one_line_error(body_mesh, tmp_pat
     with pytest.raises(FileFormatError) as exc:
         open_viewable(broken)
     assert str(broken) in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_gltf_with_embedded_buffer_reads_like_the_glb(body_2k, tmp_path, skinned_glb):
+    import pygltflib
+
+    sk = body_2k.skeleton
+    glb = tmp_path / "avatar.glb"
+    skinned_glb(glb, body_2k.vertices, body_2k.faces, body_2k.weights, sk.heads, sk.parents, sk.bone_names)
+    gltf = pygltflib.GLTF2().load(str(glb))
+    gltf.convert_buffers(pygltflib.BufferFormat.DATAURI)
+    text = tmp_path / "avatar.gltf"
+    gltf.save(str(text))
+    a, b = load_avatar(glb), load_avatar(text)
+    np.testing.assert_array_equal(a.mesh.vertices, b.mesh.vertices)
+    np.testing.assert_array_equal(a.weights, b.weights)
+    assert open_viewable(text).kind == "avatar"
