@@ -42,8 +42,10 @@ def open_viewable(path: str | Path) -> Viewable:
     path = Path(path)
     if path.is_dir():
         if not (path / SESSION_MANIFEST).is_file():
-            raise SessionError(f"{path}: not a session folder (no {SESSION_MANIFEST}); give a session folder "
-                               f"or a mesh file ({', '.join(MESH_SUFFIXES)})")
+            inside = sorted(p.parent for p in path.glob(f"*/{SESSION_MANIFEST}"))
+            hint = f" (it holds the session {inside[0]})" if inside else ""
+            raise SessionError(f"{path}: not a session folder (no {SESSION_MANIFEST}){hint}; give a session "
+                               f"folder or a mesh file ({', '.join(MESH_SUFFIXES)})")
         from bodystudio.capture.session import open_session
 
         return Viewable(path, "session", open_session(path))
