@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+import scipy.sparse as sp
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
@@ -122,6 +123,7 @@ def fit_pose_step(skeleton: Skeleton, pose: Pose, V: np.ndarray, W: np.ndarray, 
     fixed = pose.rotations.T.copy()
     x = np.concatenate([pose.rotations[list(free)].ravel(), pose.translation])
     Vh = np.c_[V, np.ones(len(V))]
+    Ws = sp.csr_matrix(np.where(W > 1e-9, W, 0.0))  # a point has a handful of bones: sparse chain rule
     reg = np.full(len(x), prior * len(V))
     reg[-3:] = 0.0
     reg[:3] = 0.0  # the root's orientation is free
@@ -130,9 +132,10 @@ def fit_pose_step(skeleton: Skeleton, pose: Pose, V: np.ndarray, W: np.ndarray, 
         S, dS = f(xv, fixed, C, A_inv)
         S = np.asarray(S).reshape(B, 3, 4)
         dS = np.asarray(dS).reshape(B, 3, 4, len(xv))
-        r = (np.einsum("nb,bij,nj->ni", W, S, Vh) - Z).ravel()
-        dSw = (W @ dS.reshape(B, -1)).reshape(len(W), 3, 4, len(xv))
-        J = np.einsum("nj,nijk->nik", Vh, dSw).reshape(-1, len(xv))
+        moved = (Vh @ S.reshape(3 * B, 4).T).reshape(len(W), B, 3)
+        r = (np.einsum("nb,nbi->ni", W, moved) - Z).ravel()
+        dSw = (Ws @ dS.reshape(B, -1)).reshape(len(W), 3, 4, len(xv))
+        J = (dSw * Vh[:, None, :, None]).sum(2).reshape(-1, len(xv))
         return r, J, float(r @ r + (reg * xv) @ xv)
 
     r, J, e = cost(x)
