@@ -333,7 +333,7 @@ class LMESystem:
         self._block_fill = fill.ravel()
         self._symbolic = None
 
-    def normal_equations(self, cs: ConstraintSet) -> tuple[sp.csc_matrix, np.ndarray]:
+    def normal_equations(self, cs: ConstraintSet) -> tuple[sp.csr_matrix, np.ndarray]:
         """``A x = b`` minimising :func:`constraint_energy` (plus the negligible Tikhonov term)."""
         n = self.delta.n_vertices
         L = self.delta.matrix
@@ -353,7 +353,7 @@ class LMESystem:
             np.add.at(b.reshape(-1, 3), dep.vertex, rhs)
         C = sp.csr_matrix((blocks.ravel() + self._block_fill, (self._block_rows, self._block_cols)),
                           shape=(3 * n, 3 * n))
-        return sp.csc_matrix(cs.k_sm * self.gram + C), b
+        return sp.csr_matrix(cs.k_sm * self.gram + C), b
 
     def cholesky(self, cs: ConstraintSet) -> np.ndarray:
         """Exact minimiser by sparse Cholesky (CHOLMOD through cvxopt; SuperLU if cvxopt is missing)."""
@@ -362,7 +362,7 @@ class LMESystem:
             import cvxopt
             import cvxopt.cholmod
         except ImportError:  # pragma: no cover - cvxopt is a dependency; keep a working fallback
-            return spla.splu(A, permc_spec="COLAMD").solve(b).reshape(-1, 3)
+            return spla.splu(A.tocsc(), permc_spec="COLAMD").solve(b).reshape(-1, 3)
         coo = A.tocoo()
         M = cvxopt.spmatrix(coo.data, coo.row.astype(int), coo.col.astype(int), size=A.shape)
         if self._symbolic is None:
@@ -373,7 +373,7 @@ class LMESystem:
         return np.array(x).reshape(-1, 3)
 
 
-def lme_normal_equations(cs: ConstraintSet) -> tuple[sp.csc_matrix, np.ndarray]:
+def lme_normal_equations(cs: ConstraintSet) -> tuple[sp.csr_matrix, np.ndarray]:
     """Normal equations of :func:`constraint_energy` over ``x = V.ravel()`` (see :class:`LMESystem`)."""
     return LMESystem(cs.delta).normal_equations(cs)
 
@@ -393,19 +393,19 @@ def conjugate_gradient(V: np.ndarray, cs: ConstraintSet, inner_iterations: int =
     """``inner_iterations`` conjugate-gradient steps on the LME normal equations, warm-started at ``V``."""
     V = _check(V, cs)
     A, b = (lme or LMESystem(cs.delta)).normal_equations(cs)
-    A = sp.csr_matrix(A)
     x = V.ravel().copy()
     r = b - A @ x
     p = r.copy()
-    rr = float(r @ r)
+    # einsum dots: BLAS dot products spin up threads, which costs more than the dot on a busy machine
+    rr = float(np.einsum("i,i->", r, r))
     for it in range(int(inner_iterations)):
         if rr <= 1e-30:
             break
         Ap = A @ p
-        alpha = rr / float(p @ Ap)
+        alpha = rr / float(np.einsum("i,i->", p, Ap))
         x += alpha * p
         r -= alpha * Ap
-        rr_new = float(r @ r)
+        rr_new = float(np.einsum("i,i->", r, r))
         p = r + (rr_new / rr) * p
         rr = rr_new
         if callback is not None:
