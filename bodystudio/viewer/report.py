@@ -359,7 +359,8 @@ def _fmt(v: Any) -> str:
 
 def _table_html(t: Table) -> str:
     head = "".join(f"<th>{html.escape(str(c))}</th>" for c in t.columns)
-    body = "".join("<tr>" + "".join(f"<td>{_fmt(v)}</td>" for v in row) + "</tr>" for row in t.rows)
+    body = "".join("<tr>" + "".join(f'<td class="t">{_fmt(v)}</td>' if isinstance(v, str) else f"<td>{_fmt(v)}</td>"
+                                    for v in row) + "</tr>" for row in t.rows)
     return (f'<h3>{html.escape(t.title)}</h3><div class="scroll"><table><thead><tr>{head}</tr></thead>'
             f"<tbody>{body}</tbody></table></div>\n")
 
@@ -380,7 +381,7 @@ REPORT_CSS = """
 body{margin:0 auto;max-width:1150px;padding:12px 20px;font-family:system-ui,sans-serif;color:#222;background:#fafafa}
 h1{font-size:22px}h2{font-size:18px;border-bottom:1px solid #ccc;padding-bottom:4px;margin-top:28px}
 h3{font-size:14px;margin:16px 0 4px}table{border-collapse:collapse;font-size:13px;margin-bottom:8px}
-td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}th{background:#eee}td:first-child{text-align:left}
+td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}th{background:#eee}td:first-child,td.t{text-align:left}
 .grid{display:flex;flex-wrap:wrap;gap:12px}.grid figure{margin:0}.grid img{max-width:540px;border:1px solid #ddd}
 figcaption{font-size:12px;color:#555}.meta{color:#666;font-size:13px}.scroll{overflow-x:auto;max-width:100%}
 """
