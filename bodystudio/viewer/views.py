@@ -103,7 +103,7 @@ def _downsample(image: np.ndarray) -> np.ndarray:
     return image[::step, ::step]
 
 
-def kinect_points(session, frame, stride: int = 4) -> np.ndarray:
+def kinect_points(session, frame, stride: int = 7) -> np.ndarray:
     """The frame's Kinect depth back-projected to studio-frame points (every ``stride``-th pixel)."""
     depth = frame.kinect_depth_m
     sensor = session.kinect
