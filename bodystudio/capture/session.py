@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 
 from bodystudio.errors import FileFormatError, SessionError
-from bodystudio.fileio import atomic_write, read_json
+from bodystudio.fileio import atomic_write, read_json, sha256_file
 
 log = logging.getLogger(__name__)
 
@@ -79,14 +79,6 @@ def stream_path(stream: str, frame: int, camera: str | None = None) -> str:
 
 def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
-
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 # ---------------------------------------------------------------------------------------------- encoding
