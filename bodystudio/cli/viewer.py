@@ -18,6 +18,7 @@ def view(
     screenshot: Path | None = typer.Option(None, "--screenshot", help="render offscreen to this PNG and exit"),
     html: Path | None = typer.Option(None, "--html", help="write a standalone HTML page of the scene and exit"),
     size: str = typer.Option("1024x768", "--size", help="window / screenshot size WxH"),
+    cloud: bool = typer.Option(True, "--cloud/--no-cloud", help="show the Kinect point cloud (sessions)"),
 ) -> None:
     """Open a session, mesh, scan or avatar in the 3D viewer (or save a screenshot / HTML page)."""
     from bodystudio.viewer.scene import save_screenshot
@@ -34,7 +35,7 @@ def view(
         if out is not None and out.suffix.lower() not in suffixes:
             raise InputError(f"{out}: output must end in {' or '.join(suffixes)}")
     plotter = build_view(item, bone=bone, frame=frame, images=images, off_screen=off_screen,
-                         window_size=window_size, reference=reference)
+                         window_size=window_size, reference=reference, cloud=cloud)
     try:
         if not off_screen:
             plotter.show(title=f"bodystudio view {path}")

@@ -241,19 +241,23 @@ def add_time_slider(plotter, session, images: str = "image", cloud: bool = True,
 
 def build_view(path: str | Path | Viewable, bone: str | None = None, frame: int | None = None, images: str = "image",
                off_screen: bool = True, window_size: tuple[int, int] = sc.WINDOW_SIZE,
-               reference: str | Path | None = None):
+               reference: str | Path | None = None, cloud: bool = True):
     """The plotter ``bodystudio view`` shows for a path (session, mesh, scan or avatar) or an opened one."""
     item = path if isinstance(path, Viewable) else open_viewable(path)
+    if bone is not None and item.kind != "avatar":
+        raise InputError(f"{item.path}: --bone needs an avatar (a skinned .glb), this is a {item.kind}")
+    if reference is not None and item.kind != "mesh":
+        raise InputError(f"{item.path}: --reference colours a mesh or scan by its error; this is a {item.kind}")
+    if frame is not None and item.kind != "session":
+        raise InputError(f"{item.path}: --frame picks a session frame; this is a {item.kind}")
+    ref = load_mesh(reference) if reference is not None else None
     plotter = sc.make_plotter(off_screen=off_screen, window_size=window_size)
     if item.kind == "session":
-        scene_for_session(item.data, frame, plotter, images=images)
+        scene_for_session(item.data, frame, plotter, images=images, cloud=cloud)
         if not off_screen:
-            add_time_slider(plotter, item.data, images=images, frame_id=frame)
+            add_time_slider(plotter, item.data, images=images, cloud=cloud, frame_id=frame)
     elif item.kind == "avatar":
         scene_for_avatar(item.data, plotter, bone=bone, title=item.path.name)
     else:
-        if bone is not None:
-            raise InputError(f"{item.path}: --bone needs an avatar (a skinned .glb), this is a plain mesh")
-        ref = load_mesh(reference) if reference is not None else None
         scene_for_mesh(item.data, plotter, reference=ref, title=item.path.name)
     return plotter

@@ -62,6 +62,9 @@ def test_view_options_are_checked(tmp_path, body_mesh, capsys):
                     "--size")
     _one_line_error(capsys, ["view", str(mesh_path), "--bone", "upperarm_l", "--screenshot", str(tmp_path / "x.png")],
                     "--bone needs an avatar")
+    _one_line_error(capsys, ["view", str(mesh_path), "--frame", "2", "--screenshot", str(tmp_path / "x.png")],
+                    "--frame picks a session frame")
+    assert not (tmp_path / "x.png").exists()
 
 
 def test_report_cli(tmp_path, capsys):
