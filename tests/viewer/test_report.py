@@ -84,3 +84,30 @@ def test_report_opens_in_headless_chromium_and_draws(tmp_path, body_mesh, chromi
     assert len(rows) > 200
     block = img[rows[0]:rows[-1]]
     assert ((block.mean(-1) > 120) & (np.abs(block - block[5, 5]).max(-1) > 30)).sum() > 1500
+
+
+def _json_values():
+    from hypothesis import strategies as st
+
+    scalars = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6),
+                        st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8))
+    keys = st.sampled_from(["frame", "err_mm", "median_mm", "residuals_px", "cost_history", "cameras", "a", "iou"])
+    return st.recursive(scalars, lambda children: st.one_of(st.lists(children, max_size=6),
+                                                            st.dictionaries(keys, children, max_size=5)),
+                        max_leaves=30)
+
+
+def test_any_metrics_json_gives_tables_and_plots_without_crashing():
+    import matplotlib.pyplot as plt
+    from hypothesis import HealthCheck, given, settings
+
+    @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @given(_json_values())
+    def check(data):
+        for t in tables_from_json("x.json", data):
+            assert all(len(row) == len(t.columns) for row in t.rows)
+        for p in plots_from_json("x.json", data):
+            assert p.png[:4] == b"\x89PNG"
+        assert not plt.get_fignums()  # every figure is closed
+
+    check()
