@@ -104,3 +104,21 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
     assert err.startswith("error:") and "\n" not in err
     assert not (tmp_path / "a.glb").exists()
     assert main(["rig", str(bad), "--out", str(tmp_path / "a.glb"), "--reshape", "stature"]) == 2
+
+
+def test_ground_truth_rig_scores_zero(small_scan):
+    """The evaluation itself: an avatar carrying the true skeleton and weights scores (about) zero."""
+    from bodystudio.body.skinning import forward_kinematics
+    from bodystudio.rig.avatar import Avatar
+
+    _, scan, gt = small_scan
+    sk = gt.skeleton
+    M = forward_kinematics(sk, gt.pose)
+    av = Avatar(scan.vertices, scan.faces, None, sk.bone_names, sk.parents, None, M[:, :3, :3], sk.rest_rotations,
+                sk.lengths, np.asarray(gt.weights.todense()), gt.pose.translation, loaded_heads=M[:, :3, 3])
+    scores = evaluate_rig(av, gt)
+    assert scores["joint_err_mm_mean"] < 1e-6 and scores["weights_l1_mean"] < 1e-9
+    assert scores["pose_vertex_err_mm_mean"] < 0.01
+    # A wrong skeleton is caught: shift every joint by 2 cm.
+    wrong = dataclasses.replace(av, loaded_heads=av.heads + 0.02)
+    assert evaluate_rig(wrong, gt)["joint_err_mm_mean"] > 19.0
