@@ -106,7 +106,7 @@ def constraint_energy(V: np.ndarray, cs: ConstraintSet) -> float:
 
 # --- Gauss-Seidel constraint projection (Algorithm 1, lines 4-8) ---------------------------------
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath=True)
 def _gauss_seidel_sweeps(V, indptr, indices, weights, delta_rest, k_sm_prime, sil_vertex, sil_origin, sil_dir,
                          sil_k, dep_vertex, dep_point, dep_normal, dep_k, n_sweeps):
     n = V.shape[0]
@@ -197,7 +197,7 @@ def gauss_seidel(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8,
 
 # --- Jacobi (parallel) variant ------------------------------------------------------------------
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, fastmath=True, parallel=True)
 def _jacobi_sweeps(V, indptr, indices, weights, reverse, delta_rest, k_sm_prime, sil_ptr, sil_origin, sil_dir, sil_k,
                    dep_ptr, dep_point, dep_normal, dep_k, relaxation, n_sweeps):
     n = V.shape[0]
