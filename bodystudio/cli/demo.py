@@ -259,13 +259,15 @@ def stage_rig(ctx: DemoContext) -> str:
 def _session_views(ctx: DemoContext) -> None:
     """Screenshot and 3D view of the session (with the reconstruction's error map when it ran)."""
     from bodystudio.viewer.scene import save_screenshot
-    from bodystudio.viewer.views import scene_for_session
+    from bodystudio.viewer.views import scene_for_session, session_payload
 
     frame = ctx.session.frame_ids[-1]
     plotter = scene_for_session(ctx.session, frame)
     save_screenshot(plotter, ctx.out / "screenshots" / "session.png")
-    ctx.scenes.insert(0, (f"session, frame {frame}: cameras with images, Kinect cloud, ground truth "
-                          "and reconstruction error", plotter))
+    payload = session_payload(ctx.session, plotter, start=frame)  # every frame, with a slider
+    plotter.close()
+    ctx.scenes.insert(0, ("session: cameras with images, Kinect cloud, ground truth and reconstruction "
+                          "error (slider: frame)", payload))
 
 
 STAGES: list[tuple[str, Callable[[DemoContext], str]]] = [
@@ -335,8 +337,9 @@ def run_demo(out: Path, cameras: int = 4, frames: int = 3, resolution: tuple[int
         report = write_report(out, out / "report.html", with_3d=with_3d, title="bodystudio demo",
                               scenes=ctx.scenes, notes=notes)
         progress.advance(overall)
-    for _, plotter in ctx.scenes:
-        plotter.close()
+    for _, scene in ctx.scenes:
+        if not isinstance(scene, dict):
+            scene.close()
     return report.path, ctx.stages
 
 

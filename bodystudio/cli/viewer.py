@@ -22,7 +22,7 @@ def view(
 ) -> None:
     """Open a session, mesh, scan or avatar in the 3D viewer (or save a screenshot / HTML page)."""
     from bodystudio.viewer.scene import save_screenshot
-    from bodystudio.viewer.views import build_view, open_viewable
+    from bodystudio.viewer.views import build_view, open_viewable, session_payload
     from bodystudio.viewer.webgl import save_scene_html
 
     window_size = _parse_size(size)
@@ -44,7 +44,10 @@ def view(
             save_screenshot(plotter, screenshot)
             typer.echo(f"wrote {screenshot}")
         if html is not None:
-            save_scene_html(plotter, html, title=f"bodystudio view {path.name}")
+            payload = None
+            if item.kind == "session":  # every frame goes into the page, with a frame slider
+                payload = session_payload(item.data, plotter, images=images, cloud=cloud, start=frame)
+            save_scene_html(plotter, html, title=f"bodystudio view {path.name}", payload=payload)
             typer.echo(f"wrote {html}")
     finally:
         plotter.close()

@@ -33,6 +33,8 @@ import numpy as np
 
 from bodystudio.errors import InputError
 from bodystudio.fileio import atomic_write
+from bodystudio.viewer.scene import render_image
+from bodystudio.viewer.webgl import page_head, scene_payload, viewer_fragment
 
 log = logging.getLogger(__name__)
 
@@ -335,18 +337,24 @@ def session_figures(session_path: Path) -> tuple[list[Plot], list[Table]]:
 
 
 def default_scene(root: Path):
-    """The plotter the report embeds: a session, else an avatar, else a mesh found under ``root``."""
+    """(plotter, payload or None) the report embeds: a session (every frame), else an avatar, else a mesh."""
     from bodystudio.geometry.mesh import MESH_SUFFIXES
-    from bodystudio.viewer.views import build_view, open_viewable
+    from bodystudio.viewer.views import build_view, open_viewable, session_payload
 
     sessions = _sessions_under(root)
     if sessions:
-        return build_view(sessions[0])
+        item = open_viewable(sessions[0])
+        plotter = build_view(item)
+        still = render_image(plotter)
+        return plotter, session_payload(item.data, plotter), still
     meshes = [p for p in sorted(root.rglob("*")) if p.suffix.lower() in MESH_SUFFIXES
               and not any(_SKIP_PARTS.match(part) for part in p.relative_to(root).parts[:-1])]
     avatars = [p for p in meshes if open_viewable(p).kind == "avatar"] if meshes else []
     pick = avatars[0] if avatars else (meshes[0] if meshes else None)
-    return build_view(pick) if pick is not None else None
+    if pick is None:
+        return None
+    plotter = build_view(pick)
+    return plotter, scene_payload(plotter), render_image(plotter)
 
 
 def _fmt(v: Any) -> str:
@@ -391,11 +399,10 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
                  scenes: list[tuple[str, Any]] | None = None, notes: list[str] | None = None) -> ReportResult:
     """Write the report of a run or session folder to ``out`` (one self-contained .html file).
 
-    ``scenes`` (caption, plotter) pairs override the embedded 3D views (by default a session, avatar or
-    mesh found under ``path``); ``notes`` are shown at the top (e.g. which stages ran).
+    ``scenes`` (caption, plotter or WebGL payload dict) pairs override the embedded 3D views (by default
+    a session with all its frames, an avatar or a mesh found under ``path``); ``notes`` are shown at the
+    top (e.g. which stages ran).
     """
-    from bodystudio.viewer.scene import render_image
-    from bodystudio.viewer.webgl import page_head, scene_payload, viewer_fragment
 
     root = Path(path)
     out = Path(out)
@@ -421,18 +428,20 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
     shots = [(str(p.relative_to(root)), p.read_bytes()) for p in screenshot_files(root, exclude=out)]
     view_html = ""
     if with_3d:
-        owned = scenes is None
-        if owned:
-            scene = default_scene(root)
-            scenes = [("", scene)] if scene is not None else []
+        if scenes is None:
+            found = default_scene(root)
+            scenes = []
+            if found is not None:
+                plotter, payload, still = found
+                plotter.close()
+                scenes = [("", payload)]
+                if not shots:  # a still of the view, for readers without WebGL
+                    shots.append(("3D view (rendered)", _png_bytes(still)))
         for k, (caption, scene) in enumerate(scenes):
             if caption:
                 view_html += f"<h3>{html.escape(caption)}</h3>"
-            view_html += viewer_fragment(scene_payload(scene), f"view3d_{k}")
-            if owned and not shots:  # a still of the view, for readers without WebGL
-                shots.append(("3D view (rendered)", _png_bytes(render_image(scene))))
-            if owned:
-                scene.close()
+            payload = scene if isinstance(scene, dict) else scene_payload(scene)
+            view_html += viewer_fragment(payload, f"view3d_{k}")
     title = title or f"bodystudio report: {root.resolve().name}"
     stamp = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     parts = [page_head(title, REPORT_CSS), "<body>", f"<h1>{html.escape(title)}</h1>",

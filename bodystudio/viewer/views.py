@@ -239,6 +239,43 @@ def add_time_slider(plotter, session, images: str = "image", cloud: bool = True,
     return plotter
 
 
+MAX_HTML_FRAMES = 12  # frames exported to HTML (evenly spaced); each carries its meshes and images
+
+
+def frame_layer_names(plotter, rig) -> set[str]:
+    """Names of the actors :func:`scene_for_frame` replaces on every frame."""
+    return {*FRAME_LAYERS, *(f"camera-{c.name}-image" for c in rig)}
+
+
+def session_payload(session, plotter, frame_ids=None, images: str = "image", cloud: bool = True,
+                    skeleton: bool = True, max_frames: int = MAX_HTML_FRAMES, start: int | None = None) -> dict:
+    """The WebGL payload of a session view with its frames: static actors once, per-frame layers per frame.
+
+    ``plotter`` holds a :func:`scene_for_session` view; it is left showing the exported frame nearest
+    ``start`` (the page opens there too).
+    """
+    from bodystudio.viewer.webgl import scene_payload
+
+    ids = list(session.frame_ids if frame_ids is None else frame_ids)
+    if len(ids) > max_frames:
+        ids = [ids[int(round(k))] for k in np.linspace(0, len(ids) - 1, max_frames)]
+    names = frame_layer_names(plotter, session.cameras)
+    frames = []
+    for fid in ids:
+        scene_for_frame(session, fid, plotter, images, cloud, skeleton)
+        layer = scene_payload(plotter, include=names, allow_empty=True)
+        frames.append({"id": int(fid), "objects": layer["objects"], "colorBars": layer["colorBars"]})
+    k0 = int(np.argmin(np.abs(np.asarray(ids) - (ids[0] if start is None else start))))
+    scene_for_frame(session, ids[k0], plotter, images, cloud, skeleton)
+    payload = scene_payload(plotter, exclude=names, allow_empty=True)
+    payload["colorBars"] = frames[k0]["colorBars"] or next((f["colorBars"] for f in frames if f["colorBars"]), [])
+    payload["frames"] = frames
+    payload["start"] = k0
+    if not payload["objects"] and not any(f["objects"] for f in frames):
+        raise sc.EmptySceneError(f"{session.path}: nothing to export; the session has no cameras or meshes")
+    return payload
+
+
 def build_view(path: str | Path | Viewable, bone: str | None = None, frame: int | None = None, images: str = "image",
                off_screen: bool = True, window_size: tuple[int, int] = sc.WINDOW_SIZE,
                reference: str | Path | None = None, cloud: bool = True):

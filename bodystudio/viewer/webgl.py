@@ -63,14 +63,6 @@ def _segments(cells: np.ndarray, closed: bool) -> np.ndarray:
     return np.vstack(segs) if segs else np.zeros((0, 2), dtype=np.int64)
 
 
-def _vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    N = np.zeros_like(V)
-    for k in range(3):
-        np.add.at(N, F[:, k], n)
-    return N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
-
-
 def _n_polys(data) -> int:
     return int(data.GetNumberOfPolys() + data.GetNumberOfStrips())
 
@@ -109,13 +101,18 @@ def _actor_texture(actor, data) -> tuple[str, np.ndarray] | None:
     return _png_data_url(pixels), np.asarray(data.active_texture_coordinates, dtype=np.float32)
 
 
-def scene_payload(plotter) -> dict:
-    """The plotter's visible 3D actors, camera and colour bars as a JSON-ready dict for the WebGL page."""
+def scene_payload(plotter, include=None, exclude=(), allow_empty: bool = False) -> dict:
+    """The plotter's visible 3D actors, camera and colour bars as a JSON-ready dict for the WebGL page.
+
+    ``include`` / ``exclude`` select actors by name (e.g. the per-frame layers of a session).
+    """
     import pyvista as pv
     import vtk
 
     objects = []
     for name, actor in plotter.renderer.actors.items():
+        if (include is not None and name not in include) or name in exclude:
+            continue
         if not isinstance(actor, vtk.vtkActor) or not actor.GetVisibility() or actor.GetMapper() is None:
             continue
         raw = actor.GetMapper().GetInput()
@@ -152,9 +149,8 @@ def scene_payload(plotter) -> dict:
             tri = data.triangulate()
             F = np.asarray(tri.faces, dtype=np.int64).reshape(-1, 4)[:, 1:]
             obj["mode"], obj["indices"], obj["count"] = "triangles", _b64(F.ravel(), "<u4"), int(F.size)
-            obj["normals"] = _b64(_vertex_normals(V, F), "<f4")
         objects.append(obj)
-    if not objects:
+    if not objects and not allow_empty:
         raise EmptySceneError("nothing to export: the scene is empty; give a mesh, avatar or session with data")
     cam = plotter.camera
     bars = []
@@ -178,6 +174,7 @@ VIEWER_CSS = """
 .bs-view canvas{width:100%;height:100%;display:block;cursor:grab;touch-action:none}
 .bs-help{position:absolute;left:8px;bottom:6px;color:#ddd;font:12px sans-serif;opacity:.8;pointer-events:none}
 .bs-msg{position:absolute;left:20px;top:20px;color:#f88;font:14px sans-serif}
+.bs-frames{font:13px sans-serif;margin:4px 0 10px}.bs-frames input{width:50%;vertical-align:middle}
 .bs-bar{position:absolute;right:10px;top:15%;height:60%;width:130px;color:#eee;font:12px sans-serif;pointer-events:none}
 .bs-bar .grad{position:absolute;left:0;top:18px;bottom:0;width:18px;border:1px solid #ccc}
 .bs-bar .t{position:absolute;top:0;left:0;white-space:nowrap;font-weight:bold}
@@ -222,14 +219,22 @@ window.bodystudioView=function(canvas, scene){
   var A={p:gl.getAttribLocation(prog,"p"),nn:gl.getAttribLocation(prog,"nn"),c:gl.getAttribLocation(prog,"c"),uv:gl.getAttribLocation(prog,"uv")};
   var U={};["mvp","mv","ps","lit","useTex","alpha","tex"].forEach(function(k){U[k]=gl.getUniformLocation(prog,k);});
   function buf(target,data){var b=gl.createBuffer();gl.bindBuffer(target,b);gl.bufferData(target,data,gl.STATIC_DRAW);return b;}
-  var objs=scene.objects.map(function(o){
-    var P=b64(o.positions,Float32Array),n=o.n,col;
+  function field(s){return s.charAt(0)==="@"?scene.shared[s.slice(1)]:s;}
+  function normals(P,I,n){var N=new Float32Array(n*3);
+    for(var t=0;t<I.length;t+=3){var a=3*I[t],b=3*I[t+1],c=3*I[t+2];
+      var ux=P[b]-P[a],uy=P[b+1]-P[a+1],uz=P[b+2]-P[a+2],vx=P[c]-P[a],vy=P[c+1]-P[a+1],vz=P[c+2]-P[a+2];
+      var nx=uy*vz-uz*vy,ny=uz*vx-ux*vz,nz=ux*vy-uy*vx;
+      N[a]+=nx;N[a+1]+=ny;N[a+2]+=nz;N[b]+=nx;N[b+1]+=ny;N[b+2]+=nz;N[c]+=nx;N[c+1]+=ny;N[c+2]+=nz;}
+    for(var q=0;q<3*n;q+=3){var l=Math.sqrt(N[q]*N[q]+N[q+1]*N[q+1]+N[q+2]*N[q+2])||1;N[q]/=l;N[q+1]/=l;N[q+2]/=l;}
+    return N;}
+  function upload(o){
+    var P=b64(o.positions,Float32Array),n=o.n,col,I=o.indices?b64(field(o.indices),Uint32Array):null;
     if(o.colors){var cc=b64(o.colors,Uint8Array);col=new Float32Array(n*3);for(var i=0;i<n*3;i++)col[i]=cc[i]/255;}
     else{col=new Float32Array(n*3);for(var j=0;j<n;j++){col[3*j]=o.color[0];col[3*j+1]=o.color[1];col[3*j+2]=o.color[2];}}
     var g={o:o,pos:buf(gl.ARRAY_BUFFER,P),col:buf(gl.ARRAY_BUFFER,col),
-      nrm:buf(gl.ARRAY_BUFFER,o.normals?b64(o.normals,Float32Array):new Float32Array(n*3)),
+      nrm:buf(gl.ARRAY_BUFFER,(o.mode==="triangles"&&I)?normals(P,I,n):new Float32Array(n*3)),
       uv:buf(gl.ARRAY_BUFFER,o.uv?b64(o.uv,Float32Array):new Float32Array(n*2)),count:n,idx:null,tex:null};
-    if(o.indices){var I=b64(o.indices,Uint32Array);
+    if(I){
       if(!u32){var m=0;for(var k=0;k<I.length;k++)m=Math.max(m,I[k]);if(m>65535)throw new Error("mesh too large without OES_element_index_uint");I=new Uint16Array(I);}
       g.idx=buf(gl.ELEMENT_ARRAY_BUFFER,I);g.count=I.length;g.itype=(I instanceof Uint32Array)?gl.UNSIGNED_INT:gl.UNSIGNED_SHORT;}
     if(o.texture){g.tex=gl.createTexture();gl.bindTexture(gl.TEXTURE_2D,g.tex);
@@ -239,7 +244,10 @@ window.bodystudioView=function(canvas, scene){
         gl.pixelStorei(gl.UNPACK_FLIP_Y_WEBGL,false);
         gl.texParameteri(gl.TEXTURE_2D,gl.TEXTURE_MIN_FILTER,gl.LINEAR);gl.texParameteri(gl.TEXTURE_2D,gl.TEXTURE_WRAP_S,gl.CLAMP_TO_EDGE);
         gl.texParameteri(gl.TEXTURE_2D,gl.TEXTURE_WRAP_T,gl.CLAMP_TO_EDGE);draw();};im.src=o.texture;}
-    return g;});
+    return g;}
+  var statics=scene.objects.map(upload);
+  var frames=(scene.frames||[]).map(function(f){return f.objects.map(upload);});
+  var cur=Math.min(scene.start||0,Math.max(frames.length-1,0)),objs=statics.concat(frames.length?frames[cur]:[]);
   var cam=scene.camera,home={e:cam.position.slice(),t:cam.focal.slice(),u:cam.up.slice()};
   var eye=home.e.slice(),tgt=home.t.slice(),up=home.u.slice();
   var dist0=Math.sqrt(dot(sub(eye,tgt),sub(eye,tgt)));
@@ -282,7 +290,9 @@ window.bodystudioView=function(canvas, scene){
   canvas.addEventListener("wheel",function(e){e.preventDefault();var v=sub(eye,tgt);eye=add(tgt,scl(v,Math.exp(e.deltaY*0.001)));draw();},{passive:false});
   canvas.addEventListener("dblclick",function(){eye=home.e.slice();tgt=home.t.slice();up=home.u.slice();draw();});
   window.addEventListener("resize",draw);
-  draw();return {draw:draw};
+  function setFrame(k){if(!frames.length)return;cur=Math.max(0,Math.min(frames.length-1,k|0));
+    objs=statics.concat(frames[cur]);draw();return scene.frames[cur];}
+  draw();return {draw:draw,setFrame:setFrame,nFrames:frames.length};
 };
 })();
 """  # noqa: E501  (inline script and style)
@@ -295,14 +305,46 @@ def _color_bar_html(bar: dict) -> str:
             f'<span class="hi">{bar["max"]:.1f}</span><span class="lo">{bar["min"]:.1f}</span></div>')
 
 
+def share_repeated_indices(payload: dict) -> dict:
+    """Store each distinct index array once (meshes of one topology: a body line-up, a session's frames).
+
+    Repeats become ``"@k"`` references into ``payload["shared"]``; returns a new dict.
+    """
+    shared: dict[str, str] = {}
+    seen: dict[str, str] = {}
+
+    def share(obj: dict) -> dict:
+        idx = obj.get("indices")
+        if idx is None or len(idx) < 4096:
+            return obj
+        if idx not in seen:
+            seen[idx] = str(len(seen))
+            shared[seen[idx]] = idx
+        return {**obj, "indices": "@" + seen[idx]}
+
+    out = {**payload, "objects": [share(o) for o in payload.get("objects", [])]}
+    if payload.get("frames"):
+        out["frames"] = [{**f, "objects": [share(o) for o in f["objects"]]} for f in payload["frames"]]
+    out["shared"] = shared
+    return out
+
+
 def viewer_fragment(payload: dict, element_id: str) -> str:
     """HTML for one 3D view (needs :data:`VIEWER_CSS` and :data:`VIEWER_JS` once on the page)."""
     if not element_id.isidentifier():
         raise InputError(f"view id {element_id!r} must be an identifier")
-    data = json.dumps(payload, separators=(",", ":")).replace("</", "<\\/")
+    data = json.dumps(share_repeated_indices(payload), separators=(",", ":")).replace("</", "<\\/")
     bars = "".join(_color_bar_html(b) for b in payload.get("colorBars", []))
+    frames = payload.get("frames") or []
+    slider = ""
+    if len(frames) > 1:
+        k0 = int(payload.get("start", 0))
+        slider = (f'<div class="bs-frames">frame <input type="range" id="{element_id}-frame" min="0" '
+                  f'max="{len(frames) - 1}" value="{k0}" step="1"> <span id="{element_id}-frame-label">'
+                  f'{frames[k0]["id"]}</span></div>')
     return (f'<div class="bs-view"><canvas id="{element_id}" width="1024" height="768"></canvas>{bars}'
             '<div class="bs-help">drag: rotate, shift+drag: pan, wheel: zoom, double-click: reset</div></div>\n'
+            f"{slider}"
             f'<script type="application/json" id="{element_id}-data">{data}</script>\n'
             f"<script>bodystudioMount({json.dumps(element_id)});</script>\n")
 
@@ -315,7 +357,13 @@ function bodystudioStatus(){var b=document.body;if(!b)return;
   b.setAttribute("data-viewer-status",window.bodystudioErrors.length?("error: "+window.bodystudioErrors.join(" | ")):"ok");}
 window.addEventListener("error",function(e){window.bodystudioErrors.push(String(e.message||e));bodystudioStatus();});
 function bodystudioMount(id){try{var c=document.getElementById(id);
-  bodystudioView(c,JSON.parse(document.getElementById(id+"-data").textContent));
+  var scene=JSON.parse(document.getElementById(id+"-data").textContent);
+  var view=bodystudioView(c,scene);var s=document.getElementById(id+"-frame");
+  if(s)s.addEventListener("input",function(){var f=view.setFrame(Number(s.value));
+    document.getElementById(id+"-frame-label").textContent=String(f.id);
+    var bars=c.parentNode.querySelectorAll(".bs-bar");(f.colorBars||[]).forEach(function(b,i){if(!bars[i])return;
+      bars[i].querySelector(".hi").textContent=b.max.toFixed(1);bars[i].querySelector(".lo").textContent=b.min.toFixed(1);});
+    c.setAttribute("data-frame",String(f.id));});
   var n=Number(document.body.getAttribute("data-views-drawn")||0)+1;document.body.setAttribute("data-views-drawn",String(n));}
   catch(e){window.bodystudioErrors.push(id+": "+e.message);var m=document.createElement("div");m.className="bs-msg";
     m.textContent="3D view unavailable: "+e.message;var c2=document.getElementById(id);if(c2&&c2.parentNode)c2.parentNode.appendChild(m);}
@@ -329,20 +377,20 @@ def page_head(title: str, extra_css: str = "") -> str:
             f"<script>{STATUS_JS}{VIEWER_JS}</script></head>\n")
 
 
-def scene_html(plotter, title: str = "bodystudio view") -> str:
-    """A complete standalone page showing the plotter's scene."""
-    payload = scene_payload(plotter)
+def scene_html(plotter, title: str = "bodystudio view", payload: dict | None = None) -> str:
+    """A complete standalone page showing the plotter's scene (or a prepared ``payload``)."""
+    payload = scene_payload(plotter) if payload is None else payload
     css = "body{margin:0;background:#1d1e23;color:#eee;font-family:sans-serif}h1{font-size:16px;margin:8px 12px}"
     return (page_head(title, css) + f"<body><h1>{html.escape(title)}</h1>\n" + viewer_fragment(payload, "view3d")
             + "</body></html>\n")
 
 
-def save_scene_html(plotter, path: str | Path, title: str = "bodystudio view") -> Path:
-    """Write the standalone HTML page atomically (``.html``)."""
+def save_scene_html(plotter, path: str | Path, title: str = "bodystudio view", payload: dict | None = None) -> Path:
+    """Write the standalone HTML page atomically (``.html``); ``payload`` replaces the plotter's scene."""
     path = Path(path)
     if path.suffix.lower() not in (".html", ".htm"):
         raise InputError(f"{path}: HTML export needs a path ending in .html")
-    text = scene_html(plotter, title)
+    text = scene_html(plotter, title, payload)
     with atomic_write(path, "w") as f:
         f.write(text)
     log.info("wrote %s (%.1f MB)", path, len(text) / 1e6)

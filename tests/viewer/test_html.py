@@ -30,7 +30,10 @@ def test_payload_carries_the_mesh_and_its_heat_map_colours(body_mesh, tmp_path):
     (obj,) = payload["objects"]
     V = np.frombuffer(base64.b64decode(obj["positions"]), "<f4").reshape(-1, 3)
     np.testing.assert_allclose(V, body_mesh.vertices, atol=1e-6)
-    F = np.frombuffer(base64.b64decode(obj["indices"]), "<u4").reshape(-1, 3)
+    indices = obj["indices"]
+    if indices.startswith("@"):  # index arrays are stored once in "shared"
+        indices = payload["shared"][indices[1:]]
+    F = np.frombuffer(base64.b64decode(indices), "<u4").reshape(-1, 3)
     assert len(F) == body_mesh.n_faces
     rgb = np.frombuffer(base64.b64decode(obj["colors"]), np.uint8).reshape(-1, 3).astype(int)
     # The lowest error is the colour map's low end (dark blue in turbo), the highest its high end (red).

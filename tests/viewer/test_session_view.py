@@ -71,8 +71,20 @@ def test_session_with_missing_file_is_one_line_error(session, tmp_path, capsys):
     assert not (tmp_path / "s.png").exists()
 
 
-def test_session_html_draws_in_chromium(session, tmp_path, chromium):
-    assert main(["view", str(session.path), "--html", str(tmp_path / "s.html")]) == 0
+def test_session_html_has_every_frame_and_draws_in_chromium(session, tmp_path, chromium):
+    import base64
+    import json
+    import re
+
+    assert main(["view", str(session.path), "--html", str(tmp_path / "s.html"), "--frame", "1"]) == 0
+    text = (tmp_path / "s.html").read_text()
+    payload = json.loads(re.search(r'id="view3d-data">(.*?)</script>', text, re.S).group(1).replace("<\\/", "</"))
+    assert [f["id"] for f in payload["frames"]] == session.frame_ids and payload["start"] == 1
+    for f in payload["frames"]:  # each frame carries its own ground-truth mesh
+        (gt,) = [o for o in f["objects"] if o["name"] == "gt"]
+        V = np.frombuffer(base64.b64decode(gt["positions"]), "<f4").reshape(-1, 3)
+        np.testing.assert_allclose(V, session.frame(f["id"]).gt_mesh.vertices, atol=1e-5)
+    assert 'type="range" id="view3d-frame" min="0" max="1" value="1"' in text
     page = chromium(tmp_path / "s.html", size=(900, 800))
     assert page["console"] == [], page["console"]
     assert 'data-viewer-status="ok"' in page["dom"]
