@@ -49,6 +49,9 @@ class CalibrationOptions:
     loss_scale_px: float = 1.0
     outlier_mad_k: float = 6.0  # residual > median + k * 1.4826 * MAD is an outlier
     floor_frame: int | None = 0  # frame number showing the board on the floor; None: reference camera
+    # Other boards lying on the floor with it (plane within this angle and offset) refine the floor plane.
+    floor_max_angle_deg: float = 5.0
+    floor_max_offset_m: float = 0.05
     reference_camera: str | None = None
     max_iterations: int = 200
 
@@ -449,7 +452,46 @@ def world_from_root(obs: CharucoObservations, spec: CharucoBoardSpec, board_pose
     if not np.isfinite(board_poses[f, 0, 0]):
         raise SessionError(f"floor board (frame {options.floor_frame}) was not found in any camera; capture the "
                            "board lying flat on the floor where the upper cameras see it, or choose --reference-camera")
-    return floor_board_to_world(spec) @ rigid_inverse(board_poses[f]), f"floor board frame {options.floor_frame}"
+    floor = floor_plane_board_pose(spec, board_poses, f, options.floor_max_angle_deg, options.floor_max_offset_m)
+    others = len(floor[1]) - 1
+    desc = f"floor board frame {options.floor_frame}" + (f" (+{others} coplanar floor boards)" if others else "")
+    return floor_board_to_world(spec) @ rigid_inverse(floor[0]), desc
+
+
+def floor_plane_board_pose(spec: CharucoBoardSpec, board_poses: np.ndarray, f: int, max_angle_deg: float = 5.0,
+                           max_offset_m: float = 0.05) -> tuple[np.ndarray, list[int]]:
+    """The floor board's pose (board -> root) with its plane replaced by the least-squares plane through
+    the corners of every board lying on the floor with it, and those frames.
+
+    A board counts as lying on the floor when its plane is within ``max_angle_deg`` of the floor board's
+    and all its corners are within ``max_offset_m`` of that plane. The floor board ``f`` keeps defining
+    the origin (its centre, projected onto the fitted plane) and the x axis (its x axis, projected); the
+    fitted plane gives y. With the floor board alone this is exactly its own pose. Several boards spread
+    over the floor, each seen less obliquely, pin the floor's tilt far better than one board seen at
+    ~65 degrees by the upper cameras (measured in docs/calibration.md).
+    """
+    corners = board_corners(spec)
+    T0 = board_poses[f]
+    n0 = T0[:3, 2]
+    c0 = T0[:3, :3] @ spec.center_m + T0[:3, 3]
+    frames, pts = [], []
+    for g, T in enumerate(board_poses):
+        if not np.isfinite(T[0, 0]):
+            continue
+        P = corners @ T[:3, :3].T + T[:3, 3]
+        angle = np.degrees(np.arccos(np.clip(abs(T[:3, 2] @ n0), -1.0, 1.0)))
+        if g == f or (angle < max_angle_deg and np.abs((P - c0) @ n0).max() < max_offset_m):
+            frames.append(g)
+            pts.append(P)
+    P = np.concatenate(pts)
+    mean = P.mean(0)
+    n = np.linalg.svd(P - mean)[2][2]
+    n = n if n @ n0 > 0 else -n
+    x = T0[:3, 0] - (T0[:3, 0] @ n) * n
+    x /= np.linalg.norm(x)
+    R = np.stack([x, np.cross(n, x), n], axis=1)
+    center = c0 - ((c0 - mean) @ n) * n
+    return rigid(R, center - R @ spec.center_m), frames
 
 
 def calibrate_cameras(obs: CharucoObservations, spec: CharucoBoardSpec,

@@ -9,7 +9,7 @@ from bodystudio.calib.evaluate import evaluate_calibration
 from bodystudio.calib.observations import observations_from_views
 from bodystudio.calib.synthetic import synthetic_charuco_observations
 from bodystudio.errors import SessionError
-from tests.calib.conftest import NOISE_PX
+from .conftest import NOISE_PX
 
 
 def test_small_rig_accuracy(small_capture, small_calibration):
@@ -19,11 +19,12 @@ def test_small_rig_accuracy(small_capture, small_calibration):
     assert abs(res.rms_px / res.expected_rms_px(NOISE_PX) - 1) < 0.10
     scores = evaluate_calibration(res.rig, rig, res.report())
     worst = scores["max"]
-    # Looser than the 10-camera acceptance (see docs/BENCHMARKS.md): 4 cameras at 640x480 see few boards.
-    assert worst["center_err_mm"] < 40
-    assert worst["rot_err_deg"] < 1.5
-    assert worst["focal_err_pct"] < 1.5
-    assert scores["overall"]["volume_reproj_rms_px"] < 5
+    # Looser than the 10-camera acceptance (see docs/calibration.md): 4 cameras at 640x480 see few boards.
+    # Measured on seeds 1-3 with the protocol's pose plan: <= 11.7 mm, 0.81 deg, 0.58 %, 0.56 px.
+    assert worst["center_err_mm"] < 20
+    assert worst["rot_err_deg"] < 1.2
+    assert worst["focal_err_pct"] < 1.0
+    assert scores["overall"]["volume_reproj_rms_px"] < 1.5
     assert set(scores["cameras"]) == set(rig.names)
     # The world frame comes from the floor board: board 0 lies in y = 0.
     floor = res.board_to_world[0]
