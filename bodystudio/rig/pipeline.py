@@ -23,6 +23,8 @@ log = logging.getLogger(__name__)
 
 # A human scan fits the model to a few millimetres (median); a chair, a box or a dog does not.
 NON_HUMAN_FIT_MM = 15.0
+GOOD_FIT_MM = 2.0  # synthetic and studio scans fit to 1-1.5 mm median when the fit found the right basin
+FIT_ATTEMPTS = 3
 TEMPLATES = {"6k": "6k", "13k": "full", "2k": "2k"}
 WEIGHT_METHODS = ("harmonic", "barycentric")
 
@@ -61,7 +63,15 @@ def rig_scan(scan: Mesh, model, weights: str = "harmonic", stage: Callable[[str]
         if stage is not None:
             stage(name)
 
+    # The fit can stop in a local minimum (a limb settled on the wrong side); the random pair sampling
+    # makes restarts differ, so refit with new seeds while the fit is clearly worse than a good one.
     fit = fit_model(model, scan, seed=seed)
+    for attempt in range(1, FIT_ATTEMPTS):
+        if fit.fit_err_mm_median <= GOOD_FIT_MM:
+            break
+        log.info("fit error %.1f mm: restarting with another sample seed", fit.fit_err_mm_median)
+        again = fit_model(model, scan, seed=seed + attempt)
+        fit = again if again.fit_err_mm_median < fit.fit_err_mm_median else fit
     done("fit")
     if fit.fit_err_mm_median > NON_HUMAN_FIT_MM:
         raise InputError(f"the body model fits this scan only to {fit.fit_err_mm_median:.0f} mm (median), far above a "
