@@ -15,9 +15,13 @@ import numpy as np
 
 from bodystudio.errors import InputError
 from bodystudio.geometry.laplacian import DeltaOperator, cotangent_delta_coordinates
-from bodystudio.geometry.mesh import vertex_normals
 from bodystudio.reconstruct.depth import DepthObservation, depth_constraints
-from bodystudio.reconstruct.silhouette import check_masks, silhouette_constraints
+from bodystudio.reconstruct.silhouette import (
+    SilhouetteViews,
+    area_weighted_normals,
+    check_masks,
+    silhouette_constraints,
+)
 from bodystudio.reconstruct.solver import (
     SOLVERS,
     ConstraintSet,
@@ -103,13 +107,18 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
         solver_s = 0.0
     result = DeformResult(V)
     result.solver_s = solver_s
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    t0 = time.perf_counter()
+    views = SilhouetteViews(cameras, masks, F) if use_sil else None  # masks prepared once for all No matchings
+    result.matching_s += time.perf_counter() - t0
     inner = params.inner_iterations
     if params.solver == "jacobi":
         inner *= params.jacobi_iterations_factor
     for outer in range(params.outer_iterations):
         t0 = time.perf_counter()
-        N = vertex_normals(V, F)
-        sil = (silhouette_constraints(V, F, N, cameras, masks, params.tau_px, params.alpha_px, params.rim_cos)
+        N = area_weighted_normals(V, F)
+        sil = (silhouette_constraints(V, F, N, cameras, masks, params.tau_px, params.alpha_px, params.rim_cos,
+                                      views=views)
                if use_sil else SilhouetteConstraints.empty())
         dep = (depth_constraints(V, N, depth, params.depth_sigma_m, params.depth_max_m)
                if use_depth else DepthConstraints.empty())

@@ -26,15 +26,15 @@ _NORMAL_PROBE_M = 0.005
 
 
 @numba.njit(cache=True)
-def _rasterize_mask(uv, F, width, height, mask):
+def _rasterize_mask(uv, F, width, height, mask, facing=0.0):
+    """Pixel centres covered by the projected triangles. ``facing = +-1`` rasterises only triangles of
+    that screen-space orientation: on a closed mesh every covered pixel is covered by a front-facing
+    triangle as well as a back-facing one, so one orientation gives the same mask at half the work."""
     for f in range(F.shape[0]):
         a, b, c = F[f, 0], F[f, 1], F[f, 2]
         ax, ay, bx, by, cx, cy = uv[a, 0], uv[a, 1], uv[b, 0], uv[b, 1], uv[c, 0], uv[c, 1]
-        if not (np.isfinite(ax) and np.isfinite(bx) and np.isfinite(cx)
-                and np.isfinite(ay) and np.isfinite(by) and np.isfinite(cy)):
-            continue
         area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-        if area == 0.0:
+        if not np.isfinite(area) or area == 0.0 or area * facing < 0.0:
             continue
         x0 = max(int(np.ceil(min(ax, bx, cx))), 0)
         x1 = min(int(np.floor(max(ax, bx, cx))), width - 1)
@@ -49,6 +49,21 @@ def _rasterize_mask(uv, F, width, height, mask):
                 if w0 >= 0 and w1 >= 0 and w2 >= 0:
                     mask[y, x] = 1
     return mask
+
+
+def is_closed_mesh(F: np.ndarray) -> bool:
+    """Every directed edge (a, b) has exactly one opposite (b, a): a closed, consistently oriented mesh."""
+    F = np.asarray(F, dtype=np.int64)
+    if len(F) == 0:
+        return False
+    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    n = int(F.max()) + 1
+    key = np.sort(e[:, 0] * n + e[:, 1])
+    if np.any(key[1:] == key[:-1]):
+        return False
+    rkey = e[:, 1] * n + e[:, 0]
+    pos = np.searchsorted(key, rkey)
+    return bool(np.all(pos < len(key)) and np.all(key[np.minimum(pos, len(key) - 1)] == rkey))
 
 
 def silhouette_mask(V: np.ndarray, F: np.ndarray, camera) -> np.ndarray:
@@ -79,27 +94,48 @@ def _sample_bilinear(img, x, y):
             + (1 - fx) * fy * img[y0 + 1, x0] + fx * fy * img[y0 + 1, x0 + 1])
 
 
+@numba.njit(cache=True, inline="always")
+def _crossing(prev, cur, s):
+    """Sub-pixel inside -> outside crossing between samples ``s - 1`` and ``s`` (NaN if none)."""
+    if prev >= 0.5 and cur < 0.5:
+        return (s - 1) + (prev - 0.5) / (prev - cur)
+    return np.nan
+
+
+@numba.njit(cache=True)
+def _nearest_crossing(mask, x, y, dx, dy, steps, tau_px):
+    """Nearest agreeing crossing along ``l(t) = (x, y) + t (dx, dy)``, ``|t| <= tau`` (§III.B), searched
+    outwards from ``t = 0``: the unit intervals ``[k, k+1]`` and ``[-k-1, -k]`` hold every crossing with
+    ``k <= |t| < k+1``, so the first pair that holds one ends the search (same result as scanning all
+    ``2 tau`` samples; ties go to the negative side, as a scan in increasing ``t`` would)."""
+    c0 = _sample_bilinear(mask, x, y)
+    pos_prev = c0  # sample at +k
+    neg_next = c0  # sample at -k
+    for k in range(steps):
+        pos_cur = _sample_bilinear(mask, x + (k + 1) * dx, y + (k + 1) * dy)
+        neg_cur = _sample_bilinear(mask, x - (k + 1) * dx, y - (k + 1) * dy)
+        tn = _crossing(neg_cur, neg_next, -k)
+        tp = _crossing(pos_prev, pos_cur, k + 1)
+        if not abs(tn) <= tau_px:
+            tn = np.nan
+        if not abs(tp) <= tau_px:
+            tp = np.nan
+        if np.isfinite(tn) and not (abs(tp) < abs(tn)):
+            return tn
+        if np.isfinite(tp):
+            return tp
+        pos_prev = pos_cur
+        neg_next = neg_cur
+    return np.nan
+
+
 @numba.njit(cache=True)
 def _search_contours(mask, uv, direction, tau_px):
     m = uv.shape[0]
     out = np.full(m, np.nan)
     steps = int(np.ceil(tau_px))
     for i in range(m):
-        x, y = uv[i, 0], uv[i, 1]
-        dx, dy = direction[i, 0], direction[i, 1]
-        best = np.inf
-        prev = _sample_bilinear(mask, x - steps * dx, y - steps * dy)
-        for s in range(-steps + 1, steps + 1):
-            cur = _sample_bilinear(mask, x + s * dx, y + s * dy)
-            # Inside -> outside going along the normal: the silhouette gradient opposes n, i.e. agrees
-            # with the outward normal; outside -> inside crossings belong to other contours.
-            if prev >= 0.5 and cur < 0.5:
-                t = (s - 1) + (prev - 0.5) / (prev - cur)
-                if abs(t) <= tau_px and abs(t) < abs(best):
-                    best = t
-            prev = cur
-        if np.isfinite(best):
-            out[i] = best
+        out[i] = _nearest_crossing(mask, uv[i, 0], uv[i, 1], direction[i, 0], direction[i, 1], steps, tau_px)
     return out
 
 
@@ -131,47 +167,186 @@ def check_masks(masks: dict, cameras, where: str = "frame") -> None:
                                f"or drop the camera")
 
 
-def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras, masks: dict,
-                           tau_px: float = 30.0, alpha_px: float = 40.0, rim_cos: float = 0.2
-                           ) -> SilhouetteConstraints:
+@numba.njit(cache=True, inline="always")
+def _project_point(X, Y, Z, R, t, K, dist, has_dist):
+    """Eq. 6 with OpenCV's Brown-Conrady distortion: pixel (u, v), depth z and undistorted (x, y)."""
+    xc = R[0, 0] * X + R[0, 1] * Y + R[0, 2] * Z + t[0]
+    yc = R[1, 0] * X + R[1, 1] * Y + R[1, 2] * Z + t[1]
+    zc = R[2, 0] * X + R[2, 1] * Y + R[2, 2] * Z + t[2]
+    if not zc > 0.0:
+        return np.nan, np.nan, zc, np.nan, np.nan
+    x = xc / zc
+    y = yc / zc
+    xd, yd = x, y
+    if has_dist:
+        k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    u = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
+    v = K[1, 1] * yd + K[1, 2]
+    return u, v, zc, x, y
+
+
+@numba.njit(cache=True)
+def _undistort_from(u, v, x, y, K, dist, has_dist):
+    """Normalised undistorted point of pixel (u, v) by Newton's method started at (x, y) (the rim vertex's
+    own undistorted image point, <= tau pixels away, so a few steps reach machine precision)."""
+    ty = (v - K[1, 2]) / K[1, 1]
+    tx = (u - K[0, 2] - K[0, 1] * ty) / K[0, 0]
+    if not has_dist:
+        return tx, ty
+    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+    for _ in range(20):
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        rx = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - tx
+        ry = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - ty
+        if abs(rx) < 1e-15 and abs(ry) < 1e-15:
+            break
+        dr = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+        j00 = radial + x * dr * 2 * x + 2 * p1 * y + p2 * 6 * x
+        j01 = x * dr * 2 * y + 2 * p1 * x + p2 * 2 * y
+        j10 = y * dr * 2 * x + p1 * 2 * x + 2 * p2 * y
+        j11 = radial + y * dr * 2 * y + p1 * 6 * y + 2 * p2 * x
+        det = j00 * j11 - j01 * j10
+        x -= (j11 * rx - j01 * ry) / det
+        y -= (j00 * ry - j10 * rx) / det
+    return x, y
+
+
+@numba.njit(cache=True)
+def area_weighted_normals(V, F):
+    """Area-weighted unit vertex normals (the rim test's ``n``, §III.B), one pass over the faces."""
+    N = np.zeros_like(V)
+    for f in range(F.shape[0]):
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
+        e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        for v in (a, b, c):
+            N[v, 0] += nx
+            N[v, 1] += ny
+            N[v, 2] += nz
+    for i in range(V.shape[0]):
+        ln = max(np.sqrt(N[i, 0] ** 2 + N[i, 1] ** 2 + N[i, 2] ** 2), 1e-300)
+        N[i, 0] /= ln
+        N[i, 1] /= ln
+        N[i, 2] /= ln
+    return N
+
+
+@numba.njit(cache=True)
+def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, own, facing, tau_px, rim_cos,
+                probe_m, outline_px):
+    """Rim vertices of one view matched with its silhouette contour (Rapid Skin §III.B, Eq. 6-7).
+
+    One pass over the vertices projects them (Eq. 6), rasterises the template's own silhouette into
+    ``own`` (the occlusion test), keeps rim vertices (``|n . ray| < rim_cos``) whose outward probe
+    leaves ``own``, searches ``mask`` along the projected normal (``+-tau``) and turns each match
+    into a viewing ray through the matched pixel (Eq. 7). Returns vertex ids, signed offsets ``t``
+    (pixels) and unit ray directions.
+    """
+    n = V.shape[0]
+    uv = np.empty((n, 2))
+    xy = np.empty((n, 2))
+    z = np.empty(n)
+    for i in range(n):
+        uv[i, 0], uv[i, 1], z[i], xy[i, 0], xy[i, 1] = _project_point(V[i, 0], V[i, 1], V[i, 2], R, t, K, dist,
+                                                                       has_dist)
+    own[:, :] = 0
+    _rasterize_mask(uv, F, width, height, own, facing)
+    ids = np.empty(n, np.int64)
+    offs = np.empty(n)
+    dirs = np.empty((n, 3))
+    m = 0
+    steps = int(np.ceil(tau_px))
+    for i in range(n):
+        u, v = uv[i, 0], uv[i, 1]
+        if not (z[i] > 0.0 and u >= 0.0 and u < width and v >= 0.0 and v < height):
+            continue
+        rx, ry, rz = V[i, 0] - center[0], V[i, 1] - center[1], V[i, 2] - center[2]
+        rn = np.sqrt(rx * rx + ry * ry + rz * rz)
+        if not abs(N[i, 0] * rx + N[i, 1] * ry + N[i, 2] * rz) < rim_cos * rn:
+            continue
+        pu, pv, pz, _, _ = _project_point(V[i, 0] + probe_m * N[i, 0], V[i, 1] + probe_m * N[i, 1],
+                                          V[i, 2] + probe_m * N[i, 2], R, t, K, dist, has_dist)
+        dx, dy = pu - u, pv - v
+        dn = np.sqrt(dx * dx + dy * dy)
+        if not (np.isfinite(dn) and dn > 1e-9):
+            continue
+        dx /= dn
+        dy /= dn
+        # Occlusion: one step outwards must leave the template's own projected silhouette.
+        ox = min(max(np.round(u + outline_px * dx), 0.0), width - 1.0)
+        oy = min(max(np.round(v + outline_px * dy), 0.0), height - 1.0)
+        if own[int(oy), int(ox)] != 0:
+            continue
+        best = _nearest_crossing(mask, u, v, dx, dy, steps, tau_px)
+        if not np.isfinite(best):
+            continue
+        x, y = _undistort_from(u + best * dx, v + best * dy, xy[i, 0], xy[i, 1], K, dist, has_dist)
+        # World direction R^T (x, y, 1), normalised.
+        wx = R[0, 0] * x + R[1, 0] * y + R[2, 0]
+        wy = R[0, 1] * x + R[1, 1] * y + R[2, 1]
+        wz = R[0, 2] * x + R[1, 2] * y + R[2, 2]
+        wn = np.sqrt(wx * wx + wy * wy + wz * wz)
+        ids[m] = i
+        offs[m] = best
+        dirs[m, 0], dirs[m, 1], dirs[m, 2] = wx / wn, wy / wn, wz / wn
+        m += 1
+    return ids[:m], offs[:m], dirs[:m]
+
+
+class SilhouetteViews:
+    """Per-frame camera and mask data for :func:`silhouette_constraints`, prepared once per frame.
+
+    Algorithm 1 re-matches the same masks ``No`` times; the float masks, camera matrices and the
+    template-outline raster buffers are built here once instead of at every outer iteration. With the
+    template faces ``F`` of a closed mesh the outline raster draws front-facing triangles only.
+    """
+
+    def __init__(self, cameras, masks: dict, F: np.ndarray | None = None):
+        self.facing = 1.0 if F is not None and is_closed_mesh(F) else 0.0
+        self.views = []
+        for cam in cameras:
+            mask = np.ascontiguousarray(np.asarray(masks[cam.name]) > 0, dtype=np.float64)
+            self.views.append((cam, mask, np.zeros((cam.height, cam.width), np.uint8),
+                               np.ascontiguousarray(cam.K), np.ascontiguousarray(cam.dist),
+                               np.ascontiguousarray(cam.R), np.ascontiguousarray(cam.t),
+                               np.ascontiguousarray(cam.center), bool(cam.has_distortion)))
+
+
+def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras, masks: dict | None,
+                           tau_px: float = 30.0, alpha_px: float = 40.0, rim_cos: float = 0.2,
+                           views: SilhouetteViews | None = None) -> SilhouetteConstraints:
     """Match rim vertices with silhouette contours in every camera (Rapid Skin §III.B, Eq. 6, 7, 10).
 
-    ``masks`` maps camera names to boolean ``(H, W)`` silhouettes. Returns viewing-ray constraints.
+    ``masks`` maps camera names to boolean ``(H, W)`` silhouettes; ``views`` (from
+    :class:`SilhouetteViews`) may carry them prepared. Returns viewing-ray constraints, one numba pass
+    per camera (:func:`_match_view`).
     """
-    vid, origin, direction, k, cam_ids, dist = [], [], [], [], [], []
-    for c, cam in enumerate(cameras):
-        mask = np.asarray(masks[cam.name]) > 0
-        uv, z = cam.project_with_depth(V)
-        rim = rim_vertices(V, N, cam, rim_cos) & (z > 0) & cam.in_image(np.nan_to_num(uv, nan=-1.0))
-        ids = np.flatnonzero(rim)
+    if views is None:
+        views = SilhouetteViews(cameras, masks, F)
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    N = np.ascontiguousarray(N, dtype=np.float64)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    vid, direction, k, cam_ids, dist, origin = [], [], [], [], [], []
+    for c, (cam, mask, own, K, dcoef, R, t, center, has_dist) in enumerate(views.views):
+        ids, off, d = _match_view(V, N, F, R, t, K, dcoef, has_dist, center, cam.width, cam.height, mask, own,
+                                  views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M, _OUTLINE_STEP_PX)
         if len(ids) == 0:
             continue
-        probe = cam.project(V[ids] + _NORMAL_PROBE_M * N[ids])
-        n2 = probe - uv[ids]
-        norm = np.linalg.norm(n2, axis=1)
-        ok = np.isfinite(norm) & (norm > 1e-9)
-        ids, n2 = ids[ok], n2[ok] / norm[ok, None]
-        own = silhouette_mask(V, F, cam)
-        outer = uv[ids] + _OUTLINE_STEP_PX * n2
-        xi = np.clip(np.round(outer[:, 0]).astype(int), 0, cam.width - 1)
-        yi = np.clip(np.round(outer[:, 1]).astype(int), 0, cam.height - 1)
-        on_outline = ~own[yi, xi]
-        ids, n2 = ids[on_outline], n2[on_outline]
-        t = match_contours(mask, uv[ids], n2, tau_px)
-        hit = np.isfinite(t)
-        if not np.any(hit):
-            continue
-        ids, n2, t = ids[hit], n2[hit], t[hit]
-        pixels = uv[ids] + t[:, None] * n2
-        o, d = cam.rays(pixels)
         vid.append(ids)
-        origin.append(o)
         direction.append(d)
-        k.append(silhouette_weight(t, alpha_px))
+        origin.append(np.broadcast_to(center, d.shape))
+        k.append(silhouette_weight(off, alpha_px))
         cam_ids.append(np.full(len(ids), c))
-        dist.append(np.abs(t))
+        dist.append(np.abs(off))
     if not vid:
         return SilhouetteConstraints.empty()
-    return SilhouetteConstraints(np.concatenate(vid).astype(np.int64), np.concatenate(origin),
-                                 np.concatenate(direction), np.concatenate(k), np.concatenate(cam_ids),
-                                 np.concatenate(dist))
+    return SilhouetteConstraints(np.concatenate(vid), np.concatenate(origin), np.concatenate(direction),
+                                 np.concatenate(k), np.concatenate(cam_ids), np.concatenate(dist))

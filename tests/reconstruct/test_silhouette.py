@@ -79,3 +79,74 @@ def test_bad_masks_are_one_line_errors():
         check_masks({"c0": np.ones((10, 10), bool)}, [cam])
     with pytest.raises(SessionError, match="no silhouette mask for camera c0"):
         check_masks({"other": np.ones((48, 64), bool)}, [cam])
+
+
+def _scan_all_samples(mask, x, y, dx, dy, tau):
+    """Reference contour search: every sample from -tau to +tau, keep the nearest agreeing crossing."""
+    from bodystudio.reconstruct.silhouette import _sample_bilinear
+
+    steps = int(np.ceil(tau))
+    best = np.inf
+    prev = _sample_bilinear(mask, x - steps * dx, y - steps * dy)
+    for s in range(-steps + 1, steps + 1):
+        cur = _sample_bilinear(mask, x + s * dx, y + s * dy)
+        if prev >= 0.5 and cur < 0.5:
+            t = (s - 1) + (prev - 0.5) / (prev - cur)
+            if abs(t) <= tau and abs(t) < abs(best):
+                best = t
+        prev = cur
+    return best if np.isfinite(best) else np.nan
+
+
+def test_outward_contour_search_equals_a_full_scan():
+    rng = np.random.default_rng(3)
+    # blobby mask with many contours, so crossings on both sides and at several distances occur
+    mask = np.zeros((120, 160))
+    for _ in range(25):
+        cx, cy, r = rng.uniform(0, 160), rng.uniform(0, 120), rng.uniform(3, 18)
+        y, x = np.mgrid[0:120, 0:160]
+        mask[(x - cx) ** 2 + (y - cy) ** 2 <= r * r] = 1.0
+    uv = rng.uniform([5, 5], [155, 115], size=(400, 2))
+    ang = rng.uniform(0, 2 * np.pi, 400)
+    d = np.c_[np.cos(ang), np.sin(ang)]
+    got = match_contours(mask, uv, d, tau_px=12.5)
+    ref = np.array([_scan_all_samples(mask, *uv[i], *d[i], 12.5) for i in range(len(uv))])
+    assert np.sum(np.isfinite(ref)) > 100 and np.sum(np.isnan(ref)) > 20
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+    np.testing.assert_allclose(got[np.isfinite(ref)], ref[np.isfinite(ref)], atol=1e-12)
+
+
+def test_front_facing_outline_equals_the_full_raster_on_a_closed_mesh():
+    from bodystudio.reconstruct.silhouette import _rasterize_mask, is_closed_mesh
+
+    V, F, _ = _sphere(0.3)
+    V = V * np.array([1.0, 1.6, 0.7])
+    assert is_closed_mesh(F) and not is_closed_mesh(F[1:]) and not is_closed_mesh(F[:, ::-1][np.r_[0, 0:len(F)]])
+    cam = Camera.look_at("c0", (0.4, 0.3, 2.0), (0, 0, 0), fx=400.0, width=200, height=160)
+    uv = np.ascontiguousarray(cam.project(V))
+    full = _rasterize_mask(uv, F, 200, 160, np.zeros((160, 200), np.uint8), 0.0)
+    for facing in (1.0, -1.0):
+        one = _rasterize_mask(uv, F, 200, 160, np.zeros((160, 200), np.uint8), facing)
+        assert full.sum() > 1000
+        np.testing.assert_array_equal(one, full)
+
+
+def test_numba_rays_agree_with_the_camera_model_under_distortion():
+    """The fused per-view pass (projection, rim test, occlusion, search, ray) against the camera API."""
+    from bodystudio.reconstruct.silhouette import area_weighted_normals
+
+    V, F, _ = _sphere(0.30)
+    N = area_weighted_normals(V, F)
+    base = Camera.look_at("c0", (0.3, 0.2, 2.5), (0, 0, 0), fx=420.0, width=240, height=200)
+    cam = Camera("c0", base.K, np.array([-0.12, 0.05, 0.001, -0.002, 0.0]), base.R, base.t, 240, 200)
+    masks = {"c0": silhouette_mask(1.05 * V, F, cam)}
+    sil = silhouette_constraints(V, F, N, [cam], masks)
+    assert len(sil) > 30
+    uv = cam.project(V[sil.vertex])
+    n2 = cam.project(V[sil.vertex] + 0.005 * N[sil.vertex]) - uv
+    n2 /= np.linalg.norm(n2, axis=1, keepdims=True)
+    t = match_contours(masks["c0"], uv, n2, 30.0)
+    np.testing.assert_allclose(t, sil.pixel_distance * np.sign(t), atol=1e-9)
+    o, d = cam.rays(uv + t[:, None] * n2)
+    np.testing.assert_allclose(sil.direction, d, atol=1e-9)
+    np.testing.assert_allclose(sil.origin, o, atol=1e-12)
