@@ -53,9 +53,30 @@ def _synthetic_case(n_cameras: int, n_poses: int, width: int, height: int, seed:
     return rows, len(obs)
 
 
+def _seed_spread(n_cameras: int, n_poses: int, seeds) -> str:
+    """The full case on several pose plans and noise draws: the acceptance is a statement about the
+    protocol, not about one lucky draw."""
+    spec = board_for_resolution(1280)
+    rig = ring_rig(n_cameras, width=1280, height=960)
+    rows = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        poses = calibration_board_poses(rig, spec, n_poses, rng)
+        obs = synthetic_charuco_observations(rig, spec, poses, NOISE_PX, rng)
+        result = calibrate_cameras(obs, spec)
+        rows.append([seed] + _row("", evaluate_calibration(result.rig, rig), result.rms_px,
+                                  result.expected_rms_px(NOISE_PX), result.seconds)[1:])
+    arr = np.array([r[1:] for r in rows], float)
+    rows.append(["mean"] + list(arr.mean(0)))
+    rows.append(["worst"] + list(arr.max(0)))
+    return markdown_table(["seed", "RMS px", "expected RMS px", "centre mm (mean)", "centre mm (max)",
+                           "rot deg (mean)", "rot deg (max)", "focal % (mean)", "focal % (max)", "volume reproj px",
+                           "time s"], rows)
+
+
 def _noise_scaling(n_cameras: int, n_poses: int) -> str:
     """Errors against corner noise on one capture: zero at zero noise and linear in it means no bias."""
-    spec = CharucoBoardSpec()
+    spec = board_for_resolution(1280)
     rig = ring_rig(n_cameras, width=1280, height=960)
     poses = calibration_board_poses(rig, spec, n_poses, np.random.default_rng(1))
     rows = []
@@ -118,6 +139,8 @@ def run(quick: bool = False) -> str:
     header = ["method", "RMS px", "expected RMS px", "centre mm (mean)", "centre mm (max)", "rot deg (mean)",
               "rot deg (max)", "focal % (mean)", "focal % (max)", "volume reproj px", "time s"]
     n_cams, n_poses = (6, 15) if quick else (10, 30)
+    spec = board_for_resolution(1280)
+    seeds = (1, 2) if quick else tuple(range(1, 7))
     repeats = 1 if quick else 5
     rows, n_obs = _synthetic_case(n_cams, n_poses, 1280, 960, seed=1, repeats=repeats)
     rows_vga, n_obs_vga = _synthetic_case(n_cams, n_poses, 640, 480, seed=1, repeats=1)
@@ -125,8 +148,9 @@ def run(quick: bool = False) -> str:
         rendered, t_render, t_detect, n_det, n_out = _rendered_case(Path(tmp), *((4, 12) if quick else (10, 30)))
     text = [f"## calib: multi-camera calibration ({n_cams} cameras, {n_poses} board poses)",
             "",
-            f"Synthetic ChArUco corners ({CharucoBoardSpec().squares_x}x{CharucoBoardSpec().squares_y} board, "
-            f"0.1 m squares) on the `ring_rig` studio at 1280x960 with {NOISE_PX} px Gaussian noise: "
+            f"Synthetic ChArUco corners ({spec.squares_x}x{spec.squares_y} board, {spec.square_m} m squares, "
+            "poses planned by the studio protocol: 4 floor boards, then tilted boards covering every image) "
+            f"on the `ring_rig` studio at 1280x960 with {NOISE_PX} px Gaussian noise: "
             f"{n_obs} corner observations. Errors against ground truth in the floor-board world frame (no "
             "alignment); *expected RMS* is sigma * sqrt(2 (m - p) / m) for m residuals and p parameters; "
             "*volume reproj* is the GT-vs-estimate pixel distance of points filling the capture volume. Time: "
@@ -139,9 +163,14 @@ def run(quick: bool = False) -> str:
             "",
             markdown_table(header, rows_vga),
             "",
+            f"The same case over pose plans and noise draws (seeds {seeds[0]}-{seeds[-1]}, single runs; seed 1 is "
+            "the table above; *mean* / *worst* are over the seeds):",
+            "",
+            _seed_spread(n_cams, n_poses, seeds),
+            "",
             "Error against corner noise (same poses, fresh noise): the bundle adjustment recovers the rig "
             "exactly from exact corners and its error grows linearly with the noise, i.e. what remains is "
-            "the information 30 poses carry, not a bias:",
+            "the information the board poses carry, not a bias:",
             "",
             _noise_scaling(n_cams, n_poses),
             "",

@@ -9,6 +9,7 @@ from bodystudio.calib.evaluate import evaluate_calibration
 from bodystudio.calib.observations import observations_from_views
 from bodystudio.calib.synthetic import synthetic_charuco_observations
 from bodystudio.errors import SessionError
+
 from .conftest import NOISE_PX
 
 
