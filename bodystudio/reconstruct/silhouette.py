@@ -342,11 +342,11 @@ def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras,
             continue
         vid.append(ids)
         direction.append(d)
-        origin.append(np.broadcast_to(center, d.shape))
+        origin.append(np.broadcast_to(center, d.shape))  # concatenated below into one C-contiguous array
         k.append(silhouette_weight(off, alpha_px))
         cam_ids.append(np.full(len(ids), c))
         dist.append(np.abs(off))
     if not vid:
         return SilhouetteConstraints.empty()
-    return SilhouetteConstraints(np.concatenate(vid), np.concatenate(origin), np.concatenate(direction),
+    return SilhouetteConstraints(np.concatenate(vid), np.ascontiguousarray(np.concatenate(origin)), np.concatenate(direction),
                                  np.concatenate(k), np.concatenate(cam_ids), np.concatenate(dist))

@@ -79,7 +79,14 @@ class ConstraintSet:
 def projection_weight(k: np.ndarray | float, inner_iterations: int) -> np.ndarray:
     """Per-projection weight ``k' = 1 - (1 - k)^(1/Ni)`` of Rapid Skin §III.C (from Müller et al. 2007)."""
     k = np.clip(np.asarray(k, dtype=np.float64), 0.0, 1.0)
-    return 1.0 - (1.0 - k) ** (1.0 / max(int(inner_iterations), 1))
+    ni = max(int(inner_iterations), 1)
+    if ni & (ni - 1) == 0:  # Ni = 2^m (the default 8): m square roots, ~10x cheaper than pow, same to an ulp
+        r = 1.0 - k
+        while ni > 1:
+            r = np.sqrt(r)
+            ni >>= 1
+        return 1.0 - r
+    return 1.0 - (1.0 - k) ** (1.0 / ni)
 
 
 def point_to_ray_distance(P: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
