@@ -13,6 +13,8 @@ projected silhouette (a cheap visibility test the paper leaves implicit).
 
 from __future__ import annotations
 
+import hashlib
+
 import numba
 import numpy as np
 
@@ -190,6 +192,36 @@ def _project_point(X, Y, Z, R, t, K, dist, has_dist):
 
 
 @numba.njit(cache=True)
+def _project_all(V, R, t, K, dist):
+    """Pixels ``(n, 2)`` (NaN behind the camera) and depths ``(n,)`` of all vertices, Eq. 6 with OpenCV
+    distortion; camera constants hoisted out of the loop (zero distortion reproduces the pinhole exactly)."""
+    n = V.shape[0]
+    uv = np.empty((n, 2))
+    z = np.empty(n)
+    r00, r01, r02, r10, r11, r12 = R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2]
+    r20, r21, r22, t0, t1, t2 = R[2, 0], R[2, 1], R[2, 2], t[0], t[1], t[2]
+    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+    fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+    for i in range(n):
+        X, Y, Z = V[i, 0], V[i, 1], V[i, 2]
+        zc = r20 * X + r21 * Y + r22 * Z + t2
+        x = (r00 * X + r01 * Y + r02 * Z + t0) / zc
+        y = (r10 * X + r11 * Y + r12 * Z + t1) / zc
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        uv[i, 0] = fx * xd + sk * yd + cx
+        uv[i, 1] = fy * yd + cy
+        z[i] = zc
+    for i in range(n):
+        if not z[i] > 0.0:
+            uv[i, 0] = np.nan
+            uv[i, 1] = np.nan
+    return uv, z
+
+
+@numba.njit(cache=True)
 def _undistort_from(u, v, x, y, K, dist, has_dist):
     """Normalised undistorted point of pixel (u, v) by Newton's method started at (x, y) (the rim vertex's
     own undistorted image point, <= tau pixels away, so a few steps reach machine precision)."""
@@ -251,12 +283,7 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
     (pixels) and unit ray directions.
     """
     n = V.shape[0]
-    uv = np.empty((n, 2))
-    xy = np.empty((n, 2))
-    z = np.empty(n)
-    for i in range(n):
-        uv[i, 0], uv[i, 1], z[i], xy[i, 0], xy[i, 1] = _project_point(V[i, 0], V[i, 1], V[i, 2], R, t, K, dist,
-                                                                       has_dist)
+    uv, z = _project_all(V, R, t, K, dist)
     own[:, :] = 0
     _rasterize_mask(uv, F, width, height, own, facing)
     ids = np.empty(n, np.int64)
@@ -288,7 +315,8 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
         best = _nearest_crossing(mask, u, v, dx, dy, steps, tau_px)
         if not np.isfinite(best):
             continue
-        x, y = _undistort_from(u + best * dx, v + best * dy, xy[i, 0], xy[i, 1], K, dist, has_dist)
+        _, _, _, x0, y0 = _project_point(V[i, 0], V[i, 1], V[i, 2], R, t, K, dist, has_dist)
+        x, y = _undistort_from(u + best * dx, v + best * dy, x0, y0, K, dist, has_dist)
         # World direction R^T (x, y, 1), normalised.
         wx = R[0, 0] * x + R[1, 0] * y + R[2, 0]
         wy = R[0, 1] * x + R[1, 1] * y + R[2, 1]
@@ -301,6 +329,20 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
     return ids[:m], offs[:m], dirs[:m]
 
 
+_CLOSED_CACHE: dict = {}
+
+
+def _is_closed_cached(F: np.ndarray) -> bool:
+    """:func:`is_closed_mesh` memoised on the face array's bytes (one template, many frames)."""
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    key = hashlib.blake2b(F.tobytes(), digest_size=16).digest()
+    if key not in _CLOSED_CACHE:
+        if len(_CLOSED_CACHE) > 16:
+            _CLOSED_CACHE.clear()
+        _CLOSED_CACHE[key] = is_closed_mesh(F)
+    return _CLOSED_CACHE[key]
+
+
 class SilhouetteViews:
     """Per-frame camera and mask data for :func:`silhouette_constraints`, prepared once per frame.
 
@@ -310,10 +352,10 @@ class SilhouetteViews:
     """
 
     def __init__(self, cameras, masks: dict, F: np.ndarray | None = None):
-        self.facing = 1.0 if F is not None and is_closed_mesh(F) else 0.0
+        self.facing = 1.0 if F is not None and _is_closed_cached(F) else 0.0
         self.views = []
         for cam in cameras:
-            mask = np.ascontiguousarray(np.asarray(masks[cam.name]) > 0, dtype=np.float64)
+            mask = np.ascontiguousarray(np.asarray(masks[cam.name]) > 0).view(np.uint8)  # sampled as 0 / 1
             self.views.append((cam, mask, np.zeros((cam.height, cam.width), np.uint8),
                                np.ascontiguousarray(cam.K), np.ascontiguousarray(cam.dist),
                                np.ascontiguousarray(cam.R), np.ascontiguousarray(cam.t),
