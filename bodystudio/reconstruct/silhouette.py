@@ -53,6 +53,45 @@ def _rasterize_mask(uv, F, width, height, mask, facing=0.0):
     return mask
 
 
+#: Tile size (pixels) of the probe map that culls triangles in the occlusion raster.
+_TILE = 8
+
+
+@numba.njit(cache=True)
+def _rasterize_needed(uv, F, width, height, mask, facing, need):
+    """:func:`_rasterize_mask` restricted to triangles whose bounding box touches a tile flagged in
+    ``need``; pixels in flagged tiles come out exactly as in the full raster."""
+    th, tw = need.shape
+    for f in range(F.shape[0]):
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        ax, ay, bx, by, cx, cy = uv[a, 0], uv[a, 1], uv[b, 0], uv[b, 1], uv[c, 0], uv[c, 1]
+        area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        if not np.isfinite(area) or area == 0.0 or area * facing < 0.0:
+            continue
+        x0 = max(int(np.ceil(min(ax, bx, cx))), 0)
+        x1 = min(int(np.floor(max(ax, bx, cx))), width - 1)
+        y0 = max(int(np.ceil(min(ay, by, cy))), 0)
+        y1 = min(int(np.floor(max(ay, by, cy))), height - 1)
+        if x0 > x1 or y0 > y1:
+            continue
+        hit = False
+        for ty in range(y0 // _TILE, min(y1 // _TILE, th - 1) + 1):
+            for tx in range(x0 // _TILE, min(x1 // _TILE, tw - 1) + 1):
+                if need[ty, tx]:
+                    hit = True
+        if not hit:
+            continue
+        s = 1.0 if area > 0 else -1.0
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
+                w0 = s * ((bx - x) * (cy - y) - (by - y) * (cx - x))
+                w1 = s * ((cx - x) * (ay - y) - (cy - y) * (ax - x))
+                w2 = s * ((ax - x) * (by - y) - (ay - y) * (bx - x))
+                if w0 >= 0 and w1 >= 0 and w2 >= 0:
+                    mask[y, x] = 1
+    return mask
+
+
 def is_closed_mesh(F: np.ndarray) -> bool:
     """Every directed edge (a, b) has exactly one opposite (b, a): a closed, consistently oriented mesh."""
     F = np.asarray(F, dtype=np.int64)
@@ -276,21 +315,22 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
                 probe_m, outline_px):
     """Rim vertices of one view matched with its silhouette contour (Rapid Skin §III.B, Eq. 6-7).
 
-    One pass over the vertices projects them (Eq. 6), rasterises the template's own silhouette into
-    ``own`` (the occlusion test), keeps rim vertices (``|n . ray| < rim_cos``) whose outward probe
-    leaves ``own``, searches ``mask`` along the projected normal (``+-tau``) and turns each match
-    into a viewing ray through the matched pixel (Eq. 7). Returns vertex ids, signed offsets ``t``
-    (pixels) and unit ray directions.
+    Projects the vertices (Eq. 6), keeps rim vertices (``|n . ray| < rim_cos``) and their outward
+    probe pixels, rasterises the template's own silhouette into ``own`` only where a probe can read it
+    (triangles whose bounding box misses every probe tile cannot cover a probe pixel, so the test is
+    exact), drops rim vertices whose probe lies inside it (occluded), searches ``mask`` along the
+    projected normal (``+-tau``) and turns each match into a viewing ray through the matched pixel
+    (Eq. 7). Returns vertex ids, signed offsets ``t`` (pixels) and unit ray directions.
     """
     n = V.shape[0]
     uv, z = _project_all(V, R, t, K, dist)
-    own[:, :] = 0
-    _rasterize_mask(uv, F, width, height, own, facing)
-    ids = np.empty(n, np.int64)
-    offs = np.empty(n)
-    dirs = np.empty((n, 3))
-    m = 0
-    steps = int(np.ceil(tau_px))
+    cand = np.empty(n, np.int64)
+    cdir = np.empty((n, 2))
+    cpix = np.empty((n, 2), np.int64)
+    tiles_w = (width + _TILE - 1) // _TILE
+    tiles_h = (height + _TILE - 1) // _TILE
+    need = np.zeros((tiles_h, tiles_w), np.uint8)
+    nc = 0
     for i in range(n):
         u, v = uv[i, 0], uv[i, 1]
         if not (z[i] > 0.0 and u >= 0.0 and u < width and v >= 0.0 and v < height):
@@ -307,11 +347,26 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
             continue
         dx /= dn
         dy /= dn
+        ox = int(min(max(np.round(u + outline_px * dx), 0.0), width - 1.0))
+        oy = int(min(max(np.round(v + outline_px * dy), 0.0), height - 1.0))
+        cand[nc] = i
+        cdir[nc, 0], cdir[nc, 1] = dx, dy
+        cpix[nc, 0], cpix[nc, 1] = ox, oy
+        need[oy // _TILE, ox // _TILE] = 1
+        nc += 1
+    own[:, :] = 0
+    _rasterize_needed(uv, F, width, height, own, facing, need)
+    ids = np.empty(nc, np.int64)
+    offs = np.empty(nc)
+    dirs = np.empty((nc, 3))
+    m = 0
+    steps = int(np.ceil(tau_px))
+    for c in range(nc):
         # Occlusion: one step outwards must leave the template's own projected silhouette.
-        ox = min(max(np.round(u + outline_px * dx), 0.0), width - 1.0)
-        oy = min(max(np.round(v + outline_px * dy), 0.0), height - 1.0)
-        if own[int(oy), int(ox)] != 0:
+        if own[cpix[c, 1], cpix[c, 0]] != 0:
             continue
+        i = cand[c]
+        u, v, dx, dy = uv[i, 0], uv[i, 1], cdir[c, 0], cdir[c, 1]
         best = _nearest_crossing(mask, u, v, dx, dy, steps, tau_px)
         if not np.isfinite(best):
             continue

@@ -150,3 +150,17 @@ def test_numba_rays_agree_with_the_camera_model_under_distortion():
     o, d = cam.rays(uv + t[:, None] * n2)
     np.testing.assert_allclose(sil.direction, d, atol=1e-9)
     np.testing.assert_allclose(sil.origin, o, atol=1e-12)
+
+
+def test_culled_outline_raster_is_exact_on_flagged_tiles():
+    from bodystudio.reconstruct.silhouette import _TILE, _rasterize_mask, _rasterize_needed
+
+    V, F, _ = _sphere(0.3)
+    cam = Camera.look_at("c0", (0.4, 0.3, 2.0), (0, 0, 0), fx=400.0, width=200, height=160)
+    uv = np.ascontiguousarray(cam.project(V))
+    full = _rasterize_mask(uv, F, 200, 160, np.zeros((160, 200), np.uint8), 1.0)
+    need = (np.random.default_rng(1).random(((160 + _TILE - 1) // _TILE, (200 + _TILE - 1) // _TILE)) < 0.3)
+    culled = _rasterize_needed(uv, F, 200, 160, np.zeros((160, 200), np.uint8), 1.0, need.astype(np.uint8))
+    flagged = np.kron(need, np.ones((_TILE, _TILE), bool))[:160, :200]
+    assert full[flagged].sum() > 200 and culled.sum() < full.sum()  # culling skipped work, kept flagged pixels
+    np.testing.assert_array_equal(culled[flagged], full[flagged])
