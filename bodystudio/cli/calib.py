@@ -25,11 +25,11 @@ def _progress() -> Progress:
 
 @app.command("board")
 def board(out: Path = typer.Argument(..., help="board image: .png or .pdf (true size); board.json is written beside"),
-          squares_x: int = typer.Option(10, help="squares along x"),
-          squares_y: int = typer.Option(7, help="squares along y"),
+          squares_x: int = typer.Option(12, help="squares along x (12x9 of 100 mm: the studio protocol's board)"),
+          squares_y: int = typer.Option(9, help="squares along y"),
           square_mm: float = typer.Option(100.0, help="square side, mm"),
           marker_mm: float = typer.Option(75.0, help="ArUco marker side, mm"),
-          dictionary: str = typer.Option("DICT_4X4_50", help="ArUco dictionary"),
+          dictionary: str = typer.Option("DICT_4X4_100", help="ArUco dictionary"),
           dpi: float = typer.Option(300.0, help="PNG resolution")) -> None:
     """Write a printable ChArUco board (PNG at DPI, or PDF at true size) and its board.json."""
     from bodystudio.calib.board import CharucoBoardSpec, save_board_json, write_board_pdf, write_board_png
