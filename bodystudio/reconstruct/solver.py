@@ -113,7 +113,7 @@ def constraint_energy(V: np.ndarray, cs: ConstraintSet) -> float:
 
 # --- Gauss-Seidel constraint projection (Algorithm 1, lines 4-8) ---------------------------------
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
 def _gauss_seidel_sweeps(V, indptr, indices, weights, delta_rest, k_sm_prime, sil_vertex, sil_origin, sil_dir,
                          sil_k, dep_vertex, dep_point, dep_normal, dep_k, n_sweeps):
     n = V.shape[0]
@@ -124,6 +124,8 @@ def _gauss_seidel_sweeps(V, indptr, indices, weights, delta_rest, k_sm_prime, si
         for e in range(indptr[i], indptr[i + 1]):
             s += weights[e] * weights[e]
         inv_grad2[i] = 1.0 / s
+    Vf = V.reshape(-1)  # views of the C-contiguous (n, 3) arrays
+    rest = delta_rest.reshape(-1)
     for _ in range(n_sweeps):
         # Silhouette constraints (Eq. 7): |grad d_pl| = 1, so the step removes k' of the offset to the ray.
         for c in range(sil_vertex.shape[0]):
@@ -145,30 +147,34 @@ def _gauss_seidel_sweeps(V, indptr, indices, weights, delta_rest, k_sm_prime, si
             V[i, 0] -= k * dep_normal[c, 0]
             V[i, 1] -= k * dep_normal[c, 1]
             V[i, 2] -= k * dep_normal[c, 2]
-        # Smoothness constraints (Eq. 9), Newton step of Eq. 4 on v_i and its 1-ring.
+        # Smoothness constraints (Eq. 9), Newton step of Eq. 4 on v_i and its 1-ring (flat xyz indexing:
+        # one multiply per neighbour address, measured ~3 % faster than 2-D indexing).
         for i in range(n):
-            rx = V[i, 0] - delta_rest[i, 0]
-            ry = V[i, 1] - delta_rest[i, 1]
-            rz = V[i, 2] - delta_rest[i, 2]
-            for e in range(indptr[i], indptr[i + 1]):
-                j = indices[e]
+            i3 = 3 * i
+            rx = Vf[i3] - rest[i3]
+            ry = Vf[i3 + 1] - rest[i3 + 1]
+            rz = Vf[i3 + 2] - rest[i3 + 2]
+            a = indptr[i]
+            b = indptr[i + 1]
+            for e in range(a, b):
+                j3 = 3 * indices[e]
                 w = weights[e]
-                rx -= w * V[j, 0]
-                ry -= w * V[j, 1]
-                rz -= w * V[j, 2]
+                rx -= w * Vf[j3]
+                ry -= w * Vf[j3 + 1]
+                rz -= w * Vf[j3 + 2]
             f = k_sm_prime * inv_grad2[i]
             rx *= f
             ry *= f
             rz *= f
-            V[i, 0] -= rx
-            V[i, 1] -= ry
-            V[i, 2] -= rz
-            for e in range(indptr[i], indptr[i + 1]):
-                j = indices[e]
+            Vf[i3] -= rx
+            Vf[i3 + 1] -= ry
+            Vf[i3 + 2] -= rz
+            for e in range(a, b):
+                j3 = 3 * indices[e]
                 w = weights[e]
-                V[j, 0] += w * rx
-                V[j, 1] += w * ry
-                V[j, 2] += w * rz
+                Vf[j3] += w * rx
+                Vf[j3 + 1] += w * ry
+                Vf[j3 + 2] += w * rz
     return V
 
 
