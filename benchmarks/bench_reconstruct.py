@@ -3,8 +3,8 @@
 1. Accuracy on a synthetic 10-camera 640x480 walk of subject 31 (not used by the tests), 13K template,
    joints from the simulated Kinect tracker: silhouette, depth and both constraint modes.
 2. Solver time per frame (No = 8 outer x Ni = 8 inner, contour matching excluded as in the paper's
-   Fig. 9, and reported beside it) for Gauss-Seidel, Jacobi, Cholesky (SuperLU) and CG at the 2.5K / 6K / 13K templates, one
-   thread, measured in this process, with ratios to Gauss-Seidel.
+   Fig. 9, and reported beside it) for Gauss-Seidel, Jacobi, Cholesky (SuperLU) and CG at the
+   2.5K / 6K / 13K templates, one thread, measured in this process, with ratios to Gauss-Seidel.
 3. Error vs inner iterations for GS and CG on fixed contour matches (the paper's Fig. 5-6), written
    to docs/reconstruct_convergence.png.
 """

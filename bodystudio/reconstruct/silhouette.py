@@ -9,6 +9,9 @@ silhouette gradient that agrees with the normal). A match becomes a viewing-ray 
 Rim vertices hidden behind another body part in a view would match the occluder's contour; we drop
 them by checking that one step outwards along the projected normal leaves the template's own
 projected silhouette (a cheap visibility test the paper leaves implicit).
+
+Everything per view runs in one numba pass (:func:`_match_view`); the masks are prepared once per
+frame (:class:`SilhouetteViews`) for Algorithm 1's ``No`` re-matchings.
 """
 
 from __future__ import annotations
@@ -445,5 +448,6 @@ def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras,
         dist.append(np.abs(off))
     if not vid:
         return SilhouetteConstraints.empty()
-    return SilhouetteConstraints(np.concatenate(vid), np.ascontiguousarray(np.concatenate(origin)), np.concatenate(direction),
-                                 np.concatenate(k), np.concatenate(cam_ids), np.concatenate(dist))
+    return SilhouetteConstraints(np.concatenate(vid), np.ascontiguousarray(np.concatenate(origin)),
+                                 np.concatenate(direction), np.concatenate(k), np.concatenate(cam_ids),
+                                 np.concatenate(dist))
