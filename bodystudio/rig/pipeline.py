@@ -25,7 +25,8 @@ log = logging.getLogger(__name__)
 # A human scan fits the model to a few millimetres (median); a chair, a box or a dog does not.
 NON_HUMAN_FIT_MM = 15.0
 GOOD_FIT_MM = 1.5  # synthetic scans fit to 0.9-1.2 mm median (surface pairs) when the fit found the right basin
-RESTART_SURFACE_FROM = (0, 12)  # restarts alternate: surface pairs throughout / vertex pairs for 12 iterations
+THOROUGH_FIT = {"max_iterations": 40, "scan_sample_factor": 4, "lm_iterations": 8}  # restarts: slower, surer
+RESTART_SURFACE_FROM = 20  # restarts: vertex pairs for 20 iterations (they found the basin where surface pairs did not)
 FIT_ATTEMPTS = 3
 TEMPLATES = {"6k": "6k", "13k": "full", "2k": "2k"}
 WEIGHT_METHODS = ("harmonic", "barycentric")
@@ -81,14 +82,15 @@ def _rig_scan(scan: Mesh, model, weights: str, stage: Callable[[str], None] | No
             stage(name)
 
     # The fit can stop in a local minimum (a limb settled on the wrong side, a twisted spine); refit while
-    # the fit is clearly worse than a good one, with other pair-sampling seeds and alternately with the
-    # first iterations on vertex pairs (coarser, sticky, but they found the basin where surface pairs did not).
+    # the fit is clearly worse than a good one, with other pair-sampling seeds and the first iterations on
+    # vertex pairs (coarser, sticky, but on the random-pose scan they found the basin where surface pairs
+    # did not), surface pairs after that.
     fit = fit_model(model, scan, seed=seed)
     for attempt in range(1, FIT_ATTEMPTS):
         if fit.fit_err_mm_median <= GOOD_FIT_MM:
             break
         log.info("fit error %.1f mm: restarting with another sample seed", fit.fit_err_mm_median)
-        again = fit_model(model, scan, seed=seed + attempt, surface_from=RESTART_SURFACE_FROM[attempt % 2])
+        again = fit_model(model, scan, seed=seed + attempt, surface_from=RESTART_SURFACE_FROM, **THOROUGH_FIT)
         fit = again if again.fit_err_mm_median < fit.fit_err_mm_median else fit
     done("fit")
     if fit.fit_err_mm_median > NON_HUMAN_FIT_MM:

