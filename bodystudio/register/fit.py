@@ -41,9 +41,9 @@ SAMPLE_FRACTION = 0.1  # Masuda's random tenth
 N_SAMPLES = 1500  # fixed size of the casadi residual (pairs drawn per iteration)
 SURFACE_PAIRS = True  # scan -> model pairs on the model surface (barycentric), not at its nearest vertex
 SURFACE_FROM = 0
-# Speed: 30 outer iterations of 4 LM steps on 2 scan samples per model vertex fit the 100K scans as well
-# as 40 x 8 on 4 (1.0-1.1 mm median) in 40 % of the time; the pipeline's restarts use the thorough setting.
-MAX_ITERATIONS = 30
+# Speed: 40 outer iterations of 4 LM steps on 2 scan samples per model vertex fit the 100K scans as well
+# as 8 LM steps on 4 samples (0.9-1.1 mm median) in half the time; the pipeline's restarts use the latter.
+MAX_ITERATIONS = 40
 SCAN_SAMPLE_PER_MODEL_VERTEX = 2
 LM_ITERATIONS = 4
 FREE_BONES = ("Root", "pelvis", "spine_01", "spine_02", "spine_03", "neck_01", "head", "clavicle_l", "clavicle_r",
