@@ -82,6 +82,13 @@ def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
 
 
+def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Barycentric vertex areas: a third of each incident triangle's area (libigl's barycentric mass)."""
+    M = igl.massmatrix(np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(F, dtype=np.int64),
+                       igl.MASSMATRIX_TYPE_BARYCENTRIC)
+    return np.asarray(M.diagonal()).ravel()
+
+
 def quads_to_triangles(quads: np.ndarray) -> np.ndarray:
     """Split each quad (a, b, c, d) into triangles (a, b, c) and (a, c, d)."""
     quads = np.asarray(quads)

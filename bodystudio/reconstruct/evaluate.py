@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import igl
 import numpy as np
 
+from bodystudio.geometry.mesh import vertex_areas
 from bodystudio.reconstruct.silhouette import silhouette_mask
 
 #: Region -> bones whose dominant skin weight puts a vertex in it (game_engine rig).
@@ -49,15 +50,6 @@ def point_to_surface_mm(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarr
                                                np.ascontiguousarray(V, dtype=np.float64),
                                                np.ascontiguousarray(F, dtype=np.int64))
     return 1000.0 * np.sqrt(np.maximum(d2, 0.0))
-
-
-def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Barycentric vertex areas (a third of each adjacent face's area)."""
-    a = 0.5 * igl.doublearea(V, F)
-    out = np.zeros(len(V))
-    for k in range(3):
-        np.add.at(out, F[:, k], a / 3.0)
-    return out
 
 
 def visible_vertices(V: np.ndarray, F: np.ndarray, cameras, tolerance_m: float = 0.01) -> np.ndarray:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from bodystudio.errors import FileFormatError, InputError
-from bodystudio.geometry.mesh import MESH_SUFFIXES, Mesh
+from bodystudio.geometry.mesh import MESH_SUFFIXES, Mesh, vertex_areas
 
 log = logging.getLogger(__name__)
 
@@ -170,14 +170,6 @@ def detect_orientation(V: np.ndarray, area: np.ndarray) -> tuple[np.ndarray, str
     return R, ("+" if up_sign > 0 else "-") + names[up], ("+" if face_sign > 0 else "-") + names[depth]
 
 
-def _vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    fa = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-    out = np.zeros(len(V))
-    for k in range(3):
-        np.add.at(out, F[:, k], fa / 3.0)
-    return out
-
-
 def load_scan(path: str | Path, units: str | None = None, up_axis: str | None = None) -> tuple[Mesh, ScanReport]:
     """Read, clean and canonicalise a body scan (metres, y up, facing +z); the report says what was assumed.
 
@@ -197,7 +189,7 @@ def load_scan(path: str | Path, units: str | None = None, up_axis: str | None = 
     notes = []
     if removed_v or removed_f:
         notes.append(f"clean-up removed {removed_v} vertices and {removed_f} faces")
-    area = _vertex_areas(mesh.vertices, mesh.faces)
+    area = vertex_areas(mesh.vertices, mesh.faces)
     if up_axis is None:
         R, up_name, facing_name = detect_orientation(mesh.vertices, area)
         notes.append(f"assumed up axis {up_name}, facing {facing_name} (detected from the body's shape)")

@@ -12,6 +12,8 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 
+from bodystudio.geometry.mesh import vertex_areas
+
 EPS = 1e-10
 
 
@@ -81,15 +83,6 @@ def joint_mean_value_coordinates(joints: np.ndarray, V: np.ndarray, F: np.ndarra
     Vc, Fc, P = close_holes(V, F)
     out = np.vstack([mean_value_coordinates(joints[i:i + 8], Vc, Fc) for i in range(0, len(joints), 8)])
     return np.asarray((P.T @ out.T).T)
-
-
-def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Barycentric vertex areas (a third of each incident triangle)."""
-    fa = 0.5 * igl.doublearea(V, F)
-    A = np.zeros(len(V))
-    for k in range(3):
-        np.add.at(A, F[:, k], fa / 3.0)
-    return A
 
 
 def closest_points(points: np.ndarray, V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
