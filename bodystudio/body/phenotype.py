@@ -104,7 +104,7 @@ def local_modifiers(data_dir: Path) -> dict[str, tuple[str, str]]:
     with open(data_dir / "targets" / "target.json", encoding="utf-8") as f:
         spec = json.load(f)
     mods: dict[str, tuple[str, str]] = {}
-    for group, entry in spec.items():
+    for entry in spec.values():
         for cat in entry.get("categories", []):
             opp = cat.get("opposites", {})
             name = cat["name"]

@@ -20,7 +20,7 @@ from bodystudio.body import Phenotype, Pose, Skeleton, build_body, load_pose
 from bodystudio.body.assets import bodystudio_home
 from bodystudio.body.model import decimate_keeping_vertices
 from bodystudio.body.population import sample_subject
-from bodystudio.body.skinning import linear_blend_skinning, posed_joints, skinning_transforms
+from bodystudio.body.skinning import posed_joints, skinning_transforms
 from bodystudio.errors import FileFormatError, InputError
 from bodystudio.fileio import atomic_path, read_json, write_json
 from bodystudio.geometry.mesh import Mesh, save_mesh, vertex_normals

@@ -3,7 +3,6 @@
 import numpy as np
 import scipy.sparse as sp
 
-from bodystudio.body import build_body
 from bodystudio.register.synthetic import densify, load_ground_truth, ground_truth_dir, midpoint_subdivision
 
 

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from bodystudio.errors import InputError
-from bodystudio.geometry.mesh import Mesh
 from bodystudio.register.scan import load_scan
 from bodystudio.rig.evaluate import evaluate_rig
 from bodystudio.rig.pipeline import load_template_model, rig_scan
