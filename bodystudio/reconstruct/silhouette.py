@@ -21,6 +21,7 @@ import hashlib
 import numba
 import numpy as np
 
+from bodystudio.capture.render import render
 from bodystudio.errors import SessionError
 from bodystudio.reconstruct.solver import SilhouetteConstraints
 
@@ -111,11 +112,9 @@ def is_closed_mesh(F: np.ndarray) -> bool:
 
 
 def silhouette_mask(V: np.ndarray, F: np.ndarray, camera) -> np.ndarray:
-    """Binary mask ``(H, W)`` of the mesh's projection (pixel centres at integer coordinates)."""
-    uv = camera.project(V)
-    mask = np.zeros((camera.height, camera.width), np.uint8)
-    return _rasterize_mask(np.ascontiguousarray(uv), np.ascontiguousarray(F, dtype=np.int64),
-                           camera.width, camera.height, mask).astype(bool)
+    """Binary mask ``(H, W)`` of the mesh's projection, by the capture stage's renderer (the same
+    rasteriser that made the ground-truth masks, so silhouette IoUs compare like with like)."""
+    return render(V, F, camera).mask
 
 
 def rim_vertices(V: np.ndarray, N: np.ndarray, camera, max_cos: float = 0.2) -> np.ndarray:

@@ -113,17 +113,24 @@ def constraint_energy(V: np.ndarray, cs: ConstraintSet) -> float:
 
 # --- Gauss-Seidel constraint projection (Algorithm 1, lines 4-8) ---------------------------------
 
-@numba.njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
-def _gauss_seidel_sweeps(V, indptr, indices, weights, delta_rest, k_sm_prime, sil_vertex, sil_origin, sil_dir,
-                         sil_k, dep_vertex, dep_point, dep_normal, dep_k, n_sweeps):
-    n = V.shape[0]
-    # 1 / |grad C_sm_i|^2 = 1 / (1 + sum_j w_ij^2) for the vector-valued smoothness constraint.
-    inv_grad2 = np.empty(n)
+@numba.njit(cache=True)
+def _inverse_smoothness_gradient_norms(indptr, weights):
+    """``1 / |grad C_sm_i|^2 = 1 / (1 + sum_j w_ij^2)`` for the vector-valued smoothness constraint (Eq. 9)."""
+    n = len(indptr) - 1
+    out = np.empty(n)
     for i in range(n):
         s = 1.0
         for e in range(indptr[i], indptr[i + 1]):
             s += weights[e] * weights[e]
-        inv_grad2[i] = 1.0 / s
+        out[i] = 1.0 / s
+    return out
+
+
+@numba.njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
+def _gauss_seidel_sweeps(V, indptr, indices, weights, delta_rest, k_sm_prime, sil_vertex, sil_origin, sil_dir,
+                         sil_k, dep_vertex, dep_point, dep_normal, dep_k, n_sweeps):
+    n = V.shape[0]
+    inv_grad2 = _inverse_smoothness_gradient_norms(indptr, weights)
     Vf = V.reshape(-1)  # views of the C-contiguous (n, 3) arrays
     rest = delta_rest.reshape(-1)
     for _ in range(n_sweeps):
@@ -214,12 +221,7 @@ def gauss_seidel(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8,
 def _jacobi_sweeps(V, indptr, indices, weights, reverse, delta_rest, k_sm_prime, sil_ptr, sil_origin, sil_dir, sil_k,
                    dep_ptr, dep_point, dep_normal, dep_k, relaxation, n_sweeps):
     n = V.shape[0]
-    inv_grad2 = np.empty(n)
-    for i in range(n):
-        s = 1.0
-        for e in range(indptr[i], indptr[i + 1]):
-            s += weights[e] * weights[e]
-        inv_grad2[i] = 1.0 / s
+    inv_grad2 = _inverse_smoothness_gradient_norms(indptr, weights)
     step = np.empty((n, 3))  # k' * C_sm_i / |grad C_sm_i|^2
     move = np.empty((n, 3))
     for _ in range(n_sweeps):
