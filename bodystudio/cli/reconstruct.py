@@ -33,6 +33,8 @@ def reconstruct(
     tau: float = typer.Option(30.0, help="contour search range tau (pixels)"),
     alpha: float = typer.Option(40.0, help="silhouette weight width alpha (pixels)"),
     warm_start: bool = typer.Option(False, help="carry the shape over from earlier frames"),
+    refine_pose: bool = typer.Option(True, help="refine the joints' pose by an articulated fit to the silhouettes' "
+                                     "visual hull before deforming (--no-refine-pose: the paper's init)"),
     score: bool = typer.Option(True, help="score against ground truth when the session has it"),
 ) -> None:
     """Deform the template to every frame's silhouettes (Rapid Skin); writes SESSION/reconstruct/."""
@@ -46,7 +48,7 @@ def reconstruct(
                              solver=solver, constraints=_constraints(constraints))
     summary = reconstruct_session(session, solver=solver, template=template, joints=joints,
                                   constraints=params.constraints, frames=frames, joints_path=joints_path,
-                                  params=params, warm_start=warm_start, score=score,
+                                  params=params, warm_start=warm_start, refine_pose=refine_pose, score=score,
                                   progress=True)
     table = Table(title=f"Rapid Skin: {session} ({solver}, {template}, {constraints})")
     table.add_column("figure")

@@ -375,3 +375,119 @@ def joint_error_m(joints: np.ndarray, joints_gt: np.ndarray, names=MAJOR_JOINTS)
     sel = [index[n] for n in names]
     J, G = np.asarray(joints, float)[sel], np.asarray(joints_gt, float)[sel]
     return float(np.mean(np.linalg.norm(J - G, axis=1)))
+
+
+#: Segments whose rotation the refinement of a tracker pose corrects (plus the root's rigid motion).
+REFINE_BONES = ("pelvis", "spine_01", "spine_02", "neck_01", "clavicle_l", "clavicle_r", "upperarm_l",
+                "upperarm_r", "lowerarm_l", "lowerarm_r", "hand_l", "hand_r", "thigh_l", "thigh_r", "calf_l", "calf_r",
+                "foot_l", "foot_r")
+
+
+@dataclass(frozen=True)
+class PoseRefineParams:
+    """Settings of :func:`refine_bone_transforms`: Gauss-Newton ``iterations`` (each re-matches),
+    ``prior_weight`` per squared radian of local correction (a 1 cm data residual costs 1e-4 per
+    point), and the data-term settings shared with :class:`ArticulatedFitParams`."""
+
+    iterations: int = 10
+    prior_weight: float = 0.05
+    bones: tuple[str, ...] = REFINE_BONES
+    robust_m: float = 0.03
+    inside_weight: float = 0.5
+    damping: float = 1e-3
+    max_step_rad: float = 0.15
+    max_step_m: float = 0.05
+    tolerance: float = 1e-4
+
+
+def _rotation_about(point: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """4x4 rigid motion: rotation by the world rotation vector ``omega`` about ``point``."""
+    G = np.eye(4)
+    G[:3, :3] = Rotation.from_rotvec(omega).as_matrix()
+    G[:3, 3] = point - G[:3, :3] @ point
+    return G
+
+
+def refine_bone_transforms(body, transforms: np.ndarray, hull: VisualHull,
+                           params: PoseRefineParams | None = None) -> np.ndarray:
+    """Bone transforms ``(B, 4, 4)`` of a posed template corrected to fit the visual hull.
+
+    ``transforms`` are the Eq. 11 bone transforms of :func:`bodystudio.reconstruct.pose_init.initialise_pose`
+    (tracker joints: right bone lengths up to jitter, limb directions off by the joint noise). The
+    articulated ICP of :func:`articulated_fit` then rotates the root and each segment of
+    :data:`REFINE_BONES` about its placed head (with its subtree) and translates the root; the bone
+    stretches are kept, and a prior holds each segment's rotation relative to its parent near the
+    tracker's (the hull does not see limb twist).
+    """
+    params = params or PoseRefineParams()
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _refine_bone_transforms(body, np.asarray(transforms, dtype=np.float64), hull, params)
+
+
+def _refine_bone_transforms(body, T: np.ndarray, hull: VisualHull, params: PoseRefineParams) -> np.ndarray:
+    skel = body.skeleton
+    missing = [b for b in params.bones if b not in skel.bone_names]
+    if missing:
+        raise InputError(f"pose refinement: the template has no bone(s) {', '.join(missing)}")
+    bones = np.array([skel.index(b) for b in params.bones])
+    D = _subtree_matrix(skel, bones)
+    a = body.weights @ D
+    bone_idx, bone_w = _sparse_weights(body.weights)
+    Dk = D[bone_idx]
+    nJ = len(bones)
+    # nearest refined ancestor of each refined segment (-1: the root segment)
+    fitted_parent = []
+    for j, b in enumerate(bones):
+        anc = [i for i in range(nJ) if i != j and D[b, i]]
+        fitted_parent.append(min(anc, key=lambda i: D[:, i].sum()) if anc else -1)
+    # leaves first, so each rotation is about its head before an ancestor's rotation moves it
+    order = sorted(range(nJ), key=lambda j: -D[bones[j]].sum())
+    Q = np.tile(np.eye(3), (nJ, 1, 1))  # accumulated world correction of each segment
+    T = T.copy()
+    hull_pts, hull_nrm = hull.vertices, hull.normals
+    hull_tree = cKDTree(hull_pts)
+    prior_sqrt = np.sqrt(params.prior_weight)
+    n_par = 3 + 3 * nJ
+    rest_h = np.concatenate([body.vertices, np.ones((len(body.vertices), 1))], axis=1)
+    for _ in range(params.iterations):
+        Tk = T[bone_idx]  # (n, K, 4, 4)
+        C = bone_w[:, :, None] * np.einsum("nkij,nj->nki", Tk[:, :, :3, :], rest_h)
+        V = C.sum(axis=1)
+        N = np.nan_to_num(igl.per_vertex_normals(V, body.faces))
+        heads = np.einsum("bij,bj->bi", T[bones, :3, :3], skel.heads[bones]) + T[bones, :3, 3]
+        lever = np.einsum("nkd,nkj->njd", C, Dk) - a[:, :, None] * heads[None]
+
+        _, k = hull_tree.query(V)
+        n_h = hull_nrm[k]
+        ok1 = np.einsum("ij,ij->i", N, n_h) > 0.2
+        r = np.einsum("ij,ij->i", V - hull_pts[k], n_h)
+        w = _huber_weights(r, params.robust_m) * np.where(r < 0, params.inside_weight, 1.0) * ok1
+        J = np.concatenate([n_h, np.cross(lever, n_h[:, None, :]).reshape(len(V), -1)], axis=1)
+        H = J.T @ (w[:, None] * J)
+        g = J.T @ (w * r)
+        for j in range(nJ):
+            p = fitted_parent[j]
+            if p < 0:
+                continue
+            Qp = Q[p]
+            rp = prior_sqrt * Rotation.from_matrix(Qp.T @ Q[j]).as_rotvec()
+            # dw_j is segment j's rotation on top of its ancestors', so only it changes Q_p^T Q_j
+            cj = slice(3 + 3 * j, 6 + 3 * j)
+            Jj = prior_sqrt * Qp.T
+            H[cj, cj] += Jj.T @ Jj
+            g[cj] += Jj.T @ rp
+        H[np.diag_indices(n_par)] += params.damping * (np.diag(H).mean() + 1e-12)
+        delta = -np.linalg.solve(H, g)
+        dt, dw = delta[:3], delta[3:].reshape(nJ, 3)
+        shrink = min(1.0, params.max_step_m / max(np.linalg.norm(dt), 1e-12),
+                     params.max_step_rad / max(np.linalg.norm(dw, axis=1).max(), 1e-12))
+        dt, dw = dt * shrink, dw * shrink
+        for j in order:
+            G = _rotation_about(heads[j], dw[j])
+            sub = D[:, j] > 0
+            T[sub] = G @ T[sub]
+            Q[D[bones, j] > 0] = G[:3, :3] @ Q[D[bones, j] > 0]
+        T[:, :3, 3] += dt
+        if np.linalg.norm(dt) < params.tolerance and np.abs(dw).max() < params.tolerance * 10:
+            break
+    return T

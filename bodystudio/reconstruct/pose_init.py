@@ -166,12 +166,19 @@ def initialise_pose(body, joints: np.ndarray, version: str = "v2", rest_vertices
         else:
             T[j] = parent
         done[bones] = T[j]
+    return pose_template(body, T, float(np.cbrt(np.linalg.det(TG[:3, :3]))), version, rest_vertices)
+
+
+def pose_template(body, bone_transforms: np.ndarray, global_scale: float = 1.0, version: str = "v2",
+                  rest_vertices: np.ndarray | None = None) -> PoseInit:
+    """The template ``body`` (or ``rest_vertices``) posed by bone transforms ``(B, 4, 4)``: LBS, Eq. 12."""
+    skel = body.skeleton
+    T = np.asarray(bone_transforms, dtype=np.float64)
     V0 = body.vertices if rest_vertices is None else np.asarray(rest_vertices, dtype=np.float64)
     V = linear_blend_skinning(V0, body.weights, T)
     heads = np.einsum("bij,bj->bi", T[:, :3, :3], skel.heads) + T[:, :3, 3]
     tails = np.einsum("bij,bj->bi", T[:, :3, :3], skel.tails) + T[:, :3, 3]
-    posed = kinect_joints(skel, heads, tails, version)
-    return PoseInit(V, T, posed, float(np.cbrt(np.linalg.det(TG[:3, :3]))))
+    return PoseInit(V, T, kinect_joints(skel, heads, tails, version), global_scale)
 
 
 def unpose(V: np.ndarray, weights: np.ndarray, bone_transforms: np.ndarray) -> np.ndarray:
