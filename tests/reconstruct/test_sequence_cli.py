@@ -46,6 +46,14 @@ def test_cli_reconstruct_and_eval(tiny_session, capsys):
     assert out["iou_min"] > 0.9
     assert main(["reconstruct", path, "--template", "2k", "--constraints", "silhouette,depth", "--frames", "0:1",
                  "--outer", "3", "--no-score"]) == 0
+    run = json.loads((tiny_session.path / "reconstruct" / "run.json").read_text())
+    frames = json.loads((tiny_session.path / "reconstruct" / "frames.json").read_text())["frames"]
+    assert run["refine_pose"] and frames[0]["refine_ms"] > 0
+    # the paper's initialisation from the joints alone stays selectable
+    assert main(["reconstruct", path, "--template", "2k", "--frames", "0:1", "--outer", "3", "--no-score",
+                 "--no-refine-pose"]) == 0
+    frames = json.loads((tiny_session.path / "reconstruct" / "frames.json").read_text())["frames"]
+    assert frames[0]["refine_ms"] == 0
 
 
 @pytest.mark.slow
