@@ -15,6 +15,7 @@ positions and averages them per vertex (the paper's parallel/GPU path). ``choles
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numba
@@ -76,17 +77,28 @@ class ConstraintSet:
     k_sm: float = 1.0
 
 
+@numba.njit(cache=True)
+def _projection_weights(k, ni):
+    r = np.empty_like(k)
+    for c in range(k.shape[0]):
+        r[c] = 1.0 - min(max(k[c], 0.0), 1.0)
+    if ni & (ni - 1) == 0:  # Ni = 2^m (the default 8): m square roots, ~10x cheaper than pow, same to an ulp
+        while ni > 1:
+            for c in range(k.shape[0]):
+                r[c] = np.sqrt(r[c])
+            ni >>= 1
+    else:
+        for c in range(k.shape[0]):
+            r[c] = r[c] ** (1.0 / ni)
+    for c in range(k.shape[0]):
+        r[c] = 1.0 - r[c]
+    return r
+
+
 def projection_weight(k: np.ndarray | float, inner_iterations: int) -> np.ndarray:
     """Per-projection weight ``k' = 1 - (1 - k)^(1/Ni)`` of Rapid Skin §III.C (from Müller et al. 2007)."""
-    k = np.clip(np.asarray(k, dtype=np.float64), 0.0, 1.0)
-    ni = max(int(inner_iterations), 1)
-    if ni & (ni - 1) == 0:  # Ni = 2^m (the default 8): m square roots, ~10x cheaper than pow, same to an ulp
-        r = 1.0 - k
-        while ni > 1:
-            r = np.sqrt(r)
-            ni >>= 1
-        return 1.0 - r
-    return 1.0 - (1.0 - k) ** (1.0 / ni)
+    k = np.asarray(k, dtype=np.float64)
+    return _projection_weights(k.ravel(), max(int(inner_iterations), 1)).reshape(k.shape)
 
 
 def point_to_ray_distance(P: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
@@ -113,6 +125,12 @@ def constraint_energy(V: np.ndarray, cs: ConstraintSet) -> float:
 
 # --- Gauss-Seidel constraint projection (Algorithm 1, lines 4-8) ---------------------------------
 
+#: Every fast-math flag but ``reassoc``: FMA contraction stays, while the 1-ring sums keep their written
+#: order (with ``reassoc`` LLVM vectorises them for rings of >= 8 vertices, a path the usual valence-6 ring
+#: never takes but whose setup every vertex pays; measured ~5 % slower).
+_FASTMATH = {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}
+
+
 @numba.njit(cache=True)
 def _inverse_smoothness_gradient_norms(indptr, weights):
     """``1 / |grad C_sm_i|^2 = 1 / (1 + sum_j w_ij^2)`` for the vector-valued smoothness constraint (Eq. 9)."""
@@ -126,12 +144,46 @@ def _inverse_smoothness_gradient_norms(indptr, weights):
     return out
 
 
-@numba.njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
-def _gauss_seidel_sweeps(V, indptr, indices, weights, delta_rest, k_sm_prime, sil_vertex, sil_origin, sil_dir,
-                         sil_k, dep_vertex, dep_point, dep_normal, dep_k, n_sweeps):
+@dataclass(frozen=True, eq=False)
+class _SmoothnessArrays:
+    """A :class:`DeltaOperator` laid out for the compiled sweeps: uint32 row pointers, neighbour ids and
+    flat xyz offsets ``3 j`` (unsigned indices compile without numba's negative-index wraparound and
+    halve the index traffic: ~20 % of a sweep), the weights ``w_ij``, the transposed weights ``w_ji``
+    (Jacobi's gather) and ``1 / |grad C_sm_i|^2``."""
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    offsets: np.ndarray
+    weights: np.ndarray
+    weights_t: np.ndarray
+    inv_grad2: np.ndarray
+
+
+#: One layout per delta operator: Algorithm 1 solves ``No`` times (and a sequence every frame) with it.
+_SMOOTHNESS_ARRAYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _smoothness_arrays(delta: DeltaOperator) -> _SmoothnessArrays:
+    arrays = _SMOOTHNESS_ARRAYS.get(delta)
+    if arrays is None:
+        if 3 * delta.n_vertices >= 2**32:
+            raise InputError(f"{delta.n_vertices} vertices are too many for the uint32 solver indices")
+        arrays = _SmoothnessArrays(delta.indptr.astype(np.uint32), delta.indices.astype(np.uint32),
+                                   (3 * delta.indices).astype(np.uint32),
+                                   np.ascontiguousarray(delta.weights, dtype=np.float64),
+                                   np.ascontiguousarray(delta.weights[delta.reverse], dtype=np.float64),
+                                   _inverse_smoothness_gradient_norms(delta.indptr, delta.weights))
+        _SMOOTHNESS_ARRAYS[delta] = arrays
+    return arrays
+
+
+@numba.njit(cache=True, fastmath=_FASTMATH, boundscheck=False, error_model="numpy")
+def _gauss_seidel_sweeps(V, indptr, offsets, weights, step, delta_rest, sil_vertex, sil_origin, sil_dir, sil_k,
+                         dep_vertex, dep_point, dep_normal, dep_k, n_sweeps):
+    """``n_sweeps`` Gauss-Seidel sweeps: silhouette, then depth, then smoothness constraints in vertex
+    order; ``step[i] = k'_sm / |grad C_sm_i|^2``. ``V`` is updated in place and returned."""
     n = V.shape[0]
-    inv_grad2 = _inverse_smoothness_gradient_norms(indptr, weights)
-    Vf = V.reshape(-1)  # views of the C-contiguous (n, 3) arrays
+    Vf = V.reshape(-1)  # views of the C-contiguous (n, 3) arrays, addressed by the flat offsets 3 j
     rest = delta_rest.reshape(-1)
     for _ in range(n_sweeps):
         # Silhouette constraints (Eq. 7): |grad d_pl| = 1, so the step removes k' of the offset to the ray.
@@ -154,34 +206,67 @@ def _gauss_seidel_sweeps(V, indptr, indices, weights, delta_rest, k_sm_prime, si
             V[i, 0] -= k * dep_normal[c, 0]
             V[i, 1] -= k * dep_normal[c, 1]
             V[i, 2] -= k * dep_normal[c, 2]
-        # Smoothness constraints (Eq. 9), Newton step of Eq. 4 on v_i and its 1-ring (flat xyz indexing:
-        # one multiply per neighbour address, measured ~3 % faster than 2-D indexing).
+        # Smoothness constraints (Eq. 9), Newton step of Eq. 4 on v_i and its 1-ring: r = step_i C_sm_i,
+        # v_i -= r, v_j += w_ij r.
         for i in range(n):
-            i3 = 3 * i
-            rx = Vf[i3] - rest[i3]
-            ry = Vf[i3 + 1] - rest[i3 + 1]
-            rz = Vf[i3 + 2] - rest[i3 + 2]
             a = indptr[i]
             b = indptr[i + 1]
-            for e in range(a, b):
-                j3 = 3 * indices[e]
+            i3 = 3 * i
+            f = step[i]
+            if b - a == 6:
+                # Regular vertex (valence 6, most of a body template): the ring's offsets and weights stay
+                # in registers from the residual to the update (measured ~8 % of a sweep).
+                j0, j1, j2 = offsets[a], offsets[a + 1], offsets[a + 2]
+                j3, j4, j5 = offsets[a + 3], offsets[a + 4], offsets[a + 5]
+                w0, w1, w2 = weights[a], weights[a + 1], weights[a + 2]
+                w3, w4, w5 = weights[a + 3], weights[a + 4], weights[a + 5]
+                rx = f * (Vf[i3] - rest[i3] - ((w0 * Vf[j0] + w1 * Vf[j1]) + (w2 * Vf[j2] + w3 * Vf[j3])
+                                                + (w4 * Vf[j4] + w5 * Vf[j5])))
+                ry = f * (Vf[i3 + 1] - rest[i3 + 1] - ((w0 * Vf[j0 + 1] + w1 * Vf[j1 + 1])
+                                                        + (w2 * Vf[j2 + 1] + w3 * Vf[j3 + 1])
+                                                        + (w4 * Vf[j4 + 1] + w5 * Vf[j5 + 1])))
+                rz = f * (Vf[i3 + 2] - rest[i3 + 2] - ((w0 * Vf[j0 + 2] + w1 * Vf[j1 + 2])
+                                                        + (w2 * Vf[j2 + 2] + w3 * Vf[j3 + 2])
+                                                        + (w4 * Vf[j4 + 2] + w5 * Vf[j5 + 2])))
+                Vf[i3] -= rx
+                Vf[i3 + 1] -= ry
+                Vf[i3 + 2] -= rz
+                for j, w in ((j0, w0), (j1, w1), (j2, w2), (j3, w3), (j4, w4), (j5, w5)):
+                    Vf[j] += w * rx
+                    Vf[j + 1] += w * ry
+                    Vf[j + 2] += w * rz
+                continue
+            # Any other valence: two interleaved partial sums halve the dependency chain of the ring sum.
+            ax = ay = az = bx = by = bz = 0.0
+            for e in range(a, b - 1, 2):
+                j = offsets[e]
                 w = weights[e]
-                rx -= w * Vf[j3]
-                ry -= w * Vf[j3 + 1]
-                rz -= w * Vf[j3 + 2]
-            f = k_sm_prime * inv_grad2[i]
-            rx *= f
-            ry *= f
-            rz *= f
+                ax += w * Vf[j]
+                ay += w * Vf[j + 1]
+                az += w * Vf[j + 2]
+                j = offsets[e + 1]
+                w = weights[e + 1]
+                bx += w * Vf[j]
+                by += w * Vf[j + 1]
+                bz += w * Vf[j + 2]
+            if (b - a) & 1:
+                j = offsets[b - 1]
+                w = weights[b - 1]
+                ax += w * Vf[j]
+                ay += w * Vf[j + 1]
+                az += w * Vf[j + 2]
+            rx = f * (Vf[i3] - rest[i3] - (ax + bx))
+            ry = f * (Vf[i3 + 1] - rest[i3 + 1] - (ay + by))
+            rz = f * (Vf[i3 + 2] - rest[i3 + 2] - (az + bz))
             Vf[i3] -= rx
             Vf[i3 + 1] -= ry
             Vf[i3 + 2] -= rz
             for e in range(a, b):
-                j3 = 3 * indices[e]
+                j = offsets[e]
                 w = weights[e]
-                Vf[j3] += w * rx
-                Vf[j3 + 1] += w * ry
-                Vf[j3 + 2] += w * rz
+                Vf[j] += w * rx
+                Vf[j + 1] += w * ry
+                Vf[j + 2] += w * rz
     return V
 
 
@@ -192,6 +277,10 @@ def _check(V: np.ndarray, cs: ConstraintSet) -> np.ndarray:
     return V
 
 
+def _vertex_ids(vertex: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(vertex, dtype=np.uint32)
+
+
 def gauss_seidel(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8,
                  callback=None) -> np.ndarray:
     """Sequential constraint projection, Eq. 3-4 and Algorithm 1 of Rapid Skin (lines 4-8).
@@ -200,13 +289,14 @@ def gauss_seidel(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8,
     ``callback(iteration, V)`` is called after every sweep when given (for convergence plots).
     """
     V = _check(V, cs)
+    sm = _smoothness_arrays(cs.delta)
     sil, dep = cs.silhouette, cs.depth
     k_sil = projection_weight(sil.k, inner_iterations)
     k_dep = projection_weight(dep.k, inner_iterations)
-    k_sm = float(projection_weight(cs.k_sm, inner_iterations))
-    args = (cs.delta.indptr, cs.delta.indices, cs.delta.weights, np.ascontiguousarray(cs.delta_rest), k_sm,
-            sil.vertex.astype(np.int64), np.ascontiguousarray(sil.origin), np.ascontiguousarray(sil.direction), k_sil,
-            dep.vertex.astype(np.int64), np.ascontiguousarray(dep.point), np.ascontiguousarray(dep.normal), k_dep)
+    step = float(projection_weight(cs.k_sm, inner_iterations)) * sm.inv_grad2
+    args = (sm.indptr, sm.offsets, sm.weights, step, np.ascontiguousarray(cs.delta_rest, dtype=np.float64),
+            _vertex_ids(sil.vertex), np.ascontiguousarray(sil.origin), np.ascontiguousarray(sil.direction), k_sil,
+            _vertex_ids(dep.vertex), np.ascontiguousarray(dep.point), np.ascontiguousarray(dep.normal), k_dep)
     if callback is None:
         return _gauss_seidel_sweeps(V, *args, int(inner_iterations))
     for it in range(int(inner_iterations)):
@@ -217,13 +307,12 @@ def gauss_seidel(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8,
 
 # --- Jacobi (parallel) variant ------------------------------------------------------------------
 
-@numba.njit(cache=True, fastmath=True, parallel=True)
-def _jacobi_sweeps(V, indptr, indices, weights, reverse, delta_rest, k_sm_prime, sil_ptr, sil_origin, sil_dir, sil_k,
+@numba.njit(cache=True, fastmath=_FASTMATH, parallel=True, boundscheck=False, error_model="numpy")
+def _jacobi_sweeps(V, indptr, indices, weights, weights_t, step, delta_rest, sil_ptr, sil_origin, sil_dir, sil_k,
                    dep_ptr, dep_point, dep_normal, dep_k, relaxation, n_sweeps):
+    """``n_sweeps`` Jacobi sweeps, ``step[i] = k'_sm / |grad C_sm_i|^2``; ``V`` is updated in place."""
     n = V.shape[0]
-    inv_grad2 = _inverse_smoothness_gradient_norms(indptr, weights)
-    step = np.empty((n, 3))  # k' * C_sm_i / |grad C_sm_i|^2
-    move = np.empty((n, 3))
+    r_sm = np.empty((n, 3))  # step_i C_sm_i: the smoothness constraint's Newton step, Eq. 4
     for _ in range(n_sweeps):
         for i in numba.prange(n):
             rx = V[i, 0] - delta_rest[i, 0]
@@ -234,23 +323,22 @@ def _jacobi_sweeps(V, indptr, indices, weights, reverse, delta_rest, k_sm_prime,
                 rx -= weights[e] * V[j, 0]
                 ry -= weights[e] * V[j, 1]
                 rz -= weights[e] * V[j, 2]
-            f = k_sm_prime * inv_grad2[i]
-            step[i, 0] = f * rx
-            step[i, 1] = f * ry
-            step[i, 2] = f * rz
-        # Gather every constraint's correction of vertex i (no two threads write one vertex), then average.
+            f = step[i]
+            r_sm[i, 0] = f * rx
+            r_sm[i, 1] = f * ry
+            r_sm[i, 2] = f * rz
+        # Gather every constraint's correction of vertex i and apply the average: this reads V only at i
+        # and r_sm everywhere, so no two threads touch one vertex and V can be written in the same pass.
         for i in numba.prange(n):
-            ax = -step[i, 0]
-            ay = -step[i, 1]
-            az = -step[i, 2]
-            count = 1.0
+            ax = -r_sm[i, 0]
+            ay = -r_sm[i, 1]
+            az = -r_sm[i, 2]
             for e in range(indptr[i], indptr[i + 1]):
                 j = indices[e]
-                w = weights[reverse[e]]  # weight of i in j's 1-ring
-                ax += w * step[j, 0]
-                ay += w * step[j, 1]
-                az += w * step[j, 2]
-                count += 1.0
+                w = weights_t[e]  # weight of i in j's 1-ring
+                ax += w * r_sm[j, 0]
+                ay += w * r_sm[j, 1]
+                az += w * r_sm[j, 2]
             for c in range(sil_ptr[i], sil_ptr[i + 1]):
                 px = V[i, 0] - sil_origin[c, 0]
                 py = V[i, 1] - sil_origin[c, 1]
@@ -260,7 +348,6 @@ def _jacobi_sweeps(V, indptr, indices, weights, reverse, delta_rest, k_sm_prime,
                 ax -= k * (px - t * sil_dir[c, 0])
                 ay -= k * (py - t * sil_dir[c, 1])
                 az -= k * (pz - t * sil_dir[c, 2])
-                count += 1.0
             for c in range(dep_ptr[i], dep_ptr[i + 1]):
                 r = ((V[i, 0] - dep_point[c, 0]) * dep_normal[c, 0] + (V[i, 1] - dep_point[c, 1]) * dep_normal[c, 1]
                      + (V[i, 2] - dep_point[c, 2]) * dep_normal[c, 2])
@@ -268,24 +355,36 @@ def _jacobi_sweeps(V, indptr, indices, weights, reverse, delta_rest, k_sm_prime,
                 ax -= k * dep_normal[c, 0]
                 ay -= k * dep_normal[c, 1]
                 az -= k * dep_normal[c, 2]
-                count += 1.0
+            count = (1 + indptr[i + 1] - indptr[i] + sil_ptr[i + 1] - sil_ptr[i] + dep_ptr[i + 1] - dep_ptr[i])
             g = relaxation / count
-            move[i, 0] = ax * g
-            move[i, 1] = ay * g
-            move[i, 2] = az * g
-        for i in numba.prange(n):
-            V[i, 0] += move[i, 0]
-            V[i, 1] += move[i, 1]
-            V[i, 2] += move[i, 2]
+            V[i, 0] += ax * g
+            V[i, 1] += ay * g
+            V[i, 2] += az * g
     return V
 
 
-def _grouped(vertex: np.ndarray, n: int, *arrays):
-    """Sort per-constraint arrays by vertex and return CSR pointers (n + 1,) plus the sorted arrays."""
-    order = np.argsort(vertex, kind="stable")
+@numba.njit(cache=True)
+def _group_by_vertex(vertex, n, a, b, k):
+    """Constraints ``(a (m, 3), b (m, 3), k (m,))`` stably grouped by vertex, with CSR pointers ``(n + 1,)``:
+    a counting sort, O(m + n), where an argsort and fancy indexing cost ~5 ms a frame at 13K."""
+    m = vertex.shape[0]
     ptr = np.zeros(n + 1, np.int64)
-    np.cumsum(np.bincount(vertex, minlength=n), out=ptr[1:])
-    return (ptr, *[np.ascontiguousarray(a[order]) for a in arrays])
+    for c in range(m):
+        ptr[vertex[c] + 1] += 1
+    for i in range(n):
+        ptr[i + 1] += ptr[i]
+    fill = ptr[:-1].copy()
+    a_out = np.empty((m, 3))
+    b_out = np.empty((m, 3))
+    k_out = np.empty(m)
+    for c in range(m):
+        d = fill[vertex[c]]
+        fill[vertex[c]] += 1
+        for x in range(3):
+            a_out[d, x] = a[c, x]
+            b_out[d, x] = b[c, x]
+        k_out[d] = k[c]
+    return ptr, a_out, b_out, k_out
 
 
 def jacobi(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 32, relaxation: float = 1.5,
@@ -298,13 +397,14 @@ def jacobi(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 32, relaxat
     V = _check(V, cs)
     n = len(V)
     sil, dep = cs.silhouette, cs.depth
-    sil_ptr, sil_origin, sil_dir, sil_k = _grouped(sil.vertex, n, sil.origin, sil.direction,
-                                                   projection_weight(sil.k, inner_iterations))
-    dep_ptr, dep_point, dep_normal, dep_k = _grouped(dep.vertex, n, dep.point, dep.normal,
-                                                     projection_weight(dep.k, inner_iterations))
-    k_sm = float(projection_weight(cs.k_sm, inner_iterations))
-    args = (cs.delta.indptr, cs.delta.indices, cs.delta.weights, cs.delta.reverse,
-            np.ascontiguousarray(cs.delta_rest), k_sm, sil_ptr, sil_origin, sil_dir, sil_k,
+    sil_ptr, sil_origin, sil_dir, sil_k = _group_by_vertex(_vertex_ids(sil.vertex), n, sil.origin, sil.direction,
+                                                           projection_weight(sil.k, inner_iterations))
+    dep_ptr, dep_point, dep_normal, dep_k = _group_by_vertex(_vertex_ids(dep.vertex), n, dep.point, dep.normal,
+                                                             projection_weight(dep.k, inner_iterations))
+    sm = _smoothness_arrays(cs.delta)
+    step = float(projection_weight(cs.k_sm, inner_iterations)) * sm.inv_grad2
+    args = (sm.indptr, sm.indices, sm.weights, sm.weights_t, step,
+            np.ascontiguousarray(cs.delta_rest, dtype=np.float64), sil_ptr, sil_origin, sil_dir, sil_k,
             dep_ptr, dep_point, dep_normal, dep_k, float(relaxation))
     if callback is None:
         return _jacobi_sweeps(V, *args, int(inner_iterations))
