@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass
+from functools import cached_property
 
 import numba
 import numpy as np
@@ -148,15 +149,19 @@ def _inverse_smoothness_gradient_norms(indptr, weights):
 class _SmoothnessArrays:
     """A :class:`DeltaOperator` laid out for the compiled sweeps: uint32 row pointers, neighbour ids and
     flat xyz offsets ``3 j`` (unsigned indices compile without numba's negative-index wraparound and
-    halve the index traffic: ~20 % of a sweep), the weights ``w_ij``, the transposed weights ``w_ji``
-    (Jacobi's gather) and ``1 / |grad C_sm_i|^2``."""
+    halve the index traffic: ~20 % of a sweep), the weights ``w_ij`` and ``1 / |grad C_sm_i|^2``."""
 
     indptr: np.ndarray
     indices: np.ndarray
     offsets: np.ndarray
     weights: np.ndarray
-    weights_t: np.ndarray
+    reverse: np.ndarray
     inv_grad2: np.ndarray
+
+    @cached_property
+    def weights_t(self) -> np.ndarray:
+        """``w_ji`` at the position of ``w_ij``: the weight of ``i`` in ``j``'s ring (Jacobi's gather)."""
+        return np.ascontiguousarray(self.weights[self.reverse])
 
 
 #: One layout per delta operator: Algorithm 1 solves ``No`` times (and a sequence every frame) with it.
@@ -168,10 +173,10 @@ def _smoothness_arrays(delta: DeltaOperator) -> _SmoothnessArrays:
     if arrays is None:
         if 3 * delta.n_vertices >= 2**32:
             raise InputError(f"{delta.n_vertices} vertices are too many for the uint32 solver indices")
+        # The entry must not refer to ``delta`` itself, or the weak key would never be collected.
         arrays = _SmoothnessArrays(delta.indptr.astype(np.uint32), delta.indices.astype(np.uint32),
                                    (3 * delta.indices).astype(np.uint32),
-                                   np.ascontiguousarray(delta.weights, dtype=np.float64),
-                                   np.ascontiguousarray(delta.weights[delta.reverse], dtype=np.float64),
+                                   np.ascontiguousarray(delta.weights, dtype=np.float64), delta.reverse,
                                    _inverse_smoothness_gradient_norms(delta.indptr, delta.weights))
         _SMOOTHNESS_ARRAYS[delta] = arrays
     return arrays

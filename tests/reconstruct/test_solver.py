@@ -162,3 +162,22 @@ def test_projection_weight_any_inner_iterations():
     for ni in (1, 3, 8, 12, 32):
         assert np.allclose(projection_weight(k, ni), 1 - (1 - k) ** (1 / ni), rtol=0, atol=1e-15)
     assert projection_weight(np.array([-0.5, 1.5]), 8).tolist() == [0.0, 1.0]  # k is clipped to [0, 1]
+
+
+def test_solver_layout_cache_follows_the_delta_operator():
+    """The per-operator solver layout is reused across solves and freed with its operator (one per frame)."""
+    import gc
+
+    from bodystudio.reconstruct import solver
+
+    V = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+    F = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    delta, rest = cotangent_delta_coordinates(V, F)
+    cs = ConstraintSet(delta, rest, SilhouetteConstraints.empty(), DepthConstraints.empty())
+    n_before = len(solver._SMOOTHNESS_ARRAYS)
+    gauss_seidel(V, cs)
+    jacobi(V, cs)
+    assert len(solver._SMOOTHNESS_ARRAYS) == n_before + 1
+    del cs, delta
+    gc.collect()
+    assert len(solver._SMOOTHNESS_ARRAYS) == n_before
