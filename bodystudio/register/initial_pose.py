@@ -7,6 +7,14 @@ feet and the two hand tips (the surface points farthest out on each side above t
 pelvis centre. Hierarchical alignment then walks the model's chains root first: translation puts the
 model's pelvis over the scan's, and each limb's root bone (upper arm, thigh) is rotated so that the
 model's chain end (finger tip, toe) points where the scan's does.
+
+The arms bend at the elbow and wrist, so a straight arm aimed at the hand tip leaves the fit to find the
+bend, and it often twisted the arm into a wrong basin instead (random poses: upper arm 40-80° off).
+The arm chains therefore go one bone at a time through rings of equal geodesic distance from the hand
+tip: geodesic distance along a limb hardly changes with pose, so the ring at the distance of the model's
+elbow (wrist) is the scan's elbow (wrist) cross-section, and its centroid a joint centre. The model's own
+rings, taken the same way on its rest mesh, are aligned to the scan's, so the rings' bias (a ring near
+the wrist also cuts the thumb) cancels.
 """
 
 from __future__ import annotations
@@ -14,14 +22,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
 from scipy.spatial.transform import Rotation
 
 from bodystudio.body import Pose, Skeleton
 from bodystudio.body.skinning import forward_kinematics, linear_blend_skinning, skinning_transforms
+from bodystudio.geometry.mesh import vertex_areas
 
 # (limb root bone, which side: +1 = +x = left, -1 = right, end effector kind)
 LIMB_CHAINS = (("upperarm_l", 1.0, "hand"), ("upperarm_r", -1.0, "hand"),
                ("thigh_l", 1.0, "foot"), ("thigh_r", -1.0, "foot"))
+# Arm bones aligned one at a time, each to the ring at its child joint (the hand: to the tip).
+ARM_BONES = (("upperarm", "lowerarm"), ("lowerarm", "hand"), ("hand", None))
+RING_HALF_WIDTH_M = 0.008
 
 
 @dataclass(frozen=True)
@@ -39,15 +53,28 @@ class CoarseSkeleton:
         return float(self.head_top[1] - self.floor_y)
 
 
-def coarse_scan_skeleton(V: np.ndarray) -> CoarseSkeleton:
+def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
+    order = np.argsort(x)
+    c = np.cumsum(w[order])
+    return float(x[order][np.searchsorted(c, 0.5 * c[-1])])
+
+
+def coarse_scan_skeleton(V: np.ndarray, F: np.ndarray | None = None) -> CoarseSkeleton:
     """Floor, head top, pelvis centre, hand tips and toe tips of a canonical standing scan."""
     floor = float(V[:, 1].min())
     top = V[np.argmax(V[:, 1])]
     h = float(V[:, 1].max() - floor)
-    # The pelvis: centre of the slice at about 52 % of stature (hip joint height of adults).
+    # The pelvis: centre of the slice at about 52 % of stature (hip joint height of adults). Medians weighted
+    # by surface area: hands hanging at that height carry many small triangles (finger detail), and an
+    # unweighted median followed them (pelvis 15 cm off on a random pose).
+    # The slice is centred on the body's median plane first (that of the whole surface, which limbs on both
+    # sides hardly move), which keeps hands beside the hips out of it.
+    area = vertex_areas(V, F) if F is not None else np.ones(len(V))
     band = np.abs(V[:, 1] - (floor + 0.52 * h)) < 0.02 * h
-    core = band & (np.abs(V[:, 0] - np.median(V[band, 0])) < 0.2 * h)
-    pelvis = np.array([np.median(V[core, 0]), floor + 0.52 * h, np.median(V[core, 2])])
+    core = band & (np.abs(V[:, 0] - weighted_median(V[:, 0], area)) < 0.12 * h)
+    core = core if core.any() else band
+    pelvis = np.array([weighted_median(V[core, 0], area[core]), floor + 0.52 * h,
+                       weighted_median(V[core, 2], area[core])])
     hands, feet = {}, {}
     upper = V[:, 1] > floor + 0.35 * h
     lower = V[:, 1] < floor + 0.08 * h
@@ -59,6 +86,38 @@ def coarse_scan_skeleton(V: np.ndarray) -> CoarseSkeleton:
         cand = V[f] if f.any() else V[lower]
         feet[side] = cand[np.argmax(cand[:, 2])]
     return CoarseSkeleton(floor, top, pelvis, hands, feet)
+
+
+def edge_length_graph(V: np.ndarray, F: np.ndarray) -> sp.csr_matrix:
+    """Sparse symmetric graph of the mesh edges weighted by their lengths (for geodesic distances)."""
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    length = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1) + 1e-12
+    G = sp.coo_matrix((length, (E[:, 0], E[:, 1])), shape=(len(V), len(V))).tocsr()
+    return G.maximum(G.T)
+
+
+def hand_tips(V: np.ndarray, F: np.ndarray, coarse: CoarseSkeleton) -> dict:
+    """Per side, the scan vertex geodesically farthest from the chest among the arm's side (the longest
+    finger's tip); -1 where the surface is not connected."""
+    h = coarse.stature_m
+    band = np.abs(V[:, 1] - (coarse.floor_y + 0.72 * h)) < 0.03 * h
+    front = band & (np.abs(V[:, 0] - coarse.pelvis[0]) < 0.05 * h)
+    chest = int(np.flatnonzero(front)[np.argmax(V[front, 2])]) if front.any() else int(np.argmax(V[:, 2]))
+    g = dijkstra(edge_length_graph(V, F), indices=chest)
+    tips = {}
+    for side in (1.0, -1.0):
+        # Above the crotch (about 45 % of stature) the farthest points are the finger tips, about 0.4 statures
+        # from the chest; a hand cut off by a hole leaves only nearer points (shoulder, hip): no tip.
+        arm = (g < np.inf) & (V[:, 1] > coarse.floor_y + 0.45 * h) & (side * (V[:, 0] - coarse.pelvis[0]) > 0.05 * h)
+        far = np.flatnonzero(arm)[np.argmax(g[arm])] if arm.any() else -1
+        tips[side] = int(far) if far >= 0 and g[far] > 0.3 * h else -1
+    return tips
+
+
+def geodesic_rings(V: np.ndarray, F: np.ndarray, tip: int, distances_m: np.ndarray) -> list[np.ndarray]:
+    """Vertex sets at geodesic distance ``distances_m`` (± :data:`RING_HALF_WIDTH_M`) from vertex ``tip``."""
+    g = dijkstra(edge_length_graph(V, F), indices=tip, limit=float(np.max(distances_m)) + 2 * RING_HALF_WIDTH_M)
+    return [np.flatnonzero(np.abs(g - d) < RING_HALF_WIDTH_M) for d in distances_m]
 
 
 def _chain_end_vertex(skeleton: Skeleton, weights: np.ndarray, V: np.ndarray, root: str, kind: str) -> int:
@@ -74,9 +133,50 @@ def _chain_end_vertex(skeleton: Skeleton, weights: np.ndarray, V: np.ndarray, ro
     return int(owned[np.argmax(V[owned, 2])])
 
 
+def _rotate_bone_towards(skeleton: Skeleton, pose: Pose, j: int, d_model: np.ndarray, d_scan: np.ndarray,
+                         max_angle: float = np.pi) -> Pose:
+    """``pose`` with bone ``j``'s local rotation turned by the smallest world rotation taking ``d_model`` to
+    ``d_scan`` (at most ``max_angle``)."""
+    axis = np.cross(d_model, d_scan)
+    if np.linalg.norm(axis) < 1e-9 * np.linalg.norm(d_model) * np.linalg.norm(d_scan):
+        return pose
+    angle = min(np.arctan2(np.linalg.norm(axis), d_model @ d_scan), max_angle)
+    R_delta = Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
+    G = forward_kinematics(skeleton, pose)[j, :3, :3]  # rotate the bone by R_delta in world axes
+    rot = pose.rotations.copy()
+    rot[j] = Rotation.from_matrix(Rotation.from_rotvec(rot[j]).as_matrix() @ (G.T @ R_delta @ G)).as_rotvec()
+    return Pose(rot, pose.translation)
+
+
+def align_arm(skeleton: Skeleton, weights: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray,
+              scan_vertices: np.ndarray, scan_faces: np.ndarray, pose: Pose, side: str, model_tip: int,
+              scan_tip: int) -> Pose:
+    """Hierarchical alignment of one arm (upper arm, forearm, hand) through geodesic rings from the hand tip:
+    each bone turns so that the model's ring centroid at its child joint points at the scan's."""
+    children = [skeleton.index(f"{c}_{side}") for _, c in ARM_BONES if c is not None]
+    g = dijkstra(edge_length_graph(rest_vertices, faces), indices=model_tip)
+    # The geodesic distance of a joint from the tip: that of the model vertices nearest to it.
+    joint_d = np.array([np.median(g[np.argsort(np.linalg.norm(rest_vertices - skeleton.heads[c], axis=1))[:20]])
+                        for c in children])
+    model_rings = [np.flatnonzero(np.abs(g - d) < RING_HALF_WIDTH_M) for d in joint_d]
+    scan_rings = geodesic_rings(scan_vertices, scan_faces, scan_tip, joint_d)
+    if any(len(r) < 3 for r in model_rings + scan_rings):
+        return pose
+    targets = [scan_vertices[r].mean(0) for r in scan_rings] + [scan_vertices[scan_tip]]
+    for (bone, _), k in zip(ARM_BONES, range(len(targets))):
+        j = skeleton.index(f"{bone}_{side}")
+        ring = model_rings[k] if k < len(model_rings) else np.array([model_tip])
+        posed = linear_blend_skinning(rest_vertices[ring], weights[ring], skinning_transforms(skeleton, pose))
+        origin = forward_kinematics(skeleton, pose)[j, :3, 3]
+        pose = _rotate_bone_towards(skeleton, pose, j, posed.mean(0) - origin, targets[k] - origin)
+    return pose
+
+
 def initial_pose(skeleton: Skeleton, weights: np.ndarray, rest_vertices: np.ndarray, scan_vertices: np.ndarray,
-                 coarse: CoarseSkeleton | None = None) -> Pose:
-    """Initial θ of the model (rest vertices + skeleton + weights) for a canonical scan (§4.3)."""
+                 coarse: CoarseSkeleton | None = None, faces: np.ndarray | None = None,
+                 scan_faces: np.ndarray | None = None) -> Pose:
+    """Initial θ of the model (rest vertices + skeleton + weights) for a canonical scan (§4.3). With the
+    model's and the scan's ``faces``, the arms are aligned bone by bone (:func:`align_arm`)."""
     coarse = coarse or coarse_scan_skeleton(scan_vertices)
     B = skeleton.n_bones
     rot = np.zeros((B, 3))
@@ -107,4 +207,12 @@ def initial_pose(skeleton: Skeleton, weights: np.ndarray, rest_vertices: np.ndar
         local = Rotation.from_rotvec(rot[j]).as_matrix() @ (G.T @ R_delta @ G)
         rot[j] = Rotation.from_matrix(local).as_rotvec()
         pose = Pose(rot.copy(), translation)
+    if faces is None or scan_faces is None:
+        return pose
+    model_coarse = coarse_scan_skeleton(rest_vertices, faces)
+    model_tips, scan_tips = hand_tips(rest_vertices, faces, model_coarse), hand_tips(scan_vertices, scan_faces, coarse)
+    for side, name in ((1.0, "l"), (-1.0, "r")):
+        if model_tips[side] >= 0 and scan_tips[side] >= 0:
+            pose = align_arm(skeleton, weights, rest_vertices, faces, scan_vertices, scan_faces, pose, name,
+                             model_tips[side], scan_tips[side])
     return pose
