@@ -133,16 +133,24 @@ _FASTMATH = {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}
 
 
 @numba.njit(cache=True)
-def _inverse_smoothness_gradient_norms(indptr, weights):
-    """``1 / |grad C_sm_i|^2 = 1 / (1 + sum_j w_ij^2)`` for the vector-valued smoothness constraint (Eq. 9)."""
+def _smoothness_layout(indptr, indices, weights):
+    """uint32 row pointers, neighbour ids and flat offsets ``3 j``, and ``1 / |grad C_sm_i|^2 =
+    1 / (1 + sum_j w_ij^2)`` for the vector-valued smoothness constraint (Eq. 9), in one pass."""
     n = len(indptr) - 1
-    out = np.empty(n)
+    ptr32 = np.empty(n + 1, np.uint32)
+    ids32 = np.empty(len(indices), np.uint32)
+    offsets = np.empty(len(indices), np.uint32)
+    inv_grad2 = np.empty(n)
+    ptr32[0] = indptr[0]
     for i in range(n):
+        ptr32[i + 1] = indptr[i + 1]
         s = 1.0
         for e in range(indptr[i], indptr[i + 1]):
+            ids32[e] = indices[e]
+            offsets[e] = 3 * indices[e]
             s += weights[e] * weights[e]
-        out[i] = 1.0 / s
-    return out
+        inv_grad2[i] = 1.0 / s
+    return ptr32, ids32, offsets, inv_grad2
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,19 +182,18 @@ def _smoothness_arrays(delta: DeltaOperator) -> _SmoothnessArrays:
         if 3 * delta.n_vertices >= 2**32:
             raise InputError(f"{delta.n_vertices} vertices are too many for the uint32 solver indices")
         # The entry must not refer to ``delta`` itself, or the weak key would never be collected.
-        arrays = _SmoothnessArrays(delta.indptr.astype(np.uint32), delta.indices.astype(np.uint32),
-                                   (3 * delta.indices).astype(np.uint32),
-                                   np.ascontiguousarray(delta.weights, dtype=np.float64), delta.reverse,
-                                   _inverse_smoothness_gradient_norms(delta.indptr, delta.weights))
+        weights = np.ascontiguousarray(delta.weights, dtype=np.float64)
+        ptr32, ids32, offsets, inv_grad2 = _smoothness_layout(delta.indptr, delta.indices, weights)
+        arrays = _SmoothnessArrays(ptr32, ids32, offsets, weights, delta.reverse, inv_grad2)
         _SMOOTHNESS_ARRAYS[delta] = arrays
     return arrays
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, boundscheck=False, error_model="numpy")
-def _gauss_seidel_sweeps(V, indptr, offsets, weights, step, delta_rest, sil_vertex, sil_origin, sil_dir, sil_k,
-                         dep_vertex, dep_point, dep_normal, dep_k, n_sweeps):
+def _gauss_seidel_sweeps(V, indptr, offsets, weights, inv_grad2, k_sm_prime, delta_rest, sil_vertex, sil_origin,
+                         sil_dir, sil_k, dep_vertex, dep_point, dep_normal, dep_k, n_sweeps):
     """``n_sweeps`` Gauss-Seidel sweeps: silhouette, then depth, then smoothness constraints in vertex
-    order; ``step[i] = k'_sm / |grad C_sm_i|^2``. ``V`` is updated in place and returned."""
+    order, each smoothness step scaled by ``f_i = k'_sm / |grad C_sm_i|^2``. ``V`` is updated in place."""
     n = V.shape[0]
     Vf = V.reshape(-1)  # views of the C-contiguous (n, 3) arrays, addressed by the flat offsets 3 j
     rest = delta_rest.reshape(-1)
@@ -211,13 +218,13 @@ def _gauss_seidel_sweeps(V, indptr, offsets, weights, step, delta_rest, sil_vert
             V[i, 0] -= k * dep_normal[c, 0]
             V[i, 1] -= k * dep_normal[c, 1]
             V[i, 2] -= k * dep_normal[c, 2]
-        # Smoothness constraints (Eq. 9), Newton step of Eq. 4 on v_i and its 1-ring: r = step_i C_sm_i,
+        # Smoothness constraints (Eq. 9), Newton step of Eq. 4 on v_i and its 1-ring: r = f_i C_sm_i,
         # v_i -= r, v_j += w_ij r.
         for i in range(n):
             a = indptr[i]
             b = indptr[i + 1]
             i3 = 3 * i
-            f = step[i]
+            f = k_sm_prime * inv_grad2[i]
             if b - a == 6:
                 # Regular vertex (valence 6, most of a body template): the ring's offsets and weights stay
                 # in registers from the residual to the update (measured ~8 % of a sweep).
@@ -298,8 +305,9 @@ def gauss_seidel(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8,
     sil, dep = cs.silhouette, cs.depth
     k_sil = projection_weight(sil.k, inner_iterations)
     k_dep = projection_weight(dep.k, inner_iterations)
-    step = float(projection_weight(cs.k_sm, inner_iterations)) * sm.inv_grad2
-    args = (sm.indptr, sm.offsets, sm.weights, step, np.ascontiguousarray(cs.delta_rest, dtype=np.float64),
+    k_sm = float(projection_weight(cs.k_sm, inner_iterations))
+    args = (sm.indptr, sm.offsets, sm.weights, sm.inv_grad2, k_sm,
+            np.ascontiguousarray(cs.delta_rest, dtype=np.float64),
             _vertex_ids(sil.vertex), np.ascontiguousarray(sil.origin), np.ascontiguousarray(sil.direction), k_sil,
             _vertex_ids(dep.vertex), np.ascontiguousarray(dep.point), np.ascontiguousarray(dep.normal), k_dep)
     if callback is None:
@@ -313,11 +321,12 @@ def gauss_seidel(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8,
 # --- Jacobi (parallel) variant ------------------------------------------------------------------
 
 @numba.njit(cache=True, fastmath=_FASTMATH, parallel=True, boundscheck=False, error_model="numpy")
-def _jacobi_sweeps(V, indptr, indices, weights, weights_t, step, delta_rest, sil_ptr, sil_origin, sil_dir, sil_k,
-                   dep_ptr, dep_point, dep_normal, dep_k, relaxation, n_sweeps):
-    """``n_sweeps`` Jacobi sweeps, ``step[i] = k'_sm / |grad C_sm_i|^2``; ``V`` is updated in place."""
+def _jacobi_sweeps(V, indptr, indices, weights, weights_t, inv_grad2, k_sm_prime, delta_rest, sil_ptr, sil_origin,
+                   sil_dir, sil_k, dep_ptr, dep_point, dep_normal, dep_k, relaxation, n_sweeps):
+    """``n_sweeps`` Jacobi sweeps, smoothness steps scaled by ``f_i = k'_sm / |grad C_sm_i|^2``; ``V`` is
+    updated in place."""
     n = V.shape[0]
-    r_sm = np.empty((n, 3))  # step_i C_sm_i: the smoothness constraint's Newton step, Eq. 4
+    r_sm = np.empty((n, 3))  # f_i C_sm_i: the smoothness constraint's Newton step, Eq. 4
     for _ in range(n_sweeps):
         for i in numba.prange(n):
             rx = V[i, 0] - delta_rest[i, 0]
@@ -328,7 +337,7 @@ def _jacobi_sweeps(V, indptr, indices, weights, weights_t, step, delta_rest, sil
                 rx -= weights[e] * V[j, 0]
                 ry -= weights[e] * V[j, 1]
                 rz -= weights[e] * V[j, 2]
-            f = step[i]
+            f = k_sm_prime * inv_grad2[i]
             r_sm[i, 0] = f * rx
             r_sm[i, 1] = f * ry
             r_sm[i, 2] = f * rz
@@ -407,8 +416,8 @@ def jacobi(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 32, relaxat
     dep_ptr, dep_point, dep_normal, dep_k = _group_by_vertex(_vertex_ids(dep.vertex), n, dep.point, dep.normal,
                                                              projection_weight(dep.k, inner_iterations))
     sm = _smoothness_arrays(cs.delta)
-    step = float(projection_weight(cs.k_sm, inner_iterations)) * sm.inv_grad2
-    args = (sm.indptr, sm.indices, sm.weights, sm.weights_t, step,
+    k_sm = float(projection_weight(cs.k_sm, inner_iterations))
+    args = (sm.indptr, sm.indices, sm.weights, sm.weights_t, sm.inv_grad2, k_sm,
             np.ascontiguousarray(cs.delta_rest, dtype=np.float64), sil_ptr, sil_origin, sil_dir, sil_k,
             dep_ptr, dep_point, dep_normal, dep_k, float(relaxation))
     if callback is None:
