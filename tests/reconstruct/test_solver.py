@@ -181,3 +181,16 @@ def test_solver_layout_cache_follows_the_delta_operator():
     del cs, delta
     gc.collect()
     assert len(solver._SMOOTHNESS_ARRAYS) == n_before
+
+
+def test_out_of_range_constraint_vertex_is_an_input_error(fixed_constraints):
+    """The compiled sweeps do not check bounds, so a bad vertex id must be caught before them."""
+    from bodystudio.errors import InputError
+
+    V0, cs, _ = fixed_constraints
+    sil = cs.silhouette
+    bad = SilhouetteConstraints(np.r_[sil.vertex[:-1], len(V0)], sil.origin, sil.direction, sil.k)
+    cs_bad = ConstraintSet(cs.delta, cs.delta_rest, bad, cs.depth)
+    for solve in (gauss_seidel, jacobi):
+        with pytest.raises(InputError, match="vertex ids"):
+            solve(V0, cs_bad)
