@@ -400,14 +400,6 @@ class PoseRefineParams:
     tolerance: float = 1e-4
 
 
-def _rotation_about(point: np.ndarray, omega: np.ndarray) -> np.ndarray:
-    """4x4 rigid motion: rotation by the world rotation vector ``omega`` about ``point``."""
-    G = np.eye(4)
-    G[:3, :3] = Rotation.from_rotvec(omega).as_matrix()
-    G[:3, 3] = point - G[:3, :3] @ point
-    return G
-
-
 def refine_bone_transforms(body, transforms: np.ndarray, hull: VisualHull,
                            params: PoseRefineParams | None = None) -> np.ndarray:
     """Bone transforms ``(B, 4, 4)`` of a posed template corrected to fit the visual hull.
@@ -440,22 +432,24 @@ def _refine_bone_transforms(body, T: np.ndarray, hull: VisualHull, params: PoseR
     for j, b in enumerate(bones):
         anc = [i for i in range(nJ) if i != j and D[b, i]]
         fitted_parent.append(min(anc, key=lambda i: D[:, i].sum()) if anc else -1)
+    fitted_parent = np.array(fitted_parent)
     # leaves first, so each rotation is about its head before an ancestor's rotation moves it
     order = sorted(range(nJ), key=lambda j: -D[bones[j]].sum())
     Q = np.tile(np.eye(3), (nJ, 1, 1))  # accumulated world correction of each segment
     T = T.copy()
     hull_pts, hull_nrm = hull.vertices, hull.normals
     hull_tree = cKDTree(hull_pts)
-    prior_sqrt = np.sqrt(params.prior_weight)
     n_par = 3 + 3 * nJ
-    rest_h = np.concatenate([body.vertices, np.ones((len(body.vertices), 1))], axis=1)
+    rest_h = np.concatenate([body.vertices, np.ones((len(body.vertices), 1))], axis=1).T
+    rows = np.arange(len(body.vertices))[:, None]
+    is_child = D[bones] > 0  # is_child[i, j]: segment i lies in segment j's subtree
     for _ in range(params.iterations):
-        Tk = T[bone_idx]  # (n, K, 4, 4)
-        C = bone_w[:, :, None] * np.einsum("nkij,nj->nki", Tk[:, :, :3, :], rest_h)
+        # weighted per-influence skinned positions C (n, K, 3) and lever arms about each segment's head
+        C = bone_w[:, :, None] * (T[:, :3, :] @ rest_h)[bone_idx, :, rows]
         V = C.sum(axis=1)
         N = np.nan_to_num(igl.per_vertex_normals(V, body.faces))
         heads = np.einsum("bij,bj->bi", T[bones, :3, :3], skel.heads[bones]) + T[bones, :3, 3]
-        lever = np.einsum("nkd,nkj->njd", C, Dk) - a[:, :, None] * heads[None]
+        lever = (C.transpose(0, 2, 1) @ Dk).transpose(0, 2, 1) - a[:, :, None] * heads[None]
 
         _, k = hull_tree.query(V)
         n_h = hull_nrm[k]
@@ -465,28 +459,28 @@ def _refine_bone_transforms(body, T: np.ndarray, hull: VisualHull, params: PoseR
         J = np.concatenate([n_h, np.cross(lever, n_h[:, None, :]).reshape(len(V), -1)], axis=1)
         H = J.T @ (w[:, None] * J)
         g = J.T @ (w * r)
-        for j in range(nJ):
-            p = fitted_parent[j]
-            if p < 0:
-                continue
-            Qp = Q[p]
-            rp = prior_sqrt * Rotation.from_matrix(Qp.T @ Q[j]).as_rotvec()
-            # dw_j is segment j's rotation on top of its ancestors', so only it changes Q_p^T Q_j
+        # prior on each segment's correction relative to its refined parent, Q_p^T Q_j; dw_j is segment
+        # j's rotation on top of its ancestors', so only it changes that relative rotation
+        Qp = Q[np.maximum(fitted_parent, 0)]
+        rel = Rotation.from_matrix(Qp.transpose(0, 2, 1) @ Q).as_rotvec()
+        for j in np.flatnonzero(fitted_parent >= 0):
             cj = slice(3 + 3 * j, 6 + 3 * j)
-            Jj = prior_sqrt * Qp.T
-            H[cj, cj] += Jj.T @ Jj
-            g[cj] += Jj.T @ rp
+            H[cj, cj] += params.prior_weight * np.eye(3)
+            g[cj] += params.prior_weight * Qp[j] @ rel[j]
         H[np.diag_indices(n_par)] += params.damping * (np.diag(H).mean() + 1e-12)
         delta = -np.linalg.solve(H, g)
         dt, dw = delta[:3], delta[3:].reshape(nJ, 3)
         shrink = min(1.0, params.max_step_m / max(np.linalg.norm(dt), 1e-12),
                      params.max_step_rad / max(np.linalg.norm(dw, axis=1).max(), 1e-12))
         dt, dw = dt * shrink, dw * shrink
+        R = Rotation.from_rotvec(dw).as_matrix()
         for j in order:
-            G = _rotation_about(heads[j], dw[j])
+            G = np.eye(4)
+            G[:3, :3] = R[j]
+            G[:3, 3] = heads[j] - R[j] @ heads[j]
             sub = D[:, j] > 0
             T[sub] = G @ T[sub]
-            Q[D[bones, j] > 0] = G[:3, :3] @ Q[D[bones, j] > 0]
+            Q[is_child[:, j]] = R[j] @ Q[is_child[:, j]]
         T[:, :3, 3] += dt
         if np.linalg.norm(dt) < params.tolerance and np.abs(dw).max() < params.tolerance * 10:
             break

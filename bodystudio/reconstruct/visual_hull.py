@@ -123,30 +123,33 @@ def _mask_distance(mask: np.ndarray) -> np.ndarray:
     return cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 5)
 
 
-def _consistent_views(cameras, masks, distances, centers: np.ndarray, radius_m: float) -> np.ndarray:
-    """Number of views ``(N,)`` whose silhouette comes within the projected sphere of each voxel.
-
-    ``radius_m = 0`` is the plain voxel-centre test.
+def _consistent_views(cameras, masks, distances, centers: np.ndarray, radius_m: float, max_missing: int
+                      ) -> np.ndarray:
+    """Mask ``(N,)`` of the voxels whose projected sphere meets the silhouette in all views but at most
+    ``max_missing``. ``radius_m = 0`` is the plain voxel-centre test.
     """
-    count = np.zeros(len(centers), dtype=np.int32)
+    # A voxel is dropped as soon as it misses too many views, so later views project only the survivors.
+    alive = np.arange(len(centers))
+    missed = np.zeros(len(centers), dtype=np.int32)
     for cam, mask, dist in zip(cameras, masks, distances, strict=True):
-        uv, z = cam.project_with_depth(centers)
+        P = centers[alive]
+        uv, z = cam.project_with_depth(P)
         # Far outside the field of view the distortion polynomial folds back into the image: only
         # points within 1.5x the normalised radius of the image corners are projected.
-        Pc = cam.world_to_camera(centers)
+        Pc = cam.world_to_camera(P)
         r_max = 1.5 * np.hypot(max(cam.K[0, 2], cam.width - cam.K[0, 2]) / cam.fx,
                                max(cam.K[1, 2], cam.height - cam.K[1, 2]) / cam.fy)
         with np.errstate(divide="ignore", invalid="ignore"):
             r_norm = np.hypot(Pc[:, 0], Pc[:, 1]) / z
         ok = np.isfinite(uv).all(axis=1) & (z > 0) & (r_norm < r_max)
-        col = np.full(len(centers), -1, np.int64)
-        row = np.full(len(centers), -1, np.int64)
+        col = np.full(len(P), -1, np.int64)
+        row = np.full(len(P), -1, np.int64)
         col[ok] = np.rint(uv[ok, 0]).astype(np.int64)
         row[ok] = np.rint(uv[ok, 1]).astype(np.int64)
         if radius_m > 0:
             # Conservative: the voxel's bounding sphere covers r_px around the projected centre (+1 px
             # for rounding); a voxel just outside the image may still reach into it.
-            r_px = np.zeros(len(centers))
+            r_px = np.zeros(len(P))
             r_px[ok] = max(cam.fx, cam.fy) * radius_m / np.maximum(z[ok], 1e-6) + 1.0
             colc = np.clip(col, 0, cam.width - 1)
             rowc = np.clip(row, 0, cam.height - 1)
@@ -155,10 +158,13 @@ def _consistent_views(cameras, masks, distances, centers: np.ndarray, radius_m: 
             hit = ok & (dist[rowc, colc] - off <= r_px)
         else:
             inside = ok & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
-            hit = np.zeros(len(centers), dtype=bool)
+            hit = np.zeros(len(P), dtype=bool)
             hit[inside] = mask[row[inside], col[inside]]
-        count += hit
-    return count
+        missed[alive[~hit]] += 1
+        alive = alive[missed[alive] <= max_missing]
+    keep = np.zeros(len(centers), dtype=bool)
+    keep[alive] = True
+    return keep
 
 
 def carve_occupancy(cameras, masks, bounds=None, voxel_m: float = 0.015, max_missing_views: int = 0,
@@ -177,7 +183,6 @@ def carve_occupancy(cameras, masks, bounds=None, voxel_m: float = 0.015, max_mis
     lo, hi = (np.asarray(b, dtype=np.float64) for b in (DEFAULT_BOUNDS if bounds is None else bounds))
     if lo.shape != (3,) or hi.shape != (3,) or np.any(hi <= lo):
         raise InputError(f"visual hull bounds must be (min xyz, max xyz) with max > min, got {bounds}")
-    need = len(cams) - max_missing_views
     distances = [_mask_distance(m) for m in mask_list]
     coarse = 2 ** levels
     shape = np.ceil((hi - lo) / (voxel_m * coarse)).astype(np.int64) * coarse
@@ -188,13 +193,13 @@ def carve_occupancy(cameras, masks, bounds=None, voxel_m: float = 0.015, max_mis
     while size > 1:
         centers = origin + voxel_m * (cells + 0.5 * (size - 1))
         radius = 0.5 * np.sqrt(3.0) * size * voxel_m
-        keep = _consistent_views(cams, mask_list, distances, centers, radius) >= need
+        keep = _consistent_views(cams, mask_list, distances, centers, radius, max_missing_views)
         cells = cells[keep]
         size //= 2
         children = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)]) * size
         cells = (cells[:, None, :] + children[None]).reshape(-1, 3)
     cells = cells[np.all(cells < shape, axis=1)]
-    keep = _consistent_views(cams, mask_list, distances, origin + voxel_m * cells, 0.0) >= need
+    keep = _consistent_views(cams, mask_list, distances, origin + voxel_m * cells, 0.0, max_missing_views)
     occupancy = np.zeros(tuple(shape), dtype=bool)
     occupancy[tuple(cells[keep].T)] = True
     return occupancy, origin
