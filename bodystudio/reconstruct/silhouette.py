@@ -413,7 +413,9 @@ class SilhouetteViews:
         self.facing = 1.0 if F is not None and _is_closed_cached(F) else 0.0
         self.views = []
         for cam in cameras:
-            mask = np.ascontiguousarray(np.asarray(masks[cam.name]) > 0).view(np.uint8)  # sampled as 0 / 1
+            mask = np.asarray(masks[cam.name])
+            # Sampled as 0 / 1: a boolean mask is viewed as bytes as it is (no compare, ~0.25 ms a 640x480 view).
+            mask = np.ascontiguousarray(mask if mask.dtype == np.bool_ else mask > 0).view(np.uint8)
             self.views.append((cam, mask, np.zeros((cam.height, cam.width), np.uint8),
                                np.ascontiguousarray(cam.K), np.ascontiguousarray(cam.dist),
                                np.ascontiguousarray(cam.R), np.ascontiguousarray(cam.t),
