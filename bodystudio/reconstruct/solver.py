@@ -134,11 +134,10 @@ _FASTMATH = {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}
 
 @numba.njit(cache=True)
 def _smoothness_layout(indptr, indices, weights):
-    """uint32 row pointers, neighbour ids and flat offsets ``3 j``, and ``1 / |grad C_sm_i|^2 =
+    """uint32 row pointers and flat neighbour offsets ``3 j``, and ``1 / |grad C_sm_i|^2 =
     1 / (1 + sum_j w_ij^2)`` for the vector-valued smoothness constraint (Eq. 9), in one pass."""
     n = len(indptr) - 1
     ptr32 = np.empty(n + 1, np.uint32)
-    ids32 = np.empty(len(indices), np.uint32)
     offsets = np.empty(len(indices), np.uint32)
     inv_grad2 = np.empty(n)
     ptr32[0] = indptr[0]
@@ -146,21 +145,19 @@ def _smoothness_layout(indptr, indices, weights):
         ptr32[i + 1] = indptr[i + 1]
         s = 1.0
         for e in range(indptr[i], indptr[i + 1]):
-            ids32[e] = indices[e]
             offsets[e] = 3 * indices[e]
             s += weights[e] * weights[e]
         inv_grad2[i] = 1.0 / s
-    return ptr32, ids32, offsets, inv_grad2
+    return ptr32, offsets, inv_grad2
 
 
 @dataclass(frozen=True, eq=False)
 class _SmoothnessArrays:
-    """A :class:`DeltaOperator` laid out for the compiled sweeps: uint32 row pointers, neighbour ids and
-    flat xyz offsets ``3 j`` (unsigned indices compile without numba's negative-index wraparound and
+    """A :class:`DeltaOperator` laid out for the compiled sweeps: uint32 row pointers and flat xyz
+    neighbour offsets ``3 j`` (unsigned indices compile without numba's negative-index wraparound and
     halve the index traffic: ~20 % of a sweep), the weights ``w_ij`` and ``1 / |grad C_sm_i|^2``."""
 
     indptr: np.ndarray
-    indices: np.ndarray
     offsets: np.ndarray
     weights: np.ndarray
     reverse: np.ndarray
@@ -179,12 +176,12 @@ _SMOOTHNESS_ARRAYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 def _smoothness_arrays(delta: DeltaOperator) -> _SmoothnessArrays:
     arrays = _SMOOTHNESS_ARRAYS.get(delta)
     if arrays is None:
-        if 3 * delta.n_vertices >= 2**32:
+        if max(3 * delta.n_vertices, len(delta.indices)) >= 2**32:
             raise InputError(f"{delta.n_vertices} vertices are too many for the uint32 solver indices")
         # The entry must not refer to ``delta`` itself, or the weak key would never be collected.
         weights = np.ascontiguousarray(delta.weights, dtype=np.float64)
-        ptr32, ids32, offsets, inv_grad2 = _smoothness_layout(delta.indptr, delta.indices, weights)
-        arrays = _SmoothnessArrays(ptr32, ids32, offsets, weights, delta.reverse, inv_grad2)
+        ptr32, offsets, inv_grad2 = _smoothness_layout(delta.indptr, delta.indices, weights)
+        arrays = _SmoothnessArrays(ptr32, offsets, weights, delta.reverse, inv_grad2)
         _SMOOTHNESS_ARRAYS[delta] = arrays
     return arrays
 
@@ -325,38 +322,43 @@ def gauss_seidel(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 8,
 # --- Jacobi (parallel) variant ------------------------------------------------------------------
 
 @numba.njit(cache=True, fastmath=_FASTMATH, parallel=True, boundscheck=False, error_model="numpy")
-def _jacobi_sweeps(V, indptr, indices, weights, weights_t, inv_grad2, k_sm_prime, delta_rest, sil_ptr, sil_origin,
+def _jacobi_sweeps(V, indptr, offsets, weights, weights_t, inv_grad2, k_sm_prime, delta_rest, sil_ptr, sil_origin,
                    sil_dir, sil_k, dep_ptr, dep_point, dep_normal, dep_k, relaxation, n_sweeps):
     """``n_sweeps`` Jacobi sweeps, smoothness steps scaled by ``f_i = k'_sm / |grad C_sm_i|^2``; ``V`` is
     updated in place."""
     n = V.shape[0]
-    r_sm = np.empty((n, 3))  # f_i C_sm_i: the smoothness constraint's Newton step, Eq. 4
+    Vf = V.reshape(-1)  # flat views addressed by the offsets 3 j, as in the Gauss-Seidel sweep
+    rest = delta_rest.reshape(-1)
+    r_sm = np.empty(3 * n)  # f_i C_sm_i: the smoothness constraint's Newton step, Eq. 4
     for _ in range(n_sweeps):
         for i in numba.prange(n):
-            rx = V[i, 0] - delta_rest[i, 0]
-            ry = V[i, 1] - delta_rest[i, 1]
-            rz = V[i, 2] - delta_rest[i, 2]
+            i3 = 3 * i
+            rx = Vf[i3] - rest[i3]
+            ry = Vf[i3 + 1] - rest[i3 + 1]
+            rz = Vf[i3 + 2] - rest[i3 + 2]
             for e in range(indptr[i], indptr[i + 1]):
-                j = indices[e]
-                rx -= weights[e] * V[j, 0]
-                ry -= weights[e] * V[j, 1]
-                rz -= weights[e] * V[j, 2]
+                j = offsets[e]
+                w = weights[e]
+                rx -= w * Vf[j]
+                ry -= w * Vf[j + 1]
+                rz -= w * Vf[j + 2]
             f = k_sm_prime * inv_grad2[i]
-            r_sm[i, 0] = f * rx
-            r_sm[i, 1] = f * ry
-            r_sm[i, 2] = f * rz
+            r_sm[i3] = f * rx
+            r_sm[i3 + 1] = f * ry
+            r_sm[i3 + 2] = f * rz
         # Gather every constraint's correction of vertex i and apply the average: this reads V only at i
         # and r_sm everywhere, so no two threads touch one vertex and V can be written in the same pass.
         for i in numba.prange(n):
-            ax = -r_sm[i, 0]
-            ay = -r_sm[i, 1]
-            az = -r_sm[i, 2]
+            i3 = 3 * i
+            ax = -r_sm[i3]
+            ay = -r_sm[i3 + 1]
+            az = -r_sm[i3 + 2]
             for e in range(indptr[i], indptr[i + 1]):
-                j = indices[e]
+                j = offsets[e]
                 w = weights_t[e]  # weight of i in j's 1-ring
-                ax += w * r_sm[j, 0]
-                ay += w * r_sm[j, 1]
-                az += w * r_sm[j, 2]
+                ax += w * r_sm[j]
+                ay += w * r_sm[j + 1]
+                az += w * r_sm[j + 2]
             for c in range(sil_ptr[i], sil_ptr[i + 1]):
                 px = V[i, 0] - sil_origin[c, 0]
                 py = V[i, 1] - sil_origin[c, 1]
@@ -421,7 +423,7 @@ def jacobi(V: np.ndarray, cs: ConstraintSet, inner_iterations: int = 32, relaxat
                                                              projection_weight(dep.k, inner_iterations))
     sm = _smoothness_arrays(cs.delta)
     k_sm = float(projection_weight(cs.k_sm, inner_iterations))
-    args = (sm.indptr, sm.indices, sm.weights, sm.weights_t, sm.inv_grad2, k_sm,
+    args = (sm.indptr, sm.offsets, sm.weights, sm.weights_t, sm.inv_grad2, k_sm,
             np.ascontiguousarray(cs.delta_rest, dtype=np.float64), sil_ptr, sil_origin, sil_dir, sil_k,
             dep_ptr, dep_point, dep_normal, dep_k, float(relaxation))
     if callback is None:
