@@ -224,7 +224,7 @@ def _gauss_seidel_sweeps(V, indptr, offsets, weights, inv_grad2, k_sm_prime, del
             f = k_sm_prime * inv_grad2[i]
             if b - a == 6:
                 # Regular vertex (valence 6, most of a body template): the ring's offsets and weights stay
-                # in registers from the residual to the update (measured ~8 % of a sweep).
+                # in registers from the residual to the update (saves ~8 % of a sweep).
                 j0, j1, j2 = offsets[a], offsets[a + 1], offsets[a + 2]
                 j3, j4, j5 = offsets[a + 3], offsets[a + 4], offsets[a + 5]
                 w0, w1, w2 = weights[a], weights[a + 1], weights[a + 2]
