@@ -5,6 +5,8 @@
 * ``pose_vertex_err_mm_mean``: avatar and ground truth both posed with :func:`held_out_poses` (poses no
   scan or test uses), mean vertex distance.
 * ``weights_l1_mean``: mean over vertices of ``sum_j |w_j - w_j^true|`` (0 = equal, 2 = disjoint).
+* ``pose_vertex_err_mm_region`` (only when a ``region`` mask of avatar vertices is given): the held-out-pose
+  vertex error over that region alone, e.g. where the weight transfer had no compatible correspondence.
 Avatar vertices are matched to ground-truth scan vertices by position in the bind pose (clean-up and the
 UV atlas may reorder or split vertices).
 """
@@ -47,7 +49,8 @@ def match_vertices(avatar_V: np.ndarray, gt_scan_V: np.ndarray, max_mm: float = 
     return idx
 
 
-def evaluate_rig(avatar: Avatar, gt: ScanGroundTruth, to_canonical: np.ndarray | None = None) -> dict:
+def evaluate_rig(avatar: Avatar, gt: ScanGroundTruth, to_canonical: np.ndarray | None = None,
+                 region: np.ndarray | None = None) -> dict:
     """Errors of a rigged avatar against the scan's ground truth (see the module docstring)."""
     R = np.eye(3) if to_canonical is None else np.asarray(to_canonical)
     gt_scan = gt.posed_vertices(gt.pose) @ R.T
@@ -60,13 +63,16 @@ def evaluate_rig(avatar: Avatar, gt: ScanGroundTruth, to_canonical: np.ndarray |
     for q in held_out_poses(avatar.bone_names):
         truth = gt.posed_vertices(Pose(q.rotations, gt.pose.translation)) @ R.T
         ours, _ = avatar.posed(Pose(q.rotations, avatar.bind_translation))
-        errs.append(1000.0 * np.linalg.norm(ours - truth[idx], axis=1).mean())
+        errs.append(1000.0 * np.linalg.norm(ours - truth[idx], axis=1))
     W_true = np.asarray(gt.weights[idx].todense())
     l1 = np.abs(avatar.weights - W_true).sum(1).mean()
-    return {"joint_err_mm_mean": float(jerr[bones].mean()), "joint_err_mm_max": float(jerr[bones].max()),
-            "joint_err_mm_mean_fingers": float(jerr[fingers].mean()) if len(fingers) else None,
-            "pose_vertex_err_mm_mean": float(np.mean(errs)), "weights_l1_mean": float(l1),
-            "fit_err_mm_median": avatar.metadata.get("fit_err_mm_median")}
+    out = {"joint_err_mm_mean": float(jerr[bones].mean()), "joint_err_mm_max": float(jerr[bones].max()),
+           "joint_err_mm_mean_fingers": float(jerr[fingers].mean()) if len(fingers) else None,
+           "pose_vertex_err_mm_mean": float(np.mean(errs)), "weights_l1_mean": float(l1),
+           "fit_err_mm_median": avatar.metadata.get("fit_err_mm_median")}
+    if region is not None:
+        out["pose_vertex_err_mm_region"] = float(np.mean([e[region] for e in errs]))
+    return out
 
 
 def rig_json_path(glb: str | Path) -> Path:
