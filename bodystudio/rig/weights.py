@@ -184,7 +184,7 @@ def bounded_biharmonic_weights(scan_V: np.ndarray, scan_F: np.ndarray, heads: np
     dist = np.stack([_segment_distance(Vd, heads[j], tails[j]) for j in bones], axis=1)  # (n, nb)
     nearest = np.argmin(dist, axis=1)
     handles, values = [], []
-    for col, j in enumerate(bones):
+    for col in range(len(bones)):
         mine = np.flatnonzero(nearest == col)
         if len(mine) == 0:
             continue
