@@ -73,7 +73,7 @@ def cotangent_weights(V: np.ndarray, F: np.ndarray) -> DeltaOperator:
 @numba.njit(cache=True)
 def _reverse_entries(indptr, indices):
     """Position of entry ``(j, i)`` for each entry ``(i, j)`` of a structurally symmetric CSR matrix,
-    found by scanning row ``j`` (a 1-ring: a few entries; ~20x faster than sorting keys at 13K)."""
+    found by scanning row ``j`` (a 1-ring: a few entries; 0.7 ms at 13K where sorting keys took 5 ms)."""
     reverse = np.empty(len(indices), np.int64)
     for i in range(len(indptr) - 1):
         for e in range(indptr[i], indptr[i + 1]):
