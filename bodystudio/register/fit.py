@@ -59,6 +59,7 @@ POSE_PRIOR_SIGMA = {"pelvis": 0.3, "spine_01": 0.2, "spine_02": 0.2, "spine_03":
                     "clavicle_l": 0.15, "clavicle_r": 0.15, "upperarm_l": 1.0, "upperarm_r": 1.0,
                     "lowerarm_l": 1.0, "lowerarm_r": 1.0, "hand_l": 0.6, "hand_r": 0.6, "thigh_l": 0.6,
                     "thigh_r": 0.6, "calf_l": 0.6, "calf_r": 0.6, "foot_l": 0.4, "foot_r": 0.4}
+TANGENT_WEIGHT = 0.1  # pose step: weight of the pairs' squared tangential residuals (normal part: 1)
 PRIOR_ANNEAL_START = 100.0
 PRIOR_ANNEAL_RATE = 0.5
 RESIDUAL_STD_M = 0.002  # RMS of a converged fit's pair residuals (noise + model mismatch)
@@ -142,9 +143,16 @@ def _frames_blocks(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_pose_step(skeleton: Skeleton, pose: Pose, V: np.ndarray, W: np.ndarray, Z: np.ndarray,
                   free: tuple[int, ...], lm_iterations: int | None = None,
-                  residual_std_m: float = RESIDUAL_STD_M, prior_scale: float = 1.0) -> Pose:
+                  residual_std_m: float = RESIDUAL_STD_M, prior_scale: float = 1.0,
+                  normals: np.ndarray | None = None, tangent_weight: float | None = None) -> Pose:
     """Levenberg-Marquardt on the pose part of eq. 5, exact Jacobian (casadi kinematics + chain rule), with the
-    range-of-motion prior :data:`POSE_PRIOR_SIGMA` on the local rotations."""
+    range-of-motion prior :data:`POSE_PRIOR_SIGMA` on the local rotations.
+
+    With the scan ``normals`` at the pairs, the residuals' tangential parts are down-weighted by
+    ``tangent_weight`` (point-to-plane, Chen & Medioni): closest-point pairs resist a surface sliding along
+    itself as much as moving off it, which froze a limb's twist about its own axis (a near-cylinder slides
+    when it twists) wherever the first iterations left it."""
+    tangent_weight = TANGENT_WEIGHT if tangent_weight is None else tangent_weight
     lm_iterations = LM_ITERATIONS if lm_iterations is None else lm_iterations
     B = skeleton.n_bones
     f = bone_transform_function(tuple(int(p) for p in skeleton.parents), free)
@@ -155,15 +163,20 @@ def fit_pose_step(skeleton: Skeleton, pose: Pose, V: np.ndarray, W: np.ndarray, 
     Ws = sp.csr_matrix(np.where(W > 1e-9, W, 0.0))  # a point has a handful of bones: sparse chain rule
     sigma = np.array([POSE_PRIOR_SIGMA.get(skeleton.bone_names[j], np.inf) for j in free])
     reg = prior_scale * np.r_[np.repeat(residual_std_m ** 2 / sigma ** 2, 3), np.zeros(3)]
+    if normals is None:
+        P = np.broadcast_to(np.eye(3), (len(V), 3, 3))
+    else:
+        nnT = normals[:, :, None] * normals[:, None, :]
+        P = nnT + np.sqrt(tangent_weight) * (np.eye(3) - nnT)
 
     def cost(xv):
         S, dS = f(xv, fixed, C, A_inv)
         S = np.asarray(S).reshape(B, 3, 4)
         dS = np.asarray(dS).reshape(B, 3, 4, len(xv))
         moved = (Vh @ S.reshape(3 * B, 4).T).reshape(len(W), B, 3)
-        r = (np.einsum("nb,nbi->ni", W, moved) - Z).ravel()
+        r = np.einsum("nij,nj->ni", P, np.einsum("nb,nbi->ni", W, moved) - Z).ravel()
         dSw = (Ws @ dS.reshape(B, -1)).reshape(len(W), 3, 4, len(xv))
-        J = (dSw * Vh[:, None, :, None]).sum(2).reshape(-1, len(xv))
+        J = np.einsum("nij,njx->nix", P, (dSw * Vh[:, None, :, None]).sum(2)).reshape(-1, len(xv))
         return r, J, float(r @ r + (reg * xv) @ xv)
 
     r, J, e = cost(x)
@@ -224,9 +237,10 @@ def fit_shape_step(model, coeffs: np.ndarray, pose: Pose, idx: np.ndarray, bary:
 def compatible_pairs(model_V: np.ndarray, model_F: np.ndarray, model_N: np.ndarray, scan_V: np.ndarray,
                      scan_N: np.ndarray, scan_tree: cKDTree, max_dist: float, scan_sample: np.ndarray,
                      k: int = 8, surface: bool = True,
-                     model_sample: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     model_sample: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Compatible closest-point pairs both ways: ``(model triangle corners (s, 3), barycentrics (s, 3),
-    scan points (s, 3))``. A pair counts when the normals agree within 60° and the points are within
+    scan points (s, 3), their scan vertex indices (s,))``. A pair counts when the normals agree within 60° and the points are within
     ``max_dist``; model vertices (all, or those of ``model_sample``) map to scan vertices, scan vertices
     (``scan_sample``) to the closest compatible point of the model."""
     model_sample = np.arange(len(model_V)) if model_sample is None else model_sample
@@ -251,7 +265,8 @@ def compatible_pairs(model_V: np.ndarray, model_F: np.ndarray, model_N: np.ndarr
     corners = np.concatenate([a1, a2])[:, None].repeat(3, axis=1)
     bary = np.zeros((len(corners), 3))
     bary[:, 0] = 1.0
-    Z = np.concatenate([scan_V[b1], Zs[has2]])
+    scan_index = np.concatenate([b1, scan_sample[has2]])
+    Z = scan_V[scan_index]
     if surface and len(a2):
         # Scan -> model pairs go to the closest point of the model *surface*, not its nearest vertex: the
         # template's vertices are ~2 cm apart, and snapping to them biases the tangential (twist) direction.
@@ -267,7 +282,7 @@ def compatible_pairs(model_V: np.ndarray, model_F: np.ndarray, model_N: np.ndarr
         ok_n = np.einsum("nc,nc->n", tn, scan_N[scan_sample][has2]) > COMPATIBLE_COS
         corners[n1:][ok_n] = model_F[tri[ok_n]]
         bary[n1:][ok_n] = lam[ok_n]
-    return corners, bary, Z
+    return corners, bary, Z, scan_index
 
 
 def surface_distance_mm(points: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -312,7 +327,7 @@ def fit_model(model, scan: Mesh, max_iterations: int | None = None, seed: int = 
         max_dist = max(0.25 * 0.8 ** it, 0.03)
         scan_sample = rng.choice(len(Zv), n_scan_sample, replace=False)
         model_sample = rng.choice(len(Vr), n_model_sample, replace=False)
-        corners, bary, Zp = compatible_pairs(posed, F, vertex_normals(posed, F), Zv, Zn, tree, max_dist, scan_sample,
+        corners, bary, Zp, zi = compatible_pairs(posed, F, vertex_normals(posed, F), Zv, Zn, tree, max_dist, scan_sample,
                                              surface=SURFACE_PAIRS and it >= surface_from, model_sample=model_sample)
         if len(Zp) == 0:
             break
@@ -331,7 +346,7 @@ def fit_model(model, scan: Mesh, max_iterations: int | None = None, seed: int = 
         V = np.einsum("nk,nki->ni", bary[pick], Vr[corners[pick]])
         W = np.einsum("nk,nkb->nb", bary[pick], model.weights[corners[pick]])
         pose = fit_pose_step(skeleton, pose, V, W, Zp[pick], free, lm_iterations,
-                             prior_scale=max(1.0, PRIOR_ANNEAL_START * PRIOR_ANNEAL_RATE ** it))
+                             prior_scale=max(1.0, PRIOR_ANNEAL_START * PRIOR_ANNEAL_RATE ** it), normals=Zn[zi[pick]])
         if it >= 2:
             coeffs = fit_shape_step(model, coeffs, pose, corners[pick], bary[pick], Zp[pick])
         if progress is not None:

@@ -24,7 +24,7 @@ def test_scan_to_model_pairs_on_the_surface():
     model_N = np.tile([0.0, 0.0, 1.0], (len(model_V), 1))
     sample = np.arange(500)
     for surface, bound in ((True, 0.0021), (False, None)):
-        corners, bary, Z = compatible_pairs(model_V, model_F, model_N, scan_V, scan_N, cKDTree(scan_V), 0.05, sample,
+        corners, bary, Z, _ = compatible_pairs(model_V, model_F, model_N, scan_V, scan_N, cKDTree(scan_V), 0.05, sample,
                                             surface=surface)
         P = np.einsum("nk,nki->ni", bary, model_V[corners])
         d = np.linalg.norm(P - Z, axis=1)[-500:]  # the scan -> model pairs come last
