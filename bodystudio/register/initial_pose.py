@@ -33,8 +33,9 @@ from bodystudio.geometry.mesh import vertex_areas
 # (limb root bone, which side: +1 = +x = left, -1 = right, end effector kind)
 LIMB_CHAINS = (("upperarm_l", 1.0, "hand"), ("upperarm_r", -1.0, "hand"),
                ("thigh_l", 1.0, "foot"), ("thigh_r", -1.0, "foot"))
-# Arm bones aligned one at a time, each to the ring at its child joint (the hand: to the tip).
-ARM_BONES = (("upperarm", "lowerarm"), ("lowerarm", "hand"), ("hand", None))
+# Limb bones aligned one at a time, each to the ring at its child joint (the last one: to the tip).
+LIMB_BONES = {"hand": (("upperarm", "lowerarm"), ("lowerarm", "hand"), ("hand", None)),
+              "foot": (("thigh", "calf"), ("calf", "foot"), ("foot", None))}
 RING_HALF_WIDTH_M = 0.008
 
 
@@ -96,21 +97,41 @@ def edge_length_graph(V: np.ndarray, F: np.ndarray) -> sp.csr_matrix:
     return G.maximum(G.T)
 
 
-def hand_tips(V: np.ndarray, F: np.ndarray, coarse: CoarseSkeleton) -> dict:
-    """Per side, the scan vertex geodesically farthest from the chest among the arm's side (the longest
-    finger's tip); -1 where the surface is not connected."""
+def limb_tips(V: np.ndarray, F: np.ndarray, coarse: CoarseSkeleton) -> dict:
+    """``(kind, side) -> vertex``: per side, the vertex geodesically farthest from the chest above the crotch
+    (``"hand"``: the longest finger's tip) and below it (``"foot"``: the toe tip); -1 where the surface is not
+    connected."""
     h = coarse.stature_m
     band = np.abs(V[:, 1] - (coarse.floor_y + 0.72 * h)) < 0.03 * h
     front = band & (np.abs(V[:, 0] - coarse.pelvis[0]) < 0.05 * h)
     chest = int(np.flatnonzero(front)[np.argmax(V[front, 2])]) if front.any() else int(np.argmax(V[:, 2]))
-    g = dijkstra(edge_length_graph(V, F), indices=chest)
+    graph = edge_length_graph(V, F)
+    g = dijkstra(graph, indices=chest)
+    above = (V[:, 1] > coarse.floor_y + 0.45 * h) & (g < np.inf)
     tips = {}
     for side in (1.0, -1.0):
         # Above the crotch (about 45 % of stature) the farthest points are the finger tips, about 0.4 statures
         # from the chest; a hand cut off by a hole leaves only nearer points (shoulder, hip): no tip.
-        arm = (g < np.inf) & (V[:, 1] > coarse.floor_y + 0.45 * h) & (side * (V[:, 0] - coarse.pelvis[0]) > 0.05 * h)
+        arm = above & (side * (V[:, 0] - coarse.pelvis[0]) > 0.05 * h)
         far = np.flatnonzero(arm)[np.argmax(g[arm])] if arm.any() else -1
-        tips[side] = int(far) if far >= 0 and g[far] > 0.3 * h else -1
+        tips["hand", side] = int(far) if far >= 0 and g[far] > 0.3 * h else -1
+    # Below the crotch the toes, 0.7 statures from the chest: the farthest point, then the point farthest from
+    # both the chest and that one (a foot can cross the midline, so x does not tell the feet apart). The foot
+    # whose thigh (the ring 0.4 statures up the leg) lies further to +x is the left one.
+    legs = ~above & (g < np.inf)
+    tips["foot", 1.0] = tips["foot", -1.0] = -1
+    if legs.sum() < 2:
+        return tips
+    first = int(np.flatnonzero(legs)[np.argmax(g[legs])])
+    g_first = dijkstra(graph, indices=first)
+    second = int(np.flatnonzero(legs)[np.argmax(np.minimum(g, g_first)[legs])])
+    g_second = dijkstra(graph, indices=second, limit=0.5 * h)
+    if min(g[first], g[second]) < 0.3 * h:
+        return tips
+    thigh_x = [V[np.abs(d - 0.4 * h) < 0.01 * h, 0].mean() if (np.abs(d - 0.4 * h) < 0.01 * h).any() else V[t, 0]
+               for d, t in ((g_first, first), (g_second, second))]
+    left, right = (first, second) if thigh_x[0] > thigh_x[1] else (second, first)
+    tips["foot", 1.0], tips["foot", -1.0] = left, right
     return tips
 
 
@@ -148,12 +169,13 @@ def _rotate_bone_towards(skeleton: Skeleton, pose: Pose, j: int, d_model: np.nda
     return Pose(rot, pose.translation)
 
 
-def align_arm(skeleton: Skeleton, weights: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray,
-              scan_vertices: np.ndarray, scan_faces: np.ndarray, pose: Pose, side: str, model_tip: int,
-              scan_tip: int) -> Pose:
-    """Hierarchical alignment of one arm (upper arm, forearm, hand) through geodesic rings from the hand tip:
-    each bone turns so that the model's ring centroid at its child joint points at the scan's."""
-    children = [skeleton.index(f"{c}_{side}") for _, c in ARM_BONES if c is not None]
+def align_limb(skeleton: Skeleton, weights: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray,
+               scan_vertices: np.ndarray, scan_faces: np.ndarray, pose: Pose, kind: str, side: str, model_tip: int,
+               scan_tip: int) -> Pose:
+    """Hierarchical alignment of one limb (upper arm, forearm, hand; thigh, calf, foot) through geodesic rings
+    from its tip: each bone turns so that the model's ring centroid at its child joint points at the scan's."""
+    bones = LIMB_BONES[kind]
+    children = [skeleton.index(f"{c}_{side}") for _, c in bones if c is not None]
     g = dijkstra(edge_length_graph(rest_vertices, faces), indices=model_tip)
     # The geodesic distance of a joint from the tip: that of the model vertices nearest to it.
     joint_d = np.array([np.median(g[np.argsort(np.linalg.norm(rest_vertices - skeleton.heads[c], axis=1))[:20]])
@@ -163,7 +185,7 @@ def align_arm(skeleton: Skeleton, weights: np.ndarray, rest_vertices: np.ndarray
     if any(len(r) < 3 for r in model_rings + scan_rings):
         return pose
     targets = [scan_vertices[r].mean(0) for r in scan_rings] + [scan_vertices[scan_tip]]
-    for (bone, _), k in zip(ARM_BONES, range(len(targets))):
+    for (bone, _), k in zip(bones, range(len(targets))):
         j = skeleton.index(f"{bone}_{side}")
         ring = model_rings[k] if k < len(model_rings) else np.array([model_tip])
         posed = linear_blend_skinning(rest_vertices[ring], weights[ring], skinning_transforms(skeleton, pose))
@@ -176,7 +198,7 @@ def initial_pose(skeleton: Skeleton, weights: np.ndarray, rest_vertices: np.ndar
                  coarse: CoarseSkeleton | None = None, faces: np.ndarray | None = None,
                  scan_faces: np.ndarray | None = None) -> Pose:
     """Initial θ of the model (rest vertices + skeleton + weights) for a canonical scan (§4.3). With the
-    model's and the scan's ``faces``, the arms are aligned bone by bone (:func:`align_arm`)."""
+    model's and the scan's ``faces``, the limbs are aligned bone by bone (:func:`align_limb`)."""
     coarse = coarse or coarse_scan_skeleton(scan_vertices)
     B = skeleton.n_bones
     rot = np.zeros((B, 3))
@@ -210,9 +232,10 @@ def initial_pose(skeleton: Skeleton, weights: np.ndarray, rest_vertices: np.ndar
     if faces is None or scan_faces is None:
         return pose
     model_coarse = coarse_scan_skeleton(rest_vertices, faces)
-    model_tips, scan_tips = hand_tips(rest_vertices, faces, model_coarse), hand_tips(scan_vertices, scan_faces, coarse)
-    for side, name in ((1.0, "l"), (-1.0, "r")):
-        if model_tips[side] >= 0 and scan_tips[side] >= 0:
-            pose = align_arm(skeleton, weights, rest_vertices, faces, scan_vertices, scan_faces, pose, name,
-                             model_tips[side], scan_tips[side])
+    model_tips, scan_tips = limb_tips(rest_vertices, faces, model_coarse), limb_tips(scan_vertices, scan_faces, coarse)
+    for kind in LIMB_BONES:
+        for side, name in ((1.0, "l"), (-1.0, "r")):
+            if model_tips[kind, side] >= 0 and scan_tips[kind, side] >= 0:
+                pose = align_limb(skeleton, weights, rest_vertices, faces, scan_vertices, scan_faces, pose, kind,
+                                  name, model_tips[kind, side], scan_tips[kind, side])
     return pose
