@@ -10,9 +10,9 @@ model's chain end (finger tip, toe) points where the scan's does.
 
 The arms bend at the elbow and wrist, so a straight arm aimed at the hand tip leaves the fit to find the
 bend, and it often twisted the arm into a wrong basin instead (random poses: upper arm 40-80° off).
-The arm chains therefore go one bone at a time through rings of equal geodesic distance from the hand
-tip: geodesic distance along a limb hardly changes with pose, so the ring at the distance of the model's
-elbow (wrist) is the scan's elbow (wrist) cross-section, and its centroid a joint centre. The model's own
+The limb chains therefore go one bone at a time through rings of equal geodesic distance from the hand
+(toe) tip: geodesic distance along a limb hardly changes with pose, so the ring at the distance of the
+model's elbow (wrist, knee, ankle) is the scan's cross-section there, and its centroid a joint centre. The model's own
 rings, taken the same way on its rest mesh, are aligned to the scan's, so the rings' bias (a ring near
 the wrist also cuts the thumb) cancels.
 """
