@@ -241,9 +241,9 @@ def compatible_pairs(model_V: np.ndarray, model_F: np.ndarray, model_N: np.ndarr
                      model_sample: np.ndarray | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Compatible closest-point pairs both ways: ``(model triangle corners (s, 3), barycentrics (s, 3),
-    scan points (s, 3), their scan vertex indices (s,))``. A pair counts when the normals agree within 60° and the points are within
-    ``max_dist``; model vertices (all, or those of ``model_sample``) map to scan vertices, scan vertices
-    (``scan_sample``) to the closest compatible point of the model."""
+    scan points (s, 3), their scan vertex indices (s,))``. A pair counts when the normals agree within 60° and
+    the points are within ``max_dist``; model vertices (all, or those of ``model_sample``) map to scan
+    vertices, scan vertices (``scan_sample``) to the closest compatible point of the model."""
     model_sample = np.arange(len(model_V)) if model_sample is None else model_sample
     d, nn = scan_tree.query(model_V[model_sample], k=k, distance_upper_bound=max_dist)
     ok = np.isfinite(d)
@@ -326,8 +326,9 @@ def fit_model(model, scan: Mesh, max_iterations: int | None = None, seed: int = 
         max_dist = max(0.25 * 0.8 ** it, 0.03)
         scan_sample = rng.choice(len(Zv), n_scan_sample, replace=False)
         model_sample = rng.choice(len(Vr), n_model_sample, replace=False)
-        corners, bary, Zp, zi = compatible_pairs(posed, F, vertex_normals(posed, F), Zv, Zn, tree, max_dist, scan_sample,
-                                             surface=SURFACE_PAIRS and it >= surface_from, model_sample=model_sample)
+        corners, bary, Zp, zi = compatible_pairs(posed, F, vertex_normals(posed, F), Zv, Zn, tree, max_dist,
+                                                 scan_sample, surface=SURFACE_PAIRS and it >= surface_from,
+                                                 model_sample=model_sample)
         if len(Zp) == 0:
             break
         err = float(np.mean(np.sum((np.einsum("nk,nki->ni", bary, posed[corners]) - Zp) ** 2, axis=1)))

@@ -185,7 +185,7 @@ def align_limb(skeleton: Skeleton, weights: np.ndarray, rest_vertices: np.ndarra
     if any(len(r) < 3 for r in model_rings + scan_rings):
         return pose
     targets = [scan_vertices[r].mean(0) for r in scan_rings] + [scan_vertices[scan_tip]]
-    for (bone, _), k in zip(bones, range(len(targets))):
+    for k, (bone, _) in enumerate(bones):
         j = skeleton.index(f"{bone}_{side}")
         ring = model_rings[k] if k < len(model_rings) else np.array([model_tip])
         posed = linear_blend_skinning(rest_vertices[ring], weights[ring], skinning_transforms(skeleton, pose))

@@ -95,7 +95,8 @@ def _rig_scan(scan: Mesh, model, weights: str, stage: Callable[[str], None] | No
         log.info("fit error %.1f mm median, %.1f mm p90: restarting with another sample seed", fit.fit_err_mm_median,
                  fit.fit_err_mm_p90)
         again = fit_model(model, scan, seed=seed + attempt, surface_from=RESTART_SURFACE_FROM, **THOROUGH_FIT)
-        fit = again if again.fit_err_mm_median + again.fit_err_mm_p90 < fit.fit_err_mm_median + fit.fit_err_mm_p90 else fit
+        worse = again.fit_err_mm_median + again.fit_err_mm_p90 >= fit.fit_err_mm_median + fit.fit_err_mm_p90
+        fit = fit if worse else again
     done("fit")
     if fit.fit_err_mm_median > NON_HUMAN_FIT_MM:
         raise InputError(f"the body model fits this scan only to {fit.fit_err_mm_median:.0f} mm (median), far above a "
