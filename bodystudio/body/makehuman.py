@@ -50,7 +50,8 @@ def _parse_obj(path: Path) -> tuple[np.ndarray, list[tuple[str, list[int]]]]:
                 elif line.startswith("f "):
                     faces.append((group, [int(t.split("/")[0]) - 1 for t in line.split()[1:]]))
     except (OSError, ValueError, IndexError) as exc:
-        raise AssetError(f"{path}: cannot parse the MakeHuman base mesh ({exc}); delete the asset cache and rerun 'make setup'") from None
+        raise AssetError(f"{path}: cannot parse the MakeHuman base mesh ({exc}); delete the asset cache and rerun "
+                         "'make setup'") from None
     return np.array(verts, dtype=np.float64), faces
 
 
@@ -61,7 +62,8 @@ def load_base(data_dir: Path | None = None) -> MakeHumanBase:
     V, faces = _parse_obj(data_dir / "3dobjs" / "base.obj")
     body = np.array([f for g, f in faces if g == "body"], dtype=np.int64)
     if body.size == 0 or body.shape[1] != 4:
-        raise AssetError(f"{data_dir / '3dobjs/base.obj'}: no quad 'body' group; this is not MakeHuman's hm08 base mesh")
+        raise AssetError(f"{data_dir / '3dobjs/base.obj'}: no quad 'body' group; "
+                         "this is not MakeHuman's hm08 base mesh")
     n_body = int(body.max()) + 1
     group_faces: dict[str, list[int]] = {}
     for g, f in faces:

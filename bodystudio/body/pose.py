@@ -72,7 +72,8 @@ def load_pose(path: str | Path, bone_names: tuple[str, ...]) -> Pose:
     except FileNotFoundError:
         raise FileFormatError(f"{path}: pose file not found") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise FileFormatError(f"{path}: not valid JSON ({exc}); a pose file is JSON with a 'rotations' object") from None
+        raise FileFormatError(f"{path}: not valid JSON ({exc}); "
+                              "a pose file is JSON with a 'rotations' object") from None
     return pose_from_dict(data, bone_names, str(path))
 
 

@@ -105,7 +105,7 @@ def blender_vec_roll_to_matrix(direction: np.ndarray, roll: float) -> np.ndarray
 def bone_rest_rotations(heads: np.ndarray, tails: np.ndarray, rolls: np.ndarray) -> np.ndarray:
     """Rest frames of bones in our axes, computed in Blender's axes where the rolls are defined."""
     out = np.empty((len(heads), 3, 3))
-    for j, (h, t, r) in enumerate(zip(heads, tails, rolls)):
+    for j, (h, t, r) in enumerate(zip(heads, tails, rolls, strict=True)):
         d = TO_BLENDER @ (t - h)
         if not np.linalg.norm(d) > 1e-9:
             d = np.array([0.0, 0.0, 1e-3])
@@ -139,7 +139,8 @@ def load_rig(name: str, data_dir: Path, n_all: int, cubes: dict[str, np.ndarray]
     try:
         spec = json.loads(rig_file.read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise AssetError(f"{rig_file}: cannot read rig ({exc}); delete the asset cache and rerun 'make setup'") from None
+        raise AssetError(f"{rig_file}: cannot read rig ({exc}); "
+                         "delete the asset cache and rerun 'make setup'") from None
     order: list[str] = []
     placed: set[str] = set()
     remaining = sorted(spec)

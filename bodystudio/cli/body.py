@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -23,7 +22,8 @@ def parse_assignments(items: list[str] | None, what: str) -> dict[str, float]:
                 raise ValueError
             out[name.strip()] = float(value)
         except ValueError:
-            raise InputError(f"{what} {item!r} is not NAME=VALUE with a number, e.g. upperarm-fat-decr-incr=0.5") from None
+            raise InputError(f"{what} {item!r} is not NAME=VALUE with a number, "
+                             "e.g. upperarm-fat-decr-incr=0.5") from None
     return out
 
 
@@ -36,8 +36,9 @@ def export(
     weight: float = typer.Option(0.5),
     height: float = typer.Option(0.5),
     proportions: float = typer.Option(0.5),
-    local: Optional[list[str]] = typer.Option(None, "--local", help="local modifier NAME=VALUE in [-1, 1] (repeat)"),
-    pose: Optional[Path] = typer.Option(None, "--pose", help="pose JSON (axis-angle 'rotations' or MPFB 'bone_rotations')"),
+    local: list[str] | None = typer.Option(None, "--local", help="local modifier NAME=VALUE in [-1, 1] (repeat)"),
+    pose: Path | None = typer.Option(None, "--pose",
+                                     help="pose JSON (axis-angle 'rotations' or MPFB 'bone_rotations')"),
     resolution: str = typer.Option("full", help="full | 6k | 2k"),
     rig: str = typer.Option("game_engine", help="game_engine | default | default_no_toes | cmu_mb"),
     skinning: str = typer.Option("lbs", help="lbs | dqs"),
@@ -86,7 +87,7 @@ def info(
 @app.command("measure")
 def measure(
     mesh: Path = typer.Argument(..., help="rest-pose body mesh in bodystudio's topology (full, 6k or 2k template)"),
-    resolution: Optional[str] = typer.Option(None, help="full | 6k | 2k (default: detected from the vertex count)"),
+    resolution: str | None = typer.Option(None, help="full | 6k | 2k (default: detected from the vertex count)"),
 ) -> None:
     """Print the mesh's stature, mass, chest/waist/hip girths, arm and leg length as JSON."""
     from bodystudio.body.measure import MESH_ATTRIBUTE_NAMES, measure_attributes

@@ -67,7 +67,8 @@ def rig(scan: Path = typer.Argument(..., help="body scan: PLY, OBJ, GLB/GLTF or 
         texture: bool = typer.Option(False, "--texture/--vertex-colors",
                                      help="bake colours into an xatlas UV texture (slow on big scans)"),
         weights: str = typer.Option("harmonic", "--weights", help="skin weight transfer: harmonic or barycentric"),
-        bvh: Path = typer.Option(None, "--bvh", help="also write a BVH of sample poses on the avatar's skeleton")) -> None:
+        bvh: Path = typer.Option(None, "--bvh",
+                                 help="also write a BVH of sample poses on the avatar's skeleton")) -> None:
     """Rig a body scan: fit the body model, transfer skeleton and skin weights, export glTF."""
     desc = rig_to_files(scan, out, reshape, template, texture, weights, bvh, show_progress=True)
     typer.echo(f"wrote {out} ({desc['n_vertices']} vertices, {len(desc['bones'])} bones, "

@@ -216,7 +216,8 @@ def load_ground_truth(gt_dir: str | Path) -> ScanGroundTruth:
         with np.load(gt_dir / "arrays.npz") as z:
             a = {k: z[k] for k in z.files}
     except (OSError, ValueError) as exc:
-        raise FileFormatError(f"{gt_dir / 'arrays.npz'}: cannot read ground truth ({exc}); regenerate the scan") from None
+        raise FileFormatError(f"{gt_dir / 'arrays.npz'}: cannot read ground truth ({exc}); "
+                              "regenerate the scan") from None
     W = sp.csr_matrix((a["weights_data"], a["weights_indices"], a["weights_indptr"]), shape=tuple(a["weights_shape"]))
     sk = Skeleton(tuple(meta["bone_names"]), a["parents"], a["heads"], a["tails"], a["rolls"])
     phen = Phenotype(**meta["phenotype"])

@@ -140,7 +140,8 @@ def test_pose_files(tmp_path, default_body):
     assert np.abs(pose.rotations).max() > 0.1  # MPFB Euler angles read and converted
     arms_up, _ = default_body.pose(pose)
     hand = names.index("hand_l")
-    assert abs(arms_up[default_body.weights[:, hand] > 0.9, 1].mean() - default_body.skeleton.heads[names.index("upperarm_l"), 1]) < 0.15
+    shoulder_y = default_body.skeleton.heads[names.index("upperarm_l"), 1]
+    assert abs(arms_up[default_body.weights[:, hand] > 0.9, 1].mean() - shoulder_y) < 0.15
     bad = tmp_path / "bad.json"
     bad.write_text('{"rotations": {"lowerarm_l": [1, 2]}}')
     with pytest.raises(FileFormatError, match="3 finite numbers"):

@@ -3,7 +3,7 @@
 import numpy as np
 import scipy.sparse as sp
 
-from bodystudio.register.synthetic import densify, load_ground_truth, ground_truth_dir, midpoint_subdivision
+from bodystudio.register.synthetic import densify, ground_truth_dir, load_ground_truth, midpoint_subdivision
 
 
 def test_ground_truth_reproduces_scan(small_scan):

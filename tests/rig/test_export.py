@@ -10,12 +10,12 @@ from scipy.spatial.transform import Rotation
 
 from bodystudio.body import Pose
 from bodystudio.body.skinning import linear_blend_skinning, skinning_transforms
+from bodystudio.fileio import write_json
 from bodystudio.register.synthetic import random_pose
 from bodystudio.rig.avatar import Avatar
 from bodystudio.rig.evaluate import load_avatar, rig_json_path
 from bodystudio.rig.export import rig_description, write_bvh, write_glb
 from bodystudio.rig.weights import limit_influences
-from bodystudio.fileio import write_json
 
 VALIDATOR_JS = """
 const validator = require('gltf-validator');
