@@ -1,12 +1,14 @@
 """Morphable model fitting, §4.3 of Avatar Reshaping (eq. 5): pose θ and shape β of the statistical model.
 
 ``argmin_{θ,β} sum_{(a,b) in C} || T(θ, v'_a(β)) - z_b ||^2`` over compatible closest-point pairs (the
-normals agree within :data:`COMPATIBLE_COS`), a random tenth of them per iteration (Masuda et al. 1996),
+normals agree within :data:`COMPATIBLE_COS`), a random subset per iteration (Masuda et al. 1996),
 alternating a pose step and a shape step until the error stops improving.
 
 * Pose step: non-linear least squares in the local axis-angle rotations of the body bones and the root
   translation; the residual and its exact Jacobian are casadi functions (casadi plays Ceres' role),
-  minimised by Levenberg-Marquardt.
+  minimised by Levenberg-Marquardt. The residuals are point-to-plane with a small tangential part
+  (:data:`TANGENT_WEIGHT`: a twisting limb slides along itself), plus a range-of-motion prior
+  (:data:`POSE_PRIOR_SIGMA`) annealed from :data:`PRIOR_ANNEAL_START` times its weight to 1.
 * Shape step: with the bones' posed rotations fixed, every posed vertex and joint is affine in β
   (``T v = sum_j w_j (R_j (v - h_j) + h'_j)`` with rest heads ``h_j`` and posed heads ``h'_j`` both
   linear in β through the model's joint basis), so the step is a Tikhonov-regularised linear least
