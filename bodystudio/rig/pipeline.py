@@ -106,7 +106,8 @@ def _rig_scan(scan: Mesh, model, weights: str, stage: Callable[[str], None] | No
     coords = transfer_joint_coordinates(mvc, fit.vertices, fit.faces, scan.vertices, scan.faces)
     done("skeleton")
     if weights == "harmonic":
-        W = harmonic_weight_transfer(scan.vertices, scan.faces, fit.vertices, fit.faces, fit.weights)
+        W = harmonic_weight_transfer(scan.vertices, scan.faces, fit.vertices, fit.faces, fit.weights,
+                                      scan_N=scan.vertex_normals)
     else:
         W = barycentric_weight_transfer(scan.vertices, fit.vertices, fit.faces, fit.weights)
     done("weights")
