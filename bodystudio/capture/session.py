@@ -39,6 +39,16 @@ import numpy as np
 
 from bodystudio.errors import FileFormatError, SessionError
 from bodystudio.fileio import atomic_write, read_json, sha256_file
+from bodystudio.runfolder import (
+    OutputLockedError,
+    RunLayout,
+    acquire_lock,
+    apply_commit,
+    lock_holder,
+    read_lock,
+    recover_layout,
+    release_lock,
+)
 
 log = logging.getLogger(__name__)
 
@@ -398,8 +408,25 @@ class Session:
                                "re-import or regenerate it") from None
         expected = self.files.get(rel)
         if expected is not None and sha256_bytes(data) != expected:
+            self._check_not_rewritten(path)
             raise SessionError(f"{path}: corrupted (sha256 differs from {MANIFEST}); re-import or regenerate it")
         return data
+
+    def _check_not_rewritten(self, path: Path) -> None:
+        """A file that differs from the manifest because another command is rewriting the session is no
+        corruption: say who writes it (or that it changed since it was opened) instead."""
+        holder = lock_holder(session_layout(self.path))
+        if holder is not None:
+            raise SessionError(f"{path}: changed while being read; the session is being written by pid "
+                               f"{holder.get('pid')} ({holder.get('command')}, since {holder.get('since')}); "
+                               "wait for it to finish and re-run")
+        try:
+            current = json.loads((self.path / MANIFEST).read_bytes())
+        except (OSError, ValueError):
+            current = None
+        if current != self.manifest or (self.path / STAGING / COMMIT).is_file():
+            raise SessionError(f"{path}: changed while being read (the session was rewritten by another command "
+                               "since it was opened); re-run")
 
     def read_image(self, rel: str, color: bool) -> np.ndarray:
         return decode_png(self.read_bytes(rel), str(self.path / rel), color)
@@ -453,6 +480,10 @@ def open_session(path: str | os.PathLike) -> Session:
     staging = path / STAGING
     if not path.is_dir():
         raise SessionError(f"{path}: no such session folder")
+    holder = lock_holder(session_layout(path))
+    if holder is not None:
+        raise SessionError(f"{path}: session is being written by pid {holder.get('pid')} on {holder.get('host')} "
+                           f"({holder.get('command')}, since {holder.get('since')}); wait for it to finish")
     if (staging / COMMIT).is_file():
         raise SessionError(f"{staging / COMMIT}: a write was interrupted while committing; run "
                            f"`bodystudio capture recover {path}` to finish it")
@@ -493,34 +524,21 @@ def _check_manifest(m: Any, source: Path) -> None:
         raise SessionError(f"{source}: lists no {CAMERAS_JSON}; every session needs the studio calibration")
 
 
+def session_layout(path: str | os.PathLike) -> RunLayout:
+    """The session's lock (``.lock``), staging (``.staging``) and manifest (:mod:`bodystudio.runfolder`)."""
+    return RunLayout(Path(path), MANIFEST, ".", str(path))
+
+
 def recover_session(path: str | os.PathLike) -> str:
     """Finish a write interrupted after its commit point, or discard one interrupted before it."""
-    path = Path(path)
-    staging = path / STAGING
-    if not staging.is_dir():
-        return "nothing to recover"
-    commit = staging / COMMIT
-    if commit.is_file():
-        plan = read_json(commit, "session commit record")
-        _apply_commit(path, plan)
-        return f"completed the interrupted write ({len(plan['moves'])} files)"
-    n = sum(1 for p in staging.rglob("*") if p.is_file())
-    shutil.rmtree(staging)
-    return f"discarded an uncommitted write ({n} files)"
+    try:
+        return recover_layout(session_layout(path)) or "nothing to recover"
+    except OutputLockedError as exc:
+        raise SessionError(str(exc)) from None
 
 
 def _apply_commit(path: Path, plan: dict) -> None:
-    staging = path / STAGING
-    for rel in plan["moves"]:
-        src, dst = staging / rel, path / rel
-        if src.is_file():  # already moved when a previous recovery ran
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(src, dst)
-    for rel in plan.get("deletes", []):
-        (path / rel).unlink(missing_ok=True)
-    with atomic_write(path / MANIFEST, "wb") as f:
-        f.write(_json_bytes(plan["manifest"]))
-    shutil.rmtree(staging)
+    apply_commit(session_layout(path), plan)
 
 
 # ---------------------------------------------------------------------------------------------- writing
@@ -543,12 +561,32 @@ class SessionWriter:
     source: str = "import"
     update: bool = False
     metadata: dict = field(default_factory=dict)
+    command: str = ""  # named in the lock, so that a refused reader or writer learns who holds the session
     _manifest: dict = field(init=False, repr=False)
     _staged: dict = field(init=False, repr=False, default_factory=dict)
     _deletes: set = field(init=False, repr=False, default_factory=set)
 
     def __post_init__(self):
         self.path = Path(self.path)
+        existed = self.path.is_dir()
+        layout = session_layout(self.path)
+        holder = read_lock(layout.lock)
+        if holder is not None and holder["pid"] == os.getpid() and layout.lock.exists():
+            raise SessionError(f"{self.path / STAGING}: another write is in progress or was interrupted; run "
+                               f"`bodystudio capture recover {self.path}` first")
+        try:
+            acquire_lock(layout, self.command or f"bodystudio ({self.source})")
+        except OutputLockedError as exc:
+            raise SessionError(str(exc).replace(": being written", ": session is being written", 1)) from None
+        try:
+            self._start()
+        except BaseException:
+            release_lock(layout)
+            if not existed and self.path.is_dir() and not any(self.path.iterdir()):
+                self.path.rmdir()
+            raise
+
+    def _start(self) -> None:
         if (self.path / STAGING).exists():
             raise SessionError(f"{self.path / STAGING}: another write is in progress or was interrupted; run "
                                f"`bodystudio capture recover {self.path}` first")
@@ -583,6 +621,7 @@ class SessionWriter:
         """Discard the staged files (the previous state stays); a new session's empty folder goes too."""
         shutil.rmtree(self.path / STAGING, ignore_errors=True)
         self._staged = {}
+        release_lock(session_layout(self.path))
         if not self.update and self.path.is_dir() and not any(self.path.iterdir()):
             self.path.rmdir()
 
@@ -663,4 +702,6 @@ class SessionWriter:
             f.write(_json_bytes(plan))
         _apply_commit(self.path, plan)
         self._staged = {}
-        return open_session(self.path)
+        session = open_session(self.path)
+        release_lock(session_layout(self.path))
+        return session

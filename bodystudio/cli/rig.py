@@ -19,18 +19,23 @@ def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: st
 
     from bodystudio.errors import InputError
     from bodystudio.register.scan import load_scan
-    from bodystudio.rig.evaluate import held_out_poses, rig_json_path
-    from bodystudio.rig.export import rig_description, write_bvh, write_glb
+    from bodystudio.rig.evaluate import held_out_poses
+    from bodystudio.rig.export import rig_layout, write_rig
     from bodystudio.rig.pipeline import load_template_model, rig_scan
     from bodystudio.rig.reshape import parse_reshape, reshape_avatar
+    from bodystudio.runfolder import RunWriter
 
     if out.suffix.lower() != ".glb":
         raise InputError(f"--out {out}: the avatar is written as glTF binary; give a .glb path")
     deltas = parse_reshape(reshape) if reshape else None
     stages = ["load", "fit", "skeleton", "weights"] + (["reshape"] if deltas else []) + ["export"]
     t0 = time.perf_counter()
-    with Progress(TextColumn("{task.description:<10}"), BarColumn(), TimeElapsedColumn(),
-                  disable=not show_progress, transient=True) as progress:
+    # The lock is taken before the fit: a second `rig` onto the same avatar is refused at once, and the
+    # glb, its rig.json and the BVH appear together or not at all.
+    with RunWriter(rig_layout(out), "bodystudio rig", {"scan": str(scan), "template": template,
+                                                       "texture": texture}) as writer, \
+            Progress(TextColumn("{task.description:<10}"), BarColumn(), TimeElapsedColumn(),
+                     disable=not show_progress, transient=True) as progress:
         tasks = {s: progress.add_task(s, total=1) for s in stages}
 
         def finish(name: str) -> None:
@@ -48,13 +53,8 @@ def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: st
         avatar.metadata["template"] = template
         avatar.metadata["seconds"] = time.perf_counter() - t0
         avatar.metadata["stage_seconds"] = result.seconds
-        write_glb(out, avatar, texture=texture)
-        description = rig_description(avatar)
-        from bodystudio.fileio import write_json
-
-        write_json(rig_json_path(out), description)
-        if bvh is not None:
-            write_bvh(bvh, avatar, held_out_poses(avatar.bone_names))
+        description = write_rig(writer, out, avatar, texture, bvh,
+                                held_out_poses(avatar.bone_names) if bvh is not None else None)
         finish("export")
     description["seconds"] = time.perf_counter() - t0
     return description

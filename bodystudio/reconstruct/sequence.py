@@ -10,7 +10,9 @@ off by default: with per-frame tracker noise each result also corrects its own f
 carrying that over measured slightly worse (p90 +0.4-0.6 mm on 6-frame walks) than starting every frame
 from the generic template; the hull joint source warm-starts its articulated fit from the previous pose.
 Results go to ``SESSION/reconstruct/``: ``meshes/NNNNN.ply``, ``frames.json`` (per-frame timings, constraint
-counts and, for synthetic sessions, errors) and ``run.json`` (parameters).
+counts and, for synthetic sessions, errors) and ``run.json`` (parameters, and the run id and sha256 of every
+file). The run is written as a whole (:mod:`bodystudio.runfolder`: lock, staging, commit, ``run.json`` last),
+so a failed, killed or concurrent re-run never leaves a folder that mixes two runs.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import numpy as np
 
 from bodystudio.body.kinect import kinect_joint_names, kinect_joints
 from bodystudio.errors import InputError, SessionError
-from bodystudio.fileio import read_json, write_json
+from bodystudio.fileio import read_json
 from bodystudio.geometry.laplacian import cotangent_weights
 from bodystudio.geometry.mesh import Mesh, load_mesh, save_mesh
 from bodystudio.reconstruct.articulated_fit import fit_body_to_hull, refine_bone_transforms
@@ -40,12 +42,14 @@ from bodystudio.reconstruct.evaluate import (
 from bodystudio.reconstruct.pose_init import initialise_pose, joints_from_mapping, pose_template, unpose
 from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
 from bodystudio.reconstruct.visual_hull import visual_hull
+from bodystudio.runfolder import RunLayout, RunWriter, check_readable, verify_run_files
 
 log = logging.getLogger(__name__)
 
 TEMPLATES = {"13k": "full", "6k": "6k", "2k": "2k", "full": "full", "2.5k": "2k"}
 JOINT_SOURCES = ("tracker", "file", "hull")
 OUTPUT_DIR = "reconstruct"
+RUN_MANIFEST = "run.json"
 #: Kinect v1 joint names that have a v2 counterpart.
 V1_TO_V2 = {"HipCenter": "SpineBase", "Spine": "SpineMid", "ShoulderCenter": "SpineShoulder"}
 
@@ -150,8 +154,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     2.5K template's bone transforms to the silhouettes' visual hull before the deformation (§III);
     off, the template is posed from the joints alone, as in the paper.
     """
-    from bodystudio.body import build_body
-    from bodystudio.capture.session import open_session, progress_bar
+    from bodystudio.capture.session import open_session
 
     if template not in TEMPLATES:
         raise InputError(f"unknown template {template!r}; valid: 13k, 6k, 2k")
@@ -171,10 +174,26 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     if "depth" in params.constraints and sensor is None:
         raise SessionError(f"{session.path}: no Kinect calibration, so no depth constraints; "
                            "use --constraints silhouette")
+    layout = reconstruction_layout(session.path)
+    with RunWriter(layout, "bodystudio reconstruct", {"session": str(session.path), "template": template}) as writer:
+        return _reconstruct_frames(session, writer, selected, cameras, sensor, params, solver, template, joints,
+                                   joints_path, warm_start, refine_pose, score, progress)
+
+
+def reconstruction_layout(session_path: str | Path) -> RunLayout:
+    """Lock, staging and manifest (``run.json``) of ``SESSION/reconstruct/``."""
+    out_dir = Path(session_path) / OUTPUT_DIR
+    return RunLayout(out_dir, RUN_MANIFEST, ".", str(out_dir))
+
+
+def _reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, params, solver, template, joints,
+                        joints_path, warm_start, refine_pose, score, progress) -> dict:
+    from bodystudio.body import build_body
+    from bodystudio.capture.session import progress_bar
+
     body = build_body(resolution=TEMPLATES[template])
     F = body.faces
     regions = vertex_regions(body) if score else None
-    out_dir = session.path / OUTPUT_DIR
     rest = body.vertices
     shape_sum, n_seen = body.vertices.copy(), 1
     hull_pose = None
@@ -225,7 +244,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
             result = deform_to_observations(init.vertices, F, cameras, masks, params, depth=depth, delta=delta,
                                             smooth_reference=reference)
             V = result.vertices
-            save_mesh(out_dir / "meshes" / f"{fid:05d}.ply", Mesh(V, F))
+            save_mesh(writer.path_for(f"meshes/{fid:05d}.ply"), Mesh(V, F))
             if warm_start:
                 # Running mean of the un-skinned results: the subject's shape accumulates while each
                 # frame's correction of its own tracker-joint error (independent per frame) averages out.
@@ -240,11 +259,12 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                 rec["metrics"] = score_frame(V, F, frame, cameras, regions, init.joints)
             records.append(rec)
             bar.advance(task)
-    write_json(out_dir / "frames.json", {"frames": records})
-    write_json(out_dir / "run.json", {"solver": params.solver, "template": template, "joints": joints,
-                                      "constraints": list(params.constraints), "frames": selected,
-                                      "warm_start": warm_start, "refine_pose": refine_pose, "params": asdict(params),
-                                      "n_vertices": int(len(body.vertices))})
+    writer.write_json("frames.json", {"frames": records})
+    previous = [f"meshes/{p.name}" for p in (writer.layout.root / "meshes").glob("*.ply")]
+    writer.commit({"solver": params.solver, "template": template, "joints": joints,
+                   "constraints": list(params.constraints), "frames": selected,
+                   "warm_start": warm_start, "refine_pose": refine_pose, "params": asdict(params),
+                   "n_vertices": int(len(body.vertices))}, deletes=previous)
     return summarize(records)
 
 
@@ -279,15 +299,41 @@ def evaluate_session(path: str | Path) -> dict:
 
     session = open_session(path)
     out_dir = session.path / OUTPUT_DIR
-    if not (out_dir / "frames.json").is_file():
+    if not (out_dir / RUN_MANIFEST).is_file() and not (out_dir / "frames.json").is_file():
+        check_readable(reconstruction_layout(session.path))
         raise SessionError(f"{out_dir}: no reconstruction yet; run `bodystudio reconstruct {session.path}` first")
-    run = read_json(out_dir / "frames.json", "reconstruction record")["frames"]
+    run, _ = read_reconstruction(session.path)
+    frames = read_json(out_dir / "frames.json", "reconstruction record")["frames"]
     cameras = list(session.cameras)
     records = []
-    for rec in run:
+    for rec in frames:
         frame = session.frame(rec["frame"])
         if frame.gt_mesh is None:
             raise SessionError(f"{session.path}: frame {rec['frame']} has no ground-truth mesh to score against")
-        mesh = load_mesh(out_dir / "meshes" / f"{rec['frame']:05d}.ply")
+        mesh_path = out_dir / "meshes" / f"{rec['frame']:05d}.ply"
+        mesh = load_mesh(mesh_path)
+        if len(mesh.vertices) != run["n_vertices"]:
+            raise SessionError(f"{mesh_path}: {len(mesh.vertices)} vertices but {RUN_MANIFEST} says template "
+                               f"{run['template']} ({run['n_vertices']}); the folder mixes two runs, "
+                               "re-run reconstruct")
         records.append(dict(rec, metrics=score_frame(mesh.vertices, mesh.faces, frame, cameras)))
     return summarize(records)
+
+
+def read_reconstruction(session_path: str | Path, frame: int | None = None) -> tuple[dict, dict[int, Path]]:
+    """``(run.json, frame -> mesh path)`` of a complete reconstruction, checked as one run.
+
+    Refused with one line: a reconstruct writing it now, an interrupted commit (run ``bodystudio recover``),
+    a run.json without checksums, or files whose sha256 disagree with run.json (two runs mixed). With
+    ``frame`` only that frame's mesh (and frames.json) is checksummed.
+    """
+    layout = reconstruction_layout(session_path)
+    check_readable(layout)
+    run = read_json(layout.manifest_path, "reconstruction run record")
+    if not isinstance(run, dict) or not isinstance(run.get("frames"), list) or "n_vertices" not in run:
+        raise SessionError(f"{layout.manifest_path}: not a reconstruction run record; re-run reconstruct")
+    only = None if frame is None else ("frames.json", f"meshes/{frame:05d}.ply")
+    verify_run_files(layout, run.get("run"), only)
+    meshes = {int(f): layout.root / f"meshes/{int(f):05d}.ply" for f in run["frames"]
+              if f"meshes/{int(f):05d}.ply" in run["run"]["files"]}
+    return run, meshes

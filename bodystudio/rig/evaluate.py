@@ -20,9 +20,9 @@ from scipy.spatial import cKDTree
 
 from bodystudio.body import Pose
 from bodystudio.errors import FileFormatError
-from bodystudio.fileio import read_json
 from bodystudio.register.synthetic import ScanGroundTruth, random_pose, scan_pose
 from bodystudio.rig.avatar import Avatar
+from bodystudio.rig.export import check_rig_pair, rig_json_path
 
 FINGER_PREFIXES = ("thumb", "index", "middle", "ring", "pinky")
 N_HELD_OUT_RANDOM = 3
@@ -75,11 +75,6 @@ def evaluate_rig(avatar: Avatar, gt: ScanGroundTruth, to_canonical: np.ndarray |
     return out
 
 
-def rig_json_path(glb: str | Path) -> Path:
-    glb = Path(glb)
-    return glb.with_suffix(".rig.json")
-
-
 def load_avatar(glb: str | Path) -> Avatar:
     """Read an avatar written by ``bodystudio rig`` (the .glb and its ``.rig.json`` beside it)."""
     import pygltflib as g
@@ -87,7 +82,10 @@ def load_avatar(glb: str | Path) -> Avatar:
     glb = Path(glb)
     if not glb.is_file():
         raise FileFormatError(f"{glb}: no such avatar file")
-    meta = read_json(rig_json_path(glb), "rig description")
+    meta = check_rig_pair(glb)
+    if meta is None:
+        raise FileFormatError(f"{rig_json_path(glb)}: rig description not found; `bodystudio rig` writes it beside "
+                              f"{glb.name}")
     try:
         gltf = g.GLTF2().load(str(glb))
         blob = gltf.binary_blob()
@@ -116,6 +114,22 @@ def load_avatar(glb: str | Path) -> Avatar:
     colors = None
     if prim.attributes.COLOR_0 is not None:
         colors = read(prim.attributes.COLOR_0, np.uint8, 4)[:, :3].copy()
+    if len(V) != meta.get("n_vertices", len(V)):
+        raise FileFormatError(f"{rig_json_path(glb)}: describes {meta['n_vertices']} vertices but {glb} has "
+                              f"{len(V)}; the two are from different runs, re-run `bodystudio rig`")
+    if "vertex_source" in meta:
+        # The UV atlas split vertices along its seams: score the avatar's own vertices, once each.
+        source = np.asarray(meta["vertex_source"], dtype=np.int64)
+        n = int(meta.get("n_avatar_vertices", source.max(initial=-1) + 1))
+        if len(source) != len(V) or source.min(initial=0) < 0 or source.max(initial=-1) >= n:
+            raise FileFormatError(f"{rig_json_path(glb)}: vertex_source does not fit {glb}; re-run `bodystudio rig`")
+        first = np.full(n, -1)
+        first[source[::-1]] = np.arange(len(source))[::-1]
+        if np.any(first < 0):
+            raise FileFormatError(f"{rig_json_path(glb)}: vertex_source misses avatar vertices; "
+                                  "re-run `bodystudio rig`")
+        V, W, F = V[first], W[first], source[F]
+        colors = colors[first] if colors is not None else None
     U, _, Vt = np.linalg.svd(bind[:, :3, :3])
     return Avatar(V, F, colors, tuple(meta["bones"]), np.asarray(meta["parents"]), None, U @ Vt,
                   np.asarray(meta["rest_rotations"]), np.asarray(meta["bone_lengths_m"]), W,

@@ -15,9 +15,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from bodystudio.body import Pose
-from bodystudio.fileio import atomic_write, write_json
+from bodystudio.errors import FileFormatError
+from bodystudio.fileio import atomic_write, read_json, write_json
 from bodystudio.geometry.mesh import vertex_normals
 from bodystudio.rig.avatar import Avatar
+from bodystudio.runfolder import RunLayout, RunWriter, check_readable, verify_run_files
 
 log = logging.getLogger(__name__)
 
@@ -106,15 +108,27 @@ def uv_atlas(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nd
     return vmapping.astype(np.int64), indices.astype(np.int64), uvs.astype(np.float64)
 
 
-def write_glb(path: str | Path, avatar: Avatar, texture: bool = False) -> None:
-    """Write the avatar as a skinned glTF 2.0 binary (atomically)."""
+def write_glb(path: str | Path, avatar: Avatar, texture: bool = False) -> np.ndarray | None:
+    """Write the avatar as a skinned glTF 2.0 binary (atomically); returns :func:`glb_bytes`' vertex map."""
+    data, vertex_source = glb_bytes(avatar, texture)
+    with atomic_write(path, "wb") as f:
+        f.write(data)
+    return vertex_source
+
+
+def glb_bytes(avatar: Avatar, texture: bool = False) -> tuple[bytes, np.ndarray | None]:
+    """The avatar as a skinned glTF 2.0 binary, and for each glb vertex its avatar vertex (None: the same).
+
+    The UV atlas of ``texture=True`` splits vertices along the seams; the map lets readers (and
+    :func:`rig_description`) describe the exported vertices and score the rig on the avatar's own.
+    """
     import pygltflib as g
 
     V, F = avatar.vertices, avatar.faces
     N = vertex_normals(V, F)
     joints, weights = skin_arrays(avatar.weights)
     colors = avatar.vertex_colors
-    uv = image_png = None
+    uv = image_png = vmap = None
     if texture and colors is not None:
         vmap, F, uv = uv_atlas(V, F)
         image = bake_vertex_colors(uv, F, colors[vmap])
@@ -189,9 +203,7 @@ def write_glb(path: str | Path, avatar: Avatar, texture: bool = False) -> None:
         accessors=accessors, bufferViews=views, buffers=[g.Buffer(byteLength=len(blob))],
         materials=materials, textures=textures or [], images=images or [], samplers=samplers or [])
     gltf.set_binary_blob(bytes(blob))
-    data = b"".join(gltf.save_to_bytes())
-    with atomic_write(path, "wb") as f:
-        f.write(data)
+    return b"".join(gltf.save_to_bytes()), vmap
 
 
 def write_bvh(path: str | Path, avatar: Avatar, poses: list[Pose], fps: float = 30.0) -> None:
@@ -244,14 +256,73 @@ def write_bvh(path: str | Path, avatar: Avatar, poses: list[Pose], fps: float = 
         f.write("\n".join(lines) + "\n")
 
 
-def rig_description(avatar: Avatar) -> dict:
-    """JSON-ready rig description: bones, parents, bind heads and frames, rest frames, lengths, provenance."""
-    return {"format": "bodystudio-rig", "version": 1, "bones": list(avatar.bone_names),
-            "parents": avatar.parents.tolist(), "bind_heads_m": avatar.heads.tolist(),
-            "bind_rotations": avatar.bind_rotations.tolist(), "rest_rotations": avatar.rest_rotations.tolist(),
-            "bone_lengths_m": avatar.bone_lengths.tolist(), "bind_translation_m": avatar.bind_translation.tolist(),
-            "n_vertices": int(len(avatar.vertices)), "max_influences": 4, **avatar.metadata}
+def rig_description(avatar: Avatar, vertex_source: np.ndarray | None = None) -> dict:
+    """JSON-ready rig description: bones, parents, bind heads and frames, rest frames, lengths, provenance.
+
+    ``n_vertices`` is the exported glb's vertex count; with a UV atlas (``vertex_source`` from
+    :func:`glb_bytes`) the description also lists each glb vertex's avatar vertex.
+    """
+    out = {"format": "bodystudio-rig", "version": 1, "bones": list(avatar.bone_names),
+           "parents": avatar.parents.tolist(), "bind_heads_m": avatar.heads.tolist(),
+           "bind_rotations": avatar.bind_rotations.tolist(), "rest_rotations": avatar.rest_rotations.tolist(),
+           "bone_lengths_m": avatar.bone_lengths.tolist(), "bind_translation_m": avatar.bind_translation.tolist(),
+           "n_vertices": int(len(avatar.vertices)), "max_influences": 4, **avatar.metadata}
+    if vertex_source is not None:
+        out["n_vertices"] = int(len(vertex_source))
+        out["n_avatar_vertices"] = int(len(avatar.vertices))
+        out["vertex_source"] = np.asarray(vertex_source, dtype=np.int64).tolist()
+    return out
 
 
 def write_rig_json(path: str | Path, avatar: Avatar) -> None:
     write_json(path, rig_description(avatar))
+
+
+# ---------------------------------------------------------------------------------------------- whole rig
+
+def rig_json_path(glb: str | Path) -> Path:
+    return Path(glb).with_suffix(".rig.json")
+
+
+def rig_layout(glb: str | Path) -> RunLayout:
+    """Lock ``.A.glb.lock``, staging ``.A.glb.staging`` and manifest ``A.rig.json`` of the avatar ``A.glb``."""
+    glb = Path(glb)
+    return RunLayout(glb.parent, rig_json_path(glb).name, f".{glb.name}.", str(glb))
+
+
+def write_rig(writer: RunWriter, glb: str | Path, avatar: Avatar, texture: bool = False,
+              bvh: str | Path | None = None, poses: list[Pose] | None = None) -> dict:
+    """Stage ``A.glb`` (and a BVH of ``poses``) in ``writer`` (a :class:`RunWriter` on :func:`rig_layout`)
+    and commit them with ``A.rig.json`` last, which records their sha256 and the run id."""
+    glb = Path(glb)
+    data, vertex_source = glb_bytes(avatar, texture)
+    writer.write_bytes(glb.name, data)
+    if bvh is not None:
+        write_bvh(writer.path_for(Path(bvh).absolute()), avatar, poses or [])
+    return writer.commit(rig_description(avatar, vertex_source))
+
+
+def check_rig_pair(glb: str | Path, n_glb_vertices: int | None = None) -> dict | None:
+    """The ``A.rig.json`` of ``A.glb`` when the two belong together (None without a rig.json).
+
+    Refused with one line: a ``bodystudio rig`` writing them now, an interrupted commit (run ``bodystudio
+    recover A.glb``), or a pair from different runs (sha256 of the glb differs from the one rig.json
+    records; for rig.json files without checksums, a vertex count that differs from the glb's).
+    """
+    glb = Path(glb)
+    layout = rig_layout(glb)
+    check_readable(layout)
+    path = layout.manifest_path
+    if not path.is_file():
+        return None
+    meta = read_json(path, "rig description")
+    if not isinstance(meta, dict) or "bones" not in meta:
+        raise FileFormatError(f"{path}: not a bodystudio rig description; re-run `bodystudio rig`")
+    if "run" in meta:
+        verify_run_files(layout, meta["run"], only=(glb.name,))
+        if glb.name not in meta["run"].get("files", {}):
+            raise FileFormatError(f"{path}: describes another avatar than {glb.name}; re-run `bodystudio rig`")
+    elif n_glb_vertices is not None and meta.get("n_vertices") not in (None, n_glb_vertices):
+        raise FileFormatError(f"{path}: describes {meta['n_vertices']} vertices but {glb} has {n_glb_vertices}; "
+                              "the two are from different runs, re-run `bodystudio rig`")
+    return meta

@@ -156,7 +156,8 @@ def _world_matrices(gltf) -> list[np.ndarray]:
 
 
 def load_avatar(path: str | Path) -> Avatar:
-    """Read a skinned .glb/.gltf; a file without a skin raises a one-line FileFormatError."""
+    """Read a skinned .glb/.gltf; a file without a skin, or whose ``.rig.json`` is from another run, raises a
+    one-line FileFormatError."""
     path = Path(path)
     if not path.is_file():
         raise FileFormatError(f"{path}: no such avatar file")
@@ -192,6 +193,10 @@ def load_avatar(path: str | Path) -> Avatar:
         offset += len(V)
     V, F, W = np.vstack(Vs), np.vstack(Fs), np.vstack(Ws)
     W /= np.maximum(W.sum(1, keepdims=True), 1e-12)
+    # An avatar from `bodystudio rig` is shown only when its rig.json (if any) belongs to it.
+    from bodystudio.rig.export import check_rig_pair
+
+    check_rig_pair(path, len(V))
     if skin.inverseBindMatrices is not None:
         ibm = _accessor(gltf, skin.inverseBindMatrices).astype(np.float64).reshape(-1, 4, 4).transpose(0, 2, 1)
         heads = np.linalg.inv(ibm)[:, :3, 3]

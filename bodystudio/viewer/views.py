@@ -117,12 +117,26 @@ def kinect_points(session, frame, stride: int = 7) -> np.ndarray:
 
 
 def reconstructed_mesh_path(session_path: Path, frame_id: int) -> Path | None:
-    """The reconstruct stage's mesh of a frame: ``reconstruct/**/<name ending in the frame number>.ply``."""
+    """The reconstruct stage's mesh of a frame.
+
+    A folder with ``run.json`` is read as one run (checked by
+    :func:`bodystudio.reconstruct.sequence.read_reconstruction`: no writer, no interrupted commit, that
+    frame's checksum matches); without one, ``reconstruct/**/<name ending in the frame number>.ply``
+    outside hidden (staging) folders.
+    """
     folder = Path(session_path) / "reconstruct"
     if not folder.is_dir():
         return None
+    from bodystudio.reconstruct.sequence import read_reconstruction, reconstruction_layout
+    from bodystudio.runfolder import check_readable
+
+    check_readable(reconstruction_layout(session_path))
+    if (folder / "run.json").is_file():
+        return read_reconstruction(session_path, frame_id)[1].get(frame_id)
     for p in sorted(folder.rglob("*")):
         m = re.search(r"(\d+)$", p.stem)
+        if any(part.startswith(".") for part in p.relative_to(folder).parts):
+            continue
         if p.suffix.lower() in (".ply", ".obj") and m and int(m.group(1)) == frame_id:
             return p
     return None

@@ -1,0 +1,448 @@
+"""Whole-run atomicity for multi-file outputs: a writer lock, staging, a commit record, the manifest last.
+
+The capture session's scheme (``docs/session-format.md``), shared by every command that writes more
+than one file (reconstruction runs, rigs with their sidecars, calibrations with their exports, imports):
+
+1. **Lock** ``ROOT/<prefix>lock``, created with ``O_EXCL`` and holding the writer's pid, host, process
+   start time and command. A second writer (or a reader) is refused with one line naming the holder;
+   a lock whose process is dead (or whose pid was reused) is stale and is taken over.
+2. **Staging**: every file is written (atomically) into ``ROOT/<prefix>staging/`` first; nothing the
+   readers look at changes.
+3. **Commit point**: ``<prefix>staging/commit.json`` lists the moves, the deletes and the new manifest.
+4. The staged files are moved into place (``os.replace``), stale files deleted, and the **manifest is
+   written last**; it records every file's sha256, a run id and what produced the run.
+
+A write killed before the commit point leaves the previous complete result and an uncommitted
+staging folder, which :func:`recover` discards; one killed after it leaves a commit record that
+:func:`recover` completes. Readers call :func:`check_readable` (refuses a live writer or a committed but
+unfinished write) and :func:`verify_run_files` (refuses parts whose checksums disagree with the manifest).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import shutil
+import socket
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bodystudio.errors import BodyStudioError, FileFormatError
+from bodystudio.fileio import _json_default, atomic_write, sha256_file
+
+log = logging.getLogger(__name__)
+
+COMMIT = "commit.json"
+#: Seconds an unreadable (empty, half-written) lock file is taken as being created right now.
+LOCK_GRACE_S = 10.0
+
+
+class OutputLockedError(BodyStudioError):
+    """An output is being written by another process, or a previous write was interrupted."""
+
+
+@dataclass(frozen=True)
+class RunLayout:
+    """Where one multi-file output keeps its lock, staging folder and manifest.
+
+    ``root`` is the folder of the manifest; ``prefix`` names the lock and staging (``"."`` for a
+    session's ``.lock`` / ``.staging``, ``".a.glb."`` for a rig's ``.a.glb.lock`` / ``.a.glb.staging``);
+    ``what`` is the path named in messages and given to ``bodystudio recover``.
+    """
+
+    root: Path
+    manifest: str
+    prefix: str = "."
+    what: str = ""
+
+    @property
+    def lock(self) -> Path:
+        return self.root / f"{self.prefix}lock"
+
+    @property
+    def staging(self) -> Path:
+        return self.root / f"{self.prefix}staging"
+
+    @property
+    def commit_record(self) -> Path:
+        return self.staging / COMMIT
+
+    @property
+    def manifest_path(self) -> Path:
+        return self.root / self.manifest
+
+    @property
+    def name(self) -> str:
+        return self.what or str(self.root)
+
+
+# ---------------------------------------------------------------------------------------------- lock
+
+def _process_start(pid: int) -> str | None:
+    """Start time of a process (clock ticks since boot, Linux), to tell a reused pid from the writer."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = stat[stat.rfind(")") + 2:].split()
+    return fields[19] if len(fields) > 19 else None
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    with contextlib.suppress(OSError):
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        if stat[stat.rfind(")") + 2:].startswith("Z"):  # killed, not yet reaped by its parent
+            return False
+    return True
+
+
+def read_lock(path: Path) -> dict | None:
+    """The lock's holder ``{pid, host, start, command, since}``, or None for a missing or unreadable lock."""
+    try:
+        data = json.loads(path.read_bytes())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and isinstance(data.get("pid"), int) else None
+
+
+def lock_is_stale(holder: dict | None, path: Path) -> bool:
+    """True when the lock's process is gone (same host: dead pid or a reused one; unreadable: old file)."""
+    if holder is None:
+        try:
+            return time.time() - path.stat().st_mtime > LOCK_GRACE_S
+        except FileNotFoundError:
+            return True
+    if holder.get("host") != socket.gethostname():
+        return False  # cannot see another machine's processes; the message tells the user what to do
+    pid = holder["pid"]
+    if not _process_alive(pid):
+        return True
+    start = holder.get("start")
+    return start is not None and _process_start(pid) not in (None, start)
+
+
+def lock_holder(layout: RunLayout) -> dict | None:
+    """The live holder of the layout's lock other than this process, or None."""
+    path = layout.lock
+    if not path.exists():
+        return None
+    holder = read_lock(path)
+    if lock_is_stale(holder, path):
+        return None
+    if holder is not None and holder["pid"] == os.getpid() and holder.get("host") == socket.gethostname():
+        return None
+    return holder or {"pid": "?", "host": "?", "command": "unknown command", "since": "just now"}
+
+
+def _busy_message(layout: RunLayout, holder: dict) -> str:
+    return (f"{layout.name}: being written by pid {holder.get('pid')} on {holder.get('host')} "
+            f"({holder.get('command')}, since {holder.get('since')}); wait for it to finish "
+            f"(if that process is gone, delete {layout.lock})")
+
+
+def acquire_lock(layout: RunLayout, command: str) -> None:
+    """Create the layout's lock (``O_EXCL``); a live holder is refused, a stale lock taken over."""
+    layout.root.mkdir(parents=True, exist_ok=True)
+    info = {"pid": os.getpid(), "host": socket.gethostname(), "start": _process_start(os.getpid()),
+            "command": command, "since": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    for _ in range(3):
+        try:
+            fd = os.open(layout.lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            holder = read_lock(layout.lock)
+            if not lock_is_stale(holder, layout.lock):
+                raise OutputLockedError(_busy_message(layout, holder or {"pid": "?", "host": "?",
+                                                                         "command": "unknown command",
+                                                                         "since": "just now"})) from None
+            log.warning("%s: taking over the stale lock of pid %s (%s)", layout.name,
+                        holder.get("pid") if holder else "?", holder.get("command") if holder else "unreadable")
+            # Rename before unlinking, so that of two processes taking it over only one removes it.
+            stale = layout.lock.with_name(f"{layout.lock.name}.stale.{os.getpid()}")
+            with contextlib.suppress(FileNotFoundError):
+                os.replace(layout.lock, stale)
+                stale.unlink()
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(json.dumps(info) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        return
+    raise OutputLockedError(f"{layout.name}: could not take the lock {layout.lock}; another writer keeps "
+                            "taking it, retry when it is done")
+
+
+def release_lock(layout: RunLayout) -> None:
+    holder = read_lock(layout.lock)
+    if holder is not None and holder["pid"] == os.getpid():
+        layout.lock.unlink(missing_ok=True)
+
+
+# ---------------------------------------------------------------------------------------------- readers
+
+def interrupted_message(layout: RunLayout) -> str:
+    return (f"{layout.name}: a write was interrupted while committing; run `bodystudio recover {layout.name}` "
+            "to finish it")
+
+
+def check_readable(layout: RunLayout) -> str | None:
+    """Refuse a live writer or a committed-but-unfinished write; return a note for an uncommitted leftover.
+
+    With an uncommitted leftover the previous complete result is still in place and readable.
+    """
+    holder = lock_holder(layout)
+    if holder is not None:
+        raise OutputLockedError(_busy_message(layout, holder))
+    if layout.commit_record.is_file():
+        raise OutputLockedError(interrupted_message(layout))
+    if layout.staging.is_dir():
+        n = sum(1 for p in layout.staging.rglob("*") if p.is_file())
+        note = f"{layout.staging}: an interrupted write left {n} uncommitted files"
+        log.warning("%s; showing the last complete result (run `bodystudio recover %s` to discard it)",
+                    note, layout.name)
+        return note
+    return None
+
+
+def resolve(layout: RunLayout, key: str) -> Path:
+    """A manifest's file key (relative to the root, or absolute for files written elsewhere) as a path."""
+    p = Path(key)
+    return p if p.is_absolute() else layout.root / p
+
+
+def verify_run_files(layout: RunLayout, run: Any, only: tuple[str, ...] | None = None) -> dict:
+    """Check the files a manifest's ``run`` block lists against their sha256; returns the block.
+
+    A missing block, a missing file or a checksum that differs is a one-line FileFormatError: the
+    folder mixes parts of different runs (or was edited), and must not be read as one result.
+    """
+    source = layout.manifest_path
+    if not isinstance(run, dict) or not isinstance(run.get("files"), dict) or not run.get("run_id"):
+        raise FileFormatError(f"{source}: records no run id and checksums (written by an older bodystudio or by "
+                              "hand); re-run the command that produced it")
+    for key, expected in run["files"].items():
+        if only is not None and key not in only:
+            continue
+        path = resolve(layout, key)
+        if not path.is_file():
+            raise FileFormatError(f"{path}: missing, but {source} lists it (run {run['run_id']}); the output is "
+                                  "incomplete, re-run the command that produced it")
+        if sha256_file(path) != expected:
+            raise FileFormatError(f"{path}: does not belong to run {run['run_id']} of {source} (sha256 differs); "
+                                  "the output mixes two runs or was edited, re-run the command that produced it")
+    return run
+
+
+# ---------------------------------------------------------------------------------------------- commit
+
+def apply_commit(layout: RunLayout, plan: dict) -> None:
+    """Carry out a commit record: moves (staged -> destination), deletes, the manifest last, staging gone.
+
+    Idempotent: a move whose staged file is gone already happened in an earlier, interrupted attempt.
+    A move is ``"rel"`` (same path under the staging and the root) or ``["staged rel", "destination"]``.
+    """
+    for move in plan["moves"]:
+        staged_rel, dest_key = (move, move) if isinstance(move, str) else move
+        src, dst = layout.staging / staged_rel, resolve(layout, dest_key)
+        if src.is_file():
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.replace(src, dst)
+            except OSError:  # another file system: copy beside the destination, then rename
+                with atomic_write(dst, "wb") as f, open(src, "rb") as g:
+                    shutil.copyfileobj(g, f)
+                src.unlink()
+    for key in plan.get("deletes", []):
+        resolve(layout, key).unlink(missing_ok=True)
+    if plan.get("manifest") is not None:
+        data = plan["manifest"]
+        raw = data.encode() if isinstance(data, str) else (json.dumps(data, indent=plan.get("indent", 1),
+                                                                        default=_json_default) + "\n").encode()
+        with atomic_write(layout.root / plan.get("manifest_name", layout.manifest), "wb") as f:
+            f.write(raw)
+    shutil.rmtree(layout.staging, ignore_errors=True)
+
+
+def recover_layout(layout: RunLayout) -> str | None:
+    """Finish a committed-but-unfinished write or discard an uncommitted one (None: nothing to do)."""
+    holder = lock_holder(layout)
+    if holder is not None:
+        raise OutputLockedError(_busy_message(layout, holder) + "; nothing to recover while it runs")
+    message = None
+    if layout.commit_record.is_file():
+        try:
+            plan = json.loads(layout.commit_record.read_bytes())
+            if not isinstance(plan, dict) or not isinstance(plan.get("moves"), list):
+                raise ValueError("no moves")
+        except (OSError, ValueError) as exc:
+            raise FileFormatError(f"{layout.commit_record}: unreadable commit record ({exc}); delete "
+                                  f"{layout.staging} to keep the previous result") from None
+        apply_commit(layout, plan)
+        message = f"completed the interrupted write ({len(plan['moves'])} files)"
+    elif layout.staging.is_dir():
+        n = sum(1 for p in layout.staging.rglob("*") if p.is_file())
+        shutil.rmtree(layout.staging)
+        message = f"discarded an uncommitted write ({n} files); the previous result stays"
+    if layout.lock.exists():
+        layout.lock.unlink(missing_ok=True)  # stale: lock_holder found no live process
+        message = message or "removed a stale lock"
+    return message
+
+
+def layouts_under(path: Path) -> list[RunLayout]:
+    """Every lock or staging folder in ``path`` (a folder) and its direct sub-folders."""
+    folders = [path] + sorted(p for p in path.iterdir() if p.is_dir() and not p.name.endswith("staging"))
+    found = {}
+    for folder in folders:
+        for p in folder.iterdir():
+            for suffix in ("staging", "lock"):
+                if p.name.startswith(".") and p.name.endswith(suffix) and ".stale." not in p.name:
+                    prefix = p.name[: -len(suffix)]
+                    target = folder if prefix == "." else folder / prefix[1:-1]
+                    found[(folder, prefix)] = RunLayout(folder, "", prefix, str(target))
+    return list(found.values())
+
+
+def recover(path: str | os.PathLike) -> list[str]:
+    """``bodystudio recover PATH``: finish or discard every interrupted write at PATH; one line each."""
+    path = Path(path)
+    if path.is_dir():
+        layouts = layouts_under(path)
+    elif path.parent.is_dir():
+        layouts = [RunLayout(path.parent, "", f".{path.name}.", str(path))]
+    else:
+        raise FileFormatError(f"{path}: no such file or folder")
+    out = []
+    for layout in layouts:
+        message = recover_layout(layout)
+        if message:
+            out.append(f"{layout.name}: {message}")
+    return out or [f"{path}: nothing to recover"]
+
+
+# ---------------------------------------------------------------------------------------------- writer
+
+def new_run_id() -> str:
+    return uuid.uuid4().hex[:16]
+
+
+class RunWriter:
+    """Stage a multi-file output and commit it as a whole (see the module docstring).
+
+    >>> with RunWriter(RunLayout(folder, "run.json", ".", str(folder)), "bodystudio reconstruct") as w:
+    ...     save_mesh(w.path_for("meshes/00000.ply"), mesh)
+    ...     w.commit({"template": "2k"})
+
+    Leaving the block without :meth:`commit` (an exception) discards the staging and keeps the previous
+    result. The lock is taken here, before any work, so a second writer is refused at once.
+    """
+
+    def __init__(self, layout: RunLayout, command: str, producer: dict | None = None):
+        self.layout = layout
+        self.command = command
+        self.producer = dict(producer or {})
+        self.run_id = new_run_id()
+        self._external: dict[str, str] = {}  # staged prefix -> destination outside the root
+        self.committed = False
+        acquire_lock(layout, command)
+        try:
+            if layout.commit_record.is_file():
+                raise OutputLockedError(interrupted_message(layout))
+            if layout.staging.exists():
+                raise OutputLockedError(f"{layout.name}: a previous write was interrupted before its commit; run "
+                                        f"`bodystudio recover {layout.name}` first (the previous result stays)")
+            layout.staging.mkdir(parents=True)
+        except BaseException:
+            release_lock(layout)
+            raise
+
+    def __enter__(self) -> RunWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if not self.committed:
+            self.abort()
+
+    def _key(self, dest: str | os.PathLike) -> str:
+        """Manifest key of a destination: relative to the root when inside it, else absolute."""
+        dest = Path(dest)
+        if not dest.is_absolute():
+            return dest.as_posix()
+        try:
+            return dest.resolve().relative_to(self.layout.root.resolve()).as_posix()
+        except ValueError:
+            return str(dest.resolve())
+
+    def path_for(self, dest: str | os.PathLike) -> Path:
+        """Staged path of a file (or a folder, for exporters that write several files into one) to publish."""
+        key = self._key(dest)
+        if Path(key).is_absolute():
+            staged = f"_external/{len(self._external)}"
+            self._external[staged] = key
+        else:
+            staged = key
+        path = self.layout.staging / staged
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return path
+
+    def write_bytes(self, dest: str | os.PathLike, data: bytes) -> None:
+        with atomic_write(self.path_for(dest), "wb") as f:
+            f.write(data)
+
+    def write_json(self, dest: str | os.PathLike, data: Any) -> None:
+        self.write_bytes(dest, (json.dumps(data, indent=2, default=_json_default) + "\n").encode())
+
+    def staged_files(self) -> dict[str, str]:
+        """Staged relative path -> manifest key of every staged file."""
+        out = {}
+        for p in sorted(self.layout.staging.rglob("*")):
+            if not p.is_file() or p.name.startswith("."):
+                continue
+            rel = p.relative_to(self.layout.staging).as_posix()
+            for prefix, dest in self._external.items():
+                if rel == prefix or rel.startswith(prefix + "/"):
+                    rel_dest = dest + rel[len(prefix):]
+                    break
+            else:
+                rel_dest = rel
+            out[rel] = rel_dest
+        return out
+
+    def run_block(self) -> dict:
+        """``{"run_id", "command", "producer", "files": {key: sha256}}`` of what is staged now."""
+        files = {dest: sha256_file(self.layout.staging / rel) for rel, dest in self.staged_files().items()}
+        return {"run_id": self.run_id, "command": self.command, "producer": self.producer, "files": files,
+                "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+
+    def commit(self, manifest: dict, deletes: list[str] | tuple[str, ...] = (), indent: int = 2) -> dict:
+        """Publish: commit record, moves, deletes, ``manifest`` (plus a ``run`` block) last; releases the lock.
+
+        ``deletes``: keys of files of the previous result that this one no longer has.
+        """
+        run = self.run_block()
+        manifest = {**manifest, "run": run}
+        moves = [[rel, dest] for rel, dest in self.staged_files().items()]
+        deletes = sorted(set(deletes) - set(run["files"]) - {self.layout.manifest})
+        plan = {"moves": moves, "deletes": deletes, "manifest": manifest, "indent": indent}
+        with atomic_write(self.layout.commit_record, "wb") as f:
+            f.write((json.dumps(plan, default=_json_default) + "\n").encode())
+        apply_commit(self.layout, plan)
+        self.committed = True
+        release_lock(self.layout)
+        return manifest
+
+    def abort(self) -> None:
+        """Discard the staged files; the previous result stays. Releases the lock."""
+        shutil.rmtree(self.layout.staging, ignore_errors=True)
+        self.committed = True
+        release_lock(self.layout)
