@@ -251,6 +251,9 @@ def apply_commit(layout: RunLayout, plan: dict) -> None:
     Idempotent: a move whose staged file is gone already happened in an earlier, interrupted attempt.
     A move is ``"rel"`` (same path under the staging and the root) or ``["staged rel", "destination"]``.
     """
+    if plan.get("manifest") is not None and not plan.get("manifest_name", layout.manifest):
+        raise FileFormatError(f"{layout.commit_record}: names no manifest to write; delete {layout.staging} "
+                              "to keep the previous result")
     for move in plan["moves"]:
         staged_rel, dest_key = (move, move) if isinstance(move, str) else move
         src, dst = layout.staging / staged_rel, resolve(layout, dest_key)
@@ -309,7 +312,9 @@ def layouts_under(path: Path) -> list[RunLayout]:
                 if p.name.startswith(".") and p.name.endswith(suffix) and ".stale." not in p.name:
                     prefix = p.name[: -len(suffix)]
                     target = folder if prefix == "." else folder / prefix[1:-1]
-                    found[(folder, prefix)] = RunLayout(folder, "", prefix, str(target))
+                    # a session's commit records predate manifest_name: its manifest is session.json
+                    found[(folder, prefix)] = RunLayout(folder, "session.json" if prefix == "." else "", prefix,
+                                                        str(target))
     return list(found.values())
 
 
@@ -331,6 +336,21 @@ def recover(path: str | os.PathLike) -> list[str]:
 
 
 # ---------------------------------------------------------------------------------------------- writer
+
+def check_output_destination(path: str | os.PathLike, what: str = "output") -> None:
+    """Refuse, before any work, a destination that cannot be written: an existing folder in place of a
+    file, a file in place of one of its folders, or a folder without write permission."""
+    path = Path(path)
+    if path.is_dir():
+        raise FileFormatError(f"{path}: is a folder; give a file path for the {what}")
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise FileFormatError(f"{parent}: is a file, so {path} cannot be written; choose another {what} path")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise FileFormatError(f"{parent}: not writable, so {path} cannot be written; choose another {what} path")
+
 
 def new_run_id() -> str:
     return uuid.uuid4().hex[:16]
@@ -354,6 +374,7 @@ class RunWriter:
         self.run_id = new_run_id()
         self._external: dict[str, str] = {}  # staged prefix -> destination outside the root
         self.committed = False
+        self._created_root = not layout.root.exists()
         acquire_lock(layout, command)
         try:
             if layout.commit_record.is_file():
@@ -363,7 +384,7 @@ class RunWriter:
                                         f"`bodystudio recover {layout.name}` first (the previous result stays)")
             layout.staging.mkdir(parents=True)
         except BaseException:
-            release_lock(layout)
+            self._release()
             raise
 
     def __enter__(self) -> RunWriter:
@@ -374,19 +395,20 @@ class RunWriter:
             self.abort()
 
     def _key(self, dest: str | os.PathLike) -> str:
-        """Manifest key of a destination: relative to the root when inside it, else absolute."""
+        """Manifest key of a destination: relative to the root (``../`` for a file beside it, so that the
+        whole tree can move), absolute only on another drive."""
         dest = Path(dest)
         if not dest.is_absolute():
             return dest.as_posix()
         try:
-            return dest.resolve().relative_to(self.layout.root.resolve()).as_posix()
+            return Path(os.path.relpath(dest.resolve(), self.layout.root.resolve())).as_posix()
         except ValueError:
             return str(dest.resolve())
 
     def path_for(self, dest: str | os.PathLike) -> Path:
         """Staged path of a file (or a folder, for exporters that write several files into one) to publish."""
         key = self._key(dest)
-        if Path(key).is_absolute():
+        if Path(key).is_absolute() or key.split("/")[0] == "..":
             staged = f"_external/{len(self._external)}"
             self._external[staged] = key
         else:
@@ -432,8 +454,11 @@ class RunWriter:
         run = self.run_block()
         manifest = {**manifest, "run": run}
         moves = [[rel, dest] for rel, dest in self.staged_files().items()]
+        for _, dest in moves:  # before the commit point: a failed move after it would need a recovery
+            check_output_destination(resolve(self.layout, dest))
         deletes = sorted(set(deletes) - set(run["files"]) - {self.layout.manifest})
-        plan = {"moves": moves, "deletes": deletes, "manifest": manifest, "indent": indent}
+        plan = {"moves": moves, "deletes": deletes, "manifest": manifest, "manifest_name": self.layout.manifest,
+                "indent": indent}
         with atomic_write(self.layout.commit_record, "wb") as f:
             f.write((json.dumps(plan, default=_json_default) + "\n").encode())
         apply_commit(self.layout, plan)
@@ -445,4 +470,10 @@ class RunWriter:
         """Discard the staged files; the previous result stays. Releases the lock."""
         shutil.rmtree(self.layout.staging, ignore_errors=True)
         self.committed = True
+        self._release()
+
+    def _release(self) -> None:
         release_lock(self.layout)
+        if self._created_root:  # a failed first run leaves no empty output folder behind
+            with contextlib.suppress(OSError):
+                self.layout.root.rmdir()

@@ -23,6 +23,7 @@ import numpy as np
 
 from bodystudio.errors import FileFormatError
 from bodystudio.geometry.camera import Camera, CameraRig
+from bodystudio.runfolder import RunLayout, check_readable, verify_run_files
 
 
 def _write_filestorage(path: Path, names: list[str], entries: list[tuple[str, object]]) -> None:
@@ -161,3 +162,37 @@ def load_colmap_model(folder: str | os.PathLike) -> CameraRig:
     if not (folder / "cameras.txt").is_file() and not (folder / "cameras.bin").is_file():
         raise FileFormatError(f"{folder}: no COLMAP model (cameras.txt/.bin) found")
     return colmap_to_rig(pycolmap.Reconstruction(str(folder)))
+
+
+# ---------------------------------------------------------------------------------------------- whole calibration
+
+def calibration_report_path(cameras_json: str | os.PathLike) -> Path:
+    cameras_json = Path(cameras_json)
+    return cameras_json.with_name(cameras_json.stem + ".report.json")
+
+
+def calibration_layout(cameras_json: str | os.PathLike) -> RunLayout:
+    """A calibration's lock and staging (``.cameras.json.lock`` / ``.staging``) and its manifest, the report
+    written last (it records the sha256 of cameras.json and of the EasyMocap / COLMAP exports)."""
+    cameras_json = Path(cameras_json)
+    return RunLayout(cameras_json.parent, calibration_report_path(cameras_json).name, f".{cameras_json.name}.",
+                     str(cameras_json))
+
+
+def check_calibration_outputs(cameras_json: str | os.PathLike, report: str | os.PathLike | None = None) -> dict | None:
+    """The report of ``cameras.json`` when the two (and the exports) belong to one run; None without a report.
+
+    Refused with one line: a calibration writing them now, an interrupted commit (``bodystudio recover``), or
+    files whose sha256 differ from the report's record (parts of two runs).
+    """
+    from bodystudio.fileio import read_json
+
+    layout = calibration_layout(cameras_json)
+    check_readable(layout)
+    report = Path(report) if report is not None else layout.manifest_path
+    if not report.is_file():
+        return None
+    data = read_json(report, "calibration report")
+    if isinstance(data, dict) and "run" in data:
+        verify_run_files(RunLayout(report.parent, report.name, layout.prefix, layout.what), data["run"])
+    return data

@@ -568,7 +568,8 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
                                    backgrounds=backgrounds, tum=tum, kinect_calibration=kinect_calibration,
                                    joints=joints).items() if v is not None}}
     try:
-        with progress_bar(progress) as bar, SessionWriter(out, rig, source="import", metadata=metadata) as writer:
+        with progress_bar(progress) as bar, SessionWriter(out, rig, source="import", metadata=metadata,
+                                                                      command="bodystudio capture import") as writer:
             task = bar.add_task("import", total=total)
             if sensor is not None:
                 writer.write_kinect_calibration(sensor)

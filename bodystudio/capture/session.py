@@ -697,7 +697,8 @@ class SessionWriter:
         manifest["frames"] = sorted(manifest["frames"])
         manifest["files"] = {**manifest["files"], **self._staged}
         manifest["files"] = dict(sorted(manifest["files"].items()))
-        plan = {"moves": sorted(self._staged), "deletes": sorted(self._deletes), "manifest": manifest}
+        plan = {"moves": sorted(self._staged), "deletes": sorted(self._deletes), "manifest": manifest,
+                "manifest_name": MANIFEST}
         with atomic_write(self.path / STAGING / COMMIT, "wb") as f:
             f.write(_json_bytes(plan))
         _apply_commit(self.path, plan)

@@ -246,7 +246,8 @@ def segment_session(path: str | os.PathLike, params: SegmentationParams = Segmen
     n = 0
     with progress_bar(progress) as bar:
         task = bar.add_task("silhouettes", total=len(session))
-        with SessionWriter(session.path, update=True, metadata={"masks": "segmented (Horprasert)"}) as writer:
+        with SessionWriter(session.path, update=True, metadata={"masks": "segmented (Horprasert)"},
+                           command="bodystudio capture silhouettes") as writer:
             for frame in session:
                 for cam, image in ((c, frame.images[c]) for c in frame.images):
                     if image.shape != models[cam].mean.shape:

@@ -86,7 +86,8 @@ def synth_session(out: str | os.PathLike, n_cameras: int = 10, n_frames: int = 3
                 "resolution": [width, height]}
     with progress_bar(progress) as bar:
         task = bar.add_task("synth session", total=n_frames + 1)
-        with SessionWriter(out, rig, source="synthetic", metadata=metadata) as writer:
+        with SessionWriter(out, rig, source="synthetic", metadata=metadata,
+                           command="bodystudio synth session") as writer:
             writer.write_gt_subject(phenotype.to_dict(), local, template=template, rig=body.rig,
                                     n_vertices=body.n_vertices, bone_names=list(skeleton.bone_names))
             for cam in rig:

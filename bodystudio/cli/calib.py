@@ -67,10 +67,10 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
     """Calibrate all studio cameras from ChArUco images: intrinsics, bundle adjustment, floor world frame."""
     from bodystudio.calib.board import load_board_json
     from bodystudio.calib.calibrate import CalibrationOptions, calibrate_cameras
-    from bodystudio.calib.io import save_colmap_model, save_easymocap_yaml
+    from bodystudio.calib.io import calibration_layout, save_colmap_model, save_easymocap_yaml
     from bodystudio.calib.observations import detect_capture
-    from bodystudio.fileio import write_json
     from bodystudio.geometry.camera import save_cameras_json
+    from bodystudio.runfolder import RunWriter, check_output_destination
 
     folder, default_out = _capture_folder(session_or_folder)
     board = board or folder / "board.json"
@@ -82,19 +82,27 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
     options = CalibrationOptions(distortion_terms=distortion_terms,
                                  floor_frame=None if reference_camera else floor_frame,
                                  reference_camera=reference_camera)
-    with _progress() as progress:
-        obs, quality = detect_capture(folder, spec, progress=progress)
-        task = progress.add_task("bundle adjustment", total=None)
-        result = calibrate_cameras(obs, spec, options)
-        progress.update(task, total=1, completed=1)
-    report = result.report()
-    report["detections"] = quality
-    save_cameras_json(out, result.rig)
-    write_json(out.with_name(out.stem + ".report.json"), report)
-    if easymocap:
-        save_easymocap_yaml(easymocap, result.rig)
-    if colmap:
-        save_colmap_model(colmap, result.rig)
+    check_output_destination(out, "--out cameras.json")
+    for option, target in (("--easymocap", easymocap), ("--colmap", colmap)):
+        if target is not None and target.exists() and not target.is_dir():
+            raise InputError(f"{option} {target}: is a file; give a folder for the exported model")
+        if target is not None:
+            check_output_destination(target / "x", f"{option} folder")
+    # cameras.json, the exports and the report (written last, with their sha256) appear together or not at all.
+    with RunWriter(calibration_layout(out), "bodystudio calibrate", {"capture": str(folder)}) as writer:
+        with _progress() as progress:
+            obs, quality = detect_capture(folder, spec, progress=progress)
+            task = progress.add_task("bundle adjustment", total=None)
+            result = calibrate_cameras(obs, spec, options)
+            progress.update(task, total=1, completed=1)
+        report = result.report()
+        report["detections"] = quality
+        save_cameras_json(writer.path_for(out.name), result.rig)
+        if easymocap:
+            save_easymocap_yaml(writer.path_for(easymocap.absolute()), result.rig)
+        if colmap:
+            save_colmap_model(writer.path_for(colmap.absolute()), result.rig)
+        report = writer.commit(report)
     table = Table(title=f"calibration: {len(obs)} corners, {report['n_outliers']} outliers, "
                         f"{result.seconds:.1f} s, world = {result.world_frame}")
     for col in ("camera", "views", "corners", "outliers", "RMS px", "fx", "fy"):
@@ -219,12 +227,11 @@ def eval_calib(est: Path = typer.Argument(..., help="estimated cameras.json"),
                    None, help="estimated and ground-truth Kinect calibration.json (give the option twice)")) -> None:
     """Score a calibration against ground truth; prints JSON (overall means, worst camera, per camera)."""
     from bodystudio.calib.evaluate import evaluate_calibration, evaluate_rgbd_sensor
+    from bodystudio.calib.io import check_calibration_outputs
     from bodystudio.capture.session import load_kinect_calibration
-    from bodystudio.fileio import read_json
     from bodystudio.geometry.camera import load_cameras_json
 
-    report = report or est.with_name(est.stem + ".report.json")
-    rep = read_json(report, "calibration report") if report.is_file() else None
+    rep = check_calibration_outputs(est, report)
     scores = evaluate_calibration(load_cameras_json(est), load_cameras_json(gt), rep, align)
     if kinect:
         if len(kinect) != 2:

@@ -46,6 +46,9 @@ def _register() -> None:
     from bodystudio.cli import calib
 
     app.command("calibrate")(calib.calibrate)
+    from bodystudio.cli import recover
+
+    app.command("recover")(recover.recover)
     app.add_typer(calib.app, name="calib", help="ChArUco boards; rig export/import (EasyMocap, COLMAP).")
 
 
