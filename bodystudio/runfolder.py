@@ -153,12 +153,21 @@ def _busy_message(layout: RunLayout, holder: dict) -> str:
 
 def acquire_lock(layout: RunLayout, command: str) -> None:
     """Create the layout's lock (``O_EXCL``); a live holder is refused, a stale lock taken over."""
-    layout.root.mkdir(parents=True, exist_ok=True)
+    if layout.root.exists() and not layout.root.is_dir():
+        raise FileFormatError(f"{layout.root}: is a file, not a folder; choose another output path")
+    try:
+        layout.root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise FileFormatError(f"{layout.root}: cannot create the output folder ({exc.strerror}); "
+                              "choose another output path") from None
     info = {"pid": os.getpid(), "host": socket.gethostname(), "start": _process_start(os.getpid()),
             "command": command, "since": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     for _ in range(3):
         try:
             fd = os.open(layout.lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except PermissionError:
+            raise FileFormatError(f"{layout.root}: not writable, cannot write {layout.name} there; "
+                                  "choose another output path") from None
         except FileExistsError:
             holder = read_lock(layout.lock)
             if not lock_is_stale(holder, layout.lock):
