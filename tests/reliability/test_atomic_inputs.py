@@ -316,3 +316,35 @@ def test_calibration_report_and_cameras_from_different_runs_are_refused(tmp_path
     save_cameras_json(tmp_path / "gt.json", ring_rig(3))
     save_cameras_json(est, ring_rig(3, width=320, height=240))  # another run's cameras, same report
     _one_line(capsys, 2, ["eval", "calib", str(est), str(tmp_path / "gt.json")], "does not belong to run")
+
+
+def test_files_outside_the_root_are_committed_and_recovered(tmp_path, monkeypatch):
+    """An export beside the output folder (`calibrate --easymocap ../x`, `rig --bvh ../b.bvh`) is staged,
+    recorded relative to the root, and moved by a recovery after a commit killed halfway."""
+    import bodystudio.runfolder as rf
+
+    layout = RunLayout(tmp_path / "out", "report.json", ".c.json.", str(tmp_path / "out" / "c.json"))
+    real = os.replace
+    moves = []
+
+    def dying_replace(src, dst):
+        if ".staging" in str(src) and "commit.json" not in str(dst):
+            moves.append(dst)
+            if len(moves) == 2:
+                raise KeyboardInterrupt("killed while moving")
+        return real(src, dst)
+
+    w = RunWriter(layout, "test")
+    w.write_json("c.json", {"c": 1})
+    w.write_json(tmp_path / "exports" / "x.json", {"x": 2})
+    monkeypatch.setattr(rf.os, "replace", dying_replace)
+    with pytest.raises(KeyboardInterrupt):
+        w.commit({})
+    monkeypatch.setattr(rf.os, "replace", real)
+    with pytest.raises(OutputLockedError, match="run `bodystudio recover"):
+        rf.check_readable(layout)
+    assert any("completed the interrupted write (2 files)" in line for line in recover(tmp_path / "out" / "c.json"))
+    run = json.loads(layout.manifest_path.read_text())["run"]
+    assert set(run["files"]) == {"c.json", "../exports/x.json"}
+    rf.verify_run_files(layout, run)
+    assert json.loads((tmp_path / "exports" / "x.json").read_text()) == {"x": 2}
