@@ -21,6 +21,7 @@ unfinished write) and :func:`verify_run_files` (refuses parts whose checksums di
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import logging
 import os
@@ -270,7 +271,10 @@ def apply_commit(layout: RunLayout, plan: dict) -> None:
             dst.parent.mkdir(parents=True, exist_ok=True)
             try:
                 os.replace(src, dst)
-            except OSError:  # another file system: copy beside the destination, then rename
+            except OSError as exc:
+                if exc.errno != errno.EXDEV:
+                    raise
+                # another file system: copy beside the destination, then rename
                 with atomic_write(dst, "wb") as f, open(src, "rb") as g:
                     shutil.copyfileobj(g, f)
                 src.unlink()
@@ -296,6 +300,10 @@ def recover_layout(layout: RunLayout) -> str | None:
             plan = json.loads(layout.commit_record.read_bytes())
             if not isinstance(plan, dict) or not isinstance(plan.get("moves"), list):
                 raise ValueError("no moves")
+            for move in plan["moves"]:
+                if not (isinstance(move, str) or (isinstance(move, list) and len(move) == 2
+                                                  and all(isinstance(m, str) for m in move))):
+                    raise ValueError(f"bad move {move!r}")
         except (OSError, ValueError) as exc:
             raise FileFormatError(f"{layout.commit_record}: unreadable commit record ({exc}); delete "
                                   f"{layout.staging} to keep the previous result") from None

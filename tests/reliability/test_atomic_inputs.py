@@ -178,10 +178,11 @@ def test_recover_bad_paths(tmp_path, capsys):
     assert "nothing to recover" in capsys.readouterr().out
 
 
-def test_recover_refuses_an_unreadable_commit_record(session, capsys):
+@pytest.mark.parametrize("record", ["{ garbage", '{"moves": [1, ["a"]]}', "[]"])
+def test_recover_refuses_an_unreadable_commit_record(session, capsys, record):
     staging = session / "reconstruct" / ".staging"
     staging.mkdir()
-    (staging / "commit.json").write_text("{ garbage")
+    (staging / "commit.json").write_text(record)
     _one_line(capsys, 2, ["eval", "reconstruct", str(session)], "interrupted while committing; run `bodystudio recover")
     err = _one_line(capsys, 2, ["recover", str(session)], "unreadable commit record")
     assert "delete" in err and ".staging" in err
