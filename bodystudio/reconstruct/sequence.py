@@ -329,6 +329,9 @@ def read_reconstruction(session_path: str | Path, frame: int | None = None) -> t
     """
     layout = reconstruction_layout(session_path)
     check_readable(layout)
+    if not layout.manifest_path.is_file():
+        raise SessionError(f"{layout.manifest_path}: missing (a reconstruction by an older bodystudio, or files "
+                           f"copied in by hand); re-run `bodystudio reconstruct {session_path}`")
     run = read_json(layout.manifest_path, "reconstruction run record")
     if not isinstance(run, dict) or not isinstance(run.get("frames"), list) or "n_vertices" not in run:
         raise SessionError(f"{layout.manifest_path}: not a reconstruction run record; re-run reconstruct")

@@ -236,6 +236,11 @@ def test_mesh_from_another_run_is_refused(session, reconstructed, tmp_path, caps
         reconstructed_mesh_path(session, 0)
 
 
+def test_reconstruction_without_run_record_is_refused(session, capsys):
+    (session / "reconstruct" / "run.json").unlink()
+    _one_line(capsys, 2, ["eval", "reconstruct", str(session)], "run.json: missing (a reconstruction by an older")
+
+
 def test_run_record_without_checksums_is_refused(session, capsys):
     path = session / "reconstruct" / "run.json"
     run = json.loads(path.read_text())
