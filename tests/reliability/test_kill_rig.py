@@ -150,7 +150,7 @@ def test_rig_killed_at_seeded_points(tmp_path):
     log = tmp_path / "events.json"
     assert run_child(new_run(root, out), tmp_path, event_log=log).returncode == 0
     seen = set()
-    for k in kill_points(read_events(log), seed=16, n=3):
+    for k in kill_points(read_events(log), seed=16, n=2):
         out, previous_id, previous = _copy(rigged, tmp_path / f"k{k}")
         assert run_child(new_run(root, out), tmp_path, kill_at=k).returncode == -9
         seen.add(reader_state(out, previous_id, previous))
