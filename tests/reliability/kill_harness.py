@@ -27,7 +27,11 @@ events = []
 state = {"matched_at": None}
 real_replace = os.replace
 
+scope = os.environ.get("KILL_SCOPE")
+
 def replace(src, dst):
+    if scope and not os.path.realpath(str(dst)).startswith(scope):
+        return real_replace(src, dst)  # e.g. numba's cache: not an event of the output's write
     events.append(str(dst))
     n = len(events)
     if match and state["matched_at"] is None and str(dst).endswith(match):
@@ -50,10 +54,15 @@ sys.exit(main(sys.argv[1:]))
 
 def run_child(args: list[str], cwd: Path, kill_at: int = 0, after_match: str | None = None, offset: int = 0,
               event_log: Path | None = None, setup: Path | None = None, kill_after_s: float | None = None,
-              timeout: float = 300) -> subprocess.CompletedProcess | int:
-    """Run ``bodystudio ARGS`` in a child; returns its exit code (-9 when SIGKILLed)."""
+              timeout: float = 300, scope: Path | None = None) -> subprocess.CompletedProcess:
+    """Run ``bodystudio ARGS`` in a child (returncode -9 when SIGKILLed).
+
+    Only writes under ``scope`` (default ``cwd``) count as events, so that caches written elsewhere on a
+    first run do not shift the event numbers between runs.
+    """
     env = dict(os.environ, PYTHONPATH=f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
                KILL_AT=str(kill_at), KILL_OFFSET=str(offset))
+    env["KILL_SCOPE"] = os.path.realpath(scope or cwd)
     if after_match:
         env["KILL_AFTER_MATCH"] = after_match
     if event_log:
