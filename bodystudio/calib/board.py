@@ -208,7 +208,6 @@ def detect_charuco(image: np.ndarray, spec: CharucoBoardSpec, min_corners: int =
 
 
 def read_image_grey(path: Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if img is None:
-        raise FileFormatError(f"{path}: cannot read image; re-export it as PNG or JPEG")
-    return img
+    from bodystudio.fileio import read_image
+
+    return read_image(path, cv2.IMREAD_GRAYSCALE)

@@ -29,7 +29,9 @@ def synth_session(
     """Render a synthetic studio session with ground truth (meshes, joints, poses, masks)."""
     from bodystudio.capture.synth import parse_resolution
     from bodystudio.capture.synth import synth_session as run
+    from bodystudio.fileio import check_output_folder
 
+    check_output_folder(out, "synth session", new=True)
     session = run(out, cameras, frames, motion, subject_seed, None if kinect in (None, "none") else kinect,
                   parse_resolution(resolution), noise, seed, template, progress=True)
     typer.echo(f"wrote {out}: {len(session.camera_names)} cameras x {len(session)} frames, "
@@ -55,7 +57,9 @@ def import_cmd(
 ) -> None:
     """Import a real recording (image folders or videos, TUM depth, joints) as a session."""
     from bodystudio.capture.importer import import_recording
+    from bodystudio.fileio import check_output_folder
 
+    check_output_folder(out, "capture import", new=True)
     session = import_recording(out, cameras, images, videos, timestamps, backgrounds, tum, kinect_calibration,
                                depth_scale, joints, frames, masks, joints_frame, progress=True)
     typer.echo(f"wrote {out}: {len(session.camera_names)} cameras x {len(session)} frames, "
@@ -71,7 +75,12 @@ def silhouettes_cmd(
 ) -> None:
     """Segment the subject by background subtraction and write cam_NN/mask/ (prints JSON, IoU if GT)."""
     from bodystudio.capture.silhouettes import SegmentationParams, segment_session
+    from bodystudio.errors import InputError
+    from bodystudio.fileio import check_output_folder
 
+    if not session.is_dir():
+        raise InputError(f"{session}: no such session folder")
+    check_output_folder(session, "session")
     params = SegmentationParams(tau_cd=tau_cd, close_px=close_px, open_px=open_px)
     typer.echo(json.dumps(segment_session(session, params, progress=True).to_dict(), indent=2))
 

@@ -15,9 +15,11 @@ from bodystudio.cli import synth as synth_cli
 def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: str = "6k", texture: bool = False,
                  weights: str = "harmonic", bvh: Path | None = None, show_progress: bool = False) -> dict:
     """Load, rig, optionally reshape and export one scan; returns the rig description written beside it."""
+    from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from bodystudio.errors import InputError
+    from bodystudio.fileio import check_output_file
     from bodystudio.register.scan import load_scan
     from bodystudio.rig.evaluate import held_out_poses, rig_json_path
     from bodystudio.rig.export import rig_description, write_bvh, write_glb
@@ -26,11 +28,16 @@ def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: st
 
     if out.suffix.lower() != ".glb":
         raise InputError(f"--out {out}: the avatar is written as glTF binary; give a .glb path")
+    check_output_file(out, "--out")
+    check_output_file(rig_json_path(out), "--out")
+    if bvh is not None:
+        check_output_file(bvh, "--bvh", (".bvh",))
     deltas = parse_reshape(reshape) if reshape else None
     stages = ["load", "fit", "skeleton", "weights"] + (["reshape"] if deltas else []) + ["export"]
     t0 = time.perf_counter()
-    with Progress(TextColumn("{task.description:<10}"), BarColumn(), TimeElapsedColumn(),
-                  disable=not show_progress, transient=True) as progress:
+    console = Console(stderr=True)
+    with Progress(TextColumn("{task.description:<10}"), BarColumn(), TimeElapsedColumn(), console=console,
+                  disable=not show_progress or not console.is_terminal, transient=True) as progress:
         tasks = {s: progress.add_task(s, total=1) for s in stages}
 
         def finish(name: str) -> None:
@@ -83,8 +90,11 @@ def synth_scan(out: Path = typer.Argument(..., help="scan file to write (.ply, .
                noise_mm: float = typer.Option(1.0, "--noise-mm", help="normal-direction noise, mm"),
                holes: bool = typer.Option(True, "--holes/--no-holes", help="unscanned soles and patches")) -> None:
     """A synthetic body scan with ground truth in OUT.gt/."""
-    from bodystudio.register.synthetic import save_synthetic_scan, synthetic_scan
+    from bodystudio.fileio import check_output_file, check_output_folder
+    from bodystudio.register.synthetic import ground_truth_dir, save_synthetic_scan, synthetic_scan
 
+    check_output_file(out, "synth scan", (".ply", ".obj", ".glb", ".stl"))
+    check_output_folder(ground_truth_dir(out), "synth scan ground truth")
     scan, gt = synthetic_scan(subject_seed, pose, vertices, noise_mm, holes)
     gt_dir = save_synthetic_scan(out, scan, gt)
     typer.echo(f"wrote {out} ({scan.n_vertices} vertices) and {gt_dir}/")

@@ -29,6 +29,11 @@ from bodystudio.rig.skeleton_transfer import closest_points
 ATTRIBUTE_ALIASES = {"stature": "stature_m", "height": "stature_m", "mass": "mass_kg", "weight": "mass_kg",
                      "chest": "chest_m", "waist": "waist_m", "hip": "hip_m", "arm": "arm_length_m",
                      "leg": "leg_length_m", "muscle": "muscularity", "muscularity": "muscularity"}
+#: Largest edit accepted per attribute: about three to four standard deviations of the adult population
+#: (stature sd ~9 cm, mass sd ~12 kg, girths ~9 cm, limb lengths ~4 cm). Beyond it the statistical model
+#: extrapolates (``stature=+5`` made a 460 m avatar) and the result cannot be trusted.
+RESHAPE_LIMITS = {"stature_m": 0.30, "mass_kg": 40.0, "chest_m": 0.30, "waist_m": 0.30, "hip_m": 0.30,
+                  "arm_length_m": 0.15, "leg_length_m": 0.20, "muscularity": 0.5}
 SOFT_ANCHOR = 1e-6  # relative weight tying the solution to the original positions (removes the null space)
 
 
@@ -44,6 +49,14 @@ def parse_reshape(text: str) -> dict[str, float]:
             out[key] = float(value)
         except ValueError:
             raise InputError(f"--reshape {item!r}: {value!r} is not a number") from None
+        if key not in RESHAPE_LIMITS:
+            raise InputError(f"--reshape {item!r}: unknown attribute {name.strip()!r}; valid: "
+                             f"{', '.join(sorted(ATTRIBUTE_ALIASES))}")
+        limit = RESHAPE_LIMITS[key]
+        if not np.isfinite(out[key]) or abs(out[key]) > limit:
+            unit = {"m": " m", "kg": " kg"}.get(key.rpartition("_")[2], "")
+            raise InputError(f"--reshape {item!r}: change outside the population's plausible span "
+                             f"[-{limit:g}, +{limit:g}]{unit}; lengths are in metres, mass in kg")
     if not out:
         raise InputError("--reshape is empty; e.g. stature=+0.05,mass=-5")
     return out
