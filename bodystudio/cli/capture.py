@@ -107,5 +107,8 @@ def verify_cmd(session: Path = typer.Argument(..., help="session folder")) -> No
 def recover_cmd(session: Path = typer.Argument(..., help="session folder")) -> None:
     """Finish or discard a write that was interrupted (power loss, kill)."""
     from bodystudio.capture.session import recover_session
+    from bodystudio.errors import InputError
 
+    if not session.is_dir():
+        raise InputError(f"{session}: no such session folder")
     typer.echo(f"{session}: {recover_session(session)}")

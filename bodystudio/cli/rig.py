@@ -69,7 +69,8 @@ def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: st
 
 def rig(scan: Path = typer.Argument(..., help="body scan: PLY, OBJ, GLB/GLTF or STL"),
         out: Path = typer.Option(..., "--out", "-o", help="avatar .glb (a .rig.json is written beside it)"),
-        reshape: str = typer.Option(None, "--reshape", help="semantic edit, e.g. stature=+0.05,mass=-5"),
+        reshape: str = typer.Option(None, "--reshape", help="semantic edit, e.g. stature=+0.05,mass=-5 "
+                                     "(within ±0.30 m stature and girths, ±40 kg mass; docs/rigging.md)"),
         template: str = typer.Option("6k", "--template", help="model template: 6k, 13k (or 2k)"),
         texture: bool = typer.Option(False, "--texture/--vertex-colors",
                                      help="bake colours into an xatlas UV texture (slow on big scans)"),
