@@ -524,6 +524,10 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
     if tum is not None and kinect_calibration is None:
         raise InputError(f"{tum}: Kinect depth needs --kinect-calibration (JSON with 'depth' and 'color' cameras, "
                          "see docs/session-format.md)")
+    if n_frames is not None and n_frames < 1:
+        raise InputError(f"--frames {n_frames}: import at least one frame")
+    if depth_scale is not None and not (np.isfinite(depth_scale) and depth_scale > 0):
+        raise InputError(f"--depth-scale {depth_scale}: give the depth units per metre (> 0; TUM: 5000)")
     if joints_frame not in JOINT_FRAMES:
         raise InputError(f"--joints-frame {joints_frame!r} is not one of {', '.join(JOINT_FRAMES)}")
     if joints_frame != "studio" and kinect_calibration is None:

@@ -116,6 +116,7 @@ class Studio:
     images: Path  # images/<cam>/00000.png..., the session's frames as an import source
     scan: Path  # synthetic scan PLY (5000 vertices) with scan.gt/
     board_folder: Path  # a capture folder holding only board.json
+    calibration: Path  # a small synthetic ChArUco capture (4 cameras x 6 poses, 640x480)
 
     def copy_session(self, dest: Path) -> Path:
         shutil.copytree(self.session, dest)
@@ -127,8 +128,9 @@ class Studio:
 
 
 def _build(args: list[str]) -> None:
-    res = run_subprocess(args, timeout=300)
-    assert res.rc == 0 and not res.crashed, f"fixture command {args} failed: {res.stderr[-1500:]}"
+    from bodystudio.cli.main import main
+
+    assert main([str(a) for a in args]) == 0, f"fixture command {args} failed"
 
 
 @pytest.fixture(scope="session")
@@ -141,9 +143,11 @@ def studio(tmp_path_factory) -> Studio:
     board.mkdir()
     _build(["calib", "board", board / "board.png", "--squares-x", "5", "--squares-y", "4", "--dpi", "72",
             "--square-mm", "40", "--marker-mm", "30"])
+    _build(["synth", "calibration", root / "cal", "--cameras", "4", "--poses", "6", "--width", "640", "--height",
+            "480"])
     images = root / "images"
     for cam_dir in sorted(session.glob("cam_*")):
         (images / cam_dir.name).mkdir(parents=True)
         for f in sorted((cam_dir / "rgb").glob("*.png")):
             shutil.copy(f, images / cam_dir.name / f.name)
-    return Studio(root, session, session / "calibration" / "cameras.json", images, scan, board)
+    return Studio(root, session, session / "calibration" / "cameras.json", images, scan, board, root / "cal")

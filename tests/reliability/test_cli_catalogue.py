@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -121,6 +122,14 @@ def _png_images(truncate: str | None = None, extra: Callable[[Path], None] | Non
             (t / "img" / truncate).write_bytes(data[: len(data) // 2])
         if extra:
             extra(t / "img")
+    return setup
+
+
+def _truncated_calibration_image(rel: str) -> Callable[[Studio, Path], None]:
+    def setup(w: Studio, t: Path) -> None:
+        shutil.copytree(w.calibration, t / "cal", ignore=shutil.ignore_patterns("gt"))
+        data = (t / "cal" / rel).read_bytes()
+        (t / "cal" / rel).write_bytes(data[: len(data) // 2])
     return setup
 
 
@@ -322,6 +331,8 @@ CASES = [
     Case("image-not-an-image", "capture import {t}/out --cameras {cams} --images {t}/img", "00000.png",
          setup=_png_images(extra=lambda f: (f / "cam_01" / "00000.png").write_text("hello")),
          absent=("{t}/out/session.json",)),
+    Case("image-truncated-board-png", "calibrate {t}/cal --out {t}/cal/cameras.json", "00002.png",
+         setup=_truncated_calibration_image("cam_01/00002.png"), absent=("{t}/cal/cameras.json",)),
     Case("image-quiet-stderr", "capture import {t}/out --cameras {cams} --images {t}/jpg", "damaged",
          setup=_jpeg_images("cam_01/00001.jpg", fraction=0.8), subprocess=True,
          absent=("{t}/out/session.json",)),
@@ -375,6 +386,10 @@ CASES = [
     Case("recover-missing", "capture recover {t}/nothing", "no such session"),
     Case("reconstruct-missing", "reconstruct {t}/nothing", "no such session"),
     Case("silhouettes-missing", "capture silhouettes {t}/nothing", "no such session"),
+    Case("import-zero-frames", "capture import {t}/out --cameras {cams} --images {img} --frames 0", "--frames",
+         absent=("{t}/out",)),
+    Case("import-negative-depth-scale", "capture import {t}/out --cameras {cams} --images {img} --depth-scale -1",
+         "--depth-scale", absent=("{t}/out",)),
     Case("import-nothing", "capture import {t}/out --cameras {cams}", "nothing to import", absent=("{t}/out",)),
     Case("import-images-and-videos", "capture import {t}/out --cameras {cams} --images {img} --videos {img}",
          "not both", absent=("{t}/out",)),
