@@ -162,6 +162,19 @@ def _colmap_junk(w: Studio, t: Path) -> None:
     (t / "colmap" / "points3D.txt").write_text("")
 
 
+def _colmap_fx_zero(w: Studio, t: Path) -> None:
+    (t / "colmap").mkdir()
+    (t / "colmap" / "cameras.txt").write_text("1 PINHOLE 160 120 0 100 80 60\n")
+    (t / "colmap" / "images.txt").write_text("1 1 0 0 0 0 0 0 1 cam_00.png\n\n")
+    (t / "colmap" / "points3D.txt").write_text("")
+
+
+def _random_bytes(rel: str, n: int = 2000) -> Callable[[Studio, Path], None]:
+    def setup(w: Studio, t: Path) -> None:
+        (t / rel).write_bytes(np.random.default_rng(0).integers(0, 256, n, dtype=np.uint8).tobytes())
+    return setup
+
+
 def _cylinder_scan(w: Studio, t: Path) -> None:
     """A coarse standing cylinder: thousands of vertices, but none at the hip band a body has."""
     import trimesh
@@ -390,6 +403,26 @@ CASES = [
          absent=("{t}/out",)),
     Case("import-negative-depth-scale", "capture import {t}/out --cameras {cams} --images {img} --depth-scale -1",
          "--depth-scale", absent=("{t}/out",)),
+    Case("local-modifier-range", "body export {t}/a.ply --resolution 2k --local upperarm-fat-decr-incr=5",
+         "out of range", absent=("{t}/a.ply",)),
+    Case("pose-json-nan", "body export {t}/a.ply --resolution 2k --pose {t}/p.json", "finite",
+         setup=_file("p.json", '{"rotations": {"lowerarm_l": [NaN, 0, 0]}}'), absent=("{t}/a.ply",)),
+    Case("pose-json-unknown-bone", "body export {t}/a.ply --resolution 2k --pose {t}/p.json", "unknown bone",
+         setup=_file("p.json", '{"rotations": {"tail": [1, 0, 0]}}'), absent=("{t}/a.ply",)),
+    Case("ply-header-broken", "body measure {t}/bad.ply", "bad.ply",
+         setup=_file("bad.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n2\n")),
+    Case("obj-random-bytes", "rig {t}/r.obj --out {t}/a.glb", "r.obj", setup=_random_bytes("r.obj"),
+         absent=("{t}/a.glb",)),
+    Case("ply-empty-scan", "rig {t}/e.ply --out {t}/a.glb", "empty", setup=_file("e.ply", ""),
+         absent=("{t}/a.glb",)),
+    Case("view-broken-mesh", "view {t}/bad.ply --html {t}/v.html", "bad.ply", absent=("{t}/v.html",),
+         setup=_file("bad.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n")),
+    Case("nan-noise", "synth scan {t}/x.ply --noise-mm nan", "--noise-mm", absent=("{t}/x.ply",)),
+    Case("nan-tau", "reconstruct {t}/S --tau nan", "--tau", setup=_session_copy, absent=("{t}/S/reconstruct",)),
+    Case("nan-gender", "body export {t}/a.ply --gender nan", "out of range", absent=("{t}/a.ply",)),
+    Case("colmap-fx-zero", "calib import {t}/colmap --out {t}/c.json", "focal", setup=_colmap_fx_zero,
+         absent=("{t}/c.json",)),
+    Case("eval-rig-not-avatar", "eval rig {scan} --gt {t}", "rig.json"),
     Case("import-nothing", "capture import {t}/out --cameras {cams}", "nothing to import", absent=("{t}/out",)),
     Case("import-images-and-videos", "capture import {t}/out --cameras {cams} --images {img} --videos {img}",
          "not both", absent=("{t}/out",)),
