@@ -134,7 +134,9 @@ def _truncated_calibration_image(rel: str) -> Callable[[Studio, Path], None]:
 
 
 def _fifo(folder: Path) -> None:
-    os.mkfifo(folder / "cam_01" / "00002.png")
+    """A named pipe in place of a frame (reading it blocked the import forever)."""
+    (folder / "cam_01" / "00001.png").unlink()
+    os.mkfifo(folder / "cam_01" / "00001.png")
 
 
 def _easymocap(intri: str, extri: str = "%YAML:1.0\n---\nnames: []\n") -> Callable[[Studio, Path], None]:
@@ -352,7 +354,7 @@ CASES = [
 
     # -- 6: FIFO, coarse scans, caches, assets, junk YAML, verify, chatter
     Case("fifo-in-image-folder", "capture import {t}/out --cameras {cams} --images {t}/img", "not a regular file",
-         setup=_png_images(extra=_fifo), subprocess=True, timeout=60, absent=("{t}/out/session.json",)),
+         setup=_png_images(extra=_fifo), subprocess=True, timeout=30, absent=("{t}/out/session.json",)),
     Case("scan-coarse-cylinder", "rig {t}/cyl.ply --out {t}/a.glb", "too coarse", setup=_cylinder_scan,
          absent=("{t}/a.glb", "{t}/a.rig.json")),
     Case("cache-truncated-template-rebuilt", "body export {t}/a.ply --resolution 2k", "", rc=0,
