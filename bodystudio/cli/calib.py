@@ -91,6 +91,15 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
     if colmap:
         check_output_folder(colmap, "--colmap")
         check_colmap_output(colmap)
+    from bodystudio.calib.observations import capture_images
+
+    images = capture_images(folder)  # a listing only: the options are checked against it before detection
+    if reference_camera is not None and reference_camera not in images:
+        raise InputError(f"--reference-camera {reference_camera}: no such camera in {folder} "
+                         f"({', '.join(images)})")
+    if reference_camera is None and not any(floor_frame in frames for frames in images.values()):
+        raise InputError(f"--floor-frame {floor_frame}: no camera has this frame in {folder}; give the frame whose "
+                         "board lies on the floor, or --reference-camera")
     options = CalibrationOptions(distortion_terms=distortion_terms,
                                  floor_frame=None if reference_camera else floor_frame,
                                  reference_camera=reference_camera)

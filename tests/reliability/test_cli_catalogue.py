@@ -4,7 +4,7 @@ Each case: the command line, the expected exit code, a phrase of the one-line me
 left behind (no output, or the previous complete output unchanged). No case may end in a traceback, a hang or
 exit 0 with a wrong result. Placeholders: {s} a session copy-free path (read-only), {S} a private copy of the
 session, {cams} its cameras.json, {img} an image-folder import source, {scan} a synthetic scan, {board} a
-folder holding board.json, {t} the case's own empty folder.
+folder holding board.json, {cal} a small ChArUco capture, {t} the case's own empty folder.
 
 Cases run in-process (fast) unless they need the real console script (usage errors), a separate
 environment, or a timeout (a hang).
@@ -389,6 +389,10 @@ CASES = [
          setup=_file("p.json", "[1, 2"), absent=("{t}/a.ply",)),
     Case("board-json-junk", "calibrate {t} --board {t}/b.json", "b.json", setup=_file("b.json", "{}"),
          absent=("{t}/cameras.json",)),
+    Case("calibrate-floor-frame-absent", "calibrate {cal} --floor-frame 99 --out {t}/c.json", "--floor-frame",
+         absent=("{t}/c.json",)),
+    Case("calibrate-reference-camera-absent", "calibrate {cal} --reference-camera cam_77 --out {t}/c.json",
+         "cam_77", absent=("{t}/c.json",)),
     Case("calibrate-no-folder", "calibrate {t}/nothing", "no such capture folder"),
     Case("measure-not-a-body", "body measure {scan}", "topology"),
     Case("info-bad-rig", "body info --rig skeleton9", "rig"),
@@ -438,7 +442,8 @@ CASES = [
 
 
 def _fmt(text: str, w: Studio, t: Path) -> str:
-    return text.format(s=w.session, cams=w.cameras_json, img=w.images, scan=w.scan, board=w.board_folder, t=t)
+    return text.format(s=w.session, cams=w.cameras_json, img=w.images, scan=w.scan, board=w.board_folder,
+                       cal=w.calibration, t=t)
 
 
 def _snapshot(path: Path):
