@@ -181,8 +181,13 @@ def _native_stderr_captured() -> Iterator[list[str]]:
     """Collect what C libraries write to file descriptor 2 while the block runs (into the yielded list)."""
     out: list[str] = []
     with _stderr_lock:
-        sys.stderr.flush()
-        saved = os.dup(2)
+        with contextlib.suppress(AttributeError, ValueError, OSError):
+            sys.stderr.flush()
+        try:
+            saved = os.dup(2)
+        except OSError:  # no fd 2 (a daemon): nothing to capture or to pollute
+            yield out
+            return
         try:
             with tempfile.TemporaryFile() as tmp:
                 os.dup2(tmp.fileno(), 2)
