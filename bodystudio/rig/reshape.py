@@ -49,17 +49,24 @@ def parse_reshape(text: str) -> dict[str, float]:
             out[key] = float(value)
         except ValueError:
             raise InputError(f"--reshape {item!r}: {value!r} is not a number") from None
-        if key not in RESHAPE_LIMITS:
-            raise InputError(f"--reshape {item!r}: unknown attribute {name.strip()!r}; valid: "
-                             f"{', '.join(sorted(ATTRIBUTE_ALIASES))}")
-        limit = RESHAPE_LIMITS[key]
-        if not np.isfinite(out[key]) or abs(out[key]) > limit:
-            unit = {"m": " m", "kg": " kg"}.get(key.rpartition("_")[2], "")
-            raise InputError(f"--reshape {item!r}: change outside the population's plausible span "
-                             f"[-{limit:g}, +{limit:g}]{unit}; lengths are in metres, mass in kg")
     if not out:
         raise InputError("--reshape is empty; e.g. stature=+0.05,mass=-5")
-    return out
+    return check_reshape(out)
+
+
+def check_reshape(deltas: dict[str, float]) -> dict[str, float]:
+    """Refuse attribute changes the statistical model cannot be trusted for (unknown names, NaN, beyond
+    :data:`RESHAPE_LIMITS`); returns ``deltas``."""
+    for key, value in deltas.items():
+        if key not in RESHAPE_LIMITS:
+            raise InputError(f"--reshape {key}={value}: unknown attribute {key!r}; valid: "
+                             f"{', '.join(sorted(ATTRIBUTE_ALIASES))}")
+        limit = RESHAPE_LIMITS[key]
+        if not np.isfinite(value) or abs(value) > limit:
+            unit = {"m": " m", "kg": " kg"}.get(key.rpartition("_")[2], "")
+            raise InputError(f"--reshape {key}={value:+g}: change outside the population's plausible span "
+                             f"[-{limit:g}, +{limit:g}]{unit}; lengths are in metres, mass in kg")
+    return deltas
 
 
 def deformation_gradients(V0: np.ndarray, V1: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -122,6 +129,7 @@ class ScanReshaper:
 def reshape_avatar(avatar: Avatar, fit, model, deltas: dict[str, float],
                    reshaper: ScanReshaper | None = None) -> tuple[Avatar, np.ndarray]:
     """Semantic edit (§5.1) of the fitted model transferred to the avatar; returns it and ``β*``."""
+    check_reshape(deltas)
     if "muscularity" not in model.attribute_names:
         deltas = {k: v for k, v in deltas.items() if k != "muscularity"}
     coeffs = model.edit(fit.coeffs, deltas)
