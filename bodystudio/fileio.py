@@ -90,6 +90,8 @@ def write_json(path: str | os.PathLike, data: Any, indent: int | None = 2) -> No
 def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
     """Read a JSON file; a missing or malformed file raises a one-line FileFormatError."""
     path = Path(path)
+    if path.exists() and not path.is_file():  # a folder, or a pipe that would block the read forever
+        raise FileFormatError(f"{path}: {what} is not a regular file")
     try:
         with open(path, encoding="utf-8") as f:
             return json.load(f)

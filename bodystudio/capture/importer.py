@@ -445,6 +445,8 @@ def load_joints(path: str | os.PathLike) -> JointTrack:
 
 
 def json_or_error(path: Path):
+    if not path.is_file():  # a pipe would block the read forever
+        raise FileFormatError(f"{path}: not a regular file")
     try:
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

@@ -355,6 +355,8 @@ CASES = [
     # -- 6: FIFO, coarse scans, caches, assets, junk YAML, verify, chatter
     Case("fifo-in-image-folder", "capture import {t}/out --cameras {cams} --images {t}/img", "not a regular file",
          setup=_png_images(extra=_fifo), subprocess=True, timeout=30, absent=("{t}/out/session.json",)),
+    Case("fifo-as-cameras-json", "capture import {t}/out --cameras {t}/c.json --images {img}", "not a regular file",
+         setup=lambda w, t: os.mkfifo(t / "c.json"), subprocess=True, timeout=30, absent=("{t}/out",)),
     Case("scan-coarse-cylinder", "rig {t}/cyl.ply --out {t}/a.glb", "too coarse", setup=_cylinder_scan,
          absent=("{t}/a.glb", "{t}/a.rig.json")),
     Case("cache-truncated-template-rebuilt", "body export {t}/a.ply --resolution 2k", "", rc=0,
