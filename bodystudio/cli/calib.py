@@ -228,7 +228,7 @@ def import_(source: Path = typer.Argument(..., help="COLMAP model folder or Easy
 def synth_calibration(out: Path = typer.Argument(..., help="output capture folder"),
                       cameras: int = typer.Option(10, help="cameras on the studio ring"),
                       poses: int = typer.Option(30, help="board poses (frame 0 lies on the floor)"),
-                      seed: int = typer.Option(0),
+                      seed: int = typer.Option(0, min=0),
                       width: int = typer.Option(1280), height: int = typer.Option(960),
                       kinect: str | None = typer.Option(None, help="also render a Kinect (v1 or v2): colour "
                                                                       "and depth of every board pose")) -> None:

@@ -19,11 +19,11 @@ def synth_session(
     cameras: int = typer.Option(10, "--cameras", help="studio cameras on the ring"),
     frames: int = typer.Option(30, "--frames", help="frames to render"),
     motion: str = typer.Option("walk", "--motion", help="motion name (capture.motion.MOTIONS)"),
-    subject_seed: int = typer.Option(7, "--subject-seed", help="subject drawn from the population"),
+    subject_seed: int = typer.Option(7, "--subject-seed", min=0, help="subject drawn from the population"),
     kinect: str | None = typer.Option("v2", "--kinect", help="simulated Kinect: v1, v2 or none"),
     resolution: str = typer.Option("640x480", "--resolution", help="studio camera image size WxH"),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="camera sensor and Kinect noise"),
-    seed: int = typer.Option(0, "--seed", help="motion variation, noise and background texture"),
+    seed: int = typer.Option(0, "--seed", min=0, help="motion variation, noise and background texture"),
     template: str = typer.Option("full", "--template", help="body template resolution: full, 6k, 2k"),
 ) -> None:
     """Render a synthetic studio session with ground truth (meshes, joints, poses, masks)."""

@@ -85,7 +85,7 @@ def rig(scan: Path = typer.Argument(..., help="body scan: PLY, OBJ, GLB/GLTF or 
 
 @synth_cli.app.command("scan")
 def synth_scan(out: Path = typer.Argument(..., help="scan file to write (.ply, .obj, .glb, .stl)"),
-               subject_seed: int = typer.Option(0, "--subject-seed", help="population subject"),
+               subject_seed: int = typer.Option(0, "--subject-seed", min=0, help="population subject"),
                pose: str = typer.Option("a", "--pose", help="a, t or random"),
                vertices: int = typer.Option(100_000, "--vertices", help="scan vertex count (about)"),
                noise_mm: float = typer.Option(1.0, "--noise-mm", help="normal-direction noise, mm"),
