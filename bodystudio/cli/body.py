@@ -31,7 +31,7 @@ def parse_assignments(items: list[str] | None, what: str) -> dict[str, float]:
 def export(
     out: Path = typer.Argument(..., help="output mesh: .ply, .obj or .glb"),
     gender: float = typer.Option(0.5, help="0 female .. 1 male"),
-    age: float = typer.Option(0.5, help="0 = 1 year, 0.1875 = 10, 0.5 = 25, 1 = 90 years (linear between)"),
+    age: float = typer.Option(0.5, help="0 = 1 year, 0.1875 = 10, 0.5 = 25, 1 = 90 years (piecewise linear)"),
     muscle: float = typer.Option(0.5, help="0 .. 1"),
     weight: float = typer.Option(0.5, help="0 .. 1"),
     height: float = typer.Option(0.5, help="0 .. 1"),
