@@ -171,7 +171,8 @@ def check_output_folder(path: str | os.PathLike, what: str = "output folder", ne
 _DECODER_WARNING = re.compile(r"^(libpng (warning|error)|Premature end of JPEG|Corrupt JPEG|Invalid JPEG|"
                               r"Bogus |Warning: |Unsupported JPEG|Improper call|JPEG datastream|Not a JPEG|"
                               r"Huffman|Inconsistent progression|Invalid SOS|Invalid component|"
-                              r"Application transferred too few|Unknown APP|Ss=|Suspension)", re.MULTILINE)
+                              r"Application transferred too few|Unknown APP|Ss=|Suspension|"
+                              r"\[ ?WARN:.*(imgcodecs|grfmt|loadsave|imdecode))", re.MULTILINE)
 #: libpng warnings about colour-profile chunks (iCCP, sRGB, cHRM, gAMA): the pixels are intact, so these
 #: are silenced rather than refused (Photoshop writes such profiles into ordinary PNGs).
 _HARMLESS_PNG_WARNING = re.compile(r"^libpng warning: (iCCP|sRGB|cHRM|gAMA|Interlace handling)", re.MULTILINE)
