@@ -1,6 +1,7 @@
 # bodystudio: two commands for a fresh machine.
 #   make demo   set up, run the main job on the built-in synthetic studio, write a report
 #   make test   set up, run the test suite
+#   make lock   refresh constraints.txt (the exact versions setup installs) from the current .venv
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
@@ -11,16 +12,18 @@ APT_PACKAGES := libusb-1.0-0 libgomp1 libgl1 libegl1 libxrender1 chromium
 DEMO_OUT ?= demo-out
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test test-fast bench lint clean
+.PHONY: setup demo test test-fast bench lint lock clean
 
 setup: $(VENV)/.installed
 	@$(VENV)/bin/bodystudio body assets --quiet
 
-$(VENV)/.installed: pyproject.toml scripts/setup_system.sh
+# Installs are reproducible: every package comes at the exact version in constraints.txt (the versions the
+# suite was last run with); pyproject.toml keeps the looser ranges for library users. `make lock` refreshes it.
+$(VENV)/.installed: pyproject.toml constraints.txt scripts/setup_system.sh
 	@bash scripts/setup_system.sh $(APT_PACKAGES)
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	@$(PY) -m pip install -q --upgrade pip
-	@$(PY) -m pip install -q -e '.[dev]'
+	@$(PY) -m pip install -q -c constraints.txt --upgrade pip
+	@$(PY) -m pip install -q -c constraints.txt -e '.[dev]'
 	@touch $@
 
 demo: setup
@@ -37,6 +40,13 @@ bench: setup
 
 lint: setup
 	$(VENV)/bin/ruff check bodystudio tests benchmarks
+
+lock: $(VENV)/.installed
+	@{ echo "# Exact versions for 'make setup' (pip install -c constraints.txt). Regenerate with 'make lock'"; \
+	   echo "# after upgrading the venv and running the suite; pyproject.toml keeps the supported ranges."; \
+	   $(PY) -m pip freeze --all --exclude-editable --exclude bodystudio --exclude setuptools --exclude wheel \
+	   | grep -v '^#'; } > constraints.txt.tmp && mv constraints.txt.tmp constraints.txt
+	@echo "wrote constraints.txt ($$(grep -vc '^#' constraints.txt) packages)"
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache

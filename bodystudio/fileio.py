@@ -10,14 +10,18 @@ import contextlib
 import hashlib
 import json
 import os
+import re
+import stat
+import sys
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bodystudio.errors import FileFormatError
+from bodystudio.errors import FileFormatError, InputError
 
 
 def _umask_mode() -> int:
@@ -86,6 +90,8 @@ def write_json(path: str | os.PathLike, data: Any, indent: int | None = 2) -> No
 def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
     """Read a JSON file; a missing or malformed file raises a one-line FileFormatError."""
     path = Path(path)
+    if path.exists() and not path.is_file():  # a folder, or a pipe that would block the read forever
+        raise FileFormatError(f"{path}: {what} is not a regular file")
     try:
         with open(path, encoding="utf-8") as f:
             return json.load(f)
@@ -93,3 +99,151 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
         raise FileFormatError(f"{path}: {what} not found") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise FileFormatError(f"{path}: not a valid {what} ({exc}); fix or regenerate the file") from None
+
+
+def _existing_ancestor(path: Path) -> Path:
+    """The deepest ancestor of ``path`` that exists (``path``'s parent when it exists)."""
+    parent = path.absolute().parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    return parent
+
+
+def _probe_writable(folder: Path, path: Path, what: str) -> None:
+    """Create and remove a temporary file in ``folder``: the only test that also holds for root,
+    read-only mounts and pseudo file systems (/sys, /proc), where ``os.access`` says yes."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".bodystudio-probe.", dir=folder)
+    except OSError as exc:
+        raise InputError(f"{what} {path}: cannot write in {folder} ({exc.strerror}); choose a writable place") \
+            from None
+    os.close(fd)
+    os.unlink(tmp)
+
+
+def check_output_file(path: str | os.PathLike, what: str = "output", suffixes: tuple[str, ...] | None = None,
+                      overwrite: bool = True) -> Path:
+    """Check, before any work, that a file can be written at ``path``; raises a one-line InputError.
+
+    Refuses a folder in the file's place, a file or a missing/unwritable place where its folder should be,
+    a wrong suffix (``suffixes``, lower case with dot) and, unless ``overwrite``, an existing file.
+    """
+    path = Path(path)
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        raise InputError(f"{what} {path}: unsupported output format; use {' or '.join(suffixes)}")
+    if path.is_dir():
+        raise InputError(f"{what} {path}: is a folder; give a file path")
+    if path.exists() and not overwrite:
+        raise InputError(f"{what} {path}: exists; choose a new name or remove it")
+    if path.exists() and not path.is_file():
+        raise InputError(f"{what} {path}: exists and is not a regular file; choose another name")
+    parent = _existing_ancestor(path)
+    if not parent.is_dir():
+        raise InputError(f"{what} {path}: {parent} is a file, not a folder; choose another place")
+    _probe_writable(parent, path, what)
+    return path
+
+
+def check_output_folder(path: str | os.PathLike, what: str = "output folder", new: bool = False) -> Path:
+    """Check, before any work, that ``path`` can be a folder of outputs; raises a one-line InputError.
+
+    Refuses an existing file in its place, an unwritable place and, with ``new``, a non-empty folder.
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{what} {path}: exists and is a file, not a folder; choose a folder path")
+    if path.is_dir():
+        if new and any(path.iterdir()):
+            raise InputError(f"{what} {path}: exists and is not empty; choose a new folder")
+        _probe_writable(path, path, what)
+        return path
+    parent = _existing_ancestor(path)
+    if not parent.is_dir():
+        raise InputError(f"{what} {path}: {parent} is a file, not a folder; choose another place")
+    _probe_writable(parent, path, what)
+    return path
+
+
+# ---------------------------------------------------------------------------------------------- image decoding
+
+#: Lines libjpeg and libpng write to stderr for damaged data (libjpeg's warnings carry no file name and
+#: leave the undecodable part of the image grey).
+_DECODER_WARNING = re.compile(r"^(libpng (warning|error)|Premature end of JPEG|Corrupt JPEG|Invalid JPEG|"
+                              r"Bogus |Warning: |Unsupported JPEG|Improper call|JPEG datastream|Not a JPEG|"
+                              r"Huffman|Inconsistent progression|Invalid SOS|Invalid component|"
+                              r"Application transferred too few|Unknown APP|Ss=|Suspension|"
+                              r"\[ ?WARN:.*(imgcodecs|grfmt|loadsave|imdecode))", re.MULTILINE)
+#: libpng warnings about colour-profile chunks (iCCP, sRGB, cHRM, gAMA): the pixels are intact, so these
+#: are silenced rather than refused (Photoshop writes such profiles into ordinary PNGs).
+_HARMLESS_PNG_WARNING = re.compile(r"^libpng warning: (iCCP|sRGB|cHRM|gAMA|Interlace handling)", re.MULTILINE)
+_stderr_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def _native_stderr_captured() -> Iterator[list[str]]:
+    """Collect what C libraries write to file descriptor 2 while the block runs (into the yielded list)."""
+    out: list[str] = []
+    with _stderr_lock:
+        with contextlib.suppress(AttributeError, ValueError, OSError):
+            sys.stderr.flush()
+        try:
+            saved = os.dup(2)
+        except OSError:  # no fd 2 (a daemon): nothing to capture or to pollute
+            yield out
+            return
+        try:
+            with tempfile.TemporaryFile() as tmp:
+                os.dup2(tmp.fileno(), 2)
+                try:
+                    yield out
+                finally:
+                    os.dup2(saved, 2)
+                    tmp.seek(0)
+                    out.append(tmp.read().decode("utf-8", "replace"))
+        finally:
+            os.close(saved)
+
+
+def decode_image(data: bytes, source: str | os.PathLike, flags: int | None = None) -> np.ndarray:
+    """Decode image bytes with OpenCV, treating any libjpeg/libpng warning as an error naming ``source``.
+
+    ``flags`` are cv2.imread flags (default IMREAD_COLOR, BGR). A truncated JPEG decodes "successfully" with
+    a grey bottom and only a nameless warning on stderr; here it raises a one-line FileFormatError.
+    """
+    import cv2
+
+    flags = cv2.IMREAD_COLOR if flags is None else flags
+    with _native_stderr_captured() as captured:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    text = _HARMLESS_PNG_WARNING.sub("", captured[0]) if captured else ""
+    warnings = [line.strip() for line in text.splitlines() if _DECODER_WARNING.match(line.strip())]
+    others = [line for line in text.splitlines() if line.strip() and not _DECODER_WARNING.match(line.strip())]
+    if others:  # not the decoder's (another thread's output): give it back
+        sys.stderr.write("\n".join(others) + "\n")
+    if image is None:
+        raise FileFormatError(f"{source}: unreadable image (truncated, damaged or not an image"
+                              f"{': ' + warnings[0] if warnings else ''}); replace or remove it")
+    if warnings:
+        raise FileFormatError(f"{source}: damaged image ({warnings[0]}); the decoder could not read all of it, "
+                              "replace or remove it")
+    return image
+
+
+def read_image(path: str | os.PathLike, flags: int | None = None) -> np.ndarray:
+    """Read an image file with :func:`decode_image`'s checks; only regular files are read (a FIFO or a
+    device would block or stream forever), so anything else raises a one-line FileFormatError."""
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise FileFormatError(f"{path}: image not found") from None
+    except OSError as exc:
+        raise FileFormatError(f"{path}: cannot read the image ({exc.strerror})") from None
+    if not stat.S_ISREG(mode):
+        raise FileFormatError(f"{path}: not a regular file (a folder, pipe or device); remove it from the "
+                              "image folder")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise FileFormatError(f"{path}: cannot read the image ({exc.strerror})") from None
+    return decode_image(data, path, flags)

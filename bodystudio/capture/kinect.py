@@ -215,8 +215,10 @@ def read_depth_png(path: str | os.PathLike) -> np.ndarray:
     data = np.fromfile(str(path), dtype=np.uint8) if os.path.exists(path) else None
     if data is None:
         raise FileFormatError(f"{path}: depth image not found")
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-    if img is None or img.dtype != np.uint16 or img.ndim != 2:
+    from bodystudio.fileio import decode_image
+
+    img = decode_image(data.tobytes(), path, cv2.IMREAD_UNCHANGED)
+    if img.dtype != np.uint16 or img.ndim != 2:
         raise FileFormatError(f"{path}: not a 16-bit single-channel millimetre depth PNG; re-export the depth")
     return millimetres_to_depth(img)
 

@@ -111,9 +111,12 @@ def encode_png(image: np.ndarray, what: str = "image") -> bytes:
 def decode_png(data: bytes, source: str, color: bool) -> np.ndarray:
     """Decode PNG bytes (RGB uint8 if ``color``, else the stored single channel, 8 or 16 bit)."""
     flag = cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), flag)
-    if image is None:
-        raise SessionError(f"{source}: unreadable image (not a valid PNG); re-import or regenerate the session")
+    from bodystudio.fileio import decode_image
+
+    try:
+        image = decode_image(data, source, flag)
+    except FileFormatError as exc:
+        raise SessionError(f"{exc}; re-import or regenerate the session") from None
     if color:
         return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     if image.ndim == 3:
@@ -446,10 +449,41 @@ class Session:
                 bad.append(f"{path}: missing")
             elif sha256_file(path) != expected:
                 bad.append(f"{path}: corrupted (sha256 mismatch)")
+        bad += self._unbacked_entries()
         if bad:
             more = f" (and {len(bad) - 1} more problems)" if len(bad) > 1 else ""
             raise SessionError(f"{bad[0]}{more}; re-import or regenerate the session")
         return len(self.files)
+
+    def _unbacked_entries(self) -> list[str]:
+        """Cameras, frames and streams the manifest lists without any file behind them (and, for the
+        studio images, every camera x frame: a session whose rgb stream has holes is not a recording)."""
+        manifest = self.path / MANIFEST
+        problems = []
+        for cam in self.camera_names:
+            if not any(rel.startswith(f"{cam}/") or rel.startswith(f"gt/masks/{cam}/") for rel in self.files):
+                problems.append(f"{manifest}: camera {cam} is listed but has no files")
+        frame_files = {}
+        for rel in self.files:
+            stem = rel.rsplit("/", 1)[-1].split(".", 1)[0]
+            if stem.isdigit() and "/background/" not in rel:
+                frame_files.setdefault(int(stem), 0)
+                frame_files[int(stem)] += 1
+        for frame in self.frame_ids:
+            if not frame_files.get(frame):
+                problems.append(f"{manifest}: frame {frame} is listed but has no files")
+        for stream in self.streams:
+            if stream in CAMERA_STREAMS or stream in FRAME_STREAMS:
+                rels = [stream_path(stream, f, c) for f in self.frame_ids
+                        for c in (self.camera_names if stream in CAMERA_STREAMS else [None])]
+                if not any(r in self.files for r in rels):
+                    problems.append(f"{manifest}: stream {stream} is listed but has no files")
+                elif stream == "rgb":
+                    missing = [r for r in rels if r not in self.files]
+                    if missing:
+                        problems.append(f"{manifest}: {missing[0]} (rgb of a listed camera and frame) is not "
+                                        f"in the manifest ({len(missing)} such)")
+        return problems
 
 
 def progress_bar(enabled: bool):
@@ -457,9 +491,11 @@ def progress_bar(enabled: bool):
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    # stderr, so that commands printing JSON on stdout stay parseable
+    # stderr, so that commands printing JSON on stdout stay parseable; only on a terminal (in a log or a
+    # pipe a bar leaves its last state around the output and the error line)
+    console = Console(stderr=True)
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                    console=Console(stderr=True), disable=not enabled)
+                    console=console, disable=not enabled or not console.is_terminal)
 
 
 def _ranges(ids: list[int]) -> str:

@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bodystudio.errors import SessionError
+from bodystudio.errors import InputError, SessionError
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +67,17 @@ class SegmentationParams:
     min_component_fraction: float = 0.1
     min_component_px: int = 50
     max_hole_fraction: float = 0.0001
+
+    def __post_init__(self):
+        for name, lo, hi in (("tau_cd", 0.1, 100.0), ("tau_brightness", 0.1, 100.0), ("shadow_floor", 0.0, 1.0),
+                             ("highlight_ceiling", 1.0, 10.0), ("std_floor", 0.0, 50.0),
+                             ("single_frame_std", 0.0, 50.0), ("close_px", 0, 100), ("open_px", 0, 100),
+                             ("min_component_fraction", 0.0, 1.0), ("min_component_px", 0, 10**6),
+                             ("max_hole_fraction", 0.0, 1.0)):
+            value = getattr(self, name)
+            if not np.isfinite(value) or not lo <= value <= hi:
+                flag = {"tau_cd": "--tau-cd", "close_px": "--close", "open_px": "--open"}.get(name, name)
+                raise InputError(f"{flag} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
 
 
 def background_model(frames: list[np.ndarray], std_floor: float = 1.0,

@@ -31,11 +31,14 @@ def parse_assignments(items: list[str] | None, what: str) -> dict[str, float]:
 def export(
     out: Path = typer.Argument(..., help="output mesh: .ply, .obj or .glb"),
     gender: float = typer.Option(0.5, help="0 female .. 1 male"),
-    age: float = typer.Option(0.5, help="0 = 1 year, 0.1875 = 11, 0.5 = 25, 1 = 90 years"),
-    muscle: float = typer.Option(0.5),
-    weight: float = typer.Option(0.5),
-    height: float = typer.Option(0.5),
-    proportions: float = typer.Option(0.5),
+    age: float = typer.Option(0.5, help="0 = 1 year, 0.1875 = 10, 0.5 = 25, 1 = 90 years (piecewise linear)"),
+    muscle: float = typer.Option(0.5, help="0 .. 1"),
+    weight: float = typer.Option(0.5, help="0 .. 1"),
+    height: float = typer.Option(0.5, help="0 .. 1"),
+    proportions: float = typer.Option(0.5, help="0 uncommon .. 1 ideal"),
+    african: float = typer.Option(1 / 3, help="ethnic weight in [0, 1] (the three are normalised to sum 1)"),
+    asian: float = typer.Option(1 / 3, help="ethnic weight in [0, 1]"),
+    caucasian: float = typer.Option(1 / 3, help="ethnic weight in [0, 1]"),
     local: list[str] | None = typer.Option(None, "--local", help="local modifier NAME=VALUE in [-1, 1] (repeat)"),
     pose: Path | None = typer.Option(None, "--pose",
                                      help="pose JSON (axis-angle 'rotations' or MPFB 'bone_rotations')"),
@@ -45,12 +48,13 @@ def export(
 ) -> None:
     """Build a body from phenotype and local modifiers, optionally pose it, and write the mesh."""
     from bodystudio.body import Phenotype, build_body, load_pose
+    from bodystudio.fileio import check_output_file
     from bodystudio.geometry.mesh import Mesh, save_mesh
 
-    if out.suffix.lower() not in (".ply", ".obj", ".glb"):
-        raise InputError(f"{out}: unsupported output format; use .ply, .obj or .glb")
+    check_output_file(out, "body export", (".ply", ".obj", ".glb"))
     phenotype = Phenotype.from_dict(dict(gender=gender, age=age, muscle=muscle, weight=weight, height=height,
-                                         proportions=proportions))
+                                         proportions=proportions, african=african, asian=asian,
+                                         caucasian=caucasian))
     body = build_body(phenotype, parse_assignments(local, "--local"), resolution=resolution, rig=rig)
     vertices = body.vertices
     if pose is not None:

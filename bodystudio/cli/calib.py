@@ -20,7 +20,7 @@ console = Console(stderr=True)
 
 def _progress() -> Progress:
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    console=console, transient=True)
+                    console=console, transient=True, disable=not console.is_terminal)
 
 
 @app.command("board")
@@ -33,7 +33,10 @@ def board(out: Path = typer.Argument(..., help="board image: .png or .pdf (true 
           dpi: float = typer.Option(300.0, help="PNG resolution")) -> None:
     """Write a printable ChArUco board (PNG at DPI, or PDF at true size) and its board.json."""
     from bodystudio.calib.board import CharucoBoardSpec, save_board_json, write_board_pdf, write_board_png
+    from bodystudio.fileio import check_output_file
 
+    check_output_file(out, "calib board", (".png", ".pdf"))
+    check_output_file(out.with_name("board.json"), "calib board")
     spec = CharucoBoardSpec(squares_x, squares_y, square_mm / 1000, marker_mm / 1000, dictionary)
     suffix = out.suffix.lower()
     if suffix == ".pdf":
@@ -67,18 +70,37 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
     """Calibrate all studio cameras from ChArUco images: intrinsics, bundle adjustment, floor world frame."""
     from bodystudio.calib.board import load_board_json
     from bodystudio.calib.calibrate import CalibrationOptions, calibrate_cameras
-    from bodystudio.calib.io import calibration_layout, save_colmap_model, save_easymocap_yaml
+    from bodystudio.calib.io import calibration_layout, check_colmap_output, save_colmap_model, save_easymocap_yaml
     from bodystudio.calib.observations import detect_capture
+    from bodystudio.fileio import check_output_file, check_output_folder
     from bodystudio.geometry.camera import save_cameras_json
     from bodystudio.runfolder import RunWriter, check_output_destination
 
     folder, default_out = _capture_folder(session_or_folder)
+    if not folder.is_dir():
+        raise InputError(f"{session_or_folder}: no such capture folder (cam_NN/FFFFF.png board images)")
     board = board or folder / "board.json"
     if not board.is_file():
         raise InputError(f"{board}: board description not found; pass --board or write one with "
                          "`bodystudio calib board`")
     spec = load_board_json(board)
     out = out or default_out
+    check_output_file(out, "--out", (".json",))
+    check_output_file(out.with_name(out.stem + ".report.json"), "--out")
+    if easymocap:
+        check_output_folder(easymocap, "--easymocap")
+    if colmap:
+        check_output_folder(colmap, "--colmap")
+        check_colmap_output(colmap)
+    from bodystudio.calib.observations import capture_images
+
+    images = capture_images(folder)  # a listing only: the options are checked against it before detection
+    if reference_camera is not None and reference_camera not in images:
+        raise InputError(f"--reference-camera {reference_camera}: no such camera in {folder} "
+                         f"({', '.join(images)})")
+    if reference_camera is None and not any(floor_frame in frames for frames in images.values()):
+        raise InputError(f"--floor-frame {floor_frame}: no camera has this frame in {folder}; give the frame whose "
+                         "board lies on the floor, or --reference-camera")
     options = CalibrationOptions(distortion_terms=distortion_terms,
                                  floor_frame=None if reference_camera else floor_frame,
                                  reference_camera=reference_camera)
@@ -130,9 +152,10 @@ def kinect(folder: Path = typer.Argument(..., help="capture folder with kinect/r
     from bodystudio.calib.board import load_board_json
     from bodystudio.calib.depth import calibrate_rgbd_sensor, detect_rgbd_capture
     from bodystudio.capture.session import kinect_calibration_to_dict, load_kinect_calibration
-    from bodystudio.fileio import read_json, write_json
+    from bodystudio.fileio import check_output_file, read_json, write_json
     from bodystudio.geometry.camera import kinect_v1, kinect_v2
 
+    check_output_file(out, "--out", (".json",))
     spec = load_board_json(folder / "board.json")
     if sensor is not None:
         rgbd = load_kinect_calibration(sensor)
@@ -174,11 +197,17 @@ def export(cameras: Path = typer.Argument(..., help="cameras.json"),
            easymocap: Path | None = typer.Option(None, help="folder for intri.yml / extri.yml"),
            colmap: Path | None = typer.Option(None, help="folder for a COLMAP text model")) -> None:
     """Convert cameras.json to EasyMocap YAML and/or a COLMAP text model."""
-    from bodystudio.calib.io import save_colmap_model, save_easymocap_yaml
+    from bodystudio.calib.io import check_colmap_output, save_colmap_model, save_easymocap_yaml
+    from bodystudio.fileio import check_output_folder
     from bodystudio.geometry.camera import load_cameras_json
 
     if not easymocap and not colmap:
         raise InputError("nothing to export: give --easymocap DIR and/or --colmap DIR")
+    for folder, what in ((easymocap, "--easymocap"), (colmap, "--colmap")):
+        if folder:
+            check_output_folder(folder, what)
+    if colmap:
+        check_colmap_output(colmap)
     rig = load_cameras_json(cameras)
     if easymocap:
         save_easymocap_yaml(easymocap, rig)
@@ -193,8 +222,12 @@ def import_(source: Path = typer.Argument(..., help="COLMAP model folder or Easy
             out: Path = typer.Option(..., help="cameras.json to write")) -> None:
     """Convert a COLMAP model or EasyMocap intri/extri.yml to cameras.json."""
     from bodystudio.calib.io import load_colmap_model, load_easymocap_yaml
+    from bodystudio.fileio import check_output_file
     from bodystudio.geometry.camera import save_cameras_json
 
+    check_output_file(out, "--out", (".json",))
+    if not source.is_dir():
+        raise InputError(f"{source}: no such folder; give a COLMAP model folder or an EasyMocap folder (intri.yml)")
     rig = load_easymocap_yaml(source) if (source / "intri.yml").is_file() else load_colmap_model(source)
     save_cameras_json(out, rig)
     typer.echo(f"wrote {out} ({len(rig)} cameras)")
@@ -204,13 +237,15 @@ def import_(source: Path = typer.Argument(..., help="COLMAP model folder or Easy
 def synth_calibration(out: Path = typer.Argument(..., help="output capture folder"),
                       cameras: int = typer.Option(10, help="cameras on the studio ring"),
                       poses: int = typer.Option(30, help="board poses (frame 0 lies on the floor)"),
-                      seed: int = typer.Option(0),
+                      seed: int = typer.Option(0, min=0),
                       width: int = typer.Option(1280), height: int = typer.Option(960),
                       kinect: str | None = typer.Option(None, help="also render a Kinect (v1 or v2): colour "
                                                                       "and depth of every board pose")) -> None:
     """Render a ChArUco calibration capture of the studio ring with ground truth (OUT/gt/cameras.json)."""
     from bodystudio.calib.synthetic import write_synthetic_calibration
+    from bodystudio.fileio import check_output_folder
 
+    check_output_folder(out, "synth calibration")
     with _progress() as progress:
         summary = write_synthetic_calibration(out, cameras, poses, seed, width, height, progress=progress,
                                               kinect=kinect)

@@ -19,17 +19,19 @@ def synth_session(
     cameras: int = typer.Option(10, "--cameras", help="studio cameras on the ring"),
     frames: int = typer.Option(30, "--frames", help="frames to render"),
     motion: str = typer.Option("walk", "--motion", help="motion name (capture.motion.MOTIONS)"),
-    subject_seed: int = typer.Option(7, "--subject-seed", help="subject drawn from the population"),
+    subject_seed: int = typer.Option(7, "--subject-seed", min=0, help="subject drawn from the population"),
     kinect: str | None = typer.Option("v2", "--kinect", help="simulated Kinect: v1, v2 or none"),
     resolution: str = typer.Option("640x480", "--resolution", help="studio camera image size WxH"),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="camera sensor and Kinect noise"),
-    seed: int = typer.Option(0, "--seed", help="motion variation, noise and background texture"),
+    seed: int = typer.Option(0, "--seed", min=0, help="motion variation, noise and background texture"),
     template: str = typer.Option("full", "--template", help="body template resolution: full, 6k, 2k"),
 ) -> None:
     """Render a synthetic studio session with ground truth (meshes, joints, poses, masks)."""
     from bodystudio.capture.synth import parse_resolution
     from bodystudio.capture.synth import synth_session as run
+    from bodystudio.fileio import check_output_folder
 
+    check_output_folder(out, "synth session", new=True)
     session = run(out, cameras, frames, motion, subject_seed, None if kinect in (None, "none") else kinect,
                   parse_resolution(resolution), noise, seed, template, progress=True)
     typer.echo(f"wrote {out}: {len(session.camera_names)} cameras x {len(session)} frames, "
@@ -55,7 +57,9 @@ def import_cmd(
 ) -> None:
     """Import a real recording (image folders or videos, TUM depth, joints) as a session."""
     from bodystudio.capture.importer import import_recording
+    from bodystudio.fileio import check_output_folder
 
+    check_output_folder(out, "capture import", new=True)
     session = import_recording(out, cameras, images, videos, timestamps, backgrounds, tum, kinect_calibration,
                                depth_scale, joints, frames, masks, joints_frame, progress=True)
     typer.echo(f"wrote {out}: {len(session.camera_names)} cameras x {len(session)} frames, "
@@ -71,7 +75,12 @@ def silhouettes_cmd(
 ) -> None:
     """Segment the subject by background subtraction and write cam_NN/mask/ (prints JSON, IoU if GT)."""
     from bodystudio.capture.silhouettes import SegmentationParams, segment_session
+    from bodystudio.errors import InputError
+    from bodystudio.fileio import check_output_folder
 
+    if not session.is_dir():
+        raise InputError(f"{session}: no such session folder")
+    check_output_folder(session, "session")
     params = SegmentationParams(tau_cd=tau_cd, close_px=close_px, open_px=open_px)
     typer.echo(json.dumps(segment_session(session, params, progress=True).to_dict(), indent=2))
 
@@ -98,5 +107,8 @@ def verify_cmd(session: Path = typer.Argument(..., help="session folder")) -> No
 def recover_cmd(session: Path = typer.Argument(..., help="session folder")) -> None:
     """Finish or discard a write that was interrupted (power loss, kill)."""
     from bodystudio.capture.session import recover_session
+    from bodystudio.errors import InputError
 
+    if not session.is_dir():
+        raise InputError(f"{session}: no such session folder")
     typer.echo(f"{session}: {recover_session(session)}")

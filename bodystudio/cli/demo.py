@@ -354,7 +354,9 @@ def demo(
 ) -> None:
     """Run the main job on the built-in synthetic studio and write an HTML report."""
     from bodystudio.cli.viewer import _parse_size
+    from bodystudio.fileio import check_output_folder
 
+    check_output_folder(out, "demo --out")
     report, stages = run_demo(out, cameras, frames, _parse_size(resolution), with_3d=not no_3d,
                               skip=tuple(skip or ()))
     missing = [r["stage"] for r in stages if r["status"] == "not available yet"]

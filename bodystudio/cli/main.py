@@ -55,26 +55,72 @@ def _register() -> None:
 _register()
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point: run the app, turning user errors into one line and exit code 2."""
+def click_exception_types() -> tuple[type[BaseException], ...]:
+    """The click exception base classes the installed typer raises (its vendored click and/or click itself).
+
+    typer up to 0.2x re-exported click's classes; later releases vendor click as ``typer._click``. Both are
+    found through the MRO of ``typer.BadParameter`` instead of naming a module of one typer version.
+    """
+    found = [c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException"]
     try:
-        app(args=argv, standalone_mode=False)
-    except BodyStudioError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except typer.Exit as exc:
-        return exc.exit_code
-    except typer.Abort:
-        print("aborted", file=sys.stderr)
-        return 1
-    except Exception as exc:  # click usage errors
         import click
 
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            return exc.exit_code
-        raise
+        found.append(click.ClickException)
+    except ImportError:  # typer without a click dependency
+        pass
+    return tuple(dict.fromkeys(found))
+
+
+def _abort_types() -> tuple[type[BaseException], ...]:
+    found = [typer.Abort]
+    try:
+        import click
+
+        found.append(click.exceptions.Abort)
+    except ImportError:
+        pass
+    return tuple(dict.fromkeys(found))
+
+
+def _exit_types() -> tuple[type[BaseException], ...]:
+    found = [typer.Exit]
+    try:
+        import click
+
+        found.append(click.exceptions.Exit)
+    except ImportError:
+        pass
+    return tuple(dict.fromkeys(found))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: run the app; user errors become one line and exit 2, usage errors click's usage and exit 2."""
+    try:
+        app(args=argv, standalone_mode=False, prog_name="bodystudio")
+    except BodyStudioError as exc:
+        _error_line(f"error: {exc}")
+        return 2
+    except _exit_types() as exc:
+        return exc.exit_code
+    except _abort_types():
+        _error_line("aborted")
+        return 1
+    except click_exception_types() as exc:  # usage errors: unknown command/option, missing/malformed argument
+        exc.show()
+        return exc.exit_code
+    except KeyboardInterrupt:
+        _error_line("interrupted")
+        return 130
     return 0
+
+
+def _error_line(text: str) -> None:
+    """The one error line, on a fresh line even if a progress bar or a C library left a partial one."""
+    sys.stdout.flush()
+    if sys.stderr.isatty():
+        sys.stderr.write("\r\033[K")
+    sys.stderr.write(text + "\n")
+    sys.stderr.flush()
 
 
 def run() -> None:

@@ -28,10 +28,10 @@ def reconstruct(
     joints_path: Path | None = typer.Option(None, help="folder of NNNNN.json joint files for --joints file"),
     constraints: str = typer.Option("silhouette", help="silhouette, depth or silhouette,depth"),
     frames: str | None = typer.Option(None, help="frame range A:B (B exclusive)"),
-    outer: int = typer.Option(8, help="outer iterations No (contour re-matching)"),
-    inner: int = typer.Option(8, help="inner solver iterations Ni"),
-    tau: float = typer.Option(30.0, help="contour search range tau (pixels)"),
-    alpha: float = typer.Option(40.0, help="silhouette weight width alpha (pixels)"),
+    outer: int = typer.Option(8, help="outer iterations No (contour re-matching), 1..100"),
+    inner: int = typer.Option(8, help="inner solver iterations Ni, 1..1000"),
+    tau: float = typer.Option(30.0, help="contour search range tau (pixels), 1..500"),
+    alpha: float = typer.Option(40.0, help="silhouette weight width alpha (pixels), 1..1000"),
     warm_start: bool = typer.Option(False, help="carry the shape over from earlier frames"),
     refine_pose: bool = typer.Option(True, help="refine the joints' pose by an articulated fit to the silhouettes' "
                                      "visual hull before deforming (--no-refine-pose: the paper's init)"),
@@ -41,9 +41,13 @@ def reconstruct(
     from rich.console import Console
     from rich.table import Table
 
+    from bodystudio.fileio import check_output_folder
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams
     from bodystudio.reconstruct.sequence import reconstruct_session
 
+    if not session.is_dir():
+        raise InputError(f"{session}: no such session folder")
+    check_output_folder(session / "reconstruct", "reconstruct output")
     params = RapidSkinParams(outer_iterations=outer, inner_iterations=inner, tau_px=tau, alpha_px=alpha,
                              solver=solver, constraints=_constraints(constraints))
     summary = reconstruct_session(session, solver=solver, template=template, joints=joints,

@@ -15,27 +15,34 @@ from bodystudio.cli import synth as synth_cli
 def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: str = "6k", texture: bool = False,
                  weights: str = "harmonic", bvh: Path | None = None, show_progress: bool = False) -> dict:
     """Load, rig, optionally reshape and export one scan; returns the rig description written beside it."""
+    from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from bodystudio.errors import InputError
+    from bodystudio.fileio import check_output_file
     from bodystudio.register.scan import load_scan
     from bodystudio.rig.evaluate import held_out_poses
-    from bodystudio.rig.export import rig_layout, write_rig
+    from bodystudio.rig.export import rig_json_path, rig_layout, write_rig
     from bodystudio.rig.pipeline import load_template_model, rig_scan
     from bodystudio.rig.reshape import parse_reshape, reshape_avatar
     from bodystudio.runfolder import RunWriter
 
     if out.suffix.lower() != ".glb":
         raise InputError(f"--out {out}: the avatar is written as glTF binary; give a .glb path")
+    check_output_file(out, "--out")
+    check_output_file(rig_json_path(out), "--out")
+    if bvh is not None:
+        check_output_file(bvh, "--bvh", (".bvh",))
     deltas = parse_reshape(reshape) if reshape else None
     stages = ["load", "fit", "skeleton", "weights"] + (["reshape"] if deltas else []) + ["export"]
     t0 = time.perf_counter()
     # The lock is taken before the fit: a second `rig` onto the same avatar is refused at once, and the
     # glb, its rig.json and the BVH appear together or not at all.
+    console = Console(stderr=True)
     with RunWriter(rig_layout(out), "bodystudio rig", {"scan": str(scan), "template": template,
                                                        "texture": texture}) as writer, \
-            Progress(TextColumn("{task.description:<10}"), BarColumn(), TimeElapsedColumn(),
-                     disable=not show_progress, transient=True) as progress:
+            Progress(TextColumn("{task.description:<10}"), BarColumn(), TimeElapsedColumn(), console=console,
+                     disable=not show_progress or not console.is_terminal, transient=True) as progress:
         tasks = {s: progress.add_task(s, total=1) for s in stages}
 
         def finish(name: str) -> None:
@@ -62,7 +69,8 @@ def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: st
 
 def rig(scan: Path = typer.Argument(..., help="body scan: PLY, OBJ, GLB/GLTF or STL"),
         out: Path = typer.Option(..., "--out", "-o", help="avatar .glb (a .rig.json is written beside it)"),
-        reshape: str = typer.Option(None, "--reshape", help="semantic edit, e.g. stature=+0.05,mass=-5"),
+        reshape: str = typer.Option(None, "--reshape", help="semantic edit, e.g. stature=+0.05,mass=-5 "
+                                     "(within ±0.30 m stature and girths, ±40 kg mass; docs/rigging.md)"),
         template: str = typer.Option("6k", "--template", help="model template: 6k, 13k (or 2k)"),
         texture: bool = typer.Option(False, "--texture/--vertex-colors",
                                      help="bake colours into an xatlas UV texture (slow on big scans)"),
@@ -77,14 +85,17 @@ def rig(scan: Path = typer.Argument(..., help="body scan: PLY, OBJ, GLB/GLTF or 
 
 @synth_cli.app.command("scan")
 def synth_scan(out: Path = typer.Argument(..., help="scan file to write (.ply, .obj, .glb, .stl)"),
-               subject_seed: int = typer.Option(0, "--subject-seed", help="population subject"),
+               subject_seed: int = typer.Option(0, "--subject-seed", min=0, help="population subject"),
                pose: str = typer.Option("a", "--pose", help="a, t or random"),
                vertices: int = typer.Option(100_000, "--vertices", help="scan vertex count (about)"),
                noise_mm: float = typer.Option(1.0, "--noise-mm", help="normal-direction noise, mm"),
                holes: bool = typer.Option(True, "--holes/--no-holes", help="unscanned soles and patches")) -> None:
     """A synthetic body scan with ground truth in OUT.gt/."""
-    from bodystudio.register.synthetic import save_synthetic_scan, synthetic_scan
+    from bodystudio.fileio import check_output_file, check_output_folder
+    from bodystudio.register.synthetic import ground_truth_dir, save_synthetic_scan, synthetic_scan
 
+    check_output_file(out, "synth scan", (".ply", ".obj", ".glb", ".stl"))
+    check_output_folder(ground_truth_dir(out), "synth scan ground truth")
     scan, gt = synthetic_scan(subject_seed, pose, vertices, noise_mm, holes)
     gt_dir = save_synthetic_scan(out, scan, gt)
     typer.echo(f"wrote {out} ({scan.n_vertices} vertices) and {gt_dir}/")

@@ -21,19 +21,20 @@ def view(
     cloud: bool = typer.Option(True, "--cloud/--no-cloud", help="show the Kinect point cloud (sessions)"),
 ) -> None:
     """Open a session, mesh, scan or avatar in the 3D viewer (or save a screenshot / HTML page)."""
+    from bodystudio.fileio import check_output_file
     from bodystudio.viewer.scene import save_screenshot
     from bodystudio.viewer.views import build_view, open_viewable, session_payload
     from bodystudio.viewer.webgl import save_scene_html
 
     window_size = _parse_size(size)
+    for out, what, suffixes in ((screenshot, "--screenshot", (".png",)), (html, "--html", (".html", ".htm"))):
+        if out is not None:
+            check_output_file(out, what, suffixes)
     off_screen = screenshot is not None or html is not None
     item = open_viewable(path)
     if not off_screen and not has_display():
         raise InputError("no display to open a window ($DISPLAY is not set); add --screenshot OUT.png or "
                          "--html OUT.html, or run under a desktop / ssh -X")
-    for out, suffixes in ((screenshot, (".png",)), (html, (".html", ".htm"))):
-        if out is not None and out.suffix.lower() not in suffixes:
-            raise InputError(f"{out}: output must end in {' or '.join(suffixes)}")
     plotter = build_view(item, bone=bone, frame=frame, images=images, off_screen=off_screen,
                          window_size=window_size, reference=reference, cloud=cloud)
     try:
@@ -79,8 +80,10 @@ def report(
     no_3d: bool = typer.Option(False, "--no-3d", help="leave out the embedded 3D view"),
 ) -> None:
     """Write one self-contained HTML report: metrics tables, plots, screenshots and a 3D view."""
+    from bodystudio.fileio import check_output_file
     from bodystudio.viewer.report import write_report
 
+    check_output_file(out, "--out", (".html", ".htm"))
     result = write_report(path, out, with_3d=not no_3d)
     typer.echo(f"wrote {result.path} ({len(result.tables)} tables, {len(result.plots)} plots, "
                f"{len(result.screenshots)} screenshots, {'a' if result.has_3d else 'no'} 3D view)")

@@ -220,10 +220,11 @@ class Camera:
 
     @classmethod
     def from_dict(cls, name: str, d: dict) -> Camera:
-        """Camera from a cameras.json entry; a malformed entry raises InputError."""
+        """Camera from a cameras.json entry; a malformed or physically invalid entry raises InputError."""
         try:
-            return cls(name, np.asarray(d["K"], float), np.asarray(d.get("dist", [0.0] * 5), float),
-                       np.asarray(d["R"], float), np.asarray(d["t"], float), int(d["width"]), int(d["height"]))
+            return check_intrinsics(cls(name, np.asarray(d["K"], float), np.asarray(d.get("dist", [0.0] * 5), float),
+                                        np.asarray(d["R"], float), np.asarray(d["t"], float), int(d["width"]),
+                                        int(d["height"])))
         except KeyError as exc:
             raise InputError(f"camera {name}: missing key {exc.args[0]!r} (need K, dist, R, t, width, height)") \
                 from None
@@ -306,6 +307,33 @@ class CameraRig:
     def from_dict(cls, d: dict) -> CameraRig:
         cams = d["cameras"]
         return cls({str(n): Camera.from_dict(str(n), e) for n, e in cams.items()})
+
+
+#: Largest |distortion coefficient| accepted at load: real lenses (fisheyes aside) stay far below; larger
+#: values come from a failed calibration or a unit mix-up and make the undistortion diverge.
+MAX_DISTORTION = 100.0
+
+
+def check_intrinsics(camera: Camera) -> Camera:
+    """Refuse intrinsics no camera can have (raises InputError): fx, fy > 0, principal point inside the
+    image, K's last row (0, 0, 1) and no K[1, 0] term, finite and bounded distortion. Returns ``camera``.
+
+    Applied where cameras come from outside (cameras.json, EasyMocap, COLMAP, Kinect calibrations), so that
+    fx = 0 cannot divide by zero in a reconstruction and fx < 0 cannot mirror it silently.
+    """
+    K, name = camera.K, camera.name
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise InputError(f"camera {name}: focal lengths fx={K[0, 0]:g}, fy={K[1, 1]:g} must be > 0 (pixels)")
+    cx, cy = K[0, 2], K[1, 2]
+    if not (0 <= cx <= camera.width and 0 <= cy <= camera.height):
+        raise InputError(f"camera {name}: principal point ({cx:g}, {cy:g}) lies outside the "
+                         f"{camera.width}x{camera.height} image; check K and the image size")
+    if K[1, 0] != 0 or not np.allclose(K[2], (0.0, 0.0, 1.0)):
+        raise InputError(f"camera {name}: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
+    if np.abs(camera.dist).max() > MAX_DISTORTION:
+        raise InputError(f"camera {name}: distortion {camera.dist.tolist()} is implausibly large (|k| > "
+                         f"{MAX_DISTORTION:g}); recalibrate")
+    return camera
 
 
 def save_cameras_json(path: str | os.PathLike, rig: CameraRig) -> None:

@@ -56,8 +56,16 @@ class RapidSkinParams:
         if bad or not self.constraints:
             raise InputError(f"constraints must be a non-empty subset of {', '.join(CONSTRAINT_KINDS)}, "
                              f"got {','.join(self.constraints) or 'nothing'}")
-        if self.outer_iterations < 1 or self.inner_iterations < 1:
-            raise InputError("outer and inner iterations must be >= 1")
+        for name, value, lo, hi, flag in (
+                ("--outer", self.outer_iterations, 1, 100, "iterations"),
+                ("--inner", self.inner_iterations, 1, 1000, "iterations"),
+                ("--tau", self.tau_px, 1.0, 500.0, "pixels: the contour search range"),
+                ("--alpha", self.alpha_px, 1.0, 1000.0, "pixels: the silhouette weight width"),
+                ("rim_cos", self.rim_cos, 0.0, 0.99, "cosine"),
+                ("depth_sigma_m", self.depth_sigma_m, 1e-4, 1.0, "metres"),
+                ("depth_max_m", self.depth_max_m, 1e-3, 1.0, "metres")):
+            if not np.isfinite(value) or not lo <= value <= hi:
+                raise InputError(f"{name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}] ({flag})")
 
 
 @dataclass

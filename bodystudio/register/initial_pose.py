@@ -28,6 +28,7 @@ from scipy.spatial.transform import Rotation
 
 from bodystudio.body import Pose, Skeleton
 from bodystudio.body.skinning import forward_kinematics, linear_blend_skinning, skinning_transforms
+from bodystudio.errors import InputError
 from bodystudio.geometry.mesh import vertex_areas
 
 # (limb root bone, which side: +1 = +x = left, -1 = right, end effector kind)
@@ -55,6 +56,9 @@ class CoarseSkeleton:
 
 
 def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
+    """The value splitting the total weight ``w`` of the samples ``x`` in half (``x`` must not be empty)."""
+    if len(x) == 0:
+        raise ValueError("weighted_median of no samples")
     order = np.argsort(x)
     c = np.cumsum(w[order])
     return float(x[order][np.searchsorted(c, 0.5 * c[-1])])
@@ -72,13 +76,16 @@ def coarse_scan_skeleton(V: np.ndarray, F: np.ndarray | None = None) -> CoarseSk
     # sides hardly move), which keeps hands beside the hips out of it.
     area = vertex_areas(V, F) if F is not None else np.ones(len(V))
     band = np.abs(V[:, 1] - (floor + 0.52 * h)) < 0.02 * h
+    upper, lower = V[:, 1] > floor + 0.35 * h, V[:, 1] < floor + 0.08 * h
+    if not band.any() or not upper.any() or not lower.any():
+        raise InputError(f"the scan has no surface points at hip height or near the feet ({len(V)} vertices over "
+                         f"{h:.2f} m): too coarse, or not a person standing upright; give a body scan with "
+                         "vertices every few centimetres (remesh it)")
     core = band & (np.abs(V[:, 0] - weighted_median(V[:, 0], area)) < 0.12 * h)
     core = core if core.any() else band
     pelvis = np.array([weighted_median(V[core, 0], area[core]), floor + 0.52 * h,
                        weighted_median(V[core, 2], area[core])])
     hands, feet = {}, {}
-    upper = V[:, 1] > floor + 0.35 * h
-    lower = V[:, 1] < floor + 0.08 * h
     for side in (1.0, -1.0):
         s = upper & (side * (V[:, 0] - pelvis[0]) > 0.05 * h)
         cand = V[s] if s.any() else V[upper]

@@ -29,6 +29,11 @@ from bodystudio.rig.skeleton_transfer import closest_points
 ATTRIBUTE_ALIASES = {"stature": "stature_m", "height": "stature_m", "mass": "mass_kg", "weight": "mass_kg",
                      "chest": "chest_m", "waist": "waist_m", "hip": "hip_m", "arm": "arm_length_m",
                      "leg": "leg_length_m", "muscle": "muscularity", "muscularity": "muscularity"}
+#: Largest edit accepted per attribute: about three to four standard deviations of the adult population
+#: (stature sd ~9 cm, mass sd ~12 kg, girths ~9 cm, limb lengths ~4 cm). Beyond it the statistical model
+#: extrapolates (``stature=+5`` made a 460 m avatar) and the result cannot be trusted.
+RESHAPE_LIMITS = {"stature_m": 0.30, "mass_kg": 40.0, "chest_m": 0.30, "waist_m": 0.30, "hip_m": 0.30,
+                  "arm_length_m": 0.15, "leg_length_m": 0.20, "muscularity": 0.5}
 SOFT_ANCHOR = 1e-6  # relative weight tying the solution to the original positions (removes the null space)
 
 
@@ -46,7 +51,22 @@ def parse_reshape(text: str) -> dict[str, float]:
             raise InputError(f"--reshape {item!r}: {value!r} is not a number") from None
     if not out:
         raise InputError("--reshape is empty; e.g. stature=+0.05,mass=-5")
-    return out
+    return check_reshape(out)
+
+
+def check_reshape(deltas: dict[str, float]) -> dict[str, float]:
+    """Refuse attribute changes the statistical model cannot be trusted for (unknown names, NaN, beyond
+    :data:`RESHAPE_LIMITS`); returns ``deltas``."""
+    for key, value in deltas.items():
+        if key not in RESHAPE_LIMITS:
+            raise InputError(f"--reshape {key}={value}: unknown attribute {key!r}; valid: "
+                             f"{', '.join(sorted(ATTRIBUTE_ALIASES))}")
+        limit = RESHAPE_LIMITS[key]
+        if not np.isfinite(value) or abs(value) > limit:
+            unit = {"m": " m", "kg": " kg"}.get(key.rpartition("_")[2], "")
+            raise InputError(f"--reshape {key}={value:+g}: change outside the population's plausible span "
+                             f"[-{limit:g}, +{limit:g}]{unit}; lengths are in metres, mass in kg")
+    return deltas
 
 
 def deformation_gradients(V0: np.ndarray, V1: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -109,6 +129,7 @@ class ScanReshaper:
 def reshape_avatar(avatar: Avatar, fit, model, deltas: dict[str, float],
                    reshaper: ScanReshaper | None = None) -> tuple[Avatar, np.ndarray]:
     """Semantic edit (§5.1) of the fitted model transferred to the avatar; returns it and ``β*``."""
+    check_reshape(deltas)
     if "muscularity" not in model.attribute_names:
         deltas = {k: v for k, v in deltas.items() if k != "muscularity"}
     coeffs = model.edit(fit.coeffs, deltas)

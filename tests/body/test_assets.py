@@ -68,3 +68,19 @@ def test_makehuman_dir_override(tmp_path, monkeypatch):
     real = assets.fetch_assets() / "mpfb2"
     monkeypatch.setenv("BODYSTUDIO_MAKEHUMAN_DIR", str(real))
     assert assets.makehuman_data_dir() == real
+
+
+def test_edit_that_keeps_the_size_is_detected(tmp_path, monkeypatch):
+    """The manifest's sha256 catches an asset edited in place with the same size (sizes alone did not)."""
+    import os
+
+    monkeypatch.setenv("BODYSTUDIO_HOME", str(tmp_path))
+    folder = _fake_cache(tmp_path, {"a.txt": "abc", "b.txt": "defg"})
+    (folder / assets.MANIFEST).write_text(json.dumps({"files": {"a.txt": 3, "b.txt": 4}}))
+    assert assets._cache_problem(folder) is None  # an old manifest gets its sha256s recorded
+    assert set(json.loads((folder / assets.MANIFEST).read_text())["file_sha256"]) == {"a.txt", "b.txt"}
+    st = (folder / "b.txt").stat()
+    os.utime(folder / "b.txt", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert assets._cache_problem(folder) is None  # touched, same content
+    (folder / "b.txt").write_text("DEFG")
+    assert "b.txt was modified" in assets._cache_problem(folder)

@@ -50,3 +50,15 @@ def test_malformed_pose_file(tmp_path, capsys):
     assert main(["body", "export", str(tmp_path / "x.ply"), "--pose", str(pose)]) == 2
     err = capsys.readouterr().err
     assert str(pose) in err and "3 finite numbers" in err
+
+
+def test_export_takes_the_ethnic_weights(tmp_path):
+    """--african/--asian/--caucasian reach MakeHuman's ethnic macro targets (normalised to sum 1)."""
+    paths = {}
+    for name, weights in (("mixed", ()), ("african", ("--african", "1", "--asian", "0", "--caucasian", "0")),
+                          ("asian", ("--african", "0", "--asian", "1", "--caucasian", "0"))):
+        paths[name] = tmp_path / f"{name}.ply"
+        assert main(["body", "export", str(paths[name]), "--resolution", "2k", *weights]) == 0
+    V = {k: load_mesh(p).vertices for k, p in paths.items()}
+    assert np.abs(V["african"] - V["asian"]).max() > 0.005  # the ethnic targets move the body by millimetres+
+    assert np.abs(V["mixed"] - V["african"]).max() > 0.002
