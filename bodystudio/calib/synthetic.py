@@ -182,11 +182,15 @@ def board_for_resolution(image_width: int) -> CharucoBoardSpec:
 
 def write_synthetic_calibration(out: str | os.PathLike, n_cameras: int = 10, n_poses: int = 30, seed: int = 0,
                                 width: int = 1280, height: int = 960, spec: CharucoBoardSpec | None = None,
-                                rig: CameraRig | None = None, progress=None, kinect: str | None = None) -> dict:
+                                rig: CameraRig | None = None, progress=None, kinect: str | None = None,
+                                blur_px: float = 0.7, noise_dn: float = 2.0) -> dict:
     """Render a calibration capture into ``out``: ``cam_NN/FFFFF.png``, ``board.json``, ``gt/cameras.json``,
     ``gt/board_poses.json``. Frame 0 is the board lying on the floor. With ``kinect`` ("v1"/"v2") the
     Kinect's colour and depth views are written too (``kinect/rgb``, ``kinect/depth``, ``gt/kinect.json``).
+    ``blur_px`` (Gaussian sigma) and ``noise_dn`` (sensor noise, grey levels) set the image quality.
     Returns a summary dict."""
+    if not (0.0 <= blur_px <= 5.0 and 0.0 <= noise_dn <= 50.0):
+        raise InputError(f"blur_px must be in [0, 5] and noise_dn in [0, 50], got {blur_px} and {noise_dn}")
     out = Path(out)
     rng = np.random.default_rng(seed)
     rig = rig or ring_rig(n_cameras, width=width, height=height)
@@ -198,7 +202,7 @@ def write_synthetic_calibration(out: str | os.PathLike, n_cameras: int = 10, n_p
     for cam in rig:
         for f, T in enumerate(poses):
             n_visible += int(visible_corners(cam, spec, T).sum() >= 6)
-            write_png(out / cam.name / f"{f:05d}.png", render_board_view(cam, spec, T, rng))
+            write_png(out / cam.name / f"{f:05d}.png", render_board_view(cam, spec, T, rng, blur_px, noise_dn))
             if task is not None:
                 progress.advance(task)
     summary = {}

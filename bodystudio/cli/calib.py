@@ -63,12 +63,19 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
                                                                          "instead of the floor board"),
               distortion_terms: int = typer.Option(4, help="4: k1 k2 p1 p2, 5: also k3 (wide-angle lenses)"),
               easymocap: Path | None = typer.Option(None, help="also write intri.yml/extri.yml into this folder"),
-              colmap: Path | None = typer.Option(None, help="also write a COLMAP text model into this folder")) -> None:
-    """Calibrate all studio cameras from ChArUco images: intrinsics, bundle adjustment, floor world frame."""
+              colmap: Path | None = typer.Option(None, help="also write a COLMAP text model into this folder"),
+              accept_uncertain: bool = typer.Option(False, "--accept-uncertain",
+                                                    help="write the rig even when a camera's centre sigma > 2 mm "
+                                                         "or focal sigma > 0.5 % (otherwise: exit 2, only the "
+                                                         "report OUT.rejected.json is written)")) -> None:
+    """Calibrate all studio cameras from ChArUco images: intrinsics, bundle adjustment, floor world frame,
+    and each camera's own uncertainty (sigmas, coverage, verdict)."""
     from bodystudio.calib.board import load_board_json
     from bodystudio.calib.calibrate import CalibrationOptions, calibrate_cameras
     from bodystudio.calib.io import save_colmap_model, save_easymocap_yaml
     from bodystudio.calib.observations import detect_capture
+    from bodystudio.calib.render import write_png
+    from bodystudio.calib.uncertainty import UncertainCalibrationError, coverage_image
     from bodystudio.fileio import write_json
     from bodystudio.geometry.camera import save_cameras_json
 
@@ -89,21 +96,38 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
         progress.update(task, total=1, completed=1)
     report = result.report()
     report["detections"] = quality
+    uncertainty = result.uncertainty
+    if not uncertainty.ok and not accept_uncertain:
+        # Nothing a later command would read: the report under its own name, and the one-line verdict.
+        rejected = out.with_name(out.stem + ".rejected.json")
+        write_json(rejected, report)
+        write_png(out.with_name(out.stem + ".rejected.coverage.png"), coverage_image(uncertainty))
+        raise UncertainCalibrationError(f"{uncertainty.summary()}; {out} not written (report: {rejected}); "
+                                        "capture those views or pass --accept-uncertain")
+    if not uncertainty.ok:
+        report["uncertainty"]["verdict"] = "uncertain (accepted)"
+        for line in uncertainty.advice():
+            console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
     save_cameras_json(out, result.rig)
     write_json(out.with_name(out.stem + ".report.json"), report)
+    write_png(out.with_name(out.stem + ".coverage.png"), coverage_image(uncertainty))
     if easymocap:
         save_easymocap_yaml(easymocap, result.rig)
     if colmap:
         save_colmap_model(colmap, result.rig)
     table = Table(title=f"calibration: {len(obs)} corners, {report['n_outliers']} outliers, "
                         f"{result.seconds:.1f} s, world = {result.world_frame}")
-    for col in ("camera", "views", "corners", "outliers", "RMS px", "fx", "fy"):
+    for col in ("camera", "views", "corners", "outliers", "RMS px", "fx", "fy", "centre σ mm", "focal σ %",
+                "coverage %", "verdict"):
         table.add_column(col, justify="right")
     for name, entry in report["cameras"].items():
-        cam = result.rig[name]
+        cam, unc = result.rig[name], uncertainty[name]
         table.add_row(name, str(entry["n_views"]), str(entry["n_corners"]), str(entry["n_outliers"]),
-                      f"{entry['reproj_rms_px']:.3f}", f"{cam.fx:.1f}", f"{cam.fy:.1f}")
-    table.add_row("all", "", str(len(obs)), str(report["n_outliers"]), f"{result.rms_px:.3f}", "", "")
+                      f"{entry['reproj_rms_px']:.3f}", f"{cam.fx:.1f}", f"{cam.fy:.1f}",
+                      f"{unc.center_sigma_mm:.2f}", f"{unc.focal_sigma_pct:.3f}", f"{100 * unc.coverage.fraction:.0f}",
+                      unc.verdict)
+    table.add_row("all", "", str(len(obs)), str(report["n_outliers"]), f"{result.rms_px:.3f}", "", "", "", "", "",
+                  report["uncertainty"]["verdict"])
     Console().print(table)
     typer.echo(f"wrote {out}")
 
