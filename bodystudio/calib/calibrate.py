@@ -526,7 +526,7 @@ def floor_plane_board_pose(spec: CharucoBoardSpec, board_poses: np.ndarray, f: i
             pts.append(P)
     P = np.concatenate(pts)
     mean = P.mean(0)
-    n = np.linalg.svd(P - mean)[2][2]
+    n = np.linalg.svd(P - mean, full_matrices=False)[2][2]
     n = n if n @ n0 > 0 else -n
     x = T0[:3, 0] - (T0[:3, 0] @ n) * n
     x /= np.linalg.norm(x)
@@ -576,7 +576,8 @@ def calibrate_cameras(obs: CharucoObservations, spec: CharucoBoardSpec,
     residuals = reprojection_residuals(obs, spec, rig, boards_world)
     residuals = np.where(np.isfinite(residuals), residuals, 0.0)
     t2 = time.perf_counter()
-    uncertainty = calibration_uncertainty(obs, spec, ba, cams_world, inliers, options)
+    with _single_thread_blas():
+        uncertainty = calibration_uncertainty(obs, spec, ba, cams_world, inliers, options)
     stages["uncertainty"] = time.perf_counter() - t2
     seconds = time.perf_counter() - t0
     result = CalibrationResult(rig, boards_world, obs, inliers, residuals, n_params, world_desc, seconds, stages,
