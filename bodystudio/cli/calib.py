@@ -79,6 +79,8 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
     from bodystudio.fileio import write_json
     from bodystudio.geometry.camera import save_cameras_json
 
+    if distortion_terms not in (4, 5):
+        raise InputError(f"--distortion-terms must be 4 (k1 k2 p1 p2) or 5 (also k3), got {distortion_terms}")
     folder, default_out = _capture_folder(session_or_folder)
     board = board or folder / "board.json"
     if not board.is_file():
