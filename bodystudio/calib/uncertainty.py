@@ -230,6 +230,7 @@ class CalibrationUncertainty:
     residual_sigma_px: float  # per-axis corner noise the fit implies, sqrt(s^2)
     max_center_sigma_mm: float = MAX_CENTER_SIGMA_MM
     max_focal_sigma_pct: float = MAX_FOCAL_SIGMA_PCT
+    sigma_inflation: float = 1.0  # factor the i.i.d. sigmas were scaled by (CalibrationOptions)
 
     @property
     def ok(self) -> bool:
@@ -258,6 +259,7 @@ class CalibrationUncertainty:
 
     def to_dict(self) -> dict:
         return {"verdict": self.verdict, "residual_sigma_px": self.residual_sigma_px,
+                "sigma_inflation": self.sigma_inflation,
                 "thresholds": {"center_sigma_mm": self.max_center_sigma_mm,
                                "focal_sigma_pct": self.max_focal_sigma_pct},
                 "advice": self.advice(), "cameras": {c.name: c.to_dict() for c in self.cameras}}

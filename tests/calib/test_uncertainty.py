@@ -21,10 +21,12 @@ def _capture(cameras, poses, width, seed, noise_px):
 
 
 def _consistency(cases):
+    """With i.i.d. Gaussian corner noise the uninflated covariance is the right one: test the maths there
+    (rendered captures and the default 1.5x inflation: benchmarks/bench_calib.py, docs/calibration.md)."""
     out = []
     for case in cases:
         spec, rig, obs = _capture(*case)
-        res = calibrate_cameras(obs, spec)
+        res = calibrate_cameras(obs, spec, CalibrationOptions(sigma_inflation=1.0))
         out += list(uncertainty_consistency(res.rig, rig, res.uncertainty).values())
     return out
 
@@ -59,12 +61,12 @@ def test_sigmas_predict_the_true_error_over_many_captures():
 
 
 def test_good_capture_is_certain():
-    spec, rig, obs = _capture(6, 20, 1280, 0, 0.3)
+    spec, rig, obs = _capture(8, 24, 1280, 0, 0.2)
     unc = calibrate_cameras(obs, spec).uncertainty
-    assert unc.ok and unc.verdict == "ok" and unc.advice() == []
-    # Measured: centre sigma 0.9-1.6 mm, focal sigma 0.02-0.04 %.
+    assert unc.ok and unc.verdict == "ok" and unc.advice() == [] and unc.sigma_inflation == 1.5
+    # Measured (with the default 1.5x inflation): centre sigma 0.75-1.37 mm, focal sigma <= 0.03 %.
     assert max(c.center_sigma_mm for c in unc.cameras) < 2.0
-    assert max(c.focal_sigma_pct for c in unc.cameras) < 0.08
+    assert max(c.focal_sigma_pct for c in unc.cameras) < 0.05
 
 
 def test_four_cameras_twelve_poses_is_flagged():
