@@ -119,7 +119,7 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
         save_colmap_model(colmap, result.rig)
     table = Table(title=f"calibration: {len(obs)} corners, {report['n_outliers']} outliers, "
                         f"{result.seconds:.1f} s, world = {result.world_frame}")
-    for col in ("camera", "views", "corners", "outliers", "RMS px", "fx", "fy", "centre σ mm", "focal σ %",
+    for col in ("camera", "views", "corners", "outliers", "RMS px", "fx", "fy", "centre sd mm", "focal sd %",
                 "coverage %", "verdict"):
         table.add_column(col, justify="right")
     for name, entry in report["cameras"].items():
