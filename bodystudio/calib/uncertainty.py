@@ -148,12 +148,17 @@ class CameraUncertainty:
     advice: str  # empty when ok
 
     def to_dict(self) -> dict:
+        """JSON-ready; an unobservable (infinite) sigma is ``null``."""
         cov = self.coverage
-        return {"fx_sigma_px": self.fx_sigma_px, "fy_sigma_px": self.fy_sigma_px, "cx_sigma_px": self.cx_sigma_px,
-                "cy_sigma_px": self.cy_sigma_px, "focal_sigma_pct": self.focal_sigma_pct,
-                "center_sigma_mm": self.center_sigma_mm,
-                "center_sigma_xyz_mm": np.sqrt(np.maximum(np.diag(self.center_cov_mm2), 0)).tolist(),
-                "rot_sigma_deg": self.rot_sigma_deg,
+
+        def js(v):
+            return float(v) if np.isfinite(v) else None
+
+        return {"fx_sigma_px": js(self.fx_sigma_px), "fy_sigma_px": js(self.fy_sigma_px),
+                "cx_sigma_px": js(self.cx_sigma_px), "cy_sigma_px": js(self.cy_sigma_px),
+                "focal_sigma_pct": js(self.focal_sigma_pct), "center_sigma_mm": js(self.center_sigma_mm),
+                "center_sigma_xyz_mm": [js(v) for v in np.sqrt(np.abs(np.diag(self.center_cov_mm2)))],
+                "rot_sigma_deg": js(self.rot_sigma_deg),
                 "coverage": {"fraction": cov.fraction, "hull_fraction": cov.hull_fraction,
                              "median_view_fraction": cov.median_view_fraction, "n_views": cov.n_views,
                              "grid_rows_cols": list(cov.grid.shape), "grid": cov.grid.tolist()},

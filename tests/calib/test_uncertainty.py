@@ -1,6 +1,8 @@
 """The calibration's own uncertainty: do the propagated sigmas predict the true error against ground
 truth, and are the known under-constrained captures of issue 16 flagged?"""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -108,6 +110,7 @@ def test_three_cameras_one_view_each_is_flagged():
     assert not unc.ok
     assert all(unc[n].verdict == "uncertain" for n in names[1:])
     assert all(unc[n].center_sigma_mm > 100 for n in names[1:])
+    json.dumps(unc.to_dict(), allow_nan=False)  # strict JSON: an unobservable sigma is null, not Infinity
 
 
 def test_parameter_covariance_matches_linear_regression():
