@@ -132,6 +132,79 @@ def _depth_case(n_poses: int) -> str:
                            "depth centre err mm", "plane fit RMS mm", "time s"], [row])
 
 
+#: The uncertainty validation's 20 rendered captures of varying quality: (cameras, poses, width, seed,
+#: blur px, sensor noise grey levels). The first is the issue's known bad case (4 cameras x 12 poses at
+#: 640x480, seed 0: 70 mm off with 0.41 px RMS before the verdict existed).
+UNCERTAINTY_CASES = (
+    (4, 12, 640, 0, 0.7, 2.0), (4, 12, 640, 1, 0.7, 2.0), (4, 12, 640, 2, 1.2, 4.0), (3, 8, 640, 0, 0.7, 2.0),
+    (3, 10, 640, 1, 0.7, 4.0), (5, 15, 640, 0, 0.7, 2.0), (6, 18, 640, 1, 1.0, 2.0), (4, 20, 640, 3, 0.7, 2.0),
+    (6, 20, 960, 0, 0.7, 2.0), (6, 12, 960, 1, 0.7, 5.0), (4, 16, 960, 2, 0.7, 2.0), (8, 24, 960, 0, 1.0, 2.0),
+    (5, 10, 960, 3, 0.5, 1.0), (6, 20, 1280, 0, 0.7, 2.0), (4, 12, 1280, 1, 0.7, 2.0), (8, 24, 1280, 2, 0.7, 3.0),
+    (10, 30, 1280, 1, 0.7, 2.0), (3, 6, 1280, 0, 0.7, 2.0), (5, 15, 1280, 4, 1.2, 4.0), (10, 20, 1280, 3, 0.7, 2.0),
+    # Spares: captures the calibration refuses (a camera never co-visible, no floor board) have no sigma
+    # to check, so these keep >= 20 calibrated captures.
+    (5, 14, 640, 5, 0.7, 2.0), (6, 16, 960, 6, 1.0, 3.0), (4, 14, 1280, 7, 0.7, 2.0), (7, 21, 960, 8, 0.7, 2.0),
+)
+
+
+def uncertainty_validation(workdir, cases=UNCERTAINTY_CASES) -> tuple[str, dict]:
+    """Render, detect and calibrate each capture; per camera compare the predicted 1-sigma with the true
+    error (``evaluate.uncertainty_consistency``). Returns (markdown table, totals)."""
+    from pathlib import Path
+
+    from bodystudio.calib.board import load_board_json
+    from bodystudio.calib.evaluate import uncertainty_consistency
+    from bodystudio.calib.observations import detect_capture
+    from bodystudio.calib.synthetic import write_synthetic_calibration
+    from bodystudio.errors import BodyStudioError
+    from bodystudio.geometry.camera import load_cameras_json
+
+    rows, n_cams, n_within, n_within_iid, n_flagged, n_bad_unflagged, maha, z = [], 0, 0, 0, 0, 0, [], []
+    for cams, poses, width, seed, blur, noise in cases:
+        folder = Path(workdir) / f"c{cams}_p{poses}_w{width}_s{seed}_b{blur}_n{noise}"
+        label = f"{cams} x {poses} @ {width}, seed {seed}, blur {blur}, noise {noise}"
+        if not (folder / "gt" / "cameras.json").is_file():
+            write_synthetic_calibration(folder, cams, poses, seed, width, width * 3 // 4, blur_px=blur,
+                                        noise_dn=noise)
+        spec = load_board_json(folder / "board.json")
+        try:
+            obs, _ = detect_capture(folder, spec)
+            result = calibrate_cameras(obs, spec)
+        except BodyStudioError as e:
+            rows.append([label, "refused: " + str(e)[:60], "", "", "", "", "", "", ""])
+            continue
+        gt = load_cameras_json(folder / "gt" / "cameras.json")
+        cons = uncertainty_consistency(result.rig, gt, result.uncertainty)
+        v = list(cons.values())
+        k = result.uncertainty.sigma_inflation  # the i.i.d. sigmas are 1/k of the reported ones
+        n_within_iid += sum(max(c[f"{q}_z"] for q in ("fx", "fy", "cx", "cy")) * k <= 3.0
+                            and c["center_mahalanobis2"] * k * k <= 14.156 for c in v)
+        n_cams += len(v)
+        n_within += sum(c["within_3sigma"] for c in v)
+        flagged = [c["verdict"] != "ok" for c in v]
+        n_flagged += sum(flagged)
+        n_bad_unflagged += sum(c["center_err_mm"] > 6.0 and c["verdict"] == "ok" for c in v)
+        maha += [c["center_mahalanobis2"] for c in v]
+        z += [c[f"{k}_z"] for c in v for k in ("fx", "fy", "cx", "cy")]
+        worst = max(v, key=lambda c: c["center_err_mm"])
+        rows.append([label, f"{result.rms_px:.3f}", f"{np.mean([c['center_sigma_mm'] for c in v]):.2f}",
+                     f"{np.mean([c['center_err_mm'] for c in v]):.2f}",
+                     f"{worst['center_err_mm']:.2f} / {worst['center_sigma_mm']:.2f}",
+                     f"{max(c['fx_z'] for c in v):.1f} / {max(c['fy_z'] for c in v):.1f} / "
+                     f"{max(c['cx_z'] for c in v):.1f} / {max(c['cy_z'] for c in v):.1f}",
+                     f"{max(c['center_mahalanobis2'] for c in v):.1f}",
+                     f"{sum(c['within_3sigma'] for c in v)}/{len(v)}", f"{sum(flagged)}/{len(v)}"])
+    table = markdown_table(["capture (cams x poses @ width)", "RMS px", "centre sigma mm (mean)",
+                            "centre err mm (mean)", "worst centre err / sigma mm", "max |z| fx / fy / cx / cy",
+                            "max centre Mahalanobis^2", "cameras within 3 sigma", "cameras flagged"], rows)
+    totals = {"captures_calibrated": sum(1 for r in rows if r[2]), "cameras": n_cams, "within_3sigma": n_within,
+              "within_3sigma_without_inflation": n_within_iid, "flagged": n_flagged,
+              "large_error_not_flagged": n_bad_unflagged,
+              "mean_centre_mahalanobis2": float(np.mean(maha)) if maha else float("nan"),
+              "rms_z_intrinsics": float(np.sqrt(np.mean(np.square(z)))) if z else float("nan")}
+    return table, totals
+
+
 def run(quick: bool = False) -> str:
     import tempfile
     from pathlib import Path
@@ -187,3 +260,12 @@ def run(quick: bool = False) -> str:
             "",
             "Command: `.venv/bin/python -m benchmarks.run --only calib`."]
     return "\n".join(text)
+
+
+if __name__ == "__main__":  # the uncertainty validation alone: python -m benchmarks.bench_calib WORKDIR
+    import json
+    import sys
+
+    table, totals = uncertainty_validation(sys.argv[1] if len(sys.argv) > 1 else "/tmp/calib_uncertainty")
+    print(table)
+    print(json.dumps(totals))

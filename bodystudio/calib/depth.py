@@ -20,6 +20,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from bodystudio.calib.board import CharucoBoardSpec, board_corners
+from bodystudio.calib.render import board_pose_facing, render_board_depth, render_board_view, visible_corners, write_png
 from bodystudio.calib.world import rigid, rigid_inverse, rvec_t_to_rigid
 from bodystudio.errors import SessionError
 from bodystudio.geometry.camera import Camera, RGBDSensor
@@ -203,31 +204,9 @@ def calibrate_rgbd_sensor(sensor: RGBDSensor, spec: CharucoBoardSpec, views: lis
 
 # --- synthetic RGB-D board views --------------------------------------------------------------------
 
-def render_board_depth(depth_cam: Camera, spec: CharucoBoardSpec, board_to_world: np.ndarray,
-                       wall_depth_m: float = 4.0, margin_m: float = 0.03) -> np.ndarray:
-    """Ideal z-depth (H, W) of a board (with its white margin) in front of a fronto-parallel wall."""
-    from bodystudio.calib.synthetic import _camera_key, _supersampled_rays
-
-    xy = _supersampled_rays(_camera_key(depth_cam), 1).reshape(-1, 2).astype(np.float64)
-    uv = xy  # one entry per pixel
-    rays_cam = np.c_[xy, np.ones(len(xy))]
-    B = rigid_inverse(board_to_world)
-    C_b = B[:3, :3] @ depth_cam.center + B[:3, 3]
-    d_b = rays_cam @ (B[:3, :3] @ depth_cam.R.T).T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lam = -C_b[2] / d_b[:, 2]
-    p = C_b + lam[:, None] * d_b
-    w, h = spec.size_m
-    on = (lam > 0) & (p[:, 0] > -margin_m) & (p[:, 0] < w + margin_m) & (p[:, 1] > -margin_m) & (p[:, 1] < h + margin_m)
-    z = np.full(len(uv), wall_depth_m)
-    z[on] = lam[on]  # rays have unit z in the camera frame, so lambda is the z-depth
-    return z.reshape(depth_cam.height, depth_cam.width)
-
-
 def synthetic_rgbd_views(sensor: RGBDSensor, spec: CharucoBoardSpec, board_to_world: np.ndarray, noise_px: float,
                          rng: np.random.Generator) -> list[RGBDBoardView]:
     """Colour ChArUco corners (Gaussian pixel noise) and Kinect-noise depth images of boards in front of a sensor."""
-    from bodystudio.calib.synthetic import visible_corners
     from bodystudio.capture.kinect import quantized_disparity_depth
 
     views = []
@@ -246,8 +225,6 @@ def synthetic_rgbd_views(sensor: RGBDSensor, spec: CharucoBoardSpec, board_to_wo
 
 def rgbd_board_poses(sensor: RGBDSensor, spec: CharucoBoardSpec, n_poses: int, rng: np.random.Generator) -> np.ndarray:
     """Board poses 1.2-2.5 m in front of the sensor, tilted up to ~35 degrees in varied directions."""
-    from bodystudio.calib.synthetic import board_pose_facing, visible_corners
-
     poses = []
     c = sensor.color
     forward = c.R[2]
@@ -301,7 +278,6 @@ def write_synthetic_kinect_views(out, sensor: RGBDSensor, spec: CharucoBoardSpec
     """Render the Kinect's colour images and noisy depth of every board pose into ``out/kinect/{rgb,depth}``."""
     from pathlib import Path
 
-    from bodystudio.calib.synthetic import render_board_view, visible_corners, write_png
     from bodystudio.capture.kinect import quantized_disparity_depth, write_depth_png
 
     out = Path(out)

@@ -79,3 +79,39 @@ def evaluate_rgbd_sensor(est, gt) -> dict:
         out[f"{which}_center_err_mm"] = float(1000 * np.linalg.norm(e.center - g.center))
         out[f"{which}_rot_err_deg"] = rotation_angle_deg(e.R @ g.R.T)
     return out
+
+
+#: chi-square quantile of 3 degrees of freedom at the probability of |z| < 3 for one (99.73 %): the
+#: "within 3 sigma" test of a 3-D error against its covariance.
+CHI2_3DOF_3SIGMA = 14.156
+
+
+def uncertainty_consistency(est: CameraRig, gt: CameraRig, uncertainty) -> dict:
+    """Does a calibration's own uncertainty predict its true error? Per camera: the errors of fx, fy,
+    cx, cy (px) and of the centre (mm) against ground truth, their predicted 1-sigma, the normalised
+    errors ``z = err / sigma`` and ``centre_mahalanobis2 = e^T Sigma^-1 e`` (chi-square with 3 degrees
+    of freedom when the covariance is right), and ``within_3sigma``: every |z| <= 3 and the centre's
+    Mahalanobis distance within the 3-sigma-equivalent chi-square bound (99.73 %).
+
+    ``uncertainty`` is a :class:`bodystudio.calib.uncertainty.CalibrationUncertainty`; both rigs must be
+    in the same world frame (the floor board's, as ``evaluate_calibration`` assumes).
+    """
+    out = {}
+    for cam in uncertainty.cameras:
+        e, g = est[cam.name], gt[cam.name]
+        err = {"fx": e.fx - g.fx, "fy": e.fy - g.fy, "cx": e.K[0, 2] - g.K[0, 2], "cy": e.K[1, 2] - g.K[1, 2]}
+        sig = {"fx": cam.fx_sigma_px, "fy": cam.fy_sigma_px, "cx": cam.cx_sigma_px, "cy": cam.cy_sigma_px}
+        z = {k: abs(err[k]) / sig[k] if sig[k] > 0 else float("inf") for k in err}
+        d_mm = 1000.0 * (e.center - g.center)
+        cov = cam.center_cov_mm2
+        if np.isfinite(cov).all() and np.linalg.matrix_rank(cov) == 3:
+            maha2 = float(d_mm @ np.linalg.solve(cov, d_mm))
+        else:
+            maha2 = float("inf") if np.linalg.norm(d_mm) > 1e-6 else 0.0
+        within = all(v <= 3.0 for v in z.values()) and maha2 <= CHI2_3DOF_3SIGMA
+        out[cam.name] = {**{f"{k}_err_px": float(v) for k, v in err.items()},
+                         **{f"{k}_sigma_px": float(v) for k, v in sig.items()},
+                         **{f"{k}_z": float(v) for k, v in z.items()},
+                         "center_err_mm": float(np.linalg.norm(d_mm)), "center_sigma_mm": cam.center_sigma_mm,
+                         "center_mahalanobis2": maha2, "verdict": cam.verdict, "within_3sigma": bool(within)}
+    return out

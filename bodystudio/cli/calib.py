@@ -66,16 +66,25 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
                                                                          "instead of the floor board"),
               distortion_terms: int = typer.Option(4, help="4: k1 k2 p1 p2, 5: also k3 (wide-angle lenses)"),
               easymocap: Path | None = typer.Option(None, help="also write intri.yml/extri.yml into this folder"),
-              colmap: Path | None = typer.Option(None, help="also write a COLMAP text model into this folder")) -> None:
-    """Calibrate all studio cameras from ChArUco images: intrinsics, bundle adjustment, floor world frame."""
+              colmap: Path | None = typer.Option(None, help="also write a COLMAP text model into this folder"),
+              accept_uncertain: bool = typer.Option(False, "--accept-uncertain",
+                                                    help="write the rig even when a camera's centre sigma > 2 mm "
+                                                         "or focal sigma > 0.5 % (otherwise: exit 2, only the "
+                                                         "report OUT.rejected.json is written)")) -> None:
+    """Calibrate all studio cameras from ChArUco images: intrinsics, bundle adjustment, floor world frame,
+    and each camera's own uncertainty (sigmas, coverage, verdict)."""
     from bodystudio.calib.board import load_board_json
     from bodystudio.calib.calibrate import CalibrationOptions, calibrate_cameras
     from bodystudio.calib.io import calibration_layout, check_colmap_output, save_colmap_model, save_easymocap_yaml
     from bodystudio.calib.observations import detect_capture
-    from bodystudio.fileio import check_output_file, check_output_folder
+    from bodystudio.calib.render import write_png
+    from bodystudio.calib.uncertainty import UncertainCalibrationError, coverage_image
+    from bodystudio.fileio import check_output_file, check_output_folder, write_json
     from bodystudio.geometry.camera import save_cameras_json
     from bodystudio.runfolder import RunWriter, check_output_destination
 
+    if distortion_terms not in (4, 5):
+        raise InputError(f"--distortion-terms must be 4 (k1 k2 p1 p2) or 5 (also k3), got {distortion_terms}")
     folder, default_out = _capture_folder(session_or_folder)
     if not folder.is_dir():
         raise InputError(f"{session_or_folder}: no such capture folder (cam_NN/FFFFF.png board images)")
@@ -110,7 +119,10 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
             raise InputError(f"{option} {target}: is a file; give a folder for the exported model")
         if target is not None:
             check_output_destination(target / "x", f"{option} folder")
-    # cameras.json, the exports and the report (written last, with their sha256) appear together or not at all.
+    rejected = out.with_name(out.stem + ".rejected.json")
+    rejected_png = out.with_name(out.stem + ".rejected.coverage.png")
+    # cameras.json, its coverage map, the exports and the report (written last, with their sha256) appear
+    # together or not at all; an uncertain calibration writes only its rejected report, the previous rig stays.
     with RunWriter(calibration_layout(out), "bodystudio calibrate", {"capture": str(folder)}) as writer:
         with _progress() as progress:
             obs, quality = detect_capture(folder, spec, progress=progress)
@@ -119,21 +131,39 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
             progress.update(task, total=1, completed=1)
         report = result.report()
         report["detections"] = quality
+        uncertainty = result.uncertainty
+        if not uncertainty.ok and not accept_uncertain:
+            # Nothing a later command would read: the report under its own name, and the one-line verdict.
+            write_json(rejected, report)
+            write_png(rejected_png, coverage_image(uncertainty))
+            raise UncertainCalibrationError(f"{uncertainty.summary()}; {out} not written (report: {rejected}); "
+                                            "capture those views or pass --accept-uncertain")
+        if not uncertainty.ok:
+            report["uncertainty"]["verdict"] = "uncertain (accepted)"
+            for line in uncertainty.advice():
+                console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
         save_cameras_json(writer.path_for(out.name), result.rig)
+        write_png(writer.path_for(out.stem + ".coverage.png"), coverage_image(uncertainty))
         if easymocap:
             save_easymocap_yaml(writer.path_for(easymocap.absolute()), result.rig)
         if colmap:
             save_colmap_model(writer.path_for(colmap.absolute()), result.rig)
         report = writer.commit(report)
+    for stale in (rejected, rejected_png):  # a rejected report of an earlier run no longer describes `out`
+        stale.unlink(missing_ok=True)
     table = Table(title=f"calibration: {len(obs)} corners, {report['n_outliers']} outliers, "
                         f"{result.seconds:.1f} s, world = {result.world_frame}")
-    for col in ("camera", "views", "corners", "outliers", "RMS px", "fx", "fy"):
+    for col in ("camera", "views", "corners", "outliers", "RMS px", "fx", "fy", "centre sd mm", "focal sd %",
+                "coverage %", "verdict"):
         table.add_column(col, justify="right")
     for name, entry in report["cameras"].items():
-        cam = result.rig[name]
+        cam, unc = result.rig[name], uncertainty[name]
         table.add_row(name, str(entry["n_views"]), str(entry["n_corners"]), str(entry["n_outliers"]),
-                      f"{entry['reproj_rms_px']:.3f}", f"{cam.fx:.1f}", f"{cam.fy:.1f}")
-    table.add_row("all", "", str(len(obs)), str(report["n_outliers"]), f"{result.rms_px:.3f}", "", "")
+                      f"{entry['reproj_rms_px']:.3f}", f"{cam.fx:.1f}", f"{cam.fy:.1f}",
+                      f"{unc.center_sigma_mm:.2f}", f"{unc.focal_sigma_pct:.3f}", f"{100 * unc.coverage.fraction:.0f}",
+                      unc.verdict)
+    table.add_row("all", "", str(len(obs)), str(report["n_outliers"]), f"{result.rms_px:.3f}", "", "", "", "", "",
+                  report["uncertainty"]["verdict"])
     Console().print(table)
     typer.echo(f"wrote {out}")
 

@@ -21,15 +21,15 @@ def test_small_rig_accuracy(small_capture, small_calibration):
     scores = evaluate_calibration(res.rig, rig, res.report())
     worst = scores["max"]
     # Looser than the 10-camera acceptance (see docs/calibration.md): 4 cameras at 640x480 see few boards.
-    # Measured on seeds 1-3 with the protocol's pose plan: <= 11.7 mm, 0.81 deg, 0.58 %, 0.56 px.
-    assert worst["center_err_mm"] < 20
-    assert worst["rot_err_deg"] < 1.2
-    assert worst["focal_err_pct"] < 1.0
-    assert scores["overall"]["volume_reproj_rms_px"] < 1.5
+    # Measured on this capture (seed 1): 11.6 mm, 0.62 deg, 0.32 %, 0.37 px; bounds ~1.5x that.
+    assert worst["center_err_mm"] < 17.5
+    assert worst["rot_err_deg"] < 0.95
+    assert worst["focal_err_pct"] < 0.5
+    assert scores["overall"]["volume_reproj_rms_px"] < 0.56
     assert set(scores["cameras"]) == set(rig.names)
-    # The world frame comes from the floor board: board 0 lies in y = 0.
+    # The world frame comes from the floor board: board 0 lies in y = 0 (measured 0.4 mm, 0.038 deg).
     floor = res.board_to_world[0]
-    assert abs(floor[1, 3]) < 0.02 and np.degrees(np.arccos(min(1, -floor[1, 2]))) < 1.0
+    assert abs(floor[1, 3]) < 0.002 and np.degrees(np.arccos(min(1, -floor[1, 2]))) < 0.06
 
 
 def test_bundle_adjustment_beats_chained_stereo(small_capture, small_calibration):
@@ -47,7 +47,19 @@ def test_outliers_are_rejected(small_capture):
     n_out = int((~res.inliers).sum())
     assert 0.01 * len(obs) < n_out < 0.04 * len(obs)
     assert res.rms_px < 1.15 * res.expected_rms_px(NOISE_PX)
-    assert evaluate_calibration(res.rig, rig)["max"]["center_err_mm"] < 60
+    assert evaluate_calibration(res.rig, rig)["max"]["center_err_mm"] < 21.5  # measured 14.4 mm
+
+
+def test_robust_loss_defeats_outliers_that_break_least_squares(small_capture):
+    """20 % of the corners displaced 5-20 px: plain least squares in the first pass is pulled so far
+    that the MAD rejection keeps ~40 outliers (measured: 0.82 px RMS, 36.9 mm); the soft-L1 pass lets
+    the rejection find them all (0.27 px, 8.8 mm)."""
+    spec, rig, poses, _ = small_capture
+    obs = synthetic_charuco_observations(rig, spec, poses, NOISE_PX, np.random.default_rng(7), outlier_fraction=0.2)
+    res = calibrate_cameras(obs, spec)
+    assert 0.17 * len(obs) < int((~res.inliers).sum()) < 0.23 * len(obs)
+    assert res.rms_px < 1.15 * res.expected_rms_px(NOISE_PX)
+    assert evaluate_calibration(res.rig, rig)["max"]["center_err_mm"] < 13.0
 
 
 def test_mad_outliers_flags_only_the_gross_errors():

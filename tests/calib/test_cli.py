@@ -61,7 +61,8 @@ def test_rendered_capture_end_to_end(tmp_path, capsys):
     assert main(["synth", "calibration", str(cap), "--cameras", "4", "--poses", "12", "--seed", "3",
                  "--kinect", "v2"]) == 0
     est = tmp_path / "est"
-    assert main(["calibrate", str(cap), "--out", str(est / "cameras.json"), "--easymocap", str(tmp_path / "em")]) == 0
+    assert main(["calibrate", str(cap), "--out", str(est / "cameras.json"), "--easymocap", str(tmp_path / "em"),
+                 "--accept-uncertain"]) == 0
     assert (tmp_path / "em" / "extri.yml").is_file()
     assert main(["calib", "kinect", str(cap), "--report", str(est / "cameras.report.json"),
                  "--out", str(est / "kinect.json")]) == 0
