@@ -30,8 +30,8 @@ def _one_line(err):
 
 
 @pytest.mark.parametrize(("extra", "phrase"), [
-    (["--reference-camera", "cam_99"], "reference camera 'cam_99' is not in the capture"),
-    (["--floor-frame", "99"], "floor board frame 99 is not in the capture"),
+    (["--reference-camera", "cam_99"], "--reference-camera cam_99: no such camera"),
+    (["--floor-frame", "99"], "--floor-frame 99: no camera has this frame"),
     (["--distortion-terms", "7"], "--distortion-terms must be 4"),
     (["--board", "/nonexistent/board.json"], "board description not found"),
 ])
