@@ -355,18 +355,11 @@ def recover(path: str | os.PathLike) -> list[str]:
 # ---------------------------------------------------------------------------------------------- writer
 
 def check_output_destination(path: str | os.PathLike, what: str = "output") -> None:
-    """Refuse, before any work, a destination that cannot be written: an existing folder in place of a
-    file, a file in place of one of its folders, or a folder without write permission."""
-    path = Path(path)
-    if path.is_dir():
-        raise FileFormatError(f"{path}: is a folder; give a file path for the {what}")
-    parent = path.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not parent.is_dir():
-        raise FileFormatError(f"{parent}: is a file, so {path} cannot be written; choose another {what} path")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise FileFormatError(f"{parent}: not writable, so {path} cannot be written; choose another {what} path")
+    """Refuse, before any work, a destination that cannot be written (see :func:`fileio.check_output_file`:
+    a folder in the file's place, a file where one of its folders should be, an unwritable place)."""
+    from bodystudio.fileio import check_output_file
+
+    check_output_file(path, what)
 
 
 def new_run_id() -> str:

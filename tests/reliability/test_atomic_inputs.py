@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from bodystudio.cli.main import main
-from bodystudio.errors import BodyStudioError, FileFormatError, SessionError
+from bodystudio.errors import BodyStudioError, FileFormatError, InputError, SessionError
 from bodystudio.reconstruct.rapid_skin import RapidSkinParams
 from bodystudio.reconstruct.sequence import (
     evaluate_session,
@@ -202,7 +202,7 @@ def test_leftover_staging_must_be_recovered_before_a_new_run(session, capsys):
 def test_output_destination_that_is_a_folder_is_refused_before_the_commit(tmp_path):
     layout = RunLayout(tmp_path / "out", "run.json", ".", str(tmp_path / "out"))
     (tmp_path / "out" / "a.json").mkdir(parents=True)
-    with pytest.raises(FileFormatError, match="a.json: is a folder"):
+    with pytest.raises(InputError, match="a.json: is a folder"):
         with RunWriter(layout, "test") as w:
             w.write_json("a.json", {})
             w.commit({})
