@@ -5,12 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from bodystudio.cli.demo import run_demo
+from bodystudio.demo import run_demo
 
 
 @pytest.mark.slow
 def test_demo_runs_the_available_stages_and_writes_a_report(tmp_path, chromium, monkeypatch):
-    import bodystudio.cli.demo as demo
+    import bodystudio.demo as demo
 
     # The same code path on a smaller scan and template: the rig fit dominates the demo's time.
     monkeypatch.setattr(demo, "RIG_TEMPLATE", "2k")
@@ -64,3 +64,40 @@ def test_demo_bad_skip_is_one_line(tmp_path):
     with pytest.raises(InputError, match="not a demo stage"):
         run_demo(tmp_path / "d", skip=("nope",))
     assert not (tmp_path / "d").exists()
+
+
+def _raise_import(ctx):
+    from bodystudio.not_a_module import nothing  # noqa: F401  (a stage whose module is missing)
+
+
+def test_demo_stage_that_fails_to_import_is_a_failure_with_exit_2(tmp_path, monkeypatch, capsys):
+    import bodystudio.demo as demo
+    from bodystudio.cli.main import main
+
+    monkeypatch.setattr(demo, "STAGES", [("session", _raise_import), ("reconstruct", demo.stage_reconstruct)])
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--no-3d"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "stages failed: session, reconstruct" in err[0] and "ModuleNotFoundError" in err[0]
+    rows = json.loads((out / "demo.json").read_text())["stages"]
+    assert [r["status"] for r in rows] == ["failed", "failed"]
+    assert "needs the session stage, which failed" in rows[1]["summary"]
+    assert (out / "report.html").is_file()
+
+
+def test_demo_stage_needing_a_skipped_stage_is_skipped(tmp_path, monkeypatch):
+    import bodystudio.demo as demo
+
+    monkeypatch.setattr(demo, "STAGES", [("session", _raise_import), ("reconstruct", demo.stage_reconstruct)])
+    _, stages = run_demo(tmp_path / "d", skip=("session",), with_3d=False)
+    assert [r["status"] for r in stages] == ["skipped", "skipped"]
+    assert "needs the session stage, which was skipped" in stages[1]["summary"]
+
+
+def test_first_frame_timing_is_reported_apart():
+    from bodystudio.demo import split_first_frame, timing_text
+
+    t = split_first_frame([3956.0, 270.0, 264.0])
+    assert t == {"first_frame_ms": 3956.0, "ms_per_frame": 267.0}
+    assert timing_text(t).startswith("267 ms per frame after the first frame 3956 ms")
+    assert split_first_frame([500.0])["ms_per_frame"] is None
