@@ -14,6 +14,10 @@ a 1.5K-vertex arm: 7 MB) plus the weights track, ``T^2`` floats (200 frames: 160
 
 from __future__ import annotations
 
+import contextlib
+import os
+import shutil
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -197,3 +201,48 @@ def write_ply_sequence(folder: str | Path, frames: np.ndarray, faces: np.ndarray
         save_mesh(p, Mesh(V, faces))
         paths.append(p)
     return paths
+
+
+def check_new_output(path: str | Path, what: str = "output") -> Path:
+    """Refuse (InputError, one line) an output path that exists or whose folder cannot be written.
+
+    Called before any work starts, so a bad ``--out`` costs nothing and leaves nothing behind.
+    """
+    path = Path(path)
+    if path.exists() or path.is_symlink():
+        raise InputError(f"{path}: {what} already exists; choose a new path or remove it")
+    parent = path.parent
+    while not parent.exists():  # the first existing ancestor is where the folders will be created
+        if parent == parent.parent:
+            break
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(f"{path}: {parent} is not a folder; choose another {what} path")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{path}: cannot write in {parent} (permission denied); choose another {what} path")
+    return path
+
+
+@contextlib.contextmanager
+def staged_output_folder(out: str | Path, what: str = "output folder") -> Iterator[Path]:
+    """Yield an empty staging folder beside ``out``; on success rename it to ``out`` (the commit point).
+
+    The whole output appears at once or not at all: an exception removes the staging folder, and a
+    process killed before the rename leaves only a hidden ``.NAME.staging-PID`` folder, never a
+    half-written ``out`` that a reader could take for a result.
+    """
+    out = check_new_output(out, what)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = out.parent / f".{out.name}.staging-{os.getpid()}"
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir()
+    try:
+        yield staging
+        try:
+            os.rename(staging, out)
+        except OSError as exc:
+            raise InputError(f"{out}: could not commit the output ({exc.strerror}); another writer may have "
+                             "created it meanwhile") from None
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise

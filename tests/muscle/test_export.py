@@ -91,3 +91,39 @@ def test_reading_junk_glb_is_one_line(tmp_path):
     junk.write_bytes(b"glTF" + b"\x00" * 40)
     with pytest.raises(FileFormatError, match="not a morph-target arm sequence"):
         read_morph_glb(junk)
+
+
+def test_staged_output_folder_appears_whole_or_not_at_all(tmp_path):
+    from bodystudio.muscle.export import staged_output_folder
+
+    out = tmp_path / "capture"
+    with pytest.raises(RuntimeError), staged_output_folder(out) as staging:
+        (staging / "00000.ply").write_text("half")
+        raise RuntimeError("killed mid-write")
+    assert list(tmp_path.iterdir()) == []  # neither the output nor the staging folder remains
+    with staged_output_folder(out) as staging:
+        (staging / "a.txt").write_text("x")
+        assert not out.exists()
+    assert (out / "a.txt").read_text() == "x" and list(tmp_path.iterdir()) == [out]
+    with pytest.raises(InputError, match="already exists"), staged_output_folder(out):
+        pass
+
+
+def test_new_output_in_unwritable_folder_is_refused(tmp_path):
+    import os
+
+    from bodystudio.muscle.export import check_new_output
+
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        if os.access(locked, os.W_OK):
+            pytest.skip("running as root: permissions are not enforced")
+        with pytest.raises(InputError, match="permission denied"):
+            check_new_output(locked / "sub" / "out.glb")
+    finally:
+        locked.chmod(0o700)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="is not a folder"):
+        check_new_output(tmp_path / "file" / "out")
