@@ -15,6 +15,7 @@ a 1.5K-vertex arm: 7 MB) plus the weights track, ``T^2`` floats (200 frames: 160
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import shutil
 from collections.abc import Iterator
@@ -218,8 +219,15 @@ def check_new_output(path: str | Path, what: str = "output") -> Path:
         parent = parent.parent
     if not parent.is_dir():
         raise InputError(f"{path}: {parent} is not a folder; choose another {what} path")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise InputError(f"{path}: cannot write in {parent} (permission denied); choose another {what} path")
+    import tempfile
+
+    try:  # a real probe: os.access says yes to root on read-only or virtual file systems (/sys, /proc)
+        fd, probe = tempfile.mkstemp(prefix=".bodystudio-probe-", dir=parent)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        reason = "permission denied" if exc.errno in (errno.EACCES, errno.EPERM) else exc.strerror
+        raise InputError(f"{path}: cannot write in {parent} ({reason}); choose another {what} path") from None
     return path
 
 

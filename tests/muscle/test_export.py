@@ -127,3 +127,10 @@ def test_new_output_in_unwritable_folder_is_refused(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(InputError, match="is not a folder"):
         check_new_output(tmp_path / "file" / "out")
+
+
+def test_new_output_on_a_virtual_file_system_is_refused():
+    from bodystudio.muscle.export import check_new_output
+
+    with pytest.raises(InputError, match="cannot write in /sys"):
+        check_new_output("/sys/arm_capture")
