@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from bodystudio.errors import InputError, SessionError
+from bodystudio.errors import FileFormatError, InputError, SessionError
 from bodystudio.geometry.mesh import vertex_normals
 from bodystudio.muscle.arm import ArmPose, ArmTemplate, part_transforms, pose_arm
 from bodystudio.muscle.depth import DepthCleanupOptions, clean_depth, depth_point_cloud
@@ -103,6 +103,7 @@ class ArmCapture:
     template_key: str
     timings_ms: dict = field(default_factory=dict)  # step -> total milliseconds over the sequence
     frame_ids: list = field(default_factory=list)
+    session_path: str | None = None  # the captured session (set by capture_arm_sequence)
 
     @property
     def n_frames(self) -> int:
@@ -289,22 +290,26 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
             want = TRACKER_JOINTS[template.side]
             if all(n in names for n in want):
                 tracker = fr.kinect_joints["positions"][[names.index(n) for n in want]]
-    return capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids))
+    capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids))
+    capture.session_path = str(Path(session.path).resolve())
+    return capture
 
 
-def write_arm_capture(out_dir: str | Path, capture: ArmCapture) -> Path:
-    """PLY sequence + ``params.json`` (poses, shape, similarity, timings) + manifest, committed as one folder."""
+def write_arm_capture(out_dir: str | Path, capture: ArmCapture, fps: float = 30.0) -> Path:
+    """PLY sequence, ``arm.glb`` (morph-target animation), ``params.json`` and manifest, committed as one folder."""
     from bodystudio.fileio import write_json
-    from bodystudio.muscle.export import staged_output_folder, write_ply_sequence
+    from bodystudio.muscle.export import staged_output_folder, write_morph_glb, write_ply_sequence
 
     with staged_output_folder(out_dir, "arm capture folder") as stage:
         write_ply_sequence(stage / "meshes", capture.vertices, capture.faces)
+        write_morph_glb(stage / "arm.glb", capture.vertices, capture.faces, fps=fps)
         s, R, t = capture.similarity
         params = {"mode": capture.mode, "template_key": capture.template_key, "frame_ids": list(capture.frame_ids),
                   "shape": None if capture.shape is None else _shape_dict(capture.shape),
                   "poses": [None if p is None else p.to_dict() for p in capture.poses],
                   "similarity": {"scale": float(s), "R": np.asarray(R).tolist(), "t": np.asarray(t).tolist()},
-                  "timings_ms": capture.timings_ms, "ms_per_frame": capture.ms_per_frame}
+                  "timings_ms": capture.timings_ms, "ms_per_frame": capture.ms_per_frame,
+                  "session": capture.session_path}
         write_json(stage / "params.json", params)
         write_json(stage / "manifest.json", {"format": "bodystudio-arm-capture", "version": 1,
                                              "n_frames": capture.n_frames, "meshes": "meshes/NNNNN.ply",
@@ -319,15 +324,33 @@ def _shape_dict(shape) -> dict:
         return {"vector": np.asarray(shape.as_vector(), float).tolist()}
 
 
-def load_capture_params(folder: str | Path) -> dict:
-    """The ``params.json`` of a written capture folder."""
-    p = Path(folder) / "params.json"
+def load_arm_capture(folder: str | Path) -> ArmCapture:
+    """Read a folder written by :func:`write_arm_capture`; junk or missing files raise FileFormatError."""
+    from bodystudio.geometry.mesh import load_mesh
+
+    folder = Path(folder)
+    p = folder / "params.json"
     try:
-        return json.loads(p.read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{p}: not a readable arm capture params file ({exc}); re-run bodystudio muscle capture") \
-            from None
+        params = json.loads(p.read_text())
+        n = int(json.loads((folder / "manifest.json").read_text())["n_frames"])
+        meshes = [load_mesh(folder / "meshes" / f"{k:05d}.ply") for k in range(n)]
+        sim = params["similarity"]
+        S = (float(sim["scale"]), np.asarray(sim["R"], float).reshape(3, 3), np.asarray(sim["t"], float).reshape(3))
+        poses = [None if d is None else ArmPose.from_dict(d, str(p)) for d in params["poses"]]
+        V = np.stack([np.asarray(m.vertices, float) for m in meshes])
+        F = np.asarray(meshes[0].faces, np.int64)
+    except (OSError, ValueError, KeyError, TypeError, IndexError, InputError) as exc:
+        raise FileFormatError(f"{folder}: not a readable arm capture folder ({type(exc).__name__}: {exc}); "
+                              "re-run bodystudio muscle capture") from None
+    shape = params.get("shape")
+    if shape is not None and "vector" not in shape:
+        from bodystudio.muscle.model import ArmShapeParams
+
+        shape = ArmShapeParams(**shape)
+    return ArmCapture(V, F, poses, shape, S, params.get("mode", "full"), params.get("template_key", ""),
+                      dict(params.get("timings_ms", {})), list(params.get("frame_ids", range(n))),
+                      params.get("session"))
 
 
 __all__ = ["MODES", "ArmCapture", "CaptureOptions", "CorrespondenceFilters", "NicpOptions", "capture_arm_frames",
-           "capture_arm_sequence", "write_arm_capture"]
+           "capture_arm_sequence", "load_arm_capture", "write_arm_capture"]
