@@ -132,6 +132,40 @@ def capture(
 EVAL_KEYS = ("median_mm", "p90_mm", "front_median_mm", "back_median_mm", "bulge_err_mm", "jitter_mm", "ms_per_frame")
 
 
+def session_arm_template(session):
+    """The arm template of the session's subject (its rest joints score the joint angles)."""
+    try:
+        from bodystudio.muscle.synthetic import session_arm_template as from_session
+    except ImportError:  # M-CORE's helper not in this checkout yet: the same from gt/phenotype.json
+        from bodystudio.body import Phenotype, build_body
+        from bodystudio.muscle.arm import arm_template
+        from bodystudio.muscle.synthetic import session_arm_subject
+
+        def from_session(session):
+            arm = session_arm_subject(session)
+            gt = session.gt_subject
+            body = build_body(Phenotype.from_dict(gt["phenotype"]), gt.get("local") or {},
+                              resolution=arm["resolution"])
+            return arm_template(body, arm["side"])
+    return from_session(session)
+
+
+def evaluate_capture_folder(folder: Path, session_path: Path | None = None) -> dict:
+    """Issue 11's figures of a written arm capture folder against its session's ground truth."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.muscle.capture import load_arm_capture
+    from bodystudio.muscle.evaluate import evaluate_arm_capture
+
+    if not Path(folder).is_dir():
+        raise InputError(f"{folder}: no such arm capture folder; make one with `bodystudio muscle capture`")
+    capture = load_arm_capture(folder)
+    source = session_path or capture.session_path
+    if source is None:
+        raise InputError(f"{folder}: params.json names no session; pass --session SESSION")
+    session = open_session(source)
+    return evaluate_arm_capture(capture, session, session_arm_template(session))
+
+
 @eval_cli.app.command("muscle")
 def eval_muscle(
     folder: Path = typer.Argument(..., metavar="DIR", help="arm capture folder (bodystudio muscle capture)"),
@@ -139,9 +173,143 @@ def eval_muscle(
                                              "recorded in DIR/params.json)"),
 ) -> None:
     """Score an arm capture against the session's ground truth; prints JSON (errors in mm)."""
-    from bodystudio.muscle.evaluate import evaluate_arm_capture_folder
-
-    scores = evaluate_arm_capture_folder(folder, session_path)
+    scores = evaluate_capture_folder(folder, session_path)
     out = {k: round(float(scores[k]), 3) for k in EVAL_KEYS if k in scores}
     out.update({k: round(v, 3) if isinstance(v, float) else v for k, v in scores.items() if k not in out})
     typer.echo(json.dumps(out))
+
+
+# --- the model ------------------------------------------------------------------------------------------
+
+def _parse_shape(text: str):
+    """``bmi=31,muscularity=0.3,height_m=1.62,arm_length_m=0.55`` -> ArmShapeParams."""
+    from bodystudio.muscle.model import SHAPE_NAMES, ArmShapeParams
+
+    values = {}
+    for part in text.split(","):
+        name, eq, value = part.partition("=")
+        try:
+            values[name.strip()] = float(value)
+        except ValueError:
+            raise InputError(f"--shape {text!r}: write NAME=VALUE pairs for {', '.join(SHAPE_NAMES)}") from None
+        if not eq or name.strip() not in SHAPE_NAMES:
+            raise InputError(f"--shape {text!r}: names are {', '.join(SHAPE_NAMES)}")
+    shape = ArmShapeParams.from_dict(values, "--shape")
+    for name, lo, hi in (("bmi", 10, 60), ("muscularity", 0, 1), ("height_m", 1.0, 2.3), ("arm_length_m", 0.3, 1.0)):
+        check_range(f"--shape {name}", getattr(shape, name), lo, hi)
+    return shape
+
+
+def _capture_samples(capture, name: str, shape, stride: int):
+    """Captured frames as training samples in template space (the inverse of the §5.1 similarity)."""
+    try:
+        from bodystudio.muscle.model import capture_samples
+    except ImportError:  # M-CORE's helper not in this checkout yet
+        capture_samples = None
+    if capture_samples is not None:
+        return capture_samples(capture, name, shape, stride)
+    import numpy as np
+
+    from bodystudio.muscle.model import ArmSample
+
+    s, R, t = capture.similarity
+    out = []
+    for k in range(0, capture.n_frames, stride):
+        if capture.poses[k] is None:
+            continue
+        V = ((np.asarray(capture.vertices[k]) - t) @ R) / s
+        out.append(ArmSample(name, shape, V, capture.poses[k]))
+    return out
+
+
+@model_app.command("build")
+def model_build(
+    out: Path = typer.Option(..., "--out", help="new model file (.npz)"),
+    resolution: str = typer.Option("6k", "--resolution", help="arm template: 6k | 2k | full"),
+    side: str = typer.Option("left", "--side", help="left | right"),
+    subjects: int = typer.Option(10, "--subjects", help="training subjects (men, BMI 20-28, as the paper's)"),
+    shapes: int = typer.Option(3, "--shapes", help="base-pose meshes per subject"),
+    poses: int = typer.Option(24, "--poses", help="posed meshes per subject"),
+    regularization: float = typer.Option(1.0, "--regularization", help="Tikhonov weight of Eq. 6-10"),
+    seed: int = typer.Option(0, "--seed", help="training subjects and poses"),
+) -> None:
+    """Learn the statistical arm model (§6.1) from the synthetic high-fidelity training dataset."""
+    from bodystudio.muscle.model import learn_arm_model, save_arm_model
+    from bodystudio.muscle.synthetic import training_dataset
+
+    check_choice("--resolution", resolution, RESOLUTIONS)
+    check_choice("--side", side, SIDES)
+    check_range("--subjects", subjects, 2, 100)
+    check_range("--shapes", shapes, 1, 10)
+    check_range("--poses", poses, 1, 500)
+    check_range("--regularization", regularization, 0.0, 1e6)
+    check_range("--seed", seed, 0, 2**31 - 1)
+    if out.suffix.lower() != ".npz":
+        raise InputError(f"--out {out}: an arm model is a .npz file")
+    from bodystudio.muscle.export import check_new_output
+
+    check_new_output(out, "model file")
+    samples, _ = training_dataset(resolution, subjects, shapes, poses, seed, side)
+    model = learn_arm_model(samples, _arm_template(resolution, side), regularization)
+    save_arm_model(out, model)
+    typer.echo(f"wrote {out}: {len(model.subjects)} subjects, {len(samples)} meshes, template {model.template_key}")
+
+
+@model_app.command("extend")
+def model_extend(
+    model_path: Path = typer.Argument(..., metavar="MODEL", help="arm model (.npz)"),
+    captures: list[Path] = typer.Argument(..., metavar="CAPTURES...", help="arm capture folders to add"),
+    out: Path = typer.Option(..., "--out", help="new model file (.npz)"),
+    shape: str | None = typer.Option(None, "--shape", help="shape of the captured subject(s): "
+                                     "bmi=..,muscularity=..,height_m=..,arm_length_m=.. (default: the session's "
+                                     "measured subject, else the capture's fitted shape)"),
+    stride: int = typer.Option(5, "--stride", help="use every N-th captured frame"),
+) -> None:
+    """Dataset extension (issue 11 §4): add captured subjects to a model and re-learn it."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.errors import BodyStudioError
+    from bodystudio.muscle.capture import load_arm_capture
+    from bodystudio.muscle.export import check_new_output
+    from bodystudio.muscle.model import ArmShapeParams, extend_arm_model, load_arm_model, save_arm_model
+
+    check_range("--stride", stride, 1, 1000)
+    if out.suffix.lower() != ".npz":
+        raise InputError(f"--out {out}: an arm model is a .npz file")
+    given = _parse_shape(shape) if shape is not None else None
+    check_new_output(out, "model file")
+    model = load_arm_model(model_path)
+    samples = []
+    for folder in captures:
+        if not folder.is_dir():
+            raise InputError(f"{folder}: no such arm capture folder")
+        capture = load_arm_capture(folder)
+        if capture.template_key != model.template_key:
+            raise InputError(f"{folder}: captured on arm template {capture.template_key}, the model's is "
+                             f"{model.template_key}; capture with the model's --resolution and --side")
+        if capture.mode == "nicp" or capture.poses[0] is None:
+            raise InputError(f"{folder}: captured with --no-model (no joint angles); capture with --model")
+        subject_shape = given
+        if subject_shape is None and capture.session_path is not None:
+            try:
+                subject = (open_session(capture.session_path).gt_subject or {}).get("arm", {}).get("subject")
+                subject_shape = ArmShapeParams.from_dict(subject) if subject else None
+            except BodyStudioError:
+                subject_shape = None
+        if subject_shape is None:
+            subject_shape = capture.shape
+        samples += _capture_samples(capture, f"capture_{folder.resolve().name}", subject_shape, stride)
+    extended = extend_arm_model(model, samples)
+    save_arm_model(out, extended)
+    typer.echo(f"wrote {out}: {len(extended.subjects)} subjects ({len(captures)} added from captures)")
+
+
+@model_app.command("info")
+def model_info(model_path: Path = typer.Argument(..., metavar="MODEL", help="arm model (.npz)")) -> None:
+    """Print the model's template, version, subjects and the range of their shape parameters (JSON)."""
+    from bodystudio.muscle.model import load_arm_model
+
+    model = load_arm_model(model_path)
+    info = {"template_key": model.template_key, "version": model.version, "n_vertices": model.n_vertices,
+            "regularization": model.regularization, "n_subjects": len(model.subjects),
+            "shape_range": model.shape_range() if model.subjects else {}, "subjects": model.subjects}
+    typer.echo(json.dumps(info, indent=2))
