@@ -45,7 +45,14 @@ from bodystudio.body.measure import measure_body
 from bodystudio.body.population import sample_subject
 from bodystudio.errors import InputError
 from bodystudio.geometry.mesh import Mesh
-from bodystudio.muscle.arm import ArmPose, ArmTemplate, arm_pose_from_body_pose, arm_template, body_pose_from_arm_pose
+from bodystudio.muscle.arm import (
+    ArmPose,
+    ArmTemplate,
+    arm_pose_from_body_pose,
+    arm_template,
+    body_pose_from_arm_pose,
+    pose_arm,
+)
 
 log = logging.getLogger(__name__)
 
@@ -480,4 +487,55 @@ def session_arm_subject(session) -> dict:
 __all__ = ["ARM_MOTIONS", "FPS", "ArmAngles", "ArmSubject", "MuscleVariation", "anatomical_angles", "arm_motion",
            "arm_angle_sequence", "arm_pose_from_angles", "arm_sensor", "muscle_activations",
            "muscle_amplitude_m", "muscle_displacement", "posed_ground_truth", "sample_arm_subject",
-           "session_arm_subject", "subject_body", "synth_arm_session"]
+           "session_arm_subject", "subject_body", "synth_arm_session", "training_dataset", "subject_arm_samples",
+           "random_arm_poses"]
+
+
+# --- the "previous high-fidelity dataset" ------------------------------------------------------------------
+
+TRAINING_BMI_RANGE = (20.0, 28.0)
+
+
+def random_arm_poses(template: ArmTemplate, n_poses: int, seed: int, pronation: bool = True) -> list[ArmPose]:
+    """``n_poses`` seeded poses over the captured range: flexion 10-145, elevation 15-100, twist -20..60 deg."""
+    rng = np.random.default_rng([seed, 77])
+    return [arm_pose_from_angles(template, rng.uniform(10, 145), rng.uniform(15, 100),
+                                 rng.uniform(-20, 60) if pronation else 0.0, rng.uniform(-10, 30))
+            for _ in range(n_poses)]
+
+
+def subject_arm_samples(subject: ArmSubject, resolution: str = "6k", n_shapes: int = 3, n_poses: int = 24,
+                        seed: int = 0, side: str = "left", name: str | None = None) -> list:
+    """Ground-truth training meshes (``model.ArmSample``) of one subject: base-pose shapes + posed meshes.
+
+    The ``n_shapes`` base-pose meshes differ by a few degrees of joint angle (as the paper's meshes
+    "in the same pose as the base mesh" do); the posed meshes follow :func:`random_arm_poses`.
+    """
+    from bodystudio.muscle.model import ArmSample, ArmShapeParams
+
+    body = subject_body(subject, resolution)
+    T = arm_template(body, side)
+    shape = ArmShapeParams(subject.bmi, subject.muscularity, subject.height_m, subject.arm_length_m)
+    variation = MuscleVariation.from_seed(subject.seed)
+    rng = np.random.default_rng([seed, subject.seed, 5])
+    poses = [ArmPose(np.eye(4), rng.normal(0, np.deg2rad(2.0), (3, 3))) for _ in range(n_shapes)]
+    poses += random_arm_poses(T, n_poses, seed * 1000 + subject.seed, pronation=True)
+    name = name or f"subject_{subject.seed}"
+    out = []
+    for ap in poses:
+        V = pose_arm(T.vertices + muscle_displacement(T, subject, ap, variation), T.part_weights, T.joints, ap)
+        out.append(ArmSample(name, shape, V, ap, T.joints.copy()))
+    return out
+
+
+def training_dataset(resolution: str = "6k", n_subjects: int = 10, n_shapes: int = 3, n_poses: int = 24,
+                     seed: int = 0, side: str = "left") -> tuple[list, list[ArmSubject]]:
+    """The paper's "previous high-fidelity dataset" as ground-truth meshes (§6.1, issue 11 §1).
+
+    ``n_subjects`` men with BMI in 20-28 (seeds 1000 + i), each with ``n_shapes`` base-pose meshes and
+    ``n_poses`` posed meshes. Returns (samples, subjects).
+    """
+    subjects = [sample_arm_subject(1000 + 17 * seed + i, gender="male", bmi_range=TRAINING_BMI_RANGE)
+                for i in range(n_subjects)]
+    samples = [s for subj in subjects for s in subject_arm_samples(subj, resolution, n_shapes, n_poses, seed, side)]
+    return samples, subjects

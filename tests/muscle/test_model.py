@@ -1,0 +1,105 @@
+"""The statistical arm deformation model: learning, Eq. 12 with the norm limit, files, extension."""
+
+import numpy as np
+import pytest
+
+from bodystudio.errors import FileFormatError, InputError
+from bodystudio.muscle.arm import ArmPose, arm_template, pose_arm
+from bodystudio.muscle.model import (
+    ArmSample,
+    ArmShapeParams,
+    extend_arm_model,
+    learn_arm_model,
+    limit_displacement_norms,
+    load_arm_model,
+    model_error_mm,
+    model_mesh,
+    save_arm_model,
+    unpose_arm,
+)
+from bodystudio.muscle.synthetic import arm_pose_from_angles, sample_arm_subject, subject_arm_samples
+
+
+def test_unpose_inverts_pose_arm(arm_template_2k):
+    T = arm_template_2k
+    ap = arm_pose_from_angles(T, 120, 80, 40)
+    V = pose_arm(T.vertices, T.part_weights, T.joints, ap)
+    np.testing.assert_allclose(unpose_arm(V, T.part_weights, T.joints, ap), T.vertices, atol=1e-9)
+
+
+def test_model_reproduces_training_meshes(arm_model_2k, arm_training_2k):
+    samples, subjects = arm_training_2k
+    model = arm_model_2k
+    assert [s["name"] for s in model.subjects] == [f"subject_{s.seed}" for s in subjects]
+    err = model_error_mm(model, samples, norm_limit=0.0, use_sample_joints=True)
+    # Plain skinning of the population mean arm: what the model starts from.
+    mean_only = [pose_arm(model.base_vertices + s.joints[0], model.part_weights, s.joints, s.pose) for s in samples]
+    start = np.mean([1000 * np.linalg.norm(V - s.vertices, axis=1)[model.arm_mask].mean()
+                     for V, s in zip(mean_only, samples, strict=True)])
+    assert err["mean_mm"] < 4.8  # measured 3.2
+    assert start > 4 * err["mean_mm"]
+
+
+def test_pose_term_carries_the_bulges_and_norm_limit_moves_toward_skinning(arm_model_2k, arm_training_2k):
+    samples, _ = arm_training_2k
+    flexed = [s for s in samples if np.abs(s.pose.angles).max() > 0.5]
+    e = {nl: model_error_mm(arm_model_2k, flexed, nl, use_sample_joints=True)["mean_mm"] for nl in (0.0, 0.9, 1.0)}
+    assert e[0.0] < e[0.9] < e[1.0]
+    assert e[1.0] > 1.5 * e[0.0]
+
+
+def test_limit_displacement_norms():
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(50, 3))
+    n = np.linalg.norm(d, axis=1)
+    np.testing.assert_allclose(limit_displacement_norms(d, 0.0), d)
+    assert np.abs(limit_displacement_norms(d, 1.0)).max() == 0.0
+    lim = np.linalg.norm(limit_displacement_norms(d, 0.9), axis=1)
+    np.testing.assert_allclose(lim.max(), 0.1 * n.max())
+    small = n <= 0.1 * n.max()
+    np.testing.assert_allclose(lim[small], n[small])
+    with pytest.raises(InputError, match="norm_limit"):
+        limit_displacement_norms(d, 1.5)
+
+
+def test_save_load_round_trip_and_refusals(arm_model_2k, arm_template_2k, muscular_body_2k, tmp_path):
+    path = tmp_path / "arm.npz"
+    save_arm_model(path, arm_model_2k)
+    loaded = load_arm_model(path, arm_template_2k)
+    assert loaded.subjects == arm_model_2k.subjects and loaded.template_key == arm_model_2k.template_key
+    subject = sample_arm_subject(1000)
+    params = ArmShapeParams(subject.bmi, subject.muscularity, subject.height_m, subject.arm_length_m)
+    ap = arm_pose_from_angles(arm_template_2k, 110, 60)
+    np.testing.assert_allclose(model_mesh(loaded, params, ap), model_mesh(arm_model_2k, params, ap), atol=1e-12)
+    with pytest.raises(InputError, match="template"):
+        load_arm_model(path, arm_template(muscular_body_2k, "right"))
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a zip file")
+    with pytest.raises(FileFormatError, match="junk.npz"):
+        load_arm_model(junk)
+    with pytest.raises(InputError, match="no such"):
+        load_arm_model(tmp_path / "missing.npz")
+
+
+def test_learning_refuses_bad_training_data(arm_template_2k, arm_training_2k):
+    samples, _ = arm_training_2k
+    posed_only = [s for s in samples if np.abs(s.pose.angles).max() > 0.5][:3]
+    with pytest.raises(InputError, match="base pose"):
+        learn_arm_model(posed_only, arm_template_2k, population_size=12)
+    wrong = [ArmSample("x", samples[0].shape, samples[0].vertices[:-1], ArmPose.rest(), None)]
+    with pytest.raises(InputError, match="template"):
+        learn_arm_model(wrong, arm_template_2k, population_size=12)
+    with pytest.raises(InputError, match="already"):
+        extend_arm_model(learn_arm_model(samples[:10], arm_template_2k, population_size=12), samples[:10])
+
+
+def test_extension_lowers_out_of_range_error(arm_model_2k):
+    """Dataset extension (issue §4): adding short / thin subjects helps another short, thin subject."""
+    kw = dict(gender="female", bmi_range=(16.0, 18.0), height_range_m=(1.48, 1.56))
+    captured = [s for seed in (301, 302) for s in subject_arm_samples(sample_arm_subject(seed, **kw), "2k", 1, 6)]
+    test = subject_arm_samples(sample_arm_subject(310, **kw), "2k", 1, 6, seed=3)
+    extended = extend_arm_model(arm_model_2k, captured)
+    assert len(extended.subjects) == len(arm_model_2k.subjects) + 2
+    before = model_error_mm(arm_model_2k, test, 0.0, use_sample_joints=True)["mean_mm"]
+    after = model_error_mm(extended, test, 0.0, use_sample_joints=True)["mean_mm"]
+    assert after < 0.8 * before  # measured 17.8 -> 11.3 mm
