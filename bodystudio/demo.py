@@ -1,7 +1,8 @@
 """The demo: the main job on the built-in synthetic studio, ending in an HTML report (``bodystudio demo``).
 
 Steps: build and measure bodies (default female, default male, population subjects) -> synthesise a
-short session (subject, cameras, Kinect) -> calibrate -> reconstruct -> rig a synthetic scan -> report.
+short session (subject, cameras, Kinect) -> calibrate -> reconstruct -> rig a synthetic scan -> capture a
+Kinect arm sequence with the arm-muscle pipeline -> report.
 Every stage runs through its Python API (no subprocesses) and writes under the output folder. A stage
 that cannot be imported or raises is a *failure* (every stage exists in this checkout); only stages
 the user leaves out with ``skip`` are "skipped". A stage that needs another (reconstruct needs the
@@ -263,6 +264,61 @@ def stage_rig(ctx: DemoContext) -> str:
             f"joint error {scores.get('joint_err_mm_mean', float('nan')):.1f} mm mean")
 
 
+# A short arm sequence on the 2k template and a small model keep the muscle stage to ~half a minute;
+# `bodystudio muscle model build` and benchmarks/bench_muscle.py run the full-size versions.
+MUSCLE_SUBJECT = 7  # arm subject of the demo sequence (population seed; not a training subject)
+MUSCLE_FRAMES = 10
+MUSCLE_RESOLUTION = "2k"
+MUSCLE_TRAINING = {"n_subjects": 4, "n_shapes": 2, "n_poses": 8}
+MUSCLE_POPULATION = 16  # bodies behind the model's length/joint regressions (the CLI's default is 40)
+
+
+def stage_muscle(ctx: DemoContext) -> str:
+    """Arm-muscle capture: a Kinect arm sequence with bulging muscles, a small arm model, the full pipeline."""
+    import shutil
+
+    from bodystudio.body import build_body
+    from bodystudio.fileio import write_json
+    from bodystudio.muscle.arm import arm_template
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence, write_arm_capture
+    from bodystudio.muscle.evaluate import evaluate_arm_capture
+    from bodystudio.muscle.model import learn_arm_model, save_arm_model
+    from bodystudio.muscle.synthetic import sample_arm_subject, subject_body, synth_arm_session, training_dataset
+    from bodystudio.viewer.arm import arm_payload, open_arm_view, scene_for_arm_sequence
+    from bodystudio.viewer.scene import make_plotter, save_screenshot
+
+    folder = ctx.out / "muscle"
+    if folder.exists():
+        shutil.rmtree(folder)  # the demo owns its output folder; a rerun starts fresh
+    subject = sample_arm_subject(MUSCLE_SUBJECT)
+    session = synth_arm_session(folder / "session", subject=subject, motion="elbow_flex", n_frames=MUSCLE_FRAMES,
+                                kinect="v2", distance_m=1.0, resolution=MUSCLE_RESOLUTION)
+    template = arm_template(build_body(resolution=MUSCLE_RESOLUTION), "left")
+    samples, _ = training_dataset(MUSCLE_RESOLUTION, **MUSCLE_TRAINING)
+    model = learn_arm_model(samples, template, population_size=MUSCLE_POPULATION)
+    save_arm_model(folder / "arm_model.npz", model)
+    capture = capture_arm_sequence(session, model, template, CaptureOptions(mode="full"))
+    write_arm_capture(folder / "capture", capture)
+    truth_template = arm_template(subject_body(subject, MUSCLE_RESOLUTION), "left")
+    scores = evaluate_arm_capture(capture, session, truth_template)
+    view = open_arm_view(folder / "capture")
+    per_frame = [{"frame": f, "median_err_mm": round(float(np.median(view.errors_mm(k)[truth_template.arm_mask])), 3)}
+                 for k, f in enumerate(view.frame_ids)]
+    write_json(folder / "eval.json", {**scores, "per_frame": per_frame, "subject": subject.summary(),
+                                      "model_subjects": len(model.subjects)})
+    k_last = len(view.frame_ids) - 1
+    plotter = scene_for_arm_sequence(view, view.frame_ids[k_last], make_plotter())
+    save_screenshot(plotter, ctx.out / "screenshots" / "arm_capture.png")
+    payload = arm_payload(view, plotter, start=view.frame_ids[k_last])
+    plotter.close()
+    ctx.scenes.append(("arm-muscle capture: arm coloured by error vs truth, Kinect depth points "
+                       "(slider: frame)", payload))
+    return (f"{capture.n_frames} frames of elbow flexion, subject BMI {subject.bmi:.1f}: median "
+            f"{scores['median_mm']:.1f} mm, p90 {scores['p90_mm']:.1f} mm, back {scores['back_median_mm']:.1f} mm, "
+            f"bulge error {scores['bulge_err_mm']:.1f} mm, {scores['ms_per_frame']:.0f} ms per frame; "
+            f"{folder / 'capture' / 'arm.glb'}")
+
+
 def _session_views(ctx: DemoContext) -> None:
     """Screenshot and 3D view of the session (with the reconstruction's error map when it ran)."""
     from bodystudio.viewer.scene import save_screenshot
@@ -283,6 +339,7 @@ STAGES: list[tuple[str, Callable[[DemoContext], str]]] = [
     ("calibrate", stage_calibrate),
     ("reconstruct", stage_reconstruct),
     ("rig", stage_rig),
+    ("muscle", stage_muscle),
 ]
 
 #: stage -> the stage whose output it needs

@@ -278,8 +278,16 @@ def metrics_files(root: Path) -> list[Path]:
             continue
         if p.name.startswith(".") or p.stat().st_size > MAX_JSON_BYTES:
             continue
+        if _is_arm_capture_file(p):  # per-frame poses and transforms: data, not metrics
+            continue
         files.append(p)
     return files
+
+
+def _is_arm_capture_file(p: Path) -> bool:
+    from bodystudio.viewer.arm import is_arm_capture
+
+    return p.name in ("params.json", "manifest.json") and is_arm_capture(p.parent)
 
 
 def screenshot_files(root: Path, exclude: Path | None = None) -> list[Path]:
