@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -41,14 +41,18 @@ from bodystudio.muscle.nicp import (
     closest_point_correspondences,
     filter_correspondences,
     nonrigid_icp,
+    plane_targets,
     rigid_alignment_with_scale,
     vertex_neighbourhoods,
 )
 from bodystudio.muscle.refine import (
+    DepthFrame,
+    arm_pose_from_part_transforms,
     correspondence_weights,
     fit_shape_parameters,
     initial_arm_pose_from_joints,
     model_based_filtering,
+    procrustes_part_transforms,
     refine_surface,
     time_consistent_correspondences,
 )
@@ -76,10 +80,14 @@ class CaptureOptions:
     refine_iterations: int = 4
     joint_radius_m: float = 0.06  # Sec. 7.2 closeness-to-joint factor
     joint_gain: float = 1.0
+    tracker_weight: float = 1.0  # body-tracker joints in the shape fit (per coordinate, vs 1 per depth pair)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape
     # parameters (height, arm length) carry the subject's size instead.
     with_scale: bool = False
+    # Rotation likewise: a one-sided view of a near-cylinder leaves the roll about the arm free
+    # (measured: 18 deg roll, 18 -> 25 mm on the first frame; translation only: 18 -> 15.5 mm).
+    with_rotation: bool = False
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -104,6 +112,7 @@ class ArmCapture:
     timings_ms: dict = field(default_factory=dict)  # step -> total milliseconds over the sequence
     frame_ids: list = field(default_factory=list)
     session_path: str | None = None  # the captured session (set by capture_arm_sequence)
+    stages: dict = field(default_factory=dict)  # "nicp" / "model": (T, n, 3) world meshes of the earlier steps
 
     @property
     def n_frames(self) -> int:
@@ -134,9 +143,10 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                        frame_ids: list | None = None) -> ArmCapture:
     """The Arm-Muscle Capture pipeline on depth maps (metres, 0 = none) of one depth ``camera``.
 
-    ``tracker_joints`` (3, 3): shoulder, elbow, wrist of the first frame from the body tracker; they
-    start the alignment when the arm is not in the base pose (without them the template starts in
-    its base pose at the cloud's centroid, as the paper's Sec. 5.1 prescribes for the subject).
+    ``tracker_joints`` (T, 3, 3): shoulder, elbow, wrist per frame from the body tracker (world). The
+    first frame's start the alignment when the arm is not in the base pose (without them the template
+    starts in its base pose at the cloud's centroid, as the paper's Sec. 5.1 prescribes for the
+    subject); the first ``shape_frames`` inform the arm length in the shape fit.
     """
     o = options
     if o.mode != "nicp" and model is None:
@@ -148,8 +158,18 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         raise InputError("no depth frames to capture")
     timer = _Timer()
     F = np.asarray(template.faces, np.int64)
-    base, W, J = template.vertices, template.part_weights, template.joints
+    W = template.part_weights
     arm = template.arm_mask
+    shape = None
+    if model is not None:
+        # The model's own mesh at the population's mean shape is the template (the paper's base mesh).
+        from bodystudio.muscle.model import ArmShapeParams, model_joints, model_rest_vertices
+        from bodystudio.muscle.refine import _shape_bounds
+
+        shape = ArmShapeParams.from_vector(_shape_bounds(model, None)[2])
+        base, J = model_rest_vertices(model, shape), model_joints(model, shape)
+    else:
+        base, J = template.vertices, template.joints
     adjacency = vertex_neighbourhoods(F, len(base), rings=2)
     ids = list(range(len(depths))) if frame_ids is None else list(frame_ids)
 
@@ -168,64 +188,66 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     t0 = time.perf_counter()
     C_world = camera.center
     if tracker_joints is not None:
-        pose0 = initial_arm_pose_from_joints(J, tracker_joints)
+        tracker_joints = np.asarray(tracker_joints, np.float64).reshape(-1, 3, 3)
+        if len(tracker_joints) != len(depths):
+            raise InputError(f"{len(tracker_joints)} tracker joint frames for {len(depths)} depth frames")
+        pose0 = initial_arm_pose_from_joints(J, tracker_joints[0])
     else:
         pose0 = ArmPose.rest()
     posed0 = pose_arm(base, W, J, ArmPose(np.eye(4), pose0.angles))
     P0 = clouds[0][0]
-    start_t = (tracker_joints[0] - J[0]) if tracker_joints is not None else None
+    start_t = (tracker_joints[0, 0] - J[0]) if tracker_joints is not None else None
     initial = None if start_t is None else (1.0, np.eye(3), start_t)
-    S = rigid_alignment_with_scale(posed0, F, P0, C_world, arm, initial=initial, with_scale=o.with_scale)
+    S = rigid_alignment_with_scale(posed0, F, P0, C_world, arm, initial=initial, with_scale=o.with_scale,
+                                   with_rotation=o.with_rotation)
     Sinv = _inverse_similarity(S)
     C = apply_similarity(Sinv, C_world[None])[0]
     clouds_t = [(apply_similarity(Sinv, P), N @ S[1]) for P, N in clouds]
     trees = [cKDTree(P) for P, _ in clouds_t]
+    frames_t = [DepthFrame(P, N, tree, C, arm, adjacency, o.nicp.filters, F)
+                for (P, N), tree in zip(clouds_t, trees, strict=True)]
     timer.add("rigid_alignment", t0)
 
     n_frames = len(depths)
     nicp_meshes, kept_masks = [], []
     model_meshes, poses = [], []
-    shape = None
-    if model is not None:
-        from bodystudio.muscle.model import ArmShapeParams
-        from bodystudio.muscle.refine import _shape_bounds
-
-        shape = ArmShapeParams(*_shape_bounds(model, None)[2])
     system_rest = arap_system(posed0, F)
     current = posed0
-    first_iters = NicpOptions(o.first_frame_nicp_iterations, o.nicp.arap_iterations, o.nicp.data_weight,
-                              o.nicp.filters)
+    first_iters = replace(o.nicp, iterations=o.first_frame_nicp_iterations)
+    root = np.eye(4)
+    n_shape = min(o.shape_frames, n_frames)
     for k in range(n_frames):
         P, N = clouds_t[k]
         t0 = time.perf_counter()
-        system = system_rest if (model is None or k == 0) else arap_system(current, F)
+        system = system_rest if (model is None or k < n_shape) else arap_system(current, F)
         X, pairs = nonrigid_icp(system, F, current, P, N, C, arm, adjacency, first_iters if k == 0 else o.nicp,
                                 tree=trees[k])
         nicp_meshes.append(X)
         kept_masks.append(pairs.kept.astype(np.float64))
         t0 = timer.add("nonrigid_icp", t0)
-        if model is None:
-            current = X
+        current = X
+        if model is None or k + 1 < n_shape:
             continue
-        if k + 1 == min(o.shape_frames, n_frames):
-            # Sec. 6.2: the shape parameters, once per sequence, from the first frames' NICP meshes.
-            from bodystudio.muscle.refine import arm_pose_from_part_transforms, procrustes_part_transforms
-
+        if k + 1 == n_shape:
+            # Sec. 6.2: shape parameters (and the torso placement), once per sequence, from the first
+            # frames' NICP meshes; then every frame so far is projected with them.
             fit_poses = [arm_pose_from_part_transforms(procrustes_part_transforms(base, m, W, w + 0.05))
                          for m, w in zip(nicp_meshes, kept_masks, strict=True)]
-            shape = fit_shape_parameters(model, nicp_meshes, fit_poses, [w + 0.05 for w in kept_masks], shape)
+            tj = None if tracker_joints is None else apply_similarity(Sinv, tracker_joints[:n_shape].reshape(-1, 3))
+            shape, root = fit_shape_parameters(model, nicp_meshes, fit_poses, frames_t[:n_shape], shape,
+                                               tracker_joints=None if tj is None else tj.reshape(-1, 3, 3),
+                                               tracker_weight=o.tracker_weight)
+            base, J = model_rest_vertices(model, shape), model_joints(model, shape)
             t0 = timer.add("shape_fit", t0)
-            # Re-project the frames seen so far with the fitted shape.
-            model_meshes.clear()
-            poses.clear()
-            for m, w in zip(nicp_meshes[:-1], kept_masks[:-1], strict=True):
-                mm, pp = model_based_filtering(model, shape, m, base, W, J, w, o.norm_limit, o.refine_pose)
-                model_meshes.append(mm)
-                poses.append(pp)
-        mm, pp = model_based_filtering(model, shape, X, base, W, J, kept_masks[-1], o.norm_limit, o.refine_pose)
-        model_meshes.append(mm)
-        poses.append(pp)
-        current = mm
+            todo = range(n_shape)
+        else:
+            todo = [k]
+        for j in todo:
+            mm, pp = model_based_filtering(model, shape, root, nicp_meshes[j], base, W, kept_masks[j], frames_t[j],
+                                           o.norm_limit, o.refine_pose)
+            model_meshes.append(mm)
+            poses.append(pp)
+        current = model_meshes[-1]
         timer.add("model_filtering", t0)
 
     if model is None:
@@ -236,7 +258,10 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     else:
         out_t = _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, J, o, timer)
     out = np.stack([apply_similarity(S, X) for X in out_t])
-    return ArmCapture(out, F, poses, shape, S, o.mode, template.key, timer.ms, ids)
+    stages = {"nicp": np.stack([apply_similarity(S, X) for X in nicp_meshes])}
+    if model_meshes:
+        stages["model"] = np.stack([apply_similarity(S, X) for X in model_meshes])
+    return ArmCapture(out, F, poses, shape, S, o.mode, template.key, timer.ms, ids, stages=stages)
 
 
 def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, joints, o: CaptureOptions, timer):
@@ -247,7 +272,8 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
         Nv = vertex_normals(M, F)
         pairs = closest_point_correspondences(M, P, N, tree)
         pairs = filter_correspondences(M, Nv, pairs, C, arm, adjacency, o.nicp.filters)
-        vecs.append(np.where(pairs.kept[:, None], pairs.targets - M, 0.0))
+        # Along the depth point's normal only (point-to-plane, as in NICP): the rest is sliding.
+        vecs.append(np.where(pairs.kept[:, None], plane_targets(M, pairs) - M, 0.0))
         valid.append(pairs.kept)
     out = []
     n = len(model_meshes)
@@ -278,18 +304,18 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
         raise SessionError(f"{session.path}: no Kinect calibration; the arm capture needs a depth session")
     ids = session.frame_ids[frames] if frames is not None else session.frame_ids
     depths = []
-    tracker = None
-    for k, fid in enumerate(ids):
+    tracker = []
+    for fid in ids:
         fr = session.frame(fid)
         d = fr.kinect_depth_m
         if d is None:
             raise SessionError(f"{session.path}: frame {fid} has no Kinect depth image")
         depths.append(d)
-        if k == 0 and fr.kinect_joints is not None:
-            names = fr.kinect_joints["names"]
-            want = TRACKER_JOINTS[template.side]
-            if all(n in names for n in want):
-                tracker = fr.kinect_joints["positions"][[names.index(n) for n in want]]
+        joints = fr.kinect_joints
+        want = TRACKER_JOINTS[template.side]
+        if joints is not None and all(n in joints["names"] for n in want):
+            tracker.append(joints["positions"][[joints["names"].index(n) for n in want]])
+    tracker = np.stack(tracker) if len(tracker) == len(ids) else None
     capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids))
     capture.session_path = str(Path(session.path).resolve())
     return capture

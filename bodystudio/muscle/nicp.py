@@ -56,7 +56,7 @@ def rigid_alignment_with_scale(vertices: np.ndarray, faces: np.ndarray, points: 
                                sensor_center: np.ndarray, vertex_mask: np.ndarray | None = None,
                                initial: tuple[float, np.ndarray, np.ndarray] | None = None,
                                iterations: int = 30, max_distance_m: float = 0.03, with_scale: bool = True,
-                               scale_range: tuple[float, float] = (0.85, 1.15),
+                               scale_range: tuple[float, float] = (0.85, 1.15), with_rotation: bool = True,
                                ) -> tuple[float, np.ndarray, np.ndarray]:
     """Global similarity (scale + rotation + translation) of the template onto the first frame, Sec. 5.1.
 
@@ -89,7 +89,10 @@ def rigid_alignment_with_scale(vertices: np.ndarray, faces: np.ndarray, points: 
         if keep.sum() < 10:
             raise InputError("rigid alignment found fewer than 10 template-to-depth pairs; "
                              "start the sequence with the arm in the template's base pose facing the sensor")
-        step = similarity_transform(X[front][keep], P[j[keep]], with_scale=with_scale)
+        if with_rotation:
+            step = similarity_transform(X[front][keep], P[j[keep]], with_scale=with_scale)
+        else:
+            step = (1.0, np.eye(3), (P[j[keep]] - X[front][keep]).mean(axis=0))
         s0, R0, t0 = T
         s1, R1, t1 = step
         s1 = float(np.clip(s1 * s0, *scale_range)) / s0

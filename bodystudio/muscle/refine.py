@@ -10,12 +10,14 @@ vertex normals and the closeness of the vertex to a joint (Sec. 7.2).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from bodystudio.errors import InputError
-from bodystudio.muscle.arm import ArmPose, pose_arm
+from bodystudio.muscle.arm import ArmPose, part_transforms, pose_arm
 
 # --- Sec. 6.2 mesh projection -------------------------------------------------------------------
 
@@ -71,21 +73,60 @@ def _pose_from_vector(x: np.ndarray) -> ArmPose:
     return ArmPose(root, x[6:15].reshape(3, 3))
 
 
-def refine_arm_pose(pose: ArmPose, residual_mesh, target: np.ndarray, vertex_weights: np.ndarray,
-                    max_nfev: int = 30) -> ArmPose:
-    """Twist refinement of Sec. 6.2: Gauss-Newton on the 15 pose coordinates of ``residual_mesh(pose)``.
+@dataclass(frozen=True, eq=False)
+class DepthFrame:
+    """One frame's depth data for the model fit: points, normals, their k-d tree, sensor, filters."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    tree: object
+    sensor_center: np.ndarray
+    arm_mask: np.ndarray
+    adjacency: object
+    filters: object
+    faces: np.ndarray
+
+    def plane_pairs(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Filtered closest-point pairs of ``vertices`` (Sec. 5.2): vertex ids, depth points, point normals."""
+        from bodystudio.geometry.mesh import vertex_normals
+        from bodystudio.muscle.nicp import closest_point_correspondences, filter_correspondences
+
+        pairs = closest_point_correspondences(vertices, self.points, self.normals, self.tree)
+        pairs = filter_correspondences(vertices, vertex_normals(vertices, self.faces), pairs, self.sensor_center,
+                                       self.arm_mask, self.adjacency, self.filters)
+        k = np.flatnonzero(pairs.kept)
+        return k, pairs.targets[k], pairs.target_normals[k]
+
+
+def _model_residuals(mesh: np.ndarray, pairs, deformed: np.ndarray | None, nicp_weight: float) -> np.ndarray:
+    """Point-to-plane distances of the paired model vertices to the depth points, plus a weak pull to the NICP mesh."""
+    k, q, n = pairs
+    r = [np.einsum("kd,kd->k", mesh[k] - q, n)]
+    if deformed is not None and nicp_weight > 0:
+        r.append(np.sqrt(nicp_weight) * (mesh - deformed).ravel())
+    return np.concatenate(r)
+
+
+def refine_arm_pose(pose: ArmPose, mesh_of_pose, frame: DepthFrame, deformed: np.ndarray | None,
+                    nicp_weight: float = 0.05, rounds: int = 2, max_nfev: int = 20) -> ArmPose:
+    """Twist refinement of Sec. 6.2: Gauss-Newton on the joint angles of the model mesh.
 
     The paper refines the Procrustes transforms "iteratively by using the theory of rigid-body motion
-    and the twist representation"; we refine the joint angles and root of the model mesh itself
-    against ``target`` (weighted per vertex), so the pose that is kept is the one the model needs.
+    and the twist representation" against the ARAP mesh. Our NICP mesh is only reliable along the
+    normals (its vertices slide on the surface), so the angles are fitted to the depth points
+    themselves, point-to-plane over the filtered pairs (re-paired each round), with a weak pull
+    (``nicp_weight`` per coordinate) to the ARAP mesh that holds the unseen side. The root (torso)
+    stays where the sequence fit put it: the subject sits still (Sec. 5.1, 8.1).
     """
-    sw = np.sqrt(np.asarray(vertex_weights, np.float64))[:, None]
+    x = pose.angles.ravel().copy()
+    for _ in range(rounds):
+        pairs = frame.plane_pairs(mesh_of_pose(ArmPose(pose.root, x.reshape(3, 3))))
 
-    def fun(x):
-        return ((residual_mesh(_pose_from_vector(x)) - target) * sw).ravel()
+        def fun(x, pairs=pairs):
+            return _model_residuals(mesh_of_pose(ArmPose(pose.root, x.reshape(3, 3))), pairs, deformed, nicp_weight)
 
-    sol = least_squares(fun, _pose_vector(pose), method="lm", max_nfev=max_nfev, x_scale="jac")
-    return _pose_from_vector(sol.x)
+        x = least_squares(fun, x, method="lm", max_nfev=max_nfev).x
+    return ArmPose(pose.root, x.reshape(3, 3))
 
 
 def initial_arm_pose_from_joints(joints_rest: np.ndarray, tracked: np.ndarray) -> ArmPose:
@@ -116,72 +157,99 @@ def initial_arm_pose_from_joints(joints_rest: np.ndarray, tracked: np.ndarray) -
     return ArmPose(root, angles)
 
 
-def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], vertex_weights: list[np.ndarray],
-                         initial=None):
+def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], frames: list[DepthFrame],
+                         initial=None, nicp_weight: float = 0.0, rounds: int = 2,
+                         tracker_joints: np.ndarray | None = None, tracker_weight: float = 1.0) -> tuple:
     """Shape parameters (BMI, muscularity, height, arm length) of the sequence, fitted once (Sec. 6.2).
 
-    Least squares of ``model_mesh(model, shape, pose_k) - mesh_k`` over the given frames, each vertex
-    weighted by ``vertex_weights`` (the registered, sensor-facing arm vertices), with the poses fixed,
-    bounded to twice the model's training range. Returns an ``ArmShapeParams``.
+    Least squares over the given frames of the model mesh ``model_mesh(model, shape, pose_k)`` against
+    the depth points (point-to-plane over the filtered pairs, re-paired each round) and, weakly, the
+    NICP meshes ``meshes``; the joint angles stay fixed and one rigid root (the torso placement) shared
+    by all frames is fitted alongside: the model's rest mesh moves with height, so shape and placement
+    are only separable together. Bounds: the training range widened by its span on each side.
+    Point-to-plane pairs leave the arm free to slide along itself, so the arm length is poorly seen
+    by the depth alone: ``tracker_joints`` (frames, 3, 3), the body tracker's shoulder, elbow and
+    wrist, add ``tracker_weight`` times their distance to the model's posed joints.
+    Returns ``(ArmShapeParams, root (4, 4))``.
     """
-    from bodystudio.muscle.model import ArmShapeParams, model_mesh
+    from bodystudio.muscle.model import ArmShapeParams, model_joints, model_mesh
 
     if not meshes:
         raise InputError("fit_shape_parameters needs at least one registered frame")
     lo, hi, x0 = _shape_bounds(model, initial)
-    sw = [np.sqrt(w)[:, None] for w in vertex_weights]
+    root0 = poses[0].root
 
-    def fun(x):
-        shape = ArmShapeParams(*x)
-        return np.concatenate([((model_mesh(model, shape, p) - m) * s).ravel()
-                               for m, p, s in zip(meshes, poses, sw, strict=True)])
+    def root_of(x):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_rotvec(x[4:7]).as_matrix() @ root0[:3, :3]
+        T[:3, 3] = root0[:3, 3] + x[7:10]
+        return T
 
-    sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=np.maximum(hi - lo, 1e-3) / 4, max_nfev=40)
-    return ArmShapeParams(*sol.x)
+    def meshes_of(x):
+        shape, root = ArmShapeParams.from_vector(x[:4]), root_of(x)
+        return [model_mesh(model, shape, ArmPose(root, p.angles)) for p in poses]
+
+    x = np.r_[x0, np.zeros(6)]
+    big = np.full(6, np.inf)
+    for _ in range(rounds):
+        pairs = [f.plane_pairs(M) for f, M in zip(frames, meshes_of(x), strict=True)]
+
+        def fun(x, pairs=pairs):
+            r = [_model_residuals(M, pr, d, nicp_weight) for M, pr, d in zip(meshes_of(x), pairs, meshes, strict=True)]
+            if tracker_joints is not None and tracker_weight > 0:
+                shape, root = ArmShapeParams.from_vector(x[:4]), root_of(x)
+                J = model_joints(model, shape)
+                for p, tj in zip(poses, tracker_joints, strict=True):
+                    T = part_transforms(J, ArmPose(root, p.angles))
+                    posed = np.stack([T[k, :3, :3] @ J[k] + T[k, :3, 3] for k in range(3)])
+                    r.append(np.sqrt(tracker_weight) * (posed - tj).ravel())
+            return np.concatenate(r)
+
+        x = least_squares(fun, x, bounds=(np.r_[lo, -big], np.r_[hi, big]),
+                          x_scale=np.r_[np.maximum(hi - lo, 1e-3) / 4, np.full(3, 0.05), np.full(3, 0.01)],
+                          max_nfev=30).x
+    return ArmShapeParams.from_vector(x[:4]), root_of(x)
 
 
 def _shape_bounds(model, initial):
-    """Bounds and start for the shape fit from the model's training subjects (wide, around their range)."""
-    from bodystudio.muscle.model import ArmShapeParams
+    """Bounds and start of the shape fit: the training range widened by its span on each side.
 
-    keys = ("bmi", "muscularity", "height_m", "arm_length_m")
-    defaults = {"bmi": (15.0, 40.0, 23.0), "muscularity": (0.0, 1.0, 0.5), "height_m": (1.4, 2.1, 1.75),
-                "arm_length_m": (0.45, 0.9, 0.6)}
-    subjects = getattr(model, "subjects", None) or []
-    lo, hi, x0 = [], [], []
-    for k in keys:
-        vals = [float(s[k]) for s in subjects if isinstance(s, dict) and k in s]
-        dlo, dhi, d0 = defaults[k]
-        if vals:
-            span = max(max(vals) - min(vals), 1e-3)
-            dlo, dhi, d0 = min(vals) - span, max(vals) + span, float(np.mean(vals))
-        if k == "muscularity":
-            dlo, dhi = max(dlo, 0.0), min(dhi, 1.0)
-        lo.append(dlo)
-        hi.append(dhi)
-        x0.append(d0)
-    if initial is not None:
-        x0 = list(np.asarray(ArmShapeParams.as_vector(initial), float))
+    Captured subjects may lie outside the training range (the paper's Table 1); the start is the
+    population centre of the model's parameter normalisation.
+    """
+    from bodystudio.muscle.model import SHAPE_NAMES
+
+    rng = model.shape_range() if getattr(model, "subjects", None) else {}
+    lo, hi = [], []
+    for i, k in enumerate(SHAPE_NAMES):
+        c, sc = float(model.param_center[i]), float(model.param_scale[i])
+        a, b = rng.get(k, (c - sc, c + sc))
+        span = max(b - a, sc)
+        lo.append(a - span)
+        hi.append(b + span)
     lo, hi = np.array(lo), np.array(hi)
-    return lo, hi, np.clip(np.array(x0), lo + 1e-9, hi - 1e-9)
+    lo[1], hi[1] = max(lo[1], 0.0), min(hi[1], 1.0)  # muscularity is a fraction
+    x0 = np.asarray(model.param_center, float) if initial is None else initial.as_vector()
+    return lo, hi, np.clip(x0, lo + 1e-9, hi - 1e-9)
 
 
-def model_based_filtering(model, shape, deformed: np.ndarray, base: np.ndarray, part_weights: np.ndarray,
-                          joints: np.ndarray, vertex_weights: np.ndarray, norm_limit: float = 0.9,
-                          refine_pose: bool = True) -> tuple[np.ndarray, ArmPose]:
-    """Mesh projection of Sec. 6.2: pose by Procrustes (Eq. 11), then the model mesh of Eq. 12.
+def model_based_filtering(model, shape, root: np.ndarray, deformed: np.ndarray, base: np.ndarray,
+                          part_weights: np.ndarray, vertex_weights: np.ndarray, frame: DepthFrame,
+                          norm_limit: float = 0.9, refine_pose: bool = True) -> tuple[np.ndarray, ArmPose]:
+    """Mesh projection of Sec. 6.2: joint angles by Procrustes (Eq. 11), then the model mesh of Eq. 12.
 
-    ``deformed`` is the ARAP mesh of non-rigid ICP; ``base`` the template's base-pose vertices and
-    ``joints`` its rest joints. The Procrustes pose is refined on the model mesh itself (see
-    ``refine_arm_pose``); returns the model mesh (with the ``norm_limit`` displacement limit) and the pose.
+    ``deformed`` is the ARAP mesh of non-rigid ICP, ``base`` the model's rest mesh for ``shape`` and
+    ``root`` the sequence's torso placement (see ``fit_shape_parameters``). The Procrustes angles are
+    refined on the model mesh against the depth points (``refine_arm_pose``); returns the model mesh
+    (with the ``norm_limit`` displacement limit) and the pose.
     """
     from bodystudio.muscle.model import model_mesh
 
-    T = procrustes_part_transforms(base, deformed, part_weights, vertex_weights + 0.05)
-    pose = arm_pose_from_part_transforms(T)
+    w = vertex_weights + 0.05  # vertices without data still carry their part's rigid motion a little
+    T = procrustes_part_transforms(base, deformed, part_weights, w)
+    pose = ArmPose(root, arm_pose_from_part_transforms(T).angles)
     if refine_pose:
-        pose = refine_arm_pose(pose, lambda p: model_mesh(model, shape, p, norm_limit=norm_limit), deformed,
-                               vertex_weights + 0.05)
+        pose = refine_arm_pose(pose, lambda p: model_mesh(model, shape, p, norm_limit=norm_limit), frame, deformed)
     return model_mesh(model, shape, pose, norm_limit=norm_limit), pose
 
 
