@@ -12,7 +12,8 @@
 * ``d_rho`` (Eq. 10): pose displacements, per-vertex linear regression on the 9 joint-angle
   coordinates (shoulder, elbow, wrist rotation vectors) plus an intercept, of every training mesh
   brought back to the base pose by inverting the four-part skinning, minus its subject's base mesh;
-* the rest joints are regressed on the four shape parameters over the population;
+* the rest joints are regressed on the four shape parameters over the population and the subjects
+  whose joints are known;
 * ``skinning``: :func:`bodystudio.muscle.arm.pose_arm`.
 
 The 90 % displacement-norm limit (§8.2, Fig. 13): "0 % = unlimited, 100 % = simple skinning", the
@@ -52,6 +53,9 @@ MODEL_VERSION = 1
 BASE_POSE_TOL_RAD = np.deg2rad(8.0)
 N_LENGTH_COMPONENTS = 8
 SHAPE_NAMES = ("bmi", "muscularity", "height_m", "arm_length_m")
+# Regressors of the shape term: BMI, muscularity, height (Eq. 6) and arm length (issue 11 §2 lists it with
+# the shape parameters; it lets added subjects correct the population length term at the extremes).
+SHAPE_REGRESSORS = int(os.environ.get("BODYSTUDIO_ARM_SHAPE_REGRESSORS", "4"))
 
 
 @dataclass(frozen=True)
@@ -119,7 +123,7 @@ class ArmModel:
     length_basis: np.ndarray  # (k, 3n) PCA eigenvectors e_j of the population arms
     length_coeffs: np.ndarray  # (2, k) PCA weights = [1, z(arm length)] @ length_coeffs
     joint_coeffs: np.ndarray  # (5, 9) rest joints = [1, z(shape)] @ joint_coeffs
-    shape_coeffs: np.ndarray  # (4, 3n) d_theta = [1, z(bmi, muscularity, height)] @ shape_coeffs
+    shape_coeffs: np.ndarray  # (1 + k, 3n) d_theta = [1, z(first k of SHAPE_NAMES)] @ shape_coeffs
     pose_coeffs: np.ndarray  # (10, 3n) d_rho = [1, 9 joint-angle coordinates] @ pose_coeffs
     param_center: np.ndarray  # (4,) z(x) = (x - center) / scale, order SHAPE_NAMES
     param_scale: np.ndarray  # (4,)
@@ -129,6 +133,8 @@ class ArmModel:
     shape_residuals: np.ndarray  # (R, 3n) its displacement from v_base + d_l
     pose_xtx: np.ndarray  # (10, 10) normal equations of Eq. 10
     pose_xtd: np.ndarray  # (10, 3n)
+    joint_xtx: np.ndarray  # (5, 5) normal equations of the joint regression (population + subjects)
+    joint_xty: np.ndarray  # (5, 9)
     subjects: list = field(default_factory=list)  # [{"name", "shape": {...}, "n_meshes", "source"}]
     version: int = MODEL_VERSION
 
@@ -190,7 +196,7 @@ def length_displacements(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
 
 def shape_displacements(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
     """``d_theta`` (n, 3) = w0 + w1 BMI + w2 muscularity + w3 height (Eq. 6, standardised parameters)."""
-    z = _z(model, shape.as_vector())[:3]
+    z = _z(model, shape.as_vector())[:len(model.shape_coeffs) - 1]
     return (np.r_[1.0, z] @ model.shape_coeffs).reshape(-1, 3)
 
 
@@ -312,11 +318,15 @@ def learn_arm_model(samples: list[ArmSample], template: ArmTemplate, regularizat
     center, scale = popP.mean(axis=0), popP.std(axis=0) + 1e-12
     Zp = (popP - center) / scale
     length_coeffs = tikhonov_least_squares(_design(Zp[:, 3:4]), coeffs, regularization)
-    joint_coeffs = tikhonov_least_squares(_design(Zp), popJ.reshape(N, 9), regularization)
+    Xj = _design(Zp)
+    joint_xtx, joint_xty = Xj.T @ Xj, Xj.T @ popJ.reshape(N, 9)
+    joint_coeffs = tikhonov_from_normal_equations(joint_xtx, joint_xty, regularization)
     model = ArmModel(template.key, template.faces.copy(), template.part_weights.copy(), template.arm_mask.copy(),
                      base.reshape(-1, 3), E, length_coeffs, joint_coeffs,
-                     np.zeros((4, X.shape[1])), np.zeros((10, X.shape[1])), center, scale, float(regularization),
-                     np.zeros((0, 4)), np.zeros((0, X.shape[1])), np.zeros((10, 10)), np.zeros((10, X.shape[1])))
+                     np.zeros((1 + SHAPE_REGRESSORS, X.shape[1])), np.zeros((10, X.shape[1])), center, scale,
+                     float(regularization),
+                     np.zeros((0, 4)), np.zeros((0, X.shape[1])), np.zeros((10, 10)), np.zeros((10, X.shape[1])),
+                     joint_xtx, joint_xty)
     return _add_subjects(model, samples, prior=None, source=source)
 
 
@@ -328,6 +338,7 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
         raise InputError(f"subject(s) {', '.join(clash)} are already in the model; give the new captures other names")
     shape_rows, residuals = [model.shape_rows], [model.shape_residuals]
     xtx, xtd = model.pose_xtx.copy(), model.pose_xtd.copy()
+    jtx, jty = model.joint_xtx.copy(), model.joint_xty.copy()
     subjects = list(model.subjects)
     for name, group in groups.items():
         shape = group[0].shape
@@ -338,14 +349,21 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
         Xp = _design(angles)
         xtx += Xp.T @ Xp
         xtd += Xp.T @ d.reshape(len(d), -1)
+        known = [s.joints for s in group if s.joints is not None]
+        if known:  # subjects with measured joints refine the joint regression (as population rows do)
+            xj = np.r_[1.0, _z(model, shape.as_vector())]
+            jtx += np.outer(xj, xj)
+            jty += np.outer(xj, np.mean(known, axis=0).reshape(9))
         subjects.append({"name": name, "shape": shape.to_dict(), "n_meshes": len(group), "source": source})
     rows, R = np.concatenate(shape_rows), np.concatenate(residuals)
-    Zs = _z(model, rows)[:, :3]
+    Zs = _z(model, rows)[:, :len(model.shape_coeffs) - 1]
     q = model.regularization
     shape_coeffs = tikhonov_least_squares(_design(Zs), R, q)
     pose_coeffs = tikhonov_from_normal_equations(xtx, xtd, q)
-    return replace(model, shape_coeffs=shape_coeffs, pose_coeffs=pose_coeffs, shape_rows=rows, shape_residuals=R,
-                   pose_xtx=xtx, pose_xtd=xtd, subjects=subjects)
+    joint_coeffs = tikhonov_from_normal_equations(jtx, jty, q)
+    return replace(model, shape_coeffs=shape_coeffs, pose_coeffs=pose_coeffs, joint_coeffs=joint_coeffs,
+                   shape_rows=rows, shape_residuals=R, pose_xtx=xtx, pose_xtd=xtd, joint_xtx=jtx, joint_xty=jty,
+                   subjects=subjects)
 
 
 def extend_arm_model(model: ArmModel, captures: list[ArmSample], source: str = "capture") -> ArmModel:
@@ -362,7 +380,7 @@ def extend_arm_model(model: ArmModel, captures: list[ArmSample], source: str = "
 
 _ARRAYS = ("faces", "part_weights", "arm_mask", "base_vertices", "length_basis", "length_coeffs", "joint_coeffs",
            "shape_coeffs", "pose_coeffs", "param_center", "param_scale", "shape_rows", "shape_residuals",
-           "pose_xtx", "pose_xtd")
+           "pose_xtx", "pose_xtd", "joint_xtx", "joint_xty")
 
 
 def save_arm_model(path: str | os.PathLike, model: ArmModel) -> None:
@@ -393,7 +411,7 @@ def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None)
                               f"bodystudio reads version {MODEL_VERSION}); rebuild it with "
                               "`bodystudio muscle model build`")
     n = len(arrays["base_vertices"])
-    if arrays["pose_coeffs"].shape != (10, 3 * n) or arrays["shape_coeffs"].shape != (4, 3 * n) \
+    if arrays["pose_coeffs"].shape != (10, 3 * n) or arrays["shape_coeffs"].shape[1:] != (3 * n,) \
             or not all(np.isfinite(arrays[k]).all() for k in ("base_vertices", "pose_coeffs", "shape_coeffs")):
         raise FileFormatError(f"{path}: arm model arrays are inconsistent or not finite; rebuild the model")
     model = ArmModel(header["template_key"], **{k: arrays[k] for k in _ARRAYS if k != "arm_mask"},
