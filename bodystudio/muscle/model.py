@@ -55,7 +55,7 @@ N_LENGTH_COMPONENTS = 8
 SHAPE_NAMES = ("bmi", "muscularity", "height_m", "arm_length_m")
 # Regressors of the shape term: BMI, muscularity, height (Eq. 6) and arm length (issue 11 §2 lists it with
 # the shape parameters; it lets added subjects correct the population length term at the extremes).
-SHAPE_REGRESSORS = int(os.environ.get("BODYSTUDIO_ARM_SHAPE_REGRESSORS", "4"))
+SHAPE_REGRESSORS = 4
 
 
 @dataclass(frozen=True)
