@@ -410,6 +410,10 @@ def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None)
         raise FileFormatError(f"{path}: arm model version {header.get('version')!r} is not supported (this "
                               f"bodystudio reads version {MODEL_VERSION}); rebuild it with "
                               "`bodystudio muscle model build`")
+    if not isinstance(header.get("template_key"), str) or not isinstance(header.get("regularization"), (int, float)) \
+            or not isinstance(header.get("subjects", []), list):
+        raise FileFormatError(f"{path}: arm model header lacks template_key / regularization / subjects; "
+                              "rebuild it with `bodystudio muscle model build`")
     n = len(arrays["base_vertices"])
     if arrays["pose_coeffs"].shape != (10, 3 * n) or arrays["shape_coeffs"].shape[1:] != (3 * n,) \
             or not all(np.isfinite(arrays[k]).all() for k in ("base_vertices", "pose_coeffs", "shape_coeffs")):

@@ -41,7 +41,6 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from bodystudio.body import Phenotype, build_body, posed_joints
-from bodystudio.body.measure import measure_body
 from bodystudio.body.population import sample_subject
 from bodystudio.errors import InputError
 from bodystudio.geometry.mesh import Mesh
@@ -87,18 +86,12 @@ class ArmSubject:
         return {**self.summary(), "phenotype": self.phenotype.to_dict(), "local": dict(self.local)}
 
 
-def _chain_length(body, side: str = "left") -> float:
-    s = "_l" if side == "left" else "_r"
-    names = body.skeleton.bone_names
-    h = body.skeleton.heads[[names.index(f"{b}{s}") for b in ("upperarm", "lowerarm", "hand")]]
-    return float(np.linalg.norm(h[1] - h[0]) + np.linalg.norm(h[2] - h[1]))
-
-
 def _measure(phenotype: Phenotype, local: dict) -> tuple[float, float, float]:
-    """(BMI, stature m, arm length m) of a subject, measured on the 6k body (mass from its volume)."""
-    body = build_body(phenotype, local, resolution="6k")
-    m = measure_body(body)
-    return m["mass_kg"] / m["stature_m"] ** 2, m["stature_m"], _chain_length(body)
+    """(BMI, stature m, arm length m) of a subject (``model.measure_arm_shape``: 6k body, mass from volume)."""
+    from bodystudio.muscle.model import measure_arm_shape
+
+    p = measure_arm_shape(phenotype, local)
+    return p.bmi, p.height_m, p.arm_length_m
 
 
 def _solve_macro(phenotype: Phenotype, local: dict, name: str, target: float, index: int) -> Phenotype:

@@ -1,5 +1,7 @@
 """The statistical arm deformation model: learning, Eq. 12 with the norm limit, files, extension."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -79,6 +81,14 @@ def test_save_load_round_trip_and_refusals(arm_model_2k, arm_template_2k, muscul
         load_arm_model(junk)
     with pytest.raises(InputError, match="no such"):
         load_arm_model(tmp_path / "missing.npz")
+    # Another format version, and a header without its template key.
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    for header in ({"format": "bodystudio-arm-model", "version": 99}, {"format": "bodystudio-arm-model", "version": 1}):
+        bad = tmp_path / "bad.npz"
+        np.savez(bad, **{**arrays, "header": np.array(json.dumps(header))})
+        with pytest.raises(FileFormatError, match="bad.npz"):
+            load_arm_model(bad)
 
 
 def test_learning_refuses_bad_training_data(arm_template_2k, arm_training_2k):
