@@ -425,3 +425,31 @@ def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None)
         raise InputError(f"{path}: model was built for arm template {model.template_key}, not {template.key}; "
                          "use the same --resolution and --side as the model or rebuild it for this template")
     return model
+
+
+def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, stride: int = 1) -> list[ArmSample]:
+    """Captured frames as training meshes for :func:`extend_arm_model` (issue §4).
+
+    ``capture`` is a ``bodystudio.muscle.capture.ArmCapture``: each ``stride``-th frame with a pose is
+    brought back to template space (inverse of its §5.1 similarity ``(s, R, t)``: ``x = R^T (y - t) / s``)
+    and paired with that pose and ``shape`` (default: the capture's fitted shape). Joints are left to
+    the model's regression, as the capture's model fit used them.
+    """
+    if stride < 1:
+        raise InputError(f"stride={stride} must be >= 1")
+    shape = shape if shape is not None else capture.shape
+    if shape is None:
+        raise InputError(f"capture {name!r} has no shape parameters (a no-model capture); give them with "
+                         "--shape bmi=..,muscularity=..,height_m=..,arm_length_m=..")
+    s, R, t = capture.similarity
+    R, t = np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
+    out = []
+    for k in range(0, len(capture.vertices), stride):
+        if capture.poses[k] is None:
+            continue
+        V = ((np.asarray(capture.vertices[k], dtype=np.float64) - t) @ R) / float(s)
+        out.append(ArmSample(name, shape, V, capture.poses[k]))
+    if not out:
+        raise InputError(f"capture {name!r} has no frames with joint angles (a no-model capture); "
+                         "capture it with the model to extend the dataset")
+    return out

@@ -477,11 +477,28 @@ def session_arm_subject(session) -> dict:
     return gt["arm"]
 
 
-__all__ = ["ARM_MOTIONS", "FPS", "ArmAngles", "ArmSubject", "MuscleVariation", "anatomical_angles", "arm_motion",
-           "arm_angle_sequence", "arm_pose_from_angles", "arm_sensor", "muscle_activations",
-           "muscle_amplitude_m", "muscle_displacement", "posed_ground_truth", "sample_arm_subject",
-           "session_arm_subject", "subject_body", "synth_arm_session", "training_dataset", "subject_arm_samples",
-           "random_arm_poses"]
+def session_arm_template(session) -> ArmTemplate:
+    """The subject's own arm template of an arm session, rebuilt from ``gt/phenotype.json``."""
+    arm = session_arm_subject(session)
+    gt = session.gt_subject
+    try:
+        body = build_body(Phenotype.from_dict(gt["phenotype"]), gt.get("local") or {}, resolution=arm["resolution"])
+        template = arm_template(body, arm["side"])
+    except (KeyError, TypeError) as exc:
+        raise InputError(f"{session.path}: gt/phenotype.json has no usable subject ({exc}); "
+                         "regenerate the session with `bodystudio synth arm`") from None
+    if arm.get("template_key") not in (None, template.key):
+        raise InputError(f"{session.path}: session arm template {arm['template_key']} differs from the one rebuilt "
+                         f"here ({template.key}); regenerate the session with this bodystudio")
+    return template
+
+
+__all__ = [
+    "ARM_MOTIONS", "FPS", "ArmAngles", "ArmSubject", "MuscleVariation", "anatomical_angles", "arm_motion",
+    "arm_angle_sequence", "arm_pose_from_angles", "arm_sensor", "muscle_activations", "muscle_amplitude_m",
+    "muscle_displacement", "posed_ground_truth", "sample_arm_subject", "session_arm_subject", "session_arm_template",
+    "subject_body", "synth_arm_session", "training_dataset", "subject_arm_samples", "random_arm_poses"
+]
 
 
 # --- the "previous high-fidelity dataset" ------------------------------------------------------------------

@@ -117,3 +117,24 @@ def test_extension_lowers_out_of_range_error(arm_model_2k):
     before = model_error_mm(arm_model_2k, test, 0.0)["mean_mm"]
     after = model_error_mm(extended, test, 0.0)["mean_mm"]
     assert after < 0.85 * before  # measured 27.5 -> 20.2 mm
+
+
+def test_capture_samples_undo_the_similarity(arm_training_2k):
+    from types import SimpleNamespace
+
+    from bodystudio.muscle.model import capture_samples
+
+    samples, _ = arm_training_2k
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    s, t = 1.05, np.array([0.1, -0.2, 0.3])
+    frames = np.stack([s * x.vertices @ R.T + t for x in samples[:4]])
+    capture = SimpleNamespace(vertices=frames, poses=[x.pose for x in samples[:3]] + [None],
+                              shape=samples[0].shape, similarity=(s, R, t))
+    out = capture_samples(capture, "cap", stride=1)
+    assert len(out) == 3 and all(o.subject == "cap" and o.shape == samples[0].shape for o in out)
+    np.testing.assert_allclose(out[1].vertices, samples[1].vertices, atol=1e-12)
+    assert len(capture_samples(capture, "cap", stride=2)) == 2
+    with pytest.raises(InputError, match="shape"):
+        capture_samples(SimpleNamespace(**{**capture.__dict__, "shape": None}), "cap")
+    with pytest.raises(InputError, match="joint angles"):
+        capture_samples(SimpleNamespace(**{**capture.__dict__, "poses": [None] * 4}), "cap")

@@ -14,6 +14,7 @@ from bodystudio.muscle.synthetic import (
     muscle_displacement,
     posed_ground_truth,
     sample_arm_subject,
+    session_arm_template,
     subject_body,
     synth_arm_session,
 )
@@ -135,6 +136,8 @@ def test_synth_arm_session_ground_truth_and_depth(tmp_path):
     assert front.sum() > 0.3 * T.arm_mask.sum()
     assert np.median(np.abs(measured[front] - z[ok][front])) < 0.01
     assert session.frame(0).kinect_joints is not None
+    rebuilt = session_arm_template(session)
+    assert rebuilt.key == T.key and np.abs(rebuilt.vertices - T.vertices).max() < 1e-12
 
 
 def test_synth_arm_session_is_deterministic_and_refuses_bad_input(tmp_path):
@@ -147,3 +150,9 @@ def test_synth_arm_session_is_deterministic_and_refuses_bad_input(tmp_path):
         synth_arm_session(tmp_path / "c", subject_seed=4, n_frames=2, resolution="2k", distance_m=9.0)
     with pytest.raises(InputError, match="kinect"):
         synth_arm_session(tmp_path / "d", subject_seed=4, n_frames=2, resolution="2k", kinect="v3")
+    from bodystudio.capture.synth import synth_session
+
+    studio = synth_session(tmp_path / "studio", n_cameras=1, n_frames=1, resolution=(64, 48), kinect=None,
+                           template="2k", n_background=1)
+    with pytest.raises(InputError, match="not an arm session"):
+        session_arm_template(studio)
