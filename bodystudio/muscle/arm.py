@@ -135,7 +135,7 @@ def _region(resolution: str, side: str) -> tuple[np.ndarray, np.ndarray]:
 
 def arm_template(body, side: str = "left") -> ArmTemplate:
     """The shoulder-arm region of ``body`` (a BodyModel) as an :class:`ArmTemplate` (§6.1)."""
-    ids, faces = _region(body.resolution, side)
+    ids, faces = (a.copy() for a in _region(body.resolution, side))
     if body.n_vertices <= ids.max():
         raise InputError(f"body has {body.n_vertices} vertices; the {body.resolution} arm template needs more")
     groups = arm_bone_groups(body.skeleton.bone_names, side)

@@ -230,7 +230,8 @@ def _rest_axes(template: ArmTemplate):
 
 
 def anatomical_angles(template: ArmTemplate, pose: ArmPose) -> ArmAngles:
-    """Elbow flexion (0 = straight), shoulder elevation from hanging (torso frame), forearm twist."""
+    """Elbow flexion (0 = straight), shoulder elevation from hanging (torso frame), forearm twist (same sign
+    convention on both sides, as :func:`arm_pose_from_angles` takes it)."""
     u, f, _ = _rest_axes(template)
     R_s = Rotation.from_rotvec(pose.angles[0])
     R_e = Rotation.from_rotvec(pose.angles[1])
@@ -241,7 +242,8 @@ def anatomical_angles(template: ArmTemplate, pose: ArmPose) -> ArmAngles:
     proj = (q[:3] @ f) * f
     twist = 2 * np.arctan2(np.linalg.norm(proj) * np.sign(q[:3] @ f), q[3]) if np.linalg.norm(proj) > 0 else 0.0
     twist = (twist + np.pi) % (2 * np.pi) - np.pi
-    return ArmAngles(float(flexion), float(elevation), float(np.degrees(twist)))
+    sign = 1.0 if template.side == "left" else -1.0  # mirrored arms pronate the mirrored way
+    return ArmAngles(float(flexion), float(elevation), float(sign * np.degrees(twist)))
 
 
 def muscle_activations(angles: ArmAngles, variation: MuscleVariation) -> np.ndarray:
@@ -310,7 +312,8 @@ def _pronation_slide(template: ArmTemplate, pronation_deg: float) -> np.ndarray:
     V = template.vertices
     s = np.clip((V - e) @ f / np.linalg.norm(w - e), 0.0, 1.0)
     # Skinning twists forearm-weighted points by the whole angle; undo (1 - s) of it at position s.
-    back = -np.deg2rad(pronation_deg) * (1.0 - s) * template.part_weights[:, 2]
+    world_deg = pronation_deg if template.side == "left" else -pronation_deg
+    back = -np.deg2rad(world_deg) * (1.0 - s) * template.part_weights[:, 2]
     R = Rotation.from_rotvec(back[:, None] * f)
     return (R.apply(V - e) + e) - V
 

@@ -156,3 +156,17 @@ def test_synth_arm_session_is_deterministic_and_refuses_bad_input(tmp_path):
                            template="2k", n_background=1)
     with pytest.raises(InputError, match="not an arm session"):
         session_arm_template(studio)
+
+
+def test_right_arm_mirrors_the_left(muscular):
+    subject, body, left = muscular
+    right = arm_template(body, "right")
+    for flexion, elevation, pronation in ((140, 45, 0), (20, 95, 0), (90, 45, 60)):
+        peaks = []
+        for T in (left, right):
+            ap = arm_pose_from_angles(T, flexion, elevation, pronation)
+            a = anatomical_angles(T, ap)
+            assert abs(a.flexion_deg - flexion) < 1e-6 and abs(a.pronation_deg - pronation) < 1e-6
+            peaks.append(np.linalg.norm(posed_ground_truth(body, T, subject, ap)[2]
+                                        - pose_arm(T.vertices, T.part_weights, T.joints, ap), axis=1).max())
+        assert abs(peaks[0] - peaks[1]) < 0.15 * peaks[0]
