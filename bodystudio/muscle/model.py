@@ -251,12 +251,19 @@ def unpose_arm(vertices: np.ndarray, part_weights: np.ndarray, joints: np.ndarra
 
 
 def model_error_mm(model: ArmModel, samples: list[ArmSample], norm_limit: float = 0.0,
-                   use_sample_joints: bool = False) -> dict:
-    """Model-only error of ``samples`` (true shape parameters and poses): arm-vertex distances in mm."""
+                   use_sample_joints: bool = False, fit_translation: bool = False) -> dict:
+    """Model-only error of ``samples`` (true shape parameters and poses): arm-vertex distances in mm.
+
+    ``use_sample_joints`` places the model on each sample's own rest joints; ``fit_translation`` removes
+    the best translation per mesh (what a capture's root fit absorbs: where the torso puts the shoulder).
+    """
     errs = []
     for s in samples:
         V = model_mesh(model, s.shape, s.pose, norm_limit, joints=s.joints if use_sample_joints else None)
-        errs.append(np.linalg.norm(V - s.vertices, axis=1)[model.arm_mask])
+        D = (V - s.vertices)[model.arm_mask]
+        if fit_translation:
+            D = D - D.mean(axis=0)
+        errs.append(np.linalg.norm(D, axis=1))
     e = 1000 * np.concatenate(errs)
     return {"mean_mm": float(e.mean()), "median_mm": float(np.median(e)), "p90_mm": float(np.percentile(e, 90)),
             "n_meshes": len(samples)}
