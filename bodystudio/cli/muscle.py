@@ -132,29 +132,12 @@ def capture(
 EVAL_KEYS = ("median_mm", "p90_mm", "front_median_mm", "back_median_mm", "bulge_err_mm", "jitter_mm", "ms_per_frame")
 
 
-def session_arm_template(session):
-    """The arm template of the session's subject (its rest joints score the joint angles)."""
-    try:
-        from bodystudio.muscle.synthetic import session_arm_template as from_session
-    except ImportError:  # M-CORE's helper not in this checkout yet: the same from gt/phenotype.json
-        from bodystudio.body import Phenotype, build_body
-        from bodystudio.muscle.arm import arm_template
-        from bodystudio.muscle.synthetic import session_arm_subject
-
-        def from_session(session):
-            arm = session_arm_subject(session)
-            gt = session.gt_subject
-            body = build_body(Phenotype.from_dict(gt["phenotype"]), gt.get("local") or {},
-                              resolution=arm["resolution"])
-            return arm_template(body, arm["side"])
-    return from_session(session)
-
-
 def evaluate_capture_folder(folder: Path, session_path: Path | None = None) -> dict:
     """Issue 11's figures of a written arm capture folder against its session's ground truth."""
     from bodystudio.capture.session import open_session
     from bodystudio.muscle.capture import load_arm_capture
     from bodystudio.muscle.evaluate import evaluate_arm_capture
+    from bodystudio.muscle.synthetic import session_arm_template
 
     if not Path(folder).is_dir():
         raise InputError(f"{folder}: no such arm capture folder; make one with `bodystudio muscle capture`")
@@ -198,28 +181,6 @@ def _parse_shape(text: str):
     for name, lo, hi in (("bmi", 10, 60), ("muscularity", 0, 1), ("height_m", 1.0, 2.3), ("arm_length_m", 0.3, 1.0)):
         check_range(f"--shape {name}", getattr(shape, name), lo, hi)
     return shape
-
-
-def _capture_samples(capture, name: str, shape, stride: int):
-    """Captured frames as training samples in template space (the inverse of the §5.1 similarity)."""
-    try:
-        from bodystudio.muscle.model import capture_samples
-    except ImportError:  # M-CORE's helper not in this checkout yet
-        capture_samples = None
-    if capture_samples is not None:
-        return capture_samples(capture, name, shape, stride)
-    import numpy as np
-
-    from bodystudio.muscle.model import ArmSample
-
-    s, R, t = capture.similarity
-    out = []
-    for k in range(0, capture.n_frames, stride):
-        if capture.poses[k] is None:
-            continue
-        V = ((np.asarray(capture.vertices[k]) - t) @ R) / s
-        out.append(ArmSample(name, shape, V, capture.poses[k]))
-    return out
 
 
 @model_app.command("build")
@@ -270,7 +231,13 @@ def model_extend(
     from bodystudio.errors import BodyStudioError
     from bodystudio.muscle.capture import load_arm_capture
     from bodystudio.muscle.export import check_new_output
-    from bodystudio.muscle.model import ArmShapeParams, extend_arm_model, load_arm_model, save_arm_model
+    from bodystudio.muscle.model import (
+        ArmShapeParams,
+        capture_samples,
+        extend_arm_model,
+        load_arm_model,
+        save_arm_model,
+    )
 
     check_range("--stride", stride, 1, 1000)
     if out.suffix.lower() != ".npz":
@@ -297,7 +264,7 @@ def model_extend(
                 subject_shape = None
         if subject_shape is None:
             subject_shape = capture.shape
-        samples += _capture_samples(capture, f"capture_{folder.resolve().name}", subject_shape, stride)
+        samples += capture_samples(capture, f"capture_{folder.resolve().name}", subject_shape, stride)
     extended = extend_arm_model(model, samples)
     save_arm_model(out, extended)
     typer.echo(f"wrote {out}: {len(extended.subjects)} subjects ({len(captures)} added from captures)")
