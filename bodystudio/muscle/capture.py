@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from bodystudio.errors import FileFormatError, InputError, SessionError
 from bodystudio.geometry.mesh import vertex_normals
-from bodystudio.muscle.arm import ArmPose, ArmTemplate, part_transforms, pose_arm
+from bodystudio.muscle.arm import ArmPose, ArmTemplate, pose_arm
 from bodystudio.muscle.depth import DepthCleanupOptions, clean_depth, depth_point_cloud
 from bodystudio.muscle.nicp import (
     CorrespondenceFilters,
@@ -52,6 +52,7 @@ from bodystudio.muscle.refine import (
     fit_shape_parameters,
     initial_arm_pose_from_joints,
     model_based_filtering,
+    posed_joints,
     procrustes_part_transforms,
     refine_surface,
     time_consistent_correspondences,
@@ -73,6 +74,7 @@ class CaptureOptions:
     nicp: NicpOptions = NicpOptions()
     first_frame_nicp_iterations: int = 12  # the first frame starts farther from the data
     shape_frames: int = 8  # frames at the start of the sequence the shape parameters are fitted on
+    shape_rounds: int = 2  # shape/root fit alternated with those frames' joint angles
     norm_limit: float = 0.9  # Eq. 12's displacement-norm limit (fraction of the training maximum)
     refine_pose: bool = True
     sigma_frames: float = 1.0  # Eq. 14
@@ -81,6 +83,8 @@ class CaptureOptions:
     joint_radius_m: float = 0.06  # Sec. 7.2 closeness-to-joint factor
     joint_gain: float = 1.0
     tracker_weight: float = 1.0  # body-tracker joints in the shape fit (per coordinate, vs 1 per depth pair)
+    tracker_pose_weight: float = 10.0  # ... and in each frame's joint angles
+    smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape
     # parameters (height, arm length) carry the subject's size instead.
@@ -140,13 +144,15 @@ def _inverse_similarity(S):
 
 def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, model=None,
                        options: CaptureOptions = CaptureOptions(), tracker_joints: np.ndarray | None = None,
-                       frame_ids: list | None = None) -> ArmCapture:
+                       frame_ids: list | None = None, known_shape=None) -> ArmCapture:
     """The Arm-Muscle Capture pipeline on depth maps (metres, 0 = none) of one depth ``camera``.
 
     ``tracker_joints`` (T, 3, 3): shoulder, elbow, wrist per frame from the body tracker (world). The
     first frame's start the alignment when the arm is not in the base pose (without them the template
     starts in its base pose at the cloud's centroid, as the paper's Sec. 5.1 prescribes for the
     subject); the first ``shape_frames`` inform the arm length in the shape fit.
+    ``known_shape`` (ArmShapeParams): the subject's measured BMI, muscularity, height and arm length
+    (the paper's Table 1 lists them per subject); only the torso placement is then fitted.
     """
     o = options
     if o.mode != "nicp" and model is None:
@@ -166,7 +172,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         from bodystudio.muscle.model import ArmShapeParams, model_joints, model_rest_vertices
         from bodystudio.muscle.refine import _shape_bounds
 
-        shape = ArmShapeParams.from_vector(_shape_bounds(model, None)[2])
+        shape = known_shape or ArmShapeParams.from_vector(_shape_bounds(model, None)[2])
         base, J = model_rest_vertices(model, shape), model_joints(model, shape)
     else:
         base, J = template.vertices, template.joints
@@ -204,6 +210,8 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     C = apply_similarity(Sinv, C_world[None])[0]
     clouds_t = [(apply_similarity(Sinv, P), N @ S[1]) for P, N in clouds]
     trees = [cKDTree(P) for P, _ in clouds_t]
+    tracker_t = None if tracker_joints is None else \
+        apply_similarity(Sinv, tracker_joints.reshape(-1, 3)).reshape(-1, 3, 3)
     frames_t = [DepthFrame(P, N, tree, C, arm, adjacency, o.nicp.filters, F)
                 for (P, N), tree in zip(clouds_t, trees, strict=True)]
     timer.add("rigid_alignment", t0)
@@ -230,21 +238,29 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
             continue
         if k + 1 == n_shape:
             # Sec. 6.2: shape parameters (and the torso placement), once per sequence, from the first
-            # frames' NICP meshes; then every frame so far is projected with them.
+            # frames; alternated with those frames' joint angles (the root and the shoulder trade off).
             fit_poses = [arm_pose_from_part_transforms(procrustes_part_transforms(base, m, W, w + 0.05))
                          for m, w in zip(nicp_meshes, kept_masks, strict=True)]
-            tj = None if tracker_joints is None else apply_similarity(Sinv, tracker_joints[:n_shape].reshape(-1, 3))
-            shape, root = fit_shape_parameters(model, nicp_meshes, fit_poses, frames_t[:n_shape], shape,
-                                               tracker_joints=None if tj is None else tj.reshape(-1, 3, 3),
-                                               tracker_weight=o.tracker_weight)
-            base, J = model_rest_vertices(model, shape), model_joints(model, shape)
+            fit_poses = [ArmPose(np.eye(4), np.vstack([p.angles[:2], np.zeros((1, 3))])) for p in fit_poses]
+            for _ in range(o.shape_rounds):
+                shape, root = fit_shape_parameters(
+                    model, nicp_meshes, fit_poses, frames_t[:n_shape], shape,
+                    tracker_joints=None if tracker_t is None else tracker_t[:n_shape],
+                    tracker_weight=o.tracker_weight, fixed_shape=known_shape is not None)
+                base, J = model_rest_vertices(model, shape), model_joints(model, shape)
+                fit_poses = [model_based_filtering(model, shape, root, nicp_meshes[j], base, W, kept_masks[j],
+                                                   frames_t[j], J, o.norm_limit, o.refine_pose,
+                                                   None if tracker_t is None else tracker_t[j],
+                                                   o.tracker_pose_weight)[1] for j in range(n_shape)]
             t0 = timer.add("shape_fit", t0)
             todo = range(n_shape)
         else:
             todo = [k]
         for j in todo:
             mm, pp = model_based_filtering(model, shape, root, nicp_meshes[j], base, W, kept_masks[j], frames_t[j],
-                                           o.norm_limit, o.refine_pose)
+                                           J, o.norm_limit, o.refine_pose,
+                                           None if tracker_t is None else tracker_t[j], o.tracker_pose_weight,
+                                           poses[-1] if poses else None, o.smooth_weight)
             model_meshes.append(mm)
             poses.append(pp)
         current = model_meshes[-1]
@@ -290,14 +306,10 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
     return out
 
 
-def posed_joints(joints: np.ndarray, pose: ArmPose) -> np.ndarray:
-    """Shoulder, elbow and wrist centres (3, 3) carried by the parts above them in ``pose``."""
-    T = part_transforms(np.asarray(joints, np.float64), pose)
-    return np.stack([T[k, :3, :3] @ joints[k] + T[k, :3, 3] for k in range(3)])
 
 
 def capture_arm_sequence(session, model, template: ArmTemplate, options: CaptureOptions = CaptureOptions(),
-                         frames: slice | None = None) -> ArmCapture:
+                         frames: slice | None = None, known_shape=None) -> ArmCapture:
     """Capture the arm of a Kinect session (``bodystudio.capture.session``), Sec. 4-7 of Arm-Muscle Capture."""
     sensor = session.kinect
     if sensor is None:
@@ -316,7 +328,7 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
         if joints is not None and all(n in joints["names"] for n in want):
             tracker.append(joints["positions"][[joints["names"].index(n) for n in want]])
     tracker = np.stack(tracker) if len(tracker) == len(ids) else None
-    capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids))
+    capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids), known_shape)
     capture.session_path = str(Path(session.path).resolve())
     return capture
 

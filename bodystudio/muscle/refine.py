@@ -107,26 +107,75 @@ def _model_residuals(mesh: np.ndarray, pairs, deformed: np.ndarray | None, nicp_
     return np.concatenate(r)
 
 
+def elbow_axes(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The elbow's hinge axis (normal of the rest arm's plane) and the rest forearm axis, unit vectors."""
+    s, e, w = np.asarray(joints, np.float64)
+    u = (e - s) / np.linalg.norm(e - s)
+    f = (w - e) / np.linalg.norm(w - e)
+    h = np.cross(u, f)
+    return h / max(np.linalg.norm(h), 1e-12), f
+
+
+def elbow_rotvec(joints: np.ndarray, flexion_rad: float, twist_rad: float) -> np.ndarray:
+    """Elbow rotation (rotation vector) as a hinge flexion followed by the forearm's twist: 2 DoF."""
+    h, f = elbow_axes(joints)
+    return (Rotation.from_rotvec(h * flexion_rad) * Rotation.from_rotvec(f * twist_rad)).as_rotvec()
+
+
 def refine_arm_pose(pose: ArmPose, mesh_of_pose, frame: DepthFrame, deformed: np.ndarray | None,
-                    nicp_weight: float = 0.05, rounds: int = 2, max_nfev: int = 20) -> ArmPose:
-    """Twist refinement of Sec. 6.2: Gauss-Newton on the joint angles of the model mesh.
+                    joints: np.ndarray, nicp_weight: float = 0.05, rounds: int = 2, max_nfev: int = 20,
+                    fit_twist: bool = False, tracker: np.ndarray | None = None, tracker_weight: float = 0.0,
+                    model_joints: np.ndarray | None = None, previous: ArmPose | None = None,
+                    smooth_weight: float = 0.0) -> ArmPose:
+    """Twist refinement of Sec. 6.2: Gauss-Newton on the shoulder (3) and elbow hinge (1) angles.
 
     The paper refines the Procrustes transforms "iteratively by using the theory of rigid-body motion
     and the twist representation" against the ARAP mesh. Our NICP mesh is only reliable along the
     normals (its vertices slide on the surface), so the angles are fitted to the depth points
     themselves, point-to-plane over the filtered pairs (re-paired each round), with a weak pull
-    (``nicp_weight`` per coordinate) to the ARAP mesh that holds the unseen side. The root (torso)
-    stays where the sequence fit put it: the subject sits still (Sec. 5.1, 8.1).
+    (``nicp_weight`` per coordinate) to the ARAP mesh that holds the unseen side.
+    Constraints, all measured to matter on a 24-frame sequence: the root (torso) stays where the
+    sequence fit put it and the wrist as given (the subject sits still and keeps a fist, Sec. 8.1;
+    the hand has no depth pairs: a free wrist drifted 48 deg); the elbow is a hinge about the rest
+    arm's plane normal (a 3-DoF elbow let the upper arm roll about its own, nearly cylindrical, axis
+    by 20 deg); the forearm's twist (pronation) is as unobservable on a near-cylinder and drifted
+    40 deg when free, so it stays 0 unless ``fit_twist`` (the paper cannot capture pronation either).
+    ``tracker`` (3, 3): the body tracker's shoulder, elbow, wrist in this frame, compared with the
+    posed ``model_joints`` at ``tracker_weight`` per coordinate (1 per depth pair): they pin the
+    forearm's direction, which the short, partly hand-blended forearm surface alone does not.
+    ``previous`` (the last frame's pose) adds ``smooth_weight`` per joint-angle coordinate times a
+    0.3 m lever arm: quasi-static motion (Sec. 3), against the tracker's frame-to-frame noise.
     """
-    x = pose.angles.ravel().copy()
+    wrist = pose.angles[2].copy()
+    h, f = elbow_axes(joints)
+    twist0 = float(pose.angles[1] @ f) if fit_twist else 0.0
+
+    def pose_of(x):
+        twist = x[4] if fit_twist else twist0
+        return ArmPose(pose.root, np.vstack([x[:3], elbow_rotvec(joints, x[3], twist), wrist]))
+
+    x = np.r_[pose.angles[0], pose.angles[1] @ h] if not fit_twist else \
+        np.r_[pose.angles[0], pose.angles[1] @ h, twist0]
     for _ in range(rounds):
-        pairs = frame.plane_pairs(mesh_of_pose(ArmPose(pose.root, x.reshape(3, 3))))
+        pairs = frame.plane_pairs(mesh_of_pose(pose_of(x)))
 
         def fun(x, pairs=pairs):
-            return _model_residuals(mesh_of_pose(ArmPose(pose.root, x.reshape(3, 3))), pairs, deformed, nicp_weight)
+            p = pose_of(x)
+            r = _model_residuals(mesh_of_pose(p), pairs, deformed, nicp_weight)
+            if tracker is not None and tracker_weight > 0:
+                r = np.r_[r, np.sqrt(tracker_weight) * (posed_joints(model_joints, p) - tracker).ravel()]
+            if previous is not None and smooth_weight > 0:
+                r = np.r_[r, np.sqrt(smooth_weight) * 0.3 * (p.angles[:2] - previous.angles[:2]).ravel()]
+            return r
 
         x = least_squares(fun, x, method="lm", max_nfev=max_nfev).x
-    return ArmPose(pose.root, x.reshape(3, 3))
+    return pose_of(x)
+
+
+def posed_joints(joints: np.ndarray, pose: ArmPose) -> np.ndarray:
+    """Shoulder, elbow and wrist centres (3, 3) carried by the parts above them in ``pose``."""
+    T = part_transforms(np.asarray(joints, np.float64), pose)
+    return np.stack([T[k, :3, :3] @ joints[k] + T[k, :3, 3] for k in range(3)])
 
 
 def initial_arm_pose_from_joints(joints_rest: np.ndarray, tracked: np.ndarray) -> ArmPose:
@@ -159,17 +208,20 @@ def initial_arm_pose_from_joints(joints_rest: np.ndarray, tracked: np.ndarray) -
 
 def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], frames: list[DepthFrame],
                          initial=None, nicp_weight: float = 0.0, rounds: int = 2,
-                         tracker_joints: np.ndarray | None = None, tracker_weight: float = 1.0) -> tuple:
+                         tracker_joints: np.ndarray | None = None, tracker_weight: float = 1.0,
+                         fixed_shape: bool = False) -> tuple:
     """Shape parameters (BMI, muscularity, height, arm length) of the sequence, fitted once (Sec. 6.2).
 
     Least squares over the given frames of the model mesh ``model_mesh(model, shape, pose_k)`` against
     the depth points (point-to-plane over the filtered pairs, re-paired each round) and, weakly, the
-    NICP meshes ``meshes``; the joint angles stay fixed and one rigid root (the torso placement) shared
-    by all frames is fitted alongside: the model's rest mesh moves with height, so shape and placement
+    NICP meshes ``meshes``; the joint angles stay fixed and one root translation (the torso placement;
+    its rotation stays that of ``poses[0]``: the subject faces the sensor) shared by all frames is
+    fitted alongside: the model's rest mesh moves with height, so shape and placement
     are only separable together. Bounds: the training range widened by its span on each side.
     Point-to-plane pairs leave the arm free to slide along itself, so the arm length is poorly seen
     by the depth alone: ``tracker_joints`` (frames, 3, 3), the body tracker's shoulder, elbow and
-    wrist, add ``tracker_weight`` times their distance to the model's posed joints.
+    wrist, add ``tracker_weight`` times their distance to the model's posed joints. With
+    ``fixed_shape`` (measured parameters in ``initial``) only the root is fitted.
     Returns ``(ArmShapeParams, root (4, 4))``.
     """
     from bodystudio.muscle.model import ArmShapeParams, model_joints, model_mesh
@@ -180,17 +232,18 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
     root0 = poses[0].root
 
     def root_of(x):
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_rotvec(x[4:7]).as_matrix() @ root0[:3, :3]
-        T[:3, 3] = root0[:3, 3] + x[7:10]
+        T = root0.copy()
+        T[:3, 3] = root0[:3, 3] + x[4:7]
         return T
 
     def meshes_of(x):
         shape, root = ArmShapeParams.from_vector(x[:4]), root_of(x)
         return [model_mesh(model, shape, ArmPose(root, p.angles)) for p in poses]
 
-    x = np.r_[x0, np.zeros(6)]
-    big = np.full(6, np.inf)
+    x = np.r_[x0, np.zeros(3)]
+    big = np.full(3, np.inf)
+    if fixed_shape:
+        lo, hi = x0 - 1e-9, x0 + 1e-9
     for _ in range(rounds):
         pairs = [f.plane_pairs(M) for f, M in zip(frames, meshes_of(x), strict=True)]
 
@@ -206,7 +259,7 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
             return np.concatenate(r)
 
         x = least_squares(fun, x, bounds=(np.r_[lo, -big], np.r_[hi, big]),
-                          x_scale=np.r_[np.maximum(hi - lo, 1e-3) / 4, np.full(3, 0.05), np.full(3, 0.01)],
+                          x_scale=np.r_[np.maximum(hi - lo, 1e-3) / 4, np.full(3, 0.01)],
                           max_nfev=30).x
     return ArmShapeParams.from_vector(x[:4]), root_of(x)
 
@@ -235,7 +288,10 @@ def _shape_bounds(model, initial):
 
 def model_based_filtering(model, shape, root: np.ndarray, deformed: np.ndarray, base: np.ndarray,
                           part_weights: np.ndarray, vertex_weights: np.ndarray, frame: DepthFrame,
-                          norm_limit: float = 0.9, refine_pose: bool = True) -> tuple[np.ndarray, ArmPose]:
+                          joints: np.ndarray, norm_limit: float = 0.9, refine_pose: bool = True,
+                          tracker: np.ndarray | None = None, tracker_weight: float = 0.0,
+                          previous: ArmPose | None = None, smooth_weight: float = 0.0,
+                          ) -> tuple[np.ndarray, ArmPose]:
     """Mesh projection of Sec. 6.2: joint angles by Procrustes (Eq. 11), then the model mesh of Eq. 12.
 
     ``deformed`` is the ARAP mesh of non-rigid ICP, ``base`` the model's rest mesh for ``shape`` and
@@ -247,9 +303,13 @@ def model_based_filtering(model, shape, root: np.ndarray, deformed: np.ndarray, 
 
     w = vertex_weights + 0.05  # vertices without data still carry their part's rigid motion a little
     T = procrustes_part_transforms(base, deformed, part_weights, w)
-    pose = ArmPose(root, arm_pose_from_part_transforms(T).angles)
+    angles = arm_pose_from_part_transforms(T).angles
+    angles[2] = 0.0  # the wrist: a fist held still (Sec. 8.1), no depth pairs on the hand
+    pose = ArmPose(root, angles)
     if refine_pose:
-        pose = refine_arm_pose(pose, lambda p: model_mesh(model, shape, p, norm_limit=norm_limit), frame, deformed)
+        pose = refine_arm_pose(pose, lambda p: model_mesh(model, shape, p, norm_limit=norm_limit), frame, deformed,
+                               joints, tracker=tracker, tracker_weight=tracker_weight, model_joints=joints,
+                               previous=previous, smooth_weight=smooth_weight)
     return model_mesh(model, shape, pose, norm_limit=norm_limit), pose
 
 
