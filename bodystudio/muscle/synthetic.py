@@ -38,6 +38,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
 from bodystudio.body import Phenotype, build_body, posed_joints
@@ -97,27 +98,14 @@ def _measure(phenotype: Phenotype, local: dict) -> tuple[float, float, float]:
 def _solve_macro(phenotype: Phenotype, local: dict, name: str, target: float, index: int) -> Phenotype:
     """Phenotype with macro ``name`` set so that measurement ``index`` of :func:`_measure` hits ``target``."""
     def value(x):
-        p = Phenotype(**{**phenotype.to_dict(), name: float(x)})
-        return _measure(p, local)[index], p
+        return _measure(Phenotype(**{**phenotype.to_dict(), name: float(x)}), local)[index] - target
 
-    lo, hi = 0.0, 1.0
-    f_lo, _ = value(lo)
-    f_hi, p_hi = value(hi)
-    if not f_lo <= target <= f_hi:
+    f_lo, f_hi = value(0.0), value(1.0)
+    if not f_lo <= 0.0 <= f_hi:
         raise InputError(f"{name} target {target:.3g} is out of the body model's range "
-                         f"[{f_lo:.3g}, {f_hi:.3g}] for this subject; choose a range inside it")
-    p = p_hi
-    for _ in range(10):  # regula falsi, then bisection-safe
-        x = lo + (target - f_lo) * (hi - lo) / (f_hi - f_lo)
-        x = min(max(x, lo + 0.02 * (hi - lo)), hi - 0.02 * (hi - lo))
-        f, p = value(x)
-        if abs(f - target) < 0.002 * abs(target):
-            break
-        if f < target:
-            lo, f_lo = x, f
-        else:
-            hi, f_hi = x, f
-    return p
+                         f"[{f_lo + target:.3g}, {f_hi + target:.3g}] for this subject; choose a range inside it")
+    x = brentq(value, 0.0, 1.0, xtol=1e-4, rtol=1e-6, maxiter=30)
+    return Phenotype(**{**phenotype.to_dict(), name: float(x)})
 
 
 @lru_cache(maxsize=256)
