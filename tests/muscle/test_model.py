@@ -38,7 +38,7 @@ def test_model_reproduces_training_meshes(arm_model_2k, arm_training_2k):
     mean_only = [pose_arm(model.base_vertices + s.joints[0], model.part_weights, s.joints, s.pose) for s in samples]
     start = np.mean([1000 * np.linalg.norm(V - s.vertices, axis=1)[model.arm_mask].mean()
                      for V, s in zip(mean_only, samples, strict=True)])
-    assert err["mean_mm"] < 4.8  # measured 3.2
+    assert err["mean_mm"] < 3.3  # measured 2.2
     assert start > 4 * err["mean_mm"]
 
 
@@ -47,7 +47,7 @@ def test_pose_term_carries_the_bulges_and_norm_limit_moves_toward_skinning(arm_m
     flexed = [s for s in samples if np.abs(s.pose.angles).max() > 0.5]
     e = {nl: model_error_mm(arm_model_2k, flexed, nl, use_sample_joints=True)["mean_mm"] for nl in (0.0, 0.9, 1.0)}
     assert e[0.0] < e[0.9] < e[1.0]
-    assert e[1.0] > 1.5 * e[0.0]
+    assert e[1.0] > 2.0 * e[0.0]  # measured 2.2 / 5.2 / 6.2 mm
 
 
 def test_limit_displacement_norms():
@@ -112,14 +112,14 @@ def test_extension_lowers_out_of_range_error(arm_model_2k):
     assert len(extended.subjects) == len(arm_model_2k.subjects) + 2
     before = model_error_mm(arm_model_2k, test, 0.0, use_sample_joints=True)["mean_mm"]
     after = model_error_mm(extended, test, 0.0, use_sample_joints=True)["mean_mm"]
-    assert after < 0.8 * before  # measured 17.8 -> 11.3 mm
+    assert after < 0.8 * before  # measured 18.8 -> 11.3 mm
     # The captured subjects' joints also refine the joint regression.
     before = model_error_mm(arm_model_2k, test, 0.0)["mean_mm"]
     after = model_error_mm(extended, test, 0.0)["mean_mm"]
-    assert after < 0.85 * before  # measured 27.5 -> 20.2 mm
+    assert after < 0.85 * before  # measured 27.7 -> 20.3 mm
     # Most of the regressed joints' error is where the shoulder sits, which a root translation absorbs.
     aligned = model_error_mm(extended, test, 0.0, fit_translation=True)["mean_mm"]
-    assert aligned < 0.7 * after
+    assert aligned < 0.5 * after  # measured 6.5 mm
 
 
 def test_capture_samples_undo_the_similarity(arm_training_2k):
