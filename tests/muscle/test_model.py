@@ -141,3 +141,20 @@ def test_capture_samples_undo_the_similarity(arm_training_2k):
         capture_samples(SimpleNamespace(**{**capture.__dict__, "shape": None}), "cap")
     with pytest.raises(InputError, match="joint angles"):
         capture_samples(SimpleNamespace(**{**capture.__dict__, "poses": [None] * 4}), "cap")
+
+
+def test_tikhonov_least_squares_shrinks_slopes_not_the_intercept():
+    from bodystudio.muscle.model import tikhonov_least_squares
+
+    rng = np.random.default_rng(1)
+    Z = rng.normal(size=(30, 3))
+    X = np.c_[np.ones(30), Z]
+    W_true = np.array([[5.0], [1.0], [-2.0], [0.5]])
+    Y = X @ W_true + rng.normal(0, 0.01, (30, 1))
+    np.testing.assert_allclose(tikhonov_least_squares(X, Y, 0.0), np.linalg.lstsq(X, Y, rcond=None)[0], atol=1e-10)
+    W = tikhonov_least_squares(X, Y, 10.0)
+    # The closed form of Eq. 9's penalty on the slopes only.
+    P = np.diag([0.0, 100.0, 100.0, 100.0])
+    np.testing.assert_allclose(W, np.linalg.solve(X.T @ X + P, X.T @ Y), atol=1e-12)
+    assert np.abs(W[1:]).sum() < 0.9 * np.abs(W_true[1:]).sum()
+    assert abs(W[0, 0] - 5.0) < 0.3
