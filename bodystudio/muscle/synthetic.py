@@ -149,6 +149,8 @@ def sample_arm_subject(seed: int, gender: str | float | None = None, bmi_range: 
     BMI and stature are reached by solving MakeHuman's weight and height macros (measured on the 6k
     body, mass from its volume); the same arguments always give the same person.
     """
+    if int(seed) < 0:
+        raise InputError(f"subject seed {seed} must be >= 0")
     for name, rng_ in (("bmi_range", bmi_range), ("muscularity_range", muscularity_range),
                        ("height_range_m", height_range_m)):
         if rng_ is not None and (len(rng_) != 2 or not rng_[0] <= rng_[1]):
@@ -429,6 +431,8 @@ def synth_arm_session(out: str | os.PathLike, subject_seed: int = 0, motion: str
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise InputError(f"{out}: output folder exists and is not empty; choose a new folder")
+    if seed < 0:
+        raise InputError(f"seed {seed} must be >= 0")
     subject = subject or sample_arm_subject(subject_seed)
     body = subject_body(subject, resolution)
     template = arm_template(body, side)

@@ -150,6 +150,11 @@ def test_synth_arm_session_is_deterministic_and_refuses_bad_input(tmp_path):
         synth_arm_session(tmp_path / "c", subject_seed=4, n_frames=2, resolution="2k", distance_m=9.0)
     with pytest.raises(InputError, match="kinect"):
         synth_arm_session(tmp_path / "d", subject_seed=4, n_frames=2, resolution="2k", kinect="v3")
+    with pytest.raises(InputError, match="seed"):
+        synth_arm_session(tmp_path / "e", subject_seed=-1, n_frames=2, resolution="2k")
+    with pytest.raises(InputError, match="frame"):
+        synth_arm_session(tmp_path / "f", subject_seed=4, n_frames=0, resolution="2k")
+    assert not (tmp_path / "d").exists() and not (tmp_path / "e").exists() and not (tmp_path / "f").exists()
     from bodystudio.capture.synth import synth_session
 
     studio = synth_session(tmp_path / "studio", n_cameras=1, n_frames=1, resolution=(64, 48), kinect=None,
