@@ -152,7 +152,8 @@ def nricp_amberg_anchor(template: ArmTemplate, depths: list[np.ndarray], camera,
         near = cKDTree(X).query(P, distance_upper_bound=0.05)[0] < 0.05
         src = trimesh.Trimesh(X, template.faces, process=False)
         kw = {} if steps is None else {"steps": steps}
-        X = np.asarray(nricp_amberg(src, P[near], distance_threshold=0.03, **kw), np.float64)
+        X = np.asarray(nricp_amberg(src, trimesh.PointCloud(P[near]), distance_threshold=0.03, use_faces=False,
+                                    use_vertex_normals=False, **kw), np.float64)
         out.append(X)
     ms = 1000.0 * (time.perf_counter() - t0) / max(len(depths), 1)
     return np.stack(out), ms
