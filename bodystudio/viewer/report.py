@@ -345,10 +345,17 @@ def session_figures(session_path: Path) -> tuple[list[Plot], list[Table]]:
 
 
 def default_scene(root: Path):
-    """(plotter, payload or None) the report embeds: a session (every frame), else an avatar, else a mesh."""
+    """(plotter, payload or None) the report embeds: an arm capture or a session (every frame), else an avatar,
+    else a mesh."""
     from bodystudio.geometry.mesh import MESH_SUFFIXES
+    from bodystudio.viewer.arm import arm_payload, is_arm_capture
     from bodystudio.viewer.views import build_view, open_viewable, session_payload
 
+    if is_arm_capture(root):  # an arm capture folder: the sequence with its error colours and depth points
+        item = open_viewable(root)
+        plotter = build_view(item)
+        still = render_image(plotter)
+        return plotter, arm_payload(item.data, plotter), still
     sessions = _sessions_under(root)
     if sessions:
         item = open_viewable(sessions[0])

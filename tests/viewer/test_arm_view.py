@@ -78,3 +78,12 @@ def test_view_of_a_bad_frame_is_one_line(arm_capture, tmp_path, capsys):
     assert main(["view", str(arm_capture[1]), "--frame", "7", "--screenshot", str(tmp_path / "x.png")]) == 2
     assert "no frame 7" in capsys.readouterr().err
     assert not (tmp_path / "x.png").exists()
+
+
+def test_report_of_an_arm_capture_embeds_the_sequence(arm_capture, tmp_path):
+    from bodystudio.viewer.report import write_report
+
+    result = write_report(arm_capture[1], tmp_path / "r.html")
+    assert result.has_3d and not result.tables  # params.json / manifest.json are data, not metrics
+    text = (tmp_path / "r.html").read_text()
+    assert text.count('"id":') >= 3  # one entry per frame for the slider
