@@ -261,8 +261,11 @@ def step_compare(work: Path, methods: tuple[str, ...]) -> None:
     nicp_first = None
     for method in methods:
         if method == "amberg":
-            if nicp_first is None:
-                nicp_first = capture_and_score(session, None, template, truth, "nicp")[0].vertices[0]
+            if nicp_first is None:  # the anchor starts where NICP ends on the first frame
+                from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
+
+                nicp_first = capture_arm_sequence(session, None, template, CaptureOptions(mode="nicp"),
+                                                  frames=slice(0, 1)).vertices[0]
             try:
                 scores = amberg_anchor(session, template, truth, nicp_first)
             except Exception as exc:  # the anchor failing must not hide our figures
