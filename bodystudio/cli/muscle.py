@@ -113,6 +113,8 @@ def capture(
         check_range("--frames", frames, 1, MAX_FRAMES)
     check_new_output(out, "arm capture folder")
     session = open_session(session_path)
+    if frames is not None and frames > len(session.frame_ids):
+        raise InputError(f"--frames {frames}: {session_path} has {len(session.frame_ids)} frames")
     arm = _session_arm(session)
     resolution = check_choice("--resolution", resolution or arm.get("resolution", "6k"), RESOLUTIONS)
     side = check_choice("--side", side or arm.get("side", "left"), SIDES)

@@ -84,6 +84,7 @@ def test_synth_arm_unwritable_output(capsys):
     (["--no-model", "--resolution", "13k"], "--resolution '13k': valid"),
     (["--no-model", "--side", "middle"], "--side 'middle': valid: left, right"),
     (["--no-model", "--frames", "0"], "--frames 0: must be in"),
+    (["--no-model", "--frames", "9"], "--frames 9: "),
 ])
 def test_capture_bad_options(arm_session, tmp_path, capsys, args, phrase):
     out = tmp_path / "cap"
