@@ -313,6 +313,23 @@ def model_based_filtering(model, shape, root: np.ndarray, deformed: np.ndarray, 
     return model_mesh(model, shape, pose, norm_limit=norm_limit), pose
 
 
+def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: int = 2) -> list[ArmPose]:
+    """Joint angles averaged over neighbouring frames with Gaussian weights (the Eq. 13-14 window on poses).
+
+    Arm motion is quasi-static (Sec. 3), so frame-to-frame changes beyond a smooth trajectory are
+    depth noise; rotation vectors of one joint change little within a few frames and average linearly.
+    """
+    if sigma_frames <= 0 or len(poses) < 3:
+        return list(poses)
+    A = np.stack([p.angles for p in poses])
+    out = []
+    for i, p in enumerate(poses):
+        lo, hi = max(0, i - radius), min(len(poses), i + radius + 1)
+        w = np.exp(-((np.arange(lo, hi) - i) ** 2) / (2.0 * sigma_frames ** 2))
+        out.append(ArmPose(p.root, np.tensordot(w / w.sum(), A[lo:hi], axes=1)))
+    return out
+
+
 def skin_template(base: np.ndarray, part_weights: np.ndarray, joints: np.ndarray, pose: ArmPose) -> np.ndarray:
     """The template posed by four-part LBS (Eq. 12 without the model's displacements)."""
     return pose_arm(base, part_weights, joints, pose)
