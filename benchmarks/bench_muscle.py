@@ -11,8 +11,12 @@ Side by side in one run on the same session: the full pipeline; NICP + ARAP with
 paper's Fig. 6a); the model without the refinement; trimesh's ``registration.nricp_amberg`` frame by
 frame, started from the NICP capture's first frame (outside anchor). Time per frame: CPU seconds of the
 process with BLAS held to one thread (the "one core" of the goal), and wall time (inflated by other work
-on the shared machine). Dataset extension: model-only error (the model mesh from the subject's true shape
-parameters and poses, Eq. 12 without the norm limit) of held-out subjects' ground-truth meshes, original
+on the shared machine). "Measured shape": the subject's BMI, muscularity, height and arm length given to the
+capture, as the paper's subjects were measured (Table 1); "shape fitted": fitted from the first frames. The
+model-only row is the full run's model-filtering step (the same as ``--no-refine``).
+
+Dataset extension: model-only error (the model mesh from the subject's true shape parameters and poses,
+Eq. 12 without the norm limit) of held-out subjects' ground-truth meshes, original
 model against the model extended with the captured subjects 601-604. Pronation: the pipeline's forearm
 twist (from its per-frame joint angles) against the truth's.
 
@@ -89,16 +93,28 @@ def truth_template(subject):
     return arm_template(subject_body(subject, RESOLUTION), SIDE)
 
 
-def capture_and_score(session, model, template, truth, mode: str):
-    """One capture of ``session`` in ``mode``; returns (capture, scores with cpu/wall ms per frame)."""
+def capture_and_score(session, model, template, truth, mode: str, known_shape=None):
+    """One capture of ``session`` in ``mode``; returns (capture, scores with cpu/wall ms per frame).
+
+    ``known_shape``: the subject's measured shape parameters (the paper's Table 1); None fits them.
+    """
     from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
     from bodystudio.muscle.evaluate import evaluate_arm_capture
 
-    capture, cpu, wall = timed(lambda: capture_arm_sequence(session, model, template, CaptureOptions(mode=mode)))
+    capture, cpu, wall = timed(lambda: capture_arm_sequence(session, model, template, CaptureOptions(mode=mode),
+                                                            known_shape=known_shape))
     scores = evaluate_arm_capture(capture, session, truth)
     scores["cpu_ms_per_frame"] = 1000.0 * cpu / capture.n_frames
     scores["wall_ms_per_frame"] = 1000.0 * wall / capture.n_frames
     return capture, scores
+
+
+def score_stage(capture, session, truth, stage: str) -> dict:
+    """The figures of an earlier step's meshes of a full run (``capture.stages``), e.g. "model"."""
+    from bodystudio.muscle.evaluate import score_arm_sequence, session_ground_truth
+
+    G, visible, joints = session_ground_truth(session, truth, list(capture.frame_ids))
+    return score_arm_sequence(capture.stages[stage], G, truth, visible, joints)
 
 
 def amberg_anchor(session, template, truth, first_frame: np.ndarray):
@@ -128,8 +144,8 @@ def _fmt(x, digits=2):
 
 
 def comparison_section(rows: list[tuple[str, dict]], n_frames: int) -> str:
-    full = dict(rows)["full pipeline"]
-    nicp = dict(rows)["NICP + ARAP, no model (Fig. 6a)"]
+    full = dict(rows)[METHODS["full"]]
+    nicp = dict(rows)[METHODS["nicp"]]
     keys = ("median_mm", "p90_mm", "front_median_mm", "back_median_mm", "bulge_err_mm", "jitter_mm",
             "cpu_ms_per_frame", "wall_ms_per_frame")
     table = markdown_table(["method", *keys], [[name, *(_fmt(s.get(k), 0 if "ms_per" in k else 2) for k in keys)]
@@ -186,8 +202,9 @@ def extension_section(data: dict) -> str:
             f"height {r['height_m'][0]:.2f}-{r['height_m'][1]:.2f} m. Extended: + the captured subjects below "
             f"({data['n_extended']} in all), captured with the original model (full pipeline), every "
             f"{EXTENSION_STRIDE}rd frame added with the subject's measured shape parameters (as the paper's "
-            "Table 1).\n\n" + added_table + "\n\nModel-only error (mm, arm vertices) of held-out subjects' "
-            "ground-truth meshes (1 base-pose + 12 random poses each, true shape parameters and poses), on the "
+            "Table 1; the capture also used them).\n\n" + added_table +
+            "\n\nModel-only error (mm, arm vertices) of held-out subjects' ground-truth meshes (1 base-pose + "
+            "12 random poses each, true shape parameters and poses), on the "
             "subject's own rest joints, and on the model's regressed joints with the best translation removed "
             "(what a capture's root fit absorbs):\n\n" + held_table +
             f"\n\nMean change of the out-of-range held-out subjects' median: {mean_change:+.0f} % on their own "
@@ -218,8 +235,11 @@ def pronation_section(data: dict) -> str:
 
 # --- steps: each writes JSON into the work folder, so parts can run in separate processes ------------------
 
-METHODS = {"full": "full pipeline", "nicp": "NICP + ARAP, no model (Fig. 6a)", "model": "model only, no refinement",
+METHODS = {"full": "full pipeline (measured shape)", "fitted": "full pipeline, shape fitted",
+           "nicp": "NICP + ARAP, no model (Fig. 6a)", "model": "model only, no refinement (measured shape)",
            "amberg": "trimesh nricp_amberg (anchor)"}
+#: what the compare step runs; "model" comes out of the "full" run (its model-filtering step's meshes)
+RUNS = ("full", "fitted", "nicp", "amberg")
 
 
 def _template():
@@ -257,7 +277,8 @@ def step_compare(work: Path, methods: tuple[str, ...]) -> None:
     template = _template()
     model = load_arm_model(work / "model.npz", template)
     session = open_session(work / "main")
-    truth = truth_template(sample_arm_subject(MAIN_SUBJECT))
+    subject = sample_arm_subject(MAIN_SUBJECT)
+    truth = truth_template(subject)
     nicp_first = None
     for method in methods:
         if method == "amberg":
@@ -271,9 +292,16 @@ def step_compare(work: Path, methods: tuple[str, ...]) -> None:
             except Exception as exc:  # the anchor failing must not hide our figures
                 scores = {"error": f"{type(exc).__name__}: {exc}"}
         else:
-            cap, scores = capture_and_score(session, None if method == "nicp" else model, template, truth, method)
+            mode = "full" if method == "fitted" else method
+            shape = shape_of(subject) if method in ("full", "model") else None
+            cap, scores = capture_and_score(session, None if method == "nicp" else model, template, truth, mode,
+                                            known_shape=shape)
             if method == "nicp":
                 nicp_first = cap.vertices[0]
+            if method == "full" and "model" in cap.stages:  # the same run's model-filtering step
+                model_only = score_stage(cap, session, truth, "model")
+                model_only["cpu_ms_per_frame"] = model_only["wall_ms_per_frame"] = float("nan")
+                write_json(work / "compare_model.json", model_only)
         write_json(work / f"compare_{method}.json", scores)
 
 
@@ -294,7 +322,8 @@ def step_extension(work: Path, n_frames: int) -> None:
                               distance_m=1.0, resolution=RESOLUTION, seed=1)
         from bodystudio.capture.session import open_session
 
-        cap, sc = capture_and_score(open_session(path), model, template, truth_template(subj), "full")
+        cap, sc = capture_and_score(open_session(path), model, template, truth_template(subj), "full",
+                                    known_shape=shape_of(subj))
         new = capture_samples(cap, f"capture_{seed}", shape_of(subj), stride=EXTENSION_STRIDE)
         ext_samples += new
         added.append({"seed": seed, "label": label, "gender": subj.gender, "bmi": subj.bmi,
@@ -335,7 +364,7 @@ def step_pronation(work: Path, n_frames: int) -> None:
                    for f in s.frame_ids]
     rows = []
     for name, mode, m in (("full pipeline", "full", model), ("NICP + ARAP, no model", "nicp", None)):
-        cap, sc = capture_and_score(s, m, template, tt, mode)
+        cap, sc = capture_and_score(s, m, template, tt, mode, known_shape=shape_of(subj) if m is not None else None)
         twist = None if cap.poses[0] is None else [anatomical_angles(template, p).pronation_deg for p in cap.poses]
         rows.append({"name": name, "scores": sc, "twist_deg": twist})
     write_json(work / "pronation.json", {"truth_twist_deg": truth_twist, "rows": rows})
@@ -371,7 +400,7 @@ def run(quick: bool = False, frames: int | None = None, work: Path | None = None
     with tempfile.TemporaryDirectory(prefix="bench_muscle_") as tmp:
         work = Path(work or tmp)
         step_prepare(work, n)
-        step_compare(work, tuple(METHODS))
+        step_compare(work, RUNS)
         step_extension(work, min(EXTENSION_FRAMES, n))
         step_pronation(work, min(PRONATION_FRAMES, max(n, 10)))
         return render(work, n)
@@ -385,7 +414,7 @@ def main(argv: list[str] | None = None) -> None:
                         "run in separate processes: prepare first, then compare / extension / pronation, render)")
     parser.add_argument("--step", choices=("all", "prepare", "compare", "extension", "pronation", "render"),
                         default="all")
-    parser.add_argument("--methods", default=",".join(METHODS), help="compare step: " + ", ".join(METHODS))
+    parser.add_argument("--methods", default=",".join(RUNS), help="compare step: " + ", ".join(RUNS))
     args = parser.parse_args(argv)
     n = args.frames or (QUICK_FRAMES if args.quick else FRAMES)
     if args.step == "all":
