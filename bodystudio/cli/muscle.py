@@ -93,12 +93,18 @@ def capture(
                                           "(default: the session's, else 6k)"),
     side: str | None = typer.Option(None, "--side", help="left | right (default: the session's, else left)"),
     frames: int | None = typer.Option(None, "--frames", help="capture only the first N frames"),
+    shape: str | None = typer.Option(None, "--shape", help="the subject's measured shape parameters "
+                                     "bmi=..,muscularity=..,height_m=..,arm_length_m=.. (the paper's Table 1; "
+                                     "default: fitted from the first frames)"),
 ) -> None:
     """Capture the arm of a depth session (Arm-Muscle Capture §4-7): per-frame meshes, joint angles, shape."""
     from bodystudio.capture.session import open_session
     from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence, write_arm_capture
     from bodystudio.muscle.export import check_new_output
 
+    if shape is not None and no_model:
+        raise InputError("--shape needs the model (the shape parameters drive it); drop --no-model")
+    known_shape = _parse_shape(shape) if shape is not None else None
     if no_model and no_refine:
         raise InputError("--no-model and --no-refine: choose one (--no-model is NICP + ARAP without the model, "
                          "--no-refine the model without the refinement)")
@@ -126,7 +132,7 @@ def capture(
         model = load_arm_model(model_path, template)
     mode = "nicp" if no_model else "model" if no_refine else "full"
     result = capture_arm_sequence(session, model, template, CaptureOptions(mode=mode),
-                                  frames=None if frames is None else slice(0, frames))
+                                  frames=None if frames is None else slice(0, frames), known_shape=known_shape)
     write_arm_capture(out, result)
     typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
 

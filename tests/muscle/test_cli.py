@@ -77,9 +77,19 @@ def test_model_build_capture_extend_info(arm_session, tmp_path, capsys):
     model, cap, ext = tmp_path / "m.npz", tmp_path / "cap", tmp_path / "m2.npz"
     assert main(["muscle", "model", "build", "--out", str(model), "--resolution", "2k", "--subjects", "2",
                  "--shapes", "1", "--poses", "3"]) == 0
-    assert main(["muscle", "capture", str(arm_session), "--out", str(cap), "--model", str(model)]) == 0
+    from bodystudio.capture.session import open_session
+
+    truth = open_session(arm_session).gt_subject["arm"]["subject"]
+    capsys.readouterr()
+    assert main(["muscle", "model", "info", str(model)]) == 0
+    span = json.loads(capsys.readouterr().out)["shape_range"]
+    # a measured shape inside the 2-subject model's range (the capture keeps shapes near the training range)
+    given = {k: round(sum(span[k]) / 2, 4) for k in ("bmi", "muscularity", "height_m", "arm_length_m")}
+    assert main(["muscle", "capture", str(arm_session), "--out", str(cap), "--model", str(model),
+                 "--shape", ",".join(f"{k}={v}" for k, v in given.items())]) == 0
     params = json.loads((cap / "params.json").read_text())
-    assert params["mode"] == "full" and params["shape"] is not None and params["poses"][0] is not None
+    assert params["mode"] == "full" and params["poses"][0] is not None
+    assert params["shape"] == pytest.approx(given)  # the measured shape, not a fit
     assert main(["muscle", "model", "extend", str(model), str(cap), "--out", str(ext), "--stride", "2"]) == 0
     capsys.readouterr()
     assert main(["muscle", "model", "info", str(ext)]) == 0
@@ -87,7 +97,4 @@ def test_model_build_capture_extend_info(arm_session, tmp_path, capsys):
     assert info["n_subjects"] == 3 and info["subjects"][-1]["name"] == "capture_cap"
     assert info["subjects"][-1]["n_meshes"] == 2 and info["subjects"][-1]["source"] == "capture"
     # the captured subject's shape is the session's measured one, not the fit
-    from bodystudio.capture.session import open_session
-
-    truth = open_session(arm_session).gt_subject["arm"]["subject"]
     assert info["subjects"][-1]["shape"]["bmi"] == pytest.approx(truth["bmi"])

@@ -85,6 +85,8 @@ def test_synth_arm_unwritable_output(capsys):
     (["--no-model", "--side", "middle"], "--side 'middle': valid: left, right"),
     (["--no-model", "--frames", "0"], "--frames 0: must be in"),
     (["--no-model", "--frames", "9"], "--frames 9: "),
+    (["--no-model", "--shape", "bmi=20,muscularity=0.5,height_m=1.7,arm_length_m=0.5"], "--shape needs the model"),
+    (["--model", "missing.npz", "--shape", "bmi=20"], "--shape: needs bmi, muscularity"),
 ])
 def test_capture_bad_options(arm_session, tmp_path, capsys, args, phrase):
     out = tmp_path / "cap"
