@@ -274,7 +274,10 @@ MUSCLE_POPULATION = 16  # bodies behind the model's length/joint regressions (th
 
 
 def stage_muscle(ctx: DemoContext) -> str:
-    """Arm-muscle capture: a Kinect arm sequence with bulging muscles, a small arm model, the full pipeline."""
+    """Arm-muscle capture: a Kinect arm sequence with bulging muscles, a small arm model, the full pipeline.
+
+    The subject's shape parameters are given to the capture as measured (the paper's Table 1).
+    """
     import shutil
 
     from bodystudio.body import build_body
@@ -282,7 +285,7 @@ def stage_muscle(ctx: DemoContext) -> str:
     from bodystudio.muscle.arm import arm_template
     from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence, write_arm_capture
     from bodystudio.muscle.evaluate import evaluate_arm_capture
-    from bodystudio.muscle.model import learn_arm_model, save_arm_model
+    from bodystudio.muscle.model import ArmShapeParams, learn_arm_model, save_arm_model
     from bodystudio.muscle.synthetic import sample_arm_subject, subject_body, synth_arm_session, training_dataset
     from bodystudio.viewer.arm import arm_payload, open_arm_view, scene_for_arm_sequence
     from bodystudio.viewer.scene import make_plotter, save_screenshot
@@ -297,7 +300,8 @@ def stage_muscle(ctx: DemoContext) -> str:
     samples, _ = training_dataset(MUSCLE_RESOLUTION, **MUSCLE_TRAINING)
     model = learn_arm_model(samples, template, population_size=MUSCLE_POPULATION)
     save_arm_model(folder / "arm_model.npz", model)
-    capture = capture_arm_sequence(session, model, template, CaptureOptions(mode="full"))
+    measured = ArmShapeParams(subject.bmi, subject.muscularity, subject.height_m, subject.arm_length_m)
+    capture = capture_arm_sequence(session, model, template, CaptureOptions(mode="full"), known_shape=measured)
     write_arm_capture(folder / "capture", capture)
     truth_template = arm_template(subject_body(subject, MUSCLE_RESOLUTION), "left")
     scores = evaluate_arm_capture(capture, session, truth_template)
