@@ -97,6 +97,7 @@ class CaptureOptions:
     sigma_frames: float = 1.0  # Eq. 14
     refine_data_weight: float = 0.3  # measured (6k, 24 frames): 1.0 -> 0.3: 6.4 -> 6.2 mm, jitter 2.2 -> 1.8 mm
     refine_iterations: int = 4
+    detail_sigma_frames: float = 1.5  # refinement detail averaged over +-2 frames (0: off)
     joint_radius_m: float = 0.06  # Sec. 7.2 closeness-to-joint factor
     joint_gain: float = 1.0
     # Body-tracker joints in the shape fit, per coordinate vs 1 per depth pair. Measured (6k, subject 2,
@@ -333,6 +334,17 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
         w = correspondence_weights(c, vertex_normals(M, F), M, posed_joints(joints, poses[i]), ok,
                                    o.joint_radius_m, o.joint_gain)
         out.append(refine_surface(M, F, c, w, o.refine_data_weight, o.refine_iterations))
+    if o.detail_sigma_frames > 0 and n >= 3:
+        # The refinement's detail (refined minus model mesh) of each vertex, averaged over +-2 frames
+        # with Gaussian weights: Eq. 13-14 applied to the result of the last ARAP as well.
+        D = np.stack(out) - np.stack(model_meshes)
+        k = np.arange(-2, 3)
+        g = np.exp(-(k ** 2) / (2.0 * o.detail_sigma_frames ** 2))
+        smoothed = []
+        for i in range(n):
+            idx = np.clip(i + k, 0, n - 1)
+            smoothed.append(model_meshes[i] + np.tensordot(g / g.sum(), D[idx], axes=1))
+        out = smoothed
     timer.add("refinement", t0)
     return out
 
