@@ -242,7 +242,9 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
 
     x = np.r_[x0, np.zeros(3)]
     big = np.full(3, np.inf)
-    if fixed_shape:
+    if fixed_shape:  # measured parameters are used as given, never clipped to the training range
+        x0 = np.asarray(initial.as_vector(), np.float64)
+        x[:4] = x0
         lo, hi = x0 - 1e-9, x0 + 1e-9
     for _ in range(rounds):
         pairs = [f.plane_pairs(M) for f, M in zip(frames, meshes_of(x), strict=True)]

@@ -356,3 +356,15 @@ def test_nricp_amberg_anchor_runs_on_two_frames(arm_session_2k, arm_template_2k)
     r = score_arm_sequence(X, G, t, vis, J)
     # Measured: front 10.9 mm, all 31.7 mm from a 10 mm start (trimesh defaults; an anchor, not tuned).
     assert np.isfinite(r["median_mm"]) and r["front_median_mm"] < 16.0
+
+
+def test_known_shape_is_used_as_given(arm_session_2k, arm_model_2k, arm_template_2k):
+    """A measured shape outside the model's training range is used, not clipped to the range."""
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
+    from bodystudio.muscle.model import ArmShapeParams
+
+    shape = ArmShapeParams(38.0, 0.2, 1.55, 0.44)
+    assert shape.bmi > arm_model_2k.shape_range()["bmi"][1] + 5
+    cap = capture_arm_sequence(arm_session_2k, arm_model_2k, arm_template_2k,
+                               CaptureOptions(mode="model", shape_frames=2), frames=slice(0, 2), known_shape=shape)
+    np.testing.assert_allclose(cap.shape.as_vector(), shape.as_vector())
