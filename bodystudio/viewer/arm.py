@@ -35,6 +35,7 @@ class ArmSequenceView:
     faces: np.ndarray
     truth: np.ndarray | None = None
     session: Any = None  # bodystudio.capture.session.Session for the depth points, or None
+    arm_mask: np.ndarray | None = None  # (n,) the tracked arm vertices (the evaluation's), for the title
 
     def index(self, frame_id: int | None) -> int:
         if frame_id is None:
@@ -88,7 +89,11 @@ def scene_for_arm_frame(view: ArmSequenceView, k: int, plotter, cloud: bool = Tr
 
 def _title(view: ArmSequenceView, k: int) -> str:
     err = view.errors_mm(k)
-    tail = f"  median error {np.median(err):.1f} mm" if err is not None else ""
+    tail = ""
+    if err is not None and view.arm_mask is not None and view.arm_mask.shape == err.shape:
+        tail = f"  arm median error {np.median(err[view.arm_mask]):.1f} mm"
+    elif err is not None:
+        tail = f"  median error (all vertices) {np.median(err):.1f} mm"
     return f"{view.path.name}  frame {view.frame_ids[k]}{tail}"
 
 
@@ -197,9 +202,16 @@ def open_arm_view(path: str | Path, session_path: str | Path | None = None) -> A
         except BodyStudioError as exc:
             logging.getLogger(__name__).warning("%s: its session is not readable (%s); showing the capture alone",
                                                 path, exc)
+    arm_mask = None
     if session is not None:
         gts = [session.frame(fid).gt_arm_mesh if fid in session.frame_ids else None for fid in capture.frame_ids]
         if all(g is not None and g.n_vertices == capture.vertices.shape[1] for g in gts):
             truth = np.stack([g.vertices for g in gts])
+            from bodystudio.muscle.synthetic import session_arm_template
+
+            try:
+                arm_mask = session_arm_template(session).arm_mask
+            except BodyStudioError:
+                arm_mask = None
     return ArmSequenceView(path, tuple(int(f) for f in capture.frame_ids), capture.vertices, capture.faces,
-                           truth, session)
+                           truth, session, arm_mask)

@@ -87,3 +87,12 @@ def test_report_of_an_arm_capture_embeds_the_sequence(arm_capture, tmp_path):
     assert result.has_3d and not result.tables  # params.json / manifest.json are data, not metrics
     text = (tmp_path / "r.html").read_text()
     assert text.count('"id":') >= 3  # one entry per frame for the slider
+
+
+def test_opened_capture_knows_its_truth_and_arm_vertices(arm_capture):
+    from bodystudio.viewer.arm import _title, open_arm_view
+
+    view = open_arm_view(arm_capture[1])
+    assert view.truth is not None and view.truth.shape == view.vertices.shape
+    assert view.arm_mask is not None and 0 < view.arm_mask.sum() < len(view.arm_mask)
+    assert "arm median error" in _title(view, 0)
