@@ -12,6 +12,7 @@ Layout (documented in ``docs/session-format.md``)::
     kinect/rgb/00000.png              Kinect colour frames
     kinect/joints/00000.json          body-tracker joints (studio frame, metres)
     gt/phenotype.json, gt/meshes/00000.ply, gt/joints/00000.json, gt/pose/00000.json, gt/masks/cam_00/00000.png
+    gt/arm/00000.ply, gt/arm_pose/00000.json   arm sessions: arm mesh (ArmTemplate topology), arm joint angles
 
 Writes go through :class:`SessionWriter`: every file is first written atomically into ``.staging/``;
 :meth:`SessionWriter.commit` writes ``.staging/commit.json`` (the commit point), moves the staged files
@@ -74,6 +75,8 @@ FRAME_STREAMS = {
     "gt_mesh": "gt/meshes/{frame:05d}.ply",
     "gt_joints": "gt/joints/{frame:05d}.json",
     "gt_pose": "gt/pose/{frame:05d}.json",
+    "gt_arm_mesh": "gt/arm/{frame:05d}.ply",
+    "gt_arm_pose": "gt/arm_pose/{frame:05d}.json",
 }
 BACKGROUND = "{cam}/background/{index:05d}.png"
 DEPTH_MM_PER_M = 1000.0
@@ -329,6 +332,23 @@ class Frame:
         data = self.session.read_json(rel)
         bones = tuple(data.get("bone_names") or self.gt_joints["bone_names"])
         return pose_from_dict(data, bones, str(self.session.path / rel))
+
+    @cached_property
+    def gt_arm_mesh(self):
+        """Ground-truth arm mesh (ArmTemplate topology, :class:`~bodystudio.geometry.mesh.Mesh`) of an arm session."""
+        from bodystudio.geometry.mesh import Mesh
+
+        rel = self._optional("gt_arm_mesh")
+        if rel is None:
+            return None
+        V, F = parse_ply_bytes(self.session.read_bytes(rel), str(self.session.path / rel))
+        return Mesh(V, F)
+
+    @cached_property
+    def gt_arm_pose(self) -> dict | None:
+        """Ground-truth arm joint angles ``{"root": 4x4, "shoulder", "elbow", "wrist": rotation vectors}``."""
+        rel = self._optional("gt_arm_pose")
+        return None if rel is None else self.session.read_json(rel)
 
 
 @dataclass(frozen=True, eq=False)
@@ -726,6 +746,14 @@ class SessionWriter:
 
         data = {**pose_to_dict(pose, tuple(bone_names)), "bone_names": list(bone_names)}
         self._stage(stream_path("gt_pose", frame), _json_bytes(data), "gt_pose", frame)
+
+    def write_gt_arm_mesh(self, frame: int, V: np.ndarray, F: np.ndarray) -> None:
+        """Arm sessions: the ground-truth arm mesh in the arm template's topology."""
+        self._stage(stream_path("gt_arm_mesh", frame), mesh_ply_bytes(V, F), "gt_arm_mesh", frame)
+
+    def write_gt_arm_pose(self, frame: int, arm_pose: dict) -> None:
+        """Arm sessions: the ground-truth arm joint angles (``ArmPose.to_dict()``)."""
+        self._stage(stream_path("gt_arm_pose", frame), _json_bytes(arm_pose), "gt_arm_pose", frame)
 
     def commit(self) -> Session:
         """Make the staged files visible: commit record, moves, manifest last. Returns the opened session."""

@@ -50,6 +50,9 @@ def _register() -> None:
 
     app.command("recover")(recover.recover)
     app.add_typer(calib.app, name="calib", help="ChArUco boards; rig export/import (EasyMocap, COLMAP).")
+    from bodystudio.cli import muscle
+
+    app.add_typer(muscle.app, name="muscle", help="Arm-muscle capture with a depth camera; the arm muscle model.")
 
 
 _register()

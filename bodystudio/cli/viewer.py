@@ -10,7 +10,8 @@ from bodystudio.errors import InputError
 
 
 def view(
-    path: Path = typer.Argument(..., help="session folder, mesh/scan (.ply .obj .stl .off .glb) or avatar (.glb)"),
+    path: Path = typer.Argument(..., help="session folder, arm capture folder, mesh/scan "
+                                "(.ply .obj .stl .off .glb) or avatar (.glb)"),
     bone: str | None = typer.Option(None, "--bone", help="show the skin weights of this bone (avatars)"),
     frame: int | None = typer.Option(None, "--frame", help="session frame to show first"),
     images: str = typer.Option("image", "--images", help="what camera frusta show: image | mask | none"),
@@ -18,7 +19,7 @@ def view(
     screenshot: Path | None = typer.Option(None, "--screenshot", help="render offscreen to this PNG and exit"),
     html: Path | None = typer.Option(None, "--html", help="write a standalone HTML page of the scene and exit"),
     size: str = typer.Option("1024x768", "--size", help="window / screenshot size WxH"),
-    cloud: bool = typer.Option(True, "--cloud/--no-cloud", help="show the Kinect point cloud (sessions)"),
+    cloud: bool = typer.Option(True, "--cloud/--no-cloud", help="show the Kinect point cloud (sessions, arm captures)"),
 ) -> None:
     """Open a session, mesh, scan or avatar in the 3D viewer (or save a screenshot / HTML page)."""
     from bodystudio.fileio import check_output_file
@@ -48,6 +49,10 @@ def view(
             payload = None
             if item.kind == "session":  # every frame goes into the page, with a frame slider
                 payload = session_payload(item.data, plotter, images=images, cloud=cloud, start=frame)
+            elif item.kind == "arm":
+                from bodystudio.viewer.arm import arm_payload
+
+                payload = arm_payload(item.data, plotter, cloud=cloud, start=frame)
             save_scene_html(plotter, html, title=f"bodystudio view {path.name}", payload=payload)
             typer.echo(f"wrote {html}")
     finally:

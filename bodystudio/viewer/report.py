@@ -278,8 +278,16 @@ def metrics_files(root: Path) -> list[Path]:
             continue
         if p.name.startswith(".") or p.stat().st_size > MAX_JSON_BYTES:
             continue
+        if _is_arm_capture_file(p):  # per-frame poses and transforms: data, not metrics
+            continue
         files.append(p)
     return files
+
+
+def _is_arm_capture_file(p: Path) -> bool:
+    from bodystudio.viewer.arm import is_arm_capture
+
+    return p.name in ("params.json", "manifest.json") and is_arm_capture(p.parent)
 
 
 def screenshot_files(root: Path, exclude: Path | None = None) -> list[Path]:
@@ -337,10 +345,17 @@ def session_figures(session_path: Path) -> tuple[list[Plot], list[Table]]:
 
 
 def default_scene(root: Path):
-    """(plotter, payload or None) the report embeds: a session (every frame), else an avatar, else a mesh."""
+    """(plotter, payload or None) the report embeds: an arm capture or a session (every frame), else an avatar,
+    else a mesh."""
     from bodystudio.geometry.mesh import MESH_SUFFIXES
+    from bodystudio.viewer.arm import arm_payload, is_arm_capture
     from bodystudio.viewer.views import build_view, open_viewable, session_payload
 
+    if is_arm_capture(root):  # an arm capture folder: the sequence with its error colours and depth points
+        item = open_viewable(root)
+        plotter = build_view(item)
+        still = render_image(plotter)
+        return plotter, arm_payload(item.data, plotter), still
     sessions = _sessions_under(root)
     if sessions:
         item = open_viewable(sessions[0])

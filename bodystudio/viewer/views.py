@@ -38,9 +38,13 @@ class Viewable:
 
 
 def open_viewable(path: str | Path) -> Viewable:
-    """Open a session folder, a mesh/scan (PLY, OBJ, STL, OFF, GLB) or a skinned avatar (.glb)."""
+    """Open a session or arm capture folder, a mesh/scan (PLY, OBJ, STL, OFF, GLB) or a skinned avatar (.glb)."""
     path = Path(path)
     if path.is_dir():
+        from bodystudio.viewer.arm import is_arm_capture, open_arm_view
+
+        if is_arm_capture(path):
+            return Viewable(path, "arm", open_arm_view(path))
         if not (path / SESSION_MANIFEST).is_file():
             inside = sorted(p.parent for p in path.glob(f"*/{SESSION_MANIFEST}"))
             hint = f" (it holds the session {inside[0]})" if inside else ""
@@ -299,7 +303,7 @@ def build_view(path: str | Path | Viewable, bone: str | None = None, frame: int 
         raise InputError(f"{item.path}: --bone needs an avatar (a skinned .glb), this is a {item.kind}")
     if reference is not None and item.kind != "mesh":
         raise InputError(f"{item.path}: --reference colours a mesh or scan by its error; this is a {item.kind}")
-    if frame is not None and item.kind != "session":
+    if frame is not None and item.kind not in ("session", "arm"):
         raise InputError(f"{item.path}: --frame picks a session frame; this is a {item.kind}")
     ref = load_mesh(reference) if reference is not None else None
     plotter = sc.make_plotter(off_screen=off_screen, window_size=window_size)
@@ -307,6 +311,12 @@ def build_view(path: str | Path | Viewable, bone: str | None = None, frame: int 
         scene_for_session(item.data, frame, plotter, images=images, cloud=cloud)
         if not off_screen:
             add_time_slider(plotter, item.data, images=images, cloud=cloud, frame_id=frame)
+    elif item.kind == "arm":
+        from bodystudio.viewer.arm import add_arm_time_slider, scene_for_arm_sequence
+
+        scene_for_arm_sequence(item.data, frame, plotter, cloud=cloud)
+        if not off_screen:
+            add_arm_time_slider(plotter, item.data, cloud=cloud, frame_id=frame)
     elif item.kind == "avatar":
         scene_for_avatar(item.data, plotter, bone=bone, title=item.path.name)
     else:

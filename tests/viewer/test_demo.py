@@ -5,12 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from bodystudio.cli.demo import run_demo
+from bodystudio.demo import run_demo
 
 
 @pytest.mark.slow
 def test_demo_runs_the_available_stages_and_writes_a_report(tmp_path, chromium, monkeypatch):
-    import bodystudio.cli.demo as demo
+    import bodystudio.demo as demo
 
     # The same code path on a smaller scan and template: the rig fit dominates the demo's time.
     monkeypatch.setattr(demo, "RIG_TEMPLATE", "2k")
@@ -35,14 +35,16 @@ def test_demo_runs_the_available_stages_and_writes_a_report(tmp_path, chromium, 
         assert "Calibration residuals" in text
     if status.get("rig") == "done":
         assert (out / "rig" / "avatar.glb").is_file() and "Solver convergence" in text
+    assert status["muscle"] == "done"
+    assert (out / "muscle" / "capture" / "arm.glb").is_file() and "arm-muscle capture" in text
 
 
 def test_demo_bodies_only_measures_and_reports(tmp_path, drawn):
     from PIL import Image
 
     out = tmp_path / "demo"
-    report, stages = run_demo(out, skip=("session", "calibrate", "reconstruct", "rig"), with_3d=False)
-    assert [r["status"] for r in stages] == ["done", "skipped", "skipped", "skipped", "skipped"]
+    report, stages = run_demo(out, skip=("session", "calibrate", "reconstruct", "rig", "muscle"), with_3d=False)
+    assert [r["status"] for r in stages] == ["done", "skipped", "skipped", "skipped", "skipped", "skipped"]
     measured = json.loads((out / "bodies" / "measurements.json").read_text())["bodies"]
     assert len(measured) == 5
     assert 1.4 < measured["female"]["stature_m"] < measured["male"]["stature_m"] < 2.0
@@ -64,3 +66,63 @@ def test_demo_bad_skip_is_one_line(tmp_path):
     with pytest.raises(InputError, match="not a demo stage"):
         run_demo(tmp_path / "d", skip=("nope",))
     assert not (tmp_path / "d").exists()
+
+
+def _raise_import(ctx):
+    from bodystudio.not_a_module import nothing  # noqa: F401  (a stage whose module is missing)
+
+
+def test_demo_stage_that_fails_to_import_is_a_failure_with_exit_2(tmp_path, monkeypatch, capsys):
+    import bodystudio.demo as demo
+    from bodystudio.cli.main import main
+
+    monkeypatch.setattr(demo, "STAGES", [("session", _raise_import), ("reconstruct", demo.stage_reconstruct)])
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--no-3d"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "stages failed: session, reconstruct" in err[0] and "ModuleNotFoundError" in err[0]
+    rows = json.loads((out / "demo.json").read_text())["stages"]
+    assert [r["status"] for r in rows] == ["failed", "failed"]
+    assert "needs the session stage, which failed" in rows[1]["summary"]
+    assert (out / "report.html").is_file()
+
+
+def test_demo_stage_needing_a_skipped_stage_is_skipped(tmp_path, monkeypatch):
+    import bodystudio.demo as demo
+
+    monkeypatch.setattr(demo, "STAGES", [("session", _raise_import), ("reconstruct", demo.stage_reconstruct)])
+    _, stages = run_demo(tmp_path / "d", skip=("session",), with_3d=False)
+    assert [r["status"] for r in stages] == ["skipped", "skipped"]
+    assert "needs the session stage, which was skipped" in stages[1]["summary"]
+
+
+def test_first_frame_timing_is_reported_apart():
+    from bodystudio.demo import split_first_frame, timing_text
+
+    t = split_first_frame([3956.0, 270.0, 264.0])
+    assert t == {"first_frame_ms": 3956.0, "ms_per_frame": 267.0}
+    assert timing_text(t).startswith("267 ms per frame after the first frame 3956 ms")
+    assert split_first_frame([500.0])["ms_per_frame"] is None
+
+
+@pytest.mark.slow
+def test_demo_muscle_stage_captures_scores_and_reports(tmp_path, monkeypatch, chromium):
+    import bodystudio.demo as demo
+
+    # The same code path on a shorter sequence and a smaller model.
+    monkeypatch.setattr(demo, "MUSCLE_FRAMES", 4)
+    monkeypatch.setattr(demo, "MUSCLE_TRAINING", {"n_subjects": 2, "n_shapes": 1, "n_poses": 4})
+    monkeypatch.setattr(demo, "MUSCLE_POPULATION", 4)
+    monkeypatch.setattr(demo, "STAGES", [("muscle", demo.stage_muscle)])
+    out = tmp_path / "demo"
+    report, stages = run_demo(out)
+    assert stages[0]["status"] == "done", stages
+    scores = json.loads((out / "muscle" / "eval.json").read_text())
+    assert 0 < scores["median_mm"] < 50 and len(scores["per_frame"]) == 4
+    assert (out / "screenshots" / "arm_capture.png").is_file()
+    text = report.read_text()
+    assert "Error per frame (muscle/eval.json)" in text and "front_median_mm" in text
+    assert "similarity" not in text  # the capture's params.json is data, not a metrics table
+    page = chromium(report, size=(1200, 1100))
+    assert page["console"] == [], page["console"]
+    assert 'data-viewer-status="ok"' in page["dom"]

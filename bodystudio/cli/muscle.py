@@ -1,0 +1,290 @@
+"""``bodystudio muscle ...`` (model build / extend / info, capture), ``synth arm`` and ``eval muscle``.
+
+A thin layer over :mod:`bodystudio.muscle`: options are checked here (ranges, output paths, before any
+work starts), the work is one API call, and multi-file outputs appear as one unit
+(:func:`bodystudio.muscle.export.staged_output_folder`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import typer
+
+from bodystudio.cli import eval as eval_cli
+from bodystudio.cli import synth
+from bodystudio.errors import InputError
+
+app = typer.Typer(no_args_is_help=True)
+model_app = typer.Typer(no_args_is_help=True)
+app.add_typer(model_app, name="model", help="The statistical arm deformation model: build, extend, info.")
+
+ARM_MOTIONS = ("elbow_flex", "abduction", "pronation")
+KINECTS = ("v1", "v2")
+RESOLUTIONS = ("6k", "2k", "full")
+SIDES = ("left", "right")
+DISTANCE_RANGE_M = (0.5, 3.0)  # Kinect v1 sees from 0.5 m (v2 also); beyond 3 m the arm is a few pixels wide
+MAX_FRAMES = 2000  # the .glb's weights track is T^2 floats
+
+
+def check_choice(option: str, value: str, valid: tuple[str, ...]) -> str:
+    if value not in valid:
+        raise InputError(f"{option} {value!r}: valid: {', '.join(valid)}")
+    return value
+
+
+def check_range(option: str, value: float, lo: float, hi: float, unit: str = "") -> float:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and lo <= value <= hi):
+        raise InputError(f"{option} {value}: must be in [{lo:g}, {hi:g}]{unit}")
+    return value
+
+
+@synth.app.command("arm")
+def synth_arm(
+    out: Path = typer.Argument(..., help="new session folder"),
+    subject_seed: int = typer.Option(..., "--subject-seed", help="arm subject drawn from the population (seed)"),
+    motion: str = typer.Option("elbow_flex", "--motion", help="elbow_flex | abduction | pronation"),
+    frames: int = typer.Option(200, "--frames", help="frames at 30 fps"),
+    kinect: str = typer.Option("v2", "--kinect", help="simulated depth sensor: v1 | v2"),
+    distance: float = typer.Option(1.0, "--distance", help="sensor to subject distance (m)"),
+    seed: int = typer.Option(0, "--seed", help="motion variation and sensor noise"),
+    resolution: str = typer.Option("6k", "--resolution", help="body template of the subject: 6k | 2k | full"),
+) -> None:
+    """Synthesise a Kinect arm sequence with ground truth (arm meshes, joint angles) per frame."""
+    from bodystudio.muscle.export import check_new_output
+    from bodystudio.muscle.synthetic import synth_arm_session
+
+    check_choice("--motion", motion, ARM_MOTIONS)
+    check_choice("--kinect", kinect, KINECTS)
+    check_choice("--resolution", resolution, RESOLUTIONS)
+    check_range("--frames", frames, 1, MAX_FRAMES)
+    check_range("--distance", distance, *DISTANCE_RANGE_M, " m")
+    check_range("--subject-seed", subject_seed, 0, 2**31 - 1)
+    check_new_output(out, "session folder")
+    session = synth_arm_session(out, subject_seed=subject_seed, motion=motion, n_frames=frames, kinect=kinect,
+                                distance_m=distance, seed=seed, resolution=resolution)
+    typer.echo(f"wrote {out}: {len(session)} frames of {motion} (Kinect {kinect} at {distance:g} m), "
+               f"streams {', '.join(session.streams)}")
+
+
+def _arm_template(resolution: str, side: str):
+    from bodystudio.body import build_body
+    from bodystudio.muscle.arm import arm_template
+
+    return arm_template(build_body(resolution=resolution), side)
+
+
+def _session_arm(session) -> dict:
+    """The session's arm block (side, resolution) when it is a synthetic arm session, else {}."""
+    gt = session.gt_subject or {}
+    return gt.get("arm") or {}
+
+
+@app.command("capture")
+def capture(
+    session_path: Path = typer.Argument(..., metavar="SESSION", help="Kinect session folder (bodystudio synth arm)"),
+    out: Path = typer.Option(..., "--out", help="new output folder: meshes/NNNNN.ply, arm.glb, params.json"),
+    model_path: Path | None = typer.Option(None, "--model", help="arm model .npz (bodystudio muscle model build)"),
+    no_model: bool = typer.Option(False, "--no-model", help="NICP + ARAP only, no model (the paper's Fig. 6a)"),
+    no_refine: bool = typer.Option(False, "--no-refine", help="model-based filtering only, no refinement (§7)"),
+    resolution: str | None = typer.Option(None, "--resolution", help="arm template: 6k | 2k | full "
+                                          "(default: the session's, else 6k)"),
+    side: str | None = typer.Option(None, "--side", help="left | right (default: the session's, else left)"),
+    frames: int | None = typer.Option(None, "--frames", help="capture only the first N frames"),
+    shape: str | None = typer.Option(None, "--shape", help="the subject's measured shape parameters "
+                                     "bmi=..,muscularity=..,height_m=..,arm_length_m=.. (the paper's Table 1; "
+                                     "default: fitted from the first frames)"),
+) -> None:
+    """Capture the arm of a depth session (Arm-Muscle Capture §4-7): per-frame meshes, joint angles, shape."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence, write_arm_capture
+    from bodystudio.muscle.export import check_new_output
+
+    if shape is not None and no_model:
+        raise InputError("--shape needs the model (the shape parameters drive it); drop --no-model")
+    known_shape = _parse_shape(shape) if shape is not None else None
+    if no_model and no_refine:
+        raise InputError("--no-model and --no-refine: choose one (--no-model is NICP + ARAP without the model, "
+                         "--no-refine the model without the refinement)")
+    if no_model and model_path is not None:
+        raise InputError("--no-model with --model: choose one")
+    if not no_model and model_path is None:
+        raise InputError("muscle capture needs --model MODEL.npz (make one with `bodystudio muscle model build`) "
+                         "or --no-model")
+    if model_path is not None and not model_path.is_file():
+        raise InputError(f"--model {model_path}: no such file; make one with `bodystudio muscle model build`")
+    if frames is not None:
+        check_range("--frames", frames, 1, MAX_FRAMES)
+    check_new_output(out, "arm capture folder")
+    session = open_session(session_path)
+    if frames is not None and frames > len(session.frame_ids):
+        raise InputError(f"--frames {frames}: {session_path} has {len(session.frame_ids)} frames")
+    arm = _session_arm(session)
+    resolution = check_choice("--resolution", resolution or arm.get("resolution", "6k"), RESOLUTIONS)
+    side = check_choice("--side", side or arm.get("side", "left"), SIDES)
+    template = _arm_template(resolution, side)
+    model = None
+    if model_path is not None:
+        from bodystudio.muscle.model import load_arm_model
+
+        model = load_arm_model(model_path, template)
+    mode = "nicp" if no_model else "model" if no_refine else "full"
+    result = capture_arm_sequence(session, model, template, CaptureOptions(mode=mode),
+                                  frames=None if frames is None else slice(0, frames), known_shape=known_shape)
+    write_arm_capture(out, result)
+    typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
+
+
+EVAL_KEYS = ("median_mm", "p90_mm", "front_median_mm", "back_median_mm", "bulge_err_mm", "jitter_mm", "ms_per_frame")
+
+
+def evaluate_capture_folder(folder: Path, session_path: Path | None = None) -> dict:
+    """Issue 11's figures of a written arm capture folder against its session's ground truth."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.muscle.capture import load_arm_capture
+    from bodystudio.muscle.evaluate import evaluate_arm_capture
+    from bodystudio.muscle.synthetic import session_arm_template
+
+    if not Path(folder).is_dir():
+        raise InputError(f"{folder}: no such arm capture folder; make one with `bodystudio muscle capture`")
+    capture = load_arm_capture(folder)
+    source = session_path or capture.session_path
+    if source is None:
+        raise InputError(f"{folder}: params.json names no session; pass --session SESSION")
+    session = open_session(source)
+    return evaluate_arm_capture(capture, session, session_arm_template(session))
+
+
+@eval_cli.app.command("muscle")
+def eval_muscle(
+    folder: Path = typer.Argument(..., metavar="DIR", help="arm capture folder (bodystudio muscle capture)"),
+    session_path: Path | None = typer.Option(None, "--session", help="the captured session (default: the one "
+                                             "recorded in DIR/params.json)"),
+) -> None:
+    """Score an arm capture against the session's ground truth; prints JSON (errors in mm)."""
+    scores = evaluate_capture_folder(folder, session_path)
+    out = {k: round(float(scores[k]), 3) for k in EVAL_KEYS if k in scores}
+    out.update({k: round(v, 3) if isinstance(v, float) else v for k, v in scores.items() if k not in out})
+    typer.echo(json.dumps(out))
+
+
+# --- the model ------------------------------------------------------------------------------------------
+
+def _parse_shape(text: str):
+    """``bmi=31,muscularity=0.3,height_m=1.62,arm_length_m=0.55`` -> ArmShapeParams."""
+    from bodystudio.muscle.model import SHAPE_NAMES, ArmShapeParams
+
+    values = {}
+    for part in text.split(","):
+        name, eq, value = part.partition("=")
+        try:
+            values[name.strip()] = float(value)
+        except ValueError:
+            raise InputError(f"--shape {text!r}: write NAME=VALUE pairs for {', '.join(SHAPE_NAMES)}") from None
+        if not eq or name.strip() not in SHAPE_NAMES:
+            raise InputError(f"--shape {text!r}: names are {', '.join(SHAPE_NAMES)}")
+    shape = ArmShapeParams.from_dict(values, "--shape")
+    for name, lo, hi in (("bmi", 10, 60), ("muscularity", 0, 1), ("height_m", 1.0, 2.3), ("arm_length_m", 0.3, 1.0)):
+        check_range(f"--shape {name}", getattr(shape, name), lo, hi)
+    return shape
+
+
+@model_app.command("build")
+def model_build(
+    out: Path = typer.Option(..., "--out", help="new model file (.npz)"),
+    resolution: str = typer.Option("6k", "--resolution", help="arm template: 6k | 2k | full"),
+    side: str = typer.Option("left", "--side", help="left | right"),
+    subjects: int = typer.Option(10, "--subjects", help="training subjects (men, BMI 20-28, as the paper's)"),
+    shapes: int = typer.Option(3, "--shapes", help="base-pose meshes per subject"),
+    poses: int = typer.Option(24, "--poses", help="posed meshes per subject"),
+    regularization: float = typer.Option(1.0, "--regularization", help="Tikhonov weight of Eq. 6-10"),
+    seed: int = typer.Option(0, "--seed", help="training subjects and poses"),
+) -> None:
+    """Learn the statistical arm model (§6.1) from the synthetic high-fidelity training dataset."""
+    from bodystudio.muscle.model import learn_arm_model, save_arm_model
+    from bodystudio.muscle.synthetic import training_dataset
+
+    check_choice("--resolution", resolution, RESOLUTIONS)
+    check_choice("--side", side, SIDES)
+    check_range("--subjects", subjects, 2, 100)
+    check_range("--shapes", shapes, 1, 10)
+    check_range("--poses", poses, 1, 500)
+    check_range("--regularization", regularization, 0.0, 1e6)
+    check_range("--seed", seed, 0, 2**31 - 1)
+    if out.suffix.lower() != ".npz":
+        raise InputError(f"--out {out}: an arm model is a .npz file")
+    from bodystudio.muscle.export import check_new_output
+
+    check_new_output(out, "model file")
+    samples, _ = training_dataset(resolution, subjects, shapes, poses, seed, side)
+    model = learn_arm_model(samples, _arm_template(resolution, side), regularization)
+    save_arm_model(out, model)
+    typer.echo(f"wrote {out}: {len(model.subjects)} subjects, {len(samples)} meshes, template {model.template_key}")
+
+
+@model_app.command("extend")
+def model_extend(
+    model_path: Path = typer.Argument(..., metavar="MODEL", help="arm model (.npz)"),
+    captures: list[Path] = typer.Argument(..., metavar="CAPTURES...", help="arm capture folders to add"),
+    out: Path = typer.Option(..., "--out", help="new model file (.npz)"),
+    shape: str | None = typer.Option(None, "--shape", help="shape of the captured subject(s): "
+                                     "bmi=..,muscularity=..,height_m=..,arm_length_m=.. (default: the session's "
+                                     "measured subject, else the capture's fitted shape)"),
+    stride: int = typer.Option(5, "--stride", help="use every N-th captured frame"),
+) -> None:
+    """Dataset extension (issue 11 §4): add captured subjects to a model and re-learn it."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.errors import BodyStudioError
+    from bodystudio.muscle.capture import load_arm_capture
+    from bodystudio.muscle.export import check_new_output
+    from bodystudio.muscle.model import (
+        ArmShapeParams,
+        capture_samples,
+        extend_arm_model,
+        load_arm_model,
+        save_arm_model,
+    )
+
+    check_range("--stride", stride, 1, 1000)
+    if out.suffix.lower() != ".npz":
+        raise InputError(f"--out {out}: an arm model is a .npz file")
+    given = _parse_shape(shape) if shape is not None else None
+    check_new_output(out, "model file")
+    model = load_arm_model(model_path)
+    samples = []
+    for folder in captures:
+        if not folder.is_dir():
+            raise InputError(f"{folder}: no such arm capture folder")
+        capture = load_arm_capture(folder)
+        if capture.template_key != model.template_key:
+            raise InputError(f"{folder}: captured on arm template {capture.template_key}, the model's is "
+                             f"{model.template_key}; capture with the model's --resolution and --side")
+        if capture.mode == "nicp" or capture.poses[0] is None:
+            raise InputError(f"{folder}: captured with --no-model (no joint angles); capture with --model")
+        subject_shape = given
+        if subject_shape is None and capture.session_path is not None:
+            try:
+                subject = (open_session(capture.session_path).gt_subject or {}).get("arm", {}).get("subject")
+                subject_shape = ArmShapeParams.from_dict(subject) if subject else None
+            except BodyStudioError:
+                subject_shape = None
+        if subject_shape is None:
+            subject_shape = capture.shape
+        samples += capture_samples(capture, f"capture_{folder.resolve().name}", subject_shape, stride)
+    extended = extend_arm_model(model, samples)
+    save_arm_model(out, extended)
+    typer.echo(f"wrote {out}: {len(extended.subjects)} subjects ({len(captures)} added from captures)")
+
+
+@model_app.command("info")
+def model_info(model_path: Path = typer.Argument(..., metavar="MODEL", help="arm model (.npz)")) -> None:
+    """Print the model's template, version, subjects and the range of their shape parameters (JSON)."""
+    from bodystudio.muscle.model import load_arm_model
+
+    model = load_arm_model(model_path)
+    info = {"template_key": model.template_key, "version": model.version, "n_vertices": model.n_vertices,
+            "regularization": model.regularization, "n_subjects": len(model.subjects),
+            "shape_range": model.shape_range() if model.subjects else {}, "subjects": model.subjects}
+    typer.echo(json.dumps(info, indent=2))

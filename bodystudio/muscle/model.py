@@ -1,0 +1,462 @@
+"""The statistical arm deformation model (§6.1 and Eq. 5-12 of Arm-Muscle Capture; issue 11 §2, §4).
+
+``v = skinning(v_base + d_l + d_theta + d_rho)`` (Eq. 12):
+
+* ``v_base``: the mean arm of a population of bodies in the base pose (the paper's Hasler average);
+* ``d_l`` (Eq. 8-9): length displacements, a combination of the population's PCA eigenvectors whose
+  weights are regressed (Tikhonov) on the arm length over the population - the paper's Hasler
+  dataset, ours ``bodystudio.body.population``;
+* ``d_theta`` (Eq. 6-7): shape displacements, per-vertex linear regression on BMI, muscularity and
+  height (standardised, Tikhonov-regularised) of the training subjects' base-pose meshes minus
+  ``v_base + d_l``;
+* ``d_rho`` (Eq. 10): pose displacements, per-vertex linear regression on the 9 joint-angle
+  coordinates (shoulder, elbow, wrist rotation vectors) plus an intercept, of every training mesh
+  brought back to the base pose by inverting the four-part skinning, minus its subject's base mesh;
+* the rest joints are regressed on the four shape parameters over the population and the subjects
+  whose joints are known;
+* ``skinning``: :func:`bodystudio.muscle.arm.pose_arm`.
+
+The 90 % displacement-norm limit (§8.2, Fig. 13): "0 % = unlimited, 100 % = simple skinning", the
+percentage of the pose's maximum displacement norm that is cut off: with limit ``p`` every pose
+displacement longer than ``(1 - p) * max_i |d_rho_i|`` is shortened to that length.
+
+Dataset extension (issue §4): the model keeps its training statistics (per-row shape residuals, the
+normal equations of the pose regression), so :func:`extend_arm_model` adds captured subjects and
+re-solves without the original meshes. Saved as a versioned ``.npz`` with the subjects it was
+learned from and the template key; loading it for another template is refused.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import zipfile
+from dataclasses import dataclass, field, fields, replace
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from bodystudio.body import build_body
+from bodystudio.body.measure import measure_body
+from bodystudio.body.population import sample_subject
+from bodystudio.errors import FileFormatError, InputError
+from bodystudio.fileio import atomic_write
+from bodystudio.muscle.arm import ArmPose, ArmTemplate, arm_template, part_transforms, pose_arm
+
+log = logging.getLogger(__name__)
+
+MODEL_FORMAT = "bodystudio-arm-model"
+MODEL_VERSION = 1
+# A training mesh is in the base pose when no joint is rotated more than this (the paper compares angles).
+BASE_POSE_TOL_RAD = np.deg2rad(8.0)
+N_LENGTH_COMPONENTS = 8
+SHAPE_NAMES = ("bmi", "muscularity", "height_m", "arm_length_m")
+# Regressors of the shape term: BMI, muscularity, height (Eq. 6) and arm length (issue 11 §2 lists it with
+# the shape parameters; it lets added subjects correct the population length term at the extremes).
+SHAPE_REGRESSORS = 4
+
+
+@dataclass(frozen=True)
+class ArmShapeParams:
+    """The paper's shape parameters: BMI, muscularity (0..1), height and arm length (metres)."""
+
+    bmi: float
+    muscularity: float
+    height_m: float
+    arm_length_m: float
+
+    def as_vector(self) -> np.ndarray:
+        return np.array([self.bmi, self.muscularity, self.height_m, self.arm_length_m], dtype=np.float64)
+
+    @classmethod
+    def from_vector(cls, x) -> ArmShapeParams:
+        return cls(*(float(v) for v in np.asarray(x, dtype=np.float64).reshape(4)))
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "shape parameters") -> ArmShapeParams:
+        try:
+            return cls(*(float(d[n]) for n in SHAPE_NAMES))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{source}: needs {', '.join(SHAPE_NAMES)} ({exc})") from None
+
+
+def measure_arm_shape(phenotype, local: dict | None = None, side: str = "left") -> ArmShapeParams:
+    """Shape parameters of a body: BMI (mass from the 6k body's volume), muscle, stature, arm chain length."""
+    body = build_body(phenotype, local or {}, resolution="6k")
+    m = measure_body(body)
+    s = "_l" if side == "left" else "_r"
+    names = body.skeleton.bone_names
+    h = body.skeleton.heads[[names.index(f"{b}{s}") for b in ("upperarm", "lowerarm", "hand")]]
+    arm = float(np.linalg.norm(h[1] - h[0]) + np.linalg.norm(h[2] - h[1]))
+    return ArmShapeParams(m["mass_kg"] / m["stature_m"] ** 2, float(phenotype.muscle), m["stature_m"], arm)
+
+
+@dataclass(frozen=True, eq=False)
+class ArmSample:
+    """One training mesh: a subject's arm ``vertices`` (n, 3) in ``pose``, in the template topology.
+
+    ``joints`` are the subject's rest joint centres when known (ground truth); None uses the model's
+    joint regression from ``shape``.
+    """
+
+    subject: str
+    shape: ArmShapeParams
+    vertices: np.ndarray
+    pose: ArmPose
+    joints: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class ArmModel:
+    """A learned arm deformation model (all arrays float64; ``3n`` = flattened vertex coordinates)."""
+
+    template_key: str
+    faces: np.ndarray  # (m, 3)
+    part_weights: np.ndarray  # (n, 4)
+    arm_mask: np.ndarray  # (n,) bool
+    base_vertices: np.ndarray  # (n, 3) population mean arm (v_base), shoulder joint at the origin
+    length_basis: np.ndarray  # (k, 3n) PCA eigenvectors e_j of the population arms
+    length_coeffs: np.ndarray  # (2, k) PCA weights = [1, z(arm length)] @ length_coeffs
+    joint_coeffs: np.ndarray  # (5, 9) rest joints = [1, z(shape)] @ joint_coeffs
+    shape_coeffs: np.ndarray  # (1 + k, 3n) d_theta = [1, z(first k of SHAPE_NAMES)] @ shape_coeffs
+    pose_coeffs: np.ndarray  # (10, 3n) d_rho = [1, 9 joint-angle coordinates] @ pose_coeffs
+    param_center: np.ndarray  # (4,) z(x) = (x - center) / scale, order SHAPE_NAMES
+    param_scale: np.ndarray  # (4,)
+    regularization: float
+    # Training statistics kept for dataset extension.
+    shape_rows: np.ndarray  # (R, 4) shape parameters of each base-pose training mesh
+    shape_residuals: np.ndarray  # (R, 3n) its displacement from v_base + d_l
+    pose_xtx: np.ndarray  # (10, 10) normal equations of Eq. 10
+    pose_xtd: np.ndarray  # (10, 3n)
+    joint_xtx: np.ndarray  # (5, 5) normal equations of the joint regression (population + subjects)
+    joint_xty: np.ndarray  # (5, 9)
+    subjects: list = field(default_factory=list)  # [{"name", "shape": {...}, "n_meshes", "source"}]
+    version: int = MODEL_VERSION
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.base_vertices)
+
+    def shape_range(self) -> dict[str, tuple[float, float]]:
+        """Range of each shape parameter over the training subjects."""
+        S = np.array([[s["shape"][n] for n in SHAPE_NAMES] for s in self.subjects])
+        return {n: (float(S[:, i].min()), float(S[:, i].max())) for i, n in enumerate(SHAPE_NAMES)}
+
+
+# --- the population ("Hasler's dataset") -----------------------------------------------------------------
+
+@lru_cache(maxsize=4)
+def population_arms(resolution: str, side: str = "left", n_subjects: int = 40, seed: int = 114):
+    """Rest arms (N, n, 3), rest joints (N, 3, 3) and shape parameters (N, 4) of a seeded population."""
+    rng = np.random.default_rng(seed)
+    V, J, P = [], [], []
+    for _ in range(n_subjects):
+        phenotype, local = sample_subject(rng)
+        body = build_body(phenotype, local, resolution=resolution)
+        T = arm_template(body, side)
+        V.append(T.vertices)
+        J.append(T.joints)
+        P.append(measure_arm_shape(phenotype, local, side).as_vector())
+    return np.stack(V), np.stack(J), np.stack(P)
+
+
+def _design(Z: np.ndarray) -> np.ndarray:
+    return np.c_[np.ones(len(Z)), Z]
+
+
+def tikhonov_least_squares(X: np.ndarray, Y: np.ndarray, q: float) -> np.ndarray:
+    """``argmin_W |X W - Y|^2 + q^2 |W[1:]|^2`` (Eq. 7 and 9; the intercept row is not regularised)."""
+    return tikhonov_from_normal_equations(X.T @ X, X.T @ Y, q)
+
+
+def tikhonov_from_normal_equations(xtx: np.ndarray, xty: np.ndarray, q: float) -> np.ndarray:
+    """The Tikhonov solution from ``X^T X`` and ``X^T Y``."""
+    reg = np.eye(len(xtx)) * q ** 2
+    reg[0, 0] = 0.0
+    return np.linalg.solve(xtx + reg, xty)
+
+
+# --- evaluation of the model ---------------------------------------------------------------------------
+
+def _z(model: ArmModel, x: np.ndarray) -> np.ndarray:
+    return (np.asarray(x, dtype=np.float64) - model.param_center) / model.param_scale
+
+
+def length_displacements(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
+    """``d_l`` (n, 3): PCA eigenvectors weighted by the regression on arm length (Eq. 8)."""
+    z = _z(model, shape.as_vector())[3]
+    w = np.array([1.0, z]) @ model.length_coeffs
+    return (w @ model.length_basis).reshape(-1, 3)
+
+
+def shape_displacements(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
+    """``d_theta`` (n, 3) = w0 + w1 BMI + w2 muscularity + w3 height (Eq. 6, standardised parameters)."""
+    z = _z(model, shape.as_vector())[:len(model.shape_coeffs) - 1]
+    return (np.r_[1.0, z] @ model.shape_coeffs).reshape(-1, 3)
+
+
+def pose_displacements(model: ArmModel, angles: np.ndarray) -> np.ndarray:
+    """``d_rho`` (n, 3) from the 9 joint-angle coordinates plus intercept (Eq. 10)."""
+    a = np.asarray(angles, dtype=np.float64).reshape(9)
+    return (np.r_[1.0, a] @ model.pose_coeffs).reshape(-1, 3)
+
+
+def model_rest_vertices(model: ArmModel, shape: ArmShapeParams, joints: np.ndarray | None = None) -> np.ndarray:
+    """``v_base + d_l + d_theta`` (n, 3): the subject's arm in the base pose, placed at its shoulder.
+
+    The terms live in a frame centred on the shoulder joint (arm shape, not where the torso puts the
+    shoulder); ``joints`` (the subject's, else the regressed ones) place it.
+    """
+    J = model_joints(model, shape) if joints is None else np.asarray(joints, dtype=np.float64).reshape(3, 3)
+    return model.base_vertices + length_displacements(model, shape) + shape_displacements(model, shape) + J[0]
+
+
+def model_joints(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
+    """Rest shoulder, elbow and wrist centres (3, 3) regressed from the shape parameters."""
+    return (np.r_[1.0, _z(model, shape.as_vector())] @ model.joint_coeffs).reshape(3, 3)
+
+
+def limit_displacement_norms(d: np.ndarray, norm_limit: float) -> np.ndarray:
+    """§8.2's displacement-norm limit: cut every norm above ``(1 - norm_limit) * max norm`` (0 = unlimited)."""
+    if not 0.0 <= norm_limit <= 1.0:
+        raise InputError(f"norm_limit={norm_limit} must be in [0, 1] (0 = unlimited, 1 = plain skinning)")
+    norms = np.linalg.norm(d, axis=1)
+    cap = (1.0 - norm_limit) * norms.max(initial=0.0)
+    scale = np.where(norms > cap, cap / np.maximum(norms, 1e-300), 1.0)
+    return d * scale[:, None]
+
+
+def model_mesh(model: ArmModel, shape: ArmShapeParams, arm_pose: ArmPose, norm_limit: float = 0.9,
+               joints: np.ndarray | None = None) -> np.ndarray:
+    """Eq. 12: ``skinning(v_base + d_l + d_theta + d_rho)`` with the §8.2 norm limit on ``d_rho`` (n, 3).
+
+    ``joints`` overrides the regressed rest joints (e.g. joints measured on the subject).
+    """
+    d_rho = limit_displacement_norms(pose_displacements(model, arm_pose.angles), norm_limit)
+    J = model_joints(model, shape) if joints is None else np.asarray(joints, dtype=np.float64).reshape(3, 3)
+    return pose_arm(model_rest_vertices(model, shape, J) + d_rho, model.part_weights, J, arm_pose)
+
+
+def unpose_arm(vertices: np.ndarray, part_weights: np.ndarray, joints: np.ndarray, pose: ArmPose) -> np.ndarray:
+    """Inverse of :func:`~bodystudio.muscle.arm.pose_arm`: posed vertices back to the base pose (per-vertex)."""
+    T = part_transforms(joints, pose)
+    M = np.einsum("np,pij->nij", part_weights, T)
+    Vh = np.c_[vertices, np.ones(len(vertices))]
+    return np.linalg.solve(M, Vh[:, :, None])[:, :3, 0]
+
+
+def model_error_mm(model: ArmModel, samples: list[ArmSample], norm_limit: float = 0.0,
+                   use_sample_joints: bool = False, fit_translation: bool = False) -> dict:
+    """Model-only error of ``samples`` (true shape parameters and poses): arm-vertex distances in mm.
+
+    ``use_sample_joints`` places the model on each sample's own rest joints; ``fit_translation`` removes
+    the best translation per mesh (what a capture's root fit absorbs: where the torso puts the shoulder).
+    """
+    errs = []
+    for s in samples:
+        V = model_mesh(model, s.shape, s.pose, norm_limit, joints=s.joints if use_sample_joints else None)
+        D = (V - s.vertices)[model.arm_mask]
+        if fit_translation:
+            D = D - D.mean(axis=0)
+        errs.append(np.linalg.norm(D, axis=1))
+    e = 1000 * np.concatenate(errs)
+    return {"mean_mm": float(e.mean()), "median_mm": float(np.median(e)), "p90_mm": float(np.percentile(e, 90)),
+            "n_meshes": len(samples)}
+
+
+# --- learning -----------------------------------------------------------------------------------------
+
+def _subject_rows(samples: list[ArmSample], part_weights, predict_joints, prior: ArmModel | None):
+    """Unposed meshes of one subject -> (base-pose rows, subject base mesh, pose rows (angles, d))."""
+    unposed, angles = [], []
+    for s in samples:
+        J = s.joints if s.joints is not None else predict_joints(s.shape)
+        unposed.append(unpose_arm(s.vertices, part_weights, J, s.pose) - J[0])
+        angles.append(s.pose.angles.reshape(9))
+    unposed, angles = np.stack(unposed), np.stack(angles)
+    in_base = np.abs(angles.reshape(-1, 3, 3)).max(axis=(1, 2)) <= BASE_POSE_TOL_RAD
+    if in_base.any():
+        base_rows = unposed[in_base]
+    elif prior is not None:
+        # No base-pose mesh (a captured sequence): remove the prior's pose term from every frame.
+        base_rows = np.stack([u - pose_displacements(prior, a) for u, a in zip(unposed, angles, strict=True)])
+    else:
+        raise InputError(f"subject {samples[0].subject!r} has no mesh in the base pose (all joint angles "
+                         f"< {np.degrees(BASE_POSE_TOL_RAD):.0f} deg); add one or extend an existing model")
+    base = base_rows.mean(axis=0)
+    return base_rows, base, angles, unposed - base
+
+
+def _group(samples: list[ArmSample]) -> dict[str, list[ArmSample]]:
+    groups: dict[str, list[ArmSample]] = {}
+    for s in samples:
+        groups.setdefault(s.subject, []).append(s)
+    return groups
+
+
+def _check_samples(samples: list[ArmSample], n: int) -> None:
+    if not samples:
+        raise InputError("no training meshes given; the arm model needs at least one subject")
+    for s in samples:
+        if np.shape(s.vertices) != (n, 3) or not np.isfinite(s.vertices).all():
+            raise InputError(f"subject {s.subject!r}: mesh has shape {np.shape(s.vertices)}, the arm template "
+                             f"needs ({n}, 3) finite vertices; use the same template (resolution, side)")
+
+
+def learn_arm_model(samples: list[ArmSample], template: ArmTemplate, regularization: float = 1.0,
+                    population_size: int = 40, population_seed: int = 114, source: str = "training") -> ArmModel:
+    """Learn the model of Eq. 6-10 from training meshes (several subjects, base pose + other poses)."""
+    _check_samples(samples, template.n_vertices)
+    if regularization < 0:
+        raise InputError(f"regularization={regularization} must be >= 0")
+    popV, popJ, popP = population_arms(template.resolution, template.side, population_size, population_seed)
+    N = len(popV)
+    X = (popV - popJ[:, :1]).reshape(N, -1)  # shoulder-centred
+    base = X.mean(axis=0)
+    _, _, Vt = np.linalg.svd(X - base, full_matrices=False)
+    k = min(N_LENGTH_COMPONENTS, N - 1)
+    E = Vt[:k]
+    coeffs = (X - base) @ E.T
+    center, scale = popP.mean(axis=0), popP.std(axis=0) + 1e-12
+    Zp = (popP - center) / scale
+    length_coeffs = tikhonov_least_squares(_design(Zp[:, 3:4]), coeffs, regularization)
+    Xj = _design(Zp)
+    joint_xtx, joint_xty = Xj.T @ Xj, Xj.T @ popJ.reshape(N, 9)
+    joint_coeffs = tikhonov_from_normal_equations(joint_xtx, joint_xty, regularization)
+    model = ArmModel(template.key, template.faces.copy(), template.part_weights.copy(), template.arm_mask.copy(),
+                     base.reshape(-1, 3), E, length_coeffs, joint_coeffs,
+                     np.zeros((1 + SHAPE_REGRESSORS, X.shape[1])), np.zeros((10, X.shape[1])), center, scale,
+                     float(regularization),
+                     np.zeros((0, 4)), np.zeros((0, X.shape[1])), np.zeros((10, 10)), np.zeros((10, X.shape[1])),
+                     joint_xtx, joint_xty)
+    return _add_subjects(model, samples, prior=None, source=source)
+
+
+def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | None, source: str) -> ArmModel:
+    groups = _group(samples)
+    taken = {s["name"] for s in model.subjects}
+    clash = sorted(set(groups) & taken)
+    if clash:
+        raise InputError(f"subject(s) {', '.join(clash)} are already in the model; give the new captures other names")
+    shape_rows, residuals = [model.shape_rows], [model.shape_residuals]
+    xtx, xtd = model.pose_xtx.copy(), model.pose_xtd.copy()
+    jtx, jty = model.joint_xtx.copy(), model.joint_xty.copy()
+    subjects = list(model.subjects)
+    for name, group in groups.items():
+        shape = group[0].shape
+        base_rows, _, angles, d = _subject_rows(group, model.part_weights, lambda s: model_joints(model, s), prior)
+        expected = model.base_vertices + length_displacements(model, shape)
+        shape_rows.append(np.tile(shape.as_vector(), (len(base_rows), 1)))
+        residuals.append((base_rows - expected).reshape(len(base_rows), -1))
+        Xp = _design(angles)
+        xtx += Xp.T @ Xp
+        xtd += Xp.T @ d.reshape(len(d), -1)
+        known = [s.joints for s in group if s.joints is not None]
+        if known:  # subjects with measured joints refine the joint regression (as population rows do)
+            xj = np.r_[1.0, _z(model, shape.as_vector())]
+            jtx += np.outer(xj, xj)
+            jty += np.outer(xj, np.mean(known, axis=0).reshape(9))
+        subjects.append({"name": name, "shape": shape.to_dict(), "n_meshes": len(group), "source": source})
+    rows, R = np.concatenate(shape_rows), np.concatenate(residuals)
+    Zs = _z(model, rows)[:, :len(model.shape_coeffs) - 1]
+    q = model.regularization
+    shape_coeffs = tikhonov_least_squares(_design(Zs), R, q)
+    pose_coeffs = tikhonov_from_normal_equations(xtx, xtd, q)
+    joint_coeffs = tikhonov_from_normal_equations(jtx, jty, q)
+    return replace(model, shape_coeffs=shape_coeffs, pose_coeffs=pose_coeffs, joint_coeffs=joint_coeffs,
+                   shape_rows=rows, shape_residuals=R, pose_xtx=xtx, pose_xtd=xtd, joint_xtx=jtx, joint_xty=jty,
+                   subjects=subjects)
+
+
+def extend_arm_model(model: ArmModel, captures: list[ArmSample], source: str = "capture") -> ArmModel:
+    """Dataset extension (§1 contribution 2, issue §4): add captured subjects and re-learn Eq. 6-10.
+
+    Subjects without a base-pose mesh (captured sequences) get their base mesh from every frame minus
+    the current model's pose term. The population terms (v_base, d_l, joints) are kept.
+    """
+    _check_samples(captures, model.n_vertices)
+    return _add_subjects(model, captures, prior=model, source=source)
+
+
+# --- files ----------------------------------------------------------------------------------------------
+
+_ARRAYS = ("faces", "part_weights", "arm_mask", "base_vertices", "length_basis", "length_coeffs", "joint_coeffs",
+           "shape_coeffs", "pose_coeffs", "param_center", "param_scale", "shape_rows", "shape_residuals",
+           "pose_xtx", "pose_xtd", "joint_xtx", "joint_xty")
+
+
+def save_arm_model(path: str | os.PathLike, model: ArmModel) -> None:
+    """Write the model as a versioned ``.npz`` (atomic): arrays + JSON header (format, version, key, subjects)."""
+    header = {"format": MODEL_FORMAT, "version": model.version, "template_key": model.template_key,
+              "regularization": model.regularization, "subjects": model.subjects}
+    with atomic_write(path, "wb") as f:
+        np.savez_compressed(f, header=np.array(json.dumps(header)), **{k: getattr(model, k) for k in _ARRAYS})
+
+
+def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None) -> ArmModel:
+    """Read a model written by :func:`save_arm_model`; refuse junk, other versions and other templates."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such arm model file; build one with `bodystudio muscle model build`")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            header = json.loads(str(z["header"]))
+            arrays = {k: np.array(z[k]) for k in _ARRAYS}
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, EOFError) as exc:
+        raise FileFormatError(f"{path}: not a bodystudio arm model ({type(exc).__name__}: {exc}); "
+                              "rebuild it with `bodystudio muscle model build`") from None
+    if not isinstance(header, dict) or header.get("format") != MODEL_FORMAT:
+        raise FileFormatError(f"{path}: not a bodystudio arm model (format {header.get('format')!r})"
+                              if isinstance(header, dict) else f"{path}: not a bodystudio arm model")
+    if header.get("version") != MODEL_VERSION:
+        raise FileFormatError(f"{path}: arm model version {header.get('version')!r} is not supported (this "
+                              f"bodystudio reads version {MODEL_VERSION}); rebuild it with "
+                              "`bodystudio muscle model build`")
+    if not isinstance(header.get("template_key"), str) or not isinstance(header.get("regularization"), (int, float)) \
+            or not isinstance(header.get("subjects", []), list):
+        raise FileFormatError(f"{path}: arm model header lacks template_key / regularization / subjects; "
+                              "rebuild it with `bodystudio muscle model build`")
+    n = len(arrays["base_vertices"])
+    if arrays["pose_coeffs"].shape != (10, 3 * n) or arrays["shape_coeffs"].shape[1:] != (3 * n,) \
+            or not all(np.isfinite(arrays[k]).all() for k in ("base_vertices", "pose_coeffs", "shape_coeffs")):
+        raise FileFormatError(f"{path}: arm model arrays are inconsistent or not finite; rebuild the model")
+    model = ArmModel(header["template_key"], **{k: arrays[k] for k in _ARRAYS if k != "arm_mask"},
+                     arm_mask=arrays["arm_mask"].astype(bool), regularization=float(header["regularization"]),
+                     subjects=list(header.get("subjects", [])), version=MODEL_VERSION)
+    if template is not None and template.key != model.template_key:
+        raise InputError(f"{path}: model was built for arm template {model.template_key}, not {template.key}; "
+                         "use the same --resolution and --side as the model or rebuild it for this template")
+    return model
+
+
+def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, stride: int = 1) -> list[ArmSample]:
+    """Captured frames as training meshes for :func:`extend_arm_model` (issue §4).
+
+    ``capture`` is a ``bodystudio.muscle.capture.ArmCapture``: each ``stride``-th frame with a pose is
+    brought back to template space (inverse of its §5.1 similarity ``(s, R, t)``: ``x = R^T (y - t) / s``)
+    and paired with that pose and ``shape`` (default: the capture's fitted shape). Joints are left to
+    the model's regression, as the capture's model fit used them.
+    """
+    if stride < 1:
+        raise InputError(f"stride={stride} must be >= 1")
+    shape = shape if shape is not None else capture.shape
+    if shape is None:
+        raise InputError(f"capture {name!r} has no shape parameters (a no-model capture); give them with "
+                         "--shape bmi=..,muscularity=..,height_m=..,arm_length_m=..")
+    s, R, t = capture.similarity
+    R, t = np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
+    out = []
+    for k in range(0, len(capture.vertices), stride):
+        if capture.poses[k] is None:
+            continue
+        V = ((np.asarray(capture.vertices[k], dtype=np.float64) - t) @ R) / float(s)
+        out.append(ArmSample(name, shape, V, capture.poses[k]))
+    if not out:
+        raise InputError(f"capture {name!r} has no frames with joint angles (a no-model capture); "
+                         "capture it with the model to extend the dataset")
+    return out

@@ -1,0 +1,401 @@
+"""Model-based filtering and surface refinement, Sec. 6.2 and 7 of Arm-Muscle Capture (Robertini et al. 2013).
+
+Model-based filtering projects the ARAP mesh of non-rigid ICP onto the statistical model: the joint
+angles come from a per-part orthogonal Procrustes fit (Eq. 11), the shape parameters are fitted once
+per sequence, and the model mesh of Eq. 12 (with the 90 % displacement-norm limit) replaces the ARAP
+mesh. Refinement then pulls the model mesh towards the depth points with one more ARAP, driven by
+correspondences averaged over frames i-1, i, i+1 (Eq. 13-14) and weighted by their agreement with the
+vertex normals and the closeness of the vertex to a joint (Sec. 7.2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from bodystudio.errors import InputError
+from bodystudio.muscle.arm import ArmPose, part_transforms, pose_arm
+
+# --- Sec. 6.2 mesh projection -------------------------------------------------------------------
+
+
+def procrustes_part_transforms(base: np.ndarray, deformed: np.ndarray, part_weights: np.ndarray,
+                               vertex_weights: np.ndarray | None = None) -> np.ndarray:
+    """Rigid transform (4, 4) per part mapping base to deformed vertices: orthogonal Procrustes, Eq. 11.
+
+    ``min_{R,t} sum_i w_i ||(R p_i + t) - p'_i||^2`` with ``w_i`` the part's blending weight (times the
+    optional per-vertex reliability ``vertex_weights``), solved in closed form by the weighted SVD
+    (Kabsch). Parts with no weight get the identity.
+    """
+    P = np.asarray(base, np.float64)
+    Q = np.asarray(deformed, np.float64)
+    extra = np.ones(len(P)) if vertex_weights is None else np.asarray(vertex_weights, np.float64)
+    T = np.tile(np.eye(4), (part_weights.shape[1], 1, 1))
+    for k in range(part_weights.shape[1]):
+        w = part_weights[:, k] * extra
+        if w.sum() < 1e-9:
+            continue
+        w = w / w.sum()
+        mp, mq = w @ P, w @ Q
+        H = ((P - mp) * w[:, None]).T @ (Q - mq)
+        U, _, Vt = np.linalg.svd(H)
+        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
+        R = Vt.T @ D @ U.T
+        T[k, :3, :3] = R
+        T[k, :3, 3] = mq - R @ mp
+    return T
+
+
+def arm_pose_from_part_transforms(transforms: np.ndarray) -> ArmPose:
+    """Joint angles of Sec. 6.2 from per-part transforms: ``a_j = log(R_parent^T R_child)`` down the chain.
+
+    ``arm.part_transforms`` composes ``T_child = T_parent Trans(c) R(a) Trans(-c)`` about the rest
+    joint ``c``, so each rotation vector follows from the parts' rotations alone; the root is the
+    torso's transform.
+    """
+    R = transforms[:, :3, :3]
+    angles = np.stack([Rotation.from_matrix(R[k].T @ R[k + 1]).as_rotvec() for k in range(3)])
+    return ArmPose(transforms[0], angles)
+
+
+def _pose_vector(pose: ArmPose) -> np.ndarray:
+    return np.concatenate([Rotation.from_matrix(pose.root[:3, :3]).as_rotvec(), pose.root[:3, 3],
+                           pose.angles.ravel()])
+
+
+def _pose_from_vector(x: np.ndarray) -> ArmPose:
+    root = np.eye(4)
+    root[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
+    root[:3, 3] = x[3:6]
+    return ArmPose(root, x[6:15].reshape(3, 3))
+
+
+@dataclass(frozen=True, eq=False)
+class DepthFrame:
+    """One frame's depth data for the model fit: points, normals, their k-d tree, sensor, filters."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    tree: object
+    sensor_center: np.ndarray
+    arm_mask: np.ndarray
+    adjacency: object
+    filters: object
+    faces: np.ndarray
+
+    def plane_pairs(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Filtered closest-point pairs of ``vertices`` (Sec. 5.2): vertex ids, depth points, point normals."""
+        from bodystudio.geometry.mesh import vertex_normals
+        from bodystudio.muscle.nicp import closest_point_correspondences, filter_correspondences
+
+        pairs = closest_point_correspondences(vertices, self.points, self.normals, self.tree)
+        pairs = filter_correspondences(vertices, vertex_normals(vertices, self.faces), pairs, self.sensor_center,
+                                       self.arm_mask, self.adjacency, self.filters)
+        k = np.flatnonzero(pairs.kept)
+        return k, pairs.targets[k], pairs.target_normals[k]
+
+
+def _model_residuals(mesh: np.ndarray, pairs, deformed: np.ndarray | None, nicp_weight: float) -> np.ndarray:
+    """Point-to-plane distances of the paired model vertices to the depth points, plus a weak pull to the NICP mesh."""
+    k, q, n = pairs
+    r = [np.einsum("kd,kd->k", mesh[k] - q, n)]
+    if deformed is not None and nicp_weight > 0:
+        r.append(np.sqrt(nicp_weight) * (mesh - deformed).ravel())
+    return np.concatenate(r)
+
+
+def elbow_axes(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The elbow's hinge axis (normal of the rest arm's plane) and the rest forearm axis, unit vectors."""
+    s, e, w = np.asarray(joints, np.float64)
+    u = (e - s) / np.linalg.norm(e - s)
+    f = (w - e) / np.linalg.norm(w - e)
+    h = np.cross(u, f)
+    return h / max(np.linalg.norm(h), 1e-12), f
+
+
+def elbow_rotvec(joints: np.ndarray, flexion_rad: float, twist_rad: float) -> np.ndarray:
+    """Elbow rotation (rotation vector) as a hinge flexion followed by the forearm's twist: 2 DoF."""
+    h, f = elbow_axes(joints)
+    return (Rotation.from_rotvec(h * flexion_rad) * Rotation.from_rotvec(f * twist_rad)).as_rotvec()
+
+
+def refine_arm_pose(pose: ArmPose, mesh_of_pose, frame: DepthFrame, deformed: np.ndarray | None,
+                    joints: np.ndarray, nicp_weight: float = 0.05, rounds: int = 2, max_nfev: int = 20,
+                    fit_twist: bool = False, tracker: np.ndarray | None = None, tracker_weight: float = 0.0,
+                    model_joints: np.ndarray | None = None, previous: ArmPose | None = None,
+                    smooth_weight: float = 0.0) -> ArmPose:
+    """Twist refinement of Sec. 6.2: Gauss-Newton on the shoulder (3) and elbow hinge (1) angles.
+
+    The paper refines the Procrustes transforms "iteratively by using the theory of rigid-body motion
+    and the twist representation" against the ARAP mesh. Our NICP mesh is only reliable along the
+    normals (its vertices slide on the surface), so the angles are fitted to the depth points
+    themselves, point-to-plane over the filtered pairs (re-paired each round), with a weak pull
+    (``nicp_weight`` per coordinate) to the ARAP mesh that holds the unseen side.
+    Constraints, all measured to matter on a 24-frame sequence: the root (torso) stays where the
+    sequence fit put it and the wrist as given (the subject sits still and keeps a fist, Sec. 8.1;
+    the hand has no depth pairs: a free wrist drifted 48 deg); the elbow is a hinge about the rest
+    arm's plane normal (a 3-DoF elbow let the upper arm roll about its own, nearly cylindrical, axis
+    by 20 deg); the forearm's twist (pronation) is as unobservable on a near-cylinder and drifted
+    40 deg when free, so it stays 0 unless ``fit_twist`` (the paper cannot capture pronation either).
+    ``tracker`` (3, 3): the body tracker's shoulder, elbow, wrist in this frame, compared with the
+    posed ``model_joints`` at ``tracker_weight`` per coordinate (1 per depth pair): they pin the
+    forearm's direction, which the short, partly hand-blended forearm surface alone does not.
+    ``previous`` (the last frame's pose) adds ``smooth_weight`` per joint-angle coordinate times a
+    0.3 m lever arm: quasi-static motion (Sec. 3), against the tracker's frame-to-frame noise.
+    """
+    wrist = pose.angles[2].copy()
+    h, f = elbow_axes(joints)
+    twist0 = float(pose.angles[1] @ f) if fit_twist else 0.0
+
+    def pose_of(x):
+        twist = x[4] if fit_twist else twist0
+        return ArmPose(pose.root, np.vstack([x[:3], elbow_rotvec(joints, x[3], twist), wrist]))
+
+    x = np.r_[pose.angles[0], pose.angles[1] @ h] if not fit_twist else \
+        np.r_[pose.angles[0], pose.angles[1] @ h, twist0]
+    for _ in range(rounds):
+        pairs = frame.plane_pairs(mesh_of_pose(pose_of(x)))
+
+        def fun(x, pairs=pairs):
+            p = pose_of(x)
+            r = _model_residuals(mesh_of_pose(p), pairs, deformed, nicp_weight)
+            if tracker is not None and tracker_weight > 0:
+                r = np.r_[r, np.sqrt(tracker_weight) * (posed_joints(model_joints, p) - tracker).ravel()]
+            if previous is not None and smooth_weight > 0:
+                r = np.r_[r, np.sqrt(smooth_weight) * 0.3 * (p.angles[:2] - previous.angles[:2]).ravel()]
+            return r
+
+        x = least_squares(fun, x, method="lm", max_nfev=max_nfev).x
+    return pose_of(x)
+
+
+def posed_joints(joints: np.ndarray, pose: ArmPose) -> np.ndarray:
+    """Shoulder, elbow and wrist centres (3, 3) carried by the parts above them in ``pose``."""
+    T = part_transforms(np.asarray(joints, np.float64), pose)
+    return np.stack([T[k, :3, :3] @ joints[k] + T[k, :3, 3] for k in range(3)])
+
+
+def initial_arm_pose_from_joints(joints_rest: np.ndarray, tracked: np.ndarray) -> ArmPose:
+    """Arm pose that carries the rest shoulder/elbow/wrist onto tracked ones (the Kinect body tracker).
+
+    The root translates the rest shoulder onto the tracked one (no torso rotation: the subject faces
+    the sensor, Sec. 8.1); the shoulder and elbow get the smallest rotations that align the rest bone
+    directions with the tracked ones (their twist is left to the registration). Used to start the
+    first frame when the subject is not in the base pose that Sec. 5.1 asks for.
+    """
+    J0 = np.asarray(joints_rest, np.float64)
+    J = np.asarray(tracked, np.float64)
+    root = np.eye(4)
+    root[:3, 3] = J[0] - J0[0]
+
+    def align(a, b):
+        a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+        axis = np.cross(a, b)
+        s = np.linalg.norm(axis)
+        if s < 1e-12:
+            return np.eye(3)
+        return Rotation.from_rotvec(axis / s * np.arctan2(s, a @ b)).as_matrix()
+
+    R_s = align(J0[1] - J0[0], J[1] - J[0])
+    R_f = align(R_s @ (J0[2] - J0[1]), J[2] - J[1]) @ R_s
+    angles = np.stack([Rotation.from_matrix(R_s).as_rotvec(), Rotation.from_matrix(R_s.T @ R_f).as_rotvec(),
+                       np.zeros(3)])
+    return ArmPose(root, angles)
+
+
+def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], frames: list[DepthFrame],
+                         initial=None, nicp_weight: float = 0.0, rounds: int = 2,
+                         tracker_joints: np.ndarray | None = None, tracker_weight: float = 1.0,
+                         fixed_shape: bool = False) -> tuple:
+    """Shape parameters (BMI, muscularity, height, arm length) of the sequence, fitted once (Sec. 6.2).
+
+    Least squares over the given frames of the model mesh ``model_mesh(model, shape, pose_k)`` against
+    the depth points (point-to-plane over the filtered pairs, re-paired each round) and, weakly, the
+    NICP meshes ``meshes``; the joint angles stay fixed and one root translation (the torso placement;
+    its rotation stays that of ``poses[0]``: the subject faces the sensor) shared by all frames is
+    fitted alongside: the model's rest mesh moves with height, so shape and placement
+    are only separable together. Bounds: the training range widened by its span on each side.
+    Point-to-plane pairs leave the arm free to slide along itself, so the arm length is poorly seen
+    by the depth alone: ``tracker_joints`` (frames, 3, 3), the body tracker's shoulder, elbow and
+    wrist, add ``tracker_weight`` times their distance to the model's posed joints. With
+    ``fixed_shape`` (measured parameters in ``initial``) only the root is fitted.
+    Returns ``(ArmShapeParams, root (4, 4))``.
+    """
+    from bodystudio.muscle.model import ArmShapeParams, model_joints, model_mesh
+
+    if not meshes:
+        raise InputError("fit_shape_parameters needs at least one registered frame")
+    lo, hi, x0 = _shape_bounds(model, initial)
+    root0 = poses[0].root
+
+    def root_of(x):
+        T = root0.copy()
+        T[:3, 3] = root0[:3, 3] + x[4:7]
+        return T
+
+    def meshes_of(x):
+        shape, root = ArmShapeParams.from_vector(x[:4]), root_of(x)
+        return [model_mesh(model, shape, ArmPose(root, p.angles)) for p in poses]
+
+    x = np.r_[x0, np.zeros(3)]
+    big = np.full(3, np.inf)
+    if fixed_shape:  # measured parameters are used as given, never clipped to the training range
+        x0 = np.asarray(initial.as_vector(), np.float64)
+        x[:4] = x0
+        lo, hi = x0 - 1e-9, x0 + 1e-9
+    for _ in range(rounds):
+        pairs = [f.plane_pairs(M) for f, M in zip(frames, meshes_of(x), strict=True)]
+
+        def fun(x, pairs=pairs):
+            r = [_model_residuals(M, pr, d, nicp_weight) for M, pr, d in zip(meshes_of(x), pairs, meshes, strict=True)]
+            if tracker_joints is not None and tracker_weight > 0:
+                shape, root = ArmShapeParams.from_vector(x[:4]), root_of(x)
+                J = model_joints(model, shape)
+                for p, tj in zip(poses, tracker_joints, strict=True):
+                    T = part_transforms(J, ArmPose(root, p.angles))
+                    posed = np.stack([T[k, :3, :3] @ J[k] + T[k, :3, 3] for k in range(3)])
+                    r.append(np.sqrt(tracker_weight) * (posed - tj).ravel())
+            return np.concatenate(r)
+
+        x = least_squares(fun, x, bounds=(np.r_[lo, -big], np.r_[hi, big]),
+                          x_scale=np.r_[np.maximum(hi - lo, 1e-3) / 4, np.full(3, 0.01)],
+                          max_nfev=30).x
+    return ArmShapeParams.from_vector(x[:4]), root_of(x)
+
+
+def _shape_bounds(model, initial):
+    """Bounds and start of the shape fit: the training range widened by its span on each side.
+
+    Captured subjects may lie outside the training range (the paper's Table 1); the start is the
+    population centre of the model's parameter normalisation.
+    """
+    from bodystudio.muscle.model import SHAPE_NAMES
+
+    rng = model.shape_range() if getattr(model, "subjects", None) else {}
+    lo, hi = [], []
+    for i, k in enumerate(SHAPE_NAMES):
+        c, sc = float(model.param_center[i]), float(model.param_scale[i])
+        a, b = rng.get(k, (c - sc, c + sc))
+        span = max(b - a, sc)
+        lo.append(a - span)
+        hi.append(b + span)
+    lo, hi = np.array(lo), np.array(hi)
+    lo[1], hi[1] = max(lo[1], 0.0), min(hi[1], 1.0)  # muscularity is a fraction
+    x0 = np.asarray(model.param_center, float) if initial is None else initial.as_vector()
+    return lo, hi, np.clip(x0, lo + 1e-9, hi - 1e-9)
+
+
+def model_based_filtering(model, shape, root: np.ndarray, deformed: np.ndarray, base: np.ndarray,
+                          part_weights: np.ndarray, vertex_weights: np.ndarray, frame: DepthFrame,
+                          joints: np.ndarray, norm_limit: float = 0.9, refine_pose: bool = True,
+                          tracker: np.ndarray | None = None, tracker_weight: float = 0.0,
+                          previous: ArmPose | None = None, smooth_weight: float = 0.0,
+                          ) -> tuple[np.ndarray, ArmPose]:
+    """Mesh projection of Sec. 6.2: joint angles by Procrustes (Eq. 11), then the model mesh of Eq. 12.
+
+    ``deformed`` is the ARAP mesh of non-rigid ICP, ``base`` the model's rest mesh for ``shape`` and
+    ``root`` the sequence's torso placement (see ``fit_shape_parameters``). The Procrustes angles are
+    refined on the model mesh against the depth points (``refine_arm_pose``); returns the model mesh
+    (with the ``norm_limit`` displacement limit) and the pose.
+    """
+    from bodystudio.muscle.model import model_mesh
+
+    w = vertex_weights + 0.05  # vertices without data still carry their part's rigid motion a little
+    T = procrustes_part_transforms(base, deformed, part_weights, w)
+    angles = arm_pose_from_part_transforms(T).angles
+    angles[2] = 0.0  # the wrist: a fist held still (Sec. 8.1), no depth pairs on the hand
+    pose = ArmPose(root, angles)
+    if refine_pose:
+        pose = refine_arm_pose(pose, lambda p: model_mesh(model, shape, p, norm_limit=norm_limit), frame, deformed,
+                               joints, tracker=tracker, tracker_weight=tracker_weight, model_joints=joints,
+                               previous=previous, smooth_weight=smooth_weight)
+    return model_mesh(model, shape, pose, norm_limit=norm_limit), pose
+
+
+def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: int = 2) -> list[ArmPose]:
+    """Joint angles averaged over neighbouring frames with Gaussian weights (the Eq. 13-14 window on poses).
+
+    Arm motion is quasi-static (Sec. 3), so frame-to-frame changes beyond a smooth trajectory are
+    depth noise; rotation vectors of one joint change little within a few frames and average linearly.
+    """
+    if sigma_frames <= 0 or len(poses) < 3:
+        return list(poses)
+    A = np.stack([p.angles for p in poses])
+    out = []
+    for i, p in enumerate(poses):
+        lo, hi = max(0, i - radius), min(len(poses), i + radius + 1)
+        w = np.exp(-((np.arange(lo, hi) - i) ** 2) / (2.0 * sigma_frames ** 2))
+        out.append(ArmPose(p.root, np.tensordot(w / w.sum(), A[lo:hi], axes=1)))
+    return out
+
+
+def skin_template(base: np.ndarray, part_weights: np.ndarray, joints: np.ndarray, pose: ArmPose) -> np.ndarray:
+    """The template posed by four-part LBS (Eq. 12 without the model's displacements)."""
+    return pose_arm(base, part_weights, joints, pose)
+
+
+# --- Sec. 7 refinement --------------------------------------------------------------------------
+
+
+def time_consistent_correspondences(vectors: list[np.ndarray], valid: list[np.ndarray],
+                                    sigma_frames: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Correspondence vectors averaged over frames i-1, i, i+1 with Gaussian weights, Eq. 13-14.
+
+    ``vectors``/``valid`` hold the (n, 3) correspondence vectors and (n,) validity of frames
+    i-1, i, i+1 (pass two at a sequence end, with the current frame first or last as it is). Each
+    vertex averages the frames where its pair is valid with ``w_{i+delta} = exp(-delta^2 / 2 sigma^2)``;
+    returns the averaged vectors and the vertices valid in the current frame.
+    """
+    if len(vectors) == 3:
+        deltas = (-1, 0, 1)
+        cur = 1
+    elif len(vectors) == 2:
+        deltas, cur = (0, 1), 0  # caller orders (current, neighbour)
+    else:
+        return np.asarray(vectors[0], np.float64), np.asarray(valid[0], bool)
+    num = np.zeros_like(np.asarray(vectors[cur], np.float64))
+    den = np.zeros(len(num))
+    for d, c, v in zip(deltas, vectors, valid, strict=True):
+        w = np.exp(-(d ** 2) / (2.0 * sigma_frames ** 2)) * np.asarray(v, np.float64)
+        num += w[:, None] * c
+        den += w
+    ok = np.asarray(valid[cur], bool) & (den > 0)
+    out = np.zeros_like(num)
+    out[ok] = num[ok] / den[ok, None]
+    return out, ok
+
+
+def correspondence_weights(vectors: np.ndarray, normals: np.ndarray, vertices: np.ndarray, joints: np.ndarray,
+                           valid: np.ndarray, joint_radius_m: float = 0.06, joint_gain: float = 1.0,
+                           min_length_m: float = 1e-3) -> np.ndarray:
+    """Reliability weight of each correspondence, Sec. 7.2.
+
+    ``|cos|`` of the angle between the correspondence vector and the vertex normal (bulges and dimples
+    along the normal are trusted, sliding and shearing are not; vectors shorter than ``min_length_m``
+    have no direction and count as agreeing), scaled by ``1 + joint_gain (1 - d / joint_radius_m)``
+    for vertices within ``joint_radius_m`` of a joint so the skin around joints deforms more freely.
+    """
+    c = np.asarray(vectors, np.float64)
+    length = np.linalg.norm(c, axis=1)
+    cos = np.abs(np.einsum("kd,kd->k", c, normals)) / np.maximum(length, 1e-12)
+    agree = np.where(length < min_length_m, 1.0, cos)
+    d = np.min(np.linalg.norm(vertices[:, None, :] - np.asarray(joints)[None], axis=2), axis=1)
+    near = 1.0 + joint_gain * np.clip(1.0 - d / joint_radius_m, 0.0, 1.0)
+    return np.where(valid, agree * near, 0.0)
+
+
+def refine_surface(model_vertices: np.ndarray, faces: np.ndarray, vectors: np.ndarray, weights: np.ndarray,
+                   data_weight: float = 1.0, iterations: int = 4) -> np.ndarray:
+    """The last ARAP deformation of Sec. 7: the model mesh pulled along the weighted, averaged correspondences.
+
+    The model mesh is both the ARAP rest shape and the start, so the refinement adds only the surface
+    detail the depth points support (Sec. 7: "slightly beyond the deformation space" of the model).
+    """
+    from bodystudio.muscle.nicp import arap_deformation, arap_system
+
+    M = np.asarray(model_vertices, np.float64)
+    system = arap_system(M, faces)
+    return arap_deformation(system, M, M + vectors, weights, data_weight, iterations)
