@@ -55,6 +55,16 @@ def save_easymocap_yaml(folder: str | os.PathLike, rig: CameraRig) -> tuple[Path
 def load_easymocap_yaml(folder: str | os.PathLike, default_size: tuple[int, int] | None = None) -> CameraRig:
     """Read ``intri.yml`` + ``extri.yml``; images sizes come from ``H_/W_`` or ``default_size`` (w, h)."""
     folder = Path(folder)
+    try:
+        return _read_easymocap_yaml(folder, default_size)
+    except (cv2.error, SystemError, ValueError, TypeError, IndexError, OverflowError) as exc:
+        # OpenCV's YAML parser reports junk as cv2.error (or a SystemError around it), numpy as ValueError
+        why = " ".join(str(exc).split())[:200]
+        raise FileFormatError(f"{folder}: unreadable EasyMocap calibration ({type(exc).__name__}: {why}); "
+                              "re-export intri.yml and extri.yml") from None
+
+
+def _read_easymocap_yaml(folder: Path, default_size: tuple[int, int] | None) -> CameraRig:
     stores = {}
     for name in ("intri.yml", "extri.yml"):
         path = folder / name
@@ -160,4 +170,10 @@ def load_colmap_model(folder: str | os.PathLike) -> CameraRig:
     folder = Path(folder)
     if not (folder / "cameras.txt").is_file() and not (folder / "cameras.bin").is_file():
         raise FileFormatError(f"{folder}: no COLMAP model (cameras.txt/.bin) found")
-    return colmap_to_rig(pycolmap.Reconstruction(str(folder)))
+    try:
+        return colmap_to_rig(pycolmap.Reconstruction(str(folder)))
+    except (ValueError, RuntimeError, TypeError, IndexError, KeyError, OverflowError) as exc:
+        # pycolmap reports a malformed text model as ValueError("[file.cc:N] Check failed: ...")
+        why = " ".join(str(exc).split())[:200]
+        raise FileFormatError(f"{folder}: unreadable COLMAP model ({type(exc).__name__}: {why}); "
+                              "re-export it from COLMAP") from None
