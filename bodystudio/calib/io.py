@@ -23,6 +23,7 @@ import numpy as np
 
 from bodystudio.errors import FileFormatError
 from bodystudio.geometry.camera import Camera, CameraRig
+from bodystudio.opencv_yaml import check_opencv_yaml, opencv_matrix
 
 
 def _write_filestorage(path: Path, names: list[str], entries: list[tuple[str, object]]) -> None:
@@ -70,6 +71,7 @@ def _read_easymocap_yaml(folder: Path, default_size: tuple[int, int] | None) -> 
         path = folder / name
         if not path.is_file():
             raise FileFormatError(f"{path}: not found; EasyMocap calibrations need intri.yml and extri.yml")
+        check_opencv_yaml(path)
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
         if not fs.isOpened():
             raise FileFormatError(f"{path}: not an OpenCV YAML file")
@@ -81,8 +83,9 @@ def _read_easymocap_yaml(folder: Path, default_size: tuple[int, int] | None) -> 
         raise FileFormatError(f"{folder / 'intri.yml'}: no 'names' list of cameras")
     cams = {}
     for n in names:
-        K, dist = intri.getNode(f"K_{n}").mat(), intri.getNode(f"dist_{n}").mat()
-        Rot, R_vec, T = extri.getNode(f"Rot_{n}").mat(), extri.getNode(f"R_{n}").mat(), extri.getNode(f"T_{n}").mat()
+        K, dist = (opencv_matrix(intri.getNode(f"{k}_{n}"), f"{folder / 'intri.yml'}: {k}_{n}") for k in ("K", "dist"))
+        Rot, R_vec, T = (opencv_matrix(extri.getNode(f"{k}_{n}"), f"{folder / 'extri.yml'}: {k}_{n}")
+                         for k in ("Rot", "R", "T"))
         if K is None or T is None or (Rot is None and R_vec is None):
             raise FileFormatError(f"{folder}: camera {n} lacks K_{n}, T_{n} or R_{n}/Rot_{n}; "
                                   "re-export the calibration")

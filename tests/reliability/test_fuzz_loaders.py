@@ -267,9 +267,45 @@ def test_session_ground_truth_ply(folder):
     run()
 
 
+def test_joints_json(folder):
+    from bodystudio.capture.importer import load_joints
+
+    doc = {"names": ["HipCenter", "Head", "HandLeft"], "frames": [[[0, 1, 0], [0, 1.7, 0], [0.4, 1, 0.1]]] * 2,
+           "tracked": [[True, True, False]] * 2}
+
+    @FUZZ
+    @given(mutated_json(doc))
+    def run(data):
+        (folder / "joints.json").write_bytes(data)
+        track = _only_user_errors(load_joints, folder / "joints.json")
+        if track is not None:
+            assert track.positions.shape[1:] == (len(track.names), 3)
+
+    run()
+
+
+def test_kinect_calibration_json(folder):
+    from bodystudio.capture.session import kinect_calibration_to_dict, load_kinect_calibration
+    from bodystudio.fileio import write_json
+    from bodystudio.geometry.camera import kinect_v2
+
+    doc = json.loads(json.dumps(kinect_calibration_to_dict(kinect_v2()), default=lambda a: np.asarray(a).tolist()))
+    write_json(folder / "kinect.json", doc)
+    assert load_kinect_calibration(folder / "kinect.json").version == "v2"
+
+    @FUZZ
+    @given(mutated_json(doc))
+    def run(data):
+        (folder / "kinect.json").write_bytes(data)
+        _only_user_errors(load_kinect_calibration, folder / "kinect.json")
+
+    run()
+
+
 @pytest.mark.parametrize("which", ["intri.yml", "extri.yml"])
 def test_easymocap_yaml(folder, which):
     from bodystudio.calib.io import load_easymocap_yaml, save_easymocap_yaml
+    from bodystudio.capture.importer import load_studio_cameras
 
     sub = folder / "easymocap"
     sub.mkdir(exist_ok=True)
@@ -281,7 +317,8 @@ def test_easymocap_yaml(folder, which):
     @given(mutated_text(valid[which]))
     def run(data):
         (sub / which).write_bytes(data)
-        _only_user_errors(load_easymocap_yaml, sub)
+        _only_user_errors(load_easymocap_yaml, sub)  # the calibration stage's reader
+        _only_user_errors(load_studio_cameras, sub)  # the importer's
 
     try:
         run()
@@ -310,3 +347,21 @@ def test_colmap_text(folder, which):
     finally:
         for n, b in valid.items():
             (sub / n).write_bytes(b)
+
+
+def test_opencv_matrix_without_cols_is_a_one_line_error(folder):
+    """OpenCV 5.0's FileNode.mat() corrupts the heap on this node (found by the fuzz test above: the process
+    died with ``malloc(): invalid size``); both EasyMocap readers parse matrices themselves."""
+    from bodystudio.calib.io import load_easymocap_yaml, save_easymocap_yaml
+    from bodystudio.capture.importer import load_studio_cameras
+    from bodystudio.errors import FileFormatError
+
+    sub = folder / "nocols"
+    sub.mkdir(exist_ok=True)
+    save_easymocap_yaml(sub, _rig())
+    text = (sub / "intri.yml").read_text()
+    at = text.index("K_cam_01")
+    (sub / "intri.yml").write_text(text[:at] + text[at:].replace("   cols: 3\n", "", 1))
+    for load in (load_easymocap_yaml, load_studio_cameras):
+        with pytest.raises(FileFormatError, match="K_cam_01"):
+            load(sub)
