@@ -15,9 +15,10 @@ import numpy as np
 from bodystudio.errors import FileFormatError
 
 
-def check_opencv_yaml(path) -> None:
-    """Refuse a file that is not a YAML mapping (OpenCV's ``%YAML`` directive and ``!!opencv-matrix`` tags
-    allowed) with a one-line FileFormatError, before OpenCV's parser, which can hang on it, sees it."""
+def check_opencv_yaml(path) -> dict:
+    """The entries of an OpenCV YAML file as PyYAML reads them (OpenCV's ``%YAML`` directive and
+    ``!!opencv-matrix`` tags allowed); anything else is a one-line FileFormatError, raised before OpenCV's
+    parser, which can hang on it, sees the file. A ``names`` entry must be a list of names."""
     import yaml
 
     class _Loader(yaml.SafeLoader):
@@ -39,6 +40,10 @@ def check_opencv_yaml(path) -> None:
         raise FileFormatError(f"{path}: not valid YAML{at}; fix or re-export the calibration") from None
     if not isinstance(data, dict):
         raise FileFormatError(f"{path}: not an OpenCV YAML mapping of named entries; fix or re-export the calibration")
+    names = data.get("names", [])
+    if not isinstance(names, list) or not all(isinstance(n, (str, int)) for n in names):
+        raise FileFormatError(f"{path}: 'names' must be a list of camera names; fix or re-export the calibration")
+    return data
 
 #: More elements than any camera matrix needs; a bigger ``data`` list is not a calibration.
 _MAX_ELEMENTS = 4096

@@ -23,7 +23,6 @@ import numpy as np
 
 from bodystudio.errors import FileFormatError
 from bodystudio.geometry.camera import Camera, CameraRig
-from bodystudio.opencv_yaml import check_opencv_yaml, opencv_matrix
 
 
 def _write_filestorage(path: Path, names: list[str], entries: list[tuple[str, object]]) -> None:
@@ -56,24 +55,21 @@ def save_easymocap_yaml(folder: str | os.PathLike, rig: CameraRig) -> tuple[Path
 def load_easymocap_yaml(folder: str | os.PathLike, default_size: tuple[int, int] | None = None) -> CameraRig:
     """Read ``intri.yml`` + ``extri.yml``; images sizes come from ``H_/W_`` or ``default_size`` (w, h)."""
     folder = Path(folder)
-    try:
-        return _read_easymocap_yaml(folder, default_size)
-    except (cv2.error, SystemError, ValueError, TypeError, IndexError, OverflowError) as exc:
-        # OpenCV's YAML parser reports junk as cv2.error (or a SystemError around it), numpy as ValueError
-        why = " ".join(str(exc).split())[:200]
-        raise FileFormatError(f"{folder}: unreadable EasyMocap calibration ({type(exc).__name__}: {why}); "
-                              "re-export intri.yml and extri.yml") from None
+    from bodystudio.opencv_yaml import check_opencv_yaml
 
-
-def _read_easymocap_yaml(folder: Path, default_size: tuple[int, int] | None) -> CameraRig:
+    for name in ("intri.yml", "extri.yml"):  # OpenCV's YAML parser can loop forever on junk: check it first
+        if (folder / name).is_file():
+            check_opencv_yaml(folder / name)
     stores = {}
     for name in ("intri.yml", "extri.yml"):
         path = folder / name
         if not path.is_file():
             raise FileFormatError(f"{path}: not found; EasyMocap calibrations need intri.yml and extri.yml")
-        check_opencv_yaml(path)
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        if not fs.isOpened():
+        try:
+            fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        except (cv2.error, SystemError):
+            fs = None
+        if fs is None or not fs.isOpened():
             raise FileFormatError(f"{path}: not an OpenCV YAML file")
         stores[name] = fs
     intri, extri = stores["intri.yml"], stores["extri.yml"]
@@ -82,6 +78,8 @@ def _read_easymocap_yaml(folder: Path, default_size: tuple[int, int] | None) -> 
     if not names:
         raise FileFormatError(f"{folder / 'intri.yml'}: no 'names' list of cameras")
     cams = {}
+    from bodystudio.opencv_yaml import opencv_matrix  # not FileNode.mat(): it corrupts the heap on bad matrices
+
     for n in names:
         K, dist = (opencv_matrix(intri.getNode(f"{k}_{n}"), f"{folder / 'intri.yml'}: {k}_{n}") for k in ("K", "dist"))
         Rot, R_vec, T = (opencv_matrix(extri.getNode(f"{k}_{n}"), f"{folder / 'extri.yml'}: {k}_{n}")
@@ -174,9 +172,8 @@ def load_colmap_model(folder: str | os.PathLike) -> CameraRig:
     if not (folder / "cameras.txt").is_file() and not (folder / "cameras.bin").is_file():
         raise FileFormatError(f"{folder}: no COLMAP model (cameras.txt/.bin) found")
     try:
+        # pycolmap reports a malformed text model as ValueError / IndexError, a non-UTF-8 image name on access
         return colmap_to_rig(pycolmap.Reconstruction(str(folder)))
-    except (ValueError, RuntimeError, TypeError, IndexError, KeyError, OverflowError) as exc:
-        # pycolmap reports a malformed text model as ValueError("[file.cc:N] Check failed: ...")
-        why = " ".join(str(exc).split())[:200]
-        raise FileFormatError(f"{folder}: unreadable COLMAP model ({type(exc).__name__}: {why}); "
-                              "re-export it from COLMAP") from None
+    except (RuntimeError, ValueError, TypeError, OSError, IndexError, KeyError) as exc:
+        reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise FileFormatError(f"{folder}: not a readable COLMAP model ({reason[:200]}); re-export it") from None
