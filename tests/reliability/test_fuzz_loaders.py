@@ -103,13 +103,29 @@ def mutated_text(draw, data: bytes):
     return b"\n".join(lines)
 
 
+_STATS = {"examples": 0, "loaded": 0, "refused": 0}
+
+
+@pytest.fixture(autouse=True)
+def _count_examples(request):
+    """Counts per test; the long run (``-s``) prints them: examples, loads that succeeded, one-line refusals."""
+    _STATS.update(examples=0, loaded=0, refused=0)
+    yield
+    if LONG_RUN:
+        print(f"\nFUZZ {request.node.name}: {_STATS['examples']} examples, {_STATS['loaded']} loader calls loaded, "
+              f"{_STATS['refused']} refused with a one-line error")
+
+
 def _only_user_errors(load, *args):
     """Run a loader: success or a BodyStudioError are fine; any other exception fails the test."""
     try:
-        return load(*args)
+        result = load(*args)
     except BodyStudioError as exc:
         assert "\n" not in str(exc).strip(), f"multi-line error: {exc}"
+        _STATS["refused"] += 1
         return None
+    _STATS["loaded"] += 1
+    return result
 
 
 # --- the loaders --------------------------------------------------------------------------------------
@@ -135,6 +151,7 @@ def test_cameras_json(folder):
     @FUZZ
     @given(mutated_json(doc))
     def run(data):
+        _STATS["examples"] += 1
         (folder / "cameras.json").write_bytes(data)
         rig = _only_user_errors(load_cameras_json, folder / "cameras.json")
         if rig is not None:
@@ -153,6 +170,7 @@ def test_board_json(folder):
     @FUZZ
     @given(mutated_json(doc))
     def run(data):
+        _STATS["examples"] += 1
         (folder / "board.json").write_bytes(data)
         spec = _only_user_errors(load_board_json, folder / "board.json")
         if spec is not None:
@@ -171,6 +189,7 @@ def test_pose_json(folder):
     @FUZZ
     @given(st.one_of(mutated_json(doc), mutated_json(euler)))
     def run(data):
+        _STATS["examples"] += 1
         (folder / "pose.json").write_bytes(data)
         pose = _only_user_errors(load_pose, folder / "pose.json", bones)
         if pose is not None:
@@ -213,6 +232,7 @@ def test_session_json(folder):
     @FUZZ
     @given(mutated_json(json.loads(valid)))
     def run(data):
+        _STATS["examples"] += 1
         (path / "session.json").write_bytes(data)
         _only_user_errors(_read_session, path)
 
@@ -244,6 +264,7 @@ def test_scan_and_mesh_files(folder, kind):
     @FUZZ
     @given(mutated_text(valid))
     def run(data):
+        _STATS["examples"] += 1
         path.write_bytes(data)
         for load in (read_scan_file, load_mesh):
             mesh = _only_user_errors(load, path)
@@ -262,6 +283,7 @@ def test_session_ground_truth_ply(folder):
     @FUZZ
     @given(mutated_text(valid))
     def run(data):
+        _STATS["examples"] += 1
         _only_user_errors(parse_ply_bytes, data, "gt.ply")
 
     run()
@@ -276,6 +298,7 @@ def test_joints_json(folder):
     @FUZZ
     @given(mutated_json(doc))
     def run(data):
+        _STATS["examples"] += 1
         (folder / "joints.json").write_bytes(data)
         track = _only_user_errors(load_joints, folder / "joints.json")
         if track is not None:
@@ -296,6 +319,7 @@ def test_kinect_calibration_json(folder):
     @FUZZ
     @given(mutated_json(doc))
     def run(data):
+        _STATS["examples"] += 1
         (folder / "kinect.json").write_bytes(data)
         _only_user_errors(load_kinect_calibration, folder / "kinect.json")
 
@@ -316,6 +340,7 @@ def test_easymocap_yaml(folder, which):
     @FUZZ
     @given(mutated_text(valid[which]))
     def run(data):
+        _STATS["examples"] += 1
         (sub / which).write_bytes(data)
         _only_user_errors(load_easymocap_yaml, sub)  # the calibration stage's reader
         _only_user_errors(load_studio_cameras, sub)  # the importer's
@@ -339,6 +364,7 @@ def test_colmap_text(folder, which):
     @FUZZ
     @given(mutated_text(valid[which]))
     def run(data):
+        _STATS["examples"] += 1
         (sub / which).write_bytes(data)
         _only_user_errors(load_colmap_model, sub)
 
