@@ -2,7 +2,14 @@
 
 
 class BodyStudioError(Exception):
-    """Base class of every error caused by user input (files, parameters, environment)."""
+    """Base class of every error caused by user input (files, parameters, environment).
+
+    Its message is one line by construction: a line break that comes in with a quoted value (a JSON key,
+    an OpenCV message) is shown as ``\\n``, so the CLI's one error line stays one line.
+    """
+
+    def __str__(self) -> str:
+        return super().__str__().strip().replace("\r", "\\r").replace("\n", "\\n")
 
 
 class InputError(BodyStudioError):

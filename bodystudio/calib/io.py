@@ -56,6 +56,11 @@ def save_easymocap_yaml(folder: str | os.PathLike, rig: CameraRig) -> tuple[Path
 def load_easymocap_yaml(folder: str | os.PathLike, default_size: tuple[int, int] | None = None) -> CameraRig:
     """Read ``intri.yml`` + ``extri.yml``; images sizes come from ``H_/W_`` or ``default_size`` (w, h)."""
     folder = Path(folder)
+    from bodystudio.opencv_yaml import check_opencv_yaml
+
+    for name in ("intri.yml", "extri.yml"):  # OpenCV's YAML parser can loop forever on junk: check it first
+        if (folder / name).is_file():
+            check_opencv_yaml(folder / name)
     stores = {}
     for name in ("intri.yml", "extri.yml"):
         path = folder / name
@@ -84,9 +89,12 @@ def _easymocap_rig(intri, extri, folder: Path, default_size) -> CameraRig:
     if not names:
         raise FileFormatError(f"{folder / 'intri.yml'}: no 'names' list of cameras")
     cams = {}
+    from bodystudio.opencv_yaml import opencv_matrix  # not FileNode.mat(): it corrupts the heap on bad matrices
+
     for n in names:
-        K, dist = intri.getNode(f"K_{n}").mat(), intri.getNode(f"dist_{n}").mat()
-        Rot, R_vec, T = extri.getNode(f"Rot_{n}").mat(), extri.getNode(f"R_{n}").mat(), extri.getNode(f"T_{n}").mat()
+        K, dist = (opencv_matrix(intri.getNode(f"{k}_{n}"), f"{folder / 'intri.yml'}: {k}_{n}") for k in ("K", "dist"))
+        Rot, R_vec, T = (opencv_matrix(extri.getNode(f"{k}_{n}"), f"{folder / 'extri.yml'}: {k}_{n}")
+                         for k in ("Rot", "R", "T"))
         if K is None or T is None or (Rot is None and R_vec is None):
             raise FileFormatError(f"{folder}: camera {n} lacks K_{n}, T_{n} or R_{n}/Rot_{n}; "
                                   "re-export the calibration")
@@ -195,11 +203,11 @@ def load_colmap_model(folder: str | os.PathLike) -> CameraRig:
     if not (folder / "cameras.txt").is_file() and not (folder / "cameras.bin").is_file():
         raise FileFormatError(f"{folder}: no COLMAP model (cameras.txt/.bin) found")
     try:
-        reconstruction = pycolmap.Reconstruction(str(folder))
-    except (RuntimeError, ValueError, TypeError, OSError) as exc:
+        # pycolmap reports a malformed text model as ValueError / IndexError, a non-UTF-8 image name on access
+        return colmap_to_rig(pycolmap.Reconstruction(str(folder)))
+    except (RuntimeError, ValueError, TypeError, OSError, IndexError, KeyError) as exc:
         reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         raise FileFormatError(f"{folder}: not a readable COLMAP model ({reason[:200]}); re-export it") from None
-    return colmap_to_rig(reconstruction)
 
 
 # ---------------------------------------------------------------------------------------------- whole calibration

@@ -29,6 +29,7 @@ import numpy as np
 
 from bodystudio.capture.session import Session, SessionWriter, load_kinect_calibration, open_session
 from bodystudio.errors import FileFormatError, InputError
+from bodystudio.opencv_yaml import check_opencv_yaml, opencv_matrix
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +62,7 @@ def load_studio_cameras(path: str | os.PathLike, image_sizes: dict[str, tuple[in
 
 
 def _read_storage(path: Path) -> cv2.FileStorage:
+    check_opencv_yaml(path)
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:
@@ -80,7 +82,7 @@ def _storage_names(fs: cv2.FileStorage, path: Path) -> list[str]:
 
 def _storage_mat(fs: cv2.FileStorage, key: str, path: Path, required: bool = True) -> np.ndarray | None:
     node = fs.getNode(key)
-    m = None if node.empty() else node.mat()
+    m = opencv_matrix(node, f"{path}: {key}")
     if m is None:
         if required:
             raise FileFormatError(f"{path}: missing matrix {key!r}; EasyMocap files need K_, dist_, Rot_/R_ "

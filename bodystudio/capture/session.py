@@ -160,9 +160,13 @@ def parse_ply_bytes(data: bytes, source: str) -> tuple[np.ndarray, np.ndarray]:
     """Read the binary PLY written by :func:`mesh_ply_bytes` (other PLYs go through geometry.mesh.load_mesh)."""
     end = data.find(b"end_header\n")
     header = data[:end].decode("ascii", "replace").splitlines() if end > 0 else []
-    nv = [int(l.split()[2]) for l in header if l.startswith("element vertex")]
-    nf = [int(l.split()[2]) for l in header if l.startswith("element face")]
-    if not header or header[0] != "ply" or not nv or not nf or "property double x" not in header:
+    try:
+        nv = [int(l.split()[2]) for l in header if l.startswith("element vertex")]
+        nf = [int(l.split()[2]) for l in header if l.startswith("element face")]
+    except (IndexError, ValueError):
+        nv = nf = []
+    if (not header or header[0] != "ply" or not nv or not nf or min(nv[0], nf[0]) < 0
+            or "property double x" not in header):
         raise SessionError(f"{source}: not a bodystudio ground-truth PLY; regenerate the session")
     body = data[end + len(b"end_header\n"):]
     need = nv[0] * 24 + nf[0] * 13
@@ -170,7 +174,11 @@ def parse_ply_bytes(data: bytes, source: str) -> tuple[np.ndarray, np.ndarray]:
         raise SessionError(f"{source}: truncated PLY ({len(body)} of {need} bytes); regenerate the session")
     V = np.frombuffer(body[: nv[0] * 24], dtype="<f8").reshape(-1, 3).astype(np.float64)
     faces = np.frombuffer(body[nv[0] * 24:], dtype=[("n", "u1"), ("i", "<i4", (3,))])
-    return V, faces["i"].astype(np.int64)
+    F = faces["i"].astype(np.int64)
+    if np.any(faces["n"] != 3) or (len(F) and (F.min() < 0 or F.max() >= nv[0])) or not np.all(np.isfinite(V)):
+        raise SessionError(f"{source}: corrupt PLY (faces that are not triangles of its {nv[0]} vertices, or "
+                           "non-finite vertices); regenerate the session")
+    return V, F
 
 
 # ---------------------------------------------------------------------------------------------- Kinect
@@ -576,6 +584,17 @@ def _check_manifest(m: Any, source: Path) -> None:
     for key, kind in (("cameras", list), ("frames", list), ("streams", list), ("files", dict)):
         if not isinstance(m.get(key), kind):
             raise SessionError(f"{source}: manifest field {key!r} is missing or not a {kind.__name__}")
+    if not all(isinstance(c, str) and _NAME.match(c) for c in m["cameras"]):
+        raise SessionError(f"{source}: manifest field 'cameras' must list camera names (letters, digits, _ . -)")
+    if not all(type(f) is int and f >= 0 for f in m["frames"]):
+        raise SessionError(f"{source}: manifest field 'frames' must list non-negative integer frame ids")
+    if not all(isinstance(s, str) for s in m["streams"]):
+        raise SessionError(f"{source}: manifest field 'streams' must list stream names")
+    for rel, digest in m["files"].items():
+        parts = Path(rel).parts
+        if not isinstance(digest, str) or not parts or Path(rel).is_absolute() or ".." in parts:
+            raise SessionError(f"{source}: manifest entry {rel!r} is not a relative path inside the session with "
+                               "a sha256; the manifest is corrupt, regenerate or re-import the session")
     if CAMERAS_JSON not in m["files"]:
         raise SessionError(f"{source}: lists no {CAMERAS_JSON}; every session needs the studio calibration")
 

@@ -98,6 +98,24 @@ def quads_to_triangles(quads: np.ndarray) -> np.ndarray:
     return tris
 
 
+def checked_mesh_arrays(path: str | Path, vertices, faces) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices ``(n, 3)`` finite and faces ``(m, 3)`` indexing them, as read from ``path``; a broken file
+    (2D vertices, NaN, a face index out of range) raises a one-line FileFormatError naming it."""
+    V = np.asarray(vertices)
+    F = np.asarray(faces)
+    if V.ndim != 2 or V.shape[1] != 3 or not np.issubdtype(V.dtype, np.number):
+        raise FileFormatError(f"{path}: vertices must have 3 coordinates each, got shape {V.shape}; fix the file")
+    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
+        raise FileFormatError(f"{path}: faces must be triangles of vertex indices, got shape {F.shape}; fix the file")
+    V = V.astype(np.float64)
+    if not np.all(np.isfinite(V)):
+        raise FileFormatError(f"{path}: {int((~np.isfinite(V)).any(1).sum())} vertices are NaN or infinite")
+    if len(F) and (F.min() < 0 or F.max() >= len(V)):
+        raise FileFormatError(f"{path}: face indices span [{F.min()}, {F.max()}] but the file has {len(V)} "
+                              "vertices; the face list is corrupt")
+    return V, F.astype(np.int64)
+
+
 def load_mesh(path: str | Path) -> Mesh:
     """Read a triangle mesh from PLY, OBJ, GLB/GLTF, STL or OFF (scenes are concatenated)."""
     import trimesh
@@ -117,7 +135,8 @@ def load_mesh(path: str | Path) -> Mesh:
     visual = getattr(loaded, "visual", None)
     if visual is not None and getattr(visual, "kind", None) == "vertex":
         colors = np.asarray(visual.vertex_colors)[:, :3].astype(np.uint8)
-    return Mesh(np.asarray(loaded.vertices), np.asarray(loaded.faces), colors)
+    V, F = checked_mesh_arrays(path, loaded.vertices, loaded.faces)
+    return Mesh(V, F, colors)
 
 
 def save_mesh(path: str | Path, mesh: Mesh) -> None:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from bodystudio.errors import FileFormatError, InputError
-from bodystudio.geometry.mesh import MESH_SUFFIXES, Mesh, vertex_areas
+from bodystudio.geometry.mesh import MESH_SUFFIXES, Mesh, checked_mesh_arrays, vertex_areas
 
 log = logging.getLogger(__name__)
 
@@ -85,10 +85,8 @@ def read_scan_file(path: str | Path) -> Mesh:
             colors = np.asarray(visual.to_color().vertex_colors)[:, :3].astype(np.uint8)
     except Exception as exc:  # a broken texture must not stop the geometry from loading
         log.warning("%s: cannot read colours (%s); continuing without", path, exc)
-    V = np.asarray(loaded.vertices, dtype=np.float64)
-    if not np.all(np.isfinite(V)):
-        raise FileFormatError(f"{path}: {int((~np.isfinite(V)).any(1).sum())} vertices are NaN or infinite")
-    return Mesh(V, np.asarray(loaded.faces, dtype=np.int64), colors, {"source": str(path)})
+    V, F = checked_mesh_arrays(path, loaded.vertices, loaded.faces)
+    return Mesh(V, F, colors, {"source": str(path)})
 
 
 def clean_scan(mesh: Mesh) -> tuple[Mesh, int, int]:

@@ -41,9 +41,12 @@ def test_cli_reconstruct_and_eval(tiny_session, capsys):
     out = json.loads(capsys.readouterr().out)
     for key in ("median_mm", "p90_mm", "hausdorff_mm", "pct_under_10mm", "iou_min", "ms_per_frame"):
         assert key in out
-    # 4 cameras at 320x240 (one pixel ~ 1.5 cm): coarse, but well inside a centimetre at the median
-    assert out["median_mm"] < 8.0
-    assert out["iou_min"] > 0.9
+    # 4 cameras at 320x240 (one pixel ~ 1.5 cm). Measured: median 3.35 mm, p90 11.8 mm, 86.8 % under 10 mm,
+    # min IoU 0.948. The posed template without the solve scores median 3.31 mm (the median alone cannot tell
+    # solved from unsolved here) but 82.8 % under 10 mm and min IoU 0.911: those separate the two.
+    assert out["median_mm"] < 5.0
+    assert out["iou_min"] > 0.935
+    assert out["pct_under_10mm"] > 85.0
     assert main(["reconstruct", path, "--template", "2k", "--constraints", "silhouette,depth", "--frames", "0:1",
                  "--outer", "3", "--no-score"]) == 0
     run = json.loads((tiny_session.path / "reconstruct" / "run.json").read_text())
@@ -86,9 +89,13 @@ def test_joint_sources_file_and_hull(tiny_session, capsys, tmp_path):
     assert main(["reconstruct", path, "--template", "2k", "--joints", "file", "--joints-path", str(tmp_path)]) == 0
     capsys.readouterr()
     assert main(["eval", "reconstruct", path]) == 0
-    assert json.loads(capsys.readouterr().out)["median_mm"] < 8.0
+    out = json.loads(capsys.readouterr().out)
+    # measured: median 3.33 mm, min IoU 0.951 (without the solve 3.31 mm, IoU 0.911)
+    assert out["median_mm"] < 5.0 and out["iou_min"] > 0.935, out
     # joints from the silhouettes' visual hull: no tracker at all
     assert main(["reconstruct", path, "--template", "2k", "--joints", "hull"]) == 0
     capsys.readouterr()
     assert main(["eval", "reconstruct", path]) == 0
-    assert json.loads(capsys.readouterr().out)["median_mm"] < 8.0
+    out = json.loads(capsys.readouterr().out)
+    # measured: median 4.35 mm, min IoU 0.939 (without the solve 5.53 mm, IoU 0.875)
+    assert out["median_mm"] < 5.2 and out["iou_min"] > 0.92, out

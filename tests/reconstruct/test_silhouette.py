@@ -164,3 +164,19 @@ def test_culled_outline_raster_is_exact_on_flagged_tiles():
     flagged = np.kron(need, np.ones((_TILE, _TILE), bool))[:160, :200]
     assert full[flagged].sum() > 200 and culled.sum() < full.sum()  # culling skipped work, kept flagged pixels
     np.testing.assert_array_equal(culled[flagged], full[flagged])
+
+
+def test_constraint_weights_are_eq10_of_the_matched_offset():
+    """``k_sil = exp(-d^2 / 2 alpha^2)`` as silhouette_constraints applies it, with alpha far from tau and from
+    1 so that k = 1 or alpha replaced by tau changes the weights: a 1.05x sphere's contour lies ~2.5 px out."""
+    V, F, N = _sphere(0.30)
+    cams = [Camera.look_at(f"c{i}", (3 * np.sin(a), 0.2, 3 * np.cos(a)), (0, 0, 0), fx=500.0)
+            for i, a in enumerate([0.0, 1.6, 3.1])]
+    masks = {c.name: silhouette_mask(1.05 * V, F, c) for c in cams}
+    for alpha in (2.0, 5.0):
+        sil = silhouette_constraints(V, F, N, cams, masks, tau_px=20.0, alpha_px=alpha, rim_cos=0.2)
+        d = sil.pixel_distance
+        assert len(sil) > 100 and 1.5 < np.median(d) < 4.0
+        np.testing.assert_allclose(sil.k, np.exp(-d * d / (2 * alpha * alpha)), rtol=1e-12)
+    sil = silhouette_constraints(V, F, N, cams, masks, tau_px=20.0, alpha_px=2.0, rim_cos=0.2)
+    assert 0.25 < np.median(sil.k) < 0.7  # exp(-2.5^2 / 8) = 0.46: a real down-weighting, not k = 1

@@ -131,9 +131,26 @@ def test_skeleton_and_skin_weights(body_2k):
     plotter.close()
 
 
-def test_mesh_scene_with_reference_colours_by_error(body_mesh):
-    moved = Mesh(body_mesh.vertices + [0.0, 0.0, 0.01], body_mesh.faces)
-    plotter = scene_for_mesh(moved, plotter=sc.make_plotter(window_size=SIZE), reference=body_mesh)
+def test_mesh_scene_with_reference_colours_by_error(body_mesh, drawn):
+    """A mesh pushed out along its normals by 0 mm at the feet rising to 8 mm at the head: the scene colours
+    each vertex by its distance to the reference, so the head is drawn in the map's hot end, the feet cold."""
+    V = body_mesh.vertices
+    height = (V[:, 1] - V[:, 1].min()) / np.ptp(V[:, 1])
+    offset_mm = 8.0 * height
+    moved = Mesh(V + 0.001 * offset_mm[:, None] * body_mesh.vertex_normals, body_mesh.faces)
+    plotter = scene_for_mesh(moved, plotter=sc.make_plotter(window_size=SIZE), reference=body_mesh, key_help=False,
+                             floor=False)
     assert "error (mm)" in plotter.scalar_bars
-    sc.render_image(plotter)
+    shown = np.asarray(plotter.actors["error"].mapper.dataset.point_data["error (mm)"])
+    np.testing.assert_allclose(shown, sc.vertex_errors_mm(moved.vertices, body_mesh), atol=1e-9)
+    # the distances are the offsets (a few concave vertices find a nearer piece of the reference)
+    assert np.median(np.abs(shown - offset_mm)) < 0.05 and np.percentile(np.abs(shown - offset_mm), 90) < 0.5
+    img = sc.render_image(plotter).astype(int)
+    mask = drawn(img)
+    rows = np.nonzero(mask.any(1))[0]
+    top, bottom = rows.min() + (rows.max() - rows.min()) // 6, rows.max() - (rows.max() - rows.min()) // 6
+    head = img[:top][mask[:top]].mean(0)
+    feet = img[bottom:][mask[bottom:]].mean(0)
+    # turbo: red at the top of the range, blue at the bottom (shading scales both ends alike)
+    assert head[0] > head[2] + 40 and feet[2] > feet[0] + 30, (head, feet)  # measured (108, 52, 45), (48, 50, 96)
     plotter.close()

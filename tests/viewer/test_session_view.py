@@ -5,6 +5,7 @@ import shutil
 import numpy as np
 import pytest
 
+from bodystudio.capture.synth import synth_session
 from bodystudio.cli.main import main
 from bodystudio.geometry.mesh import Mesh, save_mesh
 from bodystudio.viewer import scene as sc
@@ -15,10 +16,9 @@ pytestmark = pytest.mark.slow  # synthesising the session takes ~20 s on 2 share
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    synth = pytest.importorskip("bodystudio.capture.synth")
     path = tmp_path_factory.mktemp("viewer") / "session"
-    return synth.synth_session(path, n_cameras=2, n_frames=2, resolution=(160, 120), template="2k",
-                               n_background=1)
+    return synth_session(path, n_cameras=2, n_frames=2, resolution=(160, 120), template="2k",
+                         n_background=1)
 
 
 def test_session_scene_shows_body_cameras_and_cloud(session, drawn):
