@@ -235,7 +235,7 @@ def _truncated_template_cache(w: Studio, t: Path) -> None:
 CASES = [
     # -- 7: usage errors through the real console script: click's usage message and exit 2
     Case("usage-unknown-command", "frobnicate", "No such command", subprocess=True, usage=True),
-    Case("usage-unknown-subcommand", "synth arm", "No such command", subprocess=True, usage=True),
+    Case("usage-unknown-subcommand", "synth frobnicate", "No such command", subprocess=True, usage=True),
     Case("usage-unknown-option", "body export {t}/a.ply --bogus", "No such option", subprocess=True, usage=True),
     Case("usage-missing-argument", "rig", "Missing argument", subprocess=True, usage=True),
     Case("usage-malformed-number", "body export {t}/a.ply --gender abc", "Invalid value", subprocess=True,
