@@ -15,7 +15,6 @@ a 1.5K-vertex arm: 7 MB) plus the weights track, ``T^2`` floats (200 frames: 160
 from __future__ import annotations
 
 import contextlib
-import errno
 import os
 import shutil
 from collections.abc import Iterator
@@ -25,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from bodystudio.errors import FileFormatError, InputError
-from bodystudio.fileio import atomic_write
+from bodystudio.fileio import atomic_write, check_output_file
 from bodystudio.geometry.mesh import Mesh, save_mesh, vertex_normals
 
 DEFAULT_FPS = 30.0
@@ -205,30 +204,14 @@ def write_ply_sequence(folder: str | Path, frames: np.ndarray, faces: np.ndarray
 
 
 def check_new_output(path: str | Path, what: str = "output") -> Path:
-    """Refuse (InputError, one line) an output path that exists or whose folder cannot be written.
+    """Refuse (InputError, one line) an output path that exists or cannot be written (:func:`check_output_file`).
 
     Called before any work starts, so a bad ``--out`` costs nothing and leaves nothing behind.
     """
     path = Path(path)
     if path.exists() or path.is_symlink():
         raise InputError(f"{path}: {what} already exists; choose a new path or remove it")
-    parent = path.parent
-    while not parent.exists():  # the first existing ancestor is where the folders will be created
-        if parent == parent.parent:
-            break
-        parent = parent.parent
-    if not parent.is_dir():
-        raise InputError(f"{path}: {parent} is not a folder; choose another {what} path")
-    import tempfile
-
-    try:  # a real probe: os.access says yes to root on read-only or virtual file systems (/sys, /proc)
-        fd, probe = tempfile.mkstemp(prefix=".bodystudio-probe-", dir=parent)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        reason = "permission denied" if exc.errno in (errno.EACCES, errno.EPERM) else exc.strerror
-        raise InputError(f"{path}: cannot write in {parent} ({reason}); choose another {what} path") from None
-    return path
+    return check_output_file(path, what)
 
 
 @contextlib.contextmanager
