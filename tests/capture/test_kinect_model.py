@@ -1,0 +1,99 @@
+"""Kinect depth model statistics with closed-form answers: grazing-angle dropout, holes and dropouts."""
+
+import numpy as np
+import pytest
+import trimesh
+from scipy import ndimage
+
+from bodystudio.capture.kinect import KINECT_NOISE, KinectNoiseModel, random_holes, simulate_kinect_depth
+from bodystudio.geometry.camera import kinect_v1
+
+SENSOR = kinect_v1("640x480")
+CLEAN = KinectNoiseModel(hole_rate=0.0, dropout_rate=0.0, flying_pixel_prob=0.0)
+
+
+def _in_depth_frame(P):
+    return SENSOR.depth.camera_to_world(np.asarray(P, dtype=np.float64))
+
+
+def _tilted_quad(tilt_deg, center_z=2.0, half_size=0.15):
+    """A square at ``center_z`` on the optical axis whose normal is ``tilt_deg`` from the viewing direction."""
+    t = np.radians(tilt_deg)
+    a, b = np.array([np.cos(t), 0.0, np.sin(t)]), np.array([0.0, 1.0, 0.0])
+    c = np.array([0.0, 0.0, center_z])
+    P = [c + half_size * (sa * a + sb * b) for sa, sb in [(-1, -1), (1, -1), (1, 1), (-1, 1)]]
+    return _in_depth_frame(P), np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def _seen(V, F):
+    return simulate_kinect_depth(V, F, SENSOR, None, noise=False) > 0
+
+
+@pytest.mark.parametrize("tilt_deg, kept", [(0, True), (45, True), (70, True), (86, False), (88, False)])
+def test_surfaces_seen_beyond_80_degrees_return_no_depth(tilt_deg, kept):
+    V, F = _tilted_quad(tilt_deg)
+    seen = _seen(V, F)
+    assert seen.sum() > 20  # the renderer sees the quad, even edge-on
+    depth = simulate_kinect_depth(V, F, SENSOR, np.random.default_rng(0), model=CLEAN)
+    inner = ndimage.binary_erosion(seen, iterations=2)  # away from the quad's outline (projector shadow)
+    valid = (depth > 0)[inner]
+    assert valid.all() if kept else not valid.any(), valid.mean()
+
+
+def test_grazing_dropout_on_a_sphere_is_the_rim_annulus():
+    """A sphere seen from 2.5 m: the incidence angle exceeds 80 degrees on the outer annulus of the disc,
+    1 - sin^2(80 deg) = 3.0 % of it in orthographic view (a perspective view sees slightly less of the rim)."""
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=0.3)
+    V = _in_depth_frame(sphere.vertices + [0.0, 0.0, 2.5])
+    seen = _seen(V, sphere.faces)
+    depth = simulate_kinect_depth(V, sphere.faces, SENSOR, np.random.default_rng(0), model=CLEAN)
+    # the projector shadow takes a crescent on the far side of the baseline: count the dropout on the near half
+    cx = int(np.round(np.mean(np.nonzero(seen)[1])))
+    half = np.zeros_like(seen)
+    half[:, :cx] = True
+    dropped = (seen & (depth == 0) & half).sum() / (seen & half).sum()
+    expected = 1.0 - np.sin(np.radians(80.0)) ** 2
+    print("sphere: dropped", dropped, "expected", expected)
+    assert 0.8 * expected < dropped < 1.25 * expected, (dropped, expected)
+    # ... and it is a rim: no dropped pixel more than 3 px inside the outline
+    deep = ndimage.binary_erosion(seen, iterations=4)
+    assert (depth[deep & half] > 0).all()
+
+
+def test_hole_and_dropout_statistics():
+    """3x3 holes around seeds at rate h and isolated dropouts at rate d: a pixel is missing with probability
+    1 - (1 - h)^9 (1 - d); holes are 3x3 blocks, dropouts single pixels."""
+    shape = (480, 640)
+    h, d = 0.004, 0.01
+    model = KinectNoiseModel(hole_rate=h, dropout_rate=d)
+    missing = random_holes(shape, np.random.default_rng(0), model)
+    expected = 1.0 - (1.0 - h) ** 9 * (1.0 - d)
+    print("holes: missing", missing.mean(), "expected", expected)
+    assert abs(missing.mean() / expected - 1.0) < 0.05, (missing.mean(), expected)
+    only_holes = random_holes(shape, np.random.default_rng(1), KinectNoiseModel(hole_rate=h, dropout_rate=0.0))
+    assert abs(only_holes.mean() / (1.0 - (1.0 - h) ** 9) - 1.0) < 0.05
+    labels, n = ndimage.label(only_holes, structure=np.ones((3, 3)))
+    sizes = ndimage.sum(only_holes, labels, np.arange(1, n + 1))
+    inner = np.ones(n, bool)  # blobs cut by the image border are smaller
+    for k, sl in enumerate(ndimage.find_objects(labels)):
+        inner[k] = sl[0].start > 0 and sl[1].start > 0 and sl[0].stop < shape[0] and sl[1].stop < shape[1]
+    assert sizes[inner].min() >= 9 and np.median(sizes[inner]) == 9
+    only_drop = random_holes(shape, np.random.default_rng(2), KinectNoiseModel(hole_rate=0.0, dropout_rate=d))
+    assert abs(only_drop.mean() / d - 1.0) < 0.05
+    _, n_drop = ndimage.label(only_drop, structure=np.ones((3, 3)))
+    assert n_drop > 0.9 * only_drop.sum()  # isolated pixels
+    assert not random_holes(shape, np.random.default_rng(3), KinectNoiseModel(hole_rate=0.0, dropout_rate=0.0)).any()
+
+
+def test_simulated_depth_of_a_wall_has_the_models_holes():
+    """A frontal wall: no grazing, no flying pixels away from its edges; what is missing inside are the holes."""
+    V, F = _tilted_quad(0.0, center_z=2.0, half_size=3.0)
+    rng = np.random.default_rng(5)
+    depth = simulate_kinect_depth(V, F, SENSOR, rng)
+    missing = (depth[20:-20, 80:-20] == 0).mean()  # the projector does not light the left band (f b / z = 22 px)
+    h, d = KINECT_NOISE.hole_rate, KINECT_NOISE.dropout_rate
+    expected = 1.0 - (1.0 - h) ** 9 * (1.0 - d)
+    print("wall: missing", missing, "expected", expected)
+    assert abs(missing / expected - 1.0) < 0.15, (missing, expected)
+    no_holes = simulate_kinect_depth(V, F, SENSOR, rng, model=KinectNoiseModel(hole_rate=0.0, dropout_rate=0.0))
+    assert (no_holes[20:-20, 80:-20] > 0).all()
