@@ -166,3 +166,43 @@ def test_limit_influences_drops_the_smallest_clips_negatives_and_keeps_zero_rows
     narrow = np.array([[0.2, 0.6]])
     np.testing.assert_allclose(limit_influences(narrow), [[0.25, 0.75]])
     assert W[0, 1] == -0.1  # the input is not modified
+
+
+def test_segment_distance_and_bone_tails():
+    from bodystudio.rig.weights import _segment_distance, bone_segments
+
+    a, b = np.array([0.0, 0.0, 0.0]), np.array([0.0, 2.0, 0.0])
+    P = np.array([[1.0, 1.0, 0.0], [0.0, -3.0, 0.0], [0.0, 5.0, 4.0], [0.0, 0.5, 0.0]])
+    np.testing.assert_allclose(_segment_distance(P, a, b), [1.0, 3.0, 5.0, 0.0])
+    np.testing.assert_allclose(_segment_distance(P, a, a), np.linalg.norm(P, axis=1))  # a point-sized bone
+    R = np.stack([np.eye(3), np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])])  # column 1: +y, then -x
+    np.testing.assert_allclose(bone_segments(np.array([[1.0, 2, 3], [0, 0, 0]]), R, np.array([0.5, 2.0])),
+                               [[1.0, 2.5, 3], [-2.0, 0, 0]])
+
+
+def test_bounded_biharmonic_weights_of_a_two_bone_rod():
+    """A rod along y with a bone in each half (and a third bone left out): each end follows its own bone
+    only, the weights form a partition of unity and blend around the joint."""
+    import trimesh
+
+    from bodystudio.rig.weights import bounded_biharmonic_weights
+
+    rod = trimesh.creation.cylinder(radius=0.05, height=1.0, sections=16)
+    rod = rod.subdivide().subdivide()
+    V = np.asarray(rod.vertices)[:, [0, 2, 1]]  # axis along y
+    F = np.asarray(rod.faces)
+    heads = np.array([[0.0, -0.5, 0.0], [0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+    tails = np.array([[0.0, 0.0, 0.0], [0.0, 0.5, 0.0], [0.6, 0.0, 0.0]])
+    W = bounded_biharmonic_weights(V, F, heads, tails, np.array([0, 1]), n_work=len(V) // 2)
+    assert W.shape == (len(V), 3)
+    np.testing.assert_allclose(W.sum(1), 1.0, atol=1e-9)
+    assert (W >= 0).all() and W[:, 2].max() == 0.0
+    low, high = V[:, 1] < -0.35, V[:, 1] > 0.35
+    assert W[low, 0].min() > 0.95 and W[high, 1].min() > 0.95, (W[low, 0].min(), W[high, 1].min())
+    mid = np.abs(V[:, 1]) < 0.02
+    assert 0.2 < W[mid, 0].mean() < 0.8
+    # weight of the lower bone decreases along the rod
+    order = np.argsort(V[:, 1])
+    bins = np.array_split(W[order, 0], 10)
+    means = [b.mean() for b in bins]
+    assert all(x >= y - 0.01 for x, y in zip(means[:-1], means[1:], strict=True)), means
