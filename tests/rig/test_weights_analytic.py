@@ -206,3 +206,26 @@ def test_bounded_biharmonic_weights_of_a_two_bone_rod():
     bins = np.array_split(W[order, 0], 10)
     means = [b.mean() for b in bins]
     assert all(x >= y - 0.01 for x, y in zip(means[:-1], means[1:], strict=True)), means
+
+
+def test_block_conjugate_gradient_is_jacobi_preconditioned_and_starts_from_the_guess():
+    """A badly scaled SPD system (diagonal 1e-3..1e3, weak coupling): Jacobi-preconditioned CG reaches
+    rtol in a few iterations from any start; the float32 path returns float64 at the requested rtol."""
+    from bodystudio.rig.weights import block_conjugate_gradient
+
+    rng = np.random.default_rng(3)
+    n = 200
+    d = 10.0 ** rng.uniform(-3, 3, n)
+    off = sp.random(n, n, density=0.02, random_state=4)
+    off = 0.01 * (off + off.T)
+    A = (sp.diags(d) + sp.diags(np.sqrt(d)) @ off @ sp.diags(np.sqrt(d))).tocsr()
+    B = rng.normal(size=(n, 2)) * [1.0, 1e3]
+    exact = np.linalg.solve(A.toarray(), B)
+    X0 = exact + rng.normal(size=exact.shape)  # a guess that is off: the residual is B - A X0
+    for dtype, rtol in ((np.float64, 1e-10), (np.float32, 1e-3)):
+        X = block_conjugate_gradient(A, B, X0, rtol=rtol, max_iterations=12, dtype=dtype)
+        assert X.dtype == np.float64
+        res = np.linalg.norm(A @ X - B, axis=0) / np.linalg.norm(B, axis=0)
+        assert (res < 10 * rtol).all(), (dtype, res)
+    # an exact guess needs no iteration at all
+    np.testing.assert_allclose(block_conjugate_gradient(A, B, exact, max_iterations=0), exact)
