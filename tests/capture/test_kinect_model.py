@@ -97,3 +97,64 @@ def test_simulated_depth_of_a_wall_has_the_models_holes():
     assert abs(missing / expected - 1.0) < 0.15, (missing, expected)
     no_holes = simulate_kinect_depth(V, F, SENSOR, rng, model=KinectNoiseModel(hole_rate=0.0, dropout_rate=0.0))
     assert (no_holes[20:-20, 80:-20] > 0).all()
+
+
+def test_khoshelham_formulas():
+    """Eq. 12 (sigma_Z = 1.425e-3 Z^2), Eq. 13 (resolution Z^2 step / (f b)) and sigma_d = coeff f b."""
+    m = KINECT_NOISE
+    np.testing.assert_allclose(m.axial_sigma_m([1.0, 2.0, 4.0]), [1.425e-3, 5.7e-3, 22.8e-3])
+    np.testing.assert_allclose(m.depth_resolution_m(2.0, 580.0, 0.075), 4.0 / 8.0 / 43.5)
+    assert m.disparity_sigma_px(580.0, 0.075) == pytest.approx(1.425e-3 * 43.5)
+
+
+def test_quantized_disparity_without_noise_is_on_the_eighth_pixel_grid():
+    from bodystudio.capture.kinect import quantized_disparity_depth
+
+    fb = 580.0 * 0.075
+    depth = np.array([[0.0, 1.0, 2.0, 3.0, 4.4]])
+    out = quantized_disparity_depth(depth, 580.0, 0.075, None)
+    assert out[0, 0] == 0.0
+    d = fb / out[0, 1:]
+    np.testing.assert_allclose(d * 8, np.round(d * 8), atol=1e-9)
+    np.testing.assert_allclose(d, fb / depth[0, 1:], atol=1.0 / 16 + 1e-12)  # within half a quantum
+
+
+def test_flying_pixels_lie_between_foreground_and_background():
+    from bodystudio.capture.kinect import flying_pixels
+
+    depth = np.full((20, 20), 3.0)
+    depth[:, :10] = 1.0
+    depth[0:3, 15:18] = 0.0  # a hole in the background: flying pixels reach 0.3 m behind the near side
+    model = KinectNoiseModel(flying_pixel_prob=1.0)
+    out = flying_pixels(depth, np.random.default_rng(0), model)
+    edge = np.zeros_like(depth, bool)
+    edge[:, 9:11] = True
+    assert (out[edge] >= 1.0).all() and (out[edge] <= 3.0).all() and (out[edge] != depth[edge]).mean() > 0.9
+    near_hole = np.zeros_like(edge)
+    near_hole[0:4, 14:19] = True
+    near_hole &= depth > 0
+    assert (out[near_hole] >= 3.0).all() and (out[near_hole] <= 3.3 + 1e-12).all()
+    assert (out[near_hole] > 3.0).mean() > 0.9
+    assert np.array_equal(out[~edge & ~near_hole & (depth > 0)], depth[~edge & ~near_hole & (depth > 0)])
+    assert (out[depth == 0] >= 0).all()
+    none = flying_pixels(depth, np.random.default_rng(0), KinectNoiseModel(flying_pixel_prob=0.0))
+    assert np.array_equal(none, depth)
+
+
+def test_bad_inputs_are_refused(tmp_path):
+    import cv2
+
+    from bodystudio.capture.kinect import read_depth_png, simulate_tracker_joints
+    from bodystudio.errors import FileFormatError, InputError
+
+    V, F = _tilted_quad(0.0)
+    with pytest.raises(InputError, match="RGBDSensor"):
+        simulate_kinect_depth(V, F, SENSOR.depth, np.random.default_rng(0))
+    with pytest.raises(FileFormatError, match="not found"):
+        read_depth_png(tmp_path / "missing.png")
+    cv2.imwrite(str(tmp_path / "eight.png"), np.zeros((4, 4), np.uint8))
+    with pytest.raises(FileFormatError, match="16-bit"):
+        read_depth_png(tmp_path / "eight.png")
+    for kwargs in ({"noise_m": -0.01}, {"bone_length_jitter": -1.0}, {"dropout": 1.5}, {"dropout": -0.1}):
+        with pytest.raises(InputError, match="dropout"):
+            simulate_tracker_joints(None, None, None, "v2", np.random.default_rng(0), **kwargs)
