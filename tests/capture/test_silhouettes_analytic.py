@@ -156,3 +156,37 @@ def test_clean_mask_opening_and_closing():
     assert not opened[55, 55]
     plain = clean_mask(mask, SegmentationParams(min_component_px=1, min_component_fraction=0.0))
     assert plain[55, 55] and not plain[20:40, 29:31].any()
+
+
+def test_background_model_statistics_and_floors():
+    rng = np.random.default_rng(16)
+    plate = rng.uniform(60, 200, (30, 40, 3))
+    frames = [plate + rng.normal(0, 5.0, plate.shape) for _ in range(40)]
+    model = background_model(frames)
+    assert model.n_frames == 40 and model.shape == (30, 40)
+    np.testing.assert_allclose(model.mean, np.mean(frames, 0), rtol=1e-5)
+    assert abs(np.median(model.std) / 5.0 - 1.0) < 0.05
+    raw_std = np.std(frames, 0, ddof=1)
+    np.testing.assert_allclose(model.std, np.maximum(raw_std, np.median(raw_std)), rtol=1e-5)  # median floor
+    # training frames are within the noise: CD rms about chi_2's sqrt(2) times (n-1)/n, alpha rms ~ s/|E|
+    assert 1.2 < model.cd_rms < 1.45 and model.alpha_rms < 0.1
+    still = background_model([plate, plate, plate])  # identical frames: std floor 1, rms floors
+    np.testing.assert_allclose(still.std, 1.0)
+    assert still.cd_rms == 1.0 and still.alpha_rms == pytest.approx(1e-3)
+    single = background_model([plate], single_frame_std=3.0)
+    np.testing.assert_allclose(single.std, 3.0)
+    assert single.cd_rms == pytest.approx(np.sqrt(2.0))
+    expected_alpha = np.median(np.sqrt(1.0 / ((plate / 3.0) ** 2).sum(-1)))
+    assert single.alpha_rms == pytest.approx(expected_alpha, rel=1e-4)
+    with pytest.raises(ValueError, match="at least one"):
+        background_model([])
+
+
+def test_mask_iou():
+    a = np.zeros((4, 4), bool)
+    assert mask_iou(a, a) == 1.0
+    b = a.copy()
+    b[0, :2] = True
+    c = a.copy()
+    c[0, 1:3] = True
+    assert mask_iou(b, c) == pytest.approx(1 / 3) and mask_iou(b, a) == 0.0
