@@ -158,3 +158,25 @@ def test_bad_inputs_are_refused(tmp_path):
     for kwargs in ({"noise_m": -0.01}, {"bone_length_jitter": -1.0}, {"dropout": 1.5}, {"dropout": -0.1}):
         with pytest.raises(InputError, match="dropout"):
             simulate_tracker_joints(None, None, None, "v2", np.random.default_rng(0), **kwargs)
+
+
+def test_millimetre_conversion_edges_and_tracker_hierarchy():
+    from bodystudio.capture.kinect import (
+        _topological_order,
+        depth_to_millimetres,
+        kinect_parent_indices,
+        millimetres_to_depth,
+    )
+
+    mm = depth_to_millimetres(np.array([np.nan, -0.5, 0.0, 1.2344, 1.2346, 70.0]))
+    assert mm.dtype == np.uint16 and mm.tolist() == [0, 0, 0, 1234, 1235, 65535]
+    back = millimetres_to_depth(np.array([0, 1, 65535], np.uint16))
+    assert back.dtype == np.float32 and back.tolist() == pytest.approx([0.0, 0.001, 65.535])
+    for version in ("v1", "v2"):
+        parents = kinect_parent_indices(version)
+        assert (parents == -1).sum() == 1 and parents[0] == -1 and (parents < len(parents)).all()
+        order = _topological_order(parents)
+        assert sorted(order) == list(range(len(parents)))
+        position = {j: k for k, j in enumerate(order)}
+        assert all(position[p] < position[j] for j, p in enumerate(parents) if p >= 0)
+    assert _topological_order(np.array([2, -1, 1])) == [1, 2, 0]
