@@ -110,6 +110,20 @@ def test_harmonic_fill_where_normals_are_60_to_120_degrees_apart_is_linear(angle
     assert np.abs(harm - truth).sum(1).max() < 1e-8, np.abs(harm - truth).sum(1).max()
 
 
+def test_a_single_free_vertex_takes_the_harmonic_mean_of_its_neighbours():
+    V, F, _ = _sheet()
+    model_W, inner = _model_with_wrong_interior(V, F)
+    one = np.flatnonzero(inner)[0]
+    scan_N = np.tile(UP, (len(V), 1))
+    scan_N[one] = -UP
+    harm = harmonic_weight_transfer(V, F, V, F, model_W, scan_N=scan_N)
+    L = scan_laplacian(V, F).tocsr()
+    row = L[one].toarray().ravel()
+    expected = -(np.delete(row, one) @ np.delete(model_W, one, axis=0)) / row[one]
+    np.testing.assert_allclose(harm[one], limit_influences(expected[None])[0], atol=1e-12)
+    np.testing.assert_allclose(np.delete(harm, one, axis=0), np.delete(model_W, one, axis=0), atol=1e-12)
+
+
 def test_harmonic_transfer_keeps_compatible_weights_when_normals_agree_within_60_degrees():
     V, F, _ = _sheet()
     model_W, inner = _model_with_wrong_interior(V, F)
@@ -163,18 +177,21 @@ def test_limit_influences_drops_the_smallest_clips_negatives_and_keeps_zero_rows
     np.testing.assert_array_equal(out[1], 0.0)
     np.testing.assert_allclose(out[2], W[2])
     np.testing.assert_allclose(limit_influences(W, k=2)[0], np.array([0.5, 0, 0.2, 0, 0, 0]) / 0.7)
-    narrow = np.array([[0.2, 0.6]])
-    np.testing.assert_allclose(limit_influences(narrow), [[0.25, 0.75]])
+    narrow = np.array([[0.2, 0.6], [0.6, -0.1]])
+    np.testing.assert_allclose(limit_influences(narrow), [[0.25, 0.75], [1.0, 0.0]])  # negatives clip to 0
+    four = np.array([[0.1, 0.2, 0.3, 0.4]])
+    np.testing.assert_allclose(limit_influences(four), four)  # exactly k columns: nothing to drop
     assert W[0, 1] == -0.1  # the input is not modified
 
 
 def test_segment_distance_and_bone_tails():
     from bodystudio.rig.weights import _segment_distance, bone_segments
 
-    a, b = np.array([0.0, 0.0, 0.0]), np.array([0.0, 2.0, 0.0])
-    P = np.array([[1.0, 1.0, 0.0], [0.0, -3.0, 0.0], [0.0, 5.0, 4.0], [0.0, 0.5, 0.0]])
-    np.testing.assert_allclose(_segment_distance(P, a, b), [1.0, 3.0, 5.0, 0.0])
-    np.testing.assert_allclose(_segment_distance(P, a, a), np.linalg.norm(P, axis=1))  # a point-sized bone
+    o = np.array([0.3, -0.2, 0.1])  # segment from o to o + 2y
+    a, b = o, o + [0.0, 2.0, 0.0]
+    P = o + np.array([[1.0, 1.0, 0.0], [0.0, -3.0, 0.0], [0.0, 5.0, 4.0], [0.0, 0.5, 0.0]])
+    np.testing.assert_allclose(_segment_distance(P, a, b), [1.0, 3.0, 5.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(_segment_distance(P, a, a), np.linalg.norm(P - o, axis=1))  # a point-sized bone
     R = np.stack([np.eye(3), np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])])  # column 1: +y, then -x
     np.testing.assert_allclose(bone_segments(np.array([[1.0, 2, 3], [0, 0, 0]]), R, np.array([0.5, 2.0])),
                                [[1.0, 2.5, 3], [-2.0, 0, 0]])
