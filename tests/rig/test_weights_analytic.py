@@ -246,3 +246,12 @@ def test_block_conjugate_gradient_is_jacobi_preconditioned_and_starts_from_the_g
         assert (res < 10 * rtol).all(), (dtype, res)
     # an exact guess needs no iteration at all
     np.testing.assert_allclose(block_conjugate_gradient(A, B, exact, max_iterations=0), exact)
+
+
+def test_barycentric_transfer_without_the_influence_limit_keeps_every_bone():
+    V, F, _ = _sheet(40)
+    W = np.random.default_rng(7).dirichlet(np.ones(6), len(V))  # six influences everywhere
+    raw = barycentric_weight_transfer(V + [0, 0.001, 0], V, F, W, limit=False)
+    np.testing.assert_allclose(raw, W, atol=1e-9)
+    limited = barycentric_weight_transfer(V + [0, 0.001, 0], V, F, W)
+    assert ((limited > 0).sum(1) == 4).all()
