@@ -129,3 +129,40 @@ def test_transfer_to_a_copy_is_the_identity_and_follows_a_translation(blob):
     Mz = transfer_joint_coordinates(M, V, F, s.vertices, s.faces)
     assert Mz.shape == (2, len(s.vertices))
     assert np.abs(Mz @ s.vertices - joints).max() < 1e-9  # subdivide keeps the old vertices
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+def test_close_holes_orientation_whichever_way_the_loop_runs(monkeypatch, reverse):
+    """libigl returns boundary loops along the faces' edges; a loop given the other way round must be
+    reversed before the fan is built, or the fill faces point inwards (volume 1 - 2 * cap)."""
+    import igl
+
+    import bodystudio.rig.skeleton_transfer as st
+
+    real = igl.boundary_loop_all
+    monkeypatch.setattr(st.igl, "boundary_loop_all",
+                        lambda F: [np.asarray(loop)[::-1] if reverse else loop for loop in real(F)])
+    V, F_open, _ = _open_box()
+    bottom = np.all(V[F_open][:, :, 2] < -0.49, axis=1)
+    F2 = F_open[~bottom]  # two holes: top and bottom
+    Vc, Fc, _ = close_holes(V, F2)
+    fill = Fc[len(F2):]
+    assert len(fill) == 8 and np.all(np.sort(fill, axis=1)[:, -1] >= len(V))  # every fill face has a centroid
+    assert set(np.unique(fill[fill >= len(V)])) == {len(V), len(V) + 1}
+    edges = np.r_[Fc[:, [0, 1]], Fc[:, [1, 2]], Fc[:, [2, 0]]]
+    assert len({tuple(e) for e in edges}) == len(edges)
+    assert trimesh.Trimesh(Vc, Fc, process=False).volume == pytest.approx(1.0, abs=1e-12)
+
+
+def test_mean_value_coordinates_of_mixed_and_coplanar_points():
+    """Several points at once (on a vertex, inside a face, inside the solid) keep their own cases; a point on
+    a face's plane outside the face gets no contribution from that face and keeps linear precision."""
+    V = np.array([[1.0, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]])
+    F = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    on_face = V[F[0]].mean(0)
+    points = np.array([V[2], [0.1, -0.2, 0.05], on_face, [2.0, -0.5, -0.5]])  # the last on face 0's plane
+    M = mean_value_coordinates(points, V, F)
+    np.testing.assert_allclose(M[0], np.eye(6)[2], atol=1e-12)
+    np.testing.assert_allclose(M[2, F[0]], 1.0 / 3.0, atol=1e-9)
+    np.testing.assert_allclose(M.sum(1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(M @ V, points, atol=1e-9)
