@@ -40,6 +40,16 @@ def test_surfaces_seen_beyond_80_degrees_return_no_depth(tilt_deg, kept):
     assert valid.all() if kept else not valid.any(), valid.mean()
 
 
+def test_grazing_angle_and_range_follow_the_model_and_sensor():
+    V, F = _tilted_quad(70)
+    strict = KinectNoiseModel(hole_rate=0.0, dropout_rate=0.0, flying_pixel_prob=0.0, grazing_angle_deg=60.0)
+    inner = ndimage.binary_erosion(_seen(V, F), iterations=2)
+    assert not (simulate_kinect_depth(V, F, SENSOR, np.random.default_rng(0), model=strict) > 0)[inner].any()
+    for z in (0.45, 4.8):  # outside 0.5-4.5 m: nothing, with or without noise
+        Vz, Fz = _tilted_quad(0.0, center_z=z, half_size=0.2 * z)
+        assert not simulate_kinect_depth(Vz, Fz, SENSOR, None, noise=False).any()
+
+
 def test_grazing_dropout_on_a_sphere_is_the_rim_annulus():
     """A sphere seen from 2.5 m: the incidence angle exceeds 80 degrees on the outer annulus of the disc,
     1 - sin^2(80 deg) = 3.0 % of it in orthographic view (a perspective view sees slightly less of the rim)."""
@@ -158,6 +168,29 @@ def test_bad_inputs_are_refused(tmp_path):
     for kwargs in ({"noise_m": -0.01}, {"bone_length_jitter": -1.0}, {"dropout": 1.5}, {"dropout": -0.1}):
         with pytest.raises(InputError, match="dropout"):
             simulate_tracker_joints(None, None, None, "v2", np.random.default_rng(0), **kwargs)
+
+
+def test_tracker_noise_is_unbiased_and_every_bone_jitters(body_2k):
+    from bodystudio.body.kinect import kinect_joints
+    from bodystudio.capture.kinect import kinect_parent_indices, simulate_tracker_joints
+
+    sk = body_2k.skeleton
+    truth = kinect_joints(sk, sk.heads, sk.tails, "v2")
+    parents = kinect_parent_indices("v2")
+    child = np.flatnonzero(parents >= 0)
+    rest = np.linalg.norm(truth[child] - truth[parents[child]], axis=1)
+    rng = np.random.default_rng(8)
+    ratios = np.array([np.linalg.norm(J[child] - J[parents[child]], axis=1) / rest for J, _ in
+                       (simulate_tracker_joints(sk.heads, sk.tails, sk, "v2", rng, noise_m=0.0) for _ in range(300))])
+    np.testing.assert_allclose(ratios.std(0), 0.03, rtol=0.3)  # each bone, the root's children too (default 3 %)
+    res = np.array([simulate_tracker_joints(sk.heads, sk.tails, sk, "v2", rng, bone_length_jitter=0.0)[0] - truth
+                    for _ in range(300)])
+    assert np.abs(res.mean(0)).max() < 0.004 and abs(res.std() / 0.01 - 1) < 0.05  # default 1 cm, unbiased
+    out = [simulate_tracker_joints(sk.heads, sk.tails, sk, "v2", rng, bone_length_jitter=0.0, dropout=1.0)
+           for _ in range(50)]
+    assert not np.array([t for _, t in out]).any()  # dropout 1: nothing tracked
+    err = np.array([j - truth for j, _ in out])
+    assert abs(err.std() / 0.03 - 1) < 0.1  # inferred joints: 3x the noise
 
 
 def test_millimetre_conversion_edges_and_tracker_hierarchy():
