@@ -139,7 +139,7 @@ def test_fill_small_holes_only_fills_enclosed_regions():
     assert fill_small_holes(mask, 16)[20:24, 20:24].all()
     assert not fill_small_holes(mask, 3)[10:12, 10:12].any()
     assert not out[:, :5].any()
-    for border in (np.s_[0:3, 18:20], np.s_[37:40, 18:20], np.s_[18:20, 37:40]):
+    for border in (np.s_[0:3, 18:20], np.s_[37:40, 18:20], np.s_[18:20, 37:40], np.s_[18:20, 0:3]):
         m = np.ones((40, 40), bool)
         m[border] = False  # a small notch on each image border: not a hole
         assert not fill_small_holes(m, 100)[border].any()
