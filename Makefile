@@ -11,8 +11,16 @@ PY := $(VENV)/bin/python
 APT_PACKAGES := libusb-1.0-0 libgomp1 libgl1 libegl1 libxrender1 chromium
 DEMO_OUT ?= demo-out
 PYTEST_ARGS ?=
+# Mutation testing (make mutate; not in CI): the core modules, each mutated with only its own fast tests.
+MUTATE_MODULES ?= bodystudio/reconstruct/solver.py bodystudio/reconstruct/silhouette.py \
+	bodystudio/reconstruct/rapid_skin.py bodystudio/geometry/laplacian.py bodystudio/body/skinning.py \
+	bodystudio/rig/weights.py bodystudio/rig/skeleton_transfer.py bodystudio/calib/calibrate.py \
+	bodystudio/capture/kinect.py bodystudio/capture/silhouettes.py \
+	$(wildcard bodystudio/muscle/[!_]*.py bodystudio/mirror/[!_]*.py bodystudio/garment/[!_]*.py)
+MUTATE_TIMEOUT ?= 900
+MUTATE_JOBS ?= 2
 
-.PHONY: setup demo test test-fast bench lint lock clean
+.PHONY: setup demo test test-fast bench lint lock clean mutate
 
 setup: $(VENV)/.installed
 	@$(VENV)/bin/bodystudio body assets --quiet
@@ -37,6 +45,10 @@ test-fast: setup
 
 bench: setup
 	$(PY) -m benchmarks.run --out docs/BENCHMARKS.md
+
+# Writes docs/MUTATION.md (score and surviving mutants per module); one module at a time, at nice 10.
+mutate: setup
+	$(PY) scripts/mutate.py --timeout $(MUTATE_TIMEOUT) --jobs $(MUTATE_JOBS) --modules $(MUTATE_MODULES)
 
 lint: setup
 	$(VENV)/bin/ruff check bodystudio tests benchmarks
