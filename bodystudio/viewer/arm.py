@@ -117,26 +117,12 @@ def add_arm_time_slider(plotter, view: ArmSequenceView, cloud: bool = True, fram
     ids = view.frame_ids
     if len(ids) < 2:
         return plotter
-    state = {"k": view.index(frame_id)}
 
     def show(k: int) -> None:
-        state["k"] = k
         scene_for_arm_frame(view, k, plotter, cloud)
         sc.add_title(plotter, _title(view, k))
 
-    slider = plotter.add_slider_widget(lambda v: show(int(np.argmin(np.abs(np.asarray(ids) - v)))),
-                                       [ids[0], ids[-1]], value=ids[state["k"]], title="frame", fmt="%.0f",
-                                       pointa=(0.25, 0.92), pointb=(0.75, 0.92), style="modern")
-
-    def step(delta: int) -> None:
-        k = min(max(state["k"] + delta, 0), len(ids) - 1)
-        slider.GetRepresentation().SetValue(ids[k])
-        show(k)
-        plotter.render()
-
-    plotter.add_key_event("n", lambda: step(1))
-    plotter.add_key_event("p", lambda: step(-1))
-    return plotter
+    return sc.add_frame_slider(plotter, ids, view.index(frame_id), show)
 
 
 def arm_payload(view: ArmSequenceView, plotter, cloud: bool = True, max_frames: int | None = None,

@@ -298,3 +298,28 @@ def project_to_screen(plotter, points: np.ndarray) -> np.ndarray:
     x = (ndc[:, 0] + 1) / 2 * width
     y = (1 - (ndc[:, 1] + 1) / 2) * height
     return np.c_[x, y]
+
+
+def add_frame_slider(plotter, frame_ids, start: int, show):
+    """A frame slider over ``frame_ids`` and keys n / p for the next / previous frame (interactive windows);
+    ``show(k)`` draws the frame at index ``k``."""
+    ids = list(frame_ids)
+    state = {"k": start}
+
+    def draw(k: int) -> None:
+        state["k"] = k
+        show(k)
+
+    slider = plotter.add_slider_widget(lambda value: draw(int(np.argmin(np.abs(np.asarray(ids) - value)))),
+                                       [ids[0], ids[-1]], value=ids[start], title="frame", fmt="%.0f",
+                                       pointa=(0.25, 0.92), pointb=(0.75, 0.92), style="modern")
+
+    def step(delta: int) -> None:
+        k = min(max(state["k"] + delta, 0), len(ids) - 1)
+        slider.GetRepresentation().SetValue(ids[k])
+        draw(k)
+        plotter.render()
+
+    plotter.add_key_event("n", lambda: step(1))
+    plotter.add_key_event("p", lambda: step(-1))
+    return plotter

@@ -233,28 +233,12 @@ def add_time_slider(plotter, session, images: str = "image", cloud: bool = True,
     ids = session.frame_ids
     if len(ids) < 2:
         return plotter
-    state = {"k": ids.index(frame_id) if frame_id in ids else 0}
 
     def show(k: int) -> None:
-        state["k"] = k
         scene_for_frame(session, ids[k], plotter, images, cloud, skeleton)
         sc.add_title(plotter, f"{session.path.name}  frame {ids[k]}")
 
-    def on_change(value: float) -> None:
-        show(int(np.argmin(np.abs(np.asarray(ids) - value))))
-
-    slider = plotter.add_slider_widget(on_change, [ids[0], ids[-1]], value=ids[state["k"]], title="frame",
-                                       fmt="%.0f", pointa=(0.25, 0.92), pointb=(0.75, 0.92), style="modern")
-
-    def step(delta: int) -> None:
-        k = min(max(state["k"] + delta, 0), len(ids) - 1)
-        slider.GetRepresentation().SetValue(ids[k])
-        show(k)
-        plotter.render()
-
-    plotter.add_key_event("n", lambda: step(1))
-    plotter.add_key_event("p", lambda: step(-1))
-    return plotter
+    return sc.add_frame_slider(plotter, ids, ids.index(frame_id) if frame_id in ids else 0, show)
 
 
 MAX_HTML_FRAMES = 12  # frames exported to HTML (evenly spaced); each carries its meshes and images

@@ -7,7 +7,14 @@ import pytest
 
 from bodystudio.cli.main import main
 from bodystudio.viewer import scene as sc
-from bodystudio.viewer.arm import DEPTH_COLOR, ArmSequenceView, arm_depth_points, arm_payload, scene_for_arm_sequence
+from bodystudio.viewer.arm import (
+    DEPTH_COLOR,
+    ArmSequenceView,
+    add_arm_time_slider,
+    arm_depth_points,
+    arm_payload,
+    scene_for_arm_sequence,
+)
 
 
 @pytest.fixture(scope="module")
@@ -50,6 +57,29 @@ def test_arm_scene_colours_the_planted_error_and_draws_depth(arm_capture, drawn)
 
     d = sc.vertex_errors_mm(P, Mesh(view.truth[1], view.faces))
     assert len(P) > 200 and np.mean(d < 5) > 0.4  # the rest is chest and torso inside the box
+    plotter.close()
+
+
+def test_arm_time_slider_and_keys_swap_the_frame(arm_capture):
+    view, _ = planted_view(arm_capture[0])
+    plotter = scene_for_arm_sequence(view, 0, plotter=sc.make_plotter(window_size=(320, 240)))
+    add_arm_time_slider(plotter, view)
+
+    def shown_frame():
+        title = plotter.renderer.actors["title"].GetText(2)
+        return int(title.split("frame ")[1].split()[0])
+
+    assert shown_frame() == view.frame_ids[0]
+    keys = plotter.iren._key_press_event_callbacks
+    keys["n"][0]()
+    keys["n"][0]()
+    assert shown_frame() == view.frame_ids[2]
+    keys["n"][0]()  # already at the last frame: stays
+    assert shown_frame() == view.frame_ids[2]
+    keys["p"][0]()
+    assert shown_frame() == view.frame_ids[1]
+    (slider,) = plotter.widgets.slider_widgets
+    assert slider.GetRepresentation().GetValue() == view.frame_ids[1]
     plotter.close()
 
 
