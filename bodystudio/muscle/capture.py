@@ -91,7 +91,9 @@ class CaptureOptions:
     nicp: NicpOptions = NicpOptions()
     first_frame_nicp_iterations: int = 12  # the first frame starts farther from the data
     shape_frames: int = 8  # frames at the start of the sequence the shape parameters are fitted on
-    shape_rounds: int = 2  # shape/root fit alternated with those frames' joint angles
+    # shape/root fit alternated with those frames' joint angles. Measured (6k, 24 frames, measured shape,
+    # tracker_pose_weight 30; subjects 2 / 5): 2 rounds -> 5.87 / 6.15 mm median, 4 -> 4.91 / 5.51, 6 worse.
+    shape_rounds: int = 4
     norm_limit: float = 0.9  # Eq. 12's displacement-norm limit (fraction of the training maximum)
     refine_pose: bool = True
     sigma_frames: float = 1.0  # Eq. 14
@@ -106,7 +108,11 @@ class CaptureOptions:
     # With a known shape only the torso placement is fitted; there the tracker's noise costs more than it
     # helps (same sequence, known shape: weight 30 -> 7.5 mm, 1 -> 6.2 mm).
     tracker_root_weight: float = 1.0
-    tracker_pose_weight: float = 10.0  # ... and in each frame's joint angles
+    # ... and in each frame's joint angles. The error decomposition (true root / true angles plugged in,
+    # docs/muscle.md) put the elbow 6-7 deg off with weight 10: the short, hand-blended forearm surface
+    # barely constrains it, the tracker's wrist does. Measured (6k, 24 frames, subjects 2 / 5, 4 rounds):
+    # 10 -> 5.97 / 6.41 mm median, 30 -> 4.91 / 5.51, 50 -> 4.73 / 5.19 (jitter +0.69 / +0.74), 100 worse.
+    tracker_pose_weight: float = 30.0
     pose_sigma_frames: float = 1.5  # joint angles smoothed over +-2 frames before the refinement (0: off)
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
