@@ -58,42 +58,33 @@ def _register() -> None:
 _register()
 
 
+def _with_click(typer_types: list[type[BaseException]], name: str) -> tuple[type[BaseException], ...]:
+    """``typer_types`` plus click's own exception ``name`` when click is installed (typer may vendor it)."""
+    found = list(typer_types)
+    try:
+        import click
+
+        found.append(getattr(click.exceptions, name))
+    except ImportError:  # typer without a click dependency
+        pass
+    return tuple(dict.fromkeys(found))
+
+
 def click_exception_types() -> tuple[type[BaseException], ...]:
     """The click exception base classes the installed typer raises (its vendored click and/or click itself).
 
     typer up to 0.2x re-exported click's classes; later releases vendor click as ``typer._click``. Both are
     found through the MRO of ``typer.BadParameter`` instead of naming a module of one typer version.
     """
-    found = [c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException"]
-    try:
-        import click
-
-        found.append(click.ClickException)
-    except ImportError:  # typer without a click dependency
-        pass
-    return tuple(dict.fromkeys(found))
+    return _with_click([c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException"], "ClickException")
 
 
 def _abort_types() -> tuple[type[BaseException], ...]:
-    found = [typer.Abort]
-    try:
-        import click
-
-        found.append(click.exceptions.Abort)
-    except ImportError:
-        pass
-    return tuple(dict.fromkeys(found))
+    return _with_click([typer.Abort], "Abort")
 
 
 def _exit_types() -> tuple[type[BaseException], ...]:
-    found = [typer.Exit]
-    try:
-        import click
-
-        found.append(click.exceptions.Exit)
-    except ImportError:
-        pass
-    return tuple(dict.fromkeys(found))
+    return _with_click([typer.Exit], "Exit")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from bodystudio.errors import InputError
 from bodystudio.muscle.arm import ArmPose, part_transforms, pose_arm
+from bodystudio.muscle.nicp import similarity_transform
 
 # --- Sec. 6.2 mesh projection -------------------------------------------------------------------
 
@@ -38,14 +39,7 @@ def procrustes_part_transforms(base: np.ndarray, deformed: np.ndarray, part_weig
         w = part_weights[:, k] * extra
         if w.sum() < 1e-9:
             continue
-        w = w / w.sum()
-        mp, mq = w @ P, w @ Q
-        H = ((P - mp) * w[:, None]).T @ (Q - mq)
-        U, _, Vt = np.linalg.svd(H)
-        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
-        R = Vt.T @ D @ U.T
-        T[k, :3, :3] = R
-        T[k, :3, 3] = mq - R @ mp
+        _, T[k, :3, :3], T[k, :3, 3] = similarity_transform(P, Q, w, with_scale=False)
     return T
 
 
