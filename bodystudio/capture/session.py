@@ -308,16 +308,19 @@ class Frame:
         return {"names": list(data["names"]), "positions": pos, "tracked": tracked,
                 "joint_set": data.get("joint_set")}
 
-    @cached_property
-    def gt_mesh(self):
-        """Ground-truth posed mesh (:class:`bodystudio.geometry.mesh.Mesh`) of a synthetic session."""
+    def _optional_mesh(self, stream: str):
         from bodystudio.geometry.mesh import Mesh
 
-        rel = self._optional("gt_mesh")
+        rel = self._optional(stream)
         if rel is None:
             return None
         V, F = parse_ply_bytes(self.session.read_bytes(rel), str(self.session.path / rel))
         return Mesh(V, F)
+
+    @cached_property
+    def gt_mesh(self):
+        """Ground-truth posed mesh (:class:`bodystudio.geometry.mesh.Mesh`) of a synthetic session."""
+        return self._optional_mesh("gt_mesh")
 
     @cached_property
     def gt_joints(self) -> dict | None:
@@ -344,13 +347,7 @@ class Frame:
     @cached_property
     def gt_arm_mesh(self):
         """Ground-truth arm mesh (ArmTemplate topology, :class:`~bodystudio.geometry.mesh.Mesh`) of an arm session."""
-        from bodystudio.geometry.mesh import Mesh
-
-        rel = self._optional("gt_arm_mesh")
-        if rel is None:
-            return None
-        V, F = parse_ply_bytes(self.session.read_bytes(rel), str(self.session.path / rel))
-        return Mesh(V, F)
+        return self._optional_mesh("gt_arm_mesh")
 
     @cached_property
     def gt_arm_pose(self) -> dict | None:
