@@ -5,9 +5,11 @@ Each test starts from a valid file written by our own writer and applies 1-3 ran
 loaders get structural ones (a value replaced by any JSON value, a key or item deleted); text formats
 (PLY, OBJ, OpenCV YAML, COLMAP text) get token, line and byte edits. CI runs a bounded, derandomised
 number of examples per loader; a long run sets ``BODYSTUDIO_FUZZ_EXAMPLES`` (e.g. 20000), which also
-draws fresh random examples:
+draws fresh random examples; ``BODYSTUDIO_FUZZ_SECONDS`` instead runs each loader for a wall-clock time
+(batches of 500 fresh examples until the time is up):
 
-    BODYSTUDIO_FUZZ_EXAMPLES=20000 python -m pytest -q tests/reliability/test_fuzz_loaders.py
+    BODYSTUDIO_FUZZ_EXAMPLES=20000 python -m pytest -q -s tests/reliability/test_fuzz_loaders.py
+    BODYSTUDIO_FUZZ_SECONDS=600 python -m pytest -q -s tests/reliability/test_fuzz_loaders.py
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import copy
 import json
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -25,8 +28,9 @@ from hypothesis import strategies as st
 from bodystudio.errors import BodyStudioError
 
 EXAMPLES = int(os.environ.get("BODYSTUDIO_FUZZ_EXAMPLES", "0") or 0)
-LONG_RUN = EXAMPLES > 0
-FUZZ = settings(max_examples=EXAMPLES if LONG_RUN else 80, deadline=None, database=None, derandomize=not LONG_RUN,
+SECONDS = float(os.environ.get("BODYSTUDIO_FUZZ_SECONDS", "0") or 0)
+LONG_RUN = EXAMPLES > 0 or SECONDS > 0
+FUZZ = settings(max_examples=(EXAMPLES or 500) if LONG_RUN else 80, deadline=None, database=None, derandomize=not LONG_RUN,
                 suppress_health_check=list(HealthCheck), print_blob=True)
 
 # --- strategies ---------------------------------------------------------------------------------------
@@ -106,13 +110,22 @@ def mutated_text(draw, data: bytes):
 _STATS = {"examples": 0, "loaded": 0, "refused": 0}
 
 
+def _drive(run) -> None:
+    """Run a ``@given`` test once, or, with ``BODYSTUDIO_FUZZ_SECONDS``, in fresh batches until the time is up."""
+    start = time.monotonic()
+    run()
+    while time.monotonic() - start < SECONDS:
+        run()
+    _STATS["seconds"] = time.monotonic() - start
+
+
 @pytest.fixture(autouse=True)
 def _count_examples(request):
     """Counts per test; the long run (``-s``) prints them: examples, loads that succeeded, one-line refusals."""
     _STATS.update(examples=0, loaded=0, refused=0)
     yield
     if LONG_RUN:
-        print(f"\nFUZZ {request.node.name}: {_STATS['examples']} examples, {_STATS['loaded']} loader calls loaded, "
+        print(f"\nFUZZ {request.node.name}: {_STATS.get('seconds', 0):.0f} s, {_STATS['examples']} examples, {_STATS['loaded']} loader calls loaded, "
               f"{_STATS['refused']} refused with a one-line error")
 
 
@@ -158,7 +171,7 @@ def test_cameras_json(folder):
             for cam in rig:  # what every caller does next: project a point
                 cam.project(np.array([[0.0, 1.0, 0.0]]))
 
-    run()
+    _drive(run)
 
 
 def test_board_json(folder):
@@ -176,7 +189,7 @@ def test_board_json(folder):
         if spec is not None:
             assert spec.n_corners > 0 and np.all(np.isfinite(spec.size_m))
 
-    run()
+    _drive(run)
 
 
 def test_pose_json(folder):
@@ -195,7 +208,7 @@ def test_pose_json(folder):
         if pose is not None:
             assert pose.rotations.shape == (3, 3) and np.all(np.isfinite(pose.rotations))
 
-    run()
+    _drive(run)
 
 
 def _session(folder: Path) -> Path:
@@ -237,7 +250,7 @@ def test_session_json(folder):
         _only_user_errors(_read_session, path)
 
     try:
-        run()
+        _drive(run)
     finally:
         (path / "session.json").write_bytes(valid)
 
@@ -271,7 +284,7 @@ def test_scan_and_mesh_files(folder, kind):
             if mesh is not None:
                 assert mesh.faces.min(initial=0) >= 0 and mesh.faces.max(initial=0) < mesh.n_vertices
 
-    run()
+    _drive(run)
 
 
 def test_session_ground_truth_ply(folder):
@@ -286,7 +299,7 @@ def test_session_ground_truth_ply(folder):
         _STATS["examples"] += 1
         _only_user_errors(parse_ply_bytes, data, "gt.ply")
 
-    run()
+    _drive(run)
 
 
 def test_joints_json(folder):
@@ -304,7 +317,7 @@ def test_joints_json(folder):
         if track is not None:
             assert track.positions.shape[1:] == (len(track.names), 3)
 
-    run()
+    _drive(run)
 
 
 def test_kinect_calibration_json(folder):
@@ -323,7 +336,7 @@ def test_kinect_calibration_json(folder):
         (folder / "kinect.json").write_bytes(data)
         _only_user_errors(load_kinect_calibration, folder / "kinect.json")
 
-    run()
+    _drive(run)
 
 
 @pytest.mark.parametrize("which", ["intri.yml", "extri.yml"])
@@ -346,7 +359,7 @@ def test_easymocap_yaml(folder, which):
         _only_user_errors(load_studio_cameras, sub)  # the importer's
 
     try:
-        run()
+        _drive(run)
     finally:
         for n, b in valid.items():
             (sub / n).write_bytes(b)
@@ -369,7 +382,7 @@ def test_colmap_text(folder, which):
         _only_user_errors(load_colmap_model, sub)
 
     try:
-        run()
+        _drive(run)
     finally:
         for n, b in valid.items():
             (sub / n).write_bytes(b)
