@@ -10,7 +10,8 @@ Layout (documented in ``docs/session-format.md``)::
     kinect/calibration.json           Kinect depth and colour cameras in the studio frame
     kinect/depth/00000.png            16-bit depth in millimetres (0 = no measurement)
     kinect/rgb/00000.png              Kinect colour frames
-    kinect/joints/00000.json          body-tracker joints (studio frame, metres)
+    kinect/joints/00000.json          body-tracker joints (studio frame, metres), one or several bodies
+    kinect/player/00000.png           the body tracker's player mask on the depth image (uint8, 0 none, k = player k)
     gt/phenotype.json, gt/meshes/00000.ply, gt/joints/00000.json, gt/pose/00000.json, gt/masks/cam_00/00000.png
     gt/arm/00000.ply, gt/arm_pose/00000.json   arm sessions: arm mesh (ArmTemplate topology), arm joint angles
 
@@ -72,6 +73,7 @@ FRAME_STREAMS = {
     "kinect_depth": "kinect/depth/{frame:05d}.png",
     "kinect_rgb": "kinect/rgb/{frame:05d}.png",
     "kinect_joints": "kinect/joints/{frame:05d}.json",
+    "kinect_player": "kinect/player/{frame:05d}.png",
     "gt_mesh": "gt/meshes/{frame:05d}.ply",
     "gt_joints": "gt/joints/{frame:05d}.json",
     "gt_pose": "gt/pose/{frame:05d}.json",
@@ -80,6 +82,8 @@ FRAME_STREAMS = {
 }
 BACKGROUND = "{cam}/background/{index:05d}.png"
 DEPTH_MM_PER_M = 1000.0
+#: The Kinect SDKs track at most six bodies; player mask values are 0 (nobody) or the player 1..6.
+MAX_PLAYERS = 6
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
@@ -135,6 +139,11 @@ def depth_to_png_mm(depth_m: np.ndarray) -> np.ndarray:
     if mm.max(initial=0) > 65535:
         raise ValueError(f"depth up to {d.max():.1f} m does not fit 16-bit millimetres (max 65.535 m)")
     return mm.astype(np.uint16)
+
+
+def _positions_json(positions: np.ndarray) -> list:
+    """(J, 3) positions as JSON lists; a joint with any non-finite coordinate (not reported) becomes null."""
+    return [[float(x) for x in p] if np.all(np.isfinite(p)) else [None, None, None] for p in positions]
 
 
 def _json_bytes(data: Any) -> bytes:
@@ -248,6 +257,22 @@ class _LazyFiles(Mapping):
         return len(self._cameras)
 
 
+def _parse_body(data: Any, source: Path, joint_set: str | None) -> dict:
+    """One body of a joints file (see :attr:`Frame.kinect_bodies`); SessionError when malformed."""
+    try:
+        names = [str(n) for n in data["names"]]
+        raw = [[np.nan if x is None else x for x in p] for p in data["positions"]]
+        pos = np.asarray(raw, dtype=np.float64).reshape(len(names), 3)
+        tracked = np.asarray(data.get("tracked", [True] * len(pos)), dtype=bool).reshape(len(names))
+        player = data.get("player", 1)
+        if type(player) is not int or not 1 <= player <= MAX_PLAYERS:
+            raise ValueError(f"player must be an integer 1..{MAX_PLAYERS}, got {player!r}")
+    except (KeyError, TypeError, ValueError) as exc:
+        raise SessionError(f"{source}: malformed joints ({exc}); needs names and positions") from None
+    return {"player": player, "names": names, "positions": pos, "tracked": tracked,
+            "joint_set": data.get("joint_set", joint_set)}
+
+
 @dataclass(frozen=True, eq=False)
 class Frame:
     """One synchronised frame of a session; every stream is read from disk on first access."""
@@ -293,20 +318,53 @@ class Frame:
         return None if rel is None else self.session.read_image(rel, True)
 
     @cached_property
-    def kinect_joints(self) -> dict | None:
-        """``{"names": [...], "positions": (J, 3) metres in the studio frame, "tracked": (J,) bool}``."""
+    def kinect_player(self) -> np.ndarray | None:
+        """The body tracker's player mask (H, W) uint8 on the depth image: 0 nobody, k = player k (1..6)."""
+        rel = self._optional("kinect_player")
+        if rel is None:
+            return None
+        mask = self.session.read_image(rel, False)
+        if mask.dtype != np.uint8 or mask.max(initial=0) > MAX_PLAYERS:
+            raise SessionError(f"{self.session.path / rel}: a player mask must be an 8-bit PNG with values 0..."
+                               f"{MAX_PLAYERS}, got {mask.dtype} up to {mask.max(initial=0)}; regenerate the session")
+        return mask
+
+    @cached_property
+    def kinect_bodies(self) -> list[dict] | None:
+        """Every tracked body of the frame: ``[{"player", "names", "positions" (J, 3), "tracked" (J,)}]``.
+
+        ``positions`` are metres in the studio frame, NaN where the tracker reported none. The single-body
+        layout of older sessions reads as player 1; None when the frame has no joints file.
+        """
         rel = self._optional("kinect_joints")
         if rel is None:
             return None
         data = self.session.read_json(rel)
-        try:
-            pos = np.asarray(data["positions"], dtype=np.float64).reshape(len(data["names"]), 3)
-            tracked = np.asarray(data.get("tracked", [True] * len(pos)), dtype=bool)
-        except (KeyError, TypeError, ValueError) as exc:
-            raise SessionError(f"{self.session.path / rel}: malformed joints ({exc}); "
-                               "needs names and positions") from None
-        return {"names": list(data["names"]), "positions": pos, "tracked": tracked,
-                "joint_set": data.get("joint_set")}
+        source = self.session.path / rel
+        if not isinstance(data, dict):
+            raise SessionError(f"{source}: malformed joints (top level must be an object); regenerate the session")
+        if "bodies" in data:
+            if not isinstance(data["bodies"], list):
+                raise SessionError(f"{source}: malformed joints ('bodies' must be a list); regenerate the session")
+            bodies = [_parse_body(b, source, data.get("joint_set")) for b in data["bodies"]]
+            players = [b["player"] for b in bodies]
+            if len(set(players)) != len(players):
+                raise SessionError(f"{source}: malformed joints (player ids {players} repeat); regenerate the session")
+            return bodies
+        return [_parse_body({**data, "player": 1}, source, data.get("joint_set"))]
+
+    @cached_property
+    def kinect_joints(self) -> dict | None:
+        """``{"names": [...], "positions": (J, 3) metres in the studio frame, "tracked": (J,) bool}``.
+
+        With several bodies in the frame this is the one with the lowest player id; None when nobody is
+        tracked (see :attr:`kinect_bodies` for all of them).
+        """
+        bodies = self.kinect_bodies
+        if not bodies:
+            return None
+        first = min(bodies, key=lambda b: b["player"])
+        return {k: first[k] for k in ("names", "positions", "tracked", "joint_set")}
 
     def _optional_mesh(self, stream: str):
         from bodystudio.geometry.mesh import Mesh
@@ -743,9 +801,47 @@ class SessionWriter:
                             tracked: np.ndarray | None = None, joint_set: str | None = None) -> None:
         positions = np.asarray(positions, dtype=np.float64).reshape(len(names), 3)
         data = {"joint_set": joint_set, "frame": "studio", "unit": "m", "names": list(names),
-                "positions": positions,
+                "positions": _positions_json(positions),
                 "tracked": (np.ones(len(names), bool) if tracked is None else np.asarray(tracked, bool)).tolist()}
         self._stage(stream_path("kinect_joints", frame), _json_bytes(data), "kinect_joints", frame)
+
+    def write_kinect_bodies(self, frame: int, bodies: list[dict], joint_set: str | None = None) -> None:
+        """Several tracked bodies: ``[{"player": k, "names", "positions" (J, 3), "tracked" (J,)}]``.
+
+        The body with the lowest player id is also written in the single-body layout (top-level
+        ``names``/``positions``/``tracked``), so readers of one body keep working; an empty list
+        records a frame in which nobody is tracked. NaN positions (not reported) are stored as null.
+        """
+        out = []
+        for body in bodies:
+            player = int(body["player"])
+            if not 1 <= player <= MAX_PLAYERS:
+                raise ValueError(f"player ids are 1..{MAX_PLAYERS}, got {player}")
+            names = list(body["names"])
+            positions = np.asarray(body["positions"], dtype=np.float64).reshape(len(names), 3)
+            tracked = body.get("tracked")
+            tracked = np.ones(len(names), bool) if tracked is None else np.asarray(tracked, bool).reshape(len(names))
+            out.append({"player": player, "names": names, "positions": _positions_json(positions),
+                        "tracked": tracked.tolist()})
+        players = [b["player"] for b in out]
+        if len(set(players)) != len(players):
+            raise ValueError(f"player ids must differ between bodies, got {players}")
+        out.sort(key=lambda b: b["player"])
+        data: dict = {"joint_set": joint_set, "frame": "studio", "unit": "m"}
+        if out:
+            data.update({k: out[0][k] for k in ("names", "positions", "tracked")})
+        data["bodies"] = out
+        self._stage(stream_path("kinect_joints", frame), _json_bytes(data), "kinect_joints", frame)
+
+    def write_kinect_player(self, frame: int, player: np.ndarray) -> None:
+        """The body tracker's player mask (H, W) on the depth image: 0 nobody, k = player k (1..6)."""
+        mask = np.asarray(player)
+        if mask.ndim != 2 or not (np.issubdtype(mask.dtype, np.integer) or mask.dtype == bool):
+            raise ValueError(f"player mask must be an (H, W) integer image, got {mask.dtype} {mask.shape}")
+        if mask.size and (mask.min() < 0 or mask.max() > MAX_PLAYERS):
+            raise ValueError(f"player mask values must be 0..{MAX_PLAYERS}, got {mask.min()}..{mask.max()}")
+        self._stage(stream_path("kinect_player", frame), encode_png(mask.astype(np.uint8), "player mask"),
+                    "kinect_player", frame)
 
     def write_gt_subject(self, phenotype: dict, local: dict, **extra) -> None:
         self._stage(GT_PHENOTYPE, _json_bytes({"phenotype": phenotype, "local": local, **extra}))
