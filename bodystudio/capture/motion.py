@@ -45,19 +45,23 @@ def world_to_local_rotvecs(skeleton: Skeleton, world_rotvecs: np.ndarray) -> np.
 
 
 def keyframes_to_poses(skeleton: Skeleton, keyframes: list[Keyframe], n_frames: int,
-                       cyclic: bool = False) -> list[Pose]:
+                       cyclic: bool = False, times: np.ndarray | None = None) -> list[Pose]:
     """Sample ``n_frames`` poses uniformly over [0, 1] from keyframes joined by rotation splines.
 
     A ``cyclic`` motion ends where it starts, so its last sample stops one step short of the end
-    (otherwise short sequences would repeat the first pose).
+    (otherwise short sequences would repeat the first pose). ``times`` (n_frames,) in the keyframes'
+    time range samples there instead (fps-based sampling, :func:`motion_sequence`).
     """
     if n_frames < 1:
         raise InputError(f"a motion needs at least one frame, got n_frames={n_frames}")
     keyframes = sorted(keyframes, key=lambda k: k.time)
-    times = np.array([k.time for k in keyframes], dtype=np.float64)
-    if np.any(np.diff(times) <= 0):
+    times_k = np.array([k.time for k in keyframes], dtype=np.float64)
+    if np.any(np.diff(times_k) <= 0):
         raise InputError("motion keyframe times must be distinct")
-    t = np.linspace(times[0], times[-1], n_frames, endpoint=not cyclic or n_frames == 1)
+    if times is None:
+        t = np.linspace(times_k[0], times_k[-1], n_frames, endpoint=not cyclic or n_frames == 1)
+    else:
+        t = np.clip(np.asarray(times, dtype=np.float64).reshape(n_frames), times_k[0], times_k[-1])
     bones = sorted({b for k in keyframes for b in k.rotations})
     world = np.zeros((n_frames, skeleton.n_bones, 3))
     for bone in bones:
@@ -66,9 +70,9 @@ def keyframes_to_poses(skeleton: Skeleton, keyframes: list[Keyframe], n_frames: 
         if len(keyframes) == 1:
             world[:, j] = keys.as_rotvec()[0]
         else:
-            world[:, j] = RotationSpline(times, keys)(t).as_rotvec()
+            world[:, j] = RotationSpline(times_k, keys)(t).as_rotvec()
     trans = np.array([k.translation for k in keyframes], dtype=np.float64)
-    translations = np.stack([np.interp(t, times, trans[:, d]) for d in range(3)], axis=1)
+    translations = np.stack([np.interp(t, times_k, trans[:, d]) for d in range(3)], axis=1)
     R_rest = skeleton.rest_rotations
     return [Pose(np.einsum("bji,bj->bi", R_rest, world[f]), translations[f]) for f in range(n_frames)]
 
@@ -246,13 +250,31 @@ def motion_keyframes(name: str, skeleton: Skeleton, seed: int = 0, cycles: int =
     return {"t_pose": _t_pose_keys, "arms_raise": _arms_raise_keys, "turn": _turn_keys}[name](skeleton, rng)
 
 
-def motion_sequence(name: str, n_frames: int, skeleton: Skeleton, seed: int = 0) -> list[Pose]:
+#: Seconds one pass through a motion's keyframes takes at natural speed (two gait cycles of ``walk``: a
+#: stride of ~1.1 s; two elbow cycles of ``arm_flex``), for sampling at a frame rate.
+MOTION_PERIOD_S = {"a_pose": 1.0, "t_pose": 1.0, "arms_raise": 4.0, "walk": 2.2, "turn": 8.0, "arm_flex": 5.0}
+
+
+def motion_sequence(name: str, n_frames: int, skeleton: Skeleton, seed: int = 0,
+                    fps: float | None = None) -> list[Pose]:
     """Ground-truth pose sequence of ``n_frames`` frames for motion ``name`` (see MOTIONS).
 
     ``a_pose`` is the static rest pose; ``t_pose`` a static T-pose; ``arms_raise``, ``walk`` (on the
     spot), ``turn`` (a full turn about the vertical) and ``arm_flex`` span the whole sequence. Walks
     and arm flexions shorter than 60 frames make one cycle, so even a few frames show distinct poses.
+
+    With ``fps`` the motion plays at its natural speed instead (:data:`MOTION_PERIOD_S`), sampled at
+    that frame rate: frame ``k`` shows time ``k / fps``, and the motion repeats (every motion starts
+    and ends in the same posture) for as long as the frames last.
     """
+    if fps is not None:
+        if not np.isfinite(fps) or fps <= 0:
+            raise InputError(f"fps must be a positive frame rate, got {fps}")
+        if n_frames < 1:
+            raise InputError(f"a motion needs at least one frame, got n_frames={n_frames}")
+        keys = motion_keyframes(name, skeleton, seed, 2)
+        phase = (np.arange(n_frames) / float(fps) / MOTION_PERIOD_S[name]) % 1.0
+        return keyframes_to_poses(skeleton, keys, n_frames, times=phase)
     cycles = 1 if n_frames < 60 else 2
     keys = motion_keyframes(name, skeleton, seed, cycles)
     return keyframes_to_poses(skeleton, keys, n_frames, cyclic=name in CYCLIC_MOTIONS)
