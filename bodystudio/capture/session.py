@@ -14,6 +14,8 @@ Layout (documented in ``docs/session-format.md``)::
     kinect/player/00000.png           the body tracker's player mask on the depth image (uint8, 0 none, k = player k)
     gt/phenotype.json, gt/meshes/00000.ply, gt/joints/00000.json, gt/pose/00000.json, gt/masks/cam_00/00000.png
     gt/arm/00000.ply, gt/arm_pose/00000.json   arm sessions: arm mesh (ArmTemplate topology), arm joint angles
+    gt/person/00000.png, gt/target/...         mirror sessions: true person labels in the Kinect colour image,
+    gt/mirror/00000.npz, gt/mirror/actors.npz  the edited (target) renders, posed/rest vertices and true joints
 
 Writes go through :class:`SessionWriter`: every file is first written atomically into ``.staging/``;
 :meth:`SessionWriter.commit` writes ``.staging/commit.json`` (the commit point), moves the staged files
@@ -79,7 +81,12 @@ FRAME_STREAMS = {
     "gt_pose": "gt/pose/{frame:05d}.json",
     "gt_arm_mesh": "gt/arm/{frame:05d}.ply",
     "gt_arm_pose": "gt/arm_pose/{frame:05d}.json",
+    "gt_person": "gt/person/{frame:05d}.png",
+    "gt_target_rgb": "gt/target/rgb/{frame:05d}.png",
+    "gt_target_person": "gt/target/person/{frame:05d}.png",
+    "gt_mirror": "gt/mirror/{frame:05d}.npz",
 }
+GT_MIRROR_ACTORS = "gt/mirror/actors.npz"
 BACKGROUND = "{cam}/background/{index:05d}.png"
 DEPTH_MM_PER_M = 1000.0
 #: The Kinect SDKs track at most six bodies; player mask values are 0 (nobody) or the player 1..6.
@@ -144,6 +151,32 @@ def depth_to_png_mm(depth_m: np.ndarray) -> np.ndarray:
 def _positions_json(positions: np.ndarray) -> list:
     """(J, 3) positions as JSON lists; a joint with any non-finite coordinate (not reported) becomes null."""
     return [[float(x) for x in p] if np.all(np.isfinite(p)) else [None, None, None] for p in positions]
+
+
+def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    """An ``.npz`` of ``arrays`` with fixed zip timestamps, so the same arrays always give the same bytes."""
+    import io
+    import zipfile
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as z:
+        for name, value in sorted(arrays.items()):
+            one = io.BytesIO()
+            np.save(one, np.asarray(value), allow_pickle=False)
+            z.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)), one.getvalue())
+    return buf.getvalue()
+
+
+def parse_npz_bytes(data: bytes, source: str) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` written by :func:`npz_bytes`; SessionError when it is not one."""
+    import io
+    import zipfile
+
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise SessionError(f"{source}: not a readable .npz ({exc}); regenerate the session") from None
 
 
 def _json_bytes(data: Any) -> bytes:
@@ -366,6 +399,38 @@ class Frame:
         first = min(bodies, key=lambda b: b["player"])
         return {k: first[k] for k in ("names", "positions", "tracked", "joint_set")}
 
+    def _optional_labels(self, stream: str) -> np.ndarray | None:
+        rel = self._optional(stream)
+        if rel is None:
+            return None
+        labels = self.session.read_image(rel, False)
+        if labels.dtype != np.uint8 or labels.max(initial=0) > MAX_PLAYERS:
+            raise SessionError(f"{self.session.path / rel}: a person label image must be an 8-bit PNG with values "
+                               f"0..{MAX_PLAYERS}; regenerate the session")
+        return labels
+
+    @cached_property
+    def gt_person(self) -> np.ndarray | None:
+        """Mirror sessions: true person labels (H, W) uint8 in the Kinect colour image (0 none, k = actor k)."""
+        return self._optional_labels("gt_person")
+
+    @cached_property
+    def gt_target_rgb(self) -> np.ndarray | None:
+        """Mirror sessions: the frame rendered with the edited (target) bodies, same pose and background."""
+        rel = self._optional("gt_target_rgb")
+        return None if rel is None else self.session.read_image(rel, True)
+
+    @cached_property
+    def gt_target_person(self) -> np.ndarray | None:
+        """Mirror sessions: person labels (H, W) uint8 of the target render."""
+        return self._optional_labels("gt_target_person")
+
+    @cached_property
+    def gt_mirror(self) -> dict[str, np.ndarray] | None:
+        """Mirror sessions: the frame's ground truth arrays (see ``bodystudio.mirror.synthetic``)."""
+        rel = self._optional("gt_mirror")
+        return None if rel is None else parse_npz_bytes(self.session.read_bytes(rel), str(self.session.path / rel))
+
     def _optional_mesh(self, stream: str):
         from bodystudio.geometry.mesh import Mesh
 
@@ -466,6 +531,13 @@ class Session:
     def gt_subject(self) -> dict | None:
         """``{"phenotype": {...}, "local": {...}, "resolution", "rig", "faces"?}`` of a synthetic session."""
         return self.read_json(GT_PHENOTYPE) if GT_PHENOTYPE in self.files else None
+
+    @cached_property
+    def gt_mirror_actors(self) -> dict[str, np.ndarray] | None:
+        """Mirror sessions: the actors' rest meshes, coefficients and skeletons (``gt/mirror/actors.npz``)."""
+        if GT_MIRROR_ACTORS not in self.files:
+            return None
+        return parse_npz_bytes(self.read_bytes(GT_MIRROR_ACTORS), str(self.path / GT_MIRROR_ACTORS))
 
     def frame(self, frame_id: int) -> Frame:
         if frame_id not in self.manifest["frames"]:
@@ -866,6 +938,27 @@ class SessionWriter:
     def write_gt_arm_pose(self, frame: int, arm_pose: dict) -> None:
         """Arm sessions: the ground-truth arm joint angles (``ArmPose.to_dict()``)."""
         self._stage(stream_path("gt_arm_pose", frame), _json_bytes(arm_pose), "gt_arm_pose", frame)
+
+    def write_gt_person(self, frame: int, labels: np.ndarray, target: bool = False) -> None:
+        """Mirror sessions: true person labels (0 none, k = actor k) in the colour image, of the input
+        (``target=False``) or of the target render."""
+        labels = np.asarray(labels)
+        if labels.ndim != 2 or labels.min(initial=0) < 0 or labels.max(initial=0) > MAX_PLAYERS:
+            raise ValueError(f"person labels must be an (H, W) image with values 0..{MAX_PLAYERS}")
+        stream = "gt_target_person" if target else "gt_person"
+        self._stage(stream_path(stream, frame), encode_png(labels.astype(np.uint8)), stream, frame)
+
+    def write_gt_target_rgb(self, frame: int, rgb: np.ndarray) -> None:
+        """Mirror sessions: the frame rendered with the edited (target) bodies."""
+        self._stage(stream_path("gt_target_rgb", frame), encode_png(rgb), "gt_target_rgb", frame)
+
+    def write_gt_mirror(self, frame: int, arrays: dict[str, np.ndarray]) -> None:
+        """Mirror sessions: the frame's ground-truth arrays (one ``.npz``)."""
+        self._stage(stream_path("gt_mirror", frame), npz_bytes(arrays), "gt_mirror", frame)
+
+    def write_gt_mirror_actors(self, arrays: dict[str, np.ndarray]) -> None:
+        """Mirror sessions: the actors' rest meshes, coefficients and skeletons (``gt/mirror/actors.npz``)."""
+        self._stage(GT_MIRROR_ACTORS, npz_bytes(arrays))
 
     def commit(self) -> Session:
         """Make the staged files visible: commit record, moves, manifest last. Returns the opened session."""
