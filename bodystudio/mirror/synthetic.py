@@ -78,7 +78,7 @@ MIRROR_MOTIONS = ("arms_raise", "walk", "turn", "arm_flex", "a_pose", "t_pose")
 # ranges. The ground truth must use the same Eq. 4 map as the run; see target_rest_body.
 EDIT_ATTRIBUTES = {"taller": "stature_m", "heavier": "mass_kg", "muscular": "muscularity", "chest": "chest_m",
                    "waist": "waist_m", "hips": "hip_m"}
-EDIT_RANGES = {"taller": 0.30, "heavier": 40.0, "muscular": 1.0, "chest": 0.30, "waist": 0.30, "hips": 0.30}
+EDIT_RANGES = {"taller": 0.30, "heavier": 40.0, "muscular": 0.5, "chest": 0.30, "waist": 0.30, "hips": 0.30}
 EDIT_UNITS = {"taller": "m", "heavier": "kg", "muscular": "muscularity units", "chest": "m", "waist": "m",
               "hips": "m"}
 
@@ -279,11 +279,13 @@ def target_rest_body(model, body: BodyModel, edits: dict[str, float]) -> tuple[B
     The actor's rest mesh is projected into the statistical model (``c_S``), the edit applied to the
     coefficients (``c_T``, :meth:`StatisticalBodyModel.edit`) and the model's change
     ``B(c_T) - B(c_S)`` (vertices and joints) added to the actor's own mesh and skeleton, so a zero edit
-    gives the actor back exactly and the target keeps the actor's details outside the model's span.
+    gives the actor back (the same object) and the target keeps the actor's details outside the model's span.
     """
     c_s = model.project(body.vertices)
     deltas = {EDIT_ATTRIBUTES[k]: float(v) for k, v in edits.items() if v}
-    c_t = model.edit(c_s, deltas) if deltas else c_s.copy()
+    if not deltas:
+        return body, c_s, c_s.copy()
+    c_t = model.edit(c_s, deltas)
     dV = model.vertices(c_t) - model.vertices(c_s)
     sk_s, sk_t = model.skeleton(c_s), model.skeleton(c_t)
     skel = body.skeleton
@@ -338,17 +340,18 @@ def _yaw(skeleton: Skeleton, pose: Pose, yaw_rad: float, translation) -> Pose:
 
 
 def actor_poses(skeleton: Skeleton, n_frames: int, enter_frame: int, stand_xz, side: float, motion: str,
-                seed: int, fps: float = FPS) -> tuple[list[Pose | None], int]:
+                seed: int, fps: float = FPS, walk_in: bool = True) -> tuple[list[Pose | None], int]:
     """The actor's pose per frame (None before it enters) and the frame it stands still at its spot.
 
     A walk in from ``side`` (-1: from -x) to the standing spot at :data:`WALK_SPEED_M_S`, a turn to face
-    the Kinect, then ``motion`` at its natural speed.
+    the Kinect, then ``motion`` at its natural speed. Without ``walk_in`` the actor stands at the spot from
+    ``enter_frame`` on (short test sessions).
     """
     start = np.array([side * ENTRY_X_M, stand_xz[1] - 0.3])
     stand = np.asarray(stand_xz, float)
     walk_frames = int(np.ceil(np.linalg.norm(stand - start) / WALK_SPEED_M_S * fps))
     turn_frames = int(round(TURN_S * fps))
-    n_walk = max(0, min(walk_frames + turn_frames, n_frames - enter_frame))
+    n_walk = max(0, min(walk_frames + turn_frames, n_frames - enter_frame)) if walk_in else 0
     gait = motion_sequence("walk", max(n_walk, 1), skeleton, seed, fps=fps)
     n_stand = max(0, n_frames - enter_frame - n_walk)
     standing = motion_sequence(motion, max(n_stand, 1), skeleton, seed, fps=fps)
@@ -491,9 +494,14 @@ def _labelled_render(meshes: list[tuple[np.ndarray, np.ndarray]], camera: Camera
 
 def synth_mirror_session(out: str | os.PathLike, subject_seed: int, n_frames: int = 120, actors: int = 1,
                          edits: dict[str, float] | None = None, version: str = "v2", motion: str = "arms_raise",
-                         seed: int = 0, progress: bool = False, model=None):
+                         seed: int = 0, progress: bool = False, model=None, edited_players: tuple[int, ...] = (1,),
+                         walk_in: bool = True):
     """Write a synthetic mirror session of ``actors`` subjects (``subject_seed``, ``subject_seed + 1``)
     into the new folder ``out``, with the ground truth of ``edits`` (names of :data:`EDIT_ATTRIBUTES`).
+
+    The target render reshapes the actors in ``edited_players`` (player ids; default the first actor, whom
+    ``bodystudio mirror run`` reshapes by default); the others appear unchanged in it. ``walk_in=False``:
+    the actors appear at their spots instead of walking in (short sessions for tests).
 
     The same arguments always give the same files. ``model``: the statistical model (default the cached
     6k one). Returns the opened :class:`~bodystudio.capture.session.Session`.
@@ -514,6 +522,10 @@ def synth_mirror_session(out: str | os.PathLike, subject_seed: int, n_frames: in
                          f"{N_BACKGROUND_FRAMES} show the empty room)")
     if motion not in MIRROR_MOTIONS:
         raise InputError(f"unknown motion {motion!r}; valid: {', '.join(MIRROR_MOTIONS)}")
+    edited_players = tuple(sorted({int(p) for p in edited_players}))
+    if not edited_players or not set(edited_players) <= set(range(1, actors + 1)):
+        raise InputError(f"edited players {list(edited_players)}: choose among the actors' players "
+                         f"1..{actors}")
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise InputError(f"{out}: output exists and is not an empty folder; choose a new folder")
     sensor = mirror_sensor(version)
@@ -528,24 +540,24 @@ def synth_mirror_session(out: str | os.PathLike, subject_seed: int, n_frames: in
     for k in range(1, actors + 1):
         phenotype, local = sample_subject(subject_seed + k - 1)
         body = build_body(phenotype, local, resolution=model.resolution, rig=model.rig)
-        target, c_s, c_t = target_rest_body(model, body, edits)
+        target, c_s, c_t = target_rest_body(model, body, edits if k in edited_players else {})
         spot = STAND_SPOTS[actors][k - 1]
-        enter = N_BACKGROUND_FRAMES + (k - 1) * 15
+        enter = N_BACKGROUND_FRAMES + ((k - 1) * 15 if walk_in else 0)
         poses, stand_frame = actor_poses(body.skeleton, n_frames, enter, spot, ENTRY_SIDE[k - 1], motion,
-                                         seed + 101 * k)
+                                         seed + 101 * k, walk_in=walk_in)
         measured = measure_attributes(body.vertices, body.faces, vertex_ids=body.vertex_ids,
                                       muscularity=phenotype.muscle)
         cast.append({"player": k, "subject_seed": subject_seed + k - 1, "phenotype": phenotype, "local": local,
                      "body": body, "target": target, "c_s": c_s, "c_t": c_t, "poses": poses,
                      "albedo": clothing_albedo(body, subject_seed + k - 1), "measured": measured,
                      "enter_frame": enter, "stand_frame": stand_frame,
-                     "target_measured": model.measure(c_t) if edits else None})
+                     "target_measured": model.measure(c_t) if edits and k in edited_players else None})
     names = kinect_joint_names(sensor.version)
     faces = cast[0]["body"].faces
     metadata = {"generator": "bodystudio synth mirror", "subject_seed": subject_seed, "actors": actors,
                 "fps": FPS, "kinect": sensor.version, "seed": seed, "motion": motion, "edits": edits,
-                "edited_players": [a["player"] for a in cast] if edits else [], "template": model.resolution,
-                "background_frames": N_BACKGROUND_FRAMES, "noise_std": SENSOR_NOISE_STD,
+                "edited_players": list(edited_players) if edits else [], "template": model.resolution,
+                "background_frames": N_BACKGROUND_FRAMES, "noise_std": SENSOR_NOISE_STD, "walk_in": walk_in,
                 "actor_frames": [{"player": a["player"], "enter_frame": a["enter_frame"],
                                   "stand_frame": a["stand_frame"]} for a in cast]}
     setup_s = time.perf_counter() - t0
@@ -606,7 +618,7 @@ def _write_frame(writer, i, all_cast, static, sensor, plate, room_depth_color, n
         heads, tails = posed_joints(a["body"].skeleton, pose)
         posed.append(V)
         posed_target.append(a["target"].pose(transfer_pose(pose, a["body"].skeleton, a["target"].skeleton))[0]
-                            if edited else V)
+                            if edited and a["target"] is not a["body"] else V)
         truth = kinect_joints(a["body"].skeleton, heads, tails, version)
         truth_joints.append(truth)
         report = tracked_joints(truth, sensor, heads, tails, a["body"].skeleton, version, rng)
