@@ -9,13 +9,23 @@ Per frame (§4 "Transformation of point cloud into default pose"):
    sensor) as its correspondence and that vertex's skin weights;
 4. the inverse of the blended bone transforms (inverse LBS) brings the point cloud to the default pose.
 
-Then the statistical model's coefficients are fitted to the unposed cloud (Eq. 2: closest-vertex
-point-to-point distances, here solved exactly as linear least squares for fixed correspondences,
-with a global translation and a weak Gaussian prior, re-matching a few times instead of the paper's
-gradient descent), frame by frame, and the per-frame results averaged. A second pass repeats the
-transform with the first pass's shape in place of the default body (better correspondences and
-joint pivots). The skeleton is refitted by Eq. 3 (each joint moves with the mean displacement of the
-vertices around it).
+Then the statistical model's coefficients are fitted to the unposed cloud by Eq. 2 (point to
+closest-vertex distances). Deviations from the paper, each measured (docs/mirror.md):
+
+* Eq. 2 is solved exactly as linear least squares for fixed matches (with a global translation and a
+  weak Gaussian prior on the coefficients) and re-matched 40/20 times, instead of gradient descent.
+  The first matches are the closest vertices of the posed ``B^D`` (so points on the knee match knee
+  vertices), later ones closest vertices in the default pose.
+* The frames are combined by pooling their unposed clouds into one fit (the least-squares average of
+  the per-frame problems) rather than averaging per-frame coefficients: closest-point fits converge
+  slowly along directions that slide vertices along the surface (stature), and one well-converged
+  pooled fit is cheaper than many per-frame ones.
+* From the second pass on (``B^D`` := the first pass's shape, better matches and joint pivots), the
+  tracked Kinect joints, unposed by the inverse transform of the bone carrying each, are matched too
+  (weight :data:`JOINT_WEIGHT` per joint): only the front of the body is seen, and the joints pin the
+  limb lengths and stature that the surface alone leaves loose.
+
+The skeleton is refitted by Eq. 3 (each joint moves with the mean displacement of the vertices around it).
 """
 
 from __future__ import annotations
@@ -29,7 +39,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from bodystudio.body.kinect import kinect_joint_names, kinect_joints
+from bodystudio.body.kinect import KINECT_JOINT_SETS, kinect_joint_names, kinect_joints
 from bodystudio.body.model import BodyModel
 from bodystudio.body.skeleton import Skeleton
 from bodystudio.body.skinning import inverse_linear_blend_skinning, skinning_transforms
@@ -67,6 +77,13 @@ MAX_CORRESPONDENCE_M = 0.08
 MAX_POINTS = 2500
 #: Fewer person points than this and the frame is not used.
 MIN_POINTS = 300
+#: Points of all frames' default-pose clouds pooled into one Eq. 2 fit (a random subset).
+MAX_POOLED_POINTS = 6000
+#: Closest-point re-matchings of the Eq. 2 fit in the first and later passes (the fit converges
+#: linearly along the shape directions that move vertices along the surface, e.g. stature).
+ICP_ITERATIONS = (40, 20)
+#: Weight of one unposed Kinect joint relative to one depth point in the shape fit (later passes).
+JOINT_WEIGHT = 3.0
 #: Per-coordinate noise (metres) that sets the weight of the shape prior in Eq. 2.
 POINT_SIGMA_M = 0.01
 
@@ -202,10 +219,36 @@ def transform_to_default_pose(points, kinect_joints_, body: BodyModel, tracked=N
     return DefaultPoseCloud(out, np.where(keep, k, -1), candidates, pose, bodyD)
 
 
+#: Kinect joints the shape fit also matches (unposed into the default pose): trunk and limbs, not the
+#: hands (the SDK's hand joints are the least reliable).
+SHAPE_JOINTS = ("SpineBase", "SpineMid", "Neck", "Head", "ShoulderLeft", "ElbowLeft", "WristLeft", "ShoulderRight",
+                "ElbowRight", "WristRight", "HipLeft", "KneeLeft", "AnkleLeft", "FootLeft", "HipRight", "KneeRight",
+                "AnkleRight", "FootRight", "SpineShoulder")
+
+
+def unposed_kinect_joints(joints, tracked, skeleton: Skeleton, pose, version: str = "v2") -> np.ndarray:
+    """Tracked Kinect joints (J, 3) brought to the default pose by the inverse transform of the bone carrying each.
+
+    Joints outside :data:`SHAPE_JOINTS`, untracked or missing are NaN.
+    """
+    K, tracked = check_kinect_joints(joints, tracked, version)
+    S = skinning_transforms(skeleton, pose)
+    names = kinect_joint_names(version)
+    wanted = {_kinect_name(n, version) for n in SHAPE_JOINTS}
+    out = np.full((len(names), 3), np.nan)
+    for i, name in enumerate(names):
+        if name not in wanted or not tracked[i] or not np.all(np.isfinite(K[i])):
+            continue
+        b = skeleton.index(KINECT_JOINT_SETS[version][name][0][0])
+        out[i] = S[b, :3, :3].T @ (K[i] - S[b, :3, 3])
+    return out
+
+
 # --- Eq. 2 shape fit -------------------------------------------------------------------------------
 
 def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, candidates=None,
-              correspondence=None, iterations: int = 4, point_sigma_m: float = POINT_SIGMA_M, trim_m: float = 0.05,
+              correspondence=None, joints_default=None, joint_weight: float = 0.0, version: str = "v2",
+              iterations: int = 4, symmetric: bool = False, point_sigma_m: float = POINT_SIGMA_M, trim_m: float = 0.05,
               return_residual: bool = False):
     """Coefficients minimising Eq. 2, ``sum_i |p_i - v_k(i)(alpha)|^2``, for a cloud in the default pose.
 
@@ -227,9 +270,19 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
     c = np.zeros(k) if init_coeffs is None else np.asarray(init_coeffs, dtype=np.float64).copy()
     cand = np.arange(len(model.mean)) if candidates is None else np.asarray(candidates)
     basis = model.basis  # (k, n, 3)
+    gram = _vertex_gram(model)
     prior = point_sigma_m ** 2 / model.stddev ** 2
     t = np.zeros(3)
     residual = np.inf
+    joint_rows = None
+    if joints_default is not None and joint_weight > 0:
+        Jm, Jb = _model_kinect_joints(model, version)
+        Jd = np.asarray(joints_default, dtype=np.float64).reshape(-1, len(Jm), 3)  # (frames, J, 3)
+        f, j = np.nonzero(np.all(np.isfinite(Jd), axis=2))
+        sw = np.sqrt(joint_weight)
+        joint_rows = (sw * np.hstack([Jb[:, j].reshape(k, -1).T, np.tile(np.eye(3), (len(j), 1))]),
+                      sw * (Jd[f, j] - Jm[j]).ravel())
+    data_tree = cKDTree(P) if symmetric else None
     for it in range(iterations):
         V = model.vertices(c)
         if it == 0 and given is not None:
@@ -240,15 +293,48 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
             m = cand[m]
             keep = d <= (np.inf if it == 0 else trim_m)
         Pk, mk = P[keep], m[keep]
-        Bk = basis[:, mk, :].reshape(k, -1).T  # (3M, k)
-        A = np.hstack([Bk, np.tile(np.eye(3), (len(mk), 1))])
-        b = (Pk - model.mean[mk]).ravel()
-        AtA = A.T @ A
+        if data_tree is not None:
+            # model -> data: every vertex the sensor should see pulls toward its nearest point, so a
+            # model part the data does not support (a too-tall head) is pulled in as well.
+            d2, q = data_tree.query(V[cand] + t)
+            near = d2 <= trim_m
+            Pk, mk = np.concatenate([Pk, P[q[near]]]), np.concatenate([mk, cand[near]])
+        # Normal equations of Eq. 2 accumulated per vertex (a vertex matched by several points adds
+        # its k x k Gram matrix once per match), so no (3M, k) design matrix is formed.
+        n = len(model.mean)
+        counts = np.bincount(mk, minlength=n).astype(np.float64)
+        S = np.zeros((n, 3))
+        np.add.at(S, mk, Pk - model.mean[mk])
+        AtA = np.zeros((k + 3, k + 3))
+        AtA[:k, :k] = (counts @ gram.reshape(n, -1)).reshape(k, k)
+        AtA[:k, k:] = np.einsum("knd,n->kd", basis, counts)
+        AtA[k:, :k] = AtA[:k, k:].T
+        AtA[k:, k:] = counts.sum() * np.eye(3)
+        Atb = np.concatenate([np.einsum("knd,nd->k", basis, S), S.sum(0)])
+        if joint_rows is not None:
+            AtA += joint_rows[0].T @ joint_rows[0]
+            Atb += joint_rows[0].T @ joint_rows[1]
         AtA[np.arange(k), np.arange(k)] += prior
-        x = np.linalg.solve(AtA, A.T @ b)
+        x = np.linalg.solve(AtA, Atb)
         c, t = x[:k], x[k:]
-        residual = float(np.median(np.linalg.norm(Pk - t - model.vertices(c)[mk], axis=1)))
+        residual = float(np.median(np.linalg.norm(P[keep] - t - model.vertices(c)[m[keep]], axis=1)))
     return (c, residual) if return_residual else c
+
+
+@lru_cache(maxsize=4)
+def _vertex_gram(model: StatisticalBodyModel) -> np.ndarray:
+    """Per-vertex Gram matrices ``basis[:, v] basis[:, v]^T`` (n, k, k) of the shape basis."""
+    return np.einsum("knd,lnd->nkl", model.basis, model.basis)
+
+
+@lru_cache(maxsize=8)
+def _model_kinect_joints(model: StatisticalBodyModel, version: str) -> tuple[np.ndarray, np.ndarray]:
+    """Kinect joints of the model as ``mean (J, 3) + coeffs @ basis (k, J, 3)`` (they are linear in the shape)."""
+    sk = _default_skeleton(model)
+    mean = kinect_joints(sk, model.joint_mean_heads, model.joint_mean_tails, version)
+    basis = np.stack([kinect_joints(sk, h, t, version) for h, t in zip(model.joint_basis_heads,
+                                                                         model.joint_basis_tails, strict=True)])
+    return mean, basis
 
 
 # --- Eq. 3 skeleton refit --------------------------------------------------------------------------
@@ -306,7 +392,8 @@ def _subsample(P: np.ndarray, n: int, seed: int) -> np.ndarray:
 
 
 def initialise_from_observations(observations, model: StatisticalBodyModel, view_point=None, passes: int = 2,
-                                 floor_y: float | None = 0.0, floor_margin_m: float = 0.02) -> SourceBody:
+                                 floor_y: float | None = 0.0, floor_margin_m: float = 0.02,
+                                 joint_weight: float = JOINT_WEIGHT) -> SourceBody:
     """§4 over several frames: per-frame transform + Eq. 2 fit, averaged; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -326,25 +413,35 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                          "the actor must stand fully in view of the Kinect during initialisation")
     body = model.body(np.zeros(model.n_components))
     coeffs = np.zeros(model.n_components)
-    residuals: list[float] = []
+    rng = np.random.default_rng(0)
+    residual = np.nan
     for pass_ in range(max(1, passes)):
-        fits, residuals = [], []
+        pooled, matches, seen, joints0 = [], [], [], []
         for o, P in obs:
             cloud = transform_to_default_pose(P, o.joints, body, o.tracked, o.version, view_point=view_point,
                                               scale_bones=pass_ == 0, details=True)
             ok = cloud.correspondence >= 0
-            if ok.sum() < MIN_POINTS:
-                continue
-            c, r = fit_shape(cloud.points[ok], model, coeffs, candidates=cloud.candidates, return_residual=True)
-            fits.append(c)
-            residuals.append(r)
-        if not fits:
+            if ok.sum() >= MIN_POINTS:
+                pooled.append(cloud.points[ok])
+                matches.append(cloud.correspondence[ok])
+                seen.append(cloud.candidates)
+                if pass_ > 0 and o.version == obs[0][0].version:
+                    joints0.append(unposed_kinect_joints(o.joints, o.tracked, cloud.body.skeleton, cloud.pose, o.version))
+        if not pooled:
             raise InputError("no frame's depth points lie on a body fitted to the Kinect joints: "
                              "check that the depth and the joints come from the same sensor calibration")
-        coeffs = np.mean(fits, axis=0)
+        P0, k0 = np.concatenate(pooled), np.concatenate(matches)
+        if len(P0) > MAX_POOLED_POINTS:
+            pick = rng.choice(len(P0), MAX_POOLED_POINTS, replace=False)
+            P0, k0 = P0[pick], k0[pick]
+        coeffs, residual = fit_shape(P0, model, coeffs, candidates=np.unique(np.concatenate(seen)), correspondence=k0,
+                                     iterations=ICP_ITERATIONS[min(pass_, len(ICP_ITERATIONS) - 1)],
+                                     joints_default=np.array(joints0) if joints0 else None,
+                                     joint_weight=joint_weight, version=obs[0][0].version, return_residual=True)
         skeleton = refit_skeleton(model, coeffs)
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,
                          vertex_ids=model.vertex_ids)
+    residuals = [residual]
     return SourceBody(coeffs, body.vertices, body.skeleton, tuple(int(o.frame) for o, _ in obs),
                       1000.0 * float(np.median(residuals)), model.weights, model.faces)
 

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from bodystudio.body import build_body
-from bodystudio.body.measure import measure_body
 from bodystudio.body.kinect import kinect_joints
+from bodystudio.body.measure import measure_body
 from bodystudio.body.population import sample_population
 from bodystudio.body.skinning import posed_joints
 from bodystudio.capture.kinect import simulate_kinect_depth, simulate_tracker_joints
