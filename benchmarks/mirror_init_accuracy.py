@@ -29,7 +29,7 @@ def main() -> None:
     ap.add_argument("--subjects", type=int, nargs="+", default=[201, 202, 203, 204, 205])
     ap.add_argument("--frames", type=int, default=90)
     ap.add_argument("--motion", default="walk")
-    ap.add_argument("--passes", type=int, default=2)
+    ap.add_argument("--passes", type=int, default=3)
     args = ap.parse_args()
     model = load_statistical_model("6k", progress=False)
     rows = []
@@ -48,7 +48,8 @@ def main() -> None:
               f"{src.residual_mm:11.1f}  {dt:6.2f}  {len(src.frames_used):3d}")
     r = np.array(rows)
     print(f"mean |err|: stature {np.abs(r[:, 0]).mean():.1f} mm (max {np.abs(r[:, 0]).max():.1f}), "
-          f"mass {np.abs(r[:, 1]).mean():.2f} kg (max {np.abs(r[:, 1]).max():.2f}); init CPU s mean {r[:, 2].mean():.2f}")
+          f"mass {np.abs(r[:, 1]).mean():.2f} kg (max {np.abs(r[:, 1]).max():.2f}); "
+          f"init CPU s mean {r[:, 2].mean():.2f}")
 
 
 if __name__ == "__main__":

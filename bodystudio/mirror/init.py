@@ -339,7 +339,8 @@ def _model_kinect_joints(model: StatisticalBodyModel, version: str) -> tuple[np.
 
 # --- Eq. 3 skeleton refit --------------------------------------------------------------------------
 
-def joint_neighbourhoods(vertices: np.ndarray, skeleton: Skeleton, n_vertices: int = 12) -> tuple[np.ndarray, np.ndarray]:
+def joint_neighbourhoods(vertices: np.ndarray, skeleton: Skeleton,
+                         n_vertices: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """The ``n_vertices`` vertices nearest each bone head and tail (B, n) of a rest body: Eq. 3's sets."""
     tree = cKDTree(vertices)
     return tree.query(skeleton.heads, n_vertices)[1], tree.query(skeleton.tails, n_vertices)[1]
@@ -391,7 +392,7 @@ def _subsample(P: np.ndarray, n: int, seed: int) -> np.ndarray:
     return P[np.random.default_rng(seed).choice(len(P), n, replace=False)]
 
 
-def initialise_from_observations(observations, model: StatisticalBodyModel, view_point=None, passes: int = 2,
+def initialise_from_observations(observations, model: StatisticalBodyModel, view_point=None, passes: int = 3,
                                  floor_y: float | None = 0.0, floor_margin_m: float = 0.02,
                                  joint_weight: float = JOINT_WEIGHT) -> SourceBody:
     """§4 over several frames: per-frame transform + Eq. 2 fit, averaged; ``passes`` - 1 refinements; Eq. 3.
@@ -426,7 +427,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                 matches.append(cloud.correspondence[ok])
                 seen.append(cloud.candidates)
                 if pass_ > 0 and o.version == obs[0][0].version:
-                    joints0.append(unposed_kinect_joints(o.joints, o.tracked, cloud.body.skeleton, cloud.pose, o.version))
+                    joints0.append(unposed_kinect_joints(o.joints, o.tracked, cloud.body.skeleton, cloud.pose,
+                                                         o.version))
         if not pooled:
             raise InputError("no frame's depth points lie on a body fitted to the Kinect joints: "
                              "check that the depth and the joints come from the same sensor calibration")
@@ -459,12 +461,12 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
     Frames without the player, without joints or without depth are skipped; when none remains the
     InputError says which of those it was.
     """
-    from bodystudio.mirror.frames import point_cloud, read_mirror_frame
-
     sensor = session.kinect
     if sensor is None:
         raise InputError(f"{session.path}: no Kinect calibration (kinect/calibration.json); "
                          "the mirror needs a Kinect RGB-D session")
+    from bodystudio.mirror.frames import point_cloud, read_mirror_frame
+
     ids = list(session.frame_ids) if frames is None else [int(f) for f in frames]
     if not ids:
         raise InputError(f"{session.path}: no frames to initialise from")
@@ -505,7 +507,7 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
 
 
 def initialise_source_body(session, model: StatisticalBodyModel | None = None, frames=None, player: int = 1,
-                           n_frames: int = DEFAULT_INIT_FRAMES, passes: int = 2) -> SourceBody:
+                           n_frames: int = DEFAULT_INIT_FRAMES, passes: int = 3) -> SourceBody:
     """§4 on a mirror session: the source body of ``player`` from up to ``n_frames`` frames (~3 s at 30 fps)."""
     if model is None:
         from bodystudio.body.statistical import load_statistical_model
@@ -530,7 +532,7 @@ def save_source_body(path: str | Path, body: SourceBody) -> None:
 
 
 def load_source_body(path: str | Path, model: StatisticalBodyModel | None = None) -> SourceBody:
-    """Read :func:`save_source_body`'s file; with ``model`` check it belongs to that model and attach its skin weights."""
+    """Read :func:`save_source_body`'s file; with ``model``, check it is that model's and attach its skin weights."""
     import zipfile
 
     path = Path(path)
@@ -565,7 +567,7 @@ def load_source_body(path: str | Path, model: StatisticalBodyModel | None = None
 # --- timing for benchmarks/bench_mirror.py ---------------------------------------------------------
 
 def time_init_and_track(observations, model: StatisticalBodyModel, view_point=None, track_frames: int = 90,
-                        passes: int = 2) -> dict:
+                        passes: int = 3) -> dict:
     """Wall-clock of the initialisation over ``observations`` and of ``ik_pose`` per frame (ms), for the benchmark.
 
     Returns ``{"init_s", "init_frames", "ik_ms_median", "ik_ms_p95", "skin_ms_median"}``; tracking

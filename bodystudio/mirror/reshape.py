@@ -37,7 +37,7 @@ RAMP_STEP_PER_FRAME = {"taller": 0.005, "heavier": 0.5, "muscular": 0.02, "chest
 
 
 def check_edits(edits: dict[str, float] | None) -> dict[str, float]:
-    """Validated edits (names in :data:`EDIT_NAMES`, finite, within :data:`EDIT_RANGES`); one-line InputError otherwise."""
+    """Validated edits: names in :data:`EDIT_NAMES`, finite, within :data:`EDIT_RANGES` (else a one-line InputError)."""
     out = {}
     for name, value in (edits or {}).items():
         if name not in EDIT_NAMES:
@@ -48,12 +48,14 @@ def check_edits(edits: dict[str, float] | None) -> dict[str, float]:
             raise InputError(f"edit {name} must be a number, got {value!r}") from None
         limit = EDIT_RANGES[name]
         if not math.isfinite(v) or abs(v) > limit:
-            raise InputError(f"edit {name}={value} is out of range: use -{limit} to +{limit} {EDIT_UNITS[name]}".rstrip())
+            unit = f" {EDIT_UNITS[name]}" if EDIT_UNITS[name] else ""
+            raise InputError(f"edit {name}={value} is out of range: use -{limit} to +{limit}{unit}")
         out[name] = v
     return out
 
 
-def target_coeffs(model: StatisticalBodyModel, source_coeffs, edits: dict[str, float], refine: bool = True) -> np.ndarray:
+def target_coeffs(model: StatisticalBodyModel, source_coeffs, edits: dict[str, float],
+                  refine: bool = True) -> np.ndarray:
     """Eq. 4: the target body's coefficients, the source's moved along the semantic directions by ``edits``.
 
     With ``refine`` (default) the measured attributes change by exactly the edits, every other measured
