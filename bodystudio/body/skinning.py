@@ -50,6 +50,18 @@ def linear_blend_skinning(vertices: np.ndarray, weights: np.ndarray, transforms:
     return np.einsum("nij,nj->ni", R, vertices) + t
 
 
+def inverse_linear_blend_skinning(V: np.ndarray, weights: np.ndarray, transforms: np.ndarray) -> np.ndarray:
+    """Inverse of LBS: rest positions whose blend by ``transforms`` (B, 4, 4) with ``weights`` (n, B) gives ``V``.
+
+    Each point's blended affine map ``sum_k w_ik T_k`` is inverted (invertible for rotations and
+    moderate stretches); Rapid Skin's un-skinning and the "inverse of the pose transformations ...
+    blended with linear blend skinning" of Real-time Reshaping §4.
+    """
+    A = np.einsum("nb,bij->nij", weights, transforms[:, :3, :3])
+    t = weights @ transforms[:, :3, 3]
+    return np.linalg.solve(A, (V - t)[:, :, None])[:, :, 0]
+
+
 def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of (..., 4) quaternions stored (w, x, y, z)."""
     aw, ax, ay, az = np.moveaxis(a, -1, 0)

@@ -17,7 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bodystudio.body.ik import rotation_between
 from bodystudio.body.kinect import kinect_joint_names, kinect_joints
+from bodystudio.body.skinning import inverse_linear_blend_skinning as unpose  # noqa: F401 (re-exported)
 from bodystudio.body.skinning import linear_blend_skinning
 from bodystudio.errors import InputError
 
@@ -76,18 +78,6 @@ def similarity_transform(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return T
 
 
-def _rotation_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Smallest rotation taking unit vector ``u`` to unit vector ``v``."""
-    w = np.cross(u, v)
-    c = float(np.dot(u, v))
-    if c < -1.0 + 1e-9:
-        axis = np.cross(u, [1.0, 0, 0]) if abs(u[0]) < 0.9 else np.cross(u, [0, 1.0, 0])
-        axis /= np.linalg.norm(axis)
-        return 2.0 * np.outer(axis, axis) - np.eye(3)
-    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-    return np.eye(3) + K + K @ K / (1.0 + c)
-
-
 def _apply(T: np.ndarray, p: np.ndarray) -> np.ndarray:
     return T[:3, :3] @ p + T[:3, 3]
 
@@ -103,7 +93,7 @@ def limb_transform(parent: np.ndarray, a0: np.ndarray, b0: np.ndarray, b: np.nda
         return parent
     u, v = rest / lr, target / lt
     s = float(np.clip(lt / lr, *_SCALE_RANGE))
-    M = _rotation_between(u, v) @ (np.eye(3) + (s - 1.0) * np.outer(u, u))
+    M = rotation_between(u, v) @ (np.eye(3) + (s - 1.0) * np.outer(u, u))
     TL = np.eye(4)
     TL[:3, :3] = M
     TL[:3, 3] = a_p - M @ a_p
@@ -179,14 +169,3 @@ def pose_template(body, bone_transforms: np.ndarray, global_scale: float = 1.0, 
     heads = np.einsum("bij,bj->bi", T[:, :3, :3], skel.heads) + T[:, :3, 3]
     tails = np.einsum("bij,bj->bi", T[:, :3, :3], skel.tails) + T[:, :3, 3]
     return PoseInit(V, T, kinect_joints(skel, heads, tails, version), global_scale)
-
-
-def unpose(V: np.ndarray, weights: np.ndarray, bone_transforms: np.ndarray) -> np.ndarray:
-    """Inverse of Eq. 12: rest-pose positions whose LBS with ``bone_transforms`` gives ``V``.
-
-    Each vertex's blended affine map ``sum_k rho_ik T_k`` is inverted (it is invertible for the
-    rotations and moderate stretches of :func:`initialise_pose`).
-    """
-    A = np.einsum("nb,bij->nij", weights, bone_transforms[:, :3, :3])
-    t = weights @ bone_transforms[:, :3, 3]
-    return np.linalg.solve(A, (V - t)[:, :, None])[:, :, 0]

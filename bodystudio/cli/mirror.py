@@ -1,0 +1,52 @@
+"""``bodystudio mirror ...``: the virtual mirror of Real-time Reshaping of Humans (issue 12).
+
+A thin layer over :mod:`bodystudio.mirror`: ``init`` fits the source body (§4) and writes it into the
+session (``SESSION/mirror/source_body.npz`` plus a JSON summary), atomically.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from bodystudio.errors import InputError
+
+app = typer.Typer(no_args_is_help=True)
+
+SOURCE_BODY_FILE = Path("mirror") / "source_body.npz"
+SOURCE_SUMMARY_FILE = Path("mirror") / "source_body.json"
+
+
+@app.command("init")
+def init(
+    session: Path = typer.Argument(..., help="mirror session folder (Kinect depth, joints and player mask)"),
+    frames: int = typer.Option(90, "--frames", help="use the first N frames in which the player is seen (1-900)"),
+    player: int = typer.Option(1, "--player", help="Kinect SDK player index of the actor (1-6)"),
+    resolution: str = typer.Option("6k", "--resolution", help="statistical model template: 6k | 2k"),
+) -> None:
+    """Fit the actor's source body (§4) and write SESSION/mirror/source_body.npz."""
+    from bodystudio.body.statistical import load_statistical_model
+    from bodystudio.capture.session import open_session
+    from bodystudio.fileio import check_output_file, write_json
+    from bodystudio.mirror.init import initialise_source_body, save_source_body
+
+    if not 1 <= frames <= 900:
+        raise InputError(f"--frames {frames}: must be in [1, 900] (about 3 s, 90 frames, is enough)")
+    if not 1 <= player <= 6:
+        raise InputError(f"--player {player}: the Kinect SDK numbers players 1 to 6")
+    if resolution not in ("6k", "2k"):
+        raise InputError(f"--resolution {resolution!r}: valid: 6k, 2k")
+    s = open_session(session)
+    out = s.path / SOURCE_BODY_FILE
+    check_output_file(out, "source body", suffixes=(".npz",))
+    model = load_statistical_model(resolution, progress=False)
+    source = initialise_source_body(s, model, player=player, n_frames=frames)
+    measured = model.measure(source.coeffs)
+    save_source_body(out, source)
+    summary = {"source_body": str(SOURCE_BODY_FILE), "player": player, "resolution": resolution,
+               "frames_used": list(source.frames_used), "residual_mm": round(source.residual_mm, 2),
+               "stature_m": round(measured["stature_m"], 4), "mass_kg": round(measured["mass_kg"], 2)}
+    write_json(s.path / SOURCE_SUMMARY_FILE, summary)
+    typer.echo(json.dumps(summary))

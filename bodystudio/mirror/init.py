@@ -1,0 +1,591 @@
+"""Source-body initialisation, §4 of Real-time Reshaping of Humans: the actor's shape from a few seconds of Kinect data.
+
+Per frame (§4 "Transformation of point cloud into default pose"):
+
+1. bone scaling: the default body ``B_0^D`` gets the bone lengths of the Kinect skeleton, each bone
+   stretched along its axis about its head (vertex offsets scale along the bone with it);
+2. IK down the chains (:func:`bodystudio.mirror.track.ik_pose`) poses ``B^D`` onto the Kinect joints;
+3. each depth point takes the closest vertex of the posed ``B^D`` (among the vertices facing the
+   sensor) as its correspondence and that vertex's skin weights;
+4. the inverse of the blended bone transforms (inverse LBS) brings the point cloud to the default pose.
+
+Then the statistical model's coefficients are fitted to the unposed cloud by Eq. 2 (point to
+closest-vertex distances). Deviations from the paper, each measured (docs/mirror.md):
+
+* Eq. 2 is solved exactly as linear least squares for fixed matches (with a global translation and a
+  weak Gaussian prior on the coefficients) and re-matched 40/20 times, instead of gradient descent.
+  The first matches are the closest vertices of the posed ``B^D`` (so points on the knee match knee
+  vertices), later ones closest vertices in the default pose.
+* The frames are combined by pooling their unposed clouds into one fit (the least-squares average of
+  the per-frame problems) rather than averaging per-frame coefficients: closest-point fits converge
+  slowly along directions that slide vertices along the surface (stature), and one well-converged
+  pooled fit is cheaper than many per-frame ones.
+* From the second pass on (``B^D`` := the first pass's shape, better matches and joint pivots), the
+  tracked Kinect joints, unposed by the inverse transform of the bone carrying each, are matched too
+  (weight :data:`JOINT_WEIGHT` per joint): only the front of the body is seen, and the joints pin the
+  limb lengths and stature that the surface alone leaves loose.
+
+The skeleton is refitted by Eq. 3 (each joint moves with the mean displacement of the vertices around it).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from functools import cached_property, lru_cache
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from bodystudio.body.kinect import KINECT_JOINT_SETS, kinect_joint_names, kinect_joints
+from bodystudio.body.model import BodyModel
+from bodystudio.body.skeleton import Skeleton
+from bodystudio.body.skinning import inverse_linear_blend_skinning, skinning_transforms
+from bodystudio.body.statistical import StatisticalBodyModel
+from bodystudio.errors import FileFormatError, InputError
+from bodystudio.fileio import atomic_path
+from bodystudio.mirror.track import V1_NAMES, check_kinect_joints, ik_pose, skin_vertices
+
+log = logging.getLogger(__name__)
+
+SOURCE_BODY_VERSION = 1
+DEFAULT_INIT_FRAMES = 90
+#: Bones scaled to the Kinect skeleton: (bones, parent joint, child joint) by Kinect v2 names.
+BONE_SCALE_SEGMENTS = (
+    (("spine_01",), "SpineBase", "SpineMid"),
+    (("spine_02", "spine_03"), "SpineMid", "SpineShoulder"),
+    (("neck_01", "head"), "SpineShoulder", "Head"),
+    (("clavicle_l",), "SpineShoulder", "ShoulderLeft"),
+    (("clavicle_r",), "SpineShoulder", "ShoulderRight"),
+    (("upperarm_l",), "ShoulderLeft", "ElbowLeft"),
+    (("upperarm_r",), "ShoulderRight", "ElbowRight"),
+    (("lowerarm_l",), "ElbowLeft", "WristLeft"),
+    (("lowerarm_r",), "ElbowRight", "WristRight"),
+    (("thigh_l",), "HipLeft", "KneeLeft"),
+    (("thigh_r",), "HipRight", "KneeRight"),
+    (("calf_l",), "KneeLeft", "AnkleLeft"),
+    (("calf_r",), "KneeRight", "AnkleRight"),
+    (("foot_l",), "AnkleLeft", "FootLeft"),
+    (("foot_r",), "AnkleRight", "FootRight"),
+)
+_BONE_SCALE_RANGE = (0.75, 1.33)
+#: A depth point farther than this from the posed body is not the actor (mask jitter, flying pixels).
+MAX_CORRESPONDENCE_M = 0.08
+#: Points kept per frame (a random subset, fixed seed): the fit needs no more.
+MAX_POINTS = 2500
+#: Fewer person points than this and the frame is not used.
+MIN_POINTS = 300
+#: Points of all frames' default-pose clouds pooled into one Eq. 2 fit (a random subset).
+MAX_POOLED_POINTS = 6000
+#: Closest-point re-matchings of the Eq. 2 fit in the first and later passes (the fit converges
+#: linearly along the shape directions that move vertices along the surface, e.g. stature).
+ICP_ITERATIONS = (40, 20)
+#: Weight of one unposed Kinect joint relative to one depth point in the shape fit (later passes).
+JOINT_WEIGHT = 3.0
+#: Per-coordinate noise (metres) that sets the weight of the shape prior in Eq. 2.
+POINT_SIGMA_M = 0.01
+
+
+@dataclass(frozen=True, eq=False)
+class SourceBody:
+    """B_0^S of §4: the actor in the default pose with its skeleton, as statistical-model coefficients."""
+
+    coeffs: np.ndarray  # (k,) StatisticalBodyModel coefficients
+    vertices: np.ndarray  # (n, 3) rest pose (model template topology)
+    skeleton: Skeleton  # refitted by Eq. 3
+    frames_used: tuple[int, ...]
+    residual_mm: float  # median point-to-surface distance of the init fit
+    weights: np.ndarray | None = None  # (n, B) skin weights (the model's); None until attached
+    faces: np.ndarray | None = None
+
+    def body(self) -> BodyModel:
+        """A posable BodyModel of the source body (needs ``weights``)."""
+        if self.weights is None:
+            raise InputError("this source body carries no skin weights; load it with its statistical model")
+        return BodyModel(self.vertices, self.faces, self.skeleton, self.weights, rig="game_engine")
+
+    @cached_property
+    def joint_neighbourhoods(self) -> tuple[np.ndarray, np.ndarray]:
+        """Eq. 3 vertex sets around each bone head and tail of this body (for target skeletons)."""
+        return joint_neighbourhoods(self.vertices, self.skeleton)
+
+
+@dataclass(frozen=True, eq=False)
+class InitObservation:
+    """One frame's input to the initialisation: the actor's depth points and Kinect joints."""
+
+    frame: int
+    points: np.ndarray  # (N, 3) studio frame
+    joints: np.ndarray  # (J, 3), NaN where not tracked
+    tracked: np.ndarray  # (J,)
+    version: str
+
+
+@dataclass(frozen=True, eq=False)
+class DefaultPoseCloud:
+    """The result of :func:`transform_to_default_pose` with its by-products."""
+
+    points: np.ndarray  # (N, 3) P_0, NaN rows for points that match no body vertex
+    correspondence: np.ndarray  # (N,) closest vertex of the posed B^D, -1 where rejected
+    candidates: np.ndarray  # vertex indices that faced the sensor
+    pose: object  # the IK pose of B^D
+    body: BodyModel  # B_0^D
+
+
+# --- transformation to the default pose -----------------------------------------------------------
+
+def _kinect_name(name: str, version: str) -> str:
+    return V1_NAMES.get(name, name) if version == "v1" else name
+
+
+def bone_scaled_body(body: BodyModel, joints: np.ndarray, tracked: np.ndarray | None = None,
+                     version: str = "v2") -> BodyModel:
+    """B_0^D of §4: ``body`` with each bone stretched along its axis to the Kinect skeleton's bone length.
+
+    Vertex offsets from a bone's head scale along the bone with it (an affine map per bone, blended by
+    the skin weights); bones whose Kinect joints are missing keep their length.
+    """
+    K, tracked = check_kinect_joints(joints, tracked, version)
+    names = kinect_joint_names(version)
+    index = {n: i for i, n in enumerate(names)}
+    sk = body.skeleton
+    rest = kinect_joints(sk, sk.heads, sk.tails, version)
+    usable = np.all(np.isfinite(K), axis=1) & tracked
+    scale = np.ones(sk.n_bones)
+    for bones, a, b in BONE_SCALE_SEGMENTS:
+        ia, ib = index.get(_kinect_name(a, version)), index.get(_kinect_name(b, version))
+        if ia is None or ib is None or not (usable[ia] and usable[ib]):
+            continue
+        s = np.linalg.norm(K[ib] - K[ia]) / max(np.linalg.norm(rest[ib] - rest[ia]), 1e-9)
+        for bone in bones:
+            scale[sk.index(bone)] = np.clip(s, *_BONE_SCALE_RANGE)
+    H, T = sk.heads, sk.tails
+    axes = (T - H) / np.maximum(sk.lengths, 1e-12)[:, None]
+    A = np.tile(np.eye(4), (sk.n_bones, 1, 1))
+    heads = H.copy()
+    for j, p in enumerate(sk.parents):
+        S = np.eye(3) + (scale[j] - 1.0) * np.outer(axes[j], axes[j])
+        heads[j] = H[j] if p < 0 else A[p, :3, :3] @ H[j] + A[p, :3, 3]
+        A[j, :3, :3] = S
+        A[j, :3, 3] = heads[j] - S @ H[j]
+    tails = np.einsum("bij,bj->bi", A[:, :3, :3], T) + A[:, :3, 3]
+    V = skin_vertices(body.vertices, body.weights, sk, None, transforms=A)
+    return BodyModel(V, body.faces, Skeleton(sk.bone_names, sk.parents, heads, tails, sk.rolls), body.weights,
+                     body.resolution, body.rig, vertex_ids=body.vertex_ids)
+
+
+def _vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    out = np.zeros_like(V)
+    for c in range(3):
+        np.add.at(out, F[:, c], n)
+    return out / np.maximum(np.linalg.norm(out, axis=1), 1e-20)[:, None]
+
+
+def transform_to_default_pose(points, kinect_joints_, body: BodyModel, tracked=None, version: str = "v2",
+                              view_point=None, scale_bones: bool = True, max_distance_m: float = MAX_CORRESPONDENCE_M,
+                              details: bool = False):
+    """P_in -> P_0 of §4: bone scaling, IK down the chains, closest-vertex correspondences, inverse LBS.
+
+    ``points`` (N, 3) depth points of the actor in the studio frame; ``kinect_joints_`` (J, 3) the SDK's
+    joints of the same frame; ``body`` the default body (or the current shape estimate). With
+    ``view_point`` (the depth camera centre) only body vertices facing it are matched. Returns P_0
+    (N, 3) with NaN rows for points farther than ``max_distance_m`` from the posed body (not the actor);
+    with ``details`` a :class:`DefaultPoseCloud`.
+    """
+    P = np.asarray(points, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise InputError(f"point cloud must be (N, 3), got {P.shape}")
+    K, tracked = check_kinect_joints(kinect_joints_, tracked, version)
+    bodyD = bone_scaled_body(body, K, tracked, version) if scale_bones else body
+    pose = ik_pose(bodyD.skeleton, K, tracked, version)
+    S = skinning_transforms(bodyD.skeleton, pose)
+    V = skin_vertices(bodyD.vertices, bodyD.weights, bodyD.skeleton, pose, transforms=S)
+    candidates = np.arange(len(V))
+    if view_point is not None:
+        N = _vertex_normals(V, bodyD.faces)
+        facing = np.einsum("nd,nd->n", N, np.asarray(view_point, float) - V) > 0
+        candidates = np.flatnonzero(facing)
+    dist, k = cKDTree(V[candidates]).query(P)
+    k = candidates[k]
+    keep = dist <= max_distance_m
+    out = np.full_like(P, np.nan)
+    if keep.any():
+        out[keep] = inverse_linear_blend_skinning(P[keep], bodyD.weights[k[keep]], S)
+    if not details:
+        return out
+    return DefaultPoseCloud(out, np.where(keep, k, -1), candidates, pose, bodyD)
+
+
+#: Kinect joints the shape fit also matches (unposed into the default pose): trunk and limbs, not the
+#: hands (the SDK's hand joints are the least reliable).
+SHAPE_JOINTS = ("SpineBase", "SpineMid", "Neck", "Head", "ShoulderLeft", "ElbowLeft", "WristLeft", "ShoulderRight",
+                "ElbowRight", "WristRight", "HipLeft", "KneeLeft", "AnkleLeft", "FootLeft", "HipRight", "KneeRight",
+                "AnkleRight", "FootRight", "SpineShoulder")
+
+
+def unposed_kinect_joints(joints, tracked, skeleton: Skeleton, pose, version: str = "v2") -> np.ndarray:
+    """Tracked Kinect joints (J, 3) brought to the default pose by the inverse transform of the bone carrying each.
+
+    Joints outside :data:`SHAPE_JOINTS`, untracked or missing are NaN.
+    """
+    K, tracked = check_kinect_joints(joints, tracked, version)
+    S = skinning_transforms(skeleton, pose)
+    names = kinect_joint_names(version)
+    wanted = {_kinect_name(n, version) for n in SHAPE_JOINTS}
+    out = np.full((len(names), 3), np.nan)
+    for i, name in enumerate(names):
+        if name not in wanted or not tracked[i] or not np.all(np.isfinite(K[i])):
+            continue
+        b = skeleton.index(KINECT_JOINT_SETS[version][name][0][0])
+        out[i] = S[b, :3, :3].T @ (K[i] - S[b, :3, 3])
+    return out
+
+
+# --- Eq. 2 shape fit -------------------------------------------------------------------------------
+
+def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, candidates=None,
+              correspondence=None, joints_default=None, joint_weight: float = 0.0, version: str = "v2",
+              iterations: int = 4, symmetric: bool = False, point_sigma_m: float = POINT_SIGMA_M, trim_m: float = 0.05,
+              return_residual: bool = False):
+    """Coefficients minimising Eq. 2, ``sum_i |p_i - v_k(i)(alpha)|^2``, for a cloud in the default pose.
+
+    ``k(i)`` is the closest vertex (among ``candidates``, e.g. the vertices the sensor saw) and is
+    re-matched ``iterations`` times; for fixed matches Eq. 2 is linear in the coefficients and is
+    solved exactly, together with a global translation (the cloud's placement relative to the model's
+    floor-standing rest pose is not known). A Gaussian prior ``(alpha_i / sigma_i)^2`` weighted by the
+    point noise ``point_sigma_m^2`` keeps unobserved directions (the back) at the population's
+    expectation. Pairs farther than ``trim_m`` after the first match are dropped as outliers. With
+    ``return_residual`` also returns the median point-to-vertex distance (metres) of the final fit.
+    """
+    P = np.asarray(points_default, dtype=np.float64)
+    finite = np.all(np.isfinite(P), axis=1)
+    P = P[finite]
+    given = None if correspondence is None else np.asarray(correspondence)[finite]
+    if len(P) < 10:
+        raise InputError(f"the shape fit needs at least 10 points in the default pose, got {len(P)}")
+    k = model.n_components
+    c = np.zeros(k) if init_coeffs is None else np.asarray(init_coeffs, dtype=np.float64).copy()
+    cand = np.arange(len(model.mean)) if candidates is None else np.asarray(candidates)
+    basis = model.basis  # (k, n, 3)
+    gram = _vertex_gram(model)
+    prior = point_sigma_m ** 2 / model.stddev ** 2
+    t = np.zeros(3)
+    residual = np.inf
+    joint_rows = None
+    if joints_default is not None and joint_weight > 0:
+        Jm, Jb = _model_kinect_joints(model, version)
+        Jd = np.asarray(joints_default, dtype=np.float64).reshape(-1, len(Jm), 3)  # (frames, J, 3)
+        f, j = np.nonzero(np.all(np.isfinite(Jd), axis=2))
+        sw = np.sqrt(joint_weight)
+        joint_rows = (sw * np.hstack([Jb[:, j].reshape(k, -1).T, np.tile(np.eye(3), (len(j), 1))]),
+                      sw * (Jd[f, j] - Jm[j]).ravel())
+    data_tree = cKDTree(P) if symmetric else None
+    for it in range(iterations):
+        V = model.vertices(c)
+        if it == 0 and given is not None:
+            m = given
+            keep = m >= 0
+        else:
+            d, m = cKDTree(V[cand] + t).query(P)
+            m = cand[m]
+            keep = d <= (np.inf if it == 0 else trim_m)
+        Pk, mk = P[keep], m[keep]
+        if data_tree is not None:
+            # model -> data: every vertex the sensor should see pulls toward its nearest point, so a
+            # model part the data does not support (a too-tall head) is pulled in as well.
+            d2, q = data_tree.query(V[cand] + t)
+            near = d2 <= trim_m
+            Pk, mk = np.concatenate([Pk, P[q[near]]]), np.concatenate([mk, cand[near]])
+        # Normal equations of Eq. 2 accumulated per vertex (a vertex matched by several points adds
+        # its k x k Gram matrix once per match), so no (3M, k) design matrix is formed.
+        n = len(model.mean)
+        counts = np.bincount(mk, minlength=n).astype(np.float64)
+        S = np.zeros((n, 3))
+        np.add.at(S, mk, Pk - model.mean[mk])
+        AtA = np.zeros((k + 3, k + 3))
+        AtA[:k, :k] = (counts @ gram.reshape(n, -1)).reshape(k, k)
+        AtA[:k, k:] = np.einsum("knd,n->kd", basis, counts)
+        AtA[k:, :k] = AtA[:k, k:].T
+        AtA[k:, k:] = counts.sum() * np.eye(3)
+        Atb = np.concatenate([np.einsum("knd,nd->k", basis, S), S.sum(0)])
+        if joint_rows is not None:
+            AtA += joint_rows[0].T @ joint_rows[0]
+            Atb += joint_rows[0].T @ joint_rows[1]
+        AtA[np.arange(k), np.arange(k)] += prior
+        x = np.linalg.solve(AtA, Atb)
+        c, t = x[:k], x[k:]
+        residual = float(np.median(np.linalg.norm(P[keep] - t - model.vertices(c)[m[keep]], axis=1)))
+    return (c, residual) if return_residual else c
+
+
+@lru_cache(maxsize=4)
+def _vertex_gram(model: StatisticalBodyModel) -> np.ndarray:
+    """Per-vertex Gram matrices ``basis[:, v] basis[:, v]^T`` (n, k, k) of the shape basis."""
+    return np.einsum("knd,lnd->nkl", model.basis, model.basis)
+
+
+@lru_cache(maxsize=8)
+def _model_kinect_joints(model: StatisticalBodyModel, version: str) -> tuple[np.ndarray, np.ndarray]:
+    """Kinect joints of the model as ``mean (J, 3) + coeffs @ basis (k, J, 3)`` (they are linear in the shape)."""
+    sk = _default_skeleton(model)
+    mean = kinect_joints(sk, model.joint_mean_heads, model.joint_mean_tails, version)
+    basis = np.stack([kinect_joints(sk, h, t, version) for h, t in zip(model.joint_basis_heads,
+                                                                         model.joint_basis_tails, strict=True)])
+    return mean, basis
+
+
+# --- Eq. 3 skeleton refit --------------------------------------------------------------------------
+
+def joint_neighbourhoods(vertices: np.ndarray, skeleton: Skeleton,
+                         n_vertices: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """The ``n_vertices`` vertices nearest each bone head and tail (B, n) of a rest body: Eq. 3's sets."""
+    tree = cKDTree(vertices)
+    return tree.query(skeleton.heads, n_vertices)[1], tree.query(skeleton.tails, n_vertices)[1]
+
+
+def refit_skeleton_from_vertices(reference_vertices: np.ndarray, reference_skeleton: Skeleton,
+                                 vertices: np.ndarray, neighbourhoods=None) -> Skeleton:
+    """Eq. 3: ``J_i^S = J_i^0 + mean_a (v_a^S - v_a^0)`` over the vertices near each joint."""
+    heads_nb, tails_nb = joint_neighbourhoods(reference_vertices, reference_skeleton) \
+        if neighbourhoods is None else neighbourhoods
+    D = np.asarray(vertices, float) - np.asarray(reference_vertices, float)
+    heads = reference_skeleton.heads + D[heads_nb].mean(1)
+    tails = reference_skeleton.tails + D[tails_nb].mean(1)
+    return Skeleton(reference_skeleton.bone_names, reference_skeleton.parents, heads, tails, reference_skeleton.rolls)
+
+
+@lru_cache(maxsize=4)
+def _default_body_neighbourhoods(model: StatisticalBodyModel):
+    return joint_neighbourhoods(model.mean, _default_skeleton(model))
+
+
+@lru_cache(maxsize=4)
+def _default_skeleton(model: StatisticalBodyModel) -> Skeleton:
+    return Skeleton(model.bone_names, model.parents, model.joint_mean_heads, model.joint_mean_tails, model.rolls)
+
+
+def refit_skeleton(model: StatisticalBodyModel, coeffs) -> Skeleton:
+    """Eq. 3 of Real-time Reshaping: the source skeleton from the default body's joints and the vertex displacements."""
+    return refit_skeleton_from_vertices(model.mean, _default_skeleton(model), model.vertices(coeffs),
+                                        _default_body_neighbourhoods(model))
+
+
+# --- the whole initialisation ----------------------------------------------------------------------
+
+def check_model(model) -> StatisticalBodyModel:
+    """The model the mirror needs: a StatisticalBodyModel on the game_engine rig (the Kinect joint maps)."""
+    if not isinstance(model, StatisticalBodyModel):
+        raise InputError(f"the mirror needs a StatisticalBodyModel (body.statistical.load_statistical_model), "
+                         f"got {type(model).__name__}")
+    if model.rig != "game_engine":
+        raise InputError(f"the mirror needs a statistical model on the game_engine rig (Kinect joints), "
+                         f"got rig {model.rig!r}; load_statistical_model(rig='game_engine')")
+    return model
+
+
+def _subsample(P: np.ndarray, n: int, seed: int) -> np.ndarray:
+    if len(P) <= n:
+        return P
+    return P[np.random.default_rng(seed).choice(len(P), n, replace=False)]
+
+
+def initialise_from_observations(observations, model: StatisticalBodyModel, view_point=None, passes: int = 3,
+                                 floor_y: float | None = 0.0, floor_margin_m: float = 0.02,
+                                 joint_weight: float = JOINT_WEIGHT) -> SourceBody:
+    """§4 over several frames: per-frame transform + Eq. 2 fit, averaged; ``passes`` - 1 refinements; Eq. 3.
+
+    ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
+    plane ``y = floor_y`` are dropped (the player mask reaches onto the floor at the feet; None keeps them).
+    """
+    model = check_model(model)
+    obs = []
+    for o in observations:
+        P = np.asarray(o.points, dtype=np.float64)
+        P = P[np.all(np.isfinite(P), axis=1)]
+        if floor_y is not None:
+            P = P[P[:, 1] > floor_y + floor_margin_m]
+        if len(P) >= MIN_POINTS:
+            obs.append((o, _subsample(P, MAX_POINTS, o.frame)))
+    if not obs:
+        raise InputError(f"no frame with at least {MIN_POINTS} depth points on the person: "
+                         "the actor must stand fully in view of the Kinect during initialisation")
+    body = model.body(np.zeros(model.n_components))
+    coeffs = np.zeros(model.n_components)
+    rng = np.random.default_rng(0)
+    residual = np.nan
+    for pass_ in range(max(1, passes)):
+        pooled, matches, seen, joints0 = [], [], [], []
+        for o, P in obs:
+            cloud = transform_to_default_pose(P, o.joints, body, o.tracked, o.version, view_point=view_point,
+                                              scale_bones=pass_ == 0, details=True)
+            ok = cloud.correspondence >= 0
+            if ok.sum() >= MIN_POINTS:
+                pooled.append(cloud.points[ok])
+                matches.append(cloud.correspondence[ok])
+                seen.append(cloud.candidates)
+                if pass_ > 0 and o.version == obs[0][0].version:
+                    joints0.append(unposed_kinect_joints(o.joints, o.tracked, cloud.body.skeleton, cloud.pose,
+                                                         o.version))
+        if not pooled:
+            raise InputError("no frame's depth points lie on a body fitted to the Kinect joints: "
+                             "check that the depth and the joints come from the same sensor calibration")
+        P0, k0 = np.concatenate(pooled), np.concatenate(matches)
+        if len(P0) > MAX_POOLED_POINTS:
+            pick = rng.choice(len(P0), MAX_POOLED_POINTS, replace=False)
+            P0, k0 = P0[pick], k0[pick]
+        coeffs, residual = fit_shape(P0, model, coeffs, candidates=np.unique(np.concatenate(seen)), correspondence=k0,
+                                     iterations=ICP_ITERATIONS[min(pass_, len(ICP_ITERATIONS) - 1)],
+                                     joints_default=np.array(joints0) if joints0 else None,
+                                     joint_weight=joint_weight, version=obs[0][0].version, return_residual=True)
+        skeleton = refit_skeleton(model, coeffs)
+        body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,
+                         vertex_ids=model.vertex_ids)
+    residuals = [residual]
+    return SourceBody(coeffs, body.vertices, body.skeleton, tuple(int(o.frame) for o, _ in obs),
+                      1000.0 * float(np.median(residuals)), model.weights, model.faces)
+
+
+def _session_version(names) -> str:
+    for version in ("v2", "v1"):
+        if list(names) == kinect_joint_names(version):
+            return version
+    raise InputError(f"Kinect joints named {list(names)[:3]}... match neither the v1 nor the v2 joint set")
+
+
+def collect_observations(session, frames=None, player: int = 1, n_frames: int = DEFAULT_INIT_FRAMES):
+    """The first ``n_frames`` frames (or the given ``frames``) in which ``player`` is seen, as InitObservations.
+
+    Frames without the player, without joints or without depth are skipped; when none remains the
+    InputError says which of those it was.
+    """
+    sensor = session.kinect
+    if sensor is None:
+        raise InputError(f"{session.path}: no Kinect calibration (kinect/calibration.json); "
+                         "the mirror needs a Kinect RGB-D session")
+    from bodystudio.mirror.frames import point_cloud, read_mirror_frame
+
+    ids = list(session.frame_ids) if frames is None else [int(f) for f in frames]
+    if not ids:
+        raise InputError(f"{session.path}: no frames to initialise from")
+    missing = sorted(set(ids) - set(session.frame_ids))
+    if missing:
+        raise InputError(f"{session.path}: frame(s) {missing[:5]} not in the session (it has "
+                         f"{len(session.frame_ids)} frames)")
+    out, why = [], {"no person": 0, "no joints": 0, "no depth": 0}
+    for i in ids:
+        frame = read_mirror_frame(session, i)
+        bodies = [b for b in frame.bodies if b.player == player]
+        if not bodies:
+            why["no person" if not frame.bodies else "no joints"] += 1
+            continue
+        body = bodies[0]
+        if not np.any(np.all(np.isfinite(body.positions), axis=1) & body.tracked):
+            why["no joints"] += 1
+            continue
+        if frame.depth_m is None or not np.any(frame.depth_m > 0):
+            why["no depth"] += 1
+            continue
+        points = point_cloud(frame, sensor, player)
+        if len(points) < MIN_POINTS:
+            why["no person"] += 1
+            continue
+        out.append(InitObservation(i, points, body.positions, body.tracked, _session_version(body.names)))
+        if frames is None and len(out) >= n_frames:
+            break
+    if not out:
+        reason = max(why, key=why.get)
+        detail = {"no person": f"player {player} is in none of the frames (no tracked body or too few depth "
+                               "pixels in its player mask)",
+                  "no joints": f"no frame has tracked Kinect joints for player {player}",
+                  "no depth": "no frame has depth measurements"}[reason]
+        raise InputError(f"{session.path}: cannot initialise the source body: {detail}; "
+                         "record the actor standing in view, or pick --frames/--player")
+    return out, sensor
+
+
+def initialise_source_body(session, model: StatisticalBodyModel | None = None, frames=None, player: int = 1,
+                           n_frames: int = DEFAULT_INIT_FRAMES, passes: int = 3) -> SourceBody:
+    """§4 on a mirror session: the source body of ``player`` from up to ``n_frames`` frames (~3 s at 30 fps)."""
+    if model is None:
+        from bodystudio.body.statistical import load_statistical_model
+
+        model = load_statistical_model("6k", progress=False)
+    model = check_model(model)
+    obs, sensor = collect_observations(session, frames, player, n_frames)
+    return initialise_from_observations(obs, model, view_point=sensor.depth.center, passes=passes)
+
+
+# --- persistence -----------------------------------------------------------------------------------
+
+def save_source_body(path: str | Path, body: SourceBody) -> None:
+    """Write a source body as one versioned ``.npz`` (atomically)."""
+    sk = body.skeleton
+    arrays = dict(version=np.array(SOURCE_BODY_VERSION), coeffs=body.coeffs, vertices=body.vertices,
+                  bone_names=np.array(sk.bone_names), parents=sk.parents, heads=sk.heads, tails=sk.tails,
+                  rolls=sk.rolls, frames_used=np.array(body.frames_used, dtype=np.int64),
+                  residual_mm=np.array(body.residual_mm))
+    with atomic_path(path, suffix=".npz") as tmp:
+        np.savez(tmp, **arrays)
+
+
+def load_source_body(path: str | Path, model: StatisticalBodyModel | None = None) -> SourceBody:
+    """Read :func:`save_source_body`'s file; with ``model``, check it is that model's and attach its skin weights."""
+    import zipfile
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileFormatError(f"{path}: source body not found; run 'bodystudio mirror init SESSION' first")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if int(z["version"]) != SOURCE_BODY_VERSION:
+                raise FileFormatError(f"{path}: source body version {int(z['version'])}, expected "
+                                      f"{SOURCE_BODY_VERSION}; rerun 'bodystudio mirror init'")
+            sk = Skeleton(tuple(str(b) for b in z["bone_names"]), z["parents"].astype(np.int64),
+                          z["heads"].astype(np.float64), z["tails"].astype(np.float64), z["rolls"].astype(np.float64))
+            body = SourceBody(z["coeffs"].astype(np.float64), z["vertices"].astype(np.float64), sk,
+                              tuple(int(f) for f in z["frames_used"]), float(z["residual_mm"]))
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise FileFormatError(f"{path}: not a readable source body ({exc}); rerun 'bodystudio mirror init'") from None
+    n, B = len(body.vertices), sk.n_bones
+    if (body.vertices.ndim != 2 or body.vertices.shape[1] != 3 or sk.heads.shape != (B, 3)
+            or sk.tails.shape != (B, 3) or len(sk.parents) != B or len(sk.rolls) != B
+            or not np.all(np.isfinite(body.vertices)) or not np.all(np.isfinite(body.coeffs))):
+        raise FileFormatError(f"{path}: source body arrays are inconsistent; rerun 'bodystudio mirror init'")
+    if model is None:
+        return body
+    model = check_model(model)
+    if len(body.coeffs) != model.n_components or n != len(model.mean) or sk.bone_names != model.bone_names:
+        raise InputError(f"{path}: source body was fitted with another statistical model ({len(body.coeffs)} "
+                         f"coefficients, {n} vertices; this model has {model.n_components} and "
+                         f"{len(model.mean)}); rerun 'bodystudio mirror init' or load the same model")
+    return SourceBody(body.coeffs, body.vertices, sk, body.frames_used, body.residual_mm, model.weights, model.faces)
+
+
+# --- timing for benchmarks/bench_mirror.py ---------------------------------------------------------
+
+def time_init_and_track(observations, model: StatisticalBodyModel, view_point=None, track_frames: int = 90,
+                        passes: int = 3) -> dict:
+    """Wall-clock of the initialisation over ``observations`` and of ``ik_pose`` per frame (ms), for the benchmark.
+
+    Returns ``{"init_s", "init_frames", "ik_ms_median", "ik_ms_p95", "skin_ms_median"}``; tracking
+    replays the observations' joints (cycled to ``track_frames`` frames) warm-started on the fitted skeleton.
+    """
+    t0 = time.perf_counter()
+    source = initialise_from_observations(observations, model, view_point=view_point, passes=passes)
+    init_s = time.perf_counter() - t0
+    ik, skin = [], []
+    previous = None
+    for i in range(track_frames):
+        o = observations[i % len(observations)]
+        t0 = time.perf_counter()
+        previous = ik_pose(source.skeleton, o.joints, o.tracked, o.version, previous)
+        t1 = time.perf_counter()
+        skin_vertices(source.vertices, source.weights, source.skeleton, previous)
+        ik.append(t1 - t0)
+        skin.append(time.perf_counter() - t1)
+    return {"init_s": init_s, "init_frames": len(source.frames_used),
+            "ik_ms_median": 1000 * float(np.median(ik)), "ik_ms_p95": 1000 * float(np.percentile(ik, 95)),
+            "skin_ms_median": 1000 * float(np.median(skin))}

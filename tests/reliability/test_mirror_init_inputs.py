@@ -1,0 +1,158 @@
+"""Bad inputs of the mirror's source body and tracking (issue 12): no person, no joints, no depth, a wrong
+model, unknown or out-of-range edits, broken source-body files, and `bodystudio mirror init` on sessions
+that cannot be initialised. Each gives a one-line error naming the fix, never a traceback or a wrong body."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bodystudio.body import build_body
+from bodystudio.body.kinect import kinect_joint_names
+from bodystudio.errors import FileFormatError, InputError
+from bodystudio.mirror.init import (
+    InitObservation,
+    SourceBody,
+    initialise_from_observations,
+    load_source_body,
+    refit_skeleton,
+    save_source_body,
+    transform_to_default_pose,
+)
+from bodystudio.mirror.reshape import check_edits, ramp_edits, target_coeffs
+from bodystudio.mirror.track import ik_pose
+
+from .conftest import assert_clean_error, run_inprocess
+
+J = len(kinect_joint_names("v2"))
+
+
+@pytest.fixture(scope="module")
+def model():
+    from bodystudio.body.statistical import load_statistical_model
+
+    return load_statistical_model("2k", progress=False)
+
+
+@pytest.fixture(scope="module")
+def standing(model):
+    """A noise-free standing body: its Kinect joints and a slab of points in front of it."""
+    from bodystudio.body.kinect import kinect_joints
+
+    sk = model.skeleton(np.zeros(model.n_components))
+    K = kinect_joints(sk, sk.heads, sk.tails, "v2")
+    V = model.mean
+    return K, V[V[:, 2] > np.median(V[:, 2])]
+
+
+def test_no_person_points(model, standing):
+    K, _ = standing
+    obs = [InitObservation(0, np.zeros((5, 3)), K, np.ones(J, bool), "v2")]
+    with pytest.raises(InputError, match="depth points on the person"):
+        initialise_from_observations(obs, model)
+
+
+def test_no_depth_at_all(model, standing):
+    K, _ = standing
+    obs = [InitObservation(i, np.zeros((0, 3)), K, np.ones(J, bool), "v2") for i in range(3)]
+    with pytest.raises(InputError, match="stand fully in view"):
+        initialise_from_observations(obs, model)
+
+
+def test_no_joints(model, standing):
+    _, P = standing
+    K = np.full((J, 3), np.nan)
+    obs = [InitObservation(0, P, K, np.zeros(J, bool), "v2")]
+    with pytest.raises(InputError, match="cannot be tracked|pelvis"):
+        initialise_from_observations(obs, model)
+
+
+def test_joints_of_the_wrong_shape(model, standing):
+    _, P = standing
+    with pytest.raises(InputError, match="25 Kinect v2 joints"):
+        transform_to_default_pose(P, np.zeros((20, 3)), model.body(np.zeros(model.n_components)))
+    with pytest.raises(InputError, match="one per Kinect"):
+        ik_pose(model.skeleton(np.zeros(model.n_components)), np.zeros((J, 3)), np.ones(3, bool), "v2")
+
+
+def test_points_far_from_the_joints_are_refused(model, standing):
+    K, P = standing
+    obs = [InitObservation(0, P + np.array([3.0, 0.0, 0.0]), K, np.ones(J, bool), "v2")]
+    with pytest.raises(InputError, match="same sensor calibration"):
+        initialise_from_observations(obs, model)
+
+
+def test_wrong_model(standing):
+    K, P = standing
+    obs = [InitObservation(0, P, K, np.ones(J, bool), "v2")]
+    with pytest.raises(InputError, match="StatisticalBodyModel"):
+        initialise_from_observations(obs, build_body(resolution="2k"))
+
+
+def test_source_body_of_another_model(model, tmp_path):
+    from bodystudio.body.statistical import load_statistical_model
+
+    c = np.zeros(model.n_components)
+    src = SourceBody(c, model.vertices(c), refit_skeleton(model, c), (0,), 1.0)
+    save_source_body(tmp_path / "s.npz", src)
+    with pytest.raises(InputError, match="another statistical model"):
+        load_source_body(tmp_path / "s.npz", load_statistical_model("6k", progress=False))
+
+
+@pytest.mark.parametrize("content", [b"", b"not a zip", b"PK\x03\x04garbage"])
+def test_broken_source_body_file(tmp_path, content):
+    path = tmp_path / "source_body.npz"
+    path.write_bytes(content)
+    with pytest.raises(FileFormatError, match="rerun 'bodystudio mirror init'"):
+        load_source_body(path)
+
+
+def test_missing_source_body_file(tmp_path):
+    with pytest.raises(FileFormatError, match="run 'bodystudio mirror init"):
+        load_source_body(tmp_path / "nope.npz")
+
+
+@pytest.mark.parametrize("edits, phrase", [
+    ({"tallness": 0.1}, "unknown edit 'tallness'"),
+    ({"taller": 0.5}, "taller=0.5 is out of range"),
+    ({"heavier": -60}, "heavier=-60 is out of range"),
+    ({"muscular": float("nan")}, "out of range"),
+    ({"waist": "wide"}, "must be a number"),
+])
+def test_bad_edits(model, edits, phrase):
+    with pytest.raises(InputError, match=phrase):
+        target_coeffs(model, np.zeros(model.n_components), edits)
+    with pytest.raises(InputError, match=phrase):
+        ramp_edits({}, edits)
+
+
+def test_edit_range_limits_are_accepted():
+    assert check_edits({"taller": -0.3, "heavier": 40.0}) == {"taller": -0.3, "heavier": 40.0}
+
+
+def test_ramp_step_must_be_positive():
+    with pytest.raises(InputError, match="positive"):
+        ramp_edits({}, {"taller": 0.1}, max_step=0.0)
+
+
+# --- the CLI ------------------------------------------------------------------------------------------
+
+def test_cli_init_refuses_a_session_without_kinect(studio, capfd):
+    result = run_inprocess(["mirror", "init", studio.session], capfd)
+    assert_clean_error(result, 2, "no Kinect calibration")
+    assert not (Path(studio.session) / "mirror").exists()
+
+
+@pytest.mark.parametrize("args, phrase", [
+    (["--frames", "0"], "--frames 0"),
+    (["--player", "7"], "--player 7"),
+    (["--resolution", "full"], "--resolution"),
+])
+def test_cli_init_bad_options(studio, capfd, args, phrase):
+    result = run_inprocess(["mirror", "init", studio.session, *args], capfd)
+    assert_clean_error(result, 2, phrase)
+
+
+def test_cli_init_missing_session(tmp_path, capfd):
+    result = run_inprocess(["mirror", "init", tmp_path / "nothing"], capfd)
+    assert_clean_error(result, 2, "no such session")
