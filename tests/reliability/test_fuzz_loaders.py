@@ -30,8 +30,8 @@ from bodystudio.errors import BodyStudioError
 EXAMPLES = int(os.environ.get("BODYSTUDIO_FUZZ_EXAMPLES", "0") or 0)
 SECONDS = float(os.environ.get("BODYSTUDIO_FUZZ_SECONDS", "0") or 0)
 LONG_RUN = EXAMPLES > 0 or SECONDS > 0
-FUZZ = settings(max_examples=(EXAMPLES or 500) if LONG_RUN else 80, deadline=None, database=None, derandomize=not LONG_RUN,
-                suppress_health_check=list(HealthCheck), print_blob=True)
+FUZZ = settings(max_examples=(EXAMPLES or 500) if LONG_RUN else 80, deadline=None, database=None,
+                derandomize=not LONG_RUN, suppress_health_check=list(HealthCheck), print_blob=True)
 
 # --- strategies ---------------------------------------------------------------------------------------
 
@@ -125,7 +125,8 @@ def _count_examples(request):
     _STATS.update(examples=0, loaded=0, refused=0)
     yield
     if LONG_RUN:
-        print(f"\nFUZZ {request.node.name}: {_STATS.get('seconds', 0):.0f} s, {_STATS['examples']} examples, {_STATS['loaded']} loader calls loaded, "
+        print(f"\nFUZZ {request.node.name}: {_STATS.get('seconds', 0):.0f} s, {_STATS['examples']} examples, "
+              f"{_STATS['loaded']} loader calls loaded, "
               f"{_STATS['refused']} refused with a one-line error")
 
 
