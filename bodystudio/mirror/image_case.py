@@ -9,6 +9,7 @@ offset of a pixel or two and with random pixels along its boundary flipped (jitt
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -123,3 +124,9 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
     a, b = np.asarray(a, bool), np.asarray(b, bool)
     union = np.count_nonzero(a | b)
     return 1.0 if union == 0 else np.count_nonzero(a & b) / union
+
+
+@functools.lru_cache(maxsize=6)
+def cached_image_case(edits: tuple[tuple[str, float], ...] | None = None, seed: int = 0, actors: int = 1) -> ImageCase:
+    """:func:`make_image_case` memoised per process (tests and benchmarks share a few cases; do not modify them)."""
+    return make_image_case(None if edits is None else dict(edits), seed=seed, actors=actors)
