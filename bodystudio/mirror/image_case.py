@@ -38,6 +38,8 @@ class ImageCase:
     target_vertices: np.ndarray  # (n, 3) posed
     faces: np.ndarray
     camera: object
+    actors: int = 1
+    pair_groups: np.ndarray | None = None  # (m,) actor of each vertex pair
 
 
 def sdk_player_mask(mask: np.ndarray, depth_m: np.ndarray, rng: np.random.Generator, depth_scale: int = 2,
@@ -110,13 +112,15 @@ def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors
     rgb = render_rgb(Vs, F, camera, background=background, result=rs, noise_std=2.0, rng=rng)
     target_rgb = render_rgb(Vt, F, camera, background=background, result=rt)
     player, depth = sdk_player_mask(rs.mask, np.where(rs.mask, rs.depth, BACKGROUND_DEPTH_M), rng)
-    src_uv, dst_uv = [], []
+    src_uv, dst_uv, groups = [], [], []
     for a in range(actors):
         s, t, _ = visible_vertex_pairs(sources[a], targets[a], model.faces, camera, n_handles)
         src_uv.append(s)
         dst_uv.append(t)
+        groups.append(np.full(len(s), a))
     return ImageCase(rgb, target_rgb, background, rs.mask, rt.mask, player, depth, np.concatenate(src_uv),
-                     np.concatenate(dst_uv), Vs, Vt, F, camera)
+                     np.concatenate(dst_uv), Vs, Vt, F, camera, actors,
+                     np.concatenate(groups))
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:

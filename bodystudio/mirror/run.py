@@ -61,6 +61,7 @@ class MirrorInput:
     dst_uv: np.ndarray | None = None
     warning: str | None = None
     timings_ms: dict = field(default_factory=dict)
+    pair_groups: np.ndarray | None = None  # (m,) person of each pair when several are reshaped
 
 
 @dataclass(frozen=True, eq=False)
@@ -93,7 +94,7 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     if inp.warning is None and has_person and (inp.src_uv is None or len(inp.src_uv) < MIN_PAIRS):
         inp = MirrorInput(inp.index, rgb, inp.person_mask, inp.others_mask, inp.depth_color, None, None,
                           f"only {0 if inp.src_uv is None else len(inp.src_uv)} visible vertex pairs "
-                          f"(need {MIN_PAIRS})", inp.timings_ms)
+                          f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups)
     if inp.warning is not None or not has_person:
         t = time.perf_counter()
         background = update_background(background, rgb, person | others)
@@ -106,7 +107,7 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     t0 = time.perf_counter()
     fg = refine_foreground(rgb, person, inp.depth_color, background=background, **(foreground_options or {}))
     t1 = time.perf_counter()
-    warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind)
+    warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind, groups=inp.pair_groups)
     t2 = time.perf_counter()
     warped_rgb, alpha = warp_foreground(rgb, fg, warp_field)
     t3 = time.perf_counter()

@@ -29,7 +29,7 @@ EPS_PX2 = 1e-3
 OUTSIDE_PX = -16.0
 
 
-def _check_pairs(src_pts, dst_pts) -> tuple[np.ndarray, np.ndarray]:
+def _check_pairs(src_pts, dst_pts, return_kept: bool = False):
     s = np.asarray(src_pts, dtype=np.float64)
     t = np.asarray(dst_pts, dtype=np.float64)
     if s.ndim != 2 or s.shape[1] != 2 or s.shape != t.shape:
@@ -39,7 +39,7 @@ def _check_pairs(src_pts, dst_pts) -> tuple[np.ndarray, np.ndarray]:
     s, t = s[keep], t[keep]
     if len(s) < 3:
         raise InputError(f"MLS warp needs at least 3 finite point pairs, got {len(s)}")
-    return s, t
+    return (s, t, keep) if return_kept else (s, t)
 
 
 def mls_grid_nodes(shape=(480, 640), grid=(120, 160)) -> tuple[np.ndarray, np.ndarray]:
@@ -128,7 +128,7 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
 
 
 def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: str = "affine",
-                   roi_margin_px: float = 24.0, alpha: float = 1.0) -> np.ndarray:
+                   roi_margin_px: float = 24.0, alpha: float = 1.0, groups=None) -> np.ndarray:
     """Backward warp field (H, W, 2) float32 for ``cv2.remap``, Eq. 5 of Real-time Reshaping on a 160x120 grid.
 
     ``src_pts`` (n, 2) are the source body's projected vertices (where the person is in the input),
@@ -137,24 +137,43 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
     target point, the only region where the target person can be; every pixel not surrounded by solved
     nodes maps outside the image (-16, -16), so nothing of the source person shows there unwarped (a
     shrunk person leaves no remnant). Up-sampling is bilinear.
+
+    ``groups`` (n,) labels the pairs by person (several actors): each node is solved with the pairs of
+    the person whose target points are nearest, so one actor's body does not pull on another's.
     """
-    s, t = _check_pairs(src_pts, dst_pts)
+    s, t, kept = _check_pairs(src_pts, dst_pts, return_kept=True)
+    groups = np.zeros(len(kept), np.int64) if groups is None else np.asarray(groups).ravel()
+    if len(groups) != len(kept):
+        raise InputError(f"MLS warp: {len(groups)} group labels for {len(kept)} point pairs")
+    groups = groups[kept]
     H, W = int(shape[0]), int(shape[1])
     gh, gw = int(grid[0]), int(grid[1])
     if H <= 0 or W <= 0 or gh < 2 or gw < 2 or gh > H or gw > W:
         raise InputError(f"MLS warp: image shape {shape} and grid {grid} must be positive, grid >= 2 and <= image")
     xs, ys = mls_grid_nodes((H, W), (gh, gw))
     sx, sy = W / gw, H / gh
-    # grid nodes near a target point: splat the points on the grid, dilate by the margin (+1 cell)
-    occupied = np.zeros((gh, gw), np.uint8)
+    # grid nodes near a target point: splat each group's points on the grid, distance in cells; a node is
+    # solved by the nearest group within the margin (+1 cell)
     col = np.clip(np.round((t[:, 0] + 0.5) / sx - 0.5), 0, gw - 1).astype(np.int64)
     row = np.clip(np.round((t[:, 1] + 0.5) / sy - 0.5), 0, gh - 1).astype(np.int64)
-    occupied[row, col] = 1
-    rx, ry = int(np.ceil(roi_margin_px / sx)) + 1, int(np.ceil(roi_margin_px / sy)) + 1
-    solve = cv2.dilate(occupied, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rx + 1, 2 * ry + 1))) > 0
+    reach = max(roi_margin_px / sx, roi_margin_px / sy) + 1.0
+    labels = np.unique(groups)
+    dist = np.full((len(labels), gh, gw), np.inf, np.float32)
+    for k, g in enumerate(labels):
+        free = np.ones((gh, gw), np.uint8)
+        free[row[groups == g], col[groups == g]] = 0
+        dist[k] = cv2.distanceTransform(free, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    owner = np.argmin(dist, axis=0)
+    solve = np.min(dist, axis=0) <= reach
     rows, cols = np.nonzero(solve)
     nodes = np.stack([xs[cols], ys[rows]], axis=1)
-    _, mapped = mls_transforms(nodes, t, s, kind, alpha)
+    mapped = np.full((len(nodes), 2), np.nan)
+    node_owner = owner[rows, cols]
+    for k, g in enumerate(labels):
+        mine = node_owner == k
+        pairs = groups == g
+        if mine.any() and pairs.sum() >= 3:
+            _, mapped[mine] = mls_transforms(nodes[mine], t[pairs], s[pairs], kind, alpha)
     valid = np.isfinite(mapped).all(1)  # degenerate (collinear) handle layouts: no value there
     field = np.full((gh, gw, 2), OUTSIDE_PX, np.float32)
     field[rows[valid], cols[valid]] = mapped[valid]
