@@ -53,6 +53,9 @@ def _register() -> None:
     from bodystudio.cli import muscle
 
     app.add_typer(muscle.app, name="muscle", help="Arm-muscle capture with a depth camera; the arm muscle model.")
+    from bodystudio.cli import mirror_image_group
+
+    app.add_typer(mirror_image_group.app, name="mirror", help="Virtual mirror: reshape a person in Kinect video.")
 
 
 _register()

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from bodystudio.errors import BodyStudioError, FileFormatError, InputError
+from bodystudio.fileio import atomic_write
 from bodystudio.mirror.compose import BackgroundModel, compose, update_background
 from bodystudio.mirror.foreground import refine_foreground
 from bodystudio.mirror.warp import MLS_KINDS, mls_warp_field, visible_vertex_pairs, warp_foreground
@@ -163,33 +164,42 @@ def _summary(results: list[dict], steps_ms: dict[str, list[float]], wall_s: floa
             "wall_s": wall_s, "fps_wall": len(results) / wall_s if wall_s > 0 else None}
 
 
+def video_paths(out_video, side_by_side: bool = True) -> list[tuple[str, Path]]:
+    """``[("output", out.mp4), ("side_by_side", out_side_by_side.mp4)]``, each checked writable (one-line errors)."""
+    from bodystudio.runfolder import check_output_destination
+
+    if out_video is None:
+        return []
+    out_video = Path(out_video)
+    if out_video.suffix.lower() != ".mp4":
+        raise InputError(f"--out {out_video}: the video must be an .mp4 file")
+    videos = [("output", out_video)]
+    if side_by_side:
+        videos.append(("side_by_side", out_video.with_name(out_video.stem + "_side_by_side.mp4")))
+    for _, path in videos:
+        check_output_destination(path, "video")
+    return videos
+
+
 def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video: str | Path | None = None,
                   fps: float = 30.0, side_by_side: bool = True, kind: str = "similarity", manifest: dict | None = None,
                   progress: bool = False, total: int | None = None, command: str = "bodystudio mirror run",
-                  foreground_options: dict | None = None, background: BackgroundModel | None = None) -> dict:
+                  foreground_options: dict | None = None, background: BackgroundModel | None = None,
+                  preview: str | Path | None = None) -> dict:
     """Run the image steps over ``inputs`` and commit frames, masks, video(s) and ``run.json`` as one unit.
 
     Returns the ``run.json`` content. A frame whose processing raises a user-level error passes
     through with that warning; nothing is published if the run itself fails (the previous run stays).
+    ``preview``: a PNG rewritten (atomically) with every output frame, for a live display.
     """
-    from bodystudio.runfolder import RunLayout, RunWriter, check_output_destination
+    from bodystudio.runfolder import RunLayout, RunWriter
 
     if kind not in MLS_KINDS:
         raise InputError(f"--warp {kind!r}; valid: {', '.join(MLS_KINDS)}")
     if not 1.0 <= float(fps) <= 240.0:
         raise InputError(f"fps must lie in 1..240, got {fps}")
     run_dir = Path(run_dir)
-    videos = []
-    if out_video is not None:
-        out_video = Path(out_video)
-        if out_video.suffix.lower() != ".mp4":
-            raise InputError(f"--out {out_video}: the video must be an .mp4 file")
-        check_output_destination(out_video, "video")
-        videos.append(("output", out_video))
-        if side_by_side:
-            sbs = out_video.with_name(out_video.stem + "_side_by_side.mp4")
-            check_output_destination(sbs, "video")
-            videos.append(("side_by_side", sbs))
+    videos = video_paths(out_video, side_by_side)
     layout = RunLayout(run_dir, RUN_JSON, ".", str(run_dir))
     results: list[dict] = []
     steps_ms: dict[str, list[float]] = {s: [] for s in STEPS}
@@ -219,6 +229,9 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
                     if key not in writers:
                         writers[key] = _VideoWriter(w.path_for(path), (frame.shape[1], frame.shape[0]), fps)
                     writers[key].write(frame)
+                if preview is not None:
+                    with atomic_write(preview, "wb") as f:
+                        f.write(_png(res.output))
                 res.timings_ms["write"] = (time.perf_counter() - t) * 1e3
                 for step, value in res.timings_ms.items():
                     steps_ms.setdefault(step, []).append(value)
@@ -326,8 +339,14 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
 
 def check_edits(edits: dict[str, float]) -> dict[str, float]:
     """The edits with their ranges checked by the reshape step (one-line InputError otherwise)."""
-    from bodystudio.mirror import reshape
-
+    try:
+        from bodystudio.mirror import reshape
+    except ImportError:
+        raise InputError("this bodystudio has no mirror reshape step (bodystudio.mirror.reshape); "
+                         "install the complete mirror stage") from None
+    bad = [k for k, v in edits.items() if not np.isfinite(float(v))]
+    if bad:
+        raise InputError(f"edit {bad[0]} is not a finite number; give a value such as --{bad[0]} 0.05")
     unknown = sorted(set(edits) - set(reshape.EDIT_NAMES))
     if unknown:
         raise InputError(f"unknown edit(s) {', '.join(unknown)}; valid: {', '.join(reshape.EDIT_NAMES)}")
@@ -338,29 +357,132 @@ def check_edits(edits: dict[str, float]) -> dict[str, float]:
 
 def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by_side: bool = True,
                progress: bool = True, run_dir: str | Path | None = None, player: int = 1, kind: str = "similarity",
-               ramp_frames: int = 30, frames: Iterable[int] | None = None) -> dict:
+               ramp_frames: int = 30, frames: Iterable[int] | None = None, live: str | Path | None = None,
+               live_timeout_s: float = 5.0) -> dict:
     """``bodystudio mirror run``: reshape the actor of ``session`` by ``edits`` and write the video and run folder.
 
     ``session`` an opened session or its path; ``source`` a SourceBody or its .npz (default
     ``SESSION/mirror/source_body.npz`` from ``mirror init``); ``run_dir`` default ``SESSION/mirror/run``.
-    Returns run.json's content (per-step timings in ``summary.ms_per_frame``).
+    ``live``: a folder a recorder is filling with the session layout's ``kinect/`` streams; its frames are
+    processed as they arrive (until ``live_timeout_s`` without a new one), each output frame also written
+    to ``RUN/live_latest.png`` for a display to pick up. Returns run.json's content (per-step timings in
+    ``summary.ms_per_frame``).
     """
     from bodystudio.capture.session import open_session
 
-    if isinstance(session, (str, os.PathLike)):
-        session = open_session(session)
-    edits = check_edits(dict(edits))
     if not 1 <= int(player) <= 6:
         raise InputError(f"--player {player}: a Kinect player id is 1..6")
-    fps = float(session.metadata.get("fps", 30.0)) if isinstance(session.metadata, dict) else 30.0
+    if not 0 <= int(ramp_frames) <= 10000:
+        raise InputError(f"--ramp-frames {ramp_frames}: use 0..10000")
+    if kind not in MLS_KINDS:
+        raise InputError(f"--warp {kind!r}; valid: {', '.join(MLS_KINDS)}")
+    video_paths(out_video, side_by_side)
+    if isinstance(session, (str, os.PathLike)):
+        session = open_session(session)
     run_dir = Path(session.path) / "mirror" / "run" if run_dir is None else Path(run_dir)
-    ids = list(session.frame_ids if frames is None else frames)
-    manifest = {"session": str(Path(session.path).resolve()),
-                "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
-                "edits": edits, "player": int(player), "ramp_frames": int(ramp_frames)}
-    if session.kinect is None:
+    frames_from = live_session(live) if live is not None else session
+    if frames_from.kinect is None:
         raise InputError(f"{session.path}: not a Kinect session (no kinect/calibration.json); the mirror needs "
                          "Kinect colour, depth, player mask and joints")
+    edits = check_edits(dict(edits))
+    metadata = session.metadata if isinstance(session.metadata, dict) else {}
+    try:
+        fps = float(metadata.get("fps", 30.0))
+    except (TypeError, ValueError):
+        fps = float("nan")
+    if not 1.0 <= fps <= 240.0:
+        raise InputError(f"{session.path}: session metadata fps {metadata.get('fps')!r} is not a frame rate "
+                         "in 1..240; regenerate or re-import the session")
+    if live is not None:
+        ids, total = live_frame_ids(live, live_timeout_s), None
+    else:
+        ids = list(session.frame_ids if frames is None else frames)
+        total = len(ids)
     body, model = load_source(session, source)
-    inputs = session_inputs(session, body, model, edits, player, ramp_frames, ids)
-    return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, len(ids))
+    manifest = {"session": str(Path(session.path).resolve()),
+                "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
+                "live": None if live is None else str(Path(live).resolve()),
+                "edits": edits, "player": int(player), "ramp_frames": int(ramp_frames)}
+    inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids)
+    return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total,
+                         preview=run_dir / "live_latest.png" if live is not None else None)
+
+
+# ---------------------------------------------------------------------------------------------- live mode
+
+class _ExistingFiles(Mapping):
+    """The files of a folder that a recorder is filling, looked up on disk (no checksums: nothing is final)."""
+
+    def __init__(self, root: Path):
+        self.root = root
+
+    def __getitem__(self, rel: str):
+        if (self.root / rel).is_file():
+            return None
+        raise KeyError(rel)
+
+    def __contains__(self, rel) -> bool:
+        return isinstance(rel, str) and (self.root / rel).is_file()
+
+    def __iter__(self):
+        return (p.relative_to(self.root).as_posix() for p in sorted(self.root.rglob("*")) if p.is_file())
+
+    def __len__(self) -> int:
+        return sum(1 for _ in iter(self))
+
+
+class _ArrivedFrames:
+    def __init__(self, root: Path):
+        self.root = root
+
+    def __contains__(self, frame) -> bool:
+        from bodystudio.capture.session import stream_path
+
+        return (self.root / stream_path("kinect_rgb", int(frame))).is_file()
+
+    def __iter__(self):
+        return iter(sorted(int(p.stem) for p in (self.root / "kinect" / "rgb").glob("*.png") if p.stem.isdigit()))
+
+
+def live_session(folder: str | Path):
+    """A folder being filled by a recorder (the session layout's ``kinect/`` streams, no manifest yet) opened
+    as a session whose frames are read as they arrive."""
+    from bodystudio.capture.session import KINECT_CALIBRATION, Session
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        if str(folder).isdigit() or str(folder).startswith("/dev/"):
+            raise InputError(f"--live {folder}: reading a camera device needs a Kinect SDK bridge, which bodystudio "
+                             "does not have; let the recorder write frames into a folder and pass that folder")
+        raise InputError(f"--live {folder}: no such folder")
+    if not (folder / KINECT_CALIBRATION).is_file():
+        raise InputError(f"--live {folder}: no {KINECT_CALIBRATION}; the recorder must write the sensor calibration "
+                         "first (the session layout's kinect/ folder)")
+    manifest = {"files": _ExistingFiles(folder), "frames": _ArrivedFrames(folder), "cameras": [], "streams": [],
+                "metadata": {}}
+    return Session(folder, manifest)
+
+
+def live_frame_ids(folder: str | Path, timeout_s: float = 5.0, poll_s: float = 0.02,
+                   settle_s: float = 0.3) -> Iterator[int]:
+    """Frame ids of a live folder in order, each once its colour, depth and player mask are there (and its
+    joints, or the next frame has started, or ``settle_s`` passed); stops after ``timeout_s`` without a new frame."""
+    from bodystudio.capture.session import stream_path
+
+    folder = Path(folder)
+    arrived = list(_ArrivedFrames(folder))
+    i = arrived[0] if arrived else 0
+    last = time.monotonic()
+    while True:
+        needed = [folder / stream_path(s, i) for s in ("kinect_rgb", "kinect_depth", "kinect_player")]
+        if all(p.is_file() for p in needed):
+            joints = (folder / stream_path("kinect_joints", i)).is_file()
+            nxt = (folder / stream_path("kinect_rgb", i + 1)).is_file()
+            if joints or nxt or time.time() - needed[0].stat().st_mtime > settle_s:
+                yield i
+                i += 1
+                last = time.monotonic()
+                continue
+        if time.monotonic() - last > timeout_s:
+            return
+        time.sleep(poll_s)
