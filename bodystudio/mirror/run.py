@@ -255,9 +255,14 @@ def load_source(session, source=None):
     """The source body (with skin weights and faces) and its statistical model, from ``source`` (a SourceBody
     or an .npz path) or ``SESSION/mirror/source_body.npz``."""
     from bodystudio.body.statistical import load_statistical_model
-    from bodystudio.mirror.init import SourceBody, load_source_body
 
-    path = Path(session.path) / "mirror" / "source_body.npz" if source is None else source
+    path = Path(session.path) / "mirror" / "source_body.npz" if source is None else Path(source) \
+        if isinstance(source, (str, os.PathLike)) else source
+    if isinstance(path, Path) and not path.is_file():
+        raise FileFormatError(f"{path}: source body not found; run 'bodystudio mirror init {session.path}' first "
+                              "(or give --source)")
+    init = _stage_module("init")
+    SourceBody, load_source_body = init.SourceBody, init.load_source_body
     body = source if isinstance(source, SourceBody) else load_source_body(path)
     for resolution in ("6k", "2k"):
         model = load_statistical_model(resolution, progress=False)
@@ -337,16 +342,23 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
         yield MirrorInput(**base, src_uv=src_uv, dst_uv=dst_uv)
 
 
+def _stage_module(name: str):
+    """``bodystudio.mirror.<name>`` (the body side of the stage), or a one-line error when it is missing."""
+    import importlib
+
+    try:
+        return importlib.import_module(f"bodystudio.mirror.{name}")
+    except ImportError:
+        raise InputError(f"this bodystudio has no mirror {name} step (bodystudio.mirror.{name}); install the "
+                         "complete mirror stage") from None
+
+
 def check_edits(edits: dict[str, float]) -> dict[str, float]:
     """The edits with their ranges checked by the reshape step (one-line InputError otherwise)."""
-    try:
-        from bodystudio.mirror import reshape
-    except ImportError:
-        raise InputError("this bodystudio has no mirror reshape step (bodystudio.mirror.reshape); "
-                         "install the complete mirror stage") from None
     bad = [k for k, v in edits.items() if not np.isfinite(float(v))]
     if bad:
         raise InputError(f"edit {bad[0]} is not a finite number; give a value such as --{bad[0]} 0.05")
+    reshape = _stage_module("reshape")
     unknown = sorted(set(edits) - set(reshape.EDIT_NAMES))
     if unknown:
         raise InputError(f"unknown edit(s) {', '.join(unknown)}; valid: {', '.join(reshape.EDIT_NAMES)}")
@@ -384,6 +396,10 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     if frames_from.kinect is None:
         raise InputError(f"{session.path}: not a Kinect session (no kinect/calibration.json); the mirror needs "
                          "Kinect colour, depth, player mask and joints")
+    source_path = Path(session.path) / "mirror" / "source_body.npz" if source is None else source
+    if isinstance(source_path, (str, os.PathLike)) and not Path(source_path).is_file():
+        raise FileFormatError(f"{source_path}: source body not found; run 'bodystudio mirror init "
+                              f"{session.path}' first (or give --source)")
     edits = check_edits(dict(edits))
     metadata = session.metadata if isinstance(session.metadata, dict) else {}
     try:
