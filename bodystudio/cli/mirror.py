@@ -11,6 +11,7 @@ from pathlib import Path
 
 import typer
 
+from bodystudio.cli.mirror_run import mirror_run
 from bodystudio.errors import InputError
 
 app = typer.Typer(no_args_is_help=True)
@@ -50,3 +51,6 @@ def init(
                "stature_m": round(measured["stature_m"], 4), "mass_kg": round(measured["mass_kg"], 2)}
     write_json(s.path / SOURCE_SUMMARY_FILE, summary)
     typer.echo(json.dumps(summary))
+
+
+app.command("run")(mirror_run)

@@ -1,0 +1,47 @@
+"""``bodystudio mirror run SESSION --taller .. --heavier .. --out out.mp4 [--live FOLDER]`` (issue 12 §4)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from bodystudio.errors import InputError
+
+
+def mirror_run(
+    session: Path = typer.Argument(..., help="mirror session folder (with SESSION/mirror/source_body.npz from "
+                                   "`bodystudio mirror init`)"),
+    out: Path = typer.Option(..., "--out", help="output video (.mp4); --side-by-side adds <out>_side_by_side.mp4"),
+    taller: float = typer.Option(0.0, help="stature change (m)"),
+    heavier: float = typer.Option(0.0, help="mass change (kg)"),
+    muscular: float = typer.Option(0.0, help="muscularity change (model units)"),
+    chest: float = typer.Option(0.0, help="chest girth change (m)"),
+    waist: float = typer.Option(0.0, help="waist girth change (m)"),
+    hips: float = typer.Option(0.0, help="hip girth change (m)"),
+    source: Path | None = typer.Option(None, help="source body .npz (default SESSION/mirror/source_body.npz)"),
+    run: Path | None = typer.Option(None, "--run", help="run folder for frames, masks and run.json "
+                                    "(default SESSION/mirror/run)"),
+    player: int = typer.Option(1, help="Kinect player id to reshape, 1..6"),
+    warp: str = typer.Option("similarity", help="MLS variant: affine | similarity | rigid"),
+    ramp_frames: int = typer.Option(30, help="frames over which the edit is reached gradually (0: at once)"),
+    side_by_side: bool = typer.Option(True, help="also write an input | output video"),
+    live: str | None = typer.Option(None, help="FOLDER a recorder is filling (kinect/ streams): process frames "
+                                    "as they arrive; the latest output is RUN/live_latest.png"),
+    live_timeout: float = typer.Option(5.0, help="--live: stop after this many seconds without a new frame"),
+) -> None:
+    """Show the actor reshaped (virtual mirror, §5): writes the video, RUN/frames, RUN/masks and RUN/run.json."""
+    from bodystudio.mirror.run import run_mirror
+
+    if not session.is_dir():
+        raise InputError(f"{session}: no such session folder")
+    if not 0.1 <= live_timeout <= 3600:
+        raise InputError(f"--live-timeout {live_timeout}: use 0.1..3600 seconds")
+    given = {"taller": taller, "heavier": heavier, "muscular": muscular, "chest": chest, "waist": waist, "hips": hips}
+    edits = {k: v for k, v in given.items() if v != 0.0}
+    doc = run_mirror(session, edits, out, source=source, side_by_side=side_by_side, progress=True, run_dir=run,
+                     player=player, kind=warp, ramp_frames=ramp_frames, live=live, live_timeout_s=live_timeout)
+    summary = doc["summary"]
+    typer.echo(json.dumps({"run": str(run if run is not None else session / "mirror" / "run"),
+                           "videos": doc["videos"], "edits": doc["edits"], **summary}, indent=1))

@@ -1,0 +1,120 @@
+"""Output image composition, §5.5 of Real-time Reshaping of Humans: warped foreground over a background model.
+
+The warped foreground is laid over the *unwarped* current frame. Where the person was but the warped
+person no longer is (a shorter or thinner target), the hole is filled from a static background image
+recorded first, while the scene is empty, and updated over time with the pixels that are background
+with high confidence: farther than ``margin_px`` from the estimated foreground (§5.5). Pixels the
+model has never seen (the person never moved away from them) are the only ones inpainted (OpenCV's
+Telea), and counted, so a run can report how much of the output was invented.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from bodystudio.errors import InputError
+
+
+@dataclass(frozen=True, eq=False)
+class BackgroundModel:
+    """The learnt empty scene: ``image`` (H, W, 3) uint8, ``valid`` (H, W) bool where it has been seen,
+    ``frames`` how many frames contributed."""
+
+    image: np.ndarray
+    valid: np.ndarray
+    frames: int = 0
+
+    @property
+    def coverage(self) -> float:
+        """Fraction of the image the model has seen."""
+        return float(self.valid.mean()) if self.valid.size else 0.0
+
+
+def empty_background(shape: tuple[int, int]) -> BackgroundModel:
+    """A background model that has seen nothing yet, for images of ``shape`` (H, W)."""
+    H, W = int(shape[0]), int(shape[1])
+    return BackgroundModel(np.zeros((H, W, 3), np.uint8), np.zeros((H, W), bool), 0)
+
+
+def _check_image_and_mask(rgb, mask, what: str) -> tuple[np.ndarray, np.ndarray]:
+    rgb = np.asarray(rgb)
+    mask = np.asarray(mask)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise InputError(f"{what} needs an (H, W, 3) uint8 colour image, got {rgb.shape} {rgb.dtype}")
+    if mask.shape != rgb.shape[:2]:
+        raise InputError(f"{what}: mask {mask.shape} must match the colour image {rgb.shape[:2]}")
+    return rgb, mask
+
+
+def confident_background(fg_mask: np.ndarray, margin_px: int = 15) -> np.ndarray:
+    """Pixels farther than ``margin_px`` (Chebyshev distance) from the foreground: background with high confidence."""
+    m8 = np.asarray(fg_mask).astype(np.uint8)
+    if margin_px <= 0:
+        return m8 == 0
+    k = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
+    return cv2.dilate(m8, k) == 0
+
+
+def update_background(model: BackgroundModel | None, rgb, fg_mask, margin_px: int = 15,
+                      rate: float = 0.5) -> BackgroundModel:
+    """Background model update of §5.5: confident background pixels replace the older ones.
+
+    A pixel seen for the first time is copied; one seen before moves ``rate`` of the way to the new
+    value (1 = plain replacement as in the paper; less averages out sensor noise). ``model`` None
+    starts an empty one. Returns a new model; the old one is unchanged.
+    """
+    rgb, fg_mask = _check_image_and_mask(rgb, fg_mask, "update_background")
+    if not 0.0 < rate <= 1.0:
+        raise InputError(f"background update rate must lie in (0, 1], got {rate}")
+    if model is None:
+        model = empty_background(rgb.shape[:2])
+    if model.image.shape != rgb.shape:
+        raise InputError(f"background model {model.image.shape} does not match the frame {rgb.shape}")
+    confident = confident_background(fg_mask, int(margin_px))
+    if rate >= 1.0 or not model.valid.any():
+        new = rgb
+    else:
+        new = cv2.addWeighted(model.image, 1.0 - rate, rgb, rate, 0.0)
+        if not model.valid.all():
+            new = cv2.copyTo(rgb, (~model.valid).astype(np.uint8), new)  # first sighting: copied
+    image = cv2.copyTo(new, confident.astype(np.uint8), model.image.copy())
+    return BackgroundModel(image, model.valid | confident, model.frames + 1)
+
+
+def compose(warped_rgb, warped_mask, background: BackgroundModel, rgb, fg_mask, hole_margin_px: int = 2,
+            stats: dict | None = None) -> np.ndarray:
+    """Output frame of §5.5: the warped foreground over the unwarped frame, holes filled from the background.
+
+    ``warped_mask`` is the warped foreground's alpha (H, W) in [0, 1] (or bool); ``fg_mask`` the input
+    frame's foreground. Where the input's foreground (grown by ``hole_margin_px``, so no rim of the old
+    silhouette stays) is not covered by the warped person, the background model shows; pixels the model
+    never saw are inpainted and counted in ``stats["inpainted_px"]`` (``stats["hole_px"]`` all holes).
+    """
+    rgb, fg_mask = _check_image_and_mask(rgb, fg_mask, "compose")
+    warped_rgb, alpha = _check_image_and_mask(warped_rgb, warped_mask, "compose (warped foreground)")
+    if background.image.shape != rgb.shape:
+        raise InputError(f"background model {background.image.shape} does not match the frame {rgb.shape}")
+    alpha = alpha.astype(np.float32)
+    m8 = fg_mask.astype(np.uint8)
+    if hole_margin_px > 0:
+        m8 = cv2.dilate(m8, np.ones((2 * hole_margin_px + 1,) * 2, np.uint8))
+    hole = (m8 > 0) & (alpha < 1.0)
+    out = cv2.copyTo(background.image, (hole & background.valid).astype(np.uint8), rgb.copy())
+    unknown = hole & ~background.valid
+    n_unknown = int(np.count_nonzero(unknown))
+    if n_unknown:
+        out = cv2.inpaint(out, unknown.astype(np.uint8), 3, cv2.INPAINT_TELEA)
+    if stats is not None:
+        stats["hole_px"] = int(np.count_nonzero(hole))
+        stats["inpainted_px"] = n_unknown
+    covered = alpha > 0
+    if covered.any():
+        x, y, w, h = cv2.boundingRect(covered.astype(np.uint8))
+        roi = (slice(y, y + h), slice(x, x + w))
+        a = alpha[roi][..., None]
+        blended = warped_rgb[roi].astype(np.float32) * a + out[roi].astype(np.float32) * (1.0 - a)
+        out[roi] = np.clip(blended + 0.5, 0, 255).astype(np.uint8)
+    return out

@@ -1,0 +1,233 @@
+"""Foreground estimation, §5.3 of Real-time Reshaping of Humans: graph-cut refinement of the SDK player mask.
+
+The Kinect SDK's player mask lives on the depth image; mapped into colour it is blocky, offset by the
+registration and jittery at the edges. Following the paper (Boykov and Jolly 2001), the labels are
+re-decided by a minimum cut, but only in a narrow band of ``band_px`` pixels on either side of the
+mask's boundary (the pixels that are likely wrong); the mask's eroded interior is sure foreground and
+everything outside the dilated mask sure background, tied to the terminals through the band's edges.
+
+Energy: data terms are negative log likelihoods of colour histograms (16^3 bins) learnt per frame from
+the sure regions next to the band (local models separate the person from the scene right behind them),
+plus a depth term where the colour-registered depth exists (near the person's median depth: foreground;
+well behind it: background), plus, optionally, the learnt background image (§5.5) as a third cue;
+the smoothness term is Boykov-Jolly's contrast-sensitive ``lambda exp(-beta |I_p - I_q|^2)`` on the
+4-neighbourhood. The cut is PyMaxflow's Boykov-Kolmogorov max-flow on the band's pixels only
+(``method="maxflow"``); ``method="grabcut"`` runs OpenCV's GrabCut (GMMs, the whole crop as graph) on
+the same sure/probable labels, kept for the measured comparison (docs/mirror.md, benchmarks/bench_mirror.py).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from numba import njit
+
+from bodystudio.errors import InputError
+
+FOREGROUND_METHODS = ("maxflow", "grabcut")
+HIST_BINS = 16  # per channel
+_SHIFT = 8 - 4  # uint8 -> 16 bins
+
+
+def _check_inputs(rgb, mask, depth) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    rgb = np.asarray(rgb)
+    mask = np.asarray(mask)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise InputError(f"refine_foreground needs an (H, W, 3) uint8 colour image, got {rgb.shape} {rgb.dtype}")
+    if mask.shape != rgb.shape[:2]:
+        raise InputError(f"refine_foreground: player mask {mask.shape} must match the colour image {rgb.shape[:2]}")
+    if depth is not None:
+        depth = np.asarray(depth, dtype=np.float64)
+        if depth.shape != rgb.shape[:2]:
+            raise InputError(f"refine_foreground: depth {depth.shape} must be registered to colour {rgb.shape[:2]}")
+    return rgb, mask.astype(bool), depth
+
+
+def _colour_index(rgb: np.ndarray) -> np.ndarray:
+    q = (rgb >> _SHIFT).astype(np.int32)
+    return (q[..., 0] * HIST_BINS + q[..., 1]) * HIST_BINS + q[..., 2]
+
+
+def colour_log_likelihood(index: np.ndarray, samples: np.ndarray, prior_count: float = 0.5) -> np.ndarray:
+    """``log P(colour | region)`` of each colour-bin index from a histogram of the region's samples.
+
+    Histogram colour model of Boykov and Jolly (2001, §3), smoothed by a box blur over neighbouring bins
+    (3x3x3) and a uniform prior of ``prior_count`` per bin, so that unseen colours are not impossible.
+    """
+    n_bins = HIST_BINS ** 3
+    hist = np.bincount(samples, minlength=n_bins).astype(np.float32).reshape((HIST_BINS,) * 3)
+    hist = _box3(hist) + prior_count
+    logp = np.log(hist / hist.sum()).ravel()
+    return logp[index]
+
+
+def _box3(h: np.ndarray) -> np.ndarray:
+    for axis in range(3):
+        p = np.pad(h, [(1, 1) if a == axis else (0, 0) for a in range(3)])
+        h = (p[tuple(slice(0, -2) if a == axis else slice(None) for a in range(3))] + h
+             + p[tuple(slice(2, None) if a == axis else slice(None) for a in range(3))]) / 3.0
+    return h
+
+
+def foreground_band(mask: np.ndarray, band_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sure foreground (the mask eroded by ``band_px``) and the band (dilated minus eroded), as in §5.3."""
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
+    m8 = mask.astype(np.uint8)
+    inner = cv2.erode(m8, k).astype(bool)
+    outer = cv2.dilate(m8, k).astype(bool)
+    return inner, outer & ~inner
+
+
+def refine_foreground(rgb, player_mask_color, depth_color=None, band_px: int = 6, smoothness: float = 5.0,
+                      depth_weight: float = 3.0, depth_tol_m: float = 0.35, background=None,
+                      background_weight: float = 1.0, background_sigma: float = 12.0,
+                      method: str = "maxflow") -> np.ndarray:
+    """Graph-cut refinement of the player mask in a narrow band around its boundary, §5.3 (Boykov-Jolly 2001).
+
+    ``rgb`` (H, W, 3) uint8; ``player_mask_color`` (H, W) the SDK mask mapped into colour; ``depth_color``
+    (H, W) metres registered to colour, 0 where unmeasured (optional); ``background`` an optional
+    :class:`bodystudio.mirror.compose.BackgroundModel` whose valid pixels add a colour-difference cue.
+    ``smoothness`` is lambda of the pairwise term (in units of the data terms, nats). Returns (H, W) bool.
+    Pixels farther than ``band_px`` from the mask boundary keep the mask's label.
+    """
+    if method not in FOREGROUND_METHODS:
+        raise InputError(f"foreground method {method!r}; valid: {', '.join(FOREGROUND_METHODS)}")
+    if not 1 <= int(band_px) <= 64:
+        raise InputError(f"band_px must lie in 1..64, got {band_px}")
+    band_px = int(band_px)
+    rgb, mask, depth = _check_inputs(rgb, player_mask_color, depth_color)
+    H, W = mask.shape
+    if not mask.any():
+        return mask.copy()
+    # Work in the crop that holds the band and the sure rings the colour models are learnt from.
+    x, y, w, h = cv2.boundingRect(mask.astype(np.uint8))
+    pad = 3 * band_px + 2
+    x0, y0, x1, y1 = max(x - pad, 0), max(y - pad, 0), min(x + w + pad, W), min(y + h + pad, H)
+    crop = (slice(y0, y1), slice(x0, x1))
+    sub_rgb, sub_mask = rgb[crop], mask[crop]
+    inner, band = foreground_band(sub_mask, band_px)
+    if not band.any():
+        return mask.copy()
+    if method == "grabcut":
+        labels = _grabcut(sub_rgb, inner, band)
+    else:
+        labels = _band_graph_cut(sub_rgb, sub_mask, inner, band, band_px, smoothness,
+                                 None if depth is None else depth[crop], depth_weight, depth_tol_m,
+                                 None if background is None else (background.image[crop], background.valid[crop]),
+                                 background_weight, background_sigma)
+    out = mask.copy()
+    out[crop] = inner | labels
+    return out
+
+
+def _band_graph_cut(rgb, mask, inner, band, band_px, smoothness, depth, depth_weight, depth_tol_m, background,
+                    background_weight, background_sigma) -> np.ndarray:
+    import maxflow
+
+    h, w = mask.shape
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * band_px + 1, 4 * band_px + 1))
+    near = cv2.dilate(band.astype(np.uint8), k).astype(bool)
+    index = _colour_index(rgb)
+    outer = ~(inner | band)
+    fg_samples, bg_samples = index[near & inner], index[near & outer]
+    if len(fg_samples) == 0 or len(bg_samples) == 0:
+        return mask & band
+    br, bc = np.nonzero(band)
+    bidx = index[br, bc]
+    cost_fg = -colour_log_likelihood(bidx, fg_samples)  # cost of labelling a band pixel foreground
+    cost_bg = -colour_log_likelihood(bidx, bg_samples)
+    if depth is not None:
+        d = depth[br, bc]
+        person = depth[inner & (depth > 0)]
+        if len(person):
+            z = np.median(person)
+            measured = d > 0
+            cost_bg += depth_weight * (measured & (np.abs(d - z) < depth_tol_m))
+            cost_fg += depth_weight * (measured & (d > z + depth_tol_m))
+    if background is not None:
+        image, valid = background
+        ok = valid[br, bc]
+        diff2 = np.sum((rgb[br, bc].astype(np.float32) - image[br, bc].astype(np.float32)) ** 2, axis=1)
+        # like the background: cheap to call background; unlike it: cheap to call foreground
+        like = np.exp(-diff2 / (2 * 3 * background_sigma ** 2))
+        cost_fg += background_weight * ok * like * 4.0
+        cost_bg += background_weight * ok * (1 - like) * 4.0
+    # node ids of band pixels; -1 elsewhere
+    node = np.full((h, w), -1, np.int64)
+    node[br, bc] = np.arange(len(br))
+    source = cost_bg.astype(np.float64)
+    sink = cost_fg.astype(np.float64)
+    n = len(br)
+    i_all, j_all, c_all = _band_links(rgb, node, inner, br, bc, float(smoothness), source, sink)
+    g = maxflow.Graph[float](n, len(i_all))
+    nodes = g.add_nodes(n)
+    g.add_edges(nodes[i_all], nodes[j_all], c_all, c_all)
+    g.add_grid_tedges(nodes, source, sink)
+    g.maxflow()
+    fg = ~g.get_grid_segments(nodes)  # source side = foreground
+    labels = np.zeros((h, w), bool)
+    labels[br[fg], bc[fg]] = True
+    return labels
+
+
+@njit(cache=True)
+def _band_links(rgb, node, inner, br, bc, smoothness, source, sink):
+    """Boykov-Jolly n-links of the band's 4-neighbourhood, ``lambda exp(-beta |I_p - I_q|^2)``.
+
+    ``beta = 1 / (2 <|I_p - I_q|^2>)`` over the band's neighbour pairs. Band-band pairs become edges
+    (each once); a neighbour in the sure interior adds its weight to the pixel's source capacity
+    (foreground), one outside the band to its sink capacity (in place). Returns edges ``i, j, cap``.
+    """
+    h, w = node.shape
+    n = br.shape[0]
+    offsets = ((0, 1), (1, 0), (0, -1), (-1, 0))
+    total, count = 0.0, 0
+    for k in range(n):
+        r, c = br[k], bc[k]
+        for dy, dx in offsets:
+            qr, qc = r + dy, c + dx
+            if 0 <= qr < h and 0 <= qc < w:
+                d2 = 0.0
+                for ch in range(3):
+                    diff = float(rgb[r, c, ch]) - float(rgb[qr, qc, ch])
+                    d2 += diff * diff
+                total += d2
+                count += 1
+    beta = 1.0 / (2.0 * max(total / max(count, 1), 1e-6))
+    ei = np.empty(2 * n, np.int64)
+    ej = np.empty(2 * n, np.int64)
+    ec = np.empty(2 * n, np.float64)
+    m = 0
+    for k in range(n):
+        r, c = br[k], bc[k]
+        for o in range(4):
+            dy, dx = offsets[o]
+            qr, qc = r + dy, c + dx
+            if not (0 <= qr < h and 0 <= qc < w):
+                continue
+            d2 = 0.0
+            for ch in range(3):
+                diff = float(rgb[r, c, ch]) - float(rgb[qr, qc, ch])
+                d2 += diff * diff
+            wgt = smoothness * np.exp(-beta * d2)
+            other = node[qr, qc]
+            if other >= 0:
+                if o < 2:  # right and down: each band-band pair once
+                    ei[m] = k
+                    ej[m] = other
+                    ec[m] = wgt
+                    m += 1
+            elif inner[qr, qc]:
+                source[k] += wgt
+            else:
+                sink[k] += wgt
+    return ei[:m], ej[:m], ec[:m]
+
+
+def _grabcut(rgb, inner, band) -> np.ndarray:
+    gc = np.full(inner.shape, cv2.GC_BGD, np.uint8)
+    gc[inner] = cv2.GC_FGD
+    gc[band] = cv2.GC_PR_FGD
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    cv2.grabCut(np.ascontiguousarray(rgb[..., ::-1]), gc, None, bgd, fgd, 1, cv2.GC_INIT_WITH_MASK)
+    return band & ((gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD))

@@ -1,0 +1,504 @@
+"""The mirror loop (§5 of Real-time Reshaping of Humans): per frame IK, bodies, foreground, warp, composition.
+
+:func:`run_mirror` reads a mirror session (or, live, a folder that a recorder is filling), and per frame:
+poses the source body by IK against the Kinect joints (§5.2) and the target body with the same pose
+(Eq. 4, reached gradually), projects a sparse set of visible vertex pairs, refines the player mask by a
+graph cut (§5.3), warps the foreground by MLS (Eq. 5) and composes it over the background model (§5.5).
+A frame that cannot be processed (no body tracked, joints or depth missing, an unreadable file) passes
+through unchanged, with a warning counted in ``run.json``; a run never stops for one bad frame.
+
+Outputs, committed as one unit through :mod:`bodystudio.runfolder` (``RUN/run.json`` written last):
+``RUN/frames/00000.png`` (output frames), ``RUN/masks/foreground/00000.png`` (refined input foreground),
+``RUN/masks/warped/00000.png`` (warped foreground, the mirror's person), the video (``out_video``, H.264
+through imageio-ffmpeg) and, with ``side_by_side``, ``<out>_side_by_side.mp4`` (input | output).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bodystudio.errors import BodyStudioError, FileFormatError, InputError
+from bodystudio.fileio import atomic_write
+from bodystudio.mirror.compose import BackgroundModel, compose, update_background
+from bodystudio.mirror.foreground import refine_foreground
+from bodystudio.mirror.warp import MLS_KINDS, mls_warp_field, visible_vertex_pairs, warp_foreground
+
+log = logging.getLogger(__name__)
+
+RUN_JSON = "run.json"
+RUN_FORMAT = "bodystudio-mirror-run"
+RUN_VERSION = 1
+#: Per-frame steps timed by the run, in order (session side, then the image steps, then output).
+STEPS = ("read", "register", "ik", "bodies", "pairs", "foreground", "warp_field", "warp", "compose", "background",
+         "write")
+IMAGE_STEPS = ("foreground", "warp_field", "warp", "compose", "background")
+#: Fewest vertex pairs the warp is trusted with.
+MIN_PAIRS = 12
+
+
+@dataclass(frozen=True, eq=False)
+class MirrorInput:
+    """What the image steps need for one frame (colour camera, 640x480 for a Kinect).
+
+    ``person_mask`` is the player mask of the person to reshape mapped into colour (None: not in view);
+    ``others_mask`` other players' pixels (never learnt as background); ``src_uv``/``dst_uv`` the
+    projected source/target vertex pairs (None when the body steps failed: ``warning`` says why).
+    """
+
+    index: int
+    rgb: np.ndarray
+    person_mask: np.ndarray | None = None
+    others_mask: np.ndarray | None = None
+    depth_color: np.ndarray | None = None
+    src_uv: np.ndarray | None = None
+    dst_uv: np.ndarray | None = None
+    warning: str | None = None
+    timings_ms: dict = field(default_factory=dict)
+    pair_groups: np.ndarray | None = None  # (m,) person of each pair when several are reshaped
+
+
+@dataclass(frozen=True, eq=False)
+class FrameResult:
+    """One output frame: image, the refined input foreground, the warped foreground, status and timings."""
+
+    index: int
+    output: np.ndarray
+    foreground: np.ndarray
+    warped: np.ndarray
+    status: str  # "ok", "empty" (nobody in view: passes through) or "passed_through" (warning)
+    warning: str | None
+    timings_ms: dict
+
+
+def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str = "similarity",
+                 foreground_options: dict | None = None) -> tuple[FrameResult, BackgroundModel]:
+    """The image steps of §5.3-§5.5 on one frame; returns the result and the updated background model.
+
+    A frame without a person (and without a warning) passes through and teaches the background model;
+    a frame with a warning passes through unchanged (the background model learns only where no player is).
+    """
+    rgb = inp.rgb
+    H, W = rgb.shape[:2]
+    timings = dict(inp.timings_ms)
+    empty = np.zeros((H, W), bool)
+    others = empty if inp.others_mask is None else inp.others_mask
+    person = empty if inp.person_mask is None else inp.person_mask
+    has_person = bool(person.any())
+    if inp.warning is None and has_person and (inp.src_uv is None or len(inp.src_uv) < MIN_PAIRS):
+        inp = MirrorInput(inp.index, rgb, inp.person_mask, inp.others_mask, inp.depth_color, None, None,
+                          f"only {0 if inp.src_uv is None else len(inp.src_uv)} visible vertex pairs "
+                          f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups)
+    if inp.warning is not None or not has_person:
+        t = time.perf_counter()
+        background = update_background(background, rgb, person | others)
+        timings["background"] = (time.perf_counter() - t) * 1e3
+        status = "passed_through" if inp.warning is not None else "empty"
+        result = FrameResult(inp.index, rgb.copy(), person.copy(), person.copy(), status, inp.warning, timings)
+        return result, background
+    if background is None:
+        background = update_background(None, rgb, np.ones((H, W), bool))  # nothing learnt yet: inpaint holes
+    t0 = time.perf_counter()
+    fg = refine_foreground(rgb, person, inp.depth_color, background=background, **(foreground_options or {}))
+    t1 = time.perf_counter()
+    warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind, groups=inp.pair_groups)
+    t2 = time.perf_counter()
+    warped_rgb, alpha = warp_foreground(rgb, fg, warp_field)
+    t3 = time.perf_counter()
+    out = compose(warped_rgb, alpha, background, rgb, fg | others if others.any() else fg)
+    t4 = time.perf_counter()
+    background = update_background(background, rgb, fg | person | others)
+    t5 = time.perf_counter()
+    for step, a, b in zip(IMAGE_STEPS, (t0, t1, t2, t3, t4), (t1, t2, t3, t4, t5), strict=True):
+        timings[step] = (b - a) * 1e3
+    return FrameResult(inp.index, out, fg, alpha > 0.5, "ok", None, timings), background
+
+
+# ---------------------------------------------------------------------------------------------- outputs
+
+class _VideoWriter:
+    """H.264 MP4 through imageio-ffmpeg (frames RGB uint8), written into the run's staging folder."""
+
+    def __init__(self, path: Path, size: tuple[int, int], fps: float):
+        import imageio_ffmpeg
+
+        self.path = path
+        # the staged file has no extension: name the container
+        self._gen = imageio_ffmpeg.write_frames(str(path), size, fps=fps, codec="libx264", pix_fmt_in="rgb24",
+                                                pix_fmt_out="yuv420p", quality=7, macro_block_size=8,
+                                                ffmpeg_log_level="error", output_params=["-f", "mp4"])
+        self._gen.send(None)
+
+    def write(self, rgb: np.ndarray) -> None:
+        try:
+            self._gen.send(np.ascontiguousarray(rgb))
+        except OSError as exc:
+            raise FileFormatError(f"{self.path}: ffmpeg could not write the video ({str(exc).splitlines()[0]}); "
+                                  "check the disk space and the output path") from None
+
+    def close(self) -> None:
+        self._gen.close()
+
+
+def _png(image: np.ndarray) -> bytes:
+    ok, data = cv2.imencode(".png", image if image.ndim == 2 else image[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise FileFormatError("cannot encode a PNG frame")
+    return data.tobytes()
+
+
+def _summary(results: list[dict], steps_ms: dict[str, list[float]], wall_s: float) -> dict:
+    ms = {k: float(np.mean(v)) for k, v in steps_ms.items() if v}
+    image_ms = sum(ms.get(k, 0.0) for k in IMAGE_STEPS)
+    counts = {s: sum(r["status"] == s for r in results) for s in ("ok", "empty", "passed_through")}
+    return {"frames": len(results), **{f"n_{k}": v for k, v in counts.items()},
+            "n_warnings": counts["passed_through"], "ms_per_frame": ms,
+            "image_steps_ms": image_ms, "image_steps_fps": 1e3 / image_ms if image_ms > 0 else None,
+            "wall_s": wall_s, "fps_wall": len(results) / wall_s if wall_s > 0 else None}
+
+
+def video_paths(out_video, side_by_side: bool = True) -> list[tuple[str, Path]]:
+    """``[("output", out.mp4), ("side_by_side", out_side_by_side.mp4)]``, each checked writable (one-line errors)."""
+    from bodystudio.runfolder import check_output_destination
+
+    if out_video is None:
+        return []
+    out_video = Path(out_video)
+    if out_video.suffix.lower() != ".mp4":
+        raise InputError(f"--out {out_video}: the video must be an .mp4 file")
+    videos = [("output", out_video)]
+    if side_by_side:
+        videos.append(("side_by_side", out_video.with_name(out_video.stem + "_side_by_side.mp4")))
+    for _, path in videos:
+        check_output_destination(path, "video")
+    return videos
+
+
+def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video: str | Path | None = None,
+                  fps: float = 30.0, side_by_side: bool = True, kind: str = "similarity", manifest: dict | None = None,
+                  progress: bool = False, total: int | None = None, command: str = "bodystudio mirror run",
+                  foreground_options: dict | None = None, background: BackgroundModel | None = None,
+                  preview: str | Path | None = None) -> dict:
+    """Run the image steps over ``inputs`` and commit frames, masks, video(s) and ``run.json`` as one unit.
+
+    Returns the ``run.json`` content. A frame whose processing raises a user-level error passes
+    through with that warning; nothing is published if the run itself fails (the previous run stays).
+    ``preview``: a PNG rewritten (atomically) with every output frame, for a live display.
+    """
+    from bodystudio.runfolder import RunLayout, RunWriter
+
+    if kind not in MLS_KINDS:
+        raise InputError(f"--warp {kind!r}; valid: {', '.join(MLS_KINDS)}")
+    if not 1.0 <= float(fps) <= 240.0:
+        raise InputError(f"fps must lie in 1..240, got {fps}")
+    run_dir = Path(run_dir)
+    videos = video_paths(out_video, side_by_side)
+    layout = RunLayout(run_dir, RUN_JSON, ".", str(run_dir))
+    results: list[dict] = []
+    steps_ms: dict[str, list[float]] = {s: [] for s in STEPS}
+    writers: dict[str, _VideoWriter] = {}
+    t_start = time.perf_counter()
+    from bodystudio.capture.session import progress_bar
+
+    with RunWriter(layout, command, {"stage": "mirror", "kind": kind}) as w, progress_bar(progress) as bar:
+        task = bar.add_task("mirror", total=total)
+        try:
+            for inp in inputs:
+                try:
+                    res, background = mirror_frame(inp, background, kind, foreground_options)
+                except BodyStudioError as exc:  # one bad frame never stops the run
+                    res = FrameResult(inp.index, inp.rgb.copy(), np.zeros(inp.rgb.shape[:2], bool),
+                                      np.zeros(inp.rgb.shape[:2], bool), "passed_through", str(exc),
+                                      dict(inp.timings_ms))
+                if res.warning:
+                    log.warning("frame %d passes through: %s", res.index, res.warning)
+                t = time.perf_counter()
+                name = f"{res.index:05d}.png"
+                w.write_bytes(f"frames/{name}", _png(res.output))
+                w.write_bytes(f"masks/foreground/{name}", _png(res.foreground.astype(np.uint8) * 255))
+                w.write_bytes(f"masks/warped/{name}", _png(res.warped.astype(np.uint8) * 255))
+                for key, path in videos:
+                    frame = res.output if key == "output" else np.hstack([inp.rgb, res.output])
+                    if key not in writers:
+                        writers[key] = _VideoWriter(w.path_for(path), (frame.shape[1], frame.shape[0]), fps)
+                    writers[key].write(frame)
+                if preview is not None:
+                    with atomic_write(preview, "wb") as f:
+                        f.write(_png(res.output))
+                res.timings_ms["write"] = (time.perf_counter() - t) * 1e3
+                for step, value in res.timings_ms.items():
+                    steps_ms.setdefault(step, []).append(value)
+                results.append({"index": res.index, "status": res.status, "warning": res.warning,
+                                "ms": {k: round(v, 3) for k, v in res.timings_ms.items()}})
+                bar.advance(task)
+        finally:
+            for writer in writers.values():
+                writer.close()
+        if not results:
+            raise InputError(f"{run_dir}: no frames to process; check the session's frames or --frames")
+        summary = _summary(results, steps_ms, time.perf_counter() - t_start)
+        doc = {"format": RUN_FORMAT, "version": RUN_VERSION, **(manifest or {}), "kind": kind, "fps": fps,
+               "videos": {k: str(p) for k, p in videos}, "summary": summary, "frames": results}
+        return w.commit(doc)
+
+
+# ---------------------------------------------------------------------------------------------- session side
+
+def load_source(session, source=None):
+    """The source body (with skin weights and faces) and its statistical model, from ``source`` (a SourceBody
+    or an .npz path) or ``SESSION/mirror/source_body.npz``."""
+    from bodystudio.body.statistical import load_statistical_model
+
+    path = Path(session.path) / "mirror" / "source_body.npz" if source is None else Path(source) \
+        if isinstance(source, (str, os.PathLike)) else source
+    if isinstance(path, Path) and not path.is_file():
+        raise FileFormatError(f"{path}: source body not found; run 'bodystudio mirror init {session.path}' first "
+                              "(or give --source)")
+    init = _stage_module("init")
+    SourceBody, load_source_body = init.SourceBody, init.load_source_body
+    body = source if isinstance(source, SourceBody) else load_source_body(path)
+    for resolution in ("6k", "2k"):
+        model = load_statistical_model(resolution, progress=False)
+        if len(model.mean) == len(body.vertices) and len(model.stddev) == len(body.coeffs):
+            return SourceBody(body.coeffs, body.vertices, body.skeleton, body.frames_used, body.residual_mm,
+                              model.weights, model.faces), model
+    raise InputError(f"{path}: source body of {len(body.vertices)} vertices matches no statistical model "
+                     "(6k, 2k); rerun 'bodystudio mirror init'")
+
+
+def session_inputs(session, body, model, edits: dict[str, float], player: int = 1, ramp_frames: int = 30,
+                   frames: Iterable[int] | None = None) -> Iterator[MirrorInput]:
+    """Per frame of ``session``: the colour frame, the player masks in colour and the projected vertex pairs.
+
+    The target body is computed once (Eq. 4) and reached gradually: the target rest shape is
+    ``V_S + s (V_T - V_S)`` with ``s`` going 0 -> 1 over ``ramp_frames`` tracked frames (Eq. 4 is linear in
+    lambda, so this is the ramp of lambda without a solve per frame).
+    """
+    from bodystudio.mirror.frames import read_mirror_frame, register_depth_to_color
+    from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs
+    from bodystudio.mirror.track import ik_pose
+
+    sensor = session.kinect
+    if sensor is None:
+        raise InputError(f"{session.path}: not a Kinect session (no kinect/calibration.json); the mirror needs "
+                         "Kinect colour, depth, player mask and joints")
+    target_rest = model.vertices(target_coeffs(model, body.coeffs, edits))
+    camera = sensor.color
+    previous = None
+    tracked_frames = 0
+    last_rgb = None
+    for i in (session.frame_ids if frames is None else frames):
+        timings = {}
+        t = time.perf_counter()
+        try:
+            frame = read_mirror_frame(session, int(i))
+        except BodyStudioError as exc:
+            rgb = last_rgb if last_rgb is not None else np.zeros((camera.height, camera.width, 3), np.uint8)
+            yield MirrorInput(int(i), rgb, warning=f"frame unreadable: {exc}", timings_ms=timings)
+            continue
+        last_rgb = frame.rgb
+        t1 = time.perf_counter()
+        timings["read"] = (t1 - t) * 1e3
+        depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, sensor)
+        person = players_c == int(player)
+        others = (players_c > 0) & ~person
+        t2 = time.perf_counter()
+        timings["register"] = (t2 - t1) * 1e3
+        tracked = frame.body(int(player))
+        base = dict(index=int(i), rgb=frame.rgb, person_mask=person, others_mask=others, depth_color=depth_c,
+                    timings_ms=timings)
+        if tracked is None:
+            warning = None if not person.any() else f"player {player} is in the mask but no body is tracked"
+            yield MirrorInput(**base, warning=warning)
+            continue
+        if not (frame.depth_m > 0).any():
+            yield MirrorInput(**base, warning="depth missing (no depth measurement in the frame)")
+            continue
+        if not person.any():
+            yield MirrorInput(**base, warning=f"body {player} is tracked but its player mask is empty")
+            continue
+        try:
+            pose = ik_pose(body.skeleton, tracked.positions, tracked.tracked, sensor.version, previous=previous)
+        except BodyStudioError as exc:
+            yield MirrorInput(**base, warning=f"tracking failed: {exc}")
+            continue
+        previous = pose
+        t3 = time.perf_counter()
+        timings["ik"] = (t3 - t2) * 1e3
+        tracked_frames += 1
+        s = min(1.0, tracked_frames / max(int(ramp_frames), 1))
+        Vs, Vt = posed_source_and_target(body, body.vertices + s * (target_rest - body.vertices), pose)
+        t4 = time.perf_counter()
+        timings["bodies"] = (t4 - t3) * 1e3
+        src_uv, dst_uv, _ = visible_vertex_pairs(Vs, Vt, body.faces, camera)
+        timings["pairs"] = (time.perf_counter() - t4) * 1e3
+        yield MirrorInput(**base, src_uv=src_uv, dst_uv=dst_uv)
+
+
+def _stage_module(name: str):
+    """``bodystudio.mirror.<name>`` (the body side of the stage), or a one-line error when it is missing."""
+    import importlib
+
+    try:
+        return importlib.import_module(f"bodystudio.mirror.{name}")
+    except ImportError:
+        raise InputError(f"this bodystudio has no mirror {name} step (bodystudio.mirror.{name}); install the "
+                         "complete mirror stage") from None
+
+
+def check_edits(edits: dict[str, float]) -> dict[str, float]:
+    """The edits with their ranges checked by the reshape step (one-line InputError otherwise)."""
+    bad = [k for k, v in edits.items() if not np.isfinite(float(v))]
+    if bad:
+        raise InputError(f"edit {bad[0]} is not a finite number; give a value such as --{bad[0]} 0.05")
+    reshape = _stage_module("reshape")
+    unknown = sorted(set(edits) - set(reshape.EDIT_NAMES))
+    if unknown:
+        raise InputError(f"unknown edit(s) {', '.join(unknown)}; valid: {', '.join(reshape.EDIT_NAMES)}")
+    if hasattr(reshape, "check_edits"):
+        return reshape.check_edits(edits)
+    return {k: float(v) for k, v in edits.items()}
+
+
+def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by_side: bool = True,
+               progress: bool = True, run_dir: str | Path | None = None, player: int = 1, kind: str = "similarity",
+               ramp_frames: int = 30, frames: Iterable[int] | None = None, live: str | Path | None = None,
+               live_timeout_s: float = 5.0) -> dict:
+    """``bodystudio mirror run``: reshape the actor of ``session`` by ``edits`` and write the video and run folder.
+
+    ``session`` an opened session or its path; ``source`` a SourceBody or its .npz (default
+    ``SESSION/mirror/source_body.npz`` from ``mirror init``); ``run_dir`` default ``SESSION/mirror/run``.
+    ``live``: a folder a recorder is filling with the session layout's ``kinect/`` streams; its frames are
+    processed as they arrive (until ``live_timeout_s`` without a new one), each output frame also written
+    to ``RUN/live_latest.png`` for a display to pick up. Returns run.json's content (per-step timings in
+    ``summary.ms_per_frame``).
+    """
+    from bodystudio.capture.session import open_session
+
+    if not 1 <= int(player) <= 6:
+        raise InputError(f"--player {player}: a Kinect player id is 1..6")
+    if not 0 <= int(ramp_frames) <= 10000:
+        raise InputError(f"--ramp-frames {ramp_frames}: use 0..10000")
+    if kind not in MLS_KINDS:
+        raise InputError(f"--warp {kind!r}; valid: {', '.join(MLS_KINDS)}")
+    video_paths(out_video, side_by_side)
+    if isinstance(session, (str, os.PathLike)):
+        session = open_session(session)
+    run_dir = Path(session.path) / "mirror" / "run" if run_dir is None else Path(run_dir)
+    frames_from = live_session(live) if live is not None else session
+    if frames_from.kinect is None:
+        raise InputError(f"{session.path}: not a Kinect session (no kinect/calibration.json); the mirror needs "
+                         "Kinect colour, depth, player mask and joints")
+    source_path = Path(session.path) / "mirror" / "source_body.npz" if source is None else source
+    if isinstance(source_path, (str, os.PathLike)) and not Path(source_path).is_file():
+        raise FileFormatError(f"{source_path}: source body not found; run 'bodystudio mirror init "
+                              f"{session.path}' first (or give --source)")
+    edits = check_edits(dict(edits))
+    metadata = session.metadata if isinstance(session.metadata, dict) else {}
+    try:
+        fps = float(metadata.get("fps", 30.0))
+    except (TypeError, ValueError):
+        fps = float("nan")
+    if not 1.0 <= fps <= 240.0:
+        raise InputError(f"{session.path}: session metadata fps {metadata.get('fps')!r} is not a frame rate "
+                         "in 1..240; regenerate or re-import the session")
+    if live is not None:
+        ids, total = live_frame_ids(live, live_timeout_s), None
+    else:
+        ids = list(session.frame_ids if frames is None else frames)
+        total = len(ids)
+    body, model = load_source(session, source)
+    manifest = {"session": str(Path(session.path).resolve()),
+                "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
+                "live": None if live is None else str(Path(live).resolve()),
+                "edits": edits, "player": int(player), "ramp_frames": int(ramp_frames)}
+    inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids)
+    return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total,
+                         preview=run_dir / "live_latest.png" if live is not None else None)
+
+
+# ---------------------------------------------------------------------------------------------- live mode
+
+class _ExistingFiles(Mapping):
+    """The files of a folder that a recorder is filling, looked up on disk (no checksums: nothing is final)."""
+
+    def __init__(self, root: Path):
+        self.root = root
+
+    def __getitem__(self, rel: str):
+        if (self.root / rel).is_file():
+            return None
+        raise KeyError(rel)
+
+    def __contains__(self, rel) -> bool:
+        return isinstance(rel, str) and (self.root / rel).is_file()
+
+    def __iter__(self):
+        return (p.relative_to(self.root).as_posix() for p in sorted(self.root.rglob("*")) if p.is_file())
+
+    def __len__(self) -> int:
+        return sum(1 for _ in iter(self))
+
+
+class _ArrivedFrames:
+    def __init__(self, root: Path):
+        self.root = root
+
+    def __contains__(self, frame) -> bool:
+        from bodystudio.capture.session import stream_path
+
+        return (self.root / stream_path("kinect_rgb", int(frame))).is_file()
+
+    def __iter__(self):
+        return iter(sorted(int(p.stem) for p in (self.root / "kinect" / "rgb").glob("*.png") if p.stem.isdigit()))
+
+
+def live_session(folder: str | Path):
+    """A folder being filled by a recorder (the session layout's ``kinect/`` streams, no manifest yet) opened
+    as a session whose frames are read as they arrive."""
+    from bodystudio.capture.session import KINECT_CALIBRATION, Session
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        if str(folder).isdigit() or str(folder).startswith("/dev/"):
+            raise InputError(f"--live {folder}: reading a camera device needs a Kinect SDK bridge, which bodystudio "
+                             "does not have; let the recorder write frames into a folder and pass that folder")
+        raise InputError(f"--live {folder}: no such folder")
+    if not (folder / KINECT_CALIBRATION).is_file():
+        raise InputError(f"--live {folder}: no {KINECT_CALIBRATION}; the recorder must write the sensor calibration "
+                         "first (the session layout's kinect/ folder)")
+    manifest = {"files": _ExistingFiles(folder), "frames": _ArrivedFrames(folder), "cameras": [], "streams": [],
+                "metadata": {}}
+    return Session(folder, manifest)
+
+
+def live_frame_ids(folder: str | Path, timeout_s: float = 5.0, poll_s: float = 0.02,
+                   settle_s: float = 0.3) -> Iterator[int]:
+    """Frame ids of a live folder in order, each once its colour, depth and player mask are there (and its
+    joints, or the next frame has started, or ``settle_s`` passed); stops after ``timeout_s`` without a new frame."""
+    from bodystudio.capture.session import stream_path
+
+    folder = Path(folder)
+    arrived = list(_ArrivedFrames(folder))
+    i = arrived[0] if arrived else 0
+    last = time.monotonic()
+    while True:
+        needed = [folder / stream_path(s, i) for s in ("kinect_rgb", "kinect_depth", "kinect_player")]
+        if all(p.is_file() for p in needed):
+            joints = (folder / stream_path("kinect_joints", i)).is_file()
+            nxt = (folder / stream_path("kinect_rgb", i + 1)).is_file()
+            if joints or nxt or time.time() - needed[0].stat().st_mtime > settle_s:
+                yield i
+                i += 1
+                last = time.monotonic()
+                continue
+        if time.monotonic() - last > timeout_s:
+            return
+        time.sleep(poll_s)

@@ -1,0 +1,62 @@
+"""Bad input to ``bodystudio mirror run``: one-line errors (exit 2), nothing written, no traceback."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from .conftest import assert_clean_error, run_inprocess
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory) -> dict[str, Path]:
+    from bodystudio.cli.main import main
+
+    root = tmp_path_factory.mktemp("mirror_inputs")
+    plain, kinect = root / "plain", root / "kinect"
+    common = ["--cameras", "1", "--frames", "1", "--resolution", "160x120", "--template", "2k", "--seed", "1"]
+    assert main(["synth", "session", str(plain), *common, "--kinect", "none"]) == 0
+    assert main(["synth", "session", str(kinect), *common, "--kinect", "v1"]) == 0
+    return {"plain": plain, "kinect": kinect, "root": root}
+
+
+CASES = [
+    ("missing-session", ["{t}/nope", "--out", "{t}/o.mp4"], "no such session folder"),
+    ("not-mp4", ["{kinect}", "--out", "{t}/o.avi"], ".mp4"),
+    ("out-is-folder", ["{kinect}", "--out", "{t}/dir.mp4"], "is a folder"),
+    ("out-under-a-file", ["{kinect}", "--out", "{t}/file/o.mp4"], "is a file, not a folder"),
+    ("bad-warp", ["{kinect}", "--out", "{t}/o.mp4", "--warp", "bilinear"], "--warp"),
+    ("bad-player", ["{kinect}", "--out", "{t}/o.mp4", "--player", "9"], "--player"),
+    ("bad-ramp", ["{kinect}", "--out", "{t}/o.mp4", "--ramp-frames", "-1"], "--ramp-frames"),
+    ("bad-live-timeout", ["{kinect}", "--out", "{t}/o.mp4", "--live-timeout", "0"], "--live-timeout"),
+    ("no-kinect", ["{plain}", "--out", "{t}/o.mp4"], "not a Kinect session"),
+    ("no-source-body", ["{kinect}", "--out", "{t}/o.mp4", "--taller", "0.05"], "mirror init"),
+    ("source-missing", ["{kinect}", "--out", "{t}/o.mp4", "--source", "{t}/none.npz"], "source body not found"),
+    ("live-device", ["{kinect}", "--out", "{t}/o.mp4", "--live", "/dev/video0"], "Kinect SDK bridge"),
+    ("live-folder-missing", ["{kinect}", "--out", "{t}/o.mp4", "--live", "{t}/nothing"], "no such folder"),
+    ("live-no-calibration", ["{kinect}", "--out", "{t}/o.mp4", "--live", "{t}/dir.mp4"], "calibration.json"),
+    ("not-a-session", ["{t}", "--out", "{t}/o.mp4"], "session.json"),
+]
+
+
+@pytest.mark.parametrize("case_id, args, phrase", CASES, ids=[c[0] for c in CASES])
+def test_mirror_run_bad_input(case_id, args, phrase, sessions, tmp_path, capfd):
+    (tmp_path / "dir.mp4").mkdir()
+    (tmp_path / "file").write_text("x")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    fmt = {"t": tmp_path, **{k: v for k, v in sessions.items()}}
+    argv = ["mirror", "run", *[a.format(**fmt) for a in args]]
+    result = run_inprocess(argv, capfd)
+    assert_clean_error(result, 2, phrase)
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # no video, no run folder left behind
+    for session in (sessions["plain"], sessions["kinect"]):
+        assert not (session / "mirror").exists()
+
+
+def test_nan_edit_is_refused():
+    from bodystudio.errors import InputError
+    from bodystudio.mirror.run import check_edits
+
+    with pytest.raises(InputError, match="finite"):
+        check_edits({"taller": float("nan")})
