@@ -296,11 +296,11 @@ def evaluate_mirror(session, run_dir: str | Path | None = None, source=None, ban
     run = read_mirror_run(session, run_dir)
     player = int(run.get("player", 1))
     if source is None:
-        from bodystudio.mirror.init import load_source_body
-
         path = Path(session.path) / "mirror" / "source_body.npz"
         if not path.is_file():
             raise InputError(f"{path}: missing; run `bodystudio mirror init {session.path}` (the run needs it too)")
+        from bodystudio.mirror.init import load_source_body
+
         source = load_source_body(path)
     images = image_scores(session, run_dir, run, band_px)
     summary = run.get("summary") if isinstance(run.get("summary"), dict) else {}
