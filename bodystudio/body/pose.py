@@ -81,3 +81,18 @@ def pose_to_dict(pose: Pose, bone_names: tuple[str, ...]) -> dict:
     return {"rotations": {b: pose.rotations[i].tolist() for i, b in enumerate(bone_names)
                           if np.any(pose.rotations[i] != 0)},
             "translation": pose.translation.tolist()}
+
+
+def transfer_pose(pose: Pose, source, target) -> Pose:
+    """The same pose for a reshaped skeleton (``source``, ``target``: Skeletons of one rig): every bone turns
+    by the same rotation in world axes, which is what the posed surface sees.
+
+    A Pose holds rotations in each bone's rest frame, and a reshape can turn a rest frame a lot where the
+    bone direction is near the roll convention's singularity (the short ``Root`` and ``ball`` bones
+    point forward): ``L_T = R_T^T (R_S L_S R_S^T) R_T`` keeps ``R L R^T``, which is all skinning sees.
+    """
+    L = Rotation.from_rotvec(pose.rotations).as_matrix()
+    Rs, Rt = source.rest_rotations, target.rest_rotations
+    world = np.einsum("bij,bjk,blk->bil", Rs, L, Rs)
+    local = np.einsum("bji,bjk,bkl->bil", Rt, world, Rt)
+    return Pose(Rotation.from_matrix(local).as_rotvec(), pose.translation)

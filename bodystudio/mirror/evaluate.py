@@ -18,8 +18,9 @@ run``: ``frames/``, ``masks/foreground/``, ``masks/warped/``, ``run.json``) and 
 * ``ms_per_frame`` by step and ``fps`` from ``run.json``.
 
 Scored frames: the run's frames in which the tracker reported the run's player (the mirror cannot act
-before). A run folder that is being written, was interrupted, lists files that are missing or changed,
-was made from another session, or with other edits than the session's ground truth, is refused in one line.
+before), once the run's edit ramp (``ramp_frames`` tracked frames) is complete. A run folder that is
+being written, was interrupted, lists files that are missing or changed, was made from another session,
+or with other edits than the session's ground truth, is refused in one line.
 """
 
 from __future__ import annotations
@@ -185,7 +186,14 @@ def image_scores(session, run_dir: str | Path, run: dict, band_px: int = BAND_PX
     status = {f["index"]: f.get("status") for f in run["frames"]}
     fg, fg_raw, warp, unwarped, ssim = [], [], [], [], []
     sse, count, scored, passed = 0.0, 0, [], 0
+    # the run reaches the edit gradually, over its first ``ramp_frames`` tracked ("ok") frames; the ground
+    # truth shows the whole edit, so those frames are not scored
+    ramp, ok_so_far, ramping = int(run.get("ramp_frames") or 0), 0, 0
     for i in sorted(status):
+        ok_so_far += status[i] == "ok"
+        if ok_so_far < ramp:
+            ramping += 1
+            continue
         frame = session.frame(i)
         gt = frame.gt_mirror
         if gt is None or frame.gt_person is None:
@@ -219,7 +227,8 @@ def image_scores(session, run_dir: str | Path, run: dict, band_px: int = BAND_PX
     if not scored:
         raise InputError(f"{run_dir}: none of the run's frames shows player {player} tracked in {session.path}; "
                          "nothing to score")
-    return {"frames_scored": len(scored), "frames_passed_through": int(passed), "scored_frames": scored,
+    return {"frames_scored": len(scored), "frames_passed_through": int(passed), "frames_ramping": ramping,
+            "scored_frames": scored,
             "fg_iou": float(np.mean(fg)), "fg_iou_raw": float(np.mean(fg_raw)), "warp_iou": float(np.mean(warp)),
             "warp_iou_unwarped": float(np.mean(unwarped)), "psnr_person": psnr_from_sse(sse, count),
             "ssim_person": float(np.mean(ssim))}
@@ -296,11 +305,11 @@ def evaluate_mirror(session, run_dir: str | Path | None = None, source=None, ban
     run = read_mirror_run(session, run_dir)
     player = int(run.get("player", 1))
     if source is None:
-        from bodystudio.mirror.init import load_source_body
-
         path = Path(session.path) / "mirror" / "source_body.npz"
         if not path.is_file():
             raise InputError(f"{path}: missing; run `bodystudio mirror init {session.path}` (the run needs it too)")
+        from bodystudio.mirror.init import load_source_body
+
         source = load_source_body(path)
     images = image_scores(session, run_dir, run, band_px)
     summary = run.get("summary") if isinstance(run.get("summary"), dict) else {}

@@ -36,7 +36,7 @@ from scipy import ndimage
 
 from bodystudio.body.kinect import kinect_joint_names, kinect_joints
 from bodystudio.body.model import BodyModel
-from bodystudio.body.pose import Pose
+from bodystudio.body.pose import Pose, transfer_pose
 from bodystudio.body.skeleton import Skeleton
 from bodystudio.body.skinning import posed_joints
 from bodystudio.capture.kinect import (
@@ -294,22 +294,6 @@ def target_rest_body(model, body: BodyModel, edits: dict[str, float]) -> tuple[B
     target = BodyModel(body.vertices + dV, body.faces, target_skeleton, body.weights, body.resolution, body.rig,
                        vertex_ids=body.vertex_ids)
     return target, c_s, c_t
-
-
-def transfer_pose(pose: Pose, source: Skeleton, target: Skeleton) -> Pose:
-    """The same pose for a reshaped skeleton: every bone turns by the same rotation in world axes.
-
-    A Pose holds rotations in each bone's rest frame, and a reshape can turn a rest frame a lot where the
-    bone direction is near the roll convention's singularity (the short ``Root`` and ``ball`` bones
-    point forward): ``L_T = R_T^T (R_S L_S R_S^T) R_T`` keeps ``R L R^T``, which is all skinning sees.
-    """
-    from scipy.spatial.transform import Rotation
-
-    L = Rotation.from_rotvec(pose.rotations).as_matrix()
-    Rs, Rt = source.rest_rotations, target.rest_rotations
-    world = np.einsum("bij,bjk,blk->bil", Rs, L, Rs)
-    local = np.einsum("bji,bjk,bkl->bil", Rt, world, Rt)
-    return Pose(Rotation.from_matrix(local).as_rotvec(), pose.translation)
 
 
 def check_edits(edits: dict[str, float] | None) -> dict[str, float]:

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from bodystudio.body.pose import transfer_pose
 from bodystudio.capture.session import open_session
 from bodystudio.mirror.frames import player_mask_in_color, read_mirror_frame
 from bodystudio.mirror.synthetic import (
@@ -12,7 +13,6 @@ from bodystudio.mirror.synthetic import (
     actor_poses,
     sdk_player_mask,
     target_rest_body,
-    transfer_pose,
 )
 from tests.mirror.synth_case import N_FRAMES, TALLER_M, small_mirror_session
 
