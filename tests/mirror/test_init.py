@@ -92,11 +92,10 @@ def test_cli_init_on_a_synthetic_mirror_session(tmp_path, model_6k):
     """`bodystudio mirror init` end to end on MIR-SYNTH's synthetic session (skipped until that module is merged)."""
     import json
 
-    pytest.importorskip("bodystudio.mirror.synthetic")
+    synthetic = pytest.importorskip("bodystudio.mirror.synthetic")
     from bodystudio.cli.main import main
-    from bodystudio.mirror.synthetic import synth_mirror_session
 
-    session = synth_mirror_session(tmp_path / "s", 201, n_frames=40, model=model_6k)
+    session = synthetic.synth_mirror_session(tmp_path / "s", 201, n_frames=40, model=model_6k)
     assert main(["mirror", "init", str(session.path), "--frames", "30"]) == 0
     summary = json.loads((session.path / "mirror" / "source_body.json").read_text())
     truth = session.read_json("gt/phenotype.json")["actors"][0]["measured"]
