@@ -23,7 +23,8 @@ SOURCE_SUMMARY_FILE = Path("mirror") / "source_body.json"
 @app.command("init")
 def init(
     session: Path = typer.Argument(..., help="mirror session folder (Kinect depth, joints and player mask)"),
-    frames: int = typer.Option(90, "--frames", help="use the first N frames in which the player is seen (1-900)"),
+    frames: int = typer.Option(90, "--frames",
+                               help="initialise from the N frames after the player first appears (1-900)"),
     player: int = typer.Option(1, "--player", help="Kinect SDK player index of the actor (1-6)"),
     resolution: str = typer.Option("6k", "--resolution", help="statistical model template: 6k | 2k"),
 ) -> None:
