@@ -71,7 +71,7 @@ def sdk_player_mask(mask: np.ndarray, depth_m: np.ndarray, rng: np.random.Genera
 
 
 def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors: int = 1, frame: int = 10,
-                    model=None, distance_m: float = 2.4, n_handles: int = 400, motion: str = "walk") -> ImageCase:
+                    model=None, distance_m: float = 2.4, n_handles: int = 800, motion: str = "walk") -> ImageCase:
     """A rendered source/target frame pair; ``edits`` are ``StatisticalBodyModel`` attribute deltas
     (default ``{"stature_m": +10 %, "mass_kg": 15}``); ``actors`` 1 or 2 (side by side, 0.8 m apart)."""
     from bodystudio.body import build_body
