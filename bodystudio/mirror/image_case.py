@@ -114,7 +114,8 @@ def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors
     player, depth = sdk_player_mask(rs.mask, np.where(rs.mask, rs.depth, BACKGROUND_DEPTH_M), rng)
     src_uv, dst_uv, groups = [], [], []
     for a in range(actors):
-        s, t, _ = visible_vertex_pairs(sources[a], targets[a], model.faces, camera, n_handles)
+        # one budget of candidate vertices per frame, shared by the actors (the MLS cost grows with both)
+        s, t, _ = visible_vertex_pairs(sources[a], targets[a], model.faces, camera, n_handles // actors)
         src_uv.append(s)
         dst_uv.append(t)
         groups.append(np.full(len(s), a))
