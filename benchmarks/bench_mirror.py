@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from benchmarks.timing import markdown_table
+from bodystudio.mirror.run import MLS_ALPHA
 
 
 def _median_ms(fn, repeats: int) -> tuple[float, float]:
@@ -56,7 +57,7 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
 
     background = update_background(None, case.background, np.zeros(case.true_mask.shape, bool))
     fg = refine_foreground(case.rgb, case.player_mask, background=background)
-    field = mls_warp_field(case.src_uv, case.dst_uv, kind="similarity", groups=case.pair_groups)
+    field = mls_warp_field(case.src_uv, case.dst_uv, kind="similarity", alpha=MLS_ALPHA, groups=case.pair_groups)
     warped, alpha = warp_foreground(case.rgb, fg, field)
     n_actors = case.actors
     per_actor = len(case.source_vertices) // n_actors
@@ -68,7 +69,7 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
             visible_vertex_pairs(case.source_vertices[sl], case.target_vertices[sl], F1, case.camera)
 
     def field_of(kind):
-        return lambda: mls_warp_field(case.src_uv, case.dst_uv, kind=kind, groups=case.pair_groups)
+        return lambda: mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA, groups=case.pair_groups)
 
     out = {
         "pairs (visibility + projection)": _median_ms(pairs, repeats),
@@ -97,7 +98,8 @@ def _accuracy(case) -> dict[str, float]:
            "graph cut IoU": iou(refine_foreground(case.rgb, case.player_mask), case.true_mask),
            "GrabCut IoU": iou(refine_foreground(case.rgb, case.player_mask, method="grabcut"), case.true_mask)}
     for kind in ("affine", "similarity", "rigid"):
-        _, alpha = warp_foreground(case.rgb, case.true_mask, mls_warp_field(case.src_uv, case.dst_uv, kind=kind))
+        field = mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA)
+        _, alpha = warp_foreground(case.rgb, case.true_mask, field)
         out[f"warp_iou {kind}"] = iou(alpha > 0.5, case.target_mask)
     return out
 

@@ -71,7 +71,7 @@ def sdk_player_mask(mask: np.ndarray, depth_m: np.ndarray, rng: np.random.Genera
 
 
 def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors: int = 1, frame: int = 10,
-                    model=None, distance_m: float = 2.4, n_handles: int = 400, motion: str = "walk") -> ImageCase:
+                    model=None, distance_m: float = 2.4, n_handles: int = 800, motion: str = "walk") -> ImageCase:
     """A rendered source/target frame pair; ``edits`` are ``StatisticalBodyModel`` attribute deltas
     (default ``{"stature_m": +10 %, "mass_kg": 15}``); ``actors`` 1 or 2 (side by side, 0.8 m apart)."""
     from bodystudio.body import build_body
@@ -114,7 +114,8 @@ def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors
     player, depth = sdk_player_mask(rs.mask, np.where(rs.mask, rs.depth, BACKGROUND_DEPTH_M), rng)
     src_uv, dst_uv, groups = [], [], []
     for a in range(actors):
-        s, t, _ = visible_vertex_pairs(sources[a], targets[a], model.faces, camera, n_handles)
+        # one budget of candidate vertices per frame, shared by the actors (the MLS cost grows with both)
+        s, t, _ = visible_vertex_pairs(sources[a], targets[a], model.faces, camera, n_handles // actors)
         src_uv.append(s)
         dst_uv.append(t)
         groups.append(np.full(len(s), a))

@@ -61,7 +61,14 @@ def _weighted_sums(v, px, py, monomials, alpha, eps):
         for i in range(n):
             dx, dy = vx - px[i], vy - py[i]
             d2 = dx * dx + dy * dy + eps
-            w[i] = 1.0 / d2 if alpha == 1.0 else d2 ** -alpha
+            if alpha == 1.0:
+                w[i] = 1.0 / d2
+            elif alpha == 2.0:
+                w[i] = 1.0 / (d2 * d2)
+            elif alpha == 1.5:
+                w[i] = 1.0 / (d2 * np.sqrt(d2))
+            else:
+                w[i] = d2 ** -alpha
         for j in range(k):
             total = 0.0
             for i in range(n):
@@ -219,7 +226,7 @@ def warp_foreground(rgb: np.ndarray, fg_mask: np.ndarray, field: np.ndarray) -> 
 
 
 def visible_vertex_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: np.ndarray, camera,
-                         n_handles: int = 400, depth_tol_m: float = 0.08, z_buffer_scale: float = 0.25
+                         n_handles: int = 800, depth_tol_m: float = 0.08, z_buffer_scale: float = 0.25
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sparse constraints of §5.4: projections of vertices of the posed source and target bodies.
 

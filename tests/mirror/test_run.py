@@ -43,7 +43,7 @@ def test_stream_writes_frames_masks_videos_and_run_json(tmp_path):
         assert len(list((run / sub).glob("*.png"))) == 8
     # the mirror's person is the target's silhouette (graph cut + MLS from the SDK-like mask)
     warped = cv2.imread(str(run / "masks/warped/00003.png"), cv2.IMREAD_GRAYSCALE) > 127
-    assert iou(warped, case.target_mask) >= 1 - 1.5 * (1 - 0.948)
+    assert iou(warped, case.target_mask) >= 1 - 1.5 * (1 - 0.960)  # measured 0.960 (refined mask 0.998)
     fg = cv2.imread(str(run / "masks/foreground/00003.png"), cv2.IMREAD_GRAYSCALE) > 127
     assert iou(fg, case.true_mask) > iou(case.player_mask, case.true_mask) + 0.1
     # pass-through frames are the input, unchanged
@@ -122,3 +122,24 @@ def test_stream_refuses_bad_options(tmp_path):
     with pytest.raises(InputError, match="no frames"):
         mirror_stream([], tmp_path / "run", None)
     assert not Path(tmp_path / "run").exists()
+
+
+@pytest.mark.slow
+def test_run_mirror_end_to_end_on_a_synthetic_session(tmp_path):
+    """synth mirror -> mirror init -> mirror run -> eval mirror (needs MIR-SYNTH's and MIR-BODY's modules)."""
+    synthetic = pytest.importorskip("bodystudio.mirror.synthetic")
+    pytest.importorskip("bodystudio.mirror.reshape")
+    evaluate = pytest.importorskip("bodystudio.mirror.evaluate")
+    init = pytest.importorskip("bodystudio.mirror.init")
+    from bodystudio.body.statistical import load_statistical_model
+    from bodystudio.mirror.run import run_mirror
+
+    session = synthetic.synth_mirror_session(tmp_path / "s", 3, n_frames=14, edits={"taller": 0.16}, version="v1",
+                                             motion="a_pose", walk_in=False)
+    body = init.initialise_source_body(session, load_statistical_model("6k", progress=False), n_frames=4)
+    init.save_source_body(session.path / "mirror" / "source_body.npz", body)
+    doc = run_mirror(session, {"taller": 0.16}, tmp_path / "out.mp4", progress=False)
+    assert doc["summary"]["frames"] == 14 and doc["summary"]["n_empty"] >= 10
+    scores = evaluate.evaluate_mirror(session, session.path / "mirror" / "run")
+    assert scores["fg_iou"] > scores["fg_iou_raw"] + 0.05
+    assert scores["warp_iou"] > scores["warp_iou_unwarped"]
