@@ -110,7 +110,6 @@ def test_refuses_incomplete_runs(session, tmp_path):
 
 
 def test_full_evaluation_with_the_true_source_body(session, tmp_path):
-    pytest.importorskip("bodystudio.mirror.track")
     from bodystudio.body.skeleton import Skeleton
     from bodystudio.mirror.evaluate import evaluate_mirror
 

@@ -126,19 +126,16 @@ def test_stream_refuses_bad_options(tmp_path):
 
 @pytest.mark.slow
 def test_run_mirror_end_to_end_on_a_synthetic_session(tmp_path):
-    """synth mirror -> mirror init -> mirror run -> eval mirror (needs MIR-SYNTH's and MIR-BODY's modules)."""
-    synthetic = pytest.importorskip("bodystudio.mirror.synthetic")
-    pytest.importorskip("bodystudio.mirror.reshape")
-    evaluate = pytest.importorskip("bodystudio.mirror.evaluate")
-    init = pytest.importorskip("bodystudio.mirror.init")
+    """synth mirror -> mirror init -> mirror run -> eval mirror, the edit applied at once (no ramp)."""
     from bodystudio.body.statistical import load_statistical_model
+    from bodystudio.mirror import evaluate, init, synthetic
     from bodystudio.mirror.run import run_mirror
 
     session = synthetic.synth_mirror_session(tmp_path / "s", 3, n_frames=14, edits={"taller": 0.16}, version="v1",
                                              motion="a_pose", walk_in=False)
     body = init.initialise_source_body(session, load_statistical_model("6k", progress=False), n_frames=4)
     init.save_source_body(session.path / "mirror" / "source_body.npz", body)
-    doc = run_mirror(session, {"taller": 0.16}, tmp_path / "out.mp4", progress=False)
+    doc = run_mirror(session, {"taller": 0.16}, tmp_path / "out.mp4", progress=False, ramp_frames=0)
     assert doc["summary"]["frames"] == 14 and doc["summary"]["n_empty"] >= 10
     scores = evaluate.evaluate_mirror(session, session.path / "mirror" / "run")
     assert scores["fg_iou"] > scores["fg_iou_raw"] + 0.05
