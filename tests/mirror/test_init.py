@@ -89,13 +89,13 @@ def test_source_body_round_trips(source, model_6k, tmp_path):
 
 @pytest.mark.slow
 def test_cli_init_on_a_synthetic_mirror_session(tmp_path, model_6k):
-    """`bodystudio mirror init` end to end on MIR-SYNTH's synthetic session (needs main's mirror.synthetic)."""
+    """`bodystudio mirror init` end to end on a synthetic mirror session."""
     import json
 
     from bodystudio.cli.main import main
-    from bodystudio.mirror.synthetic import synth_mirror_session
+    from bodystudio.mirror import synthetic
 
-    session = synth_mirror_session(tmp_path / "s", 201, n_frames=40, model=model_6k)
+    session = synthetic.synth_mirror_session(tmp_path / "s", 201, n_frames=40, model=model_6k)
     assert main(["mirror", "init", str(session.path), "--frames", "30"]) == 0
     summary = json.loads((session.path / "mirror" / "source_body.json").read_text())
     truth = session.read_json("gt/phenotype.json")["actors"][0]["measured"]
