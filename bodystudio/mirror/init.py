@@ -39,7 +39,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from bodystudio.body.kinect import KINECT_JOINT_SETS, kinect_joint_names, kinect_joints
+from bodystudio.body.kinect import KINECT_JOINT_SETS, kinect_joint_names
+from bodystudio.body.kinect import kinect_joints as skeleton_kinect_joints
 from bodystudio.body.model import BodyModel
 from bodystudio.body.skeleton import Skeleton
 from bodystudio.body.skinning import inverse_linear_blend_skinning, skinning_transforms
@@ -155,7 +156,7 @@ def bone_scaled_body(body: BodyModel, joints: np.ndarray, tracked: np.ndarray | 
     names = kinect_joint_names(version)
     index = {n: i for i, n in enumerate(names)}
     sk = body.skeleton
-    rest = kinect_joints(sk, sk.heads, sk.tails, version)
+    rest = skeleton_kinect_joints(sk, sk.heads, sk.tails, version)
     usable = np.all(np.isfinite(K), axis=1) & tracked
     scale = np.ones(sk.n_bones)
     for bones, a, b in BONE_SCALE_SEGMENTS:
@@ -188,12 +189,12 @@ def _vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return out / np.maximum(np.linalg.norm(out, axis=1), 1e-20)[:, None]
 
 
-def transform_to_default_pose(points, kinect_joints_, body: BodyModel, tracked=None, version: str = "v2",
+def transform_to_default_pose(points, kinect_joints, body: BodyModel, tracked=None, version: str = "v2",
                               view_point=None, scale_bones: bool = True, max_distance_m: float = MAX_CORRESPONDENCE_M,
                               details: bool = False):
     """P_in -> P_0 of §4: bone scaling, IK down the chains, closest-vertex correspondences, inverse LBS.
 
-    ``points`` (N, 3) depth points of the actor in the studio frame; ``kinect_joints_`` (J, 3) the SDK's
+    ``points`` (N, 3) depth points of the actor in the studio frame; ``kinect_joints`` (J, 3) the SDK's
     joints of the same frame; ``body`` the default body (or the current shape estimate). With
     ``view_point`` (the depth camera centre) only body vertices facing it are matched. Returns P_0
     (N, 3) with NaN rows for points farther than ``max_distance_m`` from the posed body (not the actor);
@@ -202,7 +203,7 @@ def transform_to_default_pose(points, kinect_joints_, body: BodyModel, tracked=N
     P = np.asarray(points, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3:
         raise InputError(f"point cloud must be (N, 3), got {P.shape}")
-    K, tracked = check_kinect_joints(kinect_joints_, tracked, version)
+    K, tracked = check_kinect_joints(kinect_joints, tracked, version)
     bodyD = bone_scaled_body(body, K, tracked, version) if scale_bones else body
     pose = ik_pose(bodyD.skeleton, K, tracked, version)
     S = skinning_transforms(bodyD.skeleton, pose)
@@ -335,8 +336,8 @@ def _vertex_gram(model: StatisticalBodyModel) -> np.ndarray:
 def _model_kinect_joints(model: StatisticalBodyModel, version: str) -> tuple[np.ndarray, np.ndarray]:
     """Kinect joints of the model as ``mean (J, 3) + coeffs @ basis (k, J, 3)`` (they are linear in the shape)."""
     sk = _default_skeleton(model)
-    mean = kinect_joints(sk, model.joint_mean_heads, model.joint_mean_tails, version)
-    basis = np.stack([kinect_joints(sk, h, t, version) for h, t in zip(model.joint_basis_heads,
+    mean = skeleton_kinect_joints(sk, model.joint_mean_heads, model.joint_mean_tails, version)
+    basis = np.stack([skeleton_kinect_joints(sk, h, t, version) for h, t in zip(model.joint_basis_heads,
                                                                          model.joint_basis_tails, strict=True)])
     return mean, basis
 
