@@ -224,6 +224,10 @@ def image_scores(session, run_dir: str | Path, run: dict, band_px: int = BAND_PX
         ssim.append(float(ssim_map(output, target_rgb)[band].mean()))
         scored.append(i)
         passed += status[i] != "ok"
+    if not scored and ramping and ok_so_far < ramp:
+        raise InputError(f"{run_dir}: the run never reached the whole edit (--ramp-frames {ramp}, {ok_so_far} "
+                         "tracked frames) and the ground truth shows the whole edit; re-run `bodystudio mirror run` "
+                         "with --ramp-frames 0")
     if not scored:
         raise InputError(f"{run_dir}: none of the run's frames shows player {player} tracked in {session.path}; "
                          "nothing to score")

@@ -479,13 +479,14 @@ def _labelled_render(meshes: list[tuple[np.ndarray, np.ndarray]], camera: Camera
 def synth_mirror_session(out: str | os.PathLike, subject_seed: int, n_frames: int = 120, actors: int = 1,
                          edits: dict[str, float] | None = None, version: str = "v2", motion: str = "arms_raise",
                          seed: int = 0, progress: bool = False, model=None, edited_players: tuple[int, ...] = (1,),
-                         walk_in: bool = True):
+                         walk_in: bool = True, timings: dict | None = None):
     """Write a synthetic mirror session of ``actors`` subjects (``subject_seed``, ``subject_seed + 1``)
     into the new folder ``out``, with the ground truth of ``edits`` (names of :data:`EDIT_ATTRIBUTES`).
 
     The target render reshapes the actors in ``edited_players`` (player ids; default the first actor, whom
     ``bodystudio mirror run`` reshapes by default); the others appear unchanged in it. ``walk_in=False``:
-    the actors appear at their spots instead of walking in (short sessions for tests).
+    the actors appear at their spots instead of walking in (short sessions for tests). ``timings``, a dict,
+    receives the wall and CPU seconds of the setup (model, room, bodies, edits) and of the frames.
 
     The same arguments always give the same files. ``model``: the statistical model (default the cached
     6k one). Returns the opened :class:`~bodystudio.capture.session.Session`.
@@ -515,7 +516,7 @@ def synth_mirror_session(out: str | os.PathLike, subject_seed: int, n_frames: in
     sensor = mirror_sensor(version)
     model = load_statistical_model(TEMPLATE, progress=progress) if model is None else model
     rng = np.random.default_rng([seed, subject_seed, actors])
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
 
     room = mirror_room()
     plate, room_depth_color = room_plate(room, sensor.color, seed)
@@ -544,7 +545,7 @@ def synth_mirror_session(out: str | os.PathLike, subject_seed: int, n_frames: in
                 "background_frames": N_BACKGROUND_FRAMES, "noise_std": SENSOR_NOISE_STD, "walk_in": walk_in,
                 "actor_frames": [{"player": a["player"], "enter_frame": a["enter_frame"],
                                   "stand_frame": a["stand_frame"]} for a in cast]}
-    setup_s = time.perf_counter() - t0
+    setup_s, setup_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     with progress_bar(progress) as bar:
         task = bar.add_task("synth mirror", total=n_frames)
         with SessionWriter(out, CameraRig([]), source="synthetic", metadata=metadata,
@@ -561,9 +562,22 @@ def synth_mirror_session(out: str | os.PathLike, subject_seed: int, n_frames: in
                 _write_frame(writer, i, cast, static, sensor, plate, room_depth_color, names, bool(edits), rng)
                 bar.advance(task)
     session = open_session(out)
-    log.info("wrote %s: %d frames, %d actor(s), setup %.1f s, total %.1f s", out, n_frames, actors, setup_s,
-             time.perf_counter() - t0)
+    total_s, total_cpu_s = time.perf_counter() - t0, time.process_time() - c0
+    if timings is not None:
+        timings.update(setup_s=setup_s, setup_cpu_s=setup_cpu_s, frames_s=total_s - setup_s,
+                       frames_cpu_s=total_cpu_s - setup_cpu_s, ms_per_frame_cpu=1e3 * (total_cpu_s - setup_cpu_s)
+                       / n_frames, n_frames=n_frames)
+    log.info("wrote %s: %d frames, %d actor(s), setup %.1f s, total %.1f s", out, n_frames, actors, setup_s, total_s)
     return session
+
+
+def time_synth_mirror(folder: str | os.PathLike, n_frames: int = 40, actors: int = 1, version: str = "v2") -> dict:
+    """Benchmark helper (``benchmarks/bench_mirror.py``): seconds to synthesise a mirror session into the new
+    ``folder`` with a +10 cm edit, setup and frames apart, wall and CPU (run with ``NUMBA_NUM_THREADS=1``)."""
+    timings: dict = {}
+    synth_mirror_session(folder, subject_seed=3, n_frames=n_frames, actors=actors, edits={"taller": 0.1},
+                         version=version, timings=timings)
+    return timings
 
 
 def _actor_record(a: dict) -> dict:

@@ -30,7 +30,7 @@ def small_mirror_session(taller: float = TALLER_M, actors: int = 1, version: str
 
 
 def write_fake_run(session, run_dir, output, foreground, warped, edits=None, player=1, session_path=None,
-                   frames=None) -> Path:
+                   frames=None, extra=None) -> Path:
     """A run folder in the layout of ``bodystudio mirror run`` whose images come from the callables
     ``output(frame)``, ``foreground(frame)``, ``warped(frame)`` (frame: a session Frame)."""
     import cv2
@@ -53,5 +53,6 @@ def write_fake_run(session, run_dir, output, foreground, warped, edits=None, pla
         w.commit({"format": "bodystudio-mirror-run", "version": 1,
                   "session": str(Path(session_path or session.path).resolve()), "session_run_id": None,
                   "edits": dict(session.metadata["edits"] if edits is None else edits), "player": player,
-                  "frames": rows, "summary": {"ms_per_frame": {"foreground": 2.0, "warp": 1.0}, "fps_wall": 50.0}})
+                  "frames": rows, "summary": {"ms_per_frame": {"foreground": 2.0, "warp": 1.0}, "fps_wall": 50.0},
+                  **(extra or {})})
     return run_dir

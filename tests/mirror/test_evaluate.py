@@ -47,6 +47,16 @@ def test_unwarped_input_scores_clearly_worse(session, tmp_path):
     assert scores["psnr_person"] < 22.0 and scores["ssim_person"] < 0.8
 
 
+def test_frames_of_the_edit_ramp_are_not_scored(session, tmp_path):
+    run_dir = truth_run(session, tmp_path / "run", extra={"ramp_frames": 12})
+    scores = image_scores(session, run_dir, read_mirror_run(session, run_dir))
+    # every frame of the fake run is "ok": the 12th (frame 11) completes the ramp
+    assert scores["frames_ramping"] == 11 and scores["scored_frames"] == [11, 12, 13]
+    run_dir = truth_run(session, tmp_path / "run2", extra={"ramp_frames": 30})
+    with pytest.raises(InputError, match="never reached the whole edit"):
+        image_scores(session, run_dir, read_mirror_run(session, run_dir))
+
+
 def test_metric_helpers():
     a = np.zeros((20, 20), bool)
     a[5:15, 5:15] = True
