@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from bodystudio.body.pose import Pose
+from bodystudio.body.pose import Pose, transfer_pose
 from bodystudio.body.skeleton import Skeleton
 from bodystudio.body.statistical import StatisticalBodyModel
 from bodystudio.errors import InputError
@@ -103,18 +103,20 @@ def target_skeleton(source: SourceBody, target_vertices_rest) -> Skeleton:
                                         source.joint_neighbourhoods)
 
 
-def posed_source_and_target(source: SourceBody, target_vertices_rest, pose: Pose, target_skeleton_=None,
+def posed_source_and_target(source: SourceBody, target_vertices_rest, pose: Pose, target_rig=None,
                             subset=None) -> tuple[np.ndarray, np.ndarray]:
     """Source and target vertices posed by ``pose`` (the pose transfer of §5.2), ``(n, 3)`` each.
 
-    The target keeps the source pose's local rotations and root translation on its own skeleton
-    (``target_skeleton_``, else Eq. 3 from the source's); ``subset`` poses only those vertex rows.
+    The target is posed on its own skeleton (``target_rig``, else Eq. 3 from the source's) with every bone
+    turned by the same world rotation as the source's (:func:`bodystudio.body.pose.transfer_pose`; copying
+    the local rotations would tip the target over where a reshape turns a short bone's rest frame) and the
+    same root translation; ``subset`` poses only those vertex rows.
     """
     if source.weights is None:
         raise InputError("the source body has no skin weights: load it with load_source_body(path, model)")
     Vt = np.asarray(target_vertices_rest, dtype=np.float64)
     if Vt.shape != source.vertices.shape:
         raise InputError(f"target vertices {Vt.shape} do not match the source body's {source.vertices.shape}")
-    skel_t = target_skeleton(source, Vt) if target_skeleton_ is None else target_skeleton_
+    skel_t = target_skeleton(source, Vt) if target_rig is None else target_rig
     Vs = skin_vertices(source.vertices, source.weights, source.skeleton, pose, subset=subset)
-    return Vs, skin_vertices(Vt, source.weights, skel_t, pose, subset=subset)
+    return Vs, skin_vertices(Vt, source.weights, skel_t, transfer_pose(pose, source.skeleton, skel_t), subset=subset)

@@ -109,6 +109,25 @@ def test_pose_transfer_to_the_target(model_6k, model_source, subject):
     np.testing.assert_allclose(Vt_sub, Vt[sub], atol=1e-12)
 
 
+@pytest.mark.parametrize("heading_deg", [90.0, 180.0, -60.0])
+def test_pose_transfer_keeps_a_turned_target_upright(model_6k, model_source, heading_deg):
+    """Walking in and turning: the root turns about the vertical; the target must turn with the source, not tip
+    over (copying local rotations did: a reshape flips the short Root bone's rest frame)."""
+    from scipy.spatial.transform import Rotation
+
+    sk = model_source.skeleton
+    rotations = np.zeros((sk.n_bones, 3))
+    world = Rotation.from_euler("y", heading_deg, degrees=True).as_matrix()
+    R0 = sk.rest_rotations[0]
+    rotations[0] = Rotation.from_matrix(R0.T @ world @ R0).as_rotvec()
+    pose = Pose(rotations, np.array([0.2, 0.0, 2.5]))
+    taller = model_6k.vertices(target_coeffs(model_6k, model_source.coeffs, {"taller": 0.05}))
+    Vs, Vt = posed_source_and_target(model_source, taller, pose)
+    assert 0.03 < (Vt[:, 1].max() - Vs[:, 1].max()) < 0.07  # upright and taller by about the edit
+    assert abs(Vt[:, 1].min() - Vs[:, 1].min()) < 0.02
+    assert np.linalg.norm(Vt.mean(axis=0) - Vs.mean(axis=0)) < 0.05
+
+
 def test_ramp_moves_edits_gradually():
     current = {}
     seen = []
