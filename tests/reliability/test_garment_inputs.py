@@ -87,3 +87,38 @@ def test_pose_garment_of_another_rig(body):
 
 def test_errors_are_bodystudio_errors():
     assert issubclass(InputError, BodyStudioError) and issubclass(FileFormatError, BodyStudioError)
+
+
+@pytest.mark.parametrize("args, phrase", [
+    (([[0, 0, 1]], [[-1, 1, 1]], [0, 0, 0]), "light colours and ambient must be >= 0"),
+    (([[0, 0, 0]], [[1, 1, 1]], [0, 0, 0]), "finite non-zero vectors"),
+    (([[0, 0, 1], [0, 1, 0]], [[1, 1, 1]], [0, 0, 0]), "one colour per direction, got 2 and 1"),
+    (([[0, np.nan, 1]], [[1, 1, 1]], [0, 0, 0]), "finite non-zero vectors"),
+])
+def test_lighting_refuses_impossible_lights(args, phrase):
+    from bodystudio.garment.lighting import Lighting
+
+    with pytest.raises(InputError) as e:
+        Lighting(*args)
+    one_line(e, phrase)
+
+
+def test_lighting_estimation_inputs():
+    from bodystudio.garment.lighting import dominant_light_direction, estimate_albedo, estimate_lighting, solve_lights
+
+    P = np.zeros((5, 3))
+    with pytest.raises(InputError) as e:
+        estimate_lighting(P, P, P, P, np.array([0, 0, 1.0]))
+    one_line(e, "at least 10 body pixels, got 5; is the person in view?")
+    with pytest.raises(InputError) as e:
+        estimate_lighting(np.zeros((20, 3)), np.zeros((20, 2)), np.zeros((20, 3)), np.zeros((20, 3)), [0, 0, 1])
+    one_line(e, "normals must be (20, 3)")
+    with pytest.raises(InputError) as e:
+        solve_lights(np.ones((20, 4)), np.ones((20, 3)), np.ones((20, 3)), "cvx")
+    one_line(e, "unknown lighting solver 'cvx'; valid: nnls, fast_nnls, lstsq")
+    with pytest.raises(InputError) as e:
+        dominant_light_direction(np.eye(3), np.zeros((3, 3)))
+    one_line(e, "no light has positive intensity")
+    with pytest.raises(InputError) as e:
+        estimate_albedo([np.zeros((4, 4, 3), np.uint8)], [], np.zeros((1, 3), int), None)
+    one_line(e, "one posed mesh per frame, got 1 frames and 0 meshes")

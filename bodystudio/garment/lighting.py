@@ -1,0 +1,331 @@
+"""Scene illumination and albedo from the body model (§5 of Garment Replacement in Monocular Video).
+
+§5.2: ``L = 400`` directional lights on a golden-spiral hemisphere facing the camera; each row of the
+matrix ``A`` of Eq. 7 is one sample pixel's Lambert response to each light (albedo times the clamped
+cosine, times the light's visibility when self-shadowing is on), and the light colours ``x >= 0``
+solve ``argmin ||A x - b||`` by non-negative least squares. We add an ambient column (a constant
+sky term) because the synthetic and most real scenes have one; dropping it biases the lights
+(tested). §5.1: the albedo of each body vertex is its colour averaged over the frames that see it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+from threadpoolctl import threadpool_limits
+
+from bodystudio.errors import InputError
+
+N_LIGHTS = 400
+SOLVERS = ("nnls", "fast_nnls", "lstsq")
+GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+
+
+@dataclass(frozen=True, eq=False)
+class Lighting:
+    """Directional lights: unit ``directions`` (L, 3) towards the lights (world), RGB ``colors`` (L, 3) >= 0,
+    and an RGB ``ambient`` (3,) term; radiance = albedo * (ambient + sum_l max(0, n . d_l) colors_l)."""
+
+    directions: np.ndarray
+    colors: np.ndarray
+    ambient: np.ndarray
+
+    def __post_init__(self):
+        d = np.asarray(self.directions, dtype=np.float64).reshape(-1, 3)
+        c = np.asarray(self.colors, dtype=np.float64).reshape(-1, 3)
+        a = np.asarray(self.ambient, dtype=np.float64).reshape(3)
+        if len(d) != len(c):
+            raise InputError(f"lighting needs one colour per direction, got {len(d)} and {len(c)}")
+        norm = np.linalg.norm(d, axis=1, keepdims=True)
+        if np.any(norm < 1e-12) or not (np.all(np.isfinite(d)) and np.all(np.isfinite(c)) and np.all(np.isfinite(a))):
+            raise InputError("light directions must be finite non-zero vectors and colours finite")
+        if np.any(c < 0) or np.any(a < 0):
+            raise InputError("light colours and ambient must be >= 0 (a light cannot emit negative light)")
+        object.__setattr__(self, "directions", d / norm)
+        object.__setattr__(self, "colors", c)
+        object.__setattr__(self, "ambient", a)
+
+    @classmethod
+    def single(cls, direction, intensity: float = 1.0, ambient: float = 0.2) -> Lighting:
+        """One white directional light plus white ambient."""
+        return cls(np.asarray(direction, dtype=np.float64)[None], np.full((1, 3), float(intensity)),
+                   np.full(3, float(ambient)))
+
+    def to_dict(self) -> dict:
+        return {"directions": self.directions.tolist(), "colors": self.colors.tolist(),
+                "ambient": self.ambient.tolist()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Lighting:
+        return cls(np.asarray(data["directions"], float), np.asarray(data["colors"], float),
+                   np.asarray(data["ambient"], float))
+
+
+def golden_spiral_hemisphere(n: int = N_LIGHTS, axis=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """``n`` unit directions spread uniformly over the hemisphere around ``axis`` (§5.2, Swinbank & Purser 2006).
+
+    Equal-area bands: point k has ``cos(polar) = 1 - (k + 0.5) / n`` and azimuth ``k`` golden angles.
+    """
+    if n < 1:
+        raise InputError(f"the light hemisphere needs at least one light, got {n}")
+    k = np.arange(n) + 0.5
+    cos_t = 1.0 - k / n
+    sin_t = np.sqrt(1.0 - cos_t**2)
+    phi = GOLDEN_ANGLE * np.arange(n)
+    local = np.column_stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t])
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(a, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    return local @ np.stack([e1, e2, a])
+
+
+def light_visibility(points: np.ndarray, directions: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(K, L) 1 where the ray from each point towards each directional light leaves the mesh unblocked.
+
+    Rays are cast with open3d's BVH (Embree); start points should be offset a little off the surface.
+    """
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(V, dtype=np.float32)),
+                        o3d.core.Tensor(np.ascontiguousarray(F, dtype=np.uint32)))
+    K, L = len(points), len(directions)
+    rays = np.empty((K, L, 6), dtype=np.float32)
+    rays[:, :, :3] = points[:, None, :]
+    rays[:, :, 3:] = directions[None, :, :]
+    hit = scene.test_occlusions(o3d.core.Tensor(rays.reshape(-1, 6))).numpy().reshape(K, L)
+    return (~hit).astype(np.float64)
+
+
+def lambert_light_matrix(normals: np.ndarray, directions: np.ndarray, visibility: np.ndarray | None = None,
+                         ambient: bool = True) -> np.ndarray:
+    """The shading part of Eq. 7's matrix: ``max(0, n_k . d_l) * vis_kl`` (K, L), plus a column of ones
+    (the ambient term) when ``ambient``. Each colour channel's rows are this times the sample's albedo."""
+    G = np.clip(normals @ directions.T, 0.0, None)
+    if visibility is not None:
+        G = G * visibility
+    if ambient:
+        G = np.hstack([G, np.ones((len(G), 1))])
+    return G
+
+
+def fast_nnls(AtA: np.ndarray, Atb: np.ndarray, tol: float = 1e-10, max_iter: int | None = None) -> np.ndarray:
+    """Fast non-negative least squares (Bro & de Jong 1997): Lawson-Hanson's active set on the normal equations.
+
+    Works on the (L, L) cross-product matrices only, so each of the three colour channels of Eq. 7
+    reuses one ``A^T A`` of the shading matrix; same minimiser as ``scipy.optimize.nnls(A, b)`` up to
+    rounding (the agreement and the speed-up are measured in benchmarks/bench_garment_lighting.py).
+    """
+    n = len(Atb)
+    max_iter = 3 * n if max_iter is None else max_iter
+    x = np.zeros(n)
+    passive = np.zeros(n, dtype=bool)
+    w = Atb - AtA @ x
+    scale = max(float(np.abs(Atb).max()), 1e-300)
+    for _ in range(max_iter):
+        candidates = ~passive & (w > tol * scale)
+        if not candidates.any():
+            break
+        passive[np.argmax(np.where(candidates, w, -np.inf))] = True
+        while True:
+            idx = np.flatnonzero(passive)
+            z = np.zeros(n)
+            z[idx] = _solve_spd(AtA[np.ix_(idx, idx)], Atb[idx])
+            if np.all(z[idx] > 0):
+                x = z
+                break
+            neg = idx[z[idx] <= 0]
+            alpha = np.min(x[neg] / (x[neg] - z[neg]))
+            x = x + alpha * (z - x)
+            passive &= x > tol * scale * 1e-3
+            x[~passive] = 0.0
+        w = Atb - AtA @ x
+    return x
+
+
+def _solve_spd(M: np.ndarray, r: np.ndarray) -> np.ndarray:
+    try:
+        c = scipy.linalg.cho_factor(M, check_finite=False)
+        return scipy.linalg.cho_solve(c, r, check_finite=False)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(M, r, rcond=None)[0]
+
+
+def solve_lights(G: np.ndarray, albedo: np.ndarray, observed: np.ndarray, solver: str = "fast_nnls") -> np.ndarray:
+    """Eq. 7 per colour channel: light colours (L', 3) >= 0 with ``A_c = albedo_c * G`` and ``b_c`` the pixels.
+
+    ``solver``: ``nnls`` (scipy's Lawson-Hanson on A, as the paper), ``fast_nnls`` (the same active
+    set on the normal equations, Bro & de Jong) or ``lstsq`` (unconstrained; to show why the constraint
+    matters).
+    """
+    if solver not in SOLVERS:
+        raise InputError(f"unknown lighting solver {solver!r}; valid: {', '.join(SOLVERS)}")
+    # One BLAS thread: these systems are small (L = 401 columns) and OpenBLAS threads on a busy machine
+    # spin (a 1500 x 401 lstsq: 7.3 s with 2 threads under load, 0.26 s with one).
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _solve_lights(G, albedo, observed, solver)
+
+
+def _solve_lights(G: np.ndarray, albedo: np.ndarray, observed: np.ndarray, solver: str) -> np.ndarray:
+    X = np.zeros((G.shape[1], 3))
+    for c in range(3):
+        A = G * albedo[:, c:c + 1]
+        b = observed[:, c]
+        if solver == "nnls":
+            X[:, c], _ = scipy.optimize.nnls(A, b, maxiter=50 * A.shape[1])
+        elif solver == "fast_nnls":
+            X[:, c] = fast_nnls(A.T @ A, A.T @ b)
+        else:
+            X[:, c] = np.linalg.lstsq(A, b, rcond=None)[0]
+    return X
+
+
+def dominant_light_direction(directions: np.ndarray, colors: np.ndarray, cone_deg: float = 25.0) -> np.ndarray:
+    """Direction of the strongest light: the intensity-weighted mean of the lights within ``cone_deg``
+    of the brightest one (NNLS splits a light between neighbouring grid directions; this recovers it
+    between them)."""
+    power = np.clip(colors, 0.0, None).sum(1)
+    if not np.any(power > 0):
+        raise InputError("no light has positive intensity; the scene's lighting could not be estimated")
+    top = int(np.argmax(power))
+    near = directions @ directions[top] >= np.cos(np.radians(cone_deg))
+    d = (power[near, None] * directions[near]).sum(0)
+    return d / np.linalg.norm(d)
+
+
+def estimate_lighting(points: np.ndarray, normals: np.ndarray, albedo: np.ndarray, observed: np.ndarray,
+                      view_axis: np.ndarray, n_lights: int = N_LIGHTS, shadows: bool = False,
+                      mesh: tuple[np.ndarray, np.ndarray] | None = None, solver: str = "fast_nnls",
+                      ambient: bool = True) -> Lighting:
+    """Scene illumination of one frame, Eq. 7 of Garment Replacement in Monocular Video.
+
+    ``points``/``normals`` (K, 3) body surface samples seen by K pixels, ``albedo`` (K, 3) their
+    reflectance, ``observed`` (K, 3) the pixel colours (linear, [0, 1]); ``view_axis`` the unit
+    direction from the body towards the camera (the hemisphere's axis, §5.2 "aligned with the camera
+    orientation"). With ``shadows`` each light's visibility is ray cast against ``mesh`` = (V, F).
+    Returns the lights with non-zero colour and the ambient term.
+    """
+    K = len(points)
+    for name, arr in (("normals", normals), ("albedo", albedo), ("observed", observed)):
+        if np.shape(arr) != (K, 3):
+            raise InputError(f"estimate_lighting: {name} must be ({K}, 3), got {np.shape(arr)}")
+    if K < 10:
+        raise InputError(f"estimate_lighting needs at least 10 body pixels, got {K}; is the person in view?")
+    directions = golden_spiral_hemisphere(n_lights, view_axis)
+    vis = None
+    if shadows:
+        if mesh is None:
+            raise InputError("estimate_lighting with shadows needs the body mesh (V, F)")
+        vis = light_visibility(points + 2e-3 * normals, directions, *mesh)
+    G = lambert_light_matrix(normals, directions, vis, ambient)
+    X = solve_lights(G, albedo, observed, solver)
+    amb = X[-1] if ambient else np.zeros(3)
+    lights = X[:-1] if ambient else X
+    active = lights.sum(1) > 1e-9
+    if solver == "lstsq":  # negative lights stay (to measure the unconstrained solution)
+        active = np.abs(lights).sum(1) > 1e-9
+        return _unchecked_lighting(directions[active], lights[active], amb)
+    return Lighting(directions[active], lights[active], np.clip(amb, 0.0, None))
+
+
+def _unchecked_lighting(directions, colors, ambient) -> Lighting:
+    obj = object.__new__(Lighting)
+    object.__setattr__(obj, "directions", directions)
+    object.__setattr__(obj, "colors", colors)
+    object.__setattr__(obj, "ambient", ambient)
+    return obj
+
+
+def estimate_albedo(frames: list[np.ndarray], posed_vertices: list[np.ndarray], F: np.ndarray, camera,
+                    min_cos: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Per-vertex albedo as the mean colour over time, §5.1 of Garment Replacement in Monocular Video.
+
+    Each frame's visible vertices (depth test against the rendered body, facing the camera at more
+    than ``acos(min_cos)``) are projected and their pixel colours averaged. Returns ``(albedo (n, 3) in
+    [0, 1], count (n,))``; vertices never seen get the mean of the seen ones and count 0.
+    """
+    from bodystudio.capture.render import render, vertex_normals_area_weighted
+
+    if len(frames) != len(posed_vertices) or not frames:
+        raise InputError(f"estimate_albedo needs one posed mesh per frame, got {len(frames)} frames and "
+                         f"{len(posed_vertices)} meshes")
+    n = len(posed_vertices[0])
+    total = np.zeros((n, 3))
+    count = np.zeros(n)
+    for image, V in zip(frames, posed_vertices, strict=True):
+        res = render(V, F, camera)
+        uv, z = camera.project_with_depth(V)
+        col = np.round(uv[:, 0]).astype(np.int64)
+        row = np.round(uv[:, 1]).astype(np.int64)
+        inside = (z > 0) & (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+        N = vertex_normals_area_weighted(V, F)
+        view = camera.center[None] - V
+        view /= np.linalg.norm(view, axis=1, keepdims=True)
+        facing = np.einsum("nd,nd->n", N, view) > min_cos
+        ok = inside & facing
+        zbuf = res.depth[row[ok], col[ok]]
+        visible = np.zeros(n, dtype=bool)
+        visible[np.flatnonzero(ok)] = (zbuf > 0) & (z[ok] <= zbuf + 0.01)
+        total[visible] += image[row[visible], col[visible]].astype(np.float64) / 255.0
+        count[visible] += 1
+    albedo = np.zeros((n, 3))
+    seen = count > 0
+    if not seen.any():
+        raise InputError("estimate_albedo: no body vertex is visible in any frame; check the camera and poses")
+    albedo[seen] = total[seen] / count[seen, None]
+    albedo[~seen] = albedo[seen].mean(0)
+    return albedo, count
+
+
+def surface_samples(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, vertex_albedo: np.ndarray,
+                    max_samples: int = 4000, erode_px: int = 2, seed: int = 0):
+    """Pixels of the body model in one frame for Eq. 7: ``(points, normals, albedo, observed)``, each (K, 3).
+
+    The body is rasterised into ``camera``; its silhouette is eroded by ``erode_px`` (edge pixels mix
+    the background), up to ``max_samples`` pixels are drawn at random (``seed``), and each gets its
+    surface point, normal (towards the camera), interpolated ``vertex_albedo`` and the frame's colour
+    in [0, 1].
+    """
+    import cv2
+
+    from bodystudio.capture.render import render, vertex_normals_area_weighted
+
+    V = np.asarray(V, dtype=np.float64)
+    if image.shape[:2] != (camera.height, camera.width):
+        raise InputError(f"frame is {image.shape[1]}x{image.shape[0]} but the camera {camera.width}x{camera.height}")
+    result = render(V, F, camera)
+    mask = result.mask.astype(np.uint8)
+    if erode_px > 0:
+        mask = cv2.erode(mask, np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8))
+    rows, cols = np.nonzero(mask)
+    if len(rows) > max_samples:
+        pick = np.sort(np.random.default_rng(seed).choice(len(rows), max_samples, replace=False))
+        rows, cols = rows[pick], cols[pick]
+    tri = F[result.triangle_id[rows, cols]]
+    b = result.barycentric[rows, cols].astype(np.float64)
+    points = np.einsum("kj,kjd->kd", b, V[tri])
+    N = vertex_normals_area_weighted(V, F)
+    normals = np.einsum("kj,kjd->kd", b, N[tri])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    flip = np.einsum("kd,kd->k", normals, points - camera.center) > 0
+    normals[flip] *= -1
+    albedo = np.einsum("kj,kjd->kd", b, vertex_albedo[tri])
+    observed = image[rows, cols].astype(np.float64) / (255.0 if image.dtype == np.uint8 else 1.0)
+    return points, normals, albedo, observed
+
+
+def frame_lighting(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, vertex_albedo: np.ndarray,
+                   n_lights: int = N_LIGHTS, shadows: bool = False, solver: str = "fast_nnls",
+                   ambient: bool = True, max_samples: int = 4000, seed: int = 0) -> Lighting:
+    """Eq. 7 for one video frame: the lights that make the body model with ``vertex_albedo`` look like ``image``."""
+    points, normals, albedo, observed = surface_samples(image, V, F, camera, vertex_albedo, max_samples, seed=seed)
+    centre = np.asarray(V, dtype=np.float64).mean(0)
+    axis = camera.center - centre
+    return estimate_lighting(points, normals, albedo, observed, axis / np.linalg.norm(axis), n_lights, shadows,
+                             (V, F), solver, ambient)
