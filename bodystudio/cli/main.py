@@ -53,6 +53,7 @@ def _register() -> None:
     from bodystudio.cli import muscle
 
     app.add_typer(muscle.app, name="muscle", help="Arm-muscle capture with a depth camera; the arm muscle model.")
+    from bodystudio.cli import garment  # noqa: F401  (adds ``synth garment``)
 
 
 _register()

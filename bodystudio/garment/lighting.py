@@ -284,13 +284,13 @@ def estimate_albedo(frames: list[np.ndarray], posed_vertices: list[np.ndarray], 
 
 
 def surface_samples(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, vertex_albedo: np.ndarray,
-                    max_samples: int = 4000, erode_px: int = 2, seed: int = 0):
+                    max_samples: int = 4000, erode_px: int = 2, seed: int = 0, pixel_mask: np.ndarray | None = None):
     """Pixels of the body model in one frame for Eq. 7: ``(points, normals, albedo, observed)``, each (K, 3).
 
     The body is rasterised into ``camera``; its silhouette is eroded by ``erode_px`` (edge pixels mix
     the background), up to ``max_samples`` pixels are drawn at random (``seed``), and each gets its
     surface point, normal (towards the camera), interpolated ``vertex_albedo`` and the frame's colour
-    in [0, 1].
+    in [0, 1]. ``pixel_mask`` (H, W) bool restricts the samples further (e.g. to the actor's matte).
     """
     import cv2
 
@@ -303,6 +303,8 @@ def surface_samples(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, ver
     mask = result.mask.astype(np.uint8)
     if erode_px > 0:
         mask = cv2.erode(mask, np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8))
+    if pixel_mask is not None:
+        mask &= np.asarray(pixel_mask, dtype=bool)
     rows, cols = np.nonzero(mask)
     if len(rows) > max_samples:
         pick = np.sort(np.random.default_rng(seed).choice(len(rows), max_samples, replace=False))
@@ -322,9 +324,11 @@ def surface_samples(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, ver
 
 def frame_lighting(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, vertex_albedo: np.ndarray,
                    n_lights: int = N_LIGHTS, shadows: bool = False, solver: str = "fast_nnls",
-                   ambient: bool = True, max_samples: int = 4000, seed: int = 0) -> Lighting:
+                   ambient: bool = True, max_samples: int = 4000, seed: int = 0,
+                   pixel_mask: np.ndarray | None = None) -> Lighting:
     """Eq. 7 for one video frame: the lights that make the body model with ``vertex_albedo`` look like ``image``."""
-    points, normals, albedo, observed = surface_samples(image, V, F, camera, vertex_albedo, max_samples, seed=seed)
+    points, normals, albedo, observed = surface_samples(image, V, F, camera, vertex_albedo, max_samples, seed=seed,
+                                                        pixel_mask=pixel_mask)
     centre = np.asarray(V, dtype=np.float64).mean(0)
     axis = camera.center - centre
     return estimate_lighting(points, normals, albedo, observed, axis / np.linalg.norm(axis), n_lights, shadows,

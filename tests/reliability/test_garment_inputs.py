@@ -122,3 +122,42 @@ def test_lighting_estimation_inputs():
     with pytest.raises(InputError) as e:
         estimate_albedo([np.zeros((4, 4, 3), np.uint8)], [], np.zeros((1, 3), int), None)
     one_line(e, "one posed mesh per frame, got 1 frames and 0 meshes")
+
+
+def run_bad(args, capsys, phrase):
+    from bodystudio.cli.main import main
+
+    code = main([str(a) for a in args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert phrase in err, err
+
+
+@pytest.mark.parametrize("extra, phrase", [
+    (["--garment", "poncho"], "--garment 'poncho': valid: tights, skirt, tshirt, longsleeve"),
+    (["--pattern", "paisley"], "--pattern 'paisley': valid: stripes, checks, print, plain"),
+    (["--motion", "dance"], "--motion 'dance': valid: walk"),
+    (["--frames", "0"], "--frames 0: must be in [1, 2000]"),
+    (["--frames", "5000"], "--frames 5000: must be in [1, 2000]"),
+    (["--resolution", "big"], "--resolution 'big' must be WIDTHxHEIGHT"),
+    (["--resolution", "20x20"], "--resolution 20x20: width and height must be in [64, 4096]"),
+    (["--resolution", "9000x9000"], "--resolution 9000x9000: width and height must be in [64, 4096]"),
+])
+def test_synth_garment_bad_options(tmp_path, capsys, extra, phrase):
+    out = tmp_path / "session"
+    run_bad(["synth", "garment", out, "--subject-seed", "3", *extra], capsys, phrase)
+    assert not out.exists()
+
+
+def test_synth_garment_refuses_a_used_folder_and_a_negative_seed(tmp_path, capsys):
+    used = tmp_path / "used"
+    used.mkdir()
+    (used / "keep.txt").write_text("mine")
+    run_bad(["synth", "garment", used, "--subject-seed", "3"], capsys, "exists and is not empty")
+    assert [p.name for p in used.iterdir()] == ["keep.txt"]
+    afile = tmp_path / "file"
+    afile.write_text("x")
+    run_bad(["synth", "garment", afile, "--subject-seed", "3"], capsys, "is a file, not a folder")
+    run_bad(["synth", "garment", tmp_path / "neg", "--subject-seed", "-1"], capsys, "--subject-seed -1: must be >= 0")
+    assert not (tmp_path / "neg").exists()
