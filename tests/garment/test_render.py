@@ -51,7 +51,7 @@ def test_unlit_render_shows_the_texture(garments, garment_body, camera):
     want = gm.cloth_pattern(P[vis], "stripes", gm.cloth_colors(0))
     got = r.image[rc[vis, 0], rc[vis, 1]] / 255.0
     agree = np.mean(np.abs(got - want).max(1) < 0.1)
-    assert agree > 0.85, agree  # measured 0.93 (stripe borders blur over a texel)
+    assert agree > 0.85, agree  # measured 0.92 (stripe borders blur over a texel)
     assert np.array_equal(np.round(r.garment_rgb[r.garment_mask] * 255), r.image[r.garment_mask].astype(float))
 
 
