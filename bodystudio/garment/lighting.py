@@ -242,45 +242,101 @@ def _unchecked_lighting(directions, colors, ambient) -> Lighting:
     return obj
 
 
-def estimate_albedo(frames: list[np.ndarray], posed_vertices: list[np.ndarray], F: np.ndarray, camera,
-                    min_cos: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
-    """Per-vertex albedo as the mean colour over time, §5.1 of Garment Replacement in Monocular Video.
+def visible_vertex_colors(frames: list[np.ndarray], posed_vertices: list[np.ndarray], F: np.ndarray, camera,
+                          min_cos: float = 0.3) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per frame: (ids of the body vertices it sees, their pixel colours (k, 3) in [0, 1]).
 
-    Each frame's visible vertices (depth test against the rendered body, facing the camera at more
-    than ``acos(min_cos)``) are projected and their pixel colours averaged. Returns ``(albedo (n, 3) in
-    [0, 1], count (n,))``; vertices never seen get the mean of the seen ones and count 0.
+    Visible: in front of the rendered body's depth (1 cm tolerance), inside the image, facing the camera
+    at more than ``acos(min_cos)``.
     """
     from bodystudio.capture.render import render, vertex_normals_area_weighted
 
     if len(frames) != len(posed_vertices) or not frames:
         raise InputError(f"estimate_albedo needs one posed mesh per frame, got {len(frames)} frames and "
                          f"{len(posed_vertices)} meshes")
-    n = len(posed_vertices[0])
-    total = np.zeros((n, 3))
-    count = np.zeros(n)
+    out = []
     for image, V in zip(frames, posed_vertices, strict=True):
         res = render(V, F, camera)
         uv, z = camera.project_with_depth(V)
+        uv = np.nan_to_num(uv, nan=-1.0)
         col = np.round(uv[:, 0]).astype(np.int64)
         row = np.round(uv[:, 1]).astype(np.int64)
         inside = (z > 0) & (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
         N = vertex_normals_area_weighted(V, F)
         view = camera.center[None] - V
         view /= np.linalg.norm(view, axis=1, keepdims=True)
-        facing = np.einsum("nd,nd->n", N, view) > min_cos
-        ok = inside & facing
+        ok = np.flatnonzero(inside & (np.einsum("nd,nd->n", N, view) > min_cos))
         zbuf = res.depth[row[ok], col[ok]]
-        visible = np.zeros(n, dtype=bool)
-        visible[np.flatnonzero(ok)] = (zbuf > 0) & (z[ok] <= zbuf + 0.01)
-        total[visible] += image[row[visible], col[visible]].astype(np.float64) / 255.0
-        count[visible] += 1
-    albedo = np.zeros((n, 3))
+        ids = ok[(zbuf > 0) & (z[ok] <= zbuf + 0.01)]
+        scale = 255.0 if image.dtype == np.uint8 else 1.0
+        out.append((ids, image[row[ids], col[ids]].astype(np.float64) / scale))
+    return out
+
+
+def estimate_albedo(frames: list[np.ndarray], posed_vertices: list[np.ndarray], F: np.ndarray, camera,
+                    min_cos: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Per-vertex albedo as the mean colour over time, §5.1 of Garment Replacement in Monocular Video.
+
+    Each frame's visible vertices (``visible_vertex_colors``) contribute their pixel colour. Returns
+    ``(albedo (n, 3) in [0, 1], count (n,))``; vertices never seen get the mean of the seen ones and count 0.
+    """
+    n = len(posed_vertices[0]) if posed_vertices else 0
+    total = np.zeros((n, 3))
+    count = np.zeros(n)
+    for ids, colors in visible_vertex_colors(frames, posed_vertices, F, camera, min_cos):
+        total[ids] += colors
+        count[ids] += 1
     seen = count > 0
     if not seen.any():
         raise InputError("estimate_albedo: no body vertex is visible in any frame; check the camera and poses")
+    albedo = np.zeros((n, 3))
     albedo[seen] = total[seen] / count[seen, None]
     albedo[~seen] = albedo[seen].mean(0)
     return albedo, count
+
+
+def vertex_shading(V: np.ndarray, F: np.ndarray, lighting: Lighting, camera=None, shadows: bool = False) -> np.ndarray:
+    """Per-vertex irradiance (n, 3) ``ambient + sum_l vis_l max(0, n . d_l) c_l`` of a posed mesh."""
+    from bodystudio.capture.render import vertex_normals_area_weighted
+
+    N = vertex_normals_area_weighted(V, F)
+    vis = light_visibility(V + 2e-3 * N, lighting.directions, V, F) if shadows and len(lighting.directions) else None
+    G = lambert_light_matrix(N, lighting.directions, vis, ambient=False)
+    return lighting.ambient[None] + G @ lighting.colors
+
+
+def estimate_albedo_and_lighting(frames: list[np.ndarray], posed_vertices: list[np.ndarray], F: np.ndarray, camera,
+                                 iterations: int = 3, shadows: bool = False, min_cos: float = 0.3,
+                                 pixel_masks: list[np.ndarray] | None = None, **lighting_options
+                                 ) -> tuple[np.ndarray, list[Lighting]]:
+    """§5.1's albedo refined by alternating with Eq. 7's per-frame lights (our extension, measured).
+
+    Starts from the mean colour (``estimate_albedo``); then each round estimates every frame's lights
+    with the current albedo and re-solves each vertex's albedo as the least-squares ratio of its
+    observed colours to its shading over the frames that see it, ``a_v = sum_t I_vt S_vt / sum_t S_vt^2``.
+    Albedo and light intensity share one global scale (the classic ambiguity); the albedo keeps the
+    mean of the mean-colour start. Returns ``(albedo (n, 3), lights per frame)``.
+    """
+    observations = visible_vertex_colors(frames, posed_vertices, F, camera, min_cos)
+    albedo, count = estimate_albedo(frames, posed_vertices, F, camera, min_cos)
+    seen = count > 0
+    anchor = albedo[seen].mean(0)
+    lights: list[Lighting] = []
+    for _ in range(int(iterations)):
+        lights = [frame_lighting(img, V, F, camera, albedo, shadows=shadows,
+                                 pixel_mask=None if pixel_masks is None else pixel_masks[t], **lighting_options)
+                  for t, (img, V) in enumerate(zip(frames, posed_vertices, strict=True))]
+        num = np.zeros_like(albedo)
+        den = np.zeros_like(albedo)
+        for (ids, colors), V, light in zip(observations, posed_vertices, lights, strict=True):
+            S = vertex_shading(V, F, light, shadows=shadows)[ids]
+            num[ids] += colors * S
+            den[ids] += S * S
+        ok = seen & np.all(den > 1e-12, axis=1)
+        albedo[ok] = num[ok] / den[ok]
+        albedo *= anchor / np.maximum(albedo[seen].mean(0), 1e-12)
+        albedo = np.clip(albedo, 0.0, None)
+    return albedo, lights
 
 
 def surface_samples(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, vertex_albedo: np.ndarray,
