@@ -17,7 +17,7 @@ import scipy.linalg
 import scipy.optimize
 from threadpoolctl import threadpool_limits
 
-from bodystudio.errors import InputError
+from bodystudio.errors import FileFormatError, InputError
 
 N_LIGHTS = 400
 SOLVERS = ("nnls", "fast_nnls", "lstsq")
@@ -59,9 +59,19 @@ class Lighting:
                 "ambient": self.ambient.tolist()}
 
     @classmethod
-    def from_dict(cls, data: dict) -> Lighting:
-        return cls(np.asarray(data["directions"], float), np.asarray(data["colors"], float),
-                   np.asarray(data["ambient"], float))
+    def from_dict(cls, data: dict, source: str = "lighting") -> Lighting:
+        """Lights from ``to_dict``'s layout; a malformed dict raises a one-line FileFormatError naming ``source``."""
+        try:
+            d = np.asarray(data["directions"], dtype=np.float64).reshape(-1, 3)
+            c = np.asarray(data["colors"], dtype=np.float64).reshape(-1, 3)
+            a = np.asarray(data["ambient"], dtype=np.float64).reshape(3)
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
+            raise FileFormatError(f"{source}: lights need 'directions' and 'colors' (n x 3) and 'ambient' (3 numbers) "
+                                  f"({type(exc).__name__}: {exc})") from None
+        try:
+            return cls(d, c, a)
+        except InputError as exc:
+            raise FileFormatError(f"{source}: {exc}") from None
 
 
 def golden_spiral_hemisphere(n: int = N_LIGHTS, axis=(0.0, 0.0, 1.0)) -> np.ndarray:

@@ -161,3 +161,79 @@ def test_synth_garment_refuses_a_used_folder_and_a_negative_seed(tmp_path, capsy
     run_bad(["synth", "garment", afile, "--subject-seed", "3"], capsys, "is a file, not a folder")
     run_bad(["synth", "garment", tmp_path / "neg", "--subject-seed", "-1"], capsys, "--subject-seed -1: must be >= 0")
     assert not (tmp_path / "neg").exists()
+
+
+def _fuzz_settings():
+    from hypothesis import HealthCheck, settings
+
+    return settings(max_examples=30, deadline=None, database=None, derandomize=True,
+                    suppress_health_check=list(HealthCheck))
+
+
+def test_fuzzed_lighting_files_load_or_raise_one_line():
+    from hypothesis import given
+    from hypothesis import strategies as st
+
+    from bodystudio.garment.lighting import Lighting
+
+    leaf = st.one_of(st.none(), st.booleans(), st.integers(-5, 5), st.floats(allow_nan=True, allow_infinity=True),
+                     st.text(max_size=4))
+    value = st.recursive(leaf, lambda c: st.lists(c, max_size=4) | st.dictionaries(st.text(max_size=4), c, max_size=3),
+                         max_leaves=8)
+    valid = Lighting.single((0.2, 0.8, 0.5), 0.7, 0.2).to_dict()
+
+    @_fuzz_settings()
+    @given(key=st.sampled_from(["directions", "colors", "ambient", None]), new=value)
+    def check(key, new):
+        data = dict(valid)
+        if key is None:
+            data = new
+        else:
+            data[key] = new
+        try:
+            Lighting.from_dict(data, "gt/lighting.json")
+        except BodyStudioError as exc:
+            assert "\n" not in str(exc) and "gt/lighting.json" in str(exc)
+
+    check()
+
+
+def test_fuzzed_garment_obj_loads_or_raises_one_line(body, tmp_path_factory):
+    from hypothesis import given
+    from hypothesis import strategies as st
+
+    from bodystudio.garment.garments import dress, load_garment_mesh
+
+    skirt = dress(body, "skirt", texture_size=16)
+    lines = [f"v {x:.5f} {y:.5f} {z:.5f}" for x, y, z in skirt.vertices[:120]]
+    faces = skirt.faces[(skirt.faces < 120).all(1)][:150]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
+    tokens = ["nan", "-1", "0", "1e400", "f", "v", "vt 0.5", "1/2/3", "", "#", "999999", "x"]
+    folder = tmp_path_factory.mktemp("fuzz_obj")
+
+    @_fuzz_settings()
+    @given(edits=st.lists(st.tuples(st.integers(0, len(lines) - 1), st.sampled_from(["replace", "delete", "dup"]),
+                                    st.sampled_from(tokens), st.integers(0, 3)), min_size=1, max_size=3))
+    def check(edits):
+        text = list(lines)
+        for index, op, token, position in edits:
+            index %= len(text)
+            if op == "delete":
+                del text[index]
+            elif op == "dup":
+                text.insert(index, text[index])
+            else:
+                parts = text[index].split()
+                parts[min(position, len(parts) - 1)] = token
+                text[index] = " ".join(parts)
+            if not text:
+                text = ["#"]
+        path = folder / "garment.obj"
+        path.write_text("\n".join(text) + "\n")
+        try:
+            g = load_garment_mesh(path, body, texture_size=16, smooth_iterations=2)
+            assert np.all(np.isfinite(g.vertices)) and np.allclose(g.weights.sum(1), 1.0)
+        except BodyStudioError as exc:
+            assert "\n" not in str(exc)
+
+    check()
