@@ -141,3 +141,16 @@ def test_user_garment_mesh_is_bound_like_a_dressed_one(tmp_path, garments, garme
     trimesh.Trimesh(g.vertices, g.faces, process=False).export(ply)
     plain = gm.load_garment_mesh(ply, garment_body, texture_size=64)
     assert plain.uv.shape == (plain.n_vertices, 2) and plain.texture.shape == (64, 64, 3)
+
+
+def test_user_glb_keeps_its_own_texture(tmp_path, garments, garment_body):
+    import trimesh
+    from PIL import Image
+
+    g = garments["tights"]
+    path = tmp_path / "tights.glb"
+    visual = trimesh.visual.TextureVisuals(uv=g.uv, image=Image.fromarray(g.texture))
+    trimesh.Trimesh(g.vertices, g.faces, visual=visual, process=False).export(path)
+    user = gm.load_garment_mesh(path, garment_body, pattern="checks")
+    assert np.array_equal(user.texture, g.texture)  # the file's image, not a new procedural one
+    assert np.abs(gm.sample_texture(user.texture, user.uv) - gm.sample_texture(g.texture, g.uv)).max() < 0.02
