@@ -388,13 +388,37 @@ def surface_samples(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, ver
     return points, normals, albedo, observed
 
 
+def vertex_samples(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, vertex_albedo: np.ndarray,
+                   min_cos: float = 0.3):
+    """Eq. 7's rows per visible body vertex instead of per pixel: ``(points, normals, albedo, observed)``.
+
+    The vertices a frame sees (``visible_vertex_colors``) with their normals and the pixel colour at
+    their projection; fewer rows than the pixel samples on a coarse template, no silhouette erosion.
+    """
+    from bodystudio.capture.render import vertex_normals_area_weighted
+
+    V = np.asarray(V, dtype=np.float64)
+    ((ids, colors),) = visible_vertex_colors([image], [V], F, camera, min_cos)
+    N = vertex_normals_area_weighted(V, F)
+    return V[ids], N[ids], vertex_albedo[ids], colors
+
+
 def frame_lighting(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, vertex_albedo: np.ndarray,
                    n_lights: int = N_LIGHTS, shadows: bool = False, solver: str = "fast_nnls",
                    ambient: bool = True, max_samples: int = 4000, seed: int = 0,
-                   pixel_mask: np.ndarray | None = None) -> Lighting:
-    """Eq. 7 for one video frame: the lights that make the body model with ``vertex_albedo`` look like ``image``."""
-    points, normals, albedo, observed = surface_samples(image, V, F, camera, vertex_albedo, max_samples, seed=seed,
-                                                        pixel_mask=pixel_mask)
+                   pixel_mask: np.ndarray | None = None, sampling: str = "pixel") -> Lighting:
+    """Eq. 7 for one video frame: the lights that make the body model with ``vertex_albedo`` look like ``image``.
+
+    ``sampling``: ``pixel`` (rows are body pixels, ``surface_samples``) or ``vertex`` (rows are visible
+    vertices, ``vertex_samples``; ``pixel_mask`` is then ignored).
+    """
+    if sampling == "pixel":
+        points, normals, albedo, observed = surface_samples(image, V, F, camera, vertex_albedo, max_samples,
+                                                            seed=seed, pixel_mask=pixel_mask)
+    elif sampling == "vertex":
+        points, normals, albedo, observed = vertex_samples(image, V, F, camera, vertex_albedo)
+    else:
+        raise InputError(f"unknown lighting sampling {sampling!r}; valid: pixel, vertex")
     centre = np.asarray(V, dtype=np.float64).mean(0)
     axis = camera.center - centre
     return estimate_lighting(points, normals, albedo, observed, axis / np.linalg.norm(axis), n_lights, shadows,
