@@ -258,11 +258,13 @@ def cloth_pattern(points: np.ndarray, pattern: str, colors: np.ndarray, period_m
     """Cloth colour (K, 3) in [0, 1] at rest-pose surface points: a solid texture in body coordinates.
 
     ``stripes``: horizontal bands; ``checks``: squares over height and arc length around the body's
-    vertical axis; ``print``: polka dots; ``plain``: one colour. ``colors`` (3, 3): base, second, accent.
+    vertical axis; ``print``: polka dots; ``plain``: one colour. ``colors`` (3, 3): base, second, accent
+    (the accent is unused by these patterns; accent lines along the checks' borders widened into blobs
+    where the body-centred arc coordinate runs along the surface, e.g. the shins).
     """
     y = points[:, 1]
     arc = np.arctan2(points[:, 0], points[:, 2]) * 0.15  # arc length on a 15 cm cylinder
-    base, second, accent = colors
+    base, second = colors[0], colors[1]
     if pattern == "plain":
         t = np.zeros(len(points))
     elif pattern == "stripes":
@@ -278,9 +280,6 @@ def cloth_pattern(points: np.ndarray, pattern: str, colors: np.ndarray, period_m
     else:
         raise InputError(f"unknown cloth pattern {pattern!r}; valid: {', '.join(PATTERNS)}")
     out = base[None] * (1 - t[:, None]) + second[None] * t[:, None]
-    if pattern == "checks":  # thin accent lines on the check borders (a gingham weave look)
-        line = (np.abs((y / period_m) % 1.0 - 0.5) > 0.44) | (np.abs((arc / period_m) % 1.0 - 0.5) > 0.44)
-        out[line] = accent
     return out
 
 
