@@ -446,11 +446,19 @@ class Session:
     @cached_property
     def gt_albedo(self) -> np.ndarray | None:
         """Garment sessions: the subject's per-vertex skin albedo (n, 3) in [0, 1] (template of ``gt_subject``)."""
+        return self._gt_albedo("albedo")
+
+    @cached_property
+    def gt_appearance_albedo(self) -> np.ndarray | None:
+        """Garment sessions: per body vertex the albedo the video shows (the worn garment's where it covers)."""
+        return self._gt_albedo("appearance")
+
+    def _gt_albedo(self, key: str) -> np.ndarray | None:
         if GT_ALBEDO not in self.files:
             return None
         data = self.read_json(GT_ALBEDO)
         try:
-            return np.asarray(data["albedo"], dtype=np.float64).reshape(-1, 3)
+            return np.asarray(data[key], dtype=np.float64).reshape(-1, 3)
         except (KeyError, TypeError, ValueError) as exc:
             raise SessionError(f"{self.path / GT_ALBEDO}: malformed albedo ({exc}); regenerate the session") from None
 

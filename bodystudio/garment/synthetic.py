@@ -156,6 +156,7 @@ def synth_garment_session(out: str | os.PathLike, subject_seed: int = 7, n_frame
                 "target": {"name": garment, "pattern": pattern, "seed": target_seed},
                 "texture_size": texture_size})
             writer.write_gt_json(GT_ALBEDO, {"albedo": np.round(skin, 6), "template": template,
+                                             "appearance": np.round(appearance_albedo(body, worn, skin), 6),
                                              "space": "linear RGB in [0, 1], one row per body vertex"})
             writer.write_background(camera.name, 0, _with_noise(plate, noise_std, rng))
             for i, pose in enumerate(poses):
@@ -179,6 +180,34 @@ def synth_garment_session(out: str | os.PathLike, subject_seed: int = 7, n_frame
     log.info("wrote %s: %d frames of subject %d wearing %s (target %s)", out, n_frames, subject_seed, worn_name,
              garment)
     return open_session(out)
+
+
+def appearance_albedo(body, worn, skin: np.ndarray, reach_m: float = 0.15) -> np.ndarray:
+    """The albedo a video shows at each body vertex: the worn garment's colour where it covers the skin.
+
+    A vertex is covered when the ray along its normal meets the garment within ``reach_m``; it takes the
+    garment texture's colour at the hit (what §5.1's mean colour should find there).
+    """
+    import open3d as o3d
+
+    from bodystudio.garment.garments import sample_texture
+    from bodystudio.geometry.mesh import vertex_normals
+
+    N = vertex_normals(body.vertices, body.faces)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(worn.vertices.astype(np.float32)),
+                        o3d.core.Tensor(worn.faces.astype(np.uint32)))
+    rays = np.hstack([body.vertices - 1e-3 * N, N]).astype(np.float32)
+    hit = scene.cast_rays(o3d.core.Tensor(rays))
+    t = hit["t_hit"].numpy()
+    covered = t < reach_m
+    tri = hit["primitive_ids"].numpy()[covered].astype(np.int64)
+    uvw = hit["primitive_uvs"].numpy()[covered].astype(np.float64)
+    bary = np.column_stack([1.0 - uvw.sum(1), uvw])
+    uv = np.einsum("kj,kjd->kd", bary, worn.uv[worn.faces[tri]])
+    out = skin.copy()
+    out[covered] = sample_texture(worn.texture, uv)
+    return out
 
 
 def layer_labels(result) -> np.ndarray:

@@ -87,3 +87,20 @@ def test_light_is_recovered_from_the_true_body(garment_session):
     # the start (the hemisphere's axis, towards the camera) is 41 deg off
     axis = s.cameras["cam_00"].center - f.gt_mesh.vertices.mean(0)
     assert np.degrees(np.arccos(truth @ axis / np.linalg.norm(axis))) > 30
+
+
+def test_appearance_albedo_is_what_the_video_shows(garment_session):
+    from bodystudio.garment import lighting as lt
+
+    s = garment_session
+    body, _ = _rebuild(s)
+    skin, seen_albedo = s.gt_albedo, s.gt_appearance_albedo
+    covered = np.any(np.abs(seen_albedo - skin) > 1e-6, axis=1)
+    f = s.frame(0)
+    ((ids, _),) = lt.visible_vertex_colors([f.images["cam_00"]], [f.gt_mesh.vertices], body.faces,
+                                           s.cameras["cam_00"])
+    uv = s.cameras["cam_00"].project(f.gt_mesh.vertices[ids])
+    layer = f.gt_layers["cam_00"][np.round(uv[:, 1]).astype(int), np.round(uv[:, 0]).astype(int)]
+    on_garment = layer == LAYER_GARMENT
+    # vertices seen through the shirt take its colour, the skin seen elsewhere keeps the skin's
+    assert np.mean(covered[ids[on_garment]]) > 0.95 and np.mean(~covered[ids[~on_garment]]) > 0.95
