@@ -28,11 +28,11 @@ import scipy.sparse as sp
 from scipy import ndimage
 
 from bodystudio.body.makehuman import load_group_faces
-from bodystudio.body.model import BodyModel, rig_definition, shaped_vertices
+from bodystudio.body.model import BodyModel, build_body, rig_definition, shaped_vertices
 from bodystudio.body.pose import Pose
 from bodystudio.body.skeleton import load_skin_weights
 from bodystudio.body.skinning import linear_blend_skinning, skinning_transforms
-from bodystudio.errors import FileFormatError, InputError
+from bodystudio.errors import AssetError, FileFormatError, InputError
 from bodystudio.geometry.mesh import quads_to_triangles, vertex_normals
 
 log = logging.getLogger(__name__)
@@ -333,9 +333,17 @@ def bake_procedural_texture(V: np.ndarray, F: np.ndarray, uv: np.ndarray, patter
 
 # --- the garments ------------------------------------------------------------------------------
 
+def hem_reference(body: BodyModel) -> BodyModel:
+    """The body with the ``game_engine`` rig, whose bones the hem lines are placed on (same vertices:
+    every rig's joints are defined on the same shaped base mesh)."""
+    if body.rig == "game_engine":
+        return body
+    return build_body(body.phenotype, body.local, resolution=body.resolution, rig="game_engine")
+
+
 def leggings_field(V: np.ndarray, body: BodyModel) -> np.ndarray:
     """< 0 between the leggings' hem lines: 6 cm above the hip joints and 6 cm above the ankles."""
-    sk = body.skeleton
+    sk = hem_reference(body).skeleton
     waist_y = 0.5 * (sk.heads[sk.index("thigh_l")][1] + sk.heads[sk.index("thigh_r")][1]) + 0.06
     ankle_y = 0.5 * (sk.heads[sk.index("foot_l")][1] + sk.heads[sk.index("foot_r")][1]) + 0.06
     return np.maximum(V[:, 1] - waist_y, ankle_y - V[:, 1])
@@ -360,7 +368,11 @@ def proxy_garment_mesh(body: BodyModel, name: str
     V_welded = V_all[ids]
     weld, F, uv = split_uv_seams(F_welded, quads_to_triangles(uv_quads), texcoords)
     V = V_welded[weld]
-    W = load_skin_weights(rig_definition(body.rig), len(body.vertices), vertex_ids=ids)[weld]
+    try:
+        W = load_skin_weights(rig_definition(body.rig), len(body.vertices), vertex_ids=ids)[weld]
+    except AssetError:  # a rig whose weights leave out the proxies: the skin's, diffused (as for user meshes)
+        W = transfer_skin_weights(V, body.vertices, body.faces, body.weights)
+        W = smooth_skin_weights(W, F, weld, 30)
     if name == "tights":
         V, F, M = cut_mesh_at_isoline(V, F, leggings_field(V, body))
         uv, W = M @ uv, M @ W
@@ -377,7 +389,7 @@ def proxy_garment_mesh(body: BodyModel, name: str
 
 def arm_coordinate(V: np.ndarray, body: BodyModel, side: str) -> np.ndarray:
     """Distance (m) along the arm chain shoulder -> elbow -> wrist of each point's closest chain point."""
-    sk = body.skeleton
+    sk = hem_reference(body).skeleton
     up, low = sk.index(f"upperarm_{side}"), sk.index(f"lowerarm_{side}")
     shoulder, elbow, wrist = sk.heads[up], sk.heads[low], sk.tails[low]
     out = np.empty(len(V))
@@ -398,6 +410,7 @@ def arm_coordinate(V: np.ndarray, body: BodyModel, side: str) -> np.ndarray:
 
 def shirt_region_field(body: BodyModel, sleeve: str = "short") -> np.ndarray:
     """Per body vertex: < 0 inside the shirt, 0 on a hem line (waist, neckline, sleeve ends), > 0 outside."""
+    body = hem_reference(body)
     V, sk = body.vertices, body.skeleton
     hip_y = 0.5 * (sk.heads[sk.index("thigh_l")][1] + sk.heads[sk.index("thigh_r")][1])
     neck = sk.heads[sk.index("neck_01")]

@@ -154,3 +154,22 @@ def test_user_glb_keeps_its_own_texture(tmp_path, garments, garment_body):
     user = gm.load_garment_mesh(path, garment_body, pattern="checks")
     assert np.array_equal(user.texture, g.texture)  # the file's image, not a new procedural one
     assert np.abs(gm.sample_texture(user.texture, user.uv) - gm.sample_texture(g.texture, g.uv)).max() < 0.02
+
+
+def test_garments_fit_bodies_of_any_rig(garments):
+    from bodystudio.body import build_body
+
+    body = build_body(resolution="2k", rig="cmu_mb")
+    rot = np.zeros((body.skeleton.n_bones, 3))
+    rot[body.skeleton.index("LeftForeArm")] = (0.0, 0.0, 0.8)
+    rot[body.skeleton.index("RightUpLeg")] = (-0.5, 0.0, 0.0)
+    pose = Pose(rot, np.zeros(3))
+    Vb, _ = body.pose(pose)
+    for name in ("tshirt", "longsleeve", "tights"):
+        g = gm.dress(body, name, texture_size=32)
+        # hem lines come from the game_engine bones of the same shape: the same cut as on that rig
+        assert np.allclose(np.sort(g.vertices[:, 1]), np.sort(garments[name].vertices[:, 1]), atol=1e-9)
+        assert g.weights.shape == (g.n_vertices, 31)
+        rest, _, _ = igl.point_mesh_squared_distance(g.vertices, body.vertices, body.faces)
+        posed, _, _ = igl.point_mesh_squared_distance(gm.pose_garment(g, body, pose), Vb, body.faces)
+        assert np.median(np.abs(np.sqrt(posed) - np.sqrt(rest))) < 1e-3
