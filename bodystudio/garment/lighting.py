@@ -389,16 +389,26 @@ def surface_samples(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, ver
 
 
 def vertex_samples(image: np.ndarray, V: np.ndarray, F: np.ndarray, camera, vertex_albedo: np.ndarray,
-                   min_cos: float = 0.3):
+                   min_cos: float = 0.3, erode_px: int = 2):
     """Eq. 7's rows per visible body vertex instead of per pixel: ``(points, normals, albedo, observed)``.
 
     The vertices a frame sees (``visible_vertex_colors``) with their normals and the pixel colour at
-    their projection; fewer rows than the pixel samples on a coarse template, no silhouette erosion.
+    their projection, leaving out vertices within ``erode_px`` of the silhouette (their pixel mixes the
+    background). The pixel nearest a vertex also mixes its neighbours' albedo where triangles span few
+    pixels, so these rows are noisier than ``surface_samples``' (measured in docs/garment.md).
     """
-    from bodystudio.capture.render import vertex_normals_area_weighted
+    import cv2
+
+    from bodystudio.capture.render import render, vertex_normals_area_weighted
 
     V = np.asarray(V, dtype=np.float64)
     ((ids, colors),) = visible_vertex_colors([image], [V], F, camera, min_cos)
+    if erode_px > 0:
+        inner = cv2.erode(render(V, F, camera).mask.astype(np.uint8),
+                          np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8)) > 0
+        uv = camera.project(V[ids])
+        keep = inner[np.round(uv[:, 1]).astype(np.int64), np.round(uv[:, 0]).astype(np.int64)]
+        ids, colors = ids[keep], colors[keep]
     N = vertex_normals_area_weighted(V, F)
     return V[ids], N[ids], vertex_albedo[ids], colors
 
