@@ -36,22 +36,34 @@ class MakeHumanBase:
         return {k: v for k, v in self.groups.items() if k.startswith("joint-")}
 
 
-def _parse_obj(path: Path) -> tuple[np.ndarray, list[tuple[str, list[int]]]]:
+def _parse_obj(path: Path, texcoords: bool = False):
+    """Vertices and ``(group, vertex ids)`` faces of an OBJ; with ``texcoords`` also the ``vt`` table and
+    each face's texture-coordinate ids (``(group, vertex ids, vt ids)`` faces)."""
     verts: list[list[float]] = []
-    faces: list[tuple[str, list[int]]] = []
+    uvs: list[list[float]] = []
+    faces: list[tuple] = []
     group = ""
     try:
         with open(path, encoding="utf-8") as f:
             for line in f:
                 if line.startswith("v "):
                     verts.append([float(x) for x in line.split()[1:4]])
+                elif line.startswith("vt ") and texcoords:
+                    uvs.append([float(x) for x in line.split()[1:3]])
                 elif line.startswith("g "):
                     group = line.split(maxsplit=1)[1].strip()
                 elif line.startswith("f "):
-                    faces.append((group, [int(t.split("/")[0]) - 1 for t in line.split()[1:]]))
+                    corners = line.split()[1:]
+                    ids = [int(t.split("/")[0]) - 1 for t in corners]
+                    if texcoords:
+                        faces.append((group, ids, [int(t.split("/")[1]) - 1 for t in corners]))
+                    else:
+                        faces.append((group, ids))
     except (OSError, ValueError, IndexError) as exc:
         raise AssetError(f"{path}: cannot parse the MakeHuman base mesh ({exc}); delete the asset cache and rerun "
                          "'make setup'") from None
+    if texcoords:
+        return np.array(verts, dtype=np.float64), faces, np.array(uvs, dtype=np.float64).reshape(-1, 2)
     return np.array(verts, dtype=np.float64), faces
 
 
@@ -75,6 +87,26 @@ def load_base(data_dir: Path | None = None) -> MakeHumanBase:
         pairs = np.loadtxt(mirror_file, usecols=(0, 1), dtype=np.int64)
         mirror[pairs[:, 0]] = pairs[:, 1]
     return MakeHumanBase(V * DM_TO_M, body, n_body, groups, mirror, data_dir)
+
+
+@lru_cache(maxsize=8)
+def load_group_faces(group: str, data_dir: Path | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Quads of one base-mesh group with MakeHuman's texture coordinates.
+
+    Returns ``(quads (k, 4) base-vertex ids, uv_quads (k, 4) ids into texcoords, texcoords (t, 2))``;
+    ``helper-tights`` and ``helper-skirt`` are the garment proxies that follow every body target.
+    """
+    data_dir = Path(data_dir) if data_dir is not None else makehuman_data_dir()
+    path = data_dir / "3dobjs" / "base.obj"
+    _, faces, texcoords = _parse_obj(path, texcoords=True)
+    rows = [(f, t) for g, f, t in faces if g == group and len(f) == 4]
+    if not rows:
+        raise AssetError(f"{path}: no quad group {group!r} in the MakeHuman base mesh")
+    quads = np.array([f for f, _ in rows], dtype=np.int64)
+    uv_quads = np.array([t for _, t in rows], dtype=np.int64)
+    if uv_quads.min() < 0 or uv_quads.max() >= len(texcoords):
+        raise AssetError(f"{path}: group {group!r} references texture coordinates the file lacks")
+    return quads, uv_quads, texcoords
 
 
 class TargetLibrary:

@@ -173,23 +173,34 @@ def skeleton_from_vertices(rig: RigDefinition, vertices_all: np.ndarray) -> Skel
                     rig.tail_regressor @ vertices_all, rig.rolls)
 
 
-def load_skin_weights(rig: RigDefinition, n_body: int) -> np.ndarray:
-    """Dense ``(n_body, B)`` skin weights from ``weights.*.json``, normalised to sum 1 per vertex."""
+def load_skin_weights(rig: RigDefinition, n_body: int, vertex_ids: np.ndarray | None = None) -> np.ndarray:
+    """Dense ``(n_body, B)`` skin weights from ``weights.*.json``, normalised to sum 1 per vertex.
+
+    With ``vertex_ids`` the rows of those base-mesh vertices instead (``(k, B)``; the helper geometry,
+    e.g. the garment proxies, is weighted in the same file).
+    """
     try:
         data = json.loads(rig.weights_file.read_text())["weights"]
     except (OSError, json.JSONDecodeError, KeyError) as exc:
         raise AssetError(f"{rig.weights_file}: cannot read skin weights ({exc}); rerun 'make setup'") from None
-    W = np.zeros((n_body, len(rig.bone_names)))
+    rows = np.arange(n_body) if vertex_ids is None else np.asarray(vertex_ids, dtype=np.int64)
+    row_of = {int(v): i for i, v in enumerate(rows)}
+    W = np.zeros((len(rows), len(rig.bone_names)))
     col = {b: i for i, b in enumerate(rig.bone_names)}
     for bone, pairs in data.items():
         if bone not in col or not pairs:
             continue
         arr = np.asarray(pairs, dtype=np.float64)
         idx = arr[:, 0].astype(np.int64)
-        keep = idx < n_body
-        np.add.at(W[:, col[bone]], idx[keep], arr[keep, 1])
+        if vertex_ids is None:
+            keep = idx < n_body
+            np.add.at(W[:, col[bone]], idx[keep], arr[keep, 1])
+        else:
+            hit = np.array([row_of.get(int(i), -1) for i in idx])
+            keep = hit >= 0
+            np.add.at(W[:, col[bone]], hit[keep], arr[keep, 1])
     W = np.clip(W, 0.0, None)
     total = W.sum(1, keepdims=True)
     if np.any(total <= 0):
-        raise AssetError(f"{rig.weights_file}: {int((total <= 0).sum())} body vertices have no skin weight")
+        raise AssetError(f"{rig.weights_file}: {int((total <= 0).sum())} vertices have no skin weight")
     return W / total

@@ -64,12 +64,20 @@ COMMIT = "commit.json"
 CAMERAS_JSON = "calibration/cameras.json"
 KINECT_CALIBRATION = "kinect/calibration.json"
 GT_PHENOTYPE = "gt/phenotype.json"
+GT_LIGHTING = "gt/lighting.json"
+GT_GARMENT = "gt/garment.json"
+GT_ALBEDO = "gt/albedo.json"
+#: Labels of the per-pixel layer images (``gt_layers``, ``gt_target_layers``).
+LAYER_BACKGROUND, LAYER_BODY, LAYER_GARMENT = 0, 1, 2
 
 # Stream name -> relative path pattern ({cam}: camera name, {frame}: 5-digit frame id).
 CAMERA_STREAMS = {
     "rgb": "{cam}/rgb/{frame:05d}.png",
     "mask": "{cam}/mask/{frame:05d}.png",
     "gt_mask": "gt/masks/{cam}/{frame:05d}.png",
+    "gt_layers": "gt/layers/{cam}/{frame:05d}.png",
+    "gt_target": "gt/garment_target/{cam}/{frame:05d}.png",
+    "gt_target_layers": "gt/garment_target_layers/{cam}/{frame:05d}.png",
 }
 FRAME_STREAMS = {
     "kinect_depth": "kinect/depth/{frame:05d}.png",
@@ -329,6 +337,22 @@ class Frame:
         return _LazyFiles(self.session, "gt_mask", self.frame_id,
                           lambda rel: self.session.read_image(rel, False) > 127)
 
+    @cached_property
+    def gt_layers(self) -> Mapping[str, np.ndarray]:
+        """Camera name -> uint8 (H, W) labels: 0 background, 1 body (skin), 2 the garment the actor wears."""
+        return _LazyFiles(self.session, "gt_layers", self.frame_id, lambda rel: self.session.read_image(rel, False))
+
+    @cached_property
+    def gt_target(self) -> Mapping[str, np.ndarray]:
+        """Camera name -> RGB uint8: the true render of the actor wearing the target garment (garment sessions)."""
+        return _LazyFiles(self.session, "gt_target", self.frame_id, lambda rel: self.session.read_image(rel, True))
+
+    @cached_property
+    def gt_target_layers(self) -> Mapping[str, np.ndarray]:
+        """Camera name -> uint8 (H, W) labels of ``gt_target``: 0 background, 1 body, 2 the target garment."""
+        return _LazyFiles(self.session, "gt_target_layers", self.frame_id,
+                          lambda rel: self.session.read_image(rel, False))
+
     def _optional(self, stream: str):
         rel = stream_path(stream, self.frame_id)
         return rel if rel in self.session.files else None
@@ -538,6 +562,35 @@ class Session:
         if GT_MIRROR_ACTORS not in self.files:
             return None
         return parse_npz_bytes(self.read_bytes(GT_MIRROR_ACTORS), str(self.path / GT_MIRROR_ACTORS))
+
+    @cached_property
+    def gt_lighting(self) -> dict | None:
+        """Garment sessions: ``{"directions", "colors", "ambient", "space": "world"}`` of the true lights."""
+        return self.read_json(GT_LIGHTING) if GT_LIGHTING in self.files else None
+
+    @cached_property
+    def gt_garment(self) -> dict | None:
+        """Garment sessions: the worn and the target garments (name, pattern, seed) to rebuild them."""
+        return self.read_json(GT_GARMENT) if GT_GARMENT in self.files else None
+
+    @cached_property
+    def gt_albedo(self) -> np.ndarray | None:
+        """Garment sessions: the subject's per-vertex skin albedo (n, 3) in [0, 1] (template of ``gt_subject``)."""
+        return self._gt_albedo("albedo")
+
+    @cached_property
+    def gt_appearance_albedo(self) -> np.ndarray | None:
+        """Garment sessions: per body vertex the albedo the video shows (the worn garment's where it covers)."""
+        return self._gt_albedo("appearance")
+
+    def _gt_albedo(self, key: str) -> np.ndarray | None:
+        if GT_ALBEDO not in self.files:
+            return None
+        data = self.read_json(GT_ALBEDO)
+        try:
+            return np.asarray(data[key], dtype=np.float64).reshape(-1, 3)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise SessionError(f"{self.path / GT_ALBEDO}: malformed albedo ({exc}); regenerate the session") from None
 
     def frame(self, frame_id: int) -> Frame:
         if frame_id not in self.manifest["frames"]:
@@ -854,6 +907,24 @@ class SessionWriter:
         m = (np.asarray(mask) > 0).astype(np.uint8) * 255
         stream = "gt_mask" if ground_truth else "mask"
         self._stage(stream_path(stream, frame, camera), encode_png(m), stream, frame)
+
+    def write_layers(self, camera: str, frame: int, labels: np.ndarray, target: bool = False) -> None:
+        """Per-pixel layer labels (uint8: 0 background, 1 body, 2 garment) of the frame or of the target render."""
+        self._check_camera(camera)
+        stream = "gt_target_layers" if target else "gt_layers"
+        self._stage(stream_path(stream, frame, camera), encode_png(np.asarray(labels, dtype=np.uint8)), stream, frame)
+
+    def write_target(self, camera: str, frame: int, rgb: np.ndarray) -> None:
+        """The true render of the actor wearing the target garment (garment sessions)."""
+        self._check_camera(camera)
+        self._stage(stream_path("gt_target", frame, camera), encode_png(rgb, f"{camera} target {frame}"),
+                    "gt_target", frame)
+
+    def write_gt_json(self, rel: str, data: dict) -> None:
+        """A ground-truth JSON file of the whole session (``GT_LIGHTING``, ``GT_GARMENT``, ``GT_ALBEDO``)."""
+        if rel not in (GT_LIGHTING, GT_GARMENT, GT_ALBEDO):
+            raise ValueError(f"unknown ground-truth file {rel!r}")
+        self._stage(rel, _json_bytes(data))
 
     def write_background(self, camera: str, index: int, rgb: np.ndarray) -> None:
         self._check_camera(camera)

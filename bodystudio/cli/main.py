@@ -56,6 +56,7 @@ def _register() -> None:
     from bodystudio.cli import mirror
 
     app.add_typer(mirror.app, name="mirror", help="Virtual mirror: fit, track and reshape a person in Kinect video.")
+    from bodystudio.cli import garment  # noqa: F401  (adds ``synth garment``)
 
 
 _register()

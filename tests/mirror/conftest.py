@@ -19,6 +19,6 @@ def model_6k():
 def walk_scene():
     """Subject 13 walking (14 cm taller, 20 kg heavier than the mean shape), 6 frames (every 6th of a
     36-frame walk), Kinect v2 depth noise and tracker noise."""
-    from scene import synthetic_scene
+    from tests.mirror.scene import synthetic_scene
 
     return synthetic_scene(13, n_frames=6, motion="walk", frame_stride=6, seed=3)

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from scene import synthetic_scene
+from tests.mirror.scene import synthetic_scene
 from scipy.spatial import cKDTree
 
 from bodystudio.mirror.init import (
