@@ -68,6 +68,7 @@ class MirrorInput:
     warning: str | None = None
     timings_ms: dict = field(default_factory=dict)
     pair_groups: np.ndarray | None = None  # (m,) person of each pair when several are reshaped
+    unseen: np.ndarray | None = None  # (H, W) bool colour pixels outside the depth camera's view
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,10 +102,10 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     if inp.warning is None and has_person and (inp.src_uv is None or len(inp.src_uv) < MIN_PAIRS):
         inp = MirrorInput(inp.index, rgb, inp.person_mask, inp.others_mask, inp.depth_color, None, None,
                           f"only {0 if inp.src_uv is None else len(inp.src_uv)} visible vertex pairs "
-                          f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups)
+                          f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups, inp.unseen)
     if inp.warning is not None or not has_person:
         t = time.perf_counter()
-        background = update_background(background, rgb, person | others)
+        background = update_background(background, rgb, person | others, unverified=inp.unseen)
         timings["background"] = (time.perf_counter() - t) * 1e3
         status = "passed_through" if inp.warning is not None else "empty"
         result = FrameResult(inp.index, rgb.copy(), person.copy(), person.copy(), status, inp.warning, timings)
@@ -112,7 +113,8 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     if background is None:
         background = update_background(None, rgb, np.ones((H, W), bool))  # nothing learnt yet: inpaint holes
     t0 = time.perf_counter()
-    fg = refine_foreground(rgb, person, inp.depth_color, background=background, **(foreground_options or {}))
+    fg = refine_foreground(rgb, person, inp.depth_color, background=background, unseen=inp.unseen,
+                           **(foreground_options or {}))
     t1 = time.perf_counter()
     warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind, alpha=alpha, groups=inp.pair_groups)
     t2 = time.perf_counter()
@@ -120,7 +122,7 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     t3 = time.perf_counter()
     out = compose(warped_rgb, alpha, background, rgb, fg | others if others.any() else fg)
     t4 = time.perf_counter()
-    background = update_background(background, rgb, fg | person | others)
+    background = update_background(background, rgb, fg | person | others, unverified=inp.unseen)
     t5 = time.perf_counter()
     for step, a, b in zip(IMAGE_STEPS, (t0, t1, t2, t3, t4), (t1, t2, t3, t4, t5), strict=True):
         timings[step] = (b - a) * 1e3
@@ -301,6 +303,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
     previous = None
     tracked_frames = 0
     last_rgb = None
+    seen = None
     for i in (session.frame_ids if frames is None else frames):
         timings = {}
         t = time.perf_counter()
@@ -314,13 +317,16 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
         t1 = time.perf_counter()
         timings["read"] = (t1 - t) * 1e3
         depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, sensor)
+        # where the depth camera has ever measured (its view is narrower than the colour camera's)
+        seen = (depth_c > 0) if seen is None else seen | (depth_c > 0)
+        unseen = cv2.dilate(seen.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
         person = players_c == int(player)
         others = (players_c > 0) & ~person
         t2 = time.perf_counter()
         timings["register"] = (t2 - t1) * 1e3
         tracked = frame.body(int(player))
         base = dict(index=int(i), rgb=frame.rgb, person_mask=person, others_mask=others, depth_color=depth_c,
-                    timings_ms=timings)
+                    timings_ms=timings, unseen=unseen)
         if tracked is None:
             warning = None if not person.any() else f"player {player} is in the mask but no body is tracked"
             yield MirrorInput(**base, warning=warning)
