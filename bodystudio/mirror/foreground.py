@@ -81,7 +81,7 @@ def foreground_band(mask: np.ndarray, band_px: int) -> tuple[np.ndarray, np.ndar
 def refine_foreground(rgb, player_mask_color, depth_color=None, band_px: int = 6, smoothness: float = 5.0,
                       depth_weight: float = 3.0, depth_tol_m: float = 0.35, background=None,
                       background_weight: float = 1.0, background_sigma: float = 12.0,
-                      method: str = "maxflow", unseen=None, unseen_reach_px: int = 24) -> np.ndarray:
+                      method: str = "maxflow", unseen=None, unseen_reach_px: int = 40) -> np.ndarray:
     """Graph-cut refinement of the player mask in a narrow band around its boundary, §5.3 (Boykov-Jolly 2001).
 
     ``rgb`` (H, W, 3) uint8; ``player_mask_color`` (H, W) the SDK mask mapped into colour; ``depth_color``
