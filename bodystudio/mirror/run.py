@@ -69,6 +69,7 @@ class MirrorInput:
     timings_ms: dict = field(default_factory=dict)
     pair_groups: np.ndarray | None = None  # (m,) person of each pair when several are reshaped
     unseen: np.ndarray | None = None  # (H, W) bool colour pixels outside the depth camera's view
+    edit_fraction: float | None = None  # how far the gradual edit has come (1 = the full edit)
 
 
 @dataclass(frozen=True, eq=False)
@@ -245,6 +246,7 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
                 for step, value in res.timings_ms.items():
                     steps_ms.setdefault(step, []).append(value)
                 results.append({"index": res.index, "status": res.status, "warning": res.warning,
+                                "edit_fraction": inp.edit_fraction,
                                 "ms": {k: round(v, 3) for k, v in res.timings_ms.items()}})
                 bar.advance(task)
         finally:
@@ -352,7 +354,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
         timings["bodies"] = (t4 - t3) * 1e3
         src_uv, dst_uv, _ = visible_vertex_pairs(Vs, Vt, body.faces, camera)
         timings["pairs"] = (time.perf_counter() - t4) * 1e3
-        yield MirrorInput(**base, src_uv=src_uv, dst_uv=dst_uv)
+        yield MirrorInput(**base, src_uv=src_uv, dst_uv=dst_uv, edit_fraction=s)
 
 
 def _stage_module(name: str):
