@@ -125,13 +125,24 @@ def test_stream_refuses_bad_options(tmp_path):
     assert not Path(tmp_path / "run").exists()
 
 
+def _missing(*modules: str) -> bool:
+    """True until the other mirror helpers' modules are merged (the file is absent; an import error in a
+    present module is not hidden: find_spec does not import it). Remove with the guard after the merge."""
+    import importlib.util
+
+    return any(importlib.util.find_spec(m) is None for m in modules)
+
+
 @pytest.mark.slow
+@pytest.mark.skipif(_missing("bodystudio.mirror.synthetic", "bodystudio.mirror.reshape", "bodystudio.mirror.evaluate"),
+                    reason="needs MIR-SYNTH's synthetic/evaluate and MIR-BODY's init/reshape (not merged here yet)")
 def test_run_mirror_end_to_end_on_a_synthetic_session(tmp_path):
-    """synth mirror -> mirror init -> mirror run -> eval mirror (needs MIR-SYNTH's and MIR-BODY's modules)."""
-    synthetic = pytest.importorskip("bodystudio.mirror.synthetic")
-    pytest.importorskip("bodystudio.mirror.reshape")
-    evaluate = pytest.importorskip("bodystudio.mirror.evaluate")
-    init = pytest.importorskip("bodystudio.mirror.init")
+    """synth mirror -> mirror init -> mirror run -> eval mirror."""
+    import importlib
+
+    synthetic = importlib.import_module("bodystudio.mirror.synthetic")
+    evaluate = importlib.import_module("bodystudio.mirror.evaluate")
+    init = importlib.import_module("bodystudio.mirror.init")
     from bodystudio.body.statistical import load_statistical_model
     from bodystudio.mirror.run import run_mirror
 
@@ -139,7 +150,7 @@ def test_run_mirror_end_to_end_on_a_synthetic_session(tmp_path):
                                              motion="a_pose", walk_in=False)
     body = init.initialise_source_body(session, load_statistical_model("6k", progress=False), n_frames=4)
     init.save_source_body(session.path / "mirror" / "source_body.npz", body)
-    doc = run_mirror(session, {"taller": 0.16}, tmp_path / "out.mp4", progress=False)
+    doc = run_mirror(session, {"taller": 0.16}, tmp_path / "out.mp4", progress=False, ramp_frames=0)
     assert doc["summary"]["frames"] == 14 and doc["summary"]["n_empty"] >= 10
     scores = evaluate.evaluate_mirror(session, session.path / "mirror" / "run")
     assert scores["fg_iou"] > scores["fg_iou_raw"] + 0.05
