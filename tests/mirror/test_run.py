@@ -125,25 +125,11 @@ def test_stream_refuses_bad_options(tmp_path):
     assert not Path(tmp_path / "run").exists()
 
 
-def _missing(*modules: str) -> bool:
-    """True until the other mirror helpers' modules are merged (the file is absent; an import error in a
-    present module is not hidden: find_spec does not import it). Remove with the guard after the merge."""
-    import importlib.util
-
-    return any(importlib.util.find_spec(m) is None for m in modules)
-
-
 @pytest.mark.slow
-@pytest.mark.skipif(_missing("bodystudio.mirror.synthetic", "bodystudio.mirror.reshape", "bodystudio.mirror.evaluate"),
-                    reason="needs MIR-SYNTH's synthetic/evaluate and MIR-BODY's init/reshape (not merged here yet)")
 def test_run_mirror_end_to_end_on_a_synthetic_session(tmp_path):
-    """synth mirror -> mirror init -> mirror run -> eval mirror."""
-    import importlib
-
-    synthetic = importlib.import_module("bodystudio.mirror.synthetic")
-    evaluate = importlib.import_module("bodystudio.mirror.evaluate")
-    init = importlib.import_module("bodystudio.mirror.init")
+    """synth mirror -> mirror init -> mirror run -> eval mirror, the edit applied at once (no ramp)."""
     from bodystudio.body.statistical import load_statistical_model
+    from bodystudio.mirror import evaluate, init, synthetic
     from bodystudio.mirror.run import run_mirror
 
     session = synthetic.synth_mirror_session(tmp_path / "s", 3, n_frames=14, edits={"taller": 0.16}, version="v1",
