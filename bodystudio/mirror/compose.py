@@ -59,11 +59,13 @@ def confident_background(fg_mask: np.ndarray, margin_px: int = 15) -> np.ndarray
 
 
 def update_background(model: BackgroundModel | None, rgb, fg_mask, margin_px: int = 15,
-                      rate: float = 0.5) -> BackgroundModel:
+                      rate: float = 0.5, unverified=None) -> BackgroundModel:
     """Background model update of §5.5: confident background pixels replace the older ones.
 
     A pixel seen for the first time is copied; one seen before moves ``rate`` of the way to the new
-    value (1 = plain replacement as in the paper; less averages out sensor noise). ``model`` None
+    value (1 = plain replacement as in the paper; less averages out sensor noise). ``unverified``
+    (H, W) bool marks pixels whose emptiness cannot be checked (outside the depth camera's view, where
+    no player mask exists): they are learnt once, from the empty scene, and then kept. ``model`` None
     starts an empty one. Returns a new model; the old one is unchanged.
     """
     rgb, fg_mask = _check_image_and_mask(rgb, fg_mask, "update_background")
@@ -74,6 +76,12 @@ def update_background(model: BackgroundModel | None, rgb, fg_mask, margin_px: in
     if model.image.shape != rgb.shape:
         raise InputError(f"background model {model.image.shape} does not match the frame {rgb.shape}")
     confident = confident_background(fg_mask, int(margin_px))
+    if unverified is not None:
+        unverified = np.asarray(unverified, dtype=bool)
+        if unverified.shape != confident.shape:
+            raise InputError(f"update_background: unverified mask {unverified.shape} must match the frame "
+                             f"{confident.shape}")
+        confident &= ~(unverified & model.valid)
     if rate >= 1.0 or not model.valid.any():
         new = rgb
     else:

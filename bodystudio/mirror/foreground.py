@@ -81,14 +81,17 @@ def foreground_band(mask: np.ndarray, band_px: int) -> tuple[np.ndarray, np.ndar
 def refine_foreground(rgb, player_mask_color, depth_color=None, band_px: int = 6, smoothness: float = 5.0,
                       depth_weight: float = 3.0, depth_tol_m: float = 0.35, background=None,
                       background_weight: float = 1.0, background_sigma: float = 12.0,
-                      method: str = "maxflow") -> np.ndarray:
+                      method: str = "maxflow", unseen=None, unseen_reach_px: int = 40) -> np.ndarray:
     """Graph-cut refinement of the player mask in a narrow band around its boundary, §5.3 (Boykov-Jolly 2001).
 
     ``rgb`` (H, W, 3) uint8; ``player_mask_color`` (H, W) the SDK mask mapped into colour; ``depth_color``
     (H, W) metres registered to colour, 0 where unmeasured (optional); ``background`` an optional
     :class:`bodystudio.mirror.compose.BackgroundModel` whose valid pixels add a colour-difference cue.
     ``smoothness`` is lambda of the pairwise term (in units of the data terms, nats). Returns (H, W) bool.
-    Pixels farther than ``band_px`` from the mask boundary keep the mask's label.
+    Pixels farther than ``band_px`` from the mask boundary keep the mask's label, except ``unseen`` ones:
+    (H, W) bool colour pixels the depth camera does not see (its view is narrower than the colour
+    camera's), where the SDK mask is empty whatever is there; those within ``unseen_reach_px`` of the
+    mask join the band, so a person at the edge of the depth view is completed by colour.
     """
     if method not in FOREGROUND_METHODS:
         raise InputError(f"foreground method {method!r}; valid: {', '.join(FOREGROUND_METHODS)}")
@@ -99,13 +102,25 @@ def refine_foreground(rgb, player_mask_color, depth_color=None, band_px: int = 6
     H, W = mask.shape
     if not mask.any():
         return mask.copy()
+    extra = None
+    if unseen is not None:
+        unseen = np.asarray(unseen, dtype=bool)
+        if unseen.shape != mask.shape:
+            raise InputError(f"refine_foreground: unseen mask {unseen.shape} must match the colour image {mask.shape}")
+        reach = int(np.clip(unseen_reach_px, 0, 512))
+        near = cv2.dilate(mask.astype(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) > 0
+        extra = unseen & near & ~mask
+        if not extra.any():
+            extra = None
     # Work in the crop that holds the band and the sure rings the colour models are learnt from.
-    x, y, w, h = cv2.boundingRect(mask.astype(np.uint8))
+    x, y, w, h = cv2.boundingRect((mask if extra is None else mask | extra).astype(np.uint8))
     pad = 3 * band_px + 2
     x0, y0, x1, y1 = max(x - pad, 0), max(y - pad, 0), min(x + w + pad, W), min(y + h + pad, H)
     crop = (slice(y0, y1), slice(x0, x1))
     sub_rgb, sub_mask = rgb[crop], mask[crop]
     inner, band = foreground_band(sub_mask, band_px)
+    if extra is not None:
+        band |= extra[crop] & ~inner
     if not band.any():
         return mask.copy()
     if method == "grabcut":
@@ -114,14 +129,19 @@ def refine_foreground(rgb, player_mask_color, depth_color=None, band_px: int = 6
         labels = _band_graph_cut(sub_rgb, sub_mask, inner, band, band_px, smoothness,
                                  None if depth is None else depth[crop], depth_weight, depth_tol_m,
                                  None if background is None else (background.image[crop], background.valid[crop]),
-                                 background_weight, background_sigma)
+                                 background_weight, background_sigma, None if extra is None else extra[crop])
     out = mask.copy()
     out[crop] = inner | labels
     return out
 
 
+#: Weight of the background-model cue in the unseen extension of the band, relative to the band's: there the
+#: SDK mask says nothing, and the learnt empty scene is the one cue that tells a person from the room.
+UNSEEN_BACKGROUND_GAIN = 4.0
+
+
 def _band_graph_cut(rgb, mask, inner, band, band_px, smoothness, depth, depth_weight, depth_tol_m, background,
-                    background_weight, background_sigma) -> np.ndarray:
+                    background_weight, background_sigma, extra=None) -> np.ndarray:
     import maxflow
 
     h, w = mask.shape
@@ -150,8 +170,11 @@ def _band_graph_cut(rgb, mask, inner, band, band_px, smoothness, depth, depth_we
         diff2 = np.sum((rgb[br, bc].astype(np.float32) - image[br, bc].astype(np.float32)) ** 2, axis=1)
         # like the background: cheap to call background; unlike it: cheap to call foreground
         like = np.exp(-diff2 / (2 * 3 * background_sigma ** 2))
-        cost_fg += background_weight * ok * like * 4.0
-        cost_bg += background_weight * ok * (1 - like) * 4.0
+        gain = background_weight * 4.0
+        if extra is not None:
+            gain = gain * np.where(extra[br, bc], UNSEEN_BACKGROUND_GAIN, 1.0)
+        cost_fg += gain * ok * like
+        cost_bg += gain * ok * (1 - like)
     # node ids of band pixels; -1 elsewhere
     node = np.full((h, w), -1, np.int64)
     node[br, bc] = np.arange(len(br))

@@ -68,6 +68,8 @@ class MirrorInput:
     warning: str | None = None
     timings_ms: dict = field(default_factory=dict)
     pair_groups: np.ndarray | None = None  # (m,) person of each pair when several are reshaped
+    unseen: np.ndarray | None = None  # (H, W) bool colour pixels outside the depth camera's view
+    edit_fraction: float | None = None  # how far the gradual edit has come (1 = the full edit)
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,10 +103,10 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     if inp.warning is None and has_person and (inp.src_uv is None or len(inp.src_uv) < MIN_PAIRS):
         inp = MirrorInput(inp.index, rgb, inp.person_mask, inp.others_mask, inp.depth_color, None, None,
                           f"only {0 if inp.src_uv is None else len(inp.src_uv)} visible vertex pairs "
-                          f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups)
+                          f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups, inp.unseen)
     if inp.warning is not None or not has_person:
         t = time.perf_counter()
-        background = update_background(background, rgb, person | others)
+        background = update_background(background, rgb, person | others, unverified=inp.unseen)
         timings["background"] = (time.perf_counter() - t) * 1e3
         status = "passed_through" if inp.warning is not None else "empty"
         result = FrameResult(inp.index, rgb.copy(), person.copy(), person.copy(), status, inp.warning, timings)
@@ -112,7 +114,8 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     if background is None:
         background = update_background(None, rgb, np.ones((H, W), bool))  # nothing learnt yet: inpaint holes
     t0 = time.perf_counter()
-    fg = refine_foreground(rgb, person, inp.depth_color, background=background, **(foreground_options or {}))
+    fg = refine_foreground(rgb, person, inp.depth_color, background=background, unseen=inp.unseen,
+                           **(foreground_options or {}))
     t1 = time.perf_counter()
     warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind, alpha=alpha, groups=inp.pair_groups)
     t2 = time.perf_counter()
@@ -120,7 +123,7 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     t3 = time.perf_counter()
     out = compose(warped_rgb, alpha, background, rgb, fg | others if others.any() else fg)
     t4 = time.perf_counter()
-    background = update_background(background, rgb, fg | person | others)
+    background = update_background(background, rgb, fg | person | others, unverified=inp.unseen)
     t5 = time.perf_counter()
     for step, a, b in zip(IMAGE_STEPS, (t0, t1, t2, t3, t4), (t1, t2, t3, t4, t5), strict=True):
         timings[step] = (b - a) * 1e3
@@ -139,7 +142,8 @@ class _VideoWriter:
         # the staged file has no extension: name the container
         self._gen = imageio_ffmpeg.write_frames(str(path), size, fps=fps, codec="libx264", pix_fmt_in="rgb24",
                                                 pix_fmt_out="yuv420p", quality=7, macro_block_size=8,
-                                                ffmpeg_log_level="error", output_params=["-f", "mp4"])
+                                                ffmpeg_log_level="error",
+                                                output_params=["-f", "mp4", "-preset", "veryfast"])
         self._gen.send(None)
 
     def write(self, rgb: np.ndarray) -> None:
@@ -154,7 +158,9 @@ class _VideoWriter:
 
 
 def _png(image: np.ndarray) -> bytes:
-    ok, data = cv2.imencode(".png", image if image.ndim == 2 else image[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    # Huffman-only deflate: a noisy 640x480 frame in 19 instead of 26 ms CPU, and 15 % smaller
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
+    ok, data = cv2.imencode(".png", image if image.ndim == 2 else image[..., ::-1], params)
     if not ok:
         raise FileFormatError("cannot encode a PNG frame")
     return data.tobytes()
@@ -243,6 +249,7 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
                 for step, value in res.timings_ms.items():
                     steps_ms.setdefault(step, []).append(value)
                 results.append({"index": res.index, "status": res.status, "warning": res.warning,
+                                "edit_fraction": inp.edit_fraction,
                                 "ms": {k: round(v, 3) for k, v in res.timings_ms.items()}})
                 bar.advance(task)
         finally:
@@ -301,6 +308,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
     previous = None
     tracked_frames = 0
     last_rgb = None
+    seen = None
     for i in (session.frame_ids if frames is None else frames):
         timings = {}
         t = time.perf_counter()
@@ -314,13 +322,16 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
         t1 = time.perf_counter()
         timings["read"] = (t1 - t) * 1e3
         depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, sensor)
+        # where the depth camera has ever measured (its view is narrower than the colour camera's)
+        seen = (depth_c > 0) if seen is None else seen | (depth_c > 0)
+        unseen = cv2.dilate(seen.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
         person = players_c == int(player)
         others = (players_c > 0) & ~person
         t2 = time.perf_counter()
         timings["register"] = (t2 - t1) * 1e3
         tracked = frame.body(int(player))
         base = dict(index=int(i), rgb=frame.rgb, person_mask=person, others_mask=others, depth_color=depth_c,
-                    timings_ms=timings)
+                    timings_ms=timings, unseen=unseen)
         if tracked is None:
             warning = None if not person.any() else f"player {player} is in the mask but no body is tracked"
             yield MirrorInput(**base, warning=warning)
@@ -346,7 +357,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
         timings["bodies"] = (t4 - t3) * 1e3
         src_uv, dst_uv, _ = visible_vertex_pairs(Vs, Vt, body.faces, camera)
         timings["pairs"] = (time.perf_counter() - t4) * 1e3
-        yield MirrorInput(**base, src_uv=src_uv, dst_uv=dst_uv)
+        yield MirrorInput(**base, src_uv=src_uv, dst_uv=dst_uv, edit_fraction=s)
 
 
 def _stage_module(name: str):

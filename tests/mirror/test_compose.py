@@ -84,3 +84,19 @@ def test_bad_inputs_are_one_line_errors():
         compose(rgb, mask.astype(float), empty_background((10, 10)), rgb, mask)
     with pytest.raises(InputError, match="uint8"):
         compose(rgb.astype(float), mask, empty_background((48, 64)), rgb, mask)
+
+
+def test_unverified_pixels_are_learnt_once_from_the_empty_scene():
+    """Outside the depth view there is no player mask: a person walking in there must not become background."""
+    empty = np.full((40, 60, 3), 50, np.uint8)
+    person_in_strip = empty.copy()
+    person_in_strip[:, :10] = 220
+    no_fg = np.zeros((40, 60), bool)
+    unseen = np.zeros((40, 60), bool)
+    unseen[:, :10] = True
+    model = update_background(None, empty, no_fg, unverified=unseen)
+    assert model.valid.all() and np.all(model.image == 50)  # first sighting: learnt
+    after = update_background(model, person_in_strip, no_fg, unverified=unseen)
+    assert np.all(after.image[:, :10] == 50)  # kept
+    naive = update_background(model, person_in_strip, no_fg)
+    assert np.all(naive.image[:, :10] > 100)  # without the mask the person is learnt

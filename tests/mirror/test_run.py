@@ -35,6 +35,7 @@ def test_stream_writes_frames_masks_videos_and_run_json(tmp_path):
     assert status == [(0, "empty"), (1, "empty"), (2, "ok"), (3, "ok"), (4, "ok"), (5, "passed_through"),
                       (6, "passed_through"), (7, "passed_through")]
     assert doc["summary"]["n_warnings"] == 3 and doc["summary"]["n_ok"] == 3
+    assert all("edit_fraction" in f for f in doc["frames"])
     assert "finite" in doc["frames"][7]["warning"] and "vertex pairs" in doc["frames"][6]["warning"]
     on_disk = json.loads((run / "run.json").read_text())
     assert on_disk["edits"] == {"taller": 0.16} and on_disk["run"]["files"]
