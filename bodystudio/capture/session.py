@@ -29,6 +29,7 @@ import logging
 import os
 import re
 import shutil
+import weakref
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -45,6 +46,7 @@ from bodystudio.runfolder import (
     RunLayout,
     acquire_lock,
     apply_commit,
+    hold_read_lock,
     lock_holder,
     read_lock,
     recover_layout,
@@ -541,10 +543,10 @@ def open_session(path: str | os.PathLike) -> Session:
     staging = path / STAGING
     if not path.is_dir():
         raise SessionError(f"{path}: no such session folder")
-    holder = lock_holder(session_layout(path))
-    if holder is not None:
-        raise SessionError(f"{path}: session is being written by pid {holder.get('pid')} on {holder.get('host')} "
-                           f"({holder.get('command')}, since {holder.get('since')}); wait for it to finish")
+    try:  # a shared read lock for as long as this command reads the session: no writer may start meanwhile
+        read_lock = hold_read_lock(session_layout(path))
+    except OutputLockedError as exc:
+        raise SessionError(str(exc).replace(": being written", ": session is being written", 1)) from None
     if (staging / COMMIT).is_file():
         raise SessionError(f"{staging / COMMIT}: a write was interrupted while committing; run "
                            f"`bodystudio capture recover {path}` to finish it")
@@ -569,7 +571,9 @@ def open_session(path: str | os.PathLike) -> Session:
     if interrupted:
         log.warning("%s; showing the last committed state (run `bodystudio capture recover %s` to discard it)",
                     interrupted, path)
-    return Session(path, manifest, interrupted)
+    session = Session(path, manifest, interrupted)
+    weakref.finalize(session, read_lock.release)
+    return session
 
 
 def _check_manifest(m: Any, source: Path) -> None:

@@ -130,6 +130,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         _error_line("interrupted")
         return 130
+    finally:
+        from bodystudio.runfolder import release_read_locks
+
+        release_read_locks()  # the command's shared read locks end with it
     return 0
 
 
