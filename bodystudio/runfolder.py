@@ -296,6 +296,23 @@ class ReadLock:
 
 
 _HELD: list[ReadLock] = []
+_HOLDING = [False]  # inside command_read_locks(): readers register shared locks
+
+
+@contextlib.contextmanager
+def command_read_locks():
+    """Scope of one command: every read inside takes a shared read lock, all released at the end.
+
+    The CLI runs each command inside it. Outside it (library use: a notebook, a test reading a folder)
+    readers only check for a live writer at their start, so a long-lived process never blocks writers."""
+    previous = _HOLDING[0]
+    _HOLDING[0] = True
+    try:
+        yield
+    finally:
+        _HOLDING[0] = previous
+        if not previous:
+            release_read_locks()
 
 
 def reader_command() -> str:
@@ -303,8 +320,14 @@ def reader_command() -> str:
     return " ".join([Path(sys.argv[0]).name] + sys.argv[1:3]) if sys.argv and sys.argv[0] else "python"
 
 
-def hold_read_lock(layout: RunLayout, command: str | None = None) -> ReadLock:
-    """Take a read lock held until :func:`release_read_locks` (the CLI calls it when a command ends) or exit."""
+def hold_read_lock(layout: RunLayout, command: str | None = None) -> ReadLock | None:
+    """Inside :func:`command_read_locks`: take a read lock held until the command ends (refuses a live writer
+    now, and writers until then). Outside it: only refuse a live writer now (None)."""
+    if not _HOLDING[0]:
+        holder = lock_holder(layout)
+        if holder is not None:
+            raise OutputLockedError(_busy_message(layout, holder))
+        return None
     lock = ReadLock(layout, command or reader_command())
     _HELD.append(lock)
     return lock
@@ -327,8 +350,8 @@ def interrupted_message(layout: RunLayout) -> str:
 
 
 def check_readable(layout: RunLayout) -> str | None:
-    """Take a read lock (:func:`hold_read_lock`: refuses a live writer now, and refuses writers until this
-    command ends), refuse a committed-but-unfinished write; return a note for an uncommitted leftover.
+    """Take a read lock (:func:`hold_read_lock`: refuses a live writer now, and, in a command, writers until it
+    ends), refuse a committed-but-unfinished write; return a note for an uncommitted leftover.
 
     With an uncommitted leftover the previous complete result is still in place and readable.
     """

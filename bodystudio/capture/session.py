@@ -547,6 +547,18 @@ def open_session(path: str | os.PathLike) -> Session:
         read_lock = hold_read_lock(session_layout(path))
     except OutputLockedError as exc:
         raise SessionError(str(exc).replace(": being written", ": session is being written", 1)) from None
+    try:
+        session = _open_checked(path, manifest_path, staging)
+    except BaseException:
+        if read_lock is not None:
+            read_lock.release()
+        raise
+    if read_lock is not None:
+        weakref.finalize(session, read_lock.release)
+    return session
+
+
+def _open_checked(path: Path, manifest_path: Path, staging: Path) -> Session:
     if (staging / COMMIT).is_file():
         raise SessionError(f"{staging / COMMIT}: a write was interrupted while committing; run "
                            f"`bodystudio capture recover {path}` to finish it")
@@ -571,9 +583,7 @@ def open_session(path: str | os.PathLike) -> Session:
     if interrupted:
         log.warning("%s; showing the last committed state (run `bodystudio capture recover %s` to discard it)",
                     interrupted, path)
-    session = Session(path, manifest, interrupted)
-    weakref.finalize(session, read_lock.release)
-    return session
+    return Session(path, manifest, interrupted)
 
 
 def _check_manifest(m: Any, source: Path) -> None:

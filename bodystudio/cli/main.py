@@ -112,10 +112,13 @@ def plain_usage(command) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the app; user errors become one line and exit 2, usage errors click's usage and exit 2."""
+    from bodystudio.runfolder import command_read_locks
+
     try:
         command = typer.main.get_command(app)
         plain_usage(command)
-        command.main(args=argv, standalone_mode=False, prog_name="bodystudio")
+        with command_read_locks():  # the command's shared read locks end with it
+            command.main(args=argv, standalone_mode=False, prog_name="bodystudio")
     except BodyStudioError as exc:
         _error_line(f"error: {exc}")
         return 2
@@ -130,10 +133,6 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         _error_line("interrupted")
         return 130
-    finally:
-        from bodystudio.runfolder import release_read_locks
-
-        release_read_locks()  # the command's shared read locks end with it
     return 0
 
 

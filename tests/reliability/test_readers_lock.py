@@ -22,9 +22,11 @@ from .conftest import CODE_ROOT, Studio, assert_clean_error, cli_env, run_inproc
 READER = """
 import sys
 from bodystudio.capture.session import open_session
-s = open_session(sys.argv[1])
-print("ready", flush=True)
-sys.stdin.read()
+from bodystudio.runfolder import command_read_locks
+with command_read_locks():  # what every CLI command runs in
+    s = open_session(sys.argv[1])
+    print("ready", flush=True)
+    sys.stdin.read()
 """
 
 WRITER = """
@@ -95,3 +97,11 @@ def test_read_locks_end_with_the_command(session, capfd):
     res = run_inprocess(["capture", "verify", str(session)], capfd)
     assert res.rc == 0, res.stderr
     assert not session_layout(session).readers.exists()
+
+
+def test_library_reads_outside_a_command_hold_no_lock(session):
+    """A notebook or test that keeps a session open does not block writers of other processes; it still
+    meets a live writer at its start."""
+    s = open_session(session)
+    assert not session_layout(session).readers.exists()
+    assert s.frame_ids
