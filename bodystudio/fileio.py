@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import logging
 import os
 import re
 import stat
@@ -22,6 +23,8 @@ from typing import Any
 import numpy as np
 
 from bodystudio.errors import FileFormatError, InputError
+
+log = logging.getLogger(__name__)
 
 
 def _umask_mode() -> int:
@@ -173,9 +176,25 @@ _DECODER_WARNING = re.compile(r"^(libpng (warning|error)|Premature end of JPEG|C
                               r"Huffman|Inconsistent progression|Invalid SOS|Invalid component|"
                               r"Application transferred too few|Unknown APP|Ss=|Suspension|"
                               r"\[ ?WARN:.*(imgcodecs|grfmt|loadsave|imdecode))", re.MULTILINE)
-#: libpng warnings about colour-profile chunks (iCCP, sRGB, cHRM, gAMA): the pixels are intact, so these
-#: are silenced rather than refused (Photoshop writes such profiles into ordinary PNGs).
-_HARMLESS_PNG_WARNING = re.compile(r"^libpng warning: (iCCP|sRGB|cHRM|gAMA|Interlace handling)", re.MULTILINE)
+#: The one kind of libpng warning that does not refuse an image: the content of a colour-management chunk
+#: (iCCP, sRGB, cHRM, gAMA) that libpng finds non-conforming, e.g. "iCCP: known incorrect sRGB profile"
+#: (the HP/Photoshop sRGB profile many tools embed), "iCCP: cHRM chunk does not match sRGB", "iCCP: profile
+#: 'x': 'GRAY': Gray color space not permitted on RGB PNG", "sRGB: invalid". Such a chunk passed its CRC, so
+#: it is what the writing software wrote, and OpenCV applies no colour management: the decoded pixels come
+#: from IDAT alone and are exact. "Interlace handling ..." is OpenCV's own call order for interlaced files
+#: (pixels exact too). A CRC error in ANY chunk (the bytes changed after writing) or a decompression error
+#: is damage and is refused like every other decoder warning (docs/reliability.md: decoder rule).
+_COLOUR_CHUNK_WARNING = re.compile(r"^libpng warning: ((iCCP|sRGB|cHRM|gAMA): |Interlace handling)")
+_DAMAGE_WORDS = re.compile(r"CRC|zlib|compress|truncat|damaged|incomplete|too many|extra", re.IGNORECASE)
+
+
+def colour_profile_warning(line: str) -> bool:
+    """True for a libpng warning about a colour-management chunk's content (accepted, logged); False for
+    everything else, CRC and decompression errors in those chunks included (refused)."""
+    line = line.strip()
+    return bool(_COLOUR_CHUNK_WARNING.match(line)) and not _DAMAGE_WORDS.search(line)
+
+
 _stderr_lock = threading.Lock()
 
 
@@ -205,7 +224,8 @@ def _native_stderr_captured() -> Iterator[list[str]]:
 
 
 def decode_image(data: bytes, source: str | os.PathLike, flags: int | None = None) -> np.ndarray:
-    """Decode image bytes with OpenCV, treating any libjpeg/libpng warning as an error naming ``source``.
+    """Decode image bytes with OpenCV, treating any libjpeg/libpng warning as an error naming ``source``,
+    except a PNG colour-profile warning on an intact chunk (:func:`colour_profile_warning`; logged).
 
     ``flags`` are cv2.imread flags (default IMREAD_COLOR, BGR). A truncated JPEG decodes "successfully" with
     a grey bottom and only a nameless warning on stderr; here it raises a one-line FileFormatError.
@@ -215,7 +235,9 @@ def decode_image(data: bytes, source: str | os.PathLike, flags: int | None = Non
     flags = cv2.IMREAD_COLOR if flags is None else flags
     with _native_stderr_captured() as captured:
         image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
-    text = _HARMLESS_PNG_WARNING.sub("", captured[0]) if captured else ""
+    text = captured[0] if captured else ""
+    profile = [line.strip() for line in text.splitlines() if colour_profile_warning(line)]
+    text = "\n".join(line for line in text.splitlines() if not colour_profile_warning(line))
     warnings = [line.strip() for line in text.splitlines() if _DECODER_WARNING.match(line.strip())]
     others = [line for line in text.splitlines() if line.strip() and not _DECODER_WARNING.match(line.strip())]
     if others:  # not the decoder's (another thread's output): give it back
@@ -226,6 +248,8 @@ def decode_image(data: bytes, source: str | os.PathLike, flags: int | None = Non
     if warnings:
         raise FileFormatError(f"{source}: damaged image ({warnings[0]}); the decoder could not read all of it, "
                               "replace or remove it")
+    if profile:
+        log.info("%s: colour profile ignored (%s); pixels are read as stored", source, profile[0])
     return image
 
 

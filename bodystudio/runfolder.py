@@ -20,6 +20,7 @@ unfinished write) and :func:`verify_run_files` (refuses parts whose checksums di
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import errno
 import json
@@ -27,6 +28,7 @@ import logging
 import os
 import shutil
 import socket
+import sys
 import time
 import uuid
 from dataclasses import dataclass
@@ -68,6 +70,11 @@ class RunLayout:
     @property
     def staging(self) -> Path:
         return self.root / f"{self.prefix}staging"
+
+    @property
+    def readers(self) -> Path:
+        """Folder of the shared read locks, one file per reading process."""
+        return self.root / f"{self.prefix}readers"
 
     @property
     def commit_record(self) -> Path:
@@ -147,9 +154,14 @@ def lock_holder(layout: RunLayout) -> dict | None:
 
 
 def _busy_message(layout: RunLayout, holder: dict) -> str:
+    """One line naming the writer; the way out: wait, or `recover` (a lock of this host whose process died is
+    stale anyway), or delete the lock of another host's process, which this one cannot see."""
+    if holder.get("host") == socket.gethostname():
+        fix = f"wait for it to finish or run `bodystudio recover {layout.name}`"
+    else:
+        fix = f"wait for it to finish (if that process is gone, delete {layout.lock})"
     return (f"{layout.name}: being written by pid {holder.get('pid')} on {holder.get('host')} "
-            f"({holder.get('command')}, since {holder.get('since')}); wait for it to finish "
-            f"(if that process is gone, delete {layout.lock})")
+            f"({holder.get('command')}, since {holder.get('since')}); {fix}")
 
 
 def acquire_lock(layout: RunLayout, command: str) -> None:
@@ -187,6 +199,15 @@ def acquire_lock(layout: RunLayout, command: str) -> None:
             f.write(json.dumps(info) + "\n")
             f.flush()
             os.fsync(f.fileno())
+        # Lock first, then look for readers (a reader registers first, then looks for the lock): of a
+        # writer and a reader starting together at least one sees the other, so they never overlap.
+        readers = live_readers(layout)
+        if readers:
+            layout.lock.unlink(missing_ok=True)
+            r = readers[0]
+            more = f" and {len(readers) - 1} more" if len(readers) > 1 else ""
+            raise OutputLockedError(f"{layout.name}: being read by pid {r.get('pid')}{more} ({r.get('command')}, "
+                                    f"since {r.get('since')}); wait for it to finish")
         return
     raise OutputLockedError(f"{layout.name}: could not take the lock {layout.lock}; another writer keeps "
                             "taking it, retry when it is done")
@@ -198,6 +219,129 @@ def release_lock(layout: RunLayout) -> None:
         layout.lock.unlink(missing_ok=True)
 
 
+# ---------------------------------------------------------------------------------------------- read locks
+
+def _holder_info(command: str) -> dict:
+    return {"pid": os.getpid(), "host": socket.gethostname(), "start": _process_start(os.getpid()),
+            "command": command, "since": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+
+
+def live_readers(layout: RunLayout) -> list[dict]:
+    """Holders of the layout's shared read locks that are alive and not this process (stale ones removed)."""
+    try:
+        entries = list(layout.readers.iterdir())
+    except OSError:
+        return []
+    out = []
+    for path in entries:
+        if path.name.startswith("."):  # a registration being written (atomic_write's temporary file)
+            continue
+        holder = read_lock(path)
+        if lock_is_stale(holder, path):
+            path.unlink(missing_ok=True)
+            continue
+        if holder is None:  # being written right now: a reader is starting
+            out.append({"pid": "?", "command": "a reader starting", "since": "just now"})
+        elif not (holder["pid"] == os.getpid() and holder.get("host") == socket.gethostname()):
+            out.append(holder)
+    return out
+
+
+class ReadLock:
+    """A shared read lock on a run folder (``ROOT/<prefix>readers/<host>.<pid>.<n>``): any number of readers,
+    no writer while one is held. Taken at the start of a read, so a reader meets a live writer at its start
+    (refused with one line) and a writer starting later is refused while the read lasts.
+
+    Registration comes first and the writer's lock is checked second (a writer does the reverse), so a reader
+    and a writer that start at the same moment cannot both go on. A killed reader leaves a file naming a dead
+    pid, which every later writer ignores and removes.
+    """
+
+    _count = 0
+
+    def __init__(self, layout: RunLayout, command: str):
+        self.layout = layout
+        self.path: Path | None = None
+        if not layout.root.is_dir():
+            return  # nothing to read yet; the reader's own check reports it
+        ReadLock._count += 1
+        name = f"{socket.gethostname()}.{os.getpid()}.{ReadLock._count}"
+        try:
+            layout.readers.mkdir(exist_ok=True)
+            with atomic_write(layout.readers / name, "wb") as f:
+                f.write((json.dumps(_holder_info(command)) + "\n").encode())
+            self.path = layout.readers / name
+        except OSError:  # a read-only folder (an archive, a CD): nobody can write it either
+            self.path = None
+        try:
+            holder = lock_holder(layout)
+            if holder is not None:
+                raise OutputLockedError(_busy_message(layout, holder))
+        except BaseException:
+            self.release()
+            raise
+
+    def release(self) -> None:
+        if self.path is not None:
+            self.path.unlink(missing_ok=True)
+            self.path = None
+            with contextlib.suppress(OSError):
+                self.layout.readers.rmdir()  # only when empty
+
+    def __enter__(self) -> ReadLock:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+_HELD: list[ReadLock] = []
+_HOLDING = [False]  # inside command_read_locks(): readers register shared locks
+
+
+@contextlib.contextmanager
+def command_read_locks():
+    """Scope of one command: every read inside takes a shared read lock, all released at the end.
+
+    The CLI runs each command inside it. Outside it (library use: a notebook, a test reading a folder)
+    readers only check for a live writer at their start, so a long-lived process never blocks writers."""
+    previous = _HOLDING[0]
+    _HOLDING[0] = True
+    try:
+        yield
+    finally:
+        _HOLDING[0] = previous
+        if not previous:
+            release_read_locks()
+
+
+def reader_command() -> str:
+    """How this process is named in a read lock: the command line's first words."""
+    return " ".join([Path(sys.argv[0]).name] + sys.argv[1:3]) if sys.argv and sys.argv[0] else "python"
+
+
+def hold_read_lock(layout: RunLayout, command: str | None = None) -> ReadLock | None:
+    """Inside :func:`command_read_locks`: take a read lock held until the command ends (refuses a live writer
+    now, and writers until then). Outside it: only refuse a live writer now (None)."""
+    if not _HOLDING[0]:
+        holder = lock_holder(layout)
+        if holder is not None:
+            raise OutputLockedError(_busy_message(layout, holder))
+        return None
+    lock = ReadLock(layout, command or reader_command())
+    _HELD.append(lock)
+    return lock
+
+
+def release_read_locks() -> None:
+    """Release every read lock this process holds (end of a command)."""
+    while _HELD:
+        _HELD.pop().release()
+
+
+atexit.register(release_read_locks)
+
+
 # ---------------------------------------------------------------------------------------------- readers
 
 def interrupted_message(layout: RunLayout) -> str:
@@ -206,13 +350,12 @@ def interrupted_message(layout: RunLayout) -> str:
 
 
 def check_readable(layout: RunLayout) -> str | None:
-    """Refuse a live writer or a committed-but-unfinished write; return a note for an uncommitted leftover.
+    """Take a read lock (:func:`hold_read_lock`: refuses a live writer now, and, in a command, writers until it
+    ends), refuse a committed-but-unfinished write; return a note for an uncommitted leftover.
 
     With an uncommitted leftover the previous complete result is still in place and readable.
     """
-    holder = lock_holder(layout)
-    if holder is not None:
-        raise OutputLockedError(_busy_message(layout, holder))
+    hold_read_lock(layout)
     if layout.commit_record.is_file():
         raise OutputLockedError(interrupted_message(layout))
     if layout.staging.is_dir():
@@ -294,6 +437,10 @@ def recover_layout(layout: RunLayout) -> str | None:
     holder = lock_holder(layout)
     if holder is not None:
         raise OutputLockedError(_busy_message(layout, holder) + "; nothing to recover while it runs")
+    readers = live_readers(layout)
+    if readers and (layout.commit_record.is_file() or layout.staging.is_dir()):
+        raise OutputLockedError(f"{layout.name}: being read by pid {readers[0].get('pid')} "
+                                f"({readers[0].get('command')}); recover it when that has finished")
     message = None
     if layout.commit_record.is_file():
         try:

@@ -28,6 +28,8 @@ from bodystudio.calib.uncertainty import (
     corner_coverage,
     parameter_covariance,
     propagated_covariance,
+    view_effect_covariance,
+    view_error_basis,
 )
 from bodystudio.calib.world import floor_board_to_world, mean_rigid, rigid, rigid_inverse, rvec_t_to_rigid
 from bodystudio.errors import InputError, SessionError
@@ -64,11 +66,11 @@ class CalibrationOptions:
     floor_max_offset_m: float = 0.05
     reference_camera: str | None = None
     max_iterations: int = 200
-    # A detector's corner errors are not the i.i.d. Gaussian noise s^2 (J^T W J)^-1 assumes: they are
-    # correlated within a view and biased on oblique, blurred boards. The propagated sigmas are scaled by
-    # this factor (measured on 20 rendered captures, docs/calibration.md: at 1.0 the true centre error
-    # averaged a Mahalanobis^2 of 4.8 instead of 3 and 90 % of the cameras were within 3 sigma).
-    sigma_inflation: float = 1.5
+    # Extra factor on the propagated sigmas (1: none). The covariance itself models what a detector's
+    # corner errors are: i.i.d. noise plus a shift/rotation/scale shared by each view's corners, both sizes
+    # estimated from the residuals (uncertainty.view_effect_covariance; docs/calibration.md measures it
+    # against ground truth). Until that model, an empirical 1.5 stood here.
+    sigma_inflation: float = 1.0
     # Verdict thresholds on the propagated 1-sigma (bodystudio.calib.uncertainty).
     max_center_sigma_mm: float = MAX_CENTER_SIGMA_MM
     max_focal_sigma_pct: float = MAX_FOCAL_SIGMA_PCT
@@ -601,8 +603,13 @@ def calibration_uncertainty(obs: CharucoObservations, spec: CharucoBoardSpec, ba
     ``C = -R^T t`` and the world frame the floor boards (or the reference camera) define from the
     adjusted parameters: the root camera is the adjustment's gauge, the world frame is not fixed by it.
     """
-    weights = np.repeat(robust_weights(ba.residuals, ba.loss, ba.loss_scale_px), 2)
-    cov_x, s2 = parameter_covariance(ba.jacobian, ba.residuals.ravel(), weights)
+    if ba.loss == "linear":  # the final pass: corner errors correlated within a view (view_effect_covariance)
+        view = obs.camera[ba.mask] * max(obs.n_frames, 1) + obs.frame[ba.mask]
+        cov_x, s2, t2 = view_effect_covariance(ba.jacobian, ba.residuals.ravel(),
+                                               view_error_basis(obs.uv[ba.mask], view))
+    else:
+        weights = np.repeat(robust_weights(ba.residuals, ba.loss, ba.loss_scale_px), 2)
+        (cov_x, s2), t2 = parameter_covariance(ba.jacobian, ba.residuals.ravel(), weights), 0.0
     cov_x = cov_x * options.sigma_inflation ** 2
     reference_R = cams_world[:, :3, :3].copy()
 
@@ -618,7 +625,7 @@ def calibration_uncertainty(obs: CharucoObservations, spec: CharucoBoardSpec, ba
     cams = camera_verdicts(obs.camera_names, intr_now, cov_q, coverages, options.max_center_sigma_mm,
                            options.max_focal_sigma_pct)
     result = CalibrationUncertainty(cams, float(np.sqrt(s2)), options.max_center_sigma_mm,
-                                    options.max_focal_sigma_pct, options.sigma_inflation)
+                                    options.max_focal_sigma_pct, options.sigma_inflation, float(np.sqrt(t2)))
     for cam in result.cameras:
         log.info("camera %s: sigma centre %.2f mm, focal %.3f %%, coverage %.0f %% -> %s", cam.name,
                  cam.center_sigma_mm, cam.focal_sigma_pct, 100 * cam.coverage.fraction, cam.verdict)

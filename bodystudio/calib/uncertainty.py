@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import scipy.sparse as sp
 
 from bodystudio.errors import SessionError
 
@@ -54,13 +55,82 @@ def parameter_covariance(jacobian: np.ndarray, residuals: np.ndarray, weights: n
     n, p = J.shape
     dof = n - p
     s2 = float((w * r * r).sum() / dof) if dof > 0 else float("inf")
-    A = (J.T * w) @ J
+    cov = s2 * normal_matrix_inverse((J.T * w) @ J, rcond) if np.isfinite(s2) else np.full((p, p), np.inf)
+    return cov, s2
+
+
+def view_error_basis(uv: np.ndarray, view_of: np.ndarray) -> sp.csc_matrix:
+    """(2N, 4V) sparse basis of a low-order error field per view: shift in u, shift in v, rotation and scale
+    about the view's centroid, in pixels at the RMS radius of the view's corners (rows: u0, v0, u1, v1...).
+
+    These are the error shapes a detector shares across one view's corners (a board seen obliquely and
+    blurred is found slightly shifted, turned or scaled as a whole), the part of its error the i.i.d. model
+    misses."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    rows, cols, vals = [], [], []
+    for col, v in enumerate(np.unique(view_of)):
+        idx = np.flatnonzero(view_of == v)
+        d = uv[idx] - uv[idx].mean(0)
+        d /= max(float(np.sqrt((d ** 2).sum(1).mean())), 1e-9)
+        one, zero = np.ones(len(idx)), np.zeros(len(idx))
+        for k, (fu, fv) in enumerate(((one, zero), (zero, one), (-d[:, 1], d[:, 0]), (d[:, 0], d[:, 1]))):
+            rows += [2 * idx, 2 * idx + 1]
+            cols += [np.full(len(idx), 4 * col + k)] * 2
+            vals += [fu, fv]
+    n_cols = 4 * len(np.unique(view_of))
+    if not rows:
+        return sp.csc_matrix((2 * len(uv), 0))
+    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(2 * len(uv), n_cols))
+
+
+def view_effect_covariance(jacobian: np.ndarray, residuals: np.ndarray, basis: sp.spmatrix,
+                           rcond: float = 1e-15) -> tuple[np.ndarray, float, float]:
+    """Covariance of a least-squares estimate under corner errors correlated within each view.
+
+    Error model: ``e = B g + eps`` with ``eps ~ N(0, s^2 I)`` the i.i.d. corner noise and ``g ~ N(0, t^2 I)``
+    a per-view low-order field (``basis`` B, :func:`view_error_basis`), i.e. ``Omega = s^2 I + t^2 B B^T``
+    (a random-effects model). The estimate's covariance is the sandwich ``A^-1 J^T Omega J A^-1`` with
+    ``A = J^T J`` (Hartley & Zisserman Result 5.10 generalised to correlated noise). ``s^2`` and ``t^2`` come
+    from the residuals by the method of moments, with the part of each error the fit absorbed (board poses
+    soak up most of a view's field) taken into account through ``r = (I - H) e``:
+
+        E[r^T r]       = s^2 (n - p)  + t^2 tr(M)
+        E[|B^T r|^2]   = s^2 tr(M)    + t^2 |M|_F^2,      M = B^T (I - H) B
+
+    With no view-level error (``t = 0``) this is exactly :func:`parameter_covariance`. Returns
+    (Sigma (p, p), s^2, t^2).
+    """
+    J = np.asarray(jacobian, float)
+    r = np.asarray(residuals, float).ravel()
+    n, p = J.shape
+    if n - p <= 0:
+        return np.full((p, p), np.inf), float("inf"), 0.0
+    A_inv = normal_matrix_inverse(J.T @ J, rcond)
+    C = np.asarray((basis.T @ J).T)  # J^T B, (p, k)
+    AC = A_inv @ C
+    M = np.asarray((basis.T @ basis).todense()) - C.T @ AC
+    Br = basis.T @ r
+    trM, froM = float(np.trace(M)), float((M * M).sum())
+    S0, S1 = float(r @ r), float(Br @ Br)
+    det = (n - p) * froM - trM * trM
+    s2, t2 = S0 / (n - p), 0.0
+    if det > 0:
+        s2_full = (froM * S0 - trM * S1) / det
+        t2_full = ((n - p) * S1 - trM * S0) / det
+        if s2_full > 0 and t2_full > 0:
+            s2, t2 = s2_full, t2_full
+    cov = s2 * A_inv + t2 * (AC @ AC.T)
+    return cov, float(s2), float(t2)
+
+
+def normal_matrix_inverse(A: np.ndarray, rcond: float = 1e-15) -> np.ndarray:
+    """``A^-1`` of a normal matrix, Jacobi-scaled and eigen-decomposed; directions with eigenvalue below
+    ``rcond`` x the largest (unobservable) keep a huge variance instead of being dropped."""
     d = 1.0 / np.sqrt(np.maximum(np.diag(A), 1e-300))
     lam, V = np.linalg.eigh(A * d[:, None] * d[None, :])
     floor = rcond * max(float(lam[-1]), 1e-300)
-    inv = (V / np.maximum(lam, floor)) @ V.T
-    cov = s2 * inv * d[:, None] * d[None, :] if np.isfinite(s2) else np.full((p, p), np.inf)
-    return cov, s2
+    return (V / np.maximum(lam, floor)) @ V.T * d[:, None] * d[None, :]
 
 
 def propagated_covariance(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, cov: np.ndarray,
@@ -235,7 +305,8 @@ class CalibrationUncertainty:
     residual_sigma_px: float  # per-axis corner noise the fit implies, sqrt(s^2)
     max_center_sigma_mm: float = MAX_CENTER_SIGMA_MM
     max_focal_sigma_pct: float = MAX_FOCAL_SIGMA_PCT
-    sigma_inflation: float = 1.0  # factor the i.i.d. sigmas were scaled by (CalibrationOptions)
+    sigma_inflation: float = 1.0  # extra factor the sigmas were scaled by (CalibrationOptions)
+    view_sigma_px: float = 0.0  # size of the error field shared by one view's corners (view_effect_covariance)
 
     @property
     def ok(self) -> bool:
@@ -264,7 +335,7 @@ class CalibrationUncertainty:
 
     def to_dict(self) -> dict:
         return {"verdict": self.verdict, "residual_sigma_px": self.residual_sigma_px,
-                "sigma_inflation": self.sigma_inflation,
+                "sigma_inflation": self.sigma_inflation, "view_sigma_px": self.view_sigma_px,
                 "thresholds": {"center_sigma_mm": self.max_center_sigma_mm,
                                "focal_sigma_pct": self.max_focal_sigma_pct},
                 "advice": self.advice(), "cameras": {c.name: c.to_dict() for c in self.cameras}}

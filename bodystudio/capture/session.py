@@ -32,6 +32,7 @@ import logging
 import os
 import re
 import shutil
+import weakref
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -48,6 +49,7 @@ from bodystudio.runfolder import (
     RunLayout,
     acquire_lock,
     apply_commit,
+    hold_read_lock,
     lock_holder,
     read_lock,
     recover_layout,
@@ -724,10 +726,22 @@ def open_session(path: str | os.PathLike) -> Session:
     staging = path / STAGING
     if not path.is_dir():
         raise SessionError(f"{path}: no such session folder")
-    holder = lock_holder(session_layout(path))
-    if holder is not None:
-        raise SessionError(f"{path}: session is being written by pid {holder.get('pid')} on {holder.get('host')} "
-                           f"({holder.get('command')}, since {holder.get('since')}); wait for it to finish")
+    try:  # a shared read lock for as long as this command reads the session: no writer may start meanwhile
+        read_lock = hold_read_lock(session_layout(path))
+    except OutputLockedError as exc:
+        raise SessionError(str(exc).replace(": being written", ": session is being written", 1)) from None
+    try:
+        session = _open_checked(path, manifest_path, staging)
+    except BaseException:
+        if read_lock is not None:
+            read_lock.release()
+        raise
+    if read_lock is not None:
+        weakref.finalize(session, read_lock.release)
+    return session
+
+
+def _open_checked(path: Path, manifest_path: Path, staging: Path) -> Session:
     if (staging / COMMIT).is_file():
         raise SessionError(f"{staging / COMMIT}: a write was interrupted while committing; run "
                            f"`bodystudio capture recover {path}` to finish it")

@@ -9,6 +9,7 @@ import logging
 import sys
 
 import typer
+import typer.main
 
 from bodystudio.errors import BodyStudioError
 
@@ -91,10 +92,37 @@ def _exit_types() -> tuple[type[BaseException], ...]:
     return _with_click([typer.Exit], "Exit")
 
 
+def _argument_usage(param) -> list[str]:
+    """Usage piece of one argument in click's classic style: ``OUT``, ``[OUT]``, ``PATHS...``."""
+    name = param.metavar or param.name.upper()
+    if param.nargs != 1:
+        name += "..."
+    return [name if param.required else f"[{name}]"]
+
+
+def plain_usage(command) -> None:
+    """Show every argument of ``command`` and its sub-commands as ``OUT`` in usage lines.
+
+    typer 0.29 writes a required argument as ``{out}``, which reads like a placeholder to fill in or a
+    set of choices; click and the README write ``OUT``. Each argument's ``get_usage_pieces`` (click's public
+    hook for its usage piece) is replaced on the instance, so help panels and error messages stay typer's.
+    """
+    for param in getattr(command, "params", ()):
+        if getattr(param, "param_type_name", "") == "argument":
+            param.get_usage_pieces = lambda ctx, p=param: _argument_usage(p)
+    for sub in getattr(command, "commands", {}).values():
+        plain_usage(sub)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the app; user errors become one line and exit 2, usage errors click's usage and exit 2."""
+    from bodystudio.runfolder import command_read_locks
+
     try:
-        app(args=argv, standalone_mode=False, prog_name="bodystudio")
+        command = typer.main.get_command(app)
+        plain_usage(command)
+        with command_read_locks():  # the command's shared read locks end with it
+            command.main(args=argv, standalone_mode=False, prog_name="bodystudio")
     except BodyStudioError as exc:
         _error_line(f"error: {exc}")
         return 2

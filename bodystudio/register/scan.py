@@ -186,6 +186,50 @@ def detect_orientation(V: np.ndarray, area: np.ndarray) -> tuple[np.ndarray, str
     return R, ("+" if up_sign > 0 else "-") + names[up], ("+" if face_sign > 0 else "-") + names[depth]
 
 
+#: A standing person's head (top 10 % of stature) is far narrower than the chest and shoulder band (55-80 %):
+#: head / chest width 0.10-0.25 sideways and 0.3-0.8 front to back on synthetic a-, t- and random-pose scans.
+#: A prism (box, cylinder, column) is as wide on top as in the middle (ratio ~1 both ways).
+MAX_HEAD_TO_CHEST_RATIO = 0.75
+
+
+def surface_samples(V: np.ndarray, F: np.ndarray, n: int = 20_000, seed: int = 0) -> np.ndarray:
+    """``n`` points spread uniformly over the surface area (independent of how densely it is meshed)."""
+    tri = V[F]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if not area.sum() > 0:
+        return V
+    rng = np.random.default_rng(seed)
+    k = rng.choice(len(F), size=n, p=area / area.sum())
+    a, b = rng.random((2, n))
+    flip = a + b > 1
+    a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
+    return tri[k, 0] + a[:, None] * (tri[k, 1] - tri[k, 0]) + b[:, None] * (tri[k, 2] - tri[k, 0])
+
+
+def head_to_chest_ratios(V: np.ndarray, F: np.ndarray) -> tuple[float, float]:
+    """(sideways, front-to-back) width of the top 10 % of a canonical standing scan over that of its 55-80 %
+    band (2-98 percentile extents of area-uniform surface samples)."""
+    P = surface_samples(V, F)
+    y = P[:, 1]
+    floor, h = float(y.min()), float(np.ptp(y))
+
+    def extent(lo: float, hi: float, axis: int) -> float:
+        s = P[(y >= floor + lo * h) & (y <= floor + hi * h), axis]
+        return float(np.percentile(s, 98) - np.percentile(s, 2)) if len(s) >= 20 else float("nan")
+
+    return tuple(extent(0.90, 1.0, a) / max(extent(0.55, 0.80, a), 1e-9) for a in (0, 2))
+
+
+def check_standing_person(mesh: Mesh, source: str) -> None:
+    """Refuse, in well under a second, a scan that is no standing person (a box, a cylinder, a column), which
+    the model fit would otherwise take about a minute to give up on: its top must be narrower than its chest."""
+    ratios = head_to_chest_ratios(mesh.vertices, mesh.faces)
+    if all(np.isfinite(r) and r > MAX_HEAD_TO_CHEST_RATIO for r in ratios):
+        raise InputError(f"{source}: the shape has no head: its top is {ratios[0]:.2f}x as wide and {ratios[1]:.2f}x "
+                         "as deep as its middle (a person's head is under half as wide as the shoulders), so it is "
+                         "not a person standing upright; give a body scan")
+
+
 def load_scan(path: str | Path, units: str | None = None, up_axis: str | None = None) -> tuple[Mesh, ScanReport]:
     """Read, clean and canonicalise a body scan (metres, y up, facing +z); the report says what was assumed.
 
@@ -234,5 +278,6 @@ def load_scan(path: str | Path, units: str | None = None, up_axis: str | None = 
     for note in notes:
         log.info("%s: %s", path.name, note)
     canonical = Mesh(mesh.vertices @ to_canonical.T, mesh.faces, mesh.vertex_colors, {"source": str(path)})
+    check_standing_person(canonical, str(path))
     return canonical, ScanReport(str(path), unit_name, up_name, facing_name, to_canonical, removed_v, removed_f,
                                  tuple(notes))

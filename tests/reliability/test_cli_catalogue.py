@@ -232,6 +232,55 @@ def _truncated_template_cache(w: Studio, t: Path) -> None:
 
 # ---------------------------------------------------------------------------------------------- the catalogue
 
+def _png_damaged_profile(bad_crc: bool) -> Callable[[Path], None]:
+    """One import PNG gets an iCCP chunk: intact but with a profile libpng warns about (a GRAY profile on an
+    RGB image: accepted, pixels exact), or with a wrong CRC (damage: refused)."""
+    import struct
+    import zlib
+
+    def extra(folder: Path) -> None:
+        path = folder / "cam_00" / "00000.png"
+        data = path.read_bytes()
+        profile = bytearray(132)
+        profile[0:4] = struct.pack(">I", 132)
+        profile[12:24] = b"mntrGRAYXYZ "
+        profile[36:40] = b"acsp"
+        body = b"camera\x00\x00" + zlib.compress(bytes(profile))
+        crc = zlib.crc32(b"iCCP" + body) & 0xFFFFFFFF
+        chunk = struct.pack(">I", len(body)) + b"iCCP" + body + struct.pack(">I", crc ^ (0xFFFF if bad_crc else 0))
+        end_ihdr = 8 + 8 + 13 + 4
+        path.write_bytes(data[:end_ihdr] + chunk + data[end_ihdr:])
+    return extra
+
+
+def _subdivided_box(w: Studio, t: Path) -> None:
+    """A 1.7 m box subdivided to ~25k vertices: dense enough for every check but no person."""
+    import trimesh
+
+    b = trimesh.creation.box(extents=[0.5, 1.7, 0.3])
+    for _ in range(6):
+        b = b.subdivide()
+    b.apply_translation([0, 0.85, 0])
+    b.export(t / "box.ply")
+
+
+def _held_by_this_process(rel: str, command: str) -> Callable[[Studio, Path], None]:
+    """A session copy whose writer lock (``.lock``) or a read lock (``.readers/...``) names the live test
+    process, as a second command running on it would (the CLI runs as another process: subprocess=True)."""
+    def setup(w: Studio, t: Path) -> None:
+        import socket
+
+        from bodystudio.runfolder import _process_start
+
+        w.copy_session(t / "S")
+        path = t / "S" / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
+                                    "start": _process_start(os.getpid()), "command": command,
+                                    "since": "2026-01-01T00:00:00Z"}))
+    return setup
+
+
 CASES = [
     # -- 7: usage errors through the real console script: click's usage message and exit 2
     Case("usage-unknown-command", "frobnicate", "No such command", subprocess=True, usage=True),
@@ -357,7 +406,7 @@ CASES = [
          setup=_png_images(extra=_fifo), subprocess=True, timeout=30, absent=("{t}/out/session.json",)),
     Case("fifo-as-cameras-json", "capture import {t}/out --cameras {t}/c.json --images {img}", "not a regular file",
          setup=lambda w, t: os.mkfifo(t / "c.json"), subprocess=True, timeout=30, absent=("{t}/out",)),
-    Case("scan-coarse-cylinder", "rig {t}/cyl.ply --out {t}/a.glb", "too coarse", setup=_cylinder_scan,
+    Case("scan-coarse-cylinder", "rig {t}/cyl.ply --out {t}/a.glb", "standing upright", setup=_cylinder_scan,
          absent=("{t}/a.glb", "{t}/a.rig.json")),
     Case("cache-truncated-template-rebuilt", "body export {t}/a.ply --resolution 2k", "", rc=0,
          setup=_truncated_template_cache, subprocess=True, env={"BODYSTUDIO_HOME": "{t}/home"},
@@ -445,6 +494,18 @@ CASES = [
     Case("synth-calibration-no-poses", "synth calibration {t}/o --poses 0", "board poses",
          absent=("{t}/o/gt",)),
     Case("kinect-bad-model", "calib kinect {board} --model v7 --out {t}/k.json", "v1 or v2", absent=("{t}/k.json",)),
+    # -- rel16: decoder rule, non-human scans, shared read locks
+    Case("import-png-profile-crc-error", "capture import {t}/out --cameras {cams} --images {t}/img", "CRC error",
+         setup=_png_images(extra=_png_damaged_profile(bad_crc=True)), absent=("{t}/out/session.json",)),
+    Case("import-png-colour-profile-accepted", "capture import {t}/out --cameras {cams} --images {t}/img", "",
+         rc=0, setup=_png_images(extra=_png_damaged_profile(bad_crc=False)),
+         check=lambda w, t: (t / "out" / "session.json").is_file() or pytest.fail("not imported")),
+    Case("scan-subdivided-box", "rig {t}/box.ply --out {t}/a.glb", "not a person standing upright",
+         setup=_subdivided_box, absent=("{t}/a.glb", "{t}/a.rig.json")),
+    Case("reconstruct-while-session-written", "reconstruct {t}/S", "being written by pid", subprocess=True,
+         setup=_held_by_this_process(".lock", "bodystudio capture silhouettes"), absent=("{t}/S/reconstruct",)),
+    Case("silhouettes-while-session-read", "capture silhouettes {t}/S", "being read by pid", subprocess=True,
+         setup=_held_by_this_process(".readers/h.1.1", "bodystudio reconstruct"), unchanged=("{t}/S/session.json",)),
 ]
 
 
