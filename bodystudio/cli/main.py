@@ -56,6 +56,9 @@ def _register() -> None:
     from bodystudio.cli import mirror
 
     app.add_typer(mirror.app, name="mirror", help="Virtual mirror: fit, track and reshape a person in Kinect video.")
+    from bodystudio.cli import batch
+
+    app.add_typer(batch.app, name="batch", help="Batch jobs on a dask cluster: rig a folder of scans (resumable).")
 
 
 _register()
