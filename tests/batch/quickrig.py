@@ -37,12 +37,20 @@ def install_quick_rig():
 
 
 class SlowUnit:
-    """Setup that installs the quick rig, writes ``pid_dir/PID`` and sleeps ``seconds`` (a unit to kill)."""
+    """Setup: the quick rig, which inside the unit's lock (staging begun) writes ``pid_dir/PID`` and sleeps
+    ``seconds``, so that a test can kill the worker while it holds a unit."""
 
     def __init__(self, pid_dir: str, seconds: float):
         self.pid_dir, self.seconds = pid_dir, seconds
 
     def __call__(self):
-        install_quick_rig()
-        Path(self.pid_dir, str(os.getpid())).write_text("")
-        time.sleep(self.seconds)
+        import bodystudio.rig.pipeline as pipeline
+
+        pid_dir, seconds = self.pid_dir, self.seconds
+
+        def slow_rig(*args, **kwargs):
+            Path(pid_dir, str(os.getpid())).write_text("")
+            time.sleep(seconds)
+            return quick_rig(*args, **kwargs)
+
+        pipeline.rig_scan = slow_rig
