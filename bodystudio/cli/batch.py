@@ -47,8 +47,14 @@ def batch_rig(scans_dir: Path = typer.Argument(..., help="folder of body scans (
               force: bool = typer.Option(False, "--force", help="redo every scan, also those already rigged")) -> None:
     """Rig every scan of a folder on a dask cluster; resumable (unchanged scans are skipped)."""
     from bodystudio.batch import BatchError, batch_client, list_scans, resolve_scheduler, rig_batch
+    from bodystudio.errors import InputError
+    from bodystudio.fileio import check_output_folder
 
-    list_scans(scans_dir)  # refuse a bad folder before starting a cluster
+    # refuse bad input before starting a cluster
+    list_scans(scans_dir)
+    if template not in ("6k", "13k", "2k"):
+        raise InputError(f"--template {template!r}: use 6k, 13k or 2k")
+    check_output_folder(out, "--out")
     resolve_scheduler(scheduler, workers)
     with batch_client(scheduler, workers) as client:
         print_cluster(client)
