@@ -37,7 +37,7 @@ def reconstruct(
                                      "visual hull before deforming (--no-refine-pose: the paper's init)"),
     score: bool = typer.Option(True, help="score against ground truth when the session has it"),
     scheduler: str | None = typer.Option(None, "--scheduler", help="run chunks on this dask scheduler "
-                                         "(tcp://HOST:8786; or $BODYSTUDIO_SCHEDULER with --chunk)"),
+                                         "(tcp://HOST:8786; default $BODYSTUDIO_SCHEDULER)"),
     workers: int | None = typer.Option(None, "--workers", help="run chunks on a local cluster of N worker processes"),
     chunk: int | None = typer.Option(None, "--chunk", help="frames per work unit on a cluster (default 10)"),
     force: bool = typer.Option(False, "--force", help="on a cluster: redo every chunk, also unchanged ones"),
@@ -55,7 +55,11 @@ def reconstruct(
     check_output_folder(session / "reconstruct", "reconstruct output")
     params = RapidSkinParams(outer_iterations=outer, inner_iterations=inner, tau_px=tau, alpha_px=alpha,
                              solver=solver, constraints=_constraints(constraints))
-    if scheduler is not None or workers is not None or chunk is not None:
+    import os
+
+    from bodystudio.batch import ENV_SCHEDULER
+
+    if scheduler is not None or workers is not None or chunk is not None or os.environ.get(ENV_SCHEDULER):
         summary = _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, params,
                                           template=template, joints=joints, warm_start=warm_start,
                                           refine_pose=refine_pose, score=score,
