@@ -108,6 +108,9 @@ def _exit_with_client_plugin():
         name = "bodystudio-exit-with-client"
 
         def setup(self, worker) -> None:
+            # a failing unit is recorded (and reported) by the client; its traceback on the worker's stderr
+            # would only bury the report
+            logging.getLogger("distributed.worker").setLevel(logging.CRITICAL)
             parent = os.getppid()
 
             def watch() -> None:
@@ -143,6 +146,9 @@ def batch_client(scheduler: str | None = None, workers: int | None = None) -> It
     from distributed import Client, LocalCluster
 
     address = resolve_scheduler(scheduler, workers)
+    # the scheduler's and nannies' INFO lines (start, connections, plugins) are noise in a command's output
+    for name in ("distributed", "distributed.http.proxy"):
+        logging.getLogger(name).setLevel(logging.WARNING)
     cluster = None
     if address is not None:
         try:
