@@ -57,7 +57,12 @@ def _register() -> None:
     from bodystudio.cli import mirror
 
     app.add_typer(mirror.app, name="mirror", help="Virtual mirror: fit, track and reshape a person in Kinect video.")
-    from bodystudio.cli import garment  # noqa: F401  (adds ``synth garment``)
+    from bodystudio.cli import (
+        batch,
+        garment,  # noqa: F401  (adds ``synth garment``)
+    )
+
+    app.add_typer(batch.app, name="batch", help="Batch jobs on a dask cluster: rig a folder of scans (resumable).")
 
 
 _register()

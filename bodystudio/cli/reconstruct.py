@@ -36,6 +36,11 @@ def reconstruct(
     refine_pose: bool = typer.Option(True, help="refine the joints' pose by an articulated fit to the silhouettes' "
                                      "visual hull before deforming (--no-refine-pose: the paper's init)"),
     score: bool = typer.Option(True, help="score against ground truth when the session has it"),
+    scheduler: str | None = typer.Option(None, "--scheduler", help="run chunks on this dask scheduler "
+                                         "(tcp://HOST:8786; default $BODYSTUDIO_SCHEDULER)"),
+    workers: int | None = typer.Option(None, "--workers", help="run chunks on a local cluster of N worker processes"),
+    chunk: int | None = typer.Option(None, "--chunk", help="frames per work unit on a cluster (default 10)"),
+    force: bool = typer.Option(False, "--force", help="on a cluster: redo every chunk, also unchanged ones"),
 ) -> None:
     """Deform the template to every frame's silhouettes (Rapid Skin); writes SESSION/reconstruct/."""
     from rich.console import Console
@@ -50,16 +55,45 @@ def reconstruct(
     check_output_folder(session / "reconstruct", "reconstruct output")
     params = RapidSkinParams(outer_iterations=outer, inner_iterations=inner, tau_px=tau, alpha_px=alpha,
                              solver=solver, constraints=_constraints(constraints))
-    summary = reconstruct_session(session, solver=solver, template=template, joints=joints,
-                                  constraints=params.constraints, frames=frames, joints_path=joints_path,
-                                  params=params, warm_start=warm_start, refine_pose=refine_pose, score=score,
-                                  progress=True)
+    import os
+
+    from bodystudio.batch import ENV_SCHEDULER
+
+    if scheduler is not None or workers is not None or chunk is not None or os.environ.get(ENV_SCHEDULER):
+        summary = _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, params,
+                                          template=template, joints=joints, warm_start=warm_start,
+                                          refine_pose=refine_pose, score=score,
+                                          joints_path=str(joints_path) if joints_path else None)
+    else:  # the sequential path stays the default (no cluster start-up, one warm start over the session)
+        summary = reconstruct_session(session, solver=solver, template=template, joints=joints,
+                                      constraints=params.constraints, frames=frames, joints_path=joints_path,
+                                      params=params, warm_start=warm_start, refine_pose=refine_pose, score=score,
+                                      progress=True)
     table = Table(title=f"Rapid Skin: {session} ({solver}, {template}, {constraints})")
     table.add_column("figure")
     table.add_column("value", justify="right")
     for key, value in summary.items():
         table.add_row(key, f"{value:.2f}" if isinstance(value, float) else str(value))
     Console().print(table)
+
+
+def _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, params, **options) -> dict:
+    """``--workers/--scheduler/--chunk``: chunks of frames on a dask cluster (bodystudio.batch)."""
+    from dataclasses import asdict
+
+    from bodystudio.batch import ReconstructOptions, batch_client, reconstruct_batch, resolve_scheduler
+    from bodystudio.cli.batch import print_cluster, print_report
+
+    if chunk is not None and chunk < 1:
+        raise InputError(f"--chunk {chunk}: give at least 1 frame per work unit")
+    resolve_scheduler(scheduler, workers)
+    opts = ReconstructOptions(solver=params.solver, params=asdict(params), **options)
+    with batch_client(scheduler, workers) as client:
+        print_cluster(client)
+        summary, report = reconstruct_batch(session, client, opts, frames=frames, chunk=chunk or 10, force=force,
+                                            progress=True)
+    print_report(report, f"reconstruct {session}")
+    return summary
 
 
 @eval_cli.app.command("reconstruct")

@@ -176,7 +176,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                            "use --constraints silhouette")
     layout = reconstruction_layout(session.path)
     with RunWriter(layout, "bodystudio reconstruct", {"session": str(session.path), "template": template}) as writer:
-        return _reconstruct_frames(session, writer, selected, cameras, sensor, params, solver, template, joints,
+        return reconstruct_frames(session, writer, selected, cameras, sensor, params, solver, template, joints,
                                    joints_path, warm_start, refine_pose, score, progress)
 
 
@@ -186,8 +186,10 @@ def reconstruction_layout(session_path: str | Path) -> RunLayout:
     return RunLayout(out_dir, RUN_MANIFEST, ".", str(out_dir))
 
 
-def _reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, params, solver, template, joints,
-                        joints_path, warm_start, refine_pose, score, progress) -> dict:
+def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, params, solver, template, joints,
+                       joints_path, warm_start, refine_pose, score, progress) -> dict:
+    """Reconstruct the ``selected`` frames into the open ``writer`` (warm start within the list); the
+    sequential run and each batch chunk (:mod:`bodystudio.batch`) call it."""
     from bodystudio.body import build_body
     from bodystudio.capture.session import progress_bar
 

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from tests.mirror.scene import synthetic_scene
 from scipy.spatial import cKDTree
 
 from bodystudio.mirror.init import (
@@ -13,6 +12,7 @@ from bodystudio.mirror.init import (
     save_source_body,
     transform_to_default_pose,
 )
+from tests.mirror.scene import synthetic_scene
 
 
 @pytest.fixture(scope="module")

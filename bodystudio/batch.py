@@ -1,0 +1,546 @@
+"""Batch jobs on a dask.distributed cluster: reconstruction chunks and scan rigs, resumable and kill-safe (issue 14).
+
+A batch is a list of **work units** (a chunk of consecutive frames of a session; one scan), each run by a
+worker process and written by that worker through :mod:`bodystudio.runfolder` (lock, staging, commit,
+manifest last) into its own folder, so a unit's outputs appear whole or not at all. A unit's manifest
+records the sha256 of its inputs (the session files of its frames, or the scan, and the options), so a
+re-run of the same command skips the units whose inputs did not change, redoes the partial ones (a killed
+worker's or client's leftover staging is discarded first) and ``force`` redoes everything. A failing unit is
+recorded with its one-line error and the others finish; the client reports the failures at the end.
+
+Without a scheduler address the client starts a :class:`distributed.LocalCluster` with one single-threaded
+worker process per core (numba/BLAS thread pools pinned to 1 inside the workers, so N workers use N cores).
+Data reaches the workers by path: a multi-machine cluster needs the session/scan folders on shared storage
+at the same path, and the same bodystudio version on every worker (checked, mismatches refused).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import re
+import shutil
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from bodystudio import __version__
+from bodystudio.errors import BodyStudioError, InputError
+from bodystudio.fileio import read_json, sha256_file, write_json
+from bodystudio.runfolder import (
+    OutputLockedError,
+    RunLayout,
+    RunWriter,
+    acquire_lock,
+    check_readable,
+    recover_layout,
+    release_lock,
+    verify_run_files,
+)
+
+log = logging.getLogger(__name__)
+
+ENV_SCHEDULER = "BODYSTUDIO_SCHEDULER"
+#: Thread pools pinned to one thread inside each worker: one worker process per core is the parallelism.
+WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+              "OPENBLAS_NUM_THREADS": "1", "VECLIB_MAXIMUM_THREADS": "1"}
+CONNECT_TIMEOUT_S = 5.0
+UNIT_MANIFEST = "unit.json"
+CHUNKS_DIR = "chunks"
+RECORD = "record.json"
+SCAN_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl")
+
+
+class BatchError(BodyStudioError):
+    """Some units of a batch failed (each error is in the batch record); the others completed."""
+
+
+@dataclass
+class BatchReport:
+    """What one batch run did: unit name -> ``done`` | ``skipped`` | ``failed`` and the failures' errors."""
+
+    status: dict[str, str] = field(default_factory=dict)
+    errors: dict[str, str] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+    record: Path | None = None
+    dashboard: str | None = None
+    wall_s: float = 0.0
+
+    def count(self, status: str) -> int:
+        return sum(1 for s in self.status.values() if s == status)
+
+    def failure_message(self, what: str) -> str:
+        first = next(iter(self.errors.items()))
+        return (f"{len(self.errors)} of {len(self.status)} {what} failed (errors in {self.record}); "
+                f"first: {first[0]}: {first[1]}")
+
+
+# ------------------------------------------------------------------------------------------ cluster
+
+def _worker_version() -> str:
+    import bodystudio
+
+    return bodystudio.__version__
+
+
+def check_worker_versions(versions: dict[str, str], local: str = __version__) -> None:
+    """Refuse (one line) a cluster whose workers run another bodystudio version than the client."""
+    bad = {w: v for w, v in versions.items() if v != local}
+    if bad:
+        worker, version = next(iter(bad.items()))
+        raise InputError(f"--scheduler: {len(bad)} of {len(versions)} workers run bodystudio {version} "
+                         f"(e.g. {worker}) but this client runs {local}; install the same version on every worker")
+
+
+def _exit_with_client_plugin():
+    """Worker plugin: a worker of a local cluster exits when its parent (the client) dies.
+
+    A SIGKILLed client cannot stop its LocalCluster; its workers would go on holding unit locks.
+    """
+    from distributed import WorkerPlugin
+
+    class ExitWithClient(WorkerPlugin):
+        name = "bodystudio-exit-with-client"
+
+        def setup(self, worker) -> None:
+            # a failing unit is recorded (and reported) by the client; its traceback on the worker's stderr
+            # would only bury the report
+            logging.getLogger("distributed.worker").setLevel(logging.CRITICAL)
+            parent = os.getppid()
+
+            def watch() -> None:
+                while True:
+                    time.sleep(0.5)
+                    if os.getppid() != parent:
+                        os._exit(1)
+
+            threading.Thread(target=watch, daemon=True, name="exit-with-client").start()
+
+    return ExitWithClient()
+
+
+def resolve_scheduler(scheduler: str | None, workers: int | None) -> str | None:
+    """The scheduler address from ``--scheduler`` or ``$BODYSTUDIO_SCHEDULER`` (None: a local cluster)."""
+    if workers is not None and workers < 1:
+        raise InputError(f"--workers {workers}: give at least 1 worker process (default: one per core)")
+    address = scheduler or os.environ.get(ENV_SCHEDULER) or None
+    if address is not None and scheduler and workers is not None:
+        raise InputError("--scheduler and --workers: give one (--workers starts a local cluster)")
+    if address is not None and workers is not None:
+        return None  # --workers asks for a local cluster over the environment's address
+    if address is not None and not re.match(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/]+(:\d+)?/?$", address):
+        src = "--scheduler" if scheduler else f"${ENV_SCHEDULER}"
+        raise InputError(f"{src} {address!r}: not a scheduler address; give tcp://HOST:PORT (e.g. tcp://10.0.0.5:8786)")
+    return address
+
+
+@contextlib.contextmanager
+def batch_client(scheduler: str | None = None, workers: int | None = None) -> Iterator:
+    """A dask client: to ``scheduler`` (or ``$BODYSTUDIO_SCHEDULER``), else to a new LocalCluster of
+    ``workers`` single-threaded worker processes (default one per core). Worker versions are checked."""
+    from distributed import Client, LocalCluster
+
+    address = resolve_scheduler(scheduler, workers)
+    # the scheduler's and nannies' INFO lines (start, connections, plugins) are noise in a command's output
+    for name in ("distributed", "distributed.http.proxy"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    cluster = None
+    if address is not None:
+        try:
+            client = Client(address, timeout=f"{CONNECT_TIMEOUT_S}s", set_as_default=False)
+        except (OSError, TimeoutError) as exc:
+            src = "--scheduler" if scheduler else f"${ENV_SCHEDULER}"
+            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise InputError(f"{src} {address}: cannot reach the scheduler ({reason[:120]}); start one with "
+                             "`dask scheduler` or leave the option out for a local cluster") from None
+    else:
+        n = workers or os.cpu_count() or 1
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, env=dict(WORKER_ENV),
+                               dashboard_address=":0", silence_logs=logging.ERROR)
+        client = Client(cluster, set_as_default=False)
+        client.register_plugin(_exit_with_client_plugin())
+    try:
+        check_worker_versions(client.run(_worker_version))
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def dashboard_link(client) -> str | None:
+    """The cluster's dashboard URL (None when the scheduler serves no dashboard: ``bokeh`` not installed)."""
+    try:
+        return client.dashboard_link
+    except Exception:  # noqa: BLE001 - a scheduler without a dashboard has no link to show
+        return None
+
+
+# ------------------------------------------------------------------------------------------ units
+
+def options_sha256(options: dict) -> str:
+    return hashlib.sha256(json.dumps(options, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def unit_layout(root: Path) -> RunLayout:
+    """Lock, staging and manifest (``unit.json``) of one unit's folder."""
+    return RunLayout(Path(root), UNIT_MANIFEST, ".", str(root))
+
+
+class _UnitWriter(RunWriter):
+    """A RunWriter whose manifest also records the unit's input checksum (so skip/redo is decided by it)."""
+
+    def __init__(self, layout: RunLayout, command: str, producer: dict, unit: dict):
+        super().__init__(layout, command, producer)
+        self.unit = unit
+
+    def commit(self, manifest: dict, deletes=(), indent: int = 2) -> dict:
+        return super().commit({**manifest, "unit": self.unit}, deletes, indent)
+
+
+def unit_is_complete(layout: RunLayout, inputs_sha256: str) -> bool:
+    """True when the unit's committed manifest has these inputs and every file it lists is intact."""
+    try:
+        if check_readable(layout) is not None or not layout.manifest_path.is_file():
+            return False
+        manifest = read_json(layout.manifest_path, "batch unit record")
+        if not isinstance(manifest, dict) or manifest.get("unit", {}).get("inputs_sha256") != inputs_sha256:
+            return False
+        verify_run_files(layout, manifest.get("run"))
+    except BodyStudioError:
+        return False
+    return True
+
+
+def _run_units(client, units: list[dict], submit: Callable, record_path: Path, force: bool, progress: bool,
+               describe: str, previous: dict) -> BatchReport:
+    """Skip the complete units, submit the others, follow them with a progress bar, keep the record current."""
+    from distributed import as_completed
+
+    from bodystudio.capture.session import progress_bar
+
+    report = BatchReport(record=record_path, dashboard=dashboard_link(client))
+    record = {"version": __version__, "units": dict(previous)}
+    t0 = time.perf_counter()
+
+    def save(name: str, action: str, unit: dict, error: str | None = None, seconds: float | None = None,
+             flush: bool = True) -> None:
+        """Record a unit: ``status`` done | failed; ``action`` what this run did (computed, skipped, failed)."""
+        entry = {**(record["units"].get(name, {}) if action == "skipped" else {}),
+                 **{k: v for k, v in unit.items() if k in ("frames", "scan", "output")},
+                 "inputs_sha256": unit["inputs_sha256"], "status": "failed" if error is not None else "done",
+                 "action": action, "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+        entry.pop("error", None)
+        if error is not None:
+            entry["error"] = error
+        if seconds is not None:
+            entry["seconds"] = seconds
+        record["units"][name] = entry
+        if flush:
+            write_json(record_path, record)
+
+    pending = {}
+    for unit in units:
+        if not force and unit["complete"]():
+            report.status[unit["name"]] = "skipped"
+            save(unit["name"], "skipped", unit, flush=False)
+        else:
+            pending[submit(unit)] = unit
+    write_json(record_path, record)
+    with progress_bar(progress) as bar:
+        task = bar.add_task(describe, total=len(units), completed=len(units) - len(pending))
+        for future in as_completed(list(pending), loop=client.loop):
+            unit = pending[future]
+            name = unit["name"]
+            try:
+                result = future.result()
+            except Exception as exc:  # noqa: BLE001 - a failed unit is recorded; the others finish
+                message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                if not isinstance(exc, BodyStudioError):
+                    message = f"{type(exc).__name__}: {message}"
+                report.status[name], report.errors[name] = "failed", message
+                save(name, "failed", unit, error=message)
+                log.warning("%s failed: %s", name, message)
+            else:
+                report.status[name] = "done"
+                report.seconds[name] = result["seconds"]
+                save(name, "computed", unit, seconds=result["seconds"])
+            bar.advance(task)
+    report.wall_s = time.perf_counter() - t0
+    return report
+
+
+def _load_record(path: Path) -> dict:
+    try:
+        data = read_json(path, "batch record")
+    except BodyStudioError:
+        return {}
+    units = data.get("units") if isinstance(data, dict) else None
+    return units if isinstance(units, dict) else {}
+
+
+# ------------------------------------------------------------------------------------------ reconstruction
+
+@dataclass(frozen=True)
+class ReconstructOptions:
+    """The options of ``bodystudio reconstruct`` that change a chunk's result (hashed into its inputs)."""
+
+    solver: str = "gs"
+    template: str = "13k"
+    joints: str = "tracker"
+    joints_path: str | None = None
+    warm_start: bool = False
+    refine_pose: bool = True
+    score: bool = True
+    params: dict = field(default_factory=dict)  # RapidSkinParams as a dict
+
+
+def chunk_frames(frames: list[int], chunk: int) -> list[list[int]]:
+    """Consecutive frames in chunks of ``chunk`` (the last one shorter)."""
+    if chunk < 1:
+        raise InputError(f"--chunk {chunk}: give at least 1 frame per work unit")
+    return [frames[i:i + chunk] for i in range(0, len(frames), chunk)]
+
+
+def chunk_name(frames: list[int]) -> str:
+    return f"{frames[0]:05d}-{frames[-1]:05d}"
+
+
+_FRAME_NUMBER = re.compile(r"(?<!\d)(\d{5})(?!\d)")
+
+
+def chunk_inputs_sha256(session_files: dict[str, str], all_frames: list[int], frames: list[int],
+                        options: ReconstructOptions) -> str:
+    """sha256 over the chunk's inputs: the session files of its frames, the files of no frame (calibration,
+    background) and the options. A file of another frame does not change the chunk."""
+    every, mine = set(all_frames), set(frames)
+    keep = {}
+    for rel, digest in session_files.items():
+        numbers = set() if "background" in rel else {int(m) for m in _FRAME_NUMBER.findall(Path(rel).name)} & every
+        if not numbers or numbers & mine:
+            keep[rel] = digest
+    h = hashlib.sha256(json.dumps(keep, sort_keys=True).encode())
+    h.update(json.dumps({"frames": frames, "options": asdict(options)}, sort_keys=True, default=str).encode())
+    return h.hexdigest()
+
+
+def reconstruct_chunk(session_path: str, frames: list[int], options: ReconstructOptions, unit_root: str,
+                      inputs_sha256: str) -> dict:
+    """One work unit, on a worker: Rapid Skin over consecutive ``frames`` into ``unit_root`` (atomic).
+
+    The chunk starts from its first frame's tracker (and refined) pose; with ``warm_start`` the shape is
+    carried over inside the chunk only. A leftover of a killed attempt is discarded first.
+    """
+    from bodystudio.capture.session import open_session
+    from bodystudio.reconstruct.rapid_skin import RapidSkinParams
+    from bodystudio.reconstruct.sequence import reconstruct_frames
+
+    t0 = time.perf_counter()
+    layout = unit_layout(Path(unit_root))
+    recover_layout(layout)
+    session = open_session(session_path)
+    params = RapidSkinParams(**{**options.params, "constraints": tuple(options.params.get("constraints",
+                                                                                           ("silhouette",)))})
+    unit = {"inputs_sha256": inputs_sha256, "frames": list(frames), "pid": os.getpid()}
+    with _UnitWriter(layout, "bodystudio reconstruct (batch unit)", {"session": str(session_path)}, unit) as writer:
+        reconstruct_frames(session, writer, list(frames), list(session.cameras), session.kinect, params,
+                            options.solver, options.template, options.joints, options.joints_path,
+                            options.warm_start, options.refine_pose, options.score, False)
+    return {"frames": list(frames), "seconds": time.perf_counter() - t0, "pid": os.getpid()}
+
+
+def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, frames: str | None = None,
+                      chunk: int = 10, force: bool = False, progress: bool = False) -> tuple[dict, BatchReport]:
+    """``bodystudio reconstruct SESSION --workers N``: chunks on the cluster, then one committed run.
+
+    Chunks are written to ``SESSION/reconstruct/chunks/AAAAA-BBBBB/`` (each its own atomic run with its
+    inputs' sha256, the record of completed units), then assembled into ``SESSION/reconstruct/`` as one
+    run exactly like the sequential path's (same ``run.json`` keys plus ``batch``). Failed chunks: nothing
+    is assembled and :class:`BatchError` names them; a re-run redoes only those.
+    """
+    from bodystudio.capture.session import open_session
+    from bodystudio.reconstruct.sequence import (
+        JOINT_SOURCES,
+        TEMPLATES,
+        parse_frames,
+        reconstruction_layout,
+        summarize,
+    )
+
+    if options.template not in TEMPLATES:
+        raise InputError(f"unknown template {options.template!r}; valid: 13k, 6k, 2k")
+    if options.joints not in JOINT_SOURCES:
+        raise InputError(f"unknown joint source {options.joints!r}; valid: {', '.join(JOINT_SOURCES)}")
+    if options.joints == "file" and options.joints_path is None:
+        raise InputError("--joints file needs --joints-path DIR with NNNNN.json files ({names, positions})")
+    if chunk < 1:
+        raise InputError(f"--chunk {chunk}: give at least 1 frame per work unit")
+    session = open_session(path)
+    if "depth" in options.params.get("constraints", ()) and session.kinect is None:
+        raise InputError(f"{session.path}: no Kinect calibration, so no depth constraints; "
+                         "use --constraints silhouette")
+    selected = parse_frames(frames, session.frame_ids)
+    layout = reconstruction_layout(session.path)
+    chunks_root = layout.root / CHUNKS_DIR
+    # The client holds the reconstruction's lock for the whole batch: a second reconstruct is refused at once.
+    acquire_lock(layout, "bodystudio reconstruct (batch)")
+    try:
+        if layout.staging.exists():
+            raise OutputLockedError(f"{layout.name}: a previous write was interrupted; run "
+                                    f"`bodystudio recover {layout.name}` first (the previous result stays)")
+        chunks_root.mkdir(parents=True, exist_ok=True)
+        units = []
+        for fr in chunk_frames(selected, chunk):
+            name = chunk_name(fr)
+            sha = chunk_inputs_sha256(session.files, session.frame_ids, fr, options)
+            root = chunks_root / name
+            units.append({"name": name, "frames": fr, "inputs_sha256": sha, "root": root, "output": str(root),
+                          "complete": (lambda r=root, s=sha: unit_is_complete(unit_layout(r), s))})
+        record_path = chunks_root / RECORD
+
+        def submit(unit):
+            return client.submit(reconstruct_chunk, str(session.path), unit["frames"], options, str(unit["root"]),
+                                 unit["inputs_sha256"], key=f"reconstruct-{unit['name']}-{unit['inputs_sha256'][:12]}",
+                                 pure=False)
+
+        report = _run_units(client, units, submit, record_path, force, progress,
+                            f"rapid skin {options.solver} {options.template} (chunks of {chunk})",
+                            _load_record(record_path))
+        if report.errors:
+            raise BatchError(report.failure_message("chunks"))
+    finally:
+        release_lock(layout)
+    records = _assemble_reconstruction(layout, units, options, selected, chunk)
+    return summarize(records), report
+
+
+def _assemble_reconstruction(layout: RunLayout, units: list[dict], options: ReconstructOptions,
+                             selected: list[int], chunk: int) -> list[dict]:
+    """Publish the chunks as one reconstruction run (meshes, frames.json, run.json last)."""
+    records = []
+    with RunWriter(layout, "bodystudio reconstruct (batch)", {"template": options.template}) as writer:
+        for unit in units:
+            ul = unit_layout(unit["root"])
+            manifest = read_json(ul.manifest_path, "batch unit record")
+            verify_run_files(ul, manifest.get("run"))
+            records.extend(read_json(ul.root / "frames.json", "batch unit frames")["frames"])
+            for fid in unit["frames"]:
+                src, dst = ul.root / f"meshes/{fid:05d}.ply", writer.path_for(f"meshes/{fid:05d}.ply")
+                try:
+                    os.link(src, dst)
+                except OSError:
+                    shutil.copyfile(src, dst)
+        writer.write_json("frames.json", {"frames": records})
+        previous = [f"meshes/{p.name}" for p in (layout.root / "meshes").glob("*.ply")]
+        first = read_json(unit_layout(units[0]["root"]).manifest_path, "batch unit record")
+        writer.commit({"solver": options.solver, "template": options.template, "joints": options.joints,
+                       "constraints": list(first["constraints"]), "frames": selected,
+                       "warm_start": options.warm_start, "refine_pose": options.refine_pose,
+                       "params": first["params"], "n_vertices": first["n_vertices"],
+                       "batch": {"chunk": chunk, "units": [u["name"] for u in units]}}, deletes=previous)
+    return records
+
+
+# ------------------------------------------------------------------------------------------ rig
+
+def list_scans(scans_dir: Path) -> list[Path]:
+    """The scan files (PLY, OBJ, GLB/GLTF, STL) directly in ``scans_dir``, sorted."""
+    scans_dir = Path(scans_dir)
+    if not scans_dir.is_dir():
+        raise InputError(f"{scans_dir}: no such folder of scans")
+    scans = sorted(p for p in scans_dir.iterdir() if p.is_file() and p.suffix.lower() in SCAN_SUFFIXES)
+    if not scans:
+        raise InputError(f"{scans_dir}: no scan files ({', '.join(SCAN_SUFFIXES)}) in this folder")
+    stems = {}
+    for p in scans:
+        if p.stem in stems:
+            raise InputError(f"{scans_dir}: {stems[p.stem].name} and {p.name} would both write {p.stem}.glb; "
+                             "rename one")
+        stems[p.stem] = p
+    return scans
+
+
+def rig_unit(scan: str, glb: str, template: str, inputs_sha256: str, setup: Callable | None = None) -> dict:
+    """One work unit, on a worker: rig ``scan`` into ``glb`` (+ .rig.json) atomically, then its unit record.
+
+    The unit record (``.batch/STEM.json``, written after the rig's commit) holds the input checksum and the
+    rig's run id; a crash between the two only redoes this scan.
+    """
+    from bodystudio.cli.rig import rig_to_files
+    from bodystudio.rig.export import rig_layout
+
+    t0 = time.perf_counter()
+    if setup is not None:
+        setup()
+    recover_layout(rig_layout(glb))
+    desc = rig_to_files(Path(scan), Path(glb), template=template)
+    manifest = read_json(rig_layout(glb).manifest_path, "rig record")
+    write_json(_rig_unit_record(Path(glb)), {"inputs_sha256": inputs_sha256, "scan": str(scan),
+                                             "run_id": manifest["run"]["run_id"], "pid": os.getpid()})
+    return {"seconds": time.perf_counter() - t0, "fit_err_mm_median": desc.get("fit_err_mm_median")}
+
+
+def _rig_unit_record(glb: Path) -> Path:
+    return glb.parent / ".batch" / f"{glb.stem}.json"
+
+
+def rig_is_complete(glb: Path, inputs_sha256: str) -> bool:
+    """The avatar's unit record has these inputs and names the committed rig run, whose files are intact."""
+    from bodystudio.rig.export import rig_layout
+
+    layout = rig_layout(glb)
+    try:
+        unit = read_json(_rig_unit_record(glb), "batch unit record")
+        if check_readable(layout) is not None or not layout.manifest_path.is_file():
+            return False
+        manifest = read_json(layout.manifest_path, "rig record")
+        if unit.get("inputs_sha256") != inputs_sha256 or manifest["run"]["run_id"] != unit.get("run_id"):
+            return False
+        verify_run_files(layout, manifest.get("run"))
+    except (BodyStudioError, KeyError, TypeError, AttributeError):
+        return False
+    return True
+
+
+def rig_batch(scans_dir: str | Path, out: str | Path, client, template: str = "6k", force: bool = False,
+              progress: bool = False, setup: Callable | None = None) -> BatchReport:
+    """``bodystudio batch rig SCANS_DIR --out DIR``: every scan rigged into ``DIR/STEM.glb`` on the cluster.
+
+    ``DIR/batch.json`` records every unit (input sha256, status, error). Failures do not stop the others;
+    they are in the returned report (the CLI raises :class:`BatchError` for them at the end). ``setup``
+    (tests) runs in the worker before each unit.
+    """
+    from bodystudio.fileio import check_output_folder
+
+    if template not in ("6k", "13k", "2k"):
+        raise InputError(f"--template {template!r}: use 6k, 13k or 2k")
+    scans = list_scans(Path(scans_dir))
+    out = Path(out)
+    check_output_folder(out, "--out")
+    layout = RunLayout(out, "batch.json", ".batch.", str(out))
+    acquire_lock(layout, "bodystudio batch rig")
+    try:
+        (out / ".batch").mkdir(exist_ok=True)
+        opts = options_sha256({"template": template, "version": __version__})
+        units = []
+        for scan in scans:
+            sha = hashlib.sha256((sha256_file(scan) + opts).encode()).hexdigest()
+            glb = out / f"{scan.stem}.glb"
+            units.append({"name": scan.name, "scan": str(scan), "output": str(glb), "inputs_sha256": sha,
+                          "complete": (lambda g=glb, s=sha: rig_is_complete(g, s))})
+
+        def submit(unit):
+            return client.submit(rig_unit, unit["scan"], unit["output"], template, unit["inputs_sha256"], setup,
+                                 key=f"rig-{Path(unit['scan']).stem}-{unit['inputs_sha256'][:12]}", pure=False)
+
+        record_path = out / "batch.json"
+        report = _run_units(client, units, submit, record_path, force, progress, f"rig {len(scans)} scans",
+                            _load_record(record_path))
+    finally:
+        release_lock(layout)
+    return report

@@ -1,0 +1,93 @@
+"""Bad input to the batch commands (``batch rig``, ``reconstruct --workers/--scheduler/--chunk``): one line on
+stderr, exit 2, refused before any cluster starts or any output is written (issue 14)."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from bodystudio.batch import check_worker_versions, resolve_scheduler
+from bodystudio.cli.main import main
+from bodystudio.errors import InputError
+
+
+def run_bad(args, capsys, phrase):
+    code = main([str(a) for a in args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert phrase in err, err
+    return err
+
+
+@pytest.fixture()
+def scans(tmp_path):
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    (folder / "a.ply").write_bytes(b"ply\n")
+    return folder
+
+
+@pytest.mark.parametrize("extra, phrase", [
+    (["--workers", "0"], "--workers 0"),
+    (["--workers", "-3"], "--workers -3"),
+    (["--scheduler", "localhost:8786"], "not a scheduler address"),
+    (["--scheduler", "tcp://bad host:1"], "not a scheduler address"),
+    (["--scheduler", "tcp://127.0.0.1:1", "--workers", "2"], "--scheduler and --workers"),
+    (["--template", "99k"], "--template"),
+])
+def test_batch_rig_bad_options(scans, tmp_path, capsys, extra, phrase):
+    run_bad(["batch", "rig", scans, "--out", tmp_path / "out", *extra], capsys, phrase)
+    assert not (tmp_path / "out").exists()
+
+
+def test_batch_rig_bad_folders(scans, tmp_path, capsys):
+    run_bad(["batch", "rig", tmp_path / "nope", "--out", tmp_path / "out"], capsys, "no such folder")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    run_bad(["batch", "rig", empty, "--out", tmp_path / "out"], capsys, "no scan files")
+    (scans / "a.obj").write_text("v 0 0 0\n")
+    run_bad(["batch", "rig", scans, "--out", tmp_path / "out"], capsys, "rename one")
+    (scans / "a.obj").unlink()
+    (tmp_path / "file").write_text("")
+    run_bad(["batch", "rig", scans, "--out", tmp_path / "file"], capsys, "not a folder")
+    assert not (tmp_path / "out").exists()
+
+
+def test_unreachable_scheduler_is_one_line(scans, tmp_path):
+    """A scheduler nobody listens on: one line within the connect timeout (the subprocess limit is a hang guard)."""
+    env = {**os.environ, "BODYSTUDIO_SCHEDULER": "tcp://127.0.0.1:1"}
+    proc = subprocess.run([sys.executable, "-m", "bodystudio.cli.main", "batch", "rig", str(scans), "--out",
+                           str(tmp_path / "out")], env=env, capture_output=True, text=True, timeout=90)
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and len(err.splitlines()) == 1, err
+    assert "$BODYSTUDIO_SCHEDULER tcp://127.0.0.1:1: cannot reach the scheduler" in err, err
+
+
+def test_bad_scheduler_variable_is_named():
+    os.environ["BODYSTUDIO_SCHEDULER"] = "8786"
+    try:
+        with pytest.raises(InputError, match=r"\$BODYSTUDIO_SCHEDULER '8786': not a scheduler address"):
+            resolve_scheduler(None, None)
+        assert resolve_scheduler(None, 2) is None  # --workers asks for a local cluster over the variable
+    finally:
+        del os.environ["BODYSTUDIO_SCHEDULER"]
+
+
+def test_worker_version_mismatch_refused():
+    check_worker_versions({"tcp://a:1": "0.1.0"}, "0.1.0")
+    with pytest.raises(InputError, match=r"1 of 2 workers run bodystudio 0\.0\.9 .*install the same version"):
+        check_worker_versions({"tcp://a:1": "0.1.0", "tcp://b:1": "0.0.9"}, "0.1.0")
+
+
+@pytest.mark.parametrize("extra, phrase", [
+    (["--chunk", "0"], "--chunk 0"),
+    (["--workers", "0"], "--workers 0"),
+    (["--scheduler", "http://x:1"], "not a scheduler address"),
+])
+def test_reconstruct_bad_cluster_options(tmp_path, capsys, extra, phrase):
+    session = tmp_path / "s"
+    session.mkdir()
+    run_bad(["reconstruct", session, *extra], capsys, phrase)
+    assert not (session / "reconstruct").exists()
