@@ -1,4 +1,5 @@
-"""Small synthetic Kinect observations of a posed subject for the mirror init/track tests (no session needed).
+"""Small synthetic Kinect observations of a posed subject (no session needed): the mirror init/track tests'
+and ``benchmarks/mirror_init_accuracy.py``'s walk set.
 
 A population subject is posed by a motion, rendered into a Kinect depth camera with the Kinect noise
 model (flying pixels at the silhouette, holes, quantisation), back-projected to studio-frame points,
