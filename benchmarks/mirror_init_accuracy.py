@@ -44,10 +44,10 @@ def session_row(seed: int, model, cache: Path, passes: int):
             s["init_mass_kg"] - s["true_mass_kg"], src.residual_mm, t1 - t0, t2 - t1)
 
 
-def walk_row(seed: int, model, frames: int, passes: int):
+def walk_row(seed: int, model, frames: int, passes: int, motion: str = "walk"):
     from bodystudio.mirror.init_case import synthetic_scene
 
-    sc = synthetic_scene(seed, n_frames=frames // 6, motion="walk", frame_stride=6, seed=seed)
+    sc = synthetic_scene(seed, n_frames=frames // 6, motion=motion, frame_stride=6, seed=seed)
     t0 = time.process_time()
     src = initialise_from_observations(sc.observations, model, view_point=sc.sensor.depth.center, passes=passes)
     dt = time.process_time() - t0
@@ -62,6 +62,7 @@ def main() -> None:
     ap.add_argument("--subjects", type=int, nargs="+", default=[201, 202, 203, 204, 205, 206])
     ap.add_argument("--frames", type=int, default=90, help="walk set: frames of the walk (every 6th is used)")
     ap.add_argument("--passes", type=int, default=3)
+    ap.add_argument("--motion", default="walk", help="walk set: the motion (capture.motion)")
     ap.add_argument("--cache", type=Path, default=None, help="sessions: keep the synthetic sessions here")
     args = ap.parse_args()
     model = load_statistical_model("6k", progress=False)
@@ -75,7 +76,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|")
     for seed in args.subjects:
         r = session_row(seed, model, args.cache, args.passes) if args.set == "sessions" else \
-            walk_row(seed, model, args.frames, args.passes)
+            walk_row(seed, model, args.frames, args.passes, args.motion)
         rows.append(r)
         print(f"| {seed} | {r[0]:.3f} | {r[1]:.1f} | {r[2]:.1f} | {r[3]:.2f} | {r[4]:.1f} | {r[5]:.2f} | {r[6]:.2f} |",
               flush=True)

@@ -33,7 +33,29 @@ class Scene:
     true_joints: list  # (J, 3) per frame
 
 
-def back_project(depth_m: np.ndarray, camera) -> np.ndarray:
+def drop_flying_pixels(depth_m: np.ndarray, step_m: float = 0.03) -> np.ndarray:
+    """Depth (H, W) without the pixels lying *between* surfaces: the part of the SDK's player segmentation
+    this scene (no room, no player mask) stands in for.
+
+    At a depth discontinuity the Kinect reports mixtures of the near and the far depth; the SDK does not
+    label those behind the silhouette as the player (``mirror.synthetic``'s player mask: the true person's
+    pixels). A pixel whose 3x3 neighbourhood holds a depth more than ``step_m`` nearer *and* one more
+    than ``step_m`` farther (no measurement counts as far) is such a mixture.
+    """
+    from scipy import ndimage
+
+    depth = np.asarray(depth_m, dtype=np.float64)
+    valid = depth > 0
+    near = ndimage.minimum_filter(np.where(valid, depth, np.inf), size=3, mode="nearest")
+    far = ndimage.maximum_filter(np.where(valid, depth, np.inf), size=3, mode="nearest")
+    return np.where(valid & (depth - near > step_m) & (far - depth > step_m), 0.0, depth)
+
+
+def back_project(depth_m: np.ndarray, camera, player_mask: bool = True) -> np.ndarray:
+    """Studio-frame points of the depth pixels; with ``player_mask`` the flying pixels behind the body's
+    silhouette are left out as the SDK's player mask leaves them out (:func:`drop_flying_pixels`)."""
+    if player_mask:
+        depth_m = drop_flying_pixels(depth_m)
     rows, cols = np.nonzero(depth_m > 0)
     uv = np.stack([cols, rows], 1).astype(np.float64)
     return camera.unproject(uv, depth_m[rows, cols].astype(np.float64))
