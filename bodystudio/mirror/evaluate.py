@@ -320,8 +320,9 @@ def strict_json_scores(scores: dict) -> dict:
     out = clean(dict(scores))
     if "psnr_person" in scores:
         p = scores["psnr_person"]
-        out["psnr_person_identical"] = bool(p is not None and isinstance(p, (float, np.floating)) and math.isinf(p)
-                                            and p > 0)
+        identical = isinstance(p, (float, np.floating)) and math.isinf(p) and p > 0
+        # already strict (psnr null with its flag): the flag stays as it was
+        out["psnr_person_identical"] = bool(identical or (p is None and scores.get("psnr_person_identical")))
     return out
 
 

@@ -11,6 +11,9 @@ stage, and turns it into tables; it draws a plot only when its data exists:
   ``*convergence*``
 * calibration residuals: ``*residual*`` lists (histogram) or per-camera values (bars)
 
+Mirror sessions and mirror run folders (issue 12) get a section of before/after frames (input | mirror
+output | truth) and the ``eval mirror`` scores (:func:`mirror_sections`).
+
 Images are embedded as base64 PNG and the 3D view as inline WebGL (:mod:`bodystudio.viewer.webgl`),
 so the page opens from disk without a server or network.
 """
@@ -389,10 +392,15 @@ def mirror_sections(root: Path) -> list[MirrorSection]:
         scores, note = None, None
         saved = session_path / "mirror" / "eval.json"
         if saved.is_file():
+            from bodystudio.mirror.evaluate import strict_json_scores
+
             try:
                 scores = json.loads(saved.read_text(encoding="utf-8"))
             except (json.JSONDecodeError, UnicodeDecodeError) as exc:
                 note = f"{saved}: not valid JSON ({exc})"
+            else:  # an older eval.json may hold Infinity / NaN: shown as null (+ psnr_person_identical)
+                scores = strict_json_scores(scores) if isinstance(scores, dict) else None
+                note = None if scores is not None else f"{saved}: not a JSON object"
         elif view.run_dir is None:
             note = "no mirror run yet (`bodystudio mirror run`)"
         else:

@@ -109,5 +109,9 @@ def test_report_has_a_mirror_section_with_frames_and_eval_json(mirror_session, t
     (mirror_session.path / "mirror" / "eval.json").write_text(json.dumps(saved))
     try:
         assert write_report(mirror_session.path, out, with_3d=False).mirrors[0].scores == saved
+        # an eval.json written before `eval mirror` printed strict JSON: Infinity becomes null + the flag
+        (mirror_session.path / "mirror" / "eval.json").write_text('{"psnr_person": Infinity, "warp_iou": 0.9}')
+        scores = write_report(mirror_session.path, out, with_3d=False).mirrors[0].scores
+        assert scores == {"psnr_person": None, "warp_iou": 0.9, "psnr_person_identical": True}
     finally:
         (mirror_session.path / "mirror" / "eval.json").unlink()
