@@ -23,5 +23,5 @@ def eval_mirror(
     from bodystudio.mirror.evaluate import evaluate_mirror
 
     scores = evaluate_mirror(session, run)
-    # PSNR of identical images is infinite: printed as JSON's usual extension Infinity (Python's json reads it)
-    typer.echo(json.dumps(scores, indent=2))
+    # strict JSON (RFC 8259): an infinite PSNR (output identical to the target) is null + psnr_person_identical
+    typer.echo(json.dumps(scores, indent=2, allow_nan=False))

@@ -40,7 +40,8 @@ def synth_mirror(
 ) -> None:
     """Synthesise a Kinect mirror session (1-2 actors in a furnished room) with the ground truth of the edits."""
     from bodystudio.fileio import check_output_folder
-    from bodystudio.mirror.synthetic import MIRROR_MOTIONS, N_BACKGROUND_FRAMES, check_edits, synth_mirror_session
+    from bodystudio.mirror.reshape import check_edits
+    from bodystudio.mirror.synthetic import MIRROR_MOTIONS, N_BACKGROUND_FRAMES, synth_mirror_session
 
     if actors not in (1, 2):
         raise InputError(f"--actors {actors}: a mirror session has 1 or 2 actors")

@@ -10,7 +10,8 @@ from bodystudio.errors import InputError
 
 
 def view(
-    path: Path = typer.Argument(..., help="session folder, arm capture folder, mesh/scan "
+    path: Path = typer.Argument(..., help="session folder, arm capture folder, mirror session or "
+                                "`mirror run` folder (before/after frames, source body), mesh/scan "
                                 "(.ply .obj .stl .off .glb) or avatar (.glb)"),
     bone: str | None = typer.Option(None, "--bone", help="show the skin weights of this bone (avatars)"),
     frame: int | None = typer.Option(None, "--frame", help="session frame to show first"),

@@ -17,6 +17,11 @@ run``: ``frames/``, ``masks/foreground/``, ``masks/warped/``, ``run.json``) and 
   and target masks dilated by ``band_px``;
 * ``ms_per_frame`` by step and ``fps`` from ``run.json``.
 
+The result is strict JSON (no ``NaN``/``Infinity``, which RFC 8259 parsers refuse): the PSNR of output
+frames identical to the target renders in the band is infinite, so ``psnr_person`` is then ``null`` and
+``psnr_person_identical`` ``true`` (it is ``false`` whenever ``psnr_person`` is a number); any other score
+that cannot be computed (e.g. ``joint_err_mm`` without a tracked frame) is ``null``.
+
 Scored frames: the run's frames in which the tracker reported the run's player (the mirror cannot act
 before), once the run's edit ramp (``ramp_frames`` tracked frames) is complete. A run folder that is
 being written, was interrupted, lists files that are missing or changed, was made from another session,
@@ -298,11 +303,36 @@ def tracking_scores(session, source, frames: list[int], player: int = 1) -> dict
     return {"joint_err_mm": float(np.mean(errors)) * 1e3 if errors else float("nan")}
 
 
+def strict_json_scores(scores: dict) -> dict:
+    """``scores`` with every non-finite float replaced by ``None`` (recursively), so ``json.dumps(...,
+    allow_nan=False)`` succeeds; an infinite ``psnr_person`` (identical images) sets ``psnr_person_identical``."""
+    def clean(v):
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        if isinstance(v, (float, np.floating)):
+            return float(v) if math.isfinite(v) else None
+        if isinstance(v, np.integer):
+            return int(v)
+        return v
+
+    out = clean(dict(scores))
+    if "psnr_person" in scores:
+        p = scores["psnr_person"]
+        identical = isinstance(p, (float, np.floating)) and math.isinf(p) and p > 0
+        # already strict (psnr null with its flag): the flag stays as it was
+        out["psnr_person_identical"] = bool(identical or (p is None and scores.get("psnr_person_identical")))
+    return out
+
+
 def evaluate_mirror(session, run_dir: str | Path | None = None, source=None, band_px: int = BAND_PX) -> dict:
     """The acceptance JSON of issue 12 for a run of ``bodystudio mirror run`` on a synthetic mirror session.
 
     ``run_dir`` defaults to ``SESSION/mirror/run``; ``source`` (a SourceBody) to
-    ``SESSION/mirror/source_body.npz``. See the module docstring for the keys.
+    ``SESSION/mirror/source_body.npz``. See the module docstring for the keys; the result is strict JSON
+    (:func:`strict_json_scores`: ``psnr_person`` is ``None`` with ``psnr_person_identical`` when the output
+    equals the target in the band).
     """
     session = check_mirror_session(session)
     run_dir = Path(session.path) / "mirror" / "run" if run_dir is None else Path(run_dir)
@@ -318,10 +348,11 @@ def evaluate_mirror(session, run_dir: str | Path | None = None, source=None, ban
     images = image_scores(session, run_dir, run, band_px)
     summary = run.get("summary") if isinstance(run.get("summary"), dict) else {}
     ms = summary.get("ms_per_frame") if isinstance(summary.get("ms_per_frame"), dict) else {}
-    return {"session": str(session.path), "run": str(run_dir), "player": player,
-            "edits": _nonzero(run.get("edits")), **init_scores(session, source, player),
-            **tracking_scores(session, source, images["scored_frames"], player),
-            **{k: v for k, v in images.items() if k != "scored_frames"},
-            "ms_per_frame": {k: float(v) for k, v in ms.items()},
-            "ms_per_frame_total": float(sum(ms.values())) if ms else None,
-            "fps": summary.get("fps_wall")}
+    return strict_json_scores({
+        "session": str(session.path), "run": str(run_dir), "player": player,
+        "edits": _nonzero(run.get("edits")), **init_scores(session, source, player),
+        **tracking_scores(session, source, images["scored_frames"], player),
+        **{k: v for k, v in images.items() if k != "scored_frames"},
+        "ms_per_frame": {k: float(v) for k, v in ms.items()},
+        "ms_per_frame_total": float(sum(ms.values())) if ms else None,
+        "fps": summary.get("fps_wall")})

@@ -91,6 +91,21 @@ ICP_ITERATIONS = (40, 20)
 JOINT_WEIGHT = 3.0
 #: Per-coordinate noise (metres) that sets the weight of the shape prior in Eq. 2.
 POINT_SIGMA_M = 0.01
+#: Outlier rejections of the initialisation, both measured from the *current shape estimate* (the mean body
+#: in the first pass): a depth point farther than INIT_CORRESPONDENCE_M from the posed B^D is not used, and
+#: in Eq. 2 a pair farther than FIT_TRIM_M after the first matching is dropped. With the tight values first
+#: used (8 cm / 5 cm) the points of a body fuller than the estimate (belly, chest, buttocks of a heavy
+#: subject) were the ones dropped, so the fit stayed near the mean: on the synthetic mirror sessions every
+#: subject came out light, heavy ones by 3-4 kg. The player mask already separates the person from the room;
+#: what remains (wall pixels where the mask overshoots, flying pixels) lies far behind the body and is still
+#: rejected (docs/mirror.md, "Mass bias").
+INIT_CORRESPONDENCE_M = 0.15
+FIT_TRIM_M = 0.10
+#: Body vertices the depth camera sees more obliquely than acos(INIT_FACING_COS) = 75 degrees take no
+#: depth points. The Kinect returns no depth beyond ~80 degrees (capture.kinect.KINECT_NOISE.grazing_angle_deg):
+#: the sides of the torso and limbs are never measured, and when their vertices could still be matched,
+#: points near the visible edge pulled them in and the body came out narrow (light).
+INIT_FACING_COS = 0.26
 
 
 @dataclass(frozen=True, eq=False)
@@ -191,12 +206,13 @@ def _vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 def transform_to_default_pose(points, kinect_joints, body: BodyModel, tracked=None, version: str = "v2",
                               view_point=None, scale_bones: bool = True, max_distance_m: float = MAX_CORRESPONDENCE_M,
-                              details: bool = False):
+                              details: bool = False, min_facing_cos: float = 0.0):
     """P_in -> P_0 of §4: bone scaling, IK down the chains, closest-vertex correspondences, inverse LBS.
 
     ``points`` (N, 3) depth points of the actor in the studio frame; ``kinect_joints`` (J, 3) the SDK's
     joints of the same frame; ``body`` the default body (or the current shape estimate). With
-    ``view_point`` (the depth camera centre) only body vertices facing it are matched. Returns P_0
+    ``view_point`` (the depth camera centre) only body vertices facing it (the cosine between normal and
+    viewing ray above ``min_facing_cos``) are matched. Returns P_0
     (N, 3) with NaN rows for points farther than ``max_distance_m`` from the posed body (not the actor);
     with ``details`` a :class:`DefaultPoseCloud`.
     """
@@ -211,7 +227,8 @@ def transform_to_default_pose(points, kinect_joints, body: BodyModel, tracked=No
     candidates = np.arange(len(V))
     if view_point is not None:
         N = _vertex_normals(V, bodyD.faces)
-        facing = np.einsum("nd,nd->n", N, np.asarray(view_point, float) - V) > 0
+        ray = np.asarray(view_point, float) - V
+        facing = np.einsum("nd,nd->n", N, ray) > min_facing_cos * np.linalg.norm(ray, axis=1)
         candidates = np.flatnonzero(facing)
     dist, k = cKDTree(V[candidates]).query(P)
     k = candidates[k]
@@ -399,13 +416,17 @@ def _subsample(P: np.ndarray, n: int, seed: int) -> np.ndarray:
 
 def initialise_from_observations(observations, model: StatisticalBodyModel, view_point=None, passes: int = 3,
                                  floor_y: float | None = 0.0, floor_margin_m: float = 0.02,
-                                 joint_weight: float = JOINT_WEIGHT, max_frames: int = MAX_FIT_FRAMES) -> SourceBody:
+                                 joint_weight: float = JOINT_WEIGHT, max_frames: int = MAX_FIT_FRAMES,
+                                 max_distance_m: float = INIT_CORRESPONDENCE_M,
+                                 trim_m: float = FIT_TRIM_M, min_facing_cos: float = INIT_FACING_COS) -> SourceBody:
     """§4 over several frames: per-frame transform + Eq. 2 fit, averaged; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
     plane ``y = floor_y`` are dropped (the player mask reaches onto the floor at the feet; None keeps them).
     Of more than ``max_frames`` usable frames the ``max_frames`` with the most person points are used
     (the actor fully in view and facing the sensor; consecutive frames add little new information).
+    ``max_distance_m`` and ``trim_m`` are the outlier rejections (see :data:`INIT_CORRESPONDENCE_M`);
+    only vertices facing the depth camera by more than ``min_facing_cos`` take points (:data:`INIT_FACING_COS`).
     """
     model = check_model(model)
     obs = []
@@ -430,7 +451,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         pooled, matches, seen, joints0 = [], [], [], []
         for o, P in obs:
             cloud = transform_to_default_pose(P, o.joints, body, o.tracked, o.version, view_point=view_point,
-                                              scale_bones=pass_ == 0, details=True)
+                                              scale_bones=pass_ == 0, max_distance_m=max_distance_m, details=True,
+                                              min_facing_cos=min_facing_cos)
             ok = cloud.correspondence >= 0
             if ok.sum() >= MIN_POINTS:
                 pooled.append(cloud.points[ok])
@@ -449,7 +471,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         coeffs, residual = fit_shape(P0, model, coeffs, candidates=np.unique(np.concatenate(seen)), correspondence=k0,
                                      iterations=ICP_ITERATIONS[min(pass_, len(ICP_ITERATIONS) - 1)],
                                      joints_default=np.array(joints0) if joints0 else None,
-                                     joint_weight=joint_weight, version=obs[0][0].version, return_residual=True)
+                                     joint_weight=joint_weight, version=obs[0][0].version, trim_m=trim_m,
+                                     return_residual=True)
         skeleton = refit_skeleton(model, coeffs)
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,
                          vertex_ids=model.vertex_ids)

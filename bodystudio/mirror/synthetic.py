@@ -53,6 +53,7 @@ from bodystudio.capture.render import RenderResult, lambert_shading, render, ren
 from bodystudio.errors import InputError
 from bodystudio.geometry.camera import Camera, RGBDSensor
 from bodystudio.mirror.frames import depth_ray_table
+from bodystudio.mirror.reshape import check_edits, target_coeffs
 
 log = logging.getLogger(__name__)
 
@@ -73,15 +74,6 @@ STAND_SPOTS = {1: ((0.0, 0.4),), 2: ((-0.45, 0.5), (0.5, 0.1))}
 ENTRY_SIDE = (-1.0, 1.0)
 ENTRY_X_M = 2.35
 MIRROR_MOTIONS = ("arms_raise", "walk", "turn", "arm_flex", "a_pose", "t_pose")
-
-# Placeholder until mirror.reshape (MIR-BODY) lands: the mirror's edit names, their model attributes and
-# ranges. The ground truth must use the same Eq. 4 map as the run; see target_rest_body.
-EDIT_ATTRIBUTES = {"taller": "stature_m", "heavier": "mass_kg", "muscular": "muscularity", "chest": "chest_m",
-                   "waist": "waist_m", "hips": "hip_m"}
-EDIT_RANGES = {"taller": 0.30, "heavier": 40.0, "muscular": 0.5, "chest": 0.30, "waist": 0.30, "hips": 0.30}
-EDIT_UNITS = {"taller": "m", "heavier": "kg", "muscular": "muscularity units", "chest": "m", "waist": "m",
-              "hips": "m"}
-
 
 # ---------------------------------------------------------------------------------------------- the sensor
 
@@ -282,10 +274,9 @@ def target_rest_body(model, body: BodyModel, edits: dict[str, float]) -> tuple[B
     gives the actor back (the same object) and the target keeps the actor's details outside the model's span.
     """
     c_s = model.project(body.vertices)
-    deltas = {EDIT_ATTRIBUTES[k]: float(v) for k, v in edits.items() if v}
-    if not deltas:
+    if not any(check_edits(edits).values()):
         return body, c_s, c_s.copy()
-    c_t = model.edit(c_s, deltas)
+    c_t = target_coeffs(model, c_s, edits)
     dV = model.vertices(c_t) - model.vertices(c_s)
     sk_s, sk_t = model.skeleton(c_s), model.skeleton(c_t)
     skel = body.skeleton
@@ -294,20 +285,6 @@ def target_rest_body(model, body: BodyModel, edits: dict[str, float]) -> tuple[B
     target = BodyModel(body.vertices + dV, body.faces, target_skeleton, body.weights, body.resolution, body.rig,
                        vertex_ids=body.vertex_ids)
     return target, c_s, c_t
-
-
-def check_edits(edits: dict[str, float] | None) -> dict[str, float]:
-    """Validated edits (names of :data:`EDIT_ATTRIBUTES`, values inside :data:`EDIT_RANGES`); one-line InputError."""
-    out = {}
-    for name, value in (edits or {}).items():
-        if name not in EDIT_ATTRIBUTES:
-            raise InputError(f"unknown edit {name!r}; valid: {', '.join(EDIT_ATTRIBUTES)}")
-        value = float(value)
-        limit = EDIT_RANGES[name]
-        if not np.isfinite(value) or abs(value) > limit:
-            raise InputError(f"--{name} {value:g} is out of range; use -{limit:g}..{limit:g} {EDIT_UNITS[name]}")
-        out[name] = value
-    return out
 
 
 def _yaw(skeleton: Skeleton, pose: Pose, yaw_rad: float, translation) -> Pose:
@@ -481,7 +458,8 @@ def synth_mirror_session(out: str | os.PathLike, subject_seed: int, n_frames: in
                          seed: int = 0, progress: bool = False, model=None, edited_players: tuple[int, ...] = (1,),
                          walk_in: bool = True, timings: dict | None = None):
     """Write a synthetic mirror session of ``actors`` subjects (``subject_seed``, ``subject_seed + 1``)
-    into the new folder ``out``, with the ground truth of ``edits`` (names of :data:`EDIT_ATTRIBUTES`).
+    into the new folder ``out``, with the ground truth of ``edits`` (names of
+    :data:`bodystudio.mirror.reshape.EDIT_NAMES`, validated by its ``check_edits``: one source of truth).
 
     The target render reshapes the actors in ``edited_players`` (player ids; default the first actor, whom
     ``bodystudio mirror run`` reshapes by default); the others appear unchanged in it. ``walk_in=False``:

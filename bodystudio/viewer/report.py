@@ -11,6 +11,9 @@ stage, and turns it into tables; it draws a plot only when its data exists:
   ``*convergence*``
 * calibration residuals: ``*residual*`` lists (histogram) or per-camera values (bars)
 
+Mirror sessions and mirror run folders (issue 12) get a section of before/after frames (input | mirror
+output | truth) and the ``eval mirror`` scores (:func:`mirror_sections`).
+
 Images are embedded as base64 PNG and the 3D view as inline WebGL (:mod:`bodystudio.viewer.webgl`),
 so the page opens from disk without a server or network.
 """
@@ -72,6 +75,7 @@ class ReportResult:
     plots: list[Plot] = field(default_factory=list)
     screenshots: list[tuple[str, bytes]] = field(default_factory=list)
     has_3d: bool = False
+    mirrors: list = field(default_factory=list)  # MirrorSection per mirror session / run
 
 
 def _is_scalar(v: Any) -> bool:
@@ -291,10 +295,16 @@ def _is_arm_capture_file(p: Path) -> bool:
 
 
 def screenshot_files(root: Path, exclude: Path | None = None) -> list[Path]:
+    """PNG files under ``root`` that are pictures to show (session streams and mirror run frames left out)."""
+    from bodystudio.viewer.mirror import is_mirror_run
+
+    runs = [p.parent.resolve() for p in root.rglob("run.json") if is_mirror_run(p.parent)]
     shots = []
     for p in sorted(root.rglob("*.png")):
         rel = p.relative_to(root)
         if any(_SKIP_PARTS.match(part) for part in rel.parts[:-1]) or p.name.startswith("."):
+            continue
+        if runs and any(r in p.resolve().parents for r in runs):  # per-frame outputs: the mirror section shows them
             continue
         if exclude is not None and p.resolve() == exclude.resolve():
             continue
@@ -344,6 +354,85 @@ def session_figures(session_path: Path) -> tuple[list[Plot], list[Table]]:
     return plots, [table]
 
 
+MIRROR_FRAMES = 3  # before/after strips per mirror session in the report
+
+
+@dataclass(frozen=True)
+class MirrorSection:
+    """The report's mirror section of one session: before/after strips and the eval JSON (or why none)."""
+
+    name: str
+    strips: list[tuple[str, bytes]]
+    scores: dict | None
+    note: str | None
+
+
+def _mirror_views(root: Path) -> list:
+    from bodystudio.viewer.mirror import is_mirror_run, is_mirror_session, open_mirror_view
+
+    if is_mirror_run(root):
+        return [open_mirror_view(root)]
+    return [open_mirror_view(s) for s in _sessions_under(root) if is_mirror_session(s)]
+
+
+def mirror_sections(root: Path) -> list[MirrorSection]:
+    """Mirror sessions / runs under ``root``: before/after frames (input | mirror | truth) and the scores of
+    ``bodystudio eval mirror`` (``SESSION/mirror/eval.json`` when the demo or a user saved it, else computed
+    when the session is synthetic and has a run and a source body)."""
+    from bodystudio.errors import BodyStudioError
+    from bodystudio.viewer.mirror import before_after_strip, mirror_frames
+
+    out = []
+    for view in _mirror_views(root):
+        session_path = Path(view.session.path)
+        strips = []
+        for fid in mirror_frames(view, MIRROR_FRAMES):
+            strip = before_after_strip(view, fid)
+            strips.append((f"{session_path.name} frame {fid}", _png_bytes(strip[::2, ::2])))
+        scores, note = None, None
+        saved = session_path / "mirror" / "eval.json"
+        if saved.is_file():
+            from bodystudio.mirror.evaluate import strict_json_scores
+
+            try:
+                scores = json.loads(saved.read_text(encoding="utf-8"))
+            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+                note = f"{saved}: not valid JSON ({exc})"
+            else:  # an older eval.json may hold Infinity / NaN: shown as null (+ psnr_person_identical)
+                scores = strict_json_scores(scores) if isinstance(scores, dict) else None
+                note = None if scores is not None else f"{saved}: not a JSON object"
+        elif view.run_dir is None:
+            note = "no mirror run yet (`bodystudio mirror run`)"
+        else:
+            from bodystudio.mirror.evaluate import evaluate_mirror
+
+            try:
+                scores = evaluate_mirror(view.session, view.run_dir)
+            except BodyStudioError as exc:
+                note = f"not scored: {exc}"
+        out.append(MirrorSection(session_path.name, strips, scores, note))
+    return out
+
+
+def _mirror_html(sections: list[MirrorSection]) -> str:
+    parts = ["<h2>Mirror: before / after</h2>",
+             '<p class="meta">Each strip: the Kinect input | the mirror\'s output | the truth (the actor rendered '
+             "with the edited body; synthetic sessions only).</p>"]
+    for m in sections:
+        parts.append(f"<h3>{html.escape(m.name)}</h3><div class=\"grid\">")
+        parts += [f"<figure>{_img_tag(png, cap)}<figcaption>{html.escape(cap)}</figcaption></figure>"
+                  for cap, png in m.strips]
+        parts.append("</div>")
+        if m.scores is not None:
+            parts.append(_table_html(Table(f"{m.name}: eval mirror", ["score", "value"],
+                                           [[k, v] for k, v in flatten_record(m.scores).items()])))
+            parts.append(f"<details><summary>eval JSON</summary><pre>"
+                         f"{html.escape(json.dumps(m.scores, indent=2, allow_nan=False))}</pre></details>")
+        if m.note:
+            parts.append(f'<p class="meta">{html.escape(m.note)}</p>')
+    return "\n".join(parts)
+
+
 def default_scene(root: Path):
     """(plotter, payload or None) the report embeds: an arm capture or a session (every frame), else an avatar,
     else a mesh."""
@@ -357,11 +446,13 @@ def default_scene(root: Path):
         still = render_image(plotter)
         return plotter, arm_payload(item.data, plotter), still
     sessions = _sessions_under(root)
-    if sessions:
-        item = open_viewable(sessions[0])
-        plotter = build_view(item)
-        still = render_image(plotter)
-        return plotter, session_payload(item.data, plotter), still
+    if sessions or (root / "run.json").is_file():
+        item = open_viewable(sessions[0] if sessions else root)
+        if item.kind in ("session", "mirror"):
+            plotter = build_view(item)
+            still = render_image(plotter)
+            payload = session_payload(item.data, plotter) if item.kind == "session" else scene_payload(plotter)
+            return plotter, payload, still
     meshes = [p for p in sorted(root.rglob("*")) if p.suffix.lower() in MESH_SUFFIXES
               and not any(_SKIP_PARTS.match(part) for part in p.relative_to(root).parts[:-1])]
     avatars = [p for p in meshes if open_viewable(p).kind == "avatar"] if meshes else []
@@ -440,6 +531,7 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
         p, t = session_figures(s)
         plots += p
         tables += t
+    mirrors = mirror_sections(root)
     shots = [(str(p.relative_to(root)), p.read_bytes()) for p in screenshot_files(root, exclude=out)]
     view_html = ""
     if with_3d:
@@ -465,6 +557,8 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
         parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
     if view_html:
         parts += ["<h2>3D view</h2>", view_html]
+    if mirrors:
+        parts.append(_mirror_html(mirrors))
     if shots:
         parts.append("<h2>Screenshots</h2><div class=\"grid\">")
         parts += [f"<figure>{_img_tag(png, name)}<figcaption>{html.escape(name)}</figcaption></figure>"
@@ -481,4 +575,4 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
     with atomic_write(out, "w") as fh:
         fh.write("\n".join(parts))
     log.info("wrote %s", out)
-    return ReportResult(out, tables, plots, shots, bool(view_html))
+    return ReportResult(out, tables, plots, shots, bool(view_html), mirrors)

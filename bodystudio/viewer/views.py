@@ -38,13 +38,17 @@ class Viewable:
 
 
 def open_viewable(path: str | Path) -> Viewable:
-    """Open a session or arm capture folder, a mesh/scan (PLY, OBJ, STL, OFF, GLB) or a skinned avatar (.glb)."""
+    """Open a session or arm capture folder, a mirror session or run folder (before/after frames and the
+    source body, :mod:`bodystudio.viewer.mirror`), a mesh/scan (PLY, OBJ, STL, OFF, GLB) or a skinned avatar."""
     path = Path(path)
     if path.is_dir():
         from bodystudio.viewer.arm import is_arm_capture, open_arm_view
+        from bodystudio.viewer.mirror import is_mirror_run, is_mirror_session, open_mirror_view
 
         if is_arm_capture(path):
             return Viewable(path, "arm", open_arm_view(path))
+        if is_mirror_run(path) or is_mirror_session(path):
+            return Viewable(path, "mirror", open_mirror_view(path))
         if not (path / SESSION_MANIFEST).is_file():
             inside = sorted(p.parent for p in path.glob(f"*/{SESSION_MANIFEST}"))
             hint = f" (it holds the session {inside[0]})" if inside else ""
@@ -287,7 +291,7 @@ def build_view(path: str | Path | Viewable, bone: str | None = None, frame: int 
         raise InputError(f"{item.path}: --bone needs an avatar (a skinned .glb), this is a {item.kind}")
     if reference is not None and item.kind != "mesh":
         raise InputError(f"{item.path}: --reference colours a mesh or scan by its error; this is a {item.kind}")
-    if frame is not None and item.kind not in ("session", "arm"):
+    if frame is not None and item.kind not in ("session", "arm", "mirror"):
         raise InputError(f"{item.path}: --frame picks a session frame; this is a {item.kind}")
     ref = load_mesh(reference) if reference is not None else None
     plotter = sc.make_plotter(off_screen=off_screen, window_size=window_size)
@@ -301,6 +305,10 @@ def build_view(path: str | Path | Viewable, bone: str | None = None, frame: int 
         scene_for_arm_sequence(item.data, frame, plotter, cloud=cloud)
         if not off_screen:
             add_arm_time_slider(plotter, item.data, cloud=cloud, frame_id=frame)
+    elif item.kind == "mirror":
+        from bodystudio.viewer.mirror import scene_for_mirror
+
+        scene_for_mirror(item.data, frame, plotter)
     elif item.kind == "avatar":
         scene_for_avatar(item.data, plotter, bone=bone, title=item.path.name)
     else:

@@ -137,3 +137,53 @@ def test_full_evaluation_with_the_true_source_body(session, tmp_path):
     # the IK against noisy SDK joints (1 cm noise, 3 % bone jitter) with the true skeleton: measured 17 mm
     assert 5.0 < scores["joint_err_mm"] < 26.0
     assert scores["ms_per_frame"] == {"foreground": 2.0, "warp": 1.0}
+
+
+def _strict_json(text):
+    """json.loads that refuses NaN / Infinity / -Infinity (RFC 8259 has none of them)."""
+    import json
+
+    def refuse(name):
+        raise ValueError(f"non-standard JSON constant {name}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_strict_json_scores():
+    from bodystudio.mirror.evaluate import strict_json_scores
+
+    out = strict_json_scores({"psnr_person": float("inf"), "joint_err_mm": float("nan"), "ms": {"a": np.float32(2)},
+                              "n": np.int64(3)})
+    assert out == {"psnr_person": None, "psnr_person_identical": True, "joint_err_mm": None, "ms": {"a": 2.0}, "n": 3}
+    assert strict_json_scores({"psnr_person": 31.5})["psnr_person_identical"] is False
+
+
+def test_eval_mirror_cli_prints_strict_json(session, tmp_path, capsys):
+    """`eval mirror` on output identical to the target: PSNR is null + psnr_person_identical, parsed strictly."""
+    import shutil
+
+    from bodystudio.body.statistical import load_statistical_model
+    from bodystudio.cli.main import main
+    from bodystudio.mirror.init import SourceBody, refit_skeleton, save_source_body
+
+    path = tmp_path / "session"
+    shutil.copytree(session.path, path)
+    copy = open_session(path)
+    actors = copy.gt_mirror_actors
+    model = load_statistical_model("6k", progress=False)
+    c = np.asarray(actors["source_coeffs"][0], np.float64)
+    save_source_body(path / "mirror" / "source_body.npz",
+                     SourceBody(c, actors["source_rest_vertices"][0], refit_skeleton(model, c), (10,), 1.0))
+    run_dir = truth_run(copy, tmp_path / "run")
+    capsys.readouterr()
+    assert main(["eval", "mirror", str(path), "--run", str(run_dir)]) == 0
+    scores = _strict_json(capsys.readouterr().out)
+    assert scores["psnr_person"] is None and scores["psnr_person_identical"] is True
+    assert scores["warp_iou"] == 1.0 and scores["init_mass_err_kg"] < 1e-6
+    assert isinstance(scores["joint_err_mm"], float)
+    # a real (finite) PSNR stays a number with the flag false
+    run_dir = write_fake_run(copy, tmp_path / "unwarped", lambda f: f.kinect_rgb, lambda f: f.gt_person == 1,
+                             lambda f: f.gt_person == 1)
+    assert main(["eval", "mirror", str(path), "--run", str(run_dir)]) == 0
+    scores = _strict_json(capsys.readouterr().out)
+    assert 10.0 < scores["psnr_person"] < 22.0 and scores["psnr_person_identical"] is False

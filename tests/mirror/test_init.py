@@ -24,8 +24,11 @@ def test_initialisation_recovers_stature_and_mass(source, walk_scene, model_6k):
     m = model_6k.measure(source.coeffs)
     stature_err = abs(m["stature_m"] - walk_scene.truth["stature_m"])
     mass_err = abs(m["mass_kg"] - walk_scene.truth["mass_kg"])
-    # measured: 1.5 mm and 2.3 kg on this 6-frame case (5 held-out subjects x 15 frames: max 6.7 mm, 3.8 kg)
-    assert stature_err < 0.006 and mass_err < 3.5
+    # measured: 6.4 mm and 1.1 kg on this 6-frame case (the scene's player mask leaves out the flying pixels
+    # behind the silhouette; vertices seen at more than 75 degrees take no points). Before the grazing-angle
+    # candidate limit and the looser outlier rejections: 9.7 mm, 3.7 kg with the same mask. Held-out
+    # synthetic mirror sessions 201-206 (benchmarks/mirror_init_accuracy.py): max 8.3 mm, 2.7 kg.
+    assert stature_err < 0.0095 and mass_err < 2.0
     # the mean shape (what a skipped fit returns) is far off for this subject, so the bounds mean something
     mean = model_6k.measure(np.zeros(model_6k.n_components))
     assert abs(mean["stature_m"] - walk_scene.truth["stature_m"]) > 0.1
@@ -36,8 +39,8 @@ def test_initialisation_recovers_stature_and_mass(source, walk_scene, model_6k):
 def test_initialised_surface_matches_the_true_body(source, walk_scene, model_6k):
     truth = walk_scene.body.vertices
     err = np.linalg.norm(source.vertices - truth, axis=1)
-    # the source is in the template topology: compare vertex by vertex (measured median 7.7 mm; mean shape 118 mm)
-    assert np.median(err) < 0.012
+    # the source is in the template topology: compare vertex by vertex (measured median 9.0 mm; mean shape 118 mm)
+    assert np.median(err) < 0.0135
     assert np.median(np.linalg.norm(model_6k.mean - truth, axis=1)) > 0.05
 
 
@@ -104,3 +107,20 @@ def test_cli_init_on_a_synthetic_mirror_session(tmp_path, model_6k):
     # measured on this session: -2.1 mm, -1.8 kg (8 frames); the mean shape is 13 cm / 12.7 kg off for subject 201
     assert abs(summary["stature_m"] - truth["stature_m"]) < 0.006
     assert abs(summary["mass_kg"] - truth["mass_kg"]) < 3.0
+
+
+def test_scene_player_mask_drops_flying_pixels_and_keeps_both_surfaces():
+    from bodystudio.mirror.init_case import drop_flying_pixels
+
+    depth = np.full((20, 30), 4.3)  # the wall
+    depth[:, :12] = 2.6  # the person, its silhouette at column 11/12
+    depth[5:15, 12] = np.linspace(2.8, 4.0, 10)  # flying pixels: mixtures of person and wall depth
+    depth[0, 0] = 0.0  # no measurement
+    out = drop_flying_pixels(depth)
+    assert (out[5:15, 12] == 0).all()
+    assert (out[:, :12][depth[:, :12] > 0] == 2.6).all()  # the person's edge pixels stay
+    assert (out[:, 13:] == 4.3).all() and out[0, 0] == 0.0
+    # beside empty pixels (counted as far) a pixel on the near side stays, one behind a nearer one goes
+    d = np.zeros((5, 5))
+    d[2, 1], d[2, 2] = 2.6, 2.75
+    assert drop_flying_pixels(d)[2, 1] == 2.6 and drop_flying_pixels(d)[2, 2] == 0.0

@@ -25,9 +25,10 @@ def run_bad(args, capsys, phrase):
 @pytest.mark.parametrize("args, phrase", [
     (["--actors", "3"], "--actors 3: a mirror session has 1 or 2 actors"),
     (["--actors", "0"], "--actors 0"),
-    (["--taller", "0.5"], "--taller 0.5 is out of range; use -0.3..0.3 m"),
-    (["--heavier", "-41"], "--heavier -41 is out of range"),
-    (["--muscular", "0.9"], "--muscular 0.9 is out of range"),
+    # the edit ranges and messages are mirror.reshape's (check_edits), shared with `mirror run`
+    (["--taller", "0.5"], "edit taller=0.5 is out of range: use -0.3 to +0.3 m"),
+    (["--heavier", "-41"], "edit heavier=-41.0 is out of range: use -40.0 to +40.0 kg"),
+    (["--muscular", "0.9"], "edit muscular=0.9 is out of range"),
     (["--waist", "nan"], "--waist nan: must be a finite number"),
     (["--hips", "inf"], "--hips inf: must be a finite number"),
     (["--frames", "5"], "--frames 5: must be in [11, 9000]"),
@@ -67,11 +68,23 @@ def test_synth_mirror_api_refuses_unknown_edits(tmp_path):
     from bodystudio.errors import InputError
     from bodystudio.mirror.synthetic import synth_mirror_session
 
-    with pytest.raises(InputError, match="unknown edit 'slimmer'"):
+    with pytest.raises(InputError, match="unknown edit 'slimmer'; valid edits: taller, heavier"):
         synth_mirror_session(tmp_path / "s", 1, edits={"slimmer": 0.1})
+    with pytest.raises(InputError, match="edit hips=0.31 is out of range"):
+        synth_mirror_session(tmp_path / "s", 1, edits={"hips": 0.31})
     with pytest.raises(InputError, match="edited players"):
         synth_mirror_session(tmp_path / "s", 1, edited_players=(2,))
     assert not (tmp_path / "s").exists()
+
+
+def test_synth_mirror_uses_the_reshape_stage_edits():
+    """One source of truth: the ground truth's edit names, ranges and Eq. 4 map are mirror.reshape's."""
+    from bodystudio.mirror import reshape, synthetic
+
+    assert synthetic.check_edits is reshape.check_edits
+    assert synthetic.target_coeffs is reshape.target_coeffs
+    for name in ("EDIT_ATTRIBUTES", "EDIT_RANGES", "EDIT_UNITS"):
+        assert not hasattr(synthetic, name)
 
 
 def test_eval_mirror_of_a_non_mirror_session(small_synth_session, capsys):

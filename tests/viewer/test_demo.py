@@ -43,8 +43,9 @@ def test_demo_bodies_only_measures_and_reports(tmp_path, drawn):
     from PIL import Image
 
     out = tmp_path / "demo"
-    report, stages = run_demo(out, skip=("session", "calibrate", "reconstruct", "rig", "muscle"), with_3d=False)
-    assert [r["status"] for r in stages] == ["done", "skipped", "skipped", "skipped", "skipped", "skipped"]
+    report, stages = run_demo(out, skip=("session", "calibrate", "reconstruct", "rig", "muscle", "mirror"),
+                              with_3d=False)
+    assert [r["status"] for r in stages] == ["done", "skipped", "skipped", "skipped", "skipped", "skipped", "skipped"]
     measured = json.loads((out / "bodies" / "measurements.json").read_text())["bodies"]
     assert len(measured) == 5
     assert 1.4 < measured["female"]["stature_m"] < measured["male"]["stature_m"] < 2.0
@@ -126,3 +127,22 @@ def test_demo_muscle_stage_captures_scores_and_reports(tmp_path, monkeypatch, ch
     page = chromium(report, size=(1200, 1100))
     assert page["console"] == [], page["console"]
     assert 'data-viewer-status="ok"' in page["dom"]
+
+
+def test_demo_mirror_stage_synthesises_fits_runs_scores_and_reports(tmp_path, monkeypatch):
+    """The demo's mirror stage on a 3-frame session: init, run and eval ran, the report shows before/after."""
+    import bodystudio.demo as demo
+
+    monkeypatch.setattr(demo, "MIRROR_FRAMES", 13)
+    monkeypatch.setattr(demo, "STAGES", [("mirror", demo.stage_mirror)])
+    out = tmp_path / "demo"
+    report, stages = run_demo(out)
+    assert stages[0]["status"] == "done", stages
+    assert "warp_iou" in stages[0]["summary"] and "init stature" in stages[0]["summary"]
+    scores = json.loads((out / "mirror_session" / "mirror" / "eval.json").read_text(),
+                        parse_constant=lambda c: pytest.fail(f"non-strict JSON constant {c}"))
+    assert scores["frames_scored"] == 3 and scores["warp_iou"] > scores["warp_iou_unwarped"]
+    assert scores["fg_iou"] > scores["fg_iou_raw"]
+    assert (out / "mirror.mp4").stat().st_size > 0 and (out / "screenshots" / "mirror.png").is_file()
+    text = report.read_text()
+    assert "Mirror: before / after" in text and text.count('alt="mirror_session frame') == 3

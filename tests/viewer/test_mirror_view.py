@@ -1,0 +1,117 @@
+"""The mirror in the viewer and the report: before/after frames (input | mirror | truth) and the source body."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from bodystudio.capture.session import open_session
+from tests.mirror.synth_case import small_mirror_session, write_fake_run
+
+
+@pytest.fixture(scope="module")
+def mirror_session(tmp_path_factory):
+    """A copy of the small mirror session with a source body (the true one) and a run whose output is
+    the truth with a white square painted in (so the mirror panel is recognisable)."""
+    from bodystudio.body.statistical import load_statistical_model
+    from bodystudio.mirror.init import SourceBody, refit_skeleton, save_source_body
+
+    path = tmp_path_factory.mktemp("mirror-view") / "session"
+    shutil.copytree(small_mirror_session(), path)
+    session = open_session(path)
+    actors = session.gt_mirror_actors
+    model = load_statistical_model("6k", progress=False)
+    c = np.asarray(actors["source_coeffs"][0], np.float64)
+    save_source_body(path / "mirror" / "source_body.npz",
+                     SourceBody(c, actors["source_rest_vertices"][0], refit_skeleton(model, c), (10,), 1.0))
+
+    def output(f):
+        img = f.gt_target_rgb.copy()
+        img[200:260, 300:360] = 255
+        return img
+
+    write_fake_run(session, path / "mirror" / "run", output, lambda f: f.gt_person == 1,
+                   lambda f: f.gt_target_person == 1)
+    return session
+
+
+def test_mirror_session_and_run_open_as_mirror_views(mirror_session):
+    from bodystudio.viewer.mirror import before_after_panels, before_after_strip, mirror_frames
+    from bodystudio.viewer.views import open_viewable
+
+    item = open_viewable(mirror_session.path)
+    assert item.kind == "mirror" and item.data.source_path is not None
+    run_item = open_viewable(mirror_session.path / "mirror" / "run")
+    assert run_item.kind == "mirror" and run_item.data.session.path == item.data.session.path
+    view = item.data
+    assert mirror_frames(view, 3) == [10, 12, 13]  # the run's ok frames with the actor, evenly spread
+    panels = before_after_panels(view, 12)
+    assert [c.split(" ")[0] for c, _ in panels] == ["input", "mirror", "truth"]
+    frame = mirror_session.frame(12)
+    assert np.array_equal(panels[0][1], frame.kinect_rgb) and np.array_equal(panels[2][1], frame.gt_target_rgb)
+    assert (panels[1][1][200:260, 300:360] == 255).all()  # the run's output, not the input
+    strip = before_after_strip(view, 12)
+    assert strip.shape == (480, 3 * 640, 3) and (strip[220, 640 + 330] == 255).all()
+    # before the run: input and truth only
+    shutil.move(mirror_session.path / "mirror" / "run", mirror_session.path / "run_aside")
+    try:
+        assert [c for c, _ in before_after_panels(open_viewable(mirror_session.path).data, 12)] == \
+            ["input", "truth (edited body)"]
+    finally:
+        shutil.move(mirror_session.path / "run_aside", mirror_session.path / "mirror" / "run")
+
+
+def test_view_screenshot_shows_strip_and_source_body(mirror_session, tmp_path, drawn):
+    from PIL import Image
+
+    from bodystudio.cli.main import main
+
+    shot = tmp_path / "mirror.png"
+    assert main(["view", str(mirror_session.path), "--frame", "12", "--screenshot", str(shot), "--size",
+                 "640x480"]) == 0
+    img = np.asarray(Image.open(shot).convert("RGB"))
+    assert drawn(img).mean() > 0.2  # the strip and the body cover a good part of the picture
+    html = tmp_path / "mirror.html"
+    assert main(["view", str(mirror_session.path / "mirror" / "run"), "--html", str(html)]) == 0
+    assert '"texture"' in html.read_text()  # the before/after strip travels as a texture
+
+
+def test_view_mirror_bad_frame_is_one_line(mirror_session, tmp_path, capsys):
+    from bodystudio.cli.main import main
+
+    assert main(["view", str(mirror_session.path), "--frame", "999", "--screenshot", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--frame 999: not a frame" in err[0]
+    run = tmp_path / "foreign_run"
+    run.mkdir()
+    (run / "run.json").write_text(json.dumps({"format": "bodystudio-mirror-run", "session": str(tmp_path / "gone")}))
+    assert main(["view", str(run), "--screenshot", str(tmp_path / "y.png")]) == 2
+    assert "the run's session" in capsys.readouterr().err
+
+
+def test_report_has_a_mirror_section_with_frames_and_eval_json(mirror_session, tmp_path):
+    from bodystudio.viewer.report import write_report
+
+    out = tmp_path / "report.html"
+    result = write_report(mirror_session.path, out, with_3d=False)
+    assert len(result.mirrors) == 1
+    section = result.mirrors[0]
+    assert len(section.strips) == 3 and section.note is None
+    assert section.scores["warp_iou"] == 1.0 and section.scores["init_mass_err_kg"] < 1e-6
+    text = out.read_text()
+    assert "Mirror: before / after" in text and "eval JSON" in text and "psnr_person" in text
+    assert text.count('alt="session frame') == 3
+    # the run's frames are in the mirror section, not among the screenshots
+    assert not any("frames/" in name or "masks/" in name for name, _ in result.screenshots)
+    # a saved eval.json is shown as it is
+    saved = {"warp_iou": 0.5, "psnr_person": None, "psnr_person_identical": True}
+    (mirror_session.path / "mirror" / "eval.json").write_text(json.dumps(saved))
+    try:
+        assert write_report(mirror_session.path, out, with_3d=False).mirrors[0].scores == saved
+        # an eval.json written before `eval mirror` printed strict JSON: Infinity becomes null + the flag
+        (mirror_session.path / "mirror" / "eval.json").write_text('{"psnr_person": Infinity, "warp_iou": 0.9}')
+        scores = write_report(mirror_session.path, out, with_3d=False).mirrors[0].scores
+        assert scores == {"psnr_person": None, "warp_iou": 0.9, "psnr_person_identical": True}
+    finally:
+        (mirror_session.path / "mirror" / "eval.json").unlink()
