@@ -113,7 +113,11 @@ class CaptureOptions:
     # barely constrains it, the tracker's wrist does. Measured (6k, 24 frames, subjects 2 / 5, 4 rounds):
     # 10 -> 5.97 / 6.41 mm median, 30 -> 4.91 / 5.51, 50 -> 4.73 / 5.19 (jitter +0.69 / +0.74), 100 worse.
     tracker_pose_weight: float = 30.0
-    pose_sigma_frames: float = 1.5  # joint angles smoothed over +-2 frames before the refinement (0: off)
+    # Joint angles smoothed over +-5 frames (Gaussian, sigma in frames) before the refinement (0: off). Measured
+    # (6k, measured shape; subjects 2 / 5 / 7 / 9 24 frames, 501 200 frames), sigma 1.5 over +-2 frames -> 2.5
+    # over +-5: median 4.91 / 5.51 / 7.94 / 8.28 / 5.52 -> 4.73 / 5.37 / 7.82 / 8.29 / 5.37 mm, jitter
+    # +0.52 / +0.63 / - / - / +0.78 -> +0.26 / +0.26 / +0.23 / +0.22 / +0.26 mm; sigma 4 worse on both 2 and 5.
+    pose_sigma_frames: float = 2.5
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape

@@ -309,14 +309,17 @@ def model_based_filtering(model, shape, root: np.ndarray, deformed: np.ndarray, 
     return model_mesh(model, shape, pose, norm_limit=norm_limit), pose
 
 
-def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: int = 2) -> list[ArmPose]:
+def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: int | None = None) -> list[ArmPose]:
     """Joint angles averaged over neighbouring frames with Gaussian weights (the Eq. 13-14 window on poses).
 
     Arm motion is quasi-static (Sec. 3), so frame-to-frame changes beyond a smooth trajectory are
-    depth noise; rotation vectors of one joint change little within a few frames and average linearly.
+    depth and tracker noise; rotation vectors of one joint change little within a few frames and average
+    linearly. The window is symmetric (no lag on a steady motion, unlike the previous-frame prior of
+    ``refine_arm_pose``) and reaches ``radius`` frames each side (default ``max(2, ceil(2 sigma))``).
     """
     if sigma_frames <= 0 or len(poses) < 3:
         return list(poses)
+    radius = max(2, int(np.ceil(2.0 * sigma_frames))) if radius is None else radius
     A = np.stack([p.angles for p in poses])
     out = []
     for i, p in enumerate(poses):
