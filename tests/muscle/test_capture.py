@@ -389,3 +389,21 @@ def test_known_shape_is_used_as_given(arm_session_2k, arm_model_2k, arm_template
     cap = capture_arm_sequence(arm_session_2k, arm_model_2k, arm_template_2k,
                                CaptureOptions(mode="model", shape_frames=2), frames=slice(0, 2), known_shape=shape)
     np.testing.assert_allclose(cap.shape.as_vector(), shape.as_vector())
+
+
+def test_fitted_arm_length_follows_the_tracker(arm_session_2k, arm_model_2k, arm_training_2k):
+    """Without measured parameters the arm length is held near the tracker's chain length (all frames)."""
+    from bodystudio.muscle.arm import arm_template
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
+    from bodystudio.muscle.synthetic import session_arm_subject, subject_body
+
+    template = arm_template(subject_body(arm_training_2k[1][0], "2k"), "left")
+    true = session_arm_subject(arm_session_2k)["subject"]["arm_length_m"]
+    err = {}
+    for w in (0.0, 100.0):
+        cap = capture_arm_sequence(arm_session_2k, arm_model_2k, template,
+                                   CaptureOptions(mode="model", shape_frames=3, tracker_arm_length_weight=w),
+                                   frames=slice(0, 3))
+        err[w] = abs(cap.shape.arm_length_m - true)
+    # Measured (2k, 3 frames, subject 2): 11.3 mm short without the tracker's length, 5.7 mm with it.
+    assert err[100.0] < 0.0085 and err[100.0] < 0.75 * err[0.0], err
