@@ -113,7 +113,18 @@ class CaptureOptions:
     # barely constrains it, the tracker's wrist does. Measured (6k, 24 frames, subjects 2 / 5, 4 rounds):
     # 10 -> 5.97 / 6.41 mm median, 30 -> 4.91 / 5.51, 50 -> 4.73 / 5.19 (jitter +0.69 / +0.74), 100 worse.
     tracker_pose_weight: float = 30.0
-    pose_sigma_frames: float = 1.5  # joint angles smoothed over +-2 frames before the refinement (0: off)
+    # Joint angles smoothed over +-5 frames (Gaussian, sigma in frames) before the refinement (0: off). Measured
+    # (6k, measured shape; subjects 2 / 5 / 7 / 9 24 frames, 501 200 frames), sigma 1.5 over +-2 frames -> 2.5
+    # over +-5: median 4.91 / 5.51 / 7.94 / 8.28 / 5.52 -> 4.73 / 5.37 / 7.82 / 8.29 / 5.37 mm, jitter
+    # +0.52 / +0.63 / - / - / +0.78 -> +0.26 / +0.26 / +0.23 / +0.22 / +0.26 mm; sigma 4 worse on both 2 and 5.
+    pose_sigma_frames: float = 2.5
+    # Fitted shape only: the arm length (a shape parameter) held near the tracker's shoulder-elbow-wrist chain
+    # length averaged over every frame, per frame of the sequence (1 per depth pair). The depth's point-to-plane
+    # pairs let the arm slide along itself, and the 8-frame tracker term left it 0.9-1.4 cm short. Measured (6k,
+    # 24 frames, fitted shape, subjects 2 / 5 / 7): arm length 0.478 / 0.506 / 0.476 -> 0.497 / 0.510 / 0.480 m
+    # (true 0.492 / 0.515 / 0.474), median 6.11 / 7.81 / 11.50 -> 6.35 / 7.79 / 11.23 mm, p90 12.69 / 16.68 /
+    # 21.90 -> 10.66 / 14.09 / 21.13 mm; 3000 (nearly fixed) no better.
+    tracker_arm_length_weight: float = 100.0
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape
@@ -247,6 +258,9 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     timer.add("rigid_alignment", t0)
 
     n_frames = len(depths)
+    # The arm length (shoulder-elbow plus elbow-wrist) the body tracker measures, averaged over every frame.
+    tracked_arm_length = None if tracker_joints is None else float(np.mean(
+        np.linalg.norm(np.diff(tracker_joints, axis=1), axis=2).sum(axis=1)))
     nicp_meshes, kept_masks = [], []
     model_meshes, poses = [], []
     system_rest = arap_system(posed0, F)
@@ -277,7 +291,8 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                     model, nicp_meshes, fit_poses, frames_t[:n_shape], shape,
                     tracker_joints=None if tracker_t is None else tracker_t[:n_shape],
                     tracker_weight=o.tracker_weight if known_shape is None else o.tracker_root_weight,
-                    fixed_shape=known_shape is not None)
+                    fixed_shape=known_shape is not None, arm_length=tracked_arm_length,
+                    arm_length_weight=o.tracker_arm_length_weight * n_frames)
                 base, J = model_rest_vertices(model, shape), model_joints(model, shape)
                 fit_poses = [model_based_filtering(model, shape, root, nicp_meshes[j], base, W, kept_masks[j],
                                                    frames_t[j], J, o.norm_limit, o.refine_pose,

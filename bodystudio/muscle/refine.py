@@ -203,7 +203,8 @@ def initial_arm_pose_from_joints(joints_rest: np.ndarray, tracked: np.ndarray) -
 def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], frames: list[DepthFrame],
                          initial=None, nicp_weight: float = 0.0, rounds: int = 2,
                          tracker_joints: np.ndarray | None = None, tracker_weight: float = 1.0,
-                         fixed_shape: bool = False) -> tuple:
+                         fixed_shape: bool = False, arm_length: float | None = None,
+                         arm_length_weight: float = 0.0) -> tuple:
     """Shape parameters (BMI, muscularity, height, arm length) of the sequence, fitted once (Sec. 6.2).
 
     Least squares over the given frames of the model mesh ``model_mesh(model, shape, pose_k)`` against
@@ -214,7 +215,9 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
     are only separable together. Bounds: the training range widened by its span on each side.
     Point-to-plane pairs leave the arm free to slide along itself, so the arm length is poorly seen
     by the depth alone: ``tracker_joints`` (frames, 3, 3), the body tracker's shoulder, elbow and
-    wrist, add ``tracker_weight`` times their distance to the model's posed joints. With
+    wrist, add ``tracker_weight`` times their distance to the model's posed joints, and ``arm_length``
+    (the tracker's chain length averaged over the sequence) holds the arm-length parameter with
+    ``arm_length_weight``. With
     ``fixed_shape`` (measured parameters in ``initial``) only the root is fitted.
     Returns ``(ArmShapeParams, root (4, 4))``.
     """
@@ -252,6 +255,8 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
                     T = part_transforms(J, ArmPose(root, p.angles))
                     posed = np.stack([T[k, :3, :3] @ J[k] + T[k, :3, 3] for k in range(3)])
                     r.append(np.sqrt(tracker_weight) * (posed - tj).ravel())
+            if arm_length is not None and arm_length_weight > 0:
+                r.append(np.sqrt(arm_length_weight) * np.atleast_1d(x[3] - arm_length))
             return np.concatenate(r)
 
         x = least_squares(fun, x, bounds=(np.r_[lo, -big], np.r_[hi, big]),
@@ -309,14 +314,17 @@ def model_based_filtering(model, shape, root: np.ndarray, deformed: np.ndarray, 
     return model_mesh(model, shape, pose, norm_limit=norm_limit), pose
 
 
-def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: int = 2) -> list[ArmPose]:
+def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: int | None = None) -> list[ArmPose]:
     """Joint angles averaged over neighbouring frames with Gaussian weights (the Eq. 13-14 window on poses).
 
     Arm motion is quasi-static (Sec. 3), so frame-to-frame changes beyond a smooth trajectory are
-    depth noise; rotation vectors of one joint change little within a few frames and average linearly.
+    depth and tracker noise; rotation vectors of one joint change little within a few frames and average
+    linearly. The window is symmetric (no lag on a steady motion, unlike the previous-frame prior of
+    ``refine_arm_pose``) and reaches ``radius`` frames each side (default ``max(2, ceil(2 sigma))``).
     """
     if sigma_frames <= 0 or len(poses) < 3:
         return list(poses)
+    radius = max(2, int(np.ceil(2.0 * sigma_frames))) if radius is None else radius
     A = np.stack([p.angles for p in poses])
     out = []
     for i, p in enumerate(poses):
