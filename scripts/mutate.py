@@ -92,6 +92,12 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
             f.write(mutmut_config(module, tests))
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CACHE_DIR")}
         env["NUMBA_CACHE_DIR"] = str(work / ".numba-cache")
+        # mutmut runs the clean tests in its own process, then forks one child per mutant. numba's default
+        # GNU OpenMP threading layer, once started (any ``parallel=True`` kernel, e.g. the Jacobi sweeps),
+        # raises SIGTERM in a forked child that starts it again ("fork() called from a process already
+        # using GNU OpenMP"): the child dies with -15 and mutmut files the mutant as "suspicious" (28 of
+        # laplacian's 101 before this). The workqueue layer is fork-safe and gives the same results.
+        env["NUMBA_THREADING_LAYER"] = "workqueue"
         mutmut = [str(Path(sys.executable).with_name("mutmut"))]
         cmd = ["nice", "-n", "10", "timeout", "--signal=INT", "--kill-after=30", str(timeout_s)] + mutmut + \
             ["run", "--max-children", str(jobs)]
