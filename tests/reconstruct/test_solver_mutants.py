@@ -213,6 +213,9 @@ def test_empty_constraint_sets():
     assert len(sil) == 0 and len(dep) == 0
     assert sil.origin.shape == sil.direction.shape == (0, 3) and dep.point.shape == dep.normal.shape == (0, 3)
     assert sil.vertex.dtype == dep.vertex.dtype == np.int64 and sil.camera.dtype == np.int64
+    assert sil.vertex.shape == dep.vertex.shape == sil.camera.shape == (0,)
+    for a in (sil.origin, sil.direction, sil.k, sil.pixel_distance, dep.point, dep.normal, dep.k):
+        assert a.dtype == np.float64
     assert sil.k.shape == sil.pixel_distance.shape == dep.k.shape == (0,)
     # smoothness alone: the rest shape's delta coordinates are kept, so the rest shape is a fixed point
     delta, rest = cotangent_delta_coordinates(_V, _F)
