@@ -113,6 +113,9 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
             m = re.match(r"\s*(\S+__mutmut_\d+): (.+)$", line)
             if m:
                 status[m.group(1)] = m.group(2).strip()
+        for name in _crash_exit_codes(work):
+            if status.get(name) == "suspicious":
+                status[name] = "segfault"  # counted as killed, as mutmut counts SIGSEGV
         names = [n for n, s in sorted(status.items(), key=lambda kv: _natural(kv[0]))
                  if s in ("survived", "no tests", "not checked", "suspicious")]
         diffs = mutant_diffs(names, work, env)
@@ -134,6 +137,25 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
             print(f"   scratch tree kept: {work}")
         else:
             shutil.rmtree(work, ignore_errors=True)
+
+
+#: Signals a mutant's test process can die of when the mutant broke the code (mutmut files only SIGSEGV and
+#: SIGKILL as "segfault", the rest as "suspicious"): SIGABRT, SIGBUS, SIGFPE. E.g. a mutated bounds check in
+#: front of a ``boundscheck=False`` numba kernel writes out of bounds and the test process aborts: the tests
+#: did notice the mutant, so it counts as killed.
+CRASH_SIGNALS = (-6, -7, -8)
+
+
+def _crash_exit_codes(work: Path) -> dict[str, int]:
+    """Mutants whose test process died of one of ``CRASH_SIGNALS``, from mutmut's ``.meta`` files."""
+    out = {}
+    for meta in (work / "mutants").rglob("*.meta"):
+        try:
+            codes = json.loads(meta.read_text()).get("exit_code_by_key", {})
+        except (OSError, ValueError):
+            continue
+        out.update({name: code for name, code in codes.items() if code in CRASH_SIGNALS})
+    return out
 
 
 DIFF_SCRIPT = """
