@@ -226,3 +226,38 @@ def test_empty_constraint_sets():
     # the LME system has translations in its null space (its 1e-12 Tikhonov term picks one): shape kept
     X = solve_constraints(_V, cs, "cholesky")
     np.testing.assert_allclose(X - X.mean(0), _V - _V.mean(0), atol=1e-6)
+
+
+def test_any_vertex_array_layout_is_solved_in_float64():
+    """float32 or Fortran-ordered vertices are copied to C-ordered float64 before the compiled sweeps."""
+    cs = _constraints(0.7)
+    V32 = _V.astype(np.float32)
+    Vf = np.asfortranarray(_V)
+    for solve in (gauss_seidel, jacobi, conjugate_gradient, cholesky):
+        ref = solve(V32.astype(np.float64), cs)
+        got = solve(V32, cs)
+        assert got.dtype == np.float64
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(solve(Vf, cs), solve(_V, cs), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(solver.projection_weight(np.float32(0.5), 8), 1 - 0.5 ** (1 / 8), rtol=1e-15)
+    assert solver.projection_weight(np.array([0.5], np.float32), 3).dtype == np.float64
+
+
+def test_smoothness_layout_is_computed_once_per_operator(monkeypatch):
+    cs = _constraints(0.7)
+    calls = []
+    real = solver._smoothness_layout
+    monkeypatch.setattr(solver, "_smoothness_layout", lambda *a: calls.append(1) or real(*a))
+    gauss_seidel(_V, cs, 2)
+    jacobi(_V, cs, 2)
+    gauss_seidel(_V, cs, 2)
+    assert len(calls) == 1
+
+
+def test_cg_stops_at_a_zero_residual():
+    """Nothing to do (zero rest deltas, zero mesh, no data terms): CG returns its start, not None."""
+    delta, _ = cotangent_delta_coordinates(_V, _F)
+    cs = ConstraintSet(delta, np.zeros((6, 3)), SilhouetteConstraints.empty(), DepthConstraints.empty())
+    seen = []
+    X = conjugate_gradient(np.zeros((6, 3)), cs, 5, callback=lambda it, X: seen.append(it))
+    assert isinstance(X, np.ndarray) and X.shape == (6, 3) and not X.any() and seen == []
