@@ -166,11 +166,18 @@ def test_timings_add_up(sphere_scene, monkeypatch):
     assert isinstance(r, rapid_skin.DeformResult) and r.vertices.dtype == np.float64
 
 
-def test_input_vertices_are_not_modified(sphere_scene):
+def test_input_vertices_are_not_modified_and_any_dtype_is_widened(sphere_scene):
     V, F, cams, masks = sphere_scene
     V_in = V.copy()
-    deform_to_observations(V_in, F, cams, masks, RapidSkinParams(outer_iterations=1, inner_iterations=2))
+    p = RapidSkinParams(outer_iterations=1, inner_iterations=2)
+    ref = deform_to_observations(V_in, F, cams, masks, p).vertices
     assert np.array_equal(V_in, V)
+    V32 = V.astype(np.float32)
+    got = deform_to_observations(V32, F.astype(np.int32), cams, masks, p).vertices
+    assert got.dtype == np.float64
+    np.testing.assert_allclose(got, deform_to_observations(V32.astype(float), F, cams, masks, p).vertices,
+                               rtol=0, atol=1e-15)
+    assert np.abs(got - ref).max() < 1e-6
 
 
 def test_default_params_are_the_papers():

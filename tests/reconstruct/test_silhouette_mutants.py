@@ -131,12 +131,17 @@ def test_constraints_carry_their_camera_origin_and_offset():
 
     d_centre = point_to_ray_distance(np.zeros((len(sil), 3)), sil.origin, sil.direction)
     assert np.median(np.abs(d_centre - 0.315)) < 0.002
-    # the same constraints from prepared views; and from vertices given as float32 / faces as int32
+    # prepared views give the same constraints
     views = SilhouetteViews(cams, masks, F)
-    again = silhouette_constraints(V.astype(np.float32), F.astype(np.int32), N, cams, None, 20.0, 3.0, 0.2,
-                                   views=views)
-    assert len(again) == len(sil) and np.array_equal(again.vertex, sil.vertex)
-    np.testing.assert_allclose(again.direction, sil.direction, atol=1e-6)
+    again = silhouette_constraints(V, F, N, cams, None, 20.0, 3.0, 0.2, views=views)
+    assert np.array_equal(again.vertex, sil.vertex) and np.array_equal(again.direction, sil.direction)
+    # float32 vertices and normals, int32 faces: computed in float64 (exactly as if widened first)
+    V32, N32 = V.astype(np.float32), N.astype(np.float32)
+    a = silhouette_constraints(V32, F.astype(np.int32), N32, cams, masks, 20.0, 3.0, 0.2)
+    b = silhouette_constraints(V32.astype(float), F, N32.astype(float), cams, masks, 20.0, 3.0, 0.2)
+    assert len(a) > 100 and np.array_equal(a.vertex, b.vertex)
+    np.testing.assert_allclose(a.direction, b.direction, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(a.pixel_distance, b.pixel_distance, rtol=0, atol=1e-12)
     # the defaults are tau 30 px, alpha 40 px, rim cosine 0.2
     d = silhouette_constraints(V, F, N, cams, masks)
     e = silhouette_constraints(V, F, N, cams, masks, 30.0, 40.0, 0.2)
@@ -180,3 +185,33 @@ def test_mask_errors_name_the_camera_and_the_fix():
     with pytest.raises(SessionError) as exc:
         check_masks({}, [cam], where="walk frame 3")
     assert str(exc.value).startswith("walk frame 3: no silhouette mask for camera c0")
+
+
+def test_pixel_distance_is_the_offsets_magnitude_on_either_side():
+    """A 5 % smaller sphere in the masks: the contour lies inside the rims, the offsets are negative, the
+    pixel distance (and Eq. 10's argument) is their magnitude."""
+    V, F = _sphere(0.30)
+    N = area_weighted_normals(V, F)
+    cams = [Camera.look_at(f"c{i}", (3 * np.sin(a), 0.2, 3 * np.cos(a)), (0, 0, 0), fx=500.0, width=320, height=240)
+            for i, a in enumerate([0.0, 2.1])]
+    masks = {c.name: silhouette_mask(0.95 * V, F, c) for c in cams}
+    sil = silhouette_constraints(V, F, N, cams, masks, tau_px=20.0, alpha_px=3.0)
+    assert len(sil) > 50 and np.all(sil.pixel_distance >= 0) and np.median(sil.pixel_distance) > 1.5
+    np.testing.assert_allclose(sil.k, np.exp(-sil.pixel_distance**2 / 18.0), rtol=1e-12)
+    from bodystudio.reconstruct.solver import point_to_ray_distance
+
+    d_centre = point_to_ray_distance(np.zeros((len(sil), 3)), sil.origin, sil.direction)
+    assert np.median(np.abs(d_centre - 0.285)) < 0.002
+
+
+def test_outline_raster_draws_both_orientations_by_default():
+    """On an open mesh one triangle is front- or back-facing: the default raster draws it either way."""
+    uv = np.array([[10.0, 10.0], [50.0, 12.0], [20.0, 40.0]])
+    for F in (np.array([[0, 1, 2]]), np.array([[0, 2, 1]])):
+        m = S._rasterize_mask(uv, F, 64, 48, np.zeros((48, 64), np.uint8))
+        assert 400 < m.sum() < 700  # the triangle's area is 590 px^2
+        assert m[20, 25] and not m[45, 60]
+    # the last row / column of an image whose size is no multiple of the tile is drawn too
+    uv = np.array([[-5.0, -5.0], [70.0, -5.0], [-5.0, 60.0], [70.0, 60.0]])
+    m = S._rasterize_mask(uv, np.array([[0, 1, 2], [1, 3, 2]]), 61, 41, np.zeros((41, 61), np.uint8))
+    assert m.all()
