@@ -261,3 +261,17 @@ def test_cg_stops_at_a_zero_residual():
     seen = []
     X = conjugate_gradient(np.zeros((6, 3)), cs, 5, callback=lambda it, X: seen.append(it))
     assert isinstance(X, np.ndarray) and X.shape == (6, 3) and not X.any() and seen == []
+
+
+def test_solve_constraints_uses_the_lme_system_it_is_given():
+    """The LME system carries L^T L and the symbolic Cholesky analysis from one re-matching to the next."""
+    cs = _constraints(0.7)
+    lme = LMESystem(cs.delta)
+    calls = []
+    real = lme.normal_equations
+    lme.normal_equations = lambda c: calls.append(c) or real(c)
+    X = solve_constraints(_V, cs, "cholesky", lme=lme)
+    assert len(calls) == 1 and lme._symbolic is not None
+    np.testing.assert_allclose(X, cholesky(_V, cs), atol=1e-12)
+    solve_constraints(_V, cs, "cg", 3, lme=lme)
+    assert len(calls) == 2
