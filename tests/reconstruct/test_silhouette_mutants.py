@@ -75,9 +75,11 @@ def test_closed_mesh_test_is_cached_per_face_array(monkeypatch):
     assert S._is_closed_cached(F) and S._is_closed_cached(F.astype(np.int32)) and len(calls) == 1
     assert not S._is_closed_cached(F[:-1]) and len(calls) == 2
     # the cache is bounded: it is emptied once it holds more than 16 face arrays
-    for k in range(20):
+    sizes = []
+    for k in range(40):
         S._is_closed_cached(_OCT_F + 1000 + k)
-    assert 1 <= len(S._CLOSED_CACHE) <= 17
+        sizes.append(len(S._CLOSED_CACHE))
+    assert max(sizes) == 17 and min(sizes[5:]) == 1
 
 
 def test_defaults_of_the_helpers():
@@ -93,6 +95,10 @@ def test_defaults_of_the_helpers():
     np.testing.assert_allclose(silhouette_weight(d), np.exp(-d * d / (2 * 40.0 * 40.0)), rtol=1e-15)  # alpha 40
     np.testing.assert_allclose(silhouette_weight(d, 7.0), np.exp(-d * d / 98.0), rtol=1e-15)
     np.testing.assert_allclose(silhouette_weight(-d, 7.0), silhouette_weight(d, 7.0), rtol=0)
+    x32 = (d + 0.1).astype(np.float32)  # float32 input, float64 arithmetic
+    w32 = silhouette_weight(x32, 7.0)
+    assert w32.dtype == np.float64
+    np.testing.assert_allclose(w32, silhouette_weight(x32.astype(np.float64), 7.0), rtol=1e-15)
     # match_contours: tau defaults to 30 px; boolean masks and integer pixel coordinates are accepted
     y, x = np.mgrid[0:100, 0:120]
     disc = (x - 60) ** 2 + (y - 50) ** 2 <= 10 * 10
@@ -148,7 +154,30 @@ def test_constraints_carry_their_camera_origin_and_offset():
     assert np.array_equal(d.vertex, e.vertex) and np.array_equal(d.k, e.k)
     assert not np.array_equal(d.k, silhouette_constraints(V, F, N, cams, masks, 30.0, 39.0, 0.2).k)
     assert len(silhouette_constraints(V, F, N, cams, masks, 30.0, 40.0, 0.25)) > len(d)
-    assert np.all(d.pixel_distance <= 30.0)
+    # a 1.58x sphere puts the contour 29.4-30.5 px from the rims: the default tau (30) keeps part of them
+    big = {c.name: silhouette_mask(1.58 * V, F, c) for c in cams}
+    n30 = len(silhouette_constraints(V, F, N, cams, big, 30.0))
+    assert 0 < n30 == len(silhouette_constraints(V, F, N, cams, big)) < len(silhouette_constraints(V, F, N, cams,
+                                                                                                   big, 31.0))
+
+
+def test_a_view_with_a_single_match_keeps_it():
+    """A mask of one pixel on one rim vertex's contour crossing: exactly one constraint from that view."""
+    V, F = _sphere(0.30)
+    N = area_weighted_normals(V, F)
+    cams = [Camera.look_at(f"c{i}", (3 * np.sin(a), 0.2, 3 * np.cos(a)), (0, 0, 0), fx=500.0, width=320, height=240)
+            for i, a in enumerate([0.0, 2.1])]
+    full = {c.name: silhouette_mask(1.05 * V, F, c) for c in cams}
+    sil = silhouette_constraints(V, F, N, cams[:1], full, 20.0, 3.0)
+    uv = cams[0].project(V[sil.vertex])
+    j = int(np.argmax(uv[:, 0]))  # the rightmost rim vertex: its normal points along +u
+    n2 = cams[0].project(V[sil.vertex[j]] + 0.005 * N[sil.vertex[j]]) - uv[j]
+    p = (uv[j] + (sil.pixel_distance[j] - 0.5) * n2 / np.linalg.norm(n2)).ravel()  # last pixel inside
+    one = np.zeros((240, 320), bool)
+    one[int(round(p[1])), int(round(p[0]))] = True
+    got = silhouette_constraints(V, F, N, cams, {"c0": one, "c1": full["c1"]}, 20.0, 3.0)
+    assert (got.camera == 0).sum() == 1 and got.vertex[got.camera == 0][0] == sil.vertex[j]
+    assert (got.camera == 1).sum() > 50
 
 
 def test_no_match_in_any_view_gives_the_empty_set():
@@ -213,5 +242,6 @@ def test_outline_raster_draws_both_orientations_by_default():
         assert m[20, 25] and not m[45, 60]
     # the last row / column of an image whose size is no multiple of the tile is drawn too
     uv = np.array([[-5.0, -5.0], [70.0, -5.0], [-5.0, 60.0], [70.0, 60.0]])
-    m = S._rasterize_mask(uv, np.array([[0, 1, 2], [1, 3, 2]]), 61, 41, np.zeros((41, 61), np.uint8))
-    assert m.all()
+    for w, h in ((61, 41), (1, 1), (9, 1), (1, 9), (5, 3)):
+        m = S._rasterize_mask(uv, np.array([[0, 1, 2], [1, 3, 2]]), w, h, np.zeros((h, w), np.uint8))
+        assert m.shape == (h, w) and m.all(), (w, h)
