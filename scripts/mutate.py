@@ -81,15 +81,23 @@ def mutmut_config(module: str, tests: list[str]) -> str:
     ])
 
 
-def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | None = None) -> dict:
-    work = Path(tempfile.mkdtemp(prefix="bodystudio-mutate-"))
+def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | None = None,
+               resume: Path | None = None) -> dict:
+    """Mutate ``module`` in a fresh scratch tree or, with ``resume``, go on in a kept one (mutmut runs only the
+    mutants that have no result yet, e.g. those a time box left "not checked")."""
+    work = resume or Path(tempfile.mkdtemp(prefix="bodystudio-mutate-"))
+    keep = keep or resume is not None
     try:
-        scratch_copy(ROOT, work, ref)
+        if resume is None:
+            scratch_copy(ROOT, work, ref)
         tests = tests_for(module, work)
         if not tests:
             return {"module": module, "error": "no tests found", "tests": []}
-        with open(work / "pyproject.toml", "a") as f:
-            f.write(mutmut_config(module, tests))
+        if resume is None:
+            with open(work / "pyproject.toml", "a") as f:
+                f.write(mutmut_config(module, tests))
+        elif f'only_mutate = ["{module}"]' not in (work / "pyproject.toml").read_text():
+            return {"module": module, "error": f"--resume {work} is not a scratch tree of {module}", "tests": tests}
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CACHE_DIR")}
         env["NUMBA_CACHE_DIR"] = str(work / ".numba-cache")
         # mutmut runs the clean tests in its own process, then forks one child per mutant. numba's default
@@ -247,17 +255,25 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="mutmut worker processes")
     ap.add_argument("--keep", action="store_true", help="keep the scratch trees (for mutmut show / browse)")
     ap.add_argument("--ref", help="mutate this commit's tree instead of the working tree (before/after figures)")
+    ap.add_argument("--resume", type=Path, help="go on in this kept scratch tree (one module): only mutants "
+                    "without a result are run, e.g. after the time box was hit")
     args = ap.parse_args(argv)
+    if args.resume is not None and (len(args.modules) != 1 or not (args.resume / "mutants").is_dir()):
+        print(f"mutate: --resume needs one module and a scratch tree kept by --keep (with mutants/), got "
+              f"{args.resume}", file=sys.stderr)
+        return 2
     missing = [m for m in args.modules if not (ROOT / m).is_file()]
     if missing:
         print(f"mutate: no such module(s): {' '.join(missing)}; list files under bodystudio/", file=sys.stderr)
         return 2
     results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
     for module in args.modules:
-        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref)
+        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.resume)
         if r.get("score") is not None:
             history = results.get(module, {}).get("history", [])
             commit = git_commit() if args.ref is None else args.ref
+            if args.resume is not None:
+                commit += " (resumed)"
             history.append({"date": dt.date.today().isoformat(), "commit": commit, "score": r["score"]})
             r["history"] = history
         results[module] = r
