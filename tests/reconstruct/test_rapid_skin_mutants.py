@@ -154,12 +154,12 @@ def test_timings_add_up(sphere_scene, monkeypatch):
     """A clock that ticks 1 s per reading: matching and solving times are exact sums over the iterations."""
     V, F, cams, masks = sphere_scene
     monkeypatch.setattr(rapid_skin, "solve_constraints", _Recorder())
-    ticks = iter(range(1000))
+    ticks = iter(range(100, 1000))  # not from 0: a start time of 0 would hide t1 + t0 for t1 - t0
     monkeypatch.setattr(rapid_skin.time, "perf_counter", lambda: float(next(ticks)))
     r = deform_to_observations(V, F, cams, masks, RapidSkinParams(outer_iterations=3))
     # readings: mask preparation (2), then per outer iteration t0, t1, t2
     assert r.matching_s == 1.0 + 3 * 1.0 and r.solver_s == 3 * 1.0
-    ticks = iter(range(1000))
+    ticks = iter(range(100, 1000))
     r = deform_to_observations(V, F, cams, masks, RapidSkinParams(outer_iterations=2, solver="cholesky"))
     # the LME set-up (2 readings) counts as solver time
     assert r.solver_s == 1.0 + 2 * 1.0 and r.matching_s == 1.0 + 2 * 1.0
