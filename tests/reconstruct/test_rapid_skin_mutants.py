@@ -134,13 +134,21 @@ def test_depth_only_needs_no_masks(sphere_scene, monkeypatch):
 
     def fake_depth(V_, N_, obs, sigma, max_m):
         seen.append((obs, sigma, max_m))
+        meshes.append((np.array(V_), np.array(N_)))
         return dep
+
+    meshes = []
 
     monkeypatch.setattr(rapid_skin, "depth_constraints", fake_depth)
     obs = object()
     r = deform_to_observations(V, F, cams, None, RapidSkinParams(outer_iterations=2, constraints=("depth",),
                                                                  depth_sigma_m=0.03, depth_max_m=0.07), depth=obs)
     assert seen == [(obs, 0.03, 0.07)] * 2
+    # the depth matcher sees the current mesh and its unit normals (outward on the sphere)
+    for (Vd, Nd), call in zip(meshes, rec.calls, strict=True):
+        np.testing.assert_array_equal(Vd, call["V"])
+        np.testing.assert_allclose(np.linalg.norm(Nd, axis=1), 1.0, atol=1e-12)
+        assert np.all(np.sum(Nd * Vd, axis=1) > 0.29)
     assert r.n_depth == [2, 2] and r.n_silhouette == [0, 0]
     assert all(c["cs"].depth is dep and len(c["cs"].silhouette) == 0 for c in rec.calls)
     with pytest.raises(InputError, match="^silhouette constraints need masks$"):
