@@ -1,5 +1,5 @@
 """Cotangent weights (Eq. 8 of Rapid Skin) where mutation testing found no test: the clamp-and-floor of
-obtuse (negative) cotangents against a hand computation, and float64 arithmetic whatever the input dtype."""
+obtuse (negative) cotangents against a hand computation, and float32 input."""
 
 import numpy as np
 
@@ -55,9 +55,9 @@ def test_negative_cotangents_are_clamped_then_floored_at_a_share_of_the_row_mean
     assert 0 < W[0, 1] < 2 * _WEIGHT_FLOOR and 0 < W[1, 2] < 2 * _WEIGHT_FLOOR
 
 
-def test_float32_vertices_are_computed_in_float64():
-    # libigl computes the cotangents in the input's precision: float32 vertices must be widened first,
-    # or the weights carry float32 round-off (~1e-7 here).
+def test_float32_vertices_give_the_weights_of_their_float64_values():
+    # float32 vertices give exactly the weights of their float64 values (libigl widens them too) and the
+    # delta coordinates come out in float64.
     V32 = _V_FLAT.astype(np.float32)
     ref = _dense(cotangent_weights(V32.astype(np.float64), _F))
     np.testing.assert_allclose(_dense(cotangent_weights(V32, _F)), ref, rtol=0, atol=1e-14)
