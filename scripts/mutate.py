@@ -69,6 +69,35 @@ def scratch_copy(root: Path, dest: Path, ref: str | None = None) -> None:
         shutil.copy2(root / f, target)
 
 
+#: Appended to the scratch tree's tests/conftest.py: each mutant's tests run fastest first (by the durations
+#: mutmut measured in its clean run), so with ``pytest -x`` a killed mutant stops at its cheapest failing test.
+#: mutmut hands pytest the covering tests in set order; with one slow end-to-end test (rapid_skin: ~40 s and
+#: more per test in a fresh fork) next to fast analytic ones, the order decides whether a kill costs 1 s or 1 min.
+ORDER_HOOK = """
+
+# --- added by scripts/mutate.py (scratch tree only) ---
+def pytest_collection_modifyitems(session, config, items):
+    import json
+
+    try:
+        with open("mutmut-stats.json") as f:
+            durations = json.load(f)["duration_by_test"]
+    except (OSError, ValueError, KeyError):
+        return
+    items.sort(key=lambda item: durations.get(item.nodeid, 0.0))
+"""
+
+
+def order_fast_first(work: Path) -> None:
+    """Add :data:`ORDER_HOOK` to the scratch tree's tests/conftest.py (once)."""
+    conftest = work / "tests" / "conftest.py"
+    text = conftest.read_text() if conftest.is_file() else ""
+    if "added by scripts/mutate.py" not in text:
+        if "def pytest_collection_modifyitems" in text:
+            return  # the project has its own ordering hook: leave it alone
+        conftest.write_text(text + ORDER_HOOK)
+
+
 def mutmut_config(module: str, tests: list[str]) -> str:
     return "\n".join([
         "", "[tool.mutmut]",
@@ -81,17 +110,32 @@ def mutmut_config(module: str, tests: list[str]) -> str:
     ])
 
 
-def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | None = None) -> dict:
-    work = Path(tempfile.mkdtemp(prefix="bodystudio-mutate-"))
+def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | None = None,
+               resume: Path | None = None) -> dict:
+    """Mutate ``module`` in a fresh scratch tree or, with ``resume``, go on in a kept one (mutmut runs only the
+    mutants that have no result yet, e.g. those a time box left "not checked")."""
+    work = resume or Path(tempfile.mkdtemp(prefix="bodystudio-mutate-"))
+    keep = keep or resume is not None
     try:
-        scratch_copy(ROOT, work, ref)
+        if resume is None:
+            scratch_copy(ROOT, work, ref)
         tests = tests_for(module, work)
         if not tests:
             return {"module": module, "error": "no tests found", "tests": []}
-        with open(work / "pyproject.toml", "a") as f:
-            f.write(mutmut_config(module, tests))
+        if resume is None:
+            with open(work / "pyproject.toml", "a") as f:
+                f.write(mutmut_config(module, tests))
+        elif f'only_mutate = ["{module}"]' not in (work / "pyproject.toml").read_text():
+            return {"module": module, "error": f"--resume {work} is not a scratch tree of {module}", "tests": tests}
+        order_fast_first(work)
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CACHE_DIR")}
         env["NUMBA_CACHE_DIR"] = str(work / ".numba-cache")
+        # mutmut runs the clean tests in its own process, then forks one child per mutant. numba's default
+        # GNU OpenMP threading layer, once started (any ``parallel=True`` kernel, e.g. the Jacobi sweeps),
+        # raises SIGTERM in a forked child that starts it again ("fork() called from a process already
+        # using GNU OpenMP"): the child dies with -15 and mutmut files the mutant as "suspicious" (28 of
+        # laplacian's 101 before this). The workqueue layer is fork-safe and gives the same results.
+        env["NUMBA_THREADING_LAYER"] = "workqueue"
         mutmut = [str(Path(sys.executable).with_name("mutmut"))]
         cmd = ["nice", "-n", "10", "timeout", "--signal=INT", "--kill-after=30", str(timeout_s)] + mutmut + \
             ["run", "--max-children", str(jobs)]
@@ -107,6 +151,9 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
             m = re.match(r"\s*(\S+__mutmut_\d+): (.+)$", line)
             if m:
                 status[m.group(1)] = m.group(2).strip()
+        for name in _crash_exit_codes(work):
+            if status.get(name) == "suspicious":
+                status[name] = "segfault"  # counted as killed, as mutmut counts SIGSEGV
         names = [n for n, s in sorted(status.items(), key=lambda kv: _natural(kv[0]))
                  if s in ("survived", "no tests", "not checked", "suspicious")]
         diffs = mutant_diffs(names, work, env)
@@ -128,6 +175,25 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
             print(f"   scratch tree kept: {work}")
         else:
             shutil.rmtree(work, ignore_errors=True)
+
+
+#: Signals a mutant's test process can die of when the mutant broke the code (mutmut files only SIGSEGV and
+#: SIGKILL as "segfault", the rest as "suspicious"): SIGABRT, SIGBUS, SIGFPE. E.g. a mutated bounds check in
+#: front of a ``boundscheck=False`` numba kernel writes out of bounds and the test process aborts: the tests
+#: did notice the mutant, so it counts as killed.
+CRASH_SIGNALS = (-6, -7, -8)
+
+
+def _crash_exit_codes(work: Path) -> dict[str, int]:
+    """Mutants whose test process died of one of ``CRASH_SIGNALS``, from mutmut's ``.meta`` files."""
+    out = {}
+    for meta in (work / "mutants").rglob("*.meta"):
+        try:
+            codes = json.loads(meta.read_text()).get("exit_code_by_key", {})
+        except (OSError, ValueError):
+            continue
+        out.update({name: code for name, code in codes.items() if code in CRASH_SIGNALS})
+    return out
 
 
 DIFF_SCRIPT = """
@@ -219,17 +285,25 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="mutmut worker processes")
     ap.add_argument("--keep", action="store_true", help="keep the scratch trees (for mutmut show / browse)")
     ap.add_argument("--ref", help="mutate this commit's tree instead of the working tree (before/after figures)")
+    ap.add_argument("--resume", type=Path, help="go on in this kept scratch tree (one module): only mutants "
+                    "without a result are run, e.g. after the time box was hit")
     args = ap.parse_args(argv)
+    if args.resume is not None and (len(args.modules) != 1 or not (args.resume / "mutants").is_dir()):
+        print(f"mutate: --resume needs one module and a scratch tree kept by --keep (with mutants/), got "
+              f"{args.resume}", file=sys.stderr)
+        return 2
     missing = [m for m in args.modules if not (ROOT / m).is_file()]
     if missing:
         print(f"mutate: no such module(s): {' '.join(missing)}; list files under bodystudio/", file=sys.stderr)
         return 2
     results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
     for module in args.modules:
-        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref)
+        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.resume)
         if r.get("score") is not None:
             history = results.get(module, {}).get("history", [])
             commit = git_commit() if args.ref is None else args.ref
+            if args.resume is not None:
+                commit += " (resumed)"
             history.append({"date": dt.date.today().isoformat(), "commit": commit, "score": r["score"]})
             r["history"] = history
         results[module] = r
