@@ -83,16 +83,22 @@ def mutmut_config(module: str, tests: list[str]) -> str:
 
 
 def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | None = None,
-               only_tests: list[str] | None = None) -> dict:
-    work = Path(tempfile.mkdtemp(prefix="bodystudio-mutate-"))
+               only_tests: list[str] | None = None, resume: Path | None = None) -> dict:
+    if resume is not None:  # a kept scratch tree of an earlier, time-boxed run: mutmut goes on where it stopped
+        work, keep = resume, True
+        tests = json.loads(re.search(r"pytest_add_cli_args_test_selection = (\[.*\])",
+                                     (work / "pyproject.toml").read_text()).group(1))
+    else:
+        work = Path(tempfile.mkdtemp(prefix="bodystudio-mutate-"))
     try:
-        scratch_copy(ROOT, work, ref)
-        tests = tests_for(module, work) if not only_tests else \
-            sorted({p for pat in only_tests for p in glob.glob(pat, root_dir=work)})
-        if not tests:
-            return {"module": module, "error": "no tests found", "tests": []}
-        with open(work / "pyproject.toml", "a") as f:
-            f.write(mutmut_config(module, tests))
+        if resume is None:
+            scratch_copy(ROOT, work, ref)
+            tests = tests_for(module, work) if not only_tests else \
+                sorted({p for pat in only_tests for p in glob.glob(pat, root_dir=work)})
+            if not tests:
+                return {"module": module, "error": "no tests found", "tests": []}
+            with open(work / "pyproject.toml", "a") as f:
+                f.write(mutmut_config(module, tests))
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CACHE_DIR")}
         env["NUMBA_CACHE_DIR"] = str(work / ".numba-cache")
         mutmut = [str(Path(sys.executable).with_name("mutmut"))]
@@ -225,14 +231,22 @@ def main(argv=None) -> int:
     ap.add_argument("--tests", nargs="+", help="run only these test files (globs) instead of the module's own "
                     "selection, e.g. a fast analytic file when the module's end-to-end tests take seconds per mutant; "
                     "the score is then a lower bound of the full selection's")
+    ap.add_argument("--resume", help="a scratch tree kept (--keep) by a run of the same single module that hit its "
+                    "time box: mutmut checks the mutants left, the result replaces that run's")
     args = ap.parse_args(argv)
+    if args.resume and len(args.modules) != 1:
+        print("mutate: --resume takes exactly one module (the one its scratch tree mutated)", file=sys.stderr)
+        return 2
     missing = [m for m in args.modules if not (ROOT / m).is_file()]
     if missing:
         print(f"mutate: no such module(s): {' '.join(missing)}; list files under bodystudio/", file=sys.stderr)
         return 2
     results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
     for module in args.modules:
-        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.tests)
+        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.tests,
+                       Path(args.resume) if args.resume else None)
+        if args.resume and r.get("wall_s") is not None:  # the wall time of both boxes
+            r["wall_s"] += results.get(module, {}).get("wall_s", 0.0)
         # re-read: another run (another module) may have written its result meanwhile
         results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
         if r.get("score") is not None:
