@@ -510,6 +510,11 @@ def test_calibration_result_statistics_in_closed_form(small_capture):
     m = 2 * int(inliers.sum())
     assert result.expected_rms_px(0.3) == pytest.approx(0.3 * np.sqrt(2 * (m - 30) / m), rel=1e-12)
     rep = result.report()
+    assert set(rep) == {"reproj_rms_px", "n_observations", "n_outliers", "n_parameters", "world_frame", "seconds",
+                        "stages_s", "cameras", "uncertainty", "board_to_world"}
+    assert rep["reproj_rms_px"] == result.rms_px and rep["seconds"] == 1.0 and rep["stages_s"] == {}
+    assert set(rep["cameras"]["cam_00"]) == {"reproj_rms_px", "n_corners", "n_outliers", "n_views"}
+    assert rep["cameras"]["cam_00"]["reproj_rms_px"] == per["cam_00"]
     assert rep["n_observations"] == M and rep["n_outliers"] == int((~inliers).sum()) and rep["n_parameters"] == 30
     assert rep["cameras"]["cam_00"]["n_outliers"] == 1
     assert rep["cameras"]["cam_02"]["n_outliers"] == (obs.camera == 2).sum()
@@ -544,6 +549,14 @@ def test_calibration_uncertainty_is_the_inflated_covariance_of_the_adjustment(sm
         assert 0.1 < cam.center_sigma_mm < 100
         assert cam.coverage.n_views == len(np.unique(obs.frame[obs.camera == c]))
         assert cam.coverage.fraction > 0.2
+    # a robust-loss adjustment: the covariance is s^2 (J^T W J)^-1 with the loss's IRLS weights
+    ba = cal.bundle_adjust(obs, spec, intr, cam_from_root, boards, root, inliers, 4, "cauchy", 0.2, 3)
+    u = cal.calibration_uncertainty(obs, spec, ba, cams_world, inliers, cal.CalibrationOptions(sigma_inflation=1.0))
+    w = np.repeat(cal.robust_weights(ba.residuals, "cauchy", 0.2), 2)
+    assert w.min() < 0.5  # the weights matter here
+    cov, s2 = parameter_covariance(ba.jacobian, ba.residuals.ravel(), w)
+    assert u.residual_sigma_px == pytest.approx(np.sqrt(s2), rel=1e-9)
+    assert u.cameras[0].fx_sigma_px == pytest.approx(np.sqrt(cov[0, 0]), rel=1e-4)
     # the calibration's own uncertainty: 1.5 x inflated, and the true centre error within 4 sigma
     res = calibrated[0]
     assert res.uncertainty.sigma_inflation == 1.5
@@ -589,3 +602,4 @@ def test_calibration_rejects_the_planted_outliers_and_recovers_the_rig(small_cap
     assert set(res.stages_s) == {"intrinsics", "camera_graph", "bundle_adjustment", "uncertainty"}
     assert all(v >= 0 for v in res.stages_s.values()) and res.seconds >= sum(res.stages_s.values()) - 1e-9
     assert [c.name for c in res.uncertainty.cameras] == list(obs.camera_names)
+    assert res.report()["uncertainty"] == res.uncertainty.to_dict()
