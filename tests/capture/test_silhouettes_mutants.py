@@ -293,3 +293,24 @@ def test_mask_iou_reads_any_nonzero_value_as_inside():
     assert sil.mask_iou(a, b) == pytest.approx(1 / 3)
     assert sil.mask_iou(a, b > 0) == pytest.approx(1 / 3)
     assert sil.mask_iou(a > 0, b) == pytest.approx(1 / 3)
+
+
+_RANGES = [("tau_cd", 0.1, 100.0, "--tau-cd"), ("tau_brightness", 0.1, 100.0, "tau_brightness"),
+           ("shadow_floor", 0.0, 1.0, "shadow_floor"), ("highlight_ceiling", 1.0, 10.0, "highlight_ceiling"),
+           ("std_floor", 0.0, 50.0, "std_floor"), ("single_frame_std", 0.0, 50.0, "single_frame_std"),
+           ("close_px", 0, 100, "--close"), ("open_px", 0, 100, "--open"),
+           ("min_component_fraction", 0.0, 1.0, "min_component_fraction"),
+           ("min_component_px", 0, 10**6, "min_component_px"), ("max_hole_fraction", 0.0, 1.0, "max_hole_fraction")]
+
+
+@pytest.mark.parametrize("name, lo, hi, flag", _RANGES)
+def test_segmentation_params_accept_their_closed_range_and_name_the_option(name, lo, hi, flag):
+    from bodystudio.errors import InputError
+
+    for good in (lo, hi, (lo + hi) / 2 if isinstance(hi, float) else (lo + hi) // 2):
+        assert getattr(SegmentationParams(**{name: good}), name) == good
+    step = 0.5 if isinstance(hi, float) else 1
+    for bad in (hi + step, lo - step, float("nan")):
+        with pytest.raises(InputError) as e:
+            SegmentationParams(**{name: bad})
+        assert str(e.value) == f"{flag} {bad:g} is out of range; use a value in [{lo:g}, {hi:g}]"
