@@ -5,6 +5,8 @@ minimum, the bundle adjustment recovering a perturbed noise-free rig exactly, th
 frame and the floor plane. Each test runs in about a second (the bundle adjustment ones share a fixture)."""
 
 import functools
+import logging
+import re
 
 import cv2
 import numpy as np
@@ -48,7 +50,22 @@ def calibrated(small_capture):
     uv[bad] += [12.0, -9.0]
     dirty = CharucoObservations(obs.camera_names, obs.image_sizes, obs.frame_ids, obs.camera, obs.frame,
                                 obs.corner_id, uv)
-    return cal.calibrate_cameras(dirty, spec), bad
+    records = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            records.append(record)
+
+    logger = logging.getLogger("bodystudio.calib.calibrate")
+    handler, level = Keep(logging.INFO), logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    try:
+        res = cal.calibrate_cameras(dirty, spec)
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    return res, bad, [r.getMessage() for r in records]
 
 
 def _tilted_about_own_x(spec, T, deg):
@@ -581,7 +598,7 @@ def test_calibration_rejects_the_planted_outliers_and_recovers_the_rig(small_cap
     """Measured: exactly the 12 planted corners rejected, RMS 0.277 px for 0.276 expected, worst camera
     12.0 mm / 0.61 deg / 0.33 % / 0.54 px volume reprojection; the bounds are ~1.5x that."""
     spec, rig, poses, obs = small_capture
-    res, bad = calibrated
+    res, bad, lines = calibrated
     np.testing.assert_array_equal(np.flatnonzero(~res.inliers), bad)
     assert abs(res.rms_px / res.expected_rms_px(NOISE_PX) - 1) < 0.05
     assert res.n_parameters == 4 * 8 + 6 * 3 + 6 * 10
@@ -603,3 +620,30 @@ def test_calibration_rejects_the_planted_outliers_and_recovers_the_rig(small_cap
     assert all(v >= 0 for v in res.stages_s.values()) and res.seconds >= sum(res.stages_s.values()) - 1e-9
     assert [c.name for c in res.uncertainty.cameras] == list(obs.camera_names)
     assert res.report()["uncertainty"] == res.uncertainty.to_dict()
+
+
+def test_calibration_logs_each_stage(small_capture, calibrated):
+    spec, rig, poses, obs = small_capture
+    res, bad, lines = calibrated
+    for name in obs.camera_names:
+        assert sum(bool(re.fullmatch(rf"camera {name}: intrinsics from \d+ views, rms \d+\.\d{{3}} px", x))
+                   for x in lines) == 1, name
+    assert sum(bool(re.fullmatch(r"bundle adjustment \(soft_l1 loss\): [1-9]\d* Jacobians, rms \d+\.\d{4} px", x))
+               for x in lines) == 1
+    assert sum(bool(re.fullmatch(r"bundle adjustment \(linear loss\): [1-9]\d* Jacobians, rms \d+\.\d{4} px", x))
+               for x in lines) == 1
+    assert sum(bool(re.fullmatch(rf"bundle adjustment pass 1: [1-9]\d* evaluations, {len(bad)} outliers of "
+                                 rf"{len(obs)} corners", x)) for x in lines) == 1
+    for cam in res.uncertainty.cameras:
+        assert (f"camera {cam.name}: sigma centre {cam.center_sigma_mm:.2f} mm, focal {cam.focal_sigma_pct:.3f} %, "
+                f"coverage {100 * cam.coverage.fraction:.0f} % -> {cam.verdict}") in lines
+    assert lines[-1] == f"calibrated 4 cameras: reprojection RMS {res.rms_px:.3f} px in {res.seconds:.2f} s"
+
+
+def test_a_camera_with_few_views_is_logged(small_capture, caplog):
+    spec, rig, poses, obs, *_ = _truth(small_capture)
+    keep = [k for k in sorted(obs.views()) if k[0] == 0][:2]
+    sub = obs.subset((obs.camera != 0) | np.isin(obs.frame, [f for _, f in keep]))
+    with caplog.at_level(logging.INFO, logger="bodystudio.calib.calibrate"):
+        cal.initial_intrinsics(sub, spec)
+    assert "camera cam_00: only 2 board views; intrinsics start from a guess" in caplog.messages
