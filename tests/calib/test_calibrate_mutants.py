@@ -566,6 +566,13 @@ def test_calibration_uncertainty_is_the_inflated_covariance_of_the_adjustment(sm
         assert 0.1 < cam.center_sigma_mm < 100
         assert cam.coverage.n_views == len(np.unique(obs.frame[obs.camera == c]))
         assert cam.coverage.fraction > 0.2
+    # with a reference camera as the world frame, that camera's centre is exact (the gauge), the others are not
+    opts = cal.CalibrationOptions(floor_frame=None, reference_camera="cam_02")
+    ref_T_root, _ = cal.world_from_root(obs, spec, ba.board_poses, ba.cam_from_root, opts)
+    cams_ref = np.array([T @ rigid_inverse(ref_T_root) for T in ba.cam_from_root])
+    u_ref = cal.calibration_uncertainty(obs, spec, ba, cams_ref, inliers, opts)
+    assert u_ref.cameras[2].center_sigma_mm < 1e-3
+    assert min(u_ref.cameras[c].center_sigma_mm for c in (0, 1, 3)) > 0.1
     # a robust-loss adjustment: the covariance is s^2 (J^T W J)^-1 with the loss's IRLS weights
     ba = cal.bundle_adjust(obs, spec, intr, cam_from_root, boards, root, inliers, 4, "cauchy", 0.2, 3)
     u = cal.calibration_uncertainty(obs, spec, ba, cams_world, inliers, cal.CalibrationOptions(sigma_inflation=1.0))

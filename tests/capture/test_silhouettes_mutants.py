@@ -314,3 +314,30 @@ def test_segmentation_params_accept_their_closed_range_and_name_the_option(name,
         with pytest.raises(InputError) as e:
             SegmentationParams(**{name: bad})
         assert str(e.value) == f"{flag} {bad:g} is out of range; use a value in [{lo:g}, {hi:g}]"
+
+
+def test_segment_session_builds_its_models_with_the_params_floors(tmp_path):
+    """A 50-grey-level std floor makes the skin-coloured subject (100-150 levels from the background) fall
+    inside the chromaticity threshold: the session's masks come out empty, as the params ask."""
+    path = tmp_path / "s"
+    _write_session(path)
+    assert sil.segment_session(path, SegmentationParams(std_floor=50.0)).iou_mean < 0.2
+
+
+def test_the_session_lock_names_the_silhouettes_command(tmp_path, monkeypatch):
+    """While segmenting, the session's lock names the command (what a refused reader is told)."""
+    from bodystudio.capture.session import session_layout
+    from bodystudio.runfolder import read_lock
+
+    path = tmp_path / "s"
+    _write_session(path)
+    real, seen = sil.segment_silhouette, []
+
+    def probe(*args, **kwargs):
+        if not seen:
+            seen.append(read_lock(session_layout(path).lock))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(sil, "segment_silhouette", probe)
+    sil.segment_session(path)
+    assert seen[0]["command"] == "bodystudio capture silhouettes"
