@@ -357,9 +357,11 @@ def test_bundle_adjustment_recovers_a_perturbed_noise_free_rig(noise_free_ba):
     np.testing.assert_array_equal(brd, ba.board_poses)
     np.testing.assert_array_equal(brd[:, 3], np.tile([0.0, 0.0, 0.0, 1.0], (F, 1)))
     np.testing.assert_array_equal(cams[:, 3], np.tile([0.0, 0.0, 0.0, 1.0], (C, 1)))
+    # in the same test: mutmut maps a module fixture's calls to the first test using it only
+    _check_jacobian_matches_plain_central_differences(noise_free_ba)
 
 
-def test_bundle_adjustment_jacobian_matches_plain_central_differences(noise_free_ba):
+def _check_jacobian_matches_plain_central_differences(noise_free_ba):
     ba, (spec, rig, poses, obs, *_), _ = noise_free_ba
     P = board_corners(spec)[obs.corner_id[ba.mask]]
 
@@ -510,6 +512,12 @@ def test_calibrate_refuses_bad_options(small_capture, options, message):
         cal.calibrate_cameras(obs, spec, options)
 
 
+def test_sigma_inflation_1_is_accepted(small_capture):
+    spec, _, _, obs = small_capture
+    with pytest.raises(InputError, match=r"^distortion_terms must be 4 or 5, got 3$"):  # the next check
+        cal.calibrate_cameras(obs, spec, cal.CalibrationOptions(sigma_inflation=1.0, distortion_terms=3))
+
+
 def test_calibration_result_statistics_in_closed_form(small_capture):
     spec, rig, poses, obs = small_capture
     M = len(obs)
@@ -541,7 +549,7 @@ def test_calibration_result_statistics_in_closed_form(small_capture):
     assert set(rep["board_to_world"]) == {str(f) for f in obs.frame_ids}
 
 
-def test_calibration_uncertainty_is_the_inflated_covariance_of_the_adjustment(small_capture, calibrated):
+def test_calibration_uncertainty_is_the_inflated_covariance_of_the_adjustment(small_capture):
     """Result 5.10 of Hartley & Zisserman: fx and fy are parameters of the adjustment, so their sigma is the
     inflation times the square root of the covariance's diagonal; s is the residual sigma over the
     degrees of freedom."""
@@ -553,7 +561,17 @@ def test_calibration_uncertainty_is_the_inflated_covariance_of_the_adjustment(sm
     ba = cal.bundle_adjust(obs, spec, intr, cam_from_root, boards, root, inliers, 4, "linear", 1.0, 3)
     world_T_root, _ = cal.world_from_root(obs, spec, ba.board_poses, ba.cam_from_root, cal.CalibrationOptions())
     cams_world = np.array([T @ rigid_inverse(world_T_root) for T in ba.cam_from_root])
-    u = cal.calibration_uncertainty(obs, spec, ba, cams_world, inliers, cal.CalibrationOptions(sigma_inflation=3.0))
+    strict = cal.CalibrationOptions(sigma_inflation=3.0, max_center_sigma_mm=1e-3, max_focal_sigma_pct=1e-4)
+    u = cal.calibration_uncertainty(obs, spec, ba, cams_world, inliers, strict)
+    assert (u.max_center_sigma_mm, u.max_focal_sigma_pct) == (1e-3, 1e-4)
+    assert all(c.verdict == "uncertain" for c in u.cameras)  # the thresholds reach the verdicts
+    focal, centre = max(c.focal_sigma_pct for c in u.cameras), min(c.center_sigma_mm for c in u.cameras)
+    assert focal < centre
+    # a focal threshold between the two: all "ok"; swapped into the centre's place it would fail every camera
+    loose = cal.CalibrationOptions(sigma_inflation=3.0, max_center_sigma_mm=1e3,
+                                   max_focal_sigma_pct=(focal + centre) / 2)
+    u_loose = cal.calibration_uncertainty(obs, spec, ba, cams_world, inliers, loose)
+    assert all(c.verdict == "ok" for c in u_loose.cameras)
     m, p = 2 * len(obs), ba.n_parameters
     assert u.residual_sigma_px == pytest.approx(np.sqrt((ba.residuals ** 2).sum() / (m - p)), rel=1e-9)
     assert abs(u.residual_sigma_px / NOISE_PX - 1) < 0.1
@@ -581,12 +599,6 @@ def test_calibration_uncertainty_is_the_inflated_covariance_of_the_adjustment(sm
     cov, s2 = parameter_covariance(ba.jacobian, ba.residuals.ravel(), w)
     assert u.residual_sigma_px == pytest.approx(np.sqrt(s2), rel=1e-9)
     assert u.cameras[0].fx_sigma_px == pytest.approx(np.sqrt(cov[0, 0]), rel=1e-4)
-    # the calibration's own uncertainty: 1.5 x inflated, and the true centre error within 4 sigma
-    res = calibrated[0]
-    assert res.uncertainty.sigma_inflation == 1.5
-    for cam in res.uncertainty.cameras:
-        err = np.linalg.norm(res.rig[cam.name].center - rig[cam.name].center) * 1000
-        assert err < 4 * cam.center_sigma_mm, cam.name
 
 
 def test_rig_from_builds_opencv_cameras(small_capture):
@@ -594,6 +606,7 @@ def test_rig_from_builds_opencv_cameras(small_capture):
     cams = np.array([_T(rig[n]) for n in obs.camera_names])
     out = cal._rig_from(obs, intr, cams)
     for n in obs.camera_names:
+        assert out[n].name == n
         np.testing.assert_array_equal(out[n].K, rig[n].K)
         np.testing.assert_array_equal(out[n].dist, rig[n].dist)
         np.testing.assert_array_equal(out[n].R, rig[n].R)
@@ -601,7 +614,7 @@ def test_rig_from_builds_opencv_cameras(small_capture):
         assert (out[n].width, out[n].height) == (rig[n].width, rig[n].height)
 
 
-def test_calibration_rejects_the_planted_outliers_and_recovers_the_rig(small_capture, calibrated):
+def _check_rejects_the_planted_outliers_and_recovers_the_rig(small_capture, calibrated):
     """Measured: exactly the 12 planted corners rejected, RMS 0.277 px for 0.276 expected, worst camera
     12.0 mm / 0.61 deg / 0.33 % / 0.54 px volume reprojection; the bounds are ~1.5x that."""
     spec, rig, poses, obs = small_capture
@@ -629,7 +642,7 @@ def test_calibration_rejects_the_planted_outliers_and_recovers_the_rig(small_cap
     assert res.report()["uncertainty"] == res.uncertainty.to_dict()
 
 
-def test_calibration_logs_each_stage(small_capture, calibrated):
+def _check_logs_each_stage(small_capture, calibrated):
     spec, rig, poses, obs = small_capture
     res, bad, lines = calibrated
     for name in obs.camera_names:
@@ -645,6 +658,24 @@ def test_calibration_logs_each_stage(small_capture, calibrated):
         assert (f"camera {cam.name}: sigma centre {cam.center_sigma_mm:.2f} mm, focal {cam.focal_sigma_pct:.3f} %, "
                 f"coverage {100 * cam.coverage.fraction:.0f} % -> {cam.verdict}") in lines
     assert lines[-1] == f"calibrated 4 cameras: reprojection RMS {res.rms_px:.3f} px in {res.seconds:.2f} s"
+
+
+def test_whole_calibration_of_a_capture_with_planted_outliers(small_capture, calibrated):
+    """One test for everything checked on the ``calibrated`` fixture: mutmut maps the functions a module
+    fixture calls to the first test using it only, so checks spread over several tests would not run."""
+    spec, rig, poses, obs = small_capture
+    _check_rejects_the_planted_outliers_and_recovers_the_rig(small_capture, calibrated)
+    _check_logs_each_stage(small_capture, calibrated)
+    res = calibrated[0]
+    # the calibration's own uncertainty: 1.5 x inflated, and the true centre error within 4 sigma
+    assert res.uncertainty.sigma_inflation == 1.5
+    assert res.uncertainty.max_center_sigma_mm == cal.CalibrationOptions().max_center_sigma_mm
+    for cam in res.uncertainty.cameras:
+        err = np.linalg.norm(res.rig[cam.name].center - rig[cam.name].center) * 1000
+        assert err < 4 * cam.center_sigma_mm, cam.name
+        ok = cam.center_sigma_mm <= cal.CalibrationOptions().max_center_sigma_mm and \
+            cam.focal_sigma_pct <= cal.CalibrationOptions().max_focal_sigma_pct
+        assert cam.verdict == ("ok" if ok else "uncertain"), cam.name
 
 
 def test_a_camera_with_few_views_is_logged(small_capture, caplog):
