@@ -90,6 +90,7 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
                                      (work / "pyproject.toml").read_text()).group(1))
     else:
         work = Path(tempfile.mkdtemp(prefix="bodystudio-mutate-"))
+    commit = git_commit() if ref is None else ref  # the tree being copied now, not HEAD when the box ends
     try:
         if resume is None:
             scratch_copy(ROOT, work, ref)
@@ -129,7 +130,7 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
         total = sum(counts.values()) - counts.get("skipped", 0)
         if proc.returncode not in (0, 124, 137) or not status:
             print(proc.stdout[-2000:], proc.stderr[-4000:], sep="\n", file=sys.stderr)
-        return {"module": module, "tests": tests, "counts": counts, "killed": killed, "total": total,
+        return {"module": module, "commit": commit, "tests": tests, "counts": counts, "killed": killed, "total": total,
                 "score": round(killed / total, 4) if total else None, "wall_s": round(wall, 1),
                 "timed_out": timed_out, "survivors": survivors}
     finally:
@@ -251,7 +252,7 @@ def main(argv=None) -> int:
         results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
         if r.get("score") is not None:
             history = results.get(module, {}).get("history", [])
-            commit = git_commit() if args.ref is None else args.ref
+            commit = r.get("commit") or (git_commit() if args.ref is None else args.ref)
             history.append({"date": dt.date.today().isoformat(), "commit": commit, "score": r["score"]})
             r["history"] = history
         results[module] = r
