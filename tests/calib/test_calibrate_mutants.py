@@ -685,3 +685,15 @@ def test_a_camera_with_few_views_is_logged(small_capture, caplog):
     with caplog.at_level(logging.INFO, logger="bodystudio.calib.calibrate"):
         cal.initial_intrinsics(sub, spec)
     assert "camera cam_00: only 2 board views; intrinsics start from a guess" in caplog.messages
+
+
+def test_zero_iterations_return_the_initialisation(small_capture):
+    """With max_iterations 0 the adjustment returns its start: the intrinsics are Zhang's, as
+    initial_intrinsics gives them (the adjustment would recover from a wrong start, hiding a mix-up there)."""
+    spec, rig, poses, obs = small_capture
+    res = cal.calibrate_cameras(obs, spec, cal.CalibrationOptions(max_iterations=0))
+    Ks, dists, _ = cal.initial_intrinsics(obs, spec)
+    for c, name in enumerate(obs.camera_names):
+        np.testing.assert_allclose(res.rig[name].K, Ks[c], rtol=1e-7)  # OpenCV repeats itself to ~1e-9
+        np.testing.assert_allclose(res.rig[name].dist[:4], dists[c, :4], atol=1e-7)
+        assert res.rig[name].dist[4] == 0.0
