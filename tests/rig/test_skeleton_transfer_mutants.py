@@ -17,10 +17,19 @@ def _open_box():
     return V, F[~(top | bottom)]  # two square holes
 
 
+@pytest.mark.parametrize("reverse", [False, True])
 @pytest.mark.parametrize("roll", [0, 1, 2])
-def test_fill_faces_run_against_the_boundary_whichever_corner_a_face_starts_at(roll):
-    """Rolling every face's corner list keeps the surface and its orientation; the edge (loop[1], loop[0])
-    then sits in the (0, 1), (1, 2) or (2, 0) edge set, and each must be searched."""
+def test_fill_faces_run_against_the_boundary_whichever_corner_a_face_starts_at(roll, reverse, monkeypatch):
+    """Rolling every face's corner list keeps the surface and its orientation; a loop given against the
+    faces' edges (libigl's run along them: reversed here) has its edge (loop[1], loop[0]) in the (0, 1),
+    (1, 2) or (2, 0) edge set depending on the roll, and each must be searched."""
+    import igl
+
+    import bodystudio.rig.skeleton_transfer as st
+
+    real = igl.boundary_loop_all
+    monkeypatch.setattr(st.igl, "boundary_loop_all",
+                        lambda F: [np.asarray(loop)[::-1] if reverse else loop for loop in real(F)])
     V, F = _open_box()
     F = np.roll(F, roll, axis=1)
     Vc, Fc, P = close_holes(V, F)
