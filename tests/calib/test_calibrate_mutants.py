@@ -439,7 +439,8 @@ def test_world_from_root_by_floor_board_and_by_reference_camera(small_capture):
     with pytest.raises(InputError, match=r"^reference camera 'cam_9' is not in the capture \(cam_00, cam_01"):
         cal.world_from_root(obs, spec, boards, cam_from_root, cal.CalibrationOptions(reference_camera="cam_9"))
     for frame in (None, 99):
-        with pytest.raises(SessionError, match=rf"^floor board frame {frame} is not in the capture; capture the board"):
+        with pytest.raises(SessionError, match=rf"^floor board frame {frame} is not in the capture; capture the board "
+                                               r"lying on the floor first \(frame 0\) or choose --reference-camera$"):
             cal.world_from_root(obs, spec, boards, cam_from_root, cal.CalibrationOptions(floor_frame=frame))
     unseen = boards.copy()
     unseen[0] = np.nan
@@ -697,3 +698,13 @@ def test_zero_iterations_return_the_initialisation(small_capture):
         np.testing.assert_allclose(res.rig[name].K, Ks[c], rtol=1e-7)  # OpenCV repeats itself to ~1e-9
         np.testing.assert_allclose(res.rig[name].dist[:4], dists[c, :4], atol=1e-7)
         assert res.rig[name].dist[4] == 0.0
+
+
+def test_a_frame_nobody_saw_does_not_stop_the_board_poses_after_it():
+    obs, T, B, view_poses = _graph_case()
+    cam_from_root = np.array([T[c] @ rigid_inverse(T[1]) for c in range(3)])
+    seen = {k: v for k, v in view_poses.items() if k[1] != 1}  # frame 1 unseen, frames 2 and 3 seen
+    boards = cal.initial_board_poses(obs, seen, cam_from_root)
+    assert np.isnan(boards[[1, 4]]).all()
+    for f in (0, 2, 3):
+        np.testing.assert_allclose(boards[f], T[1] @ B[f], atol=1e-12)
