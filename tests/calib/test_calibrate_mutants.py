@@ -639,6 +639,7 @@ def _check_rejects_the_planted_outliers_and_recovers_the_rig(small_capture, cali
     assert np.linalg.norm(res.residuals_px[bad], axis=1).min() > 10
     assert set(res.stages_s) == {"intrinsics", "camera_graph", "bundle_adjustment", "uncertainty"}
     assert all(v >= 0 for v in res.stages_s.values()) and res.seconds >= sum(res.stages_s.values()) - 1e-9
+    assert res.seconds < 900  # a duration, not a clock reading
     assert [c.name for c in res.uncertainty.cameras] == list(obs.camera_names)
     assert res.report()["uncertainty"] == res.uncertainty.to_dict()
 
