@@ -13,6 +13,7 @@ the module) and pytest-gremlins 43 of 71 in 10 min. mutmut does not mutate decor
 17 cover those.
 
 Usage: python scripts/mutate.py --modules bodystudio/rig/weights.py ... [--timeout 900] [--jobs 2] [--ref HEAD]
+       [--tests tests/calib/test_calibrate_mutants.py]
 """
 
 from __future__ import annotations
@@ -111,15 +112,23 @@ def mutmut_config(module: str, tests: list[str]) -> str:
 
 
 def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | None = None,
-               resume: Path | None = None) -> dict:
+               resume: Path | None = None, only_tests: list[str] | None = None) -> dict:
     """Mutate ``module`` in a fresh scratch tree or, with ``resume``, go on in a kept one (mutmut runs only the
-    mutants that have no result yet, e.g. those a time box left "not checked")."""
+    mutants that have no result yet, e.g. those a time box left "not checked"). ``only_tests`` (globs) replaces
+    the module's own test selection."""
     work = resume or Path(tempfile.mkdtemp(prefix="bodystudio-mutate-"))
     keep = keep or resume is not None
+    commit = git_commit() if ref is None else ref  # the tree being copied now, not HEAD when the box ends
     try:
         if resume is None:
             scratch_copy(ROOT, work, ref)
-        tests = tests_for(module, work)
+        if only_tests and resume is None:
+            tests = sorted({p for pat in only_tests for p in glob.glob(pat, root_dir=work)})
+        elif resume is None:
+            tests = tests_for(module, work)
+        else:
+            tests = json.loads(re.search(r"pytest_add_cli_args_test_selection = (\[.*\])",
+                                         (work / "pyproject.toml").read_text()).group(1))
         if not tests:
             return {"module": module, "error": "no tests found", "tests": []}
         if resume is None:
@@ -167,7 +176,7 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
         total = sum(counts.values()) - counts.get("skipped", 0)
         if proc.returncode not in (0, 124, 137) or not status:
             print(proc.stdout[-2000:], proc.stderr[-4000:], sep="\n", file=sys.stderr)
-        return {"module": module, "tests": tests, "counts": counts, "killed": killed, "total": total,
+        return {"module": module, "commit": commit, "tests": tests, "counts": counts, "killed": killed, "total": total,
                 "score": round(killed / total, 4) if total else None, "wall_s": round(wall, 1),
                 "timed_out": timed_out, "survivors": survivors}
     finally:
@@ -285,6 +294,9 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="mutmut worker processes")
     ap.add_argument("--keep", action="store_true", help="keep the scratch trees (for mutmut show / browse)")
     ap.add_argument("--ref", help="mutate this commit's tree instead of the working tree (before/after figures)")
+    ap.add_argument("--tests", nargs="+", help="run only these test files (globs) instead of the module's own "
+                    "selection, e.g. a fast analytic file when the module's end-to-end tests take seconds per mutant; "
+                    "the score is then a lower bound of the full selection's")
     ap.add_argument("--resume", type=Path, help="go on in this kept scratch tree (one module): only mutants "
                     "without a result are run, e.g. after the time box was hit")
     args = ap.parse_args(argv)
@@ -298,10 +310,14 @@ def main(argv=None) -> int:
         return 2
     results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
     for module in args.modules:
-        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.resume)
+        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.resume, args.tests)
+        # re-read: another run (another module) may have written its result meanwhile
+        results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+        if args.resume is not None and r.get("wall_s") is not None:  # the wall time of both boxes
+            r["wall_s"] += results.get(module, {}).get("wall_s", 0.0)
         if r.get("score") is not None:
             history = results.get(module, {}).get("history", [])
-            commit = git_commit() if args.ref is None else args.ref
+            commit = r["commit"]
             if args.resume is not None:
                 commit += " (resumed)"
             history.append({"date": dt.date.today().isoformat(), "commit": commit, "score": r["score"]})

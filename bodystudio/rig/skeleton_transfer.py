@@ -48,8 +48,11 @@ def mean_value_coordinates(points: np.ndarray, V: np.ndarray, F: np.ndarray) -> 
     d = np.linalg.norm(D, axis=2)
     U = D / np.maximum(d, EPS)[:, :, None]
     u = U[:, F]  # (p, m, 3 corners, 3)
-    l = np.linalg.norm(u[:, :, [1, 2, 0]] - u[:, :, [2, 0, 1]], axis=3)  # edge opposite corner i
-    theta = 2.0 * np.arcsin(np.clip(l / 2.0, 0.0, 1.0))
+    # angle at the point between the corners other than i: 2 atan2(|u_j - u_k|, |u_j + u_k|) keeps full precision
+    # near pi, where 2 arcsin(|u_j - u_k| / 2) loses half the digits (a point on an edge then missed the
+    # triangle case below: h came out ~1e-8 short of pi)
+    uj, uk = u[:, :, [1, 2, 0]], u[:, :, [2, 0, 1]]
+    theta = 2.0 * np.arctan2(np.linalg.norm(uj - uk, axis=3), np.linalg.norm(uj + uk, axis=3))
     h = theta.sum(2) / 2.0
     sin_t = np.sin(theta)
     denom = sin_t[:, :, [1, 2, 0]] * sin_t[:, :, [2, 0, 1]]
