@@ -554,7 +554,7 @@ def test_calibration_uncertainty_is_the_inflated_covariance_of_the_adjustment(sm
     """Result 5.10 of Hartley & Zisserman: fx and fy are parameters of the adjustment, so their sigma is the
     inflation times the square root of the covariance's diagonal; s is the residual sigma over the
     degrees of freedom."""
-    from bodystudio.calib.uncertainty import parameter_covariance
+    from bodystudio.calib.uncertainty import parameter_covariance, view_effect_covariance, view_error_basis
 
     spec, rig, poses, obs = small_capture
     _, _, _, _, intr, root, cam_from_root, boards = _truth(small_capture)
@@ -573,11 +573,13 @@ def test_calibration_uncertainty_is_the_inflated_covariance_of_the_adjustment(sm
                                    max_focal_sigma_pct=(focal + centre) / 2)
     u_loose = cal.calibration_uncertainty(obs, spec, ba, cams_world, inliers, loose)
     assert all(c.verdict == "ok" for c in u_loose.cameras)
-    m, p = 2 * len(obs), ba.n_parameters
-    assert u.residual_sigma_px == pytest.approx(np.sqrt((ba.residuals ** 2).sum() / (m - p)), rel=1e-9)
+    # the final (linear) pass: corner noise plus a per-view error field, view_effect_covariance's moments
+    view = obs.camera[ba.mask] * max(obs.n_frames, 1) + obs.frame[ba.mask]
+    cov, s2, t2 = view_effect_covariance(ba.jacobian, ba.residuals.ravel(), view_error_basis(obs.uv[ba.mask], view))
+    assert u.residual_sigma_px == pytest.approx(np.sqrt(s2), rel=1e-9)
+    assert u.view_sigma_px == pytest.approx(np.sqrt(t2), rel=1e-9)
     assert abs(u.residual_sigma_px / NOISE_PX - 1) < 0.1
     assert u.sigma_inflation == 3.0
-    cov, _ = parameter_covariance(ba.jacobian, ba.residuals.ravel())
     assert [c.name for c in u.cameras] == list(obs.camera_names)
     for c, cam in enumerate(u.cameras):
         assert cam.fx_sigma_px == pytest.approx(3.0 * np.sqrt(cov[8 * c, 8 * c]), rel=1e-4)
@@ -669,8 +671,8 @@ def test_whole_calibration_of_a_capture_with_planted_outliers(small_capture, cal
     _check_rejects_the_planted_outliers_and_recovers_the_rig(small_capture, calibrated)
     _check_logs_each_stage(small_capture, calibrated)
     res = calibrated[0]
-    # the calibration's own uncertainty: 1.5 x inflated, and the true centre error within 4 sigma
-    assert res.uncertainty.sigma_inflation == 1.5
+    # the calibration's own uncertainty: not inflated (the view-effect model), and the true centre error within 4 sigma
+    assert res.uncertainty.sigma_inflation == 1.0
     assert res.uncertainty.max_center_sigma_mm == cal.CalibrationOptions().max_center_sigma_mm
     for cam in res.uncertainty.cameras:
         err = np.linalg.norm(res.rig[cam.name].center - rig[cam.name].center) * 1000

@@ -92,14 +92,16 @@ def read_events(path: Path) -> list[str]:
 
 def kill_points(events: list[str], seed: int, n: int) -> list[int]:
     """A seeded set of event numbers (1-based): the commit record, the first move after it, the manifest,
-    and ``n`` others drawn at random."""
+    and ``n`` others drawn at random. Read-lock files (``...readers/``, written when the command opens its
+    finished output to report on it) come after the run is complete and are not kill points."""
     import random
 
-    total = len(events)
+    points = [k + 1 for k, e in enumerate(events) if "readers/" not in e]
+    total = points[-1]
     commit = next((k + 1 for k, e in enumerate(events) if e.endswith("commit.json")), None)
     fixed = {p for p in (commit, commit + 1 if commit else None, total) if p}
     rng = random.Random(seed)
-    others = rng.sample(range(1, total + 1), min(n, total))
+    others = rng.sample(points, min(n, len(points)))
     return sorted(fixed | set(others))
 
 
