@@ -25,6 +25,10 @@ ARUCO_DICTIONARIES = {name: getattr(cv2.aruco, name) for name in dir(cv2.aruco)
                       if name.startswith("DICT_") and isinstance(getattr(cv2.aruco, name), int)}
 
 
+#: Plausible printed square sizes (metres): a board is between a business card and a wall.
+MIN_SQUARE_M, MAX_SQUARE_M = 1e-3, 2.0
+
+
 @dataclass(frozen=True)
 class CharucoBoardSpec:
     """A ChArUco board: ``squares_x`` by ``squares_y`` chessboard squares with ArUco markers in the white ones."""
@@ -37,6 +41,14 @@ class CharucoBoardSpec:
     legacy_pattern: bool = False
 
     def __post_init__(self) -> None:
+        for name in ("square_m", "marker_m"):  # a JSON integer is a size too, but only as a finite float
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise InputError(f"board {name} must be a number of metres, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        if not MIN_SQUARE_M <= self.square_m <= MAX_SQUARE_M:  # also refuses NaN and inf
+            raise InputError(f"board square size {self.square_m} m is outside {MIN_SQUARE_M}-{MAX_SQUARE_M} m; "
+                             "give the printed square's side in metres")
         if self.squares_x < 3 or self.squares_y < 3:
             raise InputError(f"board needs at least 3x3 squares, got {self.squares_x}x{self.squares_y}")
         if not 0 < self.marker_m < self.square_m:

@@ -25,6 +25,9 @@ from bodystudio.errors import FileFormatError, InputError
 from bodystudio.geometry.camera import Camera, CameraRig, check_intrinsics
 from bodystudio.runfolder import RunLayout, check_readable, verify_run_files
 
+#: Largest image side (pixels) a camera file may declare (a 16K sensor is 15360 wide).
+MAX_IMAGE_SIDE = 65536
+
 
 def _write_filestorage(path: Path, names: list[str], entries: list[tuple[str, object]]) -> None:
     from bodystudio.fileio import atomic_path
@@ -104,6 +107,9 @@ def _easymocap_rig(intri, extri, folder: Path, default_size) -> CameraRig:
         h, w = intri.getNode(f"H_{n}").real(), intri.getNode(f"W_{n}").real()
         if (not w or not h) and default_size is None:
             raise FileFormatError(f"{folder / 'intri.yml'}: camera {n} has no H_{n}/W_{n}; give the image size")
+        if w and h and not (1 <= w <= MAX_IMAGE_SIDE and 1 <= h <= MAX_IMAGE_SIDE):  # NaN and inf fail too
+            raise FileFormatError(f"{folder / 'intri.yml'}: camera {n} has image size W_{n}={w:g} H_{n}={h:g}; "
+                                  f"use pixel counts 1-{MAX_IMAGE_SIDE}")
         w, h = (int(w), int(h)) if w and h else default_size
         cams[n] = check_intrinsics(Camera(n, K, d, R, T.ravel(), w, h))
     return CameraRig(cams)

@@ -405,3 +405,30 @@ def test_opencv_matrix_without_cols_is_a_one_line_error(folder):
     for load in (load_easymocap_yaml, load_studio_cameras):
         with pytest.raises(FileFormatError, match="K_cam_01"):
             load(sub)
+
+
+# --- crashes the long fuzz run found (kept as fixed cases) ---------------------------------------------
+
+def test_board_json_with_a_huge_integer_square_is_one_line(folder):
+    from bodystudio.calib.board import load_board_json
+
+    doc = {"type": "charuco", "squares_x": 10, "squares_y": 7, "square_m": 1844674407370955162, "marker_m": 0.075,
+           "dictionary": "DICT_4X4_50", "legacy_pattern": False}
+    (folder / "board.json").write_text(json.dumps(doc))
+    with pytest.raises(BodyStudioError, match="square size"):
+        load_board_json(folder / "board.json")
+    doc["square_m"] = 1  # an integer size in range still loads, as a float
+    (folder / "board.json").write_text(json.dumps({**doc, "marker_m": 0.75}))
+    spec = load_board_json(folder / "board.json")
+    assert isinstance(spec.square_m, float) and np.all(np.isfinite(spec.size_m))
+
+
+def test_easymocap_image_size_of_1e400_is_one_line(folder):
+    from bodystudio.calib.io import load_easymocap_yaml, save_easymocap_yaml
+    from bodystudio.geometry.camera import ring_rig
+
+    save_easymocap_yaml(folder / "emc", ring_rig(2, width=32, height=24))
+    intri = folder / "emc" / "intri.yml"
+    intri.write_text(intri.read_text().replace("H_cam_01: 24", "H_cam_01: 1e400"))
+    with pytest.raises(BodyStudioError, match="image size"):
+        load_easymocap_yaml(folder / "emc")
