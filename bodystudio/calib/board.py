@@ -27,6 +27,15 @@ ARUCO_DICTIONARIES = {name: getattr(cv2.aruco, name) for name in dir(cv2.aruco)
 
 #: Plausible printed square sizes (metres): a board is between a business card and a wall.
 MIN_SQUARE_M, MAX_SQUARE_M = 1e-3, 2.0
+#: Squares a side: OpenCV's largest dictionaries hold 1000 markers, i.e. about 44x44 squares.
+MAX_SQUARES = 100
+
+
+@functools.cache
+def aruco_dictionary_size(name: str) -> int:
+    """Number of markers in OpenCV's predefined dictionary ``name`` (e.g. 50 for DICT_4X4_50, 1024 for
+    DICT_ARUCO_ORIGINAL, whose name does not say it)."""
+    return int(cv2.aruco.getPredefinedDictionary(ARUCO_DICTIONARIES[name]).bytesList.shape[0])
 
 
 @dataclass(frozen=True)
@@ -49,16 +58,23 @@ class CharucoBoardSpec:
         if not MIN_SQUARE_M <= self.square_m <= MAX_SQUARE_M:  # also refuses NaN and inf
             raise InputError(f"board square size {self.square_m} m is outside {MIN_SQUARE_M}-{MAX_SQUARE_M} m; "
                              "give the printed square's side in metres")
-        if self.squares_x < 3 or self.squares_y < 3:
-            raise InputError(f"board needs at least 3x3 squares, got {self.squares_x}x{self.squares_y}")
+        for name in ("squares_x", "squares_y"):  # whole squares only: NaN or 7.5 would pass a plain "< 3" test
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise InputError(f"board {name} must be a whole number of squares, got {value!r}")
+            object.__setattr__(self, name, int(value))
+        if not (3 <= self.squares_x <= MAX_SQUARES and 3 <= self.squares_y <= MAX_SQUARES):
+            raise InputError(f"board needs 3-{MAX_SQUARES} squares a side, got {self.squares_x}x{self.squares_y}")
+        if not isinstance(self.legacy_pattern, bool):
+            raise InputError(f"board legacy_pattern must be true or false, got {self.legacy_pattern!r}")
         if not 0 < self.marker_m < self.square_m:
             raise InputError(f"marker size {self.marker_m} m must be positive and smaller than the square "
                              f"size {self.square_m} m")
-        if self.dictionary not in ARUCO_DICTIONARIES:
+        if not isinstance(self.dictionary, str) or self.dictionary not in ARUCO_DICTIONARIES:
             raise InputError(f"unknown ArUco dictionary {self.dictionary!r}; use one of e.g. DICT_4X4_50, "
                              "DICT_5X5_100, DICT_6X6_250")
         n_markers = (self.squares_x * self.squares_y) // 2
-        if n_markers > int(self.dictionary.rsplit("_", 1)[1]):
+        if n_markers > aruco_dictionary_size(self.dictionary):
             raise InputError(f"{self.dictionary} has too few markers for a {self.squares_x}x{self.squares_y} board "
                              f"({n_markers} needed); pick a larger dictionary")
 

@@ -25,9 +25,6 @@ from bodystudio.errors import FileFormatError, InputError
 from bodystudio.geometry.camera import Camera, CameraRig, check_intrinsics
 from bodystudio.runfolder import RunLayout, check_readable, verify_run_files
 
-#: Largest image side (pixels) a camera file may declare (a 16K sensor is 15360 wide).
-MAX_IMAGE_SIDE = 65536
-
 
 def _write_filestorage(path: Path, names: list[str], entries: list[tuple[str, object]]) -> None:
     from bodystudio.fileio import atomic_path
@@ -57,62 +54,17 @@ def save_easymocap_yaml(folder: str | os.PathLike, rig: CameraRig) -> tuple[Path
 
 
 def load_easymocap_yaml(folder: str | os.PathLike, default_size: tuple[int, int] | None = None) -> CameraRig:
-    """Read ``intri.yml`` + ``extri.yml``; images sizes come from ``H_/W_`` or ``default_size`` (w, h)."""
+    """Read ``intri.yml`` + ``extri.yml``; image sizes come from ``H_/W_`` or ``default_size`` (w, h).
+
+    The reader is :func:`bodystudio.capture.importer.load_easymocap_cameras` (one parser for both stages).
+    """
+    from bodystudio.capture.importer import load_easymocap_cameras
+
     folder = Path(folder)
-    from bodystudio.opencv_yaml import check_opencv_yaml
-
-    for name in ("intri.yml", "extri.yml"):  # OpenCV's YAML parser can loop forever on junk: check it first
-        if (folder / name).is_file():
-            check_opencv_yaml(folder / name)
-    stores = {}
     for name in ("intri.yml", "extri.yml"):
-        path = folder / name
-        if not path.is_file():
-            raise FileFormatError(f"{path}: not found; EasyMocap calibrations need intri.yml and extri.yml")
-        try:
-            fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        except (cv2.error, SystemError):
-            fs = None
-        if fs is None or not fs.isOpened():
-            raise FileFormatError(f"{path}: not an OpenCV YAML file")
-        stores[name] = fs
-    intri, extri = stores["intri.yml"], stores["extri.yml"]
-    try:
-        return _easymocap_rig(intri, extri, folder, default_size)
-    except (cv2.error, SystemError, ValueError, TypeError) as exc:  # YAML nodes of the wrong type or shape
-        raise FileFormatError(f"{folder}: malformed EasyMocap intri.yml/extri.yml ({type(exc).__name__}); "
-                              "re-export the calibration") from None
-    except InputError as exc:
-        raise FileFormatError(f"{folder}: {exc}") from None
-
-
-def _easymocap_rig(intri, extri, folder: Path, default_size) -> CameraRig:
-    node = intri.getNode("names")
-    names = [node.at(i).string() for i in range(node.size())]
-    if not names:
-        raise FileFormatError(f"{folder / 'intri.yml'}: no 'names' list of cameras")
-    cams = {}
-    from bodystudio.opencv_yaml import opencv_matrix  # not FileNode.mat(): it corrupts the heap on bad matrices
-
-    for n in names:
-        K, dist = (opencv_matrix(intri.getNode(f"{k}_{n}"), f"{folder / 'intri.yml'}: {k}_{n}") for k in ("K", "dist"))
-        Rot, R_vec, T = (opencv_matrix(extri.getNode(f"{k}_{n}"), f"{folder / 'extri.yml'}: {k}_{n}")
-                         for k in ("Rot", "R", "T"))
-        if K is None or T is None or (Rot is None and R_vec is None):
-            raise FileFormatError(f"{folder}: camera {n} lacks K_{n}, T_{n} or R_{n}/Rot_{n}; "
-                                  "re-export the calibration")
-        R = Rot if Rot is not None else cv2.Rodrigues(R_vec)[0]
-        d = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
-        d = np.r_[d, np.zeros(5)][:5]
-        h, w = intri.getNode(f"H_{n}").real(), intri.getNode(f"W_{n}").real()
-        if (not w or not h) and default_size is None:
-            raise FileFormatError(f"{folder / 'intri.yml'}: camera {n} has no H_{n}/W_{n}; give the image size")
-        if w and h and not (1 <= w <= MAX_IMAGE_SIDE and 1 <= h <= MAX_IMAGE_SIDE):  # NaN and inf fail too
-            raise FileFormatError(f"{folder / 'intri.yml'}: camera {n} has image size W_{n}={w:g} H_{n}={h:g}; "
-                                  f"use pixel counts 1-{MAX_IMAGE_SIDE}")
-        w, h = (int(w), int(h)) if w and h else default_size
-        cams[n] = check_intrinsics(Camera(n, K, d, R, T.ravel(), w, h))
-    return CameraRig(cams)
+        if not (folder / name).is_file():
+            raise FileFormatError(f"{folder / name}: not found; EasyMocap calibrations need intri.yml and extri.yml")
+    return load_easymocap_cameras(folder / "intri.yml", folder / "extri.yml", default_size=default_size)
 
 
 def rig_to_colmap(rig: CameraRig):

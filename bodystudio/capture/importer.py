@@ -91,12 +91,17 @@ def _storage_mat(fs: cv2.FileStorage, key: str, path: Path, required: bool = Tru
     return np.asarray(m, dtype=np.float64)
 
 
-def load_easymocap_cameras(intri: Path, extri: Path, image_sizes: dict[str, tuple[int, int]] | None = None):
-    """Cameras from EasyMocap's ``intri.yml`` and ``extri.yml`` (translations in metres, OpenCV axes)."""
+def load_easymocap_cameras(intri: Path, extri: Path, image_sizes: dict[str, tuple[int, int]] | None = None,
+                           default_size: tuple[int, int] | None = None):
+    """Cameras from EasyMocap's ``intri.yml`` and ``extri.yml`` (translations in metres, OpenCV axes).
+
+    The image size of a camera comes from its ``W_``/``H_`` entries, else from ``image_sizes[name]``, else
+    from ``default_size`` (w, h); the one EasyMocap reader of the package (:mod:`bodystudio.calib.io` wraps it).
+    """
     fi, fe = _read_storage(intri), _read_storage(extri)
     try:
-        return _easymocap_rig(fi, fe, intri, extri, image_sizes)
-    except (cv2.error, SystemError, ValueError, TypeError) as exc:  # OpenCV's YAML nodes of the wrong type
+        return _easymocap_rig(fi, fe, intri, extri, image_sizes, default_size)
+    except (cv2.error, SystemError, ValueError, TypeError, OverflowError) as exc:  # YAML nodes of the wrong type
         raise FileFormatError(f"{intri.parent}: malformed EasyMocap intri.yml/extri.yml "
                               f"({str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__}); "
                               "re-export the calibration") from None
@@ -105,7 +110,7 @@ def load_easymocap_cameras(intri: Path, extri: Path, image_sizes: dict[str, tupl
         fe.release()
 
 
-def _easymocap_rig(fi, fe, intri: Path, extri: Path, image_sizes):
+def _easymocap_rig(fi, fe, intri: Path, extri: Path, image_sizes, default_size):
     from bodystudio.geometry.camera import Camera, CameraRig, check_intrinsics
 
     names = _storage_names(fi, intri)
@@ -123,9 +128,11 @@ def _easymocap_rig(fi, fe, intri: Path, extri: Path, image_sizes):
         T = _storage_mat(fe, f"T_{name}", extri).ravel()
         w, h = fi.getNode(f"W_{name}"), fi.getNode(f"H_{name}")
         if not w.empty() and not h.empty():
-            size = (int(w.real()), int(h.real()))
+            size = _image_size(w.real(), h.real(), intri, name)
         elif image_sizes and name in image_sizes:
             size = image_sizes[name]
+        elif default_size is not None:
+            size = default_size
         else:
             raise FileFormatError(f"{intri}: no image size for camera {name} (W_{name}/H_{name}) and no frames "
                                   "to take it from; add them or import with --images/--videos")
@@ -136,6 +143,16 @@ def _easymocap_rig(fi, fe, intri: Path, extri: Path, image_sizes):
     if not cams:
         raise FileFormatError(f"{intri}: the 'names' list is empty; list the cameras")
     return CameraRig(cams)
+
+
+def _image_size(w: float, h: float, source: Path, name: str) -> tuple[int, int]:
+    """W_/H_ as whole pixel counts in 1..MAX_IMAGE_SIDE (NaN, inf, 1e400 and 0.5 are refused, not cast)."""
+    from bodystudio.geometry.camera import MAX_IMAGE_SIDE
+
+    if not all(1 <= v <= MAX_IMAGE_SIDE and float(v).is_integer() for v in (w, h)):
+        raise FileFormatError(f"{source}: camera {name} has image size W_{name}={w:g} H_{name}={h:g}; "
+                              f"use whole pixel counts 1-{MAX_IMAGE_SIDE}")
+    return int(w), int(h)
 
 
 def _nearest_rotation(M: np.ndarray, source: Path, name: str) -> np.ndarray:

@@ -312,6 +312,8 @@ class CameraRig:
 #: Largest |distortion coefficient| accepted at load: real lenses (fisheyes aside) stay far below; larger
 #: values come from a failed calibration or a unit mix-up and make the undistortion diverge.
 MAX_DISTORTION = 100.0
+#: Largest image side (pixels) a camera file may declare (a 16K sensor is 15360 wide).
+MAX_IMAGE_SIDE = 65536
 
 
 def check_intrinsics(camera: Camera) -> Camera:
@@ -322,6 +324,9 @@ def check_intrinsics(camera: Camera) -> Camera:
     fx = 0 cannot divide by zero in a reconstruction and fx < 0 cannot mirror it silently.
     """
     K, name = camera.K, camera.name
+    if not all(isinstance(v, (int, np.integer)) and 1 <= v <= MAX_IMAGE_SIDE for v in (camera.width, camera.height)):
+        raise InputError(f"camera {name}: image size {camera.width!r}x{camera.height!r} must be whole pixel counts "
+                         f"1-{MAX_IMAGE_SIDE}")
     if not (K[0, 0] > 0 and K[1, 1] > 0):
         raise InputError(f"camera {name}: focal lengths fx={K[0, 0]:g}, fy={K[1, 1]:g} must be > 0 (pixels)")
     cx, cy = K[0, 2], K[1, 2]

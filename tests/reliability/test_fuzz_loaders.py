@@ -432,3 +432,37 @@ def test_easymocap_image_size_of_1e400_is_one_line(folder):
     intri.write_text(intri.read_text().replace("H_cam_01: 24", "H_cam_01: 1e400"))
     with pytest.raises(BodyStudioError, match="image size"):
         load_easymocap_yaml(folder / "emc")
+
+
+@pytest.mark.parametrize("field, value", [("squares_x", float("nan")), ("squares_y", 7.5), ("squares_x", True),
+                                          ("squares_x", 10**30), ("dictionary", "DICT_ARUCO_ORIGINAL"),
+                                          ("dictionary", ["DICT_4X4_50"]), ("legacy_pattern", "no")])
+def test_board_json_squares_and_dictionary_are_checked_by_type(folder, field, value):
+    """The re-run found NaN squares passing ``< 3`` and a dictionary whose name has no marker count; a
+    real dictionary without a count (ARUCO_ORIGINAL, 1024 markers) loads."""
+    from bodystudio.calib.board import load_board_json
+
+    doc = {"type": "charuco", "squares_x": 10, "squares_y": 7, "square_m": 0.1, "marker_m": 0.075,
+           "dictionary": "DICT_4X4_50", "legacy_pattern": False, field: value}
+    (folder / "board.json").write_text(json.dumps(doc))
+    if value == "DICT_ARUCO_ORIGINAL":
+        assert load_board_json(folder / "board.json").dictionary == value
+        return
+    with pytest.raises(BodyStudioError) as exc:
+        load_board_json(folder / "board.json")
+    assert field in str(exc.value) or "squares" in str(exc.value) or "dictionary" in str(exc.value)
+
+
+@pytest.mark.parametrize("size", ["1e400", ".nan", "0.5", "-3", "70000"])
+def test_both_easymocap_readers_refuse_an_impossible_image_size(folder, size):
+    """The importer's EasyMocap reader cast W_ to int itself (OverflowError on 1e400) after the calibration
+    reader was fixed; there is now one reader for both, and both entry points refuse in one line."""
+    from bodystudio.calib.io import load_easymocap_yaml, save_easymocap_yaml
+    from bodystudio.capture.importer import load_studio_cameras
+
+    save_easymocap_yaml(folder / "emc2", _rig())
+    intri = folder / "emc2" / "intri.yml"
+    intri.write_text(intri.read_text().replace("W_cam_00: 32", f"W_cam_00: {size}"))
+    for load in (load_easymocap_yaml, load_studio_cameras):
+        with pytest.raises(BodyStudioError, match="image size"):
+            load(folder / "emc2")
