@@ -232,7 +232,7 @@ def _run_units(client, units: list[dict], submit: Callable, record_path: Path, f
              flush: bool = True) -> None:
         """Record a unit: ``status`` done | failed; ``action`` what this run did (computed, skipped, failed)."""
         entry = {**(record["units"].get(name, {}) if action == "skipped" else {}),
-                 **{k: v for k, v in unit.items() if k in ("frames", "scan", "output")},
+                 **{k: v for k, v in unit.items() if k in ("frames", "scan", "session", "output")},
                  "inputs_sha256": unit["inputs_sha256"], "status": "failed" if error is not None else "done",
                  "action": action, "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         entry.pop("error", None)
@@ -318,12 +318,7 @@ def chunk_inputs_sha256(session_files: dict[str, str], all_frames: list[int], fr
                         options: ReconstructOptions) -> str:
     """sha256 over the chunk's inputs: the session files of its frames, the files of no frame (calibration,
     background) and the options. A file of another frame does not change the chunk."""
-    every, mine = set(all_frames), set(frames)
-    keep = {}
-    for rel, digest in session_files.items():
-        numbers = set() if "background" in rel else {int(m) for m in _FRAME_NUMBER.findall(Path(rel).name)} & every
-        if not numbers or numbers & mine:
-            keep[rel] = digest
+    keep = _frame_files(session_files, all_frames, frames)
     h = hashlib.sha256(json.dumps(keep, sort_keys=True).encode())
     h.update(json.dumps({"frames": frames, "options": asdict(options)}, sort_keys=True, default=str).encode())
     return h.hexdigest()
@@ -541,6 +536,132 @@ def rig_batch(scans_dir: str | Path, out: str | Path, client, template: str = "6
         record_path = out / "batch.json"
         report = _run_units(client, units, submit, record_path, force, progress, f"rig {len(scans)} scans",
                             _load_record(record_path))
+    finally:
+        release_lock(layout)
+    return report
+
+
+# ------------------------------------------------------------------------------------------ muscle capture
+
+@dataclass(frozen=True)
+class MuscleOptions:
+    """The options of ``bodystudio muscle capture`` that change a sequence's result (hashed into its inputs;
+    the model by its sha256, not its path)."""
+
+    mode: str = "full"  # full | nicp | model
+    resolution: str | None = None  # None: the session's
+    side: str | None = None
+    frames: int | None = None  # the first N frames (None: all)
+    shape: dict | None = None  # ArmShapeParams as a dict (None: fitted)
+    model: str | None = None  # path of the arm model .npz (None: --no-model)
+
+
+def check_capture_sessions(paths: list[Path]) -> list[Path]:
+    """The sessions of a capture batch: folders, each named once (its name is its output folder)."""
+    names: dict[str, Path] = {}
+    for p in map(Path, paths):
+        if not p.is_dir():
+            raise InputError(f"{p}: no such session folder; give Kinect session folders (bodystudio synth arm)")
+        if p.name in names:
+            raise InputError(f"{names[p.name]} and {p} would both write {p.name}/ in --out; rename one")
+        names[p.name] = p
+    return [Path(p) for p in paths]
+
+
+def sequence_inputs_sha256(session_path: Path, options: MuscleOptions, model_sha256: str | None) -> str:
+    """sha256 over a sequence's inputs: the session manifest's sha256 of every file of the captured frames
+    and of no frame (calibration), the options and the model file's sha256. A session that cannot be
+    opened hashes its error (its unit is then run, and fails on the worker with that error)."""
+    from bodystudio.capture.session import open_session
+
+    h = hashlib.sha256(json.dumps({"options": asdict(options), "model": model_sha256, "version": __version__},
+                                  sort_keys=True, default=str).encode())
+    try:
+        session = open_session(session_path)
+    except BodyStudioError as exc:
+        h.update(f"unreadable: {exc}".encode())
+        return h.hexdigest()
+    frames = session.frame_ids if options.frames is None else session.frame_ids[:options.frames]
+    h.update(json.dumps(_frame_files(session.files, session.frame_ids, frames), sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def _frame_files(session_files: dict[str, str], all_frames: list[int], frames: list[int]) -> dict[str, str]:
+    """The session files (relative path -> sha256) of ``frames`` and of no frame."""
+    every, mine = set(all_frames), set(frames)
+    keep = {}
+    for rel, digest in session_files.items():
+        numbers = set() if "background" in rel else {int(m) for m in _FRAME_NUMBER.findall(Path(rel).name)} & every
+        if not numbers or numbers & mine:
+            keep[rel] = digest
+    return keep
+
+
+def capture_unit(session_path: str, unit_root: str, options: MuscleOptions, inputs_sha256: str,
+                 setup: Callable | None = None) -> dict:
+    """One work unit, on a worker: the arm capture of one sequence into ``unit_root`` (atomic).
+
+    The folder is the one ``muscle capture SESSION --out`` writes (meshes/, arm.glb, params.json,
+    manifest.json) plus ``unit.json`` last (checksums and the inputs' sha256). A leftover of a killed
+    attempt is discarded first. ``setup`` (tests) runs first.
+    """
+    from bodystudio.muscle.capture import capture_session_arm, write_arm_capture_files
+    from bodystudio.muscle.model import ArmShapeParams
+
+    t0 = time.perf_counter()
+    if setup is not None:
+        setup()
+    layout = unit_layout(Path(unit_root))
+    recover_layout(layout)
+    shape = None if options.shape is None else ArmShapeParams(**options.shape)
+    capture = capture_session_arm(session_path, options.model, options.mode, options.resolution, options.side,
+                                  options.frames, shape)
+    unit = {"inputs_sha256": inputs_sha256, "session": str(session_path), "pid": os.getpid()}
+    with _UnitWriter(layout, "bodystudio muscle capture (batch unit)", {"session": str(session_path)},
+                     unit) as writer:
+        write_arm_capture_files(writer.path_for, capture)
+        writer.commit({"mode": capture.mode, "n_frames": capture.n_frames, "template_key": capture.template_key})
+    return {"seconds": time.perf_counter() - t0, "frames": capture.n_frames, "pid": os.getpid()}
+
+
+def muscle_batch(session_paths: list[str | Path], out: str | Path, client, options: MuscleOptions,
+                 force: bool = False, progress: bool = False, setup: Callable | None = None) -> BatchReport:
+    """``bodystudio muscle capture S1 S2 ... --out DIR``: every sequence a work unit on the cluster.
+
+    ``DIR/NAME/`` is the capture of session ``NAME`` (readable by ``eval muscle`` and ``muscle model
+    extend``), committed by its worker with ``unit.json`` last; ``DIR/batch.json`` records every unit
+    (inputs sha256, status, error). A sequence is one unit: the shape fit (Sec. 6.2 of Arm-Muscle Capture)
+    uses its first frames and the refinement (Sec. 7) neighbouring frames, so a chunk border would change the
+    result. Failures do not stop the others; they are in the report (the CLI raises :class:`BatchError`).
+    """
+    from bodystudio.fileio import check_output_folder
+
+    if options.mode not in ("full", "nicp", "model"):
+        raise InputError(f"capture mode {options.mode!r}: valid: full, nicp, model")
+    if (options.mode == "nicp") != (options.model is None):
+        raise InputError("a capture batch needs an arm model for modes full/model and none for nicp")
+    sessions = check_capture_sessions([Path(p) for p in session_paths])
+    out = Path(out)
+    check_output_folder(out, "--out")
+    model_sha = None if options.model is None else sha256_file(Path(options.model))
+    layout = RunLayout(out, "batch.json", ".batch.", str(out))
+    acquire_lock(layout, "bodystudio muscle capture (batch)")
+    try:
+        units = []
+        for session in sessions:
+            sha = sequence_inputs_sha256(session, options, model_sha)
+            root = out / session.name
+            units.append({"name": session.name, "session": str(session.resolve()), "output": str(root),
+                          "inputs_sha256": sha, "root": root,
+                          "complete": (lambda r=root, s=sha: unit_is_complete(unit_layout(r), s))})
+
+        def submit(unit):
+            return client.submit(capture_unit, unit["session"], str(unit["root"]), options, unit["inputs_sha256"],
+                                 setup, key=f"capture-{unit['name']}-{unit['inputs_sha256'][:12]}", pure=False)
+
+        record_path = out / "batch.json"
+        report = _run_units(client, units, submit, record_path, force, progress,
+                            f"arm capture ({options.mode}) of {len(units)} sequences", _load_record(record_path))
     finally:
         release_lock(layout)
     return report

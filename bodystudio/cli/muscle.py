@@ -13,6 +13,7 @@ from pathlib import Path
 
 import typer
 
+from bodystudio.cli import batch as batch_cli
 from bodystudio.cli import eval as eval_cli
 from bodystudio.cli import synth
 from bodystudio.errors import InputError
@@ -76,16 +77,12 @@ def _arm_template(resolution: str, side: str):
     return arm_template(build_body(resolution=resolution), side)
 
 
-def _session_arm(session) -> dict:
-    """The session's arm block (side, resolution) when it is a synthetic arm session, else {}."""
-    gt = session.gt_subject or {}
-    return gt.get("arm") or {}
-
-
 @app.command("capture")
 def capture(
-    session_path: Path = typer.Argument(..., metavar="SESSION", help="Kinect session folder (bodystudio synth arm)"),
-    out: Path = typer.Option(..., "--out", help="new output folder: meshes/NNNNN.ply, arm.glb, params.json"),
+    session_paths: list[Path] = typer.Argument(..., metavar="SESSION...", help="Kinect session folder(s) "
+                                               "(bodystudio synth arm); several: a batch on a dask cluster"),
+    out: Path = typer.Option(..., "--out", help="new output folder: meshes/NNNNN.ply, arm.glb, params.json "
+                             "(batch: a folder of OUT/SESSION_NAME/ capture folders and OUT/batch.json)"),
     model_path: Path | None = typer.Option(None, "--model", help="arm model .npz (bodystudio muscle model build)"),
     no_model: bool = typer.Option(False, "--no-model", help="NICP + ARAP only, no model (the paper's Fig. 6a)"),
     no_refine: bool = typer.Option(False, "--no-refine", help="model-based filtering only, no refinement (§7)"),
@@ -96,10 +93,16 @@ def capture(
     shape: str | None = typer.Option(None, "--shape", help="the subject's measured shape parameters "
                                      "bmi=..,muscularity=..,height_m=..,arm_length_m=.. (the paper's Table 1; "
                                      "default: fitted from the first frames)"),
+    scheduler: str | None = typer.Option(None, "--scheduler", help="batch: " + batch_cli.SCHEDULER_HELP),
+    workers: int | None = typer.Option(None, "--workers", help="batch: " + batch_cli.WORKERS_HELP),
+    force: bool = typer.Option(False, "--force", help="batch: redo every sequence, also those already captured"),
 ) -> None:
-    """Capture the arm of a depth session (Arm-Muscle Capture §4-7): per-frame meshes, joint angles, shape."""
-    from bodystudio.capture.session import open_session
-    from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence, write_arm_capture
+    """Capture the arm of a depth session (Arm-Muscle Capture §4-7): per-frame meshes, joint angles, shape.
+
+    Several SESSIONs, or --workers / --scheduler: a batch, one sequence per dask work unit, resumable
+    (docs/batch.md); $BODYSTUDIO_SCHEDULER gives the batch's cluster address.
+    """
+    from bodystudio.muscle.capture import capture_session_arm, write_arm_capture
     from bodystudio.muscle.export import check_new_output
 
     if shape is not None and no_model:
@@ -117,24 +120,56 @@ def capture(
         raise InputError(f"--model {model_path}: no such file; make one with `bodystudio muscle model build`")
     if frames is not None:
         check_range("--frames", frames, 1, MAX_FRAMES)
+    if resolution is not None:
+        check_choice("--resolution", resolution, RESOLUTIONS)
+    if side is not None:
+        check_choice("--side", side, SIDES)
+    mode = "nicp" if no_model else "model" if no_refine else "full"
+    if len(session_paths) > 1 or scheduler is not None or workers is not None:
+        _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, known_shape, scheduler,
+                       workers, force)
+        return
+    if force:
+        raise InputError("--force is for a batch (several SESSIONs or --workers/--scheduler); a single capture "
+                         "writes a new --out folder")
     check_new_output(out, "arm capture folder")
-    session = open_session(session_path)
-    if frames is not None and frames > len(session.frame_ids):
-        raise InputError(f"--frames {frames}: {session_path} has {len(session.frame_ids)} frames")
-    arm = _session_arm(session)
-    resolution = check_choice("--resolution", resolution or arm.get("resolution", "6k"), RESOLUTIONS)
-    side = check_choice("--side", side or arm.get("side", "left"), SIDES)
-    template = _arm_template(resolution, side)
-    model = None
+    result = capture_session_arm(session_paths[0], model_path, mode, resolution, side, frames, known_shape)
+    write_arm_capture(out, result)
+    typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
+
+
+def _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, known_shape, scheduler, workers,
+                   force) -> None:
+    """``muscle capture S1 S2 ... --out DIR``: each sequence a work unit on a dask cluster (bodystudio.batch)."""
+    from dataclasses import asdict
+
+    from bodystudio.batch import (
+        BatchError,
+        MuscleOptions,
+        batch_client,
+        check_capture_sessions,
+        muscle_batch,
+        resolve_scheduler,
+    )
+    from bodystudio.fileio import check_output_folder
+
+    # refuse bad input before starting a cluster
+    check_capture_sessions(session_paths)
+    check_output_folder(out, "--out")
     if model_path is not None:
         from bodystudio.muscle.model import load_arm_model
 
-        model = load_arm_model(model_path, template)
-    mode = "nicp" if no_model else "model" if no_refine else "full"
-    result = capture_arm_sequence(session, model, template, CaptureOptions(mode=mode),
-                                  frames=None if frames is None else slice(0, frames), known_shape=known_shape)
-    write_arm_capture(out, result)
-    typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
+        load_arm_model(model_path)  # junk is refused here, not once per sequence on the workers
+    resolve_scheduler(scheduler, workers)
+    options = MuscleOptions(mode=mode, resolution=resolution, side=side, frames=frames,
+                            shape=None if known_shape is None else asdict(known_shape),
+                            model=None if model_path is None else str(model_path.resolve()))
+    with batch_client(scheduler, workers) as client:
+        batch_cli.print_cluster(client)
+        report = muscle_batch(session_paths, out, client, options, force=force, progress=True)
+    batch_cli.print_report(report, f"muscle capture ({len(session_paths)} sequences)")
+    if report.errors:
+        raise BatchError(report.failure_message("sequences"))
 
 
 EVAL_KEYS = ("median_mm", "p90_mm", "front_median_mm", "back_median_mm", "bulge_err_mm", "jitter_mm", "ms_per_frame")

@@ -39,6 +39,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -397,26 +398,71 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
     return capture
 
 
+def session_arm_choice(session, resolution: str | None = None, side: str | None = None) -> tuple[str, str]:
+    """The arm template's resolution and side: as given, else the session's (a synthetic arm session records
+    them in its ground truth), else 6k / left."""
+    arm = (session.gt_subject or {}).get("arm") or {}
+    return resolution or arm.get("resolution", "6k"), side or arm.get("side", "left")
+
+
+def capture_session_arm(session_path: str | Path, model_path: str | Path | None, mode: str = "full",
+                        resolution: str | None = None, side: str | None = None, frames: int | None = None,
+                        known_shape=None) -> ArmCapture:
+    """``bodystudio muscle capture SESSION``: the session opened, the arm template chosen
+    (:func:`session_arm_choice`), the model read, the first ``frames`` frames captured (Sec. 4-7).
+
+    One call per sequence: the shape fit (Sec. 6.2) uses the sequence's first frames and the pose smoothing
+    and refinement (Sec. 7) neighbouring frames, so a sequence is one work unit of a batch."""
+    from bodystudio.body import build_body
+    from bodystudio.capture.session import open_session
+    from bodystudio.muscle.arm import arm_template
+
+    if mode not in MODES:
+        raise InputError(f"capture mode {mode!r}: valid: {', '.join(MODES)}")
+    session = open_session(session_path)
+    if frames is not None and frames > len(session.frame_ids):
+        raise InputError(f"--frames {frames}: {session_path} has {len(session.frame_ids)} frames")
+    resolution, side = session_arm_choice(session, resolution, side)
+    if resolution not in ("6k", "2k", "full") or side not in ("left", "right"):
+        raise InputError(f"arm template {resolution!r} {side!r}: valid: 6k, 2k, full and left, right")
+    template = arm_template(build_body(resolution=resolution), side)
+    model = None
+    if model_path is not None:
+        from bodystudio.muscle.model import load_arm_model
+
+        model = load_arm_model(model_path, template)
+    return capture_arm_sequence(session, model, template, CaptureOptions(mode=mode),
+                                frames=None if frames is None else slice(0, frames), known_shape=known_shape)
+
+
 def write_arm_capture(out_dir: str | Path, capture: ArmCapture, fps: float = 30.0) -> Path:
     """PLY sequence, ``arm.glb`` (morph-target animation), ``params.json`` and manifest, committed as one folder."""
-    from bodystudio.fileio import write_json
-    from bodystudio.muscle.export import staged_output_folder, write_morph_glb, write_ply_sequence
+    from bodystudio.muscle.export import staged_output_folder
 
     with staged_output_folder(out_dir, "arm capture folder") as stage:
-        write_ply_sequence(stage / "meshes", capture.vertices, capture.faces)
-        write_morph_glb(stage / "arm.glb", capture.vertices, capture.faces, fps=fps)
-        s, R, t = capture.similarity
-        params = {"mode": capture.mode, "template_key": capture.template_key, "frame_ids": list(capture.frame_ids),
-                  "shape": None if capture.shape is None else _shape_dict(capture.shape),
-                  "poses": [None if p is None else p.to_dict() for p in capture.poses],
-                  "similarity": {"scale": float(s), "R": np.asarray(R).tolist(), "t": np.asarray(t).tolist()},
-                  "timings_ms": capture.timings_ms, "ms_per_frame": capture.ms_per_frame,
-                  "session": capture.session_path}
-        write_json(stage / "params.json", params)
-        write_json(stage / "manifest.json", {"format": "bodystudio-arm-capture", "version": 1,
-                                             "n_frames": capture.n_frames, "meshes": "meshes/NNNNN.ply",
-                                             "params": "params.json"})
+        write_arm_capture_files(lambda rel: stage / rel, capture, fps)
     return Path(out_dir)
+
+
+def write_arm_capture_files(path_for: Callable[[str], Path], capture: ArmCapture, fps: float = 30.0) -> None:
+    """Write the files of an arm capture folder, each at ``path_for(relative name)`` (a staging area: the
+    caller commits them as one unit, :func:`write_arm_capture` or a batch unit's RunWriter)."""
+    from bodystudio.fileio import write_json
+    from bodystudio.muscle.export import write_morph_glb, write_ply_sequence
+
+    write_ply_sequence(path_for("meshes"), capture.vertices, capture.faces)
+    write_morph_glb(path_for("arm.glb"), capture.vertices, capture.faces, fps=fps)
+    s, R, t = capture.similarity
+    params = {"mode": capture.mode, "template_key": capture.template_key, "frame_ids": list(capture.frame_ids),
+              "shape": None if capture.shape is None else _shape_dict(capture.shape),
+              "poses": [None if p is None else p.to_dict() for p in capture.poses],
+              "similarity": {"scale": float(s), "R": np.asarray(R).tolist(), "t": np.asarray(t).tolist()},
+              "timings_ms": capture.timings_ms, "ms_per_frame": capture.ms_per_frame,
+              "session": capture.session_path}
+    write_json(path_for("params.json"), params)
+    write_json(path_for("manifest.json"), {"format": "bodystudio-arm-capture", "version": 1,
+                                           "n_frames": capture.n_frames, "meshes": "meshes/NNNNN.ply",
+                                           "params": "params.json"})
 
 
 def _shape_dict(shape) -> dict:
@@ -455,4 +501,5 @@ def load_arm_capture(folder: str | Path) -> ArmCapture:
 
 
 __all__ = ["MODES", "ArmCapture", "CaptureOptions", "CorrespondenceFilters", "NicpOptions", "capture_arm_frames",
-           "capture_arm_sequence", "load_arm_capture", "write_arm_capture"]
+           "capture_arm_sequence", "capture_session_arm", "load_arm_capture", "session_arm_choice",
+           "write_arm_capture", "write_arm_capture_files"]

@@ -1,5 +1,6 @@
 """Bad input to the batch commands (``batch rig``, ``reconstruct --workers/--scheduler/--chunk``): one line on
-stderr, exit 2, refused before any cluster starts or any output is written (issue 14)."""
+stderr, exit 2, refused before any cluster starts or any output is written (issue 14); also `muscle capture`
+with several sessions or --workers/--scheduler."""
 
 import os
 import subprocess
@@ -91,3 +92,52 @@ def test_reconstruct_bad_cluster_options(tmp_path, capsys, extra, phrase):
     session.mkdir()
     run_bad(["reconstruct", session, *extra], capsys, phrase)
     assert not (session / "reconstruct").exists()
+
+
+@pytest.fixture()
+def two_sessions(tmp_path):
+    """Two folders standing for arm sessions: the cluster options are refused before a session is read."""
+    out = []
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        out.append(tmp_path / name)
+    return out
+
+
+@pytest.mark.parametrize("extra, phrase", [
+    (["--workers", "0"], "--workers 0"),
+    (["--workers", "-1"], "--workers -1"),
+    (["--scheduler", "localhost:8786"], "not a scheduler address"),
+    (["--scheduler", "tcp://127.0.0.1:1", "--workers", "2"], "--scheduler and --workers"),
+    (["--frames", "0"], "--frames 0"),
+    (["--resolution", "13k"], "--resolution '13k'"),
+    (["--side", "up"], "--side 'up'"),
+])
+def test_muscle_capture_batch_bad_options(two_sessions, tmp_path, capsys, extra, phrase):
+    run_bad(["muscle", "capture", *two_sessions, "--out", tmp_path / "out", "--no-model", *extra], capsys, phrase)
+    assert not (tmp_path / "out").exists()
+
+
+def test_muscle_capture_batch_bad_inputs(two_sessions, tmp_path, capsys):
+    a, b = two_sessions
+    out = tmp_path / "out"
+    run_bad(["muscle", "capture", a, tmp_path / "nope", "--out", out, "--no-model"], capsys, "no such session folder")
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / "a").mkdir()
+    run_bad(["muscle", "capture", a, tmp_path / "x" / "a", "--out", out, "--no-model"], capsys, "rename one")
+    (tmp_path / "file").write_text("")
+    run_bad(["muscle", "capture", a, b, "--out", tmp_path / "file", "--no-model"], capsys, "not a folder")
+    junk = tmp_path / "m.npz"
+    junk.write_bytes(b"not a model")
+    run_bad(["muscle", "capture", a, b, "--out", out, "--model", junk], capsys, "not a bodystudio arm model")
+    assert not out.exists()
+    # --force belongs to a batch; a single capture writes a new folder
+    run_bad(["muscle", "capture", a, "--out", out, "--no-model", "--force"], capsys, "--force is for a batch")
+    assert not out.exists()
+
+
+def test_muscle_capture_batch_unreachable_scheduler(two_sessions, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("BODYSTUDIO_SCHEDULER", "tcp://127.0.0.1:1")
+    run_bad(["muscle", "capture", *two_sessions, "--out", tmp_path / "out", "--no-model"], capsys,
+            "$BODYSTUDIO_SCHEDULER tcp://127.0.0.1:1: cannot reach the scheduler")
+    assert not (tmp_path / "out").exists()

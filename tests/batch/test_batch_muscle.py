@@ -1,0 +1,150 @@
+"""``bodystudio muscle capture S1 S2 ... --out DIR`` on a real 2-worker LocalCluster (issue 14).
+
+One sequence per work unit: each unit folder is the single capture's folder exactly (same meshes as the
+in-process capture); a corrupt sequence fails alone with its error recorded; a re-run redoes nothing (record
+and mtimes) and ``--force`` redoes all; the CLI reaches an existing cluster through $BODYSTUDIO_SCHEDULER.
+"""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bodystudio.batch import MuscleOptions, muscle_batch, unit_is_complete, unit_layout
+from bodystudio.cli.main import main
+from bodystudio.muscle.capture import capture_session_arm, load_arm_capture
+
+
+@pytest.fixture(scope="module")
+def arm_sessions(tmp_path_factory):
+    """Three short synthetic Kinect v2 arm sequences on the 2k template (read-only: copy to modify)."""
+    root = tmp_path_factory.mktemp("arms")
+    for k, seed in enumerate((3, 4, 5)):
+        assert main(["synth", "arm", str(root / f"s{k}"), "--subject-seed", str(seed), "--frames", "4",
+                     "--resolution", "2k"]) == 0
+    return root
+
+
+@pytest.fixture(scope="module")
+def tiny_arm_model(tmp_path_factory):
+    """A model on the 2k left arm from two subjects (fast; the numbers do not matter here)."""
+    from bodystudio.body import build_body
+    from bodystudio.muscle.arm import arm_template
+    from bodystudio.muscle.model import learn_arm_model, save_arm_model
+    from bodystudio.muscle.synthetic import sample_arm_subject, subject_arm_samples
+
+    samples = subject_arm_samples(sample_arm_subject(1000), "2k", n_shapes=1, n_poses=2)
+    samples += subject_arm_samples(sample_arm_subject(1001), "2k", n_shapes=1, n_poses=2)
+    model = learn_arm_model(samples, arm_template(build_body(resolution="2k"), "left"), population_size=3)
+    path = tmp_path_factory.mktemp("model") / "tiny.npz"
+    save_arm_model(path, model)
+    return path
+
+
+def _copies(arm_sessions, tmp_path, names=("s0", "s1", "s2")):
+    out = []
+    for name in names:
+        shutil.copytree(arm_sessions / name, tmp_path / name)
+        out.append(tmp_path / name)
+    return out
+
+
+def _mtimes(root: Path) -> dict[str, int]:
+    return {p.relative_to(root).as_posix(): p.stat().st_mtime_ns for p in root.rglob("*") if p.is_file()
+            and p.name != "batch.json"}
+
+
+def test_batch_matches_sequential_and_rerun_redoes_nothing(arm_sessions, tiny_arm_model, cluster, tmp_path):
+    sessions = _copies(arm_sessions, tmp_path, ("s0", "s1"))
+    options = MuscleOptions(mode="full", model=str(tiny_arm_model))
+    out = tmp_path / "out"
+    report = muscle_batch(sessions, out, cluster, options)
+    assert report.status == {"s0": "done", "s1": "done"}, report.errors
+    for s in sessions:
+        expected = capture_session_arm(s, tiny_arm_model, "full")
+        got = load_arm_capture(out / s.name)  # the single capture's folder format, read by eval and extend
+        assert got.mode == "full" and got.frame_ids == [0, 1, 2, 3]
+        np.testing.assert_allclose(got.vertices, expected.vertices, atol=1e-6)
+    # two subjects: each unit captured its own sequence
+    assert np.abs(load_arm_capture(out / "s0").vertices - load_arm_capture(out / "s1").vertices).max() > 5e-3
+    from bodystudio.cli.muscle import evaluate_capture_folder
+
+    assert evaluate_capture_folder(out / "s0")["median_mm"] < 25.0  # an arm captured, not the template
+
+    # the re-run skips both sequences (no file rewritten); --force redoes them
+    before = _mtimes(out)
+    again = muscle_batch(sessions, out, cluster, options)
+    assert set(again.status.values()) == {"skipped"}
+    assert _mtimes(out) == before
+    record = json.loads((out / "batch.json").read_text())["units"]
+    assert {u["action"] for u in record.values()} == {"skipped"} and {u["status"] for u in record.values()} == {"done"}
+    assert record["s0"]["session"] == str(sessions[0].resolve())
+    forced = muscle_batch(sessions, out, cluster, options, force=True)
+    assert set(forced.status.values()) == {"done"}
+    after = _mtimes(out)
+    assert all(after[k] > before[k] for k in before if k.endswith("unit.json"))
+
+
+def test_changed_input_redoes_only_that_sequence(arm_sessions, cluster, tmp_path):
+    """Inputs are the session's files and the options: a changed depth frame redoes its sequence only; a
+    unit whose file was edited after its commit is not complete (checksums) and is redone."""
+    from bodystudio.capture.session import SessionWriter, open_session
+
+    sessions = _copies(arm_sessions, tmp_path, ("s0", "s1"))
+    options = MuscleOptions(mode="nicp")
+    out = tmp_path / "out"
+    muscle_batch(sessions, out, cluster, options)
+    depth = open_session(sessions[1]).frame(2).kinect_depth_m
+    with SessionWriter(sessions[1], update=True) as w:
+        w.write_kinect_depth(2, np.where(depth > 0, depth + 0.01, 0.0))
+    report = muscle_batch(sessions, out, cluster, options)
+    assert report.status == {"s0": "skipped", "s1": "done"}
+    (out / "s0" / "meshes" / "00001.ply").write_bytes(b"edited")
+    assert not unit_is_complete(unit_layout(out / "s0"), json.loads((out / "batch.json").read_text())
+                                ["units"]["s0"]["inputs_sha256"])
+    report = muscle_batch(sessions, out, cluster, options)
+    assert report.status == {"s0": "done", "s1": "skipped"}
+    load_arm_capture(out / "s0")
+    # other frames are other inputs
+    report = muscle_batch(sessions, out, cluster, MuscleOptions(mode="nicp", frames=3))
+    assert set(report.status.values()) == {"done"} and load_arm_capture(out / "s1").frame_ids == [0, 1, 2]
+
+
+def test_corrupt_sequence_fails_alone(arm_sessions, cluster, tmp_path):
+    sessions = _copies(arm_sessions, tmp_path)
+    depth = sessions[1] / "kinect" / "depth" / "00001.png"
+    depth.write_bytes(depth.read_bytes()[: len(depth.read_bytes()) // 2])  # a truncated depth frame
+    out = tmp_path / "out"
+    report = muscle_batch(sessions, out, cluster, MuscleOptions(mode="nicp"))
+    assert report.status == {"s0": "done", "s1": "failed", "s2": "done"}
+    assert "corrupted" in report.errors["s1"] and "\n" not in report.errors["s1"], report.errors
+    assert not (out / "s1").exists() or not list((out / "s1").iterdir())
+    for name in ("s0", "s2"):
+        assert load_arm_capture(out / name).n_frames == 4
+    record = json.loads((out / "batch.json").read_text())["units"]
+    assert record["s1"]["status"] == "failed" and "corrupted" in record["s1"]["error"]
+    assert record["s0"]["status"] == "done" and record["s0"]["action"] == "computed"
+
+    # the re-run redoes only the failed sequence
+    before = _mtimes(out)
+    report = muscle_batch(sessions, out, cluster, MuscleOptions(mode="nicp"))
+    assert report.status == {"s0": "skipped", "s1": "failed", "s2": "skipped"}
+    assert _mtimes(out) == before
+
+
+def test_cli_batch_on_the_scheduler_of_the_environment(arm_sessions, cluster, tmp_path, capsys, monkeypatch):
+    """Several SESSIONs make a batch; $BODYSTUDIO_SCHEDULER names the cluster (here the tests' own)."""
+    sessions = _copies(arm_sessions, tmp_path, ("s0", "s2"))
+    monkeypatch.setenv("BODYSTUDIO_SCHEDULER", cluster.scheduler.address)
+    out = tmp_path / "out"
+    assert main(["muscle", "capture", *map(str, sessions), "--out", str(out), "--no-model"]) == 0
+    assert "2 workers" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == [".batch", "batch.json", "s0", "s2"] or \
+        sorted(p.name for p in out.iterdir()) == ["batch.json", "s0", "s2"]
+    assert load_arm_capture(out / "s2").mode == "nicp"
+    sessions[1].joinpath("session.json").write_text("{")  # a sequence that cannot be opened: the batch fails
+    code = main(["muscle", "capture", *map(str, sessions), "--out", str(out), "--no-model"])
+    err = capsys.readouterr().err
+    assert code == 2 and "1 of 2 sequences failed" in err.strip().splitlines()[-1] and "s2" in err
