@@ -124,6 +124,41 @@ def _exit_with_client_plugin():
     return ExitWithClient()
 
 
+#: Libraries whose first import must come from a worker's main thread (bodystudio.geometry.meshlab: pymeshlab's Qt
+#: plugins, imported by a task thread that ends at the worker's close, corrupted the heap at its exit).
+MAIN_THREAD_IMPORTS = ("pymeshlab",)
+
+
+def _main_thread_imports_plugin():
+    """Worker plugin: import :data:`MAIN_THREAD_IMPORTS` in the worker's main thread, before any task runs.
+
+    ``setup`` runs on the worker's event loop, the main thread of the worker process (checked: a plugin run
+    anywhere else raises, and the worker does not start). Every worker gets it, a restarted one too.
+    """
+    from distributed import WorkerPlugin
+
+    class MainThreadImports(WorkerPlugin):
+        name = "bodystudio-main-thread-imports"
+
+        def setup(self, worker) -> None:
+            import importlib
+
+            if threading.current_thread() is not threading.main_thread():
+                raise RuntimeError("bodystudio worker plugin: setup outside the worker's main thread")
+            for module in MAIN_THREAD_IMPORTS:
+                with contextlib.suppress(ImportError):
+                    importlib.import_module(module)
+
+    return MainThreadImports()
+
+
+def worker_main_thread_imports() -> dict[str, bool]:
+    """(On a worker) which of :data:`MAIN_THREAD_IMPORTS` are imported: True for each once the plugin ran."""
+    import sys
+
+    return {m: m in sys.modules for m in MAIN_THREAD_IMPORTS}
+
+
 def resolve_scheduler(scheduler: str | None, workers: int | None) -> str | None:
     """The scheduler address from ``--scheduler`` or ``$BODYSTUDIO_SCHEDULER`` (None: a local cluster)."""
     if workers is not None and workers < 1:
@@ -166,6 +201,7 @@ def batch_client(scheduler: str | None = None, workers: int | None = None) -> It
         client.register_plugin(_exit_with_client_plugin())
     try:
         check_worker_versions(client.run(_worker_version))
+        client.register_plugin(_main_thread_imports_plugin())
         yield client
     finally:
         client.close()

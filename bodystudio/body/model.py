@@ -141,7 +141,9 @@ def decimate_keeping_vertices(V: np.ndarray, F: np.ndarray, n_target: int) -> tu
 
     Returns the indices of the kept vertices in ``V`` and the new faces over those indices.
     """
-    import pymeshlab
+    from bodystudio.geometry.meshlab import import_pymeshlab
+
+    pymeshlab = import_pymeshlab()
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(V, F))

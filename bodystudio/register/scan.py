@@ -91,7 +91,9 @@ def read_scan_file(path: str | Path) -> Mesh:
 
 def clean_scan(mesh: Mesh) -> tuple[Mesh, int, int]:
     """pymeshlab clean-up: duplicates, null faces, non-manifold edges, small components, unreferenced."""
-    import pymeshlab
+    from bodystudio.geometry.meshlab import import_pymeshlab
+
+    pymeshlab = import_pymeshlab()
 
     n_v, n_f = mesh.n_vertices, mesh.n_faces
     kwargs = {}

@@ -173,7 +173,9 @@ def bounded_biharmonic_weights(scan_V: np.ndarray, scan_F: np.ndarray, heads: np
     get weight 1 for it. The result is carried back to every scan vertex barycentrically. Weights of
     bones not in ``bones`` are 0. Returns ``(n, B)`` with at most 4 influences.
     """
-    import pymeshlab
+    from bodystudio.geometry.meshlab import import_pymeshlab
+
+    pymeshlab = import_pymeshlab()
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(scan_V, scan_F))

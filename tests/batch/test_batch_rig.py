@@ -14,7 +14,7 @@ import time
 import pytest
 import quickrig
 
-from bodystudio.batch import BatchError, rig_batch
+from bodystudio.batch import BatchError, rig_batch, worker_main_thread_imports
 from bodystudio.cli.main import main
 from bodystudio.rig.evaluate import load_avatar
 
@@ -79,6 +79,8 @@ def test_killed_worker_mid_batch_completes(scans, cluster, tmp_path):
         load_avatar(out / f"{name}.glb")
         assert not (out / f".{name}.glb.staging").exists() and not (out / f".{name}.glb.lock").exists()
     cluster.wait_for_workers(2, timeout=60)  # the nanny restarts the killed worker for the next tests
+    # the restarted worker ran the plugins too: pymeshlab imported by its main thread (test_batch_heap.py)
+    assert all(all(flags.values()) for flags in cluster.run(worker_main_thread_imports).values())
 
 
 def test_batch_rig_cli_refuses_mixed_cluster_options(scans, capsys):
