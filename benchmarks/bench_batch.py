@@ -1,5 +1,6 @@
 """Batch jobs on dask.distributed (issue 14): frames/s at 1 and 2 workers, parallel efficiency, scheduler
-overhead per task, I/O per unit, scans per hour, and the accuracy cost of the chunk border.
+overhead per task, I/O per unit, scans per hour, the accuracy cost of the chunk border, and arm-capture frames/s at
+1 and 2 workers (one sequence per unit).
 
 Everything runs in this one process, side by side: a LocalCluster of 1 worker, then one of 2 workers, each
 warmed up (numba caches loaded, body models built) before the timed run of the same chunks with ``force``.
@@ -107,6 +108,76 @@ def _scans_per_hour(root: Path, quick: bool) -> tuple[float, int, float]:
     return 3600.0 * n / wall, n, float(np.mean(list(report.seconds.values())))
 
 
+def _arm_sessions(root: Path, quick: bool) -> tuple[list[Path], Path, int]:
+    """Synthetic Kinect v2 arm sequences (elbow flexion, one subject each) and a small arm model on their
+    template (2 training subjects: the capture's cost per frame, not its accuracy, is measured here)."""
+    from bodystudio.body import build_body
+    from bodystudio.muscle.arm import arm_template
+    from bodystudio.muscle.model import learn_arm_model, save_arm_model
+    from bodystudio.muscle.synthetic import sample_arm_subject, subject_arm_samples, synth_arm_session
+
+    n, frames, res = (4, 8, "2k") if quick else (4, 24, "6k")
+    sessions = []
+    for k in range(n):
+        path = root / "arms" / f"arm{k}"
+        synth_arm_session(path, subject_seed=2 + k, motion="elbow_flex", n_frames=frames, kinect="v2",
+                          distance_m=1.0, seed=k, resolution=res)
+        sessions.append(path)
+    samples = subject_arm_samples(sample_arm_subject(1000), res, n_shapes=1, n_poses=2)
+    samples += subject_arm_samples(sample_arm_subject(1001), res, n_shapes=1, n_poses=2)
+    model = learn_arm_model(samples, arm_template(build_body(resolution=res), "left"), population_size=3)
+    model_path = root / "arms" / "model.npz"
+    save_arm_model(model_path, model)
+    return sessions, model_path, n * frames
+
+
+def _muscle_frames_per_second(root: Path, quick: bool) -> tuple[list[list[object]], str]:
+    """Arm capture (full mode) of several sequences, one per work unit: frames/s in process, then on fresh
+    LocalClusters of 1 and 2 workers (each warmed up by a first run, the timed run with ``force``)."""
+    from bodystudio.batch import MuscleOptions, batch_client, muscle_batch
+    from bodystudio.muscle.capture import capture_session_arm
+
+    sessions, model_path, n_frames = _arm_sessions(root, quick)
+    options = MuscleOptions(mode="full", model=str(model_path))
+    t0 = time.perf_counter()
+    for s in sessions:
+        capture_session_arm(s, model_path, "full")
+    seq_fps = n_frames / (time.perf_counter() - t0)
+    fps, unit = {}, {}
+    for workers in (1, 2):
+        out = root / f"arm_captures_{workers}"
+        with batch_client(workers=workers) as client:
+            muscle_batch(sessions, out, client, options)  # warm-up: imports, numba caches, body models
+            t0 = time.perf_counter()
+            report = muscle_batch(sessions, out, client, options, force=True)
+            wall = time.perf_counter() - t0
+        assert not report.errors, report.errors
+        fps[workers] = n_frames / wall
+        unit[workers] = sum(report.seconds.values()) / n_frames
+    eff = fps[2] / (2 * fps[1])
+    rows = [["sequential (no cluster, in process)", f"{seq_fps:.2f}", "-", "-"],
+            ["LocalCluster, 1 worker", f"{fps[1]:.2f}", f"{unit[1]:.2f}", "1.00"],
+            ["LocalCluster, 2 workers", f"{fps[2]:.2f}", f"{unit[2]:.2f}", f"{eff:.2f}"]]
+    res = "2k" if quick else "6k"
+    what = (f"{len(sessions)} synthetic Kinect v2 arm sequences of {n_frames // len(sessions)} frames (template "
+            f"{res}, full mode: NICP, model-based filtering, refinement), one sequence per work unit "
+            "(`bodystudio muscle capture S1 S2 S3 S4 --out DIR --model M --workers N`)")
+    return rows, what
+
+
+def run_muscle(quick: bool = False) -> str:
+    """Only the muscle capture section (``python -m benchmarks.bench_batch --muscle [--quick]``)."""
+    with tempfile.TemporaryDirectory(prefix="bench_batch_") as tmp:
+        rows, what = _muscle_frames_per_second(Path(tmp), quick)
+    load = os.getloadavg()
+    return "\n".join([
+        f"Arm capture batch: {what}; frames/s of the timed run after a warm-up on the same cluster. Load average "
+        f"at the end: {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} on {os.cpu_count()} cores.",
+        "",
+        markdown_table(["run", "frames/s", "worker s/frame", "parallel efficiency"], rows),
+    ])
+
+
 def run(quick: bool = False) -> str:
     from bodystudio.batch import ReconstructOptions
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams
@@ -153,10 +224,13 @@ def run(quick: bool = False) -> str:
         f"Chunk border (warm start on, chunks of {CHUNK}, visible-surface error vs ground truth, mean over frames):",
         "",
         markdown_table(["run", "median mm", "p90 mm", "Hausdorff mm"], border),
+        "",
+        run_muscle(quick),
     ])
 
 
 if __name__ == "__main__":
     import sys
 
-    print(run(quick="--quick" in sys.argv))
+    quick = "--quick" in sys.argv
+    print(run_muscle(quick) if "--muscle" in sys.argv else run(quick))
