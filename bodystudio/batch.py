@@ -641,12 +641,12 @@ def capture_unit(session_path: str, unit_root: str, options: MuscleOptions, inpu
     manifest.json) plus ``unit.json`` last (checksums and the inputs' sha256). A leftover of a killed
     attempt is discarded first. ``setup`` (tests) runs first.
     """
-    from bodystudio.muscle.capture import capture_session_arm, write_arm_capture_files
-    from bodystudio.muscle.model import ArmShapeParams
-
     t0 = time.perf_counter()
     if setup is not None:
         setup()
+    from bodystudio.muscle.capture import capture_session_arm, write_arm_capture_files
+    from bodystudio.muscle.model import ArmShapeParams
+
     layout = unit_layout(Path(unit_root))
     recover_layout(layout)
     shape = None if options.shape is None else ArmShapeParams(**options.shape)

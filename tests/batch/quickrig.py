@@ -54,3 +54,25 @@ class SlowUnit:
             return quick_rig(*args, **kwargs)
 
         pipeline.rig_scan = slow_rig
+
+
+class SlowCaptureWrite:
+    """Setup of an arm-capture unit: writing the unit's files (inside its lock, staging begun) first writes
+    ``pid_dir/PID`` and sleeps ``seconds``, so that a test can kill the worker while it holds the unit."""
+
+    def __init__(self, pid_dir: str, seconds: float):
+        self.pid_dir, self.seconds = pid_dir, seconds
+
+    def __call__(self):
+        import bodystudio.muscle.capture as capture
+
+        original = getattr(capture, "_original_write_arm_capture_files", capture.write_arm_capture_files)
+        capture._original_write_arm_capture_files = original
+        pid_dir, seconds = self.pid_dir, self.seconds
+
+        def slow_write(path_for, *args, **kwargs):
+            original(path_for, *args, **kwargs)
+            Path(pid_dir, str(os.getpid())).write_text("")
+            time.sleep(seconds)
+
+        capture.write_arm_capture_files = slow_write

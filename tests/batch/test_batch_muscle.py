@@ -148,3 +148,48 @@ def test_cli_batch_on_the_scheduler_of_the_environment(arm_sessions, cluster, tm
     code = main(["muscle", "capture", *map(str, sessions), "--out", str(out), "--no-model"])
     err = capsys.readouterr().err
     assert code == 2 and "1 of 2 sequences failed" in err.strip().splitlines()[-1] and "s2" in err
+
+
+def test_killed_worker_mid_sequence_completes(arm_sessions, cluster, tmp_path):
+    """A worker SIGKILLed while it holds a sequence (lock taken, files staged): Dask reschedules the unit, the
+    new attempt takes over the stale lock and discards the staging; both sequences complete."""
+    import os
+    import signal
+    import threading
+    import time
+
+    import quickrig
+
+    from bodystudio.batch import worker_main_thread_imports
+
+    sessions = _copies(arm_sessions, tmp_path, ("s0", "s1"))
+    out, pids = tmp_path / "out", tmp_path / "pids"
+    pids.mkdir()
+    killed = []
+
+    def kill_first_unit():
+        deadline = time.monotonic() + 120
+        while not list(pids.iterdir()) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        for p in pids.iterdir():
+            pid = int(p.name)
+            held = [lk for lk in out.glob("*/.lock") if json.loads(lk.read_text())["pid"] == pid]
+            staged = [st for st in out.glob("*/.staging") if any(st.rglob("*.ply"))]
+            killed.append((pid, held, staged))
+            os.kill(pid, signal.SIGKILL)
+            return
+
+    killer = threading.Thread(target=kill_first_unit)
+    killer.start()
+    report = muscle_batch(sessions, out, cluster, MuscleOptions(mode="nicp"),
+                          setup=quickrig.SlowCaptureWrite(str(pids), 3.0))
+    killer.join()
+    assert killed and killed[0][1] and killed[0][2], f"no unit killed while holding its lock and staging: {killed}"
+    assert report.status == {"s0": "done", "s1": "done"}, report.errors
+    for s in sessions:
+        assert load_arm_capture(out / s.name).n_frames == 4
+        assert not (out / s.name / ".staging").exists() and not (out / s.name / ".lock").exists()
+        assert unit_is_complete(unit_layout(out / s.name), json.loads((out / "batch.json").read_text())
+                                ["units"][s.name]["inputs_sha256"])
+    cluster.wait_for_workers(2, timeout=60)  # the nanny restarts the killed worker for the next tests
+    assert all(all(flags.values()) for flags in cluster.run(worker_main_thread_imports).values())
