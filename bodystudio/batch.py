@@ -253,6 +253,17 @@ def unit_is_complete(layout: RunLayout, inputs_sha256: str) -> bool:
     return True
 
 
+def task_key(kind: str, unit: dict) -> str:
+    """A new dask key for one submission of a unit: readable (kind, unit, inputs) and unique per run.
+
+    A key made of the unit's name and inputs only collided with the task of an earlier run still known to
+    the scheduler: the same scan or sequence content under another folder, or a re-run after a failure, got
+    the earlier task's result (its error) back without running (tests/batch/test_batch_muscle.py)."""
+    import uuid
+
+    return f"{kind}-{unit['name']}-{unit['inputs_sha256'][:12]}-{uuid.uuid4().hex[:8]}"
+
+
 def _run_units(client, units: list[dict], submit: Callable, record_path: Path, force: bool, progress: bool,
                describe: str, previous: dict) -> BatchReport:
     """Skip the complete units, submit the others, follow them with a progress bar, keep the record current."""
@@ -436,7 +447,7 @@ def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, fra
 
         def submit(unit):
             return client.submit(reconstruct_chunk, str(session.path), unit["frames"], options, str(unit["root"]),
-                                 unit["inputs_sha256"], key=f"reconstruct-{unit['name']}-{unit['inputs_sha256'][:12]}",
+                                 unit["inputs_sha256"], key=task_key("reconstruct", unit),
                                  pure=False)
 
         report = _run_units(client, units, submit, record_path, force, progress,
@@ -567,7 +578,7 @@ def rig_batch(scans_dir: str | Path, out: str | Path, client, template: str = "6
 
         def submit(unit):
             return client.submit(rig_unit, unit["scan"], unit["output"], template, unit["inputs_sha256"], setup,
-                                 key=f"rig-{Path(unit['scan']).stem}-{unit['inputs_sha256'][:12]}", pure=False)
+                                 key=task_key("rig", unit), pure=False)
 
         record_path = out / "batch.json"
         report = _run_units(client, units, submit, record_path, force, progress, f"rig {len(scans)} scans",
@@ -693,7 +704,7 @@ def muscle_batch(session_paths: list[str | Path], out: str | Path, client, optio
 
         def submit(unit):
             return client.submit(capture_unit, unit["session"], str(unit["root"]), options, unit["inputs_sha256"],
-                                 setup, key=f"capture-{unit['name']}-{unit['inputs_sha256'][:12]}", pure=False)
+                                 setup, key=task_key("capture", unit), pure=False)
 
         record_path = out / "batch.json"
         report = _run_units(client, units, submit, record_path, force, progress,

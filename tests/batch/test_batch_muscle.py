@@ -115,7 +115,8 @@ def test_changed_input_redoes_only_that_sequence(arm_sessions, cluster, tmp_path
 def test_corrupt_sequence_fails_alone(arm_sessions, cluster, tmp_path):
     sessions = _copies(arm_sessions, tmp_path)
     depth = sessions[1] / "kinect" / "depth" / "00001.png"
-    depth.write_bytes(depth.read_bytes()[: len(depth.read_bytes()) // 2])  # a truncated depth frame
+    good = depth.read_bytes()
+    depth.write_bytes(good[: len(good) // 2])  # a truncated depth frame
     out = tmp_path / "out"
     report = muscle_batch(sessions, out, cluster, MuscleOptions(mode="nicp"))
     assert report.status == {"s0": "done", "s1": "failed", "s2": "done"}
@@ -132,6 +133,13 @@ def test_corrupt_sequence_fails_alone(arm_sessions, cluster, tmp_path):
     report = muscle_batch(sessions, out, cluster, MuscleOptions(mode="nicp"))
     assert report.status == {"s0": "skipped", "s1": "failed", "s2": "skipped"}
     assert _mtimes(out) == before
+
+    # the frame repaired (same manifest, so the same inputs sha256): the failed sequence is run again, not
+    # answered with the earlier task's error (each submission has its own dask key)
+    depth.write_bytes(good)
+    report = muscle_batch(sessions, out, cluster, MuscleOptions(mode="nicp"))
+    assert report.status == {"s0": "skipped", "s1": "done", "s2": "skipped"}, report.errors
+    assert load_arm_capture(out / "s1").n_frames == 4
 
 
 def test_cli_batch_on_the_scheduler_of_the_environment(arm_sessions, cluster, tmp_path, capsys, monkeypatch):
