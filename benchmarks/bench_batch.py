@@ -233,4 +233,13 @@ if __name__ == "__main__":
     import sys
 
     quick = "--quick" in sys.argv
-    print(run_muscle(quick) if "--muscle" in sys.argv else run(quick))
+    if "--scans" in sys.argv:
+        # the scans stage alone, N times, each on a fresh 2-worker cluster closed at its end: the loop that
+        # reproduced the heap abort at worker exit (docs/batch.md); run it under glibc's malloc checks:
+        # LD_PRELOAD=libc_malloc_debug.so.0 GLIBC_TUNABLES=glibc.malloc.check=3 (and ulimit -c unlimited)
+        for k in range(int(sys.argv[sys.argv.index("--scans") + 1])):
+            with tempfile.TemporaryDirectory(prefix="bench_batch_") as tmp:
+                sph, n, rig_s = _scans_per_hour(Path(tmp), True)
+            print(f"run {k}: {sph:.0f} scans/hour ({rig_s:.1f} s per scan)", flush=True)
+    else:
+        print(run_muscle(quick) if "--muscle" in sys.argv else run(quick))
