@@ -136,7 +136,7 @@ def amberg_anchor(session, template, truth, first_frame: np.ndarray):
 def shape_of(subject):
     from bodystudio.muscle.model import ArmShapeParams
 
-    return ArmShapeParams(subject.bmi, subject.muscularity, subject.height_m, subject.arm_length_m)
+    return ArmShapeParams(subject.bmi, subject.muscularity, subject.height_m, subject.arm_length_m, sex=subject.gender)
 
 
 def _fmt(x, digits=2):
