@@ -26,9 +26,9 @@ displacement longer than ``(1 - p) * max_i |d_rho_i|`` is shortened to that leng
 Dataset extension (issue §4): the model keeps its training statistics (per-row shape residuals, the
 normal equations of the pose regression), so :func:`extend_arm_model` adds captured subjects and
 re-solves without the original meshes. The sex column has its own, weaker Tikhonov weight
-(``sex_regularization``): it is learned from the few added subjects alone (one or two per group), and
-the common weight, sized for the training subjects' parameters, shrinks it to a third of its value
-(docs/muscle.md, "Dataset extension"). Saved as a versioned ``.npz`` with the subjects it was
+(``sex_regularization``): it is learned from the few added women alone, and the common weight
+(1, against a column sum of squares of 2 for two women with one base-pose mesh each) shrank it by a
+third (docs/muscle.md, "Dataset extension"). Saved as a versioned ``.npz`` with the subjects it was
 learned from and the template key; loading it for another template is refused.
 """
 
