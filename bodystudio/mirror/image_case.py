@@ -71,9 +71,16 @@ def sdk_player_mask(mask: np.ndarray, depth_m: np.ndarray, rng: np.random.Genera
 
 
 def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors: int = 1, frame: int = 10,
-                    model=None, distance_m: float = 2.4, n_handles: int = 800, motion: str = "walk") -> ImageCase:
+                    model=None, distance_m: float = 2.4, n_handles: int | None = None, motion: str = "walk",
+                    rim_cos: float | None = -1.0) -> ImageCase:
     """A rendered source/target frame pair; ``edits`` are ``StatisticalBodyModel`` attribute deltas
-    (default ``{"stature_m": +10 %, "mass_kg": 15}``); ``actors`` 1 or 2 (side by side, 0.8 m apart)."""
+    (default ``{"stature_m": +10 %, "mass_kg": 15}``); ``actors`` 1 or 2 (side by side, 0.8 m apart).
+    ``n_handles`` candidate vertices per frame (shared by the actors) and ``rim_cos`` the rim vertices added
+    (None: none) default to the mirror run's (:data:`bodystudio.mirror.run.N_HANDLES`, ``RIM_COS``)."""
+    from bodystudio.mirror import run
+
+    n_handles = run.N_HANDLES if n_handles is None else n_handles
+    rim_cos = run.RIM_COS if rim_cos == -1.0 else rim_cos
     from bodystudio.body import build_body
     from bodystudio.body.population import sample_subject
     from bodystudio.body.statistical import load_statistical_model
@@ -115,7 +122,8 @@ def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors
     src_uv, dst_uv, groups = [], [], []
     for a in range(actors):
         # one budget of candidate vertices per frame, shared by the actors (the MLS cost grows with both)
-        s, t, _ = visible_vertex_pairs(sources[a], targets[a], model.faces, camera, n_handles // actors)
+        s, t, _ = visible_vertex_pairs(sources[a], targets[a], model.faces, camera, n_handles // actors,
+                                       rim_cos=rim_cos)
         src_uv.append(s)
         dst_uv.append(t)
         groups.append(np.full(len(s), a))

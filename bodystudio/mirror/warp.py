@@ -77,8 +77,70 @@ def _weighted_sums(v, px, py, monomials, alpha, eps):
     return S
 
 
+@njit(cache=True, fastmath=True)
+def _weighted_sums_local(v, px, py, monomials, alpha, eps, radius):
+    """:func:`_weighted_sums` over the handles within ``radius`` of each point only (all of them where none is).
+
+    The handles are bucketed in square cells of ``radius / 2``; a point visits the 5x5 cells around its own.
+    """
+    N, n, k = v.shape[0], px.shape[0], monomials.shape[0]
+    cell = 0.5 * radius
+    x0, y0 = px.min(), py.min()
+    nx = int((px.max() - x0) / cell) + 1
+    ny = int((py.max() - y0) / cell) + 1
+    counts = np.zeros(nx * ny + 1, np.int64)
+    where = np.empty(n, np.int64)
+    for i in range(n):
+        where[i] = int((py[i] - y0) / cell) * nx + int((px[i] - x0) / cell)
+        counts[where[i] + 1] += 1
+    for c in range(nx * ny):
+        counts[c + 1] += counts[c]
+    order = np.empty(n, np.int64)
+    fill = counts[:-1].copy()
+    for i in range(n):
+        order[fill[where[i]]] = i
+        fill[where[i]] += 1
+    r2 = radius * radius
+    S = np.zeros((N, k))
+    for a in range(N):
+        vx, vy = v[a, 0], v[a, 1]
+        cx = int(np.floor((vx - x0) / cell))
+        cy = int(np.floor((vy - y0) / cell))
+        found = 0
+        for gy in range(max(cy - 2, 0), min(cy + 3, ny)):
+            for gx in range(max(cx - 2, 0), min(cx + 3, nx)):
+                c = gy * nx + gx
+                for o in range(counts[c], counts[c + 1]):
+                    i = order[o]
+                    dx, dy = vx - px[i], vy - py[i]
+                    d2 = dx * dx + dy * dy
+                    if d2 > r2:
+                        continue
+                    d2 += eps
+                    if alpha == 2.0:
+                        w = 1.0 / (d2 * d2)
+                    elif alpha == 1.0:
+                        w = 1.0 / d2
+                    else:
+                        w = d2 ** -alpha
+                    found += 1
+                    for j in range(k):
+                        S[a, j] += w * monomials[j, i]
+        if found < 3:  # too few handles near: the global solve for this point
+            for j in range(k):
+                S[a, j] = 0.0
+            for i in range(n):
+                dx, dy = vx - px[i], vy - py[i]
+                d2 = dx * dx + dy * dy + eps
+                w = 1.0 / (d2 * d2) if alpha == 2.0 else d2 ** -alpha
+                for j in range(k):
+                    S[a, j] += w * monomials[j, i]
+    return S
+
+
 def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray, kind: str = "affine",
-                   alpha: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                   alpha: float = 1.0,
+                   radius_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-point MLS transform, Eq. 5 of Real-time Reshaping (Schaefer et al. 2006 closed forms).
 
     For each point ``v`` (N, 2) minimises ``sum_i w_i |M(p_i) - q_i|^2``, ``w_i = 1 / |v - p_i|^(2 alpha)``,
@@ -95,8 +157,9 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
     px, py, qx, qy = p[:, 0], p[:, 1], q[:, 0], q[:, 1]
     monomials = np.stack([np.ones_like(px), px, py, qx, qy, px * px, px * py, py * py,
                           px * qx, px * qy, py * qx, py * qy])
-    S = _weighted_sums(np.ascontiguousarray(v), np.ascontiguousarray(px), np.ascontiguousarray(py),
-                       np.ascontiguousarray(monomials), float(alpha), EPS_PX2)  # (N, 12)
+    args = (np.ascontiguousarray(v), np.ascontiguousarray(px), np.ascontiguousarray(py),
+            np.ascontiguousarray(monomials), float(alpha), EPS_PX2)
+    S = _weighted_sums(*args) if radius_px is None else _weighted_sums_local(*args, float(radius_px))  # (N, 12)
     W = S[:, 0]
     ps = S[:, 1:3] / W[:, None]  # p*
     qs = S[:, 3:5] / W[:, None]  # q*
@@ -135,7 +198,8 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
 
 
 def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: str = "affine",
-                   roi_margin_px: float = 24.0, alpha: float = 1.0, groups=None) -> np.ndarray:
+                   roi_margin_px: float = 24.0, alpha: float = 1.0, groups=None,
+                   radius_px: float | None = None) -> np.ndarray:
     """Backward warp field (H, W, 2) float32 for ``cv2.remap``, Eq. 5 of Real-time Reshaping on a 160x120 grid.
 
     ``src_pts`` (n, 2) are the source body's projected vertices (where the person is in the input),
@@ -180,7 +244,7 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
         mine = node_owner == k
         pairs = groups == g
         if mine.any() and pairs.sum() >= 3:
-            _, mapped[mine] = mls_transforms(nodes[mine], t[pairs], s[pairs], kind, alpha)
+            _, mapped[mine] = mls_transforms(nodes[mine], t[pairs], s[pairs], kind, alpha, radius_px)
     valid = np.isfinite(mapped).all(1)  # degenerate (collinear) handle layouts: no value there
     field = np.full((gh, gw, 2), OUTSIDE_PX, np.float32)
     field[rows[valid], cols[valid]] = mapped[valid]
@@ -226,8 +290,8 @@ def warp_foreground(rgb: np.ndarray, fg_mask: np.ndarray, field: np.ndarray) -> 
 
 
 def visible_vertex_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: np.ndarray, camera,
-                         n_handles: int = 800, depth_tol_m: float = 0.08, z_buffer_scale: float = 0.25
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                         n_handles: int = 800, depth_tol_m: float = 0.08, z_buffer_scale: float = 0.25,
+                         rim_cos: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sparse constraints of §5.4: projections of vertices of the posed source and target bodies.
 
     An evenly spread subset of ``n_handles`` vertex ids is taken (the same ids every frame, so the
@@ -244,6 +308,8 @@ def visible_vertex_pairs(source_vertices: np.ndarray, target_vertices: np.ndarra
     if Vs.shape != Vt.shape or Vs.ndim != 2 or Vs.shape[1] != 3:
         raise InputError(f"source and target vertices must both be (n, 3), got {Vs.shape} and {Vt.shape}")
     ids = np.unique(np.linspace(0, len(Vs) - 1, min(int(n_handles), len(Vs))).round().astype(np.int64))
+    if rim_cos is not None:
+        ids = np.union1d(ids, rim_vertices(Vt, faces, camera.center, rim_cos))
     s = z_buffer_scale
     w, h = max(int(round(camera.width * s)), 1), max(int(round(camera.height * s)), 1)
     sx, sy = w / camera.width, h / camera.height
@@ -269,3 +335,14 @@ def visible_vertex_pairs(source_vertices: np.ndarray, target_vertices: np.ndarra
         keep &= (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
         uvs.append(uv)
     return uvs[0][keep], uvs[1][keep], ids[keep]
+
+
+def rim_vertices(vertices: np.ndarray, faces: np.ndarray, eye: np.ndarray, max_cos: float = 0.3) -> np.ndarray:
+    """Ids of the vertices seen edge-on from ``eye``: ``|cos|`` of the normal and the viewing ray below ``max_cos``."""
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces)
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    N = np.stack([sum(np.bincount(F[:, k], n[:, c], len(V)) for k in range(3)) for c in range(3)], axis=1)
+    ray = V - np.asarray(eye, dtype=np.float64)
+    cos = np.einsum("ij,ij->i", N, ray) / np.maximum(np.linalg.norm(N, axis=1) * np.linalg.norm(ray, axis=1), 1e-300)
+    return np.flatnonzero(np.abs(cos) < max_cos)
