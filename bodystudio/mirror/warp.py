@@ -84,6 +84,7 @@ def _weighted_sums_local(v, px, py, monomials, alpha, eps, radius):
     The handles are bucketed in square cells of ``radius / 2``; a point visits the 5x5 cells around its own.
     """
     N, n, k = v.shape[0], px.shape[0], monomials.shape[0]
+    rows = np.ascontiguousarray(monomials.T)  # (n, k): one handle's monomials side by side in memory
     cell = 0.5 * radius
     x0, y0 = px.min(), py.min()
     nx = int((px.max() - x0) / cell) + 1
@@ -125,7 +126,7 @@ def _weighted_sums_local(v, px, py, monomials, alpha, eps, radius):
                         w = d2 ** -alpha
                     found += 1
                     for j in range(k):
-                        S[a, j] += w * monomials[j, i]
+                        S[a, j] += w * rows[i, j]
         if found < 3:  # too few handles near: the global solve for this point
             for j in range(k):
                 S[a, j] = 0.0
