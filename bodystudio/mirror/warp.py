@@ -27,6 +27,8 @@ MLS_KINDS = ("affine", "similarity", "rigid")
 EPS_PX2 = 1e-3
 #: Field value of pixels that show no foreground: a source position outside the image.
 OUTSIDE_PX = -16.0
+#: Field value of grid nodes that were not solved, before up-sampling (see :func:`mls_warp_field`).
+_UNSOLVED_PX = -1.0e6
 
 
 def _check_pairs(src_pts, dst_pts, return_kept: bool = False):
@@ -247,18 +249,17 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
         if mine.any() and pairs.sum() >= 3:
             _, mapped[mine] = mls_transforms(nodes[mine], t[pairs], s[pairs], kind, alpha, radius_px)
     valid = np.isfinite(mapped).all(1)  # degenerate (collinear) handle layouts: no value there
-    field = np.full((gh, gw, 2), OUTSIDE_PX, np.float32)
+    # unsolved nodes hold a value so far out that any pixel they touch (bilinear weight >= 1/64 on the
+    # mirror's grid) interpolates to beyond OUTSIDE_PX, then clamped to it: no second resize of a coverage map
+    field = np.full((gh, gw, 2), _UNSOLVED_PX, np.float32)
     field[rows[valid], cols[valid]] = mapped[valid]
-    weight = np.zeros((gh, gw), np.float32)
-    weight[rows[valid], cols[valid]] = 1.0
     r0, r1 = max(rows.min() - 1, 0), min(rows.max() + 2, gh)
     c0, c1 = max(cols.min() - 1, 0), min(cols.max() + 2, gw)
     # up-sample only the block holding the solved nodes (one node of border so the edge pixels are right)
     y0, y1 = int(round(r0 * sy)), int(round(r1 * sy))
     x0, x1 = int(round(c0 * sx)), int(round(c1 * sx))
     block = cv2.resize(field[r0:r1, c0:c1], (x1 - x0, y1 - y0), interpolation=cv2.INTER_LINEAR)
-    inside = cv2.resize(weight[r0:r1, c0:c1], (x1 - x0, y1 - y0), interpolation=cv2.INTER_LINEAR) > 0.999
-    block[~inside] = OUTSIDE_PX
+    np.maximum(block, OUTSIDE_PX, out=block)
     out = np.full((H, W, 2), OUTSIDE_PX, np.float32)
     out[y0:y1, x0:x1] = block
     return out
