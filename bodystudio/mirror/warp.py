@@ -87,8 +87,9 @@ def _weighted_sums_local(v, px, py, monomials, alpha, eps, radius):
     """
     N, n, k = v.shape[0], px.shape[0], monomials.shape[0]
     rows = np.ascontiguousarray(monomials.T)  # (n, k): one handle's monomials side by side in memory
-    cell = 0.5 * radius
     x0, y0 = px.min(), py.min()
+    # at most 1024 x 1024 cells however far apart the handles are (cells never smaller than radius / 2)
+    cell = max(0.5 * radius, (px.max() - x0) / 1024.0, (py.max() - y0) / 1024.0)
     nx = int((px.max() - x0) / cell) + 1
     ny = int((py.max() - y0) / cell) + 1
     counts = np.zeros(nx * ny + 1, np.int64)
@@ -142,16 +143,20 @@ def _weighted_sums_local(v, px, py, monomials, alpha, eps, radius):
 
 
 def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray, kind: str = "affine",
-                   alpha: float = 1.0,
-                   radius_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   alpha: float = 1.0, radius_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-point MLS transform, Eq. 5 of Real-time Reshaping (Schaefer et al. 2006 closed forms).
 
     For each point ``v`` (N, 2) minimises ``sum_i w_i |M(p_i) - q_i|^2``, ``w_i = 1 / |v - p_i|^(2 alpha)``,
     over affine, similarity or rigid ``M``; ``p`` = ``handles``, ``q`` = ``deformed`` (n, 2). Returns the
     linear parts ``A`` (N, 2, 2) and the mapped points ``M_v(v) = (v - p*) A + q*`` (N, 2) (row vectors).
+    ``radius_px``: sum the weights over the handles within that distance of ``v`` only (all of them for a
+    point with fewer than 3 there), a local approximation that the fast fall-off of alpha 2 makes exact to a
+    fraction of a pixel (docs/mirror.md); None: every handle, as Eq. 5.
     """
     if kind not in MLS_KINDS:
         raise InputError(f"MLS kind {kind!r}; valid: {', '.join(MLS_KINDS)}")
+    if radius_px is not None and not (np.isfinite(radius_px) and radius_px > 0):
+        raise InputError(f"MLS radius_px must be a positive number of pixels (or None: all handles), got {radius_px}")
     v = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     p, q = _check_pairs(handles, deformed)
     # Centre everything for conditioning (sums of squares of pixel coordinates lose digits otherwise).
@@ -214,7 +219,10 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
 
     ``groups`` (n,) labels the pairs by person (several actors): each node is solved with the pairs of
     the person whose target points are nearest, so one actor's body does not pull on another's.
+    ``radius_px`` as in :func:`mls_transforms` (the mirror uses 32 px).
     """
+    if radius_px is not None and not (np.isfinite(radius_px) and radius_px > 0):
+        raise InputError(f"MLS radius_px must be a positive number of pixels (or None: all handles), got {radius_px}")
     s, t, kept = _check_pairs(src_pts, dst_pts, return_kept=True)
     groups = np.zeros(len(kept), np.int64) if groups is None else np.asarray(groups).ravel()
     if len(groups) != len(kept):
@@ -309,6 +317,8 @@ def visible_vertex_pairs(source_vertices: np.ndarray, target_vertices: np.ndarra
     Vt = np.asarray(target_vertices, dtype=np.float64)
     if Vs.shape != Vt.shape or Vs.ndim != 2 or Vs.shape[1] != 3:
         raise InputError(f"source and target vertices must both be (n, 3), got {Vs.shape} and {Vt.shape}")
+    if rim_cos is not None and not 0.0 < rim_cos <= 1.0:
+        raise InputError(f"rim_cos must lie in (0, 1] (None: no rim vertices), got {rim_cos}")
     ids = np.unique(np.linspace(0, len(Vs) - 1, min(int(n_handles), len(Vs))).round().astype(np.int64))
     if rim_cos is not None:
         ids = np.union1d(ids, rim_vertices(Vt, faces, camera.center, rim_cos))

@@ -159,6 +159,22 @@ def test_bad_inputs_are_one_line_errors():
     nan[:8] = np.nan
     with pytest.raises(InputError, match="finite"):
         mls_warp_field(nan, p)
+    for radius in (0.0, -5.0, float("nan")):
+        with pytest.raises(InputError, match="radius_px"):
+            mls_warp_field(p, p, radius_px=radius)
+    V = np.zeros((4, 3))
+    with pytest.raises(InputError, match="rim_cos"):
+        visible_vertex_pairs(V, V, np.array([[0, 1, 2]]), None, rim_cos=1.5)
+
+
+def test_local_mls_sums_with_handles_far_apart():
+    """Handles spread over 10^7 px still bucket into a bounded grid; a point among close handles gets the
+    local solve, exact where every handle beyond the radius is negligible."""
+    p = np.vstack([_handles(30, seed=3), [[1e7, 1e7], [-1e7, 5e6]]])
+    q = p + np.array([2.0, -1.0])
+    v = _handles(5, seed=4)
+    _, mapped = mls_transforms(v, p, q, "similarity", alpha=2.0, radius_px=400.0)
+    np.testing.assert_allclose(mapped, v + np.array([2.0, -1.0]), atol=1e-6)
 
 
 # 200 candidates per actor + rim vertices, alpha 2 (400 per actor without the rim: 0.963, alpha 1: 0.960; both
