@@ -72,15 +72,12 @@ def sdk_player_mask(mask: np.ndarray, depth_m: np.ndarray, rng: np.random.Genera
 
 def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors: int = 1, frame: int = 10,
                     model=None, distance_m: float = 2.4, n_handles: int | None = None, motion: str = "walk",
-                    rim_cos: float | None = -1.0) -> ImageCase:
+                    rim_cos: float | str | None = "run") -> ImageCase:
     """A rendered source/target frame pair; ``edits`` are ``StatisticalBodyModel`` attribute deltas
     (default ``{"stature_m": +10 %, "mass_kg": 15}``); ``actors`` 1 or 2 (side by side, 0.8 m apart).
     ``n_handles`` candidate vertices per frame (shared by the actors) and ``rim_cos`` the rim vertices added
-    (None: none) default to the mirror run's (:data:`bodystudio.mirror.run.N_HANDLES`, ``RIM_COS``)."""
-    from bodystudio.mirror import run
-
-    n_handles = run.N_HANDLES if n_handles is None else n_handles
-    rim_cos = run.RIM_COS if rim_cos == -1.0 else rim_cos
+    (None: none) default (None, ``"run"``) to the mirror run's (:data:`bodystudio.mirror.run.N_HANDLES`,
+    ``RIM_COS``)."""
     from bodystudio.body import build_body
     from bodystudio.body.population import sample_subject
     from bodystudio.body.statistical import load_statistical_model
@@ -88,7 +85,11 @@ def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors
     from bodystudio.capture.render import background_plate as plate
     from bodystudio.capture.render import render, render_rgb
     from bodystudio.geometry.camera import kinect_v1
+    from bodystudio.mirror import run
     from bodystudio.mirror.warp import visible_vertex_pairs
+
+    n_handles = run.N_HANDLES if n_handles is None else n_handles
+    rim_cos = run.RIM_COS if rim_cos == "run" else rim_cos
 
     if actors not in (1, 2):
         raise InputError(f"actors must be 1 or 2, got {actors}")

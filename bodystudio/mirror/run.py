@@ -49,8 +49,8 @@ MIN_PAIRS = 12
 MLS_ALPHA = 2.0
 #: Candidate vertices of the warp: ``N_HANDLES`` evenly spread ids plus the target's rim vertices (seen at more
 #: than acos(RIM_COS) = 73 degrees), which draw the outline the warp_iou scores. MIR-SYNTH subjects 41 (walk-in,
-#: arms_raise, +17 cm +15 kg) and 42 (walk, -17 cm -15 kg), true vertices: warp_iou 0.890 / 0.885 (800
-#: evenly spread) -> 0.915 / 0.913 (docs/mirror.md).
+#: arms_raise, +17 cm +15 kg) and 42 (walk, -17 cm -15 kg), true vertices: warp_iou 0.882 / 0.887 (800
+#: evenly spread) -> 0.908 / 0.916; the fitted pipeline 0.855 / 0.827 -> 0.870 / 0.847 (docs/mirror.md).
 N_HANDLES = 400
 RIM_COS = 0.3
 #: MLS weights are summed over the handles within this radius of a grid node (alpha 2: 1/d^4 falls fast):
