@@ -356,5 +356,6 @@ def rim_vertices(vertices: np.ndarray, faces: np.ndarray, eye: np.ndarray, max_c
     n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     N = np.stack([sum(np.bincount(F[:, k], n[:, c], len(V)) for k in range(3)) for c in range(3)], axis=1)
     ray = V - np.asarray(eye, dtype=np.float64)
-    cos = np.einsum("ij,ij->i", N, ray) / np.maximum(np.linalg.norm(N, axis=1) * np.linalg.norm(ray, axis=1), 1e-300)
-    return np.flatnonzero(np.abs(cos) < max_cos)
+    norm = np.linalg.norm(N, axis=1) * np.linalg.norm(ray, axis=1)
+    cos = np.einsum("ij,ij->i", N, ray) / np.maximum(norm, 1e-300)
+    return np.flatnonzero((np.abs(cos) < max_cos) & (norm > 0))  # vertices on no face have no normal: not rim

@@ -219,6 +219,17 @@ def test_rim_vertices_draw_the_outline_the_warp_is_scored_on():
         scores[name] = iou(alpha > 0.5, c.target_mask)
     assert scores["rim"] >= 0.970
     assert scores["rim"] - scores["spread"] >= 0.01
+    # a sphere seen from afar: its rim is the band of vertices around the great circle facing the eye
+    u, v = np.meshgrid(np.linspace(0, np.pi, 40), np.linspace(0, 2 * np.pi, 80, endpoint=False), indexing="ij")
+    P = np.stack([np.sin(u) * np.cos(v), np.cos(u), np.sin(u) * np.sin(v)], -1).reshape(-1, 3)
+    from scipy.spatial import ConvexHull
+
+    F = ConvexHull(P).simplices
+    inward = np.einsum("ij,ij->i", np.cross(P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]]), P[F].mean(1)) < 0
+    F[inward] = F[inward][:, ::-1]  # outward, as a body mesh
+    P = np.vstack([P, [[5.0, 5.0, 5.0]]])  # a vertex on no face is never rim
+    ids = rim_vertices(P, F, np.array([0.0, 0.0, 100.0]), 0.2)
+    assert len(ids) and np.all(np.abs(P[ids, 2]) < 0.25) and len(P) - 1 not in ids
 
 
 def test_local_mls_sums_match_the_global_solve():
