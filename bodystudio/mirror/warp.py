@@ -10,8 +10,9 @@ person can occupy; the field is up-sampled bilinearly. Nodes sit at pixel ``4 j 
 ``cv2.resize(..., INTER_LINEAR)`` is exactly the bilinear interpolation between them.
 
 All weighted sums of the closed-form solutions (affine, similarity, rigid) are expanded into sums of
-monomials of the handles, so the whole solve is one (nodes x handles) weight matrix times a
-(handles x 9) matrix: vectorised, BLAS-bound, no per-node loop.
+monomials of the handles, accumulated by one numba pass per node; the mirror sums only over the handles
+within 32 px of a node (``radius_px``; with weight exponent 2 the far ones add nothing a pixel can see).
+The handles are the target's rim vertices plus an evenly spread set (:func:`visible_vertex_pairs`).
 """
 
 from __future__ import annotations
@@ -81,7 +82,8 @@ def _weighted_sums(v, px, py, monomials, alpha, eps):
 
 @njit(cache=True, fastmath=True)
 def _weighted_sums_local(v, px, py, monomials, alpha, eps, radius):
-    """:func:`_weighted_sums` over the handles within ``radius`` of each point only (all of them where none is).
+    """:func:`_weighted_sums` over the handles within ``radius`` of each point only (all of them for a point with
+    fewer than 3 there): the sums of Eq. 5's closed forms, local.
 
     The handles are bucketed in square cells of ``radius / 2``; a point visits the 5x5 cells around its own.
     """
