@@ -211,3 +211,30 @@ def test_render_reads_frames_from_a_video_source(refine_case, tmp_path):
     save_garment_fit(tmp_path / "fit", video_fit, "test")
     doc = render_garment_video(tmp_path / "fit", "tshirt", "checks", tmp_path / "out.mp4")
     assert doc["frame_ids"] == [5, 4, 3, 2, 1, 0] and (tmp_path / "out.mp4").stat().st_size > 1000
+
+
+def test_median_outlier_removal_drops_spikes_only():
+    """§7.1's outlier median: isolated wrong vectors in a smooth field are dropped, the rest kept."""
+    yy, xx = np.mgrid[0:60, 0:80].astype(np.float32)
+    flow = np.dstack([0.05 * xx, -0.03 * yy + 2])
+    rng = np.random.default_rng(1)
+    spikes = np.zeros((60, 80), bool)
+    spikes[rng.integers(3, 57, 40), rng.integers(3, 77, 40)] = True
+    flow[spikes] += [6.0, -5.0]
+    valid = np.ones((60, 80), bool)
+    kept = refine.median_outlier_removal(flow, valid)
+    assert not kept[spikes].any() and kept[~spikes].mean() > 0.99
+
+
+def test_domain_transform_fills_and_stops_at_edges():
+    """The normalised domain-transform fill: a sparse field spreads over its region and not across an edge."""
+    guide = np.zeros((60, 80, 3), np.uint8)
+    guide[:, 40:] = 255
+    field = np.zeros((60, 80, 2), np.float32)
+    field[:, :40] = [3.0, -1.0]
+    field[:, 40:] = [-2.0, 4.0]
+    valid = np.zeros((60, 80), bool)
+    valid[::7, 3:37:7] = True
+    valid[::7, 43:77:7] = True
+    out = refine.domain_transform_smoothing(field, valid, guide)
+    assert np.abs(out[:, :38] - [3.0, -1.0]).max() < 0.05 and np.abs(out[:, 42:] - [-2.0, 4.0]).max() < 0.05
