@@ -289,9 +289,10 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                          progress: bool = False, fit=None, command: str = "bodystudio garment render") -> dict:
     """Dress the fitted body of ``fit_dir`` in ``garment`` with cloth ``texture``, render, refine (§7) and
     composite every frame; commit ``fit_dir/render/`` (render.json, frames/, garment_masks/) and ``out_video``
-    as one unit. Returns render.json. ``fit`` overrides the fit read from ``fit_dir`` (oracle fits)."""
+    as one unit. Returns render.json. ``fit`` overrides the fit read from ``fit_dir`` (oracle fits). Frames the
+    fit marks unfitted (silhouette IoU below ``MIN_FRAME_IOU``) pass through unchanged (status in render.json)."""
     from bodystudio.capture.session import progress_bar
-    from bodystudio.garment.fitfile import load_garment_fit
+    from bodystudio.garment.fitfile import MIN_FRAME_IOU, load_garment_fit
     from bodystudio.garment.garments import dress, pose_garment
     from bodystudio.garment.render import render_garment_layer
     from bodystudio.runfolder import RunLayout, RunWriter
@@ -311,6 +312,10 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
     albedo = fit.albedo if fit.albedo is not None and len(fit.albedo) == body.n_vertices else None
     steps_ms: dict[str, list[float]] = {s: [] for s in STEPS}
     per_frame = []
+    fitted = fit.fitted
+    if not fitted.any():
+        raise InputError(f"{fit_dir}: no frame of the fit matches the person's silhouette (IoU >= "
+                         f"{MIN_FRAME_IOU}); rerun 'bodystudio garment fit' (nothing to render)")
     H, W = fit.camera.height, fit.camera.width
     with RunWriter(layout, command, {"stage": "garment", "kind": "render"}) as w, progress_bar(progress) as bar:
         task = bar.add_task("garment render", total=len(fit.frame_ids))
@@ -321,22 +326,27 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                     raise FileFormatError(f"{fit.source}: frame {int(fid)} is {frame.shape[1]}x{frame.shape[0]}, the "
                                           f"fit's camera {W}x{H}; rerun 'bodystudio garment fit'")
                 t0 = time.perf_counter()
-                pose = fit.pose(i)
-                V, _ = body.pose(pose)
-                layer = render_garment_layer(V, body.faces, cloth, pose_garment(cloth, body, pose), fit.camera,
-                                             lighting, albedo, shadows)
-                t1 = time.perf_counter()
-                result = refine_and_composite(frame, fit.masks[i], layer, flow, rbf, depth)
-                t2 = time.perf_counter()
-                w.write_bytes(f"frames/{int(fid):05d}.png", _png(result.image))
-                w.write_bytes(f"garment_masks/{int(fid):05d}.png", _png(result.garment_mask.astype(np.uint8) * 255))
+                if not fitted[i]:  # a frame the fit could not match: the video passes through unchanged
+                    image, shown, ms, status = frame, np.zeros((H, W), dtype=bool), {}, "passed_through"
+                    t2 = time.perf_counter()
+                else:
+                    pose = fit.pose(i)
+                    V, _ = body.pose(pose)
+                    layer = render_garment_layer(V, body.faces, cloth, pose_garment(cloth, body, pose), fit.camera,
+                                                 lighting, albedo, shadows)
+                    t1 = time.perf_counter()
+                    result = refine_and_composite(frame, fit.masks[i], layer, flow, rbf, depth)
+                    t2 = time.perf_counter()
+                    image, shown, status = result.image, result.garment_mask, "ok"
+                    ms = {"render": (t1 - t0) * 1e3, **result.timings_ms}
+                w.write_bytes(f"frames/{int(fid):05d}.png", _png(image))
+                w.write_bytes(f"garment_masks/{int(fid):05d}.png", _png(shown.astype(np.uint8) * 255))
                 if video is not None:
-                    video.write(result.image)
-                t3 = time.perf_counter()
-                ms = {"render": (t1 - t0) * 1e3, **result.timings_ms, "write": (t3 - t2) * 1e3}
+                    video.write(image)
+                ms["write"] = (time.perf_counter() - t2) * 1e3
                 for k, v in ms.items():
                     steps_ms[k].append(v)
-                per_frame.append({"frame": int(fid), "garment_px": int(result.garment_mask.sum()),
+                per_frame.append({"frame": int(fid), "status": status, "garment_px": int(shown.sum()),
                                   "ms": {k: round(v, 2) for k, v in ms.items()}})
                 bar.advance(task)
         finally:
@@ -347,7 +357,8 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                "options": {"flow": flow, "rbf": rbf, "depth": depth, "shadows": shadows},
                "video": None if out_video is None else str(out_video), "frame_ids": [int(f) for f in fit.frame_ids],
                "ms_per_frame": {k: round(float(np.median(v)), 2) for k, v in steps_ms.items() if v},
-               "ms_per_frame_statistic": "median", "wall_s": round(time.perf_counter() - t_start, 2),
+               "ms_per_frame_statistic": "median", "n_passed_through": int((~fitted).sum()),
+               "wall_s": round(time.perf_counter() - t_start, 2),
                "frames": per_frame}
         return w.commit(doc)
 

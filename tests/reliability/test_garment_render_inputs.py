@@ -114,3 +114,31 @@ def test_killed_render_leaves_the_old_render(fit_dir, tmp_path):
 
             assert json.loads((work / "fit" / "render" / "render.json").read_text())["texture"] == "stripes"
             assert out.read_bytes() != old_video
+
+
+def test_unfitted_frames_pass_through(fit_dir, tmp_path, capfd):
+    """A frame whose fit missed the silhouette is copied unchanged; a fit with no fitted frame is refused."""
+    import json
+    from dataclasses import replace
+
+    import cv2
+    import numpy as np
+
+    from bodystudio.capture.session import open_session
+    from bodystudio.garment.fitfile import load_garment_fit, save_garment_fit
+
+    fit = load_garment_fit(fit_dir)
+    d = tmp_path / "fit"
+    save_garment_fit(d, replace(fit, silhouette_iou=np.array([0.95, 0.3])), "test")
+    r = run_inprocess(["garment", "render", d, "--out", tmp_path / "o.mp4"], capfd)
+    assert_clean_error(r, 0, "")
+    doc = json.loads((d / "render" / "render.json").read_text())
+    assert [f["status"] for f in doc["frames"]] == ["ok", "passed_through"] and doc["n_passed_through"] == 1
+    frame = open_session(fit.source).frame(1).images["cam_00"]
+    assert np.array_equal(cv2.imread(str(d / "render" / "frames" / "00001.png"))[..., ::-1], frame)
+    assert doc["frames"][0]["garment_px"] > 100 and doc["frames"][1]["garment_px"] == 0
+    e = tmp_path / "fit_none"
+    save_garment_fit(e, replace(fit, silhouette_iou=np.array([0.2, 0.3])), "test")
+    r = run_inprocess(["garment", "render", e, "--out", tmp_path / "n.mp4"], capfd)
+    assert_clean_error(r, 2, "no frame of the fit matches")
+    assert not (e / "render").exists() and not (tmp_path / "n.mp4").exists()
