@@ -224,12 +224,13 @@ def silhouette_rbf_warp(targets: np.ndarray, displacements: np.ndarray, shape: t
     band = ndimage.distance_transform_edt(~boundary) <= 4.3 * sigma_px
     ys, xs = np.nonzero(band)
     P = np.column_stack([xs, ys]).astype(np.float64)
-    tree = cKDTree(targets)
+    t2 = (targets ** 2).sum(1)
     for a in range(0, len(P), chunk):
         p = P[a:a + chunk]
-        d_c, _ = tree.query(p)
-        w = inverse_multiquadric(np.linalg.norm(p[:, None] - targets[None], axis=2)) @ coeffs
-        field[ys[a:a + chunk], xs[a:a + chunk]] = w * np.exp(-0.5 * d_c ** 2 / sigma_px ** 2)[:, None]
+        d2 = np.maximum((p ** 2).sum(1)[:, None] + t2[None] - 2.0 * (p @ targets.T), 0.0)
+        w = inverse_multiquadric(np.sqrt(d2)) @ coeffs
+        falloff = np.exp(-0.5 * d2.min(axis=1) / sigma_px ** 2)  # |p - s_c|^2 to the nearest silhouette point
+        field[ys[a:a + chunk], xs[a:a + chunk]] = w * falloff[:, None]
     return field
 
 
