@@ -210,26 +210,36 @@ def source_frames(fit, fit_dir: str | os.PathLike | None = None):
                          "garment fit'")
     import imageio_ffmpeg
 
-    wanted = {int(f) for f in fit.frame_ids}
-    last = max(wanted)
-    frames = {}
+    order = [int(f) for f in fit.frame_ids]
+    # frames are decoded in stream order and handed out as soon as every earlier fitted frame has been:
+    # an increasing frame list (the usual case) holds one frame at a time, not the whole video
+    pending: dict[int, list[int]] = {}
+    for k, fid in enumerate(order):
+        pending.setdefault(fid, []).append(k)
+    held: dict[int, np.ndarray] = {}
+    next_k = 0
+    fail = f"{source}: cannot read the video"
     try:
         gen = imageio_ffmpeg.read_frames(str(source))
         meta = next(gen)
         w, h = meta["size"]
         for i, raw in enumerate(gen):
-            if i in wanted:
-                frames[i] = np.frombuffer(raw, dtype=np.uint8).reshape(h, w, 3).copy()
-            if i >= last:
+            if i in pending:
+                frame = np.frombuffer(raw, dtype=np.uint8).reshape(h, w, 3).copy()
+                for k in pending.pop(i):
+                    held[k] = frame
+                while next_k in held:
+                    yield held.pop(next_k)
+                    next_k += 1
+            if not pending:
                 break
         gen.close()
     except (OSError, RuntimeError, StopIteration) as exc:
-        raise FileFormatError(f"{source}: cannot read the video ({str(exc).splitlines()[0] if str(exc) else exc}); "
+        raise FileFormatError(f"{fail} ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__}); "
                               "check the file") from None
-    for fid in fit.frame_ids:
-        if int(fid) not in frames:
-            raise FileFormatError(f"{source}: frame {int(fid)} of the fit is missing from the video")
-        yield frames[int(fid)]
+    if pending:
+        raise FileFormatError(f"{source}: frame {min(pending)} of the fit is missing from the video (it has "
+                              f"fewer frames); rerun 'bodystudio garment fit'")
 
 
 # ------------------------------------------------------------------------------------------ the video

@@ -142,3 +142,32 @@ def test_unfitted_frames_pass_through(fit_dir, tmp_path, capfd):
     r = run_inprocess(["garment", "render", e, "--out", tmp_path / "n.mp4"], capfd)
     assert_clean_error(r, 2, "no frame of the fit matches")
     assert not (e / "render").exists() and not (tmp_path / "n.mp4").exists()
+
+
+def test_video_source_shorter_than_the_fit(fit_dir, tmp_path, capfd):
+    """A fit naming a frame the video does not have fails mid-run with one line; nothing is published."""
+    from dataclasses import replace
+
+    import imageio_ffmpeg
+    import numpy as np
+
+    from bodystudio.capture.session import open_session
+    from bodystudio.garment.fitfile import load_garment_fit, save_garment_fit
+
+    fit = load_garment_fit(fit_dir)
+    video = tmp_path / "actor.mp4"
+    w = imageio_ffmpeg.write_frames(str(video), (120, 160), fps=30, macro_block_size=8, ffmpeg_log_level="error")
+    w.send(None)
+    for i in range(2):
+        w.send(np.ascontiguousarray(open_session(fit.source).frame(i).images["cam_00"]))
+    w.close()
+    d = tmp_path / "fit"
+    save_garment_fit(d, replace(fit, source=str(video), frame_ids=np.array([0, 7])), "test")
+    r = run_inprocess(["garment", "render", d, "--out", tmp_path / "o.mp4"], capfd)
+    assert_clean_error(r, 2, "frame 7 of the fit is missing from the video")
+    assert not (d / "render").exists() and not (tmp_path / "o.mp4").exists()
+    (tmp_path / "junk.mp4").write_bytes(b"\x00" * 500)
+    save_garment_fit(d, replace(fit, source=str(tmp_path / "junk.mp4")), "test")
+    r = run_inprocess(["garment", "render", d, "--out", tmp_path / "o.mp4"], capfd)
+    assert_clean_error(r, 2, "cannot read the video")
+    assert not (d / "render").exists() and not (tmp_path / "o.mp4").exists()
