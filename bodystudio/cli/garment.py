@@ -54,7 +54,7 @@ def garment_render(
     DIR/render/ (frames, garment masks, render.json) and the video, as one unit."""
     from bodystudio.garment.composite import check_render_options, render_garment_video
 
-    check_render_options(garment, texture, out)
+    check_render_options(garment, texture, out, seed)
     if not fit_dir.is_dir():
         from bodystudio.errors import InputError
 

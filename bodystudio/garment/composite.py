@@ -276,14 +276,17 @@ def _png(image: np.ndarray) -> bytes:
     return data.tobytes()
 
 
-def check_render_options(garment: str, texture: str, out_video: str | os.PathLike | None) -> Path | None:
-    """Refuse unknown garments/textures and an unwritable or non-.mp4 ``out_video`` before any work."""
+def check_render_options(garment: str, texture: str, out_video: str | os.PathLike | None, seed: int = 0) -> Path | None:
+    """Refuse unknown garments/textures, a bad cloth seed and an unwritable or non-.mp4 ``out_video`` before any
+    work."""
     from bodystudio.runfolder import check_output_destination
 
     if garment not in GARMENTS:
         raise InputError(f"--garment {garment!r}: valid: {', '.join(GARMENTS)}")
     if texture not in PATTERNS:
         raise InputError(f"--texture {texture!r}: valid: {', '.join(PATTERNS)}")
+    if not (isinstance(seed, int) and 0 <= seed < 2**32):
+        raise InputError(f"--seed {seed}: must be in [0, 2^32)")
     if out_video is None:
         return None
     out_video = Path(out_video)
@@ -308,7 +311,7 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
     from bodystudio.runfolder import RunLayout, RunWriter
 
     fit_dir = Path(fit_dir)
-    out_video = check_render_options(garment, texture, out_video)
+    out_video = check_render_options(garment, texture, out_video, seed)
     if not 16 <= texture_size <= 4096:
         raise InputError(f"texture size {texture_size} must lie in [16, 4096]")
     if fit is None:

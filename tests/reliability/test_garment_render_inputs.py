@@ -65,6 +65,8 @@ def test_no_fit_in_dir(tmp_path, capfd, case, phrase):
 @pytest.mark.parametrize("args, phrase", [
     (["--garment", "poncho"], "--garment 'poncho': valid: tights, skirt, tshirt, longsleeve"),
     (["--texture", "paisley"], "--texture 'paisley': valid: stripes, checks, print, plain"),
+    (["--seed", "-1"], "--seed -1: must be in [0, 2^32)"),
+    (["--seed", "99999999999"], "--seed 99999999999: must be in"),
 ])
 def test_unknown_garment_or_texture(fit_dir, tmp_path, capfd, args, phrase):
     before = snapshot(fit_dir)
