@@ -14,7 +14,7 @@ from kill_harness import read_events, run_child, snapshot  # noqa: E402
 
 @pytest.fixture(scope="module")
 def fit_dir(tmp_path_factory):
-    """A perturbed oracle fit of a 2-frame 120x160 synthetic garment session (2k body)."""
+    """The oracle fit of a 2-frame 120x160 synthetic garment session (2k body), lights turned 10 deg."""
     from bodystudio.garment.composite import ground_truth_fit, perturbed_fit
     from bodystudio.garment.fitfile import save_garment_fit
     from bodystudio.garment.synthetic import synth_garment_session
@@ -22,7 +22,7 @@ def fit_dir(tmp_path_factory):
     root = tmp_path_factory.mktemp("grender")
     session = synth_garment_session(root / "session", subject_seed=3, n_frames=2, resolution=(120, 160),
                                     template="2k", texture_size=64, seed=2)
-    save_garment_fit(root / "fit", perturbed_fit(ground_truth_fit(session)), "test")
+    save_garment_fit(root / "fit", perturbed_fit(ground_truth_fit(session), pose_deg=0.0, translation_m=0.0), "test")
     return root / "fit"
 
 
