@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from benchmarks.timing import markdown_table
-from bodystudio.mirror.run import MLS_ALPHA
+from bodystudio.mirror.run import MLS_ALPHA, MLS_RADIUS_PX, N_HANDLES, RIM_COS
 
 
 def _median_ms(fn, repeats: int) -> tuple[float, float]:
@@ -57,7 +57,8 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
 
     background = update_background(None, case.background, np.zeros(case.true_mask.shape, bool))
     fg = refine_foreground(case.rgb, case.player_mask, background=background)
-    field = mls_warp_field(case.src_uv, case.dst_uv, kind="similarity", alpha=MLS_ALPHA, groups=case.pair_groups)
+    field = mls_warp_field(case.src_uv, case.dst_uv, kind="similarity", alpha=MLS_ALPHA, groups=case.pair_groups,
+                           radius_px=MLS_RADIUS_PX)
     warped, alpha = warp_foreground(case.rgb, fg, field)
     n_actors = case.actors
     per_actor = len(case.source_vertices) // n_actors
@@ -66,16 +67,18 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
     def pairs():
         for a in range(n_actors):
             sl = slice(a * per_actor, (a + 1) * per_actor)
-            visible_vertex_pairs(case.source_vertices[sl], case.target_vertices[sl], F1, case.camera)
+            visible_vertex_pairs(case.source_vertices[sl], case.target_vertices[sl], F1, case.camera,
+                                 N_HANDLES // n_actors, rim_cos=RIM_COS)
 
-    def field_of(kind):
-        return lambda: mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA, groups=case.pair_groups)
+    def field_of(kind, radius_px=MLS_RADIUS_PX):
+        return lambda: mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA, groups=case.pair_groups,
+                                      radius_px=radius_px)
 
     out = {
-        "pairs (visibility + projection)": _median_ms(pairs, repeats),
+        "pairs (visibility + projection, rim)": _median_ms(pairs, repeats),
         "foreground: graph cut (PyMaxflow)": _median_ms(
             lambda: refine_foreground(case.rgb, case.player_mask, background=background), repeats),
-        "warp field: MLS similarity": _median_ms(field_of("similarity"), repeats),
+        "warp field: MLS similarity (handles within 32 px)": _median_ms(field_of("similarity"), repeats),
         "warp (remap)": _median_ms(lambda: warp_foreground(case.rgb, fg, field), repeats),
         "compose": _median_ms(lambda: compose(warped, alpha, background, case.rgb, fg), repeats),
         "background update": _median_ms(lambda: update_background(background, case.rgb, fg), repeats),
@@ -85,6 +88,7 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
             lambda: refine_foreground(case.rgb, case.player_mask, method="grabcut"), max(3, repeats // 2)),
         "warp field: MLS affine, not used": _median_ms(field_of("affine"), repeats),
         "warp field: MLS rigid, not used": _median_ms(field_of("rigid"), repeats),
+        "warp field: MLS similarity over all handles, not used": _median_ms(field_of("similarity", None), repeats),
     }
     return out, side
 
@@ -98,7 +102,7 @@ def _accuracy(case) -> dict[str, float]:
            "graph cut IoU": iou(refine_foreground(case.rgb, case.player_mask), case.true_mask),
            "GrabCut IoU": iou(refine_foreground(case.rgb, case.player_mask, method="grabcut"), case.true_mask)}
     for kind in ("affine", "similarity", "rigid"):
-        field = mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA)
+        field = mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA, radius_px=MLS_RADIUS_PX)
         _, alpha = warp_foreground(case.rgb, case.true_mask, field)
         out[f"warp_iou {kind}"] = iou(alpha > 0.5, case.target_mask)
     return out

@@ -306,7 +306,8 @@ def stage_muscle(ctx: DemoContext) -> str:
     samples, _ = training_dataset(MUSCLE_RESOLUTION, **MUSCLE_TRAINING)
     model = learn_arm_model(samples, template, population_size=MUSCLE_POPULATION)
     save_arm_model(folder / "arm_model.npz", model)
-    measured = ArmShapeParams(subject.bmi, subject.muscularity, subject.height_m, subject.arm_length_m)
+    measured = ArmShapeParams(subject.bmi, subject.muscularity, subject.height_m, subject.arm_length_m,
+                              sex=subject.gender)
     capture = capture_arm_sequence(session, model, template, CaptureOptions(mode="full"), known_shape=measured)
     write_arm_capture(folder / "capture", capture)
     truth_template = arm_template(subject_body(subject, MUSCLE_RESOLUTION), "left")

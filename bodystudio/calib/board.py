@@ -64,7 +64,8 @@ class CharucoBoardSpec:
                 raise InputError(f"board {name} must be a whole number of squares, got {value!r}")
             object.__setattr__(self, name, int(value))
         if not (3 <= self.squares_x <= MAX_SQUARES and 3 <= self.squares_y <= MAX_SQUARES):
-            raise InputError(f"board needs 3-{MAX_SQUARES} squares a side, got {self.squares_x}x{self.squares_y}")
+            raise InputError(f"board needs at least 3x3 and at most {MAX_SQUARES}x{MAX_SQUARES} squares, "
+                             f"got {self.squares_x}x{self.squares_y}")
         if not isinstance(self.legacy_pattern, bool):
             raise InputError(f"board legacy_pattern must be true or false, got {self.legacy_pattern!r}")
         if not 0 < self.marker_m < self.square_m:

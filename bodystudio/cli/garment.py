@@ -1,4 +1,4 @@
-"""``bodystudio synth garment``: the single-camera garment-replacement session with ground truth (issue 13)."""
+"""``bodystudio garment ...`` (render; fit is added by the fit helper) and ``synth garment`` (issue 13)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,9 @@ from pathlib import Path
 import typer
 
 from bodystudio.cli import synth
+
+#: ``bodystudio garment ...``: every garment command adds itself here.
+app = typer.Typer(no_args_is_help=True)
 
 
 @synth.app.command("garment")
@@ -34,3 +37,30 @@ def synth_garment(
                                     progress=True)
     typer.echo(f"wrote {out}: {len(session)} frames of {motion} wearing a plain {garment} (target: {pattern} "
                f"{garment}), streams {', '.join(session.streams)}")
+
+
+@app.command("render")
+def garment_render(
+    fit_dir: Path = typer.Argument(..., help="garment fit folder (from 'bodystudio garment fit')"),
+    garment: str = typer.Option("tshirt", "--garment", help="tights | skirt | tshirt | longsleeve"),
+    texture: str = typer.Option("stripes", "--texture", help="cloth pattern: stripes | checks | print | plain"),
+    out: Path = typer.Option(..., "--out", help="output video (.mp4)"),
+    no_flow: bool = typer.Option(False, "--no-flow", help="skip the optical-flow motion correction (§7.1)"),
+    no_rbf: bool = typer.Option(False, "--no-rbf", help="skip the silhouette RBF warp (§7.2)"),
+    no_depth: bool = typer.Option(False, "--no-depth", help="no depth compositing: the garment over everything"),
+    seed: int = typer.Option(0, "--seed", help="cloth colours"),
+) -> None:
+    """Dress the fitted actor, render with the fit's lights, refine in image space and composite: writes
+    DIR/render/ (frames, garment masks, render.json) and the video, as one unit."""
+    from bodystudio.garment.composite import check_render_options, render_garment_video
+
+    check_render_options(garment, texture, out, seed)
+    if not fit_dir.is_dir():
+        from bodystudio.errors import InputError
+
+        raise InputError(f"{fit_dir}: no such fit folder; run 'bodystudio garment fit VIDEO --out {fit_dir}' first")
+    doc = render_garment_video(fit_dir, garment, texture, out, flow=not no_flow, rbf=not no_rbf, depth=not no_depth,
+                               seed=seed, progress=True)
+    ms = ", ".join(f"{k} {v:.0f}" for k, v in doc["ms_per_frame"].items())
+    typer.echo(f"wrote {fit_dir / 'render'} and {out}: {len(doc['frame_ids'])} frames of {texture} {garment} "
+               f"(ms per frame: {ms})")

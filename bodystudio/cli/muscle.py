@@ -91,7 +91,8 @@ def capture(
     side: str | None = typer.Option(None, "--side", help="left | right (default: the session's, else left)"),
     frames: int | None = typer.Option(None, "--frames", help="capture only the first N frames"),
     shape: str | None = typer.Option(None, "--shape", help="the subject's measured shape parameters "
-                                     "bmi=..,muscularity=..,height_m=..,arm_length_m=.. (the paper's Table 1; "
+                                     "bmi=..,muscularity=..,height_m=..,arm_length_m=..[,sex=male|female] "
+                                     "(the paper's Table 1; "
                                      "default: fitted from the first frames)"),
     scheduler: str | None = typer.Option(None, "--scheduler", help="batch: " + batch_cli.SCHEDULER_HELP),
     workers: int | None = typer.Option(None, "--workers", help="batch: " + batch_cli.WORKERS_HELP),
@@ -208,18 +209,24 @@ def eval_muscle(
 # --- the model ------------------------------------------------------------------------------------------
 
 def _parse_shape(text: str):
-    """``bmi=31,muscularity=0.3,height_m=1.62,arm_length_m=0.55`` -> ArmShapeParams."""
-    from bodystudio.muscle.model import SHAPE_NAMES, ArmShapeParams
+    """``bmi=31,muscularity=0.3,height_m=1.62,arm_length_m=0.55[,sex=female]`` -> ArmShapeParams (sex: male
+    when not given, the original training set's)."""
+    from bodystudio.muscle.model import SHAPE_NAMES, ArmShapeParams, parse_sex
 
+    names = (*SHAPE_NAMES, "sex")
     values = {}
     for part in text.split(","):
         name, eq, value = part.partition("=")
+        name = name.strip()
+        if not eq or name not in names:
+            raise InputError(f"--shape {text!r}: names are {', '.join(names)} (sex optional: male | female)")
+        if name == "sex":
+            values[name] = parse_sex(value, f"--shape {text!r}")
+            continue
         try:
-            values[name.strip()] = float(value)
+            values[name] = float(value)
         except ValueError:
-            raise InputError(f"--shape {text!r}: write NAME=VALUE pairs for {', '.join(SHAPE_NAMES)}") from None
-        if not eq or name.strip() not in SHAPE_NAMES:
-            raise InputError(f"--shape {text!r}: names are {', '.join(SHAPE_NAMES)}")
+            raise InputError(f"--shape {text!r}: write NAME=VALUE pairs for {', '.join(names)}") from None
     shape = ArmShapeParams.from_dict(values, "--shape")
     for name, lo, hi in (("bmi", 10, 60), ("muscularity", 0, 1), ("height_m", 1.0, 2.3), ("arm_length_m", 0.3, 1.0)):
         check_range(f"--shape {name}", getattr(shape, name), lo, hi)
@@ -265,7 +272,8 @@ def model_extend(
     captures: list[Path] = typer.Argument(..., metavar="CAPTURES...", help="arm capture folders to add"),
     out: Path = typer.Option(..., "--out", help="new model file (.npz)"),
     shape: str | None = typer.Option(None, "--shape", help="shape of the captured subject(s): "
-                                     "bmi=..,muscularity=..,height_m=..,arm_length_m=.. (default: the session's "
+                                     "bmi=..,muscularity=..,height_m=..,arm_length_m=..[,sex=male|female] "
+                                     "(default: the session's "
                                      "measured subject, else the capture's fitted shape)"),
     stride: int = typer.Option(5, "--stride", help="use every N-th captured frame"),
 ) -> None:

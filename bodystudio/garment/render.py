@@ -135,3 +135,69 @@ def render_garment(body_V: np.ndarray, body_F: np.ndarray, garment: Garment, gar
     image = np.clip(np.round(out * 255.0), 0, 255).astype(np.uint8)
     depth = both.depth
     return GarmentRender(image, garment_mask, body_mask, depth, garment_alone.depth, body_alone.depth, garment_rgb)
+
+
+@dataclass(frozen=True, eq=False)
+class GarmentLayer:
+    """The garment rendered on its own (§7.3's layer G, whole even where the body hides it) and the body's
+    own depth (§7.3's B): what the image-space refinement warps before the depth test.
+
+    ``rgb`` float32 (H, W, 3) linear garment colour (0 where absent); ``mask`` garment coverage; ``depth`` its
+    camera z (m, 0 where absent); ``body_image`` float32 (H, W, 3) the body alone shaded with its albedo (the
+    image optical flow compares with the video, §7.1); ``body_mask`` / ``body_depth`` its coverage and depth.
+    """
+
+    rgb: np.ndarray
+    mask: np.ndarray
+    depth: np.ndarray
+    body_image: np.ndarray
+    body_mask: np.ndarray
+    body_depth: np.ndarray
+
+
+def render_garment_layer(body_V: np.ndarray, body_F: np.ndarray, garment: Garment, garment_V: np.ndarray,
+                         camera: Camera, lighting: Lighting, body_albedo: np.ndarray | None = None,
+                         shadows: bool = False) -> GarmentLayer:
+    """Render the garment and the body as separate layers with depth (§6: "we also render into a separate
+    depth buffer which we later use for depth-based compositing").
+
+    Unlike :func:`render_garment` (one z-buffer for both), the garment layer keeps the cloth hidden behind an
+    arm, so that the depth test can be made after the image-space warps of §7. With ``shadows`` the garment
+    is shadowed by body and garment, the body by itself only: the body layer stands for the actor as the
+    video shows them (their own clothes are in ``body_albedo``), the image §7.1's flow compares with.
+    """
+    body_V = np.asarray(body_V, dtype=np.float64)
+    garment_V = np.asarray(garment_V, dtype=np.float64)
+    if garment_V.shape != garment.vertices.shape:
+        raise InputError(f"posed garment vertices must be {garment.vertices.shape}, got {garment_V.shape}")
+    H, W = camera.height, camera.width
+    nb = len(body_V)
+    if body_albedo is None:
+        body_albedo = np.tile(np.asarray(SKIN_COLOR, dtype=np.float64), (nb, 1))
+    V_all = np.vstack([body_V, garment_V])
+    F_all = np.vstack([body_F, garment.faces + nb])
+
+    def shade(result, V, F, N, albedo_at, occluders):
+        rows, cols = np.nonzero(result.mask)
+        if len(rows) == 0:
+            return np.zeros((0, 3)), rows, cols
+        P = _pixel_attributes(result, F, rows, cols, V)
+        n = _pixel_attributes(result, F, rows, cols, N)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        n[np.einsum("kd,kd->k", n, P - camera.center) > 0] *= -1
+        vis = light_visibility(P + 1e-3 * n, lighting.directions, *occluders) if shadows else None
+        return lambert_radiance(n, albedo_at(rows, cols), lighting, vis), rows, cols
+
+    body = render(body_V, body_F, camera)
+    body_image = np.zeros((H, W, 3), dtype=np.float32)
+    rgb, r, c = shade(body, body_V, body_F, vertex_normals_area_weighted(body_V, body_F),
+                      lambda rr, cc: _pixel_attributes(body, body_F, rr, cc, body_albedo), (body_V, body_F))
+    body_image[r, c] = rgb
+    cloth = render(garment_V, garment.faces, camera)
+    garment_rgb = np.zeros((H, W, 3), dtype=np.float32)
+    rgb, r, c = shade(cloth, garment_V, garment.faces, garment.normals(garment_V),
+                      lambda rr, cc: sample_texture(garment.texture,
+                                                    _pixel_attributes(cloth, garment.faces, rr, cc, garment.uv)),
+                      (V_all, F_all))
+    garment_rgb[r, c] = rgb
+    return GarmentLayer(garment_rgb, cloth.mask, cloth.depth, body_image, body.mask, body.depth)

@@ -55,10 +55,14 @@ def colour_log_likelihood(index: np.ndarray, samples: np.ndarray, prior_count: f
     (3x3x3) and a uniform prior of ``prior_count`` per bin, so that unseen colours are not impossible.
     """
     n_bins = HIST_BINS ** 3
-    hist = np.bincount(samples, minlength=n_bins).astype(np.float32).reshape((HIST_BINS,) * 3)
-    hist = _box3(hist) + prior_count
-    logp = np.log(hist / hist.sum()).ravel()
-    return logp[index]
+    return colour_log_table(np.bincount(samples, minlength=n_bins), prior_count)[index]
+
+
+def colour_log_table(counts: np.ndarray, prior_count: float = 0.5) -> np.ndarray:
+    """``log P(bin | region)`` of every colour bin (16^3,) from the region's bin counts, smoothed as in
+    :func:`colour_log_likelihood`."""
+    hist = _box3(np.asarray(counts, dtype=np.float32).reshape((HIST_BINS,) * 3)) + prior_count
+    return np.log(hist / hist.sum()).ravel()
 
 
 def _box3(h: np.ndarray) -> np.ndarray:
@@ -146,51 +150,99 @@ def _band_graph_cut(rgb, mask, inner, band, band_px, smoothness, depth, depth_we
 
     h, w = mask.shape
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * band_px + 1, 4 * band_px + 1))
-    near = cv2.dilate(band.astype(np.uint8), k).astype(bool)
-    index = _colour_index(rgb)
-    outer = ~(inner | band)
-    fg_samples, bg_samples = index[near & inner], index[near & outer]
-    if len(fg_samples) == 0 or len(bg_samples) == 0:
+    near = cv2.dilate(band.view(np.uint8), k)
+    # sure rings next to the band: the local colour models (one numba pass over the crop)
+    fg_counts, bg_counts = _ring_histograms(rgb, near, inner.view(np.uint8), band.view(np.uint8))
+    if fg_counts.sum() == 0 or bg_counts.sum() == 0:
         return mask & band
     br, bc = np.nonzero(band)
-    bidx = index[br, bc]
-    cost_fg = -colour_log_likelihood(bidx, fg_samples)  # cost of labelling a band pixel foreground
-    cost_bg = -colour_log_likelihood(bidx, bg_samples)
+    z = 0.0
     if depth is not None:
-        d = depth[br, bc]
         person = depth[inner & (depth > 0)]
-        if len(person):
-            z = np.median(person)
-            measured = d > 0
-            cost_bg += depth_weight * (measured & (np.abs(d - z) < depth_tol_m))
-            cost_fg += depth_weight * (measured & (d > z + depth_tol_m))
-    if background is not None:
-        image, valid = background
-        ok = valid[br, bc]
-        diff2 = np.sum((rgb[br, bc].astype(np.float32) - image[br, bc].astype(np.float32)) ** 2, axis=1)
-        # like the background: cheap to call background; unlike it: cheap to call foreground
-        like = np.exp(-diff2 / (2 * 3 * background_sigma ** 2))
-        gain = background_weight * 4.0
-        if extra is not None:
-            gain = gain * np.where(extra[br, bc], UNSEEN_BACKGROUND_GAIN, 1.0)
-        cost_fg += gain * ok * like
-        cost_bg += gain * ok * (1 - like)
+        z = float(np.median(person)) if len(person) else 0.0
+    if background is None:
+        image, valid, bg_gain = rgb, np.zeros((h, w), np.uint8), 0.0
+    else:
+        image, valid = background[0], background[1].view(np.uint8)
+        bg_gain = background_weight * 4.0
+    cost_fg, cost_bg = _band_data_costs(rgb, br, bc, colour_log_table(fg_counts), colour_log_table(bg_counts),
+                                        np.zeros((1, 1)) if depth is None else depth, z, depth_weight, depth_tol_m,
+                                        image, valid, bg_gain, 1.0 / (2 * 3 * background_sigma ** 2),
+                                        np.zeros((1, 1), np.uint8) if extra is None else extra.view(np.uint8),
+                                        UNSEEN_BACKGROUND_GAIN)
     # node ids of band pixels; -1 elsewhere
     node = np.full((h, w), -1, np.int64)
     node[br, bc] = np.arange(len(br))
-    source = cost_bg.astype(np.float64)
-    sink = cost_fg.astype(np.float64)
+    source, sink = cost_bg, cost_fg  # capacities: to the source (foreground) costs the background label
     n = len(br)
     i_all, j_all, c_all = _band_links(rgb, node, inner, br, bc, float(smoothness), source, sink)
     g = maxflow.Graph[float](n, len(i_all))
-    nodes = g.add_nodes(n)
-    g.add_edges(nodes[i_all], nodes[j_all], c_all, c_all)
+    nodes = g.add_nodes(n)  # ids 0..n-1
+    g.add_edges(i_all, j_all, c_all, c_all)
     g.add_grid_tedges(nodes, source, sink)
     g.maxflow()
     fg = ~g.get_grid_segments(nodes)  # source side = foreground
     labels = np.zeros((h, w), bool)
     labels[br[fg], bc[fg]] = True
     return labels
+
+
+@njit(cache=True)
+def _ring_histograms(rgb, near, inner, band):
+    """Colour-bin counts (16^3,) of the sure foreground and sure background pixels ``near`` the band."""
+    h, w = inner.shape
+    fg = np.zeros(HIST_BINS ** 3, np.int64)
+    bg = np.zeros(HIST_BINS ** 3, np.int64)
+    for r in range(h):
+        for c in range(w):
+            if near[r, c] == 0 or band[r, c] != 0:
+                continue
+            b = ((rgb[r, c, 0] >> _SHIFT) * HIST_BINS + (rgb[r, c, 1] >> _SHIFT)) * HIST_BINS + (rgb[r, c, 2] >> _SHIFT)
+            if inner[r, c] != 0:
+                fg[b] += 1
+            else:
+                bg[b] += 1
+    return fg, bg
+
+
+@njit(cache=True)
+def _band_data_costs(rgb, br, bc, logp_fg, logp_bg, depth, z, depth_weight, depth_tol_m, image, valid, bg_gain,
+                     inv_two_var, extra, extra_gain):
+    """Data terms of the band's pixels, the cost of labelling each foreground and background (nats): colour
+    (-log of the local histograms), depth (near the person's median depth ``z``: foreground; well behind it:
+    background; only with ``z`` > 0) and the learnt background image (``valid`` pixels, ``bg_gain`` > 0)."""
+    n = br.shape[0]
+    cost_fg = np.empty(n)
+    cost_bg = np.empty(n)
+    use_depth = z > 0.0
+    use_extra = extra.shape[0] > 1
+    for k in range(n):
+        r, c = br[k], bc[k]
+        b = ((rgb[r, c, 0] >> _SHIFT) * HIST_BINS + (rgb[r, c, 1] >> _SHIFT)) * HIST_BINS + (rgb[r, c, 2] >> _SHIFT)
+        f = -logp_fg[b]
+        g = -logp_bg[b]
+        if use_depth:
+            d = depth[r, c]
+            if d > 0.0:
+                if abs(d - z) < depth_tol_m:
+                    g += depth_weight
+                if d > z + depth_tol_m:
+                    f += depth_weight
+        if bg_gain > 0.0 and valid[r, c] != 0:
+            diff2 = 0.0
+            for ch in range(3):
+                diff = np.float32(rgb[r, c, ch]) - np.float32(image[r, c, ch])
+                diff2 += diff * diff
+            like = np.exp(-diff2 * inv_two_var)
+            gain = bg_gain
+            if use_extra and extra[r, c] != 0:
+                gain *= extra_gain
+            # like the background: cheap to call background; unlike it: cheap to call foreground
+            f += gain * like
+            g += gain * (1.0 - like)
+        cost_fg[k] = f
+        cost_bg[k] = g
+    return cost_fg, cost_bg
 
 
 @njit(cache=True)

@@ -71,9 +71,13 @@ def sdk_player_mask(mask: np.ndarray, depth_m: np.ndarray, rng: np.random.Genera
 
 
 def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors: int = 1, frame: int = 10,
-                    model=None, distance_m: float = 2.4, n_handles: int = 800, motion: str = "walk") -> ImageCase:
+                    model=None, distance_m: float = 2.4, n_handles: int | None = None, motion: str = "walk",
+                    rim_cos: float | str | None = "run") -> ImageCase:
     """A rendered source/target frame pair; ``edits`` are ``StatisticalBodyModel`` attribute deltas
-    (default ``{"stature_m": +10 %, "mass_kg": 15}``); ``actors`` 1 or 2 (side by side, 0.8 m apart)."""
+    (default ``{"stature_m": +10 %, "mass_kg": 15}``); ``actors`` 1 or 2 (side by side, 0.8 m apart).
+    ``n_handles`` candidate vertices per frame (shared by the actors) and ``rim_cos`` the rim vertices added
+    (None: none) default (None, ``"run"``) to the mirror run's (:data:`bodystudio.mirror.run.N_HANDLES`,
+    ``RIM_COS``)."""
     from bodystudio.body import build_body
     from bodystudio.body.population import sample_subject
     from bodystudio.body.statistical import load_statistical_model
@@ -81,7 +85,11 @@ def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors
     from bodystudio.capture.render import background_plate as plate
     from bodystudio.capture.render import render, render_rgb
     from bodystudio.geometry.camera import kinect_v1
+    from bodystudio.mirror import run
     from bodystudio.mirror.warp import visible_vertex_pairs
+
+    n_handles = run.N_HANDLES if n_handles is None else n_handles
+    rim_cos = run.RIM_COS if rim_cos == "run" else rim_cos
 
     if actors not in (1, 2):
         raise InputError(f"actors must be 1 or 2, got {actors}")
@@ -115,7 +123,8 @@ def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors
     src_uv, dst_uv, groups = [], [], []
     for a in range(actors):
         # one budget of candidate vertices per frame, shared by the actors (the MLS cost grows with both)
-        s, t, _ = visible_vertex_pairs(sources[a], targets[a], model.faces, camera, n_handles // actors)
+        s, t, _ = visible_vertex_pairs(sources[a], targets[a], model.faces, camera, n_handles // actors,
+                                       rim_cos=rim_cos)
         src_uv.append(s)
         dst_uv.append(t)
         groups.append(np.full(len(s), a))

@@ -98,9 +98,22 @@ def ramp_edits(current: dict[str, float], wanted: dict[str, float], max_step=Non
 
 
 def target_skeleton(source: SourceBody, target_vertices_rest) -> Skeleton:
-    """The target body's skeleton by Eq. 3 from the source's: joints move with their neighbouring vertices."""
-    return refit_skeleton_from_vertices(source.vertices, source.skeleton, target_vertices_rest,
-                                        source.joint_neighbourhoods)
+    """The target body's skeleton by Eq. 3 from the source's: joints move with their neighbouring vertices.
+
+    The root bone is not a joint of the body but its anchor on the floor (the game_engine rig's ``Root``
+    lies on the floor between the feet, where the pose's translation puts it): it keeps the source's rest
+    head and tail, so the target stands on the source's spot. Eq. 3 would move it with the nearest
+    vertices (the feet of a bigger body: +2 cm up and +4 cm forward for +17 cm / +15 kg), and since the
+    root's head offset enters the posed body untouched by the root's rotation, the target then slid 4 cm
+    along the world z axis whichever way the person faced (warp_iou 0.75 -> 0.86 on a MIR-SYNTH session
+    with a side-on walk-in, docs/mirror.md).
+    """
+    skeleton = refit_skeleton_from_vertices(source.vertices, source.skeleton, target_vertices_rest,
+                                            source.joint_neighbourhoods)
+    heads, tails = skeleton.heads.copy(), skeleton.tails.copy()
+    roots = np.flatnonzero(np.asarray(skeleton.parents) < 0)
+    heads[roots], tails[roots] = source.skeleton.heads[roots], source.skeleton.tails[roots]
+    return Skeleton(skeleton.bone_names, skeleton.parents, heads, tails, skeleton.rolls)
 
 
 def posed_source_and_target(source: SourceBody, target_vertices_rest, pose: Pose, target_rig=None,

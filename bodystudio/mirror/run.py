@@ -47,6 +47,15 @@ MIN_PAIRS = 12
 #: rendered frame +10 % / -10 % stature: 0.956 / 0.922 -> 0.961 / 0.951; MIR-SYNTH v1 session, side-on
 #: walk: 0.883 -> 0.905), at 5.4 instead of 4.6 ms per field.
 MLS_ALPHA = 2.0
+#: Candidate vertices of the warp: ``N_HANDLES`` evenly spread ids plus the target's rim vertices (seen at more
+#: than acos(RIM_COS) = 73 degrees), which draw the outline the warp_iou scores. MIR-SYNTH subjects 41 (walk-in,
+#: arms_raise, +17 cm +15 kg) and 42 (walk, -17 cm -15 kg), true vertices: warp_iou 0.882 / 0.887 (800
+#: evenly spread) -> 0.908 / 0.916; the fitted pipeline 0.855 / 0.827 -> 0.870 / 0.847 (docs/mirror.md).
+N_HANDLES = 400
+RIM_COS = 0.3
+#: MLS weights are summed over the handles within this radius of a grid node (alpha 2: 1/d^4 falls fast):
+#: the field of ~1200 pairs in 6 instead of 14 ms with the same warp_iou (docs/mirror.md).
+MLS_RADIUS_PX = 32.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,7 +126,8 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     fg = refine_foreground(rgb, person, inp.depth_color, background=background, unseen=inp.unseen,
                            **(foreground_options or {}))
     t1 = time.perf_counter()
-    warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind, alpha=alpha, groups=inp.pair_groups)
+    warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind, alpha=alpha, groups=inp.pair_groups,
+                                radius_px=MLS_RADIUS_PX)
     t2 = time.perf_counter()
     warped_rgb, alpha = warp_foreground(rgb, fg, warp_field)
     t3 = time.perf_counter()
@@ -355,7 +365,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
         Vs, Vt = posed_source_and_target(body, body.vertices + s * (target_rest - body.vertices), pose)
         t4 = time.perf_counter()
         timings["bodies"] = (t4 - t3) * 1e3
-        src_uv, dst_uv, _ = visible_vertex_pairs(Vs, Vt, body.faces, camera)
+        src_uv, dst_uv, _ = visible_vertex_pairs(Vs, Vt, body.faces, camera, N_HANDLES, rim_cos=RIM_COS)
         timings["pairs"] = (time.perf_counter() - t4) * 1e3
         yield MirrorInput(**base, src_uv=src_uv, dst_uv=dst_uv, edit_fraction=s)
 

@@ -10,8 +10,9 @@ person can occupy; the field is up-sampled bilinearly. Nodes sit at pixel ``4 j 
 ``cv2.resize(..., INTER_LINEAR)`` is exactly the bilinear interpolation between them.
 
 All weighted sums of the closed-form solutions (affine, similarity, rigid) are expanded into sums of
-monomials of the handles, so the whole solve is one (nodes x handles) weight matrix times a
-(handles x 9) matrix: vectorised, BLAS-bound, no per-node loop.
+monomials of the handles, accumulated by one numba pass per node; the mirror sums only over the handles
+within 32 px of a node (``radius_px``; with weight exponent 2 the far ones add nothing a pixel can see).
+The handles are the target's rim vertices plus an evenly spread set (:func:`visible_vertex_pairs`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ MLS_KINDS = ("affine", "similarity", "rigid")
 EPS_PX2 = 1e-3
 #: Field value of pixels that show no foreground: a source position outside the image.
 OUTSIDE_PX = -16.0
+#: Field value of grid nodes that were not solved, before up-sampling (see :func:`mls_warp_field`).
+_UNSOLVED_PX = -1.0e6
 
 
 def _check_pairs(src_pts, dst_pts, return_kept: bool = False):
@@ -77,16 +80,85 @@ def _weighted_sums(v, px, py, monomials, alpha, eps):
     return S
 
 
+@njit(cache=True, fastmath=True)
+def _weighted_sums_local(v, px, py, monomials, alpha, eps, radius):
+    """:func:`_weighted_sums` over the handles within ``radius`` of each point only (all of them for a point with
+    fewer than 3 there): the sums of Eq. 5's closed forms, local.
+
+    The handles are bucketed in square cells of ``radius / 2``; a point visits the 5x5 cells around its own.
+    """
+    N, n, k = v.shape[0], px.shape[0], monomials.shape[0]
+    rows = np.ascontiguousarray(monomials.T)  # (n, k): one handle's monomials side by side in memory
+    x0, y0 = px.min(), py.min()
+    # at most 1024 x 1024 cells however far apart the handles are (cells never smaller than radius / 2)
+    cell = max(0.5 * radius, (px.max() - x0) / 1024.0, (py.max() - y0) / 1024.0)
+    nx = int((px.max() - x0) / cell) + 1
+    ny = int((py.max() - y0) / cell) + 1
+    counts = np.zeros(nx * ny + 1, np.int64)
+    where = np.empty(n, np.int64)
+    for i in range(n):
+        where[i] = int((py[i] - y0) / cell) * nx + int((px[i] - x0) / cell)
+        counts[where[i] + 1] += 1
+    for c in range(nx * ny):
+        counts[c + 1] += counts[c]
+    order = np.empty(n, np.int64)
+    fill = counts[:-1].copy()
+    for i in range(n):
+        order[fill[where[i]]] = i
+        fill[where[i]] += 1
+    r2 = radius * radius
+    S = np.zeros((N, k))
+    for a in range(N):
+        vx, vy = v[a, 0], v[a, 1]
+        cx = int(np.floor((vx - x0) / cell))
+        cy = int(np.floor((vy - y0) / cell))
+        found = 0
+        for gy in range(max(cy - 2, 0), min(cy + 3, ny)):
+            for gx in range(max(cx - 2, 0), min(cx + 3, nx)):
+                c = gy * nx + gx
+                for o in range(counts[c], counts[c + 1]):
+                    i = order[o]
+                    dx, dy = vx - px[i], vy - py[i]
+                    d2 = dx * dx + dy * dy
+                    if d2 > r2:
+                        continue
+                    d2 += eps
+                    if alpha == 2.0:
+                        w = 1.0 / (d2 * d2)
+                    elif alpha == 1.0:
+                        w = 1.0 / d2
+                    else:
+                        w = d2 ** -alpha
+                    found += 1
+                    for j in range(k):
+                        S[a, j] += w * rows[i, j]
+        if found < 3:  # too few handles near: the global solve for this point
+            for j in range(k):
+                S[a, j] = 0.0
+            for i in range(n):
+                dx, dy = vx - px[i], vy - py[i]
+                d2 = dx * dx + dy * dy + eps
+                w = 1.0 / (d2 * d2) if alpha == 2.0 else d2 ** -alpha
+                for j in range(k):
+                    S[a, j] += w * monomials[j, i]
+    return S
+
+
 def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray, kind: str = "affine",
-                   alpha: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                   alpha: float = 1.0, radius_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-point MLS transform, Eq. 5 of Real-time Reshaping (Schaefer et al. 2006 closed forms).
 
     For each point ``v`` (N, 2) minimises ``sum_i w_i |M(p_i) - q_i|^2``, ``w_i = 1 / |v - p_i|^(2 alpha)``,
     over affine, similarity or rigid ``M``; ``p`` = ``handles``, ``q`` = ``deformed`` (n, 2). Returns the
     linear parts ``A`` (N, 2, 2) and the mapped points ``M_v(v) = (v - p*) A + q*`` (N, 2) (row vectors).
+    ``radius_px``: sum the weights over the handles within that distance of ``v`` only (all of them for a
+    point with fewer than 3 there), a local approximation that the fast fall-off of alpha 2 makes exact to a
+    fraction of a pixel (docs/mirror.md); None: every handle, as Eq. 5.
     """
     if kind not in MLS_KINDS:
         raise InputError(f"MLS kind {kind!r}; valid: {', '.join(MLS_KINDS)}")
+    if radius_px is not None and not (np.isfinite(radius_px) and radius_px > 0):
+        raise InputError(f"MLS radius_px must be a positive number of pixels (or None: all handles), got {radius_px}")
     v = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     p, q = _check_pairs(handles, deformed)
     # Centre everything for conditioning (sums of squares of pixel coordinates lose digits otherwise).
@@ -95,8 +167,9 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
     px, py, qx, qy = p[:, 0], p[:, 1], q[:, 0], q[:, 1]
     monomials = np.stack([np.ones_like(px), px, py, qx, qy, px * px, px * py, py * py,
                           px * qx, px * qy, py * qx, py * qy])
-    S = _weighted_sums(np.ascontiguousarray(v), np.ascontiguousarray(px), np.ascontiguousarray(py),
-                       np.ascontiguousarray(monomials), float(alpha), EPS_PX2)  # (N, 12)
+    args = (np.ascontiguousarray(v), np.ascontiguousarray(px), np.ascontiguousarray(py),
+            np.ascontiguousarray(monomials), float(alpha), EPS_PX2)
+    S = _weighted_sums(*args) if radius_px is None else _weighted_sums_local(*args, float(radius_px))  # (N, 12)
     W = S[:, 0]
     ps = S[:, 1:3] / W[:, None]  # p*
     qs = S[:, 3:5] / W[:, None]  # q*
@@ -135,7 +208,8 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
 
 
 def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: str = "affine",
-                   roi_margin_px: float = 24.0, alpha: float = 1.0, groups=None) -> np.ndarray:
+                   roi_margin_px: float = 24.0, alpha: float = 1.0, groups=None,
+                   radius_px: float | None = None) -> np.ndarray:
     """Backward warp field (H, W, 2) float32 for ``cv2.remap``, Eq. 5 of Real-time Reshaping on a 160x120 grid.
 
     ``src_pts`` (n, 2) are the source body's projected vertices (where the person is in the input),
@@ -147,7 +221,10 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
 
     ``groups`` (n,) labels the pairs by person (several actors): each node is solved with the pairs of
     the person whose target points are nearest, so one actor's body does not pull on another's.
+    ``radius_px`` as in :func:`mls_transforms` (the mirror uses 32 px).
     """
+    if radius_px is not None and not (np.isfinite(radius_px) and radius_px > 0):
+        raise InputError(f"MLS radius_px must be a positive number of pixels (or None: all handles), got {radius_px}")
     s, t, kept = _check_pairs(src_pts, dst_pts, return_kept=True)
     groups = np.zeros(len(kept), np.int64) if groups is None else np.asarray(groups).ravel()
     if len(groups) != len(kept):
@@ -180,20 +257,19 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
         mine = node_owner == k
         pairs = groups == g
         if mine.any() and pairs.sum() >= 3:
-            _, mapped[mine] = mls_transforms(nodes[mine], t[pairs], s[pairs], kind, alpha)
+            _, mapped[mine] = mls_transforms(nodes[mine], t[pairs], s[pairs], kind, alpha, radius_px)
     valid = np.isfinite(mapped).all(1)  # degenerate (collinear) handle layouts: no value there
-    field = np.full((gh, gw, 2), OUTSIDE_PX, np.float32)
+    # unsolved nodes hold a value so far out that any pixel they touch (bilinear weight >= 1/64 on the
+    # mirror's grid) interpolates to beyond OUTSIDE_PX, then clamped to it: no second resize of a coverage map
+    field = np.full((gh, gw, 2), _UNSOLVED_PX, np.float32)
     field[rows[valid], cols[valid]] = mapped[valid]
-    weight = np.zeros((gh, gw), np.float32)
-    weight[rows[valid], cols[valid]] = 1.0
     r0, r1 = max(rows.min() - 1, 0), min(rows.max() + 2, gh)
     c0, c1 = max(cols.min() - 1, 0), min(cols.max() + 2, gw)
     # up-sample only the block holding the solved nodes (one node of border so the edge pixels are right)
     y0, y1 = int(round(r0 * sy)), int(round(r1 * sy))
     x0, x1 = int(round(c0 * sx)), int(round(c1 * sx))
     block = cv2.resize(field[r0:r1, c0:c1], (x1 - x0, y1 - y0), interpolation=cv2.INTER_LINEAR)
-    inside = cv2.resize(weight[r0:r1, c0:c1], (x1 - x0, y1 - y0), interpolation=cv2.INTER_LINEAR) > 0.999
-    block[~inside] = OUTSIDE_PX
+    np.maximum(block, OUTSIDE_PX, out=block)
     out = np.full((H, W, 2), OUTSIDE_PX, np.float32)
     out[y0:y1, x0:x1] = block
     return out
@@ -226,8 +302,8 @@ def warp_foreground(rgb: np.ndarray, fg_mask: np.ndarray, field: np.ndarray) -> 
 
 
 def visible_vertex_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: np.ndarray, camera,
-                         n_handles: int = 800, depth_tol_m: float = 0.08, z_buffer_scale: float = 0.25
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                         n_handles: int = 800, depth_tol_m: float = 0.08, z_buffer_scale: float = 0.25,
+                         rim_cos: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sparse constraints of §5.4: projections of vertices of the posed source and target bodies.
 
     An evenly spread subset of ``n_handles`` vertex ids is taken (the same ids every frame, so the
@@ -243,7 +319,11 @@ def visible_vertex_pairs(source_vertices: np.ndarray, target_vertices: np.ndarra
     Vt = np.asarray(target_vertices, dtype=np.float64)
     if Vs.shape != Vt.shape or Vs.ndim != 2 or Vs.shape[1] != 3:
         raise InputError(f"source and target vertices must both be (n, 3), got {Vs.shape} and {Vt.shape}")
+    if rim_cos is not None and not 0.0 < rim_cos <= 1.0:
+        raise InputError(f"rim_cos must lie in (0, 1] (None: no rim vertices), got {rim_cos}")
     ids = np.unique(np.linspace(0, len(Vs) - 1, min(int(n_handles), len(Vs))).round().astype(np.int64))
+    if rim_cos is not None:
+        ids = np.union1d(ids, rim_vertices(Vt, faces, camera.center, rim_cos))
     s = z_buffer_scale
     w, h = max(int(round(camera.width * s)), 1), max(int(round(camera.height * s)), 1)
     sx, sy = w / camera.width, h / camera.height
@@ -269,3 +349,15 @@ def visible_vertex_pairs(source_vertices: np.ndarray, target_vertices: np.ndarra
         keep &= (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
         uvs.append(uv)
     return uvs[0][keep], uvs[1][keep], ids[keep]
+
+
+def rim_vertices(vertices: np.ndarray, faces: np.ndarray, eye: np.ndarray, max_cos: float = 0.3) -> np.ndarray:
+    """Ids of the vertices seen edge-on from ``eye``: ``|cos|`` of the normal and the viewing ray below ``max_cos``."""
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces)
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    N = np.stack([sum(np.bincount(F[:, k], n[:, c], len(V)) for k in range(3)) for c in range(3)], axis=1)
+    ray = V - np.asarray(eye, dtype=np.float64)
+    norm = np.linalg.norm(N, axis=1) * np.linalg.norm(ray, axis=1)
+    cos = np.einsum("ij,ij->i", N, ray) / np.maximum(norm, 1e-300)
+    return np.flatnonzero((np.abs(cos) < max_cos) & (norm > 0))  # vertices on no face have no normal: not rim

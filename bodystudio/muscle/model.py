@@ -6,9 +6,12 @@
 * ``d_l`` (Eq. 8-9): length displacements, a combination of the population's PCA eigenvectors whose
   weights are regressed (Tikhonov) on the arm length over the population - the paper's Hasler
   dataset, ours ``bodystudio.body.population``;
-* ``d_theta`` (Eq. 6-7): shape displacements, per-vertex linear regression on BMI, muscularity and
-  height (standardised, Tikhonov-regularised) of the training subjects' base-pose meshes minus
-  ``v_base + d_l``;
+* ``d_theta`` (Eq. 6-7): shape displacements, per-vertex linear regression on BMI, muscularity,
+  height, arm length (standardised, Tikhonov-regularised) and sex (a female indicator, ``1 - sex``;
+  the paper's Table 1 lists every subject's sex) of the training subjects' base-pose meshes minus
+  ``v_base + d_l``. The paper's training set is all male, so the female column is zero there and its
+  coefficient stays zero until women are added (dataset extension); a subject of unknown sex is
+  taken as male, which is what the original model describes;
 * ``d_rho`` (Eq. 10): pose displacements, per-vertex linear regression on the 9 joint-angle
   coordinates (shoulder, elbow, wrist rotation vectors) plus an intercept, of every training mesh
   brought back to the base pose by inverting the four-part skinning, minus its subject's base mesh;
@@ -22,7 +25,10 @@ displacement longer than ``(1 - p) * max_i |d_rho_i|`` is shortened to that leng
 
 Dataset extension (issue §4): the model keeps its training statistics (per-row shape residuals, the
 normal equations of the pose regression), so :func:`extend_arm_model` adds captured subjects and
-re-solves without the original meshes. Saved as a versioned ``.npz`` with the subjects it was
+re-solves without the original meshes. The sex column has its own, weaker Tikhonov weight
+(``sex_regularization``): it is learned from the few added women alone, and the common weight
+(1, against a column sum of squares of 2 for two women with one base-pose mesh each) shrank it by a
+third (docs/muscle.md, "Dataset extension"). Saved as a versioned ``.npz`` with the subjects it was
 learned from and the template key; loading it for another template is refused.
 """
 
@@ -48,7 +54,7 @@ from bodystudio.muscle.arm import ArmPose, ArmTemplate, arm_template, part_trans
 log = logging.getLogger(__name__)
 
 MODEL_FORMAT = "bodystudio-arm-model"
-MODEL_VERSION = 1
+MODEL_VERSION = 2  # 2: sex in the shape regression (version 1 files are read as all-male models)
 # A training mesh is in the base pose when no joint is rotated more than this (the paper compares angles).
 BASE_POSE_TOL_RAD = np.deg2rad(8.0)
 N_LENGTH_COMPONENTS = 8
@@ -56,33 +62,74 @@ SHAPE_NAMES = ("bmi", "muscularity", "height_m", "arm_length_m")
 # Regressors of the shape term: BMI, muscularity, height (Eq. 6) and arm length (issue 11 §2 lists it with
 # the shape parameters; it lets added subjects correct the population length term at the extremes).
 SHAPE_REGRESSORS = 4
+# The shape term's last regressor: female indicator 1 - sex (sex 1 = male, 0 = female).
+SEX_NAMES = {"male": 1.0, "m": 1.0, "female": 0.0, "f": 0.0}
+# Tikhonov weight of the sex column: measured on ground-truth extensions (docs/muscle.md), 1.0 -> 0.1
+# takes the held-out out-of-range change from -23 % to -29 %.
+SEX_REGULARIZATION = 0.1
+
+
+def parse_sex(value, source: str = "sex") -> float:
+    """Sex as the model's number: 1 male, 0 female (``male``/``m``/``female``/``f`` or a value in [0, 1])."""
+    if isinstance(value, str):
+        key = value.strip().lower()
+        if key in SEX_NAMES:
+            return SEX_NAMES[key]
+        try:
+            value = float(key)
+        except ValueError:
+            raise InputError(f"{source}: sex {value!r} is not male, female or a number in [0, 1] "
+                             "(1 = male, 0 = female)") from None
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{source}: sex {value!r} is not male, female or a number in [0, 1]") from None
+    if not 0.0 <= x <= 1.0:
+        raise InputError(f"{source}: sex {value!r} is not male, female or a number in [0, 1] (1 = male, 0 = female)")
+    return x
 
 
 @dataclass(frozen=True)
 class ArmShapeParams:
-    """The paper's shape parameters: BMI, muscularity (0..1), height and arm length (metres)."""
+    """The paper's shape parameters: BMI, muscularity (0..1), height and arm length (metres), and sex.
+
+    ``sex`` (1 male, 0 female; the paper's Table 1) is not part of :meth:`as_vector` (the continuous
+    parameters a shape fit varies); it defaults to male, the original training set's.
+    """
 
     bmi: float
     muscularity: float
     height_m: float
     arm_length_m: float
+    sex: float = 1.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "sex", parse_sex(self.sex))
 
     def as_vector(self) -> np.ndarray:
         return np.array([self.bmi, self.muscularity, self.height_m, self.arm_length_m], dtype=np.float64)
 
+    def as_row(self) -> np.ndarray:
+        """The four parameters of :meth:`as_vector` and the sex: a row of the model's ``shape_rows``."""
+        return np.r_[self.as_vector(), self.sex]
+
     @classmethod
-    def from_vector(cls, x) -> ArmShapeParams:
-        return cls(*(float(v) for v in np.asarray(x, dtype=np.float64).reshape(4)))
+    def from_vector(cls, x, sex: float = 1.0) -> ArmShapeParams:
+        return cls(*(float(v) for v in np.asarray(x, dtype=np.float64).reshape(4)), sex=sex)
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "shape parameters") -> ArmShapeParams:
+        """From ``{bmi, muscularity, height_m, arm_length_m[, sex]}``; without ``sex`` a synthetic subject's
+        ``gender`` (MakeHuman's, 1 male) is taken, else male."""
         try:
-            return cls(*(float(d[n]) for n in SHAPE_NAMES))
+            values = [float(d[n]) for n in SHAPE_NAMES]
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{source}: needs {', '.join(SHAPE_NAMES)} ({exc})") from None
+        sex = d.get("sex", d.get("gender", 1.0))
+        return cls(*values, sex=parse_sex(sex, source))
 
 
 def measure_arm_shape(phenotype, local: dict | None = None, side: str = "left") -> ArmShapeParams:
@@ -93,7 +140,8 @@ def measure_arm_shape(phenotype, local: dict | None = None, side: str = "left") 
     names = body.skeleton.bone_names
     h = body.skeleton.heads[[names.index(f"{b}{s}") for b in ("upperarm", "lowerarm", "hand")]]
     arm = float(np.linalg.norm(h[1] - h[0]) + np.linalg.norm(h[2] - h[1]))
-    return ArmShapeParams(m["mass_kg"] / m["stature_m"] ** 2, float(phenotype.muscle), m["stature_m"], arm)
+    return ArmShapeParams(m["mass_kg"] / m["stature_m"] ** 2, float(phenotype.muscle), m["stature_m"], arm,
+                          sex=min(max(float(phenotype.gender), 0.0), 1.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,13 +171,13 @@ class ArmModel:
     length_basis: np.ndarray  # (k, 3n) PCA eigenvectors e_j of the population arms
     length_coeffs: np.ndarray  # (2, k) PCA weights = [1, z(arm length)] @ length_coeffs
     joint_coeffs: np.ndarray  # (5, 9) rest joints = [1, z(shape)] @ joint_coeffs
-    shape_coeffs: np.ndarray  # (1 + k, 3n) d_theta = [1, z(first k of SHAPE_NAMES)] @ shape_coeffs
+    shape_coeffs: np.ndarray  # (6, 3n) d_theta = [1, z(SHAPE_NAMES), 1 - sex] @ shape_coeffs
     pose_coeffs: np.ndarray  # (10, 3n) d_rho = [1, 9 joint-angle coordinates] @ pose_coeffs
     param_center: np.ndarray  # (4,) z(x) = (x - center) / scale, order SHAPE_NAMES
     param_scale: np.ndarray  # (4,)
     regularization: float
     # Training statistics kept for dataset extension.
-    shape_rows: np.ndarray  # (R, 4) shape parameters of each base-pose training mesh
+    shape_rows: np.ndarray  # (R, 5) shape parameters and sex of each base-pose training mesh
     shape_residuals: np.ndarray  # (R, 3n) its displacement from v_base + d_l
     pose_xtx: np.ndarray  # (10, 10) normal equations of Eq. 10
     pose_xtd: np.ndarray  # (10, 3n)
@@ -137,6 +185,7 @@ class ArmModel:
     joint_xty: np.ndarray  # (5, 9)
     subjects: list = field(default_factory=list)  # [{"name", "shape": {...}, "n_meshes", "source"}]
     version: int = MODEL_VERSION
+    sex_regularization: float = SEX_REGULARIZATION  # Tikhonov weight of the shape term's sex column
 
     @property
     def n_vertices(self) -> int:
@@ -174,11 +223,26 @@ def tikhonov_least_squares(X: np.ndarray, Y: np.ndarray, q: float) -> np.ndarray
     return tikhonov_from_normal_equations(X.T @ X, X.T @ Y, q)
 
 
-def tikhonov_from_normal_equations(xtx: np.ndarray, xty: np.ndarray, q: float) -> np.ndarray:
-    """The Tikhonov solution from ``X^T X`` and ``X^T Y``."""
-    reg = np.eye(len(xtx)) * q ** 2
+def tikhonov_from_normal_equations(xtx: np.ndarray, xty: np.ndarray, q: float,
+                                   column_weights: np.ndarray | None = None) -> np.ndarray:
+    """The Tikhonov solution from ``X^T X`` and ``X^T Y``; ``column_weights`` (one per column) replace ``q``."""
+    q2 = np.full(len(xtx), float(q) ** 2) if column_weights is None else np.asarray(column_weights, float) ** 2
+    reg = np.diag(q2)
     reg[0, 0] = 0.0
     return np.linalg.solve(xtx + reg, xty)
+
+
+def shape_design(model: ArmModel, rows: np.ndarray) -> np.ndarray:
+    """Design rows ``[1, z(bmi, muscularity, height, arm length), 1 - sex]`` of Eq. 6 for ``rows`` (R, 5)."""
+    rows = np.atleast_2d(np.asarray(rows, dtype=np.float64))
+    return np.c_[np.ones(len(rows)), _z(model, rows[:, :4]), 1.0 - rows[:, 4]]
+
+
+def fit_shape_coefficients(model: ArmModel, rows: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    """Eq. 7: Tikhonov regression of the base-pose residuals on :func:`shape_design` (sex column weighted apart)."""
+    X = shape_design(model, rows)
+    q = np.r_[np.full(X.shape[1] - 1, model.regularization), model.sex_regularization]
+    return tikhonov_from_normal_equations(X.T @ X, X.T @ residuals, 0.0, column_weights=q)
 
 
 # --- evaluation of the model ---------------------------------------------------------------------------
@@ -195,9 +259,8 @@ def length_displacements(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
 
 
 def shape_displacements(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
-    """``d_theta`` (n, 3) = w0 + w1 BMI + w2 muscularity + w3 height (Eq. 6, standardised parameters)."""
-    z = _z(model, shape.as_vector())[:len(model.shape_coeffs) - 1]
-    return (np.r_[1.0, z] @ model.shape_coeffs).reshape(-1, 3)
+    """``d_theta`` (n, 3) = w0 + w1 BMI + w2 muscularity + w3 height + w4 arm length + w5 (1 - sex) (Eq. 6)."""
+    return (shape_design(model, shape.as_row())[0] @ model.shape_coeffs).reshape(-1, 3)
 
 
 def pose_displacements(model: ArmModel, angles: np.ndarray) -> np.ndarray:
@@ -309,11 +372,14 @@ def _check_samples(samples: list[ArmSample], n: int) -> None:
 
 
 def learn_arm_model(samples: list[ArmSample], template: ArmTemplate, regularization: float = 1.0,
-                    population_size: int = 40, population_seed: int = 114, source: str = "training") -> ArmModel:
+                    population_size: int = 40, population_seed: int = 114, source: str = "training",
+                    sex_regularization: float = SEX_REGULARIZATION) -> ArmModel:
     """Learn the model of Eq. 6-10 from training meshes (several subjects, base pose + other poses)."""
     _check_samples(samples, template.n_vertices)
     if regularization < 0:
         raise InputError(f"regularization={regularization} must be >= 0")
+    if not sex_regularization > 0:  # the sex column of an all-male set is zero: q = 0 leaves it singular
+        raise InputError(f"sex_regularization={sex_regularization} must be > 0")
     popV, popJ, popP = population_arms(template.resolution, template.side, population_size, population_seed)
     N = len(popV)
     X = (popV - popJ[:, :1]).reshape(N, -1)  # shoulder-centred
@@ -330,10 +396,10 @@ def learn_arm_model(samples: list[ArmSample], template: ArmTemplate, regularizat
     joint_coeffs = tikhonov_from_normal_equations(joint_xtx, joint_xty, regularization)
     model = ArmModel(template.key, template.faces.copy(), template.part_weights.copy(), template.arm_mask.copy(),
                      base.reshape(-1, 3), E, length_coeffs, joint_coeffs,
-                     np.zeros((1 + SHAPE_REGRESSORS, X.shape[1])), np.zeros((10, X.shape[1])), center, scale,
+                     np.zeros((2 + SHAPE_REGRESSORS, X.shape[1])), np.zeros((10, X.shape[1])), center, scale,
                      float(regularization),
-                     np.zeros((0, 4)), np.zeros((0, X.shape[1])), np.zeros((10, 10)), np.zeros((10, X.shape[1])),
-                     joint_xtx, joint_xty)
+                     np.zeros((0, 5)), np.zeros((0, X.shape[1])), np.zeros((10, 10)), np.zeros((10, X.shape[1])),
+                     joint_xtx, joint_xty, sex_regularization=float(sex_regularization))
     return _add_subjects(model, samples, prior=None, source=source)
 
 
@@ -351,7 +417,7 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
         shape = group[0].shape
         base_rows, _, angles, d = _subject_rows(group, model.part_weights, lambda s: model_joints(model, s), prior)
         expected = model.base_vertices + length_displacements(model, shape)
-        shape_rows.append(np.tile(shape.as_vector(), (len(base_rows), 1)))
+        shape_rows.append(np.tile(shape.as_row(), (len(base_rows), 1)))
         residuals.append((base_rows - expected).reshape(len(base_rows), -1))
         Xp = _design(angles)
         xtx += Xp.T @ Xp
@@ -363,9 +429,8 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
             jty += np.outer(xj, np.mean(known, axis=0).reshape(9))
         subjects.append({"name": name, "shape": shape.to_dict(), "n_meshes": len(group), "source": source})
     rows, R = np.concatenate(shape_rows), np.concatenate(residuals)
-    Zs = _z(model, rows)[:, :len(model.shape_coeffs) - 1]
     q = model.regularization
-    shape_coeffs = tikhonov_least_squares(_design(Zs), R, q)
+    shape_coeffs = fit_shape_coefficients(model, rows, R)
     pose_coeffs = tikhonov_from_normal_equations(xtx, xtd, q)
     joint_coeffs = tikhonov_from_normal_equations(jtx, jty, q)
     return replace(model, shape_coeffs=shape_coeffs, pose_coeffs=pose_coeffs, joint_coeffs=joint_coeffs,
@@ -392,8 +457,9 @@ _ARRAYS = ("faces", "part_weights", "arm_mask", "base_vertices", "length_basis",
 
 def save_arm_model(path: str | os.PathLike, model: ArmModel) -> None:
     """Write the model as a versioned ``.npz`` (atomic): arrays + JSON header (format, version, key, subjects)."""
-    header = {"format": MODEL_FORMAT, "version": model.version, "template_key": model.template_key,
-              "regularization": model.regularization, "subjects": model.subjects}
+    header = {"format": MODEL_FORMAT, "version": MODEL_VERSION, "template_key": model.template_key,
+              "regularization": model.regularization, "sex_regularization": model.sex_regularization,
+              "subjects": model.subjects}
     with atomic_write(path, "wb") as f:
         np.savez_compressed(f, header=np.array(json.dumps(header)), **{k: getattr(model, k) for k in _ARRAYS})
 
@@ -413,25 +479,47 @@ def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None)
     if not isinstance(header, dict) or header.get("format") != MODEL_FORMAT:
         raise FileFormatError(f"{path}: not a bodystudio arm model (format {header.get('format')!r})"
                               if isinstance(header, dict) else f"{path}: not a bodystudio arm model")
-    if header.get("version") != MODEL_VERSION:
-        raise FileFormatError(f"{path}: arm model version {header.get('version')!r} is not supported (this "
-                              f"bodystudio reads version {MODEL_VERSION}); rebuild it with "
+    version = header.get("version")
+    if version not in (1, MODEL_VERSION) or isinstance(version, bool):
+        raise FileFormatError(f"{path}: arm model version {version!r} is not supported (this "
+                              f"bodystudio reads versions 1-{MODEL_VERSION}); rebuild it with "
                               "`bodystudio muscle model build`")
     if not isinstance(header.get("template_key"), str) or not isinstance(header.get("regularization"), (int, float)) \
             or not isinstance(header.get("subjects", []), list):
         raise FileFormatError(f"{path}: arm model header lacks template_key / regularization / subjects; "
                               "rebuild it with `bodystudio muscle model build`")
     n = len(arrays["base_vertices"])
+    if version == 1:
+        arrays = _upgrade_version_1(path, arrays)
+    sex_q = header.get("sex_regularization", SEX_REGULARIZATION)
+    if isinstance(sex_q, bool) or not isinstance(sex_q, (int, float)) or not 0 < sex_q < np.inf:
+        raise FileFormatError(f"{path}: arm model sex_regularization {sex_q!r} is not a positive number; "
+                              "rebuild the model")
+    if arrays["shape_coeffs"].shape[0] != 2 + SHAPE_REGRESSORS or arrays["shape_rows"].shape[1:] != (5,) \
+            or len(arrays["shape_rows"]) != len(arrays["shape_residuals"]):
+        raise FileFormatError(f"{path}: arm model shape arrays are inconsistent; rebuild the model")
     if arrays["pose_coeffs"].shape != (10, 3 * n) or arrays["shape_coeffs"].shape[1:] != (3 * n,) \
             or not all(np.isfinite(arrays[k]).all() for k in ("base_vertices", "pose_coeffs", "shape_coeffs")):
         raise FileFormatError(f"{path}: arm model arrays are inconsistent or not finite; rebuild the model")
     model = ArmModel(header["template_key"], **{k: arrays[k] for k in _ARRAYS if k != "arm_mask"},
                      arm_mask=arrays["arm_mask"].astype(bool), regularization=float(header["regularization"]),
-                     subjects=list(header.get("subjects", [])), version=MODEL_VERSION)
+                     subjects=list(header.get("subjects", [])), version=MODEL_VERSION,
+                     sex_regularization=float(sex_q))
     if template is not None and template.key != model.template_key:
         raise InputError(f"{path}: model was built for arm template {model.template_key}, not {template.key}; "
                          "use the same --resolution and --side as the model or rebuild it for this template")
     return model
+
+
+def _upgrade_version_1(path: Path, arrays: dict) -> dict:
+    """A version-1 model (no sex input) as version 2: its subjects male, the sex term zero (same meshes)."""
+    rows, coeffs = arrays["shape_rows"], arrays["shape_coeffs"]
+    if rows.ndim != 2 or rows.shape[1] != 4 or coeffs.ndim != 2 or len(coeffs) != 1 + SHAPE_REGRESSORS:
+        raise FileFormatError(f"{path}: version-1 arm model arrays are inconsistent; rebuild the model")
+    log.warning("%s: arm model version 1 (no sex input) read as version %d with every subject male; "
+                "`bodystudio muscle model extend` writes the new version", path, MODEL_VERSION)
+    return {**arrays, "shape_rows": np.c_[rows, np.ones(len(rows))],
+            "shape_coeffs": np.r_[coeffs, np.zeros((1, coeffs.shape[1]))]}
 
 
 def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, stride: int = 1) -> list[ArmSample]:

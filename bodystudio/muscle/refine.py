@@ -227,6 +227,7 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
         raise InputError("fit_shape_parameters needs at least one registered frame")
     lo, hi, x0 = _shape_bounds(model, initial)
     root0 = poses[0].root
+    sex = 1.0 if initial is None else initial.sex  # given, never fitted (the paper's Table 1)
 
     def root_of(x):
         T = root0.copy()
@@ -234,7 +235,7 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
         return T
 
     def meshes_of(x):
-        shape, root = ArmShapeParams.from_vector(x[:4]), root_of(x)
+        shape, root = ArmShapeParams.from_vector(x[:4], sex), root_of(x)
         return [model_mesh(model, shape, ArmPose(root, p.angles)) for p in poses]
 
     x = np.r_[x0, np.zeros(3)]
@@ -249,7 +250,7 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
         def fun(x, pairs=pairs):
             r = [_model_residuals(M, pr, d, nicp_weight) for M, pr, d in zip(meshes_of(x), pairs, meshes, strict=True)]
             if tracker_joints is not None and tracker_weight > 0:
-                shape, root = ArmShapeParams.from_vector(x[:4]), root_of(x)
+                shape, root = ArmShapeParams.from_vector(x[:4], sex), root_of(x)
                 J = model_joints(model, shape)
                 for p, tj in zip(poses, tracker_joints, strict=True):
                     T = part_transforms(J, ArmPose(root, p.angles))
@@ -262,7 +263,7 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
         x = least_squares(fun, x, bounds=(np.r_[lo, -big], np.r_[hi, big]),
                           x_scale=np.r_[np.maximum(hi - lo, 1e-3) / 4, np.full(3, 0.01)],
                           max_nfev=30).x
-    return ArmShapeParams.from_vector(x[:4]), root_of(x)
+    return ArmShapeParams.from_vector(x[:4], sex), root_of(x)
 
 
 def _shape_bounds(model, initial):

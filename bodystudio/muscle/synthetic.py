@@ -520,7 +520,8 @@ def subject_arm_samples(subject: ArmSubject, resolution: str = "6k", n_shapes: i
 
     body = subject_body(subject, resolution)
     T = arm_template(body, side)
-    shape = ArmShapeParams(subject.bmi, subject.muscularity, subject.height_m, subject.arm_length_m)
+    shape = ArmShapeParams(subject.bmi, subject.muscularity, subject.height_m, subject.arm_length_m,
+                           sex=subject.gender)
     variation = MuscleVariation.from_seed(subject.seed)
     rng = np.random.default_rng([seed, subject.seed, 5])
     poses = [ArmPose(np.eye(4), rng.normal(0, np.deg2rad(2.0), (3, 3))) for _ in range(n_shapes)]

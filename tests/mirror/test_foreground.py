@@ -104,3 +104,40 @@ def test_a_person_at_the_edge_of_the_depth_view_is_completed_by_colour():
     # nothing unseen: the same cut as without the option
     assert np.array_equal(refine_foreground(case.rgb, case.player_mask, unseen=np.zeros_like(mask)),
                           refine_foreground(case.rgb, case.player_mask))
+
+
+def test_band_data_costs_are_the_colour_depth_and_background_terms():
+    """The fused numba data terms equal the formulas of §5.3 written out in numpy (colour -log likelihoods of the
+    local histograms, the depth term around the person's median depth, the background-model cue, the unseen gain)."""
+    from bodystudio.mirror.foreground import (
+        HIST_BINS,
+        UNSEEN_BACKGROUND_GAIN,
+        _band_data_costs,
+        _colour_index,
+        colour_log_table,
+    )
+
+    rng = np.random.default_rng(4)
+    h, w = 40, 50
+    rgb = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    image = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    image[::2] = rgb[::2]  # half the rows look like the background
+    valid = rng.random((h, w)) < 0.8
+    extra = rng.random((h, w)) < 0.2
+    depth = np.where(rng.random((h, w)) < 0.9, rng.uniform(2.0, 4.0, (h, w)), 0.0)
+    br, bc = np.nonzero(rng.random((h, w)) < 0.5)
+    fg_counts = rng.integers(0, 5, HIST_BINS ** 3)
+    bg_counts = rng.integers(0, 5, HIST_BINS ** 3)
+    z, dw, tol, gain, sigma = 2.6, 3.0, 0.35, 4.0, 12.0
+    cost_fg, cost_bg = _band_data_costs(rgb, br, bc, colour_log_table(fg_counts), colour_log_table(bg_counts), depth,
+                                        z, dw, tol, image, valid.view(np.uint8), gain, 1 / (2 * 3 * sigma ** 2),
+                                        extra.view(np.uint8), UNSEEN_BACKGROUND_GAIN)
+    b = _colour_index(rgb)[br, bc]
+    want_fg, want_bg = -colour_log_table(fg_counts)[b], -colour_log_table(bg_counts)[b]
+    d = depth[br, bc]
+    want_bg += dw * ((d > 0) & (np.abs(d - z) < tol))
+    want_fg += dw * ((d > 0) & (d > z + tol))
+    like = np.exp(-np.sum((rgb[br, bc].astype(float) - image[br, bc]) ** 2, axis=1) / (2 * 3 * sigma ** 2))
+    g = gain * valid[br, bc] * np.where(extra[br, bc], UNSEEN_BACKGROUND_GAIN, 1.0)
+    np.testing.assert_allclose(cost_fg, want_fg + g * like, atol=1e-6)
+    np.testing.assert_allclose(cost_bg, want_bg + g * (1 - like), atol=1e-6)

@@ -44,7 +44,8 @@ def test_stream_writes_frames_masks_videos_and_run_json(tmp_path):
         assert len(list((run / sub).glob("*.png"))) == 8
     # the mirror's person is the target's silhouette (graph cut + MLS from the SDK-like mask)
     warped = cv2.imread(str(run / "masks/warped/00003.png"), cv2.IMREAD_GRAYSCALE) > 127
-    assert iou(warped, case.target_mask) >= 1 - 1.5 * (1 - 0.960)  # measured 0.960 (refined mask 0.998)
+    # measured 0.972 (refined mask 0.998; 0.960 with 800 evenly spread candidates and no rim)
+    assert iou(warped, case.target_mask) >= 1 - 1.5 * (1 - 0.972)
     fg = cv2.imread(str(run / "masks/foreground/00003.png"), cv2.IMREAD_GRAYSCALE) > 127
     assert iou(fg, case.true_mask) > iou(case.player_mask, case.true_mask) + 0.1
     # pass-through frames are the input, unchanged
@@ -90,8 +91,6 @@ def test_mirror_frame_uses_and_learns_the_background():
     assert updated.frames == 2
 
 
-@pytest.mark.skipif("kinect_player" not in __import__("bodystudio.capture.session").capture.session.FRAME_STREAMS,
-                    reason="needs the session's kinect_player stream (MIR-SYNTH, on main)")
 def test_live_frames_arrive_in_order_and_stop_after_the_timeout(tmp_path):
     from bodystudio.capture.session import stream_path
 

@@ -122,7 +122,7 @@ def _drive(run) -> None:
 @pytest.fixture(autouse=True)
 def _count_examples(request):
     """Counts per test; the long run (``-s``) prints them: examples, loads that succeeded, one-line refusals."""
-    _STATS.update(examples=0, loaded=0, refused=0)
+    _STATS.update(examples=0, loaded=0, refused=0, seconds=0.0)
     yield
     if LONG_RUN:
         print(f"\nFUZZ {request.node.name}: {_STATS.get('seconds', 0):.0f} s, {_STATS['examples']} examples, "
