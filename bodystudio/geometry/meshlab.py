@@ -2,12 +2,14 @@
 
 ``import pymeshlab`` loads MeshLab's filter plugins through Qt (``PluginManager::loadPlugins``), and Qt files
 every object it creates under the importing thread's ``QThreadData``. When that thread ends before the
-process, its ``QThreadData`` is freed, and at process exit MeshLab's static ``PluginManager`` destructor
-dereferences it again (valgrind: "Invalid read of size 4 at QThreadData::deref() ... by ~QPluginLoader() ...
-by PluginManager::~PluginManager() ... by __run_exit_handlers; block free'd by ~QObjectPrivate"). The
-decrement writes into freed memory: glibc then aborts the exiting process with ``malloc_consolidate():
-unaligned fastbin chunk detected`` or ``corrupted double-linked list``, or, worse, the memory has been reused
-and something else is silently overwritten.
+process, the plugin objects are the data's last references; at process exit MeshLab's static
+``PluginManager`` destructor unloads them, one ``~QObject`` frees the data while the others still point to
+it, and the next one dereferences it again (valgrind: "Invalid read of size 4 at QThreadData::deref() ... by
+~QPluginLoader() ... by PluginManager::~PluginManager() ... by __run_exit_handlers; block free'd by
+~QObjectPrivate ... by PluginManager::~PluginManager()"). The decrement writes into freed memory: glibc
+then aborts the exiting process with ``malloc_consolidate(): unaligned fastbin chunk detected`` or
+``corrupted double-linked list``, or, worse, the memory has been reused and something else is silently
+overwritten.
 
 A dask worker runs its tasks in a thread pool thread that ends when the worker closes, so the first import
 must happen in the worker's main thread: :mod:`bodystudio.batch` does it in a worker plugin at start-up.
