@@ -1,0 +1,235 @@
+"""Rapid Skin frame by frame as a tracker: the previous frame's pose as the prior, and a lost-track check.
+
+Rapid Skin initialises every frame from the skeleton joints (§IV.A) and calls the pose estimate
+"the starting point" of its per-frame shape estimation; a sequence at video rate moves little from one
+frame to the next, so the previous frame's refined pose is a better starting point than a fresh,
+noisy tracker pose, and it is cheap: the visual hull and the articulated fit to it (~190 ms at 13K) run
+only at the first frame or when the track is lost.
+
+A tracked frame starts from the previous frame's bone transforms and corrects them by the same
+Gauss-Newton step as :func:`bodystudio.reconstruct.articulated_fit.refine_bone_transforms`, with the
+hull replaced by the frame's per-camera signed distance fields of the silhouettes
+(:class:`SilhouetteFields`, computed once per frame): a template vertex that projects outside a
+silhouette is pulled in by its distance to it (the hull's "outside" term without carving the hull), and
+a rim vertex (Eq. 6 of Rapid Skin) that projects inside is pushed out to the nearest contour. Residuals
+are pixels scaled to metres at the vertex's depth (``d z / f``), so the hull fit's weights carry over.
+
+The lost-track check (:func:`lost_track_reason`), in this order, re-initialises from the tracker joints
+(or the hull) with the full articulated fit:
+
+- ``first``: the first frame of the sequence;
+- ``joint_jump``: the tracked torso joints moved by more than ``joint_jump_m`` (median over joints)
+  since the previous frame: faster than a person moves between video frames;
+- ``silhouette``: the prior pose (the previous frame's) has more than ``prior_outside_max`` of the fit
+  template's vertices projecting outside a silhouette: the person is no longer where the track is;
+- ``energy_jump``: after the tracking fit, the outside share (the silhouette energy) is above
+  ``energy_abs`` and ``energy_ratio`` times the previous frame's: the fit did not follow.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from bodystudio.body.kinect import kinect_joint_names
+from bodystudio.errors import InputError
+from bodystudio.reconstruct.articulated_fit import (
+    REFINE_BONES,
+    PoseRefineParams,
+    _huber_weights,
+    refine_bone_transforms,
+)
+from bodystudio.reconstruct.pose_init import TORSO_JOINTS
+
+#: Why a frame was (re-)initialised instead of tracked; ``tracked`` when it was not.
+TRACK_REASONS = ("first", "joint_jump", "silhouette", "energy_jump", "tracked", "per_frame")
+
+
+@dataclass(frozen=True)
+class TrackParams:
+    """Settings of the tracker and its lost-track check (see the module docstring).
+
+    ``outside_px``: a vertex counts as outside a silhouette beyond this distance (the fit template is
+    generic, so its limbs poke out by a few pixels on a good fit); ``rim_cos``: Eq. 6 rim test;
+    ``inside_px``: rim vertices deeper inside than this are ignored (occluded rims would be pushed to
+    another body part's contour); ``iterations``: Gauss-Newton iterations of the tracking fit.
+    """
+
+    joint_jump_m: float = 0.25
+    prior_outside_max: float = 0.1
+    energy_abs: float = 0.15
+    energy_ratio: float = 2.0
+    outside_px: float = 2.0
+    rim_cos: float = 0.2
+    inside_px: float = 0.0
+    robust_m: float = 0.03
+    iterations: int = 6
+    prior_weight: float = 0.05
+    joint_weight: float = 3.0
+
+    def __post_init__(self):
+        for name, value, lo, hi in (("joint_jump_m", self.joint_jump_m, 1e-3, 10.0),
+                                    ("prior_outside_max", self.prior_outside_max, 0.0, 1.0),
+                                    ("energy_abs", self.energy_abs, 0.0, 1.0),
+                                    ("energy_ratio", self.energy_ratio, 1.0, 100.0),
+                                    ("iterations", self.iterations, 1, 100)):
+            if not np.isfinite(value) or not lo <= value <= hi:
+                raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
+
+
+class SilhouetteFields:
+    """Per-camera signed distance fields of one frame's silhouettes (px; > 0 outside, < 0 inside).
+
+    Computed once per frame (OpenCV's exact Euclidean distance transform, ~1 ms per 640x480 view) and
+    read by the tracking fit and the silhouette energy of the lost-track check.
+    """
+
+    def __init__(self, cameras, masks: dict):
+        self.cameras = list(cameras)
+        self.sdf = {}
+        for cam in self.cameras:
+            if cam.name not in masks:
+                raise InputError(f"tracking: no mask for camera {cam.name}")
+            inside = (np.asarray(masks[cam.name]) > 0).astype(np.uint8)
+            out_d = cv2.distanceTransform(1 - inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            in_d = cv2.distanceTransform(inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            # pixel centres: +d outside, -d inside; the contour lies half-way, so shift by 0.5
+            self.sdf[cam.name] = np.where(inside > 0, 0.5 - in_d, out_d - 0.5).astype(np.float32)
+
+    def sample(self, cam, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Bilinear signed distance ``(m,)`` and its image gradient ``(m, 2)`` at pixels ``uv``; ``ok``
+        marks pixels inside the image (outside it the distance is unknown)."""
+        S = self.sdf[cam.name]
+        H, W = S.shape
+        u, v = uv[:, 0], uv[:, 1]
+        ok = np.isfinite(u) & np.isfinite(v) & (u >= 1) & (v >= 1) & (u < W - 2) & (v < H - 2)
+        u = np.where(ok, u, 1.0)
+        v = np.where(ok, v, 1.0)
+        x0, y0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        fx, fy = u - x0, v - y0
+        s00, s10, s01, s11 = S[y0, x0], S[y0, x0 + 1], S[y0 + 1, x0], S[y0 + 1, x0 + 1]
+        d = (1 - fy) * ((1 - fx) * s00 + fx * s10) + fy * ((1 - fx) * s01 + fx * s11)
+        gu = (1 - fy) * (s10 - s00) + fy * (s11 - s01)
+        gv = (1 - fx) * (s01 - s00) + fx * (s11 - s10)
+        return d.astype(np.float64), np.stack([gu, gv], axis=1).astype(np.float64), ok
+
+
+def outside_fraction(V: np.ndarray, fields: SilhouetteFields, outside_px: float = 2.0) -> float:
+    """Silhouette energy of the lost-track check: share of vertices ``V`` projecting more than
+    ``outside_px`` outside the silhouette of at least one camera (the hull's "outside" test, Rapid Skin
+    §IV: a point of the body lies inside every silhouette)."""
+    out = np.zeros(len(V), bool)
+    for cam in fields.cameras:
+        d, _, ok = fields.sample(cam, cam.project(V))
+        out |= ok & (d > outside_px)
+    return float(np.mean(out)) if len(V) else 0.0
+
+
+def silhouette_data_term(fields: SilhouetteFields, params: TrackParams):
+    """Silhouette distance residuals of the tracking fit as ``data_term(V, N) -> (rows, r, w, G)``.
+
+    For every camera: a vertex projecting outside the silhouette has the residual ``d z / f`` (m, ``d``
+    its distance in pixels); a rim vertex (``|n . ray| < rim_cos``, Eq. 6 of Rapid Skin) projecting
+    inside, less than ``inside_px`` deep, has the same (negative) residual, pulling it onto the
+    contour. ``G`` is the residual's gradient: the distance field's image gradient through the
+    pinhole projection's Jacobian (lens distortion is ignored in the Jacobian only).
+    """
+
+    def term(V: np.ndarray, N: np.ndarray):
+        rows, res, wts, grads = [], [], [], []
+        for cam in fields.cameras:
+            Pc = V @ cam.R.T + cam.t
+            z = Pc[:, 2]
+            uv = cam.project(V)
+            d, g, ok = fields.sample(cam, uv)
+            ok &= z > 1e-6
+            ray = V - cam.center
+            ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+            rim = np.abs(np.einsum("ij,ij->i", N, ray)) < params.rim_cos
+            use = ok & ((d > 0) | (rim & (d > -params.inside_px)))
+            i = np.flatnonzero(use)
+            if not len(i):
+                continue
+            zi, x, y = z[i], Pc[i, 0], Pc[i, 1]
+            fx, fy = cam.fx, cam.fy
+            f = 0.5 * (fx + fy)
+            # d(uv)/d(Pc): pinhole Jacobian; the residual in metres is d * z / f
+            du = np.stack([fx / zi, np.zeros_like(zi), -fx * x / zi ** 2], axis=1)
+            dv = np.stack([np.zeros_like(zi), fy / zi, -fy * y / zi ** 2], axis=1)
+            dpc = (g[i, :1] * du + g[i, 1:] * dv) * (zi / f)[:, None]
+            r = d[i] * zi / f
+            rows.append(i)
+            res.append(r)
+            wts.append(_huber_weights(r, params.robust_m))
+            grads.append(dpc @ cam.R)
+        if not rows:
+            return np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 3))
+        return np.concatenate(rows), np.concatenate(res), np.concatenate(wts), np.concatenate(grads)
+
+    return term
+
+
+def joint_anchors(body, joint_transforms: np.ndarray, bones=REFINE_BONES):
+    """Heads and tails of the refined ``bones`` placed by the bone transforms of the frame's tracker
+    joints (:func:`bodystudio.reconstruct.pose_init.initialise_pose`): ``(bones, rest_points, targets)``."""
+    skel = body.skeleton
+    ids = np.array([skel.index(b) for b in bones])
+    a_bones = np.concatenate([ids, ids])
+    rest = np.concatenate([skel.heads[ids], skel.tails[ids]])
+    T = np.asarray(joint_transforms, dtype=np.float64)[a_bones]
+    return a_bones, rest, np.einsum("mij,mj->mi", T[:, :3, :3], rest) + T[:, :3, 3]
+
+
+def track_bone_transforms(body, previous: np.ndarray, fields: SilhouetteFields,
+                          params: TrackParams | None = None, joint_transforms: np.ndarray | None = None
+                          ) -> np.ndarray:
+    """Bone transforms ``(B, 4, 4)`` of this frame from the previous frame's, fitted to the silhouettes.
+
+    The Gauss-Newton step and the segments of :func:`refine_bone_transforms` on the fit template
+    ``body`` (2.5K), the data term :func:`silhouette_data_term`, the prior holding each segment near
+    the previous frame's pose; with ``joint_transforms`` (the Eq. 11 transforms of this frame's tracker
+    joints) the segments' heads and tails are also pulled towards the tracked joints
+    (``joint_weight``), which keeps the silhouettes' blind directions from drifting over frames.
+    """
+    params = params or TrackParams()
+    refine = PoseRefineParams(iterations=params.iterations, prior_weight=params.prior_weight,
+                              robust_m=params.robust_m)
+    anchors = None
+    if joint_transforms is not None and params.joint_weight > 0:
+        anchors = (*joint_anchors(body, joint_transforms, refine.bones), params.joint_weight)
+    return refine_bone_transforms(body, previous, None, refine, data_term=silhouette_data_term(fields, params),
+                                  anchors=anchors)
+
+
+def torso_joint_jump_m(joints: np.ndarray | None, previous: np.ndarray | None) -> float:
+    """Median displacement (m) of the torso joints tracked in both frames (0 when none are)."""
+    if joints is None or previous is None:
+        return 0.0
+    names = kinect_joint_names("v2")
+    ids = [names.index(n) for n in TORSO_JOINTS]
+    a, b = np.asarray(joints)[ids], np.asarray(previous)[ids]
+    ok = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
+    if not ok.any():
+        return 0.0
+    return float(np.median(np.linalg.norm(a[ok] - b[ok], axis=1)))
+
+
+def lost_track_reason(first: bool, joint_jump_m: float, prior_outside: float,
+                      params: TrackParams) -> str | None:
+    """Why the track is lost before fitting this frame (see the module docstring), or None."""
+    if first:
+        return "first"
+    if joint_jump_m > params.joint_jump_m:
+        return "joint_jump"
+    if prior_outside > params.prior_outside_max:
+        return "silhouette"
+    return None
+
+
+def energy_jumped(energy: float, previous_energy: float | None, params: TrackParams) -> bool:
+    """The silhouette energy after the tracking fit jumped (``energy_jump``)."""
+    if previous_energy is None:
+        return energy > params.energy_abs
+    return energy > params.energy_abs and energy > params.energy_ratio * previous_energy
