@@ -47,6 +47,7 @@ from bodystudio.reconstruct.tracking import (
     energy_jumped,
     lost_track_reason,
     outside_fraction,
+    silhouette_data_term,
     torso_joint_jump_m,
     track_bone_transforms,
 )
@@ -57,6 +58,9 @@ log = logging.getLogger(__name__)
 
 TEMPLATES = {"13k": "full", "6k": "6k", "2k": "2k", "full": "full", "2.5k": "2k"}
 JOINT_SOURCES = ("tracker", "file", "hull")
+#: What the pose refinement fits: the silhouettes' distance fields (an implicit visual hull, default) or
+#: the carved visual hull.
+REFINE_DATA = ("fields", "hull")
 OUTPUT_DIR = "reconstruct"
 RUN_MANIFEST = "run.json"
 #: Kinect v1 joint names that have a v2 counterpart.
@@ -156,8 +160,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         constraints: tuple[str, ...] = ("silhouette",), frames: str | None = None,
                         joints_path: str | Path | None = None, params: RapidSkinParams | None = None,
                         warm_start: bool = False, refine_pose: bool = True, score: bool = True,
-                        progress: bool = False, tracking: bool = True, track_params: TrackParams | None = None
-                        ) -> dict:
+                        progress: bool = False, tracking: bool = True, track_params: TrackParams | None = None,
+                        refine_with: str = "fields") -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     ``refine_pose`` corrects the pose initialised from the joints (§IV.A) by an articulated fit of the
@@ -190,7 +194,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     with RunWriter(layout, "bodystudio reconstruct", {"session": str(session.path), "template": template}) as writer:
         return reconstruct_frames(session, writer, selected, cameras, sensor, params, solver, template, joints,
                                    joints_path, warm_start, refine_pose, score, progress, tracking=tracking,
-                                   track_params=track_params)
+                                   track_params=track_params, refine_with=refine_with)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -201,7 +205,7 @@ def reconstruction_layout(session_path: str | Path) -> RunLayout:
 
 def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, params, solver, template, joints,
                        joints_path, warm_start, refine_pose, score, progress, tracking: bool = True,
-                       track_params: TrackParams | None = None) -> dict:
+                       track_params: TrackParams | None = None, refine_with: str = "fields") -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -215,6 +219,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     from bodystudio.capture.session import progress_bar
 
     track_params = track_params or TrackParams()
+    if refine_with not in REFINE_DATA:
+        raise InputError(f"unknown pose refinement data {refine_with!r}; valid: {', '.join(REFINE_DATA)}")
     body = build_body(resolution=TEMPLATES[template])
     F = body.faces
     regions = vertex_regions(body) if score else None
@@ -243,7 +249,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             J = None
             if joints != "hull":
                 J = frame_joints(session, frame, joints, Path(joints_path) if joints_path else None)
-            fields = SilhouetteFields(cameras, masks) if tracking else None
+            t1 = time.perf_counter()
+            fields = SilhouetteFields(cameras, masks) if tracking or (refine_pose and refine_with == "fields") else None
+            t_fields = time.perf_counter() - t1
             track = "per_frame"
             detail = {}
             init = None
@@ -278,11 +286,15 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 init = initialise_pose(body, J, rest_vertices=rest)
                 if refine_pose:
                     t1 = time.perf_counter()
-                    if hull is None:
-                        hull = visual_hull(cameras, masks)
                     # The template and the refinement's 2.5K template share one skeleton, so the corrected
                     # bone transforms pose the template directly.
-                    T = refine_bone_transforms(fit_body, init.bone_transforms, hull)
+                    if refine_with == "fields":
+                        T = refine_bone_transforms(fit_body, init.bone_transforms, None,
+                                                   data_term=silhouette_data_term(fields, track_params))
+                    else:
+                        if hull is None:
+                            hull = visual_hull(cameras, masks)
+                        T = refine_bone_transforms(fit_body, init.bone_transforms, hull)
                     init = pose_template(body, T, init.global_scale, rest_vertices=rest)
                     t_refine = time.perf_counter() - t1
                 if tracking:
@@ -314,7 +326,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 rest = shape_sum / n_seen
             rec = {"frame": fid, "track": track, "solver_ms": 1000 * result.solver_s,
                    "matching_ms": 1000 * result.matching_s, "init_ms": 1000 * t_init, "refine_ms": 1000 * t_refine,
-                   "track_ms": 1000 * t_track, "read_ms": 1000 * t_read, "frame_ms": 1000 * t_frame,
+                   "track_ms": 1000 * t_track, "fields_ms": 1000 * t_fields, "read_ms": 1000 * t_read,
+                   "frame_ms": 1000 * t_frame,
                    "other_ms": 1000 * (t_frame - t_read - t_init - result.solver_s - result.matching_s),
                    "n_silhouette": result.n_silhouette, "n_depth": result.n_depth,
                    "ms_per_frame": 1000 * (result.solver_s + result.matching_s + t_init)}
@@ -329,6 +342,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     writer.commit({"solver": params.solver, "template": template, "joints": joints,
                    "constraints": list(params.constraints), "frames": selected,
                    "warm_start": warm_start, "refine_pose": refine_pose, "tracking": tracking,
+                   "refine_with": refine_with,
                    "params": asdict(params), "n_vertices": int(len(body.vertices))}, deletes=previous)
     return summarize(records)
 
@@ -341,7 +355,7 @@ def summarize(records: list[dict]) -> dict:
            "matching_ms": float(np.mean([r["matching_ms"] for r in records])),
            "init_ms": float(np.mean([r.get("init_ms", 0.0) for r in records])),
            "refine_ms": float(np.mean([r.get("refine_ms", 0.0) for r in records]))}
-    for key in ("frame_ms", "read_ms", "track_ms", "other_ms"):
+    for key in ("frame_ms", "read_ms", "fields_ms", "track_ms", "other_ms"):
         if all(key in r for r in records):
             out[key] = float(np.mean([r[key] for r in records]))
     out["n_tracked"] = sum(r.get("track") == "tracked" for r in records)

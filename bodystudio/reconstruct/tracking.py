@@ -35,6 +35,7 @@ import numpy as np
 
 from bodystudio.body.kinect import kinect_joint_names
 from bodystudio.errors import InputError
+from bodystudio.geometry.camera import distort_normalized
 from bodystudio.reconstruct.articulated_fit import (
     REFINE_BONES,
     PoseRefineParams,
@@ -52,22 +53,23 @@ class TrackParams:
     """Settings of the tracker and its lost-track check (see the module docstring).
 
     ``outside_px``: a vertex counts as outside a silhouette beyond this distance (the fit template is
-    generic, so its limbs poke out by a few pixels on a good fit); ``rim_cos``: Eq. 6 rim test;
-    ``inside_px``: rim vertices deeper inside than this are ignored (occluded rims would be pushed to
-    another body part's contour); ``iterations``: Gauss-Newton iterations of the tracking fit.
+    generic, so its limbs poke out by a few pixels on a good fit); ``inside_weight``: weight of vertices
+    inside the implicit hull (as the hull fit's); ``inside_m``: vertices deeper inside are ignored;
+    ``iterations``: Gauss-Newton iterations of the tracking fit; ``joint_weight``: pull of the tracked
+    joints per squared metre (0: silhouettes only).
     """
 
     joint_jump_m: float = 0.25
-    prior_outside_max: float = 0.1
+    prior_outside_max: float = 0.25
     energy_abs: float = 0.15
     energy_ratio: float = 2.0
     outside_px: float = 2.0
-    rim_cos: float = 0.2
-    inside_px: float = 0.0
+    inside_weight: float = 0.5
+    inside_m: float = 0.10
     robust_m: float = 0.03
     iterations: int = 6
     prior_weight: float = 0.05
-    joint_weight: float = 3.0
+    joint_weight: float = 0.0
 
     def __post_init__(self):
         for name, value, lo, hi in (("joint_jump_m", self.joint_jump_m, 1e-3, 10.0),
@@ -82,38 +84,56 @@ class TrackParams:
 class SilhouetteFields:
     """Per-camera signed distance fields of one frame's silhouettes (px; > 0 outside, < 0 inside).
 
-    Computed once per frame (OpenCV's exact Euclidean distance transform, ~1 ms per 640x480 view) and
-    read by the tracking fit and the silhouette energy of the lost-track check.
+    Computed once per frame (OpenCV's exact Euclidean distance transform) on the silhouette's bounding
+    box grown by ``margin_px``: pixels beyond it read ``margin_px`` outside with no gradient (far off,
+    counted as outside by the lost-track check, no pull in the fit). Read by the tracking fit and the
+    silhouette energy of the lost-track check.
     """
 
-    def __init__(self, cameras, masks: dict):
+    def __init__(self, cameras, masks: dict, margin_px: int = 48):
         self.cameras = list(cameras)
-        self.sdf = {}
+        self.margin_px = float(margin_px)
+        self.sdf, self.offset = {}, {}
         for cam in self.cameras:
             if cam.name not in masks:
                 raise InputError(f"tracking: no mask for camera {cam.name}")
-            inside = (np.asarray(masks[cam.name]) > 0).astype(np.uint8)
+            full = np.asarray(masks[cam.name]) > 0
+            H, W = full.shape
+            ys, xs = np.nonzero(np.any(full, axis=1))[0], np.nonzero(np.any(full, axis=0))[0]
+            if len(ys):
+                y0, y1 = max(ys[0] - margin_px, 0), min(ys[-1] + margin_px + 1, H)
+                x0, x1 = max(xs[0] - margin_px, 0), min(xs[-1] + margin_px + 1, W)
+            else:
+                y0, y1, x0, x1 = 0, H, 0, W
+            inside = full[y0:y1, x0:x1].astype(np.uint8)
             out_d = cv2.distanceTransform(1 - inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
             in_d = cv2.distanceTransform(inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
             # pixel centres: +d outside, -d inside; the contour lies half-way, so shift by 0.5
             self.sdf[cam.name] = np.where(inside > 0, 0.5 - in_d, out_d - 0.5).astype(np.float32)
+            self.offset[cam.name] = (x0, y0)
 
     def sample(self, cam, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bilinear signed distance ``(m,)`` and its image gradient ``(m, 2)`` at pixels ``uv``; ``ok``
         marks pixels inside the image (outside it the distance is unknown)."""
         S = self.sdf[cam.name]
+        x0, y0 = self.offset[cam.name]
         H, W = S.shape
-        u, v = uv[:, 0], uv[:, 1]
-        ok = np.isfinite(u) & np.isfinite(v) & (u >= 1) & (v >= 1) & (u < W - 2) & (v < H - 2)
-        u = np.where(ok, u, 1.0)
-        v = np.where(ok, v, 1.0)
-        x0, y0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
-        fx, fy = u - x0, v - y0
-        s00, s10, s01, s11 = S[y0, x0], S[y0, x0 + 1], S[y0 + 1, x0], S[y0 + 1, x0 + 1]
+        ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0)
+        ok &= (uv[:, 0] <= cam.width - 1) & (uv[:, 1] <= cam.height - 1)
+        u = np.where(ok, uv[:, 0] - x0, 0.0)
+        v = np.where(ok, uv[:, 1] - y0, 0.0)
+        inner = ok & (u >= 0) & (v >= 0) & (u < W - 1) & (v < H - 1)
+        u = np.where(inner, u, 0.0)
+        v = np.where(inner, v, 0.0)
+        xi, yi = u.astype(np.int64), v.astype(np.int64)
+        fx, fy = u - xi, v - yi
+        s00, s10, s01, s11 = S[yi, xi], S[yi, xi + 1], S[yi + 1, xi], S[yi + 1, xi + 1]
         d = (1 - fy) * ((1 - fx) * s00 + fx * s10) + fy * ((1 - fx) * s01 + fx * s11)
         gu = (1 - fy) * (s10 - s00) + fy * (s11 - s01)
         gv = (1 - fx) * (s01 - s00) + fx * (s11 - s10)
-        return d.astype(np.float64), np.stack([gu, gv], axis=1).astype(np.float64), ok
+        d = np.where(inner, d, self.margin_px)
+        g = np.where(inner[:, None], np.stack([gu, gv], axis=1), 0.0)
+        return d.astype(np.float64), g.astype(np.float64), ok
 
 
 def outside_fraction(V: np.ndarray, fields: SilhouetteFields, outside_px: float = 2.0) -> float:
@@ -128,47 +148,59 @@ def outside_fraction(V: np.ndarray, fields: SilhouetteFields, outside_px: float 
 
 
 def silhouette_data_term(fields: SilhouetteFields, params: TrackParams):
-    """Silhouette distance residuals of the tracking fit as ``data_term(V, N) -> (rows, r, w, G)``.
+    """Implicit visual-hull residuals of the tracking fit as ``data_term(V, N) -> (rows, r, w, G)``.
 
-    For every camera: a vertex projecting outside the silhouette has the residual ``d z / f`` (m, ``d``
-    its distance in pixels); a rim vertex (``|n . ray| < rim_cos``, Eq. 6 of Rapid Skin) projecting
-    inside, less than ``inside_px`` deep, has the same (negative) residual, pulling it onto the
-    contour. ``G`` is the residual's gradient: the distance field's image gradient through the
-    pinhole projection's Jacobian (lens distortion is ignored in the Jacobian only).
+    A point lies inside the visual hull (Rapid Skin §IV) when it projects inside every silhouette, so
+    ``max_c d_c z_c / f_c`` over the cameras (``d_c`` its signed distance in pixels to camera c's
+    silhouette, ``z_c / f_c`` metres per pixel at its depth) is a signed distance to the hull that needs
+    no carving: positive outside, negative inside. Each vertex gets that residual from its maximising
+    camera, point-to-plane like the hull fit of :func:`refine_bone_transforms`: Huber-weighted, inside
+    points down-weighted by ``inside_weight`` (the hull over-estimates the body), used only where the
+    vertex normal agrees with the field's gradient (``> 0.2``, the hull fit's normal test). ``G`` is the
+    residual's gradient: the field's image gradient through the pinhole Jacobian of the projection (lens
+    distortion is ignored in the Jacobian only).
     """
 
     def term(V: np.ndarray, N: np.ndarray):
-        rows, res, wts, grads = [], [], [], []
+        n = len(V)
+        best = np.full(n, -np.inf)
+        G = np.zeros((n, 3))
         for cam in fields.cameras:
             Pc = V @ cam.R.T + cam.t
             z = Pc[:, 2]
-            uv = cam.project(V)
-            d, g, ok = fields.sample(cam, uv)
+            d, g, ok = fields.sample(cam, _pixels(cam, Pc))
             ok &= z > 1e-6
-            ray = V - cam.center
-            ray /= np.linalg.norm(ray, axis=1, keepdims=True)
-            rim = np.abs(np.einsum("ij,ij->i", N, ray)) < params.rim_cos
-            use = ok & ((d > 0) | (rim & (d > -params.inside_px)))
-            i = np.flatnonzero(use)
+            f = 0.5 * (cam.fx + cam.fy)
+            r = np.where(ok, d * z / f, -np.inf)
+            i = np.flatnonzero(r > best)
             if not len(i):
                 continue
+            best[i] = r[i]
             zi, x, y = z[i], Pc[i, 0], Pc[i, 1]
-            fx, fy = cam.fx, cam.fy
-            f = 0.5 * (fx + fy)
-            # d(uv)/d(Pc): pinhole Jacobian; the residual in metres is d * z / f
-            du = np.stack([fx / zi, np.zeros_like(zi), -fx * x / zi ** 2], axis=1)
-            dv = np.stack([np.zeros_like(zi), fy / zi, -fy * y / zi ** 2], axis=1)
-            dpc = (g[i, :1] * du + g[i, 1:] * dv) * (zi / f)[:, None]
-            r = d[i] * zi / f
-            rows.append(i)
-            res.append(r)
-            wts.append(_huber_weights(r, params.robust_m))
-            grads.append(dpc @ cam.R)
-        if not rows:
-            return np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 3))
-        return np.concatenate(rows), np.concatenate(res), np.concatenate(wts), np.concatenate(grads)
+            # d(uv)/d(Pc) of the pinhole model, scaled to metres per pixel at the vertex's depth
+            du = np.stack([cam.fx / zi, np.zeros_like(zi), -cam.fx * x / zi ** 2], axis=1)
+            dv = np.stack([np.zeros_like(zi), cam.fy / zi, -cam.fy * y / zi ** 2], axis=1)
+            G[i] = ((g[i, :1] * du + g[i, 1:] * dv) * (zi / f)[:, None]) @ cam.R
+        seen = np.isfinite(best)
+        norm = np.linalg.norm(G, axis=1)
+        agree = np.einsum("ij,ij->i", N, G) > 0.2 * np.maximum(norm, 1e-12)
+        use = np.flatnonzero(seen & agree & (norm > 1e-9) & (best > -params.inside_m))
+        r = best[use]
+        w = _huber_weights(r, params.robust_m) * np.where(r < 0, params.inside_weight, 1.0)
+        return use, r, w, G[use]
 
     return term
+
+
+def _pixels(cam, Pc: np.ndarray) -> np.ndarray:
+    """Pixels of camera-frame points (the OpenCV model of :meth:`Camera.project_with_depth`)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xy = Pc[:, :2] / Pc[:, 2:3]
+    xy[Pc[:, 2] <= 0] = np.nan
+    if cam.has_distortion:
+        xy = distort_normalized(xy, cam.dist)
+    K = cam.K
+    return np.stack([K[0, 0] * xy[:, 0] + K[0, 1] * xy[:, 1] + K[0, 2], K[1, 1] * xy[:, 1] + K[1, 2]], axis=1)
 
 
 def joint_anchors(body, joint_transforms: np.ndarray, bones=REFINE_BONES):

@@ -85,12 +85,13 @@ def test_tracking_reaches_the_per_frame_accuracy(runs):
     m_track, m_pf = _medians(frames), _medians(pf_frames)
     p90_track, p90_pf = _p90s(frames), _p90s(pf_frames)
     # Measured (4 cameras 320x240, 2.5K template, visible surface): per-frame initialisation medians
-    # 3.35-4.03 mm, p90 11.3-14.9 mm; tracker 3.39-3.81 / 11.4-14.6 mm, the frame after the jump 3.81 / 13.4.
-    # A tracker that never updates the pose (the previous frame's transforms kept) reaches 4.91 / 20.6 mm by
-    # its 4th frame and 4.65 / 18.4 after the jump: the same bound for both paths fails it.
+    # 3.33-4.20 mm, p90 12.2-16.7 mm; tracker 3.38-4.16 / 12.0-16.7 mm, the frame after the jump 3.74 / 14.6.
+    # A tracker that never updates the pose (the previous frame's transforms kept) reaches 4.60 / 21.0 mm by
+    # its 3rd frame, 6.17 / 29.8 by its 4th and 4.55 / 18.8 after the jump: the same bound for both paths
+    # fails it.
     for medians, p90s in ((m_pf, p90_pf), (m_track, p90_track)):
         assert np.all(medians < 4.4), medians
-        assert np.all(p90s < 16.5), p90s
+        assert np.all(p90s < 18.0), p90s
     assert m_track.mean() < m_pf.mean() + 0.3, (m_track, m_pf)
     assert tracked["n_tracked"] == 5 and per_frame["n_tracked"] == 0
 
@@ -99,7 +100,7 @@ def test_silhouette_check_alone_catches_the_jump(jump_session):
     """Without the joints' jump test, the prior pose's silhouette check still re-initialises at the jump."""
     _, frames = _run(jump_session, track_params=TrackParams(joint_jump_m=10.0), frames=f"{JUMP_FRAME - 1}:")
     assert [f["track"] for f in frames] == ["first", "silhouette", "tracked"]
-    assert np.all(_medians(frames) < 4.4) and np.all(_p90s(frames) < 16.5)
+    assert np.all(_medians(frames) < 4.4) and np.all(_p90s(frames) < 18.0)
 
 
 def test_outside_fraction_and_rules(synthetic_capture):
@@ -110,7 +111,7 @@ def test_outside_fraction_and_rules(synthetic_capture):
     p = TrackParams()
     assert lost_track_reason(True, 0.0, 0.0, p) == "first"
     assert lost_track_reason(False, 0.3, 0.0, p) == "joint_jump"
-    assert lost_track_reason(False, 0.0, 0.2, p) == "silhouette"
+    assert lost_track_reason(False, 0.0, 0.3, p) == "silhouette"
     assert lost_track_reason(False, 0.01, 0.01, p) is None
     assert energy_jumped(0.4, 0.1, p) and not energy_jumped(0.4, 0.3, p) and not energy_jumped(0.1, 0.01, p)
     with pytest.raises(InputError, match="joint_jump_m"):
@@ -133,3 +134,30 @@ def test_cli_no_tracking(jump_session, capsys):
     assert [f["track"] for f in frames] == ["first", "tracked"]
     for key in ("read_ms", "init_ms", "refine_ms", "track_ms", "matching_ms", "solver_ms", "other_ms", "frame_ms"):
         assert frames[1][key] >= 0.0, key
+
+
+def test_fields_refinement_corrects_a_perturbed_tracker_pose(body_2k, synthetic_capture):
+    """The pose refinement on the silhouettes' distance fields (the implicit hull, no carving) brings a
+    perturbed tracker pose back as the carved hull's fit does (tests/reconstruct/test_pose_refine.py)."""
+    from test_pose_refine import _limb_error_mm, _perturbed
+
+    from bodystudio.reconstruct.articulated_fit import refine_bone_transforms
+    from bodystudio.reconstruct.evaluate import point_to_surface_mm
+    from bodystudio.reconstruct.pose_init import initialise_pose, pose_template
+    from bodystudio.reconstruct.tracking import silhouette_data_term
+
+    cap = synthetic_capture
+    fields = SilhouetteFields(cap["rig"], cap["masks"])
+    init = initialise_pose(body_2k, _perturbed(cap["joints"]))
+    term = silhouette_data_term(fields, TrackParams())
+    T = refine_bone_transforms(body_2k, init.bone_transforms, None, data_term=term)
+    refined = pose_template(body_2k, T, init.global_scale)
+    d_init = point_to_surface_mm(init.vertices, cap["V"], cap["F"])
+    d_refined = point_to_surface_mm(refined.vertices, cap["V"], cap["F"])
+    # Measured (4 cameras, 2.5K template): limb joints 51.8 -> 11.7 mm, surface median 12.0 -> 3.1 mm, p90
+    # 67.3 -> 10.8 mm (the carved hull's fit: 10.8 mm, 3.2 / 10.9 mm); 3 iterations instead of 10 leave
+    # 12.0 mm, 3.7 / 11.3 mm, so the bounds hold the converged figures.
+    assert _limb_error_mm(refined.joints, cap["joints"]) < 15.0 < 0.5 * _limb_error_mm(init.joints, cap["joints"])
+    assert np.percentile(d_refined, 90) < 11.2 < 0.5 * np.percentile(d_init, 90)
+    assert np.median(d_refined) < 3.5 < 0.5 * np.median(d_init)
+    assert outside_fraction(refined.vertices, fields) < 0.01 < outside_fraction(init.vertices, fields)
