@@ -1,18 +1,21 @@
 """Rapid Skin frame by frame as a tracker: the previous frame's pose as the prior, and a lost-track check.
 
-Rapid Skin initialises every frame from the skeleton joints (§IV.A) and calls the pose estimate
-"the starting point" of its per-frame shape estimation; a sequence at video rate moves little from one
-frame to the next, so the previous frame's refined pose is a better starting point than a fresh,
-noisy tracker pose, and it is cheap: the visual hull and the articulated fit to it (~190 ms at 13K) run
-only at the first frame or when the track is lost.
+Rapid Skin initialises every frame from the skeleton joints (§IV.A); a sequence at video rate moves
+little from one frame to the next, so the previous frame's refined pose can be the starting point
+instead, and the joints' initialisation and its refinement run only at the first frame or when the
+track is lost.
 
-A tracked frame starts from the previous frame's bone transforms and corrects them by the same
-Gauss-Newton step as :func:`bodystudio.reconstruct.articulated_fit.refine_bone_transforms`, with the
-hull replaced by the frame's per-camera signed distance fields of the silhouettes
-(:class:`SilhouetteFields`, computed once per frame): a template vertex that projects outside a
-silhouette is pulled in by its distance to it (the hull's "outside" term without carving the hull), and
-a rim vertex (Eq. 6 of Rapid Skin) that projects inside is pushed out to the nearest contour. Residuals
-are pixels scaled to metres at the vertex's depth (``d z / f``), so the hull fit's weights carry over.
+The image term is shared by both paths: per-camera signed distance fields of the frame's silhouettes
+(:class:`SilhouetteFields`, computed once per frame) give an implicit visual hull, ``max_c d_c z_c /
+f_c`` (:func:`silhouette_data_term`), that the Gauss-Newton step of
+:func:`bodystudio.reconstruct.articulated_fit.refine_bone_transforms` fits without carving the hull.
+A tracked frame starts that fit from the previous frame's bone transforms
+(:func:`track_bone_transforms`); a re-initialised one from the frame's tracker joints.
+
+Measured (docs/reconstruct.md): the implicit hull is as accurate as the carved hull and cheaper, and
+is the default refinement; tracking from the previous frame is off by default, since on the 30 fps
+benchmark sessions it carries the first frame's pose error along (p90 +0.0-0.9 mm against initialising
+every frame from its joints), and its time saving over the per-frame refinement is small.
 
 The lost-track check (:func:`lost_track_reason`), in this order, re-initialises from the tracker joints
 (or the hull) with the full articulated fit:
@@ -70,6 +73,7 @@ class TrackParams:
     iterations: int = 6
     prior_weight: float = 0.05
     joint_weight: float = 0.0
+    joint_bones: tuple[str, ...] = REFINE_BONES
 
     def __post_init__(self):
         for name, value, lo, hi in (("joint_jump_m", self.joint_jump_m, 1e-3, 10.0),
@@ -230,7 +234,7 @@ def track_bone_transforms(body, previous: np.ndarray, fields: SilhouetteFields,
                               robust_m=params.robust_m)
     anchors = None
     if joint_transforms is not None and params.joint_weight > 0:
-        anchors = (*joint_anchors(body, joint_transforms, refine.bones), params.joint_weight)
+        anchors = (*joint_anchors(body, joint_transforms, params.joint_bones), params.joint_weight)
     return refine_bone_transforms(body, previous, None, refine, data_term=silhouette_data_term(fields, params),
                                   anchors=anchors)
 

@@ -50,8 +50,8 @@ def _run(session, **kwargs):
 
 @pytest.fixture(scope="module")
 def runs(jump_session):
-    tracked = _run(jump_session)
-    per_frame = _run(jump_session, tracking=False)
+    tracked = _run(jump_session, tracking=True)
+    per_frame = _run(jump_session)
     return tracked, per_frame
 
 
@@ -98,7 +98,8 @@ def test_tracking_reaches_the_per_frame_accuracy(runs):
 
 def test_silhouette_check_alone_catches_the_jump(jump_session):
     """Without the joints' jump test, the prior pose's silhouette check still re-initialises at the jump."""
-    _, frames = _run(jump_session, track_params=TrackParams(joint_jump_m=10.0), frames=f"{JUMP_FRAME - 1}:")
+    _, frames = _run(jump_session, tracking=True, track_params=TrackParams(joint_jump_m=10.0),
+                     frames=f"{JUMP_FRAME - 1}:")
     assert [f["track"] for f in frames] == ["first", "silhouette", "tracked"]
     assert np.all(_medians(frames) < 4.4) and np.all(_p90s(frames) < 18.0)
 
@@ -120,19 +121,22 @@ def test_outside_fraction_and_rules(synthetic_capture):
         SilhouetteFields(cap["rig"], {})
 
 
-def test_cli_no_tracking(jump_session, capsys):
+def test_cli_tracking(jump_session, capsys):
     from bodystudio.cli.main import main
 
     path = str(jump_session.path)
-    assert main(["reconstruct", path, "--template", "2k", "--frames", "0:2", "--outer", "2", "--no-score",
-                 "--no-tracking"]) == 0
+    assert main(["reconstruct", path, "--template", "2k", "--frames", "0:2", "--outer", "2", "--no-score"]) == 0
     run = json.loads((jump_session.path / "reconstruct" / "run.json").read_text())
     frames = json.loads((jump_session.path / "reconstruct" / "frames.json").read_text())["frames"]
     assert run["tracking"] is False and [f["track"] for f in frames] == ["per_frame", "per_frame"]
-    assert main(["reconstruct", path, "--template", "2k", "--frames", "0:2", "--outer", "2", "--no-score"]) == 0
+    assert run["refine_with"] == "fields" and run["rest_cotangents"] is True
+    assert main(["reconstruct", path, "--template", "2k", "--frames", "0:2", "--outer", "2", "--no-score",
+                 "--tracking"]) == 0
+    run = json.loads((jump_session.path / "reconstruct" / "run.json").read_text())
     frames = json.loads((jump_session.path / "reconstruct" / "frames.json").read_text())["frames"]
-    assert [f["track"] for f in frames] == ["first", "tracked"]
-    for key in ("read_ms", "init_ms", "refine_ms", "track_ms", "matching_ms", "solver_ms", "other_ms", "frame_ms"):
+    assert run["tracking"] is True and [f["track"] for f in frames] == ["first", "tracked"]
+    for key in ("read_ms", "init_ms", "fields_ms", "refine_ms", "track_ms", "matching_ms", "solver_ms", "other_ms",
+                "frame_ms"):
         assert frames[1][key] >= 0.0, key
 
 

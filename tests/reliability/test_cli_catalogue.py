@@ -359,7 +359,7 @@ CASES = [
          absent=("{t}/S/reconstruct",)),
     Case("range-reconstruct-frames", "reconstruct {t}/S --frames 50:60", "selects no frame", setup=_session_copy),
     Case("range-reconstruct-solver", "reconstruct {t}/S --solver magic", "solver", setup=_session_copy),
-    Case("reconstruct-no-tracking-on-cluster", "reconstruct {t}/S --no-tracking --workers 2", "--no-tracking",
+    Case("reconstruct-tracking-on-cluster", "reconstruct {t}/S --tracking --workers 2", "--tracking",
          setup=_session_copy, absent=("{t}/S/reconstruct",)),
     Case("usage-reconstruct-tracking-value", "reconstruct {s} --tracking yes", "Got unexpected extra argument",
          subprocess=True, usage=True),
