@@ -34,11 +34,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 from bodystudio.body.kinect import kinect_joint_names
 from bodystudio.errors import InputError
-from bodystudio.geometry.camera import distort_normalized
 from bodystudio.reconstruct.articulated_fit import (
     REFINE_BONES,
     PoseRefineParams,
@@ -115,6 +115,27 @@ class SilhouetteFields:
             # pixel centres: +d outside, -d inside; the contour lies half-way, so shift by 0.5
             self.sdf[cam.name] = np.where(inside > 0, 0.5 - in_d, out_d - 0.5).astype(np.float32)
             self.offset[cam.name] = (x0, y0)
+        # the same fields packed for the compiled implicit-hull pass (one padded array, camera constants)
+        C = len(self.cameras)
+        shapes = np.array([self.sdf[c.name].shape for c in self.cameras], dtype=np.int64).reshape(C, 2)
+        self._packed_sdf = np.zeros((C, *(shapes.max(axis=0) if C else (1, 1))), np.float32)
+        for k, cam in enumerate(self.cameras):
+            self._packed_sdf[k, :shapes[k, 0], :shapes[k, 1]] = self.sdf[cam.name]
+        self._shapes = shapes
+        self._offsets = np.array([self.offset[c.name] for c in self.cameras], dtype=np.float64).reshape(C, 2)
+        self._R = np.array([c.R for c in self.cameras], dtype=np.float64).reshape(C, 3, 3)
+        self._t = np.array([c.t for c in self.cameras], dtype=np.float64).reshape(C, 3)
+        self._K = np.array([c.K for c in self.cameras], dtype=np.float64).reshape(C, 3, 3)
+        self._dist = np.array([np.asarray(c.dist, float)[:5] for c in self.cameras], dtype=np.float64).reshape(C, 5)
+        self._has_dist = np.array([c.has_distortion for c in self.cameras], dtype=np.bool_)
+        self._size = np.array([(c.width, c.height) for c in self.cameras], dtype=np.float64).reshape(C, 2)
+
+    def implicit_hull(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``max_c d_c z_c / f_c`` (m; -inf where no camera sees the point) and its gradient ``(n, 3)``
+        (zero beyond the fields): the implicit visual hull of :func:`silhouette_data_term`."""
+        return _implicit_hull(np.ascontiguousarray(V, dtype=np.float64), self._R, self._t, self._K, self._dist,
+                              self._has_dist, self._size, self._packed_sdf, self._shapes, self._offsets,
+                              self.margin_px)
 
     def sample(self, cam, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bilinear signed distance ``(m,)`` and its image gradient ``(m, 2)`` at pixels ``uv``; ``ok``
@@ -166,25 +187,7 @@ def silhouette_data_term(fields: SilhouetteFields, params: TrackParams):
     """
 
     def term(V: np.ndarray, N: np.ndarray):
-        n = len(V)
-        best = np.full(n, -np.inf)
-        G = np.zeros((n, 3))
-        for cam in fields.cameras:
-            Pc = V @ cam.R.T + cam.t
-            z = Pc[:, 2]
-            d, g, ok = fields.sample(cam, _pixels(cam, Pc))
-            ok &= z > 1e-6
-            f = 0.5 * (cam.fx + cam.fy)
-            r = np.where(ok, d * z / f, -np.inf)
-            i = np.flatnonzero(r > best)
-            if not len(i):
-                continue
-            best[i] = r[i]
-            zi, x, y = z[i], Pc[i, 0], Pc[i, 1]
-            # d(uv)/d(Pc) of the pinhole model, scaled to metres per pixel at the vertex's depth
-            du = np.stack([cam.fx / zi, np.zeros_like(zi), -cam.fx * x / zi ** 2], axis=1)
-            dv = np.stack([np.zeros_like(zi), cam.fy / zi, -cam.fy * y / zi ** 2], axis=1)
-            G[i] = ((g[i, :1] * du + g[i, 1:] * dv) * (zi / f)[:, None]) @ cam.R
+        best, G = fields.implicit_hull(V)
         seen = np.isfinite(best)
         norm = np.linalg.norm(G, axis=1)
         agree = np.einsum("ij,ij->i", N, G) > 0.2 * np.maximum(norm, 1e-12)
@@ -196,15 +199,58 @@ def silhouette_data_term(fields: SilhouetteFields, params: TrackParams):
     return term
 
 
-def _pixels(cam, Pc: np.ndarray) -> np.ndarray:
-    """Pixels of camera-frame points (the OpenCV model of :meth:`Camera.project_with_depth`)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xy = Pc[:, :2] / Pc[:, 2:3]
-    xy[Pc[:, 2] <= 0] = np.nan
-    if cam.has_distortion:
-        xy = distort_normalized(xy, cam.dist)
-    K = cam.K
-    return np.stack([K[0, 0] * xy[:, 0] + K[0, 1] * xy[:, 1] + K[0, 2], K[1, 1] * xy[:, 1] + K[1, 2]], axis=1)
+@numba.njit(cache=True)
+def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+    """One compiled pass of the implicit visual hull over vertices and cameras (see
+    :meth:`SilhouetteFields.implicit_hull`; OpenCV projection as :meth:`Camera.project_with_depth`)."""
+    n, C = V.shape[0], R.shape[0]
+    best = np.full(n, -np.inf)
+    G = np.zeros((n, 3))
+    for i in range(n):
+        X, Y, Z = V[i, 0], V[i, 1], V[i, 2]
+        for c in range(C):
+            xc = R[c, 0, 0] * X + R[c, 0, 1] * Y + R[c, 0, 2] * Z + t[c, 0]
+            yc = R[c, 1, 0] * X + R[c, 1, 1] * Y + R[c, 1, 2] * Z + t[c, 1]
+            z = R[c, 2, 0] * X + R[c, 2, 1] * Y + R[c, 2, 2] * Z + t[c, 2]
+            if not z > 1e-6:
+                continue
+            x, y = xc / z, yc / z
+            if has_dist[c]:
+                k1, k2, p1, p2, k3 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3], dist[c, 4]
+                r2 = x * x + y * y
+                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+                xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+                yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+                x, y = xd, yd
+            fx, fy = K[c, 0, 0], K[c, 1, 1]
+            u = fx * x + K[c, 0, 1] * y + K[c, 0, 2]
+            v = fy * y + K[c, 1, 2]
+            if not (u >= 0.0 and v >= 0.0 and u <= size[c, 0] - 1.0 and v <= size[c, 1] - 1.0):
+                continue
+            uu, vv = u - offsets[c, 0], v - offsets[c, 1]
+            d, gu, gv = margin, 0.0, 0.0
+            if uu >= 0.0 and vv >= 0.0 and uu < shapes[c, 1] - 1 and vv < shapes[c, 0] - 1:
+                xi, yi = int(uu), int(vv)
+                ax, ay = uu - xi, vv - yi
+                s00 = np.float64(sdf[c, yi, xi])
+                s10 = np.float64(sdf[c, yi, xi + 1])
+                s01 = np.float64(sdf[c, yi + 1, xi])
+                s11 = np.float64(sdf[c, yi + 1, xi + 1])
+                d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
+                gu = (1 - ay) * (s10 - s00) + ay * (s11 - s01)
+                gv = (1 - ax) * (s01 - s00) + ax * (s11 - s10)
+            f = 0.5 * (fx + fy)
+            r = d * z / f
+            if r > best[i]:
+                best[i] = r
+                # d(uv)/d(Pc) of the pinhole model, scaled to metres per pixel at the vertex's depth, to world
+                s = z / f
+                g0 = s * gu * fx / z
+                g1 = s * gv * fy / z
+                g2 = -s * (gu * fx * xc + gv * fy * yc) / (z * z)
+                for k in range(3):
+                    G[i, k] = g0 * R[c, 0, k] + g1 * R[c, 1, k] + g2 * R[c, 2, k]
+    return best, G
 
 
 def joint_anchors(body, joint_transforms: np.ndarray, bones=REFINE_BONES):

@@ -165,3 +165,59 @@ def test_fields_refinement_corrects_a_perturbed_tracker_pose(body_2k, synthetic_
     assert np.percentile(d_refined, 90) < 11.2 < 0.5 * np.percentile(d_init, 90)
     assert np.median(d_refined) < 3.5 < 0.5 * np.median(d_init)
     assert outside_fraction(refined.vertices, fields) < 0.01 < outside_fraction(init.vertices, fields)
+
+
+def _implicit_hull_reference(fields, V):
+    """Plain numpy ``max_c d_c z_c / f_c`` and its gradient, camera by camera (Camera.project, bilinear
+    sampling of each field), against which the compiled pass is checked."""
+    best, G = np.full(len(V), -np.inf), np.zeros((len(V), 3))
+    for cam in fields.cameras:
+        S, (x0, y0) = fields.sdf[cam.name], fields.offset[cam.name]
+        Pc = cam.world_to_camera(V)
+        z = Pc[:, 2]
+        uv = cam.project(V)
+        for i in range(len(V)):
+            u, v = uv[i]
+            if not (z[i] > 1e-6 and 0 <= u <= cam.width - 1 and 0 <= v <= cam.height - 1):
+                continue
+            uu, vv = u - x0, v - y0
+            d, g = fields.margin_px, np.zeros(2)
+            if 0 <= uu < S.shape[1] - 1 and 0 <= vv < S.shape[0] - 1:
+                xi, yi = int(uu), int(vv)
+                ax, ay = uu - xi, vv - yi
+                s = S[yi:yi + 2, xi:xi + 2].astype(np.float64)
+                d = (1 - ay) * ((1 - ax) * s[0, 0] + ax * s[0, 1]) + ay * ((1 - ax) * s[1, 0] + ax * s[1, 1])
+                g = np.array([(1 - ay) * (s[0, 1] - s[0, 0]) + ay * (s[1, 1] - s[1, 0]),
+                              (1 - ax) * (s[1, 0] - s[0, 0]) + ax * (s[1, 1] - s[0, 1])])
+            f = 0.5 * (cam.fx + cam.fy)
+            if d * z[i] / f > best[i]:
+                best[i] = d * z[i] / f
+                x, y = Pc[i, 0], Pc[i, 1]
+                J = np.array([[cam.fx / z[i], 0, -cam.fx * x / z[i] ** 2], [0, cam.fy / z[i], -cam.fy * y / z[i] ** 2]])
+                G[i] = (g @ J) * z[i] / f @ cam.R
+    return best, G
+
+
+def test_compiled_implicit_hull_equals_the_numpy_reference(synthetic_capture):
+    from dataclasses import replace
+
+    cap = synthetic_capture
+    rng = np.random.default_rng(3)
+    # lens distortion on two views, and points inside, outside, beyond the fields' margin and off-image
+    rig = [replace(c, dist=np.array([-0.2, 0.05, 1e-3, -1e-3, 0.01])) if k % 2 else c
+           for k, c in enumerate(cap["rig"])]
+    fields = SilhouetteFields(rig, cap["masks"])
+    V = np.concatenate([cap["V"][::7] + rng.normal(0, 0.03, (len(cap["V"][::7]), 3)),
+                        rng.uniform([-2, -0.5, -2], [2, 2.5, 2], (300, 3))])
+    best, G = fields.implicit_hull(V)
+    ref_best, ref_G = _implicit_hull_reference(fields, V)
+    assert np.array_equal(np.isfinite(best), np.isfinite(ref_best))
+    ok = np.isfinite(best)
+    assert ok.sum() > 0.8 * len(V) and (best[ok] < 0).sum() > 100 and (best[ok] > 0.05).sum() > 50
+    assert np.allclose(best[ok], ref_best[ok], atol=1e-9)
+    assert np.allclose(G, ref_G, atol=1e-9)
+    # the field's gradient points outwards: a step along it raises the distance by about its length
+    i = np.flatnonzero(ok & (np.abs(best) < 0.02) & (np.linalg.norm(G, axis=1) > 0.5))
+    step = 1e-3 * G[i] / np.linalg.norm(G[i], axis=1, keepdims=True)
+    gain = fields.implicit_hull(V[i] + step)[0] - best[i]
+    assert np.median(gain / (1e-3 * np.linalg.norm(G[i], axis=1))) > 0.8
