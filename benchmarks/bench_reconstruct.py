@@ -191,6 +191,92 @@ TRACK_MODES = (("per-frame init, hull", False, "hull"), ("per-frame init, fields
 REGION_NAMES = ("head", "torso", "crotch", "arms", "hands", "legs", "feet")
 
 
+def _frame_steps(session_path: Path, repeats: int) -> str:
+    """CPU ms (one thread, median of ``repeats``) of each step of frame 1 of a video-rate session, for the
+    previous default (carved hull), the new default (distance fields) and the tracker (from frame 0's
+    pose): CPU time stays meaningful on a loaded machine where wall time does not."""
+    import time
+
+    import numba
+    from threadpoolctl import threadpool_limits
+
+    from bodystudio.body import build_body
+    from bodystudio.capture.session import open_session
+    from bodystudio.geometry.laplacian import cotangent_weights
+    from bodystudio.reconstruct.articulated_fit import refine_bone_transforms
+    from bodystudio.reconstruct.pose_init import initialise_pose, pose_template
+    from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
+    from bodystudio.reconstruct.sequence import frame_joints
+    from bodystudio.reconstruct.tracking import (
+        SilhouetteFields,
+        TrackParams,
+        outside_fraction,
+        silhouette_data_term,
+        track_bone_transforms,
+    )
+    from bodystudio.reconstruct.visual_hull import visual_hull
+
+    def cpu(f, *args, **kwargs):
+        t = time.process_time()
+        out = f(*args, **kwargs)
+        return 1000 * (time.process_time() - t), out
+
+    def read_masks(frame):
+        return {n: frame.masks[n] for n in frame.masks}
+
+    def checks(T_prior, T_fit, fields):
+        return [outside_fraction(pose_template(fit_body, T).vertices, fields) for T in (T_prior, T_fit)]
+
+    numba.set_num_threads(1)
+    session = open_session(session_path)
+    cams = list(session.cameras)
+    body, fit_body = build_body(resolution="full"), build_body(resolution="2k")
+    frame0 = session.frame(session.frame_ids[0])
+    T0 = initialise_pose(fit_body, frame_joints(session, frame0, "tracker", None)).bone_transforms
+    rest_delta = cotangent_weights(body.vertices, body.faces)
+    params = TrackParams()
+    ms: dict[str, list[float]] = {}
+    with threadpool_limits(1):
+        for rep in range(repeats + 1):  # the first run compiles
+            steps = {}
+            frame = open_session(session_path).frame(session.frame_ids[1])
+            steps["read masks"], masks = cpu(read_masks, frame)
+            steps["read joints"], J = cpu(frame_joints, session, frame, "tracker", None)
+            t_pose, init2 = cpu(initialise_pose, fit_body, J)
+            t_pose13, init = cpu(initialise_pose, body, J)
+            steps["pose init from joints (2.5K + 13K)"] = t_pose + t_pose13
+            steps["visual hull (carved)"], hull = cpu(visual_hull, cams, masks)
+            steps["hull fit (10 it)"], _ = cpu(refine_bone_transforms, fit_body, init2.bone_transforms, hull)
+            steps["distance fields"], fields = cpu(SilhouetteFields, cams, masks)
+            steps["fields fit (10 it)"], T = cpu(refine_bone_transforms, fit_body, init2.bone_transforms, None,
+                                                 data_term=silhouette_data_term(fields, params))
+            steps["tracking fit (6 it)"], Tt = cpu(track_bone_transforms, fit_body, T0, fields, params)
+            steps["lost-track checks"], _ = cpu(checks, T0, Tt, fields)
+            steps["pose 13K (LBS)"], P = cpu(pose_template, body, T, init.global_scale)
+            steps["cotangent weights 13K (per frame)"], _ = cpu(cotangent_weights, P.vertices, body.faces)
+            t = time.process_time()
+            r = deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(), delta=rest_delta)
+            deform = 1000 * (time.process_time() - t)
+            share = r.matching_s / max(r.matching_s + r.solver_s, 1e-12)
+            steps["matching (No = 8 x 10 views)"] = deform * share
+            steps["solver (GS, No = 8 x Ni = 8)"] = deform * (1 - share)
+            if rep:
+                for k, v in steps.items():
+                    ms.setdefault(k, []).append(v)
+    med = {k: statistics.median(v) for k, v in ms.items()}
+    common = med["read masks"] + med["read joints"] + med["pose 13K (LBS)"] + med["matching (No = 8 x 10 views)"] \
+        + med["solver (GS, No = 8 x Ni = 8)"]
+    old = common + med["pose init from joints (2.5K + 13K)"] + med["visual hull (carved)"] + med["hull fit (10 it)"] \
+        + med["cotangent weights 13K (per frame)"]
+    new = common + med["pose init from joints (2.5K + 13K)"] + med["distance fields"] + med["fields fit (10 it)"]
+    tracked = common + med["distance fields"] + med["tracking fit (6 it)"] + med["lost-track checks"]
+    rows = [[k, v] for k, v in med.items()]
+    rows += [["**whole frame, previous default** (joints + carved hull fit + per-frame cotangents)", old],
+             ["**whole frame, new default** (joints + distance-field fit, rest cotangents)", new],
+             ["**whole frame, tracked frame** (previous pose + distance-field fit + checks)", tracked]]
+    return markdown_table(["step (frame 1, 13K, 10 cameras 640x480, one thread)", "CPU ms (median)"], rows)
+
+
 def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
     import json
 
@@ -206,6 +292,8 @@ def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
         path = tmp / f"{motion}{subject}"
         synth_session(path, n_cameras=10, n_frames=n_frames, motion=motion, subject_seed=subject, template="full",
                       fps=TRACK_FPS)
+        if motion == "walk":
+            out["steps"] = _frame_steps(path, 5)
         for constraints in (("silhouette",), ("silhouette", "depth")):
             for mode, tracking, refine_with in TRACK_MODES:
                 with threadpool_limits(1):
@@ -239,7 +327,7 @@ def run(quick: bool = False) -> str:
         acc_table, acc = _accuracy(session.path, f"0:{n_frames}")
         time_table, ms = _timings(session.path, 3 if quick else 5)
         conv_table, png = _convergence(session.path, 10 if quick else 20)
-        track_time, track_acc, _ = _tracking(Path(tmp), 3 if quick else 6)
+        track_time, track_acc, track_extra = _tracking(Path(tmp), 3 if quick else 6)
     sil, sil_plain = acc["silhouette"], acc["silhouette (tracker init only)"]
     both, both_plain = acc["silhouette,depth"], acc["silhouette,depth (tracker init only)"]
     gs13, ch13 = ms[("13k", "gs")], ms[("13k", "cholesky")]
@@ -277,4 +365,7 @@ def run(quick: bool = False) -> str:
         "in both modes), numba and BLAS on one thread, wall time on the shared machine.",
         track_time,
         track_acc,
+        "CPU time per step of one frame (walk s31, frame 1; `time.process_time`, one thread, median of 5: "
+        "meaningful on the shared machine where the wall times above are not):",
+        track_extra["steps"],
     ])
