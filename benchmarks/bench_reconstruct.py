@@ -337,14 +337,16 @@ def run(quick: bool = False) -> str:
         "joints (1 cm noise, 3 % bone-length jitter), No = 8 x Ni = 8, tau = 30 px, alpha = 40 px. Errors are "
         "two-way point-to-surface distances, pooled; 'visible' keeps ground-truth points seen by a camera. "
         "Default: the pose from the tracker joints (Sec. IV.A) is refined by an articulated fit of its bone "
-        "transforms to the silhouettes' visual hull (2.5K template) before the deformation; 'tracker init "
-        "only' is the paper's initialisation (`--no-refine-pose`). Init ms is wall time on the shared machine.",
+        "transforms (2.5K template) to the implicit visual hull of the silhouettes' distance fields before the "
+        "deformation; 'tracker init only' is the paper's initialisation (`--no-refine-pose`). Every frame is "
+        "initialised from its joints (these 6 frames span a whole walk cycle, far from video rate; the "
+        "tracker's tables are below). Init ms is wall time on the shared machine.",
         acc_table,
         f"Default, median / p90 on the visible surface (goals <= 4 / <= 10 mm): silhouettes {sil['median_mm']:.2f} / "
         f"{sil['p90_mm']:.2f} mm, silhouettes + depth {both['median_mm']:.2f} / {both['p90_mm']:.2f} mm; "
         f"tracker init only {sil_plain['median_mm']:.2f} / {sil_plain['p90_mm']:.2f} and "
         f"{both_plain['median_mm']:.2f} / {both_plain['p90_mm']:.2f} mm. The refinement costs "
-        f"{sil['init_ms'] - sil_plain['init_ms']:.0f} ms per frame (visual hull and 10 Gauss-Newton iterations; "
+        f"{sil['init_ms'] - sil_plain['init_ms']:.0f} ms per frame (distance fields and 10 Gauss-Newton iterations; "
         "in ms_per_frame, not in the solver time). Statistics are over vertices (the 13K mesh is densest on "
         "head, hands and feet); the area share under 10 mm is area-weighted.",
         "Solver time per frame, one thread (numba and BLAS limited to 1), contour matching excluded (paper "
@@ -359,9 +361,10 @@ def run(quick: bool = False) -> str:
         conv_table,
         f"### Tracker vs per-frame initialisation (issue 15)\n\nVideo-rate sessions ({TRACK_FPS:.0f} fps, "
         f"{3 if quick else 6} frames) of subjects the tests do not use, 10 cameras 640x480, 13K template, tracker "
-        "joints. 'per-frame init': every frame from its joints + the visual-hull refinement (the previous "
-        "default); 'tracker': the previous frame's pose fitted to the frame's silhouette distance fields, "
-        "re-initialised on a lost track. Whole-frame ms by step are means over frames 1.. (frame 0 initialises "
+        "joints. 'per-frame init, hull': every frame from its joints + the refinement on the carved visual hull "
+        "(the previous default); 'per-frame init, fields': the same on the distance fields' implicit hull "
+        "(the new default); 'tracker' (`--tracking`): the previous frame's pose fitted to the distance "
+        "fields, re-initialised on a lost track. Whole-frame ms by step are means over frames 1.. (frame 0 initialises "
         "in both modes), numba and BLAS on one thread, wall time on the shared machine.",
         track_time,
         track_acc,
