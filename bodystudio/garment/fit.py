@@ -59,6 +59,14 @@ GAMMA_INTERPENETRATION = 4.0
 #: Eq. 5's delta (1/rad).
 DELTA_TEMPORAL = 4.0
 KEYFRAME_WEIGHT = 0.5
+#: Pose prior (our addition, the monocular ambiguity of §4.4 that the paper leaves to the user): ridge
+#: towards the standing pose per rad, and anatomical limits (hip extension, hinge knees) per rad beyond them.
+PRIOR_RIDGE = 0.4
+PRIOR_SPINE = 2.0
+PRIOR_UPRIGHT = 4.0
+PRIOR_LIMITS = 10.0
+HIP_EXTENSION_LIMIT = 0.1
+KNEE_HYPEREXTENSION_LIMIT = 0.05
 SILHOUETTE_SAMPLES = 500
 
 
@@ -308,6 +316,26 @@ def interpenetration_residuals(V: np.ndarray, T: np.ndarray, spheres: Penetratio
     return np.clip(depth, 0.0, None).max(1)
 
 
+def pose_prior_residuals(x: np.ndarray, space: PoseSpace) -> np.ndarray:
+    """Soft anatomical prior that resolves the front/back ambiguity of a monocular silhouette (knees that
+    bend backwards look like knees raised forwards): hips extend at most :data:`HIP_EXTENSION_LIMIT`,
+    knees are hinges that do not over-extend, the body stays upright, and every fitted joint is pulled
+    weakly towards the standing pose. Angles are about the rest-pose world axes (x: left-right)."""
+    sk = space.body.skeleton
+    local = np.asarray(x[6:]).reshape(-1, 3)
+    world = np.einsum("bij,bj->bi", sk.rest_rotations[space.bone_ids], local)
+    names = [sk.bone_names[i] for i in space.bone_ids]
+    limits = []
+    for side in ("l", "r"):
+        thigh = world[names.index(f"thigh_{side}")]
+        calf = world[names.index(f"calf_{side}")]
+        limits += [max(0.0, thigh[0] - HIP_EXTENSION_LIMIT), max(0.0, -calf[0] - KNEE_HYPEREXTENSION_LIMIT),
+                   calf[1], calf[2]]
+    ridge = local - space.base[space.bone_ids]
+    weight = np.where(np.array(names) == "spine_02", PRIOR_SPINE, PRIOR_RIDGE)[:, None]
+    return np.concatenate([PRIOR_LIMITS * np.array(limits), (weight * ridge).ravel(), PRIOR_UPRIGHT * x[[0, 2]]])
+
+
 @dataclass(frozen=True)
 class KeyframeConstraints:
     """Soft user constraints of §4.4: frame id -> {bone name: (u, v) pixel of the bone's head}."""
@@ -364,7 +392,8 @@ class PoseProblem:
 
 
 def pose_residuals(x: np.ndarray, p: PoseProblem) -> np.ndarray:
-    """Eq. 4: silhouette + beta temporal + gamma interpenetration (+ soft user constraints), stacked."""
+    """Eq. 4: silhouette + beta temporal + gamma interpenetration (+ soft user constraints), stacked, plus
+    our anatomical prior (:func:`pose_prior_residuals`)."""
     T = p.space.transforms(x)
     V = p.space.vertices(x, p.space.sample_ids, T)
     uv = p.camera.project(V)
@@ -373,6 +402,7 @@ def pose_residuals(x: np.ndarray, p: PoseProblem) -> np.ndarray:
         parts.append(np.sqrt(ALPHA_HEIGHT) * height_residuals(uv, p.target) / 10.0)
     if p.neighbour is not None:
         parts.append(temporal_residuals(x, p.neighbour))
+    parts.append(pose_prior_residuals(x, p.space))
     px_per_m = p.camera.fx / max(float(p.camera.world_to_camera(V.mean(0, keepdims=True))[0, 2]), 0.1)
     depth = interpenetration_residuals(p.space.vertices(x, p.spheres.probe_ids, T), T, p.spheres)
     parts.append(np.sqrt(GAMMA_INTERPENETRATION) * px_per_m * depth / np.sqrt(len(p.spheres.probe_ids)))
@@ -387,7 +417,7 @@ def fit_frame_pose(x0: np.ndarray, problem: PoseProblem, max_nfev: int = 6) -> n
     """Minimise Eq. 4 for one frame from ``x0`` (trust-region least squares, finite-difference Jacobian)."""
     scale = np.concatenate([np.full(3, 0.3), np.full(3, 0.1), np.full(len(x0) - 6, 0.3)])
     res = scipy.optimize.least_squares(pose_residuals, x0, args=(problem,), method="trf", x_scale=scale,
-                                       diff_step=1e-3, max_nfev=max_nfev * (len(x0) + 1), loss="linear")
+                                       diff_step=1e-3, max_nfev=max_nfev, loss="linear")
     return res.x
 
 
@@ -407,6 +437,23 @@ def initial_placement(space: PoseSpace, camera, target: SilhouetteTarget) -> np.
     top_world = CAMERA_HEIGHT_M - (v_top - cy) / camera.fy * depth
     x[3:6] = [x_world, top_world - V[:, 1].max(), -depth]
     return x
+
+
+def initial_placements(space: PoseSpace, camera, target: SilhouetteTarget) -> list[np.ndarray]:
+    """Starts of the reference-frame pose (the user's click-and-drag pose of §4.3, automated): standing,
+    and either knee raised forward (a silhouette cannot tell a raised knee from a leg bent backwards)."""
+    x0 = initial_placement(space, camera, target)
+    sk = space.body.skeleton
+    names = [sk.bone_names[i] for i in space.bone_ids]
+    out = [x0]
+    for side in ("l", "r"):
+        x = x0.copy()
+        for bone, angle in ((f"thigh_{side}", -0.6), (f"calf_{side}", 1.0)):
+            k = names.index(bone)
+            R = sk.rest_rotations[space.bone_ids[k]]
+            x[6 + 3 * k: 9 + 3 * k] = R.T @ np.array([angle, 0.0, 0.0])
+        out.append(x)
+    return out
 
 
 # --- shape (§4.3, Eq. 1) -----------------------------------------------------------------------------
@@ -500,8 +547,9 @@ def estimate_shape(masks: np.ndarray, camera, stature_m: float, template: str = 
     spheres = penetration_spheres(body)
     xs = []
     for t in targets:
-        x = initial_placement(space, camera, t)
-        xs.append(fit_frame_pose(x, PoseProblem(space, camera, t, spheres, with_height=True), max_nfev=12))
+        problem = PoseProblem(space, camera, t, spheres, with_height=True)
+        starts = [fit_frame_pose(x, problem, max_nfev=12) for x in initial_placements(space, camera, t)]
+        xs.append(min(starts, key=lambda x: float(np.sum(pose_residuals(x, problem) ** 2))))
     for _ in range(rounds):
         phenotype, local = nelder_mead_shape(MACRO_PARAMETERS, np.array([phenotype[k] for k in MACRO_PARAMETERS]),
                                              phenotype, local, xs, camera, targets, stature_m, template, base,
@@ -557,17 +605,54 @@ def mean_lighting(lights: list):
     return Lighting(dirs, cols, amb)
 
 
+def clip_lighting(images: list, masks: list, posed: list, F: np.ndarray, camera, albedo: np.ndarray,
+                  samples_per_frame: int = 1500, erode_px: int = 3):
+    """Eq. 7 with the rows of several frames stacked: one set of lights for a static scene.
+
+    Each frame gives ``samples_per_frame`` body pixels (``surface_samples``) inside both the fitted body
+    (eroded by ``erode_px``) and the person matte; pooling frames averages out the normal errors of any one
+    frame's fitted pose (measured in docs/garment.md against per-frame lights).
+    """
+    from bodystudio.garment.lighting import estimate_lighting, surface_samples
+
+    rows = [surface_samples(img, V, F, camera, albedo, samples_per_frame, erode_px, seed=k, pixel_mask=m)
+            for k, (img, V, m) in enumerate(zip(images, posed, masks, strict=True))]
+    P, N, A, B = (np.concatenate([r[i] for r in rows]) for i in range(4))
+    centre = np.mean([V.mean(0) for V in posed], axis=0)
+    axis = camera.center - centre
+    return estimate_lighting(P, N, A, B, axis / np.linalg.norm(axis))
+
+
 def estimate_appearance(images: np.ndarray, masks: np.ndarray, posed: list[np.ndarray], F: np.ndarray, camera,
-                        max_frames: int = 8, iterations: int = 2):
-    """§5: albedo and lighting of the fitted body (``estimate_albedo_and_lighting`` on up to ``max_frames``
-    frames spread over the clip); returns ``(albedo (V, 3), Lighting)``."""
-    from bodystudio.garment.lighting import estimate_albedo_and_lighting
+                        max_frames: int = 8, iterations: int = 3):
+    """§5 on the fitted body: albedo (§5.1) and one lighting for the clip (Eq. 7), alternated.
+
+    Starts from the mean colour over time (``estimate_albedo``, §5.1); each round solves the clip's lights
+    with the current albedo (:func:`clip_lighting`) and re-solves each vertex's albedo as
+    ``sum_t I S / sum_t S^2`` over the frames that see it (as ``estimate_albedo_and_lighting``, with one
+    lighting instead of one per frame). Up to ``max_frames`` frames spread over the clip. Returns
+    ``(albedo (V, 3), Lighting)``.
+    """
+    from bodystudio.garment.lighting import estimate_albedo, vertex_shading, visible_vertex_colors
 
     pick = np.unique(np.linspace(0, len(images) - 1, min(max_frames, len(images))).round().astype(int))
-    albedo, lights = estimate_albedo_and_lighting([images[i] for i in pick], [posed[i] for i in pick], F, camera,
-                                                  iterations=iterations,
-                                                  pixel_masks=[masks[i] for i in pick])
-    return albedo, mean_lighting(lights)
+    imgs, Vs, ms = [images[i] for i in pick], [posed[i] for i in pick], [masks[i] for i in pick]
+    albedo, count = estimate_albedo(imgs, Vs, F, camera)
+    seen = count > 0
+    anchor = albedo[seen].mean(0)
+    observations = visible_vertex_colors(imgs, Vs, F, camera)
+    lighting = clip_lighting(imgs, ms, Vs, F, camera, albedo)
+    for _ in range(iterations):
+        num, den = np.zeros_like(albedo), np.zeros_like(albedo)
+        for (ids, colors), V in zip(observations, Vs, strict=True):
+            S = vertex_shading(V, F, lighting)[ids]
+            num[ids] += colors * S
+            den[ids] += S * S
+        ok = seen & np.all(den > 1e-12, axis=1)
+        albedo[ok] = num[ok] / den[ok]
+        albedo = np.clip(albedo * anchor / np.maximum(albedo[seen].mean(0), 1e-12), 0.0, None)
+        lighting = clip_lighting(imgs, ms, Vs, F, camera, albedo)
+    return albedo, lighting
 
 
 # --- the whole fit -----------------------------------------------------------------------------------
