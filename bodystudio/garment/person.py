@@ -90,11 +90,14 @@ def read_video(path: str | os.PathLike, frames: str | None = None) -> tuple[np.n
         meta = next(reader)
         width, height = meta["size"]
         fps = float(meta.get("fps") or 30.0)
+        stop = _requested_end(frames)
         out = []
         for raw in reader:
             out.append(np.frombuffer(raw, np.uint8).reshape(height, width, 3))
+            if stop is not None and len(out) >= stop:
+                break
             if len(out) > MAX_VIDEO_FRAMES:
-                raise InputError(f"{path}: more than {MAX_VIDEO_FRAMES} frames; cut the clip or pass --frames")
+                raise InputError(f"{path}: more than {MAX_VIDEO_FRAMES} frames; cut the clip or pass --frames a:b")
         reader.close()
     except InputError:
         raise
@@ -105,6 +108,14 @@ def read_video(path: str | os.PathLike, frames: str | None = None) -> tuple[np.n
         raise FileFormatError(f"{path}: the video has no frames; pass a video with the actor in it")
     images = np.stack(out)
     return images[parse_frame_range(frames, len(images), str(path))], fps
+
+
+def _requested_end(frames: str | None) -> int | None:
+    """The END of ``--frames START:END`` when given (reading can stop there), else None."""
+    if not frames or ":" not in frames:
+        return None
+    end = frames.split(":")[-1]
+    return int(end) if end.isdigit() else None
 
 
 def temporal_background(images: np.ndarray) -> np.ndarray:
