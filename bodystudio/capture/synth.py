@@ -50,11 +50,14 @@ def kinect_sensor(version: str):
 def synth_session(out: str | os.PathLike, n_cameras: int = 10, n_frames: int = 30, motion: str = "walk",
                   subject_seed: int = 7, kinect: str | None = "v2", resolution: tuple[int, int] = (640, 480),
                   noise: bool = True, seed: int = 0, template: str = "full",
-                  n_background: int = N_BACKGROUND_FRAMES, progress: bool = False) -> Session:
+                  n_background: int = N_BACKGROUND_FRAMES, progress: bool = False,
+                  fps: float | None = None) -> Session:
     """Render a synthetic studio session of subject ``subject_seed`` into the new folder ``out``.
 
     ``seed`` drives the motion variation, sensor noise and background texture; the same arguments
-    always give the same session (byte-identical files).
+    always give the same session (byte-identical files). ``fps``: the motion plays at its natural
+    speed sampled at that frame rate (a video-rate sequence, as a tracker sees it) instead of
+    ``n_frames`` samples spread over the whole motion.
     """
     from bodystudio.body import build_body, posed_joints
     from bodystudio.body.population import sample_subject
@@ -76,7 +79,7 @@ def synth_session(out: str | os.PathLike, n_cameras: int = 10, n_frames: int = 3
     phenotype, local = sample_subject(subject_seed)
     body = build_body(phenotype, local, resolution=template)
     skeleton, F = body.skeleton, body.faces
-    poses = motion_sequence(motion, n_frames, skeleton, seed)
+    poses = motion_sequence(motion, n_frames, skeleton, seed, fps=fps)
     rig = ring_rig(n_cameras, width=width, height=height)
     plates = {cam.name: background_plate(cam, seed) for cam in rig}
     sensor = kinect_sensor(kinect) if kinect else None
@@ -84,6 +87,8 @@ def synth_session(out: str | os.PathLike, n_cameras: int = 10, n_frames: int = 3
     metadata = {"generator": "bodystudio synth session", "subject_seed": subject_seed, "motion": motion,
                 "seed": seed, "noise_std": noise_std, "template": template, "kinect": kinect,
                 "resolution": [width, height]}
+    if fps is not None:
+        metadata["fps"] = float(fps)
     with progress_bar(progress) as bar:
         task = bar.add_task("synth session", total=n_frames + 1)
         with SessionWriter(out, rig, source="synthetic", metadata=metadata,

@@ -25,3 +25,15 @@ def eval_mirror(
     scores = evaluate_mirror(session, run)
     # strict JSON (RFC 8259): an infinite PSNR (output identical to the target) is null + psnr_person_identical
     typer.echo(json.dumps(scores, indent=2, allow_nan=False))
+
+
+@app.command("garment")
+def eval_garment(
+    fit_dir: Path = typer.Argument(..., help="fit folder of `bodystudio garment fit`"),
+    session: Path = typer.Option(None, "--session", help="synthetic session (default: the fit's source)"),
+) -> None:
+    """Score a garment fit against the synthetic session's ground truth (JSON): stature, joints, light, albedo,
+    silhouette IoU, ms per frame; plus the composite's scores when DIR/render/render.json exists."""
+    from bodystudio.garment.evaluate import evaluate_garment
+
+    typer.echo(json.dumps(evaluate_garment(fit_dir, session), indent=2, allow_nan=False))

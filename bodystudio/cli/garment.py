@@ -1,4 +1,4 @@
-"""``bodystudio garment ...`` (render; fit is added by the fit helper) and ``synth garment`` (issue 13)."""
+"""``bodystudio garment fit`` (§4-5), ``garment render`` (§6-7) and ``synth garment`` (issue 13)."""
 
 from __future__ import annotations
 
@@ -37,6 +37,37 @@ def synth_garment(
                                     progress=True)
     typer.echo(f"wrote {out}: {len(session)} frames of {motion} wearing a plain {garment} (target: {pattern} "
                f"{garment}), streams {', '.join(session.streams)}")
+
+
+@app.command("fit")
+def garment_fit(
+    source: Path = typer.Argument(..., help="video file (MP4, MOV, ...) or session folder (cam_00/rgb + mask)"),
+    stature: float = typer.Option(None, "--stature", help="the actor's stature in metres (0.5-2.5), required"),
+    out: Path = typer.Option(..., "--out", help="new fit folder"),
+    frames: str = typer.Option(None, "--frames", help="frame range START:END (default: all)"),
+    template: str = typer.Option("2k", "--template", help="body template: 2k | 6k | full"),
+    focal_px: float = typer.Option(None, "--focal-px", help="focal length in pixels (default: a 40 deg vertical "
+                                                          "field of view)"),
+    keyframes: Path = typer.Option(None, "--keyframes", help='JSON of soft 2D joint constraints '
+                                                            '{"frames": {"12": {"hand_l": [u, v]}}}'),
+) -> None:
+    """Fit the body to a monocular video (§4: shape, pose per frame; §5: albedo and lighting) into OUT."""
+    import json
+
+    from bodystudio.errors import InputError
+    from bodystudio.fileio import check_output_folder
+    from bodystudio.garment.fit import fit_garment_video
+
+    if stature is None:
+        raise InputError("--stature is required: give the actor's stature in metres (e.g. --stature 1.78)")
+    if keyframes is not None and not keyframes.is_file():
+        raise InputError(f"--keyframes {keyframes}: no such file")
+    check_output_folder(out, "fit folder", new=True)
+    fit = fit_garment_video(source, stature, out, frames=frames, template=template, focal_px=focal_px,
+                            keyframes=keyframes, progress=True)
+    typer.echo(json.dumps({"out": str(out), "frames": len(fit.frame_ids), "stature_m": round(fit.stature_m, 4),
+                           "silhouette_iou_mean": round(float(fit.silhouette_iou.mean()), 4),
+                           "ms_per_frame": fit.timings_ms, "warnings": list(fit.warnings)}))
 
 
 @app.command("render")

@@ -59,8 +59,10 @@ def _register() -> None:
     app.add_typer(mirror.app, name="mirror", help="Virtual mirror: fit, track and reshape a person in Kinect video.")
     from bodystudio.cli import batch, garment  # garment also adds ``synth garment``
 
+    app.add_typer(garment.app, name="garment",
+                  help="Garment replacement in monocular video: fit the body (§4-5), render the new garment (§6-7).")
+
     app.add_typer(batch.app, name="batch", help="Batch jobs on a dask cluster: rig a folder of scans (resumable).")
-    app.add_typer(garment.app, name="garment", help="Garment replacement in monocular video: render.")
 
 
 _register()

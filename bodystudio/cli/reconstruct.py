@@ -36,6 +36,9 @@ def reconstruct(
     refine_pose: bool = typer.Option(True, help="refine the joints' pose by an articulated fit to the silhouettes' "
                                      "visual hull before deforming (--no-refine-pose: the paper's init)"),
     score: bool = typer.Option(True, help="score against ground truth when the session has it"),
+    tracking: bool = typer.Option(False, help="start each frame from the previous frame's pose fitted to its "
+                                  "silhouettes, re-initialising from the joints on a lost track (default "
+                                  "--no-tracking: every frame from its joints, measured more accurate)"),
     scheduler: str | None = typer.Option(None, "--scheduler", help="run chunks on this dask scheduler "
                                          "(tcp://HOST:8786; default $BODYSTUDIO_SCHEDULER)"),
     workers: int | None = typer.Option(None, "--workers", help="run chunks on a local cluster of N worker processes"),
@@ -60,6 +63,9 @@ def reconstruct(
     from bodystudio.batch import ENV_SCHEDULER
 
     if scheduler is not None or workers is not None or chunk is not None or os.environ.get(ENV_SCHEDULER):
+        if tracking:
+            raise InputError("--tracking runs on the sequential path only; drop --workers/--scheduler/--chunk "
+                             f"(and ${ENV_SCHEDULER}) or drop --tracking")
         summary = _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, params,
                                           template=template, joints=joints, warm_start=warm_start,
                                           refine_pose=refine_pose, score=score,
@@ -68,7 +74,7 @@ def reconstruct(
         summary = reconstruct_session(session, solver=solver, template=template, joints=joints,
                                       constraints=params.constraints, frames=frames, joints_path=joints_path,
                                       params=params, warm_start=warm_start, refine_pose=refine_pose, score=score,
-                                      progress=True)
+                                      progress=True, tracking=tracking)
     table = Table(title=f"Rapid Skin: {session} ({solver}, {template}, {constraints})")
     table.add_column("figure")
     table.add_column("value", justify="right")

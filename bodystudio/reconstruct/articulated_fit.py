@@ -404,8 +404,8 @@ class PoseRefineParams:
     tolerance: float = 1e-4
 
 
-def refine_bone_transforms(body, transforms: np.ndarray, hull: VisualHull,
-                           params: PoseRefineParams | None = None) -> np.ndarray:
+def refine_bone_transforms(body, transforms: np.ndarray, hull: VisualHull | None,
+                           params: PoseRefineParams | None = None, data_term=None, anchors=None) -> np.ndarray:
     """Bone transforms ``(B, 4, 4)`` of a posed template corrected to fit the visual hull.
 
     ``transforms`` are the Eq. 11 bone transforms of :func:`bodystudio.reconstruct.pose_init.initialise_pose`
@@ -417,13 +417,41 @@ def refine_bone_transforms(body, transforms: np.ndarray, hull: VisualHull,
     superset of the body, so a template point outside it is surely wrong, while hull points in volume
     no camera carves away (between the thighs, under the arms) would pull limbs outward (with the
     hull -> template term as well, surface p90 was 0.3-1.1 mm worse on three test sequences).
+
+    ``data_term(V, N) -> (rows, r, w, G)`` replaces the hull term (``hull`` may then be None): residuals
+    ``r`` (m) of template vertices ``rows`` with weights ``w`` and gradients ``G = dr / dv`` ``(m, 3)``,
+    e.g. the silhouette distance term of the tracker (:mod:`bodystudio.reconstruct.tracking`).
+    ``anchors = (bones, rest_points, targets, weight)`` adds point terms: ``rest_points`` ``(m, 3)``
+    carried rigidly by ``bones`` ``(m,)`` are pulled onto ``targets`` with ``weight`` per squared metre
+    (the tracker's joints).
     """
     params = params or PoseRefineParams()
+    if data_term is None:
+        if hull is None:
+            raise InputError("pose refinement needs a visual hull or a data term")
+        data_term = hull_data_term(hull, params)
     with threadpool_limits(limits=1, user_api="blas"):
-        return _refine_bone_transforms(body, np.asarray(transforms, dtype=np.float64), hull, params)
+        return _refine_bone_transforms(body, np.asarray(transforms, dtype=np.float64), data_term, params, anchors)
 
 
-def _refine_bone_transforms(body, T: np.ndarray, hull: VisualHull, params: PoseRefineParams) -> np.ndarray:
+def hull_data_term(hull: VisualHull, params: PoseRefineParams):
+    """Template -> hull point-to-plane residuals, Huber-weighted, inside points down-weighted (see
+    :func:`refine_bone_transforms`), as a ``data_term(V, N) -> (rows, r, w, G)``."""
+    hull_pts, hull_nrm = hull.vertices, hull.normals
+    hull_tree = cKDTree(hull_pts)
+
+    def term(V: np.ndarray, N: np.ndarray):
+        _, k = hull_tree.query(V)
+        n_h = hull_nrm[k]
+        ok1 = np.einsum("ij,ij->i", N, n_h) > 0.2
+        r = np.einsum("ij,ij->i", V - hull_pts[k], n_h)
+        w = _huber_weights(r, params.robust_m) * np.where(r < 0, params.inside_weight, 1.0) * ok1
+        return np.arange(len(V)), r, w, n_h
+
+    return term
+
+
+def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefineParams, anchors=None) -> np.ndarray:
     skel = body.skeleton
     missing = [b for b in params.bones if b not in skel.bone_names]
     if missing:
@@ -444,8 +472,6 @@ def _refine_bone_transforms(body, T: np.ndarray, hull: VisualHull, params: PoseR
     order = sorted(range(nJ), key=lambda j: -D[bones[j]].sum())
     Q = np.tile(np.eye(3), (nJ, 1, 1))  # accumulated world correction of each segment
     T = T.copy()
-    hull_pts, hull_nrm = hull.vertices, hull.normals
-    hull_tree = cKDTree(hull_pts)
     n_par = 3 + 3 * nJ
     rest_h = np.concatenate([body.vertices, np.ones((len(body.vertices), 1))], axis=1).T
     rows = np.arange(len(body.vertices))[:, None]
@@ -458,14 +484,18 @@ def _refine_bone_transforms(body, T: np.ndarray, hull: VisualHull, params: PoseR
         heads = np.einsum("bij,bj->bi", T[bones, :3, :3], skel.heads[bones]) + T[bones, :3, 3]
         lever = (C.transpose(0, 2, 1) @ Dk).transpose(0, 2, 1) - a[:, :, None] * heads[None]
 
-        _, k = hull_tree.query(V)
-        n_h = hull_nrm[k]
-        ok1 = np.einsum("ij,ij->i", N, n_h) > 0.2
-        r = np.einsum("ij,ij->i", V - hull_pts[k], n_h)
-        w = _huber_weights(r, params.robust_m) * np.where(r < 0, params.inside_weight, 1.0) * ok1
-        J = np.concatenate([n_h, np.cross(lever, n_h[:, None, :]).reshape(len(V), -1)], axis=1)
+        ids, r, w, G = data_term(V, N)
+        J = np.concatenate([G, np.cross(lever[ids], G[:, None, :]).reshape(len(G), -1)], axis=1)
         H = J.T @ (w[:, None] * J)
         g = J.T @ (w * r)
+        if anchors is not None:
+            a_bones, a_rest, a_target, a_weight = anchors
+            X = np.einsum("mij,mj->mi", T[a_bones, :3, :3], a_rest) + T[a_bones, :3, 3]
+            a_lever = D[a_bones][:, :, None] * (X[:, None, :] - heads[None])  # (m, nJ, 3)
+            for e in np.eye(3):
+                Ja = np.concatenate([np.tile(e, (len(X), 1)), np.cross(a_lever, e).reshape(len(X), -1)], axis=1)
+                H += a_weight * Ja.T @ Ja
+                g += a_weight * Ja.T @ ((X - a_target) @ e)
         # prior on each segment's correction relative to its refined parent, Q_p^T Q_j; dw_j is segment
         # j's rotation on top of its ancestors', so only it changes that relative rotation
         Qp = Q[np.maximum(fitted_parent, 0)]

@@ -1,0 +1,168 @@
+"""The actor's frames and person mattes from a session or a plain video file (input of §4 of Garment Replacement).
+
+The paper starts from alpha mattes of the actor (Fig. 2a). A synthetic or imported session carries its
+own (``cam_00/mask``); for a plain video the matte is computed here: a temporal median of the frames is
+the background plate (valid where the actor moves across it) and each frame is segmented against it by
+the capture stage's brightness/chromaticity test (:func:`bodystudio.capture.silhouettes.segment_silhouette`),
+keeping the largest connected component.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bodystudio.errors import FileFormatError, InputError
+
+log = logging.getLogger(__name__)
+
+#: A matte covering less than this fraction of the image is "no person".
+MIN_PERSON_FRACTION = 0.005
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v")
+MAX_VIDEO_FRAMES = 2000
+
+
+@dataclass(frozen=True, eq=False)
+class PersonFrames:
+    """``images`` (n, H, W, 3) uint8 linear RGB, ``masks`` (n, H, W) bool, ``frame_ids`` (n,), ``fps``."""
+
+    source: str
+    fps: float
+    frame_ids: np.ndarray
+    images: np.ndarray
+    masks: np.ndarray
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return int(self.images.shape[2]), int(self.images.shape[1])
+
+
+def parse_frame_range(frames: str | None, n_available: int, where: str) -> slice:
+    """``a:b`` (Python slice of frame indices, either end optional) checked against ``n_available`` frames."""
+    if frames is None or frames == "":
+        return slice(0, n_available)
+    parts = frames.split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        a = int(parts[0]) if parts[0] else 0
+        b = int(parts[1]) if parts[1] else n_available
+    except ValueError:
+        raise InputError(f"--frames {frames!r}: use START:END (frame indices, e.g. 0:60)") from None
+    if not 0 <= a < b <= n_available:
+        raise InputError(f"--frames {frames}: out of range; {where} has frames 0:{n_available}")
+    return slice(a, b)
+
+
+def session_person_frames(path: str | os.PathLike, frames: str | None = None) -> PersonFrames:
+    """Frames and person masks of a session's first camera (``cam_00/rgb``, ``cam_00/mask``)."""
+    from bodystudio.capture.session import open_session
+
+    session = open_session(path)
+    if not session.camera_names or "rgb" not in session.streams or "mask" not in session.streams:
+        raise InputError(f"{path}: session has no rgb and mask streams; run 'bodystudio capture silhouettes' "
+                         f"first or pass the video file")
+    cam = session.camera_names[0]
+    ids = session.frame_ids[parse_frame_range(frames, len(session.frame_ids), str(path))]
+    images, masks = [], []
+    for fid in ids:
+        fr = session.frame(fid)
+        images.append(fr.images[cam])
+        masks.append(fr.masks[cam])
+    fps = float(session.metadata.get("fps", 30.0))
+    return PersonFrames(str(Path(path)), fps, np.asarray(ids, np.int64), np.stack(images), np.stack(masks))
+
+
+def read_video(path: str | os.PathLike, frames: str | None = None) -> tuple[np.ndarray, float]:
+    """(n, H, W, 3) uint8 RGB frames of a video file (imageio-ffmpeg) and its frame rate."""
+    import imageio_ffmpeg
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such video file or session folder")
+    try:
+        reader = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24")
+        meta = next(reader)
+        width, height = meta["size"]
+        fps = float(meta.get("fps") or 30.0)
+        stop = _requested_end(frames)
+        out = []
+        for raw in reader:
+            out.append(np.frombuffer(raw, np.uint8).reshape(height, width, 3))
+            if stop is not None and len(out) >= stop:
+                break
+            if len(out) > MAX_VIDEO_FRAMES:
+                raise InputError(f"{path}: more than {MAX_VIDEO_FRAMES} frames; cut the clip or pass --frames a:b")
+        reader.close()
+    except InputError:
+        raise
+    except (OSError, RuntimeError, StopIteration, KeyError, ValueError) as exc:
+        first = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
+        raise FileFormatError(f"{path}: unreadable video ({first}); pass a video file ffmpeg can decode") from None
+    if not out:
+        raise FileFormatError(f"{path}: the video has no frames; pass a video with the actor in it")
+    images = np.stack(out)
+    return images[parse_frame_range(frames, len(images), str(path))], fps
+
+
+def _requested_end(frames: str | None) -> int | None:
+    """The END of ``--frames START:END`` when given (reading can stop there), else None."""
+    if not frames or ":" not in frames:
+        return None
+    end = frames.split(":")[-1]
+    return int(end) if end.isdigit() else None
+
+
+def temporal_background(images: np.ndarray) -> np.ndarray:
+    """The background plate as the per-pixel temporal median of the frames (float32, (H, W, 3))."""
+    step = max(1, len(images) // 60)
+    return np.median(images[::step].astype(np.float32), axis=0)
+
+
+def person_mattes(images: np.ndarray) -> np.ndarray:
+    """Person masks (n, H, W) of a video against its temporal-median background (capture's segmentation)."""
+    from bodystudio.capture.silhouettes import (
+        SegmentationParams,
+        background_model,
+        largest_components,
+        segment_silhouette,
+    )
+
+    plate = temporal_background(images)
+    params = SegmentationParams(close_px=2, open_px=1)
+    model = background_model([plate], single_frame_std=4.0)
+    masks = [largest_components(segment_silhouette(img, model, params), min_fraction=0.5) for img in images]
+    return np.stack(masks).astype(bool)
+
+
+def check_person(masks: np.ndarray, source: str) -> None:
+    """Refuse (one line) a clip where no frame shows a person-sized matte."""
+    frac = masks.reshape(len(masks), -1).mean(1)
+    if not np.any(frac >= MIN_PERSON_FRACTION):
+        raise InputError(f"{source}: no person found (the largest moving region covers {100 * frac.max():.2f} % of "
+                         f"the image); film the actor moving in front of a static background")
+    empty = int(np.count_nonzero(frac < MIN_PERSON_FRACTION))
+    if empty:
+        raise InputError(f"{source}: no person found in {empty} of {len(masks)} frames; pass --frames to the range "
+                         f"where the actor is in view")
+
+
+def person_frames(source: str | os.PathLike, frames: str | None = None) -> PersonFrames:
+    """Frames + person mattes of a session folder (its masks) or a video file (mattes computed)."""
+    source = Path(source)
+    if source.is_dir():
+        pf = session_person_frames(source, frames)
+    else:
+        if not source.exists():
+            raise InputError(f"{source}: no such video file or session folder")
+        images, fps = read_video(source, frames)
+        start = parse_frame_range(frames, 10 ** 9, str(source)).start if frames else 0
+        ids = np.arange(start, start + len(images), dtype=np.int64)
+        pf = PersonFrames(str(source), fps, ids, images, person_mattes(images))
+    check_person(pf.masks, str(source))
+    return pf

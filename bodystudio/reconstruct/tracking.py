@@ -1,0 +1,317 @@
+"""Rapid Skin frame by frame as a tracker: the previous frame's pose as the prior, and a lost-track check.
+
+Rapid Skin initialises every frame from the skeleton joints (§IV.A); a sequence at video rate moves
+little from one frame to the next, so the previous frame's refined pose can be the starting point
+instead, and the joints' initialisation and its refinement run only at the first frame or when the
+track is lost.
+
+The image term is shared by both paths: per-camera signed distance fields of the frame's silhouettes
+(:class:`SilhouetteFields`, computed once per frame) give an implicit visual hull, ``max_c d_c z_c /
+f_c`` (:func:`silhouette_data_term`), that the Gauss-Newton step of
+:func:`bodystudio.reconstruct.articulated_fit.refine_bone_transforms` fits without carving the hull.
+A tracked frame starts that fit from the previous frame's bone transforms
+(:func:`track_bone_transforms`); a re-initialised one from the frame's tracker joints.
+
+Measured (docs/reconstruct.md): the implicit hull is as accurate as the carved hull and cheaper, and
+is the default refinement; tracking from the previous frame is off by default, since on the 30 fps
+benchmark sessions it carries the first frame's pose error along (p90 +0.0-0.9 mm against initialising
+every frame from its joints), and its time saving over the per-frame refinement is small.
+
+The lost-track check (:func:`lost_track_reason`), in this order, re-initialises from the tracker joints
+(or the hull) with the full articulated fit:
+
+- ``first``: the first frame of the sequence;
+- ``joint_jump``: the tracked torso joints moved by more than ``joint_jump_m`` (median over joints)
+  since the previous frame: faster than a person moves between video frames;
+- ``silhouette``: the prior pose (the previous frame's) has more than ``prior_outside_max`` of the fit
+  template's vertices projecting outside a silhouette: the person is no longer where the track is;
+- ``energy_jump``: after the tracking fit, the outside share (the silhouette energy) is above
+  ``energy_abs`` and ``energy_ratio`` times the previous frame's: the fit did not follow.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numba
+import numpy as np
+
+from bodystudio.body.kinect import kinect_joint_names
+from bodystudio.errors import InputError
+from bodystudio.reconstruct.articulated_fit import (
+    REFINE_BONES,
+    PoseRefineParams,
+    _huber_weights,
+    refine_bone_transforms,
+)
+from bodystudio.reconstruct.pose_init import TORSO_JOINTS
+
+#: Why a frame was (re-)initialised instead of tracked; ``tracked`` when it was not.
+TRACK_REASONS = ("first", "joint_jump", "silhouette", "energy_jump", "tracked", "per_frame")
+
+
+@dataclass(frozen=True)
+class TrackParams:
+    """Settings of the tracker and its lost-track check (see the module docstring).
+
+    ``outside_px``: a vertex counts as outside a silhouette beyond this distance (the fit template is
+    generic, so its limbs poke out by a few pixels on a good fit); ``inside_weight``: weight of vertices
+    inside the implicit hull (as the hull fit's); ``inside_m``: vertices deeper inside are ignored;
+    ``iterations``: Gauss-Newton iterations of the tracking fit; ``joint_weight``: pull of the tracked
+    joints per squared metre (0: silhouettes only).
+    """
+
+    joint_jump_m: float = 0.25
+    prior_outside_max: float = 0.25
+    energy_abs: float = 0.15
+    energy_ratio: float = 2.0
+    outside_px: float = 2.0
+    inside_weight: float = 0.5
+    inside_m: float = 0.10
+    robust_m: float = 0.03
+    iterations: int = 6
+    prior_weight: float = 0.05
+    joint_weight: float = 0.0
+    joint_bones: tuple[str, ...] = REFINE_BONES
+
+    def __post_init__(self):
+        for name, value, lo, hi in (("joint_jump_m", self.joint_jump_m, 1e-3, 10.0),
+                                    ("prior_outside_max", self.prior_outside_max, 0.0, 1.0),
+                                    ("energy_abs", self.energy_abs, 0.0, 1.0),
+                                    ("energy_ratio", self.energy_ratio, 1.0, 100.0),
+                                    ("iterations", self.iterations, 1, 100)):
+            if not np.isfinite(value) or not lo <= value <= hi:
+                raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
+
+
+class SilhouetteFields:
+    """Per-camera signed distance fields of one frame's silhouettes (px; > 0 outside, < 0 inside).
+
+    Computed once per frame (OpenCV's exact Euclidean distance transform) on the silhouette's bounding
+    box grown by ``margin_px``: pixels beyond it read ``margin_px`` outside with no gradient (far off,
+    counted as outside by the lost-track check, no pull in the fit). Read by the tracking fit and the
+    silhouette energy of the lost-track check.
+    """
+
+    def __init__(self, cameras, masks: dict, margin_px: int = 48):
+        self.cameras = list(cameras)
+        self.margin_px = float(margin_px)
+        self.sdf, self.offset = {}, {}
+        for cam in self.cameras:
+            if cam.name not in masks:
+                raise InputError(f"tracking: no mask for camera {cam.name}")
+            full = np.asarray(masks[cam.name]) > 0
+            H, W = full.shape
+            ys, xs = np.nonzero(np.any(full, axis=1))[0], np.nonzero(np.any(full, axis=0))[0]
+            if len(ys):
+                y0, y1 = max(ys[0] - margin_px, 0), min(ys[-1] + margin_px + 1, H)
+                x0, x1 = max(xs[0] - margin_px, 0), min(xs[-1] + margin_px + 1, W)
+            else:
+                y0, y1, x0, x1 = 0, H, 0, W
+            inside = full[y0:y1, x0:x1].astype(np.uint8)
+            out_d = cv2.distanceTransform(1 - inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            in_d = cv2.distanceTransform(inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            # pixel centres: +d outside, -d inside; the contour lies half-way, so shift by 0.5
+            self.sdf[cam.name] = np.where(inside > 0, 0.5 - in_d, out_d - 0.5).astype(np.float32)
+            self.offset[cam.name] = (x0, y0)
+        # the same fields packed for the compiled implicit-hull pass (one padded array, camera constants)
+        C = len(self.cameras)
+        shapes = np.array([self.sdf[c.name].shape for c in self.cameras], dtype=np.int64).reshape(C, 2)
+        self._packed_sdf = np.zeros((C, *(shapes.max(axis=0) if C else (1, 1))), np.float32)
+        for k, cam in enumerate(self.cameras):
+            self._packed_sdf[k, :shapes[k, 0], :shapes[k, 1]] = self.sdf[cam.name]
+        self._shapes = shapes
+        self._offsets = np.array([self.offset[c.name] for c in self.cameras], dtype=np.float64).reshape(C, 2)
+        self._R = np.array([c.R for c in self.cameras], dtype=np.float64).reshape(C, 3, 3)
+        self._t = np.array([c.t for c in self.cameras], dtype=np.float64).reshape(C, 3)
+        self._K = np.array([c.K for c in self.cameras], dtype=np.float64).reshape(C, 3, 3)
+        self._dist = np.array([np.asarray(c.dist, float)[:5] for c in self.cameras], dtype=np.float64).reshape(C, 5)
+        self._has_dist = np.array([c.has_distortion for c in self.cameras], dtype=np.bool_)
+        self._size = np.array([(c.width, c.height) for c in self.cameras], dtype=np.float64).reshape(C, 2)
+
+    def implicit_hull(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``max_c d_c z_c / f_c`` (m; -inf where no camera sees the point) and its gradient ``(n, 3)``
+        (zero beyond the fields): the implicit visual hull of :func:`silhouette_data_term`."""
+        return _implicit_hull(np.ascontiguousarray(V, dtype=np.float64), self._R, self._t, self._K, self._dist,
+                              self._has_dist, self._size, self._packed_sdf, self._shapes, self._offsets,
+                              self.margin_px)
+
+    def sample(self, cam, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Bilinear signed distance ``(m,)`` and its image gradient ``(m, 2)`` at pixels ``uv``; ``ok``
+        marks pixels inside the image (outside it the distance is unknown)."""
+        S = self.sdf[cam.name]
+        x0, y0 = self.offset[cam.name]
+        H, W = S.shape
+        ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0)
+        ok &= (uv[:, 0] <= cam.width - 1) & (uv[:, 1] <= cam.height - 1)
+        u = np.where(ok, uv[:, 0] - x0, 0.0)
+        v = np.where(ok, uv[:, 1] - y0, 0.0)
+        inner = ok & (u >= 0) & (v >= 0) & (u < W - 1) & (v < H - 1)
+        u = np.where(inner, u, 0.0)
+        v = np.where(inner, v, 0.0)
+        xi, yi = u.astype(np.int64), v.astype(np.int64)
+        fx, fy = u - xi, v - yi
+        s00, s10, s01, s11 = S[yi, xi], S[yi, xi + 1], S[yi + 1, xi], S[yi + 1, xi + 1]
+        d = (1 - fy) * ((1 - fx) * s00 + fx * s10) + fy * ((1 - fx) * s01 + fx * s11)
+        gu = (1 - fy) * (s10 - s00) + fy * (s11 - s01)
+        gv = (1 - fx) * (s01 - s00) + fx * (s11 - s10)
+        d = np.where(inner, d, self.margin_px)
+        g = np.where(inner[:, None], np.stack([gu, gv], axis=1), 0.0)
+        return d.astype(np.float64), g.astype(np.float64), ok
+
+
+def outside_fraction(V: np.ndarray, fields: SilhouetteFields, outside_px: float = 2.0) -> float:
+    """Silhouette energy of the lost-track check: share of vertices ``V`` projecting more than
+    ``outside_px`` outside the silhouette of at least one camera (the hull's "outside" test, Rapid Skin
+    §IV: a point of the body lies inside every silhouette)."""
+    out = np.zeros(len(V), bool)
+    for cam in fields.cameras:
+        d, _, ok = fields.sample(cam, cam.project(V))
+        out |= ok & (d > outside_px)
+    return float(np.mean(out)) if len(V) else 0.0
+
+
+def silhouette_data_term(fields: SilhouetteFields, params: TrackParams):
+    """Implicit visual-hull residuals of the tracking fit as ``data_term(V, N) -> (rows, r, w, G)``.
+
+    A point lies inside the visual hull (Rapid Skin §IV) when it projects inside every silhouette, so
+    ``max_c d_c z_c / f_c`` over the cameras (``d_c`` its signed distance in pixels to camera c's
+    silhouette, ``z_c / f_c`` metres per pixel at its depth) is a signed distance to the hull that needs
+    no carving: positive outside, negative inside. Each vertex gets that residual from its maximising
+    camera, point-to-plane like the hull fit of :func:`refine_bone_transforms`: Huber-weighted, inside
+    points down-weighted by ``inside_weight`` (the hull over-estimates the body), used only where the
+    vertex normal agrees with the field's gradient (``> 0.2``, the hull fit's normal test). ``G`` is the
+    residual's gradient: the field's image gradient through the pinhole Jacobian of the projection (lens
+    distortion is ignored in the Jacobian only).
+    """
+
+    def term(V: np.ndarray, N: np.ndarray):
+        best, G = fields.implicit_hull(V)
+        seen = np.isfinite(best)
+        norm = np.linalg.norm(G, axis=1)
+        agree = np.einsum("ij,ij->i", N, G) > 0.2 * np.maximum(norm, 1e-12)
+        use = np.flatnonzero(seen & agree & (norm > 1e-9) & (best > -params.inside_m))
+        r = best[use]
+        w = _huber_weights(r, params.robust_m) * np.where(r < 0, params.inside_weight, 1.0)
+        return use, r, w, G[use]
+
+    return term
+
+
+@numba.njit(cache=True)
+def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+    """One compiled pass of the implicit visual hull over vertices and cameras (see
+    :meth:`SilhouetteFields.implicit_hull`; OpenCV projection as :meth:`Camera.project_with_depth`)."""
+    n, C = V.shape[0], R.shape[0]
+    best = np.full(n, -np.inf)
+    G = np.zeros((n, 3))
+    for i in range(n):
+        X, Y, Z = V[i, 0], V[i, 1], V[i, 2]
+        for c in range(C):
+            xc = R[c, 0, 0] * X + R[c, 0, 1] * Y + R[c, 0, 2] * Z + t[c, 0]
+            yc = R[c, 1, 0] * X + R[c, 1, 1] * Y + R[c, 1, 2] * Z + t[c, 1]
+            z = R[c, 2, 0] * X + R[c, 2, 1] * Y + R[c, 2, 2] * Z + t[c, 2]
+            if not z > 1e-6:
+                continue
+            x, y = xc / z, yc / z
+            if has_dist[c]:
+                k1, k2, p1, p2, k3 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3], dist[c, 4]
+                r2 = x * x + y * y
+                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+                xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+                yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+                x, y = xd, yd
+            fx, fy = K[c, 0, 0], K[c, 1, 1]
+            u = fx * x + K[c, 0, 1] * y + K[c, 0, 2]
+            v = fy * y + K[c, 1, 2]
+            if not (u >= 0.0 and v >= 0.0 and u <= size[c, 0] - 1.0 and v <= size[c, 1] - 1.0):
+                continue
+            uu, vv = u - offsets[c, 0], v - offsets[c, 1]
+            d, gu, gv = margin, 0.0, 0.0
+            if uu >= 0.0 and vv >= 0.0 and uu < shapes[c, 1] - 1 and vv < shapes[c, 0] - 1:
+                xi, yi = int(uu), int(vv)
+                ax, ay = uu - xi, vv - yi
+                s00 = np.float64(sdf[c, yi, xi])
+                s10 = np.float64(sdf[c, yi, xi + 1])
+                s01 = np.float64(sdf[c, yi + 1, xi])
+                s11 = np.float64(sdf[c, yi + 1, xi + 1])
+                d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
+                gu = (1 - ay) * (s10 - s00) + ay * (s11 - s01)
+                gv = (1 - ax) * (s01 - s00) + ax * (s11 - s10)
+            f = 0.5 * (fx + fy)
+            r = d * z / f
+            if r > best[i]:
+                best[i] = r
+                # d(uv)/d(Pc) of the pinhole model, scaled to metres per pixel at the vertex's depth, to world
+                s = z / f
+                g0 = s * gu * fx / z
+                g1 = s * gv * fy / z
+                g2 = -s * (gu * fx * xc + gv * fy * yc) / (z * z)
+                for k in range(3):
+                    G[i, k] = g0 * R[c, 0, k] + g1 * R[c, 1, k] + g2 * R[c, 2, k]
+    return best, G
+
+
+def joint_anchors(body, joint_transforms: np.ndarray, bones=REFINE_BONES):
+    """Heads and tails of the refined ``bones`` placed by the bone transforms of the frame's tracker
+    joints (:func:`bodystudio.reconstruct.pose_init.initialise_pose`): ``(bones, rest_points, targets)``."""
+    skel = body.skeleton
+    ids = np.array([skel.index(b) for b in bones])
+    a_bones = np.concatenate([ids, ids])
+    rest = np.concatenate([skel.heads[ids], skel.tails[ids]])
+    T = np.asarray(joint_transforms, dtype=np.float64)[a_bones]
+    return a_bones, rest, np.einsum("mij,mj->mi", T[:, :3, :3], rest) + T[:, :3, 3]
+
+
+def track_bone_transforms(body, previous: np.ndarray, fields: SilhouetteFields,
+                          params: TrackParams | None = None, joint_transforms: np.ndarray | None = None
+                          ) -> np.ndarray:
+    """Bone transforms ``(B, 4, 4)`` of this frame from the previous frame's, fitted to the silhouettes.
+
+    The Gauss-Newton step and the segments of :func:`refine_bone_transforms` on the fit template
+    ``body`` (2.5K), the data term :func:`silhouette_data_term`, the prior holding each segment near
+    the previous frame's pose; with ``joint_transforms`` (the Eq. 11 transforms of this frame's tracker
+    joints) the segments' heads and tails are also pulled towards the tracked joints
+    (``joint_weight``), which keeps the silhouettes' blind directions from drifting over frames.
+    """
+    params = params or TrackParams()
+    refine = PoseRefineParams(iterations=params.iterations, prior_weight=params.prior_weight,
+                              robust_m=params.robust_m)
+    anchors = None
+    if joint_transforms is not None and params.joint_weight > 0:
+        anchors = (*joint_anchors(body, joint_transforms, params.joint_bones), params.joint_weight)
+    return refine_bone_transforms(body, previous, None, refine, data_term=silhouette_data_term(fields, params),
+                                  anchors=anchors)
+
+
+def torso_joint_jump_m(joints: np.ndarray | None, previous: np.ndarray | None) -> float:
+    """Median displacement (m) of the torso joints tracked in both frames (0 when none are)."""
+    if joints is None or previous is None:
+        return 0.0
+    names = kinect_joint_names("v2")
+    ids = [names.index(n) for n in TORSO_JOINTS]
+    a, b = np.asarray(joints)[ids], np.asarray(previous)[ids]
+    ok = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
+    if not ok.any():
+        return 0.0
+    return float(np.median(np.linalg.norm(a[ok] - b[ok], axis=1)))
+
+
+def lost_track_reason(first: bool, joint_jump_m: float, prior_outside: float,
+                      params: TrackParams) -> str | None:
+    """Why the track is lost before fitting this frame (see the module docstring), or None."""
+    if first:
+        return "first"
+    if joint_jump_m > params.joint_jump_m:
+        return "joint_jump"
+    if prior_outside > params.prior_outside_max:
+        return "silhouette"
+    return None
+
+
+def energy_jumped(energy: float, previous_energy: float | None, params: TrackParams) -> bool:
+    """The silhouette energy after the tracking fit jumped (``energy_jump``)."""
+    if previous_energy is None:
+        return energy > params.energy_abs
+    return energy > params.energy_abs and energy > params.energy_ratio * previous_energy
