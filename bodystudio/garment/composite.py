@@ -439,6 +439,20 @@ def ssim_map(a: np.ndarray, b: np.ndarray, sigma: float = 1.5) -> np.ndarray:
     return s.mean(axis=2) if s.ndim == 3 else s
 
 
+def render_target_mismatch(render_doc: dict, gt_garment: dict | None) -> str | None:
+    """Why a render cannot be scored against a session's ``gt/garment_target`` (None when it can): the
+    render's garment, texture and cloth seed must be the session's target ones (``gt/garment.json``)."""
+    if gt_garment is None:
+        return "the session has no gt/garment.json (not a 'synth garment' session)"
+    target = gt_garment.get("target", {})
+    want = (target.get("name"), target.get("pattern"), target.get("seed"))
+    got = (render_doc.get("garment"), render_doc.get("texture"), render_doc.get("seed"))
+    if got != want:
+        return (f"rendered {got[1]} {got[0]} with --seed {got[2]} but the session's target is {want[1]} {want[0]} "
+                f"with seed {want[2]}; render with --garment {want[0]} --texture {want[1]} --seed {want[2]}")
+    return None
+
+
 def composite_errors(fit_dir: str | os.PathLike, session) -> dict:
     """Score ``fit_dir/render`` against a synthetic session's truth (issue 13's acceptance):
     ``garment_iou`` (composited garment region vs ``gt/garment_target_layers``), ``psnr_person`` and
@@ -449,6 +463,9 @@ def composite_errors(fit_dir: str | os.PathLike, session) -> dict:
     session = open_session(session) if isinstance(session, (str, os.PathLike)) else session
     doc = load_render(fit_dir)
     render_dir = Path(fit_dir) / RENDER_DIR
+    mismatch = render_target_mismatch(doc, session.gt_garment)
+    if mismatch:  # the true render shows another garment or cloth: a score against it would be meaningless
+        raise InputError(f"{render_dir}: {mismatch}; the session's truth cannot score this render")
     cam = session.camera_names[0]
     ious, psnrs, ssims = [], [], []
     for fid in doc["frame_ids"]:

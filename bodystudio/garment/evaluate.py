@@ -152,7 +152,7 @@ def fit_errors(fit, session) -> dict:
 
 def evaluate_garment(fit_dir: str | os.PathLike, session: str | os.PathLike | None = None) -> dict:
     """``bodystudio eval garment DIR``: the fit's scores, plus the composite's when DIR/render/render.json exists
-    and :func:`bodystudio.garment.composite.composite_errors` is available."""
+    (:func:`bodystudio.garment.composite.composite_errors`; refused when the render is not of the session's target)."""
     from bodystudio.capture.session import open_session
     from bodystudio.garment.fitfile import load_garment_fit
 
@@ -164,10 +164,7 @@ def evaluate_garment(fit_dir: str | os.PathLike, session: str | os.PathLike | No
     s = open_session(src)
     scores = fit_errors(fit, s)
     if (Path(fit_dir) / "render" / "render.json").is_file():
-        try:
-            from bodystudio.garment.composite import composite_errors
-        except ImportError:
-            scores["composite"] = "not available in this build"
-        else:
-            scores.update(composite_errors(fit_dir, s))
+        from bodystudio.garment.composite import composite_errors
+
+        scores.update(composite_errors(fit_dir, s))
     return scores

@@ -173,3 +173,23 @@ def test_video_source_shorter_than_the_fit(fit_dir, tmp_path, capfd):
     r = run_inprocess(["garment", "render", d, "--out", tmp_path / "o.mp4"], capfd)
     assert_clean_error(r, 2, "cannot read the video")
     assert not (d / "render").exists() and not (tmp_path / "o.mp4").exists()
+
+
+def test_eval_refuses_a_render_of_another_garment_or_cloth(fit_dir, tmp_path, capfd):
+    """The true render shows the session's target garment with its own cloth seed: a render of another
+    garment, texture or seed cannot be scored against it (a PSNR of 12 dB would look like a bad fit)."""
+    import json
+
+    target = json.loads((fit_dir.parent / "session" / "gt" / "garment.json").read_text())["target"]
+    out = tmp_path / "o.mp4"
+    r = run_inprocess(["garment", "render", fit_dir, "--garment", target["name"], "--texture", target["pattern"],
+                       "--seed", str(target["seed"] + 1), "--out", out, "--no-flow", "--no-rbf"], capfd)
+    assert_clean_error(r, 0, "")
+    r = run_inprocess(["eval", "garment", fit_dir], capfd)
+    assert_clean_error(r, 2, f"--seed {target['seed']}")
+    r = run_inprocess(["garment", "render", fit_dir, "--garment", target["name"], "--texture", target["pattern"],
+                       "--seed", str(target["seed"]), "--out", out, "--no-flow", "--no-rbf"], capfd)
+    r = run_inprocess(["eval", "garment", fit_dir], capfd)
+    assert_clean_error(r, 0, "")
+    scores = json.loads(r.stdout)
+    assert scores["garment_iou"] > 0.8 and scores["psnr_person"] > 18, scores
