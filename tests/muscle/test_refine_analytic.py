@@ -6,6 +6,8 @@ Eq. 13-14, the Sec. 7.2 weights, the shape-fit bounds, the twist refinement and 
 known pose / placement from the model's own mesh (issue 17: planted bugs must fail a fast test).
 """
 
+from functools import lru_cache
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -16,6 +18,21 @@ from bodystudio.geometry.mesh import vertex_normals
 from bodystudio.muscle import refine
 from bodystudio.muscle.arm import ArmPose, part_transforms, pose_arm
 from bodystudio.muscle.nicp import CorrespondenceFilters, vertex_neighbourhoods
+
+
+@lru_cache(maxsize=1)
+def _arm_model():
+    """The conftest's small 2k arm model (5 subjects, population 12) and one training shape, built once per
+    process: refine.py takes the model as input, and mutation testing forks per mutant from a process that
+    has built it already (the model is not under test here)."""
+    from bodystudio.muscle.arm import arm_template
+    from bodystudio.muscle.model import learn_arm_model
+    from bodystudio.muscle.synthetic import subject_body, training_dataset
+
+    samples, subjects = training_dataset("2k", n_subjects=5, n_shapes=2, n_poses=8)
+    template = arm_template(subject_body(subjects[0], "2k"), "left")
+    return learn_arm_model(samples, template, population_size=12), samples[0].shape
+
 
 JOINTS = np.array([[0.2, 1.4, 0.0], [0.35, 1.2, -0.02], [0.47, 1.05, 0.05]])
 
@@ -202,10 +219,10 @@ def test_model_residuals_are_point_to_plane_plus_the_weak_pull():
     np.testing.assert_allclose(r, np.r_[0.01, -0.02, np.full(9, 0.05)])
 
 
-def test_shape_bounds_are_the_training_range_widened_by_its_span(arm_model_2k):
+def test_shape_bounds_are_the_training_range_widened_by_its_span():
     from bodystudio.muscle.model import ArmShapeParams
 
-    model = arm_model_2k
+    model = _arm_model()[0]
     lo, hi, x0 = refine._shape_bounds(model, None)
     r = model.shape_range()
     for i, k in enumerate(("bmi", "height_m", "arm_length_m")):
@@ -235,10 +252,9 @@ def _frame(mesh, faces, arm_mask, sensor):
 
 
 @pytest.fixture(scope="module")
-def model_case(arm_model_2k, arm_training_2k):
+def model_case():
     """The model's own mesh of a training subject in a flexed pose, seen from the front-side sensor."""
-    model = arm_model_2k
-    shape = arm_training_2k[0][0].shape
+    model, shape = _arm_model()
     from bodystudio.muscle.model import model_joints, model_mesh
 
     J = model_joints(model, shape)
