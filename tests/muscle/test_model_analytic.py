@@ -267,6 +267,13 @@ def test_extension_equals_learning_from_the_union(arm_template_2k, arm_training_
                                    atol=1e-12 * np.abs(getattr(union, k)).max(), err_msg=k)
     assert [s["source"] for s in extended.subjects] == ["training"] * 3 + ["capture"] * 2
     assert [s["name"] for s in extended.subjects] == names
+    last = _subject(B, names[-1])
+    assert extended.subjects[-1] == {"name": names[-1], "shape": last[0].shape.to_dict(), "n_meshes": len(last),
+                                     "source": "capture"}
+    # The joint regression is re-solved from its (population + measured joints) normal equations.
+    for m in (union, extended):
+        np.testing.assert_allclose(m.joint_coeffs, tikhonov_from_normal_equations(m.joint_xtx, m.joint_xty, 1.0),
+                                   atol=1e-12)
     custom = extend_arm_model(learn_arm_model(A, arm_template_2k, population_size=12), B, source="studio 2")
     assert custom.subjects[-1]["source"] == "studio 2"
 
@@ -323,7 +330,7 @@ def test_learning_accepts_any_non_negative_regularisation_and_refuses_bad_input(
     assert learn_arm_model(samples[:10], arm_template_2k, regularization=0.5, population_size=12).regularization == 0.5
     with pytest.raises(InputError, match=r"regularization=-1 must be >= 0"):
         learn_arm_model(samples[:10], arm_template_2k, regularization=-1, population_size=12)
-    with pytest.raises(InputError, match="no training meshes given"):
+    with pytest.raises(InputError, match="^no training meshes given; the arm model needs at least one subject$"):
         learn_arm_model([], arm_template_2k, population_size=12)
     s = samples[0]
     with pytest.raises(InputError, match=r"subject 'x': mesh has shape \(\d+, 3\), the arm template needs"):
@@ -333,6 +340,8 @@ def test_learning_accepts_any_non_negative_regularisation_and_refuses_bad_input(
     posed = [ArmSample("p", s.shape, x.vertices, x.pose) for x in samples[2:5]]
     with pytest.raises(InputError, match=r"subject 'p' has no mesh in the base pose"):
         learn_arm_model(posed, arm_template_2k, population_size=12)
+    with pytest.raises(InputError, match=r"subject 'p' has no mesh in the base pose"):  # one mesh only
+        learn_arm_model(posed[:1], arm_template_2k, population_size=12)
     names = sorted({x.subject for x in samples})
     with pytest.raises(InputError, match=rf"subject\(s\) {', '.join(names)} are already in the model; give"):
         extend_arm_model(learn_arm_model(samples, arm_template_2k, population_size=12), samples)
