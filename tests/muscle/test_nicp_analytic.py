@@ -410,3 +410,166 @@ def test_nonrigid_icp_with_plane_targets_closes_the_normal_gap(shifted_copy):
     X, _ = _icp(shifted_copy, iterations=12)
     assert gap(X) < 0.1 * gap(V) and gap(X) < 0.6 * gap(X1)  # measured 0.17 vs 0.40 mm, from 3.2 mm
     assert np.linalg.norm(X - P, axis=1)[front].mean() > 1e-3  # not the point targets
+
+
+# --- the survivors of the first mutation run (docs/mutation/muscle-nicp.md) -------------------------------
+
+def test_cotangent_weights_of_an_irregular_centimetre_mesh_are_the_hand_computed_cotangents():
+    """Two triangles of different shapes and sizes (1-3 cm): every weight is half the cotangent opposite it."""
+    V = np.array([[0.0, 0, 0], [0.03, 0, 0], [0.01, 0.02, 0], [0.025, -0.012, 0.004]])
+    F = np.array([[0, 1, 2], [1, 0, 3]])
+    W = {}
+    for f in F:
+        for k in range(3):
+            i, j, o = f[k], f[(k + 1) % 3], f[(k + 2) % 3]
+            a, b = V[i] - V[o], V[j] - V[o]
+            cot = a @ b / np.linalg.norm(np.cross(a, b))
+            for e in ((i, j), (j, i)):
+                W[e] = W.get(e, 0.0) + max(0.5 * cot, 0.0)
+    sysm = nicp.arap_system(V, F)
+    got = {}
+    for (i, j), w in zip(map(tuple, sysm.edges), sysm.edge_weights, strict=True):
+        got[(i, j)] = got.get((i, j), 0.0) + w
+    assert set(got) == set(W)
+    for e in W:
+        assert got[e] == pytest.approx(max(W[e], 1e-4), rel=1e-12), e
+
+
+def test_an_unreferenced_last_vertex_keeps_the_operators_square():
+    V, F = _grid(3)
+    V = np.r_[V, [[1.0, 1.0, 1.0]]]  # not in any face
+    assert nicp.arap_system(V, F).laplacian.shape == (10, 10)
+    assert nicp.vertex_neighbourhoods(F, 10).shape == (10, 10)
+    assert nicp._neighbour_medians(sp.csr_matrix((0, 0), dtype=bool), np.zeros(0), np.zeros(0, bool)).shape == (0,)
+    assert nicp._neighbour_angle_medians(sp.csr_matrix((0, 0), dtype=bool), np.zeros((0, 3)),
+                                         np.zeros(0, bool)).shape == (0,)
+
+
+def test_arap_without_data_returns_a_copy_of_the_start():
+    V, F = _grid(4)
+    sysm = nicp.arap_system(V, F)
+    X = nicp.arap_deformation(sysm, V, V + 1.0, np.zeros(len(V)))
+    np.testing.assert_array_equal(X, V)
+    assert X is not V
+
+
+def _round_off_unit_vector():
+    """A vector whose normalised dot product with itself rounds above 1 (arccos would give NaN)."""
+    V = np.random.default_rng(0).normal(size=(2000, 3))
+    U = V / np.linalg.norm(V, axis=1, keepdims=True)
+    k = int(np.flatnonzero(np.einsum("kd,kd->k", U, U) > 1.0)[0])
+    return V[k]
+
+
+def test_angle_medians_of_parallel_and_opposite_vectors_survive_round_off():
+    v = _round_off_unit_vector()
+    adj = sp.csr_matrix(np.array([[0, 1], [1, 0]], bool))
+    np.testing.assert_array_equal(nicp._neighbour_angle_medians(adj, np.stack([v, v]), np.ones(2, bool)), 0.0)
+    np.testing.assert_allclose(nicp._neighbour_angle_medians(adj, np.stack([v, -v]), np.ones(2, bool)), np.pi)
+
+
+def test_normals_filter_keeps_identical_normals_despite_round_off():
+    V, F, N, pairs, sensor, adj = _flat_case()
+    n = _round_off_unit_vector()
+    n = n / np.linalg.norm(n)
+    N = np.tile(n, (len(V), 1))
+    pairs.target_normals[:] = n
+    out = nicp.filter_correspondences(V, N, pairs, sensor, np.ones(len(V), bool), adj, _only("normals"))
+    assert out.kept.all()
+
+
+def test_neighbours_rejected_by_an_earlier_filter_are_not_compared():
+    V, F, N, pairs, sensor, adj = _flat_case(7)
+    i = 24
+    ring = adj[i].indices
+    pairs.targets[ring] = V[ring] + [0.01, 0.0, 0.005]  # 63 deg off the centre's +z, but outside the arm
+    arm = np.ones(len(V), bool)
+    arm[ring] = False
+    f = CorrespondenceFilters(**{**ALL_OFF, "arm_only": True, "neighbours": True})
+    assert nicp.filter_correspondences(V, N, pairs, sensor, arm, adj, f).kept[i]
+    arm[:] = True
+    assert not nicp.filter_correspondences(V, N, pairs, sensor, arm, adj, f).kept[i]
+
+
+def test_a_pair_without_valid_neighbours_is_judged_on_its_own_length():
+    V, F, N, pairs, sensor, adj = _flat_case(7)
+    i = 24
+    arm = np.zeros(len(V), bool)
+    arm[i] = True  # every neighbour rejected first: no neighbourhood median
+    f = CorrespondenceFilters(**{**ALL_OFF, "arm_only": True, "length": True})
+    out = nicp.filter_correspondences(V, N, pairs, sensor, arm, adj, f)
+    assert out.kept[i] and out.kept.sum() == 1
+
+
+def test_integer_masks_act_as_boolean_masks(ellipsoid):
+    V, F, N, pairs, sensor, adj = _flat_case()
+    arm = (np.arange(len(V)) % 3 != 0)
+    out = nicp.filter_correspondences(V, N, pairs, sensor, arm.astype(int), adj, _only("arm_only"))
+    np.testing.assert_array_equal(out.kept, arm)
+    Ve, Fe = ellipsoid
+    sensor = Ve.mean(0) + np.array([0.0, 0.0, 1.0])
+    front = vertex_normals(Ve, Fe) @ [0, 0, 1] > 0
+    P = Ve[front] + [0.003, 0.0, 0.0]
+    start = (1.0, np.eye(3), np.zeros(3))
+    S = nicp.rigid_alignment_with_scale(Ve, Fe, P, sensor, front.astype(int), initial=start, with_scale=False)
+    np.testing.assert_allclose(S[2], [0.003, 0.0, 0.0], atol=1e-9)
+
+
+def test_rigid_alignment_at_exactly_ten_points_and_ten_pairs(ellipsoid):
+    V, F = ellipsoid
+    sensor = V.mean(0) + np.array([0.0, 0.0, 1.0])
+    front = np.flatnonzero(vertex_normals(V, F) @ [0, 0, 1] > 0)
+    start = (1.0, np.eye(3), np.zeros(3))
+    # Ten points are a point cloud; far from the template they give no pairs.
+    with pytest.raises(InputError, match="fewer than 10 template-to-depth pairs"):
+        nicp.rigid_alignment_with_scale(V, F, V[front[:10]] + 1.0, sensor, initial=start)
+    # Ten masked vertices on their ten points: ten pairs are enough.
+    mask = np.zeros(len(V), bool)
+    mask[front[:10]] = True
+    S = nicp.rigid_alignment_with_scale(V, F, V[front[:10]] + [0.002, 0, 0], sensor, mask, initial=start,
+                                        with_scale=False, with_rotation=False)
+    np.testing.assert_allclose(S[2], [0.002, 0, 0], atol=1e-9)
+
+
+def test_rigid_alignment_without_scale_keeps_scale_one_on_a_scaled_copy(ellipsoid):
+    V, F = ellipsoid
+    c = V.mean(0)
+    P = 1.05 * (V - c) + c
+    sensor = c + np.array([0.0, 0.0, 1.0])
+    seen = np.einsum("kd,kd->k", vertex_normals(P, F), sensor - P) > 0
+    assert nicp.rigid_alignment_with_scale(V, F, P[seen], sensor, with_scale=False)[0] == 1.0
+
+
+def test_nonrigid_icp_iteration_is_pairs_filters_plane_targets_then_arap(shifted_copy):
+    """One iteration by hand, with every option passed through (filters, data weight, ARAP sweeps)."""
+    V, F, P, Np, sensor, adj, sysm, _ = shifted_copy
+    arm = np.ones(len(V), bool)
+    opts = nicp.NicpOptions(iterations=1, arap_iterations=2, data_weight=3.0)
+    X, pairs = nicp.nonrigid_icp(sysm, F, V, P, Np, sensor, arm, adj, opts)
+    want = nicp.filter_correspondences(V, vertex_normals(V, F), nicp.closest_point_correspondences(V, P, Np),
+                                       sensor, arm, adj, opts.filters)
+    np.testing.assert_array_equal(pairs.kept, want.kept)
+    assert pairs.rejected_by == want.rejected_by
+    ref = nicp.arap_deformation(sysm, V, nicp.plane_targets(V, want), want.kept.astype(float), 3.0, 2)
+    np.testing.assert_allclose(X, ref, atol=1e-15)
+    X0, none = nicp.nonrigid_icp(sysm, F, V, P, Np, sensor, arm, adj, nicp.NicpOptions(iterations=0))
+    np.testing.assert_array_equal(X0, V)
+    assert none is None and X0 is not V
+
+
+def test_the_centroid_start_widens_the_pair_distance_for_its_first_iterations(ellipsoid):
+    """From the centroid start (no ``initial``) the first iterations pair up to 3 max_distance: a 10 deg,
+    14 mm similarity is recovered with a 3 mm pair limit; the same start given as ``initial`` is trusted
+    (no widening) and finds too few pairs."""
+    V, F = ellipsoid
+    c = V.mean(0)
+    sensor = c + np.array([0.0, 0.0, 1.0])
+    R = Rotation.from_rotvec([0.1, -0.1, 0.15]).as_matrix()
+    P = 1.05 * (V - c) @ R.T + c + [0.01, -0.01, 0.0]
+    seen = np.einsum("kd,kd->k", vertex_normals(P, F), sensor - P) > 0
+    S = nicp.rigid_alignment_with_scale(V, F, P[seen], sensor, max_distance_m=0.003)
+    np.testing.assert_allclose(nicp.apply_similarity(S, V)[seen], P[seen], atol=1e-9)
+    front = np.einsum("kd,kd->k", vertex_normals(V, F), sensor - V) > 0
+    start = (1.0, np.eye(3), P[seen].mean(0) - V[front].mean(0))
+    with pytest.raises(InputError, match="fewer than 10"):
+        nicp.rigid_alignment_with_scale(V, F, P[seen], sensor, initial=start, max_distance_m=0.003)
