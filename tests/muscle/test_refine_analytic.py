@@ -351,3 +351,217 @@ def test_root_fit_with_a_fixed_shape_recovers_the_torso_placement(model_case):
     np.testing.assert_array_equal(root[:3, :3], truth.root[:3, :3])
     with pytest.raises(InputError, match="at least one registered frame"):
         refine.fit_shape_parameters(model, [], [], [])
+
+
+# --- the survivors of the first mutation run (docs/mutation/muscle-refine.md) -----------------------------
+
+def test_time_consistent_correspondences_over_three_frames_eq13():
+    c = [np.full((3, 3), v) for v in (1.0, 2.0, 4.0)]
+    v = [np.array([1, 1, 0], bool), np.array([1, 1, 1], bool), np.array([1, 0, 0], bool)]
+    out, ok = refine.time_consistent_correspondences(c, v, sigma_frames=1.5)
+    w = np.exp(-1 / 4.5)
+    np.testing.assert_allclose(out[0], (w * 1 + 2 + w * 4) / (1 + 2 * w))
+    np.testing.assert_allclose(out[1], (w * 1 + 2) / (1 + w))
+    np.testing.assert_allclose(out[2], 2.0)
+    assert ok.all()
+    v[1] = np.array([1, 0, 1], bool)  # the current frame decides validity
+    out, ok = refine.time_consistent_correspondences(c, v)
+    assert ok.tolist() == [True, False, True] and np.all(out[1] == 0)
+    w = np.exp(-0.5)  # default sigma 1 frame
+    np.testing.assert_allclose(out[0], (w * 1 + 2 + w * 4) / (1 + 2 * w))
+
+
+def test_procrustes_fits_rotation_and_translation_only_and_skips_only_empty_parts():
+    rng = np.random.default_rng(2)
+    V = rng.normal(0, 0.1, (60, 3)) + JOINTS[1]
+    W = np.zeros((60, 4))
+    W[:30, 1] = 1.0
+    W[30:, 2] = 1.0
+    W[0, 3] = 0.5  # a part with little weight (0.5) is still fitted
+    W[0, 1] = 0.5
+    pose = _pose(4)
+    T = part_transforms(JOINTS, pose)
+    Q = pose_arm(V, W, JOINTS, pose)
+    out = refine.procrustes_part_transforms(V, Q, W)
+    np.testing.assert_array_equal(out[0], np.eye(4))  # the empty torso first: skipped, the rest still fitted
+    np.testing.assert_allclose(out[2], T[2], atol=1e-12)
+    assert np.abs(out[3] - np.eye(4)).max() > 1e-3
+    # A uniformly scaled copy: the rigid fit keeps R and t of the scale-free Kabsch solution.
+    c = W[:, 1] @ V / W[:, 1].sum()  # the part's weighted centroid
+    S = 1.2 * (V - c) + c
+    fit = refine.procrustes_part_transforms(V, S, W)[1]
+    np.testing.assert_allclose(fit[:3, :3], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(fit[:3, 3], 0.0, atol=1e-12)
+
+
+def test_skin_template_is_four_part_lbs():
+    rng = np.random.default_rng(5)
+    V = rng.normal(0, 0.1, (20, 3)) + JOINTS[1]
+    W = rng.dirichlet(np.ones(4), 20)
+    pose = _pose(5)
+    np.testing.assert_allclose(refine.skin_template(V, W, JOINTS, pose), pose_arm(V, W, JOINTS, pose))
+    assert np.abs(refine.skin_template(V, W, JOINTS, pose) - V).max() > 0.01
+
+
+def test_smoothing_radius_minimum_and_three_frames():
+    a = np.zeros((9, 3, 3))
+    a[4, 1, 0] = 1.0
+    poses = [ArmPose(np.eye(4), x) for x in a]
+    one = np.array([p.angles[1, 0] for p in refine.smooth_arm_poses(poses, 1.0, radius=1)])
+    assert one[2] == 0.0 and one[3] > 0  # the given radius, not the default 2
+    default = np.array([p.angles[1, 0] for p in refine.smooth_arm_poses(poses, 1.0)])
+    g = np.exp(-np.arange(-2, 3) ** 2 / 2.0)
+    assert default[1] == 0.0 and default[2] == pytest.approx(g[0] / g.sum(), rel=1e-12)  # radius max(2, 2)
+    three = refine.smooth_arm_poses(poses[3:6], 1.0)
+    assert three[0].angles[1, 0] > 0  # three frames are smoothed
+    assert refine.smooth_arm_poses(poses, 0.0)[4].angles[1, 0] == 1.0  # sigma 0: off
+
+
+def test_correspondence_weights_of_short_vectors_and_off_origin_joints():
+    n = np.tile([0.0, 0.0, 1.0], (2, 1))
+    c = np.array([[0.0005, 0, 0], [0.004, 0, 0]])  # both perpendicular to the normal; the first shorter than 1 mm
+    J = np.array([[1.0, 2.0, 3.0], [5.0, 5.0, 5.0], [9.0, 9.0, 9.0]])
+    V = np.array([[1.0, 2.0, 3.03], [1.0, 2.0, 3.0]])
+    w = refine.correspondence_weights(c, n, V, J, np.ones(2, bool))
+    np.testing.assert_allclose(w, [1.5, 0.0], atol=1e-12)
+
+
+def test_shape_bounds_clip_muscularity_to_a_fraction_and_the_start_into_the_box():
+    model = _arm_model()[0]
+    lo, hi, _ = refine._shape_bounds(model, None)
+    a, b = model.shape_range()["muscularity"]
+    span = max(b - a, model.param_scale[1])
+    assert lo[1] == max(a - span, 0.0) and hi[1] == min(b + span, 1.0)
+    from bodystudio.muscle.model import ArmShapeParams
+
+    low = refine._shape_bounds(model, ArmShapeParams(1.0, -1.0, 0.5, 0.1))[2]
+    np.testing.assert_allclose(low, lo + 1e-9, rtol=0, atol=1e-15)
+    high = refine._shape_bounds(model, ArmShapeParams(99.0, 2.0, 3.0, 2.0))[2]
+    np.testing.assert_allclose(high, hi - 1e-9, rtol=0, atol=1e-15)
+
+
+def _no_data_frame(model_case_):
+    model, shape, J, truth, mesh, sensor = model_case_
+    return _frame(mesh + 5.0, model.faces, model.arm_mask, sensor)  # every pair beyond max_distance
+
+
+def test_shape_fit_from_tracker_joints_alone_recovers_shape_and_placement(model_case):
+    """No depth pairs: the tracker's joints (the model's posed joints of a known shape and placement, two
+    poses) determine the four shape parameters and the root translation through the joint regression."""
+    from bodystudio.muscle.model import ArmShapeParams, model_joints
+
+    model, shape, J, truth, mesh, sensor = model_case
+    frame = _no_data_frame(model_case)
+    target = ArmShapeParams(shape.bmi + 1.5, shape.muscularity, shape.height_m + 0.03, shape.arm_length_m - 0.01)
+    offset = np.array([0.01, -0.005, 0.004])
+    poses = [truth, ArmPose(truth.root, truth.angles * 0.5)]
+    Jt = model_joints(model, target)
+    tracked = []
+    for p in poses:
+        root = p.root.copy()
+        root[:3, 3] += offset
+        tracked.append(refine.posed_joints(Jt, ArmPose(root, p.angles)))
+    got, root = refine.fit_shape_parameters(model, [mesh, mesh], poses, [frame, frame], initial=shape,
+                                            tracker_joints=np.stack(tracked), tracker_weight=1.0, rounds=1)
+    fitted = np.stack([refine.posed_joints(model_joints(model, got), ArmPose(root, p.angles)) for p in poses])
+    np.testing.assert_allclose(fitted, np.stack(tracked), atol=2e-4)  # measured < 1e-6 m
+    np.testing.assert_allclose(root[:3, 3], offset, atol=2e-3)
+    # The arm-length prior holds x[3] where the tracker's chain says (a large weight wins).
+    got2, _ = refine.fit_shape_parameters(model, [mesh, mesh], poses, [frame, frame], initial=shape,
+                                          tracker_joints=np.stack(tracked), rounds=1, arm_length=0.46,
+                                          arm_length_weight=1e6)
+    assert got2.arm_length_m == pytest.approx(0.46, abs=1e-4)
+    assert abs(got.arm_length_m - 0.46) > 0.03
+
+
+def test_shape_fit_pulled_by_the_nicp_meshes_alone(model_case):
+    """No depth pairs, no tracker: the weak pull to the NICP meshes fits shape and root to them."""
+    from bodystudio.muscle.model import ArmShapeParams, model_mesh
+
+    model, shape, J, truth, mesh, sensor = model_case
+    frame = _no_data_frame(model_case)
+    target = ArmShapeParams(shape.bmi + 1.0, shape.muscularity, shape.height_m, shape.arm_length_m)
+    nicp_mesh = model_mesh(model, target, truth)
+    got, root = refine.fit_shape_parameters(model, [nicp_mesh], [truth], [frame], initial=shape, nicp_weight=1.0,
+                                            rounds=1)
+    np.testing.assert_allclose(model_mesh(model, got, ArmPose(root, truth.angles)), nicp_mesh, atol=1e-4)
+    same, _ = refine.fit_shape_parameters(model, [nicp_mesh], [truth], [frame], initial=shape, rounds=1)
+    np.testing.assert_allclose(same.as_vector(), shape.as_vector(), atol=1e-9)  # no term at all: the start
+
+
+def test_twist_refinement_with_free_twist_and_without_data(model_case):
+    from bodystudio.muscle.model import model_mesh
+
+    model, shape, J, truth, mesh, sensor = model_case
+    h, f = refine.elbow_axes(J)
+    frame = _frame(mesh, model.faces, model.arm_mask, sensor)
+    twisted = ArmPose(truth.root, np.stack([truth.angles[0], refine.elbow_rotvec(J, 1.0, 0.3), np.zeros(3)]))
+    # fit_twist keeps the start's twist as a free parameter; without it the twist is set to 0.
+    # (no depth pairs: the previous pose, the twisted one, is the only term)
+    free = refine.refine_arm_pose(twisted, lambda p: model_mesh(model, shape, p), _no_data_frame(model_case),
+                                  None, J, fit_twist=True, previous=twisted, smooth_weight=1.0)
+    np.testing.assert_allclose(free.angles, twisted.angles, atol=1e-7)
+    fixed = refine.refine_arm_pose(twisted, lambda p: model_mesh(model, shape, p), _no_data_frame(model_case),
+                                   None, J, previous=twisted, smooth_weight=1.0)
+    np.testing.assert_allclose(np.cross(fixed.angles[1], h), 0.0, atol=1e-12)  # a pure hinge: no twist
+    assert np.abs(fixed.angles[1] - twisted.angles[1]).max() > 0.05
+    # The ARAP mesh alone (no depth pairs) pulls the angles to the pose it shows.
+    start = ArmPose(truth.root, truth.angles + np.stack([[0.05, 0.0, 0.05], 0.1 * h, np.zeros(3)]))
+    out = refine.refine_arm_pose(start, lambda p: model_mesh(model, shape, p), _no_data_frame(model_case),
+                                 mesh, J, rounds=2)
+    np.testing.assert_allclose(out.angles, truth.angles, atol=1e-4)
+    # A tracker below weight 1 still counts; absent trackers and previous poses with weights are ignored.
+    wrong = refine.posed_joints(J, truth) + [0.0, 0.05, 0.0]
+    pulled = refine.refine_arm_pose(truth, lambda p: model_mesh(model, shape, p), frame, None, J, rounds=1,
+                                    tracker=wrong, tracker_weight=0.5, model_joints=J)
+    assert np.abs(pulled.angles - truth.angles).max() > 1e-3
+    same = refine.refine_arm_pose(truth, lambda p: model_mesh(model, shape, p), frame, None, J, rounds=1,
+                                  tracker_weight=5.0, smooth_weight=5.0)
+    np.testing.assert_allclose(same.angles, truth.angles, atol=1e-6)
+    prev = ArmPose(truth.root, truth.angles + 0.3)
+    held = refine.refine_arm_pose(truth, lambda p: model_mesh(model, shape, p), frame, None, J, rounds=1,
+                                  previous=prev, smooth_weight=0.5 * 1e4)
+    assert np.abs(held.angles[:2] - truth.angles[:2]).max() > 0.01
+
+
+def test_model_based_filtering_passes_its_inputs_through(model_case):
+    from bodystudio.muscle.model import model_rest_vertices
+
+    model, shape, J, truth, mesh, sensor = model_case
+    frame = _frame(mesh, model.faces, model.arm_mask, sensor)
+    base = model_rest_vertices(model, shape)
+    rng = np.random.default_rng(8)
+    deformed = mesh.copy()
+    bad = rng.random(len(mesh)) < 0.3
+    deformed[bad] += rng.normal(0, 0.01, (bad.sum(), 3))
+    vw = (~bad).astype(float)
+    _, pose = refine.model_based_filtering(model, shape, truth.root, deformed, base, model.part_weights, vw, frame, J,
+                                           refine_pose=False)
+    T = refine.procrustes_part_transforms(base, deformed, model.part_weights, vw + 0.05)
+    want = refine.arm_pose_from_part_transforms(T).angles
+    np.testing.assert_allclose(pose.angles[:2], want[:2], atol=1e-12)
+    # The tracker, the previous pose and the ARAP mesh reach the refinement.
+    wrong = refine.posed_joints(J, truth) + [0.0, 0.05, 0.0]
+    base_pose = refine.model_based_filtering(model, shape, truth.root, mesh, base, model.part_weights,
+                                             np.ones(len(mesh)), frame, J)[1]
+    for kw in ({"tracker": wrong, "tracker_weight": 1e4}, {"previous": ArmPose(truth.root, truth.angles + 0.3),
+                                                           "smooth_weight": 1e4}):
+        moved = refine.model_based_filtering(model, shape, truth.root, mesh, base, model.part_weights,
+                                             np.ones(len(mesh)), frame, J, **kw)[1]
+        assert np.abs(moved.angles - base_pose.angles).max() > 0.01, kw
+    far = _no_data_frame(model_case)
+    start_off = refine.model_based_filtering(model, shape, truth.root, mesh, base, model.part_weights,
+                                             np.ones(len(mesh)), far, J)[1]
+    np.testing.assert_allclose(start_off.angles[:2], truth.angles[:2], atol=1e-3)  # the ARAP mesh's pull
+
+
+def test_refine_surface_sweeps_are_passed_through():
+    V, F = _tube()
+    bump = np.zeros_like(V)
+    ring = slice(4 * 12, 5 * 12)
+    bump[ring] = 0.004 * np.c_[np.cos(np.arange(12) * np.pi / 6), np.sin(np.arange(12) * np.pi / 6), np.zeros(12)]
+    w = np.zeros(len(V))
+    w[ring] = 1.0
+    one = refine.refine_surface(V, F, bump, w, iterations=1)
+    many = refine.refine_surface(V, F, bump, w, iterations=8)
+    assert np.abs(one - many).max() > 1e-6
