@@ -506,6 +506,7 @@ def test_integer_masks_act_as_boolean_masks(ellipsoid):
     arm = (np.arange(len(V)) % 3 != 0)
     out = nicp.filter_correspondences(V, N, pairs, sensor, arm.astype(int), adj, _only("arm_only"))
     np.testing.assert_array_equal(out.kept, arm)
+    assert out.kept.dtype == bool  # a boolean mask downstream (X[pairs.kept])
     Ve, Fe = ellipsoid
     sensor = Ve.mean(0) + np.array([0.0, 0.0, 1.0])
     front = vertex_normals(Ve, Fe) @ [0, 0, 1] > 0
@@ -521,7 +522,8 @@ def test_rigid_alignment_at_exactly_ten_points_and_ten_pairs(ellipsoid):
     front = np.flatnonzero(vertex_normals(V, F) @ [0, 0, 1] > 0)
     start = (1.0, np.eye(3), np.zeros(3))
     # Ten points are a point cloud; far from the template they give no pairs.
-    with pytest.raises(InputError, match="fewer than 10 template-to-depth pairs"):
+    with pytest.raises(InputError, match="^rigid alignment found fewer than 10 template-to-depth pairs; start the "
+                                         "sequence with the arm in the template's base pose facing the sensor$"):
         nicp.rigid_alignment_with_scale(V, F, V[front[:10]] + 1.0, sensor, initial=start)
     # Ten masked vertices on their ten points: ten pairs are enough.
     mask = np.zeros(len(V), bool)
