@@ -565,3 +565,67 @@ def test_refine_surface_sweeps_are_passed_through():
     one = refine.refine_surface(V, F, bump, w, iterations=1)
     many = refine.refine_surface(V, F, bump, w, iterations=8)
     assert np.abs(one - many).max() > 1e-6
+
+
+def test_shape_fit_from_depth_recovers_the_shape_and_a_fixed_shape_stays_fixed(model_case):
+    """Depth = the model's mesh of another shape (BMI +1, height +2 cm): the free fit finds that shape and no
+    root offset (measured 1e-6); with ``fixed_shape`` the given shape is kept exactly, only the root moves."""
+    from bodystudio.muscle.model import ArmShapeParams, model_mesh
+
+    model, shape, J, truth, mesh, sensor = model_case
+    target = ArmShapeParams(shape.bmi + 1.0, shape.muscularity, shape.height_m + 0.02, shape.arm_length_m)
+    frame = _frame(model_mesh(model, target, truth), model.faces, model.arm_mask, sensor)
+    got, root = refine.fit_shape_parameters(model, [mesh], [truth], [frame], initial=shape)
+    np.testing.assert_allclose(got.as_vector(), target.as_vector(), atol=1e-4)
+    np.testing.assert_allclose(root[:3, 3], 0.0, atol=1e-5)
+    kept, root = refine.fit_shape_parameters(model, [mesh], [truth], [frame], initial=shape, fixed_shape=True)
+    np.testing.assert_allclose(kept.as_vector(), shape.as_vector(), atol=1e-8)
+    assert np.linalg.norm(root[:3, 3]) > 1e-3
+    with pytest.raises(InputError, match="^fit_shape_parameters needs at least one registered frame$"):
+        refine.fit_shape_parameters(model, [], [], [])
+
+
+def test_the_arm_length_prior_needs_a_length_and_counts_below_weight_one(model_case):
+    model, shape, J, truth, mesh, sensor = model_case
+    frame = _frame(mesh, model.faces, model.arm_mask, sensor)
+    none, _ = refine.fit_shape_parameters(model, [mesh], [truth], [frame], initial=shape, arm_length_weight=1.0)
+    np.testing.assert_allclose(none.as_vector(), shape.as_vector(), atol=1e-4)  # no length given: no prior
+    weak, _ = refine.fit_shape_parameters(model, [mesh], [truth], [frame], initial=shape, arm_length=0.4,
+                                          arm_length_weight=0.5)
+    assert weak.arm_length_m < shape.arm_length_m - 1e-3
+
+
+def test_shape_bounds_keep_a_low_muscularity_range_below_one():
+    from dataclasses import replace
+
+    model = _arm_model()[0]
+    subjects = [{"name": n, "shape": {"bmi": 22.0, "muscularity": m, "height_m": 1.75, "arm_length_m": 0.55}}
+                for n, m in (("a", 0.1), ("b", 0.2))]
+    lo, hi, _ = refine._shape_bounds(replace(model, subjects=subjects), None)
+    span = max(0.1, model.param_scale[1])
+    assert hi[1] == pytest.approx(min(0.2 + span, 1.0)) and hi[1] < 1.0 and lo[1] == 0.0
+
+
+def test_plane_pairs_use_the_frames_filters(model_case):
+    model, shape, J, truth, mesh, sensor = model_case
+    every = refine.DepthFrame(mesh, vertex_normals(mesh, model.faces), cKDTree(mesh), sensor, model.arm_mask,
+                              vertex_neighbourhoods(model.faces, len(mesh)),
+                              CorrespondenceFilters(arm_only=False, front_only=False, normals=False), model.faces)
+    k, _, _ = every.plane_pairs(mesh)
+    assert len(k) == len(mesh)  # the data are the mesh: with these filters off every vertex keeps its pair
+
+
+def test_model_based_filtering_refines_with_its_norm_limit(model_case):
+    from bodystudio.muscle.model import model_mesh, model_rest_vertices
+
+    model, shape, J, truth, mesh, sensor = model_case
+    frame = _frame(mesh, model.faces, model.arm_mask, sensor)
+    base = model_rest_vertices(model, shape)
+    ones = np.ones(len(mesh))
+    start = refine.model_based_filtering(model, shape, truth.root, mesh, base, model.part_weights, ones, frame, J,
+                                         norm_limit=0.0, refine_pose=False)[1]
+    want = refine.refine_arm_pose(start, lambda p: model_mesh(model, shape, p, norm_limit=0.0), frame, mesh, J,
+                                  model_joints=J)
+    got = refine.model_based_filtering(model, shape, truth.root, mesh, base, model.part_weights, ones, frame, J,
+                                       norm_limit=0.0)[1]
+    np.testing.assert_allclose(got.angles, want.angles, atol=1e-12)
