@@ -581,6 +581,10 @@ def test_shape_fit_from_depth_recovers_the_shape_and_a_fixed_shape_stays_fixed(m
     kept, root = refine.fit_shape_parameters(model, [mesh], [truth], [frame], initial=shape, fixed_shape=True)
     np.testing.assert_allclose(kept.as_vector(), shape.as_vector(), atol=1e-8)
     assert np.linalg.norm(root[:3, 3]) > 1e-3
+    lower = ArmShapeParams(shape.bmi - 1.0, shape.muscularity, shape.height_m - 0.02, shape.arm_length_m)
+    frame = _frame(model_mesh(model, lower, truth), model.faces, model.arm_mask, sensor)
+    kept, _ = refine.fit_shape_parameters(model, [mesh], [truth], [frame], initial=shape, fixed_shape=True)
+    np.testing.assert_allclose(kept.as_vector(), shape.as_vector(), atol=1e-8)  # pulled down: still fixed
     with pytest.raises(InputError, match="^fit_shape_parameters needs at least one registered frame$"):
         refine.fit_shape_parameters(model, [], [], [])
 
