@@ -41,6 +41,12 @@ EXTRA_TESTS = {
     "bodystudio/geometry/laplacian.py": ["tests/geometry/test_laplacian*.py", "tests/reconstruct/test_solver.py"],
     "bodystudio/body/skinning.py": ["tests/body/test_skinning*.py", "tests/body/test_model.py"],
     "bodystudio/reconstruct/silhouette.py": ["tests/reconstruct/test_silhouette*.py"],
+    # muscle: the fast files that call the module (test_capture.py holds the Sec. 5-7 step tests; the CLI
+    # catalogue of tests/reliability covers the model loader and the capture's refusals)
+    "bodystudio/muscle/model.py": ["tests/reliability/test_muscle_inputs.py"],
+    "bodystudio/muscle/nicp.py": ["tests/muscle/test_capture.py"],
+    "bodystudio/muscle/refine.py": ["tests/muscle/test_capture.py"],
+    "bodystudio/muscle/capture.py": ["tests/muscle/test_capture*.py", "tests/reliability/test_muscle_inputs.py"],
 }
 
 
