@@ -41,8 +41,8 @@ def _toy_model(n: int = 6, k: int = 3, seed: int = 0) -> ArmModel:
     return ArmModel(
         "toy", np.array([[0, 1, 2]]), w / w.sum(1, keepdims=True), np.ones(n, bool), rng.normal(0, 0.1, (n, 3)),
         np.linalg.qr(rng.normal(size=(3 * n, k)))[0].T, rng.normal(0, 0.01, (2, k)), rng.normal(0, 0.1, (5, 9)),
-        rng.normal(0, 0.01, (5, 3 * n)), rng.normal(0, 0.01, (10, 3 * n)), np.array([22.0, 0.5, 1.7, 0.55]),
-        np.array([3.0, 0.2, 0.08, 0.03]), 1.0, np.zeros((0, 4)), np.zeros((0, 3 * n)), np.zeros((10, 10)),
+        rng.normal(0, 0.01, (6, 3 * n)), rng.normal(0, 0.01, (10, 3 * n)), np.array([22.0, 0.5, 1.7, 0.55]),
+        np.array([3.0, 0.2, 0.08, 0.03]), 1.0, np.zeros((0, 5)), np.zeros((0, 3 * n)), np.zeros((10, 10)),
         np.zeros((10, 3 * n)), np.eye(5), np.zeros((5, 9)),
         subjects=[{"name": "a", "shape": ArmShapeParams(20, 0.2, 1.6, 0.5).to_dict()},
                   {"name": "b", "shape": ArmShapeParams(27, 0.9, 1.9, 0.6).to_dict()}])
@@ -56,7 +56,8 @@ def test_shape_params_vector_and_dict_round_trip_in_the_documented_order():
     assert ArmShapeParams.from_vector(v) == SHAPE
     assert ArmShapeParams.from_vector(v.reshape(2, 2)) == SHAPE
     assert ArmShapeParams.from_dict(SHAPE.to_dict()) == SHAPE
-    assert list(SHAPE.to_dict()) == list(SHAPE_NAMES)
+    assert list(SHAPE.to_dict()) == [*SHAPE_NAMES, "sex"] and SHAPE.sex == 1.0  # male unless said
+    assert SHAPE.as_row().tolist() == [24.0, 0.6, 1.78, 0.56, 1.0]
     with pytest.raises(InputError, match=r"^my.json: needs bmi, muscularity, height_m, arm_length_m"):
         ArmShapeParams.from_dict({"bmi": 20}, "my.json")
     with pytest.raises(InputError, match=r"^shape parameters: needs bmi"):
@@ -94,9 +95,12 @@ def test_standardised_parameters_and_each_displacement_term():
     # Eq. 8: PCA weights [1, z(arm length)] @ length_coeffs, then the eigenvectors.
     d_l = (np.array([1.0, z[3]]) @ model.length_coeffs @ model.length_basis).reshape(-1, 3)
     np.testing.assert_allclose(M.length_displacements(model, SHAPE), d_l, rtol=1e-12)
-    # Eq. 6: [1, z(BMI), z(muscularity), z(height), z(arm length)] @ shape_coeffs.
-    np.testing.assert_allclose(M.shape_displacements(model, SHAPE), (np.r_[1.0, z] @ model.shape_coeffs).reshape(-1, 3),
-                               rtol=1e-12)
+    # Eq. 6: [1, z(BMI), z(muscularity), z(height), z(arm length), 1 - sex] @ shape_coeffs.
+    np.testing.assert_allclose(M.shape_displacements(model, SHAPE),
+                               (np.r_[1.0, z, 0.0] @ model.shape_coeffs).reshape(-1, 3), rtol=1e-12)
+    woman = ArmShapeParams(*SHAPE.as_vector(), sex=0.0)
+    np.testing.assert_allclose(M.shape_displacements(model, woman),
+                               (np.r_[1.0, z, 1.0] @ model.shape_coeffs).reshape(-1, 3), rtol=1e-12)
     # Eq. 10: an intercept plus a linear term in the 9 angle coordinates.
     a = np.arange(9.0).reshape(3, 3) / 10
     np.testing.assert_allclose(M.pose_displacements(model, np.zeros((3, 3))), model.pose_coeffs[0].reshape(-1, 3))
@@ -231,9 +235,12 @@ def test_coefficients_solve_their_stored_normal_equations(arm_model_2k, arm_trai
     samples, subjects = arm_training_2k
     q = model.regularization
     n3 = 3 * model.n_vertices
-    assert model.shape_coeffs.shape == (5, n3) and model.pose_coeffs.shape == (10, n3)
-    X = np.c_[np.ones(len(model.shape_rows)), M._z(model, model.shape_rows)]
-    np.testing.assert_allclose(model.shape_coeffs, M.tikhonov_least_squares(X, model.shape_residuals, q), atol=1e-12)
+    assert model.shape_coeffs.shape == (6, n3) and model.pose_coeffs.shape == (10, n3)
+    X = np.c_[np.ones(len(model.shape_rows)), M._z(model, model.shape_rows[:, :4]), 1.0 - model.shape_rows[:, 4]]
+    weights = np.r_[0.0, np.full(4, q), model.sex_regularization] ** 2
+    want = np.linalg.solve(X.T @ X + np.diag(weights), X.T @ model.shape_residuals)
+    np.testing.assert_allclose(model.shape_coeffs, want, atol=1e-12)
+    np.testing.assert_allclose(model.shape_coeffs[-1], 0.0, atol=1e-15)  # all-male training: no female term
     np.testing.assert_allclose(model.pose_coeffs, tikhonov_from_normal_equations(model.pose_xtx, model.pose_xtd, q),
                                atol=1e-12)
     np.testing.assert_allclose(model.joint_coeffs, tikhonov_from_normal_equations(model.joint_xtx, model.joint_xty, q),
@@ -381,7 +388,7 @@ def test_header_without_subjects_loads_with_none(saved, tmp_path):
 
 @pytest.mark.parametrize("change, phrase", [
     ({"format": "other"}, r"not a bodystudio arm model \(format 'other'\)"),
-    ({"version": 99}, r"arm model version 99 is not supported \(this bodystudio reads version 1\); rebuild it with "
+    ({"version": 99}, r"arm model version 99 is not supported \(this bodystudio reads versions 1-2\); rebuild it with "
                       r"`bodystudio muscle model build`"),
     ({"template_key": None}, "arm model header lacks template_key / regularization / subjects; rebuild it with "
                              "`bodystudio muscle model build`"),
