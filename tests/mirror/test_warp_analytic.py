@@ -1,0 +1,241 @@
+"""MLS warp (Eq. 5 of Real-time Reshaping; Schaefer et al. 2006 closed forms) against answers known in closed form.
+
+Each test builds its own small handle layout, so it runs in well under a second: the similarity / rigid
+closed forms against the complex-number formula written out per point, degenerate (collinear) handles,
+the grid field's region of interest and per-person groups, and the foreground warp's edge colours.
+"""
+
+import numpy as np
+import pytest
+
+from bodystudio.errors import InputError
+from bodystudio.mirror.warp import (
+    EPS_PX2,
+    OUTSIDE_PX,
+    mls_grid_nodes,
+    mls_transforms,
+    mls_warp_field,
+    rim_vertices,
+    warp_foreground,
+)
+
+
+def _handles(n=40, seed=0, lo=(100, 60), hi=(500, 420)):
+    return np.random.default_rng(seed).uniform(lo, hi, (n, 2))
+
+
+def _direct_similarity(v, p, q, alpha, rigid):
+    """Eq. 5 with similarity (rigid) M for one point ``v``, in complex numbers: ``M(x) = (x - p*) z + q*`` with
+    ``z = sum w conj(p^) q^ / sum w |p^|^2`` (``z / |z|`` for rigid), ``w = 1 / (|v - p|^2 + eps)^alpha``."""
+    w = 1.0 / (np.sum((v - p) ** 2, axis=1) + EPS_PX2) ** alpha
+    ps, qs = w @ p / w.sum(), w @ q / w.sum()
+    ph = (p - ps) @ np.array([1.0, 1j])
+    qh = (q - qs) @ np.array([1.0, 1j])
+    z = np.sum(w * np.conj(ph) * qh) / np.sum(w * np.abs(ph) ** 2)
+    if rigid:
+        z /= abs(z)
+    out = ((v - ps) @ np.array([1.0, 1j])) * z
+    return np.array([out.real, out.imag]) + qs
+
+
+@pytest.mark.parametrize("kind", ["similarity", "rigid"])
+@pytest.mark.parametrize("alpha", [1.0, 2.0])
+def test_similarity_and_rigid_match_the_closed_form_written_out(kind, alpha):
+    """A non-similar deformation (noise on every handle): each point's transform is the weighted complex fit."""
+    p = _handles(25, seed=11)
+    q = p @ np.array([[1.1, 0.3], [-0.2, 0.95]]) + np.random.default_rng(12).normal(0, 6, p.shape)
+    v = np.random.default_rng(13).uniform(80, 520, (40, 2))
+    lin, mapped = mls_transforms(v, p, q, kind, alpha=alpha)
+    for k in range(len(v)):
+        np.testing.assert_allclose(mapped[k], _direct_similarity(v[k], p, q, alpha, kind == "rigid"), atol=1e-7)
+    # the linear part is the scaled rotation [[zr, zi], [-zi, zr]] (row vectors)
+    np.testing.assert_allclose(lin[:, 0, 0], lin[:, 1, 1], atol=1e-12)
+    np.testing.assert_allclose(lin[:, 0, 1], -lin[:, 1, 0], atol=1e-12)
+    # the local sums over a radius that holds every handle are the global ones
+    _, local = mls_transforms(v, p, q, kind, alpha=alpha, radius_px=2000.0)
+    np.testing.assert_allclose(local, mapped, atol=1e-8)
+
+
+@pytest.mark.parametrize("kind", ["affine", "similarity", "rigid"])
+def test_handles_map_onto_their_targets_to_the_eps_regularisation(kind):
+    """A point on a handle has weight 1/eps^alpha = 10^6 against < 10^-6 for the others (>= 5 px apart)."""
+    p = np.array([[100.0, 100.0], [140.0, 105.0], [120.0, 150.0], [90.0, 160.0], [160.0, 140.0]])
+    q = p + np.array([[3.0, -2.0], [-4.0, 1.0], [2.0, 5.0], [0.0, -3.0], [1.0, 1.0]])
+    _, mapped = mls_transforms(p, p, q, kind, alpha=2.0)
+    np.testing.assert_allclose(mapped, q, atol=1e-5)
+    # and the handles shifted by 1e-3 still land there: the transform varies smoothly
+    _, near = mls_transforms(p + 1e-3, p, q, kind, alpha=2.0)
+    np.testing.assert_allclose(near, q, atol=1e-2)
+
+
+@pytest.mark.parametrize("kind", ["similarity", "rigid"])
+def test_a_global_similarity_is_reproduced_by_the_field_everywhere_in_the_region(kind):
+    p = _handles(30, seed=14)
+    th = np.deg2rad(-11.0)
+    s = 1.0 if kind == "rigid" else 0.9
+    R = s * np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    b = np.array([-6.0, 4.0])
+    # backward field: output pixel x' samples the input at M(x') with M mapping target -> source points
+    field = mls_warp_field(p @ R.T + b, p, kind=kind, alpha=2.0, roi_margin_px=1000, radius_px=32.0)
+    rows, cols = np.mgrid[5:475:23, 7:635:29]
+    pix = np.stack([cols.ravel(), rows.ravel()], 1).astype(float)
+    expect = pix @ R.T + b
+    seen = (expect > OUTSIDE_PX + 1).all(1)  # sources left of / above the image are clamped to OUTSIDE_PX
+    assert seen.mean() > 0.9
+    np.testing.assert_allclose(field[rows.ravel(), cols.ravel()][seen], expect[seen], atol=2e-3)
+    np.testing.assert_array_equal(field[rows.ravel(), cols.ravel()][(expect < OUTSIDE_PX).all(1)], OUTSIDE_PX)
+
+
+def test_collinear_handles_have_no_affine_fit_and_leave_the_field_outside():
+    """Handles on one line: the affine moment matrix is singular, the similarity one is not."""
+    t = np.linspace(0, 1, 12)
+    p = np.c_[200 + 200 * t, 240 + 0 * t]
+    q = p + np.array([5.0, 3.0])
+    v = np.array([[300.0, 250.0], [260.0, 200.0]])
+    lin, mapped = mls_transforms(v, p, q, "affine")
+    assert np.isnan(mapped).all() and np.isnan(lin).all()
+    _, sim = mls_transforms(v, p, q, "similarity")
+    np.testing.assert_allclose(sim, v + [5.0, 3.0], atol=1e-8)
+    # nearly collinear (1e-4 px off the line) is still a fit
+    p2 = p + np.c_[0 * t, 1e-4 * np.sin(7 * t)]
+    _, ok = mls_transforms(v, p2, p2 + [5.0, 3.0], "affine")
+    assert np.isfinite(ok).all()
+    field = mls_warp_field(q, p, kind="affine", roi_margin_px=40)
+    assert np.all(field == OUTSIDE_PX)
+    field = mls_warp_field(q, p, kind="similarity", roi_margin_px=40)
+    np.testing.assert_allclose(field[240, 300], [305.0, 243.0], atol=1e-3)
+
+
+def test_the_field_is_solved_only_within_the_margin_of_the_target_points():
+    """Nodes within roi_margin_px (+1 node) of a target point carry the warp; pixels beyond map outside."""
+    p = np.array([[300.0, 240.0], [330.0, 240.0], [315.0, 270.0], [300.0, 265.0]])
+    field = mls_warp_field(p + [4.0, -2.0], p, kind="similarity", roi_margin_px=40)
+    rows, cols = np.mgrid[0:480, 0:640]
+    d = np.min(np.hypot(cols[..., None] - p[:, 0], rows[..., None] - p[:, 1]), axis=2)
+    solved = np.all(field != OUTSIDE_PX, axis=2)
+    inside = d < 36  # within the margin less the two half-cells of rounding
+    expect = np.stack([cols, rows], -1) + np.array([4.0, -2.0])
+    np.testing.assert_allclose(field[inside], expect[inside], atol=1e-3)
+    assert solved[inside].all()
+    assert not solved[d > 40 + 2 * 4 * np.sqrt(2) + 4].any()  # margin + reach cell + bilinear support
+    assert solved.sum() < 1.6 * np.count_nonzero(d < 48)
+    # a margin of 8 px: the region shrinks accordingly
+    small = np.all(mls_warp_field(p + [4.0, -2.0], p, kind="similarity", roi_margin_px=8) != OUTSIDE_PX, axis=2)
+    assert small[d < 4].all() and not small[d > 8 + 2 * 4 * np.sqrt(2) + 4].any()
+    assert small.sum() < 0.5 * solved.sum()
+
+
+def test_each_person_is_warped_by_their_own_pairs():
+    """Two groups of pairs, one moved +6 px in x, the other -5 px in y: each region takes its own translation
+    exactly; with one group for all, the nodes of one person feel the other's pairs (alpha 1: 1/d^2 weights)."""
+    a = _handles(12, seed=21, lo=(100, 150), hi=(200, 300))
+    b = _handles(12, seed=22, lo=(300, 150), hi=(400, 300))
+    t = np.vstack([a, b])
+    s = np.vstack([a + [6.0, 0.0], b + [0.0, -5.0]])
+    groups = np.r_[np.zeros(12, int), np.full(12, 7)]
+    rows, cols = np.mgrid[160:290:7, 110:190:7]
+    field = mls_warp_field(s, t, kind="similarity", alpha=1.0, roi_margin_px=60, groups=groups)
+    np.testing.assert_allclose(field[rows, cols], np.stack([cols + 6.0, rows + 0.0], -1), atol=1e-3)
+    np.testing.assert_allclose(field[rows, cols + 200], np.stack([cols + 200.0, rows - 5.0], -1), atol=1e-3)
+    mixed = mls_warp_field(s, t, kind="similarity", alpha=1.0, roi_margin_px=60)
+    assert np.abs(mixed[rows, cols] - np.stack([cols + 6.0, rows + 0.0], -1)).max() > 0.1
+    # a group with fewer than 3 pairs is not solved: its region maps outside, the other group's is unchanged
+    few = np.r_[np.zeros(12, int), np.full(10, 2), [1, 1]]
+    t2 = np.vstack([a, b[:10], [[470.0, 420.0], [480.0, 425.0]]])
+    s2 = np.vstack([a + [6.0, 0.0], b[:10] + [0.0, -5.0], [[470.0, 420.0], [480.0, 425.0]]])
+    f2 = mls_warp_field(s2, t2, kind="similarity", alpha=2.0, roi_margin_px=20, groups=few)
+    assert np.all(f2[422, 475] == OUTSIDE_PX)
+    ij = np.round(b[:10]).astype(int)
+    np.testing.assert_allclose(f2[ij[:, 1], ij[:, 0]], ij + np.array([0.0, -5.0]), atol=1e-3)
+
+
+def test_non_finite_pairs_are_dropped_with_their_group_labels():
+    a = _handles(6, seed=31, lo=(100, 150), hi=(200, 300))
+    b = _handles(6, seed=32, lo=(420, 150), hi=(520, 300))
+    t = np.vstack([[np.nan, np.nan], a, b])
+    s = np.vstack([[1.0, 1.0], a + [6.0, 0.0], b + [0.0, -5.0]])
+    groups = np.r_[1, np.zeros(6, int), np.ones(6, int)]
+    field = mls_warp_field(s, t, kind="similarity", alpha=2.0, roi_margin_px=30, groups=groups)
+    ij = np.round(b).astype(int)
+    np.testing.assert_allclose(field[ij[:, 1], ij[:, 0]], ij + np.array([0.0, -5.0]), atol=1e-3)
+    ij = np.round(a).astype(int)
+    np.testing.assert_allclose(field[ij[:, 1], ij[:, 0]], ij + np.array([6.0, 0.0]), atol=1e-3)
+    with pytest.raises(InputError, match="group labels"):
+        mls_warp_field(s, t, groups=groups[:-1])
+
+
+def test_grid_nodes_on_a_non_square_grid():
+    xs, ys = mls_grid_nodes((48, 64), (12, 32))  # 2 px per column, 4 px per row
+    np.testing.assert_allclose(xs, 2.0 * np.arange(32) + 0.5)
+    np.testing.assert_allclose(ys, 4.0 * np.arange(12) + 1.5)
+    # the default is the mirror's 160 x 120 grid on 640 x 480
+    xs, ys = mls_grid_nodes()
+    np.testing.assert_allclose(ys[[0, -1]], [1.5, 477.5])
+    np.testing.assert_allclose(xs[[0, -1]], [1.5, 637.5])
+
+
+def test_field_on_a_small_image_and_grid():
+    """Another image and grid size than the mirror's: the field is still the affine map, up-sampled exactly."""
+    p = _handles(20, seed=41, lo=(10, 8), hi=(110, 80))
+    A = np.array([[1.05, -0.04], [0.02, 0.97]])
+    field = mls_warp_field(p @ A.T + [2.0, -1.0], p, shape=(90, 120), grid=(30, 40), kind="affine",
+                           roi_margin_px=500)
+    assert field.shape == (90, 120, 2)
+    rows, cols = np.mgrid[4:86:9, 4:116:11]
+    pix = np.stack([cols.ravel(), rows.ravel()], 1).astype(float)
+    np.testing.assert_allclose(field[rows.ravel(), cols.ravel()], pix @ A.T + [2.0, -1.0], atol=1e-3)
+    with pytest.raises(InputError, match="grid"):
+        mls_warp_field(p, p, shape=(90, 120), grid=(30, 121))
+    with pytest.raises(InputError, match="grid"):
+        mls_warp_field(p, p, shape=(0, 120), grid=(30, 40))
+
+
+def _shift_field(h, w, dx, dy):
+    rows, cols = np.mgrid[0:h, 0:w].astype(np.float32)
+    return np.stack([cols - dx, rows - dy], -1).astype(np.float32)
+
+
+def test_foreground_warp_moves_colour_and_alpha_and_keeps_edges_the_persons_colour():
+    """A red square on green moved by (2.5, 0) px: alpha is the moved mask with half-covered edge columns, and the
+    edge pixels stay pure red (the background is never dragged in), not the half-dark premultiplied colour."""
+    h, w = 40, 50
+    rgb = np.zeros((h, w, 3), np.uint8)
+    rgb[...] = (0, 200, 0)
+    mask = np.zeros((h, w), bool)
+    mask[10:30, 10:30] = True
+    rgb[mask] = (220, 30, 10)
+    out, alpha = warp_foreground(rgb, mask, _shift_field(h, w, 2.5, 0.0))
+    assert alpha.dtype == np.float32 and out.dtype == np.uint8
+    np.testing.assert_allclose(alpha[20, 13:32], 1.0, atol=1e-6)
+    np.testing.assert_allclose(alpha[20, [12, 32]], 0.5, atol=0.01)
+    assert alpha[20, 11] == 0 and alpha[20, 33] == 0
+    inside = alpha > 0
+    assert np.abs(out[inside].astype(int) - (220, 30, 10)).max() <= 1
+    assert np.all(out[~inside] == 0)
+    # the identity field returns the foreground unchanged
+    out0, alpha0 = warp_foreground(rgb, mask, _shift_field(h, w, 0.0, 0.0))
+    np.testing.assert_array_equal(alpha0, mask.astype(np.float32))
+    np.testing.assert_array_equal(out0[mask], rgb[mask])
+    # a field pointing outside the image shows nothing
+    out1, alpha1 = warp_foreground(rgb, mask, np.full((h, w, 2), OUTSIDE_PX, np.float32))
+    assert not alpha1.any() and not out1.any()
+
+
+def test_rim_vertices_of_a_cylinder_by_the_default_cosine():
+    """A cylinder seen side-on from far away: |cos| < 0.3 (the default) is the band of vertices within asin(0.3)
+    of the silhouette, 2 x 2 x asin(0.3) / 2 pi = 19.4 % of the columns."""
+    n, m = 72, 5
+    th = np.arange(n) * 2 * np.pi / n
+    V = np.array([[np.cos(t), y, np.sin(t)] for y in np.linspace(-1, 1, m) for t in th])
+    F = []
+    for r in range(m - 1):
+        for c in range(n):
+            a, b, cc, d = r * n + c, r * n + (c + 1) % n, (r + 1) * n + c, (r + 1) * n + (c + 1) % n
+            F += [[a, cc, b], [b, cc, d]]
+    F = np.array(F)
+    eye = np.array([0.0, 0.0, 1e4])
+    ids = rim_vertices(V, F, eye)
+    cos_true = np.abs(np.sin(th))  # normal (cos t, 0, sin t), ray along z
+    expect = np.flatnonzero(np.tile(cos_true < 0.3, m))
+    np.testing.assert_array_equal(ids, expect)
+    assert len(ids) == m * np.count_nonzero(cos_true < 0.3)
