@@ -239,3 +239,10 @@ def test_rim_vertices_of_a_cylinder_by_the_default_cosine():
     expect = np.flatnonzero(np.tile(cos_true < 0.3, m))
     np.testing.assert_array_equal(ids, expect)
     assert len(ids) == m * np.count_nonzero(cos_true < 0.3)
+    # an eye 3.6 radii from the axis: the ray is V - eye (n . (V - eye) = 1 - 3.6 sin t): another band
+    eye = np.array([0.0, 0.0, 3.6])
+    ray = V - eye
+    cos_near = np.abs(np.einsum("ij,ij->i", V * [1, 0, 1], ray)) / np.linalg.norm(ray, axis=1)
+    assert np.min(np.abs(cos_near - 0.3)) > 0.005  # no vertex at the threshold
+    np.testing.assert_array_equal(rim_vertices(V, F, eye), np.flatnonzero(cos_near < 0.3))
+    assert not np.array_equal(np.flatnonzero(cos_near < 0.3), expect)
