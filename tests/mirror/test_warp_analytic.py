@@ -16,6 +16,7 @@ from bodystudio.mirror.warp import (
     mls_transforms,
     mls_warp_field,
     rim_vertices,
+    visible_vertex_pairs,
     warp_foreground,
 )
 
@@ -246,3 +247,69 @@ def test_rim_vertices_of_a_cylinder_by_the_default_cosine():
     assert np.min(np.abs(cos_near - 0.3)) > 0.005  # no vertex at the threshold
     np.testing.assert_array_equal(rim_vertices(V, F, eye), np.flatnonzero(cos_near < 0.3))
     assert not np.array_equal(np.flatnonzero(cos_near < 0.3), expect)
+
+
+def _grid(half, n, z):
+    u = np.linspace(-half, half, n)
+    X, Y = np.meshgrid(u, u)
+    V = np.c_[X.ravel(), Y.ravel(), np.full(n * n, z)]
+    F = []
+    for r in range(n - 1):
+        for c in range(n):
+            if c < n - 1:
+                a = r * n + c
+                F += [[a, a + n, a + 1], [a + 1, a + n, a + n + 1]]
+    return V, np.array(F)
+
+
+def _occluder_scene():
+    """A 0.6 m square at 2 m in front of a 2 m square at 3 m; an off-centre 320 x 200 camera at the origin
+    looking down +z. The front square hides the back one within |x|, |y| < 0.45 m."""
+    from bodystudio.geometry.camera import Camera
+
+    Vf, Ff = _grid(0.3, 11, 2.0)
+    Vb, Fb = _grid(1.0, 21, 3.0)
+    V = np.vstack([Vf, Vb])
+    F = np.vstack([Ff, Fb + len(Vf)])
+    K = np.array([[200.0, 0.0, 150.0], [0.0, 200.0, 110.0], [0.0, 0.0, 1.0]])
+    cam = Camera("c", K, np.zeros(5), np.eye(3), np.zeros(3), 320, 200)
+    return V, F, cam, len(Vf)
+
+
+def test_visible_pairs_keep_the_front_and_drop_what_it_hides():
+    V, F, cam, n_front = _occluder_scene()
+    shift = np.array([0.02, -0.01, 0.0])  # the target a little moved: both bodies are tested for visibility
+    s, t, ids = visible_vertex_pairs(V, V + shift, F, cam)
+    assert s.shape == t.shape == (len(ids), 2)
+    np.testing.assert_allclose(s, cam.project(V[ids]), atol=1e-9)
+    np.testing.assert_allclose(t, cam.project(V[ids] + shift), atol=1e-9)
+    back = np.arange(n_front, len(V))
+    cheb = np.abs(V[back, :2]).max(1)
+    kept = np.isin(np.arange(len(V)), ids)
+    assert kept[:n_front].all()  # the front square is seen whole
+    assert not kept[back[cheb < 0.25]].any()  # 4 quarter-size pixels inside the hidden region
+    assert kept[back[cheb > 0.7]].all()  # and 4 outside it
+    # evenly spread ids: the first and the last vertex among 10
+    _, _, few = visible_vertex_pairs(V, V, F, cam, n_handles=10)
+    np.testing.assert_array_equal(few, np.linspace(0, len(V) - 1, 10).round().astype(int)[kept[
+        np.linspace(0, len(V) - 1, 10).round().astype(int)]])
+    assert few[0] == 0 and few[-1] == len(V) - 1
+    # rim vertices are added to the spread ones (0, 280, 561): with rim_cos 1 every vertex but the one seen
+    # exactly head-on (the front square's centre, id 60)
+    _, _, every = visible_vertex_pairs(V, V, F, cam)
+    _, _, rim = visible_vertex_pairs(V, V, F, cam, n_handles=3, rim_cos=1.0)
+    np.testing.assert_array_equal(rim, np.setdiff1d(every, [60]))
+    # a body outside the image gives no pairs
+    _, _, none = visible_vertex_pairs(V + [5.0, 0.0, 0.0], V + [5.0, 0.0, 0.0], F, cam)
+    assert len(none) == 0
+
+
+def test_visible_pairs_validate_their_inputs():
+    V, F, cam, _ = _occluder_scene()
+    with pytest.raises(InputError, match=r"source and target vertices must both be \(n, 3\)"):
+        visible_vertex_pairs(V[:, :2], V[:, :2], F, cam)
+    with pytest.raises(InputError, match=r"must both be \(n, 3\), got \(562, 3\) and \(561, 3\)"):
+        visible_vertex_pairs(V, V[:-1], F, cam)
+    for bad in (0.0, -0.1, 1.01):
+        with pytest.raises(InputError, match=r"rim_cos must lie in \(0, 1\]"):
+            visible_vertex_pairs(V, V, F, cam, rim_cos=bad)
