@@ -262,12 +262,12 @@ def _grid(half, n, z):
     return V, np.array(F)
 
 
-def _occluder_scene():
-    """A 0.6 m square at 2 m in front of a 2 m square at 3 m; an off-centre 320 x 200 camera at the origin
-    looking down +z. The front square hides the back one within |x|, |y| < 0.45 m."""
+def _occluder_scene(half=0.3):
+    """A 0.6 m square (``half`` 0.3) at 2 m in front of a 2 m square at 3 m; an off-centre 320 x 200 camera at the
+    origin looking down +z. The front square hides the back one within |x|, |y| < 0.45 m."""
     from bodystudio.geometry.camera import Camera
 
-    Vf, Ff = _grid(0.3, 11, 2.0)
+    Vf, Ff = _grid(half, 11, 2.0)
     Vb, Fb = _grid(1.0, 21, 3.0)
     V = np.vstack([Vf, Vb])
     F = np.vstack([Ff, Fb + len(Vf)])
@@ -313,3 +313,24 @@ def test_visible_pairs_validate_their_inputs():
     for bad in (0.0, -0.1, 1.01):
         with pytest.raises(InputError, match=r"rim_cos must lie in \(0, 1\]"):
             visible_vertex_pairs(V, V, F, cam, rim_cos=bad)
+
+
+def test_visibility_is_judged_on_the_quarter_size_z_buffer_pixel_and_its_8_neighbours():
+    """Lines of back vertices (3 m) across the front square's (2 m) edges: a vertex is hidden when its pixel of
+    the quarter-size z-buffer or one of the 8 around it shows the front square. The 0.64 m front square covers the
+    quarter-size pixels whose centres it contains: columns 30..45 and rows 20..35 (its edges fall at 29.125 and
+    45.125, 19.125 and 35.125, so a buffer a quarter pixel off moves them past a centre), and a back vertex is
+    dropped exactly when its pixel lies in columns 29..46 and rows 19..36."""
+    V, F, cam, _ = _occluder_scene(0.32)
+    steps = np.arange(-0.9, 0.9, 0.0123)
+    probes = np.vstack([np.c_[steps, 0 * steps, 3 + 0 * steps], np.c_[0 * steps, steps, 3 + 0 * steps]])
+    Vp = np.vstack([V, probes])
+    _, _, ids = visible_vertex_pairs(Vp, Vp, F, cam, n_handles=len(Vp))
+    uv = cam.project(probes)
+    fc, fr = (uv[:, 0] + 0.5) * 0.25 - 0.5, (uv[:, 1] + 0.5) * 0.25 - 0.5  # quarter-size pixel coordinates
+    col, row = np.round(fc), np.round(fr)
+    hidden = (col >= 29) & (col <= 46) & (row >= 19) & (row <= 36)
+    clear = (np.abs(np.abs(fc - np.floor(fc)) - 0.5) > 0.03) & (np.abs(np.abs(fr - np.floor(fr)) - 0.5) > 0.03)
+    kept = np.isin(len(V) + np.arange(len(probes)), ids)
+    assert clear.sum() > 0.8 * len(probes) and hidden.sum() > 40 and (~hidden).sum() > 100
+    np.testing.assert_array_equal(kept[clear], ~hidden[clear])
