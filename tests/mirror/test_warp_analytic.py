@@ -334,3 +334,48 @@ def test_visibility_is_judged_on_the_quarter_size_z_buffer_pixel_and_its_8_neigh
     kept = np.isin(len(V) + np.arange(len(probes)), ids)
     assert clear.sum() > 0.8 * len(probes) and hidden.sum() > 40 and (~hidden).sum() > 100
     np.testing.assert_array_equal(kept[clear], ~hidden[clear])
+
+
+def test_visible_pairs_need_both_bodies_to_show_the_vertex_and_the_image_to_hold_it():
+    """A vertex hidden in the source body only is dropped (both bodies must see it); vertices exactly on the first
+    and last pixel centres are kept, a quarter pixel beyond them dropped; a near occluder (0.9 m) hides what is
+    behind it; a vertex in the camera's plane (z = 0) is dropped without spoiling the others."""
+    from bodystudio.geometry.camera import Camera
+
+    V, F, cam, n_front = _occluder_scene()
+    away = V.copy()
+    away[:n_front, 0] += 30.0  # the target's front square far out of view: the back is all visible in the target
+    _, _, ids = visible_vertex_pairs(V, away, F, cam)
+    back = np.arange(n_front, len(V))
+    hidden = back[np.abs(V[back, :2]).max(1) < 0.25]
+    assert len(hidden) > 5 and not np.isin(hidden, ids).any()
+    _, _, ids_t = visible_vertex_pairs(away, V, F, cam)  # and the other way round
+    assert not np.isin(hidden, ids_t).any()
+
+    K = np.array([[256.0, 0.0, 159.5], [0.0, 256.0, 99.5], [0.0, 0.0, 1.0]])
+    cam = Camera("edge", K, np.zeros(5), np.eye(3), np.zeros(3), 320, 200)
+    tri = np.array([[-0.05, -0.05, 0.9], [0.05, -0.05, 0.9], [0.0, 0.05, 0.9]])  # a small occluder at 0.9 m
+    # x / z * 256 + 159.5 lands on u = 0 and 319 exactly for x = -+1.24609375 (z = 2); 0.25 px more is outside
+    xs = np.array([-159.75, -159.5, -159.25, 159.25, 159.5, 159.75]) / 128.0
+    ys = np.array([-99.75, -99.5, -99.25, 99.25, 99.5, 99.75]) / 128.0
+    probes = np.vstack([np.c_[xs, 0 * xs, 2 + 0 * xs], np.c_[0 * ys, ys, 2 + 0 * ys],
+                        [[0.0, 0.0, 1.5], [0.2, 0.1, 0.5], [0.1, 0.1, 0.0]]])
+    Vp = np.vstack([tri, probes])
+    s, _, ids = visible_vertex_pairs(Vp, Vp, np.array([[0, 1, 2]]), cam, n_handles=len(Vp))
+    uv = cam.project(probes[:12])
+    np.testing.assert_allclose(uv[[1, 4], 0], [0.0, 319.0], atol=0)
+    np.testing.assert_allclose(uv[[7, 10], 1], [0.0, 199.0], atol=0)
+    # kept: the triangle, the probes on the first / last centres (1, 2, 3, 4 of x; 7, 8, 9, 10 of y) and the
+    # vertex at 0.5 m in front of everything; dropped: those beyond, the one behind the triangle, the one at z = 0
+    want = [0, 1, 2] + [3 + k for k in (1, 2, 3, 4, 7, 8, 9, 10, 13)]
+    np.testing.assert_array_equal(ids, want)
+
+
+def test_foreground_warp_refuses_images_of_other_shapes():
+    mask = np.zeros((40, 50), bool)
+    field = np.zeros((40, 50, 2), np.float32)
+    for rgb in (np.zeros((40, 50), np.uint8), np.zeros((40, 50, 4), np.uint8)):
+        with pytest.raises(InputError, match=r"must share the image size \(H, W, 3\) / \(H, W\) / \(H, W, 2\)"):
+            warp_foreground(rgb, mask, field)
+    with pytest.raises(InputError, match="image size"):
+        warp_foreground(np.zeros((40, 50, 3), np.uint8), mask, field[:, :49])
