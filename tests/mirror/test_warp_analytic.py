@@ -379,3 +379,36 @@ def test_foreground_warp_refuses_images_of_other_shapes():
             warp_foreground(rgb, mask, field)
     with pytest.raises(InputError, match="image size"):
         warp_foreground(np.zeros((40, 50, 3), np.uint8), mask, field[:, :49])
+
+
+@pytest.mark.parametrize("shade", [0, 255])
+def test_a_black_or_white_person_keeps_its_exact_shade_at_the_warped_edges(shade):
+    """Premultiplied colour divided by the warped coverage: for black (0) and white (255) the division is exact,
+    so every pixel the warped person covers, edges included, has the person's shade, at any sub-pixel shift."""
+    h, w = 40, 50
+    rgb = np.zeros((h, w, 3), np.uint8)
+    rgb[...] = (0, 200, 0) if shade == 255 else (90, 200, 160)
+    mask = np.zeros((h, w), bool)
+    mask[10:30, 10:30] = True
+    rgb[mask] = shade
+    for dx, dy in ((0.1, 0.3), (0.5, 0.5), (0.9, 0.25)):
+        out, alpha = warp_foreground(rgb, mask, _shift_field(h, w, dx, dy))
+        edge = (alpha > 0) & (alpha < 1)
+        assert edge.sum() > 40
+        assert np.all(out[alpha > 0] == shade)
+
+
+def test_field_defaults_and_grid_validation():
+    """The defaults are Eq. 5's weights 1 / d^2 (alpha 1) and a 24 px margin; a grid must have 2..H rows and
+    2..W columns; any positive radius is accepted."""
+    p = _handles(25, seed=51)
+    q = p + np.random.default_rng(52).normal(0, 4, p.shape)
+    field = mls_warp_field(q, p, kind="similarity")
+    np.testing.assert_array_equal(field, mls_warp_field(q, p, kind="similarity", roi_margin_px=24.0, alpha=1.0))
+    assert not np.array_equal(field, mls_warp_field(q, p, kind="similarity", roi_margin_px=25.0, alpha=1.0))
+    assert not np.array_equal(field, mls_warp_field(q, p, kind="similarity", roi_margin_px=24.0, alpha=2.0))
+    for grid in ((120, 1), (481, 160), (120, 641), (1, 160)):
+        with pytest.raises(InputError, match="grid"):
+            mls_warp_field(q, p, grid=grid)
+    assert mls_warp_field(q, p, grid=(480, 640), roi_margin_px=4).shape == (480, 640, 2)
+    assert np.isfinite(mls_warp_field(q, p, kind="similarity", alpha=2.0, radius_px=0.5)).all()
