@@ -412,3 +412,21 @@ def test_field_defaults_and_grid_validation():
             mls_warp_field(q, p, grid=grid)
     assert mls_warp_field(q, p, grid=(480, 640), roi_margin_px=4).shape == (480, 640, 2)
     assert np.isfinite(mls_warp_field(q, p, kind="similarity", alpha=2.0, radius_px=0.5)).all()
+
+
+def test_target_points_beyond_the_image_edges_solve_the_edge_nodes_only():
+    """Handles straddling the top-left and the bottom-right corners (some outside the image): the nodes at those
+    corners carry the translation, the other two corners, far from every handle, stay outside; a 2 x 2 grid is
+    the coarsest allowed."""
+    rng = np.random.default_rng(61)
+    tl = rng.uniform([-40, -30], [60, 50], (15, 2))
+    br = rng.uniform([580, 430], [680, 520], (15, 2))
+    p = np.vstack([tl, br])
+    groups = np.r_[np.zeros(15, int), np.ones(15, int)]
+    field = mls_warp_field(p + [3.0, -2.0], p, kind="similarity", groups=groups)
+    for r, c in ((2, 2), (2, 5), (477, 637), (470, 630)):  # the outer 1.5 px take the edge node (resize)
+        np.testing.assert_allclose(field[r, c], [c + 3.0, r - 2.0], atol=1e-3)
+    for r, c in ((0, 639), (479, 0), (240, 320)):
+        assert np.all(field[r, c] == OUTSIDE_PX)
+    coarse = mls_warp_field(p + [3.0, -2.0], p, grid=(2, 2), kind="similarity", groups=groups, roi_margin_px=1000)
+    assert coarse.shape == (480, 640, 2)
