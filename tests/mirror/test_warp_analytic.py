@@ -430,3 +430,68 @@ def test_target_points_beyond_the_image_edges_solve_the_edge_nodes_only():
         assert np.all(field[r, c] == OUTSIDE_PX)
     coarse = mls_warp_field(p + [3.0, -2.0], p, grid=(2, 2), kind="similarity", groups=groups, roi_margin_px=1000)
     assert coarse.shape == (480, 640, 2)
+
+
+def test_local_sums_are_eq5_over_the_handles_within_the_radius():
+    """With radius_px the sums run over the handles within that distance only (when there are 3 or more): the
+    same closed form as written out over that subset, and not the all-handle result."""
+    p = _handles(40, seed=71)
+    q = p @ np.array([[1.05, 0.1], [-0.08, 0.97]]) + np.random.default_rng(72).normal(0, 5, p.shape)
+    v = np.random.default_rng(73).uniform(150, 450, (12, 2))
+    radius = 120.0
+    for kind in ("similarity", "rigid"):
+        _, local = mls_transforms(v, p, q, kind, alpha=1.0, radius_px=radius)
+        _, full = mls_transforms(v, p, q, kind, alpha=1.0)
+        for k in range(len(v)):
+            near = np.linalg.norm(p - v[k], axis=1) <= radius
+            assert near.sum() >= 3
+            np.testing.assert_allclose(local[k], _direct_similarity(v[k], p[near], q[near], 1.0, kind == "rigid"),
+                                       atol=1e-7)
+        assert np.abs(local - full).max() > 0.1
+    # the field passes its radius on
+    t = _handles(30, seed=74)
+    s = t + np.random.default_rng(75).normal(0, 5, t.shape)
+    f_local = mls_warp_field(s, t, kind="similarity", roi_margin_px=30, radius_px=40.0)
+    f_full = mls_warp_field(s, t, kind="similarity", roi_margin_px=30)
+    assert np.abs(f_local - f_full).max() > 0.05
+
+
+def test_mls_transforms_defaults_and_validation():
+    p = _handles(12, seed=81)
+    q = p + np.random.default_rng(82).normal(0, 4, p.shape)
+    v = _handles(5, seed=83)
+    lin, mapped = mls_transforms(v, p, q)  # affine, alpha 1, every handle
+    lin1, mapped1 = mls_transforms(v, p, q, "affine", alpha=1.0, radius_px=None)
+    np.testing.assert_array_equal(mapped, mapped1)
+    assert not np.allclose(mapped, mls_transforms(v, p, q, "similarity")[1])
+    assert not np.allclose(mapped, mls_transforms(v, p, q, "affine", alpha=2.0)[1])
+    # one point as a flat pair is one point
+    np.testing.assert_allclose(mls_transforms(v[0], p, q)[1], mapped[:1])
+    with pytest.raises(InputError, match=r"MLS kind 'bilinear'; valid: affine, similarity, rigid"):
+        mls_transforms(v, p, q, "bilinear")
+    for radius in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match=r"MLS radius_px must be a positive number of pixels \(or None"):
+            mls_transforms(v, p, q, radius_px=radius)
+    assert np.isfinite(mls_transforms(v, p, q, "similarity", radius_px=0.5)[1]).all()
+    # exactly 3 pairs are enough; (n, 3) points are refused
+    _, three = mls_transforms(v, p[:3], p[:3] + 2.0, "similarity")
+    np.testing.assert_allclose(three, v + 2.0, atol=1e-9)
+    with pytest.raises(InputError, match=r"same shape \(n, 2\)"):
+        mls_transforms(v, np.c_[p, p[:, :1]], np.c_[q, q[:, :1]])
+    with pytest.raises(InputError, match="at least 3 finite point pairs, got 2"):
+        mls_transforms(v, p[:2], q[:2])
+
+
+def test_a_group_of_three_pairs_is_solved_and_nodes_at_exactly_the_reach_are_in():
+    """Three pairs are a group's minimum; a line of handles makes the nodes at exactly reach = 24 / 4 + 1 = 7
+    cells solved, so the pixels between 6 and 7 cells out carry the warp."""
+    a = np.array([[200.0, 200.0], [230.0, 210.0], [215.0, 240.0]])
+    b = _handles(10, seed=91, lo=(400, 150), hi=(500, 300))
+    groups = np.r_[0, 0, 0, np.ones(10, int)]
+    field = mls_warp_field(np.vstack([a + [4.0, 1.0], b]), np.vstack([a, b]), kind="similarity", groups=groups)
+    np.testing.assert_allclose(field[215, 215], [219.0, 216.0], atol=1e-3)
+    line = np.c_[np.full(81, 320.0), np.arange(200.0, 281.0)]  # node column 80 (pixel 321.5)
+    field = mls_warp_field(line + [2.0, 0.0], line, kind="similarity")
+    # pixel 347 lies between node columns 86 and 87 (345.5, 349.5): 6 and exactly 7 cells from the line
+    np.testing.assert_allclose(field[240, 347], [349.0, 240.0], atol=1e-3)
+    assert np.all(field[240, 352] == OUTSIDE_PX)  # between 7 and 8 cells: outside
