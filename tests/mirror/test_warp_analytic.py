@@ -163,6 +163,10 @@ def test_non_finite_pairs_are_dropped_with_their_group_labels():
     np.testing.assert_allclose(field[ij[:, 1], ij[:, 0]], ij + np.array([6.0, 0.0]), atol=1e-3)
     with pytest.raises(InputError, match="group labels"):
         mls_warp_field(s, t, groups=groups[:-1])
+    # a non-finite source point drops its pair the same way
+    s2, t2 = np.vstack([[np.inf, 0.0], s[1:]]), np.vstack([[300.0, 300.0], t[1:]])
+    np.testing.assert_array_equal(mls_warp_field(s2, t2, kind="similarity", alpha=2.0, roi_margin_px=30,
+                                                 groups=groups), field)
 
 
 def test_grid_nodes_on_a_non_square_grid():
