@@ -499,3 +499,11 @@ def test_a_group_of_three_pairs_is_solved_and_nodes_at_exactly_the_reach_are_in(
     # pixel 347 lies between node columns 86 and 87 (345.5, 349.5): 6 and exactly 7 cells from the line
     np.testing.assert_allclose(field[240, 347], [349.0, 240.0], atol=1e-3)
     assert np.all(field[240, 352] == OUTSIDE_PX)  # between 7 and 8 cells: outside
+
+
+def test_visible_pairs_take_800_evenly_spread_candidates_by_default():
+    """A 900-vertex wall in full view: the default candidates are the 800 ids of linspace(0, 899, 800), rounded."""
+    V, F = _grid(1.0, 30, 3.0)
+    cam = _occluder_scene()[2]
+    _, _, ids = visible_vertex_pairs(V, V, F, cam)
+    np.testing.assert_array_equal(ids, np.unique(np.linspace(0, 899, 800).round().astype(int)))
