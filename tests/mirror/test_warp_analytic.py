@@ -319,13 +319,16 @@ def test_visible_pairs_validate_their_inputs():
             visible_vertex_pairs(V, V, F, cam, rim_cos=bad)
 
 
-def test_visibility_is_judged_on_the_quarter_size_z_buffer_pixel_and_its_8_neighbours():
+@pytest.mark.parametrize("half, cols, rows", [(0.32, (29, 46), (19, 36)), (0.29, (29, 45), (19, 35))])
+def test_visibility_is_judged_on_the_quarter_size_z_buffer_pixel_and_its_8_neighbours(half, cols, rows):
     """Lines of back vertices (3 m) across the front square's (2 m) edges: a vertex is hidden when its pixel of
     the quarter-size z-buffer or one of the 8 around it shows the front square. The 0.64 m front square covers the
     quarter-size pixels whose centres it contains: columns 30..45 and rows 20..35 (its edges fall at 29.125 and
     45.125, 19.125 and 35.125, so a buffer a quarter pixel off moves them past a centre), and a back vertex is
-    dropped exactly when its pixel lies in columns 29..46 and rows 19..36."""
-    V, F, cam, _ = _occluder_scene(0.32)
+    dropped exactly when its pixel lies in columns 29..46 and rows 19..36. The 0.58 m square's left and top edges
+    fall at 29.875 and 19.875 instead (covering 30..44, 20..34): a buffer a quarter pixel off the other way shows
+    there."""
+    V, F, cam, _ = _occluder_scene(half)
     steps = np.arange(-0.9, 0.9, 0.0123)
     probes = np.vstack([np.c_[steps, 0 * steps, 3 + 0 * steps], np.c_[0 * steps, steps, 3 + 0 * steps]])
     Vp = np.vstack([V, probes])
@@ -333,7 +336,7 @@ def test_visibility_is_judged_on_the_quarter_size_z_buffer_pixel_and_its_8_neigh
     uv = cam.project(probes)
     fc, fr = (uv[:, 0] + 0.5) * 0.25 - 0.5, (uv[:, 1] + 0.5) * 0.25 - 0.5  # quarter-size pixel coordinates
     col, row = np.round(fc), np.round(fr)
-    hidden = (col >= 29) & (col <= 46) & (row >= 19) & (row <= 36)
+    hidden = (col >= cols[0]) & (col <= cols[1]) & (row >= rows[0]) & (row <= rows[1])
     clear = (np.abs(np.abs(fc - np.floor(fc)) - 0.5) > 0.03) & (np.abs(np.abs(fr - np.floor(fr)) - 0.5) > 0.03)
     kept = np.isin(len(V) + np.arange(len(probes)), ids)
     assert clear.sum() > 0.8 * len(probes) and hidden.sum() > 40 and (~hidden).sum() > 100
@@ -363,7 +366,8 @@ def test_visible_pairs_need_both_bodies_to_show_the_vertex_and_the_image_to_hold
     xs = np.array([-159.75, -159.5, -159.25, 159.25, 159.5, 159.75]) / 128.0
     ys = np.array([-99.75, -99.5, -99.25, 99.25, 99.5, 99.75]) / 128.0
     probes = np.vstack([np.c_[xs, 0 * xs, 2 + 0 * xs], np.c_[0 * ys, ys, 2 + 0 * ys],
-                        [[0.0, 0.0, 1.5], [0.2, 0.1, 0.5], [0.1, 0.1, 0.0]]])
+                        [[0.0, 0.0, 1.5], [0.2, 0.1, 0.5], [0.1, 0.1, 0.0],
+                         [0.2, 0.1, -2.0], [0.0, 3.0, 1.0]]])  # behind the camera; far below the image
     Vp = np.vstack([tri, probes])
     s, _, ids = visible_vertex_pairs(Vp, Vp, np.array([[0, 1, 2]]), cam, n_handles=len(Vp))
     uv = cam.project(probes[:12])
@@ -379,7 +383,8 @@ def test_foreground_warp_refuses_images_of_other_shapes():
     mask = np.zeros((40, 50), bool)
     field = np.zeros((40, 50, 2), np.float32)
     for rgb in (np.zeros((40, 50), np.uint8), np.zeros((40, 50, 4), np.uint8)):
-        with pytest.raises(InputError, match=r"must share the image size \(H, W, 3\) / \(H, W\) / \(H, W, 2\)"):
+        with pytest.raises(InputError, match=r"^warp_foreground: image .* must share the image size \(H, W, 3\) / "
+                                             r"\(H, W\) / \(H, W, 2\)$"):
             warp_foreground(rgb, mask, field)
     with pytest.raises(InputError, match="image size"):
         warp_foreground(np.zeros((40, 50, 3), np.uint8), mask, field[:, :49])
