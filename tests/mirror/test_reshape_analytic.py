@@ -89,6 +89,9 @@ def test_eq4_without_refinement_is_linear_in_the_edits(model_6k, model_source):
     assert np.abs(refined - (c + step_a)).max() > 1e-6
     with pytest.raises(InputError, match="unknown edit"):
         target_coeffs(model_6k, c, {"slimmer": 0.1}, refine=False)
+    # an edit of exactly 1 (kg) is an edit like any other
+    i = model_6k.attribute_names.index("mass_kg")
+    np.testing.assert_allclose(target_coeffs(model_6k, c, {"heavier": 1.0}, refine=False) - c, W[i], atol=1e-12)
 
 
 def test_ramp_moves_by_at_most_the_step_and_reaches_the_goal():
@@ -110,8 +113,10 @@ def test_ramp_moves_by_at_most_the_step_and_reaches_the_goal():
     # a goal within one step is reached exactly, and stays
     assert ramp_edits({"taller": 0.098}, {"taller": 0.1}) == {"taller": 0.1}
     assert ramp_edits({"taller": 0.1}, {"taller": 0.1}) == {"taller": 0.1}
-    with pytest.raises(InputError, match="max_step must be positive"):
+    with pytest.raises(InputError, match="^ramp max_step must be positive$"):
         ramp_edits({}, {"taller": 0.1}, max_step={"taller": -1.0})
+    with pytest.raises(InputError, match="max_step must be positive"):
+        ramp_edits({}, {"taller": 0.1}, max_step=0.0)
     with pytest.raises(InputError, match="max_step must be positive"):
         ramp_edits({}, {"taller": 0.1}, max_step=math.nan)
     with pytest.raises(InputError, match="out of range"):
@@ -156,5 +161,30 @@ def test_posed_target_of_a_translated_body_is_the_posed_source_translated(model_
     with pytest.raises(InputError, match="do not match the source body"):
         posed_source_and_target(model_source, model_source.vertices[:-1], pose)
     bare = SourceBody(model_source.coeffs, model_source.vertices, sk, (0,), 0.0)
-    with pytest.raises(InputError, match="no skin weights"):
+    with pytest.raises(InputError, match=r"^the source body has no skin weights: load it with "
+                                         r"load_source_body\(path, model\)$"):
         posed_source_and_target(bare, model_source.vertices, pose)
+
+
+def test_posed_target_uses_the_rig_given_and_poses_only_the_subset(model_source):
+    """A turned pose: the target posed on an explicit rig (here the source's own, unmoved joints) is LBS of the
+    target's rest vertices on that rig, not on the Eq. 3 skeleton; ``subset`` gives those rows of both bodies."""
+    from bodystudio.body.pose import transfer_pose
+    from bodystudio.mirror.track import skin_vertices
+
+    sk = model_source.skeleton
+    rot = np.random.default_rng(5).normal(0, 0.2, (sk.n_bones, 3))
+    pose = Pose(rot, np.array([0.1, 0.0, 2.2]))
+    d = np.array([0.0, 0.05, 0.0])
+    Vt_rest = model_source.vertices * 1.03 + d
+    _, on_rig = posed_source_and_target(model_source, Vt_rest, pose, target_rig=sk)
+    want = skin_vertices(Vt_rest, model_source.weights, sk, transfer_pose(pose, sk, sk))
+    np.testing.assert_allclose(on_rig, want, atol=1e-12)
+    _, on_eq3 = posed_source_and_target(model_source, Vt_rest, pose)
+    assert np.abs(on_eq3 - on_rig).max() > 1e-3
+    sub = np.array([3, 500, 4000])
+    Vs, Vt = posed_source_and_target(model_source, Vt_rest, pose)
+    Vs_sub, Vt_sub = posed_source_and_target(model_source, Vt_rest, pose, subset=sub)
+    assert Vs_sub.shape == (3, 3)
+    np.testing.assert_allclose(Vs_sub, Vs[sub], atol=1e-12)
+    np.testing.assert_allclose(Vt_sub, Vt[sub], atol=1e-12)
