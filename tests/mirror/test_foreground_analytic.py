@@ -184,3 +184,65 @@ def test_cv2_morphology_is_a_disc_of_radius_band_px():
     """foreground_band's structuring element: a disc (ellipse) of radius band_px, so 45 degree corners are cut."""
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (13, 13))
     assert k.shape == (13, 13) and k[6].all() and not k[0, 0]
+
+
+def test_input_checks_name_the_shapes():
+    rgb, truth = _scene()
+    with pytest.raises(InputError, match=r"needs an \(H, W, 3\) uint8 colour image, got \(80, 100\) uint8"):
+        refine_foreground(rgb[..., 0], truth)
+    with pytest.raises(InputError, match=r"player mask \(80, 99\) must match the colour image \(80, 100\)$"):
+        refine_foreground(rgb, truth[:, 1:])
+    with pytest.raises(InputError, match=r"depth \(80, 99\) must be registered to colour \(80, 100\)$"):
+        refine_foreground(rgb, truth, np.zeros((80, 99)))
+    with pytest.raises(InputError, match=r"^foreground method 'watershed'; valid: maxflow, grabcut$"):
+        refine_foreground(rgb, truth, method="watershed")
+    # the colour likelihood passes its prior on
+    samples = np.full(27, 7)
+    np.testing.assert_allclose(colour_log_likelihood(np.array([7, 2000]), samples, prior_count=3.0),
+                               colour_log_table(np.bincount(samples, minlength=4096), 3.0)[[7, 2000]], rtol=1e-6)
+
+
+def test_unseen_reach_is_exact_and_unseen_may_be_0_1_integers():
+    """The person reaches 12 px left of (and 12 px above) the depth camera's view: unseen_reach_px 12 completes
+    the disc exactly, whichever way the view is cut; the unseen mask may be given as 0 / 1 integers; a negative
+    reach is 0 (no extension)."""
+    rgb, truth = _scene()  # disc x 30..70, y 20..60
+    for axis in (1, 0):
+        player = truth.copy()
+        unseen = np.zeros_like(truth)
+        if axis == 1:
+            player[:, :42] = False
+            unseen[:, :42] = True
+        else:
+            player[:32] = False
+            unseen[:32] = True
+        np.testing.assert_array_equal(refine_foreground(rgb, player, unseen=unseen, unseen_reach_px=12), truth)
+        np.testing.assert_array_equal(refine_foreground(rgb, player, unseen=unseen.astype(np.uint8),
+                                                        unseen_reach_px=12), truth)
+        np.testing.assert_array_equal(refine_foreground(rgb, player, unseen=unseen, unseen_reach_px=-5),
+                                      refine_foreground(rgb, player))
+
+
+def test_a_disc_at_the_top_border_is_refined_up_to_row_0():
+    rgb, truth = _scene()
+    rgb = np.ascontiguousarray(rgb[25:])  # the disc (y 20..60) now starts at row 0
+    truth = np.ascontiguousarray(truth[25:])
+    player = np.roll(truth, (2, 0), axis=(0, 1))
+    player[:2] = False
+    np.testing.assert_array_equal(refine_foreground(rgb, player), truth)
+
+
+@pytest.mark.parametrize("person_m, holes", [(0.8, 0.0), (2.0, 0.6)])
+def test_the_persons_depth_is_the_median_of_the_measured_pixels(person_m, holes):
+    """A person 0.8 m away, and one at 2 m with 60 % of their depth pixels unmeasured (0): the median of the
+    measured pixels is the person's depth either way, and the depth term cuts the grey scene."""
+    rgb = np.full((H, W, 3), 128, np.uint8)
+    rgb += np.random.default_rng(2).integers(0, 3, rgb.shape, dtype=np.uint8)
+    truth = _disc()
+    depth = np.where(truth, person_m, person_m + 2.0)
+    depth[truth & (np.random.default_rng(4).random((H, W)) < holes)] = 0.0
+    player = np.roll(truth, (3, -2), axis=(0, 1))
+    cut = refine_foreground(rgb, player, depth, smoothness=0.5)
+    # holes in the band carry no depth term: score the measured pixels
+    measured = depth > 0
+    assert np.count_nonzero((cut != truth) & measured) <= 2
