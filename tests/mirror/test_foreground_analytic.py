@@ -246,3 +246,26 @@ def test_the_persons_depth_is_the_median_of_the_measured_pixels(person_m, holes)
     # holes in the band carry no depth term: score the measured pixels
     measured = depth > 0
     assert np.count_nonzero((cut != truth) & measured) <= 2
+
+
+def test_method_grabcut_runs_grabcut_on_the_band_and_defaults_matter():
+    """method="grabcut" is OpenCV's GrabCut on the same sure / probable labels (inner | GrabCut's band labels);
+    the default band is 6 px (a mask 7 px off is not fully fixed, band_px 7 fixes it) and the default depth
+    tolerance 0.35 m (a wall 0.8 m behind the person is "behind"; with a 1.35 m tolerance it is not)."""
+    from bodystudio.mirror.foreground import _grabcut
+
+    rgb, truth = _scene(noise=25, seed=5)
+    player = np.roll(truth, (2, 3), axis=(0, 1))
+    inner, band = foreground_band(player, 6)
+    want = inner | _grabcut(rgb, inner, band)
+    np.testing.assert_array_equal(refine_foreground(rgb, player, method="grabcut"), want)
+    rgb, truth = _scene()
+    off7 = np.roll(truth, (0, 7), axis=(0, 1))
+    assert np.count_nonzero(refine_foreground(rgb, off7) != truth) > 0
+    np.testing.assert_array_equal(refine_foreground(rgb, off7, band_px=7), truth)
+    grey = np.full((H, W, 3), 128, np.uint8) + np.random.default_rng(2).integers(0, 3, (H, W, 3), dtype=np.uint8)
+    depth = np.where(truth, 2.0, 2.8)
+    player = np.roll(truth, (3, -2), axis=(0, 1))
+    default = refine_foreground(grey, player, depth, smoothness=0.5)
+    np.testing.assert_array_equal(default, truth)
+    assert np.count_nonzero(refine_foreground(grey, player, depth, smoothness=0.5, depth_tol_m=1.35) != truth) > 20
