@@ -178,3 +178,31 @@ def test_sparse_skinning_is_dense_lbs_over_the_six_largest_weights(subject):
         Wk = np.roll(Wd, k, axis=1)
         ik, wk = _sparse_weights(Wk)
         np.testing.assert_array_equal(ik, np.argsort(-Wk, axis=1)[:, :6])
+
+
+def test_root_fit_from_four_and_from_two_pelvis_joints(subject):
+    """Only the pelvis joints and SpineMid seen, the body turned 30 degrees and moved: the root's Kabsch fit
+    matches them exactly (SpineBase and the hips alone are nearly collinear: no rotation from them); two joints
+    are enough to track (translation only); the default version is v2; the refusals carry their exact messages."""
+    from bodystudio.body.kinect import kinect_joint_names
+
+    sk = subject.skeleton
+    names = kinect_joint_names("v2")
+    pelvis = [names.index(n) for n in ("SpineBase", "HipLeft", "HipRight", "SpineMid")]
+    J = posed_kinect_joints(sk, Pose.rest(sk.n_bones))
+    R = Rotation.from_euler("y", 30, degrees=True).as_matrix()
+    moved = (J - J[pelvis].mean(0)) @ R.T + J[pelvis].mean(0) + [0.3, 0.0, 1.5]
+    K = np.full_like(J, np.nan)
+    K[pelvis] = moved[pelvis]
+    est = ik_pose(sk, K)
+    np.testing.assert_allclose(posed_kinect_joints(sk, est)[pelvis], moved[pelvis], atol=1e-9)
+    np.testing.assert_array_equal(est.rotations, ik_pose(sk, K, None, "v2").rotations)
+    K2 = np.full_like(J, np.nan)
+    K2[pelvis[:2]] = J[pelvis[:2]] + [0.1, 0.0, 0.0]
+    est2 = ik_pose(sk, K2, None, "v2")
+    np.testing.assert_allclose(posed_kinect_joints(sk, est2)[pelvis[:2]], K2[pelvis[:2]], atol=1e-9)
+    with pytest.raises(InputError, match="^fewer than two tracked pelvis/spine joints in this frame: the body "
+                                         "cannot be tracked$"):
+        ik_pose(sk, np.where(np.arange(len(J))[:, None] == pelvis[0], J, np.nan), None, "v2")
+    with pytest.raises(InputError, match="^no tracked pelvis joints in this frame: the body cannot be tracked$"):
+        ik_pose(sk, np.full_like(J, np.nan), None, "v2")
