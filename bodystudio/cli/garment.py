@@ -48,6 +48,8 @@ def garment_fit(
     template: str = typer.Option("2k", "--template", help="body template: 2k | 6k | full"),
     focal_px: float = typer.Option(None, "--focal-px", help="focal length in pixels (default: a 40 deg vertical "
                                                           "field of view)"),
+    background: Path = typer.Option(None, "--background", help="clean plate: an image of the empty set, for a "
+                                                              "video whose actor stays on the spot"),
     keyframes: Path = typer.Option(None, "--keyframes", help='JSON of soft 2D joint constraints '
                                                             '{"frames": {"12": {"hand_l": [u, v]}}}'),
 ) -> None:
@@ -64,7 +66,8 @@ def garment_fit(
         raise InputError(f"--keyframes {keyframes}: no such file")
     check_output_folder(out, "fit folder", new=True)
     fit = fit_garment_video(source, stature, out, frames=frames, template=template, focal_px=focal_px,
-                            keyframes=keyframes, progress=True)
+                            keyframes=keyframes, progress=True,
+                            background=background)
     typer.echo(json.dumps({"out": str(out), "frames": len(fit.frame_ids), "stature_m": round(fit.stature_m, 4),
                            "silhouette_iou_mean": round(float(fit.silhouette_iou.mean()), 4),
                            "ms_per_frame": fit.timings_ms, "warnings": list(fit.warnings)}))

@@ -660,7 +660,7 @@ def estimate_appearance(images: np.ndarray, masks: np.ndarray, posed: list[np.nd
 def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str | os.PathLike | None = None,
                       frames: str | None = None, template: str = "2k", focal_px: float | None = None,
                       keyframes: str | os.PathLike | None = None, appearance: bool = True,
-                      progress: bool = False):
+                      progress: bool = False, background: str | os.PathLike | None = None):
     """§4-5 on a video file or session folder: shape, pose per frame, albedo and lighting.
 
     Writes the fit through :func:`save_garment_fit` into ``out_dir`` (a new folder) when given and
@@ -680,7 +680,7 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
         check_output_folder(out_dir, "fit folder", new=True)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    pf = person_frames(source, frames)
+    pf = person_frames(source, frames, background)
     n = len(pf.frame_ids)
     timings["masks"] = (time.perf_counter() - t0) * 1e3 / n
     width, height = pf.size

@@ -124,8 +124,9 @@ def temporal_background(images: np.ndarray) -> np.ndarray:
     return np.median(images[::step].astype(np.float32), axis=0)
 
 
-def person_mattes(images: np.ndarray) -> np.ndarray:
-    """Person masks (n, H, W) of a video against its temporal-median background (capture's segmentation)."""
+def person_mattes(images: np.ndarray, plate: np.ndarray | None = None) -> np.ndarray:
+    """Person masks (n, H, W) of a video against ``plate`` (a clean plate of the empty set, (H, W, 3)) or,
+    without one, against the video's temporal median (capture's segmentation)."""
     from bodystudio.capture.silhouettes import (
         SegmentationParams,
         background_model,
@@ -133,7 +134,7 @@ def person_mattes(images: np.ndarray) -> np.ndarray:
         segment_silhouette,
     )
 
-    plate = temporal_background(images)
+    plate = temporal_background(images) if plate is None else np.asarray(plate, np.float32)
     params = SegmentationParams(close_px=2, open_px=1)
     model = background_model([plate], single_frame_std=4.0)
     masks = [largest_components(segment_silhouette(img, model, params), min_fraction=0.5) for img in images]
@@ -145,17 +146,40 @@ def check_person(masks: np.ndarray, source: str) -> None:
     frac = masks.reshape(len(masks), -1).mean(1)
     if not np.any(frac >= MIN_PERSON_FRACTION):
         raise InputError(f"{source}: no person found (the largest moving region covers {100 * frac.max():.2f} % of "
-                         f"the image); film the actor moving in front of a static background")
+                         f"the image); film the actor moving in front of a static background, or pass "
+                         f"--background PLATE.png (a frame of the empty set)")
     empty = int(np.count_nonzero(frac < MIN_PERSON_FRACTION))
     if empty:
         raise InputError(f"{source}: no person found in {empty} of {len(masks)} frames; pass --frames to the range "
-                         f"where the actor is in view")
+                         f"where the actor is in view, or --background PLATE.png (a frame of the empty set) when the "
+                         f"actor stays on the spot")
 
 
-def person_frames(source: str | os.PathLike, frames: str | None = None) -> PersonFrames:
-    """Frames + person mattes of a session folder (its masks) or a video file (mattes computed)."""
+def read_background_plate(path: str | os.PathLike, size: tuple[int, int]) -> np.ndarray:
+    """A clean plate (an image of the set without the actor) as float32 RGB, checked against the video's
+    (width, height)."""
+    import cv2
+
+    from bodystudio.fileio import read_image
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"--background {path}: no such image; give a frame of the empty set (PNG or JPEG)")
+    image = read_image(path, cv2.IMREAD_COLOR)
+    if (image.shape[1], image.shape[0]) != tuple(size):
+        raise InputError(f"--background {path}: {image.shape[1]}x{image.shape[0]} but the video is "
+                         f"{size[0]}x{size[1]}; give a frame of the same camera and resolution")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB).astype(np.float32)
+
+
+def person_frames(source: str | os.PathLike, frames: str | None = None,
+                  background: str | os.PathLike | None = None) -> PersonFrames:
+    """Frames + person mattes of a session folder (its masks) or a video file (mattes computed against
+    ``background``, a clean plate image, or the video's temporal median)."""
     source = Path(source)
     if source.is_dir():
+        if background is not None:
+            raise InputError(f"--background: {source} is a session with its own masks; pass it for a video file only")
         pf = session_person_frames(source, frames)
     else:
         if not source.exists():
@@ -163,6 +187,7 @@ def person_frames(source: str | os.PathLike, frames: str | None = None) -> Perso
         images, fps = read_video(source, frames)
         start = parse_frame_range(frames, 10 ** 9, str(source)).start if frames else 0
         ids = np.arange(start, start + len(images), dtype=np.int64)
-        pf = PersonFrames(str(source), fps, ids, images, person_mattes(images))
+        plate = None if background is None else read_background_plate(background, (images.shape[2], images.shape[1]))
+        pf = PersonFrames(str(source), fps, ids, images, person_mattes(images, plate))
     check_person(pf.masks, str(source))
     return pf
