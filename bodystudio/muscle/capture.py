@@ -146,6 +146,7 @@ class CaptureOptions:
     sequence_huber_m: float = 0.004
     sequence_max_nfev: int = 15
     sequence_fit_root: bool = False
+    sequence_tracker_weight: float = 30.0  # the tracker's joints in the sequence fit, per coordinate
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape
@@ -340,7 +341,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         t0 = time.perf_counter()
         from bodystudio.muscle.model import model_mesh
 
-        poses = fit_arm_sequence(model, shape, poses, frames_t, J, o.norm_limit, tracker_t, o.tracker_pose_weight,
+        poses = fit_arm_sequence(model, shape, poses, frames_t, J, o.norm_limit, tracker_t, o.sequence_tracker_weight,
                                  o.sequence_smooth_weight, o.sequence_rounds, o.sequence_max_nfev, o.sequence_huber_m,
                                  o.sequence_fit_root)
         model_meshes = [model_mesh(model, shape, p, norm_limit=o.norm_limit) for p in poses]
