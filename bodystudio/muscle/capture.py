@@ -138,7 +138,8 @@ class CaptureOptions:
     # frame's shoulder and elbow angles solved together against all frames' depth points and tracker joints,
     # with a second-difference prior (no lag) and Huber residuals, the torso placement held (0 rounds: off).
     # Measured (6k, 24 frames, measured shape; subjects 2 / 5 / 601 / 602 / 603), median mm: off 4.73 / 5.37 /
-    # 9.35 / 7.99 / 7.54; 3 rounds (15 evaluations each) 4.42 / 5.14 / see docs/muscle.md / 7.48 / 7.12; with the
+    # 9.35 / 7.99 / 7.54; 3 rounds (15 evaluations each) 4.42 / 5.14 / 9.19 / 7.48 / 7.12 (501, 200 frames:
+    # 5.37 -> 5.10, p90 9.56 -> 8.58; more in docs/muscle.md); with the
     # placement fitted too (2 rounds) 4.08 / 5.46 / 10.09 / - / 10.25 (the root absorbs the out-of-range
     # subjects' model mismatch); without Huber residuals (placement fitted) 5.30 on subject 2.
     sequence_rounds: int = 3
