@@ -28,8 +28,10 @@ in the docstrings and commits):
 - the model is fitted to the depth points themselves (point-to-plane, weakly to the NICP mesh),
   with the elbow as a hinge, the forearm twist and the wrist held (unobservable on a near-cylinder;
   the paper cannot capture pronation either), one torso placement per sequence, the tracker joints
-  as a weak extra observation and a previous-frame prior; the joint angles are smoothed over
-  +-2 frames before the model meshes are rebuilt;
+  as a weak extra observation and a previous-frame prior; then every frame's angles are solved
+  together over the whole sequence (model-based tracking, ``refine.fit_arm_sequence``: depth,
+  tracker and a second-difference prior, Huber residuals) and smoothed over +-5 frames before the
+  model meshes are rebuilt;
 - ``known_shape``: the subject's measured BMI, muscularity, height and arm length (the paper's
   Table 1) can replace the fitted shape, which is the weakest step (see the report figures).
 """
@@ -66,6 +68,7 @@ from bodystudio.muscle.refine import (
     DepthFrame,
     arm_pose_from_part_transforms,
     correspondence_weights,
+    fit_arm_sequence,
     fit_shape_parameters,
     initial_arm_pose_from_joints,
     model_based_filtering,
@@ -126,6 +129,26 @@ class CaptureOptions:
     # (true 0.492 / 0.515 / 0.474), median 6.11 / 7.81 / 11.50 -> 6.35 / 7.79 / 11.23 mm, p90 12.69 / 16.68 /
     # 21.90 -> 10.66 / 14.09 / 21.13 mm; 3000 (nearly fixed) no better.
     tracker_arm_length_weight: float = 100.0
+    # Model-based tracking of the whole sequence after the per-frame fit (``refine.fit_arm_sequence``): the
+    # torso placement and every frame's angles solved together (0 rounds: off).
+    # Robust (Huber, scale in metres) residuals in the per-frame pose and shape/root fits (0: plain least
+    # squares). Measured (6k, 24 frames, measured shape, subjects 2 / 5): 0.004 -> 4.73 / 5.37 mm median went to
+    # 7.19 / 6.69: the tracker and prior residuals lose their pull. Off.
+    huber_m: float = 0.0
+    # Model-based tracking of the whole sequence after the per-frame fit (``refine.fit_arm_sequence``): every
+    # frame's shoulder and elbow angles solved together against all frames' depth points and tracker joints,
+    # with a second-difference prior (no lag) and Huber residuals, the torso placement held (0 rounds: off).
+    # Measured (6k, 24 frames, measured shape; subjects 2 / 5 / 601 / 602 / 603), median mm: off 4.73 / 5.37 /
+    # 9.35 / 7.99 / 7.54; 3 rounds (15 evaluations each) 4.42 / 5.14 / 9.19 / 7.48 / 7.12 (501, 200 frames:
+    # 5.37 -> 5.10, p90 9.56 -> 8.58; more in docs/muscle.md); with the
+    # placement fitted too (2 rounds) 4.08 / 5.46 / 10.09 / - / 10.25 (the root absorbs the out-of-range
+    # subjects' model mismatch); without Huber residuals (placement fitted) 5.30 on subject 2.
+    sequence_rounds: int = 3
+    sequence_smooth_weight: float = 10.0
+    sequence_huber_m: float = 0.004
+    sequence_max_nfev: int = 15
+    sequence_fit_root: bool = False
+    sequence_tracker_weight: float = 30.0  # the tracker's joints in the sequence fit, per coordinate
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape
@@ -142,6 +165,8 @@ class CaptureOptions:
             raise InputError(f"norm_limit must be in (0, 1], got {self.norm_limit}")
         if self.sigma_frames <= 0 or self.shape_frames < 1:
             raise InputError("sigma_frames must be > 0 and shape_frames >= 1")
+        if self.sequence_rounds < 0 or self.sequence_huber_m < 0 or self.huber_m < 0:
+            raise InputError("sequence_rounds, sequence_huber_m and huber_m must be >= 0")
 
 
 @dataclass
@@ -293,12 +318,13 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                     tracker_joints=None if tracker_t is None else tracker_t[:n_shape],
                     tracker_weight=o.tracker_weight if known_shape is None else o.tracker_root_weight,
                     fixed_shape=known_shape is not None, arm_length=tracked_arm_length,
-                    arm_length_weight=o.tracker_arm_length_weight * n_frames)
+                    arm_length_weight=o.tracker_arm_length_weight * n_frames, huber_m=o.huber_m)
                 base, J = model_rest_vertices(model, shape), model_joints(model, shape)
                 fit_poses = [model_based_filtering(model, shape, root, nicp_meshes[j], base, W, kept_masks[j],
                                                    frames_t[j], J, o.norm_limit, o.refine_pose,
                                                    None if tracker_t is None else tracker_t[j],
-                                                   o.tracker_pose_weight)[1] for j in range(n_shape)]
+                                                   o.tracker_pose_weight, huber_m=o.huber_m)[1]
+                             for j in range(n_shape)]
             t0 = timer.add("shape_fit", t0)
             todo = range(n_shape)
         else:
@@ -307,12 +333,21 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
             mm, pp = model_based_filtering(model, shape, root, nicp_meshes[j], base, W, kept_masks[j], frames_t[j],
                                            J, o.norm_limit, o.refine_pose,
                                            None if tracker_t is None else tracker_t[j], o.tracker_pose_weight,
-                                           poses[-1] if poses else None, o.smooth_weight)
+                                           poses[-1] if poses else None, o.smooth_weight, o.huber_m)
             model_meshes.append(mm)
             poses.append(pp)
         current = model_meshes[-1]
         timer.add("model_filtering", t0)
 
+    if model is not None and o.sequence_rounds > 0:
+        t0 = time.perf_counter()
+        from bodystudio.muscle.model import model_mesh
+
+        poses = fit_arm_sequence(model, shape, poses, frames_t, J, o.norm_limit, tracker_t, o.sequence_tracker_weight,
+                                 o.sequence_smooth_weight, o.sequence_rounds, o.sequence_max_nfev, o.sequence_huber_m,
+                                 o.sequence_fit_root)
+        model_meshes = [model_mesh(model, shape, p, norm_limit=o.norm_limit) for p in poses]
+        timer.add("sequence_fit", t0)
     if model is not None and o.pose_sigma_frames > 0:
         t0 = time.perf_counter()
         from bodystudio.muscle.model import model_mesh

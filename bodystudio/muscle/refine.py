@@ -120,7 +120,7 @@ def refine_arm_pose(pose: ArmPose, mesh_of_pose, frame: DepthFrame, deformed: np
                     joints: np.ndarray, nicp_weight: float = 0.05, rounds: int = 2, max_nfev: int = 20,
                     fit_twist: bool = False, tracker: np.ndarray | None = None, tracker_weight: float = 0.0,
                     model_joints: np.ndarray | None = None, previous: ArmPose | None = None,
-                    smooth_weight: float = 0.0) -> ArmPose:
+                    smooth_weight: float = 0.0, huber_m: float = 0.0) -> ArmPose:
     """Twist refinement of Sec. 6.2: Gauss-Newton on the shoulder (3) and elbow hinge (1) angles.
 
     The paper refines the Procrustes transforms "iteratively by using the theory of rigid-body motion
@@ -162,7 +162,8 @@ def refine_arm_pose(pose: ArmPose, mesh_of_pose, frame: DepthFrame, deformed: np
                 r = np.r_[r, np.sqrt(smooth_weight) * 0.3 * (p.angles[:2] - previous.angles[:2]).ravel()]
             return r
 
-        x = least_squares(fun, x, method="lm", max_nfev=max_nfev).x
+        robust = dict(method="trf", loss="huber", f_scale=huber_m) if huber_m > 0 else dict(method="lm")
+        x = least_squares(fun, x, max_nfev=max_nfev, **robust).x
     return pose_of(x)
 
 
@@ -204,7 +205,7 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
                          initial=None, nicp_weight: float = 0.0, rounds: int = 2,
                          tracker_joints: np.ndarray | None = None, tracker_weight: float = 1.0,
                          fixed_shape: bool = False, arm_length: float | None = None,
-                         arm_length_weight: float = 0.0) -> tuple:
+                         arm_length_weight: float = 0.0, huber_m: float = 0.0) -> tuple:
     """Shape parameters (BMI, muscularity, height, arm length) of the sequence, fitted once (Sec. 6.2).
 
     Least squares over the given frames of the model mesh ``model_mesh(model, shape, pose_k)`` against
@@ -262,7 +263,7 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
 
         x = least_squares(fun, x, bounds=(np.r_[lo, -big], np.r_[hi, big]),
                           x_scale=np.r_[np.maximum(hi - lo, 1e-3) / 4, np.full(3, 0.01)],
-                          max_nfev=30).x
+                          max_nfev=30, **(dict(loss="huber", f_scale=huber_m) if huber_m > 0 else {})).x
     return ArmShapeParams.from_vector(x[:4], sex), root_of(x)
 
 
@@ -293,7 +294,7 @@ def model_based_filtering(model, shape, root: np.ndarray, deformed: np.ndarray, 
                           joints: np.ndarray, norm_limit: float = 0.9, refine_pose: bool = True,
                           tracker: np.ndarray | None = None, tracker_weight: float = 0.0,
                           previous: ArmPose | None = None, smooth_weight: float = 0.0,
-                          ) -> tuple[np.ndarray, ArmPose]:
+                          huber_m: float = 0.0) -> tuple[np.ndarray, ArmPose]:
     """Mesh projection of Sec. 6.2: joint angles by Procrustes (Eq. 11), then the model mesh of Eq. 12.
 
     ``deformed`` is the ARAP mesh of non-rigid ICP, ``base`` the model's rest mesh for ``shape`` and
@@ -311,7 +312,7 @@ def model_based_filtering(model, shape, root: np.ndarray, deformed: np.ndarray, 
     if refine_pose:
         pose = refine_arm_pose(pose, lambda p: model_mesh(model, shape, p, norm_limit=norm_limit), frame, deformed,
                                joints, tracker=tracker, tracker_weight=tracker_weight, model_joints=joints,
-                               previous=previous, smooth_weight=smooth_weight)
+                               previous=previous, smooth_weight=smooth_weight, huber_m=huber_m)
     return model_mesh(model, shape, pose, norm_limit=norm_limit), pose
 
 
@@ -333,6 +334,82 @@ def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: in
         w = np.exp(-((np.arange(lo, hi) - i) ** 2) / (2.0 * sigma_frames ** 2))
         out.append(ArmPose(p.root, np.tensordot(w / w.sum(), A[lo:hi], axes=1)))
     return out
+
+
+def fit_arm_sequence(model, shape, poses: list[ArmPose], frames: list[DepthFrame], joints: np.ndarray,
+                     norm_limit: float = 0.9, tracker_joints: np.ndarray | None = None, tracker_weight: float = 0.0,
+                     smooth_weight: float = 10.0, rounds: int = 2, max_nfev: int = 8,
+                     huber_m: float = 0.0, fit_root: bool = True) -> list[ArmPose]:
+    """Model-based tracking of the whole sequence: the torso placement and every frame's joint angles at once.
+
+    Sec. 6.2 fits the angles frame by frame (Procrustes, Eq. 11, then ``refine_arm_pose``) under a torso
+    placement found once on the first frames; root and angle errors then compensate each other (the
+    error decomposition of docs/muscle.md). Here one Gauss-Newton over the model mesh of Eq. 12 (shape
+    held) solves the shared root translation and each frame's shoulder rotation (3) and elbow hinge
+    flexion (1) together against every frame's depth points (point-to-plane over the filtered pairs of
+    Sec. 5.2, re-paired each round), the body tracker's joints (``tracker_weight`` per coordinate, as in
+    ``refine_arm_pose``) and a second-difference prior on the angles (``smooth_weight`` per coordinate
+    times a 0.3 m lever: quasi-static motion, Sec. 3, with no lag, unlike a previous-frame prior). The
+    forearm twist and the wrist keep their values (unobservable, see ``refine_arm_pose``). ``huber_m``
+    > 0: Huber loss on every residual with that scale (metres), against pairs on the wrong surface.
+    The Jacobian is sparse (a frame's angles touch its own residuals and its neighbours' priors), so the
+    finite differences are grouped (scipy's ``jac_sparsity``). ``fit_root=False`` holds the torso placement
+    and solves the angles alone. Returns the poses (with the new root).
+    """
+    from scipy.sparse import lil_matrix
+
+    from bodystudio.muscle.model import model_mesh
+
+    T = len(poses)
+    h, f = elbow_axes(joints)
+    twist = np.array([float(p.angles[1] @ f) for p in poses])
+    root0 = poses[0].root
+
+    r0 = 3 if fit_root else 0  # parameters before the angles
+
+    def unpack(x):
+        root = root0.copy()
+        root[:3, 3] = root0[:3, 3] + x[:r0] if fit_root else root0[:3, 3]
+        a = x[r0:].reshape(T, 4)
+        return [ArmPose(root, np.vstack([a[k, :3], elbow_rotvec(joints, a[k, 3], twist[k]), poses[k].angles[2]]))
+                for k in range(T)]
+
+    x = np.r_[np.zeros(r0), np.concatenate([np.r_[p.angles[0], p.angles[1] @ h] for p in poses])]
+    lever = np.sqrt(smooth_weight) * 0.3
+    use_tracker = tracker_joints is not None and tracker_weight > 0
+    for _ in range(rounds):
+        pairs = [fr.plane_pairs(model_mesh(model, shape, p, norm_limit=norm_limit))
+                 for fr, p in zip(frames, unpack(x), strict=True)]
+        sizes = [len(k) + (9 if use_tracker else 0) for k, _, _ in pairs]
+        n_prior = 4 * max(T - 2, 0)
+        J = lil_matrix((sum(sizes) + n_prior, len(x)), dtype=int)
+        row = 0
+        for k, n in enumerate(sizes):
+            J[row:row + n, :r0] = 1
+            J[row:row + n, r0 + 4 * k:r0 + 4 + 4 * k] = 1
+            row += n
+        for k in range(1, T - 1):
+            for c in range(4):
+                J[row, [r0 + 4 * (k - 1) + c, r0 + 4 * k + c, r0 + 4 * (k + 1) + c]] = 1
+                row += 1
+
+        def fun(x, pairs=pairs):
+            ps = unpack(x)
+            r = []
+            for p, (k, q, n), tj in zip(ps, pairs, tracker_joints if use_tracker else [None] * T, strict=True):
+                M = model_mesh(model, shape, p, norm_limit=norm_limit)
+                r.append(np.einsum("kd,kd->k", M[k] - q, n))
+                if use_tracker:
+                    r.append(np.sqrt(tracker_weight) * (posed_joints(joints, p) - tj).ravel())
+            a = x[r0:].reshape(T, 4)
+            if T > 2:
+                r.append(lever * (a[:-2] - 2 * a[1:-1] + a[2:]).ravel())
+            return np.concatenate(r)
+
+        loss = dict(loss="huber", f_scale=huber_m) if huber_m > 0 else {}
+        x = least_squares(fun, x, jac_sparsity=J, method="trf", x_scale=np.r_[np.full(r0, 0.01), np.full(4 * T, 0.05)],
+                          max_nfev=max_nfev, **loss).x
+    return unpack(x)
 
 
 def skin_template(base: np.ndarray, part_weights: np.ndarray, joints: np.ndarray, pose: ArmPose) -> np.ndarray:

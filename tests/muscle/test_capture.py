@@ -407,3 +407,11 @@ def test_fitted_arm_length_follows_the_tracker(arm_session_2k, arm_model_2k, arm
         err[w] = abs(cap.shape.arm_length_m - true)
     # Measured (2k, 3 frames, subject 2): 11.3 mm short without the tracker's length, 5.7 mm with it.
     assert err[100.0] < 0.0085 and err[100.0] < 0.75 * err[0.0], err
+
+
+def test_default_capture_tracks_the_whole_sequence(captures_2k):
+    """The model-based tracking over the sequence (``refine.fit_arm_sequence``) is part of the default pipeline."""
+    from bodystudio.muscle.capture import CaptureOptions
+
+    assert CaptureOptions().sequence_rounds > 0
+    assert captures_2k["full_capture"].timings_ms.get("sequence_fit", 0.0) > 0.0
