@@ -601,6 +601,7 @@ class MuscleOptions:
     frames: int | None = None  # the first N frames (None: all)
     shape: dict | None = None  # ArmShapeParams as a dict (None: fitted)
     model: str | None = None  # path of the arm model .npz (None: --no-model)
+    sequence_fit: bool = True  # the whole-sequence pose fit (False: --no-sequence-fit)
 
 
 def check_capture_sessions(paths: list[Path]) -> list[Path]:
@@ -662,7 +663,7 @@ def capture_unit(session_path: str, unit_root: str, options: MuscleOptions, inpu
     recover_layout(layout)
     shape = None if options.shape is None else ArmShapeParams(**options.shape)
     capture = capture_session_arm(session_path, options.model, options.mode, options.resolution, options.side,
-                                  options.frames, shape)
+                                  options.frames, shape, options.sequence_fit)
     unit = {"inputs_sha256": inputs_sha256, "session": str(session_path), "pid": os.getpid()}
     with _UnitWriter(layout, "bodystudio muscle capture (batch unit)", {"session": str(session_path)},
                      unit) as writer:

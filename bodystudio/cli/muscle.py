@@ -94,6 +94,9 @@ def capture(
                                      "bmi=..,muscularity=..,height_m=..,arm_length_m=..[,sex=male|female] "
                                      "(the paper's Table 1; "
                                      "default: fitted from the first frames)"),
+    no_sequence_fit: bool = typer.Option(False, "--no-sequence-fit", help="skip the whole-sequence pose fit "
+                                         "(docs/muscle.md: better captures with it; captures meant to extend a "
+                                         "model extended it more without it)"),
     scheduler: str | None = typer.Option(None, "--scheduler", help="batch: " + batch_cli.SCHEDULER_HELP),
     workers: int | None = typer.Option(None, "--workers", help="batch: " + batch_cli.WORKERS_HELP),
     force: bool = typer.Option(False, "--force", help="batch: redo every sequence, also those already captured"),
@@ -126,21 +129,24 @@ def capture(
     if side is not None:
         check_choice("--side", side, SIDES)
     mode = "nicp" if no_model else "model" if no_refine else "full"
+    if no_sequence_fit and mode == "nicp":
+        raise InputError("--no-sequence-fit with --no-model: the sequence fit is a model step; drop one")
     if len(session_paths) > 1 or scheduler is not None or workers is not None:
         _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, known_shape, scheduler,
-                       workers, force)
+                       workers, force, not no_sequence_fit)
         return
     if force:
         raise InputError("--force is for a batch (several SESSIONs or --workers/--scheduler); a single capture "
                          "writes a new --out folder")
     check_new_output(out, "arm capture folder")
-    result = capture_session_arm(session_paths[0], model_path, mode, resolution, side, frames, known_shape)
+    result = capture_session_arm(session_paths[0], model_path, mode, resolution, side, frames, known_shape,
+                                 sequence_fit=not no_sequence_fit)
     write_arm_capture(out, result)
     typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
 
 
 def _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, known_shape, scheduler, workers,
-                   force) -> None:
+                   force, sequence_fit: bool = True) -> None:
     """``muscle capture S1 S2 ... --out DIR``: each sequence a work unit on a dask cluster (bodystudio.batch)."""
     from dataclasses import asdict
 
@@ -164,7 +170,7 @@ def _capture_batch(session_paths, out, model_path, mode, resolution, side, frame
     resolve_scheduler(scheduler, workers)
     options = MuscleOptions(mode=mode, resolution=resolution, side=side, frames=frames,
                             shape=None if known_shape is None else asdict(known_shape),
-                            model=None if model_path is None else str(model_path.resolve()))
+                            model=None if model_path is None else str(model_path.resolve()), sequence_fit=sequence_fit)
     with batch_client(scheduler, workers) as client:
         batch_cli.print_cluster(client)
         report = muscle_batch(session_paths, out, client, options, force=force, progress=True)

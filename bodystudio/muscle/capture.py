@@ -442,7 +442,7 @@ def session_arm_choice(session, resolution: str | None = None, side: str | None 
 
 def capture_session_arm(session_path: str | Path, model_path: str | Path | None, mode: str = "full",
                         resolution: str | None = None, side: str | None = None, frames: int | None = None,
-                        known_shape=None) -> ArmCapture:
+                        known_shape=None, sequence_fit: bool = True) -> ArmCapture:
     """``bodystudio muscle capture SESSION``: the session opened, the arm template chosen
     (:func:`session_arm_choice`), the model read, the first ``frames`` frames captured (Sec. 4-7).
 
@@ -466,7 +466,8 @@ def capture_session_arm(session_path: str | Path, model_path: str | Path | None,
         from bodystudio.muscle.model import load_arm_model
 
         model = load_arm_model(model_path, template)
-    return capture_arm_sequence(session, model, template, CaptureOptions(mode=mode),
+    options = CaptureOptions(mode=mode) if sequence_fit else CaptureOptions(mode=mode, sequence_rounds=0)
+    return capture_arm_sequence(session, model, template, options,
                                 frames=None if frames is None else slice(0, frames), known_shape=known_shape)
 
 

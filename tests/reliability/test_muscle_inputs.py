@@ -87,6 +87,7 @@ def test_synth_arm_unwritable_output(capsys):
     (["--no-model", "--frames", "9"], "--frames 9: "),
     (["--no-model", "--shape", "bmi=20,muscularity=0.5,height_m=1.7,arm_length_m=0.5"], "--shape needs the model"),
     (["--model", "missing.npz", "--shape", "bmi=20"], "--shape: needs bmi, muscularity"),
+    (["--no-model", "--no-sequence-fit"], "the sequence fit is a model step"),
 ])
 def test_capture_bad_options(arm_session, tmp_path, capsys, args, phrase):
     out = tmp_path / "cap"
@@ -229,3 +230,14 @@ def test_eval_muscle_of_a_session_without_truth(nicp_capture, arm_session, tmp_p
     assert main(["synth", "arm", str(other), "--subject-seed", "5", "--frames", "3", "--resolution", "6k"]) == 0
     capsys.readouterr()
     run_bad(["eval", "muscle", nicp_capture, "--session", other], capsys, "template")
+
+
+def test_capture_without_the_sequence_fit_runs_and_differs(arm_session, tiny_model_2k, tmp_path):
+    """--no-sequence-fit is the pipeline before the whole-sequence pose fit: it runs and gives other meshes."""
+    meshes = {}
+    for name, extra in (("with", []), ("without", ["--no-sequence-fit"])):
+        out = tmp_path / name
+        assert main(["muscle", "capture", str(arm_session), "--out", str(out), "--model", str(tiny_model_2k),
+                     *extra]) == 0
+        meshes[name] = (out / "meshes" / "00002.ply").read_bytes()
+    assert meshes["with"] != meshes["without"]
