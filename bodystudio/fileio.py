@@ -271,3 +271,31 @@ def read_image(path: str | os.PathLike, flags: int | None = None) -> np.ndarray:
     except OSError as exc:
         raise FileFormatError(f"{path}: cannot read the image ({exc.strerror})") from None
     return decode_image(data, path, flags)
+
+
+class Mp4Writer:
+    """H.264 MP4 through imageio-ffmpeg from RGB uint8 frames of ``size`` (w, h). ``path`` may have no
+    extension (a run's staged file): the container is named explicitly. A write that ffmpeg refuses (disk
+    full, path gone) raises a one-line FileFormatError naming the file."""
+
+    def __init__(self, path: str | os.PathLike, size: tuple[int, int], fps: float):
+        import imageio_ffmpeg
+
+        self.path = Path(path)
+        self._gen = imageio_ffmpeg.write_frames(str(path), size, fps=fps, codec="libx264", pix_fmt_in="rgb24",
+                                                pix_fmt_out="yuv420p", quality=7, macro_block_size=8,
+                                                ffmpeg_log_level="error",
+                                                output_params=["-f", "mp4", "-preset", "veryfast"])
+        self._gen.send(None)
+
+    def write(self, rgb) -> None:
+        import numpy as np
+
+        try:
+            self._gen.send(np.ascontiguousarray(rgb))
+        except OSError as exc:
+            raise FileFormatError(f"{self.path}: ffmpeg could not write the video ({str(exc).splitlines()[0]}); "
+                                  "check the disk space and the output path") from None
+
+    def close(self) -> None:
+        self._gen.close()

@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from bodystudio.errors import FileFormatError, InputError
+from bodystudio.fileio import Mp4Writer
 from bodystudio.garment.garments import GARMENTS, PATTERNS
 
 log = logging.getLogger(__name__)
@@ -264,30 +265,6 @@ def source_frames(fit, fit_dir: str | os.PathLike | None = None):
 
 # ------------------------------------------------------------------------------------------ the video
 
-class _VideoWriter:
-    """H.264 MP4 through imageio-ffmpeg (RGB uint8 frames), written to the staged path (no extension)."""
-
-    def __init__(self, path: Path, size: tuple[int, int], fps: float):
-        import imageio_ffmpeg
-
-        self.path = path
-        self._gen = imageio_ffmpeg.write_frames(str(path), size, fps=fps, codec="libx264", pix_fmt_in="rgb24",
-                                                pix_fmt_out="yuv420p", quality=7, macro_block_size=8,
-                                                ffmpeg_log_level="error",
-                                                output_params=["-f", "mp4", "-preset", "veryfast"])
-        self._gen.send(None)
-
-    def write(self, rgb: np.ndarray) -> None:
-        try:
-            self._gen.send(np.ascontiguousarray(rgb))
-        except OSError as exc:
-            raise FileFormatError(f"{self.path}: ffmpeg could not write the video ({str(exc).splitlines()[0]}); "
-                                  "check the disk space and the output path") from None
-
-    def close(self) -> None:
-        self._gen.close()
-
-
 def _png(image: np.ndarray) -> bytes:
     ok, data = cv2.imencode(".png", image if image.ndim == 2 else image[..., ::-1],
                             [cv2.IMWRITE_PNG_COMPRESSION, 1])
@@ -355,7 +332,7 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
     H, W = fit.camera.height, fit.camera.width
     with RunWriter(layout, command, {"stage": "garment", "kind": "render"}) as w, progress_bar(progress) as bar:
         task = bar.add_task("garment render", total=len(fit.frame_ids))
-        video = _VideoWriter(w.path_for(out_video), (W, H), fit.fps) if out_video is not None else None
+        video = Mp4Writer(w.path_for(out_video), (W, H), fit.fps) if out_video is not None else None
         try:
             for i, (fid, frame) in enumerate(zip(fit.frame_ids, source_frames(fit, fit_dir), strict=True)):
                 if frame.shape != (H, W, 3):
