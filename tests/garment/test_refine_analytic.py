@@ -210,6 +210,14 @@ def test_motion_correction_rejects_flow_off_the_render_and_grey_mismatch():
     dark = body * 0.1
     out = refine.garment_motion_correction(frame, pmask, dark, bmask, max_grey_diff=0.5)
     assert np.abs(out).max() < 1e-6
+    # forward and backward flow can never agree within a negative tolerance: nothing valid (the check is applied)
+    assert np.abs(refine.garment_motion_correction(frame, pmask, body, bmask, max_fb_px=-1.0)).max() < 1e-6
+    assert np.abs(refine.garment_motion_correction(frame, pmask, body, bmask, max_grey_diff=-1.0)).max() < 1e-6
+    # the median test runs with median_ksize: an even size is refused by OpenCV
+    import cv2
+
+    with pytest.raises(cv2.error):
+        refine.garment_motion_correction(frame, pmask, body, bmask, median_ksize=4)
     # an actor mask that is empty: nothing valid
     assert np.abs(refine.garment_motion_correction(frame, np.zeros_like(pmask), body, bmask)).max() < 1e-6
 
