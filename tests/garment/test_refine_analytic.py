@@ -289,7 +289,12 @@ def test_match_silhouettes_of_a_shifted_square():
     src2, tgt2 = refine.match_silhouettes(pts, person)
     cells = np.floor(tgt2 / 2.0).astype(int)
     assert len(np.unique(cells, axis=0)) == len(cells) and len(tgt2) < len(tgt)
-    assert np.allclose(np.floor(tgt2 / 2.0), cells)
+    # the left edge's 36 targets (x = 14, y = 12..47) fall into 18 cells of 2 px, each the mean of two
+    left2 = np.abs(tgt2[:, 0] - 14) < 0.5
+    # (the two corner cells also take top / bottom edge points)
+    assert left2.sum() == 18 and np.allclose(np.sort(tgt2[left2, 1])[1:-1], np.arange(14.5, 46, 2))
+    inner = left2 & (tgt2[:, 1] > 13) & (tgt2[:, 1] < 46)
+    assert np.allclose(src2[inner, 0], 12) and np.allclose(src2[inner, 1], tgt2[inner, 1])
 
 
 def test_match_silhouettes_distance_cut_and_empty_cases():
@@ -303,6 +308,8 @@ def test_match_silhouettes_distance_cut_and_empty_cases():
     assert len(src) == 1
     src, tgt = refine.match_silhouettes(pts, person, max_match_px=19.5)
     assert src.shape == (0, 2) and tgt.shape == (0, 2)
+    # a single point is matched
+    assert np.array_equal(refine.match_silhouettes(pts[:1], person)[1], [[30.0, 40.0]])
     # no points, or no person: empty pairs
     for s, t in (refine.match_silhouettes(np.zeros((0, 2)), person),
                  refine.match_silhouettes(pts, np.zeros_like(person))):
@@ -325,6 +332,9 @@ def test_match_silhouettes_drops_a_pair_that_disagrees_with_its_neighbours():
     few = pts[8:17]  # 9 pairs = neighbours
     assert len(refine.match_silhouettes(few, person)[0]) == 9
     assert len(refine.match_silhouettes(pts[8:18], person)[0]) == 9  # 10 pairs: tested, one dropped
+    # the default deviation is 3 px: 3.5 px off the neighbours' median is dropped
+    pts[12, 0] = 24.5
+    assert len(refine.match_silhouettes(pts, person)[0]) == len(pts) - 1
     # a deviation exactly at the threshold is kept (<=): the outlier is 5 px off the median 2 px -> 3 px
     pts[12, 0] = 25.0
     assert len(refine.match_silhouettes(pts, person)[0]) == len(pts)
@@ -413,24 +423,25 @@ def test_warp_image_integer_shift_masks_nearest_and_outside():
 
 
 def test_concatenated_warps_compose_as_backward_maps():
-    """first then second: out(p) = p + s(p) + f(p + s(p)); with f varying in x, the order matters."""
+    """first then second: out(p) = p + s(p) + f(p + s(p)); with f affine in x and y, the order matters."""
     H, W = 30, 40
-    xs = np.tile(np.arange(W, dtype=np.float32), (H, 1))
-    first = np.dstack([0.1 * xs, np.zeros((H, W), np.float32)])
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float32)
+    first = np.dstack([0.1 * xs, 0.05 * ys])
     second = np.zeros((H, W, 2), np.float32)
-    second[..., 0] = 3.0
-    second[..., 1] = 1.0
+    second[..., 0] = 3.5
+    second[..., 1] = 1.25
     c = refine.concatenate_warps(first, second)
-    expected_x = 3.0 + 0.1 * np.clip(xs + 3.0, 0, W - 1)
-    assert np.allclose(c[..., 0], expected_x, atol=1e-5) and np.allclose(c[..., 1], 1.0)
-    # replicated border: beyond the right edge first's last column is used
-    assert c[5, W - 1, 0] == pytest.approx(3.0 + 0.1 * (W - 1))
-    # applying the concatenation equals applying first, then second
-    rng = np.random.default_rng(7)
-    img = rng.random((H, W)).astype(np.float32)
+    # bilinear sampling of an affine field is exact (nearest would be off by 0.05 / 0.0125)
+    assert np.allclose(c[..., 0], 3.5 + 0.1 * np.clip(xs + 3.5, 0, W - 1), atol=1e-5)
+    assert np.allclose(c[..., 1], 1.25 + 0.05 * np.clip(ys + 1.25, 0, H - 1), atol=1e-5)
+    # replicated border: beyond the right / bottom edge first's last column / row is used
+    assert c[5, W - 1, 0] == pytest.approx(3.5 + 0.1 * (W - 1))
+    assert c[H - 1, 5, 1] == pytest.approx(1.25 + 0.05 * (H - 1))
+    # applying the concatenation equals applying first, then second (exact on a linear image inside the frame)
+    img = (0.3 * xs + 0.7 * ys).astype(np.float32)
     two = refine.warp_image(refine.warp_image(img, first), second)
     one = refine.warp_image(img, c)
-    assert np.abs(one - two)[2:-2, 2:-8].max() < 0.02
+    assert np.abs(one - two)[:26, :31].max() < 1e-3
 
 
 def test_depth_composite_picks_the_nearer_layer_per_pixel():
