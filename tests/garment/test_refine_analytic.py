@@ -95,6 +95,9 @@ def test_median_outlier_removal_threshold_is_the_distance_to_the_median():
     flow[14, 14] = [-2.1, 0.0]
     kept = refine.median_outlier_removal(flow, valid)
     assert kept[5, 5] and not kept[14, 14]
+    # exactly 2 px off with the default threshold: kept (<=)
+    flow[5, 5] = [0.0, 2.0]
+    assert refine.median_outlier_removal(flow, valid)[5, 5]
     # invalid pixels stay invalid, whatever their flow
     valid[7, 3] = False
     assert not refine.median_outlier_removal(flow, valid)[7, 3]
@@ -410,6 +413,9 @@ def test_warp_image_integer_shift_masks_nearest_and_outside():
     half[..., 0] = 0.6
     wm = refine.warp_image(m, half)
     assert wm[7, 4] and not wm[7, 9]  # x=4 samples 4.6: 0.6; x=9 samples 9.6: 0.4
+    # exactly half covered (x=4 samples 4.5: 0.5) is not in the mask (> 0.5)
+    half[..., 0] = 0.5
+    assert not refine.warp_image(m, half)[7, 4]
     # nearest: no blending of depth values
     depth = np.zeros((4, 6), np.float32)
     depth[:, 3:] = 2.0
@@ -448,13 +454,17 @@ def test_depth_composite_picks_the_nearer_layer_per_pixel():
     frame = np.full((2, 3, 3), 10, np.uint8)
     garment = np.full((2, 3, 3), 0.5)
     garment[0, 0] = [1.2, -0.1, 0.25]
+    garment[1, 0] = 0.99  # 252.45 -> 252
     gmask = np.array([[True, True, True], [True, True, False]])
     gdepth = np.full((2, 3), 2.0)
     bdepth = np.array([[0.0, 1.5, 2.5], [2.0, 1.0, 1.0]])  # none, in front, behind, equal, in front, no garment
     out, show = refine.depth_composite(frame, garment, gmask, gdepth, bdepth)
     assert np.array_equal(show, [[True, False, True], [True, False, False]])
-    assert out[0, 0].tolist() == [255, 0, 64] and out[0, 2].tolist() == [128] * 3 and out[1, 0].tolist() == [128] * 3
+    assert out[0, 0].tolist() == [255, 0, 64] and out[0, 2].tolist() == [128] * 3 and out[1, 0].tolist() == [252] * 3
     assert (out[0, 1] == 10).all() and (out[1, 1] == 10).all() and (out[1, 2] == 10).all()
     assert out.dtype == np.uint8 and (frame == 10).all() and gmask[0, 1]  # inputs untouched
+    # no garment and no body: not shown
+    _, show3 = refine.depth_composite(frame, garment, gmask, gdepth, np.zeros((2, 3)))
+    assert np.array_equal(show3, gmask)
     out2, show2 = refine.depth_composite(frame, garment, gmask, gdepth, bdepth, use_depth=False)
     assert np.array_equal(show2, gmask) and out2[0, 1].tolist() == [128] * 3
