@@ -27,22 +27,6 @@ def arm_sessions(tmp_path_factory):
     return root
 
 
-@pytest.fixture(scope="module")
-def tiny_arm_model(tmp_path_factory):
-    """A model on the 2k left arm from two subjects (fast; the numbers do not matter here)."""
-    from bodystudio.body import build_body
-    from bodystudio.muscle.arm import arm_template
-    from bodystudio.muscle.model import learn_arm_model, save_arm_model
-    from bodystudio.muscle.synthetic import sample_arm_subject, subject_arm_samples
-
-    samples = subject_arm_samples(sample_arm_subject(1000), "2k", n_shapes=1, n_poses=2)
-    samples += subject_arm_samples(sample_arm_subject(1001), "2k", n_shapes=1, n_poses=2)
-    model = learn_arm_model(samples, arm_template(build_body(resolution="2k"), "left"), population_size=3)
-    path = tmp_path_factory.mktemp("model") / "tiny.npz"
-    save_arm_model(path, model)
-    return path
-
-
 def _copies(arm_sessions, tmp_path, names=("s0", "s1", "s2")):
     out = []
     for name in names:
@@ -56,14 +40,14 @@ def _mtimes(root: Path) -> dict[str, int]:
             and p.name != "batch.json"}
 
 
-def test_batch_matches_sequential_and_rerun_redoes_nothing(arm_sessions, tiny_arm_model, cluster, tmp_path):
+def test_batch_matches_sequential_and_rerun_redoes_nothing(arm_sessions, tiny_arm_model_path, cluster, tmp_path):
     sessions = _copies(arm_sessions, tmp_path, ("s0", "s1"))
-    options = MuscleOptions(mode="full", model=str(tiny_arm_model))
+    options = MuscleOptions(mode="full", model=str(tiny_arm_model_path))
     out = tmp_path / "out"
     report = muscle_batch(sessions, out, cluster, options)
     assert report.status == {"s0": "done", "s1": "done"}, report.errors
     for s in sessions:
-        expected = capture_session_arm(s, tiny_arm_model, "full")
+        expected = capture_session_arm(s, tiny_arm_model_path, "full")
         got = load_arm_capture(out / s.name)  # the single capture's folder format, read by eval and extend
         assert got.mode == "full" and got.frame_ids == [0, 1, 2, 3]
         np.testing.assert_allclose(got.vertices, expected.vertices, atol=1e-6)

@@ -151,3 +151,16 @@ def studio(tmp_path_factory) -> Studio:
         for f in sorted((cam_dir / "rgb").glob("*.png")):
             shutil.copy(f, images / cam_dir.name / f.name)
     return Studio(root, session, session / "calibration" / "cameras.json", images, scan, board, root / "cal")
+
+
+def run_bad(args, capsys, phrase):
+    """Run the CLI in process on ``args``; assert exit 2 and one stderr line (no traceback) holding
+    ``phrase``; returns that line."""
+    from bodystudio.cli.main import main
+
+    code = main([str(a) for a in args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert phrase in err, err
+    return err

@@ -9,17 +9,9 @@ import sys
 import pytest
 
 from bodystudio.batch import check_worker_versions, resolve_scheduler
-from bodystudio.cli.main import main
 from bodystudio.errors import InputError
 
-
-def run_bad(args, capsys, phrase):
-    code = main([str(a) for a in args])
-    err = capsys.readouterr().err.strip()
-    assert code == 2, err
-    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
-    assert phrase in err, err
-    return err
+from .conftest import run_bad
 
 
 @pytest.fixture()

@@ -9,6 +9,8 @@ import pytest
 
 from bodystudio.errors import BodyStudioError, FileFormatError, InputError
 
+from .conftest import run_bad
+
 
 @pytest.fixture(scope="module")
 def body():
@@ -122,16 +124,6 @@ def test_lighting_estimation_inputs():
     with pytest.raises(InputError) as e:
         estimate_albedo([np.zeros((4, 4, 3), np.uint8)], [], np.zeros((1, 3), int), None)
     one_line(e, "one posed mesh per frame, got 1 frames and 0 meshes")
-
-
-def run_bad(args, capsys, phrase):
-    from bodystudio.cli.main import main
-
-    code = main([str(a) for a in args])
-    err = capsys.readouterr().err.strip()
-    assert code == 2, err
-    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
-    assert phrase in err, err
 
 
 @pytest.mark.parametrize("extra, phrase", [

@@ -12,14 +12,7 @@ import pytest
 from bodystudio.cli.main import main
 from tests.mirror.synth_case import small_mirror_session, write_fake_run
 
-
-def run_bad(args, capsys, phrase):
-    code = main([str(a) for a in args])
-    err = capsys.readouterr().err.strip()
-    assert code == 2, err
-    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
-    assert phrase in err, err
-    return err
+from .conftest import run_bad
 
 
 @pytest.mark.parametrize("args, phrase", [

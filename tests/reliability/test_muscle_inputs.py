@@ -11,14 +11,7 @@ import pytest
 
 from bodystudio.cli.main import main
 
-
-def run_bad(args, capsys, phrase):
-    code = main([str(a) for a in args])
-    err = capsys.readouterr().err.strip()
-    assert code == 2, err
-    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
-    assert phrase in err, err
-    return err
+from .conftest import run_bad
 
 
 def nothing_beside(folder, allowed=()):
@@ -120,26 +113,10 @@ def test_capture_of_unusable_depth(arm_session, tmp_path, capsys, make, phrase):
     nothing_beside(tmp_path, allowed=("bad_session",))
 
 
-@pytest.fixture(scope="module")
-def tiny_model_2k(tmp_path_factory):
-    """A model on the 2k left arm from one subject and a 3-body population (fast; the numbers do not matter)."""
-    from bodystudio.body import build_body
-    from bodystudio.muscle.arm import arm_template
-    from bodystudio.muscle.model import learn_arm_model, save_arm_model
-    from bodystudio.muscle.synthetic import sample_arm_subject, subject_arm_samples
-
-    samples = subject_arm_samples(sample_arm_subject(1000), "2k", n_shapes=1, n_poses=2)
-    samples += subject_arm_samples(sample_arm_subject(1001), "2k", n_shapes=1, n_poses=2)
-    model = learn_arm_model(samples, arm_template(build_body(resolution="2k"), "left"), population_size=3)
-    path = tmp_path_factory.mktemp("model") / "tiny.npz"
-    save_arm_model(path, model)
-    return path
-
-
-def test_capture_with_a_model_for_another_template(arm_session, tiny_model_2k, tmp_path, capsys):
+def test_capture_with_a_model_for_another_template(arm_session, tiny_arm_model_path, tmp_path, capsys):
     for extra, phrase in ((["--resolution", "6k"], "model was built for arm template 2k-left"),
                           (["--side", "right"], "model was built for arm template 2k-left")):
-        run_bad(["muscle", "capture", arm_session, "--out", tmp_path / "cap", "--model", tiny_model_2k, *extra],
+        run_bad(["muscle", "capture", arm_session, "--out", tmp_path / "cap", "--model", tiny_arm_model_path, *extra],
                 capsys, phrase)
     nothing_beside(tmp_path)
 
@@ -194,21 +171,21 @@ def nicp_capture(arm_session, tmp_path_factory):
     (["--shape", "bmi=31,muscularity=3,height_m=1.6,arm_length_m=0.5"], "--shape muscularity 3.0: must be in"),
     (["--stride", "0"], "--stride 0: must be in"),
 ])
-def test_model_extend_bad_options(tiny_model_2k, nicp_capture, tmp_path, capsys, args, phrase):
-    run_bad(["muscle", "model", "extend", tiny_model_2k, nicp_capture, "--out", tmp_path / "m2.npz", *args],
+def test_model_extend_bad_options(tiny_arm_model_path, nicp_capture, tmp_path, capsys, args, phrase):
+    run_bad(["muscle", "model", "extend", tiny_arm_model_path, nicp_capture, "--out", tmp_path / "m2.npz", *args],
             capsys, phrase)
     nothing_beside(tmp_path)
 
 
-def test_model_extend_bad_captures(tiny_model_2k, nicp_capture, tmp_path, capsys):
+def test_model_extend_bad_captures(tiny_arm_model_path, nicp_capture, tmp_path, capsys):
     out = tmp_path / "m2.npz"
-    run_bad(["muscle", "model", "extend", tiny_model_2k, tmp_path / "none", "--out", out], capsys,
+    run_bad(["muscle", "model", "extend", tiny_arm_model_path, tmp_path / "none", "--out", out], capsys,
             "no such arm capture folder")
-    run_bad(["muscle", "model", "extend", tiny_model_2k, nicp_capture, "--out", out], capsys,
+    run_bad(["muscle", "model", "extend", tiny_arm_model_path, nicp_capture, "--out", out], capsys,
             "captured with --no-model")
     (tmp_path / "junk").mkdir()
     (tmp_path / "junk" / "params.json").write_text("{not json")
-    run_bad(["muscle", "model", "extend", tiny_model_2k, tmp_path / "junk", "--out", out], capsys, "junk")
+    run_bad(["muscle", "model", "extend", tiny_arm_model_path, tmp_path / "junk", "--out", out], capsys, "junk")
     nothing_beside(tmp_path, allowed=("junk",))
 
 
@@ -232,12 +209,12 @@ def test_eval_muscle_of_a_session_without_truth(nicp_capture, arm_session, tmp_p
     run_bad(["eval", "muscle", nicp_capture, "--session", other], capsys, "template")
 
 
-def test_capture_without_the_sequence_fit_runs_and_differs(arm_session, tiny_model_2k, tmp_path):
+def test_capture_without_the_sequence_fit_runs_and_differs(arm_session, tiny_arm_model_path, tmp_path):
     """--no-sequence-fit is the pipeline before the whole-sequence pose fit: it runs and gives other meshes."""
     meshes = {}
     for name, extra in (("with", []), ("without", ["--no-sequence-fit"])):
         out = tmp_path / name
-        assert main(["muscle", "capture", str(arm_session), "--out", str(out), "--model", str(tiny_model_2k),
+        assert main(["muscle", "capture", str(arm_session), "--out", str(out), "--model", str(tiny_arm_model_path),
                      *extra]) == 0
         meshes[name] = (out / "meshes" / "00002.ply").read_bytes()
     assert meshes["with"] != meshes["without"]

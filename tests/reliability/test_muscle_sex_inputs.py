@@ -8,16 +8,9 @@ import pytest
 
 from bodystudio.cli.main import main
 
+from .conftest import run_bad
+
 SHAPE = "bmi=20,muscularity=0.5,height_m=1.7,arm_length_m=0.5"
-
-
-def run_bad(args, capsys, phrase):
-    code = main([str(a) for a in args])
-    err = capsys.readouterr().err.strip()
-    assert code == 2, err
-    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
-    assert phrase in err, err
-    return err
 
 
 @pytest.fixture(scope="module")
@@ -28,18 +21,12 @@ def arm_session(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def models(tmp_path_factory):
+def models(tmp_path_factory, tiny_arm_model_path):
     """A tiny 2k model saved as version 2 and rewritten as version 1 (no sex)."""
-    from bodystudio.body import build_body
-    from bodystudio.muscle.arm import arm_template
-    from bodystudio.muscle.model import learn_arm_model, save_arm_model
-    from bodystudio.muscle.synthetic import sample_arm_subject, subject_arm_samples
+    import shutil
 
-    samples = subject_arm_samples(sample_arm_subject(1000), "2k", n_shapes=1, n_poses=2)
-    samples += subject_arm_samples(sample_arm_subject(1001), "2k", n_shapes=1, n_poses=2)
-    model = learn_arm_model(samples, arm_template(build_body(resolution="2k"), "left"), population_size=3)
     folder = tmp_path_factory.mktemp("models")
-    save_arm_model(folder / "v2.npz", model)
+    shutil.copyfile(tiny_arm_model_path, folder / "v2.npz")
     with np.load(folder / "v2.npz") as z:
         arrays = {k: z[k] for k in z.files}
     header = json.loads(str(arrays.pop("header")))
