@@ -1,0 +1,561 @@
+"""The mirror loop's per-frame logic (§5 of Real-time Reshaping) on tiny images and stand-in sessions.
+
+A frame without joints, without depth, with too few vertex pairs or an unreadable file passes through
+unchanged with its warning; an empty frame teaches the background; a person moved by a known translation
+lands exactly where the pairs say, the hole behind is filled from the background model and bystanders stay;
+the session side ramps the edit, warm-starts the IK and marks pixels the depth camera never saw.
+"""
+
+import logging
+import os
+import time
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+
+from bodystudio.errors import FileFormatError, InputError
+from bodystudio.mirror import run as run_mod
+from bodystudio.mirror.compose import confident_background, update_background
+from bodystudio.mirror.run import (
+    IMAGE_STEPS,
+    MIN_PAIRS,
+    MLS_ALPHA,
+    MLS_RADIUS_PX,
+    MirrorInput,
+    mirror_frame,
+    mirror_stream,
+)
+
+H, W = 120, 160
+SHIFT = 6
+
+
+def _scene():
+    """A wall (the learnt background), a red person, a blue bystander (another player), the person's pairs
+    moved SHIFT px to the right."""
+    wall = np.zeros((H, W, 3), np.uint8)
+    wall[..., 0] = (np.arange(W)[None] * 1.5).astype(np.uint8)
+    wall[..., 1] = 100
+    wall[..., 2] = (np.arange(H)[:, None] * 2).astype(np.uint8)
+    person = np.zeros((H, W), bool)
+    person[30:90, 50:80] = True
+    others = np.zeros((H, W), bool)
+    others[40:80, 125:145] = True
+    rgb = wall.copy()
+    rgb[person] = (220, 30, 30)
+    rgb[others] = (20, 20, 230)
+    ys, xs = np.mgrid[32:90:6, 52:80:6]
+    src = np.column_stack([xs.ravel(), ys.ravel()]).astype(float)
+    return SimpleNamespace(wall=wall, person=person, others=others, rgb=rgb, src=src, dst=src + [SHIFT, 0.0],
+                           background=update_background(None, wall, np.zeros((H, W), bool)))
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return _scene()
+
+
+def test_a_frame_without_joints_passes_through_unchanged_with_a_warning(scene):
+    inp = MirrorInput(7, scene.rgb, scene.person, scene.others,
+                      warning="player 1 is in the mask but no body is tracked", timings_ms={"read": 1.5})
+    res, bg = mirror_frame(inp, scene.background)
+    assert res.status == "passed_through" and res.warning == inp.warning and res.index == 7
+    np.testing.assert_array_equal(res.output, scene.rgb)
+    assert res.output is not scene.rgb
+    np.testing.assert_array_equal(res.foreground, scene.person)
+    np.testing.assert_array_equal(res.warped, scene.person)
+    assert res.timings_ms["read"] == 1.5 and res.timings_ms["background"] >= 0 and "warp" not in res.timings_ms
+    # the background model learns only away from every player (15 px margin)
+    far = confident_background(scene.person | scene.others, 15)
+    assert bg.frames == scene.background.frames + 1
+    np.testing.assert_array_equal(bg.image[~far], scene.background.image[~far])
+    np.testing.assert_array_equal(bg.image[far], scene.wall[far])
+    rgb2 = scene.rgb.copy()
+    rgb2[~(scene.person | scene.others)] = 9
+    res2, bg2 = mirror_frame(MirrorInput(8, rgb2, scene.person, scene.others, warning="x"), scene.background)
+    near = ~far
+    np.testing.assert_array_equal(bg2.image[near], scene.wall[near])  # the players' surroundings are kept
+    assert (np.abs(bg2.image[far].astype(int) - (scene.wall[far] / 2 + 4.5)) <= 1).all()  # rate 0.5
+
+
+def test_an_empty_frame_passes_through_and_teaches_the_background(scene):
+    res, bg = mirror_frame(MirrorInput(0, scene.wall), None)
+    assert res.status == "empty" and res.warning is None
+    np.testing.assert_array_equal(res.output, scene.wall)
+    assert not res.foreground.any() and not res.warped.any()
+    assert bg.valid.all() and bg.frames == 1
+    np.testing.assert_array_equal(bg.image, scene.wall)
+    # another player only (nobody to reshape): empty, and the bystander is not learnt
+    res, bg = mirror_frame(MirrorInput(1, scene.rgb, None, scene.others), None)
+    assert res.status == "empty"
+    np.testing.assert_array_equal(bg.valid, confident_background(scene.others, 15))
+
+
+@pytest.mark.parametrize("n, ok", [(None, False), (0, False), (MIN_PAIRS - 1, False), (MIN_PAIRS, True)])
+def test_too_few_vertex_pairs_pass_through(scene, n, ok):
+    src = None if n is None else scene.src[:n]
+    dst = None if n is None else scene.dst[:n]
+    res, _ = mirror_frame(MirrorInput(3, scene.rgb, scene.person, None, None, src, dst), scene.background)
+    if ok:
+        assert res.status == "ok" and res.warning is None
+    else:
+        assert res.status == "passed_through"
+        assert res.warning == f"only {n or 0} visible vertex pairs (need {MIN_PAIRS})"
+        np.testing.assert_array_equal(res.output, scene.rgb)
+
+
+def test_a_translated_person_lands_where_the_pairs_say_and_bystanders_stay(scene):
+    inp = MirrorInput(4, scene.rgb, scene.person, scene.others, None, scene.src, scene.dst, timings_ms={"ik": 2.0})
+    res, bg = mirror_frame(inp, scene.background)
+    assert res.status == "ok" and res.warning is None
+    np.testing.assert_array_equal(res.foreground, scene.person)
+    shifted = np.roll(scene.person, SHIFT, axis=1)
+    np.testing.assert_array_equal(res.warped, shifted)
+    inner = cv2.erode(shifted.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    assert (res.output[inner] == (220, 30, 30)).all()
+    hole = scene.person & ~shifted
+    np.testing.assert_array_equal(res.output[hole], scene.wall[hole])  # from the background model
+    far = ~(cv2.dilate((scene.person | shifted | scene.others).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0)
+    np.testing.assert_array_equal(res.output[far], scene.rgb[far])
+    assert set(IMAGE_STEPS) <= set(res.timings_ms) and res.timings_ms["ik"] == 2.0
+    assert all(res.timings_ms[s] >= 0 for s in IMAGE_STEPS)
+    # the model learns away from the refined foreground, the SDK mask and the bystander
+    assert bg.frames == scene.background.frames + 1
+    near = ~confident_background(scene.person | scene.others, 15)
+    np.testing.assert_array_equal(bg.image[near], scene.background.image[near])
+
+
+def test_bystanders_are_not_erased_from_the_output(scene):
+    """Another player (not reshaped) is part of the frame: the mirror shows them as they are. (It used to
+    hand compose() ``fg | others`` as the input foreground, so every bystander became a hole and was
+    replaced by the background model, or inpainted where the model had never seen behind them.)"""
+    inp = MirrorInput(4, scene.rgb, scene.person, scene.others, None, scene.src, scene.dst)
+    res, bg = mirror_frame(inp, scene.background)
+    assert res.status == "ok"
+    np.testing.assert_array_equal(res.output[scene.others], scene.rgb[scene.others])
+    # and never learnt as background
+    near = ~confident_background(scene.others, 15)
+    np.testing.assert_array_equal(bg.image[near], scene.background.image[near])
+
+
+def test_without_a_background_model_the_holes_are_inpainted(scene):
+    res, bg = mirror_frame(MirrorInput(5, scene.rgb, scene.person, None, None, scene.src, scene.dst), None)
+    assert res.status == "ok"
+    hole = scene.person & ~np.roll(scene.person, SHIFT, axis=1)
+    assert not (res.output[hole] == (220, 30, 30)).all(axis=1).all()
+    assert bg.frames == 2  # the empty start, then this frame's confident pixels
+    np.testing.assert_array_equal(bg.valid, confident_background(scene.person, 15))
+
+
+def test_the_image_steps_get_the_frames_inputs(scene, monkeypatch):
+    """What mirror_frame hands the graph cut, the MLS field and the background update."""
+    seen = {}
+    real_refine, real_field, real_update = run_mod.refine_foreground, run_mod.mls_warp_field, run_mod.update_background
+
+    def refine(rgb, mask, depth, **kw):
+        seen["refine"] = (mask, depth, kw)
+        return real_refine(rgb, mask, depth, **kw)
+
+    def field(src, dst, shape, **kw):
+        seen["field"] = (src, dst, shape, kw)
+        return real_field(src, dst, shape, **kw)
+
+    def update(model, rgb, fg, **kw):
+        seen.setdefault("update", []).append((fg, kw))
+        return real_update(model, rgb, fg, **kw)
+
+    monkeypatch.setattr(run_mod, "refine_foreground", refine)
+    monkeypatch.setattr(run_mod, "mls_warp_field", field)
+    monkeypatch.setattr(run_mod, "update_background", update)
+    depth = np.where(scene.person, 2.5, 4.0)
+    unseen = np.zeros((H, W), bool)
+    unseen[:, :5] = True
+    groups = np.zeros(len(scene.src), int)
+    inp = MirrorInput(6, scene.rgb, scene.person, scene.others, depth, scene.src, scene.dst, pair_groups=groups,
+                      unseen=unseen)
+    mirror_frame(inp, scene.background, "affine", {"band_px": 4})
+    mask, d, kw = seen["refine"]
+    assert mask is scene.person and d is depth
+    assert kw == {"background": scene.background, "unseen": unseen, "band_px": 4}
+    src, dst, shape, kw = seen["field"]
+    assert src is scene.src and dst is scene.dst and shape == (H, W)
+    assert kw == {"kind": "affine", "alpha": MLS_ALPHA, "groups": groups, "radius_px": MLS_RADIUS_PX}
+    fg, kw = seen["update"][-1]
+    assert kw == {"unverified": unseen}
+    np.testing.assert_array_equal(fg, scene.person | scene.others)
+    seen.clear()
+    mirror_frame(MirrorInput(7, scene.rgb, scene.person, None, None, scene.src, scene.dst), scene.background,
+                 alpha=1.0)
+    assert seen["field"][3]["alpha"] == 1.0 and seen["field"][3]["kind"] == "similarity"
+    assert set(seen["refine"][2]) == {"background", "unseen"}
+    # a pass-through frame updates with the same unverified mask
+    seen.clear()
+    mirror_frame(MirrorInput(8, scene.rgb, scene.person, scene.others, warning="w", unseen=unseen), scene.background)
+    assert seen["update"][0][1] == {"unverified": unseen} and "refine" not in seen
+
+
+# --- run.json summary, PNGs, videos ---------------------------------------------------------------------
+
+def test_summary_is_medians_counts_and_rates():
+    rows = [{"status": s} for s in ("ok", "ok", "empty", "passed_through", "ok")]
+    steps = {"read": [1.0, 3.0, 2.0], "foreground": [4.0, 6.0, 5.0], "warp": [1.0, 1.0, 4.0], "compose": [],
+             "write": [9.0]}
+    s = run_mod._summary(rows, steps, 2.5)
+    assert s == {"frames": 5, "n_ok": 3, "n_empty": 1, "n_passed_through": 1, "n_warnings": 1,
+                 "ms_per_frame": {"read": 2.0, "foreground": 5.0, "warp": 1.0, "write": 9.0},
+                 "ms_per_frame_statistic": "median", "image_steps_ms": 6.0, "image_steps_fps": 1e3 / 6.0,
+                 "wall_s": 2.5, "fps_wall": 2.0}
+    none = run_mod._summary([], {"read": [1.0]}, 0.0)
+    assert none["image_steps_fps"] is None and none["fps_wall"] is None and none["image_steps_ms"] == 0.0
+
+
+def test_png_frames_are_rgb_and_lossless():
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (9, 11, 3), dtype=np.uint8)
+    back = cv2.imdecode(np.frombuffer(run_mod._png(rgb), np.uint8), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(back[..., ::-1], rgb)
+    gray = rng.integers(0, 256, (9, 11), dtype=np.uint8)
+    np.testing.assert_array_equal(cv2.imdecode(np.frombuffer(run_mod._png(gray), np.uint8), cv2.IMREAD_UNCHANGED),
+                                  gray)
+
+
+def test_video_paths(tmp_path):
+    assert run_mod.video_paths(None) == []
+    out = tmp_path / "out.MP4"
+    assert run_mod.video_paths(out) == [("output", out), ("side_by_side", tmp_path / "out_side_by_side.mp4")]
+    assert run_mod.video_paths(str(out), side_by_side=False) == [("output", out)]
+    with pytest.raises(InputError, match=r"--out .*out\.avi: the video must be an \.mp4 file"):
+        run_mod.video_paths(tmp_path / "out.avi")
+    (tmp_path / "x_side_by_side.mp4").mkdir()
+    with pytest.raises(InputError):
+        run_mod.video_paths(tmp_path / "x.mp4")
+    assert run_mod.video_paths(tmp_path / "x.mp4", side_by_side=False) == [("output", tmp_path / "x.mp4")]
+
+
+def _tiny_inputs(n, h=16, w=24):
+    return [MirrorInput(i, np.full((h, w, 3), 10 * i, np.uint8), edit_fraction=0.5 * i,
+                        timings_ms={"read": 0.12345 * (i + 1)}) for i in range(n)]
+
+
+def test_stream_passes_a_failing_frame_through_and_commits_the_rest(tmp_path, monkeypatch, caplog):
+    real = run_mod.mirror_frame
+
+    def flaky(inp, background, kind, options):
+        if inp.index == 1:
+            raise InputError("the frame's depth is unreadable")
+        return real(inp, background, kind, options)
+
+    monkeypatch.setattr(run_mod, "mirror_frame", flaky)
+    run = tmp_path / "run"
+    with caplog.at_level(logging.WARNING, logger="bodystudio.mirror.run"):
+        doc = mirror_stream(_tiny_inputs(3), run, None, fps=25.0, kind="rigid", manifest={"edits": {"taller": 0.1}},
+                            preview=tmp_path / "live.png")
+    assert [(f["index"], f["status"], f["warning"]) for f in doc["frames"]] == [
+        (0, "empty", None), (1, "passed_through", "the frame's depth is unreadable"), (2, "empty", None)]
+    assert "frame 1 passes through: the frame's depth is unreadable" in caplog.text
+    assert [f["edit_fraction"] for f in doc["frames"]] == [0.0, 0.5, 1.0]
+    assert doc["frames"][0]["ms"]["read"] == 0.123 and doc["frames"][2]["ms"]["read"] == 0.37
+    assert doc["kind"] == "rigid" and doc["fps"] == 25.0 and doc["videos"] == {} and doc["edits"] == {"taller": 0.1}
+    assert doc["format"] == "bodystudio-mirror-run" and doc["version"] == 1
+    assert doc["summary"]["frames"] == 3 and doc["summary"]["n_warnings"] == 1
+    for i in range(3):
+        out = cv2.imread(str(run / "frames" / f"{i:05d}.png"))
+        assert (out == 10 * i).all()
+        for sub in ("foreground", "warped"):
+            assert not cv2.imread(str(run / "masks" / sub / f"{i:05d}.png"), cv2.IMREAD_GRAYSCALE).any()
+    assert (cv2.imread(str(tmp_path / "live.png")) == 20).all()  # the last frame
+    with pytest.raises(InputError, match="fps must lie in 1..240, got 0.5"):
+        mirror_stream(_tiny_inputs(1), tmp_path / "r2", None, fps=0.5)
+    with pytest.raises(InputError, match="fps must lie in 1..240, got 241"):
+        mirror_stream(_tiny_inputs(1), tmp_path / "r2", None, fps=241)
+    with pytest.raises(InputError, match="--warp 'tps'; valid: "):
+        mirror_stream(_tiny_inputs(1), tmp_path / "r2", None, kind="tps")
+    assert not (tmp_path / "r2").exists()
+
+
+def test_stream_writes_the_output_and_side_by_side_videos(tmp_path):
+    import imageio_ffmpeg
+
+    run_mod_doc = mirror_stream(_tiny_inputs(2), tmp_path / "run", tmp_path / "v.mp4", fps=12.0, side_by_side=True)
+    assert run_mod_doc["videos"] == {"output": str(tmp_path / "v.mp4"),
+                                     "side_by_side": str(tmp_path / "v_side_by_side.mp4")}
+    for name, width in (("v.mp4", 24), ("v_side_by_side.mp4", 48)):
+        reader = imageio_ffmpeg.read_frames(str(tmp_path / name))
+        meta = next(reader)
+        assert tuple(meta["size"]) == (width, 16) and meta["fps"] == 12.0
+        assert sum(1 for _ in reader) == 2
+    mirror_stream(_tiny_inputs(1), tmp_path / "run2", tmp_path / "w.mp4", side_by_side=False)
+    assert (tmp_path / "w.mp4").is_file() and not (tmp_path / "w_side_by_side.mp4").exists()
+
+
+# --- the session side ---------------------------------------------------------------------------------
+
+CH, CW = 12, 16
+
+
+class _Frames:
+    """Stand-ins for read_mirror_frame / register_depth_to_color and the body steps (they record their calls)."""
+
+    def __init__(self, spec):
+        self.spec = spec  # index -> dict(kind=..., ...)
+        self.ik_calls, self.bodies = [], []
+
+    def read(self, session, i):
+        s = self.spec[i]
+        if s.get("unreadable"):
+            raise FileFormatError(f"frame {i}: broken PNG")
+        body = None if s.get("untracked") else SimpleNamespace(positions=np.full((25, 3), float(i)),
+                                                               tracked=np.ones(25, bool))
+        player = np.zeros((CH, CW), np.uint8)
+        player[s.get("person", slice(2, 6)), 4:8] = 1
+        player[8:10, 12:14] = 2
+        depth = np.zeros((CH, CW)) if s.get("no_depth") else np.ones((CH, CW))
+        seen = s.get("seen", slice(0, CW))
+        return SimpleNamespace(rgb=np.full((CH, CW, 3), i, np.uint8), depth_m=depth, player=player, seen=seen,
+                               body=lambda p: body if p == 1 else None)
+
+    def ik(self, skeleton, positions, tracked, version, previous=None):
+        self.ik_calls.append((positions[0, 0], previous))
+        if positions[0, 0] in self.spec_fail:
+            raise InputError("pelvis not tracked")
+        return f"pose{int(positions[0, 0])}"
+
+
+def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None):
+    from bodystudio.mirror import frames as frames_mod
+    from bodystudio.mirror import reshape as reshape_mod
+    from bodystudio.mirror import track as track_mod
+
+    f = _Frames(spec)
+    f.spec_fail = set(fail)
+    current = {}
+    camera = SimpleNamespace(height=CH, width=CW)
+
+    def read(session, i):
+        fr = f.read(session, i)
+        current["seen"] = fr.seen
+        return fr
+
+    def register(depth, player, sensor):
+        d = np.zeros((CH, CW))
+        if depth.any():
+            d[:, current["seen"]] = 2.0
+        return d, player
+
+    def pairs(Vs, Vt, faces, cam, n, rim_cos=None):
+        assert n == run_mod.N_HANDLES and rim_cos == run_mod.RIM_COS and cam is camera
+        return np.zeros((20, 2)) + Vs[0, 0], np.zeros((20, 2)) + Vt[0, 0], None
+
+    def posed(body, target_rest, pose):
+        f.bodies.append((target_rest[0, 0], pose))
+        return body.vertices, target_rest
+
+    monkeypatch.setattr(frames_mod, "read_mirror_frame", read)
+    monkeypatch.setattr(frames_mod, "register_depth_to_color", register)
+    monkeypatch.setattr(track_mod, "ik_pose", f.ik)
+    monkeypatch.setattr(reshape_mod, "target_coeffs", lambda model, coeffs, edits: coeffs + edits["taller"])
+    monkeypatch.setattr(reshape_mod, "posed_source_and_target", posed)
+    monkeypatch.setattr(run_mod, "visible_vertex_pairs", pairs)
+    session = SimpleNamespace(path="S", frame_ids=sorted(spec), kinect=SimpleNamespace(color=camera, version="v2"))
+    body = SimpleNamespace(coeffs=np.zeros(1), vertices=np.zeros((3, 3)), skeleton="sk", faces=None)
+    model = SimpleNamespace(vertices=lambda c: np.full((3, 3), 10.0 * c[0]))
+    out = list(run_mod.session_inputs(session, body, model, {"taller": 1.0}, 1, ramp_frames, frames))
+    return out, f
+
+
+def test_session_inputs_warn_per_frame_and_ramp_the_edit(monkeypatch):
+    spec = {0: {"untracked": True, "person": slice(0, 0)},  # nobody: no warning (an empty frame)
+            1: {"untracked": True},  # in the mask, not tracked
+            2: {"no_depth": True},
+            3: {"person": slice(0, 0)},  # tracked, empty mask
+            4: {}, 5: {}, 6: {}, 7: {}, 8: {}}
+    out, f = _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(6,))
+    assert [o.index for o in out] == list(range(9))
+    assert out[0].warning is None and out[0].src_uv is None
+    assert out[1].warning == "player 1 is in the mask but no body is tracked"
+    assert out[2].warning == "depth missing (no depth measurement in the frame)"
+    assert out[3].warning == "body 1 is tracked but its player mask is empty"
+    assert out[6].warning == "tracking failed: pelvis not tracked"
+    ok = [o for o in out if o.warning is None and o.src_uv is not None]
+    assert [o.index for o in ok] == [4, 5, 7, 8]
+    # the edit is reached over ramp_frames tracked frames: V_S + s (V_T - V_S), V_T = 10 here
+    assert [o.edit_fraction for o in ok] == pytest.approx([1 / 3, 2 / 3, 1.0, 1.0])
+    assert [t for t, _ in f.bodies] == pytest.approx([10 / 3, 20 / 3, 10.0, 10.0])
+    assert ok[0].dst_uv[0, 0] == pytest.approx(10 / 3) and ok[0].src_uv[0, 0] == 0.0
+    # the IK is warm-started from the last successful pose
+    assert f.ik_calls == [(4.0, None), (5.0, "pose4"), (6.0, "pose5"), (7.0, "pose5"), (8.0, "pose7")]
+    # masks: the person, the other players
+    assert out[4].person_mask.sum() == 16 and out[4].others_mask.sum() == 4
+    assert not (out[4].person_mask & out[4].others_mask).any()
+    assert out[4].rgb[0, 0, 0] == 4 and set(out[4].timings_ms) == {"read", "register", "ik", "bodies", "pairs"}
+
+
+def test_session_inputs_ramp_zero_and_unreadable_frames(monkeypatch):
+    spec = {0: {"unreadable": True}, 1: {}, 2: {"unreadable": True}, 3: {}}
+    out, _ = _session_inputs(monkeypatch, spec, ramp_frames=0)
+    assert out[0].warning == "frame unreadable: frame 0: broken PNG"
+    assert out[0].rgb.shape == (CH, CW, 3) and not out[0].rgb.any()
+    assert out[2].warning.startswith("frame unreadable") and (out[2].rgb == 1).all()  # the last good frame
+    assert [o.edit_fraction for o in out if o.src_uv is not None] == [1.0, 1.0]
+    # only the given frames
+    out, _ = _session_inputs(monkeypatch, spec, frames=[3, 1])
+    assert [o.index for o in out] == [3, 1] and out[0].edit_fraction == pytest.approx(1 / 3)
+
+
+def test_pixels_the_depth_camera_never_saw_are_marked_unseen(monkeypatch):
+    spec = {0: {"seen": slice(8, CW)}, 1: {"seen": slice(12, CW)}, 2: {"seen": slice(0, 2)}}
+    out, _ = _session_inputs(monkeypatch, spec)
+    # frame 0 saw columns 8..: dilated by 2 px, the unseen part is columns 0..5
+    assert (out[0].unseen[:, :6]).all() and not out[0].unseen[:, 6:].any()
+    np.testing.assert_array_equal(out[1].unseen, out[0].unseen)  # what was seen stays seen
+    assert (out[2].unseen[:, 5]).all() and not out[2].unseen[:, :4].any()
+
+
+def test_session_inputs_need_a_kinect(monkeypatch):
+    with pytest.raises(InputError, match="S: not a Kinect session"):
+        list(run_mod.session_inputs(SimpleNamespace(path="S", kinect=None), None, None, {}))
+
+
+def test_check_edits_and_missing_stage_modules(monkeypatch):
+    assert run_mod.check_edits({"taller": 0.1}) == {"taller": 0.1}
+    with pytest.raises(InputError, match="edit heavier is not a finite number; give a value such as --heavier 0.05"):
+        run_mod.check_edits({"taller": 0.1, "heavier": float("inf")})
+    with pytest.raises(InputError, match="unknown edit\\(s\\) bigger, wider; valid: taller, heavier"):
+        run_mod.check_edits({"wider": 1.0, "bigger": 2.0})
+    with pytest.raises(InputError, match="no mirror nosuch step \\(bodystudio.mirror.nosuch\\)"):
+        run_mod._stage_module("nosuch")
+    import bodystudio.mirror.reshape as reshape
+
+    monkeypatch.delattr(reshape, "check_edits")
+    assert run_mod.check_edits({"taller": 1}) == {"taller": 1.0}
+
+
+def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
+    from bodystudio.mirror.run import run_mirror
+
+    (tmp_path / "mirror").mkdir()
+    (tmp_path / "mirror" / "source_body.npz").write_bytes(b"x")
+    session = SimpleNamespace(path=tmp_path, kinect="kinect", metadata={"fps": 15}, manifest={"run": {"run_id": "r1"}},
+                              frame_ids=[0, 1, 2])
+    for kw, phrase in (({"player": 0}, "--player 0: a Kinect player id is 1..6"),
+                       ({"player": 7}, "--player 7"),
+                       ({"ramp_frames": -1}, "--ramp-frames -1: use 0..10000"),
+                       ({"ramp_frames": 10001}, "--ramp-frames 10001"),
+                       ({"kind": "tps"}, "--warp 'tps'; valid")):
+        with pytest.raises(InputError, match=phrase):
+            run_mirror(session, {"taller": 0.1}, None, **kw)
+    with pytest.raises(InputError, match="must be an .mp4"):
+        run_mirror(session, {"taller": 0.1}, tmp_path / "o.avi")
+    with pytest.raises(InputError, match="not a Kinect session"):
+        run_mirror(SimpleNamespace(**{**vars(session), "kinect": None}), {}, None)
+    with pytest.raises(FileFormatError, match="nope.npz: source body not found"):
+        run_mirror(session, {}, None, source=tmp_path / "nope.npz")
+    for fps in ("fast", 0.5, 500):
+        with pytest.raises(InputError, match=f"session metadata fps {fps!r} is not a frame rate in 1..240"):
+            run_mirror(SimpleNamespace(**{**vars(session), "metadata": {"fps": fps}}), {}, None)
+    with pytest.raises(InputError, match="unknown edit"):
+        run_mirror(session, {"wider": 1.0}, None)
+    got = {}
+    monkeypatch.setattr(run_mod, "load_source", lambda s, src: ("body", "model"))
+    monkeypatch.setattr(run_mod, "session_inputs", lambda *a: got.setdefault("inputs", a) and "INPUTS")
+
+    def stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total, preview=None):
+        got["stream"] = dict(inputs=inputs, run_dir=run_dir, out_video=out_video, fps=fps, sbs=side_by_side, kind=kind,
+                             manifest=manifest, progress=progress, total=total, preview=preview)
+        return "DOC"
+
+    monkeypatch.setattr(run_mod, "mirror_stream", stream)
+    assert run_mirror(session, {"taller": 0.1}, None, progress=False, player=2, kind="rigid", ramp_frames=5,
+                      frames=[2, 0], side_by_side=False) == "DOC"
+    assert got["inputs"] == (session, "body", "model", {"taller": 0.1}, 2, 5, [2, 0])
+    s = got["stream"]
+    assert s["run_dir"] == tmp_path / "mirror" / "run" and s["fps"] == 15.0 and s["kind"] == "rigid"
+    assert s["total"] == 2 and s["preview"] is None and s["progress"] is False and s["sbs"] is False
+    assert s["manifest"] == {"session": str(tmp_path.resolve()), "session_run_id": "r1", "live": None,
+                             "edits": {"taller": 0.1}, "player": 2, "ramp_frames": 5}
+    got.clear()
+    run_mirror(SimpleNamespace(**{**vars(session), "metadata": None, "manifest": {}}), {}, None, run_dir=tmp_path / "r")
+    assert got["stream"]["fps"] == 30.0 and got["stream"]["total"] == 3 and got["stream"]["run_dir"] == tmp_path / "r"
+    assert got["stream"]["manifest"]["session_run_id"] is None and got["inputs"][4:] == (1, 30, [0, 1, 2])
+
+
+def test_load_source_finds_the_model_by_size(tmp_path):
+    from bodystudio.body.statistical import load_statistical_model
+    from bodystudio.mirror.init import SourceBody, refit_skeleton, save_source_body
+
+    model = load_statistical_model("2k", progress=False)
+    c = np.zeros(model.n_components)
+    src = SourceBody(c, model.vertices(c), refit_skeleton(model, c), (0,), 1.0)
+    session = SimpleNamespace(path=tmp_path)
+    body, m = run_mod.load_source(session, src)
+    assert len(m.mean) == len(model.mean) and body.weights is not None and body.faces is not None
+    (tmp_path / "mirror").mkdir()
+    save_source_body(tmp_path / "mirror" / "source_body.npz", src)
+    body2, _ = run_mod.load_source(session)
+    np.testing.assert_array_equal(body2.vertices, src.vertices)
+    save_source_body(tmp_path / "other.npz", src)
+    body3, _ = run_mod.load_source(session, str(tmp_path / "other.npz"))
+    np.testing.assert_array_equal(body3.coeffs, c)
+    with pytest.raises(FileFormatError, match="missing.npz: source body not found; run 'bodystudio mirror init"):
+        run_mod.load_source(session, tmp_path / "missing.npz")
+    odd = SourceBody(c, model.vertices(c)[:-1], src.skeleton, (0,), 1.0)
+    with pytest.raises(InputError, match="source body of 2501 vertices matches no statistical model"):
+        run_mod.load_source(session, odd)
+
+
+# --- live mode ------------------------------------------------------------------------------------------
+
+def _touch(root, rel, age_s=0.0):
+    p = root / rel
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_bytes(b"x")
+    if age_s:
+        t = time.time() - age_s
+        os.utime(p, (t, t))
+
+
+def test_live_session_files_and_frames(tmp_path):
+    from bodystudio.capture.session import KINECT_CALIBRATION, stream_path
+
+    with pytest.raises(InputError, match="--live 0: reading a camera device needs a Kinect SDK bridge"):
+        run_mod.live_session("0")
+    with pytest.raises(InputError, match="--live /dev/video0: reading a camera device"):
+        run_mod.live_session("/dev/video0")
+    with pytest.raises(InputError, match="no such folder"):
+        run_mod.live_session(tmp_path / "none")
+    with pytest.raises(InputError, match=f"no {KINECT_CALIBRATION}; the recorder must write"):
+        run_mod.live_session(tmp_path)
+    _touch(tmp_path, KINECT_CALIBRATION)
+    for i in (3, 11, 2):
+        _touch(tmp_path, stream_path("kinect_rgb", i))
+    _touch(tmp_path, "kinect/rgb/notes.png")
+    s = run_mod.live_session(tmp_path)
+    files = s.manifest["files"]
+    assert KINECT_CALIBRATION in files and stream_path("kinect_rgb", 3) in files and "nope" not in files
+    assert 5 not in files and files[KINECT_CALIBRATION] is None
+    with pytest.raises(KeyError):
+        files["kinect/none.json"]
+    assert len(files) == 5 and sorted(files) == list(files)
+    frames = s.manifest["frames"]
+    assert list(frames) == [2, 3, 11] and 3 in frames and 4 not in frames
+    assert s.manifest["cameras"] == [] and s.manifest["metadata"] == {}
+
+
+def test_live_frame_ids_wait_for_joints_or_the_next_frame_or_settling(tmp_path):
+    from bodystudio.capture.session import stream_path
+
+    def frame(i, joints=True, age_s=0.0):
+        for stream in ("kinect_rgb", "kinect_depth", "kinect_player") + (("kinect_joints",) if joints else ()):
+            _touch(tmp_path, stream_path(stream, i), age_s)
+
+    assert list(run_mod.live_frame_ids(tmp_path, timeout_s=0.05, poll_s=0.01)) == []
+    frame(4)
+    frame(5, joints=False)  # complete but no joints, fresh: waits for settling or frame 6
+    assert list(run_mod.live_frame_ids(tmp_path, timeout_s=0.1, poll_s=0.01, settle_s=60)) == [4]
+    assert list(run_mod.live_frame_ids(tmp_path, timeout_s=0.1, poll_s=0.01, settle_s=0.0)) == [4, 5]
+    _touch(tmp_path, stream_path("kinect_rgb", 6))  # frame 6 started: 5 is done
+    assert list(run_mod.live_frame_ids(tmp_path, timeout_s=0.1, poll_s=0.01, settle_s=60)) == [4, 5]
+    frame(6, joints=False, age_s=10)  # old enough: settled
+    assert list(run_mod.live_frame_ids(tmp_path, timeout_s=0.1, poll_s=0.01, settle_s=5)) == [4, 5, 6]
