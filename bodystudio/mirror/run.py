@@ -131,7 +131,7 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     t2 = time.perf_counter()
     warped_rgb, alpha = warp_foreground(rgb, fg, warp_field)
     t3 = time.perf_counter()
-    out = compose(warped_rgb, alpha, background, rgb, fg | others if others.any() else fg)
+    out = compose(warped_rgb, alpha, background, rgb, fg)  # bystanders (others) stay as they are
     t4 = time.perf_counter()
     background = update_background(background, rgb, fg | person | others, unverified=inp.unseen)
     t5 = time.perf_counter()
