@@ -8,6 +8,8 @@ trimming drops planted outliers, Eq. 3 moves every joint with the mean displacem
 vertices, and the whole initialisation recovers a planted shape from one noise-free frame.
 """
 
+import functools
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -44,11 +46,17 @@ NAMES = kinect_joint_names("v2")
 IX = {n: i for i, n in enumerate(NAMES)}
 
 
-@pytest.fixture(scope="module")
-def model():
+@functools.lru_cache(maxsize=1)
+def _model_2k():
+    """Loaded once per process (a module-level cache, so mutation-testing forks inherit it)."""
     from bodystudio.body.statistical import load_statistical_model
 
     return load_statistical_model("2k", progress=False)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return _model_2k()
 
 
 @pytest.fixture(scope="module")
