@@ -9,6 +9,7 @@ vertices, and the whole initialisation recovers a planted shape from one noise-f
 """
 
 import functools
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -557,11 +558,13 @@ def test_check_model_refuses_other_models_and_rigs(model, mean_body):
 def test_source_body_poses_only_with_weights(model):
     c = np.zeros(model.n_components)
     src = SourceBody(c, model.vertices(c), refit_skeleton(model, c), (0,), 1.0)
-    with pytest.raises(InputError, match="no skin weights"):
+    with pytest.raises(InputError, match="^this source body carries no skin weights; load it with its statistical "
+                       "model$"):
         src.body()
     full = SourceBody(c, model.vertices(c), src.skeleton, (0,), 1.0, model.weights, model.faces)
     b = full.body()
     assert b.rig == "game_engine" and b.weights is model.weights and b.faces is model.faces
+    assert b.skeleton is src.skeleton
     np.testing.assert_array_equal(b.vertices, full.vertices)
 
 
@@ -593,6 +596,16 @@ def test_source_body_file_round_trip_and_refusals(model, tmp_path):
         return p
 
     assert load_source_body(write("ok.npz")).frames_used == (3,)
+    with pytest.raises(FileFormatError, match=r"nope\.npz: source body not found; run 'bodystudio mirror init SESSION' "
+                       "first$"):
+        load_source_body(tmp_path / "nope.npz")
+    # a pickled (object) array is never unpickled
+    with pytest.raises(FileFormatError, match="not a readable source body"):
+        load_source_body(write("pickled.npz", bone_names=np.array(list(src.skeleton.bone_names), dtype=object)))
+    # a destination without the .npz extension still gets one zip file (numpy appends .npz to bare names)
+    save_source_body(tmp_path / "source_body", src)
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(("source_body", ".source_body"))] == ["source_body"]
+    np.testing.assert_array_equal(load_source_body(tmp_path / "source_body").coeffs, c)
     with pytest.raises(FileFormatError, match="version 2, expected 1"):
         load_source_body(write("v2.npz", version=np.array(2)))
     with pytest.raises(FileFormatError, match="not a readable source body"):
@@ -640,8 +653,6 @@ def test_lbs_round_trip_helper_is_exact(mean_body):
 
 class _Session:
     def __init__(self, n, kinect=True):
-        from types import SimpleNamespace
-
         self.path = "SESSION"
         self.frame_ids = list(range(n))
         self.kinect = SimpleNamespace(depth=SimpleNamespace(center=np.array([0.0, 1.0, 3.0]))) if kinect else None
@@ -649,8 +660,6 @@ class _Session:
 
 def _fake_frames(monkeypatch, frames, n_points=MIN_POINTS):
     """Make read_mirror_frame / point_cloud serve ``frames`` {index: (bodies, depth)}; returns the read log."""
-    from types import SimpleNamespace
-
     from bodystudio.mirror import frames as frames_mod
 
     reads = []
@@ -670,8 +679,6 @@ def _fake_frames(monkeypatch, frames, n_points=MIN_POINTS):
 
 
 def _tracked_body(player=1, version="v2", all_nan=False):
-    from types import SimpleNamespace
-
     names = kinect_joint_names(version)
     K = np.full((len(names), 3), np.nan) if all_nan else np.arange(3.0 * len(names)).reshape(-1, 3) + player
     return SimpleNamespace(player=player, names=tuple(names), positions=K, tracked=np.ones(len(names), bool))
@@ -768,32 +775,63 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
 
 def test_time_init_and_track_reports_per_frame_means(monkeypatch, model):
     """With a stand-in clock: the initialisation's seconds and the IK / skinning milliseconds per frame."""
-    from types import SimpleNamespace
-
     c = np.zeros(model.n_components)
     source = SourceBody(c, model.mean, refit_skeleton(model, c), (0, 3, 6), 1.0, model.weights, model.faces)
-    wall = iter([0.0, 2.0, 10.0, 13.0, 20.0, 24.0])
-    cpu = iter([0.0, 1.0, 5.0, 5.5, 6.0, 8.5])
-    monkeypatch.setattr(init_mod, "time", SimpleNamespace(perf_counter=lambda: next(wall),
-                                                          process_time=lambda: next(cpu)))
+
+    def clocks(wall, cpu):
+        wall, cpu = iter(wall), iter(cpu)
+        monkeypatch.setattr(init_mod, "time", SimpleNamespace(perf_counter=lambda: next(wall),
+                                                              process_time=lambda: next(cpu)))
+
     got = {}
-    monkeypatch.setattr(init_mod, "initialise_from_observations",
-                        lambda obs, m, view_point=None, passes=3: got.setdefault("init", (obs, view_point, passes))
-                        and source)
+
+    def fake_init(obs, m, view_point=None, passes=3):
+        got["init"] = (obs, m, view_point, passes)
+        return source
+
+    monkeypatch.setattr(init_mod, "initialise_from_observations", fake_init)
     ik_calls = []
     real_ik = init_mod.ik_pose
 
     def ik(sk, joints, tracked, version, previous=None):
-        ik_calls.append((joints[0, 0], previous))
+        ik_calls.append((joints[0, 0], tracked, version, previous))
         return real_ik(sk, joints, tracked, version, previous)
 
     monkeypatch.setattr(init_mod, "ik_pose", ik)
     sk = source.skeleton
-    obs = [InitObservation(f, None, posed_kinect_joints(sk, _pose(sk, seed=f, scale=0.05)), np.ones(len(NAMES), bool),
-                           "v2") for f in range(3)]
+    tracked = np.ones(len(NAMES), bool)
+    tracked[-1] = False
+    obs = [InitObservation(f, None, posed_kinect_joints(sk, _pose(sk, seed=f, scale=0.05)), tracked, "v2")
+           for f in range(3)]
+    clocks([100.0, 102.0, 110.0, 113.0, 120.0, 124.0], [50.0, 51.0, 55.0, 55.5, 56.0, 58.5])
     out = init_mod.time_init_and_track(obs, model, view_point="eye", track_frames=5, passes=2)
-    assert got["init"] == (obs, "eye", 2)
+    assert got["init"] == (obs, model, "eye", 2)
     assert out == {"init_s": 2.0, "init_cpu_s": 1.0, "init_frames": 3, "ik_ms": 1000 * 3.0 / 5,
                    "ik_cpu_ms": 1000 * 0.5 / 5, "skin_ms": 1000 * 4.0 / 5, "skin_cpu_ms": 1000 * 2.5 / 5}
-    assert [j for j, _ in ik_calls] == [obs[i % 3].joints[0, 0] for i in range(5)]
-    assert ik_calls[0][1] is None and all(prev is not None for _, prev in ik_calls[1:])
+    assert [j for j, *_ in ik_calls] == [obs[i % 3].joints[0, 0] for i in range(5)]
+    assert all(t is tracked and v == "v2" for _, t, v, _ in ik_calls)
+    assert ik_calls[0][3] is None and all(prev is not None for *_, prev in ik_calls[1:])
+    # the defaults: 90 frames, three passes; no frames: the per-frame figures are the totals
+    ik_calls.clear()
+    clocks([0.0, 1.0, 2.0, 3.0, 4.0, 5.0] * 2, [0.0] * 12)
+    out = init_mod.time_init_and_track(obs, model)
+    assert len(ik_calls) == 90 and got["init"][2:] == (None, 3) and out["ik_ms"] == pytest.approx(1000 / 90)
+    out = init_mod.time_init_and_track(obs, model, track_frames=0)
+    assert out["ik_ms"] == 1000.0 and out["skin_ms"] == 1000.0
+
+
+def test_initialise_source_body_loads_the_6k_model_by_default(monkeypatch, model):
+    import bodystudio.body.statistical as statistical
+
+    asked = []
+
+    def load(resolution="6k", *args, progress=True, **kw):
+        asked.append((resolution, progress))
+        return model
+
+    monkeypatch.setattr(statistical, "load_statistical_model", load)
+    monkeypatch.setattr(init_mod, "collect_observations", lambda *a: (["obs"], SimpleNamespace(
+        depth=SimpleNamespace(center=np.zeros(3)))))
+    monkeypatch.setattr(init_mod, "initialise_from_observations", lambda obs, m, view_point=None, passes=3: m)
+    assert init_mod.initialise_source_body(SimpleNamespace()) is model
+    assert asked == [("6k", False)]
