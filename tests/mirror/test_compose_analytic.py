@@ -6,6 +6,7 @@ composition lays the warped person over the frame, fills the hole behind a shrun
 (never from the person), inpaints only pixels the model never saw and counts both.
 """
 
+import cv2
 import numpy as np
 import pytest
 
@@ -60,6 +61,10 @@ def test_confident_background_negative_margin_is_the_complement():
     fg = _person()
     np.testing.assert_array_equal(confident_background(fg, -2), ~fg)
     assert confident_background(np.zeros((H, W), bool)).all()
+    # the default margin is 15 px
+    dot = np.zeros((H, W), bool)
+    dot[20, 30] = True
+    np.testing.assert_array_equal(confident_background(dot), _chebyshev_far(dot, 15))
 
 
 def test_first_frame_learns_the_confident_pixels_only():
@@ -131,6 +136,13 @@ def test_unverified_pixels_are_learnt_once_then_kept():
     assert not partial.valid[:, :5].any()
     learnt = update_background(partial, later, nobody, unverified=strip, rate=1.0)
     assert (learnt.image[:, :5] == 200).all() and (learnt.image[:, 5:8] == 50).all()
+    # near the person nothing is learnt, unverified or not; a 0/1 uint8 mask reads as bool
+    fg = _person(top=15, bottom=25, left=20, right=30)
+    near = ~_chebyshev_far(fg, 3)
+    for mask in (strip, strip.astype(np.uint8)):
+        both = update_background(m, later, fg, margin_px=3, unverified=mask, rate=1.0)
+        assert (both.image[strip] == 50).all() and (both.image[near] == 50).all()
+        assert (both.image[~strip & ~near] == 200).all()
     with pytest.raises(InputError, match=r"unverified mask \(3, 3\) must match the frame \(40, 60\)"):
         update_background(m, later, nobody, unverified=np.zeros((3, 3), bool))
 
@@ -224,6 +236,17 @@ def test_only_pixels_the_model_never_saw_are_inpainted_and_counted():
     assert stats == {"hole_px": int(hole.sum()), "inpainted_px": int(unknown.sum())} and unknown.sum() == 100
     np.testing.assert_array_equal(out[hole & seen], flat[hole & seen])
     assert np.abs(out[unknown].astype(int) - 120).max() <= 2  # not the person's red
+    # OpenCV's Telea with a 3 px radius over the frame whose known holes are filled (a textured wall here)
+    bg2 = BackgroundModel(wall, seen, 5)
+    frame2 = rgb.copy()
+    out2 = compose(warped, alpha, bg2, frame2, fg, hole_margin_px=0)
+    filled = frame2.copy()
+    filled[hole & seen] = wall[hole & seen]
+    telea = cv2.inpaint(filled, unknown.astype(np.uint8), 3, cv2.INPAINT_TELEA)
+    np.testing.assert_array_equal(out2[unknown], telea[unknown])
+    for other in (cv2.inpaint(filled, unknown.astype(np.uint8), 4, cv2.INPAINT_TELEA),
+                  cv2.inpaint(filled, unknown.astype(np.uint8), 3, cv2.INPAINT_NS)):
+        assert (other[unknown] != telea[unknown]).any()
     np.testing.assert_array_equal(out[alpha], warped[alpha])
     np.testing.assert_array_equal(out[~fg], frame[~fg])
     # without stats nothing is recorded and the frame is the same
@@ -238,7 +261,7 @@ def test_soft_alpha_blends_the_warped_person_rounding_to_nearest():
     alpha[14:30, 23] = 0.25
     alpha[5, 5] = 0.75  # outside the old silhouette: blended over the frame
     warped = warped.copy()
-    warped[alpha > 0] = (30, 240, 31)
+    warped[alpha > 0] = (0, 255, 31)  # the channel extremes round to 0 and 255
     out = compose(warped, alpha, bg, rgb, fg, hole_margin_px=0)
     under = rgb.copy()
     hole = fg & (alpha < 1)
@@ -246,6 +269,7 @@ def test_soft_alpha_blends_the_warped_person_rounding_to_nearest():
     expect = np.floor(warped.astype(np.float64) * alpha[..., None] + under * (1 - alpha[..., None]) + 0.5)
     np.testing.assert_array_equal(out, np.clip(expect, 0, 255).astype(np.uint8))
     assert (out[14:30, 36] != under[14:30, 36]).all() and (out[5, 5] != rgb[5, 5]).any()
+    assert (out[20, 28] == (0, 255, 31)).all()
     # nobody in the warped frame: the frame with its holes filled
     out0 = compose(warped, np.zeros((H, W), np.float32), bg, rgb, fg, hole_margin_px=0)
     under[fg] = wall[fg]
