@@ -420,6 +420,8 @@ def test_session_inputs_need_a_kinect(monkeypatch):
 
 def test_check_edits_and_missing_stage_modules(monkeypatch):
     assert run_mod.check_edits({"taller": 0.1}) == {"taller": 0.1}
+    with pytest.raises(InputError, match=r"edit taller=0.5 is out of range"):  # the reshape step's ranges
+        run_mod.check_edits({"taller": 0.5})
     with pytest.raises(InputError, match="edit heavier is not a finite number; give a value such as --heavier 0.05"):
         run_mod.check_edits({"taller": 0.1, "heavier": float("inf")})
     with pytest.raises(InputError, match="unknown edit\\(s\\) bigger, wider; valid: taller, heavier"):
@@ -432,34 +434,18 @@ def test_check_edits_and_missing_stage_modules(monkeypatch):
     assert run_mod.check_edits({"taller": 1}) == {"taller": 1.0}
 
 
-def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
-    from bodystudio.mirror.run import run_mirror
+def _wired(monkeypatch, got):
+    """run_mirror with its steps replaced by recorders."""
+    def load(session, source):
+        got["load"] = (session, source)
+        return "body", "model"
 
-    (tmp_path / "mirror").mkdir()
-    (tmp_path / "mirror" / "source_body.npz").write_bytes(b"x")
-    session = SimpleNamespace(path=tmp_path, kinect="kinect", metadata={"fps": 15}, manifest={"run": {"run_id": "r1"}},
-                              frame_ids=[0, 1, 2])
-    for kw, phrase in (({"player": 0}, "--player 0: a Kinect player id is 1..6"),
-                       ({"player": 7}, "--player 7"),
-                       ({"ramp_frames": -1}, "--ramp-frames -1: use 0..10000"),
-                       ({"ramp_frames": 10001}, "--ramp-frames 10001"),
-                       ({"kind": "tps"}, "--warp 'tps'; valid")):
-        with pytest.raises(InputError, match=phrase):
-            run_mirror(session, {"taller": 0.1}, None, **kw)
-    with pytest.raises(InputError, match="must be an .mp4"):
-        run_mirror(session, {"taller": 0.1}, tmp_path / "o.avi")
-    with pytest.raises(InputError, match="not a Kinect session"):
-        run_mirror(SimpleNamespace(**{**vars(session), "kinect": None}), {}, None)
-    with pytest.raises(FileFormatError, match="nope.npz: source body not found"):
-        run_mirror(session, {}, None, source=tmp_path / "nope.npz")
-    for fps in ("fast", 0.5, 500):
-        with pytest.raises(InputError, match=f"session metadata fps {fps!r} is not a frame rate in 1..240"):
-            run_mirror(SimpleNamespace(**{**vars(session), "metadata": {"fps": fps}}), {}, None)
-    with pytest.raises(InputError, match="unknown edit"):
-        run_mirror(session, {"wider": 1.0}, None)
-    got = {}
-    monkeypatch.setattr(run_mod, "load_source", lambda s, src: ("body", "model"))
-    monkeypatch.setattr(run_mod, "session_inputs", lambda *a: got.setdefault("inputs", a) and "INPUTS")
+    def inputs(*args):
+        got["inputs"] = args
+        return "INPUTS"
+
+    monkeypatch.setattr(run_mod, "load_source", load)
+    monkeypatch.setattr(run_mod, "session_inputs", inputs)
 
     def stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total, preview=None):
         got["stream"] = dict(inputs=inputs, run_dir=run_dir, out_video=out_video, fps=fps, sbs=side_by_side, kind=kind,
@@ -467,18 +453,117 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
         return "DOC"
 
     monkeypatch.setattr(run_mod, "mirror_stream", stream)
+
+
+def _fake_session(tmp_path, **changes):
+    (tmp_path / "mirror").mkdir(exist_ok=True)
+    (tmp_path / "mirror" / "source_body.npz").write_bytes(b"x")
+    fields = dict(path=tmp_path, kinect="kinect", metadata={"fps": 15}, manifest={"run": {"run_id": "r1"}},
+                  frame_ids=[0, 1, 2])
+    fields.update(changes)
+    return SimpleNamespace(**fields)
+
+
+def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
+    from bodystudio.mirror.run import run_mirror
+
+    session = _fake_session(tmp_path)
+    for kw, phrase in (({"player": 0}, "--player 0: a Kinect player id is 1..6"),
+                       ({"player": 7}, "--player 7"),
+                       ({"ramp_frames": -1}, "--ramp-frames -1: use 0..10000"),
+                       ({"ramp_frames": 10001}, "--ramp-frames 10001"),
+                       ({"kind": "tps"}, "--warp 'tps'; valid: affine, similarity, rigid$")):
+        with pytest.raises(InputError, match=phrase):
+            run_mirror(session, {"taller": 0.1}, None, **kw)
+    with pytest.raises(InputError, match="must be an .mp4"):
+        run_mirror(session, {"taller": 0.1}, tmp_path / "o.avi")
+    with pytest.raises(InputError, match=f"{tmp_path}: not a Kinect session \\(no kinect/calibration.json\\); the "
+                       "mirror needs Kinect colour, depth, player mask and joints$"):
+        run_mirror(_fake_session(tmp_path, kinect=None), {}, None)
+    with pytest.raises(FileFormatError, match="nope.npz: source body not found"):
+        run_mirror(session, {}, None, source=tmp_path / "nope.npz")
+    for fps in ("fast", 0.5, 0.99, 240.5, 500):
+        with pytest.raises(InputError, match=f"session metadata fps {fps!r} is not a frame rate in 1..240"):
+            run_mirror(_fake_session(tmp_path, metadata={"fps": fps}), {}, None)
+    with pytest.raises(InputError, match="unknown edit"):
+        run_mirror(session, {"wider": 1.0}, None)
+    # a side-by-side video that cannot be written is refused before any work, unless not asked for
+    (tmp_path / "v_side_by_side.mp4").mkdir()
+    with pytest.raises(InputError):
+        run_mirror(session, {}, tmp_path / "v.mp4")
+    got = {}
+    _wired(monkeypatch, got)
+    assert run_mirror(session, {}, tmp_path / "v.mp4", side_by_side=False) == "DOC"
+    assert got["stream"]["out_video"] == tmp_path / "v.mp4" and got["stream"]["sbs"] is False
+    got.clear()
     assert run_mirror(session, {"taller": 0.1}, None, progress=False, player=2, kind="rigid", ramp_frames=5,
                       frames=[2, 0], side_by_side=False) == "DOC"
     assert got["inputs"] == (session, "body", "model", {"taller": 0.1}, 2, 5, [2, 0])
+    assert got["load"] == (session, None)
     s = got["stream"]
-    assert s["run_dir"] == tmp_path / "mirror" / "run" and s["fps"] == 15.0 and s["kind"] == "rigid"
-    assert s["total"] == 2 and s["preview"] is None and s["progress"] is False and s["sbs"] is False
+    assert s["inputs"] == "INPUTS" and s["run_dir"] == tmp_path / "mirror" / "run" and s["fps"] == 15.0
+    assert s["kind"] == "rigid" and s["total"] == 2 and s["preview"] is None and s["progress"] is False
+    assert s["sbs"] is False
     assert s["manifest"] == {"session": str(tmp_path.resolve()), "session_run_id": "r1", "live": None,
                              "edits": {"taller": 0.1}, "player": 2, "ramp_frames": 5}
+    # the defaults, and the limits of each range accepted
     got.clear()
-    run_mirror(SimpleNamespace(**{**vars(session), "metadata": None, "manifest": {}}), {}, None, run_dir=tmp_path / "r")
-    assert got["stream"]["fps"] == 30.0 and got["stream"]["total"] == 3 and got["stream"]["run_dir"] == tmp_path / "r"
-    assert got["stream"]["manifest"]["session_run_id"] is None and got["inputs"][4:] == (1, 30, [0, 1, 2])
+    run_mirror(_fake_session(tmp_path, metadata=None, manifest={}), {}, None, run_dir=tmp_path / "r", player=6,
+               ramp_frames=10000)
+    s = got["stream"]
+    assert s["fps"] == 30.0 and s["total"] == 3 and s["run_dir"] == tmp_path / "r"
+    assert s["sbs"] is True and s["progress"] is True and s["kind"] == "similarity"
+    assert s["manifest"]["session_run_id"] is None and got["inputs"][4:] == (6, 10000, [0, 1, 2])
+    for fps in (1.0, 240.0):
+        run_mirror(_fake_session(tmp_path, metadata={"fps": fps}), {}, None, ramp_frames=0, player=1)
+        assert got["stream"]["fps"] == fps
+    # a source body given as an object is not looked for on disk
+    (tmp_path / "mirror" / "source_body.npz").unlink()
+    with pytest.raises(FileFormatError, match="source_body.npz: source body not found; run 'bodystudio mirror init "
+                       f"{tmp_path}' first \\(or give --source\\)"):
+        run_mirror(session, {}, None)
+    src = object()
+    run_mirror(session, {}, None, source=src)
+    assert got["load"][1] is src
+
+
+def test_run_mirror_opens_a_session_path(tmp_path, monkeypatch):
+    import bodystudio.capture.session as session_mod
+    from bodystudio.mirror.run import run_mirror
+
+    session = _fake_session(tmp_path)
+    opened = []
+    monkeypatch.setattr(session_mod, "open_session", lambda p: opened.append(p) or session)
+    got = {}
+    _wired(monkeypatch, got)
+    run_mirror(str(tmp_path), {}, None)
+    assert opened == [str(tmp_path)] and got["inputs"][0] is session and got["load"][0] is session
+
+
+def test_run_mirror_live_reads_the_live_folder(tmp_path, monkeypatch):
+    from bodystudio.mirror.run import run_mirror
+
+    session = _fake_session(tmp_path)
+    live = tmp_path / "live"
+    live_session = SimpleNamespace(kinect="live kinect", path=live)
+    calls = {}
+    monkeypatch.setattr(run_mod, "live_session", lambda folder: calls.setdefault("session", folder) and live_session)
+    monkeypatch.setattr(run_mod, "live_frame_ids", lambda folder, timeout: calls.setdefault("ids", (folder, timeout))
+                        and "IDS")
+    got = {}
+    _wired(monkeypatch, got)
+    run_mirror(session, {}, None, live=live, frames=[1])
+    assert calls == {"session": live, "ids": (live, 5.0)}
+    assert got["inputs"][0] is live_session and got["inputs"][-1] == "IDS"
+    s = got["stream"]
+    assert s["total"] is None and s["preview"] == tmp_path / "mirror" / "run" / "live_latest.png"
+    assert s["manifest"]["live"] == str(live.resolve())
+    calls.clear()
+    run_mirror(session, {}, None, live=str(live), live_timeout_s=0.5, run_dir=tmp_path / "r")
+    assert calls["ids"] == (str(live), 0.5) and got["stream"]["preview"] == tmp_path / "r" / "live_latest.png"
+    monkeypatch.setattr(run_mod, "live_session", lambda folder: SimpleNamespace(kinect=None, path=live))
+    with pytest.raises(InputError, match="not a Kinect session"):
+        run_mirror(session, {}, None, live=live)
 
 
 def test_load_source_finds_the_model_by_size(tmp_path):
@@ -535,7 +620,7 @@ def test_live_session_files_and_frames(tmp_path):
     files = s.manifest["files"]
     assert KINECT_CALIBRATION in files and stream_path("kinect_rgb", 3) in files and "nope" not in files
     assert 5 not in files and files[KINECT_CALIBRATION] is None
-    with pytest.raises(KeyError):
+    with pytest.raises(KeyError, match="kinect/none.json"):
         files["kinect/none.json"]
     assert len(files) == 5 and sorted(files) == list(files)
     frames = s.manifest["frames"]
