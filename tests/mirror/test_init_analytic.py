@@ -665,11 +665,13 @@ def _fake_frames(monkeypatch, frames, n_points=MIN_POINTS):
     reads = []
 
     def read(session, i):
+        assert isinstance(session, _Session)
         reads.append(i)
         bodies, depth = frames.get(i, ([], np.ones((2, 2))))
         return SimpleNamespace(index=i, bodies=bodies, depth_m=depth)
 
     def cloud(frame, sensor, player):
+        assert sensor is not None and sensor.depth is not None
         n = n_points(frame.index) if callable(n_points) else n_points
         return np.full((n, 3), float(frame.index) + 0.01 * player)
 
@@ -681,7 +683,11 @@ def _fake_frames(monkeypatch, frames, n_points=MIN_POINTS):
 def _tracked_body(player=1, version="v2", all_nan=False):
     names = kinect_joint_names(version)
     K = np.full((len(names), 3), np.nan) if all_nan else np.arange(3.0 * len(names)).reshape(-1, 3) + player
-    return SimpleNamespace(player=player, names=tuple(names), positions=K, tracked=np.ones(len(names), bool))
+    tracked = np.ones(len(names), bool)
+    if not all_nan:  # one joint not reported (the SDK's NaN) does not make the body unusable
+        K[-1] = np.nan
+        tracked[-1] = False
+    return SimpleNamespace(player=player, names=tuple(names), positions=K, tracked=tracked)
 
 
 def test_collect_observations_reads_every_stride_th_frame_from_the_first_seen(monkeypatch):
@@ -693,6 +699,7 @@ def test_collect_observations_reads_every_stride_th_frame_from_the_first_seen(mo
     assert [o.frame for o in obs] == [2, 5, 8] and reads == [0, 1, 2, 5, 8]
     assert sensor is not None and all(o.version == "v2" for o in obs)
     np.testing.assert_array_equal(obs[0].joints, _tracked_body(1).positions)
+    np.testing.assert_array_equal(obs[0].tracked, _tracked_body(1).tracked)
     np.testing.assert_array_equal(obs[0].points, np.full((MIN_POINTS, 3), 2.01))
     # another player, and exactly the given frames (no stride, no window)
     reads.clear()
@@ -720,21 +727,43 @@ def test_collect_observations_skips_frames_and_says_why_none_was_usable(monkeypa
     _fake_frames(monkeypatch, frames, n_points=lambda i: MIN_POINTS - 1 if i == 5 else MIN_POINTS)
     obs, _ = collect_observations(_Session(6), frames=range(6))
     assert [o.frame for o in obs] == [4]
-    cases = [({}, "player 1 is in none of the frames"),
-             ({i: frames[1] for i in range(4)}, "no frame has tracked Kinect joints for player 1"),
-             ({i: frames[0] for i in range(4)}, "no frame has tracked Kinect joints for player 1"),
-             ({0: frames[2], 1: frames[3], 2: frames[0]}, "no frame has depth measurements"),
-             ({0: frames[5], 1: frames[5]}, "player 1 is in none of the frames")]
+    # a frame of too few points does not end the window
+    _fake_frames(monkeypatch, {i: ok for i in range(6)}, n_points=lambda i: MIN_POINTS - 1 if i == 1 else MIN_POINTS)
+    assert [o.frame for o in collect_observations(_Session(6), stride=1)[0]] == [0, 2, 3, 4, 5]
+    nobody = ([], np.ones((2, 2)))
+    few = ok
+    person = "player 1 is in none of the frames \\(no tracked body or too few depth pixels in its player mask\\)"
+    joints = "no frame has tracked Kinect joints for player 1"
+    depth = "no frame has depth measurements"
+    # the most frequent reason is named (ties: person, joints, depth in that order)
+    cases = [([nobody], person),
+             ([frames[1]] * 4, joints),
+             ([frames[0]] * 4, joints),
+             ([frames[2], frames[3], frames[0]], depth),
+             ([few] * 2, person),
+             ([few], person),
+             ([nobody, nobody, frames[2], frames[2]], person),
+             ([frames[1], frames[1], frames[2], frames[2]], joints),
+             ([frames[0], frames[0], frames[2], frames[2]], joints),
+             ([frames[1], frames[2], frames[2]], depth),
+             ([frames[0], frames[2]], joints),
+             ([frames[2], nobody], person),
+             ([few, few, frames[2], frames[2]], person),
+             ([few, frames[2], frames[2]], depth)]
     for content, phrase in cases:
-        _fake_frames(monkeypatch, content, n_points=lambda i: MIN_POINTS - 1)
-        with pytest.raises(InputError, match=f"SESSION: cannot initialise the source body: {phrase}"):
-            collect_observations(_Session(4), frames=range(4))
-    with pytest.raises(InputError, match="SESSION: no Kinect calibration"):
+        _fake_frames(monkeypatch, dict(enumerate(content)), n_points=lambda i: MIN_POINTS - 1)
+        with pytest.raises(InputError, match=f"^SESSION: cannot initialise the source body: {phrase}; record the "
+                           "actor standing in view, or pick --frames/--player$"):
+            collect_observations(_Session(len(content)), frames=range(len(content)))
+    with pytest.raises(InputError, match="^SESSION: no Kinect calibration \\(kinect/calibration.json\\); the mirror "
+                       "needs a Kinect RGB-D session$"):
         collect_observations(_Session(4, kinect=False))
     with pytest.raises(InputError, match="no frames to initialise from"):
         collect_observations(_Session(4), frames=[])
     with pytest.raises(InputError, match=r"frame\(s\) \[7, 9\] not in the session \(it has 4 frames\)"):
         collect_observations(_Session(4), frames=[9, 1, 7])
+    with pytest.raises(InputError, match=r"frame\(s\) \[4, 5, 6, 7, 8\] not in"):
+        collect_observations(_Session(4), frames=range(10))
 
 
 def test_session_version_from_the_joint_names(monkeypatch):
@@ -835,3 +864,132 @@ def test_initialise_source_body_loads_the_6k_model_by_default(monkeypatch, model
     monkeypatch.setattr(init_mod, "initialise_from_observations", lambda obs, m, view_point=None, passes=3: m)
     assert init_mod.initialise_source_body(SimpleNamespace()) is model
     assert asked == [("6k", False)]
+
+
+def test_initialisation_wires_the_passes(monkeypatch, model):
+    """The steps each pass hands on (a stand-in Eq. 2 fit): bone scaling only in the first pass, the outlier
+    limits, 40/20/20 closest-point iterations, the unposed joints from the second pass on (frames of the first
+    frame's Kinect version only), the pooled cloud subsampled with a fixed seed, the shape carried between
+    passes, and the last fit returned."""
+    from bodystudio.mirror.init import FIT_TRIM_M, INIT_CORRESPONDENCE_M, INIT_FACING_COS, JOINT_WEIGHT, MAX_POINTS
+
+    c_true = _planted_coeffs(model, seed=12)
+    sk = model.skeleton(c_true)
+    eye = np.array([0.0, 1.0, 3.0])
+    rest = Pose(np.zeros((sk.n_bones, 3)), np.zeros(3))
+    base = _frame_of(model, c_true, rest, eye)
+    rng = np.random.default_rng(0)
+    big = np.repeat(base.points, 3, axis=0) + rng.normal(0, 1e-4, (3 * len(base.points), 3))
+    assert len(big) > MAX_POINTS
+    v1 = _frame_of(model, c_true, rest, eye, frame=2, version="v1")
+    far = InitObservation(3, np.r_[base.points[:250], base.points[:200] + [0.0, 0.0, 1.0]], base.joints,
+                          base.tracked, "v2")
+    obs = [InitObservation(0, big, base.joints, base.tracked, "v2"), InitObservation(1, base.points, base.joints,
+                                                                                     base.tracked, "v2"), v1, far]
+    calls = {"tdp": [], "fit": []}
+    real_tdp = init_mod.transform_to_default_pose
+
+    def tdp(P, joints, body, tracked, version, **kw):
+        cloud = real_tdp(P, joints, body, tracked, version, **kw)
+        calls["tdp"].append(SimpleNamespace(P=P, body=body, version=version, kw=kw, cloud=cloud))
+        return cloud
+
+    def fit(P0, m, coeffs, **kw):
+        calls["fit"].append(SimpleNamespace(P0=P0, init=None if coeffs is None else np.array(coeffs), kw=kw))
+        return np.full(m.n_components, 0.1 * len(calls["fit"])) * m.stddev, 0.004 * len(calls["fit"])
+
+    monkeypatch.setattr(init_mod, "transform_to_default_pose", tdp)
+    monkeypatch.setattr(init_mod, "fit_shape", fit)
+    src = initialise_from_observations(obs, model, view_point=eye)
+    assert len(calls["fit"]) == 3 and len(calls["tdp"]) == 12
+    for p, f in enumerate(calls["fit"]):
+        t = calls["tdp"][4 * p: 4 * p + 4]
+        assert all(c.kw == dict(view_point=eye, scale_bones=p == 0, max_distance_m=INIT_CORRESPONDENCE_M,
+                                details=True, min_facing_cos=INIT_FACING_COS) for c in t)
+        assert [c.version for c in t] == ["v2", "v2", "v1", "v2"]
+        expect_c = np.zeros(model.n_components) if p == 0 else 0.1 * p * model.stddev
+        np.testing.assert_allclose(f.init, expect_c, atol=1e-12)
+        np.testing.assert_allclose(t[0].body.vertices, model.vertices(expect_c), atol=1e-12)
+        np.testing.assert_allclose(t[0].body.skeleton.heads, refit_skeleton(model, expect_c).heads, atol=1e-12)
+        ok = [c.cloud.correspondence >= 0 for c in t]
+        assert ok[3].sum() < MIN_POINTS <= min(o.sum() for o in ok[:3])  # the far frame is not pooled
+        np.testing.assert_array_equal(f.P0, np.concatenate([c.cloud.points[o] for c, o in zip(t[:3], ok[:3],
+                                                                                               strict=True)]))
+        np.testing.assert_array_equal(f.kw["correspondence"], np.concatenate(
+            [c.cloud.correspondence[o] for c, o in zip(t[:3], ok[:3], strict=True)]))
+        np.testing.assert_array_equal(f.kw["candidates"],
+                                      np.unique(np.concatenate([c.cloud.candidates for c in t[:3]])))
+        assert f.kw["iterations"] == (40, 20, 20)[p] and f.kw["joint_weight"] == JOINT_WEIGHT
+        assert f.kw["version"] == "v2" and f.kw["trim_m"] == FIT_TRIM_M and f.kw["return_residual"] is True
+        if p == 0:
+            assert f.kw["joints_default"] is None
+        else:  # the two v2 frames' unposed joints
+            expect_j = [unposed_kinect_joints(obs[i].joints, obs[i].tracked, c.cloud.body.skeleton,
+                                              c.cloud.pose, "v2") for i, c in ((0, t[0]), (1, t[1]))]
+            np.testing.assert_array_equal(f.kw["joints_default"], np.array(expect_j))
+    # each frame's points: finite, above the floor, at most MAX_POINTS (a subset seeded by the frame)
+    above = big[:, 1] > 0.02
+    assert not above.all()
+    np.testing.assert_array_equal(calls["tdp"][0].P, _subsample(big[above], MAX_POINTS, 0))
+    np.testing.assert_array_equal(calls["tdp"][1].P, base.points[base.points[:, 1] > 0.02])
+    np.testing.assert_allclose(src.coeffs, 0.3 * model.stddev, atol=1e-12)
+    np.testing.assert_allclose(src.vertices, model.vertices(src.coeffs), atol=1e-12)
+    assert src.residual_mm == pytest.approx(12.0) and src.frames_used == (0, 1, 2, 3)
+    # one pass; passes below 1 run one pass
+    calls["fit"].clear()
+    initialise_from_observations(obs[:2], model, view_point=eye, passes=0, joint_weight=2.0, trim_m=0.2,
+                                 max_distance_m=0.3, min_facing_cos=0.1)
+    assert len(calls["fit"]) == 1 and calls["fit"][0].kw["trim_m"] == 0.2
+    assert calls["tdp"][-1].kw["max_distance_m"] == 0.3 and calls["tdp"][-1].kw["min_facing_cos"] == 0.1
+    calls["fit"].clear()
+    initialise_from_observations(obs[:2], model, view_point=eye, passes=2, joint_weight=2.0)
+    assert [f.kw["iterations"] for f in calls["fit"]] == [40, 20] and calls["fit"][1].kw["joint_weight"] == 2.0
+
+
+def test_initialisation_pools_at_most_max_pooled_points_with_a_fixed_seed(monkeypatch, model):
+    from bodystudio.mirror.init import MAX_POOLED_POINTS
+
+    c_true = _planted_coeffs(model, seed=12)
+    sk = model.skeleton(c_true)
+    eye = np.array([0.0, 1.0, 3.0])
+    base = _frame_of(model, c_true, Pose(np.zeros((sk.n_bones, 3)), np.zeros(3)), eye)
+    obs = [InitObservation(f, base.points + [0.0, 0.0, 0.001 * f], base.joints, base.tracked, "v2")
+           for f in range(7)]
+    pooled, seen = [], []
+    real_tdp = init_mod.transform_to_default_pose
+
+    def tdp(*a, **kw):
+        cloud = real_tdp(*a, **kw)
+        seen.append(cloud.points[cloud.correspondence >= 0])
+        return cloud
+
+    monkeypatch.setattr(init_mod, "transform_to_default_pose", tdp)
+    monkeypatch.setattr(init_mod, "fit_shape", lambda P0, m, c, **kw: pooled.append(P0) or (np.zeros(m.n_components),
+                                                                                            0.0))
+    initialise_from_observations(obs, model, view_point=eye, passes=1, max_frames=7)
+    everything = np.concatenate(seen)
+    assert len(everything) > MAX_POOLED_POINTS and len(pooled[0]) == MAX_POOLED_POINTS
+    pick = np.random.default_rng(0).choice(len(everything), MAX_POOLED_POINTS, replace=False)
+    np.testing.assert_array_equal(pooled[0], everything[pick])
+
+
+def test_initialisation_keeps_the_frames_with_most_points_stably(monkeypatch, model):
+    """Of 40 usable frames (20 of 600 points, then 20 of 500) the 25 largest are the 20 big ones and the first
+    five of the others; a frame of exactly MIN_POINTS points is usable, a point exactly at the floor margin is not."""
+    c_true = _planted_coeffs(model, seed=12)
+    sk = model.skeleton(c_true)
+    eye = np.array([0.0, 1.0, 3.0])
+    base = _frame_of(model, c_true, Pose(np.zeros((sk.n_bones, 3)), np.zeros(3)), eye)
+    monkeypatch.setattr(init_mod, "fit_shape", lambda P0, m, c, **kw: (np.zeros(m.n_components), 0.0))
+    obs = [InitObservation(f, base.points[: 500 if f < 20 else 600], base.joints, base.tracked, "v2")
+           for f in range(40)]
+    src = initialise_from_observations(obs, model, view_point=eye, passes=1, max_frames=25)
+    assert src.frames_used == tuple(range(5)) + tuple(range(20, 40))
+    P = base.points[:MIN_POINTS].copy()
+    exact = InitObservation(50, P, base.joints, base.tracked, "v2")
+    assert initialise_from_observations([exact], model, view_point=eye, passes=1).frames_used == (50,)
+    P2 = P.copy()
+    P2[0, 1] = 0.02  # exactly floor_y + floor_margin_m: dropped, leaving MIN_POINTS - 1
+    with pytest.raises(InputError, match="^no frame with at least 300 depth points on the person: the actor must "
+                       "stand fully in view of the Kinect during initialisation$"):
+        initialise_from_observations([InitObservation(51, P2, base.joints, base.tracked, "v2")], model, passes=1)
