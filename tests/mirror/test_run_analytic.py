@@ -333,8 +333,9 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None):
     current = {}
     camera = SimpleNamespace(height=CH, width=CW)
 
-    def read(session, i):
-        fr = f.read(session, i)
+    def read(sess, i):
+        assert sess is session
+        fr = f.read(sess, i)
         current["seen"] = fr.seen
         return fr
 
@@ -355,13 +356,20 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None):
     monkeypatch.setattr(frames_mod, "read_mirror_frame", read)
     monkeypatch.setattr(frames_mod, "register_depth_to_color", register)
     monkeypatch.setattr(track_mod, "ik_pose", f.ik)
-    monkeypatch.setattr(reshape_mod, "target_coeffs", lambda model, coeffs, edits: coeffs + edits["taller"])
+    def target(m, coeffs, edits):
+        assert m is model
+        return coeffs + edits["taller"]
+
+    monkeypatch.setattr(reshape_mod, "target_coeffs", target)
     monkeypatch.setattr(reshape_mod, "posed_source_and_target", posed)
     monkeypatch.setattr(run_mod, "visible_vertex_pairs", pairs)
     session = SimpleNamespace(path="S", frame_ids=sorted(spec), kinect=SimpleNamespace(color=camera, version="v2"))
     body = SimpleNamespace(coeffs=np.zeros(1), vertices=np.zeros((3, 3)), skeleton="sk", faces=None)
     model = SimpleNamespace(vertices=lambda c: np.full((3, 3), 10.0 * c[0]))
-    out = list(run_mod.session_inputs(session, body, model, {"taller": 1.0}, 1, ramp_frames, frames))
+    if ramp_frames is None:  # the defaults: player 1, 30 ramp frames
+        out = list(run_mod.session_inputs(session, body, model, {"taller": 1.0}))
+    else:
+        out = list(run_mod.session_inputs(session, body, model, {"taller": 1.0}, 1, ramp_frames, frames))
     return out, f
 
 
@@ -396,12 +404,14 @@ def test_session_inputs_ramp_zero_and_unreadable_frames(monkeypatch):
     spec = {0: {"unreadable": True}, 1: {}, 2: {"unreadable": True}, 3: {}}
     out, _ = _session_inputs(monkeypatch, spec, ramp_frames=0)
     assert out[0].warning == "frame unreadable: frame 0: broken PNG"
-    assert out[0].rgb.shape == (CH, CW, 3) and not out[0].rgb.any()
+    assert out[0].rgb.shape == (CH, CW, 3) and out[0].rgb.dtype == np.uint8 and not out[0].rgb.any()
     assert out[2].warning.startswith("frame unreadable") and (out[2].rgb == 1).all()  # the last good frame
     assert [o.edit_fraction for o in out if o.src_uv is not None] == [1.0, 1.0]
     # only the given frames
     out, _ = _session_inputs(monkeypatch, spec, frames=[3, 1])
     assert [o.index for o in out] == [3, 1] and out[0].edit_fraction == pytest.approx(1 / 3)
+    out, _ = _session_inputs(monkeypatch, spec, ramp_frames=None)
+    assert [o.edit_fraction for o in out if o.src_uv is not None] == pytest.approx([1 / 30, 2 / 30])
 
 
 def test_pixels_the_depth_camera_never_saw_are_marked_unseen(monkeypatch):
@@ -414,7 +424,8 @@ def test_pixels_the_depth_camera_never_saw_are_marked_unseen(monkeypatch):
 
 
 def test_session_inputs_need_a_kinect(monkeypatch):
-    with pytest.raises(InputError, match="S: not a Kinect session"):
+    with pytest.raises(InputError, match="^S: not a Kinect session \\(no kinect/calibration.json\\); the mirror needs "
+                       "Kinect colour, depth, player mask and joints$"):
         list(run_mod.session_inputs(SimpleNamespace(path="S", kinect=None), None, None, {}))
 
 
@@ -604,13 +615,15 @@ def _touch(root, rel, age_s=0.0):
 def test_live_session_files_and_frames(tmp_path):
     from bodystudio.capture.session import KINECT_CALIBRATION, stream_path
 
-    with pytest.raises(InputError, match="--live 0: reading a camera device needs a Kinect SDK bridge"):
+    with pytest.raises(InputError, match="^--live 0: reading a camera device needs a Kinect SDK bridge, which "
+                       "bodystudio does not have; let the recorder write frames into a folder and pass that folder$"):
         run_mod.live_session("0")
     with pytest.raises(InputError, match="--live /dev/video0: reading a camera device"):
         run_mod.live_session("/dev/video0")
     with pytest.raises(InputError, match="no such folder"):
         run_mod.live_session(tmp_path / "none")
-    with pytest.raises(InputError, match=f"no {KINECT_CALIBRATION}; the recorder must write"):
+    with pytest.raises(InputError, match=f"no {KINECT_CALIBRATION}; the recorder must write the sensor calibration "
+                       "first \\(the session layout's kinect/ folder\\)$"):
         run_mod.live_session(tmp_path)
     _touch(tmp_path, KINECT_CALIBRATION)
     for i in (3, 11, 2):
@@ -625,7 +638,8 @@ def test_live_session_files_and_frames(tmp_path):
     assert len(files) == 5 and sorted(files) == list(files)
     frames = s.manifest["frames"]
     assert list(frames) == [2, 3, 11] and 3 in frames and 4 not in frames
-    assert s.manifest["cameras"] == [] and s.manifest["metadata"] == {}
+    assert s.manifest["cameras"] == [] and s.manifest["metadata"] == {} and s.manifest["streams"] == []
+    assert s.path == tmp_path
 
 
 def test_live_frame_ids_wait_for_joints_or_the_next_frame_or_settling(tmp_path):
@@ -644,3 +658,48 @@ def test_live_frame_ids_wait_for_joints_or_the_next_frame_or_settling(tmp_path):
     assert list(run_mod.live_frame_ids(tmp_path, timeout_s=0.1, poll_s=0.01, settle_s=60)) == [4, 5]
     frame(6, joints=False, age_s=10)  # old enough: settled
     assert list(run_mod.live_frame_ids(tmp_path, timeout_s=0.1, poll_s=0.01, settle_s=5)) == [4, 5, 6]
+
+
+def test_live_frame_ids_with_a_stand_in_clock(tmp_path, monkeypatch):
+    """The recorder writes frames while the reader sleeps: frame 0 appears during the first poll, frame 1
+    (without joints) later and settles 0.3 s after its colour image; then 5 s without a new frame end it."""
+    from bodystudio.capture.session import stream_path
+
+    base = time.time() - 100.0
+    clock = {"t": 0.0, "sleeps": 0}
+    writes = {}
+
+    def write(i, joints, streams=("kinect_rgb", "kinect_depth", "kinect_player")):
+        for stream in streams + (("kinect_joints",) if joints else ()):
+            _touch(tmp_path, stream_path(stream, i))
+            p = tmp_path / stream_path(stream, i)
+            os.utime(p, (base + clock["t"], base + clock["t"]))
+
+    def sleep(s):
+        clock["t"] += s
+        clock["sleeps"] += 1
+        for at, action in list(writes.items()):
+            if clock["t"] >= at:
+                action()
+                del writes[at]
+
+    fake = SimpleNamespace(time=lambda: base + clock["t"], monotonic=lambda: 1000.0 + clock["t"], sleep=sleep)
+    monkeypatch.setattr(run_mod, "time", fake)
+    # nothing arrives: 5 s of 20 ms polls
+    assert list(run_mod.live_frame_ids(tmp_path)) == []
+    assert 249 <= clock["sleeps"] <= 251
+    clock.update(t=0.0, sleeps=0)
+    writes[0.0] = lambda: write(0, joints=True)
+    writes[1.0] = lambda: write(1, joints=False)
+    ids = run_mod.live_frame_ids(tmp_path)
+    assert next(ids) == 0 and clock["t"] < 0.05  # with its joints: taken at once
+    assert next(ids) == 1 and 1.3 <= clock["t"] <= 1.35  # settled 0.3 s after it was written
+    assert list(ids) == [] and 6.3 <= clock["t"] <= 6.4
+    # a frame with joints is taken at once; one whose colour image is old but depth fresh has settled
+    write(2, joints=True)
+    write(3, joints=False, streams=("kinect_rgb",))
+    clock["t"] += 10.0
+    write(3, joints=False, streams=("kinect_depth", "kinect_player"))
+    t0 = clock["t"]
+    ids = run_mod.live_frame_ids(tmp_path, settle_s=5.0)
+    assert next(ids) == 0 and next(ids) == 1 and next(ids) == 2 and next(ids) == 3 and clock["t"] == t0
