@@ -703,3 +703,82 @@ def test_live_frame_ids_with_a_stand_in_clock(tmp_path, monkeypatch):
     t0 = clock["t"]
     ids = run_mod.live_frame_ids(tmp_path, settle_s=5.0)
     assert next(ids) == 0 and next(ids) == 1 and next(ids) == 2 and next(ids) == 3 and clock["t"] == t0
+
+
+def test_stream_run_block_lock_progress_and_background_carried(tmp_path, monkeypatch):
+    """run.json's run block (command, producer), the lock and staging beside run.json while frames are written,
+    the progress bar's task, and one background model carried from frame to frame with the kind and the
+    foreground options."""
+    import bodystudio.capture.session as session_mod
+    from bodystudio.runfolder import OutputLockedError, RunLayout, RunWriter
+
+    run = tmp_path / "run"
+    seen = []
+    real = run_mod.mirror_frame
+
+    def frame(inp, background, kind, options):
+        seen.append(dict(background=background, kind=kind, options=options, lock=(run / ".lock").exists(),
+                         staging=(run / ".staging").is_dir()))
+        return real(inp, background, kind, options)
+
+    bars = []
+
+    class Bar:
+        def __init__(self, enabled):
+            self.enabled, self.tasks, self.advanced = enabled, [], 0
+            bars.append(self)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def add_task(self, name, total=None):
+            self.tasks.append((name, total))
+            return "task"
+
+        def advance(self, task):
+            assert task == "task"
+            self.advanced += 1
+
+    monkeypatch.setattr(run_mod, "mirror_frame", frame)
+    monkeypatch.setattr(session_mod, "progress_bar", Bar)
+    first = update_background(None, np.full((16, 24, 3), 5, np.uint8), np.zeros((16, 24), bool))
+    doc = mirror_stream(_tiny_inputs(3), run, None, kind="affine", foreground_options={"band_px": 3}, progress=True,
+                        total=3, background=first)
+    assert doc["run"]["command"] == "bodystudio mirror run"
+    assert doc["run"]["producer"] == {"stage": "mirror", "kind": "affine"}
+    assert all(s["lock"] and s["staging"] for s in seen)
+    assert not (run / ".lock").exists() and not (run / ".staging").exists()
+    assert [(s["kind"], s["options"]) for s in seen] == [("affine", {"band_px": 3})] * 3
+    assert seen[0]["background"] is first and seen[1]["background"].frames == first.frames + 1
+    assert seen[2]["background"].frames == first.frames + 2
+    assert bars[0].enabled is True and bars[0].tasks == [("mirror", 3)] and bars[0].advanced == 3
+    doc = mirror_stream(_tiny_inputs(1), run, None, command="bodystudio mirror run --live")
+    assert doc["run"]["command"] == "bodystudio mirror run --live" and doc["fps"] == 30.0
+    assert bars[1].enabled is False and bars[1].tasks == [("mirror", None)]
+    assert seen[-1]["kind"] == "similarity" and seen[-1]["options"] is None and seen[-1]["background"] is None
+    # a second writer is refused, naming the run folder to recover
+    with RunWriter(RunLayout(run, "run.json", ".", "elsewhere"), "other"), \
+            pytest.raises(OutputLockedError, match=f"run `bodystudio recover {run}`$"):
+        mirror_stream(_tiny_inputs(1), run, None)
+
+
+def test_stream_limits_defaults_and_failed_frame_masks(tmp_path, monkeypatch):
+    for fps in (1.0, 240.0):
+        assert mirror_stream(_tiny_inputs(1), tmp_path / f"r{fps}", None, fps=fps)["fps"] == fps
+    with pytest.raises(InputError, match="^--warp 'tps'; valid: affine, similarity, rigid$"):
+        mirror_stream(_tiny_inputs(1), tmp_path / "r", None, kind="tps")
+    doc = mirror_stream(_tiny_inputs(1), tmp_path / "v", tmp_path / "v.mp4")
+    assert set(doc["videos"]) == {"output", "side_by_side"} and (tmp_path / "v_side_by_side.mp4").is_file()
+
+    def broken(inp, background, kind, options):
+        raise InputError("bad frame")
+
+    monkeypatch.setattr(run_mod, "mirror_frame", broken)
+    run = tmp_path / "b"
+    mirror_stream(_tiny_inputs(1), run, None)
+    for sub in ("foreground", "warped"):
+        mask = cv2.imread(str(run / "masks" / sub / "00000.png"), cv2.IMREAD_UNCHANGED)
+        assert mask.shape == (16, 24) and mask.dtype == np.uint8 and not mask.any()
