@@ -97,13 +97,20 @@ def test_an_empty_frame_passes_through_and_teaches_the_background(scene):
 def test_too_few_vertex_pairs_pass_through(scene, n, ok):
     src = None if n is None else scene.src[:n]
     dst = None if n is None else scene.dst[:n]
-    res, _ = mirror_frame(MirrorInput(3, scene.rgb, scene.person, None, None, src, dst), scene.background)
+    unseen = np.zeros((H, W), bool)
+    unseen[:, :10] = True  # the model has seen this strip; a new colour there must not be learnt
+    rgb = scene.rgb.copy()
+    rgb[:, :10] = 3
+    res, bg = mirror_frame(MirrorInput(3, rgb, scene.person, None, None, src, dst, timings_ms={"read": 1.0},
+                                       unseen=unseen), scene.background)
+    assert res.index == 3 and res.timings_ms["read"] == 1.0
+    np.testing.assert_array_equal(bg.image[:, :10], scene.wall[:, :10])
     if ok:
         assert res.status == "ok" and res.warning is None
     else:
         assert res.status == "passed_through"
         assert res.warning == f"only {n or 0} visible vertex pairs (need {MIN_PAIRS})"
-        np.testing.assert_array_equal(res.output, scene.rgb)
+        np.testing.assert_array_equal(res.output, rgb)
 
 
 def test_a_translated_person_lands_where_the_pairs_say_and_bystanders_stay(scene):
@@ -156,7 +163,10 @@ def test_the_image_steps_get_the_frames_inputs(scene, monkeypatch):
 
     def refine(rgb, mask, depth, **kw):
         seen["refine"] = (mask, depth, kw)
-        return real_refine(rgb, mask, depth, **kw)
+        out = real_refine(rgb, mask, depth, **kw)
+        out[30:36] = False  # the graph cut took the top of the SDK mask away
+        seen["fg"] = out
+        return out
 
     def field(src, dst, shape, **kw):
         seen["field"] = (src, dst, shape, kw)
@@ -184,7 +194,9 @@ def test_the_image_steps_get_the_frames_inputs(scene, monkeypatch):
     assert kw == {"kind": "affine", "alpha": MLS_ALPHA, "groups": groups, "radius_px": MLS_RADIUS_PX}
     fg, kw = seen["update"][-1]
     assert kw == {"unverified": unseen}
-    np.testing.assert_array_equal(fg, scene.person | scene.others)
+    # the model learns away from the refined foreground, the SDK mask and the other players
+    assert (seen["fg"] != scene.person).any()
+    np.testing.assert_array_equal(fg, seen["fg"] | scene.person | scene.others)
     seen.clear()
     mirror_frame(MirrorInput(7, scene.rgb, scene.person, None, None, scene.src, scene.dst), scene.background,
                  alpha=1.0)
@@ -782,3 +794,14 @@ def test_stream_limits_defaults_and_failed_frame_masks(tmp_path, monkeypatch):
     for sub in ("foreground", "warped"):
         mask = cv2.imread(str(run / "masks" / sub / "00000.png"), cv2.IMREAD_UNCHANGED)
         assert mask.shape == (16, 24) and mask.dtype == np.uint8 and not mask.any()
+
+
+def test_step_timings_are_milliseconds_of_each_step(scene, monkeypatch):
+    """With a stand-in clock that ticks one second per reading, every timed step takes 1000 ms."""
+    ticks = iter(range(1000))
+    monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
+    res, _ = mirror_frame(MirrorInput(1, scene.rgb, scene.person, None, None, scene.src, scene.dst,
+                                      timings_ms={"read": 2.5}), scene.background)
+    assert res.timings_ms == {"read": 2.5, **{s: 1000.0 for s in IMAGE_STEPS}}
+    res, _ = mirror_frame(MirrorInput(2, scene.rgb, scene.person, warning="w"), scene.background)
+    assert res.timings_ms == {"background": 1000.0}
