@@ -993,3 +993,84 @@ def test_initialisation_keeps_the_frames_with_most_points_stably(monkeypatch, mo
     with pytest.raises(InputError, match="^no frame with at least 300 depth points on the person: the actor must "
                        "stand fully in view of the Kinect during initialisation$"):
         initialise_from_observations([InitObservation(51, P2, base.joints, base.tracked, "v2")], model, passes=1)
+
+
+def test_bone_scaling_needs_only_the_segments_own_joints(mean_body):
+    """A missing hand joint or an untracked knee leaves every other segment's scaling alone; the scaled body
+    keeps the body's resolution, rig and vertex ids."""
+    sk = mean_body.skeleton
+    K = kinect_joints(sk, sk.heads, sk.tails)
+    K2, _ = _stretch_left_thigh(K, 1.2)
+    d = 0.1 * (K[IX["KneeRight"]] - K[IX["HipRight"]])
+    for n in ("KneeRight", "AnkleRight", "FootRight"):
+        K2[IX[n]] += d
+    K2[IX["HandTipRight"]] = np.nan
+    B = bone_scaled_body(mean_body, K2)
+    ratio = B.skeleton.lengths / sk.lengths
+    assert ratio[sk.index("thigh_l")] == pytest.approx(1.2) and ratio[sk.index("thigh_r")] == pytest.approx(1.1)
+    tracked = np.ones(len(NAMES), bool)
+    tracked[IX["KneeLeft"]] = False
+    ratio = bone_scaled_body(mean_body, K2, tracked).skeleton.lengths / sk.lengths
+    assert ratio[sk.index("thigh_l")] == pytest.approx(1.0) and ratio[sk.index("thigh_r")] == pytest.approx(1.1)
+    assert B.resolution == mean_body.resolution and B.rig == mean_body.rig
+    assert B.vertex_ids is mean_body.vertex_ids
+
+
+def test_default_pose_reads_points_as_float64_and_respects_untracked_joints(mean_body):
+    sk = mean_body.skeleton
+    K = posed_kinect_joints(sk, _pose(sk))
+    pose = ik_pose(sk, K, None, "v2")
+    Vp = skin_vertices(mean_body.vertices, mean_body.weights, sk, pose)[::7]
+    P32 = Vp.astype(np.float32)
+    out = transform_to_default_pose(P32, K, mean_body, scale_bones=False)
+    assert out.dtype == np.float64
+    ref = transform_to_default_pose(P32.astype(np.float64), K, mean_body, scale_bones=False)
+    np.testing.assert_array_equal(out, ref)
+    # an untracked (inferred) hip 5 cm off: not used to scale the thigh, and weighted down in the root's fit
+    K2 = K.copy()
+    K2[IX["HipLeft"]] += [0.0, 0.0, 0.05]
+    tracked = np.ones(len(NAMES), bool)
+    tracked[IX["HipLeft"]] = False
+    cloud = transform_to_default_pose(Vp, K2, mean_body, tracked, details=True)
+    thigh = sk.index("thigh_l")
+    assert cloud.body.skeleton.lengths[thigh] == pytest.approx(sk.lengths[thigh])
+    expect = ik_pose(cloud.body.skeleton, K2, tracked, "v2")
+    np.testing.assert_allclose(cloud.pose.rotations, expect.rotations, atol=1e-12)
+    assert np.abs(ik_pose(cloud.body.skeleton, K2, None, "v2").rotations - expect.rotations).max() > 1e-3
+
+
+def test_eq2_defaults_and_edges(model):
+    """Defaults (4 iterations, 5 cm trim, joints ignored without a weight), exactly 10 points, no iterations, a
+    joint weight below 1, the first closest-point match keeping every pair, matching against the translated
+    model."""
+    rng = np.random.default_rng(15)
+    c_true = _planted_coeffs(model, seed=15)
+    V = model.vertices(c_true)
+    P = V[::3] + rng.normal(0, 0.003, V[::3].shape)
+    P[::40] += [0.0, 0.0, 0.2]
+    a = fit_shape(P, model)
+    np.testing.assert_array_equal(a, fit_shape(P, model, iterations=4, trim_m=0.05))
+    assert not np.array_equal(a, fit_shape(P, model, iterations=5))
+    assert not np.array_equal(a, fit_shape(P, model, trim_m=1.0))
+    Jm, Jb = _model_kinect_joints(model, "v2")
+    Jd = (Jm + np.einsum("k,kjd->jd", c_true, Jb))[None] + 0.05
+    np.testing.assert_array_equal(fit_shape(P, model, joints_default=Jd), a)
+    np.testing.assert_array_equal(fit_shape(P, model, joint_weight=2.0), a)  # weight without joints: nothing
+    assert not np.array_equal(fit_shape(P, model, joints_default=Jd, joint_weight=0.5), a)
+    assert fit_shape(V[:10], model, correspondence=np.arange(10), iterations=1).shape == (model.n_components,)
+    c0, r0 = fit_shape(P, model, init_coeffs=c_true, iterations=0, return_residual=True)
+    np.testing.assert_array_equal(c0, c_true)
+    assert r0 == np.inf
+    # the first closest-point match (from the mean shape) keeps every pair, however far
+    m = cKDTree(model.mean).query(P)[1]
+    sigma = POINT_SIGMA
+    c1 = fit_shape(P, model, iterations=1, point_sigma_m=sigma)
+    c_ref, _ = _dense_eq2(model, P, m, sigma**2 / model.stddev**2)
+    np.testing.assert_allclose(c1, c_ref, atol=1e-8 * model.stddev.max())
+    # matching is against the model moved by the fitted translation
+    t = np.array([0.02, -0.01, 0.03])
+    c8 = fit_shape(V + t, model, init_coeffs=c_true, iterations=8, point_sigma_m=1e-7)
+    np.testing.assert_allclose(c8, c_true, atol=1e-6 * model.stddev.max())
+
+
+POINT_SIGMA = 0.01
