@@ -116,7 +116,7 @@ def test_too_few_vertex_pairs_pass_through(scene, n, ok):
 def test_a_translated_person_lands_where_the_pairs_say_and_bystanders_stay(scene):
     inp = MirrorInput(4, scene.rgb, scene.person, scene.others, None, scene.src, scene.dst, timings_ms={"ik": 2.0})
     res, bg = mirror_frame(inp, scene.background)
-    assert res.status == "ok" and res.warning is None
+    assert res.status == "ok" and res.warning is None and res.index == 4
     np.testing.assert_array_equal(res.foreground, scene.person)
     shifted = np.roll(scene.person, SHIFT, axis=1)
     np.testing.assert_array_equal(res.warped, shifted)
@@ -219,6 +219,8 @@ def test_summary_is_medians_counts_and_rates():
                  "ms_per_frame": {"read": 2.0, "foreground": 5.0, "warp": 1.0, "write": 9.0},
                  "ms_per_frame_statistic": "median", "image_steps_ms": 6.0, "image_steps_fps": 1e3 / 6.0,
                  "wall_s": 2.5, "fps_wall": 2.0}
+    fast = run_mod._summary([{"status": "ok"}], {"warp": [0.5]}, 0.5)
+    assert fast["image_steps_fps"] == 2000.0 and fast["fps_wall"] == 2.0
     none = run_mod._summary([], {"read": [1.0]}, 0.0)
     assert none["image_steps_fps"] is None and none["fps_wall"] is None and none["image_steps_ms"] == 0.0
 
@@ -226,6 +228,10 @@ def test_summary_is_medians_counts_and_rates():
 def test_png_frames_are_rgb_and_lossless():
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 256, (9, 11, 3), dtype=np.uint8)
+    # fast PNGs: deflate level 1, Huffman only
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
+    assert run_mod._png(rgb) == cv2.imencode(".png", rgb[..., ::-1], params)[1].tobytes()
+    assert run_mod._png(rgb) != cv2.imencode(".png", rgb[..., ::-1])[1].tobytes()
     back = cv2.imdecode(np.frombuffer(run_mod._png(rgb), np.uint8), cv2.IMREAD_UNCHANGED)
     np.testing.assert_array_equal(back[..., ::-1], rgb)
     gray = rng.integers(0, 256, (9, 11), dtype=np.uint8)
@@ -241,7 +247,7 @@ def test_video_paths(tmp_path):
     with pytest.raises(InputError, match=r"--out .*out\.avi: the video must be an \.mp4 file"):
         run_mod.video_paths(tmp_path / "out.avi")
     (tmp_path / "x_side_by_side.mp4").mkdir()
-    with pytest.raises(InputError):
+    with pytest.raises(InputError, match="^video .*x_side_by_side.mp4: is a folder"):
         run_mod.video_paths(tmp_path / "x.mp4")
     assert run_mod.video_paths(tmp_path / "x.mp4", side_by_side=False) == [("output", tmp_path / "x.mp4")]
 
@@ -266,7 +272,8 @@ def test_stream_passes_a_failing_frame_through_and_commits_the_rest(tmp_path, mo
                             preview=tmp_path / "live.png")
     assert [(f["index"], f["status"], f["warning"]) for f in doc["frames"]] == [
         (0, "empty", None), (1, "passed_through", "the frame's depth is unreadable"), (2, "empty", None)]
-    assert "frame 1 passes through: the frame's depth is unreadable" in caplog.text
+    assert [r.getMessage() for r in caplog.records if r.name == "bodystudio.mirror.run"] == [
+        "frame 1 passes through: the frame's depth is unreadable"]
     assert [f["edit_fraction"] for f in doc["frames"]] == [0.0, 0.5, 1.0]
     assert doc["frames"][0]["ms"]["read"] == 0.123 and doc["frames"][2]["ms"]["read"] == 0.37
     assert doc["kind"] == "rigid" and doc["fps"] == 25.0 and doc["videos"] == {} and doc["edits"] == {"taller": 0.1}
@@ -324,18 +331,19 @@ class _Frames:
         player[s.get("person", slice(2, 6)), 4:8] = 1
         player[8:10, 12:14] = 2
         depth = np.zeros((CH, CW)) if s.get("no_depth") else np.ones((CH, CW))
-        seen = s.get("seen", slice(0, CW))
+        seen = s.get("seen", (slice(None), slice(0, CW)))
         return SimpleNamespace(rgb=np.full((CH, CW, 3), i, np.uint8), depth_m=depth, player=player, seen=seen,
                                body=lambda p: body if p == 1 else None)
 
     def ik(self, skeleton, positions, tracked, version, previous=None):
+        assert skeleton == "sk" and version == "v2" and tracked is not None and tracked.dtype == bool
         self.ik_calls.append((positions[0, 0], previous))
         if positions[0, 0] in self.spec_fail:
             raise InputError("pelvis not tracked")
         return f"pose{int(positions[0, 0])}"
 
 
-def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None):
+def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, player=1):
     from bodystudio.mirror import frames as frames_mod
     from bodystudio.mirror import reshape as reshape_mod
     from bodystudio.mirror import track as track_mod
@@ -352,18 +360,20 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None):
         return fr
 
     def register(depth, player, sensor):
+        assert sensor is session.kinect
         d = np.zeros((CH, CW))
         if depth.any():
-            d[:, current["seen"]] = 2.0
+            d[current["seen"]] = 0.8
         return d, player
 
     def pairs(Vs, Vt, faces, cam, n, rim_cos=None):
-        assert n == run_mod.N_HANDLES and rim_cos == run_mod.RIM_COS and cam is camera
+        assert n == run_mod.N_HANDLES and rim_cos == run_mod.RIM_COS and cam is camera and faces is body.faces
         return np.zeros((20, 2)) + Vs[0, 0], np.zeros((20, 2)) + Vt[0, 0], None
 
-    def posed(body, target_rest, pose):
+    def posed(b, target_rest, pose):
+        assert b is body
         f.bodies.append((target_rest[0, 0], pose))
-        return body.vertices, target_rest
+        return b.vertices, target_rest
 
     monkeypatch.setattr(frames_mod, "read_mirror_frame", read)
     monkeypatch.setattr(frames_mod, "register_depth_to_color", register)
@@ -376,12 +386,12 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None):
     monkeypatch.setattr(reshape_mod, "posed_source_and_target", posed)
     monkeypatch.setattr(run_mod, "visible_vertex_pairs", pairs)
     session = SimpleNamespace(path="S", frame_ids=sorted(spec), kinect=SimpleNamespace(color=camera, version="v2"))
-    body = SimpleNamespace(coeffs=np.zeros(1), vertices=np.zeros((3, 3)), skeleton="sk", faces=None)
-    model = SimpleNamespace(vertices=lambda c: np.full((3, 3), 10.0 * c[0]))
+    body = SimpleNamespace(coeffs=np.zeros(1), vertices=np.full((3, 3), 1.0), skeleton="sk", faces="faces")
+    model = SimpleNamespace(vertices=lambda c: np.full((3, 3), 1.0 + 9.0 * c[0]))
     if ramp_frames is None:  # the defaults: player 1, 30 ramp frames
         out = list(run_mod.session_inputs(session, body, model, {"taller": 1.0}))
     else:
-        out = list(run_mod.session_inputs(session, body, model, {"taller": 1.0}, 1, ramp_frames, frames))
+        out = list(run_mod.session_inputs(session, body, model, {"taller": 1.0}, player, ramp_frames, frames))
     return out, f
 
 
@@ -402,8 +412,10 @@ def test_session_inputs_warn_per_frame_and_ramp_the_edit(monkeypatch):
     assert [o.index for o in ok] == [4, 5, 7, 8]
     # the edit is reached over ramp_frames tracked frames: V_S + s (V_T - V_S), V_T = 10 here
     assert [o.edit_fraction for o in ok] == pytest.approx([1 / 3, 2 / 3, 1.0, 1.0])
-    assert [t for t, _ in f.bodies] == pytest.approx([10 / 3, 20 / 3, 10.0, 10.0])
-    assert ok[0].dst_uv[0, 0] == pytest.approx(10 / 3) and ok[0].src_uv[0, 0] == 0.0
+    assert [t for t, _ in f.bodies] == pytest.approx([4.0, 7.0, 10.0, 10.0])
+    assert [p for _, p in f.bodies] == ["pose4", "pose5", "pose7", "pose8"]
+    assert ok[0].dst_uv[0, 0] == pytest.approx(4.0) and ok[0].src_uv[0, 0] == 1.0
+    np.testing.assert_array_equal(ok[0].depth_color, np.full((CH, CW), 0.8))
     # the IK is warm-started from the last successful pose
     assert f.ik_calls == [(4.0, None), (5.0, "pose4"), (6.0, "pose5"), (7.0, "pose5"), (8.0, "pose7")]
     # masks: the person, the other players
@@ -415,6 +427,7 @@ def test_session_inputs_warn_per_frame_and_ramp_the_edit(monkeypatch):
 def test_session_inputs_ramp_zero_and_unreadable_frames(monkeypatch):
     spec = {0: {"unreadable": True}, 1: {}, 2: {"unreadable": True}, 3: {}}
     out, _ = _session_inputs(monkeypatch, spec, ramp_frames=0)
+    assert [o.index for o in out] == [0, 1, 2, 3]
     assert out[0].warning == "frame unreadable: frame 0: broken PNG"
     assert out[0].rgb.shape == (CH, CW, 3) and out[0].rgb.dtype == np.uint8 and not out[0].rgb.any()
     assert out[2].warning.startswith("frame unreadable") and (out[2].rgb == 1).all()  # the last good frame
@@ -427,12 +440,28 @@ def test_session_inputs_ramp_zero_and_unreadable_frames(monkeypatch):
 
 
 def test_pixels_the_depth_camera_never_saw_are_marked_unseen(monkeypatch):
-    spec = {0: {"seen": slice(8, CW)}, 1: {"seen": slice(12, CW)}, 2: {"seen": slice(0, 2)}}
+    block = (slice(4, 8), slice(6, 10))
+    spec = {0: {"seen": block}, 1: {"seen": (slice(None), slice(14, CW))}, 2: {"seen": (slice(0, 0), slice(0, 0))}}
     out, _ = _session_inputs(monkeypatch, spec)
-    # frame 0 saw columns 8..: dilated by 2 px, the unseen part is columns 0..5
-    assert (out[0].unseen[:, :6]).all() and not out[0].unseen[:, 6:].any()
-    np.testing.assert_array_equal(out[1].unseen, out[0].unseen)  # what was seen stays seen
-    assert (out[2].unseen[:, 5]).all() and not out[2].unseen[:, :4].any()
+    # what frame 0 saw, grown by 2 px on every side (a 5x5 dilation) is not unseen
+    expect = np.ones((CH, CW), bool)
+    expect[2:10, 4:12] = False
+    np.testing.assert_array_equal(out[0].unseen, expect)
+    expect[:, 12:] = False
+    np.testing.assert_array_equal(out[1].unseen, expect)  # what was seen stays seen
+    np.testing.assert_array_equal(out[2].unseen, expect)
+
+
+def test_session_inputs_for_another_player_and_their_timings(monkeypatch):
+    # player 2 (the 2x2 block; not tracked in the stand-in frames): player 1's pixels are the others
+    out, _ = _session_inputs(monkeypatch, {0: {}}, player=2)
+    assert out[0].person_mask.sum() == 4 and out[0].others_mask.sum() == 16
+    assert out[0].warning == "player 2 is in the mask but no body is tracked"
+    ticks = iter(range(1000))
+    monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
+    out, _ = _session_inputs(monkeypatch, {0: {}, 1: {}})
+    assert out[0].timings_ms == {"read": 1000.0, "register": 1000.0, "ik": 1000.0, "bodies": 1000.0,
+                                 "pairs": 1000.0}
 
 
 def test_session_inputs_need_a_kinect(monkeypatch):
@@ -449,7 +478,8 @@ def test_check_edits_and_missing_stage_modules(monkeypatch):
         run_mod.check_edits({"taller": 0.1, "heavier": float("inf")})
     with pytest.raises(InputError, match="unknown edit\\(s\\) bigger, wider; valid: taller, heavier"):
         run_mod.check_edits({"wider": 1.0, "bigger": 2.0})
-    with pytest.raises(InputError, match="no mirror nosuch step \\(bodystudio.mirror.nosuch\\)"):
+    with pytest.raises(InputError, match="^this bodystudio has no mirror nosuch step \\(bodystudio.mirror.nosuch\\); "
+                       "install the complete mirror stage$"):
         run_mod._stage_module("nosuch")
     import bodystudio.mirror.reshape as reshape
 
@@ -589,16 +619,17 @@ def test_run_mirror_live_reads_the_live_folder(tmp_path, monkeypatch):
         run_mirror(session, {}, None, live=live)
 
 
-def test_load_source_finds_the_model_by_size(tmp_path):
+def test_load_source_finds_the_model_by_size(tmp_path, monkeypatch):
     from bodystudio.body.statistical import load_statistical_model
     from bodystudio.mirror.init import SourceBody, refit_skeleton, save_source_body
 
     model = load_statistical_model("2k", progress=False)
     c = np.zeros(model.n_components)
-    src = SourceBody(c, model.vertices(c), refit_skeleton(model, c), (0,), 1.0)
+    src = SourceBody(c, model.vertices(c), refit_skeleton(model, c), (4, 5), 1.5)
     session = SimpleNamespace(path=tmp_path)
     body, m = run_mod.load_source(session, src)
     assert len(m.mean) == len(model.mean) and body.weights is not None and body.faces is not None
+    assert body.skeleton is src.skeleton and body.frames_used == (4, 5) and body.residual_mm == 1.5
     (tmp_path / "mirror").mkdir()
     save_source_body(tmp_path / "mirror" / "source_body.npz", src)
     body2, _ = run_mod.load_source(session)
@@ -606,10 +637,20 @@ def test_load_source_finds_the_model_by_size(tmp_path):
     save_source_body(tmp_path / "other.npz", src)
     body3, _ = run_mod.load_source(session, str(tmp_path / "other.npz"))
     np.testing.assert_array_equal(body3.coeffs, c)
-    with pytest.raises(FileFormatError, match="missing.npz: source body not found; run 'bodystudio mirror init"):
-        run_mod.load_source(session, tmp_path / "missing.npz")
+    for missing in (tmp_path / "missing.npz", str(tmp_path / "missing.npz")):
+        with pytest.raises(FileFormatError, match=f"missing.npz: source body not found; run 'bodystudio mirror init "
+                           f"{tmp_path}' first \\(or give --source\\)$"):
+            run_mod.load_source(session, missing)
+    import bodystudio.body.statistical as statistical
+
+    asked = []
+    real = statistical.load_statistical_model
+    monkeypatch.setattr(statistical, "load_statistical_model", lambda r, **kw: asked.append((r, kw)) or real(r, **kw))
+    run_mod.load_source(session, src)
+    assert asked == [("6k", {"progress": False}), ("2k", {"progress": False})]
     odd = SourceBody(c, model.vertices(c)[:-1], src.skeleton, (0,), 1.0)
-    with pytest.raises(InputError, match="source body of 2501 vertices matches no statistical model"):
+    with pytest.raises(InputError, match="source body of 2501 vertices matches no statistical model \\(6k, 2k\\); "
+                       "rerun 'bodystudio mirror init'$"):
         run_mod.load_source(session, odd)
 
 
@@ -805,3 +846,24 @@ def test_step_timings_are_milliseconds_of_each_step(scene, monkeypatch):
     assert res.timings_ms == {"read": 2.5, **{s: 1000.0 for s in IMAGE_STEPS}}
     res, _ = mirror_frame(MirrorInput(2, scene.rgb, scene.person, warning="w"), scene.background)
     assert res.timings_ms == {"background": 1000.0}
+
+
+def test_stream_writes_the_masks_and_times_each_write(scene, tmp_path, monkeypatch):
+    """An ok frame's refined and warped masks as 0/255 PNGs; with a stand-in clock the write step, the
+    summary's step medians and the wall time come out exactly."""
+    inp = MirrorInput(0, scene.rgb, scene.person, None, None, scene.src, scene.dst)
+    run = tmp_path / "run"
+    ticks = iter(range(10000))
+    monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
+    doc = mirror_stream([inp], run, None, background=scene.background)
+    fg = cv2.imread(str(run / "masks" / "foreground" / "00000.png"), cv2.IMREAD_UNCHANGED)
+    warped = cv2.imread(str(run / "masks" / "warped" / "00000.png"), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(fg, scene.person.astype(np.uint8) * 255)
+    np.testing.assert_array_equal(warped, np.roll(scene.person, SHIFT, axis=1).astype(np.uint8) * 255)
+    assert doc["frames"][0]["ms"]["write"] == 1000.0
+    assert doc["summary"]["ms_per_frame"]["write"] == 1000.0 and doc["summary"]["ms_per_frame"]["warp"] == 1000.0
+    # start, 6 image-step readings, 2 write readings, end: 9 s
+    assert doc["summary"]["wall_s"] == 9.0
+    with pytest.raises(InputError, match=f"^{tmp_path / 'none'}: no frames to process; check the session's frames "
+                       "or --frames$"):
+        mirror_stream([], tmp_path / "none", None)
