@@ -528,7 +528,8 @@ def test_initialisation_uses_the_frames_with_most_points_and_drops_the_floor(mod
     with pytest.raises(InputError, match="stand fully in view"):
         initialise_from_observations([floor], model, passes=1)
     # floor_y None keeps them (and then they lie far from the body: refused with the calibration message)
-    with pytest.raises(InputError, match="same sensor calibration"):
+    with pytest.raises(InputError, match="^no frame's depth points lie on a body fitted to the Kinect joints: check "
+                       "that the depth and the joints come from the same sensor calibration$"):
         initialise_from_observations([floor], model, passes=1, floor_y=None)
     # a frame of fewer than MIN_POINTS finite points is not used
     few = InitObservation(3, obs[1].points[:MIN_POINTS - 1], obs[1].joints, obs[1].tracked, "v2")
@@ -543,6 +544,8 @@ def test_subsample_is_a_seeded_subset():
     np.testing.assert_array_equal(a, b)
     assert len(a) == 10 and len({tuple(r) for r in a}) == 10 and not np.array_equal(a, c)
     assert np.isin(a[:, 0], P[:, 0]).all()
+    most = _subsample(P, 95, 3)
+    assert len(np.unique(most[:, 0])) == 95  # without replacement
 
 
 def test_check_model_refuses_other_models_and_rigs(model, mean_body):
@@ -884,14 +887,16 @@ def test_initialisation_wires_the_passes(monkeypatch, model):
     v1 = _frame_of(model, c_true, rest, eye, frame=2, version="v1")
     far = InitObservation(3, np.r_[base.points[:250], base.points[:200] + [0.0, 0.0, 1.0]], base.joints,
                           base.tracked, "v2")
-    obs = [InitObservation(0, big, base.joints, base.tracked, "v2"), InitObservation(1, base.points, base.joints,
-                                                                                     base.tracked, "v2"), v1, far]
+    tracked = base.tracked.copy()
+    tracked[IX["ElbowLeft"]] = False  # unposed as NaN
+    obs = [InitObservation(0, big, base.joints, tracked, "v2"), v1, InitObservation(1, base.points, base.joints,
+                                                                                  tracked, "v2"), far]
     calls = {"tdp": [], "fit": []}
     real_tdp = init_mod.transform_to_default_pose
 
     def tdp(P, joints, body, tracked, version, **kw):
         cloud = real_tdp(P, joints, body, tracked, version, **kw)
-        calls["tdp"].append(SimpleNamespace(P=P, body=body, version=version, kw=kw, cloud=cloud))
+        calls["tdp"].append(SimpleNamespace(P=P, body=body, version=version, kw=kw, cloud=cloud, tracked=tracked))
         return cloud
 
     def fit(P0, m, coeffs, **kw):
@@ -906,7 +911,8 @@ def test_initialisation_wires_the_passes(monkeypatch, model):
         t = calls["tdp"][4 * p: 4 * p + 4]
         assert all(c.kw == dict(view_point=eye, scale_bones=p == 0, max_distance_m=INIT_CORRESPONDENCE_M,
                                 details=True, min_facing_cos=INIT_FACING_COS) for c in t)
-        assert [c.version for c in t] == ["v2", "v2", "v1", "v2"]
+        assert [c.version for c in t] == ["v2", "v1", "v2", "v2"]
+        assert [c.tracked for c in t] == [tracked, v1.tracked, tracked, base.tracked]
         expect_c = np.zeros(model.n_components) if p == 0 else 0.1 * p * model.stddev
         np.testing.assert_allclose(f.init, expect_c, atol=1e-12)
         np.testing.assert_allclose(t[0].body.vertices, model.vertices(expect_c), atol=1e-12)
@@ -923,18 +929,24 @@ def test_initialisation_wires_the_passes(monkeypatch, model):
         assert f.kw["version"] == "v2" and f.kw["trim_m"] == FIT_TRIM_M and f.kw["return_residual"] is True
         if p == 0:
             assert f.kw["joints_default"] is None
-        else:  # the two v2 frames' unposed joints
+        else:  # the two v2 frames' unposed joints (the v1 frame has another joint set)
             expect_j = [unposed_kinect_joints(obs[i].joints, obs[i].tracked, c.cloud.body.skeleton,
-                                              c.cloud.pose, "v2") for i, c in ((0, t[0]), (1, t[1]))]
+                                              c.cloud.pose, "v2") for i, c in ((0, t[0]), (2, t[2]))]
             np.testing.assert_array_equal(f.kw["joints_default"], np.array(expect_j))
+            assert np.isnan(f.kw["joints_default"][:, IX["ElbowLeft"]]).all()
     # each frame's points: finite, above the floor, at most MAX_POINTS (a subset seeded by the frame)
     above = big[:, 1] > 0.02
     assert not above.all()
     np.testing.assert_array_equal(calls["tdp"][0].P, _subsample(big[above], MAX_POINTS, 0))
-    np.testing.assert_array_equal(calls["tdp"][1].P, base.points[base.points[:, 1] > 0.02])
+    np.testing.assert_array_equal(calls["tdp"][2].P, base.points[base.points[:, 1] > 0.02])
     np.testing.assert_allclose(src.coeffs, 0.3 * model.stddev, atol=1e-12)
     np.testing.assert_allclose(src.vertices, model.vertices(src.coeffs), atol=1e-12)
-    assert src.residual_mm == pytest.approx(12.0) and src.frames_used == (0, 1, 2, 3)
+    assert src.residual_mm == pytest.approx(12.0) and src.frames_used == (0, 2, 1, 3)
+    # a Kinect v1 session: the unposed joints are v1's
+    calls["fit"].clear()
+    initialise_from_observations([v1], model, view_point=eye, passes=2)
+    assert calls["fit"][1].kw["version"] == "v1"
+    assert calls["fit"][1].kw["joints_default"].shape == (1, len(kinect_joint_names("v1")), 3)
     # one pass; passes below 1 run one pass
     calls["fit"].clear()
     initialise_from_observations(obs[:2], model, view_point=eye, passes=0, joint_weight=2.0, trim_m=0.2,
@@ -1074,3 +1086,18 @@ def test_eq2_defaults_and_edges(model):
 
 
 POINT_SIGMA = 0.01
+
+
+def test_eq3_uses_the_given_neighbourhoods_and_symmetric_matching_is_translated(model):
+    sk0 = init_mod._default_skeleton(model)
+    c = _planted_coeffs(model, seed=16)
+    V = model.vertices(c)
+    D = V - model.mean
+    heads_nb = np.tile(np.arange(5), (sk0.n_bones, 1))
+    tails_nb = np.tile(np.arange(5, 9), (sk0.n_bones, 1))
+    sk = refit_skeleton_from_vertices(model.mean, sk0, V, (heads_nb, tails_nb))
+    np.testing.assert_allclose(sk.heads, sk0.heads + D[:5].mean(0), atol=1e-12)
+    np.testing.assert_allclose(sk.tails, sk0.tails + D[5:9].mean(0), atol=1e-12)
+    t = np.array([0.02, -0.01, 0.03])
+    c8 = fit_shape(V + t, model, init_coeffs=c, iterations=8, point_sigma_m=1e-7, symmetric=True)
+    np.testing.assert_allclose(c8, c, atol=1e-6 * model.stddev.max())
