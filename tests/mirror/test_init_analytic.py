@@ -583,9 +583,12 @@ def test_source_body_file_round_trip_and_refusals(model, tmp_path):
         np.testing.assert_array_equal(getattr(back.skeleton, a), getattr(src.skeleton, a))
     assert back.skeleton.bone_names == src.skeleton.bone_names
     assert back.frames_used == (3, 6, 9) and back.residual_mm == 4.25 and back.weights is None
+    assert back.skeleton.parents.dtype == np.int64
     with_model = load_source_body(path, model)
     assert with_model.weights is model.weights and with_model.faces is model.faces
     np.testing.assert_array_equal(with_model.coeffs, c)
+    np.testing.assert_array_equal(with_model.vertices, src.vertices)
+    np.testing.assert_array_equal(with_model.skeleton.heads, src.skeleton.heads)
     assert with_model.frames_used == (3, 6, 9) and with_model.residual_mm == 4.25
 
     def write(name, **changes):
@@ -917,6 +920,8 @@ def test_initialisation_wires_the_passes(monkeypatch, model):
         np.testing.assert_allclose(f.init, expect_c, atol=1e-12)
         np.testing.assert_allclose(t[0].body.vertices, model.vertices(expect_c), atol=1e-12)
         np.testing.assert_allclose(t[0].body.skeleton.heads, refit_skeleton(model, expect_c).heads, atol=1e-12)
+        assert t[0].body.resolution == model.resolution and t[0].body.rig == model.rig
+        assert t[0].body.vertex_ids is model.vertex_ids
         ok = [c.cloud.correspondence >= 0 for c in t]
         assert ok[3].sum() < MIN_POINTS <= min(o.sum() for o in ok[:3])  # the far frame is not pooled
         np.testing.assert_array_equal(f.P0, np.concatenate([c.cloud.points[o] for c, o in zip(t[:3], ok[:3],
