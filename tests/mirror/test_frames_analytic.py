@@ -49,16 +49,23 @@ def test_ray_table_is_each_pixel_centre_undistorted_and_cached():
     P = np.c_[rays.reshape(-1, 2), np.ones(h * w)]
     np.testing.assert_allclose(bent.project(P), np.c_[c.ravel(), r.ravel()], atol=1e-6)
     assert np.abs(rays - table).max() > 5e-4
-    # the cache holds a few cameras, then starts again
-    for f in range(30, 45):
+
+
+
+def test_ray_table_cache_holds_nine_cameras_then_starts_again(monkeypatch):
+    monkeypatch.setattr(frames_mod, "_RAY_TABLES", {})
+    for f in range(30, 39):
         depth_ray_table(_camera("d", f=float(f)))
-    assert 0 < len(frames_mod._RAY_TABLES) <= 9
+    assert len(frames_mod._RAY_TABLES) == 9
+    depth_ray_table(_camera("d", f=50.0))
+    assert len(frames_mod._RAY_TABLES) == 1
 
 
 def test_point_cloud_back_projects_the_players_measured_pixels():
     sensor = _sensor()
     depth = np.full((h, w), 2.0)
     depth[1, 2] = 3.0
+    depth[2, 1] = 0.6
     depth[0, 0] = 0.0
     player = np.zeros((h, w), np.uint8)
     player[:3, :4] = 1
@@ -94,6 +101,8 @@ def test_registration_with_identical_cameras_is_the_identity():
     frame = MirrorFrame(0, np.zeros((h, w, 3), np.uint8), depth, player, ())
     np.testing.assert_array_equal(player_mask_in_color(frame, sensor), expect > 0)
     np.testing.assert_array_equal(player_mask_in_color(frame, sensor, 2), expect == 2)
+    np.testing.assert_array_equal(player_mask_in_color(frame, sensor, 1), expect == 1)
+    assert not player_mask_in_color(frame, sensor, 6).any()
     with pytest.raises(InputError, match="player 9 is not a Kinect player id"):
         player_mask_in_color(frame, sensor, 9)
 
@@ -200,7 +209,9 @@ def test_read_mirror_frame_sorts_bodies_and_untracks_missing_joints():
 
 def test_read_mirror_frame_refusals():
     sensor = _sensor()
-    with pytest.raises(SessionError, match="S: not a Kinect session"):
+    with pytest.raises(SessionError, match="^S: not a Kinect session \\(no kinect/calibration.json\\); the mirror "
+                       "needs Kinect colour, depth, player mask and joints \\(`bodystudio synth mirror` or capture "
+                       "import\\)$"):
         read_mirror_frame(_Session({0: None}, None), 0)
     with pytest.raises(SessionError, match="not a Kinect session"):
         list(iter_mirror_frames(_Session({0: None}, None)))
