@@ -235,6 +235,10 @@ def test_png_frames_are_rgb_and_lossless():
     back = cv2.imdecode(np.frombuffer(run_mod._png(rgb), np.uint8), cv2.IMREAD_UNCHANGED)
     np.testing.assert_array_equal(back[..., ::-1], rgb)
     gray = rng.integers(0, 256, (9, 11), dtype=np.uint8)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(run_mod.cv2, "imencode", lambda *a: (False, None))
+        with pytest.raises(FileFormatError, match="^cannot encode a PNG frame$"):
+            run_mod._png(gray)
     np.testing.assert_array_equal(cv2.imdecode(np.frombuffer(run_mod._png(gray), np.uint8), cv2.IMREAD_UNCHANGED),
                                   gray)
 
@@ -457,7 +461,7 @@ def test_session_inputs_for_another_player_and_their_timings(monkeypatch):
     out, _ = _session_inputs(monkeypatch, {0: {}}, player=2)
     assert out[0].person_mask.sum() == 4 and out[0].others_mask.sum() == 16
     assert out[0].warning == "player 2 is in the mask but no body is tracked"
-    ticks = iter(range(1000))
+    ticks = iter(range(100, 1000))
     monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
     out, _ = _session_inputs(monkeypatch, {0: {}, 1: {}})
     assert out[0].timings_ms == {"read": 1000.0, "register": 1000.0, "ik": 1000.0, "bodies": 1000.0,
@@ -839,7 +843,7 @@ def test_stream_limits_defaults_and_failed_frame_masks(tmp_path, monkeypatch):
 
 def test_step_timings_are_milliseconds_of_each_step(scene, monkeypatch):
     """With a stand-in clock that ticks one second per reading, every timed step takes 1000 ms."""
-    ticks = iter(range(1000))
+    ticks = iter(range(100, 1000))
     monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
     res, _ = mirror_frame(MirrorInput(1, scene.rgb, scene.person, None, None, scene.src, scene.dst,
                                       timings_ms={"read": 2.5}), scene.background)
@@ -853,7 +857,7 @@ def test_stream_writes_the_masks_and_times_each_write(scene, tmp_path, monkeypat
     summary's step medians and the wall time come out exactly."""
     inp = MirrorInput(0, scene.rgb, scene.person, None, None, scene.src, scene.dst)
     run = tmp_path / "run"
-    ticks = iter(range(10000))
+    ticks = iter(range(100, 10000))
     monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
     doc = mirror_stream([inp], run, None, background=scene.background)
     fg = cv2.imread(str(run / "masks" / "foreground" / "00000.png"), cv2.IMREAD_UNCHANGED)
