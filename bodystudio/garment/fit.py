@@ -391,12 +391,24 @@ class PoseProblem:
     with_height: bool = False
 
 
+def finite_projection(camera, V: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
+    """Pixels of ``V`` where a vertex behind (or within 5 cm of) the camera, whose projection is undefined,
+    lands far outside the image (four image diagonals beyond the centre), so a trial step of the optimiser
+    that carries the body through the camera costs a large, finite residual instead of NaN."""
+    uv, z = camera.project_with_depth(V)
+    bad = (z < 0.05) | ~np.isfinite(uv).all(1)
+    if bad.any():
+        h, w = image_shape
+        uv[bad] = (-3.0 * w, -3.0 * h)
+    return uv
+
+
 def pose_residuals(x: np.ndarray, p: PoseProblem) -> np.ndarray:
     """Eq. 4: silhouette + beta temporal + gamma interpenetration (+ soft user constraints), stacked, plus
     our anatomical prior (:func:`pose_prior_residuals`)."""
     T = p.space.transforms(x)
     V = p.space.vertices(x, p.space.sample_ids, T)
-    uv = p.camera.project(V)
+    uv = finite_projection(p.camera, V, p.target.outside_px.shape)
     parts = [silhouette_residuals(uv, p.target)]
     if p.with_height:
         parts.append(np.sqrt(ALPHA_HEIGHT) * height_residuals(uv, p.target) / 10.0)
