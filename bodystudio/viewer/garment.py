@@ -411,34 +411,55 @@ def before_after_strip(view: GarmentView, frame_id: int, frames: dict | None = N
 
 # ------------------------------------------------------------------------------------------ the 3D scene
 
-def scene_for_garment(view: GarmentView, frame_id: int | None = None, plotter=None, key_help: bool = True,
-                      strip: bool = True):
-    """The garment view of ``frame_id`` (default: a frame the render composited): the fitted body with its
-    albedo, the garment, the estimated lights (orange) and the true ones (blue, synthetic sessions), and the
-    before/after strip behind the body."""
+#: Actors :func:`scene_for_garment_frame` replaces on every frame.
+GARMENT_LAYERS = ("fitted-body", "garment", "lights-estimated", "lights-estimated-principal", "lights-true",
+                  "lights-true-principal", "garment-strip")
+
+
+def dress_fitted_body(view: GarmentView):
+    """``(body, garment)``: the fitted body (shape only) and the garment of :func:`garment_choice` on it, built
+    once per view and reused for every frame."""
+    from bodystudio.garment.garments import dress
+
+    body = view.fit.body()
+    name, pattern, seed, size = garment_choice(view)
+    return body, dress(body, name, pattern, size, seed)
+
+
+def scene_for_garment_frame(view: GarmentView, frame_id: int, plotter, body=None, garment=None,
+                            strip: bool = True) -> tuple[np.ndarray, str]:
+    """The per-frame layers (:data:`GARMENT_LAYERS`, the previous frame's removed): the fitted body with its
+    albedo, the garment, the estimated lights (orange) and the true ones (blue, synthetic sessions) as arrows
+    from the chest, and the before/after strip behind the body. Returns the layers' bounds (2, 3) and the
+    frame's title."""
+    from bodystudio.geometry.mesh import Mesh
     from bodystudio.viewer import scene as sc
     from bodystudio.viewer.mirror import add_image_panel
 
-    frame_id = garment_frames(view, 1)[0] if frame_id is None else int(frame_id)
-    plotter = plotter if plotter is not None else sc.make_plotter()
-    fs = fitted_scene(view, frame_id)
-    from bodystudio.geometry.mesh import Mesh
-
-    body = Mesh(fs.body_vertices, fs.body_faces, vertex_colors=fs.body_colors)
-    sc.add_mesh(plotter, body, name="fitted-body")
+    if body is None or garment is None:
+        body, garment = dress_fitted_body(view)
+    present = set(plotter.renderer.actors)
+    for name in GARMENT_LAYERS:
+        if name in present:
+            plotter.remove_actor(name)
+    fs = fitted_scene(view, frame_id, body, garment)
+    sc.add_mesh(plotter, Mesh(fs.body_vertices, fs.body_faces, vertex_colors=fs.body_colors), name="fitted-body")
     g = fs.garment
     add_textured_mesh(plotter, fs.garment_vertices, g.faces, g.uv, g.texture, "garment")
     lo, hi = fs.body_vertices.min(0), fs.body_vertices.max(0)
     chest = light_origin(fs.body_vertices)
     what = [f"{g.name} ({garment_choice(view)[1]})"]
     lighting = view.fit.lighting
-    n_est = add_lights(plotter, lighting, chest, ESTIMATED_LIGHT_COLOR, "lights-estimated") if lighting else 0
-    what.append(f"{n_est} estimated lights (orange)" if lighting is not None else "no lights estimated")
+    if lighting is not None:
+        what.append(f"{add_lights(plotter, lighting, chest, ESTIMATED_LIGHT_COLOR, 'lights-estimated')} estimated "
+                    "lights (orange)")
+    else:
+        what.append("no lights estimated")
     truth = true_lighting_in_fit_frame(view)
     if truth is not None:
-        n_true = add_lights(plotter, truth, chest, TRUE_LIGHT_COLOR, "lights-true")
-        what.append(f"{n_true} true (blue)")
-    bounds = np.array([lo, hi])
+        what.append(f"{add_lights(plotter, truth, chest, TRUE_LIGHT_COLOR, 'lights-true')} true (blue)")
+    reach = ARROW_OFFSET_M + 1.25 * ARROW_M
+    bounds = np.array([np.minimum(lo, chest - reach), np.maximum(hi, chest + reach)])
     if strip:
         try:
             image = before_after_strip(view, frame_id)
@@ -451,13 +472,70 @@ def scene_for_garment(view: GarmentView, frame_id: int | None = None, plotter=No
             z = lo[2] - PANEL_BEHIND_M
             height = width * image.shape[0] / image.shape[1]
             add_image_panel(plotter, image[::step, ::step], (chest[0], lo[1] + height / 2, z), width, "garment-strip")
-            bounds = np.array([np.minimum(lo, [chest[0] - width / 2, lo[1], z]),
-                               np.maximum(hi, [chest[0] + width / 2, lo[1] + height, hi[2]])])
-    light_box = np.vstack([chest - (ARROW_OFFSET_M + ARROW_M), chest + (ARROW_OFFSET_M + ARROW_M)])
-    bounds = np.array([np.minimum(bounds[0], light_box[0]), np.maximum(bounds[1], light_box[1])])
-    sc.add_floor(plotter, np.array([chest[0], 0.0, (lo[2] + hi[2]) / 2]), size=3.0)
-    sc.add_title(plotter, f"{view.name}  frame {frame_id}: fitted body, " + ", ".join(what))
+            bounds = np.array([np.minimum(bounds[0], [chest[0] - width / 2, lo[1], z]),
+                               np.maximum(bounds[1], [chest[0] + width / 2, lo[1] + height, hi[2]])])
+    return bounds, f"{view.name}  frame {frame_id}: fitted body, " + ", ".join(what)
+
+
+def scene_for_garment(view: GarmentView, frame_id: int | None = None, plotter=None, key_help: bool = True,
+                      strip: bool = True, dressed=None):
+    """The garment view of ``frame_id`` (default: a frame the render composited): the layers of
+    :func:`scene_for_garment_frame`, a floor, the title and key help, seen from the front and a little above.
+    ``dressed`` is :func:`dress_fitted_body`'s pair when the caller has it."""
+    from bodystudio.viewer import scene as sc
+
+    frame_id = garment_frames(view, 1)[0] if frame_id is None else int(frame_id)
+    plotter = plotter if plotter is not None else sc.make_plotter()
+    body, garment = dress_fitted_body(view) if dressed is None else dressed
+    bounds, title = scene_for_garment_frame(view, frame_id, plotter, body, garment, strip)
+    sc.add_floor(plotter, np.array([bounds.mean(0)[0], 0.0, bounds.mean(0)[2]]), size=3.0)
+    sc.add_title(plotter, title)
     if key_help:
-        sc.add_key_help(plotter)
+        sc.add_key_help(plotter, sc.KEY_HELP + ("\nslider or n / p: next / previous frame"
+                                                if len(view.fit.frame_ids) > 1 else ""))
     sc.frame_front(plotter, bounds, direction=(0.35, 0.3, 1.0), margin=0.8, fit="sphere")
     return plotter
+
+
+def add_garment_time_slider(plotter, view: GarmentView, frame_id: int | None = None, dressed=None):
+    """A slider over the fit's frames that swaps the per-frame layers, and keys n / p (interactive windows)."""
+    from bodystudio.viewer import scene as sc
+
+    ids = [int(f) for f in view.fit.frame_ids]
+    if len(ids) < 2:
+        return plotter
+    body, garment = dress_fitted_body(view) if dressed is None else dressed
+
+    def show(k: int) -> None:
+        _, title = scene_for_garment_frame(view, ids[k], plotter, body, garment)
+        sc.add_title(plotter, title)
+
+    return sc.add_frame_slider(plotter, ids, ids.index(frame_id) if frame_id in ids else 0, show)
+
+
+def garment_payload(view: GarmentView, plotter, max_frames: int | None = None, start: int | None = None,
+                    dressed=None) -> dict:
+    """The WebGL payload of a garment view with up to ``max_frames`` of the fit's frames (evenly spread; the
+    floor once, the body, garment, arrows and strip per frame), opening at the frame nearest ``start``.
+    ``plotter`` holds a :func:`scene_for_garment` view."""
+    from bodystudio.viewer.views import MAX_HTML_FRAMES
+    from bodystudio.viewer.webgl import scene_payload
+
+    max_frames = MAX_HTML_FRAMES if max_frames is None else max_frames
+    ids = [int(f) for f in view.fit.frame_ids]
+    if len(ids) > max_frames:
+        ids = [ids[int(round(k))] for k in np.linspace(0, len(ids) - 1, max_frames)]
+    body, garment = dress_fitted_body(view) if dressed is None else dressed
+    names = set(GARMENT_LAYERS)
+    frames = []
+    for fid in ids:
+        scene_for_garment_frame(view, fid, plotter, body, garment)
+        layer = scene_payload(plotter, include=names, allow_empty=True)
+        frames.append({"id": fid, "objects": layer["objects"], "colorBars": layer["colorBars"]})
+    first = garment_frames(view, 1)[0] if start is None else int(start)
+    k0 = int(np.argmin(np.abs(np.asarray(ids) - first)))
+    scene_for_garment_frame(view, ids[k0], plotter, body, garment)
+    payload = scene_payload(plotter, exclude=names, allow_empty=True)
+    payload["frames"] = frames
+    payload["start"] = k0
+    return payload

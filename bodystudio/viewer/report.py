@@ -612,16 +612,20 @@ def default_scene(root: Path):
 def _garment_scene(root: Path):
     """The 3D view of the first garment fit under ``root`` that opens (None when there is none)."""
     from bodystudio.errors import BodyStudioError
-    from bodystudio.viewer.views import build_view, open_viewable
+    from bodystudio.viewer.garment import dress_fitted_body, garment_payload, open_garment_view, scene_for_garment
+    from bodystudio.viewer.scene import make_plotter
 
     for fit_dir in garment_fit_dirs(root):
         try:
-            plotter = build_view(open_viewable(fit_dir))
+            view = open_garment_view(fit_dir)
+            dressed = dress_fitted_body(view)
+            plotter = scene_for_garment(view, plotter=make_plotter(), dressed=dressed)
             still = render_image(plotter)
+            payload = garment_payload(view, plotter, dressed=dressed)
         except BodyStudioError as exc:
             log.warning("%s: no 3D view of the garment fit (%s)", fit_dir, exc)
             continue
-        return plotter, scene_payload(plotter), still
+        return plotter, payload, still
     return None
 
 

@@ -315,9 +315,12 @@ def build_view(path: str | Path | Viewable, bone: str | None = None, frame: int 
 
         scene_for_mirror(item.data, frame, plotter)
     elif item.kind == "garment":
-        from bodystudio.viewer.garment import scene_for_garment
+        from bodystudio.viewer.garment import add_garment_time_slider, dress_fitted_body, scene_for_garment
 
-        scene_for_garment(item.data, frame, plotter)
+        dressed = dress_fitted_body(item.data)
+        scene_for_garment(item.data, frame, plotter, dressed=dressed)
+        if not off_screen:
+            add_garment_time_slider(plotter, item.data, frame, dressed)
     elif item.kind == "avatar":
         scene_for_avatar(item.data, plotter, bone=bone, title=item.path.name)
     else:

@@ -156,10 +156,32 @@ def test_view_cli_screenshot_and_html(garment_case, tmp_path, drawn):
     assert drawn(img).mean() > 0.1
     orange = (img[..., 0] > 200) & (img[..., 1] > 90) & (img[..., 1] < 190) & (img[..., 2] < 80)
     assert orange.sum() > 50  # the estimated light arrows are in view
+
+
+
+def test_view_html_carries_every_frame_and_draws_in_chromium(garment_case, tmp_path, chromium):
+    import base64
+    import json
+    import re
+
+    from bodystudio.cli.main import main
+    from bodystudio.viewer.garment import fitted_scene, open_garment_view
+
     html = tmp_path / "g.html"
-    assert main(["view", str(garment_case["fit_dir"] / "render"), "--html", str(html)]) == 0
+    assert main(["view", str(garment_case["fit_dir"] / "render"), "--html", str(html), "--frame", "1"]) == 0
     text = html.read_text()
-    assert '"texture"' in text and "lights-estimated" in text and "lights-true" in text
+    payload = json.loads(re.search(r'id="view3d-data">(.*?)</script>', text, re.S).group(1).replace("<\\/", "</"))
+    assert [f["id"] for f in payload["frames"]] == [0, 1, 2] and payload["start"] == 1
+    view = open_garment_view(garment_case["fit_dir"])
+    for f in payload["frames"]:  # each frame carries its own posed body, textured garment, arrows and strip
+        objects = {o["name"]: o for o in f["objects"]}
+        assert {"fitted-body", "garment", "lights-estimated", "lights-true", "garment-strip"} <= set(objects)
+        assert "texture" in objects["garment"] and "texture" in objects["garment-strip"]
+        V = np.frombuffer(base64.b64decode(objects["fitted-body"]["positions"]), "<f4").reshape(-1, 3)
+        np.testing.assert_allclose(V, fitted_scene(view, f["id"]).body_vertices, atol=1e-5)
+    page = chromium(html, size=(900, 800))
+    assert page["console"] == [], page["console"]
+    assert 'data-viewer-status="ok"' in page["dom"]
 
 
 def test_view_bad_frame_is_one_line(garment_case, tmp_path, capsys):
@@ -239,3 +261,28 @@ def test_report_with_damaged_render_or_gone_source_does_not_crash(garment_case, 
     g = write_report(broken, tmp_path / "c.html", with_3d=True).garments[0]
     assert g.strips == [] and len(g.notes) == 1 and g.notes[0].startswith("not shown:")
     assert "damaged garment fit" in (tmp_path / "c.html").read_text()
+
+
+def test_time_slider_swaps_the_fitted_frame(garment_case):
+    from bodystudio.viewer.garment import add_garment_time_slider, fitted_scene, open_garment_view, scene_for_garment
+    from bodystudio.viewer.scene import make_plotter
+
+    view = open_garment_view(garment_case["fit_dir"])
+    plotter = scene_for_garment(view, 0, make_plotter(window_size=(320, 240)))
+    add_garment_time_slider(plotter, view, 0)
+    (slider,) = plotter.widgets.slider_widgets
+
+    def garment_points():
+        mapper = plotter.renderer.actors["garment"].GetMapper()
+        mapper.Update()
+        return np.asarray(mapper.GetInput().GetPoints().GetData()).copy()
+
+    np.testing.assert_allclose(garment_points(), fitted_scene(view, 0).garment_vertices, atol=1e-6)
+    assert np.abs(fitted_scene(view, 2).garment_vertices - garment_points()).max() > 0.003  # the actor moved
+    slider.GetRepresentation().SetValue(2.0)
+    slider.InvokeEvent("EndInteractionEvent")
+    np.testing.assert_allclose(garment_points(), fitted_scene(view, 2).garment_vertices, atol=1e-6)
+    assert "frame 2" in plotter.renderer.actors["title"].GetText(2)
+    plotter.iren._key_press_event_callbacks["p"][0]()
+    assert "frame 1" in plotter.renderer.actors["title"].GetText(2)
+    plotter.close()
