@@ -451,8 +451,8 @@ def scene_for_garment_frame(view: GarmentView, frame_id: int, plotter, body=None
     what = [f"{g.name} ({garment_choice(view)[1]})"]
     lighting = view.fit.lighting
     if lighting is not None:
-        what.append(f"{add_lights(plotter, lighting, chest, ESTIMATED_LIGHT_COLOR, 'lights-estimated')} estimated "
-                    "lights (orange)")
+        n = add_lights(plotter, lighting, chest, ESTIMATED_LIGHT_COLOR, "lights-estimated")
+        what.append(f"{n} estimated light{'s' * (n != 1)} (orange)")
     else:
         what.append("no lights estimated")
     truth = true_lighting_in_fit_frame(view)
