@@ -64,6 +64,11 @@ class GarmentView:
     def name(self) -> str:
         return self.fit_dir.resolve().name
 
+    @property
+    def has_source(self) -> bool:
+        """Whether the fit's source (a readable session, or a video file) is there to give input frames."""
+        return self.session is not None or _source_path(self.fit, self.fit_dir).is_file()
+
 
 def _json_format(path: Path) -> str | None:
     try:

@@ -537,7 +537,7 @@ def garment_sections(root: Path) -> list[GarmentSection]:
             frames = input_frames(view, frame_ids)
         except BodyStudioError as exc:
             frames = {}
-            if not any("source" in n for n in notes):
+            if view.has_source:  # a source that is gone is in the notes already
                 notes.append(f"no input frames: {exc}")
         strips, missing = [], []
         for fid in frame_ids:

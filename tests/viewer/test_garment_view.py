@@ -286,3 +286,34 @@ def test_time_slider_swaps_the_fitted_frame(garment_case):
     plotter.iren._key_press_event_callbacks["p"][0]()
     assert "frame 1" in plotter.renderer.actors["title"].GetText(2)
     plotter.close()
+
+
+def test_fit_of_a_video_shows_its_frames_without_truth(garment_case, tmp_path):
+    """A fit whose source is a video file (no session, no ground truth): the input panel is the video's frame
+    (frame ids are frame numbers), there is no truth panel and the report says why there are no scores."""
+    from bodystudio.fileio import Mp4Writer
+    from bodystudio.garment.fitfile import save_garment_fit
+    from bodystudio.viewer.garment import before_after_panels, open_garment_view
+    from bodystudio.viewer.report import write_report
+
+    session = garment_case["session"]
+    video = tmp_path / "clip.mp4"
+    writer = Mp4Writer(video, (120, 160), 30.0)
+    for fid in session.frame_ids:
+        writer.write(session.frame(fid).images["cam_00"])
+    writer.close()
+    fit_dir = tmp_path / "fit"
+    save_garment_fit(fit_dir, replace(garment_case["fit"], source=str(video)))
+    shutil.copytree(garment_case["fit_dir"] / "render", fit_dir / "render")
+    view = open_garment_view(fit_dir)
+    assert view.session is None and view.has_source and view.notes == ()
+    panels = before_after_panels(view, 2)
+    assert [c for c, _ in panels] == ["input", "composite"]
+    err = np.abs(panels[0][1].astype(int) - session.frame(2).images["cam_00"].astype(int))
+    assert err.mean() < 6  # the video's frame 2 (H.264), not another frame
+    assert np.abs(panels[0][1].astype(int) - session.frame(0).images["cam_00"].astype(int)).mean() > err.mean()
+    g = write_report(fit_dir, tmp_path / "r.html", with_3d=False).garments[0]
+    assert len(g.strips) == 3 and g.scores is None
+    assert g.notes == ["strips lack: truth (not a synthetic garment session)",
+                       "not scored: the fit's source is not a session folder; `eval garment` needs a synthetic "
+                       "session (`bodystudio synth garment`)"]
