@@ -49,6 +49,11 @@ def test_fit_and_render_folders_open_as_garment_views(garment_case):
     assert garment_frames(item.data, 3) == [0, 1, 2] and garment_frames(item.data, 2) == [0, 2]
     target = garment_case["session"].gt_garment["target"]
     assert garment_choice(item.data) == (target["name"], target["pattern"], target["seed"], 64)
+    # the render's garment first, then the session's target, then the default striped T-shirt
+    other = {"garment": "skirt", "texture": "checks", "seed": 5, "texture_size": 32}
+    assert garment_choice(replace(item.data, render=other)) == ("skirt", "checks", 5, 32)
+    assert garment_choice(replace(item.data, render=None)) == (target["name"], target["pattern"], target["seed"], 64)
+    assert garment_choice(replace(item.data, render=None, session=None)) == ("tshirt", "stripes", 0, 256)
 
 
 def test_before_after_strip_is_input_composite_truth(garment_case):
@@ -139,8 +144,11 @@ def test_scene_arrows_point_along_estimated_and_true_lights(garment_case):
     assert abs(_angle_deg(a_est, a_true) - garment_case["light_err_deg"]) < 0.5  # the fit's lights were turned
     # the garment mesh carries its cloth texture; the body its albedo colours
     assert plotter.renderer.actors["garment"].GetTexture() is not None
-    body = plotter.renderer.actors["fitted-body"].GetMapper().GetInput()
-    assert body.GetPointData().GetArray("rgb") is not None
+    mapper = plotter.renderer.actors["fitted-body"].GetMapper()
+    mapper.Update()
+    rgb = np.asarray(mapper.GetInput().GetPointData().GetArray("rgb")).astype(float)
+    albedo = garment_case["fit"].albedo
+    assert rgb.shape == albedo.shape and np.corrcoef(rgb.ravel(), albedo.ravel())[0, 1] > 0.99
     plotter.close()
 
 
