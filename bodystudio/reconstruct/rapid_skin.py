@@ -174,9 +174,10 @@ def hull_consistent_constraints(V: np.ndarray, sil: SilhouetteConstraints, field
     o, d = sil.origin, sil.direction
     P = V[sil.vertex]
     q = o + np.sum((P - o) * d, axis=1, keepdims=True) * d
+    vertices, slot = np.unique(sil.vertex, return_inverse=True)  # a rim vertex has a match in several views
+    h_v, _ = fields.implicit_hull(V[vertices])
     h_q, _ = fields.implicit_hull(q)
-    h_v, _ = fields.implicit_hull(P)
-    keep = ~(h_q > np.maximum(h_v, 0.0) + gate_m)
+    keep = ~(h_q > np.maximum(h_v[slot], 0.0) + gate_m)
     if keep.all():
         return sil
     return SilhouetteConstraints(sil.vertex[keep], o[keep], d[keep], sil.k[keep],

@@ -68,3 +68,4 @@ def test_a_negative_gate_is_a_one_line_error():
 
     with pytest.raises(InputError, match="hull_gate_m"):
         RapidSkinParams(hull_gate_m=-0.01)
+
