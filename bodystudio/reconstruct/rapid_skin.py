@@ -3,7 +3,8 @@
 Line 1 computes the delta coordinates of the initial (posed) template; each of the ``No`` outer
 iterations recomputes normals, re-matches rim vertices with the silhouette contours (and, when asked,
 vertices with Kinect depth points) and runs ``Ni`` inner iterations of the chosen solver. Solver and
-matching times are kept apart, as in the paper's Fig. 9.
+matching times are kept apart, as in the paper's Fig. 9. Ours (issue 15): silhouette matches whose target
+leaves the visual hull are dropped (:func:`hull_consistent_constraints`, ``hull_gate_m``).
 """
 
 from __future__ import annotations
