@@ -331,50 +331,65 @@ def refine_outline(field: np.ndarray, dense, band_px: float = 6.0) -> np.ndarray
     """
     h, w = dense.source_mask.shape
     x0, y0 = dense.origin
-    crop = field[y0:y0 + h, x0:x0 + w]
     inside = np.isfinite(dense.source_uv[..., 0])
     if not inside.any():
         return field
-    crop[inside] = dense.source_uv[inside]
-    outside = (~inside).astype(np.uint8)
-    dist, label = cv2.distanceTransformWithLabels(outside, cv2.DIST_L2, cv2.DIST_MASK_5,
+    dist, label = cv2.distanceTransformWithLabels((~inside).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
                                                   labelType=cv2.DIST_LABEL_PIXEL)
-    br, bc = np.nonzero(outside.astype(bool) & (dist <= band_px))
-    if not len(br):
-        return field
-    # DIST_LABEL_PIXEL numbers the zero (covered) pixels in raster order from 1
-    zr, zc = np.nonzero(inside)
-    k = label[br, bc] - 1
-    u = dense.source_uv[zr[k], zc[k]]
-    sd = _signed_distance(dense.source_mask)
-    ux = (u[:, 0] - x0).astype(np.float32)
-    uy = (u[:, 1] - y0).astype(np.float32)
-    # signed distance at u and its central differences (the gradient), sampled bilinearly in one remap
-    sd_u, xp, xm, yp, ym = _bilinear(sd, np.concatenate([ux, ux + 1, ux - 1, ux, ux]),
-                                     np.concatenate([uy, uy, uy, uy + 1, uy - 1])).reshape(5, -1)
-    nx, ny = xp - xm, yp - ym
-    norm = np.maximum(np.hypot(nx, ny), 1e-6)
-    step = sd_u + (dist[br, bc] - 0.5)  # inward distance of u plus the outward distance wanted
-    crop[br, bc, 0] = u[:, 0] - step * nx / norm
-    crop[br, bc, 1] = u[:, 1] - step * ny / norm
+    _outline_band(field[y0:y0 + h, x0:x0 + w], dense.source_uv, inside, dist, label,
+                  _signed_distance(dense.source_mask), float(band_px), float(x0), float(y0))
     return field
 
 
-def _bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``image`` sampled bilinearly at the points (x, y) (clamped at the border), as a flat float32 array."""
-    n = len(x)
-    cols = 1024  # cv2.remap wants maps narrower than 32767
-    pad = (-n) % cols
-    mx = np.pad(np.asarray(x, np.float32), (0, pad)).reshape(-1, cols)
-    my = np.pad(np.asarray(y, np.float32), (0, pad)).reshape(-1, cols)
-    return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()[:n]
+@njit(cache=True)
+def _sample(image, x, y):
+    """``image`` at (x, y), bilinear, clamped at the border."""
+    h, w = image.shape
+    x = min(max(x, 0.0), w - 1.0)
+    y = min(max(y, 0.0), h - 1.0)
+    c, r = min(int(x), w - 2), min(int(y), h - 2)
+    fx, fy = x - c, y - r
+    return ((1 - fy) * ((1 - fx) * image[r, c] + fx * image[r, c + 1])
+            + fy * ((1 - fx) * image[r + 1, c] + fx * image[r + 1, c + 1]))
+
+
+@njit(cache=True)
+def _outline_band(crop, source_uv, inside, dist, label, sd, band_px, x0, y0):
+    """:func:`refine_outline` on the crop: ``label`` numbers the covered pixels in raster order (DIST_LABEL_PIXEL)."""
+    h, w = inside.shape
+    zr = np.empty(h * w, np.int64)
+    zc = np.empty(h * w, np.int64)
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            if inside[r, c]:
+                zr[n], zc[n] = r, c
+                n += 1
+    if h < 2 or w < 2:
+        return
+    for r in range(h):
+        for c in range(w):
+            if inside[r, c]:
+                crop[r, c, 0] = source_uv[r, c, 0]
+                crop[r, c, 1] = source_uv[r, c, 1]
+            elif dist[r, c] <= band_px:
+                k = label[r, c] - 1
+                ux, uy = source_uv[zr[k], zc[k], 0], source_uv[zr[k], zc[k], 1]
+                x, y = ux - x0, uy - y0
+                nx = _sample(sd, x + 1.0, y) - _sample(sd, x - 1.0, y)
+                ny = _sample(sd, x, y + 1.0) - _sample(sd, x, y - 1.0)
+                norm = max(np.sqrt(nx * nx + ny * ny), 1e-6)
+                # inward distance of u plus the outward distance wanted
+                step = _sample(sd, x, y) + dist[r, c] - 0.5
+                crop[r, c, 0] = ux - step * nx / norm
+                crop[r, c, 1] = uy - step * ny / norm
 
 
 def _signed_distance(mask: np.ndarray) -> np.ndarray:
     """Signed distance (pixels, float32) to the outline of ``mask``: positive inside, negative outside."""
     m = np.asarray(mask, np.uint8)
-    inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_5)
+    outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_5)
     return (inside - outside + np.where(m > 0, -0.5, 0.5)).astype(np.float32)
 
 
