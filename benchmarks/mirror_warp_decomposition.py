@@ -1,6 +1,7 @@
 """Where the mirror's end-to-end warp_iou is lost: each stage swapped for its ground truth, one at a time.
 
-Usage: PYTHONPATH=. python benchmarks/mirror_warp_decomposition.py [--stride 4] [--cache DIR] [SESSION ...]
+Usage: PYTHONPATH=. python benchmarks/mirror_warp_decomposition.py [--stride 4] [--cache DIR]
+[--skeleton source|eq3|model] [SESSION ...]
 
 Without SESSION, the two MIR-SYNTH sessions of docs/mirror.md ("Where the end-to-end warp_iou was lost") are
 synthesised into ``--cache`` (kept for the next run): subject 41 walking in and doing ``arms_raise``,
@@ -10,13 +11,16 @@ is initialised first (``bodystudio mirror init``'s defaults). Then every ``strid
 tracker reports player 1 is scored against ``gt/target/person`` with the run's own functions (IK, posing,
 vertex pairs, graph cut, MLS warp), with these inputs:
 
-* ``pipeline``: the fitted, IK-posed source and target, the graph-cut foreground (what ``mirror run`` does);
-* ``true vertices``: the posed vertices of ``gt/mirror`` (the image steps' ceiling);
+* ``pipeline``: the fitted, IK-posed source and target, the graph-cut foreground (``mirror run
+  --correspondence mls``); ``pipeline, dense``: the same with the dense correspondence (``mirror run``'s default);
+* ``true vertices`` (``, dense``): the posed vertices of ``gt/mirror`` (the image steps' ceiling), MLS only / dense;
+* ``true vertices, dense, true foreground``: the same warping the true person mask;
 * ``true positions + fitted displacement``: the true source and true source + (fitted V_T - V_S);
 * ``fitted positions + true displacement``: the fitted source and fitted source + (true V_T - V_S);
 * ``pipeline, true foreground``: the pipeline's pairs warping the true person mask;
 
-and prints the means with the fitted bodies' silhouette IoU and vertex / displacement errors.
+and prints the means with the fitted bodies' silhouette IoU and vertex / displacement errors. ``--skeleton``
+(:func:`decompose`) tracks with the source body's skeleton as written (default), Eq. 3's or the model's joints.
 """
 
 from __future__ import annotations
