@@ -629,10 +629,25 @@ def visible_vertex_pairs(source_vertices: np.ndarray, target_vertices: np.ndarra
 def rim_vertices(vertices: np.ndarray, faces: np.ndarray, eye: np.ndarray, max_cos: float = 0.3) -> np.ndarray:
     """Ids of the vertices seen edge-on from ``eye``: ``|cos|`` of the normal and the viewing ray below ``max_cos``."""
     V = np.asarray(vertices, dtype=np.float64)
-    F = np.asarray(faces)
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    N = np.stack([sum(np.bincount(F[:, k], n[:, c], len(V)) for k in range(3)) for c in range(3)], axis=1)
+    N = _area_weighted_normals(np.ascontiguousarray(V), np.ascontiguousarray(faces, dtype=np.int64))
     ray = V - np.asarray(eye, dtype=np.float64)
     norm = np.linalg.norm(N, axis=1) * np.linalg.norm(ray, axis=1)
     cos = np.einsum("ij,ij->i", N, ray) / np.maximum(norm, 1e-300)
     return np.flatnonzero((np.abs(cos) < max_cos) & (norm > 0))  # vertices on no face have no normal: not rim
+
+
+@njit(cache=True)
+def _area_weighted_normals(V, F):
+    """Unnormalised vertex normals: the sum of the cross products (twice the area-weighted normals) of each
+    vertex's faces, in one pass (the per-frame rim test; numpy's bincounts took 1 ms for a 6k body)."""
+    N = np.zeros_like(V)
+    for f in range(F.shape[0]):
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        ux, uy, uz = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
+        vx, vy, vz = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        for k in (a, b, c):
+            N[k, 0] += nx
+            N[k, 1] += ny
+            N[k, 2] += nz
+    return N
