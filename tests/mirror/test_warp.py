@@ -14,6 +14,7 @@ from bodystudio.mirror.warp import (
     rim_vertices,
     visible_vertex_pairs,
     warp_foreground,
+    warp_pairs,
 )
 
 
@@ -337,3 +338,21 @@ def test_outline_band_maps_the_target_outline_onto_the_source_outline():
     naive = field.copy()
     naive[band] = cs + (near - ct) * 0.6 + (np.stack([xx_t, yy_t], -1) - near)
     assert iou(warp_foreground(rgb, source, naive)[1] > 0.5, target) < 0.95
+
+
+def test_dense_pairs_of_bodies_out_of_view_or_half_in_view():
+    """No body in the image: no dense correspondence (MLS only, as before); half in view: the crop is clipped to
+    the image and the field stays finite."""
+    case = cached_image_case()
+    away = np.array([20.0, 0.0, 0.0])
+    p = warp_pairs(case.source_vertices + away, case.target_vertices + away, case.faces, case.camera, 400,
+                   rim_cos=RIM_COS, dense=True)
+    assert p.dense is None and len(p.src_uv) == 0
+    x = case.camera.center[0] + 0.15 - case.source_vertices[:, 0].mean()  # the body straddles the left border
+    shift = np.array([x - 1.2, 0.0, 0.0])
+    p = warp_pairs(case.source_vertices + shift, case.target_vertices + shift, case.faces, case.camera, 400,
+                   rim_cos=RIM_COS, dense=True)
+    assert p.dense is not None and p.dense.origin[0] == 0 and np.isfinite(p.dense.source_uv).any()
+    field = mls_warp_field(p.src_uv, p.dst_uv, kind="similarity", alpha=MLS_ALPHA, radius_px=MLS_RADIUS_PX,
+                           dense=p.dense)
+    assert np.isfinite(field).all()
