@@ -80,7 +80,7 @@ def test_a_failed_run_keeps_the_previous_one(tmp_path):
 
 def test_mirror_frame_takes_the_dense_correspondence_when_given():
     """``MirrorInput.dense`` (``mirror run --correspondence dense``, the default) against MLS only: warp_iou of the
-    rendered +10 % / +15 kg case through the whole image step (graph-cut foreground) 0.99 vs 0.97."""
+    rendered +10 % / +15 kg case through the whole image step (graph-cut foreground) 0.99+ vs 0.97."""
     case = cached_image_case()
     scores = {}
     for name, dense in (("mls", None), ("dense", case.dense)):

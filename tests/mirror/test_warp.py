@@ -251,26 +251,29 @@ def test_local_mls_sums_match_the_global_solve():
 
 
 # dense correspondence warp (warp.warp_pairs(dense=True), warp.refine_outline): measured warp_iou with the true
-# bodies, against MLS from the vertex pairs only: +10 % / +15 kg 0.990 (MLS 0.974), -16 cm / -15 kg 0.989
-# (0.9575), two actors 0.991 (0.977); the unwarped silhouette 0.60
-MEASURED_DENSE = {"grown": 0.990, "shrunk": 0.989, "two actors": 0.991}
+# bodies, against MLS from the vertex pairs only: +10 % / +15 kg 0.9994 (MLS 0.974), -16 cm / -15 kg 0.9987
+# (0.9575), two actors 0.9990 (0.977); without the inner band (inner_band_px=0) 0.990 / 0.989 / 0.991; the
+# unwarped silhouette 0.60
+MEASURED_DENSE = {"grown": 0.9994, "shrunk": 0.9987, "two actors": 0.9990}
 DENSE_CASES = {"grown": (None, 0, 1), "shrunk": ((("stature_m", -0.16), ("mass_kg", -15.0)), 0, 1),
                "two actors": (None, 0, 2)}
 
 
 @pytest.mark.parametrize("name", list(DENSE_CASES))
 def test_dense_warp_raises_the_true_vertex_ceiling(name):
-    """The new ceiling: 1.5x the measured loss. The MLS-only field (0.957-0.977) and the identity (0.60) fail it."""
+    """The new ceiling: 1.5x the measured loss, at least 0.003 of slack. The MLS-only field (0.957-0.977), the
+    dense field without the inner band (0.989-0.991) and the identity (0.60) fail it."""
     case = cached_image_case(*DENSE_CASES[name])
-    bound = 1 - 1.5 * (1 - MEASURED_DENSE[name])
+    bound = 1 - max(1.5 * (1 - MEASURED_DENSE[name]), 0.003)
 
-    def score(dense):
+    def score(dense, inner_band_px=8.0):
         field = mls_warp_field(case.src_uv, case.dst_uv, kind="similarity", alpha=MLS_ALPHA, groups=case.pair_groups,
-                               radius_px=MLS_RADIUS_PX, dense=dense)
+                               radius_px=MLS_RADIUS_PX, dense=dense, inner_band_px=inner_band_px)
         return iou(warp_foreground(case.rgb, case.true_mask, field)[1] > 0.5, case.target_mask)
 
     assert score(case.dense) >= bound
     assert score(None) < bound  # MLS from the vertex pairs alone
+    assert score(case.dense, inner_band_px=0.0) < bound  # the outline band outside only
     assert iou(case.true_mask, case.target_mask) < bound  # the identity warp
 
 
