@@ -59,8 +59,8 @@ MLS_RADIUS_PX = 32.0
 #: The warp's correspondence by default (``warp.CORRESPONDENCES``): ``dense``, the target body rasterised with
 #: each pixel mapped to the same surface point of the source body and its outline onto the source's outline,
 #: MLS farther out; ``mls``, Eq. 5 from the vertex pairs only. MIR-SYNTH sessions 41 / 42 (docs/mirror.md):
-#: true-vertex ceiling 0.905 / 0.915 -> 0.948 / 0.965, the pipeline 0.869 / 0.855 -> 0.880 / 0.864, end to end
-#: (41 / 42 / 43) 0.876 / 0.863 / 0.858 -> 0.887 / 0.872 / 0.871, for ~5 ms more per frame.
+#: true-vertex ceiling 0.905 / 0.915 -> 0.958 / 0.981, the pipeline 0.869 / 0.855 -> 0.887 / 0.878, end to end
+#: (41 / 42 / 43) 0.876 / 0.863 / 0.858 -> 0.893 / 0.886 / 0.883, for ~6-7 ms more per frame (6k bodies).
 CORRESPONDENCE = "dense"
 
 
