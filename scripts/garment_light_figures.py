@@ -1,9 +1,9 @@
 """The lighting figures of docs/garment.md (issue 13): §5 re-run on cached fits of hidden subjects, one JSON line
 per subject and variant.
 
-    python scripts/garment_light_figures.py --work /tmp/glight [--subjects 3 11 21] [--frames 0:12]
+    python scripts/garment_light_figures.py --work /tmp/glight [--subjects 3 11 21] [--frames 0:12] [--motion walk]
 
-Each subject: ``synth garment`` (240x320, 2k, walk, 30 frames) and ``fit_garment_video`` with the true stature
+Each subject: ``synth garment`` (240x320, 2k, ``--motion``, 30 frames) and ``fit_garment_video`` with the true stature
 on ``--frames`` (as scripts/garment_fit_figures.py), cached in WORK/fitN once (about 5 min each); then
 ``estimate_appearance`` on the fitted geometry and on the TRUE geometry (the session's posed meshes and camera)
 in each variant, scored like ``eval garment`` (``light_dir_err_deg``, ``light_brightest_dir_err_deg``,
@@ -49,16 +49,18 @@ def main() -> None:
     ap.add_argument("--work", type=Path, required=True)
     ap.add_argument("--subjects", type=int, nargs="+", default=[3, 11, 21])
     ap.add_argument("--frames", default="0:12")
+    ap.add_argument("--motion", default="walk")
     args = ap.parse_args()
+    tag = "" if args.motion == "walk" else f"_{args.motion}"
     variants = {"before (per-vertex, no sparsity)": dict(grouped=False, sparsity=0.0, iterations=3),
                 "sparsity only": dict(grouped=False, sparsity=LIGHT_SPARSITY),
                 "grouped only": dict(grouped=True, sparsity=0.0),
                 "after (grouped + sparsity)": dict(grouped=True, sparsity=LIGHT_SPARSITY)}
     for subject in args.subjects:
-        path, fit_dir = args.work / f"s{subject}", args.work / f"fit{subject}"
+        path, fit_dir = args.work / f"s{subject}{tag}", args.work / f"fit{subject}{tag}"
         if not path.exists():
             synth_garment_session(path, subject_seed=subject, n_frames=30, resolution=(240, 320), template="2k",
-                                  texture_size=128)
+                                  texture_size=128, motion=args.motion)
         s = open_session(path)
         if not fit_dir.exists():
             fit_garment_video(path, s.gt_subject["stature_m"], fit_dir, frames=args.frames)
@@ -75,7 +77,7 @@ def main() -> None:
             for name, kw in variants.items():
                 t = time.perf_counter()
                 albedo, lighting = estimate_appearance(images, masks, posed, F, camera, **kw)
-                row = {"subject": subject, "geometry": geometry, "variant": name}
+                row = {"subject": subject, "motion": args.motion, "geometry": geometry, "variant": name}
                 row.update(score(lighting, albedo, camera, s), wall_s=round(time.perf_counter() - t, 1))
                 print(json.dumps(row), flush=True)
 
