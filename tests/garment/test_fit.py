@@ -2,7 +2,8 @@
 
 One 6-frame 240x320 walk (2k body) is fitted once per module with the user stature from the ground truth.
 Bounds are set from the measured figures (docs/garment.md) with a margin. A planted bug that fails them:
-the pose not optimised (7.5 px, IoU 0.77), the lights not estimated. NOT caught: the Nelder-Mead shape
+the pose not optimised (7.5 px, IoU 0.77), the lights not estimated, §5's chromaticity materials and
+light sparsity dropped (21 deg against the 10 deg bound). NOT caught: the Nelder-Mead shape
 stages skipped (they barely improve on the stature-matched start; an open item of issue 13).
 """
 
@@ -55,9 +56,10 @@ def test_fit_recovers_pose(scores):
 
 
 def test_fit_recovers_light_and_albedo(scores):
-    # the issue's goal is 10 deg; measured 21 deg here, 29-38 deg on hidden subjects (docs/garment.md)
-    assert scores["light_dir_err_deg"] <= 45.0, scores
-    assert scores["albedo_err"] <= 0.18, scores  # measured 0.146 here, 0.084-0.124 on hidden subjects
+    # the issue's goal: 10 deg. Measured 3.97 deg here (3.2-5.8 on hidden subjects); the first version of
+    # §5 (per-vertex albedo, no sparsity: estimate_appearance(grouped=False, sparsity=0)) gave 21 deg
+    assert scores["light_dir_err_deg"] <= 10.0, scores
+    assert scores["albedo_err"] <= 0.14, scores  # measured 0.114 here (first version 0.146), 0.075-0.107 hidden
 
 
 def test_fit_folder_round_trip(fitted):
