@@ -65,3 +65,75 @@ def test_fit_arm_sequence_moves_the_placement(tracked_sequence):
                              fit_root=True)
     assert np.linalg.norm(poses[0].root[:3, 3]) < 0.5 * np.linalg.norm(off[:3, 3])
     assert all(np.allclose(p.root, poses[0].root) for p in poses)  # one placement for the sequence
+
+
+@pytest.fixture(scope="module")
+def offset_skeleton_sequence(arm_model_2k):
+    """Eight frames of a subject whose rest shoulder, elbow and wrist sit ~1 cm from the model's regressed ones
+    inside the same skin (``skeleton_model_mesh``), with the tracker's joints (2 mm noise) and a start on the
+    regressed skeleton with every frame's shoulder 3 deg and elbow 4 deg off."""
+    from bodystudio.muscle.model import ArmShapeParams, model_joints, model_rest_vertices
+    from bodystudio.muscle.refine import posed_joints, skeleton_model_mesh
+
+    model = arm_model_2k
+    shape = ArmShapeParams(24.0, 0.5, 1.78, 0.5)
+    J = model_joints(model, shape)
+    offset = np.array([[0.006, -0.004, 0.006], [0.008, 0.005, -0.005], [-0.006, 0.007, 0.005]])  # 9-11 mm each
+    Jt = J + offset
+    rest = model_rest_vertices(model, shape)
+    F = np.asarray(model.faces, np.int64)
+    adjacency = vertex_neighbourhoods(F, len(rest), rings=2)
+    sensor = 0.5 * (J[0] + J[1]) + np.array([0.3, 0.1, 1.0])
+    rng = np.random.default_rng(5)
+    truth, meshes, frames, start, tracker = [], [], [], [], []
+    for k in range(8):
+        shoulder = np.array([0.0, 0.0, np.radians(5.0 + 4.0 * k)])
+        pose = ArmPose(np.eye(4), np.stack([shoulder, elbow_rotvec(Jt, np.radians(15.0 + 12.0 * k), 0.0),
+                                            np.zeros(3)]))
+        M = skeleton_model_mesh(model, shape, pose, rest, Jt)
+        P, N = M[model.arm_mask], vertex_normals(M, F)[model.arm_mask]
+        frames.append(DepthFrame(P, N, cKDTree(P), sensor, model.arm_mask, adjacency, CorrespondenceFilters(), F))
+        truth.append(pose)
+        meshes.append(M)
+        tracker.append(posed_joints(Jt, pose) + rng.normal(0.0, 0.002, (3, 3)))
+        start.append(ArmPose(np.eye(4), np.stack([shoulder + np.radians([3.0, 0.0, 0.0]),
+                                                  elbow_rotvec(J, np.radians(19.0 + 12.0 * k), 0.0), np.zeros(3)])))
+    return model, shape, J, Jt, rest, truth, meshes, frames, start, np.stack(tracker)
+
+
+def test_the_per_subject_skeleton_recovers_offset_rest_joints(offset_skeleton_sequence):
+    """The planted 9-11 mm joint offsets are found to < 3 mm, and the angle and surface errors drop below the
+    fit on the model's regressed skeleton (which can only absorb the offsets in wrong angles)."""
+    from bodystudio.muscle.refine import fit_arm_sequence_skeleton, skeleton_model_mesh
+
+    model, shape, J, Jt, rest, truth, meshes, frames, start, tracker = offset_skeleton_sequence
+    kw = dict(tracker_joints=tracker, tracker_weight=30.0, smooth_weight=1.0, rounds=3, max_nfev=20, huber_m=0.004,
+              depth_huber_only=True)
+    fixed, J_fixed = fit_arm_sequence_skeleton(model, shape, start, frames, J, fit_skeleton=False, **kw)
+    fitted, J_fit = fit_arm_sequence_skeleton(model, shape, start, frames, J, fit_skeleton=True,
+                                              skeleton_prior_weight=10.0, **kw)
+    np.testing.assert_array_equal(J_fixed, J)
+    before = 1000 * np.linalg.norm(J - Jt, axis=1)
+    after = 1000 * np.linalg.norm(J_fit - Jt, axis=1)
+    assert before.min() > 9.0
+    assert after.max() < 3.0, after
+
+    def surface_mm(poses, joints):
+        return 1000 * np.median([np.linalg.norm(skeleton_model_mesh(model, shape, p, rest, joints) - M, axis=1)
+                                 for p, M in zip(poses, meshes, strict=True)])
+
+    assert surface_mm(fitted, J_fit) < 0.5 * surface_mm(fixed, J)
+    assert _angle_errors_deg(fitted, truth)[1] < _angle_errors_deg(fixed, truth)[1]
+    assert all(np.array_equal(p.root, start[0].root) for p in fitted)  # the placement is held
+
+
+def test_the_skeleton_model_mesh_on_the_regressed_joints_is_the_model_mesh(arm_model_2k):
+    from bodystudio.muscle.model import ArmShapeParams, model_joints, model_mesh, model_rest_vertices
+    from bodystudio.muscle.refine import skeleton_model_mesh
+
+    shape = ArmShapeParams(26.0, 0.4, 1.72, 0.49)
+    J = model_joints(arm_model_2k, shape)
+    pose = ArmPose(np.eye(4), np.stack([[0.1, -0.2, 0.4], elbow_rotvec(J, 0.9, 0.0), [0.0, 0.1, 0.0]]))
+    rest = model_rest_vertices(arm_model_2k, shape)
+    np.testing.assert_allclose(skeleton_model_mesh(arm_model_2k, shape, pose, rest, J),
+                               model_mesh(arm_model_2k, shape, pose), atol=1e-14)
