@@ -156,6 +156,7 @@ class CaptureOptions:
     # model's regression by ``sequence_skeleton_prior_weight`` per coordinate (1 per depth pair).
     sequence_fit_skeleton: bool = False
     sequence_skeleton_prior_weight: float = 100.0
+    sequence_free_joints: tuple = (True, True, True)  # shoulder, elbow, wrist: which rest joints are fitted
     sequence_depth_huber_only: bool = False  # Huber weights (IRLS) on the depth pairs only, not the tracker
     # Per-subject rest shape (``refine.fit_rest_shape_correction``: population PCA over all frames' depth, poses
     # held) alternated with the sequence fit, this many rounds (0: the model's rest mesh).
@@ -365,7 +366,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                 model, shape, poses, frames_t, J_model, o.norm_limit, tracker_t, o.sequence_tracker_weight,
                 o.sequence_smooth_weight, o.sequence_rounds, o.sequence_max_nfev, o.sequence_huber_m,
                 o.sequence_fit_root, o.sequence_fit_skeleton, o.sequence_skeleton_prior_weight,
-                o.sequence_depth_huber_only, rest=base)
+                o.sequence_depth_huber_only, rest=base, free_joints=o.sequence_free_joints)
         model_meshes = [skeleton_model_mesh(model, shape, p, base, J, o.norm_limit) for p in poses]
         timer.add("sequence_fit", t0)
     if model is not None and o.pose_sigma_frames > 0:

@@ -382,8 +382,9 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
                               tracker_weight: float = 0.0, smooth_weight: float = 10.0, rounds: int = 2,
                               max_nfev: int = 8, huber_m: float = 0.0, fit_root: bool = False,
                               fit_skeleton: bool = True, skeleton_prior_weight: float = 100.0,
-                              depth_huber_only: bool = False,
-                              rest: np.ndarray | None = None) -> tuple[list[ArmPose], np.ndarray]:
+                              depth_huber_only: bool = False, rest: np.ndarray | None = None,
+                              free_joints: tuple[bool, bool, bool] = (True, True, True),
+                              ) -> tuple[list[ArmPose], np.ndarray]:
     """:func:`fit_arm_sequence` with the subject's skeleton as shared unknowns of the whole sequence.
 
     The model's rest joints are regressed from the shape parameters (Sec. 6.1); a subject outside the
@@ -400,6 +401,7 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
     ``depth_huber_only``: the Huber weights act on the depth pairs alone, as iteratively reweighted least
     squares (weights ``min(1, huber_m / |r|)`` of each pair's distance at the start of each round), and the
     tracker, prior and skeleton terms stay quadratic.
+    ``free_joints``: which of shoulder, elbow, wrist are fitted (the others stay the regressed ones).
     ``rest``: the subject's rest mesh (default ``model_rest_vertices(model, shape)``; a personalised one
     from :func:`fit_rest_shape_correction`).
     Returns the poses and the fitted rest joints (3, 3); the forearm twist of each frame is kept about the
@@ -417,11 +419,16 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
     rest = model_rest_vertices(model, shape) if rest is None else np.asarray(rest, np.float64)
 
     r0 = 3 if fit_root else 0  # parameters before the angles
-    s0 = 9 if fit_skeleton else 0  # skeleton offsets after the root
+    free = np.flatnonzero(np.asarray(free_joints, bool)) if fit_skeleton else np.zeros(0, int)
+    s0 = 3 * len(free)  # skeleton offsets after the root
     n0 = r0 + s0
 
     def skeleton(x):
-        return J0 + x[r0:n0].reshape(3, 3) if fit_skeleton else J0
+        if not s0:
+            return J0
+        J = J0.copy()
+        J[free] += x[r0:n0].reshape(-1, 3)
+        return J
 
     def unpack(x):
         root = root0.copy()
@@ -473,7 +480,7 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
             a = x[n0:].reshape(T, 4)
             if T > 2:
                 r.append(lever * (a[:-2] - 2 * a[1:-1] + a[2:]).ravel())
-            if fit_skeleton:
+            if s0:
                 r.append(np.sqrt(skeleton_prior_weight) * x[r0:n0])
             return np.concatenate(r)
 

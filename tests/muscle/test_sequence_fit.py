@@ -125,6 +125,10 @@ def test_the_per_subject_skeleton_recovers_offset_rest_joints(offset_skeleton_se
     assert surface_mm(fitted, J_fit) < 0.5 * surface_mm(fixed, J)
     assert _angle_errors_deg(fitted, truth)[1] < _angle_errors_deg(fixed, truth)[1]
     assert all(np.array_equal(p.root, start[0].root) for p in fitted)  # the placement is held
+    _, J_arm = fit_arm_sequence_skeleton(model, shape, start, frames, J, skeleton_prior_weight=10.0,
+                                         free_joints=(False, True, True), **{**kw, "rounds": 1})
+    np.testing.assert_array_equal(J_arm[0], J[0])  # the shoulder held, the elbow moved towards the subject's
+    assert np.linalg.norm(J_arm[1] - Jt[1]) < np.linalg.norm(J[1] - Jt[1])
 
 
 def test_the_skeleton_model_mesh_on_the_regressed_joints_is_the_model_mesh(arm_model_2k):
