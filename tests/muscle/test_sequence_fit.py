@@ -178,3 +178,28 @@ def test_the_rest_shape_correction_recovers_a_planted_population_shape(tracked_s
     assert err_mm(got) < 0.5, err_mm(got)
     held = fit_rest_shape_correction(model, shape, truth, frames, rest, J, prior_weight=1e3, huber_m=0.0)
     assert err_mm(held) > 0.9 * err_mm(rest)
+
+
+def test_the_capture_keeps_its_skeleton_and_the_extension_unposes_with_it(arm_model_2k, tmp_path):
+    """``ArmCapture.joints`` round-trip through ``params.json`` and reach ``capture_samples``: a mesh posed
+    about a shifted skeleton unposes back to its rest mesh only with that skeleton."""
+    from bodystudio.muscle.capture import ArmCapture, load_arm_capture, write_arm_capture
+    from bodystudio.muscle.model import ArmShapeParams, capture_samples, model_joints, model_rest_vertices, unpose_arm
+    from bodystudio.muscle.refine import skeleton_model_mesh
+
+    model = arm_model_2k
+    shape = ArmShapeParams(24.0, 0.5, 1.78, 0.5)
+    J = model_joints(model, shape)
+    Jt = J + np.array([[0.0, 0.0, 0.0], [0.008, 0.004, -0.005], [-0.006, 0.007, 0.005]])
+    rest = model_rest_vertices(model, shape)
+    pose = ArmPose(np.eye(4), np.stack([[0.0, 0.0, 0.5], elbow_rotvec(Jt, 1.2, 0.0), np.zeros(3)]))
+    V = skeleton_model_mesh(model, shape, pose, rest, Jt, norm_limit=1.0)  # plain skinning
+    cap = ArmCapture(V[None], np.asarray(model.faces), [pose], shape, (1.0, np.eye(3), np.zeros(3)), "full",
+                     model.template_key, {}, [0], joints=Jt)
+    write_arm_capture(tmp_path / "cap", cap)
+    back = load_arm_capture(tmp_path / "cap")
+    np.testing.assert_allclose(back.joints, Jt, atol=1e-12)
+    (sample,) = capture_samples(back, "c", shape)
+    np.testing.assert_allclose(sample.joints, Jt, atol=1e-12)
+    np.testing.assert_allclose(unpose_arm(sample.vertices, model.part_weights, sample.joints, pose), rest, atol=1e-5)
+    assert np.abs(unpose_arm(sample.vertices, model.part_weights, J, pose) - rest).max() > 1e-3
