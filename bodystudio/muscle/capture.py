@@ -153,13 +153,18 @@ class CaptureOptions:
     sequence_tracker_weight: float = 30.0  # the tracker's joints in the sequence fit, per coordinate
     # The subject's skeleton (rest shoulder, elbow, wrist; the elbow hinge with them) fitted once per sequence
     # with every frame's angles in the sequence fit (``refine.fit_arm_sequence_skeleton``), held to the
-    # model's regression by ``sequence_skeleton_prior_weight`` per coordinate (1 per depth pair).
+    # model's regression by ``sequence_skeleton_prior_weight`` per coordinate (1 per depth pair). Off: measured
+    # (6k, 24 frames, measured shape, docs/muscle.md "fourth pass"), with the placement fitted and Huber on the
+    # depth only, median 5 / 7 / 601 / 602 / 603 / 604: 5.13 / 7.09 / 9.21 / 7.48 / 7.12 / 11.16 -> 6.63 / 3.28 /
+    # 9.43 / 4.51 / 9.69 / 6.56 mm: 3 subjects better, 3 worse; the dataset extension -0.0 -> -7.2 % (set A).
     sequence_fit_skeleton: bool = False
     sequence_skeleton_prior_weight: float = 100.0
     sequence_free_joints: tuple = (True, True, True)  # shoulder, elbow, wrist: which rest joints are fitted
     sequence_depth_huber_only: bool = False  # Huber weights (IRLS) on the depth pairs only, not the tracker
     # Per-subject rest shape (``refine.fit_rest_shape_correction``: population PCA over all frames' depth, poses
-    # held) alternated with the sequence fit, this many rounds (0: the model's rest mesh).
+    # held) alternated with the sequence fit, this many rounds (0: the model's rest mesh). Off: 2 rounds gave
+    # 5 / 601 / 602 / 603 / 604 5.13 / 9.21 / 7.48 / 7.12 / 11.16 -> 5.24 / 9.58 / 6.78 / 7.39 / 10.50 mm and the
+    # extension -0.1 % (set A).
     personal_rounds: int = 0
     personal_prior_weight: float = 0.05
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
