@@ -1,0 +1,537 @@
+"""Analytic checks of garment/composite.py (§6-7 of Garment Replacement): tiny inputs, exact answers, no body model.
+
+Written for mutation testing (issue 17). The end-to-end render of tests/garment/test_refine.py and the CLI
+catalogue of tests/reliability/test_garment_render_inputs.py take seconds per run; these check each piece on
+its own in well under a second: the silhouette IoU, the albedo with known lights (§5.1), the oracle fit's
+perturbation, the §7 chain on a two-layer toy frame (compositing keeps the nearer layer), the render loop with
+stand-ins for the 3D pass, reading frames from a video, SSIM written out, and the refusals.
+"""
+
+import json
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+import scipy.ndimage
+from scipy.spatial.transform import Rotation
+
+from bodystudio.errors import FileFormatError, InputError
+from bodystudio.garment import composite as cp
+from bodystudio.garment import refine
+from bodystudio.garment.fitfile import MIN_FRAME_IOU
+from bodystudio.garment.lighting import Lighting, vertex_shading, visible_vertex_colors
+from bodystudio.geometry.camera import Camera
+
+
+def icosphere(subdivisions=3, radius=0.5):
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces, dtype=np.int64)
+
+
+def front_camera(size=64):
+    return Camera.look_at("cam_00", (0.0, 0.0, 3.0), (0.0, 0.0, 0.0), fx=2.4 * size, width=size, height=size)
+
+
+class Ball:
+    """A stand-in body: a ball that the pose translates (rotations ignored)."""
+
+    def __init__(self, radius=0.5):
+        self.vertices, self.faces = icosphere(3, radius)
+        self.n_vertices = len(self.vertices)
+
+    def pose(self, pose):
+        return self.vertices + np.asarray(pose.translation), None
+
+
+# ------------------------------------------------------------------------------------------ fit quality
+
+
+def test_body_silhouette_iou_is_intersection_over_union_per_frame():
+    from bodystudio.capture.render import render
+
+    ball, cam = Ball(), front_camera()
+    sil = render(ball.vertices, ball.faces, cam).mask
+    left = sil.copy()
+    left[:, 32:] = False
+    outside = np.zeros_like(sil)
+    outside[:5, :5] = True
+    masks = np.stack([sil, left, outside, sil | outside])
+    rot = np.zeros((4, 2, 3))
+    iou = cp.body_silhouette_iou(ball, rot, np.zeros((4, 3)), cam, masks)
+    assert iou.shape == (4,)
+    assert iou[0] == 1.0 and iou[2] == 0.0
+    assert iou[1] == pytest.approx(left.sum() / sil.sum(), abs=1e-12)
+    assert iou[3] == pytest.approx(sil.sum() / (sil.sum() + 25), abs=1e-12)
+    # the pose moves the body: a ball moved out of view overlaps nothing, and an empty union scores 0
+    gone = cp.body_silhouette_iou(ball, rot[:2], np.array([[0.0, 0.0, 0.0], [9.0, 0.0, 0.0]]), cam,
+                                  np.stack([sil, np.zeros_like(sil)]))
+    assert np.array_equal(gone, [1.0, 0.0])
+
+
+# ------------------------------------------------------------------------------------------ §5.1 with known lights
+
+
+def side_wall():
+    """A 2 x 2 m square at x = 1.5 (outside the camera's view) between the ball and a light along +x."""
+    V = np.array([[1.5, -1.0, -1.0], [1.5, 1.0, -1.0], [1.5, 1.0, 1.0], [1.5, -1.0, 1.0]])
+    return V, np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def ball_and_wall():
+    V, F = icosphere()
+    WV, WF = side_wall()
+    return np.vstack([V, WV]), np.vstack([F, WF + len(V)]), len(V)
+
+
+def test_observed_albedo_divides_out_the_shadowed_shading():
+    """Every ball vertex facing the light is shadowed by the wall: its shading is the ambient alone, so the
+    albedo of a frame of constant colour c is c / ambient (Lambert without the shadow would give less)."""
+    V, F, nb = ball_and_wall()
+    cam = front_camera()
+    light = Lighting.single([1.0, 0.0, 0.0], 0.8, 0.4)
+    frame = np.full((cam.height, cam.width, 3), [0.24, 0.12, 0.6])
+    albedo = cp.observed_albedo([frame], [V], F, cam, light)
+    ((ids, _),) = visible_vertex_colors([frame], [V], F, cam, 0.05)
+    assert len(ids) > 100 and np.all(ids < nb)
+    assert np.allclose(albedo[ids], [0.6, 0.3, 1.0], atol=1e-12)  # 0.6 / 0.4 = 1.5 clipped to 1
+    unseen = np.setdiff1d(np.arange(len(V)), ids)
+    assert np.allclose(albedo[unseen], [0.6, 0.3, 1.5], atol=1e-12)  # the unclipped mean of the seen
+
+
+def test_observed_albedo_is_the_least_squares_ratio_over_frames():
+    V, F, nb = ball_and_wall()
+    cam = front_camera()
+    light = Lighting.single([0.0, 0.6, 0.8], 0.7, 0.2)  # from above the camera: the ball is partly lit
+    turned = V @ Rotation.from_rotvec([0, 0.5, 0]).as_matrix().T
+    frames = [np.full((cam.height, cam.width, 3), [0.3, 0.2, 0.1]), np.full((cam.height, cam.width, 3), 0.5)]
+    fallback = np.full((len(V), 3), 0.77)
+    albedo = cp.observed_albedo(frames, [V, turned], F, cam, light, fallback, min_cos=0.2)
+    num, den = np.zeros((len(V), 3)), np.zeros((len(V), 3))
+    for (ids, colors), Vt in zip(visible_vertex_colors(frames, [V, turned], F, cam, 0.2), [V, turned], strict=True):
+        S = vertex_shading(Vt, F, light, shadows=True)[ids]
+        num[ids] += colors * S
+        den[ids] += S * S
+    seen = den.min(1) > 1e-6
+    assert 100 < seen.sum() < nb
+    assert np.allclose(albedo[seen], np.clip(num[seen] / den[seen], 0, 1), atol=1e-12)
+    assert np.all(albedo[~seen] == 0.77) and np.all(fallback == 0.77)  # the fallback is copied, not written
+    assert np.abs(albedo[seen] - 0.77).min() > 1e-6
+    # a grazing min_cos sees more vertices than the default of visible_vertex_colors
+    wide = cp.observed_albedo(frames, [V, turned], F, cam, light, fallback)
+    assert (wide != 0.77).any(1).sum() > seen.sum()
+
+
+def test_observed_albedo_without_any_seen_vertex_is_grey():
+    V, F = icosphere()
+    cam = front_camera()
+    frame = np.full((cam.height, cam.width, 3), 0.3)
+    albedo = cp.observed_albedo([frame], [V + [0.0, 0.0, 9.0]], F, cam, Lighting.single([0, 0, 1]))
+    assert albedo.shape == (len(V), 3) and np.all(albedo == 0.5)
+
+
+# ------------------------------------------------------------------------------------------ oracle fit errors
+
+
+@dataclass
+class ToyFit:
+    rotations: np.ndarray
+    translations: np.ndarray
+    lighting: object
+    silhouette_iou: np.ndarray
+    camera: object
+    masks: np.ndarray
+    warnings: tuple = ()
+    ball: Ball = field(default_factory=Ball)
+
+    def body(self):
+        return self.ball
+
+
+def toy_fit(n=3, bones=4, lighting=True):
+    from bodystudio.capture.render import render
+
+    rng = np.random.default_rng(0)
+    cam = front_camera(48)
+    ball = Ball()
+    sil = render(ball.vertices, ball.faces, cam).mask
+    light = Lighting([[0, 0, 1], [0, 1, 1], [1, 0, 0]], [[0.5, 0.5, 0.5], [0.2, 0.1, 0.0], [0.1, 0.1, 0.1]],
+                     [0.2, 0.2, 0.2]) if lighting else None
+    return ToyFit(rng.normal(scale=0.5, size=(n, bones, 3)), np.zeros((n, 3)), light,
+                  np.ones(n), cam, np.stack([sil] * n), ("oracle",), ball)
+
+
+def test_perturbed_fit_turns_every_bone_moves_the_root_and_turns_the_lights_by_the_given_amounts():
+    fit = toy_fit()
+    out = cp.perturbed_fit(fit, seed=4, pose_deg=5.0, translation_m=0.03, light_deg=12.0)
+    n, B, _ = fit.rotations.shape
+    rel = Rotation.from_rotvec(out.rotations.reshape(-1, 3)) * Rotation.from_rotvec(fit.rotations.reshape(-1, 3)).inv()
+    assert np.allclose(np.degrees(rel.magnitude()), 5.0, atol=1e-9)
+    axes = rel.as_rotvec() / rel.magnitude()[:, None]
+    assert np.abs(axes.mean(0)).max() < 0.6 and len(np.unique(axes.round(6), axis=0)) == n * B  # random, each anew
+    shift = out.translations - fit.translations
+    assert np.allclose(np.linalg.norm(shift, axis=1), 0.03, atol=1e-12)
+    assert not np.allclose(shift[0], shift[1])
+    # one rotation of 12 deg for all lights; colours and ambient unchanged
+    R, _ = Rotation.align_vectors(out.lighting.directions, fit.lighting.directions)
+    assert np.degrees(R.magnitude()) == pytest.approx(12.0, abs=1e-9)
+    assert np.allclose(R.apply(fit.lighting.directions), out.lighting.directions, atol=1e-12)
+    assert np.array_equal(out.lighting.colors, fit.lighting.colors)
+    assert np.array_equal(out.lighting.ambient, fit.lighting.ambient)
+    # the IoU is measured anew on the moved body (the toy body only moves with the root, 3 cm: still overlaps)
+    want = cp.body_silhouette_iou(fit.ball, out.rotations, out.translations, fit.camera, fit.masks)
+    assert np.array_equal(out.silhouette_iou, want) and np.all(want < 1.0) and np.all(want > 0.5)
+    assert out.warnings == ("perturbed oracle fit: 5 deg per bone, 3 cm root, lights 12 deg (seed 4)",)
+    assert fit.warnings == ("oracle",) and fit.silhouette_iou.tolist() == [1.0, 1.0, 1.0]
+
+
+def test_perturbed_fit_is_reproducible_per_seed_and_zero_is_the_identity():
+    fit = toy_fit()
+    a = cp.perturbed_fit(fit, seed=1)
+    b = cp.perturbed_fit(fit, seed=1)
+    c = cp.perturbed_fit(fit, seed=2)
+    assert np.array_equal(a.rotations, b.rotations) and np.array_equal(a.translations, b.translations)
+    assert np.array_equal(a.lighting.directions, b.lighting.directions)
+    assert not np.allclose(a.rotations, c.rotations)
+    rel = Rotation.from_rotvec(a.rotations.reshape(-1, 3)) * Rotation.from_rotvec(fit.rotations.reshape(-1, 3)).inv()
+    assert np.allclose(np.degrees(rel.magnitude()), 3.0, atol=1e-9)  # the defaults: 3 deg, 1.5 cm, 10 deg
+    assert np.allclose(np.linalg.norm(a.translations - fit.translations, axis=1), 0.015, atol=1e-12)
+    R, _ = Rotation.align_vectors(a.lighting.directions, fit.lighting.directions)
+    assert np.degrees(R.magnitude()) == pytest.approx(10.0, abs=1e-9)
+    assert a.warnings == ("perturbed oracle fit: 3 deg per bone, 1.5 cm root, lights 10 deg (seed 1)",)
+    zero = cp.perturbed_fit(fit, pose_deg=0.0, translation_m=0.0, light_deg=0.0)
+    assert np.allclose(zero.rotations, fit.rotations, atol=1e-12)
+    assert np.allclose(zero.translations, fit.translations, atol=1e-15)
+    assert np.allclose(zero.lighting.directions, fit.lighting.directions, atol=1e-15)
+    assert np.allclose(zero.silhouette_iou, 1.0)
+    dark = cp.perturbed_fit(toy_fit(lighting=False))
+    assert dark.lighting is None
+
+
+# ------------------------------------------------------------------------------------------ §7 on a toy frame
+
+
+def toy_layer(H=40, W=48):
+    """A body square (depth 2 m) with a garment on its lower part (depth 1.9 m, whole: also behind the arm) and
+    an arm strip across it in front of the garment (body depth 1.5 m)."""
+    body_mask = np.zeros((H, W), bool)
+    body_mask[8:32, 10:38] = True
+    g_mask = np.zeros((H, W), bool)
+    g_mask[14:32, 10:38] = True  # trousers: the sides and the bottom are silhouette, the top a hem on the skin
+    body_depth = np.where(body_mask, 2.0, 0.0).astype(np.float32)
+    body_depth[18:22, 5:43] = 1.5  # the arm, in front of the garment
+    body_mask[18:22, 5:43] = True
+    g_depth = np.where(g_mask, 1.9, 0.0).astype(np.float32)
+    rgb = np.zeros((H, W, 3), np.float32)
+    rgb[g_mask] = [0.2, 0.4, 0.6]
+    body_image = (body_mask[..., None] * np.full(3, 0.5)).astype(np.float32)
+    return SimpleNamespace(rgb=rgb, mask=g_mask, depth=g_depth, body_image=body_image, body_mask=body_mask,
+                           body_depth=body_depth)
+
+
+def test_compositing_keeps_the_nearer_layer_per_pixel():
+    layer = toy_layer()
+    H, W = layer.mask.shape
+    frame = np.full((H, W, 3), 7, np.uint8)
+    person = layer.body_mask.copy()
+    out = cp.refine_and_composite(frame, person, layer, flow=False, rbf=False)
+    behind_arm = layer.mask & (layer.body_depth < layer.depth) & (layer.body_depth > 0)
+    assert behind_arm.sum() == 4 * 28
+    assert np.array_equal(out.garment_mask, layer.mask & ~behind_arm)
+    assert np.array_equal(out.image[out.garment_mask], np.tile([51, 102, 153], (out.garment_mask.sum(), 1)))
+    assert np.all(out.image[~out.garment_mask] == 7)
+    assert np.array_equal(out.unrefined_mask, out.garment_mask)
+    assert out.field.shape == (H, W, 2) and np.all(out.field == 0)
+    assert set(out.timings_ms) == {"flow", "rbf", "composite"} and min(out.timings_ms.values()) >= 0
+    # the ablation lays the garment over the arm
+    flat = cp.refine_and_composite(frame, person, layer, flow=False, rbf=False, depth=False)
+    assert np.array_equal(flat.garment_mask, layer.mask)
+    assert np.array_equal(flat.unrefined_mask, out.garment_mask)  # the plain 3D composite always uses depth
+
+
+def test_rbf_refinement_is_the_silhouette_warp_of_eq_9_written_out():
+    layer = toy_layer()
+    H, W = layer.mask.shape
+    frame = np.full((H, W, 3), 7, np.uint8)
+    person = np.zeros((H, W), bool)
+    person[8:34, 8:40] = True  # the actor is a little wider and longer than the fitted body
+    for sigma in (None, 4.0):
+        out = cp.refine_and_composite(frame, person, layer, flow=False, rbf=True, sigma_px=sigma)
+        src, tgt = refine.match_silhouettes(refine.outer_silhouette(layer.mask, layer.body_mask), person)
+        assert len(src) > 10
+        kwargs = {} if sigma is None else {"sigma_px": sigma}
+        field = refine.concatenate_warps(np.zeros((H, W, 2), np.float32),
+                                         refine.silhouette_rbf_warp(tgt, src - tgt, (H, W), **kwargs))
+        assert np.abs(field).max() > 0.5
+        assert np.allclose(out.field, field, atol=1e-6)
+        g_mask = refine.warp_image(layer.mask, field)
+        image, shown = refine.depth_composite(frame, refine.warp_image(layer.rgb, field), g_mask,
+                                              refine.warp_image(layer.depth, field, nearest=True),
+                                              refine.warp_image(layer.body_depth, field, nearest=True))
+        assert np.array_equal(out.garment_mask, shown) and np.array_equal(out.image, image)
+        assert not np.array_equal(shown, out.unrefined_mask)
+    default = cp.refine_and_composite(frame, person, layer, flow=False, rbf=True)
+    assert not np.allclose(default.field, out.field)
+
+
+def test_flow_refinement_uses_the_motion_correction_field():
+    layer = toy_layer()
+    H, W = layer.mask.shape
+    rng = np.random.default_rng(0)
+    texture = cv2.GaussianBlur(rng.uniform(size=(H, W, 3)).astype(np.float32), (0, 0), 1.5)
+    layer.body_image = np.where(layer.body_mask[..., None], 0.2 + 0.6 * texture, 0.0).astype(np.float32)
+    shifted = np.roll(layer.body_image, (1, 2), axis=(0, 1))
+    frame = np.clip(np.round(shifted * 255), 0, 255).astype(np.uint8)
+    person = np.roll(layer.body_mask, (1, 2), axis=(0, 1))
+    out = cp.refine_and_composite(frame, person, layer, flow=True, rbf=False)
+    want = refine.garment_motion_correction(frame, person, layer.body_image, layer.body_mask, layer.mask)
+    assert np.abs(want).max() > 0.5
+    assert np.array_equal(out.field, want)
+
+
+def test_default_lighting_is_a_white_light_from_the_camera():
+    cam = front_camera()
+    light = cp.default_lighting(cam)
+    assert np.allclose(light.directions, [[0, 0, 1]]) and np.allclose(light.colors, 0.7)
+    assert np.allclose(light.ambient, 0.3)
+
+
+# ------------------------------------------------------------------------------------------ frames in / out
+
+
+def test_png_is_rgb_and_grey():
+    rgb = np.zeros((4, 5, 3), np.uint8)
+    rgb[..., 0] = 200
+    rgb[1, 2] = [1, 2, 3]
+    back = cv2.imdecode(np.frombuffer(cp._png(rgb), np.uint8), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(back[..., ::-1], rgb)
+    grey = np.arange(20, dtype=np.uint8).reshape(4, 5)
+    assert np.array_equal(cv2.imdecode(np.frombuffer(cp._png(grey), np.uint8), cv2.IMREAD_UNCHANGED), grey)
+
+
+def write_video(path, values, size=(32, 24)):
+    from bodystudio.fileio import Mp4Writer
+
+    w = Mp4Writer(path, size, 10.0)
+    for v in values:
+        w.write(np.full((size[1], size[0], 3), v, np.uint8))
+    w.close()
+
+
+def test_source_frames_read_a_video_in_the_fits_order(tmp_path):
+    values = [10, 50, 90, 130, 170, 210]
+    write_video(tmp_path / "clip.mp4", values)
+    fit = SimpleNamespace(source="clip.mp4", frame_ids=np.array([3, 1, 1, 4, 0]), camera=SimpleNamespace(name="c"))
+    frames = list(cp.source_frames(fit, tmp_path))  # a relative source is found next to the fit folder
+    assert [f.shape for f in frames] == [(24, 32, 3)] * 5 and all(f.dtype == np.uint8 for f in frames)
+    means = [float(f.mean()) for f in frames]
+    assert np.allclose(means, [130, 50, 50, 170, 10], atol=4), means
+    fit.source = str(tmp_path / "clip.mp4")
+    assert len(list(cp.source_frames(fit))) == 5
+    fit.frame_ids = np.array([5])  # the last frame
+    assert abs(float(next(cp.source_frames(fit)).mean()) - 210) < 4
+
+
+def test_source_frames_refuse_missing_sources_and_frames(tmp_path):
+    write_video(tmp_path / "clip.mp4", [10, 50, 90])
+    fit = SimpleNamespace(source=str(tmp_path / "clip.mp4"), frame_ids=np.array([1, 7, 9]),
+                          camera=SimpleNamespace(name="c"))
+    with pytest.raises(FileFormatError, match=r"clip\.mp4: frame 7 of the fit is missing from the video"):
+        list(cp.source_frames(fit))
+    fit.source = str(tmp_path / "gone.mp4")
+    with pytest.raises(InputError, match=r"gone\.mp4: the fit's source video or session is gone"):
+        list(cp.source_frames(fit, tmp_path))
+    fit.source = "gone.mp4"
+    with pytest.raises(InputError, match="gone"):
+        list(cp.source_frames(fit, tmp_path))
+    (tmp_path / "junk.mp4").write_bytes(b"not a video at all")
+    fit.source = str(tmp_path / "junk.mp4")
+    with pytest.raises(FileFormatError, match=r"junk\.mp4: cannot read the video .*; check the file"):
+        list(cp.source_frames(fit))
+
+
+# ------------------------------------------------------------------------------------------ the render loop
+
+
+def stand_in_render(monkeypatch, frames, iou, lighting=None):
+    """A fit over ``frames`` whose 3D pass is :func:`toy_layer` (the garment, body and dressing stand-ins)."""
+    import bodystudio.garment.garments as garments
+    import bodystudio.garment.render as render
+
+    H, W = frames[0].shape[:2]
+    calls = {"render": [], "dress": []}
+
+    def fake_layer(V, F, cloth, garment_V, camera, lighting, albedo, shadows):
+        calls["render"].append((lighting, albedo, shadows))
+        return toy_layer(H, W)
+
+    def fake_dress(body, garment, texture, size, seed):
+        calls["dress"].append((garment, texture, size, seed))
+        return "cloth"
+
+    monkeypatch.setattr(render, "render_garment_layer", fake_layer)
+    monkeypatch.setattr(garments, "dress", fake_dress)
+    monkeypatch.setattr(garments, "pose_garment", lambda cloth, body, pose: None)
+    monkeypatch.setattr(cp, "source_frames", lambda fit, fit_dir: iter(frames))
+    n = len(frames)
+    body = SimpleNamespace(n_vertices=5, faces=None, pose=lambda pose: (None, None))
+    fit = SimpleNamespace(frame_ids=np.arange(n) * 3 + 2, camera=SimpleNamespace(height=H, width=W,
+                                                                                 center=np.array([0.0, 0.0, 2.0])),
+                          silhouette_iou=np.asarray(iou, float), lighting=lighting, albedo=np.zeros((5, 3)),
+                          fps=12.0, source="toy", masks=np.stack([toy_layer(H, W).body_mask] * n),
+                          body=lambda: body, pose=lambda i: i)
+    return fit, calls
+
+
+def test_render_loop_composites_fitted_frames_and_passes_the_others_through(tmp_path, monkeypatch):
+    H, W = 40, 48
+    frames = [np.full((H, W, 3), 10 * (i + 1), np.uint8) for i in range(3)]
+    fit, calls = stand_in_render(monkeypatch, frames, [0.9, 0.5, 0.95])
+    doc = cp.render_garment_video(tmp_path / "fit", "skirt", "checks", fit=fit, seed=3, texture_size=32,
+                                  shadows=False, min_frame_iou=0.8)
+    assert calls["dress"] == [("skirt", "checks", 32, 3)]
+    assert len(calls["render"]) == 2  # the passed-through frame is not rendered
+    light, albedo, shadows = calls["render"][0]
+    assert np.allclose(light.directions, [[0, 0, 1]]) and np.allclose(light.ambient, 0.3)  # the default lights
+    assert albedo is fit.albedo and shadows is False
+    assert doc["format"] == "bodystudio-garment-render" and doc["version"] == 1
+    assert doc["garment"] == "skirt" and doc["texture"] == "checks" and doc["seed"] == 3 and doc["texture_size"] == 32
+    assert doc["options"] == {"flow": True, "rbf": True, "depth": True, "shadows": False}
+    assert doc["min_frame_iou"] == 0.8 and doc["n_passed_through"] == 1 and doc["video"] is None
+    assert doc["frame_ids"] == [2, 5, 8] and doc["fit"] == str(tmp_path / "fit")
+    assert [f["status"] for f in doc["frames"]] == ["ok", "passed_through", "ok"]
+    assert [f["frame"] for f in doc["frames"]] == [2, 5, 8]
+    assert doc["frames"][1]["garment_px"] == 0 and doc["frames"][0]["garment_px"] > 300
+    assert set(doc["frames"][0]["ms"]) == {"render", "flow", "rbf", "composite", "write"}
+    assert set(doc["frames"][1]["ms"]) == {"write"}
+    assert set(doc["ms_per_frame"]) == {"render", "flow", "rbf", "composite", "write"}
+    assert doc["ms_per_frame_statistic"] == "median" and doc["wall_s"] >= 0
+    out = tmp_path / "fit" / "render"
+    assert json.loads((out / "render.json").read_text())["frames"] == doc["frames"]
+    for fid, frame in zip((2, 5, 8), frames, strict=True):
+        img = cv2.imread(str(out / "frames" / f"{fid:05d}.png"))[..., ::-1]
+        mask = cv2.imread(str(out / "garment_masks" / f"{fid:05d}.png"), cv2.IMREAD_GRAYSCALE)
+        assert set(np.unique(mask)) <= {0, 255}
+        if fid == 5:
+            assert np.array_equal(img, frame) and not mask.any()
+        else:
+            assert (mask == 255).sum() == doc["frames"][[2, 5, 8].index(fid)]["garment_px"]
+            assert np.all(img[mask == 0] == frame[mask == 0]) and np.any(img[mask == 255] != frame[mask == 255])
+    loaded = cp.load_render(tmp_path / "fit")
+    assert loaded["frames"] == doc["frames"]
+
+
+def test_render_loop_options_lights_and_video(tmp_path, monkeypatch):
+    H, W = 40, 48
+    frames = [np.full((H, W, 3), 60, np.uint8)] * 2
+    lights = Lighting.single([0, 1, 0], 0.5, 0.1)
+    fit, calls = stand_in_render(monkeypatch, frames, [MIN_FRAME_IOU, 0.9], lighting=lights)  # >= passes
+    fit.albedo = np.zeros((4, 3))  # not one per body vertex: the render falls back to its own
+    video = tmp_path / "out.mp4"
+    doc = cp.render_garment_video(tmp_path / "fit", fit=fit, out_video=video, flow=False, rbf=False, depth=False)
+    assert calls["dress"] == [("tshirt", "stripes", 512, 0)]
+    light, albedo, shadows = calls["render"][0]
+    assert light is lights and albedo is None and shadows is True
+    assert doc["options"] == {"flow": False, "rbf": False, "depth": False, "shadows": True}
+    assert doc["video"] == str(video) and video.read_bytes()[4:8] == b"ftyp"
+    assert doc["min_frame_iou"] == MIN_FRAME_IOU and doc["n_passed_through"] == 0
+    assert all(f["garment_px"] == toy_layer(H, W).mask.sum() for f in doc["frames"])  # no depth test
+
+
+@pytest.mark.parametrize("kwargs, error, phrase", [
+    ({"garment": "cape"}, InputError, "--garment 'cape': valid: "),
+    ({"texture": "tartan"}, InputError, "--texture 'tartan': valid: "),
+    ({"seed": -1}, InputError, r"--seed -1: must be in \[0, 2\^32\)"),
+    ({"texture_size": 8}, InputError, r"texture size 8 must lie in \[16, 4096\]"),
+    ({"texture_size": 5000}, InputError, "texture size 5000"),
+    ({"min_frame_iou": 0.99}, InputError, r"no frame of the fit matches the person's silhouette \(IoU >= 0.99\)"),
+])
+def test_render_refuses_bad_options_before_writing(tmp_path, monkeypatch, kwargs, error, phrase):
+    frames = [np.full((40, 48, 3), 60, np.uint8)]
+    fit, calls = stand_in_render(monkeypatch, frames, [0.9])
+    with pytest.raises(error, match=phrase):
+        cp.render_garment_video(tmp_path / "fit", fit=fit, **kwargs)
+    assert not (tmp_path / "fit" / "render").exists() and calls["render"] == []
+
+
+def test_render_refuses_a_frame_of_another_size(tmp_path, monkeypatch):
+    fit, _ = stand_in_render(monkeypatch, [np.full((40, 48, 3), 60, np.uint8)], [0.9])
+    monkeypatch.setattr(cp, "source_frames", lambda fit, fit_dir: iter([np.zeros((40, 50, 3), np.uint8)]))
+    with pytest.raises(FileFormatError, match=r"toy: frame 2 is 50x40, the fit's camera 48x40"):
+        cp.render_garment_video(tmp_path / "fit", fit=fit)
+    assert not (tmp_path / "fit" / "render" / "render.json").exists()
+
+
+def test_check_render_options():
+    assert cp.check_render_options("skirt", "checks", None) is None
+    assert str(cp.check_render_options("skirt", "checks", "a/b/OUT.MP4", seed=2**32 - 1)) == "a/b/OUT.MP4"
+    assert cp.check_render_options("skirt", "checks", None, seed=0) is None
+    with pytest.raises(InputError, match=r"--out x\.avi: the video must be an \.mp4 file"):
+        cp.check_render_options("skirt", "checks", "x.avi")
+    for seed in (2**32, 1.5, -1):
+        with pytest.raises(InputError, match="--seed"):
+            cp.check_render_options("skirt", "checks", None, seed=seed)
+
+
+def test_load_render_refuses_missing_damaged_and_foreign_files(tmp_path):
+    with pytest.raises(FileFormatError, match=r"render\.json: not found; run 'bodystudio garment render"):
+        cp.load_render(tmp_path)
+    (tmp_path / "render").mkdir()
+    (tmp_path / "render" / "render.json").write_text("{not json")
+    with pytest.raises(FileFormatError, match=r"render\.json: unreadable .*; rerun 'bodystudio garment render'"):
+        cp.load_render(tmp_path)
+    (tmp_path / "render" / "render.json").write_text('{"format": "bodystudio-garment-fit"}')
+    with pytest.raises(FileFormatError, match="not a garment render"):
+        cp.load_render(tmp_path)
+    (tmp_path / "render" / "render.json").write_text('{"format": "bodystudio-garment-render", "x": 1}')
+    assert cp.load_render(tmp_path) == {"format": "bodystudio-garment-render", "x": 1}
+
+
+# ------------------------------------------------------------------------------------------ evaluation
+
+
+def ssim_reference(a, b):
+    """Wang et al. 2004 written out: Gaussian window sigma 1.5 (13 taps, mirrored border), 8-bit constants."""
+    a, b = a.astype(np.float64), b.astype(np.float64)
+
+    def blur(x):
+        sigma = (1.5, 1.5, 0) if x.ndim == 3 else 1.5
+        return scipy.ndimage.gaussian_filter(x, sigma, mode="mirror", truncate=4.0)
+
+    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+    mu_a, mu_b = blur(a), blur(b)
+    var_a, var_b, cov = blur(a * a) - mu_a**2, blur(b * b) - mu_b**2, blur(a * b) - mu_a * mu_b
+    s = (2 * mu_a * mu_b + c1) * (2 * cov + c2) / ((mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2))
+    return s.mean(axis=2) if s.ndim == 3 else s
+
+
+def test_ssim_map_is_wang_et_al_written_out():
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 256, size=(20, 24, 3)).astype(np.uint8)
+    b = np.clip(a.astype(int) + rng.integers(-40, 40, size=a.shape), 0, 255).astype(np.uint8)
+    got = cp.ssim_map(a, b)
+    assert got.shape == (20, 24)
+    assert np.abs(got - ssim_reference(a, b)).max() < 1e-9
+    assert np.abs(cp.ssim_map(a[..., 0], b[..., 0]) - ssim_reference(a[..., 0], b[..., 0])).max() < 1e-9
+    assert np.allclose(cp.ssim_map(a, a), 1.0)
+    # flat images: SSIM is the luminance term (2 mu_a mu_b + c1) / (mu_a^2 + mu_b^2 + c1)
+    c1 = (0.01 * 255) ** 2
+    flat = cp.ssim_map(np.full((9, 9), 100.0), np.full((9, 9), 50.0))
+    assert np.allclose(flat, (2 * 100 * 50 + c1) / (100**2 + 50**2 + c1))
+    # a wider window is a different measure
+    assert np.abs(cp.ssim_map(a, b, sigma=3.0) - got).max() > 1e-3
+
+
+def test_render_target_mismatch():
+    doc = {"garment": "skirt", "texture": "checks", "seed": 2}
+    assert "no gt/garment.json" in cp.render_target_mismatch(doc, None)
+    gt = {"target": {"name": "skirt", "pattern": "checks", "seed": 2}}
+    assert cp.render_target_mismatch(doc, gt) is None
+    msg = cp.render_target_mismatch({**doc, "seed": 5}, gt)
+    assert msg == ("rendered checks skirt with --seed 5 but the session's target is checks skirt with seed 2; "
+                   "render with --garment skirt --texture checks --seed 2")
+    assert cp.render_target_mismatch({**doc, "texture": "print"}, gt).startswith("rendered print skirt")
+    assert cp.render_target_mismatch(doc, {}).endswith("--garment None --texture None --seed None")
