@@ -1,0 +1,670 @@
+"""Analytic checks of garment/fit.py (§4 of Garment Replacement, Eq. 1-6): a ten-bone toy skeleton, a ball and
+square mattes instead of the body model, so each test runs in well under a second.
+
+Written for mutation testing (issue 17); tests/garment/test_fit.py's end-to-end fit takes minutes. Each term is
+pinned by its formula or an exact case: the camera hypothesis, the fit's forward kinematics and four-weight
+skinning against the body package, Eq. 2's distance form (zero for a perfect overlap, growing with a shift),
+Eq. 3, Eq. 5, Eq. 6, the prior, the keyframe file, the placement, the tracking order and the appearance step.
+"""
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bodystudio.body.pose import Pose
+from bodystudio.body.skeleton import Skeleton
+from bodystudio.errors import FileFormatError, InputError
+from bodystudio.garment import fit as gf
+from bodystudio.geometry.camera import Camera
+
+# ------------------------------------------------------------------------------------------ a toy body
+
+BONES = {  # name: (parent, head, tail)
+    "Root": (None, (0.0, 1.0, 0.0), (0.0, 1.1, 0.0)),
+    "spine_02": ("Root", (0.0, 1.1, 0.0), (0.0, 1.5, 0.05)),
+    "thigh_l": ("Root", (0.1, 1.0, 0.0), (0.1, 0.55, 0.02)),
+    "calf_l": ("thigh_l", (0.1, 0.55, 0.02), (0.1, 0.1, 0.0)),
+    "thigh_r": ("Root", (-0.1, 1.0, 0.0), (-0.1, 0.55, 0.02)),
+    "calf_r": ("thigh_r", (-0.1, 0.55, 0.02), (-0.1, 0.1, 0.0)),
+    "upperarm_l": ("spine_02", (0.2, 1.45, 0.0), (0.45, 1.3, 0.0)),
+    "lowerarm_l": ("upperarm_l", (0.45, 1.3, 0.0), (0.6, 1.1, 0.05)),
+    "upperarm_r": ("spine_02", (-0.2, 1.45, 0.0), (-0.45, 1.3, 0.0)),
+    "lowerarm_r": ("upperarm_r", (-0.45, 1.3, 0.0), (-0.6, 1.1, 0.05)),
+}
+
+
+def toy_skeleton():
+    names = tuple(BONES)
+    parents = np.array([-1 if p is None else names.index(p) for p, _, _ in BONES.values()])
+    heads = np.array([h for _, h, _ in BONES.values()])
+    tails = np.array([t for _, _, t in BONES.values()])
+    return Skeleton(names, parents, heads, tails, np.linspace(-0.3, 0.3, len(names)))
+
+
+def toy_body(seed=0):
+    """Points along each bone, skinned to it and (blending) to up to five others."""
+    sk = toy_skeleton()
+    rng = np.random.default_rng(seed)
+    V, W = [], []
+    for j in range(sk.n_bones):
+        for s in np.linspace(0.0, 1.0, 6):
+            V.append(sk.heads[j] + s * (sk.tails[j] - sk.heads[j]) + rng.normal(scale=0.03, size=3))
+            w = np.zeros(sk.n_bones)
+            w[j] = 1.0
+            others = rng.choice(sk.n_bones, 5, replace=False)
+            w[others] += rng.uniform(0.0, 0.3, size=5)  # six non-zero weights: the fit keeps the largest four
+            W.append(w / w.sum())
+    return SimpleNamespace(skeleton=sk, vertices=np.array(V), weights=np.array(W))
+
+
+def front_camera(width=80, height=120):
+    return gf.camera_hypothesis(width, height)
+
+
+# ------------------------------------------------------------------------------------------ §4.1 camera
+
+
+def test_focal_from_vertical_field_of_view():
+    assert gf.focal_from_vfov(100, 90.0) == pytest.approx(50.0, rel=1e-12)
+    assert gf.focal_from_vfov(480, 60.0) == pytest.approx(240.0 / np.tan(np.radians(30.0)), rel=1e-12)
+    assert gf.focal_from_vfov(480) == pytest.approx(240.0 / np.tan(np.radians(20.0)), rel=1e-12)  # 40 deg
+
+
+def test_camera_hypothesis_is_a_centred_pinhole_one_metre_up_looking_along_minus_z():
+    cam = gf.camera_hypothesis(640, 480)
+    assert cam.name == "cam_00" and (cam.width, cam.height) == (640, 480)
+    f = gf.focal_from_vfov(480)
+    assert np.allclose(cam.K, [[f, 0, 319.5], [0, f, 239.5], [0, 0, 1]])  # the centre of the pixel grid
+    assert np.allclose(cam.center, [0.0, 1.0, 0.0])
+    assert np.allclose(cam.project(np.array([[0.0, 1.0, -3.0]])), [[319.5, 239.5]])
+    assert cam.project(np.array([[0.0, 2.0, -3.0]]))[0, 1] < 240  # world up is image up
+    assert cam.project(np.array([[1.0, 1.0, -3.0]]))[0, 0] > 320  # world +x is image right
+    assert np.allclose(gf.camera_hypothesis(640, 480, 500).K[0, 0], 500.0)
+    # the plausible focal range is inclusive: [0.2 H, 20 max(W, H)]
+    assert gf.camera_hypothesis(640, 480, 96.0).fx == 96.0
+    assert gf.camera_hypothesis(640, 480, 12800.0).fx == 12800.0
+    for f_bad in (95.9, 12801.0):
+        with pytest.raises(InputError, match=rf"--focal-px {f_bad:g}: implausible for a 640x480 video; use a value "
+                                             r"in \[96, 12800\] or leave it out"):
+            gf.camera_hypothesis(640, 480, f_bad)
+    with pytest.raises(InputError, match=r"\[96, 9600\]"):
+        gf.camera_hypothesis(480, 480, 10000.0)
+
+
+# ------------------------------------------------------------------------------------------ fast posing
+
+
+def test_pose_space_is_the_body_packages_kinematics_with_four_weights():
+    from bodystudio.body.skinning import linear_blend_skinning, posed_joints, skinning_transforms
+
+    body = toy_body()
+    base = np.random.default_rng(2).normal(scale=0.2, size=(body.skeleton.n_bones, 3))
+    space = gf.pose_space(body, base, max_samples=12)
+    assert space.n_params == 6 + 3 * 9 and np.array_equal(space.base, base)
+    assert [body.skeleton.bone_names[i] for i in space.bone_ids] == list(gf.FIT_BONES)
+    assert np.array_equal(space.sample_ids, np.arange(0, 60, 5))
+    x = np.random.default_rng(1).normal(0, 0.4, space.n_params)
+    pose = space.pose(x)
+    assert np.array_equal(pose.rotations[0], x[:3]) and np.array_equal(pose.translation, x[3:6])
+    assert np.array_equal(pose.rotations[space.bone_ids], x[6:].reshape(-1, 3))
+    assert np.array_equal(space.x_from_pose(pose), x)
+    T = space.transforms(x)
+    assert np.abs(T - skinning_transforms(body.skeleton, pose)).max() < 1e-12
+    # the four largest weights per vertex, renormalised
+    W4 = np.zeros_like(body.weights)
+    top = np.argsort(-body.weights, axis=1)[:, :4]
+    np.put_along_axis(W4, top, np.take_along_axis(body.weights, top, axis=1), axis=1)
+    W4 /= W4.sum(1, keepdims=True)
+    assert np.allclose(space.skin_w.sum(1), 1.0) and np.array_equal(np.sort(space.skin_idx, 1), np.sort(top, 1))
+    want = linear_blend_skinning(body.vertices, W4, T)
+    assert np.abs(space.vertices(x) - want).max() < 1e-12
+    ids = np.array([3, 17, 42])
+    assert np.abs(space.vertices(x, ids) - want[ids]).max() < 1e-12
+    assert np.abs(space.vertices(x, ids, T) - want[ids]).max() < 1e-12
+    assert np.abs(space.joints(x) - posed_joints(body.skeleton, pose)[0]).max() < 1e-12
+
+
+def test_pose_space_samples_about_max_samples_vertices_and_stands_by_default():
+    body = toy_body()
+    space = gf.pose_space(body)
+    assert np.array_equal(space.sample_ids, np.arange(60))  # fewer vertices than 900: all of them
+    assert np.array_equal(gf.pose_space(body, max_samples=7).sample_ids, np.arange(0, 60, 8))
+    assert np.array_equal(gf.pose_space(body, max_samples=100).sample_ids, np.arange(60))
+    # the standing prior: the upper arms lowered (72 deg elevation) and nothing else turned
+    prior = gf.standing_prior(body)
+    assert np.array_equal(space.base, prior)
+    moved = {body.skeleton.bone_names[j] for j in np.flatnonzero(np.abs(prior).sum(1) > 1e-9)}
+    assert moved == {"upperarm_l", "upperarm_r"}
+    from bodystudio.body.skinning import posed_joints
+
+    heads, tails = posed_joints(body.skeleton, Pose(prior, np.zeros(3)))
+    for side in ("l", "r"):
+        j = body.skeleton.index(f"upperarm_{side}")
+        d = (tails[j] - heads[j]) / np.linalg.norm(tails[j] - heads[j])
+        assert d[1] < -0.9  # hanging down
+
+
+# ------------------------------------------------------------------------------------------ Eq. 2, 3
+
+
+def square_mask(H=60, W=50, rows=(10, 40), cols=(15, 35)):
+    m = np.zeros((H, W), bool)
+    m[rows[0]:rows[1], cols[0]:cols[1]] = True
+    return m
+
+
+def test_silhouette_target_holds_the_outside_distance_outline_and_extent():
+    m = square_mask()
+    t = gf.silhouette_target(m)
+    assert t.y_min == 10.0 and t.y_max == 39.0 and np.array_equal(t.mask, m)
+    assert t.outside_px.dtype == np.float32 and np.all(t.outside_px[m] == 0)
+    assert t.outside_px[5, 25] == pytest.approx(5.0, abs=0.05) and t.outside_px[25, 40] == pytest.approx(6.0, abs=0.05)
+    # the whole outline (96 pixels) when it is short, a subset of n_samples of it when long
+    assert len(t.samples) == 2 * (30 + 20) - 4
+    on_edge = (t.samples[:, 0] == 15) | (t.samples[:, 0] == 34) | (t.samples[:, 1] == 10) | (t.samples[:, 1] == 39)
+    assert np.all(on_edge)
+    few = gf.silhouette_target(m, n_samples=30, seed=1)
+    assert len(few.samples) == 30 and len(np.unique(few.samples, axis=0)) == 30
+    assert not np.array_equal(few.samples, gf.silhouette_target(m, n_samples=30, seed=2).samples)
+    assert len(gf.silhouette_target(m, n_samples=96).samples) == 96
+    assert len(gf.silhouette_target(m, n_samples=95).samples) == 95
+    two = m | square_mask(rows=(45, 50), cols=(2, 6))
+    assert len(gf.silhouette_target(two, n_samples=200).samples) == 96 + 2 * (5 + 4) - 4  # every outer contour
+    assert gf.silhouette_target(two).y_max == 49.0
+
+
+def test_bilinear_sampling_is_exact_on_a_linear_image_and_adds_the_distance_beyond_it():
+    H, W = 20, 30
+    rows, cols = np.mgrid[:H, :W]
+    image = (2.0 * cols + 3.0 * rows + 1.0).astype(np.float32)
+    uv = np.array([[3.25, 4.5], [0.0, 0.0], [29.0, 19.0], [12.75, 7.125]])
+    assert np.allclose(gf._bilinear(image, uv), 2 * uv[:, 0] + 3 * uv[:, 1] + 1, atol=1e-4)
+    beyond = np.array([[-3.0, 4.0], [33.0, 19.0], [29.0, 23.0], [-3.0, -4.0]])
+    want = np.array([1 + 12 + 3, 116 + 4, 116 + 4, 1 + 5])
+    assert np.allclose(gf._bilinear(image, beyond), want, atol=1e-4)
+
+
+def grid_points(mask):
+    r, c = np.nonzero(mask)
+    return np.column_stack([c, r]).astype(np.float64)
+
+
+def test_silhouette_energy_is_zero_for_a_perfect_overlap_and_grows_with_a_shift():
+    """Eq. 2 in distance form: body points on the matte and the matte's outline covered give zero."""
+    m = square_mask()
+    t = gf.silhouette_target(m)
+    uv = grid_points(m)
+    r = gf.silhouette_residuals(uv, t)
+    assert r.shape == (len(uv) + len(t.samples),) and np.allclose(r, 0.0)
+    energies = [float(np.sum(gf.silhouette_residuals(uv + [s, 0.0], t) ** 2)) for s in (1, 2, 4, 8)]
+    assert 0 < energies[0] < energies[1] < energies[2] < energies[3]
+    # the two parts, each scaled to a mean: points outside by s px, outline points s px from the body
+    s = 3.0
+    r = gf.silhouette_residuals(uv + [s, 0.0], t)
+    outside, cover = r[: len(uv)], r[len(uv):]
+    inside_cols = uv[:, 0] + s <= 34
+    assert np.allclose(outside[inside_cols], 0.0)
+    right = uv[:, 0] == 34  # shifted 3 px beyond the right edge
+    assert np.allclose(outside[right] * np.sqrt(len(uv)), s, atol=0.05)
+    assert np.allclose(cover * np.sqrt(len(t.samples)), np.clip(15 + s - t.samples[:, 0], 0, None))
+    assert np.count_nonzero(cover) == 30 + 2 * 2  # the left edge and two more points of the top and bottom rows
+
+
+def test_silhouette_residuals_of_a_matte_without_outline_samples():
+    t = gf.silhouette_target(square_mask(), n_samples=0)
+    uv = grid_points(square_mask())
+    assert len(t.samples) == 0 and len(gf.silhouette_residuals(uv, t)) == len(uv)
+
+
+def test_height_residuals_are_top_and_bottom_rows():
+    t = gf.silhouette_target(square_mask())
+    uv = np.array([[20.0, 12.5], [21.0, 30.0], [22.0, 41.0]])
+    assert np.allclose(gf.height_residuals(uv, t), [2.5, 2.0])
+
+
+def test_model_silhouette_and_iou():
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    V, F = np.asarray(s.vertices), np.asarray(s.faces)
+    cam = Camera.look_at("c", (0, 0, 3), (0, 0, 0), fx=100, width=40, height=40)
+    sil = gf.model_silhouette(V, F, cam)
+    assert sil.dtype == bool and 50 < sil.sum() < 400
+    assert gf.silhouette_iou(V, F, cam, sil) == 1.0
+    half = sil.copy()
+    half[:, :20] = False
+    assert gf.silhouette_iou(V, F, cam, half) == pytest.approx(half.sum() / sil.sum())
+    assert gf.silhouette_iou(V + [9, 0, 0], F, cam, np.zeros_like(sil)) == 0.0
+
+
+# ------------------------------------------------------------------------------------------ Eq. 4-6
+
+
+def test_temporal_residuals_are_eq_5_in_smooth_form_without_the_translation():
+    rng = np.random.default_rng(0)
+    x, y = rng.normal(size=12), rng.normal(size=12)
+    r = gf.temporal_residuals(x, y)
+    d = np.concatenate([x[:3] - y[:3], x[6:] - y[6:]])
+    assert r.shape == (9,)
+    assert np.allclose(r**2, 2 * 2.5 * (np.cosh(4.0 * d) - 1.0), rtol=1e-12)
+    assert np.allclose(np.sign(r), np.sign(d))
+    assert np.allclose(gf.temporal_residuals(x, y, beta=1.0, delta=2.0), 2 * np.sinh(d), rtol=1e-12)
+    y2 = y.copy()
+    y2[3:6] += 5.0  # the translation does not count
+    assert np.array_equal(gf.temporal_residuals(x, y2), r)
+
+
+def spheres_case():
+    spheres = gf.PenetrationSpheres(centers=np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]), radii=np.array([0.5, 0.2]),
+                                    bones=np.array([0, 1]), group=np.array([0, 1]), probe_ids=np.array([4, 7, 9]),
+                                    probe_excluded=np.array([-1, 1, 0]))
+    T = np.tile(np.eye(4), (2, 1, 1))
+    T[1, :3, :3] = Rotation.from_rotvec([0, 0, np.pi / 2]).as_matrix()  # sphere 1 swings to (0, 1, 0)
+    T[1, :3, 3] = [0.0, 0.0, 0.5]
+    return spheres, T
+
+
+def test_interpenetration_is_the_depth_into_the_spheres_a_probe_may_enter():
+    """Eq. 6: each probe's largest penetration depth into the posed spheres other than its own group's."""
+    spheres, T = spheres_case()
+    P = np.array([[0.1, 0.0, 0.0],  # 0.4 deep in sphere 0
+                  [0.0, 1.0, 0.45],  # 0.15 deep in sphere 1 (moved to (0, 1, 0.5)), but probe 1 is of group 1
+                  [0.0, 1.0, 0.4]])  # 0.1 deep in sphere 1; group 0 excluded (sphere 0 is 1.08 away anyway)
+    V = np.zeros((10, 3))
+    V[[4, 7, 9]] = P
+    d = gf.interpenetration_residuals(V, T, spheres)
+    assert np.allclose(d, [0.4, 0.0, 0.1], atol=1e-12)
+    assert np.allclose(gf.interpenetration_residuals(P, T, spheres), d)  # probes given directly
+    far = gf.interpenetration_residuals(P + [5.0, 0, 0], T, spheres)
+    assert np.array_equal(far, np.zeros(3))
+    # a probe inside two spheres takes the deeper one
+    both = gf.PenetrationSpheres(np.array([[0.0, 0, 0], [0.3, 0, 0]]), np.array([0.5, 0.5]), np.array([0, 0]),
+                                 np.array([0, 2]), np.array([0]), np.array([-1]))
+    assert np.allclose(gf.interpenetration_residuals(np.array([[0.2, 0.0, 0.0]]), np.tile(np.eye(4), (1, 1, 1)),
+                                                     both), [0.4])
+
+
+def test_pose_prior_limits_hips_and_knees_keeps_upright_and_pulls_to_the_base():
+    body = toy_body()
+    sk = body.skeleton
+    space = gf.pose_space(body, np.zeros((sk.n_bones, 3)))
+    x = np.zeros(space.n_params)
+    r = gf.pose_prior_residuals(x, space)
+    assert r.shape == (8 + 27 + 2,) and np.array_equal(r, np.zeros(37))
+    names = list(gf.FIT_BONES)
+
+    def with_world(bone, world_rotvec):
+        y = np.zeros(space.n_params)
+        k = names.index(bone)
+        y[6 + 3 * k: 9 + 3 * k] = sk.rest_rotations[space.bone_ids[k]].T @ np.asarray(world_rotvec)
+        return y
+
+    hip = gf.pose_prior_residuals(with_world("thigh_l", [0.3, 0, 0]), space)
+    assert hip[0] == pytest.approx(10.0 * (0.3 - 0.1)) and np.all(hip[1:8] == 0)
+    assert gf.pose_prior_residuals(with_world("thigh_l", [0.05, 0, 0]), space)[0] == 0.0
+    assert gf.pose_prior_residuals(with_world("thigh_r", [0.3, 0, 0]), space)[4] == pytest.approx(2.0)
+    knee = gf.pose_prior_residuals(with_world("calf_r", [-0.25, 0.1, -0.2]), space)
+    assert np.allclose(knee[4:8], [0.0, 10.0 * 0.2, 10.0 * 0.1, -10.0 * 0.2])
+    assert np.abs(gf.pose_prior_residuals(with_world("calf_l", [0.5, 0, 0]), space)[:8]).max() < 1e-12  # bent: free
+    # the ridge: 0.4 per rad towards the base, 2.0 for the spine; upright: 4.0 on the global x and z
+    y = np.zeros(space.n_params)
+    y[6:] = 1.0
+    y[[0, 1, 2]] = [0.1, 0.7, -0.2]
+    ridge = gf.pose_prior_residuals(y, space)[8:]
+    weights = np.repeat(np.where(np.array(names) == "spine_02", 2.0, 0.4), 3)
+    assert np.allclose(ridge[:27], weights) and np.allclose(ridge[27:], [0.4, -0.8])
+    based = gf.pose_space(body, np.ones((sk.n_bones, 3)))
+    assert np.allclose(gf.pose_prior_residuals(y, based)[8:35], 0.0)
+
+
+def test_keyframe_constraints_load_and_residuals(tmp_path):
+    p = tmp_path / "keys.json"
+    p.write_text(json.dumps({"frames": {"12": {"lowerarm_l": [10, 20.5]}, "3": {"Root": [1, 2], "calf_r": [3, 4]}}}))
+    k = gf.KeyframeConstraints.load(p, tuple(BONES))
+    assert set(k.points) == {12, 3} and np.array_equal(k.points[3]["calf_r"], [3.0, 4.0])
+    assert k.points[12]["lowerarm_l"].dtype == np.float64
+    cam = front_camera()
+    joints = np.array([[0.0, 1.0, -3.0], [0.5, 1.5, -3.0], [0.1, 0.2, -2.0]])
+    names = ["Root", "hand_l", "calf_r"]
+    r = gf.keyframe_residuals(joints, cam, {"calf_r": np.array([3.0, 4.0]), "Root": np.array([1.0, 2.0])}, names)
+    want = np.concatenate([cam.project(joints[[2]])[0] - [3, 4], cam.project(joints[[0]])[0] - [1, 2]])
+    assert np.allclose(r, want)
+    assert gf.keyframe_residuals(joints, cam, {}, names).shape == (0,)
+    assert gf.keyframe_residuals(joints, cam, None, names).shape == (0,)
+
+
+@pytest.mark.parametrize("text, phrase", [
+    ('{"frames": {"1": {"wing": [1, 2]}}}', "unknown joint 'wing' at frame 1; use bone names such as hand_l"),
+    ('{"frames": {"1": {"Root": [1, 2, 3]}}}', r"joint Root at frame 1 must be \[u, v\] pixels"),
+    ('{"frames": {"1": {"Root": [1, NaN]}}}', r"joint Root at frame 1 must be \[u, v\] pixels"),
+    ('{"frames": {"x": {"Root": [1, 2]}}}', r"unreadable keyframe constraints \(ValueError\)"),
+    ('{"frame": {}}', r"unreadable keyframe constraints \(KeyError\); write"),
+    ('{"frames": [1]}', r"unreadable keyframe constraints \(AttributeError\)"),
+    ('{"frames": {"1": {"Root": "up"}}}', r"must be \[u, v\]|unreadable"),
+    ("not json", r"unreadable keyframe constraints \(JSONDecodeError\)"),
+    (None, r"unreadable keyframe constraints \(FileNotFoundError\)"),
+])
+def test_keyframe_constraints_refuse_bad_files(tmp_path, text, phrase):
+    p = tmp_path / "keys.json"
+    if text is not None:
+        p.write_text(text)
+    with pytest.raises(FileFormatError, match=phrase):
+        gf.KeyframeConstraints.load(p, tuple(BONES))
+
+
+def test_keyframe_errors_name_the_file(tmp_path):
+    p = tmp_path / "keys.json"
+    p.write_text('{"frame": {}}')
+    with pytest.raises(FileFormatError) as e:
+        gf.KeyframeConstraints.load(p, tuple(BONES))
+    assert str(e.value).startswith(f"{p}: ") and str(e.value).endswith('{"frames": {"FRAME": {"BONE": [u, v]}}}')
+
+
+# ------------------------------------------------------------------------------------------ placement / Eq. 4
+
+
+def toy_target_and_space(H=120, W=80):
+    body = toy_body()
+    space = gf.pose_space(body)
+    cam = front_camera(W, H)
+    x_true = np.zeros(space.n_params)
+    x_true[6:] = space.base[space.bone_ids].ravel()
+    x_true[3:6] = [0.1, -0.05, -3.0]
+    uv = cam.project(space.vertices(x_true))
+    m = np.zeros((H, W), bool)
+    c, r = np.clip(np.round(uv).astype(int), 0, [W - 1, H - 1]).T
+    m[r, c] = True
+    import cv2
+
+    m = cv2.dilate(m.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    return space, cam, gf.silhouette_target(m), x_true
+
+
+def test_initial_placement_puts_the_standing_body_over_the_matte():
+    space, cam, t, x_true = toy_target_and_space()
+    x = gf.initial_placement(space, cam, t)
+    assert np.array_equal(x[:3], [0, 0, 0]) and np.array_equal(x[6:], space.base[space.bone_ids].ravel())
+    assert x[5] == pytest.approx(-3.0, rel=0.12)  # depth from the image height (the matte is dilated by 2 px)
+    uv = cam.project(space.vertices(x))
+    assert uv[:, 1].min() == pytest.approx(t.y_min, abs=1.5)  # top row on the matte's top (depth varies)
+    cols = np.flatnonzero(t.mask.any(0))
+    assert 0.5 * (uv[:, 0].min() + uv[:, 0].max()) == pytest.approx(0.5 * (cols.min() + cols.max()), abs=1.0)
+    height_px = uv[:, 1].max() - uv[:, 1].min()
+    assert height_px == pytest.approx(t.y_max - t.y_min, rel=0.02)
+
+
+def test_initial_placements_add_either_knee_raised():
+    space, cam, t, _ = toy_target_and_space()
+    starts = gf.initial_placements(space, cam, t)
+    assert len(starts) == 3 and np.array_equal(starts[0], gf.initial_placement(space, cam, t))
+    sk = space.body.skeleton
+    names = list(gf.FIT_BONES)
+    for x, side in zip(starts[1:], ("l", "r"), strict=True):
+        changed = {names[k] for k in range(9) if not np.array_equal(x[6 + 3 * k: 9 + 3 * k], starts[0][6 + 3 * k:
+                                                                                                      9 + 3 * k])}
+        assert changed == {f"thigh_{side}", f"calf_{side}"}
+        for bone, angle in ((f"thigh_{side}", -0.6), (f"calf_{side}", 1.0)):
+            k = names.index(bone)
+            world = sk.rest_rotations[space.bone_ids[k]] @ x[6 + 3 * k: 9 + 3 * k]
+            assert np.allclose(world, [angle, 0, 0], atol=1e-12)
+        assert np.array_equal(x[:6], starts[0][:6])
+
+
+def test_pose_residuals_stack_the_terms_of_eq_4():
+    space, cam, t, x_true = toy_target_and_space()
+    spheres, _ = spheres_case()
+    spheres = gf.PenetrationSpheres(np.array([[0.0, 1.2, 0.0]]), np.array([0.15]), np.array([0]), np.array([0]),
+                                    np.array([10, 40, 50]), np.array([-1, -1, -1]))
+    p = gf.PoseProblem(space, cam, t, spheres)
+    x = x_true.copy()
+    x[9:12] += 0.3
+    T = space.transforms(x)
+    V = space.vertices(x, space.sample_ids, T)
+    uv = cam.project(V)
+    sil = gf.silhouette_residuals(uv, t)
+    prior = gf.pose_prior_residuals(x, space)
+    px_per_m = cam.fx / float(cam.world_to_camera(V.mean(0, keepdims=True))[0, 2])
+    depth = gf.interpenetration_residuals(space.vertices(x, spheres.probe_ids, T), T, spheres)
+    pen = np.sqrt(4.0) * px_per_m * depth / np.sqrt(3)
+    r = gf.pose_residuals(x, p)
+    assert np.allclose(r, np.concatenate([sil, prior, pen]))
+    p.with_height = True
+    p.neighbour = x_true
+    p.constraints = {"calf_l": np.array([30.0, 100.0])}
+    joints = space.joints(x)
+    key = np.sqrt(0.5) * gf.keyframe_residuals(joints, cam, p.constraints, list(space.body.skeleton.bone_names))
+    want = np.concatenate([sil, np.sqrt(0.3) * gf.height_residuals(uv, t) / 10.0, gf.temporal_residuals(x, x_true),
+                           prior, pen, key])
+    assert np.allclose(gf.pose_residuals(x, p), want)
+
+
+def test_fit_frame_pose_lowers_eq_4_from_a_perturbed_start():
+    space, cam, t, x_true = toy_target_and_space()
+    spheres = gf.PenetrationSpheres(np.zeros((1, 3)), np.array([0.01]), np.array([0]), np.array([0]),
+                                    np.array([0]), np.array([-1]))
+    p = gf.PoseProblem(space, cam, t, spheres)
+    x0 = x_true.copy()
+    x0[3:5] += [0.08, 0.06]
+    e0 = float(np.sum(gf.pose_residuals(x0, p) ** 2))
+    x = gf.fit_frame_pose(x0, p)
+    e = float(np.sum(gf.pose_residuals(x, p) ** 2))
+    assert e < 0.3 * e0 and np.linalg.norm(x[3:5] - x_true[3:5]) < 0.03
+    x_short = gf.fit_frame_pose(x0, p, max_nfev=1)
+    assert float(np.sum(gf.pose_residuals(x_short, p) ** 2)) > e
+
+
+# ------------------------------------------------------------------------------------------ shape (§4.3)
+
+
+def test_body_stature_is_head_to_sole():
+    body = SimpleNamespace(vertices=np.array([[0.0, 0.05, 0.0], [0.3, 1.8, 0.1], [0.0, 1.0, 2.0]]))
+    assert gf.body_stature(body) == pytest.approx(1.75)
+
+
+def fake_build_body(phenotype=None, local=None, resolution="2k"):
+    """A 'body' whose stature is 1.4 + 0.5 * height (+ 0.1 * weight) and that remembers its inputs."""
+    ph = phenotype.to_dict() if phenotype is not None else {}
+    top = 1.4 + 0.5 * ph.get("height", 0.5) + 0.1 * ph.get("weight", 0.5)
+    return SimpleNamespace(vertices=np.array([[0.0, 0.0, 0.0], [0.0, top, 0.0]]), phenotype=ph, local=dict(local or {}),
+                           resolution=resolution)
+
+
+def test_stature_matched_height_bisects_the_height_parameter(monkeypatch):
+    import bodystudio.body
+
+    monkeypatch.setattr(bodystudio.body, "build_body", fake_build_body)
+    from bodystudio.body.phenotype import Phenotype
+
+    ph = Phenotype().to_dict()
+    ph["weight"] = 0.2
+    out = gf._stature_matched_height(ph, {}, 1.72, "2k")
+    assert out["height"] == pytest.approx((1.72 - 1.42) / 0.5, abs=2**-14)
+    assert out["weight"] == 0.2 and ph["height"] != out["height"]
+    assert gf._stature_matched_height(ph, {}, 9.0, "2k")["height"] == pytest.approx(1.0, abs=2**-14)
+    assert gf._stature_matched_height(ph, {}, 0.1, "2k")["height"] == pytest.approx(0.0, abs=2**-14)
+
+
+def test_shape_body_clips_macro_and_local_parameters(monkeypatch):
+    import bodystudio.body
+
+    monkeypatch.setattr(bodystudio.body, "build_body", fake_build_body)
+    from bodystudio.body.phenotype import Phenotype
+
+    ph = Phenotype().to_dict()
+    body, ph2, loc = gf._shape_body(np.array([1.4, -0.2, 0.3, 2.0]), ("height", "weight", "upperarm-fat-decr-incr",
+                                                                      "neck-scale-horiz-decr-incr"), ph,
+                                    {"buttocks-volume-decr-incr": 0.5}, "6k")
+    assert ph2["height"] == 1.0 and ph2["weight"] == 0.0 and ph["height"] != 1.0
+    assert loc == {"buttocks-volume-decr-incr": 0.5, "upperarm-fat-decr-incr": 0.3, "neck-scale-horiz-decr-incr": 1.0}
+    assert body.resolution == "6k" and body.local == loc and body.phenotype["height"] == 1.0
+    _, _, loc = gf._shape_body(np.array([-1.5]), ("upperarm-fat-decr-incr",), ph, {}, "2k")
+    assert loc == {"upperarm-fat-decr-incr": -1.0}
+
+
+def test_shape_energy_is_eq_1_plus_the_stature_term(monkeypatch):
+    space, cam, t, x_true = toy_target_and_space()
+    body = space.body
+    monkeypatch.setattr(gf, "pose_space", lambda b, base: space if b is body else None)
+    x2 = x_true.copy()
+    x2[3] += 0.05
+    e = gf.shape_energy(body, [x_true, x2], cam, [t, t], 1.6, space.base)
+    parts = []
+    for x in (x_true, x2):
+        uv = cam.project(space.vertices(x, space.sample_ids))
+        parts.append(np.sum(gf.silhouette_residuals(uv, t) ** 2) + 0.3 * np.sum((gf.height_residuals(uv, t) / 10) ** 2))
+    stature = gf.body_stature(body)
+    assert e == pytest.approx(np.mean(parts) + 2.0 * ((stature - 1.6) * 100) ** 2, rel=1e-12)
+    assert parts[1] > parts[0] > 0
+
+
+# ------------------------------------------------------------------------------------------ §4.4 tracking
+
+
+def test_track_poses_runs_forward_from_the_reference_then_backward(monkeypatch):
+    calls = []
+
+    def fake_fit(x0, problem, max_nfev=6):
+        calls.append((problem.target, None if problem.neighbour is None else problem.neighbour.copy(), x0.copy(),
+                      problem.constraints))
+        return x0 + 1.0 if problem.target > 2 else x0 - 1.0
+
+    monkeypatch.setattr(gf, "fit_frame_pose", fake_fit)
+    monkeypatch.setattr(gf, "penetration_spheres", lambda body: "spheres")
+    monkeypatch.setattr(gf, "silhouette_target", lambda mask: int(mask))
+    space = SimpleNamespace(body=None, n_params=2)
+    masks = np.arange(5)
+    ticks = []
+    X = gf.track_poses(space, None, masks, 2, np.array([10.0, 20.0]), {7: "keys"}, progress=lambda: ticks.append(1),
+                       frame_ids=np.array([5, 6, 7, 8, 9]))
+    assert [c[0] for c in calls] == [2, 3, 4, 1, 0]
+    assert calls[0][1] is None and np.array_equal(calls[0][2], [10, 20])
+    assert np.array_equal(X[2], [9, 19]) and np.array_equal(X[3], [10, 20]) and np.array_equal(X[4], [11, 21])
+    assert np.array_equal(X[1], [8, 18]) and np.array_equal(X[0], [7, 17])
+    assert np.array_equal(calls[1][1], X[2]) and np.array_equal(calls[1][2], X[2])  # warm start = neighbour
+    assert np.array_equal(calls[3][1], X[2]) and np.array_equal(calls[4][1], X[1])
+    assert [c[3] for c in calls] == ["keys", None, None, None, None]  # the constraints of frame id 7 only
+    assert len(ticks) == 5
+    X = gf.track_poses(space, None, masks[:3], 0, np.array([0.0, 0.0]))  # default frame ids, no progress
+    assert [c[0] for c in calls[5:]] == [0, 1, 2] and np.array_equal(X[2], [-3, -3])
+
+
+# ------------------------------------------------------------------------------------------ §5 appearance
+
+
+def test_mean_lighting_averages_the_frames_lights():
+    from bodystudio.garment.lighting import Lighting
+
+    a = Lighting([[0, 0, 1]], [[0.6, 0.6, 0.6]], [0.2, 0.2, 0.2])
+    b = Lighting([[0, 1, 0], [1, 0, 0]], [[0.3, 0.0, 0.3], [0.9, 0.9, 0.0]], [0.4, 0.0, 0.2])
+    m = gf.mean_lighting([a, b])
+    assert np.allclose(m.directions, [[0, 0, 1], [0, 1, 0], [1, 0, 0]])
+    assert np.allclose(m.colors, [[0.3, 0.3, 0.3], [0.15, 0, 0.15], [0.45, 0.45, 0]])
+    assert np.allclose(m.ambient, [0.3, 0.1, 0.2])
+    empty = gf.mean_lighting([])
+    assert empty.directions.shape == (0, 3) and np.array_equal(empty.ambient, np.zeros(3))
+
+
+def ball_frames(n=3, size=64, light_dir=(0.4, 0.5, 1.0)):
+    import trimesh
+
+    from bodystudio.capture.render import render
+    from bodystudio.garment.lighting import Lighting
+    from bodystudio.garment.render import render_body
+
+    s = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    V0, F = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces, dtype=np.int64)
+    cam = Camera.look_at("c", (0.0, 0.0, 3.0), (0, 0, 0), fx=2.4 * size, width=size, height=size)
+    light = Lighting.single(np.asarray(light_dir) / np.linalg.norm(light_dir), 0.8, 0.2)
+    albedo = np.where(V0[:, 1:2] > 0, [0.8, 0.5, 0.4], [0.3, 0.5, 0.7])
+    images, masks, posed = [], [], []
+    for yaw in np.linspace(-0.5, 0.5, n):
+        V = V0 @ Rotation.from_rotvec([0, yaw, 0]).as_matrix().T
+        image, _ = render_body(V, F, cam, light, albedo)
+        images.append(image)
+        masks.append(render(V, F, cam).mask)
+        posed.append(V)
+    return images, masks, posed, F, cam, light, albedo
+
+
+def test_clip_lighting_stacks_the_frames_rows_and_finds_the_light():
+    from bodystudio.garment import lighting as lt
+
+    images, masks, posed, F, cam, light, albedo = ball_frames()
+    est = gf.clip_lighting(images, masks, posed, F, cam, albedo, samples_per_frame=400)
+    rows = [lt.surface_samples(img, V, F, cam, albedo, 400, 3, seed=k, pixel_mask=m)
+            for k, (img, m, V) in enumerate(zip(images, masks, posed, strict=True))]
+    P, N, A, B = (np.concatenate([r[i] for r in rows]) for i in range(4))
+    axis = cam.center - np.mean([V.mean(0) for V in posed], axis=0)
+    want = lt.estimate_lighting(P, N, A, B, axis / np.linalg.norm(axis))
+    assert np.array_equal(est.directions, want.directions) and np.allclose(est.colors, want.colors)
+    d = lt.dominant_light_direction(est.directions, est.colors)
+    assert np.degrees(np.arccos(d @ light.directions[0])) < 10.0  # measured 6.7 (a 64 px ball, 3 frames)
+    # half the matte: only its pixels give rows
+    half = [m & (np.arange(m.shape[1]) < 32)[None] for m in masks]
+    P_half = lt.surface_samples(images[0], posed[0], F, cam, albedo, 10_000, 3, seed=0, pixel_mask=half[0])[0]
+    assert np.all(cam.project(P_half)[:, 0] < 32.5)
+
+
+def test_estimate_appearance_alternates_albedo_and_clip_lights(monkeypatch):
+    from bodystudio.garment import lighting as lt
+
+    images, masks, posed, F, cam, light, albedo = ball_frames(n=4)
+    seen_lights = []
+    real = gf.clip_lighting
+
+    def spy(imgs, ms, Vs, F_, camera, a):
+        seen_lights.append(a.copy())
+        return real(imgs, ms, Vs, F_, camera, a, samples_per_frame=300)
+
+    monkeypatch.setattr(gf, "clip_lighting", spy)
+    a0, l0 = gf.estimate_appearance(np.stack(images), np.stack(masks), posed, F, cam, max_frames=3, iterations=0)
+    pick = [0, 2, 3]  # three frames spread over four: linspace(0, 3, 3) rounded
+    mean_colour, count = lt.estimate_albedo([images[i] for i in pick], [posed[i] for i in pick], F, cam)
+    assert np.array_equal(a0, mean_colour) and len(seen_lights) == 1
+    a1, l1 = gf.estimate_appearance(np.stack(images), np.stack(masks), posed, F, cam, max_frames=3, iterations=1)
+    assert len(seen_lights) == 3 and np.array_equal(seen_lights[1], mean_colour)
+    num, den = np.zeros_like(mean_colour), np.zeros_like(mean_colour)
+    obs = lt.visible_vertex_colors([images[i] for i in pick], [posed[i] for i in pick], F, cam)
+    for (ids, colors), i in zip(obs, pick, strict=True):
+        S = lt.vertex_shading(posed[i], F, l0)[ids]
+        num[ids] += colors * S
+        den[ids] += S * S
+    seen = count > 0
+    want = mean_colour.copy()
+    want[seen] = num[seen] / den[seen]
+    want = np.clip(want * mean_colour[seen].mean(0) / want[seen].mean(0), 0, None)
+    assert np.abs(a1 - want).max() < 1e-9 and np.array_equal(seen_lights[2], a1)
+    assert not np.allclose(a1, a0, atol=1e-3)
+    assert np.array_equal(l1.directions, real(*(
+        [images[i] for i in pick], [masks[i] for i in pick], [posed[i] for i in pick]), F, cam, a1,
+        samples_per_frame=300).directions)
+
+
+# ------------------------------------------------------------------------------------------ refusals
+
+
+@pytest.mark.parametrize("stature, template, phrase", [
+    (None, "2k", "--stature None: give the actor's stature in metres, between 0.5 and 2.5"),
+    (float("nan"), "2k", "--stature nan"),
+    (0.49, "2k", "--stature 0.49"),
+    (2.51, "2k", "--stature 2.51"),
+    (1.7, "3k", "--template '3k': valid: "),
+])
+def test_fit_refuses_bad_stature_and_template_before_reading(tmp_path, stature, template, phrase):
+    with pytest.raises(InputError, match=phrase):
+        gf.fit_garment_video(tmp_path / "missing.mp4", stature, template=template)
+
+
+def test_fit_accepts_the_stature_range_ends(tmp_path, monkeypatch):
+    import bodystudio.garment.person as person
+
+    def stop(*args, **kwargs):
+        raise RuntimeError("reached the video")
+
+    monkeypatch.setattr(person, "person_frames", stop)
+    for stature in (0.5, 2.5):
+        with pytest.raises(RuntimeError, match="reached the video"):
+            gf.fit_garment_video(tmp_path / "v.mp4", stature)
