@@ -5,6 +5,8 @@ one piece of the maths (the golden-spiral hemisphere, the Lambert matrix's clamp
 set, the albedo as the mean colour, the samples' geometry) tightly enough that a dropped term fails it.
 """
 
+import re
+
 import numpy as np
 import pytest
 import scipy.optimize
@@ -17,6 +19,11 @@ from bodystudio.geometry.camera import Camera
 def unit(v):
     v = np.asarray(v, dtype=np.float64)
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def exact(message):
+    """A ``pytest.raises(match=...)`` pattern for exactly this message."""
+    return "^" + re.escape(message) + "$"
 
 
 def sphere_normals(n=600, seed=0):
@@ -33,18 +40,21 @@ def test_lighting_normalises_directions_and_keeps_colours():
     assert np.array_equal(light.ambient, [0.1, 0.2, 0.3])
 
 
+NEGATIVE = "light colours and ambient must be >= 0 (a light cannot emit negative light)"
+
+
 @pytest.mark.parametrize("directions, colors, ambient, phrase", [
-    ([[0, 0, 1], [1, 0, 0]], [[1, 1, 1]], [0, 0, 0], "one colour per direction"),
-    ([[0, 0, 0]], [[1, 1, 1]], [0, 0, 0], "non-zero"),
-    ([[0, 0, 1e-13]], [[1, 1, 1]], [0, 0, 0], "non-zero"),
-    ([[0, np.nan, 1]], [[1, 1, 1]], [0, 0, 0], "finite"),
-    ([[0, 0, 1]], [[1, np.inf, 1]], [0, 0, 0], "finite"),
-    ([[0, 0, 1]], [[1, 1, 1]], [0, np.nan, 0], "finite"),
-    ([[0, 0, 1]], [[1, -0.1, 1]], [0, 0, 0], ">= 0"),
-    ([[0, 0, 1]], [[1, 1, 1]], [0, 0, -0.1], ">= 0"),
+    ([[0, 0, 1], [1, 0, 0]], [[1, 1, 1]], [0, 0, 0], "lighting needs one colour per direction, got 2 and 1"),
+    ([[0, 0, 0]], [[1, 1, 1]], [0, 0, 0], "light directions must be finite non-zero vectors and colours finite"),
+    ([[0, 0, 1e-13]], [[1, 1, 1]], [0, 0, 0], "light directions must be finite non-zero vectors and colours finite"),
+    ([[0, np.nan, 1]], [[1, 1, 1]], [0, 0, 0], "light directions must be finite non-zero vectors and colours finite"),
+    ([[0, 0, 1]], [[1, np.inf, 1]], [0, 0, 0], "light directions must be finite non-zero vectors and colours finite"),
+    ([[0, 0, 1]], [[1, 1, 1]], [0, np.nan, 0], "light directions must be finite non-zero vectors and colours finite"),
+    ([[0, 0, 1]], [[1, -0.1, 1]], [0, 0, 0], NEGATIVE),
+    ([[0, 0, 1]], [[1, 1, 1]], [0, 0, -0.1], NEGATIVE),
 ])
 def test_lighting_refuses_bad_lights(directions, colors, ambient, phrase):
-    with pytest.raises(InputError, match=phrase):
+    with pytest.raises(InputError, match=exact(phrase)):
         lt.Lighting(directions, colors, ambient)
 
 
@@ -76,7 +86,9 @@ def test_single_light_and_dict_round_trip():
     None,
 ])
 def test_from_dict_refuses_malformed_lights_naming_the_source(data):
-    with pytest.raises(FileFormatError, match=r"^gt/lighting\.json: lights need 'directions'"):
+    pattern = (r"^gt/lighting\.json: lights need 'directions' and 'colors' \(n x 3\) and 'ambient' \(3 numbers\) "
+               r"\((KeyError|TypeError|ValueError): .+\)$")
+    with pytest.raises(FileFormatError, match=pattern):
         lt.Lighting.from_dict(data, "gt/lighting.json")
 
 
@@ -84,7 +96,8 @@ def test_from_dict_turns_invalid_lights_into_a_file_error():
     with pytest.raises(FileFormatError, match=r"^scene\.json: light colours and ambient must be >= 0"):
         lt.Lighting.from_dict({"directions": [[0, 0, 1]], "colors": [[-1, 0, 0]], "ambient": [0, 0, 0]},
                               "scene.json")
-    with pytest.raises(FileFormatError, match=r"^lighting: "):
+    with pytest.raises(FileFormatError, match=exact("lighting: light directions must be finite non-zero vectors and "
+                                                    "colours finite")):
         lt.Lighting.from_dict({"directions": [[0, 0, 0]], "colors": [[1, 0, 0]], "ambient": [0, 0, 0]})
 
 
@@ -122,7 +135,7 @@ def test_golden_spiral_default_is_400_lights_about_z_and_needs_one():
     assert D.shape == (lt.N_LIGHTS, 3) == (400, 3)
     assert np.isclose(D[:, 2].min(), 1.0 / 800) and np.isclose(D[:, 2].max(), 1.0 - 1.0 / 800)
     assert np.allclose(lt.golden_spiral_hemisphere(1, (0, 1, 0)) @ [0, 1, 0], 0.5)
-    with pytest.raises(InputError, match="at least one light"):
+    with pytest.raises(InputError, match=exact("the light hemisphere needs at least one light, got 0")):
         lt.golden_spiral_hemisphere(0)
 
 
@@ -242,7 +255,7 @@ def test_solve_lights_recovers_planted_lights_per_channel(solver):
 
 
 def test_solve_lights_refuses_an_unknown_solver():
-    with pytest.raises(InputError, match="unknown lighting solver 'cg'; valid: nnls, fast_nnls, lstsq"):
+    with pytest.raises(InputError, match=exact("unknown lighting solver 'cg'; valid: nnls, fast_nnls, lstsq")):
         lt.solve_lights(np.ones((3, 2)), np.ones((3, 3)), np.ones((3, 3)), "cg")
 
 
@@ -303,9 +316,9 @@ def test_estimate_lighting_drops_lights_of_zero_power():
 
 
 @pytest.mark.parametrize("bad, phrase", [
-    ({"normals": np.ones((20, 2))}, r"normals must be \(20, 3\), got \(20, 2\)"),
-    ({"albedo": np.ones((19, 3))}, r"albedo must be \(20, 3\)"),
-    ({"observed": np.ones(20)}, r"observed must be \(20, 3\)"),
+    ({"normals": np.ones((20, 2))}, r"^estimate_lighting: normals must be \(20, 3\), got \(20, 2\)$"),
+    ({"albedo": np.ones((19, 3))}, r"^estimate_lighting: albedo must be \(20, 3\), got \(19, 3\)$"),
+    ({"observed": np.ones(20)}, r"^estimate_lighting: observed must be \(20, 3\), got \(20,\)$"),
 ])
 def test_estimate_lighting_refuses_mismatched_rows(bad, phrase):
     args = {"points": np.zeros((20, 3)), "normals": sphere_normals(20), "albedo": np.ones((20, 3)),
@@ -318,9 +331,10 @@ def test_estimate_lighting_refuses_mismatched_rows(bad, phrase):
 def test_estimate_lighting_needs_ten_pixels_and_a_mesh_for_shadows():
     N = sphere_normals(10)
     assert len(lt.estimate_lighting(N, N, np.ones((10, 3)), np.full((10, 3), 0.5), [0, 0, 1], 8).ambient) == 3
-    with pytest.raises(InputError, match="at least 10 body pixels, got 9"):
+    with pytest.raises(InputError, match=exact("estimate_lighting needs at least 10 body pixels, got 9; is the person "
+                                               "in view?")):
         lt.estimate_lighting(N[:9], N[:9], np.ones((9, 3)), np.ones((9, 3)), [0, 0, 1])
-    with pytest.raises(InputError, match="needs the body mesh"):
+    with pytest.raises(InputError, match=exact("estimate_lighting with shadows needs the body mesh (V, F)")):
         lt.estimate_lighting(N, N, np.ones((10, 3)), np.ones((10, 3)), [0, 0, 1], shadows=True)
 
 
@@ -352,7 +366,8 @@ def test_dominant_light_direction_is_the_power_weighted_mean_within_the_cone():
 
 
 def test_dominant_light_direction_needs_a_positive_light():
-    with pytest.raises(InputError, match="no light has positive intensity"):
+    with pytest.raises(InputError, match=exact("no light has positive intensity; the scene's lighting could not be "
+                                                   "estimated")):
         lt.dominant_light_direction(np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, -1.0, 0.0]]))
 
 
@@ -466,7 +481,8 @@ def test_visible_vertex_colors_drop_occluded_and_off_image_vertices():
     alone = np.vstack([back_ball, side_ball])
     ((ids2, _),) = lt.visible_vertex_colors([position_image(cam)], [alone], np.vstack([F, F + nv]), cam)
     assert len(ids2) > 30 and np.all(ids2 < nv)
-    with pytest.raises(InputError, match="one posed mesh per frame, got 1 frames and 2 meshes"):
+    with pytest.raises(InputError, match=exact("estimate_albedo needs one posed mesh per frame, got 1 frames and 2 "
+                                                   "meshes")):
         lt.visible_vertex_colors([position_image(cam)], [V, V], F, cam)
     with pytest.raises(InputError, match="got 0 frames"):
         lt.visible_vertex_colors([], [], F, cam)
@@ -496,7 +512,8 @@ def test_estimate_albedo_is_the_mean_colour_over_the_frames_that_see_a_vertex():
     seen = count > 0
     assert not seen.all()
     assert np.allclose(albedo[~seen], albedo[seen].mean(0))  # unseen: mean of the seen
-    with pytest.raises(InputError, match="no body vertex is visible"):
+    with pytest.raises(InputError, match=exact("estimate_albedo: no body vertex is visible in any frame; check the "
+                                                   "camera and poses")):
         lt.estimate_albedo([dark], [V + [0, 0, 5.0]], F, cam)
 
 
@@ -543,7 +560,7 @@ def test_surface_samples_erode_subsample_and_mask():
     left[:, : cam.width // 2] = True
     P = lt.surface_samples(image, V, F, cam, albedo, max_samples=10_000, erode_px=0, pixel_mask=left)[0]
     assert len(P) == (mask & left).sum() and np.all(cam.project(P)[:, 0] < cam.width // 2 + 0.5)
-    with pytest.raises(InputError, match="frame is 48x40 but the camera 48x48"):
+    with pytest.raises(InputError, match=exact("frame is 48x40 but the camera 48x48")):
         lt.surface_samples(image[:40], V, F, cam, albedo)
 
 
@@ -591,7 +608,7 @@ def test_frame_lighting_finds_the_light_of_a_rendered_ball(sampling):
     true = 0.2 + 0.8 * np.clip(N @ directions[20], 0, None)
     fit = est.ambient[0] + np.clip(N @ est.directions.T, 0, None) @ est.colors[:, 0]
     assert np.median(np.abs(fit - true) / true) < (0.01 if sampling == "pixel" else 0.05)
-    with pytest.raises(InputError, match="unknown lighting sampling 'texel'"):
+    with pytest.raises(InputError, match=exact("unknown lighting sampling 'texel'; valid: pixel, vertex")):
         lt.frame_lighting(image, V, F, cam, albedo, sampling="texel")
 
 
@@ -632,3 +649,112 @@ def test_alternating_albedo_is_the_least_squares_ratio_to_each_frames_shading():
     # a second round starts from the first's albedo
     two, _ = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=2, n_lights=60)
     assert not np.allclose(two, refined, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------ options passed on
+
+
+def test_from_dict_reads_several_lights_and_refuses_rows_of_four():
+    two = lt.Lighting([[0, 0, 1], [0, 1, 0]], [[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]], [0.1, 0.1, 0.1])
+    back = lt.Lighting.from_dict(two.to_dict())
+    assert np.array_equal(back.directions, two.directions) and np.array_equal(back.colors, two.colors)
+    flat = lt.Lighting.from_dict({"directions": [0, 0, 2, 0, 3, 0], "colors": [1, 1, 1, 2, 2, 2], "ambient": [0, 0, 0]})
+    assert np.array_equal(flat.directions, [[0, 0, 1], [0, 1, 0]]) and np.array_equal(flat.colors[1], [2, 2, 2])
+    for key in ("directions", "colors", "ambient"):
+        data = two.to_dict()
+        data[key] = [[1, 2, 3, 4]]
+        with pytest.raises(FileFormatError, match=r"^src: lights need .* \(ValueError: "):
+            lt.Lighting.from_dict(data, "src")
+        data[key] = [["x", "y", "z"]] * (1 if key == "ambient" else 2)
+        with pytest.raises(FileFormatError, match=r"^src: lights need .* \(ValueError: could not convert"):
+            lt.Lighting.from_dict(data, "src")
+
+
+def test_dominant_light_default_cone_is_25_degrees_inclusive():
+    near = unit([[0, 0, 1], [0, np.sin(np.radians(24.5)), np.cos(np.radians(24.5))],
+                 [np.sin(np.radians(25.5)), 0, np.cos(np.radians(25.5))]])
+    colors = np.array([[1.0] * 3, [0.5] * 3, [0.5] * 3])
+    assert np.allclose(lt.dominant_light_direction(near, colors), unit(near[0] + 0.5 * near[1]), atol=1e-12)
+    # a zero cone keeps the brightest light and any light in exactly its direction
+    same = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    got = lt.dominant_light_direction(same, np.array([[1.0] * 3, [0.2] * 3, [0.9] * 3]), cone_deg=0.0)
+    assert np.array_equal(got, [0.0, 0.0, 1.0])
+
+
+def ball_behind_a_wall():
+    """A ball lit from +x through a wall at x = 1.5 (outside the view): self-shadowing changes everything."""
+    V, F = icosphere(3, 0.5)
+    WV = np.array([[1.5, -1.0, -1.0], [1.5, 1.0, -1.0], [1.5, 1.0, 1.0], [1.5, -1.0, 1.0]])
+    return np.vstack([V, WV]), np.vstack([F, np.array([[0, 1, 2], [0, 2, 3]]) + len(V)]), len(V)
+
+
+def test_alternating_albedo_passes_on_min_cos_shadows_masks_and_the_default_of_three_rounds():
+    V, F, nb = ball_behind_a_wall()
+    cam = front_camera(64)
+    light = lt.Lighting(unit([[1.0, 0.2, 0.4], [0.0, 0.3, 1.0]]), [[0.8] * 3, [0.3] * 3], [0.2] * 3)
+    albedo = np.where(V[:, 1:2] > 0, [0.8, 0.5, 0.4], [0.3, 0.5, 0.7])
+    frames, meshes = [], []
+    for yaw in (-0.3, 0.3):
+        c, s = np.cos(yaw), np.sin(yaw)
+        Vt = V.copy()
+        Vt[:nb] = V[:nb] @ np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]).T
+        frames.append(render_ball(cam, Vt, F, light, albedo))
+        meshes.append(Vt)
+    # min_cos reaches the mean colour and the observations
+    a0, _ = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=0, min_cos=0.7)
+    assert np.array_equal(a0, lt.estimate_albedo(frames, meshes, F, cam, 0.7)[0])
+    a1, l1 = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=1, min_cos=0.7, n_lights=40)
+    a1d, _ = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=1, n_lights=40)
+    assert not np.allclose(a1, a1d)
+    # shadows reach both the lights and the shading; masks reach the lights
+    left = [np.zeros((64, 64), bool) for _ in frames]
+    for m in left:
+        m[:, :34] = True
+    a_s, l_s = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=1, shadows=True, pixel_masks=left,
+                                               n_lights=40)
+    mean_colour, count = lt.estimate_albedo(frames, meshes, F, cam)
+    want_lights = [lt.frame_lighting(f, Vt, F, cam, mean_colour, n_lights=40, shadows=True, pixel_mask=m)
+                   for f, Vt, m in zip(frames, meshes, left, strict=True)]
+    for got, want in zip(l_s, want_lights, strict=True):
+        assert np.array_equal(got.directions, want.directions) and np.allclose(got.colors, want.colors)
+    num, den = np.zeros_like(mean_colour), np.zeros_like(mean_colour)
+    for (ids, colors), Vt, lw in zip(lt.visible_vertex_colors(frames, meshes, F, cam), meshes, want_lights,
+                                     strict=True):
+        S = lt.vertex_shading(Vt, F, lw, shadows=True)[ids]
+        num[ids] += colors * S
+        den[ids] += S * S
+    seen = count > 0
+    want = mean_colour.copy()
+    ok = seen & np.all(den > 1e-12, axis=1)
+    want[ok] = num[ok] / den[ok]
+    want = np.clip(want * mean_colour[seen].mean(0) / want[seen].mean(0), 0, None)
+    assert np.abs(a_s - want).max() < 1e-9
+    # three rounds by default
+    a3, l3 = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=3, n_lights=40)
+    ad, ld = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, n_lights=40)
+    a2, _ = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=2, n_lights=40)
+    assert np.array_equal(ad, a3) and not np.allclose(ad, a2, atol=1e-9)
+
+
+def test_vertex_samples_pass_on_min_cos_and_erode_by_a_square_of_two_erode_px_plus_one():
+    import cv2
+
+    from bodystudio.capture.render import render
+
+    V, F = icosphere(3, 0.5)
+    cam = front_camera(64)
+    image = position_image(cam)
+    albedo = np.full((len(V), 3), 0.5)
+    ((ids, _),) = lt.visible_vertex_colors([image], [V], F, cam, 0.6)
+    assert len(lt.vertex_samples(image, V, F, cam, albedo, min_cos=0.6, erode_px=0)[0]) == len(ids)
+    mask = render(V, F, cam).mask.astype(np.uint8)
+    ((ids, _),) = lt.visible_vertex_colors([image], [V], F, cam)
+    uv = np.round(cam.project(V[ids])).astype(int)
+    for erode_px in (1, 2, 3):
+        inner = cv2.erode(mask, np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8)) > 0
+        want = V[ids[inner[uv[:, 1], uv[:, 0]]]]
+        got = lt.vertex_samples(image, V, F, cam, albedo, erode_px=erode_px)[0]
+        assert np.array_equal(got, want), erode_px
+        if erode_px == 2:
+            assert np.array_equal(lt.vertex_samples(image, V, F, cam, albedo)[0], want)
+    assert len(lt.vertex_samples(image, V, F, cam, albedo, erode_px=1)[0]) > len(got)  # erode_px 3: fewer
