@@ -8,6 +8,7 @@ stand-ins for the 3D pass, reading frames from a video, SSIM written out, and th
 """
 
 import json
+import re
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
@@ -21,8 +22,14 @@ from bodystudio.errors import FileFormatError, InputError
 from bodystudio.garment import composite as cp
 from bodystudio.garment import refine
 from bodystudio.garment.fitfile import MIN_FRAME_IOU
+from bodystudio.garment.garments import GARMENTS, PATTERNS
 from bodystudio.garment.lighting import Lighting, vertex_shading, visible_vertex_colors
 from bodystudio.geometry.camera import Camera
+
+
+def exact(message):
+    """A ``pytest.raises(match=...)`` pattern for exactly this message."""
+    return "^" + re.escape(str(message)) + "$"
 
 
 def icosphere(subdivisions=3, radius=0.5):
@@ -339,17 +346,22 @@ def test_source_frames_refuse_missing_sources_and_frames(tmp_path):
     write_video(tmp_path / "clip.mp4", [10, 50, 90])
     fit = SimpleNamespace(source=str(tmp_path / "clip.mp4"), frame_ids=np.array([1, 7, 9]),
                           camera=SimpleNamespace(name="c"))
-    with pytest.raises(FileFormatError, match=r"clip\.mp4: frame 7 of the fit is missing from the video"):
+    with pytest.raises(FileFormatError, match=exact(f"{tmp_path}/clip.mp4: frame 7 of the fit is missing from the "
+                                                    "video (it has fewer frames); rerun 'bodystudio garment fit'")):
         list(cp.source_frames(fit))
     fit.source = str(tmp_path / "gone.mp4")
-    with pytest.raises(InputError, match=r"gone\.mp4: the fit's source video or session is gone"):
+    gone = "gone.mp4: the fit's source video or session is gone; restore it or rerun 'bodystudio garment fit'"
+    with pytest.raises(InputError, match=exact(f"{tmp_path}/{gone}")):
         list(cp.source_frames(fit, tmp_path))
-    fit.source = "gone.mp4"
-    with pytest.raises(InputError, match="gone"):
+    fit.source = "gone.mp4"  # relative, and not next to the fit either
+    with pytest.raises(InputError, match=exact(f"{tmp_path}/{gone}")):
         list(cp.source_frames(fit, tmp_path))
+    with pytest.raises(InputError, match=exact(gone)):
+        list(cp.source_frames(fit))
     (tmp_path / "junk.mp4").write_bytes(b"not a video at all")
     fit.source = str(tmp_path / "junk.mp4")
-    with pytest.raises(FileFormatError, match=r"junk\.mp4: cannot read the video .*; check the file"):
+    with pytest.raises(FileFormatError, match=re.escape(f"{tmp_path}/junk.mp4: cannot read the video (") + r"[^\n]+"
+                                              + re.escape("); check the file") + "$"):
         list(cp.source_frames(fit))
 
 
@@ -442,17 +454,19 @@ def test_render_loop_options_lights_and_video(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("kwargs, error, phrase", [
-    ({"garment": "cape"}, InputError, "--garment 'cape': valid: "),
-    ({"texture": "tartan"}, InputError, "--texture 'tartan': valid: "),
-    ({"seed": -1}, InputError, r"--seed -1: must be in \[0, 2\^32\)"),
-    ({"texture_size": 8}, InputError, r"texture size 8 must lie in \[16, 4096\]"),
-    ({"texture_size": 5000}, InputError, "texture size 5000"),
-    ({"min_frame_iou": 0.99}, InputError, r"no frame of the fit matches the person's silhouette \(IoU >= 0.99\)"),
+    ({"garment": "cape"}, InputError, "--garment 'cape': valid: " + ", ".join(GARMENTS)),
+    ({"texture": "tartan"}, InputError, "--texture 'tartan': valid: " + ", ".join(PATTERNS)),
+    ({"seed": -1}, InputError, "--seed -1: must be in [0, 2^32)"),
+    ({"texture_size": 8}, InputError, "texture size 8 must lie in [16, 4096]"),
+    ({"texture_size": 15}, InputError, "texture size 15 must lie in [16, 4096]"),
+    ({"texture_size": 4097}, InputError, "texture size 4097 must lie in [16, 4096]"),
+    ({"min_frame_iou": 0.99}, InputError, "{fit}: no frame of the fit matches the person's silhouette (IoU >= 0.99); "
+                                          "rerun 'bodystudio garment fit' (nothing to render)"),
 ])
 def test_render_refuses_bad_options_before_writing(tmp_path, monkeypatch, kwargs, error, phrase):
     frames = [np.full((40, 48, 3), 60, np.uint8)]
     fit, calls = stand_in_render(monkeypatch, frames, [0.9])
-    with pytest.raises(error, match=phrase):
+    with pytest.raises(error, match=exact(phrase.format(fit=tmp_path / "fit"))):
         cp.render_garment_video(tmp_path / "fit", fit=fit, **kwargs)
     assert not (tmp_path / "fit" / "render").exists() and calls["render"] == []
 
@@ -460,7 +474,8 @@ def test_render_refuses_bad_options_before_writing(tmp_path, monkeypatch, kwargs
 def test_render_refuses_a_frame_of_another_size(tmp_path, monkeypatch):
     fit, _ = stand_in_render(monkeypatch, [np.full((40, 48, 3), 60, np.uint8)], [0.9])
     monkeypatch.setattr(cp, "source_frames", lambda fit, fit_dir: iter([np.zeros((40, 50, 3), np.uint8)]))
-    with pytest.raises(FileFormatError, match=r"toy: frame 2 is 50x40, the fit's camera 48x40"):
+    with pytest.raises(FileFormatError, match=exact("toy: frame 2 is 50x40, the fit's camera 48x40; rerun 'bodystudio "
+                                                    "garment fit'")):
         cp.render_garment_video(tmp_path / "fit", fit=fit)
     assert not (tmp_path / "fit" / "render" / "render.json").exists()
 
@@ -469,22 +484,26 @@ def test_check_render_options():
     assert cp.check_render_options("skirt", "checks", None) is None
     assert str(cp.check_render_options("skirt", "checks", "a/b/OUT.MP4", seed=2**32 - 1)) == "a/b/OUT.MP4"
     assert cp.check_render_options("skirt", "checks", None, seed=0) is None
-    with pytest.raises(InputError, match=r"--out x\.avi: the video must be an \.mp4 file"):
+    with pytest.raises(InputError, match=exact("--out x.avi: the video must be an .mp4 file")):
         cp.check_render_options("skirt", "checks", "x.avi")
     for seed in (2**32, 1.5, -1):
-        with pytest.raises(InputError, match="--seed"):
+        with pytest.raises(InputError, match=exact(f"--seed {seed}: must be in [0, 2^32)")):
             cp.check_render_options("skirt", "checks", None, seed=seed)
 
 
 def test_load_render_refuses_missing_damaged_and_foreign_files(tmp_path):
-    with pytest.raises(FileFormatError, match=r"render\.json: not found; run 'bodystudio garment render"):
+    path = tmp_path / "render" / "render.json"
+    with pytest.raises(FileFormatError, match=exact(f"{path}: not found; run 'bodystudio garment render {tmp_path} "
+                                                    "--out OUT.mp4' first")):
         cp.load_render(tmp_path)
     (tmp_path / "render").mkdir()
     (tmp_path / "render" / "render.json").write_text("{not json")
-    with pytest.raises(FileFormatError, match=r"render\.json: unreadable .*; rerun 'bodystudio garment render'"):
+    with pytest.raises(FileFormatError, match=re.escape(f"{path}: unreadable (") + ".+"
+                                              + re.escape("); rerun 'bodystudio garment render'") + "$"):
         cp.load_render(tmp_path)
     (tmp_path / "render" / "render.json").write_text('{"format": "bodystudio-garment-fit"}')
-    with pytest.raises(FileFormatError, match="not a garment render"):
+    foreign = f"{path}: not a garment render; rerun 'bodystudio garment render'"
+    with pytest.raises(FileFormatError, match=exact(foreign)):
         cp.load_render(tmp_path)
     (tmp_path / "render" / "render.json").write_text('{"format": "bodystudio-garment-render", "x": 1}')
     assert cp.load_render(tmp_path) == {"format": "bodystudio-garment-render", "x": 1}
