@@ -758,3 +758,51 @@ def test_vertex_samples_pass_on_min_cos_and_erode_by_a_square_of_two_erode_px_pl
         if erode_px == 2:
             assert np.array_equal(lt.vertex_samples(image, V, F, cam, albedo)[0], want)
     assert len(lt.vertex_samples(image, V, F, cam, albedo, erode_px=1)[0]) > len(got)  # erode_px 3: fewer
+
+
+def test_estimate_albedo_passes_on_min_cos_and_needs_frames():
+    V, F = icosphere(3, 0.5)
+    cam = front_camera()
+    frame = np.full((cam.height, cam.width, 3), 0.4)
+    _, count = lt.estimate_albedo([frame], [V], F, cam, min_cos=0.8)
+    ((ids, _),) = lt.visible_vertex_colors([frame], [V], F, cam, 0.8)
+    assert np.array_equal(np.flatnonzero(count), np.sort(ids))
+    with pytest.raises(InputError, match=exact("estimate_albedo needs one posed mesh per frame, got 0 frames and 0 "
+                                               "meshes")):
+        lt.estimate_albedo([], [], F, cam)
+
+
+def test_frame_lighting_is_eq_7_on_the_frames_samples_with_its_defaults():
+    """4000 pixel rows drawn with seed 0, the hemisphere about the body-to-camera axis, no shadows, ambient on."""
+    V, F, nb = ball_behind_a_wall()
+    cam = Camera.look_at("front", (0.0, 0.0, 3.0), (0.0, 0.0, 0.0), fx=330.0, width=128, height=128)
+    light = lt.Lighting(unit([[1.0, 0.2, 0.4], [0.0, 0.3, 1.0]]), [[0.8] * 3, [0.3] * 3], [0.2] * 3)
+    albedo = np.where(V[:, 1:2] > 0, [0.8, 0.5, 0.4], [0.3, 0.5, 0.7])
+    image = render_ball(cam, V, F, light, albedo)
+    axis = unit(cam.center - V.mean(0))
+
+    def written_out(samples=4000, seed=0, mask=None, **kw):
+        rows = lt.surface_samples(image, V, F, cam, albedo, samples, seed=seed, pixel_mask=mask)
+        assert len(rows[0]) == min(samples, 6000)
+        return lt.estimate_lighting(*rows, axis, 60, mesh=(V, F), **kw)
+
+    def same(a, b):
+        return np.array_equal(a.directions, b.directions) and np.allclose(a.colors, b.colors, atol=1e-12) and \
+            np.allclose(a.ambient, b.ambient, atol=1e-12)
+
+    from bodystudio.capture.render import render
+
+    assert render(V, F, cam).mask.sum() > 6000
+    assert same(lt.frame_lighting(image, V, F, cam, albedo, n_lights=60), written_out())
+    assert not same(written_out(), written_out(samples=4001)) and not same(written_out(), written_out(seed=1))
+    assert same(lt.frame_lighting(image, V, F, cam, albedo, n_lights=60, max_samples=500, seed=3),
+                written_out(500, 3))
+    left = np.zeros((128, 128), bool)
+    left[:, :60] = True
+    got = lt.frame_lighting(image, V, F, cam, albedo, n_lights=60, max_samples=10_000, pixel_mask=left)
+    rows = lt.surface_samples(image, V, F, cam, albedo, 10_000, pixel_mask=left)
+    assert same(got, lt.estimate_lighting(*rows, axis, 60))
+    shadowed = lt.frame_lighting(image, V, F, cam, albedo, n_lights=60, shadows=True)
+    assert same(shadowed, written_out(shadows=True)) and not same(shadowed, written_out())
+    flat = lt.frame_lighting(image, V, F, cam, albedo, n_lights=60, ambient=False, solver="nnls")
+    assert same(flat, written_out(ambient=False, solver="nnls")) and np.array_equal(flat.ambient, np.zeros(3))
