@@ -546,7 +546,7 @@ def test_ssim_map_is_wang_et_al_written_out():
 
 def test_render_target_mismatch():
     doc = {"garment": "skirt", "texture": "checks", "seed": 2}
-    assert "no gt/garment.json" in cp.render_target_mismatch(doc, None)
+    assert cp.render_target_mismatch(doc, None) == "the session has no gt/garment.json (not a 'synth garment' session)"
     gt = {"target": {"name": "skirt", "pattern": "checks", "seed": 2}}
     assert cp.render_target_mismatch(doc, gt) is None
     msg = cp.render_target_mismatch({**doc, "seed": 5}, gt)
@@ -554,3 +554,172 @@ def test_render_target_mismatch():
                    "render with --garment skirt --texture checks --seed 2")
     assert cp.render_target_mismatch({**doc, "texture": "print"}, gt).startswith("rendered print skirt")
     assert cp.render_target_mismatch(doc, {}).endswith("--garment None --texture None --seed None")
+
+
+def test_perturbed_fit_default_seed_is_zero():
+    fit = toy_fit()
+    assert np.array_equal(cp.perturbed_fit(fit).rotations, cp.perturbed_fit(fit, seed=0).rotations)
+
+
+# ------------------------------------------------------------------------------------------ oracle fit / scoring
+
+
+def stand_in_session(tmp_path, monkeypatch, appearance=True, fps=True):
+    """A synthetic garment session's ground truth around a ball body (``build_body`` stood in)."""
+    import bodystudio.body
+    from bodystudio.body.pose import Pose
+
+    built = []
+
+    def fake_build_body(phenotype, local, resolution):
+        built.append((phenotype, local, resolution))
+        return Ball()
+
+    monkeypatch.setattr(bodystudio.body, "build_body", fake_build_body)
+    ball = Ball()
+    cams = {"cam_00": front_camera(), "cam_01": Camera.look_at("cam_01", (0.5, 0.0, 3.0), (0, 0, 0), fx=150,
+                                                                 width=64, height=64)}
+    light = Lighting.single([0.0, 0.6, 0.8], 0.7, 0.3)
+    frames = {}
+    for k, fid in enumerate((4, 9)):
+        t = np.array([0.05 * k, 0.0, 0.0])
+        from bodystudio.capture.render import render
+
+        masks = {name: render(ball.vertices + t, ball.faces, cam).mask for name, cam in cams.items()}
+        images = {name: np.full((64, 64, 3), 40 + 100 * k, np.uint8) for name in cams}
+        frames[fid] = SimpleNamespace(gt_pose=Pose(np.full((2, 3), 0.1 * k), t), masks=masks, images=images)
+    session = SimpleNamespace(
+        path=tmp_path / "session", camera_names=list(cams), cameras=cams, frame_ids=[4, 9],
+        gt_subject={"bone_names": ["Root", "spine_02"], "phenotype": {"height": 0.6}, "local": {"neck": 0.2},
+                    "template": "6k", "stature_m": 1.72},
+        gt_lighting=light.to_dict(), gt_garment={"target": {"name": "skirt", "pattern": "checks", "seed": 3}},
+        gt_appearance_albedo=np.full((ball.n_vertices, 3), 0.33) if appearance else None,
+        metadata={"fps": 25.0} if fps else {}, frame=lambda fid: frames[fid])
+    return session, built, light
+
+
+def test_ground_truth_fit_is_the_sessions_truth(tmp_path, monkeypatch):
+    from bodystudio.body.phenotype import Phenotype
+
+    session, built, light = stand_in_session(tmp_path, monkeypatch)
+    fit = cp.ground_truth_fit(session)
+    assert len(built) == 1 and built[0][0] == Phenotype.from_dict({"height": 0.6})
+    assert built[0][1] == {"neck": 0.2} and built[0][2] == "6k"
+    assert fit.source == str(tmp_path / "session") and fit.fps == 25.0 and fit.camera is session.cameras["cam_00"]
+    assert fit.frame_ids.dtype == np.int64 and fit.frame_ids.tolist() == [4, 9]
+    assert fit.template == "6k" and fit.bone_names == ("Root", "spine_02") and fit.stature_m == 1.72
+    assert fit.phenotype == {"height": 0.6} and fit.local == {"neck": 0.2}
+    assert np.array_equal(fit.rotations, [np.zeros((2, 3)), np.full((2, 3), 0.1)])
+    assert np.array_equal(fit.translations, [[0, 0, 0], [0.05, 0, 0]])
+    f4, f9 = session.frame(4), session.frame(9)
+    assert np.array_equal(fit.masks, [f4.masks["cam_00"], f9.masks["cam_00"]])
+    assert np.allclose(fit.silhouette_iou, 1.0)  # the true pose covers the true mask
+    assert np.array_equal(fit.lighting.directions, light.directions) and np.array_equal(fit.lighting.ambient,
+                                                                                        light.ambient)
+    ball = Ball()
+    posed = [ball.vertices, ball.vertices + [0.05, 0, 0]]
+    want = cp.observed_albedo([f4.images["cam_00"], f9.images["cam_00"]], posed, ball.faces, session.cameras["cam_00"],
+                              light, session.gt_appearance_albedo)
+    assert np.array_equal(fit.albedo, want) and np.any(fit.albedo != 0.33) and np.any(fit.albedo == 0.33)
+    assert fit.warnings == ("oracle fit: the session's ground truth",)
+    other = cp.ground_truth_fit(session, "cam_01")
+    assert other.camera is session.cameras["cam_01"]
+    assert np.array_equal(other.masks[1], f9.masks["cam_01"]) and not np.array_equal(other.masks[1], fit.masks[1])
+
+
+def test_ground_truth_fit_without_appearance_or_fps(tmp_path, monkeypatch):
+    session, _, light = stand_in_session(tmp_path, monkeypatch, appearance=False, fps=False)
+    fit = cp.ground_truth_fit(session)
+    assert fit.fps == 30.0
+    ball = Ball()
+    posed = [ball.vertices, ball.vertices + [0.05, 0, 0]]
+    images = [session.frame(f).images["cam_00"] for f in (4, 9)]
+    assert np.array_equal(fit.albedo, cp.observed_albedo(images, posed, ball.faces, session.cameras["cam_00"], light))
+
+
+@pytest.mark.parametrize("missing", ["gt_subject", "gt_lighting", "gt_garment"])
+def test_ground_truth_fit_needs_a_synthetic_garment_session(tmp_path, monkeypatch, missing):
+    session, built, _ = stand_in_session(tmp_path, monkeypatch)
+    setattr(session, missing, None)
+    with pytest.raises(InputError, match=exact(f"{tmp_path}/session: not a synthetic garment session (no "
+                                               "gt/phenotype.json, gt/lighting.json or gt/garment.json); make one "
+                                               "with 'bodystudio synth garment'")):
+        cp.ground_truth_fit(session)
+    assert built == []
+
+
+def scored_render(tmp_path, monkeypatch):
+    """A stand-in render (frames 2, 5, 8; frame 5 passed through) and a session whose truth scores it."""
+    from bodystudio.capture.session import LAYER_BODY, LAYER_GARMENT
+
+    H, W = 40, 48
+    frames = [np.full((H, W, 3), 10 * (i + 1), np.uint8) for i in range(3)]
+    fit, _ = stand_in_render(monkeypatch, frames, [0.9, 0.5, 0.95])
+    cp.render_garment_video(tmp_path / "fit", "skirt", "checks", fit=fit, seed=3, min_frame_iou=0.8)
+    render_dir = tmp_path / "fit" / "render"
+    layer = toy_layer(H, W)
+    truth = {}
+    rng = np.random.default_rng(0)
+    for k, fid in enumerate((2, 5, 8)):
+        labels = np.where(layer.body_mask, LAYER_BODY, 0).astype(np.uint8)
+        labels[layer.mask] = LAYER_GARMENT
+        labels[:, : 3 + 4 * k] = 0  # the true person differs per frame
+        target = cv2.imread(str(render_dir / "frames" / f"{fid:05d}.png"))[..., ::-1].copy()
+        if fid != 8:  # frame 8: the render is exactly right
+            target = np.clip(target.astype(int) + rng.integers(-20, 20, size=target.shape), 0, 255).astype(np.uint8)
+        truth[fid] = SimpleNamespace(gt_target_layers={"c": labels}, gt_target={"c": target})
+    session = SimpleNamespace(gt_garment={"target": {"name": "skirt", "pattern": "checks", "seed": 3}},
+                              camera_names=["c"], frame=lambda fid: truth[fid])
+    return session, render_dir, truth
+
+
+def test_composite_errors_are_iou_psnr_and_ssim_in_the_true_person(tmp_path, monkeypatch):
+    from bodystudio.capture.session import LAYER_GARMENT
+
+    session, render_dir, truth = scored_render(tmp_path, monkeypatch)
+    got = cp.composite_errors(tmp_path / "fit", session)
+    ious, psnrs, ssims = [], [], []
+    for fid in (2, 5, 8):
+        img = cv2.imread(str(render_dir / "frames" / f"{fid:05d}.png"))[..., ::-1]
+        shown = cv2.imread(str(render_dir / "garment_masks" / f"{fid:05d}.png"), cv2.IMREAD_GRAYSCALE) > 127
+        labels, target = truth[fid].gt_target_layers["c"], truth[fid].gt_target["c"]
+        garment = labels == LAYER_GARMENT
+        ious.append((shown & garment).sum() / (shown | garment).sum())
+        person = labels > 0
+        mse = np.mean((img[person].astype(float) - target[person]) ** 2)
+        psnrs.append(10 * np.log10(255.0**2 / mse) if mse > 0 else np.inf)
+        ssims.append(ssim_reference(img, target)[person].mean())
+    assert ious[1] == 0.0 and 0 < ious[0] < 1 and psnrs[2] == np.inf and np.isfinite(psnrs[0])
+    assert got["garment_iou"] == pytest.approx(np.mean(ious), abs=1e-12)
+    assert got["garment_iou_per_frame"] == [round(v, 4) for v in ious]
+    assert got["psnr_person"] == np.inf  # one exact frame
+    assert got["psnr_person_per_frame"][:2] == [round(v, 2) for v in psnrs[:2]]
+    assert got["ssim_person"] == pytest.approx(np.mean(ssims), abs=1e-9)
+    assert got["render_options"] == {"flow": True, "rbf": True, "depth": True, "shadows": True}
+    assert set(got["render_ms_per_frame"]) == {"render", "flow", "rbf", "composite", "write"}
+
+
+def test_composite_errors_of_empty_regions_and_damaged_renders(tmp_path, monkeypatch):
+    session, render_dir, truth = scored_render(tmp_path, monkeypatch)
+    for fid in (2, 5, 8):
+        truth[fid].gt_target_layers["c"] = np.zeros_like(truth[fid].gt_target_layers["c"])
+    got = cp.composite_errors(tmp_path / "fit", session)
+    assert got["garment_iou_per_frame"] == [0.0, 1.0, 0.0]  # no true garment: 0, unless none is shown either
+    assert got["psnr_person"] == np.inf and got["ssim_person"] == 1.0
+    truth[5].gt_target_layers["c"] = np.zeros((10, 10), np.uint8)
+    with pytest.raises(FileFormatError, match=exact(f"{render_dir}: frame 5 is missing or damaged; rerun 'bodystudio "
+                                                    "garment render'")):
+        cp.composite_errors(tmp_path / "fit", session)
+    truth[5].gt_target_layers["c"] = np.zeros((40, 48), np.uint8)
+    (render_dir / "garment_masks" / "00008.png").unlink()
+    with pytest.raises(FileFormatError, match="frame 8 is missing or damaged"):
+        cp.composite_errors(tmp_path / "fit", session)
+
+
+def test_composite_errors_refuse_a_render_of_another_target(tmp_path, monkeypatch):
+    session, render_dir, _ = scored_render(tmp_path, monkeypatch)
+    session.gt_garment = {"target": {"name": "skirt", "pattern": "checks", "seed": 4}}
+    mismatch = cp.render_target_mismatch(cp.load_render(tmp_path / "fit"), session.gt_garment)
+    with pytest.raises(InputError, match=exact(f"{render_dir}: {mismatch}; the session's truth cannot score this "
+                                               "render")):
+        cp.composite_errors(tmp_path / "fit", session)
