@@ -541,17 +541,19 @@ def test_track_poses_runs_forward_from_the_reference_then_backward(monkeypatch):
     calls = []
 
     def fake_fit(x0, problem, max_nfev=6):
+        assert problem.space is space and problem.camera == "cam" and problem.spheres == ("spheres", "body")
+        assert max_nfev == 6 and not problem.with_height
         calls.append((problem.target, None if problem.neighbour is None else problem.neighbour.copy(), x0.copy(),
                       problem.constraints))
         return x0 + 1.0 if problem.target > 2 else x0 - 1.0
 
     monkeypatch.setattr(gf, "fit_frame_pose", fake_fit)
-    monkeypatch.setattr(gf, "penetration_spheres", lambda body: "spheres")
+    monkeypatch.setattr(gf, "penetration_spheres", lambda body: ("spheres", body))
     monkeypatch.setattr(gf, "silhouette_target", lambda mask: int(mask))
-    space = SimpleNamespace(body=None, n_params=2)
+    space = SimpleNamespace(body="body", n_params=2)
     masks = np.arange(5)
     ticks = []
-    X = gf.track_poses(space, None, masks, 2, np.array([10.0, 20.0]), {7: "keys"}, progress=lambda: ticks.append(1),
+    X = gf.track_poses(space, "cam", masks, 2, np.array([10.0, 20.0]), {7: "keys"}, progress=lambda: ticks.append(1),
                        frame_ids=np.array([5, 6, 7, 8, 9]))
     assert [c[0] for c in calls] == [2, 3, 4, 1, 0]
     assert calls[0][1] is None and np.array_equal(calls[0][2], [10, 20])
@@ -561,7 +563,7 @@ def test_track_poses_runs_forward_from_the_reference_then_backward(monkeypatch):
     assert np.array_equal(calls[3][1], X[2]) and np.array_equal(calls[4][1], X[1])
     assert [c[3] for c in calls] == ["keys", None, None, None, None]  # the constraints of frame id 7 only
     assert len(ticks) == 5
-    X = gf.track_poses(space, None, masks[:3], 0, np.array([0.0, 0.0]))  # default frame ids, no progress
+    X = gf.track_poses(space, "cam", masks[:3], 0, np.array([0.0, 0.0]))  # default frame ids, no progress
     assert [c[0] for c in calls[5:]] == [0, 1, 2] and np.array_equal(X[2], [-3, -3])
 
 
@@ -683,3 +685,187 @@ def test_fit_accepts_the_stature_range_ends(tmp_path, monkeypatch):
     for stature in (0.5, 2.5):
         with pytest.raises(RuntimeError, match="reached the video"):
             gf.fit_garment_video(tmp_path / "v.mp4", stature)
+
+
+# ------------------------------------------------------------------------------------------ Eq. 6 proxy geometry
+
+FULL_BONES = {  # a standing figure with the bones penetration_spheres and the probes use
+    "pelvis": (None, (0.0, 1.0, 0.0), (0.0, 1.1, 0.0)),
+    "spine_01": ("pelvis", (0.0, 1.1, 0.0), (0.0, 1.2, 0.0)),
+    "spine_02": ("spine_01", (0.0, 1.2, 0.0), (0.0, 1.35, 0.0)),
+    "spine_03": ("spine_02", (0.0, 1.35, 0.0), (0.0, 1.5, 0.0)),
+    "neck_01": ("spine_03", (0.0, 1.5, 0.0), (0.0, 1.6, 0.0)),
+    "thigh_l": ("pelvis", (0.1, 0.95, 0.0), (0.1, 0.5, 0.0)),
+    "calf_l": ("thigh_l", (0.1, 0.5, 0.0), (0.1, 0.1, 0.0)),
+    "foot_l": ("calf_l", (0.1, 0.1, 0.0), (0.1, 0.0, 0.1)),
+    "thigh_r": ("pelvis", (-0.1, 0.95, 0.0), (-0.1, 0.5, 0.0)),
+    "calf_r": ("thigh_r", (-0.1, 0.5, 0.0), (-0.1, 0.1, 0.0)),
+    "foot_r": ("calf_r", (-0.1, 0.1, 0.0), (-0.1, 0.0, 0.1)),
+    "lowerarm_l": ("spine_03", (0.4, 1.3, 0.0), (0.5, 1.05, 0.0)),
+    "hand_l": ("lowerarm_l", (0.5, 1.05, 0.0), (0.52, 0.95, 0.0)),
+    "lowerarm_r": ("spine_03", (-0.4, 1.3, 0.0), (-0.5, 1.05, 0.0)),
+    "hand_r": ("lowerarm_r", (-0.5, 1.05, 0.0), (-0.52, 0.95, 0.0)),
+}
+
+
+def figure(n_per_bone=(60, 30)):
+    """Rings of vertices around each bone (radius 0.06-0.12), skinned to it; the hands get few vertices."""
+    names = tuple(FULL_BONES)
+    parents = np.array([-1 if p is None else names.index(p) for p, _, _ in FULL_BONES.values()])
+    heads = np.array([h for _, h, _ in FULL_BONES.values()])
+    tails = np.array([t for _, _, t in FULL_BONES.values()])
+    sk = Skeleton(names, parents, heads, tails, np.zeros(len(names)))
+    rng = np.random.default_rng(3)
+    V, W = [], []
+    for j, name in enumerate(names):
+        count = n_per_bone[1] if name.startswith("hand") else n_per_bone[0]
+        s = rng.uniform(0, 1, count)
+        radius = 0.06 + 0.06 * rng.uniform(size=count)
+        angle = rng.uniform(0, 2 * np.pi, count)
+        V.append(heads[j] + s[:, None] * (tails[j] - heads[j]) + radius[:, None] * np.column_stack(
+            [np.cos(angle), np.zeros(count), np.sin(angle)]))
+        w = np.full((count, len(names)), 0.01)
+        w[:, j] = 1.0
+        W.append(w)
+    return SimpleNamespace(skeleton=sk, vertices=np.vstack(V), weights=np.vstack(W))
+
+
+def test_penetration_spheres_are_inscribed_along_the_spine_and_legs():
+    from scipy.spatial import cKDTree
+
+    body = figure()
+    sk = body.skeleton
+    sp = gf.penetration_spheres(body)
+    dominant = np.argmax(body.weights, axis=1)
+    assert len(sp.centers) == 5 * 4 and sp.group.tolist() == [0] * 4 + [1] * 8 + [2] * 8
+    segments = [("pelvis", "neck_01", ("pelvis", "spine_01", "spine_02", "spine_03")),
+                ("thigh_l", "calf_l", ("thigh_l",)), ("calf_l", "foot_l", ("calf_l",)),
+                ("thigh_r", "calf_r", ("thigh_r",)), ("calf_r", "foot_r", ("calf_r",))]
+    k = 0
+    for a, b, owners in segments:
+        ha, hb = sk.heads[sk.index(a)], sk.heads[sk.index(b)]
+        own = body.vertices[np.isin(dominant, [sk.index(o) for o in owners])]
+        for s in (0.125, 0.375, 0.625, 0.875):
+            c = ha + s * (hb - ha)
+            assert np.allclose(sp.centers[k], c, atol=1e-15)
+            assert sp.radii[k] == pytest.approx(0.9 * cKDTree(own).query(c)[0], rel=1e-12)
+            if len(owners) > 1:
+                heads = {o: np.linalg.norm(c - sk.heads[sk.index(o)]) for o in owners}
+                assert sk.bone_names[sp.bones[k]] == min(heads, key=heads.get)
+            else:
+                assert sp.bones[k] == sk.index(a)
+            k += 1
+    assert [sk.bone_names[b] for b in sp.bones[:4]] == ["spine_01", "spine_02", "spine_03", "spine_03"]
+    # probes: 40 of each forearm and calf, all (30) of each hand; calves may not enter their own leg
+    names = [sk.bone_names[dominant[i]] for i in sp.probe_ids]
+    for bone, count, excluded in (("lowerarm_l", 40, -1), ("lowerarm_r", 40, -1), ("hand_l", 30, -1),
+                                  ("hand_r", 30, -1), ("calf_l", 40, 1), ("calf_r", 40, 2)):
+        mine = [i for i, n in enumerate(names) if n == bone]
+        assert len(mine) == count and np.all(sp.probe_excluded[mine] == excluded), bone
+        ids = sp.probe_ids[mine]
+        assert np.all(np.diff(ids) > 0)  # sorted, no repeats
+    assert len(sp.probe_ids) == 220
+    again = gf.penetration_spheres(body)
+    assert np.array_equal(again.probe_ids, sp.probe_ids)  # seeded
+    two = gf.penetration_spheres(body, per_segment=2)
+    assert len(two.centers) == 10 and np.allclose(two.centers[0], sk.heads[0] + 0.25 * (sk.heads[4] - sk.heads[0]))
+
+
+def test_penetration_spheres_without_hand_vertices():
+    body = figure()
+    hands = np.isin(np.argmax(body.weights, axis=1), [body.skeleton.index("hand_l"), body.skeleton.index("hand_r")])
+    body.vertices, body.weights = body.vertices[~hands], body.weights[~hands]
+    sp = gf.penetration_spheres(body)
+    assert len(sp.probe_ids) == 160 and len(sp.probe_excluded) == 160
+
+
+# ------------------------------------------------------------------------------------------ §4.3 stages
+
+
+def test_nelder_mead_shape_starts_from_the_papers_simplex_and_returns_the_best_shape(monkeypatch):
+    evaluated = []
+
+    def fake_shape_body(values, names, phenotype, local, template):
+        return ("body", tuple(values)), {**phenotype, "v": list(values)}, {**local, "t": template}
+
+    def fake_energy(body, xs, camera, targets, stature_m, base):
+        v = np.array(body[1])
+        evaluated.append(v)
+        assert (xs, camera, targets, stature_m, base) == ("xs", "cam", "targets", 1.7, "base")
+        return float(np.sum((v - [0.3, -0.2]) ** 2))
+
+    monkeypatch.setattr(gf, "_shape_body", fake_shape_body)
+    monkeypatch.setattr(gf, "shape_energy", fake_energy)
+    ph, loc = gf.nelder_mead_shape(("weight", "upperarm-fat-decr-incr"), np.array([0.5, 0.0]), {"a": 1}, {"b": 2},
+                                   "xs", "cam", "targets", 1.7, "2k", "base", max_evals=200)
+    assert np.allclose(evaluated[0], [0.5, 0.0])
+    assert np.allclose(evaluated[1], [0.65, 0.0]) and np.allclose(evaluated[2], [0.5, 0.3])  # 0.15 macro, 0.3 local
+    assert np.allclose(ph["v"], [0.3, -0.2], atol=2e-3) and ph["a"] == 1 and loc == {"b": 2, "t": "2k"}
+    assert len(evaluated) < 200  # stopped by the tolerances (xatol 1e-3, fatol 1e-4)
+    evaluated.clear()
+    gf.nelder_mead_shape(("weight", "upperarm-fat-decr-incr"), np.array([0.5, 0.0]), {}, {}, "xs", "cam", "targets",
+                         1.7, "2k", "base", max_evals=7)
+    assert len(evaluated) <= 7 + 2
+
+
+def test_estimate_shape_alternates_macro_local_and_the_reference_poses(monkeypatch):
+    """§4.3's schedule with every stage stood in: which frames, which stages, in which order, with which budgets."""
+    import bodystudio.body
+
+    log = []
+    monkeypatch.setattr(bodystudio.body, "build_body", lambda ph, local, resolution: ("body", ph.to_dict()["height"],
+                                                                                     dict(local), resolution))
+    monkeypatch.setattr(gf, "_stature_matched_height", lambda ph, local, stature, template: {**ph, "height": 0.25})
+    monkeypatch.setattr(gf, "silhouette_target", lambda mask: ("target", int(mask)))
+    monkeypatch.setattr(gf, "penetration_spheres", lambda body: ("spheres", body))
+
+    def fake_space(body, base=None):
+        return SimpleNamespace(body=body, base="prior" if base is None else base)
+
+    monkeypatch.setattr(gf, "pose_space", fake_space)
+    monkeypatch.setattr(gf, "initial_placements", lambda space, camera, t: [np.array([1.0]), np.array([2.0]),
+                                                                          np.array([3.0])])
+
+    def fake_fit(x, problem, max_nfev):
+        log.append(("pose", problem.target[1], float(x[0]), max_nfev, problem.with_height, problem.neighbour))
+        return x + 0.5
+
+    monkeypatch.setattr(gf, "fit_frame_pose", fake_fit)
+    monkeypatch.setattr(gf, "pose_residuals", lambda x, problem: np.array([x[0] - 2.5]))  # start 2 is best
+
+    def fake_nm(names, start, phenotype, local, xs, camera, targets, stature_m, template, base, max_evals):
+        log.append(("nm", names, start.tolist(), [float(x[0]) for x in xs], [t[1] for t in targets], stature_m,
+                    template, base, max_evals))
+        if names == gf.MACRO_PARAMETERS:
+            return {**phenotype, "weight": 0.9}, local
+        return phenotype, {**local, "upperarm-fat-decr-incr": 0.4}
+
+    monkeypatch.setattr(gf, "nelder_mead_shape", fake_nm)
+    masks = np.arange(10)
+    out = gf.estimate_shape(masks, "cam", 1.7, template="6k", rounds=2, macro_evals=11, local_evals=22)
+    assert out.reference.tolist() == [0, 3, 6, 9]
+    first = log[:12]
+    assert [e[1] for e in first] == [0, 0, 0, 3, 3, 3, 6, 6, 6, 9, 9, 9]
+    assert [e[2] for e in first[:3]] == [1.0, 2.0, 3.0] and all(e[3] == 12 and e[4] and e[5] is None for e in first)
+    nm = [e for e in log if e[0] == "nm"]
+    assert [e[1] for e in nm] == [gf.MACRO_PARAMETERS, gf.LOCAL_PARAMETERS] * 2
+    assert [e[8] for e in nm] == [11, 22, 11, 22]
+    assert nm[0][3] == [2.5] * 4 and nm[0][4] == [0, 3, 6, 9] and nm[0][5] == 1.7 and nm[0][6] == "6k"
+    assert nm[0][7] == "prior"  # the standing prior of the first body, kept for every later body
+    from bodystudio.body.phenotype import Phenotype
+
+    default = Phenotype().to_dict()
+    assert nm[0][2] == [default[k] if k != "height" else 0.25 for k in gf.MACRO_PARAMETERS]
+    assert nm[1][2] == [0.0] * len(gf.LOCAL_PARAMETERS)
+    assert nm[3][2] == [0.4 if k == "upperarm-fat-decr-incr" else 0.0 for k in gf.LOCAL_PARAMETERS]
+    refits = [e for e in log if e[0] == "pose"][12:]
+    assert [e[1] for e in refits] == [0, 3, 6, 9] * 2 and all(e[3] == 8 and e[4] for e in refits)
+    assert [e[2] for e in refits] == [2.5] * 4 + [3.0] * 4 and nm[2][3] == [3.0] * 4
+    assert out.xs[0].tolist() == [3.5] and len(out.xs) == 4
+    assert out.phenotype["weight"] == 0.9 and out.phenotype["height"] == 0.25
+    assert out.local == {"upperarm-fat-decr-incr": 0.4}
+    assert out.body == ("body", 0.25, {"upperarm-fat-decr-incr": 0.4}, "6k")
+    log.clear()
+    few = gf.estimate_shape(np.arange(2), "cam", 1.7, rounds=0)
+    assert few.reference.tolist() == [0, 1] and few.body[3] == "2k" and len(few.xs) == 2
+    assert not [e for e in log if e[0] == "nm"]
