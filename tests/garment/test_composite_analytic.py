@@ -723,3 +723,48 @@ def test_composite_errors_refuse_a_render_of_another_target(tmp_path, monkeypatc
     with pytest.raises(InputError, match=exact(f"{render_dir}: {mismatch}; the session's truth cannot score this "
                                                "render")):
         cp.composite_errors(tmp_path / "fit", session)
+
+
+def test_load_render_refuses_interrupted_writes(tmp_path):
+    from bodystudio.runfolder import OutputLockedError
+
+    render_dir = tmp_path / "render"
+    (render_dir / ".staging").mkdir(parents=True)
+    (render_dir / "render.json").write_text('{"format": "bodystudio-garment-render"}')
+    (render_dir / ".staging" / "frames.png").write_bytes(b"x")
+    with pytest.raises(FileFormatError, match=exact(f"{render_dir}/.staging: an interrupted write left 1 uncommitted "
+                                                    "files")):
+        cp.load_render(tmp_path)
+    (render_dir / ".staging" / "commit.json").write_text("{}")
+    with pytest.raises(OutputLockedError, match=exact(f"{render_dir}: a write was interrupted while committing; run "
+                                                      f"`bodystudio recover {render_dir}` to finish it")):
+        cp.load_render(tmp_path)
+
+
+def test_render_manifest_names_the_command_the_stage_and_reads_the_fit_folder(tmp_path, monkeypatch):
+    import imageio_ffmpeg
+
+    import bodystudio.garment.fitfile as fitfile
+
+    frames = [np.full((40, 48, 3), 60, np.uint8)] * 2
+    fit, calls = stand_in_render(monkeypatch, frames, [0.9, 0.9])
+    read = []
+    monkeypatch.setattr(fitfile, "load_garment_fit", lambda d: read.append(d) or fit)
+    body = fit.body()
+    fit.body = lambda: body
+    dressed = []
+    import bodystudio.garment.garments as garments
+
+    monkeypatch.setattr(garments, "dress", lambda b, *args: dressed.append(b) or "cloth")
+    video = tmp_path / "v.mp4"
+    doc = cp.render_garment_video(tmp_path / "fit", texture_size=16, out_video=video)
+    assert read == [tmp_path / "fit"] and dressed == [body]
+    assert doc["run"]["command"] == "bodystudio garment render"
+    assert doc["run"]["producer"] == {"stage": "garment", "kind": "render"}
+    assert sorted(doc["run"]["files"]) == ["../../v.mp4", "frames/00002.png", "frames/00005.png",
+                                           "garment_masks/00002.png", "garment_masks/00005.png"]
+    reader = imageio_ffmpeg.read_frames(str(video))
+    assert next(reader)["fps"] == 12.0
+    reader.close()
+    doc = cp.render_garment_video(tmp_path / "fit", texture_size=4096, command="bodystudio eval garment")
+    assert doc["run"]["command"] == "bodystudio eval garment" and doc["texture_size"] == 4096
