@@ -704,8 +704,25 @@ def test_alternating_albedo_passes_on_min_cos_shadows_masks_and_the_default_of_t
     a0, _ = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=0, min_cos=0.7)
     assert np.array_equal(a0, lt.estimate_albedo(frames, meshes, F, cam, 0.7)[0])
     a1, l1 = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=1, min_cos=0.7, n_lights=40)
-    a1d, _ = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=1, n_lights=40)
+    a1d, l1d = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=1, n_lights=40)
     assert not np.allclose(a1, a1d)
+    mean_colour, count = lt.estimate_albedo(frames, meshes, F, cam, 0.7)
+    assert np.array_equal(a0, mean_colour)
+    num, den = np.zeros_like(mean_colour), np.zeros_like(mean_colour)
+    for (ids, colors), Vt, lw in zip(lt.visible_vertex_colors(frames, meshes, F, cam, 0.7), meshes, l1, strict=True):
+        S = lt.vertex_shading(Vt, F, lw)[ids]
+        num[ids] += colors * S
+        den[ids] += S * S
+    seen = count > 0
+    want = mean_colour.copy()
+    want[seen] = num[seen] / den[seen]
+    want = np.clip(want * mean_colour[seen].mean(0) / want[seen].mean(0), 0, None)
+    assert np.abs(a1 - want).max() < 1e-9
+    # no shadows by default (the wall shadows the ball's right side)
+    a1n, l1n = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=1, n_lights=40, shadows=False)
+    assert np.array_equal(a1n, a1d) and np.array_equal(l1n[0].directions, l1d[0].directions)
+    a1s, _ = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=1, n_lights=40, shadows=True)
+    assert np.abs(a1s - a1d).max() > 0.01
     # shadows reach both the lights and the shading; masks reach the lights
     left = [np.zeros((64, 64), bool) for _ in frames]
     for m in left:
