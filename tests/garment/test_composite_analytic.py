@@ -374,10 +374,11 @@ def stand_in_render(monkeypatch, frames, iou, lighting=None):
     import bodystudio.garment.render as render
 
     H, W = frames[0].shape[:2]
-    calls = {"render": [], "dress": []}
+    calls = {"render": [], "dress": [], "layer": [], "frames": []}
 
     def fake_layer(V, F, cloth, garment_V, camera, lighting, albedo, shadows):
         calls["render"].append((lighting, albedo, shadows))
+        calls["layer"].append((V, F, cloth, garment_V, camera))
         return toy_layer(H, W)
 
     def fake_dress(body, garment, texture, size, seed):
@@ -386,15 +387,20 @@ def stand_in_render(monkeypatch, frames, iou, lighting=None):
 
     monkeypatch.setattr(render, "render_garment_layer", fake_layer)
     monkeypatch.setattr(garments, "dress", fake_dress)
-    monkeypatch.setattr(garments, "pose_garment", lambda cloth, body, pose: None)
-    monkeypatch.setattr(cp, "source_frames", lambda fit, fit_dir: iter(frames))
+    monkeypatch.setattr(garments, "pose_garment", lambda cloth, body, pose: ("garment_V", cloth, body, pose))
+
+    def fake_frames(fit, fit_dir):
+        calls["frames"].append((fit, fit_dir))
+        return iter(frames)
+
+    monkeypatch.setattr(cp, "source_frames", fake_frames)
     n = len(frames)
-    body = SimpleNamespace(n_vertices=5, faces=None, pose=lambda pose: (None, None))
+    body = SimpleNamespace(n_vertices=5, faces="faces", pose=lambda pose: (("V", pose), None))
     fit = SimpleNamespace(frame_ids=np.arange(n) * 3 + 2, camera=SimpleNamespace(height=H, width=W,
                                                                                  center=np.array([0.0, 0.0, 2.0])),
                           silhouette_iou=np.asarray(iou, float), lighting=lighting, albedo=np.zeros((5, 3)),
                           fps=12.0, source="toy", masks=np.stack([toy_layer(H, W).body_mask] * n),
-                          body=lambda: body, pose=lambda i: i)
+                          body=lambda: body, pose=lambda i: ("pose", i))
     return fit, calls
 
 
@@ -406,6 +412,10 @@ def test_render_loop_composites_fitted_frames_and_passes_the_others_through(tmp_
                                   shadows=False, min_frame_iou=0.8)
     assert calls["dress"] == [("skirt", "checks", 32, 3)]
     assert len(calls["render"]) == 2  # the passed-through frame is not rendered
+    assert calls["frames"] == [(fit, tmp_path / "fit")]
+    body = fit.body()
+    assert calls["layer"] == [(("V", ("pose", i)), "faces", "cloth", ("garment_V", "cloth", body, ("pose", i)),
+                               fit.camera) for i in (0, 2)]
     light, albedo, shadows = calls["render"][0]
     assert np.allclose(light.directions, [[0, 0, 1]]) and np.allclose(light.ambient, 0.3)  # the default lights
     assert albedo is fit.albedo and shadows is False
