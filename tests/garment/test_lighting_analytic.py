@@ -823,3 +823,37 @@ def test_frame_lighting_is_eq_7_on_the_frames_samples_with_its_defaults():
     assert same(shadowed, written_out(shadows=True)) and not same(shadowed, written_out())
     flat = lt.frame_lighting(image, V, F, cam, albedo, n_lights=60, ambient=False, solver="nnls")
     assert same(flat, written_out(ambient=False, solver="nnls")) and np.array_equal(flat.ambient, np.zeros(3))
+    # 60 lights on the hemisphere can stand in for the ambient on a ball seen from one side; 8 cannot
+    coarse = lt.frame_lighting(image, V, F, cam, albedo, n_lights=8, ambient=False)
+    assert np.array_equal(coarse.ambient, np.zeros(3))
+    assert lt.frame_lighting(image, V, F, cam, albedo, n_lights=8).ambient[0] > 0.05
+
+
+def test_self_shadowing_of_a_lone_convex_ball_changes_nothing():
+    """Shadow rays start 2 mm off the surface, outwards: a convex mesh never blocks its own lit side."""
+    V, F = icosphere(3, 0.5)
+    light = lt.Lighting(unit([[0.3, 0.5, 1.0], [-1.0, 0.2, 0.0]]), [[0.6] * 3, [0.3] * 3], [0.1] * 3)
+    assert np.abs(lt.vertex_shading(V, F, light, shadows=True) - lt.vertex_shading(V, F, light)).max() < 1e-12
+
+
+def test_visible_vertex_colors_reach_every_image_border_and_near_surfaces():
+    """A grid with one vertex per pixel centre, one pixel beyond the image on each side: exactly the in-image
+    vertices are seen, including column and row 0 and the last ones; a surface 0.3 m from the camera is seen."""
+    W = H = 8
+    cam = Camera.look_at("c", (0.0, 0.0, 3.0), (0.0, 0.0, 0.0), fx=30.0, width=W, height=H)
+    k = np.arange(-1, 9)
+    u, v = np.meshgrid(k, k)
+    grid = np.column_stack([(u.ravel() - 3.5) * 0.1, -(v.ravel() - 3.5) * 0.1, np.zeros(u.size)])
+    idx = np.arange(u.size).reshape(u.shape)
+    quads = [(idx[i, j], idx[i, j + 1], idx[i + 1, j + 1], idx[i + 1, j]) for i in range(9) for j in range(9)]
+    F = np.array([t for a, b, c, d in quads for t in ((a, c, b), (a, d, c))])  # facing the camera
+    assert np.allclose(cam.project(grid), np.column_stack([u.ravel(), v.ravel()]), atol=1e-9)
+    image = position_image(cam)
+    ((ids, colors),) = lt.visible_vertex_colors([image], [grid], F, cam, min_cos=0.0)
+    seen = {(int(u.ravel()[i]), int(v.ravel()[i])) for i in ids}
+    assert seen == {(c, r) for c in range(W) for r in range(H)}
+    # near the camera (depth 0.5 m to 0.7 m): still seen
+    Vb, Fb = icosphere(3, 0.1)
+    near = front_camera()
+    ((ids, _),) = lt.visible_vertex_colors([position_image(near)], [Vb + [0, 0, 2.4]], Fb, near)
+    assert len(ids) > 100 and near.world_to_camera(Vb[ids] + [0, 0, 2.4])[:, 2].max() < 1.0
