@@ -857,3 +857,55 @@ def test_visible_vertex_colors_reach_every_image_border_and_near_surfaces():
     near = front_camera()
     ((ids, _),) = lt.visible_vertex_colors([position_image(near)], [Vb + [0, 0, 2.4]], Fb, near)
     assert len(ids) > 100 and near.world_to_camera(Vb[ids] + [0, 0, 2.4])[:, 2].max() < 1.0
+
+
+def test_estimate_lighting_with_shadows_casts_from_2_mm_off_the_surface():
+    """The visibility of Eq. 7's matrix written out: rays from each sample 2 mm along its normal, against the mesh."""
+    V, F, nb = ball_behind_a_wall()
+    V = V.copy()
+    V[nb:, 0] = 0.8  # the wall 0.3 m from the ball's right side
+    rng = np.random.default_rng(0)
+    pick = rng.choice(nb, 300, replace=False)
+    from bodystudio.capture.render import vertex_normals_area_weighted
+
+    N = vertex_normals_area_weighted(V[:nb], F[: len(F) - 2])[pick]
+    P = V[pick]
+    albedo = np.full((300, 3), 0.5)
+    directions = lt.golden_spiral_hemisphere(30, [0.0, 0.0, 1.0])
+    truth = np.zeros((30, 3))
+    truth[[3, 11, 22]] = [[0.5] * 3, [0.3] * 3, [0.2] * 3]
+    vis = lt.light_visibility(P + 2e-3 * N, directions, V, F)
+    assert 0 < vis.mean() < 1
+    observed = albedo * (0.1 + (np.clip(N @ directions.T, 0, None) * vis) @ truth)
+    got = lt.estimate_lighting(P, N, albedo, observed, [0.0, 0.0, 1.0], 30, shadows=True, mesh=(V, F))
+    G = lt.lambert_light_matrix(N, directions, vis)
+    X = lt.solve_lights(G, albedo, observed, "fast_nnls")
+    active = X[:-1].sum(1) > 1e-9
+    assert np.array_equal(got.directions, directions[active]) and np.allclose(got.colors, X[:-1][active])
+    assert np.allclose(got.colors, truth[[3, 11, 22]], atol=1e-6)
+
+
+def test_surface_samples_defaults_turn_normals_to_the_camera_and_draw_without_repeats():
+    from bodystudio.capture.render import render
+
+    V, F = icosphere(3, 0.5)
+    cam = Camera.look_at("front", (0.0, 0.0, 3.0), (0.0, 0.0, 0.0), fx=330.0, width=128, height=128)
+    image = position_image(cam)
+    albedo = np.full((len(V), 3), 0.5)
+    n_px = render(V, F, cam).mask.sum()
+    assert n_px > 5000
+    default = lt.surface_samples(image, V, F, cam, albedo)
+    assert len(default[0]) == 4000
+    assert np.array_equal(default[0], lt.surface_samples(image, V, F, cam, albedo, 4000, 2, 0)[0])
+    # inside-out faces: the normals still face the camera
+    inverted = lt.surface_samples(image, V, F[:, ::-1], cam, albedo, 10_000, 0)[1]
+    outward = lt.surface_samples(image, V, F, cam, albedo, 10_000, 0)[1]
+    assert np.allclose(inverted, outward, atol=1e-12)
+    # a draw of all but one pixel repeats none
+    P = lt.surface_samples(image, V, F, cam, albedo, n_px - 1, 0)[0]
+    assert len(np.unique(P, axis=0)) == n_px - 1
+    # erode_px 1 is a 3x3 erosion
+    import cv2
+
+    inner = cv2.erode(render(V, F, cam).mask.astype(np.uint8), np.ones((3, 3), np.uint8)).sum()
+    assert len(lt.surface_samples(image, V, F, cam, albedo, 10_000, 1)[0]) == inner
