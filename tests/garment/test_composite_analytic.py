@@ -778,3 +778,71 @@ def test_render_manifest_names_the_command_the_stage_and_reads_the_fit_folder(tm
     reader.close()
     doc = cp.render_garment_video(tmp_path / "fit", texture_size=4096, command="bodystudio eval garment")
     assert doc["run"]["command"] == "bodystudio eval garment" and doc["texture_size"] == 4096
+
+
+def test_refinement_defaults_field_type_and_step_timings(monkeypatch):
+    import time as time_module
+
+    layer = toy_layer()
+    H, W = layer.mask.shape
+    rng = np.random.default_rng(0)
+    texture = cv2.GaussianBlur(rng.uniform(size=(H, W, 3)).astype(np.float32), (0, 0), 1.5)
+    layer.body_image = np.where(layer.body_mask[..., None], 0.2 + 0.6 * texture, 0.0).astype(np.float32)
+    frame = np.clip(np.round(np.roll(layer.body_image, (1, 2), axis=(0, 1)) * 255), 0, 255).astype(np.uint8)
+    person = np.roll(layer.body_mask, (1, 2), axis=(0, 1))
+    layer.mask = np.zeros_like(layer.mask)
+    layer.mask[29:32, 10:38] = True  # a hem strip: the flow is kept only within 15 px of it
+    layer.rgb = (layer.mask[..., None] * np.full(3, 0.3)).astype(np.float32)
+    both = cp.refine_and_composite(frame, person, layer)
+    flow = cp.refine_and_composite(frame, person, layer, rbf=False)
+    want = refine.garment_motion_correction(frame, person, layer.body_image, layer.body_mask, layer.mask)
+    assert np.array_equal(flow.field, want)
+    anywhere = refine.garment_motion_correction(frame, person, layer.body_image, layer.body_mask)
+    assert not np.allclose(want, anywhere, atol=1e-3)
+    rbf = cp.refine_and_composite(frame, person, layer, flow=False)
+    src, tgt = refine.match_silhouettes(refine.outer_silhouette(refine.warp_image(layer.mask, want),
+                                                                refine.warp_image(layer.body_mask, want)), person)
+    assert np.allclose(both.field, refine.concatenate_warps(want, refine.silhouette_rbf_warp(tgt, src - tgt, (H, W))),
+                       atol=1e-6)
+    assert not np.allclose(both.field, flow.field) and not np.allclose(both.field, rbf.field)
+    plain = cp.refine_and_composite(frame, person, layer, flow=False, rbf=False)
+    assert plain.field.dtype == np.float32 and both.field.dtype == np.float32
+    # the step timings are milliseconds between the step boundaries
+    ticks = iter(np.arange(0.0, 100.0, 0.25))
+    monkeypatch.setattr(time_module, "perf_counter", lambda: float(next(ticks)))
+    timed = cp.refine_and_composite(frame, person, layer, flow=False, rbf=False)
+    assert timed.timings_ms == {"flow": 250.0, "rbf": 250.0, "composite": 250.0}
+
+
+def test_source_frames_of_a_session_folder(tmp_path, monkeypatch):
+    import bodystudio.capture.session as session_module
+
+    (tmp_path / "session").mkdir()
+    opened = []
+
+    def fake_open(path):
+        opened.append(path)
+        images = {fid: {"cam_00": np.full((4, 4, 3), fid, np.uint8), "cam_01": np.full((4, 4, 3), 100 + fid,
+                                                                                         np.uint8)}
+                  for fid in range(10)}
+        return SimpleNamespace(camera_names=["cam_00", "cam_01"],
+                               frame=lambda fid: SimpleNamespace(images=images[fid]))
+
+    monkeypatch.setattr(session_module, "open_session", fake_open)
+    fit = SimpleNamespace(source=str(tmp_path / "session"), frame_ids=np.array([3, 7]),
+                          camera=SimpleNamespace(name="cam_01"))
+    assert [int(f[0, 0, 0]) for f in cp.source_frames(fit)] == [103, 107]
+    assert opened == [tmp_path / "session"]
+    fit.camera.name = "webcam"  # a video's camera: the session's first
+    assert [int(f[0, 0, 0]) for f in cp.source_frames(fit)] == [3, 7]
+    # a relative source that exists from here is read from here, not next to the fit
+    monkeypatch.chdir(tmp_path)
+    fit.source = "session"
+    list(cp.source_frames(fit, tmp_path / "elsewhere"))
+    assert opened[-1] == cp.Path("session")
+
+
+def test_check_render_options_names_the_video_in_destination_errors(tmp_path):
+    (tmp_path / "out.mp4").mkdir()
+    with pytest.raises(InputError, match=exact(f"video {tmp_path}/out.mp4: is a folder; give a file path")):
+        cp.check_render_options("skirt", "checks", tmp_path / "out.mp4")
