@@ -13,6 +13,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import scipy.optimize
 from scipy.spatial.transform import Rotation
 
 from bodystudio.body.model import RESOLUTIONS
@@ -489,14 +490,23 @@ def fake_build_body(phenotype=None, local=None, resolution="2k"):
 def test_stature_matched_height_bisects_the_height_parameter(monkeypatch):
     import bodystudio.body
 
-    monkeypatch.setattr(bodystudio.body, "build_body", fake_build_body)
+    built = []
+
+    def recording_build_body(phenotype=None, local=None, resolution="2k"):
+        built.append((local, resolution))
+        return fake_build_body(phenotype, local, resolution)
+
+    monkeypatch.setattr(bodystudio.body, "build_body", recording_build_body)
     from bodystudio.body.phenotype import Phenotype
 
     ph = Phenotype().to_dict()
     ph["weight"] = 0.2
-    out = gf._stature_matched_height(ph, {}, 1.72, "2k")
+    out = gf._stature_matched_height(ph, {"neck": 0.1}, 1.72, "6k")
     assert out["height"] == pytest.approx((1.72 - 1.42) / 0.5, abs=2**-14)
+    # 14 halvings: the midpoint of the last interval, an odd multiple of 2^-15
+    assert (out["height"] * 2**15) % 2 == 1
     assert out["weight"] == 0.2 and ph["height"] != out["height"]
+    assert built == [({"neck": 0.1}, "6k")] * 14
     assert gf._stature_matched_height(ph, {}, 9.0, "2k")["height"] == pytest.approx(1.0, abs=2**-14)
     assert gf._stature_matched_height(ph, {}, 0.1, "2k")["height"] == pytest.approx(0.0, abs=2**-14)
 
@@ -782,10 +792,14 @@ def test_penetration_spheres_without_hand_vertices():
 # ------------------------------------------------------------------------------------------ §4.3 stages
 
 
-def test_nelder_mead_shape_starts_from_the_papers_simplex_and_returns_the_best_shape(monkeypatch):
+def test_nelder_mead_shape_starts_from_the_papers_simplex_and_returns_the_best_shape(monkeypatch, caplog):
+    import logging
+
+    caplog.set_level(logging.INFO, logger="bodystudio.garment.fit")
     evaluated = []
 
     def fake_shape_body(values, names, phenotype, local, template):
+        assert names == ("weight", "upperarm-fat-decr-incr") and template == "2k"
         return ("body", tuple(values)), {**phenotype, "v": list(values)}, {**local, "t": template}
 
     def fake_energy(body, xs, camera, targets, stature_m, base):
@@ -801,7 +815,13 @@ def test_nelder_mead_shape_starts_from_the_papers_simplex_and_returns_the_best_s
     assert np.allclose(evaluated[0], [0.5, 0.0])
     assert np.allclose(evaluated[1], [0.65, 0.0]) and np.allclose(evaluated[2], [0.5, 0.3])  # 0.15 macro, 0.3 local
     assert np.allclose(ph["v"], [0.3, -0.2], atol=2e-3) and ph["a"] == 1 and loc == {"b": 2, "t": "2k"}
-    assert len(evaluated) < 200  # stopped by the tolerances (xatol 1e-3, fatol 1e-4)
+    # stopped by the tolerances (xatol 1e-3, fatol 1e-4): as many evaluations as scipy needs with those
+    simplex = np.array([[0.5, 0.0], [0.65, 0.0], [0.5, 0.3]])
+    ref = scipy.optimize.minimize(lambda v: float(np.sum((v - [0.3, -0.2]) ** 2)), [0.5, 0.0], method="Nelder-Mead",
+                                  options={"maxfev": 200, "initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-4})
+    assert len(evaluated) == ref.nfev < 200
+    assert np.allclose(ph["v"], ref.x, atol=1e-15)
+    assert caplog.records[-1].getMessage() == f"shape stage weight: energy {ref.fun:.4f} after {ref.nfev} evaluations"
     evaluated.clear()
     gf.nelder_mead_shape(("weight", "upperarm-fat-decr-incr"), np.array([0.5, 0.0]), {}, {}, "xs", "cam", "targets",
                          1.7, "2k", "base", max_evals=7)
@@ -815,7 +835,13 @@ def test_estimate_shape_alternates_macro_local_and_the_reference_poses(monkeypat
     log = []
     monkeypatch.setattr(bodystudio.body, "build_body", lambda ph, local, resolution: ("body", ph.to_dict()["height"],
                                                                                      dict(local), resolution))
-    monkeypatch.setattr(gf, "_stature_matched_height", lambda ph, local, stature, template: {**ph, "height": 0.25})
+    matched = []
+
+    def fake_matched(ph, local, stature, template):
+        matched.append((local, stature, template))
+        return {**ph, "height": 0.25}
+
+    monkeypatch.setattr(gf, "_stature_matched_height", fake_matched)
     monkeypatch.setattr(gf, "silhouette_target", lambda mask: ("target", int(mask)))
     monkeypatch.setattr(gf, "penetration_spheres", lambda body: ("spheres", body))
 
@@ -823,17 +849,30 @@ def test_estimate_shape_alternates_macro_local_and_the_reference_poses(monkeypat
         return SimpleNamespace(body=body, base="prior" if base is None else base)
 
     monkeypatch.setattr(gf, "pose_space", fake_space)
-    monkeypatch.setattr(gf, "initial_placements", lambda space, camera, t: [np.array([1.0]), np.array([2.0]),
-                                                                          np.array([3.0])])
+
+    def fake_starts(space, camera, t):
+        assert space.body[0] == "body" and camera == "cam" and t[0] == "target"
+        return [np.array([1.0]), np.array([2.0]), np.array([3.0])]
+
+    monkeypatch.setattr(gf, "initial_placements", fake_starts)
 
     def fake_fit(x, problem, max_nfev):
-        log.append(("pose", problem.target[1], float(x[0]), max_nfev, problem.with_height, problem.neighbour))
+        assert problem.camera == "cam" and problem.spheres == ("spheres", problem.space.body)
+        assert problem.space.base == "prior" and problem.space.body[0] == "body"
+        log.append(("pose", problem.target[1], float(x[0]), max_nfev, problem.with_height, problem.neighbour,
+                    problem.space.body))
         return x + 0.5
 
     monkeypatch.setattr(gf, "fit_frame_pose", fake_fit)
-    monkeypatch.setattr(gf, "pose_residuals", lambda x, problem: np.array([x[0] - 2.5]))  # start 2 is best
+
+    def fake_residuals(x, problem):
+        assert problem.camera == "cam" and problem.target[0] == "target"
+        return np.array([x[0] - 2.5])  # start 2 is best
+
+    monkeypatch.setattr(gf, "pose_residuals", fake_residuals)
 
     def fake_nm(names, start, phenotype, local, xs, camera, targets, stature_m, template, base, max_evals):
+        assert camera == "cam"
         log.append(("nm", names, start.tolist(), [float(x[0]) for x in xs], [t[1] for t in targets], stature_m,
                     template, base, max_evals))
         if names == gf.MACRO_PARAMETERS:
@@ -850,8 +889,9 @@ def test_estimate_shape_alternates_macro_local_and_the_reference_poses(monkeypat
     nm = [e for e in log if e[0] == "nm"]
     assert [e[1] for e in nm] == [gf.MACRO_PARAMETERS, gf.LOCAL_PARAMETERS] * 2
     assert [e[8] for e in nm] == [11, 22, 11, 22]
-    assert nm[0][3] == [2.5] * 4 and nm[0][4] == [0, 3, 6, 9] and nm[0][5] == 1.7 and nm[0][6] == "6k"
-    assert nm[0][7] == "prior"  # the standing prior of the first body, kept for every later body
+    assert nm[0][3] == [2.5] * 4 and all(e[4] == [0, 3, 6, 9] and e[5] == 1.7 and e[6] == "6k" for e in nm)
+    assert all(e[7] == "prior" for e in nm)  # the standing prior of the first body, kept for every later body
+    assert matched == [({}, 1.7, "6k")]
     from bodystudio.body.phenotype import Phenotype
 
     default = Phenotype().to_dict()
@@ -860,6 +900,7 @@ def test_estimate_shape_alternates_macro_local_and_the_reference_poses(monkeypat
     assert nm[3][2] == [0.4 if k == "upperarm-fat-decr-incr" else 0.0 for k in gf.LOCAL_PARAMETERS]
     refits = [e for e in log if e[0] == "pose"][12:]
     assert [e[1] for e in refits] == [0, 3, 6, 9] * 2 and all(e[3] == 8 and e[4] for e in refits)
+    assert refits[0][6] == ("body", 0.25, {"upperarm-fat-decr-incr": 0.4}, "6k")  # the new body's space
     assert [e[2] for e in refits] == [2.5] * 4 + [3.0] * 4 and nm[2][3] == [3.0] * 4
     assert out.xs[0].tolist() == [3.5] and len(out.xs) == 4
     assert out.phenotype["weight"] == 0.9 and out.phenotype["height"] == 0.25
@@ -869,3 +910,7 @@ def test_estimate_shape_alternates_macro_local_and_the_reference_poses(monkeypat
     few = gf.estimate_shape(np.arange(2), "cam", 1.7, rounds=0)
     assert few.reference.tolist() == [0, 1] and few.body[3] == "2k" and len(few.xs) == 2
     assert not [e for e in log if e[0] == "nm"]
+    log.clear()
+    gf.estimate_shape(np.arange(30), "cam", 1.7)  # defaults: four reference frames, two rounds of 80 and 100
+    assert [e[8] for e in log if e[0] == "nm"] == [80, 100, 80, 100]
+    assert sorted({e[1] for e in log if e[0] == "pose"}) == [0, 10, 19, 29]
