@@ -914,3 +914,104 @@ def test_estimate_shape_alternates_macro_local_and_the_reference_poses(monkeypat
     gf.estimate_shape(np.arange(30), "cam", 1.7)  # defaults: four reference frames, two rounds of 80 and 100
     assert [e[8] for e in log if e[0] == "nm"] == [80, 100, 80, 100]
     assert sorted({e[1] for e in log if e[0] == "pose"}) == [0, 10, 19, 29]
+
+
+# ------------------------------------------------------------------------------------------ the whole fit
+
+
+def stand_in_fit(monkeypatch, stature_fit=1.70, ious=(0.9, 0.7, 0.95)):
+    """fit_garment_video with each stage stood in; returns the call log."""
+    import bodystudio.garment.fitfile as fitfile
+    import bodystudio.garment.person as person
+    from bodystudio.garment.lighting import Lighting
+    from bodystudio.garment.person import PersonFrames
+
+    log = {}
+    n = len(ious)
+    images = np.zeros((n, 48, 64, 3), np.uint8)
+    masks = np.zeros((n, 48, 64), bool)
+    masks[:, 10:40, 20:40] = True
+    for k in range(n):
+        masks[k, 0, k] = True  # each frame's matte its own
+    pf = PersonFrames("clip.mp4", 24.0, np.array([5, 6, 7][:n]), images, masks)
+
+    def fake_frames(source, frames, background):
+        log["frames"] = (source, frames, background)
+        return pf
+
+    monkeypatch.setattr(person, "person_frames", fake_frames)
+    body = SimpleNamespace(skeleton=SimpleNamespace(bone_names=("Root", "spine_02")), faces="F",
+                           vertices=np.array([[0.0, 0.0, 0.0], [0.0, stature_fit, 0.0]]),
+                           pose=lambda p: (np.full((3, 3), p.translation[0]), None))
+    shape = gf.ShapeFit({"height": 0.4}, {"neck": 0.1}, body, np.array([1, 2]), [np.array([7.0]), np.array([8.0])])
+
+    def fake_shape(m, camera, stature_m, template):
+        log["shape"] = (m, camera, stature_m, template)
+        return shape
+
+    monkeypatch.setattr(gf, "estimate_shape", fake_shape)
+    space = SimpleNamespace(pose=lambda x: Pose(np.full((2, 3), 0.1 * x[0]), [x[0], 0.0, 0.0]))
+    monkeypatch.setattr(gf, "pose_space", lambda b: space if b is body else None)
+
+    def fake_track(sp, camera, m, start, x_start, constraints, progress=None, frame_ids=None):
+        log["track"] = (sp, camera, m, start, x_start, constraints, frame_ids)
+        progress()
+        return np.arange(n, dtype=float)[:, None] + 1.0
+
+    monkeypatch.setattr(gf, "track_poses", fake_track)
+    ious_iter = iter(ious)
+
+    def fake_iou(V, F, camera, m):
+        log.setdefault("iou", []).append((float(V[0, 0]), F, camera, m))
+        return next(ious_iter)
+
+    monkeypatch.setattr(gf, "silhouette_iou", fake_iou)
+    light = Lighting.single([0, 0, 1])
+
+    def fake_appearance(imgs, m, posed, F, camera):
+        log["appearance"] = (imgs, m, [float(V[0, 0]) for V in posed], F, camera)
+        return np.full((4, 3), 0.5), light
+
+    monkeypatch.setattr(gf, "estimate_appearance", fake_appearance)
+    monkeypatch.setattr(fitfile, "save_garment_fit", lambda out, fit: log.setdefault("saved", (out, fit)))
+    return log, pf, shape, light
+
+
+def test_fit_garment_video_chains_the_stages_into_a_garment_fit(tmp_path, monkeypatch):
+    log, pf, shape, light = stand_in_fit(monkeypatch)
+    keys = tmp_path / "keys.json"
+    keys.write_text('{"frames": {"6": {"spine_02": [3, 4]}}}')
+    fit = gf.fit_garment_video("clip.mp4", 1.72, tmp_path / "out", frames="5-7", template="6k", focal_px=80.0,
+                               keyframes=keys, background="plate.png")
+    assert log["frames"] == ("clip.mp4", "5-7", "plate.png")
+    m, camera, stature, template = log["shape"]
+    assert m is pf.masks and stature == 1.72 and template == "6k"
+    assert camera.fx == 80.0 and (camera.width, camera.height) == (64, 48)
+    sp, cam2, m2, start, x_start, constraints, frame_ids = log["track"]
+    assert cam2 is camera and m2 is pf.masks and start == 1 and x_start.tolist() == [7.0]
+    assert list(constraints) == [6] and np.array_equal(constraints[6]["spine_02"], [3, 4])
+    assert np.array_equal(frame_ids, [5, 6, 7])
+    assert [e[0] for e in log["iou"]] == [1.0, 2.0, 3.0] and all(e[1] == "F" and e[2] is camera for e in log["iou"])
+    assert all(np.array_equal(e[3], pm) for e, pm in zip(log["iou"], pf.masks, strict=True))
+    imgs, m3, posed, F, cam3 = log["appearance"]
+    assert imgs is pf.images and m3 is pf.masks and posed == [1.0, 2.0, 3.0] and F == "F" and cam3 is camera
+    assert log["saved"] == (tmp_path / "out", fit)
+    assert fit.source == "clip.mp4" and fit.fps == 24.0 and np.array_equal(fit.frame_ids, [5, 6, 7])
+    assert fit.camera is camera and fit.template == "6k" and fit.bone_names == ("Root", "spine_02")
+    assert fit.phenotype == {"height": 0.4} and fit.local == {"neck": 0.1} and fit.stature_m == 1.70
+    assert np.allclose(fit.rotations[:, 0, 0], [0.1, 0.2, 0.3]) and np.array_equal(fit.translations[:, 0], [1, 2, 3])
+    assert np.array_equal(fit.silhouette_iou, [0.9, 0.7, 0.95]) and fit.masks is pf.masks
+    assert fit.lighting is light and np.array_equal(fit.albedo, np.full((4, 3), 0.5))
+    assert set(fit.timings_ms) == {"masks", "shape", "pose", "appearance"}
+    assert all(v >= 0 for v in fit.timings_ms.values())
+    assert fit.warnings == ("fitted stature 1.700 m differs from the given 1.720 m by over 1 cm",
+                            "1 of 3 frames have a silhouette IoU below 0.80")
+
+
+def test_fit_garment_video_without_appearance_keys_or_warnings(tmp_path, monkeypatch):
+    log, pf, shape, light = stand_in_fit(monkeypatch, stature_fit=1.715, ious=(0.8, 0.85, 0.9))
+    fit = gf.fit_garment_video("clip.mp4", 1.72, appearance=False)
+    assert log["shape"][3] == "2k" and log["track"][5] is None and "appearance" not in log and "saved" not in log
+    assert fit.lighting is None and fit.albedo is None and set(fit.timings_ms) == {"masks", "shape", "pose"}
+    assert fit.warnings == ()  # 5 mm off the stature and IoU 0.80 are fine
+    assert log["shape"][1].fx == pytest.approx(gf.focal_from_vfov(48))
