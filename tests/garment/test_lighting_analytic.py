@@ -909,3 +909,28 @@ def test_surface_samples_defaults_turn_normals_to_the_camera_and_draw_without_re
 
     inner = cv2.erode(render(V, F, cam).mask.astype(np.uint8), np.ones((3, 3), np.uint8)).sum()
     assert len(lt.surface_samples(image, V, F, cam, albedo, 10_000, 1)[0]) == inner
+
+
+def test_shadow_rays_of_a_floor_under_a_roof():
+    """Normals exactly along y (a floor): the rays start 2 mm up, the roof blocks the steep lights only."""
+    roof = np.array([[-1.0, 1.0, -1.0], [1.0, 1.0, -1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 1.0]])
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    rng = np.random.default_rng(1)
+    P = np.column_stack([rng.uniform(-0.3, 0.3, 40), np.zeros(40), rng.uniform(-0.3, 0.3, 40)])
+    N = np.tile([0.0, 1.0, 0.0], (40, 1))
+    directions = lt.golden_spiral_hemisphere(20, [0.0, 1.0, 0.0])
+    vis = lt.light_visibility(P + 2e-3 * N, directions, roof, F)
+    assert vis[:, 0].max() == 0 and vis[:, -1].min() == 1  # the zenith light blocked, the horizon one not
+    albedo = np.full((40, 3), 0.5)
+    G = np.clip(N @ directions.T, 0, None) * vis
+    partly = np.flatnonzero((vis.min(0) == 0) & (vis.max(0) == 1))  # lights the roof hides from some points only
+    assert len(partly) >= 2
+    truth = np.zeros(20)
+    truth[partly[:2]] = [0.6, 0.4]
+    observed = albedo * (0.1 + G @ truth)[:, None]
+    got = lt.estimate_lighting(P, N, albedo, observed, [0.0, 1.0, 0.0], 20, shadows=True, mesh=(roof, F))
+    X = lt.solve_lights(lt.lambert_light_matrix(N, directions, vis), albedo, observed, "fast_nnls")
+    active = X[:-1].sum(1) > 1e-9
+    assert np.array_equal(got.directions, directions[active]) and np.allclose(got.colors, X[:-1][active])
+    unshadowed = lt.estimate_lighting(P, N, albedo, observed, [0.0, 1.0, 0.0], 20)
+    assert not (np.array_equal(got.directions, unshadowed.directions) and np.allclose(got.colors, unshadowed.colors))
