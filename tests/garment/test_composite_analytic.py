@@ -867,3 +867,16 @@ def test_composite_errors_open_a_session_path_and_see_small_errors(tmp_path, mon
     assert opened == [str(tmp_path / "session")]
     person = (truth[8].gt_target_layers["c"] > 0).sum()
     assert got["psnr_person_per_frame"][2] == round(10 * np.log10(255.0**2 / (1 / (3 * person))), 2)
+
+
+def test_ground_truth_fit_opens_a_session_path_and_names_it_in_errors(tmp_path, monkeypatch):
+    import bodystudio.capture.session as session_module
+
+    session, _, _ = stand_in_session(tmp_path, monkeypatch)
+    opened = []
+    monkeypatch.setattr(session_module, "open_session", lambda p: opened.append(p) or session)
+    fit = cp.ground_truth_fit(tmp_path / "session")
+    assert opened == [tmp_path / "session"] and fit.frame_ids.tolist() == [4, 9]
+    session.gt_lighting = {"directions": [[0, 0, 1]], "colors": [[1, 1, 1]]}  # no ambient
+    with pytest.raises(FileFormatError, match="^" + re.escape(f"{tmp_path}/session: lights need 'directions'")):
+        cp.ground_truth_fit(session)
