@@ -529,9 +529,10 @@ def test_shape_body_clips_macro_and_local_parameters(monkeypatch):
 
 
 def test_shape_energy_is_eq_1_plus_the_stature_term(monkeypatch):
-    space, cam, t, x_true = toy_target_and_space()
+    _, cam, t, x_true = toy_target_and_space()
+    space = gf.pose_space(toy_body(), max_samples=12)  # every fifth vertex carries the silhouette term
     body = space.body
-    monkeypatch.setattr(gf, "pose_space", lambda b, base: space if b is body else None)
+    monkeypatch.setattr(gf, "pose_space", lambda b, base: space if b is body and base is space.base else None)
     x2 = x_true.copy()
     x2[3] += 0.05
     e = gf.shape_energy(body, [x_true, x2], cam, [t, t], 1.6, space.base)
@@ -589,6 +590,8 @@ def test_mean_lighting_averages_the_frames_lights():
     assert np.allclose(m.directions, [[0, 0, 1], [0, 1, 0], [1, 0, 0]])
     assert np.allclose(m.colors, [[0.3, 0.3, 0.3], [0.15, 0, 0.15], [0.45, 0.45, 0]])
     assert np.allclose(m.ambient, [0.3, 0.1, 0.2])
+    one = gf.mean_lighting([b])
+    assert np.allclose(one.colors, b.colors) and np.allclose(one.ambient, b.ambient)
     empty = gf.mean_lighting([])
     assert empty.directions.shape == (0, 3) and np.array_equal(empty.ambient, np.zeros(3))
 
@@ -846,7 +849,9 @@ def test_estimate_shape_alternates_macro_local_and_the_reference_poses(monkeypat
     monkeypatch.setattr(gf, "penetration_spheres", lambda body: ("spheres", body))
 
     def fake_space(body, base=None):
-        return SimpleNamespace(body=body, base="prior" if base is None else base)
+        if base is None:  # only the first body's space may build the standing prior
+            base = "prior" if not any(e[0] == "pose" for e in log) else "a second prior"
+        return SimpleNamespace(body=body, base=base)
 
     monkeypatch.setattr(gf, "pose_space", fake_space)
 
@@ -1015,3 +1020,50 @@ def test_fit_garment_video_without_appearance_keys_or_warnings(tmp_path, monkeyp
     assert fit.lighting is None and fit.albedo is None and set(fit.timings_ms) == {"masks", "shape", "pose"}
     assert fit.warnings == ()  # 5 mm off the stature and IoU 0.80 are fine
     assert log["shape"][1].fx == pytest.approx(gf.focal_from_vfov(48))
+
+
+def test_clip_lighting_keeps_to_the_mattes_and_draws_1500_rows_per_frame():
+    from bodystudio.garment import lighting as lt
+
+    images, masks, posed, F, cam, light, albedo = ball_frames()
+    half = [m & (np.arange(m.shape[1]) < 30)[None] for m in masks]
+
+    def written_out(ms, samples):
+        rows = [lt.surface_samples(img, V, F, cam, albedo, samples, 3, seed=k, pixel_mask=m)
+                for k, (img, m, V) in enumerate(zip(images, ms, posed, strict=True))]
+        P, N, A, B = (np.concatenate([r[i] for r in rows]) for i in range(4))
+        axis = cam.center - np.mean([V.mean(0) for V in posed], axis=0)
+        return lt.estimate_lighting(P, N, A, B, axis / np.linalg.norm(axis)), sum(len(r[0]) for r in rows)
+
+    got = gf.clip_lighting(images, half, posed, F, cam, albedo, samples_per_frame=10_000)
+    want, n_rows = written_out(half, 10_000)
+    full, n_full = written_out(masks, 10_000)
+    assert n_rows < n_full and np.array_equal(got.directions, want.directions) and np.allclose(got.colors, want.colors)
+    default = gf.clip_lighting(images, masks, posed, F, cam, albedo)
+    want, n_rows = written_out(masks, 1500)
+    assert n_rows == 3 * 1500 and np.array_equal(default.directions, want.directions)
+    assert np.allclose(default.colors, want.colors)
+
+
+def test_fit_garment_video_times_each_stage_per_frame_and_refuses_a_used_folder(tmp_path, monkeypatch):
+    log, pf, shape, light = stand_in_fit(monkeypatch)
+    ticks = iter(np.arange(100.0, 200.0, 0.5))
+    monkeypatch.setattr(gf, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
+    fit = gf.fit_garment_video("clip.mp4", 1.70)
+    assert fit.timings_ms == {"masks": 166.7, "shape": 166.7, "pose": 166.7, "appearance": 166.7}  # 500 ms / 3
+    used = tmp_path / "out"
+    used.mkdir()
+    (used / "fit.json").write_text("{}")
+    with pytest.raises(InputError, match=exact(f"fit folder {used}: exists and is not empty; choose a new folder")):
+        gf.fit_garment_video("clip.mp4", 1.70, used)
+    assert "saved" not in log
+
+
+def test_initial_placement_of_a_one_row_matte():
+    space, cam, _, _ = toy_target_and_space()
+    m = np.zeros((120, 80), bool)
+    m[50, 30:40] = True
+    t = gf.silhouette_target(m)
+    x = gf.initial_placement(space, cam, t)
+    V = space.vertices(np.concatenate([np.zeros(6), space.base[space.bone_ids].ravel()]))
+    assert -x[5] == pytest.approx(cam.fx * (V[:, 1].max() - V[:, 1].min()) / 1.0)  # at least one pixel tall
