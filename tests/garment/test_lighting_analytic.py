@@ -192,6 +192,18 @@ def test_fast_nnls_is_lawson_hanson_where_constraints_bind(seed):
     assert got.min() >= 0.0 and np.abs(got - want).max() < 1e-9
 
 
+@pytest.mark.parametrize("seed", [9, 28, 36, 38])
+def test_fast_nnls_backtracks_on_problems_that_need_it(seed):
+    """Non-negative A and noisy b where an entering variable drives a passive one below zero (found by search:
+    these seeds enter Lawson-Hanson's inner loop once; the cases above never do)."""
+    rng = np.random.default_rng(seed)
+    A = np.abs(rng.normal(size=(30, 8)))
+    b = rng.normal(size=30) + 1
+    want, _ = scipy.optimize.nnls(A, b)
+    got = lt.fast_nnls(A.T @ A, A.T @ b)
+    assert got.min() >= 0.0 and np.abs(got - want).max() < 1e-9
+
+
 def test_fast_nnls_backtracks_when_a_passive_variable_would_go_negative():
     """A hand case where the second variable entering drives the first below zero (the inner loop)."""
     A = np.array([[1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]) @ np.array([[1.0, 2.0], [0.0, 1.0]])
