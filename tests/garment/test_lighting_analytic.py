@@ -891,7 +891,7 @@ def test_estimate_lighting_with_shadows_casts_from_2_mm_off_the_surface():
     observed = albedo * (0.1 + (np.clip(N @ directions.T, 0, None) * vis) @ truth)
     got = lt.estimate_lighting(P, N, albedo, observed, [0.0, 0.0, 1.0], 30, shadows=True, mesh=(V, F))
     G = lt.lambert_light_matrix(N, directions, vis)
-    X = lt.solve_lights(G, albedo, observed, "fast_nnls")
+    X = lt.solve_lights(G, albedo, observed)  # fast_nnls by default
     active = X[:-1].sum(1) > 1e-9
     assert np.array_equal(got.directions, directions[active]) and np.allclose(got.colors, X[:-1][active])
     assert np.allclose(got.colors, truth[[3, 11, 22]], atol=1e-6)
