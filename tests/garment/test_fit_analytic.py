@@ -1067,3 +1067,18 @@ def test_initial_placement_of_a_one_row_matte():
     x = gf.initial_placement(space, cam, t)
     V = space.vertices(np.concatenate([np.zeros(6), space.base[space.bone_ids].ravel()]))
     assert -x[5] == pytest.approx(cam.fx * (V[:, 1].max() - V[:, 1].min()) / 1.0)  # at least one pixel tall
+
+
+def test_fit_frame_pose_is_trust_region_least_squares_with_its_scales():
+
+    space, cam, t, x_true = toy_target_and_space()
+    spheres = gf.PenetrationSpheres(np.zeros((1, 3)), np.array([0.01]), np.array([0]), np.array([0]),
+                                    np.array([0]), np.array([-1]))
+    p = gf.PoseProblem(space, cam, t, spheres)
+    x0 = x_true.copy()
+    x0[3:5] += [0.05, 0.04]
+    x0[9] += 0.2
+    scale = np.concatenate([np.full(3, 0.3), np.full(3, 0.1), np.full(len(x0) - 6, 0.3)])
+    want = scipy.optimize.least_squares(gf.pose_residuals, x0, args=(p,), method="trf", x_scale=scale,
+                                        diff_step=1e-3, max_nfev=6, loss="linear").x
+    assert np.array_equal(gf.fit_frame_pose(x0, p), want)
