@@ -1070,7 +1070,6 @@ def test_initial_placement_of_a_one_row_matte():
 
 
 def test_fit_frame_pose_is_trust_region_least_squares_with_its_scales():
-
     space, cam, t, x_true = toy_target_and_space()
     spheres = gf.PenetrationSpheres(np.zeros((1, 3)), np.array([0.01]), np.array([0]), np.array([0]),
                                     np.array([0]), np.array([-1]))
