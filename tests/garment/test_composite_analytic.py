@@ -368,6 +368,11 @@ def test_source_frames_refuse_missing_sources_and_frames(tmp_path):
 # ------------------------------------------------------------------------------------------ the render loop
 
 
+def person_of(layer):
+    """The actor's matte: the fitted body one pixel wider on each side (the RBF warp has something to do)."""
+    return cv2.dilate(layer.body_mask.astype(np.uint8), np.ones((1, 3), np.uint8)) > 0
+
+
 def stand_in_render(monkeypatch, frames, iou, lighting=None):
     """A fit over ``frames`` whose 3D pass is :func:`toy_layer` (the garment, body and dressing stand-ins)."""
     import bodystudio.garment.garments as garments
@@ -401,7 +406,7 @@ def stand_in_render(monkeypatch, frames, iou, lighting=None):
     fit = SimpleNamespace(frame_ids=np.arange(n) * 3 + 2, camera=SimpleNamespace(height=H, width=W,
                                                                                  center=np.array([0.0, 0.0, 2.0])),
                           silhouette_iou=np.asarray(iou, float), lighting=lighting, albedo=np.zeros((5, 3)),
-                          fps=12.0, source="toy", masks=np.stack([toy_layer(H, W).body_mask] * n),
+                          fps=12.0, source="toy", masks=np.stack([person_of(toy_layer(H, W))] * n),
                           body=lambda: body, pose=lambda i: ("pose", i))
     return fit, calls
 
@@ -880,3 +885,28 @@ def test_ground_truth_fit_opens_a_session_path_and_names_it_in_errors(tmp_path, 
     session.gt_lighting = {"directions": [[0, 0, 1]], "colors": [[1, 1, 1]]}  # no ambient
     with pytest.raises(FileFormatError, match="^" + re.escape(f"{tmp_path}/session: lights need 'directions'")):
         cp.ground_truth_fit(session)
+
+
+def test_render_loop_runs_the_refinement_it_is_asked_for_and_times_each_step(tmp_path, monkeypatch):
+    H, W = 40, 48
+    frames = [np.full((H, W, 3), 10 * (i + 1), np.uint8) for i in range(3)]
+    fit, calls = stand_in_render(monkeypatch, frames, [0.9, 0.5, 0.95])
+    ticks = iter(np.arange(100.0, 200.0, 0.25))
+    monkeypatch.setattr(cp, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
+    doc = cp.render_garment_video(tmp_path / "fit", fit=fit, min_frame_iou=0.8)
+    for f in (doc["frames"][0], doc["frames"][2]):
+        assert f["ms"] == {"render": 250.0, "flow": 250.0, "rbf": 250.0, "composite": 250.0, "write": 250.0}
+    assert doc["frames"][1]["ms"] == {"write": 250.0}
+    assert doc["ms_per_frame"] == {"render": 250.0, "flow": 250.0, "rbf": 250.0, "composite": 250.0, "write": 250.0}
+    assert doc["wall_s"] == 5.0  # 21 clock readings a quarter second apart
+    monkeypatch.undo()
+    fit, calls = stand_in_render(monkeypatch, frames, [0.9, 0.5, 0.95])
+    for options in ({}, {"flow": False}, {"rbf": False}):
+        out = tmp_path / f"fit{len(options)}{list(options)}"
+        cp.render_garment_video(out, fit=fit, min_frame_iou=0.8, **options)
+        img = cv2.imread(str(out / "render" / "frames" / "00002.png"))[..., ::-1]
+        kwargs = {"flow": True, "rbf": True, **options}
+        want = cp.refine_and_composite(frames[0], fit.masks[0], toy_layer(H, W), kwargs["flow"], kwargs["rbf"], True)
+        assert np.array_equal(img, want.image), options
+    plain = cp.refine_and_composite(frames[0], fit.masks[0], toy_layer(H, W), False, False, True)
+    assert not np.array_equal(plain.image, cp.refine_and_composite(frames[0], fit.masks[0], toy_layer(H, W)).image)
