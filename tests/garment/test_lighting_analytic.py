@@ -58,6 +58,13 @@ def test_lighting_refuses_bad_lights(directions, colors, ambient, phrase):
         lt.Lighting(directions, colors, ambient)
 
 
+def test_lighting_stores_float64_rows_and_a_flat_ambient():
+    light = lt.Lighting([[0, 0, 2]], [[1, 2, 3]], [[1, 0, 2]])
+    assert light.colors.dtype == np.float64 and light.ambient.dtype == np.float64
+    assert light.directions.dtype == np.float64 and light.ambient.shape == (3,)
+    assert np.array_equal(light.ambient, [1.0, 0.0, 2.0])
+
+
 def test_lighting_accepts_a_tiny_but_nonzero_direction_and_zero_lights():
     light = lt.Lighting([[0, 0, 1e-11]], [[0, 0, 0]], [0, 0, 0])
     assert np.allclose(light.directions, [[0, 0, 1]])
@@ -119,6 +126,11 @@ def test_golden_spiral_hemisphere_is_the_equal_area_spiral(axis):
     step = np.arctan2(np.einsum("nd,d->n", np.cross(P[:-1], P[1:]), a), np.einsum("nd,nd->n", P[:-1], P[1:]))
     golden = np.pi * (3.0 - np.sqrt(5.0))
     assert np.allclose(np.mod(step - golden + np.pi, 2 * np.pi) - np.pi, 0.0, atol=1e-9)
+    # point 0 (azimuth 0) lies along axis x helper: x unless the axis is within 26 degrees of x, then y
+    helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = unit(np.cross(a, helper))
+    c0 = 1.0 - 0.5 / n
+    assert np.allclose(D[0], np.sqrt(1 - c0**2) * e1 + c0 * a, atol=1e-12)
 
 
 def test_golden_spiral_starts_on_the_first_tangent_axis():
