@@ -429,9 +429,9 @@ def test_initial_placements_add_either_knee_raised():
 
 
 def test_pose_residuals_stack_the_terms_of_eq_4():
-    space, cam, t, x_true = toy_target_and_space()
-    spheres, _ = spheres_case()
-    spheres = gf.PenetrationSpheres(np.array([[0.0, 1.2, 0.0]]), np.array([0.15]), np.array([0]), np.array([0]),
+    _, cam, t, x_true = toy_target_and_space()
+    space = gf.pose_space(toy_body(), max_samples=12)  # the silhouette term on every fifth vertex only
+    spheres = gf.PenetrationSpheres(np.array([[0.0, 1.2, 0.0]]), np.array([0.5]), np.array([0]), np.array([0]),
                                     np.array([10, 40, 50]), np.array([-1, -1, -1]))
     p = gf.PoseProblem(space, cam, t, spheres)
     x = x_true.copy()
@@ -444,6 +444,7 @@ def test_pose_residuals_stack_the_terms_of_eq_4():
     px_per_m = cam.fx / float(cam.world_to_camera(V.mean(0, keepdims=True))[0, 2])
     depth = gf.interpenetration_residuals(space.vertices(x, spheres.probe_ids, T), T, spheres)
     pen = np.sqrt(4.0) * px_per_m * depth / np.sqrt(3)
+    assert depth.min() > 0.01 and len(V) == 12  # the probes are inside the sphere
     r = gf.pose_residuals(x, p)
     assert np.allclose(r, np.concatenate([sil, prior, pen]))
     p.with_height = True
