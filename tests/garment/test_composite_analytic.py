@@ -891,14 +891,15 @@ def test_render_loop_runs_the_refinement_it_is_asked_for_and_times_each_step(tmp
     H, W = 40, 48
     frames = [np.full((H, W, 3), 10 * (i + 1), np.uint8) for i in range(3)]
     fit, calls = stand_in_render(monkeypatch, frames, [0.9, 0.5, 0.95])
-    ticks = iter(np.arange(100.0, 200.0, 0.25))
+    ticks = iter(100.0 + 0.123456 * np.arange(100))
     monkeypatch.setattr(cp, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
     doc = cp.render_garment_video(tmp_path / "fit", fit=fit, min_frame_iou=0.8)
+    step = {"render": 123.46, "flow": 123.46, "rbf": 123.46, "composite": 123.46, "write": 123.46}  # ms, 2 decimals
     for f in (doc["frames"][0], doc["frames"][2]):
-        assert f["ms"] == {"render": 250.0, "flow": 250.0, "rbf": 250.0, "composite": 250.0, "write": 250.0}
-    assert doc["frames"][1]["ms"] == {"write": 250.0}
-    assert doc["ms_per_frame"] == {"render": 250.0, "flow": 250.0, "rbf": 250.0, "composite": 250.0, "write": 250.0}
-    assert doc["wall_s"] == 5.0  # 21 clock readings a quarter second apart
+        assert f["ms"] == step
+    assert doc["frames"][1]["ms"] == {"write": 123.46}
+    assert doc["ms_per_frame"] == step
+    assert doc["wall_s"] == 2.47  # 21 clock readings 0.123456 s apart
     monkeypatch.undo()
     fit, calls = stand_in_render(monkeypatch, frames, [0.9, 0.5, 0.95])
     for options in ({}, {"flow": False}, {"rbf": False}):
