@@ -957,6 +957,7 @@ def stand_in_fit(monkeypatch, stature_fit=1.70, ious=(0.9, 0.7, 0.95)):
 
     monkeypatch.setattr(gf, "estimate_shape", fake_shape)
     space = SimpleNamespace(pose=lambda x: Pose(np.full((2, 3), 0.1 * x[0]), [x[0], 0.0, 0.0]))
+    log["space"] = space
     monkeypatch.setattr(gf, "pose_space", lambda b: space if b is body else None)
 
     def fake_track(sp, camera, m, start, x_start, constraints, progress=None, frame_ids=None):
@@ -994,7 +995,7 @@ def test_fit_garment_video_chains_the_stages_into_a_garment_fit(tmp_path, monkey
     assert m is pf.masks and stature == 1.72 and template == "6k"
     assert camera.fx == 80.0 and (camera.width, camera.height) == (64, 48)
     sp, cam2, m2, start, x_start, constraints, frame_ids = log["track"]
-    assert cam2 is camera and m2 is pf.masks and start == 1 and x_start.tolist() == [7.0]
+    assert sp is log["space"] and cam2 is camera and m2 is pf.masks and start == 1 and x_start.tolist() == [7.0]
     assert list(constraints) == [6] and np.array_equal(constraints[6]["spine_02"], [3, 4])
     assert np.array_equal(frame_ids, [5, 6, 7])
     assert [e[0] for e in log["iou"]] == [1.0, 2.0, 3.0] and all(e[1] == "F" and e[2] is camera for e in log["iou"])
