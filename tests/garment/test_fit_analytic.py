@@ -645,16 +645,21 @@ def test_estimate_appearance_alternates_albedo_and_clip_lights(monkeypatch):
     seen_lights = []
     real = gf.clip_lighting
 
-    def spy(imgs, ms, Vs, F_, camera, a):
+    def spy(imgs, ms, Vs, F_, camera, a, **kw):
+        assert kw == {"sparsity": 0.0}
         seen_lights.append(a.copy())
-        return real(imgs, ms, Vs, F_, camera, a, samples_per_frame=300)
+        return real(imgs, ms, Vs, F_, camera, a, samples_per_frame=300, **kw)
 
+    # the per-vertex alternation (grouped=False, no sparsity): the materials and the L1 penalty are
+    # tests/garment/test_appearance.py's
     monkeypatch.setattr(gf, "clip_lighting", spy)
-    a0, l0 = gf.estimate_appearance(np.stack(images), np.stack(masks), posed, F, cam, max_frames=3, iterations=0)
+    a0, l0 = gf.estimate_appearance(np.stack(images), np.stack(masks), posed, F, cam, max_frames=3, iterations=0,
+                                    grouped=False, sparsity=0.0)
     pick = [0, 2, 3]  # three frames spread over four: linspace(0, 3, 3) rounded
     mean_colour, count = lt.estimate_albedo([images[i] for i in pick], [posed[i] for i in pick], F, cam)
     assert np.array_equal(a0, mean_colour) and len(seen_lights) == 1
-    a1, l1 = gf.estimate_appearance(np.stack(images), np.stack(masks), posed, F, cam, max_frames=3, iterations=1)
+    a1, l1 = gf.estimate_appearance(np.stack(images), np.stack(masks), posed, F, cam, max_frames=3, iterations=1,
+                                    grouped=False, sparsity=0.0)
     assert len(seen_lights) == 3 and np.array_equal(seen_lights[1], mean_colour)
     num, den = np.zeros_like(mean_colour), np.zeros_like(mean_colour)
     obs = lt.visible_vertex_colors([images[i] for i in pick], [posed[i] for i in pick], F, cam)
@@ -670,7 +675,7 @@ def test_estimate_appearance_alternates_albedo_and_clip_lights(monkeypatch):
     assert not np.allclose(a1, a0, atol=1e-3)
     assert np.array_equal(l1.directions, real(*(
         [images[i] for i in pick], [masks[i] for i in pick], [posed[i] for i in pick]), F, cam, a1,
-        samples_per_frame=300).directions)
+        samples_per_frame=300, sparsity=0.0).directions)
 
 
 # ------------------------------------------------------------------------------------------ refusals
