@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from benchmarks.timing import markdown_table
-from bodystudio.mirror.run import MLS_ALPHA, MLS_RADIUS_PX, N_HANDLES, RIM_COS
+from bodystudio.mirror.run import CORRESPONDENCE, MLS_ALPHA, MLS_RADIUS_PX, N_HANDLES, RIM_COS
 
 
 def _median_ms(fn, repeats: int) -> tuple[float, float]:
@@ -53,42 +53,53 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
     """Per-step (CPU ms, wall ms) of the image steps on one :class:`ImageCase`, and of the alternatives."""
     from bodystudio.mirror.compose import compose, update_background
     from bodystudio.mirror.foreground import refine_foreground
-    from bodystudio.mirror.warp import mls_warp_field, visible_vertex_pairs, warp_foreground
+    from bodystudio.mirror.warp import mls_warp_field, warp_foreground, warp_pairs
 
+    dense = CORRESPONDENCE == "dense"
     background = update_background(None, case.background, np.zeros(case.true_mask.shape, bool))
     fg = refine_foreground(case.rgb, case.player_mask, background=background)
-    field = mls_warp_field(case.src_uv, case.dst_uv, kind="similarity", alpha=MLS_ALPHA, groups=case.pair_groups,
-                           radius_px=MLS_RADIUS_PX)
-    warped, alpha = warp_foreground(case.rgb, fg, field)
     n_actors = case.actors
     per_actor = len(case.source_vertices) // n_actors
     F1 = case.faces[: len(case.faces) // n_actors]
+    face_groups = np.repeat(np.arange(n_actors), len(F1))
 
-    def pairs():
-        for a in range(n_actors):
-            sl = slice(a * per_actor, (a + 1) * per_actor)
-            visible_vertex_pairs(case.source_vertices[sl], case.target_vertices[sl], F1, case.camera,
-                                 N_HANDLES // n_actors, rim_cos=RIM_COS)
+    def pairs(dense=dense):
+        # the sparse pairs per actor; the dense correspondence of all actors in one z-buffer
+        out = [warp_pairs(case.source_vertices[a * per_actor:(a + 1) * per_actor],
+                          case.target_vertices[a * per_actor:(a + 1) * per_actor], F1, case.camera,
+                          N_HANDLES // n_actors, rim_cos=RIM_COS, dense=dense and n_actors == 1)
+               for a in range(n_actors)]
+        if dense and n_actors > 1:
+            out.append(warp_pairs(case.source_vertices, case.target_vertices, case.faces, case.camera, 0, dense=True,
+                                  face_groups=face_groups))
+        return out
 
-    def field_of(kind, radius_px=MLS_RADIUS_PX):
+    def field_of(kind, radius_px=MLS_RADIUS_PX, dense=dense):
         return lambda: mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA, groups=case.pair_groups,
-                                      radius_px=radius_px)
+                                      radius_px=radius_px, dense=case.dense if dense else None)
 
+    field = field_of("similarity")()
+    warped, alpha = warp_foreground(case.rgb, fg, field)
+    name = "dense correspondence + MLS outside" if dense else "MLS similarity (handles within 32 px)"
+    other = "MLS similarity (handles within 32 px)" if dense else "dense correspondence + MLS outside"
     out = {
-        "pairs (visibility + projection, rim)": _median_ms(pairs, repeats),
+        f"pairs (visibility + projection, rim{', dense' if dense else ''})": _median_ms(pairs, repeats),
         "foreground: graph cut (PyMaxflow)": _median_ms(
             lambda: refine_foreground(case.rgb, case.player_mask, background=background), repeats),
-        "warp field: MLS similarity (handles within 32 px)": _median_ms(field_of("similarity"), repeats),
+        f"warp field: {name}": _median_ms(field_of("similarity"), repeats),
         "warp (remap)": _median_ms(lambda: warp_foreground(case.rgb, fg, field), repeats),
         "compose": _median_ms(lambda: compose(warped, alpha, background, case.rgb, fg), repeats),
         "background update": _median_ms(lambda: update_background(background, case.rgb, fg), repeats),
     }
     side = {
+        f"pairs{'' if dense else ', dense'}, not used": _median_ms(lambda: pairs(not dense), repeats),
+        f"warp field: {other}, not used": _median_ms(field_of("similarity", dense=not dense), repeats),
         "foreground: GrabCut (OpenCV), not used": _median_ms(
             lambda: refine_foreground(case.rgb, case.player_mask, method="grabcut"), max(3, repeats // 2)),
-        "warp field: MLS affine, not used": _median_ms(field_of("affine"), repeats),
-        "warp field: MLS rigid, not used": _median_ms(field_of("rigid"), repeats),
-        "warp field: MLS similarity over all handles, not used": _median_ms(field_of("similarity", None), repeats),
+        "warp field: MLS affine, not used": _median_ms(field_of("affine", dense=False), repeats),
+        "warp field: MLS rigid, not used": _median_ms(field_of("rigid", dense=False), repeats),
+        "warp field: MLS similarity over all handles, not used": _median_ms(field_of("similarity", None, False),
+                                                                             repeats),
     }
     return out, side
 
@@ -104,7 +115,10 @@ def _accuracy(case) -> dict[str, float]:
     for kind in ("affine", "similarity", "rigid"):
         field = mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA, radius_px=MLS_RADIUS_PX)
         _, alpha = warp_foreground(case.rgb, case.true_mask, field)
-        out[f"warp_iou {kind}"] = iou(alpha > 0.5, case.target_mask)
+        out[f"warp_iou MLS {kind}"] = iou(alpha > 0.5, case.target_mask)
+    field = mls_warp_field(case.src_uv, case.dst_uv, kind="similarity", alpha=MLS_ALPHA, radius_px=MLS_RADIUS_PX,
+                           dense=case.dense)
+    out["warp_iou dense"] = iou(warp_foreground(case.rgb, case.true_mask, field)[1] > 0.5, case.target_mask)
     return out
 
 

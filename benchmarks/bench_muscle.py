@@ -60,6 +60,8 @@ HELD_OUT_SEEDS = (611, 612, 613, 614)
 # choices (the sex input, its Tikhonov weight) were checked on, so that they are not fitted to set A.
 HELD_OUT_SETS = (("A", HELD_OUT_SEEDS), ("B", (631, 632, 633, 634)))
 IN_RANGE_SEED = 620
+#: ``CaptureOptions`` fields set for every capture of the run (``--capture-option KEY=VALUE``), to measure variants
+CAPTURE_OVERRIDES: dict = {}
 GOALS = {"median_mm": 2.0, "p90_mm": 5.0, "bulge_err_mm": 1.5, "jitter_mm": 0.5, "cpu_ms_per_frame": 1000.0}
 
 
@@ -105,7 +107,8 @@ def capture_and_score(session, model, template, truth, mode: str, known_shape=No
     from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
     from bodystudio.muscle.evaluate import evaluate_arm_capture
 
-    capture, cpu, wall = timed(lambda: capture_arm_sequence(session, model, template, CaptureOptions(mode=mode),
+    options = CaptureOptions(mode=mode, **CAPTURE_OVERRIDES)
+    capture, cpu, wall = timed(lambda: capture_arm_sequence(session, model, template, options,
                                                             known_shape=known_shape))
     scores = evaluate_arm_capture(capture, session, truth)
     scores["cpu_ms_per_frame"] = 1000.0 * cpu / capture.n_frames
@@ -446,6 +449,26 @@ def run(quick: bool = False, frames: int | None = None, work: Path | None = None
         return render(work, n)
 
 
+def parse_capture_options(items: list[str], error) -> dict:
+    """``KEY=VALUE`` pairs (values as Python literals) naming fields of ``CaptureOptions``."""
+    import ast
+    from dataclasses import fields
+
+    from bodystudio.muscle.capture import CaptureOptions
+
+    names = {f.name for f in fields(CaptureOptions)}
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key not in names:
+            error(f"--capture-option {item!r}: needs KEY=VALUE with KEY a CaptureOptions field")
+        try:
+            out[key] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            error(f"--capture-option {item!r}: {value!r} is not a Python literal (True, 100.0, (False, True, True))")
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=None, help=f"frames of the main sequence (default {FRAMES})")
@@ -455,7 +478,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--step", choices=("all", "prepare", "compare", "extension", "pronation", "render"),
                         default="all")
     parser.add_argument("--methods", default=",".join(RUNS), help="compare step: " + ", ".join(RUNS))
+    parser.add_argument("--capture-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="a CaptureOptions field for every capture (Python literal), e.g. "
+                             "sequence_fit_skeleton=True; repeatable")
     args = parser.parse_args(argv)
+    CAPTURE_OVERRIDES.update(parse_capture_options(args.capture_option, parser.error))
     n = args.frames or (QUICK_FRAMES if args.quick else FRAMES)
     if args.step == "all":
         print(run(frames=n, work=args.work))

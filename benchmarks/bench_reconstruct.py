@@ -36,22 +36,28 @@ def _session(tmp: Path, n_frames: int):
 
 
 def _accuracy(session_path: Path, frames: str) -> tuple[str, dict]:
+    from bodystudio.reconstruct.rapid_skin import RapidSkinParams
     from bodystudio.reconstruct.sequence import reconstruct_session
 
     rows, results = [], {}
-    # (constraints, warm start, pose refinement): each mode with the default refined pose and with the
-    # paper's initialisation from the tracker joints alone, side by side
-    cases = [(("silhouette",), False, True), (("silhouette",), False, False), (("silhouette",), True, True),
-             (("depth",), False, True), (("depth",), False, False),
-             (("silhouette", "depth"), False, True), (("silhouette", "depth"), False, False),
-             (("silhouette", "depth"), True, True)]
-    for constraints, warm, refine in cases:
+    # (constraints, warm start, pose refinement, visual-hull gate): each mode with the default refined pose
+    # and with the paper's initialisation from the tracker joints alone, side by side; the default gate on
+    # silhouette matches (issue 15) beside the paper's ungated matching
+    gate = RapidSkinParams().hull_gate_m
+    cases = [(("silhouette",), False, True, gate), (("silhouette",), False, True, 0.0),
+             (("silhouette",), False, False, gate), (("silhouette",), True, True, gate),
+             (("depth",), False, True, gate), (("depth",), False, False, gate),
+             (("silhouette", "depth"), False, True, gate), (("silhouette", "depth"), False, True, 0.0),
+             (("silhouette", "depth"), False, False, gate), (("silhouette", "depth"), True, True, gate)]
+    for constraints, warm, refine, hull_gate_m in cases:
         # per-frame initialisation, as before the tracker: this session samples a whole walk cycle in 6
         # frames, far from video rate (the tracker's table is _tracking's)
         s = reconstruct_session(session_path, solver="gs", template="13k", joints="tracker",
                                 constraints=constraints, frames=frames, warm_start=warm, refine_pose=refine,
-                                tracking=False)
+                                tracking=False, params=RapidSkinParams(constraints=constraints,
+                                                                       hull_gate_m=hull_gate_m))
         name = ",".join(constraints) + (" (warm start)" if warm else "") + ("" if refine else " (tracker init only)")
+        name += "" if hull_gate_m else " (no hull gate)"
         results[name] = s
         rows.append([name, s["frames"], s["median_mm"], s["p90_mm"], s["median_all_mm"],
                      s["p90_all_mm"], s["hausdorff_mm"], s["pct_under_10mm"], s["iou_min"],
@@ -185,9 +191,11 @@ TRACK_SESSIONS = (("walk", 31), ("turn", 3), ("arm_flex", 12))
 TRACK_FPS = 30.0
 STEPS = ("read_ms", "init_ms", "fields_ms", "refine_ms", "track_ms", "matching_ms", "solver_ms", "other_ms",
          "frame_ms")
-#: (label, tracking, refinement data): the previous default, the per-frame init on distance fields, the tracker.
-TRACK_MODES = (("per-frame init, hull", False, "hull"), ("per-frame init, fields", False, "fields"),
-               ("tracker", True, "fields"))
+#: (label, tracking, refinement data, hull gate on the silhouette matches): the previous defaults (carved hull;
+#: distance fields without the gate), the per-frame init with the gate (the default), the tracker.
+TRACK_MODES = (("per-frame init, hull, no gate", False, "hull", False),
+               ("per-frame init, fields, no gate", False, "fields", False),
+               ("per-frame init, fields", False, "fields", True), ("tracker", True, "fields", True))
 REGION_NAMES = ("head", "torso", "crotch", "arms", "hands", "legs", "feet")
 
 
@@ -254,26 +262,32 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
             steps["lost-track checks"], _ = cpu(checks, T0, Tt, fields)
             steps["pose 13K (LBS)"], P = cpu(pose_template, body, T, init.global_scale)
             steps["cotangent weights 13K (per frame)"], _ = cpu(cotangent_weights, P.vertices, body.faces)
-            t = time.process_time()
-            r = deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(), delta=rest_delta)
-            deform = 1000 * (time.process_time() - t)
-            share = r.matching_s / max(r.matching_s + r.solver_s, 1e-12)
-            steps["matching (No = 8 x 10 views)"] = deform * share
-            steps["solver (GS, No = 8 x Ni = 8)"] = deform * (1 - share)
+            for label, gate in (("", RapidSkinParams().hull_gate_m), (", no hull gate", 0.0)):
+                t = time.process_time()
+                r = deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(hull_gate_m=gate),
+                                           delta=rest_delta, fields=fields)
+                deform = 1000 * (time.process_time() - t)
+                share = r.matching_s / max(r.matching_s + r.solver_s, 1e-12)
+                steps[f"matching (No = 8 x 10 views{label})"] = deform * share
+                steps[f"solver (GS, No = 8 x Ni = 8{label})"] = deform * (1 - share)
             if rep:
                 for k, v in steps.items():
                     ms.setdefault(k, []).append(v)
     med = {k: statistics.median(v) for k, v in ms.items()}
-    common = med["read masks"] + med["read joints"] + med["pose 13K (LBS)"] + med["matching (No = 8 x 10 views)"] \
-        + med["solver (GS, No = 8 x Ni = 8)"]
-    old = common + med["pose init from joints (2.5K + 13K)"] + med["visual hull (carved)"] + med["hull fit (10 it)"] \
+    reads = med["read masks"] + med["read joints"] + med["pose 13K (LBS)"]
+    common = reads + med["matching (No = 8 x 10 views)"] + med["solver (GS, No = 8 x Ni = 8)"]
+    ungated = reads + med["matching (No = 8 x 10 views, no hull gate)"] \
+        + med["solver (GS, No = 8 x Ni = 8, no hull gate)"]
+    old = ungated + med["pose init from joints (2.5K + 13K)"] + med["visual hull (carved)"] + med["hull fit (10 it)"] \
         + med["cotangent weights 13K (per frame)"]
-    new = common + med["pose init from joints (2.5K + 13K)"] + med["distance fields"] + med["fields fit (10 it)"]
+    fields_init = med["pose init from joints (2.5K + 13K)"] + med["distance fields"] + med["fields fit (10 it)"]
     tracked = common + med["distance fields"] + med["tracking fit (6 it)"] + med["lost-track checks"]
     rows = [[k, v] for k, v in med.items()]
-    rows += [["**whole frame, previous default** (joints + carved hull fit + per-frame cotangents)", old],
-             ["**whole frame, new default** (joints + distance-field fit, rest cotangents)", new],
-             ["**whole frame, tracked frame** (previous pose + distance-field fit + checks)", tracked]]
+    rows += [["**whole frame, first default** (joints + carved hull fit + per-frame cotangents, no gate)", old],
+             ["**whole frame, second default** (joints + distance-field fit, rest cotangents, no gate)",
+              ungated + fields_init],
+             ["**whole frame, default** (the same with the visual-hull gate on the matches)", common + fields_init],
+             ["**whole frame, tracked frame** (previous pose + distance-field fit + checks, gate)", tracked]]
     return markdown_table(["step (frame 1, 13K, 10 cameras 640x480, one thread)", "CPU ms (median)"], rows)
 
 
@@ -284,6 +298,7 @@ def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
     from threadpoolctl import threadpool_limits
 
     from bodystudio.capture.synth import synth_session
+    from bodystudio.reconstruct.rapid_skin import RapidSkinParams
     from bodystudio.reconstruct.sequence import reconstruct_session
 
     numba.set_num_threads(1)
@@ -295,10 +310,11 @@ def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
         if motion == "walk":
             out["steps"] = _frame_steps(path, 5)
         for constraints in (("silhouette",), ("silhouette", "depth")):
-            for mode, tracking, refine_with in TRACK_MODES:
+            for mode, tracking, refine_with, gated in TRACK_MODES:
+                params = RapidSkinParams(constraints=constraints, hull_gate_m=RapidSkinParams().hull_gate_m * gated)
                 with threadpool_limits(1):
                     s = reconstruct_session(path, template="13k", constraints=constraints, tracking=tracking,
-                                            refine_with=refine_with)
+                                            refine_with=refine_with, params=params)
                 frames = json.loads((path / "reconstruct" / "frames.json").read_text())["frames"]
                 # frame 0 compiles and initialises in both modes; the steady state is the later frames
                 later = frames[1:] or frames
@@ -361,11 +377,12 @@ def run(quick: bool = False) -> str:
         conv_table,
         f"### Tracker vs per-frame initialisation (issue 15)\n\nVideo-rate sessions ({TRACK_FPS:.0f} fps, "
         f"{3 if quick else 6} frames) of subjects the tests do not use, 10 cameras 640x480, 13K template, tracker "
-        "joints. 'per-frame init, hull': every frame from its joints + the refinement on the carved visual hull "
-        "(the previous default); 'per-frame init, fields': the same on the distance fields' implicit hull "
-        "(the new default); 'tracker' (`--tracking`): the previous frame's pose fitted to the distance "
-        "fields, re-initialised on a lost track. Whole-frame ms by step are means over frames 1.. (frame 0 initialises "
-        "in both modes), numba and BLAS on one thread, wall time on the shared machine.",
+        "joints. 'per-frame init, hull, no gate': every frame from its joints + the refinement on the carved "
+        "visual hull, the paper's matching (the first default); 'per-frame init, fields, no gate': the same on "
+        "the distance fields' implicit hull (the second); 'per-frame init, fields': with the visual-hull gate on "
+        "the silhouette matches (the default); 'tracker' (`--tracking`): the previous frame's pose fitted to the "
+        "distance fields, re-initialised on a lost track. Whole-frame ms by step are means over frames 1.. "
+        "(frame 0 initialises in both modes), numba and BLAS on one thread, wall time on the shared machine.",
         track_time,
         track_acc,
         "CPU time per step of one frame (walk s31, frame 1; `time.process_time`, one thread, median of 5: "

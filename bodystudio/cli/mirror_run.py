@@ -25,6 +25,9 @@ def mirror_run(
                                     "(default SESSION/mirror/run)"),
     player: int = typer.Option(1, help="Kinect player id to reshape, 1..6"),
     warp: str = typer.Option("similarity", help="MLS variant: affine | similarity | rigid"),
+    correspondence: str = typer.Option("dense", help="warp correspondence: dense (the target body rasterised, "
+                                       "each pixel mapped to the same surface point, outline onto outline; MLS "
+                                       "farther out) | mls (Eq. 5 from vertex pairs only, the paper)"),
     ramp_frames: int = typer.Option(30, help="frames over which the edit is reached gradually (0: at once)"),
     side_by_side: bool = typer.Option(True, help="also write an input | output video"),
     live: str | None = typer.Option(None, help="FOLDER a recorder is filling (kinect/ streams): process frames "
@@ -41,7 +44,8 @@ def mirror_run(
     given = {"taller": taller, "heavier": heavier, "muscular": muscular, "chest": chest, "waist": waist, "hips": hips}
     edits = {k: v for k, v in given.items() if v != 0.0}
     doc = run_mirror(session, edits, out, source=source, side_by_side=side_by_side, progress=True, run_dir=run,
-                     player=player, kind=warp, ramp_frames=ramp_frames, live=live, live_timeout_s=live_timeout)
+                     player=player, kind=warp, ramp_frames=ramp_frames, live=live, live_timeout_s=live_timeout,
+                     correspondence=correspondence)
     summary = doc["summary"]
     typer.echo(json.dumps({"run": str(run if run is not None else session / "mirror" / "run"),
                            "videos": doc["videos"], "edits": doc["edits"], **summary}, indent=1))

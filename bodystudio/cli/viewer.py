@@ -11,10 +11,11 @@ from bodystudio.errors import InputError
 
 def view(
     path: Path = typer.Argument(..., help="session folder, arm capture folder, mirror session or "
-                                "`mirror run` folder (before/after frames, source body), mesh/scan "
-                                "(.ply .obj .stl .off .glb) or avatar (.glb)"),
+                                "`mirror run` folder (before/after frames, source body), `garment fit` folder "
+                                "or its render/ (fitted body, garment, light arrows, before/after frames), "
+                                "mesh/scan (.ply .obj .stl .off .glb) or avatar (.glb)"),
     bone: str | None = typer.Option(None, "--bone", help="show the skin weights of this bone (avatars)"),
-    frame: int | None = typer.Option(None, "--frame", help="session frame to show first"),
+    frame: int | None = typer.Option(None, "--frame", help="session (or garment fit) frame to show first"),
     images: str = typer.Option("image", "--images", help="what camera frusta show: image | mask | none"),
     reference: Path | None = typer.Option(None, "--reference", help="ground-truth mesh: colour PATH by error (mm)"),
     screenshot: Path | None = typer.Option(None, "--screenshot", help="render offscreen to this PNG and exit"),
@@ -54,6 +55,10 @@ def view(
                 from bodystudio.viewer.arm import arm_payload
 
                 payload = arm_payload(item.data, plotter, cloud=cloud, start=frame)
+            elif item.kind == "garment":  # the fit's frames (up to 12) with a frame slider
+                from bodystudio.viewer.garment import garment_payload
+
+                payload = garment_payload(item.data, plotter, start=frame)
             save_scene_html(plotter, html, title=f"bodystudio view {path.name}", payload=payload)
             typer.echo(f"wrote {html}")
     finally:

@@ -115,7 +115,7 @@ def observed_albedo(frames: list[np.ndarray], posed_vertices: list[np.ndarray], 
         num[ids] += colors * S
         den[ids] += S * S
     seen = den.min(axis=1) > 1e-6
-    albedo = np.tile(np.nanmean(num[seen] / den[seen], axis=0) if seen.any() else 0.5, (n, 1)) \
+    albedo = np.tile(np.nanmean(num[seen] / den[seen], axis=0) if seen.any() else np.full(3, 0.5), (n, 1)) \
         if fallback is None else np.array(fallback, dtype=np.float64, copy=True)
     albedo[seen] = np.clip(num[seen] / den[seen], 0.0, 1.0)
     return albedo

@@ -68,6 +68,9 @@ PRIOR_LIMITS = 10.0
 HIP_EXTENSION_LIMIT = 0.1
 KNEE_HYPEREXTENSION_LIMIT = 0.05
 SILHOUETTE_SAMPLES = 500
+#: L1 penalty on the clip's Eq. 7 lights (``solve_lights``' ``sparsity``, squared pixel units per row per unit
+#: light power): 3e-5 / 1e-4 / 3e-4 / 1e-3 measured on hidden subjects in docs/garment.md.
+LIGHT_SPARSITY = 1e-4
 
 
 # --- camera (§4.1) -----------------------------------------------------------------------------------
@@ -391,12 +394,24 @@ class PoseProblem:
     with_height: bool = False
 
 
+def finite_projection(camera, V: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
+    """Pixels of ``V`` where a vertex behind (or within 5 cm of) the camera, whose projection is undefined,
+    lands far outside the image (four image diagonals beyond the centre), so a trial step of the optimiser
+    that carries the body through the camera costs a large, finite residual instead of NaN."""
+    uv, z = camera.project_with_depth(V)
+    bad = (z < 0.05) | ~np.isfinite(uv).all(1)
+    if bad.any():
+        h, w = image_shape
+        uv[bad] = (-3.0 * w, -3.0 * h)
+    return uv
+
+
 def pose_residuals(x: np.ndarray, p: PoseProblem) -> np.ndarray:
     """Eq. 4: silhouette + beta temporal + gamma interpenetration (+ soft user constraints), stacked, plus
     our anatomical prior (:func:`pose_prior_residuals`)."""
     T = p.space.transforms(x)
     V = p.space.vertices(x, p.space.sample_ids, T)
-    uv = p.camera.project(V)
+    uv = finite_projection(p.camera, V, p.target.outside_px.shape)
     parts = [silhouette_residuals(uv, p.target)]
     if p.with_height:
         parts.append(np.sqrt(ALPHA_HEIGHT) * height_residuals(uv, p.target) / 10.0)
@@ -606,12 +621,13 @@ def mean_lighting(lights: list):
 
 
 def clip_lighting(images: list, masks: list, posed: list, F: np.ndarray, camera, albedo: np.ndarray,
-                  samples_per_frame: int = 1500, erode_px: int = 3):
+                  samples_per_frame: int = 1500, erode_px: int = 3, sparsity: float = 0.0):
     """Eq. 7 with the rows of several frames stacked: one set of lights for a static scene.
 
     Each frame gives ``samples_per_frame`` body pixels (``surface_samples``) inside both the fitted body
     (eroded by ``erode_px``) and the person matte; pooling frames averages out the normal errors of any one
-    frame's fitted pose (measured in docs/garment.md against per-frame lights).
+    frame's fitted pose (measured in docs/garment.md against per-frame lights). ``sparsity``: the L1
+    penalty on the directional lights of ``solve_lights`` (:data:`LIGHT_SPARSITY` in the fit).
     """
     from bodystudio.garment.lighting import estimate_lighting, surface_samples
 
@@ -620,38 +636,78 @@ def clip_lighting(images: list, masks: list, posed: list, F: np.ndarray, camera,
     P, N, A, B = (np.concatenate([r[i] for r in rows]) for i in range(4))
     centre = np.mean([V.mean(0) for V in posed], axis=0)
     axis = camera.center - centre
-    return estimate_lighting(P, N, A, B, axis / np.linalg.norm(axis))
+    return estimate_lighting(P, N, A, B, axis / np.linalg.norm(axis), sparsity=sparsity)
+
+
+def _albedo_ratio(observations: list, posed: list, F: np.ndarray, lighting, labels: np.ndarray | None,
+                  n_out: int) -> tuple[np.ndarray, np.ndarray]:
+    """``sum_t I S`` and ``sum_t S^2`` (§5.1's least-squares albedo given the lights) per vertex, or per
+    group of ``labels`` (vertices labelled -1 left out) when given."""
+    from bodystudio.garment.lighting import vertex_shading
+
+    num, den = np.zeros((n_out, 3)), np.zeros((n_out, 3))
+    for (ids, colors), V in zip(observations, posed, strict=True):
+        S = vertex_shading(V, F, lighting)[ids]
+        if labels is None:
+            num[ids] += colors * S
+            den[ids] += S * S
+        else:
+            lab = labels[ids]
+            ok = lab >= 0
+            np.add.at(num, lab[ok], colors[ok] * S[ok])
+            np.add.at(den, lab[ok], S[ok] ** 2)
+    return num, den
 
 
 def estimate_appearance(images: np.ndarray, masks: np.ndarray, posed: list[np.ndarray], F: np.ndarray, camera,
-                        max_frames: int = 8, iterations: int = 3):
+                        max_frames: int = 8, iterations: int = 4, grouped: bool = True,
+                        sparsity: float | None = None):
     """§5 on the fitted body: albedo (§5.1) and one lighting for the clip (Eq. 7), alternated.
 
-    Starts from the mean colour over time (``estimate_albedo``, §5.1); each round solves the clip's lights
-    with the current albedo (:func:`clip_lighting`) and re-solves each vertex's albedo as
-    ``sum_t I S / sum_t S^2`` over the frames that see it (as ``estimate_albedo_and_lighting``, with one
-    lighting instead of one per frame). Up to ``max_frames`` frames spread over the clip. Returns
-    ``(albedo (V, 3), Lighting)``.
+    Starts from the mean colour over time (``estimate_albedo``, §5.1). With ``grouped`` (default) the
+    vertices are split into materials by the chromaticity of that colour (``chromaticity_groups``:
+    §5.1's assumption that shading changes intensity, not chromaticity) and each round solves the
+    clip's lights (:func:`clip_lighting`) with ONE albedo per material, then each material's albedo as
+    ``sum I S / sum S^2`` over its vertices and frames; the shading left inside one material then
+    pins the light direction. The per-vertex albedo is solved last with the final lights. Without
+    ``grouped``, the per-vertex albedo is alternated with the lights (the first version: a body that
+    barely turns keeps its shading in the mean colour and the lights go flat; docs/garment.md).
+    ``sparsity`` (default :data:`LIGHT_SPARSITY`): the L1 penalty on the lights. Up to ``max_frames``
+    frames spread over the clip. Returns ``(albedo (V, 3), Lighting)``.
     """
-    from bodystudio.garment.lighting import estimate_albedo, vertex_shading, visible_vertex_colors
+    from bodystudio.garment.lighting import chromaticity_groups, estimate_albedo, visible_vertex_colors
 
+    sparsity = LIGHT_SPARSITY if sparsity is None else float(sparsity)
     pick = np.unique(np.linspace(0, len(images) - 1, min(max_frames, len(images))).round().astype(int))
     imgs, Vs, ms = [images[i] for i in pick], [posed[i] for i in pick], [masks[i] for i in pick]
     albedo, count = estimate_albedo(imgs, Vs, F, camera)
     seen = count > 0
     anchor = albedo[seen].mean(0)
     observations = visible_vertex_colors(imgs, Vs, F, camera)
-    lighting = clip_lighting(imgs, ms, Vs, F, camera, albedo)
+    labels = chromaticity_groups(albedo, seen) if grouped else None
+    n_out = int(labels.max()) + 1 if grouped else len(albedo)
+    if grouped:
+        material = np.stack([albedo[labels == g].mean(0) for g in range(n_out)])
+        albedo[seen] = material[labels[seen]]
+    lighting = clip_lighting(imgs, ms, Vs, F, camera, albedo, sparsity=sparsity)
     for _ in range(iterations):
-        num, den = np.zeros_like(albedo), np.zeros_like(albedo)
-        for (ids, colors), V in zip(observations, Vs, strict=True):
-            S = vertex_shading(V, F, lighting)[ids]
-            num[ids] += colors * S
-            den[ids] += S * S
+        num, den = _albedo_ratio(observations, Vs, F, lighting, labels, n_out)
+        if grouped:
+            ok = np.all(den > 1e-12, axis=1)
+            material[ok] = num[ok] / den[ok]
+            albedo[seen] = material[labels[seen]]
+        else:
+            ok = seen & np.all(den > 1e-12, axis=1)
+            albedo[ok] = num[ok] / den[ok]
+        # albedo and light share one scale (and the sparsity penalty would drift it): keep the mean colour's mean
+        albedo = np.clip(albedo * anchor / np.maximum(albedo[seen].mean(0), 1e-12), 0.0, None)
+        if grouped:
+            material = np.stack([albedo[labels == g].mean(0) for g in range(n_out)])
+        lighting = clip_lighting(imgs, ms, Vs, F, camera, albedo, sparsity=sparsity)
+    if grouped:
+        num, den = _albedo_ratio(observations, Vs, F, lighting, None, len(albedo))
         ok = seen & np.all(den > 1e-12, axis=1)
         albedo[ok] = num[ok] / den[ok]
-        albedo = np.clip(albedo * anchor / np.maximum(albedo[seen].mean(0), 1e-12), 0.0, None)
-        lighting = clip_lighting(imgs, ms, Vs, F, camera, albedo)
     return albedo, lighting
 
 

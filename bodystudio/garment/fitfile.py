@@ -128,6 +128,7 @@ def save_garment_fit(folder: str | os.PathLike, fit: GarmentFit, command: str = 
 
 def load_garment_fit(folder: str | os.PathLike) -> GarmentFit:
     """Read a fit folder; a missing, unfinished or corrupt one raises a one-line error naming the fix."""
+    from bodystudio.fileio import read_image
     from bodystudio.garment.lighting import Lighting
     from bodystudio.geometry.camera import Camera
     from bodystudio.runfolder import RunLayout, check_readable
@@ -154,10 +155,10 @@ def load_garment_fit(folder: str | os.PathLike) -> GarmentFit:
         frame_ids = np.asarray(doc["frame_ids"], dtype=np.int64)
         masks = []
         for fid in frame_ids:
-            m = cv2.imread(str(folder / "masks" / f"{int(fid):05d}.png"), cv2.IMREAD_GRAYSCALE)
-            if m is None:
-                raise FileFormatError(f"{folder / 'masks' / f'{int(fid):05d}.png'}: missing or unreadable; {fix}")
-            masks.append(m > 127)
+            mask_path = folder / "masks" / f"{int(fid):05d}.png"
+            if not mask_path.is_file():  # cv2.imread would print its own warning on stderr
+                raise FileFormatError(f"{mask_path}: missing or unreadable; {fix}")
+            masks.append(read_image(mask_path, cv2.IMREAD_GRAYSCALE) > 127)
         lighting = None if doc["lighting"] is None else Lighting.from_dict(doc["lighting"], str(path))
         cam_doc = doc["camera"]
         camera = Camera.from_dict(str(cam_doc.get("name", "cam_00")), cam_doc)

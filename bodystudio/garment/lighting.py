@@ -6,6 +6,13 @@ cosine, times the light's visibility when self-shadowing is on), and the light c
 solve ``argmin ||A x - b||`` by non-negative least squares. We add an ambient column (a constant
 sky term) because the synthetic and most real scenes have one; dropping it biases the lights
 (tested). §5.1: the albedo of each body vertex is its colour averaged over the frames that see it.
+
+Two additions for a fitted body (measured in docs/garment.md): an L1 ``sparsity`` penalty on the
+directional lights (the paper notes that NNLS "minimizes the amount of non-zero lights"; on imperfect
+normals and shadows it does not, and a penalty restores it while the unpenalised ambient takes the
+constant part), and :func:`chromaticity_groups`, §5.1's own assumption that shading changes a point's
+intensity but not its chromaticity, used to tie the albedo of same-coloured vertices while the lights
+are solved (``garment/fit.py``'s ``estimate_appearance``).
 """
 
 from __future__ import annotations
@@ -167,30 +174,40 @@ def _solve_spd(M: np.ndarray, r: np.ndarray) -> np.ndarray:
         return np.linalg.lstsq(M, r, rcond=None)[0]
 
 
-def solve_lights(G: np.ndarray, albedo: np.ndarray, observed: np.ndarray, solver: str = "fast_nnls") -> np.ndarray:
+def solve_lights(G: np.ndarray, albedo: np.ndarray, observed: np.ndarray, solver: str = "fast_nnls",
+                 sparsity: float = 0.0, n_penalised: int | None = None) -> np.ndarray:
     """Eq. 7 per colour channel: light colours (L', 3) >= 0 with ``A_c = albedo_c * G`` and ``b_c`` the pixels.
 
     ``solver``: ``nnls`` (scipy's Lawson-Hanson on A, as the paper), ``fast_nnls`` (the same active
     set on the normal equations, Bro & de Jong) or ``lstsq`` (unconstrained; to show why the constraint
-    matters).
+    matters). ``sparsity`` > 0 (``fast_nnls`` only) minimises ``||A x - b||^2 / (2 K) + sparsity * sum(x)``
+    over the first ``n_penalised`` columns (default all; the ambient column is left free by the callers):
+    an L1 penalty on the total light power, in squared pixel units per row.
     """
     if solver not in SOLVERS:
         raise InputError(f"unknown lighting solver {solver!r}; valid: {', '.join(SOLVERS)}")
+    if not (np.isfinite(sparsity) and sparsity >= 0):
+        raise InputError(f"lighting sparsity must be a finite number >= 0, got {sparsity}")
+    if sparsity > 0 and solver != "fast_nnls":
+        raise InputError(f"lighting sparsity needs the fast_nnls solver, not {solver!r}")
     # One BLAS thread: these systems are small (L = 401 columns) and OpenBLAS threads on a busy machine
     # spin (a 1500 x 401 lstsq: 7.3 s with 2 threads under load, 0.26 s with one).
     with threadpool_limits(limits=1, user_api="blas"):
-        return _solve_lights(G, albedo, observed, solver)
+        return _solve_lights(G, albedo, observed, solver, sparsity, n_penalised)
 
 
-def _solve_lights(G: np.ndarray, albedo: np.ndarray, observed: np.ndarray, solver: str) -> np.ndarray:
+def _solve_lights(G: np.ndarray, albedo: np.ndarray, observed: np.ndarray, solver: str, sparsity: float = 0.0,
+                  n_penalised: int | None = None) -> np.ndarray:
     X = np.zeros((G.shape[1], 3))
+    penalty = np.zeros(G.shape[1])
+    penalty[:G.shape[1] if n_penalised is None else n_penalised] = sparsity * len(G)
     for c in range(3):
         A = G * albedo[:, c:c + 1]
         b = observed[:, c]
         if solver == "nnls":
             X[:, c], _ = scipy.optimize.nnls(A, b, maxiter=50 * A.shape[1])
         elif solver == "fast_nnls":
-            X[:, c] = fast_nnls(A.T @ A, A.T @ b)
+            X[:, c] = fast_nnls(A.T @ A, A.T @ b - penalty)
         else:
             X[:, c] = np.linalg.lstsq(A, b, rcond=None)[0]
     return X
@@ -212,14 +229,15 @@ def dominant_light_direction(directions: np.ndarray, colors: np.ndarray, cone_de
 def estimate_lighting(points: np.ndarray, normals: np.ndarray, albedo: np.ndarray, observed: np.ndarray,
                       view_axis: np.ndarray, n_lights: int = N_LIGHTS, shadows: bool = False,
                       mesh: tuple[np.ndarray, np.ndarray] | None = None, solver: str = "fast_nnls",
-                      ambient: bool = True) -> Lighting:
+                      ambient: bool = True, sparsity: float = 0.0) -> Lighting:
     """Scene illumination of one frame, Eq. 7 of Garment Replacement in Monocular Video.
 
     ``points``/``normals`` (K, 3) body surface samples seen by K pixels, ``albedo`` (K, 3) their
     reflectance, ``observed`` (K, 3) the pixel colours (linear, [0, 1]); ``view_axis`` the unit
     direction from the body towards the camera (the hemisphere's axis, §5.2 "aligned with the camera
     orientation"). With ``shadows`` each light's visibility is ray cast against ``mesh`` = (V, F).
-    Returns the lights with non-zero colour and the ambient term.
+    ``sparsity`` > 0 adds the L1 penalty of :func:`solve_lights` on the directional lights (never on the
+    ambient). Returns the lights with non-zero colour and the ambient term.
     """
     K = len(points)
     for name, arr in (("normals", normals), ("albedo", albedo), ("observed", observed)):
@@ -234,7 +252,7 @@ def estimate_lighting(points: np.ndarray, normals: np.ndarray, albedo: np.ndarra
             raise InputError("estimate_lighting with shadows needs the body mesh (V, F)")
         vis = light_visibility(points + 2e-3 * normals, directions, *mesh)
     G = lambert_light_matrix(normals, directions, vis, ambient)
-    X = solve_lights(G, albedo, observed, solver)
+    X = solve_lights(G, albedo, observed, solver, sparsity, n_penalised=len(directions))
     amb = X[-1] if ambient else np.zeros(3)
     lights = X[:-1] if ambient else X
     active = lights.sum(1) > 1e-9
@@ -303,6 +321,38 @@ def estimate_albedo(frames: list[np.ndarray], posed_vertices: list[np.ndarray], 
     albedo[seen] = total[seen] / count[seen, None]
     albedo[~seen] = albedo[seen].mean(0)
     return albedo, count
+
+
+def chromaticity_groups(albedo: np.ndarray, seen: np.ndarray, max_groups: int = 6, merge: float = 0.03,
+                        seed: int = 0) -> np.ndarray:
+    """Vertices of one material: k-means on the chromaticity ``(r, g) / (r + g + b)`` of the mean colour, §5.1.
+
+    §5.1 of Garment Replacement assumes that "for a fixed surface point only its intensity values should
+    change over time due to changes in surface orientation but not its chromaticity"; so vertices of one
+    chromaticity are taken as one material (skin, a plain shirt, hair) whose brightness differences are
+    shading. ``max_groups`` k-means centres (deterministic ``seed``) are merged when closer than ``merge``.
+    Returns (n,) labels 0..G-1 for the ``seen`` vertices and -1 for the others.
+    """
+    from scipy.cluster.vq import kmeans2
+
+    albedo = np.asarray(albedo, dtype=np.float64)
+    seen = np.asarray(seen, dtype=bool)
+    labels = np.full(len(albedo), -1)
+    if not seen.any():
+        return labels
+    chroma = (albedo[seen] / np.maximum(albedo[seen].sum(1, keepdims=True), 1e-6))[:, :2]
+    k = int(min(max_groups, len(np.unique(np.round(chroma, 4), axis=0))))
+    if k <= 1:
+        labels[seen] = 0
+        return labels
+    centres, lab = kmeans2(chroma, k, seed=seed, minit="++")
+    root = np.arange(len(centres))
+    for i in range(len(centres)):
+        for j in range(i + 1, len(centres)):
+            if np.linalg.norm(centres[i] - centres[j]) < merge:
+                root[root == root[j]] = root[i]
+    labels[seen] = np.unique(root[lab], return_inverse=True)[1]
+    return labels
 
 
 def vertex_shading(V: np.ndarray, F: np.ndarray, lighting: Lighting, camera=None, shadows: bool = False) -> np.ndarray:

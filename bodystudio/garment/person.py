@@ -22,6 +22,7 @@ log = logging.getLogger(__name__)
 
 #: A matte covering less than this fraction of the image is "no person".
 MIN_PERSON_FRACTION = 0.005
+MAX_PERSON_FRACTION = 0.85  # a matte over more of the image: the background moved, not an actor
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v")
 MAX_VIDEO_FRAMES = 2000
 
@@ -46,14 +47,8 @@ def parse_frame_range(frames: str | None, n_available: int, where: str) -> slice
     """``a:b`` (Python slice of frame indices, either end optional) checked against ``n_available`` frames."""
     if frames is None or frames == "":
         return slice(0, n_available)
-    parts = frames.split(":")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        a = int(parts[0]) if parts[0] else 0
-        b = int(parts[1]) if parts[1] else n_available
-    except ValueError:
-        raise InputError(f"--frames {frames!r}: use START:END (frame indices, e.g. 0:60)") from None
+    a, b = _frame_range_ends(frames)
+    b = n_available if b is None else b
     if not 0 <= a < b <= n_available:
         raise InputError(f"--frames {frames}: out of range; {where} has frames 0:{n_available}")
     return slice(a, b)
@@ -110,12 +105,27 @@ def read_video(path: str | os.PathLike, frames: str | None = None) -> tuple[np.n
     return images[parse_frame_range(frames, len(images), str(path))], fps
 
 
+def _frame_range_ends(frames: str) -> tuple[int, int | None]:
+    """START and END (None when left open) of ``--frames START:END``, checked for form and order."""
+    parts = frames.split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        a = int(parts[0]) if parts[0] else 0
+        b = int(parts[1]) if parts[1] else None
+    except ValueError:
+        raise InputError(f"--frames {frames!r}: use START:END (frame indices, e.g. 0:60)") from None
+    if a < 0 or (b is not None and b <= a):
+        raise InputError(f"--frames {frames}: START must be >= 0 and below END (e.g. 0:60)")
+    return a, b
+
+
 def _requested_end(frames: str | None) -> int | None:
-    """The END of ``--frames START:END`` when given (reading can stop there), else None."""
-    if not frames or ":" not in frames:
+    """The END of ``--frames START:END`` when given (reading can stop there), else None; a malformed or
+    reversed range is refused here, before the video is read."""
+    if not frames:
         return None
-    end = frames.split(":")[-1]
-    return int(end) if end.isdigit() else None
+    return _frame_range_ends(frames)[1]
 
 
 def temporal_background(images: np.ndarray) -> np.ndarray:
@@ -148,6 +158,12 @@ def check_person(masks: np.ndarray, source: str) -> None:
         raise InputError(f"{source}: no person found (the largest moving region covers {100 * frac.max():.2f} % of "
                          f"the image); film the actor moving in front of a static background, or pass "
                          f"--background PLATE.png (a frame of the empty set)")
+    flooded = int(np.count_nonzero(frac > MAX_PERSON_FRACTION))
+    if flooded > len(masks) // 2:
+        raise InputError(f"{source}: no person found (the moving region covers {100 * np.median(frac):.0f} % of the "
+                         f"image in {flooded} of {len(masks)} frames: the camera, the light or the image noise "
+                         f"moves, not an actor); use a clip from a fixed camera in front of a static background, "
+                         f"or pass --background PLATE.png (a frame of the empty set)")
     empty = int(np.count_nonzero(frac < MIN_PERSON_FRACTION))
     if empty:
         raise InputError(f"{source}: no person found in {empty} of {len(masks)} frames; pass --frames to the range "

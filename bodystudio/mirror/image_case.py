@@ -40,6 +40,7 @@ class ImageCase:
     camera: object
     actors: int = 1
     pair_groups: np.ndarray | None = None  # (m,) actor of each vertex pair
+    dense: object | None = None  # warp.DenseCorrespondence of the true bodies (all actors, one z-buffer)
 
 
 def sdk_player_mask(mask: np.ndarray, depth_m: np.ndarray, rng: np.random.Generator, depth_scale: int = 2,
@@ -86,7 +87,7 @@ def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors
     from bodystudio.capture.render import render, render_rgb
     from bodystudio.geometry.camera import kinect_v1
     from bodystudio.mirror import run
-    from bodystudio.mirror.warp import visible_vertex_pairs
+    from bodystudio.mirror.warp import visible_vertex_pairs, warp_pairs
 
     n_handles = run.N_HANDLES if n_handles is None else n_handles
     rim_cos = run.RIM_COS if rim_cos == "run" else rim_cos
@@ -128,9 +129,12 @@ def make_image_case(edits: dict[str, float] | None = None, seed: int = 0, actors
         src_uv.append(s)
         dst_uv.append(t)
         groups.append(np.full(len(s), a))
+    # the dense correspondence of all actors at once: their bodies occlude each other in one z-buffer
+    face_groups = np.repeat(np.arange(actors), len(model.faces))
+    dense = warp_pairs(Vs, Vt, F, camera, 0, dense=True, face_groups=face_groups).dense
     return ImageCase(rgb, target_rgb, background, rs.mask, rt.mask, player, depth, np.concatenate(src_uv),
                      np.concatenate(dst_uv), Vs, Vt, F, camera, actors,
-                     np.concatenate(groups))
+                     np.concatenate(groups), dense)
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:

@@ -114,7 +114,7 @@ class SourceBody:
 
     coeffs: np.ndarray  # (k,) StatisticalBodyModel coefficients
     vertices: np.ndarray  # (n, 3) rest pose (model template topology)
-    skeleton: Skeleton  # refitted by Eq. 3
+    skeleton: Skeleton  # the statistical model's joints for ``coeffs`` (mirror init); Eq. 3's refit in older files
     frames_used: tuple[int, ...]
     residual_mm: float  # median point-to-surface distance of the init fit
     weights: np.ndarray | None = None  # (n, B) skin weights (the model's); None until attached
@@ -477,7 +477,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,
                          vertex_ids=model.vertex_ids)
     residuals = [residual]
-    return SourceBody(coeffs, body.vertices, body.skeleton, tuple(int(o.frame) for o, _ in obs),
+    # tracked with the model's own joints (its joint regressor), not Eq. 3's nearest-vertex means: the target's
+    # joints then move by the same regressor (reshape.target_skeleton), warp_iou +0.002 / +0.011 (docs/mirror.md)
+    return SourceBody(coeffs, body.vertices, model.skeleton(coeffs), tuple(int(o.frame) for o, _ in obs),
                       1000.0 * float(np.median(residuals)), model.weights, model.faces)
 
 

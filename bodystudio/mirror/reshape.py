@@ -97,8 +97,12 @@ def ramp_edits(current: dict[str, float], wanted: dict[str, float], max_step=Non
     return out
 
 
-def target_skeleton(source: SourceBody, target_vertices_rest) -> Skeleton:
-    """The target body's skeleton by Eq. 3 from the source's: joints move with their neighbouring vertices.
+def target_skeleton(source: SourceBody, target_vertices_rest, model: StatisticalBodyModel | None = None,
+                    target_coeffs=None) -> Skeleton:
+    """The target body's skeleton: with ``model`` and ``target_coeffs``, the source's joints moved by the change
+    of the statistical model's own joints (its joint regressor, ``model.skeleton(c_T) - model.skeleton(c_S)``,
+    exact for a target built as ``V_S + B(c_T) - B(c_S)``); else by Eq. 3 (joints move with their neighbouring
+    vertices).
 
     The root bone is not a joint of the body but its anchor on the floor (the game_engine rig's ``Root``
     lies on the floor between the feet, where the pose's translation puts it): it keeps the source's rest
@@ -108,8 +112,14 @@ def target_skeleton(source: SourceBody, target_vertices_rest) -> Skeleton:
     along the world z axis whichever way the person faced (warp_iou 0.75 -> 0.86 on a MIR-SYNTH session
     with a side-on walk-in, docs/mirror.md).
     """
-    skeleton = refit_skeleton_from_vertices(source.vertices, source.skeleton, target_vertices_rest,
-                                            source.joint_neighbourhoods)
+    if model is not None and target_coeffs is not None:
+        sk_s, sk_t = model.skeleton(source.coeffs), model.skeleton(target_coeffs)
+        src = source.skeleton
+        skeleton = Skeleton(src.bone_names, src.parents, src.heads + sk_t.heads - sk_s.heads,
+                            src.tails + sk_t.tails - sk_s.tails, src.rolls)
+    else:
+        skeleton = refit_skeleton_from_vertices(source.vertices, source.skeleton, target_vertices_rest,
+                                                source.joint_neighbourhoods)
     heads, tails = skeleton.heads.copy(), skeleton.tails.copy()
     roots = np.flatnonzero(np.asarray(skeleton.parents) < 0)
     heads[roots], tails[roots] = source.skeleton.heads[roots], source.skeleton.tails[roots]

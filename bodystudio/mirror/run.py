@@ -29,7 +29,7 @@ from bodystudio.errors import BodyStudioError, FileFormatError, InputError
 from bodystudio.fileio import Mp4Writer, atomic_write
 from bodystudio.mirror.compose import BackgroundModel, compose, update_background
 from bodystudio.mirror.foreground import refine_foreground
-from bodystudio.mirror.warp import MLS_KINDS, mls_warp_field, visible_vertex_pairs, warp_foreground
+from bodystudio.mirror.warp import CORRESPONDENCES, MLS_KINDS, mls_warp_field, warp_foreground, warp_pairs
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +56,12 @@ RIM_COS = 0.3
 #: MLS weights are summed over the handles within this radius of a grid node (alpha 2: 1/d^4 falls fast):
 #: the field of ~1200 pairs in 6 instead of 14 ms with the same warp_iou (docs/mirror.md).
 MLS_RADIUS_PX = 32.0
+#: The warp's correspondence by default (``warp.CORRESPONDENCES``): ``dense``, the target body rasterised with
+#: each pixel mapped to the same surface point of the source body and its outline onto the source's outline,
+#: MLS farther out; ``mls``, Eq. 5 from the vertex pairs only. MIR-SYNTH sessions 41 / 42 (docs/mirror.md):
+#: true-vertex ceiling 0.905 / 0.915 -> 0.958 / 0.981, the pipeline 0.869 / 0.855 -> 0.887 / 0.878, end to end
+#: (41 / 42 / 43) 0.876 / 0.863 / 0.858 -> 0.893 / 0.886 / 0.883, for ~6-7 ms more per frame (6k bodies).
+CORRESPONDENCE = "dense"
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,6 +85,7 @@ class MirrorInput:
     pair_groups: np.ndarray | None = None  # (m,) person of each pair when several are reshaped
     unseen: np.ndarray | None = None  # (H, W) bool colour pixels outside the depth camera's view
     edit_fraction: float | None = None  # how far the gradual edit has come (1 = the full edit)
+    dense: object | None = None  # warp.DenseCorrespondence of the bodies (the dense warp), None: MLS only
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,7 +134,7 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
                            **(foreground_options or {}))
     t1 = time.perf_counter()
     warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind, alpha=alpha, groups=inp.pair_groups,
-                                radius_px=MLS_RADIUS_PX)
+                                radius_px=MLS_RADIUS_PX, dense=inp.dense)
     t2 = time.perf_counter()
     warped_rgb, alpha = warp_foreground(rgb, fg, warp_field)
     t3 = time.perf_counter()
@@ -273,22 +280,25 @@ def load_source(session, source=None):
 
 
 def session_inputs(session, body, model, edits: dict[str, float], player: int = 1, ramp_frames: int = 30,
-                   frames: Iterable[int] | None = None) -> Iterator[MirrorInput]:
-    """Per frame of ``session``: the colour frame, the player masks in colour and the projected vertex pairs.
+                   frames: Iterable[int] | None = None,
+                   correspondence: str = CORRESPONDENCE) -> Iterator[MirrorInput]:
+    """Per frame of ``session``: the colour frame, the player masks in colour and the projected vertex pairs
+    (with ``correspondence`` ``dense`` also the dense correspondence of the posed bodies).
 
     The target body is computed once (Eq. 4) and reached gradually: the target rest shape is
     ``V_S + s (V_T - V_S)`` with ``s`` going 0 -> 1 over ``ramp_frames`` tracked frames (Eq. 4 is linear in
     lambda, so this is the ramp of lambda without a solve per frame).
     """
     from bodystudio.mirror.frames import read_mirror_frame, register_depth_to_color
-    from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs
+    from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
     from bodystudio.mirror.track import ik_pose
 
     sensor = session.kinect
     if sensor is None:
         raise InputError(f"{session.path}: not a Kinect session (no kinect/calibration.json); the mirror needs "
                          "Kinect colour, depth, player mask and joints")
-    target_rest = model.vertices(target_coeffs(model, body.coeffs, edits))
+    c_target = target_coeffs(model, body.coeffs, edits)
+    target_rest = model.vertices(c_target)
     camera = sensor.color
     previous = None
     tracked_frames = 0
@@ -337,12 +347,15 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
         timings["ik"] = (t3 - t2) * 1e3
         tracked_frames += 1
         s = min(1.0, tracked_frames / max(int(ramp_frames), 1))
-        Vs, Vt = posed_source_and_target(body, body.vertices + s * (target_rest - body.vertices), pose)
+        Vt_rest = body.vertices + s * (target_rest - body.vertices)
+        rig = target_skeleton(body, Vt_rest, model, body.coeffs + s * (c_target - body.coeffs))
+        Vs, Vt = posed_source_and_target(body, Vt_rest, pose, rig)
         t4 = time.perf_counter()
         timings["bodies"] = (t4 - t3) * 1e3
-        src_uv, dst_uv, _ = visible_vertex_pairs(Vs, Vt, body.faces, camera, N_HANDLES, rim_cos=RIM_COS)
+        pairs = warp_pairs(Vs, Vt, body.faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=correspondence == "dense")
         timings["pairs"] = (time.perf_counter() - t4) * 1e3
-        yield MirrorInput(**base, src_uv=src_uv, dst_uv=dst_uv, edit_fraction=s)
+        yield MirrorInput(**base, src_uv=pairs.src_uv, dst_uv=pairs.dst_uv, edit_fraction=s,
+                          dense=pairs.dense)
 
 
 def _stage_module(name: str):
@@ -373,14 +386,15 @@ def check_edits(edits: dict[str, float]) -> dict[str, float]:
 def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by_side: bool = True,
                progress: bool = True, run_dir: str | Path | None = None, player: int = 1, kind: str = "similarity",
                ramp_frames: int = 30, frames: Iterable[int] | None = None, live: str | Path | None = None,
-               live_timeout_s: float = 5.0) -> dict:
+               live_timeout_s: float = 5.0, correspondence: str = CORRESPONDENCE) -> dict:
     """``bodystudio mirror run``: reshape the actor of ``session`` by ``edits`` and write the video and run folder.
 
     ``session`` an opened session or its path; ``source`` a SourceBody or its .npz (default
     ``SESSION/mirror/source_body.npz`` from ``mirror init``); ``run_dir`` default ``SESSION/mirror/run``.
     ``live``: a folder a recorder is filling with the session layout's ``kinect/`` streams; its frames are
     processed as they arrive (until ``live_timeout_s`` without a new one), each output frame also written
-    to ``RUN/live_latest.png`` for a display to pick up. Returns run.json's content (per-step timings in
+    to ``RUN/live_latest.png`` for a display to pick up. ``correspondence``: ``dense`` (default) or ``mls``
+    (:data:`bodystudio.mirror.warp.CORRESPONDENCES`). Returns run.json's content (per-step timings in
     ``summary.ms_per_frame``).
     """
     from bodystudio.capture.session import open_session
@@ -391,6 +405,8 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
         raise InputError(f"--ramp-frames {ramp_frames}: use 0..10000")
     if kind not in MLS_KINDS:
         raise InputError(f"--warp {kind!r}; valid: {', '.join(MLS_KINDS)}")
+    if correspondence not in CORRESPONDENCES:
+        raise InputError(f"--correspondence {correspondence!r}; valid: {', '.join(CORRESPONDENCES)}")
     video_paths(out_video, side_by_side)
     if isinstance(session, (str, os.PathLike)):
         session = open_session(session)
@@ -421,8 +437,9 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     manifest = {"session": str(Path(session.path).resolve()),
                 "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
                 "live": None if live is None else str(Path(live).resolve()),
-                "edits": edits, "player": int(player), "ramp_frames": int(ramp_frames)}
-    inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids)
+                "edits": edits, "player": int(player), "ramp_frames": int(ramp_frames),
+                "correspondence": correspondence}
+    inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids, correspondence)
     return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total,
                          preview=run_dir / "live_latest.png" if live is not None else None)
 

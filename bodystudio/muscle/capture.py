@@ -68,13 +68,15 @@ from bodystudio.muscle.refine import (
     DepthFrame,
     arm_pose_from_part_transforms,
     correspondence_weights,
-    fit_arm_sequence,
+    fit_arm_sequence_skeleton,
+    fit_rest_shape_correction,
     fit_shape_parameters,
     initial_arm_pose_from_joints,
     model_based_filtering,
     posed_joints,
     procrustes_part_transforms,
     refine_surface,
+    skeleton_model_mesh,
     smooth_arm_poses,
     time_consistent_correspondences,
 )
@@ -149,6 +151,22 @@ class CaptureOptions:
     sequence_max_nfev: int = 15
     sequence_fit_root: bool = False
     sequence_tracker_weight: float = 30.0  # the tracker's joints in the sequence fit, per coordinate
+    # The subject's skeleton (rest shoulder, elbow, wrist; the elbow hinge with them) fitted once per sequence
+    # with every frame's angles in the sequence fit (``refine.fit_arm_sequence_skeleton``), held to the
+    # model's regression by ``sequence_skeleton_prior_weight`` per coordinate (1 per depth pair). Off: measured
+    # (6k, 24 frames, measured shape, docs/muscle.md "fourth pass"), with the placement fitted and Huber on the
+    # depth only, median 5 / 7 / 601 / 602 / 603 / 604: 5.13 / 7.09 / 9.21 / 7.48 / 7.12 / 11.16 -> 6.63 / 3.28 /
+    # 9.43 / 4.51 / 9.69 / 6.56 mm: 3 subjects better, 3 worse; the dataset extension -0.0 -> -7.2 % (set A).
+    sequence_fit_skeleton: bool = False
+    sequence_skeleton_prior_weight: float = 100.0
+    sequence_free_joints: tuple = (True, True, True)  # shoulder, elbow, wrist: which rest joints are fitted
+    sequence_depth_huber_only: bool = False  # Huber weights (IRLS) on the depth pairs only, not the tracker
+    # Per-subject rest shape (``refine.fit_rest_shape_correction``: population PCA over all frames' depth, poses
+    # held) alternated with the sequence fit, this many rounds (0: the model's rest mesh). Off: 2 rounds gave
+    # 5 / 601 / 602 / 603 / 604 5.13 / 9.21 / 7.48 / 7.12 / 11.16 -> 5.24 / 9.58 / 6.78 / 7.39 / 10.50 mm and the
+    # extension -0.1 % (set A).
+    personal_rounds: int = 0
+    personal_prior_weight: float = 0.05
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape
@@ -184,6 +202,9 @@ class ArmCapture:
     frame_ids: list = field(default_factory=list)
     session_path: str | None = None  # the captured session (set by capture_arm_sequence)
     stages: dict = field(default_factory=dict)  # "nicp" / "model": (T, n, 3) world meshes of the earlier steps
+    # Rest shoulder, elbow, wrist (3, 3) in the template's space that ``poses`` turn about (the subject's fitted
+    # skeleton; the rest mesh sits at the model's regressed shoulder). None: the model's regressed joints.
+    joints: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -341,19 +362,22 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
 
     if model is not None and o.sequence_rounds > 0:
         t0 = time.perf_counter()
-        from bodystudio.muscle.model import model_mesh
-
-        poses = fit_arm_sequence(model, shape, poses, frames_t, J, o.norm_limit, tracker_t, o.sequence_tracker_weight,
-                                 o.sequence_smooth_weight, o.sequence_rounds, o.sequence_max_nfev, o.sequence_huber_m,
-                                 o.sequence_fit_root)
-        model_meshes = [model_mesh(model, shape, p, norm_limit=o.norm_limit) for p in poses]
+        J_model = J
+        for r in range(o.personal_rounds + 1):
+            if r > 0:  # poses -> rest shape -> poses (the rest shape and the poses stop trading errors)
+                base = fit_rest_shape_correction(model, shape, poses, frames_t, base, J, o.personal_prior_weight,
+                                                 o.norm_limit, o.sequence_huber_m)
+            poses, J = fit_arm_sequence_skeleton(
+                model, shape, poses, frames_t, J_model, o.norm_limit, tracker_t, o.sequence_tracker_weight,
+                o.sequence_smooth_weight, o.sequence_rounds, o.sequence_max_nfev, o.sequence_huber_m,
+                o.sequence_fit_root, o.sequence_fit_skeleton, o.sequence_skeleton_prior_weight,
+                o.sequence_depth_huber_only, rest=base, free_joints=o.sequence_free_joints)
+        model_meshes = [skeleton_model_mesh(model, shape, p, base, J, o.norm_limit) for p in poses]
         timer.add("sequence_fit", t0)
     if model is not None and o.pose_sigma_frames > 0:
         t0 = time.perf_counter()
-        from bodystudio.muscle.model import model_mesh
-
         poses = smooth_arm_poses(poses, o.pose_sigma_frames)
-        model_meshes = [model_mesh(model, shape, p, norm_limit=o.norm_limit) for p in poses]
+        model_meshes = [skeleton_model_mesh(model, shape, p, base, J, o.norm_limit) for p in poses]
         timer.add("model_filtering", t0)
     if model is None:
         out_t = nicp_meshes
@@ -366,7 +390,8 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     stages = {"nicp": np.stack([apply_similarity(S, X) for X in nicp_meshes])}
     if model_meshes:
         stages["model"] = np.stack([apply_similarity(S, X) for X in model_meshes])
-    return ArmCapture(out, F, poses, shape, S, o.mode, template.key, timer.ms, ids, stages=stages)
+    return ArmCapture(out, F, poses, shape, S, o.mode, template.key, timer.ms, ids, stages=stages,
+                      joints=None if model is None else np.asarray(J, np.float64))
 
 
 def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, joints, o: CaptureOptions, timer):
@@ -494,7 +519,8 @@ def write_arm_capture_files(path_for: Callable[[str], Path], capture: ArmCapture
               "poses": [None if p is None else p.to_dict() for p in capture.poses],
               "similarity": {"scale": float(s), "R": np.asarray(R).tolist(), "t": np.asarray(t).tolist()},
               "timings_ms": capture.timings_ms, "ms_per_frame": capture.ms_per_frame,
-              "session": capture.session_path}
+              "session": capture.session_path,
+              "joints": None if capture.joints is None else np.asarray(capture.joints, float).tolist()}
     write_json(path_for("params.json"), params)
     write_json(path_for("manifest.json"), {"format": "bodystudio-arm-capture", "version": 1,
                                            "n_frames": capture.n_frames, "meshes": "meshes/NNNNN.ply",
@@ -523,6 +549,8 @@ def load_arm_capture(folder: str | Path) -> ArmCapture:
         poses = [None if d is None else ArmPose.from_dict(d, str(p)) for d in params["poses"]]
         V = np.stack([np.asarray(m.vertices, float) for m in meshes])
         F = np.asarray(meshes[0].faces, np.int64)
+        joints = params.get("joints")
+        joints = None if joints is None else np.asarray(joints, float).reshape(3, 3)
     except (OSError, ValueError, KeyError, TypeError, IndexError, InputError) as exc:
         raise FileFormatError(f"{folder}: not a readable arm capture folder ({type(exc).__name__}: {exc}); "
                               "re-run bodystudio muscle capture") from None
@@ -533,7 +561,7 @@ def load_arm_capture(folder: str | Path) -> ArmCapture:
         shape = ArmShapeParams(**shape)
     return ArmCapture(V, F, poses, shape, S, params.get("mode", "full"), params.get("template_key", ""),
                       dict(params.get("timings_ms", {})), list(params.get("frame_ids", range(n))),
-                      params.get("session"))
+                      params.get("session"), joints=joints)
 
 
 __all__ = ["MODES", "ArmCapture", "CaptureOptions", "CorrespondenceFilters", "NicpOptions", "capture_arm_frames",

@@ -527,8 +527,9 @@ def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, str
 
     ``capture`` is a ``bodystudio.muscle.capture.ArmCapture``: each ``stride``-th frame with a pose is
     brought back to template space (inverse of its §5.1 similarity ``(s, R, t)``: ``x = R^T (y - t) / s``)
-    and paired with that pose and ``shape`` (default: the capture's fitted shape). Joints are left to
-    the model's regression, as the capture's model fit used them.
+    and paired with that pose and ``shape`` (default: the capture's fitted shape). The joints are the
+    capture's fitted skeleton (``capture.joints``, the rest joints its poses turn about) when it has one,
+    else left to the model's regression, as the capture's model fit used them.
     """
     if stride < 1:
         raise InputError(f"stride={stride} must be >= 1")
@@ -543,7 +544,7 @@ def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, str
         if capture.poses[k] is None:
             continue
         V = ((np.asarray(capture.vertices[k], dtype=np.float64) - t) @ R) / float(s)
-        out.append(ArmSample(name, shape, V, capture.poses[k]))
+        out.append(ArmSample(name, shape, V, capture.poses[k], getattr(capture, "joints", None)))
     if not out:
         raise InputError(f"capture {name!r} has no frames with joint angles (a no-model capture); "
                          "capture it with the model to extend the dataset")

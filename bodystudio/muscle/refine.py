@@ -219,7 +219,7 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
     wrist, add ``tracker_weight`` times their distance to the model's posed joints, and ``arm_length``
     (the tracker's chain length averaged over the sequence) holds the arm-length parameter with
     ``arm_length_weight``. With
-    ``fixed_shape`` (measured parameters in ``initial``) only the root is fitted.
+    ``fixed_shape`` (measured parameters in ``initial``) only the root is fitted (three unknowns, no bounds).
     Returns ``(ArmShapeParams, root (4, 4))``.
     """
     from bodystudio.muscle.model import ArmShapeParams, model_joints, model_mesh
@@ -242,9 +242,7 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
     x = np.r_[x0, np.zeros(3)]
     big = np.full(3, np.inf)
     if fixed_shape:  # measured parameters are used as given, never clipped to the training range
-        x0 = np.asarray(initial.as_vector(), np.float64)
-        x[:4] = x0
-        lo, hi = x0 - 1e-9, x0 + 1e-9
+        x[:4] = np.asarray(initial.as_vector(), np.float64)
     for _ in range(rounds):
         pairs = [f.plane_pairs(M) for f, M in zip(frames, meshes_of(x), strict=True)]
 
@@ -261,9 +259,13 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
                 r.append(np.sqrt(arm_length_weight) * np.atleast_1d(x[3] - arm_length))
             return np.concatenate(r)
 
+        loss = dict(loss="huber", f_scale=huber_m) if huber_m > 0 else {}
+        if fixed_shape:  # only the root: no degenerate bounds on the shape (scipy warned on x0 +- 1e-9)
+            x[4:] = least_squares(lambda t, fun=fun, s=x[:4].copy(): fun(np.r_[s, t]), x[4:], x_scale=np.full(3, 0.01),
+                                  max_nfev=30, **loss).x
+            continue
         x = least_squares(fun, x, bounds=(np.r_[lo, -big], np.r_[hi, big]),
-                          x_scale=np.r_[np.maximum(hi - lo, 1e-3) / 4, np.full(3, 0.01)],
-                          max_nfev=30, **(dict(loss="huber", f_scale=huber_m) if huber_m > 0 else {})).x
+                          x_scale=np.r_[np.maximum(hi - lo, 1e-3) / 4, np.full(3, 0.01)], max_nfev=30, **loss).x
     return ArmShapeParams.from_vector(x[:4], sex), root_of(x)
 
 
@@ -336,6 +338,20 @@ def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: in
     return out
 
 
+def skeleton_model_mesh(model, shape, pose: ArmPose, rest: np.ndarray, joints: np.ndarray,
+                        norm_limit: float = 0.9) -> np.ndarray:
+    """Eq. 12 with a per-subject skeleton: ``skinning(v_rest + d_rho)`` about ``joints``, the rest mesh held.
+
+    ``rest`` is ``model_rest_vertices(model, shape)`` (``v_base + d_l + d_theta`` placed at the regressed
+    shoulder); ``joints`` (3, 3) are the subject's rest shoulder, elbow and wrist centres, which may sit
+    apart from the regressed ones inside the same skin. With the regressed joints it equals ``model_mesh``.
+    """
+    from bodystudio.muscle.model import limit_displacement_norms, pose_displacements
+
+    d_rho = limit_displacement_norms(pose_displacements(model, pose.angles), norm_limit)
+    return pose_arm(rest + d_rho, model.part_weights, joints, pose)
+
+
 def fit_arm_sequence(model, shape, poses: list[ArmPose], frames: list[DepthFrame], joints: np.ndarray,
                      norm_limit: float = 0.9, tracker_joints: np.ndarray | None = None, tracker_weight: float = 0.0,
                      smooth_weight: float = 10.0, rounds: int = 2, max_nfev: int = 8,
@@ -354,62 +370,158 @@ def fit_arm_sequence(model, shape, poses: list[ArmPose], frames: list[DepthFrame
     > 0: Huber loss on every residual with that scale (metres), against pairs on the wrong surface.
     The Jacobian is sparse (a frame's angles touch its own residuals and its neighbours' priors), so the
     finite differences are grouped (scipy's ``jac_sparsity``). ``fit_root=False`` holds the torso placement
-    and solves the angles alone. Returns the poses (with the new root).
+    and solves the angles alone. Returns the poses (with the new root); the skeleton stays the model's
+    (:func:`fit_arm_sequence_skeleton` fits it too).
+    """
+    return fit_arm_sequence_skeleton(model, shape, poses, frames, joints, norm_limit, tracker_joints, tracker_weight,
+                                     smooth_weight, rounds, max_nfev, huber_m, fit_root, fit_skeleton=False)[0]
+
+
+def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[DepthFrame], joints: np.ndarray,
+                              norm_limit: float = 0.9, tracker_joints: np.ndarray | None = None,
+                              tracker_weight: float = 0.0, smooth_weight: float = 10.0, rounds: int = 2,
+                              max_nfev: int = 8, huber_m: float = 0.0, fit_root: bool = False,
+                              fit_skeleton: bool = True, skeleton_prior_weight: float = 100.0,
+                              depth_huber_only: bool = False, rest: np.ndarray | None = None,
+                              free_joints: tuple[bool, bool, bool] = (True, True, True),
+                              ) -> tuple[list[ArmPose], np.ndarray]:
+    """:func:`fit_arm_sequence` with the subject's skeleton as shared unknowns of the whole sequence.
+
+    The model's rest joints are regressed from the shape parameters (Sec. 6.1); a subject outside the
+    training range has its shoulder, elbow and wrist elsewhere inside the same skin, and a per-frame fit
+    can absorb that only in wrong angles. With ``fit_skeleton`` the three rest joint centres (9 unknowns,
+    offsets from ``joints`` with the rest mesh held: :func:`skeleton_model_mesh`) are solved once per
+    sequence together with every frame's angles; the elbow hinge axis is the normal of the fitted joints'
+    plane (:func:`elbow_axes`), so it is fitted with them. The depth pairs see where the limb bends, the
+    tracker's joints (noisy per frame, unbiased) average over the sequence onto the joint centres, and a
+    weak prior (``skeleton_prior_weight`` per coordinate, 1 per depth pair) holds them to the regression.
+    Two rest-joint moves are invisible to the depth of a skinned limb: the elbow along its own hinge axis
+    and the wrist (its angle is held), so the tracker's joints carry them; a Huber loss on the tracker's
+    residuals (scipy's ``loss`` acts on every residual) cuts their pull to a constant beyond ``huber_m``.
+    ``depth_huber_only``: the Huber weights act on the depth pairs alone, as iteratively reweighted least
+    squares (weights ``min(1, huber_m / |r|)`` of each pair's distance at the start of each round), and the
+    tracker, prior and skeleton terms stay quadratic.
+    ``free_joints``: which of shoulder, elbow, wrist are fitted (the others stay the regressed ones).
+    ``rest``: the subject's rest mesh (default ``model_rest_vertices(model, shape)``; a personalised one
+    from :func:`fit_rest_shape_correction`).
+    Returns the poses and the fitted rest joints (3, 3); the forearm twist of each frame is kept about the
+    new forearm axis.
     """
     from scipy.sparse import lil_matrix
 
-    from bodystudio.muscle.model import model_mesh
+    from bodystudio.muscle.model import model_rest_vertices
 
     T = len(poses)
-    h, f = elbow_axes(joints)
+    J0 = np.asarray(joints, np.float64)
+    h, f = elbow_axes(J0)
     twist = np.array([float(p.angles[1] @ f) for p in poses])
     root0 = poses[0].root
+    rest = model_rest_vertices(model, shape) if rest is None else np.asarray(rest, np.float64)
 
     r0 = 3 if fit_root else 0  # parameters before the angles
+    free = np.flatnonzero(np.asarray(free_joints, bool)) if fit_skeleton else np.zeros(0, int)
+    s0 = 3 * len(free)  # skeleton offsets after the root
+    n0 = r0 + s0
+
+    def skeleton(x):
+        if not s0:
+            return J0
+        J = J0.copy()
+        J[free] += x[r0:n0].reshape(-1, 3)
+        return J
 
     def unpack(x):
         root = root0.copy()
         root[:3, 3] = root0[:3, 3] + x[:r0] if fit_root else root0[:3, 3]
-        a = x[r0:].reshape(T, 4)
-        return [ArmPose(root, np.vstack([a[k, :3], elbow_rotvec(joints, a[k, 3], twist[k]), poses[k].angles[2]]))
+        J = skeleton(x)
+        a = x[n0:].reshape(T, 4)
+        return [ArmPose(root, np.vstack([a[k, :3], elbow_rotvec(J, a[k, 3], twist[k]), poses[k].angles[2]]))
                 for k in range(T)]
 
-    x = np.r_[np.zeros(r0), np.concatenate([np.r_[p.angles[0], p.angles[1] @ h] for p in poses])]
+    def mesh(p, J):
+        return skeleton_model_mesh(model, shape, p, rest, J, norm_limit)
+
+    x = np.r_[np.zeros(n0), np.concatenate([np.r_[p.angles[0], p.angles[1] @ h] for p in poses])]
     lever = np.sqrt(smooth_weight) * 0.3
     use_tracker = tracker_joints is not None and tracker_weight > 0
     for _ in range(rounds):
-        pairs = [fr.plane_pairs(model_mesh(model, shape, p, norm_limit=norm_limit))
-                 for fr, p in zip(frames, unpack(x), strict=True)]
+        J = skeleton(x)
+        meshes = [mesh(p, J) for p in unpack(x)]
+        pairs = [fr.plane_pairs(M) for fr, M in zip(frames, meshes, strict=True)]
+        irls = depth_huber_only and huber_m > 0
+        if irls:  # Huber weights of the depth pairs at this round's start (IRLS)
+            pairs = [(k, q, n * np.sqrt(np.minimum(1.0, huber_m / np.maximum(
+                np.abs(np.einsum("kd,kd->k", M[k] - q, n)), 1e-12)))[:, None]) for M, (k, q, n) in zip(
+                meshes, pairs, strict=True)]
         sizes = [len(k) + (9 if use_tracker else 0) for k, _, _ in pairs]
         n_prior = 4 * max(T - 2, 0)
-        J = lil_matrix((sum(sizes) + n_prior, len(x)), dtype=int)
+        Jac = lil_matrix((sum(sizes) + n_prior + s0, len(x)), dtype=int)
         row = 0
         for k, n in enumerate(sizes):
-            J[row:row + n, :r0] = 1
-            J[row:row + n, r0 + 4 * k:r0 + 4 + 4 * k] = 1
+            Jac[row:row + n, :n0] = 1
+            Jac[row:row + n, n0 + 4 * k:n0 + 4 + 4 * k] = 1
             row += n
         for k in range(1, T - 1):
             for c in range(4):
-                J[row, [r0 + 4 * (k - 1) + c, r0 + 4 * k + c, r0 + 4 * (k + 1) + c]] = 1
+                Jac[row, [n0 + 4 * (k - 1) + c, n0 + 4 * k + c, n0 + 4 * (k + 1) + c]] = 1
                 row += 1
+        for c in range(s0):
+            Jac[row, r0 + c] = 1
+            row += 1
 
         def fun(x, pairs=pairs):
-            ps = unpack(x)
+            ps, J = unpack(x), skeleton(x)
             r = []
             for p, (k, q, n), tj in zip(ps, pairs, tracker_joints if use_tracker else [None] * T, strict=True):
-                M = model_mesh(model, shape, p, norm_limit=norm_limit)
+                M = mesh(p, J)
                 r.append(np.einsum("kd,kd->k", M[k] - q, n))
                 if use_tracker:
-                    r.append(np.sqrt(tracker_weight) * (posed_joints(joints, p) - tj).ravel())
-            a = x[r0:].reshape(T, 4)
+                    r.append(np.sqrt(tracker_weight) * (posed_joints(J, p) - tj).ravel())
+            a = x[n0:].reshape(T, 4)
             if T > 2:
                 r.append(lever * (a[:-2] - 2 * a[1:-1] + a[2:]).ravel())
+            if s0:
+                r.append(np.sqrt(skeleton_prior_weight) * x[r0:n0])
             return np.concatenate(r)
 
-        loss = dict(loss="huber", f_scale=huber_m) if huber_m > 0 else {}
-        x = least_squares(fun, x, jac_sparsity=J, method="trf", x_scale=np.r_[np.full(r0, 0.01), np.full(4 * T, 0.05)],
-                          max_nfev=max_nfev, **loss).x
-    return unpack(x)
+        loss = dict(loss="huber", f_scale=huber_m) if huber_m > 0 and not irls else {}
+        scale = np.r_[np.full(r0, 0.01), np.full(s0, 0.01), np.full(4 * T, 0.05)]
+        x = least_squares(fun, x, jac_sparsity=Jac, method="trf", x_scale=scale, max_nfev=max_nfev, **loss).x
+    return unpack(x), skeleton(x)
+
+
+def fit_rest_shape_correction(model, shape, poses: list[ArmPose], frames: list[DepthFrame], rest: np.ndarray,
+                              joints: np.ndarray, prior_weight: float = 0.05, norm_limit: float = 0.9,
+                              huber_m: float = 0.004, basis: np.ndarray | None = None) -> np.ndarray:
+    """Per-subject rest shape: ``rest + sum_j c_j e_j`` fitted to every frame's depth with the poses held.
+
+    The model's rest mesh (Eq. 5-9, ``v_base + d_l + d_theta``) is a regression from four parameters; a
+    subject's own arm differs from it. With the poses and skeleton of the sequence held, the posed mesh of
+    Eq. 12 is linear in the rest vertices (the skinning is), so the coefficients ``c`` of the population's
+    PCA eigenvectors ``e_j`` (``basis``, default ``model.length_basis``: the Hasler-style population of
+    Eq. 8) follow from one linear least squares over all frames' point-to-plane pairs (Sec. 5.2 filters),
+    with Huber weights (``huber_m``, on each pair's distance before the fit) and a Tikhonov prior
+    ``prior_weight`` per frame on ``|c|^2`` (``|c|`` is the correction's norm over all coordinates).
+    The unseen side follows the seen one through the population's eigenvectors. Returns the new rest mesh.
+    """
+    E = np.asarray(model.length_basis if basis is None else basis, np.float64)
+    k = len(E)
+    Ev = E.reshape(k, -1, 3)
+    rest = np.asarray(rest, np.float64)
+    GtG, Gtb = np.zeros((k, k)), np.zeros(k)
+    for p, fr in zip(poses, frames, strict=True):
+        M = skeleton_model_mesh(model, shape, p, rest, joints, norm_limit)
+        idx, q, n = fr.plane_pairs(M)
+        T = part_transforms(np.asarray(joints, np.float64), p)
+        A = np.einsum("np,pij->nij", model.part_weights[idx], T[:, :3, :3])  # blended rotation per paired vertex
+        r = np.einsum("kd,kd->k", M[idx] - q, n)
+        w = np.minimum(1.0, huber_m / np.maximum(np.abs(r), 1e-12)) if huber_m > 0 else np.ones(len(r))
+        An = np.einsum("kij,ki->kj", A, n)  # n^T A
+        G = np.einsum("kj,ckj->kc", An, Ev[:, idx, :])
+        GtG += G.T @ (w[:, None] * G)
+        Gtb -= G.T @ (w * r)
+    c = np.linalg.solve(GtG + prior_weight * len(poses) * np.eye(k), Gtb)
+    return rest + (c @ E).reshape(-1, 3)
 
 
 def skin_template(base: np.ndarray, part_weights: np.ndarray, joints: np.ndarray, pose: ArmPose) -> np.ndarray:

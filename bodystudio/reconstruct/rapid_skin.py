@@ -3,7 +3,8 @@
 Line 1 computes the delta coordinates of the initial (posed) template; each of the ``No`` outer
 iterations recomputes normals, re-matches rim vertices with the silhouette contours (and, when asked,
 vertices with Kinect depth points) and runs ``Ni`` inner iterations of the chosen solver. Solver and
-matching times are kept apart, as in the paper's Fig. 9.
+matching times are kept apart, as in the paper's Fig. 9. Ours (issue 15): silhouette matches whose target
+leaves the visual hull are dropped (:func:`hull_consistent_constraints`, ``hull_gate_m``).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from bodystudio.reconstruct.solver import (
     SilhouetteConstraints,
     solve_constraints,
 )
+from bodystudio.reconstruct.tracking import SilhouetteFields
 
 CONSTRAINT_KINDS = ("silhouette", "depth")
 
@@ -48,6 +50,9 @@ class RapidSkinParams:
     depth_sigma_m: float = 0.02
     depth_max_m: float = 0.05
     jacobi_iterations_factor: int = 4
+    #: Drop a silhouette constraint whose target point leaves the visual hull by more than this (m) beyond
+    #: where its vertex already is (:func:`hull_consistent_constraints`); 0 keeps every match (the paper).
+    hull_gate_m: float = 0.001
 
     def __post_init__(self):
         if self.solver not in SOLVERS:
@@ -63,7 +68,8 @@ class RapidSkinParams:
                 ("--alpha", self.alpha_px, 1.0, 1000.0, "pixels: the silhouette weight width"),
                 ("rim_cos", self.rim_cos, 0.0, 0.99, "cosine"),
                 ("depth_sigma_m", self.depth_sigma_m, 1e-4, 1.0, "metres"),
-                ("depth_max_m", self.depth_max_m, 1e-3, 1.0, "metres")):
+                ("depth_max_m", self.depth_max_m, 1e-3, 1.0, "metres"),
+                ("hull_gate_m", self.hull_gate_m, 0.0, 1.0, "metres; 0 turns the visual-hull gate off")):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"{name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}] ({flag})")
 
@@ -82,14 +88,17 @@ class DeformResult:
 def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: dict | None,
                            params: RapidSkinParams = RapidSkinParams(), depth: DepthObservation | None = None,
                            delta: DeltaOperator | None = None, lme: LMESystem | None = None,
-                           smooth_reference: np.ndarray | None = None, callback=None) -> DeformResult:
+                           smooth_reference: np.ndarray | None = None, callback=None,
+                           fields: SilhouetteFields | None = None) -> DeformResult:
     """Algorithm 1 of Rapid Skin: deform ``V_init`` until its rims match the silhouettes in ``masks``.
 
     ``cameras`` is an iterable of ``Camera``; ``masks`` maps camera names to ``(H, W)`` silhouettes.
     ``depth`` adds point-to-plane constraints when ``"depth"`` is in ``params.constraints``.
     ``smooth_reference`` is the mesh whose delta coordinates the smoothness constraints keep
     (default ``V_init``, Algorithm 1 line 1); ``delta`` may carry its precomputed cotangent weights.
-    ``callback(outer, V)`` sees the mesh after every outer iteration.
+    ``callback(outer, V)`` sees the mesh after every outer iteration. ``fields`` (the frame's
+    :class:`SilhouetteFields`, computed here when not given) gate the matches by the visual hull
+    (``params.hull_gate_m``).
     """
     cameras = list(cameras)
     use_sil = "silhouette" in params.constraints
@@ -118,6 +127,9 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
     F = np.ascontiguousarray(F, dtype=np.int64)
     t0 = time.perf_counter()
     views = SilhouetteViews(cameras, masks, F) if use_sil else None  # masks prepared once for all No matchings
+    gate = use_sil and params.hull_gate_m > 0
+    if gate and fields is None:
+        fields = SilhouetteFields(cameras, masks)
     result.matching_s += time.perf_counter() - t0
     inner = params.inner_iterations
     if params.solver == "jacobi":
@@ -128,6 +140,8 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
         sil = (silhouette_constraints(V, F, N, cameras, masks, params.tau_px, params.alpha_px, params.rim_cos,
                                       views=views)
                if use_sil else SilhouetteConstraints.empty())
+        if gate:
+            sil = hull_consistent_constraints(V, sil, fields, params.hull_gate_m)
         dep = (depth_constraints(V, N, depth, params.depth_sigma_m, params.depth_max_m)
                if use_depth else DepthConstraints.empty())
         t1 = time.perf_counter()
@@ -142,3 +156,31 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
             callback(outer + 1, V)
     result.vertices = V
     return result
+
+
+def hull_consistent_constraints(V: np.ndarray, sil: SilhouetteConstraints, fields: SilhouetteFields,
+                                gate_m: float) -> SilhouetteConstraints:
+    """The silhouette constraints (Eq. 7 of Rapid Skin) whose target stays inside the visual hull.
+
+    A constraint pulls its vertex onto the viewing ray of the contour pixel it matched, i.e. to the point
+    ``q`` of the ray nearest the vertex. A true rim point lies inside every silhouette, so ``q`` of a
+    right match is at most on the hull's boundary; a rim vertex whose outward search crossed another
+    body part's silhouette (the head against a raised arm, the upper back against the shoulder) gets a
+    ``q`` in empty space beside it, which the other cameras see outside their silhouettes. Kept: the
+    constraints with ``hull(q) <= max(hull(v), 0) + gate_m`` (``hull`` the implicit visual hull of
+    ``fields``, metres, > 0 outside): a step may not take a vertex further out of the hull than it is.
+    """
+    if not len(sil):
+        return sil
+    o, d = sil.origin, sil.direction
+    P = V[sil.vertex]
+    q = o + np.sum((P - o) * d, axis=1, keepdims=True) * d
+    vertices, slot = np.unique(sil.vertex, return_inverse=True)  # a rim vertex has a match in several views
+    h_v, _ = fields.implicit_hull(V[vertices])
+    h_q, _ = fields.implicit_hull(q)
+    keep = ~(h_q > np.maximum(h_v[slot], 0.0) + gate_m)
+    if keep.all():
+        return sil
+    return SilhouetteConstraints(sil.vertex[keep], o[keep], d[keep], sil.k[keep],
+                                 None if sil.camera is None else sil.camera[keep],
+                                 None if sil.pixel_distance is None else sil.pixel_distance[keep])

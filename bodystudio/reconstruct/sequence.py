@@ -325,7 +325,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 masks = None
             delta = rest_delta if rest_delta is not None else cotangent_weights(reference, F)
             result = deform_to_observations(init.vertices, F, cameras, masks, params, depth=depth, delta=delta,
-                                            smooth_reference=reference)
+                                            smooth_reference=reference, fields=fields)
             t_frame = time.perf_counter() - t_start
             V = result.vertices
             save_mesh(writer.path_for(f"meshes/{fid:05d}.ply"), Mesh(V, F))

@@ -12,7 +12,9 @@ stage, and turns it into tables; it draws a plot only when its data exists:
 * calibration residuals: ``*residual*`` lists (histogram) or per-camera values (bars)
 
 Mirror sessions and mirror run folders (issue 12) get a section of before/after frames (input | mirror
-output | truth) and the ``eval mirror`` scores (:func:`mirror_sections`).
+output | truth) and the ``eval mirror`` scores (:func:`mirror_sections`); garment fit folders (issue 13)
+one of before/after frames (input | composite | truth) and the ``eval garment`` scores, saying what is
+missing when the folder is incomplete (:func:`garment_sections`).
 
 Images are embedded as base64 PNG and the 3D view as inline WebGL (:mod:`bodystudio.viewer.webgl`),
 so the page opens from disk without a server or network.
@@ -76,6 +78,7 @@ class ReportResult:
     screenshots: list[tuple[str, bytes]] = field(default_factory=list)
     has_3d: bool = False
     mirrors: list = field(default_factory=list)  # MirrorSection per mirror session / run
+    garments: list = field(default_factory=list)  # GarmentSection per garment fit folder
 
 
 def _is_scalar(v: Any) -> bool:
@@ -295,10 +298,12 @@ def _is_arm_capture_file(p: Path) -> bool:
 
 
 def screenshot_files(root: Path, exclude: Path | None = None) -> list[Path]:
-    """PNG files under ``root`` that are pictures to show (session streams and mirror run frames left out)."""
+    """PNG files under ``root`` that are pictures to show (session streams, mirror run frames and a garment
+    fit's masks and render frames left out)."""
     from bodystudio.viewer.mirror import is_mirror_run
 
     runs = [p.parent.resolve() for p in root.rglob("run.json") if is_mirror_run(p.parent)]
+    runs += [sub.resolve() for fit in garment_fit_dirs(root) for sub in (fit / "masks", fit / "render")]
     shots = []
     for p in sorted(root.rglob("*.png")):
         rel = p.relative_to(root)
@@ -433,6 +438,144 @@ def _mirror_html(sections: list[MirrorSection]) -> str:
     return "\n".join(parts)
 
 
+GARMENT_FRAMES = 3  # before/after strips per garment fit in the report
+GARMENT_SEARCH_DEPTH = 3  # fit.json files this deep under the report's folder are garment fits
+
+
+def garment_fit_dirs(root: Path) -> list[Path]:
+    """Garment fit folders at or under ``root`` (a folder with ``fit.json``; a ``render/`` folder given as
+    ``root`` counts as its fit), hidden and session-stream folders left out."""
+    from bodystudio.viewer.garment import is_garment_render
+
+    root = Path(root)
+    if (root / "fit.json").is_file():
+        return [root]
+    if is_garment_render(root) and (root.parent / "fit.json").is_file():
+        return [root.parent]
+    out = []
+    for p in sorted(root.rglob("fit.json")):
+        parts = p.relative_to(root).parts[:-1]
+        if len(parts) > GARMENT_SEARCH_DEPTH or any(q.startswith(".") or _SKIP_PARTS.match(q) for q in parts):
+            continue
+        out.append(p.parent)
+    return out
+
+
+@dataclass(frozen=True)
+class GarmentSection:
+    """The report's garment section of one fit folder: before/after strips (input | composite | truth), the
+    ``eval garment`` scores and one note per missing or unusable part."""
+
+    name: str
+    strips: list[tuple[str, bytes]]
+    scores: dict | None
+    notes: list[str]
+
+
+def _strict_json(value):
+    """``value`` with non-finite floats as None (the page's JSON is strict; identical images give PSNR inf)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _strict_json(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_strict_json(v) for v in value]
+    return value
+
+
+def garment_scores(view) -> tuple[dict | None, list[str]]:
+    """``(scores, notes)`` of a garment view: the fit folder's saved ``eval.json``, else ``eval garment``'s
+    scores computed against the synthetic session (the fit's, then the composite's when rendered); what could
+    not be scored is said in the notes."""
+    from bodystudio.errors import BodyStudioError
+    from bodystudio.garment.composite import composite_errors
+    from bodystudio.garment.evaluate import fit_errors
+
+    if view.saved_scores is not None:
+        return _strict_json(view.saved_scores), []
+    if view.session is None:
+        return None, ["not scored: the fit's source is not a session folder; `eval garment` needs a synthetic "
+                      "session (`bodystudio synth garment`)"]
+    scores, notes = {}, []
+    try:
+        scores.update(fit_errors(view.fit, view.session))
+    except BodyStudioError as exc:
+        notes.append(f"fit not scored: {exc}")
+    if view.render is not None:
+        try:
+            scores.update(composite_errors(view.fit_dir, view.session))
+        except BodyStudioError as exc:
+            notes.append(f"composite not scored: {exc}")
+    return (_strict_json(scores) if scores else None), notes
+
+
+def garment_sections(root: Path) -> list[GarmentSection]:
+    """Garment fit folders under ``root``: before/after frames (input | composite | truth) and the scores of
+    ``bodystudio eval garment`` (``DIR/eval.json`` when saved, else computed for a synthetic session). An
+    incomplete folder (no render, source gone, damaged fit) gives a section that says what is missing."""
+    from bodystudio.errors import BodyStudioError
+    from bodystudio.viewer.garment import (
+        before_after_panels,
+        before_after_strip,
+        garment_frames,
+        input_frames,
+        missing_panels,
+        open_garment_view,
+    )
+
+    out = []
+    for fit_dir in garment_fit_dirs(root):
+        name = fit_dir.resolve().name
+        try:
+            view = open_garment_view(fit_dir)
+        except BodyStudioError as exc:
+            out.append(GarmentSection(name, [], None, [f"not shown: {exc}"]))
+            continue
+        notes = list(view.notes)
+        frame_ids = garment_frames(view, GARMENT_FRAMES)
+        try:
+            frames = input_frames(view, frame_ids)
+        except BodyStudioError as exc:
+            frames = {}
+            if view.has_source:  # a source that is gone is in the notes already
+                notes.append(f"no input frames: {exc}")
+        strips, missing = [], []
+        for fid in frame_ids:
+            try:
+                panels = before_after_panels(view, fid, frames)
+            except BodyStudioError as exc:
+                notes.append(f"frame {fid}: {exc}")
+                continue
+            missing += [m for m in missing_panels(view, fid, panels) if m not in missing]
+            strip = before_after_strip(view, fid, frames)
+            step = 2 if strip.shape[0] >= 480 else 1
+            strips.append((f"{name} frame {fid}", _png_bytes(strip[::step, ::step])))
+        if missing:
+            notes.insert(0, "strips lack: " + "; ".join(missing))
+        scores, score_notes = garment_scores(view)
+        out.append(GarmentSection(name, strips, scores, notes + score_notes))
+    return out
+
+
+def _garment_html(sections: list[GarmentSection]) -> str:
+    parts = ["<h2>Garment: before / after</h2>",
+             '<p class="meta">Each strip: the input video frame | the composite of `garment render` (the new garment '
+             "on the fitted actor after the image-space refinement) | the truth (the actor rendered wearing the "
+             "target garment; synthetic sessions only).</p>"]
+    for g in sections:
+        parts.append(f"<h3>{html.escape(g.name)}</h3><div class=\"grid\">")
+        parts += [f"<figure>{_img_tag(png, cap)}<figcaption>{html.escape(cap)}</figcaption></figure>"
+                  for cap, png in g.strips]
+        parts.append("</div>")
+        if g.scores is not None:
+            rows = [[k, v] for k, v in flatten_record(g.scores).items()]
+            parts.append(_table_html(Table(f"{g.name}: eval garment", ["score", "value"], rows)))
+            parts.append(f"<details><summary>eval JSON</summary><pre>"
+                         f"{html.escape(json.dumps(g.scores, indent=2, allow_nan=False))}</pre></details>")
+        parts += [f'<p class="meta garment-note">{html.escape(n)}</p>' for n in g.notes]
+    return "\n".join(parts)
+
+
 def default_scene(root: Path):
     """(plotter, payload or None) the report embeds: an arm capture or a session (every frame), else an avatar,
     else a mesh."""
@@ -445,6 +588,9 @@ def default_scene(root: Path):
         plotter = build_view(item)
         still = render_image(plotter)
         return plotter, arm_payload(item.data, plotter), still
+    found = _garment_scene(root)
+    if found is not None:
+        return found
     sessions = _sessions_under(root)
     if sessions or (root / "run.json").is_file():
         item = open_viewable(sessions[0] if sessions else root)
@@ -461,6 +607,26 @@ def default_scene(root: Path):
         return None
     plotter = build_view(pick)
     return plotter, scene_payload(plotter), render_image(plotter)
+
+
+def _garment_scene(root: Path):
+    """The 3D view of the first garment fit under ``root`` that opens (None when there is none)."""
+    from bodystudio.errors import BodyStudioError
+    from bodystudio.viewer.garment import dress_fitted_body, garment_payload, open_garment_view, scene_for_garment
+    from bodystudio.viewer.scene import make_plotter
+
+    for fit_dir in garment_fit_dirs(root):
+        try:
+            view = open_garment_view(fit_dir)
+            dressed = dress_fitted_body(view)
+            plotter = scene_for_garment(view, plotter=make_plotter(), dressed=dressed)
+            still = render_image(plotter)
+            payload = garment_payload(view, plotter, dressed=dressed)
+        except BodyStudioError as exc:
+            log.warning("%s: no 3D view of the garment fit (%s)", fit_dir, exc)
+            continue
+        return plotter, payload, still
+    return None
 
 
 def _fmt(v: Any) -> str:
@@ -532,6 +698,7 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
         plots += p
         tables += t
     mirrors = mirror_sections(root)
+    garments = garment_sections(root)
     shots = [(str(p.relative_to(root)), p.read_bytes()) for p in screenshot_files(root, exclude=out)]
     view_html = ""
     if with_3d:
@@ -559,6 +726,8 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
         parts += ["<h2>3D view</h2>", view_html]
     if mirrors:
         parts.append(_mirror_html(mirrors))
+    if garments:
+        parts.append(_garment_html(garments))
     if shots:
         parts.append("<h2>Screenshots</h2><div class=\"grid\">")
         parts += [f"<figure>{_img_tag(png, name)}<figcaption>{html.escape(name)}</figcaption></figure>"
@@ -575,4 +744,4 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
     with atomic_write(out, "w") as fh:
         fh.write("\n".join(parts))
     log.info("wrote %s", out)
-    return ReportResult(out, tables, plots, shots, bool(view_html), mirrors)
+    return ReportResult(out, tables, plots, shots, bool(view_html), mirrors, garments)

@@ -39,14 +39,19 @@ class Viewable:
 
 def open_viewable(path: str | Path) -> Viewable:
     """Open a session or arm capture folder, a mirror session or run folder (before/after frames and the
-    source body, :mod:`bodystudio.viewer.mirror`), a mesh/scan (PLY, OBJ, STL, OFF, GLB) or a skinned avatar."""
+    source body, :mod:`bodystudio.viewer.mirror`), a garment fit or render folder (fitted body, garment, lights,
+    before/after frames, :mod:`bodystudio.viewer.garment`), a mesh/scan (PLY, OBJ, STL, OFF, GLB) or a skinned
+    avatar."""
     path = Path(path)
     if path.is_dir():
         from bodystudio.viewer.arm import is_arm_capture, open_arm_view
+        from bodystudio.viewer.garment import is_garment_fit, is_garment_render, open_garment_view
         from bodystudio.viewer.mirror import is_mirror_run, is_mirror_session, open_mirror_view
 
         if is_arm_capture(path):
             return Viewable(path, "arm", open_arm_view(path))
+        if is_garment_fit(path) or is_garment_render(path) or (path / "fit.json").is_file():
+            return Viewable(path, "garment", open_garment_view(path))
         if is_mirror_run(path) or is_mirror_session(path):
             return Viewable(path, "mirror", open_mirror_view(path))
         if not (path / SESSION_MANIFEST).is_file():
@@ -291,7 +296,7 @@ def build_view(path: str | Path | Viewable, bone: str | None = None, frame: int 
         raise InputError(f"{item.path}: --bone needs an avatar (a skinned .glb), this is a {item.kind}")
     if reference is not None and item.kind != "mesh":
         raise InputError(f"{item.path}: --reference colours a mesh or scan by its error; this is a {item.kind}")
-    if frame is not None and item.kind not in ("session", "arm", "mirror"):
+    if frame is not None and item.kind not in ("session", "arm", "mirror", "garment"):
         raise InputError(f"{item.path}: --frame picks a session frame; this is a {item.kind}")
     ref = load_mesh(reference) if reference is not None else None
     plotter = sc.make_plotter(off_screen=off_screen, window_size=window_size)
@@ -309,6 +314,13 @@ def build_view(path: str | Path | Viewable, bone: str | None = None, frame: int 
         from bodystudio.viewer.mirror import scene_for_mirror
 
         scene_for_mirror(item.data, frame, plotter)
+    elif item.kind == "garment":
+        from bodystudio.viewer.garment import add_garment_time_slider, dress_fitted_body, scene_for_garment
+
+        dressed = dress_fitted_body(item.data)
+        scene_for_garment(item.data, frame, plotter, dressed=dressed)
+        if not off_screen:
+            add_garment_time_slider(plotter, item.data, frame, dressed)
     elif item.kind == "avatar":
         scene_for_avatar(item.data, plotter, bone=bone, title=item.path.name)
     else:

@@ -115,7 +115,13 @@ def scene_payload(plotter, include=None, exclude=(), allow_empty: bool = False) 
             continue
         if not isinstance(actor, vtk.vtkActor) or not actor.GetVisibility() or actor.GetMapper() is None:
             continue
-        raw = actor.GetMapper().GetInput()
+        mapper = actor.GetMapper()
+        raw = mapper.GetInput()
+        if raw is not None and raw.GetNumberOfPoints() == 0:
+            # a mesh with RGB vertex colours added after the last render: its mapper's input is filled by the
+            # pipeline only when it runs (it was dropped from the page when added after the camera was set)
+            mapper.Update()
+            raw = mapper.GetInput()
         if raw is None or raw.GetNumberOfPoints() == 0:
             continue
         data = pv.wrap(raw)

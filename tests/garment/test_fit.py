@@ -2,7 +2,8 @@
 
 One 6-frame 240x320 walk (2k body) is fitted once per module with the user stature from the ground truth.
 Bounds are set from the measured figures (docs/garment.md) with a margin. A planted bug that fails them:
-the pose not optimised (7.5 px, IoU 0.77), the lights not estimated. NOT caught: the Nelder-Mead shape
+the pose not optimised (7.5 px, IoU 0.77), the lights not estimated, §5's chromaticity materials and
+light sparsity dropped (21 deg against the 10 deg bound). NOT caught: the Nelder-Mead shape
 stages skipped (they barely improve on the stature-matched start; an open item of issue 13).
 """
 
@@ -55,9 +56,10 @@ def test_fit_recovers_pose(scores):
 
 
 def test_fit_recovers_light_and_albedo(scores):
-    # the issue's goal is 10 deg; measured 21 deg here, 29-38 deg on hidden subjects (docs/garment.md)
-    assert scores["light_dir_err_deg"] <= 45.0, scores
-    assert scores["albedo_err"] <= 0.18, scores  # measured 0.146 here, 0.084-0.124 on hidden subjects
+    # the issue's goal: 10 deg. Measured 3.97 deg here (3.2-5.8 on hidden subjects); the first version of
+    # §5 (per-vertex albedo, no sparsity: estimate_appearance(grouped=False, sparsity=0)) gave 21 deg
+    assert scores["light_dir_err_deg"] <= 10.0, scores
+    assert scores["albedo_err"] <= 0.14, scores  # measured 0.114 here (first version 0.146), 0.075-0.107 hidden
 
 
 def test_fit_folder_round_trip(fitted):
@@ -148,3 +150,36 @@ def test_stature_out_of_range_is_refused(tmp_path):
 
     with pytest.raises(InputError, match="between 0.5 and 2.5"):
         fit_garment_video(tmp_path, 3.0, tmp_path / "out")
+
+
+def test_pose_residuals_stay_finite_when_the_body_passes_behind_the_camera():
+    """A trial step that carries the body through the camera gives large, finite residuals (it used to give
+    NaN pixels, and the KD-tree of the silhouette term raised on a video of noise)."""
+    from bodystudio.body import build_body
+    from bodystudio.garment.fit import (
+        PoseProblem,
+        camera_hypothesis,
+        finite_projection,
+        penetration_spheres,
+        pose_residuals,
+        pose_space,
+        silhouette_target,
+    )
+
+    body = build_body(resolution="2k")
+    space = pose_space(body)
+    cam = camera_hypothesis(160, 120)  # 1 m high, looking along -z
+    mask = np.zeros((120, 160), bool)
+    mask[20:100, 60:100] = True
+    problem = PoseProblem(space, cam, silhouette_target(mask), penetration_spheres(body))
+    x = np.zeros(space.n_params)
+    x[6:] = space.base[space.bone_ids].ravel()
+    x[3:6] = (0.0, 0.0, -3.0)  # in front of the camera
+    in_front = pose_residuals(x, problem)
+    x[5] = 3.0  # behind it
+    behind = pose_residuals(x, problem)
+    assert np.isfinite(in_front).all() and np.isfinite(behind).all()
+    assert np.linalg.norm(behind) > 5 * np.linalg.norm(in_front)
+    uv = finite_projection(cam, np.array([[0.0, 1.0, -2.0], [0.0, 1.0, 1.0], [0.0, 1.0, -0.01]]), (120, 160))
+    assert np.allclose(uv[0], cam.project(np.array([[0.0, 1.0, -2.0]]))[0])
+    assert np.allclose(uv[1:], [(-480.0, -360.0)] * 2)

@@ -188,3 +188,28 @@ def test_posed_target_uses_the_rig_given_and_poses_only_the_subset(model_source)
     assert Vs_sub.shape == (3, 3)
     np.testing.assert_allclose(Vs_sub, Vs[sub], atol=1e-12)
     np.testing.assert_allclose(Vt_sub, Vt[sub], atol=1e-12)
+
+
+def test_target_skeleton_from_the_model_moves_the_joints_by_the_regressor(model_6k, model_source):
+    """With the model and the target's coefficients (what ``mirror run`` does, lead 4) the source's joints move by
+    ``model.skeleton(c_T) - model.skeleton(c_S)``, whatever the source skeleton is; the root stays. On a source
+    that carries the model's own joints this is the model's target skeleton exactly, and it differs from Eq. 3's."""
+    c_s = model_source.coeffs
+    c_t = target_coeffs(model_6k, c_s, {"taller": 0.17, "heavier": 15.0})
+    V_t = model_6k.vertices(c_t)
+    sk_s, sk_t = model_6k.skeleton(c_s), model_6k.skeleton(c_t)
+    roots = np.asarray(sk_s.parents) < 0
+    # a source with Eq. 3's skeleton (an older source_body.npz): moved by the regressor's change
+    moved = target_skeleton(model_source, V_t, model_6k, c_t)
+    eq3 = model_source.skeleton
+    np.testing.assert_allclose(moved.heads[~roots], (eq3.heads + sk_t.heads - sk_s.heads)[~roots], atol=1e-12)
+    np.testing.assert_allclose(moved.tails[~roots], (eq3.tails + sk_t.tails - sk_s.tails)[~roots], atol=1e-12)
+    np.testing.assert_array_equal(moved.heads[roots], eq3.heads[roots])
+    # a source with the model's joints (what mirror init writes): the model's target skeleton, root kept
+    own = SourceBody(c_s, model_source.vertices, sk_s, (0,), 0.0, model_6k.weights, model_6k.faces)
+    exact = target_skeleton(own, V_t, model_6k, c_t)
+    np.testing.assert_allclose(exact.heads[~roots], sk_t.heads[~roots], atol=1e-12)
+    np.testing.assert_allclose(exact.tails[~roots], sk_t.tails[~roots], atol=1e-12)
+    np.testing.assert_array_equal(exact.heads[roots], sk_s.heads[roots])
+    by_eq3 = target_skeleton(own, V_t)
+    assert np.abs(by_eq3.heads - exact.heads)[~roots].max() > 1e-3  # Eq. 3 is another skeleton

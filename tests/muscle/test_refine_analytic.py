@@ -633,3 +633,24 @@ def test_model_based_filtering_refines_with_its_norm_limit(model_case):
     got = refine.model_based_filtering(model, shape, truth.root, mesh, base, model.part_weights, ones, frame, J,
                                        norm_limit=0.0)[1]
     np.testing.assert_allclose(got.angles, want.angles, atol=1e-12)
+
+
+def test_a_fixed_shape_fits_only_the_root_without_a_scipy_warning(model_case):
+    """``fixed_shape``: the root alone is solved (the shape bounds x0 +- 1e-9 made scipy warn); the shape is
+    returned exactly as given and the planted root offset is found as before (measured to 1e-7 m)."""
+    import warnings
+
+    from bodystudio.muscle.model import ArmShapeParams, model_mesh
+
+    model, shape, J, truth, mesh, sensor = model_case
+    offset = np.array([-0.005, 0.004, 0.003])
+    moved = ArmPose(truth.root.copy(), truth.angles)
+    moved.root[:3, 3] += offset
+    given = ArmShapeParams(shape.bmi + 15.0, shape.muscularity, shape.height_m, shape.arm_length_m)  # out of range
+    frame = _frame(model_mesh(model, given, moved), model.faces, model.arm_mask, sensor)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got, root = refine.fit_shape_parameters(model, [mesh], [truth], [frame], initial=given, fixed_shape=True,
+                                                rounds=3)
+    assert got == given
+    np.testing.assert_allclose(root[:3, 3], offset, atol=2e-4)

@@ -65,6 +65,25 @@ def test_video_without_a_person(tmp_path, capfd):
     assert not (tmp_path / "o").exists()
 
 
+def test_video_of_noise_is_not_a_person(tmp_path, capfd):
+    """A clip whose every pixel changes (sensor noise, a moving camera) is refused before any fit: its
+    "moving region" floods the image (it used to reach the pose fit and crash there on NaN pixels)."""
+    rng = np.random.default_rng(1)
+    clip = _video(tmp_path / "noise.mp4", [rng.integers(0, 255, (64, 48, 3)).astype(np.uint8) for _ in range(8)])
+    r = run_inprocess(["garment", "fit", clip, "--stature", "1.7", "--out", tmp_path / "o"], capfd)
+    assert_clean_error(r, 2, "not an actor")
+    assert not (tmp_path / "o").exists()
+
+
+def test_reversed_frame_range_of_a_video(tmp_path, capfd):
+    """``--frames 5:2`` on a video: refused for its order, not reported as a 2-frame video."""
+    plate = np.full((32, 32, 3), 90, np.uint8)
+    clip = _video(tmp_path / "c.mp4", [plate] * 8)
+    r = run_inprocess(["garment", "fit", clip, "--stature", "1.7", "--out", tmp_path / "o", "--frames", "5:2"], capfd)
+    assert_clean_error(r, 2, "below END")
+    assert not (tmp_path / "o").exists()
+
+
 def test_video_person_masks_follow_a_moving_blob(tmp_path):
     """The plain-video path: the temporal-median background finds a moving person-sized region."""
     from bodystudio.garment.person import person_frames
@@ -107,7 +126,7 @@ def test_output_folder_exists(tiny_session, tmp_path, capfd):
     assert [p.name for p in out.iterdir()] == ["keep.txt"]
 
 
-@pytest.mark.parametrize("frames, phrase", [("2:9", "out of range"), ("5:3", "out of range"),
+@pytest.mark.parametrize("frames, phrase", [("2:9", "out of range"), ("5:3", "below END"),
                                             ("a:b", "use START:END"), ("1:2:3", "use START:END")])
 def test_frames_out_of_range(tiny_session, tmp_path, capfd, frames, phrase):
     r = run_inprocess(["garment", "fit", tiny_session, "--stature", "1.7", "--out", tmp_path / "o",

@@ -42,6 +42,22 @@ def test_payload_carries_the_mesh_and_its_heat_map_colours(body_mesh, tmp_path):
     assert payload["colorBars"][0]["max"] == pytest.approx(10.0)
 
 
+def test_payload_keeps_a_vertex_coloured_mesh_added_after_the_camera(body_mesh):
+    """A mesh with RGB vertex colours added after the view was framed (a frame layer swapped in) is exported:
+    its mapper's input is only filled when the pipeline runs."""
+    from bodystudio.geometry.mesh import Mesh
+    from bodystudio.viewer.webgl import scene_payload
+
+    plotter = scene_for_mesh(body_mesh, plotter=sc.make_plotter(window_size=(320, 240)))
+    colors = np.tile(np.array([[200, 40, 30]], np.uint8), (body_mesh.n_vertices, 1))
+    sc.add_mesh(plotter, Mesh(body_mesh.vertices + [1.0, 0, 0], body_mesh.faces, vertex_colors=colors), name="late")
+    objects = {o["name"]: o for o in scene_payload(plotter)["objects"]}
+    assert objects["late"]["n"] == body_mesh.n_vertices
+    rgb = np.frombuffer(base64.b64decode(objects["late"]["colors"]), np.uint8).reshape(-1, 3)
+    assert (rgb == [200, 40, 30]).all()
+    plotter.close()
+
+
 def test_empty_scene_html_is_an_error(tmp_path):
     plotter = sc.make_plotter(window_size=(320, 240))
     with pytest.raises(sc.EmptySceneError):
