@@ -191,7 +191,7 @@ def test_the_image_steps_get_the_frames_inputs(scene, monkeypatch):
     assert kw == {"background": scene.background, "unseen": unseen, "band_px": 4}
     src, dst, shape, kw = seen["field"]
     assert src is scene.src and dst is scene.dst and shape == (H, W)
-    assert kw == {"kind": "affine", "alpha": MLS_ALPHA, "groups": groups, "radius_px": MLS_RADIUS_PX}
+    assert kw == {"kind": "affine", "alpha": MLS_ALPHA, "groups": groups, "radius_px": MLS_RADIUS_PX, "dense": None}
     fg, kw = seen["update"][-1]
     assert kw == {"unverified": unseen}
     # the model learns away from the refined foreground, the SDK mask and the other players
@@ -370,12 +370,17 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, play
             d[current["seen"]] = 0.8
         return d, player
 
-    def pairs(Vs, Vt, faces, cam, n, rim_cos=None):
+    def pairs(Vs, Vt, faces, cam, n, rim_cos=None, dense=False):
         assert n == run_mod.N_HANDLES and rim_cos == run_mod.RIM_COS and cam is camera and faces is body.faces
-        return np.zeros((20, 2)) + Vs[0, 0], np.zeros((20, 2)) + Vt[0, 0], None
+        return SimpleNamespace(src_uv=np.zeros((20, 2)) + Vs[0, 0], dst_uv=np.zeros((20, 2)) + Vt[0, 0],
+                               dense="dense" if dense else None)
 
-    def posed(b, target_rest, pose):
-        assert b is body
+    def rig(b, target_rest, m, coeffs):
+        assert b is body and m is model
+        return ("rig", float(coeffs[0]))
+
+    def posed(b, target_rest, pose, target_rig=None):
+        assert b is body and target_rig == ("rig", pytest.approx((target_rest[0, 0] - 1.0) / 9.0))
         f.bodies.append((target_rest[0, 0], pose))
         return b.vertices, target_rest
 
@@ -388,7 +393,8 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, play
 
     monkeypatch.setattr(reshape_mod, "target_coeffs", target)
     monkeypatch.setattr(reshape_mod, "posed_source_and_target", posed)
-    monkeypatch.setattr(run_mod, "visible_vertex_pairs", pairs)
+    monkeypatch.setattr(reshape_mod, "target_skeleton", rig)
+    monkeypatch.setattr(run_mod, "warp_pairs", pairs)
     session = SimpleNamespace(path="S", frame_ids=sorted(spec), kinect=SimpleNamespace(color=camera, version="v2"))
     body = SimpleNamespace(coeffs=np.zeros(1), vertices=np.full((3, 3), 1.0), skeleton="sk", faces="faces")
     model = SimpleNamespace(vertices=lambda c: np.full((3, 3), 1.0 + 9.0 * c[0]))
@@ -555,14 +561,15 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
     got.clear()
     assert run_mirror(session, {"taller": 0.1}, None, progress=False, player=2, kind="rigid", ramp_frames=5,
                       frames=[2, 0], side_by_side=False) == "DOC"
-    assert got["inputs"] == (session, "body", "model", {"taller": 0.1}, 2, 5, [2, 0])
+    assert got["inputs"] == (session, "body", "model", {"taller": 0.1}, 2, 5, [2, 0], run_mod.CORRESPONDENCE)
     assert got["load"] == (session, None)
     s = got["stream"]
     assert s["inputs"] == "INPUTS" and s["run_dir"] == tmp_path / "mirror" / "run" and s["fps"] == 15.0
     assert s["kind"] == "rigid" and s["total"] == 2 and s["preview"] is None and s["progress"] is False
     assert s["sbs"] is False
     assert s["manifest"] == {"session": str(tmp_path.resolve()), "session_run_id": "r1", "live": None,
-                             "edits": {"taller": 0.1}, "player": 2, "ramp_frames": 5}
+                             "edits": {"taller": 0.1}, "player": 2, "ramp_frames": 5,
+                             "correspondence": run_mod.CORRESPONDENCE}
     # the defaults, and the limits of each range accepted
     got.clear()
     run_mirror(_fake_session(tmp_path, metadata=None, manifest={}), {}, None, run_dir=tmp_path / "r", player=6,
@@ -570,7 +577,7 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
     s = got["stream"]
     assert s["fps"] == 30.0 and s["total"] == 3 and s["run_dir"] == tmp_path / "r"
     assert s["sbs"] is True and s["progress"] is True and s["kind"] == "similarity"
-    assert s["manifest"]["session_run_id"] is None and got["inputs"][4:] == (6, 10000, [0, 1, 2])
+    assert s["manifest"]["session_run_id"] is None and got["inputs"][4:7] == (6, 10000, [0, 1, 2])
     for fps in (1.0, 240.0):
         run_mirror(_fake_session(tmp_path, metadata={"fps": fps}), {}, None, ramp_frames=0, player=1)
         assert got["stream"]["fps"] == fps
@@ -611,7 +618,7 @@ def test_run_mirror_live_reads_the_live_folder(tmp_path, monkeypatch):
     _wired(monkeypatch, got)
     run_mirror(session, {}, None, live=live, frames=[1])
     assert calls == {"session": live, "ids": (live, 5.0)}
-    assert got["inputs"][0] is live_session and got["inputs"][-1] == "IDS"
+    assert got["inputs"][0] is live_session and got["inputs"][6] == "IDS"
     s = got["stream"]
     assert s["total"] is None and s["preview"] == tmp_path / "mirror" / "run" / "live_latest.png"
     assert s["manifest"]["live"] == str(live.resolve())
