@@ -169,7 +169,8 @@ def test_the_image_steps_get_the_frames_inputs(scene, monkeypatch):
         return out
 
     def field(src, dst, shape, **kw):
-        seen["field"] = (src, dst, shape, kw)
+        seen["field"] = (src, dst, shape, dict(kw))
+        kw["dense"] = None  # the stand-in below is no correspondence
         return real_field(src, dst, shape, **kw)
 
     def update(model, rgb, fg, **kw):
@@ -184,14 +185,15 @@ def test_the_image_steps_get_the_frames_inputs(scene, monkeypatch):
     unseen[:, :5] = True
     groups = np.zeros(len(scene.src), int)
     inp = MirrorInput(6, scene.rgb, scene.person, scene.others, depth, scene.src, scene.dst, pair_groups=groups,
-                      unseen=unseen)
+                      unseen=unseen, dense="the dense correspondence")
     mirror_frame(inp, scene.background, "affine", {"band_px": 4})
     mask, d, kw = seen["refine"]
     assert mask is scene.person and d is depth
     assert kw == {"background": scene.background, "unseen": unseen, "band_px": 4}
     src, dst, shape, kw = seen["field"]
     assert src is scene.src and dst is scene.dst and shape == (H, W)
-    assert kw == {"kind": "affine", "alpha": MLS_ALPHA, "groups": groups, "radius_px": MLS_RADIUS_PX, "dense": None}
+    assert kw == {"kind": "affine", "alpha": MLS_ALPHA, "groups": groups, "radius_px": MLS_RADIUS_PX,
+                  "dense": "the dense correspondence"}
     fg, kw = seen["update"][-1]
     assert kw == {"unverified": unseen}
     # the model learns away from the refined foreground, the SDK mask and the other players
@@ -426,6 +428,7 @@ def test_session_inputs_warn_per_frame_and_ramp_the_edit(monkeypatch):
     assert [p for _, p in f.bodies] == ["pose4", "pose5", "pose7", "pose8"]
     assert ok[0].dst_uv[0, 0] == pytest.approx(4.0) and ok[0].src_uv[0, 0] == 1.0
     np.testing.assert_array_equal(ok[0].depth_color, np.full((CH, CW), 0.8))
+    assert all(o.dense == "dense" for o in ok)  # the default correspondence is the dense one, passed on
     # the IK is warm-started from the last successful pose
     assert f.ik_calls == [(4.0, None), (5.0, "pose4"), (6.0, "pose5"), (7.0, "pose5"), (8.0, "pose7")]
     # masks: the person, the other players
@@ -581,6 +584,10 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
     for fps in (1.0, 240.0):
         run_mirror(_fake_session(tmp_path, metadata={"fps": fps}), {}, None, ramp_frames=0, player=1)
         assert got["stream"]["fps"] == fps
+    run_mirror(session, {}, None)
+    assert got["inputs"][4:6] == (1, 30)  # player 1, a 30-frame ramp by default
+    with pytest.raises(InputError, match="^--correspondence 'tps'; valid: dense, mls$"):
+        run_mirror(session, {}, None, correspondence="tps")
     # a source body given as an object is not looked for on disk
     (tmp_path / "mirror" / "source_body.npz").unlink()
     with pytest.raises(FileFormatError, match="source_body.npz: source body not found; run 'bodystudio mirror init "
