@@ -128,6 +128,20 @@ def test_pixels_next_to_a_depth_jump_are_dropped_and_below_the_threshold_kept():
     assert (out[:, 5:7] == 0).all() and (out[:, :5] > 0).all() and (out[:, 7:] > 0).all()
     # the same step below the threshold stays
     assert (clean_depth(d, _opts(discontinuity_m=0.06)) > 0).all()
+    # the step the other way round, and along the rows: the same two lines either side of it
+    d_rev = np.full((8, 12), 1.05)
+    d_rev[:, 6:] = 1.0
+    out = clean_depth(d_rev, _opts(discontinuity_m=0.03))
+    np.testing.assert_array_equal(np.flatnonzero((out == 0).all(axis=0)), [5, 6])
+    assert np.count_nonzero(out == 0) == 16
+    out = clean_depth(d_rev.T.copy(), _opts(discontinuity_m=0.03))
+    np.testing.assert_array_equal(np.flatnonzero((out == 0).all(axis=1)), [5, 6])
+    assert np.count_nonzero(out == 0) == 16
+    # "farther than" the threshold: a jump of exactly the threshold stays (0.0625 is exact in float32)
+    d_eq = np.full((8, 12), 1.0)
+    d_eq[:, 6:] = 1.0625
+    assert (clean_depth(d_eq, _opts(discontinuity_m=0.0625)) > 0).all()
+    assert (clean_depth(d_eq, _opts(discontinuity_m=0.0624))[:, 5:7] == 0).all()
     # the threshold is strict and measured on the raw depth (before the median smooths the step)
     d2 = np.full((8, 12), 1.0)
     d2[:, 6:] = 1.25
@@ -142,6 +156,14 @@ def test_the_edge_of_the_valid_region_is_no_depth_jump():
     d[0, :] = 2.0  # beyond far_m
     out = clean_depth(d, _opts(discontinuity_m=0.03))
     np.testing.assert_array_equal(out > 0, d == 1.0)
+    # ... but a jump right at the edge of the valid region is marked (missing neighbours are ignored, not
+    # allowed to hide it)
+    e = np.zeros((8, 12))
+    e[:, 2] = 1.05
+    e[:, 3:9] = 1.0
+    out = clean_depth(e, _opts(discontinuity_m=0.03))
+    np.testing.assert_array_equal(np.flatnonzero((out > 0).all(axis=0)), [4, 5, 6, 7, 8])
+    np.testing.assert_array_equal(np.flatnonzero((out > 0).any(axis=0)), [4, 5, 6, 7, 8])
     # the image border is no jump either
     full = clean_depth(np.full((6, 7), 0.8), _opts(discontinuity_m=0.03))
     np.testing.assert_allclose(full, 0.8, atol=1e-7)
@@ -276,3 +298,6 @@ def test_a_degenerate_neighbourhood_gives_no_point_and_a_wrong_size_is_refused()
     assert len(P) == 80 - 2 - 4 - 4 + 1  # two holes and their 4 neighbours each ((4, 6) shared)
     with pytest.raises(InputError, match=r"^f: depth map is 11x10 but the depth camera depth is 12x10; "):
         depth_point_cloud(np.ones((10, 11)), cam, source="f")
+    with pytest.raises(InputError, match=r"^depth: depth map is 11x10 but the depth camera depth is 12x10; use the "
+                                         r"session's own calibration$"):
+        depth_point_cloud(np.ones((10, 11)), cam)
