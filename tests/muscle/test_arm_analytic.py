@@ -104,6 +104,17 @@ def test_arm_pose_converts_its_fields():
                            "wrist": [0, 0, 0]})
     assert q.root.dtype == np.float64 and q.angles.dtype == np.float64
     np.testing.assert_array_equal(q.angles[0], [1.0, 2.0, 3.0])
+    # numbers written as strings (a hand-edited JSON) are read as numbers; other strings are refused
+    s = ArmPose.from_dict({"root": [["1", "0", "0", "0"], ["0", "1", "0", "0"], ["0", "0", "1", "0"],
+                                    ["0", "0", "0", "1"]], "shoulder": ["0", "0", "0.5"], "elbow": [0, 0, 0],
+                           "wrist": [0, 0, 0]})
+    np.testing.assert_array_equal(s.root, np.eye(4))
+    np.testing.assert_array_equal(s.angles[0], [0.0, 0.0, 0.5])
+    with pytest.raises(InputError, match=r"^arm pose: needs 'root' \(4x4\)"):
+        ArmPose.from_dict({"root": [["a"] * 4] * 4, "shoulder": [0, 0, 0], "elbow": [0, 0, 0], "wrist": [0, 0, 0]})
+    with pytest.raises(InputError, match=r"^arm pose: needs 'root' \(4x4\)"):
+        ArmPose.from_dict({"root": np.eye(4).tolist(), "shoulder": ["x", 0, 0], "elbow": [0, 0, 0],
+                           "wrist": [0, 0, 0]})
     d = p.to_dict()
     assert list(d) == ["root", *JOINT_NAMES] and d["elbow"] == [3.0, 4.0, 5.0]
 
@@ -154,6 +165,8 @@ def test_with_vertices_is_another_subject_on_the_same_template(arm_template_2k):
     assert O.key == T.key and O.side == T.side and O.resolution == T.resolution and O.n_vertices == T.n_vertices
     assert O.vertex_ids is T.vertex_ids and O.faces is T.faces and O.part_weights is T.part_weights
     assert O.arm_mask is T.arm_mask and O.joints is T.joints
+    Oi = T.with_vertices(np.ones(T.vertices.shape, dtype=int))
+    assert Oi.vertices.dtype == np.float64
     J = np.arange(9)
     O2 = T.with_vertices(V, J)
     assert O2.joints.shape == (3, 3) and O2.joints.dtype == np.float64
