@@ -429,7 +429,8 @@ def test_capture_arm_sequence_reads_depth_and_tracker_joints(monkeypatch):
     seen = {}
 
     def fake_frames(depths, camera, template, model, options, tracker, ids, known):
-        seen.update(depths=depths, camera=camera, tracker=tracker, ids=ids, known=known, options=options, model=model)
+        seen.update(depths=depths, camera=camera, tracker=tracker, ids=ids, known=known, options=options, model=model,
+                    template=template)
         return ArmCapture(np.zeros((len(depths), 1, 3)), np.zeros((0, 3)), [], None, (1.0, np.eye(3), np.zeros(3)),
                           options.mode, "k")
 
@@ -441,6 +442,7 @@ def test_capture_arm_sequence_reads_depth_and_tracker_joints(monkeypatch):
     assert seen["ids"] == [1, 2] and [d[0, 0] for d in seen["depths"]] == [1.0, 2.0] and seen["camera"] == "CAM"
     np.testing.assert_array_equal(seen["tracker"], pos[1:3, 1:4])
     assert seen["known"] == "SHAPE" and seen["options"] is o and seen["model"] == "MODEL"
+    assert seen["template"] is left
     assert c.session_path == str(__import__("pathlib").Path("/tmp/fake-session").resolve())
     cap_mod.capture_arm_sequence(session, None, left)
     assert seen["ids"] == [0, 1, 2] and seen["options"] == CaptureOptions() and seen["known"] is None
@@ -499,6 +501,28 @@ def test_capture_session_arm_opens_session_template_and_model(monkeypatch, tiny_
         cap_mod.capture_session_arm("S", None, side="top")
 
 
+def test_capture_session_arm_accepts_each_template_and_passes_it_on(monkeypatch):
+    import bodystudio.body as body_mod
+    import bodystudio.capture.session as session_mod
+    import bodystudio.muscle.arm as arm_mod
+    import bodystudio.muscle.model as model_mod
+
+    session, _ = _fake_session(n=2)
+    monkeypatch.setattr(session_mod, "open_session", lambda p: session)
+    built, loaded, seen = [], [], {}
+    monkeypatch.setattr(body_mod, "build_body", lambda resolution: built.append(resolution) or f"body-{resolution}")
+    monkeypatch.setattr(arm_mod, "arm_template", lambda body, side: f"{body}-{side}")
+    monkeypatch.setattr(model_mod, "load_arm_model", lambda path, template: loaded.append((path, template)) or "M")
+    monkeypatch.setattr(cap_mod, "capture_arm_sequence",
+                        lambda s, model, template, options, frames=None, known_shape=None: seen.update(
+                            model=model, template=template))
+    for res in ("6k", "2k", "full"):
+        for side in ("left", "right"):
+            cap_mod.capture_session_arm("S", "m.npz", mode="nicp", resolution=res, side=side)
+            assert seen == {"model": "M", "template": f"body-{res}-{side}"}
+            assert loaded[-1] == ("m.npz", f"body-{res}-{side}") and built[-1] == res
+
+
 # --- the output folder --------------------------------------------------------------------------------------
 
 def _tiny_capture(shape, poses):
@@ -538,15 +562,57 @@ def test_capture_folder_round_trips_every_field(tmp_path):
     assert (tmp_path / "out" / "arm.glb").stat().st_size > 0
 
 
+def test_a_one_frame_folder_and_a_folder_without_optional_fields(tmp_path):
+    import json
+
+    c = _tiny_capture(None, [None, None])
+    one = ArmCapture(c.vertices[:1], c.faces, [None], None, c.similarity, "nicp", "k")
+    cap_mod.write_arm_capture(tmp_path / "one", one)
+    back = cap_mod.load_arm_capture(tmp_path / "one")
+    assert back.n_frames == 1 and back.faces.dtype == np.int64 and back.frame_ids == []
+    # params with only what the reader needs (older or hand-written folders): the defaults
+    p = tmp_path / "one" / "params.json"
+    params = json.loads(p.read_text())
+    params = {"similarity": {"scale": 1, "R": np.eye(3, dtype=int).tolist(), "t": [[0], [1], [2]]},
+              "poses": params["poses"]}
+    p.write_text(json.dumps(params))
+    back = cap_mod.load_arm_capture(tmp_path / "one")
+    assert (back.mode, back.template_key, back.timings_ms, back.frame_ids, back.session_path, back.shape) == \
+        ("full", "", {}, [0], None, None)
+    assert back.similarity[1].dtype == np.float64 and back.similarity[2].dtype == np.float64
+    assert back.similarity[2].shape == (3,) and back.similarity[2].tolist() == [0.0, 1.0, 2.0]
+    assert isinstance(back.similarity[0], float)
+
+
+def test_capture_folder_messages_name_the_folder_and_the_cause(tmp_path):
+    import json
+
+    c = _tiny_capture(None, [ArmPose.rest(), None])
+    out = tmp_path / "out"
+    cap_mod.write_arm_capture(out, c)
+    with pytest.raises(InputError, match=r"^.*out: arm capture folder already exists; choose a new path or remove it$"):
+        cap_mod.write_arm_capture(out, c)
+    params = json.loads((out / "params.json").read_text())
+    params["poses"][0] = {"root": [1, 2], "shoulder": [0, 0, 0], "elbow": [0, 0, 0], "wrist": [0, 0, 0]}
+    (out / "params.json").write_text(json.dumps(params))
+    with pytest.raises(FileFormatError, match=r"^.*out: not a readable arm capture folder \(InputError: "
+                                              r".*out/params.json: 'root' must be a finite 4x4 matrix"):
+        cap_mod.load_arm_capture(out)
+    (out / "params.json").write_text("{junk")
+    with pytest.raises(FileFormatError, match=r"\(JSONDecodeError: "):
+        cap_mod.load_arm_capture(out)
+
+
 def test_capture_folder_without_shape_or_with_a_vector_shape(tmp_path):
     c = _tiny_capture(None, [None, None])
     cap_mod.write_arm_capture(tmp_path / "a", c)
     back = cap_mod.load_arm_capture(tmp_path / "a")
     assert back.shape is None and back.poses == [None, None]
-    vec = SimpleNamespace(as_vector=lambda: np.array([1.0, 2.0]))
+    vec = SimpleNamespace(as_vector=lambda: np.array([1, 2]))
     cap_mod.write_arm_capture(tmp_path / "b", _tiny_capture(vec, [None, None]))
     assert cap_mod.load_arm_capture(tmp_path / "b").shape == {"vector": [1.0, 2.0]}
-    assert cap_mod._shape_dict(vec) == {"vector": [1.0, 2.0]}
+    d = cap_mod._shape_dict(vec)
+    assert d == {"vector": [1.0, 2.0]} and all(isinstance(v, float) for v in d["vector"])
 
 
 @pytest.mark.parametrize("damage", ["no_params", "junk_params", "no_mesh", "bad_pose", "bad_similarity"])
@@ -598,4 +664,6 @@ def test_files_of_a_capture_are_written_where_the_caller_says(tmp_path, monkeypa
     assert names == ["meshes", "arm.glb", "params.json", "manifest.json"]
     assert (tmp_path / "manifest.json").is_file()
     cap_mod.write_arm_capture(tmp_path / "default", c)
-    assert fps == [12.0, 30.0]
+    cap_mod.write_arm_capture(tmp_path / "fps24", c, fps=24.0)
+    cap_mod.write_arm_capture_files(lambda rel: tmp_path / "files" / rel, c)
+    assert fps == [12.0, 30.0, 24.0, 30.0]
