@@ -166,6 +166,21 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     assert [k.args[8].iterations for k in icp] == [2, 1, 1]
     assert all(k.args[8].data_weight == 0.9 for k in icp)
     assert icp[1].args[8] is nicp_o
+    from bodystudio.muscle.arm import pose_arm
+    from bodystudio.muscle.model import model_joints, model_mesh, model_rest_vertices
+    from bodystudio.muscle.nicp import vertex_neighbourhoods
+    from bodystudio.muscle.refine import arm_pose_from_part_transforms, procrustes_part_transforms
+
+    T = scene.template
+    adjacency = vertex_neighbourhoods(np.asarray(T.faces, np.int64), T.n_vertices, rings=2)
+    assert (icp[0].args[7] != adjacency).nnz == 0 and icp[0].args[7] is icp[2].args[7]
+    base0 = model_rest_vertices(scene.model, scene.shape)  # the fit starts at the population's mean shape
+    start = ArmPose(np.eye(4), spies["initial_arm_pose_from_joints"][0].out.angles)
+    np.testing.assert_allclose(icp[0].args[2], pose_arm(base0, T.part_weights, scene.J, start), atol=1e-12)
+    for k in range(3):  # each frame's own cloud and its k-d tree
+        np.testing.assert_array_equal(icp[k].kwargs["tree"].data, icp[k].args[3])
+        assert len(icp[k].args[3]) == len(spies["depth_point_cloud"][k].out[0])
+        np.testing.assert_array_equal(icp[k].args[6], T.arm_mask)
     # Sec. 6.2: shape fit rounds, the tracker weights, the arm length of all frames' tracker chains
     fits = spies["fit_shape_parameters"]
     assert len(fits) == 2
@@ -181,6 +196,22 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
         np.testing.assert_allclose(kw["tracker_joints"].reshape(-1, 3),
                                    apply_similarity(Sinv, scene.tracker[:2].reshape(-1, 3)), atol=1e-12)
     assert fits[1].args[4] is fits[0].out[0]  # the second round starts from the first round's shape
+    assert fits[0].args[4] is None or np.allclose(fits[0].args[4].as_vector(), scene.shape.as_vector())
+    # the first round's poses: Procrustes (Eq. 11) of each NICP mesh with its kept pairs (+ 0.05), no wrist
+    for j, p in enumerate(fits[0].args[2]):
+        w = icp[j].out[1].kept.astype(float) + 0.05
+        exp = arm_pose_from_part_transforms(procrustes_part_transforms(base0, icp[j].out[0], T.part_weights, w))
+        np.testing.assert_allclose(p.angles[:2], exp.angles[:2], atol=1e-12)
+        assert (p.angles[2] == 0).all() and np.array_equal(p.root, np.eye(4))
+    # the second round's: the first round's model-based filtering of each shape frame
+    assert [q is m.out[1] for q, m in zip(fits[1].args[2], spies["model_based_filtering"][:2], strict=True)] \
+        == [True, True]
+    # each frame's depth data for the fits: its cloud, sensor, mask, neighbourhoods, filters, faces
+    for j, f in enumerate(fits[0].args[3]):
+        assert f.points is icp[j].args[3] and f.normals is icp[j].args[4] and f.tree is icp[j].kwargs["tree"]
+        assert f.sensor_center is icp[j].args[5] and f.arm_mask is T.arm_mask and f.adjacency is icp[j].args[7]
+        assert f.filters is nicp_o.filters
+        np.testing.assert_array_equal(f.faces, T.faces)
     mbf = spies["model_based_filtering"]
     assert len(mbf) == 2 * 2 + 2 + 1  # rounds x shape frames, then the shape frames and the last frame again
     for m in mbf:
@@ -192,8 +223,14 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     Sinv = cap_mod._inverse_similarity(c.similarity)
     for j, m in enumerate(mbf[-3:]):
         np.testing.assert_allclose(m.args[11], apply_similarity(Sinv, scene.tracker[j]), atol=1e-12)
-    for m in mbf[:4]:
+    for r, m in enumerate(mbf[:4]):
         assert len(m.args) == 13 and m.kwargs == {"huber_m": 0.001}
+        shape, root = fits[r // 2].out
+        assert m.args[0] is scene.model and m.args[1] is shape and m.args[2] is root
+        assert m.args[3] is icp[r % 2].out[0] and m.args[7] is fits[0].args[3][r % 2]
+        np.testing.assert_allclose(m.args[4], model_rest_vertices(scene.model, shape), atol=1e-12)
+        np.testing.assert_allclose(m.args[8], model_joints(scene.model, shape), atol=1e-12)
+        assert m.args[5] is T.part_weights
     # the sequence fit and the pose smoothing
     (seq,) = spies["fit_arm_sequence"]
     assert seq.args[5:] == (0.8, seq.args[6], 15.0, 7.0, 1, 2, 0.003, True)
@@ -205,6 +242,10 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     (sm,) = spies["smooth_arm_poses"]
     assert sm.args[0] is seq.out and sm.args[1] == 2.0
     assert c.poses is sm.out
+    # the model meshes rebuilt from the smoothed poses with the norm limit
+    for i in range(3):
+        np.testing.assert_allclose(c.stages["model"][i], apply_similarity(c.similarity, model_mesh(
+            scene.model, fits[-1].out[0], sm.out[i], norm_limit=0.8)), atol=1e-12)
     # Sec. 7: the window's sigma, the Sec. 7.2 weights, the last ARAP
     tcc = spies["time_consistent_correspondences"]
     assert [k.args[2] for k in tcc] == [1.3] * 3
@@ -217,11 +258,13 @@ def test_the_arm_length_and_tracker_weight_without_a_tracker_and_with_a_known_sh
                                 "model_based_filtering", "fit_arm_sequence", "smooth_arm_poses"))
     from bodystudio.muscle.model import model_rest_vertices
 
-    o = CaptureOptions(mode="model", shape_frames=1, shape_rounds=1, first_frame_nicp_iterations=1,
+    o = CaptureOptions(mode="model", shape_frames=5, shape_rounds=1, first_frame_nicp_iterations=1,
                        nicp=NicpOptions(iterations=1), tracker_root_weight=3.0, sequence_rounds=0,
                        pose_sigma_frames=0.0)
     c = capture_arm_frames(scene.depths[:2], scene.camera, scene.template, scene.model, o, known_shape=scene.shape)
     (f,) = spies["fit_shape_parameters"]
+    assert len(f.args[2]) == 2 and len(f.args[3]) == 2  # shape_frames beyond the sequence: all its frames
+    assert len(spies["model_based_filtering"]) == 2 + 2
     assert f.kwargs["tracker_weight"] == 3.0 and f.kwargs["fixed_shape"] is True
     assert f.kwargs["tracker_joints"] is None and f.kwargs["arm_length"] is None
     assert f.args[4] == scene.shape
@@ -277,6 +320,28 @@ def test_the_nicp_mode_restarts_each_frame_from_the_last_and_maps_back_to_world(
     np.testing.assert_allclose(c.vertices[1], apply_similarity(c.similarity, icp[1].out[0]), atol=1e-12)
 
 
+def test_the_sequence_fit_poses_make_the_model_meshes(scene, monkeypatch):
+    from bodystudio.muscle.model import model_mesh
+
+    spies = Spies(monkeypatch, ("fit_arm_sequence", "fit_shape_parameters"))
+    o = CaptureOptions(mode="model", **{**FAST, "pose_sigma_frames": 0.0, "norm_limit": 0.5})
+    c = capture_arm_frames(scene.depths[:2], scene.camera, scene.template, scene.model, o, known_shape=scene.shape)
+    (seq,) = spies["fit_arm_sequence"]
+    assert c.poses is seq.out and seq.args[5] == 0.5
+    shape = spies["fit_shape_parameters"][-1].out[0]
+    for i in range(2):
+        np.testing.assert_allclose(c.vertices[i], apply_similarity(c.similarity, model_mesh(
+            scene.model, shape, seq.out[i], norm_limit=0.5)), atol=1e-12)
+
+
+def test_exactly_min_pixels_points_are_enough(scene):
+    from bodystudio.muscle.depth import clean_depth, depth_point_cloud
+
+    n = len(depth_point_cloud(clean_depth(scene.depths[0]), scene.camera)[0])
+    o = CaptureOptions(mode="nicp", first_frame_nicp_iterations=1, depth=DepthCleanupOptions(min_pixels=n))
+    assert capture_arm_frames(scene.depths[:1], scene.camera, scene.template, None, o).n_frames == 1
+
+
 # --- Sec. 7 refinement over the sequence ----------------------------------------------------------------
 
 @pytest.mark.parametrize("sigma", [0.0, 1.2])
@@ -308,6 +373,14 @@ def test_the_refinement_detail_is_averaged_over_five_frames(scene, monkeypatch, 
     assert [len(k.args[1]) for k in tcc] == [2, 3, 2]
 
 
+def depth_point_cloud_t(scene, Sinv, S):
+    """Frame 0's cleaned cloud in the template's space (points by the inverse similarity, normals rotated)."""
+    from bodystudio.muscle.depth import clean_depth, depth_point_cloud
+
+    P, N = depth_point_cloud(clean_depth(scene.depths[0]), scene.camera)
+    return apply_similarity(Sinv, P), N @ S[1]
+
+
 def test_one_frame_refinement_uses_only_that_frame(scene, monkeypatch):
     spies = Spies(monkeypatch, ("time_consistent_correspondences", "correspondence_weights", "refine_surface"))
     o = CaptureOptions(**{**FAST, "shape_frames": 1, "sequence_rounds": 0, "pose_sigma_frames": 0.0})
@@ -324,6 +397,23 @@ def test_one_frame_refinement_uses_only_that_frame(scene, monkeypatch):
     np.testing.assert_allclose(cw.args[3], posed_joints(model_joints(scene.model, scene.shape), c.poses[0]),
                                atol=1e-12)
     assert cw.args[0] is tcc.out[0] and cw.args[4] is tcc.out[1]
+    # the pairs recomputed by hand: closest points of the model mesh, the Sec. 5.2 filters, point-to-plane
+    from bodystudio.geometry.mesh import vertex_normals
+    from bodystudio.muscle import nicp
+
+    M = spies["refine_surface"][0].args[0]
+    F = np.asarray(scene.template.faces, np.int64)
+    assert cw.args[2] is M
+    np.testing.assert_allclose(cw.args[1], vertex_normals(M, F), atol=1e-12)
+    Sinv = cap_mod._inverse_similarity(c.similarity)
+    P, N = depth_point_cloud_t(scene, Sinv, c.similarity)
+    pairs = nicp.closest_point_correspondences(M, P, N)
+    C = apply_similarity(Sinv, scene.camera.center[None])[0]
+    pairs = nicp.filter_correspondences(M, vertex_normals(M, F), pairs, C, scene.template.arm_mask,
+                                        nicp.vertex_neighbourhoods(F, len(M), rings=2), o.nicp.filters)
+    np.testing.assert_array_equal(ok, pairs.kept)
+    np.testing.assert_allclose(vec, np.where(pairs.kept[:, None], nicp.plane_targets(M, pairs) - M, 0.0),
+                               atol=1e-12)
     assert spies["refine_surface"][0].args[2] is tcc.out[0] and spies["refine_surface"][0].args[3] is cw.out
     np.testing.assert_allclose(c.vertices[0], apply_similarity(c.similarity, spies["refine_surface"][0].out),
                                atol=1e-12)
