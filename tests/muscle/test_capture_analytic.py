@@ -344,7 +344,7 @@ def test_exactly_min_pixels_points_are_enough(scene):
 
 # --- Sec. 7 refinement over the sequence ----------------------------------------------------------------
 
-@pytest.mark.parametrize("sigma", [0.0, 0.8])
+@pytest.mark.parametrize("sigma", [0.0, 0.8, 1.2])
 def test_the_refinement_detail_is_averaged_over_five_frames(scene, monkeypatch, sigma):
     spies = Spies(monkeypatch, ("refine_surface", "time_consistent_correspondences"))
     o = CaptureOptions(**{**FAST, "sequence_rounds": 0, "detail_sigma_frames": sigma})
