@@ -84,3 +84,10 @@ def test_shape_parameters_from_a_dict_name_their_source():
         ArmShapeParams.from_dict({**d, "sex": "x"}, "subject.json")
     with pytest.raises(InputError, match=r"^shape parameters: sex 2.0 is not male"):
         ArmShapeParams.from_dict({**d, "sex": 2.0})
+
+
+def test_measured_shape_carries_the_phenotypes_sex():
+    from bodystudio.body import Phenotype
+    from bodystudio.muscle.model import measure_arm_shape
+
+    assert measure_arm_shape(Phenotype(gender=0.3, muscle=0.5, weight=0.5)).sex == 0.3
