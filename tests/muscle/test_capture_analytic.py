@@ -431,7 +431,8 @@ def test_capture_refusals(scene):
         capture_arm_frames(d, cam, t, None)
     with pytest.raises(InputError, match=r"^capture mode 'model' needs"):
         capture_arm_frames(d, cam, t, None, CaptureOptions(mode="model"))
-    with pytest.raises(InputError, match=r"^the arm model was built for template 6k-x, not " + t.key):
+    with pytest.raises(InputError, match=r"^the arm model was built for template 6k-x, not " + t.key
+                       + "; rebuild the model for this template resolution/side$"):
         capture_arm_frames(d, cam, t, SimpleNamespace(template_key="6k-x"), CaptureOptions(mode="nicp"))
     with pytest.raises(InputError, match=r"^no depth frames to capture$"):
         capture_arm_frames([], cam, t, None, CaptureOptions(mode="nicp"))
