@@ -122,7 +122,8 @@ def test_arm_pose_converts_its_fields():
 @pytest.mark.parametrize("data, why", [
     ({"root": np.eye(4).tolist(), "shoulder": [0, 0, 0], "elbow": [0, 0, float("nan")], "wrist": [0, 0, 0]},
      "angles not finite"),
-    ({"root": (np.eye(4) * np.inf).tolist(), "shoulder": [0, 0, 0], "elbow": [0, 0, 0], "wrist": [0, 0, 0]},
+    ({"root": np.where(np.eye(4) > 0, np.inf, 0.0).tolist(), "shoulder": [0, 0, 0], "elbow": [0, 0, 0],
+      "wrist": [0, 0, 0]},
      "root not finite"),
     ({"root": np.eye(4).tolist(), "shoulder": [0, 0], "elbow": [0, 0], "wrist": [0, 0]}, "joints not 3-vectors"),
     ({"root": np.eye(3).tolist(), "shoulder": [0, 0, 0], "elbow": [0, 0, 0], "wrist": [0, 0, 0]}, "root 3x3"),
