@@ -139,8 +139,10 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
                        tracker_arm_length_weight=50.0, huber_m=0.001, sequence_rounds=1, sequence_smooth_weight=7.0,
                        sequence_huber_m=0.003, sequence_max_nfev=2, sequence_fit_root=True,
                        sequence_tracker_weight=15.0, smooth_weight=6.0)
+    # the tracker's shoulder moves 4 mm a frame: the start is frame 0's
+    tracker = scene.tracker + np.arange(3)[:, None, None] * np.array([0.004, 0.0, 0.0])
     c = capture_arm_frames(scene.depths, scene.camera, scene.template, scene.model, o,
-                           tracker_joints=scene.tracker, frame_ids=[4, 5, 6])
+                           tracker_joints=tracker, frame_ids=[4, 5, 6])
     # Sec. 4: each frame cleaned with the options, errors named after the frame id
     assert [k.args[1] for k in spies["clean_depth"]] == [depth_o] * 3
     assert [k.kwargs["source"] for k in spies["clean_depth"]] == ["depth frame 4", "depth frame 5", "depth frame 6"]
@@ -155,8 +157,8 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     s0, R0, t0 = ra.kwargs["initial"]
     J0 = spies["initial_arm_pose_from_joints"][0].args[0]
     assert s0 == 1.0 and np.array_equal(R0, np.eye(3))
-    np.testing.assert_allclose(t0, scene.tracker[0, 0] - J0[0], atol=1e-15)
-    np.testing.assert_array_equal(spies["initial_arm_pose_from_joints"][0].args[1], scene.tracker[0])
+    np.testing.assert_allclose(t0, tracker[0, 0] - J0[0], atol=1e-15)
+    np.testing.assert_array_equal(spies["initial_arm_pose_from_joints"][0].args[1], tracker[0])
     assert ra.kwargs["with_scale"] is False and ra.kwargs["with_rotation"] is False
     assert ra.args[2] is spies["depth_point_cloud"][0].out[0]
     np.testing.assert_allclose(ra.args[3], scene.camera.center)
@@ -184,7 +186,7 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     # Sec. 6.2: shape fit rounds, the tracker weights, the arm length of all frames' tracker chains
     fits = spies["fit_shape_parameters"]
     assert len(fits) == 2
-    length = np.mean(np.linalg.norm(np.diff(scene.tracker, axis=1), axis=2).sum(axis=1))
+    length = np.mean(np.linalg.norm(np.diff(tracker, axis=1), axis=2).sum(axis=1))
     for f in fits:
         kw = f.kwargs
         assert kw["tracker_weight"] == 20.0 and kw["fixed_shape"] is False and kw["huber_m"] == 0.001
@@ -194,7 +196,7 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
         # the tracker's joints in the template's space (the inverse of the Sec. 5.1 similarity)
         Sinv = cap_mod._inverse_similarity(c.similarity)
         np.testing.assert_allclose(kw["tracker_joints"].reshape(-1, 3),
-                                   apply_similarity(Sinv, scene.tracker[:2].reshape(-1, 3)), atol=1e-12)
+                                   apply_similarity(Sinv, tracker[:2].reshape(-1, 3)), atol=1e-12)
     assert fits[1].args[4] is fits[0].out[0]  # the second round starts from the first round's shape
     assert fits[0].args[4] is None or np.allclose(fits[0].args[4].as_vector(), scene.shape.as_vector())
     # the first round's poses: Procrustes (Eq. 11) of each NICP mesh with its kept pairs (+ 0.05), no wrist
@@ -222,7 +224,7 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     assert all(m.args[14] == 6.0 and m.args[15] == 0.001 for m in last)
     Sinv = cap_mod._inverse_similarity(c.similarity)
     for j, m in enumerate(mbf[-3:]):
-        np.testing.assert_allclose(m.args[11], apply_similarity(Sinv, scene.tracker[j]), atol=1e-12)
+        np.testing.assert_allclose(m.args[11], apply_similarity(Sinv, tracker[j]), atol=1e-12)
     for r, m in enumerate(mbf[:4]):
         assert len(m.args) == 13 and m.kwargs == {"huber_m": 0.001}
         shape, root = fits[r // 2].out
@@ -234,7 +236,7 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     # the sequence fit and the pose smoothing
     (seq,) = spies["fit_arm_sequence"]
     assert seq.args[5:] == (0.8, seq.args[6], 15.0, 7.0, 1, 2, 0.003, True)
-    np.testing.assert_allclose(seq.args[6].reshape(-1, 3), apply_similarity(Sinv, scene.tracker.reshape(-1, 3)),
+    np.testing.assert_allclose(seq.args[6].reshape(-1, 3), apply_similarity(Sinv, tracker.reshape(-1, 3)),
                                atol=1e-12)
     assert len(seq.args[3]) == 3 and seq.args[0] is scene.model and seq.args[1] is fits[-1].out[0]
     np.testing.assert_array_equal(seq.args[4], mbf[-1].args[8])
