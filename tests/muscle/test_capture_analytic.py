@@ -135,7 +135,7 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     o = CaptureOptions(depth=depth_o, nicp=nicp_o, first_frame_nicp_iterations=2, shape_frames=2, shape_rounds=2,
                        norm_limit=0.8, refine_pose=False, sigma_frames=1.3, refine_data_weight=0.4,
                        refine_iterations=2, detail_sigma_frames=1.2, joint_radius_m=0.05, joint_gain=1.5,
-                       tracker_weight=20.0, tracker_root_weight=2.0, tracker_pose_weight=25.0, pose_sigma_frames=2.0,
+                       tracker_weight=20.0, tracker_root_weight=2.0, tracker_pose_weight=25.0, pose_sigma_frames=0.8,
                        tracker_arm_length_weight=50.0, huber_m=0.001, sequence_rounds=1, sequence_smooth_weight=7.0,
                        sequence_huber_m=0.003, sequence_max_nfev=2, sequence_fit_root=True,
                        sequence_tracker_weight=15.0, smooth_weight=6.0)
@@ -233,6 +233,8 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
         np.testing.assert_allclose(m.args[4], model_rest_vertices(scene.model, shape), atol=1e-12)
         np.testing.assert_allclose(m.args[8], model_joints(scene.model, shape), atol=1e-12)
         assert m.args[5] is T.part_weights
+        np.testing.assert_allclose(m.args[11], apply_similarity(cap_mod._inverse_similarity(c.similarity),
+                                                                tracker[r % 2]), atol=1e-12)
     # the sequence fit and the pose smoothing
     (seq,) = spies["fit_arm_sequence"]
     assert seq.args[5:] == (0.8, seq.args[6], 15.0, 7.0, 1, 2, 0.003, True)
@@ -242,7 +244,7 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     np.testing.assert_array_equal(seq.args[4], mbf[-1].args[8])
     assert [p is m.out[1] for p, m in zip(seq.args[2], last, strict=True)] == [True] * 3
     (sm,) = spies["smooth_arm_poses"]
-    assert sm.args[0] is seq.out and sm.args[1] == 2.0
+    assert sm.args[0] is seq.out and sm.args[1] == 0.8
     assert c.poses is sm.out
     # the model meshes rebuilt from the smoothed poses with the norm limit
     for i in range(3):
