@@ -123,7 +123,7 @@ def test_model_mode_is_the_full_runs_model_stage(scene):
 # --- options reach their steps ------------------------------------------------------------------------
 
 STEPS = ("clean_depth", "depth_point_cloud", "rigid_alignment_with_scale", "arap_system", "nonrigid_icp",
-         "fit_shape_parameters", "model_based_filtering", "fit_arm_sequence", "smooth_arm_poses",
+         "fit_shape_parameters", "model_based_filtering", "fit_arm_sequence_skeleton", "smooth_arm_poses",
          "time_consistent_correspondences", "correspondence_weights", "refine_surface",
          "initial_arm_pose_from_joints")
 
@@ -236,15 +236,17 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
         np.testing.assert_allclose(m.args[11], apply_similarity(cap_mod._inverse_similarity(c.similarity),
                                                                 tracker[r % 2]), atol=1e-12)
     # the sequence fit and the pose smoothing
-    (seq,) = spies["fit_arm_sequence"]
-    assert seq.args[5:] == (0.8, seq.args[6], 15.0, 7.0, 1, 2, 0.003, True)
+    (seq,) = spies["fit_arm_sequence_skeleton"]
+    assert seq.args[5:] == (0.8, seq.args[6], 15.0, 7.0, 1, 2, 0.003, True, False, 100.0, False)
+    assert seq.kwargs["free_joints"] == (True, True, True)
+    np.testing.assert_allclose(seq.kwargs["rest"], model_rest_vertices(scene.model, fits[-1].out[0]), atol=1e-12)
     np.testing.assert_allclose(seq.args[6].reshape(-1, 3), apply_similarity(Sinv, tracker.reshape(-1, 3)),
                                atol=1e-12)
     assert len(seq.args[3]) == 3 and seq.args[0] is scene.model and seq.args[1] is fits[-1].out[0]
     np.testing.assert_array_equal(seq.args[4], mbf[-1].args[8])
     assert [p is m.out[1] for p, m in zip(seq.args[2], last, strict=True)] == [True] * 3
     (sm,) = spies["smooth_arm_poses"]
-    assert sm.args[0] is seq.out and sm.args[1] == 0.8
+    assert sm.args[0] is seq.out[0] and sm.args[1] == 0.8
     assert c.poses is sm.out
     # the model meshes rebuilt from the smoothed poses with the norm limit
     for i in range(3):
@@ -259,7 +261,7 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
 
 def test_the_arm_length_and_tracker_weight_without_a_tracker_and_with_a_known_shape(scene, monkeypatch):
     spies = Spies(monkeypatch, ("fit_shape_parameters", "rigid_alignment_with_scale", "nonrigid_icp",
-                                "model_based_filtering", "fit_arm_sequence", "smooth_arm_poses"))
+                                "model_based_filtering", "fit_arm_sequence_skeleton", "smooth_arm_poses"))
     from bodystudio.muscle.model import model_rest_vertices
 
     o = CaptureOptions(mode="model", shape_frames=5, shape_rounds=1, first_frame_nicp_iterations=1,
@@ -278,7 +280,7 @@ def test_the_arm_length_and_tracker_weight_without_a_tracker_and_with_a_known_sh
                                atol=1e-12)
     assert all(m.args[11] is None for m in spies["model_based_filtering"])
     # sequence fit and smoothing off
-    assert spies["fit_arm_sequence"] == [] and spies["smooth_arm_poses"] == []
+    assert spies["fit_arm_sequence_skeleton"] == [] and spies["smooth_arm_poses"] == []
     assert c.poses == [spies["model_based_filtering"][-2].out[1], spies["model_based_filtering"][-1].out[1]]
     assert "sequence_fit" not in c.timings_ms
 
@@ -327,15 +329,16 @@ def test_the_nicp_mode_restarts_each_frame_from_the_last_and_maps_back_to_world(
 def test_the_sequence_fit_poses_make_the_model_meshes(scene, monkeypatch):
     from bodystudio.muscle.model import model_mesh
 
-    spies = Spies(monkeypatch, ("fit_arm_sequence", "fit_shape_parameters"))
+    spies = Spies(monkeypatch, ("fit_arm_sequence_skeleton", "fit_shape_parameters"))
     o = CaptureOptions(mode="model", **{**FAST, "pose_sigma_frames": 0.0, "norm_limit": 0.5})
     c = capture_arm_frames(scene.depths[:2], scene.camera, scene.template, scene.model, o, known_shape=scene.shape)
-    (seq,) = spies["fit_arm_sequence"]
-    assert c.poses is seq.out and seq.args[5] == 0.5
+    (seq,) = spies["fit_arm_sequence_skeleton"]
+    assert c.poses is seq.out[0] and seq.args[5] == 0.5
+    np.testing.assert_array_equal(c.joints, seq.out[1])
     shape = spies["fit_shape_parameters"][-1].out[0]
     for i in range(2):
         np.testing.assert_allclose(c.vertices[i], apply_similarity(c.similarity, model_mesh(
-            scene.model, shape, seq.out[i], norm_limit=0.5)), atol=1e-12)
+            scene.model, shape, seq.out[0][i], norm_limit=0.5)), atol=1e-12)
 
 
 def test_exactly_min_pixels_points_are_enough(scene):
