@@ -41,6 +41,8 @@ EXTRA_TESTS = {
     "bodystudio/geometry/laplacian.py": ["tests/geometry/test_laplacian*.py", "tests/reconstruct/test_solver.py"],
     "bodystudio/body/skinning.py": ["tests/body/test_skinning*.py", "tests/body/test_model.py"],
     "bodystudio/reconstruct/silhouette.py": ["tests/reconstruct/test_silhouette*.py"],
+    # the visual-hull gate of Algorithm 1's matches (hull_consistent_constraints) has its own file
+    "bodystudio/reconstruct/rapid_skin.py": ["tests/reconstruct/test_hull_gate*.py"],
     # muscle: the fast files that call the module (test_capture.py holds the Sec. 5-7 step tests; the CLI
     # catalogue of tests/reliability covers the model loader and the capture's refusals)
     "bodystudio/muscle/model.py": ["tests/reliability/test_muscle_inputs.py"],

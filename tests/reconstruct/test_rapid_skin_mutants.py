@@ -193,6 +193,7 @@ def test_default_params_are_the_papers():
     assert (p.outer_iterations, p.inner_iterations, p.tau_px, p.alpha_px, p.rim_cos, p.solver, p.constraints,
             p.depth_sigma_m, p.depth_max_m, p.jacobi_iterations_factor) == \
         (8, 8, 30.0, 40.0, 0.2, "gs", ("silhouette",), 0.02, 0.05, 4)
+    assert p.hull_gate_m == 0.001  # ours (issue 15): the visual-hull gate, 1 mm
 
 
 _RANGES = [("outer_iterations", "--outer", 1, 100, "iterations"),
@@ -201,7 +202,8 @@ _RANGES = [("outer_iterations", "--outer", 1, 100, "iterations"),
            ("alpha_px", "--alpha", 1.0, 1000.0, "pixels: the silhouette weight width"),
            ("rim_cos", "rim_cos", 0.0, 0.99, "cosine"),
            ("depth_sigma_m", "depth_sigma_m", 1e-4, 1.0, "metres"),
-           ("depth_max_m", "depth_max_m", 1e-3, 1.0, "metres")]
+           ("depth_max_m", "depth_max_m", 1e-3, 1.0, "metres"),
+           ("hull_gate_m", "hull_gate_m", 0.0, 1.0, "metres; 0 turns the visual-hull gate off")]
 
 
 @pytest.mark.parametrize("field, name, lo, hi, unit", _RANGES)
