@@ -490,3 +490,123 @@ def test_dense_pairs_person_per_node_and_visibility_on_the_full_resolution_buffe
     hidden = np.arange(2 * len(V1), len(V))
     assert not np.isin(hidden, p.ids).any()
     assert np.isin(np.arange(2 * len(V1)), p.ids).all()
+
+
+def _plate_camera():
+    return Camera("c", np.array([[200.0, 0.0, 150.0], [0.0, 200.0, 110.0], [0.0, 0.0, 1.0]]), np.zeros(5),
+                  np.eye(3), np.zeros(3), 320, 200)
+
+
+def test_dense_pairs_interpolate_the_source_projections_unless_a_vertex_is_behind_the_camera():
+    """All source vertices in front (here 0.8 m away, nearer than a metre): each covered pixel interpolates the
+    source vertices' projections (:func:`dense_source_uv` with ``projected``). A source vertex behind the camera
+    (a triangle of the mesh far behind, outside the target's render): the exact path, the surface point projected."""
+    from bodystudio.capture.render import render
+
+    cam = _plate_camera()
+    V, F = _plate(0.1, 4, 0.8)
+    V[:, 2] += 0.6 * V[:, 0]  # tilted: projection is not affine over a triangle
+    Vt = V * [1.1, 1.0, 1.0] + [0.02, 0.01, 0.0]
+    Vt[:, 2] += 0.3 * V[:, 0]
+    p = warp_pairs(V, Vt, F, cam, n_handles=10, dense=True)
+    d = p.dense
+    assert d is not None
+    x0, y0 = d.origin
+    h, w = d.source_mask.shape
+    rt = render(Vt, F, crop_camera(cam, x0, y0, w, h))
+    interp = dense_source_uv(V, F, rt, cam, projected=cam.project(V))
+    exact = dense_source_uv(V, F, rt, cam)
+    np.testing.assert_array_equal(d.source_uv, interp)
+    assert np.nanmax(np.abs(interp - exact)) > 1e-3  # the two paths differ here (a tilted plate, near)
+    # a triangle behind the camera in the source (and in the target: not rendered)
+    tri = np.array([[0.0, 0.0, -1.0], [0.1, 0.0, -1.0], [0.0, 0.1, -1.0]])
+    V2, Vt2 = np.vstack([V, tri]), np.vstack([Vt, tri])
+    F2 = np.vstack([F, [[len(V), len(V) + 1, len(V) + 2]]])
+    q = warp_pairs(V2, Vt2, F2, cam, n_handles=10, dense=True)
+    assert q.dense.origin == d.origin
+    np.testing.assert_array_equal(q.dense.source_uv, dense_source_uv(V2, F2, rt, cam))
+    # the default margin is 10 px around both bodies' projections
+    both = np.vstack([cam.project(V), cam.project(Vt)])
+    assert d.origin == (int(np.floor(both[:, 0].min() - 10)), int(np.floor(both[:, 1].min() - 10)))
+    assert (w, h) == (int(np.ceil(both[:, 0].max() + 10) + 1) - d.origin[0],
+                      int(np.ceil(both[:, 1].max() + 10) + 1) - d.origin[1])
+
+
+def test_warp_pairs_defaults_800_candidates_and_the_quarter_size_z_buffer():
+    """Without ``dense``: 800 evenly spread candidate ids by default, visibility on the quarter-size z-buffer (the
+    same pairs as ``z_buffer_scale=0.25``); no rim vertices unless ``rim_cos``."""
+    V, F = _plate(0.3, 31, 2.0)  # 961 vertices
+    cam = _plate_camera()
+    p = warp_pairs(V, V, F, cam)
+    np.testing.assert_array_equal(p.ids, np.unique(np.linspace(0, len(V) - 1, 800).round().astype(np.int64)))
+    assert len(p.ids) == 800 and p.dense is None
+    from tests.mirror.test_warp_analytic import _occluder_scene
+
+    Vo, Fo, camo, _ = _occluder_scene(0.32)
+    shift = np.array([0.013, -0.007, 0.0])
+    got = warp_pairs(Vo, Vo + shift, Fo, camo, n_handles=len(Vo))
+    quarter = warp_pairs(Vo, Vo + shift, Fo, camo, n_handles=len(Vo), z_buffer_scale=0.25)
+    full = warp_pairs(Vo, Vo + shift, Fo, camo, n_handles=len(Vo), z_buffer_scale=1.0)
+    np.testing.assert_array_equal(got.ids, quarter.ids)
+    assert not np.array_equal(quarter.ids, full.ids)  # the scale matters on this scene
+
+
+def test_body_crop_of_zero_width_or_height_is_none():
+    """Points just beyond the right / bottom edge: the clipped box is empty (x0 = x1 = width)."""
+    cam = _camera(320, 200)
+    assert _body_crop([np.array([[330.0, 50.0], [335.0, 60.0]])], cam, 10.0) is None
+    assert _body_crop([np.array([[50.0, 210.0], [60.0, 215.0]])], cam, 10.0) is None
+    assert _body_crop([np.array([[329.5, 50.0]])], cam, 10.0) == (319, 40, 320, 61)
+
+
+def test_grid_samples_node_block_on_the_crops_first_row_and_column():
+    """Nodes at 5.5, 9.5, ...: a crop at (5, 5) starts with node 1's block, which is sampled; one at (6, 6) does
+    not hold it."""
+    cam = types.SimpleNamespace(width=16, height=16)
+    for origin, first in (((5, 5), True), ((6, 6), False)):
+        uv = _affine_uv(8, 8, *origin)
+        out, _ = _grid_samples(uv, np.zeros((8, 8), np.int32), origin, cam, (4, 4), None)
+        assert np.isfinite(out[1, 1]).all() == first
+        assert np.isnan(out[0]).all() and np.isnan(out[:, 0]).all()
+
+
+def test_the_radius_is_checked_even_when_the_dense_nodes_cover_the_grid():
+    s, t = _square_pairs(10.0, 10.0, 3.0, [2.0, 0.0])
+    node_uv = np.ones((20, 24, 2), np.float32)
+    field = mls_warp_field(s, t, shape=(20, 24), grid=(20, 24), dense_src_uv=node_uv, radius_px=5.0)
+    assert (field == 1.0).all()
+    for bad in (0.0, np.inf, -3.0):
+        with pytest.raises(InputError, match="radius_px"):
+            mls_warp_field(s, t, shape=(20, 24), grid=(20, 24), dense_src_uv=node_uv, radius_px=bad)
+
+
+def test_target_points_on_the_grid_corners_solve_exactly_their_neighbouring_nodes():
+    """Grid = image (1 px cells), margin 0: reach 1 node, so each corner point solves its node and the 2 next to
+    it along the edges, nothing else (a point splatted one node inside would solve a node 2 away)."""
+    H, W = 20, 30
+    t = np.array([[0.0, 0.0], [W - 1.0, 0.0], [0.0, H - 1.0], [W - 1.0, H - 1.0]])
+    field = mls_warp_field(t + [3.0, 1.0], t, shape=(H, W), grid=(H, W), kind="similarity", roi_margin_px=0.0)
+    solved = field[..., 0] != OUTSIDE_PX
+    expect = np.zeros((H, W), bool)
+    for r, c in ((0, 0), (0, W - 1), (H - 1, 0), (H - 1, W - 1)):
+        for dr, dc in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)):
+            if 0 <= r + dr < H and 0 <= c + dc < W:
+                expect[r + dr, c + dc] = True
+    np.testing.assert_array_equal(solved, expect)
+    yy, xx = np.nonzero(expect)
+    np.testing.assert_allclose(field[yy, xx], np.c_[xx, yy] + [3.0, 1.0], atol=1e-4)
+
+
+def test_a_group_without_an_affine_fit_leaves_its_region_outside_next_to_a_solved_one():
+    """Two people, affine MLS: one person's pairs collinear (no fit: NaN), the other's a translation. The field is
+    finite everywhere: the first person's region maps outside, the second's is the translation."""
+    u = np.linspace(0, 1, 8)
+    t0 = np.c_[40 + 60 * u, 60 + 0 * u]
+    t1 = np.array([[200.0, 50.0], [240.0, 55.0], [220.0, 90.0], [205.0, 80.0]])
+    t = np.vstack([t0, t1])
+    s = t + [4.0, -2.0]
+    groups = np.r_[np.zeros(8, int), np.ones(4, int)]
+    field = mls_warp_field(s, t, shape=(120, 320), grid=(30, 80), kind="affine", roi_margin_px=8.0, groups=groups)
+    assert np.isfinite(field).all()
+    assert (field[55:66, 40:101] == OUTSIDE_PX).all()
+    np.testing.assert_allclose(field[55, 240], [244.0, 53.0], atol=1e-3)
