@@ -601,12 +601,12 @@ def test_a_group_without_an_affine_fit_leaves_its_region_outside_next_to_a_solve
     """Two people, affine MLS: one person's pairs collinear (no fit: NaN), the other's a translation. The field is
     finite everywhere: the first person's region maps outside, the second's is the translation."""
     u = np.linspace(0, 1, 8)
-    t0 = np.c_[40 + 60 * u, 60 + 0 * u]
+    t0 = np.c_[150 + 36 * u, 60 + 0 * u]  # next to the other person: their nodes share the up-sampled block
     t1 = np.array([[200.0, 50.0], [240.0, 55.0], [220.0, 90.0], [205.0, 80.0]])
     t = np.vstack([t0, t1])
     s = t + [4.0, -2.0]
     groups = np.r_[np.zeros(8, int), np.ones(4, int)]
     field = mls_warp_field(s, t, shape=(120, 320), grid=(30, 80), kind="affine", roi_margin_px=8.0, groups=groups)
     assert np.isfinite(field).all()
-    assert (field[55:66, 40:101] == OUTSIDE_PX).all()
+    assert (field[55:66, 140:187] == OUTSIDE_PX).all()
     np.testing.assert_allclose(field[55, 240], [244.0, 53.0], atol=1e-3)
