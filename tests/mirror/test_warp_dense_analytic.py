@@ -610,3 +610,25 @@ def test_a_group_without_an_affine_fit_leaves_its_region_outside_next_to_a_solve
     assert np.isfinite(field).all()
     assert (field[55:66, 140:187] == OUTSIDE_PX).all()
     np.testing.assert_allclose(field[55, 240], [244.0, 53.0], atol=1e-3)
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+def test_a_one_pixel_bar_hides_the_wall_vertex_right_behind_it(axis):
+    """Full-resolution z-buffer (``dense``): a bar 0.8 px wide at 1 m covers exactly the pixel column (row) of a wall
+    vertex at 3 m; the vertex is hidden by its own pixel's column (row) of the 3x3 neighbourhood, while its
+    neighbours on either side show the wall. A wall vertex 3 px beside the bar is kept."""
+    cam = _plate_camera()  # f 200 px, principal point (150, 110): x = 0, y = 0 project onto pixel centres
+    half_w, half_l = 0.4 / 200.0, 0.3  # 0.8 px wide, 60 px long at 1 m
+    bar = np.array([[-half_w, -half_l, 1.0], [half_w, -half_l, 1.0], [half_w, half_l, 1.0], [-half_w, half_l, 1.0]])
+    if axis == 1:
+        bar = bar[:, [1, 0, 2]]
+    Fb = np.array([[0, 1, 2], [0, 2, 3]])
+    Vw, Fw = _plate(0.3, 13, 3.0)  # 5 cm spacing: a vertex at (0, 0, 3) and at (0.05, 0, 3) (3.3 px aside)
+    V = np.vstack([bar, Vw])
+    F = np.vstack([Fb, Fw + 4])
+    p = warp_pairs(V, V, F, cam, n_handles=len(V), dense=True)
+    centre = 4 + int(np.flatnonzero(np.all(np.abs(Vw - [0.0, 0.0, 3.0]) < 1e-9, axis=1))[0])
+    aside = 4 + int(np.flatnonzero(np.all(np.abs(Vw - ([0.05, 0.0, 3.0] if axis == 0 else [0.0, 0.05, 3.0]))
+                                          < 1e-9, axis=1))[0])
+    assert centre not in p.ids and aside in p.ids
+    assert np.isin(np.arange(4), p.ids).all()  # the bar's corners are seen
