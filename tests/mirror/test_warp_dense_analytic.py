@@ -632,3 +632,48 @@ def test_a_one_pixel_bar_hides_the_wall_vertex_right_behind_it(axis):
                                           < 1e-9, axis=1))[0])
     assert centre not in p.ids and aside in p.ids
     assert np.isin(np.arange(4), p.ids).all()  # the bar's corners are seen
+
+
+def _bar(c0, c1, r0, r1, z, cam):
+    """A rectangle at depth ``z`` covering image columns [c0, c1] and rows [r0, r1] (pixel units)."""
+    f, cx, cy = cam.K[0, 0], cam.K[0, 2], cam.K[1, 2]
+    x0, x1, y0, y1 = ((c0 - cx) * z / f, (c1 - cx) * z / f, (r0 - cy) * z / f, (r1 - cy) * z / f)
+    return np.array([[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]]), np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def test_vertices_on_the_image_border_look_at_their_own_3x3_neighbourhood():
+    """A wall at 3 m filling the image, with vertices on its first / last pixel column and row; a 0.8 px bar at 1 m
+    two pixels inside each of them. The border vertex's neighbourhood (its pixel and the next one inside; beyond
+    the border nothing) does not reach the bar: all four are kept. (Looked up one pixel further inside, the bar
+    would hide them.)"""
+    cam = _plate_camera()  # 320 x 200, f 200, principal point (150, 110)
+    z = 3.0
+    left, right = (0.0002 - 150) * z / 200, (319 - 0.0002 - 150) * z / 200
+    top, bottom = (0.0002 - 110) * z / 200, (199 - 0.0002 - 110) * z / 200
+    xs = np.array([left, -1.5, -0.75, 0.0, 0.15, 0.75, 1.5, right])
+    ys = np.array([top, -0.8, 0.0, 0.8, bottom])
+    X, Y = np.meshgrid(xs, ys)
+    Vw = np.c_[X.ravel(), Y.ravel(), np.full(X.size, z)]
+    n = len(xs)
+    Fw = np.array([f for r in range(len(ys) - 1) for c in range(n - 1)
+                   for f in ([r * n + c, (r + 1) * n + c, r * n + c + 1],
+                             [r * n + c + 1, (r + 1) * n + c, (r + 1) * n + c + 1])])
+    V, F = [Vw], [Fw]
+    for c0, c1, r0, r1 in ((1.6, 2.4, 90, 130), (316.6, 317.4, 90, 130), (140, 180, 1.6, 2.4),
+                           (140, 180, 196.6, 197.4)):
+        Vb, Fb = _bar(c0, c1, r0, r1, 1.0, cam)
+        F.append(Fb + sum(len(v) for v in V))
+        V.append(Vb)
+    V, F = np.vstack(V), np.vstack(F)
+    uv = cam.project(Vw)
+    probes = [int(np.argmin(np.hypot(*(uv - p).T))) for p in ((0, 110), (319, 110), (160, 0), (160, 199))]
+    assert np.abs(uv[probes] - [[0, 110], [319, 110], [160, 0], [160, 199]]).max() < 1e-3
+    p = warp_pairs(V, V, F, cam, n_handles=len(V), dense=True)
+    assert p.dense.origin == (0, 0) and p.dense.source_mask.shape == (200, 320)
+    assert np.isin(probes, p.ids).all()
+    # the bars are where they are meant to be: two pixels inside the border, one pixel wide
+    from bodystudio.capture.render import render
+
+    d = render(V, F, cam).depth
+    assert d[100:120, 2].max() < 1.5 and d[100:120, [1, 3]].min() > 2.5 and d[100:120, 317].max() < 1.5
+    assert d[2, 150:170].max() < 1.5 and d[[1, 3], 150:170].min() > 2.5 and d[197, 150:170].max() < 1.5
