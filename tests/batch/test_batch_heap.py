@@ -73,15 +73,28 @@ _PATTERN = textwrap.dedent("""
 @pytest.mark.skipif(shutil.which("valgrind") is None, reason="valgrind not installed")
 def test_thread_first_import_is_a_use_after_free_at_exit(tmp_path):
     """The mechanism under valgrind: pymeshlab imported by a thread that ends -> an invalid access in
-    QThreadData::deref from PluginManager::~PluginManager at exit; imported by the main thread first -> none."""
+    QThreadData::deref from PluginManager::~PluginManager at exit; imported by the main thread first -> none.
+
+    The thread-first report depends on the order in which Python's exit tears objects down: one fresh-clone
+    CI run of 2026-11-26 saw only other exit-time reports in its single thread-first run. So the bad pattern
+    gets up to three runs to show the signature (it did in every earlier run); the main-first pattern must be
+    clean in its one run."""
     script = tmp_path / "pattern.py"
     script.write_text(_PATTERN)
-    logs = {}
-    for mode in ("thread-first", "main-first"):
-        log = tmp_path / f"{mode}.log"
+
+    def valgrind_log(mode: str, attempt: int) -> str:
+        log = tmp_path / f"{mode}-{attempt}.log"
         subprocess.run(["valgrind", f"--log-file={log}", "--num-callers=40", sys.executable, str(script), mode],
                        env={"PYTHONMALLOC": "malloc", "PATH": "/usr/bin:/bin"}, capture_output=True, timeout=1200)
-        logs[mode] = log.read_text()
-    bad = logs["thread-first"]
-    assert "QThreadData::deref" in bad and "PluginManager::~PluginManager" in bad, bad[-3000:]
-    assert "QThreadData::deref" not in logs["main-first"]
+        return log.read_text()
+
+    def shows_the_use_after_free(log: str) -> bool:
+        return "QThreadData::deref" in log and "PluginManager::~PluginManager" in log
+
+    bad = ""
+    for attempt in range(3):
+        bad = valgrind_log("thread-first", attempt)
+        if shows_the_use_after_free(bad):
+            break
+    assert shows_the_use_after_free(bad), bad[-3000:]
+    assert "QThreadData::deref" not in valgrind_log("main-first", 0)
