@@ -419,20 +419,27 @@ def mirror_sections(root: Path) -> list[MirrorSection]:
     return out
 
 
+def _strips_and_scores_html(name: str, strips: list, scores: dict | None, command: str) -> list[str]:
+    """One before/after section's body: its strips (caption, PNG bytes) in a grid, then the scores of
+    ``command`` as a table and the raw JSON."""
+    parts = [f"<h3>{html.escape(name)}</h3><div class=\"grid\">"]
+    parts += [f"<figure>{_img_tag(png, cap)}<figcaption>{html.escape(cap)}</figcaption></figure>"
+              for cap, png in strips]
+    parts.append("</div>")
+    if scores is not None:
+        rows = [[k, v] for k, v in flatten_record(scores).items()]
+        parts.append(_table_html(Table(f"{name}: {command}", ["score", "value"], rows)))
+        parts.append(f"<details><summary>eval JSON</summary><pre>"
+                     f"{html.escape(json.dumps(scores, indent=2, allow_nan=False))}</pre></details>")
+    return parts
+
+
 def _mirror_html(sections: list[MirrorSection]) -> str:
     parts = ["<h2>Mirror: before / after</h2>",
              '<p class="meta">Each strip: the Kinect input | the mirror\'s output | the truth (the actor rendered '
              "with the edited body; synthetic sessions only).</p>"]
     for m in sections:
-        parts.append(f"<h3>{html.escape(m.name)}</h3><div class=\"grid\">")
-        parts += [f"<figure>{_img_tag(png, cap)}<figcaption>{html.escape(cap)}</figcaption></figure>"
-                  for cap, png in m.strips]
-        parts.append("</div>")
-        if m.scores is not None:
-            parts.append(_table_html(Table(f"{m.name}: eval mirror", ["score", "value"],
-                                           [[k, v] for k, v in flatten_record(m.scores).items()])))
-            parts.append(f"<details><summary>eval JSON</summary><pre>"
-                         f"{html.escape(json.dumps(m.scores, indent=2, allow_nan=False))}</pre></details>")
+        parts += _strips_and_scores_html(m.name, m.strips, m.scores, "eval mirror")
         if m.note:
             parts.append(f'<p class="meta">{html.escape(m.note)}</p>')
     return "\n".join(parts)
@@ -563,15 +570,7 @@ def _garment_html(sections: list[GarmentSection]) -> str:
              "on the fitted actor after the image-space refinement) | the truth (the actor rendered wearing the "
              "target garment; synthetic sessions only).</p>"]
     for g in sections:
-        parts.append(f"<h3>{html.escape(g.name)}</h3><div class=\"grid\">")
-        parts += [f"<figure>{_img_tag(png, cap)}<figcaption>{html.escape(cap)}</figcaption></figure>"
-                  for cap, png in g.strips]
-        parts.append("</div>")
-        if g.scores is not None:
-            rows = [[k, v] for k, v in flatten_record(g.scores).items()]
-            parts.append(_table_html(Table(f"{g.name}: eval garment", ["score", "value"], rows)))
-            parts.append(f"<details><summary>eval JSON</summary><pre>"
-                         f"{html.escape(json.dumps(g.scores, indent=2, allow_nan=False))}</pre></details>")
+        parts += _strips_and_scores_html(g.name, g.strips, g.scores, "eval garment")
         parts += [f'<p class="meta garment-note">{html.escape(n)}</p>' for n in g.notes]
     return "\n".join(parts)
 

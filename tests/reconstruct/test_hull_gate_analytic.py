@@ -3,7 +3,6 @@ the rule ``hull(q) <= max(hull(v), 0) + gate_m`` checked at its boundary, per co
 direction; and Algorithm 1's use of it (``hull_gate_m`` = 0 turns it off, given fields are used as they are)."""
 
 import numpy as np
-import pytest
 
 from bodystudio.reconstruct import rapid_skin
 from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations, hull_consistent_constraints
@@ -134,21 +133,6 @@ def test_the_ray_point_is_the_one_nearest_the_vertex_for_rays_in_any_direction()
 
 
 # --- Algorithm 1's use of the gate --------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def sphere_scene():
-    import trimesh
-
-    from bodystudio.geometry.camera import Camera
-    from bodystudio.reconstruct.silhouette import silhouette_mask
-
-    m = trimesh.creation.icosphere(subdivisions=3, radius=0.30)
-    V, F = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
-    cams = [Camera.look_at(f"c{i}", (3 * np.sin(a), 0.3, 3 * np.cos(a)), (0, 0, 0), fx=400.0, width=200, height=160)
-            for i, a in enumerate([0.0, 2.1, 4.2])]
-    masks = {c.name: silhouette_mask(1.05 * V, F, c) for c in cams}
-    return V, F, cams, masks
 
 
 class _Recorder:

@@ -6,24 +6,10 @@ import numpy as np
 import pytest
 
 from bodystudio.errors import InputError
-from bodystudio.geometry.camera import Camera
 from bodystudio.geometry.laplacian import cotangent_delta_coordinates
 from bodystudio.reconstruct import rapid_skin
 from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
-from bodystudio.reconstruct.silhouette import silhouette_mask
 from bodystudio.reconstruct.solver import DepthConstraints, LMESystem
-
-
-@pytest.fixture(scope="module")
-def sphere_scene():
-    import trimesh
-
-    m = trimesh.creation.icosphere(subdivisions=3, radius=0.30)
-    V, F = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
-    cams = [Camera.look_at(f"c{i}", (3 * np.sin(a), 0.3, 3 * np.cos(a)), (0, 0, 0), fx=400.0, width=200, height=160)
-            for i, a in enumerate([0.0, 2.1, 4.2])]
-    masks = {c.name: silhouette_mask(1.05 * V, F, c) for c in cams}
-    return V, F, cams, masks
 
 
 def test_a_sphere_grows_to_its_silhouettes(sphere_scene):
