@@ -636,6 +636,21 @@ def test_frame_lighting_finds_the_light_of_a_rendered_ball(sampling):
         lt.frame_lighting(image, V, F, cam, albedo, sampling="texel")
 
 
+def albedo_round(observations, meshes, F, lights, mean_colour, count):
+    """One albedo round written out: per vertex ``sum I S / sum S^2`` over the frames that see it (S the
+    shading of that frame's lights), rescaled to the mean colour's mean and clipped at 0; unseen vertices keep
+    the mean colour."""
+    num, den = np.zeros_like(mean_colour), np.zeros_like(mean_colour)
+    for (ids, colors), Vt, lw in zip(observations, meshes, lights, strict=True):
+        S = lt.vertex_shading(Vt, F, lw)[ids]
+        num[ids] += colors * S
+        den[ids] += S * S
+    seen = count > 0
+    want = mean_colour.copy()
+    want[seen] = num[seen] / den[seen]
+    return np.clip(want * mean_colour[seen].mean(0) / want[seen].mean(0), 0, None)
+
+
 def test_alternating_albedo_is_the_least_squares_ratio_to_each_frames_shading():
     """Our §5.1 extension, one round written out: lights per frame (Eq. 7) with the mean colour, then per vertex
     ``a = sum_t I S / sum_t S^2`` over the frames that see it, rescaled to the mean colour's mean, clipped at 0."""
@@ -658,17 +673,8 @@ def test_alternating_albedo_is_the_least_squares_ratio_to_each_frames_shading():
     assert len(lights) == 3
     for got, want in zip(lights, want_lights, strict=True):
         assert np.array_equal(got.directions, want.directions) and np.allclose(got.colors, want.colors)
-    num, den = np.zeros_like(mean_colour), np.zeros_like(mean_colour)
-    seen_colors = lt.visible_vertex_colors(frames, meshes, F, cam)
-    for (ids, colors), Vt, lw in zip(seen_colors, meshes, want_lights, strict=True):
-        S = lt.vertex_shading(Vt, F, lw)[ids]
-        num[ids] += colors * S
-        den[ids] += S * S
-    seen = count > 0
-    want = mean_colour.copy()
-    want[seen] = num[seen] / den[seen]
-    want *= mean_colour[seen].mean(0) / want[seen].mean(0)
-    assert np.abs(refined - np.clip(want, 0, None)).max() < 1e-9
+    want = albedo_round(lt.visible_vertex_colors(frames, meshes, F, cam), meshes, F, want_lights, mean_colour, count)
+    assert np.abs(refined - want).max() < 1e-9
     assert not np.allclose(refined, mean_colour, atol=0.01)  # the round changed something
     # a second round starts from the first's albedo
     two, _ = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=2, n_lights=60)
@@ -732,15 +738,7 @@ def test_alternating_albedo_passes_on_min_cos_shadows_masks_and_the_default_of_t
     assert not np.allclose(a1, a1d)
     mean_colour, count = lt.estimate_albedo(frames, meshes, F, cam, 0.7)
     assert np.array_equal(a0, mean_colour)
-    num, den = np.zeros_like(mean_colour), np.zeros_like(mean_colour)
-    for (ids, colors), Vt, lw in zip(lt.visible_vertex_colors(frames, meshes, F, cam, 0.7), meshes, l1, strict=True):
-        S = lt.vertex_shading(Vt, F, lw)[ids]
-        num[ids] += colors * S
-        den[ids] += S * S
-    seen = count > 0
-    want = mean_colour.copy()
-    want[seen] = num[seen] / den[seen]
-    want = np.clip(want * mean_colour[seen].mean(0) / want[seen].mean(0), 0, None)
+    want = albedo_round(lt.visible_vertex_colors(frames, meshes, F, cam, 0.7), meshes, F, l1, mean_colour, count)
     assert np.abs(a1 - want).max() < 1e-9
     # no shadows by default (the wall shadows the ball's right side)
     a1n, l1n = lt.estimate_albedo_and_lighting(frames, meshes, F, cam, iterations=1, n_lights=40, shadows=False)

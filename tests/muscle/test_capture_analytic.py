@@ -490,15 +490,14 @@ def test_capture_option_defaults_are_the_measured_ones():
 
 # --- small pieces ---------------------------------------------------------------------------------------
 
-def test_timer_capture_properties_and_inverse_similarity():
-    import time
-
+def test_timer_capture_properties_and_inverse_similarity(monkeypatch):
+    clock = iter([10.5, 10.75])  # a fake perf_counter: the timer's arithmetic, not the machine's speed
+    monkeypatch.setattr(cap_mod.time, "perf_counter", lambda: next(clock))
     timer = cap_mod._Timer()
-    t0 = time.perf_counter() - 0.5
-    t1 = timer.add("a", t0)
-    assert t1 >= t0 + 0.5 and timer.ms["a"] == 1000.0 * (t1 - t0)  # milliseconds from t0, starting at 0
+    t1 = timer.add("a", 10.0)
+    assert t1 == 10.5 and timer.ms["a"] == 500.0  # milliseconds from t0, starting at 0
     t2 = timer.add("a", t1)
-    assert timer.ms["a"] == 1000.0 * (t1 - t0) + 1000.0 * (t2 - t1) and set(timer.ms) == {"a"}
+    assert t2 == 10.75 and timer.ms["a"] == 750.0 and set(timer.ms) == {"a"}
     c = ArmCapture(np.zeros((4, 2, 3)), np.zeros((0, 3)), [None] * 4, None, (1.0, np.eye(3), np.zeros(3)), "nicp", "k",
                    {"a": 10.0, "b": 30.0})
     assert c.n_frames == 4 and c.ms_per_frame == 10.0

@@ -85,8 +85,9 @@ def test_sex_regularization_is_the_knob_of_the_sex_column(arm_model_2k, thin_wom
     assert e[1] < 0.8 * e[0]  # measured 10.0 vs 6.9 mm
 
 
-def _as_version_1(path, model, out):
-    """Rewrite a saved model the way version 1 stored it: four shape columns, no sex row, no sex weight."""
+def as_version_1(path, out, **changed):
+    """Rewrite a saved model the way version 1 stored it: four shape columns, no sex row, no sex weight
+    (``changed``: arrays to replace, for damaged version-1 files). Returns ``out``."""
     with np.load(path) as z:
         arrays = {k: z[k] for k in z.files}
     header = json.loads(str(arrays.pop("header")))
@@ -94,14 +95,16 @@ def _as_version_1(path, model, out):
     del header["sex_regularization"]
     arrays["shape_rows"] = arrays["shape_rows"][:, :4]
     arrays["shape_coeffs"] = arrays["shape_coeffs"][:5]
+    arrays.update(changed)
     np.savez(out, header=np.array(json.dumps(header)), **arrays)
+    return out
 
 
 def test_version_1_files_are_read_as_all_male_models(arm_model_2k, arm_template_2k, thin_women_2k, tmp_path,
                                                      caplog):
     path, old = tmp_path / "v2.npz", tmp_path / "v1.npz"
     save_arm_model(path, arm_model_2k)
-    _as_version_1(path, arm_model_2k, old)
+    as_version_1(path, old)
     with caplog.at_level(logging.WARNING, logger="bodystudio.muscle.model"):
         loaded = load_arm_model(old, arm_template_2k)
     assert loaded.version == MODEL_VERSION

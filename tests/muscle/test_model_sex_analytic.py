@@ -4,7 +4,6 @@ Each test learns or rewrites its own tiny model (a session fixture's calls are c
 test that built it; see docs/mutation/muscle-model.md).
 """
 
-import json
 import logging
 
 import numpy as np
@@ -12,6 +11,8 @@ import pytest
 
 from bodystudio.errors import FileFormatError, InputError
 from bodystudio.muscle.model import MODEL_VERSION, ArmShapeParams, learn_arm_model, load_arm_model
+
+from .test_model_sex import as_version_1
 
 
 @pytest.fixture(scope="module")
@@ -39,17 +40,7 @@ def test_the_sex_weight_must_be_positive_and_is_kept(tiny_samples):
 
 
 def _version_1(tmp_path, model_path, **changed):
-    with np.load(model_path) as z:
-        arrays = {k: z[k] for k in z.files}
-    header = json.loads(str(arrays.pop("header")))
-    header["version"] = 1
-    del header["sex_regularization"]
-    arrays["shape_rows"] = arrays["shape_rows"][:, :4]
-    arrays["shape_coeffs"] = arrays["shape_coeffs"][:5]
-    arrays.update(changed)
-    out = tmp_path / "v1.npz"
-    np.savez(out, header=np.array(json.dumps(header)), **arrays)
-    return out
+    return as_version_1(model_path, tmp_path / "v1.npz", **changed)
 
 
 def test_a_version_1_file_warns_once_naming_the_file(tmp_path, tiny_arm_model_path, caplog):
