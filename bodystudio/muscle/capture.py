@@ -372,12 +372,12 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                 o.sequence_smooth_weight, o.sequence_rounds, o.sequence_max_nfev, o.sequence_huber_m,
                 o.sequence_fit_root, o.sequence_fit_skeleton, o.sequence_skeleton_prior_weight,
                 o.sequence_depth_huber_only, rest=base, free_joints=o.sequence_free_joints)
-        model_meshes = [skeleton_model_mesh(model, shape, p, base, J, o.norm_limit) for p in poses]
+        model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("sequence_fit", t0)
     if model is not None and o.pose_sigma_frames > 0:
         t0 = time.perf_counter()
         poses = smooth_arm_poses(poses, o.pose_sigma_frames)
-        model_meshes = [skeleton_model_mesh(model, shape, p, base, J, o.norm_limit) for p in poses]
+        model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("model_filtering", t0)
     if model is None:
         out_t = nicp_meshes

@@ -338,7 +338,7 @@ def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: in
     return out
 
 
-def skeleton_model_mesh(model, shape, pose: ArmPose, rest: np.ndarray, joints: np.ndarray,
+def skeleton_model_mesh(model, pose: ArmPose, rest: np.ndarray, joints: np.ndarray,
                         norm_limit: float = 0.9) -> np.ndarray:
     """Eq. 12 with a per-subject skeleton: ``skinning(v_rest + d_rho)`` about ``joints``, the rest mesh held.
 
@@ -439,7 +439,7 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
                 for k in range(T)]
 
     def mesh(p, J):
-        return skeleton_model_mesh(model, shape, p, rest, J, norm_limit)
+        return skeleton_model_mesh(model, p, rest, J, norm_limit)
 
     x = np.r_[np.zeros(n0), np.concatenate([np.r_[p.angles[0], p.angles[1] @ h] for p in poses])]
     lever = np.sqrt(smooth_weight) * 0.3
@@ -510,7 +510,7 @@ def fit_rest_shape_correction(model, shape, poses: list[ArmPose], frames: list[D
     rest = np.asarray(rest, np.float64)
     GtG, Gtb = np.zeros((k, k)), np.zeros(k)
     for p, fr in zip(poses, frames, strict=True):
-        M = skeleton_model_mesh(model, shape, p, rest, joints, norm_limit)
+        M = skeleton_model_mesh(model, p, rest, joints, norm_limit)
         idx, q, n = fr.plane_pairs(M)
         T = part_transforms(np.asarray(joints, np.float64), p)
         A = np.einsum("np,pij->nij", model.part_weights[idx], T[:, :3, :3])  # blended rotation per paired vertex

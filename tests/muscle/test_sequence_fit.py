@@ -90,7 +90,7 @@ def offset_skeleton_sequence(arm_model_2k):
         shoulder = np.array([0.0, 0.0, np.radians(5.0 + 4.0 * k)])
         pose = ArmPose(np.eye(4), np.stack([shoulder, elbow_rotvec(Jt, np.radians(15.0 + 12.0 * k), 0.0),
                                             np.zeros(3)]))
-        M = skeleton_model_mesh(model, shape, pose, rest, Jt)
+        M = skeleton_model_mesh(model, pose, rest, Jt)
         P, N = M[model.arm_mask], vertex_normals(M, F)[model.arm_mask]
         frames.append(DepthFrame(P, N, cKDTree(P), sensor, model.arm_mask, adjacency, CorrespondenceFilters(), F))
         truth.append(pose)
@@ -119,7 +119,7 @@ def test_the_per_subject_skeleton_recovers_offset_rest_joints(offset_skeleton_se
     assert after.max() < 3.0, after
 
     def surface_mm(poses, joints):
-        return 1000 * np.median([np.linalg.norm(skeleton_model_mesh(model, shape, p, rest, joints) - M, axis=1)
+        return 1000 * np.median([np.linalg.norm(skeleton_model_mesh(model, p, rest, joints) - M, axis=1)
                                  for p, M in zip(poses, meshes, strict=True)])
 
     assert surface_mm(fitted, J_fit) < 0.5 * surface_mm(fixed, J)
@@ -139,7 +139,7 @@ def test_the_skeleton_model_mesh_on_the_regressed_joints_is_the_model_mesh(arm_m
     J = model_joints(arm_model_2k, shape)
     pose = ArmPose(np.eye(4), np.stack([[0.1, -0.2, 0.4], elbow_rotvec(J, 0.9, 0.0), [0.0, 0.1, 0.0]]))
     rest = model_rest_vertices(arm_model_2k, shape)
-    np.testing.assert_allclose(skeleton_model_mesh(arm_model_2k, shape, pose, rest, J),
+    np.testing.assert_allclose(skeleton_model_mesh(arm_model_2k, pose, rest, J),
                                model_mesh(arm_model_2k, shape, pose), atol=1e-14)
 
 
@@ -161,14 +161,14 @@ def test_the_rest_shape_correction_recovers_a_planted_population_shape(tracked_s
     sensor = 0.5 * (J[0] + J[1]) + np.array([0.3, 0.1, 1.0])
     frames, meshes = [], []
     for pose in truth:
-        M = skeleton_model_mesh(model, shape, pose, subject, J)
+        M = skeleton_model_mesh(model, pose, subject, J)
         seen = model.arm_mask & (np.einsum("kd,kd->k", vertex_normals(M, F), sensor - M) > 0)  # one side only
         P, N = M[seen], vertex_normals(M, F)[seen]
         frames.append(DepthFrame(P, N, cKDTree(P), sensor, model.arm_mask, adjacency, CorrespondenceFilters(), F))
         meshes.append(M)
 
     def err_mm(r):
-        return 1000 * np.median([np.linalg.norm(skeleton_model_mesh(model, shape, p, r, J) - M, axis=1)[model.arm_mask]
+        return 1000 * np.median([np.linalg.norm(skeleton_model_mesh(model, p, r, J) - M, axis=1)[model.arm_mask]
                                  for p, M in zip(truth, meshes, strict=True)])
 
     got = rest
@@ -193,7 +193,7 @@ def test_the_capture_keeps_its_skeleton_and_the_extension_unposes_with_it(arm_mo
     Jt = J + np.array([[0.0, 0.0, 0.0], [0.008, 0.004, -0.005], [-0.006, 0.007, 0.005]])
     rest = model_rest_vertices(model, shape)
     pose = ArmPose(np.eye(4), np.stack([[0.0, 0.0, 0.5], elbow_rotvec(Jt, 1.2, 0.0), np.zeros(3)]))
-    V = skeleton_model_mesh(model, shape, pose, rest, Jt, norm_limit=1.0)  # plain skinning
+    V = skeleton_model_mesh(model, pose, rest, Jt, norm_limit=1.0)  # plain skinning
     cap = ArmCapture(V[None], np.asarray(model.faces), [pose], shape, (1.0, np.eye(3), np.zeros(3)), "full",
                      model.template_key, {}, [0], joints=Jt)
     write_arm_capture(tmp_path / "cap", cap)
