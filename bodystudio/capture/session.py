@@ -115,6 +115,20 @@ def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+def stream_fingerprint(session: Session, stream: str, frame_ids, camera: str | None = None) -> str | None:
+    """One sha256 over the manifest's sha256 of ``stream``'s files for ``frame_ids`` (in that order): the
+    identity of the recording a result was computed from, which survives moving or copying the session and
+    files added to it later. None when one of those files is not in the manifest."""
+    h = hashlib.sha256()
+    for frame in frame_ids:
+        rel = stream_path(stream, int(frame), camera)
+        digest = session.files.get(rel)
+        if digest is None:
+            return None
+        h.update(f"{rel} {digest}\n".encode())
+    return h.hexdigest()
+
+
 # ---------------------------------------------------------------------------------------------- encoding
 
 def encode_png(image: np.ndarray, what: str = "image") -> bytes:

@@ -196,7 +196,22 @@ def evaluate_capture_folder(folder: Path, session_path: Path | None = None) -> d
     if source is None:
         raise InputError(f"{folder}: params.json names no session; pass --session SESSION")
     session = open_session(source)
+    check_capture_source(folder, capture, session)
     return evaluate_arm_capture(capture, session, session_arm_template(session))
+
+
+def check_capture_source(folder: Path, capture, session) -> None:
+    """Refuse to score a capture against the ground truth of another recording than the one it was captured
+    from (its depth frames' fingerprint, written by the capture, differs): such a score would be meaningless.
+    Captures written before the fingerprint existed are scored as before."""
+    from bodystudio.capture.session import stream_fingerprint
+
+    if capture.source_fingerprint is None:
+        return
+    if stream_fingerprint(session, "kinect_depth", capture.frame_ids) != capture.source_fingerprint:
+        raise InputError(f"{folder}: captured from another recording than {session.path} (its depth frames "
+                         f"differ); pass --session with the session it was captured from "
+                         f"({capture.session_path or 'named in params.json'})")
 
 
 @eval_cli.app.command("muscle")

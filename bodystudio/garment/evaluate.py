@@ -150,6 +150,30 @@ def fit_errors(fit, session) -> dict:
     return out
 
 
+def check_fit_source(fit_dir, fit, session) -> None:
+    """Refuse to score a fit against another recording's ground truth: a fit of a session must match that
+    session's frames (their fingerprint, written by the fit); a fit of a video must at least have the session's
+    frame ids and image size. A score against the wrong truth would be meaningless, not merely bad."""
+    from bodystudio.capture.session import stream_fingerprint
+
+    cam = session.camera_names[0] if session.camera_names else None
+    if fit.source_fingerprint is not None:
+        if cam is None or stream_fingerprint(session, "rgb", fit.frame_ids, cam) != fit.source_fingerprint:
+            raise InputError(f"{fit_dir}: fitted on another recording than {session.path} (its frames differ); "
+                             f"pass --session with the session it was fitted on ({fit.source})")
+        return
+    missing = sorted(set(int(f) for f in fit.frame_ids) - set(session.frame_ids))
+    if missing:
+        raise InputError(f"{fit_dir}: frames {missing[:3]} of the fit are not in {session.path}; pass --session with "
+                         f"the session the video was made from")
+    if cam is not None:
+        c = session.cameras[cam]
+        if tuple(fit.masks.shape[1:]) != (int(c.height), int(c.width)):
+            raise InputError(f"{fit_dir}: the fit's frames are {fit.masks.shape[2]}x{fit.masks.shape[1]}, "
+                             f"{session.path}'s {c.width}x{c.height}; pass --session with the session the video "
+                             f"was made from")
+
+
 def evaluate_garment(fit_dir: str | os.PathLike, session: str | os.PathLike | None = None) -> dict:
     """``bodystudio eval garment DIR``: the fit's scores, plus the composite's when DIR/render/render.json exists
     (:func:`bodystudio.garment.composite.composite_errors`; refused when the render is not of the session's target)."""
@@ -162,6 +186,7 @@ def evaluate_garment(fit_dir: str | os.PathLike, session: str | os.PathLike | No
         raise InputError(f"{src}: the fit's source is not a session folder; eval garment needs the synthetic session "
                          f"(pass --session)")
     s = open_session(src)
+    check_fit_source(fit_dir, fit, s)
     scores = fit_errors(fit, s)
     if (Path(fit_dir) / "render" / "render.json").is_file():
         from bodystudio.garment.composite import composite_errors

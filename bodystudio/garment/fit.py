@@ -777,7 +777,7 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
                      rotations=np.stack([p.rotations for p in poses]),
                      translations=np.stack([p.translation for p in poses]), silhouette_iou=ious, masks=pf.masks,
                      lighting=lighting, albedo=albedo, timings_ms={k: round(v, 1) for k, v in timings.items()},
-                     warnings=tuple(warnings))
+                     warnings=tuple(warnings), source_fingerprint=pf.fingerprint)
     if out_dir is not None:
         save_garment_fit(out_dir, fit)
     return fit

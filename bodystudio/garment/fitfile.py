@@ -58,6 +58,8 @@ class GarmentFit:
     lighting: object | None = None  # bodystudio.garment.lighting.Lighting
     albedo: np.ndarray | None = None
     timings_ms: dict = field(default_factory=dict)
+    # a session source's rgb frames (capture.session.stream_fingerprint); None for a video file
+    source_fingerprint: str | None = None
     warnings: tuple[str, ...] = ()
 
     def __post_init__(self):
@@ -122,7 +124,8 @@ def save_garment_fit(folder: str | os.PathLike, fit: GarmentFit, command: str = 
                "lighting": None if fit.lighting is None else fit.lighting.to_dict(),
                "albedo": fit.albedo is not None,
                "silhouette_iou": [round(float(v), 5) for v in fit.silhouette_iou],
-               "min_frame_iou": MIN_FRAME_IOU, "timings_ms": fit.timings_ms, "warnings": list(fit.warnings)}
+               "min_frame_iou": MIN_FRAME_IOU, "timings_ms": fit.timings_ms, "warnings": list(fit.warnings),
+               "source_fingerprint": fit.source_fingerprint}
         return w.commit(doc)
 
 
@@ -168,7 +171,8 @@ def load_garment_fit(folder: str | os.PathLike) -> GarmentFit:
                           local=dict(doc["local"]), stature_m=float(doc["stature_m"]), rotations=rotations,
                           translations=translations, silhouette_iou=np.asarray(doc["silhouette_iou"], float),
                           masks=np.stack(masks), lighting=lighting, albedo=albedo,
-                          timings_ms=dict(doc.get("timings_ms", {})), warnings=tuple(doc.get("warnings", ())))
+                          timings_ms=dict(doc.get("timings_ms", {})), warnings=tuple(doc.get("warnings", ())),
+                          source_fingerprint=doc.get("source_fingerprint"))
     except FileFormatError:
         raise
     except (OSError, ValueError, KeyError, TypeError, InputError, json.JSONDecodeError) as exc:

@@ -36,6 +36,8 @@ class PersonFrames:
     frame_ids: np.ndarray
     images: np.ndarray
     masks: np.ndarray
+    # a session source's rgb frames, capture.session.stream_fingerprint (None for a video file)
+    fingerprint: str | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -56,7 +58,7 @@ def parse_frame_range(frames: str | None, n_available: int, where: str) -> slice
 
 def session_person_frames(path: str | os.PathLike, frames: str | None = None) -> PersonFrames:
     """Frames and person masks of a session's first camera (``cam_00/rgb``, ``cam_00/mask``)."""
-    from bodystudio.capture.session import open_session
+    from bodystudio.capture.session import open_session, stream_fingerprint
 
     session = open_session(path)
     if not session.camera_names or "rgb" not in session.streams or "mask" not in session.streams:
@@ -70,7 +72,8 @@ def session_person_frames(path: str | os.PathLike, frames: str | None = None) ->
         images.append(fr.images[cam])
         masks.append(fr.masks[cam])
     fps = float(session.metadata.get("fps", 30.0))
-    return PersonFrames(str(Path(path)), fps, np.asarray(ids, np.int64), np.stack(images), np.stack(masks))
+    return PersonFrames(str(Path(path)), fps, np.asarray(ids, np.int64), np.stack(images), np.stack(masks),
+                        stream_fingerprint(session, "rgb", ids, cam))
 
 
 def read_video(path: str | os.PathLike, frames: str | None = None) -> tuple[np.ndarray, float]:

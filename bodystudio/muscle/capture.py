@@ -205,6 +205,8 @@ class ArmCapture:
     # Rest shoulder, elbow, wrist (3, 3) in the template's space that ``poses`` turn about (the subject's fitted
     # skeleton; the rest mesh sits at the model's regressed shoulder). None: the model's regressed joints.
     joints: np.ndarray | None = None
+    # sha256 over the captured frames' depth files (capture.session.stream_fingerprint): which recording this is
+    source_fingerprint: str | None = None
 
     @property
     def n_frames(self) -> int:
@@ -436,6 +438,8 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
 def capture_arm_sequence(session, model, template: ArmTemplate, options: CaptureOptions = CaptureOptions(),
                          frames: slice | None = None, known_shape=None) -> ArmCapture:
     """Capture the arm of a Kinect session (``bodystudio.capture.session``), Sec. 4-7 of Arm-Muscle Capture."""
+    from bodystudio.capture.session import stream_fingerprint
+
     sensor = session.kinect
     if sensor is None:
         raise SessionError(f"{session.path}: no Kinect calibration; the arm capture needs a depth session")
@@ -455,6 +459,7 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
     tracker = np.stack(tracker) if len(tracker) == len(ids) else None
     capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids), known_shape)
     capture.session_path = str(Path(session.path).resolve())
+    capture.source_fingerprint = stream_fingerprint(session, "kinect_depth", ids)
     return capture
 
 
@@ -519,7 +524,7 @@ def write_arm_capture_files(path_for: Callable[[str], Path], capture: ArmCapture
               "poses": [None if p is None else p.to_dict() for p in capture.poses],
               "similarity": {"scale": float(s), "R": np.asarray(R).tolist(), "t": np.asarray(t).tolist()},
               "timings_ms": capture.timings_ms, "ms_per_frame": capture.ms_per_frame,
-              "session": capture.session_path,
+              "session": capture.session_path, "session_fingerprint": capture.source_fingerprint,
               "joints": None if capture.joints is None else np.asarray(capture.joints, float).tolist()}
     write_json(path_for("params.json"), params)
     write_json(path_for("manifest.json"), {"format": "bodystudio-arm-capture", "version": 1,
@@ -561,7 +566,7 @@ def load_arm_capture(folder: str | Path) -> ArmCapture:
         shape = ArmShapeParams(**shape)
     return ArmCapture(V, F, poses, shape, S, params.get("mode", "full"), params.get("template_key", ""),
                       dict(params.get("timings_ms", {})), list(params.get("frame_ids", range(n))),
-                      params.get("session"), joints=joints)
+                      params.get("session"), joints=joints, source_fingerprint=params.get("session_fingerprint"))
 
 
 __all__ = ["MODES", "ArmCapture", "CaptureOptions", "CorrespondenceFilters", "NicpOptions", "capture_arm_frames",

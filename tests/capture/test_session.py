@@ -222,3 +222,25 @@ def test_depth_millimetre_encoding_round_trip(values):
     png = sess.decode_png(sess.encode_png(sess.depth_to_png_mm(depth[None, :])), "t", color=False)
     assert png.dtype == np.uint16
     assert np.abs(png[0] / 1000.0 - depth).max() <= 0.0005 + 1e-12
+
+
+def test_stream_fingerprint_names_the_recording_not_the_folder(tmp_path):
+    """Same frames (a moved copy, a file added later) -> same fingerprint; other frames, another order, another
+    camera or a missing frame -> different or None."""
+    import shutil
+
+    write_small(tmp_path / "a", n_frames=3, seed=0)
+    write_small(tmp_path / "b", n_frames=3, seed=1)
+    shutil.copytree(tmp_path / "a", tmp_path / "moved")
+    a, b, moved = (open_session(tmp_path / n) for n in ("a", "b", "moved"))
+    fp = sess.stream_fingerprint(a, "kinect_depth", [0, 1, 2])
+    assert len(fp) == 64 and fp == sess.stream_fingerprint(moved, "kinect_depth", [0, 1, 2])
+    assert fp != sess.stream_fingerprint(b, "kinect_depth", [0, 1, 2])
+    assert fp != sess.stream_fingerprint(a, "kinect_depth", [0, 2, 1])
+    assert fp != sess.stream_fingerprint(a, "kinect_depth", [0, 1])
+    assert sess.stream_fingerprint(a, "kinect_depth", [0, 1, 7]) is None
+    rgb = sess.stream_fingerprint(a, "rgb", [0, 1], "cam_00")
+    assert rgb is not None and rgb != sess.stream_fingerprint(a, "rgb", [0, 1], "cam_01")
+    with SessionWriter(tmp_path / "moved", update=True) as w:
+        w.write_gt_subject({"gender": 0.2}, {})
+    assert sess.stream_fingerprint(open_session(tmp_path / "moved"), "kinect_depth", [0, 1, 2]) == fp

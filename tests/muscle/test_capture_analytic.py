@@ -525,7 +525,7 @@ def _fake_session(n=3, joints=True, side_names=("ShoulderLeft", "ElbowLeft", "Wr
         return SimpleNamespace(kinect_depth_m=np.full((2, 2), float(fid)) if depth else None,
                                kinect_joints={"names": names, "positions": pos[fid]} if joints else None)
 
-    return SimpleNamespace(path="/tmp/fake-session", kinect=SimpleNamespace(depth="CAM") if kinect else None,
+    return SimpleNamespace(path="/tmp/fake-session", files={}, kinect=SimpleNamespace(depth="CAM") if kinect else None,
                            frame_ids=list(range(n)), frame=frame, gt_subject=gt), pos
 
 

@@ -206,7 +206,16 @@ def test_eval_muscle_of_a_session_without_truth(nicp_capture, arm_session, tmp_p
     other = tmp_path / "s6k"
     assert main(["synth", "arm", str(other), "--subject-seed", "5", "--frames", "3", "--resolution", "6k"]) == 0
     capsys.readouterr()
-    run_bad(["eval", "muscle", nicp_capture, "--session", other], capsys, "template")
+    run_bad(["eval", "muscle", nicp_capture, "--session", other], capsys, "captured from another recording")
+    # a capture written before the recording's fingerprint existed reaches the template check
+    import json
+
+    old = tmp_path / "old_capture"
+    shutil.copytree(nicp_capture, old)
+    params = json.loads((old / "params.json").read_text())
+    del params["session_fingerprint"]
+    (old / "params.json").write_text(json.dumps(params))
+    run_bad(["eval", "muscle", old, "--session", other], capsys, "template")
 
 
 def test_capture_without_the_sequence_fit_runs_and_differs(arm_session, tiny_arm_model_path, tmp_path):
@@ -218,3 +227,16 @@ def test_capture_without_the_sequence_fit_runs_and_differs(arm_session, tiny_arm
                      *extra]) == 0
         meshes[name] = (out / "meshes" / "00002.ply").read_bytes()
     assert meshes["with"] != meshes["without"]
+
+
+def test_eval_muscle_refuses_another_recordings_truth(nicp_capture, arm_session, tmp_path, capsys):
+    """A capture scored against another recording of the same template (another subject) would print a
+    meaningless score with exit 0; it is refused. A copy of its own session (moved, renamed) still scores."""
+    other = tmp_path / "other"
+    assert main(["synth", "arm", str(other), "--subject-seed", "6", "--frames", "3", "--resolution", "2k"]) == 0
+    capsys.readouterr()
+    run_bad(["eval", "muscle", nicp_capture, "--session", other], capsys, "captured from another recording")
+    copy = tmp_path / "moved"
+    shutil.copytree(arm_session, copy)
+    assert main(["eval", "muscle", str(nicp_capture), "--session", str(copy)]) == 0
+    assert '"median_mm"' in capsys.readouterr().out
