@@ -292,33 +292,28 @@ def model_extend(
     model_path: Path = typer.Argument(..., metavar="MODEL", help="arm model (.npz)"),
     captures: list[Path] = typer.Argument(..., metavar="CAPTURES...", help="arm capture folders to add"),
     out: Path = typer.Option(..., "--out", help="new model file (.npz)"),
-    shape: str | None = typer.Option(None, "--shape", help="shape of the captured subject(s): "
-                                     "bmi=..,muscularity=..,height_m=..,arm_length_m=..[,sex=male|female] "
-                                     "(default: the session's "
-                                     "measured subject, else the capture's fitted shape)"),
+    shape: list[str] | None = typer.Option(None, "--shape", help="shape of a captured subject: "
+                                           "bmi=..,muscularity=..,height_m=..,arm_length_m=..[,sex=male|female]; "
+                                           "once per capture, in their order (default: the session's "
+                                           "measured subject, else the capture's fitted shape)"),
     stride: int = typer.Option(5, "--stride", help="use every N-th captured frame"),
 ) -> None:
     """Dataset extension (issue 11 §4): add captured subjects to a model and re-learn it."""
-    from bodystudio.capture.session import open_session
-    from bodystudio.errors import BodyStudioError
     from bodystudio.muscle.capture import load_arm_capture
     from bodystudio.muscle.export import check_new_output
-    from bodystudio.muscle.model import (
-        ArmShapeParams,
-        capture_samples,
-        extend_arm_model,
-        load_arm_model,
-        save_arm_model,
-    )
+    from bodystudio.muscle.model import capture_samples, extend_arm_model, load_arm_model, save_arm_model
 
     check_range("--stride", stride, 1, 1000)
     if out.suffix.lower() != ".npz":
         raise InputError(f"--out {out}: an arm model is a .npz file")
-    given = _parse_shape(shape) if shape is not None else None
+    shapes = [_parse_shape(text) for text in shape or ()]
+    if shapes and len(shapes) != len(captures):
+        raise InputError(f"--shape: {len(shapes)} given for {len(captures)} captures; give one --shape per "
+                         "capture, in the captures' order (repeat the values for captures of one subject)")
     check_new_output(out, "model file")
     model = load_arm_model(model_path)
     samples = []
-    for folder in captures:
+    for k, folder in enumerate(captures):
         if not folder.is_dir():
             raise InputError(f"{folder}: no such arm capture folder")
         capture = load_arm_capture(folder)
@@ -327,19 +322,37 @@ def model_extend(
                              f"{model.template_key}; capture with the model's --resolution and --side")
         if capture.mode == "nicp" or capture.poses[0] is None:
             raise InputError(f"{folder}: captured with --no-model (no joint angles); capture with --model")
-        subject_shape = given
-        if subject_shape is None and capture.session_path is not None:
-            try:
-                subject = (open_session(capture.session_path).gt_subject or {}).get("arm", {}).get("subject")
-                subject_shape = ArmShapeParams.from_dict(subject) if subject else None
-            except BodyStudioError:
-                subject_shape = None
+        subject_shape, where = (shapes[k], "--shape") if shapes else _measured_subject(capture)
         if subject_shape is None:
             subject_shape = capture.shape
+        typer.echo(f"{folder}: shape from {where}", err=True)
         samples += capture_samples(capture, f"capture_{folder.resolve().name}", subject_shape, stride)
     extended = extend_arm_model(model, samples)
     save_arm_model(out, extended)
     typer.echo(f"wrote {out}: {len(extended.subjects)} subjects ({len(captures)} added from captures)")
+
+
+def _measured_subject(capture):
+    """The measured shape of a capture's subject from its session's ground truth (a synthetic session records
+    it) and where it came from; (None, why not) when the session is gone, is another recording than the one
+    captured, or records no subject: the capture's fitted shape is used then."""
+    from bodystudio.capture.session import open_session, stream_fingerprint
+    from bodystudio.errors import BodyStudioError
+    from bodystudio.muscle.model import ArmShapeParams
+
+    if capture.session_path is None:
+        return None, "the capture's fitted shape (it names no session)"
+    try:
+        session = open_session(capture.session_path)
+    except BodyStudioError:
+        return None, f"the capture's fitted shape ({capture.session_path} cannot be opened)"
+    if capture.source_fingerprint is not None and \
+            stream_fingerprint(session, "kinect_depth", capture.frame_ids) != capture.source_fingerprint:
+        return None, f"the capture's fitted shape ({capture.session_path} is now another recording)"
+    subject = (session.gt_subject or {}).get("arm", {}).get("subject")
+    if not subject:
+        return None, f"the capture's fitted shape ({capture.session_path} records no measured subject)"
+    return ArmShapeParams.from_dict(subject), f"the measured subject of {capture.session_path}"
 
 
 @model_app.command("info")

@@ -91,7 +91,7 @@ def test_model_build_capture_extend_info(arm_session, tmp_path, capsys):
     assert params["mode"] == "full" and params["poses"][0] is not None
     assert params["shape"] == pytest.approx({**given, "sex": 1.0})  # the measured shape, not a fit; male by default
     assert main(["muscle", "model", "extend", str(model), str(cap), "--out", str(ext), "--stride", "2"]) == 0
-    capsys.readouterr()
+    assert f"{cap}: shape from the measured subject of" in capsys.readouterr().err  # says where the shape came from
     assert main(["muscle", "model", "info", str(ext)]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["n_subjects"] == 3 and info["subjects"][-1]["name"] == "capture_cap"

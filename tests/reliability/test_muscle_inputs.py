@@ -177,6 +177,14 @@ def test_model_extend_bad_options(tiny_arm_model_path, nicp_capture, tmp_path, c
     nothing_beside(tmp_path)
 
 
+def test_model_extend_needs_one_shape_per_capture(tiny_arm_model_path, nicp_capture, tmp_path, capsys):
+    """One --shape for two captures would give both subjects the same measured shape: refused."""
+    shape = "bmi=24,muscularity=0.4,height_m=1.75,arm_length_m=0.55"
+    run_bad(["muscle", "model", "extend", tiny_arm_model_path, nicp_capture, nicp_capture, "--out",
+             tmp_path / "m2.npz", "--shape", shape], capsys, "--shape: 1 given for 2 captures")
+    nothing_beside(tmp_path)
+
+
 def test_model_extend_bad_captures(tiny_arm_model_path, nicp_capture, tmp_path, capsys):
     out = tmp_path / "m2.npz"
     run_bad(["muscle", "model", "extend", tiny_arm_model_path, tmp_path / "none", "--out", out], capsys,
