@@ -673,7 +673,8 @@ def capture_unit(session_path: str, unit_root: str, options: MuscleOptions, inpu
 
 
 def muscle_batch(session_paths: list[str | Path], out: str | Path, client, options: MuscleOptions,
-                 force: bool = False, progress: bool = False, setup: Callable | None = None) -> BatchReport:
+                 force: bool = False, progress: bool = False, setup: Callable | None = None,
+                 shapes: list[dict | None] | None = None) -> BatchReport:
     """``bodystudio muscle capture S1 S2 ... --out DIR``: every sequence a work unit on the cluster.
 
     ``DIR/NAME/`` is the capture of session ``NAME`` (readable by ``eval muscle`` and ``muscle model
@@ -681,7 +682,10 @@ def muscle_batch(session_paths: list[str | Path], out: str | Path, client, optio
     (inputs sha256, status, error). A sequence is one unit: the shape fit (Sec. 6.2 of Arm-Muscle Capture)
     uses its first frames and the refinement (Sec. 7) neighbouring frames, so a chunk border would change the
     result. Failures do not stop the others; they are in the report (the CLI raises :class:`BatchError`).
+    ``shapes`` (one per session, or None) replaces ``options.shape`` per sequence: each subject's measured shape.
     """
+    from dataclasses import replace
+
     from bodystudio.fileio import check_output_folder
 
     if options.mode not in ("full", "nicp", "model"):
@@ -689,6 +693,8 @@ def muscle_batch(session_paths: list[str | Path], out: str | Path, client, optio
     if (options.mode == "nicp") != (options.model is None):
         raise InputError("a capture batch needs an arm model for modes full/model and none for nicp")
     sessions = check_capture_sessions([Path(p) for p in session_paths])
+    if shapes is not None and len(shapes) != len(sessions):
+        raise InputError(f"{len(shapes)} measured shapes for {len(sessions)} sessions: give one per session")
     out = Path(out)
     check_output_folder(out, "--out")
     model_sha = None if options.model is None else sha256_file(Path(options.model))
@@ -696,15 +702,17 @@ def muscle_batch(session_paths: list[str | Path], out: str | Path, client, optio
     acquire_lock(layout, "bodystudio muscle capture (batch)")
     try:
         units = []
-        for session in sessions:
-            sha = sequence_inputs_sha256(session, options, model_sha)
+        for k, session in enumerate(sessions):
+            opts = options if shapes is None else replace(options, shape=shapes[k])
+            sha = sequence_inputs_sha256(session, opts, model_sha)
             root = out / session.name
             units.append({"name": session.name, "session": str(session.resolve()), "output": str(root),
-                          "inputs_sha256": sha, "root": root,
+                          "inputs_sha256": sha, "root": root, "options": opts,
                           "complete": (lambda r=root, s=sha: unit_is_complete(unit_layout(r), s))})
 
         def submit(unit):
-            return client.submit(capture_unit, unit["session"], str(unit["root"]), options, unit["inputs_sha256"],
+            return client.submit(capture_unit, unit["session"], str(unit["root"]), unit["options"],
+                                 unit["inputs_sha256"],
                                  setup, key=task_key("capture", unit), pure=False)
 
         record_path = out / "batch.json"

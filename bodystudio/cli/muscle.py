@@ -90,10 +90,10 @@ def capture(
                                           "(default: the session's, else 6k)"),
     side: str | None = typer.Option(None, "--side", help="left | right (default: the session's, else left)"),
     frames: int | None = typer.Option(None, "--frames", help="capture only the first N frames"),
-    shape: str | None = typer.Option(None, "--shape", help="the subject's measured shape parameters "
-                                     "bmi=..,muscularity=..,height_m=..,arm_length_m=..[,sex=male|female] "
-                                     "(the paper's Table 1; "
-                                     "default: fitted from the first frames)"),
+    shape: list[str] | None = typer.Option(None, "--shape", help="the subject's measured shape parameters "
+                                           "bmi=..,muscularity=..,height_m=..,arm_length_m=..[,sex=male|female] "
+                                           "(the paper's Table 1; a batch: once per SESSION, in order; "
+                                           "default: fitted from the first frames)"),
     no_sequence_fit: bool = typer.Option(False, "--no-sequence-fit", help="skip the whole-sequence pose fit "
                                          "(docs/muscle.md: better captures with it; captures meant to extend a "
                                          "model extended it more without it)"),
@@ -109,9 +109,12 @@ def capture(
     from bodystudio.muscle.capture import capture_session_arm, write_arm_capture
     from bodystudio.muscle.export import check_new_output
 
-    if shape is not None and no_model:
+    if shape and no_model:
         raise InputError("--shape needs the model (the shape parameters drive it); drop --no-model")
-    known_shape = _parse_shape(shape) if shape is not None else None
+    shapes = [_parse_shape(text) for text in shape or ()]
+    if shapes and len(shapes) != len(session_paths):
+        raise InputError(f"--shape: {len(shapes)} given for {len(session_paths)} sessions; give one --shape per "
+                         "SESSION, in their order (repeat the values for sessions of one subject)")
     if no_model and no_refine:
         raise InputError("--no-model and --no-refine: choose one (--no-model is NICP + ARAP without the model, "
                          "--no-refine the model without the refinement)")
@@ -132,20 +135,20 @@ def capture(
     if no_sequence_fit and mode == "nicp":
         raise InputError("--no-sequence-fit with --no-model: the sequence fit is a model step; drop one")
     if len(session_paths) > 1 or scheduler is not None or workers is not None:
-        _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, known_shape, scheduler,
+        _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, shapes or None, scheduler,
                        workers, force, not no_sequence_fit)
         return
     if force:
         raise InputError("--force is for a batch (several SESSIONs or --workers/--scheduler); a single capture "
                          "writes a new --out folder")
     check_new_output(out, "arm capture folder")
-    result = capture_session_arm(session_paths[0], model_path, mode, resolution, side, frames, known_shape,
-                                 sequence_fit=not no_sequence_fit)
+    result = capture_session_arm(session_paths[0], model_path, mode, resolution, side, frames,
+                                 shapes[0] if shapes else None, sequence_fit=not no_sequence_fit)
     write_arm_capture(out, result)
     typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
 
 
-def _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, known_shape, scheduler, workers,
+def _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, shapes, scheduler, workers,
                    force, sequence_fit: bool = True) -> None:
     """``muscle capture S1 S2 ... --out DIR``: each sequence a work unit on a dask cluster (bodystudio.batch)."""
     from dataclasses import asdict
@@ -169,11 +172,11 @@ def _capture_batch(session_paths, out, model_path, mode, resolution, side, frame
         load_arm_model(model_path)  # junk is refused here, not once per sequence on the workers
     resolve_scheduler(scheduler, workers)
     options = MuscleOptions(mode=mode, resolution=resolution, side=side, frames=frames,
-                            shape=None if known_shape is None else asdict(known_shape),
                             model=None if model_path is None else str(model_path.resolve()), sequence_fit=sequence_fit)
     with batch_client(scheduler, workers) as client:
         batch_cli.print_cluster(client)
-        report = muscle_batch(session_paths, out, client, options, force=force, progress=True)
+        report = muscle_batch(session_paths, out, client, options, force=force, progress=True,
+                              shapes=None if shapes is None else [asdict(s) for s in shapes])
     batch_cli.print_report(report, f"muscle capture ({len(session_paths)} sequences)")
     if report.errors:
         raise BatchError(report.failure_message("sequences"))

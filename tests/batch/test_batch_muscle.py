@@ -185,3 +185,22 @@ def test_killed_worker_mid_sequence_completes(arm_sessions, cluster, tmp_path):
                                 ["units"][s.name]["inputs_sha256"])
     cluster.wait_for_workers(2, timeout=60)  # the nanny restarts the killed worker for the next tests
     assert all(all(flags.values()) for flags in cluster.run(worker_main_thread_imports).values())
+
+
+def test_each_sequence_gets_its_own_measured_shape(arm_sessions, tiny_arm_model_path, cluster, tmp_path):
+    """``muscle capture S1 S2 --shape A --shape B``: each unit captures with its own subject's shape."""
+    from dataclasses import asdict
+
+    from bodystudio.muscle.model import ArmShapeParams
+
+    sessions = _copies(arm_sessions, tmp_path, ("s0", "s1"))
+    shapes = [ArmShapeParams(bmi=22.0, muscularity=0.3, height_m=1.70, arm_length_m=0.50),
+              ArmShapeParams(bmi=27.0, muscularity=0.6, height_m=1.85, arm_length_m=0.56, sex=0.0)]
+    out = tmp_path / "out"
+    options = MuscleOptions(mode="model", model=str(tiny_arm_model_path), frames=2)
+    report = muscle_batch(sessions, out, cluster, options, shapes=[asdict(s) for s in shapes])
+    assert report.status == {"s0": "done", "s1": "done"}, report.errors
+    for name, shape in zip(("s0", "s1"), shapes, strict=True):
+        assert load_arm_capture(out / name).shape == shape
+    with pytest.raises(Exception, match="2 measured shapes for 1 sessions"):
+        muscle_batch(sessions[:1], tmp_path / "out2", cluster, options, shapes=[None, None])

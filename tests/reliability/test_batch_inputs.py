@@ -133,3 +133,11 @@ def test_muscle_capture_batch_unreachable_scheduler(two_sessions, tmp_path, caps
     run_bad(["muscle", "capture", *two_sessions, "--out", tmp_path / "out", "--no-model"], capsys,
             "$BODYSTUDIO_SCHEDULER tcp://127.0.0.1:1: cannot reach the scheduler")
     assert not (tmp_path / "out").exists()
+
+
+def test_muscle_capture_batch_needs_one_shape_per_session(two_sessions, tmp_path, capsys):
+    """One --shape for two sessions would give both subjects the same measured shape: refused."""
+    shape = "bmi=24,muscularity=0.4,height_m=1.75,arm_length_m=0.55"
+    run_bad(["muscle", "capture", *two_sessions, "--out", tmp_path / "out", "--model", tmp_path / "m.npz",
+             "--shape", shape], capsys, "--shape: 1 given for 2 sessions")
+    assert not (tmp_path / "out").exists()
