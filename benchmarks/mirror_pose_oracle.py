@@ -1,0 +1,245 @@
+"""What a better pose would buy the mirror: the IK pose with parts of the true pose swapped in, scored by warp_iou.
+
+Usage: PYTHONPATH=. python benchmarks/mirror_pose_oracle.py [--stride 4] [--source NAME.npz] SESSION [SESSION ...]
+
+Per every ``stride``-th frame in which player 1 is tracked (a synthetic mirror session with ``gt/mirror``),
+the fitted source body and its target are posed by
+
+* ``IK``: the run's IK pose (:func:`bodystudio.mirror.track.ik_pose`, warm-started frame to frame);
+* ``IK swing + true twist``: every bone's direction from the IK, its twist about that direction from the true
+  pose (the true world rotation turned by the smallest rotation that takes its bone axis onto the IK's);
+  ``(limbs)``: only the upper / lower arms, thighs and calves;
+* ``true rotations, IK root``: every bone's true world rotation, the root's rotation and translation from the IK;
+* ``true swing, IK twist (limbs)``, ``true spine_01``, ``IK rotations, true root``, ``true pose``: the other
+  parts of the pose swapped in the same way (``true pose``: the fitted root head placed on the true one);
+* ``true shape, IK pose``: the true rest bodies and skeletons (``gt/mirror/actors.npz``) tracked by the IK;
+* ``true vertices``: the ground-truth posed source and target (the image step's ceiling);
+
+and the dense warp of the run (graph-cut foreground) is scored against the target's true silhouette. Also
+printed: the source vertex error, the displacement error ``(V_T - V_S)`` against the truth, the bones'
+swing / twist errors of each pose (degrees, limbs and spine_01), the largest per-frame gain over the IK and the
+depth residual (mean point-to-plane distance of the player's depth points, 2000 of them, to the posed fitted
+source: what a depth refinement would minimise).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+LIMBS = ("upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
+
+
+def world_rotations(skeleton, pose) -> np.ndarray:
+    """(B, 3, 3) rotation each bone applies in world axes (rest-world to posed-world), skeleton independent."""
+    from bodystudio.body.skinning import forward_kinematics
+
+    G = forward_kinematics(skeleton, pose)[:, :3, :3]
+    return G @ np.transpose(skeleton.rest_rotations, (0, 2, 1))
+
+
+def pose_from_world(skeleton, W: np.ndarray, translation):
+    """The Pose of ``skeleton`` whose bones turn by the world rotations ``W`` (B, 3, 3)."""
+    from scipy.spatial.transform import Rotation
+
+    from bodystudio.body.pose import Pose
+
+    Rr = skeleton.rest_rotations
+    rel = np.empty_like(W)
+    for j, p in enumerate(skeleton.parents):
+        rel[j] = W[j] if p < 0 else W[p].T @ W[j]
+    local = np.transpose(Rr, (0, 2, 1)) @ rel @ Rr
+    return Pose(Rotation.from_matrix(local).as_rotvec(), np.asarray(translation, float))
+
+
+def swing_twist_errors(skeleton, W_est, W_true, bones) -> tuple[np.ndarray, np.ndarray]:
+    """Swing (bone direction) and twist (about it) angles of ``W_est`` against ``W_true``, degrees, per bone."""
+    from bodystudio.body.ik import rotation_between
+
+    swing, twist = [], []
+    for j in bones:
+        a = skeleton.rest_rotations[j][:, 1]
+        d_e, d_t = W_est[j] @ a, W_true[j] @ a
+        swing.append(np.degrees(np.arccos(np.clip(d_e @ d_t, -1, 1))))
+        aligned = rotation_between(d_t, d_e) @ W_true[j]
+        x_e, x_a = W_est[j] @ skeleton.rest_rotations[j][:, 0], aligned @ skeleton.rest_rotations[j][:, 0]
+        twist.append(np.degrees(np.arctan2(np.cross(x_a, x_e) @ d_e, x_a @ x_e)))
+    return np.array(swing), np.abs(np.array(twist))
+
+
+def oracle_twist(skeleton, W_ik, W_true, bones) -> np.ndarray:
+    """World rotations with the IK's bone directions and the true twist for ``bones`` (the IK's elsewhere)."""
+    from bodystudio.body.ik import rotation_between
+
+    W = W_ik.copy()
+    for j in bones:
+        a = skeleton.rest_rotations[j][:, 1]
+        W[j] = rotation_between(W_true[j] @ a, W_ik[j] @ a) @ W_true[j]
+    return W
+
+
+def oracle_swing(skeleton, W_ik, W_true, bones) -> np.ndarray:
+    """World rotations with the true bone directions and the IK's twist for ``bones`` (the IK's elsewhere)."""
+    from bodystudio.body.ik import rotation_between
+
+    W = W_ik.copy()
+    for j in bones:
+        a = skeleton.rest_rotations[j][:, 1]
+        W[j] = rotation_between(W_ik[j] @ a, W_true[j] @ a) @ W_ik[j]
+    return W
+
+
+def score(session, stride: int = 4, player: int = 1, source=None) -> dict[str, float]:
+    """Mean scores over every ``stride``-th tracked frame of ``session`` (see the module docstring)."""
+    from scipy.spatial import cKDTree
+
+    from bodystudio.body.pose import Pose
+    from bodystudio.body.skeleton import Skeleton
+    from bodystudio.geometry.mesh import vertex_normals
+    from bodystudio.mirror.compose import update_background
+    from bodystudio.mirror.evaluate import mask_iou
+    from bodystudio.mirror.foreground import refine_foreground
+    from bodystudio.mirror.frames import point_cloud, read_mirror_frame, register_depth_to_color
+    from bodystudio.mirror.init import SourceBody
+    from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
+    from bodystudio.mirror.run import MLS_ALPHA, MLS_RADIUS_PX, N_HANDLES, RIM_COS, load_source
+    from bodystudio.mirror.track import ik_pose
+    from bodystudio.mirror.warp import mls_warp_field, warp_foreground, warp_pairs
+
+    body, model = load_source(session, source)
+    c_target = target_coeffs(model, body.coeffs, session.metadata["edits"])
+    target_rest = model.vertices(c_target)
+    target_rig = target_skeleton(body, target_rest, model, c_target)
+    sk = body.skeleton
+    actors = np.load(Path(session.path) / "gt" / "mirror" / "actors.npz")
+    a = list(actors["players"]).index(player)
+    true_sk = Skeleton(sk.bone_names, sk.parents, actors["source_heads"][a], actors["source_tails"][a], sk.rolls)
+    true_body = SourceBody(body.coeffs, actors["source_rest_vertices"][a].astype(float), true_sk, body.frames_used,
+                           body.residual_mm, body.weights, body.faces)
+    true_target_rest = actors["target_rest_vertices"][a].astype(float)
+    true_target_rig = Skeleton(sk.bone_names, sk.parents, actors["target_heads"][a], actors["target_tails"][a],
+                               sk.rolls)
+    previous_true_shape = None
+    camera, faces = session.kinect.color, body.faces
+    limbs = [sk.index(b) for b in LIMBS]
+    spine = [sk.index("spine_01")]
+    non_root = [j for j in range(sk.n_bones) if sk.parents[j] >= 0]
+    root = int(np.flatnonzero(np.asarray(sk.parents) < 0)[0])
+    background, previous, rows = None, None, []
+    for i in session.frame_ids:
+        frame = read_mirror_frame(session, i)
+        depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, session.kinect)
+        person = players_c == player
+        tracked = frame.body(player)
+        if tracked is None:
+            background = update_background(background, frame.rgb, players_c > 0)
+            continue
+        pose_ik = ik_pose(sk, tracked.positions, tracked.tracked, session.kinect.version, previous=previous)
+        previous = pose_ik
+        pose_true_shape = ik_pose(true_sk, tracked.positions, tracked.tracked, session.kinect.version,
+                                  previous=previous_true_shape)
+        previous_true_shape = pose_true_shape
+        gt = session.frame(i).gt_mirror
+        if i % stride or gt is None or player not in list(gt["players"]):
+            continue
+        k = list(gt["players"]).index(player)
+        if not gt["reported"][k]:
+            continue
+        true_pose = Pose(gt["pose_rotations"][k].astype(float), gt["pose_translations"][k].astype(float))
+        W_true, W_ik = world_rotations(true_sk, true_pose), world_rotations(sk, pose_ik)
+        # the fitted root head placed where the true one is
+        true_translation = true_pose.translation + true_sk.heads[root] - sk.heads[root]
+        poses = {
+            "IK": pose_ik,
+            "IK swing + true twist (limbs)": pose_from_world(sk, oracle_twist(sk, W_ik, W_true, limbs),
+                                                             pose_ik.translation),
+            "IK swing + true twist": pose_from_world(sk, oracle_twist(sk, W_ik, W_true, non_root),
+                                                     pose_ik.translation),
+            "true swing, IK twist (limbs)": pose_from_world(sk, oracle_swing(sk, W_ik, W_true, limbs),
+                                                            pose_ik.translation),
+            "true spine_01": pose_from_world(sk, _replace(W_ik, W_true, spine), pose_ik.translation),
+            "true rotations, IK root": pose_from_world(sk, _replace(W_ik, W_true, non_root), pose_ik.translation),
+            "IK rotations, true root": pose_from_world(sk, _replace(W_ik, W_true, [root]), true_translation),
+            "true pose": pose_from_world(sk, W_true, true_translation),
+        }
+        Vs_t, Vt_t = gt["source_vertices"][k].astype(float), gt["target_vertices"][k].astype(float)
+        true_target = session.frame(i).gt_target_person == player
+        fg = refine_foreground(frame.rgb, person, depth_c, background=background)
+        background = update_background(background, frame.rgb, fg | (players_c > 0))
+
+        def warp_iou(A, B, rgb=frame.rgb, fg=fg, true_target=true_target):
+            p = warp_pairs(A, B, faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=True)
+            field = mls_warp_field(p.src_uv, p.dst_uv, (camera.height, camera.width), kind="similarity",
+                                   alpha=MLS_ALPHA, radius_px=MLS_RADIUS_PX, dense=p.dense)
+            return mask_iou(warp_foreground(rgb, fg, field)[1] > 0.5, true_target)
+
+        points = point_cloud(frame, session.kinect, player)
+        points = points[points[:, 1] > 0.02][:: max(1, len(points) // 2000)]  # the floor under the feet
+
+        def depth_residual_mm(V, points=points):
+            """Mean point-to-plane distance of the depth points to their nearest vertices (those within 5 cm)."""
+            d, idx = cKDTree(V).query(points)
+            keep = d < 0.05
+            N = vertex_normals(V, faces)[idx[keep]]
+            return 1e3 * float(np.mean(np.abs(np.einsum("ij,ij->i", points[keep] - V[idx[keep]], N))))
+
+        row = {"true vertices": warp_iou(Vs_t, Vt_t), "true vertices: depth residual mm": depth_residual_mm(Vs_t)}
+        Vs, Vt = posed_source_and_target(true_body, true_target_rest, pose_true_shape, true_target_rig)
+        row["true shape, IK pose"] = warp_iou(Vs, Vt)
+        row["true shape, IK pose: displacement err mm"] = 1e3 * np.linalg.norm((Vt - Vs) - (Vt_t - Vs_t),
+                                                                              axis=1).mean()
+        for name, pose in poses.items():
+            Vs, Vt = posed_source_and_target(body, target_rest, pose, target_rig)
+            W = world_rotations(sk, pose)
+            sw, tw = swing_twist_errors(sk, W, W_true, limbs)
+            sw_s, _ = swing_twist_errors(sk, W, W_true, spine)
+            row[name] = warp_iou(Vs, Vt)
+            row[f"{name}: depth residual mm"] = depth_residual_mm(Vs)
+            if name != "IK":
+                row[f"{name}: gain over IK, max per frame"] = row[name] - row["IK"]
+            row[f"{name}: source vertex err mm"] = 1e3 * np.linalg.norm(Vs - Vs_t, axis=1).mean()
+            row[f"{name}: displacement err mm"] = 1e3 * np.linalg.norm((Vt - Vs) - (Vt_t - Vs_t), axis=1).mean()
+            row[f"{name}: limb swing / twist deg"] = (sw.mean(), tw.mean())
+            row[f"{name}: spine_01 swing deg"] = sw_s.mean()
+        rows.append(row)
+    out = {"frames": len(rows)}
+    for key in rows[0]:
+        vals = np.array([r[key] for r in rows], float)
+        out[key] = float(vals.max()) if key.endswith("max per frame") else \
+            tuple(vals.mean(0)) if vals.ndim > 1 else float(vals.mean())
+    return out
+
+
+def _replace(W_ik, W_true, bones) -> np.ndarray:
+    W = W_ik.copy()
+    W[bones] = W_true[bones]
+    return W
+
+
+def main() -> None:
+    from bodystudio.capture.session import open_session
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sessions", nargs="+", type=Path)
+    parser.add_argument("--stride", type=int, default=4)
+    parser.add_argument("--source", default=None, help="source body .npz name inside SESSION/mirror/")
+    args = parser.parse_args()
+    results = {}
+    for p in args.sessions:
+        src = None if args.source is None else p / "mirror" / args.source
+        results[p.name] = score(open_session(p), args.stride, source=src)
+    keys = list(next(iter(results.values())))
+    print("| score | " + " | ".join(results) + " |")
+    print("|---|" + "---|" * len(results))
+
+    def fmt(v):
+        return " / ".join(f"{x:.3g}" for x in v) if isinstance(v, tuple) else f"{v:.4g}"
+
+    for key in keys:
+        print(f"| {key} | " + " | ".join(fmt(r[key]) for r in results.values()) + " |")
+
+
+if __name__ == "__main__":
+    main()
