@@ -212,6 +212,18 @@ def default_lighting(camera):
 
 # ------------------------------------------------------------------------------------------ frames in
 
+def _check_source_unchanged(fit, path, source, camera) -> None:
+    """Refuse a fit's source that is no longer the recording it was fitted on (another clip or session at the
+    same path): the garment would be composited onto frames it was not fitted to."""
+    from bodystudio.garment.person import source_fingerprint
+
+    if fit.source_fingerprint is None:
+        return
+    if source_fingerprint(source, fit.frame_ids, camera) != fit.source_fingerprint:
+        raise InputError(f"{path}: not the recording the fit was made from (it changed since 'bodystudio garment "
+                         f"fit'); restore it or rerun the fit")
+
+
 def source_frames(fit, fit_dir: str | os.PathLike | None = None):
     """Yield the video frames (H, W, 3) uint8 RGB of ``fit.frame_ids`` from the fit's source: a session folder
     (its camera ``fit.camera.name`` or its only camera) or a video file (frame ids = frame numbers)."""
@@ -223,12 +235,14 @@ def source_frames(fit, fit_dir: str | os.PathLike | None = None):
 
         session = open_session(source)
         cam = fit.camera.name if fit.camera.name in session.camera_names else session.camera_names[0]
+        _check_source_unchanged(fit, source, session, cam)
         for fid in fit.frame_ids:
             yield session.frame(int(fid)).images[cam]
         return
     if not source.is_file():
         raise InputError(f"{source}: the fit's source video or session is gone; restore it or rerun 'bodystudio "
                          "garment fit'")
+    _check_source_unchanged(fit, source, source, None)
     import imageio_ffmpeg
 
     order = [int(f) for f in fit.frame_ids]

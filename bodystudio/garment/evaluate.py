@@ -154,11 +154,11 @@ def check_fit_source(fit_dir, fit, session) -> None:
     """Refuse to score a fit against another recording's ground truth: a fit of a session must match that
     session's frames (their fingerprint, written by the fit); a fit of a video must at least have the session's
     frame ids and image size. A score against the wrong truth would be meaningless, not merely bad."""
-    from bodystudio.capture.session import stream_fingerprint
+    from bodystudio.garment.person import source_fingerprint
 
     cam = session.camera_names[0] if session.camera_names else None
-    if fit.source_fingerprint is not None:
-        if cam is None or stream_fingerprint(session, "rgb", fit.frame_ids, cam) != fit.source_fingerprint:
+    if fit.source_fingerprint is not None and fit.source_fingerprint.startswith("session:"):
+        if cam is None or source_fingerprint(session, fit.frame_ids, cam) != fit.source_fingerprint:
             raise InputError(f"{fit_dir}: fitted on another recording than {session.path} (its frames differ); "
                              f"pass --session with the session it was fitted on ({fit.source})")
         return

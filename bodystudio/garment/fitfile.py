@@ -58,7 +58,8 @@ class GarmentFit:
     lighting: object | None = None  # bodystudio.garment.lighting.Lighting
     albedo: np.ndarray | None = None
     timings_ms: dict = field(default_factory=dict)
-    # a session source's rgb frames (capture.session.stream_fingerprint); None for a video file
+    # the source recording's identity (garment.person.source_fingerprint: "session:..." or "video:..."); None:
+    # unknown (a fit written before it existed, or made in memory)
     source_fingerprint: str | None = None
     warnings: tuple[str, ...] = ()
 

@@ -36,7 +36,8 @@ class PersonFrames:
     frame_ids: np.ndarray
     images: np.ndarray
     masks: np.ndarray
-    # a session source's rgb frames, capture.session.stream_fingerprint (None for a video file)
+    # which recording: "session:" + capture.session.stream_fingerprint of the rgb frames, or "video:" + the
+    # video file's sha256 (None: unknown)
     fingerprint: str | None = None
 
     @property
@@ -58,7 +59,7 @@ def parse_frame_range(frames: str | None, n_available: int, where: str) -> slice
 
 def session_person_frames(path: str | os.PathLike, frames: str | None = None) -> PersonFrames:
     """Frames and person masks of a session's first camera (``cam_00/rgb``, ``cam_00/mask``)."""
-    from bodystudio.capture.session import open_session, stream_fingerprint
+    from bodystudio.capture.session import open_session
 
     session = open_session(path)
     if not session.camera_names or "rgb" not in session.streams or "mask" not in session.streams:
@@ -73,7 +74,21 @@ def session_person_frames(path: str | os.PathLike, frames: str | None = None) ->
         masks.append(fr.masks[cam])
     fps = float(session.metadata.get("fps", 30.0))
     return PersonFrames(str(Path(path)), fps, np.asarray(ids, np.int64), np.stack(images), np.stack(masks),
-                        stream_fingerprint(session, "rgb", ids, cam))
+                        source_fingerprint(session, ids, cam))
+
+
+def source_fingerprint(source, frame_ids, camera: str | None = None) -> str | None:
+    """The identity of a fit's source recording: ``session:`` + the sha256 over its ``camera`` rgb frames'
+    manifest checksums (a :class:`~bodystudio.capture.session.Session`), or ``video:`` + the file's sha256
+    (a path). Later steps refuse a source whose identity changed (another clip at the same path)."""
+    from bodystudio.capture.session import Session, stream_fingerprint
+
+    if isinstance(source, Session):
+        digest = stream_fingerprint(source, "rgb", frame_ids, camera or source.camera_names[0])
+        return None if digest is None else f"session:{digest}"
+    from bodystudio.fileio import sha256_file
+
+    return f"video:{sha256_file(source)}"
 
 
 def read_video(path: str | os.PathLike, frames: str | None = None) -> tuple[np.ndarray, float]:
@@ -207,6 +222,7 @@ def person_frames(source: str | os.PathLike, frames: str | None = None,
         start = parse_frame_range(frames, 10 ** 9, str(source)).start if frames else 0
         ids = np.arange(start, start + len(images), dtype=np.int64)
         plate = None if background is None else read_background_plate(background, (images.shape[2], images.shape[1]))
-        pf = PersonFrames(str(source), fps, ids, images, person_mattes(images, plate))
+        pf = PersonFrames(str(source), fps, ids, images, person_mattes(images, plate),
+                          source_fingerprint(source, ids))
     check_person(pf.masks, str(source))
     return pf
