@@ -182,7 +182,8 @@ def _capture_batch(session_paths, out, model_path, mode, resolution, side, frame
         raise BatchError(report.failure_message("sequences"))
 
 
-EVAL_KEYS = ("median_mm", "p90_mm", "front_median_mm", "back_median_mm", "bulge_err_mm", "jitter_mm", "ms_per_frame")
+EVAL_KEYS = ("median_mm", "p90_mm", "surface_median_mm", "surface_p90_mm", "front_median_mm", "back_median_mm",
+             "bulge_err_mm", "jitter_mm", "ms_per_frame")
 
 
 def evaluate_capture_folder(folder: Path, session_path: Path | None = None) -> dict:

@@ -7,6 +7,12 @@ not hidden behind the rest of the arm: z-buffer of the true arm mesh); ``bulge_e
 over frames of the error in biceps peak height (largest distance of the biceps region from the
 shoulder-elbow axis of the true joints); ``jitter_mm``: mean norm of the frame-to-frame acceleration
 ``v_{i+1} - 2 v_i + v_{i-1}`` minus the truth's; ``ms_per_frame`` from the capture's timings.
+
+``surface_median_mm`` and ``surface_p90_mm``: the same arm vertices' point-to-surface distances, both ways
+(estimate -> true mesh and truth -> estimated mesh, pooled; libigl's ``point_mesh_squared_distance``), as
+``eval reconstruct`` scores Rapid Skin. The per-vertex figures also count a surface that is right but whose
+vertices slid along it (the pose's placement along the limb, the truth's skin sliding), which no depth image
+shows; the surface figures count only where the skin is.
 """
 
 from __future__ import annotations
@@ -78,6 +84,9 @@ def score_arm_sequence(estimate: np.ndarray, truth: np.ndarray, template: ArmTem
            "front_median_mm": float(np.median(err[vis])) if vis.any() else float("nan"),
            "back_median_mm": float(np.median(err[~vis])) if (~vis).any() else float("nan"),
            "bulge_err_mm": 1000.0 * float(np.mean(bulge))}
+    surf = np.concatenate([surface_distances(x, g, template.faces, arm) for x, g in zip(X, G, strict=True)]) * 1000.0
+    out["surface_median_mm"] = float(np.median(surf))
+    out["surface_p90_mm"] = float(np.percentile(surf, 90))
     if len(X) >= 3:
         acc = np.linalg.norm(X[2:] - 2 * X[1:-1] + X[:-2], axis=2)[:, arm].mean()
         acc_true = np.linalg.norm(G[2:] - 2 * G[1:-1] + G[:-2], axis=2)[:, arm].mean()
@@ -85,6 +94,19 @@ def score_arm_sequence(estimate: np.ndarray, truth: np.ndarray, template: ArmTem
     else:
         out["jitter_mm"] = float("nan")
     return out
+
+
+def surface_distances(estimate: np.ndarray, truth: np.ndarray, faces: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Point-to-surface distances both ways of the ``mask`` vertices of two meshes in one topology: each masked
+    estimated vertex to the true surface, then each masked true vertex to the estimated surface (metres)."""
+    import igl
+
+    F = np.ascontiguousarray(faces, dtype=np.int64)
+    X = np.ascontiguousarray(estimate, dtype=np.float64)
+    G = np.ascontiguousarray(truth, dtype=np.float64)
+    d_xg = igl.point_mesh_squared_distance(np.ascontiguousarray(X[mask]), G, F)[0]
+    d_gx = igl.point_mesh_squared_distance(np.ascontiguousarray(G[mask]), X, F)[0]
+    return np.sqrt(np.concatenate([d_xg, d_gx]))
 
 
 def session_ground_truth(session, template: ArmTemplate, frame_ids: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,8 +134,8 @@ def evaluate_arm_capture(capture, session, template: ArmTemplate) -> dict:
     """Issue 11's figures for an :class:`~bodystudio.muscle.capture.ArmCapture` of a synthetic arm session.
 
     ``template`` is the arm template in the session's topology (its rest joints give the true joint
-    positions through the ground-truth arm poses). Returns median_mm, p90_mm, front_median_mm,
-    back_median_mm, bulge_err_mm, jitter_mm, ms_per_frame (+ n_frames, mode).
+    positions through the ground-truth arm poses). Returns median_mm, p90_mm, surface_median_mm,
+    surface_p90_mm, front_median_mm, back_median_mm, bulge_err_mm, jitter_mm, ms_per_frame (+ n_frames, mode).
     """
     if capture.template_key != template.key:
         raise InputError(f"capture is on template {capture.template_key}, the session's template is "

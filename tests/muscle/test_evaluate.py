@@ -67,3 +67,23 @@ def test_mismatched_sequences_raise(arm_template_2k, truth):
     G, vis, J = truth
     with pytest.raises(InputError, match="frames"):
         score_arm_sequence(G[:2], G, arm_template_2k, vis, J)
+
+
+def test_surface_figures_count_the_skin_not_the_sliding(arm_template_2k, truth):
+    """A surface pushed 2 mm along its normals is 2 mm off both ways; vertices that slide within the surface
+    (each moved a fraction of the way to a neighbour) are off per vertex but on the surface."""
+    G, vis, J = truth
+    t = arm_template_2k
+    r = score_arm_sequence(G, G, t, vis, J)
+    assert r["surface_median_mm"] < 1e-6 and r["surface_p90_mm"] < 1e-6
+    pushed = np.stack([V + 0.002 * vertex_normals(V, t.faces) for V in G])
+    r = score_arm_sequence(pushed, G, t, vis, J)
+    assert abs(r["surface_median_mm"] - 2.0) < 0.1 and r["surface_p90_mm"] < 2.3
+    # slide each vertex 30 % of the way towards the next vertex of one of its faces: it stays on that face
+    nxt = np.arange(t.n_vertices)  # a vertex first in no face stays
+    nxt[t.faces[:, 0]] = t.faces[:, 1]
+    slid = np.stack([V + 0.3 * (V[nxt] - V) for V in G])
+    moved = np.linalg.norm(slid - G, axis=2)[:, t.arm_mask]
+    r = score_arm_sequence(slid, G, t, vis, J)
+    assert np.median(moved) * 1000 > 1.5 and r["median_mm"] > 1.5
+    assert r["surface_median_mm"] < 0.1 * r["median_mm"], r
