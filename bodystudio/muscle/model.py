@@ -155,10 +155,6 @@ class ArmSample:
     the origin; None: its shoulder, ``joints[0]`` (a ground-truth mesh). A capture's rest mesh sits at
     the capturing model's *regressed* shoulder, whatever skeleton it was posed about
     (``refine.skeleton_model_mesh``), so :func:`capture_samples` sets it there.
-
-    ``confidence`` (n,) in [0, 1]: how much of each vertex the extension takes from this mesh; the rest
-    comes from the extended model's own prediction for the subject's shape and pose
-    (:func:`capture_vertex_confidence`). None: every vertex fully (a ground-truth mesh).
     """
 
     subject: str
@@ -167,7 +163,6 @@ class ArmSample:
     pose: ArmPose
     joints: np.ndarray | None = None
     rest_origin: np.ndarray | None = None
-    confidence: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -345,21 +340,6 @@ def model_error_mm(model: ArmModel, samples: list[ArmSample], norm_limit: float 
 
 # --- learning -----------------------------------------------------------------------------------------
 
-def prior_rest_prediction(prior: ArmModel, shape: ArmShapeParams, angles: np.ndarray) -> np.ndarray:
-    """The model's unposed mesh (n, 3) in its shoulder-centred frame: ``v_base + d_l + d_theta + d_rho`` (Eq. 12
-    before skinning, no norm limit), what a vertex without capture evidence is taken as (:func:`blend_rows`)."""
-    return (prior.base_vertices + length_displacements(prior, shape) + shape_displacements(prior, shape)
-            + pose_displacements(prior, angles))
-
-
-def blend_rows(unposed: np.ndarray, prediction: np.ndarray, confidence: np.ndarray | None) -> np.ndarray:
-    """Per-vertex blend ``c * unposed + (1 - c) * prediction`` (n, 3): the capture where it has evidence."""
-    if confidence is None:
-        return unposed
-    c = np.clip(np.asarray(confidence, dtype=np.float64).reshape(-1, 1), 0.0, 1.0)
-    return c * unposed + (1.0 - c) * prediction
-
-
 def unposed_sample(s: ArmSample, part_weights, predict_joints) -> np.ndarray:
     """A training mesh brought back to the model's shoulder-centred rest frame (n, 3), still with its pose term.
 
@@ -375,10 +355,7 @@ def _subject_rows(samples: list[ArmSample], part_weights, predict_joints, prior:
     """Unposed meshes of one subject -> (base-pose rows, subject base mesh, pose rows (angles, d))."""
     unposed, angles = [], []
     for s in samples:
-        u = unposed_sample(s, part_weights, predict_joints)
-        if s.confidence is not None and prior is not None:
-            u = blend_rows(u, prior_rest_prediction(prior, s.shape, s.pose.angles), s.confidence)
-        unposed.append(u)
+        unposed.append(unposed_sample(s, part_weights, predict_joints))
         angles.append(s.pose.angles.reshape(9))
     unposed, angles = np.stack(unposed), np.stack(angles)
     in_base = np.abs(angles.reshape(-1, 3, 3)).max(axis=(1, 2)) <= BASE_POSE_TOL_RAD
@@ -562,8 +539,7 @@ def _upgrade_version_1(path: Path, arrays: dict) -> dict:
 
 
 def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, stride: int = 1,
-                    model: ArmModel | None = None, centre: str = "fitted",
-                    confidence: np.ndarray | None = None) -> list[ArmSample]:
+                    model: ArmModel | None = None, centre: str = "fitted") -> list[ArmSample]:
     """Captured frames as training meshes for :func:`extend_arm_model` (issue §4).
 
     ``capture`` is a ``bodystudio.muscle.capture.ArmCapture``: each ``stride``-th frame with a pose is
@@ -577,28 +553,26 @@ def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, str
     shoulder that ``model`` (the model the capture was made with) regresses from the capture's shape -
     where the capture's rest mesh sits (``refine.skeleton_model_mesh`` holds the rest mesh and moves the
     joints inside it), so a fitted shoulder's error is not copied into the residual as a translation.
-    With the regressed skeleton (no skeleton fit) both are the same.
-    ``confidence`` (n,): per-vertex evidence of the capture (:func:`capture_vertex_confidence`), given to
-    every sample (:class:`ArmSample`).
+    ``"sex"``: the fitted shoulder for a woman, the regressed one for a man (the joint regression has no
+    sex input and the original training set is all male, so a woman's regressed shoulder is the men's:
+    her fitted one carries what the regression lacks, while a man's fit only adds its placement error).
+    With the regressed skeleton (no skeleton fit) all three are the same.
     """
     if stride < 1:
         raise InputError(f"stride={stride} must be >= 1")
-    if centre not in ("fitted", "regressed"):
-        raise InputError(f"centre={centre!r} must be 'fitted' or 'regressed'")
+    if centre not in ("fitted", "regressed", "sex"):
+        raise InputError(f"centre={centre!r} must be 'fitted', 'regressed' or 'sex'")
     shape = shape if shape is not None else capture.shape
     if shape is None:
         raise InputError(f"capture {name!r} has no shape parameters (a no-model capture); give them with "
                          "--shape bmi=..,muscularity=..,height_m=..,arm_length_m=..")
     origin = None
+    if centre == "sex":
+        centre = "fitted" if shape.sex < 0.5 else "regressed"
     if centre == "regressed":
         if model is None:
             raise InputError("centre='regressed' needs the model the capture was made with")
         origin = model_joints(model, capture.shape if isinstance(capture.shape, ArmShapeParams) else shape)[0]
-    if confidence is not None:
-        confidence = np.asarray(confidence, dtype=np.float64).reshape(-1)
-        if len(confidence) != np.shape(capture.vertices)[1] or not np.isfinite(confidence).all():
-            raise InputError(f"capture {name!r}: confidence has {len(confidence)} values for "
-                             f"{np.shape(capture.vertices)[1]} vertices")
     s, R, t = capture.similarity
     R, t = np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
     out = []
@@ -606,36 +580,9 @@ def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, str
         if capture.poses[k] is None:
             continue
         V = ((np.asarray(capture.vertices[k], dtype=np.float64) - t) @ R) / float(s)
-        out.append(ArmSample(name, shape, V, capture.poses[k], getattr(capture, "joints", None), origin, confidence))
+        out.append(ArmSample(name, shape, V, capture.poses[k], getattr(capture, "joints", None), origin))
     if not out:
         raise InputError(f"capture {name!r} has no frames with joint angles (a no-model capture); "
                          "capture it with the model to extend the dataset")
     return out
 
-
-def capture_vertex_confidence(capture, session, max_residual_m: float = 0.005, full_fraction: float = 0.5,
-                              depth_options=None) -> np.ndarray:
-    """Per-vertex evidence (n,) in [0, 1] of a capture: how often the depth camera saw the vertex where it is.
-
-    A vertex counts in a frame when it faces the sensor and is not hidden by the mesh itself
-    (``evaluate.visible_vertices``) and the cleaned depth (Sec. 4) has a point within ``max_residual_m``
-    of it; the confidence is that fraction of the frames, divided by ``full_fraction`` and clipped to 1
-    (a vertex seen in half the frames counts fully). Vertices the sensor never saw (the back of the arm)
-    get 0: the extension takes them from the model (:func:`blend_rows`).
-    """
-    from scipy.spatial import cKDTree
-
-    from bodystudio.muscle.depth import DepthCleanupOptions, clean_depth, depth_point_cloud
-    from bodystudio.muscle.evaluate import visible_vertices
-
-    if not 0 < full_fraction <= 1 or not max_residual_m > 0:
-        raise InputError(f"full_fraction={full_fraction} must be in (0, 1] and max_residual_m={max_residual_m} > 0")
-    camera = session.kinect.depth
-    opts = depth_options or DepthCleanupOptions()
-    hits = np.zeros(np.shape(capture.vertices)[1])
-    for fid, V in zip(capture.frame_ids, capture.vertices, strict=True):
-        P, _ = depth_point_cloud(clean_depth(session.frame(fid).kinect_depth_m, opts), camera)
-        seen = visible_vertices(V, capture.faces, camera)
-        dist = cKDTree(P).query(V)[0] if len(P) else np.full(len(V), np.inf)
-        hits += seen & (dist <= max_residual_m)
-    return np.clip(hits / (len(capture.vertices) * full_fraction), 0.0, 1.0)
