@@ -18,8 +18,11 @@ model-only row is the full run's model-filtering step (the same as ``--no-refine
 Dataset extension: model-only error (the model mesh from the subject's true shape parameters and poses,
 Eq. 12 without the norm limit) of held-out subjects' ground-truth meshes, original
 model against the model extended with the captured subjects 601-604 (and, to see what the model can
-learn at all, with their ground-truth meshes; each with and without the sex input). Pronation: the pipeline's forearm
-twist (from its per-frame joint angles) against the truth's.
+learn at all, with their ground-truth meshes; each with and without the sex input). The captures use the
+per-subject skeleton and torso placement (``EXTENSION_CAPTURE``) and each captured rest mesh is centred on
+its fitted shoulder for a woman, the model's regressed one for a man (``--extension-centre``; docs/muscle.md,
+fifth pass); ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
+pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
     python -m benchmarks.bench_muscle --frames 20     # quick check (also: --quick)
     python -m benchmarks.run --only muscle            # the full run, writes docs/BENCHMARKS.md
