@@ -566,12 +566,13 @@ def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, str
     if shape is None:
         raise InputError(f"capture {name!r} has no shape parameters (a no-model capture); give them with "
                          "--shape bmi=..,muscularity=..,height_m=..,arm_length_m=..")
-    origin = None
+    origin, centre_arg = None, centre
     if centre == "sex":
         centre = "fitted" if shape.sex < 0.5 else "regressed"
     if centre == "regressed":
         if model is None:
-            raise InputError("centre='regressed' needs the model the capture was made with")
+            raise InputError(f"capture {name!r}: centre={centre_arg!r} needs the model the capture was made with "
+                             "(model=...) for its regressed shoulder")
         origin = model_joints(model, capture.shape if isinstance(capture.shape, ArmShapeParams) else shape)[0]
     s, R, t = capture.similarity
     R, t = np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
@@ -585,4 +586,3 @@ def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, str
         raise InputError(f"capture {name!r} has no frames with joint angles (a no-model capture); "
                          "capture it with the model to extend the dataset")
     return out
-

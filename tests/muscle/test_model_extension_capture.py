@@ -94,3 +94,7 @@ def test_capture_samples_refuse_a_bad_centre(planted):
         capture_samples(cap, "c", shape, centre="elbow")
     with pytest.raises(InputError, match="model"):
         capture_samples(cap, "c", shape, centre="regressed")
+    capture_samples(cap, "c", shape, centre="sex")  # a woman: her fitted shoulder, no model needed
+    man = M.ArmShapeParams(31.5, 0.5, 1.75, 0.52, sex=1.0)
+    with pytest.raises(InputError, match="centre='sex' needs the model"):
+        capture_samples(cap, "c", man, centre="sex")
