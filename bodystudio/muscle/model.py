@@ -554,8 +554,9 @@ def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, str
     where the capture's rest mesh sits (``refine.skeleton_model_mesh`` holds the rest mesh and moves the
     joints inside it), so a fitted shoulder's error is not copied into the residual as a translation.
     ``"sex"``: the fitted shoulder for a woman, the regressed one for a man (the joint regression has no
-    sex input and the original training set is all male, so a woman's regressed shoulder is the men's:
-    her fitted one carries what the regression lacks, while a man's fit only adds its placement error).
+    sex input - a population of both sexes plus the all-male training subjects - so a woman's regressed
+    shoulder is a sex-averaged one: her fitted one carries what the regression lacks, while a man's fit
+    mostly adds its placement error; docs/muscle.md, fifth pass).
     With the regressed skeleton (no skeleton fit) all three are the same.
     """
     if stride < 1:

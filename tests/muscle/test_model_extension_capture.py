@@ -70,7 +70,7 @@ def test_regressed_centring_recovers_the_planted_residual_where_the_fitted_shoul
 
 
 def test_centring_by_sex_takes_a_womans_fitted_shoulder_and_a_mans_regressed_one(planted):
-    """The men's training set has no women: a woman's regressed shoulder is the men's, and her fitted one
+    """The joint regression has no sex input: a woman's regressed shoulder is sex-averaged and her fitted one
     places her residual; a man's regression is trusted and his fitted shoulder's error is kept out."""
     model, shape, residual, fitted = planted
     assert shape.sex == 0.0
