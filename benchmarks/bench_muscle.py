@@ -18,8 +18,11 @@ model-only row is the full run's model-filtering step (the same as ``--no-refine
 Dataset extension: model-only error (the model mesh from the subject's true shape parameters and poses,
 Eq. 12 without the norm limit) of held-out subjects' ground-truth meshes, original
 model against the model extended with the captured subjects 601-604 (and, to see what the model can
-learn at all, with their ground-truth meshes; each with and without the sex input). Pronation: the pipeline's forearm
-twist (from its per-frame joint angles) against the truth's.
+learn at all, with their ground-truth meshes; each with and without the sex input). The captures use the
+per-subject skeleton and torso placement (``EXTENSION_CAPTURE``) and each captured rest mesh is centred on
+its fitted shoulder for a woman, the model's regressed one for a man (``--extension-centre``; docs/muscle.md,
+fifth pass); ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
+pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
     python -m benchmarks.bench_muscle --frames 20     # quick check (also: --quick)
     python -m benchmarks.run --only muscle            # the full run, writes docs/BENCHMARKS.md
@@ -55,6 +58,15 @@ OUT_OF_RANGE = {
     "tall man (> 1.93 m)": ("male", None, (1.93, 1.97)),
 }
 EXTENSION_SEEDS = (601, 602, 603, 604)
+# More captured subjects per group (same groups, in this order): ``--extension-per-group N`` takes the first N.
+# Measured (fifth pass, docs/muscle.md): 1 -> 4 per group does not lower the held-out error from captures.
+EXTENSION_GROUP_SEEDS = tuple((s, s + 40, s + 50, s + 60) for s in EXTENSION_SEEDS)
+# The extension's captures: the per-subject skeleton with the torso placement (the fourth pass's best
+# capture setting for the extension), each captured rest mesh centred by sex (``--extension-centre``).
+# Measured (fifth pass, docs/muscle.md), mean change sets A / B: no sequence fit -6.6 / -5.7 %; this
+# setting with the fitted centring -7.2 / -4.5 %, regressed -4.5 / -4.2 %, by sex -11.7 / -11.7 %.
+# ``--capture-option`` overrides these fields.
+EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True}
 HELD_OUT_SEEDS = (611, 612, 613, 614)
 # Set A: the goal's held-out subjects; set B: a second disjoint set (same groups, other seeds) that the
 # choices (the sex input, its Tikhonov weight) were checked on, so that they are not fitted to set A.
@@ -189,6 +201,10 @@ EXTENSION_VARIANTS = (("captured_nosex", "captures, no sex"), ("captured", "capt
                       ("truth_nosex", "truth meshes, no sex"), ("truth", "truth meshes, with sex"))
 
 
+CENTRE_WORDS = {"fitted": "the capture's fitted shoulder", "regressed": "the model's regressed shoulder",
+                "sex": "the fitted shoulder (women) or the regressed one (men)"}
+
+
 def extension_section(data: dict) -> str:
     rows, means = [], {}
     for h in data["held"]:
@@ -226,8 +242,10 @@ def extension_section(data: dict) -> str:
     return ("### Dataset extension (issue 11 §4)\n\n"
             f"Original model: {data['n_original']} training subjects (men), BMI {r['bmi'][0]:.1f}-{r['bmi'][1]:.1f}, "
             f"height {r['height_m'][0]:.2f}-{r['height_m'][1]:.2f} m. Extended: + the captured subjects below "
-            f"({data['n_extended']} in all), captured with the original model (full pipeline), every "
-            f"{EXTENSION_STRIDE}rd frame added with the subject's measured shape parameters and sex (as the "
+            f"({data['n_extended']} in all), captured with the original model (full pipeline, "
+            f"options {data.get('capture_options', {})}, {data.get('per_group', 1)} per group), each rest mesh "
+            f"centred on {CENTRE_WORDS[data.get('centre', 'fitted')]}, every {EXTENSION_STRIDE}rd frame added "
+            "with the subject's measured shape parameters and sex (as the "
             "paper's Table 1; the capture also used them). For comparison: the same subjects' ground-truth "
             "meshes (1 base-pose + 8 posed each, own joints) instead of their captures, and both without the sex "
             "input (the subjects' sex hidden, i.e. the model before sex was an input).\n\n" + added_table +
@@ -339,16 +357,33 @@ def _without_sex(samples):
     return [replace(s, shape=replace(s.shape, sex=1.0)) for s in samples]
 
 
-def step_extension(work: Path, n_frames: int) -> None:
+def extension_seeds(per_group: int) -> list[tuple[int, str]]:
+    """The captured subjects of the extension step: (seed, group label), ``per_group`` per group."""
+    if not 1 <= per_group <= len(EXTENSION_GROUP_SEEDS[0]):
+        raise ValueError(f"per_group={per_group} must be in 1..{len(EXTENSION_GROUP_SEEDS[0])}")
+    return [(seed, label) for seeds, label in zip(EXTENSION_GROUP_SEEDS, OUT_OF_RANGE, strict=True)
+            for seed in seeds[:per_group]]
+
+
+def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = "sex") -> None:
+    """Held-out model-only error, original against extended models (captures and ground-truth meshes).
+
+    ``per_group`` captured subjects per out-of-range group; ``centre``: where each captured rest mesh is
+    centred (``model.capture_samples``; "fitted" is the construction before the fifth pass).
+    """
     from bodystudio.fileio import write_json
     from bodystudio.muscle.model import capture_samples, extend_arm_model, load_arm_model, model_error_mm
     from bodystudio.muscle.synthetic import sample_arm_subject, subject_arm_samples, synth_arm_session
 
     template = _template()
     model = load_arm_model(work / "model.npz", template)
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
+    from bodystudio.muscle.evaluate import evaluate_arm_capture
+
     added, ext_samples, truth_samples = [], [], []
     labels = list(OUT_OF_RANGE)
-    for seed, label in zip(EXTENSION_SEEDS, labels, strict=True):
+    options = CaptureOptions(**{**EXTENSION_CAPTURE, **CAPTURE_OVERRIDES})
+    for seed, label in extension_seeds(per_group):
         subj = out_of_range_subject(seed, label)
         path = work / f"ext{seed}"
         if not path.is_dir():
@@ -356,14 +391,16 @@ def step_extension(work: Path, n_frames: int) -> None:
                               distance_m=1.0, resolution=RESOLUTION, seed=1)
         from bodystudio.capture.session import open_session
 
-        cap, sc = capture_and_score(open_session(path), model, template, truth_template(subj), "full",
-                                    known_shape=shape_of(subj))
-        new = capture_samples(cap, f"capture_{seed}", shape_of(subj), stride=EXTENSION_STRIDE)
+        session = open_session(path)
+        cap = capture_arm_sequence(session, model, template, options, known_shape=shape_of(subj))
+        sc = evaluate_arm_capture(cap, session, truth_template(subj))
+        new = capture_samples(cap, f"capture_{seed}", shape_of(subj), stride=EXTENSION_STRIDE, model=model,
+                              centre=centre)
         ext_samples += new
         truth_samples += subject_arm_samples(subj, RESOLUTION, n_shapes=1, n_poses=8, seed=3, name=f"truth_{seed}")
         added.append({"seed": seed, "label": label, "gender": subj.gender, "bmi": subj.bmi,
                       "height_m": subj.height_m, "frames": n_frames, "samples": len(new),
-                      "median_mm": sc["median_mm"]})
+                      "median_mm": sc["median_mm"], "centre": centre})
     extended = {"captured": extend_arm_model(model, ext_samples),
                 "captured_nosex": extend_arm_model(model, _without_sex(ext_samples)),
                 "truth": extend_arm_model(model, truth_samples),
@@ -382,7 +419,9 @@ def step_extension(work: Path, n_frames: int) -> None:
             row[key] = model_error_mm(m, _without_sex(test) if key.endswith("nosex") else test,
                                       use_sample_joints=True)
         held.append(row)
-    write_json(work / "extension.json", {"n_original": len(model.subjects),
+    write_json(work / "extension.json", {"n_original": len(model.subjects), "per_group": per_group,
+                                         "centre": centre, "capture_options": {**EXTENSION_CAPTURE,
+                                                                               **CAPTURE_OVERRIDES},
                                          "n_extended": len(extended["captured"].subjects),
                                          "shape_range": model.shape_range(), "added": added, "held": held})
 
@@ -478,6 +517,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--step", choices=("all", "prepare", "compare", "extension", "pronation", "render"),
                         default="all")
     parser.add_argument("--methods", default=",".join(RUNS), help="compare step: " + ", ".join(RUNS))
+    parser.add_argument("--extension-per-group", type=int, default=1, choices=range(1, 5), metavar="N",
+                        help="extension step: captured subjects per out-of-range group, 1-4 (default 1)")
+    parser.add_argument("--extension-centre", choices=("sex", "regressed", "fitted"), default="sex",
+                        help="extension step: centre each captured rest mesh on the capture's fitted shoulder "
+                             "for a woman and the model's regressed one for a man (sex, default), or always "
+                             "on one of them")
     parser.add_argument("--capture-option", action="append", default=[], metavar="KEY=VALUE",
                         help="a CaptureOptions field for every capture (Python literal), e.g. "
                              "sequence_fit_skeleton=True; repeatable")
@@ -491,7 +536,8 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--step needs --work DIR")
     {"prepare": lambda: step_prepare(args.work, n),
      "compare": lambda: step_compare(args.work, tuple(m for m in args.methods.split(",") if m)),
-     "extension": lambda: step_extension(args.work, min(EXTENSION_FRAMES, n)),
+     "extension": lambda: step_extension(args.work, min(EXTENSION_FRAMES, n), args.extension_per_group,
+                                         args.extension_centre),
      "pronation": lambda: step_pronation(args.work, min(PRONATION_FRAMES, max(n, 10))),
      "render": lambda: print(render(args.work, n))}[args.step]()
 

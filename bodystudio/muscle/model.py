@@ -150,6 +150,11 @@ class ArmSample:
 
     ``joints`` are the subject's rest joint centres when known (ground truth); None uses the model's
     joint regression from ``shape``.
+
+    ``rest_origin`` (3,): the point of the unposed mesh that the model's shoulder-centred frame puts at
+    the origin; None: its shoulder, ``joints[0]`` (a ground-truth mesh). A capture's rest mesh sits at
+    the capturing model's *regressed* shoulder, whatever skeleton it was posed about
+    (``refine.skeleton_model_mesh``), so :func:`capture_samples` sets it there.
     """
 
     subject: str
@@ -157,6 +162,7 @@ class ArmSample:
     vertices: np.ndarray
     pose: ArmPose
     joints: np.ndarray | None = None
+    rest_origin: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -334,12 +340,22 @@ def model_error_mm(model: ArmModel, samples: list[ArmSample], norm_limit: float 
 
 # --- learning -----------------------------------------------------------------------------------------
 
+def unposed_sample(s: ArmSample, part_weights, predict_joints) -> np.ndarray:
+    """A training mesh brought back to the model's shoulder-centred rest frame (n, 3), still with its pose term.
+
+    Unposed about its skeleton (``joints``, else the regression), centred on ``rest_origin`` (else its
+    shoulder ``joints[0]``).
+    """
+    J = s.joints if s.joints is not None else predict_joints(s.shape)
+    origin = J[0] if s.rest_origin is None else np.asarray(s.rest_origin, dtype=np.float64).reshape(3)
+    return unpose_arm(s.vertices, part_weights, J, s.pose) - origin
+
+
 def _subject_rows(samples: list[ArmSample], part_weights, predict_joints, prior: ArmModel | None):
     """Unposed meshes of one subject -> (base-pose rows, subject base mesh, pose rows (angles, d))."""
     unposed, angles = [], []
     for s in samples:
-        J = s.joints if s.joints is not None else predict_joints(s.shape)
-        unposed.append(unpose_arm(s.vertices, part_weights, J, s.pose) - J[0])
+        unposed.append(unposed_sample(s, part_weights, predict_joints))
         angles.append(s.pose.angles.reshape(9))
     unposed, angles = np.stack(unposed), np.stack(angles)
     in_base = np.abs(angles.reshape(-1, 3, 3)).max(axis=(1, 2)) <= BASE_POSE_TOL_RAD
@@ -522,7 +538,8 @@ def _upgrade_version_1(path: Path, arrays: dict) -> dict:
             "shape_coeffs": np.r_[coeffs, np.zeros((1, coeffs.shape[1]))]}
 
 
-def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, stride: int = 1) -> list[ArmSample]:
+def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, stride: int = 1,
+                    model: ArmModel | None = None, centre: str = "fitted") -> list[ArmSample]:
     """Captured frames as training meshes for :func:`extend_arm_model` (issue §4).
 
     ``capture`` is a ``bodystudio.muscle.capture.ArmCapture``: each ``stride``-th frame with a pose is
@@ -530,13 +547,34 @@ def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, str
     and paired with that pose and ``shape`` (default: the capture's fitted shape). The joints are the
     capture's fitted skeleton (``capture.joints``, the rest joints its poses turn about) when it has one,
     else left to the model's regression, as the capture's model fit used them.
+
+    ``centre``: where the unposed mesh is centred in the model's shoulder frame. ``"fitted"``: on the
+    fitted shoulder ``joints[0]`` (as a ground-truth mesh on its own skeleton). ``"regressed"``: on the
+    shoulder that ``model`` (the model the capture was made with) regresses from the capture's shape -
+    where the capture's rest mesh sits (``refine.skeleton_model_mesh`` holds the rest mesh and moves the
+    joints inside it), so a fitted shoulder's error is not copied into the residual as a translation.
+    ``"sex"``: the fitted shoulder for a woman, the regressed one for a man (the joint regression has no
+    sex input - a population of both sexes plus the all-male training subjects - so a woman's regressed
+    shoulder is a sex-averaged one: her fitted one carries what the regression lacks, while a man's fit
+    mostly adds its placement error; docs/muscle.md, fifth pass).
+    With the regressed skeleton (no skeleton fit) all three are the same.
     """
     if stride < 1:
         raise InputError(f"stride={stride} must be >= 1")
+    if centre not in ("fitted", "regressed", "sex"):
+        raise InputError(f"centre={centre!r} must be 'fitted', 'regressed' or 'sex'")
     shape = shape if shape is not None else capture.shape
     if shape is None:
         raise InputError(f"capture {name!r} has no shape parameters (a no-model capture); give them with "
                          "--shape bmi=..,muscularity=..,height_m=..,arm_length_m=..")
+    origin, centre_arg = None, centre
+    if centre == "sex":
+        centre = "fitted" if shape.sex < 0.5 else "regressed"
+    if centre == "regressed":
+        if model is None:
+            raise InputError(f"capture {name!r}: centre={centre_arg!r} needs the model the capture was made with "
+                             "(model=...) for its regressed shoulder")
+        origin = model_joints(model, capture.shape if isinstance(capture.shape, ArmShapeParams) else shape)[0]
     s, R, t = capture.similarity
     R, t = np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
     out = []
@@ -544,7 +582,7 @@ def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, str
         if capture.poses[k] is None:
             continue
         V = ((np.asarray(capture.vertices[k], dtype=np.float64) - t) @ R) / float(s)
-        out.append(ArmSample(name, shape, V, capture.poses[k], getattr(capture, "joints", None)))
+        out.append(ArmSample(name, shape, V, capture.poses[k], getattr(capture, "joints", None), origin))
     if not out:
         raise InputError(f"capture {name!r} has no frames with joint angles (a no-model capture); "
                          "capture it with the model to extend the dataset")
