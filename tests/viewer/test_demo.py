@@ -15,6 +15,14 @@ def test_demo_runs_the_available_stages_and_writes_a_report(tmp_path, chromium, 
     # The same code path on a smaller scan and template: the rig fit dominates the demo's time.
     monkeypatch.setattr(demo, "RIG_TEMPLATE", "2k")
     monkeypatch.setattr(demo, "RIG_SCAN_VERTICES", 8000)
+    monkeypatch.setattr(demo, "GARMENT_FRAMES", 3)
+    monkeypatch.setattr(demo, "GARMENT_RESOLUTION", (120, 160))
+    import functools
+
+    import bodystudio.garment.fit as garment_fit  # one shape round on one reference frame: the stage is tested
+
+    monkeypatch.setattr(garment_fit, "estimate_shape",
+                        functools.partial(garment_fit.estimate_shape, n_reference=1, rounds=0))
     out = tmp_path / "demo"
     report, stages = run_demo(out, cameras=4, frames=2, resolution=(160, 120))
     status = {r["stage"]: r["status"] for r in stages}
@@ -37,15 +45,19 @@ def test_demo_runs_the_available_stages_and_writes_a_report(tmp_path, chromium, 
         assert (out / "rig" / "avatar.glb").is_file() and "Solver convergence" in text
     assert status["muscle"] == "done"
     assert (out / "muscle" / "capture" / "arm.glb").is_file() and "arm-muscle capture" in text
+    assert status["garment"] == "done"
+    scores = json.loads((out / "garment_fit" / "eval.json").read_text())
+    assert scores["stature_err_mm"] < 10 and scores["garment_iou"] > 0.5, scores
+    assert (out / "garment.mp4").stat().st_size > 0 and "Garment: before / after" in text
 
 
 def test_demo_bodies_only_measures_and_reports(tmp_path, drawn):
     from PIL import Image
 
     out = tmp_path / "demo"
-    report, stages = run_demo(out, skip=("session", "calibrate", "reconstruct", "rig", "muscle", "mirror"),
+    report, stages = run_demo(out, skip=("session", "calibrate", "reconstruct", "rig", "muscle", "mirror", "garment"),
                               with_3d=False)
-    assert [r["status"] for r in stages] == ["done", "skipped", "skipped", "skipped", "skipped", "skipped", "skipped"]
+    assert [r["status"] for r in stages] == ["done"] + ["skipped"] * 7
     measured = json.loads((out / "bodies" / "measurements.json").read_text())["bodies"]
     assert len(measured) == 5
     assert 1.4 < measured["female"]["stature_m"] < measured["male"]["stature_m"] < 2.0
