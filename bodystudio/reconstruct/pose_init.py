@@ -169,3 +169,61 @@ def pose_template(body, bone_transforms: np.ndarray, global_scale: float = 1.0, 
     heads = np.einsum("bij,bj->bi", T[:, :3, :3], skel.heads) + T[:, :3, 3]
     tails = np.einsum("bij,bj->bi", T[:, :3, :3], skel.tails) + T[:, :3, 3]
     return PoseInit(V, T, kinect_joints(skel, heads, tails, version), global_scale)
+
+
+def tracked_bone_lengths(joints: np.ndarray, version: str = "v2") -> np.ndarray:
+    """Length (m) of each Kinect bone (joint -> its SDK parent) of one frame's joints ``(J, 3)``; NaN for the
+    root and where either end is untracked."""
+    from bodystudio.capture.kinect import kinect_parent_indices
+
+    J = np.asarray(joints, dtype=np.float64)
+    parents = kinect_parent_indices(version)
+    out = np.full(len(parents), np.nan)
+    child = parents >= 0
+    out[child] = np.linalg.norm(J[child] - J[parents[child]], axis=1)
+    return out
+
+
+def sequence_bone_lengths(joint_frames, version: str = "v2") -> np.ndarray:
+    """One length per Kinect bone for a whole sequence: the median over frames of the tracked lengths.
+
+    A body's bones do not change length, but a tracker's do (the Kinect SDK enforces no constant bone
+    lengths; the simulated tracker jitters each bone by 3 % per frame), so the median over ``joint_frames``
+    (each ``(J, 3)``, NaN untracked) is a steadier estimate than any one frame's (its spread falls as
+    ``1 / sqrt(frames)``). NaN where a bone was never tracked.
+    """
+    L = np.array([tracked_bone_lengths(J, version) for J in joint_frames])
+    if L.size == 0:
+        raise InputError("sequence bone lengths need at least one frame of joints")
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return np.nanmedian(L, axis=0)
+
+
+def with_bone_lengths(joints: np.ndarray, lengths: np.ndarray, version: str = "v2") -> np.ndarray:
+    """Joints ``(J, 3)`` rebuilt down the Kinect hierarchy from the root with the bone ``lengths`` and
+    each frame's own bone directions (a joint whose bone has no finite length or direction keeps its
+    offset to its parent)."""
+    from bodystudio.capture.kinect import _topological_order, kinect_parent_indices
+
+    J = np.asarray(joints, dtype=np.float64)
+    parents = kinect_parent_indices(version)
+    lengths = np.asarray(lengths, dtype=np.float64)
+    if J.shape != (len(parents), 3) or lengths.shape != (len(parents),):
+        raise InputError(f"bone lengths need {len(parents)} Kinect {version} joints and lengths, got "
+                         f"{J.shape} and {lengths.shape}")
+    out = J.copy()
+    for j in _topological_order(parents):
+        p = parents[j]
+        if p < 0:
+            continue
+        d = J[j] - J[p]
+        n = np.linalg.norm(d)
+        if np.isfinite(lengths[j]) and np.isfinite(n) and n > 1e-9:
+            out[j] = out[p] + lengths[j] * d / n
+        else:
+            out[j] = out[p] + d
+    return out
