@@ -132,6 +132,13 @@ def frame_joints(session, frame, source: str, joints_dir: Path | None) -> np.nda
     return J
 
 
+def run_bone_lengths(session, selected, joints: str, joints_path) -> np.ndarray:
+    """One set of bone lengths for a run (``--bone-lengths sequence``): the median over its ``selected``
+    frames of the tracked lengths (:func:`bodystudio.reconstruct.pose_init.sequence_bone_lengths`)."""
+    jdir = Path(joints_path) if joints_path else None
+    return sequence_bone_lengths([frame_joints(session, session.frame(f), joints, jdir) for f in selected])
+
+
 def gt_kinect_joints(frame, skeleton_names) -> np.ndarray | None:
     """Ground-truth Kinect v2 joints of a synthetic frame (from the posed GT skeleton)."""
     gt = frame.gt_joints
@@ -174,7 +181,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         warm_start: bool = False, refine_pose: bool = True, score: bool = True,
                         progress: bool = False, tracking: bool = False, track_params: TrackParams | None = None,
                         refine_with: str = "fields", rest_cotangents: bool = True,
-                        refine_params: PoseRefineParams | None = None, bone_lengths: str = "frame") -> dict:
+                        refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence") -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     ``refine_pose`` corrects the pose initialised from the joints (§IV.A) by an articulated fit of the
@@ -224,7 +231,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        joints_path, warm_start, refine_pose, score, progress, tracking: bool = False,
                        track_params: TrackParams | None = None, refine_with: str = "fields",
                        rest_cotangents: bool = True, refine_params: PoseRefineParams | None = None,
-                       bone_lengths: str = "frame") -> dict:
+                       bone_lengths="sequence") -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -243,13 +250,17 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     track_params = track_params or TrackParams()
     if refine_with not in REFINE_DATA:
         raise InputError(f"unknown pose refinement data {refine_with!r}; valid: {', '.join(REFINE_DATA)}")
-    if bone_lengths not in BONE_LENGTHS:
-        raise InputError(f"unknown bone lengths {bone_lengths!r}; valid: {', '.join(BONE_LENGTHS)}")
     lengths = None
-    if bone_lengths == "sequence" and joints != "hull":
-        # one set of bone lengths for the run: the median over its frames of the tracked lengths
-        jdir = Path(joints_path) if joints_path else None
-        lengths = sequence_bone_lengths([frame_joints(session, session.frame(f), joints, jdir) for f in selected])
+    if not isinstance(bone_lengths, str):  # lengths given (a batch chunk gets the whole run's)
+        lengths = np.asarray(bone_lengths, dtype=np.float64)
+        if lengths.shape != (len(kinect_joint_names("v2")),):
+            raise InputError(f"bone lengths: need one per Kinect v2 joint ({len(kinect_joint_names('v2'))}), "
+                             f"got shape {lengths.shape}")
+        bone_lengths = "given"
+    elif bone_lengths not in BONE_LENGTHS:
+        raise InputError(f"unknown bone lengths {bone_lengths!r}; valid: {', '.join(BONE_LENGTHS)}")
+    elif bone_lengths == "sequence" and joints != "hull":
+        lengths = run_bone_lengths(session, selected, joints, joints_path)
     body = build_body(resolution=TEMPLATES[template])
     F = body.faces
     regions = vertex_regions(body) if score else None
