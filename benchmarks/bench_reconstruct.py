@@ -191,11 +191,14 @@ TRACK_SESSIONS = (("walk", 31), ("turn", 3), ("arm_flex", 12))
 TRACK_FPS = 30.0
 STEPS = ("read_ms", "init_ms", "fields_ms", "refine_ms", "track_ms", "matching_ms", "solver_ms", "other_ms",
          "frame_ms")
-#: (label, tracking, refinement data, hull gate on the silhouette matches): the previous defaults (carved hull;
-#: distance fields without the gate), the per-frame init with the gate (the default), the tracker.
-TRACK_MODES = (("per-frame init, hull, no gate", False, "hull", False),
-               ("per-frame init, fields, no gate", False, "fields", False),
-               ("per-frame init, fields", False, "fields", True), ("tracker", True, "fields", True))
+#: (label, tracking, refinement data, hull gate on the silhouette matches, bone lengths): the previous defaults
+#: (carved hull; distance fields without the gate; each frame's tracked bone lengths), the per-frame init with
+#: the gate and one set of bone lengths per run (the default), the tracker.
+TRACK_MODES = (("per-frame init, hull, no gate, frame lengths", False, "hull", False, "frame"),
+               ("per-frame init, fields, no gate, frame lengths", False, "fields", False, "frame"),
+               ("per-frame init, fields, frame lengths", False, "fields", True, "frame"),
+               ("per-frame init, fields", False, "fields", True, "sequence"),
+               ("tracker, frame lengths", True, "fields", True, "frame"), ("tracker", True, "fields", True, "sequence"))
 REGION_NAMES = ("head", "torso", "crotch", "arms", "hands", "legs", "feet")
 
 
@@ -310,11 +313,11 @@ def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
         if motion == "walk":
             out["steps"] = _frame_steps(path, 5)
         for constraints in (("silhouette",), ("silhouette", "depth")):
-            for mode, tracking, refine_with, gated in TRACK_MODES:
+            for mode, tracking, refine_with, gated, lengths in TRACK_MODES:
                 params = RapidSkinParams(constraints=constraints, hull_gate_m=RapidSkinParams().hull_gate_m * gated)
                 with threadpool_limits(1):
                     s = reconstruct_session(path, template="13k", constraints=constraints, tracking=tracking,
-                                            refine_with=refine_with, params=params)
+                                            refine_with=refine_with, params=params, bone_lengths=lengths)
                 frames = json.loads((path / "reconstruct" / "frames.json").read_text())["frames"]
                 # frame 0 compiles and initialises in both modes; the steady state is the later frames
                 later = frames[1:] or frames
