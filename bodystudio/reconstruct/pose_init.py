@@ -227,3 +227,37 @@ def with_bone_lengths(joints: np.ndarray, lengths: np.ndarray, version: str = "v
         else:
             out[j] = out[p] + d
     return out
+
+
+def smooth_joint_track(frames: np.ndarray, joint_frames: np.ndarray, half_window: int) -> np.ndarray:
+    """Tracker joints ``(T, J, 3)`` of frames ``(T,)`` smoothed over time by a local linear fit.
+
+    Each frame's joint is the value at that frame of the least-squares line through the joint's positions
+    in the frames within ``half_window`` frame numbers of it (a Savitzky-Golay filter of degree 1 where the
+    frames are consecutive; one-sided at the ends of the run). It is exact for a joint moving at constant
+    velocity and averages the tracker's independent per-frame noise (1 cm per axis) over up to
+    ``2 half_window + 1`` frames: meant for video-rate sequences, where a limb moves little in a few frames.
+    Untracked (NaN) positions are left out of the fit and stay NaN; a joint with fewer than two tracked
+    frames in its window keeps its own position. ``half_window = 0`` returns the joints unchanged.
+    """
+    J = np.asarray(joint_frames, dtype=np.float64)
+    t = np.asarray(frames, dtype=np.float64)
+    if J.ndim != 3 or J.shape[2] != 3 or len(t) != len(J):
+        raise InputError(f"joint smoothing needs joints (T, J, 3) and T frame numbers, got {J.shape} and {t.shape}")
+    if half_window < 0:
+        raise InputError(f"joint smoothing half window {half_window} must be >= 0")
+    if half_window == 0:
+        return J.copy()
+    out = J.copy()
+    for k in range(len(t)):
+        near = np.flatnonzero(np.abs(t - t[k]) <= half_window)
+        dt = t[near] - t[k]
+        for j in range(J.shape[1]):
+            P = J[near, j]
+            ok = np.all(np.isfinite(P), axis=1)
+            if not np.all(np.isfinite(J[k, j])) or ok.sum() < 2 or np.ptp(dt[ok]) == 0:
+                continue
+            A = np.stack([np.ones(ok.sum()), dt[ok]], axis=1)
+            coef, *_ = np.linalg.lstsq(A, P[ok], rcond=None)
+            out[k, j] = coef[0]
+    return out

@@ -47,6 +47,7 @@ from bodystudio.reconstruct.pose_init import (
     joints_from_mapping,
     pose_template,
     sequence_bone_lengths,
+    smooth_joint_track,
     unpose,
     with_bone_lengths,
 )
@@ -132,6 +133,14 @@ def frame_joints(session, frame, source: str, joints_dir: Path | None) -> np.nda
     return J
 
 
+def run_joints(session, selected, joints: str, joints_path, smoothing: int = 0) -> np.ndarray:
+    """The ``selected`` frames' joints ``(T, 25, 3)``, smoothed over time with a half window of ``smoothing``
+    frames (:func:`bodystudio.reconstruct.pose_init.smooth_joint_track`; 0: as tracked)."""
+    jdir = Path(joints_path) if joints_path else None
+    raw = np.array([frame_joints(session, session.frame(f), joints, jdir) for f in selected])
+    return smooth_joint_track(np.asarray(selected), raw, smoothing)
+
+
 def run_bone_lengths(session, selected, joints: str, joints_path) -> np.ndarray:
     """One set of bone lengths for a run (``--bone-lengths sequence``): the median over its ``selected``
     frames of the tracked lengths (:func:`bodystudio.reconstruct.pose_init.sequence_bone_lengths`)."""
@@ -181,7 +190,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         warm_start: bool = False, refine_pose: bool = True, score: bool = True,
                         progress: bool = False, tracking: bool = False, track_params: TrackParams | None = None,
                         refine_with: str = "fields", rest_cotangents: bool = True,
-                        refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence") -> dict:
+                        refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence",
+                        joint_smoothing: int = 0) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     ``refine_pose`` corrects the pose initialised from the joints (§IV.A) by an articulated fit of the
@@ -218,7 +228,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    joints_path, warm_start, refine_pose, score, progress, tracking=tracking,
                                    track_params=track_params, refine_with=refine_with,
                                    rest_cotangents=rest_cotangents, refine_params=refine_params,
-                                   bone_lengths=bone_lengths)
+                                   bone_lengths=bone_lengths, joint_smoothing=joint_smoothing)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -231,7 +241,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        joints_path, warm_start, refine_pose, score, progress, tracking: bool = False,
                        track_params: TrackParams | None = None, refine_with: str = "fields",
                        rest_cotangents: bool = True, refine_params: PoseRefineParams | None = None,
-                       bone_lengths="sequence") -> dict:
+                       bone_lengths="sequence", joint_smoothing: int = 0) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -259,6 +269,15 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
         bone_lengths = "given"
     elif bone_lengths not in BONE_LENGTHS:
         raise InputError(f"unknown bone lengths {bone_lengths!r}; valid: {', '.join(BONE_LENGTHS)}")
+    if not 0 <= int(joint_smoothing) <= 50:
+        raise InputError(f"--joint-smoothing {joint_smoothing}: give a half window of 0..50 frames")
+    smoothed = None
+    if joint_smoothing and joints != "hull":
+        # the run's tracked joints smoothed over time (and the bone lengths taken of them)
+        smoothed = dict(zip(selected, run_joints(session, selected, joints, joints_path, joint_smoothing),
+                            strict=True))
+        if bone_lengths == "sequence":
+            lengths = sequence_bone_lengths(list(smoothed.values()))
     elif bone_lengths == "sequence" and joints != "hull":
         lengths = run_bone_lengths(session, selected, joints, joints_path)
     body = build_body(resolution=TEMPLATES[template])
@@ -289,7 +308,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             t0 = time.perf_counter()
             J = None
             if joints != "hull":
-                J = frame_joints(session, frame, joints, Path(joints_path) if joints_path else None)
+                J = (smoothed[fid] if smoothed is not None
+                     else frame_joints(session, frame, joints, Path(joints_path) if joints_path else None))
                 if lengths is not None:
                     J = with_bone_lengths(J, lengths)
             t1 = time.perf_counter()
@@ -386,6 +406,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "constraints": list(params.constraints), "frames": selected,
                    "warm_start": warm_start, "refine_pose": refine_pose, "tracking": tracking,
                    "refine_with": refine_with, "rest_cotangents": rest_cotangents, "bone_lengths": bone_lengths,
+                   "joint_smoothing": int(joint_smoothing),
                    "params": asdict(params), "n_vertices": int(len(body.vertices))}, deletes=previous)
     return summarize(records)
 

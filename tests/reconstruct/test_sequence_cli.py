@@ -90,7 +90,15 @@ def test_cli_reconstruct_and_eval(tiny_session, capsys, tmp_path):
     moved = np.linalg.norm(runs["sequence"] - runs["frame"], axis=1)
     assert moved.max() > 0.03 and np.median(moved) < 1e-3
     run = json.loads((tiny_session.path / "reconstruct" / "run.json").read_text())
-    assert run["bone_lengths"] == "frame"
+    assert run["bone_lengths"] == "frame" and run["joint_smoothing"] == 0
+    # joint smoothing through the CLI: a line through two frames passes through both, so nothing moves here
+    # (the smoothing itself: test_bone_lengths.py)
+    assert main(["reconstruct", path, "--template", "2k", "--frames", "0:2", "--outer", "1", "--no-score",
+                 "--no-refine-pose", "--joints", "file", "--joints-path", str(jdir), "--bone-lengths", "frame",
+                 "--joint-smoothing", "1"]) == 0
+    run = json.loads((tiny_session.path / "reconstruct" / "run.json").read_text())
+    assert run["joint_smoothing"] == 1
+    assert np.abs(load_mesh(meshes / "00000.ply").vertices - runs["frame"]).max() < 1e-9
 
 
 @pytest.mark.slow
