@@ -191,14 +191,17 @@ TRACK_SESSIONS = (("walk", 31), ("turn", 3), ("arm_flex", 12))
 TRACK_FPS = 30.0
 STEPS = ("read_ms", "init_ms", "fields_ms", "refine_ms", "track_ms", "matching_ms", "solver_ms", "other_ms",
          "frame_ms")
-#: (label, tracking, refinement data, hull gate on the silhouette matches, bone lengths): the previous defaults
-#: (carved hull; distance fields without the gate; each frame's tracked bone lengths), the per-frame init with
-#: the gate and one set of bone lengths per run (the default), the tracker.
-TRACK_MODES = (("per-frame init, hull, no gate, frame lengths", False, "hull", False, "frame"),
-               ("per-frame init, fields, no gate, frame lengths", False, "fields", False, "frame"),
-               ("per-frame init, fields, frame lengths", False, "fields", True, "frame"),
-               ("per-frame init, fields", False, "fields", True, "sequence"),
-               ("tracker, frame lengths", True, "fields", True, "frame"), ("tracker", True, "fields", True, "sequence"))
+#: (label, tracking, refinement data, hull gate on the silhouette matches, bone lengths, joint smoothing): the
+#: previous defaults (carved hull; distance fields without the gate; each frame's tracked bone lengths), the
+#: per-frame init with the gate and one set of bone lengths per run (the default), with the joints smoothed over
+#: +-2 frames (--joint-smoothing 2), the tracker.
+TRACK_MODES = (("per-frame init, hull, no gate, frame lengths", False, "hull", False, "frame", 0),
+               ("per-frame init, fields, no gate, frame lengths", False, "fields", False, "frame", 0),
+               ("per-frame init, fields, frame lengths", False, "fields", True, "frame", 0),
+               ("per-frame init, fields", False, "fields", True, "sequence", 0),
+               ("per-frame init, fields, joint smoothing 2", False, "fields", True, "sequence", 2),
+               ("tracker, frame lengths", True, "fields", True, "frame", 0),
+               ("tracker", True, "fields", True, "sequence", 0))
 REGION_NAMES = ("head", "torso", "crotch", "arms", "hands", "legs", "feet")
 
 
@@ -313,11 +316,12 @@ def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
         if motion == "walk":
             out["steps"] = _frame_steps(path, 5)
         for constraints in (("silhouette",), ("silhouette", "depth")):
-            for mode, tracking, refine_with, gated, lengths in TRACK_MODES:
+            for mode, tracking, refine_with, gated, lengths, smoothing in TRACK_MODES:
                 params = RapidSkinParams(constraints=constraints, hull_gate_m=RapidSkinParams().hull_gate_m * gated)
                 with threadpool_limits(1):
                     s = reconstruct_session(path, template="13k", constraints=constraints, tracking=tracking,
-                                            refine_with=refine_with, params=params, bone_lengths=lengths)
+                                            refine_with=refine_with, params=params, bone_lengths=lengths,
+                                            joint_smoothing=smoothing)
                 frames = json.loads((path / "reconstruct" / "frames.json").read_text())["frames"]
                 # frame 0 compiles and initialises in both modes; the steady state is the later frames
                 later = frames[1:] or frames
