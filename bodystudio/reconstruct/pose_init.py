@@ -229,7 +229,8 @@ def with_bone_lengths(joints: np.ndarray, lengths: np.ndarray, version: str = "v
     return out
 
 
-def smooth_joint_track(frames: np.ndarray, joint_frames: np.ndarray, half_window: int) -> np.ndarray:
+def smooth_joint_track(frames: np.ndarray, joint_frames: np.ndarray, half_window: int,
+                       break_m: float | None = 0.25) -> np.ndarray:
     """Tracker joints ``(T, J, 3)`` of frames ``(T,)`` smoothed over time by a local linear fit.
 
     Each frame's joint is the value at that frame of the least-squares line through the joint's positions
@@ -238,7 +239,10 @@ def smooth_joint_track(frames: np.ndarray, joint_frames: np.ndarray, half_window
     velocity and averages the tracker's independent per-frame noise (1 cm per axis) over up to
     ``2 half_window + 1`` frames: meant for video-rate sequences, where a limb moves little in a few frames.
     Untracked (NaN) positions are left out of the fit and stay NaN; a joint with fewer than two tracked
-    frames in its window keeps its own position. ``half_window = 0`` returns the joints unchanged.
+    frames in its window keeps its own position. ``half_window = 0`` returns the joints unchanged. The window
+    does not reach across a jump: where the median joint displacement between consecutive frames exceeds
+    ``break_m`` (the tracking's lost-track ``joint_jump_m``; a person moves a few cm between video frames)
+    the track is smoothed as separate pieces, so a glitch or a cut is not smeared over its neighbours.
     """
     J = np.asarray(joint_frames, dtype=np.float64)
     t = np.asarray(frames, dtype=np.float64)
@@ -249,8 +253,16 @@ def smooth_joint_track(frames: np.ndarray, joint_frames: np.ndarray, half_window
     if half_window == 0:
         return J.copy()
     out = J.copy()
+    piece = np.zeros(len(t), dtype=np.int64)
+    if break_m is not None and len(t) > 1:
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            jump = np.nanmedian(np.linalg.norm(J[1:] - J[:-1], axis=2), axis=1)
+        piece[1:] = np.cumsum(np.nan_to_num(jump, nan=0.0) > break_m)
     for k in range(len(t)):
-        near = np.flatnonzero(np.abs(t - t[k]) <= half_window)
+        near = np.flatnonzero((np.abs(t - t[k]) <= half_window) & (piece == piece[k]))
         dt = t[near] - t[k]
         for j in range(J.shape[1]):
             P = J[near, j]

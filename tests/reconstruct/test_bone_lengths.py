@@ -118,6 +118,11 @@ def test_joint_smoothing_averages_the_noise_and_keeps_the_motion():
     out = smooth_joint_track(frames, holed, 2)
     assert np.all(np.isnan(out[10, 3])) and np.all(np.isfinite(np.delete(out.reshape(-1, 3), 10 * 25 + 3, 0)))
     assert np.abs(out[11, 3] - truth[11, 3]).max() < 0.03
+    # a 0.5 m jump (a tracking glitch or a cut) is not smeared over the frames beside it
+    jumped = noisy.copy()
+    jumped[15:] += (0.5, 0.0, 0.0)
+    assert np.abs(smooth_joint_track(frames, jumped, 2)[13:17] - jumped[13:17]).max() < 0.04
+    assert np.abs(smooth_joint_track(frames, jumped, 2, break_m=None)[13:17] - jumped[13:17]).max() > 0.08
     with pytest.raises(InputError, match="joint smoothing needs"):
         smooth_joint_track(frames[:3], noisy, 2)
     with pytest.raises(InputError, match=">= 0"):
