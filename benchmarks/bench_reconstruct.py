@@ -387,8 +387,12 @@ def run(quick: bool = False) -> str:
         "joints. 'per-frame init, hull, no gate': every frame from its joints + the refinement on the carved "
         "visual hull, the paper's matching (the first default); 'per-frame init, fields, no gate': the same on "
         "the distance fields' implicit hull (the second); 'per-frame init, fields': with the visual-hull gate on "
-        "the silhouette matches (the default); 'tracker' (`--tracking`): the previous frame's pose fitted to the "
-        "distance fields, re-initialised on a lost track. Whole-frame ms by step are means over frames 1.. "
+        "the silhouette matches; '..., frame lengths': each frame posed with its own tracked bone lengths "
+        "(`--bone-lengths frame`, the previous behaviour), the others with one set per run, the median over its "
+        "frames (the default); 'per-frame init, fields' is the default; 'joint smoothing 2': the tracked "
+        "joints smoothed over +-2 frames (`--joint-smoothing 2`); 'tracker' (`--tracking`): the previous "
+        "frame's pose fitted to the distance fields, re-initialised on a lost track. Whole-frame ms by step are "
+        "means over frames 1.. "
         "(frame 0 initialises in both modes), numba and BLAS on one thread, wall time on the shared machine.",
         track_time,
         track_acc,
