@@ -387,6 +387,9 @@ REFINE_BONES = ("pelvis", "spine_01", "spine_02", "neck_01", "clavicle_l", "clav
                 "foot_l", "foot_r")
 
 
+#: The refined segments with the head apart from the neck (its pitch): used with smoothed joints
+#: (``--joint-smoothing``), whose Neck -> Head direction is steady enough for the head's prior.
+REFINE_BONES_WITH_HEAD = REFINE_BONES + ("head",)
 #: Bones whose heads are the pelvis joints (SpineBase, HipLeft, HipRight) that ``pelvis_weight`` holds.
 PELVIS_BONES = ("pelvis", "thigh_l", "thigh_r")
 

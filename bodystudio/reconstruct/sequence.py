@@ -32,7 +32,12 @@ from bodystudio.errors import InputError, SessionError
 from bodystudio.fileio import read_json
 from bodystudio.geometry.laplacian import cotangent_weights
 from bodystudio.geometry.mesh import Mesh, load_mesh, save_mesh
-from bodystudio.reconstruct.articulated_fit import PoseRefineParams, fit_body_to_hull, refine_bone_transforms
+from bodystudio.reconstruct.articulated_fit import (
+    REFINE_BONES_WITH_HEAD,
+    PoseRefineParams,
+    fit_body_to_hull,
+    refine_bone_transforms,
+)
 from bodystudio.reconstruct.depth import depth_observation
 from bodystudio.reconstruct.evaluate import (
     joint_error_mm,
@@ -272,6 +277,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     if not 0 <= int(joint_smoothing) <= 50:
         raise InputError(f"--joint-smoothing {joint_smoothing}: give a half window of 0..50 frames")
     smoothed = None
+    if refine_params is None and joint_smoothing and joints != "hull":
+        # with steadier Neck and Head joints the head's own pitch pays (docs/reconstruct.md)
+        refine_params = PoseRefineParams(bones=REFINE_BONES_WITH_HEAD)
     if joint_smoothing and joints != "hull":
         # the run's tracked joints smoothed over time (and the bone lengths taken of them)
         smoothed = dict(zip(selected, run_joints(session, selected, joints, joints_path, joint_smoothing),
@@ -407,6 +415,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "warm_start": warm_start, "refine_pose": refine_pose, "tracking": tracking,
                    "refine_with": refine_with, "rest_cotangents": rest_cotangents, "bone_lengths": bone_lengths,
                    "joint_smoothing": int(joint_smoothing),
+                   "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
                    "params": asdict(params), "n_vertices": int(len(body.vertices))}, deletes=previous)
     return summarize(records)
 

@@ -97,8 +97,15 @@ def test_cli_reconstruct_and_eval(tiny_session, capsys, tmp_path):
                  "--no-refine-pose", "--joints", "file", "--joints-path", str(jdir), "--bone-lengths", "frame",
                  "--joint-smoothing", "1"]) == 0
     run = json.loads((tiny_session.path / "reconstruct" / "run.json").read_text())
-    assert run["joint_smoothing"] == 1
+    assert run["joint_smoothing"] == 1 and run["refine_bones"] == []
     assert np.abs(load_mesh(meshes / "00000.ply").vertices - runs["frame"]).max() < 1e-9
+    # with smoothed joints the refinement also fits the head's own pitch
+    assert main(["reconstruct", path, "--template", "2k", "--frames", "0:2", "--outer", "1", "--no-score",
+                 "--joint-smoothing", "1"]) == 0
+    run = json.loads((tiny_session.path / "reconstruct" / "run.json").read_text())
+    assert "head" in run["refine_bones"] and "neck_01" in run["refine_bones"]
+    assert main(["reconstruct", path, "--template", "2k", "--frames", "0:1", "--outer", "1", "--no-score"]) == 0
+    assert "head" not in json.loads((tiny_session.path / "reconstruct" / "run.json").read_text())["refine_bones"]
 
 
 @pytest.mark.slow
