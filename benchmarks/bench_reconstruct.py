@@ -201,7 +201,8 @@ TRACK_MODES = (("per-frame init, hull, no gate, frame lengths", False, "hull", F
                ("per-frame init, fields", False, "fields", True, "sequence", 0),
                ("per-frame init, fields, joint smoothing 2", False, "fields", True, "sequence", 2),
                ("tracker, frame lengths", True, "fields", True, "frame", 0),
-               ("tracker", True, "fields", True, "sequence", 0))
+               ("tracker", True, "fields", True, "sequence", 0),
+               ("tracker, joint smoothing 2", True, "fields", True, "sequence", 2))
 REGION_NAMES = ("head", "torso", "crotch", "arms", "hands", "legs", "feet")
 
 
