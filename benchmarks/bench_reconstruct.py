@@ -191,11 +191,18 @@ TRACK_SESSIONS = (("walk", 31), ("turn", 3), ("arm_flex", 12))
 TRACK_FPS = 30.0
 STEPS = ("read_ms", "init_ms", "fields_ms", "refine_ms", "track_ms", "matching_ms", "solver_ms", "other_ms",
          "frame_ms")
-#: (label, tracking, refinement data, hull gate on the silhouette matches): the previous defaults (carved hull;
-#: distance fields without the gate), the per-frame init with the gate (the default), the tracker.
-TRACK_MODES = (("per-frame init, hull, no gate", False, "hull", False),
-               ("per-frame init, fields, no gate", False, "fields", False),
-               ("per-frame init, fields", False, "fields", True), ("tracker", True, "fields", True))
+#: (label, tracking, refinement data, hull gate on the silhouette matches, bone lengths, joint smoothing): the
+#: previous defaults (carved hull; distance fields without the gate; each frame's tracked bone lengths), the
+#: per-frame init with the gate and one set of bone lengths per run (the default), with the joints smoothed over
+#: +-2 frames (--joint-smoothing 2), the tracker.
+TRACK_MODES = (("per-frame init, hull, no gate, frame lengths", False, "hull", False, "frame", 0),
+               ("per-frame init, fields, no gate, frame lengths", False, "fields", False, "frame", 0),
+               ("per-frame init, fields, frame lengths", False, "fields", True, "frame", 0),
+               ("per-frame init, fields", False, "fields", True, "sequence", 0),
+               ("per-frame init, fields, joint smoothing 2", False, "fields", True, "sequence", 2),
+               ("tracker, frame lengths", True, "fields", True, "frame", 0),
+               ("tracker", True, "fields", True, "sequence", 0),
+               ("tracker, joint smoothing 2", True, "fields", True, "sequence", 2))
 REGION_NAMES = ("head", "torso", "crotch", "arms", "hands", "legs", "feet")
 
 
@@ -310,11 +317,12 @@ def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
         if motion == "walk":
             out["steps"] = _frame_steps(path, 5)
         for constraints in (("silhouette",), ("silhouette", "depth")):
-            for mode, tracking, refine_with, gated in TRACK_MODES:
+            for mode, tracking, refine_with, gated, lengths, smoothing in TRACK_MODES:
                 params = RapidSkinParams(constraints=constraints, hull_gate_m=RapidSkinParams().hull_gate_m * gated)
                 with threadpool_limits(1):
                     s = reconstruct_session(path, template="13k", constraints=constraints, tracking=tracking,
-                                            refine_with=refine_with, params=params)
+                                            refine_with=refine_with, params=params, bone_lengths=lengths,
+                                            joint_smoothing=smoothing)
                 frames = json.loads((path / "reconstruct" / "frames.json").read_text())["frames"]
                 # frame 0 compiles and initialises in both modes; the steady state is the later frames
                 later = frames[1:] or frames
@@ -380,8 +388,12 @@ def run(quick: bool = False) -> str:
         "joints. 'per-frame init, hull, no gate': every frame from its joints + the refinement on the carved "
         "visual hull, the paper's matching (the first default); 'per-frame init, fields, no gate': the same on "
         "the distance fields' implicit hull (the second); 'per-frame init, fields': with the visual-hull gate on "
-        "the silhouette matches (the default); 'tracker' (`--tracking`): the previous frame's pose fitted to the "
-        "distance fields, re-initialised on a lost track. Whole-frame ms by step are means over frames 1.. "
+        "the silhouette matches; '..., frame lengths': each frame posed with its own tracked bone lengths "
+        "(`--bone-lengths frame`, the previous behaviour), the others with one set per run, the median over its "
+        "frames (the default); 'per-frame init, fields' is the default; 'joint smoothing 2': the tracked "
+        "joints smoothed over +-2 frames (`--joint-smoothing 2`); 'tracker' (`--tracking`): the previous "
+        "frame's pose fitted to the distance fields, re-initialised on a lost track. Whole-frame ms by step are "
+        "means over frames 1.. "
         "(frame 0 initialises in both modes), numba and BLAS on one thread, wall time on the shared machine.",
         track_time,
         track_acc,

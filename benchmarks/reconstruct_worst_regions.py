@@ -1,6 +1,7 @@
 """Where Rapid Skin's worst errors are (issue 15): the Hausdorff maximum, the torso's and crotch's p90.
 
-Usage: PYTHONPATH=. python benchmarks/reconstruct_worst_regions.py [--frames 3] [--gate 0.001] [--cache DIR]
+Usage: PYTHONPATH=. python benchmarks/reconstruct_worst_regions.py [--frames 3] [--gate 0.001]
+       [--bone-lengths sequence|frame] [--cache DIR]
 
 The benchmark's 30 fps hidden-subject sessions (walk 31, turn 3, arm_flex 12; 10 cameras 640x480, 13K
 template, tracker joints, silhouettes, per-frame initialisation) with ``--frames`` frames each. Per frame:
@@ -9,8 +10,9 @@ reconstruction (region / dominant bone, height, normal in the body frame: forwar
 outside or inside the other surface); the worst 10 % of the torso and crotch vertices (share facing
 forwards / backwards / downwards, outside the truth, seen by a camera); and the crotch and the torso-leg
 joints before and after the pose refinement. ``--gate`` is ``RapidSkinParams.hull_gate_m`` (0: the paper's
-matching). The sessions use the reconstruction body's topology for the ground truth (``template="full"``),
-so regions and per-vertex offsets apply to both meshes.
+matching); ``--bone-lengths`` as ``bodystudio reconstruct`` (``frame``: before issue 15's crotch pass).
+The sessions use the reconstruction body's topology for the ground truth (``template="full"``), so regions
+and per-vertex offsets apply to both meshes.
 """
 
 from __future__ import annotations
@@ -86,12 +88,12 @@ def frame_report(V, gt, cameras, body, regions) -> list[str]:
     return lines
 
 
-def pose_report(session, frame, body, fit_body, regions) -> str:
+def pose_report(session, frame, body, fit_body, regions, lengths=None) -> str:
     """Crotch p90, its mean offset to the ground truth and the torso-leg joint errors, before -> after refinement."""
     from bodystudio.body.kinect import kinect_joint_names
     from bodystudio.reconstruct.articulated_fit import refine_bone_transforms
     from bodystudio.reconstruct.evaluate import point_to_surface_mm
-    from bodystudio.reconstruct.pose_init import initialise_pose, pose_template
+    from bodystudio.reconstruct.pose_init import initialise_pose, pose_template, with_bone_lengths
     from bodystudio.reconstruct.sequence import frame_joints, gt_kinect_joints
     from bodystudio.reconstruct.tracking import SilhouetteFields, TrackParams, silhouette_data_term
 
@@ -99,6 +101,8 @@ def pose_report(session, frame, body, fit_body, regions) -> str:
     cams = list(session.cameras)
     fields = SilhouetteFields(cams, {n: frame.masks[n] for n in frame.masks})
     J, J_gt = frame_joints(session, frame, "tracker", None), gt_kinect_joints(frame, None)
+    if lengths is not None:  # --bone-lengths sequence, as the reconstruction
+        J = with_bone_lengths(J, lengths)
     init = initialise_pose(body, J)
     T = refine_bone_transforms(fit_body, initialise_pose(fit_body, J).bone_transforms, None,
                                data_term=silhouette_data_term(fields, TrackParams()))
@@ -123,11 +127,12 @@ def main() -> None:
     from bodystudio.geometry.mesh import load_mesh
     from bodystudio.reconstruct.evaluate import vertex_regions
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams
-    from bodystudio.reconstruct.sequence import reconstruct_session
+    from bodystudio.reconstruct.sequence import reconstruct_session, run_bone_lengths
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=3)
     ap.add_argument("--gate", type=float, default=RapidSkinParams().hull_gate_m)
+    ap.add_argument("--bone-lengths", default="sequence", choices=("sequence", "frame"))
     ap.add_argument("--cache", type=Path, default=None, help="keep the sessions here for the next run")
     args = ap.parse_args()
     body, fit_body = build_body(resolution="full"), build_body(resolution="2k")
@@ -139,16 +144,19 @@ def main() -> None:
             if not path.exists():
                 synth_session(path, n_cameras=10, n_frames=args.frames, motion=motion, subject_seed=subject,
                               template="full", fps=30.0)
-            s = reconstruct_session(path, template="13k", params=RapidSkinParams(hull_gate_m=args.gate))
+            s = reconstruct_session(path, template="13k", params=RapidSkinParams(hull_gate_m=args.gate),
+                                    bone_lengths=args.bone_lengths)
             print(f"{motion} {subject} (gate {1000 * args.gate:g} mm): median {s['median_mm']:.2f} p90 "
                   f"{s['p90_mm']:.2f} Hausdorff {s['hausdorff_mm']:.1f} mm")
             session = open_session(path)
+            lengths = (run_bone_lengths(session, session.frame_ids, "tracker", None)
+                       if args.bone_lengths == "sequence" else None)
             for fid in session.frame_ids:
                 frame = session.frame(fid)
                 V = load_mesh(path / "reconstruct" / "meshes" / f"{fid:05d}.ply").vertices
                 print(f" frame {fid}")
                 print("\n".join(frame_report(V, frame.gt_mesh, list(session.cameras), body, regions)))
-                print(pose_report(session, frame, body, fit_body, regions))
+                print(pose_report(session, frame, body, fit_body, regions, lengths))
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ import shutil
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from bodystudio import __version__
@@ -345,6 +345,10 @@ class ReconstructOptions:
     refine_pose: bool = True
     score: bool = True
     params: dict = field(default_factory=dict)  # RapidSkinParams as a dict
+    bone_lengths: str = "sequence"
+    #: the run's bone lengths (``sequence``: the median over all its frames, computed by the client, so every
+    #: chunk poses with the same lengths as the sequential run)
+    lengths: tuple[float, ...] | None = None
 
 
 def chunk_frames(frames: list[int], chunk: int) -> list[list[int]]:
@@ -392,7 +396,8 @@ def reconstruct_chunk(session_path: str, frames: list[int], options: Reconstruct
     with _UnitWriter(layout, "bodystudio reconstruct (batch unit)", {"session": str(session_path)}, unit) as writer:
         reconstruct_frames(session, writer, list(frames), list(session.cameras), session.kinect, params,
                             options.solver, options.template, options.joints, options.joints_path,
-                            options.warm_start, options.refine_pose, options.score, False)
+                            options.warm_start, options.refine_pose, options.score, False,
+                            bone_lengths=options.bone_lengths if options.lengths is None else options.lengths)
     return {"frames": list(frames), "seconds": time.perf_counter() - t0, "pid": os.getpid()}
 
 
@@ -407,10 +412,12 @@ def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, fra
     """
     from bodystudio.capture.session import open_session
     from bodystudio.reconstruct.sequence import (
+        BONE_LENGTHS,
         JOINT_SOURCES,
         TEMPLATES,
         parse_frames,
         reconstruction_layout,
+        run_bone_lengths,
         summarize,
     )
 
@@ -427,6 +434,11 @@ def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, fra
         raise InputError(f"{session.path}: no Kinect calibration, so no depth constraints; "
                          "use --constraints silhouette")
     selected = parse_frames(frames, session.frame_ids)
+    if options.bone_lengths not in BONE_LENGTHS:
+        raise InputError(f"unknown bone lengths {options.bone_lengths!r}; valid: {', '.join(BONE_LENGTHS)}")
+    if options.bone_lengths == "sequence" and options.joints != "hull" and options.lengths is None:
+        lengths = run_bone_lengths(session, selected, options.joints, options.joints_path)
+        options = replace(options, lengths=tuple(float(x) for x in lengths))
     layout = reconstruction_layout(session.path)
     chunks_root = layout.root / CHUNKS_DIR
     # The client holds the reconstruction's lock for the whole batch: a second reconstruct is refused at once.
@@ -483,7 +495,8 @@ def _assemble_reconstruction(layout: RunLayout, units: list[dict], options: Reco
         writer.commit({"solver": options.solver, "template": options.template, "joints": options.joints,
                        "constraints": list(first["constraints"]), "frames": selected,
                        "warm_start": options.warm_start, "refine_pose": options.refine_pose,
-                       "params": first["params"], "n_vertices": first["n_vertices"],
+                       "bone_lengths": options.bone_lengths, "params": first["params"],
+                       "n_vertices": first["n_vertices"],
                        "batch": {"chunk": chunk, "units": [u["name"] for u in units]}}, deletes=previous)
     return records
 

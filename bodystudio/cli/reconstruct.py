@@ -35,6 +35,12 @@ def reconstruct(
     warm_start: bool = typer.Option(False, help="carry the shape over from earlier frames"),
     refine_pose: bool = typer.Option(True, help="refine the joints' pose by an articulated fit to the silhouettes' "
                                      "visual hull before deforming (--no-refine-pose: the paper's init)"),
+    bone_lengths: str = typer.Option("sequence", help="sequence (default: one set of bone lengths per run, the "
+                                     "median of the tracked lengths over its frames) | frame (each frame's "
+                                     "tracked lengths, which jitter)"),
+    joint_smoothing: int = typer.Option(0, help="smooth the tracked joints over time: a line fitted through "
+                                        "each joint's positions within this many frames (0: off; 2 measured "
+                                        "better on 30 fps sessions; sequential path only)"),
     score: bool = typer.Option(True, help="score against ground truth when the session has it"),
     tracking: bool = typer.Option(False, help="start each frame from the previous frame's pose fitted to its "
                                   "silhouettes, re-initialising from the joints on a lost track (default "
@@ -55,6 +61,12 @@ def reconstruct(
 
     if not session.is_dir():
         raise InputError(f"{session}: no such session folder")
+    from bodystudio.reconstruct.sequence import BONE_LENGTHS
+
+    if bone_lengths not in BONE_LENGTHS:
+        raise InputError(f"--bone-lengths {bone_lengths!r}: use {' or '.join(BONE_LENGTHS)}")
+    if not 0 <= joint_smoothing <= 50:
+        raise InputError(f"--joint-smoothing {joint_smoothing}: give a half window of 0..50 frames")
     check_output_folder(session / "reconstruct", "reconstruct output")
     params = RapidSkinParams(outer_iterations=outer, inner_iterations=inner, tau_px=tau, alpha_px=alpha,
                              solver=solver, constraints=_constraints(constraints))
@@ -66,15 +78,20 @@ def reconstruct(
         if tracking:
             raise InputError("--tracking runs on the sequential path only; drop --workers/--scheduler/--chunk "
                              f"(and ${ENV_SCHEDULER}) or drop --tracking")
+        if joint_smoothing:
+            raise InputError("--joint-smoothing runs on the sequential path only (a chunk lacks its neighbours' "
+                             f"joints); drop --workers/--scheduler/--chunk (and ${ENV_SCHEDULER}) or "
+                             "--joint-smoothing")
         summary = _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, params,
                                           template=template, joints=joints, warm_start=warm_start,
-                                          refine_pose=refine_pose, score=score,
+                                          refine_pose=refine_pose, score=score, bone_lengths=bone_lengths,
                                           joints_path=str(joints_path) if joints_path else None)
     else:  # the sequential path stays the default (no cluster start-up, one warm start over the session)
         summary = reconstruct_session(session, solver=solver, template=template, joints=joints,
                                       constraints=params.constraints, frames=frames, joints_path=joints_path,
                                       params=params, warm_start=warm_start, refine_pose=refine_pose, score=score,
-                                      progress=True, tracking=tracking)
+                                      progress=True, tracking=tracking, bone_lengths=bone_lengths,
+                                      joint_smoothing=joint_smoothing)
     table = Table(title=f"Rapid Skin: {session} ({solver}, {template}, {constraints})")
     table.add_column("figure")
     table.add_column("value", justify="right")

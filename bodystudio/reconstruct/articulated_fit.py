@@ -387,6 +387,13 @@ REFINE_BONES = ("pelvis", "spine_01", "spine_02", "neck_01", "clavicle_l", "clav
                 "foot_l", "foot_r")
 
 
+#: The refined segments with the head apart from the neck (its pitch): used with smoothed joints
+#: (``--joint-smoothing``), whose Neck -> Head direction is steady enough for the head's prior.
+REFINE_BONES_WITH_HEAD = REFINE_BONES + ("head",)
+#: Bones whose heads are the pelvis joints (SpineBase, HipLeft, HipRight) that ``pelvis_weight`` holds.
+PELVIS_BONES = ("pelvis", "thigh_l", "thigh_r")
+
+
 @dataclass(frozen=True)
 class PoseRefineParams:
     """Settings of :func:`refine_bone_transforms`: Gauss-Newton ``iterations`` (each re-matches),
@@ -402,6 +409,8 @@ class PoseRefineParams:
     max_step_rad: float = 0.15
     max_step_m: float = 0.05
     tolerance: float = 1e-4
+    pelvis_weight: float = 0.0
+    pelvis_bones: tuple[str, ...] = PELVIS_BONES
 
 
 def refine_bone_transforms(body, transforms: np.ndarray, hull: VisualHull | None,
@@ -430,8 +439,40 @@ def refine_bone_transforms(body, transforms: np.ndarray, hull: VisualHull | None
         if hull is None:
             raise InputError("pose refinement needs a visual hull or a data term")
         data_term = hull_data_term(hull, params)
+    transforms = np.asarray(transforms, dtype=np.float64)
+    if params.pelvis_weight > 0:
+        anchors = _merge_anchors(anchors, pelvis_anchors(body, transforms, params.pelvis_bones, params.pelvis_weight))
     with threadpool_limits(limits=1, user_api="blas"):
-        return _refine_bone_transforms(body, np.asarray(transforms, dtype=np.float64), data_term, params, anchors)
+        return _refine_bone_transforms(body, transforms, data_term, params, anchors)
+
+
+def pelvis_anchors(body, transforms: np.ndarray, bones=PELVIS_BONES, weight: float = 1.0):
+    """Anchors holding the pelvis joints where the initial bone ``transforms`` put them.
+
+    The heads of ``bones`` (pelvis, thighs: the tracker's SpineBase and hips) placed by ``transforms``
+    (the Eq. 11 transforms of the frame's tracker joints), as ``(bones, rest_points, targets, weight)``
+    for :func:`refine_bone_transforms`: the silhouettes fix the legs' ends but not the root's height,
+    and with the tracker's per-frame bone lengths (3 % jitter, 1-2.5 cm over a leg) a leg fitted to
+    its silhouette moves the whole pelvis up or down; the root joint itself has only the tracker's
+    1 cm joint noise, so it is the better estimate of the pelvis height.
+    """
+    skel = body.skeleton
+    missing = [b for b in bones if b not in skel.bone_names]
+    if missing:
+        raise InputError(f"pose refinement: the template has no pelvis bone(s) {', '.join(missing)}")
+    ids = np.array([skel.index(b) for b in bones])
+    rest = skel.heads[ids]
+    T = np.asarray(transforms, dtype=np.float64)[ids]
+    return ids, rest, np.einsum("mij,mj->mi", T[:, :3, :3], rest) + T[:, :3, 3], float(weight)
+
+
+def _merge_anchors(a, b):
+    """Two anchor sets as one; the weights are folded into per-point weights."""
+    if a is None:
+        return b
+    n_a, n_b = len(a[0]), len(b[0])
+    w = np.concatenate([np.broadcast_to(np.asarray(a[3], float), n_a), np.broadcast_to(np.asarray(b[3], float), n_b)])
+    return (np.concatenate([a[0], b[0]]), np.concatenate([a[1], b[1]]), np.concatenate([a[2], b[2]]), w)
 
 
 def hull_data_term(hull: VisualHull, params: PoseRefineParams):
@@ -492,10 +533,11 @@ def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefinePa
             a_bones, a_rest, a_target, a_weight = anchors
             X = np.einsum("mij,mj->mi", T[a_bones, :3, :3], a_rest) + T[a_bones, :3, 3]
             a_lever = D[a_bones][:, :, None] * (X[:, None, :] - heads[None])  # (m, nJ, 3)
+            a_w = np.broadcast_to(np.asarray(a_weight, dtype=np.float64), len(X))
             for e in np.eye(3):
                 Ja = np.concatenate([np.tile(e, (len(X), 1)), np.cross(a_lever, e).reshape(len(X), -1)], axis=1)
-                H += a_weight * Ja.T @ Ja
-                g += a_weight * Ja.T @ ((X - a_target) @ e)
+                H += Ja.T @ (a_w[:, None] * Ja)
+                g += Ja.T @ (a_w * ((X - a_target) @ e))
         # prior on each segment's correction relative to its refined parent, Q_p^T Q_j; dw_j is segment
         # j's rotation on top of its ancestors', so only it changes that relative rotation
         Qp = Q[np.maximum(fitted_parent, 0)]

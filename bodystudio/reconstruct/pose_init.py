@@ -169,3 +169,107 @@ def pose_template(body, bone_transforms: np.ndarray, global_scale: float = 1.0, 
     heads = np.einsum("bij,bj->bi", T[:, :3, :3], skel.heads) + T[:, :3, 3]
     tails = np.einsum("bij,bj->bi", T[:, :3, :3], skel.tails) + T[:, :3, 3]
     return PoseInit(V, T, kinect_joints(skel, heads, tails, version), global_scale)
+
+
+def tracked_bone_lengths(joints: np.ndarray, version: str = "v2") -> np.ndarray:
+    """Length (m) of each Kinect bone (joint -> its SDK parent) of one frame's joints ``(J, 3)``; NaN for the
+    root and where either end is untracked."""
+    from bodystudio.capture.kinect import kinect_parent_indices
+
+    J = np.asarray(joints, dtype=np.float64)
+    parents = kinect_parent_indices(version)
+    out = np.full(len(parents), np.nan)
+    child = parents >= 0
+    out[child] = np.linalg.norm(J[child] - J[parents[child]], axis=1)
+    return out
+
+
+def sequence_bone_lengths(joint_frames, version: str = "v2") -> np.ndarray:
+    """One length per Kinect bone for a whole sequence: the median over frames of the tracked lengths.
+
+    A body's bones do not change length, but a tracker's do (the Kinect SDK enforces no constant bone
+    lengths; the simulated tracker jitters each bone by 3 % per frame), so the median over ``joint_frames``
+    (each ``(J, 3)``, NaN untracked) is a steadier estimate than any one frame's (its spread falls as
+    ``1 / sqrt(frames)``). NaN where a bone was never tracked.
+    """
+    L = np.array([tracked_bone_lengths(J, version) for J in joint_frames])
+    if L.size == 0:
+        raise InputError("sequence bone lengths need at least one frame of joints")
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return np.nanmedian(L, axis=0)
+
+
+def with_bone_lengths(joints: np.ndarray, lengths: np.ndarray, version: str = "v2") -> np.ndarray:
+    """Joints ``(J, 3)`` rebuilt down the Kinect hierarchy from the root with the bone ``lengths`` and
+    each frame's own bone directions (a joint whose bone has no finite length or direction keeps its
+    offset to its parent)."""
+    from bodystudio.capture.kinect import _topological_order, kinect_parent_indices
+
+    J = np.asarray(joints, dtype=np.float64)
+    parents = kinect_parent_indices(version)
+    lengths = np.asarray(lengths, dtype=np.float64)
+    if J.shape != (len(parents), 3) or lengths.shape != (len(parents),):
+        raise InputError(f"bone lengths need {len(parents)} Kinect {version} joints and lengths, got "
+                         f"{J.shape} and {lengths.shape}")
+    out = J.copy()
+    for j in _topological_order(parents):
+        p = parents[j]
+        if p < 0:
+            continue
+        d = J[j] - J[p]
+        n = np.linalg.norm(d)
+        if np.isfinite(lengths[j]) and np.isfinite(n) and n > 1e-9:
+            out[j] = out[p] + lengths[j] * d / n
+        else:
+            out[j] = out[p] + d
+    return out
+
+
+def smooth_joint_track(frames: np.ndarray, joint_frames: np.ndarray, half_window: int,
+                       break_m: float | None = 0.25) -> np.ndarray:
+    """Tracker joints ``(T, J, 3)`` of frames ``(T,)`` smoothed over time by a local linear fit.
+
+    Each frame's joint is the value at that frame of the least-squares line through the joint's positions
+    in the frames within ``half_window`` frame numbers of it (a Savitzky-Golay filter of degree 1 where the
+    frames are consecutive; one-sided at the ends of the run). It is exact for a joint moving at constant
+    velocity and averages the tracker's independent per-frame noise (1 cm per axis) over up to
+    ``2 half_window + 1`` frames: meant for video-rate sequences, where a limb moves little in a few frames.
+    Untracked (NaN) positions are left out of the fit and stay NaN; a joint with fewer than two tracked
+    frames in its window keeps its own position. ``half_window = 0`` returns the joints unchanged. The window
+    does not reach across a jump: where the median joint displacement between consecutive frames exceeds
+    ``break_m`` (the tracking's lost-track ``joint_jump_m``; a person moves a few cm between video frames)
+    the track is smoothed as separate pieces, so a glitch or a cut is not smeared over its neighbours.
+    """
+    J = np.asarray(joint_frames, dtype=np.float64)
+    t = np.asarray(frames, dtype=np.float64)
+    if J.ndim != 3 or J.shape[2] != 3 or len(t) != len(J):
+        raise InputError(f"joint smoothing needs joints (T, J, 3) and T frame numbers, got {J.shape} and {t.shape}")
+    if half_window < 0:
+        raise InputError(f"joint smoothing half window {half_window} must be >= 0")
+    if half_window == 0:
+        return J.copy()
+    out = J.copy()
+    piece = np.zeros(len(t), dtype=np.int64)
+    if break_m is not None and len(t) > 1:
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            jump = np.nanmedian(np.linalg.norm(J[1:] - J[:-1], axis=2), axis=1)
+        piece[1:] = np.cumsum(np.nan_to_num(jump, nan=0.0) > break_m)
+    for k in range(len(t)):
+        near = np.flatnonzero((np.abs(t - t[k]) <= half_window) & (piece == piece[k]))
+        dt = t[near] - t[k]
+        for j in range(J.shape[1]):
+            P = J[near, j]
+            ok = np.all(np.isfinite(P), axis=1)
+            if not np.all(np.isfinite(J[k, j])) or ok.sum() < 2 or np.ptp(dt[ok]) == 0:
+                continue
+            A = np.stack([np.ones(ok.sum()), dt[ok]], axis=1)
+            coef, *_ = np.linalg.lstsq(A, P[ok], rcond=None)
+            out[k, j] = coef[0]
+    return out

@@ -32,7 +32,12 @@ from bodystudio.errors import InputError, SessionError
 from bodystudio.fileio import read_json
 from bodystudio.geometry.laplacian import cotangent_weights
 from bodystudio.geometry.mesh import Mesh, load_mesh, save_mesh
-from bodystudio.reconstruct.articulated_fit import fit_body_to_hull, refine_bone_transforms
+from bodystudio.reconstruct.articulated_fit import (
+    REFINE_BONES_WITH_HEAD,
+    PoseRefineParams,
+    fit_body_to_hull,
+    refine_bone_transforms,
+)
 from bodystudio.reconstruct.depth import depth_observation
 from bodystudio.reconstruct.evaluate import (
     joint_error_mm,
@@ -42,7 +47,15 @@ from bodystudio.reconstruct.evaluate import (
     vertex_regions,
     visible_vertices,
 )
-from bodystudio.reconstruct.pose_init import initialise_pose, joints_from_mapping, pose_template, unpose
+from bodystudio.reconstruct.pose_init import (
+    initialise_pose,
+    joints_from_mapping,
+    pose_template,
+    sequence_bone_lengths,
+    smooth_joint_track,
+    unpose,
+    with_bone_lengths,
+)
 from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
 from bodystudio.reconstruct.tracking import (
     SilhouetteFields,
@@ -64,6 +77,8 @@ JOINT_SOURCES = ("tracker", "file", "hull")
 #: What the pose refinement fits: the silhouettes' distance fields (an implicit visual hull, default) or
 #: the carved visual hull.
 REFINE_DATA = ("fields", "hull")
+#: Bone lengths of the pose initialisation: each frame's tracked lengths, or one median set per run.
+BONE_LENGTHS = ("frame", "sequence")
 OUTPUT_DIR = "reconstruct"
 RUN_MANIFEST = "run.json"
 #: Kinect v1 joint names that have a v2 counterpart.
@@ -123,6 +138,21 @@ def frame_joints(session, frame, source: str, joints_dir: Path | None) -> np.nda
     return J
 
 
+def run_joints(session, selected, joints: str, joints_path, smoothing: int = 0) -> np.ndarray:
+    """The ``selected`` frames' joints ``(T, 25, 3)``, smoothed over time with a half window of ``smoothing``
+    frames (:func:`bodystudio.reconstruct.pose_init.smooth_joint_track`; 0: as tracked)."""
+    jdir = Path(joints_path) if joints_path else None
+    raw = np.array([frame_joints(session, session.frame(f), joints, jdir) for f in selected])
+    return smooth_joint_track(np.asarray(selected), raw, smoothing)
+
+
+def run_bone_lengths(session, selected, joints: str, joints_path) -> np.ndarray:
+    """One set of bone lengths for a run (``--bone-lengths sequence``): the median over its ``selected``
+    frames of the tracked lengths (:func:`bodystudio.reconstruct.pose_init.sequence_bone_lengths`)."""
+    jdir = Path(joints_path) if joints_path else None
+    return sequence_bone_lengths([frame_joints(session, session.frame(f), joints, jdir) for f in selected])
+
+
 def gt_kinect_joints(frame, skeleton_names) -> np.ndarray | None:
     """Ground-truth Kinect v2 joints of a synthetic frame (from the posed GT skeleton)."""
     gt = frame.gt_joints
@@ -164,7 +194,9 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         joints_path: str | Path | None = None, params: RapidSkinParams | None = None,
                         warm_start: bool = False, refine_pose: bool = True, score: bool = True,
                         progress: bool = False, tracking: bool = False, track_params: TrackParams | None = None,
-                        refine_with: str = "fields", rest_cotangents: bool = True) -> dict:
+                        refine_with: str = "fields", rest_cotangents: bool = True,
+                        refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence",
+                        joint_smoothing: int = 0) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     ``refine_pose`` corrects the pose initialised from the joints (§IV.A) by an articulated fit of the
@@ -200,7 +232,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
         return reconstruct_frames(session, writer, selected, cameras, sensor, params, solver, template, joints,
                                    joints_path, warm_start, refine_pose, score, progress, tracking=tracking,
                                    track_params=track_params, refine_with=refine_with,
-                                   rest_cotangents=rest_cotangents)
+                                   rest_cotangents=rest_cotangents, refine_params=refine_params,
+                                   bone_lengths=bone_lengths, joint_smoothing=joint_smoothing)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -212,7 +245,8 @@ def reconstruction_layout(session_path: str | Path) -> RunLayout:
 def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, params, solver, template, joints,
                        joints_path, warm_start, refine_pose, score, progress, tracking: bool = False,
                        track_params: TrackParams | None = None, refine_with: str = "fields",
-                       rest_cotangents: bool = True) -> dict:
+                       rest_cotangents: bool = True, refine_params: PoseRefineParams | None = None,
+                       bone_lengths="sequence", joint_smoothing: int = 0) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -231,6 +265,29 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     track_params = track_params or TrackParams()
     if refine_with not in REFINE_DATA:
         raise InputError(f"unknown pose refinement data {refine_with!r}; valid: {', '.join(REFINE_DATA)}")
+    lengths = None
+    if not isinstance(bone_lengths, str):  # lengths given (a batch chunk gets the whole run's)
+        lengths = np.asarray(bone_lengths, dtype=np.float64)
+        if lengths.shape != (len(kinect_joint_names("v2")),):
+            raise InputError(f"bone lengths: need one per Kinect v2 joint ({len(kinect_joint_names('v2'))}), "
+                             f"got shape {lengths.shape}")
+        bone_lengths = "given"
+    elif bone_lengths not in BONE_LENGTHS:
+        raise InputError(f"unknown bone lengths {bone_lengths!r}; valid: {', '.join(BONE_LENGTHS)}")
+    if not 0 <= int(joint_smoothing) <= 50:
+        raise InputError(f"--joint-smoothing {joint_smoothing}: give a half window of 0..50 frames")
+    smoothed = None
+    if refine_params is None and joint_smoothing and joints != "hull":
+        # with steadier Neck and Head joints the head's own pitch pays (docs/reconstruct.md)
+        refine_params = PoseRefineParams(bones=REFINE_BONES_WITH_HEAD)
+    if joint_smoothing and joints != "hull":
+        # the run's tracked joints smoothed over time (and the bone lengths taken of them)
+        smoothed = dict(zip(selected, run_joints(session, selected, joints, joints_path, joint_smoothing),
+                            strict=True))
+        if bone_lengths == "sequence":
+            lengths = sequence_bone_lengths(list(smoothed.values()))
+    elif bone_lengths == "sequence" and joints != "hull":
+        lengths = run_bone_lengths(session, selected, joints, joints_path)
     body = build_body(resolution=TEMPLATES[template])
     F = body.faces
     regions = vertex_regions(body) if score else None
@@ -259,7 +316,10 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             t0 = time.perf_counter()
             J = None
             if joints != "hull":
-                J = frame_joints(session, frame, joints, Path(joints_path) if joints_path else None)
+                J = (smoothed[fid] if smoothed is not None
+                     else frame_joints(session, frame, joints, Path(joints_path) if joints_path else None))
+                if lengths is not None:
+                    J = with_bone_lengths(J, lengths)
             t1 = time.perf_counter()
             fields = SilhouetteFields(cameras, masks) if tracking or (refine_pose and refine_with == "fields") else None
             t_fields = time.perf_counter() - t1
@@ -300,12 +360,12 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                     # The template and the refinement's 2.5K template share one skeleton, so the corrected
                     # bone transforms pose the template directly.
                     if refine_with == "fields":
-                        T = refine_bone_transforms(fit_body, init.bone_transforms, None,
+                        T = refine_bone_transforms(fit_body, init.bone_transforms, None, refine_params,
                                                    data_term=silhouette_data_term(fields, track_params))
                     else:
                         if hull is None:
                             hull = visual_hull(cameras, masks)
-                        T = refine_bone_transforms(fit_body, init.bone_transforms, hull)
+                        T = refine_bone_transforms(fit_body, init.bone_transforms, hull, refine_params)
                     init = pose_template(body, T, init.global_scale, rest_vertices=rest)
                     t_refine = time.perf_counter() - t1
                 if tracking:
@@ -353,7 +413,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     writer.commit({"solver": params.solver, "template": template, "joints": joints,
                    "constraints": list(params.constraints), "frames": selected,
                    "warm_start": warm_start, "refine_pose": refine_pose, "tracking": tracking,
-                   "refine_with": refine_with, "rest_cotangents": rest_cotangents,
+                   "refine_with": refine_with, "rest_cotangents": rest_cotangents, "bone_lengths": bone_lengths,
+                   "joint_smoothing": int(joint_smoothing),
+                   "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
                    "params": asdict(params), "n_vertices": int(len(body.vertices))}, deletes=previous)
     return summarize(records)
 

@@ -89,6 +89,33 @@ def test_changed_options_redo_partial_chunk_redone(batch_session, cluster, tmp_p
     read_reconstruction(s)
 
 
+def test_batch_chunks_share_the_runs_bone_lengths(batch_session, cluster, tmp_path):
+    """``--bone-lengths sequence``: every chunk poses with the median over the whole run, as the sequential path
+    does (a chunk's own median would differ), and the lengths are part of the chunks' inputs."""
+    from bodystudio.body.kinect import kinect_joint_names
+    from bodystudio.capture.session import open_session
+    from bodystudio.reconstruct.sequence import frame_joints
+
+    names = kinect_joint_names("v2")
+    knee, ankle = names.index("KneeLeft"), names.index("AnkleLeft")
+    session = open_session(batch_session)
+    jdir = tmp_path / "joints"
+    jdir.mkdir()
+    for fid, stretch in zip(session.frame_ids, (0.0, 0.2, -0.1, 0.15), strict=True):  # jittered shins
+        J = frame_joints(session, session.frame(fid), "tracker", None)
+        J[[ankle, names.index("FootLeft")]] += stretch * (J[ankle] - J[knee])
+        (jdir / f"{fid:05d}.json").write_text(json.dumps({"names": names, "positions": J.tolist()}))
+    seq, bat = _copy(batch_session, tmp_path, "seq"), _copy(batch_session, tmp_path, "bat")
+    reconstruct_session(seq, template="2k", refine_pose=False, params=PARAMS, joints="file", joints_path=jdir,
+                        score=False)
+    opts = ReconstructOptions(**{**asdict(OPTIONS), "joints": "file", "joints_path": str(jdir), "score": False})
+    reconstruct_batch(bat, cluster, opts, chunk=3)
+    for fid, path in read_reconstruction(seq)[1].items():
+        np.testing.assert_allclose(load_mesh(read_reconstruction(bat)[1][fid]).vertices, load_mesh(path).vertices,
+                                   atol=1e-9)
+    assert json.loads((bat / "reconstruct" / "run.json").read_text())["bone_lengths"] == "sequence"
+
+
 @pytest.mark.slow  # ~30 s on the loaded 2-core machine (a second cluster); the fast stand-in is the test above
 def test_killed_client_rerun_redoes_nothing_done(batch_session, cluster, tmp_path):
     """SIGKILL the CLI client as soon as a chunk is complete; the re-run keeps every complete chunk as is."""

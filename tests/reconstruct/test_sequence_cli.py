@@ -7,6 +7,7 @@ import pytest
 
 from bodystudio.cli.main import main
 from bodystudio.errors import InputError
+from bodystudio.geometry.mesh import load_mesh
 from bodystudio.reconstruct.sequence import joints_v2, parse_frames
 
 
@@ -32,7 +33,7 @@ def test_parse_frames_and_joint_names():
 
 
 @pytest.mark.slow
-def test_cli_reconstruct_and_eval(tiny_session, capsys):
+def test_cli_reconstruct_and_eval(tiny_session, capsys, tmp_path):
     path = str(tiny_session.path)
     assert main(["reconstruct", path, "--template", "2k", "--outer", "6"]) == 0
     assert (tiny_session.path / "reconstruct" / "meshes" / "00001.ply").is_file()
@@ -57,6 +58,54 @@ def test_cli_reconstruct_and_eval(tiny_session, capsys):
                  "--no-refine-pose"]) == 0
     frames = json.loads((tiny_session.path / "reconstruct" / "frames.json").read_text())["frames"]
     assert frames[0]["refine_ms"] == 0
+    # one set of bone lengths per run is the default; each frame's tracked lengths stay selectable
+    assert run["bone_lengths"] == "sequence"
+    meshes = tiny_session.path / "reconstruct" / "meshes"
+    # the session's joints are exact, so the median of the lengths is each frame's own: no change
+    runs = {}
+    for mode in ("sequence", "frame"):
+        assert main(["reconstruct", path, "--template", "2k", "--frames", "0:2", "--outer", "1", "--no-score",
+                     "--no-refine-pose", "--bone-lengths", mode]) == 0
+        runs[mode] = load_mesh(meshes / "00000.ply").vertices
+    assert np.abs(runs["sequence"] - runs["frame"]).max() < 1e-9
+    # a tracker that makes frame 1's left shin 20 % longer than frame 0's: with the sequence's lengths (the
+    # median of two frames: +10 %, ~4 cm) frame 0's left foot moves, the rest of the body stays
+    from bodystudio.body.kinect import kinect_joint_names
+    from bodystudio.reconstruct.sequence import frame_joints
+
+    names = kinect_joint_names("v2")
+    knee, ankle, foot = names.index("KneeLeft"), names.index("AnkleLeft"), names.index("FootLeft")
+    jdir = tmp_path / "joints"
+    jdir.mkdir()
+    for fid, stretch in ((0, 0.0), (1, 0.2)):
+        J = frame_joints(tiny_session, tiny_session.frame(fid), "tracker", None)
+        shift = stretch * (J[ankle] - J[knee])
+        J[ankle] += shift
+        J[foot] += shift
+        (jdir / f"{fid:05d}.json").write_text(json.dumps({"names": names, "positions": J.tolist()}))
+    for mode in ("sequence", "frame"):
+        assert main(["reconstruct", path, "--template", "2k", "--frames", "0:2", "--outer", "1", "--no-score",
+                     "--no-refine-pose", "--joints", "file", "--joints-path", str(jdir), "--bone-lengths", mode]) == 0
+        runs[mode] = load_mesh(meshes / "00000.ply").vertices
+    moved = np.linalg.norm(runs["sequence"] - runs["frame"], axis=1)
+    assert moved.max() > 0.03 and np.median(moved) < 1e-3
+    run = json.loads((tiny_session.path / "reconstruct" / "run.json").read_text())
+    assert run["bone_lengths"] == "frame" and run["joint_smoothing"] == 0
+    # joint smoothing through the CLI: a line through two frames passes through both, so nothing moves here
+    # (the smoothing itself: test_bone_lengths.py)
+    assert main(["reconstruct", path, "--template", "2k", "--frames", "0:2", "--outer", "1", "--no-score",
+                 "--no-refine-pose", "--joints", "file", "--joints-path", str(jdir), "--bone-lengths", "frame",
+                 "--joint-smoothing", "1"]) == 0
+    run = json.loads((tiny_session.path / "reconstruct" / "run.json").read_text())
+    assert run["joint_smoothing"] == 1 and run["refine_bones"] == []
+    assert np.abs(load_mesh(meshes / "00000.ply").vertices - runs["frame"]).max() < 1e-9
+    # with smoothed joints the refinement also fits the head's own pitch
+    assert main(["reconstruct", path, "--template", "2k", "--frames", "0:2", "--outer", "1", "--no-score",
+                 "--joint-smoothing", "1"]) == 0
+    run = json.loads((tiny_session.path / "reconstruct" / "run.json").read_text())
+    assert "head" in run["refine_bones"] and "neck_01" in run["refine_bones"]
+    assert main(["reconstruct", path, "--template", "2k", "--frames", "0:1", "--outer", "1", "--no-score"]) == 0
+    assert "head" not in json.loads((tiny_session.path / "reconstruct" / "run.json").read_text())["refine_bones"]
 
 
 @pytest.mark.slow
