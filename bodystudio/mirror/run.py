@@ -37,8 +37,8 @@ RUN_JSON = "run.json"
 RUN_FORMAT = "bodystudio-mirror-run"
 RUN_VERSION = 1
 #: Per-frame steps timed by the run, in order (session side, then the image steps, then output).
-STEPS = ("read", "register", "ik", "bodies", "pairs", "foreground", "warp_field", "warp", "compose", "background",
-         "write")
+STEPS = ("read", "register", "ik", "refine_pose", "bodies", "pairs", "foreground", "warp_field", "warp", "compose",
+         "background", "write")
 IMAGE_STEPS = ("foreground", "warp_field", "warp", "compose", "background")
 #: Fewest vertex pairs the warp is trusted with.
 MIN_PAIRS = 12
@@ -281,13 +281,15 @@ def load_source(session, source=None):
 
 def session_inputs(session, body, model, edits: dict[str, float], player: int = 1, ramp_frames: int = 30,
                    frames: Iterable[int] | None = None,
-                   correspondence: str = CORRESPONDENCE) -> Iterator[MirrorInput]:
+                   correspondence: str = CORRESPONDENCE, refine: bool = False) -> Iterator[MirrorInput]:
     """Per frame of ``session``: the colour frame, the player masks in colour and the projected vertex pairs
     (with ``correspondence`` ``dense`` also the dense correspondence of the posed bodies).
 
     The target body is computed once (Eq. 4) and reached gradually: the target rest shape is
     ``V_S + s (V_T - V_S)`` with ``s`` going 0 -> 1 over ``ramp_frames`` tracked frames (Eq. 4 is linear in
-    lambda, so this is the ramp of lambda without a solve per frame).
+    lambda, so this is the ramp of lambda without a solve per frame). ``refine``: the IK pose is refined
+    against the player mask, the depth and the joints (:func:`bodystudio.mirror.refine.refine_pose`) before
+    it poses the source and target bodies.
     """
     from bodystudio.mirror.frames import read_mirror_frame, register_depth_to_color
     from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
@@ -301,6 +303,12 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
     target_rest = model.vertices(c_target)
     camera = sensor.color
     previous = None
+    plan = None
+    if refine:
+        from bodystudio.mirror.frames import point_cloud
+        from bodystudio.mirror.refine import refine_plan, refine_pose
+
+        plan = refine_plan(body.vertices, body.faces, body.weights, body.skeleton, sensor.version)
     tracked_frames = 0
     last_rgb = None
     seen = None
@@ -345,6 +353,18 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
         previous = pose
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
+        if plan is not None:
+            try:
+                points = point_cloud(frame, sensor, int(player))
+                points = points[points[:, 1] > 0.02]  # not the floor under the feet
+                pose = refine_pose(plan, body.skeleton, pose, camera, person, tracked.positions, tracked.tracked,
+                                   points, others, sensor.version)
+            except BodyStudioError as exc:
+                yield MirrorInput(**base, warning=f"pose refinement failed: {exc}")
+                continue
+            t3b = time.perf_counter()
+            timings["refine_pose"] = (t3b - t3) * 1e3
+            t3 = t3b
         tracked_frames += 1
         s = min(1.0, tracked_frames / max(int(ramp_frames), 1))
         Vt_rest = body.vertices + s * (target_rest - body.vertices)
@@ -386,7 +406,7 @@ def check_edits(edits: dict[str, float]) -> dict[str, float]:
 def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by_side: bool = True,
                progress: bool = True, run_dir: str | Path | None = None, player: int = 1, kind: str = "similarity",
                ramp_frames: int = 30, frames: Iterable[int] | None = None, live: str | Path | None = None,
-               live_timeout_s: float = 5.0, correspondence: str = CORRESPONDENCE) -> dict:
+               live_timeout_s: float = 5.0, correspondence: str = CORRESPONDENCE, refine_pose: bool = False) -> dict:
     """``bodystudio mirror run``: reshape the actor of ``session`` by ``edits`` and write the video and run folder.
 
     ``session`` an opened session or its path; ``source`` a SourceBody or its .npz (default
@@ -394,8 +414,9 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     ``live``: a folder a recorder is filling with the session layout's ``kinect/`` streams; its frames are
     processed as they arrive (until ``live_timeout_s`` without a new one), each output frame also written
     to ``RUN/live_latest.png`` for a display to pick up. ``correspondence``: ``dense`` (default) or ``mls``
-    (:data:`bodystudio.mirror.warp.CORRESPONDENCES`). Returns run.json's content (per-step timings in
-    ``summary.ms_per_frame``).
+    (:data:`bodystudio.mirror.warp.CORRESPONDENCES`). ``refine_pose``: refine each frame's IK pose against the
+    refined foreground, depth and joints (:mod:`bodystudio.mirror.refine`; ~9 ms more per frame). Returns
+    run.json's content (per-step timings in ``summary.ms_per_frame``).
     """
     from bodystudio.capture.session import open_session
 
@@ -438,8 +459,9 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
                 "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
                 "live": None if live is None else str(Path(live).resolve()),
                 "edits": edits, "player": int(player), "ramp_frames": int(ramp_frames),
-                "correspondence": correspondence}
-    inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids, correspondence)
+                "correspondence": correspondence, "refine_pose": bool(refine_pose)}
+    inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids, correspondence,
+                            bool(refine_pose))
     return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total,
                          preview=run_dir / "live_latest.png" if live is not None else None)
 
