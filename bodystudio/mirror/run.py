@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -86,6 +86,9 @@ class MirrorInput:
     unseen: np.ndarray | None = None  # (H, W) bool colour pixels outside the depth camera's view
     edit_fraction: float | None = None  # how far the gradual edit has come (1 = the full edit)
     dense: object | None = None  # warp.DenseCorrespondence of the bodies (the dense warp), None: MLS only
+    # ``late_pairs(foreground, timings) -> warp.WarpPairs``: the pose refinement, bodies and pairs, which need
+    # the refined foreground of the frame (``--refine-pose``); src_uv/dst_uv/dense are then None until called
+    late_pairs: Callable | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -116,10 +119,9 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     others = empty if inp.others_mask is None else inp.others_mask
     person = empty if inp.person_mask is None else inp.person_mask
     has_person = bool(person.any())
-    if inp.warning is None and has_person and (inp.src_uv is None or len(inp.src_uv) < MIN_PAIRS):
-        inp = MirrorInput(inp.index, rgb, inp.person_mask, inp.others_mask, inp.depth_color, None, None,
-                          f"only {0 if inp.src_uv is None else len(inp.src_uv)} visible vertex pairs "
-                          f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups, inp.unseen)
+    if inp.warning is None and has_person and inp.late_pairs is None and \
+            (inp.src_uv is None or len(inp.src_uv) < MIN_PAIRS):
+        inp = _too_few_pairs(inp)
     if inp.warning is not None or not has_person:
         t = time.perf_counter()
         background = update_background(background, rgb, person | others, unverified=inp.unseen)
@@ -133,6 +135,13 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     fg = refine_foreground(rgb, person, inp.depth_color, background=background, unseen=inp.unseen,
                            **(foreground_options or {}))
     t1 = time.perf_counter()
+    if inp.late_pairs is not None:
+        pairs = inp.late_pairs(fg, timings)
+        inp = MirrorInput(inp.index, rgb, inp.person_mask, inp.others_mask, inp.depth_color, pairs.src_uv,
+                          pairs.dst_uv, None, timings, inp.pair_groups, inp.unseen, inp.edit_fraction, pairs.dense)
+        if len(pairs.src_uv) < MIN_PAIRS:
+            return mirror_frame(_too_few_pairs(inp), background, kind, foreground_options, alpha)
+        t1 = time.perf_counter()
     warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind, alpha=alpha, groups=inp.pair_groups,
                                 radius_px=MLS_RADIUS_PX, dense=inp.dense)
     t2 = time.perf_counter()
@@ -145,6 +154,12 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     for step, a, b in zip(IMAGE_STEPS, (t0, t1, t2, t3, t4), (t1, t2, t3, t4, t5), strict=True):
         timings[step] = (b - a) * 1e3
     return FrameResult(inp.index, out, fg, alpha > 0.5, "ok", None, timings), background
+
+
+def _too_few_pairs(inp: MirrorInput) -> MirrorInput:
+    return MirrorInput(inp.index, inp.rgb, inp.person_mask, inp.others_mask, inp.depth_color, None, None,
+                       f"only {0 if inp.src_uv is None else len(inp.src_uv)} visible vertex pairs "
+                       f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups, inp.unseen)
 
 
 # ---------------------------------------------------------------------------------------------- outputs
@@ -288,8 +303,9 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
     The target body is computed once (Eq. 4) and reached gradually: the target rest shape is
     ``V_S + s (V_T - V_S)`` with ``s`` going 0 -> 1 over ``ramp_frames`` tracked frames (Eq. 4 is linear in
     lambda, so this is the ramp of lambda without a solve per frame). ``refine``: the IK pose is refined
-    against the player mask, the depth and the joints (:func:`bodystudio.mirror.refine.refine_pose`) before
-    it poses the source and target bodies.
+    against the frame's refined foreground, the depth and the joints (:func:`bodystudio.mirror.refine.refine_pose`)
+    before it poses the source and target bodies: the frame then carries ``late_pairs``, which
+    :func:`mirror_frame` calls after the graph cut.
     """
     from bodystudio.mirror.frames import read_mirror_frame, register_depth_to_color
     from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
@@ -353,27 +369,38 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
         previous = pose
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
-        if plan is not None:
-            try:
-                points = point_cloud(frame, sensor, int(player))
-                points = points[points[:, 1] > 0.02]  # not the floor under the feet
-                pose = refine_pose(plan, body.skeleton, pose, camera, person, tracked.positions, tracked.tracked,
-                                   points, others, sensor.version)
-            except BodyStudioError as exc:
-                yield MirrorInput(**base, warning=f"pose refinement failed: {exc}")
-                continue
-            t3b = time.perf_counter()
-            timings["refine_pose"] = (t3b - t3) * 1e3
-            t3 = t3b
         tracked_frames += 1
         s = min(1.0, tracked_frames / max(int(ramp_frames), 1))
         Vt_rest = body.vertices + s * (target_rest - body.vertices)
         rig = target_skeleton(body, Vt_rest, model, body.coeffs + s * (c_target - body.coeffs))
-        Vs, Vt = posed_source_and_target(body, Vt_rest, pose, rig)
-        t4 = time.perf_counter()
-        timings["bodies"] = (t4 - t3) * 1e3
-        pairs = warp_pairs(Vs, Vt, body.faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=correspondence == "dense")
-        timings["pairs"] = (time.perf_counter() - t4) * 1e3
+
+        def bodies_and_pairs(foreground, timings, pose=pose, frame=frame, tracked=tracked, others=others,
+                             Vt_rest=Vt_rest, rig=rig):
+            """Pose refinement (with the frame's refined ``foreground`` when given), both bodies, the pairs."""
+            t = time.perf_counter()
+            if foreground is not None:
+                points = point_cloud(frame, sensor, int(player))
+                points = points[points[:, 1] > 0.02]  # not the floor under the feet
+                try:
+                    pose = refine_pose(plan, body.skeleton, pose, camera, foreground, tracked.positions,
+                                       tracked.tracked, points, others, sensor.version)
+                except BodyStudioError as exc:  # mirror_stream passes the frame through with this warning
+                    raise InputError(f"pose refinement failed: {exc}") from exc
+                t_refined = time.perf_counter()
+                timings["refine_pose"] = (t_refined - t) * 1e3
+                t = t_refined
+            Vs, Vt = posed_source_and_target(body, Vt_rest, pose, rig)
+            t_bodies = time.perf_counter()
+            timings["bodies"] = (t_bodies - t) * 1e3
+            pairs = warp_pairs(Vs, Vt, body.faces, camera, N_HANDLES, rim_cos=RIM_COS,
+                               dense=correspondence == "dense")
+            timings["pairs"] = (time.perf_counter() - t_bodies) * 1e3
+            return pairs
+
+        if plan is not None:  # the pose waits for the graph cut's foreground (mirror_frame calls back)
+            yield MirrorInput(**base, edit_fraction=s, late_pairs=bodies_and_pairs)
+            continue
+        pairs = bodies_and_pairs(None, timings)
         yield MirrorInput(**base, src_uv=pairs.src_uv, dst_uv=pairs.dst_uv, edit_fraction=s,
                           dense=pairs.dense)
 

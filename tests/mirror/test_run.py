@@ -153,3 +153,41 @@ def test_run_mirror_end_to_end_on_a_synthetic_session(tmp_path):
     scores = evaluate.evaluate_mirror(session, session.path / "mirror" / "run")
     assert scores["fg_iou"] > scores["fg_iou_raw"] + 0.05
     assert scores["warp_iou"] > scores["warp_iou_unwarped"]
+
+
+def test_run_mirror_with_pose_refinement(tmp_path, monkeypatch):
+    """``--refine-pose``: the pose is refined after the graph cut (its time in run.json), the warp scores at
+    least as well as the IK's on a small synthetic session, and a frame whose refinement fails passes through."""
+    from bodystudio.body.statistical import load_statistical_model
+    from bodystudio.errors import InputError
+    from bodystudio.mirror import evaluate, init, refine, synthetic
+    from bodystudio.mirror.run import run_mirror
+
+    session = synthetic.synth_mirror_session(tmp_path / "s", 5, n_frames=15, edits={"taller": 0.12}, version="v1",
+                                             motion="walk", walk_in=False)
+    body = init.initialise_source_body(session, load_statistical_model("6k", progress=False), n_frames=3)
+    init.save_source_body(session.path / "mirror" / "source_body.npz", body)
+    scores = {}
+    for refined in (False, True):
+        run = tmp_path / f"run_{refined}"
+        doc = run_mirror(session, {"taller": 0.12}, None, progress=False, ramp_frames=0, run_dir=run,
+                         refine_pose=refined)
+        assert doc["refine_pose"] is refined
+        assert ("refine_pose" in doc["summary"]["ms_per_frame"]) is refined
+        scores[refined] = evaluate.evaluate_mirror(session, run)["warp_iou"]
+    assert scores[True] > scores[False] - 0.005, scores
+
+    real, calls = refine.refine_pose, []
+
+    def failing(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise InputError("planted failure")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(refine, "refine_pose", failing)
+    doc = run_mirror(session, {"taller": 0.12}, None, progress=False, ramp_frames=0, run_dir=tmp_path / "fail",
+                     refine_pose=True)
+    failed = [f for f in doc["frames"] if f["status"] == "passed_through"]
+    assert len(failed) == 1 and "pose refinement failed: planted failure" in failed[0]["warning"]
+    assert doc["summary"]["n_ok"] == len(calls) - 1
