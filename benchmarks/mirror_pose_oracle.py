@@ -30,14 +30,15 @@ from pathlib import Path
 
 import numpy as np
 
-from bodystudio.mirror.refine import RefineWeights
+from bodystudio.mirror.refine import SWING_BONES, RefineWeights
 
 REFINE_VARIANTS = {
-    "refined (the run's --refine-pose: player mask)": {"mask": "person"},
-    "refined, graph-cut foreground": {},
-    "refined, 2 steps": {"mask": "person", "iterations": 2},
-    "refined, no depth": {"mask": "person", "weights": RefineWeights(depth_weight=0.0)},
-    "refined, no silhouette": {"mask": "person", "weights": RefineWeights(sil_weight=0.0)},
+    "refined (the run's --refine-pose)": {},
+    "refined, silhouette x0.25": {"weights": RefineWeights(sil_weight=0.25)},
+    "refined, silhouette x4": {"weights": RefineWeights(sil_weight=4.0)},
+    "refined, depth x4": {"weights": RefineWeights(depth_weight=4.0)},
+    "refined, joints x0.25": {"weights": RefineWeights(joint_weight=0.25)},
+    "refined, + spine_03, head, hands, feet": {"plan": ("spine_03", "head", "hand_l", "hand_r", "foot_l", "foot_r")},
 }
 
 LIMBS = ("upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
@@ -140,7 +141,11 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
     non_root = [j for j in range(sk.n_bones) if sk.parents[j] >= 0]
     root = int(np.flatnonzero(np.asarray(sk.parents) < 0)[0])
     background, previous, rows = None, None, []
-    plan = refine_plan(body.vertices, faces, body.weights, sk, session.kinect.version)
+    plans = {None: refine_plan(body.vertices, faces, body.weights, sk, session.kinect.version)}
+    for kw in REFINE_VARIANTS.values():
+        if "plan" in kw:
+            plans[kw["plan"]] = refine_plan(body.vertices, faces, body.weights, sk, session.kinect.version,
+                                            swing_bones=SWING_BONES + kw["plan"])
     refine_ms: dict[str, list[float]] = {}
     for i in session.frame_ids:
         frame = read_mirror_frame(session, i)
@@ -173,6 +178,7 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
         for rname, kw in REFINE_VARIANTS.items():
             kw = dict(kw)
             mask = fg if kw.pop("mask", "fg") == "fg" else person
+            plan = plans[kw.pop("plan", None)]
             t0 = time.process_time()
             refined[rname] = refine_pose(plan, sk, pose_ik, camera, mask, tracked.positions, tracked.tracked,
                                          points, others, session.kinect.version, **kw)

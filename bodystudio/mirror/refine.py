@@ -93,17 +93,19 @@ def _descendants(parents, j) -> np.ndarray:
 
 
 def refine_plan(vertices_rest: np.ndarray, faces: np.ndarray, weights: np.ndarray, skeleton: Skeleton,
-                version: str = "v2", stride: int = VERTEX_STRIDE) -> _RefinePlan:
-    """The per-body data of :func:`refine_pose` (computed once per source body)."""
+                version: str = "v2", stride: int = VERTEX_STRIDE,
+                swing_bones: tuple[str, ...] = SWING_BONES) -> _RefinePlan:
+    """The per-body data of :func:`refine_pose` (computed once per source body); ``swing_bones`` the bones
+    whose swing is refined."""
     from bodystudio.geometry.mesh import vertex_normals
 
     names = skeleton.bone_names
-    missing = [b for b in ("Root", *SWING_BONES) if b not in names]
+    missing = [b for b in ("Root", *swing_bones) if b not in names]
     if missing:
         raise InputError(f"pose refinement needs the game_engine rig; bone {missing[0]!r} is missing")
     parents = np.asarray(skeleton.parents)
     root = int(np.flatnonzero(parents < 0)[0])
-    bones = np.array([root] + [names.index(b) for b in SWING_BONES])
+    bones = np.array([root] + [names.index(b) for b in swing_bones])
     subset = np.arange(0, len(vertices_rest), max(1, int(stride)))
     W = np.asarray(weights, float)[subset]
     inside = np.stack([_descendants(parents, j) for j in bones], axis=1).astype(float)  # (B, 1 + S)

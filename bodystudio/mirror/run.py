@@ -135,7 +135,8 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     fg = refine_foreground(rgb, person, inp.depth_color, background=background, unseen=inp.unseen,
                            **(foreground_options or {}))
     t1 = time.perf_counter()
-    if inp.late_pairs is not None:
+    timings["foreground"] = (t1 - t0) * 1e3
+    if inp.late_pairs is not None:  # its own steps (refine_pose, bodies, pairs) time themselves
         pairs = inp.late_pairs(fg, timings)
         inp = MirrorInput(inp.index, rgb, inp.person_mask, inp.others_mask, inp.depth_color, pairs.src_uv,
                           pairs.dst_uv, None, timings, inp.pair_groups, inp.unseen, inp.edit_fraction, pairs.dense)
@@ -151,7 +152,7 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     t4 = time.perf_counter()
     background = update_background(background, rgb, fg | person | others, unverified=inp.unseen)
     t5 = time.perf_counter()
-    for step, a, b in zip(IMAGE_STEPS, (t0, t1, t2, t3, t4), (t1, t2, t3, t4, t5), strict=True):
+    for step, a, b in zip(IMAGE_STEPS[1:], (t1, t2, t3, t4), (t2, t3, t4, t5), strict=True):
         timings[step] = (b - a) * 1e3
     return FrameResult(inp.index, out, fg, alpha > 0.5, "ok", None, timings), background
 

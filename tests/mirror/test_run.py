@@ -173,7 +173,8 @@ def test_run_mirror_with_pose_refinement(tmp_path, monkeypatch):
         doc = run_mirror(session, {"taller": 0.12}, None, progress=False, ramp_frames=0, run_dir=run,
                          refine_pose=refined)
         assert doc["refine_pose"] is refined
-        assert ("refine_pose" in doc["summary"]["ms_per_frame"]) is refined
+        ms = doc["summary"]["ms_per_frame"]
+        assert ("refine_pose" in ms) is refined and all(k in ms for k in ("bodies", "pairs", "foreground"))
         scores[refined] = evaluate.evaluate_mirror(session, run)["warp_iou"]
     assert scores[True] > scores[False] - 0.005, scores
 
@@ -191,3 +192,32 @@ def test_run_mirror_with_pose_refinement(tmp_path, monkeypatch):
     failed = [f for f in doc["frames"] if f["status"] == "passed_through"]
     assert len(failed) == 1 and "pose refinement failed: planted failure" in failed[0]["warning"]
     assert doc["summary"]["n_ok"] == len(calls) - 1
+
+
+def test_late_pairs_are_called_with_the_refined_foreground_and_timed_apart(monkeypatch):
+    """A frame carrying ``late_pairs`` (``--refine-pose``) gets the graph cut's foreground; the callback's time
+    is not booked to the foreground step; too few pairs from it pass the frame through."""
+    import bodystudio.mirror.run as run_mod
+    from bodystudio.mirror.warp import WarpPairs
+
+    case = cached_image_case(None, 0, 1)
+    seen, offset = {}, [0.0]
+    real = time.perf_counter
+    monkeypatch.setattr(run_mod.time, "perf_counter", lambda: real() + offset[0])
+
+    def late(fg, timings, n=None):
+        seen["fg"] = fg.copy()
+        offset[0] += 1000.0  # the callback "takes" 1000 s on the run's clock
+        timings["pairs"] = 50.0
+        k = len(case.src_uv) if n is None else n
+        return WarpPairs(case.src_uv[:k], case.dst_uv[:k], np.arange(k), None)
+
+    inp = MirrorInput(2, case.rgb, case.player_mask, None, case.depth_color, late_pairs=late)
+    res, _ = mirror_frame(inp, None)
+    assert res.status == "ok" and np.array_equal(seen["fg"], res.foreground)
+    assert res.timings_ms["pairs"] == 50.0
+    assert all(res.timings_ms[k] < 1e6 for k in ("foreground", "warp_field", "warp", "compose", "background"))
+    assert iou(res.warped, case.target_mask) > iou(res.foreground, case.target_mask)
+    res, _ = mirror_frame(MirrorInput(3, case.rgb, case.player_mask, None, case.depth_color,
+                                      late_pairs=lambda fg, t: late(fg, t, 4)), None)
+    assert res.status == "passed_through" and "visible vertex pairs" in res.warning
