@@ -34,11 +34,7 @@ from bodystudio.mirror.refine import SWING_BONES, RefineWeights
 
 REFINE_VARIANTS = {
     "refined (the run's --refine-pose)": {},
-    "refined, silhouette x0.25": {"weights": RefineWeights(sil_weight=0.25)},
-    "refined, silhouette x4": {"weights": RefineWeights(sil_weight=4.0)},
-    "refined, depth x4": {"weights": RefineWeights(depth_weight=4.0)},
-    "refined, joints x0.25": {"weights": RefineWeights(joint_weight=0.25)},
-    "refined, + spine_03, head, hands, feet": {"plan": ("spine_03", "head", "hand_l", "hand_r", "foot_l", "foot_r")},
+    "refined, warm-started by the previous frame's correction": {"warm": True},
 }
 
 LIMBS = ("upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
@@ -115,7 +111,7 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
     from bodystudio.mirror.foreground import refine_foreground
     from bodystudio.mirror.frames import point_cloud, read_mirror_frame, register_depth_to_color
     from bodystudio.mirror.init import SourceBody
-    from bodystudio.mirror.refine import refine_plan, refine_pose
+    from bodystudio.mirror.refine import corrected_pose, pose_correction, refine_plan, refine_pose
     from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
     from bodystudio.mirror.run import MLS_ALPHA, MLS_RADIUS_PX, N_HANDLES, RIM_COS, load_source
     from bodystudio.mirror.track import ik_pose
@@ -147,6 +143,7 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
             plans[kw["plan"]] = refine_plan(body.vertices, faces, body.weights, sk, session.kinect.version,
                                             swing_bones=SWING_BONES + kw["plan"])
     refine_ms: dict[str, list[float]] = {}
+    corrections: dict[str, tuple] = {}
     for i in session.frame_ids:
         frame = read_mirror_frame(session, i)
         depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, session.kinect)
@@ -157,6 +154,18 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
             continue
         pose_ik = ik_pose(sk, tracked.positions, tracked.tracked, session.kinect.version, previous=previous)
         previous = pose_ik
+        warm = {}
+        if any("warm" in kw for kw in REFINE_VARIANTS.values()):
+            fg_w = refine_foreground(frame.rgb, person, depth_c, background=background)
+            pts_w = point_cloud(frame, session.kinect, player)
+            pts_w = pts_w[pts_w[:, 1] > 0.02]
+            for rname, kw in REFINE_VARIANTS.items():
+                if "warm" not in kw:
+                    continue
+                start = corrected_pose(pose_ik, corrections.get(rname))
+                warm[rname] = refine_pose(plans[None], sk, start, camera, fg_w, tracked.positions, tracked.tracked,
+                                          pts_w, (players_c > 0) & ~person, session.kinect.version)
+                corrections[rname] = pose_correction(pose_ik, warm[rname])
         pose_true_shape = ik_pose(true_sk, tracked.positions, tracked.tracked, session.kinect.version,
                                   previous=previous_true_shape)
         previous_true_shape = pose_true_shape
@@ -176,6 +185,9 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
         others = (players_c > 0) & ~person
         refined = {}
         for rname, kw in REFINE_VARIANTS.items():
+            if "warm" in kw:
+                refined[rname] = warm[rname]
+                continue
             kw = dict(kw)
             mask = fg if kw.pop("mask", "fg") == "fg" else person
             plan = plans[kw.pop("plan", None)]
