@@ -32,8 +32,16 @@ import numpy as np
 
 from bodystudio.mirror.refine import SWING_BONES, RefineWeights
 
+#: The refined poses scored (docs/mirror.md, MIR12b): keyword arguments of ``refine_pose`` plus ``mask``
+#: ("fg": the graph cut's foreground, "person": the raw SDK player mask), ``plan`` (extra swing bones) and
+#: ``warm`` (refined every tracked frame, warm-started by the previous frame's correction).
 REFINE_VARIANTS = {
     "refined (the run's --refine-pose)": {},
+    "refined, raw player mask": {"mask": "person"},
+    "refined, no silhouette": {"mask": "person", "weights": RefineWeights(sil_weight=0.0)},
+    "refined, no depth (player mask)": {"mask": "person", "weights": RefineWeights(depth_weight=0.0)},
+    "refined, 2 steps (player mask)": {"mask": "person", "iterations": 2},
+    "refined, + spine_03, head, hands, feet": {"plan": ("spine_03", "head", "hand_l", "hand_r", "foot_l", "foot_r")},
     "refined, warm-started by the previous frame's correction": {"warm": True},
 }
 
