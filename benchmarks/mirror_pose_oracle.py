@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from bodystudio.mirror.refine import SWING_BONES, RefineWeights
+from bodystudio.mirror.refine import TRUNK_AND_LIMB_BONES, RefineWeights
 
 #: The refined poses scored (docs/mirror.md, MIR12b): keyword arguments of ``refine_pose`` plus ``mask``
-#: ("fg": the graph cut's foreground, "person": the raw SDK player mask), ``plan`` (extra swing bones) and
+#: ("fg": the graph cut's foreground, "person": the raw SDK player mask), ``plan`` (the swing bones) and
 #: ``warm`` (refined every tracked frame, warm-started by the previous frame's correction).
 REFINE_VARIANTS = {
     "refined (the run's --refine-pose)": {},
@@ -41,7 +41,7 @@ REFINE_VARIANTS = {
     "refined, no silhouette": {"mask": "person", "weights": RefineWeights(sil_weight=0.0)},
     "refined, no depth (player mask)": {"mask": "person", "weights": RefineWeights(depth_weight=0.0)},
     "refined, 2 steps (player mask)": {"mask": "person", "iterations": 2},
-    "refined, + spine_03, head, hands, feet": {"plan": ("spine_03", "head", "hand_l", "hand_r", "foot_l", "foot_r")},
+    "refined, without spine_03, head, hands, feet": {"plan": TRUNK_AND_LIMB_BONES},
     "refined, warm-started by the previous frame's correction": {"warm": True},
 }
 
@@ -149,7 +149,7 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
     for kw in REFINE_VARIANTS.values():
         if "plan" in kw:
             plans[kw["plan"]] = refine_plan(body.vertices, faces, body.weights, sk, session.kinect.version,
-                                            swing_bones=SWING_BONES + kw["plan"])
+                                            swing_bones=kw["plan"])
     refine_ms: dict[str, list[float]] = {}
     corrections: dict[str, tuple] = {}
     for i in session.frame_ids:
