@@ -3,9 +3,9 @@
 The IK of §5.2 (:mod:`bodystudio.mirror.track`) fits bone directions to the Kinect joints only, and the
 joints of the SDK are centimetres off the body's surface. What the warp of §5.4 needs is that the *projected
 source body covers the person's silhouette* in the image, since the warp maps the source's projection onto the
-target's. This step refines the root (translation and rotation) and the swing of the spine, neck, clavicles
-and limbs (not their twist, which an oracle measured to cost the warp nothing: docs/mirror.md "MIR12") by a
-few Gauss-Newton steps of the energy
+target's. This step refines the root (translation and rotation) and the swing of the spine, neck, head,
+clavicles, limbs, hands and feet (not their twist, which an oracle measured to cost the warp nothing:
+docs/mirror.md "MIR12") by a few Gauss-Newton steps of the energy
 
 ``E = w_sil (E_out + E_cover) + w_depth E_depth + w_joint E_joint + E_prior``
 
@@ -246,7 +246,8 @@ def refine_pose(plan: _RefinePlan, skeleton: Skeleton, pose: Pose, camera, foreg
     refined mask in the colour image of ``camera``), the player's ``depth_points`` (N, 3) and the Kinect joints.
 
     ``others``: pixels of other players (a body point projecting there may be occluded, not outside).
-    Root translation/rotation and the swing of :data:`SWING_BONES` change; every other rotation is the IK's.
+    Root translation/rotation and the swing of the plan's bones (:data:`SWING_BONES` by default) change;
+    every other rotation, and every twist, is the IK's. ``iterations`` Gauss-Newton steps from ``pose``.
     """
     fg = np.asarray(foreground, bool)
     if fg.shape != (camera.height, camera.width):
