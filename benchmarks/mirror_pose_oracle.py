@@ -119,7 +119,7 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
     from bodystudio.mirror.foreground import refine_foreground
     from bodystudio.mirror.frames import point_cloud, read_mirror_frame, register_depth_to_color
     from bodystudio.mirror.init import SourceBody
-    from bodystudio.mirror.refine import corrected_pose, pose_correction, refine_plan, refine_pose
+    from bodystudio.mirror.refine import refine_plan, refine_pose
     from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
     from bodystudio.mirror.run import MLS_ALPHA, MLS_RADIUS_PX, N_HANDLES, RIM_COS, load_source
     from bodystudio.mirror.track import ik_pose
@@ -262,6 +262,29 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
         out[key] = float(vals.max()) if key.endswith("max per frame") else \
             tuple(vals.mean(0)) if vals.ndim > 1 else float(vals.mean())
     return out
+
+
+def pose_correction(ik, refined) -> tuple[np.ndarray, np.ndarray]:
+    """What the refinement changed: per bone the rotation ``C_j = R_refined,j R_ik,j^-1`` (rotation vectors,
+    (B, 3)) and the root translation's change, to warm-start the next frame (``corrected_pose``)."""
+    from scipy.spatial.transform import Rotation
+
+    C = Rotation.from_rotvec(refined.rotations) * Rotation.from_rotvec(ik.rotations).inv()
+    return C.as_rotvec(), refined.translation - ik.translation
+
+
+def corrected_pose(ik, correction: tuple[np.ndarray, np.ndarray] | None):
+    """The IK pose of a frame with the previous frame's refinement ``correction`` applied: the refinement's
+    warm start, so that the IK's slowly changing bias (spine_01's swing, the root's depth) is not re-learnt
+    from the IK each frame."""
+    if correction is None:
+        return ik
+    from scipy.spatial.transform import Rotation
+
+    from bodystudio.body.pose import Pose
+
+    rot = Rotation.from_rotvec(correction[0]) * Rotation.from_rotvec(ik.rotations)
+    return Pose(rot.as_rotvec(), ik.translation + correction[1])
 
 
 def _replace(W_ik, W_true, bones) -> np.ndarray:

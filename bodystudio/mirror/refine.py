@@ -365,19 +365,3 @@ def refine_pose(plan: _RefinePlan, skeleton: Skeleton, pose: Pose, camera, foreg
         pose = apply_update(skeleton, pose, delta, bones, axes, world)
     return pose if np.all(np.isfinite(pose.rotations)) else start
 
-
-def pose_correction(ik: Pose, refined: Pose) -> tuple[np.ndarray, np.ndarray]:
-    """What the refinement changed: per bone the rotation ``C_j = R_refined,j R_ik,j^-1`` (rotation vectors,
-    (B, 3)) and the root translation's change, to warm-start the next frame (:func:`corrected_pose`)."""
-    C = Rotation.from_rotvec(refined.rotations) * Rotation.from_rotvec(ik.rotations).inv()
-    return C.as_rotvec(), refined.translation - ik.translation
-
-
-def corrected_pose(ik: Pose, correction: tuple[np.ndarray, np.ndarray] | None) -> Pose:
-    """The IK pose of a frame with the previous frame's refinement ``correction`` applied: the refinement's
-    warm start, so that the IK's slowly changing bias (spine_01's swing, the root's depth) is not re-learnt
-    from the IK each frame."""
-    if correction is None:
-        return ik
-    rot = Rotation.from_rotvec(correction[0]) * Rotation.from_rotvec(ik.rotations)
-    return Pose(rot.as_rotvec(), ik.translation + correction[1])
