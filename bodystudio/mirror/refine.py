@@ -238,6 +238,21 @@ def apply_update(skeleton: Skeleton, pose: Pose, delta: np.ndarray, bones: np.nd
     return Pose(rotvecs, pose.translation + delta[:3])
 
 
+_BLAS = None
+
+
+def _one_blas_thread():
+    """A context holding BLAS to one thread: the normal equations (a few thousand rows by ~44 columns) cross
+    OpenBLAS's threading threshold, and its threads spinning on a loaded machine made the step cost 150-300 ms
+    wall instead of ~10 (mirror run on MIR-SYNTH, load 30); the context itself costs ~0.01 ms."""
+    global _BLAS
+    if _BLAS is None:
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS = ThreadpoolController()
+    return _BLAS.limit(limits=1, user_api="blas")
+
+
 def refine_pose(plan: _RefinePlan, skeleton: Skeleton, pose: Pose, camera, foreground: np.ndarray,
                 kinect_positions=None, tracked=None, depth_points=None, others: np.ndarray | None = None,
                 version: str = "v2", iterations: int = ITERATIONS,
@@ -249,6 +264,13 @@ def refine_pose(plan: _RefinePlan, skeleton: Skeleton, pose: Pose, camera, foreg
     Root translation/rotation and the swing of the plan's bones (:data:`SWING_BONES` by default) change;
     every other rotation, and every twist, is the IK's. ``iterations`` Gauss-Newton steps from ``pose``.
     """
+    with _one_blas_thread():
+        return _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tracked, depth_points,
+                            others, version, iterations, weights)
+
+
+def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tracked, depth_points, others,
+                 version, iterations, weights) -> Pose:
     fg = np.asarray(foreground, bool)
     if fg.shape != (camera.height, camera.width):
         raise InputError(f"refine_pose: foreground {fg.shape} is not the camera's ({camera.height}, {camera.width})")
