@@ -224,17 +224,14 @@ def apply_update(skeleton: Skeleton, pose: Pose, delta: np.ndarray, bones: np.nd
                  world: np.ndarray) -> Pose:
     """The pose turned by ``delta`` (root translation, root rotation vector in world axes, two swing angles per
     bone about ``axes``); ``world`` (B, 3, 3) the pose's world rotations (rest-world to posed-world)."""
-    Rr = skeleton.rest_rotations
-    parents = skeleton.parents
+    Rr = skeleton.rest_rotations[bones]
+    parents = np.asarray(skeleton.parents)[bones]
     rotvecs = pose.rotations.copy()
-    turns = [delta[3:6]] + [delta[6 + 2 * c] * axes[c, 0] + delta[7 + 2 * c] * axes[c, 1]
-                            for c in range(len(bones) - 1)]
-    for j, w in zip(bones, turns, strict=True):
-        p = parents[j]
-        Wp = np.eye(3) if p < 0 else world[p]
-        # W_j' = W_p' L_j' with L_j' = W_p^T exp(w) W_j: first order the same turn of j's subtree in world axes
-        L_new = Wp.T @ Rotation.from_rotvec(w).as_matrix() @ world[j]
-        rotvecs[j] = Rotation.from_matrix(Rr[j].T @ L_new @ Rr[j]).as_rotvec()
+    turns = np.vstack([delta[3:6], delta[6::2, None] * axes[:, 0] + delta[7::2, None] * axes[:, 1]])
+    Wp = np.where((parents < 0)[:, None, None], np.eye(3), world[np.maximum(parents, 0)])
+    # W_j' = W_p' L_j' with L_j' = W_p^T exp(w) W_j: first order the same turn of j's subtree in world axes
+    L_new = np.transpose(Wp, (0, 2, 1)) @ Rotation.from_rotvec(turns).as_matrix() @ world[bones]
+    rotvecs[bones] = Rotation.from_matrix(np.transpose(Rr, (0, 2, 1)) @ L_new @ Rr).as_rotvec()
     return Pose(rotvecs, pose.translation + delta[:3])
 
 
@@ -305,11 +302,10 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         world = M[:, :3, :3] @ np.transpose(skeleton.rest_rotations, (0, 2, 1))
         heads = M[bones, :3, 3]
         directions = M[bones[1:], :3, 1]
-        axes = np.empty((S, 2, 3))
-        for c, d in enumerate(directions):
-            a = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 0.0, 1.0])
-            a /= np.linalg.norm(a)
-            axes[c] = a, np.cross(d, a)
+        helper = np.where(np.abs(directions[:, :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0])
+        a = np.cross(directions, helper)
+        a /= np.linalg.norm(a, axis=1, keepdims=True)
+        axes = np.stack([a, np.cross(directions, a)], axis=1)  # (S, 2, 3): two axes perpendicular to each bone
         transforms = M @ plan.rest_inverse
         V, N = _skin(plan, transforms)
         rows, res = [], []
