@@ -34,7 +34,8 @@ from bodystudio.mirror.refine import TRUNK_AND_LIMB_BONES, RefineWeights
 
 #: The refined poses scored (docs/mirror.md, MIR12b): keyword arguments of ``refine_pose`` plus ``mask``
 #: ("fg": the graph cut's foreground, "person": the raw SDK player mask), ``plan`` (the swing bones) and
-#: ``warm`` (refined every tracked frame, warm-started by the previous frame's correction).
+#: ``warm`` (True: refined every tracked frame, warm-started by the previous frame's correction; "every 2nd": refined
+#: from the IK on odd frames only, the even (scored) frames take the IK plus the last odd frame's correction).
 REFINE_VARIANTS = {
     "refined (the run's --refine-pose)": {},
     "refined, raw player mask": {"mask": "person"},
@@ -43,6 +44,7 @@ REFINE_VARIANTS = {
     "refined, 2 steps (player mask)": {"mask": "person", "iterations": 2},
     "refined, without spine_03, head, hands, feet": {"plan": TRUNK_AND_LIMB_BONES},
     "refined, warm-started by the previous frame's correction": {"warm": True},
+    "refined every 2nd frame, the correction carried to the next": {"warm": "every 2nd"},
 }
 
 LIMBS = ("upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
@@ -170,7 +172,10 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
             for rname, kw in REFINE_VARIANTS.items():
                 if "warm" not in kw:
                     continue
-                start = corrected_pose(pose_ik, corrections.get(rname))
+                if kw["warm"] == "every 2nd" and i % 2 == 0:  # not refined: the last frame's correction
+                    warm[rname] = corrected_pose(pose_ik, corrections.get(rname))
+                    continue
+                start = pose_ik if kw["warm"] == "every 2nd" else corrected_pose(pose_ik, corrections.get(rname))
                 warm[rname] = refine_pose(plans[None], sk, start, camera, fg_w, tracked.positions, tracked.tracked,
                                           pts_w, (players_c > 0) & ~person, session.kinect.version)
                 corrections[rname] = pose_correction(pose_ik, warm[rname])
