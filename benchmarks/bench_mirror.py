@@ -162,7 +162,39 @@ def _session_side(quick: bool) -> tuple[list[str], float | None]:
                      f"per frame (the target is skinned too: twice that); the §4 initialisation "
                      f"{track['init_cpu_s']:.2f} s CPU over {track['init_frames']} frames. Synthesis: "
                      + ", ".join(f"{k} {v:.2f}" for k, v in synth.items() if isinstance(v, (int, float))) + ".")
+        refine_ms = _refine_pose_ms(session, model, last, frames)
+        if refine_ms is not None:
+            lines.append(f"`--refine-pose` (off by default; not in the end-to-end figure below): the pose refinement "
+                         f"{refine_ms[0]:.1f} ms CPU ({refine_ms[1]:.1f} wall) per frame, one Gauss-Newton step "
+                         "(the mean shape posed by the IK against the player mask, depth and joints of the last "
+                         "frame).")
     return lines, register[0] + track["ik_cpu_ms"] + 2 * track["skin_cpu_ms"]
+
+
+def _refine_pose_ms(session, model, frame, frames) -> tuple[float, float] | None:
+    """CPU and wall ms of :func:`bodystudio.mirror.refine.refine_pose` on ``frame`` (None without the module)."""
+    import importlib
+
+    try:
+        refine = importlib.import_module("bodystudio.mirror.refine")
+    except ImportError:
+        return None
+    from bodystudio.mirror.init import SourceBody
+    from bodystudio.mirror.track import ik_pose
+
+    c = np.zeros(len(model.stddev))
+    body = SourceBody(c, model.vertices(c), model.skeleton(c), (), 0.0, model.weights, model.faces)
+    tracked = frame.body(1)
+    if tracked is None:
+        return None
+    sensor = session.kinect
+    pose = ik_pose(body.skeleton, tracked.positions, tracked.tracked, sensor.version)
+    _, players = frames.register_depth_to_color(frame.depth_m, frame.player, sensor)
+    points = frames.point_cloud(frame, sensor, 1)
+    plan = refine.refine_plan(body.vertices, body.faces, body.weights, body.skeleton, sensor.version)
+    return _median_ms(lambda: refine.refine_pose(plan, body.skeleton, pose, sensor.color, players == 1,
+                                                 tracked.positions, tracked.tracked, points[points[:, 1] > 0.02],
+                                                 (players > 0) & (players != 1), sensor.version), 7)
 
 
 def run(quick: bool = False) -> str:

@@ -25,9 +25,27 @@ source: what a depth refinement would minimise).
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 import numpy as np
+
+from bodystudio.mirror.refine import TRUNK_AND_LIMB_BONES, RefineWeights
+
+#: The refined poses scored (docs/mirror.md, MIR12b): keyword arguments of ``refine_pose`` plus ``mask``
+#: ("fg": the graph cut's foreground, "person": the raw SDK player mask), ``plan`` (the swing bones) and
+#: ``warm`` (True: refined every tracked frame, warm-started by the previous frame's correction; "every 2nd": refined
+#: from the IK on odd frames only, the even (scored) frames take the IK plus the last odd frame's correction).
+REFINE_VARIANTS = {
+    "refined (the run's --refine-pose)": {},
+    "refined, raw player mask": {"mask": "person"},
+    "refined, no silhouette": {"mask": "person", "weights": RefineWeights(sil_weight=0.0)},
+    "refined, no depth (player mask)": {"mask": "person", "weights": RefineWeights(depth_weight=0.0)},
+    "refined, 2 steps (player mask)": {"mask": "person", "iterations": 2},
+    "refined, without spine_03, head, hands, feet": {"plan": TRUNK_AND_LIMB_BONES},
+    "refined, warm-started by the previous frame's correction": {"warm": True},
+    "refined every 2nd frame, the correction carried to the next": {"warm": "every 2nd"},
+}
 
 LIMBS = ("upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
 
@@ -91,7 +109,7 @@ def oracle_swing(skeleton, W_ik, W_true, bones) -> np.ndarray:
     return W
 
 
-def score(session, stride: int = 4, player: int = 1, source=None) -> dict[str, float]:
+def score(session, stride: int = 4, player: int = 1, source=None, refine_only: bool = False) -> dict[str, float]:
     """Mean scores over every ``stride``-th tracked frame of ``session`` (see the module docstring)."""
     from scipy.spatial import cKDTree
 
@@ -103,6 +121,7 @@ def score(session, stride: int = 4, player: int = 1, source=None) -> dict[str, f
     from bodystudio.mirror.foreground import refine_foreground
     from bodystudio.mirror.frames import point_cloud, read_mirror_frame, register_depth_to_color
     from bodystudio.mirror.init import SourceBody
+    from bodystudio.mirror.refine import refine_plan, refine_pose
     from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
     from bodystudio.mirror.run import MLS_ALPHA, MLS_RADIUS_PX, N_HANDLES, RIM_COS, load_source
     from bodystudio.mirror.track import ik_pose
@@ -128,6 +147,13 @@ def score(session, stride: int = 4, player: int = 1, source=None) -> dict[str, f
     non_root = [j for j in range(sk.n_bones) if sk.parents[j] >= 0]
     root = int(np.flatnonzero(np.asarray(sk.parents) < 0)[0])
     background, previous, rows = None, None, []
+    plans = {None: refine_plan(body.vertices, faces, body.weights, sk, session.kinect.version)}
+    for kw in REFINE_VARIANTS.values():
+        if "plan" in kw:
+            plans[kw["plan"]] = refine_plan(body.vertices, faces, body.weights, sk, session.kinect.version,
+                                            swing_bones=kw["plan"])
+    refine_ms: dict[str, list[float]] = {}
+    corrections: dict[str, tuple] = {}
     for i in session.frame_ids:
         frame = read_mirror_frame(session, i)
         depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, session.kinect)
@@ -138,6 +164,21 @@ def score(session, stride: int = 4, player: int = 1, source=None) -> dict[str, f
             continue
         pose_ik = ik_pose(sk, tracked.positions, tracked.tracked, session.kinect.version, previous=previous)
         previous = pose_ik
+        warm = {}
+        if any("warm" in kw for kw in REFINE_VARIANTS.values()):
+            fg_w = refine_foreground(frame.rgb, person, depth_c, background=background)
+            pts_w = point_cloud(frame, session.kinect, player)
+            pts_w = pts_w[pts_w[:, 1] > 0.02]
+            for rname, kw in REFINE_VARIANTS.items():
+                if "warm" not in kw:
+                    continue
+                if kw["warm"] == "every 2nd" and i % 2 == 0:  # not refined: the last frame's correction
+                    warm[rname] = corrected_pose(pose_ik, corrections.get(rname))
+                    continue
+                start = pose_ik if kw["warm"] == "every 2nd" else corrected_pose(pose_ik, corrections.get(rname))
+                warm[rname] = refine_pose(plans[None], sk, start, camera, fg_w, tracked.positions, tracked.tracked,
+                                          pts_w, (players_c > 0) & ~person, session.kinect.version)
+                corrections[rname] = pose_correction(pose_ik, warm[rname])
         pose_true_shape = ik_pose(true_sk, tracked.positions, tracked.tracked, session.kinect.version,
                                   previous=previous_true_shape)
         previous_true_shape = pose_true_shape
@@ -151,8 +192,25 @@ def score(session, stride: int = 4, player: int = 1, source=None) -> dict[str, f
         W_true, W_ik = world_rotations(true_sk, true_pose), world_rotations(sk, pose_ik)
         # the fitted root head placed where the true one is
         true_translation = true_pose.translation + true_sk.heads[root] - sk.heads[root]
+        points = point_cloud(frame, session.kinect, player)
+        points = points[points[:, 1] > 0.02][:: max(1, len(points) // 2000)]  # the floor under the feet
+        fg = refine_foreground(frame.rgb, person, depth_c, background=background)
+        others = (players_c > 0) & ~person
+        refined = {}
+        for rname, kw in REFINE_VARIANTS.items():
+            if "warm" in kw:
+                refined[rname] = warm[rname]
+                continue
+            kw = dict(kw)
+            mask = fg if kw.pop("mask", "fg") == "fg" else person
+            plan = plans[kw.pop("plan", None)]
+            t0 = time.process_time()
+            refined[rname] = refine_pose(plan, sk, pose_ik, camera, mask, tracked.positions, tracked.tracked,
+                                         points, others, session.kinect.version, **kw)
+            refine_ms.setdefault(rname, []).append(1e3 * (time.process_time() - t0))
         poses = {
             "IK": pose_ik,
+            **refined,
             "IK swing + true twist (limbs)": pose_from_world(sk, oracle_twist(sk, W_ik, W_true, limbs),
                                                              pose_ik.translation),
             "IK swing + true twist": pose_from_world(sk, oracle_twist(sk, W_ik, W_true, non_root),
@@ -164,9 +222,10 @@ def score(session, stride: int = 4, player: int = 1, source=None) -> dict[str, f
             "IK rotations, true root": pose_from_world(sk, _replace(W_ik, W_true, [root]), true_translation),
             "true pose": pose_from_world(sk, W_true, true_translation),
         }
+        if refine_only:
+            poses = {name: poses[name] for name in ("IK", *refined, "true rotations, IK root", "true pose")}
         Vs_t, Vt_t = gt["source_vertices"][k].astype(float), gt["target_vertices"][k].astype(float)
         true_target = session.frame(i).gt_target_person == player
-        fg = refine_foreground(frame.rgb, person, depth_c, background=background)
         background = update_background(background, frame.rgb, fg | (players_c > 0))
 
         def warp_iou(A, B, rgb=frame.rgb, fg=fg, true_target=true_target):
@@ -174,9 +233,6 @@ def score(session, stride: int = 4, player: int = 1, source=None) -> dict[str, f
             field = mls_warp_field(p.src_uv, p.dst_uv, (camera.height, camera.width), kind="similarity",
                                    alpha=MLS_ALPHA, radius_px=MLS_RADIUS_PX, dense=p.dense)
             return mask_iou(warp_foreground(rgb, fg, field)[1] > 0.5, true_target)
-
-        points = point_cloud(frame, session.kinect, player)
-        points = points[points[:, 1] > 0.02][:: max(1, len(points) // 2000)]  # the floor under the feet
 
         def depth_residual_mm(V, points=points):
             """Mean point-to-plane distance of the depth points to their nearest vertices (those within 5 cm)."""
@@ -186,10 +242,11 @@ def score(session, stride: int = 4, player: int = 1, source=None) -> dict[str, f
             return 1e3 * float(np.mean(np.abs(np.einsum("ij,ij->i", points[keep] - V[idx[keep]], N))))
 
         row = {"true vertices": warp_iou(Vs_t, Vt_t), "true vertices: depth residual mm": depth_residual_mm(Vs_t)}
-        Vs, Vt = posed_source_and_target(true_body, true_target_rest, pose_true_shape, true_target_rig)
-        row["true shape, IK pose"] = warp_iou(Vs, Vt)
-        row["true shape, IK pose: displacement err mm"] = 1e3 * np.linalg.norm((Vt - Vs) - (Vt_t - Vs_t),
-                                                                              axis=1).mean()
+        if not refine_only:
+            Vs, Vt = posed_source_and_target(true_body, true_target_rest, pose_true_shape, true_target_rig)
+            row["true shape, IK pose"] = warp_iou(Vs, Vt)
+            row["true shape, IK pose: displacement err mm"] = 1e3 * np.linalg.norm((Vt - Vs) - (Vt_t - Vs_t),
+                                                                                  axis=1).mean()
         for name, pose in poses.items():
             Vs, Vt = posed_source_and_target(body, target_rest, pose, target_rig)
             W = world_rotations(sk, pose)
@@ -204,12 +261,35 @@ def score(session, stride: int = 4, player: int = 1, source=None) -> dict[str, f
             row[f"{name}: limb swing / twist deg"] = (sw.mean(), tw.mean())
             row[f"{name}: spine_01 swing deg"] = sw_s.mean()
         rows.append(row)
-    out = {"frames": len(rows)}
+    out = {"frames": len(rows), **{f"{k}: ms CPU": float(np.median(v)) for k, v in refine_ms.items()}}
     for key in rows[0]:
         vals = np.array([r[key] for r in rows], float)
         out[key] = float(vals.max()) if key.endswith("max per frame") else \
             tuple(vals.mean(0)) if vals.ndim > 1 else float(vals.mean())
     return out
+
+
+def pose_correction(ik, refined) -> tuple[np.ndarray, np.ndarray]:
+    """What the refinement changed: per bone the rotation ``C_j = R_refined,j R_ik,j^-1`` (rotation vectors,
+    (B, 3)) and the root translation's change, to warm-start the next frame (``corrected_pose``)."""
+    from scipy.spatial.transform import Rotation
+
+    C = Rotation.from_rotvec(refined.rotations) * Rotation.from_rotvec(ik.rotations).inv()
+    return C.as_rotvec(), refined.translation - ik.translation
+
+
+def corrected_pose(ik, correction: tuple[np.ndarray, np.ndarray] | None):
+    """The IK pose of a frame with the previous frame's refinement ``correction`` applied: the refinement's
+    warm start, so that the IK's slowly changing bias (spine_01's swing, the root's depth) is not re-learnt
+    from the IK each frame."""
+    if correction is None:
+        return ik
+    from scipy.spatial.transform import Rotation
+
+    from bodystudio.body.pose import Pose
+
+    rot = Rotation.from_rotvec(correction[0]) * Rotation.from_rotvec(ik.rotations)
+    return Pose(rot.as_rotvec(), ik.translation + correction[1])
 
 
 def _replace(W_ik, W_true, bones) -> np.ndarray:
@@ -225,11 +305,13 @@ def main() -> None:
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--stride", type=int, default=4)
     parser.add_argument("--source", default=None, help="source body .npz name inside SESSION/mirror/")
+    parser.add_argument("--refine-only", action="store_true",
+                        help="only the IK, the refined poses (REFINE_VARIANTS), true rotations and the true pose")
     args = parser.parse_args()
     results = {}
     for p in args.sessions:
         src = None if args.source is None else p / "mirror" / args.source
-        results[p.name] = score(open_session(p), args.stride, source=src)
+        results[p.name] = score(open_session(p), args.stride, source=src, refine_only=args.refine_only)
     keys = list(next(iter(results.values())))
     print("| score | " + " | ".join(results) + " |")
     print("|---|" + "---|" * len(results))

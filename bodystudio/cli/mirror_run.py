@@ -28,6 +28,10 @@ def mirror_run(
     correspondence: str = typer.Option("dense", help="warp correspondence: dense (the target body rasterised, "
                                        "each pixel mapped to the same surface point, outline onto outline; MLS "
                                        "farther out) | mls (Eq. 5 from vertex pairs only, the paper)"),
+    refine_pose: bool = typer.Option(False, "--refine-pose/--no-refine-pose",
+                                     help="refine each frame's IK pose (root, swing of spine and limbs) so the "
+                                     "projected body fits the player mask, depth and joints: warp_iou +0.02 on "
+                                     "MIR-SYNTH, ~9 ms more per frame"),
     ramp_frames: int = typer.Option(30, help="frames over which the edit is reached gradually (0: at once)"),
     side_by_side: bool = typer.Option(True, help="also write an input | output video"),
     live: str | None = typer.Option(None, help="FOLDER a recorder is filling (kinect/ streams): process frames "
@@ -45,7 +49,7 @@ def mirror_run(
     edits = {k: v for k, v in given.items() if v != 0.0}
     doc = run_mirror(session, edits, out, source=source, side_by_side=side_by_side, progress=True, run_dir=run,
                      player=player, kind=warp, ramp_frames=ramp_frames, live=live, live_timeout_s=live_timeout,
-                     correspondence=correspondence)
+                     correspondence=correspondence, refine_pose=refine_pose)
     summary = doc["summary"]
     typer.echo(json.dumps({"run": str(run if run is not None else session / "mirror" / "run"),
                            "videos": doc["videos"], "edits": doc["edits"], **summary}, indent=1))

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,8 +37,8 @@ RUN_JSON = "run.json"
 RUN_FORMAT = "bodystudio-mirror-run"
 RUN_VERSION = 1
 #: Per-frame steps timed by the run, in order (session side, then the image steps, then output).
-STEPS = ("read", "register", "ik", "bodies", "pairs", "foreground", "warp_field", "warp", "compose", "background",
-         "write")
+STEPS = ("read", "register", "ik", "refine_pose", "bodies", "pairs", "foreground", "warp_field", "warp", "compose",
+         "background", "write")
 IMAGE_STEPS = ("foreground", "warp_field", "warp", "compose", "background")
 #: Fewest vertex pairs the warp is trusted with.
 MIN_PAIRS = 12
@@ -86,6 +86,9 @@ class MirrorInput:
     unseen: np.ndarray | None = None  # (H, W) bool colour pixels outside the depth camera's view
     edit_fraction: float | None = None  # how far the gradual edit has come (1 = the full edit)
     dense: object | None = None  # warp.DenseCorrespondence of the bodies (the dense warp), None: MLS only
+    # ``late_pairs(foreground, timings) -> warp.WarpPairs``: the pose refinement, bodies and pairs, which need
+    # the refined foreground of the frame (``--refine-pose``); src_uv/dst_uv/dense are then None until called
+    late_pairs: Callable | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -116,10 +119,9 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     others = empty if inp.others_mask is None else inp.others_mask
     person = empty if inp.person_mask is None else inp.person_mask
     has_person = bool(person.any())
-    if inp.warning is None and has_person and (inp.src_uv is None or len(inp.src_uv) < MIN_PAIRS):
-        inp = MirrorInput(inp.index, rgb, inp.person_mask, inp.others_mask, inp.depth_color, None, None,
-                          f"only {0 if inp.src_uv is None else len(inp.src_uv)} visible vertex pairs "
-                          f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups, inp.unseen)
+    if inp.warning is None and has_person and inp.late_pairs is None and \
+            (inp.src_uv is None or len(inp.src_uv) < MIN_PAIRS):
+        inp = _too_few_pairs(inp)
     if inp.warning is not None or not has_person:
         t = time.perf_counter()
         background = update_background(background, rgb, person | others, unverified=inp.unseen)
@@ -133,6 +135,14 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     fg = refine_foreground(rgb, person, inp.depth_color, background=background, unseen=inp.unseen,
                            **(foreground_options or {}))
     t1 = time.perf_counter()
+    timings["foreground"] = (t1 - t0) * 1e3
+    if inp.late_pairs is not None:  # its own steps (refine_pose, bodies, pairs) time themselves
+        pairs = inp.late_pairs(fg, timings)
+        inp = MirrorInput(inp.index, rgb, inp.person_mask, inp.others_mask, inp.depth_color, pairs.src_uv,
+                          pairs.dst_uv, None, timings, inp.pair_groups, inp.unseen, inp.edit_fraction, pairs.dense)
+        if len(pairs.src_uv) < MIN_PAIRS:
+            return mirror_frame(_too_few_pairs(inp), background, kind, foreground_options, alpha)
+        t1 = time.perf_counter()
     warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind, alpha=alpha, groups=inp.pair_groups,
                                 radius_px=MLS_RADIUS_PX, dense=inp.dense)
     t2 = time.perf_counter()
@@ -142,9 +152,15 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     t4 = time.perf_counter()
     background = update_background(background, rgb, fg | person | others, unverified=inp.unseen)
     t5 = time.perf_counter()
-    for step, a, b in zip(IMAGE_STEPS, (t0, t1, t2, t3, t4), (t1, t2, t3, t4, t5), strict=True):
+    for step, a, b in zip(IMAGE_STEPS[1:], (t1, t2, t3, t4), (t2, t3, t4, t5), strict=True):
         timings[step] = (b - a) * 1e3
     return FrameResult(inp.index, out, fg, alpha > 0.5, "ok", None, timings), background
+
+
+def _too_few_pairs(inp: MirrorInput) -> MirrorInput:
+    return MirrorInput(inp.index, inp.rgb, inp.person_mask, inp.others_mask, inp.depth_color, None, None,
+                       f"only {0 if inp.src_uv is None else len(inp.src_uv)} visible vertex pairs "
+                       f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups, inp.unseen)
 
 
 # ---------------------------------------------------------------------------------------------- outputs
@@ -281,13 +297,16 @@ def load_source(session, source=None):
 
 def session_inputs(session, body, model, edits: dict[str, float], player: int = 1, ramp_frames: int = 30,
                    frames: Iterable[int] | None = None,
-                   correspondence: str = CORRESPONDENCE) -> Iterator[MirrorInput]:
+                   correspondence: str = CORRESPONDENCE, refine: bool = False) -> Iterator[MirrorInput]:
     """Per frame of ``session``: the colour frame, the player masks in colour and the projected vertex pairs
     (with ``correspondence`` ``dense`` also the dense correspondence of the posed bodies).
 
     The target body is computed once (Eq. 4) and reached gradually: the target rest shape is
     ``V_S + s (V_T - V_S)`` with ``s`` going 0 -> 1 over ``ramp_frames`` tracked frames (Eq. 4 is linear in
-    lambda, so this is the ramp of lambda without a solve per frame).
+    lambda, so this is the ramp of lambda without a solve per frame). ``refine``: the IK pose is refined
+    against the frame's refined foreground, the depth and the joints (:func:`bodystudio.mirror.refine.refine_pose`)
+    before it poses the source and target bodies: the frame then carries ``late_pairs``, which
+    :func:`mirror_frame` calls after the graph cut.
     """
     from bodystudio.mirror.frames import read_mirror_frame, register_depth_to_color
     from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
@@ -301,6 +320,12 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
     target_rest = model.vertices(c_target)
     camera = sensor.color
     previous = None
+    plan = None
+    if refine:
+        from bodystudio.mirror.frames import point_cloud
+        from bodystudio.mirror.refine import refine_plan, refine_pose
+
+        plan = refine_plan(body.vertices, body.faces, body.weights, body.skeleton, sensor.version)
     tracked_frames = 0
     last_rgb = None
     seen = None
@@ -349,11 +374,34 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
         s = min(1.0, tracked_frames / max(int(ramp_frames), 1))
         Vt_rest = body.vertices + s * (target_rest - body.vertices)
         rig = target_skeleton(body, Vt_rest, model, body.coeffs + s * (c_target - body.coeffs))
-        Vs, Vt = posed_source_and_target(body, Vt_rest, pose, rig)
-        t4 = time.perf_counter()
-        timings["bodies"] = (t4 - t3) * 1e3
-        pairs = warp_pairs(Vs, Vt, body.faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=correspondence == "dense")
-        timings["pairs"] = (time.perf_counter() - t4) * 1e3
+
+        def bodies_and_pairs(foreground, timings, pose=pose, frame=frame, tracked=tracked, others=others,
+                             Vt_rest=Vt_rest, rig=rig):
+            """Pose refinement (with the frame's refined ``foreground`` when given), both bodies, the pairs."""
+            t = time.perf_counter()
+            if foreground is not None:
+                points = point_cloud(frame, sensor, int(player))
+                points = points[points[:, 1] > 0.02]  # not the floor under the feet
+                try:
+                    pose = refine_pose(plan, body.skeleton, pose, camera, foreground, tracked.positions,
+                                       tracked.tracked, points, others, sensor.version)
+                except BodyStudioError as exc:  # mirror_stream passes the frame through with this warning
+                    raise InputError(f"pose refinement failed: {exc}") from exc
+                t_refined = time.perf_counter()
+                timings["refine_pose"] = (t_refined - t) * 1e3
+                t = t_refined
+            Vs, Vt = posed_source_and_target(body, Vt_rest, pose, rig)
+            t_bodies = time.perf_counter()
+            timings["bodies"] = (t_bodies - t) * 1e3
+            pairs = warp_pairs(Vs, Vt, body.faces, camera, N_HANDLES, rim_cos=RIM_COS,
+                               dense=correspondence == "dense")
+            timings["pairs"] = (time.perf_counter() - t_bodies) * 1e3
+            return pairs
+
+        if plan is not None:  # the pose waits for the graph cut's foreground (mirror_frame calls back)
+            yield MirrorInput(**base, edit_fraction=s, late_pairs=bodies_and_pairs)
+            continue
+        pairs = bodies_and_pairs(None, timings)
         yield MirrorInput(**base, src_uv=pairs.src_uv, dst_uv=pairs.dst_uv, edit_fraction=s,
                           dense=pairs.dense)
 
@@ -386,7 +434,7 @@ def check_edits(edits: dict[str, float]) -> dict[str, float]:
 def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by_side: bool = True,
                progress: bool = True, run_dir: str | Path | None = None, player: int = 1, kind: str = "similarity",
                ramp_frames: int = 30, frames: Iterable[int] | None = None, live: str | Path | None = None,
-               live_timeout_s: float = 5.0, correspondence: str = CORRESPONDENCE) -> dict:
+               live_timeout_s: float = 5.0, correspondence: str = CORRESPONDENCE, refine_pose: bool = False) -> dict:
     """``bodystudio mirror run``: reshape the actor of ``session`` by ``edits`` and write the video and run folder.
 
     ``session`` an opened session or its path; ``source`` a SourceBody or its .npz (default
@@ -394,8 +442,9 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     ``live``: a folder a recorder is filling with the session layout's ``kinect/`` streams; its frames are
     processed as they arrive (until ``live_timeout_s`` without a new one), each output frame also written
     to ``RUN/live_latest.png`` for a display to pick up. ``correspondence``: ``dense`` (default) or ``mls``
-    (:data:`bodystudio.mirror.warp.CORRESPONDENCES`). Returns run.json's content (per-step timings in
-    ``summary.ms_per_frame``).
+    (:data:`bodystudio.mirror.warp.CORRESPONDENCES`). ``refine_pose``: refine each frame's IK pose against the
+    refined foreground, depth and joints (:mod:`bodystudio.mirror.refine`; ~9 ms more per frame). Returns
+    run.json's content (per-step timings in ``summary.ms_per_frame``).
     """
     from bodystudio.capture.session import open_session
 
@@ -438,8 +487,9 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
                 "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
                 "live": None if live is None else str(Path(live).resolve()),
                 "edits": edits, "player": int(player), "ramp_frames": int(ramp_frames),
-                "correspondence": correspondence}
-    inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids, correspondence)
+                "correspondence": correspondence, "refine_pose": bool(refine_pose)}
+    inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids, correspondence,
+                            bool(refine_pose))
     return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total,
                          preview=run_dir / "live_latest.png" if live is not None else None)
 

@@ -153,3 +153,71 @@ def test_run_mirror_end_to_end_on_a_synthetic_session(tmp_path):
     scores = evaluate.evaluate_mirror(session, session.path / "mirror" / "run")
     assert scores["fg_iou"] > scores["fg_iou_raw"] + 0.05
     assert scores["warp_iou"] > scores["warp_iou_unwarped"]
+
+
+def test_run_mirror_with_pose_refinement(tmp_path, monkeypatch):
+    """``--refine-pose``: the pose is refined after the graph cut (its time in run.json), the warp scores at
+    least as well as the IK's on a small synthetic session, and a frame whose refinement fails passes through."""
+    from bodystudio.body.statistical import load_statistical_model
+    from bodystudio.errors import InputError
+    from bodystudio.mirror import evaluate, init, refine, synthetic
+    from bodystudio.mirror.run import run_mirror
+
+    session = synthetic.synth_mirror_session(tmp_path / "s", 5, n_frames=15, edits={"taller": 0.12}, version="v1",
+                                             motion="walk", walk_in=False)
+    body = init.initialise_source_body(session, load_statistical_model("6k", progress=False), n_frames=3)
+    init.save_source_body(session.path / "mirror" / "source_body.npz", body)
+    scores = {}
+    for refined in (False, True):
+        run = tmp_path / f"run_{refined}"
+        doc = run_mirror(session, {"taller": 0.12}, None, progress=False, ramp_frames=0, run_dir=run,
+                         refine_pose=refined)
+        assert doc["refine_pose"] is refined
+        ms = doc["summary"]["ms_per_frame"]
+        assert ("refine_pose" in ms) is refined and all(k in ms for k in ("bodies", "pairs", "foreground"))
+        scores[refined] = evaluate.evaluate_mirror(session, run)["warp_iou"]
+    assert scores[True] > scores[False] - 0.005, scores
+
+    real, calls = refine.refine_pose, []
+
+    def failing(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise InputError("planted failure")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(refine, "refine_pose", failing)
+    doc = run_mirror(session, {"taller": 0.12}, None, progress=False, ramp_frames=0, run_dir=tmp_path / "fail",
+                     refine_pose=True)
+    failed = [f for f in doc["frames"] if f["status"] == "passed_through"]
+    assert len(failed) == 1 and "pose refinement failed: planted failure" in failed[0]["warning"]
+    assert doc["summary"]["n_ok"] == len(calls) - 1
+
+
+def test_late_pairs_are_called_with_the_refined_foreground_and_timed_apart(monkeypatch):
+    """A frame carrying ``late_pairs`` (``--refine-pose``) gets the graph cut's foreground; the callback's time
+    is not booked to the foreground step; too few pairs from it pass the frame through."""
+    import bodystudio.mirror.run as run_mod
+    from bodystudio.mirror.warp import WarpPairs
+
+    case = cached_image_case(None, 0, 1)
+    seen, offset = {}, [0.0]
+    real = time.perf_counter
+    monkeypatch.setattr(run_mod.time, "perf_counter", lambda: real() + offset[0])
+
+    def late(fg, timings, n=None):
+        seen["fg"] = fg.copy()
+        offset[0] += 1000.0  # the callback "takes" 1000 s on the run's clock
+        timings["pairs"] = 50.0
+        k = len(case.src_uv) if n is None else n
+        return WarpPairs(case.src_uv[:k], case.dst_uv[:k], np.arange(k), None)
+
+    inp = MirrorInput(2, case.rgb, case.player_mask, None, case.depth_color, late_pairs=late)
+    res, _ = mirror_frame(inp, None)
+    assert res.status == "ok" and np.array_equal(seen["fg"], res.foreground)
+    assert res.timings_ms["pairs"] == 50.0
+    assert all(res.timings_ms[k] < 1e6 for k in ("foreground", "warp_field", "warp", "compose", "background"))
+    assert iou(res.warped, case.target_mask) > iou(res.foreground, case.target_mask)
+    res, _ = mirror_frame(MirrorInput(3, case.rgb, case.player_mask, None, case.depth_color,
+                                      late_pairs=lambda fg, t: late(fg, t, 4)), None)
+    assert res.status == "passed_through" and "visible vertex pairs" in res.warning

@@ -33,6 +33,8 @@ CASES = [
     ("bad-live-timeout", ["{kinect}", "--out", "{t}/o.mp4", "--live-timeout", "0"], "--live-timeout"),
     ("no-kinect", ["{plain}", "--out", "{t}/o.mp4"], "not a Kinect session"),
     ("no-source-body", ["{kinect}", "--out", "{t}/o.mp4", "--taller", "0.05"], "mirror init"),
+    ("refine-pose-no-source-body", ["{kinect}", "--out", "{t}/o.mp4", "--refine-pose"], "mirror init"),
+    ("refine-pose-no-kinect", ["{plain}", "--out", "{t}/o.mp4", "--refine-pose"], "not a Kinect session"),
     ("source-missing", ["{kinect}", "--out", "{t}/o.mp4", "--source", "{t}/none.npz"], "source body not found"),
     ("live-device", ["{kinect}", "--out", "{t}/o.mp4", "--live", "/dev/video0"], "Kinect SDK bridge"),
     ("live-folder-missing", ["{kinect}", "--out", "{t}/o.mp4", "--live", "{t}/nothing"], "no such folder"),
@@ -61,3 +63,12 @@ def test_nan_edit_is_refused():
 
     with pytest.raises(InputError, match="finite"):
         check_edits({"taller": float("nan")})
+
+
+def test_refine_pose_takes_no_value(sessions, tmp_path, capfd):
+    """``--refine-pose`` is a switch: a value is click's one-line error (exit 2), nothing written."""
+    argv = ["mirror", "run", str(sessions["kinect"]), "--out", str(tmp_path / "o.mp4"), "--refine-pose=yes"]
+    result = run_inprocess(argv, capfd)
+    assert result.rc == 2 and result.crashed is None and not result.hung
+    assert result.stderr.strip().count("\n") == 0 and "'--refine-pose' does not take a value" in result.stderr
+    assert not any(tmp_path.iterdir()) and not (sessions["kinect"] / "mirror").exists()

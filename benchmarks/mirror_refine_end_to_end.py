@@ -1,0 +1,46 @@
+"""End to end with and without ``mirror run --refine-pose``: warp_iou, PSNR and SSIM of every tracked frame.
+
+Usage: PYTHONPATH=. python benchmarks/mirror_refine_end_to_end.py [--source NAME.npz] [--out DIR] SESSION [...]
+
+Per synthetic mirror session (with ``gt/mirror``), ``run_mirror`` with the session's edits at once (no ramp, no
+video) into ``DIR/<session>_ik`` and ``DIR/<session>_refine``, then ``evaluate_mirror`` on each; prints one JSON
+line per run with the scores and the per-step median milliseconds (wall, so only comparable at one load).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+
+
+def main() -> None:
+    from bodystudio.capture.session import open_session
+    from bodystudio.mirror.evaluate import evaluate_mirror
+    from bodystudio.mirror.run import load_source, run_mirror
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sessions", nargs="+", type=Path)
+    parser.add_argument("--source", default=None, help="source body .npz name inside SESSION/mirror/")
+    parser.add_argument("--out", type=Path, default=None, help="folder for the run folders (default: a temporary one)")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) if args.out is None else args.out
+        for path in args.sessions:
+            session = open_session(path)
+            src = None if args.source is None else path / "mirror" / args.source
+            body, _ = load_source(session, src)
+            for refine in (False, True):
+                run = out / f"{path.name}_{'refine' if refine else 'ik'}"
+                doc = run_mirror(session, session.metadata["edits"], None, source=src, side_by_side=False,
+                                 progress=False, run_dir=run, ramp_frames=0, refine_pose=refine)
+                scores = evaluate_mirror(session, run, source=body)
+                keep = ("warp_iou", "warp_iou_unwarped", "fg_iou", "psnr_person", "ssim_person", "joint_err_mm")
+                print(json.dumps({"session": path.name, "refine_pose": refine, **{k: scores.get(k) for k in keep},
+                                  "ms_per_frame": {k: round(v, 2) for k, v in doc["summary"]["ms_per_frame"].items()}}),
+                      flush=True)
+
+
+if __name__ == "__main__":
+    main()

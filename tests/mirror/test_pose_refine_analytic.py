@@ -1,0 +1,129 @@
+"""The per-frame pose refinement of bodystudio/mirror/refine.py (issue 12, MIR12b) on a synthetic case.
+
+A 2k MakeHuman body in a known pose is seen by a 640x480 camera 2.5 m away: its silhouette (triangles filled
+by OpenCV), its front-facing vertices as the depth points and its Kinect joints are the data. The "IK" pose is
+the true pose with a planted error the joints cannot reveal (the joints are those of the wrong pose): a root
+offset and a spine_01 swing. The refinement must take most of it out; it fails if a term it relies on is
+dropped, if it returns the IK pose, or if its step is skipped.
+"""
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bodystudio.body import Phenotype, Pose, build_body
+from bodystudio.body.skinning import posed_joints
+from bodystudio.geometry.camera import Camera
+from bodystudio.geometry.mesh import vertex_normals
+from bodystudio.mirror.refine import RefineWeights, refine_plan, refine_pose
+from bodystudio.mirror.track import posed_kinect_joints, skin_vertices
+
+
+@pytest.fixture(scope="module")
+def case():
+    body = build_body(Phenotype(), resolution="2k")
+    sk = body.skeleton
+    rng = np.random.default_rng(4)
+    rot = rng.normal(0, 0.08, (sk.n_bones, 3))
+    for arm, sign in (("upperarm_l", 1), ("upperarm_r", -1)):  # arms away from the torso
+        rot[sk.index(arm)] = Rotation.from_euler("z", sign * 0.5).as_rotvec()
+    true = Pose(rot, np.zeros(3))
+    camera = Camera.look_at("kinect", eye=(0.3, 1.0, 2.6), target=(0.0, 0.95, 0.0), fx=525.0)
+    V = skin_vertices(body.vertices, body.weights, sk, true)
+    uv = camera.project(V)
+    mask = np.zeros((camera.height, camera.width), np.uint8)
+    for tri in np.round(uv[body.faces] * 16).astype(np.int32):  # one by one: fillPoly's even-odd rule leaves holes
+        cv2.fillConvexPoly(mask, tri, 1, lineType=cv2.LINE_8, shift=4)
+    N = vertex_normals(V, body.faces)
+    front = np.einsum("ij,ij->i", N, camera.center - V) > 0
+    plan = refine_plan(body.vertices, body.faces, body.weights, sk)
+    return body, plan, camera, true, V, mask.astype(bool), V[front]
+
+
+def _planted(sk, true, offset, spine_deg):
+    rot = true.rotations.copy()
+    j = sk.index("spine_01")
+    rot[j] = (Rotation.from_rotvec(rot[j]) * Rotation.from_euler("x", spine_deg, degrees=True)).as_rotvec()
+    return Pose(rot, true.translation + np.asarray(offset, float))
+
+
+def _vertex_err_mm(body, pose, V_true):
+    V = skin_vertices(body.vertices, body.weights, body.skeleton, pose)
+    return 1e3 * np.linalg.norm(V - V_true, axis=1).mean()
+
+
+def test_a_planted_root_offset_and_spine_swing_are_removed(case):
+    body, plan, camera, true, V_true, mask, points = case
+    sk = body.skeleton
+    ik = _planted(sk, true, (0.04, -0.02, 0.05), 10.0)
+    # Kinect joints: the true ones with 1.5 cm of noise (the IK's error is its own, as its bias on real data)
+    joints = posed_kinect_joints(sk, true) + np.random.default_rng(5).normal(0, 0.015, (25, 3))
+    before = _vertex_err_mm(body, ik, V_true)
+    assert before > 60.0
+    errs = [_vertex_err_mm(body, refine_pose(plan, sk, ik, camera, mask, joints, None, points, iterations=n), V_true)
+            for n in (1, 2, 4)]
+    assert errs[0] < 0.5 * before, (before, errs)  # one step (the run's) halves it
+    assert errs[1] < 0.3 * before and errs[2] < 0.15 * before, (before, errs)  # more steps take it further
+    refined = refine_pose(plan, sk, ik, camera, mask, joints, None, points, iterations=4)
+    heads = [posed_joints(sk, p)[0] for p in (refined, true, ik)]
+    pelvis, spine = sk.index("pelvis"), sk.index("spine_02")
+    for b in (pelvis, spine):
+        assert np.linalg.norm(heads[0][b] - heads[1][b]) < 0.2 * np.linalg.norm(heads[2][b] - heads[1][b])
+
+
+def test_joints_that_carry_the_error_hold_the_pose_back_but_the_image_wins_without_them(case):
+    body, plan, camera, true, V_true, mask, points = case
+    sk = body.skeleton
+    ik = _planted(sk, true, (0.04, -0.02, 0.05), 10.0)
+    joints = posed_kinect_joints(sk, ik)  # joints that agree with the wrong pose
+    before = _vertex_err_mm(body, ik, V_true)
+    with_joints = _vertex_err_mm(body, refine_pose(plan, sk, ik, camera, mask, joints, None, points, iterations=4),
+                                 V_true)
+    without = _vertex_err_mm(body, refine_pose(plan, sk, ik, camera, mask, joints, None, points, iterations=4,
+                                               weights=RefineWeights(joint_weight=0.0)), V_true)
+    assert without < 0.1 * before and without < with_joints < before, (before, with_joints, without)
+
+
+def test_the_silhouette_alone_moves_the_body_across_the_image(case):
+    body, plan, camera, true, V_true, mask, _ = case
+    sk = body.skeleton
+    ik = _planted(sk, true, (0.05, 0.03, 0.0), 0.0)  # parallel to the image plane: the outline shows it
+    # the outline alone cannot tell the distance well (a smaller body fits inside it): hold the rotations
+    w = RefineWeights(depth_weight=0.0, joint_weight=0.0, prior_rad=0.05)
+    refined = refine_pose(plan, sk, ik, camera, mask, weights=w, iterations=4)
+    before, after = _vertex_err_mm(body, ik, V_true), _vertex_err_mm(body, refined, V_true)
+    assert after < 0.1 * before, (before, after)
+    # with no silhouette term (and no other data) nothing moves
+    still = refine_pose(plan, sk, ik, camera, mask, weights=RefineWeights(sil_weight=0.0, depth_weight=0.0,
+                                                                          joint_weight=0.0))
+    assert abs(_vertex_err_mm(body, still, V_true) - before) < 1.0
+
+
+def test_the_depth_alone_finds_the_distance(case):
+    body, plan, camera, true, V_true, mask, points = case
+    sk = body.skeleton
+    toward = (camera.center - true.translation) * np.array([1.0, 0.0, 1.0])
+    ik = _planted(sk, true, 0.04 * toward / np.linalg.norm(toward), 0.0)  # 4 cm toward the camera
+    w = RefineWeights(sil_weight=0.0, joint_weight=0.0)
+    refined = refine_pose(plan, sk, ik, camera, mask, depth_points=points, weights=w, iterations=2)
+    before, after = _vertex_err_mm(body, ik, V_true), _vertex_err_mm(body, refined, V_true)
+    assert after < 0.3 * before, (before, after)
+
+
+def test_the_joints_pull_back_a_pose_the_image_does_not_see(case):
+    body, plan, camera, true, V_true, mask, _ = case
+    sk = body.skeleton
+    ik = _planted(sk, true, (0.0, 0.0, 0.0), 0.0)
+    wrong = _planted(sk, true, (0.0, 0.05, 0.0), 0.0)
+    w = RefineWeights(sil_weight=0.0, depth_weight=0.0)
+    refined = refine_pose(plan, sk, wrong, camera, mask, posed_kinect_joints(sk, ik), weights=w)
+    assert np.linalg.norm(refined.translation - ik.translation) < 0.01
+
+
+def test_a_foreground_of_the_wrong_size_is_a_one_line_error(case):
+    from bodystudio.errors import InputError
+
+    body, plan, camera, true, *_ = case
+    with pytest.raises(InputError, match="foreground"):
+        refine_pose(plan, body.skeleton, true, camera, np.zeros((10, 10), bool))
