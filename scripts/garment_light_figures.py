@@ -2,12 +2,18 @@
 per subject and variant.
 
     python scripts/garment_light_figures.py --work /tmp/glight [--subjects 3 11 21] [--frames 0:12] [--motion walk]
+                                            [--normals] [--variants before sparsity grouped after]
+                                            [--geometry fitted true]
 
 Each subject: ``synth garment`` (240x320, 2k, ``--motion``, 30 frames) and ``fit_garment_video`` with the true stature
 on ``--frames`` (as scripts/garment_fit_figures.py), cached in WORK/fitN once (about 5 min each); then
 ``estimate_appearance`` on the fitted geometry and on the TRUE geometry (the session's posed meshes and camera)
 in each variant, scored like ``eval garment`` (``light_dir_err_deg``, ``light_brightest_dir_err_deg``,
 ``albedo_err``). Variants: ``grouped`` (chromaticity materials) and ``sparsity`` (the L1 penalty) on/off.
+``--normals`` first prints where the fitted geometry is wrong: per body part (the bone of each vertex's largest
+skin weight), the angle between the fitted body's normal and the TRUE body's normal seen at the same pixel
+(both in their camera's frame; pixels inside both silhouettes, every 2nd fitted frame), median and the share
+above 20 deg.
 """
 
 from __future__ import annotations
@@ -39,6 +45,40 @@ def score(lighting, albedo, camera, session) -> dict:
     return out
 
 
+PARTS = {"torso": ("pelvis", "spine", "neck", "head", "clavicle"),
+         "arms": ("upperarm", "lowerarm", "hand", "thumb", "index", "middle", "ring", "pinky"),
+         "legs": ("thigh", "calf", "foot", "ball")}
+
+
+def pixel_normals(V, F, camera):
+    """Per pixel of the rasterised body: its interpolated vertex normal in the camera's frame, and the
+    triangle id (-1 off the body)."""
+    from bodystudio.capture.render import render, vertex_normals_area_weighted
+
+    res = render(V, F, camera)
+    tri = np.clip(res.triangle_id, 0, None)
+    n = np.einsum("hwj,hwjd->hwd", res.barycentric.astype(float), vertex_normals_area_weighted(V, F)[F[tri]])
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    return n @ np.asarray(camera.R).T, np.where(res.mask.astype(bool), res.triangle_id, -1)
+
+
+def normal_errors(body, posed, camera, true_posed, true_F, true_camera) -> dict:
+    """Fitted vs TRUE normals at the same pixels, per body part: ``{part: (median deg, share > 20 deg, pixels)}``."""
+    names = body.skeleton.bone_names
+    bone_part = np.array([next((k for k, v in PARTS.items() if n.startswith(v)), "other") for n in names])
+    vertex_part = bone_part[np.asarray(body.weights).argmax(1)]
+    errs, parts = [], []
+    for V, T in zip(posed, true_posed, strict=True):
+        n, tri = pixel_normals(V, body.faces, camera)
+        g, gtri = pixel_normals(T, true_F, true_camera)
+        both = (tri >= 0) & (gtri >= 0)
+        errs.append(np.degrees(np.arccos(np.clip((n[both] * g[both]).sum(-1), -1, 1))))
+        parts.append(vertex_part[body.faces[tri[both], 0]])
+    e, p = np.concatenate(errs), np.concatenate(parts)
+    out = {k: e[p == k] for k in PARTS if np.any(p == k)} | {"all": e}
+    return {k: (round(float(np.median(v)), 1), round(float(np.mean(v > 20)), 2), len(v)) for k, v in out.items()}
+
+
 def main() -> None:
     from bodystudio.capture.session import open_session
     from bodystudio.garment.fit import LIGHT_SPARSITY, estimate_appearance, fit_garment_video
@@ -50,6 +90,10 @@ def main() -> None:
     ap.add_argument("--subjects", type=int, nargs="+", default=[3, 11, 21])
     ap.add_argument("--frames", default="0:12")
     ap.add_argument("--motion", default="walk")
+    ap.add_argument("--normals", action="store_true", help="also the fitted-vs-true normal error per body part")
+    ap.add_argument("--variants", nargs="+", choices=("before", "sparsity", "grouped", "after"),
+                    default=["before", "sparsity", "grouped", "after"])
+    ap.add_argument("--geometry", nargs="+", choices=("fitted", "true"), default=["fitted", "true"])
     args = ap.parse_args()
     tag = "" if args.motion == "walk" else f"_{args.motion}"
     variants = {"before (per-vertex, no sparsity)": dict(grouped=False, sparsity=0.0, iterations=3),
@@ -73,8 +117,18 @@ def main() -> None:
                        fit.masks),
             "true": ([s.frame(int(f)).gt_mesh.vertices for f in fit.frame_ids], s.frame(0).gt_mesh.faces,
                      s.cameras[cam], np.stack([s.frame(int(f)).masks[cam] > 0 for f in fit.frame_ids]))}
-        for geometry, (posed, F, camera, masks) in geometries.items():
+        if args.normals:
+            every = slice(None, None, 2)
+            err = normal_errors(body, geometries["fitted"][0][every], fit.camera, geometries["true"][0][every],
+                                geometries["true"][1], geometries["true"][2])
+            print(json.dumps({"subject": subject, "motion": args.motion,
+                              "normal_err_deg (median, share > 20 deg, pixels)": err,
+                              "local": {k: round(v, 2) for k, v in fit.local.items()}}), flush=True)
+        for geometry in args.geometry:
+            posed, F, camera, masks = geometries[geometry]
             for name, kw in variants.items():
+                if name.split(" ")[0] not in args.variants:
+                    continue
                 t = time.perf_counter()
                 albedo, lighting = estimate_appearance(images, masks, posed, F, camera, **kw)
                 row = {"subject": subject, "motion": args.motion, "geometry": geometry, "variant": name}

@@ -53,6 +53,13 @@ LOCAL_PARAMETERS = ("upperarm-fat-decr-incr", "upperarm-muscle-decr-incr", "lowe
 ALPHA_HEIGHT = 0.3
 #: Weight of the user-given stature, per cm of difference (our addition: the stature is an input).
 STATURE_WEIGHT = 2.0
+#: Shape prior (our addition to Eq. 1): ``SHAPE_PRIOR_WEIGHT * sum((v / LOCAL_PRIOR_SD)^2)`` over the local
+#: modifiers, in Eq. 1's units (squared px per silhouette sample). A modifier the silhouettes cannot see (the
+#: stomach or torso depth of a body facing the camera) otherwise drifts free: subject 37 (arm_flex) was fitted
+#: with ``stomach-pregnant`` at its bound 1.0 for an energy gain of 0.001, a belly whose normals are 30-40 deg
+#: off and a dominant light 19.7 deg off (docs/garment.md).
+SHAPE_PRIOR_WEIGHT = 0.005
+LOCAL_PRIOR_SD = 0.3
 #: Eq. 4's weights (the paper's beta = 2.5, gamma = 500 on pixel sums; ours on per-pixel means).
 BETA_TEMPORAL = 2.5
 GAMMA_INTERPENETRATION = 4.0
@@ -504,12 +511,25 @@ def shape_energy(body, xs: list[np.ndarray], camera, targets: list[SilhouetteTar
     return e + STATURE_WEIGHT * ((body_stature(body) - stature_m) * 100.0) ** 2
 
 
+def shape_prior_energy(local: dict, weight: float | None = None, sd: float | None = None) -> float:
+    """Our Gaussian prior on the local modifiers of Eq. 1's second stage: ``weight * sum((v / sd)^2)`` over
+    :data:`LOCAL_PARAMETERS` (MakeHuman's neutral body at 0). Silhouettes of a body seen from the front do not
+    constrain modifiers that act along the viewing ray; the prior keeps those near neutral while the
+    silhouette terms move the ones they see (measured in docs/garment.md). ``weight``/``sd`` default to
+    :data:`SHAPE_PRIOR_WEIGHT` / :data:`LOCAL_PRIOR_SD`."""
+    weight = SHAPE_PRIOR_WEIGHT if weight is None else float(weight)
+    sd = LOCAL_PRIOR_SD if sd is None else float(sd)
+    v = np.array([float(local.get(k, 0.0)) for k in LOCAL_PARAMETERS])
+    return float(weight * np.sum((v / sd) ** 2))
+
+
 def nelder_mead_shape(names, start: np.ndarray, phenotype: dict, local: dict, xs, camera, targets, stature_m: float,
                       template: str, base: np.ndarray, max_evals: int) -> tuple[dict, dict]:
-    """One Nelder-Mead stage of §4.3 over the parameters ``names`` (bounded by clipping)."""
+    """One Nelder-Mead stage of §4.3 over the parameters ``names`` (bounded by clipping): Eq. 1's
+    :func:`shape_energy` plus :func:`shape_prior_energy` of the local modifiers."""
     def energy(v):
-        body, _, _ = _shape_body(v, names, phenotype, local, template)
-        return shape_energy(body, xs, camera, targets, stature_m, base)
+        body, _, loc = _shape_body(v, names, phenotype, local, template)
+        return shape_energy(body, xs, camera, targets, stature_m, base) + shape_prior_energy(loc)
 
     simplex = [start] + [start + np.eye(len(start))[i] * (0.15 if names[i] in MACRO_PARAMETERS else 0.3)
                          for i in range(len(start))]
