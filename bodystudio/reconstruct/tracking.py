@@ -176,7 +176,62 @@ class SilhouetteFields:
 def outside_fraction(V: np.ndarray, fields: SilhouetteFields, outside_px: float = 2.0) -> float:
     """Silhouette energy of the lost-track check: share of vertices ``V`` projecting more than
     ``outside_px`` outside the silhouette of at least one camera (the hull's "outside" test, Rapid Skin
-    §IV: a point of the body lies inside every silhouette)."""
+    §IV: a point of the body lies inside every silhouette). One compiled pass over vertices and cameras
+    (a vertex stops at its first camera that sees it outside); the same decisions as
+    :func:`outside_fraction_reference` (tested; the projection's operation order may differ from
+    :meth:`Camera.project` by an ulp, which flips a vertex only at exactly ``outside_px``)."""
+    if not len(V):
+        return 0.0
+    return _outside_count(np.ascontiguousarray(V, dtype=np.float64), fields._R, fields._t, fields._K, fields._dist,
+                          fields._has_dist, fields._size, fields._packed_sdf, fields._shapes, fields._offsets,
+                          fields.margin_px, float(outside_px)) / len(V)
+
+
+@numba.njit(cache=True)
+def _outside_count(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, outside_px):
+    """Vertices seen more than ``outside_px`` outside a silhouette by some camera (:func:`outside_fraction`):
+    projection as :meth:`Camera.project_with_depth`, bilinear distance as :meth:`SilhouetteFields.sample`."""
+    n, C = V.shape[0], R.shape[0]
+    count = 0
+    for i in range(n):
+        X, Y, Z = V[i, 0], V[i, 1], V[i, 2]
+        for c in range(C):
+            xc = R[c, 0, 0] * X + R[c, 0, 1] * Y + R[c, 0, 2] * Z + t[c, 0]
+            yc = R[c, 1, 0] * X + R[c, 1, 1] * Y + R[c, 1, 2] * Z + t[c, 1]
+            z = R[c, 2, 0] * X + R[c, 2, 1] * Y + R[c, 2, 2] * Z + t[c, 2]
+            if not z > 0.0:
+                continue
+            x, y = xc / z, yc / z
+            if has_dist[c]:
+                k1, k2, p1, p2, k3 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3], dist[c, 4]
+                r2 = x * x + y * y
+                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+                xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+                yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+                x, y = xd, yd
+            u = K[c, 0, 0] * x + K[c, 0, 1] * y + K[c, 0, 2]
+            v = K[c, 1, 1] * y + K[c, 1, 2]
+            if not (u >= 0.0 and v >= 0.0 and u <= size[c, 0] - 1.0 and v <= size[c, 1] - 1.0):
+                continue
+            uu, vv = u - offsets[c, 0], v - offsets[c, 1]
+            d = margin
+            if uu >= 0.0 and vv >= 0.0 and uu < shapes[c, 1] - 1 and vv < shapes[c, 0] - 1:
+                xi, yi = int(uu), int(vv)
+                ax, ay = uu - xi, vv - yi
+                s00 = np.float64(sdf[c, yi, xi])
+                s10 = np.float64(sdf[c, yi, xi + 1])
+                s01 = np.float64(sdf[c, yi + 1, xi])
+                s11 = np.float64(sdf[c, yi + 1, xi + 1])
+                d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
+            if d > outside_px:
+                count += 1
+                break
+    return count
+
+
+def outside_fraction_reference(V: np.ndarray, fields: SilhouetteFields, outside_px: float = 2.0) -> float:
+    """:func:`outside_fraction` by :meth:`Camera.project` and :meth:`SilhouetteFields.sample` per camera
+    (the vectorised path the compiled one replaced; the equality test's reference)."""
     out = np.zeros(len(V), bool)
     for cam in fields.cameras:
         d, _, ok = fields.sample(cam, cam.project(V))
