@@ -173,14 +173,25 @@ def hull_consistent_constraints(V: np.ndarray, sil: SilhouetteConstraints, field
     if not len(sil):
         return sil
     o, d = sil.origin, sil.direction
-    P = V[sil.vertex]
-    q = o + np.sum((P - o) * d, axis=1, keepdims=True) * d
-    vertices, slot = np.unique(sil.vertex, return_inverse=True)  # a rim vertex has a match in several views
-    h_v, _ = fields.implicit_hull(V[vertices])
-    h_q, _ = fields.implicit_hull(q)
-    keep = ~(h_q > np.maximum(h_v[slot], 0.0) + gate_m)
+    if isinstance(fields, SilhouetteFields):
+        keep = fields.hull_gate(V, sil.vertex, o, d, gate_m)  # one compiled pass, the same decisions (tested)
+    else:  # any object with ``implicit_hull`` (the analytic hulls of the tests)
+        keep = hull_gate_reference(V, sil, fields, gate_m)
     if keep.all():
         return sil
     return SilhouetteConstraints(sil.vertex[keep], o[keep], d[keep], sil.k[keep],
                                  None if sil.camera is None else sil.camera[keep],
                                  None if sil.pixel_distance is None else sil.pixel_distance[keep])
+
+
+def hull_gate_reference(V: np.ndarray, sil: SilhouetteConstraints, fields, gate_m: float) -> np.ndarray:
+    """Keep mask of :func:`hull_consistent_constraints` by two :meth:`implicit_hull` evaluations (targets and
+    unique rim vertices): the vectorised path the compiled :meth:`SilhouetteFields.hull_gate` replaced, kept
+    for hulls that only have ``implicit_hull`` and as the equality test's reference."""
+    o, d = sil.origin, sil.direction
+    P = V[sil.vertex]
+    q = o + np.sum((P - o) * d, axis=1, keepdims=True) * d
+    vertices, slot = np.unique(sil.vertex, return_inverse=True)  # a rim vertex has a match in several views
+    h_v, _ = fields.implicit_hull(V[vertices])
+    h_q, _ = fields.implicit_hull(q)
+    return ~(h_q > np.maximum(h_v[slot], 0.0) + gate_m)

@@ -418,7 +418,7 @@ def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras,
     V = np.ascontiguousarray(V, dtype=np.float64)
     N = np.ascontiguousarray(N, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
-    vid, direction, k, cam_ids, dist, origin = [], [], [], [], [], []
+    vid, direction, offsets, cam_ids, centers = [], [], [], [], []
     for c, (cam, mask, own, K, dcoef, R, t, center, has_dist) in enumerate(views.views):
         ids, off, d = _match_view(V, N, F, R, t, K, dcoef, has_dist, center, cam.width, cam.height, mask, own,
                                   views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M, _OUTLINE_STEP_PX)
@@ -426,12 +426,14 @@ def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras,
             continue
         vid.append(ids)
         direction.append(d)
-        origin.append(np.broadcast_to(center, d.shape))  # concatenated below into one C-contiguous array
-        k.append(silhouette_weight(off, alpha_px))
-        cam_ids.append(np.full(len(ids), c))
-        dist.append(np.abs(off))
+        offsets.append(off)
+        cam_ids.append(c)
+        centers.append(center)
     if not vid:
         return SilhouetteConstraints.empty()
-    return SilhouetteConstraints(np.concatenate(vid), np.ascontiguousarray(np.concatenate(origin)),
-                                 np.concatenate(direction), np.concatenate(k), np.concatenate(cam_ids),
-                                 np.concatenate(dist))
+    # one vectorised pass over all views (elementwise, so the same values as per view)
+    counts = [len(ids) for ids in vid]
+    off = np.concatenate(offsets)
+    return SilhouetteConstraints(np.concatenate(vid), np.repeat(np.array(centers, dtype=np.float64), counts, axis=0),
+                                 np.concatenate(direction), silhouette_weight(off, alpha_px),
+                                 np.repeat(np.array(cam_ids, dtype=np.int64), counts), np.abs(off))

@@ -137,6 +137,18 @@ class SilhouetteFields:
                               self._has_dist, self._size, self._packed_sdf, self._shapes, self._offsets,
                               self.margin_px)
 
+    def hull_gate(self, V: np.ndarray, vertex: np.ndarray, origin: np.ndarray, direction: np.ndarray,
+                  gate_m: float) -> np.ndarray:
+        """Keep mask of the visual-hull gate (:func:`bodystudio.reconstruct.rapid_skin.hull_consistent_constraints`)
+        in one compiled pass: ``hull(q) <= max(hull(v), 0) + gate_m`` with ``q`` the point of each constraint's
+        ray nearest its vertex. The same values as two :meth:`implicit_hull` calls, without the gradient,
+        ``hull(v)`` once per distinct vertex, and ``hull(q)`` stopping at the first camera that rejects."""
+        return _hull_gate(np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(vertex, dtype=np.int64),
+                          np.ascontiguousarray(origin, dtype=np.float64),
+                          np.ascontiguousarray(direction, dtype=np.float64), float(gate_m), self._R, self._t,
+                          self._K, self._dist, self._has_dist, self._size, self._packed_sdf, self._shapes,
+                          self._offsets, self.margin_px)
+
     def sample(self, cam, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bilinear signed distance ``(m,)`` and its image gradient ``(m, 2)`` at pixels ``uv``; ``ok``
         marks pixels inside the image (outside it the distance is unknown)."""
@@ -164,7 +176,62 @@ class SilhouetteFields:
 def outside_fraction(V: np.ndarray, fields: SilhouetteFields, outside_px: float = 2.0) -> float:
     """Silhouette energy of the lost-track check: share of vertices ``V`` projecting more than
     ``outside_px`` outside the silhouette of at least one camera (the hull's "outside" test, Rapid Skin
-    §IV: a point of the body lies inside every silhouette)."""
+    §IV: a point of the body lies inside every silhouette). One compiled pass over vertices and cameras
+    (a vertex stops at its first camera that sees it outside); the same decisions as
+    :func:`outside_fraction_reference` (tested; the projection's operation order may differ from
+    :meth:`Camera.project` by an ulp, which flips a vertex only at exactly ``outside_px``)."""
+    if not len(V):
+        return 0.0
+    return _outside_count(np.ascontiguousarray(V, dtype=np.float64), fields._R, fields._t, fields._K, fields._dist,
+                          fields._has_dist, fields._size, fields._packed_sdf, fields._shapes, fields._offsets,
+                          fields.margin_px, float(outside_px)) / len(V)
+
+
+@numba.njit(cache=True)
+def _outside_count(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, outside_px):
+    """Vertices seen more than ``outside_px`` outside a silhouette by some camera (:func:`outside_fraction`):
+    projection as :meth:`Camera.project_with_depth`, bilinear distance as :meth:`SilhouetteFields.sample`."""
+    n, C = V.shape[0], R.shape[0]
+    count = 0
+    for i in range(n):
+        X, Y, Z = V[i, 0], V[i, 1], V[i, 2]
+        for c in range(C):
+            xc = R[c, 0, 0] * X + R[c, 0, 1] * Y + R[c, 0, 2] * Z + t[c, 0]
+            yc = R[c, 1, 0] * X + R[c, 1, 1] * Y + R[c, 1, 2] * Z + t[c, 1]
+            z = R[c, 2, 0] * X + R[c, 2, 1] * Y + R[c, 2, 2] * Z + t[c, 2]
+            if not z > 0.0:
+                continue
+            x, y = xc / z, yc / z
+            if has_dist[c]:
+                k1, k2, p1, p2, k3 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3], dist[c, 4]
+                r2 = x * x + y * y
+                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+                xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+                yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+                x, y = xd, yd
+            u = K[c, 0, 0] * x + K[c, 0, 1] * y + K[c, 0, 2]
+            v = K[c, 1, 1] * y + K[c, 1, 2]
+            if not (u >= 0.0 and v >= 0.0 and u <= size[c, 0] - 1.0 and v <= size[c, 1] - 1.0):
+                continue
+            uu, vv = u - offsets[c, 0], v - offsets[c, 1]
+            d = margin
+            if uu >= 0.0 and vv >= 0.0 and uu < shapes[c, 1] - 1 and vv < shapes[c, 0] - 1:
+                xi, yi = int(uu), int(vv)
+                ax, ay = uu - xi, vv - yi
+                s00 = np.float64(sdf[c, yi, xi])
+                s10 = np.float64(sdf[c, yi, xi + 1])
+                s01 = np.float64(sdf[c, yi + 1, xi])
+                s11 = np.float64(sdf[c, yi + 1, xi + 1])
+                d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
+            if d > outside_px:
+                count += 1
+                break
+    return count
+
+
+def outside_fraction_reference(V: np.ndarray, fields: SilhouetteFields, outside_px: float = 2.0) -> float:
+    """:func:`outside_fraction` by :meth:`Camera.project` and :meth:`SilhouetteFields.sample` per camera
+    (the vectorised path the compiled one replaced; the equality test's reference)."""
     out = np.zeros(len(V), bool)
     for cam in fields.cameras:
         d, _, ok = fields.sample(cam, cam.project(V))
@@ -251,6 +318,95 @@ def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margi
                 for k in range(3):
                     G[i, k] = g0 * R[c, 0, k] + g1 * R[c, 1, k] + g2 * R[c, 2, k]
     return best, G
+
+
+@numba.njit(cache=True)
+def _hull_max(X, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+    """The implicit hull ``max_c d_c z_c / f_c`` of points ``X`` (the arithmetic of :func:`_implicit_hull`,
+    operation for operation, without the gradient), cameras in the outer loop: one camera's field (~0.5 MB)
+    stays in cache while every point reads it, where the point-major loop reads ten. A point whose running
+    max exceeds its ``limit`` is not read by the later cameras (its value is then only known to be above)."""
+    n, C = X.shape[0], R.shape[0]
+    best = np.full(n, -np.inf)
+    for c in range(C):
+        r00, r01, r02, r10, r11, r12 = R[c, 0, 0], R[c, 0, 1], R[c, 0, 2], R[c, 1, 0], R[c, 1, 1], R[c, 1, 2]
+        r20, r21, r22, t0, t1, t2 = R[c, 2, 0], R[c, 2, 1], R[c, 2, 2], t[c, 0], t[c, 1], t[c, 2]
+        k1, k2, p1, p2, k3 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3], dist[c, 4]
+        fx, fy, sk, cx, cy = K[c, 0, 0], K[c, 1, 1], K[c, 0, 1], K[c, 0, 2], K[c, 1, 2]
+        umax, vmax = size[c, 0] - 1.0, size[c, 1] - 1.0
+        ou, ov, sw, sh = offsets[c, 0], offsets[c, 1], shapes[c, 1] - 1, shapes[c, 0] - 1
+        f = 0.5 * (fx + fy)
+        field = sdf[c]
+        distorted = has_dist[c]
+        for i in range(n):
+            if best[i] > limit[i]:
+                continue
+            X0, Y0, Z0 = X[i, 0], X[i, 1], X[i, 2]
+            xc = r00 * X0 + r01 * Y0 + r02 * Z0 + t0
+            yc = r10 * X0 + r11 * Y0 + r12 * Z0 + t1
+            z = r20 * X0 + r21 * Y0 + r22 * Z0 + t2
+            if not z > 1e-6:
+                continue
+            x, y = xc / z, yc / z
+            if distorted:
+                r2 = x * x + y * y
+                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+                xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+                yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+                x, y = xd, yd
+            u = fx * x + sk * y + cx
+            v = fy * y + cy
+            if not (u >= 0.0 and v >= 0.0 and u <= umax and v <= vmax):
+                continue
+            uu, vv = u - ou, v - ov
+            d = margin
+            if uu >= 0.0 and vv >= 0.0 and uu < sw and vv < sh:
+                xi, yi = int(uu), int(vv)
+                ax, ay = uu - xi, vv - yi
+                s00 = np.float64(field[yi, xi])
+                s10 = np.float64(field[yi, xi + 1])
+                s01 = np.float64(field[yi + 1, xi])
+                s11 = np.float64(field[yi + 1, xi + 1])
+                d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
+            r = d * z / f
+            if r > best[i]:
+                best[i] = r
+    return best
+
+
+@numba.njit(cache=True)
+def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+    """Keep mask of :meth:`SilhouetteFields.hull_gate`: ``hull(v)`` of each distinct vertex once (a rim
+    vertex has matches in several views), then ``hull(q)`` of the targets, each target dropped from the
+    camera loop as soon as it exceeds ``max(hull(v), 0) + gate_m`` (the max only grows, so the decision is
+    the full max's)."""
+    m = vertex.shape[0]
+    slot = np.full(V.shape[0], -1, np.int64)
+    order = np.empty(m, np.int64)
+    nu = 0
+    for j in range(m):
+        if slot[vertex[j]] < 0:
+            slot[vertex[j]] = nu
+            order[nu] = vertex[j]
+            nu += 1
+    P = np.empty((nu, 3))
+    for k in range(nu):
+        P[k, 0], P[k, 1], P[k, 2] = V[order[k], 0], V[order[k], 1], V[order[k], 2]
+    hv = _hull_max(P, np.full(nu, np.inf), R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin)
+    Q = np.empty((m, 3))
+    limit = np.empty(m)
+    for j in range(m):
+        i = vertex[j]
+        ox, oy, oz = origin[j, 0], origin[j, 1], origin[j, 2]
+        dx, dy, dz = direction[j, 0], direction[j, 1], direction[j, 2]
+        s = (V[i, 0] - ox) * dx + (V[i, 1] - oy) * dy + (V[i, 2] - oz) * dz
+        Q[j, 0], Q[j, 1], Q[j, 2] = ox + s * dx, oy + s * dy, oz + s * dz
+        limit[j] = max(hv[slot[i]], 0.0) + gate_m
+    hq = _hull_max(Q, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin)
+    keep = np.empty(m, np.bool_)
+    for j in range(m):
+        keep[j] = not hq[j] > limit[j]
+    return keep
 
 
 def joint_anchors(body, joint_transforms: np.ndarray, bones=REFINE_BONES):

@@ -180,3 +180,19 @@ def test_constraint_weights_are_eq10_of_the_matched_offset():
         np.testing.assert_allclose(sil.k, np.exp(-d * d / (2 * alpha * alpha)), rtol=1e-12)
     sil = silhouette_constraints(V, F, N, cams, masks, tau_px=20.0, alpha_px=2.0, rim_cos=0.2)
     assert 0.25 < np.median(sil.k) < 0.7  # exp(-2.5^2 / 8) = 0.46: a real down-weighting, not k = 1
+
+
+def test_all_views_at_once_equal_the_views_one_by_one():
+    """The vectorised assembly over views (origins, weights, camera ids in one pass) gives exactly the
+    per-view constraints concatenated in camera order, each origin its camera's centre."""
+    V, F, N = _sphere(0.30)
+    cams = [Camera.look_at(f"c{i}", (3 * np.sin(a), 0.2, 3 * np.cos(a)), (0, 0, 0), fx=500.0)
+            for i, a in enumerate([0.0, 1.6, 3.1])]
+    masks = {c.name: silhouette_mask(1.05 * V, F, c) for c in cams}
+    sil = silhouette_constraints(V, F, N, cams, masks, alpha_px=5.0)
+    one = [silhouette_constraints(V, F, N, [c], masks, alpha_px=5.0) for c in cams]
+    assert all(len(s) > 30 for s in one)
+    for name in ("vertex", "origin", "direction", "k", "pixel_distance"):
+        np.testing.assert_array_equal(getattr(sil, name), np.concatenate([getattr(s, name) for s in one]))
+    np.testing.assert_array_equal(sil.camera, np.repeat(np.arange(3), [len(s) for s in one]))
+    np.testing.assert_array_equal(sil.origin, np.array([c.center for c in cams])[sil.camera])
