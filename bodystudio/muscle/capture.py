@@ -162,7 +162,11 @@ class CaptureOptions:
     sequence_free_joints: tuple = (True, True, True)  # shoulder, elbow, wrist: which rest joints are fitted
     sequence_depth_huber_only: bool = False  # Huber weights (IRLS) on the depth pairs only, not the tracker
     # The chest's (torso part's) depth pairs in the sequence fit, scaled by this weight (1: as the arm's). A model
-    # whose chest does not match the subject's drags the fitted placement (docs/muscle.md, fifth pass).
+    # whose chest does not match the subject's drags the fitted placement. Measured with the fourth pass's variant
+    # (skeleton and placement fitted, Huber on the depth only; 6k, 24 frames, measured shape; docs/muscle.md, fifth
+    # pass), median mm of 5 / 7 / 602 / 603: 6.63 / 3.28 / 4.51 / 9.69 -> 6.81 / 3.33 / 4.55 / 8.51 at 0, and with
+    # sequence_tracker_weight 10 too 6.48 / 3.08 / 4.34 / 8.48 (better than that variant on all four, and on two
+    # more noise seeds of 5 and one of 603), but the default (5.13 / 7.09 / 7.53 / 7.12) stays: 603 loses.
     sequence_torso_pair_weight: float = 1.0
     # Per-subject rest shape (``refine.fit_rest_shape_correction``: population PCA over all frames' depth, poses
     # held) alternated with the sequence fit, this many rounds (0: the model's rest mesh). Off: 2 rounds gave
