@@ -161,6 +161,13 @@ class CaptureOptions:
     sequence_skeleton_prior_weight: float = 100.0
     sequence_free_joints: tuple = (True, True, True)  # shoulder, elbow, wrist: which rest joints are fitted
     sequence_depth_huber_only: bool = False  # Huber weights (IRLS) on the depth pairs only, not the tracker
+    # The chest's (torso part's) depth pairs in the sequence fit, scaled by this weight (1: as the arm's). A model
+    # whose chest does not match the subject's drags the fitted placement. Measured with the fourth pass's variant
+    # (skeleton and placement fitted, Huber on the depth only; 6k, 24 frames, measured shape; docs/muscle.md, fifth
+    # pass), median mm of 5 / 7 / 602 / 603: 6.63 / 3.28 / 4.51 / 9.69 -> 6.81 / 3.33 / 4.55 / 8.51 at 0, and with
+    # sequence_tracker_weight 10 too 6.48 / 3.08 / 4.34 / 8.48 (better than that variant on all four, and on two
+    # more noise seeds of 5 and one of 603), but the default (5.13 / 7.09 / 7.53 / 7.12) stays: 603 loses.
+    sequence_torso_pair_weight: float = 1.0
     # Per-subject rest shape (``refine.fit_rest_shape_correction``: population PCA over all frames' depth, poses
     # held) alternated with the sequence fit, this many rounds (0: the model's rest mesh). Off: 2 rounds gave
     # 5 / 601 / 602 / 603 / 604 5.13 / 9.21 / 7.48 / 7.12 / 11.16 -> 5.24 / 9.58 / 6.78 / 7.39 / 10.50 mm and the
@@ -185,6 +192,8 @@ class CaptureOptions:
             raise InputError("sigma_frames must be > 0 and shape_frames >= 1")
         if self.sequence_rounds < 0 or self.sequence_huber_m < 0 or self.huber_m < 0:
             raise InputError("sequence_rounds, sequence_huber_m and huber_m must be >= 0")
+        if not self.sequence_torso_pair_weight >= 0:
+            raise InputError(f"sequence_torso_pair_weight must be >= 0, got {self.sequence_torso_pair_weight}")
 
 
 @dataclass
@@ -373,7 +382,8 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                 model, shape, poses, frames_t, J_model, o.norm_limit, tracker_t, o.sequence_tracker_weight,
                 o.sequence_smooth_weight, o.sequence_rounds, o.sequence_max_nfev, o.sequence_huber_m,
                 o.sequence_fit_root, o.sequence_fit_skeleton, o.sequence_skeleton_prior_weight,
-                o.sequence_depth_huber_only, rest=base, free_joints=o.sequence_free_joints)
+                o.sequence_depth_huber_only, rest=base, free_joints=o.sequence_free_joints,
+                torso_pair_weight=o.sequence_torso_pair_weight)
         model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("sequence_fit", t0)
     if model is not None and o.pose_sigma_frames > 0:

@@ -384,6 +384,7 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
                               fit_skeleton: bool = True, skeleton_prior_weight: float = 100.0,
                               depth_huber_only: bool = False, rest: np.ndarray | None = None,
                               free_joints: tuple[bool, bool, bool] = (True, True, True),
+                              start_joints: np.ndarray | None = None, torso_pair_weight: float = 1.0,
                               ) -> tuple[list[ArmPose], np.ndarray]:
     """:func:`fit_arm_sequence` with the subject's skeleton as shared unknowns of the whole sequence.
 
@@ -404,6 +405,10 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
     ``free_joints``: which of shoulder, elbow, wrist are fitted (the others stay the regressed ones).
     ``rest``: the subject's rest mesh (default ``model_rest_vertices(model, shape)``; a personalised one
     from :func:`fit_rest_shape_correction`).
+    ``start_joints``: the skeleton the fit starts from (default ``joints``; the prior stays at ``joints``), e.g.
+    the subject's true joints, to check whether the truth is a minimum of this energy (docs/muscle.md, fifth pass).
+    ``torso_pair_weight``: the chest's (torso part's) depth pairs count this much (1: as the arm's): a model
+    whose chest does not match the subject's drags the placement through them.
     Returns the poses and the fitted rest joints (3, 3); the forearm twist of each frame is kept about the
     new forearm axis.
     """
@@ -413,11 +418,13 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
 
     T = len(poses)
     J0 = np.asarray(joints, np.float64)
-    h, f = elbow_axes(J0)
+    J_start = J0 if start_joints is None or not fit_skeleton else np.asarray(start_joints, np.float64)
+    h, f = elbow_axes(J_start)
     twist = np.array([float(p.angles[1] @ f) for p in poses])
     root0 = poses[0].root
     rest = model_rest_vertices(model, shape) if rest is None else np.asarray(rest, np.float64)
 
+    torso = np.asarray(model.part_weights)[:, 0] > 0.5  # vertices of the chest (the torso part)
     r0 = 3 if fit_root else 0  # parameters before the angles
     free = np.flatnonzero(np.asarray(free_joints, bool)) if fit_skeleton else np.zeros(0, int)
     s0 = 3 * len(free)  # skeleton offsets after the root
@@ -441,7 +448,8 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
     def mesh(p, J):
         return skeleton_model_mesh(model, p, rest, J, norm_limit)
 
-    x = np.r_[np.zeros(n0), np.concatenate([np.r_[p.angles[0], p.angles[1] @ h] for p in poses])]
+    x = np.r_[np.zeros(r0), (J_start - J0)[free].ravel(), np.concatenate([np.r_[p.angles[0], p.angles[1] @ h]
+                                                                           for p in poses])]
     lever = np.sqrt(smooth_weight) * 0.3
     use_tracker = tracker_joints is not None and tracker_weight > 0
     for _ in range(rounds):
@@ -453,6 +461,8 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
             pairs = [(k, q, n * np.sqrt(np.minimum(1.0, huber_m / np.maximum(
                 np.abs(np.einsum("kd,kd->k", M[k] - q, n)), 1e-12)))[:, None]) for M, (k, q, n) in zip(
                 meshes, pairs, strict=True)]
+        if torso_pair_weight != 1.0:  # the chest's pairs scaled (after the Huber weights, which use metres)
+            pairs = [(k, q, n * np.where(torso[k], np.sqrt(torso_pair_weight), 1.0)[:, None]) for k, q, n in pairs]
         sizes = [len(k) + (9 if use_tracker else 0) for k, _, _ in pairs]
         n_prior = 4 * max(T - 2, 0)
         Jac = lil_matrix((sum(sizes) + n_prior + s0, len(x)), dtype=int)

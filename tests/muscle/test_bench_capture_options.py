@@ -21,3 +21,15 @@ def test_bad_capture_options_are_refused_in_one_line(item):
     with pytest.raises(ValueError, match="^--capture-option ") as exc:
         parse_capture_options([item], _error)
     assert "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize("item", ["no_such_key=1", "tracker_weight=ten"])
+def test_bench_muscle_energy_refuses_bad_options_in_one_line(item, tmp_path, capsys):
+    from benchmarks.bench_muscle_energy import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--work", str(tmp_path / "w"), "--option", item])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"--option {item}" in err
+    assert not (tmp_path / "w").exists()  # nothing written

@@ -415,3 +415,27 @@ def test_default_capture_tracks_the_whole_sequence(captures_2k):
 
     assert CaptureOptions().sequence_rounds > 0
     assert captures_2k["full_capture"].timings_ms.get("sequence_fit", 0.0) > 0.0
+
+
+def test_the_chest_pair_weight_reaches_the_sequence_fit(arm_session_2k, arm_model_2k, arm_template_2k, monkeypatch):
+    """``CaptureOptions.sequence_torso_pair_weight`` is checked and handed to the sequence fit (its effect on the
+    placement: test_sequence_fit.test_down_weighted_chest_pairs_do_not_drag_the_placement)."""
+    import bodystudio.muscle.capture as capture
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
+
+    with pytest.raises(InputError, match="sequence_torso_pair_weight must be >= 0"):
+        CaptureOptions(sequence_torso_pair_weight=-1.0)
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def record(*args, **kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(capture, "fit_arm_sequence_skeleton", record)
+    with pytest.raises(Stop):
+        capture_arm_sequence(arm_session_2k, arm_model_2k, arm_template_2k,
+                             CaptureOptions(shape_frames=2, sequence_torso_pair_weight=0.25), frames=slice(0, 2))
+    assert seen["torso_pair_weight"] == 0.25

@@ -203,3 +203,72 @@ def test_the_capture_keeps_its_skeleton_and_the_extension_unposes_with_it(arm_mo
     np.testing.assert_allclose(sample.joints, Jt, atol=1e-12)
     np.testing.assert_allclose(unpose_arm(sample.vertices, model.part_weights, sample.joints, pose), rest, atol=1e-5)
     assert np.abs(unpose_arm(sample.vertices, model.part_weights, J, pose) - rest).max() > 1e-3
+
+
+@pytest.fixture(scope="module")
+def placed_sequence(arm_model_2k):
+    """Six frames of the model's own mesh on its regressed skeleton (the true placement is the identity), the
+    tracker's joints of each frame, and the depth frames with the chest (torso part) moved 8 mm sideways: a model
+    whose chest does not match the subject's."""
+    from bodystudio.muscle.model import ArmShapeParams, model_joints, model_mesh
+    from bodystudio.muscle.refine import posed_joints
+
+    model = arm_model_2k
+    shape = ArmShapeParams(24.0, 0.5, 1.78, 0.5)
+    J = model_joints(model, shape)
+    F = np.asarray(model.faces, np.int64)
+    adjacency = vertex_neighbourhoods(F, len(model.base_vertices), rings=2)
+    sensor = 0.5 * (J[0] + J[1]) + np.array([0.3, 0.1, 1.0])
+    torso = model.part_weights[:, 0] > 0.5
+    truth, tracker, frames, chest_frames = [], [], [], []
+    for k in range(6):
+        pose = ArmPose(np.eye(4), np.stack([[0.0, 0.0, np.radians(5.0 + 3.0 * k)],
+                                            elbow_rotvec(J, np.radians(20.0 + 8.0 * k), 0.0), np.zeros(3)]))
+        M = model_mesh(model, shape, pose)
+        N = vertex_normals(M, F)
+        moved = M + np.where(torso[:, None], [0.008, 0.0, 0.0], 0.0)
+        for out, V in ((frames, M), (chest_frames, moved)):
+            P = V[model.arm_mask]
+            out.append(DepthFrame(P, N[model.arm_mask], cKDTree(P), sensor, model.arm_mask, adjacency,
+                                  CorrespondenceFilters(), F))
+        truth.append(pose)
+        tracker.append(posed_joints(J, pose))
+    return model, shape, J, truth, np.stack(tracker), frames, chest_frames
+
+
+def _placement_mm(poses):
+    return 1000 * np.linalg.norm(poses[0].root[:3, 3])
+
+
+def test_down_weighted_chest_pairs_do_not_drag_the_placement(placed_sequence):
+    """A chest 8 mm off the model's pulls the torso placement sideways through the chest's depth pairs; with the
+    chest's pairs down-weighted (``torso_pair_weight``) the arm's pairs place it."""
+    from bodystudio.muscle.refine import fit_arm_sequence_skeleton
+
+    model, shape, J, truth, _, _, chest_frames = placed_sequence
+    kw = dict(smooth_weight=1.0, rounds=2, max_nfev=15, fit_root=True, fit_skeleton=False)
+    full, _ = fit_arm_sequence_skeleton(model, shape, truth, chest_frames, J, **kw)
+    arm_only, _ = fit_arm_sequence_skeleton(model, shape, truth, chest_frames, J, torso_pair_weight=0.0, **kw)
+    # Measured: 3.3 mm with the chest's pairs, 0.0 mm without.
+    assert _placement_mm(full) > 2.0, _placement_mm(full)
+    assert _placement_mm(arm_only) < 0.3, _placement_mm(arm_only)
+    assert _angle_errors_deg(arm_only, truth).max() < 0.2
+    half, _ = fit_arm_sequence_skeleton(model, shape, truth, chest_frames, J, torso_pair_weight=0.25, **kw)
+    assert _placement_mm(arm_only) < _placement_mm(half) < _placement_mm(full)
+
+
+def test_the_skeleton_fit_starts_from_the_given_joints(offset_skeleton_sequence):
+    """``start_joints``: the fit starts from that skeleton (the prior stays at ``joints``); started from the
+    subject's own joints and poses with no step allowed it returns them unchanged (docs/muscle.md's fifth pass
+    started the fit from the truth to check whether the truth is a minimum of its energy)."""
+    from bodystudio.muscle.refine import fit_arm_sequence_skeleton
+
+    model, shape, J, Jt, rest, truth, meshes, frames, start, tracker = offset_skeleton_sequence
+    kw = dict(tracker_joints=tracker, tracker_weight=30.0, smooth_weight=1.0, rounds=1, max_nfev=1, huber_m=0.004,
+              depth_huber_only=True, skeleton_prior_weight=10.0)
+    _, J_from_truth = fit_arm_sequence_skeleton(model, shape, truth, frames, J, start_joints=Jt, **kw)
+    _, J_from_model = fit_arm_sequence_skeleton(model, shape, truth, frames, J, **kw)
+    near = 1000 * np.linalg.norm(J_from_truth - Jt, axis=1)
+    far = 1000 * np.linalg.norm(J_from_model - Jt, axis=1)
+    assert near.max() < 1e-6, near
+    assert far.min() > 9.0, far  # the regressed joints, 9-11 mm from the subject's
