@@ -6,6 +6,8 @@ turned over four frames, no body model; each test a second or two. The grouped a
 step by step and compared to 1e-9, and its result is checked against the truth it is meant to find.
 """
 
+import functools
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -17,7 +19,15 @@ TOP, BOTTOM = np.array([0.8, 0.5, 0.4]), np.array([0.3, 0.5, 0.7])
 
 
 def ball_frames(n=4, size=64, light_dir=(0.4, 0.5, 1.0)):
-    """A ball whose top half is one material and bottom half another, yawing over ``n`` frames."""
+    """A ball whose top half is one material and bottom half another, yawing over ``n`` frames (fresh copies of
+    one rendering per process: mutation testing runs these tests once per mutant)."""
+    images, masks, posed, F, cam, light, albedo = _ball_frames(n, size, tuple(light_dir))
+    return ([i.copy() for i in images], [m.copy() for m in masks], [V.copy() for V in posed], F.copy(), cam, light,
+            albedo.copy())
+
+
+@functools.lru_cache(maxsize=4)
+def _ball_frames(n, size, light_dir):
     import trimesh
 
     from bodystudio.capture.render import render
