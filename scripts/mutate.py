@@ -127,6 +127,18 @@ def mutant_globs(module: str, functions: list[str] | None) -> list[str]:
     return [f"{dotted}.x{'_' + f if '.' not in f else 'ǁ' + f.replace('.', 'ǁ')}__mutmut_*" for f in functions]
 
 
+def _to_run(work: Path, module: str, functions: list[str] | None, resuming: bool) -> list[str]:
+    """mutmut's mutant arguments: none (all), the functions' globs, or on ``--resume`` with ``functions`` the
+    names of those functions' mutants without a result yet (mutmut re-runs every mutant it is given by name)."""
+    globs = mutant_globs(module, functions)
+    if not (globs and resuming):
+        return globs
+    codes: dict = {}
+    for meta in (work / "mutants").rglob("*.meta"):
+        codes.update(json.loads(meta.read_text()).get("exit_code_by_key", {}))
+    return sorted(n for n, c in codes.items() if c is None and in_functions(n, globs))
+
+
 def in_functions(name: str, globs: list[str]) -> bool:
     """Whether mutant ``name`` (mutmut's full name) is one of ``globs`` (all when none given)."""
     import fnmatch
@@ -171,11 +183,15 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
         # laplacian's 101 before this). The workqueue layer is fork-safe and gives the same results.
         env["NUMBA_THREADING_LAYER"] = "workqueue"
         mutmut = [str(Path(sys.executable).with_name("mutmut"))]
+        names = _to_run(work, module, functions, resume is not None)
         cmd = ["nice", "-n", "10", "timeout", "--signal=INT", "--kill-after=30", str(timeout_s)] + mutmut + \
-            ["run", "--max-children", str(jobs)] + mutant_globs(module, functions)
+            ["run", "--max-children", str(jobs)] + names
         print(f"== {module}: mutmut over {', '.join(tests)} (time box {timeout_s} s)", flush=True)
         t0 = time.monotonic()
-        proc = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True)
+        if functions and not names:  # resuming, nothing left to run in these functions
+            proc = subprocess.CompletedProcess(cmd, 0, "", "")
+        else:
+            proc = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True)
         wall = time.monotonic() - t0
         timed_out = proc.returncode in (124, 137)
         listing = subprocess.run(mutmut + ["results", "--all", "true"], cwd=work, env=env, capture_output=True,
