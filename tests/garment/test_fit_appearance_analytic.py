@@ -198,3 +198,71 @@ def test_clip_lighting_passes_its_sparsity_to_eq_7():
     default = gf.clip_lighting(images, masks, posed, F, cam, albedo, samples_per_frame=300)
     penalised = gf.clip_lighting(images, masks, posed, F, cam, albedo, samples_per_frame=300, sparsity=1e-3)
     assert len(penalised.colors) < len(default.colors)
+
+
+def test_grouped_rounds_step_by_step_with_stand_ins(monkeypatch):
+    """Every step of the grouped alternation stood in, so each value is known: eight of twenty frames picked, one
+    albedo per material for the lights, a material with little shading (den 0.5) still updated, one without any
+    (den 0) kept, the scale anchored, the per-vertex end step only on seen vertices with shading, ``n_out`` the
+    number of materials. The per-vertex path (grouped=False) the same way."""
+    labels = np.array([0, 0, 0, 1, 1, -1])
+    seen = labels >= 0
+    albedo0 = np.array([[0.2, 0.3, 0.4], [0.4, 0.3, 0.2], [0.3, 0.3, 0.3], [0.6, 0.1, 0.1], [0.8, 0.3, 0.1],
+                        [0.5, 0.5, 0.5]])
+    calls = {"albedo_frames": [], "clip": [], "ratio": []}
+
+    def estimate_albedo(imgs, Vs, F, camera):
+        calls["albedo_frames"].append([int(i[0, 0, 0]) for i in imgs])
+        return albedo0.copy(), seen.astype(int)
+
+    def clip(imgs, ms, Vs, F, camera, a, sparsity):
+        calls["clip"].append(a.copy())
+        return f"light {len(calls['clip'])}"
+
+    g_num = np.array([[0.3, 0.2, 0.1], [0.9, 0.9, 0.9]])
+    g_den = np.array([[0.5, 0.5, 0.5], [0.0, 0.0, 0.0]])  # material 0: little shading; material 1: none
+    v_num = np.arange(18, dtype=float).reshape(6, 3) / 10
+    v_den = np.array([[1.0] * 3, [2.0] * 3, [0.0] * 3, [1.0] * 3, [4.0] * 3, [1.0] * 3])  # vertex 5 unseen, den > 0
+
+    def ratio(obs, Vs, F, lighting, lab, n_out):
+        calls["ratio"].append((lighting, None if lab is None else lab.copy(), n_out))
+        return (g_num.copy(), g_den.copy()) if lab is not None else (v_num.copy(), v_den.copy())
+
+    monkeypatch.setattr(lt, "estimate_albedo", estimate_albedo)
+    monkeypatch.setattr(lt, "visible_vertex_colors", lambda *a, **k: [])
+    monkeypatch.setattr(lt, "chromaticity_groups", lambda a, s: labels.copy())
+    monkeypatch.setattr(gf, "clip_lighting", clip)
+    monkeypatch.setattr(gf, "_albedo_ratio", ratio)
+    images = np.stack([np.full((2, 2, 3), k, np.uint8) for k in range(20)])
+    masks = np.ones((20, 2, 2), bool)
+    posed = [np.zeros((6, 3))] * 20
+    F = np.zeros((1, 3), int)
+    got, light = gf.estimate_appearance(images, masks, posed, F, None, iterations=2)
+    assert calls["albedo_frames"] == [[0, 3, 5, 8, 11, 14, 16, 19]]  # linspace(0, 19, 8) rounded
+    anchor = albedo0[seen].mean(0)
+    material = np.stack([albedo0[:3].mean(0), albedo0[3:5].mean(0)])
+    want = albedo0.copy()
+    want[seen] = material[labels[seen]]
+    passed = [want.copy()]
+    for _ in range(2):
+        material[0] = g_num[0] / g_den[0]  # material 1 (den 0) keeps its value
+        want[seen] = material[labels[seen]]
+        want = np.clip(want * anchor / want[seen].mean(0), 0, None)
+        material = np.stack([want[labels == g].mean(0) for g in range(2)])
+        passed.append(want.copy())
+    ok = seen & (v_den > 0).all(1)  # vertex 2 (no shading) and 5 (unseen) keep theirs
+    want[ok] = v_num[ok] / v_den[ok]
+    assert len(calls["clip"]) == 3 and all(np.abs(a - b).max() < 1e-15 for a, b in zip(calls["clip"], passed,
+                                                                                          strict=True))
+    assert np.abs(got - want).max() < 1e-15 and light == "light 3"
+    assert [(lg, n) for lg, _, n in calls["ratio"]] == [("light 1", 2), ("light 2", 2), ("light 3", len(albedo0))]
+    assert calls["ratio"][-1][1] is None and np.array_equal(calls["ratio"][0][1], labels)
+    # the per-vertex path: each round the seen vertices with shading take num / den, then the anchor's scale
+    for key in calls:
+        calls[key].clear()
+    got, _ = gf.estimate_appearance(images, masks, posed, F, None, iterations=1, grouped=False)
+    want = albedo0.copy()
+    want[ok] = v_num[ok] / v_den[ok]
+    want = np.clip(want * anchor / want[seen].mean(0), 0, None)
+    assert np.abs(got - want).max() < 1e-15 and len(calls["clip"]) == 2
+    assert [(n, lab) for _, lab, n in calls["ratio"]] == [(6, None)]
