@@ -301,3 +301,131 @@ def test_empty_views_render_nothing():
     assert not layer.mask.any() and not layer.rgb.any() and not layer.body_image.any()
     rgb, rc = gr.shade_visible_surface(res, V, F, np.zeros_like(V), camera(), LIGHT, res.mask, None)
     assert rgb.shape == (0, 3) and rc.shape == (0, 2) and rc.dtype == np.int64
+
+
+# ------------------------------------------------------------------------------------------ posed, shadowed, curved
+
+
+def tilt_y(V, degrees):
+    t = np.radians(degrees)
+    R = np.array([[np.cos(t), 0, np.sin(t)], [0, 1, 0], [-np.sin(t), 0, np.cos(t)]])
+    return V @ R.T
+
+
+def test_posed_garment_is_shaded_with_its_posed_normals():
+    """The garment's rest pose faces the camera; posed, it is turned by 40 degrees: the shading follows the
+    posed normals (cosine with the light of the turned normal), in both renderers."""
+    body_V, body_F = quad(0.5, -0.5)
+    g = garment_quad()
+    posed = tilt_y(g.vertices, 40.0)
+    n = tilt_y(np.array([[0.0, 0.0, 1.0]]), 40.0)[0]
+    want = lit(np.array([200, 100, 50]) / 255.0, cos=n @ LIGHT.directions[0])
+    out = gr.render_garment(body_V, body_F, g, posed, camera(), LIGHT)
+    assert out.garment_mask.sum() > 50 and np.abs(out.garment_rgb[out.garment_mask] - want).max() < 1e-6
+    layer = gr.render_garment_layer(body_V, body_F, g, posed, camera(), LIGHT)
+    assert np.abs(layer.rgb[layer.mask] - want).max() < 1e-6
+
+
+def test_a_full_white_background_stays_255():
+    body_V, body_F = quad(0.1, 0.0)
+    g = garment_quad(half=0.05)
+    bg = np.full((40, 40, 3), 255, np.uint8)
+    bg[..., 1] = 254
+    out = gr.render_garment(body_V, body_F, g, g.vertices, camera(), LIGHT, background=bg)
+    empty = ~(out.body_mask | out.garment_mask)
+    assert np.all(out.image[empty] == [255, 254, 255])
+
+
+def test_render_garment_shadows_the_garment_too():
+    """A body part between the light and the garment: with ``shadows`` the garment's pixels behind it (seen from
+    the light) get the ambient only."""
+    wall_V, wall_F = quad(0.5, -0.3)
+    block_V, block_F = quad(0.1, 0.6, centre=(0.3, 0.0))
+    body_V, body_F = np.vstack([wall_V, block_V]), np.vstack([wall_F, block_F + 4])
+    g = garment_quad(half=0.3, z=0.2)
+    light = Lighting([[0.6, 0.0, 0.8]], [[0.5, 0.5, 0.5]], [0.1, 0.1, 0.1])
+    plain = gr.render_garment(body_V, body_F, g, g.vertices, camera(), light)
+    shad = gr.render_garment(body_V, body_F, g, g.vertices, camera(), light, shadows=True)
+    from bodystudio.capture.render import render
+
+    both = render(np.vstack([body_V, g.vertices]), np.vstack([body_F, g.faces + 8]), camera())
+    rows, cols = np.nonzero(plain.garment_mask)
+    P = gr._pixel_attributes(both, np.vstack([body_F, g.faces + 8]), rows, cols, np.vstack([body_V, g.vertices]))
+    hit = P + (0.4 / 0.8) * np.array([0.6, 0.0, 0.8])
+    inside = (np.abs(hit[:, 0] - 0.3) < 0.09) & (np.abs(hit[:, 1]) < 0.09)
+    assert inside.sum() > 5
+    want = np.round(np.array([200, 100, 50]) * 0.1)
+    assert np.array_equal(shad.image[rows[inside], cols[inside]], np.tile(want, (inside.sum(), 1)))
+    assert not np.array_equal(shad.image[rows[inside], cols[inside]], plain.image[rows[inside], cols[inside]])
+
+
+def test_garment_layer_self_shadow_of_one_garment_part_on_another():
+    """A garment of two quads, a small one in front of a large one: the front part shadows the back part in the
+    layer (occluders are body and garment together)."""
+    back_V, back_F = quad(0.3, 0.2)
+    front_V, front_F = quad(0.08, 0.45, centre=(0.1, 0.0))
+    V = np.vstack([back_V, front_V])
+    F = np.vstack([back_F, front_F + 4])
+    uv = np.full((8, 2), 0.5)
+    texture = np.full((4, 4, 3), 200, np.uint8)
+    g = Garment("two", V, F, uv, texture, np.ones((8, 1)), np.arange(8))
+    body_V, body_F = quad(0.5, -0.5)
+    light = Lighting([[0.6, 0.0, 0.8]], [[0.5, 0.5, 0.5]], [0.1, 0.1, 0.1])
+    layer = gr.render_garment_layer(body_V, body_F, g, V, camera(), light, shadows=True)
+    from bodystudio.capture.render import render
+
+    cloth = render(V, F, camera())
+    rows, cols = np.nonzero(cloth.mask & (cloth.triangle_id < 2))
+    P = gr._pixel_attributes(cloth, F, rows, cols, V)
+    hit = P + (0.25 / 0.8) * np.array([0.6, 0.0, 0.8])  # at the front part's plane z = 0.45
+    inside = (np.abs(hit[:, 0] - 0.1) < 0.07) & (np.abs(hit[:, 1]) < 0.07)
+    outside = (np.abs(hit[:, 0] - 0.1) > 0.09) | (np.abs(hit[:, 1]) > 0.09)
+    assert inside.sum() > 3
+    assert np.abs(layer.rgb[rows[inside], cols[inside]] - 200 / 255 * 0.1).max() < 1e-6
+    assert np.abs(layer.rgb[rows[outside], cols[outside]] - 200 / 255 * (0.1 + 0.8 * 0.5)).max() < 1e-6
+
+
+def tent(apex_z=0.3):
+    """Four triangles from a square's corners to a raised centre: vertex normals differ within each triangle, so
+    the interpolated normals are shorter than one until normalised."""
+    V = np.array([[-0.3, -0.3, 0], [0.3, -0.3, 0], [0.3, 0.3, 0], [-0.3, 0.3, 0], [0, 0, apex_z]])
+    F = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    return V, F
+
+
+def test_interpolated_normals_are_normalised_before_shading():
+    V, F = tent()
+    N = gr.vertex_normals_area_weighted(V, F)
+    from bodystudio.capture.render import render
+
+    res = render(V, F, camera())
+    rows, cols = np.nonzero(res.mask)
+    n = gr._pixel_attributes(res, F, rows, cols, N)
+    assert np.linalg.norm(n, axis=1).min() < 0.95  # the case the normalisation is for
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    want = lit(np.array([0.5, 0.5, 0.5]), cos=np.clip(n @ LIGHT.directions[0], 0, None)[:, None])
+    image, _ = gr.render_body(V, F, camera(), LIGHT, np.full((5, 3), 0.5))
+    assert np.abs(image[rows, cols] - want).max() < 1e-6
+    g = Garment("tent", V, F, np.full((5, 2), 0.5), np.full((4, 4, 3), 255, np.uint8), np.ones((5, 1)), np.arange(5))
+    body_V, body_F = quad(0.5, -0.5)
+    layer = gr.render_garment_layer(body_V, body_F, g, V, camera(), LIGHT)
+    n_g = gr._pixel_attributes(res, F, rows, cols, g.normals())
+    n_g /= np.linalg.norm(n_g, axis=1, keepdims=True)
+    want_layer = lit(np.ones(3), cos=np.clip(n_g @ LIGHT.directions[0], 0, None)[:, None])
+    assert np.abs(layer.rgb[rows, cols] - want_layer).max() < 1e-6
+
+
+@pytest.mark.parametrize("degrees", [75.0, 80.0])
+def test_normals_seen_at_a_grazing_angle_are_still_turned_to_the_camera(degrees):
+    """A plane wound away from the camera and turned by 75-80 degrees: n . (P - C) is between 0 and 1 m, and the
+    normal must still be flipped (the test is the sign, not a threshold)."""
+    V, F = quad(0.5, 0.0, flip=True)
+    V = tilt_y(V, degrees)
+    image, res = gr.render_body(V, F, camera(), LIGHT, np.full((4, 3), 0.6))
+    n = tilt_y(np.array([[0.0, 0.0, 1.0]]), degrees)[0]
+    assert res.mask.sum() > 10
+    assert np.abs(image[res.mask] - lit([0.6, 0.6, 0.6], cos=max(n @ LIGHT.directions[0], 0))).max() < 1e-6
+    g = garment_quad(half=0.5, z=0.0, flip=True)
+    layer = gr.render_garment_layer(*quad(0.1, -1.0), g, tilt_y(g.vertices, degrees), camera(), LIGHT)
+    want = lit(np.array([200, 100, 50]) / 255.0, cos=max(n @ LIGHT.directions[0], 0))
+    assert np.abs(layer.rgb[layer.mask] - want).max() < 1e-6
