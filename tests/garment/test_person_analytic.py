@@ -377,3 +377,48 @@ def test_person_frames_of_a_session_folder_are_checked_for_a_person(tmp_path, mo
     monkeypatch.setattr(cs, "open_session", lambda path: fake_session(H=20, W=400))
     with pytest.raises(InputError, match=r"covers 0\.25 % of the image"):
         gp.person_frames(tmp_path)
+
+
+# ------------------------------------------------------------------------------------------ survivors of the first run
+
+
+def test_check_person_reports_the_percentage_to_two_decimals():
+    """441 of 100000 pixels is 0.441 %: "0.44" (a factor of 1.01 would print 0.45)."""
+    masks = np.zeros((2, 250, 400), bool)
+    masks.reshape(2, -1)[:, :441] = True
+    with pytest.raises(InputError, match=r"covers 0\.44 % of the image"):
+        gp.check_person(masks, "clip")
+
+
+def test_person_frames_number_frames_beyond_the_first_ninety(tmp_path, monkeypatch):
+    images, _, _ = moving_square(n=5)
+    monkeypatch.setattr(gp, "read_video", lambda path, frames=None: (images, 30.0))
+    (tmp_path / "long.mp4").write_bytes(b"")
+    pf = gp.person_frames(tmp_path / "long.mp4", "995:1000")
+    assert np.array_equal(pf.frame_ids, [995, 996, 997, 998, 999])
+
+
+def test_mattes_are_exactly_the_square_and_drop_a_companion_under_half_its_size():
+    """A clean square on a textured set: the matte is the square to the pixel (the 2 px closing does not move or
+    trim it, no opening); a second square of a third of its area is dropped (kept: half the largest or more)."""
+    images, masks, plate = moving_square()
+    got = gp.person_mattes(images, plate=plate)
+    assert np.array_equal(got, masks)
+    two = images.copy()
+    two[:, 36:44, 2:10] = (30, 20, 120)  # 64 px = 0.33 of the square's 196, away from it in every frame
+    assert np.array_equal(gp.person_mattes(two, plate=plate), masks)
+    big = images.copy()
+    big[:, 33:43, 50:60] = (30, 20, 120)  # 100 px = 0.51: kept
+    big_masks = masks.copy()
+    big_masks[:, 33:43, 50:60] = True
+    both = gp.person_mattes(big[:4], plate=plate)
+    assert np.array_equal(both, big_masks[:4] | (masks[:4]))
+
+
+def test_session_is_opened_at_the_given_path(tmp_path, monkeypatch):
+    import bodystudio.capture.session as cs
+
+    opened = []
+    monkeypatch.setattr(cs, "open_session", lambda path: opened.append(path) or fake_session())
+    gp.session_person_frames(tmp_path / "s")
+    assert opened == [tmp_path / "s"]
