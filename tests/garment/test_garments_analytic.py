@@ -325,3 +325,62 @@ def test_material_image_reads_rgb_of_two_texels_or_more():
     assert gm._material_image(SimpleNamespace(material=SimpleNamespace(image=Image.new("RGB", (1, 5))))) is None
     assert gm._material_image(SimpleNamespace()) is None
     assert gm._material_image(SimpleNamespace(material=SimpleNamespace())) is None
+
+
+# ------------------------------------------------------------------------------------------ survivors of the first run
+
+
+def test_print_dots_sit_at_half_cell_offsets_row_by_row():
+    """Dot centres: row r at height (r + 1/2) cell, arc (m + 1/2 - r/2) cell; radius a quarter cell."""
+    cell = 0.09
+    colors = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])
+    pts = [  # (arc / cell, y / cell, on a dot)
+        (0.5, 0.5, True), (0.0, 1.5, True), (1.0, 1.5, True), (0.5, 1.5, False), (1.0, -0.5, True),
+        (1.2, -0.5, True), (1.3, -0.5, False), (-1.0, 3.5, True), (-0.5, 3.5, False), (0.0, 2.5, False),
+        (0.5, 2.5, True), (0.0, 1.7, True), (0.0, 1.8, False),
+    ]
+    a = np.array([p[0] for p in pts]) * cell / 0.15  # arc = 0.15 atan2(x, z)
+    P = np.column_stack([np.sin(a), np.array([p[1] for p in pts]) * cell, np.cos(a)])
+    got = gm.cloth_pattern(P, "print", colors)
+    assert np.array_equal(got, colors[[1 if p[2] else 0 for p in pts]])
+
+
+def test_normalized_uv_of_a_layout_smaller_than_one():
+    uv = np.array([[0.2, 0.1], [0.45, 0.1], [0.2, 0.6]])  # 0.25 x 0.5
+    assert np.abs(gm.normalized_uv(uv) - [[0.01, 0.01], [0.5, 0.01], [0.01, 0.99]]).max() < 1e-15
+
+
+def test_uv_overlap_of_slanted_triangles_and_other_areas():
+    """A single slanted triangle covers its own area (no overlap); two copies of it overlap by half; the
+    areas are the cross products of two edges from one corner (not a sum of products)."""
+    tri = np.array([[0.1, 0.1], [0.9, 0.3], [0.4, 0.9]])
+    F = np.array([[0, 1, 2]])
+    assert gm.uv_overlap_fraction(tri, F, size=128) < 0.02
+    two = np.vstack([tri, tri])
+    assert gm.uv_overlap_fraction(two, np.array([[0, 1, 2], [3, 4, 5]]), size=128) == pytest.approx(0.5, abs=0.02)
+    small = np.array([[0.0, 0.0], [0.25, 0.0], [0.0, 0.25], [0.25, 0.25]])
+    assert gm.uv_overlap_fraction(small, np.array([[0, 1, 2], [1, 3, 2]]), size=128) < 0.02
+
+
+def test_skin_weights_of_points_over_vertices_with_different_weight_sums():
+    """Four points (not three: a per-column division would not even broadcast), body weights whose rows sum to
+    1, 2 and 4: each transferred row is the barycentric blend of the body rows, renormalised."""
+    body_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]])
+    body_F = np.array([[0, 1, 2]])
+    W = np.array([[1.0, 0, 0], [0, 2.0, 0], [0, 0, 4.0]])
+    P = np.array([[0.2, 0.3, 0.05], [0.5, -0.4, -0.1], [2.0, 2.0, 0.0], [0.0, 0.0, 1.0]])
+    got = gm.transfer_skin_weights(P, body_V, body_F, W)
+    bary = np.array([[0.5, 0.2, 0.3], [0.5, 0.5, 0.0], [0.0, 0.5, 0.5], [1.0, 0.0, 0.0]])
+    want = bary * [1.0, 2.0, 4.0]
+    want /= want.sum(1, keepdims=True)
+    assert np.abs(got - want).max() < 1e-12
+
+
+def test_bake_defaults_are_stripes_and_seed_zero():
+    V = np.array([[0, 0, 0], [0.12, 0, 0], [0.12, 0.12, 0], [0, 0.12, 0.0]])
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    uv = square_uv((0, 0), (1, 1))
+    assert np.array_equal(gm.bake_procedural_texture(V, F, uv, size=16),
+                          gm.bake_procedural_texture(V, F, uv, "stripes", size=16, seed=0))
+    assert not np.array_equal(gm.bake_procedural_texture(V, F, uv, size=16),
+                              gm.bake_procedural_texture(V, F, uv, "stripes", size=16, seed=1))
