@@ -422,3 +422,14 @@ def test_session_is_opened_at_the_given_path(tmp_path, monkeypatch):
     monkeypatch.setattr(cs, "open_session", lambda path: opened.append(path) or fake_session())
     gp.session_person_frames(tmp_path / "s")
     assert opened == [tmp_path / "s"]
+
+
+def test_the_two_pixel_closing_fills_a_one_pixel_notch():
+    """A 1 px wide, 5 px deep notch cut into the square from its top edge (the set shows through) is closed by
+    the 2 px closing; no closing leaves it, a 3 px (cross) closing leaves its mouth."""
+    images, masks, plate = moving_square(n=3)
+    notched = images.copy()
+    for k in range(3):
+        c0 = int(np.flatnonzero(masks[k].any(0))[0])
+        notched[k, 17:22, c0 + 6] = plate[17:22, c0 + 6]
+    assert np.array_equal(gp.person_mattes(notched, plate=plate), masks)
