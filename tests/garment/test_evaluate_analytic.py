@@ -121,3 +121,56 @@ def test_joint_errors_are_projected_pixels_and_root_relative_millimetres(monkeyp
     with pytest.raises(InputError, match=exact("s: frame 4 has no gt/joints; eval garment needs a synthetic "
                                                "session")):
         ge.joint_errors(fit, session)
+
+
+# ------------------------------------------------------------------------------------------ survivors of the first run
+
+
+def test_angle_of_a_vector_with_itself_is_zero_despite_rounding():
+    v = np.array([0.9, 0.7, 0.39])  # dot / norms rounds to 1 + 2e-16 (and -1 - 2e-16 against -v)
+    assert float(np.dot(v, v) / (np.linalg.norm(v) ** 2)) > 1.0
+    assert ge._angle_deg(v, v) == 0.0 and ge._angle_deg(v, -v) == 180.0
+
+
+def test_principal_direction_of_dim_lights():
+    d = np.array([[0.0, 1.0, 0.0]])
+    assert np.array_equal(ge.principal_light_direction(d, np.array([[0.05, 0.05, 0.05]])), [0.0, 1.0, 0.0])
+
+
+def test_albedo_error_across_templates_uses_the_nearest_full_body_vertex():
+    """A 2k fit against the 6k truth (the default when gt/phenotype.json names no template): each 2k vertex is
+    compared with the 6k vertex of the nearest full-body id."""
+    from bodystudio.body.model import template_topology
+
+    ids2, _ = template_topology("2k")
+    ids6, _ = template_topology("6k")
+    truth = np.random.default_rng(3).uniform(0.1, 0.9, (len(ids6), 3))
+    j = np.abs(ids6[None, :] - ids2[:, None]).argmin(1)  # nearest id (first of ties, as the tree's)
+    fit = SimpleNamespace(albedo=truth[j] * [1.0, 2.0, 0.5], template="2k")
+    session = SimpleNamespace(gt_appearance_albedo=truth, gt_subject={})
+    assert ge.albedo_error(fit, session) == pytest.approx(0.0, abs=1e-12)
+    fit.albedo = truth[::-1][:len(ids2)].copy()  # unrelated colours: a clear error
+    assert ge.albedo_error(fit, session) > 0.1
+    session.gt_subject = {"template": "2k"}
+    fit.albedo = truth[:len(ids2)]
+    session.gt_appearance_albedo = truth[:len(ids2)]
+    assert ge.albedo_error(fit, session) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_albedo_error_of_a_few_dark_vertices():
+    """Two dark vertices: the least-squares scale's denominator (0.02) is far below one."""
+    truth = np.array([[0.1, 0.05, 0.02], [0.05, 0.1, 0.04]])
+    fit = SimpleNamespace(albedo=truth * 0.5, template="2k")
+    session = SimpleNamespace(gt_appearance_albedo=truth, gt_subject={"template": "2k"})
+    assert ge.albedo_error(fit, session) == pytest.approx(0.0, abs=1e-15)
+
+
+def test_joint_errors_take_the_joints_of_the_given_fit(monkeypatch):
+    seen = []
+    monkeypatch.setattr(ge, "fitted_joints", lambda fit: seen.append(fit) or np.zeros((1, 2, 3)))
+    fit = SimpleNamespace(camera=None, bone_names=["pelvis", "x"], frame_ids=np.array([0]))
+    session = SimpleNamespace(cameras={"c": None}, camera_names=["c"], path="s",
+                              frame=lambda f: SimpleNamespace(gt_joints=None))
+    with pytest.raises(ValueError):  # the major joints are not among the names: after fitted_joints(fit)
+        ge.joint_errors(fit, session)
+    assert seen == [fit]
