@@ -13,7 +13,7 @@ the module) and pytest-gremlins 43 of 71 in 10 min. mutmut does not mutate decor
 17 cover those.
 
 Usage: python scripts/mutate.py --modules bodystudio/rig/weights.py ... [--timeout 900] [--jobs 2] [--ref HEAD]
-       [--tests tests/calib/test_calibrate_mutants.py]
+       [--tests tests/calib/test_calibrate_mutants.py] [--functions chromaticity_groups solve_lights ...]
 """
 
 from __future__ import annotations
@@ -119,11 +119,40 @@ def mutmut_config(module: str, tests: list[str]) -> str:
     ])
 
 
+def mutant_globs(module: str, functions: list[str] | None) -> list[str]:
+    """mutmut's mutant-name globs for ``functions`` of ``module`` (``x_NAME__mutmut_*``; methods ``xǁClassǁNAME``)."""
+    if not functions:
+        return []
+    dotted = ".".join(Path(module).with_suffix("").parts)
+    return [f"{dotted}.x{'_' + f if '.' not in f else 'ǁ' + f.replace('.', 'ǁ')}__mutmut_*" for f in functions]
+
+
+def _to_run(work: Path, module: str, functions: list[str] | None, resuming: bool) -> list[str]:
+    """mutmut's mutant arguments: none (all), the functions' globs, or on ``--resume`` with ``functions`` the
+    names of those functions' mutants without a result yet (mutmut re-runs every mutant it is given by name)."""
+    globs = mutant_globs(module, functions)
+    if not (globs and resuming):
+        return globs
+    codes: dict = {}
+    for meta in (work / "mutants").rglob("*.meta"):
+        codes.update(json.loads(meta.read_text()).get("exit_code_by_key", {}))
+    return sorted(n for n, c in codes.items() if c is None and in_functions(n, globs))
+
+
+def in_functions(name: str, globs: list[str]) -> bool:
+    """Whether mutant ``name`` (mutmut's full name) is one of ``globs`` (all when none given)."""
+    import fnmatch
+
+    return not globs or any(fnmatch.fnmatchcase(name, g) for g in globs)
+
+
 def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | None = None,
-               resume: Path | None = None, only_tests: list[str] | None = None) -> dict:
+               resume: Path | None = None, only_tests: list[str] | None = None,
+               functions: list[str] | None = None) -> dict:
     """Mutate ``module`` in a fresh scratch tree or, with ``resume``, go on in a kept one (mutmut runs only the
     mutants that have no result yet, e.g. those a time box left "not checked"). ``only_tests`` (globs) replaces
-    the module's own test selection."""
+    the module's own test selection; ``functions`` (names, ``Class.method`` for methods) restricts the run and
+    the score to those functions' mutants (a re-measure of the functions changed since a module's row)."""
     work = resume or Path(tempfile.mkdtemp(prefix="bodystudio-mutate-"))
     keep = keep or resume is not None
     commit = git_commit() if ref is None else ref  # the tree being copied now, not HEAD when the box ends
@@ -154,11 +183,15 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
         # laplacian's 101 before this). The workqueue layer is fork-safe and gives the same results.
         env["NUMBA_THREADING_LAYER"] = "workqueue"
         mutmut = [str(Path(sys.executable).with_name("mutmut"))]
+        names = _to_run(work, module, functions, resume is not None)
         cmd = ["nice", "-n", "10", "timeout", "--signal=INT", "--kill-after=30", str(timeout_s)] + mutmut + \
-            ["run", "--max-children", str(jobs)]
+            ["run", "--max-children", str(jobs)] + names
         print(f"== {module}: mutmut over {', '.join(tests)} (time box {timeout_s} s)", flush=True)
         t0 = time.monotonic()
-        proc = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True)
+        if functions and not names:  # resuming, nothing left to run in these functions
+            proc = subprocess.CompletedProcess(cmd, 0, "", "")
+        else:
+            proc = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True)
         wall = time.monotonic() - t0
         timed_out = proc.returncode in (124, 137)
         listing = subprocess.run(mutmut + ["results", "--all", "true"], cwd=work, env=env, capture_output=True,
@@ -166,7 +199,7 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
         status: dict[str, str] = {}
         for line in listing.splitlines():
             m = re.match(r"\s*(\S+__mutmut_\d+): (.+)$", line)
-            if m:
+            if m and in_functions(m.group(1), mutant_globs(module, functions)):
                 status[m.group(1)] = m.group(2).strip()
         for name in _crash_exit_codes(work):
             if status.get(name) == "suspicious":
@@ -184,9 +217,12 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
         total = sum(counts.values()) - counts.get("skipped", 0)
         if proc.returncode not in (0, 124, 137) or not status:
             print(proc.stdout[-2000:], proc.stderr[-4000:], sep="\n", file=sys.stderr)
-        return {"module": module, "commit": commit, "tests": tests, "counts": counts, "killed": killed, "total": total,
+        out = {"module": module, "commit": commit, "tests": tests, "counts": counts, "killed": killed, "total": total,
                 "score": round(killed / total, 4) if total else None, "wall_s": round(wall, 1),
                 "timed_out": timed_out, "survivors": survivors}
+        if functions:
+            out["functions"] = list(functions)
+        return out
     finally:
         if keep:
             print(f"   scratch tree kept: {work}")
@@ -305,6 +341,8 @@ def main(argv=None) -> int:
     ap.add_argument("--tests", nargs="+", help="run only these test files (globs) instead of the module's own "
                     "selection, e.g. a fast analytic file when the module's end-to-end tests take seconds per mutant; "
                     "the score is then a lower bound of the full selection's")
+    ap.add_argument("--functions", nargs="+", help="mutate only these functions of the (one) module (Class.method "
+                    "for a method); the result is kept under 'MODULE (functions)' next to the module's own row")
     ap.add_argument("--resume", type=Path, help="go on in this kept scratch tree (one module): only mutants "
                     "without a result are run, e.g. after the time box was hit")
     args = ap.parse_args(argv)
@@ -317,20 +355,24 @@ def main(argv=None) -> int:
         print(f"mutate: no such module(s): {' '.join(missing)}; list files under bodystudio/", file=sys.stderr)
         return 2
     results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+    if args.functions and len(args.modules) != 1:
+        print("mutate: --functions needs exactly one module", file=sys.stderr)
+        return 2
     for module in args.modules:
-        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.resume, args.tests)
+        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.resume, args.tests, args.functions)
+        key = f"{module} (functions)" if args.functions else module
         # re-read: another run (another module) may have written its result meanwhile
         results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
         if args.resume is not None and r.get("wall_s") is not None:  # the wall time of both boxes
-            r["wall_s"] += results.get(module, {}).get("wall_s", 0.0)
+            r["wall_s"] += results.get(key, {}).get("wall_s", 0.0)
         if r.get("score") is not None:
-            history = results.get(module, {}).get("history", [])
+            history = results.get(key, {}).get("history", [])
             commit = r["commit"]
             if args.resume is not None:
                 commit += " (resumed)"
             history.append({"date": dt.date.today().isoformat(), "commit": commit, "score": r["score"]})
             r["history"] = history
-        results[module] = r
+        results[key] = r
         write_report(results)
         if r.get("error"):
             print(f"   {r['error']}")

@@ -145,11 +145,25 @@ def clean_mask(mask: np.ndarray, params: SegmentationParams = SegmentationParams
     """Morphological clean-up: optional opening, closing, keep the large components, fill small holes."""
     m = np.asarray(mask, dtype=np.uint8)
     if params.open_px > 1:
-        m = cv2.morphologyEx(m, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.open_px,) * 2))
+        m = morphology(m, params.open_px, close=False)
     if params.close_px > 1:
-        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.close_px,) * 2))
+        m = morphology(m, params.close_px, close=True)
     m = largest_components(m > 0, params.min_component_fraction, params.min_component_px)
     return fill_small_holes(m, params.max_hole_fraction * m.size)
+
+
+def morphology(mask: np.ndarray, size: int, close: bool) -> np.ndarray:
+    """Closing (``close``) or opening of a uint8 mask by a ``size`` x ``size`` ellipse, without a shift.
+
+    OpenCV's ``morphologyEx`` applies both passes with the same kernel and anchor; for an even ``size`` the
+    anchor is off-centre and the result moves by one pixel (a 2 px closing moved a matte down-right by one pixel
+    and lost a corner). The second pass here uses the reflected kernel with the reflected anchor, which is the
+    textbook closing/opening (extensive/anti-extensive, no shift) and equals ``morphologyEx`` for odd sizes.
+    """
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    a, ra = size // 2, size - 1 - size // 2
+    first, second = (cv2.dilate, cv2.erode) if close else (cv2.erode, cv2.dilate)
+    return second(first(mask, k, anchor=(a, a)), np.ascontiguousarray(k[::-1, ::-1]), anchor=(ra, ra))
 
 
 def largest_components(mask: np.ndarray, min_fraction: float = 0.1, min_px: int = 50) -> np.ndarray:
