@@ -53,8 +53,10 @@ def test_eval_muscle_prints_the_issue_figures(nicp_capture, capsys):
     capsys.readouterr()
     assert main(["eval", "muscle", str(nicp_capture)]) == 0
     scores = json.loads(capsys.readouterr().out)
-    keys = ["median_mm", "p90_mm", "front_median_mm", "back_median_mm", "bulge_err_mm", "jitter_mm", "ms_per_frame"]
-    assert list(scores)[:7] == keys
+    keys = ["median_mm", "p90_mm", "surface_median_mm", "surface_p90_mm", "front_median_mm", "back_median_mm",
+            "bulge_err_mm", "jitter_mm", "ms_per_frame"]
+    assert list(scores)[:9] == keys
+    assert scores["surface_median_mm"] <= scores["median_mm"]  # the skin is nearer than the vertex it should be
     assert all(np.isfinite(scores[k]) for k in keys)
     assert 0 < scores["median_mm"] <= scores["p90_mm"] < 100  # an arm, not garbage
     assert scores["mode"] == "nicp" and scores["n_frames"] == 4
