@@ -595,8 +595,9 @@ def load_source_body(path: str | Path, model: StatisticalBodyModel | None = None
     n, B = len(body.vertices), sk.n_bones
     if (body.vertices.ndim != 2 or body.vertices.shape[1] != 3 or sk.heads.shape != (B, 3)
             or sk.tails.shape != (B, 3) or len(sk.parents) != B or len(sk.rolls) != B
-            or not np.all(np.isfinite(body.vertices)) or not np.all(np.isfinite(body.coeffs))):
-        raise FileFormatError(f"{path}: source body arrays are inconsistent; rerun 'bodystudio mirror init'")
+            or not all(np.all(np.isfinite(a)) for a in (body.vertices, body.coeffs, sk.heads, sk.tails, sk.rolls))
+            or not np.all((sk.parents >= -1) & (sk.parents < B))):
+        raise FileFormatError(f"{path}: source body arrays are inconsistent or not finite; rerun 'bodystudio mirror init'")
     if model is None:
         return body
     model = check_model(model)
