@@ -597,7 +597,8 @@ def load_source_body(path: str | Path, model: StatisticalBodyModel | None = None
             or sk.tails.shape != (B, 3) or len(sk.parents) != B or len(sk.rolls) != B
             or not all(np.all(np.isfinite(a)) for a in (body.vertices, body.coeffs, sk.heads, sk.tails, sk.rolls))
             or not np.all((sk.parents >= -1) & (sk.parents < B))):
-        raise FileFormatError(f"{path}: source body arrays are inconsistent or not finite; rerun 'bodystudio mirror init'")
+        raise FileFormatError(f"{path}: source body arrays are inconsistent or not finite; "
+                              "rerun 'bodystudio mirror init'")
     if model is None:
         return body
     model = check_model(model)
