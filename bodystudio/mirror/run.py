@@ -231,8 +231,9 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
                 w.write_bytes(f"masks/warped/{name}", _png(res.warped.astype(np.uint8) * 255))
                 for key, path in videos:
                     frame = res.output if key == "output" else np.hstack([inp.rgb, res.output])
-                    if key not in writers:
-                        writers[key] = Mp4Writer(w.path_for(path), (frame.shape[1], frame.shape[0]), fps)
+                    if key not in writers:  # absolute: a relative --out is the user's cwd, not the run folder
+                        writers[key] = Mp4Writer(w.path_for(Path(path).absolute()), (frame.shape[1], frame.shape[0]),
+                                                 fps)
                     writers[key].write(frame)
                 if preview is not None:
                     with atomic_write(preview, "wb") as f:
