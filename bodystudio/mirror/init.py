@@ -574,6 +574,17 @@ def save_source_body(path: str | Path, body: SourceBody) -> None:
         np.savez(tmp, **arrays)
 
 
+def source_fingerprint(body) -> str:
+    """A short hash of a source body's coefficients, rest vertices and bone heads: which body a mirror run
+    used, so that ``eval mirror`` does not score one body's run with another body's init errors."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for a in (body.coeffs, body.vertices, body.skeleton.heads):
+        h.update(np.ascontiguousarray(a, np.float64).tobytes())
+    return h.hexdigest()[:16]
+
+
 def load_source_body(path: str | Path, model: StatisticalBodyModel | None = None) -> SourceBody:
     """Read :func:`save_source_body`'s file; with ``model``, check it is that model's and attach its skin weights."""
     import zipfile

@@ -439,7 +439,8 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
                 "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
                 "live": None if live is None else str(Path(live).resolve()),
                 "edits": edits, "player": int(player), "ramp_frames": int(ramp_frames),
-                "correspondence": correspondence}
+                "correspondence": correspondence,
+                "source_fingerprint": _stage_module("init").source_fingerprint(body)}
     inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids, correspondence)
     return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total,
                          preview=run_dir / "live_latest.png" if live is not None else None)
