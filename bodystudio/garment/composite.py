@@ -346,7 +346,7 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
     H, W = fit.camera.height, fit.camera.width
     with RunWriter(layout, command, {"stage": "garment", "kind": "render"}) as w, progress_bar(progress) as bar:
         task = bar.add_task("garment render", total=len(fit.frame_ids))
-        video = Mp4Writer(w.path_for(out_video), (W, H), fit.fps) if out_video is not None else None
+        video = Mp4Writer(w.path_for(Path(out_video).absolute()), (W, H), fit.fps) if out_video is not None else None
         try:
             for i, (fid, frame) in enumerate(zip(fit.frame_ids, source_frames(fit, fit_dir), strict=True)):
                 if frame.shape != (H, W, 3):

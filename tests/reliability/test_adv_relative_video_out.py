@@ -45,3 +45,25 @@ def test_mirror_run_relative_out_lands_in_the_cwd(kinect_session, source_body, t
     assert not (tmp_path / "run" / "videos").exists()
     doc = json.loads((tmp_path / "run" / "run.json").read_text())
     assert doc["videos"]["output"] == "videos/o.mp4"
+
+
+@pytest.fixture(scope="module")
+def garment_fit_dir(tmp_path_factory):
+    """The oracle fit of a 2-frame 120x160 synthetic garment session (as test_garment_render_inputs)."""
+    from bodystudio.garment.composite import ground_truth_fit, perturbed_fit
+    from bodystudio.garment.fitfile import save_garment_fit
+    from bodystudio.garment.synthetic import synth_garment_session
+
+    root = tmp_path_factory.mktemp("advgr")
+    session = synth_garment_session(root / "session", subject_seed=3, n_frames=2, resolution=(120, 160),
+                                    template="2k", texture_size=64, seed=2)
+    save_garment_fit(root / "fit", perturbed_fit(ground_truth_fit(session), pose_deg=0.0, translation_m=0.0), "test")
+    return root / "fit"
+
+
+def test_garment_render_relative_out_lands_in_the_cwd(garment_fit_dir, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "videos").mkdir()
+    assert main(["garment", "render", str(garment_fit_dir), "--out", "videos/g.mp4", "--no-flow"]) == 0
+    assert (tmp_path / "videos" / "g.mp4").stat().st_size > 0
+    assert not (garment_fit_dir / "render" / "videos").exists()
