@@ -55,3 +55,14 @@ def test_extend_of_the_unedited_capture_still_works(model_capture, tiny_arm_mode
     assert main(["muscle", "model", "extend", str(tiny_arm_model_path), str(capture), "--out", str(out)]) == 0
     assert main(["muscle", "model", "info", str(out)]) == 0
     assert '"n_subjects": 3' in capsys.readouterr().out
+
+
+def test_extend_refuses_two_captures_of_one_recording(model_capture, tiny_arm_model_path, tmp_path, capsys):
+    """A copied capture folder (another name) added beside the original: one subject learnt twice, exit 0
+    before (the name check only sees folder names)."""
+    copy = tmp_path / "copy_of_cap"
+    shutil.copytree(model_capture, copy)
+    out = tmp_path / "m2.npz"
+    run_bad(["muscle", "model", "extend", tiny_arm_model_path, model_capture, copy, "--out", out], capsys,
+            "a capture of the same recording as")
+    assert not out.exists()
