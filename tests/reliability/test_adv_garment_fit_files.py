@@ -43,3 +43,19 @@ def test_render_refuses_a_fit_with_a_broken_albedo(fit_dir, tmp_path, capsys, da
     run_bad(["garment", "render", bad, "--out", out, "--no-flow"], capsys, phrase)
     assert not out.exists() and not (bad / "render").exists()
     run_bad(["eval", "garment", bad], capsys, phrase)
+
+
+@pytest.mark.parametrize("fps", [float("nan"), 0.0, 1e6])
+def test_render_refuses_a_fit_without_a_frame_rate(fit_dir, tmp_path, capsys, fps):
+    """fps NaN in fit.json: garment render failed with 'ffmpeg could not write ... check the disk space' on a
+    staging path; now one line naming fit.json's value and the fix."""
+    import json
+
+    bad = tmp_path / "fit"
+    shutil.copytree(fit_dir, bad)
+    doc = json.loads((bad / "fit.json").read_text())
+    doc["fps"] = fps
+    (bad / "fit.json").write_text(json.dumps(doc))
+    out = tmp_path / "g.mp4"
+    run_bad(["garment", "render", bad, "--out", out, "--no-flow"], capsys, "is not a frame rate in 1..240")
+    assert not out.exists() and not (bad / "render").exists()
