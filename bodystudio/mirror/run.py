@@ -440,7 +440,8 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
                 "live": None if live is None else str(Path(live).resolve()),
                 "edits": edits, "player": int(player), "ramp_frames": int(ramp_frames),
                 "correspondence": correspondence,
-                "source_fingerprint": _stage_module("init").source_fingerprint(body)}
+                "source_fingerprint": _stage_module("init").source_fingerprint(body) if hasattr(body, "coeffs")
+                else None}  # a stand-in body (tests) has none
     inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids, correspondence)
     return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total,
                          preview=run_dir / "live_latest.png" if live is not None else None)
