@@ -522,6 +522,28 @@ def live_frame_ids(folder: str | Path, timeout_s: float = 5.0, poll_s: float = 0
                 i += 1
                 last = time.monotonic()
                 continue
+        later = _complete_later_frame(folder, i, settle_s)
+        if later is not None:  # a recorder that dropped frame i goes on: do not stop (and drop the rest) there
+            log.warning("live frame %d never arrived complete (frame %d did); skipped", i, later)
+            i = later
+            continue
         if time.monotonic() - last > timeout_s:
             return
         time.sleep(poll_s)
+
+
+def _complete_later_frame(folder: Path, i: int, settle_s: float) -> int | None:
+    """The first frame after ``i`` whose colour, depth and player mask are all there and whose colour is older
+    than ``settle_s`` (so frame ``i`` had its time to arrive), else None."""
+    from bodystudio.capture.session import stream_path
+
+    for j in _ArrivedFrames(folder):
+        if j <= i:
+            continue
+        needed = [folder / stream_path(s, j) for s in ("kinect_rgb", "kinect_depth", "kinect_player")]
+        try:
+            settled = time.time() - needed[0].stat().st_mtime > settle_s
+        except OSError:
+            return None
+        return j if settled and all(p.is_file() for p in needed) else None
+    return None
