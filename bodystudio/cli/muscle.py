@@ -226,9 +226,16 @@ def eval_muscle(
 ) -> None:
     """Score an arm capture against the session's ground truth; prints JSON (errors in mm)."""
     scores = evaluate_capture_folder(folder, session_path)
-    out = {k: round(float(scores[k]), 3) for k in EVAL_KEYS if k in scores}
-    out.update({k: round(v, 3) if isinstance(v, float) else v for k, v in scores.items() if k not in out})
-    typer.echo(json.dumps(out))
+    out = {k: _score(scores[k]) for k in EVAL_KEYS if k in scores}
+    out.update({k: _score(v) if isinstance(v, float) else v for k, v in scores.items() if k not in out})
+    typer.echo(json.dumps(out, allow_nan=False))
+
+
+def _score(value) -> float | None:
+    """A score rounded to 0.001; None (JSON null) where it is undefined (e.g. jitter_mm of a 2-frame capture:
+    it needs three frames), never NaN, which is not JSON."""
+    value = float(value)
+    return round(value, 3) if math.isfinite(value) else None
 
 
 # --- the model ------------------------------------------------------------------------------------------

@@ -66,3 +66,11 @@ def test_extend_refuses_two_captures_of_one_recording(model_capture, tiny_arm_mo
     run_bad(["muscle", "model", "extend", tiny_arm_model_path, model_capture, copy, "--out", out], capsys,
             "a capture of the same recording as")
     assert not out.exists()
+
+
+def test_eval_muscle_prints_strict_json_for_a_two_frame_capture(model_capture, capsys):
+    """jitter_mm needs three frames: a 2-frame capture printed "jitter_mm": NaN (not JSON) with exit 0; now null."""
+    capsys.readouterr()
+    assert main(["eval", "muscle", str(model_capture)]) == 0
+    scores = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
+    assert scores["jitter_mm"] is None and scores["median_mm"] > 0
