@@ -226,9 +226,16 @@ def eval_muscle(
 ) -> None:
     """Score an arm capture against the session's ground truth; prints JSON (errors in mm)."""
     scores = evaluate_capture_folder(folder, session_path)
-    out = {k: round(float(scores[k]), 3) for k in EVAL_KEYS if k in scores}
-    out.update({k: round(v, 3) if isinstance(v, float) else v for k, v in scores.items() if k not in out})
-    typer.echo(json.dumps(out))
+    out = {k: _score(scores[k]) for k in EVAL_KEYS if k in scores}
+    out.update({k: _score(v) if isinstance(v, float) else v for k, v in scores.items() if k not in out})
+    typer.echo(json.dumps(out, allow_nan=False))
+
+
+def _score(value) -> float | None:
+    """A score rounded to 0.001; None (JSON null) where it is undefined (e.g. jitter_mm of a 2-frame capture:
+    it needs three frames), never NaN, which is not JSON."""
+    value = float(value)
+    return round(value, 3) if math.isfinite(value) else None
 
 
 # --- the model ------------------------------------------------------------------------------------------
@@ -316,8 +323,8 @@ def model_extend(
                          "capture, in the captures' order (repeat the values for captures of one subject)")
     check_new_output(out, "model file")
     model = load_arm_model(model_path)
-    samples = []
-    for k, folder in enumerate(captures):
+    loaded, seen = [], {}
+    for folder in captures:  # every capture checked before anything is printed or learnt
         if not folder.is_dir():
             raise InputError(f"{folder}: no such arm capture folder")
         capture = load_arm_capture(folder)
@@ -326,6 +333,14 @@ def model_extend(
                              f"{model.template_key}; capture with the model's --resolution and --side")
         if capture.mode == "nicp" or capture.poses[0] is None:
             raise InputError(f"{folder}: captured with --no-model (no joint angles); capture with --model")
+        recording = _recording_key(capture)
+        if recording in seen:
+            raise InputError(f"{folder}: a capture of the same recording as {seen[recording]} (same depth frames); "
+                             "each subject is added once: drop one of them")
+        seen[recording] = folder
+        loaded.append(capture)
+    samples = []
+    for k, (folder, capture) in enumerate(zip(captures, loaded, strict=True)):
         subject_shape, where = (shapes[k], "--shape") if shapes else _measured_subject(capture)
         if subject_shape is None:
             subject_shape = capture.shape
@@ -334,6 +349,18 @@ def model_extend(
     extended = extend_arm_model(model, samples)
     save_arm_model(out, extended)
     typer.echo(f"wrote {out}: {len(extended.subjects)} subjects ({len(captures)} added from captures)")
+
+
+def _recording_key(capture) -> str:
+    """What a capture was made from: its depth frames' fingerprint and frame ids (two captures of one recording,
+    a copied folder included, would add one subject twice), else a hash of its meshes."""
+    import hashlib
+
+    import numpy as np
+
+    if capture.source_fingerprint is not None:
+        return f"{capture.source_fingerprint}:{list(capture.frame_ids)}"
+    return hashlib.sha256(np.ascontiguousarray(capture.vertices, np.float64).tobytes()).hexdigest()
 
 
 def _measured_subject(capture):

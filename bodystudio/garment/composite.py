@@ -217,9 +217,10 @@ def _check_source_unchanged(fit, path, source, camera) -> None:
     same path): the garment would be composited onto frames it was not fitted to."""
     from bodystudio.garment.person import source_fingerprint
 
-    if fit.source_fingerprint is None:
+    expected = getattr(fit, "source_fingerprint", None)  # None: a fit from before it existed, or a stand-in
+    if expected is None:
         return
-    if source_fingerprint(source, fit.frame_ids, camera) != fit.source_fingerprint:
+    if source_fingerprint(source, fit.frame_ids, camera) != expected:
         raise InputError(f"{path}: not the recording the fit was made from (it changed since 'bodystudio garment "
                          f"fit'); restore it or rerun the fit")
 
@@ -346,7 +347,7 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
     H, W = fit.camera.height, fit.camera.width
     with RunWriter(layout, command, {"stage": "garment", "kind": "render"}) as w, progress_bar(progress) as bar:
         task = bar.add_task("garment render", total=len(fit.frame_ids))
-        video = Mp4Writer(w.path_for(out_video), (W, H), fit.fps) if out_video is not None else None
+        video = Mp4Writer(w.path_for(Path(out_video).absolute()), (W, H), fit.fps) if out_video is not None else None
         try:
             for i, (fid, frame) in enumerate(zip(fit.frame_ids, source_frames(fit, fit_dir), strict=True)):
                 if frame.shape != (H, W, 3):

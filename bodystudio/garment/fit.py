@@ -353,8 +353,13 @@ class KeyframeConstraints:
     points: dict
 
     @classmethod
-    def load(cls, path: str | os.PathLike, bone_names) -> KeyframeConstraints:
-        """Read ``{"frames": {"12": {"hand_l": [u, v], ...}, ...}}``; refuses unknown bones or bad values."""
+    def load(cls, path: str | os.PathLike, bone_names, size: tuple[int, int] | None = None,
+             frame_ids=None) -> KeyframeConstraints:
+        """Read ``{"frames": {"12": {"hand_l": [u, v], ...}, ...}}``; refuses unknown bones or bad values.
+
+        ``size`` (width, height): a point outside the image is refused. ``frame_ids`` (the fitted frames):
+        constraints on other frames are left out with a warning, and refused when none is left.
+        """
         path = Path(path)
         try:
             doc = json.loads(path.read_text())
@@ -369,6 +374,9 @@ class KeyframeConstraints:
                     uv = np.asarray(uv, dtype=np.float64)
                     if uv.shape != (2,) or not np.all(np.isfinite(uv)):
                         raise FileFormatError(f"{path}: joint {name} at frame {fid} must be [u, v] pixels")
+                    if size is not None and not (0 <= uv[0] <= size[0] and 0 <= uv[1] <= size[1]):
+                        raise FileFormatError(f"{path}: joint {name} at frame {fid}: [{uv[0]:g}, {uv[1]:g}] is "
+                                              f"outside the {size[0]}x{size[1]} image; give pixels inside it")
                     entry[name] = uv
                 points[int(fid)] = entry
         except FileFormatError:
@@ -376,6 +384,15 @@ class KeyframeConstraints:
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             raise FileFormatError(f"{path}: unreadable keyframe constraints ({type(exc).__name__}); write "
                                   f'{{"frames": {{"FRAME": {{"BONE": [u, v]}}}}}}') from None
+        if frame_ids is not None:
+            fitted = {int(f) for f in frame_ids}
+            outside = sorted(set(points) - fitted)
+            if points and len(outside) == len(points):
+                raise FileFormatError(f"{path}: no keyframe is on a fitted frame (keyframes on {outside[:5]}, fitted "
+                                      f"{min(fitted)}..{max(fitted)}); fix the frame numbers or --frames")
+            if outside:
+                log.warning("%s: keyframes on frames %s are outside the fitted frames; left out", path, outside)
+                points = {f: v for f, v in points.items() if f in fitted}
         return cls(points)
 
 
@@ -761,14 +778,17 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
     timings["masks"] = (time.perf_counter() - t0) * 1e3 / n
     width, height = pf.size
     camera = camera_hypothesis(width, height, focal_px)
+    constraints = None
+    if keyframes is not None:  # refused before the minutes of the shape fit, not after
+        from bodystudio.body import build_body
+
+        constraints = KeyframeConstraints.load(keyframes, build_body(resolution=template).skeleton.bone_names,
+                                               (width, height), pf.frame_ids).points
     with progress_bar(progress) as bar:
         t0 = time.perf_counter()
         task = bar.add_task("garment fit: shape", total=None)
         shape = estimate_shape(pf.masks, camera, stature_m, template)
         timings["shape"] = (time.perf_counter() - t0) * 1e3 / n
-        constraints = None
-        if keyframes is not None:
-            constraints = KeyframeConstraints.load(keyframes, shape.body.skeleton.bone_names).points
         bar.update(task, description="garment fit: pose", total=n, completed=0)
         t0 = time.perf_counter()
         space = pose_space(shape.body)

@@ -156,7 +156,11 @@ def load_garment_fit(folder: str | os.PathLike) -> GarmentFit:
         with np.load(folder / "poses.npz") as z:
             rotations, translations = np.asarray(z["rotations"], float), np.asarray(z["translations"], float)
         albedo = np.load(folder / "albedo.npy").astype(np.float64) if doc["albedo"] else None
+        if albedo is not None and (albedo.ndim != 2 or albedo.shape[1] != 3 or not np.all(np.isfinite(albedo))):
+            raise ValueError(f"albedo.npy of shape {albedo.shape} is not per-vertex RGB or not finite")
         frame_ids = np.asarray(doc["frame_ids"], dtype=np.int64)
+        if not 1.0 <= float(doc["fps"]) <= 240.0:  # NaN too: the render's video writer would fail obscurely
+            raise ValueError(f"fps {doc['fps']!r} is not a frame rate in 1..240")
         masks = []
         for fid in frame_ids:
             mask_path = folder / "masks" / f"{int(fid):05d}.png"

@@ -345,6 +345,12 @@ def evaluate_mirror(session, run_dir: str | Path | None = None, source=None, ban
         from bodystudio.mirror.init import load_source_body
 
         source = load_source_body(path)
+        from bodystudio.mirror.init import source_fingerprint
+
+        used = run.get("source_fingerprint")
+        if used is not None and used != source_fingerprint(source):
+            raise InputError(f"{run_dir}: the run used another source body than {path} (mirror init re-run "
+                             "after it, or mirror run --source); re-run `bodystudio mirror run` with this one")
     images = image_scores(session, run_dir, run, band_px)
     summary = run.get("summary") if isinstance(run.get("summary"), dict) else {}
     ms = summary.get("ms_per_frame") if isinstance(summary.get("ms_per_frame"), dict) else {}

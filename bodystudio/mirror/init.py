@@ -574,6 +574,17 @@ def save_source_body(path: str | Path, body: SourceBody) -> None:
         np.savez(tmp, **arrays)
 
 
+def source_fingerprint(body) -> str:
+    """A short hash of a source body's coefficients, rest vertices and bone heads: which body a mirror run
+    used, so that ``eval mirror`` does not score one body's run with another body's init errors."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for a in (body.coeffs, body.vertices, body.skeleton.heads):
+        h.update(np.ascontiguousarray(a, np.float64).tobytes())
+    return h.hexdigest()[:16]
+
+
 def load_source_body(path: str | Path, model: StatisticalBodyModel | None = None) -> SourceBody:
     """Read :func:`save_source_body`'s file; with ``model``, check it is that model's and attach its skin weights."""
     import zipfile
@@ -595,8 +606,10 @@ def load_source_body(path: str | Path, model: StatisticalBodyModel | None = None
     n, B = len(body.vertices), sk.n_bones
     if (body.vertices.ndim != 2 or body.vertices.shape[1] != 3 or sk.heads.shape != (B, 3)
             or sk.tails.shape != (B, 3) or len(sk.parents) != B or len(sk.rolls) != B
-            or not np.all(np.isfinite(body.vertices)) or not np.all(np.isfinite(body.coeffs))):
-        raise FileFormatError(f"{path}: source body arrays are inconsistent; rerun 'bodystudio mirror init'")
+            or not all(np.all(np.isfinite(a)) for a in (body.vertices, body.coeffs, sk.heads, sk.tails, sk.rolls))
+            or not np.all((sk.parents >= -1) & (sk.parents < B))):
+        raise FileFormatError(f"{path}: source body arrays are inconsistent or not finite; "
+                              "rerun 'bodystudio mirror init'")
     if model is None:
         return body
     model = check_model(model)

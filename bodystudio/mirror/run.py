@@ -247,8 +247,9 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
                 w.write_bytes(f"masks/warped/{name}", _png(res.warped.astype(np.uint8) * 255))
                 for key, path in videos:
                     frame = res.output if key == "output" else np.hstack([inp.rgb, res.output])
-                    if key not in writers:
-                        writers[key] = Mp4Writer(w.path_for(path), (frame.shape[1], frame.shape[0]), fps)
+                    if key not in writers:  # absolute: a relative --out is the user's cwd, not the run folder
+                        writers[key] = Mp4Writer(w.path_for(Path(path).absolute()), (frame.shape[1], frame.shape[0]),
+                                                 fps)
                     writers[key].write(frame)
                 if preview is not None:
                     with atomic_write(preview, "wb") as f:
@@ -487,7 +488,9 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
                 "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
                 "live": None if live is None else str(Path(live).resolve()),
                 "edits": edits, "player": int(player), "ramp_frames": int(ramp_frames),
-                "correspondence": correspondence, "refine_pose": bool(refine_pose)}
+                "correspondence": correspondence, "refine_pose": bool(refine_pose),
+                "source_fingerprint": _stage_module("init").source_fingerprint(body) if hasattr(body, "coeffs")
+                else None}  # a stand-in body (tests) has none
     inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids, correspondence,
                             bool(refine_pose))
     return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total,
@@ -569,6 +572,28 @@ def live_frame_ids(folder: str | Path, timeout_s: float = 5.0, poll_s: float = 0
                 i += 1
                 last = time.monotonic()
                 continue
+        later = _complete_later_frame(folder, i, settle_s)
+        if later is not None:  # a recorder that dropped frame i goes on: do not stop (and drop the rest) there
+            log.warning("live frame %d never arrived complete (frame %d did); skipped", i, later)
+            i = later
+            continue
         if time.monotonic() - last > timeout_s:
             return
         time.sleep(poll_s)
+
+
+def _complete_later_frame(folder: Path, i: int, settle_s: float) -> int | None:
+    """The first frame after ``i`` whose colour, depth and player mask are all there and whose colour is older
+    than ``settle_s`` (so frame ``i`` had its time to arrive), else None."""
+    from bodystudio.capture.session import stream_path
+
+    for j in _ArrivedFrames(folder):
+        if j <= i:
+            continue
+        needed = [folder / stream_path(s, j) for s in ("kinect_rgb", "kinect_depth", "kinect_player")]
+        try:
+            settled = time.time() - needed[0].stat().st_mtime > settle_s
+        except OSError:
+            return None
+        return j if settled and all(p.is_file() for p in needed) else None
+    return None

@@ -549,6 +549,27 @@ def _shape_dict(shape) -> dict:
         return {"vector": np.asarray(shape.as_vector(), float).tolist()}
 
 
+def _capture_shape(shape, source: str):
+    """The fitted shape of a capture's params.json: ArmShapeParams, ``{"vector": [...]}`` or None; unknown
+    names or NaN / infinite values are refused (a NaN shape would be learnt into an extended model)."""
+    if shape is None:
+        return None
+    if "vector" in shape:
+        vector = np.asarray(shape["vector"], float)
+        if not np.all(np.isfinite(vector)):
+            raise ValueError("shape vector is NaN or infinite")
+        return shape
+    from bodystudio.muscle.model import SHAPE_NAMES, ArmShapeParams
+
+    unknown = set(shape) - {*SHAPE_NAMES, "sex"}
+    if unknown:
+        raise ValueError(f"shape has unknown names {sorted(unknown)}")
+    parsed = ArmShapeParams.from_dict(shape, f"{source} shape")
+    if not np.all(np.isfinite(parsed.as_vector())):
+        raise ValueError("shape is NaN or infinite")
+    return parsed
+
+
 def load_arm_capture(folder: str | Path) -> ArmCapture:
     """Read a folder written by :func:`write_arm_capture`; junk or missing files raise FileFormatError."""
     from bodystudio.geometry.mesh import load_mesh
@@ -566,14 +587,13 @@ def load_arm_capture(folder: str | Path) -> ArmCapture:
         F = np.asarray(meshes[0].faces, np.int64)
         joints = params.get("joints")
         joints = None if joints is None else np.asarray(joints, float).reshape(3, 3)
+        shape = _capture_shape(params.get("shape"), str(p))
     except (OSError, ValueError, KeyError, TypeError, IndexError, InputError) as exc:
         raise FileFormatError(f"{folder}: not a readable arm capture folder ({type(exc).__name__}: {exc}); "
                               "re-run bodystudio muscle capture") from None
-    shape = params.get("shape")
-    if shape is not None and "vector" not in shape:
-        from bodystudio.muscle.model import ArmShapeParams
-
-        shape = ArmShapeParams(**shape)
+    for name, value in (("similarity", np.r_[S[0], S[1].ravel(), S[2]]), ("joints", joints)):
+        if value is not None and not np.all(np.isfinite(value)):
+            raise FileFormatError(f"{p}: {name} is NaN or infinite; re-run bodystudio muscle capture")
     return ArmCapture(V, F, poses, shape, S, params.get("mode", "full"), params.get("template_key", ""),
                       dict(params.get("timings_ms", {})), list(params.get("frame_ids", range(n))),
                       params.get("session"), joints=joints, source_fingerprint=params.get("session_fingerprint"))

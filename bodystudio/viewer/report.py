@@ -683,7 +683,8 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
         raise InputError(f"{out}: the report is an HTML page; give a path ending in .html")
     tables: list[Table] = []
     plots: list[Plot] = []
-    for f in metrics_files(root):
+    metric_paths = metrics_files(root)
+    for f in metric_paths:
         name = str(f.relative_to(root))
         try:
             data = json.loads(f.read_text(encoding="utf-8"))
@@ -715,6 +716,10 @@ def write_report(path: str | Path, out: str | Path, with_3d: bool = True, title:
                 view_html += f"<h3>{html.escape(caption)}</h3>"
             payload = scene if isinstance(scene, dict) else scene_payload(scene)
             view_html += viewer_fragment(payload, f"view3d_{k}")
+    if not (metric_paths or tables or plots or mirrors or garments or shots or view_html or notes):
+        raise InputError(f"{root}: nothing to report (no metrics JSON, session, mirror or garment folder, screenshot "
+                         "or 3D scene under it); give a run folder or a session folder"
+                         + ("" if with_3d else " (or drop --no-3d: a mesh folder has only its 3D view)"))
     title = title or f"bodystudio report: {root.resolve().name}"
     stamp = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     parts = [page_head(title, REPORT_CSS), "<body>", f"<h1>{html.escape(title)}</h1>",

@@ -573,7 +573,8 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
     assert s["sbs"] is False
     assert s["manifest"] == {"session": str(tmp_path.resolve()), "session_run_id": "r1", "live": None,
                              "edits": {"taller": 0.1}, "player": 2, "ramp_frames": 5,
-                             "correspondence": run_mod.CORRESPONDENCE, "refine_pose": False}
+                             "correspondence": run_mod.CORRESPONDENCE, "refine_pose": False,
+                             "source_fingerprint": None}
     # the defaults, and the limits of each range accepted
     got.clear()
     run_mirror(_fake_session(tmp_path, metadata=None, manifest={}), {}, None, run_dir=tmp_path / "r", player=6,
