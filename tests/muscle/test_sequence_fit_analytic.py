@@ -410,3 +410,27 @@ def test_the_rest_shape_correction_stays_in_the_given_basis():
     np.testing.assert_allclose(c @ E, (got - s.rest).ravel(), atol=1e-12)
     assert np.abs(c).max() > 1e-3
     np.testing.assert_allclose(got, _independent_rest_solve(s, frames, s.rest, E, 1e-3, 0.9, 0.004), atol=1e-9)
+
+
+def test_fit_arm_sequence_is_the_skeleton_fit_with_the_models_skeleton_and_the_placement_fitted(monkeypatch):
+    """``fit_arm_sequence`` (the sequence fit before the per-subject skeleton): every argument passed on, the
+    skeleton held, and by default the root fitted (3 + 4 T unknowns), 2 rounds of 8 evaluations, no robust loss."""
+    s = _sequence()
+    calls = _spy(monkeypatch, run=False)
+    poses = refine.fit_arm_sequence(s.model, s.shape, s.start, s.frames, s.J)
+    assert len(calls) == 2 and len(calls[0].x0) == 3 + 4 * 3
+    assert calls[0].kw["max_nfev"] == 8 and "loss" not in calls[0].kw
+    explicit = _spy(monkeypatch, run=False)
+    want, J = refine.fit_arm_sequence_skeleton(s.model, s.shape, s.start, s.frames, s.J, 0.9, None, 0.0, 10.0, 2, 8,
+                                               0.0, True, fit_skeleton=False)
+    x = calls[0].x0 + np.random.default_rng(2).normal(0.0, 0.01, len(calls[0].x0))
+    np.testing.assert_array_equal(calls[0].fun(x), explicit[0].fun(x))
+    assert [p.angles.tolist() for p in poses] == [p.angles.tolist() for p in want]
+    calls = _spy(monkeypatch, run=False)
+    refine.fit_arm_sequence(s.model, s.shape, s.start, s.frames, s.J, 0.5, s.tracker, 7.0, 2.0, 1, 3, 0.003, False)
+    (c,) = calls
+    assert len(c.x0) == 4 * 3 and c.kw["max_nfev"] == 3 and c.kw["loss"] == "huber" and c.kw["f_scale"] == 0.003
+    explicit = _spy(monkeypatch, run=False)
+    refine.fit_arm_sequence_skeleton(s.model, s.shape, s.start, s.frames, s.J, 0.5, s.tracker, 7.0, 2.0, 1, 3, 0.003,
+                                     False, fit_skeleton=False)
+    np.testing.assert_array_equal(c.fun(x[3:]), explicit[0].fun(x[3:]))
