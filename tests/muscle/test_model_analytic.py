@@ -465,3 +465,24 @@ def test_capture_samples_keep_every_posed_frame_and_the_given_shape(arm_training
         M.capture_samples(SimpleNamespace(**{**capture.__dict__, "shape": None}), "cap")
     with pytest.raises(InputError, match="capture it with the model to extend the dataset$"):
         M.capture_samples(SimpleNamespace(**{**capture.__dict__, "poses": [None] * 4}), "cap")
+
+
+def test_capture_samples_carry_the_captures_fitted_skeleton():
+    """``capture.joints`` (the rest skeleton a capture's poses turn about, ``refine.fit_arm_sequence_skeleton``) goes
+    with every sample, so the extension unposes about it; a capture without one (``joints`` None, or a capture
+    object from before the field) leaves the joints to the model's regression (None). Issue 17: the pass-through
+    survived the model's tests (only tests/muscle/test_sequence_fit.py reached it)."""
+    from types import SimpleNamespace
+
+    J = np.array([[0.1, 1.4, 0.0], [0.4, 1.38, 0.01], [0.65, 1.37, 0.02]])
+    V = np.arange(12.0).reshape(4, 3)
+    pose = ArmPose(np.eye(4), np.zeros((3, 3)))
+    cap = SimpleNamespace(vertices=[V, V + 1.0], poses=[pose, pose], shape=SHAPE,
+                          similarity=(1.0, np.eye(3), np.zeros(3)), joints=J)
+    out = M.capture_samples(cap, "c")
+    assert len(out) == 2
+    for o in out:
+        np.testing.assert_array_equal(o.joints, J)
+    assert all(o.joints is None for o in M.capture_samples(SimpleNamespace(**{**vars(cap), "joints": None}), "c"))
+    older = SimpleNamespace(**{k: v for k, v in vars(cap).items() if k != "joints"})
+    assert all(o.joints is None for o in M.capture_samples(older, "c"))
