@@ -486,3 +486,33 @@ def test_capture_samples_carry_the_captures_fitted_skeleton():
     assert all(o.joints is None for o in M.capture_samples(SimpleNamespace(**{**vars(cap), "joints": None}), "c"))
     older = SimpleNamespace(**{k: v for k, v in vars(cap).items() if k != "joints"})
     assert all(o.joints is None for o in M.capture_samples(older, "c"))
+
+
+def test_tikhonov_column_weights_are_squared_per_column_and_the_intercept_is_free():
+    """``tikhonov_from_normal_equations``: ``(X^T X + diag(0, w_1^2, ...)) c = X^T y``, with one weight per column
+    (the sex column's own, Eq. 7) or ``q`` for all; the intercept (column 0) is never shrunk."""
+    xtx, xty = 2.0 * np.eye(3), np.array([2.0, 2.0, 2.0])
+    np.testing.assert_allclose(M.tikhonov_from_normal_equations(xtx, xty, 0.0, column_weights=[5.0, 1.0, 2.0]),
+                               [1.0, 2.0 / 3.0, 2.0 / 6.0], atol=1e-15)
+    np.testing.assert_allclose(M.tikhonov_from_normal_equations(xtx, xty, 2.0), [1.0, 2.0 / 6.0, 2.0 / 6.0],
+                               atol=1e-15)
+
+
+@pytest.mark.parametrize("value", [0, 0.0, -0.1, float("inf"), "0.1", True])
+def test_a_bad_sex_regularization_in_the_header_is_refused(saved, tmp_path, value):
+    import re
+
+    path, arrays, header = saved
+    bad = _write(tmp_path / "bad.npz", arrays, {**header, "sex_regularization": value})
+    want = rf"^{re.escape(str(bad))}: arm model sex_regularization {re.escape(repr(value))} is not a positive number; "
+    with pytest.raises(FileFormatError, match=want + "rebuild the model$"):
+        load_arm_model(bad)
+
+
+def test_the_sex_regularization_of_the_header_is_the_loaded_one(saved, tmp_path):
+    path, arrays, header = saved
+    assert header["sex_regularization"] == M.SEX_REGULARIZATION
+    assert load_arm_model(_write(tmp_path / "q.npz", arrays, {**header, "sex_regularization": 0.37})) \
+        .sex_regularization == 0.37
+    assert load_arm_model(_write(tmp_path / "i.npz", arrays, {**header, "sex_regularization": 3})) \
+        .sex_regularization == 3.0
