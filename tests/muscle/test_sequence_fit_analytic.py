@@ -434,3 +434,16 @@ def test_fit_arm_sequence_is_the_skeleton_fit_with_the_models_skeleton_and_the_p
     refine.fit_arm_sequence_skeleton(s.model, s.shape, s.start, s.frames, s.J, 0.5, s.tracker, 7.0, 2.0, 1, 3, 0.003,
                                      False, fit_skeleton=False)
     np.testing.assert_array_equal(c.fun(x[3:]), explicit[0].fun(x[3:]))
+
+
+def test_fit_arm_sequences_tracker_weight_defaults_to_zero(monkeypatch):
+    """A tracker given without a weight is not used (``tracker_weight`` 0 by default, as in the skeleton fit)."""
+    s = _sequence()
+    calls = _spy(monkeypatch, run=False)
+    refine.fit_arm_sequence(s.model, s.shape, s.start, s.frames, s.J, rounds=1)
+    refine.fit_arm_sequence(s.model, s.shape, s.start, s.frames, s.J, tracker_joints=s.tracker, rounds=1)
+    refine.fit_arm_sequence(s.model, s.shape, s.start, s.frames, s.J, tracker_joints=s.tracker, tracker_weight=1.0,
+                            rounds=1)
+    plain, given, weighted = (c.fun(c.x0) for c in calls)
+    np.testing.assert_array_equal(given, plain)
+    assert len(weighted) == len(plain) + 9 * 3
