@@ -447,3 +447,34 @@ def test_fit_arm_sequences_tracker_weight_defaults_to_zero(monkeypatch):
     plain, given, weighted = (c.fun(c.x0) for c in calls)
     np.testing.assert_array_equal(given, plain)
     assert len(weighted) == len(plain) + 9 * 3
+
+
+def test_the_shape_fit_keeps_the_given_sex_and_a_start_without_one_is_male():
+    """``fit_shape_parameters``: the sex is an input (the paper's Table 1), never fitted: a woman's meshes are built
+    with her sex in every round (a model whose sex column is not zero: the small model, learned from men only, has a
+    zero one, so its sex row is set here), and a fit without a start is male. The root of a fixed-shape fit against
+    the woman's own mesh is exact only with her sex (a male mesh is ~1 mm off)."""
+    from dataclasses import replace
+
+    from bodystudio.muscle.model import ArmShapeParams, model_mesh
+
+    model, shape = _arm_model()
+    C = model.shape_coeffs.copy()
+    C[-1] = np.random.default_rng(4).normal(0.0, 0.004, C.shape[1])
+    fmodel = replace(model, shape_coeffs=C)
+    J = _model_case()[2]
+    h, _ = refine.elbow_axes(J)
+    truth = ArmPose(np.eye(4), np.stack([[0.1, -0.05, 0.15], 1.0 * h, np.zeros(3)]))
+    female = ArmShapeParams(shape.bmi, shape.muscularity, shape.height_m, shape.arm_length_m, sex=0.0)
+    mesh = model_mesh(fmodel, female, truth)
+    male = model_mesh(fmodel, replace(female, sex=1.0), truth)
+    assert np.linalg.norm(mesh - male, axis=1).max() > 1e-3
+    sensor = J[1] + np.array([0.3, 0.2, 1.0])
+    frame = _frame(mesh, model.faces, model.arm_mask, sensor)
+    got, root = refine.fit_shape_parameters(fmodel, [mesh], [truth], [frame], initial=female, fixed_shape=True)
+    assert got.sex == 0.0 and np.abs(root[:3, 3]).max() < 1e-5
+    free, _ = refine.fit_shape_parameters(fmodel, [mesh], [truth], [frame], initial=female, rounds=1)
+    assert free.sex == 0.0
+    men, _ = refine.fit_shape_parameters(model, [male], [truth], [_frame(male, model.faces, model.arm_mask, sensor)],
+                                         rounds=1)
+    assert men.sex == 1.0
