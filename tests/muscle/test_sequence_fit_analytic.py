@@ -478,3 +478,23 @@ def test_the_shape_fit_keeps_the_given_sex_and_a_start_without_one_is_male():
     men, _ = refine.fit_shape_parameters(model, [male], [truth], [_frame(male, model.faces, model.arm_mask, sensor)],
                                          rounds=1)
     assert men.sex == 1.0
+
+
+@pytest.mark.parametrize("fixed", [False, True])
+def test_the_shape_fits_huber_loss_acts_only_when_asked(monkeypatch, fixed):
+    """``fit_shape_parameters(huber_m=...)``: scipy's Huber loss with that scale (metres) in each round, for the
+    free and the fixed-shape (root only) fit; none by default."""
+    model, shape = _arm_model()
+    J = _model_case()[2]
+    h, _ = refine.elbow_axes(J)
+    from bodystudio.muscle.model import model_mesh
+
+    truth = ArmPose(np.eye(4), np.stack([[0.1, -0.05, 0.15], 1.0 * h, np.zeros(3)]))
+    mesh = model_mesh(model, shape, truth)
+    frame = _frame(mesh, model.faces, model.arm_mask, J[1] + np.array([0.3, 0.2, 1.0]))
+    calls = _spy(monkeypatch, run=False)
+    refine.fit_shape_parameters(model, [mesh], [truth], [frame], initial=shape, fixed_shape=fixed, huber_m=0.003)
+    refine.fit_shape_parameters(model, [mesh], [truth], [frame], initial=shape, fixed_shape=fixed)
+    assert len(calls) == 4
+    assert all(c.kw["loss"] == "huber" and c.kw["f_scale"] == 0.003 for c in calls[:2])
+    assert all("loss" not in c.kw and "f_scale" not in c.kw for c in calls[2:])
