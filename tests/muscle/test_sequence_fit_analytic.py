@@ -498,3 +498,20 @@ def test_the_shape_fits_huber_loss_acts_only_when_asked(monkeypatch, fixed):
     assert len(calls) == 4
     assert all(c.kw["loss"] == "huber" and c.kw["f_scale"] == 0.003 for c in calls[:2])
     assert all("loss" not in c.kw and "f_scale" not in c.kw for c in calls[2:])
+
+
+def test_the_skeleton_fits_tracker_term_needs_both_joints_and_a_weight(monkeypatch):
+    """The tracker's joints enter only with a positive weight (default 0, any weight in (0, 1] counts) and a weight
+    without joints is ignored (no tracker rows, no error)."""
+    s = _sequence()
+    calls = _spy(monkeypatch, run=False)
+    kw = dict(rounds=1, fit_skeleton=False)
+    refine.fit_arm_sequence_skeleton(s.model, s.shape, s.start, s.frames, s.J, **kw)
+    refine.fit_arm_sequence_skeleton(s.model, s.shape, s.start, s.frames, s.J, tracker_joints=s.tracker, **kw)
+    refine.fit_arm_sequence_skeleton(s.model, s.shape, s.start, s.frames, s.J, tracker_weight=5.0, **kw)
+    refine.fit_arm_sequence_skeleton(s.model, s.shape, s.start, s.frames, s.J, tracker_joints=s.tracker,
+                                     tracker_weight=0.5, **kw)
+    plain, no_weight, no_joints, half = (c.fun(c.x0) for c in calls)
+    np.testing.assert_array_equal(no_weight, plain)
+    np.testing.assert_array_equal(no_joints, plain)
+    assert len(half) == len(plain) + 9 * 3
