@@ -515,3 +515,15 @@ def test_the_skeleton_fits_tracker_term_needs_both_joints_and_a_weight(monkeypat
     np.testing.assert_array_equal(no_weight, plain)
     np.testing.assert_array_equal(no_joints, plain)
     assert len(half) == len(plain) + 9 * 3
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_a_sequence_of_one_or_two_frames_has_no_smoothness_rows(n):
+    """Fewer than three frames have no second difference: the fit runs (the declared sparsity matches the residuals)
+    and still moves the angles towards the truth."""
+    s = _sequence()
+    start, truth, frames = s.start[:n], s.truth[:n], s.frames[:n]
+    poses, joints = refine.fit_arm_sequence_skeleton(s.model, s.shape, start, frames, s.J, tracker_joints=s.tracker[:n],
+                                                     tracker_weight=30.0, rounds=1, max_nfev=5)
+    assert len(poses) == n and joints.shape == (3, 3)
+    assert _angle_errors_deg(poses, truth)[1] < _angle_errors_deg(start, truth)[1]
