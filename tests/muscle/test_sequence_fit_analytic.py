@@ -527,3 +527,29 @@ def test_a_sequence_of_one_or_two_frames_has_no_smoothness_rows(n):
                                                      tracker_weight=30.0, rounds=1, max_nfev=5)
     assert len(poses) == n and joints.shape == (3, 3)
     assert _angle_errors_deg(poses, truth)[1] < _angle_errors_deg(start, truth)[1]
+
+
+def test_the_twist_refinements_huber_loss_acts_only_when_asked(monkeypatch):
+    """``refine_arm_pose(huber_m=...)``: scipy's trust-region solver with the Huber loss of that scale in each round;
+    by default Levenberg-Marquardt on the squares; ``model_based_filtering`` passes its ``huber_m`` on."""
+    from bodystudio.muscle.model import model_mesh, model_rest_vertices
+
+    model, shape = _arm_model()
+    J = _model_case()[2]
+    h, _ = refine.elbow_axes(J)
+    truth = ArmPose(np.eye(4), np.stack([[0.1, -0.05, 0.15], 1.0 * h, np.zeros(3)]))
+    mesh = model_mesh(model, shape, truth)
+    frame = _frame(mesh, model.faces, model.arm_mask, J[1] + np.array([0.3, 0.2, 1.0]))
+    calls = _spy(monkeypatch, run=False)
+    refine.refine_arm_pose(truth, lambda p: model_mesh(model, shape, p), frame, mesh, J, huber_m=0.002, max_nfev=4)
+    refine.refine_arm_pose(truth, lambda p: model_mesh(model, shape, p), frame, mesh, J, max_nfev=4)
+    assert len(calls) == 4 and all(c.kw["max_nfev"] == 4 for c in calls)
+    assert all((c.kw["method"], c.kw["loss"], c.kw["f_scale"]) == ("trf", "huber", 0.002) for c in calls[:2])
+    assert all(c.kw == {"max_nfev": 4, "method": "lm"} for c in calls[2:])
+    calls.clear()
+    rest = model_rest_vertices(model, shape)
+    ones = np.ones(len(mesh))
+    refine.model_based_filtering(model, shape, truth.root, mesh, rest, model.part_weights, ones, frame, J,
+                                 huber_m=0.003)
+    refine.model_based_filtering(model, shape, truth.root, mesh, rest, model.part_weights, ones, frame, J)
+    assert [c.kw.get("f_scale") for c in calls] == [0.003, 0.003, None, None]
