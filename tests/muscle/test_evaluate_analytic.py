@@ -285,3 +285,24 @@ def test_evaluate_arm_capture_scores_the_captures_frames_and_adds_speed_and_mode
     with pytest.raises(InputError, match=rf"^capture is on template 6k-left-1-abc, the session's template is "
                                          rf"{t.key}; capture with the session's resolution and side$"):
         ev.evaluate_arm_capture(other, s, t)
+
+
+def test_vertices_on_the_first_and_last_pixel_are_seen_and_one_past_them_are_not():
+    """The image test is ``0 <= r < height`` and ``0 <= c < width``: a plane filling the view with vertices projecting
+    exactly onto pixels 0 and W-1 / H-1 (seen) and onto W / H and beyond (not seen, and never used as an index)."""
+    W, H = 40, 30
+    cam = Camera.look_at("k", eye=(0.0, 0.0, 1.0), target=(0.0, 0.0, 0.0), fx=100.0, width=W, height=H)
+    us, vs = [-5.0, 0.0, W - 1.0, W, W + 5.0], [-5.0, 0.0, H - 1.0, H, H + 5.0]
+    Pc = np.array([[(u - cam.K[0, 2]) / cam.K[0, 0], (v - cam.K[1, 2]) / cam.K[1, 1], 1.0] for v in vs for u in us])
+    V = cam.camera_to_world(Pc)
+    uv, _ = cam.project_with_depth(V)
+    np.testing.assert_allclose(uv, [[u, v] for v in vs for u in us], atol=1e-9)
+    F = np.array([[i * 5 + j, i * 5 + j + 1, (i + 1) * 5 + j] for i in range(4) for j in range(4)]
+                 + [[i * 5 + j + 1, (i + 1) * 5 + j + 1, (i + 1) * 5 + j] for i in range(4) for j in range(4)])
+    from bodystudio.geometry.mesh import vertex_normals
+
+    if vertex_normals(V, F)[:, 2].mean() < 0:
+        F = F[:, ::-1].copy()
+    seen = ev.visible_vertices(V, F, cam)
+    want = np.array([u in (0.0, W - 1.0) and v in (0.0, H - 1.0) for v in vs for u in us])
+    np.testing.assert_array_equal(seen, want)
