@@ -771,3 +771,70 @@ def test_files_of_a_capture_are_written_where_the_caller_says(tmp_path, monkeypa
     cap_mod.write_arm_capture(tmp_path / "fps24", c, fps=24.0)
     cap_mod.write_arm_capture_files(lambda rel: tmp_path / "files" / rel, c)
     assert fps == [12.0, 30.0, 24.0, 30.0]
+
+
+# --- the per-subject skeleton and rest shape (sequence_fit_skeleton, personal_rounds; issue 17) ------------
+
+def test_the_personal_rounds_alternate_rest_shape_and_skeleton_fit_and_make_the_meshes(scene, monkeypatch):
+    """``personal_rounds=1``: sequence fit (skeleton options passed on), then the rest shape of its poses and fitted
+    joints (``personal_prior_weight``, the norm limit, ``sequence_huber_m``), then the sequence fit again from the
+    first fit's poses about the model's joints with that rest mesh; the output meshes are Eq. 12 about the
+    fitted joints with the personal rest mesh, and the capture keeps those joints."""
+    from bodystudio.muscle.model import model_joints, model_rest_vertices
+    from bodystudio.muscle.refine import skeleton_model_mesh
+
+    spies = Spies(monkeypatch, ("fit_arm_sequence_skeleton", "fit_rest_shape_correction", "fit_shape_parameters",
+                                "smooth_arm_poses"))
+    o = CaptureOptions(mode="model", **{**FAST, "pose_sigma_frames": 0.7, "norm_limit": 0.6,
+                                        "sequence_fit_skeleton": True, "sequence_skeleton_prior_weight": 40.0,
+                                        "sequence_free_joints": (False, True, True), "sequence_depth_huber_only": True,
+                                        "sequence_huber_m": 0.002, "personal_rounds": 1,
+                                        "personal_prior_weight": 0.3})
+    c = capture_arm_frames(scene.depths[:2], scene.camera, scene.template, scene.model, o, known_shape=scene.shape)
+    first, second = spies["fit_arm_sequence_skeleton"]
+    (rs,) = spies["fit_rest_shape_correction"]
+    shape = spies["fit_shape_parameters"][-1].out[0]
+    J_model, rest = model_joints(scene.model, shape), model_rest_vertices(scene.model, shape)
+    for f in (first, second):
+        assert f.args[5] == 0.6 and f.args[9:] == (1, 3, 0.002, False, True, 40.0, True)
+        assert f.kwargs["free_joints"] == (False, True, True)
+        np.testing.assert_allclose(f.args[4], J_model, atol=1e-12)
+    np.testing.assert_allclose(first.kwargs["rest"], rest, atol=1e-12)
+    assert rs.args[2] is first.out[0] and rs.args[3] is first.args[3] and rs.args[6:] == (0.3, 0.6, 0.002)
+    np.testing.assert_allclose(rs.args[4], rest, atol=1e-12)
+    np.testing.assert_array_equal(rs.args[5], first.out[1])
+    assert second.kwargs["rest"] is rs.out and second.args[2] is first.out[0]
+    assert np.abs(rs.out - rest).max() > 1e-6  # the personal rest mesh differs from the model's
+    np.testing.assert_array_equal(c.joints, second.out[1])
+    (sm,) = spies["smooth_arm_poses"]
+    assert sm.args[0] is second.out[0] and c.poses is sm.out
+    for i in range(2):
+        np.testing.assert_allclose(c.vertices[i], apply_similarity(c.similarity, skeleton_model_mesh(
+            scene.model, sm.out[i], rs.out, second.out[1], 0.6)), atol=1e-12)
+        np.testing.assert_allclose(c.stages["model"][i], c.vertices[i], atol=1e-15)
+
+
+def test_the_new_sequence_option_defaults_are_the_measured_ones():
+    o = CaptureOptions()
+    assert (o.sequence_fit_skeleton, o.sequence_skeleton_prior_weight, o.sequence_free_joints,
+            o.sequence_depth_huber_only, o.personal_rounds, o.personal_prior_weight) == (False, 100.0,
+                                                                                       (True, True, True), False, 0,
+                                                                                       0.05)
+
+
+def test_a_capture_without_a_fitted_skeleton_keeps_no_joints_and_its_folder_says_so(scene, tmp_path):
+    """Mode ``nicp`` has no skeleton (``joints`` None, written as null and read back as None); a model capture's
+    joints survive the folder round trip exactly."""
+    from bodystudio.muscle.capture import load_arm_capture, write_arm_capture
+
+    o = CaptureOptions(mode="nicp", nicp=NicpOptions(iterations=1), first_frame_nicp_iterations=1)
+    c = capture_arm_frames(scene.depths[:1], scene.camera, scene.template, None, o)
+    assert c.joints is None
+    write_arm_capture(tmp_path / "n", c)
+    import json
+
+    assert json.loads((tmp_path / "n" / "params.json").read_text())["joints"] is None
+    assert load_arm_capture(tmp_path / "n").joints is None
+    c.joints = scene.J + 0.001
+    write_arm_capture(tmp_path / "m", c)
+    np.testing.assert_array_equal(load_arm_capture(tmp_path / "m").joints, scene.J + 0.001)

@@ -465,3 +465,54 @@ def test_capture_samples_keep_every_posed_frame_and_the_given_shape(arm_training
         M.capture_samples(SimpleNamespace(**{**capture.__dict__, "shape": None}), "cap")
     with pytest.raises(InputError, match="capture it with the model to extend the dataset$"):
         M.capture_samples(SimpleNamespace(**{**capture.__dict__, "poses": [None] * 4}), "cap")
+
+
+def test_capture_samples_carry_the_captures_fitted_skeleton():
+    """``capture.joints`` (the rest skeleton a capture's poses turn about, ``refine.fit_arm_sequence_skeleton``) goes
+    with every sample, so the extension unposes about it; a capture without one (``joints`` None, or a capture
+    object from before the field) leaves the joints to the model's regression (None). Issue 17: the pass-through
+    survived the model's tests (only tests/muscle/test_sequence_fit.py reached it)."""
+    from types import SimpleNamespace
+
+    J = np.array([[0.1, 1.4, 0.0], [0.4, 1.38, 0.01], [0.65, 1.37, 0.02]])
+    V = np.arange(12.0).reshape(4, 3)
+    pose = ArmPose(np.eye(4), np.zeros((3, 3)))
+    cap = SimpleNamespace(vertices=[V, V + 1.0], poses=[pose, pose], shape=SHAPE,
+                          similarity=(1.0, np.eye(3), np.zeros(3)), joints=J)
+    out = M.capture_samples(cap, "c")
+    assert len(out) == 2
+    for o in out:
+        np.testing.assert_array_equal(o.joints, J)
+    assert all(o.joints is None for o in M.capture_samples(SimpleNamespace(**{**vars(cap), "joints": None}), "c"))
+    older = SimpleNamespace(**{k: v for k, v in vars(cap).items() if k != "joints"})
+    assert all(o.joints is None for o in M.capture_samples(older, "c"))
+
+
+def test_tikhonov_column_weights_are_squared_per_column_and_the_intercept_is_free():
+    """``tikhonov_from_normal_equations``: ``(X^T X + diag(0, w_1^2, ...)) c = X^T y``, with one weight per column
+    (the sex column's own, Eq. 7) or ``q`` for all; the intercept (column 0) is never shrunk."""
+    xtx, xty = 2.0 * np.eye(3), np.array([2.0, 2.0, 2.0])
+    np.testing.assert_allclose(M.tikhonov_from_normal_equations(xtx, xty, 0.0, column_weights=[5.0, 1.0, 2.0]),
+                               [1.0, 2.0 / 3.0, 2.0 / 6.0], atol=1e-15)
+    np.testing.assert_allclose(M.tikhonov_from_normal_equations(xtx, xty, 2.0), [1.0, 2.0 / 6.0, 2.0 / 6.0],
+                               atol=1e-15)
+
+
+@pytest.mark.parametrize("value", [0, 0.0, -0.1, float("inf"), "0.1", True])
+def test_a_bad_sex_regularization_in_the_header_is_refused(saved, tmp_path, value):
+    import re
+
+    path, arrays, header = saved
+    bad = _write(tmp_path / "bad.npz", arrays, {**header, "sex_regularization": value})
+    want = rf"^{re.escape(str(bad))}: arm model sex_regularization {re.escape(repr(value))} is not a positive number; "
+    with pytest.raises(FileFormatError, match=want + "rebuild the model$"):
+        load_arm_model(bad)
+
+
+def test_the_sex_regularization_of_the_header_is_the_loaded_one(saved, tmp_path):
+    path, arrays, header = saved
+    assert header["sex_regularization"] == M.SEX_REGULARIZATION
+    assert load_arm_model(_write(tmp_path / "q.npz", arrays, {**header, "sex_regularization": 0.37})) \
+        .sex_regularization == 0.37
+    assert load_arm_model(_write(tmp_path / "i.npz", arrays, {**header, "sex_regularization": 3})) \
+        .sex_regularization == 3.0

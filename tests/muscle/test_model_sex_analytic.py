@@ -82,3 +82,18 @@ def test_measured_shape_carries_the_phenotypes_sex():
     from bodystudio.muscle.model import measure_arm_shape
 
     assert measure_arm_shape(Phenotype(gender=0.3, muscle=0.5, weight=0.5)).sex == 0.3
+
+
+def test_sex_names_are_parsed_into_the_shape_and_a_bad_one_is_named():
+    """``ArmShapeParams(sex=...)`` stores the model's number (names and numeric strings parsed), and ``parse_sex``'s
+    refusal names its source (default "sex") and the convention. Issue 17: these survived with float sexes only."""
+    from bodystudio.muscle.model import parse_sex
+
+    assert ArmShapeParams(24.0, 0.5, 1.7, 0.5, sex="female").sex == 0.0
+    assert ArmShapeParams(24.0, 0.5, 1.7, 0.5, sex=" M ").sex == 1.0
+    assert ArmShapeParams(24.0, 0.5, 1.7, 0.5, sex="0.25").sex == 0.25
+    with pytest.raises(InputError, match=r"^sex: sex 'x' is not male, female or a number in \[0, 1\] "
+                                         r"\(1 = male, 0 = female\)$"):
+        parse_sex("x")
+    with pytest.raises(InputError, match=r"^--shape: sex 'x' is not male"):
+        parse_sex("x", "--shape")
