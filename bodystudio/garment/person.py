@@ -81,14 +81,15 @@ def source_fingerprint(source, frame_ids, camera: str | None = None) -> str | No
     """The identity of a fit's source recording: ``session:`` + the sha256 over its ``camera`` rgb frames'
     manifest checksums (a :class:`~bodystudio.capture.session.Session`), or ``video:`` + the file's sha256
     (a path). Later steps refuse a source whose identity changed (another clip at the same path)."""
-    from bodystudio.capture.session import Session, stream_fingerprint
-
-    if isinstance(source, Session):
-        digest = stream_fingerprint(source, "rgb", frame_ids, camera or source.camera_names[0])
-        return None if digest is None else f"session:{digest}"
+    from bodystudio.capture.session import stream_fingerprint
     from bodystudio.fileio import sha256_file
 
-    return f"video:{sha256_file(source)}"
+    if isinstance(source, (str, os.PathLike)):
+        return f"video:{sha256_file(source)}"
+    if getattr(source, "files", None) is None:  # a session without a manifest (a stand-in): unknown
+        return None
+    digest = stream_fingerprint(source, "rgb", frame_ids, camera or source.camera_names[0])
+    return None if digest is None else f"session:{digest}"
 
 
 def read_video(path: str | os.PathLike, frames: str | None = None) -> tuple[np.ndarray, float]:
