@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
@@ -157,33 +158,60 @@ def _skin(plan: _RefinePlan, transforms: np.ndarray) -> tuple[np.ndarray, np.nda
     return V, N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
 
 
-def _point_jacobian(P: np.ndarray, s: np.ndarray, heads: np.ndarray, axes: np.ndarray) -> np.ndarray:
-    """``(n, 3, 3 + 3 + 2 S)`` derivative of points ``P`` by the parameters (root translation, root rotation in
-    world axes, two swing axes per bone); ``s`` (n, 1 + S) their weights on each rotated subtree."""
-    n, S = len(P), len(heads) - 1
-    J = np.zeros((n, 3, 6 + 2 * S))
-    J[:, :, :3] = np.eye(3) * s[:, :1, None]
-    d = (P - heads[0]) * s[:, :1]
-    # w x d = -[d]_x w
-    J[:, 0, 4], J[:, 0, 5] = d[:, 2], -d[:, 1]
-    J[:, 1, 3], J[:, 1, 5] = -d[:, 2], d[:, 0]
-    J[:, 2, 3], J[:, 2, 4] = d[:, 1], -d[:, 0]
-    r = (P[:, None, :] - heads[None, 1:]) * s[:, 1:, None]  # (n, S, 3)
-    J[:, :, 6::2] = np.cross(axes[None, :, 0], r).transpose(0, 2, 1)
-    J[:, :, 7::2] = np.cross(axes[None, :, 1], r).transpose(0, 2, 1)
-    return J
+@njit(cache=True)
+def accumulate_normal_equations(H: np.ndarray, Jtr: np.ndarray, P: np.ndarray, a: np.ndarray, s: np.ndarray,
+                                heads: np.ndarray, axes: np.ndarray, residuals: np.ndarray) -> None:
+    """Add ``J^T J`` to ``H`` and ``J^T r`` to ``Jtr`` for residuals ``r_i = a_i . p_i + residuals_i`` of points
+    ``P`` (n, 3) along directions ``a`` (n, 3) (the Gauss-Newton step of the energy in the module docstring),
+    without forming ``J``.
+
+    A point moves by ``dt + w x (p - h_root)`` (weight ``s_0``) and ``s_j e x (p - h_j)`` for a swing about axis
+    ``e`` of bone ``j``, so its row is ``s_0 a`` (translation), ``s_0 (p - h_root) x a`` (root rotation) and
+    ``s_j e . ((p - h_j) x a)`` (two axes per bone); a bone whose subtree weight ``s_j(p)`` is 0 adds nothing,
+    which is most of them for most points. Only the upper triangle of ``H`` is filled.
+    """
+    n_par = H.shape[0]
+    S = heads.shape[0] - 1
+    row = np.empty(n_par)
+    cols = np.empty(n_par, np.int64)
+    for i in range(P.shape[0]):
+        ax, ay, az = a[i, 0], a[i, 1], a[i, 2]
+        k = 0
+        for c in range(S + 1):
+            sc = s[i, c]
+            if sc == 0.0:
+                continue
+            rx, ry, rz = P[i, 0] - heads[c, 0], P[i, 1] - heads[c, 1], P[i, 2] - heads[c, 2]
+            cx, cy, cz = ry * az - rz * ay, rz * ax - rx * az, rx * ay - ry * ax  # (p - h) x a
+            if c == 0:
+                row[0], row[1], row[2] = sc * ax, sc * ay, sc * az
+                row[3], row[4], row[5] = sc * cx, sc * cy, sc * cz
+                for q in range(6):
+                    cols[q] = q
+                k = 6
+            else:
+                e0 = axes[c - 1, 0]
+                e1 = axes[c - 1, 1]
+                row[k] = sc * (e0[0] * cx + e0[1] * cy + e0[2] * cz)
+                row[k + 1] = sc * (e1[0] * cx + e1[1] * cy + e1[2] * cz)
+                cols[k] = 6 + 2 * (c - 1)
+                cols[k + 1] = 7 + 2 * (c - 1)
+                k += 2
+        r = residuals[i]
+        for p in range(k):
+            cp = cols[p]
+            Jtr[cp] += row[p] * r
+            for q in range(p, k):  # cols ascend: (cols[p], cols[q]) is in the upper triangle
+                H[cp, cols[q]] += row[p] * row[q]
 
 
-def _projection_jacobian(camera, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels (n, 2) of world points and the (n, 2, 3) derivative of the (undistorted) projection."""
-    uv, _ = camera.project_with_depth(P)
-    Pc = camera.world_to_camera(P)
+def _projection_rows(camera, Pc: np.ndarray) -> np.ndarray:
+    """(n, 2, 3) derivative of the (undistorted) projection by world points, from their camera coordinates."""
     z = np.maximum(Pc[:, 2], 1e-6)
-    fx, fy = camera.fx, camera.fy
-    D = np.zeros((len(P), 2, 3))
-    D[:, 0, 0], D[:, 0, 2] = fx / z, -fx * Pc[:, 0] / z**2
-    D[:, 1, 1], D[:, 1, 2] = fy / z, -fy * Pc[:, 1] / z**2
-    return uv, D @ camera.R
+    D = np.zeros((len(Pc), 2, 3))
+    D[:, 0, 0], D[:, 0, 2] = camera.fx / z, -camera.fx * Pc[:, 0] / z**2
+    D[:, 1, 1], D[:, 1, 2] = camera.fy / z, -camera.fy * Pc[:, 1] / z**2
+    return D @ camera.R
 
 
 def _sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -193,31 +221,49 @@ def _sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return m.ravel().astype(np.float64)
 
 
-def silhouette_distance(mask: np.ndarray, margin_px: int = 40) -> tuple[np.ndarray, np.ndarray]:
+def mask_box(mask: np.ndarray, margin_px: int) -> tuple[int, int, int, int] | None:
+    """``(y0, y1, x0, x1)``: the bounding box of ``mask`` grown by ``margin_px`` (clipped to the image); None
+    for an empty mask."""
+    m = np.asarray(mask, bool)
+    ys, xs = np.flatnonzero(m.any(1)), np.flatnonzero(m.any(0))
+    if not len(ys):
+        return None
+    return (max(ys[0] - margin_px, 0), min(ys[-1] + margin_px + 1, m.shape[0]),
+            max(xs[0] - margin_px, 0), min(xs[-1] + margin_px + 1, m.shape[1]))
+
+
+def silhouette_distance(mask: np.ndarray, margin_px: int = 40,
+                        box: tuple[int, int, int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Distance (pixels, float32) outside ``mask`` to it, 0 inside: the data of ``E_out``, over the mask's
     bounding box grown by ``margin_px`` only (a 640x480 transform costs ~2 ms); returns it and the box's
-    ``(x0, y0)`` origin."""
+    ``(x0, y0)`` origin. ``box``: that box when the caller has it (:func:`mask_box`)."""
     m = np.asarray(mask, bool)
-    ys, xs = np.nonzero(m.any(1))[0], np.nonzero(m.any(0))[0]
-    if not len(ys):
+    box = mask_box(m, margin_px) if box is None else box
+    if box is None:
         return np.full((1, 1), np.float32(margin_px)), np.zeros(2)
-    y0, x0 = max(ys[0] - margin_px, 0), max(xs[0] - margin_px, 0)
-    y1, x1 = min(ys[-1] + margin_px + 1, m.shape[0]), min(xs[-1] + margin_px + 1, m.shape[1])
+    y0, y1, x0, x1 = box
     crop = (~m[y0:y1, x0:x1]).astype(np.uint8)
     return cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_5), np.array([x0, y0], float)
 
 
-def mask_outline(mask: np.ndarray, keep_out: np.ndarray | None = None) -> np.ndarray:
-    """(m, 2) pixel centres ``(x, y)`` of the outline of ``mask`` (inside pixels with an outside 4-neighbour),
-    without those next to ``keep_out`` (another player occluding the person) or the image border."""
+def mask_outline(mask: np.ndarray, keep_out: np.ndarray | None = None,
+                 box: tuple[int, int, int, int] | None = None) -> np.ndarray:
+    """(m, 2) pixel centres ``(x, y)`` of the outline of ``mask`` (inside pixels with an outside 8-neighbour),
+    without those next to ``keep_out`` (another player occluding the person) or the image border, in row-major
+    order. ``box`` (:func:`mask_box`, a margin of at least 3 px around ``mask | keep_out``) limits the work to it:
+    the same pixels, since nothing outside it can touch the outline (a box edge inside the image is empty)."""
     m = np.asarray(mask, np.uint8)
+    y0, y1, x0, x1 = (0, m.shape[0], 0, m.shape[1]) if box is None else box
+    m = m[y0:y1, x0:x1]
     outline = (m > 0) & (cv2.erode(m, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0) == 0)
     outline[[0, -1], :] = False
     outline[:, [0, -1]] = False
-    if keep_out is not None and keep_out.any():
-        outline &= cv2.dilate(keep_out.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
+    if keep_out is not None:
+        k = np.asarray(keep_out)[y0:y1, x0:x1]
+        if k.any():
+            outline &= cv2.dilate(k.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
     y, x = np.nonzero(outline)
-    return np.c_[x, y].astype(np.float64)
+    return np.c_[x + x0, y + y0].astype(np.float64)
 
 
 def apply_update(skeleton: Skeleton, pose: Pose, delta: np.ndarray, bones: np.ndarray, axes: np.ndarray,
@@ -272,8 +318,9 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
     if fg.shape != (camera.height, camera.width):
         raise InputError(f"refine_pose: foreground {fg.shape} is not the camera's ({camera.height}, {camera.width})")
     allowed = fg if others is None else fg | others
-    dist_out, origin = silhouette_distance(allowed)
-    outline = mask_outline(fg, others)
+    box = mask_box(allowed, 40)
+    dist_out, origin = silhouette_distance(allowed, 40, box)
+    outline = mask_outline(fg, others, box) if box is not None else np.zeros((0, 2))
     rng = np.random.default_rng(0)
     if len(outline) > weights.sil_samples:
         outline = outline[rng.choice(len(outline), weights.sil_samples, replace=False)]
@@ -297,6 +344,7 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
     total = np.zeros(n_par)
     eye = camera.center
     parents = skeleton.parents
+    dist_shape = np.array(dist_out.shape[::-1])
     for _ in range(max(0, int(iterations))):
         M = _forward_kinematics(plan, parents, pose)
         world = M[:, :3, :3] @ np.transpose(skeleton.rest_rotations, (0, 2, 1))
@@ -306,28 +354,32 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         a = np.cross(directions, helper)
         a /= np.linalg.norm(a, axis=1, keepdims=True)
         axes = np.stack([a, np.cross(directions, a)], axis=1)  # (S, 2, 3): two axes perpendicular to each bone
-        transforms = M @ plan.rest_inverse
-        V, N = _skin(plan, transforms)
-        rows, res = [], []
-        uv, Dp = _projection_jacobian(camera, V)
-        ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) \
-            & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
+        V, N = _skin(plan, M @ plan.rest_inverse)
+        Pc = V @ camera.R.T + camera.t
+        uv, _ = camera.project_with_depth(V)
+        H = np.zeros((n_par, n_par))
+        Jtr = np.zeros(n_par)
+        used = False
+        with np.errstate(invalid="ignore"):  # NaN pixels (behind the camera) are not ``ok``
+            ok = (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
         # E_out: projected body points outside the silhouette, pulled down the distance transform
         # (points beyond the box are more than its margin out; they have no gradient there and are left out)
         local = uv - origin
-        in_box = ok & np.all(local >= 1, axis=1) & (local[:, 0] < dist_out.shape[1] - 2) \
-            & (local[:, 1] < dist_out.shape[0] - 2)
-        d_out = np.zeros(len(V))
-        d_out[in_box] = _sample(dist_out, local[in_box])
-        out = np.flatnonzero(in_box & (d_out > 0.5))
+        with np.errstate(invalid="ignore"):
+            in_box = np.flatnonzero(ok & (local[:, 0] >= 1) & (local[:, 1] >= 1) & (local[:, 0] < dist_shape[0] - 2)
+                                    & (local[:, 1] < dist_shape[1] - 2))
+        d_in = _sample(dist_out, local[in_box])
+        outside = d_in > 0.5
+        out = in_box[outside]
         if len(out):
             lo = local[out]
             g = np.c_[_sample(dist_out, lo + [1, 0]) - _sample(dist_out, lo - [1, 0]),
                       _sample(dist_out, lo + [0, 1]) - _sample(dist_out, lo - [0, 1])] / 2.0
-            Jv = _point_jacobian(V[out], plan.subtree_weight[out], heads, axes)
             scale = weights.sil_weight ** 0.5 / (weights.sil_px * max(len(out), len(outline), 1) ** 0.5)
-            rows.append(scale * np.einsum("ni,nij,njk->nk", g, Dp[out], Jv))
-            res.append(scale * np.minimum(d_out[out], 30.0))
+            along = scale * np.einsum("ni,nij->nj", g, _projection_rows(camera, Pc[out]))
+            accumulate_normal_equations(H, Jtr, V[out], along, plan.subtree_weight[out], heads, axes,
+                                        scale * np.minimum(d_in[outside], 30.0))
+            used = True
         # E_cover: the mask's outline pixels onto the nearest projected rim vertex, along its image normal
         ray = V - eye
         cos = np.einsum("ij,ij->i", N, ray) / np.linalg.norm(ray, axis=1)
@@ -336,13 +388,14 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
             dist, nearest = cKDTree(uv[rim]).query(outline, distance_upper_bound=25.0)
             keep = np.isfinite(dist)
             r_ids = rim[nearest[keep]]
-            n2 = np.einsum("nij,nj->ni", Dp[r_ids], N[r_ids])
+            Dp = _projection_rows(camera, Pc[r_ids])
+            n2 = np.einsum("nij,nj->ni", Dp, N[r_ids])
             n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-9)
             r = np.einsum("ij,ij->i", n2, uv[r_ids] - outline[keep])
-            Jv = _point_jacobian(V[r_ids], plan.subtree_weight[r_ids], heads, axes)
             scale = weights.sil_weight ** 0.5 / (weights.sil_px * max(len(outline), 1) ** 0.5)
-            rows.append(scale * np.einsum("ni,nij,njk->nk", n2, Dp[r_ids], Jv))
-            res.append(scale * r)
+            accumulate_normal_equations(H, Jtr, V[r_ids], scale * np.einsum("ni,nij->nj", n2, Dp),
+                                        plan.subtree_weight[r_ids], heads, axes, scale * r)
+            used = True
         # E_depth: point-to-plane to the nearest front-facing vertex (within 5 cm)
         if pts is not None:
             front = np.flatnonzero(cos < 0)
@@ -352,11 +405,11 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
                 v_ids = front[nearest[keep]]
                 n3 = N[v_ids]
                 r = np.einsum("ij,ij->i", n3, V[v_ids] - pts[keep])
-                Jv = _point_jacobian(V[v_ids], plan.subtree_weight[v_ids], heads, axes)
                 scale = weights.depth_weight ** 0.5 / (weights.depth_m * len(pts) ** 0.5)
-                rows.append(scale * np.einsum("ni,nij->nj", n3, Jv))
-                res.append(scale * r)
-        # E_joint: the Kinect joints as soft targets
+                accumulate_normal_equations(H, Jtr, V[v_ids], scale * n3, plan.subtree_weight[v_ids], heads, axes,
+                                            scale * r)
+                used = True
+        # E_joint: the Kinect joints as soft targets (three residuals each, along the world axes)
         if K is not None and jw.any():
             from bodystudio.body.kinect import kinect_joints
 
@@ -364,17 +417,18 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
             tails_all = heads_all + M[:, :3, 1] * skeleton.lengths[:, None]
             P = kinect_joints(skeleton, heads_all, tails_all, version)
             use = np.flatnonzero(jw > 0)
-            Jv = _point_jacobian(P[use], plan.joint_moves[use], heads, axes)
             scale = (weights.joint_weight * jw[use] / jw[use].sum()) ** 0.5 / weights.joint_m
-            rows.append((scale[:, None, None] * Jv).reshape(-1, n_par))
-            res.append((scale[:, None] * (P[use] - K[use])).ravel())
-        if not rows:
+            accumulate_normal_equations(H, Jtr, np.repeat(P[use], 3, axis=0),
+                                        (scale[:, None, None] * np.eye(3)).reshape(-1, 3),
+                                        np.repeat(plan.joint_moves[use], 3, axis=0), heads, axes,
+                                        (scale[:, None] * (P[use] - K[use])).ravel())
+            used = True
+        if not used:
             break
-        A = np.vstack(rows)
-        b = np.concatenate(res)
         # E_prior on the total change from the IK pose (``total``): (total + delta) / scale
-        H = A.T @ A + np.diag(1.0 / prior_scale**2)
-        grad = A.T @ b + total / prior_scale**2
+        H = np.triu(H) + np.triu(H, 1).T
+        H[np.diag_indices(n_par)] += 1.0 / prior_scale**2
+        grad = Jtr + total / prior_scale**2
         try:
             delta = -np.linalg.solve(H, grad)
         except np.linalg.LinAlgError:
@@ -382,4 +436,3 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         total = total + delta
         pose = apply_update(skeleton, pose, delta, bones, axes, world)
     return pose if np.all(np.isfinite(pose.rotations)) else start
-
