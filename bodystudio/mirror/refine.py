@@ -136,26 +136,64 @@ def refine_plan(vertices_rest: np.ndarray, faces: np.ndarray, weights: np.ndarra
                        np.linalg.inv(A))
 
 
-def _forward_kinematics(plan: _RefinePlan, parents, pose: Pose) -> np.ndarray:
+def _forward_kinematics(plan: _RefinePlan, parents, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
     """Posed bone frames (B, 4, 4): :func:`bodystudio.body.skinning.forward_kinematics` with the rest-frame
-    products cached in the plan."""
-    local = np.tile(np.eye(4), (len(parents), 1, 1))
-    local[:, :3, :3] = Rotation.from_rotvec(pose.rotations).as_matrix()
-    M = plan.rest_relative @ local
-    for j, p in enumerate(parents):  # parents come before children
-        if p < 0:
-            M[j, :3, 3] += pose.translation
+    products cached in the plan; and the top rows (B, 3, 4) of the skinning transforms ``M_j A_j^-1``."""
+    return _posed_frames(plan.rest_relative, plan.rest_inverse, Rotation.from_rotvec(pose.rotations).as_matrix(),
+                         np.asarray(pose.translation, float), np.asarray(parents, np.int64))
+
+
+@njit(cache=True)
+def _posed_frames(rest_relative, rest_inverse, local_rotations, translation, parents):
+    """``M_j = M_parent (A_parent^-1 A_j) L_j`` down the chain (parents before children), the root moved by
+    ``translation``; and ``(M_j A_j^-1)[:3]``."""
+    B = len(parents)
+    M = np.zeros((B, 4, 4))
+    transforms = np.empty((B, 3, 4))
+    local = np.eye(4)
+    for j in range(B):
+        local[:3, :3] = local_rotations[j]
+        Mj = rest_relative[j] @ local
+        if parents[j] < 0:
+            Mj[:3, 3] += translation
         else:
-            M[j] = M[p] @ M[j]
-    return M
+            Mj = M[parents[j]] @ Mj
+        M[j] = Mj
+        transforms[j] = (Mj @ rest_inverse[j])[:3]
+    return M, transforms
 
 
 def _skin(plan: _RefinePlan, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Skinned subset vertices and (unnormalised) normals by the blended LBS matrices."""
-    M = np.einsum("nk,nkij->nij", plan.weight_val, transforms[plan.weight_idx][:, :, :3, :])
-    V = np.einsum("nij,nj->ni", M[:, :, :3], plan.rest_vertices) + M[:, :, 3]
-    N = np.einsum("nij,nj->ni", M[:, :, :3], plan.rest_normals)
-    return V, N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
+    """Skinned subset vertices and (normalised) normals by the blended LBS matrices; ``transforms`` (B, 3, 4)."""
+    return _blend_skin(transforms, plan.weight_idx, plan.weight_val,
+                       plan.rest_vertices, plan.rest_normals)
+
+
+@njit(cache=True)
+def _blend_skin(transforms, weight_idx, weight_val, rest_vertices, rest_normals):
+    """Linear blend skinning of points and normals: ``sum_k w_k T_k`` applied to each (the normals unit)."""
+    n, k_max = weight_idx.shape
+    V = np.empty((n, 3))
+    N = np.empty((n, 3))
+    M = np.empty((3, 4))
+    for i in range(n):
+        M[:] = 0.0
+        for k in range(k_max):
+            w = weight_val[i, k]
+            T = transforms[weight_idx[i, k]]
+            for r in range(3):
+                for c in range(4):
+                    M[r, c] += w * T[r, c]
+        length = 0.0
+        for r in range(3):
+            V[i, r] = M[r, 0] * rest_vertices[i, 0] + M[r, 1] * rest_vertices[i, 1] + M[r, 2] * rest_vertices[i, 2] \
+                + M[r, 3]
+            N[i, r] = M[r, 0] * rest_normals[i, 0] + M[r, 1] * rest_normals[i, 1] + M[r, 2] * rest_normals[i, 2]
+            length += N[i, r] * N[i, r]
+        length = max(np.sqrt(length), 1e-12)
+        for r in range(3):
+            N[i, r] /= length
+    return V, N
 
 
 @njit(cache=True)
@@ -214,6 +252,12 @@ def _projection_rows(camera, Pc: np.ndarray) -> np.ndarray:
     return D @ camera.R
 
 
+def _kd_tree(points: np.ndarray) -> cKDTree:
+    """A k-d tree for a few hundred nearest-point queries: built by sliding midpoints, not medians (the same
+    nearest points; a third faster to build for the ~600-1500 points of a frame)."""
+    return cKDTree(points, balanced_tree=False, compact_nodes=False)
+
+
 def _sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear samples of a float32 image at pixels (n, 2) (clamped at the border)."""
     m = cv2.remap(image, uv[:, :1].astype(np.float32), uv[:, 1:].astype(np.float32), cv2.INTER_LINEAR,
@@ -249,21 +293,48 @@ def silhouette_distance(mask: np.ndarray, margin_px: int = 40,
 def mask_outline(mask: np.ndarray, keep_out: np.ndarray | None = None,
                  box: tuple[int, int, int, int] | None = None) -> np.ndarray:
     """(m, 2) pixel centres ``(x, y)`` of the outline of ``mask`` (inside pixels with an outside 8-neighbour),
-    without those next to ``keep_out`` (another player occluding the person) or the image border, in row-major
-    order. ``box`` (:func:`mask_box`, a margin of at least 3 px around ``mask | keep_out``) limits the work to it:
-    the same pixels, since nothing outside it can touch the outline (a box edge inside the image is empty)."""
-    m = np.asarray(mask, np.uint8)
+    without those within 2 px of ``keep_out`` (another player occluding the person) or on the image border, in
+    row-major order. ``box`` (:func:`mask_box`, a margin of at least 3 px around ``mask | keep_out``) limits the
+    work to it: the same pixels, since nothing outside it can touch the outline (a box edge inside the image is
+    empty)."""
+    m = np.asarray(mask, bool)
     y0, y1, x0, x1 = (0, m.shape[0], 0, m.shape[1]) if box is None else box
-    m = m[y0:y1, x0:x1]
-    outline = (m > 0) & (cv2.erode(m, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0) == 0)
-    outline[[0, -1], :] = False
-    outline[:, [0, -1]] = False
-    if keep_out is not None:
-        k = np.asarray(keep_out)[y0:y1, x0:x1]
-        if k.any():
-            outline &= cv2.dilate(k.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
-    y, x = np.nonzero(outline)
-    return np.c_[x + x0, y + y0].astype(np.float64)
+    k = np.zeros((1, 1), bool) if keep_out is None else np.asarray(keep_out, bool)[y0:y1, x0:x1]
+    ys, xs = _outline_pixels(m[y0:y1, x0:x1], k, keep_out is not None)
+    return np.c_[xs + x0, ys + y0].astype(np.float64)
+
+
+@njit(cache=True)
+def _outline_pixels(mask, keep_out, has_keep_out):
+    """Rows and columns of the inside pixels of ``mask`` with an outside 8-neighbour (the pixels a 3x3 erosion
+    removes), none on its border, none within 2 px (5x5) of a ``keep_out`` pixel."""
+    h, w = mask.shape
+    ys = np.empty(h * w, np.int64)
+    xs = np.empty(h * w, np.int64)
+    n = 0
+    for y in range(1, h - 1):
+        for x in range(1, w - 1):
+            if not mask[y, x]:
+                continue
+            edge = False
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    if not mask[y + dy, x + dx]:
+                        edge = True
+            if not edge:
+                continue
+            if has_keep_out:
+                near = False
+                for yy in range(max(y - 2, 0), min(y + 3, h)):
+                    for xx in range(max(x - 2, 0), min(x + 3, w)):
+                        if keep_out[yy, xx]:
+                            near = True
+                if near:
+                    continue
+            ys[n] = y
+            xs[n] = x
+            n += 1
+    return ys[:n], xs[:n]
 
 
 def apply_update(skeleton: Skeleton, pose: Pose, delta: np.ndarray, bones: np.ndarray, axes: np.ndarray,
@@ -346,7 +417,7 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
     parents = skeleton.parents
     dist_shape = np.array(dist_out.shape[::-1])
     for _ in range(max(0, int(iterations))):
-        M = _forward_kinematics(plan, parents, pose)
+        M, transforms = _forward_kinematics(plan, parents, pose)
         world = M[:, :3, :3] @ np.transpose(skeleton.rest_rotations, (0, 2, 1))
         heads = M[bones, :3, 3]
         directions = M[bones[1:], :3, 1]
@@ -354,7 +425,7 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         a = np.cross(directions, helper)
         a /= np.linalg.norm(a, axis=1, keepdims=True)
         axes = np.stack([a, np.cross(directions, a)], axis=1)  # (S, 2, 3): two axes perpendicular to each bone
-        V, N = _skin(plan, M @ plan.rest_inverse)
+        V, N = _skin(plan, transforms)
         Pc = V @ camera.R.T + camera.t
         uv, _ = camera.project_with_depth(V)
         H = np.zeros((n_par, n_par))
@@ -385,7 +456,7 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         cos = np.einsum("ij,ij->i", N, ray) / np.linalg.norm(ray, axis=1)
         rim = np.flatnonzero(ok & (np.abs(cos) < RIM_COS))
         if len(rim) >= 3 and len(outline):
-            dist, nearest = cKDTree(uv[rim]).query(outline, distance_upper_bound=25.0)
+            dist, nearest = _kd_tree(uv[rim]).query(outline, distance_upper_bound=25.0)
             keep = np.isfinite(dist)
             r_ids = rim[nearest[keep]]
             Dp = _projection_rows(camera, Pc[r_ids])
@@ -399,7 +470,7 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         # E_depth: point-to-plane to the nearest front-facing vertex (within 5 cm)
         if pts is not None:
             front = np.flatnonzero(cos < 0)
-            dist, nearest = cKDTree(V[front]).query(pts, distance_upper_bound=0.05)
+            dist, nearest = _kd_tree(V[front]).query(pts, distance_upper_bound=0.05)
             keep = np.isfinite(dist)
             if keep.any():
                 v_ids = front[nearest[keep]]

@@ -8,14 +8,14 @@ test helper, so that tests/mirror/test_pose_refine_fast.py can pin the fast impl
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
+from bodystudio.body.pose import Pose
 from bodystudio.errors import InputError
 from bodystudio.mirror.refine import (
     RIM_COS,
-    _forward_kinematics,
     _one_blas_thread,
     _sample,
-    _skin,
     apply_update,
     silhouette_distance,
 )
@@ -30,6 +30,28 @@ def refine_pose_reference(plan, skeleton, pose, camera, foreground, kinect_posit
     with _one_blas_thread():
         return _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tracked, depth_points,
                             others, version, iterations, weights)
+
+
+def _forward_kinematics(plan, parents, pose: Pose) -> np.ndarray:
+    """Posed bone frames (B, 4, 4): :func:`bodystudio.body.skinning.forward_kinematics` with the rest-frame
+    products cached in the plan."""
+    local = np.tile(np.eye(4), (len(parents), 1, 1))
+    local[:, :3, :3] = Rotation.from_rotvec(pose.rotations).as_matrix()
+    M = plan.rest_relative @ local
+    for j, p in enumerate(parents):  # parents come before children
+        if p < 0:
+            M[j, :3, 3] += pose.translation
+        else:
+            M[j] = M[p] @ M[j]
+    return M
+
+
+def _skin(plan, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Skinned subset vertices and (unnormalised) normals by the blended LBS matrices."""
+    M = np.einsum("nk,nkij->nij", plan.weight_val, transforms[plan.weight_idx][:, :, :3, :])
+    V = np.einsum("nij,nj->ni", M[:, :, :3], plan.rest_vertices) + M[:, :, 3]
+    N = np.einsum("nij,nj->ni", M[:, :, :3], plan.rest_normals)
+    return V, N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
 
 
 def _point_jacobian(P: np.ndarray, s: np.ndarray, heads: np.ndarray, axes: np.ndarray) -> np.ndarray:
