@@ -127,3 +127,72 @@ def test_a_foreground_of_the_wrong_size_is_a_one_line_error(case):
     body, plan, camera, true, *_ = case
     with pytest.raises(InputError, match="foreground"):
         refine_pose(plan, body.skeleton, true, camera, np.zeros((10, 10), bool))
+
+
+# --- the fast implementation (issue 12, MIRFAST) against MIR12b's numpy one (tests/mirror/refine_reference.py)
+
+def _equal_poses(a, b, tol=1e-6):
+    return (np.abs(a.rotations - b.rotations).max() < tol and np.abs(a.translation - b.translation).max() < tol)
+
+
+@pytest.mark.parametrize("variant", ["all terms", "two steps", "other player and border", "silhouette only",
+                                     "no joints"])
+def test_the_fast_refinement_gives_the_reference_pose(case, variant):
+    from refine_reference import refine_pose_reference
+
+    body, plan, camera, true, V_true, mask, points = case
+    sk = body.skeleton
+    ik = _planted(sk, true, (0.04, -0.02, 0.05), 10.0)
+    rng = np.random.default_rng(7)
+    joints = posed_kinect_joints(sk, true) + rng.normal(0, 0.015, (25, 3))
+    tracked = np.ones(25, bool)
+    tracked[[3, 11]] = False  # inferred joints count a quarter
+    joints[7] = np.nan  # a joint the SDK lost
+    args = dict(kinect_positions=joints, tracked=tracked, depth_points=points)
+    fg, others, iterations, w = mask, None, 1, RefineWeights()
+    if variant == "two steps":
+        iterations = 2
+    elif variant == "other player and border":
+        # another player beside the person and a part of the person cut by the image's left border: the
+        # outline's box and its keep-out band must give the reference's pixels
+        others = np.zeros_like(mask)
+        ys, xs = np.nonzero(mask)
+        others[ys.min() + 60:ys.min() + 160, xs.max() - 5:xs.max() + 40] = True
+        fg = mask & ~others
+        fg[200:260, 0:40] = True
+    elif variant == "silhouette only":
+        args = {}
+        w = RefineWeights(depth_weight=0.0, joint_weight=0.0)
+    elif variant == "no joints":
+        args = dict(depth_points=points)
+    fast = refine_pose(plan, sk, ik, camera, fg, others=others, iterations=iterations, weights=w, **args)
+    reference = refine_pose_reference(plan, sk, ik, camera, fg, others=others, iterations=iterations, weights=w,
+                                      **args)
+    moved = np.abs(reference.rotations - ik.rotations).max() + np.abs(reference.translation - ik.translation).max()
+    assert moved > 1e-3  # the case exercises the step
+    assert _equal_poses(fast, reference), (np.abs(fast.rotations - reference.rotations).max(),
+                                           np.abs(fast.translation - reference.translation).max())
+
+
+def test_the_outline_on_the_box_is_the_outline_of_the_whole_image():
+    from refine_reference import mask_outline_reference
+
+    from bodystudio.mirror.refine import mask_box, mask_outline
+
+    rng = np.random.default_rng(3)
+    for trial in range(20):
+        mask = np.zeros((120, 160), np.uint8)
+        for _ in range(3):  # blobs, some cut by the border
+            cv2.circle(mask, (int(rng.integers(-10, 170)), int(rng.integers(-10, 130))), int(rng.integers(5, 40)), 1,
+                       -1)
+        others = np.zeros_like(mask)
+        cv2.rectangle(others, (int(rng.integers(0, 150)), int(rng.integers(0, 110))), (int(rng.integers(0, 160)),
+                      int(rng.integers(0, 120))), 1, -1)
+        fg, others = mask.astype(bool) & ~others.astype(bool), others.astype(bool)
+        if trial % 4 == 0:
+            others[:] = False
+        box = mask_box(fg | others, 40 if trial % 2 else 3)
+        if box is None:
+            continue
+        np.testing.assert_array_equal(mask_outline(fg, others, box), mask_outline_reference(fg, others))
+        np.testing.assert_array_equal(mask_outline(fg, None, box), mask_outline_reference(fg, None))
