@@ -300,7 +300,7 @@ def mask_outline(mask: np.ndarray, keep_out: np.ndarray | None = None,
     m = np.asarray(mask, bool)
     y0, y1, x0, x1 = (0, m.shape[0], 0, m.shape[1]) if box is None else box
     k = np.zeros((1, 1), bool) if keep_out is None else np.asarray(keep_out, bool)[y0:y1, x0:x1]
-    ys, xs = _outline_pixels(m[y0:y1, x0:x1], k, keep_out is not None)
+    ys, xs = _outline_pixels(m[y0:y1, x0:x1], k, bool(k.any()))
     return np.c_[xs + x0, ys + y0].astype(np.float64)
 
 
@@ -316,25 +316,24 @@ def _outline_pixels(mask, keep_out, has_keep_out):
         for x in range(1, w - 1):
             if not mask[y, x]:
                 continue
-            edge = False
-            for dy in range(-1, 2):
-                for dx in range(-1, 2):
-                    if not mask[y + dy, x + dx]:
-                        edge = True
-            if not edge:
+            if (mask[y - 1, x - 1] and mask[y - 1, x] and mask[y - 1, x + 1] and mask[y, x - 1] and mask[y, x + 1]
+                    and mask[y + 1, x - 1] and mask[y + 1, x] and mask[y + 1, x + 1]):
                 continue
-            if has_keep_out:
-                near = False
-                for yy in range(max(y - 2, 0), min(y + 3, h)):
-                    for xx in range(max(x - 2, 0), min(x + 3, w)):
-                        if keep_out[yy, xx]:
-                            near = True
-                if near:
-                    continue
+            if has_keep_out and _any_in_window(keep_out, y - 2, y + 3, x - 2, x + 3):
+                continue
             ys[n] = y
             xs[n] = x
             n += 1
     return ys[:n], xs[:n]
+
+
+@njit(cache=True)
+def _any_in_window(image, y0, y1, x0, x1):
+    for y in range(max(y0, 0), min(y1, image.shape[0])):
+        for x in range(max(x0, 0), min(x1, image.shape[1])):
+            if image[y, x]:
+                return True
+    return False
 
 
 def apply_update(skeleton: Skeleton, pose: Pose, delta: np.ndarray, bones: np.ndarray, axes: np.ndarray,
