@@ -30,7 +30,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numba import njit
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from bodystudio.body.kinect import KINECT_JOINT_SETS, kinect_joint_names
@@ -252,10 +251,75 @@ def _projection_rows(camera, Pc: np.ndarray) -> np.ndarray:
     return D @ camera.R
 
 
-def _kd_tree(points: np.ndarray) -> cKDTree:
-    """A k-d tree for a few hundred nearest-point queries: built by sliding midpoints, not medians (the same
-    nearest points; a third faster to build for the ~600-1500 points of a frame)."""
-    return cKDTree(points, balanced_tree=False, compact_nodes=False)
+@njit(cache=True)
+def nearest_within(points: np.ndarray, queries: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest of ``points`` (n, D) to each of ``queries`` (m, D) closer than ``radius``: distances (inf where
+    none) and indices (``n`` where none), as ``cKDTree(points).query(queries, distance_upper_bound=radius)`` gives
+    them; by a grid of cells at least ``radius`` wide (a point that near lies in the query's cell or a
+    neighbour), which costs a fraction of building the tree for the few hundred queries of a frame."""
+    n, D = points.shape
+    m = queries.shape[0]
+    dist = np.full(m, np.inf)
+    index = np.full(m, n, np.int64)
+    if n == 0:
+        return dist, index
+    lo = np.empty(D)
+    extent = np.empty(D)
+    for d in range(D):
+        lo[d] = points[:, d].min()
+        extent[d] = points[:, d].max() - lo[d]
+    cell = radius
+    dims = np.empty(D, np.int64)
+    while True:  # at most ~a million cells: wider cells where the points spread far
+        n_cells = 1
+        for d in range(D):
+            dims[d] = int(extent[d] / cell) + 1
+            n_cells *= dims[d]
+        if n_cells <= 1 << 20:
+            break
+        cell *= 2.0
+    cells = np.empty(n, np.int64)
+    start = np.zeros(n_cells + 1, np.int64)
+    for i in range(n):
+        c = 0
+        for d in range(D):
+            c = c * dims[d] + min(int((points[i, d] - lo[d]) / cell), dims[d] - 1)
+        cells[i] = c
+        start[c + 1] += 1
+    for c in range(n_cells):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):  # counting sort: the points of cell c are order[start[c]:start[c + 1]], ascending
+        order[fill[cells[i]]] = i
+        fill[cells[i]] += 1
+    r2 = radius * radius
+    coord = np.empty(D, np.int64)
+    for j in range(m):
+        for d in range(D):
+            coord[d] = int(np.floor((queries[j, d] - lo[d]) / cell))
+        best, best_i = np.inf, n
+        for t in range(3 ** D):
+            c, code, inside = 0, t, True
+            for d in range(D):
+                k = coord[d] + code % 3 - 1
+                code //= 3
+                if k < 0 or k >= dims[d]:
+                    inside = False
+                c = c * dims[d] + k
+            if not inside:
+                continue
+            for s in range(start[c], start[c + 1]):
+                i = order[s]
+                d2 = 0.0
+                for d in range(D):
+                    d2 += (points[i, d] - queries[j, d]) ** 2
+                if d2 < best or (d2 == best and i < best_i):
+                    best, best_i = d2, i
+        if best < r2:
+            dist[j] = np.sqrt(best)
+            index[j] = best_i
+    return dist, index
 
 
 def _sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -455,7 +519,7 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         cos = np.einsum("ij,ij->i", N, ray) / np.linalg.norm(ray, axis=1)
         rim = np.flatnonzero(ok & (np.abs(cos) < RIM_COS))
         if len(rim) >= 3 and len(outline):
-            dist, nearest = _kd_tree(uv[rim]).query(outline, distance_upper_bound=25.0)
+            dist, nearest = nearest_within(uv[rim], outline, 25.0)
             keep = np.isfinite(dist)
             r_ids = rim[nearest[keep]]
             Dp = _projection_rows(camera, Pc[r_ids])
@@ -469,7 +533,7 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         # E_depth: point-to-plane to the nearest front-facing vertex (within 5 cm)
         if pts is not None:
             front = np.flatnonzero(cos < 0)
-            dist, nearest = _kd_tree(V[front]).query(pts, distance_upper_bound=0.05)
+            dist, nearest = nearest_within(V[front], pts, 0.05)
             keep = np.isfinite(dist)
             if keep.any():
                 v_ids = front[nearest[keep]]

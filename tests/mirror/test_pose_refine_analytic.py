@@ -196,3 +196,24 @@ def test_the_outline_on_the_box_is_the_outline_of_the_whole_image():
             continue
         np.testing.assert_array_equal(mask_outline(fg, others, box), mask_outline_reference(fg, others))
         np.testing.assert_array_equal(mask_outline(fg, None, box), mask_outline_reference(fg, None))
+
+
+@pytest.mark.parametrize("dim, radius", [(2, 25.0), (3, 0.05), (3, 1e-4)])
+def test_nearest_within_is_the_k_d_tree_query(dim, radius):
+    from scipy.spatial import cKDTree
+
+    from bodystudio.mirror.refine import nearest_within
+
+    rng = np.random.default_rng(dim)
+    scale = 300.0 if dim == 2 else 0.5
+    points = rng.uniform(0, scale, (800, dim))
+    points[:5] += 50 * scale  # outliers far away (the grid widens its cells)
+    queries = np.r_[points[rng.choice(800, 300)] + rng.normal(0, radius, (300, dim)),
+                    rng.uniform(-scale, 2 * scale, (100, dim))]
+    dist, index = nearest_within(points, queries, radius)
+    ref_dist, ref_index = cKDTree(points).query(queries, distance_upper_bound=radius)
+    np.testing.assert_array_equal(index, ref_index)
+    np.testing.assert_allclose(dist, ref_dist, rtol=1e-12)
+    assert np.isfinite(dist).sum() > 40  # the case has neighbours within the radius
+    empty = nearest_within(np.zeros((0, dim)), queries, radius)
+    assert np.all(np.isinf(empty[0])) and np.all(empty[1] == 0)
