@@ -404,15 +404,78 @@ def apply_update(skeleton: Skeleton, pose: Pose, delta: np.ndarray, bones: np.nd
                  world: np.ndarray) -> Pose:
     """The pose turned by ``delta`` (root translation, root rotation vector in world axes, two swing angles per
     bone about ``axes``); ``world`` (B, 3, 3) the pose's world rotations (rest-world to posed-world)."""
-    Rr = skeleton.rest_rotations[bones]
-    parents = np.asarray(skeleton.parents)[bones]
     rotvecs = pose.rotations.copy()
-    turns = np.vstack([delta[3:6], delta[6::2, None] * axes[:, 0] + delta[7::2, None] * axes[:, 1]])
-    Wp = np.where((parents < 0)[:, None, None], np.eye(3), world[np.maximum(parents, 0)])
-    # W_j' = W_p' L_j' with L_j' = W_p^T exp(w) W_j: first order the same turn of j's subtree in world axes
-    L_new = np.transpose(Wp, (0, 2, 1)) @ Rotation.from_rotvec(turns).as_matrix() @ world[bones]
-    rotvecs[bones] = Rotation.from_matrix(np.transpose(Rr, (0, 2, 1)) @ L_new @ Rr).as_rotvec()
+    rotvecs[bones] = _turned_rotations(np.ascontiguousarray(skeleton.rest_rotations[bones]),
+                                       np.asarray(skeleton.parents, np.int64)[bones], np.asarray(delta, float),
+                                       np.ascontiguousarray(axes), np.ascontiguousarray(world), bones)
     return Pose(rotvecs, pose.translation + delta[:3])
+
+
+@njit(cache=True)
+def _turned_rotations(rest_rotations, parents, delta, axes, world, bones):
+    """The local rotation vectors of ``bones`` after the turns of :func:`apply_update`:
+    ``W_j' = W_p' L_j'`` with ``L_j' = W_p^T exp(w) W_j`` (first order the same turn of j's subtree in world axes),
+    in the rest frame: ``log(Rr^T L_j' Rr)``."""
+    n = len(bones)
+    out = np.empty((n, 3))
+    turn = np.empty(3)
+    for b in range(n):
+        if b == 0:
+            turn[:] = delta[3:6]
+        else:
+            turn[:] = delta[6 + 2 * (b - 1)] * axes[b - 1, 0] + delta[7 + 2 * (b - 1)] * axes[b - 1, 1]
+        L = _rotation_matrix(turn) @ world[bones[b]]
+        if parents[b] >= 0:
+            L = world[parents[b]].T @ L
+        out[b] = _rotation_vector(rest_rotations[b].T @ L @ rest_rotations[b])
+    return out
+
+
+@njit(cache=True)
+def _rotation_matrix(rotvec):
+    """The rotation matrix of a rotation vector through its unit quaternion (as scipy's ``from_rotvec``)."""
+    angle = np.sqrt(rotvec[0] ** 2 + rotvec[1] ** 2 + rotvec[2] ** 2)
+    if angle <= 1e-3:
+        scale = 0.5 - angle**2 / 48 + angle**4 / 3840
+    else:
+        scale = np.sin(angle / 2) / angle
+    x, y, z, w = scale * rotvec[0], scale * rotvec[1], scale * rotvec[2], np.cos(angle / 2)
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = x * x - y * y - z * z + w * w, 2 * (x * y - z * w), 2 * (x * z + y * w)
+    R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + z * w), -x * x + y * y - z * z + w * w, 2 * (y * z - x * w)
+    R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - y * w), 2 * (y * z + x * w), -x * x - y * y + z * z + w * w
+    return R
+
+
+@njit(cache=True)
+def _rotation_vector(R):
+    """The rotation vector of a rotation matrix through its unit quaternion (as scipy's ``from_matrix``, then
+    ``as_rotvec``: the largest of the trace and the diagonal picks the stable formula)."""
+    q = np.empty(4)
+    trace = R[0, 0] + R[1, 1] + R[2, 2]
+    i = 0
+    for k in range(1, 3):
+        if R[k, k] > R[i, i]:
+            i = k
+    if trace > R[i, i]:
+        q[3] = 1 + trace
+        q[0], q[1], q[2] = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
+    else:
+        j, k = (i + 1) % 3, (i + 2) % 3
+        q[i] = 1 - trace + 2 * R[i, i]
+        q[j] = R[j, i] + R[i, j]
+        q[k] = R[k, i] + R[i, k]
+        q[3] = R[k, j] - R[j, k]
+    q /= np.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+    if q[3] < 0:
+        q = -q
+    norm = np.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2)
+    angle = 2 * np.arctan2(norm, q[3])
+    if angle <= 1e-3:
+        scale = 2 + angle**2 / 12 + 7 * angle**4 / 2880
+    else:
+        scale = angle / np.sin(angle / 2)
+    return scale * q[:3]
 
 
 _BLAS = None

@@ -16,7 +16,6 @@ from bodystudio.mirror.refine import (
     RIM_COS,
     _one_blas_thread,
     _sample,
-    apply_update,
     silhouette_distance,
 )
 
@@ -52,6 +51,21 @@ def _skin(plan, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     V = np.einsum("nij,nj->ni", M[:, :, :3], plan.rest_vertices) + M[:, :, 3]
     N = np.einsum("nij,nj->ni", M[:, :, :3], plan.rest_normals)
     return V, N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
+
+
+def apply_update(skeleton, pose: Pose, delta: np.ndarray, bones: np.ndarray, axes: np.ndarray,
+                 world: np.ndarray) -> Pose:
+    """The pose turned by ``delta`` (root translation, root rotation vector in world axes, two swing angles per
+    bone about ``axes``); ``world`` (B, 3, 3) the pose's world rotations (rest-world to posed-world)."""
+    Rr = skeleton.rest_rotations[bones]
+    parents = np.asarray(skeleton.parents)[bones]
+    rotvecs = pose.rotations.copy()
+    turns = np.vstack([delta[3:6], delta[6::2, None] * axes[:, 0] + delta[7::2, None] * axes[:, 1]])
+    Wp = np.where((parents < 0)[:, None, None], np.eye(3), world[np.maximum(parents, 0)])
+    # W_j' = W_p' L_j' with L_j' = W_p^T exp(w) W_j: first order the same turn of j's subtree in world axes
+    L_new = np.transpose(Wp, (0, 2, 1)) @ Rotation.from_rotvec(turns).as_matrix() @ world[bones]
+    rotvecs[bones] = Rotation.from_matrix(np.transpose(Rr, (0, 2, 1)) @ L_new @ Rr).as_rotvec()
+    return Pose(rotvecs, pose.translation + delta[:3])
 
 
 def _point_jacobian(P: np.ndarray, s: np.ndarray, heads: np.ndarray, axes: np.ndarray) -> np.ndarray:
