@@ -117,7 +117,7 @@ def refine_plan(vertices_rest: np.ndarray, faces: np.ndarray, weights: np.ndarra
     inside = np.stack([_descendants(parents, j) for j in bones], axis=1).astype(float)  # (B, 1 + S)
     subtree = W @ inside
     k = min(6, W.shape[1])
-    idx = np.argsort(-W, axis=1)[:, :k]
+    idx = np.ascontiguousarray(np.argsort(-W, axis=1)[:, :k])
     val = np.take_along_axis(W, idx, 1)
     val = val / np.maximum(val.sum(1, keepdims=True), 1e-12)
     N = vertex_normals(np.asarray(vertices_rest, float), np.asarray(faces))[subset]
@@ -179,6 +179,8 @@ def _blend_skin(transforms, weight_idx, weight_val, rest_vertices, rest_normals)
         M[:] = 0.0
         for k in range(k_max):
             w = weight_val[i, k]
+            if w == 0.0:  # most vertices have two or three bones of the six
+                continue
             T = transforms[weight_idx[i, k]]
             for r in range(3):
                 for c in range(4):
