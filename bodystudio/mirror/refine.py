@@ -209,48 +209,84 @@ def accumulate_normal_equations(H: np.ndarray, Jtr: np.ndarray, P: np.ndarray, a
     ``s_j e . ((p - h_j) x a)`` (two axes per bone); a bone whose subtree weight ``s_j(p)`` is 0 adds nothing,
     which is most of them for most points. Only the upper triangle of ``H`` is filled.
     """
-    n_par = H.shape[0]
-    S = heads.shape[0] - 1
-    row = np.empty(n_par)
-    cols = np.empty(n_par, np.int64)
+    row = np.empty(H.shape[0])
+    cols = np.empty(H.shape[0], np.int64)
     for i in range(P.shape[0]):
-        ax, ay, az = a[i, 0], a[i, 1], a[i, 2]
-        k = 0
-        for c in range(S + 1):
-            sc = s[i, c]
-            if sc == 0.0:
-                continue
-            rx, ry, rz = P[i, 0] - heads[c, 0], P[i, 1] - heads[c, 1], P[i, 2] - heads[c, 2]
-            cx, cy, cz = ry * az - rz * ay, rz * ax - rx * az, rx * ay - ry * ax  # (p - h) x a
-            if c == 0:
-                row[0], row[1], row[2] = sc * ax, sc * ay, sc * az
-                row[3], row[4], row[5] = sc * cx, sc * cy, sc * cz
-                for q in range(6):
-                    cols[q] = q
-                k = 6
-            else:
-                e0 = axes[c - 1, 0]
-                e1 = axes[c - 1, 1]
-                row[k] = sc * (e0[0] * cx + e0[1] * cy + e0[2] * cz)
-                row[k + 1] = sc * (e1[0] * cx + e1[1] * cy + e1[2] * cz)
-                cols[k] = 6 + 2 * (c - 1)
-                cols[k + 1] = 7 + 2 * (c - 1)
-                k += 2
-        r = residuals[i]
-        for p in range(k):
-            cp = cols[p]
-            Jtr[cp] += row[p] * r
-            for q in range(p, k):  # cols ascend: (cols[p], cols[q]) is in the upper triangle
-                H[cp, cols[q]] += row[p] * row[q]
+        _add_row(H, Jtr, P[i], a[i, 0], a[i, 1], a[i, 2], s[i], heads, axes, residuals[i], row, cols)
 
 
-def _projection_rows(camera, Pc: np.ndarray) -> np.ndarray:
-    """(n, 2, 3) derivative of the (undistorted) projection by world points, from their camera coordinates."""
-    z = np.maximum(Pc[:, 2], 1e-6)
-    D = np.zeros((len(Pc), 2, 3))
-    D[:, 0, 0], D[:, 0, 2] = camera.fx / z, -camera.fx * Pc[:, 0] / z**2
-    D[:, 1, 1], D[:, 1, 2] = camera.fy / z, -camera.fy * Pc[:, 1] / z**2
-    return D @ camera.R
+@njit(cache=True)
+def _add_row(H, Jtr, p, ax, ay, az, s, heads, axes, residual, row, cols):
+    """One residual's row (see :func:`accumulate_normal_equations`) added to ``H`` (upper triangle) and ``Jtr``."""
+    k = 0
+    for c in range(heads.shape[0]):
+        sc = s[c]
+        if sc == 0.0:
+            continue
+        rx, ry, rz = p[0] - heads[c, 0], p[1] - heads[c, 1], p[2] - heads[c, 2]
+        cx, cy, cz = ry * az - rz * ay, rz * ax - rx * az, rx * ay - ry * ax  # (p - h) x a
+        if c == 0:
+            row[0], row[1], row[2] = sc * ax, sc * ay, sc * az
+            row[3], row[4], row[5] = sc * cx, sc * cy, sc * cz
+            for q in range(6):
+                cols[q] = q
+            k = 6
+        else:
+            e0 = axes[c - 1, 0]
+            e1 = axes[c - 1, 1]
+            row[k] = sc * (e0[0] * cx + e0[1] * cy + e0[2] * cz)
+            row[k + 1] = sc * (e1[0] * cx + e1[1] * cy + e1[2] * cz)
+            cols[k] = 6 + 2 * (c - 1)
+            cols[k + 1] = 7 + 2 * (c - 1)
+            k += 2
+    for u in range(k):
+        cu = cols[u]
+        Jtr[cu] += row[u] * residual
+        for v in range(u, k):  # cols ascend: (cols[u], cols[v]) is in the upper triangle
+            H[cu, cols[v]] += row[u] * row[v]
+
+
+@njit(cache=True)
+def accumulate_image_normal_equations(H, Jtr, V, Pc, ids, image_dirs, residuals, fx, fy, R, s, heads, axes):
+    """:func:`accumulate_normal_equations` for image residuals ``r_i = d_i . uv(p_i) + residuals_i`` of the points
+    ``V[ids]`` (camera coordinates ``Pc[ids]``), ``d_i`` = ``image_dirs`` (m, 2): the direction in space is
+    ``d^T (d uv / d p)``, the (undistorted) projection's derivative."""
+    row = np.empty(H.shape[0])
+    cols = np.empty(H.shape[0], np.int64)
+    for m in range(len(ids)):
+        i = ids[m]
+        z = max(Pc[i, 2], 1e-6)
+        gu = image_dirs[m, 0] * fx / z
+        gv = image_dirs[m, 1] * fy / z
+        gz = -(gu * Pc[i, 0] + gv * Pc[i, 1]) / z  # d . (d uv / d Pc) = (gu, gv, gz)
+        ax = gu * R[0, 0] + gv * R[1, 0] + gz * R[2, 0]
+        ay = gu * R[0, 1] + gv * R[1, 1] + gz * R[2, 1]
+        az = gu * R[0, 2] + gv * R[1, 2] + gz * R[2, 2]
+        _add_row(H, Jtr, V[i], ax, ay, az, s[i], heads, axes, residuals[m], row, cols)
+
+
+@njit(cache=True)
+def accumulate_outline_normal_equations(H, Jtr, V, N, Pc, uv, ids, targets, scale, fx, fy, R, s, heads, axes):
+    """``E_cover``'s rows: outline pixel ``targets`` (m, 2) onto the projected rim points ``V[ids]`` along the
+    image normal ``n2`` (their normal ``N`` projected, unit): residual ``scale n2 . (uv - target)``, added by
+    :func:`accumulate_image_normal_equations`'s rule."""
+    row = np.empty(H.shape[0])
+    cols = np.empty(H.shape[0], np.int64)
+    Du = np.empty(3)
+    Dv = np.empty(3)
+    for m in range(len(ids)):
+        i = ids[m]
+        z = max(Pc[i, 2], 1e-6)
+        for c in range(3):  # rows of d uv / d p = D R
+            Du[c] = fx / z * R[0, c] - fx * Pc[i, 0] / z**2 * R[2, c]
+            Dv[c] = fy / z * R[1, c] - fy * Pc[i, 1] / z**2 * R[2, c]
+        nu = Du[0] * N[i, 0] + Du[1] * N[i, 1] + Du[2] * N[i, 2]
+        nv = Dv[0] * N[i, 0] + Dv[1] * N[i, 1] + Dv[2] * N[i, 2]
+        length = max(np.sqrt(nu * nu + nv * nv), 1e-9)
+        nu, nv = nu / length, nv / length
+        residual = scale * (nu * (uv[i, 0] - targets[m, 0]) + nv * (uv[i, 1] - targets[m, 1]))
+        _add_row(H, Jtr, V[i], scale * (nu * Du[0] + nv * Dv[0]), scale * (nu * Du[1] + nv * Dv[1]),
+                 scale * (nu * Du[2] + nv * Dv[2]), s[i], heads, axes, residual, row, cols)
 
 
 @njit(cache=True)
@@ -575,9 +611,8 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
             g = np.c_[_sample(dist_out, lo + [1, 0]) - _sample(dist_out, lo - [1, 0]),
                       _sample(dist_out, lo + [0, 1]) - _sample(dist_out, lo - [0, 1])] / 2.0
             scale = weights.sil_weight ** 0.5 / (weights.sil_px * max(len(out), len(outline), 1) ** 0.5)
-            along = scale * np.einsum("ni,nij->nj", g, _projection_rows(camera, Pc[out]))
-            accumulate_normal_equations(H, Jtr, V[out], along, plan.subtree_weight[out], heads, axes,
-                                        scale * np.minimum(d_in[outside], 30.0))
+            accumulate_image_normal_equations(H, Jtr, V, Pc, out, scale * g, scale * np.minimum(d_in[outside], 30.0),
+                                              camera.fx, camera.fy, camera.R, plan.subtree_weight, heads, axes)
             used = True
         # E_cover: the mask's outline pixels onto the nearest projected rim vertex, along its image normal
         ray = V - eye
@@ -586,14 +621,9 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         if len(rim) >= 3 and len(outline):
             dist, nearest = nearest_within(uv[rim], outline, 25.0)
             keep = np.isfinite(dist)
-            r_ids = rim[nearest[keep]]
-            Dp = _projection_rows(camera, Pc[r_ids])
-            n2 = np.einsum("nij,nj->ni", Dp, N[r_ids])
-            n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-9)
-            r = np.einsum("ij,ij->i", n2, uv[r_ids] - outline[keep])
             scale = weights.sil_weight ** 0.5 / (weights.sil_px * max(len(outline), 1) ** 0.5)
-            accumulate_normal_equations(H, Jtr, V[r_ids], scale * np.einsum("ni,nij->nj", n2, Dp),
-                                        plan.subtree_weight[r_ids], heads, axes, scale * r)
+            accumulate_outline_normal_equations(H, Jtr, V, N, Pc, uv, rim[nearest[keep]], outline[keep], scale,
+                                                camera.fx, camera.fy, camera.R, plan.subtree_weight, heads, axes)
             used = True
         # E_depth: point-to-plane to the nearest front-facing vertex (within 5 cm)
         if pts is not None:
