@@ -516,6 +516,34 @@ def _rotation_vector(R):
     return scale * q[:3]
 
 
+#: The pixel steps of the distance transform's central differences: +x, -x, +y, -y.
+_STEPS_PX = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+
+
+@njit(cache=True)
+def _bone_frames(M, rest_rotations, bones):
+    """From the posed frames ``M`` (B, 4, 4): the world rotations ``M_j R_rest_j^T`` (B, 3, 3), the heads of
+    ``bones`` (root first) and two unit axes perpendicular to each swing bone's direction (S, 2, 3)."""
+    world = np.empty((len(M), 3, 3))
+    for j in range(len(M)):
+        for r in range(3):
+            for c in range(3):
+                world[j, r, c] = M[j, r, 0] * rest_rotations[j, c, 0] + M[j, r, 1] * rest_rotations[j, c, 1] \
+                    + M[j, r, 2] * rest_rotations[j, c, 2]
+    heads = np.empty((len(bones), 3))
+    for b in range(len(bones)):
+        heads[b] = M[bones[b], :3, 3]
+    axes = np.empty((len(bones) - 1, 2, 3))
+    for b in range(1, len(bones)):
+        d = M[bones[b], :3, 1]
+        h = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+        a = np.array([d[1] * h[2] - d[2] * h[1], d[2] * h[0] - d[0] * h[2], d[0] * h[1] - d[1] * h[0]])
+        a /= np.sqrt(a[0] ** 2 + a[1] ** 2 + a[2] ** 2)
+        axes[b - 1, 0] = a
+        axes[b - 1, 1] = np.array([d[1] * a[2] - d[2] * a[1], d[2] * a[0] - d[0] * a[2], d[0] * a[1] - d[1] * a[0]])
+    return world, heads, axes
+
+
 _BLAS = None
 
 
@@ -580,15 +608,10 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
     eye = camera.center
     parents = skeleton.parents
     dist_shape = np.array(dist_out.shape[::-1])
+    rest_rotations = np.ascontiguousarray(skeleton.rest_rotations)
     for _ in range(max(0, int(iterations))):
         M, transforms = _forward_kinematics(plan, parents, pose)
-        world = M[:, :3, :3] @ np.transpose(skeleton.rest_rotations, (0, 2, 1))
-        heads = M[bones, :3, 3]
-        directions = M[bones[1:], :3, 1]
-        helper = np.where(np.abs(directions[:, :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0])
-        a = np.cross(directions, helper)
-        a /= np.linalg.norm(a, axis=1, keepdims=True)
-        axes = np.stack([a, np.cross(directions, a)], axis=1)  # (S, 2, 3): two axes perpendicular to each bone
+        world, heads, axes = _bone_frames(M, rest_rotations, bones)
         V, N = _skin(plan, transforms)
         Pc = V @ camera.R.T + camera.t
         uv, _ = camera.project_with_depth(V)
@@ -608,8 +631,8 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         out = in_box[outside]
         if len(out):
             lo = local[out]
-            g = np.c_[_sample(dist_out, lo + [1, 0]) - _sample(dist_out, lo - [1, 0]),
-                      _sample(dist_out, lo + [0, 1]) - _sample(dist_out, lo - [0, 1])] / 2.0
+            around = _sample(dist_out, (lo[None] + _STEPS_PX[:, None]).reshape(-1, 2)).reshape(4, -1)
+            g = np.c_[around[0] - around[1], around[2] - around[3]] / 2.0  # central differences
             scale = weights.sil_weight ** 0.5 / (weights.sil_px * max(len(out), len(outline), 1) ** 0.5)
             accumulate_image_normal_equations(H, Jtr, V, Pc, out, scale * g, scale * np.minimum(d_in[outside], 30.0),
                                               camera.fx, camera.fy, camera.R, plan.subtree_weight, heads, axes)
