@@ -399,6 +399,33 @@ def silhouette_distance(mask: np.ndarray, margin_px: int = 40,
     return cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_5), np.array([x0, y0], float)
 
 
+def _distance_where_needed(dist_out: np.ndarray, allowed: np.ndarray, box, silhouette, points: np.ndarray,
+                           done: tuple[int, int, int, int] | None) -> tuple[int, int, int, int]:
+    """Fill ``dist_out`` (the distance transform over ``box``, :func:`silhouette_distance`) in the window that the
+    samples at ``points`` (box pixels) and their central differences read: the mask's own box (``silhouette``)
+    grown to hold them. A chamfer distance path to the nearest mask pixel stays in the box spanned by the two, so
+    the window's values are the whole box's (to float32 rounding, ~4e-6 px) at a fraction of its area (the 40 px
+    margin is mostly empty). ``done``: the window filled so far (nothing is recomputed while it holds the points).
+    Returns the window ``(y0, y1, x0, x1)`` in box pixels."""
+    by0, by1, bx0, bx1 = box
+    h, w = by1 - by0, bx1 - bx0
+    y0, y1, x0, x1 = silhouette[0] - by0, silhouette[1] - by0, silhouette[2] - bx0, silhouette[3] - bx0
+    if len(points):
+        lo, hi = np.floor(points.min(0)).astype(int), np.floor(points.max(0)).astype(int)
+        x0, x1 = min(x0, lo[0] - 3), max(x1, hi[0] + 5)
+        y0, y1 = min(y0, lo[1] - 3), max(y1, hi[1] + 5)
+    window = (max(y0, 0), min(y1, h), max(x0, 0), min(x1, w))
+    if done is not None and done[0] <= window[0] and done[1] >= window[1] and done[2] <= window[2] \
+            and done[3] >= window[3]:
+        return done
+    if done is not None:  # a later step's body reaches farther: one window holding both
+        window = (min(window[0], done[0]), max(window[1], done[1]), min(window[2], done[2]), max(window[3], done[3]))
+    y0, y1, x0, x1 = window
+    crop = (~allowed[by0 + y0:by0 + y1, bx0 + x0:bx0 + x1]).astype(np.uint8)
+    dist_out[y0:y1, x0:x1] = cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_5)
+    return window
+
+
 def mask_outline(mask: np.ndarray, keep_out: np.ndarray | None = None,
                  box: tuple[int, int, int, int] | None = None) -> np.ndarray:
     """(m, 2) pixel centres ``(x, y)`` of the outline of ``mask`` (inside pixels with an outside 8-neighbour),
@@ -590,7 +617,15 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         raise InputError(f"refine_pose: foreground {fg.shape} is not the camera's ({camera.height}, {camera.width})")
     allowed = fg if others is None else fg | others
     box = mask_box(allowed, 40)
-    dist_out, origin = silhouette_distance(allowed, 40, box)
+    if box is None:
+        dist_out, origin = silhouette_distance(allowed, 40, None)
+        dist_shape = np.array(dist_out.shape[::-1])
+    else:  # the transform over the box, computed where the body projects (see _distance_where_needed)
+        origin = np.array([box[2], box[0]], float)
+        dist_shape = np.array([box[3] - box[2], box[1] - box[0]])
+        dist_out = np.empty((dist_shape[1], dist_shape[0]), np.float32)
+        silhouette = mask_box(allowed, 0)
+        done = None
     outline = mask_outline(fg, others, box) if box is not None else np.zeros((0, 2))
     rng = np.random.default_rng(0)
     if len(outline) > weights.sil_samples:
@@ -615,7 +650,6 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
     total = np.zeros(n_par)
     eye = camera.center
     parents = skeleton.parents
-    dist_shape = np.array(dist_out.shape[::-1])
     rest_rotations = np.ascontiguousarray(skeleton.rest_rotations)
     for _ in range(max(0, int(iterations))):
         M, transforms = _forward_kinematics(plan, parents, pose)
@@ -634,6 +668,8 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         with np.errstate(invalid="ignore"):
             in_box = np.flatnonzero(ok & (local[:, 0] >= 1) & (local[:, 1] >= 1) & (local[:, 0] < dist_shape[0] - 2)
                                     & (local[:, 1] < dist_shape[1] - 2))
+        if box is not None:
+            done = _distance_where_needed(dist_out, allowed, box, silhouette, local[in_box], done)
         d_in = _sample(dist_out, local[in_box])
         outside = d_in > 0.5
         out = in_box[outside]
