@@ -217,3 +217,29 @@ def test_nearest_within_is_the_k_d_tree_query(dim, radius):
     assert np.isfinite(dist).sum() > 40  # the case has neighbours within the radius
     empty = nearest_within(np.zeros((0, dim)), queries, radius)
     assert np.all(np.isinf(empty[0])) and np.all(empty[1] == 0)
+
+
+def test_the_distance_window_is_the_whole_box_transform_where_it_is_read():
+    from bodystudio.mirror.refine import _distance_where_needed, _sample, mask_box, silhouette_distance
+
+    rng = np.random.default_rng(11)
+    for trial in range(10):
+        mask = np.zeros((240, 320), np.uint8)
+        for _ in range(3):
+            cv2.ellipse(mask, (int(rng.integers(0, 320)), int(rng.integers(0, 240))),
+                        (int(rng.integers(5, 60)), int(rng.integers(5, 90))), float(rng.uniform(0, 180)), 0, 360, 1, -1)
+        allowed = mask.astype(bool)
+        box = mask_box(allowed, 40)
+        whole, _ = silhouette_distance(allowed, 40, box)
+        h, w = whole.shape
+        points = rng.uniform([1, 1], [w - 2.001, h - 2.001], (300, 2))  # as the in-box test admits them
+        near = points[: 150 if trial % 2 else 300]
+        dist = np.full_like(whole, np.nan)
+        done = _distance_where_needed(dist, allowed, box, mask_box(allowed, 0), near, None)
+        probes = (near[None] + np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]])[:, None]).reshape(-1, 2)
+        np.testing.assert_allclose(_sample(dist, probes), _sample(whole, probes), atol=1e-4)
+        # a later step reaching farther widens the window; the earlier values stay
+        again = _distance_where_needed(dist, allowed, box, mask_box(allowed, 0), points, done)
+        assert again[0] <= done[0] and again[1] >= done[1] and again[2] <= done[2] and again[3] >= done[3]
+        probes = (points[None] + np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]])[:, None]).reshape(-1, 2)
+        np.testing.assert_allclose(_sample(dist, probes), _sample(whole, probes), atol=1e-4)
