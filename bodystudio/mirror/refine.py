@@ -308,11 +308,21 @@ def nearest_within(points: np.ndarray, queries: np.ndarray, radius: float) -> tu
     index = np.full(m, n, np.int64)
     if n == 0:
         return dist, index
-    lo = np.empty(D)
-    extent = np.empty(D)
-    for d in range(D):
-        lo[d] = points[:, d].min()
-        extent[d] = points[:, d].max() - lo[d]
+    finite = np.ones(n, np.bool_)
+    for i in range(n):
+        for d in range(D):
+            if not np.isfinite(points[i, d]):
+                finite[i] = False
+    if not finite.any():
+        return dist, index
+    lo = np.full(D, np.inf)
+    hi = np.full(D, -np.inf)
+    for i in range(n):
+        if finite[i]:
+            for d in range(D):
+                lo[d] = min(lo[d], points[i, d])
+                hi[d] = max(hi[d], points[i, d])
+    extent = hi - lo
     cell = radius
     dims = np.empty(D, np.int64)
     while True:  # at most ~a million cells: wider cells where the points spread far
@@ -326,6 +336,9 @@ def nearest_within(points: np.ndarray, queries: np.ndarray, radius: float) -> tu
     cells = np.empty(n, np.int64)
     start = np.zeros(n_cells + 1, np.int64)
     for i in range(n):
+        if not finite[i]:  # never anyone's nearest (kept out of every cell)
+            cells[i] = -1
+            continue
         c = 0
         for d in range(D):
             c = c * dims[d] + min(int((points[i, d] - lo[d]) / cell), dims[d] - 1)
@@ -336,13 +349,21 @@ def nearest_within(points: np.ndarray, queries: np.ndarray, radius: float) -> tu
     fill = start[:-1].copy()
     order = np.empty(n, np.int64)
     for i in range(n):  # counting sort: the points of cell c are order[start[c]:start[c + 1]], ascending
-        order[fill[cells[i]]] = i
-        fill[cells[i]] += 1
+        if cells[i] >= 0:
+            order[fill[cells[i]]] = i
+            fill[cells[i]] += 1
     r2 = radius * radius
     coord = np.empty(D, np.int64)
     for j in range(m):
+        usable = True
         for d in range(D):
-            coord[d] = int(np.floor((queries[j, d] - lo[d]) / cell))
+            step = np.floor((queries[j, d] - lo[d]) / cell)
+            if not np.abs(step) < 1e15:  # not finite, or far beyond every cell: no neighbour
+                usable = False
+                break
+            coord[d] = int(step)
+        if not usable:
+            continue
         best, best_i = np.inf, n
         for t in range(3 ** D):
             c, code, inside = 0, t, True

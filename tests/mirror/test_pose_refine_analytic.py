@@ -243,3 +243,15 @@ def test_the_distance_window_is_the_whole_box_transform_where_it_is_read():
         assert again[0] <= done[0] and again[1] >= done[1] and again[2] <= done[2] and again[3] >= done[3]
         probes = (points[None] + np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]])[:, None]).reshape(-1, 2)
         np.testing.assert_allclose(_sample(dist, probes), _sample(whole, probes), atol=1e-4)
+
+
+def test_nearest_within_ignores_points_and_queries_that_are_not_finite():
+    from bodystudio.mirror.refine import nearest_within
+
+    points = np.array([[0.0, 0.0], [np.nan, 1.0], [1.0, np.inf], [2.0, 2.0]])
+    queries = np.array([[0.1, 0.0], [np.nan, 0.0], [np.inf, np.inf], [2.0, 2.2], [1.0, 1.0], [1e300, 0.0]])
+    dist, index = nearest_within(points, queries, 0.5)
+    np.testing.assert_array_equal(index, [0, 4, 4, 3, 4, 4])
+    np.testing.assert_allclose(dist[[0, 3]], [0.1, 0.2])
+    assert np.all(np.isinf(dist[[1, 2, 4, 5]]))
+    assert np.all(nearest_within(points[1:3], queries, 0.5)[1] == 2)
