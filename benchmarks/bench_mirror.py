@@ -122,8 +122,9 @@ def _accuracy(case) -> dict[str, float]:
     return out
 
 
-def _session_side(quick: bool) -> tuple[list[str], float | None]:
-    """Markdown lines: the session side per frame, from MIR-SYNTH's and MIR-BODY's timing functions.
+def _session_side(quick: bool) -> tuple[list[str], float | None, float | None]:
+    """Markdown lines: the session side per frame, from MIR-SYNTH's and MIR-BODY's timing functions; its CPU ms
+    per frame and the pose refinement's (``--refine-pose``; None without it).
 
     A synthetic mirror session is written (as ``synthetic.time_synth_mirror`` does), its observations fitted and
     tracked (``init.time_init_and_track``: the §4 fit, IK and skinning per frame), and the depth-to-colour
@@ -138,7 +139,7 @@ def _session_side(quick: bool) -> tuple[list[str], float | None]:
         frames = importlib.import_module("bodystudio.mirror.frames")
     except ImportError:
         return ["Session side (synthesis, init, IK, posing, depth registration): their modules are not in this "
-                "checkout."], None
+                "checkout."], None, None
     from bodystudio.body.statistical import load_statistical_model
     from bodystudio.capture.session import open_session
 
@@ -164,11 +165,11 @@ def _session_side(quick: bool) -> tuple[list[str], float | None]:
                      + ", ".join(f"{k} {v:.2f}" for k, v in synth.items() if isinstance(v, (int, float))) + ".")
         refine_ms = _refine_pose_ms(session, model, last, frames)
         if refine_ms is not None:
-            lines.append(f"`--refine-pose` (off by default; not in the end-to-end figure below): the pose refinement "
-                         f"{refine_ms[0]:.1f} ms CPU ({refine_ms[1]:.1f} wall) per frame, one Gauss-Newton step "
-                         "(the mean shape posed by the IK against the player mask, depth and joints of the last "
-                         "frame).")
-    return lines, register[0] + track["ik_cpu_ms"] + 2 * track["skin_cpu_ms"]
+            lines.append(f"`--refine-pose`: the pose refinement {refine_ms[0]:.1f} ms CPU ({refine_ms[1]:.1f} wall) "
+                         "per frame, one Gauss-Newton step (the mean shape posed by the IK against the player mask, "
+                         "depth and joints of the last frame).")
+    return (lines, register[0] + track["ik_cpu_ms"] + 2 * track["skin_cpu_ms"],
+            None if refine_ms is None else refine_ms[0])
 
 
 def _refine_pose_ms(session, model, frame, frames) -> tuple[float, float] | None:
@@ -229,14 +230,19 @@ def run(quick: bool = False) -> str:
         lines += ["Accuracy on the same frame (1 actor, seed 0):", "",
                   markdown_table(["edit", *acc], acc_rows), ""]
     try:
-        session_lines, session_ms = _session_side(quick)
+        session_lines, session_ms, refine_ms = _session_side(quick)
         lines += session_lines + [""]
         if session_ms is not None:
             end_to_end = totals["1 actor"] + session_ms
             lines += [f"**End to end, one actor, one core: {end_to_end:.1f} ms CPU per frame = "
-                      f"{1e3 / end_to_end:.1f} fps** (image steps {totals['1 actor']:.1f} + registration, IK and "
-                      f"skinning {session_ms:.1f}; reading PNG frames from disk and writing the outputs not "
-                      "included: a live mirror gets frames from the SDK and shows them).", ""]
+                      f"{1e3 / end_to_end:.1f} fps** without the pose refinement (`--no-refine-pose`; image steps "
+                      f"{totals['1 actor']:.1f} + registration, IK and skinning {session_ms:.1f}; reading PNG frames "
+                      "from disk and writing the outputs not included: a live mirror gets frames from the SDK and "
+                      "shows them).", ""]
+            if refine_ms is not None:
+                lines += [f"**With the pose refinement (`--refine-pose`): {end_to_end + refine_ms:.1f} ms "
+                          f"CPU per frame = {1e3 / (end_to_end + refine_ms):.1f} fps** (the same run's figures plus "
+                          f"{refine_ms:.1f}).", ""]
     except Exception as exc:  # another module's timing helper must not hide these figures
         lines += [f"Session side: its timing helpers failed ({type(exc).__name__}: {exc}).", ""]
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")

@@ -127,3 +127,131 @@ def test_a_foreground_of_the_wrong_size_is_a_one_line_error(case):
     body, plan, camera, true, *_ = case
     with pytest.raises(InputError, match="foreground"):
         refine_pose(plan, body.skeleton, true, camera, np.zeros((10, 10), bool))
+
+
+# --- the fast implementation (issue 12, MIRFAST) against MIR12b's numpy one (tests/mirror/refine_reference.py)
+
+def _equal_poses(a, b, tol=1e-6):
+    return (np.abs(a.rotations - b.rotations).max() < tol and np.abs(a.translation - b.translation).max() < tol)
+
+
+@pytest.mark.parametrize("variant", ["all terms", "two steps", "other player and border", "silhouette only",
+                                     "no joints"])
+def test_the_fast_refinement_gives_the_reference_pose(case, variant):
+    from refine_reference import refine_pose_reference
+
+    body, plan, camera, true, V_true, mask, points = case
+    sk = body.skeleton
+    ik = _planted(sk, true, (0.04, -0.02, 0.05), 10.0)
+    rng = np.random.default_rng(7)
+    joints = posed_kinect_joints(sk, true) + rng.normal(0, 0.015, (25, 3))
+    tracked = np.ones(25, bool)
+    tracked[[3, 11]] = False  # inferred joints count a quarter
+    joints[7] = np.nan  # a joint the SDK lost
+    args = dict(kinect_positions=joints, tracked=tracked, depth_points=points)
+    fg, others, iterations, w = mask, None, 1, RefineWeights()
+    if variant == "two steps":
+        iterations = 2
+    elif variant == "other player and border":
+        # another player beside the person and a part of the person cut by the image's left border: the
+        # outline's box and its keep-out band must give the reference's pixels
+        others = np.zeros_like(mask)
+        ys, xs = np.nonzero(mask)
+        others[ys.min() + 60:ys.min() + 160, xs.max() - 5:xs.max() + 40] = True
+        fg = mask & ~others
+        fg[200:260, 0:40] = True
+    elif variant == "silhouette only":
+        args = {}
+        w = RefineWeights(depth_weight=0.0, joint_weight=0.0)
+    elif variant == "no joints":
+        args = dict(depth_points=points)
+    fast = refine_pose(plan, sk, ik, camera, fg, others=others, iterations=iterations, weights=w, **args)
+    reference = refine_pose_reference(plan, sk, ik, camera, fg, others=others, iterations=iterations, weights=w,
+                                      **args)
+    moved = np.abs(reference.rotations - ik.rotations).max() + np.abs(reference.translation - ik.translation).max()
+    assert moved > 1e-3  # the case exercises the step
+    assert _equal_poses(fast, reference), (np.abs(fast.rotations - reference.rotations).max(),
+                                           np.abs(fast.translation - reference.translation).max())
+
+
+def test_the_outline_on_the_box_is_the_outline_of_the_whole_image():
+    from refine_reference import mask_outline_reference
+
+    from bodystudio.mirror.refine import mask_box, mask_outline
+
+    rng = np.random.default_rng(3)
+    for trial in range(20):
+        mask = np.zeros((120, 160), np.uint8)
+        for _ in range(3):  # blobs, some cut by the border
+            cv2.circle(mask, (int(rng.integers(-10, 170)), int(rng.integers(-10, 130))), int(rng.integers(5, 40)), 1,
+                       -1)
+        others = np.zeros_like(mask)
+        cv2.rectangle(others, (int(rng.integers(0, 150)), int(rng.integers(0, 110))), (int(rng.integers(0, 160)),
+                      int(rng.integers(0, 120))), 1, -1)
+        fg, others = mask.astype(bool) & ~others.astype(bool), others.astype(bool)
+        if trial % 4 == 0:
+            others[:] = False
+        box = mask_box(fg | others, 40 if trial % 2 else 3)
+        if box is None:
+            continue
+        np.testing.assert_array_equal(mask_outline(fg, others, box), mask_outline_reference(fg, others))
+        np.testing.assert_array_equal(mask_outline(fg, None, box), mask_outline_reference(fg, None))
+
+
+@pytest.mark.parametrize("dim, radius", [(2, 25.0), (3, 0.05), (3, 1e-4)])
+def test_nearest_within_is_the_k_d_tree_query(dim, radius):
+    from scipy.spatial import cKDTree
+
+    from bodystudio.mirror.refine import nearest_within
+
+    rng = np.random.default_rng(dim)
+    scale = 300.0 if dim == 2 else 0.5
+    points = rng.uniform(0, scale, (800, dim))
+    points[:5] += 50 * scale  # outliers far away (the grid widens its cells)
+    queries = np.r_[points[rng.choice(800, 300)] + rng.normal(0, radius, (300, dim)),
+                    rng.uniform(-scale, 2 * scale, (100, dim))]
+    dist, index = nearest_within(points, queries, radius)
+    ref_dist, ref_index = cKDTree(points).query(queries, distance_upper_bound=radius)
+    np.testing.assert_array_equal(index, ref_index)
+    np.testing.assert_allclose(dist, ref_dist, rtol=1e-12)
+    assert np.isfinite(dist).sum() > 40  # the case has neighbours within the radius
+    empty = nearest_within(np.zeros((0, dim)), queries, radius)
+    assert np.all(np.isinf(empty[0])) and np.all(empty[1] == 0)
+
+
+def test_the_distance_window_is_the_whole_box_transform_where_it_is_read():
+    from bodystudio.mirror.refine import _distance_where_needed, _sample, mask_box, silhouette_distance
+
+    rng = np.random.default_rng(11)
+    for trial in range(10):
+        mask = np.zeros((240, 320), np.uint8)
+        for _ in range(3):
+            cv2.ellipse(mask, (int(rng.integers(0, 320)), int(rng.integers(0, 240))),
+                        (int(rng.integers(5, 60)), int(rng.integers(5, 90))), float(rng.uniform(0, 180)), 0, 360, 1, -1)
+        allowed = mask.astype(bool)
+        box = mask_box(allowed, 40)
+        whole, _ = silhouette_distance(allowed, 40, box)
+        h, w = whole.shape
+        points = rng.uniform([1, 1], [w - 2.001, h - 2.001], (300, 2))  # as the in-box test admits them
+        near = points[: 150 if trial % 2 else 300]
+        dist = np.full_like(whole, np.nan)
+        done = _distance_where_needed(dist, allowed, box, mask_box(allowed, 0), near, None)
+        probes = (near[None] + np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]])[:, None]).reshape(-1, 2)
+        np.testing.assert_allclose(_sample(dist, probes), _sample(whole, probes), atol=1e-4)
+        # a later step reaching farther widens the window; the earlier values stay
+        again = _distance_where_needed(dist, allowed, box, mask_box(allowed, 0), points, done)
+        assert again[0] <= done[0] and again[1] >= done[1] and again[2] <= done[2] and again[3] >= done[3]
+        probes = (points[None] + np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]])[:, None]).reshape(-1, 2)
+        np.testing.assert_allclose(_sample(dist, probes), _sample(whole, probes), atol=1e-4)
+
+
+def test_nearest_within_ignores_points_and_queries_that_are_not_finite():
+    from bodystudio.mirror.refine import nearest_within
+
+    points = np.array([[0.0, 0.0], [np.nan, 1.0], [1.0, np.inf], [2.0, 2.0]])
+    queries = np.array([[0.1, 0.0], [np.nan, 0.0], [np.inf, np.inf], [2.0, 2.2], [1.0, 1.0], [1e300, 0.0]])
+    dist, index = nearest_within(points, queries, 0.5)
+    np.testing.assert_array_equal(index, [0, 4, 4, 3, 4, 4])
+    np.testing.assert_allclose(dist[[0, 3]], [0.1, 0.2])
+    assert np.all(np.isinf(dist[[1, 2, 4, 5]]))
+    assert np.all(nearest_within(points[1:3], queries, 0.5)[1] == 2)

@@ -565,7 +565,7 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
     assert run_mirror(session, {"taller": 0.1}, None, progress=False, player=2, kind="rigid", ramp_frames=5,
                       frames=[2, 0], side_by_side=False) == "DOC"
     assert got["inputs"] == (session, "body", "model", {"taller": 0.1}, 2, 5, [2, 0], run_mod.CORRESPONDENCE,
-                             False)
+                             True)
     assert got["load"] == (session, None)
     s = got["stream"]
     assert s["inputs"] == "INPUTS" and s["run_dir"] == tmp_path / "mirror" / "run" and s["fps"] == 15.0
@@ -573,7 +573,7 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
     assert s["sbs"] is False
     assert s["manifest"] == {"session": str(tmp_path.resolve()), "session_run_id": "r1", "live": None,
                              "edits": {"taller": 0.1}, "player": 2, "ramp_frames": 5,
-                             "correspondence": run_mod.CORRESPONDENCE, "refine_pose": False,
+                             "correspondence": run_mod.CORRESPONDENCE, "refine_pose": True,
                              "source_fingerprint": None}
     # the defaults, and the limits of each range accepted
     got.clear()
@@ -588,9 +588,9 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
         assert got["stream"]["fps"] == fps
     run_mirror(session, {}, None)
     assert got["inputs"][4:6] == (1, 30)  # player 1, a 30-frame ramp by default
-    assert got["inputs"][8] is False  # --refine-pose is off by default
-    run_mirror(session, {}, None, refine_pose=True)
-    assert got["inputs"][8] is True and got["stream"]["manifest"]["refine_pose"] is True
+    assert got["inputs"][8] is True  # --refine-pose is on by default (MIRFAST)
+    run_mirror(session, {}, None, refine_pose=False)
+    assert got["inputs"][8] is False and got["stream"]["manifest"]["refine_pose"] is False
     with pytest.raises(InputError, match="^--correspondence 'tps'; valid: dense, mls$"):
         run_mirror(session, {}, None, correspondence="tps")
     # a source body given as an object is not looked for on disk

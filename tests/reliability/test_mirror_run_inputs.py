@@ -35,6 +35,8 @@ CASES = [
     ("no-source-body", ["{kinect}", "--out", "{t}/o.mp4", "--taller", "0.05"], "mirror init"),
     ("refine-pose-no-source-body", ["{kinect}", "--out", "{t}/o.mp4", "--refine-pose"], "mirror init"),
     ("refine-pose-no-kinect", ["{plain}", "--out", "{t}/o.mp4", "--refine-pose"], "not a Kinect session"),
+    ("no-refine-pose-no-source-body", ["{kinect}", "--out", "{t}/o.mp4", "--no-refine-pose"], "mirror init"),
+    ("no-refine-pose-no-kinect", ["{plain}", "--out", "{t}/o.mp4", "--no-refine-pose"], "not a Kinect session"),
     ("source-missing", ["{kinect}", "--out", "{t}/o.mp4", "--source", "{t}/none.npz"], "source body not found"),
     ("live-device", ["{kinect}", "--out", "{t}/o.mp4", "--live", "/dev/video0"], "Kinect SDK bridge"),
     ("live-folder-missing", ["{kinect}", "--out", "{t}/o.mp4", "--live", "{t}/nothing"], "no such folder"),
@@ -65,10 +67,23 @@ def test_nan_edit_is_refused():
         check_edits({"taller": float("nan")})
 
 
-def test_refine_pose_takes_no_value(sessions, tmp_path, capfd):
-    """``--refine-pose`` is a switch: a value is click's one-line error (exit 2), nothing written."""
-    argv = ["mirror", "run", str(sessions["kinect"]), "--out", str(tmp_path / "o.mp4"), "--refine-pose=yes"]
+@pytest.mark.parametrize("switch", ["--refine-pose", "--no-refine-pose"])
+def test_refine_pose_takes_no_value(switch, sessions, tmp_path, capfd):
+    """``--refine-pose`` / ``--no-refine-pose`` (the default is on) are switches: a value is click's one-line error
+    (exit 2), nothing written."""
+    argv = ["mirror", "run", str(sessions["kinect"]), "--out", str(tmp_path / "o.mp4"), f"{switch}=yes"]
     result = run_inprocess(argv, capfd)
     assert result.rc == 2 and result.crashed is None and not result.hung
-    assert result.stderr.strip().count("\n") == 0 and "'--refine-pose' does not take a value" in result.stderr
+    assert result.stderr.strip().count("\n") == 0 and f"'{switch}' does not take a value" in result.stderr
     assert not any(tmp_path.iterdir()) and not (sessions["kinect"] / "mirror").exists()
+
+
+def test_refine_pose_is_on_by_default():
+    """``mirror run`` refines the pose unless ``--no-refine-pose`` (MIRFAST): the CLI's and the API's default."""
+    import inspect
+
+    from bodystudio.cli.mirror_run import mirror_run
+    from bodystudio.mirror.run import run_mirror
+
+    assert inspect.signature(run_mirror).parameters["refine_pose"].default is True
+    assert inspect.signature(mirror_run).parameters["refine_pose"].default.default is True
