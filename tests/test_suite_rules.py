@@ -13,3 +13,19 @@ def test_no_importorskip_of_bodystudio_modules():
     offenders = [f"{p.relative_to(TESTS)}:{i}" for p in TESTS.rglob("*.py") if p != Path(__file__)
                  for i, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
     assert not offenders, f"import our modules directly instead: {offenders}"
+
+
+def test_every_bench_module_has_the_runner_interface():
+    """`make bench` (benchmarks/run.py) imports every benchmarks/bench_*.py and calls run(quick=...); a script
+    without it would put a FAILED section into docs/BENCHMARKS.md and fail `make bench`. One-off scripts take
+    another name (e.g. benchmarks/mirror_pose_oracle.py)."""
+    import ast
+    from pathlib import Path
+
+    missing = []
+    for path in sorted((Path(__file__).parents[1] / "benchmarks").glob("bench_*.py")):
+        tree = ast.parse(path.read_text())
+        runs = [f for f in tree.body if isinstance(f, ast.FunctionDef) and f.name == "run"]
+        if not runs or "quick" not in [a.arg for a in runs[0].args.args + runs[0].args.kwonlyargs]:
+            missing.append(path.name)
+    assert missing == [], f"bench modules without run(quick=...): {missing}"

@@ -24,8 +24,8 @@ def test_bad_capture_options_are_refused_in_one_line(item):
 
 
 @pytest.mark.parametrize("item", ["no_such_key=1", "tracker_weight=ten"])
-def test_bench_muscle_energy_refuses_bad_options_in_one_line(item, tmp_path, capsys):
-    from benchmarks.bench_muscle_energy import main
+def test_muscle_energy_refuses_bad_options_in_one_line(item, tmp_path, capsys):
+    from benchmarks.muscle_energy import main
 
     with pytest.raises(SystemExit) as exc:
         main(["--work", str(tmp_path / "w"), "--option", item])

@@ -9,7 +9,7 @@ the truth. Each row: the variant's energies, the surface error of the model mesh
 and of the full pipeline (the Sec. 7 refinement after it), the depth energy per part, the placement's error.
 docs/muscle.md "fifth pass".
 
-    python -m benchmarks.bench_muscle_energy --work W --subjects 5,603 [--option KEY=VALUE ...] [--from-truth]
+    python -m benchmarks.muscle_energy --work W --subjects 5,603 [--option KEY=VALUE ...] [--from-truth]
 
 ``--option``: ``fit_arm_sequence_skeleton`` keywords over the fourth pass's variant (placement and skeleton
 fitted, Huber on the depth pairs only), e.g. ``tracker_weight=10.0`` or ``torso_pair_weight=0.0``.
