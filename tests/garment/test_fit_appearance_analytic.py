@@ -9,11 +9,9 @@ step by step and compared to 1e-9, and its result is checked against the truth i
 import functools
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from bodystudio.garment import fit as gf
 from bodystudio.garment import lighting as lt
-from bodystudio.geometry.camera import Camera
 
 TOP, BOTTOM = np.array([0.8, 0.5, 0.4]), np.array([0.3, 0.5, 0.7])
 
@@ -28,24 +26,14 @@ def ball_frames(n=4, size=64, light_dir=(0.4, 0.5, 1.0)):
 
 @functools.lru_cache(maxsize=4)
 def _ball_frames(n, size, light_dir):
-    import trimesh
+    """test_fit_analytic's two-material ball (albedo TOP above the equator, BOTTOM below), rendered once."""
+    import sys
+    from pathlib import Path
 
-    from bodystudio.capture.render import render
-    from bodystudio.garment.render import render_body
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_fit_analytic import ball_frames as render_ball
 
-    s = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
-    V0, F = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces, dtype=np.int64)
-    cam = Camera.look_at("c", (0.0, 0.0, 3.0), (0, 0, 0), fx=2.4 * size, width=size, height=size)
-    light = lt.Lighting.single(np.asarray(light_dir) / np.linalg.norm(light_dir), 0.8, 0.2)
-    albedo = np.where(V0[:, 1:2] > 0, TOP, BOTTOM)
-    images, masks, posed = [], [], []
-    for yaw in np.linspace(-0.5, 0.5, n):
-        V = V0 @ Rotation.from_rotvec([0, yaw, 0]).as_matrix().T
-        image, _ = render_body(V, F, cam, light, albedo)
-        images.append(image)
-        masks.append(render(V, F, cam).mask)
-        posed.append(V)
-    return images, masks, posed, F, cam, light, albedo
+    return render_ball(n, size, light_dir)
 
 
 def test_albedo_ratio_sums_intensity_times_shading_per_vertex_or_per_group():
