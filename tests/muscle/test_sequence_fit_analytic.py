@@ -480,18 +480,25 @@ def test_the_shape_fit_keeps_the_given_sex_and_a_start_without_one_is_male():
     assert men.sex == 1.0
 
 
+def _flexed_arm_case():
+    """The small model's arm with the elbow flexed 1 rad about its hinge, its mesh, and one depth frame of it from a
+    sensor at the elbow + (0.3, 0.2, 1.0) m: (model, shape, rest joints, pose, mesh, frame)."""
+    from bodystudio.muscle.model import model_mesh
+
+    model, shape = _arm_model()
+    J = _model_case()[2]
+    h, _ = refine.elbow_axes(J)
+    truth = ArmPose(np.eye(4), np.stack([[0.1, -0.05, 0.15], 1.0 * h, np.zeros(3)]))
+    mesh = model_mesh(model, shape, truth)
+    frame = _frame(mesh, model.faces, model.arm_mask, J[1] + np.array([0.3, 0.2, 1.0]))
+    return model, shape, J, truth, mesh, frame
+
+
 @pytest.mark.parametrize("fixed", [False, True])
 def test_the_shape_fits_huber_loss_acts_only_when_asked(monkeypatch, fixed):
     """``fit_shape_parameters(huber_m=...)``: scipy's Huber loss with that scale (metres) in each round, for the
     free and the fixed-shape (root only) fit; none by default."""
-    model, shape = _arm_model()
-    J = _model_case()[2]
-    h, _ = refine.elbow_axes(J)
-    from bodystudio.muscle.model import model_mesh
-
-    truth = ArmPose(np.eye(4), np.stack([[0.1, -0.05, 0.15], 1.0 * h, np.zeros(3)]))
-    mesh = model_mesh(model, shape, truth)
-    frame = _frame(mesh, model.faces, model.arm_mask, J[1] + np.array([0.3, 0.2, 1.0]))
+    model, shape, J, truth, mesh, frame = _flexed_arm_case()
     calls = _spy(monkeypatch, run=False)
     refine.fit_shape_parameters(model, [mesh], [truth], [frame], initial=shape, fixed_shape=fixed, huber_m=0.003)
     refine.fit_shape_parameters(model, [mesh], [truth], [frame], initial=shape, fixed_shape=fixed)
@@ -534,12 +541,7 @@ def test_the_twist_refinements_huber_loss_acts_only_when_asked(monkeypatch):
     by default Levenberg-Marquardt on the squares; ``model_based_filtering`` passes its ``huber_m`` on."""
     from bodystudio.muscle.model import model_mesh, model_rest_vertices
 
-    model, shape = _arm_model()
-    J = _model_case()[2]
-    h, _ = refine.elbow_axes(J)
-    truth = ArmPose(np.eye(4), np.stack([[0.1, -0.05, 0.15], 1.0 * h, np.zeros(3)]))
-    mesh = model_mesh(model, shape, truth)
-    frame = _frame(mesh, model.faces, model.arm_mask, J[1] + np.array([0.3, 0.2, 1.0]))
+    model, shape, J, truth, mesh, frame = _flexed_arm_case()
     calls = _spy(monkeypatch, run=False)
     refine.refine_arm_pose(truth, lambda p: model_mesh(model, shape, p), frame, mesh, J, huber_m=0.002, max_nfev=4)
     refine.refine_arm_pose(truth, lambda p: model_mesh(model, shape, p), frame, mesh, J, max_nfev=4)
