@@ -208,11 +208,7 @@ def check_capture_source(folder: Path, capture, session) -> None:
     """Refuse to score a capture against the ground truth of another recording than the one it was captured
     from (its depth frames' fingerprint, written by the capture, differs): such a score would be meaningless.
     Captures written before the fingerprint existed are scored as before."""
-    from bodystudio.capture.session import stream_fingerprint
-
-    if capture.source_fingerprint is None:
-        return
-    if stream_fingerprint(session, "kinect_depth", capture.frame_ids) != capture.source_fingerprint:
+    if capture.is_from(session) is False:
         raise InputError(f"{folder}: captured from another recording than {session.path} (its depth frames "
                          f"differ); pass --session with the session it was captured from "
                          f"({capture.session_path or 'named in params.json'})")
@@ -367,7 +363,7 @@ def _measured_subject(capture):
     """The measured shape of a capture's subject from its session's ground truth (a synthetic session records
     it) and where it came from; (None, why not) when the session is gone, is another recording than the one
     captured, or records no subject: the capture's fitted shape is used then."""
-    from bodystudio.capture.session import open_session, stream_fingerprint
+    from bodystudio.capture.session import open_session
     from bodystudio.errors import BodyStudioError
     from bodystudio.muscle.model import ArmShapeParams
 
@@ -377,8 +373,7 @@ def _measured_subject(capture):
         session = open_session(capture.session_path)
     except BodyStudioError:
         return None, f"the capture's fitted shape ({capture.session_path} cannot be opened)"
-    if capture.source_fingerprint is not None and \
-            stream_fingerprint(session, "kinect_depth", capture.frame_ids) != capture.source_fingerprint:
+    if capture.is_from(session) is False:
         return None, f"the capture's fitted shape ({capture.session_path} is now another recording)"
     subject = (session.gt_subject or {}).get("arm", {}).get("subject")
     if not subject:

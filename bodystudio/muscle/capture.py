@@ -225,6 +225,15 @@ class ArmCapture:
     def ms_per_frame(self) -> float:
         return float(sum(self.timings_ms.values()) / max(self.n_frames, 1))
 
+    def is_from(self, session) -> bool | None:
+        """Whether ``session`` holds the recording this was captured from (its captured frames' depth files
+        have the recorded fingerprint); None when unknown (a capture written before the fingerprint existed)."""
+        if self.source_fingerprint is None:
+            return None
+        from bodystudio.capture.session import stream_fingerprint
+
+        return stream_fingerprint(session, "kinect_depth", self.frame_ids) == self.source_fingerprint
+
 
 class _Timer:
     def __init__(self):
