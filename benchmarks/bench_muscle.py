@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.timing import markdown_table
+from bodystudio.muscle.capture import EXTENSION_CAPTURE
 
 RESOLUTION = "6k"
 SIDE = "left"
@@ -66,7 +67,7 @@ EXTENSION_GROUP_SEEDS = tuple((s, s + 40, s + 50, s + 60) for s in EXTENSION_SEE
 # Measured (fifth pass, docs/muscle.md), mean change sets A / B: no sequence fit -6.6 / -5.7 %; this
 # setting with the fitted centring -7.2 / -4.5 %, regressed -4.5 / -4.2 %, by sex -11.7 / -11.7 %.
 # ``--capture-option`` overrides these fields.
-EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True}
+# ``EXTENSION_CAPTURE`` is the library's setting, the one ``bodystudio muscle capture --for-extension`` uses.
 HELD_OUT_SEEDS = (611, 612, 613, 614)
 # Set A: the goal's held-out subjects; set B: a second disjoint set (same groups, other seeds) that the
 # choices (the sex input, its Tikhonov weight) were checked on, so that they are not fitted to set A.

@@ -615,6 +615,7 @@ class MuscleOptions:
     shape: dict | None = None  # ArmShapeParams as a dict (None: fitted)
     model: str | None = None  # path of the arm model .npz (None: --no-model)
     sequence_fit: bool = True  # the whole-sequence pose fit (False: --no-sequence-fit)
+    for_extension: bool = False  # the capture setting for extending a model (--for-extension)
 
 
 def check_capture_sessions(paths: list[Path]) -> list[Path]:
@@ -635,7 +636,10 @@ def sequence_inputs_sha256(session_path: Path, options: MuscleOptions, model_sha
     opened hashes its error (its unit is then run, and fails on the worker with that error)."""
     from bodystudio.capture.session import open_session
 
-    h = hashlib.sha256(json.dumps({"options": asdict(options), "model": model_sha256, "version": __version__},
+    fields = asdict(options)
+    if not fields["for_extension"]:  # added later: units captured before it keep their hash (a batch resumes)
+        del fields["for_extension"]
+    h = hashlib.sha256(json.dumps({"options": fields, "model": model_sha256, "version": __version__},
                                   sort_keys=True, default=str).encode())
     try:
         session = open_session(session_path)
@@ -676,7 +680,7 @@ def capture_unit(session_path: str, unit_root: str, options: MuscleOptions, inpu
     recover_layout(layout)
     shape = None if options.shape is None else ArmShapeParams(**options.shape)
     capture = capture_session_arm(session_path, options.model, options.mode, options.resolution, options.side,
-                                  options.frames, shape, options.sequence_fit)
+                                  options.frames, shape, options.sequence_fit, options.for_extension)
     unit = {"inputs_sha256": inputs_sha256, "session": str(session_path), "pid": os.getpid()}
     with _UnitWriter(layout, "bodystudio muscle capture (batch unit)", {"session": str(session_path)},
                      unit) as writer:

@@ -26,6 +26,7 @@ ARM_MOTIONS = ("elbow_flex", "abduction", "pronation")
 KINECTS = ("v1", "v2")
 RESOLUTIONS = ("6k", "2k", "full")
 SIDES = ("left", "right")
+CENTRES = ("sex", "fitted", "regressed")  # model.capture_samples(centre=...)
 DISTANCE_RANGE_M = (0.5, 3.0)  # Kinect v1 sees from 0.5 m (v2 also); beyond 3 m the arm is a few pixels wide
 MAX_FRAMES = 2000  # the .glb's weights track is T^2 floats
 
@@ -97,6 +98,9 @@ def capture(
     no_sequence_fit: bool = typer.Option(False, "--no-sequence-fit", help="skip the whole-sequence pose fit "
                                          "(docs/muscle.md: better captures with it; captures meant to extend a "
                                          "model extended it more without it)"),
+    for_extension: bool = typer.Option(False, "--for-extension", help="capture to extend a model (muscle model "
+                                       "extend): the subject's skeleton and the torso placement fitted with the "
+                                       "sequence (docs/muscle.md: the extension's best captures)"),
     scheduler: str | None = typer.Option(None, "--scheduler", help="batch: " + batch_cli.SCHEDULER_HELP),
     workers: int | None = typer.Option(None, "--workers", help="batch: " + batch_cli.WORKERS_HELP),
     force: bool = typer.Option(False, "--force", help="batch: redo every sequence, also those already captured"),
@@ -134,22 +138,28 @@ def capture(
     mode = "nicp" if no_model else "model" if no_refine else "full"
     if no_sequence_fit and mode == "nicp":
         raise InputError("--no-sequence-fit with --no-model: the sequence fit is a model step; drop one")
+    if for_extension and mode == "nicp":
+        raise InputError("--for-extension with --no-model: an extension capture needs the model; drop --no-model")
+    if for_extension and no_sequence_fit:
+        raise InputError("--for-extension with --no-sequence-fit: the extension capture fits the skeleton in the "
+                         "sequence fit; drop one")
     if len(session_paths) > 1 or scheduler is not None or workers is not None:
         _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, shapes or None, scheduler,
-                       workers, force, not no_sequence_fit)
+                       workers, force, not no_sequence_fit, for_extension)
         return
     if force:
         raise InputError("--force is for a batch (several SESSIONs or --workers/--scheduler); a single capture "
                          "writes a new --out folder")
     check_new_output(out, "arm capture folder")
     result = capture_session_arm(session_paths[0], model_path, mode, resolution, side, frames,
-                                 shapes[0] if shapes else None, sequence_fit=not no_sequence_fit)
+                                 shapes[0] if shapes else None, sequence_fit=not no_sequence_fit,
+                                 for_extension=for_extension)
     write_arm_capture(out, result)
     typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
 
 
 def _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, shapes, scheduler, workers,
-                   force, sequence_fit: bool = True) -> None:
+                   force, sequence_fit: bool = True, for_extension: bool = False) -> None:
     """``muscle capture S1 S2 ... --out DIR``: each sequence a work unit on a dask cluster (bodystudio.batch)."""
     from dataclasses import asdict
 
@@ -172,7 +182,8 @@ def _capture_batch(session_paths, out, model_path, mode, resolution, side, frame
         load_arm_model(model_path)  # junk is refused here, not once per sequence on the workers
     resolve_scheduler(scheduler, workers)
     options = MuscleOptions(mode=mode, resolution=resolution, side=side, frames=frames,
-                            model=None if model_path is None else str(model_path.resolve()), sequence_fit=sequence_fit)
+                            model=None if model_path is None else str(model_path.resolve()), sequence_fit=sequence_fit,
+                            for_extension=for_extension)
     with batch_client(scheduler, workers) as client:
         batch_cli.print_cluster(client)
         report = muscle_batch(session_paths, out, client, options, force=force, progress=True,
@@ -304,13 +315,21 @@ def model_extend(
                                            "once per capture, in their order (default: the session's "
                                            "measured subject, else the capture's fitted shape)"),
     stride: int = typer.Option(5, "--stride", help="use every N-th captured frame"),
+    centre: str = typer.Option("sex", "--centre", help="where each captured rest mesh is centred: sex (a "
+                               "woman's fitted shoulder, a man's regressed one) | fitted | regressed (the "
+                               "shoulder MODEL regresses; MODEL is taken as the model the captures were made "
+                               "with); docs/muscle.md"),
 ) -> None:
-    """Dataset extension (issue 11 §4): add captured subjects to a model and re-learn it."""
+    """Dataset extension (issue 11 §4): add captured subjects to a model and re-learn it.
+
+    Captures made with ``muscle capture --for-extension`` (the subject's skeleton fitted) extend it most.
+    """
     from bodystudio.muscle.capture import load_arm_capture
     from bodystudio.muscle.export import check_new_output
     from bodystudio.muscle.model import capture_samples, extend_arm_model, load_arm_model, save_arm_model
 
     check_range("--stride", stride, 1, 1000)
+    check_choice("--centre", centre, CENTRES)
     if out.suffix.lower() != ".npz":
         raise InputError(f"--out {out}: an arm model is a .npz file")
     shapes = [_parse_shape(text) for text in shape or ()]
@@ -341,7 +360,8 @@ def model_extend(
         if subject_shape is None:
             subject_shape = capture.shape
         typer.echo(f"{folder}: shape from {where}", err=True)
-        samples += capture_samples(capture, f"capture_{folder.resolve().name}", subject_shape, stride)
+        samples += capture_samples(capture, f"capture_{folder.resolve().name}", subject_shape, stride,
+                                   model=model, centre=centre)
     extended = extend_arm_model(model, samples)
     save_arm_model(out, extended)
     typer.echo(f"wrote {out}: {len(extended.subjects)} subjects ({len(captures)} added from captures)")

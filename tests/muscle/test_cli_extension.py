@@ -1,0 +1,93 @@
+"""Parity of the CLI with the benchmark's extension (issue 11, sixth pass): ``muscle capture --for-extension``
+captures with the benchmark's setting and ``muscle model extend`` centres by sex by default, as the API does."""
+
+import json
+
+import numpy as np
+import pytest
+
+from bodystudio.cli.main import main
+
+SHAPE = "bmi=22,muscularity=0.5,height_m=1.75,arm_length_m=0.5"
+
+
+@pytest.fixture(scope="module")
+def extension_capture(tmp_path_factory, tiny_arm_model_path):
+    """A 4-frame 2k session captured with --for-extension and the tiny model (a man by --shape)."""
+    root = tmp_path_factory.mktemp("ext")
+    session, cap = root / "session", root / "cap"
+    assert main(["synth", "arm", str(session), "--subject-seed", "3", "--frames", "4", "--resolution", "2k"]) == 0
+    assert main(["muscle", "capture", str(session), "--out", str(cap), "--model", str(tiny_arm_model_path),
+                 "--shape", f"{SHAPE},sex=male", "--for-extension"]) == 0
+    return cap
+
+
+def test_for_extension_fits_the_skeleton(extension_capture, tiny_arm_model_path):
+    """The capture's joints are its fitted skeleton, not the model's regression (which a capture without the
+    option keeps): the option reached the sequence fit."""
+    from bodystudio.muscle.capture import load_arm_capture
+    from bodystudio.muscle.model import load_arm_model, model_joints
+
+    cap = load_arm_capture(extension_capture)
+    regressed = model_joints(load_arm_model(tiny_arm_model_path), cap.shape)
+    moved_mm = 1000 * np.linalg.norm(cap.joints - regressed, axis=1)
+    assert moved_mm.max() > 0.5, moved_mm
+
+
+def _api_model(capture_path, model_path, centre):
+    from bodystudio.muscle.capture import load_arm_capture
+    from bodystudio.muscle.model import ArmShapeParams, capture_samples, extend_arm_model, load_arm_model
+
+    model = load_arm_model(model_path)
+    shape = ArmShapeParams(22, 0.5, 1.75, 0.5, sex=1.0)
+    samples = capture_samples(load_arm_capture(capture_path), f"capture_{capture_path.name}", shape, 2,
+                              model=model, centre=centre)
+    return extend_arm_model(model, samples)
+
+
+def test_extend_centres_by_sex_by_default_as_the_api(extension_capture, tiny_arm_model_path, tmp_path, capsys):
+    from bodystudio.muscle.model import load_arm_model
+
+    out = tmp_path / "m2.npz"
+    assert main(["muscle", "model", "extend", str(tiny_arm_model_path), str(extension_capture), "--out", str(out),
+                 "--stride", "2", "--shape", f"{SHAPE},sex=male"]) == 0
+    cli = load_arm_model(out)
+    by_sex = _api_model(extension_capture, tiny_arm_model_path, "sex")
+    fitted = _api_model(extension_capture, tiny_arm_model_path, "fitted")
+    for key in ("shape_coeffs", "pose_coeffs", "joint_coeffs"):
+        np.testing.assert_allclose(getattr(cli, key), getattr(by_sex, key), rtol=0, atol=1e-12)
+    # a man's rows centred on the regressed shoulder are not the old default's (his fitted shoulder)
+    assert np.abs(cli.shape_coeffs - fitted.shape_coeffs).max() > 1e-5
+    out2 = tmp_path / "m_fitted.npz"
+    assert main(["muscle", "model", "extend", str(tiny_arm_model_path), str(extension_capture), "--out",
+                 str(out2), "--stride", "2", "--shape", f"{SHAPE},sex=male", "--centre", "fitted"]) == 0
+    np.testing.assert_allclose(load_arm_model(out2).shape_coeffs, fitted.shape_coeffs, rtol=0, atol=1e-12)
+    capsys.readouterr()
+    assert main(["muscle", "model", "info", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["n_subjects"] == 3
+
+
+def test_the_batch_hash_keeps_old_units_and_tells_the_extension_apart(tmp_path):
+    """A batch's options: --for-extension changes a unit's inputs hash; without it the hash is the one units
+    captured before the option existed have (the option left out of the hashed fields)."""
+    import hashlib
+    from dataclasses import asdict
+
+    from bodystudio import __version__
+    from bodystudio.batch import MuscleOptions, sequence_inputs_sha256
+
+    plain, ext = MuscleOptions(model="m.npz"), MuscleOptions(model="m.npz", for_extension=True)
+    missing = tmp_path / "missing"
+    a, b = sequence_inputs_sha256(missing, plain, "x"), sequence_inputs_sha256(missing, ext, "x")
+    assert a != b
+    old_fields = {k: v for k, v in asdict(plain).items() if k != "for_extension"}
+    h = hashlib.sha256(json.dumps({"options": old_fields, "model": "x", "version": __version__},
+                                  sort_keys=True, default=str).encode())
+    from bodystudio.capture.session import open_session
+    from bodystudio.errors import BodyStudioError
+
+    try:
+        open_session(missing)
+    except BodyStudioError as exc:
+        h.update(f"unreadable: {exc}".encode())
+    assert a == h.hexdigest()

@@ -1,0 +1,44 @@
+"""Bad input for the extension options (issue 11, sixth pass): ``muscle capture --for-extension`` and
+``muscle model extend --centre``: one line, exit 2, nothing written."""
+
+import pytest
+
+from .conftest import run_bad
+
+
+@pytest.fixture(scope="module")
+def arm_session(tmp_path_factory):
+    from bodystudio.cli.main import main
+
+    out = tmp_path_factory.mktemp("arm") / "session"
+    assert main(["synth", "arm", str(out), "--subject-seed", "5", "--frames", "3", "--resolution", "2k"]) == 0
+    return out
+
+
+@pytest.mark.parametrize("args, phrase", [
+    (["--no-model", "--for-extension"], "--for-extension with --no-model"),
+    (["--model", "M", "--no-sequence-fit", "--for-extension"], "--for-extension with --no-sequence-fit"),
+])
+@pytest.mark.parametrize("batch", [False, True])
+def test_capture_for_extension_conflicts(arm_session, tiny_arm_model_path, tmp_path, capsys, args, phrase, batch):
+    args = [str(tiny_arm_model_path) if a == "M" else a for a in args]
+    sessions = [arm_session, arm_session.parent] if batch else [arm_session]  # batch: refused before a cluster
+    run_bad(["muscle", "capture", *sessions, "--out", tmp_path / "cap", *args], capsys, phrase)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("value", ["elbow", "", "SEX"])
+def test_extend_refuses_an_unknown_centre(tiny_arm_model_path, tmp_path, capsys, value):
+    run_bad(["muscle", "model", "extend", tiny_arm_model_path, tmp_path, "--out", tmp_path / "m2.npz",
+             "--centre", value], capsys, f"--centre {value!r}: valid: sex, fitted, regressed")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_capture_module_refuses_an_extension_capture_without_the_sequence_fit(arm_session, tiny_arm_model_path):
+    from bodystudio.errors import InputError
+    from bodystudio.muscle.capture import capture_session_arm
+
+    with pytest.raises(InputError, match="needs the model and the sequence fit"):
+        capture_session_arm(arm_session, tiny_arm_model_path, sequence_fit=False, for_extension=True)
+    with pytest.raises(InputError, match="needs the model and the sequence fit"):
+        capture_session_arm(arm_session, None, mode="nicp", for_extension=True)
