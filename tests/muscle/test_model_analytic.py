@@ -300,7 +300,7 @@ def test_a_subject_with_one_mesh_and_unknown_joints(arm_model_2k, arm_training_2
 
 def test_a_sequence_without_a_base_pose_mesh_loses_the_priors_pose_term(arm_model_2k, arm_training_2k):
     """Extension from a capture: every frame minus the prior's d_rho is the subject's base mesh (exact for
-    frames the model itself made), and the pose rows are the prior's d_rho."""
+    frames the model itself made), the frames' mean its one shape row, and the pose rows are the prior's d_rho."""
     model = arm_model_2k
     shape = arm_training_2k[0][0].shape
     rng = np.random.default_rng(9)
@@ -308,12 +308,13 @@ def test_a_sequence_without_a_base_pose_mesh_loses_the_priors_pose_term(arm_mode
     frames = [ArmSample("seq", shape, model_mesh(model, shape, p, 0.0), p) for p in poses]
     base_rows, base, angles, d = M._subject_rows(frames, model.part_weights, lambda s: model_joints(model, s), model)
     rest = model_rest_vertices(model, shape) - model_joints(model, shape)[0]
-    np.testing.assert_allclose(base_rows, np.broadcast_to(rest, base_rows.shape), atol=1e-9)
+    assert base_rows.shape == (1, *rest.shape)
+    np.testing.assert_allclose(base_rows[0], rest, atol=1e-9)
     np.testing.assert_allclose(base, rest, atol=1e-9)
     for a, di in zip(angles, d, strict=True):
         np.testing.assert_allclose(di, M.pose_displacements(model, a), atol=1e-9)
     ext = extend_arm_model(model, frames)
-    assert len(ext.shape_rows) == len(model.shape_rows) + 4
+    assert len(ext.shape_rows) == len(model.shape_rows) + 1
     np.testing.assert_allclose(ext.pose_xtd - model.pose_xtd,
                                sum(np.outer(np.r_[1.0, a], di.ravel()) for a, di in zip(angles, d, strict=True)),
                                atol=1e-9)
@@ -516,3 +517,25 @@ def test_the_sex_regularization_of_the_header_is_the_loaded_one(saved, tmp_path)
         .sex_regularization == 0.37
     assert load_arm_model(_write(tmp_path / "i.npz", arrays, {**header, "sex_regularization": 3})) \
         .sex_regularization == 3.0
+
+
+def test_a_captured_subject_is_one_shape_row_the_mean_of_its_frames(arm_model_2k, arm_training_2k):
+    """Sixth pass: a capture's frames give one shape row, their mean rest shape (minus the prior's d_rho), so a
+    subject counts once in Eq. 7 whatever its frame count (a row per frame weighed it by its 8 frames): 2 frames
+    of one planted rest offset and 6 of another give one row, at the frames' mean offset."""
+    model = arm_model_2k
+    shape = arm_training_2k[0][0].shape
+    rng = np.random.default_rng(4)
+    poses = [ArmPose(np.eye(4), rng.normal(0, 0.4, (3, 3))) for _ in range(8)]
+    rest = model_rest_vertices(model, shape)
+    J = model_joints(model, shape)
+    a, b = np.array([0.004, 0.0, 0.0]), np.array([0.0, 0.0, -0.008])
+    frames = []
+    for k, p in enumerate(poses):
+        offset = a if k < 2 else b
+        V = pose_arm(rest + offset + M.pose_displacements(model, p.angles), model.part_weights, J, p)
+        frames.append(ArmSample("seq", shape, V, p))
+    ext = extend_arm_model(model, frames)
+    assert len(ext.shape_rows) == len(model.shape_rows) + 1
+    expected = (rest - J[0] - model.base_vertices - M.length_displacements(model, shape)) + (2 * a + 6 * b) / 8
+    np.testing.assert_allclose(ext.shape_residuals[-1], expected.ravel(), atol=1e-9)
