@@ -48,7 +48,7 @@ PRONATION_SUBJECT = 502
 FRAMES = 200
 QUICK_FRAMES = 20
 EXTENSION_FRAMES = 24  # per captured extension subject
-EXTENSION_STRIDE = 3  # every 3rd captured frame becomes a training mesh
+EXTENSION_STRIDE = 3  # every 3rd captured frame becomes a training mesh (their mean rest shape: one shape row)
 PRONATION_FRAMES = 60  # two twist cycles
 # label -> (gender, bmi_range, height_range_m)
 # gender fixed per group: gender is not a model parameter, so a captured man barely helps a held-out woman
@@ -252,6 +252,7 @@ def extension_section(data: dict) -> str:
             f"({data['n_extended']} in all), captured with the original model (full pipeline, "
             f"options {data.get('capture_options', {})}, {data.get('per_group', 1)} per group), each rest mesh "
             f"centred on {CENTRE_WORDS[data.get('centre', 'fitted')]}, every {EXTENSION_STRIDE}rd frame added "
+            "(pose rows each; their mean rest shape one shape row) "
             "with the subject's measured shape parameters and sex (as the "
             "paper's Table 1; the capture also used them). For comparison: the same subjects' ground-truth "
             "meshes (1 base-pose + 8 posed each, own joints) instead of their captures, and both without the sex "

@@ -1,0 +1,35 @@
+"""``benchmarks.bench_muscle_extension_ceiling.rest_residual_parts``: the split of a rest residual into what a
+depth capture sees (translation, normal part) and what it does not (tangential part), sixth pass."""
+
+import numpy as np
+
+from benchmarks.bench_muscle_extension_ceiling import rest_residual_parts
+from bodystudio.geometry.mesh import vertex_normals
+
+
+def test_parts_sum_to_the_residual_and_split_along_the_normals(arm_model_2k):
+    model = arm_model_2k
+    V = model.base_vertices
+    N = vertex_normals(V, model.faces)
+    rng = np.random.default_rng(3)
+    t = np.array([0.004, -0.007, -0.006])
+    normal_offsets = rng.normal(0, 0.003, len(V))
+    slide = np.cross(N, [0.0, 1.0, 0.0]) * 0.005  # along the skin
+    r = t + normal_offsets[:, None] * N + slide
+    p = rest_residual_parts(r, V, model.faces, model.arm_mask)
+    np.testing.assert_allclose(p["translation"] + p["normal"] + p["tangential"], r, atol=1e-15)
+    np.testing.assert_allclose(p["translation"], np.broadcast_to(r[model.arm_mask].mean(axis=0), r.shape))
+    np.testing.assert_allclose((p["tangential"] * N).sum(axis=1), 0.0, atol=1e-15)
+    np.testing.assert_allclose(np.cross(p["normal"], N), 0.0, atol=1e-15)
+    # the planted fields come back once the translation (their mean) is accounted for
+    x = r - p["translation"]
+    np.testing.assert_allclose(p["normal"], (x * N).sum(axis=1, keepdims=True) * N, atol=1e-15)
+    assert np.median(np.linalg.norm(p["tangential"], axis=1)) > 0.003  # the slide is not taken as normal
+
+
+def test_a_translation_is_all_translation(arm_model_2k):
+    model = arm_model_2k
+    r = np.broadcast_to([0.01, -0.02, 0.005], model.base_vertices.shape)
+    p = rest_residual_parts(r, model.base_vertices, model.faces, model.arm_mask)
+    np.testing.assert_allclose(p["translation"], r, atol=1e-15)
+    assert np.abs(p["normal"]).max() < 1e-15 and np.abs(p["tangential"]).max() < 1e-15
