@@ -13,7 +13,8 @@ into
 
 and extends the original model with one base-pose mesh per added subject (601-604, the benchmark's) built from
 parts of it; the held-out sets A / B and their figures are the benchmark's extension step's. The row
-"translation + normal" is a perfect depth capture's ceiling.
+"translation + normal" is a perfect depth capture's ceiling. Each row also gives the held-out change of the
+point-to-surface error (both ways), which does not count the vertices' layout along the skin.
 
     python -m benchmarks.bench_muscle_extension_ceiling --work W   # W/model.npz from bench_muscle --step prepare
 """
@@ -60,6 +61,18 @@ def rest_residual_parts(residual: np.ndarray, rest_vertices: np.ndarray, faces: 
     return {"translation": np.broadcast_to(t, r.shape).copy(), "normal": normal, "tangential": x - normal}
 
 
+def model_surface_error_mm(model, samples) -> float:
+    """Median point-to-surface distance (both ways, arm vertices, mm) of the model meshes of ``samples`` (true
+    shape, pose and own joints, no norm limit) to the samples' meshes: the held-out error without the
+    tangential layout of the vertices (``evaluate.surface_distances``)."""
+    from bodystudio.muscle.evaluate import surface_distances
+    from bodystudio.muscle.model import model_mesh
+
+    d = [surface_distances(model_mesh(model, s.shape, s.pose, 0.0, joints=s.joints), s.vertices, model.faces,
+                           model.arm_mask) for s in samples]
+    return 1000.0 * float(np.median(np.concatenate(d)))
+
+
 def main(argv: list[str] | None = None) -> None:
     from bodystudio.muscle import model as M
     from bodystudio.muscle.arm import ArmPose
@@ -86,6 +99,7 @@ def main(argv: list[str] | None = None) -> None:
                     else out_of_range_subject(seed, label))
             held.append((name, seed, subject_arm_samples(subj, RESOLUTION, n_shapes=1, n_poses=12, seed=2)))
     original = {seed: M.model_error_mm(model, t, use_sample_joints=True)["median_mm"] for _, seed, t in held}
+    original_surface = {seed: model_surface_error_mm(model, t) for _, seed, t in held}
     results = {}
     for variant, keep in VARIANTS.items():
         samples = [M.ArmSample(f"truth_{seed}", shape, E + sum(p[k] for k in keep) + J[0], ArmPose.rest(), J)
@@ -93,10 +107,16 @@ def main(argv: list[str] | None = None) -> None:
         extended = M.extend_arm_model(model, samples)
         change = {seed: 100.0 * (M.model_error_mm(extended, t, use_sample_joints=True)["median_mm"]
                                  / original[seed] - 1.0) for _, seed, t in held}
+        surface = {seed: 100.0 * (model_surface_error_mm(extended, t) / original_surface[seed] - 1.0)
+                   for _, seed, t in held}
         means = {name: float(np.mean([change[s] for n, s, _ in held if n == name])) for name, _ in HELD_OUT_SETS}
-        results[variant] = {"mean_change_pct": means, "change_pct": change}
+        surface_means = {name: float(np.mean([surface[s] for n, s, _ in held if n == name]))
+                         for name, _ in HELD_OUT_SETS}
+        results[variant] = {"mean_change_pct": means, "change_pct": change, "surface_mean_change_pct": surface_means,
+                            "surface_change_pct": surface}
         print(f"{variant:48s} " + "  ".join(f"set {k} {v:+6.1f} %" for k, v in means.items()) + "   "
-              + " ".join(f"{s}:{c:+.0f}" for s, c in change.items()), flush=True)
+              + " ".join(f"{s}:{c:+.0f}" for s, c in change.items()) + "   surface: "
+              + "  ".join(f"set {k} {v:+6.1f} %" for k, v in surface_means.items()), flush=True)
     sizes = {seed: {k: 1000 * float(np.median(np.linalg.norm(v[model.arm_mask], axis=1))) for k, v in p.items()}
              for seed, _, _, _, p in parts}
     for seed, s in sizes.items():

@@ -33,3 +33,23 @@ def test_a_translation_is_all_translation(arm_model_2k):
     p = rest_residual_parts(r, model.base_vertices, model.faces, model.arm_mask)
     np.testing.assert_allclose(p["translation"], r, atol=1e-15)
     assert np.abs(p["normal"]).max() < 1e-15 and np.abs(p["tangential"]).max() < 1e-15
+
+
+def test_the_extension_section_reports_the_point_to_surface_change():
+    """The benchmark's extension table gains the held-out point-to-surface change (captures / truth meshes)."""
+    from benchmarks.bench_muscle import extension_section
+
+    def err(x):
+        return {"median_mm": x}
+
+    held = [{"seed": 611 + i, "set": "A", "label": "x", "gender": 0.0, "bmi": 17.0, "height_m": 1.6,
+             "original": err(10.0), "captured": err(9.0), "truth": err(7.0), "original_regressed": err(10.0),
+             "extended_regressed": err(9.0), "surface_mm": {"original": 4.0, "captured": 3.0, "truth": 2.0}}
+            for i in range(2)]
+    data = {"held": held, "added": [], "shape_range": {"bmi": (20, 28), "height_m": (1.7, 1.9)},
+            "n_original": 10, "n_extended": 14, "centre": "sex"}
+    text = extension_section(data)
+    assert "captures / truth meshes: set A -25.0 % / -50.0 %." in text
+    assert "mean change -10 %" in text
+    del held[0]["surface_mm"]
+    assert "point-to-surface" not in extension_section(data)
