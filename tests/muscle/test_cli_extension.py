@@ -91,3 +91,19 @@ def test_the_batch_hash_keeps_old_units_and_tells_the_extension_apart(tmp_path):
     except BodyStudioError as exc:
         h.update(f"unreadable: {exc}".encode())
     assert a == h.hexdigest()
+
+
+def test_a_batch_unit_captures_for_extension(extension_capture, tiny_arm_model_path, tmp_path):
+    """``muscle capture S1 S2 --for-extension``: the option reaches each unit's capture (the same meshes as the
+    single capture of the fixture)."""
+    from bodystudio.batch import MuscleOptions, capture_unit
+    from bodystudio.muscle.capture import load_arm_capture
+    from bodystudio.muscle.model import ArmShapeParams
+
+    shape = {**ArmShapeParams(22, 0.5, 1.75, 0.5, sex=1.0).to_dict()}
+    options = MuscleOptions(shape=shape, model=str(tiny_arm_model_path), for_extension=True)
+    unit = tmp_path / "unit"
+    capture_unit(str(extension_capture.parent / "session"), str(unit), options, "x")
+    got, want = load_arm_capture(unit), load_arm_capture(extension_capture)
+    np.testing.assert_allclose(got.joints, want.joints, atol=1e-9)
+    np.testing.assert_allclose(got.vertices, want.vertices, atol=1e-9)
