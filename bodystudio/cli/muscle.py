@@ -360,11 +360,25 @@ def model_extend(
         if subject_shape is None:
             subject_shape = capture.shape
         typer.echo(f"{folder}: shape from {where}", err=True)
+        if not _has_fitted_skeleton(capture, model):
+            typer.echo(f"{folder}: captured without --for-extension (no fitted skeleton, so --centre changes "
+                       "nothing); captures made with it extend the model more (docs/muscle.md)", err=True)
         samples += capture_samples(capture, f"capture_{folder.resolve().name}", subject_shape, stride,
                                    model=model, centre=centre)
     extended = extend_arm_model(model, samples)
     save_arm_model(out, extended)
     typer.echo(f"wrote {out}: {len(extended.subjects)} subjects ({len(captures)} added from captures)")
+
+
+def _has_fitted_skeleton(capture, model) -> bool:
+    """Whether the capture's rest joints are a fitted skeleton (``--for-extension``), not the model's regression."""
+    import numpy as np
+
+    from bodystudio.muscle.model import ArmShapeParams, model_joints
+
+    if capture.joints is None or not isinstance(capture.shape, ArmShapeParams):
+        return False
+    return not np.allclose(capture.joints, model_joints(model, capture.shape), rtol=0, atol=1e-7)
 
 
 def _recording_key(capture) -> str:

@@ -62,7 +62,7 @@ def test_extend_centres_by_sex_by_default_as_the_api(extension_capture, tiny_arm
     assert main(["muscle", "model", "extend", str(tiny_arm_model_path), str(extension_capture), "--out",
                  str(out2), "--stride", "2", "--shape", f"{SHAPE},sex=male", "--centre", "fitted"]) == 0
     np.testing.assert_allclose(load_arm_model(out2).shape_coeffs, fitted.shape_coeffs, rtol=0, atol=1e-12)
-    capsys.readouterr()
+    assert "captured without --for-extension" not in capsys.readouterr().err
     assert main(["muscle", "model", "info", str(out)]) == 0
     assert json.loads(capsys.readouterr().out)["n_subjects"] == 3
 
@@ -107,3 +107,15 @@ def test_a_batch_unit_captures_for_extension(extension_capture, tiny_arm_model_p
     got, want = load_arm_capture(unit), load_arm_capture(extension_capture)
     np.testing.assert_allclose(got.joints, want.joints, atol=1e-9)
     np.testing.assert_allclose(got.vertices, want.vertices, atol=1e-9)
+
+
+def test_extend_says_when_a_capture_was_not_made_for_extension(extension_capture, tiny_arm_model_path, tmp_path,
+                                                               capsys):
+    plain = tmp_path / "plain"
+    assert main(["muscle", "capture", str(extension_capture.parent / "session"), "--out", str(plain), "--model",
+                 str(tiny_arm_model_path), "--shape", f"{SHAPE},sex=male", "--frames", "2"]) == 0
+    capsys.readouterr()
+    assert main(["muscle", "model", "extend", str(tiny_arm_model_path), str(plain), "--out", str(tmp_path / "m.npz"),
+                 "--shape", f"{SHAPE},sex=male"]) == 0
+    err = capsys.readouterr().err
+    assert f"{plain}: captured without --for-extension" in err and err.count("\n") == 2  # one line per capture
