@@ -173,6 +173,9 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
                          depth: bool = True, sigma_px: float | None = None) -> RefinedFrame:
     """§7 on one frame: flow correction (§7.1), silhouette RBF warp (§7.2-7.3, Eq. 9), depth compositing (§7.3).
 
+    The flow correction is used only when it is larger than the flow resolves
+    (:func:`bodystudio.garment.refine.flow_correction_is_significant`); otherwise the frame is warped by §7.2 alone.
+
     ``layer`` is a :class:`bodystudio.garment.render.GarmentLayer` of the fitted body in this frame.
     """
     from bodystudio.garment import refine
@@ -182,7 +185,10 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
     t0 = time.perf_counter()
     field = np.zeros((H, W, 2), dtype=np.float32)
     if flow:
-        field = refine.garment_motion_correction(frame, person_mask, layer.body_image, layer.body_mask, layer.mask)
+        correction = refine.garment_motion_correction(frame, person_mask, layer.body_image, layer.body_mask,
+                                                      layer.mask)
+        if refine.flow_correction_is_significant(correction, layer.mask):  # else it is the render's smear
+            field = correction
     t1 = time.perf_counter()
     if rbf:
         g_mask = refine.warp_image(layer.mask, field)

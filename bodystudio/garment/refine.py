@@ -75,6 +75,31 @@ def dense_optical_flow(source: np.ndarray, target: np.ndarray, preset: str = "me
     return cv2.resize(small, (W, H), interpolation=cv2.INTER_LINEAR) * np.float32(W / size[0])
 
 
+#: §7.1 gate: the correction is applied only when the 90th percentile of |D| over the garment exceeds this many
+#: pixels at the flow's working resolution (:data:`FLOW_HEIGHT_PX`, i.e. 2 px of a 480x640 frame). Below it D is
+#: the render's appearance mismatch, not motion: the fit's albedo was painted from this video through the fitted
+#: pose, so the worn clothes' edges sit where the fit saw them and a well-posed frame leaves the flow nothing but
+#: their smear. Measured with the real §4 fit at 480x640 (docs/garment.md, *The real fit's gap*): subject 37
+#: (arm_flex, joints 3.2 px) has p90 |D| 1.3-2.2 px and the correction costs 0.008 garment IoU; subject 21
+#: (walk, joints 7.5 px) 2.1-8.7 px and it earns 0.021.
+MIN_FLOW_CORRECTION_PX = 1.0
+
+
+def flow_correction_is_significant(field: np.ndarray, garment_mask: np.ndarray,
+                                   min_px: float = MIN_FLOW_CORRECTION_PX, quantile: float = 90.0,
+                                   max_height: int = FLOW_HEIGHT_PX) -> bool:
+    """§7.1: is the motion correction ``field`` (H, W, 2) larger than the flow can resolve?
+
+    True when the ``quantile`` of |field| over ``garment_mask`` exceeds ``min_px`` pixels of the image the flow
+    is computed on (:func:`dense_optical_flow` at most ``max_height`` high); False for an empty garment.
+    """
+    if not garment_mask.any():
+        return False
+    scale = min(1.0, max_height / garment_mask.shape[0])
+    magnitude = np.linalg.norm(field[garment_mask], axis=1) * scale
+    return bool(np.percentile(magnitude, quantile) > min_px)
+
+
 def median_outlier_removal(flow: np.ndarray, valid: np.ndarray, ksize: int = 5,
                            max_deviation_px: float = 2.0) -> np.ndarray:
     """§7.1: "we can safely apply an outlier removal to all D using a small median filter".
