@@ -256,9 +256,13 @@ def frame_pose(model: StatisticalBodyModel, coeffs: np.ndarray, camera, view: Si
 def refine_shape_to_silhouettes(model: StatisticalBodyModel, coeffs: np.ndarray, views, camera,
                                 iterations: int = SHAPE_ITERATIONS,
                                 weights: ShapeWeights = ShapeWeights()) -> np.ndarray:
-    """The coefficients ``coeffs`` (the depth fit of Eq. 2) refined against the silhouettes, depth and poses of
-    ``views`` (:class:`SilhouetteView`, one per init frame) by ``iterations`` Gauss-Newton steps of the module's
-    energy; the poses are re-estimated for the current shape before each step."""
+    """The coefficients ``coeffs`` (the depth fit of Eq. 2) refined against the silhouettes and depth of ``views``
+    (:class:`SilhouetteView`, one per init frame) by ``iterations`` Gauss-Newton steps of the module's energy.
+
+    Before each step every frame's pose is re-estimated for the current shape (:func:`frame_pose`); within the
+    step each frame's pose change is solved jointly with the shape (``weights.joint_pose``) and eliminated; the
+    start's stature and mass are held (``weights.stature_mm``, ``weights.mass_kg``; 0 frees them); no
+    coefficient moves by more than ``weights.max_step_sigma`` population sigmas per step."""
     c = np.asarray(coeffs, float).copy()
     views = list(views)
     if not views:
