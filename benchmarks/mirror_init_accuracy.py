@@ -1,7 +1,7 @@
 """Accuracy of the mirror's source-body initialisation (§4) on held-out synthetic subjects.
 
 Usage: PYTHONPATH=. python benchmarks/mirror_init_accuracy.py [--set sessions|walk] [--subjects 201 202 ...]
-       [--cache DIR]
+       [--cache DIR] [--silhouette-shape] [--session PATH ...]
 
 ``sessions`` (default): each subject (population seeds 201.. are used neither by the tests nor by the
 model's training) is synthesised as a mirror session (``synth_mirror_session(out, seed, n_frames=120,
@@ -10,6 +10,9 @@ Kinect v2 noise model) and ``bodystudio mirror init``'s steps run on it (``colle
 ``initialise_from_observations``); the source body is scored as ``eval mirror`` scores it. ``--cache DIR``
 keeps the sessions for the next run. ``walk``: the subject walks in front of a simulated Kinect v2 with no
 room (``mirror.init_case.synthetic_scene``: every 6th frame of a 90-frame walk). Prints a table and timings.
+``--silhouette-shape``: ``mirror init --silhouette-shape`` (the shape then refined against the silhouettes,
+MIR12c; sessions only), with the rest vertex error against the true rest mesh (mean, translation removed).
+``--session PATH ...``: score these existing synthetic mirror sessions instead of synthesising subjects.
 """
 
 from __future__ import annotations
@@ -25,23 +28,30 @@ from bodystudio.body.statistical import load_statistical_model
 from bodystudio.mirror.init import collect_observations, initialise_from_observations
 
 
-def session_row(seed: int, model, cache: Path, passes: int):
+def session_row(seed: int, model, cache: Path, passes: int, silhouette_shape: bool = False, path: Path | None = None):
     from bodystudio.capture.session import open_session
     from bodystudio.mirror.evaluate import init_scores
+    from bodystudio.mirror.init import SILHOUETTE_FRAMES
     from bodystudio.mirror.synthetic import synth_mirror_session
 
-    path = cache / f"mirror-init-{seed}"
-    if not path.exists():
-        synth_mirror_session(path, seed, n_frames=120, motion="arms_raise")
+    if path is None:
+        path = cache / f"mirror-init-{seed}"
+        if not path.exists():
+            synth_mirror_session(path, seed, n_frames=120, motion="arms_raise")
     session = open_session(path)
     t0 = time.process_time()
-    obs, sensor = collect_observations(session)
+    obs, sensor = collect_observations(session, silhouettes=silhouette_shape)
     t1 = time.process_time()
-    src = initialise_from_observations(obs, model, view_point=sensor.depth.center, passes=passes)
+    src = initialise_from_observations(obs, model, view_point=sensor.depth.center, passes=passes,
+                                       camera=sensor.color if silhouette_shape else None,
+                                       silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0)
     t2 = time.process_time()
     s = init_scores(session, src)
+    true_rest = np.load(Path(path) / "gt" / "mirror" / "actors.npz")["source_rest_vertices"][0].astype(float)
+    d = src.vertices - true_rest
+    vertex_mm = 1e3 * np.linalg.norm(d - d.mean(0), axis=1).mean()
     return (s["true_stature_m"], 1e3 * (s["init_stature_m"] - s["true_stature_m"]), s["true_mass_kg"],
-            s["init_mass_kg"] - s["true_mass_kg"], src.residual_mm, t1 - t0, t2 - t1)
+            s["init_mass_kg"] - s["true_mass_kg"], src.residual_mm, t1 - t0, t2 - t1, vertex_mm)
 
 
 def walk_row(seed: int, model, frames: int, passes: int, motion: str = "walk"):
@@ -53,7 +63,7 @@ def walk_row(seed: int, model, frames: int, passes: int, motion: str = "walk"):
     dt = time.process_time() - t0
     m = model.measure(src.coeffs)
     return (sc.truth["stature_m"], 1e3 * (m["stature_m"] - sc.truth["stature_m"]), sc.truth["mass_kg"],
-            m["mass_kg"] - sc.truth["mass_kg"], src.residual_mm, 0.0, dt)
+            m["mass_kg"] - sc.truth["mass_kg"], src.residual_mm, 0.0, dt, float("nan"))
 
 
 def main() -> None:
@@ -64,22 +74,28 @@ def main() -> None:
     ap.add_argument("--passes", type=int, default=3)
     ap.add_argument("--motion", default="walk", help="walk set: the motion (capture.motion)")
     ap.add_argument("--cache", type=Path, default=None, help="sessions: keep the synthetic sessions here")
+    ap.add_argument("--silhouette-shape", action="store_true", help="sessions: mirror init --silhouette-shape")
+    ap.add_argument("--session", type=Path, nargs="+", default=None, help="score these existing mirror sessions")
     args = ap.parse_args()
     model = load_statistical_model("6k", progress=False)
     tmp = None
-    if args.set == "sessions" and args.cache is None:
+    if args.set == "sessions" and args.cache is None and not args.session:
         tmp = tempfile.TemporaryDirectory(prefix="mirror-init-")
         args.cache = Path(tmp.name)
     rows = []
     print(f"set {args.set}")
-    print("| subject | stature m | err mm | mass kg | err kg | residual mm | read CPU s | fit CPU s |")
-    print("|---|---|---|---|---|---|---|---|")
-    for seed in args.subjects:
-        r = session_row(seed, model, args.cache, args.passes) if args.set == "sessions" else \
-            walk_row(seed, model, args.frames, args.passes, args.motion)
+    print("| subject | stature m | err mm | mass kg | err kg | residual mm | read CPU s | fit CPU s | vertex err mm |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for seed in args.session or args.subjects:
+        if args.session:
+            r = session_row(0, model, args.cache, args.passes, args.silhouette_shape, path=seed)
+        else:
+            r = session_row(seed, model, args.cache, args.passes, args.silhouette_shape) \
+                if args.set == "sessions" else walk_row(seed, model, args.frames, args.passes, args.motion)
         rows.append(r)
-        print(f"| {seed} | {r[0]:.3f} | {r[1]:.1f} | {r[2]:.1f} | {r[3]:.2f} | {r[4]:.1f} | {r[5]:.2f} | {r[6]:.2f} |",
-              flush=True)
+        name = seed.name if args.session else seed
+        print(f"| {name} | {r[0]:.3f} | {r[1]:.1f} | {r[2]:.1f} | {r[3]:.2f} | {r[4]:.1f} | {r[5]:.2f} | {r[6]:.2f} "
+              f"| {r[7]:.1f} |", flush=True)
     r = np.array(rows)
     print(f"mean |err|: stature {np.abs(r[:, 1]).mean():.1f} mm (max {np.abs(r[:, 1]).max():.1f}), "
           f"mass {np.abs(r[:, 3]).mean():.2f} kg (max {np.abs(r[:, 3]).max():.2f}, mean signed {r[:, 3].mean():+.2f}); "

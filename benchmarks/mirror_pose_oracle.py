@@ -269,6 +269,162 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
     return out
 
 
+#: Body regions of the shape oracle's per-region rows, by the vertex's dominant skin-weight bone.
+REGIONS = {"torso": ("pelvis", "spine_01", "spine_02", "spine_03", "clavicle_l", "clavicle_r"),
+           "head, neck": ("neck_01", "head"),
+           "arms": ("upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r"),
+           "thighs": ("thigh_l", "thigh_r"), "calves, feet": ("calf_l", "calf_r", "foot_l", "foot_r", "ball_l",
+                                                               "ball_r")}
+
+
+def vertex_regions(weights: np.ndarray, bone_names) -> np.ndarray:
+    """(n,) region name per vertex (:data:`REGIONS` by the dominant bone, ``"other"`` for hands and the rest)."""
+    by_bone = {b: r for r, bones in REGIONS.items() for b in bones}
+    return np.array([by_bone.get(bone_names[j], "other") for j in np.argmax(weights, axis=1)])
+
+
+def signed_distance_px(mask: np.ndarray) -> np.ndarray:
+    """Signed distance to the outline of ``mask`` (pixels; positive outside, negative inside)."""
+    import cv2
+
+    m = mask.astype(np.uint8)
+    return (cv2.distanceTransform(1 - m, cv2.DIST_L2, 5) - cv2.distanceTransform(m, cv2.DIST_L2, 5)).astype(float)
+
+
+def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_steps=(1,)) -> dict[str, float]:
+    """What a better *shape* would buy (MIR12c): the fitted and the true rest bodies, each posed by its own IK,
+    its own refined pose (``refine_pose`` as the run) and the true pose; plus, per body region, where the
+    fitted body posed by the true pose misses: the signed distance (px, + outside) of its projected rim vertices
+    to the true silhouette and the signed normal error of its vertices (mm, + the fitted surface outside)."""
+    from bodystudio.body.pose import Pose
+    from bodystudio.body.skeleton import Skeleton
+    from bodystudio.geometry.mesh import vertex_normals
+    from bodystudio.mirror.compose import update_background
+    from bodystudio.mirror.evaluate import mask_iou
+    from bodystudio.mirror.foreground import refine_foreground
+    from bodystudio.mirror.frames import point_cloud, read_mirror_frame, register_depth_to_color
+    from bodystudio.mirror.init import SourceBody
+    from bodystudio.mirror.refine import refine_plan, refine_pose
+    from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
+    from bodystudio.mirror.run import MLS_ALPHA, MLS_RADIUS_PX, N_HANDLES, RIM_COS, load_source
+    from bodystudio.mirror.track import ik_pose
+    from bodystudio.mirror.warp import mls_warp_field, warp_foreground, warp_pairs
+
+    body, model = load_source(session, source)
+    c_target = target_coeffs(model, body.coeffs, session.metadata["edits"])
+    target_rest = model.vertices(c_target)
+    sk = body.skeleton
+    actors = np.load(Path(session.path) / "gt" / "mirror" / "actors.npz")
+    a = list(actors["players"]).index(player)
+    true_sk = Skeleton(sk.bone_names, sk.parents, actors["source_heads"][a], actors["source_tails"][a], sk.rolls)
+    true_body = SourceBody(body.coeffs, actors["source_rest_vertices"][a].astype(float), true_sk, body.frames_used,
+                           body.residual_mm, body.weights, body.faces)
+    bodies = {"fitted shape": (body, target_rest, target_skeleton(body, target_rest, model, c_target)),
+              "true shape": (true_body, actors["target_rest_vertices"][a].astype(float),
+                             Skeleton(sk.bone_names, sk.parents, actors["target_heads"][a], actors["target_tails"][a],
+                                      sk.rolls))}
+    camera, faces = session.kinect.color, body.faces
+    root = int(np.flatnonzero(np.asarray(sk.parents) < 0)[0])
+    plans = {name: refine_plan(b.vertices, faces, b.weights, b.skeleton, session.kinect.version)
+             for name, (b, _, _) in bodies.items()}
+    regions = vertex_regions(body.weights, sk.bone_names)
+    background, previous, rows = None, {}, []
+    for i in session.frame_ids:
+        frame = read_mirror_frame(session, i)
+        depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, session.kinect)
+        person = players_c == player
+        tracked = frame.body(player)
+        if tracked is None:
+            background = update_background(background, frame.rgb, players_c > 0)
+            continue
+        ik = {}
+        for name, (b, _, _) in bodies.items():
+            ik[name] = previous[name] = ik_pose(b.skeleton, tracked.positions, tracked.tracked,
+                                                session.kinect.version, previous=previous.get(name))
+        gt = session.frame(i).gt_mirror
+        if i % stride or gt is None or player not in list(gt["players"]):
+            continue
+        k = list(gt["players"]).index(player)
+        if not gt["reported"][k]:
+            continue
+        true_pose = Pose(gt["pose_rotations"][k].astype(float), gt["pose_translations"][k].astype(float))
+        points = point_cloud(frame, session.kinect, player)
+        points = points[points[:, 1] > 0.02][:: max(1, len(points) // 2000)]
+        fg = refine_foreground(frame.rgb, person, depth_c, background=background)
+        others = (players_c > 0) & ~person
+        true_target = session.frame(i).gt_target_person == player
+        true_source = session.frame(i).gt_person == player
+        background = update_background(background, frame.rgb, fg | (players_c > 0))
+        Vs_t = gt["source_vertices"][k].astype(float)
+
+        def warp_iou(A, B, rgb=frame.rgb, fg=fg, true_target=true_target):
+            p = warp_pairs(A, B, faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=True)
+            field = mls_warp_field(p.src_uv, p.dst_uv, (camera.height, camera.width), kind="similarity",
+                                   alpha=MLS_ALPHA, radius_px=MLS_RADIUS_PX, dense=p.dense)
+            return mask_iou(warp_foreground(rgb, fg, field)[1] > 0.5, true_target)
+
+        row = {"true vertices": warp_iou(Vs_t, gt["target_vertices"][k].astype(float))}
+        for name, (b, Vt_rest, t_rig) in bodies.items():
+            translation = true_pose.translation + true_sk.heads[root] - b.skeleton.heads[root]
+            poses = {"IK": ik[name]}
+            for n_steps in refine_steps:
+                poses["refined pose" if n_steps == 1 else f"refined pose, {n_steps} steps"] = refine_pose(
+                    plans[name], b.skeleton, ik[name], camera, fg, tracked.positions, tracked.tracked, points, others,
+                    session.kinect.version, iterations=n_steps)
+            poses["true pose"] = pose_from_world(b.skeleton, world_rotations(true_sk, true_pose), translation)
+            for pname, pose in poses.items():
+                Vs, Vt = posed_source_and_target(b, Vt_rest, pose, t_rig)
+                row[f"{name}, {pname}"] = warp_iou(Vs, Vt)
+                row[f"{name}, {pname}: source vertex err mm"] = 1e3 * np.linalg.norm(Vs - Vs_t, axis=1).mean()
+                row[f"{name}, {pname}: source silhouette IoU"] = mask_iou(
+                    _silhouette(Vs, faces, camera), true_source)
+        # where the fitted body, posed by the true pose, misses the true silhouette and surface
+        Vs, _ = posed_source_and_target(body, target_rest, poses_fitted_true(body, true_sk, true_pose, root),
+                                        bodies["fitted shape"][2])
+        sd = signed_distance_px(true_source)
+        err_n = 1e3 * np.einsum("ij,ij->i", Vs - Vs_t, vertex_normals(Vs_t, faces))
+        for name, V in (("fitted shape, true pose", Vs), ("true vertices", Vs_t)):
+            d_rim, rim = _rim_distances(V, faces, camera, sd, others)
+            for region in REGIONS:
+                sel = regions[rim] == region
+                row[f"{name}, {region}: rim silhouette distance px (+ outside)"] = \
+                    float(np.mean(d_rim[sel])) if sel.any() else 0.0
+                if name != "true vertices":
+                    row[f"{name}, {region}: normal err mm (+ outside)"] = float(np.mean(err_n[regions == region]))
+        rows.append(row)
+    out = {"frames": len(rows)}
+    for key in rows[0]:
+        out[key] = float(np.mean([r[key] for r in rows]))
+    return out
+
+
+def poses_fitted_true(body, true_sk, true_pose, root):
+    """The true pose on the fitted skeleton: every bone's true world rotation, the root head on the true one."""
+    return pose_from_world(body.skeleton, world_rotations(true_sk, true_pose),
+                           true_pose.translation + true_sk.heads[root] - body.skeleton.heads[root])
+
+
+def _rim_distances(V, faces, camera, signed_distance, others) -> tuple[np.ndarray, np.ndarray]:
+    """Signed silhouette distance (px) at the projections of the rim vertices of ``V`` (normal within 12 degrees
+    of perpendicular to the viewing ray, not on another player) and the rim's vertex mask."""
+    from bodystudio.geometry.mesh import vertex_normals
+
+    uv, _ = camera.project_with_depth(V)
+    N = vertex_normals(V, faces)
+    ray = V - camera.center
+    cos = np.einsum("ij,ij->i", N, ray) / np.linalg.norm(ray, axis=1)
+    inside = np.all((uv >= 0) & (uv < [camera.width - 1, camera.height - 1]), axis=1)
+    px = np.clip(np.nan_to_num(uv).astype(int), 0, [camera.width - 1, camera.height - 1])
+    rim = inside & (np.abs(cos) < 0.2) & ~others[px[:, 1], px[:, 0]]
+    return signed_distance[px[rim, 1], px[rim, 0]], rim
+
+
+def _silhouette(V, faces, camera) -> np.ndarray:
+    from bodystudio.capture.render import render
+
+    return render(V, faces, camera).mask
+
+
 def pose_correction(ik, refined) -> tuple[np.ndarray, np.ndarray]:
     """What the refinement changed: per bone the rotation ``C_j = R_refined,j R_ik,j^-1`` (rotation vectors,
     (B, 3)) and the root translation's change, to warm-start the next frame (``corrected_pose``)."""
@@ -307,11 +463,18 @@ def main() -> None:
     parser.add_argument("--source", default=None, help="source body .npz name inside SESSION/mirror/")
     parser.add_argument("--refine-only", action="store_true",
                         help="only the IK, the refined poses (REFINE_VARIANTS), true rotations and the true pose")
+    parser.add_argument("--shape", action="store_true",
+                        help="the shape oracle (MIR12c): fitted and true rest bodies under the IK, refined and true "
+                             "pose, and per body region where the fitted body misses")
+    parser.add_argument("--refine-steps", type=int, nargs="+", default=[1],
+                        help="with --shape: the pose refinement's Gauss-Newton steps scored (the run's: 1)")
     args = parser.parse_args()
     results = {}
     for p in args.sessions:
         src = None if args.source is None else p / "mirror" / args.source
-        results[p.name] = score(open_session(p), args.stride, source=src, refine_only=args.refine_only)
+        results[p.name] = score_shape(open_session(p), args.stride, source=src,
+                                      refine_steps=tuple(args.refine_steps)) if args.shape else \
+            score(open_session(p), args.stride, source=src, refine_only=args.refine_only)
     keys = list(next(iter(results.values())))
     print("| score | " + " | ".join(results) + " |")
     print("|---|" + "---|" * len(results))

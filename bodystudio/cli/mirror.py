@@ -27,6 +27,9 @@ def init(
                                help="initialise from the N frames after the player first appears (1-900)"),
     player: int = typer.Option(1, "--player", help="Kinect SDK player index of the actor (1-6)"),
     resolution: str = typer.Option("6k", "--resolution", help="statistical model template: 6k | 2k"),
+    silhouette_shape: bool = typer.Option(False, "--silhouette-shape/--no-silhouette-shape",
+                                          help="refine the shape against 6 init frames' silhouettes too (stature "
+                                               "and mass held; ~2.5 s CPU more; docs/mirror.md MIR12c)"),
 ) -> None:
     """Fit the actor's source body (§4) and write SESSION/mirror/source_body.npz."""
     from bodystudio.body.statistical import load_statistical_model
@@ -44,11 +47,12 @@ def init(
     out = s.path / SOURCE_BODY_FILE
     check_output_file(out, "source body", suffixes=(".npz",))
     model = load_statistical_model(resolution, progress=False)
-    source = initialise_source_body(s, model, player=player, n_frames=frames)
+    source = initialise_source_body(s, model, player=player, n_frames=frames, silhouette_shape=silhouette_shape)
     measured = model.measure(source.coeffs)
     save_source_body(out, source)
     summary = {"source_body": str(SOURCE_BODY_FILE), "player": player, "resolution": resolution,
-               "frames_used": list(source.frames_used), "residual_mm": round(source.residual_mm, 2),
+               "silhouette_shape": silhouette_shape, "frames_used": list(source.frames_used),
+               "residual_mm": round(source.residual_mm, 2),
                "stature_m": round(measured["stature_m"], 4), "mass_kg": round(measured["mass_kg"], 2)}
     write_json(s.path / SOURCE_SUMMARY_FILE, summary)
     typer.echo(json.dumps(summary))

@@ -101,6 +101,9 @@ POINT_SIGMA_M = 0.01
 #: rejected (docs/mirror.md, "Mass bias").
 INIT_CORRESPONDENCE_M = 0.15
 FIT_TRIM_M = 0.10
+#: Init frames (evenly spread over the fitted ones) of the optional shape refinement against the silhouettes
+#: (:mod:`bodystudio.mirror.shape_refine`, ``mirror init --silhouette-shape``): 6 cost ~2.5 s CPU.
+SILHOUETTE_FRAMES = 6
 #: Body vertices the depth camera sees more obliquely than acos(INIT_FACING_COS) = 75 degrees take no
 #: depth points. The Kinect returns no depth beyond ~80 degrees (capture.kinect.KINECT_NOISE.grazing_angle_deg):
 #: the sides of the torso and limbs are never measured, and when their vertices could still be matched,
@@ -141,6 +144,8 @@ class InitObservation:
     joints: np.ndarray  # (J, 3), NaN where not tracked
     tracked: np.ndarray  # (J,)
     version: str
+    foreground: np.ndarray | None = None  # (H, W) bool, the player's refined foreground in the colour image
+    others: np.ndarray | None = None  # (H, W) bool, other players' pixels there
 
 
 @dataclass(frozen=True, eq=False)
@@ -418,7 +423,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  floor_y: float | None = 0.0, floor_margin_m: float = 0.02,
                                  joint_weight: float = JOINT_WEIGHT, max_frames: int = MAX_FIT_FRAMES,
                                  max_distance_m: float = INIT_CORRESPONDENCE_M,
-                                 trim_m: float = FIT_TRIM_M, min_facing_cos: float = INIT_FACING_COS) -> SourceBody:
+                                 trim_m: float = FIT_TRIM_M, min_facing_cos: float = INIT_FACING_COS,
+                                 camera=None, silhouette_frames: int = 0) -> SourceBody:
     """§4 over several frames: per-frame transform + Eq. 2 fit, averaged; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -427,6 +433,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     (the actor fully in view and facing the sensor; consecutive frames add little new information).
     ``max_distance_m`` and ``trim_m`` are the outlier rejections (see :data:`INIT_CORRESPONDENCE_M`);
     only vertices facing the depth camera by more than ``min_facing_cos`` take points (:data:`INIT_FACING_COS`).
+    With ``silhouette_frames`` > 0 and the colour ``camera``, the shape is then refined against the silhouettes
+    (``foreground``) of that many fitted frames, evenly spread, with their depth and joints, stature and mass held
+    (:func:`bodystudio.mirror.shape_refine.refine_shape_to_silhouettes`; docs/mirror.md, MIR12c).
     """
     model = check_model(model)
     obs = []
@@ -477,6 +486,15 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,
                          vertex_ids=model.vertex_ids)
     residuals = [residual]
+    views = [(o, P) for o, P in obs if o.foreground is not None]
+    if silhouette_frames > 0 and camera is not None and views:
+        from bodystudio.mirror.shape_refine import SilhouetteView, refine_shape_to_silhouettes
+
+        pick = np.unique(np.linspace(0, len(views) - 1, min(silhouette_frames, len(views))).round().astype(int))
+        coeffs = refine_shape_to_silhouettes(model, coeffs, [
+            SilhouetteView(views[i][0].foreground, views[i][0].others, views[i][1], views[i][0].joints,
+                           views[i][0].tracked, views[i][0].version) for i in pick], camera)
+        body = model.body(coeffs)
     # tracked with the model's own joints (its joint regressor), not Eq. 3's nearest-vertex means: the target's
     # joints then move by the same regressor (reshape.target_skeleton), warp_iou +0.002 / +0.011 (docs/mirror.md)
     return SourceBody(coeffs, body.vertices, model.skeleton(coeffs), tuple(int(o.frame) for o, _ in obs),
@@ -491,19 +509,23 @@ def _session_version(names) -> str:
 
 
 def collect_observations(session, frames=None, player: int = 1, n_frames: int = DEFAULT_INIT_FRAMES,
-                         stride: int = INIT_FRAME_STRIDE):
+                         stride: int = INIT_FRAME_STRIDE, silhouettes: bool = False):
     """InitObservations of ``player``: every ``stride``-th frame of the ``n_frames`` frames from the first
     one in which the player is seen (about 3 s at 30 fps), or exactly the given ``frames``.
 
     Neighbouring frames add little (at most :data:`MAX_FIT_FRAMES` are fitted), so reading every third
     frame saves two thirds of the decoding. Frames without the player, without joints or without depth
-    are skipped; when none remains the InputError says which of those it was.
+    are skipped; when none remains the InputError says which of those it was. With ``silhouettes`` each
+    observation also carries the player's refined foreground in the colour image (the run's graph cut, with a
+    background model learnt from the frames before the player appears) and the other players' pixels.
     """
     sensor = session.kinect
     if sensor is None:
         raise InputError(f"{session.path}: no Kinect calibration (kinect/calibration.json); "
                          "the mirror needs a Kinect RGB-D session")
-    from bodystudio.mirror.frames import point_cloud, read_mirror_frame
+    from bodystudio.mirror.compose import update_background
+    from bodystudio.mirror.foreground import refine_foreground
+    from bodystudio.mirror.frames import point_cloud, read_mirror_frame, register_depth_to_color
 
     ids = list(session.frame_ids) if frames is None else [int(f) for f in frames]
     if not ids:
@@ -514,6 +536,7 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
                          f"{len(session.frame_ids)} frames)")
     out, why = [], {"no person": 0, "no joints": 0, "no depth": 0}
     first = None
+    background = None
     for i in ids:
         if frames is None and first is not None:
             if i >= first + n_frames:
@@ -524,6 +547,9 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
         bodies = [b for b in frame.bodies if b.player == player]
         if not bodies:
             why["no person" if not frame.bodies else "no joints"] += 1
+            if silhouettes and first is None and frame.depth_m is not None:
+                _, players_c = register_depth_to_color(frame.depth_m, frame.player, sensor)
+                background = update_background(background, frame.rgb, players_c > 0)
             continue
         body = bodies[0]
         if not np.any(np.all(np.isfinite(body.positions), axis=1) & body.tracked):
@@ -536,7 +562,13 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
         if len(points) < MIN_POINTS:
             why["no person"] += 1
             continue
-        out.append(InitObservation(i, points, body.positions, body.tracked, _session_version(body.names)))
+        foreground = others = None
+        if silhouettes:
+            depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, sensor)
+            foreground = refine_foreground(frame.rgb, players_c == player, depth_c, background=background)
+            others = (players_c > 0) & (players_c != player)
+        out.append(InitObservation(i, points, body.positions, body.tracked, _session_version(body.names),
+                                   foreground, others))
         first = i if first is None else first
     if not out:
         reason = max(why, key=why.get)
@@ -550,15 +582,19 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
 
 
 def initialise_source_body(session, model: StatisticalBodyModel | None = None, frames=None, player: int = 1,
-                           n_frames: int = DEFAULT_INIT_FRAMES, passes: int = 3) -> SourceBody:
-    """§4 on a mirror session: the source body of ``player`` from up to ``n_frames`` frames (~3 s at 30 fps)."""
+                           n_frames: int = DEFAULT_INIT_FRAMES, passes: int = 3,
+                           silhouette_shape: bool = False) -> SourceBody:
+    """§4 on a mirror session: the source body of ``player`` from up to ``n_frames`` frames (~3 s at 30 fps);
+    ``silhouette_shape``: then refined against :data:`SILHOUETTE_FRAMES` frames' silhouettes (MIR12c)."""
     if model is None:
         from bodystudio.body.statistical import load_statistical_model
 
         model = load_statistical_model("6k", progress=False)
     model = check_model(model)
-    obs, sensor = collect_observations(session, frames, player, n_frames)
-    return initialise_from_observations(obs, model, view_point=sensor.depth.center, passes=passes)
+    obs, sensor = collect_observations(session, frames, player, n_frames, silhouettes=silhouette_shape)
+    return initialise_from_observations(obs, model, view_point=sensor.depth.center, passes=passes,
+                                        camera=sensor.color if silhouette_shape else None,
+                                        silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0)
 
 
 # --- persistence -----------------------------------------------------------------------------------

@@ -3,7 +3,9 @@
 A planted forearm twist is measured as twist (not swing), a planted swing as swing (not twist); the oracle
 that keeps the IK's bone directions and takes the true twist gives back the true bone rotation when only
 the twist was wrong, and leaves the planted swing in place when the swing was wrong; world rotations and
-poses convert into each other exactly.
+poses convert into each other exactly. The shape oracle's parts (MIR12c): the signed silhouette distance of a
+disc, the rim distances of a sphere seen by a camera (the rim lies on the outline; a sphere 2 % too small lies
+inside it by that fraction of its radius in pixels), the region of a vertex by its dominant bone.
 """
 
 import numpy as np
@@ -11,10 +13,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from benchmarks.mirror_pose_oracle import (
+    REGIONS,
+    _rim_distances,
     oracle_swing,
     oracle_twist,
     pose_from_world,
+    signed_distance_px,
     swing_twist_errors,
+    vertex_regions,
     world_rotations,
 )
 from bodystudio.body import Phenotype, Pose, build_body
@@ -77,3 +83,41 @@ def test_a_planted_swing_is_swing_and_the_twist_oracle_keeps_it(skeleton):
     assert abs(swing[0] - 7.0) < 1e-6 and twist[0] < 1e-6
     np.testing.assert_allclose(oracle_twist(skeleton, W_ik, W_true, [j])[j], W_ik[j], atol=1e-10)
     np.testing.assert_allclose(oracle_swing(skeleton, W_ik, W_true, [j])[j], W_true[j], atol=1e-10)
+
+
+def test_signed_distance_of_a_disc():
+    yy, xx = np.mgrid[:101, :101]
+    disc = (xx - 50) ** 2 + (yy - 50) ** 2 <= 30**2
+    sd = signed_distance_px(disc)
+    assert abs(sd[50, 90] - 10.0) < 0.6 and abs(sd[50, 70] + 10.0) < 0.6  # 10 px outside / inside
+    assert abs(sd[50, 80]) <= 1.0
+
+
+def test_rim_distances_of_a_sphere_lie_on_its_outline_and_a_shrunk_one_inside():
+    import trimesh
+
+    from bodystudio.capture.render import render
+    from bodystudio.geometry.camera import Camera
+
+    camera = Camera(name="c", K=np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]]), dist=np.zeros(5), R=np.eye(3),
+                    t=np.zeros(3), width=320, height=240)
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.3)
+    V, F = np.asarray(sphere.vertices) + [0, 0, 2.0], np.asarray(sphere.faces)  # a 30 cm sphere 2 m away: ~75 px radius
+    sd = signed_distance_px(render(V, F, camera).mask)
+    others = np.zeros((240, 320), bool)
+    d, rim = _rim_distances(V, F, camera, sd, others)
+    assert rim.sum() > 20 and abs(np.mean(d)) < 1.5
+    centre = np.array([0, 0, 2.0])
+    d_small, _ = _rim_distances(centre + 0.98 * (V - centre), F, camera, sd, others)
+    assert np.mean(d_small) < np.mean(d) - 1.0  # 2 % of ~75 px further inside
+
+
+def test_vertex_regions_by_dominant_bone(skeleton):
+    names = skeleton.bone_names
+    W = np.zeros((3, len(names)))
+    W[0, names.index("thigh_l")] = 0.7
+    W[0, names.index("spine_01")] = 0.3
+    W[1, names.index("head")] = 1.0
+    W[2, names.index("hand_r")] = 1.0
+    assert list(vertex_regions(W, names)) == ["thighs", "head, neck", "other"]
+    assert all(b in names for bones in REGIONS.values() for b in bones)

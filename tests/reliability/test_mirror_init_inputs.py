@@ -156,3 +156,41 @@ def test_cli_init_bad_options(studio, capfd, args, phrase):
 def test_cli_init_missing_session(tmp_path, capfd):
     result = run_inprocess(["mirror", "init", tmp_path / "nothing"], capfd)
     assert_clean_error(result, 2, "no such session")
+
+
+# --- `mirror init --silhouette-shape` (MIR12c) ------------------------------------------------------------------
+
+def test_cli_init_silhouette_shape_refuses_a_session_without_kinect(studio, capfd):
+    result = run_inprocess(["mirror", "init", studio.session, "--silhouette-shape"], capfd)
+    assert_clean_error(result, 2, "no Kinect calibration")
+    assert not (Path(studio.session) / "mirror").exists()
+
+
+@pytest.mark.parametrize("args, phrase", [
+    (["--silhouette-shape", "--player", "7"], "--player 7"),
+    (["--silhouette-shape", "--frames", "0"], "--frames 0"),
+])
+def test_cli_init_silhouette_shape_bad_options(studio, capfd, args, phrase):
+    result = run_inprocess(["mirror", "init", studio.session, *args], capfd)
+    assert_clean_error(result, 2, phrase)
+
+
+def test_cli_init_silhouette_shape_on_a_small_mirror_session(tmp_path, capfd):
+    """The option on a 14-frame synthetic mirror session (4 actor frames, the actor standing): exit 0, the summary
+    says so, the body loads, and stature and mass are the depth fit's (held) while the shape moved."""
+    import json
+
+    from bodystudio.mirror import synthetic
+
+    session = synthetic.synth_mirror_session(tmp_path / "s", 3, n_frames=14, walk_in=False)
+    summaries = {}
+    for flag in ("--no-silhouette-shape", "--silhouette-shape"):
+        result = run_inprocess(["mirror", "init", session.path, "--resolution", "2k", flag], capfd)
+        assert_clean_error(result, 0, "")
+        summaries[flag] = json.loads((session.path / "mirror" / "source_body.json").read_text())
+        bodies = np.load(session.path / "mirror" / "source_body.npz")
+        summaries[flag]["coeffs"] = bodies["coeffs"]
+    off, on = summaries["--no-silhouette-shape"], summaries["--silhouette-shape"]
+    assert on["silhouette_shape"] is True and off["silhouette_shape"] is False
+    assert abs(on["stature_m"] - off["stature_m"]) < 0.003 and abs(on["mass_kg"] - off["mass_kg"]) < 0.5
+    assert np.abs(on["coeffs"] - off["coeffs"]).max() > 1e-4
