@@ -109,6 +109,10 @@ def _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, p
 
     if chunk is not None and chunk < 1:
         raise InputError(f"--chunk {chunk}: give at least 1 frame per work unit")
+    from bodystudio.capture.session import open_session
+    from bodystudio.reconstruct.sequence import parse_frames
+
+    parse_frames(frames, open_session(session).frame_ids)  # a bad range is refused before a cluster starts
     resolve_scheduler(scheduler, workers)
     opts = ReconstructOptions(solver=params.solver, params=asdict(params), **options)
     with batch_client(scheduler, workers) as client:

@@ -99,6 +99,12 @@ def parse_frames(text: str | None, frame_ids: list[int]) -> list[int]:
             hi = lo + 1
     except ValueError:
         raise InputError(f"--frames {text!r} must be A:B (B exclusive) or a single frame number") from None
+    first, end = min(frame_ids), max(frame_ids) + 1
+    if lo >= hi:
+        raise InputError(f"--frames {text!r}: A must be below B (B exclusive), e.g. {first}:{end}")
+    if lo < first or hi > end:  # a clipped range would run fewer frames than asked for, with exit 0
+        raise InputError(f"--frames {text!r} reaches outside the session, which has {len(frame_ids)} frames "
+                         f"({first}:{end}); give a range within {first}:{end}")
     sel = [f for f in frame_ids if lo <= f < hi]
     if not sel:
         raise InputError(f"--frames {text!r} selects no frame; the session has frames "
