@@ -165,6 +165,8 @@ def _capture_batch(session_paths, out, model_path, mode, resolution, side, frame
 
     # refuse bad input before starting a cluster
     check_capture_sessions(session_paths)
+    if frames is not None:
+        _check_frames_in_sessions(session_paths, frames)
     check_output_folder(out, "--out")
     if model_path is not None:
         from bodystudio.muscle.model import load_arm_model
@@ -180,6 +182,22 @@ def _capture_batch(session_paths, out, model_path, mode, resolution, side, frame
     batch_cli.print_report(report, f"muscle capture ({len(session_paths)} sequences)")
     if report.errors:
         raise BatchError(report.failure_message("sequences"))
+
+
+def _check_frames_in_sessions(session_paths, frames: int) -> None:
+    """``--frames N`` of a batch against every session, before a cluster starts (a shorter session failed on
+    its worker only). A session that cannot be opened is left to its unit, which fails naming why."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.errors import BodyStudioError
+
+    for path in session_paths:
+        try:
+            n = len(open_session(path).frame_ids)
+        except BodyStudioError:
+            continue
+        if frames > n:
+            raise InputError(f"--frames {frames}: {path} has {n} frames; give at most {n} (--frames applies to "
+                             "every SESSION of the batch)")
 
 
 EVAL_KEYS = ("median_mm", "p90_mm", "surface_median_mm", "surface_p90_mm", "front_median_mm", "back_median_mm",
