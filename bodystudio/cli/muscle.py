@@ -175,7 +175,7 @@ def _capture_batch(session_paths, out, model_path, mode, resolution, side, frame
     resolve_scheduler(scheduler, workers)
     options = MuscleOptions(mode=mode, resolution=resolution, side=side, frames=frames,
                             model=None if model_path is None else str(model_path.resolve()), sequence_fit=sequence_fit)
-    with batch_client(scheduler, workers) as client:
+    with batch_client(scheduler, workers, units=len(session_paths)) as client:
         batch_cli.print_cluster(client)
         report = muscle_batch(session_paths, out, client, options, force=force, progress=True,
                               shapes=None if shapes is None else [asdict(s) for s in shapes])

@@ -112,10 +112,11 @@ def _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, p
     from bodystudio.capture.session import open_session
     from bodystudio.reconstruct.sequence import parse_frames
 
-    parse_frames(frames, open_session(session).frame_ids)  # a bad range is refused before a cluster starts
+    selected = parse_frames(frames, open_session(session).frame_ids)  # refused before a cluster starts
     resolve_scheduler(scheduler, workers)
     opts = ReconstructOptions(solver=params.solver, params=asdict(params), **options)
-    with batch_client(scheduler, workers) as client:
+    units = -(-len(selected) // (chunk or 10))
+    with batch_client(scheduler, workers, units=units) as client:
         print_cluster(client)
         summary, report = reconstruct_batch(session, client, opts, frames=frames, chunk=chunk or 10, force=force,
                                             progress=True)
