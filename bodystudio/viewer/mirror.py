@@ -88,8 +88,25 @@ def open_mirror_view(path: str | Path) -> MirrorView:
         run_dir = run_dir if is_mirror_run(run_dir) else None
     else:
         raise SessionError(f"{path}: neither a mirror session (kinect/player) nor a mirror run folder (run.json)")
+    if run_dir is not None:
+        check_run_complete(run_dir)
     source = Path(session.path) / "mirror" / "source_body.npz"
     return MirrorView(session, run_dir, source if source.is_file() else None)
+
+
+def check_run_complete(run_dir: Path) -> None:
+    """Refuse (one line) a run folder that a writer holds, whose write was killed after its commit point, or
+    whose files are not the ones its ``run.json`` lists (parts of two runs): before, the viewer and the
+    report showed such a folder's frames, old and new mixed. The videos (outside the folder) are not read
+    here and not checked."""
+    from bodystudio.runfolder import RunLayout, check_readable, verify_run_files
+
+    layout = RunLayout(Path(run_dir), "run.json", ".", str(run_dir))
+    check_readable(layout)
+    block = read_run_manifest(run_dir).get("run")
+    inside = tuple(k for k in (block or {}).get("files", {}) if not k.startswith("..") and not Path(k).is_absolute()) \
+        if isinstance(block, dict) else None
+    verify_run_files(layout, block, only=inside)
 
 
 def _read_png(path: Path) -> np.ndarray | None:
