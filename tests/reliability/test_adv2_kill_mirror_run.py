@@ -100,3 +100,22 @@ def test_a_frame_of_another_run_is_refused_by_the_viewer(mirror_run, tmp_path, c
     frames = work / "s" / "mirror" / "run" / "frames"
     shutil.copy(frames / "00000.png", frames / "00011.png")  # a frame of another run (or edited) in place
     _readers_refuse(work, capfd, "does not belong to run")
+
+
+@pytest.mark.slow
+def test_report_rescores_a_saved_eval_of_an_earlier_run(mirror_run, tmp_path, capfd):
+    """``eval mirror S > S/mirror/eval.json`` (as the demo saves it), then ``mirror run`` again: the report
+    showed the saved scores of the first run beside the second run's frames; now it re-scores and says so."""
+    from bodystudio.viewer.report import write_report
+
+    work = _copy(mirror_run, tmp_path)
+    s = work / "s"
+    result = run_inprocess(["eval", "mirror", s], capfd)
+    assert result.rc == 0, result.text[-800:]
+    (s / "mirror" / "eval.json").write_text(result.stdout)
+    first = write_report(s, work / "r1.html", with_3d=False).mirrors[0]
+    assert first.note is None and first.scores == json.loads(result.stdout)  # the saved scores, as they are
+    assert run_inprocess(run_args(work, "0.1"), capfd).rc == 0  # the same edit again: a new run
+    again = write_report(s, work / "r2.html", with_3d=False).mirrors[0]
+    assert "scores an earlier run" in again.note
+    assert again.scores["run_id"] == json.loads((s / "mirror" / "run" / "run.json").read_text())["run"]["run_id"]
