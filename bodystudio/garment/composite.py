@@ -330,6 +330,13 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
         raise InputError(f"texture size {texture_size} must lie in [16, 4096]")
     if fit is None:
         fit = load_garment_fit(fit_dir)
+    if out_video is not None:  # --out onto the clip itself would replace the input the fit was made from
+        from bodystudio.fileio import check_not_an_input
+
+        source = Path(fit.source)
+        if not source.is_absolute() and not source.exists():
+            source = fit_dir / source
+        check_not_an_input(out_video, {"the fit's source video": source})
     render_dir = fit_dir / RENDER_DIR
     layout = RunLayout(render_dir, RENDER_JSON, ".", str(render_dir))
     t_start = time.perf_counter()

@@ -39,3 +39,19 @@ def test_a_render_with_a_swapped_frame_is_refused(rendered, tmp_path, capfd):
     assert_clean_error(run_inprocess(["eval", "garment", fit], capfd), 2, "does not belong to run")
     view = open_garment_view(fit)
     assert view.render is None and any("render not shown" in n and "does not belong" in n for n in view.notes)
+
+
+def test_render_onto_the_fits_source_video_is_refused(rendered, tmp_path, capfd):
+    """``garment render FIT --out clip.mp4`` where clip.mp4 is the video the fit was made from: the render
+    replaced the user's input clip (and the fit then refused its changed source). Refused before any work."""
+    from dataclasses import replace
+
+    from bodystudio.garment.fitfile import load_garment_fit, save_garment_fit
+
+    clip = tmp_path / "clip.mp4"
+    clip.write_bytes(b"the user's recording")
+    fit = tmp_path / "fit"
+    save_garment_fit(fit, replace(load_garment_fit(rendered / "fit"), source=str(clip)), "test")
+    result = run_inprocess(["garment", "render", fit, "--out", clip], capfd)
+    assert_clean_error(result, 2, "is the fit's source video")
+    assert clip.read_bytes() == b"the user's recording" and not (fit / "render").exists()

@@ -63,6 +63,12 @@ def _session_copy(w: Studio, t: Path) -> None:
     w.copy_session(t / "S")
 
 
+def _glb_scan(w: Studio, t: Path) -> None:
+    import trimesh
+
+    trimesh.load(w.scan, process=False).export(t / "a.glb")
+
+
 def _both(*setups) -> Callable[[Studio, Path], None]:
     def setup(w: Studio, t: Path) -> None:
         for s in setups:
@@ -314,6 +320,9 @@ CASES = [
     Case("out-calibrate-colmap-foreign-folder", "calibrate {board} --out {t}/c.json --colmap {t}/d",
          "other files", setup=_folder("d", "thesis.tex"), absent=("{t}/c.json",), unchanged=("{t}/d",)),
     Case("out-rig-sys", "rig {scan} --out /sys/a.glb", "cannot write"),
+    # --out onto the input scan replaced the scan by the avatar (adversarial pass, round 2)
+    Case("out-rig-onto-its-scan", "rig {t}/a.glb --out {t}/a.glb --template 2k", "is the scan", setup=_glb_scan,
+         unchanged=("{t}/a.glb",)),
     Case("out-rig-not-glb", "rig {scan} --out {t}/a.ply", ".glb", absent=("{t}/a.ply",)),
     Case("out-rig-bvh-unwritable", "rig {scan} --out {t}/a.glb --bvh /sys/a.bvh", "cannot write",
          absent=("{t}/a.glb", "{t}/a.rig.json")),
