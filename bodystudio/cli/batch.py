@@ -55,6 +55,10 @@ def batch_rig(scans_dir: Path = typer.Argument(..., help="folder of body scans (
     if template not in ("6k", "13k", "2k"):
         raise InputError(f"--template {template!r}: use 6k, 13k or 2k")
     check_output_folder(out, "--out")
+    from bodystudio.fileio import check_not_an_input
+
+    # the avatars (STEM.glb) among the scans would replace a .glb scan, and be taken for scans next time
+    check_not_an_input(out, {"the scans folder": scans_dir})
     resolve_scheduler(scheduler, workers)
     with batch_client(scheduler, workers, units=len(scans)) as client:
         print_cluster(client)
