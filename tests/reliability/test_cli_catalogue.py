@@ -69,6 +69,19 @@ def _glb_scan(w: Studio, t: Path) -> None:
     trimesh.load(w.scan, process=False).export(t / "a.glb")
 
 
+def _joints_in_mm(w: Studio, t: Path) -> None:
+    """--joints-path files of a 1.8 m standing line of joints, written in millimetres."""
+    import json
+
+    from bodystudio.body.kinect import kinect_joint_names
+
+    names = kinect_joint_names("v2")
+    (t / "J").mkdir()
+    for fid in (0, 1):
+        positions = [[0.0, 1800.0 * k / (len(names) - 1), 0.0] for k in range(len(names))]
+        (t / "J" / f"{fid:05d}.json").write_text(json.dumps({"names": names, "positions": positions}))
+
+
 def _both(*setups) -> Callable[[Studio, Path], None]:
     def setup(w: Studio, t: Path) -> None:
         for s in setups:
@@ -374,6 +387,9 @@ CASES = [
          setup=_session_copy, absent=("{t}/S/reconstruct",)),
     Case("range-reconstruct-frames-open-start", "reconstruct {t}/S --frames=-1:", "has 2 frames",
          setup=_session_copy, absent=("{t}/S/reconstruct",)),
+    # joints in millimetres gave a 1.8 km skeleton and a meaningless fit, exit 0 (adversarial pass, round 2)
+    Case("range-reconstruct-joints-in-mm", "reconstruct {t}/S --joints file --joints-path {t}/J --template 2k",
+         "more than a person", setup=_both(_session_copy, _joints_in_mm), absent=("{t}/S/reconstruct",)),
     Case("range-reconstruct-frames-reversed", "reconstruct {t}/S --frames 1:0", "A must be below B",
          setup=_session_copy, absent=("{t}/S/reconstruct",)),
     Case("range-reconstruct-frames-past-end-cluster", "reconstruct {t}/S --frames 0:99 --workers 1",
