@@ -35,8 +35,9 @@ def init(
     """Fit the actor's source body (§4) and write SESSION/mirror/source_body.npz."""
     from bodystudio.body.statistical import load_statistical_model
     from bodystudio.capture.session import open_session
-    from bodystudio.fileio import check_output_file, write_json
+    from bodystudio.fileio import check_output_file
     from bodystudio.mirror.init import DEFAULT_INIT_FRAMES, initialise_source_body, save_source_body
+    from bodystudio.runfolder import RunWriter
 
     if frames is not None and not 1 <= frames <= 900:
         raise InputError(f"--frames {frames}: must be in [1, 900] (about 3 s, 90 frames, is enough)")
@@ -57,12 +58,24 @@ def init(
     source = initialise_source_body(s, model, player=player,
                                     n_frames=DEFAULT_INIT_FRAMES if frames is None else frames)
     measured = model.measure(source.coeffs)
-    save_source_body(out, source)
     summary = {"source_body": str(SOURCE_BODY_FILE), "player": player, "resolution": resolution,
                "frames_used": list(source.frames_used), "residual_mm": round(source.residual_mm, 2),
                "stature_m": round(measured["stature_m"], 4), "mass_kg": round(measured["mass_kg"], 2)}
-    write_json(s.path / SOURCE_SUMMARY_FILE, summary)
+    # the body and its summary as one unit (a kill between the two files left a summary of another body);
+    # `bodystudio recover SESSION/mirror/source_body.npz` finishes or discards a killed write
+    with RunWriter(source_body_layout(s.path), "bodystudio mirror init", {"stage": "mirror", "kind": "init"}) as w:
+        save_source_body(w.path_for(SOURCE_BODY_FILE.name), source)
+        w.commit(summary)
     typer.echo(json.dumps(summary))
+
+
+def source_body_layout(session_path: Path):
+    """The run layout of ``mirror init``'s two files: the manifest ``source_body.json`` (the summary, last),
+    lock and staging ``.source_body.npz.lock`` / ``.staging`` beside them."""
+    from bodystudio.runfolder import RunLayout
+
+    root = Path(session_path) / SOURCE_BODY_FILE.parent
+    return RunLayout(root, SOURCE_SUMMARY_FILE.name, f".{SOURCE_BODY_FILE.name}.", str(root / SOURCE_BODY_FILE.name))
 
 
 app.command("run")(mirror_run)

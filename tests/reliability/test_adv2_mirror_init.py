@@ -45,3 +45,42 @@ def test_a_second_init_needs_force(mirror_session, capfd):
                          capfd).rc == 0
     assert body.read_bytes() != before
     assert json.loads(summary.read_text())["resolution"] == "6k"
+
+
+@pytest.mark.slow
+def test_mirror_init_killed_around_its_commit_point(mirror_session, tmp_path, capfd):
+    """source_body.npz and source_body.json are one unit: killed before the commit point the previous pair
+    stays byte for byte; after it, `bodystudio recover` completes the new pair (before this pass the two were
+    written one after the other, and a kill between them left the summary of another body)."""
+    import shutil
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from kill_harness import read_events, run_child
+
+    base = tmp_path / "base"
+    shutil.copytree(mirror_session, base / "s")
+    assert run_inprocess(["mirror", "init", base / "s", "--resolution", "2k", "--frames", "1", "--force"],
+                         capfd).rc == 0
+    log = tmp_path / "events.json"
+    probe = tmp_path / "probe"
+    shutil.copytree(base, probe)
+    new = ["--resolution", "6k", "--frames", "3", "--force"]
+    assert run_child(["mirror", "init", str(probe / "s"), *new], probe, event_log=log).returncode == 0
+    events = read_events(log)
+    commit = next(k + 1 for k, e in enumerate(events) if e.endswith("commit.json"))
+    for kill_at in (1, commit, commit + 1):
+        work = tmp_path / f"k{kill_at}"
+        shutil.copytree(base, work)
+        mirror = work / "s" / "mirror"
+        before = {p: (mirror / p).read_bytes() for p in ("source_body.npz", "source_body.json")}
+        assert run_child(["mirror", "init", str(work / "s"), *new], work, kill_at=kill_at).returncode == -9
+        if kill_at <= commit:
+            assert {p: (mirror / p).read_bytes() for p in before} == before
+        assert run_inprocess(["recover", mirror / "source_body.npz"], capfd).rc == 0
+        summary = json.loads((mirror / "source_body.json").read_text())
+        assert summary["resolution"] == ("2k" if kill_at <= commit else "6k")
+        from bodystudio.fileio import sha256_file
+
+        assert summary["run"]["files"]["source_body.npz"] == sha256_file(mirror / "source_body.npz")
