@@ -197,6 +197,20 @@ def source_body_mesh(view: MirrorView):
                      "rerun `bodystudio mirror init`")
 
 
+def source_body_is_the_runs(view: MirrorView) -> bool:
+    """Whether the session's source body is the one the run used (its ``source_fingerprint`` in run.json; True
+    when there is no run or the run records none): after ``mirror init --force`` the view showed the new body
+    beside frames made with the old one."""
+    if view.run_dir is None or view.source_path is None:
+        return True
+    used = (view.run or {}).get("source_fingerprint")
+    if used is None:
+        return True
+    from bodystudio.mirror.init import load_source_body, source_fingerprint
+
+    return used == source_fingerprint(load_source_body(view.source_path))
+
+
 def add_image_panel(plotter, image: np.ndarray, center, width_m: float, name: str):
     """``image`` as a textured upright rectangle facing +z, ``width_m`` wide, centred at ``center``."""
     import pyvista as pv
@@ -227,10 +241,13 @@ def scene_for_mirror(view: MirrorView, frame_id: int | None = None, plotter=None
     step = max(1, int(np.ceil(strip.shape[1] / 1280)))  # keeps the HTML export light
     add_image_panel(plotter, strip[::step, ::step], (0.0, 1.1, PANEL_Z_M), width, "mirror-strip")
     mesh = source_body_mesh(view)
-    if mesh is not None:
+    changed = mesh is not None and not source_body_is_the_runs(view)
+    if mesh is not None and not changed:
         sc.add_mesh(plotter, mesh, name="source-body")
     sc.add_floor(plotter, np.zeros(3), size=max(3.0, width))
-    what = " | ".join(c for c, _ in panels) + ("  + source body" if mesh is not None else "  (no source body yet)")
+    what = " | ".join(c for c, _ in panels) + (
+        "  (source body changed since this run: re-run `bodystudio mirror run`)" if changed
+        else "  + source body" if mesh is not None else "  (no source body yet)")
     sc.add_title(plotter, f"{Path(view.session.path).name}  frame {frame_id}: {what}")
     if key_help:
         sc.add_key_help(plotter)

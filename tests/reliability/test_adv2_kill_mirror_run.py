@@ -119,3 +119,22 @@ def test_report_rescores_a_saved_eval_of_an_earlier_run(mirror_run, tmp_path, ca
     again = write_report(s, work / "r2.html", with_3d=False).mirrors[0]
     assert "scores an earlier run" in again.note
     assert again.scores["run_id"] == json.loads((s / "mirror" / "run" / "run.json").read_text())["run"]["run_id"]
+
+
+@pytest.mark.slow
+def test_view_does_not_show_another_source_body_beside_the_run(mirror_run, tmp_path, capfd):
+    """After ``mirror init --force`` the view showed the new source body beside frames made with the old
+    one (eval mirror refused the pair); it now leaves the body out and its title says to re-run."""
+    from bodystudio.viewer.mirror import open_mirror_view, scene_for_mirror
+    from bodystudio.viewer.scene import make_plotter
+
+    work = _copy(mirror_run, tmp_path)
+    s = work / "s"
+    plotter = scene_for_mirror(open_mirror_view(s), plotter=make_plotter(off_screen=True))
+    assert "source-body" in plotter.actors  # the run's own body
+    plotter.close()
+    assert run_inprocess(["mirror", "init", s, "--resolution", "6k", "--frames", "1", "--force"], capfd).rc == 0
+    plotter = scene_for_mirror(open_mirror_view(s), plotter=make_plotter(off_screen=True))
+    assert "source-body" not in plotter.actors
+    assert "source body changed since this run" in plotter.actors["title"].GetText(2)
+    plotter.close()
