@@ -138,8 +138,11 @@ def before_after_panels(view: MirrorView, frame_id: int) -> list[tuple[str, np.n
     rgb = frame.kinect_rgb
     if rgb is not None:
         panels.append(("input", rgb))
-    if view.run_dir is not None:
-        out = _read_png(view.run_dir / "frames" / f"{frame_id:05d}.png")
+    listed = ((view.run or {}).get("run") or {}).get("files") if view.run_dir is not None else None
+    key = f"frames/{frame_id:05d}.png"
+    # a frame file the run does not list is a leftover of an earlier, longer run: not this run's output
+    if view.run_dir is not None and (not isinstance(listed, dict) or key in listed):
+        out = _read_png(view.run_dir / key)
         if out is not None:
             edits = ", ".join(f"{k} {v:+g}" for k, v in (view.run or {}).get("edits", {}).items() if v)
             panels.append((f"mirror ({edits})" if edits else "mirror", out))

@@ -138,3 +138,20 @@ def test_view_does_not_show_another_source_body_beside_the_run(mirror_run, tmp_p
     assert "source-body" not in plotter.actors
     assert "source body changed since this run" in plotter.actors["title"].GetText(2)
     plotter.close()
+
+
+@pytest.mark.slow
+def test_view_ignores_frames_left_by_an_earlier_longer_run(mirror_run, tmp_path, capfd):
+    """A run over fewer frames (``run_mirror(frames=...)``, a live run) leaves the earlier run's other frame
+    files in RUN/frames/; ``view --frame`` showed such a file as this run's output, labelled with its edits."""
+    from bodystudio.mirror.run import run_mirror
+    from bodystudio.viewer.mirror import before_after_panels, open_mirror_view
+
+    work = _copy(mirror_run, tmp_path)
+    s = work / "s"
+    run_mirror(s, {"taller": 0.1}, work / "o2.mp4", side_by_side=False, progress=False, ramp_frames=0,
+               frames=[10, 11], refine_pose=False)
+    assert (s / "mirror" / "run" / "frames" / "00005.png").is_file()  # the first run's, not listed now
+    view = open_mirror_view(s)
+    assert [c.split(" ")[0] for c, _ in before_after_panels(view, 5)] == ["input", "truth"]
+    assert [c.split(" ")[0] for c, _ in before_after_panels(view, 11)] == ["input", "mirror", "truth"]
