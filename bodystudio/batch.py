@@ -175,9 +175,11 @@ def resolve_scheduler(scheduler: str | None, workers: int | None) -> str | None:
 
 
 @contextlib.contextmanager
-def batch_client(scheduler: str | None = None, workers: int | None = None) -> Iterator:
+def batch_client(scheduler: str | None = None, workers: int | None = None, units: int | None = None) -> Iterator:
     """A dask client: to ``scheduler`` (or ``$BODYSTUDIO_SCHEDULER``), else to a new LocalCluster of
-    ``workers`` single-threaded worker processes (default one per core). Worker versions are checked."""
+    ``workers`` single-threaded worker processes (default one per core), never more than the batch's ``units``
+    of work (when known): a worker without a unit would only cost its start-up and memory. Worker versions
+    are checked."""
     from distributed import Client, LocalCluster
 
     address = resolve_scheduler(scheduler, workers)
@@ -195,6 +197,8 @@ def batch_client(scheduler: str | None = None, workers: int | None = None) -> It
                              "`dask scheduler` or leave the option out for a local cluster") from None
     else:
         n = workers or os.cpu_count() or 1
+        if units is not None:
+            n = max(1, min(n, int(units)))
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, env=dict(WORKER_ENV),
                                dashboard_address=":0", silence_logs=logging.ERROR)
         client = Client(cluster, set_as_default=False)

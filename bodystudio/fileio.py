@@ -124,6 +124,23 @@ def _probe_writable(folder: Path, path: Path, what: str) -> None:
     os.unlink(tmp)
 
 
+def check_not_an_input(out: str | os.PathLike, inputs: dict[str, str | os.PathLike | None], what: str = "--out"
+                       ) -> None:
+    """Refuse (one-line InputError, before any work) an output path that is one of the command's inputs
+    (``{"the scan": path, ...}``): writing it would replace the input the run was made from."""
+    out_path = Path(out)
+    for name, path in inputs.items():
+        if path is None:
+            continue
+        same = False
+        try:
+            same = out_path.exists() and Path(path).exists() and os.path.samefile(out_path, path)
+        except OSError:
+            pass
+        if same or out_path.absolute() == Path(path).absolute():
+            raise InputError(f"{what} {out}: is {name}; writing it would replace that input, choose another path")
+
+
 def check_output_file(path: str | os.PathLike, what: str = "output", suffixes: tuple[str, ...] | None = None,
                       overwrite: bool = True) -> Path:
     """Check, before any work, that a file can be written at ``path``; raises a one-line InputError.

@@ -51,12 +51,16 @@ def batch_rig(scans_dir: Path = typer.Argument(..., help="folder of body scans (
     from bodystudio.fileio import check_output_folder
 
     # refuse bad input before starting a cluster
-    list_scans(scans_dir)
+    scans = list_scans(scans_dir)
     if template not in ("6k", "13k", "2k"):
         raise InputError(f"--template {template!r}: use 6k, 13k or 2k")
     check_output_folder(out, "--out")
+    from bodystudio.fileio import check_not_an_input
+
+    # the avatars (STEM.glb) among the scans would replace a .glb scan, and be taken for scans next time
+    check_not_an_input(out, {"the scans folder": scans_dir})
     resolve_scheduler(scheduler, workers)
-    with batch_client(scheduler, workers) as client:
+    with batch_client(scheduler, workers, units=len(scans)) as client:
         print_cluster(client)
         report = rig_batch(scans_dir, out, client, template=template, force=force, progress=True)
     print_report(report, f"batch rig {scans_dir}")

@@ -23,39 +23,64 @@ SOURCE_SUMMARY_FILE = Path("mirror") / "source_body.json"
 @app.command("init")
 def init(
     session: Path = typer.Argument(..., help="mirror session folder (Kinect depth, joints and player mask)"),
-    frames: int = typer.Option(90, "--frames",
-                               help="initialise from the N frames after the player first appears (1-900)"),
+    frames: int | None = typer.Option(None, "--frames",
+                                      help="initialise from the N frames after the player first appears (1-900, "
+                                      "at most the session's frames; default 90, or the whole session when "
+                                      "shorter)"),
     player: int = typer.Option(1, "--player", help="Kinect SDK player index of the actor (1-6)"),
     resolution: str = typer.Option("6k", "--resolution", help="statistical model template: 6k | 2k"),
     silhouette_shape: bool = typer.Option(False, "--silhouette-shape/--no-silhouette-shape",
                                           help="refine the shape against 6 init frames' silhouettes too (stature "
                                                "and mass held; ~2.5 s CPU more; docs/mirror.md MIR12c)"),
+    force: bool = typer.Option(False, "--force", help="replace an existing source body (a mirror run made "
+                               "from the old one then no longer matches: eval mirror refuses it until re-run)"),
 ) -> None:
     """Fit the actor's source body (§4) and write SESSION/mirror/source_body.npz."""
     from bodystudio.body.statistical import load_statistical_model
     from bodystudio.capture.session import open_session
-    from bodystudio.fileio import check_output_file, write_json
-    from bodystudio.mirror.init import initialise_source_body, save_source_body
+    from bodystudio.fileio import check_output_file
+    from bodystudio.mirror.init import DEFAULT_INIT_FRAMES, initialise_source_body, save_source_body
+    from bodystudio.runfolder import RunWriter
 
-    if not 1 <= frames <= 900:
+    if frames is not None and not 1 <= frames <= 900:
         raise InputError(f"--frames {frames}: must be in [1, 900] (about 3 s, 90 frames, is enough)")
     if not 1 <= player <= 6:
         raise InputError(f"--player {player}: the Kinect SDK numbers players 1 to 6")
     if resolution not in ("6k", "2k"):
         raise InputError(f"--resolution {resolution!r}: valid: 6k, 2k")
     s = open_session(session)
+    if frames is not None and frames > len(s.frame_ids):  # fewer frames than asked for, with exit 0, before
+        raise InputError(f"--frames {frames}: {s.path} has {len(s.frame_ids)} frames; give at most "
+                         f"{len(s.frame_ids)}")
     out = s.path / SOURCE_BODY_FILE
     check_output_file(out, "source body", suffixes=(".npz",))
+    if out.exists() and not force:  # a mirror run made from the old body would no longer match it
+        raise InputError(f"{out}: a source body exists already; pass --force to replace it (then re-run "
+                         "`bodystudio mirror run`: runs made from the old body no longer match)")
     model = load_statistical_model(resolution, progress=False)
-    source = initialise_source_body(s, model, player=player, n_frames=frames, silhouette_shape=silhouette_shape)
+    source = initialise_source_body(s, model, player=player,
+                                    n_frames=DEFAULT_INIT_FRAMES if frames is None else frames,
+                                    silhouette_shape=silhouette_shape)
     measured = model.measure(source.coeffs)
-    save_source_body(out, source)
     summary = {"source_body": str(SOURCE_BODY_FILE), "player": player, "resolution": resolution,
                "silhouette_shape": silhouette_shape, "frames_used": list(source.frames_used),
                "residual_mm": round(source.residual_mm, 2),
                "stature_m": round(measured["stature_m"], 4), "mass_kg": round(measured["mass_kg"], 2)}
-    write_json(s.path / SOURCE_SUMMARY_FILE, summary)
+    # the body and its summary as one unit (a kill between the two files left a summary of another body);
+    # `bodystudio recover SESSION/mirror/source_body.npz` finishes or discards a killed write
+    with RunWriter(source_body_layout(s.path), "bodystudio mirror init", {"stage": "mirror", "kind": "init"}) as w:
+        save_source_body(w.path_for(SOURCE_BODY_FILE.name), source)
+        w.commit(summary)
     typer.echo(json.dumps(summary))
+
+
+def source_body_layout(session_path: Path):
+    """The run layout of ``mirror init``'s two files: the manifest ``source_body.json`` (the summary, last),
+    lock and staging ``.source_body.npz.lock`` / ``.staging`` beside them."""
+    from bodystudio.runfolder import RunLayout
+
+    root = Path(session_path) / SOURCE_BODY_FILE.parent
+    return RunLayout(root, SOURCE_SUMMARY_FILE.name, f".{SOURCE_BODY_FILE.name}.", str(root / SOURCE_BODY_FILE.name))
 
 
 app.command("run")(mirror_run)

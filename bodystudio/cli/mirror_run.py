@@ -45,6 +45,7 @@ def mirror_run(
         raise InputError(f"{session}: no such session folder")
     if not 0.1 <= live_timeout <= 3600:
         raise InputError(f"--live-timeout {live_timeout}: use 0.1..3600 seconds")
+    _check_run_folder(run if run is not None else session / "mirror" / "run")
     given = {"taller": taller, "heavier": heavier, "muscular": muscular, "chest": chest, "waist": waist, "hips": hips}
     edits = {k: v for k, v in given.items() if v != 0.0}
     doc = run_mirror(session, edits, out, source=source, side_by_side=side_by_side, progress=True, run_dir=run,
@@ -53,3 +54,23 @@ def mirror_run(
     summary = doc["summary"]
     typer.echo(json.dumps({"run": str(run if run is not None else session / "mirror" / "run"),
                            "videos": doc["videos"], "edits": doc["edits"], **summary}, indent=1))
+
+
+def _check_run_folder(run_dir: Path) -> None:
+    """Refuse a ``--run`` folder that holds something other than a mirror run (a session, a reconstruction, any
+    folder of files): the run's run.json, frames/ and masks/ would be written over it (a reconstruction's
+    run.json, for one, replaced). An empty folder, or a previous mirror run, is fine."""
+    from bodystudio.mirror.run import RUN_FORMAT
+
+    if not run_dir.is_dir():
+        return
+    visible = [p for p in run_dir.iterdir() if not p.name.startswith(".")]
+    if not visible:
+        return
+    try:
+        fmt = json.loads((run_dir / "run.json").read_text(encoding="utf-8")).get("format")
+    except (OSError, ValueError, AttributeError):
+        fmt = None
+    if fmt != RUN_FORMAT:
+        raise InputError(f"--run {run_dir}: holds other files ({visible[0].name}, ...), not a mirror run; give a new "
+                         "or empty folder, or a previous `mirror run` folder")

@@ -175,6 +175,8 @@ def _capture_batch(session_paths, out, model_path, mode, resolution, side, frame
 
     # refuse bad input before starting a cluster
     check_capture_sessions(session_paths)
+    if frames is not None:
+        _check_frames_in_sessions(session_paths, frames)
     check_output_folder(out, "--out")
     if model_path is not None:
         from bodystudio.muscle.model import load_arm_model
@@ -184,13 +186,29 @@ def _capture_batch(session_paths, out, model_path, mode, resolution, side, frame
     options = MuscleOptions(mode=mode, resolution=resolution, side=side, frames=frames,
                             model=None if model_path is None else str(model_path.resolve()), sequence_fit=sequence_fit,
                             for_extension=for_extension)
-    with batch_client(scheduler, workers) as client:
+    with batch_client(scheduler, workers, units=len(session_paths)) as client:
         batch_cli.print_cluster(client)
         report = muscle_batch(session_paths, out, client, options, force=force, progress=True,
                               shapes=None if shapes is None else [asdict(s) for s in shapes])
     batch_cli.print_report(report, f"muscle capture ({len(session_paths)} sequences)")
     if report.errors:
         raise BatchError(report.failure_message("sequences"))
+
+
+def _check_frames_in_sessions(session_paths, frames: int) -> None:
+    """``--frames N`` of a batch against every session, before a cluster starts (a shorter session failed on
+    its worker only). A session that cannot be opened is left to its unit, which fails naming why."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.errors import BodyStudioError
+
+    for path in session_paths:
+        try:
+            n = len(open_session(path).frame_ids)
+        except BodyStudioError:
+            continue
+        if frames > n:
+            raise InputError(f"--frames {frames}: {path} has {n} frames; give at most {n} (--frames applies to "
+                             "every SESSION of the batch)")
 
 
 EVAL_KEYS = ("median_mm", "p90_mm", "surface_median_mm", "surface_p90_mm", "front_median_mm", "back_median_mm",

@@ -110,8 +110,13 @@ def _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, p
     if chunk is not None and chunk < 1:
         raise InputError(f"--chunk {chunk}: give at least 1 frame per work unit")
     resolve_scheduler(scheduler, workers)
+    from bodystudio.capture.session import open_session
+    from bodystudio.reconstruct.sequence import parse_frames
+
+    selected = parse_frames(frames, open_session(session).frame_ids)  # refused before a cluster starts
     opts = ReconstructOptions(solver=params.solver, params=asdict(params), **options)
-    with batch_client(scheduler, workers) as client:
+    units = -(-len(selected) // (chunk or 10))
+    with batch_client(scheduler, workers, units=units) as client:
         print_cluster(client)
         summary, report = reconstruct_batch(session, client, opts, frames=frames, chunk=chunk or 10, force=force,
                                             progress=True)

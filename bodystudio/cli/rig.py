@@ -19,7 +19,7 @@ def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: st
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from bodystudio.errors import InputError
-    from bodystudio.fileio import check_output_file
+    from bodystudio.fileio import check_not_an_input, check_output_file
     from bodystudio.register.scan import load_scan
     from bodystudio.rig.evaluate import held_out_poses
     from bodystudio.rig.export import rig_json_path, rig_layout, write_rig
@@ -31,8 +31,10 @@ def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: st
         raise InputError(f"--out {out}: the avatar is written as glTF binary; give a .glb path")
     check_output_file(out, "--out")
     check_output_file(rig_json_path(out), "--out")
+    check_not_an_input(out, {"the scan": scan})
     if bvh is not None:
         check_output_file(bvh, "--bvh", (".bvh",))
+        check_not_an_input(bvh, {"the scan": scan, "--out": out}, "--bvh")
     deltas = parse_reshape(reshape) if reshape else None
     stages = ["load", "fit", "skeleton", "weights"] + (["reshape"] if deltas else []) + ["export"]
     t0 = time.perf_counter()

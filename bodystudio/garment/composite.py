@@ -336,6 +336,13 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
         raise InputError(f"texture size {texture_size} must lie in [16, 4096]")
     if fit is None:
         fit = load_garment_fit(fit_dir)
+    if out_video is not None:  # --out onto the clip itself would replace the input the fit was made from
+        from bodystudio.fileio import check_not_an_input
+
+        source = Path(fit.source)
+        if not source.is_absolute() and not source.exists():
+            source = fit_dir / source
+        check_not_an_input(out_video, {"the fit's source video": source})
     render_dir = fit_dir / RENDER_DIR
     layout = RunLayout(render_dir, RENDER_JSON, ".", str(render_dir))
     t_start = time.perf_counter()
@@ -401,11 +408,14 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
 # ------------------------------------------------------------------------------------------ evaluation
 
 def load_render(fit_dir: str | os.PathLike) -> dict:
-    """``fit_dir/render/render.json``, checked readable (no live writer, no interrupted commit)."""
-    from bodystudio.runfolder import RunLayout, check_readable
+    """``fit_dir/render/render.json``, checked readable (no live writer, no interrupted commit) and, when it
+    records its run (every render does), its frames and masks checked against it: before, a render folder
+    holding a frame of another render (copied in, or edited) was shown and scored as this one."""
+    from bodystudio.runfolder import RunLayout, check_readable, verify_run_files
 
     render_dir = Path(fit_dir) / RENDER_DIR
-    problem = check_readable(RunLayout(render_dir, RENDER_JSON, ".", str(render_dir)))
+    layout = RunLayout(render_dir, RENDER_JSON, ".", str(render_dir))
+    problem = check_readable(layout)
     if problem:
         raise FileFormatError(problem)
     path = render_dir / RENDER_JSON
@@ -417,6 +427,10 @@ def load_render(fit_dir: str | os.PathLike) -> dict:
         raise FileFormatError(f"{path}: unreadable ({exc}); rerun 'bodystudio garment render'") from None
     if doc.get("format") != RENDER_FORMAT:
         raise FileFormatError(f"{path}: not a garment render; rerun 'bodystudio garment render'")
+    block = doc.get("run")
+    if isinstance(block, dict) and isinstance(block.get("files"), dict):  # the video beside it is not read here
+        verify_run_files(layout, block, only=tuple(k for k in block["files"]
+                                                   if not k.startswith("..") and not Path(k).is_absolute()))
     return doc
 
 

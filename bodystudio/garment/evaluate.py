@@ -192,4 +192,21 @@ def evaluate_garment(fit_dir: str | os.PathLike, session: str | os.PathLike | No
         from bodystudio.garment.composite import composite_errors
 
         scores.update(composite_errors(fit_dir, s))
+    scores.update(scored_run_ids(fit_dir))
     return scores
+
+
+def scored_run_ids(fit_dir: str | os.PathLike) -> dict:
+    """``{"fit_run_id": ..., "render_run_id": ...}``: which fit and render a score is of (None: none, or no
+    run id recorded). A saved ``eval.json`` whose ids differ from the folder's now scores an earlier run."""
+    import json
+
+    ids = {}
+    for key, path in (("fit_run_id", Path(fit_dir) / "fit.json"),
+                      ("render_run_id", Path(fit_dir) / "render" / "render.json")):
+        try:
+            run = json.loads(path.read_text(encoding="utf-8")).get("run")
+        except (OSError, ValueError, AttributeError):
+            run = None
+        ids[key] = run.get("run_id") if isinstance(run, dict) else None
+    return ids

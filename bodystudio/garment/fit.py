@@ -811,7 +811,10 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
     bad = int(np.count_nonzero(ious < 0.8))
     if bad:
         warnings.append(f"{bad} of {n} frames have a silhouette IoU below 0.80")
-    fit = GarmentFit(source=str(source), fps=pf.fps, frame_ids=pf.frame_ids, camera=camera, template=template,
+    # absolute: a relative path is the user's working directory at fit time, which render, eval and view
+    # (run from elsewhere) cannot know; they reported the source "gone"
+    fit = GarmentFit(source=str(Path(source).absolute()), fps=pf.fps, frame_ids=pf.frame_ids,
+                     camera=camera, template=template,
                      bone_names=tuple(shape.body.skeleton.bone_names), phenotype=shape.phenotype,
                      local=shape.local, stature_m=stature_fit,
                      rotations=np.stack([p.rotations for p in poses]),

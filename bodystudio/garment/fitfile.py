@@ -167,6 +167,14 @@ def load_garment_fit(folder: str | os.PathLike) -> GarmentFit:
             if not mask_path.is_file():  # cv2.imread would print its own warning on stderr
                 raise FileFormatError(f"{mask_path}: missing or unreadable; {fix}")
             masks.append(read_image(mask_path, cv2.IMREAD_GRAYSCALE) > 127)
+        # the shape is checked here, naming the fit: later, building the body said only "phenotype gender=nan
+        # is out of range", with no file to fix
+        from bodystudio.body.phenotype import Phenotype
+
+        Phenotype.from_dict(dict(doc["phenotype"]))
+        bad = [f"{k}={v}" for k, v in dict(doc["local"]).items() if not -1.0 <= float(v) <= 1.0]
+        if bad:
+            raise ValueError(f"local modifier {bad[0]} is not in [-1, 1]")
         lighting = None if doc["lighting"] is None else Lighting.from_dict(doc["lighting"], str(path))
         cam_doc = doc["camera"]
         camera = Camera.from_dict(str(cam_doc.get("name", "cam_00")), cam_doc)

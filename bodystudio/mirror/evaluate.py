@@ -354,8 +354,14 @@ def evaluate_mirror(session, run_dir: str | Path | None = None, source=None, ban
     images = image_scores(session, run_dir, run, band_px)
     summary = run.get("summary") if isinstance(run.get("summary"), dict) else {}
     ms = summary.get("ms_per_frame") if isinstance(summary.get("ms_per_frame"), dict) else {}
+    from bodystudio.mirror.init import source_fingerprint
+
+    block = run.get("run")
     return strict_json_scores({
         "session": str(session.path), "run": str(run_dir), "player": player,
+        # which run and source body these scores are of (the report re-scores a saved eval.json of others)
+        "run_id": block.get("run_id") if isinstance(block, dict) else None,
+        "source_fingerprint": source_fingerprint(source) if hasattr(source, "coeffs") else None,
         "edits": _nonzero(run.get("edits")), **init_scores(session, source, player),
         **tracking_scores(session, source, images["scored_frames"], player),
         **{k: v for k, v in images.items() if k != "scored_frames"},

@@ -81,6 +81,8 @@ REFINE_DATA = ("fields", "hull")
 BONE_LENGTHS = ("frame", "sequence")
 OUTPUT_DIR = "reconstruct"
 RUN_MANIFEST = "run.json"
+#: The largest distance between two joints of one person (arms raised, ~2.3 m) with a margin, in metres.
+MAX_JOINT_SPAN_M = 3.5
 #: Kinect v1 joint names that have a v2 counterpart.
 V1_TO_V2 = {"HipCenter": "SpineBase", "Spine": "SpineMid", "ShoulderCenter": "SpineShoulder"}
 
@@ -99,6 +101,12 @@ def parse_frames(text: str | None, frame_ids: list[int]) -> list[int]:
             hi = lo + 1
     except ValueError:
         raise InputError(f"--frames {text!r} must be A:B (B exclusive) or a single frame number") from None
+    first, end = min(frame_ids), max(frame_ids) + 1
+    if lo >= hi:
+        raise InputError(f"--frames {text!r}: A must be below B (B exclusive), e.g. {first}:{end}")
+    if lo < first or hi > end:  # a clipped range would run fewer frames than asked for, with exit 0
+        raise InputError(f"--frames {text!r} reaches outside the session, which has {len(frame_ids)} frames "
+                         f"({first}:{end}); give a range within {first}:{end}")
     sel = [f for f in frame_ids if lo <= f < hi]
     if not sel:
         raise InputError(f"--frames {text!r} selects no frame; the session has frames "
@@ -133,8 +141,15 @@ def frame_joints(session, frame, source: str, joints_dir: Path | None) -> np.nda
             raise InputError(f"{joints_dir}/{frame.frame_id:05d}.json: needs names and positions ({exc})") from None
     else:
         raise InputError(f"unknown joint source {source!r}; valid: {', '.join(JOINT_SOURCES)}")
-    if np.count_nonzero(np.all(np.isfinite(J), axis=1)) < 3:
+    finite = np.all(np.isfinite(J), axis=1)
+    if np.count_nonzero(finite) < 3:
         raise InputError(f"{where}: no valid joints (fewer than 3 tracked); check the tracker output")
+    P = J[finite]
+    span = float(np.max(np.linalg.norm(P[:, None] - P[None], axis=2)))
+    if span > MAX_JOINT_SPAN_M:  # millimetres or centimetres gave a giant skeleton and a meaningless fit, exit 0
+        what = f"{joints_dir}/{frame.frame_id:05d}.json" if source == "file" else where
+        raise InputError(f"{what}: the joints span {span:.4g} m, more than a person ({MAX_JOINT_SPAN_M} m); give "
+                         "positions in metres in the studio's world frame")
     return J
 
 

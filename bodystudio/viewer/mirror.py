@@ -88,8 +88,25 @@ def open_mirror_view(path: str | Path) -> MirrorView:
         run_dir = run_dir if is_mirror_run(run_dir) else None
     else:
         raise SessionError(f"{path}: neither a mirror session (kinect/player) nor a mirror run folder (run.json)")
+    if run_dir is not None:
+        check_run_complete(run_dir)
     source = Path(session.path) / "mirror" / "source_body.npz"
     return MirrorView(session, run_dir, source if source.is_file() else None)
+
+
+def check_run_complete(run_dir: Path) -> None:
+    """Refuse (one line) a run folder that a writer holds, whose write was killed after its commit point, or
+    whose files are not the ones its ``run.json`` lists (parts of two runs): before, the viewer and the
+    report showed such a folder's frames, old and new mixed. The videos (outside the folder) are not read
+    here and not checked."""
+    from bodystudio.runfolder import RunLayout, check_readable, verify_run_files
+
+    layout = RunLayout(Path(run_dir), "run.json", ".", str(run_dir))
+    check_readable(layout)
+    block = read_run_manifest(run_dir).get("run")
+    inside = tuple(k for k in (block or {}).get("files", {}) if not k.startswith("..") and not Path(k).is_absolute()) \
+        if isinstance(block, dict) else None
+    verify_run_files(layout, block, only=inside)
 
 
 def _read_png(path: Path) -> np.ndarray | None:
@@ -121,8 +138,11 @@ def before_after_panels(view: MirrorView, frame_id: int) -> list[tuple[str, np.n
     rgb = frame.kinect_rgb
     if rgb is not None:
         panels.append(("input", rgb))
-    if view.run_dir is not None:
-        out = _read_png(view.run_dir / "frames" / f"{frame_id:05d}.png")
+    listed = ((view.run or {}).get("run") or {}).get("files") if view.run_dir is not None else None
+    key = f"frames/{frame_id:05d}.png"
+    # a frame file the run does not list is a leftover of an earlier, longer run: not this run's output
+    if view.run_dir is not None and (not isinstance(listed, dict) or key in listed):
+        out = _read_png(view.run_dir / key)
         if out is not None:
             edits = ", ".join(f"{k} {v:+g}" for k, v in (view.run or {}).get("edits", {}).items() if v)
             panels.append((f"mirror ({edits})" if edits else "mirror", out))
@@ -180,6 +200,20 @@ def source_body_mesh(view: MirrorView):
                      "rerun `bodystudio mirror init`")
 
 
+def source_body_is_the_runs(view: MirrorView) -> bool:
+    """Whether the session's source body is the one the run used (its ``source_fingerprint`` in run.json; True
+    when there is no run or the run records none): after ``mirror init --force`` the view showed the new body
+    beside frames made with the old one."""
+    if view.run_dir is None or view.source_path is None:
+        return True
+    used = (view.run or {}).get("source_fingerprint")
+    if used is None:
+        return True
+    from bodystudio.mirror.init import load_source_body, source_fingerprint
+
+    return used == source_fingerprint(load_source_body(view.source_path))
+
+
 def add_image_panel(plotter, image: np.ndarray, center, width_m: float, name: str):
     """``image`` as a textured upright rectangle facing +z, ``width_m`` wide, centred at ``center``."""
     import pyvista as pv
@@ -210,10 +244,13 @@ def scene_for_mirror(view: MirrorView, frame_id: int | None = None, plotter=None
     step = max(1, int(np.ceil(strip.shape[1] / 1280)))  # keeps the HTML export light
     add_image_panel(plotter, strip[::step, ::step], (0.0, 1.1, PANEL_Z_M), width, "mirror-strip")
     mesh = source_body_mesh(view)
-    if mesh is not None:
+    changed = mesh is not None and not source_body_is_the_runs(view)
+    if mesh is not None and not changed:
         sc.add_mesh(plotter, mesh, name="source-body")
     sc.add_floor(plotter, np.zeros(3), size=max(3.0, width))
-    what = " | ".join(c for c, _ in panels) + ("  + source body" if mesh is not None else "  (no source body yet)")
+    what = " | ".join(c for c, _ in panels) + (
+        "  (source body changed since this run: re-run `bodystudio mirror run`)" if changed
+        else "  + source body" if mesh is not None else "  (no source body yet)")
     sc.add_title(plotter, f"{Path(view.session.path).name}  frame {frame_id}: {what}")
     if key_help:
         sc.add_key_help(plotter)

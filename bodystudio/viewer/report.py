@@ -406,17 +406,38 @@ def mirror_sections(root: Path) -> list[MirrorSection]:
             else:  # an older eval.json may hold Infinity / NaN: shown as null (+ psnr_person_identical)
                 scores = strict_json_scores(scores) if isinstance(scores, dict) else None
                 note = None if scores is not None else f"{saved}: not a JSON object"
-        elif view.run_dir is None:
+            if scores is not None and view.run_dir is not None and not _scores_of_this_run(scores, view):
+                scores = None  # an eval.json of an earlier run or source body: re-scored below
+        if scores is None and note is None and view.run_dir is None:
             note = "no mirror run yet (`bodystudio mirror run`)"
-        else:
+        elif scores is None and note is None:
             from bodystudio.mirror.evaluate import evaluate_mirror
 
             try:
                 scores = evaluate_mirror(view.session, view.run_dir)
             except BodyStudioError as exc:
                 note = f"not scored: {exc}"
+            if saved.is_file():
+                note = f"{saved} scores an earlier run or source body; " + (note or "scores recomputed")
         out.append(MirrorSection(session_path.name, strips, scores, note))
     return out
+
+
+def _scores_of_this_run(scores: dict, view) -> bool:
+    """Whether a saved ``eval mirror`` JSON is of the run folder and source body there now (its ``run_id`` and
+    ``source_fingerprint``; a file without them predates this check and is not trusted)."""
+    from bodystudio.errors import BodyStudioError
+    from bodystudio.mirror.init import load_source_body, source_fingerprint
+
+    block = (view.run or {}).get("run")
+    if not isinstance(block, dict) or scores.get("run_id") != block.get("run_id"):
+        return False
+    if view.source_path is None:
+        return scores.get("source_fingerprint") is None
+    try:
+        return scores.get("source_fingerprint") == source_fingerprint(load_source_body(view.source_path))
+    except BodyStudioError:
+        return False
 
 
 def _strips_and_scores_html(name: str, strips: list, scores: dict | None, command: str) -> list[str]:
@@ -496,14 +517,20 @@ def garment_scores(view) -> tuple[dict | None, list[str]]:
     not be scored is said in the notes."""
     from bodystudio.errors import BodyStudioError
     from bodystudio.garment.composite import composite_errors
-    from bodystudio.garment.evaluate import fit_errors
+    from bodystudio.garment.evaluate import fit_errors, scored_run_ids
 
+    notes = []
     if view.saved_scores is not None:
-        return _strict_json(view.saved_scores), []
+        now = scored_run_ids(view.fit_dir)
+        if all(view.saved_scores.get(k) == v for k, v in now.items()):
+            return _strict_json(view.saved_scores), []
+        # an eval.json of an earlier fit or render (re-run since) would show its scores beside the new frames
+        notes.append(f"{view.fit_dir / 'eval.json'} scores an earlier fit or render (or predates run ids); "
+                     "scores recomputed")
     if view.session is None:
-        return None, ["not scored: the fit's source is not a session folder; `eval garment` needs a synthetic "
-                      "session (`bodystudio synth garment`)"]
-    scores, notes = {}, []
+        return None, notes + ["not scored: the fit's source is not a session folder; `eval garment` needs a "
+                              "synthetic session (`bodystudio synth garment`)"]
+    scores = {}
     try:
         scores.update(fit_errors(view.fit, view.session))
     except BodyStudioError as exc:

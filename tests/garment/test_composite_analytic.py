@@ -732,8 +732,8 @@ def test_composite_errors_of_empty_regions_and_damaged_renders(tmp_path, monkeyp
                                                     "garment render'")):
         cp.composite_errors(tmp_path / "fit", session)
     truth[5].gt_target_layers["c"] = np.zeros((40, 48), np.uint8)
-    (render_dir / "garment_masks" / "00008.png").unlink()
-    with pytest.raises(FileFormatError, match="frame 8 is missing or damaged"):
+    (render_dir / "garment_masks" / "00008.png").unlink()  # refused by load_render's checksums of the run
+    with pytest.raises(FileFormatError, match=r"garment_masks/00008.png: missing, but .*render.json lists it"):
         cp.composite_errors(tmp_path / "fit", session)
 
 

@@ -9,6 +9,7 @@ Eq. 3, Eq. 5, Eq. 6, the prior, the keyframe file, the placement, the tracking o
 
 import json
 import re
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -1008,7 +1009,8 @@ def test_fit_garment_video_chains_the_stages_into_a_garment_fit(tmp_path, monkey
     imgs, m3, posed, F, cam3 = log["appearance"]
     assert imgs is pf.images and m3 is pf.masks and posed == [1.0, 2.0, 3.0] and F == "F" and cam3 is camera
     assert log["saved"] == (tmp_path / "out", fit)
-    assert fit.source == "clip.mp4" and fit.fps == 24.0 and np.array_equal(fit.frame_ids, [5, 6, 7])
+    assert fit.source == str(Path("clip.mp4").absolute())
+    assert fit.fps == 24.0 and np.array_equal(fit.frame_ids, [5, 6, 7])
     assert fit.camera is camera and fit.template == "6k" and fit.bone_names == ("Root", "spine_02")
     assert fit.phenotype == {"height": 0.4} and fit.local == {"neck": 0.1} and fit.stature_m == 1.70
     assert np.allclose(fit.rotations[:, 0, 0], [0.1, 0.2, 0.3]) and np.array_equal(fit.translations[:, 0], [1, 2, 3])

@@ -24,8 +24,10 @@ def test_parse_frames_and_joint_names():
     assert parse_frames("1:3", [0, 1, 2, 3]) == [1, 2]
     assert parse_frames(None, [0, 1]) == [0, 1]
     assert parse_frames(":1", [0, 1]) == [0]
-    with pytest.raises(InputError, match="selects no frame"):
+    with pytest.raises(InputError, match="outside the session, which has 2 frames"):
         parse_frames("7:9", [0, 1])
+    with pytest.raises(InputError, match="selects no frame"):
+        parse_frames("1", [0, 2])
     with pytest.raises(InputError, match="A:B"):
         parse_frames("x", [0, 1])
     J = joints_v2(["HipCenter", "ElbowLeft"], np.array([[0, 1, 0], [1, 1, 1.0]]), np.array([True, False]))
@@ -115,7 +117,7 @@ def test_cli_errors_are_one_line(tiny_session, capsys, tmp_path):
         (["reconstruct", str(tmp_path / "nothing")], "no such session"),
         (["reconstruct", path, "--template", "20k"], "unknown template"),
         (["reconstruct", path, "--solver", "lu"], "unknown solver"),
-        (["reconstruct", path, "--frames", "50:60"], "selects no frame"),
+        (["reconstruct", path, "--frames", "50:60"], "outside the session"),
         (["reconstruct", path, "--joints", "file"], "--joints-path"),
         (["reconstruct", path, "--constraints", "shading"], "--constraints"),
         (["eval", "reconstruct", str(tmp_path)], "session"),

@@ -27,6 +27,6 @@ def test_eval_refuses_a_run_of_another_source_body(mirror_session, tmp_path, cap
     assert main(["eval", "mirror", s]) == 0
     assert '"init_stature_err_mm"' in capsys.readouterr().out
     # mirror init again, on the 6k template: another source body than the run's
-    assert main(["mirror", "init", s, "--resolution", "6k", "--frames", "1"]) == 0
+    assert main(["mirror", "init", s, "--resolution", "6k", "--frames", "1", "--force"]) == 0
     capsys.readouterr()
     run_bad(["eval", "mirror", s], capsys, "the run used another source body")

@@ -141,3 +141,11 @@ def test_muscle_capture_batch_needs_one_shape_per_session(two_sessions, tmp_path
     run_bad(["muscle", "capture", *two_sessions, "--out", tmp_path / "out", "--model", tmp_path / "m.npz",
              "--shape", shape], capsys, "--shape: 1 given for 2 sessions")
     assert not (tmp_path / "out").exists()
+
+
+def test_batch_rig_out_onto_the_scans_folder(scans, capsys):
+    """Adversarial pass, round 2: --out SCANS_DIR wrote STEM.glb avatars among the scans (a .glb scan
+    replaced by its avatar; the next run took the avatars for scans)."""
+    (scans / "b.glb").write_bytes(b"glTF")
+    run_bad(["batch", "rig", scans, "--out", scans], capsys, "is the scans folder")
+    assert sorted(p.name for p in scans.iterdir()) == ["a.ply", "b.glb"]

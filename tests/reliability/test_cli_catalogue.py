@@ -63,6 +63,25 @@ def _session_copy(w: Studio, t: Path) -> None:
     w.copy_session(t / "S")
 
 
+def _glb_scan(w: Studio, t: Path) -> None:
+    import trimesh
+
+    trimesh.load(w.scan, process=False).export(t / "a.glb")
+
+
+def _joints_in_mm(w: Studio, t: Path) -> None:
+    """--joints-path files of a 1.8 m standing line of joints, written in millimetres."""
+    import json
+
+    from bodystudio.body.kinect import kinect_joint_names
+
+    names = kinect_joint_names("v2")
+    (t / "J").mkdir()
+    for fid in (0, 1):
+        positions = [[0.0, 1800.0 * k / (len(names) - 1), 0.0] for k in range(len(names))]
+        (t / "J" / f"{fid:05d}.json").write_text(json.dumps({"names": names, "positions": positions}))
+
+
 def _both(*setups) -> Callable[[Studio, Path], None]:
     def setup(w: Studio, t: Path) -> None:
         for s in setups:
@@ -314,6 +333,9 @@ CASES = [
     Case("out-calibrate-colmap-foreign-folder", "calibrate {board} --out {t}/c.json --colmap {t}/d",
          "other files", setup=_folder("d", "thesis.tex"), absent=("{t}/c.json",), unchanged=("{t}/d",)),
     Case("out-rig-sys", "rig {scan} --out /sys/a.glb", "cannot write"),
+    # --out onto the input scan replaced the scan by the avatar (adversarial pass, round 2)
+    Case("out-rig-onto-its-scan", "rig {t}/a.glb --out {t}/a.glb --template 2k", "is the scan", setup=_glb_scan,
+         unchanged=("{t}/a.glb",)),
     Case("out-rig-not-glb", "rig {scan} --out {t}/a.ply", ".glb", absent=("{t}/a.ply",)),
     Case("out-rig-bvh-unwritable", "rig {scan} --out {t}/a.glb --bvh /sys/a.bvh", "cannot write",
          absent=("{t}/a.glb", "{t}/a.rig.json")),
@@ -357,7 +379,21 @@ CASES = [
          absent=("{t}/S/reconstruct",)),
     Case("range-reconstruct-inner", "reconstruct {t}/S --inner 100000", "--inner", setup=_session_copy,
          absent=("{t}/S/reconstruct",)),
-    Case("range-reconstruct-frames", "reconstruct {t}/S --frames 50:60", "selects no frame", setup=_session_copy),
+    Case("range-reconstruct-frames", "reconstruct {t}/S --frames 50:60", "outside the session", setup=_session_copy),
+    # a range reaching past the session was clipped to it (exit 0, fewer frames than asked for)
+    Case("range-reconstruct-frames-past-end", "reconstruct {t}/S --frames 0:99", "has 2 frames (0:2)",
+         setup=_session_copy, absent=("{t}/S/reconstruct",)),
+    Case("range-reconstruct-frames-one-past-end", "reconstruct {t}/S --frames 1:3", "has 2 frames",
+         setup=_session_copy, absent=("{t}/S/reconstruct",)),
+    Case("range-reconstruct-frames-open-start", "reconstruct {t}/S --frames=-1:", "has 2 frames",
+         setup=_session_copy, absent=("{t}/S/reconstruct",)),
+    # joints in millimetres gave a 1.8 km skeleton and a meaningless fit, exit 0 (adversarial pass, round 2)
+    Case("range-reconstruct-joints-in-mm", "reconstruct {t}/S --joints file --joints-path {t}/J --template 2k",
+         "more than a person", setup=_both(_session_copy, _joints_in_mm), absent=("{t}/S/reconstruct",)),
+    Case("range-reconstruct-frames-reversed", "reconstruct {t}/S --frames 1:0", "A must be below B",
+         setup=_session_copy, absent=("{t}/S/reconstruct",)),
+    Case("range-reconstruct-frames-past-end-cluster", "reconstruct {t}/S --frames 0:99 --workers 1",
+         "has 2 frames", setup=_session_copy, absent=("{t}/S/reconstruct",)),
     Case("range-reconstruct-solver", "reconstruct {t}/S --solver magic", "solver", setup=_session_copy),
     Case("reconstruct-tracking-on-cluster", "reconstruct {t}/S --tracking --workers 2", "--tracking",
          setup=_session_copy, absent=("{t}/S/reconstruct",)),

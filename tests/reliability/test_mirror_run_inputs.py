@@ -22,6 +22,10 @@ def sessions(tmp_path_factory) -> dict[str, Path]:
 
 
 CASES = [
+    # --run onto a folder of other files (a session, a reconstruction): run.json, frames/ and masks/ were
+    # written over it (adversarial pass, round 2)
+    ("run-onto-a-session", ["{kinect}", "--out", "{t}/o.mp4", "--run", "{plain}"], "not a mirror run"),
+    ("run-onto-a-folder-of-files", ["{kinect}", "--out", "{t}/o.mp4", "--run", "{t}"], "not a mirror run"),
     ("missing-session", ["{t}/nope", "--out", "{t}/o.mp4"], "no such session folder"),
     ("not-mp4", ["{kinect}", "--out", "{t}/o.avi"], ".mp4"),
     ("out-is-folder", ["{kinect}", "--out", "{t}/dir.mp4"], "is a folder"),

@@ -1,6 +1,7 @@
 """The garment stage in the viewer and the report: fitted body, garment, light arrows, before/after strips
 (input | composite | truth) and the `eval garment` scores, also for incomplete fit folders."""
 
+import json
 import shutil
 from dataclasses import replace
 
@@ -217,11 +218,21 @@ def test_report_garment_section_has_frames_and_scores(garment_case, tmp_path):
     assert "Garment: before / after" in text and "fit: eval garment" in text and "garment_iou" in text
     assert text.count('alt="fit frame') == 3
     assert not any("render/" in name or "masks/" in name for name, _ in result.screenshots)
-    # a saved eval.json is shown as it is (an Infinity PSNR as null)
-    (garment_case["fit_dir"] / "eval.json").write_text('{"garment_iou": 0.5, "psnr_person": Infinity}')
+    # a saved eval.json of this fit and render is shown as it is (an Infinity PSNR as null)
+    from bodystudio.garment.evaluate import scored_run_ids
+
+    ids = scored_run_ids(garment_case["fit_dir"])
+    assert ids["render_run_id"] is not None
+    (garment_case["fit_dir"] / "eval.json").write_text(json.dumps(ids)[:-1] +
+                                                        ', "garment_iou": 0.5, "psnr_person": Infinity}')
     try:
         scores = write_report(garment_case["fit_dir"], out, with_3d=False).garments[0].scores
-        assert scores == {"garment_iou": 0.5, "psnr_person": None}
+        assert scores == {"garment_iou": 0.5, "psnr_person": None, **ids}
+        # one of an earlier render (or without the ids: older): re-scored, and the section says so
+        (garment_case["fit_dir"] / "eval.json").write_text(json.dumps({**ids, "render_run_id": "0123",
+                                                                        "garment_iou": 0.5}))
+        section = write_report(garment_case["fit_dir"], out, with_3d=False).garments[0]
+        assert section.scores["garment_iou"] > 0.9 and any("earlier fit or render" in n for n in section.notes)
     finally:
         (garment_case["fit_dir"] / "eval.json").unlink()
 

@@ -104,14 +104,24 @@ def test_report_has_a_mirror_section_with_frames_and_eval_json(mirror_session, t
     assert text.count('alt="session frame') == 3
     # the run's frames are in the mirror section, not among the screenshots
     assert not any("frames/" in name or "masks/" in name for name, _ in result.screenshots)
-    # a saved eval.json is shown as it is
-    saved = {"warp_iou": 0.5, "psnr_person": None, "psnr_person_identical": True}
+    # a saved eval.json of this run and source body is shown as it is
+    from bodystudio.mirror.init import load_source_body, source_fingerprint
+
+    ids = {"run_id": json.loads((mirror_session.path / "mirror" / "run" / "run.json").read_text())["run"]["run_id"],
+           "source_fingerprint": source_fingerprint(load_source_body(mirror_session.path / "mirror" /
+                                                                     "source_body.npz"))}
+    saved = {"warp_iou": 0.5, "psnr_person": None, "psnr_person_identical": True, **ids}
     (mirror_session.path / "mirror" / "eval.json").write_text(json.dumps(saved))
     try:
         assert write_report(mirror_session.path, out, with_3d=False).mirrors[0].scores == saved
         # an eval.json written before `eval mirror` printed strict JSON: Infinity becomes null + the flag
-        (mirror_session.path / "mirror" / "eval.json").write_text('{"psnr_person": Infinity, "warp_iou": 0.9}')
+        (mirror_session.path / "mirror" / "eval.json").write_text(
+            json.dumps(ids)[:-1] + ', "psnr_person": Infinity, "warp_iou": 0.9}')
         scores = write_report(mirror_session.path, out, with_3d=False).mirrors[0].scores
-        assert scores == {"psnr_person": None, "warp_iou": 0.9, "psnr_person_identical": True}
+        assert scores == {"psnr_person": None, "warp_iou": 0.9, "psnr_person_identical": True, **ids}
+        # one of another run (or without the ids: older): re-scored, and the section says so
+        (mirror_session.path / "mirror" / "eval.json").write_text(json.dumps({**saved, "run_id": "0123"}))
+        section = write_report(mirror_session.path, out, with_3d=False).mirrors[0]
+        assert section.scores["warp_iou"] == 1.0 and "scores an earlier run" in section.note
     finally:
         (mirror_session.path / "mirror" / "eval.json").unlink()
