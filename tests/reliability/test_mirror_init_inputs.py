@@ -185,7 +185,7 @@ def test_cli_init_silhouette_shape_on_a_small_mirror_session(tmp_path, capfd):
     session = synthetic.synth_mirror_session(tmp_path / "s", 3, n_frames=14, walk_in=False)
     summaries = {}
     for flag in ("--no-silhouette-shape", "--silhouette-shape"):
-        result = run_inprocess(["mirror", "init", session.path, "--resolution", "2k", flag], capfd)
+        result = run_inprocess(["mirror", "init", session.path, "--resolution", "2k", flag, "--force"], capfd)
         assert_clean_error(result, 0, "")
         summaries[flag] = json.loads((session.path / "mirror" / "source_body.json").read_text())
         bodies = np.load(session.path / "mirror" / "source_body.npz")
