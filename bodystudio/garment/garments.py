@@ -542,6 +542,10 @@ def _material_image(visual) -> np.ndarray | None:
     if image is None:
         return None
     arr = np.asarray(image.convert("RGB"), dtype=np.uint8)
+    if arr.shape[:2] == (2, 2) and np.all(arr == arr[0, 0]):
+        # trimesh's stand-in for a material without an image (``trimesh.visual.material.empty_material``, e.g.
+        # an OBJ with texture coordinates and no .mtl): no texture of the file's own
+        return None
     return arr if arr.ndim == 3 and min(arr.shape[:2]) >= 2 else None
 
 
