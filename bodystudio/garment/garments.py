@@ -303,6 +303,8 @@ def _hsv_to_rgb(h: float, s: float, v: float) -> np.ndarray:
 def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear texture lookup of (K, 2) UVs (v up; texel centres at ``(i + 0.5) / S``) -> (K, 3) in [0, 1]."""
     S_h, S_w = texture.shape[:2]
+    if len(uv) == 0:  # cv2.remap refuses an empty map
+        return np.zeros((0, 3))
     mx = (uv[:, 0] * S_w - 0.5).astype(np.float32).reshape(-1, 1)
     my = ((1.0 - uv[:, 1]) * S_h - 0.5).astype(np.float32).reshape(-1, 1)
     out = cv2.remap(texture, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

@@ -396,3 +396,8 @@ def test_material_image_of_trimeshs_stand_in_is_none():
     visual = trimesh.visual.TextureVisuals(uv=np.zeros((3, 2)))
     assert np.asarray(visual.material.image).shape[:2] == (2, 2)
     assert gm._material_image(visual) is None
+
+
+def test_sample_texture_of_no_points_is_empty():
+    out = gm.sample_texture(np.zeros((4, 4, 3), np.uint8), np.zeros((0, 2)))
+    assert out.shape == (0, 3) and out.dtype == np.float64
