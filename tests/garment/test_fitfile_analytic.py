@@ -284,3 +284,50 @@ def test_load_reason_is_the_first_line_cut_at_120_characters(tmp_path, monkeypat
 
     monkeypatch.setattr(np, "load", empty_error)
     _refused(folder, f"{folder}: damaged garment fit (OSError: ); {fix}")
+
+
+# --- survivors of the first mutation run --------------------------------------------------------------
+
+def test_fit_folder_lock_and_staging_are_dot_files_named_by_the_folder(tmp_path):
+    from bodystudio.runfolder import OutputLockedError, RunLayout, interrupted_message
+
+    folder = _saved(tmp_path)
+    doc = json.loads((folder / "fit.json").read_text())
+    assert doc["run"]["producer"] == {"stage": "garment", "kind": "fit"}
+    assert sorted(p.name for p in folder.iterdir()) == ["albedo.npy", "fit.json", "masks", "poses.npz"]
+    # a writer of another host holds .lock: a second save is refused, naming the folder and the lock
+    (folder / ".lock").write_text(json.dumps({"pid": 7, "host": "elsewhere", "command": "bodystudio garment fit",
+                                              "since": "2026-01-01T00:00:00Z"}) + "\n")
+    with pytest.raises(OutputLockedError) as e:
+        ff.save_garment_fit(folder, _fit())
+    assert str(e.value) == (f"{folder}: being written by pid 7 on elsewhere (bodystudio garment fit, since "
+                            f"2026-01-01T00:00:00Z); wait for it to finish (if that process is gone, delete "
+                            f"{folder / '.lock'})")
+    (folder / ".lock").unlink()
+    # a committed but unfinished write (.staging/commit.json): the load names the folder to recover
+    (folder / ".staging").mkdir()
+    (folder / ".staging" / "commit.json").write_text("{}")
+    with pytest.raises(OutputLockedError) as e:
+        ff.load_garment_fit(folder)
+    assert str(e.value) == interrupted_message(RunLayout(folder, "fit.json", ".", str(folder)))
+    assert f"bodystudio recover {folder}`" in str(e.value)
+
+
+def test_load_converts_poses_and_qualities_to_float(tmp_path):
+    folder = _saved(tmp_path)
+    fit = _fit()
+    np.savez(folder / "poses.npz", rotations=fit.rotations.astype(np.float32),
+             translations=fit.translations.astype(np.float32))
+    _edit(folder, silhouette_iou=[1, 0])
+    back = ff.load_garment_fit(folder)
+    assert back.rotations.dtype == np.float64 and back.translations.dtype == np.float64
+    assert np.array_equal(back.rotations, fit.rotations.astype(np.float32))
+    assert back.silhouette_iou.dtype == np.float64 and np.array_equal(back.fitted, [True, False])
+
+
+def test_load_names_fit_json_for_a_malformed_lighting(tmp_path):
+    folder = _saved(tmp_path)
+    _edit(folder, lighting={"directions": [[0, 1, 0]]})
+    with pytest.raises(FileFormatError) as e:
+        ff.load_garment_fit(folder)
+    assert str(e.value).startswith(f"{folder / 'fit.json'}: ")
