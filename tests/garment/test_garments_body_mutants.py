@@ -622,3 +622,42 @@ def test_load_garment_mesh_refuses_other_units_and_far_garments(tmp_path):
     near = _export(tmp_path / "near.ply", Vs + [0.0, 0.0, 0.05], Fs)
     with pytest.raises(InputError, match=r"within 0\.03 m"):
         gm.load_garment_mesh(near, body, texture_size=16, max_distance_m=0.03)
+
+
+# --- survivors of the first mutation run ----------------------------------------------------------------
+
+def test_arm_coordinate_tie_keeps_the_upper_arm():
+    # binary fractions: the point is exactly 0.125 from both segments; the upper arm (checked first) wins
+    body = _with_joints(_body(), upperarm_l=(0.25, 1.5, 0.0), upperarm_l_tail=(0.75, 1.5, 0.0),
+                        lowerarm_l=(0.75, 1.5, 0.0), lowerarm_l_tail=(0.75, 1.25, 0.0))
+    got = gm.arm_coordinate(np.array([[0.625, 1.375, 0.0], [0.875, 1.375, 0.0]]), body, "l")
+    assert list(got) == [0.375, 0.5 + 0.125]
+
+
+def test_shirt_defaults_are_short_sleeves():
+    body = _body()
+    assert np.array_equal(gm.shirt_region_field(body), gm.shirt_region_field(body, "short"))
+    V, F, M = gm.shirt_garment_mesh(body)
+    Vs, Fs, Ms = _shirt_shell("short")
+    assert np.array_equal(V, Vs) and np.array_equal(F, Fs)
+
+
+def test_gltf_is_a_garment_format_and_read_errors_name_their_type(tmp_path):
+    path = tmp_path / "shirt.GLTF"
+    path.write_text("{not json")
+    with pytest.raises(FileFormatError) as e:
+        gm.load_garment_mesh(path, _body())
+    msg = str(e.value)
+    assert msg.startswith(f"{path}: cannot read the garment mesh (") and "NoneType" not in msg
+    kind = msg.split("cannot read the garment mesh (", 1)[1].split(":", 1)[0]
+    assert kind.isidentifier() and kind[0].isupper()
+
+
+def test_a_garment_wider_than_one_and_a_half_bodies_is_refused_as_other_units(tmp_path):
+    body = _body()
+    Vs, Fs, _ = _shirt_shell("short")
+    extent_body = float(np.ptp(body.vertices, axis=0).max())
+    wide = _export(tmp_path / "wide.ply", (Vs - Vs.mean(0)) * 1.6 * extent_body / np.ptp(Vs, axis=0).max()
+                   + Vs.mean(0), Fs)
+    with pytest.raises(InputError, match="export it in metres"):
+        gm.load_garment_mesh(wide, body, texture_size=16)
