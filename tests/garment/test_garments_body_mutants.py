@@ -21,7 +21,7 @@ from bodystudio.errors import AssetError, FileFormatError, InputError
 from bodystudio.garment import garments as gm
 
 SHAPE = Phenotype(gender=0.8, height=0.7, weight=0.3)
-LOCAL = {"upperarm-fat-decr-incr": 0.6}
+LOCAL = {"upperarm-fat-decr-incr": 0.6, "hip-scale-horiz-decr-incr": 0.5}  # the hips move the skirt
 
 
 @functools.cache
@@ -286,6 +286,7 @@ def test_skirt_follows_the_body_shape():
     V, _, _, weld, _ = gm.proxy_garment_mesh(_shaped("game_engine"), "skirt")
     ids = np.unique(load_group_faces("helper-skirt")[0])
     assert np.array_equal(V, shaped_vertices(SHAPE, LOCAL)[ids][weld])
+    assert not np.allclose(V, shaped_vertices(SHAPE, {})[ids][weld], atol=1e-3)  # the local modifiers count
 
 
 def test_tights_are_the_suit_between_the_waist_and_the_ankles():
