@@ -324,3 +324,70 @@ def test_session_into_an_existing_empty_folder(tmp_path):
     (tmp_path / "s").mkdir()
     s = syn.synth_garment_session(tmp_path / "s", **(SMALL | {"n_frames": 1}))
     assert s.frame_ids == [0]
+
+
+# --- survivors of the first mutation run --------------------------------------------------------------
+
+class _Stop(Exception):
+    pass
+
+
+def test_session_limits_are_inclusive(tmp_path, monkeypatch):
+    """2000 frames and 4096 pixels are accepted (the generator stops at its first step after the checks)."""
+    import bodystudio.body.population as population
+
+    def stop(seed):
+        raise _Stop(seed)
+
+    monkeypatch.setattr(population, "sample_subject", stop)
+    for kwargs in ({"n_frames": 2000}, {"resolution": (4096, 4096)}, {"resolution": (64, 64)}, {"subject_seed": 0}):
+        with pytest.raises(_Stop):
+            syn.synth_garment_session(tmp_path / "s", **(SMALL | kwargs))
+
+
+def test_session_defaults(tmp_path, monkeypatch):
+    """Subject 7, 60 frames of a walk on the 6k template, 512-texel garments, no progress bar."""
+    import bodystudio.body as body_pkg
+    import bodystudio.body.population as population
+    import bodystudio.capture.session as session_mod
+    import bodystudio.garment.garments as garments
+
+    seen = {}
+    real_subject, real_bar, real_build = population.sample_subject, session_mod.progress_bar, body_pkg.build_body
+
+    def subject(seed):
+        seen["subject_seed"] = seed
+        return real_subject(seed)
+
+    def build(phenotype, local, resolution):
+        seen["template"] = resolution
+        return real_build(phenotype, local, resolution="2k")  # the 2k body stands in for the 6k one
+
+    def poses(motion, n, skeleton, seed):
+        seen["motion"], seen["n_frames"], seen["seed"] = motion, n, seed
+        return []
+
+    def dress(body, name, pattern, texture_size, seed):
+        seen["texture_size"] = texture_size
+        raise _Stop()
+
+    monkeypatch.setattr(population, "sample_subject", subject)
+    monkeypatch.setattr(body_pkg, "build_body", build)
+    monkeypatch.setattr(syn, "motion_poses", poses)
+    monkeypatch.setattr(garments, "dress", dress)
+    with pytest.raises(_Stop):
+        syn.synth_garment_session(tmp_path / "s")
+    assert seen == {"subject_seed": 7, "template": "6k", "motion": "walk", "n_frames": 60, "seed": 0,
+                    "texture_size": 512}
+    # the progress bar is off unless asked for
+    bars = []
+
+    def bar(show):
+        bars.append(show)
+        return real_bar(show)
+
+    monkeypatch.undo()
+    monkeypatch.setattr(session_mod, "progress_bar", bar)
+    syn.synth_garment_session(tmp_path / "one", **(SMALL | {"n_frames": 1, "subject_seed": 0,
+                                                            "resolution": (64, 64)}))
+    assert bars == [False]
