@@ -180,8 +180,10 @@ def test_evaluate_garment_checks_the_source_first(tmp_path):
     fit = _oracle()
     fit_dir = _saved(tmp_path, dataclasses.replace(fit, source=str(tmp_path / "clip.mp4"),
                                                    frame_ids=np.array([0, 7])))
-    with pytest.raises(InputError, match=r"frames \[7\] of the fit are not in"):
+    with pytest.raises(InputError) as e:
         ge.evaluate_garment(fit_dir, _session_path())
+    assert str(e.value) == (f"{fit_dir}: frames [7] of the fit are not in {_session_path()}; pass --session with the "
+                            "session the video was made from")
 
 
 def test_evaluate_garment_adds_the_composites_scores_when_rendered(tmp_path, monkeypatch):
