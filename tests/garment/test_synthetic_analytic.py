@@ -252,6 +252,22 @@ def _truth(seed, subject_seed, garment, n_frames, motion, texture_size):
     return body, light, skin, worn_seed, target_seed, worn, poses
 
 
+def _renders(session, seed, subject_seed, garment, pattern, frame, motion, shadows):
+    """(seen, true) renders of ``frame`` rebuilt from the seeds (noise-free sessions of 2 frames, 16 texels)."""
+    from bodystudio.capture.render import background_plate
+    from bodystudio.garment.garments import dress, pose_garment
+    from bodystudio.garment.render import render_garment
+
+    body, light, skin, worn_seed, target_seed, worn, poses = _truth(seed, subject_seed, garment, 2, motion, 16)
+    target = dress(body, garment, pattern, 16, target_seed)
+    camera = session.cameras["cam_00"]
+    plate = background_plate(camera, seed)
+    pose = poses[frame]
+    Vb, _ = body.pose(pose)
+    return tuple(render_garment(Vb, body.faces, g, pose_garment(g, body, pose), camera, light, plate, skin, shadows)
+                 for g in (worn, target))
+
+
 def test_session_holds_the_ground_truth_of_its_seeds(tmp_path):
     from bodystudio.body import posed_joints
     from bodystudio.capture.render import background_plate
@@ -300,6 +316,9 @@ def test_session_holds_the_ground_truth_of_its_seeds(tmp_path):
         assert np.array_equal(img[layers == 0], plate[layers == 0])
         assert np.array_equal(target[layers != 2], img[layers != 2])
         assert np.abs(target[layers == 2].astype(int) - img[layers == 2]).max() > 20
+    seen, true = _renders(s, 1, 4, "skirt", "checks", 1, "arm_flex", shadows=False)
+    assert np.array_equal(s.frame(1).images["cam_00"], seen.image)
+    assert np.array_equal(s.frame(1).gt_target["cam_00"], true.image)
 
 
 def test_session_is_reproducible_and_noisy_by_default(tmp_path):
@@ -318,6 +337,10 @@ def test_session_is_reproducible_and_noisy_by_default(tmp_path):
     bg = a.background_frames("cam_00")[0].astype(float) - c.background_frames("cam_00")[0]
     assert 1.6 < bg.std() < 2.4
     assert np.array_equal(a.frame(1).gt_target["cam_00"], c.frame(1).gt_target["cam_00"])
+    # the noise-free video and the true target are the renders of the worn and the target garment, with shadows
+    seen, true = _renders(c, 0, 4, "tshirt", "stripes", 1, "walk", shadows=True)
+    assert np.array_equal(c.frame(1).images["cam_00"], seen.image)
+    assert np.array_equal(c.frame(1).gt_target["cam_00"], true.image)
 
 
 def test_session_into_an_existing_empty_folder(tmp_path):
@@ -386,8 +409,17 @@ def test_session_defaults(tmp_path, monkeypatch):
         bars.append(show)
         return real_bar(show)
 
+    locks = []
+    real_lock = session_mod.acquire_lock
+
+    def lock(layout, command):
+        locks.append(command)
+        return real_lock(layout, command)
+
     monkeypatch.undo()
     monkeypatch.setattr(session_mod, "progress_bar", bar)
-    syn.synth_garment_session(tmp_path / "one", **(SMALL | {"n_frames": 1, "subject_seed": 0,
-                                                            "resolution": (64, 64)}))
-    assert bars == [False]
+    monkeypatch.setattr(session_mod, "acquire_lock", lock)
+    s = syn.synth_garment_session(tmp_path / "one", **(SMALL | {"n_frames": 1, "subject_seed": 0,
+                                                                "resolution": (64, 64)}))
+    assert bars == [False] and locks == ["bodystudio synth garment"]
+    assert s.source == "synthetic"
