@@ -292,8 +292,8 @@ def test_session_holds_the_ground_truth_of_its_seeds(tmp_path):
     assert gl["model"] == "albedo * (ambient + sum visible max(0, n.d) color), linear"
     assert s.gt_garment == {"worn": {"name": "skirt", "pattern": "plain", "seed": worn_seed},
                             "target": {"name": "skirt", "pattern": "checks", "seed": target_seed}, "texture_size": 16}
-    assert np.allclose(s.gt_albedo, np.round(skin, 6), atol=1e-12)
-    assert np.allclose(s.gt_appearance_albedo, np.round(syn.appearance_albedo(body, worn, skin), 6), atol=1e-12)
+    assert np.array_equal(s.gt_albedo, np.round(skin, 6))  # 6 decimals
+    assert np.array_equal(s.gt_appearance_albedo, np.round(syn.appearance_albedo(body, worn, skin), 6))
     doc = json.loads((s.path / "gt" / "albedo.json").read_text())
     assert doc["template"] == "2k" and doc["space"] == "linear RGB in [0, 1], one row per body vertex"
     plate = background_plate(syn.garment_camera(64, 80), 1)
@@ -343,10 +343,13 @@ def test_session_is_reproducible_and_noisy_by_default(tmp_path):
     assert np.array_equal(c.frame(1).gt_target["cam_00"], true.image)
 
 
-def test_session_into_an_existing_empty_folder(tmp_path):
+def test_session_into_an_existing_empty_folder(tmp_path, caplog):
     (tmp_path / "s").mkdir()
-    s = syn.synth_garment_session(tmp_path / "s", **(SMALL | {"n_frames": 1}))
+    with caplog.at_level("INFO", logger="bodystudio.garment.synthetic"):
+        s = syn.synth_garment_session(tmp_path / "s", **(SMALL | {"n_frames": 1, "garment": "skirt"}))
     assert s.frame_ids == [0]
+    assert (f"wrote {tmp_path / 's'}: 1 frames of subject 4 wearing skirt (target skirt)"
+            in [r.getMessage() for r in caplog.records])
 
 
 # --- survivors of the first mutation run --------------------------------------------------------------
