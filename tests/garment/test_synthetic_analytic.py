@@ -148,6 +148,8 @@ def test_with_noise():
     same = syn._with_noise(img, 0.0, np.random.default_rng(0))
     assert np.array_equal(same, img) and same is not img
     assert np.array_equal(syn._with_noise(img, -1.0, np.random.default_rng(0)), img)
+    one = syn._with_noise(img, 1.0, np.random.default_rng(2)).astype(float) - img
+    assert 0.7 < np.std(one[:, 2]) < 1.3  # a std of one is noise too
     out = syn._with_noise(img, 3.0, np.random.default_rng(9))
     want = np.clip(np.round(img.astype(np.float32)
                             + np.random.default_rng(9).normal(0.0, 3.0, img.shape).astype(np.float32)), 0, 255)
@@ -187,7 +189,7 @@ def test_appearance_albedo_takes_the_texture_at_the_hit():
     z = body.vertices[:, 2].max() + 0.02
     y0 = sk.heads[sk.index("spine_03"), 1]
     V = np.array([[-0.3, y0 - 0.2, z], [0.3, y0 - 0.2, z], [0.3, y0 + 0.2, z], [-0.3, y0 + 0.2, z]])
-    F = np.array([[0, 1, 2], [0, 2, 3]])
+    F = np.array([[1, 2, 3], [1, 3, 0]])  # each face's first corner has u = 1: its barycentric weight matters
     uv = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     tex = np.zeros((4, 64, 3), np.uint8)
     tex[:, :32] = (255, 0, 0)
