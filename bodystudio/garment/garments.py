@@ -303,6 +303,8 @@ def _hsv_to_rgb(h: float, s: float, v: float) -> np.ndarray:
 def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear texture lookup of (K, 2) UVs (v up; texel centres at ``(i + 0.5) / S``) -> (K, 3) in [0, 1]."""
     S_h, S_w = texture.shape[:2]
+    if len(uv) == 0:  # cv2.remap refuses an empty map
+        return np.zeros((0, 3))
     mx = (uv[:, 0] * S_w - 0.5).astype(np.float32).reshape(-1, 1)
     my = ((1.0 - uv[:, 1]) * S_h - 0.5).astype(np.float32).reshape(-1, 1)
     out = cv2.remap(texture, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -542,6 +544,10 @@ def _material_image(visual) -> np.ndarray | None:
     if image is None:
         return None
     arr = np.asarray(image.convert("RGB"), dtype=np.uint8)
+    if arr.shape[:2] == (2, 2) and np.all(arr == arr[0, 0]):
+        # trimesh's stand-in for a material without an image (``trimesh.visual.material.empty_material``, e.g.
+        # an OBJ with texture coordinates and no .mtl): no texture of the file's own
+        return None
     return arr if arr.ndim == 3 and min(arr.shape[:2]) >= 2 else None
 
 

@@ -320,8 +320,10 @@ def test_material_image_reads_rgb_of_two_texels_or_more():
     rgba = Image.fromarray(np.full((3, 4, 4), 9, np.uint8), "RGBA")
     got = gm._material_image(SimpleNamespace(material=SimpleNamespace(image=rgba)))
     assert got.shape == (3, 4, 3) and got.dtype == np.uint8 and np.all(got == 9)
-    base = SimpleNamespace(image=None, baseColorTexture=Image.fromarray(np.zeros((2, 2, 3), np.uint8)))
-    assert gm._material_image(SimpleNamespace(material=base)).shape == (2, 2, 3)
+    two = np.zeros((2, 2, 3), np.uint8)
+    two[1, 1, 2] = 1  # two colours: a texture (one colour on 2 x 2 is trimesh's stand-in for no image)
+    base = SimpleNamespace(image=None, baseColorTexture=Image.fromarray(two))
+    assert np.array_equal(gm._material_image(SimpleNamespace(material=base)), two)
     assert gm._material_image(SimpleNamespace(material=SimpleNamespace(image=Image.new("RGB", (1, 5))))) is None
     assert gm._material_image(SimpleNamespace()) is None
     assert gm._material_image(SimpleNamespace(material=SimpleNamespace())) is None
@@ -384,3 +386,18 @@ def test_bake_defaults_are_stripes_and_seed_zero():
                           gm.bake_procedural_texture(V, F, uv, "stripes", size=16, seed=0))
     assert not np.array_equal(gm.bake_procedural_texture(V, F, uv, size=16),
                               gm.bake_procedural_texture(V, F, uv, "stripes", size=16, seed=1))
+
+
+def test_material_image_of_trimeshs_stand_in_is_none():
+    """trimesh gives a mesh with texture coordinates and no image (an OBJ without .mtl, its own exports) a 2 x 2
+    image of one colour; that is no texture of the file's own (the procedural pattern is baked instead)."""
+    import trimesh
+
+    visual = trimesh.visual.TextureVisuals(uv=np.zeros((3, 2)))
+    assert np.asarray(visual.material.image).shape[:2] == (2, 2)
+    assert gm._material_image(visual) is None
+
+
+def test_sample_texture_of_no_points_is_empty():
+    out = gm.sample_texture(np.zeros((4, 4, 3), np.uint8), np.zeros((0, 2)))
+    assert out.shape == (0, 3) and out.dtype == np.float64
