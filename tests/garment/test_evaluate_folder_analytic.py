@@ -157,11 +157,15 @@ def _saved(tmp_path, fit):
 
 
 def test_evaluate_garment_scores_the_saved_fit_against_its_source(tmp_path):
+    import json
+
     from bodystudio.garment.fitfile import load_garment_fit
 
     fit_dir = _saved(tmp_path, _perturbed())
     got = ge.evaluate_garment(fit_dir)
     want = ge.fit_errors(load_garment_fit(fit_dir), _session())
+    # which fit was scored (fit.json's run id) and that no render was
+    want.update(fit_run_id=json.loads((fit_dir / "fit.json").read_text())["run"]["run_id"], render_run_id=None)
     assert got == want
     assert ge.evaluate_garment(str(fit_dir), str(_session_path())) == want
 
