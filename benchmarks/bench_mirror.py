@@ -53,7 +53,7 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
     """Per-step (CPU ms, wall ms) of the image steps on one :class:`ImageCase`, and of the alternatives."""
     from bodystudio.mirror.compose import compose, update_background
     from bodystudio.mirror.foreground import refine_foreground
-    from bodystudio.mirror.warp import mls_warp_field, warp_foreground, warp_pairs
+    from bodystudio.mirror.warp import actors_warp_pairs, mls_warp_field, warp_foreground, warp_pairs
 
     dense = CORRESPONDENCE == "dense"
     background = update_background(None, case.background, np.zeros(case.true_mask.shape, bool))
@@ -61,18 +61,18 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
     n_actors = case.actors
     per_actor = len(case.source_vertices) // n_actors
     F1 = case.faces[: len(case.faces) // n_actors]
-    face_groups = np.repeat(np.arange(n_actors), len(F1))
 
     def pairs(dense=dense):
-        # the sparse pairs per actor; the dense correspondence of all actors in one z-buffer
-        out = [warp_pairs(case.source_vertices[a * per_actor:(a + 1) * per_actor],
-                          case.target_vertices[a * per_actor:(a + 1) * per_actor], F1, case.camera,
-                          N_HANDLES // n_actors, rim_cos=RIM_COS, dense=dense and n_actors == 1)
-               for a in range(n_actors)]
+        # dense: all actors in one call (one z-buffer per body for the visibility and the correspondence);
+        # sparse: the pairs per actor (quarter-size z-buffers), as MLS-only runs do
         if dense and n_actors > 1:
-            out.append(warp_pairs(case.source_vertices, case.target_vertices, case.faces, case.camera, 0, dense=True,
-                                  face_groups=face_groups))
-        return out
+            return actors_warp_pairs(np.split(case.source_vertices, n_actors),
+                                     np.split(case.target_vertices, n_actors), F1, case.camera, N_HANDLES,
+                                     rim_cos=RIM_COS, dense=True)
+        return [warp_pairs(case.source_vertices[a * per_actor:(a + 1) * per_actor],
+                           case.target_vertices[a * per_actor:(a + 1) * per_actor], F1, case.camera,
+                           N_HANDLES // n_actors, rim_cos=RIM_COS, dense=dense)
+                for a in range(n_actors)]
 
     def field_of(kind, radius_px=MLS_RADIUS_PX, dense=dense):
         return lambda: mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA, groups=case.pair_groups,

@@ -470,6 +470,7 @@ class WarpPairs:
     dst_uv: np.ndarray
     ids: np.ndarray
     dense: DenseCorrespondence | None = None
+    groups: np.ndarray | None = None  # (m,) the person of each pair (:func:`actors_warp_pairs`), None: one
 
 
 def crop_camera(camera, x0: int, y0: int, width: int, height: int, scale=(1.0, 1.0)):
@@ -600,6 +601,29 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
                                              *_grid_samples(source_uv, rasters[1].triangle_id, (x0, y0), camera,
                                                             grid, face_groups))
     return WarpPairs(uvs[0][keep], uvs[1][keep], ids[keep], correspondence)
+
+
+def actors_warp_pairs(sources, targets, faces, camera, n_handles: int = 800, rim_cos: float | None = None,
+                      dense: bool = False, **options) -> WarpPairs:
+    """:func:`warp_pairs` of several actors at once: their bodies (each ``(n_a, 3)``, the same ``faces``) stacked
+    into one mesh, rendered in one z-buffer per body (which also lets one actor hide the other's vertices), the
+    ``n_handles`` candidates spread over all of them; ``groups`` says whose each pair is, ``ids`` index the stack.
+
+    Two actors cost one call instead of one per actor plus one for the dense correspondence of both: 16 -> 12 ms
+    CPU on the bench's two-actor frame, the same warp_iou (docs/mirror.md, MIRFAST2).
+    """
+    if len(sources) != len(targets) or not len(sources):
+        raise InputError(f"actors_warp_pairs needs as many target bodies as source bodies (>= 1), got {len(sources)} "
+                         f"and {len(targets)}")
+    F = np.asarray(faces, dtype=np.int64)
+    sizes = np.array([len(V) for V in sources], np.int64)
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    F_all = np.concatenate([F + s for s in starts[:-1]])
+    face_groups = np.repeat(np.arange(len(sources)), len(F))
+    p = warp_pairs(np.concatenate(sources), np.concatenate(targets), F_all, camera, n_handles, rim_cos=rim_cos,
+                   dense=dense, face_groups=face_groups, **options)
+    groups = np.searchsorted(starts, p.ids, side="right") - 1
+    return WarpPairs(p.src_uv, p.dst_uv, p.ids, p.dense, groups)
 
 
 def _grid_samples(source_uv, triangle_id, origin, camera, grid, face_groups):
