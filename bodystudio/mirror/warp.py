@@ -638,15 +638,28 @@ def _grid_samples(source_uv, triangle_id, origin, camera, grid, face_groups):
     oky = (cy >= 0) & (cy + 1 < h)
     out = np.full((gh, gw, 2), np.nan, np.float32)
     groups = None if face_groups is None else np.zeros((gh, gw), np.int64)
-    r, c = np.nonzero(oky[:, None] & okx[None, :])
-    if len(r):
-        py, px = cy[r], cx[c]
-        block = (source_uv[py, px] + source_uv[py + 1, px] + source_uv[py, px + 1] + source_uv[py + 1, px + 1]) / 4
-        out[r, c] = block  # NaN wherever one of the four is uncovered
-        if groups is not None:
-            tri = triangle_id[py, px]
-            groups[r, c] = np.where(tri >= 0, np.asarray(face_groups)[np.maximum(tri, 0)], 0)
+    person = np.zeros(1, np.int64) if groups is None else np.asarray(face_groups, np.int64)
+    _node_blocks(np.ascontiguousarray(source_uv, dtype=np.float32), triangle_id, np.flatnonzero(oky), cy,
+                 np.flatnonzero(okx), cx, person, out, np.zeros((1, 1), np.int64) if groups is None else groups,
+                 groups is not None)
     return out, groups
+
+
+@njit(cache=True)
+def _node_blocks(source_uv, triangle_id, rows, cy, cols, cx, face_groups, out, groups, with_groups):
+    """:func:`_grid_samples`' loop: ``out[r, c]`` the mean of the 2x2 block at ``(cy[r], cx[c])`` (NaN wherever one
+    of the four is), ``groups[r, c]`` the person of its top-left pixel's triangle (0 where none); one pass instead
+    of four fancy-indexed gathers (1 -> <0.1 ms for a two-actor crop, MIRFAST2)."""
+    for r in rows:
+        py = cy[r]
+        for c in cols:
+            px = cx[c]
+            for d in range(2):
+                out[r, c, d] = (source_uv[py, px, d] + source_uv[py + 1, px, d] + source_uv[py, px + 1, d]
+                                + source_uv[py + 1, px + 1, d]) / np.float32(4.0)
+            if with_groups:
+                tri = triangle_id[py, px]
+                groups[r, c] = face_groups[tri] if tri >= 0 else 0
 
 
 def visible_vertex_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: np.ndarray, camera,
