@@ -405,7 +405,10 @@ def _signed_distance(mask: np.ndarray) -> np.ndarray:
     m = np.asarray(mask, np.uint8)
     inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_5)
     outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_5)
-    return (inside - outside + np.where(m > 0, -0.5, 0.5)).astype(np.float32)
+    # in float32: the difference of two float32 distances plus 0.5 rounds once either way (the same values)
+    out = inside - outside
+    out += np.where(m > 0, np.float32(-0.5), np.float32(0.5))
+    return out
 
 
 def warp_foreground(rgb: np.ndarray, fg_mask: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -586,8 +589,7 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
         ok = np.isfinite(uv).all(1) & (z > 0)
         col, row = np.where(ok, col, 0).astype(np.int64), np.where(ok, row, 0).astype(np.int64)
         # the nearest z in the 3x3 neighbourhood: a vertex on a silhouette edge falls next to the covered pixel
-        zpad = np.pad(np.where(zbuf > 0, zbuf, np.inf), 1, constant_values=np.inf)
-        near = np.min([zpad[row + 1 + dr, col + 1 + dc] for dr in (-1, 0, 1) for dc in (-1, 0, 1)], axis=0)
+        near = _nearest_depth_3x3(zbuf, row, col)
         keep &= ok & (z <= near + depth_tol_m)
         keep &= (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
         uvs.append(uv)
@@ -624,6 +626,23 @@ def actors_warp_pairs(sources, targets, faces, camera, n_handles: int = 800, rim
                    dense=dense, face_groups=face_groups, **options)
     groups = np.searchsorted(starts, p.ids, side="right") - 1
     return WarpPairs(p.src_uv, p.dst_uv, p.ids, p.dense, groups)
+
+
+@njit(cache=True)
+def _nearest_depth_3x3(zbuf, rows, cols):
+    """The smallest covered depth (``zbuf`` > 0) in the 3x3 neighbourhood of each pixel ``(rows, cols)``, inf where
+    none; only the candidates' pixels are read (padding the whole buffer and nine gathers cost ~0.3 ms a body)."""
+    h, w = zbuf.shape
+    out = np.full(rows.shape[0], np.inf)
+    for i in range(rows.shape[0]):
+        best = np.inf
+        for r in range(max(rows[i] - 1, 0), min(rows[i] + 2, h)):
+            for c in range(max(cols[i] - 1, 0), min(cols[i] + 2, w)):
+                z = zbuf[r, c]
+                if z > 0 and z < best:
+                    best = z
+        out[i] = best
+    return out
 
 
 def _grid_samples(source_uv, triangle_id, origin, camera, grid, face_groups):
