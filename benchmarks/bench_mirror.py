@@ -53,7 +53,7 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
     """Per-step (CPU ms, wall ms) of the image steps on one :class:`ImageCase`, and of the alternatives."""
     from bodystudio.mirror.compose import compose, update_background
     from bodystudio.mirror.foreground import refine_foreground
-    from bodystudio.mirror.warp import mls_warp_field, warp_foreground, warp_pairs
+    from bodystudio.mirror.warp import actors_warp_pairs, mls_warp_field, warp_foreground, warp_pairs
 
     dense = CORRESPONDENCE == "dense"
     background = update_background(None, case.background, np.zeros(case.true_mask.shape, bool))
@@ -61,18 +61,18 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
     n_actors = case.actors
     per_actor = len(case.source_vertices) // n_actors
     F1 = case.faces[: len(case.faces) // n_actors]
-    face_groups = np.repeat(np.arange(n_actors), len(F1))
 
     def pairs(dense=dense):
-        # the sparse pairs per actor; the dense correspondence of all actors in one z-buffer
-        out = [warp_pairs(case.source_vertices[a * per_actor:(a + 1) * per_actor],
-                          case.target_vertices[a * per_actor:(a + 1) * per_actor], F1, case.camera,
-                          N_HANDLES // n_actors, rim_cos=RIM_COS, dense=dense and n_actors == 1)
-               for a in range(n_actors)]
+        # dense: all actors in one call (one z-buffer per body for the visibility and the correspondence);
+        # sparse: the pairs per actor (quarter-size z-buffers), as MLS-only runs do
         if dense and n_actors > 1:
-            out.append(warp_pairs(case.source_vertices, case.target_vertices, case.faces, case.camera, 0, dense=True,
-                                  face_groups=face_groups))
-        return out
+            return actors_warp_pairs(np.split(case.source_vertices, n_actors),
+                                     np.split(case.target_vertices, n_actors), F1, case.camera, N_HANDLES,
+                                     rim_cos=RIM_COS, dense=True)
+        return [warp_pairs(case.source_vertices[a * per_actor:(a + 1) * per_actor],
+                           case.target_vertices[a * per_actor:(a + 1) * per_actor], F1, case.camera,
+                           N_HANDLES // n_actors, rim_cos=RIM_COS, dense=dense)
+                for a in range(n_actors)]
 
     def field_of(kind, radius_px=MLS_RADIUS_PX, dense=dense):
         return lambda: mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA, groups=case.pair_groups,
@@ -122,9 +122,10 @@ def _accuracy(case) -> dict[str, float]:
     return out
 
 
-def _session_side(quick: bool) -> tuple[list[str], float | None, float | None]:
+def _session_side(quick: bool) -> tuple[list[str], float | None, float | None, float | None]:
     """Markdown lines: the session side per frame, from MIR-SYNTH's and MIR-BODY's timing functions; its CPU ms
-    per frame and the pose refinement's (``--refine-pose``; None without it).
+    per frame split into what the actors share (the depth-to-colour registration) and what each actor costs (IK,
+    skinning its source and target body), and the pose refinement's per actor (``--refine-pose``; None without).
 
     A synthetic mirror session is written (as ``synthetic.time_synth_mirror`` does), its observations fitted and
     tracked (``init.time_init_and_track``: the §4 fit, IK and skinning per frame), and the depth-to-colour
@@ -139,7 +140,7 @@ def _session_side(quick: bool) -> tuple[list[str], float | None, float | None]:
         frames = importlib.import_module("bodystudio.mirror.frames")
     except ImportError:
         return ["Session side (synthesis, init, IK, posing, depth registration): their modules are not in this "
-                "checkout."], None, None
+                "checkout."], None, None, None
     from bodystudio.body.statistical import load_statistical_model
     from bodystudio.capture.session import open_session
 
@@ -168,7 +169,7 @@ def _session_side(quick: bool) -> tuple[list[str], float | None, float | None]:
             lines.append(f"`--refine-pose`: the pose refinement {refine_ms[0]:.1f} ms CPU ({refine_ms[1]:.1f} wall) "
                          "per frame, one Gauss-Newton step (the mean shape posed by the IK against the player mask, "
                          "depth and joints of the last frame).")
-    return (lines, register[0] + track["ik_cpu_ms"] + 2 * track["skin_cpu_ms"],
+    return (lines, register[0], track["ik_cpu_ms"] + 2 * track["skin_cpu_ms"],
             None if refine_ms is None else refine_ms[0])
 
 
@@ -230,9 +231,10 @@ def run(quick: bool = False) -> str:
         lines += ["Accuracy on the same frame (1 actor, seed 0):", "",
                   markdown_table(["edit", *acc], acc_rows), ""]
     try:
-        session_lines, session_ms, refine_ms = _session_side(quick)
+        session_lines, register_ms, actor_ms, refine_ms = _session_side(quick)
         lines += session_lines + [""]
-        if session_ms is not None:
+        if register_ms is not None:
+            session_ms = register_ms + actor_ms
             end_to_end = totals["1 actor"] + session_ms
             lines += [f"**End to end, one actor, one core: {end_to_end:.1f} ms CPU per frame = "
                       f"{1e3 / end_to_end:.1f} fps** without the pose refinement (`--no-refine-pose`; image steps "
@@ -243,6 +245,13 @@ def run(quick: bool = False) -> str:
                 lines += [f"**With the pose refinement (`--refine-pose`): {end_to_end + refine_ms:.1f} ms "
                           f"CPU per frame = {1e3 / (end_to_end + refine_ms):.1f} fps** (the same run's figures plus "
                           f"{refine_ms:.1f}).", ""]
+            # two actors: one registration, each actor its own IK, refinement and two skinned bodies
+            two = totals["2 actors"] + register_ms + 2 * (actor_ms + (refine_ms or 0.0))
+            lines += [f"**End to end, two actors, one core: {two:.1f} ms CPU per frame = {1e3 / two:.1f} fps** "
+                      f"{'with' if refine_ms is not None else 'without'} the pose refinement (image steps "
+                      f"{totals['2 actors']:.1f} + registration {register_ms:.1f} + 2 x (IK and skinning "
+                      f"{actor_ms:.1f}{f' + refinement {refine_ms:.1f}' if refine_ms is not None else ''}); the "
+                      "per-actor figures are the one-actor session's).", ""]
     except Exception as exc:  # another module's timing helper must not hide these figures
         lines += [f"Session side: its timing helpers failed ({type(exc).__name__}: {exc}).", ""]
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")

@@ -120,9 +120,16 @@ def compose(warped_rgb, warped_mask, background: BackgroundModel, rgb, fg_mask, 
         stats["inpainted_px"] = n_unknown
     covered = alpha > 0
     if covered.any():
-        x, y, w, h = cv2.boundingRect(covered.astype(np.uint8))
+        x, y, w, h = cv2.boundingRect(covered.view(np.uint8))
         roi = (slice(y, y + h), slice(x, x + w))
-        a = alpha[roi][..., None]
-        blended = warped_rgb[roi].astype(np.float32) * a + out[roi].astype(np.float32) * (1.0 - a)
-        out[roi] = np.clip(blended + 0.5, 0, 255).astype(np.uint8)
+        a_roi = alpha[roi]
+        # alpha 1 takes the warped colour as it is, alpha 0 leaves the frame: only the soft edge is blended (the
+        # same float32 sums as blending the whole box, which two actors' box made 2 ms; MIRFAST2)
+        out[roi] = cv2.copyTo(warped_rgb[roi], (a_roi >= 1.0).view(np.uint8), out[roi])
+        er, ec = np.nonzero((a_roi > 0) & (a_roi < 1.0))
+        if len(er):
+            er, ec = er + y, ec + x
+            a = alpha[er, ec][:, None]
+            blended = warped_rgb[er, ec].astype(np.float32) * a + out[er, ec].astype(np.float32) * (1.0 - a)
+            out[er, ec] = np.clip(blended + 0.5, 0, 255).astype(np.uint8)
     return out

@@ -280,18 +280,19 @@ def _band_links(rgb, node, inner, br, bc, smoothness, source, sink):
             qr, qc = r + dy, c + dx
             if not (0 <= qr < h and 0 <= qc < w):
                 continue
+            other = node[qr, qc]
+            if other >= 0 and o >= 2:  # left and up of a band pixel: that pixel's right and down edge
+                continue
             d2 = 0.0
             for ch in range(3):
                 diff = float(rgb[r, c, ch]) - float(rgb[qr, qc, ch])
                 d2 += diff * diff
             wgt = smoothness * np.exp(-beta * d2)
-            other = node[qr, qc]
-            if other >= 0:
-                if o < 2:  # right and down: each band-band pair once
-                    ei[m] = k
-                    ej[m] = other
-                    ec[m] = wgt
-                    m += 1
+            if other >= 0:  # right and down: each band-band pair once
+                ei[m] = k
+                ej[m] = other
+                ec[m] = wgt
+                m += 1
             elif inner[qr, qc]:
                 source[k] += wgt
             else:

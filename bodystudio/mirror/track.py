@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from numba import njit
 from scipy.spatial.transform import Rotation
 
 from bodystudio.body.ik import rotation_between
@@ -284,5 +285,28 @@ def skin_vertices(vertices: np.ndarray, weights: np.ndarray, skeleton: Skeleton,
     V = np.asarray(vertices, dtype=np.float64)
     if subset is not None:
         idx, w, V = idx[subset], w[subset], V[subset]
-    M = np.einsum("nk,nkij->nij", w, S[idx][:, :, :3, :])  # (n, 3, 4) blended affine maps
-    return np.einsum("nij,nj->ni", M[:, :, :3], V) + M[:, :, 3]
+    return _blend_points(np.ascontiguousarray(S[:, :3, :], dtype=np.float64), np.ascontiguousarray(idx),
+                         np.ascontiguousarray(w, dtype=np.float64), np.ascontiguousarray(V))
+
+
+@njit(cache=True)
+def _blend_points(transforms, weight_idx, weight_val, rest_vertices):
+    """``(sum_k w_k T_k) v`` per vertex, skipping the zero weights (2.2 bones of the six on average): the numpy
+    gather of (n, 6, 4, 4) transforms and its two einsums took ~2 ms for a 6k body, this ~0.2 (MIRFAST2)."""
+    n, k_max = weight_idx.shape
+    out = np.empty((n, 3))
+    M = np.empty((3, 4))
+    for i in range(n):
+        M[:] = 0.0
+        for k in range(k_max):
+            w = weight_val[i, k]
+            if w == 0.0:
+                continue
+            T = transforms[weight_idx[i, k]]
+            for r in range(3):
+                for c in range(4):
+                    M[r, c] += w * T[r, c]
+        for r in range(3):
+            out[i, r] = M[r, 0] * rest_vertices[i, 0] + M[r, 1] * rest_vertices[i, 1] \
+                + M[r, 2] * rest_vertices[i, 2] + M[r, 3]
+    return out

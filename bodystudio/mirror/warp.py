@@ -405,7 +405,10 @@ def _signed_distance(mask: np.ndarray) -> np.ndarray:
     m = np.asarray(mask, np.uint8)
     inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_5)
     outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_5)
-    return (inside - outside + np.where(m > 0, -0.5, 0.5)).astype(np.float32)
+    # in float32: the difference of two float32 distances plus 0.5 rounds once either way (the same values)
+    out = inside - outside
+    out += np.where(m > 0, np.float32(-0.5), np.float32(0.5))
+    return out
 
 
 def warp_foreground(rgb: np.ndarray, fg_mask: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -470,6 +473,7 @@ class WarpPairs:
     dst_uv: np.ndarray
     ids: np.ndarray
     dense: DenseCorrespondence | None = None
+    groups: np.ndarray | None = None  # (m,) the person of each pair (:func:`actors_warp_pairs`), None: one
 
 
 def crop_camera(camera, x0: int, y0: int, width: int, height: int, scale=(1.0, 1.0)):
@@ -585,8 +589,7 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
         ok = np.isfinite(uv).all(1) & (z > 0)
         col, row = np.where(ok, col, 0).astype(np.int64), np.where(ok, row, 0).astype(np.int64)
         # the nearest z in the 3x3 neighbourhood: a vertex on a silhouette edge falls next to the covered pixel
-        zpad = np.pad(np.where(zbuf > 0, zbuf, np.inf), 1, constant_values=np.inf)
-        near = np.min([zpad[row + 1 + dr, col + 1 + dc] for dr in (-1, 0, 1) for dc in (-1, 0, 1)], axis=0)
+        near = _nearest_depth_3x3(zbuf, row, col)
         keep &= ok & (z <= near + depth_tol_m)
         keep &= (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
         uvs.append(uv)
@@ -602,6 +605,46 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
     return WarpPairs(uvs[0][keep], uvs[1][keep], ids[keep], correspondence)
 
 
+def actors_warp_pairs(sources, targets, faces, camera, n_handles: int = 800, rim_cos: float | None = None,
+                      dense: bool = False, **options) -> WarpPairs:
+    """:func:`warp_pairs` of several actors at once: their bodies (each ``(n_a, 3)``, the same ``faces``) stacked
+    into one mesh, rendered in one z-buffer per body (which also lets one actor hide the other's vertices), the
+    ``n_handles`` candidates spread over all of them; ``groups`` says whose each pair is, ``ids`` index the stack.
+
+    Two actors cost one call instead of one per actor plus one for the dense correspondence of both: 16 -> 12 ms
+    CPU on the bench's two-actor frame, the same warp_iou (docs/mirror.md, MIRFAST2).
+    """
+    if len(sources) != len(targets) or not len(sources):
+        raise InputError(f"actors_warp_pairs needs as many target bodies as source bodies (>= 1), got {len(sources)} "
+                         f"and {len(targets)}")
+    F = np.asarray(faces, dtype=np.int64)
+    sizes = np.array([len(V) for V in sources], np.int64)
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    F_all = np.concatenate([F + s for s in starts[:-1]])
+    face_groups = np.repeat(np.arange(len(sources)), len(F))
+    p = warp_pairs(np.concatenate(sources), np.concatenate(targets), F_all, camera, n_handles, rim_cos=rim_cos,
+                   dense=dense, face_groups=face_groups, **options)
+    groups = np.searchsorted(starts, p.ids, side="right") - 1
+    return WarpPairs(p.src_uv, p.dst_uv, p.ids, p.dense, groups)
+
+
+@njit(cache=True)
+def _nearest_depth_3x3(zbuf, rows, cols):
+    """The smallest covered depth (``zbuf`` > 0) in the 3x3 neighbourhood of each pixel ``(rows, cols)``, inf where
+    none; only the candidates' pixels are read (padding the whole buffer and nine gathers cost ~0.3 ms a body)."""
+    h, w = zbuf.shape
+    out = np.full(rows.shape[0], np.inf)
+    for i in range(rows.shape[0]):
+        best = np.inf
+        for r in range(max(rows[i] - 1, 0), min(rows[i] + 2, h)):
+            for c in range(max(cols[i] - 1, 0), min(cols[i] + 2, w)):
+                z = zbuf[r, c]
+                if z > 0 and z < best:
+                    best = z
+        out[i] = best
+    return out
+
+
 def _grid_samples(source_uv, triangle_id, origin, camera, grid, face_groups):
     """Grid-node values of a crop's correspondence: the mean of the 2x2 pixels around each node (its bilinear
     value: nodes sit at pixel ``4 j + 1.5``), NaN unless all four are covered; and the node's person."""
@@ -614,15 +657,28 @@ def _grid_samples(source_uv, triangle_id, origin, camera, grid, face_groups):
     oky = (cy >= 0) & (cy + 1 < h)
     out = np.full((gh, gw, 2), np.nan, np.float32)
     groups = None if face_groups is None else np.zeros((gh, gw), np.int64)
-    r, c = np.nonzero(oky[:, None] & okx[None, :])
-    if len(r):
-        py, px = cy[r], cx[c]
-        block = (source_uv[py, px] + source_uv[py + 1, px] + source_uv[py, px + 1] + source_uv[py + 1, px + 1]) / 4
-        out[r, c] = block  # NaN wherever one of the four is uncovered
-        if groups is not None:
-            tri = triangle_id[py, px]
-            groups[r, c] = np.where(tri >= 0, np.asarray(face_groups)[np.maximum(tri, 0)], 0)
+    person = np.zeros(1, np.int64) if groups is None else np.asarray(face_groups, np.int64)
+    _node_blocks(np.ascontiguousarray(source_uv, dtype=np.float32), triangle_id, np.flatnonzero(oky), cy,
+                 np.flatnonzero(okx), cx, person, out, np.zeros((1, 1), np.int64) if groups is None else groups,
+                 groups is not None)
     return out, groups
+
+
+@njit(cache=True)
+def _node_blocks(source_uv, triangle_id, rows, cy, cols, cx, face_groups, out, groups, with_groups):
+    """:func:`_grid_samples`' loop: ``out[r, c]`` the mean of the 2x2 block at ``(cy[r], cx[c])`` (NaN wherever one
+    of the four is), ``groups[r, c]`` the person of its top-left pixel's triangle (0 where none); one pass instead
+    of four fancy-indexed gathers (1 -> <0.1 ms for a two-actor crop, MIRFAST2)."""
+    for r in rows:
+        py = cy[r]
+        for c in cols:
+            px = cx[c]
+            for d in range(2):
+                out[r, c, d] = (source_uv[py, px, d] + source_uv[py + 1, px, d] + source_uv[py, px + 1, d]
+                                + source_uv[py + 1, px + 1, d]) / np.float32(4.0)
+            if with_groups:
+                tri = triangle_id[py, px]
+                groups[r, c] = face_groups[tri] if tri >= 0 else 0
 
 
 def visible_vertex_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: np.ndarray, camera,

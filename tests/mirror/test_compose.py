@@ -5,7 +5,13 @@ import numpy as np
 import pytest
 
 from bodystudio.errors import InputError
-from bodystudio.mirror.compose import compose, confident_background, empty_background, update_background
+from bodystudio.mirror.compose import (
+    BackgroundModel,
+    compose,
+    confident_background,
+    empty_background,
+    update_background,
+)
 from bodystudio.mirror.image_case import cached_image_case
 from bodystudio.mirror.warp import mls_warp_field, warp_foreground
 
@@ -100,3 +106,39 @@ def test_unverified_pixels_are_learnt_once_from_the_empty_scene():
     assert np.all(after.image[:, :10] == 50)  # kept
     naive = update_background(model, person_in_strip, no_fg)
     assert np.all(naive.image[:, :10] > 100)  # without the mask the person is learnt
+
+
+def _compose_by_blending_the_whole_box(warped_rgb, alpha, out):
+    """The composition's last step as it was before MIRFAST2: every pixel of the covered box blended."""
+    x, y, w, h = cv2.boundingRect((alpha > 0).astype(np.uint8))
+    roi = (slice(y, y + h), slice(x, x + w))
+    a = alpha[roi][..., None]
+    out = out.copy()
+    out[roi] = np.clip(warped_rgb[roi].astype(np.float32) * a + out[roi].astype(np.float32) * (1.0 - a) + 0.5, 0,
+                       255).astype(np.uint8)
+    return out
+
+
+def test_only_the_soft_edge_is_blended_and_the_frame_is_the_same():
+    """Two warped people with soft edges (alpha 0, 1 and in between): the composition equals blending every pixel of
+    their box, bit for bit (the background model has seen everything, so no inpainting is involved)."""
+    rng = np.random.default_rng(3)
+    H, W = 120, 200
+    rgb = rng.integers(0, 256, (H, W, 3), np.uint8)
+    warped = rng.integers(0, 256, (H, W, 3), np.uint8)
+    alpha = np.zeros((H, W), np.float32)
+    alpha[20:90, 20:60] = 1.0
+    alpha[30:100, 130:170] = 1.0
+    alpha = cv2.GaussianBlur(alpha, (7, 7), 2.0)
+    alpha[alpha < 0.02] = 0.0
+    alpha[alpha > 0.98] = 1.0
+    assert ((alpha > 0) & (alpha < 1)).sum() > 200 and (alpha == 1).sum() > 2000
+    fg = np.zeros((H, W), bool)
+    fg[25:95, 25:55] = True
+    background = BackgroundModel(rng.integers(0, 256, (H, W, 3), np.uint8), np.ones((H, W), bool), 1)
+    out = compose(warped, alpha, background, rgb, fg)
+    hole = (cv2.dilate(fg.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0) & (alpha < 1.0)
+    before = rgb.copy()
+    before[hole] = background.image[hole]
+    np.testing.assert_array_equal(out, _compose_by_blending_the_whole_box(warped, alpha, before))
+    assert (out[alpha == 1.0] == warped[alpha == 1.0]).all()

@@ -13,6 +13,7 @@ from bodystudio.errors import InputError
 from bodystudio.mirror.compose import update_background
 from bodystudio.mirror.foreground import (
     HIST_BINS,
+    _band_links,
     _colour_index,
     colour_log_likelihood,
     colour_log_table,
@@ -275,3 +276,55 @@ def test_method_grabcut_runs_grabcut_on_the_band_and_defaults_matter():
     default = refine_foreground(grey, player, depth, smoothness=0.5)
     np.testing.assert_array_equal(default, truth)
     assert np.count_nonzero(refine_foreground(grey, player, depth, smoothness=0.5, depth_tol_m=1.35) != truth) > 20
+
+
+def _n_links_reference(rgb, node, inner, br, bc, smoothness, source, sink):
+    """Boykov-Jolly's n-links written out: beta over every (ordered) neighbour pair of a band pixel, each band-band
+    pair once (right and down), a sure-interior neighbour's weight onto the source, an outside one's onto the sink."""
+    h, w = node.shape
+    offsets = ((0, 1), (1, 0), (0, -1), (-1, 0))
+    img = rgb.astype(float)
+    d2 = [[float(np.sum((img[r, c] - img[r + dy, c + dx]) ** 2)) if 0 <= r + dy < h and 0 <= c + dx < w else None
+           for dy, dx in offsets] for r, c in zip(br, bc, strict=True)]
+    seen = [v for row in d2 for v in row if v is not None]
+    beta = 1.0 / (2.0 * max(sum(seen) / max(len(seen), 1), 1e-6))
+    edges = []
+    for k, (r, c) in enumerate(zip(br, bc, strict=True)):
+        for o, (dy, dx) in enumerate(offsets):
+            if d2[k][o] is None:
+                continue
+            wgt = smoothness * np.exp(-beta * d2[k][o])
+            other = node[r + dy, c + dx]
+            if other >= 0:
+                if o < 2:
+                    edges.append((k, other, wgt))
+            elif inner[r + dy, c + dx]:
+                source[k] += wgt
+            else:
+                sink[k] += wgt
+    return edges
+
+
+def test_band_links_are_the_contrast_sensitive_n_links_of_the_band():
+    """:func:`_band_links` (numba; MIRFAST2 skips the weight of a band-band pair seen from its second pixel) against
+    the n-links written out, on a random image with a ring-shaped band touching the image border."""
+    rng = np.random.default_rng(11)
+    h, w = 23, 31
+    rgb = rng.integers(0, 256, (h, w, 3), np.uint8)
+    yy, xx = np.mgrid[:h, :w]
+    radius = np.hypot(yy - 10.0, xx - 6.0)
+    inner = radius < 5
+    band = (radius >= 5) & (radius < 9)
+    br, bc = np.nonzero(band)
+    node = np.full((h, w), -1, np.int64)
+    node[br, bc] = np.arange(len(br))
+    source, sink = rng.uniform(0, 1, len(br)), rng.uniform(0, 1, len(br))
+    ref_source, ref_sink = source.copy(), sink.copy()
+    i, j, cap = _band_links(rgb, node, inner, br, bc, 5.0, source, sink)
+    edges = _n_links_reference(rgb, node, inner, br, bc, 5.0, ref_source, ref_sink)
+    assert len(edges) > 50 and (bc == 0).any()
+    np.testing.assert_array_equal(i, [e[0] for e in edges])
+    np.testing.assert_array_equal(j, [e[1] for e in edges])
+    np.testing.assert_allclose(cap, [e[2] for e in edges], rtol=1e-12)
+    np.testing.assert_allclose(source, ref_source, rtol=1e-12)
+    np.testing.assert_allclose(sink, ref_sink, rtol=1e-12)

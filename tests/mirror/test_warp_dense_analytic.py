@@ -21,6 +21,7 @@ from bodystudio.mirror.warp import (
     _body_crop,
     _grid_samples,
     _signed_distance,
+    actors_warp_pairs,
     crop_camera,
     dense_source_uv,
     mls_grid_nodes,
@@ -677,3 +678,33 @@ def test_vertices_on_the_image_border_look_at_their_own_3x3_neighbourhood():
     d = render(V, F, cam).depth
     assert d[100:120, 2].max() < 1.5 and d[100:120, [1, 3]].min() > 2.5 and d[100:120, 317].max() < 1.5
     assert d[2, 150:170].max() < 1.5 and d[[1, 3], 150:170].min() > 2.5 and d[197, 150:170].max() < 1.5
+
+
+def test_actors_pairs_in_one_call_are_each_actors_own_pairs():
+    """Two plates (two actors, the same faces) side by side, each reshaped differently: one call over both gives
+    every actor's own dense pairs (all vertices as candidates, each plate's pixels the same in the shared crop),
+    the person of each pair, and the dense nodes of each person; and a plate hidden behind the other loses its
+    hidden vertices, which a call per actor would keep."""
+    cam = _plate_camera()
+    V1, F = _plate(0.12, 7, 2.0, x=-0.25)
+    V2, _ = _plate(0.12, 7, 2.0, x=0.25)
+    T1 = V1 * [1.1, 1.05, 1.0] + [0.01, -0.02, 0.0]
+    T2 = V2 * [0.95, 1.0, 1.0] + [-0.01, 0.01, 0.0]
+    p = actors_warp_pairs([V1, V2], [T1, T2], F, cam, n_handles=2 * len(V1), dense=True, grid=(50, 80))
+    n = len(V1)
+    np.testing.assert_array_equal(p.groups, p.ids // n)
+    for a, (V, T) in enumerate(((V1, T1), (V2, T2))):
+        own = warp_pairs(V, T, F, cam, n_handles=n, dense=True, grid=(50, 80))
+        mine = p.groups == a
+        np.testing.assert_array_equal(p.ids[mine] - a * n, own.ids)
+        np.testing.assert_array_equal(p.src_uv[mine], own.src_uv)
+        np.testing.assert_array_equal(p.dst_uv[mine], own.dst_uv)
+        covered = np.isfinite(own.dense.grid_source_uv[..., 0])
+        np.testing.assert_array_equal(p.dense.grid_source_uv[covered], own.dense.grid_source_uv[covered])
+        assert (p.dense.grid_groups[covered] == a).all() and covered.sum() > 20
+    # the second actor right behind the first: its vertices behind the first plate are not pairs
+    B = V1 * [0.5, 0.5, 1.0] + [-0.125, 0.0, 0.4]  # half the size, centred behind it
+    q = actors_warp_pairs([V1, B], [V1, B], F, cam, n_handles=2 * n, dense=True, grid=(50, 80))
+    assert not (q.groups == 1).any() and (q.groups == 0).sum() == n
+    with pytest.raises(InputError):
+        actors_warp_pairs([V1], [T1, T2], F, cam)
