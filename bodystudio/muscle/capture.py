@@ -79,6 +79,7 @@ from bodystudio.muscle.refine import (
     skeleton_model_mesh,
     smooth_arm_poses,
     time_consistent_correspondences,
+    tracker_placement_prior_weight,
 )
 
 log = logging.getLogger(__name__)
@@ -168,6 +169,11 @@ class CaptureOptions:
     # sequence_tracker_weight 10 too 6.48 / 3.08 / 4.34 / 8.48 (better than that variant on all four, and on two
     # more noise seeds of 5 and one of 603), but the default (5.13 / 7.09 / 7.53 / 7.12) stays: 603 loses.
     sequence_torso_pair_weight: float = 1.0
+    # The placement tied to the tracker's sequence-mean shoulder by one prior, weight (this / SE)^2 per coordinate
+    # with SE the mean's standard error from the tracked shoulder's scatter (``refine.tracker_placement_prior_weight``),
+    # and each frame's tracker joints counted relative to the tracker's mean shoulder (they inform the angles and
+    # bones, not the placement). 0: off, the tracker's joints are absolute observations every frame.
+    sequence_placement_prior_m: float = 0.0
     # Per-subject rest shape (``refine.fit_rest_shape_correction``: population PCA over all frames' depth, poses
     # held) alternated with the sequence fit, this many rounds (0: the model's rest mesh). Off: 2 rounds gave
     # 5 / 601 / 602 / 603 / 604 5.13 / 9.21 / 7.48 / 7.12 / 11.16 -> 5.24 / 9.58 / 6.78 / 7.39 / 10.50 mm and the
@@ -192,6 +198,8 @@ class CaptureOptions:
             raise InputError("sigma_frames must be > 0 and shape_frames >= 1")
         if self.sequence_rounds < 0 or self.sequence_huber_m < 0 or self.huber_m < 0:
             raise InputError("sequence_rounds, sequence_huber_m and huber_m must be >= 0")
+        if not self.sequence_placement_prior_m >= 0:
+            raise InputError(f"sequence_placement_prior_m must be >= 0, got {self.sequence_placement_prior_m}")
         if not self.sequence_torso_pair_weight >= 0:
             raise InputError(f"sequence_torso_pair_weight must be >= 0, got {self.sequence_torso_pair_weight}")
 
@@ -392,7 +400,9 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                 o.sequence_smooth_weight, o.sequence_rounds, o.sequence_max_nfev, o.sequence_huber_m,
                 o.sequence_fit_root, o.sequence_fit_skeleton, o.sequence_skeleton_prior_weight,
                 o.sequence_depth_huber_only, rest=base, free_joints=o.sequence_free_joints,
-                torso_pair_weight=o.sequence_torso_pair_weight)
+                torso_pair_weight=o.sequence_torso_pair_weight,
+                tracker_placement_weight=None if o.sequence_placement_prior_m <= 0 or tracker_t is None
+                else tracker_placement_prior_weight(tracker_t, o.sequence_placement_prior_m))
         model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("sequence_fit", t0)
     if model is not None and o.pose_sigma_frames > 0:
