@@ -527,9 +527,9 @@ def tracker_placement_prior_weight(tracker_joints: np.ndarray, length_m: float) 
 
     ``SE`` is the standard error of the tracker's sequence-mean shoulder, ``sqrt(mean_c var_c / T)`` with
     ``var_c`` the per-coordinate variance of the tracked shoulder over the ``T`` frames (the tracker's measured
-    per-frame noise; the shoulder barely moves in an arm sequence). ``length_m`` says how far (metres) a
-    placement error must be to cost as much as one depth pair one metre off, so a longer or steadier track
-    (smaller SE) ties the placement harder to the tracker's mean, a short noisy one leaves it to the depth.
+    per-frame noise; the shoulder barely moves in an arm sequence). A placement one standard error off the mean
+    costs as much as one depth pair ``length_m`` off its plane (the depth pairs weigh 1), so a longer or steadier
+    track (smaller SE) ties the placement harder to the tracker's mean and a short noisy one leaves it to the depth.
     """
     S = np.asarray(tracker_joints, np.float64)[:, 0]
     se2 = float(np.mean(S.var(axis=0))) / len(S)

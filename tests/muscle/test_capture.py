@@ -439,3 +439,49 @@ def test_the_chest_pair_weight_reaches_the_sequence_fit(arm_session_2k, arm_mode
         capture_arm_sequence(arm_session_2k, arm_model_2k, arm_template_2k,
                              CaptureOptions(shape_frames=2, sequence_torso_pair_weight=0.25), frames=slice(0, 2))
     assert seen["torso_pair_weight"] == 0.25
+
+
+@pytest.mark.parametrize("length_m", [0.0, 0.012])
+def test_the_placement_prior_reaches_the_sequence_fit(arm_session_2k, arm_model_2k, arm_template_2k, monkeypatch,
+                                                      length_m):
+    """``CaptureOptions.sequence_placement_prior_m`` is checked; 0 leaves the tracker's joints absolute (no prior),
+    > 0 hands the sequence fit the weight ``refine.tracker_placement_prior_weight`` gives for the session's tracker
+    (its effect: test_sequence_fit_analytic's planted tracker bias)."""
+    import bodystudio.muscle.capture as capture
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
+    from bodystudio.muscle.refine import tracker_placement_prior_weight
+
+    with pytest.raises(InputError, match="sequence_placement_prior_m must be >= 0"):
+        CaptureOptions(sequence_placement_prior_m=-0.001)
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def record(*args, **kwargs):
+        seen.update(kwargs, tracker=args[6])
+        raise Stop
+
+    monkeypatch.setattr(capture, "fit_arm_sequence_skeleton", record)
+    with pytest.raises(Stop):
+        capture_arm_sequence(arm_session_2k, arm_model_2k, arm_template_2k,
+                             CaptureOptions(shape_frames=2, sequence_placement_prior_m=length_m), frames=slice(0, 3))
+    if length_m == 0.0:
+        assert seen["tracker_placement_weight"] is None
+    else:
+        want = tracker_placement_prior_weight(seen["tracker"], length_m)
+        assert seen["tracker_placement_weight"] == want > 0
+
+
+def test_the_placement_prior_weight_is_the_squared_length_over_the_mean_shoulders_standard_error():
+    """(L / SE)^2 with SE^2 the tracked shoulder's per-coordinate variance averaged over x, y, z, over T frames: four
+    frames with the shoulder +-2 mm in x, +-4 mm in y, still in z: var 4, 16, 0 mm^2, SE^2 = 20 / 3 / 4 mm^2."""
+    from bodystudio.muscle.refine import tracker_placement_prior_weight
+
+    tracker = np.zeros((4, 3, 3))
+    tracker[:, 0, 0] = [0.002, -0.002, 0.002, -0.002]
+    tracker[:, 0, 1] = [0.004, 0.004, -0.004, -0.004]
+    tracker[:, 1:] = np.random.default_rng(0).normal(0.0, 0.05, (4, 2, 3))  # the other joints do not count
+    assert tracker_placement_prior_weight(tracker, 0.01) == pytest.approx(0.01 ** 2 / (20e-6 / 3 / 4), rel=1e-12)
+    assert tracker_placement_prior_weight(np.concatenate([tracker] * 2), 0.01) == pytest.approx(
+        2 * tracker_placement_prior_weight(tracker, 0.01), rel=1e-12)
