@@ -106,6 +106,9 @@ class CaptureOptions:
     sigma_frames: float = 1.0  # Eq. 14
     refine_data_weight: float = 0.3  # measured (6k, 24 frames): 1.0 -> 0.3: 6.4 -> 6.2 mm, jitter 2.2 -> 1.8 mm
     refine_iterations: int = 4
+    # Sec. 7 pairs only for vertices the model mesh itself does not hide from the sensor (a z-buffer of the mesh);
+    # off: the front-side filter alone (Eq. 1, the normal), which keeps the occluded biceps's pairs with the forearm.
+    refine_visible_only: bool = False
     detail_sigma_frames: float = 1.5  # refinement detail averaged over +-2 frames (0: off)
     joint_radius_m: float = 0.06  # Sec. 7.2 closeness-to-joint factor
     joint_gain: float = 1.0
@@ -416,7 +419,8 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     elif o.mode == "model":
         out_t = model_meshes
     else:
-        out_t = _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, J, o, timer)
+        out_t = _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, J, o, timer,
+                            camera=camera, similarity=S)
     out = np.stack([apply_similarity(S, X) for X in out_t])
     stages = {"nicp": np.stack([apply_similarity(S, X) for X in nicp_meshes])}
     if model_meshes:
@@ -425,14 +429,20 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                       joints=None if model is None else np.asarray(J, np.float64))
 
 
-def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, joints, o: CaptureOptions, timer):
-    """Sec. 7 over the sequence: per-frame correspondences, Eq. 13-14 averaging, Sec. 7.2 weights, last ARAP."""
+def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, joints, o: CaptureOptions, timer,
+                camera=None, similarity=None):
+    """Sec. 7 over the sequence: per-frame correspondences, Eq. 13-14 averaging, Sec. 7.2 weights, last ARAP.
+
+    ``o.refine_visible_only`` (needs ``camera`` and the Sec. 5.1 ``similarity``): pairs of vertices the model mesh
+    itself hides from the sensor are dropped (:func:`model_visible_vertices`)."""
     t0 = time.perf_counter()
     vecs, valid = [], []
     for M, (P, N), tree in zip(model_meshes, clouds_t, trees, strict=True):
         Nv = vertex_normals(M, F)
         pairs = closest_point_correspondences(M, P, N, tree)
         pairs = filter_correspondences(M, Nv, pairs, C, arm, adjacency, o.nicp.filters)
+        if o.refine_visible_only and camera is not None:
+            pairs.kept &= model_visible_vertices(apply_similarity(similarity, M), F, camera)
         # Along the depth point's normal only (point-to-plane, as in NICP): the rest is sliding.
         vecs.append(np.where(pairs.kept[:, None], plane_targets(M, pairs) - M, 0.0))
         valid.append(pairs.kept)
@@ -462,6 +472,15 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
     return out
 
 
+
+
+def model_visible_vertices(vertices: np.ndarray, faces: np.ndarray, camera, tolerance_m: float = 0.01) -> np.ndarray:
+    """Vertices (n,) of a world-space mesh that the depth ``camera`` sees: facing it and not hidden by the mesh
+    itself (z-buffer within ``tolerance_m``). Sec. 5.2's front-side filter tests the normal only, so at strong
+    elbow flexion a biceps vertex facing the sensor behind the forearm keeps a pair with the forearm's points."""
+    from bodystudio.muscle.evaluate import visible_vertices
+
+    return visible_vertices(vertices, faces, camera, tolerance_m)
 
 
 def capture_arm_sequence(session, model, template: ArmTemplate, options: CaptureOptions = CaptureOptions(),
