@@ -8,7 +8,8 @@ smoothing and the Sec. 7 refinement, and is scored per region: front / back (see
 shoulder (arm vertices with > 20 % torso weight), biceps (``evaluate.biceps_region``), the rest of the upper arm,
 elbow (> 20 % on both arm parts), forearm. Rows: the model mesh with the truth plugged in (true angles and
 placement, the subject's own rest joints moved into the model's rest mesh: the model's own floor), and per
-variant its fitted skeleton with the true pose, its model stage and the full pipeline. docs/muscle.md "sixth pass".
+variant its fitted skeleton with the true pose, its model stage and the full pipeline (the pipeline's norm limit
+and refinement options, ``CaptureOptions()``). docs/muscle.md "sixth pass".
 
     python -m benchmarks.muscle_regions --work W --subjects 5,7,602,603 --variant default \
         --variant prior30:placement_prior_m=0.012 [--variant NAME:KEY=VALUE,KEY=VALUE ...]
@@ -91,13 +92,15 @@ def subject_rows(work: Path, seed: int, n_frames: int, variants: dict) -> dict:
 
     true_poses = [in_fit_frame(ArmPose.from_dict(session.frame(i).gt_arm_pose)) for i in ids]
 
+    norm_limit = CaptureOptions().norm_limit
+
     def meshes_of(poses, J):
-        return np.stack([skeleton_model_mesh(model, p, inputs["rest"], J, 0.9) for p in poses]) + t
+        return np.stack([skeleton_model_mesh(model, p, inputs["rest"], J, norm_limit) for p in poses]) + t
 
     rows = {"truth plugged (model floor)": region_medians(meshes_of(true_poses, truth.joints - shift), G, visible,
                                                           truth)}
     for name, options in variants.items():
-        kw = dict(DEFAULT if name == "default" else BEST_FIFTH_PASS)
+        kw = dict(DEFAULT if name == "default" else BEST_FIFTH_PASS, norm_limit=norm_limit)
         options = dict(options)
         length = options.pop("placement_prior_m", 0.0)
         kw.update(options)
@@ -110,7 +113,8 @@ def subject_rows(work: Path, seed: int, n_frames: int, variants: dict) -> dict:
         f = inputs["frames"][0]
         full = np.stack(_refinement(list(model_stage), smoothed, [(fr.points, fr.normals) for fr in inputs["frames"]],
                                     [fr.tree for fr in inputs["frames"]], f.faces, f.sensor_center, f.arm_mask,
-                                    f.adjacency, J, CaptureOptions(), _Timer())) + t
+                                    f.adjacency, J, CaptureOptions(), _Timer(), camera=session.kinect.depth,
+                                    similarity=(1.0, np.eye(3), t))) + t
         rows[f"{name}: true pose, fitted skeleton"] = region_medians(meshes_of(true_poses, J), G, visible, truth)
         rows[f"{name}: model stage"] = region_medians(model_stage + t, G, visible, truth)
         rows[f"{name}: full pipeline"] = region_medians(full, G, visible, truth)
