@@ -385,6 +385,7 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
                               depth_huber_only: bool = False, rest: np.ndarray | None = None,
                               free_joints: tuple[bool, bool, bool] = (True, True, True),
                               start_joints: np.ndarray | None = None, torso_pair_weight: float = 1.0,
+                              tracker_placement_weight: float | None = None,
                               ) -> tuple[list[ArmPose], np.ndarray]:
     """:func:`fit_arm_sequence` with the subject's skeleton as shared unknowns of the whole sequence.
 
@@ -409,6 +410,12 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
     the subject's true joints, to check whether the truth is a minimum of this energy (docs/muscle.md, fifth pass).
     ``torso_pair_weight``: the chest's (torso part's) depth pairs count this much (1: as the arm's): a model
     whose chest does not match the subject's drags the placement through them.
+    ``tracker_placement_weight``: None: the tracker's joints are absolute observations every frame (each frame's
+    noise pulls the placement). A number: each frame's tracker joints count relative to the tracker's
+    sequence-mean shoulder (their positions minus it, against the fit's joints minus the fit's posed shoulder:
+    the per-frame noise informs the angles and bones only), and the placement is tied to the tracker's
+    sequence-mean shoulder by one prior of this weight per coordinate (:func:`tracker_placement_prior_weight`
+    gives it from the tracker's measured noise).
     Returns the poses and the fitted rest joints (3, 3); the forearm twist of each frame is kept about the
     new forearm axis.
     """
@@ -452,6 +459,13 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
                                                                            for p in poses])]
     lever = np.sqrt(smooth_weight) * 0.3
     use_tracker = tracker_joints is not None and tracker_weight > 0
+    mean_prior = use_tracker and tracker_placement_weight is not None
+    if mean_prior:
+        tracker_mean_shoulder = np.asarray(tracker_joints, np.float64)[:, 0].mean(axis=0)
+        tracker_rel = np.asarray(tracker_joints, np.float64) - tracker_mean_shoulder
+        n_mean = 3
+    else:
+        n_mean = 0
     for _ in range(rounds):
         J = skeleton(x)
         meshes = [mesh(p, J) for p in unpack(x)]
@@ -465,7 +479,7 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
             pairs = [(k, q, n * np.where(torso[k], np.sqrt(torso_pair_weight), 1.0)[:, None]) for k, q, n in pairs]
         sizes = [len(k) + (9 if use_tracker else 0) for k, _, _ in pairs]
         n_prior = 4 * max(T - 2, 0)
-        Jac = lil_matrix((sum(sizes) + n_prior + s0, len(x)), dtype=int)
+        Jac = lil_matrix((sum(sizes) + n_prior + s0 + n_mean, len(x)), dtype=int)
         row = 0
         for k, n in enumerate(sizes):
             Jac[row:row + n, :n0] = 1
@@ -478,26 +492,48 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
         for c in range(s0):
             Jac[row, r0 + c] = 1
             row += 1
+        Jac[row:row + n_mean, :n0] = 1
 
         def fun(x, pairs=pairs):
             ps, J = unpack(x), skeleton(x)
             r = []
-            for p, (k, q, n), tj in zip(ps, pairs, tracker_joints if use_tracker else [None] * T, strict=True):
+            tracked = tracker_rel if mean_prior else tracker_joints if use_tracker else [None] * T
+            for p, (k, q, n), tj in zip(ps, pairs, tracked, strict=True):
                 M = mesh(p, J)
                 r.append(np.einsum("kd,kd->k", M[k] - q, n))
                 if use_tracker:
-                    r.append(np.sqrt(tracker_weight) * (posed_joints(J, p) - tj).ravel())
+                    P = posed_joints(J, p)
+                    if mean_prior:
+                        r.append(np.sqrt(tracker_weight) * ((P - P[0]) - tj).ravel())
+                    else:
+                        r.append(np.sqrt(tracker_weight) * (P - tj).ravel())
             a = x[n0:].reshape(T, 4)
             if T > 2:
                 r.append(lever * (a[:-2] - 2 * a[1:-1] + a[2:]).ravel())
             if s0:
                 r.append(np.sqrt(skeleton_prior_weight) * x[r0:n0])
+            if mean_prior:  # the fit's posed shoulder (shared root: the same in every frame) vs the tracker's mean
+                r.append(np.sqrt(tracker_placement_weight) * (posed_joints(J, ps[0])[0] - tracker_mean_shoulder))
             return np.concatenate(r)
 
         loss = dict(loss="huber", f_scale=huber_m) if huber_m > 0 and not irls else {}
         scale = np.r_[np.full(r0, 0.01), np.full(s0, 0.01), np.full(4 * T, 0.05)]
         x = least_squares(fun, x, jac_sparsity=Jac, method="trf", x_scale=scale, max_nfev=max_nfev, **loss).x
     return unpack(x), skeleton(x)
+
+
+def tracker_placement_prior_weight(tracker_joints: np.ndarray, length_m: float) -> float:
+    """Weight per coordinate of the placement prior of :func:`fit_arm_sequence_skeleton`: ``(length_m / SE)^2``.
+
+    ``SE`` is the standard error of the tracker's sequence-mean shoulder, ``sqrt(mean_c var_c / T)`` with
+    ``var_c`` the per-coordinate variance of the tracked shoulder over the ``T`` frames (the tracker's measured
+    per-frame noise; the shoulder barely moves in an arm sequence). A placement one standard error off the mean
+    costs as much as one depth pair ``length_m`` off its plane (the depth pairs weigh 1), so a longer or steadier
+    track (smaller SE) ties the placement harder to the tracker's mean and a short noisy one leaves it to the depth.
+    """
+    S = np.asarray(tracker_joints, np.float64)[:, 0]
+    se2 = float(np.mean(S.var(axis=0))) / len(S)
+    return float(length_m ** 2 / max(se2, 1e-12))
 
 
 def fit_rest_shape_correction(model, shape, poses: list[ArmPose], frames: list[DepthFrame], rest: np.ndarray,

@@ -439,3 +439,116 @@ def test_the_chest_pair_weight_reaches_the_sequence_fit(arm_session_2k, arm_mode
         capture_arm_sequence(arm_session_2k, arm_model_2k, arm_template_2k,
                              CaptureOptions(shape_frames=2, sequence_torso_pair_weight=0.25), frames=slice(0, 2))
     assert seen["torso_pair_weight"] == 0.25
+
+
+@pytest.mark.parametrize("length_m", [0.0, 0.012])
+def test_the_placement_prior_reaches_the_sequence_fit(arm_session_2k, arm_model_2k, arm_template_2k, monkeypatch,
+                                                      length_m):
+    """``CaptureOptions.sequence_placement_prior_m`` is checked; 0 leaves the tracker's joints absolute (no prior),
+    > 0 hands the sequence fit the weight ``refine.tracker_placement_prior_weight`` gives for the session's tracker
+    (its effect: test_sequence_fit_analytic's planted tracker bias)."""
+    import bodystudio.muscle.capture as capture
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
+    from bodystudio.muscle.refine import tracker_placement_prior_weight
+
+    with pytest.raises(InputError, match="sequence_placement_prior_m must be >= 0"):
+        CaptureOptions(sequence_placement_prior_m=-0.001)
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def record(*args, **kwargs):
+        seen.update(kwargs, tracker=args[6])
+        raise Stop
+
+    monkeypatch.setattr(capture, "fit_arm_sequence_skeleton", record)
+    with pytest.raises(Stop):
+        capture_arm_sequence(arm_session_2k, arm_model_2k, arm_template_2k,
+                             CaptureOptions(shape_frames=2, sequence_placement_prior_m=length_m), frames=slice(0, 3))
+    if length_m == 0.0:
+        assert seen["tracker_placement_weight"] is None
+    else:
+        want = tracker_placement_prior_weight(seen["tracker"], length_m)
+        assert seen["tracker_placement_weight"] == want > 0
+
+
+def test_the_placement_prior_weight_is_the_squared_length_over_the_mean_shoulders_standard_error():
+    """(L / SE)^2 with SE^2 the tracked shoulder's per-coordinate variance averaged over x, y, z, over T frames: four
+    frames with the shoulder +-2 mm in x, +-4 mm in y, still in z: var 4, 16, 0 mm^2, SE^2 = 20 / 3 / 4 mm^2."""
+    from bodystudio.muscle.refine import tracker_placement_prior_weight
+
+    tracker = np.zeros((4, 3, 3))
+    tracker[:, 0, 0] = [0.002, -0.002, 0.002, -0.002]
+    tracker[:, 0, 1] = [0.004, 0.004, -0.004, -0.004]
+    tracker[:, 1:] = np.random.default_rng(0).normal(0.0, 0.05, (4, 2, 3))  # the other joints do not count
+    assert tracker_placement_prior_weight(tracker, 0.01) == pytest.approx(0.01 ** 2 / (20e-6 / 3 / 4), rel=1e-12)
+    assert tracker_placement_prior_weight(np.concatenate([tracker] * 2), 0.01) == pytest.approx(
+        2 * tracker_placement_prior_weight(tracker, 0.01), rel=1e-12)
+
+
+def _two_plates():
+    """A 12 x 12 cm plate 1 m in front of a Kinect v2 with a 6 x 6 cm plate 12 mm nearer the sensor over its middle,
+    one mesh (both facing the sensor), its depth points (the front plate and the uncovered back plate), the vertices
+    of the back plate the front one hides, and the camera."""
+    from scipy.spatial import Delaunay
+
+    sensor = kinect_v2(eye=(0.0, 1.0, 1.0), target=(0.0, 1.0, 0.0)).depth
+
+    def plate(half, z, step=0.005):
+        g = np.arange(-half, half + 1e-9, step)
+        X, Y = np.meshgrid(g, g)
+        V = np.c_[X.ravel(), 1.0 + Y.ravel(), np.full(X.size, z)]
+        F = Delaunay(V[:, :2]).simplices
+        F = np.where((np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])[:, 2] > 0)[:, None], F, F[:, ::-1])
+        return V, F
+
+    Vb, Fb = plate(0.06, 0.0)
+    Vf, Ff = plate(0.03, 0.012)
+    V = np.vstack([Vb, Vf])
+    F = np.vstack([Fb, Ff + len(Vb)])
+    hidden = np.zeros(len(V), bool)
+    hidden[:len(Vb)] = (np.abs(Vb[:, 0]) < 0.028) & (np.abs(Vb[:, 1] - 1.0) < 0.028)
+    fine_b, _ = plate(0.06, 0.0, 0.002)
+    fine_f, _ = plate(0.03, 0.012, 0.002)
+    covered = (np.abs(fine_b[:, 0]) <= 0.03) & (np.abs(fine_b[:, 1] - 1.0) <= 0.03)
+    points = np.vstack([fine_b[~covered], fine_f])
+    return V, F, points, hidden, sensor
+
+
+def test_model_visible_vertices_hides_what_the_mesh_itself_covers():
+    from bodystudio.muscle.capture import model_visible_vertices
+
+    V, F, _, hidden, sensor = _two_plates()
+    seen = model_visible_vertices(V, F, sensor)
+    assert not seen[hidden].any()
+    back = np.arange(len(V)) < len(V) - 169  # the front plate is the last 13 x 13 vertices
+    clear = ~back | (np.abs(V[:, 0]) > 0.033) | (np.abs(V[:, 1] - 1.0) > 0.033)  # beyond the front plate's shadow
+    assert seen[clear].all()
+
+
+def test_the_refinement_keeps_occluded_vertices_off_the_occluders_points():
+    """Sec. 7 on the two plates, the model mesh already right: the front-side filter (Eq. 1) tests the normal only,
+    so the hidden part of the back plate pairs with the front plate's points 12 mm nearer and the refinement lifts
+    it towards the sensor (measured: ~8 mm); with ``refine_visible_only`` those pairs are dropped and it stays
+    (measured: < 0.1 mm)."""
+    from scipy.spatial import cKDTree
+
+    from bodystudio.muscle.capture import CaptureOptions, _refinement, _Timer
+
+    V, F, points, hidden, sensor = _two_plates()
+    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    adjacency = nicp.vertex_neighbourhoods(F, len(V))
+    arm = np.ones(len(V), bool)
+    joints = np.array([[5.0, 5.0, 5.0], [6.0, 5.0, 5.0], [7.0, 5.0, 5.0]])  # far: no Sec. 7.2 joint factor
+    poses = [ArmPose(np.eye(4), np.zeros((3, 3)))] * 3
+    S = (1.0, np.eye(3), np.zeros(3))
+
+    def lift_mm(visible_only):
+        o = CaptureOptions(refine_visible_only=visible_only, detail_sigma_frames=0.0)
+        out = _refinement([V] * 3, poses, [(points, normals)] * 3, [cKDTree(points)] * 3, F, sensor.center, arm,
+                          adjacency, joints, o, _Timer(), camera=sensor, similarity=S)
+        return 1000 * (out[1][hidden, 2] - V[hidden, 2]).max()
+
+    assert lift_mm(False) > 3.0
+    assert lift_mm(True) < 0.5

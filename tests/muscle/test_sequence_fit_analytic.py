@@ -555,3 +555,68 @@ def test_the_twist_refinements_huber_loss_acts_only_when_asked(monkeypatch):
                                  huber_m=0.003)
     refine.model_based_filtering(model, shape, truth.root, mesh, rest, model.part_weights, ones, frame, J)
     assert [c.kw.get("f_scale") for c in calls] == [0.003, 0.003, None, None]
+
+
+def _biased_tracker(s, bias=(0.006, -0.004, 0.0), noise_m=0.002):
+    """The exact tracker joints moved by a common ``bias`` (a short sequence's sample-mean error) plus noise."""
+    return s.tracker + np.asarray(bias) + np.random.default_rng(0).normal(0.0, noise_m, s.tracker.shape)
+
+
+def test_a_tracker_placement_prior_keeps_the_placement_on_the_depth_where_the_trackers_mean_is_off():
+    """Exact depth, the tracker's joints 7 mm off on average (plus 2 mm of noise per frame) and the placement fitted:
+    with the tracker's joints as absolute observations every frame (weight 30, the old behaviour) the placement
+    follows their mean (measured 4.6 mm off); with the per-frame joints relative to the tracker's mean shoulder
+    and the placement tied to that mean by a weak prior (3) it stays on the depth (measured 0.3 mm); a stiff prior
+    follows the tracker's mean shoulder (measured 6.6 mm, the bias plus the noise's mean)."""
+    s = _sequence(4, 0.0)
+    tracker = _biased_tracker(s)
+    kw = dict(tracker_joints=tracker, tracker_weight=30.0, smooth_weight=1.0, rounds=2, max_nfev=10, fit_root=True,
+              fit_skeleton=False)
+
+    def placement_mm(weight):
+        poses, _ = refine.fit_arm_sequence_skeleton(s.model, s.shape, s.truth, s.frames, s.J,
+                                                    tracker_placement_weight=weight, **kw)
+        return 1000 * np.linalg.norm(poses[0].root[:3, 3])
+
+    assert placement_mm(None) > 3.5
+    assert placement_mm(3.0) < 0.8
+    stiff = placement_mm(1e6)
+    assert abs(stiff - 1000 * np.linalg.norm(tracker[:, 0].mean(axis=0) - s.tracker[:, 0].mean(axis=0))) < 0.5
+
+
+def test_the_tracker_placement_prior_residuals_and_sparsity(monkeypatch):
+    """With ``tracker_placement_weight``: each frame's tracker rows are sqrt(w) ((posed joints - posed shoulder) -
+    (tracker joints - the tracker's mean shoulder)), then sqrt(prior) (posed shoulder - the tracker's mean shoulder)
+    after the other rows; the declared sparsity holds the Jacobian (the prior touches the placement and skeleton)."""
+    s = _sequence(3, 0.0)
+    tracker = _biased_tracker(s)
+    calls = _spy(monkeypatch, run=False)
+    refine.fit_arm_sequence_skeleton(s.model, s.shape, s.start, s.frames, s.J, tracker_joints=tracker,
+                                     tracker_weight=20.0, smooth_weight=3.0, rounds=1, max_nfev=4, fit_root=True,
+                                     tracker_placement_weight=7.0)
+    (c,) = calls
+    x = c.x0 + np.random.default_rng(3).normal(0.0, 0.01, len(c.x0))
+    res = c.fun(x)
+    J = s.J + x[3:12].reshape(3, 3)
+    root = np.eye(4)
+    root[:3, 3] = x[:3]
+    a = x[12:].reshape(3, 4)
+    mean_shoulder = tracker[:, 0].mean(axis=0)
+    row = 0
+    for k in range(3):
+        twist = float(s.start[k].angles[1] @ refine.elbow_axes(s.J)[1])
+        p = ArmPose(root, np.vstack([a[k, :3], refine.elbow_rotvec(J, a[k, 3], twist), s.start[k].angles[2]]))
+        n = len(s.frames[k].plane_pairs(refine.skeleton_model_mesh(s.model, s.start[k], s.rest, s.J))[0])
+        P = refine.posed_joints(J, p)
+        want = np.sqrt(20.0) * ((P - P[0]) - (tracker[k] - mean_shoulder)).ravel()
+        np.testing.assert_allclose(res[row + n:row + n + 9], want, atol=1e-12)
+        row += n + 9
+    np.testing.assert_allclose(res[-3:], np.sqrt(7.0) * (P[0] - mean_shoulder), atol=1e-12)
+    assert len(res) == row + 4 + 9 + 3
+    E = c.kw["jac_sparsity"].toarray()
+    assert E.shape == (len(res), len(x))
+    np.testing.assert_array_equal(E[-3:], np.r_[np.ones(12), np.zeros(12)][None].repeat(3, 0))
+    f0 = c.fun(c.x0)
+    D = np.stack([c.fun(c.x0 + 1e-6 * np.eye(len(c.x0))[i]) - f0 for i in range(len(c.x0))], axis=1)
+    assert not (np.abs(D) > 1e-12)[E == 0].any()
+    assert (np.abs(D[-3:, :3]) > 0).any()
