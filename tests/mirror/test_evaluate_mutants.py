@@ -15,9 +15,14 @@ from bodystudio.mirror import evaluate as ev
 from tests.mirror.synth_case import small_mirror_session, write_fake_run
 
 
+def _session():
+    """The small session (built once per process by ``synth_case``; also the fixture of the direct recheck)."""
+    return open_session(small_mirror_session())
+
+
 @pytest.fixture(scope="module")
 def session():
-    return open_session(small_mirror_session())
+    return _session()
 
 
 def _truth_run(session, path, **kw):
