@@ -74,6 +74,16 @@ def test_the_glb_holds_the_frames_normals_colours_and_one_hot_track(tmp_path):
     assert gltf.meshes[0].extras == {"targetNames": ["frame_00000", "frame_00001", "frame_00002"]}
     assert gltf.scene == 0 and gltf.scenes[0].nodes == [0] and prim.material == 0
     assert gltf.materials[0].doubleSided is True and gltf.asset.version == "2.0"
+    assert gltf.asset.generator == "bodystudio muscle" and gltf.materials[0].name == "skin"
+    pbr = gltf.materials[0].pbrMetallicRoughness
+    assert pbr.baseColorFactor == pytest.approx([0.85, 0.68, 0.58, 1.0]) and pbr.metallicFactor == 0.0
+    assert pbr.roughnessFactor == pytest.approx(0.8)
+    channel = gltf.animations[0].channels[0]
+    assert channel.sampler == 0 and channel.target.node == 0 and channel.target.path == "weights"
+    # every vertex attribute (base and targets) sits in an ARRAY_BUFFER view
+    attribute_accessors = [prim.attributes.POSITION, prim.attributes.NORMAL, prim.attributes.COLOR_0]
+    attribute_accessors += [i for t in prim.targets for i in t.values()]
+    assert {gltf.bufferViews[gltf.accessors[i].bufferView].target for i in attribute_accessors} == {g.ARRAY_BUFFER}
     # every buffer view starts on a 4-byte boundary (glTF's alignment rule for float accessors)
     assert all(v.byteOffset % 4 == 0 for v in gltf.bufferViews)
     assert [v.target for v in gltf.bufferViews[-3:]] == [g.ELEMENT_ARRAY_BUFFER, None, None]
@@ -116,6 +126,25 @@ def test_an_accessor_offset_inside_its_view_is_honoured(tmp_path):
     assert ex._accessor_array(gltf, prim.attributes.POSITION).shape == (3, 3)
     times = ex._accessor_array(gltf, gltf.animations[0].samplers[0].input)
     assert times.shape == (3,)
+    # VEC2 and MAT4 accessors (not written here, read from other writers' files) come back as (count, width)
+    acc.byteOffset, acc.count, acc.type = 0, 6, "VEC2"
+    np.testing.assert_array_equal(ex._accessor_array(gltf, prim.attributes.POSITION),
+                                  V0.astype(np.float32).reshape(6, 2))
+    acc.count, acc.type = 1, "MAT4"
+    blob = np.frombuffer(gltf.binary_blob(), np.float32, count=16)
+    np.testing.assert_array_equal(ex._accessor_array(gltf, prim.attributes.POSITION), blob.reshape(1, 16))
+
+
+def test_a_glb_without_target_names_reads_with_none(tmp_path):
+    import pygltflib
+
+    path = tmp_path / "arm.glb"
+    ex.write_morph_glb(path, _frames(), F, normals=False)
+    gltf = pygltflib.GLTF2().load_binary(str(path))
+    gltf.meshes[0].extras = {}
+    gltf.save_binary(str(tmp_path / "plain.glb"))
+    seq = ex.read_morph_glb(tmp_path / "plain.glb")
+    assert seq.target_names == () and len(seq.targets) == 3
 
 
 def test_the_one_hot_track_is_keyed_at_k_over_fps():
@@ -136,9 +165,11 @@ def test_the_one_hot_track_is_keyed_at_k_over_fps():
     (np.zeros((2, 4, 3)), F - 1, 30.0, "index vertices"),
     (np.zeros((2, 4, 3)), F + 1, 30.0, "sequence has 4 vertices"),
     (np.zeros((2, 4, 3)), F, -1.0, "fps -1.0"),
+    (np.zeros((2, 4, 3)), F, 0.0, r"fps 0.0: must be in \(0, 1000\]$"),
     (np.zeros((2, 4, 3)), F, 1000.5, r"\(0, 1000\]"),
     (np.zeros((2, 4, 3)), F, float("nan"), "fps"),
-    (np.full((2, 4, 3), np.inf), F, 30.0, "non-finite"),
+    (np.full((2, 4, 3), np.inf), F, 30.0,
+     "^the arm sequence has non-finite vertex positions; refusing to export it$"),
 ])
 def test_the_sequence_checks_name_the_limit(tmp_path, frames, faces, fps, match):
     with pytest.raises(InputError, match=match):
@@ -150,6 +181,7 @@ def test_the_sequence_checks_name_the_limit(tmp_path, frames, faces, fps, match)
 
 
 def test_the_limits_themselves_are_accepted(tmp_path):
+    ex._validate_sequence(_frames(), F, 0.5)  # below one frame per second is still a frame rate
     frames, faces = ex._validate_sequence(_frames()[:1], F.astype(np.int32), 1000.0)
     assert faces.dtype == np.int64 and frames.dtype == np.float64 and frames.shape == (1, 4, 3)
     ex._validate_sequence(np.zeros((ex.MAX_FRAMES, 4, 3)), F, 30.0)
@@ -173,7 +205,9 @@ def test_reading_a_missing_or_foreign_glb_is_one_line(tmp_path):
     trimesh.creation.box().export(other)  # a valid .glb without morph targets or animation
     with pytest.raises(FileFormatError, match=r"box.glb: not a morph-target arm sequence .glb \(") as info:
         ex.read_morph_glb(other)
-    assert "\n" not in str(info.value) and "re-export" in str(info.value)
+    msg = str(info.value)
+    assert "\n" not in msg and msg.endswith("); re-export it with bodystudio muscle capture")
+    assert "(ValueError: need at least one array to stack)" in msg  # no morph targets to stack
 
 
 def test_the_ply_sequence_files_hold_each_frame(tmp_path):
@@ -196,6 +230,9 @@ def test_a_new_output_path_must_not_exist(tmp_path):
     with pytest.raises(InputError, match="output already exists"):
         ex.check_new_output(tmp_path / "dangling")
     assert ex.check_new_output(tmp_path / "fresh.glb") == tmp_path / "fresh.glb"
+    # the checks of check_output_file name the same thing
+    with pytest.raises(InputError, match="^capture "):
+        ex.check_new_output(tmp_path / "taken" / "inside", "capture")
 
 
 def test_the_staging_folder_sits_hidden_beside_the_output_and_replaces_a_stale_one(tmp_path):
