@@ -287,17 +287,26 @@ def test_deltoid_caps_the_lateral_side_near_the_shoulder():
     np.testing.assert_allclose(d2[_vid(3, 0)], 0.75 * 0.009 * N[_vid(3, 0)], atol=1e-12)
 
 
-@pytest.mark.parametrize("side", ["left", "right"])
-def test_the_deltoid_follows_the_lateral_upward_direction_of_a_tilted_arm(side):
-    """The tube turned 40 deg about z (the upper arm points down and out): the lateral direction is (sign, 1, 0)
-    made orthogonal to u (sign +1 left, -1 right), and the deltoid's profile is max(0, r.lateral)^1.5."""
+def _tilted(side, down_deg, forward_deg=0.0):
+    """The tube turned about the shoulder: down by ``down_deg`` (about z), forward by ``forward_deg`` (about y);
+    the right arm's turn is the mirror image of the left's."""
     T0 = _arm(side)
-    ang = np.radians(-40.0 if side == "left" else 40.0)
-    R = Rotation.from_rotvec([0.0, 0.0, ang])
+    m = 1.0 if side == "left" else -1.0
+    R = Rotation.from_rotvec([0.0, 0.0, -m * np.radians(down_deg)]) * Rotation.from_rotvec(
+        [0.0, -m * np.radians(forward_deg), 0.0])
     S0 = T0.joints[0]
     V, J = R.apply(T0.vertices - S0) + S0, R.apply(T0.joints - S0) + S0
-    T = ArmTemplate(T0.vertex_ids, T0.faces, V, T0.part_weights, J, T0.arm_mask, side, "2k")
+    return ArmTemplate(T0.vertex_ids, T0.faces, V, T0.part_weights, J, T0.arm_mask, side, "2k")
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_the_deltoid_follows_the_lateral_upward_direction_of_a_tilted_arm(side):
+    """The tube turned down 40 deg and forward 30 deg: the lateral direction is (sign, 1, 0) made orthogonal to u
+    (sign +1 left, -1 right), and the deltoid's profile is max(0, r.lateral)^1.5."""
+    T = _tilted(side, 40.0, 30.0)
+    V, J = T.vertices, T.joints
     u = (J[1] - J[0]) / np.linalg.norm(J[1] - J[0])
+    assert abs(u[2]) > 0.3
     sign = 1.0 if side == "left" else -1.0
     lat = np.array([sign, 1.0, 0.0]) - (np.array([sign, 1.0, 0.0]) @ u) * u
     lat /= np.linalg.norm(lat)
@@ -314,6 +323,16 @@ def test_the_deltoid_follows_the_lateral_upward_direction_of_a_tilted_arm(side):
         want = 0.009 * act[2] * max(0.0, r @ lat) ** 1.5 * N[k]
         np.testing.assert_allclose(d[k], want, atol=1e-12)
     assert np.abs(d).max() > 1e-3
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_elevation_is_measured_from_hanging_on_a_lowered_arm(side):
+    """The tube lowered by 40 deg rests at elevation 50 (from hanging, -y); a pose made for 60 / 20 reads back."""
+    T = _tilted(side, 40.0)
+    assert syn.anatomical_angles(T, ArmPose.rest()).elevation_deg == pytest.approx(50.0, abs=1e-9)
+    for elev in (60.0, 20.0):
+        got = syn.anatomical_angles(T, syn.arm_pose_from_angles(T, 90.0, elev))
+        assert got.elevation_deg == pytest.approx(elev, abs=1e-6)
 
 
 def test_the_biceps_is_scaled_by_the_limb_weight():
