@@ -497,3 +497,18 @@ def test_random_poses_cover_the_captured_range():
     flat = syn.random_arm_poses(T, 10, seed=5, pronation=False)
     assert all(abs(syn.anatomical_angles(T, p).pronation_deg) < 1e-6 for p in flat)
     np.testing.assert_array_equal(syn.random_arm_poses(T, 3, seed=5)[2].angles, poses[2].angles)
+
+
+@pytest.mark.parametrize("motion, column, mean, amplitude, period_s", [
+    ("elbow_flex", 3, 10.0, 5.0, 7.0), ("abduction", 3, 10.0, 5.0, 7.0), ("pronation", 3, 10.0, 5.0, 7.0),
+    ("pronation", 0, 90.0, 5.0, 5.0), ("pronation", 1, 40.0, 5.0, 6.0)])
+def test_the_side_waves_are_sines_of_their_documented_period(motion, column, mean, amplitude, period_s):
+    """The small waves riding on each motion (forward flexion 10 +- 5 deg over 7 s; in the pronation motion the
+    elbow 90 +- 5 over 5 s and the elevation 40 +- 5 over 6 s): a least-squares sine of that period fits exactly."""
+    A = syn.arm_angle_sequence(motion, 300, seed=4)
+    t = np.arange(300) / syn.FPS
+    w = 2 * np.pi * t / period_s
+    X = np.c_[np.ones_like(t), np.sin(w), np.cos(w)]
+    coef, *_ = np.linalg.lstsq(X, A[:, column], rcond=None)
+    np.testing.assert_allclose(X @ coef, A[:, column], atol=1e-9)
+    assert coef[0] == pytest.approx(mean, abs=1e-9) and np.hypot(coef[1], coef[2]) == pytest.approx(amplitude, abs=1e-9)
