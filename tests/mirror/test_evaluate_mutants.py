@@ -5,6 +5,7 @@ are the ground truth, so every score is exact."""
 
 import json
 import types
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,9 +26,23 @@ def session():
     return _session()
 
 
+_CACHED_RUN = {}
+
+
 def _truth_run(session, path, **kw):
-    return write_fake_run(session, path, lambda f: f.gt_target_rgb, lambda f: f.gt_person == 1,
-                          lambda f: f.gt_target_person == 1, **kw)
+    """A fake run whose images are the ground truth; the default one is written once and copied."""
+    if kw:
+        return write_fake_run(session, path, lambda f: f.gt_target_rgb, lambda f: f.gt_person == 1,
+                              lambda f: f.gt_target_person == 1, **kw)
+    import shutil
+    import tempfile
+
+    if "run" not in _CACHED_RUN:
+        _CACHED_RUN["run"] = write_fake_run(session, Path(tempfile.mkdtemp(prefix="mirror-eval-run-")) / "run",
+                                            lambda f: f.gt_target_rgb, lambda f: f.gt_person == 1,
+                                            lambda f: f.gt_target_person == 1)
+    shutil.copytree(_CACHED_RUN["run"], path)
+    return Path(path)
 
 
 def _edit_manifest(run_dir, change):
