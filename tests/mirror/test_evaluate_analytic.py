@@ -160,3 +160,22 @@ def test_strict_json_scores_clean_nested_values_and_keep_the_identical_flag():
     assert ev.strict_json_scores({"psnr_person": None})["psnr_person_identical"] is False
     assert ev.strict_json_scores({"psnr_person": None, "psnr_person_identical": False})["psnr_person_identical"] \
         is False
+
+
+def test_masks_of_any_nonzero_value_and_images_of_any_dtype_score_the_same():
+    """A mask is its nonzero pixels whatever its dtype (0/128 uint8, 0/1 float), and SSIM of uint8 images (what
+    the run's PNGs are) is that of the same values as floats: no uint8 overflow in the squares."""
+    a = np.zeros((30, 40), bool)
+    a[5:15, 5:25] = True
+    b = np.zeros_like(a)
+    b[10:20, 5:25] = True
+    half = np.uint8(128)  # its lowest bit is 0: a bitwise AND with True would drop it
+    assert ev.mask_iou(a, b.astype(np.uint8) * half) == pytest.approx(1 / 3, abs=1e-15)
+    assert ev.mask_iou(a.astype(np.uint8) * half, b) == pytest.approx(1 / 3, abs=1e-15)
+    np.testing.assert_array_equal(ev.person_band(a.astype(float), b.astype(float), 3), ev.person_band(a, b, 3))
+    rng = np.random.default_rng(1)
+    x = rng.integers(0, 256, (32, 32, 3)).astype(np.uint8)
+    y = np.clip(x.astype(int) + rng.integers(-40, 41, x.shape), 0, 255).astype(np.uint8)
+    np.testing.assert_allclose(ev.ssim_map(x, y), ev.ssim_map(x.astype(float), y.astype(float)), atol=1e-9)
+    np.testing.assert_allclose(ev.ssim_map(x.astype(float), y), ev.ssim_map(x.astype(float), y.astype(float)),
+                               atol=1e-9)
