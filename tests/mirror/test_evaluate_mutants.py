@@ -53,26 +53,65 @@ def _edit_manifest(run_dir, change):
     return run_dir
 
 
-@pytest.mark.parametrize("change, error, match", [
-    (lambda r: r.update(format="other"), FileFormatError, "not a mirror run manifest"),
-    (lambda r: r.update(frames={"index": 1}), FileFormatError, "not a mirror run manifest"),
-    (lambda r: r.update(session=None), InputError, "made from session None"),
-    (lambda r: r["frames"].append({"index": 10.0}), FileFormatError, "malformed frame list"),
-    (lambda r: r["frames"].append(dict(r["frames"][0])), FileFormatError, "malformed frame list"),
-    (lambda r: r["frames"].append("frame"), FileFormatError, "malformed frame list"),
-    (lambda r: r["frames"].append({"index": 99, "status": "ok"}), InputError, r"frames \[99\] are not in"),
-    (lambda r: r.update(frames=[]), InputError, "holds no frames"),
+@pytest.mark.parametrize("change, error, match, end", [
+    (lambda r: r.update(format="other"), FileFormatError, "not a mirror run manifest",
+     "run.json: not a mirror run manifest (format != 'bodystudio-mirror-run'); pass the folder "
+     "`bodystudio mirror run` wrote"),
+    (lambda r: r.update(frames={"index": 1}), FileFormatError, "not a mirror run manifest", "wrote"),
+    (lambda r: r.update(session=None), InputError, "made from session None",
+     "; evaluate it against its own session"),
+    (lambda r: r["frames"].append({"index": 10.0}), FileFormatError, "malformed frame list",
+     "run.json: malformed frame list; re-run `bodystudio mirror run`"),
+    (lambda r: r["frames"].append(dict(r["frames"][0])), FileFormatError, "malformed frame list", "mirror run`"),
+    (lambda r: r["frames"].append("frame"), FileFormatError, "malformed frame list", "mirror run`"),
+    (lambda r: r["frames"].append({"index": 99, "status": "ok"}), InputError, r"frames \[99\] are not in",
+     "; the run belongs to another session"),
+    (lambda r: r.update(frames=[]), InputError, "holds no frames",
+     "run: the run holds no frames; re-run `bodystudio mirror run`"),
     (lambda r: r["run"]["files"].pop("masks/foreground/00011.png"), InputError,
-     r"masks/foreground/00011.png is not in run.json \(1 such\)"),
-    (lambda r: r.update(edits={"taller": 0.15 + 1e-6}), InputError, "edits"),
-    (lambda r: r.update(edits={"taller": 0.15, "wider": 0.1}), InputError, "edits"),
-    (lambda r: r.update(player=2), InputError, "re-run with --player 1"),
+     r"masks/foreground/00011.png is not in run.json \(1 such\)",
+     "(1 such); the run folder is incomplete, re-run `bodystudio mirror run`"),
+    (lambda r: r.update(edits={"taller": 0.15 + 1e-6}), InputError, "edits",
+     "; re-run `bodystudio mirror run` with the session's edits"),
+    (lambda r: r.update(edits={"taller": 0.15, "wider": 0.1}), InputError, "edits", "with the session's edits"),
+    (lambda r: r.update(player=2), InputError, "re-run with --player 1",
+     "run: the run reshapes player 2 but the ground truth edits players [1]; re-run with --player 1"),
 ])
-def test_read_mirror_run_refuses_each_broken_manifest(session, tmp_path, change, error, match):
+def test_read_mirror_run_refuses_each_broken_manifest(session, tmp_path, change, error, match, end):
     run_dir = _edit_manifest(_truth_run(session, tmp_path / "run"), change)
     with pytest.raises(error, match=match) as info:
         ev.read_mirror_run(session, run_dir)
-    assert "\n" not in str(info.value)
+    assert "\n" not in str(info.value) and str(info.value).endswith(end), str(info.value)
+
+
+def test_read_mirror_run_refuses_missing_interrupted_and_uncommitted_folders(session, tmp_path):
+    with pytest.raises(InputError) as info:
+        ev.read_mirror_run(session, tmp_path / "nothing")
+    assert str(info.value) == (f"--run {tmp_path / 'nothing'}: no such run folder; run `bodystudio mirror run "
+                               f"{session.path}` first")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError) as info:
+        ev.read_mirror_run(session, tmp_path / "empty")
+    assert str(info.value) == (f"{tmp_path / 'empty' / 'run.json'}: missing, the run folder is incomplete (never "
+                               f"committed); re-run `bodystudio mirror run {session.path}`")
+    run_dir = _truth_run(session, tmp_path / "run")
+    (run_dir / ".staging").mkdir()
+    (run_dir / ".staging" / "commit.json").write_text("{}")
+    with pytest.raises(InputError, match="interrupted") as info:
+        ev.read_mirror_run(session, run_dir)
+    assert str(run_dir) in str(info.value) and "None" not in str(info.value)
+    junk = _truth_run(session, tmp_path / "junk")
+    (junk / "run.json").write_text("{not json")
+    with pytest.raises(FileFormatError, match="mirror run manifest"):
+        ev.read_mirror_run(session, junk)
+
+
+def test_the_session_refusal_names_the_commands(tmp_path):
+    fake = types.SimpleNamespace(path=tmp_path, metadata={}, streams=[], kinect=None)
+    with pytest.raises(InputError) as info:
+        ev.check_mirror_session(fake)
+    assert str(info.value) == (f"{tmp_path}: not a synthetic mirror session (no mirror ground truth); "
+                               "`bodystudio eval mirror` scores runs on sessions from `bodystudio synth mirror`")
 
 
 def test_read_mirror_run_accepts_the_edits_to_round_off_and_zero_edits_left_out(session, tmp_path):
