@@ -66,6 +66,10 @@ def _edit_manifest(run_dir, change):
     (lambda r: r["frames"].append("frame"), FileFormatError, "malformed frame list", "mirror run`"),
     (lambda r: r["frames"].append({"index": 99, "status": "ok"}), InputError, r"frames \[99\] are not in",
      "; the run belongs to another session"),
+    (lambda r: r["frames"].extend({"index": 99 + k, "status": "ok"} for k in range(6)), InputError,
+     r"frames \[99, 100, 101, 102, 103\] are not in", "; the run belongs to another session"),
+    (lambda r: r["run"].pop("files"), InputError, r"frames/00000.png is not in run.json \(42 such\)",
+     "the run folder is incomplete, re-run `bodystudio mirror run`"),
     (lambda r: r.update(frames=[]), InputError, "holds no frames",
      "run: the run holds no frames; re-run `bodystudio mirror run`"),
     (lambda r: r["run"]["files"].pop("masks/foreground/00011.png"), InputError,
@@ -120,7 +124,13 @@ def test_read_mirror_run_accepts_the_edits_to_round_off_and_zero_edits_left_out(
     run = ev.read_mirror_run(session, run_dir)
     assert run["format"] == ev.RUN_FORMAT and [f["index"] for f in run["frames"]] == session.frame_ids
     run_dir = _edit_manifest(_truth_run(session, tmp_path / "run2"), lambda r: r.pop("player"))
-    assert "player" not in ev.read_mirror_run(session, run_dir)  # player 1 is the default
+    run = ev.read_mirror_run(session, run_dir)
+    assert "player" not in run  # player 1 is the default
+    assert ev.image_scores(session, run_dir, run)["scored_frames"] == [10, 11, 12, 13]
+    # a listed file the scores do not need is not checked (a missing one does not refuse the run)
+    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run3"),
+                             lambda r: r["run"]["files"].update({"log/unused.txt": "0" * 64}))
+    assert ev.read_mirror_run(session, run_dir)["frames"]
 
 
 def test_frames_the_tracker_did_not_report_or_passed_through_are_counted_right(session, tmp_path):
@@ -189,6 +199,17 @@ def test_a_run_of_the_empty_room_only_has_nothing_to_score(session, tmp_path):
     run_dir = _truth_run(session, tmp_path / "run", frames=list(range(10)))
     with pytest.raises(InputError, match="none of the run's frames shows player 1 tracked"):
         ev.image_scores(session, run_dir, ev.read_mirror_run(session, run_dir))
+
+
+def test_without_a_ramp_frames_before_the_first_tracked_one_are_not_ramping(session, tmp_path):
+    def lost(r):
+        for f in r["frames"][:10]:
+            f["status"] = "lost"
+        r.pop("ramp_frames", None)
+
+    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run"), lost)
+    scores = ev.image_scores(session, run_dir, ev.read_mirror_run(session, run_dir))
+    assert scores["frames_ramping"] == 0 and scores["scored_frames"] == [10, 11, 12, 13]
 
 
 def test_the_ramp_counts_tracked_frames_only(session, tmp_path):
