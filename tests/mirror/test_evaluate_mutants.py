@@ -282,3 +282,26 @@ def test_evaluate_mirror_needs_the_source_body_and_reports_the_timings(session, 
     finally:
         mod.tracking_scores = orig
     assert scores["ms_per_frame"] == {} and scores["ms_per_frame_total"] is None and scores["fps"] is None
+
+
+def test_init_scores_are_the_stature_and_mass_differences_of_the_rest_mesh(session):
+    """The true source body scores 0; 1 % taller (y scaled about the floor) is 1 % of the stature and about 1 % of
+    the mass; faces come from the template of the vertex count when the source has none; the fields are named."""
+    from bodystudio.body.measure import measure_attributes
+
+    actors = session.gt_mirror_actors
+    V, F = actors["source_rest_vertices"][0], actors["faces"]
+    exact = ev.init_scores(session, types.SimpleNamespace(vertices=V, faces=F))
+    truth = ev.actor_truth(session, 1)["measured"]
+    assert exact["init_stature_err_mm"] < 1e-6 and exact["init_mass_err_kg"] < 1e-6
+    assert exact["true_stature_m"] == truth["stature_m"] and exact["true_mass_kg"] == truth["mass_kg"]
+    scaled = V * np.array([1.0, 1.01, 1.0])
+    off = ev.init_scores(session, types.SimpleNamespace(vertices=scaled))  # faces from the template
+    m = measure_attributes(scaled, F)
+    assert off["init_stature_m"] == pytest.approx(m["stature_m"], abs=1e-12)
+    assert off["init_mass_kg"] == pytest.approx(m["mass_kg"], abs=1e-9)
+    assert off["init_stature_err_mm"] == pytest.approx(abs(m["stature_m"] - truth["stature_m"]) * 1e3, abs=1e-9)
+    assert off["init_mass_err_kg"] == pytest.approx(abs(m["mass_kg"] - truth["mass_kg"]), abs=1e-9)
+    assert off["init_stature_err_mm"] == pytest.approx(truth["stature_m"] * 10.0, rel=0.02)
+    shrunk = ev.init_scores(session, types.SimpleNamespace(vertices=V * np.array([1.0, 0.99, 1.0]), faces=F))
+    assert shrunk["init_stature_err_mm"] > 5.0 and shrunk["init_mass_err_kg"] > 0.1  # absolute values
