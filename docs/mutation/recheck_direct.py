@@ -3,8 +3,8 @@
 usage (from the repository root): python docs/mutation/recheck_direct.py WORK TESTMODULE MAP.json < names.txt
 WORK is a scratch tree kept by ``scripts/mutate.py --keep``; names are full mutant names (mutmut's meta keys).
 The test module (tests/mirror/test_X.py, copied from this tree) is imported once with the clean code; fixtures
-``model``, ``mean_body``, ``scene``, ``monkeypatch``, ``tmp_path``, ``caplog`` are provided; parametrized tests run
-every parameter set. Per mutant: fork, MUTANT_UNDER_TEST=<mutant>, the tests of KMAP[function] (all when absent) in
+``model``, ``mean_body``, ``scene``, ``session`` (the module's ``_session()``), ``monkeypatch``, ``tmp_path``,
+``caplog`` are provided; parametrized tests run every parameter set. Per mutant: fork, MUTANT_UNDER_TEST=<mutant>, the tests of KMAP[function] (all when absent) in
 the order of their clean-run time, the first exception (or 120 s alarm) = killed, none = survived.
 """
 import importlib
@@ -41,6 +41,8 @@ if hasattr(mod, "_model_2k"):
     fixture_values["mean_body"] = fixture_values["model"].body(np.zeros(fixture_values["model"].n_components))
 if hasattr(mod, "_scene"):
     fixture_values["scene"] = mod._scene()
+if hasattr(mod, "_session"):  # tests/mirror/test_evaluate_mutants.py: the small synthetic mirror session
+    fixture_values["session"] = mod._session()
 
 
 class _Caplog:
