@@ -788,12 +788,14 @@ def test_session_version_from_the_joint_names(monkeypatch):
 def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, model):
     calls = {}
 
-    def collect(session, frames, player, n_frames):
+    def collect(session, frames, player, n_frames, silhouettes=False):
         calls["collect"] = (frames, player, n_frames)
+        calls["silhouettes"] = silhouettes
         return ["obs"], session.kinect
 
-    def fit(obs, m, view_point=None, passes=3):
+    def fit(obs, m, view_point=None, passes=3, camera=None, silhouette_frames=0):
         calls["fit"] = (obs, m, view_point, passes)
+        calls["silhouette"] = (camera, silhouette_frames)
         return "source"
 
     monkeypatch.setattr(init_mod, "collect_observations", collect)
@@ -803,8 +805,12 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
     assert calls["collect"] == ([1], 2, 5)
     assert calls["fit"][0] == ["obs"] and calls["fit"][1] is model and calls["fit"][3] == 1
     np.testing.assert_array_equal(calls["fit"][2], [0.0, 1.0, 3.0])
+    assert calls["silhouettes"] is False and calls["silhouette"] == (None, 0)  # MIR12c's refinement off by default
     init_mod.initialise_source_body(session, model)
     assert calls["collect"] == (None, 1, init_mod.DEFAULT_INIT_FRAMES) and calls["fit"][3] == 3
+    session.kinect.color = "colour camera"
+    init_mod.initialise_source_body(session, model, silhouette_shape=True)
+    assert calls["silhouettes"] is True and calls["silhouette"] == ("colour camera", init_mod.SILHOUETTE_FRAMES)
     with pytest.raises(InputError, match="StatisticalBodyModel"):
         init_mod.initialise_source_body(session, "not a model")
 
@@ -866,9 +872,9 @@ def test_initialise_source_body_loads_the_6k_model_by_default(monkeypatch, model
         return model
 
     monkeypatch.setattr(statistical, "load_statistical_model", load)
-    monkeypatch.setattr(init_mod, "collect_observations", lambda *a: (["obs"], SimpleNamespace(
+    monkeypatch.setattr(init_mod, "collect_observations", lambda *a, **kw: (["obs"], SimpleNamespace(
         depth=SimpleNamespace(center=np.zeros(3)))))
-    monkeypatch.setattr(init_mod, "initialise_from_observations", lambda obs, m, view_point=None, passes=3: m)
+    monkeypatch.setattr(init_mod, "initialise_from_observations", lambda obs, m, view_point=None, passes=3, **kw: m)
     assert init_mod.initialise_source_body(SimpleNamespace()) is model
     assert asked == [("6k", False)]
 
