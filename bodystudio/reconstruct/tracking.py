@@ -320,12 +320,13 @@ def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margi
     return best, G
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _hull_max(X, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
     """The implicit hull ``max_c d_c z_c / f_c`` of points ``X`` (the arithmetic of :func:`_implicit_hull`,
     operation for operation, without the gradient), cameras in the outer loop: one camera's field (~0.5 MB)
     stays in cache while every point reads it, where the point-major loop reads ten. A point whose running
-    max exceeds its ``limit`` is not read by the later cameras (its value is then only known to be above)."""
+    max exceeds its ``limit`` is not read by the later cameras (its value is then only known to be above).
+    The points of one camera run in ``prange`` (independent, the same values on any number of threads)."""
     n, C = X.shape[0], R.shape[0]
     best = np.full(n, -np.inf)
     for c in range(C):
@@ -338,7 +339,7 @@ def _hull_max(X, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, mar
         f = 0.5 * (fx + fy)
         field = sdf[c]
         distorted = has_dist[c]
-        for i in range(n):
+        for i in numba.prange(n):
             if best[i] > limit[i]:
                 continue
             X0, Y0, Z0 = X[i, 0], X[i, 1], X[i, 2]
