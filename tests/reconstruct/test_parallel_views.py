@@ -76,7 +76,9 @@ def test_parallel_gate_decides_as_the_reference_on_one_and_two_threads(scene):
     V, F, cams, masks = scene
     fields = SilhouetteFields(cams, masks)
     rng = np.random.default_rng(7)
-    kept = dropped = 0
+    # the gate's three cases: target at or below the gate (kept whatever hull(v) is), above it with the vertex
+    # inside the hull (dropped), above it with the vertex outside (its own limit: kept or dropped)
+    cases = np.zeros(4, np.int64)
     for scale in (0.9, 1.15):
         Vs = scale * V + rng.normal(0.0, 0.003, V.shape)
         sil = silhouette_constraints(Vs, F, area_weighted_normals(Vs, F), cams, masks)
@@ -84,5 +86,9 @@ def test_parallel_gate_decides_as_the_reference_on_one_and_two_threads(scene):
         for threads in (1, 2):
             got = _with_threads(threads, fields.hull_gate, Vs, sil.vertex, sil.origin, sil.direction, 0.001)
             np.testing.assert_array_equal(got, ref)
-        kept, dropped = kept + int(ref.sum()), dropped + int((~ref).sum())
-    assert kept > 50 and dropped > 50
+        q = sil.origin + np.sum((Vs[sil.vertex] - sil.origin) * sil.direction, axis=1, keepdims=True) * sil.direction
+        h_q, h_v = fields.implicit_hull(q)[0], fields.implicit_hull(Vs[sil.vertex])[0]
+        above = h_q > 0.001
+        cases += [np.sum(~above), np.sum(above & (h_v <= 0)), np.sum(above & (h_v > 0) & ref),
+                  np.sum(above & (h_v > 0) & ~ref)]
+    assert np.all(cases >= 5), cases
