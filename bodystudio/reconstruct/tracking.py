@@ -377,55 +377,36 @@ def _hull_max(X, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, mar
 
 @numba.njit(cache=True)
 def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
-    """Keep mask of :meth:`SilhouetteFields.hull_gate`: keep iff ``hull(q) <= max(hull(v), 0) + gate_m``.
-
-    Targets first: ``hull(q)`` against the smallest limit ``gate_m`` (``hull(v) <= 0``), a target leaving the
-    camera loop once above it (the max only grows). A target that stays at or below ``gate_m`` is kept
-    whatever ``hull(v)`` is, so ``hull(v)`` is needed only for the vertices of the others, once per distinct
-    vertex; of those, a target whose vertex is inside the hull (``hull(v) <= 0``) is dropped, and the rest
-    are evaluated again against their own limit. The decisions are the full maxima's (tested against
-    :func:`bodystudio.reconstruct.rapid_skin.hull_gate_reference`)."""
+    """Keep mask of :meth:`SilhouetteFields.hull_gate`: ``hull(v)`` of each distinct vertex once (a rim
+    vertex has matches in several views), then ``hull(q)`` of the targets, each target dropped from the
+    camera loop as soon as it exceeds ``max(hull(v), 0) + gate_m`` (the max only grows, so the decision is
+    the full max's)."""
     m = vertex.shape[0]
+    slot = np.full(V.shape[0], -1, np.int64)
+    order = np.empty(m, np.int64)
+    nu = 0
+    for j in range(m):
+        if slot[vertex[j]] < 0:
+            slot[vertex[j]] = nu
+            order[nu] = vertex[j]
+            nu += 1
+    P = np.empty((nu, 3))
+    for k in range(nu):
+        P[k, 0], P[k, 1], P[k, 2] = V[order[k], 0], V[order[k], 1], V[order[k], 2]
+    hv = _hull_max(P, np.full(nu, np.inf), R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin)
     Q = np.empty((m, 3))
+    limit = np.empty(m)
     for j in range(m):
         i = vertex[j]
         ox, oy, oz = origin[j, 0], origin[j, 1], origin[j, 2]
         dx, dy, dz = direction[j, 0], direction[j, 1], direction[j, 2]
         s = (V[i, 0] - ox) * dx + (V[i, 1] - oy) * dy + (V[i, 2] - oz) * dz
         Q[j, 0], Q[j, 1], Q[j, 2] = ox + s * dx, oy + s * dy, oz + s * dz
-    low = np.full(m, max(0.0, 0.0) + gate_m)  # the limit of a vertex inside the hull, as the full rule adds it
-    hq = _hull_max(Q, low, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin)
+        limit[j] = max(hv[slot[i]], 0.0) + gate_m
+    hq = _hull_max(Q, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin)
     keep = np.empty(m, np.bool_)
-    slot = np.full(V.shape[0], -1, np.int64)
-    order = np.empty(m, np.int64)
-    nu = 0
     for j in range(m):
-        keep[j] = not hq[j] > low[j]
-        if not keep[j] and slot[vertex[j]] < 0:
-            slot[vertex[j]] = nu
-            order[nu] = vertex[j]
-            nu += 1
-    if nu == 0:
-        return keep
-    P = np.empty((nu, 3))
-    for k in range(nu):
-        P[k, 0], P[k, 1], P[k, 2] = V[order[k], 0], V[order[k], 1], V[order[k], 2]
-    hv = _hull_max(P, np.full(nu, np.inf), R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin)
-    again = np.empty(m, np.int64)
-    na = 0
-    for j in range(m):
-        if not keep[j] and hv[slot[vertex[j]]] > 0.0:  # above gate_m, but the vertex's own limit is higher
-            again[na] = j
-            na += 1
-    Q2 = np.empty((na, 3))
-    limit = np.empty(na)
-    for k in range(na):
-        j = again[k]
-        Q2[k, 0], Q2[k, 1], Q2[k, 2] = Q[j, 0], Q[j, 1], Q[j, 2]
-        limit[k] = max(hv[slot[vertex[j]]], 0.0) + gate_m
-    hq2 = _hull_max(Q2, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin)
-    for k in range(na):
-        keep[again[k]] = not hq2[k] > limit[k]
+        keep[j] = not hq[j] > limit[j]
     return keep
 
 
