@@ -57,7 +57,7 @@ def test_all_cameras_in_one_call_equal_the_per_view_loop(scene):
     ref = silhouette_constraints(Vs, F, N, cams, None, 20.0, 5.0, 0.2, views=loop)
     assert len(ref) > 200 and len(set(ref.camera.tolist())) == 6
     for threads in (1, 2):
-        got = _with_threads(threads, silhouette_constraints, Vs, F, N, cams, None, 20.0, 5.0, 0.2, None, views)
+        got = _with_threads(threads, silhouette_constraints, Vs, F, N, cams, None, 20.0, 5.0, 0.2, views)
         for name in FIELDS:
             np.testing.assert_array_equal(getattr(got, name), getattr(ref, name), err_msg=f"{name}, {threads} threads")
 
