@@ -472,30 +472,32 @@ def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras,
     V = np.ascontiguousarray(V, dtype=np.float64)
     N = np.ascontiguousarray(N, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
-    if views.packed is not None:
+    if views.packed is not None:  # all cameras in one compiled call (prange over them)
         masks3, owns, Rs, ts, Ks, dists, has_dists, centers3, w, h = views.packed
-        ids, off, d, cam_of = _match_views(V, N, F, Rs, ts, Ks, dists, has_dists, centers3, w, h, masks3, owns,
-                                           views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M,
-                                           _OUTLINE_STEP_PX)
-        if len(ids) == 0:
+        vid, off, direction, cam_of = _match_views(V, N, F, Rs, ts, Ks, dists, has_dists, centers3, w, h, masks3,
+                                                   owns, views.facing, float(tau_px), float(rim_cos),
+                                                   _NORMAL_PROBE_M, _OUTLINE_STEP_PX)
+        if len(vid) == 0:
             return SilhouetteConstraints.empty()
-        return SilhouetteConstraints(ids, centers3[cam_of], d, silhouette_weight(off, alpha_px), cam_of, np.abs(off))
-    vid, direction, offsets, cam_ids, centers = [], [], [], [], []
-    for c, (cam, mask, own, K, dcoef, R, t, center, has_dist) in enumerate(views.views):
-        ids, off, d = _match_view(V, N, F, R, t, K, dcoef, has_dist, center, cam.width, cam.height, mask, own,
-                                  views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M, _OUTLINE_STEP_PX)
-        if len(ids) == 0:
-            continue
-        vid.append(ids)
-        direction.append(d)
-        offsets.append(off)
-        cam_ids.append(c)
-        centers.append(center)
-    if not vid:
-        return SilhouetteConstraints.empty()
-    # one vectorised pass over all views (elementwise, so the same values as per view)
-    counts = [len(ids) for ids in vid]
-    off = np.concatenate(offsets)
-    return SilhouetteConstraints(np.concatenate(vid), np.repeat(np.array(centers, dtype=np.float64), counts, axis=0),
-                                 np.concatenate(direction), silhouette_weight(off, alpha_px),
-                                 np.repeat(np.array(cam_ids, dtype=np.int64), counts), np.abs(off))
+        origin = centers3[cam_of]
+    else:
+        vids, directions, offsets, cam_ids, centers = [], [], [], [], []
+        for c, (cam, mask, own, K, dcoef, R, t, center, has_dist) in enumerate(views.views):
+            ids, o, d = _match_view(V, N, F, R, t, K, dcoef, has_dist, center, cam.width, cam.height, mask, own,
+                                    views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M, _OUTLINE_STEP_PX)
+            if len(ids) == 0:
+                continue
+            vids.append(ids)
+            directions.append(d)
+            offsets.append(o)
+            cam_ids.append(c)
+            centers.append(center)
+        if not vids:
+            return SilhouetteConstraints.empty()
+        # one vectorised pass over all views (elementwise, so the same values as per view)
+        counts = [len(ids) for ids in vids]
+        vid, off, direction = np.concatenate(vids), np.concatenate(offsets), np.concatenate(directions)
+        origin = np.repeat(np.array(centers, dtype=np.float64), counts, axis=0)
+        cam_of = np.repeat(np.array(cam_ids, dtype=np.int64), counts)
+    return SilhouetteConstraints(vid, origin, direction, silhouette_weight(off, alpha_px),
+                                 cam_of, np.abs(off))
