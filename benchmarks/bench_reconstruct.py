@@ -251,6 +251,7 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
     rest_delta = cotangent_weights(body.vertices, body.faces)
     params = TrackParams()
     ms: dict[str, list[float]] = {}
+    wall: dict[int, list[float]] = {1: [], 2: []}
     with threadpool_limits(1):
         for rep in range(repeats + 1):  # the first run compiles
             steps = {}
@@ -277,10 +278,20 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
                 share = r.matching_s / max(r.matching_s + r.solver_s, 1e-12)
                 steps[f"matching (No = 8 x 10 views{label})"] = deform * share
                 steps[f"solver (GS, No = 8 x Ni = 8{label})"] = deform * (1 - share)
+            # the gated deformation's wall time on one and two numba threads (the cameras' matching and the
+            # gate's points in prange; everything else in a frame is one thread)
+            for threads in (1, 2):
+                numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+                t = time.perf_counter()
+                deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(), delta=rest_delta,
+                                       fields=fields)
+                wall[threads].append(1000 * (time.perf_counter() - t))
+            numba.set_num_threads(1)
             if rep:
                 for k, v in steps.items():
                     ms.setdefault(k, []).append(v)
     med = {k: statistics.median(v) for k, v in ms.items()}
+    wall_1, wall_2 = statistics.median(wall[1][1:]), statistics.median(wall[2][1:])
     reads = med["read masks"] + med["read joints"] + med["pose 13K (LBS)"]
     common = reads + med["matching (No = 8 x 10 views)"] + med["solver (GS, No = 8 x Ni = 8)"]
     ungated = reads + med["matching (No = 8 x 10 views, no hull gate)"] \
@@ -294,7 +305,16 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
              ["**whole frame, second default** (joints + distance-field fit, rest cotangents, no gate)",
               ungated + fields_init],
              ["**whole frame, default** (the same with the visual-hull gate on the matches)", common + fields_init],
-             ["**whole frame, tracked frame** (previous pose + distance-field fit + checks, gate)", tracked]]
+             ["**whole frame, tracked frame** (previous pose + distance-field fit + checks, gate)", tracked],
+             ["deformation, gated (matching + solver), wall ms, one numba thread", wall_1],
+             ["deformation, gated (matching + solver), wall ms, two numba threads", wall_2],
+             ["**whole frame, default, two cores** (the default with the deformation's CPU ms scaled by its "
+              "two-thread / one-thread wall)",
+              common + fields_init - (1 - wall_2 / wall_1) * (med["matching (No = 8 x 10 views)"]
+                                                              + med["solver (GS, No = 8 x Ni = 8)"])],
+             ["**whole frame, tracked frame, two cores** (the same scaling)",
+              tracked - (1 - wall_2 / wall_1) * (med["matching (No = 8 x 10 views)"]
+                                                 + med["solver (GS, No = 8 x Ni = 8)"])]]
     return markdown_table(["step (frame 1, 13K, 10 cameras 640x480, one thread)", "CPU ms (median)"], rows)
 
 

@@ -6,7 +6,15 @@ Pipeline stages are subpackages, in order: ``capture`` (synthetic studio, sessio
 ``viewer``. ``body`` holds the MakeHuman body model, ``geometry`` the shared mesh and camera maths.
 """
 
-from bodystudio.errors import BodyStudioError
+import os
+
+# numba's OpenMP threads sleep between parallel regions instead of spinning: the compiled Rapid Skin matching
+# runs ~24 short regions a frame, and spinning workers on a busy machine took the CPU from the thread doing
+# the work (two threads: 570-1000 ms CPU a deformation instead of 150; passive: 152 ms, docs/reconstruct.md).
+# Set before numba loads its threading layer; an OMP_WAIT_POLICY already set is kept.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+from bodystudio.errors import BodyStudioError  # noqa: E402
 
 __version__ = "0.1.0"
 __all__ = ["BodyStudioError", "__version__"]

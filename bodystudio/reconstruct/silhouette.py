@@ -369,6 +369,42 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
     return ids[:m], offs[:m], dirs[:m]
 
 
+@numba.njit(cache=True, parallel=True)
+def _match_views(V, N, F, R, t, K, dist, has_dist, center, width, height, masks, owns, facing, tau_px, rim_cos,
+                 probe_m, outline_px):
+    """:func:`_match_view` of every camera in one compiled call, ``prange`` over the cameras (each its own
+    mask and outline buffer, so the views run on as many threads as numba has); the matches concatenated
+    in camera order, as the per-view loop of :func:`silhouette_constraints` builds them, with their camera
+    ids. The per-view arithmetic is :func:`_match_view`'s, so the constraints are bit-identical."""
+    C, n = R.shape[0], V.shape[0]
+    ids_c = np.empty((C, n), np.int64)
+    offs_c = np.empty((C, n))
+    dirs_c = np.empty((C, n, 3))
+    counts = np.zeros(C, np.int64)
+    for c in numba.prange(C):
+        ids, offs, dirs = _match_view(V, N, F, R[c], t[c], K[c], dist[c], has_dist[c], center[c], width, height,
+                                      masks[c], owns[c], facing, tau_px, rim_cos, probe_m, outline_px)
+        m = ids.shape[0]
+        counts[c] = m
+        ids_c[c, :m] = ids
+        offs_c[c, :m] = offs
+        dirs_c[c, :m] = dirs
+    total = counts.sum()
+    ids_out = np.empty(total, np.int64)
+    offs_out = np.empty(total)
+    dirs_out = np.empty((total, 3))
+    cam_out = np.empty(total, np.int64)
+    k = 0
+    for c in range(C):
+        m = counts[c]
+        ids_out[k:k + m] = ids_c[c, :m]
+        offs_out[k:k + m] = offs_c[c, :m]
+        dirs_out[k:k + m] = dirs_c[c, :m]
+        cam_out[k:k + m] = c
+        k += m
+    return ids_out, offs_out, dirs_out, cam_out
+
+
 _CLOSED_CACHE: dict = {}
 
 
@@ -402,6 +438,24 @@ class SilhouetteViews:
                                np.ascontiguousarray(cam.K), np.ascontiguousarray(cam.dist),
                                np.ascontiguousarray(cam.R), np.ascontiguousarray(cam.t),
                                np.ascontiguousarray(cam.center), bool(cam.has_distortion)))
+        # All views of one image size: the same data packed for :func:`_match_views` (the cameras in one
+        # compiled call, ``prange`` over them: the second core). Views of different sizes keep the loop.
+        sizes = {(cam.height, cam.width) for cam in cameras}
+        self.packed = None
+        if len(self.views) > 1 and len(sizes) == 1:
+            (h, w), = sizes
+            C = len(self.views)
+            masks3 = np.empty((C, h, w), np.uint8)
+            for c, v in enumerate(self.views):
+                masks3[c] = v[1]
+            self.packed = (masks3, np.zeros((C, h, w), np.uint8),
+                           np.array([v[5] for v in self.views], dtype=np.float64).reshape(C, 3, 3),
+                           np.array([v[6] for v in self.views], dtype=np.float64).reshape(C, 3),
+                           np.array([v[3] for v in self.views], dtype=np.float64).reshape(C, 3, 3),
+                           np.array([np.asarray(v[4], float).ravel()[:5] for v in self.views],
+                                    dtype=np.float64).reshape(C, 5),
+                           np.array([v[8] for v in self.views], dtype=np.bool_),
+                           np.array([v[7] for v in self.views], dtype=np.float64).reshape(C, 3), w, h)
 
 
 def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras, masks: dict | None,
@@ -418,22 +472,32 @@ def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras,
     V = np.ascontiguousarray(V, dtype=np.float64)
     N = np.ascontiguousarray(N, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
-    vid, direction, offsets, cam_ids, centers = [], [], [], [], []
-    for c, (cam, mask, own, K, dcoef, R, t, center, has_dist) in enumerate(views.views):
-        ids, off, d = _match_view(V, N, F, R, t, K, dcoef, has_dist, center, cam.width, cam.height, mask, own,
-                                  views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M, _OUTLINE_STEP_PX)
-        if len(ids) == 0:
-            continue
-        vid.append(ids)
-        direction.append(d)
-        offsets.append(off)
-        cam_ids.append(c)
-        centers.append(center)
-    if not vid:
-        return SilhouetteConstraints.empty()
-    # one vectorised pass over all views (elementwise, so the same values as per view)
-    counts = [len(ids) for ids in vid]
-    off = np.concatenate(offsets)
-    return SilhouetteConstraints(np.concatenate(vid), np.repeat(np.array(centers, dtype=np.float64), counts, axis=0),
-                                 np.concatenate(direction), silhouette_weight(off, alpha_px),
-                                 np.repeat(np.array(cam_ids, dtype=np.int64), counts), np.abs(off))
+    if views.packed is not None:  # all cameras in one compiled call (prange over them)
+        masks3, owns, Rs, ts, Ks, dists, has_dists, centers3, w, h = views.packed
+        vid, off, direction, cam_of = _match_views(V, N, F, Rs, ts, Ks, dists, has_dists, centers3, w, h, masks3,
+                                                   owns, views.facing, float(tau_px), float(rim_cos),
+                                                   _NORMAL_PROBE_M, _OUTLINE_STEP_PX)
+        if len(vid) == 0:
+            return SilhouetteConstraints.empty()
+        origin = centers3[cam_of]
+    else:
+        vids, directions, offsets, cam_ids, centers = [], [], [], [], []
+        for c, (cam, mask, own, K, dcoef, R, t, center, has_dist) in enumerate(views.views):
+            ids, o, d = _match_view(V, N, F, R, t, K, dcoef, has_dist, center, cam.width, cam.height, mask, own,
+                                    views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M, _OUTLINE_STEP_PX)
+            if len(ids) == 0:
+                continue
+            vids.append(ids)
+            directions.append(d)
+            offsets.append(o)
+            cam_ids.append(c)
+            centers.append(center)
+        if not vids:
+            return SilhouetteConstraints.empty()
+        # one vectorised pass over all views (elementwise, so the same values as per view)
+        counts = [len(ids) for ids in vids]
+        vid, off, direction = np.concatenate(vids), np.concatenate(offsets), np.concatenate(directions)
+        origin = np.repeat(np.array(centers, dtype=np.float64), counts, axis=0)
+        cam_of = np.repeat(np.array(cam_ids, dtype=np.int64), counts)
+    return SilhouetteConstraints(vid, origin, direction, silhouette_weight(off, alpha_px),
+                                 cam_of, np.abs(off))

@@ -147,7 +147,7 @@ class SilhouetteFields:
                           np.ascontiguousarray(origin, dtype=np.float64),
                           np.ascontiguousarray(direction, dtype=np.float64), float(gate_m), self._R, self._t,
                           self._K, self._dist, self._has_dist, self._size, self._packed_sdf, self._shapes,
-                          self._offsets, self.margin_px)
+                          self._offsets, self.margin_px, numba.get_num_threads())
 
     def sample(self, cam, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bilinear signed distance ``(m,)`` and its image gradient ``(m, 2)`` at pixels ``uv``; ``ok``
@@ -320,14 +320,30 @@ def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margi
     return best, G
 
 
-@numba.njit(cache=True)
-def _hull_max(X, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+@numba.njit(cache=True, parallel=True)
+def _hull_max(X, limit, R, t, K, dist, has_dist, size_px, sdf, shapes, offsets, margin, chunks):
     """The implicit hull ``max_c d_c z_c / f_c`` of points ``X`` (the arithmetic of :func:`_implicit_hull`,
     operation for operation, without the gradient), cameras in the outer loop: one camera's field (~0.5 MB)
     stays in cache while every point reads it, where the point-major loop reads ten. A point whose running
-    max exceeds its ``limit`` is not read by the later cameras (its value is then only known to be above)."""
-    n, C = X.shape[0], R.shape[0]
+    max exceeds its ``limit`` is not read by the later cameras (its value is then only known to be above).
+    The points run in ``prange`` as ``chunks`` contiguous chunks (one per numba thread, passed in: numba's
+    thread count read inside would keep the function out of the cache; one parallel region a call; each
+    point's arithmetic and camera order are the serial loop's, so the values are the same on any number of
+    threads)."""
+    n = X.shape[0]
     best = np.full(n, -np.inf)
+    chunks = max(min(chunks, n), 1)
+    size = (n + chunks - 1) // chunks
+    for ch in numba.prange(chunks):
+        _hull_max_range(X, limit, best, ch * size, min(n, (ch + 1) * size), R, t, K, dist, has_dist, size_px,
+                        sdf, shapes, offsets, margin)
+    return best
+
+
+@numba.njit(cache=True, inline="always")
+def _hull_max_range(X, limit, best, lo, hi, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+    """:func:`_hull_max` of the points ``lo:hi`` into ``best``, cameras outermost."""
+    C = R.shape[0]
     for c in range(C):
         r00, r01, r02, r10, r11, r12 = R[c, 0, 0], R[c, 0, 1], R[c, 0, 2], R[c, 1, 0], R[c, 1, 1], R[c, 1, 2]
         r20, r21, r22, t0, t1, t2 = R[c, 2, 0], R[c, 2, 1], R[c, 2, 2], t[c, 0], t[c, 1], t[c, 2]
@@ -338,7 +354,7 @@ def _hull_max(X, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, mar
         f = 0.5 * (fx + fy)
         field = sdf[c]
         distorted = has_dist[c]
-        for i in range(n):
+        for i in range(lo, hi):
             if best[i] > limit[i]:
                 continue
             X0, Y0, Z0 = X[i, 0], X[i, 1], X[i, 2]
@@ -371,11 +387,11 @@ def _hull_max(X, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, mar
             r = d * z / f
             if r > best[i]:
                 best[i] = r
-    return best
 
 
 @numba.njit(cache=True)
-def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin,
+               chunks):
     """Keep mask of :meth:`SilhouetteFields.hull_gate`: ``hull(v)`` of each distinct vertex once (a rim
     vertex has matches in several views), then ``hull(q)`` of the targets, each target dropped from the
     camera loop as soon as it exceeds ``max(hull(v), 0) + gate_m`` (the max only grows, so the decision is
@@ -392,7 +408,7 @@ def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, si
     P = np.empty((nu, 3))
     for k in range(nu):
         P[k, 0], P[k, 1], P[k, 2] = V[order[k], 0], V[order[k], 1], V[order[k], 2]
-    hv = _hull_max(P, np.full(nu, np.inf), R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin)
+    hv = _hull_max(P, np.full(nu, np.inf), R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, chunks)
     Q = np.empty((m, 3))
     limit = np.empty(m)
     for j in range(m):
@@ -402,7 +418,7 @@ def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, si
         s = (V[i, 0] - ox) * dx + (V[i, 1] - oy) * dy + (V[i, 2] - oz) * dz
         Q[j, 0], Q[j, 1], Q[j, 2] = ox + s * dx, oy + s * dy, oz + s * dz
         limit[j] = max(hv[slot[i]], 0.0) + gate_m
-    hq = _hull_max(Q, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin)
+    hq = _hull_max(Q, limit, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, chunks)
     keep = np.empty(m, np.bool_)
     for j in range(m):
         keep[j] = not hq[j] > limit[j]

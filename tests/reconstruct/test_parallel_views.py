@@ -1,0 +1,94 @@
+"""The cameras of one frame matched in one compiled call (``prange`` over the views, issue 15's second core)
+and the visual-hull gate's points in ``prange``: the same constraints and keep masks as the per-view loop,
+on one thread and on two."""
+
+import numba
+import numpy as np
+import pytest
+
+from bodystudio.geometry.camera import Camera
+from bodystudio.reconstruct.rapid_skin import hull_gate_reference
+from bodystudio.reconstruct.silhouette import (
+    SilhouetteViews,
+    area_weighted_normals,
+    silhouette_constraints,
+    silhouette_mask,
+)
+from bodystudio.reconstruct.tracking import SilhouetteFields
+
+FIELDS = ("vertex", "origin", "direction", "k", "camera", "pixel_distance")
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """A template sphere inside a 'body' of two merged spheres seen by six ring cameras, half of them with
+    lens distortion."""
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=3, radius=0.12)
+    V, F = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+    arm = 0.6 * V + np.array([0.2, 0.0, 0.0])
+    scene_V, scene_F = np.vstack([1.05 * V, arm]), np.vstack([F, F + len(V)])
+    cams = [Camera.look_at(f"c{i}", (3 * np.sin(a), 0.4, 3 * np.cos(a)), (0, 0, 0), fx=500.0, width=320, height=240,
+                           dist=(-0.2, 0.05, 0.001, -0.001, 0.0) if i % 2 else None)
+            for i, a in enumerate(np.linspace(0.0, 2 * np.pi, 6, endpoint=False) + 0.3)]
+    masks = {c.name: silhouette_mask(scene_V, scene_F, c) for c in cams}
+    return V, F, cams, masks
+
+
+def _with_threads(n, f, *args):
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    try:
+        return f(*args)
+    finally:
+        numba.set_num_threads(before)
+
+
+def test_all_cameras_in_one_call_equal_the_per_view_loop(scene):
+    V, F, cams, masks = scene
+    rng = np.random.default_rng(5)
+    Vs = V + rng.normal(0.0, 0.003, V.shape)
+    N = area_weighted_normals(Vs, F)
+    views = SilhouetteViews(cams, masks, F)
+    assert views.packed is not None
+    loop = SilhouetteViews(cams, masks, F)
+    loop.packed = None  # the per-view path (_match_view camera by camera, as before)
+    ref = silhouette_constraints(Vs, F, N, cams, None, 20.0, 5.0, 0.2, views=loop)
+    assert len(ref) > 200 and len(set(ref.camera.tolist())) == 6
+    for threads in (1, 2):
+        got = _with_threads(threads, silhouette_constraints, Vs, F, N, cams, None, 20.0, 5.0, 0.2, views)
+        for name in FIELDS:
+            np.testing.assert_array_equal(getattr(got, name), getattr(ref, name), err_msg=f"{name}, {threads} threads")
+
+
+def test_views_of_different_sizes_keep_the_per_view_loop(scene):
+    V, F, cams, masks = scene
+    small = Camera.look_at("s", cams[0].center, (0, 0, 0), fx=250.0, width=160, height=120)
+    masks = dict(masks, s=silhouette_mask(1.05 * V, F, small))
+    views = SilhouetteViews([*cams, small], masks, F)
+    assert views.packed is None
+    sil = silhouette_constraints(V, F, area_weighted_normals(V, F), [*cams, small], None, views=views)
+    assert 6 in set(sil.camera.tolist())
+
+
+def test_parallel_gate_decides_as_the_reference_on_one_and_two_threads(scene):
+    V, F, cams, masks = scene
+    fields = SilhouetteFields(cams, masks)
+    rng = np.random.default_rng(7)
+    # the gate's three cases: target at or below the gate (kept whatever hull(v) is), above it with the vertex
+    # inside the hull (dropped), above it with the vertex outside (its own limit: kept or dropped)
+    cases = np.zeros(4, np.int64)
+    for scale in (0.9, 1.15):
+        Vs = scale * V + rng.normal(0.0, 0.003, V.shape)
+        sil = silhouette_constraints(Vs, F, area_weighted_normals(Vs, F), cams, masks)
+        ref = hull_gate_reference(Vs, sil, fields, 0.001)
+        for threads in (1, 2):
+            got = _with_threads(threads, fields.hull_gate, Vs, sil.vertex, sil.origin, sil.direction, 0.001)
+            np.testing.assert_array_equal(got, ref)
+        q = sil.origin + np.sum((Vs[sil.vertex] - sil.origin) * sil.direction, axis=1, keepdims=True) * sil.direction
+        h_q, h_v = fields.implicit_hull(q)[0], fields.implicit_hull(Vs[sil.vertex])[0]
+        above = h_q > 0.001
+        cases += [np.sum(~above), np.sum(above & (h_v <= 0)), np.sum(above & (h_v > 0) & ref),
+                  np.sum(above & (h_v > 0) & ~ref)]
+    assert np.all(cases >= 5), cases
