@@ -255,7 +255,7 @@ def extension_section(data: dict) -> str:
                 f"{np.mean([100.0 * (x[k] / x['original'] - 1.0) for x in hs]):+.1f} %" for k in ("captured", "truth")))
         surface = ("\n\nThe same held-out meshes scored point-to-surface (both ways, arm vertices: without the "
                    "vertices' layout along the skin, which a depth capture cannot see; "
-                   "`bench_muscle_extension_ceiling`), mean change of the out-of-range subjects, captures / truth "
+                   "`muscle_extension_ceiling`), mean change of the out-of-range subjects, captures / truth "
                    "meshes: " + "; ".join(cells) + ".")
     return ("### Dataset extension (issue 11 §4)\n\n"
             f"Original model: {data['n_original']} training subjects (men), BMI {r['bmi'][0]:.1f}-{r['bmi'][1]:.1f}, "
@@ -390,7 +390,7 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
     ``per_group`` captured subjects per out-of-range group; ``centre``: where each captured rest mesh is
     centred (``model.capture_samples``; "fitted" is the construction before the fifth pass).
     """
-    from benchmarks.bench_muscle_extension_ceiling import model_surface_error_mm
+    from benchmarks.muscle_extension_ceiling import model_surface_error_mm
     from bodystudio.fileio import write_json
     from bodystudio.muscle.model import capture_samples, extend_arm_model, load_arm_model, model_error_mm
     from bodystudio.muscle.synthetic import sample_arm_subject, subject_arm_samples, synth_arm_session

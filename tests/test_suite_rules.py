@@ -29,3 +29,15 @@ def test_every_bench_module_has_the_runner_interface():
         if not runs or "quick" not in [a.arg for a in runs[0].args.args + runs[0].args.kwonlyargs]:
             missing.append(path.name)
     assert missing == [], f"bench modules without run(quick=...): {missing}"
+
+
+def test_test_files_outside_packages_have_unique_names():
+    """pytest imports a test file in a folder without ``__init__.py`` under its bare name, so two such files of
+    one name (tests/garment/test_x.py and tests/mirror/test_x.py) stop the whole run at collection ("import
+    file mismatch"); a file in a package folder (tests/muscle/) is named after its package and may repeat."""
+    seen: dict[str, list[str]] = {}
+    for path in TESTS.rglob("test_*.py"):
+        if not (path.parent / "__init__.py").exists():
+            seen.setdefault(path.name, []).append(str(path.relative_to(TESTS)))
+    clashes = {name: paths for name, paths in seen.items() if len(paths) > 1}
+    assert not clashes, f"rename one of each (e.g. test_<stage>_...): {clashes}"

@@ -1,9 +1,9 @@
-"""``benchmarks.bench_muscle_extension_ceiling.rest_residual_parts``: the split of a rest residual into what a
+"""``benchmarks.muscle_extension_ceiling.rest_residual_parts``: the split of a rest residual into what a
 depth capture sees (translation, normal part) and what it does not (tangential part), sixth pass."""
 
 import numpy as np
 
-from benchmarks.bench_muscle_extension_ceiling import rest_residual_parts
+from benchmarks.muscle_extension_ceiling import rest_residual_parts
 from bodystudio.geometry.mesh import vertex_normals
 
 

@@ -16,7 +16,7 @@ parts of it; the held-out sets A / B and their figures are the benchmark's exten
 "translation + normal" is a perfect depth capture's ceiling. Each row also gives the held-out change of the
 point-to-surface error (both ways), which does not count the vertices' layout along the skin.
 
-    python -m benchmarks.bench_muscle_extension_ceiling --work W   # W/model.npz from bench_muscle --step prepare
+    python -m benchmarks.muscle_extension_ceiling --work W   # W/model.npz from bench_muscle --step prepare
 """
 
 from __future__ import annotations
