@@ -11,6 +11,10 @@ PY := $(VENV)/bin/python
 APT_PACKAGES := libusb-1.0-0 libgomp1 libgl1 libegl1 libxrender1 chromium
 DEMO_OUT ?= demo-out
 PYTEST_ARGS ?=
+# `make test` runs the test files as TEST_JOBS pytest processes side by side (scripts/test_shards.py; the CI
+# machine has two cores); TEST_JOBS=1 runs one plain pytest. Every run prints its 25 slowest steps.
+TEST_JOBS ?= 2
+PYTEST := $(PY) scripts/test_shards.py --jobs $(TEST_JOBS) -- -q --durations=25
 # Mutation testing (make mutate; not in CI): the core modules, each mutated with only its own fast tests.
 MUTATE_MODULES ?= bodystudio/reconstruct/solver.py bodystudio/reconstruct/silhouette.py \
 	bodystudio/reconstruct/rapid_skin.py bodystudio/geometry/laplacian.py bodystudio/body/skinning.py \
@@ -38,10 +42,10 @@ demo: setup
 	$(VENV)/bin/bodystudio demo --out $(DEMO_OUT)
 
 test: setup
-	$(PY) -m pytest -q $(PYTEST_ARGS)
+	$(PYTEST) $(PYTEST_ARGS)
 
 test-fast: setup
-	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+	$(PYTEST) -m "not slow" $(PYTEST_ARGS)
 
 bench: setup
 	$(PY) -m benchmarks.run --out docs/BENCHMARKS.md

@@ -41,3 +41,42 @@ def test_test_files_outside_packages_have_unique_names():
             seen.setdefault(path.name, []).append(str(path.relative_to(TESTS)))
     clashes = {name: paths for name, paths in seen.items() if len(paths) > 1}
     assert not clashes, f"rename one of each (e.g. test_<stage>_...): {clashes}"
+
+def _test_shards_module():
+    import importlib.util
+
+    path = Path(__file__).parents[1] / "scripts" / "test_shards.py"
+    spec = importlib.util.spec_from_file_location("test_shards", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_sharded_run_exit_status():
+    """`make test`'s status: the first failing shard's; a shard with nothing to run (5) is not a failure
+    unless no shard ran anything."""
+    code = _test_shards_module().shard_exit_code
+    assert code([0, 0]) == 0 and code([0, 5]) == 0 and code([5, 5]) == 5
+    assert code([0, 1]) == 1 and code([2, 1]) == 2 and code([5, 1]) == 1
+
+
+def test_sharded_run_runs_every_test_once_each_file_in_one_process():
+    """scripts/test_shards.py --jobs 2 (`make test`): the two pytest processes share the test files; every
+    test runs exactly once and all tests of a file run in the same process (its module fixtures are built
+    once)."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).parents[1]
+    files = ["tests/body/test_skinning.py", "tests/capture/test_session_bodies.py", "tests/geometry/test_laplacian.py"]
+    proc = subprocess.run([sys.executable, "scripts/test_shards.py", "--jobs", "2", "--", "-q", "-rA",
+                           "-p", "no:cacheprovider", *files], cwd=root, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    shard0, shard1 = proc.stdout.split("=== test shard 0/2")
+    ran = [line.split()[1] for out in (shard0, shard1) for line in out.splitlines() if line.startswith("PASSED ")]
+    collected = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider",
+                                *files], cwd=root, capture_output=True, text=True, timeout=600).stdout.split()
+    assert sorted(ran) == sorted(n for n in collected if "::" in n), proc.stdout[-3000:]
+    for name in files:
+        where = {i for i, out in enumerate((shard0, shard1)) if f"PASSED {name}::" in out}
+        assert len(where) == 1, (name, where)
