@@ -20,27 +20,20 @@ from pathlib import Path
 import numpy as np
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cache", type=Path, default=None, help="session folder to reuse (made when missing)")
-    ap.add_argument("--repeats", type=int, default=6)
-    args = ap.parse_args()
-    import numba
-    from threadpoolctl import threadpool_limits
-
+def step_table_frame(cache: Path | None):
+    """The frame of the per-step CPU table, posed by the distance-field fit: ``(P, body, cams, masks, fields,
+    rest)`` (posed 13K vertices, the body, cameras, masks, their :class:`SilhouetteFields`, rest cotangent
+    weights); the walk s31 session is made in ``cache`` (or a temporary folder) when missing."""
     from bodystudio.body import build_body
     from bodystudio.capture.session import open_session
     from bodystudio.capture.synth import synth_session
     from bodystudio.geometry.laplacian import cotangent_weights
     from bodystudio.reconstruct.articulated_fit import refine_bone_transforms
     from bodystudio.reconstruct.pose_init import initialise_pose, pose_template
-    from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations, hull_gate_reference
     from bodystudio.reconstruct.sequence import frame_joints
-    from bodystudio.reconstruct.solver import SilhouetteConstraints
     from bodystudio.reconstruct.tracking import SilhouetteFields, TrackParams, silhouette_data_term
 
-    numba.set_num_threads(1)
-    path = args.cache or Path(tempfile.mkdtemp()) / "walk31"
+    path = cache or Path(tempfile.mkdtemp()) / "walk31"
     if not (path / "session.json").exists():
         synth_session(path, n_cameras=10, n_frames=3, motion="walk", subject_seed=31, template="full", fps=30.0)
     session = open_session(path)
@@ -53,7 +46,23 @@ def main() -> None:
     T = refine_bone_transforms(fit_body, initialise_pose(fit_body, J).bone_transforms, None,
                                data_term=silhouette_data_term(fields, TrackParams()))
     P = pose_template(body, T, initialise_pose(body, J).global_scale).vertices
-    rest = cotangent_weights(body.vertices, body.faces)
+    return P, body, cams, masks, fields, cotangent_weights(body.vertices, body.faces)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", type=Path, default=None, help="session folder to reuse (made when missing)")
+    ap.add_argument("--repeats", type=int, default=6)
+    args = ap.parse_args()
+    import numba
+    from threadpoolctl import threadpool_limits
+
+    from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations, hull_gate_reference
+    from bodystudio.reconstruct.solver import SilhouetteConstraints
+    from bodystudio.reconstruct.tracking import SilhouetteFields
+
+    numba.set_num_threads(1)
+    P, body, cams, masks, fields, rest = step_table_frame(args.cache)
     compiled = SilhouetteFields.hull_gate
 
     def reference(self, V, vertex, origin, direction, gate_m):

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import tempfile
 import time
 from pathlib import Path
 
@@ -30,30 +29,10 @@ def main() -> None:
     import numba
     from threadpoolctl import threadpool_limits
 
-    from bodystudio.body import build_body
-    from bodystudio.capture.session import open_session
-    from bodystudio.capture.synth import synth_session
-    from bodystudio.geometry.laplacian import cotangent_weights
-    from bodystudio.reconstruct.articulated_fit import refine_bone_transforms
-    from bodystudio.reconstruct.pose_init import initialise_pose, pose_template
+    from benchmarks.reconstruct_gate_ab import step_table_frame
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
-    from bodystudio.reconstruct.sequence import frame_joints
-    from bodystudio.reconstruct.tracking import SilhouetteFields, TrackParams, silhouette_data_term
 
-    path = args.cache or Path(tempfile.mkdtemp()) / "walk31"
-    if not (path / "session.json").exists():
-        synth_session(path, n_cameras=10, n_frames=3, motion="walk", subject_seed=31, template="full", fps=30.0)
-    session = open_session(path)
-    cams = list(session.cameras)
-    body, fit_body = build_body(resolution="full"), build_body(resolution="2k")
-    frame = session.frame(session.frame_ids[1])
-    masks = {n: np.asarray(frame.masks[n]) for n in frame.masks}
-    J = frame_joints(session, frame, "tracker", None)
-    fields = SilhouetteFields(cams, masks)
-    T = refine_bone_transforms(fit_body, initialise_pose(fit_body, J).bone_transforms, None,
-                               data_term=silhouette_data_term(fields, TrackParams()))
-    P = pose_template(body, T, initialise_pose(body, J).global_scale).vertices
-    rest = cotangent_weights(body.vertices, body.faces)
+    P, body, cams, masks, fields, rest = step_table_frame(args.cache)
     threads = (1, min(2, numba.config.NUMBA_NUM_THREADS))
     ms: dict[int, list] = {n: [] for n in threads}
     out = {}
