@@ -31,6 +31,18 @@ FOURTH_PASS = dict(norm_limit=0.9, tracker_weight=30.0, smooth_weight=10.0, roun
                    fit_root=True, fit_skeleton=True, skeleton_prior_weight=100.0, depth_huber_only=True)
 
 
+def work_model(work: Path, template):
+    """The benchmark's arm model in ``work/model.npz`` (bench_muscle's prepare step), learned there when missing."""
+    from bodystudio.muscle.model import load_arm_model
+
+    if not (work / "model.npz").is_file():
+        from bodystudio.muscle.model import learn_arm_model, save_arm_model
+        from bodystudio.muscle.synthetic import training_dataset
+
+        save_arm_model(work / "model.npz", learn_arm_model(training_dataset("6k")[0], template))
+    return load_arm_model(work / "model.npz", template)
+
+
 def subject_session(work: Path, seed: int, n_frames: int):
     """The subject and its session: 601-604 as the benchmark's extension step makes them (noise seed 1)."""
     from benchmarks.bench_muscle import OUT_OF_RANGE, out_of_range_subject
@@ -105,17 +117,11 @@ def energies(work: Path, seed: int, n_frames: int = 24, options: dict | None = N
     from bodystudio.muscle.arm import ArmPose
     from bodystudio.muscle.capture import CaptureOptions, _refinement, _Timer
     from bodystudio.muscle.evaluate import score_arm_sequence, session_ground_truth
-    from bodystudio.muscle.model import load_arm_model
     from bodystudio.muscle.refine import fit_arm_sequence_skeleton, skeleton_model_mesh, smooth_arm_poses
 
     kw = {**FOURTH_PASS, **(options or {})}
     template = _template()
-    if not (work / "model.npz").is_file():  # the benchmark's model (bench_muscle's prepare step)
-        from bodystudio.muscle.model import learn_arm_model, save_arm_model
-        from bodystudio.muscle.synthetic import training_dataset
-
-        save_arm_model(work / "model.npz", learn_arm_model(training_dataset("6k")[0], template))
-    model = load_arm_model(work / "model.npz", template)
+    model = work_model(work, template)
     subject, session = subject_session(work, seed, n_frames)
     truth = truth_template(subject)
     ids = session.frame_ids[:n_frames]

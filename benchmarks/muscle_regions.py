@@ -58,11 +58,10 @@ def region_medians(estimate: np.ndarray, truth: np.ndarray, visible: np.ndarray,
 
 def subject_rows(work: Path, seed: int, n_frames: int, variants: dict) -> dict:
     from benchmarks.bench_muscle import _template, truth_template
-    from benchmarks.muscle_energy import sequence_fit_inputs, subject_session
+    from benchmarks.muscle_energy import sequence_fit_inputs, subject_session, work_model
     from bodystudio.muscle.arm import ArmPose
     from bodystudio.muscle.capture import CaptureOptions, _refinement, _Timer
     from bodystudio.muscle.evaluate import score_arm_sequence, session_ground_truth
-    from bodystudio.muscle.model import load_arm_model
     from bodystudio.muscle.refine import (
         fit_arm_sequence_skeleton,
         skeleton_model_mesh,
@@ -71,12 +70,7 @@ def subject_rows(work: Path, seed: int, n_frames: int, variants: dict) -> dict:
     )
 
     template = _template()
-    if not (work / "model.npz").is_file():
-        from bodystudio.muscle.model import learn_arm_model, save_arm_model
-        from bodystudio.muscle.synthetic import training_dataset
-
-        save_arm_model(work / "model.npz", learn_arm_model(training_dataset("6k")[0], template))
-    model = load_arm_model(work / "model.npz", template)
+    model = work_model(work, template)
     subject, session = subject_session(work, seed, n_frames)
     truth = truth_template(subject)
     ids = session.frame_ids[:n_frames]
