@@ -118,8 +118,7 @@ BUGS = (
         "mapped[mine] = nodes[mine]"),
     Bug("muscle-no-refinement", "bodystudio/muscle/capture.py", "muscle: the Sec. 7 refinement skipped (model "
         "meshes returned)",
-        "out_t = _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, J, o, timer)",
-        "out_t = model_meshes"),
+        "out_t = _refinement(", "out_t = model_meshes or _refinement("),  # a non-empty list: never called
     Bug("muscle-no-detail-smoothing", "bodystudio/muscle/capture.py", "muscle: the refinement's Eq. 13-14 detail "
         "averaging skipped", "if o.detail_sigma_frames > 0 and n >= 3:", "if False:"),
     Bug("garment-no-visibility", "bodystudio/garment/lighting.py", "garment lighting: the light visibility term "
