@@ -21,6 +21,7 @@ import argparse
 import ast
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -110,16 +111,15 @@ def energy_terms(model, inputs: dict, poses, J, kw: dict, with_skeleton: bool) -
     return {k: (v if k == "pairs" else 1000 * v) for k, v in terms.items()}, meshes
 
 
-def energies(work: Path, seed: int, n_frames: int = 24, options: dict | None = None,
-             from_truth: bool = False) -> dict:
-    """Energy terms (x 1000) at the truth, the fit's start and its answer (and, optionally, started from the truth)."""
+def sequence_case(work: Path, seed: int, n_frames: int) -> SimpleNamespace:
+    """One subject's sequence-fit case in ``work``: the benchmark's model, the session and its ground truth
+    (``G``, ``visible``, ``true_joints``), the fit's cached inputs (``t``, start joints ``J0``) and the truth in
+    the fit's frame: ``J_truth`` (the subject's skeleton moved to the model's regressed shoulder) and
+    ``true_poses``."""
     from benchmarks.bench_muscle import _template, truth_template
     from bodystudio.muscle.arm import ArmPose
-    from bodystudio.muscle.capture import CaptureOptions, _refinement, _Timer
-    from bodystudio.muscle.evaluate import score_arm_sequence, session_ground_truth
-    from bodystudio.muscle.refine import fit_arm_sequence_skeleton, skeleton_model_mesh, smooth_arm_poses
+    from bodystudio.muscle.evaluate import session_ground_truth
 
-    kw = {**FOURTH_PASS, **(options or {})}
     template = _template()
     model = work_model(work, template)
     subject, session = subject_session(work, seed, n_frames)
@@ -129,7 +129,6 @@ def energies(work: Path, seed: int, n_frames: int = 24, options: dict | None = N
     inputs = sequence_fit_inputs(model, template, subject, session, n_frames)
     t, J0 = inputs["t"], inputs["joints"]
     shift = truth.joints[0] - J0[0]  # the subject's skeleton moved into the model's rest mesh (regressed shoulder)
-    J_truth = truth.joints - shift
 
     def in_fit_frame(p):
         root = p.root.copy()
@@ -137,6 +136,21 @@ def energies(work: Path, seed: int, n_frames: int = 24, options: dict | None = N
         return ArmPose(root, p.angles)
 
     true_poses = [in_fit_frame(ArmPose.from_dict(session.frame(i).gt_arm_pose)) for i in ids]
+    return SimpleNamespace(model=model, session=session, truth=truth, G=G, visible=visible, true_joints=true_joints,
+                           inputs=inputs, t=t, J0=J0, J_truth=truth.joints - shift, true_poses=true_poses)
+
+
+def energies(work: Path, seed: int, n_frames: int = 24, options: dict | None = None,
+             from_truth: bool = False) -> dict:
+    """Energy terms (x 1000) at the truth, the fit's start and its answer (and, optionally, started from the truth)."""
+    from bodystudio.muscle.capture import CaptureOptions, _refinement, _Timer
+    from bodystudio.muscle.evaluate import score_arm_sequence
+    from bodystudio.muscle.refine import fit_arm_sequence_skeleton, skeleton_model_mesh, smooth_arm_poses
+
+    kw = {**FOURTH_PASS, **(options or {})}
+    c = sequence_case(work, seed, n_frames)
+    model, truth, G, visible, true_joints = c.model, c.truth, c.G, c.visible, c.true_joints
+    inputs, t, J0, J_truth, true_poses = c.inputs, c.t, c.J0, c.J_truth, c.true_poses
 
     def median(meshes):
         return score_arm_sequence(np.stack(meshes) + t, G, truth, visible, true_joints)["median_mm"]

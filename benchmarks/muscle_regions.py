@@ -57,11 +57,9 @@ def region_medians(estimate: np.ndarray, truth: np.ndarray, visible: np.ndarray,
 
 
 def subject_rows(work: Path, seed: int, n_frames: int, variants: dict) -> dict:
-    from benchmarks.bench_muscle import _template, truth_template
-    from benchmarks.muscle_energy import sequence_fit_inputs, subject_session, work_model
-    from bodystudio.muscle.arm import ArmPose
+    from benchmarks.muscle_energy import sequence_case
     from bodystudio.muscle.capture import CaptureOptions, _refinement, _Timer
-    from bodystudio.muscle.evaluate import score_arm_sequence, session_ground_truth
+    from bodystudio.muscle.evaluate import score_arm_sequence
     from bodystudio.muscle.refine import (
         fit_arm_sequence_skeleton,
         skeleton_model_mesh,
@@ -69,29 +67,17 @@ def subject_rows(work: Path, seed: int, n_frames: int, variants: dict) -> dict:
         tracker_placement_prior_weight,
     )
 
-    template = _template()
-    model = work_model(work, template)
-    subject, session = subject_session(work, seed, n_frames)
-    truth = truth_template(subject)
-    ids = session.frame_ids[:n_frames]
-    G, visible, true_joints = session_ground_truth(session, truth, ids)
-    inputs = sequence_fit_inputs(model, template, subject, session, n_frames)
-    t, J0, tracker = inputs["t"], inputs["joints"], np.asarray(inputs["tracker"])
-    shift = truth.joints[0] - J0[0]
-
-    def in_fit_frame(p):
-        root = p.root.copy()
-        root[:3, 3] += root[:3, :3] @ shift - t
-        return ArmPose(root, p.angles)
-
-    true_poses = [in_fit_frame(ArmPose.from_dict(session.frame(i).gt_arm_pose)) for i in ids]
+    c = sequence_case(work, seed, n_frames)
+    model, session, truth, G, visible, true_joints = c.model, c.session, c.truth, c.G, c.visible, c.true_joints
+    inputs, t, J0, true_poses = c.inputs, c.t, c.J0, c.true_poses
+    tracker = np.asarray(inputs["tracker"])
 
     norm_limit = CaptureOptions().norm_limit
 
     def meshes_of(poses, J):
         return np.stack([skeleton_model_mesh(model, p, inputs["rest"], J, norm_limit) for p in poses]) + t
 
-    rows = {"truth plugged (model floor)": region_medians(meshes_of(true_poses, truth.joints - shift), G, visible,
+    rows = {"truth plugged (model floor)": region_medians(meshes_of(true_poses, c.J_truth), G, visible,
                                                           truth)}
     for name, options in variants.items():
         kw = dict(DEFAULT if name == "default" else BEST_FIFTH_PASS, norm_limit=norm_limit)
