@@ -43,6 +43,7 @@ from bodystudio.body.kinect import KINECT_JOINT_SETS, kinect_joint_names
 from bodystudio.body.pose import Pose
 from bodystudio.body.skeleton import Skeleton
 from bodystudio.errors import InputError
+from bodystudio.mirror.track import blend_skin
 
 #: Bones whose swing is refined (their twist is the IK's); the Root gets its full rotation and translation.
 #: spine_03, head, hands and feet added to the first set: warp_iou +0.003 / +0.005 / +0.001 on MIR-SYNTH
@@ -171,37 +172,7 @@ def _posed_frames(rest_relative, rest_inverse, local_rotations, translation, par
 
 def _skin(plan: _RefinePlan, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Skinned subset vertices and (normalised) normals by the blended LBS matrices; ``transforms`` (B, 3, 4)."""
-    return _blend_skin(transforms, plan.weight_idx, plan.weight_val,
-                       plan.rest_vertices, plan.rest_normals)
-
-
-@njit(cache=True)
-def _blend_skin(transforms, weight_idx, weight_val, rest_vertices, rest_normals):
-    """Linear blend skinning of points and normals: ``sum_k w_k T_k`` applied to each (the normals unit)."""
-    n, k_max = weight_idx.shape
-    V = np.empty((n, 3))
-    N = np.empty((n, 3))
-    M = np.empty((3, 4))
-    for i in range(n):
-        M[:] = 0.0
-        for k in range(k_max):
-            w = weight_val[i, k]
-            if w == 0.0:  # most vertices have two or three bones of the six
-                continue
-            T = transforms[weight_idx[i, k]]
-            for r in range(3):
-                for c in range(4):
-                    M[r, c] += w * T[r, c]
-        length = 0.0
-        for r in range(3):
-            V[i, r] = M[r, 0] * rest_vertices[i, 0] + M[r, 1] * rest_vertices[i, 1] + M[r, 2] * rest_vertices[i, 2] \
-                + M[r, 3]
-            N[i, r] = M[r, 0] * rest_normals[i, 0] + M[r, 1] * rest_normals[i, 1] + M[r, 2] * rest_normals[i, 2]
-            length += N[i, r] * N[i, r]
-        length = max(np.sqrt(length), 1e-12)
-        for r in range(3):
-            N[i, r] /= length
-    return V, N
+    return blend_skin(transforms, plan.weight_idx, plan.weight_val, plan.rest_vertices, plan.rest_normals)
 
 
 @njit(cache=True)

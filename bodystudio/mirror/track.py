@@ -285,16 +285,20 @@ def skin_vertices(vertices: np.ndarray, weights: np.ndarray, skeleton: Skeleton,
     V = np.asarray(vertices, dtype=np.float64)
     if subset is not None:
         idx, w, V = idx[subset], w[subset], V[subset]
-    return _blend_points(np.ascontiguousarray(S[:, :3, :], dtype=np.float64), np.ascontiguousarray(idx),
-                         np.ascontiguousarray(w, dtype=np.float64), np.ascontiguousarray(V))
+    return blend_skin(np.ascontiguousarray(S[:, :3, :], dtype=np.float64), np.ascontiguousarray(idx),
+                      np.ascontiguousarray(w, dtype=np.float64), np.ascontiguousarray(V), np.empty((0, 3)))[0]
 
 
 @njit(cache=True)
-def _blend_points(transforms, weight_idx, weight_val, rest_vertices):
-    """``(sum_k w_k T_k) v`` per vertex, skipping the zero weights (2.2 bones of the six on average): the numpy
-    gather of (n, 6, 4, 4) transforms and its two einsums took ~2 ms for a 6k body, this ~0.2 (MIRFAST2)."""
+def blend_skin(transforms, weight_idx, weight_val, rest_vertices, rest_normals):
+    """Linear blend skinning ``(sum_k w_k T_k) v`` of points, and of unit normals when ``rest_normals`` has a row
+    per point (an empty (0, 3) array: points only), skipping the zero weights (2.2 bones of the six on average):
+    the numpy gather of (n, 6, 4, 4) transforms and its two einsums took ~2 ms for a 6k body, this ~0.2
+    (MIRFAST2). ``transforms`` (B, 3, 4); returns ``(V, N)``, ``N`` empty without normals."""
     n, k_max = weight_idx.shape
-    out = np.empty((n, 3))
+    with_normals = rest_normals.shape[0] == n
+    V = np.empty((n, 3))
+    N = np.empty((n if with_normals else 0, 3))
     M = np.empty((3, 4))
     for i in range(n):
         M[:] = 0.0
@@ -307,6 +311,14 @@ def _blend_points(transforms, weight_idx, weight_val, rest_vertices):
                 for c in range(4):
                     M[r, c] += w * T[r, c]
         for r in range(3):
-            out[i, r] = M[r, 0] * rest_vertices[i, 0] + M[r, 1] * rest_vertices[i, 1] \
-                + M[r, 2] * rest_vertices[i, 2] + M[r, 3]
-    return out
+            V[i, r] = M[r, 0] * rest_vertices[i, 0] + M[r, 1] * rest_vertices[i, 1] + M[r, 2] * rest_vertices[i, 2] \
+                + M[r, 3]
+        if with_normals:
+            length = 0.0
+            for r in range(3):
+                N[i, r] = M[r, 0] * rest_normals[i, 0] + M[r, 1] * rest_normals[i, 1] + M[r, 2] * rest_normals[i, 2]
+                length += N[i, r] * N[i, r]
+            length = max(np.sqrt(length), 1e-12)
+            for r in range(3):
+                N[i, r] /= length
+    return V, N
