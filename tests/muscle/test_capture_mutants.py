@@ -6,6 +6,7 @@ capture folder's shape, similarity and joints. Stand-ins and tiny meshes; the ti
 """
 
 import json
+from functools import lru_cache
 from types import SimpleNamespace
 
 import numpy as np
@@ -21,8 +22,33 @@ FAST = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, seque
             nicp=NicpOptions(iterations=2))
 
 
+@lru_cache(maxsize=1)
+def _tiny_model_path():
+    """The conftest's tiny arm model (two synthetic subjects, a 3-body population), saved once per process in a
+    temporary folder (a plain function, so docs/mutation/recheck_direct.py can build it before forking)."""
+    import tempfile
+    from pathlib import Path
+
+    from bodystudio.body import build_body
+    from bodystudio.muscle.arm import arm_template
+    from bodystudio.muscle.model import learn_arm_model, save_arm_model
+    from bodystudio.muscle.synthetic import sample_arm_subject, subject_arm_samples
+
+    samples = subject_arm_samples(sample_arm_subject(1000), "2k", n_shapes=1, n_poses=2)
+    samples += subject_arm_samples(sample_arm_subject(1001), "2k", n_shapes=1, n_poses=2)
+    model = learn_arm_model(samples, arm_template(build_body(resolution="2k"), "left"), population_size=3)
+    path = Path(tempfile.mkdtemp(prefix="tiny-arm-model-")) / "tiny.npz"
+    save_arm_model(path, model)
+    return path
+
+
 @pytest.fixture(scope="module")
-def scene(tiny_arm_model_path):
+def scene():
+    return _scene()
+
+
+@lru_cache(maxsize=1)
+def _scene():
     """The tiny model, its template and mean shape, a Kinect v2 at 1 m and 2 noise-free frames of its own mesh
     (elbow 0 and 15 deg) with the tracker's joints."""
     from bodystudio.body import build_body
@@ -33,7 +59,7 @@ def scene(tiny_arm_model_path):
     from bodystudio.muscle.refine import _shape_bounds, posed_joints
 
     template = arm_template(build_body(resolution="2k"), "left")
-    model = load_arm_model(tiny_arm_model_path, template)
+    model = load_arm_model(_tiny_model_path(), template)
     shape = ArmShapeParams.from_vector(_shape_bounds(model, None)[2])
     J = model_joints(model, shape)
     s, e, _ = J
@@ -122,10 +148,10 @@ def test_capture_arm_sequence_keeps_the_fingerprint_of_the_frames_it_read(monkey
 
 # --- the capture for extension ------------------------------------------------------------------------------
 
-def test_the_capture_for_extension_sets_the_extension_options_and_needs_the_sequence_fit(monkeypatch,
-                                                                                          tiny_arm_model_path):
+def test_the_capture_for_extension_sets_the_extension_options_and_needs_the_sequence_fit(monkeypatch):
     import bodystudio.capture.session as session_mod
 
+    tiny_arm_model_path = _tiny_model_path()
     session = SimpleNamespace(path="S", frame_ids=[0, 1], gt_subject={"arm": {"resolution": "2k", "side": "left"}})
     monkeypatch.setattr(session_mod, "open_session", lambda p: session)
     seen = {}
