@@ -150,3 +150,48 @@ def test_capture_samples_refuse_an_unknown_centre_or_a_missing_model():
     with pytest.raises(InputError, match=r"^capture 'c': centre='sex' needs the model the capture"):
         M.capture_samples(cap, "c", centre="sex")
     M.capture_samples(_capture(shape=WOMAN), "c", centre="sex")  # a woman: her fitted shoulder, no model needed
+
+
+def test_a_frame_exactly_at_the_base_pose_tolerance_is_a_base_row_and_the_regression_unposes_without_joints():
+    V, W = _arm()
+    edge = ArmPose(np.eye(4), np.full((3, 3), M.BASE_POSE_TOL_RAD))
+    J_reg = J_FIT + 0.01
+    s = M.ArmSample("s", SHAPE, V, edge)
+    rows, base, _, _ = M._subject_rows([s], W, lambda shape: J_reg, None)
+    np.testing.assert_allclose(base, unpose_arm(V, W, J_reg, edge) - J_reg[0], atol=1e-15)
+    assert rows.shape == (1, len(V), 3)
+
+
+def test_capture_samples_map_every_stride_th_posed_frame_back_to_the_template(monkeypatch):
+    """Each ``stride``-th frame with a pose, world -> template by the inverse similarity ((V - t) R / s), with
+    the capture's name, the shape, its pose and joints; a capture object without ``joints``: None."""
+    c, s_ = np.cos(0.7), np.sin(0.7)
+    R = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+    t = np.array([0.3, -0.2, 1.1])
+    V, _ = _arm()
+    local = [V + 0.01 * k for k in range(5)]
+    poses = [_pose(30), None, _pose(32), _pose(33), _pose(34)]
+    cap = SimpleNamespace(vertices=[2.0 * X @ R.T + t for X in local], poses=poses, shape=SHAPE,
+                          similarity=(2, R.tolist(), t.tolist()))
+    out = M.capture_samples(cap, "cap", shape=WOMAN)
+    assert [o.subject for o in out] == ["cap"] * 4 and all(o.shape == WOMAN for o in out)
+    assert [o.pose for o in out] == [poses[0], poses[2], poses[3], poses[4]]
+    for o, k in zip(out, (0, 2, 3, 4), strict=True):
+        np.testing.assert_allclose(o.vertices, local[k], atol=1e-12)
+        assert o.joints is None and o.rest_origin is None
+    out = M.capture_samples(cap, "cap", stride=2)
+    assert [o.pose for o in out] == [poses[0], poses[2], poses[4]] and out[0].shape == SHAPE
+    assert [o.pose for o in M.capture_samples(cap, "cap", stride=3)] == [poses[0], poses[3]]
+
+
+def test_capture_samples_messages():
+    cap = _capture()
+    with pytest.raises(InputError, match=r"^stride=0 must be >= 1$"):
+        M.capture_samples(cap, "c", stride=0)
+    with pytest.raises(InputError, match=r"^capture 'c' has no shape parameters \(a no-model capture\); give them "
+                                         r"with --shape bmi=\.\.,muscularity=\.\.,height_m=\.\.,arm_length_m=\.\.$"):
+        M.capture_samples(_capture(shape=None), "c")
+    cap.poses = [None, None]
+    with pytest.raises(InputError, match=r"^capture 'c' has no frames with joint angles \(a no-model capture\); "
+                                         r"capture it with the model to extend the dataset$"):
+        M.capture_samples(cap, "c")
