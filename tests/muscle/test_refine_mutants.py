@@ -76,12 +76,12 @@ def test_the_chests_depth_rows_are_scaled_by_the_root_of_the_torso_pair_weight(m
     calls = _spy(monkeypatch, run=False)
     kw = dict(rounds=1, max_nfev=2, fit_root=True, huber_m=huber, depth_huber_only=huber > 0,
               tracker_joints=s.tracker, tracker_weight=10.0)
-    for w in (1.0, 0.25, 0.0):
+    for w in (1.0, 0.25, 0.0, 2.0):
         refine.fit_arm_sequence_skeleton(s.model, s.shape, s.start, frames, s.J, torso_pair_weight=w, **kw)
-    one, quarter, zero = calls
+    one, quarter, zero, two = calls
     x = one.x0 + np.random.default_rng(1).normal(0.0, 0.005, len(one.x0))
-    r1, rq, r0 = one.fun(x), quarter.fun(x), zero.fun(x)
-    assert len(r1) == len(rq) == len(r0)
+    r1, rq, r0, r2 = one.fun(x), quarter.fun(x), zero.fun(x), two.fun(x)
+    assert len(r1) == len(rq) == len(r0) == len(r2)
     row, n_torso = 0, 0
     for k in range(3):
         mesh = refine.skeleton_model_mesh(s.model, s.start[k], s.rest, s.J)
@@ -90,6 +90,7 @@ def test_the_chests_depth_rows_are_scaled_by_the_root_of_the_torso_pair_weight(m
         n_torso += t.sum()
         np.testing.assert_allclose(rq[row:row + len(ids)][t], 0.5 * r1[row:row + len(ids)][t], atol=1e-15)
         np.testing.assert_array_equal(r0[row:row + len(ids)][t], 0.0)
+        np.testing.assert_allclose(r2[row:row + len(ids)][t], np.sqrt(2.0) * r1[row:row + len(ids)][t], atol=1e-15)
         np.testing.assert_array_equal(rq[row:row + len(ids)][~t], r1[row:row + len(ids)][~t])
         row += len(ids)
         np.testing.assert_array_equal(rq[row:row + 9], r1[row:row + 9])  # the tracker's rows unchanged
