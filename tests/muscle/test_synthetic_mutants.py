@@ -65,8 +65,10 @@ def test_an_unreachable_macro_target_is_refused_with_the_body_models_range():
         with pytest.raises(InputError, match=rf"^height target {target:.3g} is out of the body model's range "
                                              rf"\[{lo:.3g}, {hi:.3g}\] for this subject; choose a range inside it$"):
             syn._solve_macro(phenotype, local, "height", target, 1)
-    # the ends of the range are reachable
+    # the ends of the range are reachable, exactly at the ends too (the macro at 0 / 1)
     assert abs(syn._measure(syn._solve_macro(phenotype, local, "height", hi - 1e-3, 1), local)[1] - (hi - 1e-3)) < 5e-4
+    assert syn._solve_macro(phenotype, local, "height", lo, 1).height == 0.0
+    assert syn._solve_macro(phenotype, local, "height", hi, 1).height == 1.0
 
 
 def test_a_subject_has_the_stature_and_bmi_it_was_asked_for():
@@ -208,6 +210,9 @@ def test_the_sensor_versions_and_refusals():
 
     _, _, T = _subject()
     v1, v2 = syn.arm_sensor(T, "v1"), syn.arm_sensor(T, "v2")
+    s, e, _ = T.joints
+    for cam in (v1.depth, v2.depth):  # both look at the middle of the upper arm
+        np.testing.assert_allclose(cam.project((0.5 * (s + e) + [0.0, 0.0, 0.05])[None])[0], cam.K[:2, 2], atol=1e-6)
     assert (v1.depth.width, v1.depth.height) == (kinect_v1().depth.width, kinect_v1().depth.height)
     assert (v2.depth.width, v2.depth.height) == (kinect_v2().depth.width, kinect_v2().depth.height)
     assert (v1.depth.width, v1.depth.height) != (v2.depth.width, v2.depth.height)
@@ -295,7 +300,7 @@ def test_the_session_defaults_and_the_subject_seed(tmp_path, monkeypatch):
     s, body, T = _subject()
     asked = {}
     real_motion = syn.arm_motion
-    monkeypatch.setattr(syn, "sample_arm_subject", lambda seed: asked.setdefault("subject", seed) and s)
+    monkeypatch.setattr(syn, "sample_arm_subject", lambda seed: asked.setdefault("subject", seed) is None or s)
     monkeypatch.setattr(syn, "subject_body", lambda subject, resolution: asked.update(body=(subject, resolution))
                         or body)
     monkeypatch.setattr(syn, "arm_motion", lambda template, motion, n, seed: asked.update(motion=(motion, n, seed))
@@ -307,6 +312,9 @@ def test_the_session_defaults_and_the_subject_seed(tmp_path, monkeypatch):
                                 "distance_m": 1.0, "arm_template_key": T.key, "noise": True}
     np.testing.assert_allclose(session.kinect.depth.center, syn.arm_sensor(T).depth.center, atol=1e-9)
     assert session.frame_ids == [0]
+    asked.clear()
+    syn.synth_arm_session(tmp_path / "c0", n_frames=1)
+    assert asked["subject"] == 0
     # with noise the depth differs from the ideal one (and the tracker from the posed joints)
     ideal = _expected_frames(s, body, T, syn.arm_sensor(T), "elbow_flex", 1, 0, "v2", False)[0]
     noisy = _expected_frames(s, body, T, syn.arm_sensor(T), "elbow_flex", 1, 0, "v2", True)[0]
