@@ -137,13 +137,14 @@ def test_capture_arm_sequence_keeps_the_fingerprint_of_the_frames_it_read(monkey
 
     asked = []
     monkeypatch.setattr(session_mod, "stream_fingerprint",
-                        lambda session, stream, ids: asked.append((stream, list(ids))) or f"{stream}:{list(ids)}")
+                        lambda session, stream, ids: asked.append((session.path, stream, list(ids)))
+                        or f"{stream}:{list(ids)}")
     monkeypatch.setattr(cap_mod, "capture_arm_frames", lambda depths, *a: ArmCapture(
         np.zeros((len(depths), 1, 3)), np.zeros((0, 3)), [], None, (1.0, np.eye(3), np.zeros(3)), "nicp", "k"))
     session = SimpleNamespace(path="/tmp/fake-session", kinect=SimpleNamespace(depth="CAM"), frame_ids=[0, 1, 2, 3],
                               frame=lambda f: SimpleNamespace(kinect_depth_m=np.zeros((2, 2)), kinect_joints=None))
     c = cap_mod.capture_arm_sequence(session, None, SimpleNamespace(side="left"), frames=slice(1, 3))
-    assert c.source_fingerprint == "kinect_depth:[1, 2]" and asked == [("kinect_depth", [1, 2])]
+    assert c.source_fingerprint == "kinect_depth:[1, 2]" and asked == [("/tmp/fake-session", "kinect_depth", [1, 2])]
 
 
 # --- the capture for extension ------------------------------------------------------------------------------
@@ -326,7 +327,7 @@ def test_the_fingerprint_and_joints_round_trip(tmp_path):
     params = json.loads((tmp_path / "a" / "params.json").read_text())
     assert params["session_fingerprint"] == "abc123" and params["joints"] == J.tolist()
     back = cap_mod.load_arm_capture(tmp_path / "a")
-    assert back.source_fingerprint == "abc123"
+    assert back.source_fingerprint == "abc123" and back.session_path == "/s" and params["session"] == "/s"
     np.testing.assert_array_equal(back.joints, J)
     assert back.joints.shape == (3, 3) and back.joints.dtype == np.float64
     cap_mod.write_arm_capture(tmp_path / "b", _tiny_capture())
