@@ -435,3 +435,13 @@ def test_the_training_dataset_is_men_in_the_bmi_range_with_their_samples(monkeyp
     assert [c[0] for c in calls] == list(range(1000, 1010)) and len(subjects) == 10
     assert samples[0] == (1000, "6k", 3, 24, 0, "left")
     assert syn.TRAINING_BMI_RANGE == (20.0, 28.0)
+
+
+def test_the_session_writer_logs_what_it_wrote(tmp_path, caplog):
+    import logging
+
+    s, _, _ = _subject()
+    with caplog.at_level(logging.INFO, logger="bodystudio.muscle.synthetic"):
+        syn.synth_arm_session(tmp_path / "log", subject=s, n_frames=1, resolution="2k", noise=False,
+                              motion="abduction")
+    assert f"wrote arm session {tmp_path / 'log'}: 1 frames of abduction" in caplog.text
