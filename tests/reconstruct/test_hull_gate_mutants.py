@@ -10,6 +10,7 @@ import numpy as np
 from bodystudio.reconstruct import rapid_skin
 from bodystudio.reconstruct.rapid_skin import hull_consistent_constraints, hull_gate_reference
 from bodystudio.reconstruct.silhouette import area_weighted_normals, silhouette_constraints
+from bodystudio.reconstruct.solver import SilhouetteConstraints
 from bodystudio.reconstruct.tracking import SilhouetteFields
 
 
@@ -47,8 +48,13 @@ def test_silhouette_fields_take_the_compiled_gate_with_the_constraints_rays_and_
     want = hull_gate_reference(V, sil, fields, 0.001)
     assert 0 < want.sum() < len(sil)  # some matches are dropped
     got = hull_consistent_constraints(V, sil, fields, 0.001)
-    np.testing.assert_array_equal(got.vertex, sil.vertex[want])
-    np.testing.assert_array_equal(got.origin, sil.origin[want])
+    assert sil.camera is not None and sil.pixel_distance is not None
+    for name in ("vertex", "origin", "direction", "k", "camera", "pixel_distance"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(sil, name)[want])
+    bare = SilhouetteConstraints(sil.vertex, sil.origin, sil.direction, sil.k, None, None)
+    got = hull_consistent_constraints(V, bare, fields, 0.001)
+    assert got.camera is None and got.pixel_distance is None
+    np.testing.assert_array_equal(got.direction, sil.direction[want])
     seen = []
     real = SilhouetteFields.hull_gate
     monkeypatch.setattr(SilhouetteFields, "hull_gate", lambda self, *a: seen.append(a) or real(self, *a))
