@@ -194,8 +194,14 @@ def run_plausibility(frames: list[dict], session_path=None) -> dict:
             if coherence:
                 figures.append(f"the share of each mask the other cameras' visual hull explains "
                                f"{min(coherence.values()):.2f}..{max(coherence.values()):.2f}, consistent views ~1.0")
-        problems.append(f"{blame} ({'; '.join(figures)}): check {where}calibration/cameras.json for a moved "
-                        "camera (re-calibrate) and the masks for another camera's files")
+        if coherence and min(coherence.values()) >= COHERENCE_WARN:
+            # the inputs agree with each other: it is the fit that does not explain them
+            problems.append(f"the fit does not explain the silhouettes although the cameras agree with each other "
+                            f"({'; '.join(figures)}): it did not converge or started from wrong joints; raise "
+                            "--outer/--inner, check the joints (--joints)")
+        else:
+            problems.append(f"{blame} ({'; '.join(figures)}): check {where}calibration/cameras.json for a moved "
+                            "camera (re-calibrate) and the masks for another camera's files")
     else:
         weak = sorted({c for c in iou if iou[c] < IOU_WARN} | {c for c in coherence if coherence[c] < COHERENCE_WARN})
         if weak:

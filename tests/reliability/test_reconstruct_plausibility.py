@@ -123,3 +123,25 @@ def test_accept_implausible_writes_the_run_with_its_verdict(clean_session, tmp_p
     assert not verdict["ok"] and verdict["problems"]
     iou = verdict["camera_iou"]
     assert min(iou["cam_01"], iou["cam_03"]) < 0.75, iou
+
+
+def test_verdict_tells_a_moved_camera_from_a_fit_that_did_not_converge():
+    """run_plausibility on recorded figures: low IoU with coherent inputs blames the fit, not the rig; an
+    outlier pair of coherences names those cameras; clean figures pass without a warning."""
+    from bodystudio.reconstruct.plausibility import run_plausibility
+
+    cams = [f"cam_{k:02d}" for k in range(6)]
+    clean = {"silhouette_iou": dict.fromkeys(cams, 0.95), "coherence": dict.fromkeys(cams, 1.0)}
+    verdict = run_plausibility([clean, clean])
+    assert verdict["ok"] and not verdict["warnings"]
+    unconverged = {"silhouette_iou": dict.fromkeys(cams, 0.6), "coherence": dict.fromkeys(cams, 1.0)}
+    verdict = run_plausibility([unconverged])
+    assert not verdict["ok"] and "did not converge" in verdict["problems"][0]
+    moved = {"silhouette_iou": dict.fromkeys(cams, 0.5),
+             "coherence": {**dict.fromkeys(cams, 0.84), "cam_02": 0.56, "cam_05": 0.51}}
+    verdict = run_plausibility([moved], "S")
+    assert verdict["problems"][0].startswith("cameras cam_05, cam_02 disagree") and "S/calibration" in \
+        verdict["problems"][0]
+    weak = {"silhouette_iou": {**dict.fromkeys(cams, 0.95), "cam_03": 0.8}, "coherence": dict.fromkeys(cams, 1.0)}
+    verdict = run_plausibility([weak])
+    assert verdict["ok"] and "cam_03" in verdict["warnings"][0]
