@@ -1,0 +1,143 @@
+"""Self-checks of the mirror (Real-time Reshaping of Humans) from its own data: does the source body fit the actor?
+
+``mirror run`` reshapes the actor with a source body fitted by ``mirror init`` (§4). A source body of another
+person (the init of session A given to session B with ``--source``, or a session folder copied over another)
+is well-formed and runs to the end with exit 0, but every frame is then tracked and warped with the wrong
+skeleton: the IK (§5) pulls the wrong limb lengths onto the tracked joints and the reshape starts from the
+wrong body. The check compares what the run itself sees, the Kinect skeleton's segment lengths over the
+session's frames, with the same segments of the source body's skeleton (§4 scaled them to the init's Kinect
+skeleton, Eq. 3 refitted them): :func:`source_body_agreement`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bodystudio.body.kinect import kinect_joint_names
+from bodystudio.body.kinect import kinect_joints as skeleton_kinect_joints
+
+#: Kinect segments compared (the limbs and spine §4 scales the body's bones to; hands, feet and head left
+#: out: their joints are the tracker's noisiest).
+SEGMENTS = (
+    ("SpineBase", "SpineMid"), ("SpineMid", "SpineShoulder"),
+    ("SpineShoulder", "ShoulderLeft"), ("SpineShoulder", "ShoulderRight"),
+    ("ShoulderLeft", "ElbowLeft"), ("ShoulderRight", "ElbowRight"),
+    ("ElbowLeft", "WristLeft"), ("ElbowRight", "WristRight"),
+    ("HipLeft", "KneeLeft"), ("HipRight", "KneeRight"),
+    ("KneeLeft", "AnkleLeft"), ("KneeRight", "AnkleRight"),
+)
+V1_NAMES = {"SpineBase": "HipCenter", "SpineMid": "Spine", "SpineShoulder": "ShoulderCenter"}
+#: Median over segments of |log(session length / source length)|. Measured (docs/mirror.md, 30-frame v2 sessions
+#: of subjects 3-6, motions arms_raise / walk / arm_flex / turn, init of 90 frames): the source body's own actor
+#: 0.015-0.035 (16 cases); a 3-frame init on a Kinect v1 session of the same actor 0.068; another subject's body
+#: 0.020-0.170 (48 cases, 32 above 0.08; subjects 4 and 5 have nearly the same skeleton and pass). Above this
+#: the run is refused (``--accept-implausible`` forces it).
+SOURCE_MISMATCH_REFUSE = 0.08
+#: ... and above this it warns.
+SOURCE_MISMATCH_WARN = 0.045
+#: Frames of the session read for the check (evenly spread; joints files only, cheap).
+CHECK_FRAMES = 60
+
+
+def _segment_index(version: str) -> list[tuple[int, int]]:
+    names = kinect_joint_names(version)
+    index = {n: i for i, n in enumerate(names)}
+    out = []
+    for a, b in SEGMENTS:
+        if version == "v1":
+            a, b = V1_NAMES.get(a, a), V1_NAMES.get(b, b)
+        out.append((index.get(a, -1), index.get(b, -1)))
+    return out
+
+
+def segment_lengths(positions: np.ndarray, tracked: np.ndarray | None, version: str) -> np.ndarray:
+    """Lengths ``(len(SEGMENTS),)`` of the Kinect skeleton's segments, NaN where a joint is missing or untracked."""
+    P = np.asarray(positions, dtype=np.float64)
+    ok = np.all(np.isfinite(P), axis=1)
+    if tracked is not None:
+        ok &= np.asarray(tracked, bool)
+    out = np.full(len(SEGMENTS), np.nan)
+    for k, (a, b) in enumerate(_segment_index(version)):
+        if a >= 0 and b >= 0 and ok[a] and ok[b]:
+            out[k] = float(np.linalg.norm(P[b] - P[a]))
+    return out
+
+
+def source_segment_lengths(skeleton, version: str) -> np.ndarray:
+    """The source body's skeleton measured as the Kinect would (its Kinect joints in the rest pose)."""
+    J = skeleton_kinect_joints(skeleton, skeleton.heads, skeleton.tails, version)
+    return segment_lengths(J, None, version)
+
+
+def session_segment_lengths(session, player: int = 1, frames=None, max_frames: int = CHECK_FRAMES
+                            ) -> tuple[np.ndarray, str | None, int]:
+    """Per segment, the median over the session's frames of the tracked lengths of ``player``; the joint set's
+    version and the number of frames that had the player."""
+    ids = list(session.frame_ids if frames is None else frames)
+    if len(ids) > max_frames:
+        ids = [ids[int(round(k))] for k in np.linspace(0, len(ids) - 1, max_frames)]
+    rows, version = [], None
+    for i in ids:
+        for body in session.frame(i).kinect_bodies or []:
+            if int(body["player"]) != int(player):
+                continue
+            names = list(body["names"])
+            version = "v2" if names == kinect_joint_names("v2") else "v1" if names == kinect_joint_names("v1") else None
+            if version is None:
+                continue
+            rows.append(segment_lengths(body["positions"], body["tracked"], version))
+    if not rows:
+        return np.full(len(SEGMENTS), np.nan), version, 0
+    R = np.array(rows)
+    with np.errstate(all="ignore"):
+        med = np.array([np.median(c[np.isfinite(c)]) if np.isfinite(c).any() else np.nan for c in R.T])
+    return med, version, len(rows)
+
+
+def source_body_agreement(body, session, player: int = 1, frames=None) -> dict:
+    """How well the source body's skeleton fits the actor the session tracks: ``mismatch`` (median over the
+    segments of |log(session / source length)|), ``scale`` (median ratio: a body of another stature shows
+    here), the per-segment ``ratios`` and the ``frames`` measured. ``mismatch`` is NaN without tracked joints."""
+    seen, version, n = session_segment_lengths(session, player, frames)
+    if version is None or n == 0:
+        return {"mismatch": float("nan"), "scale": float("nan"), "ratios": {}, "frames": 0}
+    mine = source_segment_lengths(body.skeleton, version)
+    ok = np.isfinite(seen) & np.isfinite(mine) & (mine > 1e-6)
+    if not ok.any():
+        return {"mismatch": float("nan"), "scale": float("nan"), "ratios": {}, "frames": n}
+    ratio = seen[ok] / mine[ok]
+    names = [f"{a}-{b}" for (a, b), keep in zip(SEGMENTS, ok, strict=True) if keep]
+    return {"mismatch": float(np.median(np.abs(np.log(ratio)))), "scale": float(np.median(ratio)),
+            "ratios": {k: float(r) for k, r in zip(names, ratio, strict=True)}, "frames": n}
+
+
+def check_source_body(body, session, player: int = 1, accept_implausible: bool = False, source=None) -> dict:
+    """:func:`source_body_agreement` as ``mirror run``'s verdict (``ok``, ``warnings``, ``problems``); raises
+    :class:`~bodystudio.errors.ImplausibleResultError` (one line: the source file and the fix) on a body of
+    another person unless ``accept_implausible``. A session without tracked joints of ``player`` is judged
+    elsewhere (the run refuses it), so it passes here with ``mismatch`` NaN."""
+    import logging
+
+    from bodystudio.errors import ImplausibleResultError
+
+    report = source_body_agreement(body, session, player)
+    report.update({"mismatch_warn": SOURCE_MISMATCH_WARN, "mismatch_refuse": SOURCE_MISMATCH_REFUSE,
+                   "warnings": [], "problems": []})
+    mismatch = report["mismatch"]
+    where = source if source is not None else f"{session.path}/mirror/source_body.npz"
+    worst = sorted(report["ratios"].items(), key=lambda kv: -abs(np.log(kv[1])))[:2]
+    detail = (f"the tracked skeleton's segments are {report['scale']:.2f}x the source body's (median), off by "
+              f"{np.expm1(mismatch):.0%} per segment (same actor <= {np.expm1(SOURCE_MISMATCH_WARN):.0%}); "
+              f"worst {', '.join(f'{k} {v:.2f}x' for k, v in worst)}")
+    if np.isfinite(mismatch) and mismatch > SOURCE_MISMATCH_REFUSE:
+        report["problems"].append(f"{where} does not fit player {player} of {session.path}: {detail}; it is another "
+                                  f"person's source body: run 'bodystudio mirror init {session.path}'")
+    elif np.isfinite(mismatch) and mismatch > SOURCE_MISMATCH_WARN:
+        report["warnings"].append(f"{where} fits player {player} of {session.path} loosely: {detail}")
+    report["ok"] = not report["problems"]
+    if report["problems"] and not accept_implausible:
+        raise ImplausibleResultError(f"{report['problems'][0]} (or pass --accept-implausible)")
+    for line in report["warnings"] + report["problems"]:
+        logging.getLogger(__name__).warning("%s", line)
+    return report
+
