@@ -66,3 +66,38 @@ def test_accept_implausible_runs_and_records_the_verdict(two_actors, tmp_path, c
     verdict = json.loads((run / "run.json").read_text())["plausibility"]
     assert not verdict["ok"] and verdict["mismatch"] > SOURCE_MISMATCH_REFUSE and verdict["problems"]
 
+
+def _legs_untracked(S: Path) -> None:
+    """The legs out of the Kinect's view in every frame: the SDK reports knees, ankles and feet as inferred."""
+    import hashlib
+    import json as _json
+
+    legs = {"KneeLeft", "KneeRight", "AnkleLeft", "AnkleRight", "FootLeft", "FootRight"}
+    manifest = _json.loads((S / "session.json").read_text())
+    for path in sorted((S / "kinect" / "joints").glob("*.json")):
+        doc = _json.loads(path.read_text())
+        for body in [doc, *(doc.get("bodies") or [])]:
+            if "tracked" in body:
+                body["tracked"] = [t and n not in legs for t, n in zip(body["tracked"], doc["names"], strict=True)]
+        path.write_text(_json.dumps(doc))
+        manifest["files"][f"kinect/joints/{path.name}"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    (S / "session.json").write_text(_json.dumps(manifest))
+
+
+def test_init_reports_what_it_saw_and_warns_when_the_legs_were_out_of_view(two_actors, tmp_path, capfd):
+    import shutil
+
+    for planted in (False, True):
+        S = Path(shutil.copytree(two_actors[5], tmp_path / f"S{planted}"))
+        if planted:
+            _legs_untracked(S)
+        result = run_inprocess(["mirror", "init", S, "--force"], capfd)
+        assert_clean_error(result, 0, "")
+        summary = json.loads(result.stdout.strip().splitlines()[-1])
+        assert summary["coverage"]["seen"]["head"] == 1.0
+        if planted:
+            assert summary["coverage"]["seen"]["legs"] == 0.0
+            assert len(summary["warnings"]) == 1 and "the legs tracked in 0%" in summary["warnings"][0]
+        else:
+            assert summary["coverage"]["seen"]["legs"] == 1.0 and summary["warnings"] == []
+
