@@ -207,3 +207,97 @@ def check_init(session, frames, player: int = 1) -> dict:
         logging.getLogger(__name__).warning("%s", line)
     return report
 
+
+#: Largest shift (pixels) searched between the depth-registered player mask and the colour image's edges.
+REGISTRATION_SEARCH_PX = 14
+#: Median over the checked frames of the best shift's length: above this the depth and colour images are
+#: misregistered and the run is refused (the foreground, seeded by the registered player mask, and the warp then
+#: carry a band of background). Measured (docs/mirror.md): clean sessions 0-3 px (subjects 3, 5), the colour
+#: camera's principal point 10 px off in kinect/calibration.json: 9-11 px.
+REGISTRATION_REFUSE_PX = 6.0
+#: ... above this it warns.
+REGISTRATION_WARN_PX = 4.0
+#: Frames (with the player in view, evenly spread) the registration check reads.
+REGISTRATION_FRAMES = 6
+
+
+def registration_offset(rgb: np.ndarray, mask: np.ndarray, radius_px: int = REGISTRATION_SEARCH_PX
+                        ) -> tuple[int, int, float]:
+    """The shift ``(dx, dy)`` (pixels) that moves the outline of ``mask`` (the player mask registered into the
+    colour image) onto the strongest colour edges: the mean Sobel gradient magnitude along the shifted outline,
+    maximised over ``+-radius_px``. With depth and colour registered the outline lies on the person's edge, shift
+    ~0; returns the shift and its edge strength relative to no shift's."""
+    import cv2
+
+    grey = np.asarray(rgb, dtype=np.float32).mean(axis=2)
+    G = np.hypot(cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3))
+    m = cv2.morphologyEx(np.asarray(mask, np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    outline = m & ~cv2.erode(m, np.ones((3, 3), np.uint8))
+    ys, xs = np.nonzero(outline)
+    H, W = G.shape
+    r = int(radius_px)
+    keep = (ys >= r) & (ys < H - r) & (xs >= r) & (xs < W - r)
+    ys, xs = ys[keep], xs[keep]
+    if len(ys) == 0:
+        return 0, 0, 1.0
+    shifts = [(dx, dy) for dy in range(-r, r + 1) for dx in range(-r, r + 1)]
+    score = np.array([G[ys + dy, xs + dx].mean() for dx, dy in shifts])
+    k = int(np.argmax(score))
+    zero = score[shifts.index((0, 0))]
+    return shifts[k][0], shifts[k][1], float(score[k] / max(zero, 1e-9))
+
+
+def depth_color_registration(session, player: int = 1, n_frames: int = REGISTRATION_FRAMES) -> dict:
+    """:func:`registration_offset` over up to ``n_frames`` frames with ``player`` tracked: the per-frame shifts, their
+    median ``offset_px`` (length of the median shift) and ``shift`` (median dx, dy)."""
+    from bodystudio.mirror.frames import register_depth_to_color
+
+    with_player = [i for i in session.frame_ids
+                   if any(int(b["player"]) == int(player) for b in session.frame(i).kinect_bodies or [])]
+    if not with_player:
+        return {"offset_px": float("nan"), "shift": None, "frames": []}
+    picks = sorted({with_player[int(round(k))] for k in np.linspace(0, len(with_player) - 1,
+                                                                   min(n_frames, len(with_player)))})
+    rows = []
+    for i in picks:
+        frame = session.frame(i)
+        rgb, depth, players = frame.kinect_rgb, frame.kinect_depth_m, frame.kinect_player
+        if rgb is None or depth is None or players is None:  # no player mask: nothing to register (the run decides)
+            continue
+        _, players_c = register_depth_to_color(depth, players, session.kinect)
+        mask = players_c == int(player)
+        if np.count_nonzero(mask) < 500 or mask.shape != rgb.shape[:2]:
+            continue
+        dx, dy, gain = registration_offset(rgb, mask)
+        rows.append({"frame": int(i), "dx": int(dx), "dy": int(dy), "edge_gain": round(gain, 3)})
+    if not rows:
+        return {"offset_px": float("nan"), "shift": None, "frames": []}
+    shift = (float(np.median([r["dx"] for r in rows])), float(np.median([r["dy"] for r in rows])))
+    return {"offset_px": float(np.hypot(*shift)), "shift": list(shift), "frames": rows}
+
+
+def check_registration(session, player: int = 1, accept_implausible: bool = False) -> dict:
+    """:func:`depth_color_registration` as ``mirror run``'s verdict; raises
+    :class:`~bodystudio.errors.ImplausibleResultError` above :data:`REGISTRATION_REFUSE_PX` unless
+    ``accept_implausible``."""
+    import logging
+
+    from bodystudio.errors import ImplausibleResultError
+
+    report = depth_color_registration(session, player)
+    report.update({"warn_px": REGISTRATION_WARN_PX, "refuse_px": REGISTRATION_REFUSE_PX, "warnings": [],
+                   "problems": []})
+    offset = report["offset_px"]
+    if np.isfinite(offset) and offset > REGISTRATION_WARN_PX:
+        dx, dy = report["shift"]
+        line = (f"{session.path}/kinect/calibration.json: the depth registered into the colour image lands "
+                f"{offset:.0f} px off the person's edges (shift {dx:+.0f}, {dy:+.0f} px over {len(report['frames'])} "
+                f"frames; registered <= {REGISTRATION_WARN_PX:.0f} px): the colour camera's intrinsics or "
+                "depth_to_color are off; re-calibrate the Kinect (bodystudio calib kinect)")
+        (report["problems"] if offset > REGISTRATION_REFUSE_PX else report["warnings"]).append(line)
+    report["ok"] = not report["problems"]
+    if report["problems"] and not accept_implausible:
+        raise ImplausibleResultError(f"{report['problems'][0]}; or pass --accept-implausible")
+    for line in report["warnings"] + report["problems"]:
+        logging.getLogger(__name__).warning("%s", line)
+    return report

@@ -446,9 +446,10 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     to ``RUN/live_latest.png`` for a display to pick up. ``correspondence``: ``dense`` (default) or ``mls``
     (:data:`bodystudio.mirror.warp.CORRESPONDENCES`). ``refine_pose``: refine each frame's IK pose against the
     refined foreground, depth and joints (:mod:`bodystudio.mirror.refine`; on by default since MIRFAST, ~4 ms more
-    per frame; False: the IK pose alone). The source body is checked against the session's tracked skeleton first
-    (:func:`bodystudio.mirror.plausibility.check_source_body`: another person's body is refused unless
-    ``accept_implausible``; the verdict goes to run.json's ``plausibility``). Returns
+    per frame; False: the IK pose alone). The source body is checked against the session's tracked skeleton and
+    the depth-to-colour registration against the colour edges first (:mod:`bodystudio.mirror.plausibility`: another
+    person's body or a misregistered Kinect is refused unless ``accept_implausible``; the verdicts go to run.json's
+    ``plausibility``). Returns
     run.json's content (per-step timings in ``summary.ms_per_frame``).
     """
     from bodystudio.capture.session import open_session
@@ -490,10 +491,11 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     body, model = load_source(session, source)
     plausibility = None
     if live is None and hasattr(body, "skeleton"):  # live: the frames are not recorded yet
-        from bodystudio.mirror.plausibility import check_source_body
+        from bodystudio.mirror.plausibility import check_registration, check_source_body
 
-        plausibility = check_source_body(body, session, player, accept_implausible,
-                                         source if isinstance(source, (str, os.PathLike)) else None)
+        plausibility = {"source_body": check_source_body(body, session, player, accept_implausible,
+                                                         source if isinstance(source, (str, os.PathLike)) else None),
+                        "registration": check_registration(session, player, accept_implausible)}
     manifest = {"session": str(Path(session.path).resolve()),
                 "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
                 "live": None if live is None else str(Path(live).resolve()),

@@ -40,9 +40,12 @@ def test_own_source_body_passes(two_actors, tmp_path, capfd):
     result = run_inprocess(["mirror", "run", S, "--out", tmp_path / "o.mp4", "--run", run, "--no-side-by-side",
                             "--taller", "0.1"], capfd)
     assert_clean_error(result, 0, "")
-    verdict = json.loads((run / "run.json").read_text())["plausibility"]
+    plausibility = json.loads((run / "run.json").read_text())["plausibility"]
+    verdict = plausibility["source_body"]
     assert verdict["ok"] and not verdict["warnings"]
     assert verdict["mismatch"] < SOURCE_MISMATCH_WARN and abs(verdict["scale"] - 1.0) < 0.04
+    registration = plausibility["registration"]
+    assert registration["ok"] and not registration["warnings"] and registration["offset_px"] <= 3.0
 
 
 def test_another_persons_source_body_is_refused(two_actors, tmp_path, capfd):
@@ -63,7 +66,7 @@ def test_accept_implausible_runs_and_records_the_verdict(two_actors, tmp_path, c
                             "--no-side-by-side", "--source", two_actors[6] / "mirror" / "source_body.npz",
                             "--accept-implausible"], capfd)
     assert_clean_error(result, 0, "")
-    verdict = json.loads((run / "run.json").read_text())["plausibility"]
+    verdict = json.loads((run / "run.json").read_text())["plausibility"]["source_body"]
     assert not verdict["ok"] and verdict["mismatch"] > SOURCE_MISMATCH_REFUSE and verdict["problems"]
 
 
@@ -101,3 +104,33 @@ def test_init_reports_what_it_saw_and_warns_when_the_legs_were_out_of_view(two_a
         else:
             assert summary["coverage"]["seen"]["legs"] == 1.0 and summary["warnings"] == []
 
+
+def _colour_camera_shifted(S: Path, px: float = 10.0) -> None:
+    """Depth and colour misregistered by ``px`` pixels: the colour camera's principal point in
+    kinect/calibration.json is off (a calibration of another unit, or a resized colour stream)."""
+    import hashlib
+
+    rel = "kinect/calibration.json"
+    doc = json.loads((S / rel).read_text())
+    doc["color"]["K"][0][2] += px
+    (S / rel).write_text(json.dumps(doc))
+    manifest = json.loads((S / "session.json").read_text())
+    manifest["files"][rel] = hashlib.sha256((S / rel).read_bytes()).hexdigest()
+    (S / "session.json").write_text(json.dumps(manifest))
+
+
+def test_misregistered_depth_and_colour_are_refused(two_actors, tmp_path, capfd):
+    import shutil
+
+    from bodystudio.capture.session import open_session
+    from bodystudio.mirror.plausibility import depth_color_registration
+
+    S = Path(shutil.copytree(two_actors[5], tmp_path / "S"))
+    _colour_camera_shifted(S)
+    found = depth_color_registration(open_session(S))
+    assert 8.0 <= found["offset_px"] <= 12.0 and found["shift"][0] < 0, found  # the 10 px, found to +-2 px
+    run = tmp_path / "run"
+    result = run_inprocess(["mirror", "run", S, "--out", tmp_path / "o.mp4", "--run", run, "--taller", "0.1"], capfd)
+    assert_clean_error(result, 2, "kinect/calibration.json")
+    assert "re-calibrate the Kinect" in result.stderr and "--accept-implausible" in result.stderr
+    assert not (run / "run.json").exists() and not (tmp_path / "o.mp4").exists()
