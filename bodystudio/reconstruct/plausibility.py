@@ -52,9 +52,15 @@ DEPTH_RANGE_M = (0.4, 5.0)
 def silhouette_agreement(V: np.ndarray, F: np.ndarray, cameras, masks: dict) -> dict[str, float]:
     """Per camera, the IoU of the fitted mesh's silhouette with the camera's mask: how well the fit explains
     the silhouette data (Eq. 7 of Rapid Skin) of each view."""
+    from bodystudio.reconstruct.silhouette import _rasterize_mask
+
+    F = np.ascontiguousarray(F, dtype=np.int64)
     out = {}
     for cam in cameras:
-        mine = render(V, F, cam).mask
+        # the silhouette alone (the constraint matching's rasteriser; render()'s depth and ids cost ~4x more)
+        uv = cam.project(np.asarray(V, dtype=np.float64))
+        mine = _rasterize_mask(np.ascontiguousarray(uv), F, cam.width, cam.height,
+                               np.zeros((cam.height, cam.width), np.bool_))
         ref = np.asarray(masks[cam.name]) > 0
         union = np.count_nonzero(mine | ref)
         out[cam.name] = float(np.count_nonzero(mine & ref) / union) if union else 1.0
