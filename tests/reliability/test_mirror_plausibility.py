@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from bodystudio.capture.faults import legs_untracked, shift_colour_camera
+
 from .conftest import assert_clean_error, run_inprocess
 
 
@@ -70,30 +72,13 @@ def test_accept_implausible_runs_and_records_the_verdict(two_actors, tmp_path, c
     assert not verdict["ok"] and verdict["mismatch"] > SOURCE_MISMATCH_REFUSE and verdict["problems"]
 
 
-def _legs_untracked(S: Path) -> None:
-    """The legs out of the Kinect's view in every frame: the SDK reports knees, ankles and feet as inferred."""
-    import hashlib
-    import json as _json
-
-    legs = {"KneeLeft", "KneeRight", "AnkleLeft", "AnkleRight", "FootLeft", "FootRight"}
-    manifest = _json.loads((S / "session.json").read_text())
-    for path in sorted((S / "kinect" / "joints").glob("*.json")):
-        doc = _json.loads(path.read_text())
-        for body in [doc, *(doc.get("bodies") or [])]:
-            if "tracked" in body:
-                body["tracked"] = [t and n not in legs for t, n in zip(body["tracked"], doc["names"], strict=True)]
-        path.write_text(_json.dumps(doc))
-        manifest["files"][f"kinect/joints/{path.name}"] = hashlib.sha256(path.read_bytes()).hexdigest()
-    (S / "session.json").write_text(_json.dumps(manifest))
-
-
 def test_init_reports_what_it_saw_and_warns_when_the_legs_were_out_of_view(two_actors, tmp_path, capfd):
     import shutil
 
     for planted in (False, True):
         S = Path(shutil.copytree(two_actors[5], tmp_path / f"S{planted}"))
         if planted:
-            _legs_untracked(S)
+            legs_untracked(S)
         result = run_inprocess(["mirror", "init", S, "--force"], capfd)
         assert_clean_error(result, 0, "")
         summary = json.loads(result.stdout.strip().splitlines()[-1])
@@ -105,20 +90,6 @@ def test_init_reports_what_it_saw_and_warns_when_the_legs_were_out_of_view(two_a
             assert summary["coverage"]["seen"]["legs"] == 1.0 and summary["warnings"] == []
 
 
-def _colour_camera_shifted(S: Path, px: float = 10.0) -> None:
-    """Depth and colour misregistered by ``px`` pixels: the colour camera's principal point in
-    kinect/calibration.json is off (a calibration of another unit, or a resized colour stream)."""
-    import hashlib
-
-    rel = "kinect/calibration.json"
-    doc = json.loads((S / rel).read_text())
-    doc["color"]["K"][0][2] += px
-    (S / rel).write_text(json.dumps(doc))
-    manifest = json.loads((S / "session.json").read_text())
-    manifest["files"][rel] = hashlib.sha256((S / rel).read_bytes()).hexdigest()
-    (S / "session.json").write_text(json.dumps(manifest))
-
-
 def test_misregistered_depth_and_colour_are_refused(two_actors, tmp_path, capfd):
     import shutil
 
@@ -126,7 +97,7 @@ def test_misregistered_depth_and_colour_are_refused(two_actors, tmp_path, capfd)
     from bodystudio.mirror.plausibility import depth_color_registration
 
     S = Path(shutil.copytree(two_actors[5], tmp_path / "S"))
-    _colour_camera_shifted(S)
+    shift_colour_camera(S)
     found = depth_color_registration(open_session(S))
     assert 8.0 <= found["offset_px"] <= 12.0 and found["shift"][0] < 0, found  # the 10 px, found to +-2 px
     run = tmp_path / "run"

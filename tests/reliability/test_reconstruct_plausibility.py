@@ -6,59 +6,16 @@ writes nothing, and ``--accept-implausible`` writes the run with the verdict in 
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pytest
 
+from bodystudio.capture.faults import bump_camera, scale_depth, swap_masks
 from tests.reliability.conftest import assert_clean_error, run_inprocess
 
 ARGS = ["--template", "2k", "--no-score"]
-
-
-def _rehash(S: Path, rel: str) -> None:
-    """Record a planted file's sha256 in the session manifest: the fault is in the data, not the file."""
-    manifest = json.loads((S / "session.json").read_text())
-    manifest["files"][rel] = hashlib.sha256((S / rel).read_bytes()).hexdigest()
-    (S / "session.json").write_text(json.dumps(manifest))
-
-
-def bump_camera(S: Path, camera: str = "cam_02", deg: float = 3.0, shift_m: float = 0.05) -> None:
-    """The camera moved after calibration: its calibrated pose is 3 deg (about y) and 5 cm off."""
-    from scipy.spatial.transform import Rotation
-
-    rel = "calibration/cameras.json"
-    data = json.loads((S / rel).read_text())
-    cam = data["cameras"][camera]
-    dR = Rotation.from_rotvec(np.deg2rad(deg) * np.array([0.0, 1.0, 0.0])).as_matrix()
-    cam["R"] = (dR @ np.asarray(cam["R"])).tolist()
-    cam["t"] = (dR @ np.asarray(cam["t"]) + np.array([shift_m, 0.0, 0.0])).tolist()
-    (S / rel).write_text(json.dumps(data))
-    _rehash(S, rel)
-
-
-def swap_masks(S: Path, a: str = "cam_01", b: str = "cam_03") -> None:
-    """Two cameras' mask files exchanged (a copy script that sorted the folders differently)."""
-    for p in sorted((S / a / "mask").glob("*.png")):
-        q = S / b / "mask" / p.name
-        pa, pb = p.read_bytes(), q.read_bytes()
-        p.write_bytes(pb)
-        q.write_bytes(pa)
-        _rehash(S, f"{a}/mask/{p.name}")
-        _rehash(S, f"{b}/mask/{p.name}")
-
-
-def scale_depth(S: Path, factor: float = 10.0) -> None:
-    """The Kinect depth imported with the wrong --depth-scale: every reading ``factor`` x too far."""
-    import cv2
-
-    for p in sorted((S / "kinect" / "depth").glob("*.png")):
-        D = cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.float64)
-        cv2.imwrite(str(p), np.clip(D * factor, 0, 65535).astype(np.uint16))
-        _rehash(S, f"kinect/depth/{p.name}")
 
 
 @pytest.fixture(scope="module")
