@@ -67,7 +67,8 @@ def mirror(cache: Path, subjects: list[int]) -> None:
     for s in subjects:
         shifted = cache / f"mirror{s}_colour10px"
         if not (shifted / "session.json").exists():
-            shutil.copytree(cache / f"mirror{s}", shifted, ignore=shutil.ignore_patterns("mirror"))
+            shutil.copytree(cache / f"mirror{s}", shifted)
+            shutil.rmtree(shifted / "mirror")  # the init's output, not the session's (gt/mirror stays)
             faults.shift_colour_camera(shifted, 10.0)
         for S in (cache / f"mirror{s}", shifted):
             r = depth_color_registration(open_session(S))
