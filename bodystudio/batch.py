@@ -406,7 +406,8 @@ def reconstruct_chunk(session_path: str, frames: list[int], options: Reconstruct
 
 
 def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, frames: str | None = None,
-                      chunk: int = 10, force: bool = False, progress: bool = False) -> tuple[dict, BatchReport]:
+                      chunk: int = 10, force: bool = False, progress: bool = False,
+                      accept_implausible: bool = False) -> tuple[dict, BatchReport]:
     """``bodystudio reconstruct SESSION --workers N``: chunks on the cluster, then one committed run.
 
     Chunks are written to ``SESSION/reconstruct/chunks/AAAAA-BBBBB/`` (each its own atomic run with its
@@ -473,13 +474,17 @@ def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, fra
             raise BatchError(report.failure_message("chunks"))
     finally:
         release_lock(layout)
-    records = _assemble_reconstruction(layout, units, options, selected, chunk)
+    records = _assemble_reconstruction(layout, units, options, selected, chunk, session.path, accept_implausible)
     return summarize(records), report
 
 
 def _assemble_reconstruction(layout: RunLayout, units: list[dict], options: ReconstructOptions,
-                             selected: list[int], chunk: int) -> list[dict]:
-    """Publish the chunks as one reconstruction run (meshes, frames.json, run.json last)."""
+                             selected: list[int], chunk: int, session_path=None,
+                             accept_implausible: bool = False) -> list[dict]:
+    """Publish the chunks as one reconstruction run (meshes, frames.json, run.json last), judged as one run by
+    the reconstruction's self-check (:func:`bodystudio.reconstruct.sequence.judge_run`)."""
+    from bodystudio.reconstruct.sequence import judge_run
+
     records = []
     with RunWriter(layout, "bodystudio reconstruct (batch)", {"template": options.template}) as writer:
         for unit in units:
@@ -493,6 +498,7 @@ def _assemble_reconstruction(layout: RunLayout, units: list[dict], options: Reco
                     os.link(src, dst)
                 except OSError:
                     shutil.copyfile(src, dst)
+        verdict = judge_run(records, session_path or layout.root.parent, accept_implausible)
         writer.write_json("frames.json", {"frames": records})
         previous = [f"meshes/{p.name}" for p in (layout.root / "meshes").glob("*.ply")]
         first = read_json(unit_layout(units[0]["root"]).manifest_path, "batch unit record")
@@ -501,6 +507,7 @@ def _assemble_reconstruction(layout: RunLayout, units: list[dict], options: Reco
                        "warm_start": options.warm_start, "refine_pose": options.refine_pose,
                        "bone_lengths": options.bone_lengths, "params": first["params"],
                        "n_vertices": first["n_vertices"],
+                       "plausibility": verdict,
                        "batch": {"chunk": chunk, "units": [u["name"] for u in units]}}, deletes=previous)
     return records
 

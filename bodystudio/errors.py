@@ -26,3 +26,8 @@ class AssetError(BodyStudioError):
 
 class SessionError(BodyStudioError):
     """A capture session is incomplete, inconsistent or corrupted."""
+
+
+class ImplausibleResultError(BodyStudioError):
+    """A stage's result failed its own self-check (its inputs disagree with each other): refused, nothing
+    written, unless the user forces it (e.g. ``--accept-implausible``)."""

@@ -62,10 +62,14 @@ def init(
                                     n_frames=DEFAULT_INIT_FRAMES if frames is None else frames,
                                     silhouette_shape=silhouette_shape)
     measured = model.measure(source.coeffs)
+    from bodystudio.mirror.plausibility import check_init
+
+    coverage = check_init(s, source.frames_used, player)  # what the init saw of the actor (warnings only)
     summary = {"source_body": str(SOURCE_BODY_FILE), "player": player, "resolution": resolution,
                "silhouette_shape": silhouette_shape, "frames_used": list(source.frames_used),
                "residual_mm": round(source.residual_mm, 2),
-               "stature_m": round(measured["stature_m"], 4), "mass_kg": round(measured["mass_kg"], 2)}
+               "stature_m": round(measured["stature_m"], 4), "mass_kg": round(measured["mass_kg"], 2),
+               "coverage": {"seen": coverage["seen"], "cut": coverage["cut"]}, "warnings": coverage["warnings"]}
     # the body and its summary as one unit (a kill between the two files left a summary of another body);
     # `bodystudio recover SESSION/mirror/source_body.npz` finishes or discards a killed write
     with RunWriter(source_body_layout(s.path), "bodystudio mirror init", {"stage": "mirror", "kind": "init"}) as w:

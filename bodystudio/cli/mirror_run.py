@@ -37,6 +37,9 @@ def mirror_run(
     live: str | None = typer.Option(None, help="FOLDER a recorder is filling (kinect/ streams): process frames "
                                     "as they arrive; the latest output is RUN/live_latest.png"),
     live_timeout: float = typer.Option(5.0, help="--live: stop after this many seconds without a new frame"),
+    accept_implausible: bool = typer.Option(False, "--accept-implausible", help="run even when the source body "
+                                            "does not fit the session's tracked skeleton (another person's init; "
+                                            "docs/mirror.md)"),
 ) -> None:
     """Show the actor reshaped (virtual mirror, §5): writes the video, RUN/frames, RUN/masks and RUN/run.json."""
     from bodystudio.mirror.run import run_mirror
@@ -50,7 +53,7 @@ def mirror_run(
     edits = {k: v for k, v in given.items() if v != 0.0}
     doc = run_mirror(session, edits, out, source=source, side_by_side=side_by_side, progress=True, run_dir=run,
                      player=player, kind=warp, ramp_frames=ramp_frames, live=live, live_timeout_s=live_timeout,
-                     correspondence=correspondence, refine_pose=refine_pose)
+                     correspondence=correspondence, refine_pose=refine_pose, accept_implausible=accept_implausible)
     summary = doc["summary"]
     typer.echo(json.dumps({"run": str(run if run is not None else session / "mirror" / "run"),
                            "videos": doc["videos"], "edits": doc["edits"], **summary}, indent=1))

@@ -50,6 +50,9 @@ def reconstruct(
     workers: int | None = typer.Option(None, "--workers", help="run chunks on a local cluster of N worker processes"),
     chunk: int | None = typer.Option(None, "--chunk", help="frames per work unit on a cluster (default 10)"),
     force: bool = typer.Option(False, "--force", help="on a cluster: redo every chunk, also unchanged ones"),
+    accept_implausible: bool = typer.Option(False, "--accept-implausible", help="write the result even when its "
+                                            "self-check finds a camera the fit cannot explain (silhouette IoU "
+                                            "< 0.75) or depth that does not fit the body (docs/reconstruct.md)"),
 ) -> None:
     """Deform the template to every frame's silhouettes (Rapid Skin); writes SESSION/reconstruct/."""
     from rich.console import Console
@@ -85,13 +88,14 @@ def reconstruct(
         summary = _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, params,
                                           template=template, joints=joints, warm_start=warm_start,
                                           refine_pose=refine_pose, score=score, bone_lengths=bone_lengths,
-                                          joints_path=str(joints_path) if joints_path else None)
+                                          joints_path=str(joints_path) if joints_path else None,
+                                          accept_implausible=accept_implausible)
     else:  # the sequential path stays the default (no cluster start-up, one warm start over the session)
         summary = reconstruct_session(session, solver=solver, template=template, joints=joints,
                                       constraints=params.constraints, frames=frames, joints_path=joints_path,
                                       params=params, warm_start=warm_start, refine_pose=refine_pose, score=score,
                                       progress=True, tracking=tracking, bone_lengths=bone_lengths,
-                                      joint_smoothing=joint_smoothing)
+                                      joint_smoothing=joint_smoothing, accept_implausible=accept_implausible)
     table = Table(title=f"Rapid Skin: {session} ({solver}, {template}, {constraints})")
     table.add_column("figure")
     table.add_column("value", justify="right")
@@ -100,7 +104,8 @@ def reconstruct(
     Console().print(table)
 
 
-def _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, params, **options) -> dict:
+def _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, params, accept_implausible=False,
+                            **options) -> dict:
     """``--workers/--scheduler/--chunk``: chunks of frames on a dask cluster (bodystudio.batch)."""
     from dataclasses import asdict
 
@@ -119,7 +124,7 @@ def _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, p
     with batch_client(scheduler, workers, units=units) as client:
         print_cluster(client)
         summary, report = reconstruct_batch(session, client, opts, frames=frames, chunk=chunk or 10, force=force,
-                                            progress=True)
+                                            progress=True, accept_implausible=accept_implausible)
     print_report(report, f"reconstruct {session}")
     return summary
 

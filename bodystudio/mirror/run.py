@@ -435,7 +435,8 @@ def check_edits(edits: dict[str, float]) -> dict[str, float]:
 def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by_side: bool = True,
                progress: bool = True, run_dir: str | Path | None = None, player: int = 1, kind: str = "similarity",
                ramp_frames: int = 30, frames: Iterable[int] | None = None, live: str | Path | None = None,
-               live_timeout_s: float = 5.0, correspondence: str = CORRESPONDENCE, refine_pose: bool = True) -> dict:
+               live_timeout_s: float = 5.0, correspondence: str = CORRESPONDENCE, refine_pose: bool = True,
+               accept_implausible: bool = False) -> dict:
     """``bodystudio mirror run``: reshape the actor of ``session`` by ``edits`` and write the video and run folder.
 
     ``session`` an opened session or its path; ``source`` a SourceBody or its .npz (default
@@ -445,7 +446,10 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     to ``RUN/live_latest.png`` for a display to pick up. ``correspondence``: ``dense`` (default) or ``mls``
     (:data:`bodystudio.mirror.warp.CORRESPONDENCES`). ``refine_pose``: refine each frame's IK pose against the
     refined foreground, depth and joints (:mod:`bodystudio.mirror.refine`; on by default since MIRFAST, ~4 ms more
-    per frame; False: the IK pose alone). Returns
+    per frame; False: the IK pose alone). The source body is checked against the session's tracked skeleton and
+    the depth-to-colour registration against the colour edges first (:mod:`bodystudio.mirror.plausibility`: another
+    person's body or a misregistered Kinect is refused unless ``accept_implausible``; the verdicts go to run.json's
+    ``plausibility``). Returns
     run.json's content (per-step timings in ``summary.ms_per_frame``).
     """
     from bodystudio.capture.session import open_session
@@ -485,6 +489,13 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
         ids = list(session.frame_ids if frames is None else frames)
         total = len(ids)
     body, model = load_source(session, source)
+    plausibility = None
+    if live is None and hasattr(body, "skeleton"):  # live: the frames are not recorded yet
+        from bodystudio.mirror.plausibility import check_registration, check_source_body
+
+        plausibility = {"source_body": check_source_body(body, session, player, accept_implausible,
+                                                         source if isinstance(source, (str, os.PathLike)) else None),
+                        "registration": check_registration(session, player, accept_implausible)}
     manifest = {"session": str(Path(session.path).resolve()),
                 "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
                 "live": None if live is None else str(Path(live).resolve()),
@@ -492,6 +503,8 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
                 "correspondence": correspondence, "refine_pose": bool(refine_pose),
                 "source_fingerprint": _stage_module("init").source_fingerprint(body) if hasattr(body, "coeffs")
                 else None}  # a stand-in body (tests) has none
+    if plausibility is not None:
+        manifest["plausibility"] = plausibility
     inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids, correspondence,
                             bool(refine_pose))
     return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total,

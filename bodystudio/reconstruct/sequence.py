@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from bodystudio.body.kinect import kinect_joint_names, kinect_joints
-from bodystudio.errors import InputError, SessionError
+from bodystudio.errors import ImplausibleResultError, InputError, SessionError
 from bodystudio.fileio import read_json
 from bodystudio.geometry.laplacian import cotangent_weights
 from bodystudio.geometry.mesh import Mesh, load_mesh, save_mesh
@@ -47,6 +47,7 @@ from bodystudio.reconstruct.evaluate import (
     vertex_regions,
     visible_vertices,
 )
+from bodystudio.reconstruct.plausibility import coherence_frames, frame_plausibility, run_plausibility
 from bodystudio.reconstruct.pose_init import (
     initialise_pose,
     joints_from_mapping,
@@ -211,8 +212,12 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         progress: bool = False, tracking: bool = False, track_params: TrackParams | None = None,
                         refine_with: str = "fields", rest_cotangents: bool = True,
                         refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence",
-                        joint_smoothing: int = 0) -> dict:
+                        joint_smoothing: int = 0, accept_implausible: bool = False) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
+
+    The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
+    cannot explain, or depth that does not fit the body, raises :class:`ImplausibleResultError` and writes
+    nothing unless ``accept_implausible`` (then the verdict is kept in ``run.json``).
 
     ``refine_pose`` corrects the pose initialised from the joints (§IV.A) by an articulated fit of the
     2.5K template's bone transforms to the silhouettes' visual hull before the deformation (§III);
@@ -248,7 +253,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    joints_path, warm_start, refine_pose, score, progress, tracking=tracking,
                                    track_params=track_params, refine_with=refine_with,
                                    rest_cotangents=rest_cotangents, refine_params=refine_params,
-                                   bone_lengths=bone_lengths, joint_smoothing=joint_smoothing)
+                                   bone_lengths=bone_lengths, joint_smoothing=joint_smoothing,
+                                   accept_implausible=accept_implausible)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -261,7 +267,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        joints_path, warm_start, refine_pose, score, progress, tracking: bool = False,
                        track_params: TrackParams | None = None, refine_with: str = "fields",
                        rest_cotangents: bool = True, refine_params: PoseRefineParams | None = None,
-                       bone_lengths="sequence", joint_smoothing: int = 0) -> dict:
+                       bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -273,6 +279,10 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     weights of Eq. 8 come from the template's rest shape, computed once per run, and only the delta
     coordinates are taken of each frame's posed template: measured equal in accuracy to weights of the
     posed template (p90 within +-0.3 mm on 3 frames of a 13K walk), ~15 ms per 13K frame saved.
+    Each frame's self-check (:func:`bodystudio.reconstruct.plausibility.frame_plausibility`) goes to
+    frames.json and the run's verdict to run.json (``plausibility``); an implausible run raises
+    :class:`ImplausibleResultError` before anything is committed unless ``accept_implausible`` (the default
+    here, for a batch chunk, whose whole run is judged by :func:`bodystudio.batch.reconstruct_batch`).
     """
     from bodystudio.body import build_body
     from bodystudio.capture.session import progress_bar
@@ -313,6 +323,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     fit_body = build_body(resolution="2k") if refine_pose or joints == "hull" or tracking else None
     state = None  # the previous frame's (bone transforms, global scale, tracker joints, silhouette energy)
     records = []
+    probe = coherence_frames(len(selected))
     with progress_bar(progress) as bar:
         task = bar.add_task(f"rapid skin {solver} {template}", total=len(selected))
         for fid in selected:
@@ -403,6 +414,12 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                                             smooth_reference=reference, fields=fields)
             t_frame = time.perf_counter() - t_start
             V = result.vertices
+            check_masks = masks
+            if check_masks is None and "mask" in session.streams:
+                check_masks = {name: frame.masks[name] for name in frame.masks}
+            plausibility = frame_plausibility(V, F, cameras, check_masks, depth_image,
+                                              sensor.depth if depth_image is not None else None,
+                                              coherence=len(records) in probe)
             save_mesh(writer.path_for(f"meshes/{fid:05d}.ply"), Mesh(V, F))
             if warm_start:
                 # Running mean of the un-skinned results: the subject's shape accumulates while each
@@ -416,13 +433,15 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "frame_ms": 1000 * t_frame,
                    "other_ms": 1000 * (t_frame - t_read - t_init - result.solver_s - result.matching_s),
                    "n_silhouette": result.n_silhouette, "n_depth": result.n_depth,
-                   "ms_per_frame": 1000 * (result.solver_s + result.matching_s + t_init)}
+                   "ms_per_frame": 1000 * (result.solver_s + result.matching_s + t_init),
+                   "plausibility": plausibility}
             if detail:
                 rec["track_check"] = {k: float(v) for k, v in detail.items()}
             if score:
                 rec["metrics"] = score_frame(V, F, frame, cameras, regions, init.joints)
             records.append(rec)
             bar.advance(task)
+    verdict = judge_run(records, session.path, accept_implausible)
     writer.write_json("frames.json", {"frames": records})
     previous = [f"meshes/{p.name}" for p in (writer.layout.root / "meshes").glob("*.ply")]
     writer.commit({"solver": params.solver, "template": template, "joints": joints,
@@ -431,8 +450,22 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "refine_with": refine_with, "rest_cotangents": rest_cotangents, "bone_lengths": bone_lengths,
                    "joint_smoothing": int(joint_smoothing),
                    "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
-                   "params": asdict(params), "n_vertices": int(len(body.vertices))}, deletes=previous)
+                   "params": asdict(params), "n_vertices": int(len(body.vertices)),
+                   "plausibility": verdict}, deletes=previous)
     return summarize(records)
+
+
+def judge_run(records: list[dict], session_path, accept_implausible: bool) -> dict:
+    """The run's self-check verdict (:func:`bodystudio.reconstruct.plausibility.run_plausibility`) over its
+    frame records; raises :class:`ImplausibleResultError` (one line: the camera or input, and the fix) when it
+    found a problem, unless ``accept_implausible`` (then the problems are logged as warnings)."""
+    verdict = run_plausibility([r["plausibility"] for r in records if r.get("plausibility")], session_path)
+    if not verdict["ok"] and not accept_implausible:
+        raise ImplausibleResultError(f"{session_path}: reconstruction not written, {verdict['problems'][0]}; "
+                                     "or pass --accept-implausible")
+    for line in verdict["warnings"] + verdict["problems"]:
+        log.warning("%s: %s", session_path, line)
+    return verdict
 
 
 def summarize(records: list[dict]) -> dict:

@@ -1,0 +1,303 @@
+"""Self-checks of the mirror (Real-time Reshaping of Humans) from its own data: does the source body fit the actor?
+
+``mirror run`` reshapes the actor with a source body fitted by ``mirror init`` (§4). A source body of another
+person (the init of session A given to session B with ``--source``, or a session folder copied over another)
+is well-formed and runs to the end with exit 0, but every frame is then tracked and warped with the wrong
+skeleton: the IK (§5) pulls the wrong limb lengths onto the tracked joints and the reshape starts from the
+wrong body. The check compares what the run itself sees, the Kinect skeleton's segment lengths over the
+session's frames, with the same segments of the source body's skeleton (§4 scaled them to the init's Kinect
+skeleton, Eq. 3 refitted them): :func:`source_body_agreement`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bodystudio.body.kinect import kinect_joint_names
+from bodystudio.body.kinect import kinect_joints as skeleton_kinect_joints
+
+#: Kinect segments compared (the limbs and spine §4 scales the body's bones to; hands, feet and head left
+#: out: their joints are the tracker's noisiest).
+SEGMENTS = (
+    ("SpineBase", "SpineMid"), ("SpineMid", "SpineShoulder"),
+    ("SpineShoulder", "ShoulderLeft"), ("SpineShoulder", "ShoulderRight"),
+    ("ShoulderLeft", "ElbowLeft"), ("ShoulderRight", "ElbowRight"),
+    ("ElbowLeft", "WristLeft"), ("ElbowRight", "WristRight"),
+    ("HipLeft", "KneeLeft"), ("HipRight", "KneeRight"),
+    ("KneeLeft", "AnkleLeft"), ("KneeRight", "AnkleRight"),
+)
+V1_NAMES = {"SpineBase": "HipCenter", "SpineMid": "Spine", "SpineShoulder": "ShoulderCenter"}
+#: Median over segments of |log(session length / source length)|. Measured (docs/mirror.md, 30-frame v2 sessions
+#: of subjects 3-6, motions arms_raise / walk / arm_flex / turn, init of 90 frames): the source body's own actor
+#: 0.015-0.035 (16 cases); a 3-frame init on a Kinect v1 session of the same actor 0.068; another subject's body
+#: 0.020-0.170 (48 cases, 32 above 0.08; subjects 4 and 5 have nearly the same skeleton and pass). Above this
+#: the run is refused (``--accept-implausible`` forces it).
+SOURCE_MISMATCH_REFUSE = 0.08
+#: ... and above this it warns.
+SOURCE_MISMATCH_WARN = 0.045
+#: Frames of the session read for the check (evenly spread; joints files only, cheap).
+CHECK_FRAMES = 60
+
+
+def _segment_index(version: str) -> list[tuple[int, int]]:
+    names = kinect_joint_names(version)
+    index = {n: i for i, n in enumerate(names)}
+    out = []
+    for a, b in SEGMENTS:
+        if version == "v1":
+            a, b = V1_NAMES.get(a, a), V1_NAMES.get(b, b)
+        out.append((index.get(a, -1), index.get(b, -1)))
+    return out
+
+
+def segment_lengths(positions: np.ndarray, tracked: np.ndarray | None, version: str) -> np.ndarray:
+    """Lengths ``(len(SEGMENTS),)`` of the Kinect skeleton's segments, NaN where a joint is missing or untracked."""
+    P = np.asarray(positions, dtype=np.float64)
+    ok = np.all(np.isfinite(P), axis=1)
+    if tracked is not None:
+        ok &= np.asarray(tracked, bool)
+    out = np.full(len(SEGMENTS), np.nan)
+    for k, (a, b) in enumerate(_segment_index(version)):
+        if a >= 0 and b >= 0 and ok[a] and ok[b]:
+            out[k] = float(np.linalg.norm(P[b] - P[a]))
+    return out
+
+
+def source_segment_lengths(skeleton, version: str) -> np.ndarray:
+    """The source body's skeleton measured as the Kinect would (its Kinect joints in the rest pose)."""
+    J = skeleton_kinect_joints(skeleton, skeleton.heads, skeleton.tails, version)
+    return segment_lengths(J, None, version)
+
+
+def session_segment_lengths(session, player: int = 1, frames=None, max_frames: int = CHECK_FRAMES
+                            ) -> tuple[np.ndarray, str | None, int]:
+    """Per segment, the median over the session's frames of the tracked lengths of ``player``; the joint set's
+    version and the number of frames that had the player."""
+    ids = list(session.frame_ids if frames is None else frames)
+    if len(ids) > max_frames:
+        ids = [ids[int(round(k))] for k in np.linspace(0, len(ids) - 1, max_frames)]
+    rows, version = [], None
+    for i in ids:
+        for body in session.frame(i).kinect_bodies or []:
+            if int(body["player"]) != int(player):
+                continue
+            names = list(body["names"])
+            version = "v2" if names == kinect_joint_names("v2") else "v1" if names == kinect_joint_names("v1") else None
+            if version is None:
+                continue
+            rows.append(segment_lengths(body["positions"], body["tracked"], version))
+    if not rows:
+        return np.full(len(SEGMENTS), np.nan), version, 0
+    R = np.array(rows)
+    with np.errstate(all="ignore"):
+        med = np.array([np.median(c[np.isfinite(c)]) if np.isfinite(c).any() else np.nan for c in R.T])
+    return med, version, len(rows)
+
+
+def source_body_agreement(body, session, player: int = 1, frames=None) -> dict:
+    """How well the source body's skeleton fits the actor the session tracks: ``mismatch`` (median over the
+    segments of |log(session / source length)|), ``scale`` (median ratio: a body of another stature shows
+    here), the per-segment ``ratios`` and the ``frames`` measured. ``mismatch`` is NaN without tracked joints."""
+    seen, version, n = session_segment_lengths(session, player, frames)
+    if version is None or n == 0:
+        return {"mismatch": float("nan"), "scale": float("nan"), "ratios": {}, "frames": 0}
+    mine = source_segment_lengths(body.skeleton, version)
+    ok = np.isfinite(seen) & np.isfinite(mine) & (mine > 1e-6)
+    if not ok.any():
+        return {"mismatch": float("nan"), "scale": float("nan"), "ratios": {}, "frames": n}
+    ratio = seen[ok] / mine[ok]
+    names = [f"{a}-{b}" for (a, b), keep in zip(SEGMENTS, ok, strict=True) if keep]
+    return {"mismatch": float(np.median(np.abs(np.log(ratio)))), "scale": float(np.median(ratio)),
+            "ratios": {k: float(r) for k, r in zip(names, ratio, strict=True)}, "frames": n}
+
+
+def check_source_body(body, session, player: int = 1, accept_implausible: bool = False, source=None) -> dict:
+    """:func:`source_body_agreement` as ``mirror run``'s verdict (``ok``, ``warnings``, ``problems``); raises
+    :class:`~bodystudio.errors.ImplausibleResultError` (one line: the source file and the fix) on a body of
+    another person unless ``accept_implausible``. A session without tracked joints of ``player`` is judged
+    elsewhere (the run refuses it), so it passes here with ``mismatch`` NaN."""
+    import logging
+
+    from bodystudio.errors import ImplausibleResultError
+
+    report = source_body_agreement(body, session, player)
+    report.update({"mismatch_warn": SOURCE_MISMATCH_WARN, "mismatch_refuse": SOURCE_MISMATCH_REFUSE,
+                   "warnings": [], "problems": []})
+    mismatch = report["mismatch"]
+    where = source if source is not None else f"{session.path}/mirror/source_body.npz"
+    worst = sorted(report["ratios"].items(), key=lambda kv: -abs(np.log(kv[1])))[:2]
+    detail = (f"the tracked skeleton's segments are {report['scale']:.2f}x the source body's (median), off by "
+              f"{np.expm1(mismatch):.0%} per segment (same actor <= {np.expm1(SOURCE_MISMATCH_WARN):.0%}); "
+              f"worst {', '.join(f'{k} {v:.2f}x' for k, v in worst)}")
+    if np.isfinite(mismatch) and mismatch > SOURCE_MISMATCH_REFUSE:
+        report["problems"].append(f"{where} does not fit player {player} of {session.path}: {detail}; it is another "
+                                  f"person's source body: run 'bodystudio mirror init {session.path}'")
+    elif np.isfinite(mismatch) and mismatch > SOURCE_MISMATCH_WARN:
+        report["warnings"].append(f"{where} fits player {player} of {session.path} loosely: {detail}")
+    report["ok"] = not report["problems"]
+    if report["problems"] and not accept_implausible:
+        raise ImplausibleResultError(f"{report['problems'][0]} (or pass --accept-implausible)")
+    for line in report["warnings"] + report["problems"]:
+        logging.getLogger(__name__).warning("%s", line)
+    return report
+
+
+#: Joint groups the init must have seen: without them the source body's legs (stature) or head come from the
+#: statistical model's prior, not from the actor.
+INIT_REQUIRED_JOINTS = {"legs": ("KneeLeft", "KneeRight", "AnkleLeft", "AnkleRight"), "head": ("Head",)}
+#: A group tracked (all its joints) in fewer than this share of the init frames makes the source body untrusted.
+INIT_MIN_SEEN = 0.5
+#: The player mask running along an image edge for at least this many pixels in a frame: the actor is cut.
+BORDER_PX = 8
+
+
+def init_coverage(session, frames, player: int = 1) -> dict:
+    """What the init (§4) saw of the actor in its ``frames``: per joint group of
+    :data:`INIT_REQUIRED_JOINTS` the share of frames in which all its joints were tracked, and the share of
+    frames in which the player mask touches the depth image's edge (``cut``, per edge)."""
+    frames = [int(f) for f in frames]
+    seen = {g: 0 for g in INIT_REQUIRED_JOINTS}
+    cut = {"top": 0, "bottom": 0, "left": 0, "right": 0}
+    n = 0
+    for i in frames:
+        frame = session.frame(i)
+        bodies = [b for b in frame.kinect_bodies or [] if int(b["player"]) == int(player)]
+        if not bodies:
+            continue
+        n += 1
+        names = list(bodies[0]["names"])
+        tracked = np.asarray(bodies[0]["tracked"], bool) & np.all(np.isfinite(bodies[0]["positions"]), axis=1)
+        for group, joints in INIT_REQUIRED_JOINTS.items():
+            if all(j in names and tracked[names.index(j)] for j in joints):
+                seen[group] += 1
+        mask = frame.kinect_player
+        if mask is not None:
+            mine = np.asarray(mask) == int(player)
+            for edge, line in (("top", mine[0]), ("bottom", mine[-1]), ("left", mine[:, 0]), ("right", mine[:, -1])):
+                if np.count_nonzero(line) >= BORDER_PX:
+                    cut[edge] += 1
+    n = max(n, 1)
+    return {"frames": len(frames), "seen": {g: v / n for g, v in seen.items()},
+            "cut": {e: v / n for e, v in cut.items()}}
+
+
+def check_init(session, frames, player: int = 1) -> dict:
+    """:func:`init_coverage` as ``mirror init``'s verdict: ``warnings`` when a joint group was tracked in fewer
+    than :data:`INIT_MIN_SEEN` of the init frames or the actor was cut by an image edge in most of them (the
+    source body's missing part is then the statistical model's guess). A warning, not a refusal: measured on
+    subject 5, legs out of view below the knees (or the hips) in every init frame moved the fitted stature by
+    +5 (+16) mm and the mass by -2.2 (-0.7) kg, subject 3 below the knees -8 mm and -0.7 kg (docs/mirror.md)."""
+    import logging
+
+    report = init_coverage(session, frames, player)
+    warnings = []
+    missing = [g for g, v in report["seen"].items() if v < INIT_MIN_SEEN]
+    cut = [e for e, v in report["cut"].items() if v >= INIT_MIN_SEEN]
+    if missing or cut:
+        what = []
+        if missing:
+            what.append(" and ".join(f"the {g} tracked in {report['seen'][g]:.0%}" for g in missing))
+        if cut:
+            what.append(" and ".join(f"the actor cut by the image's {e} edge in {report['cut'][e]:.0%}" for e in cut))
+        warnings.append(f"{session.path}: the init saw only part of player {player} ({'; '.join(what)} of its "
+                        f"{report['frames']} frames): the source body's unseen part is the model's guess; record "
+                        "the actor fully in view (2-3 m from the Kinect) for the first seconds")
+    report.update({"min_seen": INIT_MIN_SEEN, "warnings": warnings})
+    for line in warnings:
+        logging.getLogger(__name__).warning("%s", line)
+    return report
+
+
+#: Largest shift (pixels) searched between the depth-registered player mask and the colour image's edges.
+REGISTRATION_SEARCH_PX = 14
+#: Median over the checked frames of the best shift's length: above this the depth and colour images are
+#: misregistered and the run is refused (the foreground, seeded by the registered player mask, and the warp then
+#: carry a band of background). Measured (docs/mirror.md): clean sessions 0-3 px (subjects 3, 5), the colour
+#: camera's principal point 10 px off in kinect/calibration.json: 9-11 px.
+REGISTRATION_REFUSE_PX = 6.0
+#: ... above this it warns.
+REGISTRATION_WARN_PX = 4.0
+#: Frames (with the player in view, evenly spread) the registration check reads.
+REGISTRATION_FRAMES = 6
+
+
+def registration_offset(rgb: np.ndarray, mask: np.ndarray, radius_px: int = REGISTRATION_SEARCH_PX
+                        ) -> tuple[int, int, float]:
+    """The shift ``(dx, dy)`` (pixels) that moves the outline of ``mask`` (the player mask registered into the
+    colour image) onto the strongest colour edges: the mean Sobel gradient magnitude along the shifted outline,
+    maximised over ``+-radius_px``. With depth and colour registered the outline lies on the person's edge, shift
+    ~0; returns the shift and its edge strength relative to no shift's."""
+    import cv2
+
+    grey = np.asarray(rgb, dtype=np.float32).mean(axis=2)
+    G = np.hypot(cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3))
+    m = cv2.morphologyEx(np.asarray(mask, np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    outline = m & ~cv2.erode(m, np.ones((3, 3), np.uint8))
+    ys, xs = np.nonzero(outline)
+    H, W = G.shape
+    r = int(radius_px)
+    keep = (ys >= r) & (ys < H - r) & (xs >= r) & (xs < W - r)
+    ys, xs = ys[keep], xs[keep]
+    if len(ys) == 0:
+        return 0, 0, 1.0
+    shifts = [(dx, dy) for dy in range(-r, r + 1) for dx in range(-r, r + 1)]
+    score = np.array([G[ys + dy, xs + dx].mean() for dx, dy in shifts])
+    k = int(np.argmax(score))
+    zero = score[shifts.index((0, 0))]
+    return shifts[k][0], shifts[k][1], float(score[k] / max(zero, 1e-9))
+
+
+def depth_color_registration(session, player: int = 1, n_frames: int = REGISTRATION_FRAMES) -> dict:
+    """:func:`registration_offset` over up to ``n_frames`` frames with ``player`` tracked: the per-frame shifts, their
+    median ``offset_px`` (length of the median shift) and ``shift`` (median dx, dy)."""
+    from bodystudio.mirror.frames import register_depth_to_color
+
+    with_player = [i for i in session.frame_ids
+                   if any(int(b["player"]) == int(player) for b in session.frame(i).kinect_bodies or [])]
+    if not with_player:
+        return {"offset_px": float("nan"), "shift": None, "frames": []}
+    picks = sorted({with_player[int(round(k))] for k in np.linspace(0, len(with_player) - 1,
+                                                                   min(n_frames, len(with_player)))})
+    rows = []
+    for i in picks:
+        frame = session.frame(i)
+        rgb, depth, players = frame.kinect_rgb, frame.kinect_depth_m, frame.kinect_player
+        if rgb is None or depth is None or players is None:  # no player mask: nothing to register (the run decides)
+            continue
+        _, players_c = register_depth_to_color(depth, players, session.kinect)
+        mask = players_c == int(player)
+        if np.count_nonzero(mask) < 500 or mask.shape != rgb.shape[:2]:
+            continue
+        dx, dy, gain = registration_offset(rgb, mask)
+        rows.append({"frame": int(i), "dx": int(dx), "dy": int(dy), "edge_gain": round(gain, 3)})
+    if not rows:
+        return {"offset_px": float("nan"), "shift": None, "frames": []}
+    shift = (float(np.median([r["dx"] for r in rows])), float(np.median([r["dy"] for r in rows])))
+    return {"offset_px": float(np.hypot(*shift)), "shift": list(shift), "frames": rows}
+
+
+def check_registration(session, player: int = 1, accept_implausible: bool = False) -> dict:
+    """:func:`depth_color_registration` as ``mirror run``'s verdict; raises
+    :class:`~bodystudio.errors.ImplausibleResultError` above :data:`REGISTRATION_REFUSE_PX` unless
+    ``accept_implausible``."""
+    import logging
+
+    from bodystudio.errors import ImplausibleResultError
+
+    report = depth_color_registration(session, player)
+    report.update({"warn_px": REGISTRATION_WARN_PX, "refuse_px": REGISTRATION_REFUSE_PX, "warnings": [],
+                   "problems": []})
+    offset = report["offset_px"]
+    if np.isfinite(offset) and offset > REGISTRATION_WARN_PX:
+        dx, dy = report["shift"]
+        line = (f"{session.path}/kinect/calibration.json: the depth registered into the colour image lands "
+                f"{offset:.0f} px off the person's edges (shift {dx:+.0f}, {dy:+.0f} px over {len(report['frames'])} "
+                f"frames; registered <= {REGISTRATION_WARN_PX:.0f} px): the colour camera's intrinsics or "
+                "depth_to_color are off; re-calibrate the Kinect (bodystudio calib kinect)")
+        (report["problems"] if offset > REGISTRATION_REFUSE_PX else report["warnings"]).append(line)
+    report["ok"] = not report["problems"]
+    if report["problems"] and not accept_implausible:
+        raise ImplausibleResultError(f"{report['problems'][0]}; or pass --accept-implausible")
+    for line in report["warnings"] + report["problems"]:
+        logging.getLogger(__name__).warning("%s", line)
+    return report
