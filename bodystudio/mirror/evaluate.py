@@ -182,12 +182,20 @@ def _read_png(path: Path, color: bool) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------------- scores
 
+#: A run of several players (``mirror run --player 1 --player 2``): a player's fg_iou and warp_iou count the run's
+#: mask pixels within this many pixels of that player's true or target silhouette and not on another player's
+#: (the masks hold all players).
+NEAR_PX = 15
+
+
 def image_scores(session, run_dir: str | Path, run: dict, band_px: int = BAND_PX) -> dict:
-    """The image scores (fg_iou, fg_iou_raw, warp_iou, warp_iou_unwarped, psnr_person, ssim_person) of a run."""
+    """The image scores (fg_iou, fg_iou_raw, warp_iou, warp_iou_unwarped, psnr_person, ssim_person) of a run's
+    ``player`` (a run of several players: its masks near that player, :data:`NEAR_PX`)."""
     from bodystudio.mirror.frames import player_mask_in_color, read_mirror_frame
 
     run_dir = Path(run_dir)
     player = int(run.get("player", 1))
+    several = len(run.get("players") or ()) > 1  # mirror run --player 1 --player 2
     status = {f["index"]: f.get("status") for f in run["frames"]}
     fg, fg_raw, warp, unwarped, ssim = [], [], [], [], []
     sse, count, scored, passed = 0.0, 0, [], 0
@@ -218,6 +226,12 @@ def image_scores(session, run_dir: str | Path, run: dict, band_px: int = BAND_PX
             raise FileFormatError(f"{run_dir / 'frames' / name}: image size {output.shape[1]}x{output.shape[0]} is "
                                   f"not the session's colour {truth.shape[1]}x{truth.shape[0]}; re-run the mirror")
         raw = player_mask_in_color(read_mirror_frame(session, i), session.kinect, player)
+        if several:  # the run's masks hold every reshaped player: score this one's, those near it, not another's
+            mine = cv2.dilate((truth | target).astype(np.uint8), np.ones((2 * NEAR_PX + 1,) * 2, np.uint8)) > 0
+            mine &= (frame.gt_person == 0) | truth
+            if target_labels is not None:
+                mine &= (target_labels == 0) | target
+            refined, warped = refined & mine, warped & mine
         fg.append(mask_iou(refined, truth))
         fg_raw.append(mask_iou(raw, truth))
         warp.append(mask_iou(warped, target))
