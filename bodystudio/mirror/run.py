@@ -141,8 +141,10 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     if background is None:
         background = update_background(None, rgb, np.ones((H, W), bool))  # nothing learnt yet: inpaint holes
     t0 = time.perf_counter()
-    fg = refine_foreground(rgb, person, inp.depth_color, background=background, unseen=inp.unseen,
-                           labels=inp.person_labels, **(foreground_options or {}))
+    options = dict(foreground_options or {})
+    if inp.person_labels is not None:  # several players: each band pixel's depth against its own player's
+        options["labels"] = inp.person_labels
+    fg = refine_foreground(rgb, person, inp.depth_color, background=background, unseen=inp.unseen, **options)
     t1 = time.perf_counter()
     timings["foreground"] = (t1 - t0) * 1e3
     if inp.late_pairs is not None:  # its own steps (refine_pose, bodies, pairs) time themselves
@@ -433,9 +435,12 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         t1 = time.perf_counter()
         timings["read"] = (t1 - t) * 1e3
         depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, sensor)
-        # where the depth camera has ever measured (its view is narrower than the colour camera's)
-        seen = (depth_c > 0) if seen is None else seen | (depth_c > 0)
-        unseen = cv2.dilate(seen.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
+        # where the depth camera has ever measured (its view is narrower than the colour camera's); grown only when
+        # a frame measures somewhere new, so its dilation is redone only then
+        measured = depth_c > 0
+        if seen is None or (measured & ~seen).any():
+            seen = measured if seen is None else seen | measured
+            unseen = cv2.dilate(seen.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
         person = players_c == players[0] if not several else np.isin(players_c, players)
         others = (players_c > 0) & ~person
         t2 = time.perf_counter()
