@@ -115,10 +115,17 @@ def refine_foreground(rgb, player_mask_color, depth_color=None, band_px: int = 6
         if unseen.shape != mask.shape:
             raise InputError(f"refine_foreground: unseen mask {unseen.shape} must match the colour image {mask.shape}")
         reach = int(np.clip(unseen_reach_px, 0, 512))
-        near = cv2.dilate(mask.astype(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) > 0
-        extra = unseen & near & ~mask
-        if not extra.any():
-            extra = None
+        # within reach of the mask only: the dilation on the mask's box grown by the reach (the same pixels as over
+        # the whole frame), and none at all when no unseen pixel lies in that box (the usual frame)
+        x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+        box = (slice(max(y - reach, 0), min(y + h + reach, H)), slice(max(x - reach, 0), min(x + w + reach, W)))
+        extra = None
+        if unseen[box].any():
+            near = cv2.dilate(mask[box].view(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) > 0
+            extra = np.zeros_like(mask)
+            extra[box] = unseen[box] & near & ~mask[box]
+            if not extra.any():
+                extra = None
     # Work in the crop that holds the band and the sure rings the colour models are learnt from.
     x, y, w, h = cv2.boundingRect((mask if extra is None else mask | extra).astype(np.uint8))
     pad = 3 * band_px + 2

@@ -359,9 +359,11 @@ def frame_pairs(sources, targets, faces, camera, correspondence: str = CORRESPON
     (:func:`~bodystudio.mirror.warp.actors_warp_pairs`: one z-buffer per body, ``groups`` says whose each pair
     is). The run and ``benchmarks/bench_mirror.py`` both call this."""
     dense = correspondence == "dense"
+    # the statistical model's bodies are closed and wound outwards: their z-buffers need only the triangles facing
+    # the camera (warp.front_render, MIRFAST3)
     if len(sources) == 1:
-        return warp_pairs(sources[0], targets[0], faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=dense)
-    return actors_warp_pairs(sources, targets, faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=dense)
+        return warp_pairs(sources[0], targets[0], faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=dense, closed=True)
+    return actors_warp_pairs(sources, targets, faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=dense, closed=True)
 
 
 @dataclass

@@ -167,24 +167,28 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
     c = p.mean(0)
     v, p, q = v - c, p - c, q - c
     px, py, qx, qy = p[:, 0], p[:, 1], q[:, 0], q[:, 1]
-    monomials = np.stack([np.ones_like(px), px, py, qx, qy, px * px, px * py, py * py,
-                          px * qx, px * qy, py * qx, py * qy])
+    if kind == "affine":
+        monomials = np.stack([np.ones_like(px), px, py, qx, qy, px * px, px * py, py * py,
+                              px * qx, px * qy, py * qx, py * qy])
+    else:  # similarity and rigid need only |p|^2, p.q and p x q: 8 weighted sums per point instead of 12 (MIRFAST3)
+        monomials = np.stack([np.ones_like(px), px, py, qx, qy, px * px + py * py, px * qx + py * qy,
+                              px * qy - py * qx])
     args = (np.ascontiguousarray(v), np.ascontiguousarray(px), np.ascontiguousarray(py),
             np.ascontiguousarray(monomials), float(alpha), EPS_PX2)
-    S = _weighted_sums(*args) if radius_px is None else _weighted_sums_local(*args, float(radius_px))  # (N, 12)
+    S = _weighted_sums(*args) if radius_px is None else _weighted_sums_local(*args, float(radius_px))  # (N, k)
     W = S[:, 0]
     ps = S[:, 1:3] / W[:, None]  # p*
     qs = S[:, 3:5] / W[:, None]  # q*
-    # sum w p^ p^T and sum w p^ q^T with p^ = p - p*, q^ = q - q* (expanded: sum w p p^T - W p* p*^T)
-    Pxx = S[:, 5] - W * ps[:, 0] ** 2
-    Pxy = S[:, 6] - W * ps[:, 0] * ps[:, 1]
-    Pyy = S[:, 7] - W * ps[:, 1] ** 2
-    Qxx = S[:, 8] - W * ps[:, 0] * qs[:, 0]
-    Qxy = S[:, 9] - W * ps[:, 0] * qs[:, 1]
-    Qyx = S[:, 10] - W * ps[:, 1] * qs[:, 0]
-    Qyy = S[:, 11] - W * ps[:, 1] * qs[:, 1]
     A = np.empty((len(v), 2, 2))
     if kind == "affine":
+        # sum w p^ p^T and sum w p^ q^T with p^ = p - p*, q^ = q - q* (expanded: sum w p p^T - W p* p*^T)
+        Pxx = S[:, 5] - W * ps[:, 0] ** 2
+        Pxy = S[:, 6] - W * ps[:, 0] * ps[:, 1]
+        Pyy = S[:, 7] - W * ps[:, 1] ** 2
+        Qxx = S[:, 8] - W * ps[:, 0] * qs[:, 0]
+        Qxy = S[:, 9] - W * ps[:, 0] * qs[:, 1]
+        Qyx = S[:, 10] - W * ps[:, 1] * qs[:, 0]
+        Qyy = S[:, 11] - W * ps[:, 1] * qs[:, 1]
         det = Pxx * Pyy - Pxy * Pxy
         det = np.where(np.abs(det) > 1e-12 * (Pxx * Pyy + 1e-300), det, np.nan)
         # A = P^-1 Q (row-vector convention: M(x) = x A)
@@ -193,10 +197,11 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
         A[:, 1, 0] = (-Pxy * Qxx + Pxx * Qyx) / det
         A[:, 1, 1] = (-Pxy * Qxy + Pxx * Qyy) / det
     else:
-        # complex form: M(x) = z x, z = sum w conj(p^) q^ / sum w |p^|^2 (similarity); z / |z| (rigid)
-        mu = Pxx + Pyy
-        zr = (Qxx + Qyy) / mu
-        zi = (Qxy - Qyx) / mu
+        # complex form: M(x) = z x, z = sum w conj(p^) q^ / sum w |p^|^2 (similarity); z / |z| (rigid), with
+        # sum w |p^|^2 = Pxx + Pyy, Re = Qxx + Qyy, Im = Qxy - Qyx expanded as above
+        mu = S[:, 5] - W * (ps[:, 0] ** 2 + ps[:, 1] ** 2)
+        zr = (S[:, 6] - W * (ps[:, 0] * qs[:, 0] + ps[:, 1] * qs[:, 1])) / mu
+        zi = (S[:, 7] - W * (ps[:, 0] * qs[:, 1] - ps[:, 1] * qs[:, 0])) / mu
         if kind == "rigid":
             norm = np.hypot(zr, zi)
             zr, zi = zr / norm, zi / norm
@@ -588,13 +593,17 @@ def front_render(V: np.ndarray, F: np.ndarray, camera):
 def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: np.ndarray, camera,
                n_handles: int = 800, depth_tol_m: float = 0.08, z_buffer_scale: float = 0.25,
                rim_cos: float | None = None, dense: bool = False, grid=(120, 160), face_groups=None,
-               margin_px: float = 10.0) -> WarpPairs:
+               margin_px: float = 10.0, closed: bool = False) -> WarpPairs:
     """The warp's constraints: :func:`visible_vertex_pairs` and, with ``dense``, the :class:`DenseCorrespondence`.
 
     With ``dense`` both bodies are rendered at full resolution on the crop holding them (plus ``margin_px``),
     and that z-buffer also decides the vertices' visibility; otherwise the z-buffers are rendered at
-    ``z_buffer_scale``. ``face_groups`` (f,) the person of each face (several actors in one mesh).
+    ``z_buffer_scale``. ``face_groups`` (f,) the person of each face (several actors in one mesh). ``closed``: the
+    mesh is closed and wound outwards (the statistical model's bodies): the z-buffers draw the camera-facing
+    triangles only (:func:`front_render`, half the work); otherwise every triangle, both sides.
     """
+    from bodystudio.capture.render import render
+
     Vs = np.asarray(source_vertices, dtype=np.float64)
     Vt = np.asarray(target_vertices, dtype=np.float64)
     if Vs.shape != Vt.shape or Vs.ndim != 2 or Vs.shape[1] != 3:
@@ -621,7 +630,7 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
     uvs, rasters = [], []
     for V, (uv_all, z_all) in zip((Vs, Vt), projected, strict=True):
         uv, z = uv_all[ids], z_all[ids]
-        raster = front_render(V, faces, small)
+        raster = front_render(V, faces, small) if closed else render(V, faces, small)
         zbuf = raster.depth
         col = np.clip(np.round((uv[:, 0] - x0 + 0.5) * sx - 0.5), 0, w - 1)
         row = np.clip(np.round((uv[:, 1] - y0 + 0.5) * sy - 0.5), 0, h - 1)

@@ -372,8 +372,9 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, play
             d[current["seen"]] = 0.8
         return d, player
 
-    def pairs(Vs, Vt, faces, cam, n, rim_cos=None, dense=False):
+    def pairs(Vs, Vt, faces, cam, n, rim_cos=None, dense=False, closed=False):
         assert n == run_mod.N_HANDLES and rim_cos == run_mod.RIM_COS and cam is camera and faces is body.faces
+        assert closed  # the model's bodies: front faces only
         return SimpleNamespace(src_uv=np.zeros((20, 2)) + Vs[0, 0], dst_uv=np.zeros((20, 2)) + Vt[0, 0],
                                dense="dense" if dense else None)
 
