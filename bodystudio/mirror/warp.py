@@ -564,30 +564,30 @@ def _body_crop(uv_list, camera, margin_px: float):
     return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
 
 
-def front_render(V: np.ndarray, F: np.ndarray, camera):
-    """``capture.render.render`` of a closed body drawing only the triangles that face the camera (negative
-    projected area in the y-down image: the body templates wind outwards), half of them: silhouette the same pixel
-    for pixel (every ray into a closed surface enters through a front face), depth, triangle ids and barycentrics
-    the same except where a back face lies in front of every front face (a self-intersection: the 2k bench frames
-    differ at 0-3 pixels of ~50k; pinned in tests/mirror/test_warp.py). The two-actor crop's two renders
-    3.5 + 4.5 -> 2.7 + 2.7 ms (MIRFAST3)."""
-    from bodystudio.capture.render import RenderResult, _check_mesh, _project, _rasterize
-
-    V, F = _check_mesh(V, F)
-    uv, z = np.empty((len(V), 2)), np.empty(len(V))
-    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
+def facing_faces(uv: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Indices of the triangles whose projection ``uv`` (n, 2) has negative area in the y-down image: those facing the
+    camera on a body wound outwards (the model templates); NaN projections (behind the camera) are not."""
     a, b, c = uv[F[:, 0]], uv[F[:, 1]], uv[F[:, 2]]
-    with np.errstate(invalid="ignore"):  # NaN: a vertex behind the camera, never drawn
-        front = np.flatnonzero((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) < (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1]))
-    H, W = camera.height, camera.width
-    depth = np.full((H, W), np.inf, dtype=np.float32)
-    tri_id = np.full((H, W), -1, dtype=np.int32)
-    bary = np.zeros((H, W, 3), dtype=np.float32)
-    _rasterize(uv, z, np.ascontiguousarray(F[front]), W, H, depth, tri_id, bary)
-    mask = tri_id >= 0
-    depth[~mask] = 0.0
-    tri_id[mask] = front[tri_id[mask]]
-    return RenderResult(mask, depth, tri_id, bary)
+    with np.errstate(invalid="ignore"):
+        return np.flatnonzero((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) < (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1]))
+
+
+def front_render(V: np.ndarray, F: np.ndarray, camera):
+    """``capture.render.render`` of a closed body drawing only the triangles that face the camera
+    (:func:`facing_faces`), half of them: silhouette the same pixel for pixel (every ray into a closed surface
+    enters through a front face), depth, triangle ids (into ``F``) and barycentrics the same except where a back face
+    lies in front of every front face (a self-intersection: the 2k bench frames differ at 0-3 pixels of ~50k; pinned
+    in tests/mirror/test_warp.py). :func:`warp_pairs` with ``closed`` draws its z-buffers so (MIRFAST3)."""
+    from bodystudio.capture.render import render
+
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    uv, z = camera.project_with_depth(V)
+    front = facing_faces(np.where((z > 0)[:, None], uv, np.nan), F)
+    raster = render(V, F[front], camera)
+    tri = raster.triangle_id
+    tri[raster.mask] = front[tri[raster.mask]]
+    return raster
 
 
 def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: np.ndarray, camera,
@@ -628,9 +628,13 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
     small = crop_camera(camera, x0, y0, w, h, (sx, sy))
     keep = np.ones(len(ids), bool)
     uvs, rasters = [], []
-    for V, (uv_all, z_all) in zip((Vs, Vt), projected, strict=True):
+    F = np.asarray(faces, dtype=np.int64)
+    # closed bodies: each z-buffer draws the triangles facing the camera (their projections, at hand, tell: the
+    # crop's are an affine map of them); the target raster's triangle ids then index its front faces
+    drawn = [facing_faces(uv, F) if closed else None for uv, _ in projected]
+    for V, (uv_all, z_all), front in zip((Vs, Vt), projected, drawn, strict=True):
         uv, z = uv_all[ids], z_all[ids]
-        raster = front_render(V, faces, small) if closed else render(V, faces, small)
+        raster = render(V, F if front is None else F[front], small)
         zbuf = raster.depth
         col = np.clip(np.round((uv[:, 0] - x0 + 0.5) * sx - 0.5), 0, w - 1)
         row = np.clip(np.round((uv[:, 1] - y0 + 0.5) * sy - 0.5), 0, h - 1)
@@ -645,11 +649,13 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
     correspondence = None
     if box is not None:
         uv_s, z_s = projected[0]
-        source_uv = dense_source_uv(Vs, faces, rasters[1], camera,
-                                    projected=uv_s if np.all(z_s > 0) else None)
+        front = drawn[1]
+        F_t = F if front is None else F[front]
+        groups_t = face_groups if face_groups is None or front is None else np.asarray(face_groups)[front]
+        source_uv = dense_source_uv(Vs, F_t, rasters[1], camera, projected=uv_s if np.all(z_s > 0) else None)
         correspondence = DenseCorrespondence((x0, y0), source_uv, rasters[0].mask,
                                              *_grid_samples(source_uv, rasters[1].triangle_id, (x0, y0), camera,
-                                                            grid, face_groups))
+                                                            grid, groups_t))
     return WarpPairs(uvs[0][keep], uvs[1][keep], ids[keep], correspondence)
 
 
