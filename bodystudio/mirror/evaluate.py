@@ -343,9 +343,10 @@ def strict_json_scores(scores: dict) -> dict:
 def evaluate_mirror(session, run_dir: str | Path | None = None, source=None, band_px: int = BAND_PX) -> dict:
     """The acceptance JSON of issue 12 for a run of ``bodystudio mirror run`` on a synthetic mirror session.
 
-    ``run_dir`` defaults to ``SESSION/mirror/run``; ``source`` (a SourceBody) to
-    ``SESSION/mirror/source_body.npz``. See the module docstring for the keys; the result is strict JSON
-    (:func:`strict_json_scores`: ``psnr_person`` is ``None`` with ``psnr_person_identical`` when the output
+    ``run_dir`` defaults to ``SESSION/mirror/run``; ``source`` (a SourceBody) to the run's player's body,
+    ``SESSION/mirror/source_body.npz`` (player N > 1: ``source_body_playerN.npz``, :func:`run.source_body_path`); a
+    run of several players is scored for its first player. See the module docstring for the keys; the result is
+    strict JSON (:func:`strict_json_scores`: ``psnr_person`` is ``None`` with ``psnr_person_identical`` when the output
     equals the target in the band).
     """
     session = check_mirror_session(session)
@@ -353,9 +354,13 @@ def evaluate_mirror(session, run_dir: str | Path | None = None, source=None, ban
     run = read_mirror_run(session, run_dir)
     player = int(run.get("player", 1))
     if source is None:
-        path = Path(session.path) / "mirror" / "source_body.npz"
+        from bodystudio.mirror.run import source_body_path
+
+        path = source_body_path(session.path, player)  # the run's (first) player's body: mirror init --player N
         if not path.is_file():
-            raise InputError(f"{path}: missing; run `bodystudio mirror init {session.path}` (the run needs it too)")
+            again = "" if player == 1 else f" --player {player}"
+            raise InputError(f"{path}: missing; run `bodystudio mirror init {session.path}{again}` (the run needs "
+                             "it too)")
         from bodystudio.mirror.init import load_source_body
 
         source = load_source_body(path)

@@ -258,6 +258,8 @@ def test_run_reshapes_two_players_each_with_its_own_body(tmp_path):
         # 0.896 / 0.905 when written); the graph cut of both as well as of one (0.994 / 0.992, 0.993 / 0.988)
         assert both["warp_iou"] > single["warp_iou"] - 0.015, (p, both["warp_iou"], single["warp_iou"])
         assert both["fg_iou"] > single["fg_iou"] - 0.005 and both["fg_iou"] > both["fg_iou_raw"] + 0.1, (p, both)
+    # eval mirror of player 2's run reads player 2's body (its fingerprint is the run's)
+    assert evaluate.evaluate_mirror(session, tmp_path / "alone2")["player"] == 2
     # another player's body is refused: by its recorded player, given as --source or found in the session
     with pytest.raises(InputError, match="source_body_player2.npz: the source body of player 2, not of player 1"):
         run_mirror(session, {"taller": 0.16}, None, progress=False, run_dir=tmp_path / "x",
