@@ -5,17 +5,25 @@ modules of the other tree (loaded from its files; what they import comes from th
 called one after the other, ``rounds`` times (default 21), on the bench's rendered frames (one and two actors),
 numba / OpenCV / BLAS on one thread; prints the median process CPU ms per step, (other, this). On a loaded shared
 machine this alternation, call by call, separates a few milliseconds where whole bench runs overlap.
+
+numba's cache goes to a temporary folder for this process: the other tree's compiled kernels, loaded under other
+module names, must not land in either tree's ``__pycache__`` (the other tree would then fail to load them).
 """
 
 from __future__ import annotations
 
-import importlib.util
-import json
-import sys
-import time
-from pathlib import Path
+import os
+import tempfile
 
-import numpy as np
+os.environ["NUMBA_CACHE_DIR"] = tempfile.mkdtemp(prefix="mirror_ab_numba_")  # before numba is imported
+
+import importlib.util  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 
 def _load(name: str, path: Path):
@@ -110,4 +118,9 @@ def compare(other_tree: str | Path, rounds: int = 21) -> dict:
 
 
 if __name__ == "__main__":
-    print(json.dumps(compare(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 21)))
+    import shutil
+
+    try:
+        print(json.dumps(compare(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 21)))
+    finally:
+        shutil.rmtree(os.environ["NUMBA_CACHE_DIR"], ignore_errors=True)
