@@ -567,9 +567,22 @@ def _body_crop(uv_list, camera, margin_px: float):
 def facing_faces(uv: np.ndarray, F: np.ndarray) -> np.ndarray:
     """Indices of the triangles whose projection ``uv`` (n, 2) has negative area in the y-down image: those facing the
     camera on a body wound outwards (the model templates); NaN projections (behind the camera) are not."""
-    a, b, c = uv[F[:, 0]], uv[F[:, 1]], uv[F[:, 2]]
-    with np.errstate(invalid="ignore"):
-        return np.flatnonzero((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) < (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1]))
+    out = np.empty(len(F), np.int64)
+    n = _facing(np.ascontiguousarray(uv, dtype=np.float64), np.ascontiguousarray(F, dtype=np.int64), out)
+    return out[:n]
+
+
+@njit(cache=True)
+def _facing(uv, F, out):
+    """:func:`facing_faces`' loop (numpy's three gathers of the corners cost ~0.7 ms a 10k-face mesh): the ids whose
+    ``(b - a) x (c - a)`` is negative into ``out``; returns how many."""
+    n = 0
+    for f in range(F.shape[0]):
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        if (uv[b, 0] - uv[a, 0]) * (uv[c, 1] - uv[a, 1]) < (uv[c, 0] - uv[a, 0]) * (uv[b, 1] - uv[a, 1]):
+            out[n] = f
+            n += 1
+    return n
 
 
 def front_render(V: np.ndarray, F: np.ndarray, camera):
