@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from benchmarks.timing import markdown_table
-from bodystudio.mirror.run import CORRESPONDENCE, MLS_ALPHA, MLS_RADIUS_PX, N_HANDLES, RIM_COS
+from bodystudio.mirror.run import CORRESPONDENCE, MLS_ALPHA, MLS_RADIUS_PX
 
 
 def _median_ms(fn, repeats: int) -> tuple[float, float]:
@@ -53,26 +53,27 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
     """Per-step (CPU ms, wall ms) of the image steps on one :class:`ImageCase`, and of the alternatives."""
     from bodystudio.mirror.compose import compose, update_background
     from bodystudio.mirror.foreground import refine_foreground
-    from bodystudio.mirror.warp import actors_warp_pairs, mls_warp_field, warp_foreground, warp_pairs
+    from bodystudio.mirror.run import frame_pairs
+    from bodystudio.mirror.warp import mls_warp_field, warp_foreground
 
     dense = CORRESPONDENCE == "dense"
     background = update_background(None, case.background, np.zeros(case.true_mask.shape, bool))
-    fg = refine_foreground(case.rgb, case.player_mask, background=background)
     n_actors = case.actors
-    per_actor = len(case.source_vertices) // n_actors
+    sources, targets = np.split(case.source_vertices, n_actors), np.split(case.target_vertices, n_actors)
     F1 = case.faces[: len(case.faces) // n_actors]
+    # several actors: the player of each mask pixel, as the run passes the graph cut (each actor's side of the
+    # frame: the bench's actors stand apart, at the same depth)
+    labels = None
+    if n_actors > 1:
+        centres = sorted(case.camera.project(V.mean(0, keepdims=True))[0, 0] for V in sources)
+        cols = np.arange(case.player_mask.shape[1])
+        labels = np.where(case.player_mask, 1 + np.searchsorted(np.add(centres[1:], centres[:-1]) / 2, cols)[None],
+                          0).astype(np.uint8)
+    fg = refine_foreground(case.rgb, case.player_mask, background=background, labels=labels)
 
     def pairs(dense=dense):
-        # dense: all actors in one call (one z-buffer per body for the visibility and the correspondence);
-        # sparse: the pairs per actor (quarter-size z-buffers), as MLS-only runs do
-        if dense and n_actors > 1:
-            return actors_warp_pairs(np.split(case.source_vertices, n_actors),
-                                     np.split(case.target_vertices, n_actors), F1, case.camera, N_HANDLES,
-                                     rim_cos=RIM_COS, dense=True)
-        return [warp_pairs(case.source_vertices[a * per_actor:(a + 1) * per_actor],
-                           case.target_vertices[a * per_actor:(a + 1) * per_actor], F1, case.camera,
-                           N_HANDLES // n_actors, rim_cos=RIM_COS, dense=dense)
-                for a in range(n_actors)]
+        # the run's call (run.frame_pairs): one actor's pairs, or all actors' in one call (one z-buffer per body)
+        return frame_pairs(sources, targets, F1, case.camera, "dense" if dense else "mls")
 
     def field_of(kind, radius_px=MLS_RADIUS_PX, dense=dense):
         return lambda: mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA, groups=case.pair_groups,
@@ -85,7 +86,7 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
     out = {
         f"pairs (visibility + projection, rim{', dense' if dense else ''})": _median_ms(pairs, repeats),
         "foreground: graph cut (PyMaxflow)": _median_ms(
-            lambda: refine_foreground(case.rgb, case.player_mask, background=background), repeats),
+            lambda: refine_foreground(case.rgb, case.player_mask, background=background, labels=labels), repeats),
         f"warp field: {name}": _median_ms(field_of("similarity"), repeats),
         "warp (remap)": _median_ms(lambda: warp_foreground(case.rgb, fg, field), repeats),
         "compose": _median_ms(lambda: compose(warped, alpha, background, case.rgb, fg), repeats),

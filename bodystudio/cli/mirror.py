@@ -1,7 +1,8 @@
 """``bodystudio mirror ...``: the virtual mirror of Real-time Reshaping of Humans (issue 12).
 
 A thin layer over :mod:`bodystudio.mirror`: ``init`` fits the source body (§4) and writes it into the
-session (``SESSION/mirror/source_body.npz`` plus a JSON summary), atomically.
+session (``SESSION/mirror/source_body.npz`` plus a JSON summary for player 1, ``source_body_player{N}.npz`` /
+``.json`` for player N; the body records its player), atomically.
 """
 
 from __future__ import annotations
@@ -35,11 +36,13 @@ def init(
     force: bool = typer.Option(False, "--force", help="replace an existing source body (a mirror run made "
                                "from the old one then no longer matches: eval mirror refuses it until re-run)"),
 ) -> None:
-    """Fit the actor's source body (§4) and write SESSION/mirror/source_body.npz."""
+    """Fit the actor's source body (§4) and write SESSION/mirror/source_body.npz (player N > 1:
+    source_body_playerN.npz)."""
     from bodystudio.body.statistical import load_statistical_model
     from bodystudio.capture.session import open_session
     from bodystudio.fileio import check_output_file
     from bodystudio.mirror.init import DEFAULT_INIT_FRAMES, initialise_source_body, save_source_body
+    from bodystudio.mirror.run import source_body_path
     from bodystudio.runfolder import RunWriter
 
     if frames is not None and not 1 <= frames <= 900:
@@ -52,11 +55,12 @@ def init(
     if frames is not None and frames > len(s.frame_ids):  # fewer frames than asked for, with exit 0, before
         raise InputError(f"--frames {frames}: {s.path} has {len(s.frame_ids)} frames; give at most "
                          f"{len(s.frame_ids)}")
-    out = s.path / SOURCE_BODY_FILE
+    out = source_body_path(s.path, player)
     check_output_file(out, "source body", suffixes=(".npz",))
     if out.exists() and not force:  # a mirror run made from the old body would no longer match it
-        raise InputError(f"{out}: a source body exists already; pass --force to replace it (then re-run "
-                         "`bodystudio mirror run`: runs made from the old body no longer match)")
+        raise InputError(f"{out}: a source body{'' if player == 1 else f' of player {player}'} exists already; pass "
+                         "--force to replace it (then re-run `bodystudio mirror run`: runs made from the old body no "
+                         "longer match)")
     model = load_statistical_model(resolution, progress=False)
     source = initialise_source_body(s, model, player=player,
                                     n_frames=DEFAULT_INIT_FRAMES if frames is None else frames,
@@ -65,26 +69,29 @@ def init(
     from bodystudio.mirror.plausibility import check_init
 
     coverage = check_init(s, source.frames_used, player)  # what the init saw of the actor (warnings only)
-    summary = {"source_body": str(SOURCE_BODY_FILE), "player": player, "resolution": resolution,
+    summary = {"source_body": str(out.relative_to(s.path)), "player": player, "resolution": resolution,
                "silhouette_shape": silhouette_shape, "frames_used": list(source.frames_used),
                "residual_mm": round(source.residual_mm, 2),
                "stature_m": round(measured["stature_m"], 4), "mass_kg": round(measured["mass_kg"], 2),
                "coverage": {"seen": coverage["seen"], "cut": coverage["cut"]}, "warnings": coverage["warnings"]}
     # the body and its summary as one unit (a kill between the two files left a summary of another body);
     # `bodystudio recover SESSION/mirror/source_body.npz` finishes or discards a killed write
-    with RunWriter(source_body_layout(s.path), "bodystudio mirror init", {"stage": "mirror", "kind": "init"}) as w:
-        save_source_body(w.path_for(SOURCE_BODY_FILE.name), source)
+    with RunWriter(source_body_layout(s.path, player), "bodystudio mirror init",
+                   {"stage": "mirror", "kind": "init"}) as w:
+        save_source_body(w.path_for(out.name), source, player=player)
         w.commit(summary)
     typer.echo(json.dumps(summary))
 
 
-def source_body_layout(session_path: Path):
-    """The run layout of ``mirror init``'s two files: the manifest ``source_body.json`` (the summary, last),
-    lock and staging ``.source_body.npz.lock`` / ``.staging`` beside them."""
+def source_body_layout(session_path: Path, player: int = 1):
+    """The run layout of ``mirror init``'s two files for ``player``: the manifest ``source_body.json`` (the summary,
+    last), lock and staging ``.source_body.npz.lock`` / ``.staging`` beside them (player N > 1:
+    ``source_body_playerN.json``, ``.source_body_playerN.npz.lock``, ...)."""
+    from bodystudio.mirror.run import source_body_path
     from bodystudio.runfolder import RunLayout
 
-    root = Path(session_path) / SOURCE_BODY_FILE.parent
-    return RunLayout(root, SOURCE_SUMMARY_FILE.name, f".{SOURCE_BODY_FILE.name}.", str(root / SOURCE_BODY_FILE.name))
+    body = source_body_path(session_path, player)
+    return RunLayout(body.parent, body.with_suffix(".json").name, f".{body.name}.", str(body))
 
 
 app.command("run")(mirror_run)

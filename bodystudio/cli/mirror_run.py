@@ -20,10 +20,13 @@ def mirror_run(
     chest: float = typer.Option(0.0, help="chest girth change (m)"),
     waist: float = typer.Option(0.0, help="waist girth change (m)"),
     hips: float = typer.Option(0.0, help="hip girth change (m)"),
-    source: Path | None = typer.Option(None, help="source body .npz (default SESSION/mirror/source_body.npz)"),
+    source: list[Path] | None = typer.Option(None, help="source body .npz, one per --player in the same order "
+                                             "(default SESSION/mirror/source_body.npz, for player N > 1 "
+                                             "source_body_playerN.npz from `mirror init --player N`)"),
     run: Path | None = typer.Option(None, "--run", help="run folder for frames, masks and run.json "
                                     "(default SESSION/mirror/run)"),
-    player: int = typer.Option(1, help="Kinect player id to reshape, 1..6"),
+    player: list[int] | None = typer.Option(None, help="Kinect player id to reshape, 1..6 (default 1); repeat to "
+                                            "reshape several players: --player 1 --player 2"),
     warp: str = typer.Option("similarity", help="MLS variant: affine | similarity | rigid"),
     correspondence: str = typer.Option("dense", help="warp correspondence: dense (the target body rasterised, "
                                        "each pixel mapped to the same surface point, outline onto outline; MLS "
@@ -41,7 +44,8 @@ def mirror_run(
                                             "does not fit the session's tracked skeleton (another person's init; "
                                             "docs/mirror.md)"),
 ) -> None:
-    """Show the actor reshaped (virtual mirror, §5): writes the video, RUN/frames, RUN/masks and RUN/run.json."""
+    """Show the actor (or, with --player repeated, several actors) reshaped (virtual mirror, §5): writes the video,
+    RUN/frames, RUN/masks and RUN/run.json."""
     from bodystudio.mirror.run import run_mirror
 
     if not session.is_dir():
@@ -51,9 +55,17 @@ def mirror_run(
     _check_run_folder(run if run is not None else session / "mirror" / "run")
     given = {"taller": taller, "heavier": heavier, "muscular": muscular, "chest": chest, "waist": waist, "hips": hips}
     edits = {k: v for k, v in given.items() if v != 0.0}
-    doc = run_mirror(session, edits, out, source=source, side_by_side=side_by_side, progress=True, run_dir=run,
-                     player=player, kind=warp, ramp_frames=ramp_frames, live=live, live_timeout_s=live_timeout,
-                     correspondence=correspondence, refine_pose=refine_pose, accept_implausible=accept_implausible)
+    players = list(player) if player else [1]
+    sources = list(source) if source else None
+    if sources is not None and len(sources) != len(players):
+        raise InputError(f"--source given {len(sources)} times for {len(players)} players; give one --source per "
+                         "--player (in the same order), or none to read each player's body from the session")
+    one = len(players) == 1  # one player: the run of earlier versions (run.json without "players")
+    doc = run_mirror(session, edits, out, source=sources if sources is None or not one else sources[0],
+                     side_by_side=side_by_side, progress=True, run_dir=run, player=players[0] if one else players,
+                     kind=warp, ramp_frames=ramp_frames, live=live, live_timeout_s=live_timeout,
+                     correspondence=correspondence, refine_pose=refine_pose,
+                     accept_implausible=accept_implausible)
     summary = doc["summary"]
     typer.echo(json.dumps({"run": str(run if run is not None else session / "mirror" / "run"),
                            "videos": doc["videos"], "edits": doc["edits"], **summary}, indent=1))

@@ -106,21 +106,38 @@ def compose(warped_rgb, warped_mask, background: BackgroundModel, rgb, fg_mask, 
     if background.image.shape != rgb.shape:
         raise InputError(f"background model {background.image.shape} does not match the frame {rgb.shape}")
     alpha = alpha.astype(np.float32)
-    m8 = fg_mask.astype(np.uint8)
-    if hole_margin_px > 0:
-        m8 = cv2.dilate(m8, np.ones((2 * hole_margin_px + 1,) * 2, np.uint8))
-    hole = (m8 > 0) & (alpha < 1.0)
-    out = cv2.copyTo(background.image, (hole & background.valid).astype(np.uint8), rgb.copy())
-    unknown = hole & ~background.valid
-    n_unknown = int(np.count_nonzero(unknown))
-    if n_unknown:
-        out = cv2.inpaint(out, unknown.astype(np.uint8), 3, cv2.INPAINT_TELEA)
-    if stats is not None:
-        stats["hole_px"] = int(np.count_nonzero(hole))
-        stats["inpainted_px"] = n_unknown
+    H, W = fg_mask.shape
+    out = rgb.copy()
+    # every pixel this touches lies in the box of the grown foreground and the covered pixels: work there (the
+    # same frame bit for bit; two actors' frame 1.6 -> see docs/mirror.md, MIRFAST3)
+    margin = max(int(hole_margin_px), 0)
+    fx, fy, fw, fh = cv2.boundingRect(fg_mask.view(np.uint8) if fg_mask.dtype == bool else fg_mask.astype(np.uint8))
     covered = alpha > 0
-    if covered.any():
-        x, y, w, h = cv2.boundingRect(covered.view(np.uint8))
+    cx, cy, cw, ch = cv2.boundingRect(covered.view(np.uint8))
+    boxes = [b for b in ((fx - margin, fy - margin, fx + fw + margin, fy + fh + margin) if fw else None,
+                         (cx, cy, cx + cw, cy + ch) if cw else None) if b is not None]
+    n_hole = n_unknown = 0
+    if boxes:
+        x0, y0 = max(min(b[0] for b in boxes), 0), max(min(b[1] for b in boxes), 0)
+        x1, y1 = min(max(b[2] for b in boxes), W), min(max(b[3] for b in boxes), H)
+        box = (slice(y0, y1), slice(x0, x1))
+        m8 = fg_mask[box].astype(np.uint8)
+        if hole_margin_px > 0:
+            m8 = cv2.dilate(m8, np.ones((2 * hole_margin_px + 1,) * 2, np.uint8))
+        hole = (m8 > 0) & (alpha[box] < 1.0)
+        valid = background.valid[box]
+        out[box] = cv2.copyTo(background.image[box], (hole & valid).astype(np.uint8), out[box])
+        unknown = hole & ~valid
+        n_hole, n_unknown = int(np.count_nonzero(hole)), int(np.count_nonzero(unknown))
+        if n_unknown:
+            full = np.zeros((H, W), np.uint8)
+            full[box] = unknown
+            out = cv2.inpaint(out, full, 3, cv2.INPAINT_TELEA)
+    if stats is not None:
+        stats["hole_px"] = n_hole
+        stats["inpainted_px"] = n_unknown
+    if cw:
+        x, y, w, h = cx, cy, cw, ch
         roi = (slice(y, y + h), slice(x, x + w))
         a_roi = alpha[roi]
         # alpha 1 takes the warped colour as it is, alpha 0 leaves the frame: only the soft edge is blended (the

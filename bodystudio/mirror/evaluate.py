@@ -182,12 +182,20 @@ def _read_png(path: Path, color: bool) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------------- scores
 
+#: A run of several players (``mirror run --player 1 --player 2``): a player's fg_iou and warp_iou count the run's
+#: mask pixels within this many pixels of that player's true or target silhouette and not on another player's
+#: (the masks hold all players).
+NEAR_PX = 15
+
+
 def image_scores(session, run_dir: str | Path, run: dict, band_px: int = BAND_PX) -> dict:
-    """The image scores (fg_iou, fg_iou_raw, warp_iou, warp_iou_unwarped, psnr_person, ssim_person) of a run."""
+    """The image scores (fg_iou, fg_iou_raw, warp_iou, warp_iou_unwarped, psnr_person, ssim_person) of a run's
+    ``player`` (a run of several players: its masks near that player, :data:`NEAR_PX`)."""
     from bodystudio.mirror.frames import player_mask_in_color, read_mirror_frame
 
     run_dir = Path(run_dir)
     player = int(run.get("player", 1))
+    several = len(run.get("players") or ()) > 1  # mirror run --player 1 --player 2
     status = {f["index"]: f.get("status") for f in run["frames"]}
     fg, fg_raw, warp, unwarped, ssim = [], [], [], [], []
     sse, count, scored, passed = 0.0, 0, [], 0
@@ -218,6 +226,12 @@ def image_scores(session, run_dir: str | Path, run: dict, band_px: int = BAND_PX
             raise FileFormatError(f"{run_dir / 'frames' / name}: image size {output.shape[1]}x{output.shape[0]} is "
                                   f"not the session's colour {truth.shape[1]}x{truth.shape[0]}; re-run the mirror")
         raw = player_mask_in_color(read_mirror_frame(session, i), session.kinect, player)
+        if several:  # the run's masks hold every reshaped player: score this one's, those near it, not another's
+            mine = cv2.dilate((truth | target).astype(np.uint8), np.ones((2 * NEAR_PX + 1,) * 2, np.uint8)) > 0
+            mine &= (frame.gt_person == 0) | truth
+            if target_labels is not None:
+                mine &= (target_labels == 0) | target
+            refined, warped = refined & mine, warped & mine
         fg.append(mask_iou(refined, truth))
         fg_raw.append(mask_iou(raw, truth))
         warp.append(mask_iou(warped, target))
@@ -329,9 +343,10 @@ def strict_json_scores(scores: dict) -> dict:
 def evaluate_mirror(session, run_dir: str | Path | None = None, source=None, band_px: int = BAND_PX) -> dict:
     """The acceptance JSON of issue 12 for a run of ``bodystudio mirror run`` on a synthetic mirror session.
 
-    ``run_dir`` defaults to ``SESSION/mirror/run``; ``source`` (a SourceBody) to
-    ``SESSION/mirror/source_body.npz``. See the module docstring for the keys; the result is strict JSON
-    (:func:`strict_json_scores`: ``psnr_person`` is ``None`` with ``psnr_person_identical`` when the output
+    ``run_dir`` defaults to ``SESSION/mirror/run``; ``source`` (a SourceBody) to the run's player's body,
+    ``SESSION/mirror/source_body.npz`` (player N > 1: ``source_body_playerN.npz``, :func:`run.source_body_path`); a
+    run of several players is scored for its first player. See the module docstring for the keys; the result is
+    strict JSON (:func:`strict_json_scores`: ``psnr_person`` is ``None`` with ``psnr_person_identical`` when the output
     equals the target in the band).
     """
     session = check_mirror_session(session)
@@ -339,9 +354,13 @@ def evaluate_mirror(session, run_dir: str | Path | None = None, source=None, ban
     run = read_mirror_run(session, run_dir)
     player = int(run.get("player", 1))
     if source is None:
-        path = Path(session.path) / "mirror" / "source_body.npz"
+        from bodystudio.mirror.run import source_body_path
+
+        path = source_body_path(session.path, player)  # the run's (first) player's body: mirror init --player N
         if not path.is_file():
-            raise InputError(f"{path}: missing; run `bodystudio mirror init {session.path}` (the run needs it too)")
+            again = "" if player == 1 else f" --player {player}"
+            raise InputError(f"{path}: missing; run `bodystudio mirror init {session.path}{again}` (the run needs "
+                             "it too)")
         from bodystudio.mirror.init import load_source_body
 
         source = load_source_body(path)

@@ -85,7 +85,7 @@ def foreground_band(mask: np.ndarray, band_px: int) -> tuple[np.ndarray, np.ndar
 def refine_foreground(rgb, player_mask_color, depth_color=None, band_px: int = 6, smoothness: float = 5.0,
                       depth_weight: float = 3.0, depth_tol_m: float = 0.35, background=None,
                       background_weight: float = 1.0, background_sigma: float = 12.0,
-                      method: str = "maxflow", unseen=None, unseen_reach_px: int = 40) -> np.ndarray:
+                      method: str = "maxflow", unseen=None, unseen_reach_px: int = 40, labels=None) -> np.ndarray:
     """Graph-cut refinement of the player mask in a narrow band around its boundary, §5.3 (Boykov-Jolly 2001).
 
     ``rgb`` (H, W, 3) uint8; ``player_mask_color`` (H, W) the SDK mask mapped into colour; ``depth_color``
@@ -95,7 +95,10 @@ def refine_foreground(rgb, player_mask_color, depth_color=None, band_px: int = 6
     Pixels farther than ``band_px`` from the mask boundary keep the mask's label, except ``unseen`` ones:
     (H, W) bool colour pixels the depth camera does not see (its view is narrower than the colour
     camera's), where the SDK mask is empty whatever is there; those within ``unseen_reach_px`` of the
-    mask join the band, so a person at the edge of the depth view is completed by colour.
+    mask join the band, so a person at the edge of the depth view is completed by colour. ``labels`` (H, W) uint8:
+    the player of each mask pixel when the mask holds several (``mirror run --player 1 --player 2``): each band
+    pixel's depth term is then taken against the median depth of the player nearest it, not of all of them (two
+    actors at different distances: the farther one's pixels were "well behind" the joint median).
     """
     if method not in FOREGROUND_METHODS:
         raise InputError(f"foreground method {method!r}; valid: {', '.join(FOREGROUND_METHODS)}")
@@ -112,10 +115,17 @@ def refine_foreground(rgb, player_mask_color, depth_color=None, band_px: int = 6
         if unseen.shape != mask.shape:
             raise InputError(f"refine_foreground: unseen mask {unseen.shape} must match the colour image {mask.shape}")
         reach = int(np.clip(unseen_reach_px, 0, 512))
-        near = cv2.dilate(mask.astype(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) > 0
-        extra = unseen & near & ~mask
-        if not extra.any():
-            extra = None
+        # within reach of the mask only: the dilation on the mask's box grown by the reach (the same pixels as over
+        # the whole frame), and none at all when no unseen pixel lies in that box (the usual frame)
+        x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+        box = (slice(max(y - reach, 0), min(y + h + reach, H)), slice(max(x - reach, 0), min(x + w + reach, W)))
+        extra = None
+        if unseen[box].any():
+            near = cv2.dilate(mask[box].view(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) > 0
+            extra = np.zeros_like(mask)
+            extra[box] = unseen[box] & near & ~mask[box]
+            if not extra.any():
+                extra = None
     # Work in the crop that holds the band and the sure rings the colour models are learnt from.
     x, y, w, h = cv2.boundingRect((mask if extra is None else mask | extra).astype(np.uint8))
     pad = 3 * band_px + 2
@@ -127,15 +137,18 @@ def refine_foreground(rgb, player_mask_color, depth_color=None, band_px: int = 6
         band |= extra[crop] & ~inner
     if not band.any():
         return mask.copy()
+    if labels is not None and np.shape(labels) != mask.shape:
+        raise InputError(f"refine_foreground: labels {np.shape(labels)} must match the colour image {mask.shape}")
     if method == "grabcut":
-        labels = _grabcut(sub_rgb, inner, band)
+        cut = _grabcut(sub_rgb, inner, band)
     else:
-        labels = _band_graph_cut(sub_rgb, sub_mask, inner, band, band_px, smoothness,
-                                 None if depth is None else depth[crop], depth_weight, depth_tol_m,
-                                 None if background is None else (background.image[crop], background.valid[crop]),
-                                 background_weight, background_sigma, None if extra is None else extra[crop])
+        cut = _band_graph_cut(sub_rgb, sub_mask, inner, band, band_px, smoothness,
+                              None if depth is None else depth[crop], depth_weight, depth_tol_m,
+                              None if background is None else (background.image[crop], background.valid[crop]),
+                              background_weight, background_sigma, None if extra is None else extra[crop],
+                              None if labels is None else np.asarray(labels)[crop])
     out = mask.copy()
-    out[crop] = inner | labels
+    out[crop] = inner | cut
     return out
 
 
@@ -145,12 +158,13 @@ UNSEEN_BACKGROUND_GAIN = 4.0
 
 
 def _band_graph_cut(rgb, mask, inner, band, band_px, smoothness, depth, depth_weight, depth_tol_m, background,
-                    background_weight, background_sigma, extra=None) -> np.ndarray:
+                    background_weight, background_sigma, extra=None, labels=None) -> np.ndarray:
     import maxflow
 
     h, w = mask.shape
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * band_px + 1, 4 * band_px + 1))
-    near = cv2.dilate(band.view(np.uint8), k)
+    # the ring is a square's reach (a separable dilation, 0.86 -> 0.09 ms on the two-actor crop) rather than a
+    # disc's: it only picks the pixels the colour models count; the bench frames' cuts differ by 0-1 pixels (MIRFAST3)
+    near = cv2.dilate(band.view(np.uint8), np.ones((4 * band_px + 1, 4 * band_px + 1), np.uint8))
     # sure rings next to the band: the local colour models (one numba pass over the crop)
     fg_counts, bg_counts = _ring_histograms(rgb, near, inner.view(np.uint8), band.view(np.uint8))
     if fg_counts.sum() == 0 or bg_counts.sum() == 0:
@@ -160,16 +174,19 @@ def _band_graph_cut(rgb, mask, inner, band, band_px, smoothness, depth, depth_we
     if depth is not None:
         person = depth[inner & (depth > 0)]
         z = float(np.median(person)) if len(person) else 0.0
+    zs = np.full(len(br), z)
+    if depth is not None and labels is not None:
+        zs = _nearest_player_depths(labels, mask, inner, depth, band_px, br, bc, z)
     if background is None:
         image, valid, bg_gain = rgb, np.zeros((h, w), np.uint8), 0.0
     else:
         image, valid = background[0], background[1].view(np.uint8)
         bg_gain = background_weight * 4.0
-    cost_fg, cost_bg = _band_data_costs(rgb, br, bc, colour_log_table(fg_counts), colour_log_table(bg_counts),
-                                        np.zeros((1, 1)) if depth is None else depth, z, depth_weight, depth_tol_m,
-                                        image, valid, bg_gain, 1.0 / (2 * 3 * background_sigma ** 2),
-                                        np.zeros((1, 1), np.uint8) if extra is None else extra.view(np.uint8),
-                                        UNSEEN_BACKGROUND_GAIN)
+    cost_fg, cost_bg = _band_data_costs_z(rgb, br, bc, colour_log_table(fg_counts), colour_log_table(bg_counts),
+                                          np.zeros((1, 1)) if depth is None else depth, zs, depth_weight,
+                                          depth_tol_m, image, valid, bg_gain, 1.0 / (2 * 3 * background_sigma ** 2),
+                                          np.zeros((1, 1), np.uint8) if extra is None else extra.view(np.uint8),
+                                          UNSEEN_BACKGROUND_GAIN)
     # node ids of band pixels; -1 elsewhere
     node = np.full((h, w), -1, np.int64)
     node[br, bc] = np.arange(len(br))
@@ -205,23 +222,50 @@ def _ring_histograms(rgb, near, inner, band):
     return fg, bg
 
 
+def _nearest_player_depths(labels, mask, inner, depth, band_px, br, bc, z_all) -> np.ndarray:
+    """The reference depth of each band pixel ``(br, bc)``: the median depth of the sure foreground of the player
+    whose mask pixels are nearest (``labels``, dilated by the band), ``z_all`` (all players') where none is."""
+    lab = np.where(mask, labels, 0).astype(np.uint8)
+    players = np.unique(lab[inner])
+    players = players[players > 0]
+    zs = np.full(len(br), z_all)
+    if len(players) < 2:
+        return zs
+    # the highest label within reach: a pixel between two players takes one of them
+    near = cv2.dilate(lab, np.ones((2 * band_px + 3, 2 * band_px + 3), np.uint8))[br, bc]
+    for p in players:
+        d = depth[inner & (lab == p) & (depth > 0)]
+        if len(d):
+            zs[near == p] = float(np.median(d))
+    return zs
+
+
 @njit(cache=True)
 def _band_data_costs(rgb, br, bc, logp_fg, logp_bg, depth, z, depth_weight, depth_tol_m, image, valid, bg_gain,
                      inv_two_var, extra, extra_gain):
+    """:func:`_band_data_costs_z` with one reference depth ``z`` for every band pixel (one person)."""
+    return _band_data_costs_z(rgb, br, bc, logp_fg, logp_bg, depth, np.full(br.shape[0], z), depth_weight,
+                              depth_tol_m, image, valid, bg_gain, inv_two_var, extra, extra_gain)
+
+
+@njit(cache=True)
+def _band_data_costs_z(rgb, br, bc, logp_fg, logp_bg, depth, zs, depth_weight, depth_tol_m, image, valid, bg_gain,
+                       inv_two_var, extra, extra_gain):
     """Data terms of the band's pixels, the cost of labelling each foreground and background (nats): colour
-    (-log of the local histograms), depth (near the person's median depth ``z``: foreground; well behind it:
-    background; only with ``z`` > 0) and the learnt background image (``valid`` pixels, ``bg_gain`` > 0)."""
+    (-log of the local histograms), depth (near the person's median depth ``zs[k]`` of band pixel k: foreground;
+    well behind it: background; only where it is > 0) and the learnt background image (``valid`` pixels,
+    ``bg_gain`` > 0)."""
     n = br.shape[0]
     cost_fg = np.empty(n)
     cost_bg = np.empty(n)
-    use_depth = z > 0.0
     use_extra = extra.shape[0] > 1
     for k in range(n):
         r, c = br[k], bc[k]
         b = ((rgb[r, c, 0] >> _SHIFT) * HIST_BINS + (rgb[r, c, 1] >> _SHIFT)) * HIST_BINS + (rgb[r, c, 2] >> _SHIFT)
         f = -logp_fg[b]
         g = -logp_bg[b]
-        if use_depth:
+        z = zs[k]
+        if z > 0.0:
             d = depth[r, c]
             if d > 0.0:
                 if abs(d - z) < depth_tol_m:

@@ -599,13 +599,16 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
 
 # --- persistence -----------------------------------------------------------------------------------
 
-def save_source_body(path: str | Path, body: SourceBody) -> None:
-    """Write a source body as one versioned ``.npz`` (atomically)."""
+def save_source_body(path: str | Path, body: SourceBody, player: int | None = None) -> None:
+    """Write a source body as one versioned ``.npz`` (atomically); ``player``: the Kinect player it was fitted to,
+    recorded so that ``mirror run`` never pairs it with another player (``run.check_source_player``)."""
     sk = body.skeleton
     arrays = dict(version=np.array(SOURCE_BODY_VERSION), coeffs=body.coeffs, vertices=body.vertices,
                   bone_names=np.array(sk.bone_names), parents=sk.parents, heads=sk.heads, tails=sk.tails,
                   rolls=sk.rolls, frames_used=np.array(body.frames_used, dtype=np.int64),
                   residual_mm=np.array(body.residual_mm))
+    if player is not None:
+        arrays["player"] = np.array(int(player), dtype=np.int64)
     with atomic_path(path, suffix=".npz") as tmp:
         np.savez(tmp, **arrays)
 

@@ -29,7 +29,14 @@ from bodystudio.errors import BodyStudioError, FileFormatError, InputError
 from bodystudio.fileio import Mp4Writer, atomic_write
 from bodystudio.mirror.compose import BackgroundModel, compose, update_background
 from bodystudio.mirror.foreground import refine_foreground
-from bodystudio.mirror.warp import CORRESPONDENCES, MLS_KINDS, mls_warp_field, warp_foreground, warp_pairs
+from bodystudio.mirror.warp import (
+    CORRESPONDENCES,
+    MLS_KINDS,
+    actors_warp_pairs,
+    mls_warp_field,
+    warp_foreground,
+    warp_pairs,
+)
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +96,8 @@ class MirrorInput:
     # ``late_pairs(foreground, timings) -> warp.WarpPairs``: the pose refinement, bodies and pairs, which need
     # the refined foreground of the frame (``--refine-pose``); src_uv/dst_uv/dense are then None until called
     late_pairs: Callable | None = None
+    players: tuple | None = None  # the players reshaped in this frame when the run reshapes several (else None)
+    person_labels: np.ndarray | None = None  # (H, W) uint8 the player of each person_mask pixel (several players)
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,14 +141,18 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     if background is None:
         background = update_background(None, rgb, np.ones((H, W), bool))  # nothing learnt yet: inpaint holes
     t0 = time.perf_counter()
-    fg = refine_foreground(rgb, person, inp.depth_color, background=background, unseen=inp.unseen,
-                           **(foreground_options or {}))
+    options = dict(foreground_options or {})
+    if inp.person_labels is not None:  # several players: each band pixel's depth against its own player's
+        options["labels"] = inp.person_labels
+    fg = refine_foreground(rgb, person, inp.depth_color, background=background, unseen=inp.unseen, **options)
     t1 = time.perf_counter()
     timings["foreground"] = (t1 - t0) * 1e3
     if inp.late_pairs is not None:  # its own steps (refine_pose, bodies, pairs) time themselves
         pairs = inp.late_pairs(fg, timings)
+        groups = getattr(pairs, "groups", None)
         inp = MirrorInput(inp.index, rgb, inp.person_mask, inp.others_mask, inp.depth_color, pairs.src_uv,
-                          pairs.dst_uv, None, timings, inp.pair_groups, inp.unseen, inp.edit_fraction, pairs.dense)
+                          pairs.dst_uv, None, timings, inp.pair_groups if groups is None else groups, inp.unseen,
+                          inp.edit_fraction, pairs.dense, players=inp.players, person_labels=inp.person_labels)
         if len(pairs.src_uv) < MIN_PAIRS:
             return mirror_frame(_too_few_pairs(inp), background, kind, foreground_options, alpha)
         t1 = time.perf_counter()
@@ -257,9 +270,12 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
                 res.timings_ms["write"] = (time.perf_counter() - t) * 1e3
                 for step, value in res.timings_ms.items():
                     steps_ms.setdefault(step, []).append(value)
-                results.append({"index": res.index, "status": res.status, "warning": res.warning,
-                                "edit_fraction": inp.edit_fraction,
-                                "ms": {k: round(v, 3) for k, v in res.timings_ms.items()}})
+                record = {"index": res.index, "status": res.status, "warning": res.warning,
+                          "edit_fraction": inp.edit_fraction,
+                          "ms": {k: round(v, 3) for k, v in res.timings_ms.items()}}
+                if inp.players is not None:  # a run of several players: who was reshaped in this frame
+                    record["players"] = list(inp.players) if res.status == "ok" else []
+                results.append(record)
                 bar.advance(task)
         finally:
             for writer in writers.values():
@@ -274,16 +290,56 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
 
 # ---------------------------------------------------------------------------------------------- session side
 
-def load_source(session, source=None):
+def source_body_path(session_path, player: int = 1) -> Path:
+    """Where ``bodystudio mirror init --player N`` writes player N's source body: ``SESSION/mirror/source_body.npz``
+    for player 1 (the file of single-player sessions), ``SESSION/mirror/source_body_player{N}.npz`` for another.
+    Each file also records its player (:func:`source_body_player`), so no run pairs a player with another's body."""
+    name = "source_body.npz" if int(player) == 1 else f"source_body_player{int(player)}.npz"
+    return Path(session_path) / "mirror" / name
+
+
+def source_body_player(path) -> int | None:
+    """The player a source body file was fitted to: its ``player`` entry (``mirror init`` writes it), else the
+    ``player`` of the summary beside it (``source_body.json`` of older inits), None when neither says."""
+    import json
+    import zipfile
+
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "player" in z.files:
+                return int(z["player"])
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+        return None  # load_source_body names what is wrong with the file
+    try:
+        player = json.loads(path.with_suffix(".json").read_text(encoding="utf-8")).get("player")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return int(player) if isinstance(player, int) and not isinstance(player, bool) else None
+
+
+def check_source_player(path, player: int) -> None:
+    """One-line InputError when the source body file ``path`` records another player than ``player``."""
+    recorded = source_body_player(path)
+    if recorded is not None and recorded != int(player):
+        raise InputError(f"{path}: the source body of player {recorded}, not of player {player}; run 'bodystudio "
+                         f"mirror init SESSION --player {player}' (it writes "
+                         f"mirror/{source_body_path('.', player).name}) or give player {player}'s body")
+
+
+def load_source(session, source=None, player: int = 1):
     """The source body (with skin weights and faces) and its statistical model, from ``source`` (a SourceBody
-    or an .npz path) or ``SESSION/mirror/source_body.npz``."""
+    or an .npz path) or ``player``'s file in the session (:func:`source_body_path`); a file that records another
+    player is refused (:func:`check_source_player`)."""
     from bodystudio.body.statistical import load_statistical_model
 
-    path = Path(session.path) / "mirror" / "source_body.npz" if source is None else Path(source) \
+    path = source_body_path(session.path, player) if source is None else Path(source) \
         if isinstance(source, (str, os.PathLike)) else source
     if isinstance(path, Path) and not path.is_file():
-        raise FileFormatError(f"{path}: source body not found; run 'bodystudio mirror init {session.path}' first "
-                              "(or give --source)")
+        raise FileFormatError(f"{path}: source body not found; run 'bodystudio mirror init {session.path}"
+                              f"{'' if int(player) == 1 else f' --player {int(player)}'}' first (or give --source)")
+    if isinstance(path, Path):
+        check_source_player(path, player)
     init = _stage_module("init")
     SourceBody, load_source_body = init.SourceBody, init.load_source_body
     body = source if isinstance(source, SourceBody) else load_source_body(path)
@@ -296,18 +352,51 @@ def load_source(session, source=None):
                      "(6k, 2k); rerun 'bodystudio mirror init'")
 
 
-def session_inputs(session, body, model, edits: dict[str, float], player: int = 1, ramp_frames: int = 30,
+def frame_pairs(sources, targets, faces, camera, correspondence: str = CORRESPONDENCE):
+    """The warp's constraints of one frame (:class:`bodystudio.mirror.warp.WarpPairs`) from the posed source and
+    target bodies of the actors reshaped (lists, one body each, the same ``faces``): one actor's by
+    :func:`~bodystudio.mirror.warp.warp_pairs`, several actors' in one call
+    (:func:`~bodystudio.mirror.warp.actors_warp_pairs`: one z-buffer per body, ``groups`` says whose each pair
+    is). The run and ``benchmarks/bench_mirror.py`` both call this."""
+    dense = correspondence == "dense"
+    # the statistical model's bodies are closed and wound outwards: their z-buffers need only the triangles facing
+    # the camera (warp.front_render, MIRFAST3)
+    if len(sources) == 1:
+        return warp_pairs(sources[0], targets[0], faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=dense, closed=True)
+    return actors_warp_pairs(sources, targets, faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=dense, closed=True)
+
+
+@dataclass
+class _Actor:
+    """One reshaped player's state through a run: its body, target (Eq. 4), refinement plan, last pose, ramp."""
+
+    player: int
+    body: object
+    c_target: np.ndarray
+    target_rest: np.ndarray
+    plan: object = None
+    previous: object = None
+    tracked_frames: int = 0
+
+
+def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp_frames: int = 30,
                    frames: Iterable[int] | None = None,
                    correspondence: str = CORRESPONDENCE, refine: bool = False) -> Iterator[MirrorInput]:
     """Per frame of ``session``: the colour frame, the player masks in colour and the projected vertex pairs
     (with ``correspondence`` ``dense`` also the dense correspondence of the posed bodies).
 
+    ``player`` one Kinect player id with its source ``body``, or a sequence of players with a sequence of bodies
+    (the same order): all of them are reshaped in each frame, their masks together the person of the graph cut,
+    their pairs from one :func:`frame_pairs` call. A chosen player not in view is left out of the frame; one in
+    the mask but not tracked (or tracked with an empty mask, or whose tracking fails) passes the frame through
+    with a warning, as for one player.
+
     The target body is computed once (Eq. 4) and reached gradually: the target rest shape is
-    ``V_S + s (V_T - V_S)`` with ``s`` going 0 -> 1 over ``ramp_frames`` tracked frames (Eq. 4 is linear in
-    lambda, so this is the ramp of lambda without a solve per frame). ``refine``: the IK pose is refined
-    against the frame's refined foreground, the depth and the joints (:func:`bodystudio.mirror.refine.refine_pose`)
-    before it poses the source and target bodies: the frame then carries ``late_pairs``, which
-    :func:`mirror_frame` calls after the graph cut.
+    ``V_S + s (V_T - V_S)`` with ``s`` going 0 -> 1 over ``ramp_frames`` tracked frames of that player (Eq. 4 is
+    linear in lambda, so this is the ramp of lambda without a solve per frame). ``refine``: the IK pose is refined
+    against the frame's refined foreground (without the other players' pixels), the depth and the joints
+    (:func:`bodystudio.mirror.refine.refine_pose`) before it poses the source and target bodies: the frame then
+    carries ``late_pairs``, which :func:`mirror_frame` calls after the graph cut.
     """
     from bodystudio.mirror.frames import read_mirror_frame, register_depth_to_color
     from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
@@ -317,17 +406,22 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
     if sensor is None:
         raise InputError(f"{session.path}: not a Kinect session (no kinect/calibration.json); the mirror needs "
                          "Kinect colour, depth, player mask and joints")
-    c_target = target_coeffs(model, body.coeffs, edits)
-    target_rest = model.vertices(c_target)
+    several = not isinstance(player, (int, np.integer))
+    players = tuple(int(p) for p in player) if several else (int(player),)
+    bodies = tuple(body) if several else (body,)
+    if len(bodies) != len(players) or not players:
+        raise InputError(f"session_inputs: {len(players)} players but {len(bodies)} source bodies")
+    actors = []
+    for p, b in zip(players, bodies, strict=True):
+        c_target = target_coeffs(model, b.coeffs, edits)
+        actors.append(_Actor(p, b, c_target, model.vertices(c_target)))
     camera = sensor.color
-    previous = None
-    plan = None
     if refine:
         from bodystudio.mirror.frames import point_cloud
         from bodystudio.mirror.refine import refine_plan, refine_pose
 
-        plan = refine_plan(body.vertices, body.faces, body.weights, body.skeleton, sensor.version)
-    tracked_frames = 0
+        for a in actors:
+            a.plan = refine_plan(a.body.vertices, a.body.faces, a.body.weights, a.body.skeleton, sensor.version)
     last_rgb = None
     seen = None
     for i in (session.frame_ids if frames is None else frames):
@@ -343,68 +437,99 @@ def session_inputs(session, body, model, edits: dict[str, float], player: int = 
         t1 = time.perf_counter()
         timings["read"] = (t1 - t) * 1e3
         depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, sensor)
-        # where the depth camera has ever measured (its view is narrower than the colour camera's)
-        seen = (depth_c > 0) if seen is None else seen | (depth_c > 0)
-        unseen = cv2.dilate(seen.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
-        person = players_c == int(player)
+        # where the depth camera has ever measured (its view is narrower than the colour camera's); grown only when
+        # a frame measures somewhere new, so its dilation is redone only then
+        measured = depth_c > 0
+        if seen is None or (measured & ~seen).any():
+            seen = measured if seen is None else seen | measured
+            unseen = cv2.dilate(seen.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
+        person = players_c == players[0] if not several else np.isin(players_c, players)
         others = (players_c > 0) & ~person
         t2 = time.perf_counter()
         timings["register"] = (t2 - t1) * 1e3
-        tracked = frame.body(int(player))
         base = dict(index=int(i), rgb=frame.rgb, person_mask=person, others_mask=others, depth_color=depth_c,
-                    timings_ms=timings, unseen=unseen)
-        if tracked is None:
-            warning = None if not person.any() else f"player {player} is in the mask but no body is tracked"
-            yield MirrorInput(**base, warning=warning)
+                    timings_ms=timings, unseen=unseen,
+                    person_labels=np.where(person, players_c, 0).astype(np.uint8) if several else None)
+        present, warning = [], None
+        for a in actors:
+            tracked = frame.body(a.player)
+            mine = person if not several else players_c == a.player
+            if tracked is None:
+                if mine.any():
+                    warning = f"player {a.player} is in the mask but no body is tracked"
+                    break
+                continue  # this player is not in view
+            present.append((a, tracked, mine))
+        if warning is None and present:
+            if not (frame.depth_m > 0).any():
+                warning = "depth missing (no depth measurement in the frame)"
+            else:
+                empty = next((a for a, _, mine in present if not mine.any()), None)
+                if empty is not None:
+                    warning = f"body {empty.player} is tracked but its player mask is empty"
+        if warning is not None or not present:
+            yield MirrorInput(**base, warning=warning, players=() if several else None)
             continue
-        if not (frame.depth_m > 0).any():
-            yield MirrorInput(**base, warning="depth missing (no depth measurement in the frame)")
+        poses = []
+        for a, tracked, _ in present:
+            try:
+                poses.append(ik_pose(a.body.skeleton, tracked.positions, tracked.tracked, sensor.version,
+                                     previous=a.previous))
+            except BodyStudioError as exc:
+                warning = f"tracking failed: {exc}" if not several else f"tracking player {a.player} failed: {exc}"
+                break
+        if warning is not None:
+            yield MirrorInput(**base, warning=warning, players=() if several else None)
             continue
-        if not person.any():
-            yield MirrorInput(**base, warning=f"body {player} is tracked but its player mask is empty")
-            continue
-        try:
-            pose = ik_pose(body.skeleton, tracked.positions, tracked.tracked, sensor.version, previous=previous)
-        except BodyStudioError as exc:
-            yield MirrorInput(**base, warning=f"tracking failed: {exc}")
-            continue
-        previous = pose
+        shapes = []
+        for (a, _, _), pose in zip(present, poses, strict=True):
+            a.previous = pose
+            a.tracked_frames += 1
+            s = min(1.0, a.tracked_frames / max(int(ramp_frames), 1))
+            Vt_rest = a.body.vertices + s * (a.target_rest - a.body.vertices)
+            rig = target_skeleton(a.body, Vt_rest, model, a.body.coeffs + s * (a.c_target - a.body.coeffs))
+            shapes.append((s, Vt_rest, rig))
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
-        tracked_frames += 1
-        s = min(1.0, tracked_frames / max(int(ramp_frames), 1))
-        Vt_rest = body.vertices + s * (target_rest - body.vertices)
-        rig = target_skeleton(body, Vt_rest, model, body.coeffs + s * (c_target - body.coeffs))
+        fraction = min(s for s, _, _ in shapes)
+        reshaped = tuple(a.player for a, _, _ in present) if several else None
 
-        def bodies_and_pairs(foreground, timings, pose=pose, frame=frame, tracked=tracked, others=others,
-                             Vt_rest=Vt_rest, rig=rig):
-            """Pose refinement (with the frame's refined ``foreground`` when given), both bodies, the pairs."""
-            t = time.perf_counter()
-            if foreground is not None:
-                points = point_cloud(frame, sensor, int(player))
-                points = points[points[:, 1] > 0.02]  # not the floor under the feet
-                try:
-                    pose = refine_pose(plan, body.skeleton, pose, camera, foreground, tracked.positions,
-                                       tracked.tracked, points, others, sensor.version)
-                except BodyStudioError as exc:  # mirror_stream passes the frame through with this warning
-                    raise InputError(f"pose refinement failed: {exc}") from exc
-                t_refined = time.perf_counter()
-                timings["refine_pose"] = (t_refined - t) * 1e3
-                t = t_refined
-            Vs, Vt = posed_source_and_target(body, Vt_rest, pose, rig)
+        def bodies_and_pairs(foreground, timings, poses=poses, frame=frame, present=present, shapes=shapes,
+                             players_c=players_c, others=others):
+            """Pose refinement (with the frame's refined ``foreground`` when given), the bodies, the pairs."""
+            sources, targets = [], []
+            for (a, tracked, _), pose, (_, Vt_rest, rig) in zip(present, poses, shapes, strict=True):
+                t = time.perf_counter()
+                if foreground is not None:
+                    points = point_cloud(frame, sensor, a.player)
+                    points = points[points[:, 1] > 0.02]  # not the floor under the feet
+                    # several players: this one's foreground is the cut's without the other players' pixels
+                    not_mine = others if not several else (players_c > 0) & (players_c != a.player)
+                    fg = foreground if not several else foreground & ~not_mine
+                    try:
+                        pose = refine_pose(a.plan, a.body.skeleton, pose, camera, fg, tracked.positions,
+                                           tracked.tracked, points, not_mine, sensor.version)
+                    except BodyStudioError as exc:  # mirror_stream passes the frame through with this warning
+                        who = f" of player {a.player}" if several else ""
+                        raise InputError(f"pose refinement{who} failed: {exc}") from exc
+                    t_refined = time.perf_counter()
+                    timings["refine_pose"] = timings.get("refine_pose", 0.0) + (t_refined - t) * 1e3
+                    t = t_refined
+                Vs, Vt = posed_source_and_target(a.body, Vt_rest, pose, rig)
+                sources.append(Vs)
+                targets.append(Vt)
+                timings["bodies"] = timings.get("bodies", 0.0) + (time.perf_counter() - t) * 1e3
             t_bodies = time.perf_counter()
-            timings["bodies"] = (t_bodies - t) * 1e3
-            pairs = warp_pairs(Vs, Vt, body.faces, camera, N_HANDLES, rim_cos=RIM_COS,
-                               dense=correspondence == "dense")
+            pairs = frame_pairs(sources, targets, present[0][0].body.faces, camera, correspondence)
             timings["pairs"] = (time.perf_counter() - t_bodies) * 1e3
             return pairs
 
-        if plan is not None:  # the pose waits for the graph cut's foreground (mirror_frame calls back)
-            yield MirrorInput(**base, edit_fraction=s, late_pairs=bodies_and_pairs)
+        if refine:  # the pose waits for the graph cut's foreground (mirror_frame calls back)
+            yield MirrorInput(**base, edit_fraction=fraction, late_pairs=bodies_and_pairs, players=reshaped)
             continue
         pairs = bodies_and_pairs(None, timings)
-        yield MirrorInput(**base, src_uv=pairs.src_uv, dst_uv=pairs.dst_uv, edit_fraction=s,
-                          dense=pairs.dense)
+        yield MirrorInput(**base, src_uv=pairs.src_uv, dst_uv=pairs.dst_uv, edit_fraction=fraction,
+                          dense=pairs.dense, pair_groups=getattr(pairs, "groups", None), players=reshaped)
 
 
 def _stage_module(name: str):
@@ -433,29 +558,45 @@ def check_edits(edits: dict[str, float]) -> dict[str, float]:
 
 
 def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by_side: bool = True,
-               progress: bool = True, run_dir: str | Path | None = None, player: int = 1, kind: str = "similarity",
+               progress: bool = True, run_dir: str | Path | None = None, player=1, kind: str = "similarity",
                ramp_frames: int = 30, frames: Iterable[int] | None = None, live: str | Path | None = None,
                live_timeout_s: float = 5.0, correspondence: str = CORRESPONDENCE, refine_pose: bool = True,
                accept_implausible: bool = False) -> dict:
-    """``bodystudio mirror run``: reshape the actor of ``session`` by ``edits`` and write the video and run folder.
+    """``bodystudio mirror run``: reshape the actor(s) of ``session`` by ``edits`` and write the video and run folder.
 
-    ``session`` an opened session or its path; ``source`` a SourceBody or its .npz (default
-    ``SESSION/mirror/source_body.npz`` from ``mirror init``); ``run_dir`` default ``SESSION/mirror/run``.
+    ``session`` an opened session or its path; ``player`` a Kinect player id or a sequence of them (all reshaped
+    by ``edits`` in every frame, one graph cut and one warp); ``source`` a SourceBody or its .npz (one player), or a
+    sequence of them in the order of ``player`` (default each player's file from ``mirror init --player N``,
+    :func:`source_body_path`; a file that records another player is refused); ``run_dir`` default
+    ``SESSION/mirror/run``.
     ``live``: a folder a recorder is filling with the session layout's ``kinect/`` streams; its frames are
     processed as they arrive (until ``live_timeout_s`` without a new one), each output frame also written
     to ``RUN/live_latest.png`` for a display to pick up. ``correspondence``: ``dense`` (default) or ``mls``
     (:data:`bodystudio.mirror.warp.CORRESPONDENCES`). ``refine_pose``: refine each frame's IK pose against the
     refined foreground, depth and joints (:mod:`bodystudio.mirror.refine`; on by default since MIRFAST, ~4 ms more
-    per frame; False: the IK pose alone). The source body is checked against the session's tracked skeleton and
-    the depth-to-colour registration against the colour edges first (:mod:`bodystudio.mirror.plausibility`: another
-    person's body or a misregistered Kinect is refused unless ``accept_implausible``; the verdicts go to run.json's
-    ``plausibility``). Returns
-    run.json's content (per-step timings in ``summary.ms_per_frame``).
+    per frame per player; False: the IK pose alone). Each player's source body is checked against the session's
+    tracked skeleton and the depth-to-colour registration against the colour edges first
+    (:mod:`bodystudio.mirror.plausibility`: another person's body or a misregistered Kinect is refused unless
+    ``accept_implausible``; the verdicts go to run.json's ``plausibility``, per player when there are several).
+    Returns run.json's content (per-step timings in ``summary.ms_per_frame``; several players: ``players``,
+    ``source_fingerprints`` and each frame's ``players``).
     """
     from bodystudio.capture.session import open_session
 
-    if not 1 <= int(player) <= 6:
-        raise InputError(f"--player {player}: a Kinect player id is 1..6")
+    several = not isinstance(player, (int, np.integer))
+    players = [int(p) for p in player] if several else [int(player)]
+    for p in players:
+        if not 1 <= p <= 6:
+            raise InputError(f"--player {p}: a Kinect player id is 1..6")
+    if not players:
+        raise InputError("--player: give at least one Kinect player id (1..6)")
+    if len(set(players)) != len(players):
+        raise InputError(f"--player {' --player '.join(map(str, players))}: a player is given twice; give each once")
+    sources = list(source) if several and source is not None and not isinstance(source, (str, os.PathLike)) \
+        else [source] * len(players) if source is None else [source]
+    if len(sources) != len(players):
+        raise InputError(f"--source given {len(sources)} times for {len(players)} players; give one --source per "
+                         "--player (in the same order), or none to read each player's body from the session")
     if not 0 <= int(ramp_frames) <= 10000:
         raise InputError(f"--ramp-frames {ramp_frames}: use 0..10000")
     if kind not in MLS_KINDS:
@@ -470,10 +611,14 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     if frames_from.kinect is None:
         raise InputError(f"{session.path}: not a Kinect session (no kinect/calibration.json); the mirror needs "
                          "Kinect colour, depth, player mask and joints")
-    source_path = Path(session.path) / "mirror" / "source_body.npz" if source is None else source
-    if isinstance(source_path, (str, os.PathLike)) and not Path(source_path).is_file():
-        raise FileFormatError(f"{source_path}: source body not found; run 'bodystudio mirror init "
-                              f"{session.path}' first (or give --source)")
+    for p, src in zip(players, sources, strict=True):
+        source_path = source_body_path(session.path, p) if src is None else src
+        if isinstance(source_path, (str, os.PathLike)):
+            if not Path(source_path).is_file():
+                again = "" if p == 1 else f" --player {p}"
+                raise FileFormatError(f"{source_path}: source body not found; run 'bodystudio mirror init "
+                                      f"{session.path}{again}' first (or give --source)")
+            check_source_player(source_path, p)
     edits = check_edits(dict(edits))
     metadata = session.metadata if isinstance(session.metadata, dict) else {}
     try:
@@ -488,25 +633,46 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     else:
         ids = list(session.frame_ids if frames is None else frames)
         total = len(ids)
-    body, model = load_source(session, source)
+    fingerprint = _stage_module("init").source_fingerprint
+    if not several:
+        body, model = load_source(session, source) if players[0] == 1 else load_source(session, source, players[0])
+        bodies = body
+    else:
+        loaded = [load_source(session, src, p) for p, src in zip(players, sources, strict=True)]
+        bodies, model = [b for b, _ in loaded], loaded[0][1]
+        if any(len(b.vertices) != len(bodies[0].vertices) for b in bodies):
+            raise InputError(f"players {', '.join(map(str, players))}: their source bodies come from different "
+                             "statistical models (6k / 2k); run 'bodystudio mirror init' for each with the same "
+                             "--resolution")
+    first = bodies[0] if several else bodies
     plausibility = None
-    if live is None and hasattr(body, "skeleton"):  # live: the frames are not recorded yet
+    if live is None and hasattr(first, "skeleton"):  # live: the frames are not recorded yet
         from bodystudio.mirror.plausibility import check_registration, check_source_body
 
-        plausibility = {"source_body": check_source_body(body, session, player, accept_implausible,
-                                                         source if isinstance(source, (str, os.PathLike)) else None),
-                        "registration": check_registration(session, player, accept_implausible)}
+        def _verdicts(b, p, src):
+            return {"source_body": check_source_body(b, session, p, accept_implausible,
+                                                     src if isinstance(src, (str, os.PathLike)) else None),
+                    "registration": check_registration(session, p, accept_implausible)}
+
+        if several:
+            plausibility = {str(p): _verdicts(b, p, src) for p, b, src in zip(players, bodies, sources, strict=True)}
+        else:
+            plausibility = _verdicts(bodies, players[0], source)
     manifest = {"session": str(Path(session.path).resolve()),
                 "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
                 "live": None if live is None else str(Path(live).resolve()),
-                "edits": edits, "player": int(player), "ramp_frames": int(ramp_frames),
+                "edits": edits, "player": players[0], "ramp_frames": int(ramp_frames),
                 "correspondence": correspondence, "refine_pose": bool(refine_pose),
-                "source_fingerprint": _stage_module("init").source_fingerprint(body) if hasattr(body, "coeffs")
+                "source_fingerprint": fingerprint(first) if hasattr(first, "coeffs")
                 else None}  # a stand-in body (tests) has none
     if plausibility is not None:
         manifest["plausibility"] = plausibility
-    inputs = session_inputs(frames_from, body, model, edits, player, ramp_frames, ids, correspondence,
-                            bool(refine_pose))
+    if several:
+        manifest["players"] = players
+        manifest["source_fingerprints"] = {str(p): fingerprint(b) if hasattr(b, "coeffs") else None
+                                           for p, b in zip(players, bodies, strict=True)}
+    inputs = session_inputs(frames_from, bodies, model, edits, players if several else players[0], ramp_frames, ids,
+                            correspondence, bool(refine_pose))
     return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total,
                          preview=run_dir / "live_latest.png" if live is not None else None)
 

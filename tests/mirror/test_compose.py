@@ -142,3 +142,41 @@ def test_only_the_soft_edge_is_blended_and_the_frame_is_the_same():
     before[hole] = background.image[hole]
     np.testing.assert_array_equal(out, _compose_by_blending_the_whole_box(warped, alpha, before))
     assert (out[alpha == 1.0] == warped[alpha == 1.0]).all()
+
+
+def _compose_on_the_whole_frame(warped, alpha, background, rgb, fg, margin):
+    """compose before MIRFAST3: holes, background copy and inpainting over the whole frame (the reference)."""
+    m8 = fg.astype(np.uint8)
+    if margin > 0:
+        m8 = cv2.dilate(m8, np.ones((2 * margin + 1,) * 2, np.uint8))
+    hole = (m8 > 0) & (alpha < 1.0)
+    out = cv2.copyTo(background.image, (hole & background.valid).astype(np.uint8), rgb.copy())
+    unknown = hole & ~background.valid
+    if unknown.any():
+        out = cv2.inpaint(out, unknown.astype(np.uint8), 3, cv2.INPAINT_TELEA)
+    return _compose_by_blending_the_whole_box(warped, alpha, out), int(hole.sum()), int(unknown.sum())
+
+
+@pytest.mark.parametrize("actors", [1, 2])
+def test_compose_on_the_people_box_is_the_whole_frame_composition(actors):
+    """compose works in the box of the grown input foreground and the warped people: the same frame, hole and
+    inpainted counts as over the whole frame, with a background model that saw all, part or none of the frame."""
+    from bodystudio.mirror.foreground import refine_foreground
+    from bodystudio.mirror.run import MLS_ALPHA, MLS_RADIUS_PX
+
+    case = cached_image_case(None, 0, actors)
+    fg = refine_foreground(case.rgb, case.player_mask)
+    field = mls_warp_field(case.src_uv, case.dst_uv, kind="similarity", alpha=MLS_ALPHA, groups=case.pair_groups,
+                           radius_px=MLS_RADIUS_PX, dense=case.dense)
+    warped, alpha = warp_foreground(case.rgb, fg, field)
+    rng = np.random.default_rng(0)
+    for valid in (np.ones(fg.shape, bool), rng.random(fg.shape) < 0.7):
+        background = BackgroundModel(case.background, valid, 1)
+        for margin in (2, 0):
+            stats = {}
+            out = compose(warped, alpha, background, case.rgb, fg, margin, stats)
+            want, holes, unknown = _compose_on_the_whole_frame(warped, alpha, background, case.rgb, fg, margin)
+            np.testing.assert_array_equal(out, want)
+            assert (stats["hole_px"], stats["inpainted_px"]) == (holes, unknown) and holes > 0
+    nobody = np.zeros_like(alpha)
+    np.testing.assert_array_equal(compose(warped, nobody, background, case.rgb, np.zeros_like(fg)), case.rgb)

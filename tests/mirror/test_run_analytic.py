@@ -372,8 +372,9 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, play
             d[current["seen"]] = 0.8
         return d, player
 
-    def pairs(Vs, Vt, faces, cam, n, rim_cos=None, dense=False):
+    def pairs(Vs, Vt, faces, cam, n, rim_cos=None, dense=False, closed=False):
         assert n == run_mod.N_HANDLES and rim_cos == run_mod.RIM_COS and cam is camera and faces is body.faces
+        assert closed  # the model's bodies: front faces only
         return SimpleNamespace(src_uv=np.zeros((20, 2)) + Vs[0, 0], dst_uv=np.zeros((20, 2)) + Vt[0, 0],
                                dense="dense" if dense else None)
 
@@ -502,8 +503,8 @@ def test_check_edits_and_missing_stage_modules(monkeypatch):
 
 def _wired(monkeypatch, got):
     """run_mirror with its steps replaced by recorders."""
-    def load(session, source):
-        got["load"] = (session, source)
+    def load(session, source, player=1):
+        got["load"] = (session, source) if player == 1 else (session, source, player)
         return "body", "model"
 
     def inputs(*args):
@@ -523,7 +524,8 @@ def _wired(monkeypatch, got):
 
 def _fake_session(tmp_path, **changes):
     (tmp_path / "mirror").mkdir(exist_ok=True)
-    (tmp_path / "mirror" / "source_body.npz").write_bytes(b"x")
+    for name in ("source_body.npz", "source_body_player2.npz", "source_body_player6.npz"):
+        (tmp_path / "mirror" / name).write_bytes(b"x")
     fields = dict(path=tmp_path, kinect="kinect", metadata={"fps": 15}, manifest={"run": {"run_id": "r1"}},
                   frame_ids=[0, 1, 2])
     fields.update(changes)
@@ -566,7 +568,7 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
                       frames=[2, 0], side_by_side=False) == "DOC"
     assert got["inputs"] == (session, "body", "model", {"taller": 0.1}, 2, 5, [2, 0], run_mod.CORRESPONDENCE,
                              True)
-    assert got["load"] == (session, None)
+    assert got["load"] == (session, None, 2)  # player 2's own file (source_body_player2.npz)
     s = got["stream"]
     assert s["inputs"] == "INPUTS" and s["run_dir"] == tmp_path / "mirror" / "run" and s["fps"] == 15.0
     assert s["kind"] == "rigid" and s["total"] == 2 and s["preview"] is None and s["progress"] is False

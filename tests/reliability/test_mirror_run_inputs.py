@@ -46,6 +46,15 @@ CASES = [
     ("live-folder-missing", ["{kinect}", "--out", "{t}/o.mp4", "--live", "{t}/nothing"], "no such folder"),
     ("live-no-calibration", ["{kinect}", "--out", "{t}/o.mp4", "--live", "{t}/dir.mp4"], "calibration.json"),
     ("not-a-session", ["{t}", "--out", "{t}/o.mp4"], "session.json"),
+    # several players (--player repeated, MIRFAST3)
+    ("player-twice", ["{kinect}", "--out", "{t}/o.mp4", "--player", "2", "--player", "2"], "given twice"),
+    ("bad-second-player", ["{kinect}", "--out", "{t}/o.mp4", "--player", "1", "--player", "7"], "--player 7"),
+    ("source-per-player", ["{kinect}", "--out", "{t}/o.mp4", "--player", "1", "--player", "2", "--source",
+                           "{t}/none.npz"], "one --source per --player"),
+    ("no-body-of-player-2", ["{kinect}", "--out", "{t}/o.mp4", "--player", "2"],
+     "source_body_player2.npz: source body not found; run 'bodystudio mirror init"),
+    ("no-bodies-of-two-players", ["{kinect}", "--out", "{t}/o.mp4", "--player", "1", "--player", "2"],
+     "source body not found"),
 ]
 
 
@@ -91,3 +100,34 @@ def test_refine_pose_is_on_by_default():
 
     assert inspect.signature(run_mirror).parameters["refine_pose"].default is True
     assert inspect.signature(mirror_run).parameters["refine_pose"].default.default is True
+
+
+def test_a_player_is_never_paired_with_another_players_body(sessions, tmp_path, capfd):
+    """Each player's source body is its own file that records the player (``mirror init --player N``): a body of
+    player 2 given to player 1 (as --source or as player 1's file), or a second player without a body, is a
+    one-line error (exit 2) and nothing is written."""
+    import shutil
+
+    import numpy as np
+
+    session = tmp_path / "s"
+    shutil.copytree(sessions["kinect"], session)
+    (session / "mirror").mkdir()
+    np.savez(session / "mirror" / "source_body.npz", player=np.array(2))  # player 2's body where player 1's goes
+    np.savez(tmp_path / "p1.npz", player=np.array(1))
+    out = tmp_path / "o.mp4"
+    cases = [(["--player", "1"], "source_body.npz: the source body of player 2, not of player 1; run 'bodystudio "
+                                 "mirror init SESSION --player 1'"),
+             (["--source", str(session / "mirror" / "source_body.npz")],
+              "the source body of player 2, not of player 1"),
+             (["--player", "2", "--source", str(tmp_path / "p1.npz")], "p1.npz: the source body of player 1, not of "
+                                                                        "player 2"),
+             (["--player", "1", "--player", "2", "--source", str(tmp_path / "p1.npz"), "--source",
+               str(tmp_path / "p1.npz")], "the source body of player 1, not of player 2"),
+             (["--player", "2", "--player", "3", "--source", str(session / "mirror" / "source_body.npz"), "--source",
+               str(tmp_path / "p1.npz")], "the source body of player 1, not of player 3")]
+    for extra, phrase in cases:
+        result = run_inprocess(["mirror", "run", str(session), "--out", str(out), *extra], capfd)
+        assert_clean_error(result, 2, phrase)
+        assert sorted(p.name for p in (session / "mirror").iterdir()) == ["source_body.npz"]
+        assert not out.exists()
