@@ -76,11 +76,10 @@ def init(
 
 def source_body_layout(session_path: Path):
     """The run layout of ``mirror init``'s two files: the manifest ``source_body.json`` (the summary, last),
-    lock and staging ``.source_body.npz.lock`` / ``.staging`` beside them."""
-    from bodystudio.runfolder import RunLayout
+    lock and staging ``.source_body.npz.lock`` / ``.staging`` beside them (its readers check the same one)."""
+    from bodystudio.mirror.init import source_body_layout as layout_of
 
-    root = Path(session_path) / SOURCE_BODY_FILE.parent
-    return RunLayout(root, SOURCE_SUMMARY_FILE.name, f".{SOURCE_BODY_FILE.name}.", str(root / SOURCE_BODY_FILE.name))
+    return layout_of(Path(session_path) / SOURCE_BODY_FILE)
 
 
 app.command("run")(mirror_run)
