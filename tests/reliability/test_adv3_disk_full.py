@@ -31,6 +31,30 @@ def _tree(folder):
     return sorted((p.relative_to(folder).as_posix(), p.read_bytes()) for p in folder.rglob("*") if p.is_file())
 
 
+@pytest.mark.parametrize("n_files", [0, 3])
+def test_synth_calibration_leaves_nothing(tmp_path, capfd, monkeypatch, n_files):
+    _disk_full_after(monkeypatch, n_files)
+    out = tmp_path / "cal"
+    result = run_inprocess(["synth", "calibration", out, "--cameras", "4", "--poses", "4", "--width", "320",
+                            "--height", "240"], capfd)
+    assert_clean_error(result, 2, "No space left on device while writing")
+    assert str(out) in result.stderr
+    assert not out.exists(), _tree(out)
+
+
+def test_synth_calibration_commits_a_manifest(tmp_path, capfd):
+    out = tmp_path / "cal"
+    result = run_inprocess(["synth", "calibration", out, "--cameras", "4", "--poses", "4", "--width", "320",
+                            "--height", "240"], capfd)
+    assert result.rc == 0, result.text[-800:]
+    import json
+
+    manifest = json.loads((out / "capture.json").read_text())
+    listed = set(manifest["run"]["files"])
+    assert {"board.json", "gt/cameras.json", "cam_00/00000.png", "cam_03/00003.png"} <= listed
+    assert not (out / ".staging").exists() and not (out / ".lock").exists()
+
+
 @pytest.mark.parametrize("args", [["body", "export", "{t}/b.ply", "--resolution", "2k"],
                                   ["view", "{scan}", "--html", "{t}/v.html"]])
 def test_single_file_outputs(studio, tmp_path, capfd, monkeypatch, args):
