@@ -55,6 +55,16 @@ def test_synth_calibration_commits_a_manifest(tmp_path, capfd):
     assert not (out / ".staging").exists() and not (out / ".lock").exists()
 
 
+def test_synth_scan_keeps_the_previous_scan_and_truth(tmp_path, capfd, monkeypatch):
+    scan = tmp_path / "scan.ply"
+    assert run_inprocess(["synth", "scan", scan, "--vertices", "5000", "--subject-seed", "1"], capfd).rc == 0
+    before = _tree(tmp_path)
+    _disk_full_after(monkeypatch, 1)  # the ground truth's arrays written, the scan not
+    result = run_inprocess(["synth", "scan", scan, "--vertices", "5000", "--subject-seed", "2"], capfd)
+    assert_clean_error(result, 2, "No space left on device while writing")
+    assert _tree(tmp_path) == before
+
+
 @pytest.mark.parametrize("args", [["body", "export", "{t}/b.ply", "--resolution", "2k"],
                                   ["view", "{scan}", "--html", "{t}/v.html"]])
 def test_single_file_outputs(studio, tmp_path, capfd, monkeypatch, args):
