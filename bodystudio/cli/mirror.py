@@ -39,7 +39,12 @@ def init(
     from bodystudio.body.statistical import load_statistical_model
     from bodystudio.capture.session import open_session
     from bodystudio.fileio import check_output_file
-    from bodystudio.mirror.init import DEFAULT_INIT_FRAMES, initialise_source_body, save_source_body
+    from bodystudio.mirror.init import (
+        DEFAULT_INIT_FRAMES,
+        SILHOUETTE_FRAMES,
+        initialise_source_body,
+        save_source_body,
+    )
     from bodystudio.runfolder import RunWriter
 
     if frames is not None and not 1 <= frames <= 900:
@@ -63,7 +68,11 @@ def init(
                                     silhouette_shape=silhouette_shape)
     measured = model.measure(source.coeffs)
     summary = {"source_body": str(SOURCE_BODY_FILE), "player": player, "resolution": resolution,
-               "silhouette_shape": silhouette_shape, "frames_used": list(source.frames_used),
+               "silhouette_shape": silhouette_shape,
+               # how many silhouettes the shape was refined against (SILHOUETTE_FRAMES spread over the frames used,
+               # fewer when fewer frames were): `silhouette_shape: true` alone read as the full refinement
+               "silhouette_frames": min(SILHOUETTE_FRAMES, len(source.frames_used)) if silhouette_shape else 0,
+               "frames_used": list(source.frames_used),
                "residual_mm": round(source.residual_mm, 2),
                "stature_m": round(measured["stature_m"], 4), "mass_kg": round(measured["mass_kg"], 2)}
     # the body and its summary as one unit (a kill between the two files left a summary of another body);
