@@ -159,10 +159,24 @@ def worker_main_thread_imports() -> dict[str, bool]:
     return {m: m in sys.modules for m in MAIN_THREAD_IMPORTS}
 
 
+#: A local cluster's upper bound is this many single-threaded workers per core.
+WORKERS_PER_CORE = 4
+
+
+def max_local_workers() -> int:
+    """The most ``--workers`` a local cluster starts: :data:`WORKERS_PER_CORE` per core of this machine."""
+    return WORKERS_PER_CORE * (os.cpu_count() or 1)
+
+
 def resolve_scheduler(scheduler: str | None, workers: int | None) -> str | None:
     """The scheduler address from ``--scheduler`` or ``$BODYSTUDIO_SCHEDULER`` (None: a local cluster)."""
     if workers is not None and workers < 1:
         raise InputError(f"--workers {workers}: give at least 1 worker process (default: one per core)")
+    cap = max_local_workers()
+    if workers is not None and workers > cap:
+        raise InputError(f"--workers {workers}: at most {cap} on this machine ({os.cpu_count() or 1} cores; "
+                         f"single-threaded workers beyond {WORKERS_PER_CORE} per core only share them and each "
+                         "holds its own memory); give fewer, or --scheduler for a cluster of several machines")
     address = scheduler or os.environ.get(ENV_SCHEDULER) or None
     if address is not None and scheduler and workers is not None:
         raise InputError("--scheduler and --workers: give one (--workers starts a local cluster)")

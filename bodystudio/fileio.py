@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from bodystudio.errors import FileFormatError, InputError
+from bodystudio.errors import FileFormatError, InputError, OutputSpaceError, disk_full
 
 log = logging.getLogger(__name__)
 
@@ -41,9 +41,14 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     ``suffix`` keeps the extension libraries use to pick a format (defaults to ``path``'s own).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     suffix = path.suffix if suffix is None else suffix
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
+    except OSError as exc:
+        if disk_full(exc):
+            raise OutputSpaceError(path, exc.strerror or "no space left on device") from None
+        raise
     os.close(fd)
     try:
         yield Path(tmp)
@@ -51,9 +56,11 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             os.fsync(f.fileno())
         os.chmod(tmp, _umask_mode())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if disk_full(exc) and not isinstance(exc, OutputSpaceError):  # one line naming the file, not a traceback
+            raise OutputSpaceError(path, exc.strerror or "no space left on device") from None
         raise
 
 

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bodystudio.errors import BodyStudioError, FileFormatError
+from bodystudio.errors import BodyStudioError, FileFormatError, OutputSpaceError, disk_full
 from bodystudio.fileio import _json_default, atomic_write, sha256_file
 
 log = logging.getLogger(__name__)
@@ -168,6 +168,7 @@ def acquire_lock(layout: RunLayout, command: str) -> None:
     """Create the layout's lock (``O_EXCL``); a live holder is refused, a stale lock taken over."""
     if layout.root.exists() and not layout.root.is_dir():
         raise FileFormatError(f"{layout.root}: is a file, not a folder; choose another output path")
+    created = not layout.root.exists()
     try:
         layout.root.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -195,10 +196,22 @@ def acquire_lock(layout: RunLayout, command: str) -> None:
                 os.replace(layout.lock, stale)
                 stale.unlink()
             continue
-        with os.fdopen(fd, "w") as f:
-            f.write(json.dumps(info) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+        except OSError as exc:
+            if disk_full(exc):
+                _undo_root(layout, created)
+                raise OutputSpaceError(layout.lock, exc.strerror or "no space left on device") from None
+            raise
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(json.dumps(info) + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as exc:  # a full disk: no half-written lock (read as a live writer's) is left behind
+            layout.lock.unlink(missing_ok=True)
+            _undo_root(layout, created)
+            if disk_full(exc):
+                raise OutputSpaceError(layout.lock, exc.strerror or "no space left on device") from None
+            raise
         # Lock first, then look for readers (a reader registers first, then looks for the lock): of a
         # writer and a reader starting together at least one sees the other, so they never overlap.
         readers = live_readers(layout)
@@ -211,6 +224,13 @@ def acquire_lock(layout: RunLayout, command: str) -> None:
         return
     raise OutputLockedError(f"{layout.name}: could not take the lock {layout.lock}; another writer keeps "
                             "taking it, retry when it is done")
+
+
+def _undo_root(layout: RunLayout, created: bool) -> None:
+    """Remove the output folder the lock's writer created, while it is still empty."""
+    if created:
+        with contextlib.suppress(OSError):
+            layout.root.rmdir()
 
 
 def release_lock(layout: RunLayout) -> None:

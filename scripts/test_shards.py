@@ -6,7 +6,8 @@ same tests, and tests/conftest.py's run loop then takes the next test file no ot
 longest first by its measured seconds (tests/shard_weights.json), until none is left. So every test runs
 once, unchanged, with its module's fixtures in one process; only session fixtures may be built once per
 shard. Shard 0 prints as it runs; the others print their whole log when they end. The exit status is the
-first failing shard's (5, "no tests collected", only when no shard ran a test).
+first failing shard's (5, "no tests collected", only when no shard ran a test); the last line says it and names
+the failed tests.
 
     python scripts/test_shards.py --jobs 2 -- -q --durations=25
     python scripts/test_shards.py --jobs 2 --write-weights tests/shard_weights.json -- -q   # refresh the table
@@ -54,6 +55,38 @@ def file_seconds(junit_paths: list[Path]) -> dict[str, float]:
     return seconds
 
 
+def failed_tests(junit_paths: list[Path]) -> list[str]:
+    """Test ids (``tests/x/test_y.py::[Class::]test_z``) with a failure or an error in pytest's JUnit XML reports."""
+    out = []
+    for path in junit_paths:
+        if not path.is_file():
+            continue
+        for case in ET.parse(path).getroot().iter("testcase"):
+            if case.find("failure") is None and case.find("error") is None:
+                continue
+            if not case.get("classname"):  # a collection error: the name is the module's dotted path
+                name = case.get("name", "?").replace(".", "/") + ".py (collection error)"
+            else:
+                parts = case.get("classname").split(".")
+                i = max((k for k, part in enumerate(parts) if part.startswith("test_")), default=len(parts) - 1)
+                name = "/".join(parts[:i + 1]) + ".py::" + "::".join([*parts[i + 1:], case.get("name", "?")])
+            if name not in out:  # every shard collects, so each reports the same collection error
+                out.append(name)
+    return out
+
+
+def closing_line(codes: list[int], failed: list[str]) -> str:
+    """The last line of a sharded run: shard 0 prints first and the others' logs after it, so a failure in an
+    early shard was followed by another shard's "N passed" as the run's last words (exit status non-zero)."""
+    code = shard_exit_code(codes)
+    head = f"=== test shards: exit {code}"
+    if code in (0, NO_TESTS):
+        return head + (", every shard passed" if code == 0 else ", no tests ran")
+    bad = ", ".join(f"shard {i} exit {c}" for i, c in enumerate(codes) if c not in (0, NO_TESTS))
+    names = "; ".join(failed[:10]) + (f" and {len(failed) - 10} more" if len(failed) > 10 else "")
+    return f"{head} ({bad}): FAILED {names or 'see the shard logs above'}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--jobs", type=int, default=2, help="pytest processes side by side (1: plain pytest)")
@@ -66,11 +99,16 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="bodystudio-shards-") as tmp:
         junit = [Path(tmp) / f"shard-{i}.xml" for i in range(args.jobs)]
         (Path(tmp) / "claims").mkdir()
-        extra = (lambda i: [f"--junitxml={junit[i]}"]) if args.write_weights else (lambda i: [])
+        # the reports give the weights and, with several shards, the failed tests of the closing line
+        own_junit = any(a.startswith(("--junitxml", "--junit-xml")) for a in args.pytest_args)
+        wanted = args.write_weights or (args.jobs > 1 and not own_junit)
+        extra = (lambda i: [f"--junitxml={junit[i]}"]) if wanted else (lambda i: [])
         if args.jobs == 1:
             code = subprocess.call([*command, *extra(0)])
         else:
-            code = _run_shards(command, args.jobs, Path(tmp), extra)
+            codes = _run_shards(command, args.jobs, Path(tmp), extra)
+            code = shard_exit_code(codes)
+            print(closing_line(codes, failed_tests(junit) if wanted else []), flush=True)
         if args.write_weights and code == 0:
             seconds = file_seconds(junit)
             args.write_weights.write_text(json.dumps({k: round(v, 1) for k, v in sorted(seconds.items())},
@@ -79,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
-def _run_shards(command: list[str], jobs: int, tmp: Path, extra) -> int:
+def _run_shards(command: list[str], jobs: int, tmp: Path, extra) -> list[int]:
     procs, logs, started = [], [], time.monotonic()
     try:
         for i in range(jobs):
@@ -106,7 +144,7 @@ def _run_shards(command: list[str], jobs: int, tmp: Path, extra) -> int:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
-    return shard_exit_code(codes)
+    return codes
 
 
 if __name__ == "__main__":

@@ -60,6 +60,28 @@ def test_sharded_run_exit_status():
     assert code([0, 1]) == 1 and code([2, 1]) == 2 and code([5, 1]) == 1
 
 
+def test_sharded_run_ends_naming_the_failed_tests(tmp_path):
+    """A failing test in an early shard was followed by the later shards' logs, so `make test` ended on another
+    shard's "N passed" line (exit status 1). The last line now gives the status and names the failed tests
+    (once, though every shard collects them); a passing run says so."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).parents[1]
+    (tmp_path / "test_planted.py").write_text("def test_fine():\n    pass\n\n\ndef test_planted():\n"
+                                              "    assert 1 == 2\n")
+    proc = subprocess.run([sys.executable, "scripts/test_shards.py", "--jobs", "2", "--", "-q", "-p",
+                           "no:cacheprovider", "--rootdir", str(tmp_path), str(tmp_path / "test_planted.py")],
+                          cwd=root, capture_output=True, text=True, timeout=600)
+    last = proc.stdout.strip().splitlines()[-1]
+    assert proc.returncode == 1, proc.stdout[-2000:]
+    assert last.startswith("=== test shards: exit 1 (shard 0 exit 1") and last.endswith("::test_planted"), last
+    assert last.count("test_planted") == 2 and "test_fine" not in last, last  # the file and the test, once
+    line = _test_shards_module().closing_line
+    assert line([0, 5], []) == "=== test shards: exit 0, every shard passed"
+    assert line([5, 1], []).endswith("(shard 1 exit 1): FAILED see the shard logs above")
+
+
 def test_sharded_run_runs_every_test_once_each_file_in_one_process():
     """scripts/test_shards.py --jobs 2 (`make test`): the two pytest processes share the test files; every
     test runs exactly once and all tests of a file run in the same process (its module fixtures are built

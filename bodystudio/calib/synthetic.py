@@ -192,6 +192,10 @@ def board_for_resolution(image_width: int) -> CharucoBoardSpec:
     return STUDIO_BOARD
 
 
+#: The manifest of a synthetic calibration capture (written last, with every file's sha256).
+CAPTURE_MANIFEST = "capture.json"
+
+
 def write_synthetic_calibration(out: str | os.PathLike, n_cameras: int = 10, n_poses: int = 30, seed: int = 0,
                                 width: int = 1280, height: int = 960, spec: CharucoBoardSpec | None = None,
                                 rig: CameraRig | None = None, progress=None, kinect: str | None = None,
@@ -199,6 +203,7 @@ def write_synthetic_calibration(out: str | os.PathLike, n_cameras: int = 10, n_p
     """Render a calibration capture into ``out``: ``cam_NN/FFFFF.png``, ``board.json``, ``gt/cameras.json``,
     ``gt/board_poses.json``. Frame 0 is the board lying on the floor. With ``kinect`` ("v1"/"v2") the
     Kinect's colour and depth views are written too (``kinect/rgb``, ``kinect/depth``, ``gt/kinect.json``).
+    The files are committed as one unit with ``capture.json`` last (:class:`~bodystudio.runfolder.RunWriter`).
     ``blur_px`` (Gaussian sigma) and ``noise_dn`` (sensor noise, grey levels) set the image quality.
     Returns a summary dict."""
     if not (0.0 <= blur_px <= 5.0 and 0.0 <= noise_dn <= 50.0):
@@ -213,28 +218,38 @@ def write_synthetic_calibration(out: str | os.PathLike, n_cameras: int = 10, n_p
         log.warning("no plan with squares >= %g px in every view; planning with 9 px squares (some views will "
                     "not be detected)", DETECTABLE_SQUARE_PX)
         poses = calibration_board_poses(rig, spec, n_poses, np.random.default_rng(seed))
-    total = len(rig) * len(poses)
-    task = progress.add_task("rendering calibration images", total=total) if progress is not None else None
-    n_visible = 0
-    for cam in rig:
-        for f, T in enumerate(poses):
-            n_visible += int(visible_corners(cam, spec, T).sum() >= 6)
-            write_png(out / cam.name / f"{f:05d}.png", render_board_view(cam, spec, T, rng, blur_px, noise_dn))
-            if task is not None:
-                progress.advance(task)
-    summary = {}
-    if kinect is not None:
-        from bodystudio.calib.depth import write_synthetic_kinect_views
-        from bodystudio.capture.session import kinect_calibration_to_dict
-        from bodystudio.geometry.camera import kinect_v1, kinect_v2
+    if kinect is not None and kinect not in ("v1", "v2"):
+        raise InputError(f"kinect must be v1 or v2, got {kinect!r}")
+    from bodystudio.runfolder import RunLayout, RunWriter
 
-        if kinect not in ("v1", "v2"):
-            raise InputError(f"kinect must be v1 or v2, got {kinect!r}")
-        sensor = kinect_v2() if kinect == "v2" else kinect_v1()
-        summary["kinect_views_with_board"] = write_synthetic_kinect_views(out, sensor, spec, poses, rng, progress)
-        write_json(out / "gt" / "kinect.json", kinect_calibration_to_dict(sensor))
-    save_board_json(out / "board.json", spec)
-    write_json(out / "gt" / "board_poses.json", {"floor_frame": 0, "board_to_world": poses})
-    save_cameras_json(out / "gt" / "cameras.json", rig)
-    return {"cameras": len(rig), "poses": len(poses), "images": total, "views_with_board": n_visible,
-            "out": str(out), **summary}
+    # every file staged and committed as one unit (CAPTURE_MANIFEST last): a full disk or a kill mid-way
+    # left some camera images and no board.json (or no ground truth) in OUT
+    with RunWriter(RunLayout(out, CAPTURE_MANIFEST, ".", str(out)), "bodystudio synth calibration",
+                   {"stage": "calib", "kind": "synthetic capture"}) as w:
+        stage = w.layout.staging
+        total = len(rig) * len(poses)
+        task = progress.add_task("rendering calibration images", total=total) if progress is not None else None
+        n_visible = 0
+        for cam in rig:
+            for f, T in enumerate(poses):
+                n_visible += int(visible_corners(cam, spec, T).sum() >= 6)
+                write_png(stage / cam.name / f"{f:05d}.png", render_board_view(cam, spec, T, rng, blur_px, noise_dn))
+                if task is not None:
+                    progress.advance(task)
+        summary = {}
+        if kinect is not None:
+            from bodystudio.calib.depth import write_synthetic_kinect_views
+            from bodystudio.capture.session import kinect_calibration_to_dict
+            from bodystudio.geometry.camera import kinect_v1, kinect_v2
+
+            sensor = kinect_v2() if kinect == "v2" else kinect_v1()
+            summary["kinect_views_with_board"] = write_synthetic_kinect_views(stage, sensor, spec, poses, rng,
+                                                                              progress)
+            write_json(stage / "gt" / "kinect.json", kinect_calibration_to_dict(sensor))
+        save_board_json(stage / "board.json", spec)
+        write_json(stage / "gt" / "board_poses.json", {"floor_frame": 0, "board_to_world": poses})
+        save_cameras_json(stage / "gt" / "cameras.json", rig)
+        summary = {"cameras": len(rig), "poses": len(poses), "images": total, "views_with_board": n_visible,
+                   "out": str(out), **summary}
+        w.commit(summary)
+    return summary

@@ -97,4 +97,5 @@ def garment_render(
                                seed=seed, progress=True)
     ms = ", ".join(f"{k} {v:.0f}" for k, v in doc["ms_per_frame"].items())
     typer.echo(f"wrote {fit_dir / 'render'} and {out}: {len(doc['frame_ids'])} frames of {texture} {garment} "
-               f"(ms per frame: {ms})")
+               f"(ms per frame: {ms}; flow correction used in {doc['n_flow_applied']} of them"
+               f"{'' if doc['options']['flow'] else ', --no-flow'})")

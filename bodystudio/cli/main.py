@@ -11,7 +11,7 @@ import sys
 import typer
 import typer.main
 
-from bodystudio.errors import BodyStudioError
+from bodystudio.errors import BodyStudioError, disk_full
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
                   help="bodystudio: multi-camera studio capture, scan fitting and automatic rigging.")
@@ -142,6 +142,14 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         _error_line("interrupted")
         return 130
+    except OSError as exc:
+        if not disk_full(exc):
+            raise
+        # a write outside fileio's atomic helpers (a library writing by name, a video encoder): still one line
+        where = exc.filename or "an output file"
+        _error_line(f"error: {where}: {exc.strerror or 'no space left on device'} while writing; free space on "
+                    "that disk or give an output on another one")
+        return 2
     return 0
 
 

@@ -17,7 +17,6 @@ from bodystudio.errors import InputError
 
 app = typer.Typer(no_args_is_help=True)
 
-SOURCE_BODY_FILE = Path("mirror") / "source_body.npz"
 SOURCE_SUMMARY_FILE = Path("mirror") / "source_body.json"
 
 
@@ -41,7 +40,12 @@ def init(
     from bodystudio.body.statistical import load_statistical_model
     from bodystudio.capture.session import open_session
     from bodystudio.fileio import check_output_file
-    from bodystudio.mirror.init import DEFAULT_INIT_FRAMES, initialise_source_body, save_source_body
+    from bodystudio.mirror.init import (
+        DEFAULT_INIT_FRAMES,
+        SILHOUETTE_FRAMES,
+        initialise_source_body,
+        save_source_body,
+    )
     from bodystudio.mirror.run import source_body_path
     from bodystudio.runfolder import RunWriter
 
@@ -70,7 +74,11 @@ def init(
 
     coverage = check_init(s, source.frames_used, player)  # what the init saw of the actor (warnings only)
     summary = {"source_body": str(out.relative_to(s.path)), "player": player, "resolution": resolution,
-               "silhouette_shape": silhouette_shape, "frames_used": list(source.frames_used),
+               "silhouette_shape": silhouette_shape,
+               # how many silhouettes the shape was refined against (SILHOUETTE_FRAMES spread over the frames used,
+               # fewer when fewer frames were): `silhouette_shape: true` alone read as the full refinement
+               "silhouette_frames": min(SILHOUETTE_FRAMES, len(source.frames_used)) if silhouette_shape else 0,
+               "frames_used": list(source.frames_used),
                "residual_mm": round(source.residual_mm, 2),
                "stature_m": round(measured["stature_m"], 4), "mass_kg": round(measured["mass_kg"], 2),
                "coverage": {"seen": coverage["seen"], "cut": coverage["cut"]}, "warnings": coverage["warnings"]}
@@ -86,12 +94,11 @@ def init(
 def source_body_layout(session_path: Path, player: int = 1):
     """The run layout of ``mirror init``'s two files for ``player``: the manifest ``source_body.json`` (the summary,
     last), lock and staging ``.source_body.npz.lock`` / ``.staging`` beside them (player N > 1:
-    ``source_body_playerN.json``, ``.source_body_playerN.npz.lock``, ...)."""
+    ``source_body_playerN.json``, ``.source_body_playerN.npz.lock``, ...; its readers check the same one)."""
+    from bodystudio.mirror.init import source_body_layout as layout_of
     from bodystudio.mirror.run import source_body_path
-    from bodystudio.runfolder import RunLayout
 
-    body = source_body_path(session_path, player)
-    return RunLayout(body.parent, body.with_suffix(".json").name, f".{body.name}.", str(body))
+    return layout_of(source_body_path(session_path, player))
 
 
 app.command("run")(mirror_run)

@@ -335,8 +335,8 @@ def model_extend(
     stride: int = typer.Option(5, "--stride", help="use every N-th captured frame"),
     centre: str = typer.Option("sex", "--centre", help="where each captured rest mesh is centred: sex (a "
                                "woman's fitted shoulder, a man's regressed one) | fitted | regressed (the "
-                               "shoulder MODEL regresses; MODEL is taken as the model the captures were made "
-                               "with); docs/muscle.md"),
+                               "shoulder the capture's own model regresses, recorded in the capture; MODEL "
+                               "for captures made before it was recorded); docs/muscle.md"),
 ) -> None:
     """Dataset extension (issue 11 §4): add captured subjects to a model and re-learn it.
 
@@ -396,7 +396,10 @@ def _has_fitted_skeleton(capture, model) -> bool:
 
     if capture.joints is None or not isinstance(capture.shape, ArmShapeParams):
         return False
-    return not np.allclose(capture.joints, model_joints(model, capture.shape), rtol=0, atol=1e-7)
+    regressed = capture.regressed_joints  # the capture's own model's (another model regresses other joints)
+    if regressed is None:
+        regressed = model_joints(model, capture.shape)
+    return not np.allclose(capture.joints, regressed, rtol=0, atol=1e-7)
 
 
 def _recording_key(capture) -> str:

@@ -160,13 +160,15 @@ def perturbed_fit(fit, seed: int = 0, pose_deg: float = 3.0, translation_m: floa
 @dataclass(frozen=True, eq=False)
 class RefinedFrame:
     """One composited frame: ``image`` uint8 RGB, ``garment_mask`` the garment pixels it shows, ``unrefined_mask``
-    the garment pixels of the plain 3D composite, the warp ``field`` (H, W, 2) used and ms per step."""
+    the garment pixels of the plain 3D composite, the warp ``field`` (H, W, 2) used and ms per step;
+    ``flow_applied`` whether §7.1's correction was used (asked for, and above what the flow resolves)."""
 
     image: np.ndarray
     garment_mask: np.ndarray
     unrefined_mask: np.ndarray
     field: np.ndarray
     timings_ms: dict
+    flow_applied: bool = False
 
 
 def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow: bool = True, rbf: bool = True,
@@ -184,11 +186,12 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
     timings = {}
     t0 = time.perf_counter()
     field = np.zeros((H, W, 2), dtype=np.float32)
+    flow_applied = False
     if flow:
         correction = refine.garment_motion_correction(frame, person_mask, layer.body_image, layer.body_mask,
                                                       layer.mask)
         if refine.flow_correction_is_significant(correction, layer.mask):  # else it is the render's smear
-            field = correction
+            field, flow_applied = correction, True
     t1 = time.perf_counter()
     if rbf:
         g_mask = refine.warp_image(layer.mask, field)
@@ -206,7 +209,7 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
     _, unrefined = refine.depth_composite(frame, layer.rgb, layer.mask, layer.depth, layer.body_depth, True)
     t3 = time.perf_counter()
     timings.update(flow=(t1 - t0) * 1e3, rbf=(t2 - t1) * 1e3, composite=(t3 - t2) * 1e3)
-    return RefinedFrame(image, shown, unrefined, field, timings)
+    return RefinedFrame(image, shown, unrefined, field, timings, flow_applied)
 
 
 def default_lighting(camera):
@@ -369,6 +372,7 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                 t0 = time.perf_counter()
                 if not fitted[i]:  # a frame the fit could not match: the video passes through unchanged
                     image, shown, ms, status = frame, np.zeros((H, W), dtype=bool), {}, "passed_through"
+                    flow_applied = False
                     t2 = time.perf_counter()
                 else:
                     pose = fit.pose(i)
@@ -379,6 +383,7 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                     result = refine_and_composite(frame, fit.masks[i], layer, flow, rbf, depth)
                     t2 = time.perf_counter()
                     image, shown, status = result.image, result.garment_mask, "ok"
+                    flow_applied = result.flow_applied
                     ms = {"render": (t1 - t0) * 1e3, **result.timings_ms}
                 w.write_bytes(f"frames/{int(fid):05d}.png", _png(image))
                 w.write_bytes(f"garment_masks/{int(fid):05d}.png", _png(shown.astype(np.uint8) * 255))
@@ -387,7 +392,9 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                 ms["write"] = (time.perf_counter() - t2) * 1e3
                 for k, v in ms.items():
                     steps_ms[k].append(v)
+                # the flow gate's decision: options.flow says it was asked for, not that it was used
                 per_frame.append({"frame": int(fid), "status": status, "garment_px": int(shown.sum()),
+                                  "flow_applied": bool(flow_applied),
                                   "ms": {k: round(v, 2) for k, v in ms.items()}})
                 bar.advance(task)
         finally:
@@ -400,6 +407,7 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                "video": None if out_video is None else str(out_video), "frame_ids": [int(f) for f in fit.frame_ids],
                "ms_per_frame": {k: round(float(np.median(v)), 2) for k, v in steps_ms.items() if v},
                "ms_per_frame_statistic": "median", "n_passed_through": int((~fitted).sum()),
+               "n_flow_applied": sum(f["flow_applied"] for f in per_frame),
                "wall_s": round(time.perf_counter() - t_start, 2),
                "frames": per_frame}
         return w.commit(doc)

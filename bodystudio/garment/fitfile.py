@@ -175,7 +175,10 @@ def load_garment_fit(folder: str | os.PathLike) -> GarmentFit:
         bad = [f"{k}={v}" for k, v in dict(doc["local"]).items() if not -1.0 <= float(v) <= 1.0]
         if bad:
             raise ValueError(f"local modifier {bad[0]} is not in [-1, 1]")
-        lighting = None if doc["lighting"] is None else Lighting.from_dict(doc["lighting"], str(path))
+        try:
+            lighting = None if doc["lighting"] is None else Lighting.from_dict(doc["lighting"], str(path))
+        except FileFormatError as exc:  # names fit.json and what is wrong; the fix is the fit's, as for the rest
+            raise FileFormatError(f"{exc}; {fix}") from None
         cam_doc = doc["camera"]
         camera = Camera.from_dict(str(cam_doc.get("name", "cam_00")), cam_doc)
         return GarmentFit(source=str(doc["source"]), fps=float(doc["fps"]), frame_ids=frame_ids,

@@ -119,6 +119,22 @@ def _nonzero(edits) -> dict[str, float]:
     return out
 
 
+def same_session_recording(session, run: dict) -> bool:
+    """Whether a run was made from ``session``'s recording wherever the folder now lies: the run's
+    ``session_fingerprint`` (:func:`~bodystudio.mirror.frames.recording_fingerprint` of its frames) is the
+    session's. A session moved or copied together with its run keeps it; another recording has another; a run
+    written before the fingerprint existed has none (and is judged by its path alone)."""
+    from bodystudio.mirror.frames import recording_fingerprint
+
+    used = run.get("session_fingerprint")
+    ids = [f.get("index") for f in run.get("frames") or [] if isinstance(f, dict)]
+    if not isinstance(used, str) or not ids or not all(type(i) is int for i in ids):
+        return False
+    if not set(ids) <= set(session.frame_ids):
+        return False
+    return used == recording_fingerprint(session, ids)
+
+
 def read_mirror_run(session, run_dir: str | Path) -> dict:
     """``run.json`` of a complete run folder made from ``session`` with the session's edits; one-line errors."""
     from bodystudio.fileio import read_json
@@ -140,7 +156,8 @@ def read_mirror_run(session, run_dir: str | Path) -> dict:
         raise FileFormatError(f"{layout.manifest_path}: not a mirror run manifest (format != {RUN_FORMAT!r}); "
                               "pass the folder `bodystudio mirror run` wrote")
     ran_on = run.get("session")
-    if not isinstance(ran_on, str) or Path(ran_on).resolve() != Path(session.path).resolve():
+    if not isinstance(ran_on, str) or (Path(ran_on).resolve() != Path(session.path).resolve()
+                                       and not same_session_recording(session, run)):
         raise InputError(f"{run_dir}: this run was made from session {ran_on!r}, not {session.path}; evaluate it "
                          "against its own session")
     truth, used = _nonzero(session.metadata.get("edits")), _nonzero(run.get("edits"))

@@ -8,6 +8,7 @@ player mask and the depth into the colour image (:func:`player_mask_in_color`).
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
@@ -15,9 +16,18 @@ import numpy as np
 from numba import njit
 
 from bodystudio.body.kinect import kinect_joint_names
-from bodystudio.capture.session import MAX_PLAYERS, stream_path
+from bodystudio.capture.session import MAX_PLAYERS, stream_fingerprint, stream_path
 from bodystudio.errors import InputError, SessionError
 from bodystudio.geometry.camera import Camera, RGBDSensor
+
+
+def recording_fingerprint(session, frame_ids) -> str | None:
+    """Which Kinect recording a mirror run read: one sha256 over the session manifest's digests of the colour,
+    depth, player and joint files of ``frame_ids`` (:func:`~bodystudio.capture.session.stream_fingerprint`).
+    It survives moving or copying the session; None when a file is not in the manifest (a live recording)."""
+    parts = [stream_fingerprint(session, stream, frame_ids)
+             for stream in ("kinect_rgb", "kinect_depth", "kinect_player", "kinect_joints")]
+    return None if any(p is None for p in parts) else hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
 @dataclass(frozen=True, eq=False)

@@ -624,11 +624,25 @@ def source_fingerprint(body) -> str:
     return h.hexdigest()[:16]
 
 
+def source_body_layout(path: str | Path):
+    """The run layout ``mirror init`` writes the source body ``DIR/NAME.npz`` with: the summary ``NAME.json``
+    as manifest (written last), lock and staging ``.NAME.npz.lock`` / ``.NAME.npz.staging`` beside them."""
+    from bodystudio.runfolder import RunLayout
+
+    path = Path(path)
+    return RunLayout(path.parent, path.with_suffix(".json").name, f".{path.name}.", str(path))
+
+
 def load_source_body(path: str | Path, model: StatisticalBodyModel | None = None) -> SourceBody:
     """Read :func:`save_source_body`'s file; with ``model``, check it is that model's and attach its skin weights."""
     import zipfile
 
+    from bodystudio.runfolder import check_readable
+
     path = Path(path)
+    # mirror init writes the body with its summary as one unit: a live write, or one killed after its commit
+    # point (the body moved in, the summary not yet, or the reverse), is refused, not read half-replaced
+    check_readable(source_body_layout(path))
     if not path.is_file():
         raise FileFormatError(f"{path}: source body not found; run 'bodystudio mirror init SESSION' first")
     try:

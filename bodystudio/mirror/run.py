@@ -660,6 +660,9 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
             plausibility = _verdicts(bodies, players[0], source)
     manifest = {"session": str(Path(session.path).resolve()),
                 "session_run_id": (session.manifest.get("run") or {}).get("run_id"),
+                # the recording read (eval mirror accepts the session moved with its run by this, not the path)
+                "session_fingerprint": None if live is not None
+                else _stage_module("frames").recording_fingerprint(session, ids),
                 "live": None if live is None else str(Path(live).resolve()),
                 "edits": edits, "player": players[0], "ramp_frames": int(ramp_frames),
                 "correspondence": correspondence, "refine_pose": bool(refine_pose),

@@ -243,6 +243,9 @@ class ArmCapture:
     joints: np.ndarray | None = None
     # sha256 over the captured frames' depth files (capture.session.stream_fingerprint): which recording this is
     source_fingerprint: str | None = None
+    # (3, 3) the rest joints the capture's model regresses for ``shape`` (where its rest mesh sits): the
+    # extension's "regressed" centre, kept so that extending another model (a later one) still uses these
+    regressed_joints: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -441,8 +444,11 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     stages = {"nicp": np.stack([apply_similarity(S, X) for X in nicp_meshes])}
     if model_meshes:
         stages["model"] = np.stack([apply_similarity(S, X) for X in model_meshes])
+    from bodystudio.muscle.model import model_joints
+
     return ArmCapture(out, F, poses, shape, S, o.mode, template.key, timer.ms, ids, stages=stages,
-                      joints=None if model is None else np.asarray(J, np.float64))
+                      joints=None if model is None else np.asarray(J, np.float64),
+                      regressed_joints=None if model is None else np.asarray(model_joints(model, shape), np.float64))
 
 
 def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, joints, o: CaptureOptions, timer,
@@ -594,7 +600,9 @@ def write_arm_capture_files(path_for: Callable[[str], Path], capture: ArmCapture
               "similarity": {"scale": float(s), "R": np.asarray(R).tolist(), "t": np.asarray(t).tolist()},
               "timings_ms": capture.timings_ms, "ms_per_frame": capture.ms_per_frame,
               "session": capture.session_path, "session_fingerprint": capture.source_fingerprint,
-              "joints": None if capture.joints is None else np.asarray(capture.joints, float).tolist()}
+              "joints": None if capture.joints is None else np.asarray(capture.joints, float).tolist(),
+              "regressed_joints": None if capture.regressed_joints is None
+              else np.asarray(capture.regressed_joints, float).tolist()}
     write_json(path_for("params.json"), params)
     write_json(path_for("manifest.json"), {"format": "bodystudio-arm-capture", "version": 1,
                                            "n_frames": capture.n_frames, "meshes": "meshes/NNNNN.ply",
@@ -646,16 +654,20 @@ def load_arm_capture(folder: str | Path) -> ArmCapture:
         F = np.asarray(meshes[0].faces, np.int64)
         joints = params.get("joints")
         joints = None if joints is None else np.asarray(joints, float).reshape(3, 3)
+        regressed = params.get("regressed_joints")
+        regressed = None if regressed is None else np.asarray(regressed, float).reshape(3, 3)
         shape = _capture_shape(params.get("shape"), str(p))
     except (OSError, ValueError, KeyError, TypeError, IndexError, InputError) as exc:
         raise FileFormatError(f"{folder}: not a readable arm capture folder ({type(exc).__name__}: {exc}); "
                               "re-run bodystudio muscle capture") from None
-    for name, value in (("similarity", np.r_[S[0], S[1].ravel(), S[2]]), ("joints", joints)):
+    for name, value in (("similarity", np.r_[S[0], S[1].ravel(), S[2]]), ("joints", joints),
+                        ("regressed_joints", regressed)):
         if value is not None and not np.all(np.isfinite(value)):
             raise FileFormatError(f"{p}: {name} is NaN or infinite; re-run bodystudio muscle capture")
     return ArmCapture(V, F, poses, shape, S, params.get("mode", "full"), params.get("template_key", ""),
                       dict(params.get("timings_ms", {})), list(params.get("frame_ids", range(n))),
-                      params.get("session"), joints=joints, source_fingerprint=params.get("session_fingerprint"))
+                      params.get("session"), joints=joints, source_fingerprint=params.get("session_fingerprint"),
+                      regressed_joints=regressed)
 
 
 __all__ = ["EXTENSION_CAPTURE", "MODES", "ArmCapture", "CaptureOptions", "CorrespondenceFilters", "NicpOptions",

@@ -577,10 +577,14 @@ def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, str
     if centre == "sex":
         centre = "fitted" if shape.sex < 0.5 else "regressed"
     if centre == "regressed":
-        if model is None:
+        if model is None and getattr(capture, "regressed_joints", None) is None:
             raise InputError(f"capture {name!r}: centre={centre_arg!r} needs the model the capture was made with "
                              "(model=...) for its regressed shoulder")
-        origin = model_joints(model, capture.shape if isinstance(capture.shape, ArmShapeParams) else shape)[0]
+        recorded = getattr(capture, "regressed_joints", None)
+        if recorded is not None:  # the capture's own model's shoulder, whichever model is extended
+            origin = np.asarray(recorded, dtype=np.float64)[0]
+        else:  # a capture written before it was recorded: MODEL is taken as the capture's model
+            origin = model_joints(model, capture.shape if isinstance(capture.shape, ArmShapeParams) else shape)[0]
     s, R, t = capture.similarity
     R, t = np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
     out = []

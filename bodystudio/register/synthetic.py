@@ -22,7 +22,7 @@ from bodystudio.body.model import decimate_keeping_vertices
 from bodystudio.body.population import sample_subject
 from bodystudio.body.skinning import posed_joints, skinning_transforms
 from bodystudio.errors import FileFormatError, InputError
-from bodystudio.fileio import atomic_path, read_json, write_json
+from bodystudio.fileio import atomic_path, read_json
 from bodystudio.geometry.mesh import Mesh, save_mesh, vertex_normals
 
 log = logging.getLogger(__name__)
@@ -190,21 +190,27 @@ def ground_truth_dir(scan_path: str | Path) -> Path:
 
 def save_synthetic_scan(path: str | Path, scan: Mesh, gt: ScanGroundTruth) -> Path:
     """Write the scan (PLY/OBJ/GLB/STL) and its ground truth in ``OUT.gt/`` (JSON + NPZ); returns the folder."""
+    from bodystudio.runfolder import RunLayout, RunWriter
+
     path = Path(path)
     gt_dir = ground_truth_dir(path)
     sk = gt.skeleton
-    with atomic_path(gt_dir / "arrays.npz") as tmp:
-        W = gt.weights.tocsr()
-        np.savez_compressed(tmp, rest_vertices=gt.rest_vertices, noise=gt.noise, weights_data=W.data,
-                            weights_indices=W.indices, weights_indptr=W.indptr, weights_shape=np.array(W.shape),
-                            heads=sk.heads, tails=sk.tails, rolls=sk.rolls, parents=sk.parents,
-                            pose_rotations=gt.pose.rotations, pose_translation=gt.pose.translation)
-    write_json(gt_dir / "subject.json", {
-        "subject_seed": gt.subject_seed, "phenotype": gt.phenotype.__dict__ if hasattr(gt.phenotype, "__dict__")
-        else dict(gt.phenotype), "local": gt.local, "pose": gt.pose_name, "noise_mm": gt.noise_mm,
-        "bone_names": list(sk.bone_names), "joints": gt.joints, "n_vertices": len(gt.rest_vertices),
-        "scan": path.name})
-    save_mesh(path, scan)
+    # the scan and its ground truth as one unit, subject.json last: a full disk or a kill at the scan left a
+    # new subject's ground truth beside the previous scan (eval rig then scored one subject against another)
+    layout = RunLayout(path.parent, f"{gt_dir.name}/subject.json", f".{path.name}.", str(path))
+    with RunWriter(layout, "bodystudio synth scan", {"stage": "register", "kind": "synthetic scan"}) as w:
+        with atomic_path(w.path_for(f"{gt_dir.name}/arrays.npz")) as tmp:
+            W = gt.weights.tocsr()
+            np.savez_compressed(tmp, rest_vertices=gt.rest_vertices, noise=gt.noise, weights_data=W.data,
+                                weights_indices=W.indices, weights_indptr=W.indptr, weights_shape=np.array(W.shape),
+                                heads=sk.heads, tails=sk.tails, rolls=sk.rolls, parents=sk.parents,
+                                pose_rotations=gt.pose.rotations, pose_translation=gt.pose.translation)
+        save_mesh(w.path_for(path.name), scan)
+        w.commit({
+            "subject_seed": gt.subject_seed, "phenotype": gt.phenotype.__dict__ if hasattr(gt.phenotype, "__dict__")
+            else dict(gt.phenotype), "local": gt.local, "pose": gt.pose_name, "noise_mm": gt.noise_mm,
+            "bone_names": list(sk.bone_names), "joints": gt.joints, "n_vertices": len(gt.rest_vertices),
+            "scan": path.name})
     return gt_dir
 
 

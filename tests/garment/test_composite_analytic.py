@@ -296,7 +296,12 @@ def test_flow_refinement_uses_the_motion_correction_field():
     out = cp.refine_and_composite(frame, person, layer, flow=True, rbf=False)
     want = refine.garment_motion_correction(frame, person, layer.body_image, layer.body_mask, layer.mask)
     assert np.abs(want).max() > 0.5
-    assert np.array_equal(out.field, want)
+    assert np.array_equal(out.field, want) and out.flow_applied
+    # the gate's decision is reported (render.json's flow_applied): not asked for, or below what the flow resolves
+    assert not cp.refine_and_composite(frame, person, layer, flow=False, rbf=False).flow_applied
+    still = np.clip(np.round(layer.body_image * 255), 0, 255).astype(np.uint8)
+    gated = cp.refine_and_composite(still, layer.body_mask, layer, flow=True, rbf=False)
+    assert not gated.flow_applied and not gated.field.any()
 
 
 def test_default_lighting_is_a_white_light_from_the_camera():
@@ -898,6 +903,8 @@ def test_render_loop_runs_the_refinement_it_is_asked_for_and_times_each_step(tmp
     for f in (doc["frames"][0], doc["frames"][2]):
         assert f["ms"] == step
     assert doc["frames"][1]["ms"] == {"write": 123.46}
+    assert doc["frames"][1]["flow_applied"] is False  # passed through
+    assert doc["n_flow_applied"] == sum(f["flow_applied"] for f in doc["frames"])
     assert doc["ms_per_frame"] == step
     assert doc["wall_s"] == 2.47  # 21 clock readings 0.123456 s apart
     monkeypatch.undo()

@@ -527,7 +527,7 @@ def _fake_session(tmp_path, **changes):
     for name in ("source_body.npz", "source_body_player2.npz", "source_body_player6.npz"):
         (tmp_path / "mirror" / name).write_bytes(b"x")
     fields = dict(path=tmp_path, kinect="kinect", metadata={"fps": 15}, manifest={"run": {"run_id": "r1"}},
-                  frame_ids=[0, 1, 2])
+                  frame_ids=[0, 1, 2], files={})
     fields.update(changes)
     return SimpleNamespace(**fields)
 
@@ -573,7 +573,8 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
     assert s["inputs"] == "INPUTS" and s["run_dir"] == tmp_path / "mirror" / "run" and s["fps"] == 15.0
     assert s["kind"] == "rigid" and s["total"] == 2 and s["preview"] is None and s["progress"] is False
     assert s["sbs"] is False
-    assert s["manifest"] == {"session": str(tmp_path.resolve()), "session_run_id": "r1", "live": None,
+    assert s["manifest"] == {"session": str(tmp_path.resolve()), "session_run_id": "r1",
+                             "session_fingerprint": None, "live": None,
                              "edits": {"taller": 0.1}, "player": 2, "ramp_frames": 5,
                              "correspondence": run_mod.CORRESPONDENCE, "refine_pose": True,
                              "source_fingerprint": None}

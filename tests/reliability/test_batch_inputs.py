@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from bodystudio.batch import check_worker_versions, resolve_scheduler
+from bodystudio.batch import check_worker_versions, max_local_workers, resolve_scheduler
 from bodystudio.errors import InputError
 
 from .conftest import run_bad
@@ -46,6 +46,24 @@ def test_batch_rig_bad_folders(scans, tmp_path, capsys):
     (tmp_path / "file").write_text("")
     run_bad(["batch", "rig", scans, "--out", tmp_path / "file"], capsys, "not a folder")
     assert not (tmp_path / "out").exists()
+
+
+def test_workers_beyond_the_machine_are_refused(scans, two_sessions, tmp_path, capsys):
+    """``--workers 100000`` had no upper bound (adversarial pass 3): a local cluster as large as the batch's
+    units started (a 10000-scan folder, 10000 processes). Now more than 4 per core is one line, before any
+    cluster, naming the machine's cap and --scheduler; the cap itself is accepted by the check."""
+    cap = max_local_workers()
+    assert resolve_scheduler(None, cap) is None
+    too_many = str(cap + 1)
+    run_bad(["batch", "rig", scans, "--out", tmp_path / "out", "--workers", too_many], capsys,
+            f"--workers {too_many}: at most {cap} on this machine")
+    session = tmp_path / "s"
+    session.mkdir()
+    run_bad(["reconstruct", session, "--workers", "100000"], capsys, "--workers 100000: at most")
+    run_bad(["muscle", "capture", *two_sessions, "--out", tmp_path / "m", "--no-model", "--workers", "100000"], capsys,
+            "--scheduler for a cluster")
+    assert not (tmp_path / "out").exists() and not (tmp_path / "m").exists()
+    assert not (session / "reconstruct").exists()
 
 
 def test_unreachable_scheduler_is_one_line(scans, tmp_path):

@@ -139,6 +139,9 @@ def test_unfitted_frames_pass_through(fit_dir, tmp_path, capfd):
     frame = open_session(fit.source).frame(1).images["cam_00"]
     assert np.array_equal(cv2.imread(str(d / "render" / "frames" / "00001.png"))[..., ::-1], frame)
     assert doc["frames"][0]["garment_px"] > 100 and doc["frames"][1]["garment_px"] == 0
+    # the flow gate's decision per frame (options.flow is only what was asked), and in the printed line
+    assert doc["frames"][1]["flow_applied"] is False and doc["n_flow_applied"] == int(doc["frames"][0]["flow_applied"])
+    assert f"flow correction used in {doc['n_flow_applied']} of them" in r.stdout
     e = tmp_path / "fit_none"
     save_garment_fit(e, replace(fit, silhouette_iou=np.array([0.2, 0.3])), "test")
     r = run_inprocess(["garment", "render", e, "--out", tmp_path / "n.mp4"], capfd)
