@@ -508,7 +508,7 @@ def _shape_body(values: np.ndarray, names, phenotype: dict, local: dict, templat
 
     ph, loc = dict(phenotype), dict(local)
     for n, v in zip(names, values, strict=True):
-        if n in MACRO_PARAMETERS:
+        if n in MACRO_PARAMETERS or n in ph:  # a phenotype value (macro), else a local modifier
             ph[n] = float(np.clip(v, 0.0, 1.0))
         else:
             loc[n] = float(np.clip(v, -1.0, 1.0))
@@ -753,11 +753,16 @@ def estimate_appearance(images: np.ndarray, masks: np.ndarray, posed: list[np.nd
 def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str | os.PathLike | None = None,
                       frames: str | None = None, template: str = "2k", focal_px: float | None = None,
                       keyframes: str | os.PathLike | None = None, appearance: bool = True,
-                      progress: bool = False, background: str | os.PathLike | None = None):
+                      progress: bool = False, background: str | os.PathLike | None = None,
+                      shape_refinement: bool = True, clothing_allowance_m: float | None = None):
     """§4-5 on a video file or session folder: shape, pose per frame, albedo and lighting.
 
     Writes the fit through :func:`save_garment_fit` into ``out_dir`` (a new folder) when given and
-    returns the :class:`GarmentFit`. ``stature_m`` is the actor's stature given by the user.
+    returns the :class:`GarmentFit`. ``stature_m`` is the actor's stature given by the user. With
+    ``shape_refinement`` (default) the shape is refined against every frame's silhouette once the poses are
+    known (:func:`bodystudio.garment.shape_refine.refine_shape_to_silhouettes`, the poses held), taking the
+    matte to be the body plus ``clothing_allowance_m`` of clothes (default
+    :data:`~bodystudio.garment.shape_refine.CLOTHING_ALLOWANCE_M`).
     """
     from bodystudio.body.model import RESOLUTIONS
     from bodystudio.capture.session import progress_bar
@@ -769,6 +774,12 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
         raise InputError(f"--stature {stature_m}: give the actor's stature in metres, between 0.5 and 2.5")
     if template not in RESOLUTIONS:
         raise InputError(f"--template {template!r}: valid: {', '.join(RESOLUTIONS)}")
+    from bodystudio.garment.shape_refine import CLOTHING_ALLOWANCE_M, MAX_CLOTHING_ALLOWANCE_M
+
+    allowance = CLOTHING_ALLOWANCE_M if clothing_allowance_m is None else clothing_allowance_m
+    if not (np.isfinite(allowance) and 0.0 <= allowance <= MAX_CLOTHING_ALLOWANCE_M):
+        raise InputError(f"--clothing-mm {1e3 * allowance:g}: give the worn clothes' thickness in mm, between 0 and "
+                         f"{1e3 * MAX_CLOTHING_ALLOWANCE_M:g}")
     if out_dir is not None:
         check_output_folder(out_dir, "fit folder", new=True)
     timings: dict[str, float] = {}
@@ -796,6 +807,18 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
                         progress=lambda: bar.advance(task), frame_ids=pf.frame_ids)
         timings["pose"] = (time.perf_counter() - t0) * 1e3 / n
         poses = [space.pose(x) for x in X]
+        if shape_refinement:
+            from bodystudio.body import build_body
+            from bodystudio.body.phenotype import Phenotype
+            from bodystudio.garment.shape_refine import refine_shape_to_silhouettes
+
+            bar.update(task, description="garment fit: shape refinement")
+            t0 = time.perf_counter()
+            refined = refine_shape_to_silhouettes(shape.phenotype, shape.local, template, poses, pf.masks, camera,
+                                                  stature_m, allowance_m=allowance)
+            body = build_body(Phenotype.from_dict(refined.phenotype), refined.local, resolution=template)
+            shape = ShapeFit(refined.phenotype, refined.local, body, shape.reference, shape.xs)
+            timings["shape_refinement"] = (time.perf_counter() - t0) * 1e3 / n
         posed = [shape.body.pose(p)[0] for p in poses]
         ious = np.array([silhouette_iou(V, shape.body.faces, camera, m) for V, m in zip(posed, pf.masks, strict=True)])
         albedo = lighting = None

@@ -2,7 +2,8 @@
 
 A 2k body of known shape filmed in three poses by a 240x320 camera; the refinement starts from a planted
 shape error (heavier, thinner upper arms, a wider torso, another gender mix) with the true poses and must
-remove most of it while holding the stature. Seconds.
+remove most of it while holding the stature (the input returned unchanged, a skipped step or a dropped term
+fails the bound). Under a minute on an idle core.
 """
 
 import numpy as np
@@ -60,10 +61,10 @@ def test_refinement_removes_a_planted_shape_error(clip):
     phenotype, local = _planted(clip)
     before = _error_mm(clip, phenotype, local)
     r = refine_shape_to_silhouettes(phenotype, local, "2k", clip["poses"], clip["masks"], clip["camera"],
-                                    clip["stature"], iterations=6)
+                                    clip["stature"], iterations=6, allowance_m=0.0)
     after = _error_mm(clip, r.phenotype, r.local)
-    assert before > 8.0, before
-    assert after < 0.4 * before, (before, after, r.energies)
+    assert before > 8.0, before  # measured 10.7 mm
+    assert after < 0.4 * before, (before, after, r.energies)  # measured 1.9 mm (energy 2.96 -> 0.43 in 6 steps)
     assert r.iterations >= 3 and r.energies[-1] < 0.5 * r.energies[0], r.energies
     stature = gf.body_stature(build_body(Phenotype.from_dict(r.phenotype), r.local, resolution="2k"))
     assert abs(stature - clip["stature"]) < 1e-3, stature - clip["stature"]
@@ -73,15 +74,16 @@ def test_the_truth_stays_put(clip):
     from bodystudio.garment.shape_refine import refine_shape_to_silhouettes
 
     r = refine_shape_to_silhouettes(clip["phenotype"], TRUTH, "2k", clip["poses"], clip["masks"], clip["camera"],
-                                    clip["stature"], iterations=2)
-    assert _error_mm(clip, r.phenotype, r.local) < 2.0
+                                    clip["stature"], iterations=2, allowance_m=0.0)
+    # measured 1.9 mm: at 240x320 a pixel is ~9 mm at the body, so the silhouettes pin the shape to about that
+    assert _error_mm(clip, r.phenotype, r.local) < 3.0
 
 
 def test_clothing_allowance_makes_the_body_thinner(clip):
     from bodystudio.garment.shape_refine import refine_shape_to_silhouettes
 
     r0 = refine_shape_to_silhouettes(clip["phenotype"], TRUTH, "2k", clip["poses"], clip["masks"], clip["camera"],
-                                     clip["stature"], iterations=3)
+                                     clip["stature"], iterations=3, allowance_m=0.0)
     r8 = refine_shape_to_silhouettes(clip["phenotype"], TRUTH, "2k", clip["poses"], clip["masks"], clip["camera"],
                                      clip["stature"], iterations=3, allowance_m=0.008)
     from bodystudio.body import build_body
@@ -90,4 +92,5 @@ def test_clothing_allowance_makes_the_body_thinner(clip):
 
     m0 = measure_body(build_body(Phenotype.from_dict(r0.phenotype), r0.local, resolution="2k"))
     m8 = measure_body(build_body(Phenotype.from_dict(r8.phenotype), r8.local, resolution="2k"))
-    assert m8["waist_m"] < m0["waist_m"] - 0.01 and m8["mass_kg"] < m0["mass_kg"], (m0, m8)
+    # measured waist 738 -> 710 mm, mass 58.3 -> 55.7 kg
+    assert m8["waist_m"] < m0["waist_m"] - 0.01 and m8["mass_kg"] < m0["mass_kg"] - 1.0, (m0, m8)
