@@ -38,9 +38,9 @@ STATURE_SCALE_M = 0.0005
 #: No parameter moves by more than this per Gauss-Newton step.
 MAX_STEP = 0.15
 #: Clothing allowance of the default fit (m): the matte is taken to be the body plus this much clothing. Hidden
-#: subjects 37 / 21 / 3 (docs/garment.md, gar13c), garment_iou after the §7 refinement: 0 mm 0.938 / 0.913 / -,
-#: 4 mm 0.946 / 0.922 / 0.923, 6 mm 0.949 / 0.921 / 0.922, 8 mm 0.947 / - / - (before the refinement: 0.930 /
-#: 0.912 / 0.914). Half of the synthetic worn T-shirt's offset; a bare-skinned actor's fit is 4 mm thin.
+#: subjects 37 / 21 / 3 (docs/garment.md, gar13c), garment_iou after the §7 refinement: 0.930 / 0.912 / 0.914
+#: without the shape refinement, 0.948 / 0.917 / 0.926 with it at 4 mm; 6 mm measured within 0.004 of 4 mm on each.
+#: Half of the synthetic worn T-shirt's offset; a bare-skinned actor's fit comes out that much thin.
 CLOTHING_ALLOWANCE_M = 0.004
 #: Gauss-Newton steps of the fit's refinement (the energy changes < 1 % after the 5th on the hidden subjects).
 REFINE_ITERATIONS = 5
