@@ -617,6 +617,21 @@ def estimate_shape(masks: np.ndarray, camera, stature_m: float, template: str = 
     return ShapeFit(phenotype, local, body, reference, xs)
 
 
+def refine_fit_shape(shape: ShapeFit, poses: list, masks: np.ndarray, camera, stature_m: float, template: str,
+                     allowance_m: float) -> ShapeFit:
+    """Step 4b of the fit (ours): ``shape`` refined against every frame's silhouette with the frames' ``poses``
+    held (:func:`bodystudio.garment.shape_refine.refine_shape_to_silhouettes`, clothing allowance
+    ``allowance_m``); the reference frames and their poses are kept."""
+    from bodystudio.body import build_body
+    from bodystudio.body.phenotype import Phenotype
+    from bodystudio.garment.shape_refine import refine_shape_to_silhouettes
+
+    refined = refine_shape_to_silhouettes(shape.phenotype, shape.local, template, poses, masks, camera, stature_m,
+                                          allowance_m=allowance_m)
+    body = build_body(Phenotype.from_dict(refined.phenotype), refined.local, resolution=template)
+    return ShapeFit(refined.phenotype, refined.local, body, shape.reference, shape.xs)
+
+
 # --- pose over the clip (§4.4) -----------------------------------------------------------------------
 
 def track_poses(space: PoseSpace, camera, masks: np.ndarray, start: int, x_start: np.ndarray,
@@ -808,16 +823,9 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
         timings["pose"] = (time.perf_counter() - t0) * 1e3 / n
         poses = [space.pose(x) for x in X]
         if shape_refinement:
-            from bodystudio.body import build_body
-            from bodystudio.body.phenotype import Phenotype
-            from bodystudio.garment.shape_refine import refine_shape_to_silhouettes
-
             bar.update(task, description="garment fit: shape refinement")
             t0 = time.perf_counter()
-            refined = refine_shape_to_silhouettes(shape.phenotype, shape.local, template, poses, pf.masks, camera,
-                                                  stature_m, allowance_m=allowance)
-            body = build_body(Phenotype.from_dict(refined.phenotype), refined.local, resolution=template)
-            shape = ShapeFit(refined.phenotype, refined.local, body, shape.reference, shape.xs)
+            shape = refine_fit_shape(shape, poses, pf.masks, camera, stature_m, template, allowance)
             timings["shape_refinement"] = (time.perf_counter() - t0) * 1e3 / n
         posed = [shape.body.pose(p)[0] for p in poses]
         ious = np.array([silhouette_iou(V, shape.body.faces, camera, m) for V, m in zip(posed, pf.masks, strict=True)])
