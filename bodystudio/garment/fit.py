@@ -763,6 +763,46 @@ def estimate_appearance(images: np.ndarray, masks: np.ndarray, posed: list[np.nd
     return albedo, lighting
 
 
+def fit_warnings(stature_fit: float, stature_m: float, ious: np.ndarray) -> list[str]:
+    """The fit's warnings: a fitted stature over 1 cm from the given one, frames with a silhouette IoU below 0.8."""
+    warnings = []
+    if abs(stature_fit - stature_m) > 0.01:
+        warnings.append(f"fitted stature {stature_fit:.3f} m differs from the given {stature_m:.3f} m by over 1 cm")
+    bad = int(np.count_nonzero(np.asarray(ious) < 0.8))
+    if bad:
+        warnings.append(f"{bad} of {len(ious)} frames have a silhouette IoU below 0.80")
+    return warnings
+
+
+def refine_garment_fit(fit, images: np.ndarray, stature_m: float, allowance_m: float | None = None):
+    """Step 4b applied to a finished fit (one made with ``shape_refinement=False``): the shape refined with the
+    fit's poses held (:func:`refine_fit_shape`), then §5's appearance re-estimated on the refined body from
+    ``images`` (the fitted frames) when the fit has one. The result equals what :func:`fit_garment_video` gives
+    with the refinement on; the benchmark scores both from one pose fit."""
+    from dataclasses import replace
+
+    from bodystudio.garment.shape_refine import CLOTHING_ALLOWANCE_M
+
+    allowance = CLOTHING_ALLOWANCE_M if allowance_m is None else float(allowance_m)
+    poses = [fit.pose(i) for i in range(len(fit.frame_ids))]
+    t0 = time.perf_counter()
+    shape = refine_fit_shape(ShapeFit(fit.phenotype, fit.local, fit.body(), np.zeros(0, int), []), poses, fit.masks,
+                             fit.camera, stature_m, fit.template, allowance)
+    timings = dict(fit.timings_ms)
+    timings["shape_refinement"] = round((time.perf_counter() - t0) * 1e3 / len(poses), 1)
+    posed = [shape.body.pose(p)[0] for p in poses]
+    ious = np.array([silhouette_iou(V, shape.body.faces, fit.camera, m) for V, m in zip(posed, fit.masks, strict=True)])
+    albedo, lighting = fit.albedo, fit.lighting
+    if lighting is not None:
+        t0 = time.perf_counter()
+        albedo, lighting = estimate_appearance(images, fit.masks, posed, shape.body.faces, fit.camera)
+        timings["appearance"] = round((time.perf_counter() - t0) * 1e3 / len(poses), 1)
+    stature_fit = body_stature(shape.body)
+    return replace(fit, phenotype=shape.phenotype, local=shape.local, stature_m=stature_fit, silhouette_iou=ious,
+                   albedo=albedo, lighting=lighting, timings_ms=timings,
+                   warnings=tuple(fit_warnings(stature_fit, stature_m, ious)))
+
+
 # --- the whole fit -----------------------------------------------------------------------------------
 
 def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str | os.PathLike | None = None,
@@ -836,12 +876,7 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
             albedo, lighting = estimate_appearance(pf.images, pf.masks, posed, shape.body.faces, camera)
             timings["appearance"] = (time.perf_counter() - t0) * 1e3 / n
     stature_fit = body_stature(shape.body)
-    warnings = []
-    if abs(stature_fit - stature_m) > 0.01:
-        warnings.append(f"fitted stature {stature_fit:.3f} m differs from the given {stature_m:.3f} m by over 1 cm")
-    bad = int(np.count_nonzero(ious < 0.8))
-    if bad:
-        warnings.append(f"{bad} of {n} frames have a silhouette IoU below 0.80")
+    warnings = fit_warnings(stature_fit, stature_m, ious)
     # absolute: a relative path is the user's working directory at fit time, which render, eval and view
     # (run from elsewhere) cannot know; they reported the source "gone"
     fit = GarmentFit(source=str(Path(source).absolute()), fps=pf.fps, frame_ids=pf.frame_ids,

@@ -94,3 +94,27 @@ def test_clothing_allowance_makes_the_body_thinner(clip):
     m8 = measure_body(build_body(Phenotype.from_dict(r8.phenotype), r8.local, resolution="2k"))
     # measured waist 738 -> 710 mm, mass 58.3 -> 55.7 kg
     assert m8["waist_m"] < m0["waist_m"] - 0.01 and m8["mass_kg"] < m0["mass_kg"] - 1.0, (m0, m8)
+
+
+def test_refine_garment_fit_is_step_4b_on_a_finished_fit(clip):
+    """``fit.refine_garment_fit`` (what the benchmark and scripts/garment_shape_refit.py use): the shape refined
+    with the fit's own poses held, the result the refinement's, IoU, stature and timings recomputed."""
+    from bodystudio.garment import fit as gf
+    from bodystudio.garment.fitfile import GarmentFit
+    from bodystudio.garment.shape_refine import refine_shape_to_silhouettes
+
+    phenotype, local = _planted(clip)
+    poses = clip["poses"]
+    fit = GarmentFit(source="/clips/a.mp4", fps=30.0, frame_ids=np.arange(len(poses)), camera=clip["camera"],
+                     template="2k", bone_names=tuple(clip["body"].skeleton.bone_names), phenotype=phenotype,
+                     local=local, stature_m=clip["stature"], rotations=np.stack([p.rotations for p in poses]),
+                     translations=np.stack([p.translation for p in poses]), silhouette_iou=np.zeros(len(poses)),
+                     masks=np.stack(clip["masks"]), lighting=None, albedo=None, timings_ms={"pose": 1.0})
+    refined = gf.refine_garment_fit(fit, np.zeros((len(poses), 1, 1, 3), np.uint8), clip["stature"], 0.0)
+    direct = refine_shape_to_silhouettes(phenotype, local, "2k", poses, clip["masks"], clip["camera"],
+                                         clip["stature"], allowance_m=0.0)
+    assert refined.phenotype == direct.phenotype and refined.local == direct.local
+    assert _error_mm(clip, refined.phenotype, refined.local) < 0.5 * _error_mm(clip, phenotype, local)
+    assert refined.silhouette_iou.min() > 0.9 and abs(refined.stature_m - clip["stature"]) < 1e-3
+    assert set(refined.timings_ms) == {"pose", "shape_refinement"} and refined.warnings == ()
+    np.testing.assert_array_equal(refined.rotations, fit.rotations)
