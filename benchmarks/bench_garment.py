@@ -1,6 +1,7 @@
 """Garment §6-7: render on the fitted actor, refine in image space (flow §7.1, RBF silhouette warp §7.2-7.3),
 composite by depth; garment_iou / PSNR / SSIM against the true render, with each refinement step ablated in
-the same run, on hidden subjects, with a perturbed oracle fit (and the real §4 fit once it exists)."""
+the same run, on hidden subjects, with a perturbed oracle fit and the real §4 fit (with and without its final shape
+refinement, step 4b)."""
 
 from __future__ import annotations
 
@@ -16,23 +17,31 @@ SUBJECTS = ((21, "walk"), (37, "arm_flex"))
 CONFIGS = (("full refinement", {}), ("no flow (§7.1 off)", {"flow": False}), ("no RBF warp (§7.2 off)", {"rbf": False}),
            ("no depth compositing", {"depth": False}),
            ("unrefined (3D render only)", {"flow": False, "rbf": False, "depth": True}))
+REAL_FIT = "real fit (§4)"
+#: The real fit without the final shape refinement of step 4b (gar13c), scored with the full §7 refinement only.
+REAL_FIT_NO_4B = "real fit, no shape refinement (4b)"
 
 
-def _real_fit(session_path: Path, stature_m: float, out: Path):
-    """The §4 fit of the gfit branch when it is installed; None otherwise."""
-    try:
-        from bodystudio.garment.fit import fit_garment_video
-    except ImportError:
-        return None
-    return fit_garment_video(str(session_path), stature_m, out)
+def _real_fits(session_path: Path, stature_m: float, root: Path) -> dict:
+    """The §4 fit with its defaults (``garment fit``) and, from the same pose fit, without the final shape
+    refinement (step 4b): ``refine_garment_fit`` of the fit made with ``shape_refinement=False`` is what
+    ``fit_garment_video`` gives with it on. ``{name: (fit folder, fit)}``."""
+    from bodystudio.garment.fit import fit_garment_video, refine_garment_fit
+    from bodystudio.garment.fitfile import save_garment_fit
+    from bodystudio.garment.person import person_frames
+
+    base = fit_garment_video(str(session_path), stature_m, root / "real_fit_no_4b", shape_refinement=False)
+    refined = refine_garment_fit(base, person_frames(str(session_path)).images, stature_m)
+    save_garment_fit(root / "real_fit", refined, "benchmark")
+    return {REAL_FIT: (root / "real_fit", refined), REAL_FIT_NO_4B: (root / "real_fit_no_4b", base)}
 
 
-def _score(fit_dir: Path, session, target: dict, texture_size: int, fit=None, min_frame_iou: float | None = None
-           ) -> dict:
+def _score(fit_dir: Path, session, target: dict, texture_size: int, fit=None, min_frame_iou: float | None = None,
+           configs=CONFIGS) -> dict:
     from bodystudio.garment.composite import composite_errors, render_garment_video
 
     rows = {}
-    for name, options in CONFIGS:
+    for name, options in configs:
         # every frame is refined: the perturbed oracle's silhouette IoU (0.6-0.75) is below the fit gate
         doc = render_garment_video(fit_dir, target["name"], target["pattern"], None, seed=target["seed"],
                                    texture_size=texture_size, fit=fit, min_frame_iou=min_frame_iou, **options)
@@ -55,26 +64,25 @@ def run(quick: bool = False) -> str:
             session = synth_garment_session(root / "session", subject_seed=subject, n_frames=n_frames, motion=motion,
                                             seed=subject)
             g = session.gt_garment
-            fits = {"perturbed oracle": perturbed_fit(ground_truth_fit(session), seed=subject)}
+            oracle = perturbed_fit(ground_truth_fit(session), seed=subject)
+            save_garment_fit(root / "perturbed", oracle, "benchmark")
+            fits = {"perturbed oracle": (root / "perturbed", oracle)}
             try:
-                real = _real_fit(root / "session", session.gt_subject["stature_m"], root / "real_fit")
+                fits.update(_real_fits(root / "session", session.gt_subject["stature_m"], root))
             except Exception as exc:  # the benchmark reports a failing fit, it does not hide the others
                 notes.append(f"subject {subject}: the real fit failed ({type(exc).__name__}: {exc})")
-                real = None
-            if real is not None:
-                fits["real fit (§4)"] = real
-            for fit_name, fit in fits.items():
-                fit_dir = root / fit_name.split()[0]
-                if fit_name != "real fit (§4)":
-                    save_garment_fit(fit_dir, fit, "benchmark")
-                else:
-                    fit_dir = root / "real_fit"
+            for fit_name, (fit_dir, fit) in fits.items():
                 rows = _score(fit_dir, session, g["target"], g["texture_size"],
-                              min_frame_iou=0.0 if fit_name == "perturbed oracle" else None)
+                              min_frame_iou=0.0 if fit_name == "perturbed oracle" else None,
+                              configs=CONFIGS[:1] if fit_name == REAL_FIT_NO_4B else CONFIGS)
                 for name, r in rows.items():
                     table.append([subject, motion, fit_name, name, round(r["garment_iou"], 4),
                                   round(r["psnr_person"], 2), round(r["ssim_person"], 3)])
                     summary.setdefault(fit_name, {}).setdefault(name, []).append(r["garment_iou"])
+                if fit_name != "perturbed oracle":
+                    off_mm = 1e3 * abs(fit.stature_m - session.gt_subject["stature_m"])
+                    notes.append(f"subject {subject}, {fit_name}: stature {off_mm:.2f} mm off, fit ms per frame "
+                                 f"{fit.timings_ms}")
                 full = rows["full refinement"]["ms"]
                 timing.append([subject, fit_name] + [round(full.get(k, 0.0)) for k in
                                                      ("render", "flow", "rbf", "composite", "write")])
@@ -90,7 +98,7 @@ def run(quick: bool = False) -> str:
            markdown_table(["fit", "refinement", "garment_iou"], means), "",
            "Median ms per frame of the full refinement (one process, shared 2-core machine):", "",
            markdown_table(["subject", "fit", "render", "flow", "rbf", "composite", "write"], timing)]
-    if "real fit (§4)" not in summary:
+    if REAL_FIT not in summary:
         notes.append("`bodystudio.garment.fit` is not installed in this checkout: no real-fit rows.")
     if notes:
         out += [""] + [f"* {n}" for n in notes]

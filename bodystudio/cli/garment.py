@@ -52,6 +52,10 @@ def garment_fit(
                                                               "video whose actor stays on the spot"),
     keyframes: Path = typer.Option(None, "--keyframes", help='JSON of soft 2D joint constraints '
                                                             '{"frames": {"12": {"hand_l": [u, v]}}}'),
+    no_shape_refinement: bool = typer.Option(False, "--no-shape-refinement",
+                                             help="skip the final shape refinement against every frame's silhouette"),
+    clothing_mm: float = typer.Option(None, "--clothing-mm", help="thickness of the actor's worn clothes in mm "
+                                                                  "(0-30; the shape refinement's allowance)"),
 ) -> None:
     """Fit the body to a monocular video (§4: shape, pose per frame; §5: albedo and lighting) into OUT."""
     import json
@@ -66,8 +70,9 @@ def garment_fit(
         raise InputError(f"--keyframes {keyframes}: no such file")
     check_output_folder(out, "fit folder", new=True)
     fit = fit_garment_video(source, stature, out, frames=frames, template=template, focal_px=focal_px,
-                            keyframes=keyframes, progress=True,
-                            background=background)
+                            keyframes=keyframes, progress=True, background=background,
+                            shape_refinement=not no_shape_refinement,
+                            clothing_allowance_m=None if clothing_mm is None else clothing_mm / 1e3)
     typer.echo(json.dumps({"out": str(out), "frames": len(fit.frame_ids), "stature_m": round(fit.stature_m, 4),
                            "silhouette_iou_mean": round(float(fit.silhouette_iou.mean()), 4),
                            "ms_per_frame": fit.timings_ms, "warnings": list(fit.warnings)}))

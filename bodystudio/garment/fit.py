@@ -508,7 +508,7 @@ def _shape_body(values: np.ndarray, names, phenotype: dict, local: dict, templat
 
     ph, loc = dict(phenotype), dict(local)
     for n, v in zip(names, values, strict=True):
-        if n in MACRO_PARAMETERS:
+        if n in MACRO_PARAMETERS or n in ph:  # a phenotype value (macro), else a local modifier
             ph[n] = float(np.clip(v, 0.0, 1.0))
         else:
             loc[n] = float(np.clip(v, -1.0, 1.0))
@@ -615,6 +615,21 @@ def estimate_shape(masks: np.ndarray, camera, stature_m: float, template: str = 
         xs = [fit_frame_pose(x, PoseProblem(space, camera, t, spheres, with_height=True), max_nfev=8)
               for x, t in zip(xs, targets, strict=True)]
     return ShapeFit(phenotype, local, body, reference, xs)
+
+
+def refine_fit_shape(shape: ShapeFit, poses: list, masks: np.ndarray, camera, stature_m: float, template: str,
+                     allowance_m: float) -> ShapeFit:
+    """Step 4b of the fit (ours): ``shape`` refined against every frame's silhouette with the frames' ``poses``
+    held (:func:`bodystudio.garment.shape_refine.refine_shape_to_silhouettes`, clothing allowance
+    ``allowance_m``); the reference frames and their poses are kept."""
+    from bodystudio.body import build_body
+    from bodystudio.body.phenotype import Phenotype
+    from bodystudio.garment.shape_refine import refine_shape_to_silhouettes
+
+    refined = refine_shape_to_silhouettes(shape.phenotype, shape.local, template, poses, masks, camera, stature_m,
+                                          allowance_m=allowance_m)
+    body = build_body(Phenotype.from_dict(refined.phenotype), refined.local, resolution=template)
+    return ShapeFit(refined.phenotype, refined.local, body, shape.reference, shape.xs)
 
 
 # --- pose over the clip (§4.4) -----------------------------------------------------------------------
@@ -748,16 +763,61 @@ def estimate_appearance(images: np.ndarray, masks: np.ndarray, posed: list[np.nd
     return albedo, lighting
 
 
+def fit_warnings(stature_fit: float, stature_m: float, ious: np.ndarray) -> list[str]:
+    """The fit's warnings: a fitted stature over 1 cm from the given one, frames with a silhouette IoU below 0.8."""
+    warnings = []
+    if abs(stature_fit - stature_m) > 0.01:
+        warnings.append(f"fitted stature {stature_fit:.3f} m differs from the given {stature_m:.3f} m by over 1 cm")
+    bad = int(np.count_nonzero(np.asarray(ious) < 0.8))
+    if bad:
+        warnings.append(f"{bad} of {len(ious)} frames have a silhouette IoU below 0.80")
+    return warnings
+
+
+def refine_garment_fit(fit, images: np.ndarray, stature_m: float, allowance_m: float | None = None):
+    """Step 4b applied to a finished fit (one made with ``shape_refinement=False``): the shape refined with the
+    fit's poses held (:func:`refine_fit_shape`), then §5's appearance re-estimated on the refined body from
+    ``images`` (the fitted frames) when the fit has one. The result equals what :func:`fit_garment_video` gives
+    with the refinement on; the benchmark scores both from one pose fit."""
+    from dataclasses import replace
+
+    from bodystudio.garment.shape_refine import CLOTHING_ALLOWANCE_M
+
+    allowance = CLOTHING_ALLOWANCE_M if allowance_m is None else float(allowance_m)
+    poses = [fit.pose(i) for i in range(len(fit.frame_ids))]
+    t0 = time.perf_counter()
+    shape = refine_fit_shape(ShapeFit(fit.phenotype, fit.local, fit.body(), np.zeros(0, int), []), poses, fit.masks,
+                             fit.camera, stature_m, fit.template, allowance)
+    timings = dict(fit.timings_ms)
+    timings["shape_refinement"] = round((time.perf_counter() - t0) * 1e3 / len(poses), 1)
+    posed = [shape.body.pose(p)[0] for p in poses]
+    ious = np.array([silhouette_iou(V, shape.body.faces, fit.camera, m) for V, m in zip(posed, fit.masks, strict=True)])
+    albedo, lighting = fit.albedo, fit.lighting
+    if lighting is not None:
+        t0 = time.perf_counter()
+        albedo, lighting = estimate_appearance(images, fit.masks, posed, shape.body.faces, fit.camera)
+        timings["appearance"] = round((time.perf_counter() - t0) * 1e3 / len(poses), 1)
+    stature_fit = body_stature(shape.body)
+    return replace(fit, phenotype=shape.phenotype, local=shape.local, stature_m=stature_fit, silhouette_iou=ious,
+                   albedo=albedo, lighting=lighting, timings_ms=timings,
+                   warnings=tuple(fit_warnings(stature_fit, stature_m, ious)))
+
+
 # --- the whole fit -----------------------------------------------------------------------------------
 
 def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str | os.PathLike | None = None,
                       frames: str | None = None, template: str = "2k", focal_px: float | None = None,
                       keyframes: str | os.PathLike | None = None, appearance: bool = True,
-                      progress: bool = False, background: str | os.PathLike | None = None):
+                      progress: bool = False, background: str | os.PathLike | None = None,
+                      shape_refinement: bool = True, clothing_allowance_m: float | None = None):
     """§4-5 on a video file or session folder: shape, pose per frame, albedo and lighting.
 
     Writes the fit through :func:`save_garment_fit` into ``out_dir`` (a new folder) when given and
-    returns the :class:`GarmentFit`. ``stature_m`` is the actor's stature given by the user.
+    returns the :class:`GarmentFit`. ``stature_m`` is the actor's stature given by the user. With
+    ``shape_refinement`` (default) the shape is refined against every frame's silhouette once the poses are
+    known (:func:`bodystudio.garment.shape_refine.refine_shape_to_silhouettes`, the poses held), taking the
+    matte to be the body plus ``clothing_allowance_m`` of clothes (default
+    :data:`~bodystudio.garment.shape_refine.CLOTHING_ALLOWANCE_M`).
     """
     from bodystudio.body.model import RESOLUTIONS
     from bodystudio.capture.session import progress_bar
@@ -769,6 +829,12 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
         raise InputError(f"--stature {stature_m}: give the actor's stature in metres, between 0.5 and 2.5")
     if template not in RESOLUTIONS:
         raise InputError(f"--template {template!r}: valid: {', '.join(RESOLUTIONS)}")
+    from bodystudio.garment.shape_refine import CLOTHING_ALLOWANCE_M, MAX_CLOTHING_ALLOWANCE_M
+
+    allowance = CLOTHING_ALLOWANCE_M if clothing_allowance_m is None else clothing_allowance_m
+    if not (np.isfinite(allowance) and 0.0 <= allowance <= MAX_CLOTHING_ALLOWANCE_M):
+        raise InputError(f"--clothing-mm {1e3 * allowance:g}: give the worn clothes' thickness in mm, between 0 and "
+                         f"{1e3 * MAX_CLOTHING_ALLOWANCE_M:g}")
     if out_dir is not None:
         check_output_folder(out_dir, "fit folder", new=True)
     timings: dict[str, float] = {}
@@ -796,6 +862,11 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
                         progress=lambda: bar.advance(task), frame_ids=pf.frame_ids)
         timings["pose"] = (time.perf_counter() - t0) * 1e3 / n
         poses = [space.pose(x) for x in X]
+        if shape_refinement:
+            bar.update(task, description="garment fit: shape refinement")
+            t0 = time.perf_counter()
+            shape = refine_fit_shape(shape, poses, pf.masks, camera, stature_m, template, allowance)
+            timings["shape_refinement"] = (time.perf_counter() - t0) * 1e3 / n
         posed = [shape.body.pose(p)[0] for p in poses]
         ious = np.array([silhouette_iou(V, shape.body.faces, camera, m) for V, m in zip(posed, pf.masks, strict=True)])
         albedo = lighting = None
@@ -805,12 +876,7 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
             albedo, lighting = estimate_appearance(pf.images, pf.masks, posed, shape.body.faces, camera)
             timings["appearance"] = (time.perf_counter() - t0) * 1e3 / n
     stature_fit = body_stature(shape.body)
-    warnings = []
-    if abs(stature_fit - stature_m) > 0.01:
-        warnings.append(f"fitted stature {stature_fit:.3f} m differs from the given {stature_m:.3f} m by over 1 cm")
-    bad = int(np.count_nonzero(ious < 0.8))
-    if bad:
-        warnings.append(f"{bad} of {n} frames have a silhouette IoU below 0.80")
+    warnings = fit_warnings(stature_fit, stature_m, ious)
     # absolute: a relative path is the user's working directory at fit time, which render, eval and view
     # (run from elsewhere) cannot know; they reported the source "gone"
     fit = GarmentFit(source=str(Path(source).absolute()), fps=pf.fps, frame_ids=pf.frame_ids,

@@ -22,6 +22,7 @@ from bodystudio.body.pose import Pose
 from bodystudio.body.skeleton import Skeleton
 from bodystudio.errors import FileFormatError, InputError
 from bodystudio.garment import fit as gf
+from bodystudio.garment.shape_refine import CLOTHING_ALLOWANCE_M
 from bodystudio.geometry.camera import Camera
 
 
@@ -986,6 +987,12 @@ def stand_in_fit(monkeypatch, stature_fit=1.70, ious=(0.9, 0.7, 0.95)):
         return np.full((4, 3), 0.5), light
 
     monkeypatch.setattr(gf, "estimate_appearance", fake_appearance)
+
+    def fake_refine(sh, poses, m, camera, stature_m, template, allowance_m):
+        log["refine"] = (sh, [float(p.translation[0]) for p in poses], m, camera, stature_m, template, allowance_m)
+        return sh
+
+    monkeypatch.setattr(gf, "refine_fit_shape", fake_refine)
     monkeypatch.setattr(fitfile, "save_garment_fit", lambda out, fit: log.setdefault("saved", (out, fit)))
     return log, pf, shape, light
 
@@ -1016,7 +1023,10 @@ def test_fit_garment_video_chains_the_stages_into_a_garment_fit(tmp_path, monkey
     assert np.allclose(fit.rotations[:, 0, 0], [0.1, 0.2, 0.3]) and np.array_equal(fit.translations[:, 0], [1, 2, 3])
     assert np.array_equal(fit.silhouette_iou, [0.9, 0.7, 0.95]) and fit.masks is pf.masks
     assert fit.lighting is light and np.array_equal(fit.albedo, np.full((4, 3), 0.5))
-    assert set(fit.timings_ms) == {"masks", "shape", "pose", "appearance"}
+    sh, poses, m4, cam4, stature4, template4, allowance = log["refine"]  # step 4b: the tracked poses, held
+    assert sh is shape and poses == [1.0, 2.0, 3.0] and m4 is pf.masks and cam4 is camera and stature4 == 1.72
+    assert template4 == "6k" and allowance == CLOTHING_ALLOWANCE_M
+    assert set(fit.timings_ms) == {"masks", "shape", "pose", "shape_refinement", "appearance"}
     assert all(v >= 0 for v in fit.timings_ms.values())
     assert fit.warnings == ("fitted stature 1.700 m differs from the given 1.720 m by over 1 cm",
                             "1 of 3 frames have a silhouette IoU below 0.80")
@@ -1024,8 +1034,9 @@ def test_fit_garment_video_chains_the_stages_into_a_garment_fit(tmp_path, monkey
 
 def test_fit_garment_video_without_appearance_keys_or_warnings(tmp_path, monkeypatch):
     log, pf, shape, light = stand_in_fit(monkeypatch, stature_fit=1.715, ious=(0.8, 0.85, 0.9))
-    fit = gf.fit_garment_video("clip.mp4", 1.72, appearance=False)
+    fit = gf.fit_garment_video("clip.mp4", 1.72, appearance=False, shape_refinement=False)
     assert log["shape"][3] == "2k" and log["track"][5] is None and "appearance" not in log and "saved" not in log
+    assert "refine" not in log
     assert fit.lighting is None and fit.albedo is None and set(fit.timings_ms) == {"masks", "shape", "pose"}
     assert fit.warnings == ()  # 5 mm off the stature and IoU 0.80 are fine
     assert log["shape"][1].fx == pytest.approx(gf.focal_from_vfov(48))
@@ -1059,7 +1070,8 @@ def test_fit_garment_video_times_each_stage_per_frame_and_refuses_a_used_folder(
     ticks = iter(np.arange(100.0, 200.0, 0.5))
     monkeypatch.setattr(gf, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
     fit = gf.fit_garment_video("clip.mp4", 1.70)
-    assert fit.timings_ms == {"masks": 166.7, "shape": 166.7, "pose": 166.7, "appearance": 166.7}  # 500 ms / 3
+    assert fit.timings_ms == {"masks": 166.7, "shape": 166.7, "pose": 166.7, "shape_refinement": 166.7,
+                              "appearance": 166.7}  # 500 ms / 3
     used = tmp_path / "out"
     used.mkdir()
     (used / "fit.json").write_text("{}")
