@@ -1,0 +1,50 @@
+"""``benchmarks.muscle_floor`` (the model's floor against the training set) and ``benchmarks.muscle_sequences``
+(capture settings side by side on held-out sequences): their parts that the measurements rest on."""
+
+import numpy as np
+import pytest
+
+
+def test_the_floor_oracles_rest_mesh_is_the_truths():
+    """``own rest``: the subject's rest mesh posed with its own skin weights, joints and the truth's muscle at that
+    pose gives the truth's mesh exactly, so what the oracle row leaves is the model's pose term and skinning."""
+    from benchmarks.muscle_floor import subject_parts
+    from bodystudio.muscle.arm import ArmPose, pose_arm
+    from bodystudio.muscle.synthetic import (
+        MuscleVariation,
+        muscle_displacement,
+        sample_arm_subject,
+        subject_arm_samples,
+    )
+
+    subject = sample_arm_subject(5)
+    rest, weights, joints, T = subject_parts(subject)
+    sample = subject_arm_samples(subject, "6k", n_shapes=0, n_poses=1, seed=4)[0]
+    v = MuscleVariation.from_seed(subject.seed)
+    posed_muscle = muscle_displacement(T, subject, sample.pose, v) - muscle_displacement(T, subject, ArmPose.rest(), v)
+    np.testing.assert_allclose(pose_arm(rest + posed_muscle, weights, joints, sample.pose), sample.vertices,
+                               atol=1e-9)
+    # the rest mesh carries the muscle at rest (a bulge-free template would be millimetres off the truth)
+    assert np.abs(rest - T.vertices).max() > 1e-4
+
+
+def test_sequence_variants_by_name_and_by_fields():
+    from benchmarks.muscle_sequences import VARIANTS, parse_variant
+
+    assert parse_variant("default") == ("default", {})
+    name, options = parse_variant("a0t10")
+    assert name == "a0t10" and options == VARIANTS["a0t10"] and options["norm_limit"] == 0.05
+    assert parse_variant("w:sequence_tracker_weight=3.0,norm_limit=0.2") == (
+        "w", {"sequence_tracker_weight": 3.0, "norm_limit": 0.2})
+    with pytest.raises(ValueError, match="unknown variant 'nope'"):
+        parse_variant("nope")
+
+
+def test_muscle_sequences_refuses_an_unknown_variant_in_one_line(tmp_path, capsys):
+    from benchmarks.muscle_sequences import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--work", str(tmp_path / "w"), "--variant", "nope"])
+    assert exc.value.code == 2
+    assert "unknown variant 'nope'" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "w").exists()
