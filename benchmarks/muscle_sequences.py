@@ -5,7 +5,7 @@ shape, Kinect v2 at 1 m, elbow flexion with shoulder abduction, 6k template, ``b
 runs here on sessions of other subjects the tests do not use and on other noise seeds, each setting from scratch:
 
     python -m benchmarks.muscle_sequences --work W --session 504:0 --session 501:1 --frames 200 \
-        --variant default --variant a0t10
+        --variant unpinned --variant a0t10
 
 ``--session SUBJECT:NOISE_SEED`` (``sample_arm_subject(SUBJECT)``, ``synth_arm_session(..., seed=NOISE_SEED)``,
 cached in ``W/seq_SUBJECT_sNOISE_FRAMES``); ``--variant NAME`` (one of :data:`VARIANTS`) or
@@ -25,8 +25,11 @@ from pathlib import Path
 #: the settings compared (``CaptureOptions`` fields over its defaults)
 VARIANTS = {
     "default": {},
-    # the sixth pass's best on 501: skeleton and placement fitted, Huber on the depth only, chest pairs off, tracker
-    # weight 10, a 5 % norm limit (with the default visibility filter)
+    # the default with the pinned-sequence gate off (placement held, no skeleton, norm limit 0.5): the sixth pass's
+    "unpinned": {"sequence_pinned_se_m": 0.0},
+    # the sixth pass's best on 501 (``capture.PINNED_SEQUENCE``, a pinned sequence's setting when the gate is on):
+    # skeleton and placement fitted, Huber on the depth only, chest pairs off, tracker weight 10, a 5 % norm limit
+    # (with the default visibility filter)
     "a0t10": dict(sequence_fit_skeleton=True, sequence_fit_root=True, sequence_depth_huber_only=True,
                   sequence_torso_pair_weight=0.0, sequence_tracker_weight=10.0, norm_limit=0.05),
 }

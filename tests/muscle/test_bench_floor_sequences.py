@@ -32,8 +32,12 @@ def test_sequence_variants_by_name_and_by_fields():
     from benchmarks.muscle_sequences import VARIANTS, parse_variant
 
     assert parse_variant("default") == ("default", {})
+    assert parse_variant("unpinned") == ("unpinned", {"sequence_pinned_se_m": 0.0})
     name, options = parse_variant("a0t10")
     assert name == "a0t10" and options == VARIANTS["a0t10"] and options["norm_limit"] == 0.05
+    from bodystudio.muscle.capture import PINNED_SEQUENCE
+
+    assert options == PINNED_SEQUENCE  # the measured variant is the pinned sequences' setting
     assert parse_variant("w:sequence_tracker_weight=3.0,norm_limit=0.2") == (
         "w", {"sequence_tracker_weight": 3.0, "norm_limit": 0.2})
     with pytest.raises(ValueError, match="unknown variant 'nope'"):
