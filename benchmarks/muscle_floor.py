@@ -112,6 +112,14 @@ def in_sample_error(model, n_subjects: int, n_shapes: int, n_checked: int = 8) -
     return round(float(np.mean(errs)), 2)
 
 
+def _whole_numbers(text: str, sep: str, count, option: str, form: str) -> tuple[int, ...]:
+    parts = text.split(sep)
+    counts = count if isinstance(count, tuple) else (count,)
+    if len(parts) not in counts or not all(p.strip().isdigit() and int(p) >= 0 for p in parts):
+        raise ValueError(f"{option} {text!r}: needs {form}, whole numbers")
+    return tuple(int(p) for p in parts)
+
+
 def main(argv: list[str] | None = None) -> None:
     from benchmarks.bench_muscle import _template
     from benchmarks.muscle_sequences import session_of
@@ -124,10 +132,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--train", default="10x3,20x3,40x3", help="N_SUBJECTSxN_SHAPES[xN_POSES],... (poses 24)")
     parser.add_argument("--norm-limit", type=float, default=CaptureOptions().norm_limit)
     args = parser.parse_args(argv)
+    try:
+        sessions = [_whole_numbers(s, ":", 3, "--sessions", "SUBJECT:NOISE_SEED:FRAMES")
+                    for s in args.sessions.split(",")]
+        configs = [_whole_numbers(c, "x", (2, 3), "--train", "N_SUBJECTSxN_SHAPES[xN_POSES]")
+                   for c in args.train.split(",")]
+    except ValueError as exc:
+        parser.error(str(exc))
+    if not 0.0 <= args.norm_limit <= 1.0:
+        parser.error(f"--norm-limit {args.norm_limit}: needs a value in [0, 1] (0: no limit)")
     args.work.mkdir(parents=True, exist_ok=True)
     template = _template()
-    sessions = [tuple(int(x) for x in s.split(":")) for s in args.sessions.split(",")]
-    configs = [tuple(int(x) for x in c.split("x")) for c in args.train.split(",")]
     results = []
     for cfg in configs:
         n_sub, n_sh = cfg[0], cfg[1]

@@ -90,6 +90,14 @@ def render(rows: list[dict]) -> str:
                            for r in rows])
 
 
+def parse_session(text: str) -> tuple[int, int]:
+    """``SUBJECT:NOISE_SEED`` -> (subject seed, noise seed), both >= 0."""
+    parts = text.split(":")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        raise ValueError(f"--session {text!r}: needs SUBJECT:NOISE_SEED, two whole numbers >= 0 (e.g. 504:0)")
+    return int(parts[0]), int(parts[1])
+
+
 def parse_variant(text: str) -> tuple[str, dict]:
     name, _, items = text.partition(":")
     if not items:
@@ -112,7 +120,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     try:
         variants = [parse_variant(v) for v in (args.variant or list(VARIANTS))]
-        sessions = [tuple(int(x) for x in s.split(":")) for s in (args.session or ["501:1"])]
+        sessions = [parse_session(s) for s in (args.session or ["501:1"])]
     except (ValueError, SyntaxError) as exc:
         parser.error(str(exc))
     args.work.mkdir(parents=True, exist_ok=True)

@@ -52,3 +52,26 @@ def test_muscle_sequences_refuses_an_unknown_variant_in_one_line(tmp_path, capsy
     assert exc.value.code == 2
     assert "unknown variant 'nope'" in capsys.readouterr().err.strip().splitlines()[-1]
     assert not (tmp_path / "w").exists()
+
+
+@pytest.mark.parametrize("item", ["504", "504:x", "504:0:1", "a:0"])
+def test_muscle_sequences_refuses_a_bad_session_in_one_line(item, tmp_path, capsys):
+    from benchmarks.muscle_sequences import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--work", str(tmp_path / "w"), "--session", item])
+    assert exc.value.code == 2
+    assert f"--session {item!r}: needs SUBJECT:NOISE_SEED" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "w").exists()
+
+
+@pytest.mark.parametrize("args", [["--sessions", "504:0"], ["--sessions", "504:0:a"], ["--train", "10"],
+                                  ["--train", "10x3x4x5"], ["--norm-limit", "1.5"]])
+def test_muscle_floor_refuses_bad_arguments_in_one_line(args, tmp_path, capsys):
+    from benchmarks.muscle_floor import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--work", str(tmp_path / "w"), *args])
+    assert exc.value.code == 2
+    assert args[0] in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "w").exists()
