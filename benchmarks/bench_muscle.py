@@ -13,7 +13,9 @@ frame, started from the NICP capture's first frame (outside anchor). Time per fr
 process with BLAS held to one thread (the "one core" of the goal), and wall time (inflated by other work
 on the shared machine). "Measured shape": the subject's BMI, muscularity, height and arm length given to the
 capture, as the paper's subjects were measured (Table 1); "shape fitted": fitted from the first frames. The
-model-only row is the full run's model-filtering step (the same as ``--no-refine``).
+model-only row is the full run's model-filtering step (the same as ``--no-refine``). ``--capture-option
+sequence_pinned_se_m=0.0012`` captures the 200-frame session with ``capture.PINNED_SEQUENCE`` (its tracker pins the
+torso placement; docs/muscle.md, seventh pass: off by default).
 
 Dataset extension: model-only error (the model mesh from the subject's true shape parameters and poses,
 Eq. 12 without the norm limit) of held-out subjects' ground-truth meshes, original

@@ -79,6 +79,7 @@ from bodystudio.muscle.refine import (
     skeleton_model_mesh,
     smooth_arm_poses,
     time_consistent_correspondences,
+    tracker_mean_standard_error,
     tracker_placement_prior_weight,
 )
 
@@ -95,6 +96,16 @@ TRACKER_JOINTS = {"left": ("ShoulderLeft", "ElbowLeft", "WristLeft"),
 # out-of-range subjects' model-only error, sets A / B: captures without the sequence fit -6.6 / -5.7 %; with
 # this setting, each rest mesh centred by sex (``model.capture_samples(centre="sex")``) -11.7 / -11.7 %.
 EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True}
+# The setting of a sequence that pins its shared torso placement and skeleton (``CaptureOptions.sequence_pinned_se_m``,
+# off by default): the skeleton and placement fitted with every frame's angles, Huber on the depth pairs only, the
+# chest's pairs off, the tracker's joints at 10, and a 5 % norm limit (the fitted skeleton carries a lower model biceps;
+# the limit keeps the pose term's bulge, which the sensor cannot see at strong flexion): the sixth pass's best on 501
+# (median / p90 4.61 / 7.74 -> 3.15 / 5.66 mm). Over 24 frames (tracker mean's SE ~2 mm) it lost on 5 and 603 (fifth
+# and sixth passes), which the SE gate leaves alone; at 200 frames it lost on 508 (seventh pass), which it does not.
+#: fewer frames than this never count as pinned: their shoulder scatter is too few samples to estimate the SE from
+PINNED_MIN_FRAMES = 60
+PINNED_SEQUENCE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
+                   "sequence_torso_pair_weight": 0.0, "sequence_tracker_weight": 10.0, "norm_limit": 0.05}
 
 
 @dataclass(frozen=True)
@@ -193,6 +204,14 @@ class CaptureOptions:
     # and each frame's tracker joints counted relative to the tracker's mean shoulder (they inform the angles and
     # bones, not the placement). 0: off, the tracker's joints are absolute observations every frame.
     sequence_placement_prior_m: float = 0.0
+    # A sequence whose tracker pins the torso placement (the standard error of the tracker's sequence-mean shoulder,
+    # ``refine.tracker_mean_standard_error``, at most this many metres; ~120 frames or more of the Kinect v2's
+    # 10-12 mm per-frame noise: 1.2 mm) is captured with :data:`PINNED_SEQUENCE`, which then replaces those six
+    # fields; a shorter or noisier one (24 frames: SE 1.9-2.6 mm; under ``PINNED_MIN_FRAMES`` frames always), or one
+    # without tracker joints, keeps the fields as given. 0: off (the default). Measured at 0.0012 (6k, 200 frames,
+    # measured shape; docs/muscle.md seventh pass), median mm of 501 seeds 0 / 1, 504, 507, 508: 4.61 / 5.30 / 5.47 /
+    # 4.74 / 6.44 -> 3.15 / 3.12 / 5.10 / 4.22 / 8.72: four better, 508 (the model's floor 5.25 mm) 2.3 mm worse.
+    sequence_pinned_se_m: float = 0.0
     # Per-subject rest shape (``refine.fit_rest_shape_correction``: population PCA over all frames' depth, poses
     # held) alternated with the sequence fit, this many rounds (0: the model's rest mesh). Off: 2 rounds gave
     # 5 / 601 / 602 / 603 / 604 5.13 / 9.21 / 7.48 / 7.12 / 11.16 -> 5.24 / 9.58 / 6.78 / 7.39 / 10.50 mm and the
@@ -221,6 +240,8 @@ class CaptureOptions:
             raise InputError(f"sequence_placement_prior_m must be >= 0, got {self.sequence_placement_prior_m}")
         if not self.sequence_torso_pair_weight >= 0:
             raise InputError(f"sequence_torso_pair_weight must be >= 0, got {self.sequence_torso_pair_weight}")
+        if not self.sequence_pinned_se_m >= 0:
+            raise InputError(f"sequence_pinned_se_m must be >= 0, got {self.sequence_pinned_se_m}")
 
 
 @dataclass
@@ -280,6 +301,17 @@ def _inverse_similarity(S):
     return (1.0 / s, R.T, -(R.T @ t) / s)
 
 
+def sequence_options(options: CaptureOptions, tracker_joints: np.ndarray) -> CaptureOptions:
+    """The options a sequence is captured with: :data:`PINNED_SEQUENCE` over ``options`` when the tracker's
+    sequence-mean shoulder has a standard error of at most ``options.sequence_pinned_se_m`` (the whole-sequence fit
+    can then share one placement and skeleton across frames without taking on the tracker's sample mean; Sec. 6.2's
+    per-frame fit extended over the sequence), else ``options`` unchanged."""
+    se_max, tracker = options.sequence_pinned_se_m, np.asarray(tracker_joints, np.float64)
+    if se_max > 0 and len(tracker) >= PINNED_MIN_FRAMES and tracker_mean_standard_error(tracker) <= se_max:
+        return replace(options, **PINNED_SEQUENCE)
+    return options
+
+
 def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, model=None,
                        options: CaptureOptions = CaptureOptions(), tracker_joints: np.ndarray | None = None,
                        frame_ids: list | None = None, known_shape=None) -> ArmCapture:
@@ -300,6 +332,8 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                          "rebuild the model for this template resolution/side")
     if len(depths) == 0:
         raise InputError("no depth frames to capture")
+    if model is not None and tracker_joints is not None and len(tracker_joints) == len(depths):
+        o = sequence_options(o, tracker_joints)
     timer = _Timer()
     F = np.asarray(template.faces, np.int64)
     W = template.part_weights

@@ -487,6 +487,85 @@ def test_the_placement_prior_weight_is_the_squared_length_over_the_mean_shoulder
         2 * tracker_placement_prior_weight(tracker, 0.01), rel=1e-12)
 
 
+def test_the_tracker_means_standard_error_is_the_shoulders_scatter_over_the_frames():
+    """sqrt(mean_c var_c / T): the same four frames as above, SE^2 = 20 / 3 / 4 mm^2; doubling the frames halves
+    SE^2; a still shoulder has none (the elbow and wrist do not count)."""
+    from bodystudio.muscle.refine import tracker_mean_standard_error
+
+    tracker = np.zeros((4, 3, 3))
+    tracker[:, 0, 0] = [0.002, -0.002, 0.002, -0.002]
+    tracker[:, 0, 1] = [0.004, 0.004, -0.004, -0.004]
+    tracker[:, 1:] = np.random.default_rng(0).normal(0.0, 0.05, (4, 2, 3))
+    assert tracker_mean_standard_error(tracker) == pytest.approx(np.sqrt(20e-6 / 3 / 4), rel=1e-12)
+    assert tracker_mean_standard_error(np.concatenate([tracker] * 2)) ** 2 == pytest.approx(
+        tracker_mean_standard_error(tracker) ** 2 / 2, rel=1e-12)
+    still = tracker.copy()
+    still[:, 0] = [0.1, 1.4, 2.0]
+    assert tracker_mean_standard_error(still) == 0.0
+
+
+def _noisy_tracker(n_frames, sd_m, seed=0):
+    base = np.array([[0.2, 1.4, 2.0], [0.2, 1.1, 2.05], [0.25, 0.85, 2.0]])
+    return base + np.random.default_rng(seed).normal(0.0, sd_m, (n_frames, 3, 3))
+
+
+def test_a_sequence_whose_tracker_pins_the_placement_gets_the_pinned_setting():
+    """``capture.sequence_options`` (off by default): with the gate at 1.2 mm the Kinect v2 tracker's ~11 mm per-frame
+    noise over 200 frames pins the sequence-mean shoulder to ~0.8 mm (the six fields of PINNED_SEQUENCE replaced,
+    every other field kept); over 24 frames (~2.2 mm), with 25 mm noise over 200 frames (~1.8 mm), under
+    PINNED_MIN_FRAMES frames or with the gate off (0) the options stay as given."""
+    from dataclasses import replace
+
+    from bodystudio.muscle.capture import PINNED_MIN_FRAMES, PINNED_SEQUENCE, CaptureOptions, sequence_options
+
+    assert sequence_options(CaptureOptions(), _noisy_tracker(200, 0.011)) == CaptureOptions()  # off by default
+    o = CaptureOptions(refine_data_weight=0.4, sequence_rounds=2, sequence_pinned_se_m=0.0012)
+    pinned = sequence_options(o, _noisy_tracker(200, 0.011))
+    assert {k: getattr(pinned, k) for k in PINNED_SEQUENCE} == PINNED_SEQUENCE
+    assert replace(pinned, **{k: getattr(o, k) for k in PINNED_SEQUENCE}) == o
+    assert pinned.norm_limit == 0.05 and o.norm_limit == 0.5
+    assert sequence_options(o, _noisy_tracker(24, 0.011)) is o
+    assert sequence_options(o, _noisy_tracker(200, 0.025)) is o
+    exact = _noisy_tracker(PINNED_MIN_FRAMES, 0.0)
+    assert sequence_options(o, exact[:-1]) is o
+    assert sequence_options(o, exact).norm_limit == 0.05
+    off = replace(o, sequence_pinned_se_m=0.0)
+    assert sequence_options(off, _noisy_tracker(200, 0.011)) is off
+    with pytest.raises(InputError, match="sequence_pinned_se_m must be >= 0"):
+        CaptureOptions(sequence_pinned_se_m=-0.001)
+
+
+@pytest.mark.parametrize("se_m", [0.0, 1.0])
+def test_the_pinned_setting_reaches_the_sequence_fit(arm_session_2k, arm_model_2k, arm_template_2k, monkeypatch, se_m):
+    """A pinned sequence (here: the gate opened to 1 m and to 3 frames) hands the whole-sequence fit the pinned
+    norm limit, tracker weight, fitted placement and skeleton, Huber on the depth only and the chest pairs off;
+    with the gate off (the default) the given options."""
+    import bodystudio.muscle.capture as capture
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def record(*args, **kwargs):
+        seen.update(kwargs, norm_limit=args[5], tracker_weight=args[7], fit_root=args[12], fit_skeleton=args[13],
+                    depth_huber_only=args[15])
+        raise Stop
+
+    monkeypatch.setattr(capture, "fit_arm_sequence_skeleton", record)
+    monkeypatch.setattr(capture, "PINNED_MIN_FRAMES", 3)
+    with pytest.raises(Stop):
+        capture_arm_sequence(arm_session_2k, arm_model_2k, arm_template_2k,
+                             CaptureOptions(shape_frames=2, sequence_pinned_se_m=se_m), frames=slice(0, 3))
+    got = {k: seen[k] for k in ("norm_limit", "tracker_weight", "fit_root", "fit_skeleton", "depth_huber_only",
+                                "torso_pair_weight")}
+    assert got == ({"norm_limit": 0.05, "tracker_weight": 10.0, "fit_root": True, "fit_skeleton": True,
+                    "depth_huber_only": True, "torso_pair_weight": 0.0} if se_m else
+                   {"norm_limit": 0.5, "tracker_weight": 30.0, "fit_root": False, "fit_skeleton": False,
+                    "depth_huber_only": False, "torso_pair_weight": 1.0})
+
+
 def _two_plates():
     """A 12 x 12 cm plate 1 m in front of a Kinect v2 with a 6 x 6 cm plate 12 mm nearer the sensor over its middle,
     one mesh (both facing the sensor), its depth points (the front plate and the uncovered back plate), the vertices

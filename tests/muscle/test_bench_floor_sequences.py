@@ -1,0 +1,77 @@
+"""``benchmarks.muscle_floor`` (the model's floor against the training set) and ``benchmarks.muscle_sequences``
+(capture settings side by side on held-out sequences): their parts that the measurements rest on."""
+
+import numpy as np
+import pytest
+
+
+def test_the_floor_oracles_rest_mesh_is_the_truths():
+    """``own rest``: the subject's rest mesh posed with its own skin weights, joints and the truth's muscle at that
+    pose gives the truth's mesh exactly, so what the oracle row leaves is the model's pose term and skinning."""
+    from benchmarks.muscle_floor import subject_parts
+    from bodystudio.muscle.arm import ArmPose, pose_arm
+    from bodystudio.muscle.synthetic import (
+        MuscleVariation,
+        muscle_displacement,
+        sample_arm_subject,
+        subject_arm_samples,
+    )
+
+    subject = sample_arm_subject(5)
+    rest, weights, joints, T = subject_parts(subject)
+    sample = subject_arm_samples(subject, "6k", n_shapes=0, n_poses=1, seed=4)[0]
+    v = MuscleVariation.from_seed(subject.seed)
+    posed_muscle = muscle_displacement(T, subject, sample.pose, v) - muscle_displacement(T, subject, ArmPose.rest(), v)
+    np.testing.assert_allclose(pose_arm(rest + posed_muscle, weights, joints, sample.pose), sample.vertices,
+                               atol=1e-9)
+    # the rest mesh carries the muscle at rest (a bulge-free template would be millimetres off the truth)
+    assert np.abs(rest - T.vertices).max() > 1e-4
+
+
+def test_sequence_variants_by_name_and_by_fields():
+    from benchmarks.muscle_sequences import VARIANTS, parse_variant
+
+    assert parse_variant("default") == ("default", {})
+    assert parse_variant("unpinned") == ("unpinned", {"sequence_pinned_se_m": 0.0})
+    name, options = parse_variant("a0t10")
+    assert name == "a0t10" and options == VARIANTS["a0t10"] and options["norm_limit"] == 0.05
+    from bodystudio.muscle.capture import PINNED_SEQUENCE
+
+    assert options == PINNED_SEQUENCE  # the measured variant is the pinned sequences' setting
+    assert parse_variant("w:sequence_tracker_weight=3.0,norm_limit=0.2") == (
+        "w", {"sequence_tracker_weight": 3.0, "norm_limit": 0.2})
+    with pytest.raises(ValueError, match="unknown variant 'nope'"):
+        parse_variant("nope")
+
+
+def test_muscle_sequences_refuses_an_unknown_variant_in_one_line(tmp_path, capsys):
+    from benchmarks.muscle_sequences import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--work", str(tmp_path / "w"), "--variant", "nope"])
+    assert exc.value.code == 2
+    assert "unknown variant 'nope'" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "w").exists()
+
+
+@pytest.mark.parametrize("item", ["504", "504:x", "504:0:1", "a:0"])
+def test_muscle_sequences_refuses_a_bad_session_in_one_line(item, tmp_path, capsys):
+    from benchmarks.muscle_sequences import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--work", str(tmp_path / "w"), "--session", item])
+    assert exc.value.code == 2
+    assert f"--session {item!r}: needs SUBJECT:NOISE_SEED" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "w").exists()
+
+
+@pytest.mark.parametrize("args", [["--sessions", "504:0"], ["--sessions", "504:0:a"], ["--train", "10"],
+                                  ["--train", "10x3x4x5"], ["--norm-limit", "1.5"]])
+def test_muscle_floor_refuses_bad_arguments_in_one_line(args, tmp_path, capsys):
+    from benchmarks.muscle_floor import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--work", str(tmp_path / "w"), *args])
+    assert exc.value.code == 2
+    assert args[0] in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "w").exists()
