@@ -388,10 +388,34 @@ def test_frame_pose_is_the_ik_on_the_shapes_skeleton_then_two_refinement_steps(c
     np.testing.assert_allclose(args[1].heads, sk.heads)
     assert args[5] is joints and args[6] is tracked and args[7] is points and args[8] is others and args[9] == "v2"
     assert kwargs == {"iterations": 2}
-    # without a plan, the shape's own
-    sr.frame_pose(m, c, camera, view)
+    # without a plan, the shape's own, for the view's Kinect version
+    from bodystudio.body.kinect import kinect_joint_names
+
+    sr.frame_pose(m, c, camera, sr.SilhouetteView(mask, others, points, joints[:20], tracked[:20], "v1"))
     plan = seen["refine"][0][0]
+    assert plan.joint_moves.shape[0] == len(kinect_joint_names("v1")) == 20
     ref = refine_plan(m.vertices(c), m.faces, m.weights, sk)
     np.testing.assert_allclose(plan.rest_vertices, ref.rest_vertices)
     np.testing.assert_array_equal(plan.bones, ref.bones)
     assert seen["ik"][4] is None
+
+
+def test_the_shape_jacobian_and_the_mass_gradient_are_the_derivatives(case):
+    m, c, pose, *_ = case
+    ids = np.arange(0, len(m.mean), 53)
+    V0, J = sr.posed_shape_jacobian(m, c, pose, ids)
+    np.testing.assert_allclose(V0, skin_vertices(m.vertices(c), m.weights, m.skeleton(c), pose)[ids], atol=1e-12)
+    mass, grad = sr.mass_and_gradient(m, c)
+    for k in (0, 7, m.n_components - 1):
+        h = 1e-3 * m.stddev[k]
+        cp, cm = c.copy(), c.copy()
+        cp[k] += h
+        cm[k] -= h
+        Vp = skin_vertices(m.vertices(cp), m.weights, m.skeleton(cp), pose, subset=ids)
+        Vm = skin_vertices(m.vertices(cm), m.weights, m.skeleton(cm), pose, subset=ids)
+        # forward differences of 1e-3 sigma: the skinning is nearly linear in the shape
+        np.testing.assert_allclose(J[:, :, k], (Vp - Vm) / (2 * h), atol=1e-3 * np.abs(J[:, :, k]).max())
+        dm = (sr.mass_and_gradient(m, cp)[0] - sr.mass_and_gradient(m, cm)[0]) / (2 * h)
+        assert abs(grad[k] - dm) < 1e-4 * abs(dm) + 1e-6, (k, grad[k], dm)
+    # the enclosed volume (divergence theorem) of the open template, times the density: the measured mass
+    assert abs(mass - m.measure(c)["mass_kg"]) < 3.0, (mass, m.measure(c)["mass_kg"])
