@@ -320,13 +320,20 @@ def test_one_step_is_the_minimiser_of_the_linearised_energy(case, monkeypatch, w
     assert version == "v2"
 
 
-def test_the_second_step_starts_from_the_first_with_the_previous_poses(case, monkeypatch):
+def test_the_second_step_starts_from_the_first_with_the_previous_poses(case, monkeypatch, caplog):
+    import logging
+
     m = case[0]
     w = sr.ShapeWeights(max_step_sigma=100.0)
     data, calls = _stand_in(monkeypatch, m, 2, 44)
     c0 = case[1].copy()
     views = [_view(None, None) for _ in range(2)]
-    c2 = sr.refine_shape_to_silhouettes(m, c0, views, "camera", iterations=2, weights=w)
+    with caplog.at_level(logging.DEBUG, logger="bodystudio.mirror.shape_refine"):
+        c2 = sr.refine_shape_to_silhouettes(m, c0, views, "camera", iterations=2, weights=w)
+    steps = [r.getMessage() for r in caplog.records if r.name == "bodystudio.mirror.shape_refine"]
+    largest = np.max(np.abs(_minimiser(m, c0, c0, data, w, True)) / m.stddev)
+    assert len(steps) == 2 and steps[0] == f"shape step 0: largest change {largest:.2f} sigma", steps
+    assert steps[1].startswith("shape step 1: largest change ")
     c1 = c0 + _minimiser(m, c0, c0, data, w, True)
     np.testing.assert_allclose(c2, c1 + _minimiser(m, c1, c0, data, w, True), rtol=1e-7,
                                atol=1e-9 * np.abs(c1).max())
