@@ -195,3 +195,45 @@ def test_mask_box_grows_and_clips():
     mask[:] = False
     mask[0, 59] = True
     assert rf.mask_box(mask.astype(np.uint8), 2) == (0, 3, 57, 60)
+
+
+def test_the_distance_window_holds_the_mask_for_points_on_any_one_side():
+    """Points in one margin of the box only, and a window grown one side at a time: the values read there are
+    the whole box's (the window must hold the mask's own box: the nearest mask pixel of a point far out)."""
+    mask = np.zeros((240, 320), np.uint8)
+    cv2.ellipse(mask, (170, 110), (30, 45), 30.0, 0, 360, 1, -1)
+    allowed = mask.astype(bool)
+    box = rf.mask_box(allowed, 40)
+    sil = rf.mask_box(allowed, 0)
+    whole, _ = rf.silhouette_distance(allowed, 40, box)
+    h, w = whole.shape
+    rng = np.random.default_rng(5)
+    offsets = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]])
+    sides = {"left": ([1, 1], [25, h - 2.001]), "right": ([w - 27, 1], [w - 2.001, h - 2.001]),
+             "top": ([1, 1], [w - 2.001, 25]), "bottom": ([1, h - 27], [w - 2.001, h - 2.001]),
+             "upper left": ([1, 1], [20, 20]), "lower right": ([w - 22, h - 22], [w - 2.001, h - 2.001])}
+
+    def check(dist, points):
+        probes = (points[None] + offsets[:, None]).reshape(-1, 2)
+        np.testing.assert_allclose(rf._sample(dist, probes), rf._sample(whole, probes), atol=1e-4)
+
+    for lo, hi in sides.values():
+        points = rng.uniform(lo, hi, (60, 2))
+        dist = np.full_like(whole, np.nan)
+        rf._distance_where_needed(dist, allowed, box, sil, points, None)
+        check(dist, points)
+    # grown one side at a time from points on the mask: each step's window holds the earlier ones and the new
+    inside = np.c_[np.nonzero(allowed[box[0]:box[1], box[2]:box[3]])[::-1]].astype(float)[::50]
+    dist = np.full_like(whole, np.nan)
+    done = rf._distance_where_needed(dist, allowed, box, sil, inside, None)
+    seen = [inside]
+    for lo, hi in sides.values():
+        points = rng.uniform(lo, hi, (40, 2))
+        done = rf._distance_where_needed(dist, allowed, box, sil, points, done)
+        seen.append(points)
+        check(dist, np.concatenate(seen))
+    assert done == (0, h, 0, w)
+    # nothing new needed: the same window, nothing recomputed
+    dist[:] = -1.0
+    assert rf._distance_where_needed(dist, allowed, box, sil, inside, done) == done
+    assert np.all(dist == -1.0)
