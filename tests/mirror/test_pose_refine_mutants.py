@@ -237,3 +237,102 @@ def test_the_distance_window_holds_the_mask_for_points_on_any_one_side():
     dist[:] = -1.0
     assert rf._distance_where_needed(dist, allowed, box, sil, inside, done) == done
     assert np.all(dist == -1.0)
+
+
+# --- the refinement itself against MIR12b's reference, in cases test_pose_refine_analytic.py does not cover -------
+
+def _case(shift=0.0):
+    from bodystudio.geometry.camera import Camera
+    from bodystudio.mirror.track import skin_vertices
+
+    body = _body()
+    sk = body.skeleton
+    rng = np.random.default_rng(4)
+    rot = rng.normal(0, 0.08, (sk.n_bones, 3))
+    for arm, sign in (("upperarm_l", 1), ("upperarm_r", -1)):
+        rot[sk.index(arm)] = Rotation.from_euler("z", sign * 0.5).as_rotvec()
+    true = Pose(rot, np.array([shift, 0.0, 0.0]))
+    camera = Camera.look_at("kinect", eye=(0.3, 1.0, 2.6), target=(0.0, 0.95, 0.0), fx=525.0)
+    V = skin_vertices(body.vertices, body.weights, sk, true)
+    mask = np.zeros((camera.height, camera.width), np.uint8)
+    for tri in np.round(camera.project(V)[body.faces] * 16).astype(np.int32):
+        cv2.fillConvexPoly(mask, tri, 1, lineType=cv2.LINE_8, shift=4)
+    N = vertex_normals(V, body.faces)
+    front = np.einsum("ij,ij->i", N, camera.center - V) > 0
+    plan = rf.refine_plan(body.vertices, body.faces, body.weights, sk)
+    return body, plan, camera, true, mask.astype(bool), V[front]
+
+
+@pytest.fixture(scope="module")
+def case():
+    return _case()
+
+
+def _planted(sk, true, offset, spine_deg=10.0):
+    rot = true.rotations.copy()
+    j = sk.index("spine_01")
+    rot[j] = (Rotation.from_rotvec(rot[j]) * Rotation.from_euler("x", spine_deg, degrees=True)).as_rotvec()
+    return Pose(rot, true.translation + np.asarray(offset, float))
+
+
+@pytest.mark.parametrize("variant", ["v1 joints", "term weights", "far off", "cut by the border", "uint8 mask",
+                                     "few samples"])
+def test_the_fast_refinement_gives_the_reference_pose_in_more_cases(case, variant):
+    from refine_reference import refine_pose_reference
+
+    from bodystudio.mirror.track import posed_kinect_joints
+
+    body, plan, camera, true, mask, points = case
+    sk = body.skeleton
+    offset, version, w, fg = (0.04, -0.02, 0.05), "v2", rf.RefineWeights(), mask
+    if variant == "cut by the border":  # the body moved left: it crosses the image's left border
+        body, plan, camera, true, fg, points = _case(shift=-1.35)
+        assert fg[:, 0].any() and fg[:, 1:].any()
+    if variant == "far off":  # 25 cm sideways: many body points beyond the distance transform's 40 px box
+        offset = (0.25, 0.0, 0.0)
+    if variant == "term weights":
+        w = rf.RefineWeights(sil_weight=0.5, depth_weight=2.0, joint_weight=3.0, sil_px=3.0, depth_m=0.02,
+                             joint_m=0.05, prior_rad=0.5, prior_m=0.3)
+    if variant == "few samples":
+        w = rf.RefineWeights(sil_samples=50, depth_samples=30)
+    if variant == "v1 joints":
+        version = "v1"
+        plan = rf.refine_plan(body.vertices, body.faces, body.weights, sk, "v1")
+    ik = _planted(sk, true, offset)
+    joints = posed_kinect_joints(sk, true, version) + np.random.default_rng(5).normal(0, 0.015, (
+        len(kinect_joint_names(version)), 3))
+    tracked = np.ones(len(joints), bool)
+    tracked[2] = False
+    args = dict(kinect_positions=joints, tracked=tracked, depth_points=points, version=version, weights=w)
+    fast = rf.refine_pose(plan, sk, ik, camera, fg.astype(np.uint8) if variant == "uint8 mask" else fg, **args)
+    reference = refine_pose_reference(plan, sk, ik, camera, fg, **args)
+    assert np.abs(reference.translation - ik.translation).max() > 1e-3
+    np.testing.assert_allclose(fast.rotations, reference.rotations, atol=1e-6)
+    np.testing.assert_allclose(fast.translation, reference.translation, atol=1e-6)
+
+
+def test_an_empty_foreground_drops_the_silhouette_terms_and_the_edge_cases_return_the_input(case):
+    from bodystudio.mirror.track import posed_kinect_joints
+
+    body, plan, camera, true, mask, points = case
+    sk = body.skeleton
+    ik = _planted(sk, true, (0.04, -0.02, 0.05))
+    joints = posed_kinect_joints(sk, true)
+    many = rf.RefineWeights(depth_samples=10 ** 6)
+    empty = rf.refine_pose(plan, sk, ik, camera, np.zeros_like(mask), joints, None, points, weights=many)
+    no_sil = rf.refine_pose(plan, sk, ik, camera, mask, joints, None, points,
+                            weights=rf.RefineWeights(depth_samples=10 ** 6, sil_weight=0.0))
+    assert np.abs(empty.translation - ik.translation).max() > 1e-3
+    np.testing.assert_allclose(empty.rotations, no_sil.rotations, atol=1e-9)
+    np.testing.assert_allclose(empty.translation, no_sil.translation, atol=1e-9)
+    # no steps: the input; a pose that cannot be refined (not finite): the input itself
+    assert rf.refine_pose(plan, sk, ik, camera, mask, joints, None, points, iterations=0) is ik
+    rot = ik.rotations.copy()
+    rot[sk.index("spine_02")] = np.nan
+    bad = Pose(rot, ik.translation)
+    assert rf.refine_pose(plan, sk, bad, camera, mask, joints, None, points) is bad
+    # the default: one step (ITERATIONS), the v2 joint set
+    one = rf.refine_pose(plan, sk, ik, camera, mask, joints, None, points)
+    again = rf.refine_pose(plan, sk, ik, camera, mask, joints, None, points, iterations=1, version="v2")
+    np.testing.assert_array_equal(one.rotations, again.rotations)
+    assert rf.ITERATIONS == 1
