@@ -231,16 +231,19 @@ def _stand_in(monkeypatch, m, F, P, seed=0):
     calls = {"pose": [], "rows": [], "plan": []}
 
     def frame_pose(model, coeffs, camera, view, previous=None, plan=None):
+        assert model is m and camera == "camera" and view is not None
         calls["pose"].append((np.array(coeffs), view, previous, plan))
         return ("pose", len(calls["pose"]))
 
     def rows(model, coeffs, pose, camera, view, weights, seed=0, plan=None):
+        assert model is m and camera == "camera" and view is calls["pose"][-1][1]
         calls["rows"].append((np.array(coeffs), pose, view, seed, plan))
         Ac, Ap, a, r0 = data[seed]
         r = Ac @ (coeffs - a) + r0
         return (np.c_[Ac, Ap] if plan is not None else Ac), r
 
     def plan_of(vertices, faces, weights, skeleton, version):
+        assert faces is m.faces and weights is m.weights
         calls["plan"].append((vertices, skeleton, version))
         return ("plan", len(calls["plan"]))
 
