@@ -222,8 +222,15 @@ def test_the_distance_window_holds_the_mask_for_points_on_any_one_side():
         dist = np.full_like(whole, np.nan)
         rf._distance_where_needed(dist, allowed, box, sil, points, None)
         check(dist, points)
-    # grown one side at a time from points on the mask: each step's window holds the earlier ones and the new
+    # grown to one side from points on the mask (a fresh window each time): the earlier values stay, the new are
+    # the whole box's; then every side in turn
     inside = np.c_[np.nonzero(allowed[box[0]:box[1], box[2]:box[3]])[::-1]].astype(float)[::50]
+    for lo, hi in sides.values():
+        dist = np.full_like(whole, np.nan)
+        done = rf._distance_where_needed(dist, allowed, box, sil, inside, None)
+        points = rng.uniform(lo, hi, (40, 2))
+        rf._distance_where_needed(dist, allowed, box, sil, points, done)
+        check(dist, np.r_[inside, points])
     dist = np.full_like(whole, np.nan)
     done = rf._distance_where_needed(dist, allowed, box, sil, inside, None)
     seen = [inside]
@@ -233,6 +240,18 @@ def test_the_distance_window_holds_the_mask_for_points_on_any_one_side():
         seen.append(points)
         check(dist, np.concatenate(seen))
     assert done == (0, h, 0, w)
+    # a mask high in the image and points only below-left of it: their nearest mask pixels lie above them, so the
+    # window must reach up to the mask's own box
+    high = np.zeros((300, 300), bool)
+    high[160:200, 120:250] = True
+    high[200:230, 200:250] = True
+    box2, sil2 = rf.mask_box(high, 40), rf.mask_box(high, 0)
+    whole2, _ = rf.silhouette_distance(high, 40, box2)
+    points = rng.uniform([1, 80], [70, whole2.shape[0] - 2.001], (60, 2))
+    dist = np.full_like(whole2, np.nan)
+    rf._distance_where_needed(dist, high, box2, sil2, points, None)
+    probes = (points[None] + offsets[:, None]).reshape(-1, 2)
+    np.testing.assert_allclose(rf._sample(dist, probes), rf._sample(whole2, probes), atol=1e-4)
     # nothing new needed: the same window, nothing recomputed
     dist[:] = -1.0
     assert rf._distance_where_needed(dist, allowed, box, sil, inside, done) == done
