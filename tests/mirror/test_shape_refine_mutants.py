@@ -429,3 +429,23 @@ def test_the_shape_jacobian_and_the_mass_gradient_are_the_derivatives(case):
         assert abs(grad[k] - dm) < 1e-4 * abs(dm) + 1e-6, (k, grad[k], dm)
     # the enclosed volume (divergence theorem) of the open template, times the density: the measured mass
     assert abs(mass - m.measure(c)["mass_kg"]) < 3.0, (mass, m.measure(c)["mass_kg"])
+
+
+def test_other_players_pixels_allow_body_points_and_keep_the_outline_away(case):
+    """Another player over part of the person: a body point projecting onto him may be occluded (no E_out row),
+    and the person's outline next to him is not drawn by the body (no E_cover row there)."""
+    m, c, pose, camera, V, mask = case
+    fg = cv2.erode(mask.astype(np.uint8), np.ones((13, 13), np.uint8)).astype(bool)
+    ys, xs = np.nonzero(mask)
+    others = np.zeros_like(mask)
+    others[ys.min():ys.min() + 120, xs.min() - 5:(xs.min() + xs.max()) // 2] = True
+    fg &= ~others
+    w = sr.ShapeWeights(depth_weight=0.0, sil_samples=10 ** 6)
+    _, r = sr.silhouette_shape_rows(m, c, pose, camera, _view(fg, np.zeros((0, 3)), others=others), w)
+    out, d, _ = _expected_out(m, c, pose, camera, V, fg | others)
+    outline = mask_outline(fg, others)
+    assert 0 < len(outline) < len(mask_outline(fg)) and len(out) < len(_expected_out(m, c, pose, camera, V, fg)[0])
+    s = 1.0 / (2.0 * max(len(out), len(outline)) ** 0.5)
+    np.testing.assert_allclose(r[:len(out)], s * d, rtol=1e-4, atol=1e-4 * s)
+    cover = r[len(out):]
+    assert 0.5 * len(outline) < len(cover) <= len(outline)
