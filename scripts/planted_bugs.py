@@ -112,7 +112,7 @@ BUGS = (
         "k_dep = projection_weight(dep.k, inner_iterations)",
         "k_dep = 0.0 * projection_weight(dep.k, inner_iterations)"),
     Bug("mirror-graphcut-identity", "bodystudio/mirror/foreground.py", "mirror: the graph cut replaced by the identity "
-        "(the player mask returned)", "out[crop] = inner | labels", "out[crop] = sub_mask > 0"),
+        "(the player mask returned)", "out[crop] = inner | cut", "out[crop] = sub_mask > 0"),
     Bug("mirror-mls-identity", "bodystudio/mirror/warp.py", "mirror: the MLS warp replaced by the identity",
         "_, mapped[mine] = mls_transforms(nodes[mine], t[pairs], s[pairs], kind, alpha, radius_px)",
         "mapped[mine] = nodes[mine]"),

@@ -361,6 +361,8 @@ def nearest_within(points: np.ndarray, queries: np.ndarray, radius: float) -> tu
 
 def _sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear samples of a float32 image at pixels (n, 2) (clamped at the border)."""
+    if not len(uv):  # OpenCV cannot remap zero points
+        return np.zeros(0)
     m = cv2.remap(image, uv[:, :1].astype(np.float32), uv[:, 1:].astype(np.float32), cv2.INTER_LINEAR,
                   borderMode=cv2.BORDER_REPLICATE)
     return m.ravel().astype(np.float64)

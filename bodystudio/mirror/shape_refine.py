@@ -183,12 +183,15 @@ def silhouette_shape_rows(model: StatisticalBodyModel, coeffs: np.ndarray, pose,
     with np.errstate(invalid="ignore"):
         in_box = np.flatnonzero(subset & ok & (local[:, 0] >= 1) & (local[:, 1] >= 1)
                                 & (local[:, 0] < dist.shape[1] - 2) & (local[:, 1] < dist.shape[0] - 2))
-    d = _sample(dist, local[in_box])
+    # (none inside the box, or none of them outside the mask: no E_out rows; OpenCV cannot sample zero points)
+    d = _sample(dist, local[in_box]) if len(in_box) else np.zeros(0)
     out = in_box[d > 0.5]
     d_out = np.minimum(d[d > 0.5], 30.0)
-    steps = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
-    around = _sample(dist, (local[out][None] + steps[:, None]).reshape(-1, 2)).reshape(4, -1)
-    grad = np.c_[around[0] - around[1], around[2] - around[3]] / 2.0
+    grad = np.zeros((0, 2))
+    if len(out):
+        steps = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+        around = _sample(dist, (local[out][None] + steps[:, None]).reshape(-1, 2)).reshape(4, -1)
+        grad = np.c_[around[0] - around[1], around[2] - around[3]] / 2.0
     # E_cover: outline pixels onto the nearest projected rim vertex, along the rim's image normal
     outline = mask_outline(fg, view.others)
     if len(outline) > weights.sil_samples:

@@ -4,7 +4,7 @@ usage (from the repository root): python docs/mutation/recheck_direct.py WORK TE
 WORK is a scratch tree kept by ``scripts/mutate.py --keep``; names are full mutant names (mutmut's meta keys).
 The test module (tests/mirror/test_X.py, copied from this tree) is imported once with the clean code; fixtures
 ``model``, ``mean_body``, ``scene``, ``session`` (the module's ``_session()``), ``monkeypatch``, ``tmp_path``,
-``caplog`` are provided; parametrized tests run every parameter set. Per mutant: fork, MUTANT_UNDER_TEST=<mutant>, the tests of KMAP[function] (all when absent) in
+``caplog`` are provided, and any other fixture the test module defines itself (built once, clean); parametrized tests run every parameter set. Per mutant: fork, MUTANT_UNDER_TEST=<mutant>, the tests of KMAP[function] (all when absent) in
 the order of their clean-run time, the first exception (or 120 s alarm) = killed, none = survived.
 """
 import importlib
@@ -96,6 +96,16 @@ def cases(fn):
     return out
 
 
+def fixture_value(name):
+    """A fixture of the test module itself (e.g. ``case`` of test_pose_refine_analytic.py), built once with the
+    clean code (its own fixture arguments resolved the same way), or one of the values above."""
+    if name not in fixture_values:
+        fixture = getattr(mod, name)
+        fn = fixture._get_wrapped_function() if hasattr(fixture, "_get_wrapped_function") else fixture
+        fixture_values[name] = fn(**{p: fixture_value(p) for p in inspect.signature(fn).parameters})
+    return fixture_values[name]
+
+
 def run(fn, params):
     mp = MonkeyPatch()
     try:
@@ -110,7 +120,7 @@ def run(fn, params):
             elif p == "caplog":
                 kw[p] = _Caplog()
             else:
-                kw[p] = fixture_values[p]
+                kw[p] = fixture_value(p)
         fn(**kw)
     finally:
         mp.undo()
