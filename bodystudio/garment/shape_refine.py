@@ -25,6 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from bodystudio.geometry.camera import pinhole_projection_jacobian
+
 log = logging.getLogger(__name__)
 
 #: Rim vertices: |cos| between the vertex normal and the viewing ray below this.
@@ -90,15 +92,6 @@ def _body(p: np.ndarray, phenotype: dict, local: dict, template: str):
     return _shape_body(p, refined_macro_parameters() + LOCAL_PARAMETERS, phenotype, local, template)
 
 
-def image_jacobian(camera, V: np.ndarray, J: np.ndarray) -> np.ndarray:
-    """(n, 2, k) derivative of the pixel positions of ``V`` (n, 3) whose derivative is ``J`` (n, 3, k)."""
-    Pc = V @ camera.R.T + camera.t
-    z = Pc[:, 2]
-    dP = np.einsum("ij,njk->nik", camera.R, J)
-    du = camera.fx * (dP[:, 0] - Pc[:, 0:1] / z[:, None] * dP[:, 2]) / z[:, None]
-    dv = camera.fy * (dP[:, 1] - Pc[:, 1:2] / z[:, None] * dP[:, 2]) / z[:, None]
-    return np.stack([du, dv], axis=1)
-
 
 def _sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     from bodystudio.garment.fit import _bilinear
@@ -133,7 +126,7 @@ def silhouette_rows(V: np.ndarray, N: np.ndarray, J: np.ndarray | None, camera, 
     if J is not None:
         ids = np.r_[out, cover_ids]
         J_uv = np.zeros((len(V), 2, k))
-        J_uv[ids] = image_jacobian(camera, P[ids], J[ids])
+        J_uv[ids] = pinhole_projection_jacobian(camera, P[ids], J[ids])
     if len(out):
         s = 1.0 / np.sqrt(len(V))
         res.append(s * np.minimum(d[out], 30.0))

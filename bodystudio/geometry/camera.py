@@ -51,6 +51,18 @@ def _distortion_jacobian(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
     return J
 
 
+def pinhole_projection_jacobian(camera, V: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """(n, 2, k) derivative of the pixel positions of points ``V`` (n, 3) whose derivative with respect to k
+    parameters is ``J`` (n, 3, k): the chain rule through ``(fx x / z, fy y / z)`` of the camera frame, lens
+    distortion left out (the Gauss-Newton steps of the silhouette shape refinements, mirror and garment)."""
+    Pc = V @ camera.R.T + camera.t
+    z = Pc[:, 2]
+    dP = np.einsum("ij,njk->nik", camera.R, J)
+    du = camera.fx * (dP[:, 0] - Pc[:, 0:1] / z[:, None] * dP[:, 2]) / z[:, None]
+    dv = camera.fy * (dP[:, 1] - Pc[:, 1:2] / z[:, None] * dP[:, 2]) / z[:, None]
+    return np.stack([du, dv], axis=1)
+
+
 @dataclass(frozen=True, eq=False)
 class Camera:
     """One calibrated camera: intrinsics ``K``, distortion, world->camera pose ``(R, t)``, image size."""

@@ -33,6 +33,7 @@ import numpy as np
 
 from bodystudio.body.skinning import skinning_transforms
 from bodystudio.body.statistical import StatisticalBodyModel
+from bodystudio.geometry.camera import pinhole_projection_jacobian
 from bodystudio.geometry.mesh import vertex_normals
 from bodystudio.mirror.refine import (
     RIM_COS,
@@ -147,15 +148,6 @@ def mass_and_gradient(model: StatisticalBodyModel, coeffs: np.ndarray) -> tuple[
     return BODY_DENSITY_KG_M3 * volume, BODY_DENSITY_KG_M3 * grad
 
 
-def _image_jacobian(camera, V: np.ndarray, J: np.ndarray) -> np.ndarray:
-    """(n, 2, k) derivative of the projections of ``V`` (n, 3) whose derivative is ``J`` (n, 3, k)."""
-    Pc = V @ camera.R.T + camera.t
-    z = Pc[:, 2]
-    dP = np.einsum("ij,njk->nik", camera.R, J)
-    du = camera.fx * (dP[:, 0] - Pc[:, 0:1] / z[:, None] * dP[:, 2]) / z[:, None]
-    dv = camera.fy * (dP[:, 1] - Pc[:, 1:2] / z[:, None] * dP[:, 2]) / z[:, None]
-    return np.stack([du, dv], axis=1)
-
 
 def silhouette_shape_rows(model: StatisticalBodyModel, coeffs: np.ndarray, pose, camera, view: SilhouetteView,
                           weights: ShapeWeights = ShapeWeights(), seed: int = 0,
@@ -219,7 +211,7 @@ def silhouette_shape_rows(model: StatisticalBodyModel, coeffs: np.ndarray, pose,
     Vi, Ji = posed_shape_jacobian(model, coeffs, pose, ids)
     if plan is not None:  # the pose's columns: root translation and rotation, two swings per plan bone (MIR12b)
         Ji = np.concatenate([Ji, pose_jacobian(plan, sk, pose, Vi, model.weights[ids])], axis=2)
-    Ji_uv = _image_jacobian(camera, Vi, Ji)
+    Ji_uv = pinhole_projection_jacobian(camera, Vi, Ji)
     a, b = 0, len(out)
     rows, res = [], []
     n_sil = max(len(out), len(outline), 1)

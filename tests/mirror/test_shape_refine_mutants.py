@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 import bodystudio.mirror.shape_refine as sr
 from bodystudio.body import Pose
-from bodystudio.geometry.camera import Camera
+from bodystudio.geometry.camera import Camera, pinhole_projection_jacobian
 from bodystudio.geometry.mesh import vertex_normals
 from bodystudio.mirror.refine import (
     _bone_frames,
@@ -72,7 +72,7 @@ def test_image_jacobian_is_the_derivative_of_the_projection():
     rng = np.random.default_rng(0)
     V = rng.uniform(-0.5, 0.5, (50, 3)) + [0.0, 1.0, 0.0]
     J = rng.normal(0, 1.0, (50, 3, 4))
-    Ju = sr._image_jacobian(camera, V, J)
+    Ju = pinhole_projection_jacobian(camera, V, J)
     assert Ju.shape == (50, 2, 4)
     for k in range(4):
         h = 1e-6
@@ -171,7 +171,7 @@ def test_the_outside_rows_pull_points_down_the_distance_transform(case):
     s = 3.0 / (3.0 * max(len(out), min(n_outline, 800)) ** 0.5)
     np.testing.assert_allclose(r[:len(out)], s * d, rtol=1e-4, atol=1e-4 * s)
     _, J = sr.posed_shape_jacobian(m, c, pose, out)
-    rows = s * np.einsum("nd,ndk->nk", grad, sr._image_jacobian(camera, V[out], J))
+    rows = s * np.einsum("nd,ndk->nk", grad, pinhole_projection_jacobian(camera, V[out], J))
     np.testing.assert_allclose(A[:len(out)], rows, rtol=1e-3, atol=1e-3 * np.abs(rows).max())
 
 
