@@ -11,10 +11,13 @@ skeleton, Eq. 3 refitted them): :func:`source_body_agreement`.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from bodystudio.body.kinect import kinect_joint_names
 from bodystudio.body.kinect import kinect_joints as skeleton_kinect_joints
+from bodystudio.errors import ImplausibleResultError
 
 #: Kinect segments compared (the limbs and spine §4 scales the body's bones to; hands, feet and head left
 #: out: their joints are the tracker's noisiest).
@@ -116,9 +119,7 @@ def check_source_body(body, session, player: int = 1, accept_implausible: bool =
     :class:`~bodystudio.errors.ImplausibleResultError` (one line: the source file and the fix) on a body of
     another person unless ``accept_implausible``. A session without tracked joints of ``player`` is judged
     elsewhere (the run refuses it), so it passes here with ``mismatch`` NaN."""
-    import logging
 
-    from bodystudio.errors import ImplausibleResultError
 
     report = source_body_agreement(body, session, player)
     report.update({"mismatch_warn": SOURCE_MISMATCH_WARN, "mismatch_refuse": SOURCE_MISMATCH_REFUSE,
@@ -134,12 +135,7 @@ def check_source_body(body, session, player: int = 1, accept_implausible: bool =
                                   f"person's source body: run 'bodystudio mirror init {session.path}'")
     elif np.isfinite(mismatch) and mismatch > SOURCE_MISMATCH_WARN:
         report["warnings"].append(f"{where} fits player {player} of {session.path} loosely: {detail}")
-    report["ok"] = not report["problems"]
-    if report["problems"] and not accept_implausible:
-        raise ImplausibleResultError(f"{report['problems'][0]} (or pass --accept-implausible)")
-    for line in report["warnings"] + report["problems"]:
-        logging.getLogger(__name__).warning("%s", line)
-    return report
+    return _verdict(report, accept_implausible)
 
 
 #: Joint groups the init must have seen: without them the source body's legs (stature) or head come from the
@@ -187,7 +183,6 @@ def check_init(session, frames, player: int = 1) -> dict:
     source body's missing part is then the statistical model's guess). A warning, not a refusal: measured on
     subject 5, legs out of view below the knees (or the hips) in every init frame moved the fitted stature by
     +5 (+16) mm and the mass by -2.2 (-0.7) kg, subject 3 below the knees -8 mm and -0.7 kg (docs/mirror.md)."""
-    import logging
 
     report = init_coverage(session, frames, player)
     warnings = []
@@ -280,9 +275,7 @@ def check_registration(session, player: int = 1, accept_implausible: bool = Fals
     """:func:`depth_color_registration` as ``mirror run``'s verdict; raises
     :class:`~bodystudio.errors.ImplausibleResultError` above :data:`REGISTRATION_REFUSE_PX` unless
     ``accept_implausible``."""
-    import logging
 
-    from bodystudio.errors import ImplausibleResultError
 
     report = depth_color_registration(session, player)
     report.update({"warn_px": REGISTRATION_WARN_PX, "refuse_px": REGISTRATION_REFUSE_PX, "warnings": [],
@@ -295,6 +288,12 @@ def check_registration(session, player: int = 1, accept_implausible: bool = Fals
                 f"frames; registered <= {REGISTRATION_WARN_PX:.0f} px): the colour camera's intrinsics or "
                 "depth_to_color are off; re-calibrate the Kinect (bodystudio calib kinect)")
         (report["problems"] if offset > REGISTRATION_REFUSE_PX else report["warnings"]).append(line)
+    return _verdict(report, accept_implausible)
+
+
+def _verdict(report: dict, accept_implausible: bool) -> dict:
+    """Close a check's ``report``: ``ok`` set, the first problem raised as one line unless
+    ``accept_implausible``, every warning and accepted problem logged."""
     report["ok"] = not report["problems"]
     if report["problems"] and not accept_implausible:
         raise ImplausibleResultError(f"{report['problems'][0]}; or pass --accept-implausible")
