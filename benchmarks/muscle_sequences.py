@@ -17,7 +17,6 @@ docs/muscle.md "seventh pass".
 from __future__ import annotations
 
 import argparse
-import ast
 import json
 import os
 from pathlib import Path
@@ -99,16 +98,15 @@ def parse_session(text: str) -> tuple[int, int]:
 
 
 def parse_variant(text: str) -> tuple[str, dict]:
+    """A named variant of :data:`VARIANTS`, or NAME:KEY=VALUE,... as ``muscle_regions`` reads it."""
+    from benchmarks.muscle_regions import parse_variant as parse_options
+
     name, _, items = text.partition(":")
     if not items:
         if name not in VARIANTS:
             raise ValueError(f"unknown variant {name!r} (known: {', '.join(VARIANTS)}; or NAME:KEY=VALUE,...)")
         return name, dict(VARIANTS[name])
-    options = {}
-    for item in filter(None, items.split(",")):
-        key, _, value = item.partition("=")
-        options[key] = ast.literal_eval(value)
-    return name, options
+    return parse_options(text)
 
 
 def main(argv: list[str] | None = None) -> None:
