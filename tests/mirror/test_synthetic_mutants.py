@@ -92,7 +92,8 @@ def test_mirror_room_materials_and_extent():
     assert counts.tolist() == [200, 4 * 72, 12, 12, 12, 12]
     assert np.allclose(room.vertices.min(0), (-2.8, 0.0, -1.3)) and np.allclose(room.vertices.max(0), (2.8, 2.8, 1.5))
     V, F = room.vertices, room.faces
-    for name, lo, hi in (("shelf", (-1.95, 0, -1.3), (-1.05, 1.9, -0.95)), ("cabinet", (1.0, 0, -1.3), (2.0, 0.8, -0.8)),
+    for name, lo, hi in (("shelf", (-1.95, 0, -1.3), (-1.05, 1.9, -0.95)),
+                         ("cabinet", (1.0, 0, -1.3), (2.0, 0.8, -0.8)),
                          ("picture", (-0.35, 1.25, -1.3), (0.45, 1.85, -1.27)),
                          ("plant", (1.25, 0.8, -1.15), (1.55, 1.35, -0.9))):
         P = V[F[room.material == sy.MATERIALS.index(name)].ravel()]
@@ -612,3 +613,199 @@ def test_actor_record_and_arrays():
     assert not np.allclose(arr["source_rest_vertices"][0], arr["target_rest_vertices"][0])
     assert set(arr) == {"players", "faces", "source_rest_vertices", "target_rest_vertices", "source_coeffs",
                         "target_coeffs", "source_heads", "source_tails", "target_heads", "target_tails", "albedo"}
+
+
+class _Writer:
+    """Records what the session writer is handed."""
+
+    def __init__(self, *args, **kw):
+        self.args, self.kw, self.calls = args, kw, {}
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def __getattr__(self, name):
+        if not name.startswith("write_"):
+            raise AttributeError(name)
+
+        def record(*args, **kw):
+            self.calls.setdefault(name, []).append((args, kw))
+        return record
+
+
+@functools.cache
+def _plate_v1():
+    sensor, static = _static_v1()
+    plate, room_depth = sy.room_plate(sy.mirror_room(), sensor.color, 0)
+    return sensor, static, plate, room_depth
+
+
+def _frame_of(writer, name, i=None):
+    return {args[0]: (args[1:], kw) for args, kw in writer.calls.get(name, [])}
+
+
+def test_write_frame_of_the_actor_with_its_ground_truth():
+    from bodystudio.body.kinect import kinect_joint_names, kinect_joints
+    from bodystudio.body.pose import transfer_pose
+    from bodystudio.body.skinning import posed_joints
+
+    sensor, static, plate, room_depth = _plate_v1()
+    a = _cast_member(1, {"taller": 0.1})
+    names = kinect_joint_names("v1")
+    w = _Writer()
+    sy._write_frame(w, 11, [a], static, sensor, plate, room_depth, names, True, np.random.default_rng(0))
+    gt = _frame_of(w, "write_gt_mirror")[11][0][0]
+    pose = a["poses"][11]
+    V, _ = a["body"].pose(pose)
+    h, t = posed_joints(a["body"].skeleton, pose)
+    assert gt["players"].tolist() == [1] and gt["reported"].tolist() == [True]
+    assert gt["source_vertices"].dtype == np.float32 and np.allclose(gt["source_vertices"][0], V, atol=1e-6)
+    assert np.allclose(gt["kinect_joints"][0], kinect_joints(a["body"].skeleton, h, t, "v1"))
+    assert gt["kinect_joints"].shape == (1, len(names), 3)
+    assert np.array_equal(gt["pose_rotations"][0], pose.rotations)
+    assert np.array_equal(gt["pose_translations"][0], pose.translation)
+    Vt, _ = a["target"].pose(transfer_pose(pose, a["body"].skeleton, a["target"].skeleton))
+    assert np.allclose(gt["target_vertices"][0], Vt, atol=1e-6)
+    assert np.ptp(Vt[:, 1]) - np.ptp(V[:, 1]) == pytest.approx(0.1, abs=0.02)
+    # the SDK: one body of player 1 with the joint names; the player mask inside the actor's depth pixels
+    (bodies,), kw = _frame_of(w, "write_kinect_bodies")[11]
+    assert kw == {"joint_set": "v1"} and len(bodies) == 1 and bodies[0]["player"] == 1
+    assert bodies[0]["names"] == names and bodies[0]["tracked"].mean() > 0.8
+    assert np.linalg.norm(bodies[0]["positions"] - gt["kinect_joints"][0], axis=1).mean() < 0.06
+    (depth,), _ = _frame_of(w, "write_kinect_depth")[11]
+    (player,), _ = _frame_of(w, "write_kinect_player")[11]
+    assert depth.shape == (240, 320) and player.shape == depth.shape and (player == 1).sum() > 300
+    assert (depth[player > 0] > 0).all() and np.median(depth[player == 1]) == pytest.approx(2.6, abs=0.3)
+    # colour: the actor over the plate with sensor noise; its labels; the target the same frame edited
+    (rgb,), _ = _frame_of(w, "write_kinect_rgb")[11]
+    persons = {kw.get("target", False): args[1] for args, kw in w.calls["write_gt_person"]}
+    (trgb,), _ = _frame_of(w, "write_gt_target_rgb")[11]
+    person, tperson = persons[False], persons[True]
+    assert rgb.dtype == np.uint8 and rgb.shape == plate.shape and (person == 1).sum() > 2000
+    assert set(np.unique(person)) == {0, 1} and set(np.unique(tperson)) == {0, 1}
+    top = np.flatnonzero((person == 1).any(axis=1))[0]
+    assert top - np.flatnonzero((tperson == 1).any(axis=1))[0] > 10  # taller: the head higher
+    bg = (person == 0) & (tperson == 0)
+    noise = rgb[bg].astype(float) - plate[bg]
+    assert 1.5 < noise.std() < 2.5 and abs(noise.mean()) < 0.2  # SENSOR_NOISE_STD 2 grey levels
+    assert np.array_equal(trgb[bg], rgb[bg])  # the same noise in the target render
+    assert np.abs(rgb[person == 1].astype(float) - plate[person == 1]).mean() > 10
+    # not edited: no target render at all
+    w2 = _Writer()
+    sy._write_frame(w2, 11, [a], static, sensor, plate, room_depth, names, False, np.random.default_rng(0))
+    assert "write_gt_target_rgb" not in w2.calls and len(w2.calls["write_gt_person"]) == 1
+    assert "target_vertices" not in _frame_of(w2, "write_gt_mirror")[11][0][0]
+
+
+def test_write_frame_of_the_empty_room():
+    from bodystudio.body.kinect import kinect_joint_names
+
+    sensor, static, plate, room_depth = _plate_v1()
+    a = _cast_member(1, {"taller": 0.1})
+    names = kinect_joint_names("v1")
+    w = _Writer()
+    sy._write_frame(w, 3, [a], static, sensor, plate, room_depth, names, True, np.random.default_rng(1))
+    gt = _frame_of(w, "write_gt_mirror")[3][0][0]
+    n, b = a["body"].n_vertices, a["body"].skeleton.n_bones
+    assert gt["players"].shape == (0,) and gt["source_vertices"].shape == (0, n, 3)
+    assert gt["kinect_joints"].shape == (0, len(names), 3) and gt["pose_rotations"].shape == (0, b, 3)
+    assert gt["pose_translations"].shape == (0, 3) and gt["reported"].shape == (0,)
+    assert gt["target_vertices"].shape == (0, n, 3)
+    (bodies,), _ = _frame_of(w, "write_kinect_bodies")[3]
+    (player,), _ = _frame_of(w, "write_kinect_player")[3]
+    (depth,), _ = _frame_of(w, "write_kinect_depth")[3]
+    assert bodies == [] and not player.any() and (depth > 0).mean() > 0.8
+    (rgb,), _ = _frame_of(w, "write_kinect_rgb")[3]
+    (trgb,), _ = _frame_of(w, "write_gt_target_rgb")[3]
+    persons = [args[1] for args, kw in w.calls["write_gt_person"]]
+    assert all(not p.any() and p.shape == plate.shape[:2] for p in persons)
+    assert np.array_equal(rgb, trgb) and 1.5 < (rgb.astype(float) - plate).std() < 2.5
+
+
+def test_write_frame_of_an_actor_out_of_the_trackers_view():
+    """An actor present but not reported by the tracker: in the ground truth (not reported), not in the SDK's
+    bodies nor its player mask, still in the colour image and the true person labels."""
+    from bodystudio.body.kinect import kinect_joint_names
+    from bodystudio.body.pose import Pose
+
+    sensor, static, plate, room_depth = _plate_v1()
+    a = _cast_member(2)
+    a["poses"] = [Pose(p.rotations, p.translation + [1.3, 0.0, 0.0]) if p is not None else None
+                  for p in a["poses"]]
+    w = _Writer()
+    sy._write_frame(w, 11, [a], static, sensor, plate, room_depth, kinect_joint_names("v1"), False,
+                    np.random.default_rng(0))
+    gt = _frame_of(w, "write_gt_mirror")[11][0][0]
+    (bodies,), _ = _frame_of(w, "write_kinect_bodies")[11]
+    (player,), _ = _frame_of(w, "write_kinect_player")[11]
+    person = w.calls["write_gt_person"][0][0][1]
+    assert gt["players"].tolist() == [2] and gt["reported"].tolist() == [False]
+    assert bodies == [] and not player.any() and set(np.unique(person)) == {0, 2}
+
+
+def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypatch):
+    """The setup of a session with its writer and frame writer replaced by recorders: two actors, the edit on
+    player 2 only, standing in place; the metadata, the subject and actor records, the frames in order."""
+    import bodystudio.capture.session as session_mod
+
+    model, _ = _model_and_body()
+    writers, frames = [], []
+
+    def writer(*args, **kw):
+        writers.append(_Writer(*args, **kw))
+        return writers[-1]
+
+    monkeypatch.setattr(session_mod, "SessionWriter", writer)
+    monkeypatch.setattr(session_mod, "open_session", lambda p: ("opened", p))
+    monkeypatch.setattr(sy, "_write_frame", lambda w, i, cast, static, sensor, plate, rd, names, edited, rng:
+                        frames.append((i, cast, sensor.version, names, edited, plate.shape, rd.shape)))
+    timings = {}
+    out = sy.synth_mirror_session(tmp_path / "s", subject_seed=5, n_frames=12, actors=2, edits={"taller": 0.1},
+                                  version="v1", motion="a_pose", seed=4, model=model, edited_players=(2,),
+                                  walk_in=False, timings=timings)
+    assert out == ("opened", tmp_path / "s")
+    (w,) = writers
+    assert w.args[0] == tmp_path / "s" and w.kw["source"] == "synthetic"
+    assert w.kw["command"] == "bodystudio synth mirror"
+    meta = w.kw["metadata"]
+    assert meta == {"generator": "bodystudio synth mirror", "subject_seed": 5, "actors": 2, "fps": 30.0,
+                    "kinect": "v1", "seed": 4, "motion": "a_pose", "edits": {"taller": 0.1},
+                    "edited_players": [2], "template": "6k", "background_frames": 10, "noise_std": 2.0,
+                    "walk_in": False, "actor_frames": [{"player": 1, "enter_frame": 10, "stand_frame": 10},
+                                                       {"player": 2, "enter_frame": 10, "stand_frame": 10}]}
+    assert [f[0] for f in frames] == list(range(12)) and all(f[2] == "v1" and f[4] is True for f in frames)
+    assert frames[0][3] == sy.kinect_joint_names("v1") and frames[0][5] == (480, 640, 3)
+    assert frames[0][6] == (480, 640)
+    cast = frames[0][1]
+    assert [a["player"] for a in cast] == [1, 2] and [a["subject_seed"] for a in cast] == [5, 6]
+    assert cast[0]["target"] is cast[0]["body"] and cast[1]["target"] is not cast[1]["body"]
+    assert cast[0]["target_measured"] is None and cast[1]["target_measured"]["stature_m"] == pytest.approx(
+        model.measure(cast[1]["c_s"])["stature_m"] + 0.1, abs=2e-3)
+    for a, spot in zip(cast, sy.STAND_SPOTS[2], strict=True):
+        assert a["poses"][9] is None and np.allclose(a["poses"][11].translation, (spot[0], 0.0, spot[1]))
+        assert a["stand_frame"] == 10 and a["enter_frame"] == 10
+        assert a["measured"]["stature_m"] == pytest.approx(np.ptp(a["body"].vertices[:, 1]), abs=0.02)
+        assert a["albedo"].shape == (a["body"].n_vertices, 3) and a["body"].resolution == "6k"
+    assert not np.allclose(cast[0]["albedo"][:10], cast[1]["albedo"][:10])
+    (subject_args, subject_kw), = w.calls["write_gt_subject"]
+    assert subject_kw["template"] == "6k" and subject_kw["bone_names"] == list(cast[0]["body"].skeleton.bone_names)
+    assert subject_kw["stature_m"] == cast[0]["measured"]["stature_m"] and len(subject_kw["actors"]) == 2
+    assert subject_kw["actors"][1]["target_measured_model"] == cast[1]["target_measured"]
+    assert subject_kw["n_vertices"] == cast[0]["body"].n_vertices and subject_kw["mass_kg"] == \
+        cast[0]["measured"]["mass_kg"]
+    (sensor,), _ = w.calls["write_kinect_calibration"][0]
+    assert sensor.version == "v1" and sensor.depth.width == 320
+    (arrays,), _ = w.calls["write_gt_mirror_actors"][0]
+    assert arrays["players"].tolist() == [1, 2] and arrays["faces"] is cast[0]["body"].faces
+    assert timings["n_frames"] == 12 and timings["setup_s"] > 0 and timings["frames_s"] >= 0
+    assert timings["ms_per_frame_cpu"] == pytest.approx(1e3 * timings["frames_cpu_s"] / 12)
+    # one actor, walking in, no edits: nobody edited; the actor enters at frame 10
+    frames.clear()
+    sy.synth_mirror_session(tmp_path / "t", subject_seed=5, n_frames=12, version="v1", model=model)
+    meta = writers[-1].kw["metadata"]
+    assert meta["edited_players"] == [] and meta["edits"] == {} and meta["actors"] == 1 and meta["walk_in"] is True
+    assert meta["actor_frames"][0]["enter_frame"] == 10 and meta["actor_frames"][0]["stand_frame"] == 12  # the walk cut
+    assert frames[0][4] is False and frames[0][1][0]["target"] is frames[0][1][0]["body"]
