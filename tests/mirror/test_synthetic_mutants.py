@@ -809,3 +809,20 @@ def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypa
     assert meta["edited_players"] == [] and meta["edits"] == {} and meta["actors"] == 1 and meta["walk_in"] is True
     assert meta["actor_frames"][0]["enter_frame"] == 10 and meta["actor_frames"][0]["stand_frame"] == 12  # the walk cut
     assert frames[0][4] is False and frames[0][1][0]["target"] is frames[0][1][0]["body"]
+
+
+def test_time_synth_mirror_times_a_taller_edit_session(tmp_path, monkeypatch):
+    seen = {}
+
+    def synth(folder, subject_seed, n_frames, actors, edits, version, timings):
+        seen.update(folder=folder, subject_seed=subject_seed, n_frames=n_frames, actors=actors, edits=edits,
+                    version=version)
+        timings.update(setup_s=1.5, frames_s=2.0)
+
+    monkeypatch.setattr(sy, "synth_mirror_session", synth)
+    out = sy.time_synth_mirror(tmp_path / "s", n_frames=12, actors=2, version="v1")
+    assert out == {"setup_s": 1.5, "frames_s": 2.0}
+    assert seen == {"folder": tmp_path / "s", "subject_seed": 3, "n_frames": 12, "actors": 2,
+                    "edits": {"taller": 0.1}, "version": "v1"}
+    sy.time_synth_mirror(tmp_path / "t")
+    assert seen["n_frames"] == 40 and seen["actors"] == 1 and seen["version"] == "v2"
