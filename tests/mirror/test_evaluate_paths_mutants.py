@@ -268,6 +268,18 @@ def test_fg_iou_raw_is_the_sdk_player_mask_against_the_true_person(session, tmp_
                           session.frame(i).gt_person == 1) for i in (10, 11, 12, 13)]
     assert scores["fg_iou_raw"] == pytest.approx(float(np.mean(expect)), abs=1e-12)
     assert 0.75 < scores["fg_iou_raw"] < 0.95  # measured 0.85: close, not the truth
+    # a bystander (player 2) in the SDK's mask is not the run's player: the raw IoU is player 1's mask only
+    over = {}
+    for i in (10, 11, 12, 13):
+        labels = session.frame(i).kinect_player.copy()
+        labels[20:120, 20:140] = np.where(session.frame(i).kinect_depth_m[20:120, 20:140] > 0, 2, 0)
+        over[i] = {"kinect_player": labels}
+    proxy = _Proxy(session, over)
+    with_bystander = ev.image_scores(proxy, run_dir, ev.read_mirror_run(session, run_dir))
+    assert with_bystander["fg_iou_raw"] == pytest.approx(scores["fg_iou_raw"], abs=1e-12)
+    anyone = np.mean([ev.mask_iou(player_mask_in_color(read_mirror_frame(proxy, i), session.kinect, None),
+                                  session.frame(i).gt_person == 1) for i in (10, 11, 12, 13)])
+    assert anyone < scores["fg_iou_raw"] - 0.05
 
 
 def test_a_run_of_another_player_than_the_tracked_one_has_nothing_to_score(session, tmp_path):
