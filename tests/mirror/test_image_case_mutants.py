@@ -26,10 +26,21 @@ def test_sdk_player_mask_without_noise_is_the_mask_on_the_coarse_grid():
     assert m.dtype == bool and d.dtype == np.float64 and m.shape == mask.shape
     rows, cols = np.arange(60) // 2 * 2, np.arange(80) // 2 * 2
     assert np.array_equal(m, mask[np.ix_(rows, cols)])
-    assert np.allclose(d, depth[np.ix_(rows, cols)].astype(np.float32))
+    assert np.array_equal(d, depth[np.ix_(rows, cols)].astype(np.float32))  # sampled in float32 (the SDK's)
     m3, _ = ic.sdk_player_mask(mask, depth, np.random.default_rng(0), depth_scale=3, flip_rate=0.0,
                                shift_px=0.0, hole_rate=0.0)
     assert ic.iou(m3, mask) > 0.8 and not np.array_equal(m3, m)  # a coarser grid: blockier
+
+
+def test_sdk_player_mask_defaults():
+    """depth_scale 2, flip_rate 0.35, shift_px 1.5, hole_rate 0.02: the defaults give what they give spelled out."""
+    mask = _disc(120, 160, 40)
+    depth = np.where(mask, 2.0, 4.5)
+    for seed in range(3):
+        m, d = ic.sdk_player_mask(mask, depth, np.random.default_rng(seed))
+        m2, d2 = ic.sdk_player_mask(mask, depth, np.random.default_rng(seed), depth_scale=2, flip_rate=0.35,
+                                    shift_px=1.5, hole_rate=0.02)
+        assert np.array_equal(m, m2) and np.array_equal(d, d2)
 
 
 def test_sdk_player_mask_flips_only_boundary_pixels_at_its_rate():
