@@ -261,3 +261,77 @@ def test_synthetic_scene_observations_are_the_posed_body_seen_by_the_kinect():
     assert np.allclose(clean.poses[0].translation, [0.1, 0.0, 0.2])  # the default offset
     dist, _ = cKDTree(V).query(obs.points)
     assert np.median(dist) < 0.015 and (dist > 0.05).mean() < 0.002  # nearest vertex; no flying pixels
+
+
+def test_synthetic_scene_defaults_and_what_it_hands_on(monkeypatch):
+    """With spies for the body, the motion, the depth simulation and the tracker: the defaults (6 frames of a walk,
+    v2, the 6k body, seed 0, 10 / 20 cm offset, noise on, 1 cm joint noise with 3 cm bone jitter) and the subject."""
+    from bodystudio.body.population import sample_population
+
+    seen = {}
+    real_motion = nc.motion_sequence
+
+    def body(phenotype, local, resolution):
+        seen["body"] = (phenotype, local, resolution)
+        return real_body
+    from bodystudio.body import build_body
+
+    real_body = build_body(*sample_population(1, seed=4)[0], resolution="2k")
+
+    def motion(name, n, skeleton, seed):
+        seen["motion"] = (name, n, seed)
+        return real_motion(name, n, skeleton, seed=seed)
+
+    def depth(V, F, sensor, rng, noise):
+        seen.setdefault("depth", []).append((sensor.version, noise, rng.random()))
+        d = np.zeros((sensor.depth.height, sensor.depth.width))
+        d[200, 250] = 2.0
+        return d
+
+    def tracker(heads, tails, skeleton, version, rng, noise_m, bone_length_jitter):
+        seen["tracker"] = (version, noise_m, bone_length_jitter)
+        return np.zeros((25, 3)), np.ones(25, bool)
+
+    monkeypatch.setattr(nc, "build_body", body)
+    monkeypatch.setattr(nc, "motion_sequence", motion)
+    monkeypatch.setattr(nc, "simulate_kinect_depth", depth)
+    monkeypatch.setattr(nc, "simulate_tracker_joints", tracker)
+    scene = nc.synthetic_scene(4)
+    phenotype, local = sample_population(1, seed=4)[0]
+    assert seen["body"][2] == "6k" and seen["body"][1] == local and seen["body"][0].to_dict() == phenotype.to_dict()
+    assert seen["motion"] == ("walk", 6, 0) and len(scene.observations) == 6
+    assert scene.sensor.version == "v2" and scene.sensor.depth.width == 512
+    assert [d[:2] for d in seen["depth"]] == [("v2", True)] * 6 and seen["tracker"] == ("v2", 0.01, 0.03)
+    assert np.allclose(scene.poses[0].translation - real_motion("walk", 6, real_body.skeleton, seed=0)[0].translation,
+                       (0.1, 0.0, 0.2))
+    first = [d[2] for d in seen["depth"]]
+    seen.clear()
+    nc.synthetic_scene(4, n_frames=2, frame_stride=3, version="v1", noise=False, joint_noise_m=0.02, seed=7)
+    assert seen["motion"] == ("walk", 6, 7) and seen["tracker"] == ("v1", 0.02, pytest.approx(0.06))
+    assert [d[:2] for d in seen["depth"]] == [("v1", False)] * 2
+    seen.clear()
+    nc.synthetic_scene(4)
+    assert [d[2] for d in seen["depth"]] == first  # the rng is seeded
+    assert len(scene.observations[0].points) == 1  # the one valid pixel back-projected
+
+
+def test_drop_flying_pixels_window_dtype_and_near_depths():
+    # the 3 x 3 window only: a nearer (or farther) surface two pixels away does not make a mixture
+    row = np.array([[2.0, 2.5, 2.5, 3.0, 3.0]])
+    d = np.repeat(row, 3, axis=0)
+    assert nc.drop_flying_pixels(d)[1, 2] == 2.5
+    row = np.array([[3.0, 2.5, 2.5, 2.0, 2.0]])
+    assert nc.drop_flying_pixels(np.repeat(row, 3, axis=0))[1, 2] == 2.5
+    # float32 depth comes back as float64; depths under 1 m are measurements too
+    d32 = np.full((3, 3), 0.8, np.float32)
+    d32[1, 1] = 0.85
+    d32[0, :] = 0.5
+    d32[2, :] = 0.0
+    out = nc.drop_flying_pixels(d32)
+    assert out.dtype == np.float64 and out[1, 1] == 0.0 and out[0, 0] == pytest.approx(0.5)
+    from bodystudio.geometry.camera import kinect_v2
+
+    cam = kinect_v2().depth
+    near = np.zeros((cam.height, cam.width))
+    near[50:54, 60:65] = 0.7
+    assert nc.back_project(near, cam).shape == (20, 3)
