@@ -255,6 +255,9 @@ def test_evaluate_mirror_hands_the_runs_player_and_band_to_every_score(session, 
     monkeypatch.setattr(ev, "read_mirror_run", lambda sess, rd: run)
     assert ev.evaluate_mirror(session, run_dir, source=source)["run_id"] is None
     assert seen["images"][3] == ev.BAND_PX == 10
+    run.pop("player")  # a manifest without the player: player 1
+    assert ev.evaluate_mirror(session, run_dir, source=source)["player"] == 1
+    assert seen["init"][2] == 1 and asked[-1][3] == 1
 
 
 # ------------------------------------------------------------------------------------------ image_scores
@@ -306,6 +309,10 @@ def test_a_ramp_never_completed_is_refused_with_its_numbers(session, tmp_path):
                              lambda r: (r.update(ramp_frames=15), r["frames"][13].update(status="passed")))
     with pytest.raises(InputError, match=r"--ramp-frames 15, 13 tracked frames"):
         ev.image_scores(session, run_dir, ev.read_mirror_run(session, run_dir))
+    # the ramp completed on the last frame, which shows nobody to score: "nothing to score", not "never reached"
+    run_dir = _edit_manifest(_truth_run(session, tmp_path / "last"), lambda r: r.update(ramp_frames=14))
+    with pytest.raises(InputError, match="none of the run's frames shows player 1"):
+        ev.image_scores(_Proxy(session, {13: {"gt_mirror": None}}), run_dir, ev.read_mirror_run(session, run_dir))
     # a scored frame after the ramp, or a run without ramping frames, is not refused by this rule
     run_dir = _edit_manifest(_truth_run(session, tmp_path / "late"),
                              lambda r: [r.update(ramp_frames=20)] + [f.update(status="passed")
