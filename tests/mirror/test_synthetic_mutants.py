@@ -44,7 +44,12 @@ def test_mirror_sensor_v2_is_the_kinect_v2_with_its_colour_scaled_to_640x480():
 
 
 def test_mirror_sensor_v1_and_the_refusal():
+    from bodystudio.geometry.camera import kinect_v1
+
+    assert sy.mirror_sensor().version == "v2" and sy.mirror_sensor().depth.width == 512  # v2 by default
     s = sy.mirror_sensor("v1")
+    ref = kinect_v1("320x240", eye=sy.KINECT_EYE, target=sy.KINECT_TARGET)
+    assert np.array_equal(s.depth.R, ref.depth.R) and np.array_equal(s.color.R, ref.color.R)
     assert s.version == "v1" and (s.depth.width, s.depth.height) == (320, 240) and s.color.width == 640
     assert np.allclose(s.depth.center, sy.KINECT_EYE, atol=0.05)
     with pytest.raises(InputError) as info:
