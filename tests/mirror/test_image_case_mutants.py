@@ -335,3 +335,36 @@ def test_drop_flying_pixels_window_dtype_and_near_depths():
     near = np.zeros((cam.height, cam.width))
     near[50:54, 60:65] = 0.7
     assert nc.back_project(near, cam).shape == (20, 3)
+
+
+def test_make_image_case_is_this_subject_pose_camera_and_noise_by_default():
+    """Which case the defaults build: subject ``sample_subject(1)`` in the 2k model, +10 % stature / +15 kg, frame 10
+    of a walk (seed 0), the Kinect v1 colour camera at 2.4 m aimed at (0, 0.9, 0), the plate of seed 0 and the
+    sensor noise of ``default_rng(0)``; the 2k model is loaded when none is given."""
+    from bodystudio.body import build_body
+    from bodystudio.body.population import sample_subject
+    from bodystudio.body.statistical import load_statistical_model
+    from bodystudio.capture.motion import motion_sequence
+    from bodystudio.capture.render import background_plate, render, render_rgb
+    from bodystudio.geometry.camera import kinect_v1
+
+    model = load_statistical_model("2k", progress=False)
+    case = ic.make_image_case(rim_cos=None, n_handles=100)
+    c = model.project(build_body(*sample_subject(1), resolution="2k").vertices)
+    src = model.body(c)
+    pose = motion_sequence("walk", 11, src.skeleton, seed=0)[10]
+    Vs, _ = src.pose(pose)
+    Vs = Vs + np.array([0.0, -Vs[:, 1].min(), 0.0])
+    np.testing.assert_allclose(case.source_vertices, Vs, atol=1e-9)
+    tgt = model.body(model.edit(c, {"stature_m": 0.10 * model.measure(c)["stature_m"], "mass_kg": 15.0},
+                                others="follow"))
+    Vt, _ = tgt.pose(pose)
+    np.testing.assert_allclose(case.target_vertices, Vt + np.array([0.0, -Vt[:, 1].min(), 0.0]), atol=1e-9)
+    cam = kinect_v1(eye=(0.0, 1.0, 2.4), target=(0.0, 0.9, 0.0)).color
+    assert np.array_equal(case.camera.R, cam.R) and np.array_equal(case.camera.t, cam.t)
+    plate = background_plate(cam, seed=0)
+    assert np.array_equal(case.background, plate)
+    rs = render(Vs, model.faces, cam)
+    rgb = render_rgb(Vs, model.faces, cam, background=plate, result=rs, noise_std=2.0, rng=np.random.default_rng(0))
+    assert np.array_equal(case.rgb, rgb)
+    assert len(case.src_uv) <= 100
