@@ -150,11 +150,13 @@ def in_functions(name: str, globs: list[str]) -> bool:
 
 def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | None = None,
                resume: Path | None = None, only_tests: list[str] | None = None,
-               functions: list[str] | None = None) -> dict:
+               functions: list[str] | None = None, score_only: bool = False) -> dict:
     """Mutate ``module`` in a fresh scratch tree or, with ``resume``, go on in a kept one (mutmut runs only the
     mutants that have no result yet, e.g. those a time box left "not checked"). ``only_tests`` (globs) replaces
     the module's own test selection; ``functions`` (names, ``Class.method`` for methods) restricts the run and
-    the score to those functions' mutants (a re-measure of the functions changed since a module's row)."""
+    the score to those functions' mutants (a re-measure of the functions changed since a module's row).
+    ``score_only`` (with ``resume``): no mutmut run, the kept tree's results as they are (e.g. after
+    docs/mutation/recheck_direct.py's verdicts were written into its ``.meta`` files)."""
     work = resume or Path(tempfile.mkdtemp(prefix="bodystudio-mutate-"))
     keep = keep or resume is not None
     commit = git_commit() if ref is None else ref  # the tree being copied now, not HEAD when the box ends
@@ -190,7 +192,7 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
             ["run", "--max-children", str(jobs)] + names
         print(f"== {module}: mutmut over {', '.join(tests)} (time box {timeout_s} s)", flush=True)
         t0 = time.monotonic()
-        if functions and not names:  # resuming, nothing left to run in these functions
+        if score_only or (functions and not names):  # rescoring only / resuming, nothing left to run
             proc = subprocess.CompletedProcess(cmd, 0, "", "")
         else:
             proc = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True)
@@ -345,6 +347,8 @@ def main(argv=None) -> int:
                     "the score is then a lower bound of the full selection's")
     ap.add_argument("--functions", nargs="+", help="mutate only these functions of the (one) module (Class.method "
                     "for a method); the result is kept under 'MODULE (functions)' next to the module's own row")
+    ap.add_argument("--score-only", action="store_true", help="with --resume: score the kept tree as it is, "
+                    "without running mutmut (after the direct recheck wrote its verdicts into the .meta files)")
     ap.add_argument("--resume", type=Path, help="go on in this kept scratch tree (one module): only mutants "
                     "without a result are run, e.g. after the time box was hit")
     args = ap.parse_args(argv)
@@ -361,7 +365,8 @@ def main(argv=None) -> int:
         print("mutate: --functions needs exactly one module", file=sys.stderr)
         return 2
     for module in args.modules:
-        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.resume, args.tests, args.functions)
+        r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.resume, args.tests, args.functions,
+                       args.score_only and args.resume is not None)
         key = f"{module} (functions)" if args.functions else module
         # re-read: another run (another module) may have written its result meanwhile
         results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}

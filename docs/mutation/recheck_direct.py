@@ -4,8 +4,10 @@ usage (from the repository root): python docs/mutation/recheck_direct.py WORK TE
 WORK is a scratch tree kept by ``scripts/mutate.py --keep``; names are full mutant names (mutmut's meta keys).
 The test module (tests/mirror/test_X.py, copied from this tree) is imported once with the clean code; fixtures
 ``model``, ``mean_body``, ``scene``, ``session`` (the module's ``_session()``), ``monkeypatch``, ``tmp_path``,
-``caplog`` are provided, and any other fixture the test module defines itself (built once, clean); parametrized tests run every parameter set. Per mutant: fork, MUTANT_UNDER_TEST=<mutant>, the tests of KMAP[function] (all when absent) in
-the order of their clean-run time, the first exception (or 120 s alarm) = killed, none = survived.
+``caplog`` are provided, and any other ``@pytest.fixture`` of the test module or its folder's conftest.py
+(built once); parametrized tests run every parameter set. Per mutant: fork, MUTANT_UNDER_TEST=<mutant>, the
+tests of KMAP[function] (all when absent) in the order of their clean-run time, the first exception (or 120 s
+alarm) = killed, none = survived.
 """
 import importlib
 import inspect
@@ -96,13 +98,17 @@ def cases(fn):
     return out
 
 
-def fixture_value(name):
-    """A fixture of the test module itself (e.g. ``case`` of test_pose_refine_analytic.py), built once with the
-    clean code (its own fixture arguments resolved the same way), or one of the values above."""
+def fixture(name):
+    """A fixture's value, built once: the ones above, else a ``@pytest.fixture`` of the test module (e.g. ``case``
+    of test_pose_refine_analytic.py) or of its folder's conftest.py (called with its own fixtures; yield fixtures
+    are not supported)."""
     if name not in fixture_values:
-        fixture = getattr(mod, name)
-        fn = fixture._get_wrapped_function() if hasattr(fixture, "_get_wrapped_function") else fixture
-        fixture_values[name] = fn(**{p: fixture_value(p) for p in inspect.signature(fn).parameters})
+        defn = getattr(mod, name, None)
+        if defn is None:
+            conftest = importlib.import_module(test_rel.rsplit("/", 1)[0].replace("/", ".") + ".conftest")
+            defn = getattr(conftest, name)
+        fn = defn._get_wrapped_function() if hasattr(defn, "_get_wrapped_function") else defn
+        fixture_values[name] = fn(**{a: fixture(a) for a in inspect.signature(fn).parameters})
     return fixture_values[name]
 
 
@@ -120,7 +126,7 @@ def run(fn, params):
             elif p == "caplog":
                 kw[p] = _Caplog()
             else:
-                kw[p] = fixture_value(p)
+                kw[p] = fixture(p)
         fn(**kw)
     finally:
         mp.undo()
