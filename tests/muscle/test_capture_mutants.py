@@ -17,6 +17,7 @@ from bodystudio.muscle import capture as cap_mod
 from bodystudio.muscle.arm import ArmPose
 from bodystudio.muscle.capture import ArmCapture, CaptureOptions, capture_arm_frames
 from bodystudio.muscle.nicp import NicpOptions, apply_similarity
+from tests.muscle.test_capture import _two_plates  # the scene of test_capture.py's visibility tests
 
 FAST = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1, sequence_max_nfev=3,
             nicp=NicpOptions(iterations=2))
@@ -205,37 +206,6 @@ def test_the_placement_prior_weight_and_chest_weight_reach_the_sequence_fit(scen
 
 
 # --- the visible-only refinement ---------------------------------------------------------------------------------
-
-def _two_plates():
-    """A 12 x 12 cm plate 1 m in front of a Kinect v2 with a 6 x 6 cm plate 12 mm nearer the sensor over its middle
-    (one mesh, both facing the sensor), the depth points of what the sensor sees, the vertices of the back plate the
-    front one hides, and the camera (test_capture.py's scene)."""
-    from scipy.spatial import Delaunay
-
-    from bodystudio.geometry.camera import kinect_v2
-
-    sensor = kinect_v2(eye=(0.0, 1.0, 1.0), target=(0.0, 1.0, 0.0)).depth
-
-    def plate(half, z, step=0.005):
-        g = np.arange(-half, half + 1e-9, step)
-        X, Y = np.meshgrid(g, g)
-        V = np.c_[X.ravel(), 1.0 + Y.ravel(), np.full(X.size, z)]
-        F = Delaunay(V[:, :2]).simplices
-        F = np.where((np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])[:, 2] > 0)[:, None], F, F[:, ::-1])
-        return V, F
-
-    Vb, Fb = plate(0.06, 0.0)
-    Vf, Ff = plate(0.03, 0.012)
-    V = np.vstack([Vb, Vf])
-    F = np.vstack([Fb, Ff + len(Vb)])
-    hidden = np.zeros(len(V), bool)
-    hidden[:len(Vb)] = (np.abs(Vb[:, 0]) < 0.028) & (np.abs(Vb[:, 1] - 1.0) < 0.028)
-    fine_b, _ = plate(0.06, 0.0, 0.002)
-    fine_f, _ = plate(0.03, 0.012, 0.002)
-    covered = (np.abs(fine_b[:, 0]) <= 0.03) & (np.abs(fine_b[:, 1] - 1.0) <= 0.03)
-    points = np.vstack([fine_b[~covered], fine_f])
-    return V, F, points, hidden, sensor
-
 
 def test_model_visible_vertices_is_the_z_buffer_of_the_mesh_with_its_tolerance(monkeypatch):
     import bodystudio.muscle.evaluate as evaluate
