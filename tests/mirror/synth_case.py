@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import atexit
 import functools
+import json
 import shutil
 import tempfile
 from pathlib import Path
@@ -56,3 +57,27 @@ def write_fake_run(session, run_dir, output, foreground, warped, edits=None, pla
                   "frames": rows, "summary": {"ms_per_frame": {"foreground": 2.0, "warp": 1.0}, "fps_wall": 50.0},
                   **(extra or {})})
     return run_dir
+
+
+_TRUTH_RUNS: dict = {}
+
+
+def truth_run(session, path, **kw) -> Path:
+    """A fake run (:func:`write_fake_run`) whose images are the ground truth, written once per (session, options)
+    and copied to ``path``."""
+    key = (str(session.path), json.dumps(kw, sort_keys=True))
+    if key not in _TRUTH_RUNS:
+        _TRUTH_RUNS[key] = write_fake_run(session, Path(tempfile.mkdtemp(prefix="mirror-truth-run-")) / "run",
+                                          lambda f: f.gt_target_rgb, lambda f: f.gt_person == 1,
+                                          lambda f: f.gt_target_person == 1, **kw)
+    shutil.copytree(_TRUTH_RUNS[key], path)
+    return Path(path)
+
+
+def edit_manifest(run_dir, change) -> Path:
+    """Apply ``change`` to the run's run.json (a dict, changed in place) and write it back."""
+    p = Path(run_dir) / "run.json"
+    run = json.loads(p.read_text())
+    change(run)
+    p.write_text(json.dumps(run))
+    return Path(run_dir)

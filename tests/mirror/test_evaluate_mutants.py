@@ -5,7 +5,6 @@ are the ground truth, so every score is exact."""
 
 import json
 import types
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +12,7 @@ import pytest
 from bodystudio.capture.session import open_session
 from bodystudio.errors import FileFormatError, InputError
 from bodystudio.mirror import evaluate as ev
-from tests.mirror.synth_case import small_mirror_session, write_fake_run
+from tests.mirror.synth_case import edit_manifest, small_mirror_session, truth_run, write_fake_run
 
 
 def _session():
@@ -26,31 +25,6 @@ def session():
     return _session()
 
 
-_CACHED_RUN = {}
-
-
-def _truth_run(session, path, **kw):
-    """A fake run whose images are the ground truth; the default one is written once and copied."""
-    if kw:
-        return write_fake_run(session, path, lambda f: f.gt_target_rgb, lambda f: f.gt_person == 1,
-                              lambda f: f.gt_target_person == 1, **kw)
-    import shutil
-    import tempfile
-
-    if "run" not in _CACHED_RUN:
-        _CACHED_RUN["run"] = write_fake_run(session, Path(tempfile.mkdtemp(prefix="mirror-eval-run-")) / "run",
-                                            lambda f: f.gt_target_rgb, lambda f: f.gt_person == 1,
-                                            lambda f: f.gt_target_person == 1)
-    shutil.copytree(_CACHED_RUN["run"], path)
-    return Path(path)
-
-
-def _edit_manifest(run_dir, change):
-    p = run_dir / "run.json"
-    run = json.loads(p.read_text())
-    change(run)
-    p.write_text(json.dumps(run))
-    return run_dir
 
 
 @pytest.mark.parametrize("change, error, match, end", [
@@ -82,7 +56,7 @@ def _edit_manifest(run_dir, change):
      "run: the run reshapes player 2 but the ground truth edits players [1]; re-run with --player 1"),
 ])
 def test_read_mirror_run_refuses_each_broken_manifest(session, tmp_path, change, error, match, end):
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run"), change)
+    run_dir = edit_manifest(truth_run(session, tmp_path / "run"), change)
     with pytest.raises(error, match=match) as info:
         ev.read_mirror_run(session, run_dir)
     assert "\n" not in str(info.value) and str(info.value).endswith(end), str(info.value)
@@ -98,13 +72,13 @@ def test_read_mirror_run_refuses_missing_interrupted_and_uncommitted_folders(ses
         ev.read_mirror_run(session, tmp_path / "empty")
     assert str(info.value) == (f"{tmp_path / 'empty' / 'run.json'}: missing, the run folder is incomplete (never "
                                f"committed); re-run `bodystudio mirror run {session.path}`")
-    run_dir = _truth_run(session, tmp_path / "run")
+    run_dir = truth_run(session, tmp_path / "run")
     (run_dir / ".staging").mkdir()
     (run_dir / ".staging" / "commit.json").write_text("{}")
     with pytest.raises(InputError, match="interrupted") as info:
         ev.read_mirror_run(session, run_dir)
     assert str(run_dir) in str(info.value) and "None" not in str(info.value)
-    junk = _truth_run(session, tmp_path / "junk")
+    junk = truth_run(session, tmp_path / "junk")
     (junk / "run.json").write_text("{not json")
     with pytest.raises(FileFormatError, match="mirror run manifest"):
         ev.read_mirror_run(session, junk)
@@ -119,22 +93,22 @@ def test_the_session_refusal_names_the_commands(tmp_path):
 
 
 def test_read_mirror_run_accepts_the_edits_to_round_off_and_zero_edits_left_out(session, tmp_path):
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run"),
+    run_dir = edit_manifest(truth_run(session, tmp_path / "run"),
                              lambda r: r.update(edits={"taller": 0.15 + 1e-10, "wider": 0.0}))
     run = ev.read_mirror_run(session, run_dir)
     assert run["format"] == ev.RUN_FORMAT and [f["index"] for f in run["frames"]] == session.frame_ids
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run2"), lambda r: r.pop("player"))
+    run_dir = edit_manifest(truth_run(session, tmp_path / "run2"), lambda r: r.pop("player"))
     run = ev.read_mirror_run(session, run_dir)
     assert "player" not in run  # player 1 is the default
     assert ev.image_scores(session, run_dir, run)["scored_frames"] == [10, 11, 12, 13]
     # a listed file the scores do not need is not checked (a missing one does not refuse the run)
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run3"),
+    run_dir = edit_manifest(truth_run(session, tmp_path / "run3"),
                              lambda r: r["run"]["files"].update({"log/unused.txt": "0" * 64}))
     assert ev.read_mirror_run(session, run_dir)["frames"]
 
 
 def test_frames_the_tracker_did_not_report_or_passed_through_are_counted_right(session, tmp_path):
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run"),
+    run_dir = edit_manifest(truth_run(session, tmp_path / "run"),
                              lambda r: r["frames"][12].update(status="passed"))
     scores = ev.image_scores(session, run_dir, ev.read_mirror_run(session, run_dir))
     # frames 0-9 hold no actor (nothing reported), 10-13 are scored; 12 passed through
@@ -196,7 +170,7 @@ def test_an_output_of_another_size_is_refused(session, tmp_path):
 
 
 def test_a_run_of_the_empty_room_only_has_nothing_to_score(session, tmp_path):
-    run_dir = _truth_run(session, tmp_path / "run", frames=list(range(10)))
+    run_dir = truth_run(session, tmp_path / "run", frames=list(range(10)))
     with pytest.raises(InputError, match="none of the run's frames shows player 1 tracked"):
         ev.image_scores(session, run_dir, ev.read_mirror_run(session, run_dir))
 
@@ -207,14 +181,14 @@ def test_without_a_ramp_frames_before_the_first_tracked_one_are_not_ramping(sess
             f["status"] = "lost"
         r.pop("ramp_frames", None)
 
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run"), lost)
+    run_dir = edit_manifest(truth_run(session, tmp_path / "run"), lost)
     scores = ev.image_scores(session, run_dir, ev.read_mirror_run(session, run_dir))
     assert scores["frames_ramping"] == 0 and scores["scored_frames"] == [10, 11, 12, 13]
 
 
 def test_the_ramp_counts_tracked_frames_only(session, tmp_path):
     """Frames 0-9 are 'ok' in the fake run; with frame 10 passed through, a ramp of 12 ends at frame 12."""
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run", extra={"ramp_frames": 12}),
+    run_dir = edit_manifest(truth_run(session, tmp_path / "run", extra={"ramp_frames": 12}),
                              lambda r: r["frames"][10].update(status="lost"))
     scores = ev.image_scores(session, run_dir, ev.read_mirror_run(session, run_dir))
     assert scores["scored_frames"] == [12, 13] and scores["frames_ramping"] == 12
@@ -248,7 +222,7 @@ def test_check_mirror_session_refuses_other_sessions(tmp_path, session):
 
 
 def test_evaluate_mirror_needs_the_source_body_and_reports_the_timings(session, tmp_path):
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run"),
+    run_dir = edit_manifest(truth_run(session, tmp_path / "run"),
                              lambda r: r["summary"].update(ms_per_frame={"a": 2, "b": 3.5}, fps_wall=12.5))
     with pytest.raises(InputError, match="source_body.npz: missing; run `bodystudio mirror init"):
         ev.evaluate_mirror(session, run_dir)
@@ -275,7 +249,7 @@ def test_evaluate_mirror_needs_the_source_body_and_reports_the_timings(session, 
     assert scores["run"] == str(run_dir) and scores["session"] == str(session.path)
     assert "scored_frames" not in scores and scores["frames_scored"] == 4
     assert scores["psnr_person"] is None and scores["psnr_person_identical"] is True
-    run_dir2 = _edit_manifest(_truth_run(session, tmp_path / "run2"), lambda r: r.pop("summary"))
+    run_dir2 = edit_manifest(truth_run(session, tmp_path / "run2"), lambda r: r.pop("summary"))
     mod.tracking_scores = tracking
     try:
         scores = ev.evaluate_mirror(session, run_dir2, source=source)

@@ -9,7 +9,6 @@ import functools
 import json
 import shutil
 import types
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +16,7 @@ import pytest
 from bodystudio.capture.session import open_session
 from bodystudio.errors import FileFormatError, InputError
 from bodystudio.mirror import evaluate as ev
-from tests.mirror.synth_case import small_mirror_session, write_fake_run
+from tests.mirror.synth_case import edit_manifest, small_mirror_session, truth_run, write_fake_run
 
 
 def _session():
@@ -30,28 +29,6 @@ def session():
     return _session()
 
 
-_CACHED_RUN = {}
-
-
-def _truth_run(session, path, **kw):
-    """A fake run whose images are the ground truth; written once per (session, options) and copied."""
-    import tempfile
-
-    key = (str(session.path), json.dumps(kw, sort_keys=True))
-    if key not in _CACHED_RUN:
-        _CACHED_RUN[key] = write_fake_run(session, Path(tempfile.mkdtemp(prefix="mirror-eval-paths-")) / "run",
-                                          lambda f: f.gt_target_rgb, lambda f: f.gt_person == 1,
-                                          lambda f: f.gt_target_person == 1, **kw)
-    shutil.copytree(_CACHED_RUN[key], path)
-    return Path(path)
-
-
-def _edit_manifest(run_dir, change):
-    p = Path(run_dir) / "run.json"
-    run = json.loads(p.read_text())
-    change(run)
-    p.write_text(json.dumps(run))
-    return Path(run_dir)
 
 
 # ------------------------------------------------------------------------------------------ tracking_scores
@@ -194,7 +171,7 @@ def test_evaluate_mirror_defaults_to_the_sessions_run_folder_and_source_body(ses
     shutil.copytree(session.path, path)
     copy = open_session(path)
     body = _source_body(copy)
-    run_dir = _truth_run(copy, path / "mirror" / "run")
+    run_dir = truth_run(copy, path / "mirror" / "run")
     asked = _tracking_spy(monkeypatch)
     with pytest.raises(InputError) as info:
         ev.evaluate_mirror(str(path))
@@ -211,9 +188,9 @@ def test_evaluate_mirror_defaults_to_the_sessions_run_folder_and_source_body(ses
     assert str(s.path) == str(copy.path) and src.coeffs.tolist() == body.coeffs.tolist()
     assert frames == [10, 11, 12, 13] and player == 1
     # a run that records the same body is scored; one that records another is refused, in one line
-    _edit_manifest(run_dir, lambda r: r.update(source_fingerprint=source_fingerprint(body)))
+    edit_manifest(run_dir, lambda r: r.update(source_fingerprint=source_fingerprint(body)))
     assert ev.evaluate_mirror(str(path))["source_fingerprint"] == source_fingerprint(body)
-    _edit_manifest(run_dir, lambda r: r.update(source_fingerprint="0" * 16))
+    edit_manifest(run_dir, lambda r: r.update(source_fingerprint="0" * 16))
     with pytest.raises(InputError) as info:
         ev.evaluate_mirror(str(path))
     assert str(info.value) == (f"{run_dir}: the run used another source body than {path / 'mirror' / 'source_body.npz'}"
@@ -229,7 +206,7 @@ def test_evaluate_mirror_hands_the_runs_player_and_band_to_every_score(session, 
     """A run of player 2 (the ground truth edits nobody): the player, the band, the session, the run and the
     scored frames reach image_scores, init_scores and tracking_scores."""
     monkeypatch.setitem(session.metadata, "edits", {})
-    run_dir = _truth_run(session, tmp_path / "run", edits={}, player=2)
+    run_dir = truth_run(session, tmp_path / "run", edits={}, player=2)
     seen = {}
 
     def images(sess, rd, run, band_px=ev.BAND_PX):
@@ -265,7 +242,7 @@ def test_evaluate_mirror_hands_the_runs_player_and_band_to_every_score(session, 
 def test_fg_iou_raw_is_the_sdk_player_mask_against_the_true_person(session, tmp_path):
     from bodystudio.mirror.frames import player_mask_in_color, read_mirror_frame
 
-    run_dir = _truth_run(session, tmp_path / "run")
+    run_dir = truth_run(session, tmp_path / "run")
     scores = ev.image_scores(session, run_dir, ev.read_mirror_run(session, run_dir))
     expect = [ev.mask_iou(player_mask_in_color(read_mirror_frame(session, i), session.kinect, 1),
                           session.frame(i).gt_person == 1) for i in (10, 11, 12, 13)]
@@ -286,7 +263,7 @@ def test_fg_iou_raw_is_the_sdk_player_mask_against_the_true_person(session, tmp_
 
 
 def test_a_run_of_another_player_than_the_tracked_one_has_nothing_to_score(session, tmp_path):
-    run_dir = _truth_run(session, tmp_path / "run")
+    run_dir = truth_run(session, tmp_path / "run")
     run = json.loads((run_dir / "run.json").read_text())
     run["player"] = 2
     with pytest.raises(InputError) as info:
@@ -296,25 +273,25 @@ def test_a_run_of_another_player_than_the_tracked_one_has_nothing_to_score(sessi
 
 
 def test_a_ramp_never_completed_is_refused_with_its_numbers(session, tmp_path):
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run"), lambda r: r.update(ramp_frames=30))
+    run_dir = edit_manifest(truth_run(session, tmp_path / "run"), lambda r: r.update(ramp_frames=30))
     with pytest.raises(InputError) as info:
         ev.image_scores(session, run_dir, ev.read_mirror_run(session, run_dir))
     assert str(info.value) == (f"{run_dir}: the run never reached the whole edit (--ramp-frames 30, 14 tracked "
                                "frames) and the ground truth shows the whole edit; re-run `bodystudio mirror run` "
                                "with --ramp-frames 0")
     # exactly complete on the last frame: that frame is scored; one short and nothing is
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run14"), lambda r: r.update(ramp_frames=14))
+    run_dir = edit_manifest(truth_run(session, tmp_path / "run14"), lambda r: r.update(ramp_frames=14))
     assert ev.image_scores(session, run_dir, ev.read_mirror_run(session, run_dir))["scored_frames"] == [13]
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "run15"),
+    run_dir = edit_manifest(truth_run(session, tmp_path / "run15"),
                              lambda r: (r.update(ramp_frames=15), r["frames"][13].update(status="passed")))
     with pytest.raises(InputError, match=r"--ramp-frames 15, 13 tracked frames"):
         ev.image_scores(session, run_dir, ev.read_mirror_run(session, run_dir))
     # the ramp completed on the last frame, which shows nobody to score: "nothing to score", not "never reached"
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "last"), lambda r: r.update(ramp_frames=14))
+    run_dir = edit_manifest(truth_run(session, tmp_path / "last"), lambda r: r.update(ramp_frames=14))
     with pytest.raises(InputError, match="none of the run's frames shows player 1"):
         ev.image_scores(_Proxy(session, {13: {"gt_mirror": None}}), run_dir, ev.read_mirror_run(session, run_dir))
     # a scored frame after the ramp, or a run without ramping frames, is not refused by this rule
-    run_dir = _edit_manifest(_truth_run(session, tmp_path / "late"),
+    run_dir = edit_manifest(truth_run(session, tmp_path / "late"),
                              lambda r: [r.update(ramp_frames=20)] + [f.update(status="passed")
                                                                      for f in r["frames"][:13]])
     with pytest.raises(InputError, match="never reached"):
@@ -343,7 +320,7 @@ class _FrameProxy:
 
 
 def test_frames_without_ground_truth_are_skipped_not_the_rest(session, tmp_path):
-    run_dir = _truth_run(session, tmp_path / "run")
+    run_dir = truth_run(session, tmp_path / "run")
     run = ev.read_mirror_run(session, run_dir)
     for key in ("gt_mirror", "gt_person"):
         scores = ev.image_scores(_Proxy(session, {11: {key: None}}), run_dir, run)
@@ -367,7 +344,7 @@ def test_the_other_masks_are_read_at_the_half_way_grey_level_too(session, tmp_pa
     """Foreground at 127 is out, warped at 128 is in (test_evaluate_mutants.py checks the opposite pair)."""
     import cv2
 
-    run_dir = _truth_run(session, tmp_path / "run")
+    run_dir = truth_run(session, tmp_path / "run")
     for i in session.frame_ids:
         for key, level in (("foreground", 127), ("warped", 128)):
             p = run_dir / "masks" / key / f"{i:05d}.png"
@@ -394,7 +371,7 @@ def test_each_image_of_another_size_is_refused_with_both_sizes(session, tmp_path
 # ------------------------------------------------------------------------------------------ read_mirror_run
 
 def test_an_unparsable_manifest_is_named_as_the_mirror_run_manifest(session, tmp_path):
-    run_dir = _truth_run(session, tmp_path / "run")
+    run_dir = truth_run(session, tmp_path / "run")
     (run_dir / "run.json").write_text("{not json")
     with pytest.raises(FileFormatError) as info:
         ev.read_mirror_run(session, run_dir)
@@ -402,7 +379,7 @@ def test_an_unparsable_manifest_is_named_as_the_mirror_run_manifest(session, tmp
 
 
 def test_the_player_hint_names_the_edited_player(session, tmp_path, monkeypatch):
-    run_dir = _truth_run(session, tmp_path / "run")
+    run_dir = truth_run(session, tmp_path / "run")
     monkeypatch.setitem(session.metadata, "edited_players", [3])
     with pytest.raises(InputError) as info:
         ev.read_mirror_run(session, run_dir)
