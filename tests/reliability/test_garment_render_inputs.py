@@ -26,7 +26,7 @@ def fit_dir(tmp_path_factory):
     return root / "fit"
 
 
-def test_render_writes_frames_masks_video_and_json(fit_dir, tmp_path, capfd):
+def test_render_writes_frames_masks_video_and_json(fit_dir, tmp_path, capfd, monkeypatch):
     import json
 
     out = tmp_path / "out.mp4"
@@ -38,11 +38,19 @@ def test_render_writes_frames_masks_video_and_json(fit_dir, tmp_path, capfd):
     assert sorted(p.name for p in (fit_dir / "render" / "frames").iterdir()) == ["00000.png", "00001.png"]
     assert len(list((fit_dir / "render" / "garment_masks").iterdir())) == 2
     assert out.stat().st_size > 1000 and out.read_bytes()[4:8] == b"ftyp"
+    from bodystudio.garment import refine
+
+    def never(*args, **kwargs):
+        raise AssertionError("a step switched off ran")
+
+    # the switched-off steps are not run (was: their per-frame ms < 5, a wall-clock bound that failed under load)
+    monkeypatch.setattr(refine, "garment_motion_correction", never)
+    monkeypatch.setattr(refine, "silhouette_rbf_warp", never)
     r = run_inprocess(["garment", "render", fit_dir, "--out", out, "--no-flow", "--no-rbf", "--no-depth"], capfd)
     assert_clean_error(r, 0, "")
     doc = json.loads((fit_dir / "render" / "render.json").read_text())
     assert doc["options"] == {"flow": False, "rbf": False, "depth": False, "shadows": True}
-    assert doc["ms_per_frame"]["flow"] < 5 and doc["ms_per_frame"]["rbf"] < 5
+    assert doc["n_flow_applied"] == 0
 
 
 @pytest.mark.parametrize("case, phrase", [
