@@ -833,3 +833,61 @@ def test_time_synth_mirror_times_a_taller_edit_session(tmp_path, monkeypatch):
                     "edits": {"taller": 0.1}, "version": "v1"}
     sy.time_synth_mirror(tmp_path / "t")
     assert seen["n_frames"] == 40 and seen["actors"] == 1 and seen["version"] == "v2"
+
+
+def test_write_frame_noise_is_the_first_draw_added_and_clipped_to_8_bits():
+    """The colour noise: the rng's first draw (SENSOR_NOISE_STD grey levels) added to the plate, rounded and
+    clipped to 0..255 exactly (a black and a white band saturate); the frame index on every labels write."""
+    from bodystudio.body.kinect import kinect_joint_names
+
+    sensor, static, plate, room_depth = _plate_v1()
+    plate = plate.copy()
+    plate[:20], plate[20:40] = 0, 255
+    a = _cast_member(1, {"taller": 0.1})
+    w = _Writer()
+    sy._write_frame(w, 3, [a], static, sensor, plate, room_depth, kinect_joint_names("v1"), True,
+                    np.random.default_rng(5))
+    noise = np.random.default_rng(5).normal(0.0, sy.SENSOR_NOISE_STD, plate.shape).astype(np.float32)
+    expected = np.clip(np.round(plate.astype(np.float32) + noise), 0, 255).astype(np.uint8)
+    (rgb,), _ = _frame_of(w, "write_kinect_rgb")[3]
+    (trgb,), _ = _frame_of(w, "write_gt_target_rgb")[3]
+    assert np.array_equal(rgb, expected) and np.array_equal(trgb, expected)
+    assert rgb[:20].min() == 0 and rgb[20:40].max() == 255 and (rgb[20:40] < 255).any()
+    assert [args[0] for args, kw in w.calls["write_gt_person"]] == [3, 3]
+
+
+def test_write_frame_of_two_actors_in_their_clothing_colours():
+    """Two actors side by side (players 1 and 2, the second one's faces offset by the first one's vertices): each
+    in the depth, the SDK mask and the labels where it stands, both drawn in their own albedo (green, blue) in the
+    colour image and the target render; the target's vertices float32."""
+    from bodystudio.body.kinect import kinect_joint_names
+    from bodystudio.body.pose import Pose
+
+    sensor, static, plate, room_depth = _plate_v1()
+    cast = []
+    for player, dx, colour in ((1, -0.4, (0.0, 1.0, 0.0)), (2, 0.4, (0.0, 0.0, 1.0))):
+        a = _cast_member(player, {"taller": 0.1})
+        a["poses"] = [Pose(p.rotations, p.translation + [dx, 0.0, 0.0]) if p is not None else None
+                      for p in a["poses"]]
+        a["albedo"] = np.tile(colour, (a["body"].n_vertices, 1))
+        cast.append(a)
+    w = _Writer()
+    sy._write_frame(w, 11, cast, static, sensor, plate, room_depth, kinect_joint_names("v1"), True,
+                    np.random.default_rng(0))
+    gt = _frame_of(w, "write_gt_mirror")[11][0][0]
+    assert gt["players"].tolist() == [1, 2] and gt["target_vertices"].dtype == np.float32
+    (depth,), _ = _frame_of(w, "write_kinect_depth")[11]
+    (player,), _ = _frame_of(w, "write_kinect_player")[11]
+    cols = {p: np.flatnonzero((player == p).any(axis=0)) for p in (1, 2)}
+    assert (player == 1).sum() > 300 and (player == 2).sum() > 300
+    assert cols[1].mean() < depth.shape[1] / 2 < cols[2].mean()  # player 1 on the left (x < 0)
+    assert np.median(depth[player == 2]) == pytest.approx(2.6, abs=0.3)
+    (rgb,), _ = _frame_of(w, "write_kinect_rgb")[11]
+    (trgb,), _ = _frame_of(w, "write_gt_target_rgb")[11]
+    persons = {kw.get("target", False): args[1] for args, kw in w.calls["write_gt_person"]}
+    for image, person in ((rgb, persons[False]), (trgb, persons[True])):
+        assert set(np.unique(person)) == {0, 1, 2}
+        g = image[person == 1].astype(float).mean(axis=0)
+        assert g[1] > g[0] + 30 and g[1] > g[2] + 30  # green: the middle channel in RGB and BGR alike
+        b = image[person == 2].astype(float).mean(axis=0)
+        assert max(b[0], b[2]) > b[1] + 30  # blue: not the skin's colour nor the green
