@@ -891,3 +891,41 @@ def test_write_frame_of_two_actors_in_their_clothing_colours():
         assert g[1] > g[0] + 30 and g[1] > g[2] + 30  # green: the middle channel in RGB and BGR alike
         b = image[person == 2].astype(float).mean(axis=0)
         assert max(b[0], b[2]) > b[1] + 30  # blue: not the skin's colour nor the green
+
+
+def test_actor_poses_frame_by_frame_with_the_ease_and_the_standing_motion():
+    """Every frame of a walk-in (seed 3, 15 fps): on the floor (y = 0) at ``start + ease(s) (stand - start)``
+    with ``ease = 1 - (1 - s)^2`` over the last 30 % of the walk, heading along the walk and turning over the
+    last TURN_S, the gait of this seed and frame rate; then ``motion`` of the stand frames' length at the spot."""
+    from bodystudio.body.pose import Pose
+    from bodystudio.capture.motion import motion_sequence
+
+    _, body = _model_and_body()
+    sk = body.skeleton
+    fps, seed, n, enter, spot = 15.0, 3, 60, 4, np.array([0.2, 0.5])
+    poses, stand = sy.actor_poses(sk, n, enter, tuple(spot), -1.0, "arms_raise", seed, fps=fps)
+    start = np.array([-sy.ENTRY_X_M, spot[1] - 0.3])
+    walk = int(np.ceil(np.linalg.norm(spot - start) / sy.WALK_SPEED_M_S * fps))
+    turn = int(round(sy.TURN_S * fps))
+    n_walk = walk + turn
+    assert stand == enter + n_walk and len(poses) == n and n - stand > 5
+    heading = float(np.arctan2(*(spot - start)))
+    gait = motion_sequence("walk", n_walk, sk, seed, fps=fps)
+    eased = 0
+    for k in range(n_walk):
+        s = min(1.0, (k + 1) / walk)
+        ease = 1.0 - (1.0 - s) ** 2 if s > 0.7 else s
+        eased += 0.7 < s < 1.0
+        p = poses[enter + k]
+        xz = start + ease * (spot - start)
+        assert np.allclose(p.translation, (xz[0], 0.0, xz[1]), atol=1e-12), k
+        fade = float(np.clip((walk + turn - k) / (1.5 * turn), 0.0, 1.0))
+        t = float(np.clip((k - walk + turn) / turn, 0.0, 1.0))
+        want = sy._yaw(sk, Pose(gait[k].rotations * fade, np.zeros(3)), heading * (1.0 - t), p.translation)
+        assert np.allclose(p.rotations, want.rotations, atol=1e-12), k
+    assert eased >= 3
+    standing = motion_sequence("arms_raise", n - stand, sk, seed, fps=fps)
+    for k in range(n - stand):
+        want = sy._yaw(sk, standing[k], 0.0, (spot[0], 0.0, spot[1]))
+        assert np.allclose(poses[stand + k].rotations, want.rotations, atol=1e-12), k
+        assert np.allclose(poses[stand + k].translation, (spot[0], 0.0, spot[1]), atol=1e-12)
