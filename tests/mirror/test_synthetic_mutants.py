@@ -753,10 +753,19 @@ def test_write_frame_of_an_actor_out_of_the_trackers_view():
     assert bodies == [] and not player.any() and set(np.unique(person)) == {0, 2}
 
 
-def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypatch):
+def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypatch, caplog):
     """The setup of a session with its writer and frame writer replaced by recorders: two actors, the edit on
-    player 2 only, standing in place; the metadata, the subject and actor records, the frames in order."""
+    player 2 only, standing in place; the metadata, the subject and actor records, the frames in order; every
+    argument handed to the writer and the frame writer, the timings and the closing log line."""
+    import logging
+    import re
+    import time
+
     import bodystudio.capture.session as session_mod
+    from bodystudio.body import build_body
+    from bodystudio.body.measure import measure_attributes
+    from bodystudio.body.population import sample_subject
+    from bodystudio.geometry.camera import CameraRig
 
     model, _ = _model_and_body()
     writers, frames = [], []
@@ -768,11 +777,15 @@ def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypa
     monkeypatch.setattr(session_mod, "SessionWriter", writer)
     monkeypatch.setattr(session_mod, "open_session", lambda p: ("opened", p))
     monkeypatch.setattr(sy, "_write_frame", lambda w, i, cast, static, sensor, plate, rd, names, edited, rng:
-                        frames.append((i, cast, sensor.version, names, edited, plate.shape, rd.shape)))
+                        frames.append((i, cast, sensor.version, names, edited, plate.shape, rd.shape, w, static,
+                                       rng, plate, sensor)))
     timings = {}
-    out = sy.synth_mirror_session(tmp_path / "s", subject_seed=5, n_frames=12, actors=2, edits={"taller": 0.1},
-                                  version="v1", motion="a_pose", seed=4, model=model, edited_players=(2,),
-                                  walk_in=False, timings=timings)
+    wall, cpu = time.perf_counter(), time.process_time()
+    with caplog.at_level(logging.INFO, logger=sy.log.name):
+        out = sy.synth_mirror_session(tmp_path / "s", subject_seed=5, n_frames=12, actors=2,
+                                      edits={"taller": 0.1}, version="v1", motion="a_pose", seed=4, model=model,
+                                      edited_players=(2,), walk_in=False, timings=timings)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     assert out == ("opened", tmp_path / "s")
     (w,) = writers
     assert w.args[0] == tmp_path / "s" and w.kw["source"] == "synthetic"
@@ -809,6 +822,27 @@ def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypa
     assert arrays["players"].tolist() == [1, 2] and arrays["faces"] is cast[0]["body"].faces
     assert timings["n_frames"] == 12 and timings["setup_s"] > 0 and timings["frames_s"] >= 0
     assert timings["ms_per_frame_cpu"] == pytest.approx(1e3 * timings["frames_cpu_s"] / 12)
+    assert 0 <= timings["setup_s"] + timings["frames_s"] <= wall and timings["frames_s"] >= 0
+    assert 0 <= timings["setup_cpu_s"] + timings["frames_cpu_s"] <= cpu + 1e-3 and timings["frames_cpu_s"] >= 0
+    (message,) = [r.getMessage() for r in caplog.records if r.name == sy.log.name and r.getMessage().startswith(
+        "wrote")]
+    assert re.fullmatch(rf"wrote {re.escape(str(tmp_path / 's'))}: 12 frames, 2 actor\(s\), setup \d+\.\d s, "
+                        r"total \d+\.\d s", message), message
+    # every argument handed on: the writer's empty camera rig, the subject record, the frame writer's arguments
+    assert len(w.args) == 2 and isinstance(w.args[1], CameraRig)
+    assert subject_args[0] == cast[0]["phenotype"].to_dict() and subject_args[1] is cast[0]["local"]
+    assert subject_kw["rig"] is model.rig
+    assert all(f[7] is w and isinstance(f[8], sy.StaticDepth) and f[9] is frames[0][9] for f in frames)
+    assert frames[0][9].bit_generator.state == np.random.default_rng([4, 5, 2]).bit_generator.state
+    assert np.array_equal(frames[0][10], sy.room_plate(sy.mirror_room(), frames[0][11].color, 4)[0])
+    for k, a in enumerate(cast):
+        phenotype, local = sample_subject(5 + k)
+        assert a["phenotype"].to_dict() == phenotype.to_dict()
+        assert np.array_equal(a["albedo"], sy.clothing_albedo(a["body"], 5 + k))
+        assert a["measured"] == measure_attributes(a["body"].vertices, a["body"].faces,
+                                                      vertex_ids=a["body"].vertex_ids, muscularity=phenotype.muscle)
+    body = build_body(*sample_subject(6), resolution=model.resolution, rig=model.rig)
+    assert np.allclose(cast[1]["body"].vertices, body.vertices, atol=1e-9)
     # one actor, walking in, no edits: nobody edited; the actor enters at frame 10
     frames.clear()
     sy.synth_mirror_session(tmp_path / "t", subject_seed=5, n_frames=12, version="v1", model=model)
@@ -816,6 +850,10 @@ def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypa
     assert meta["edited_players"] == [] and meta["edits"] == {} and meta["actors"] == 1 and meta["walk_in"] is True
     assert meta["actor_frames"][0]["enter_frame"] == 10 and meta["actor_frames"][0]["stand_frame"] == 12  # the walk cut
     assert frames[0][4] is False and frames[0][1][0]["target"] is frames[0][1][0]["body"]
+    a = frames[0][1][0]  # the walk of the default seed (0) + 101, from the first entry side
+    poses, _ = sy.actor_poses(a["body"].skeleton, 12, 10, sy.STAND_SPOTS[1][0], sy.ENTRY_SIDE[0], "arms_raise", 101)
+    assert all(np.array_equal(p.rotations, q.rotations) and np.array_equal(p.translation, q.translation)
+               for p, q in zip(a["poses"][10:], poses[10:], strict=True))
 
 
 def test_time_synth_mirror_times_a_taller_edit_session(tmp_path, monkeypatch):
