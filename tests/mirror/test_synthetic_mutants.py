@@ -728,7 +728,7 @@ def test_write_frame_of_the_empty_room():
     (rgb,), _ = _frame_of(w, "write_kinect_rgb")[3]
     (trgb,), _ = _frame_of(w, "write_gt_target_rgb")[3]
     persons = [args[1] for args, kw in w.calls["write_gt_person"]]
-    assert all(not p.any() and p.shape == plate.shape[:2] for p in persons)
+    assert all(not p.any() and p.shape == plate.shape[:2] and p.dtype == np.uint8 for p in persons)
     assert np.array_equal(rgb, trgb) and 1.5 < (rgb.astype(float) - plate).std() < 2.5
 
 
