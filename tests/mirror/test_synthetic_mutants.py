@@ -967,3 +967,22 @@ def test_actor_poses_frame_by_frame_with_the_ease_and_the_standing_motion():
         want = sy._yaw(sk, standing[k], 0.0, (spot[0], 0.0, spot[1]))
         assert np.allclose(poses[stand + k].rotations, want.rotations, atol=1e-12), k
         assert np.allclose(poses[stand + k].translation, (spot[0], 0.0, spot[1]), atol=1e-12)
+
+
+def test_room_plate_pinned_to_its_reviewed_output():
+    """A regression pin, not a derivation: the v1 colour camera's plate (seed 0) as 40 x 40 px block means of
+    colour and depth, stored from the output reviewed in mirror-synthetic.md's first measurement (the texture's
+    seeds, frequencies and palettes, the lamps, the falloff, every wall's corners). A deliberate change of the
+    room regenerates the file (the snippet in docs/mutation/mirror-synthetic.md)."""
+    from pathlib import Path
+
+    golden = np.load(Path(__file__).with_name("synthetic_room_plate_v1_seed0.npz"))
+    sensor, _, plate, room_depth = _plate_v1()
+
+    def blocks(a, b=40):
+        h, w = a.shape[:2]
+        return a[: h // b * b, : w // b * b].reshape(h // b, b, w // b, b, *a.shape[2:]).astype(float).mean(
+            axis=(1, 3))
+
+    assert np.abs(blocks(plate) - golden["colour"]).max() < 0.02  # ~1 pixel in 1600 off by one grey level
+    assert np.abs(blocks(room_depth) - golden["depth"]).max() < 1e-4
