@@ -969,7 +969,7 @@ def test_actor_poses_frame_by_frame_with_the_ease_and_the_standing_motion():
         assert np.allclose(poses[stand + k].translation, (spot[0], 0.0, spot[1]), atol=1e-12)
 
 
-def test_room_plate_pinned_to_its_reviewed_output():
+def test_room_plate_and_its_room_albedo_pinned_to_the_reviewed_output():
     """A regression pin, not a derivation: the v1 colour camera's plate (seed 0) as 40 x 40 px block means of
     colour and depth, stored from the output reviewed in mirror-synthetic.md's first measurement (the texture's
     seeds, frequencies and palettes, the lamps, the falloff, every wall's corners). A deliberate change of the
