@@ -728,7 +728,7 @@ def test_write_frame_of_the_empty_room():
     (rgb,), _ = _frame_of(w, "write_kinect_rgb")[3]
     (trgb,), _ = _frame_of(w, "write_gt_target_rgb")[3]
     persons = [args[1] for args, kw in w.calls["write_gt_person"]]
-    assert all(not p.any() and p.shape == plate.shape[:2] for p in persons)
+    assert all(not p.any() and p.shape == plate.shape[:2] and p.dtype == np.uint8 for p in persons)
     assert np.array_equal(rgb, trgb) and 1.5 < (rgb.astype(float) - plate).std() < 2.5
 
 
@@ -753,10 +753,19 @@ def test_write_frame_of_an_actor_out_of_the_trackers_view():
     assert bodies == [] and not player.any() and set(np.unique(person)) == {0, 2}
 
 
-def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypatch):
+def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypatch, caplog):
     """The setup of a session with its writer and frame writer replaced by recorders: two actors, the edit on
-    player 2 only, standing in place; the metadata, the subject and actor records, the frames in order."""
+    player 2 only, standing in place; the metadata, the subject and actor records, the frames in order; every
+    argument handed to the writer and the frame writer, the timings and the closing log line."""
+    import logging
+    import re
+    import time
+
     import bodystudio.capture.session as session_mod
+    from bodystudio.body import build_body
+    from bodystudio.body.measure import measure_attributes
+    from bodystudio.body.population import sample_subject
+    from bodystudio.geometry.camera import CameraRig
 
     model, _ = _model_and_body()
     writers, frames = [], []
@@ -768,11 +777,15 @@ def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypa
     monkeypatch.setattr(session_mod, "SessionWriter", writer)
     monkeypatch.setattr(session_mod, "open_session", lambda p: ("opened", p))
     monkeypatch.setattr(sy, "_write_frame", lambda w, i, cast, static, sensor, plate, rd, names, edited, rng:
-                        frames.append((i, cast, sensor.version, names, edited, plate.shape, rd.shape)))
+                        frames.append((i, cast, sensor.version, names, edited, plate.shape, rd.shape, w, static,
+                                       rng, plate, sensor)))
     timings = {}
-    out = sy.synth_mirror_session(tmp_path / "s", subject_seed=5, n_frames=12, actors=2, edits={"taller": 0.1},
-                                  version="v1", motion="a_pose", seed=4, model=model, edited_players=(2,),
-                                  walk_in=False, timings=timings)
+    wall, cpu = time.perf_counter(), time.process_time()
+    with caplog.at_level(logging.INFO, logger=sy.log.name):
+        out = sy.synth_mirror_session(tmp_path / "s", subject_seed=5, n_frames=12, actors=2,
+                                      edits={"taller": 0.1}, version="v1", motion="a_pose", seed=4, model=model,
+                                      edited_players=(2,), walk_in=False, timings=timings)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     assert out == ("opened", tmp_path / "s")
     (w,) = writers
     assert w.args[0] == tmp_path / "s" and w.kw["source"] == "synthetic"
@@ -809,6 +822,27 @@ def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypa
     assert arrays["players"].tolist() == [1, 2] and arrays["faces"] is cast[0]["body"].faces
     assert timings["n_frames"] == 12 and timings["setup_s"] > 0 and timings["frames_s"] >= 0
     assert timings["ms_per_frame_cpu"] == pytest.approx(1e3 * timings["frames_cpu_s"] / 12)
+    assert 0 <= timings["setup_s"] + timings["frames_s"] <= wall and timings["frames_s"] >= 0
+    assert 0 <= timings["setup_cpu_s"] + timings["frames_cpu_s"] <= cpu + 1e-3 and timings["frames_cpu_s"] >= 0
+    (message,) = [r.getMessage() for r in caplog.records if r.name == sy.log.name and r.getMessage().startswith(
+        "wrote")]
+    assert re.fullmatch(rf"wrote {re.escape(str(tmp_path / 's'))}: 12 frames, 2 actor\(s\), setup \d+\.\d s, "
+                        r"total \d+\.\d s", message), message
+    # every argument handed on: the writer's empty camera rig, the subject record, the frame writer's arguments
+    assert len(w.args) == 2 and isinstance(w.args[1], CameraRig)
+    assert subject_args[0] == cast[0]["phenotype"].to_dict() and subject_args[1] is cast[0]["local"]
+    assert subject_kw["rig"] is model.rig
+    assert all(f[7] is w and isinstance(f[8], sy.StaticDepth) and f[9] is frames[0][9] for f in frames)
+    assert frames[0][9].bit_generator.state == np.random.default_rng([4, 5, 2]).bit_generator.state
+    assert np.array_equal(frames[0][10], sy.room_plate(sy.mirror_room(), frames[0][11].color, 4)[0])
+    for k, a in enumerate(cast):
+        phenotype, local = sample_subject(5 + k)
+        assert a["phenotype"].to_dict() == phenotype.to_dict()
+        assert np.array_equal(a["albedo"], sy.clothing_albedo(a["body"], 5 + k))
+        assert a["measured"] == measure_attributes(a["body"].vertices, a["body"].faces,
+                                                      vertex_ids=a["body"].vertex_ids, muscularity=phenotype.muscle)
+    body = build_body(*sample_subject(6), resolution=model.resolution, rig=model.rig)
+    assert np.allclose(cast[1]["body"].vertices, body.vertices, atol=1e-9)
     # one actor, walking in, no edits: nobody edited; the actor enters at frame 10
     frames.clear()
     sy.synth_mirror_session(tmp_path / "t", subject_seed=5, n_frames=12, version="v1", model=model)
@@ -816,6 +850,10 @@ def test_synth_mirror_session_assembles_the_cast_and_metadata(tmp_path, monkeypa
     assert meta["edited_players"] == [] and meta["edits"] == {} and meta["actors"] == 1 and meta["walk_in"] is True
     assert meta["actor_frames"][0]["enter_frame"] == 10 and meta["actor_frames"][0]["stand_frame"] == 12  # the walk cut
     assert frames[0][4] is False and frames[0][1][0]["target"] is frames[0][1][0]["body"]
+    a = frames[0][1][0]  # the walk of the default seed (0) + 101, from the first entry side
+    poses, _ = sy.actor_poses(a["body"].skeleton, 12, 10, sy.STAND_SPOTS[1][0], sy.ENTRY_SIDE[0], "arms_raise", 101)
+    assert all(np.array_equal(p.rotations, q.rotations) and np.array_equal(p.translation, q.translation)
+               for p, q in zip(a["poses"][10:], poses[10:], strict=True))
 
 
 def test_time_synth_mirror_times_a_taller_edit_session(tmp_path, monkeypatch):
@@ -833,3 +871,119 @@ def test_time_synth_mirror_times_a_taller_edit_session(tmp_path, monkeypatch):
                     "edits": {"taller": 0.1}, "version": "v1"}
     sy.time_synth_mirror(tmp_path / "t")
     assert seen["n_frames"] == 40 and seen["actors"] == 1 and seen["version"] == "v2"
+
+
+def test_write_frame_noise_is_the_first_draw_added_and_clipped_to_8_bits():
+    """The colour noise: the rng's first draw (SENSOR_NOISE_STD grey levels) added to the plate, rounded and
+    clipped to 0..255 exactly (a black and a white band saturate); the frame index on every labels write."""
+    from bodystudio.body.kinect import kinect_joint_names
+
+    sensor, static, plate, room_depth = _plate_v1()
+    plate = plate.copy()
+    plate[:20], plate[20:40] = 0, 255
+    a = _cast_member(1, {"taller": 0.1})
+    w = _Writer()
+    sy._write_frame(w, 3, [a], static, sensor, plate, room_depth, kinect_joint_names("v1"), True,
+                    np.random.default_rng(5))
+    noise = np.random.default_rng(5).normal(0.0, sy.SENSOR_NOISE_STD, plate.shape).astype(np.float32)
+    expected = np.clip(np.round(plate.astype(np.float32) + noise), 0, 255).astype(np.uint8)
+    (rgb,), _ = _frame_of(w, "write_kinect_rgb")[3]
+    (trgb,), _ = _frame_of(w, "write_gt_target_rgb")[3]
+    assert np.array_equal(rgb, expected) and np.array_equal(trgb, expected)
+    assert rgb[:20].min() == 0 and rgb[20:40].max() == 255 and (rgb[20:40] < 255).any()
+    assert [args[0] for args, kw in w.calls["write_gt_person"]] == [3, 3]
+
+
+def test_write_frame_of_two_actors_in_their_clothing_colours():
+    """Two actors side by side (players 1 and 2, the second one's faces offset by the first one's vertices): each
+    in the depth, the SDK mask and the labels where it stands, both drawn in their own albedo (green, blue) in the
+    colour image and the target render; the target's vertices float32."""
+    from bodystudio.body.kinect import kinect_joint_names
+    from bodystudio.body.pose import Pose
+
+    sensor, static, plate, room_depth = _plate_v1()
+    cast = []
+    for player, dx, colour in ((1, -0.4, (0.0, 1.0, 0.0)), (2, 0.4, (0.0, 0.0, 1.0))):
+        a = _cast_member(player, {"taller": 0.1})
+        a["poses"] = [Pose(p.rotations, p.translation + [dx, 0.0, 0.0]) if p is not None else None
+                      for p in a["poses"]]
+        a["albedo"] = np.tile(colour, (a["body"].n_vertices, 1))
+        cast.append(a)
+    w = _Writer()
+    sy._write_frame(w, 11, cast, static, sensor, plate, room_depth, kinect_joint_names("v1"), True,
+                    np.random.default_rng(0))
+    gt = _frame_of(w, "write_gt_mirror")[11][0][0]
+    assert gt["players"].tolist() == [1, 2] and gt["target_vertices"].dtype == np.float32
+    (depth,), _ = _frame_of(w, "write_kinect_depth")[11]
+    (player,), _ = _frame_of(w, "write_kinect_player")[11]
+    cols = {p: np.flatnonzero((player == p).any(axis=0)) for p in (1, 2)}
+    assert (player == 1).sum() > 300 and (player == 2).sum() > 300
+    assert cols[1].mean() < depth.shape[1] / 2 < cols[2].mean()  # player 1 on the left (x < 0)
+    assert np.median(depth[player == 2]) == pytest.approx(2.6, abs=0.3)
+    (rgb,), _ = _frame_of(w, "write_kinect_rgb")[11]
+    (trgb,), _ = _frame_of(w, "write_gt_target_rgb")[11]
+    persons = {kw.get("target", False): args[1] for args, kw in w.calls["write_gt_person"]}
+    for image, person in ((rgb, persons[False]), (trgb, persons[True])):
+        assert set(np.unique(person)) == {0, 1, 2}
+        g = image[person == 1].astype(float).mean(axis=0)
+        assert g[1] > g[0] + 30 and g[1] > g[2] + 30  # green: the middle channel in RGB and BGR alike
+        b = image[person == 2].astype(float).mean(axis=0)
+        assert max(b[0], b[2]) > b[1] + 30  # blue: not the skin's colour nor the green
+
+
+def test_actor_poses_frame_by_frame_with_the_ease_and_the_standing_motion():
+    """Every frame of a walk-in (seed 3, 15 fps): on the floor (y = 0) at ``start + ease(s) (stand - start)``
+    with ``ease = 1 - (1 - s)^2`` over the last 30 % of the walk, heading along the walk and turning over the
+    last TURN_S, the gait of this seed and frame rate; then ``motion`` of the stand frames' length at the spot."""
+    from bodystudio.body.pose import Pose
+    from bodystudio.capture.motion import motion_sequence
+
+    _, body = _model_and_body()
+    sk = body.skeleton
+    fps, seed, n, enter, spot = 15.0, 3, 60, 4, np.array([0.2, 0.5])
+    poses, stand = sy.actor_poses(sk, n, enter, tuple(spot), -1.0, "arms_raise", seed, fps=fps)
+    start = np.array([-sy.ENTRY_X_M, spot[1] - 0.3])
+    walk = int(np.ceil(np.linalg.norm(spot - start) / sy.WALK_SPEED_M_S * fps))
+    turn = int(round(sy.TURN_S * fps))
+    n_walk = walk + turn
+    assert stand == enter + n_walk and len(poses) == n and n - stand > 5
+    heading = float(np.arctan2(*(spot - start)))
+    gait = motion_sequence("walk", n_walk, sk, seed, fps=fps)
+    eased = 0
+    for k in range(n_walk):
+        s = min(1.0, (k + 1) / walk)
+        ease = 1.0 - (1.0 - s) ** 2 if s > 0.7 else s
+        eased += 0.7 < s < 1.0
+        p = poses[enter + k]
+        xz = start + ease * (spot - start)
+        assert np.allclose(p.translation, (xz[0], 0.0, xz[1]), atol=1e-12), k
+        fade = float(np.clip((walk + turn - k) / (1.5 * turn), 0.0, 1.0))
+        t = float(np.clip((k - walk + turn) / turn, 0.0, 1.0))
+        want = sy._yaw(sk, Pose(gait[k].rotations * fade, np.zeros(3)), heading * (1.0 - t), p.translation)
+        assert np.allclose(p.rotations, want.rotations, atol=1e-12), k
+    assert eased >= 3
+    standing = motion_sequence("arms_raise", n - stand, sk, seed, fps=fps)
+    for k in range(n - stand):
+        want = sy._yaw(sk, standing[k], 0.0, (spot[0], 0.0, spot[1]))
+        assert np.allclose(poses[stand + k].rotations, want.rotations, atol=1e-12), k
+        assert np.allclose(poses[stand + k].translation, (spot[0], 0.0, spot[1]), atol=1e-12)
+
+
+def test_room_plate_and_its_room_albedo_pinned_to_the_reviewed_output():
+    """A regression pin, not a derivation: the v1 colour camera's plate (seed 0) as 40 x 40 px block means of
+    colour and depth, stored from the output reviewed in mirror-synthetic.md's first measurement (the texture's
+    seeds, frequencies and palettes, the lamps, the falloff, every wall's corners). A deliberate change of the
+    room regenerates the file (the snippet in docs/mutation/mirror-synthetic.md)."""
+    from pathlib import Path
+
+    golden = np.load(Path(__file__).with_name("synthetic_room_plate_v1_seed0.npz"))
+    sensor, _ = _static_v1()
+    plate, room_depth = sy.room_plate(sy.mirror_room(), sensor.color, 0)  # not the cached plate: the code under test
+
+    def blocks(a, b=40):
+        h, w = a.shape[:2]
+        return a[: h // b * b, : w // b * b].reshape(h // b, b, w // b, b, *a.shape[2:]).astype(float).mean(
+            axis=(1, 3))
+
+    assert np.abs(blocks(plate) - golden["colour"]).max() < 0.02  # ~1 pixel in 1600 off by one grey level
+    assert np.abs(blocks(room_depth) - golden["depth"]).max() < 1e-4
