@@ -1,0 +1,130 @@
+"""The mirror run's functions changed since the first mutation row (issue 17, docs/mutation/mirror-run.md,
+"Re-measure of the changed functions"): each player's source-body file and the player it records, the warp pairs
+of one or several actors, and a live recorder's dropped frame; stand-ins only, no session is run."""
+
+import json
+import os
+import time
+
+import numpy as np
+import pytest
+
+from bodystudio.errors import InputError
+from bodystudio.mirror import run as run_mod
+
+
+def test_source_body_path_is_player_ones_file_or_a_numbered_one(tmp_path):
+    assert run_mod.source_body_path(tmp_path) == tmp_path / "mirror" / "source_body.npz"
+    assert run_mod.source_body_path(str(tmp_path), 1) == tmp_path / "mirror" / "source_body.npz"
+    assert run_mod.source_body_path(tmp_path, "1") == tmp_path / "mirror" / "source_body.npz"
+    assert run_mod.source_body_path(tmp_path, 2) == tmp_path / "mirror" / "source_body_player2.npz"
+    assert run_mod.source_body_path(tmp_path, np.int64(6)) == tmp_path / "mirror" / "source_body_player6.npz"
+
+
+def _npz(path, **arrays):
+    np.savez(path, vertices=np.zeros((3, 3)), **arrays)
+    return path
+
+
+def test_source_body_player_from_the_file_or_the_summary_beside_it(tmp_path):
+    assert run_mod.source_body_player(_npz(tmp_path / "a.npz", player=np.int64(3))) == 3
+    b = _npz(tmp_path / "b.npz")
+    assert run_mod.source_body_player(b) is None  # neither says
+    (tmp_path / "b.json").write_text(json.dumps({"player": 4}), encoding="utf-8")
+    assert run_mod.source_body_player(str(b)) == 4
+    for odd in ({"player": True}, {"player": "2"}, {"player": 2.0}, {"other": 1}, [2], "x"):
+        (tmp_path / "b.json").write_text(json.dumps(odd), encoding="utf-8")
+        assert run_mod.source_body_player(b) is None, odd
+    (tmp_path / "b.json").write_text("{not json", encoding="utf-8")
+    assert run_mod.source_body_player(b) is None
+    # the file's own entry wins over the summary
+    c = _npz(tmp_path / "c.npz", player=np.int64(1))
+    (tmp_path / "c.json").write_text(json.dumps({"player": 5}), encoding="utf-8")
+    assert run_mod.source_body_player(c) == 1
+    # an unreadable or missing file: None (load_source_body names the problem)
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    (tmp_path / "bad.json").write_text(json.dumps({"player": 2}), encoding="utf-8")
+    assert run_mod.source_body_player(tmp_path / "bad.npz") is None
+    assert run_mod.source_body_player(tmp_path / "missing.npz") is None
+    np.savez(tmp_path / "obj.npz", player=np.array([{"a": 1}], dtype=object))
+    assert run_mod.source_body_player(tmp_path / "obj.npz") is None  # pickled arrays are refused
+
+
+def test_check_source_player_refuses_another_players_body_in_one_line(tmp_path):
+    p2 = _npz(tmp_path / "two.npz", player=np.int64(2))
+    run_mod.check_source_player(p2, 2)
+    run_mod.check_source_player(p2, "2")
+    run_mod.check_source_player(_npz(tmp_path / "none.npz"), 5)  # records no player: accepted
+    msg = (f"^{p2}: the source body of player 2, not of player 1; run 'bodystudio mirror init SESSION --player 1' "
+           "\\(it writes mirror/source_body.npz\\) or give player 1's body$")
+    with pytest.raises(InputError, match=msg):
+        run_mod.check_source_player(p2, 1)
+    with pytest.raises(InputError, match="not of player 3; run 'bodystudio mirror init SESSION --player 3' \\(it "
+                       "writes mirror/source_body_player3.npz\\) or give player 3's body$"):
+        run_mod.check_source_player(p2, 3)
+
+
+def test_frame_pairs_one_actor_or_several_with_the_runs_settings(monkeypatch):
+    calls = []
+
+    def stand_in(kind):
+        return lambda *a, **kw: calls.append((kind, a, kw)) or kind
+
+    monkeypatch.setattr(run_mod, "warp_pairs", stand_in("one"))
+    monkeypatch.setattr(run_mod, "actors_warp_pairs", stand_in("several"))
+    s1, t1, s2, t2, faces, cam = (object() for _ in range(6))
+    assert run_mod.frame_pairs([s1], [t1], faces, cam) == "one"
+    assert calls[-1] == ("one", (s1, t1, faces, cam, run_mod.N_HANDLES),
+                         {"rim_cos": run_mod.RIM_COS, "dense": run_mod.CORRESPONDENCE == "dense", "closed": True})
+    assert run_mod.frame_pairs([s1], [t1], faces, cam, "sparse") == "one" and calls[-1][2]["dense"] is False
+    assert run_mod.frame_pairs([s1], [t1], faces, cam, "dense") == "one" and calls[-1][2]["dense"] is True
+    assert run_mod.frame_pairs([s1, s2], [t1, t2], faces, cam, "dense") == "several"
+    assert calls[-1] == ("several", ([s1, s2], [t1, t2], faces, cam, run_mod.N_HANDLES),
+                         {"rim_cos": run_mod.RIM_COS, "dense": True, "closed": True})
+    assert run_mod.frame_pairs([s1, s2], [t1, t2], faces, cam, "sparse") == "several"
+    assert calls[-1][2]["dense"] is False
+    assert (run_mod.N_HANDLES, run_mod.RIM_COS) == (400, 0.3)
+
+
+def _touch(root, rel, age_s=0.0):
+    p = root / rel
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_bytes(b"x")
+    t = time.time() - age_s
+    os.utime(p, (t, t))
+
+
+def _frame(root, i, age_s=0.0, streams=("kinect_rgb", "kinect_depth", "kinect_player")):
+    from bodystudio.capture.session import stream_path
+
+    for s in streams:
+        _touch(root, stream_path(s, i), age_s)
+
+
+def test_complete_later_frame_is_the_next_settled_complete_one(tmp_path):
+    later = run_mod._complete_later_frame
+    assert later(tmp_path, 0, 0.3) is None
+    _frame(tmp_path, 2, age_s=10)
+    assert later(tmp_path, 0, 0.3) == 2 and later(tmp_path, 1, 0.3) == 2
+    assert later(tmp_path, 2, 0.3) is None and later(tmp_path, 3, 0.3) is None  # only frames after i
+    assert later(tmp_path, 0, 60.0) is None  # not settled yet: frame 0 may still come
+    _frame(tmp_path, 5, age_s=10, streams=("kinect_rgb", "kinect_depth"))  # no player mask
+    assert later(tmp_path, 3, 0.3) is None
+    _frame(tmp_path, 7, age_s=10)
+    assert later(tmp_path, 3, 0.3) is None  # the first later frame (5) decides: incomplete
+    assert later(tmp_path, 5, 0.3) == 7
+    _frame(tmp_path, 9, age_s=0.0)
+    assert later(tmp_path, 7, 5.0) is None  # fresh
+
+
+def test_live_frame_ids_skip_a_dropped_frame_and_log_it(tmp_path, caplog):
+    import logging
+
+    _frame(tmp_path, 0, age_s=10)
+    _frame(tmp_path, 1, age_s=10, streams=("kinect_rgb",))  # dropped by the recorder
+    _frame(tmp_path, 2, age_s=10)
+    _frame(tmp_path, 3, age_s=10)
+    with caplog.at_level(logging.WARNING, logger=run_mod.log.name):
+        ids = list(run_mod.live_frame_ids(tmp_path, timeout_s=0.05, poll_s=0.01, settle_s=0.3))
+    assert ids == [0, 2, 3]
+    assert "live frame 1 never arrived complete (frame 2 did); skipped" in caplog.text
