@@ -128,3 +128,52 @@ def test_live_frame_ids_skip_a_dropped_frame_and_log_it(tmp_path, caplog):
         ids = list(run_mod.live_frame_ids(tmp_path, timeout_s=0.05, poll_s=0.01, settle_s=0.3))
     assert ids == [0, 2, 3]
     assert "live frame 1 never arrived complete (frame 2 did); skipped" in caplog.text
+
+
+def test_a_frame_settles_on_its_colour_images_age_not_its_depths(tmp_path):
+    from bodystudio.capture.session import stream_path
+
+    _frame(tmp_path, 4, age_s=10, streams=("kinect_depth", "kinect_player"))
+    _touch(tmp_path, stream_path("kinect_rgb", 4))  # colour fresh, depth and mask old: not settled
+    assert run_mod._complete_later_frame(tmp_path, 0, 5.0) is None
+    _touch(tmp_path, stream_path("kinect_rgb", 4), age_s=10)
+    assert run_mod._complete_later_frame(tmp_path, 0, 5.0) == 4
+
+
+def test_too_few_late_pairs_pass_the_frame_through_with_its_masks_and_timings(monkeypatch):
+    """``--refine-pose``: when the late pairs are too few, the frame passes through as it came in (its colour
+    image, the person's mask as foreground, the step timings so far) and the background model learns away from
+    the person and the bystanders, exactly as on a frame that failed before the graph cut."""
+    from bodystudio.mirror.compose import update_background
+    from bodystudio.mirror.warp import WarpPairs
+
+    h, w = 60, 80
+    wall = np.full((h, w, 3), 90, np.uint8)
+    person = np.zeros((h, w), bool)
+    person[10:40, 20:40] = True
+    others = np.zeros((h, w), bool)
+    others[15:35, 60:75] = True
+    rgb = wall.copy()
+    rgb[person] = (220, 30, 30)
+    rgb[others] = (20, 20, 230)
+    bg0 = update_background(None, wall // 2, np.zeros((h, w), bool))
+    monkeypatch.setattr(run_mod, "refine_foreground", lambda rgb, person, depth, **kw: person.copy())
+
+    def late(fg, timings):
+        timings["pairs"] = 50.0
+        return WarpPairs(np.zeros((4, 2)), np.zeros((4, 2)), np.arange(4), None)
+
+    inp = run_mod.MirrorInput(3, rgb, person, others, np.ones((h, w), np.float32), late_pairs=late,
+                              timings_ms={"read": 1.5})
+    res, bg = run_mod.mirror_frame(inp, bg0)
+    assert res.status == "passed_through" and res.warning == "only 4 visible vertex pairs (need 12)"
+    assert res.index == 3
+    np.testing.assert_array_equal(res.output, rgb)
+    np.testing.assert_array_equal(res.foreground, person)
+    np.testing.assert_array_equal(res.warped, person)
+    assert res.timings_ms["read"] == 1.5 and res.timings_ms["pairs"] == 50.0
+    assert {"foreground", "background"} <= set(res.timings_ms)
+    want = update_background(bg0, rgb, person | others)
+    np.testing.assert_array_equal(bg.valid, want.valid)
+    np.testing.assert_array_equal(bg.image, want.image)
+    np.testing.assert_array_equal(bg.image[others], bg0.image[others])  # bystanders are not learnt
