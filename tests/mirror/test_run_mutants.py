@@ -5,6 +5,7 @@ of one or several actors, and a live recorder's dropped frame; stand-ins only, n
 import json
 import os
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -177,3 +178,21 @@ def test_too_few_late_pairs_pass_the_frame_through_with_its_masks_and_timings(mo
     np.testing.assert_array_equal(bg.valid, want.valid)
     np.testing.assert_array_equal(bg.image, want.image)
     np.testing.assert_array_equal(bg.image[others], bg0.image[others])  # bystanders are not learnt
+
+
+def test_load_source_names_the_players_init_and_refuses_another_players_file(tmp_path):
+    from bodystudio.errors import FileFormatError
+
+    session = SimpleNamespace(path=tmp_path)
+    with pytest.raises(FileFormatError, match=f"source_body_player2.npz: source body not found; run 'bodystudio "
+                       f"mirror init {tmp_path} --player 2' first \\(or give --source\\)$"):
+        run_mod.load_source(session, player=2)
+    with pytest.raises(FileFormatError, match=f"source_body.npz: source body not found; run 'bodystudio "
+                       f"mirror init {tmp_path}' first"):
+        run_mod.load_source(session, player=1)
+    (tmp_path / "mirror").mkdir()
+    two = _npz(tmp_path / "mirror" / "source_body_player2.npz", player=np.int64(2))
+    with pytest.raises(InputError, match="the source body of player 2, not of player 1; "):
+        run_mod.load_source(session, two, player=1)
+    with pytest.raises(InputError, match="the source body of player 2, not of player 3; "):
+        run_mod.load_source(session, str(two), player=3)
