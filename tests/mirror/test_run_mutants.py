@@ -196,3 +196,64 @@ def test_load_source_names_the_players_init_and_refuses_another_players_file(tmp
         run_mod.load_source(session, two, player=1)
     with pytest.raises(InputError, match="the source body of player 2, not of player 3; "):
         run_mod.load_source(session, str(two), player=3)
+
+
+@pytest.mark.parametrize("with_groups", [False, True])
+def test_late_pairs_get_the_refined_foreground_and_drive_the_warp(monkeypatch, with_groups):
+    """``--refine-pose``: the late callback gets the graph cut's foreground and the frame's timings; its pairs,
+    dense correspondence and (several players) groups drive the warp; the frame keeps its index, and the
+    background model learns away from the foreground, the person and the bystanders, honouring the unseen mask."""
+    from bodystudio.mirror.compose import update_background
+
+    h, w = 120, 160  # the MLS grid's size
+    wall = np.zeros((h, w, 3), np.uint8)
+    wall[..., 0] = (np.arange(w)[None] * 3).astype(np.uint8)
+    wall[..., 1] = 100
+    person = np.zeros((h, w), bool)
+    person[15:45, 25:45] = True
+    others = np.zeros((h, w), bool)
+    others[20:40, 62:75] = True
+    rgb = wall.copy()
+    rgb[person] = (220, 30, 30)
+    rgb[others] = (20, 20, 230)
+    unseen = np.zeros((h, w), bool)
+    unseen[:, :6] = True
+    bg0 = update_background(None, wall // 2, np.zeros((h, w), bool))
+    refined = person.copy()
+    refined[15:18, 25:45] = False  # the graph cut's answer differs from the SDK mask
+    monkeypatch.setattr(run_mod, "refine_foreground", lambda *a, **kw: refined)
+    real_field, fields = run_mod.mls_warp_field, []
+    monkeypatch.setattr(run_mod, "mls_warp_field",
+                        lambda src, dst, shape, **kw: fields.append((src, dst, shape, kw)) or real_field(src, dst,
+                                                                                                         shape, **kw))
+    ys, xs = np.mgrid[17:45:5, 26:45:5]
+    src = np.column_stack([xs.ravel(), ys.ravel()]).astype(float)
+    dst = src + [4.0, 0.0]
+    own_groups = np.zeros(len(src), int)
+    late_groups = np.ones(len(src), int)
+    seen = {}
+
+    def late(fg, timings):
+        seen["fg"], seen["timings"] = fg, timings
+        timings["pairs"] = 50.0
+        pairs = SimpleNamespace(src_uv=src, dst_uv=dst, dense=None)
+        if with_groups:
+            pairs.groups = late_groups
+        return pairs
+
+    inp = run_mod.MirrorInput(9, rgb, person, others, np.ones((h, w), np.float32), late_pairs=late,
+                              timings_ms={"read": 1.5}, pair_groups=own_groups, unseen=unseen, players=(1,))
+    res, bg = run_mod.mirror_frame(inp, bg0, kind="affine")
+    assert res.status == "ok" and res.index == 9 and res.warning is None
+    assert seen["fg"] is refined and seen["timings"]["read"] == 1.5
+    assert res.timings_ms["pairs"] == 50.0 and res.timings_ms["read"] == 1.5
+    (got_src, got_dst, shape, kw), = fields
+    assert got_src is src and got_dst is dst and shape == (h, w) and kw["dense"] is None and kw["kind"] == "affine"
+    assert kw["groups"] is (late_groups if with_groups else own_groups)
+    np.testing.assert_array_equal(res.foreground, refined)
+    moved = np.zeros((h, w), bool)
+    moved[18:45, 29:49] = True
+    assert (res.warped ^ moved).sum() <= 0.05 * moved.sum()  # the person moved 4 px right
+    want = update_background(bg0, rgb, refined | person | others, unverified=unseen)
+    np.testing.assert_array_equal(bg.image, want.image)
+    np.testing.assert_array_equal(bg.valid, want.valid)
