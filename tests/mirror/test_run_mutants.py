@@ -221,13 +221,14 @@ def test_late_pairs_get_the_refined_foreground_and_drive_the_warp(monkeypatch, w
     bg0 = update_background(None, wall // 2, np.zeros((h, w), bool))
     refined = person.copy()
     refined[15:18, 25:45] = False  # the graph cut's answer differs from the SDK mask
-    monkeypatch.setattr(run_mod, "refine_foreground", lambda *a, **kw: refined)
+    cut_options = []
+    monkeypatch.setattr(run_mod, "refine_foreground", lambda *a, **kw: cut_options.append(kw) or refined)
     real_field, fields = run_mod.mls_warp_field, []
     monkeypatch.setattr(run_mod, "mls_warp_field",
                         lambda src, dst, shape, **kw: fields.append((src, dst, shape, kw)) or real_field(src, dst,
                                                                                                          shape, **kw))
     ys, xs = np.mgrid[17:45:5, 26:45:5]
-    src = np.column_stack([xs.ravel(), ys.ravel()]).astype(float)
+    src = np.column_stack([xs.ravel(), ys.ravel()]).astype(float)[:run_mod.MIN_PAIRS]  # just enough pairs
     dst = src + [4.0, 0.0]
     own_groups = np.zeros(len(src), int)
     late_groups = np.ones(len(src), int)
@@ -242,7 +243,8 @@ def test_late_pairs_get_the_refined_foreground_and_drive_the_warp(monkeypatch, w
         return pairs
 
     inp = run_mod.MirrorInput(9, rgb, person, others, np.ones((h, w), np.float32), late_pairs=late,
-                              timings_ms={"read": 1.5}, pair_groups=own_groups, unseen=unseen, players=(1,))
+                              timings_ms={"read": 1.5}, pair_groups=own_groups, unseen=unseen, players=(1,),
+                              person_labels=person.astype(np.uint8) if with_groups else None)
     res, bg = run_mod.mirror_frame(inp, bg0, kind="affine")
     assert res.status == "ok" and res.index == 9 and res.warning is None
     assert seen["fg"] is refined and seen["timings"]["read"] == 1.5
@@ -250,6 +252,9 @@ def test_late_pairs_get_the_refined_foreground_and_drive_the_warp(monkeypatch, w
     (got_src, got_dst, shape, kw), = fields
     assert got_src is src and got_dst is dst and shape == (h, w) and kw["dense"] is None and kw["kind"] == "affine"
     assert kw["groups"] is (late_groups if with_groups else own_groups)
+    assert ("labels" in cut_options[0]) is with_groups  # several players: the graph cut gets their labels
+    if with_groups:
+        assert cut_options[0]["labels"] is inp.person_labels
     np.testing.assert_array_equal(res.foreground, refined)
     moved = np.zeros((h, w), bool)
     moved[18:45, 29:49] = True
