@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bodystudio.errors import InputError
+from bodystudio.errors import FileFormatError, InputError
 from bodystudio.mirror import run as run_mod
 
 
@@ -182,8 +182,6 @@ def test_too_few_late_pairs_pass_the_frame_through_with_its_masks_and_timings(mo
 
 
 def test_load_source_names_the_players_init_and_refuses_another_players_file(tmp_path):
-    from bodystudio.errors import FileFormatError
-
     session = SimpleNamespace(path=tmp_path)
     with pytest.raises(FileFormatError, match=f"source_body_player2.npz: source body not found; run 'bodystudio "
                        f"mirror init {tmp_path} --player 2' first \\(or give --source\\)$"):
@@ -264,3 +262,99 @@ def test_late_pairs_get_the_refined_foreground_and_drive_the_warp(monkeypatch, w
     want = update_background(bg0, rgb, refined | person | others, unverified=unseen)
     np.testing.assert_array_equal(bg.image, want.image)
     np.testing.assert_array_equal(bg.valid, want.valid)
+
+
+def _several_players(tmp_path, monkeypatch, sizes=(5, 5)):
+    """run_mirror with its steps replaced by recorders, bodies that carry a skeleton (so the plausibility
+    checks run) and recorders for the fingerprints and checks."""
+    import bodystudio.mirror.frames as frames
+    import bodystudio.mirror.init as init
+    import bodystudio.mirror.plausibility as plausibility
+
+    (tmp_path / "mirror").mkdir(exist_ok=True)
+    for name in ("source_body.npz", "source_body_player2.npz", "source_body_player3.npz"):
+        (tmp_path / "mirror" / name).write_bytes(b"x")  # unreadable: records no player
+    session = SimpleNamespace(path=tmp_path, kinect="kinect", metadata={"fps": 15}, manifest={"run": {"run_id": "r"}},
+                              frame_ids=[0, 1, 2], files={})
+    got = {"load": [], "body": [], "reg": []}
+    bodies = {p: SimpleNamespace(vertices=np.zeros((n, 3)), coeffs=np.full(2, p), skeleton="skel", p=p)
+              for p, n in zip((1, 2, 3), sizes + (5,), strict=True)}
+
+    def load(session, source=None, player=1):
+        got["load"].append((source, player))
+        return bodies[player], f"model{player}"
+
+    monkeypatch.setattr(run_mod, "load_source", load)
+    monkeypatch.setattr(run_mod, "session_inputs", lambda *a: got.update(inputs=a) or "INPUTS")
+    monkeypatch.setattr(run_mod, "mirror_stream", lambda *a, **kw: got.update(stream=a) or "DOC")
+    monkeypatch.setattr(init, "source_fingerprint", lambda b: f"fp{b.p}")
+    monkeypatch.setattr(frames, "recording_fingerprint", lambda s, ids: f"rec{list(ids)}")
+    monkeypatch.setattr(plausibility, "check_source_body",
+                        lambda b, s, p, accept, src: got["body"].append((b.p, s, p, accept, src)) or {"b": p})
+    monkeypatch.setattr(plausibility, "check_registration",
+                        lambda s, p, accept: got["reg"].append((s, p, accept)) or {"r": p})
+    return session, got, bodies
+
+
+def test_run_mirror_several_players_are_checked_loaded_and_recorded(tmp_path, monkeypatch):
+    session, got, bodies = _several_players(tmp_path, monkeypatch)
+    for player, msg in (([], "^--player: give at least one Kinect player id \\(1..6\\)$"),
+                        ([1, 7], "^--player 7: a Kinect player id is 1..6$"),
+                        ([0, 2], "^--player 0: a Kinect player id is 1..6$"),
+                        ([2, 1, 2], "^--player 2 --player 1 --player 2: a player is given twice; give each once$")):
+        with pytest.raises(InputError, match=msg):
+            run_mod.run_mirror(session, {}, None, player=player)
+    with pytest.raises(InputError, match="^--source given 1 times for 2 players; give one --source per --player "
+                       "\\(in the same order\\), or none to read each player's body from the session$"):
+        run_mod.run_mirror(session, {}, None, player=[1, 2], source=[tmp_path / "mirror" / "source_body.npz"])
+    (tmp_path / "mirror" / "source_body_player3.npz").unlink()
+    with pytest.raises(FileFormatError, match=f"source_body_player3.npz: source body not found; run 'bodystudio mirror "
+                       f"init {tmp_path} --player 3' first \\(or give --source\\)$"):
+        run_mod.run_mirror(session, {}, None, player=[1, 3])
+    with pytest.raises(FileFormatError, match=f"source_body.npz: source body not found; run 'bodystudio mirror "
+                       f"init {tmp_path}' first"):
+        run_mod.run_mirror(session, {}, None, player=[2, 1], source=[None, tmp_path / "none" / "source_body.npz"])
+    recorded = _npz(tmp_path / "mirror" / "p1.npz", player=np.int64(1))
+    with pytest.raises(InputError, match="the source body of player 1, not of player 2; "):
+        run_mod.run_mirror(session, {}, None, player=[1, 2], source=[None, recorded])
+    assert got["load"] == []  # every check before any body is loaded
+
+    doc = run_mod.run_mirror(session, {"taller": 0.1}, None, player=[2, 1], ramp_frames=4, frames=[1, 2],
+                             progress=False, accept_implausible=True)
+    assert doc == "DOC" and got["load"] == [(None, 2), (None, 1)]
+    assert got["inputs"] == (session, [bodies[2], bodies[1]], "model2", {"taller": 0.1}, [2, 1], 4, [1, 2],
+                             run_mod.CORRESPONDENCE, True)
+    manifest = got["stream"][6]
+    assert manifest["player"] == 2 and manifest["players"] == [2, 1]
+    assert manifest["source_fingerprint"] == "fp2" and manifest["source_fingerprints"] == {"2": "fp2", "1": "fp1"}
+    assert manifest["session_fingerprint"] == "rec[1, 2]"
+    assert manifest["plausibility"] == {"2": {"source_body": {"b": 2}, "registration": {"r": 2}},
+                                        "1": {"source_body": {"b": 1}, "registration": {"r": 1}}}
+    assert got["body"] == [(2, session, 2, True, None), (1, session, 1, True, None)]
+    assert got["reg"] == [(session, 2, True), (session, 1, True)]
+
+    # the files given: loaded as given, and their paths reach the plausibility check (a string path too)
+    got["load"].clear(), got["body"].clear()
+    one, two = str(tmp_path / "mirror" / "source_body.npz"), tmp_path / "mirror" / "source_body_player2.npz"
+    run_mod.run_mirror(session, {}, None, player=(np.int64(1), 2), source=[one, two], progress=False)
+    assert got["load"] == [(one, 1), (two, 2)]
+    assert got["body"] == [(1, session, 1, False, one), (2, session, 2, False, two)]
+    assert got["inputs"][4] == [1, 2] and got["stream"][6]["players"] == [1, 2]
+
+    # one player as a numpy integer is one player (not a list), its plausibility not per player
+    got["load"].clear(), got["body"].clear()
+    run_mod.run_mirror(session, {}, None, player=np.int64(2), progress=False)
+    assert got["load"] == [(None, 2)] and got["inputs"][1] is bodies[2] and got["inputs"][4] == 2
+    manifest = got["stream"][6]
+    assert "players" not in manifest and "source_fingerprints" not in manifest
+    assert manifest["plausibility"] == {"source_body": {"b": 2}, "registration": {"r": 2}}
+    assert manifest["source_fingerprint"] == "fp2" and got["body"] == [(2, session, 2, False, None)]
+
+
+def test_run_mirror_refuses_players_bodies_of_different_models(tmp_path, monkeypatch):
+    session, got, _ = _several_players(tmp_path, monkeypatch, sizes=(5, 6))
+    with pytest.raises(InputError, match="^players 1, 2: their source bodies come from different statistical "
+                       "models \\(6k / 2k\\); run 'bodystudio mirror init' for each with the same --resolution$"):
+        run_mod.run_mirror(session, {}, None, player=[1, 2])
+    run_mod.run_mirror(session, {}, None, player=[1, 3])  # the same size: accepted
+    assert got["inputs"][4] == [1, 3]
