@@ -358,3 +358,24 @@ def test_run_mirror_refuses_players_bodies_of_different_models(tmp_path, monkeyp
         run_mod.run_mirror(session, {}, None, player=[1, 2])
     run_mod.run_mirror(session, {}, None, player=[1, 3])  # the same size: accepted
     assert got["inputs"][4] == [1, 3]
+
+
+def test_stream_records_the_players_reshaped_in_each_frame(tmp_path, monkeypatch):
+    """A run of several players records, per frame, who was reshaped: all of them on an "ok" frame, nobody on a
+    frame that passed through; a one-player run has no such entry."""
+    statuses = {0: "ok", 1: "passed_through", 2: "ok"}
+
+    def frame(inp, background, kind, options):
+        rgb = inp.rgb.copy()
+        mask = np.zeros(rgb.shape[:2], bool)
+        return run_mod.FrameResult(inp.index, rgb, mask, mask, statuses[inp.index],
+                                   None if statuses[inp.index] == "ok" else "w", {}), background
+
+    monkeypatch.setattr(run_mod, "mirror_frame", frame)
+    inputs = [run_mod.MirrorInput(i, np.full((16, 24, 3), 10, np.uint8), players=(2, 1)) for i in range(3)]
+    doc = run_mod.mirror_stream(inputs, tmp_path / "run", None, progress=False)
+    assert [f["players"] for f in doc["frames"]] == [[2, 1], [], [2, 1]]
+    assert [f["status"] for f in doc["frames"]] == ["ok", "passed_through", "ok"]
+    doc = run_mod.mirror_stream([run_mod.MirrorInput(0, np.full((16, 24, 3), 10, np.uint8))], tmp_path / "r1",
+                                None, progress=False)
+    assert "players" not in doc["frames"][0]
