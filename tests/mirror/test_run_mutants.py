@@ -379,3 +379,94 @@ def test_stream_records_the_players_reshaped_in_each_frame(tmp_path, monkeypatch
     doc = run_mod.mirror_stream([run_mod.MirrorInput(0, np.full((16, 24, 3), 10, np.uint8))], tmp_path / "r1",
                                 None, progress=False)
     assert "players" not in doc["frames"][0]
+
+
+def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
+    """Two players (and a bystander, player 3): both masks are the person, each pixel labelled with its player,
+    the pairs of both from one call with their groups; each player's ramp and IK run on their own; a player out
+    of view is left out; one in view but untracked, tracked with an empty mask, or failing the IK passes the frame
+    through naming the player."""
+    from bodystudio.mirror import frames as frames_mod
+    from bodystudio.mirror import reshape as reshape_mod
+    from bodystudio.mirror import track as track_mod
+
+    h, w = 12, 16
+    blocks = {1: (slice(2, 6), slice(2, 6)), 2: (slice(2, 6), slice(9, 13)), 3: (slice(8, 10), slice(0, 3))}
+    # frame -> (players in the mask, players tracked, player whose IK fails)
+    spec = {0: ({1, 2, 3}, {1, 2}, None), 1: ({1, 3}, {1}, None), 2: ({1, 2}, {1}, None), 3: ({1}, {1, 2}, None),
+            4: ({1, 2}, {1, 2}, 2), 5: ({1, 2}, {1, 2}, None)}
+    camera = SimpleNamespace(height=h, width=w)
+    session = SimpleNamespace(path="S", frame_ids=sorted(spec), kinect=SimpleNamespace(color=camera, version="v2"))
+    b1 = SimpleNamespace(coeffs=np.zeros(1), vertices=np.full((3, 3), 1.0), skeleton="sk1", faces="faces", p=1)
+    b2 = SimpleNamespace(coeffs=np.full(1, 0.5), vertices=np.full((3, 3), 5.5), skeleton="sk2", faces="faces", p=2)
+    model = SimpleNamespace(vertices=lambda c: np.full((3, 3), 1.0 + 9.0 * c[0]))
+    rec = {"ik": [], "rig": [], "pairs": []}
+
+    def read(sess, i):
+        player = np.zeros((h, w), np.uint8)
+        for p in spec[i][0]:
+            player[blocks[p]] = p
+        bodies = {p: SimpleNamespace(positions=np.full((25, 3), 10.0 * p + i), tracked=np.ones(25, bool))
+                  for p in spec[i][1]}
+        return SimpleNamespace(rgb=np.full((h, w, 3), i, np.uint8), depth_m=np.ones((h, w)), player=player,
+                               body=bodies.get)
+
+    def ik(skeleton, positions, tracked, version, previous=None):
+        p, i = divmod(int(positions[0, 0]), 10)
+        rec["ik"].append((skeleton, i, previous))
+        if spec[i][2] == p:
+            raise InputError("pelvis not tracked")
+        return f"pose{p}.{i}"
+
+    def rig(b, target_rest, m, coeffs):
+        rec["rig"].append((b.p, float(target_rest[0, 0]), float(coeffs[0])))
+        return ("rig", b.p)
+
+    def pairs(kind):
+        def call(Vs, Vt, faces, cam, n, rim_cos=None, dense=False, closed=False):
+            rec["pairs"].append((kind, [v[0, 0] for v in Vs] if kind == "several" else Vs[0, 0]))
+            m = 2 * len(Vs) if kind == "several" else 2
+            return SimpleNamespace(src_uv=np.zeros((m, 2)), dst_uv=np.ones((m, 2)), dense=None,
+                                   groups=np.repeat([0, 1], 2) if kind == "several" else None)
+        return call
+
+    monkeypatch.setattr(frames_mod, "read_mirror_frame", read)
+    monkeypatch.setattr(frames_mod, "register_depth_to_color", lambda d, p, s: (np.full(p.shape, 0.8), p))
+    monkeypatch.setattr(track_mod, "ik_pose", ik)
+    monkeypatch.setattr(reshape_mod, "target_coeffs", lambda m, c, e: c + e["taller"])
+    monkeypatch.setattr(reshape_mod, "posed_source_and_target", lambda b, vt, pose, r: (b.vertices, vt))
+    monkeypatch.setattr(reshape_mod, "target_skeleton", rig)
+    monkeypatch.setattr(run_mod, "warp_pairs", pairs("one"))
+    monkeypatch.setattr(run_mod, "actors_warp_pairs", pairs("several"))
+    with pytest.raises(InputError, match="^session_inputs: 2 players but 1 source bodies$"):
+        list(run_mod.session_inputs(session, [b1], model, {"taller": 1.0}, [1, 2]))
+    with pytest.raises(InputError, match="^session_inputs: 0 players but 0 source bodies$"):
+        list(run_mod.session_inputs(session, [], model, {"taller": 1.0}, []))
+    out = list(run_mod.session_inputs(session, [b1, b2], model, {"taller": 1.0}, (1, np.int64(2)), 2))
+    assert [o.index for o in out] == list(range(6))
+    o = out[0]
+    person = np.zeros((h, w), bool)
+    person[blocks[1]] = person[blocks[2]] = True
+    np.testing.assert_array_equal(o.person_mask, person)
+    others = np.zeros((h, w), bool)
+    others[blocks[3]] = True
+    np.testing.assert_array_equal(o.others_mask, others)
+    labels = np.zeros((h, w), np.uint8)
+    labels[blocks[1]], labels[blocks[2]] = 1, 2
+    assert o.person_labels.dtype == np.uint8
+    np.testing.assert_array_equal(o.person_labels, labels)
+    assert o.warning is None and o.players == (1, 2) and o.edit_fraction == 0.5
+    np.testing.assert_array_equal(o.pair_groups, [0, 0, 1, 1])
+    # player 1 alone in view: reshaped alone, by the one-actor call; labels still per player
+    assert out[1].warning is None and out[1].players == (1,) and out[1].pair_groups is None
+    assert out[1].edit_fraction == 1.0
+    assert out[2].warning == "player 2 is in the mask but no body is tracked" and out[2].players == ()
+    assert out[3].warning == "body 2 is tracked but its player mask is empty" and out[3].players == ()
+    assert out[4].warning == "tracking player 2 failed: pelvis not tracked" and out[4].players == ()
+    assert out[5].warning is None and out[5].players == (1, 2) and out[5].edit_fraction == 1.0
+    # each player's ramp over its own tracked frames (V_T = 10 for player 1, 14.5 for player 2), the IK warm-started
+    # from that player's last pose
+    assert rec["pairs"] == [("several", [1.0, 5.5]), ("one", 1.0), ("several", [1.0, 5.5])]
+    assert rec["rig"] == [(1, 5.5, 0.5), (2, 10.0, 1.0), (1, 10.0, 1.0), (1, 10.0, 1.0), (2, 14.5, 1.5)]
+    assert rec["ik"] == [("sk1", 0, None), ("sk2", 0, None), ("sk1", 1, "pose1.0"), ("sk1", 4, "pose1.1"),
+                         ("sk2", 4, "pose2.0"), ("sk1", 5, "pose1.1"), ("sk2", 5, "pose2.0")]
