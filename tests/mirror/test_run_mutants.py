@@ -381,11 +381,8 @@ def test_stream_records_the_players_reshaped_in_each_frame(tmp_path, monkeypatch
     assert "players" not in doc["frames"][0]
 
 
-def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
-    """Two players (and a bystander, player 3): both masks are the person, each pixel labelled with its player,
-    the pairs of both from one call with their groups; each player's ramp and IK run on their own; a player out
-    of view is left out; one in view but untracked, tracked with an empty mask, or failing the IK passes the frame
-    through naming the player."""
+def _two_player_session(monkeypatch):
+    """Stand-ins for the frames and body steps of two players (1, 2) and a bystander (3); they record their calls."""
     from bodystudio.mirror import frames as frames_mod
     from bodystudio.mirror import reshape as reshape_mod
     from bodystudio.mirror import track as track_mod
@@ -438,6 +435,16 @@ def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
     monkeypatch.setattr(reshape_mod, "target_skeleton", rig)
     monkeypatch.setattr(run_mod, "warp_pairs", pairs("one"))
     monkeypatch.setattr(run_mod, "actors_warp_pairs", pairs("several"))
+    return session, b1, b2, model, rec, blocks, spec
+
+
+def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
+    """Two players (and a bystander, player 3): both masks are the person, each pixel labelled with its player,
+    the pairs of both from one call with their groups; each player's ramp and IK run on their own; a player out
+    of view is left out; one in view but untracked, tracked with an empty mask, or failing the IK passes the frame
+    through naming the player."""
+    session, b1, b2, model, rec, blocks, spec = _two_player_session(monkeypatch)
+    h, w = 12, 16
     with pytest.raises(InputError, match="^session_inputs: 2 players but 1 source bodies$"):
         list(run_mod.session_inputs(session, [b1], model, {"taller": 1.0}, [1, 2]))
     with pytest.raises(InputError, match="^session_inputs: 0 players but 0 source bodies$"):
@@ -470,3 +477,74 @@ def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
     assert rec["rig"] == [(1, 5.5, 0.5), (2, 10.0, 1.0), (1, 10.0, 1.0), (1, 10.0, 1.0), (2, 14.5, 1.5)]
     assert rec["ik"] == [("sk1", 0, None), ("sk2", 0, None), ("sk1", 1, "pose1.0"), ("sk1", 4, "pose1.1"),
                          ("sk2", 4, "pose2.0"), ("sk1", 5, "pose1.1"), ("sk2", 5, "pose2.0")]
+
+
+@pytest.mark.parametrize("several", [False, True])
+def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch, several):
+    """``refine``: each player gets a refinement plan of its body; the frame carries ``late_pairs``, which refines
+    each pose against the cut's foreground without the other players' pixels (one player: without the others),
+    the player's point cloud above the floor, its joints and the other players as occluders, then poses the
+    bodies; a failing refinement names the player (several) and the refinement time is booked on its own."""
+    from bodystudio.mirror import frames as frames_mod
+    from bodystudio.mirror import refine as refine_mod
+
+    session, b1, b2, model, rec, blocks, spec = _two_player_session(monkeypatch)
+    for b in (b1, b2):
+        b.weights = f"w{b.p}"
+    h, w = 12, 16
+    plans, refined = [], []
+    monkeypatch.setattr(refine_mod, "refine_plan", lambda *a: plans.append(a) or f"plan{a[3][-1]}")
+    cloud = np.array([[0.0, 0.01, 2.0], [0.0, 0.5, 2.0], [0.0, 0.03, 2.0], [0.0, 0.02, 2.0]])
+    monkeypatch.setattr(frames_mod, "point_cloud", lambda frame, sensor, p: cloud + [p, 0.0, 0.0])
+
+    def refine_pose(plan, skeleton, pose, camera, fg, positions, tracked, points, occluders, version):
+        refined.append(dict(plan=plan, skeleton=skeleton, pose=pose, camera=camera, fg=fg.copy(),
+                            joints=positions[0, 0], tracked=tracked, points=points, occluders=occluders.copy(),
+                            version=version))
+        if pose == "pose2.5":
+            raise InputError("no silhouette")
+        if pose == "pose1.5" and not several:
+            raise InputError("no cut")
+        return pose + "+r"
+
+    monkeypatch.setattr(refine_mod, "refine_pose", refine_pose)
+    players, bodies = ([1, 2], [b1, b2]) if several else (1, b1)
+    out = list(run_mod.session_inputs(session, bodies, model, {"taller": 1.0}, players, 2, [0, 5], refine=True))
+    assert [p[3] for p in plans] == (["sk1", "sk2"] if several else ["sk1"])
+    assert all(p[0] is b.vertices and p[1] == "faces" and p[2] == b.weights and p[4] == "v2"
+               for p, b in zip(plans, [b1, b2], strict=False))
+    o = out[0]
+    assert o.src_uv is None and o.late_pairs is not None and o.edit_fraction == 0.5
+    assert o.players == ((1, 2) if several else None)
+    fg = np.ones((h, w), bool)
+    timings = {"foreground": 3.0}
+    pairs = o.late_pairs(fg, timings)
+    assert len(pairs.src_uv) == (4 if several else 2)
+    assert [r["plan"] for r in refined] == (["plan1", "plan2"] if several else ["plan1"])
+    assert [r["pose"] for r in refined] == (["pose1.0", "pose2.0"] if several else ["pose1.0"])
+    assert [r["joints"] for r in refined] == ([10.0, 20.0] if several else [10.0])
+    r1 = refined[0]
+    assert r1["skeleton"] == "sk1" and r1["camera"] is session.kinect.color and r1["version"] == "v2"
+    assert r1["tracked"].dtype == bool and r1["tracked"].all()
+    np.testing.assert_array_equal(r1["points"], cloud[[1, 2]] + [1, 0, 0])  # above 2 cm: not the floor
+    mask = {p: np.zeros((h, w), bool) for p in blocks}
+    for p, blk in blocks.items():
+        mask[p][blk] = True
+    if several:  # each player's foreground: the cut's without the other players (the bystander too)
+        np.testing.assert_array_equal(r1["occluders"], mask[2] | mask[3])
+        np.testing.assert_array_equal(r1["fg"], ~(mask[2] | mask[3]))
+        np.testing.assert_array_equal(refined[1]["occluders"], mask[1] | mask[3])
+        np.testing.assert_array_equal(refined[1]["fg"], ~(mask[1] | mask[3]))
+    else:  # one player: the others (players 2 and 3 here) are the occluders, the cut's foreground as it is
+        np.testing.assert_array_equal(r1["occluders"], mask[2] | mask[3])
+        np.testing.assert_array_equal(r1["fg"], fg)
+    assert timings["foreground"] == 3.0 and {"refine_pose", "bodies", "pairs"} <= set(timings)
+    assert timings["refine_pose"] >= 0.0
+    # the refined pose poses the bodies
+    assert rec["pairs"][-1] == (("several", [1.0, 5.5]) if several else ("one", 1.0))
+    if several:
+        with pytest.raises(InputError, match="^pose refinement of player 2 failed: no silhouette$"):
+            out[1].late_pairs(fg, {})
+    else:
+        with pytest.raises(InputError, match="^pose refinement failed: no cut$"):
+            out[1].late_pairs(fg, {})
