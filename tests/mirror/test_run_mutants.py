@@ -280,7 +280,8 @@ def _several_players(tmp_path, monkeypatch, sizes=(5, 5)):
     bodies = {p: SimpleNamespace(vertices=np.zeros((n, 3)), coeffs=np.full(2, p), skeleton="skel", p=p)
               for p, n in zip((1, 2, 3), sizes + (5,), strict=True)}
 
-    def load(session, source=None, player=1):
+    def load(sess, source=None, player=1):
+        assert sess is session
         got["load"].append((source, player))
         return bodies[player], f"model{player}"
 
@@ -317,6 +318,8 @@ def test_run_mirror_several_players_are_checked_loaded_and_recorded(tmp_path, mo
     recorded = _npz(tmp_path / "mirror" / "p1.npz", player=np.int64(1))
     with pytest.raises(InputError, match="the source body of player 1, not of player 2; "):
         run_mod.run_mirror(session, {}, None, player=[1, 2], source=[None, recorded])
+    with pytest.raises(InputError, match="^--source given 1 times for 2 players"):
+        run_mod.run_mirror(session, {}, None, player=[1, 2], source=str(recorded))
     assert got["load"] == []  # every check before any body is loaded
 
     doc = run_mod.run_mirror(session, {"taller": 0.1}, None, player=[2, 1], ramp_frames=4, frames=[1, 2],
@@ -349,15 +352,26 @@ def test_run_mirror_several_players_are_checked_loaded_and_recorded(tmp_path, mo
     assert "players" not in manifest and "source_fingerprints" not in manifest
     assert manifest["plausibility"] == {"source_body": {"b": 2}, "registration": {"r": 2}}
     assert manifest["source_fingerprint"] == "fp2" and got["body"] == [(2, session, 2, False, None)]
+    # player 2 alone with its file given: that file is loaded and checked
+    got["load"].clear(), got["body"].clear()
+    run_mod.run_mirror(session, {}, None, player=2, source=str(two), progress=False)
+    assert got["load"] == [(str(two), 2)] and got["body"] == [(2, session, 2, False, str(two))]
+    # bodies given as objects: no path reaches the plausibility check
+    got["load"].clear(), got["body"].clear()
+    objs = [object(), object()]
+    run_mod.run_mirror(session, {}, None, player=[1, 2], source=objs, progress=False)
+    assert got["load"] == [(objs[0], 1), (objs[1], 2)]
+    assert got["body"] == [(1, session, 1, False, None), (2, session, 2, False, None)]
 
 
 def test_run_mirror_refuses_players_bodies_of_different_models(tmp_path, monkeypatch):
-    session, got, _ = _several_players(tmp_path, monkeypatch, sizes=(5, 6))
+    session, got, bodies = _several_players(tmp_path, monkeypatch, sizes=(5, 6))
     with pytest.raises(InputError, match="^players 1, 2: their source bodies come from different statistical "
                        "models \\(6k / 2k\\); run 'bodystudio mirror init' for each with the same --resolution$"):
         run_mod.run_mirror(session, {}, None, player=[1, 2])
+    del bodies[3].coeffs  # a stand-in body without coefficients has no fingerprint
     run_mod.run_mirror(session, {}, None, player=[1, 3])  # the same size: accepted
-    assert got["inputs"][4] == [1, 3]
+    assert got["inputs"][4] == [1, 3] and got["stream"][6]["source_fingerprints"] == {"1": "fp1", "3": None}
 
 
 def test_stream_records_the_players_reshaped_in_each_frame(tmp_path, monkeypatch):
@@ -391,7 +405,7 @@ def _two_player_session(monkeypatch):
     blocks = {1: (slice(2, 6), slice(2, 6)), 2: (slice(2, 6), slice(9, 13)), 3: (slice(8, 10), slice(0, 3))}
     # frame -> (players in the mask, players tracked, player whose IK fails)
     spec = {0: ({1, 2, 3}, {1, 2}, None), 1: ({1, 3}, {1}, None), 2: ({1, 2}, {1}, None), 3: ({1}, {1, 2}, None),
-            4: ({1, 2}, {1, 2}, 2), 5: ({1, 2}, {1, 2}, None)}
+            4: ({1, 2}, {1, 2}, 2), 5: ({1, 2}, {1, 2}, None), 6: ({2}, {2}, None)}
     camera = SimpleNamespace(height=h, width=w)
     session = SimpleNamespace(path="S", frame_ids=sorted(spec), kinect=SimpleNamespace(color=camera, version="v2"))
     b1 = SimpleNamespace(coeffs=np.zeros(1), vertices=np.full((3, 3), 1.0), skeleton="sk1", faces="faces", p=1)
@@ -450,7 +464,7 @@ def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
     with pytest.raises(InputError, match="^session_inputs: 0 players but 0 source bodies$"):
         list(run_mod.session_inputs(session, [], model, {"taller": 1.0}, []))
     out = list(run_mod.session_inputs(session, [b1, b2], model, {"taller": 1.0}, (1, np.int64(2)), 2))
-    assert [o.index for o in out] == list(range(6))
+    assert [o.index for o in out] == list(range(7))
     o = out[0]
     person = np.zeros((h, w), bool)
     person[blocks[1]] = person[blocks[2]] = True
@@ -473,10 +487,17 @@ def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
     assert out[5].warning is None and out[5].players == (1, 2) and out[5].edit_fraction == 1.0
     # each player's ramp over its own tracked frames (V_T = 10 for player 1, 14.5 for player 2), the IK warm-started
     # from that player's last pose
-    assert rec["pairs"] == [("several", [1.0, 5.5]), ("one", 1.0), ("several", [1.0, 5.5])]
-    assert rec["rig"] == [(1, 5.5, 0.5), (2, 10.0, 1.0), (1, 10.0, 1.0), (1, 10.0, 1.0), (2, 14.5, 1.5)]
+    assert out[6].warning is None and out[6].players == (2,)  # player 1 out of view, player 2 still reshaped
+    assert rec["pairs"] == [("several", [1.0, 5.5]), ("one", 1.0), ("several", [1.0, 5.5]), ("one", 5.5)]
+    assert rec["rig"] == [(1, 5.5, 0.5), (2, 10.0, 1.0), (1, 10.0, 1.0), (1, 10.0, 1.0), (2, 14.5, 1.5),
+                          (2, 14.5, 1.5)]
     assert rec["ik"] == [("sk1", 0, None), ("sk2", 0, None), ("sk1", 1, "pose1.0"), ("sk1", 4, "pose1.1"),
-                         ("sk2", 4, "pose2.0"), ("sk1", 5, "pose1.1"), ("sk2", 5, "pose2.0")]
+                         ("sk2", 4, "pose2.0"), ("sk1", 5, "pose1.1"), ("sk2", 5, "pose2.0"), ("sk2", 6, "pose2.5")]
+    # one player (2) of the same frames: no labels, no players list, not even on the frames that pass through
+    out = list(run_mod.session_inputs(session, b2, model, {"taller": 1.0}, 2, 2, [0, 2, 4]))
+    assert [o.warning for o in out] == [None, "player 2 is in the mask but no body is tracked",
+                                        "tracking failed: pelvis not tracked"]
+    assert all(o.players is None and o.person_labels is None for o in out)
 
 
 @pytest.mark.parametrize("several", [False, True])
@@ -495,7 +516,11 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
     plans, refined = [], []
     monkeypatch.setattr(refine_mod, "refine_plan", lambda *a: plans.append(a) or f"plan{a[3][-1]}")
     cloud = np.array([[0.0, 0.01, 2.0], [0.0, 0.5, 2.0], [0.0, 0.03, 2.0], [0.0, 0.02, 2.0]])
-    monkeypatch.setattr(frames_mod, "point_cloud", lambda frame, sensor, p: cloud + [p, 0.0, 0.0])
+    def point_cloud(frame, sensor, p):
+        assert sensor is session.kinect and frame.rgb.shape == (h, w, 3)
+        return cloud + [p, 0.0, 0.0]
+
+    monkeypatch.setattr(frames_mod, "point_cloud", point_cloud)
 
     def refine_pose(plan, skeleton, pose, camera, fg, positions, tracked, points, occluders, version):
         refined.append(dict(plan=plan, skeleton=skeleton, pose=pose, camera=camera, fg=fg.copy(),
