@@ -436,6 +436,7 @@ def _two_player_session(monkeypatch):
     def pairs(kind):
         def call(Vs, Vt, faces, cam, n, rim_cos=None, dense=False, closed=False):
             rec["pairs"].append((kind, [v[0, 0] for v in Vs] if kind == "several" else Vs[0, 0]))
+            rec.setdefault("dense", []).append(dense)
             m = 2 * len(Vs) if kind == "several" else 2
             return SimpleNamespace(src_uv=np.zeros((m, 2)), dst_uv=np.ones((m, 2)), dense=None,
                                    groups=np.repeat([0, 1], 2) if kind == "several" else None)
@@ -493,6 +494,12 @@ def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
                           (2, 14.5, 1.5)]
     assert rec["ik"] == [("sk1", 0, None), ("sk2", 0, None), ("sk1", 1, "pose1.0"), ("sk1", 4, "pose1.1"),
                          ("sk2", 4, "pose2.0"), ("sk1", 5, "pose1.1"), ("sk2", 5, "pose2.0"), ("sk2", 6, "pose2.5")]
+    assert rec["dense"] == [run_mod.CORRESPONDENCE == "dense"] * 4
+    # the correspondence asked reaches the pairs; an edit of 2 ramps the coefficients by s (c_T - c_S)
+    rec["rig"].clear()
+    list(run_mod.session_inputs(session, [b1, b2], model, {"taller": 2.0}, [1, 2], 2, [0], "mls"))
+    assert rec["dense"][-1] is False and rec["pairs"][-1][0] == "several"
+    assert rec["rig"] == [(1, 10.0, 1.0), (2, 14.5, 1.5)]  # s = 1/2: V_S + (V_T - V_S) / 2, c_S + (c_T - c_S) / 2
     # one player (2) of the same frames: no labels, no players list, not even on the frames that pass through
     out = list(run_mod.session_inputs(session, b2, model, {"taller": 1.0}, 2, 2, [0, 2, 4]))
     assert [o.warning for o in out] == [None, "player 2 is in the mask but no body is tracked",
