@@ -405,7 +405,9 @@ def _two_player_session(monkeypatch):
     blocks = {1: (slice(2, 6), slice(2, 6)), 2: (slice(2, 6), slice(9, 13)), 3: (slice(8, 10), slice(0, 3))}
     # frame -> (players in the mask, players tracked, player whose IK fails)
     spec = {0: ({1, 2, 3}, {1, 2}, None), 1: ({1, 3}, {1}, None), 2: ({1, 2}, {1}, None), 3: ({1}, {1, 2}, None),
-            4: ({1, 2}, {1, 2}, 2), 5: ({1, 2}, {1, 2}, None), 6: ({2}, {2}, None)}
+            4: ({1, 2}, {1, 2}, 2), 5: ({1, 2}, {1, 2}, None), 6: ({2}, {2}, None),
+            7: ({3}, set(), None), 8: ({1, 2}, {1}, None)}  # 7 and 8 without any depth
+
     camera = SimpleNamespace(height=h, width=w)
     session = SimpleNamespace(path="S", frame_ids=sorted(spec), kinect=SimpleNamespace(color=camera, version="v2"))
     b1 = SimpleNamespace(coeffs=np.zeros(1), vertices=np.full((3, 3), 1.0), skeleton="sk1", faces="faces", p=1)
@@ -419,8 +421,8 @@ def _two_player_session(monkeypatch):
             player[blocks[p]] = p
         bodies = {p: SimpleNamespace(positions=np.full((25, 3), 10.0 * p + i), tracked=np.ones(25, bool))
                   for p in spec[i][1]}
-        return SimpleNamespace(rgb=np.full((h, w, 3), i, np.uint8), depth_m=np.ones((h, w)), player=player,
-                               body=bodies.get)
+        return SimpleNamespace(rgb=np.full((h, w, 3), i, np.uint8), depth_m=np.full((h, w), float(i < 7)),
+                               player=player, body=bodies.get)
 
     def ik(skeleton, positions, tracked, version, previous=None):
         p, i = divmod(int(positions[0, 0]), 10)
@@ -465,7 +467,7 @@ def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
     with pytest.raises(InputError, match="^session_inputs: 0 players but 0 source bodies$"):
         list(run_mod.session_inputs(session, [], model, {"taller": 1.0}, []))
     out = list(run_mod.session_inputs(session, [b1, b2], model, {"taller": 1.0}, (1, np.int64(2)), 2))
-    assert [o.index for o in out] == list(range(7))
+    assert [o.index for o in out] == list(range(9))
     o = out[0]
     person = np.zeros((h, w), bool)
     person[blocks[1]] = person[blocks[2]] = True
@@ -489,6 +491,9 @@ def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
     # each player's ramp over its own tracked frames (V_T = 10 for player 1, 14.5 for player 2), the IK warm-started
     # from that player's last pose
     assert out[6].warning is None and out[6].players == (2,)  # player 1 out of view, player 2 still reshaped
+    # without depth: a frame with nobody to reshape is empty, not a warning; an untracked player's warning stays
+    assert out[7].warning is None and out[7].src_uv is None and out[7].players == ()
+    assert out[8].warning == "player 2 is in the mask but no body is tracked"
     assert rec["pairs"] == [("several", [1.0, 5.5]), ("one", 1.0), ("several", [1.0, 5.5]), ("one", 5.5)]
     assert rec["rig"] == [(1, 5.5, 0.5), (2, 10.0, 1.0), (1, 10.0, 1.0), (1, 10.0, 1.0), (2, 14.5, 1.5),
                           (2, 14.5, 1.5)]
