@@ -579,6 +579,13 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
     assert timings["refine_pose"] >= 0.0
     # the refined pose poses the bodies
     assert rec["pairs"][-1] == (("several", [1.0, 5.5]) if several else ("one", 1.0))
+    # on a stand-in clock (1 s a tick): each player's refinement and bodies are summed, the pairs timed once
+    ticks = iter(range(100, 1000))
+    monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
+    timings = {}
+    o.late_pairs(fg, timings)
+    n = 2 if several else 1
+    assert timings == {"refine_pose": 1000.0 * n, "bodies": 1000.0 * n, "pairs": 1000.0}
     if several:
         with pytest.raises(InputError, match="^pose refinement of player 2 failed: no silhouette$"):
             out[1].late_pairs(fg, {})
