@@ -171,6 +171,8 @@ _ffp = f.fit_frame_pose
 f.fit_frame_pose = lambda x0, problem, max_nfev=1: _ffp(x0, problem, max_nfev=1)
 _app = f.estimate_appearance
 f.estimate_appearance = functools.partial(_app, max_frames=1, iterations=1)
+import bodystudio.garment.shape_refine as sr
+sr.refine_shape_to_silhouettes = functools.partial(sr.refine_shape_to_silhouettes, iterations=1)
 """
 
 
