@@ -17,7 +17,10 @@ from bodystudio.muscle import capture as cap_mod
 from bodystudio.muscle.arm import ArmPose
 from bodystudio.muscle.capture import ArmCapture, CaptureOptions, capture_arm_frames
 from bodystudio.muscle.nicp import NicpOptions, apply_similarity
-from tests.muscle.test_capture import _two_plates  # the scene of test_capture.py's visibility tests
+from tests.muscle.test_capture import _two_plates
+from tests.muscle.test_capture_analytic import (
+    Spies,  # records each wrapped call  # the scene of test_capture.py's visibility tests
+)
 
 FAST = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1, sequence_max_nfev=3,
             nicp=NicpOptions(iterations=2))
@@ -77,25 +80,6 @@ def _scene():
         depths.append(simulate_kinect_depth(V, template.faces, sensor, np.random.default_rng(k), noise=False))
     return SimpleNamespace(model=model, template=template, shape=shape, camera=sensor.depth, depths=depths,
                            tracker=np.stack(joints))
-
-
-class Spies:
-    """Wrap functions of a module: every call's args, kwargs and result (the real function still runs)."""
-
-    def __init__(self, monkeypatch, names, module=cap_mod):
-        self.calls = {n: [] for n in names}
-        for n in names:
-            real = getattr(module, n)
-
-            def wrapper(*a, _real=real, _n=n, **k):
-                out = _real(*a, **k)
-                self.calls[_n].append(SimpleNamespace(args=a, kwargs=k, out=out))
-                return out
-
-            monkeypatch.setattr(module, n, wrapper)
-
-    def __getitem__(self, name):
-        return self.calls[name]
 
 
 # --- the options' checks ------------------------------------------------------------------------------------
