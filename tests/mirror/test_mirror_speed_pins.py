@@ -1,0 +1,106 @@
+"""MIR12d's speed changes of the mirror's image steps, each pinned to the output it replaced (bit for bit)."""
+
+import numpy as np
+import pytest
+
+from bodystudio.mirror import foreground as F
+from bodystudio.mirror.image_case import cached_image_case
+
+
+def _box3_numpy(h):
+    """The colour histograms' 3-bin box blur as numpy's padded slices computed it before MIR12d."""
+    for axis in range(3):
+        p = np.pad(h, [(1, 1) if a == axis else (0, 0) for a in range(3)])
+        h = (p[tuple(slice(0, -2) if a == axis else slice(None) for a in range(3))] + h
+             + p[tuple(slice(2, None) if a == axis else slice(None) for a in range(3))]) / 3.0
+    return h
+
+
+def test_colour_histogram_blur_in_numba_is_numpys_bit_for_bit():
+    rng = np.random.default_rng(3)
+    for counts in (rng.integers(0, 60, 4096), np.eye(1, 4096, 7, dtype=np.int64)[0] * 1000, np.zeros(4096)):
+        h = np.asarray(counts, np.float32).reshape(16, 16, 16)
+        got, want = F._box3(h), _box3_numpy(h)
+        assert got.dtype == want.dtype == np.float32
+        np.testing.assert_array_equal(got, want)
+
+
+def test_band_pixels_are_nonzeros_raster_order_with_their_node_ids():
+    rng = np.random.default_rng(4)
+    band = rng.random((37, 53)) < 0.3
+    rows, cols, node = F._band_pixels(band)
+    want_r, want_c = np.nonzero(band)
+    np.testing.assert_array_equal(rows, want_r)
+    np.testing.assert_array_equal(cols, want_c)
+    expected = np.full(band.shape, -1, np.int64)
+    expected[want_r, want_c] = np.arange(len(want_r))
+    np.testing.assert_array_equal(node, expected)
+
+
+def _band_links_before(rgb, node, inner, br, bc, smoothness, source, sink):
+    """The n-links as computed before MIR12d (each pair's colour difference computed in both passes), in Python."""
+    h, w = node.shape
+    offsets = ((0, 1), (1, 0), (0, -1), (-1, 0))
+    total, count = 0.0, 0
+    img = rgb.astype(np.float64)
+    for r, c in zip(br, bc, strict=True):
+        for dy, dx in offsets:
+            qr, qc = r + dy, c + dx
+            if 0 <= qr < h and 0 <= qc < w:
+                d = img[r, c] - img[qr, qc]
+                total += float(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+                count += 1
+    beta = 1.0 / (2.0 * max(total / max(count, 1), 1e-6))
+    ei, ej, ec = [], [], []
+    for k, (r, c) in enumerate(zip(br, bc, strict=True)):
+        for o, (dy, dx) in enumerate(offsets):
+            qr, qc = r + dy, c + dx
+            if not (0 <= qr < h and 0 <= qc < w):
+                continue
+            other = node[qr, qc]
+            if other >= 0 and o >= 2:
+                continue
+            d = img[r, c] - img[qr, qc]
+            wgt = smoothness * np.exp(-beta * float(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]))
+            if other >= 0:
+                ei.append(k)
+                ej.append(other)
+                ec.append(wgt)
+            elif inner[qr, qc]:
+                source[k] += wgt
+            else:
+                sink[k] += wgt
+    return np.array(ei), np.array(ej), np.array(ec)
+
+
+def test_band_links_with_each_colour_difference_computed_once_are_the_same():
+    rng = np.random.default_rng(5)
+    rgb = rng.integers(0, 256, (24, 31, 3)).astype(np.uint8)
+    mask = np.zeros((24, 31), bool)
+    mask[5:19, 8:24] = True
+    inner, band = F.foreground_band(mask, 3)
+    br, bc, node = F._band_pixels(band)
+    got_s, got_t = rng.random(len(br)), rng.random(len(br))
+    want_s, want_t = got_s.copy(), got_t.copy()
+    got = F._band_links(rgb, node, inner, br, bc, 5.0, got_s, got_t)
+    want = _band_links_before(rgb, node, inner, br, bc, 5.0, want_s, want_t)
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_allclose(g, w, rtol=1e-15, atol=0)
+    np.testing.assert_allclose(got_s, want_s, rtol=1e-15)
+    np.testing.assert_allclose(got_t, want_t, rtol=1e-15)
+
+
+@pytest.mark.parametrize("actors", [1, 2])
+def test_graph_cut_of_the_bench_frames_is_pinned(actors):
+    """The refined masks of the bench frames (1 and 2 actors, without and with the background model): pixel counts
+    and IoU with the true mask as main (MIRFAST3, 9f60d9f) gave them before MIR12d's changes of the cut."""
+    from bodystudio.mirror.compose import update_background
+    from bodystudio.mirror.image_case import iou
+
+    case = cached_image_case(None, 0, actors)
+    bg = update_background(None, case.background, np.zeros(case.true_mask.shape, bool))
+    before = {1: ((18240, 0.995036), (18292, 0.997872)), 2: ((44364, 0.996585), (44445, 0.998854))}[actors]
+    for options, (count, score) in zip(({}, {"background": bg}), before, strict=True):
+        mask = F.refine_foreground(case.rgb, case.player_mask, **options)
+        assert int(mask.sum()) == count
+        assert iou(mask, case.true_mask) == pytest.approx(score, abs=1e-6)
