@@ -104,3 +104,62 @@ def test_graph_cut_of_the_bench_frames_is_pinned(actors):
         mask = F.refine_foreground(case.rgb, case.player_mask, **options)
         assert int(mask.sum()) == count
         assert iou(mask, case.true_mask) == pytest.approx(score, abs=1e-6)
+
+
+@pytest.mark.parametrize("actors", [1, 2])
+def test_outline_band_per_person_box_and_fused_samples_give_the_same_field(actors):
+    """refine_outline on each person's box (``warp.people_boxes``) and the signed distance's five samples from one
+    cell: the same field bit for bit as the whole crop's transforms and five clamped samples (before MIR12d)."""
+    import cv2
+
+    from bodystudio.mirror import warp as W
+    from bodystudio.mirror.run import MLS_ALPHA, MLS_RADIUS_PX
+
+    case = cached_image_case(None, 0, actors)
+    dense = case.dense
+    field = W.mls_warp_field(case.src_uv, case.dst_uv, kind="similarity", alpha=MLS_ALPHA, groups=case.pair_groups,
+                             radius_px=MLS_RADIUS_PX)
+    got = W.refine_outline(field.copy(), dense)
+    # before: the whole crop at once, every sample through the clamped sampler
+    want = field.copy()
+    h, w = dense.source_mask.shape
+    x0, y0 = dense.origin
+    inside = np.isfinite(dense.source_uv[..., 0])
+    dist, label = cv2.distanceTransformWithLabels((~inside).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
+                                                  labelType=cv2.DIST_LABEL_PIXEL)
+    depth_in = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+    sd = W._signed_distance(dense.source_mask)
+    zr, zc = np.nonzero(inside)
+    crop = want[y0:y0 + h, x0:x0 + w]
+
+    def moved(u, wanted):
+        x, y = u[0] - x0, u[1] - y0
+        s = [W._sample(sd, x + dx, y + dy) for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1), (0, 0))]
+        nx, ny = s[0] - s[1], s[2] - s[3]
+        norm = max(np.sqrt(nx * nx + ny * ny), 1e-6)
+        step = s[4] - wanted
+        return u[0] - step * nx / norm, u[1] - step * ny / norm
+
+    for r, c in zip(*np.nonzero(inside | (dist <= 6.0)), strict=True):
+        if inside[r, c]:
+            crop[r, c] = dense.source_uv[r, c]
+            if depth_in[r, c] <= 8.0:
+                crop[r, c] = moved(dense.source_uv[r, c].astype(np.float64), float(depth_in[r, c]) - 0.5)
+        else:
+            k = label[r, c] - 1
+            crop[r, c] = moved(dense.source_uv[zr[k], zc[k]].astype(np.float64), 0.5 - float(dist[r, c]))
+    assert len(W.people_boxes(inside | dense.source_mask, 12)) == actors  # the bench's actors stand apart
+    np.testing.assert_array_equal(got, want)
+
+
+def test_people_boxes_split_at_empty_columns_only():
+    from bodystudio.mirror.warp import people_boxes
+
+    m = np.zeros((50, 120), bool)
+    assert people_boxes(m, 3) == []
+    m[10:20, 5:15] = True
+    m[30:40, 40:50] = True  # 25 empty columns between them: two boxes at margin 3 (or 12), one at 13
+    assert people_boxes(m, 3) == [((7, 23), (2, 18)), ((27, 43), (37, 53))]
+    assert people_boxes(m, 13) == [((0, 50), (0, 63))]
+    m[25, 20:35] = True  # something in the gap: one box
+    assert len(people_boxes(m, 3)) == 1
