@@ -496,9 +496,11 @@ def warp_foreground(rgb: np.ndarray, fg_mask: np.ndarray, field: np.ndarray) -> 
         box = (slice(by, by + bh), slice(bx, bx + bw))
         premult[box] = cv2.bitwise_and(rgb[box], rgb[box], mask=m8[box])
     roi = (slice(y, y + h), slice(x, x + w))
-    mx, my = field[roi][..., 0], field[roi][..., 1]
-    alpha8[roi] = a8 = cv2.remap(m8, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    o = cv2.remap(premult, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    # the field as one two-channel map (x, y interleaved, as it is stored): the same samples as its two channels
+    # given apart, which OpenCV first copies out of the interleaved array (MIR12d)
+    xy = field[roi]
+    alpha8[roi] = a8 = cv2.remap(m8, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    o = cv2.remap(premult, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     # edge pixels mixed foreground with black: divide by their coverage (few pixels)
     er, ec = np.nonzero((a8 > 0) & (a8 < 255))
     if len(er):
