@@ -176,6 +176,11 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
     args = (np.ascontiguousarray(v), np.ascontiguousarray(px), np.ascontiguousarray(py),
             np.ascontiguousarray(monomials), float(alpha), EPS_PX2)
     S = _weighted_sums(*args) if radius_px is None else _weighted_sums_local(*args, float(radius_px))  # (N, k)
+    if kind != "affine":  # one numba pass over the points: the same arithmetic as the numpy below (MIR12d)
+        A = np.empty((len(v), 2, 2))
+        mapped = np.empty((len(v), 2))
+        _similarity_closed_form(S, v, c, kind == "rigid", A, mapped)
+        return A, mapped
     W = S[:, 0]
     ps = S[:, 1:3] / W[:, None]  # p*
     qs = S[:, 3:5] / W[:, None]  # q*
@@ -212,6 +217,30 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
         A[:, 1, 1] = zr
     mapped = np.einsum("ni,nij->nj", v - ps, A) + qs + c
     return A, mapped
+
+
+@njit(cache=True, error_model="numpy")  # a degenerate layout (mu = 0) gives inf / NaN as numpy does, no exception
+def _similarity_closed_form(S, v, c, rigid, A, mapped):
+    """Eq. 5's similarity (``rigid``: rigid) closed form per point from its weighted sums ``S`` (N, 8) (see
+    :func:`mls_transforms`): ``A`` (N, 2, 2) and ``mapped`` (N, 2) filled in, operation for operation the numpy
+    expressions of the affine branch's sibling (kept below for ``affine``), so the same values bit for bit."""
+    for a in range(S.shape[0]):
+        W = S[a, 0]
+        psx, psy = S[a, 1] / W, S[a, 2] / W
+        qsx, qsy = S[a, 3] / W, S[a, 4] / W
+        mu = S[a, 5] - W * (psx ** 2 + psy ** 2)
+        zr = (S[a, 6] - W * (psx * qsx + psy * qsy)) / mu
+        zi = (S[a, 7] - W * (psx * qsy - psy * qsx)) / mu
+        if rigid:
+            norm = np.hypot(zr, zi)
+            zr, zi = zr / norm, zi / norm
+        A[a, 0, 0] = zr
+        A[a, 0, 1] = zi
+        A[a, 1, 0] = -zi
+        A[a, 1, 1] = zr
+        dx, dy = v[a, 0] - psx, v[a, 1] - psy
+        mapped[a, 0] = (dx * zr + dy * -zi) + qsx + c[0]
+        mapped[a, 1] = (dx * zi + dy * zr) + qsy + c[1]
 
 
 def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: str = "affine",
@@ -462,10 +491,20 @@ def _signed_distance(mask: np.ndarray) -> np.ndarray:
     m = np.asarray(mask, np.uint8)
     inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_5)
     outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_5)
-    # in float32: the difference of two float32 distances plus 0.5 rounds once either way (the same values)
-    out = inside - outside
-    out += np.where(m > 0, np.float32(-0.5), np.float32(0.5))
-    return out
+    # in float32: the difference of two float32 distances plus 0.5 rounds once either way (the same values); one
+    # numba pass instead of numpy's difference, comparison, choice and sum (MIR12d: the same values bit for bit)
+    _signed_from_distances(inside, outside, m)
+    return inside
+
+
+@njit(cache=True)
+def _signed_from_distances(inside, outside, m):
+    """``inside`` (in place) = ``inside - outside`` -/+ 0.5 (inside / outside ``m``), in float32 as numpy does."""
+    half = np.float32(0.5)
+    for r in range(inside.shape[0]):
+        for c in range(inside.shape[1]):
+            d = inside[r, c] - outside[r, c]
+            inside[r, c] = d - half if m[r, c] > 0 else d + half
 
 
 def warp_foreground(rgb: np.ndarray, fg_mask: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

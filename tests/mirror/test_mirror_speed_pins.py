@@ -163,3 +163,57 @@ def test_people_boxes_split_at_empty_columns_only():
     assert people_boxes(m, 13) == [((0, 50), (0, 63))]
     m[25, 20:35] = True  # something in the gap: one box
     assert len(people_boxes(m, 3)) == 1
+
+
+def test_signed_distance_in_one_pass_is_numpys():
+    import cv2
+
+    from bodystudio.mirror.warp import _signed_distance
+
+    for mask in (cached_image_case(None, 0, 2).dense.source_mask, np.random.default_rng(6).random((40, 50)) < 0.5,
+                 np.ones((8, 9), bool), np.zeros((8, 9), bool)):
+        m = np.asarray(mask, np.uint8)
+        want = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_5) - \
+            cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_5)
+        want += np.where(m > 0, np.float32(-0.5), np.float32(0.5))
+        got = _signed_distance(mask)
+        assert got.dtype == np.float32
+        np.testing.assert_array_equal(got, want)
+
+
+def _similarity_numpy(v, p, q, kind, alpha):
+    """Eq. 5's similarity / rigid closed forms in numpy over all handles, as mls_transforms computed them before
+    MIR12d moved them into one numba pass."""
+    from bodystudio.mirror.warp import EPS_PX2, _weighted_sums
+
+    c = p.mean(0)
+    v, p, q = v - c, p - c, q - c
+    px, py, qx, qy = p[:, 0], p[:, 1], q[:, 0], q[:, 1]
+    monomials = np.stack([np.ones_like(px), px, py, qx, qy, px * px + py * py, px * qx + py * qy, px * qy - py * qx])
+    S = _weighted_sums(np.ascontiguousarray(v), np.ascontiguousarray(px), np.ascontiguousarray(py),
+                       np.ascontiguousarray(monomials), float(alpha), EPS_PX2)
+    W = S[:, 0]
+    ps, qs = S[:, 1:3] / W[:, None], S[:, 3:5] / W[:, None]
+    mu = S[:, 5] - W * (ps[:, 0] ** 2 + ps[:, 1] ** 2)
+    zr = (S[:, 6] - W * (ps[:, 0] * qs[:, 0] + ps[:, 1] * qs[:, 1])) / mu
+    zi = (S[:, 7] - W * (ps[:, 0] * qs[:, 1] - ps[:, 1] * qs[:, 0])) / mu
+    if kind == "rigid":
+        norm = np.hypot(zr, zi)
+        zr, zi = zr / norm, zi / norm
+    A = np.empty((len(v), 2, 2))
+    A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1] = zr, zi, -zi, zr
+    return A, np.einsum("ni,nij->nj", v - ps, A) + qs + c
+
+
+@pytest.mark.parametrize("kind", ["similarity", "rigid"])
+@pytest.mark.parametrize("alpha", [1.0, 2.0])
+def test_similarity_closed_form_in_numba_is_numpys(kind, alpha):
+    from bodystudio.mirror.warp import mls_transforms
+
+    rng = np.random.default_rng(7)
+    p = rng.uniform(0, 300, (60, 2))
+    q = p + rng.normal(0, 5, p.shape)
+    v = rng.uniform(0, 300, (500, 2))
+    got, want = mls_transforms(v, p, q, kind, alpha), _similarity_numpy(v, p, q, kind, alpha)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
