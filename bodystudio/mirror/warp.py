@@ -34,13 +34,19 @@ OUTSIDE_PX = -16.0
 _UNSOLVED_PX = -1.0e6
 
 
+def _finite_rows(xy: np.ndarray) -> np.ndarray:
+    """Whether both coordinates of each point (..., 2) are finite: ``np.isfinite(xy).all(-1)``, whose reduction over
+    a last axis of two is ~5x slower than the two columns' tests (MIR12d)."""
+    return np.isfinite(xy[..., 0]) & np.isfinite(xy[..., 1])
+
+
 def _check_pairs(src_pts, dst_pts, return_kept: bool = False):
     s = np.asarray(src_pts, dtype=np.float64)
     t = np.asarray(dst_pts, dtype=np.float64)
     if s.ndim != 2 or s.shape[1] != 2 or s.shape != t.shape:
         raise InputError(f"MLS warp needs source and target points of the same shape (n, 2), got {s.shape} "
                          f"and {t.shape}")
-    keep = np.isfinite(s).all(1) & np.isfinite(t).all(1)
+    keep = _finite_rows(s) & _finite_rows(t)
     s, t = s[keep], t[keep]
     if len(s) < 3:
         raise InputError(f"MLS warp needs at least 3 finite point pairs, got {len(s)}")
@@ -289,7 +295,7 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
         node_uv = np.asarray(dense_src_uv, dtype=np.float32)
         if node_uv.shape != (gh, gw, 2):
             raise InputError(f"MLS warp: dense correspondence of shape {node_uv.shape}, expected {(gh, gw, 2)}")
-        covered = np.isfinite(node_uv).all(2)
+        covered = _finite_rows(node_uv)
         if covered.any():  # the covered nodes count as target points for the region solved around them
             crow, ccol = np.nonzero(covered)
             node_groups = np.zeros(len(crow), np.int64) if dense_groups is None else \
@@ -318,7 +324,7 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
         pairs = groups == g
         if mine.any() and pairs.sum() >= 3:
             _, mapped[mine] = mls_transforms(nodes[mine], t[pairs], s[pairs], kind, alpha, radius_px)
-    valid = np.isfinite(mapped).all(1)  # degenerate (collinear) handle layouts: no value there
+    valid = _finite_rows(mapped)  # degenerate (collinear) handle layouts: no value there
     # unsolved nodes hold a value so far out that any pixel they touch (bilinear weight >= 1/64 on the
     # mirror's grid) interpolates to beyond OUTSIDE_PX, then clamped to it: no second resize of a coverage map
     field = np.full((gh, gw, 2), _UNSOLVED_PX, np.float32)
@@ -647,7 +653,7 @@ def _interpolate_projections(tri, bary, faces, projected, out):
 
 
 def _body_crop(uv_list, camera, margin_px: float):
-    pts = np.concatenate([uv[np.isfinite(uv).all(1)] for uv in uv_list])
+    pts = np.concatenate([uv[_finite_rows(uv)] for uv in uv_list])
     if not len(pts):
         return None
     x0 = int(max(np.floor(pts[:, 0].min() - margin_px), 0))
@@ -744,7 +750,7 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
         zbuf = raster.depth
         col = np.clip(np.round((uv[:, 0] - x0 + 0.5) * sx - 0.5), 0, w - 1)
         row = np.clip(np.round((uv[:, 1] - y0 + 0.5) * sy - 0.5), 0, h - 1)
-        ok = np.isfinite(uv).all(1) & (z > 0)
+        ok = _finite_rows(uv) & (z > 0)
         col, row = np.where(ok, col, 0).astype(np.int64), np.where(ok, row, 0).astype(np.int64)
         # the nearest z in the 3x3 neighbourhood: a vertex on a silhouette edge falls next to the covered pixel
         near = _nearest_depth_3x3(zbuf, row, col)

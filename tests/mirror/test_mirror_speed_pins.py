@@ -217,3 +217,13 @@ def test_similarity_closed_form_in_numba_is_numpys(kind, alpha):
     got, want = mls_transforms(v, p, q, kind, alpha), _similarity_numpy(v, p, q, kind, alpha)
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_finite_rows_is_isfinite_all_over_the_last_axis():
+    from bodystudio.mirror.warp import _finite_rows
+
+    xy = np.array([[1.0, 2.0], [np.nan, 2.0], [1.0, np.nan], [np.nan, np.nan], [np.inf, 0.0], [0.0, -np.inf]])
+    np.testing.assert_array_equal(_finite_rows(xy), np.isfinite(xy).all(1))
+    grid = np.random.default_rng(8).normal(size=(7, 9, 2))
+    grid[grid > 1.2] = np.nan
+    np.testing.assert_array_equal(_finite_rows(grid), np.isfinite(grid).all(2))
