@@ -18,6 +18,7 @@ import tempfile
 os.environ["NUMBA_CACHE_DIR"] = tempfile.mkdtemp(prefix="mirror_ab_numba_")  # before numba is imported
 
 import importlib.util  # noqa: E402
+import inspect  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -64,10 +65,14 @@ def _steps(case, ow, of, oc, rounds: int) -> dict:
     F1 = case.faces[: len(case.faces) // actors]
     labels = actor_labels(case)
 
+    # the other tree's pairs as its run.frame_pairs makes them: front faces only where its warp_pairs has them
+    # (``closed``, MIRFAST3); without it the pairs step compared a tree's full renders with this one's front faces
+    closed = {"closed": True} if "closed" in inspect.signature(ow.warp_pairs).parameters else {}
+
     def other_pairs():
         if actors == 1:
-            return ow.warp_pairs(S[0], T[0], F1, case.camera, N_HANDLES, rim_cos=RIM_COS, dense=True)
-        return ow.actors_warp_pairs(S, T, F1, case.camera, N_HANDLES, rim_cos=RIM_COS, dense=True)
+            return ow.warp_pairs(S[0], T[0], F1, case.camera, N_HANDLES, rim_cos=RIM_COS, dense=True, **closed)
+        return ow.actors_warp_pairs(S, T, F1, case.camera, N_HANDLES, rim_cos=RIM_COS, dense=True, **closed)
 
     def this_pairs():
         return frame_pairs(S, T, F1, case.camera)

@@ -34,13 +34,19 @@ OUTSIDE_PX = -16.0
 _UNSOLVED_PX = -1.0e6
 
 
+def _finite_rows(xy: np.ndarray) -> np.ndarray:
+    """Whether both coordinates of each point (..., 2) are finite: ``np.isfinite(xy).all(-1)``, whose reduction over
+    a last axis of two is ~5x slower than the two columns' tests (MIR12d)."""
+    return np.isfinite(xy[..., 0]) & np.isfinite(xy[..., 1])
+
+
 def _check_pairs(src_pts, dst_pts, return_kept: bool = False):
     s = np.asarray(src_pts, dtype=np.float64)
     t = np.asarray(dst_pts, dtype=np.float64)
     if s.ndim != 2 or s.shape[1] != 2 or s.shape != t.shape:
         raise InputError(f"MLS warp needs source and target points of the same shape (n, 2), got {s.shape} "
                          f"and {t.shape}")
-    keep = np.isfinite(s).all(1) & np.isfinite(t).all(1)
+    keep = _finite_rows(s) & _finite_rows(t)
     s, t = s[keep], t[keep]
     if len(s) < 3:
         raise InputError(f"MLS warp needs at least 3 finite point pairs, got {len(s)}")
@@ -176,6 +182,11 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
     args = (np.ascontiguousarray(v), np.ascontiguousarray(px), np.ascontiguousarray(py),
             np.ascontiguousarray(monomials), float(alpha), EPS_PX2)
     S = _weighted_sums(*args) if radius_px is None else _weighted_sums_local(*args, float(radius_px))  # (N, k)
+    if kind != "affine":  # one numba pass over the points: the same arithmetic as the numpy below (MIR12d)
+        A = np.empty((len(v), 2, 2))
+        mapped = np.empty((len(v), 2))
+        _similarity_closed_form(S, v, c, kind == "rigid", A, mapped)
+        return A, mapped
     W = S[:, 0]
     ps = S[:, 1:3] / W[:, None]  # p*
     qs = S[:, 3:5] / W[:, None]  # q*
@@ -212,6 +223,30 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
         A[:, 1, 1] = zr
     mapped = np.einsum("ni,nij->nj", v - ps, A) + qs + c
     return A, mapped
+
+
+@njit(cache=True, error_model="numpy")  # a degenerate layout (mu = 0) gives inf / NaN as numpy does, no exception
+def _similarity_closed_form(S, v, c, rigid, A, mapped):
+    """Eq. 5's similarity (``rigid``: rigid) closed form per point from its weighted sums ``S`` (N, 8) (see
+    :func:`mls_transforms`): ``A`` (N, 2, 2) and ``mapped`` (N, 2) filled in, operation for operation the numpy
+    expressions of the affine branch's sibling (kept below for ``affine``), so the same values bit for bit."""
+    for a in range(S.shape[0]):
+        W = S[a, 0]
+        psx, psy = S[a, 1] / W, S[a, 2] / W
+        qsx, qsy = S[a, 3] / W, S[a, 4] / W
+        mu = S[a, 5] - W * (psx ** 2 + psy ** 2)
+        zr = (S[a, 6] - W * (psx * qsx + psy * qsy)) / mu
+        zi = (S[a, 7] - W * (psx * qsy - psy * qsx)) / mu
+        if rigid:
+            norm = np.hypot(zr, zi)
+            zr, zi = zr / norm, zi / norm
+        A[a, 0, 0] = zr
+        A[a, 0, 1] = zi
+        A[a, 1, 0] = -zi
+        A[a, 1, 1] = zr
+        dx, dy = v[a, 0] - psx, v[a, 1] - psy
+        mapped[a, 0] = (dx * zr + dy * -zi) + qsx + c[0]
+        mapped[a, 1] = (dx * zi + dy * zr) + qsy + c[1]
 
 
 def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: str = "affine",
@@ -260,7 +295,7 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
         node_uv = np.asarray(dense_src_uv, dtype=np.float32)
         if node_uv.shape != (gh, gw, 2):
             raise InputError(f"MLS warp: dense correspondence of shape {node_uv.shape}, expected {(gh, gw, 2)}")
-        covered = np.isfinite(node_uv).all(2)
+        covered = _finite_rows(node_uv)
         if covered.any():  # the covered nodes count as target points for the region solved around them
             crow, ccol = np.nonzero(covered)
             node_groups = np.zeros(len(crow), np.int64) if dense_groups is None else \
@@ -289,7 +324,7 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
         pairs = groups == g
         if mine.any() and pairs.sum() >= 3:
             _, mapped[mine] = mls_transforms(nodes[mine], t[pairs], s[pairs], kind, alpha, radius_px)
-    valid = np.isfinite(mapped).all(1)  # degenerate (collinear) handle layouts: no value there
+    valid = _finite_rows(mapped)  # degenerate (collinear) handle layouts: no value there
     # unsolved nodes hold a value so far out that any pixel they touch (bilinear weight >= 1/64 on the
     # mirror's grid) interpolates to beyond OUTSIDE_PX, then clamped to it: no second resize of a coverage map
     field = np.full((gh, gw, 2), _UNSOLVED_PX, np.float32)
@@ -337,18 +372,52 @@ def refine_outline(field: np.ndarray, dense, band_px: float = 6.0, inner_px: flo
     (MIR-SYNTH 41 / 42, true vertices: 0.948 / 0.965 without, 0.958 / 0.981 with 8 px). Outside the band the
     grid field stays.
     """
-    h, w = dense.source_mask.shape
     x0, y0 = dense.origin
     inside = np.isfinite(dense.source_uv[..., 0])
     if not inside.any():
         return field
-    dist, label = cv2.distanceTransformWithLabels((~inside).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
-                                                  labelType=cv2.DIST_LABEL_PIXEL)
-    depth_in = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
-    _outline_band(field[y0:y0 + h, x0:x0 + w], dense.source_uv, inside, dist, label,
-                  _signed_distance(dense.source_mask), float(band_px), float(x0), float(y0), depth_in,
-                  float(inner_px))
+    # each person's part of the crop on its own when empty columns separate them (two actors' crop spans the gap
+    # between them; its distance transforms paid for the gap's pixels too: MIR12d)
+    for (r0, r1), (c0, c1) in people_boxes(inside | dense.source_mask, _outline_margin_px(band_px, inner_px)):
+        sub = inside[r0:r1, c0:c1]
+        dist, label = cv2.distanceTransformWithLabels((~sub).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
+                                                      labelType=cv2.DIST_LABEL_PIXEL)
+        depth_in = cv2.distanceTransform(sub.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+        _outline_band(field[y0 + r0:y0 + r1, x0 + c0:x0 + c1], dense.source_uv[r0:r1, c0:c1], sub, dist, label,
+                      _signed_distance(dense.source_mask[r0:r1, c0:c1]), float(band_px), float(x0 + c0),
+                      float(y0 + r0), depth_in, float(inner_px))
     return field
+
+
+def _outline_margin_px(band_px: float, inner_px: float) -> int:
+    """The margin around a person's pixels that :func:`refine_outline` works in: the outer band, the inner band's
+    reach and the source points' central differences, with room to spare."""
+    return int(np.ceil(max(band_px, inner_px))) + 4
+
+
+def people_boxes(mask: np.ndarray, margin_px: int) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """``[((r0, r1), (c0, c1)), ...]``: a box per group of ``mask``'s columns that more than ``2 margin_px + 1``
+    empty columns separate (people side by side), each its pixels' bounding box grown by ``margin_px`` (clipped to
+    ``mask``); one box (the mask's bounding box grown) when nothing separates them, none for an empty mask.
+
+    Whatever lies within ``margin_px`` of a group's pixels lies in its box and in no other box's reach, so a
+    distance transform of the box gives, within that reach, the distances one of the whole image gives (a chamfer
+    path stays in the bounding box of its ends); where several pixels are equally near, the one it labels nearest
+    could in principle differ (the bench frames' fields are the same bit for bit:
+    tests/mirror/test_mirror_speed_pins.py).
+    """
+    m = np.asarray(mask, bool)
+    cols = np.flatnonzero(m.any(0))
+    if not len(cols):
+        return []
+    h, w = m.shape
+    cuts = np.flatnonzero(np.diff(cols) > 2 * margin_px + 1)
+    out = []
+    for c0, c1 in zip(np.r_[cols[0], cols[cuts + 1]], np.r_[cols[cuts], cols[-1]], strict=True):
+        rows = np.flatnonzero(m[:, c0:c1 + 1].any(1))
+        out.append(((max(int(rows[0]) - margin_px, 0), min(int(rows[-1]) + margin_px + 1, h)),
+                    (max(int(c0) - margin_px, 0), min(int(c1) + margin_px + 1, w))))
+    return out
 
 
 @njit(cache=True)
@@ -361,6 +430,12 @@ def _sample(image, x, y):
     fx, fy = x - c, y - r
     return ((1 - fy) * ((1 - fx) * image[r, c] + fx * image[r, c + 1])
             + fy * ((1 - fx) * image[r + 1, c] + fx * image[r + 1, c + 1]))
+
+
+@njit(cache=True, inline="always")
+def _bilinear(image, r, c, fx, fy, gx, gy):
+    """:func:`_sample`'s sum at the cell ``(r, c)`` with fractions ``fx, fy`` (``gx = 1 - fx``, ``gy = 1 - fy``)."""
+    return gy * (gx * image[r, c] + fx * image[r, c + 1]) + fy * (gx * image[r + 1, c] + fx * image[r + 1, c + 1])
 
 
 @njit(cache=True)
@@ -397,10 +472,22 @@ def _to_signed_distance(crop, r, c, ux, uy, sd, x0, y0, wanted):
     """``crop[r, c]`` = the image point ``u`` moved along the gradient of ``sd`` (a crop at ``x0, y0``) to the
     signed distance ``wanted`` (positive inside)."""
     x, y = ux - x0, uy - y0
-    nx = _sample(sd, x + 1.0, y) - _sample(sd, x - 1.0, y)
-    ny = _sample(sd, x, y + 1.0) - _sample(sd, x, y - 1.0)
+    h, w = sd.shape
+    if 1.0 <= x < w - 3.0 and 1.0 <= y < h - 3.0:
+        # away from the border the five samples share the fractions and differ by whole pixels: the same sums as
+        # :func:`_sample`'s, without its clamping five times (MIR12d)
+        sc, sr = int(x), int(y)
+        fx, fy = x - sc, y - sr
+        gx, gy = 1 - fx, 1 - fy
+        nx = _bilinear(sd, sr, sc + 1, fx, fy, gx, gy) - _bilinear(sd, sr, sc - 1, fx, fy, gx, gy)
+        ny = _bilinear(sd, sr + 1, sc, fx, fy, gx, gy) - _bilinear(sd, sr - 1, sc, fx, fy, gx, gy)
+        centre = _bilinear(sd, sr, sc, fx, fy, gx, gy)
+    else:
+        nx = _sample(sd, x + 1.0, y) - _sample(sd, x - 1.0, y)
+        ny = _sample(sd, x, y + 1.0) - _sample(sd, x, y - 1.0)
+        centre = _sample(sd, x, y)
     norm = max(np.sqrt(nx * nx + ny * ny), 1e-6)
-    step = _sample(sd, x, y) - wanted
+    step = centre - wanted
     crop[r, c, 0] = ux - step * nx / norm
     crop[r, c, 1] = uy - step * ny / norm
 
@@ -410,10 +497,20 @@ def _signed_distance(mask: np.ndarray) -> np.ndarray:
     m = np.asarray(mask, np.uint8)
     inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_5)
     outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_5)
-    # in float32: the difference of two float32 distances plus 0.5 rounds once either way (the same values)
-    out = inside - outside
-    out += np.where(m > 0, np.float32(-0.5), np.float32(0.5))
-    return out
+    # in float32: the difference of two float32 distances plus 0.5 rounds once either way (the same values); one
+    # numba pass instead of numpy's difference, comparison, choice and sum (MIR12d: the same values bit for bit)
+    _signed_from_distances(inside, outside, m)
+    return inside
+
+
+@njit(cache=True)
+def _signed_from_distances(inside, outside, m):
+    """``inside`` (in place) = ``inside - outside`` -/+ 0.5 (inside / outside ``m``), in float32 as numpy does."""
+    half = np.float32(0.5)
+    for r in range(inside.shape[0]):
+        for c in range(inside.shape[1]):
+            d = inside[r, c] - outside[r, c]
+            inside[r, c] = d - half if m[r, c] > 0 else d + half
 
 
 def warp_foreground(rgb: np.ndarray, fg_mask: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -444,9 +541,11 @@ def warp_foreground(rgb: np.ndarray, fg_mask: np.ndarray, field: np.ndarray) -> 
         box = (slice(by, by + bh), slice(bx, bx + bw))
         premult[box] = cv2.bitwise_and(rgb[box], rgb[box], mask=m8[box])
     roi = (slice(y, y + h), slice(x, x + w))
-    mx, my = field[roi][..., 0], field[roi][..., 1]
-    alpha8[roi] = a8 = cv2.remap(m8, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    o = cv2.remap(premult, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    # the field as one two-channel map (x, y interleaved, as it is stored): the same samples as its two channels
+    # given apart, which OpenCV first copies out of the interleaved array (MIR12d)
+    xy = field[roi]
+    alpha8[roi] = a8 = cv2.remap(m8, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    o = cv2.remap(premult, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     # edge pixels mixed foreground with black: divide by their coverage (few pixels)
     er, ec = np.nonzero((a8 > 0) & (a8 < 255))
     if len(er):
@@ -554,7 +653,7 @@ def _interpolate_projections(tri, bary, faces, projected, out):
 
 
 def _body_crop(uv_list, camera, margin_px: float):
-    pts = np.concatenate([uv[np.isfinite(uv).all(1)] for uv in uv_list])
+    pts = np.concatenate([uv[_finite_rows(uv)] for uv in uv_list])
     if not len(pts):
         return None
     x0 = int(max(np.floor(pts[:, 0].min() - margin_px), 0))
@@ -651,7 +750,7 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
         zbuf = raster.depth
         col = np.clip(np.round((uv[:, 0] - x0 + 0.5) * sx - 0.5), 0, w - 1)
         row = np.clip(np.round((uv[:, 1] - y0 + 0.5) * sy - 0.5), 0, h - 1)
-        ok = np.isfinite(uv).all(1) & (z > 0)
+        ok = _finite_rows(uv) & (z > 0)
         col, row = np.where(ok, col, 0).astype(np.int64), np.where(ok, row, 0).astype(np.int64)
         # the nearest z in the 3x3 neighbourhood: a vertex on a silhouette edge falls next to the covered pixel
         near = _nearest_depth_3x3(zbuf, row, col)

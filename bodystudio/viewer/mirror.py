@@ -7,7 +7,8 @@ import) or a run folder of ``bodystudio mirror run`` (its ``run.json`` names the
   ``frames/NNNNN.png``) and, for synthetic sessions, the truth (``gt/target/rgb``: the actor rendered with
   the edited body); panels that do not exist (no run yet, not synthetic) are left out;
 * the **source body** of ``bodystudio mirror init`` (``SESSION/mirror/source_body.npz``) in its rest pose,
-  standing in front of the strip.
+  standing in front of the strip; for a run of ``--player N`` (or several ``--player``) each run player's own
+  body (``source_body_playerN.npz``, :func:`bodystudio.mirror.run.source_body_path`), side by side.
 
 :func:`before_after_strip` is the image (used by the report), :func:`scene_for_mirror` the 3D scene.
 """
@@ -25,6 +26,7 @@ from bodystudio.errors import InputError, SessionError
 MIRROR_RUN_FORMAT = "bodystudio-mirror-run"
 PANEL_WIDTH_M = 1.2  # width of one strip panel in the 3D view
 PANEL_Z_M = -0.6  # the strip stands behind the source body
+SOURCE_BODY_SPACING_M = 0.8  # several run players' bodies stand this far apart
 
 
 @dataclass(frozen=True)
@@ -33,7 +35,8 @@ class MirrorView:
 
     session: object  # capture.session.Session
     run_dir: Path | None
-    source_path: Path | None
+    source_path: Path | None  # the (first) run player's source body; player 1's without a run
+    source_paths: tuple = ()  # ((player, Path), ...): the body file of each run player that has one
 
     @property
     def run(self) -> dict | None:
@@ -90,8 +93,33 @@ def open_mirror_view(path: str | Path) -> MirrorView:
         raise SessionError(f"{path}: neither a mirror session (kinect/player) nor a mirror run folder (run.json)")
     if run_dir is not None:
         check_run_complete(run_dir)
-    source = Path(session.path) / "mirror" / "source_body.npz"
-    return MirrorView(session, run_dir, source if source.is_file() else None)
+    players = run_players(read_run_manifest(run_dir) if run_dir is not None else None)
+    paths = _source_paths(Path(session.path), players)
+    first = dict(paths).get(players[0])
+    return MirrorView(session, run_dir, first, paths)
+
+
+def run_players(run: dict | None) -> list[int]:
+    """The players a run reshaped (``players`` of ``mirror run --player 1 --player 2``, else its ``player``), the
+    first first; ``[1]`` without a run or for a manifest that names none usable."""
+    if not isinstance(run, dict):
+        return [1]
+    players = run.get("players")
+    if not isinstance(players, list) or not players:
+        players = [run.get("player", 1)]
+    try:
+        out = [int(p) for p in players]
+    except (TypeError, ValueError):
+        return [1]
+    return out if all(p >= 1 for p in out) else [1]
+
+
+def _source_paths(session_path: Path, players: list[int]) -> tuple:
+    """``((player, path), ...)`` of the players' source-body files that exist (``mirror init --player N``)."""
+    from bodystudio.mirror.run import source_body_path
+
+    found = ((p, Path(source_body_path(session_path, p))) for p in players)
+    return tuple((p, path) for p, path in found if path.is_file())
 
 
 def check_run_complete(run_dir: Path) -> None:
@@ -182,36 +210,51 @@ def mirror_frames(view: MirrorView, n: int = 4) -> list[int]:
     return [good[int(round(k))] for k in np.linspace(0, len(good) - 1, n)]
 
 
-def source_body_mesh(view: MirrorView):
-    """The source body's rest mesh (``geometry.mesh.Mesh``), or None before ``mirror init``."""
-    if view.source_path is None:
+def _player_path(view: MirrorView, player: int | None) -> Path | None:
+    if player is None:
+        return view.source_path
+    return dict(view.source_paths).get(int(player))
+
+
+def source_body_mesh(view: MirrorView, player: int | None = None):
+    """The source body's rest mesh (``geometry.mesh.Mesh``) of the run's (first) player, or of ``player`` (one of
+    the run's players), or None before ``mirror init`` (``--player N``)."""
+    path = _player_path(view, player)
+    if path is None:
         return None
     from bodystudio.body.model import RESOLUTIONS, template_topology
     from bodystudio.geometry.mesh import Mesh
     from bodystudio.mirror.init import load_source_body
 
-    body = load_source_body(view.source_path)
+    body = load_source_body(path)
     V = np.asarray(body.vertices, np.float64)
     for resolution in RESOLUTIONS:
         ids, F = template_topology(resolution)
         if (13380 if ids is None else len(ids)) == len(V):
             return Mesh(V, np.asarray(F))
-    raise InputError(f"{view.source_path}: a source body with {len(V)} vertices is in no body template; "
+    raise InputError(f"{path}: a source body with {len(V)} vertices is in no body template; "
                      "rerun `bodystudio mirror init`")
 
 
-def source_body_is_the_runs(view: MirrorView) -> bool:
-    """Whether the session's source body is the one the run used (its ``source_fingerprint`` in run.json; True
-    when there is no run or the run records none): after ``mirror init --force`` the view showed the new body
-    beside frames made with the old one."""
-    if view.run_dir is None or view.source_path is None:
+def source_body_is_the_runs(view: MirrorView, player: int | None = None) -> bool:
+    """Whether the session's source body of the run's (first) player, or of ``player``, is the one the run used
+    (its ``source_fingerprint``, per player ``source_fingerprints``, in run.json; True when there is no run or the
+    run records none): after ``mirror init --force`` the view showed the new body beside frames made with the
+    old one."""
+    path = _player_path(view, player)
+    if view.run_dir is None or path is None:
         return True
-    used = (view.run or {}).get("source_fingerprint")
+    run = view.run or {}
+    used = run.get("source_fingerprint")
+    if player is not None and isinstance(run.get("source_fingerprints"), dict):
+        used = run["source_fingerprints"].get(str(int(player)), used)
+    elif player is not None and int(player) != run_players(run)[0]:
+        used = None
     if used is None:
         return True
     from bodystudio.mirror.init import load_source_body, source_fingerprint
 
-    return used == source_fingerprint(load_source_body(view.source_path))
+    return used == source_fingerprint(load_source_body(path))
 
 
 def add_image_panel(plotter, image: np.ndarray, center, width_m: float, name: str):
@@ -243,14 +286,31 @@ def scene_for_mirror(view: MirrorView, frame_id: int | None = None, plotter=None
     strip = before_after_strip(view, frame_id)
     step = max(1, int(np.ceil(strip.shape[1] / 1280)))  # keeps the HTML export light
     add_image_panel(plotter, strip[::step, ::step], (0.0, 1.1, PANEL_Z_M), width, "mirror-strip")
-    mesh = source_body_mesh(view)
-    changed = mesh is not None and not source_body_is_the_runs(view)
-    if mesh is not None and not changed:
-        sc.add_mesh(plotter, mesh, name="source-body")
+    shown, changed = [], []
+    players = [p for p, _ in view.source_paths] or [None]
+    for k, player in enumerate(players):  # each run player's own body, side by side (SOURCE_BODY_SPACING_M)
+        mesh = source_body_mesh(view, player)
+        if mesh is None:
+            continue
+        if not source_body_is_the_runs(view, player):
+            changed.append(player)
+            continue
+        shift = (k - (len(players) - 1) / 2) * SOURCE_BODY_SPACING_M
+        if shift:
+            from bodystudio.geometry.mesh import Mesh
+
+            mesh = Mesh(mesh.vertices + np.array([shift, 0.0, 0.0]), mesh.faces)
+        sc.add_mesh(plotter, mesh, name="source-body" if k == 0 else f"source-body-player{player}")
+        shown.append(player)
     sc.add_floor(plotter, np.zeros(3), size=max(3.0, width))
+    several = len(players) > 1
     what = " | ".join(c for c, _ in panels) + (
-        "  (source body changed since this run: re-run `bodystudio mirror run`)" if changed
-        else "  + source body" if mesh is not None else "  (no source body yet)")
+        "  (source body changed since this run: re-run `bodystudio mirror run`)" if changed and not several
+        else f"  (source body of player {', '.join(map(str, changed))} changed since this run: re-run "
+             "`bodystudio mirror run`)" if changed
+        else f"  + source bodies of players {', '.join(map(str, shown))}" if several and shown
+        else f"  + source body of player {shown[0]}" if shown and shown[0] not in (None, 1)
+        else "  + source body" if shown else "  (no source body yet)")
     sc.add_title(plotter, f"{Path(view.session.path).name}  frame {frame_id}: {what}")
     if key_help:
         sc.add_key_help(plotter)

@@ -125,3 +125,65 @@ def test_report_has_a_mirror_section_with_frames_and_eval_json(mirror_session, t
         assert section.scores["warp_iou"] == 1.0 and "scores an earlier run" in section.note
     finally:
         (mirror_session.path / "mirror" / "eval.json").unlink()
+
+
+def test_view_and_report_show_each_run_players_body(mirror_session, tmp_path):
+    """A run of ``--player 2`` showed player 1's body (``source_body.npz``) and the report checked a saved eval.json
+    against it; the view now shows each run player's own body (``source_body_playerN.npz``), side by side for a
+    run of several players, and the report checks the run's first player's body."""
+    from bodystudio.mirror.init import load_source_body, save_source_body, source_fingerprint
+    from bodystudio.viewer.mirror import open_mirror_view, scene_for_mirror, source_body_mesh
+    from bodystudio.viewer.report import _scores_of_this_run
+    from bodystudio.viewer.scene import make_plotter
+
+    work = tmp_path / "s"
+    shutil.copytree(mirror_session.path, work, ignore=shutil.ignore_patterns("run"))
+    body1 = load_source_body(work / "mirror" / "source_body.npz")
+    body2 = type(body1)(body1.coeffs + 0.5, body1.vertices * 1.1, body1.skeleton, body1.frames_used,
+                        body1.residual_mm)
+    save_source_body(work / "mirror" / "source_body_player2.npz", body2, player=2)
+    fp1, fp2 = source_fingerprint(body1), source_fingerprint(body2)
+    assert fp1 != fp2
+    session = open_session(work)
+    truth = (lambda f: f.gt_target_rgb, lambda f: f.gt_person == 1, lambda f: f.gt_target_person == 1)
+
+    write_fake_run(session, work / "mirror" / "run", *truth, player=2,
+                   extra={"players": [2], "source_fingerprint": fp2, "source_fingerprints": {"2": fp2}})
+    view = open_mirror_view(work)
+    assert view.source_path == work / "mirror" / "source_body_player2.npz"
+    assert np.allclose(source_body_mesh(view).vertices, body2.vertices)
+    plotter = scene_for_mirror(view, 12, plotter=make_plotter(off_screen=True))
+    try:
+        assert "source-body" in plotter.actors and "source body of player 2" in plotter.actors["title"].GetText(2)
+        shown = np.asarray(plotter.actors["source-body"].GetMapper().GetInput().GetPoints().GetData())
+        assert np.allclose(shown, body2.vertices, atol=1e-5)  # player 2's body, not player 1's
+    finally:
+        plotter.close()
+    run_id = json.loads((work / "mirror" / "run" / "run.json").read_text())["run"]["run_id"]
+    assert _scores_of_this_run({"run_id": run_id, "source_fingerprint": fp2}, view)
+    assert not _scores_of_this_run({"run_id": run_id, "source_fingerprint": fp1}, view)
+
+    shutil.rmtree(work / "mirror" / "run")
+    write_fake_run(session, work / "mirror" / "run", *truth, player=1,
+                   extra={"players": [1, 2], "source_fingerprint": fp1, "source_fingerprints": {"1": fp1, "2": fp2}})
+    view = open_mirror_view(work)
+    assert [p for p, _ in view.source_paths] == [1, 2] and view.source_path == work / "mirror" / "source_body.npz"
+    plotter = scene_for_mirror(view, 12, plotter=make_plotter(off_screen=True))
+    try:
+        assert {"source-body", "source-body-player2"} <= set(plotter.actors)
+        first = np.asarray(plotter.actors["source-body"].GetMapper().GetInput().GetPoints().GetData())
+        second = np.asarray(plotter.actors["source-body-player2"].GetMapper().GetInput().GetPoints().GetData())
+        assert np.allclose(first - first.mean(0), body1.vertices - body1.vertices.mean(0), atol=1e-5)
+        assert np.allclose(second - second.mean(0), body2.vertices - body2.vertices.mean(0), atol=1e-5)
+        assert second.mean(0)[0] - first.mean(0)[0] > 0.5  # side by side
+        assert "source bodies of players 1, 2" in plotter.actors["title"].GetText(2)
+    finally:
+        plotter.close()
+    # player 2's body re-initialised after the run: left out, and the title says whose
+    save_source_body(work / "mirror" / "source_body_player2.npz", body1, player=2)
+    plotter = scene_for_mirror(open_mirror_view(work), 12, plotter=make_plotter(off_screen=True))
+    try:
+        assert "source-body" in plotter.actors and "source-body-player2" not in plotter.actors
+        assert "source body of player 2 changed" in plotter.actors["title"].GetText(2)
+    finally:
+        plotter.close()
