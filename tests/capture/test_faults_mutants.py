@@ -58,8 +58,8 @@ def _make_session(tmp_path):
     tracked = [True, True, True, False, True, True, True, True]
     put("kinect/joints/000000.json", json.dumps({"names": list(JOINTS), "tracked": tracked,
                                                  "bodies": [{"tracked": [True] * 8},
-                                                            {"tracked": [1, 0, 1, 1, 1, 1, 0, 1],
-                                                             "names": list(reversed(JOINTS))},
+                                                            {"tracked": [1, 1, 1, 1, 1, 1, 0, 1],
+                                                             "names": list(JOINTS[1:] + JOINTS[:1])},
                                                             {"id": 7}]}).encode())
     put("kinect/joints/000001.json", json.dumps({"names": list(JOINTS), "tracked": [True] * 8}).encode())
     put("kinect/joints/000002.json", json.dumps({"names": list(JOINTS), "bodies": None}).encode())
@@ -203,11 +203,8 @@ def test_legs_untracked_marks_knees_ankles_and_feet_inferred(tmp_path):
     doc = json.loads((session / "kinect/joints/000000.json").read_text())
     assert doc["tracked"] == [True, False, False, False, False, False, False, True]
     assert doc["bodies"][0]["tracked"] == [not g for g in legs]
-    # the second body lists its joints in another order; its untracked ones stay untracked
-    rev_legs = [n in faults.LEG_JOINTS for n in reversed(JOINTS)]
-    assert doc["bodies"][1]["tracked"] == [bool(t) and not g for t, g in zip([1, 0, 1, 1, 1, 1, 0, 1], rev_legs,
-                                                                                strict=True)]
-    assert doc["bodies"][1]["tracked"] == [True, False, False, False, False, False, False, True]
+    # the second body lists its joints in another order (its own names count); its untracked one stays untracked
+    assert doc["bodies"][1]["tracked"] == [False, False, False, False, False, False, False, True]
     assert doc["bodies"][2] == {"id": 7}
     assert doc["names"] == list(JOINTS)
     doc1 = json.loads((session / "kinect/joints/000001.json").read_text())
@@ -219,3 +216,12 @@ def test_legs_untracked_marks_knees_ankles_and_feet_inferred(tmp_path):
 
 def test_leg_joints_are_the_kinects_knees_ankles_and_feet():
     assert set(faults.LEG_JOINTS) == {"KneeLeft", "KneeRight", "AnkleLeft", "AnkleRight", "FootLeft", "FootRight"}
+
+
+def test_legs_untracked_refuses_a_tracked_list_that_does_not_match_the_names(tmp_path):
+    session = _make_session(tmp_path)
+    doc = json.loads((session / "kinect/joints/000001.json").read_text())
+    doc["tracked"] = doc["tracked"][:-1]
+    (session / "kinect/joints/000001.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError):
+        faults.legs_untracked(session)
