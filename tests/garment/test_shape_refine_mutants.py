@@ -100,10 +100,14 @@ def test_rows_residuals_are_the_outside_distance_and_the_rim_cover_gap(rect):
 def test_rows_are_the_derivative_of_the_residuals(rect):
     from bodystudio.garment.shape_refine import silhouette_rows
 
-    V, N, t, cam = rect["V"], rect["N"], rect["target"], rect["camera"]
+    t, cam = rect["target"], rect["camera"]
+    # and front-facing vertices 5 px above the matte's top edge: E_out with a vertical gradient
+    top = _at_pixels(cam, np.c_[np.arange(108.0, 133.0, 4.0), np.full(7, TOP - 5.0)])
+    V = np.r_[rect["V"], top]
+    N = np.r_[rect["N"], np.tile([0.0, 0.0, 1.0], (len(top), 1))]
     J = np.zeros((len(V), 3, 3))
     J[:, 0, 0] = 1.0  # everything moves along +x
-    J[rect["kind"] == 0, 0, 1] = -1.0  # the left rim moves out
+    J[np.flatnonzero(rect["kind"] == 0), 0, 1] = -1.0  # the left rim moves out
     J[:, 1, 2] = np.linspace(0.0, 1.0, len(V))  # a vertical shear
     A, r = silhouette_rows(V, N, J, cam, t)
     _, r0 = silhouette_rows(V, N, None, cam, t)
@@ -112,6 +116,9 @@ def test_rows_are_the_derivative_of_the_residuals(rect):
     n_out = rect["n"]
     # E_out's row along +x: the distance falls 1 px per px, u moves fx / z px per metre
     np.testing.assert_allclose(A[:n_out, 0] * np.sqrt(len(V)), -cam.fx / DEPTH_M, rtol=1e-6)
+    # the top vertices' rows: no change along x, 1 px less per px down
+    np.testing.assert_allclose(r[n_out:n_out + 7] * np.sqrt(len(V)), 5.0, atol=1e-6)
+    np.testing.assert_allclose(A[n_out:n_out + 7, 0], 0.0, atol=1e-9)
     for k, dp in ((0, 2e-4), (1, 2e-4), (2, 1e-4)):
         _, r1 = silhouette_rows(V + dp * J[:, :, k], N, None, cam, t)
         assert len(r1) == len(r)
@@ -140,16 +147,17 @@ def test_outside_distance_is_capped_at_30_px_and_the_border_is_left_out():
 
     cam = _camera()
     t = silhouette_target(_matte())
-    uv = np.array([[LEFT - 40.0, 160.0], [LEFT - 12.0, 161.0], [120.0, 160.0], [0.4, 160.0], [W - 1.2, 160.0],
-                   [120.0, 0.5], [120.0, H - 1.5], [1.0, 150.0]])
+    uv = np.array([[LEFT - 40.0, 160.0], [LEFT - 12.0, 161.0], [LEFT - 1.0, 170.0], [120.0, 160.0], [0.4, 160.0],
+                   [W - 1.2, 160.0], [120.0, 0.5], [120.0, H - 1.5], [1.0, 150.0], [W - 2.5, 150.0], [120.0, 1.5],
+                   [120.0, H - 2.5]])
     V = _at_pixels(cam, uv)
     N = np.tile([0.0, 0.0, 1.0], (len(V), 1))  # no rim: E_cover empty
     J = np.ones((len(V), 3, 2))
     A, r = silhouette_rows(V, N, J, cam, t)
-    # the 40 px vertex counts 30 px, the 12 px one 12, the one inside nothing, four off the image's 1 px border none;
-    # (1, 150), 99 px outside, is on the border band's edge and counts (30 px)
-    np.testing.assert_allclose(r * np.sqrt(len(V)), [30.0, 12.0, 30.0], atol=1e-4)
-    assert A.shape == (3, 2)
+    # the 40 px vertex counts 30 px, the 12 px one 12, the 1 px one 1, the one inside nothing, four in the image's
+    # 1 px border band none; (1, 150) on the band's edge and the three 0.5 px inside it count (all over 30 px out)
+    np.testing.assert_allclose(r * np.sqrt(len(V)), [30.0, 12.0, 1.0, 30.0, 30.0, 30.0, 30.0], atol=1e-4)
+    assert A.shape == (7, 2)
 
 
 def test_cover_leaves_out_samples_beyond_reach_and_needs_three_rim_vertices():
@@ -167,6 +175,9 @@ def test_cover_leaves_out_samples_beyond_reach_and_needs_three_rim_vertices():
     assert 40 < np.count_nonzero(near) < 80
     np.testing.assert_allclose(r[3:] * np.sqrt(len(t.samples)), t.samples[near, 0] - (LEFT - 3.0), atol=1e-6)
     np.testing.assert_allclose(r[:3] * np.sqrt(3), 3.0, atol=1e-6)  # E_out of the three
+    # 8 m away a 1 cm normal step is under a pixel in the image: the rim's image normal is still a unit vector
+    _, r8 = silhouette_rows(_at_pixels(cam, uv, 8.0), N, None, cam, t)
+    np.testing.assert_allclose(r8, r, atol=1e-6)
     # two rim vertices are not a rim: no E_cover at all
     _, r2 = silhouette_rows(V[:2], N[:2], None, cam, t)
     assert len(r2) == 2
@@ -236,6 +247,7 @@ class _Ellipsoid:
 
 
 def _shape_body(values, names, phenotype, local, template):
+    assert template == "toy", template  # the refinement hands its template on to every body it builds
     ph, loc = dict(phenotype), dict(local)
     for n, v in zip(names, values, strict=True):
         if n in ph:
@@ -341,9 +353,12 @@ def test_energy_is_the_frames_mean_plus_stature_plus_prior(monkeypatch):
     q[len(p) - len(LOCAL_PARAMETERS) + LOCAL_PARAMETERS.index("stomach-pregnant-decr-incr")] = 0.3
     e2 = refinement_energy(q, ph, {}, "toy", POSES, cam, targets, toy["stature"], 0.004)
     np.testing.assert_allclose(e2 - e, 0.005, rtol=1e-6)
-    # the allowance reaches the frames
+    # the allowance reaches the frames; none by default
     e3 = refinement_energy(p, ph, {}, "toy", POSES, cam, targets, toy["stature"], 0.0)
     assert abs(e3 - e) > 1e-3 * e
+    assert refinement_energy(p, ph, {}, "toy", POSES, cam, targets, toy["stature"]) == e3
+    with pytest.raises(ValueError):  # a pose for every matte
+        refinement_energy(p, ph, {}, "toy", POSES, cam, targets[:2], toy["stature"])
 
 
 def test_restore_stature_moves_height_only(monkeypatch):
@@ -351,14 +366,27 @@ def test_restore_stature_moves_height_only(monkeypatch):
     from bodystudio.garment.shape_refine import _restore_stature, refined_macro_parameters, shape_parameters
 
     i = refined_macro_parameters().index("height")
-    for start_h, target in ((0.3, 1.74), (0.9, 1.60), (0.5, 1.90)):
+    builds = []
+    count = {"n": 0}
+
+    def counted(*a):
+        count["n"] += 1
+        return _shape_body(*a)
+
+    monkeypatch.setattr("bodystudio.garment.fit._shape_body", counted)
+    for start_h, target in ((0.3, 1.74), (0.9, 1.60), (0.5, 1.90), (0.52, 1.74), (0.45, 1.74)):
         ph = {**TRUTH_PH, "height": start_h, "weight": 0.3}
         p = shape_parameters(ph, {"torso-scale-horiz-decr-incr": 0.2})
+        count["n"] = 0
         q = _restore_stature(p, ph, {}, "toy", target)
+        builds.append(count["n"])
         np.testing.assert_array_equal(np.delete(q, i), np.delete(p, i))
         assert p[i] == start_h  # the input is not changed
         stature = 2 * _axes({**ph, "height": q[i]}, {})[1]
         assert abs(stature - target) < 5e-5, (start_h, target, stature - target)
+    # secant steps from a first probe 0.01 towards the stature, stopping once within 0.05 mm: each probe is a
+    # MakeHuman body build (measured 5, 6, 5, 3, 4)
+    assert builds[:3] == [5, 6, 5] and max(builds[3:]) <= 4, builds
 
 
 def test_restore_stature_keeps_the_best_within_the_bounds(monkeypatch):
@@ -373,9 +401,30 @@ def test_restore_stature_keeps_the_best_within_the_bounds(monkeypatch):
     assert q[i] == 1.0
     q = _restore_stature(p, ph, {}, "toy", 1.0)
     assert q[i] == 0.0
+    # from the bound itself the probe stays within [0, 1]
+    low = {**ph, "height": 0.0}
+    assert _restore_stature(shape_parameters(low, {}), low, {}, "toy", 1.0)[i] == 0.0
+    high = {**ph, "height": 1.0}
+    assert _restore_stature(shape_parameters(high, {}), high, {}, "toy", 2.6)[i] == 1.0
     # already there: unchanged
     exact = 2 * _axes(ph, {})[1]
     np.testing.assert_array_equal(_restore_stature(p, ph, {}, "toy", exact), p)
+
+
+def test_restore_stature_gives_up_when_height_does_not_move_the_stature(monkeypatch):
+    from bodystudio.garment import fit as gf
+    from bodystudio.garment.shape_refine import _restore_stature, refined_macro_parameters, shape_parameters
+
+    def flat(values, names, phenotype, local, template):
+        body, ph, loc = _shape_body(values, names, phenotype, local, template)
+        return _Ellipsoid(_axes({**ph, "height": 0.5}, loc)), ph, loc
+
+    monkeypatch.setattr(gf, "_shape_body", flat)
+    ph = {**TRUTH_PH, "height": 0.4}
+    p = shape_parameters(ph, {})
+    q = _restore_stature(p, ph, {}, "toy", 1.9)
+    i = refined_macro_parameters().index("height")
+    assert q[i] in (0.39, 0.4) and np.array_equal(np.delete(q, i), np.delete(p, i))
 
 
 def test_refinement_recovers_a_planted_shape_and_holds_the_stature(monkeypatch):
@@ -406,6 +455,22 @@ def test_one_step_lowers_the_energy_and_is_capped(monkeypatch):
     i = refined_macro_parameters().index("height")
     moved = np.abs(np.delete(p1 - p0, i))
     assert moved.max() <= MAX_STEP + 1e-9 and moved.max() > 0.5 * MAX_STEP, moved
+
+
+def test_a_start_outside_the_bounds_starts_at_the_bound(monkeypatch):
+    toy = _toy(monkeypatch)
+    for key, out, bound in (("weight", 1.3, 1.0), ("torso-scale-horiz-decr-incr", -1.3, -1.0)):
+        ph, loc = ({**TRUTH_PH, key: out}, {}) if key in TRUTH_PH else (dict(TRUTH_PH), {key: out})
+        ph_b, loc_b = ({**TRUTH_PH, key: bound}, {}) if key in TRUTH_PH else (dict(TRUTH_PH), {key: bound})
+        r = _refine(toy, ph, loc, iterations=1, allowance_m=0.0)
+        rb = _refine(toy, ph_b, loc_b, iterations=1, allowance_m=0.0)
+        assert r.phenotype == rb.phenotype and r.local == rb.local and r.energies == rb.energies, key
+
+
+def test_one_gauss_newton_step_removes_most_of_a_small_error(monkeypatch):
+    toy = _toy(monkeypatch)
+    r = _refine(toy, {**TRUTH_PH, "weight": 0.6}, {}, iterations=1, allowance_m=0.0)
+    assert r.energies[1] < 0.4 * r.energies[0], r.energies  # measured 2.05 -> 0.65
 
 
 def test_no_iterations_returns_the_start(monkeypatch):
