@@ -516,3 +516,104 @@ def test_defaults_are_the_documented_fit(monkeypatch):
     r = _refine(toy, {**TRUTH_PH, "weight": 0.7}, {})
     assert seen["allowance"] == {sr.CLOTHING_ALLOWANCE_M} and sr.CLOTHING_ALLOWANCE_M == 0.004
     assert r.iterations == sr.REFINE_ITERATIONS == 5
+
+
+def _stand_in_normal_equations(toy, p, ph, loc, allowance_m):
+    """Gauss-Newton's H and g at ``p`` written out: the frames' mean silhouette rows (forward differences of the
+    posed vertices, SHAPE_FD_STEP), the stature row at STATURE_SCALE_M and the local modifiers' prior."""
+    from bodystudio.garment.fit import silhouette_target
+    from bodystudio.garment.shape_refine import (
+        SHAPE_FD_STEP,
+        STATURE_SCALE_M,
+        _prior_rows,
+        refined_macro_parameters,
+        silhouette_rows,
+    )
+    from bodystudio.geometry.mesh import vertex_normals
+
+    names = refined_macro_parameters() + tuple(k for k in _local_names())
+
+    def body(x):
+        return _shape_body(x, names, ph, loc, "toy")[0]
+
+    b0 = body(p)
+    k = len(p)
+    H, g = np.zeros((k, k)), np.zeros(k)
+    for pose, m in zip(POSES, toy["masks"], strict=True):
+        V = b0.pose(pose)[0]
+        J = np.zeros((len(V), 3, k))
+        for j in range(k):
+            q = p.copy()
+            q[j] += SHAPE_FD_STEP
+            J[:, :, j] = (body(q).pose(pose)[0] - V) / SHAPE_FD_STEP
+        A, r = silhouette_rows(V, vertex_normals(V, F), J, toy["camera"], silhouette_target(m), allowance_m)
+        H += A.T @ A / len(POSES)
+        g += A.T @ r / len(POSES)
+    a = np.array([2 * (_axes_of(body, p, j) - b0.axes[1]) / SHAPE_FD_STEP for j in range(k)]) / STATURE_SCALE_M
+    H += np.outer(a, a)
+    g += a * (2 * b0.axes[1] - toy["stature"]) / STATURE_SCALE_M
+    P, rp = _prior_rows(p)
+    return H + P.T @ P, g + P.T @ rp
+
+
+def _local_names():
+    from bodystudio.garment.fit import LOCAL_PARAMETERS
+
+    return LOCAL_PARAMETERS
+
+
+def _axes_of(body, p, j):
+    from bodystudio.garment.shape_refine import SHAPE_FD_STEP
+
+    q = p.copy()
+    q[j] += SHAPE_FD_STEP
+    return body(q).axes[1]
+
+
+def test_gauss_newton_system_and_levenberg_damping(monkeypatch):
+    """The first step solves (H + 1e-3 diag(H)) delta = -g with H, g of the silhouette rows, the stature row and
+    the prior; later solves divide the damping by 3 after an accepted step and multiply it by 10 after a refused
+    one; four refusals in a row end the refinement."""
+    from bodystudio.garment.fit import LOCAL_PARAMETERS, LOCAL_PRIOR_SD, SHAPE_PRIOR_WEIGHT
+    from bodystudio.garment.shape_refine import refined_macro_parameters, shape_parameters
+
+    toy = _toy(monkeypatch)
+    ph = {**TRUTH_PH, "weight": 0.62, "gender": 0.3, "height": 0.53}  # the stature 1.7 cm off: g's stature term
+    solves = []
+    real_solve = np.linalg.solve
+
+    def spy(M, b):
+        solves.append((M.copy(), b.copy()))
+        return real_solve(M, b)
+
+    monkeypatch.setattr(np.linalg, "solve", spy)
+    r = _refine(toy, ph, {}, iterations=12, allowance_m=0.0)
+    monkeypatch.undo()
+    toy = _toy(monkeypatch)
+    p0 = shape_parameters(ph, {})
+    H, g = _stand_in_normal_equations(toy, p0, ph, {}, 0.0)
+    M0, g0 = solves[0]
+    np.testing.assert_allclose(g0, g, rtol=1e-6, atol=1e-9 * np.abs(g).max())
+    np.testing.assert_allclose(M0, H + 1e-3 * np.diag(np.diag(H) + 1e-9), rtol=1e-6, atol=1e-9 * np.abs(H).max())
+    # the damping of every solve, read off an unseen modifier's diagonal (its H is the prior's alone)
+    i = len(refined_macro_parameters()) + LOCAL_PARAMETERS.index("stomach-pregnant-decr-incr")
+    h = SHAPE_PRIOR_WEIGHT / LOCAL_PRIOR_SD ** 2
+    d = np.array([(M[i, i] - h) / (h + 1e-9) for M, _ in solves])
+    ratios = d[1:] / d[:-1]
+    assert np.allclose(d[0], 1e-3, rtol=1e-6)
+    kinds = [("down" if np.isclose(x, 1 / 3, rtol=1e-6) else "up" if np.isclose(x, 10.0, rtol=1e-6) else x)
+             for x in ratios]
+    assert set(kinds) == {"down", "up"}, kinds
+    assert r.iterations < 12 and len(r.energies) == r.iterations + 2  # stopped: the last step found no lower energy
+    assert kinds.count("down") == r.iterations and kinds[-3:] == ["up", "up", "up"], kinds
+    assert len(d) - 1 - kinds[::-1].index("down") == len(d) - 4  # the last accepted solve, then four refused ones
+
+
+def test_each_accepted_step_is_logged(monkeypatch, caplog):
+    import logging
+
+    toy = _toy(monkeypatch)
+    with caplog.at_level(logging.INFO, logger="bodystudio.garment.shape_refine"):
+        r = _refine(toy, {**TRUTH_PH, "weight": 0.6}, {}, iterations=2, allowance_m=0.0)
+    lines = [rec.getMessage() for rec in caplog.records if "shape refinement" in rec.getMessage()]
+    assert lines == [f"shape refinement step {i + 1}: energy {e:.4f}" for i, e in enumerate(r.energies[1:])]
