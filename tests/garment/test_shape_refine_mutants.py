@@ -406,6 +406,11 @@ def test_restore_stature_keeps_the_best_within_the_bounds(monkeypatch):
     assert _restore_stature(shape_parameters(low, {}), low, {}, "toy", 1.0)[i] == 0.0
     high = {**ph, "height": 1.0}
     assert _restore_stature(shape_parameters(high, {}), high, {}, "toy", 2.6)[i] == 1.0
+    # from either bound the first probe goes inwards: a reachable stature is restored
+    for bound in (0.0, 1.0):
+        start = {**ph, "height": bound}
+        q = _restore_stature(shape_parameters(start, {}), start, {}, "toy", 1.74)
+        assert abs(2 * _axes({**ph, "height": q[i]}, {})[1] - 1.74) < 5e-5, (bound, q[i])
     # already there: unchanged
     exact = 2 * _axes(ph, {})[1]
     np.testing.assert_array_equal(_restore_stature(p, ph, {}, "toy", exact), p)
