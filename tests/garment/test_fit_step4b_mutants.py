@@ -138,17 +138,17 @@ def test_refine_garment_fit_refines_with_the_fits_poses_and_recomputes_what_depe
 
 
 def test_refine_garment_fit_takes_the_allowance_and_re_estimates_the_appearance(monkeypatch):
-    log = _stand_ins(monkeypatch, stature_fit=1.65, ious=(0.95, 0.9))
-    fit = _finished_fit(lighting="OLD LIGHTING", n=2)
-    images = np.zeros((2, 6, 8, 3), np.uint8)
+    log = _stand_ins(monkeypatch, stature_fit=1.65, ious=(0.95, 0.9, 0.85))
+    fit = _finished_fit(lighting="OLD LIGHTING")
+    images = np.zeros((3, 6, 8, 3), np.uint8)
     out = gf.refine_garment_fit(fit, images, 1.70, allowance_m=0)
     assert log["refine"][6] == 0.0 and isinstance(log["refine"][6], float)
     imgs, masks, posed, F, camera = log["appearance"]
     assert imgs is images and masks is fit.masks and F == "F" and camera == "camera"
     assert posed == [float(t) for t in fit.translations[:, 0]]
     assert out.albedo == "NEW ALBEDO" and out.lighting == "NEW LIGHTING"
-    # ticks 0.25 s apart: the refinement and the appearance each 250 ms over 2 frames
-    assert out.timings_ms == {"pose": 12.5, "shape_refinement": 125.0, "appearance": 125.0}
+    # ticks 0.25 s apart: the refinement and the appearance each 250 ms over 3 frames, to 0.1 ms
+    assert out.timings_ms == {"pose": 12.5, "shape_refinement": 83.3, "appearance": 83.3}
     assert out.warnings == ("fitted stature 1.650 m differs from the given 1.700 m by over 1 cm",)
     gf.refine_garment_fit(fit, images, 1.70, allowance_m=0.012)
     assert log["refine"][6] == 0.012
