@@ -177,3 +177,60 @@ def test_without_shape_refinement_step_4b_is_skipped_whatever_the_allowance(tmp_
     assert "refine" not in log and "shape_refinement" not in fit.timings_ms
     with pytest.raises(InputError, match="--clothing-mm 40"):
         gf.fit_garment_video("clip.mp4", 1.72, shape_refinement=False, clothing_allowance_m=0.04)
+
+
+# --- the rest of fit_garment_video, measured with step 4b's lines (the function as a whole) ---------------------
+
+@pytest.mark.parametrize("stature", [0.5, 1.0, 2.5])
+def test_statures_from_half_a_metre_to_two_and_a_half_are_fitted(monkeypatch, stature):
+    log, pf, shape, light = stand_in_fit(monkeypatch)
+    gf.fit_garment_video("clip.mp4", stature)
+    assert log["shape"][2] == stature
+
+
+@pytest.mark.parametrize("stature", [None, float("nan"), float("inf"), 0.4999, 2.5001, 3.0])
+def test_an_implausible_stature_is_refused_by_name(tmp_path, stature):
+    with pytest.raises(InputError) as e:
+        gf.fit_garment_video(tmp_path / "missing.mp4", stature, tmp_path / "o")
+    assert str(e.value) == f"--stature {stature}: give the actor's stature in metres, between 0.5 and 2.5"
+
+
+def test_an_unknown_template_is_refused_with_the_valid_ones(tmp_path):
+    from bodystudio.body.model import RESOLUTIONS
+
+    with pytest.raises(InputError) as e:
+        gf.fit_garment_video(tmp_path / "missing.mp4", 1.7, template="9k")
+    assert str(e.value) == f"--template '9k': valid: {', '.join(RESOLUTIONS)}"
+
+
+def _keyframes(tmp_path, monkeypatch, frames: dict):
+    import json
+
+    import bodystudio.body as body_mod
+
+    monkeypatch.setattr(body_mod, "build_body", lambda resolution: SimpleNamespace(
+        skeleton=SimpleNamespace(bone_names=("Root", "spine_02"))))
+    path = tmp_path / "keys.json"
+    path.write_text(json.dumps({"frames": frames}))
+    return path
+
+
+def test_keyframes_are_checked_against_the_image_size_and_the_fitted_frames(tmp_path, monkeypatch):
+    from bodystudio.errors import FileFormatError
+
+    log, pf, shape, light = stand_in_fit(monkeypatch)  # 64 x 48 frames 5, 6, 7
+    with pytest.raises(FileFormatError, match=r"joint spine_02 at frame 6: \[70, 3\] is outside the 64x48 image"):
+        gf.fit_garment_video("clip.mp4", 1.7, keyframes=_keyframes(tmp_path, monkeypatch, {"6": {"spine_02": [70, 3]}}))
+    with pytest.raises(FileFormatError, match=r"no keyframe is on a fitted frame \(keyframes on \[9\], fitted 5..7\)"):
+        gf.fit_garment_video("clip.mp4", 1.7, keyframes=_keyframes(tmp_path, monkeypatch, {"9": {"spine_02": [3, 4]}}))
+    assert "shape" not in log  # refused before the shape fit
+
+
+def test_the_fit_keeps_the_recordings_fingerprint(monkeypatch):
+    from dataclasses import replace
+
+    import bodystudio.garment.person as person
+
+    log, pf, shape, light = stand_in_fit(monkeypatch)
+    monkeypatch.setattr(person, "person_frames", lambda source, frames, background: replace(pf, fingerprint="video:ab"))
+    assert gf.fit_garment_video("clip.mp4", 1.72).source_fingerprint == "video:ab"
