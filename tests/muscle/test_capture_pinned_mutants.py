@@ -70,7 +70,8 @@ def test_the_gate_pins_at_or_below_its_standard_error_from_its_frame_count_on():
     assert cap_mod.sequence_options(o, T[:-1]) is o  # one frame short
     assert cap_mod.sequence_options(o, list(T)).norm_limit == 0.05  # any array-like track
     still = T.copy()
-    still[:, 0] = still[0, 0]
+    still[:, 0] = [0.25, 1.5, 2.0]  # exactly representable: the mean is exact and the SE exactly 0
+    assert tracker_mean_standard_error(still) == 0.0
     assert cap_mod.sequence_options(replace(o, sequence_pinned_se_m=1e-9), still).norm_limit == 0.05
     off = replace(o, sequence_pinned_se_m=0.0)
     assert cap_mod.sequence_options(off, still) is off  # 0 is off, even for a still tracker (SE 0)
@@ -176,6 +177,11 @@ def test_the_regressed_joints_round_trip_through_the_folder(tmp_path):
     params["regressed_joints"] = R.ravel().tolist()
     (tmp_path / "b" / "params.json").write_text(json.dumps(params))
     np.testing.assert_array_equal(cap_mod.load_arm_capture(tmp_path / "b").regressed_joints, R)
+    # whole numbers in a hand-edited file are read as float64 too
+    params["regressed_joints"] = [[0, 1, 2], [3, 4, 5], [6, 7, 8]]
+    (tmp_path / "b" / "params.json").write_text(json.dumps(params))
+    back = cap_mod.load_arm_capture(tmp_path / "b").regressed_joints
+    assert back.dtype == np.float64 and back.tolist() == [[0, 1, 2], [3, 4, 5], [6, 7, 8]]
 
 
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), [1.0, 2.0]])
