@@ -152,9 +152,12 @@ def test_a_model_capture_returns_the_rest_joints_its_model_regresses_for_its_sha
                            CaptureOptions(mode="model", **FAST), tracker_joints=scene.tracker, known_shape=scene.shape)
     assert c.regressed_joints.shape == (3, 3) and c.regressed_joints.dtype == np.float64
     np.testing.assert_allclose(c.regressed_joints, model_joints(scene.model, c.shape), atol=1e-12)
+    # no skeleton fitted (the default): the capture's joints are those same regressed ones, a copy of its own
+    assert c.joints.shape == (3, 3) and c.joints.dtype == np.float64 and c.joints is not c.regressed_joints
+    np.testing.assert_allclose(c.joints, c.regressed_joints, atol=1e-12)
     n = capture_arm_frames(scene.depths, scene.camera, scene.template, None,
                            CaptureOptions(mode="nicp", **FAST), tracker_joints=scene.tracker)
-    assert n.regressed_joints is None
+    assert n.regressed_joints is None and n.joints is None
 
 
 def test_the_regressed_joints_round_trip_through_the_folder(tmp_path):
