@@ -33,6 +33,7 @@ import logging
 from dataclasses import dataclass, replace
 
 import igl
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
@@ -143,6 +144,80 @@ def _skin_parts(body, pose: Pose, bone_idx: np.ndarray, bone_w: np.ndarray):
     Sk = S[bone_idx]  # (n, K, 4, 4)
     Sv = np.einsum("nkij,nj->nki", Sk[:, :, :3, :3], body.vertices) + Sk[:, :, :3, 3]
     return bone_w[:, :, None] * Sv, M
+
+
+@numba.njit(cache=True)
+def skinned_parts(T, rest, bone_idx, bone_w):
+    """Weighted per-influence skinned positions ``C[i, k] = w_ik (T_b v_i + t_b)`` ``(n, K, 3)`` and their sum,
+    the LBS vertices ``(n, 3)`` (Eq. 12 of Rapid Skin), of the sparse skin weights ``(n, K)``."""
+    n, K = bone_idx.shape
+    C = np.zeros((n, K, 3))
+    V = np.zeros((n, 3))
+    for i in range(n):
+        x, y, z = rest[i, 0], rest[i, 1], rest[i, 2]
+        for k in range(K):
+            w = bone_w[i, k]
+            if w == 0.0:
+                continue
+            b = bone_idx[i, k]
+            for r in range(3):
+                c = w * (T[b, r, 0] * x + T[b, r, 1] * y + T[b, r, 2] * z + T[b, r, 3])
+                C[i, k, r] = c
+                V[i, r] += c
+    return C, V
+
+
+@numba.njit(cache=True)
+def data_normal_equations(C, bone_idx, bone_w, D, heads, rows, r, w, G):
+    """Gauss-Newton normal equations ``H = J^T W J``, ``g = J^T W r`` of the data term of
+    :func:`refine_bone_transforms` without forming ``J``: a row is ``[G_i, lever_ij x G_i for each segment j]``
+    (root translation, then the segments' rotations about their heads), ``lever_ij`` the vertex's skinned
+    parts carried by segment j minus its share of the head, zero for segments the vertex does not follow;
+    only those non-zero blocks are accumulated (a vertex follows a few of the 18 segments)."""
+    n_seg = D.shape[1]
+    n_par = 3 + 3 * n_seg
+    H = np.zeros((n_par, n_par))
+    g = np.zeros(n_par)
+    K = bone_idx.shape[1]
+    cols = np.empty(n_par, np.int64)
+    vals = np.empty(n_par)
+    for m in range(rows.shape[0]):
+        i = rows[m]
+        gx, gy, gz = G[m, 0], G[m, 1], G[m, 2]
+        cols[0], cols[1], cols[2] = 0, 1, 2
+        vals[0], vals[1], vals[2] = gx, gy, gz
+        nnz = 3
+        for j in range(n_seg):
+            a = 0.0
+            lx = 0.0
+            ly = 0.0
+            lz = 0.0
+            for k in range(K):
+                d = D[bone_idx[i, k], j]
+                if d != 0.0:
+                    a += bone_w[i, k] * d
+                    lx += d * C[i, k, 0]
+                    ly += d * C[i, k, 1]
+                    lz += d * C[i, k, 2]
+            if a == 0.0:
+                continue
+            lx -= a * heads[j, 0]
+            ly -= a * heads[j, 1]
+            lz -= a * heads[j, 2]
+            base = 3 + 3 * j
+            cols[nnz], cols[nnz + 1], cols[nnz + 2] = base, base + 1, base + 2
+            vals[nnz] = ly * gz - lz * gy
+            vals[nnz + 1] = lz * gx - lx * gz
+            vals[nnz + 2] = lx * gy - ly * gx
+            nnz += 3
+        wm = w[m]
+        rm = r[m]
+        for p in range(nnz):
+            wv = wm * vals[p]
+            g[cols[p]] += wv * rm
+            for q in range(nnz):
+                H[cols[p], cols[q]] += wv * vals[q]
+    return H, g
 
 
 def _huber_weights(r: np.ndarray, delta: float) -> np.ndarray:
@@ -499,9 +574,9 @@ def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefinePa
         raise InputError(f"pose refinement: the template has no bone(s) {', '.join(missing)}")
     bones = np.array([skel.index(b) for b in params.bones])
     D = _subtree_matrix(skel, bones)
-    a = body.weights @ D
     bone_idx, bone_w = _sparse_weights(body.weights)
-    Dk = D[bone_idx]
+    bone_idx = np.ascontiguousarray(bone_idx, dtype=np.int64)
+    bone_w = np.ascontiguousarray(bone_w, dtype=np.float64)
     nJ = len(bones)
     # nearest refined ancestor of each refined segment (-1: the root segment)
     fitted_parent = []
@@ -514,21 +589,20 @@ def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefinePa
     Q = np.tile(np.eye(3), (nJ, 1, 1))  # accumulated world correction of each segment
     T = T.copy()
     n_par = 3 + 3 * nJ
-    rest_h = np.concatenate([body.vertices, np.ones((len(body.vertices), 1))], axis=1).T
-    rows = np.arange(len(body.vertices))[:, None]
+    rest = np.ascontiguousarray(body.vertices, dtype=np.float64)
     is_child = D[bones] > 0  # is_child[i, j]: segment i lies in segment j's subtree
     for _ in range(params.iterations):
-        # weighted per-influence skinned positions C (n, K, 3) and lever arms about each segment's head
-        C = bone_w[:, :, None] * (T[:, :3, :] @ rest_h)[bone_idx, :, rows]
-        V = C.sum(axis=1)
+        # weighted per-influence skinned positions C (n, K, 3); the lever arms about each segment's head
+        # and the data rows' normal equations in one compiled pass (data_normal_equations)
+        C, V = skinned_parts(T, rest, bone_idx, bone_w)
         N = np.nan_to_num(igl.per_vertex_normals(V, body.faces))
         heads = np.einsum("bij,bj->bi", T[bones, :3, :3], skel.heads[bones]) + T[bones, :3, 3]
-        lever = (C.transpose(0, 2, 1) @ Dk).transpose(0, 2, 1) - a[:, :, None] * heads[None]
 
         ids, r, w, G = data_term(V, N)
-        J = np.concatenate([G, np.cross(lever[ids], G[:, None, :]).reshape(len(G), -1)], axis=1)
-        H = J.T @ (w[:, None] * J)
-        g = J.T @ (w * r)
+        H, g = data_normal_equations(C, bone_idx, bone_w, D, heads, np.ascontiguousarray(ids, dtype=np.int64),
+                                     np.ascontiguousarray(r, dtype=np.float64),
+                                     np.ascontiguousarray(np.broadcast_to(w, r.shape), dtype=np.float64),
+                                     np.ascontiguousarray(G, dtype=np.float64))
         if anchors is not None:
             a_bones, a_rest, a_target, a_weight = anchors
             X = np.einsum("mij,mj->mi", T[a_bones, :3, :3], a_rest) + T[a_bones, :3, 3]

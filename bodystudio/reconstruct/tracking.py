@@ -60,6 +60,12 @@ class TrackParams:
     inside the implicit hull (as the hull fit's); ``inside_m``: vertices deeper inside are ignored;
     ``iterations``: Gauss-Newton iterations of the tracking fit; ``joint_weight``: pull of the tracked
     joints per squared metre (0: silhouettes only).
+
+    The tracked frame's deformation (issue 15's frame time): ``warm_mesh`` starts Algorithm 1 from the
+    previous frame's deformed mesh carried by the change of the posed template
+    (:func:`carry_deformed_mesh`) instead of the posed template, and ``outer_iterations`` (``No`` of a
+    tracked frame; 0: the deformation's own) re-matches fewer times from that closer start. A
+    re-initialised frame (first, lost track) runs the full deformation from its posed template.
     """
 
     joint_jump_m: float = 0.25
@@ -74,13 +80,16 @@ class TrackParams:
     prior_weight: float = 0.05
     joint_weight: float = 0.0
     joint_bones: tuple[str, ...] = REFINE_BONES
+    warm_mesh: bool = False
+    outer_iterations: int = 0
 
     def __post_init__(self):
         for name, value, lo, hi in (("joint_jump_m", self.joint_jump_m, 1e-3, 10.0),
                                     ("prior_outside_max", self.prior_outside_max, 0.0, 1.0),
                                     ("energy_abs", self.energy_abs, 0.0, 1.0),
                                     ("energy_ratio", self.energy_ratio, 1.0, 100.0),
-                                    ("iterations", self.iterations, 1, 100)):
+                                    ("iterations", self.iterations, 1, 100),
+                                    ("outer_iterations", self.outer_iterations, 0, 100)):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
 
@@ -455,6 +464,19 @@ def track_bone_transforms(body, previous: np.ndarray, fields: SilhouetteFields,
         anchors = (*joint_anchors(body, joint_transforms, params.joint_bones), params.joint_weight)
     return refine_bone_transforms(body, previous, None, refine, data_term=silhouette_data_term(fields, params),
                                   anchors=anchors)
+
+
+def carry_deformed_mesh(previous_deformed: np.ndarray, previous_posed: np.ndarray,
+                        posed: np.ndarray) -> np.ndarray:
+    """The previous frame's deformed mesh moved to this frame's pose: ``V_prev + (P - P_prev)``.
+
+    ``P_prev`` and ``P`` are the template posed (Eq. 12 of Rapid Skin) by the previous and this frame's
+    bone transforms; the deformation's offsets from its posed template are carried over as they are
+    (not rotated with their bones: between video frames a segment turns a few degrees, so an offset of
+    a few millimetres moves by a few hundredths of one). The warm start of a tracked frame's Algorithm 1.
+    """
+    return np.asarray(previous_deformed, dtype=np.float64) + (np.asarray(posed, dtype=np.float64)
+                                                              - np.asarray(previous_posed, dtype=np.float64))
 
 
 def torso_joint_jump_m(joints: np.ndarray | None, previous: np.ndarray | None) -> float:

@@ -1,0 +1,67 @@
+"""The compiled kernels of the tracked frame (issue 15's frame time) against the numpy expressions they
+replaced, on small random inputs (seconds): the skinned parts and the articulated fit's normal equations,
+and the warm start of a tracked frame's deformation."""
+
+import numpy as np
+
+from bodystudio.reconstruct.articulated_fit import data_normal_equations, skinned_parts
+from bodystudio.reconstruct.tracking import carry_deformed_mesh
+
+
+def _random_rig(rng, n=60, B=7, K=3, n_seg=4):
+    T = np.tile(np.eye(4), (B, 1, 1))
+    for b in range(B):
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        T[b, :3, :3] = q * rng.uniform(0.9, 1.1)
+        T[b, :3, 3] = rng.normal(size=3)
+    rest = rng.normal(size=(n, 3))
+    bone_idx = np.stack([rng.choice(B, K, replace=False) for _ in range(n)]).astype(np.int64)
+    bone_w = rng.uniform(0.0, 1.0, (n, K))
+    bone_w[rng.uniform(size=(n, K)) < 0.3] = 0.0  # zero weights are skipped: the sums must not change
+    bone_w[:, 0] += 0.1
+    bone_w /= bone_w.sum(axis=1, keepdims=True)
+    D = (rng.uniform(size=(B, n_seg)) < 0.4).astype(np.float64)
+    D[0] = 0.0  # a bone that follows no fitted segment
+    heads = rng.normal(size=(n_seg, 3))
+    return T, rest, bone_idx, bone_w, D, heads
+
+
+def test_skinned_parts_equal_the_dense_gather():
+    rng = np.random.default_rng(3)
+    T, rest, bone_idx, bone_w, _, _ = _random_rig(rng)
+    C, V = skinned_parts(T, rest, bone_idx, bone_w)
+    rest_h = np.concatenate([rest, np.ones((len(rest), 1))], axis=1).T
+    C_ref = bone_w[:, :, None] * (T[:, :3, :] @ rest_h)[bone_idx, :, np.arange(len(rest))[:, None]]
+    np.testing.assert_allclose(C, C_ref, atol=1e-13)
+    np.testing.assert_allclose(V, C_ref.sum(axis=1), atol=1e-13)
+    # dense LBS with the same weights (Eq. 12): sum_k w_k (R_k v + t_k)
+    W = np.zeros((len(rest), len(T)))
+    np.add.at(W, (np.arange(len(rest))[:, None], bone_idx), bone_w)
+    R = np.einsum("nb,bij->nij", W, T[:, :3, :3])
+    np.testing.assert_allclose(V, np.einsum("nij,nj->ni", R, rest) + W @ T[:, :3, 3], atol=1e-12)
+
+
+def test_normal_equations_equal_the_dense_jacobian():
+    rng = np.random.default_rng(4)
+    T, rest, bone_idx, bone_w, D, heads = _random_rig(rng)
+    C, _ = skinned_parts(T, rest, bone_idx, bone_w)
+    rows = np.sort(rng.choice(len(rest), 40, replace=False)).astype(np.int64)
+    r, w, G = rng.normal(size=40), rng.uniform(0.1, 1.0, 40), rng.normal(size=(40, 3))
+    H, g = data_normal_equations(C, bone_idx, bone_w, D, heads, rows, r, w, G)
+    # the numpy path it replaced: lever arms of every vertex about every segment's head, the full Jacobian
+    W = np.zeros((len(rest), len(T)))
+    np.add.at(W, (np.arange(len(rest))[:, None], bone_idx), bone_w)
+    a = W @ D
+    lever = (C.transpose(0, 2, 1) @ D[bone_idx]).transpose(0, 2, 1) - a[:, :, None] * heads[None]
+    J = np.concatenate([G, np.cross(lever[rows], G[:, None, :]).reshape(len(G), -1)], axis=1)
+    np.testing.assert_allclose(H, J.T @ (w[:, None] * J), atol=1e-11)
+    np.testing.assert_allclose(g, J.T @ (w * r), atol=1e-11)
+    assert np.abs(H[3:, 3:]).max() > 1.0  # the rotation blocks are exercised, not only the translation
+
+
+def test_carry_deformed_mesh_moves_the_offsets_with_the_pose():
+    rng = np.random.default_rng(5)
+    P_prev = rng.normal(size=(30, 3))
+    offsets = rng.normal(0.0, 0.005, (30, 3))
+    P = P_prev + [0.02, -0.01, 0.03]
+    np.testing.assert_allclose(carry_deformed_mesh(P_prev + offsets, P_prev, P), P + offsets, atol=1e-15)
