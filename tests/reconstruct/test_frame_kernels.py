@@ -65,3 +65,17 @@ def test_carry_deformed_mesh_moves_the_offsets_with_the_pose():
     offsets = rng.normal(0.0, 0.005, (30, 3))
     P = P_prev + [0.02, -0.01, 0.03]
     np.testing.assert_allclose(carry_deformed_mesh(P_prev + offsets, P_prev, P), P + offsets, atol=1e-15)
+
+
+def test_pose_template_sparse_skinning_equals_the_dense_blend(body_2k):
+    from bodystudio.body.skinning import linear_blend_skinning
+    from bodystudio.reconstruct.pose_init import pose_template
+
+    rng = np.random.default_rng(6)
+    T = np.tile(np.eye(4), (body_2k.skeleton.n_bones, 1, 1))
+    for b in range(len(T)):
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        T[b, :3, :3], T[b, :3, 3] = q, rng.normal(0.0, 0.3, 3)
+    got = pose_template(body_2k, T).vertices
+    np.testing.assert_allclose(got, linear_blend_skinning(body_2k.vertices, body_2k.weights, T), atol=1e-12)
+    assert np.abs(got - body_2k.vertices).max() > 0.1
