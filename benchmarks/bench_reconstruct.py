@@ -249,9 +249,14 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
     frame0 = session.frame(session.frame_ids[0])
     T0 = initialise_pose(fit_body, frame_joints(session, frame0, "tracker", None)).bone_transforms
     rest_delta = cotangent_weights(body.vertices, body.faces)
-    params = TrackParams()
+    params = TrackParams(iterations=6, outer_iterations=0)  # the tracker as first measured (6 it, No = 8)
+    fast = TrackParams()  # a tracked frame now (issue 15's frame time): fewer fit and outer iterations
+    no_fast = fast.outer_iterations or RapidSkinParams().outer_iterations
+    fast_fit = f"tracking fit ({fast.iterations} it), tracked frame now"
+    fast_match, fast_solve = f"matching (No = {no_fast} x 10 views), tracked frame now", \
+        f"solver (GS, No = {no_fast} x Ni = 8), tracked frame now"
     ms: dict[str, list[float]] = {}
-    wall: dict[int, list[float]] = {1: [], 2: []}
+    wall: dict[tuple[str, int], list[float]] = {(m, k): [] for m in ("default", "fast") for k in (1, 2)}
     with threadpool_limits(1):
         for rep in range(repeats + 1):  # the first run compiles
             steps = {}
@@ -267,6 +272,7 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
             steps["fields fit (10 it)"], T = cpu(refine_bone_transforms, fit_body, init2.bone_transforms, None,
                                                  data_term=silhouette_data_term(fields, params))
             steps["tracking fit (6 it)"], Tt = cpu(track_bone_transforms, fit_body, T0, fields, params)
+            steps[fast_fit], _ = cpu(track_bone_transforms, fit_body, T0, fields, fast)
             steps["lost-track checks"], _ = cpu(checks, T0, Tt, fields)
             steps["pose 13K (LBS)"], P = cpu(pose_template, body, T, init.global_scale)
             steps["cotangent weights 13K (per frame)"], _ = cpu(cotangent_weights, P.vertices, body.faces)
@@ -278,20 +284,28 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
                 share = r.matching_s / max(r.matching_s + r.solver_s, 1e-12)
                 steps[f"matching (No = 8 x 10 views{label})"] = deform * share
                 steps[f"solver (GS, No = 8 x Ni = 8{label})"] = deform * (1 - share)
+            t = time.process_time()
+            r = deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(outer_iterations=no_fast),
+                                       delta=rest_delta, fields=fields)
+            deform = 1000 * (time.process_time() - t)
+            share = r.matching_s / max(r.matching_s + r.solver_s, 1e-12)
+            steps[fast_match], steps[fast_solve] = deform * share, deform * (1 - share)
             # the gated deformation's wall time on one and two numba threads (the cameras' matching and the
             # gate's points in prange; everything else in a frame is one thread)
-            for threads in (1, 2):
-                numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-                t = time.perf_counter()
-                deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(), delta=rest_delta,
-                                       fields=fields)
-                wall[threads].append(1000 * (time.perf_counter() - t))
+            for mode, outer in (("default", 8), ("fast", no_fast)):
+                for threads in (1, 2):
+                    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+                    t = time.perf_counter()
+                    deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(outer_iterations=outer),
+                                           delta=rest_delta, fields=fields)
+                    wall[mode, threads].append(1000 * (time.perf_counter() - t))
             numba.set_num_threads(1)
             if rep:
                 for k, v in steps.items():
                     ms.setdefault(k, []).append(v)
     med = {k: statistics.median(v) for k, v in ms.items()}
-    wall_1, wall_2 = statistics.median(wall[1][1:]), statistics.median(wall[2][1:])
+    wall_1, wall_2 = statistics.median(wall["default", 1][1:]), statistics.median(wall["default", 2][1:])
+    fast_1, fast_2 = statistics.median(wall["fast", 1][1:]), statistics.median(wall["fast", 2][1:])
     reads = med["read masks"] + med["read joints"] + med["pose 13K (LBS)"]
     common = reads + med["matching (No = 8 x 10 views)"] + med["solver (GS, No = 8 x Ni = 8)"]
     ungated = reads + med["matching (No = 8 x 10 views, no hull gate)"] \
@@ -300,6 +314,8 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
         + med["cotangent weights 13K (per frame)"]
     fields_init = med["pose init from joints (2.5K + 13K)"] + med["distance fields"] + med["fields fit (10 it)"]
     tracked = common + med["distance fields"] + med["tracking fit (6 it)"] + med["lost-track checks"]
+    tracked_now = reads + med["distance fields"] + med[fast_fit] + med["lost-track checks"] + med[fast_match] \
+        + med[fast_solve]
     rows = [[k, v] for k, v in med.items()]
     rows += [["**whole frame, first default** (joints + carved hull fit + per-frame cotangents, no gate)", old],
              ["**whole frame, second default** (joints + distance-field fit, rest cotangents, no gate)",
@@ -314,7 +330,13 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
                                                               + med["solver (GS, No = 8 x Ni = 8)"])],
              ["**whole frame, tracked frame, two cores** (the same scaling)",
               tracked - (1 - wall_2 / wall_1) * (med["matching (No = 8 x 10 views)"]
-                                                 + med["solver (GS, No = 8 x Ni = 8)"])]]
+                                                 + med["solver (GS, No = 8 x Ni = 8)"])],
+             [f"**whole frame, tracked frame now** (previous pose + {fast.iterations}-it fit + checks, "
+              f"No = {no_fast}, gate)", tracked_now],
+             [f"deformation, tracked frame now (No = {no_fast}), wall ms, one numba thread", fast_1],
+             [f"deformation, tracked frame now (No = {no_fast}), wall ms, two numba threads", fast_2],
+             ["**whole frame, tracked frame now, two cores** (its deformation's CPU ms scaled by its two-thread / "
+              "one-thread wall)", tracked_now - (1 - fast_2 / fast_1) * (med[fast_match] + med[fast_solve])]]
     return markdown_table(["step (frame 1, 13K, 10 cameras 640x480, one thread)", "CPU ms (median)"], rows)
 
 

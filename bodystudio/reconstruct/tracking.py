@@ -120,9 +120,19 @@ class SilhouetteFields:
                 y0, y1, x0, x1 = 0, H, 0, W
             inside = full[y0:y1, x0:x1].astype(np.uint8)
             out_d = cv2.distanceTransform(1 - inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-            in_d = cv2.distanceTransform(inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
             # pixel centres: +d outside, -d inside; the contour lies half-way, so shift by 0.5
-            self.sdf[cam.name] = np.where(inside > 0, 0.5 - in_d, out_d - 0.5).astype(np.float32)
+            sdf = out_d - np.float32(0.5)
+            if len(ys):
+                # The inside distances on the silhouette's bounding box grown by one pixel only: that ring is all
+                # outside, and the nearest outside pixel of an inside one is at most as far as its clamp onto the
+                # ring, so the exact transform of the small box is the big one's (tested); half the pixels.
+                b0, b1 = max(ys[0] - 1, y0), min(ys[-1] + 2, y1)
+                a0, a1 = max(xs[0] - 1, x0), min(xs[-1] + 2, x1)
+                core = inside[b0 - y0:b1 - y0, a0 - x0:a1 - x0]
+                in_d = cv2.distanceTransform(core, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+                box = sdf[b0 - y0:b1 - y0, a0 - x0:a1 - x0]
+                np.copyto(box, np.float32(0.5) - in_d, where=core > 0)
+            self.sdf[cam.name] = sdf
             self.offset[cam.name] = (x0, y0)
         # the same fields packed for the compiled implicit-hull pass (one padded array, camera constants)
         C = len(self.cameras)

@@ -79,3 +79,32 @@ def test_pose_template_sparse_skinning_equals_the_dense_blend(body_2k):
     got = pose_template(body_2k, T).vertices
     np.testing.assert_allclose(got, linear_blend_skinning(body_2k.vertices, body_2k.weights, T), atol=1e-12)
     assert np.abs(got - body_2k.vertices).max() > 0.1
+
+
+def test_fields_inside_transform_on_the_small_box_equals_the_full_box():
+    """SilhouetteFields takes the inside distances on the silhouette's box grown by 1 px (not by the margin):
+    the same field as both exact transforms over the whole margin box, also for masks touching the image edge."""
+    import cv2
+
+    from bodystudio.geometry.camera import Camera
+    from bodystudio.reconstruct.tracking import SilhouetteFields
+
+    H, W, margin = 60, 80, 12
+    cams = [Camera.look_at(f"c{i}", (0, 0, 3), (0, 0, 0), fx=100.0, width=W, height=H) for i in range(3)]
+    yy, xx = np.mgrid[:H, :W]
+    masks = {"c0": ((yy - 30) ** 2 + (xx - 40) ** 2 < 15 ** 2) | ((yy > 20) & (yy < 26) & (xx > 10) & (xx < 70)),
+             "c1": (xx < 25) & (yy > 5),  # touches the left and bottom edges
+             "c2": ((yy - 10) ** 2 / 4 + (xx - 70) ** 2 < 40) | ((xx > 30) & (xx < 34) & (yy > 40))}
+    fields = SilhouetteFields(cams, masks, margin_px=margin)
+    for cam in cams:
+        full = masks[cam.name]
+        ys, xs = np.nonzero(full.any(axis=1))[0], np.nonzero(full.any(axis=0))[0]
+        y0, y1 = max(ys[0] - margin, 0), min(ys[-1] + margin + 1, H)
+        x0, x1 = max(xs[0] - margin, 0), min(xs[-1] + margin + 1, W)
+        inside = full[y0:y1, x0:x1].astype(np.uint8)
+        out_d = cv2.distanceTransform(1 - inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        in_d = cv2.distanceTransform(inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        ref = np.where(inside > 0, 0.5 - in_d, out_d - 0.5)
+        assert fields.offset[cam.name] == (x0, y0)
+        np.testing.assert_allclose(fields.sdf[cam.name], ref, atol=1e-5)
+        assert fields.sdf[cam.name].min() < -3.0  # deep inside pixels are exercised
