@@ -484,6 +484,9 @@ class PoseRefineParams:
     max_step_rad: float = 0.15
     max_step_m: float = 0.05
     tolerance: float = 1e-4
+    #: Stop when the data energy ``sum w r^2`` fell by less than this fraction since the previous iteration
+    #: (0: run all ``iterations`` unless the step is below ``tolerance``).
+    min_decrease: float = 0.0
     pelvis_weight: float = 0.0
     pelvis_bones: tuple[str, ...] = PELVIS_BONES
 
@@ -591,6 +594,7 @@ def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefinePa
     n_par = 3 + 3 * nJ
     rest = np.ascontiguousarray(body.vertices, dtype=np.float64)
     is_child = D[bones] > 0  # is_child[i, j]: segment i lies in segment j's subtree
+    previous_energy = np.inf
     for _ in range(params.iterations):
         # weighted per-influence skinned positions C (n, K, 3); the lever arms about each segment's head
         # and the data rows' normal equations in one compiled pass (data_normal_equations)
@@ -599,6 +603,10 @@ def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefinePa
         heads = np.einsum("bij,bj->bi", T[bones, :3, :3], skel.heads[bones]) + T[bones, :3, 3]
 
         ids, r, w, G = data_term(V, N)
+        energy = float(np.sum(w * r * r))
+        if params.min_decrease > 0 and energy > (1.0 - params.min_decrease) * previous_energy:
+            break  # the last step lowered the data energy by less than min_decrease: converged
+        previous_energy = energy
         H, g = data_normal_equations(C, bone_idx, bone_w, D, heads, np.ascontiguousarray(ids, dtype=np.int64),
                                      np.ascontiguousarray(r, dtype=np.float64),
                                      np.ascontiguousarray(np.broadcast_to(w, r.shape), dtype=np.float64),

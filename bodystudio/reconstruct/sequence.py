@@ -404,8 +404,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             if track == "tracked":
                 if track_params.warm_mesh:
                     V_start = carry_deformed_mesh(state["V"], state["posed"], init.vertices)
-                if track_params.outer_iterations:
-                    frame_params = replace(params, outer_iterations=track_params.outer_iterations)
+                if track_params.outer_iterations:  # never more re-matchings than the run's No
+                    frame_params = replace(params, outer_iterations=min(params.outer_iterations,
+                                                                        track_params.outer_iterations))
             if tracking:
                 state = {"T": init.bone_transforms, "scale": init.global_scale, "joints": J,
                          "energy": detail["energy"], "posed": init.vertices}

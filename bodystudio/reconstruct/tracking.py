@@ -58,8 +58,10 @@ class TrackParams:
     ``outside_px``: a vertex counts as outside a silhouette beyond this distance (the fit template is
     generic, so its limbs poke out by a few pixels on a good fit); ``inside_weight``: weight of vertices
     inside the implicit hull (as the hull fit's); ``inside_m``: vertices deeper inside are ignored;
-    ``iterations``: Gauss-Newton iterations of the tracking fit; ``joint_weight``: pull of the tracked
-    joints per squared metre (0: silhouettes only).
+    ``iterations``: Gauss-Newton iterations of the tracking fit, at most: it stops once an iteration lowered
+    the data energy by less than ``min_decrease`` (a fraction; the previous frame's pose is close, so two or
+    three steps reach the plateau); ``joint_weight``: pull of the tracked joints per squared metre (0:
+    silhouettes only).
 
     The tracked frame's deformation (issue 15's frame time): ``warm_mesh`` starts Algorithm 1 from the
     previous frame's deformed mesh carried by the change of the posed template
@@ -80,6 +82,7 @@ class TrackParams:
     prior_weight: float = 0.05
     joint_weight: float = 0.0
     joint_bones: tuple[str, ...] = REFINE_BONES
+    min_decrease: float = 0.0
     warm_mesh: bool = False
     outer_iterations: int = 0
 
@@ -89,6 +92,7 @@ class TrackParams:
                                     ("energy_abs", self.energy_abs, 0.0, 1.0),
                                     ("energy_ratio", self.energy_ratio, 1.0, 100.0),
                                     ("iterations", self.iterations, 1, 100),
+                                    ("min_decrease", self.min_decrease, 0.0, 1.0),
                                     ("outer_iterations", self.outer_iterations, 0, 100)):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
@@ -468,7 +472,7 @@ def track_bone_transforms(body, previous: np.ndarray, fields: SilhouetteFields,
     """
     params = params or TrackParams()
     refine = PoseRefineParams(iterations=params.iterations, prior_weight=params.prior_weight,
-                              robust_m=params.robust_m)
+                              robust_m=params.robust_m, min_decrease=params.min_decrease)
     anchors = None
     if joint_transforms is not None and params.joint_weight > 0:
         anchors = (*joint_anchors(body, joint_transforms, params.joint_bones), params.joint_weight)

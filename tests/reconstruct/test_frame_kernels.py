@@ -108,3 +108,38 @@ def test_fields_inside_transform_on_the_small_box_equals_the_full_box():
         assert fields.offset[cam.name] == (x0, y0)
         np.testing.assert_allclose(fields.sdf[cam.name], ref, atol=1e-5)
         assert fields.sdf[cam.name].min() < -3.0  # deep inside pixels are exercised
+
+
+def test_fit_stops_when_the_data_energy_plateaus(body_2k, synthetic_capture):
+    """``min_decrease``: the articulated fit stops at the first iteration whose data energy fell by less than that
+    fraction, and until then takes exactly the steps of the fixed-iteration fit."""
+    from test_pose_refine import _perturbed
+
+    from bodystudio.reconstruct.articulated_fit import PoseRefineParams, refine_bone_transforms
+    from bodystudio.reconstruct.pose_init import initialise_pose
+    from bodystudio.reconstruct.tracking import SilhouetteFields, TrackParams, silhouette_data_term
+
+    cap = synthetic_capture
+    fields = SilhouetteFields(cap["rig"], cap["masks"])
+    T0 = initialise_pose(body_2k, _perturbed(cap["joints"])).bone_transforms
+    base = silhouette_data_term(fields, TrackParams())
+    energies = []
+
+    def term(V, N):
+        out = base(V, N)
+        energies.append(float(np.sum(out[2] * out[1] ** 2)))
+        return out
+
+    T_full = refine_bone_transforms(body_2k, T0, None, PoseRefineParams(iterations=8), data_term=term)
+    full = list(energies)
+    assert len(full) == 8  # the step tolerance alone does not stop this fit early
+    rel = np.array(full[1:]) / np.array(full[:-1])
+    stop = int(np.argmax(rel > 0.9)) + 1  # the first evaluation that fell by less than 10 %
+    assert 1 < stop < 8, rel
+    energies.clear()
+    T_stop = refine_bone_transforms(body_2k, T0, None, PoseRefineParams(iterations=8, min_decrease=0.1),
+                                    data_term=term)
+    assert len(energies) == stop + 1 and np.allclose(energies, full[:stop + 1])
+    T_fixed = refine_bone_transforms(body_2k, T0, None, PoseRefineParams(iterations=stop), data_term=base)
+    np.testing.assert_allclose(T_stop, T_fixed, atol=1e-12)
+    assert np.abs(T_stop - T_full).max() > 1e-6  # it did stop before the full fit's end
