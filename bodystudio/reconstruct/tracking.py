@@ -82,9 +82,9 @@ class TrackParams:
     prior_weight: float = 0.05
     joint_weight: float = 0.0
     joint_bones: tuple[str, ...] = REFINE_BONES
-    min_decrease: float = 0.0
+    min_decrease: float = 0.01
     warm_mesh: bool = False
-    outer_iterations: int = 0
+    outer_iterations: int = 3
 
     def __post_init__(self):
         for name, value, lo, hi in (("joint_jump_m", self.joint_jump_m, 1e-3, 10.0),
