@@ -255,7 +255,7 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
     params = TrackParams(**TRACK_BEFORE)  # the tracker as first measured (6 it, No = 8)
     fast = TrackParams()  # a tracked frame now (issue 15's frame time): fewer fit and outer iterations
     no_fast = fast.outer_iterations or RapidSkinParams().outer_iterations
-    fast_fit = f"tracking fit ({fast.iterations} it), tracked frame now"
+    fast_fit = f"tracking fit (<= {fast.iterations} it, stops on the energy's plateau), tracked frame now"
     fast_match, fast_solve = f"matching (No = {no_fast} x 10 views), tracked frame now", \
         f"solver (GS, No = {no_fast} x Ni = 8), tracked frame now"
     ms: dict[str, list[float]] = {}
@@ -334,8 +334,8 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
              ["**whole frame, tracked frame, two cores** (the same scaling)",
               tracked - (1 - wall_2 / wall_1) * (med["matching (No = 8 x 10 views)"]
                                                  + med["solver (GS, No = 8 x Ni = 8)"])],
-             [f"**whole frame, tracked frame now** (previous pose + {fast.iterations}-it fit + checks, "
-              f"No = {no_fast}, gate)", tracked_now],
+             [f"**whole frame, tracked frame now** (previous pose + fit to the plateau + checks, No = {no_fast}, "
+              "gate)", tracked_now],
              [f"deformation, tracked frame now (No = {no_fast}), wall ms, one numba thread", fast_1],
              [f"deformation, tracked frame now (No = {no_fast}), wall ms, two numba threads", fast_2],
              ["**whole frame, tracked frame now, two cores** (its deformation's CPU ms scaled by its two-thread / "
