@@ -143,3 +143,19 @@ def test_fit_stops_when_the_data_energy_plateaus(body_2k, synthetic_capture):
     T_fixed = refine_bone_transforms(body_2k, T0, None, PoseRefineParams(iterations=stop), data_term=base)
     np.testing.assert_allclose(T_stop, T_fixed, atol=1e-12)
     assert np.abs(T_stop - T_full).max() > 1e-6  # it did stop before the full fit's end
+
+
+def test_sparse_skin_weights_keep_every_non_zero():
+    """More than six influences on a vertex: the sparse blend still equals the dense one."""
+    from bodystudio.body.skinning import linear_blend_skinning
+    from bodystudio.geometry.skinning import blend_skin, sparse_skin_weights
+
+    rng = np.random.default_rng(7)
+    W = rng.uniform(0.0, 1.0, (20, 9))
+    W[:10, 4:] = 0.0
+    W /= W.sum(axis=1, keepdims=True)
+    T, V = _random_rig(rng, n=20, B=9)[:2]
+    idx, w = sparse_skin_weights(W)
+    got = blend_skin(np.ascontiguousarray(T[:, :3, :]), np.ascontiguousarray(idx), np.ascontiguousarray(w), V,
+                     np.empty((0, 3)))[0]
+    np.testing.assert_allclose(got, linear_blend_skinning(V, W, T), atol=1e-12)
