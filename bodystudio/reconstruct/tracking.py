@@ -13,9 +13,10 @@ A tracked frame starts that fit from the previous frame's bone transforms
 (:func:`track_bone_transforms`); a re-initialised one from the frame's tracker joints.
 
 Measured (docs/reconstruct.md): the implicit hull is as accurate as the carved hull and cheaper, and
-is the default refinement; tracking from the previous frame is off by default, since on the 30 fps
-benchmark sessions it carries the first frame's pose error along (p90 +0.0-0.9 mm against initialising
-every frame from its joints), and its time saving over the per-frame refinement is small.
+is the default refinement. Tracking from the previous frame is off by default. A tracked frame fits until
+the data energy plateaus and re-matches ``outer_iterations`` (3) times instead of the run's ``No`` (8):
+the whole tracked frame ~240 -> ~100 ms CPU at 13K and 10 views, and on the three 30 fps benchmark
+sessions its p90 is at or below the previous tracker's and the per-frame initialisation's.
 
 The lost-track check (:func:`lost_track_reason`), in this order, re-initialises from the tracker joints
 (or the hull) with the full articulated fit:
