@@ -7,22 +7,25 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-_SPARSE_CACHE: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+_SPARSE_CACHE: dict[tuple[int, int | None], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
 
-def sparse_skin_weights(weights: np.ndarray, k: int = 6) -> tuple[np.ndarray, np.ndarray]:
-    """The ``k`` largest skin weights of each vertex (indices and renormalised values), cached per array; ``k``
-    grows to the most non-zeros of any vertex, so the sparse blend is the dense one (MakeHuman's: six)."""
-    hit = _SPARSE_CACHE.get(id(weights))
+def sparse_skin_weights(weights: np.ndarray, k: int | None = 6) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` largest skin weights of each vertex (indices and renormalised values), cached per array and
+    ``k``. ``k=None`` keeps every non-zero (as many as the vertex with the most), so the sparse blend is the
+    dense one for any weights; the mirror's ``k=6`` truncates weights with more influences (MakeHuman's have six)."""
+    key = (id(weights), k)
+    hit = _SPARSE_CACHE.get(key)
     if hit is not None and hit[0] is weights:
         return hit[1], hit[2]
-    k = max(k, int(np.count_nonzero(weights, axis=1).max(initial=0)))
+    if k is None:
+        k = max(1, int(np.count_nonzero(weights, axis=1).max(initial=0)))
     idx = np.argsort(-weights, axis=1)[:, :k]
     w = np.take_along_axis(weights, idx, 1)
     w = w / w.sum(1, keepdims=True)
     if len(_SPARSE_CACHE) >= 8:
         _SPARSE_CACHE.clear()
-    _SPARSE_CACHE[id(weights)] = (weights, idx, w)  # holding the array keeps its id from being reused
+    _SPARSE_CACHE[key] = (weights, idx, w)  # holding the array keeps its id from being reused
     return idx, w
 
 

@@ -166,7 +166,7 @@ def pose_template(body, bone_transforms: np.ndarray, global_scale: float = 1.0, 
     T = np.asarray(bone_transforms, dtype=np.float64)
     V0 = body.vertices if rest_vertices is None else np.asarray(rest_vertices, dtype=np.float64)
     # sparse LBS (the few non-zero weights of each vertex; equal to the dense blend to rounding): 13K 6.5 -> ~0.5 ms
-    idx, w = sparse_skin_weights(body.weights)
+    idx, w = sparse_skin_weights(body.weights, k=None)
     V = blend_skin(np.ascontiguousarray(T[:, :3, :]), np.ascontiguousarray(idx), np.ascontiguousarray(w),
                    np.ascontiguousarray(V0), np.empty((0, 3)))[0]
     heads = np.einsum("bij,bj->bi", T[:, :3, :3], skel.heads) + T[:, :3, 3]

@@ -155,7 +155,7 @@ def test_sparse_skin_weights_keep_every_non_zero():
     W[:10, 4:] = 0.0
     W /= W.sum(axis=1, keepdims=True)
     T, V = _random_rig(rng, n=20, B=9)[:2]
-    idx, w = sparse_skin_weights(W)
+    idx, w = sparse_skin_weights(W, k=None)
     got = blend_skin(np.ascontiguousarray(T[:, :3, :]), np.ascontiguousarray(idx), np.ascontiguousarray(w), V,
                      np.empty((0, 3)))[0]
     np.testing.assert_allclose(got, linear_blend_skinning(V, W, T), atol=1e-12)
