@@ -301,22 +301,24 @@ def shape_extrapolation(shape, model) -> dict:
     return out
 
 
-def capture_verdict(figures: dict, side: str, session_path=None, far_m: float = 1.3) -> dict:
+def capture_verdict(figures: dict, side: str, session_path=None, near_m: float = 0.5, far_m: float = 1.3) -> dict:
     """The verdict on a capture's figures (:func:`session_checks` merged with :func:`capture_checks`):
     ``warnings`` and ``problems`` (one sentence each naming the input and the fix), ``ok`` (no problem) and the
-    ``thresholds`` used. ``far_m``: the far end of the capture's depth window (Sec. 4's segmentation)."""
+    ``thresholds`` used. ``near_m``, ``far_m``: the capture's depth window (Sec. 4's segmentation)."""
     where = f"{session_path}/" if session_path is not None else ""
     other = "right" if side == "left" else "left"
     warnings, problems = [], []
     ratio = figures.get("depth_to_tracker_ratio")
-    if ratio is not None and not (DEPTH_RATIO_RANGE[0] <= ratio <= DEPTH_RATIO_RANGE[1]):
-        seen = (f"the depth where the tracked {side} arm's joints are reads {ratio:.3g}x their distance"
-                if np.isfinite(ratio) else f"there is no depth reading where the tracked {side} arm's joints are")
+    distance = figures.get("arm_distance_m", {})
+    # no reading at all where the arm is (an empty depth map) is left to the capture's own "no arm in range"
+    if ratio is not None and np.isfinite(ratio) and not (DEPTH_RATIO_RANGE[0] <= ratio <= DEPTH_RATIO_RANGE[1]):
+        seen = f"the depth where the tracked {side} arm's joints are reads {ratio:.3g}x their distance"
+        if side in distance and not near_m < ratio * distance[side] < far_m:
+            seen += f", {ratio * distance[side]:.2f} m: no arm in range of the {near_m:g}-{far_m:g} m depth window"
         problems.append(f"{seen} (a consistent session: {DEPTH_RATIO_CLEAN[0]:.2f}-{DEPTH_RATIO_CLEAN[1]:.2f}): "
                         f"the depth is in another unit or the tracker belongs to another recording; check the "
                         f"unit of {where}kinect/depth (re-import with the right --depth-scale) and "
                         f"{where}kinect/calibration.json")
-    distance = figures.get("arm_distance_m", {})
     off_axis = figures.get("arm_off_axis_deg", {})
     if side in distance and other in distance and distance[other] <= distance[side] - SIDE_NEARER_M:
         problems.append(f"the Kinect faces the {other} arm ({distance[other]:.2f} m away, {off_axis[other]:.0f} deg "
