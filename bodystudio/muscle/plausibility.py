@@ -34,8 +34,8 @@ NEAR_ARM_M = 0.06
 #: The first frames whose tracked joints are compared with the depth readings there.
 RATIO_FRAMES = 5
 
-# Thresholds, from 2k Kinect v2 sessions of 12 frames (benchmarks/muscle_plausibility.py; docs/muscle.md,
-# "Self-check"): clean = subjects 501, 620, 5, 7 and the out-of-range 611-614 at 1 m.
+# Thresholds, from 2k Kinect v2 sessions of 12 frames (benchmarks/muscle_plausibility.py; docs/plausibility.md,
+# "muscle capture"): clean = subjects 501, 620, 5, 7 and the out-of-range 611-614 at 1 m.
 #: Depth at the tracked arm joints over their distance (median of the first frames' shoulder, elbow, wrist):
 #: clean 0.937-0.979 (the joints sit inside the limb); depth 1.1x: 1.048, 0.9x: 0.857, 10x: 9.5, 0.2x: 0.19.
 DEPTH_RATIO_CLEAN = (0.937, 0.979)

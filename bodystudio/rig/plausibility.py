@@ -10,7 +10,7 @@ nothing, and the rig used to be written with exit 0. We measure the other direct
 * per body region (head, each hand, each foot, arms, legs, torso; the model's skin weights), the share of the
   fitted model's vertices with scan surface within :data:`COVERED_MM` (a region the scan does not contain has
   a share near 0, one the scan holds ~1; synthetic scans' sole holes and random patches lower the feet a
-  little, figures in docs/rig.md);
+  little, figures in docs/plausibility.md);
 * the one-way fit error itself (median and 90th percentile) against what a human scan reaches.
 
 :func:`rig_plausibility` returns the figures and a verdict (``warnings``, ``problems``, ``ok``); ``rig``
@@ -64,7 +64,7 @@ def region_coverage(model_vertices: np.ndarray, regions: dict[str, np.ndarray], 
     return {r: float(np.mean(covered[m])) if m.any() else float("nan") for r, m in regions.items()}
 
 
-# Thresholds, from 6000-vertex synthetic scans (benchmarks/rig_plausibility.py; docs/rigging.md, "Self-check"):
+# Thresholds, from 6000-vertex synthetic scans (benchmarks/rig_plausibility.py; docs/plausibility.md, "rig"):
 # clean = subjects 11, 12, 101-103 in the A-pose (and 11 in the T-pose), 1 mm noise, sole holes and patches.
 #: Fit error's 90th percentile (mm, scan to model) above which the rig is refused: clean 2.1-2.4 mm, a pose 3x the
 #: random scans' spread 5.5; feet cut off 14.5-23.9, head cut off 19.7, a pose the fit missed 38.3.
