@@ -95,6 +95,17 @@ def silhouette_tolerant_agreement(V: np.ndarray, F: np.ndarray, cameras, masks: 
                                np.zeros((cam.height, cam.width), np.bool_))
         ref = np.asarray(masks[cam.name]) > 0
         band = tolerance_px_at_640 * cam.width / 640.0
+        rows, cols = np.nonzero(mine | ref)
+        if len(rows) == 0:
+            out[cam.name] = {"precision": 1.0, "recall": 1.0}
+            continue
+        # the distance transforms on the box around both silhouettes only (the body fills a small part of the
+        # image: 6 cameras at 640x480, 29 -> 9 ms CPU per frame); both silhouettes lie inside it, so every
+        # distance to them is the whole image's
+        pad = int(np.ceil(band)) + 2
+        box = (slice(max(rows.min() - pad, 0), rows.max() + pad + 1),
+               slice(max(cols.min() - pad, 0), cols.max() + pad + 1))
+        mine, ref = mine[box], ref[box]
         to_ref = cv2.distanceTransform((~ref).astype(np.uint8), cv2.DIST_L2, 5)
         to_mine = cv2.distanceTransform((~mine).astype(np.uint8), cv2.DIST_L2, 5)
         out[cam.name] = {"precision": float(np.mean(to_ref[mine] <= band)) if mine.any() else 1.0,
