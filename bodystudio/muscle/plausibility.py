@@ -4,8 +4,12 @@ Arm-Muscle Capture (Robertini et al. 2013) registers a template to one depth cam
 (Sec. 5-7); every step finds *some* minimum, so a session that is well-formed but wrong used to end with
 exit 0 and a confident mesh: the right arm captured with the left-arm template (``--side``, or a real session
 that records no side), a subject far outside the model's training range (the paper's Table 1 subjects that
-the model extrapolates to), depth sampled too sparsely for the model's accuracy. After the capture we measure,
-from the session's own depth and tracker joints:
+the model extrapolates to), depth sampled too sparsely for the model's accuracy, depth in another unit (the
+latter two were refused, with a message blaming the pose or the subject's distance). Before the capture
+(:func:`session_checks`, a few frames) we measure the depth where the tracked arm's joints project against
+their distance (:func:`depth_to_tracker_ratio`: another unit reads 10x, 1.1x, ...), and which tracked arm the
+sensor faces (:func:`arm_geometry`: the capture's Kinect stands ~1 m in front of the arm it records, Sec. 8.1).
+After the capture (:func:`capture_checks`), from the session's own depth and tracker joints:
 
 * per region (upper arm, forearm; the parts of Eq. 12), the median distance of the fitted mesh's visible
   vertices to the depth points, and the share of them with a depth point within :data:`EXPLAINED_MM`
@@ -17,9 +21,9 @@ from the session's own depth and tracker joints:
 * the fitted (or given) shape parameters against the model's training range (Eq. 6 regresses them linearly:
   outside the range the model extrapolates).
 
-:func:`capture_plausibility` returns the figures and a verdict (``warnings``, ``problems``, ``ok``);
-``muscle capture`` refuses a capture with a problem unless ``--accept-implausible`` and writes the verdict to
-the capture's ``plausibility.json``.
+:func:`capture_verdict` turns the figures into a verdict (``warnings``, ``problems``, ``ok``);
+:func:`check_before_capture` and :func:`check_after_capture` (called by ``capture_session_arm``) refuse a
+problem unless ``--accept-implausible``, and ``muscle capture`` writes the verdict to ``plausibility.json``.
 """
 
 from __future__ import annotations
@@ -102,9 +106,11 @@ def frame_depth_agreement(vertices: np.ndarray, faces: np.ndarray, regions: dict
     options = options or DepthCleanupOptions()
     V = np.asarray(vertices, np.float64)
     out: dict = {}
+    from bodystudio.errors import BodyStudioError
+
     try:
         P, _ = depth_point_cloud(clean_depth(depth_m, options), camera)
-    except Exception:  # no usable depth: nothing explains the fit
+    except BodyStudioError:  # no usable depth in this frame: nothing explains the fit there
         P = np.zeros((0, 3))
     vis = visible_vertices(V, faces, camera)
     if len(P) == 0:
@@ -176,22 +182,6 @@ def depth_to_tracker_ratio(depth_m: np.ndarray, camera, joints: np.ndarray, wind
         patch = patch[patch > 0]
         if patch.size:
             out[k] = float(np.median(patch)) / float(z[k])
-    return out
-
-
-def arm_point_counts(depth_m: np.ndarray, camera, arms: dict[str, np.ndarray], near_m: float = NEAR_ARM_M,
-                     depth_range_m: tuple[float, float] = (0.3, 3.0)) -> dict[str, int]:
-    """Per tracked arm (side -> shoulder, elbow, wrist), the depth points within ``near_m`` of its upper arm and
-    forearm: the arm the sensor was placed for is the one it sees best (Sec. 8.1: the arm faces the sensor)."""
-    from bodystudio.muscle.depth import depth_point_cloud
-
-    D = np.nan_to_num(np.asarray(depth_m, np.float64), nan=0.0)
-    D[(D < depth_range_m[0]) | (D > depth_range_m[1])] = 0.0
-    P, _ = depth_point_cloud(D, camera)
-    out = {}
-    for side, J in arms.items():
-        near = np.minimum(segment_distances(P, J[0], J[1]), segment_distances(P, J[1], J[2]))
-        out[side] = int(np.count_nonzero(near <= near_m))
     return out
 
 
