@@ -53,9 +53,14 @@ SAMPLING_WARN_MM = 3.5
 #: Clean captures 2.1-9.1 mm (final meshes), the out-of-range subjects 2.5-7.9.
 RESIDUAL_CLEAN_MM = 9.1
 RESIDUAL_REFUSE_MM = 20.0
+#: ... warned above this: the tracker 10 frames (0.33 s) out of sync with the depth: 13.0 / 11.2 mm (the fit
+#: follows the tracker; its fitted shape ran to BMI 35, muscularity 1).
+RESIDUAL_WARN_MM = 11.0
 #: Share of the depth points around the tracked arm within EXPLAINED_MM of the fitted arm: clean >= 0.979.
 POINTS_EXPLAINED_CLEAN = 0.979
 POINTS_EXPLAINED_REFUSE = 0.8
+#: ... warned below this (the tracker 10 frames out of sync: 0.912).
+POINTS_EXPLAINED_WARN = 0.95
 #: Fitted vs tracked shoulder / elbow / wrist (median over frames): clean 14-27 mm (the tracker's noise and its
 #: joints' offsets inside the limb).
 JOINT_RESIDUAL_CLEAN_MM = 27.0
@@ -337,6 +342,15 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
         problems.append(f"the fitted arm explains {explained:.0%} of the depth points around the tracked arm "
                         f"(consistent captures >= {POINTS_EXPLAINED_CLEAN:.0%}): check {where}kinect/calibration.json "
                         "and the arm side")
+    residuals = {r: figures[r]["residual_mm"] for r in ("upperarm", "forearm") if figures.get(r)}
+    loose = [r for r, v in residuals.items() if RESIDUAL_WARN_MM < v <= RESIDUAL_REFUSE_MM]
+    if not problems and (loose or (explained is not None and np.isfinite(explained)
+                                   and POINTS_EXPLAINED_REFUSE <= explained < POINTS_EXPLAINED_WARN)):
+        warnings.append(f"the fitted arm explains the depth less well than a consistent capture (visible skin "
+                        f"{', '.join(f'{r} {v:.1f} mm' for r, v in residuals.items())} from the depth points, "
+                        f"{explained:.0%} of the arm's points explained; consistent <= {RESIDUAL_CLEAN_MM:g} mm, "
+                        f">= {POINTS_EXPLAINED_CLEAN:.0%}): the body tracker may be out of sync with the depth "
+                        f"({where}kinect/joints) or the calibration off; the fitted shape and poses are suspect")
     joints = figures.get("tracker_joint_residual_mm")
     if joints and max(joints.values()) > JOINT_RESIDUAL_WARN_MM:
         worst = max(joints, key=joints.get)
@@ -355,6 +369,7 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
     return {"thresholds": {"depth_ratio_range": list(DEPTH_RATIO_RANGE), "side_nearer_m": SIDE_NEARER_M,
                            "far_m": far_m, "sampling_warn_mm": SAMPLING_WARN_MM,
                            "residual_refuse_mm": RESIDUAL_REFUSE_MM, "points_explained_refuse": POINTS_EXPLAINED_REFUSE,
+                           "residual_warn_mm": RESIDUAL_WARN_MM, "points_explained_warn": POINTS_EXPLAINED_WARN,
                            "joint_residual_warn_mm": JOINT_RESIDUAL_WARN_MM, "shape_outside_warn": SHAPE_OUTSIDE_WARN},
             "figures": _json_safe(figures), "warnings": warnings, "problems": problems, "ok": not problems}
 

@@ -128,3 +128,11 @@ def test_verdict_on_recorded_figures():
     assert "S/kinect/calibration.json" in bad["problems"][1]
     sparse = capture_verdict({**clean, "sampling_mm": 4.2, "tracker_joint_residual_mm": {"wrist": 60.0}}, "left")
     assert sparse["ok"] and len(sparse["warnings"]) == 2 and "4.2 mm" in sparse["warnings"][0]
+    # the body tracker 10 frames out of sync with the depth (measured: the fit follows the tracker)
+    desync = capture_verdict({**clean, "upperarm": {"residual_mm": 13.0, "explained": 0.41},
+                              "forearm": {"residual_mm": 11.2, "explained": 0.45}, "points_explained": 0.912}, "left",
+                             "S")
+    assert desync["ok"] and len(desync["warnings"]) == 1 and "S/kinect/joints" in desync["warnings"][0]
+    # the out-of-range subjects' captures (residual <= 7.9 mm, points >= 0.983) raise no such warning
+    assert capture_verdict({**clean, "upperarm": {"residual_mm": 7.9, "explained": 0.52}, "points_explained": 0.983},
+                           "left")["warnings"] == []
