@@ -256,7 +256,7 @@ def capture_checks(capture, session, template, model=None, max_frames: int = 40,
             model_rows.append(frame_depth_agreement(model_meshes[k], capture.faces, regions, depth, camera, tracked))
         if fitted is not None and tracked is not None:
             joint_mm.append(1000.0 * np.linalg.norm(fitted[k] - tracked, axis=1))
-    out: dict = {"frames_checked": len(picks), **_median_figures(rows)}
+    out: dict = {"frames_checked": len(picks), "mode": capture.mode, **_median_figures(rows)}
     if model_rows:
         out["model_only"] = {r: v for r, v in _median_figures(model_rows).items() if r in regions}
     if joint_mm:
@@ -331,18 +331,21 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
         warnings.append(f"the depth samples the arm every {sampling:.1f} mm (at 1 m: "
                         f"{figures.get('sampling_at_1m_mm', float('nan')):.1f} mm); the capture's accuracy was "
                         "measured at about 1 m: expect larger errors, or record closer")
-    for region in ("upperarm", "forearm"):
+    # the depth-residual thresholds were measured on full captures (refined surface); the ablations (model only,
+    # NICP only) keep their figures without a verdict on them
+    judged = figures.get("mode", "full") == "full"
+    for region in ("upperarm", "forearm") if judged else ():
         r = figures.get(region)
         if r and r["residual_mm"] > RESIDUAL_REFUSE_MM:
             problems.append(f"the fitted {region} does not explain the depth (its visible skin is "
                             f"{r['residual_mm']:.0f} mm from the depth points, median; consistent captures "
                             f"<= {RESIDUAL_CLEAN_MM:g} mm): check {where}kinect/calibration.json and the arm side")
-    explained = figures.get("points_explained")
+    explained = figures.get("points_explained") if judged else None
     if explained is not None and np.isfinite(explained) and explained < POINTS_EXPLAINED_REFUSE:
         problems.append(f"the fitted arm explains {explained:.0%} of the depth points around the tracked arm "
                         f"(consistent captures >= {POINTS_EXPLAINED_CLEAN:.0%}): check {where}kinect/calibration.json "
                         "and the arm side")
-    residuals = {r: figures[r]["residual_mm"] for r in ("upperarm", "forearm") if figures.get(r)}
+    residuals = {r: figures[r]["residual_mm"] for r in ("upperarm", "forearm") if judged and figures.get(r)}
     loose = [r for r, v in residuals.items() if RESIDUAL_WARN_MM < v <= RESIDUAL_REFUSE_MM]
     if not problems and (loose or (explained is not None and np.isfinite(explained)
                                    and POINTS_EXPLAINED_REFUSE <= explained < POINTS_EXPLAINED_WARN)):

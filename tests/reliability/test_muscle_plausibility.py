@@ -133,6 +133,8 @@ def test_verdict_on_recorded_figures():
                               "forearm": {"residual_mm": 11.2, "explained": 0.45}, "points_explained": 0.912}, "left",
                              "S")
     assert desync["ok"] and len(desync["warnings"]) == 1 and "S/kinect/joints" in desync["warnings"][0]
+    # the model-only ablation (--no-refine) is not judged on the full capture's depth thresholds
+    assert capture_verdict({**clean, "mode": "model", "points_explained": 0.5}, "left")["ok"]
     # the out-of-range subjects' captures (residual <= 7.9 mm, points >= 0.983) raise no such warning
     assert capture_verdict({**clean, "upperarm": {"residual_mm": 7.9, "explained": 0.52}, "points_explained": 0.983},
                            "left")["warnings"] == []
