@@ -83,3 +83,74 @@ def legs_untracked(session: str | Path) -> None:
                                    for t, n in zip(body["tracked"], body.get("names", doc["names"]), strict=True)]
         path.write_text(json.dumps(doc))
         restamp(S, f"kinect/joints/{path.name}")
+
+
+# --- realistic segmentation noise (benchmarks/reconstruct_mask_noise.py): clean sessions, noisy masks ---------
+
+def rewrite_masks(session: str | Path, change, seed: int = 7) -> None:
+    """Realistic segmentation noise: ``change(mask, camera, frame_index, rng)`` applied to every mask of the
+    session (the ``mask_*`` functions below), each restamped."""
+    import cv2
+
+    S = Path(session)
+    rng = np.random.default_rng(seed)
+    for p in sorted(S.glob("cam_*/mask/*.png")):
+        m = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) > 0
+        out = change(m, p.parent.parent.name, int(p.stem), rng)
+        cv2.imwrite(str(p), (out > 0).astype(np.uint8) * 255)
+        restamp(S, str(p.relative_to(S)))
+
+
+def mask_jitter(m, cam, frame, rng):
+    """The outline moved by a smooth random field of 1-3 px standard deviation (zero mean: the segmentation's
+    edge noise, not a bias), added to the mask's signed distance."""
+    import cv2
+
+    inside = cv2.distanceTransform(m.astype(np.uint8), cv2.DIST_L2, 5)
+    outside = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 5)
+    field = cv2.GaussianBlur(rng.normal(size=m.shape).astype(np.float32), (0, 0), 3.0)
+    field *= float(rng.uniform(1.0, 3.0)) / max(float(field.std()), 1e-6)
+    return (inside - outside + field) > 0
+
+
+def mask_shadow(m, cam, frame, rng):
+    """A floor shadow merged into the mask: an ellipse under the feet, 1.5x the body's width."""
+    import cv2
+
+    ys, xs = np.nonzero(m)
+    if len(ys) == 0:
+        return m
+    w = xs.max() - xs.min()
+    out = m.astype(np.uint8).copy()
+    cv2.ellipse(out, (int(xs.mean()), int(ys.max())), (int(0.75 * w), max(int(0.04 * (ys.max() - ys.min())), 2)),
+                0, 0, 360, 1, -1)
+    return out > 0
+
+
+def mask_holes(m, cam, frame, rng):
+    """6-12 small holes (radius 2-4 px) punched in the mask."""
+    import cv2
+
+    ys, xs = np.nonzero(m)
+    out = m.astype(np.uint8).copy()
+    for i in rng.choice(len(ys), size=int(rng.integers(6, 13)), replace=False) if len(ys) else []:
+        cv2.circle(out, (int(xs[i]), int(ys[i])), int(rng.integers(2, 5)), 0, -1)
+    return out > 0
+
+
+def mask_limb_lost(m, cam, frame, rng):
+    """In the first frame, cam_00's arm lost by the background subtraction: the mask's outer fifth on one side
+    at arm height."""
+    if frame != 0 or cam != "cam_00":
+        return m
+    ys, xs = np.nonzero(m)
+    x0, x1, y0, y1 = xs.min(), xs.max(), ys.min(), ys.max()
+    out = m.copy()
+    out[int(y0 + 0.15 * (y1 - y0)):int(y0 + 0.55 * (y1 - y0)), int(x1 - 0.2 * (x1 - x0)):] = False
+    return out
+
+
+def mask_all_noise(m, cam, frame, rng):
+    """Jitter, a shadow, holes and the lost limb together."""
+    return mask_limb_lost(mask_holes(mask_shadow(mask_jitter(m, cam, frame, rng), cam, frame, rng), cam, frame, rng),
+                          cam, frame, rng)

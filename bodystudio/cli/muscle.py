@@ -104,6 +104,10 @@ def capture(
     scheduler: str | None = typer.Option(None, "--scheduler", help="batch: " + batch_cli.SCHEDULER_HELP),
     workers: int | None = typer.Option(None, "--workers", help="batch: " + batch_cli.WORKERS_HELP),
     force: bool = typer.Option(False, "--force", help="batch: redo every sequence, also those already captured"),
+    accept_implausible: bool = typer.Option(False, "--accept-implausible", help="write the capture even when its "
+                                            "self-check finds it implausible (depth in another unit, the other arm "
+                                            "facing the sensor, the arm out of the depth window); the verdict goes "
+                                            "to OUT/plausibility.json"),
 ) -> None:
     """Capture the arm of a depth session (Arm-Muscle Capture §4-7): per-frame meshes, joint angles, shape.
 
@@ -144,6 +148,9 @@ def capture(
         raise InputError("--for-extension with --no-sequence-fit: the extension capture fits the skeleton in the "
                          "sequence fit; drop one")
     if len(session_paths) > 1 or scheduler is not None or workers is not None:
+        if accept_implausible:
+            raise InputError("--accept-implausible is for a single capture; a batch refuses an implausible "
+                             "sequence in its report: capture that SESSION on its own to accept it")
         _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, shapes or None, scheduler,
                        workers, force, not no_sequence_fit, for_extension)
         return
@@ -153,8 +160,10 @@ def capture(
     check_new_output(out, "arm capture folder")
     result = capture_session_arm(session_paths[0], model_path, mode, resolution, side, frames,
                                  shapes[0] if shapes else None, sequence_fit=not no_sequence_fit,
-                                 for_extension=for_extension)
+                                 for_extension=for_extension, accept_implausible=accept_implausible)
     write_arm_capture(out, result)
+    for line in (result.plausibility or {}).get("warnings", []):
+        typer.echo(f"warning: {line}", err=True)
     typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
 
 

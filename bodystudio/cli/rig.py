@@ -13,8 +13,13 @@ from bodystudio.cli import synth as synth_cli
 
 
 def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: str = "6k", texture: bool = False,
-                 weights: str = "harmonic", bvh: Path | None = None, show_progress: bool = False) -> dict:
-    """Load, rig, optionally reshape and export one scan; returns the rig description written beside it."""
+                 weights: str = "harmonic", bvh: Path | None = None, show_progress: bool = False,
+                 accept_implausible: bool = False) -> dict:
+    """Load, rig, optionally reshape and export one scan; returns the rig description written beside it.
+
+    The rig checks itself (:mod:`bodystudio.rig.plausibility`): a scan with the person cut off or in a pose the fit
+    cannot find is refused (ImplausibleResultError, nothing written) unless ``accept_implausible``; the verdict
+    goes to the rig JSON's ``plausibility``."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -54,12 +59,19 @@ def rig_to_files(scan: Path, out: Path, reshape: str | None = None, template: st
         model = load_template_model(template)
         finish("load")
         result = rig_scan(mesh, model, weights=weights, stage=finish)
+        from bodystudio.rig.plausibility import check_rig
+
+        # (a result without a fit, as the batch and kill tests' stand-in rig returns, has nothing to check)
+        verdict = None if result.fit is None else check_rig(result.fit, mesh.vertices, mesh.faces, str(scan),
+                                                            accept_implausible)
         avatar = result.avatar
         if deltas:
             avatar, _ = reshape_avatar(avatar, result.fit, model, deltas)
             finish("reshape")
         avatar.metadata["scan"] = report.as_dict()
         avatar.metadata["template"] = template
+        if verdict is not None:
+            avatar.metadata["plausibility"] = verdict
         avatar.metadata["seconds"] = time.perf_counter() - t0
         avatar.metadata["stage_seconds"] = result.seconds
         description = write_rig(writer, out, avatar, texture, bvh,
@@ -78,9 +90,15 @@ def rig(scan: Path = typer.Argument(..., help="body scan: PLY, OBJ, GLB/GLTF or 
                                      help="bake colours into an xatlas UV texture (slow on big scans)"),
         weights: str = typer.Option("harmonic", "--weights", help="skin weight transfer: harmonic or barycentric"),
         bvh: Path = typer.Option(None, "--bvh",
-                                 help="also write a BVH of sample poses on the avatar's skeleton")) -> None:
+                                 help="also write a BVH of sample poses on the avatar's skeleton"),
+        accept_implausible: bool = typer.Option(False, "--accept-implausible", help="write the avatar even when "
+                                                "its self-check finds the scan implausible (the person cut off, a "
+                                                "pose the fit cannot find); the verdict goes to the rig JSON")) -> None:
     """Rig a body scan: fit the body model, transfer skeleton and skin weights, export glTF."""
-    desc = rig_to_files(scan, out, reshape, template, texture, weights, bvh, show_progress=True)
+    desc = rig_to_files(scan, out, reshape, template, texture, weights, bvh, show_progress=True,
+                        accept_implausible=accept_implausible)
+    for line in (desc.get("plausibility") or {}).get("warnings", []):
+        typer.echo(f"warning: {line}", err=True)
     typer.echo(f"wrote {out} ({desc['n_vertices']} vertices, {len(desc['bones'])} bones, "
                f"fit {desc['fit_err_mm_median']:.1f} mm, {desc['seconds']:.1f} s)")
 

@@ -267,6 +267,8 @@ class ArmCapture:
     # (3, 3) the rest joints the capture's model regresses for ``shape`` (where its rest mesh sits): the
     # extension's "regressed" centre, kept so that extending another model (a later one) still uses these
     regressed_joints: np.ndarray | None = None
+    # the capture's self-check (muscle.plausibility.check_after_capture): figures, warnings, problems
+    plausibility: dict | None = None
 
     @property
     def n_frames(self) -> int:
@@ -576,13 +578,18 @@ def session_arm_choice(session, resolution: str | None = None, side: str | None 
 
 def capture_session_arm(session_path: str | Path, model_path: str | Path | None, mode: str = "full",
                         resolution: str | None = None, side: str | None = None, frames: int | None = None,
-                        known_shape=None, sequence_fit: bool = True, for_extension: bool = False) -> ArmCapture:
+                        known_shape=None, sequence_fit: bool = True, for_extension: bool = False,
+                        accept_implausible: bool = False) -> ArmCapture:
     """``bodystudio muscle capture SESSION``: the session opened, the arm template chosen
     (:func:`session_arm_choice`), the model read, the first ``frames`` frames captured (Sec. 4-7).
     ``for_extension``: the capture setting for extending a model (:data:`EXTENSION_CAPTURE`).
 
     One call per sequence: the shape fit (Sec. 6.2) uses the sequence's first frames and the pose smoothing
-    and refinement (Sec. 7) neighbouring frames, so a sequence is one work unit of a batch."""
+    and refinement (Sec. 7) neighbouring frames, so a sequence is one work unit of a batch.
+
+    The capture checks itself (:mod:`bodystudio.muscle.plausibility`): depth in another unit, the other arm
+    facing the sensor, the arm beyond the depth window, a fit that does not explain the depth raise
+    ImplausibleResultError unless ``accept_implausible``; the verdict is kept in ``capture.plausibility``."""
     from bodystudio.body import build_body
     from bodystudio.capture.session import open_session
     from bodystudio.muscle.arm import arm_template
@@ -606,8 +613,15 @@ def capture_session_arm(session_path: str | Path, model_path: str | Path | None,
                          "the sequence fit")
     options = CaptureOptions(mode=mode, **(EXTENSION_CAPTURE if for_extension else {}),
                              **({} if sequence_fit else {"sequence_rounds": 0}))
-    return capture_arm_sequence(session, model, template, options,
-                                frames=None if frames is None else slice(0, frames), known_shape=known_shape)
+    from bodystudio.muscle.plausibility import check_after_capture, check_before_capture
+
+    selected = slice(0, frames) if frames is not None else slice(None)
+    before = check_before_capture(session, session.frame_ids[selected], side, accept_implausible)
+    capture = capture_arm_sequence(session, model, template, options,
+                                   frames=None if frames is None else slice(0, frames), known_shape=known_shape)
+    capture.plausibility = check_after_capture(capture, session, template, model, before, accept_implausible,
+                                               shape_given=known_shape is not None)
+    return capture
 
 
 def write_arm_capture(out_dir: str | Path, capture: ArmCapture, fps: float = 30.0) -> Path:
@@ -638,6 +652,8 @@ def write_arm_capture_files(path_for: Callable[[str], Path], capture: ArmCapture
               "regressed_joints": None if capture.regressed_joints is None
               else np.asarray(capture.regressed_joints, float).tolist()}
     write_json(path_for("params.json"), params)
+    if capture.plausibility is not None:
+        write_json(path_for("plausibility.json"), capture.plausibility)
     write_json(path_for("manifest.json"), {"format": "bodystudio-arm-capture", "version": 1,
                                            "n_frames": capture.n_frames, "meshes": "meshes/NNNNN.ply",
                                            "params": "params.json"})

@@ -114,7 +114,8 @@ def test_report_of_an_arm_capture_embeds_the_sequence(arm_capture, tmp_path):
     from bodystudio.viewer.report import write_report
 
     result = write_report(arm_capture[1], tmp_path / "r.html")
-    assert result.has_3d and not result.tables  # params.json / manifest.json are data, not metrics
+    # params.json / manifest.json are data, not metrics; the capture's self-check (plausibility.json) is
+    assert result.has_3d and result.tables and all(t.title.startswith("plausibility.json") for t in result.tables)
     text = (tmp_path / "r.html").read_text()
     assert text.count('"id":') >= 3  # one entry per frame for the slider
 
