@@ -106,7 +106,8 @@ def silhouette_rows(V: np.ndarray, N: np.ndarray, J: np.ndarray | None, camera, 
 
     ``V`` (n, 3) posed vertices, ``N`` their unit normals, ``J`` (n, 3, k) their derivative in the shape
     parameters (None: residuals only, rows of zero width), ``target`` a :class:`fit.SilhouetteTarget`."""
-    P = V + allowance_m * N
+    a = np.asarray(allowance_m, dtype=np.float64)
+    P = V + (a[:, None] if a.ndim == 1 else a) * N
     uv = camera.project(P)
     ray = P - camera.center
     cos = np.einsum("ij,ij->i", N, ray) / np.linalg.norm(ray, axis=1)
