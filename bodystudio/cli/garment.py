@@ -55,8 +55,8 @@ def garment_fit(
     no_shape_refinement: bool = typer.Option(False, "--no-shape-refinement",
                                              help="skip the final shape refinement against every frame's silhouette"),
     no_pose_refinement: bool = typer.Option(False, "--no-pose-refinement",
-                                            help="skip the poses' refinement on the refined shape (and the shape's "
-                                                 "second refinement after it)"),
+                                            help="skip the poses' refinement on the refined shape (after the shape "
+                                                 "refinement)"),
     clothing_mm: float = typer.Option(None, "--clothing-mm", help="thickness of the actor's worn clothes in mm "
                                                                   "(0-30; the shape refinement's allowance)"),
 ) -> None:
