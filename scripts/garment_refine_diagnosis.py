@@ -9,7 +9,8 @@ fit W/sN --stature S --out W/fitN``, S the session's ``gt/phenotype.json`` statu
 ``garment render`` does (``refine_and_composite``), and one JSON line per configuration gives the mean and
 per-frame garment_iou and the error pixels split into *missing* (true garment not shown), *extra on background*
 and *extra on the body* (the new garment over the actor's skin), each by the body part of the nearest TRUE
-posed vertex (arms, collar = neck/head/upper spine, hem = pelvis/thighs/lower spine, torso). ``--true-shape``
+posed vertex (arms = upper arms and shoulders, forearms = forearms and hands, collar = neck/head/upper spine,
+hem = pelvis/thighs/lower spine, torso). ``--true-shape``
 adds the same rows for the TRUE shape (gt/phenotype.json, the fit's 2k template) posed with the fitted pose,
 camera, lights and albedo: what the refinement would give with the fit's shape error removed; ``--true-fit`` the
 session's ground truth as the fit (true shape, pose, camera, lights; ``composite.ground_truth_fit``): what the §7
@@ -27,12 +28,16 @@ import numpy as np
 
 CONFIGS = {"full": {}, "no_flow": {"flow": False}, "no_rbf": {"rbf": False}, "no_depth": {"depth": False},
            "unrefined": {"flow": False, "rbf": False}}
-PARTS = ("arms", "collar", "hem", "torso")
+PARTS = ("arms", "forearms", "collar", "hem", "torso")
 
 
 def body_part(bone: str) -> str:
-    if any(k in bone for k in ("upperarm", "lowerarm", "hand", "clavicle", "thumb", "index", "middle", "ring",
-                               "pinky")):
+    """The region of an error pixel by the bone of the nearest TRUE vertex: ``arms`` the upper arms and shoulders
+    (where the sleeves end), ``forearms`` the forearms and hands (bare; an error there is the garment drawn over
+    an arm in front of it, or a sleeve far too long), ``collar``, ``hem``, ``torso``."""
+    if any(k in bone for k in ("lowerarm", "hand", "thumb", "index", "middle", "ring", "pinky")):
+        return "forearms"
+    if any(k in bone for k in ("upperarm", "clavicle")):
         return "arms"
     if any(k in bone for k in ("neck", "head", "spine_03")):
         return "collar"
