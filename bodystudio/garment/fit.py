@@ -642,15 +642,21 @@ def refine_fit_poses(body, poses: list, masks: np.ndarray, camera, allowance_m: 
 
 
 def refine_fit_shape_and_poses(shape: ShapeFit, poses: list, masks: np.ndarray, camera, stature_m: float,
-                               template: str, allowance_m: float, pose_refinement: bool = True
-                               ) -> tuple[ShapeFit, list]:
+                               template: str, allowance_m: float, pose_refinement: bool = True,
+                               timings: dict | None = None) -> tuple[ShapeFit, list]:
     """Steps 4b-4c: the shape refined with the tracked poses held (:func:`refine_fit_shape`); then, with
     ``pose_refinement``, the poses refined on that shape (:func:`refine_fit_poses`). Returns the shape and the
-    poses. (Refining the shape once more with the new poses held was measured and not kept: garment_iou 37 / 21 /
-    3 0.956 / 0.936 / 0.919 against 0.956 / 0.935 / 0.929 without it, docs/garment.md.)"""
+    poses; ``timings`` (when given) gets ``shape_refinement`` and ``pose_refinement`` in ms per frame. (Refining
+    the shape once more with the new poses held was measured and not kept: garment_iou 37 / 21 / 3 0.956 / 0.936 /
+    0.919 against 0.956 / 0.935 / 0.929 without it, docs/garment.md.)"""
+    timings = {} if timings is None else timings
+    t0 = time.perf_counter()
     shape = refine_fit_shape(shape, poses, masks, camera, stature_m, template, allowance_m)
+    timings["shape_refinement"] = (time.perf_counter() - t0) * 1e3 / len(poses)
     if pose_refinement:
+        t0 = time.perf_counter()
         poses = refine_fit_poses(shape.body, poses, masks, camera, allowance_m)
+        timings["pose_refinement"] = (time.perf_counter() - t0) * 1e3 / len(poses)
     return shape, poses
 
 
@@ -809,12 +815,12 @@ def refine_garment_fit(fit, images: np.ndarray, stature_m: float, allowance_m: f
 
     allowance = CLOTHING_ALLOWANCE_M if allowance_m is None else float(allowance_m)
     poses = [fit.pose(i) for i in range(len(fit.frame_ids))]
-    t0 = time.perf_counter()
+    steps: dict[str, float] = {}
     shape, poses = refine_fit_shape_and_poses(ShapeFit(fit.phenotype, fit.local, fit.body(), np.zeros(0, int), []),
                                               poses, fit.masks, fit.camera, stature_m, fit.template, allowance,
-                                              pose_refinement)
+                                              pose_refinement, steps)
     timings = dict(fit.timings_ms)
-    timings["shape_refinement"] = round((time.perf_counter() - t0) * 1e3 / len(poses), 1)
+    timings.update({k: round(v, 1) for k, v in steps.items()})
     posed = [shape.body.pose(p)[0] for p in poses]
     ious = np.array([silhouette_iou(V, shape.body.faces, fit.camera, m) for V, m in zip(posed, fit.masks, strict=True)])
     albedo, lighting = fit.albedo, fit.lighting
@@ -893,10 +899,8 @@ def fit_garment_video(source: str | os.PathLike, stature_m: float, out_dir: str 
         poses = [space.pose(x) for x in X]
         if shape_refinement:
             bar.update(task, description="garment fit: shape refinement")
-            t0 = time.perf_counter()
             shape, poses = refine_fit_shape_and_poses(shape, poses, pf.masks, camera, stature_m, template, allowance,
-                                                      pose_refinement)
-            timings["shape_refinement"] = (time.perf_counter() - t0) * 1e3 / n
+                                                      pose_refinement, timings)
         posed = [shape.body.pose(p)[0] for p in poses]
         ious = np.array([silhouette_iou(V, shape.body.faces, camera, m) for V, m in zip(posed, pf.masks, strict=True)])
         albedo = lighting = None

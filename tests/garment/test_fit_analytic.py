@@ -1040,7 +1040,7 @@ def test_fit_garment_video_chains_the_stages_into_a_garment_fit(tmp_path, monkey
     assert b5 is shape.body and poses5 == [1.0, 2.0, 3.0] and m5 is pf.masks and cam5 is camera
     assert allowance5 == CLOTHING_ALLOWANCE_M
     assert len(log["refines"]) == 1  # 4b once: refining the shape again on the new poses was not kept
-    assert set(fit.timings_ms) == {"masks", "shape", "pose", "shape_refinement", "appearance"}
+    assert set(fit.timings_ms) == {"masks", "shape", "pose", "shape_refinement", "pose_refinement", "appearance"}
     assert all(v >= 0 for v in fit.timings_ms.values())
     assert fit.warnings == ("fitted stature 1.700 m differs from the given 1.720 m by over 1 cm",
                             "1 of 3 frames have a silhouette IoU below 0.80")
@@ -1085,7 +1085,7 @@ def test_fit_garment_video_times_each_stage_per_frame_and_refuses_a_used_folder(
     monkeypatch.setattr(gf, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
     fit = gf.fit_garment_video("clip.mp4", 1.70)
     assert fit.timings_ms == {"masks": 166.7, "shape": 166.7, "pose": 166.7, "shape_refinement": 166.7,
-                              "appearance": 166.7}  # 500 ms / 3
+                              "pose_refinement": 166.7, "appearance": 166.7}  # 500 ms / 3
     used = tmp_path / "out"
     used.mkdir()
     (used / "fit.json").write_text("{}")
