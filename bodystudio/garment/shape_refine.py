@@ -106,8 +106,7 @@ def silhouette_rows(V: np.ndarray, N: np.ndarray, J: np.ndarray | None, camera, 
 
     ``V`` (n, 3) posed vertices, ``N`` their unit normals, ``J`` (n, 3, k) their derivative in the shape
     parameters (None: residuals only, rows of zero width), ``target`` a :class:`fit.SilhouetteTarget`."""
-    a = np.asarray(allowance_m, dtype=np.float64)
-    P = V + (a[:, None] if a.ndim == 1 else a) * N
+    P = V + allowance_m * N
     uv = camera.project(P)
     ray = P - camera.center
     cos = np.einsum("ij,ij->i", N, ray) / np.linalg.norm(ray, axis=1)
