@@ -1,7 +1,7 @@
 """Garment §6-7: render on the fitted actor, refine in image space (flow §7.1, RBF silhouette warp §7.2-7.3),
 composite by depth; garment_iou / PSNR / SSIM against the true render, with each refinement step ablated in
 the same run, on hidden subjects, with a perturbed oracle fit and the real §4 fit (with and without its final shape
-refinement, step 4b)."""
+refinement, step 4b, and with 4b but without the poses refined on the refined shape, step 4c)."""
 
 from __future__ import annotations
 
@@ -20,20 +20,27 @@ CONFIGS = (("full refinement", {}), ("no flow (§7.1 off)", {"flow": False}), ("
 REAL_FIT = "real fit (§4)"
 #: The real fit without the final shape refinement of step 4b (gar13c), scored with the full §7 refinement only.
 REAL_FIT_NO_4B = "real fit, no shape refinement (4b)"
+#: The real fit with step 4b but without the poses' refinement on the refined shape (step 4c, gar13d), full §7 only.
+REAL_FIT_NO_4C = "real fit, no pose refinement (4c)"
 
 
 def _real_fits(session_path: Path, stature_m: float, root: Path) -> dict:
     """The §4 fit with its defaults (``garment fit``) and, from the same pose fit, without the final shape
-    refinement (step 4b): ``refine_garment_fit`` of the fit made with ``shape_refinement=False`` is what
-    ``fit_garment_video`` gives with it on. ``{name: (fit folder, fit)}``."""
+    refinement (step 4b) and with 4b but without the poses' refinement (step 4c): ``refine_garment_fit`` of the fit
+    made with ``shape_refinement=False`` is what ``fit_garment_video`` gives with them on. ``{name: (fit folder,
+    fit)}``."""
     from bodystudio.garment.fit import fit_garment_video, refine_garment_fit
     from bodystudio.garment.fitfile import save_garment_fit
     from bodystudio.garment.person import person_frames
 
     base = fit_garment_video(str(session_path), stature_m, root / "real_fit_no_4b", shape_refinement=False)
-    refined = refine_garment_fit(base, person_frames(str(session_path)).images, stature_m)
+    images = person_frames(str(session_path)).images
+    refined = refine_garment_fit(base, images, stature_m)
     save_garment_fit(root / "real_fit", refined, "benchmark")
-    return {REAL_FIT: (root / "real_fit", refined), REAL_FIT_NO_4B: (root / "real_fit_no_4b", base)}
+    no_4c = refine_garment_fit(base, images, stature_m, pose_refinement=False)
+    save_garment_fit(root / "real_fit_no_4c", no_4c, "benchmark")
+    return {REAL_FIT: (root / "real_fit", refined), REAL_FIT_NO_4B: (root / "real_fit_no_4b", base),
+            REAL_FIT_NO_4C: (root / "real_fit_no_4c", no_4c)}
 
 
 def _score(fit_dir: Path, session, target: dict, texture_size: int, fit=None, min_frame_iou: float | None = None,
@@ -74,7 +81,7 @@ def run(quick: bool = False) -> str:
             for fit_name, (fit_dir, fit) in fits.items():
                 rows = _score(fit_dir, session, g["target"], g["texture_size"],
                               min_frame_iou=0.0 if fit_name == "perturbed oracle" else None,
-                              configs=CONFIGS[:1] if fit_name == REAL_FIT_NO_4B else CONFIGS)
+                              configs=CONFIGS[:1] if fit_name in (REAL_FIT_NO_4B, REAL_FIT_NO_4C) else CONFIGS)
                 for name, r in rows.items():
                     table.append([subject, motion, fit_name, name, round(r["garment_iou"], 4),
                                   round(r["psnr_person"], 2), round(r["ssim_person"], 3)])

@@ -9,9 +9,12 @@ fit W/sN --stature S --out W/fitN``, S the session's ``gt/phenotype.json`` statu
 ``garment render`` does (``refine_and_composite``), and one JSON line per configuration gives the mean and
 per-frame garment_iou and the error pixels split into *missing* (true garment not shown), *extra on background*
 and *extra on the body* (the new garment over the actor's skin), each by the body part of the nearest TRUE
-posed vertex (arms, collar = neck/head/upper spine, hem = pelvis/thighs/lower spine, torso). ``--true-shape``
+posed vertex (arms = upper arms and shoulders, forearms = forearms and hands, collar = neck/head/upper spine,
+hem = pelvis/thighs/lower spine, torso). ``--true-shape``
 adds the same rows for the TRUE shape (gt/phenotype.json, the fit's 2k template) posed with the fitted pose,
-camera, lights and albedo: what the refinement would give with the fit's shape error removed.
+camera, lights and albedo: what the refinement would give with the fit's shape error removed; ``--true-fit`` the
+session's ground truth as the fit (true shape, pose, camera, lights; ``composite.ground_truth_fit``): what the §7
+steps themselves lose.
 """
 
 from __future__ import annotations
@@ -25,12 +28,16 @@ import numpy as np
 
 CONFIGS = {"full": {}, "no_flow": {"flow": False}, "no_rbf": {"rbf": False}, "no_depth": {"depth": False},
            "unrefined": {"flow": False, "rbf": False}}
-PARTS = ("arms", "collar", "hem", "torso")
+PARTS = ("arms", "forearms", "collar", "hem", "torso")
 
 
 def body_part(bone: str) -> str:
-    if any(k in bone for k in ("upperarm", "lowerarm", "hand", "clavicle", "thumb", "index", "middle", "ring",
-                               "pinky")):
+    """The region of an error pixel by the bone of the nearest TRUE vertex: ``arms`` the upper arms and shoulders
+    (where the sleeves end), ``forearms`` the forearms and hands (bare; an error there is the garment drawn over
+    an arm in front of it, or a sleeve far too long), ``collar``, ``hem``, ``torso``."""
+    if any(k in bone for k in ("lowerarm", "hand", "thumb", "index", "middle", "ring", "pinky")):
+        return "forearms"
+    if any(k in bone for k in ("upperarm", "clavicle")):
         return "arms"
     if any(k in bone for k in ("neck", "head", "spine_03")):
         return "collar"
@@ -55,6 +62,9 @@ def main() -> None:
     ap.add_argument("--subjects", nargs="+", default=["21", "37"])
     ap.add_argument("--configs", nargs="+", default=list(CONFIGS))
     ap.add_argument("--true-shape", action="store_true")
+    ap.add_argument("--true-fit", action="store_true",
+                    help="also the session's ground truth as the fit (composite.ground_truth_fit): what the §7 steps "
+                         "lose with a perfect §4-5 fit")
     args = ap.parse_args()
     for subject in args.subjects:
         session = open_session(args.work / f"s{subject}")
@@ -70,6 +80,10 @@ def main() -> None:
         if args.true_shape:
             fits["true shape, fitted pose"] = replace(fitted, phenotype=dict(truth_subject["phenotype"]),
                                                       local=dict(truth_subject["local"]))
+        if args.true_fit:
+            from bodystudio.garment.composite import ground_truth_fit
+
+            fits["true fit"] = ground_truth_fit(session)
         target = session.gt_garment["target"]
         for fit_name, fit in fits.items():
             body = fit.body()
@@ -80,7 +94,8 @@ def main() -> None:
                 pose = fit.pose(i)
                 V, _ = body.pose(pose)
                 layers.append(render_garment_layer(V, body.faces, cloth, pose_garment(cloth, body, pose), fit.camera,
-                                                   lighting, fitted.albedo, True))
+                                                   lighting, fit.albedo if fit_name == "true fit" else fitted.albedo,
+                                                   True))
             for name in args.configs:
                 ious, errors = [], {k: dict.fromkeys(PARTS, 0) for k in ("missing", "extra_background", "extra_body")}
                 for i, fid in enumerate(fit.frame_ids):
@@ -88,7 +103,7 @@ def main() -> None:
                     labels = frame.gt_target_layers[cam]
                     truth = labels == LAYER_GARMENT
                     shown = np.zeros_like(truth)
-                    if fitted.silhouette_iou[i] >= MIN_FRAME_IOU:
+                    if fit.silhouette_iou[i] >= MIN_FRAME_IOU:
                         shown = refine_and_composite(frame.images[cam], fit.masks[i], layers[i],
                                                      **CONFIGS[name]).garment_mask
                     ious.append(float((shown & truth).sum() / (shown | truth).sum()))

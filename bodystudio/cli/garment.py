@@ -54,6 +54,9 @@ def garment_fit(
                                                             '{"frames": {"12": {"hand_l": [u, v]}}}'),
     no_shape_refinement: bool = typer.Option(False, "--no-shape-refinement",
                                              help="skip the final shape refinement against every frame's silhouette"),
+    no_pose_refinement: bool = typer.Option(False, "--no-pose-refinement",
+                                            help="skip the poses' refinement on the refined shape (after the shape "
+                                                 "refinement)"),
     clothing_mm: float = typer.Option(None, "--clothing-mm", help="thickness of the actor's worn clothes in mm "
                                                                   "(0-30; the shape refinement's allowance)"),
 ) -> None:
@@ -71,7 +74,7 @@ def garment_fit(
     check_output_folder(out, "fit folder", new=True)
     fit = fit_garment_video(source, stature, out, frames=frames, template=template, focal_px=focal_px,
                             keyframes=keyframes, progress=True, background=background,
-                            shape_refinement=not no_shape_refinement,
+                            shape_refinement=not no_shape_refinement, pose_refinement=not no_pose_refinement,
                             clothing_allowance_m=None if clothing_mm is None else clothing_mm / 1e3)
     typer.echo(json.dumps({"out": str(out), "frames": len(fit.frame_ids), "stature_m": round(fit.stature_m, 4),
                            "silhouette_iou_mean": round(float(fit.silhouette_iou.mean()), 4),

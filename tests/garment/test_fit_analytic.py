@@ -989,10 +989,18 @@ def stand_in_fit(monkeypatch, stature_fit=1.70, ious=(0.9, 0.7, 0.95)):
     monkeypatch.setattr(gf, "estimate_appearance", fake_appearance)
 
     def fake_refine(sh, poses, m, camera, stature_m, template, allowance_m):
-        log["refine"] = (sh, [float(p.translation[0]) for p in poses], m, camera, stature_m, template, allowance_m)
+        call = (sh, [float(p.translation[0]) for p in poses], m, camera, stature_m, template, allowance_m)
+        log.setdefault("refine", call)  # step 4b's first call; every call in "refines"
+        log.setdefault("refines", []).append(call)
         return sh
 
     monkeypatch.setattr(gf, "refine_fit_shape", fake_refine)
+
+    def fake_refine_poses(b, poses, m, camera, allowance_m):  # step 4c: each pose moved by 10
+        log["refine_poses"] = (b, [float(p.translation[0]) for p in poses], m, camera, allowance_m)
+        return [Pose(p.rotations, np.asarray(p.translation) + 10.0) for p in poses]
+
+    monkeypatch.setattr(gf, "refine_fit_poses", fake_refine_poses)
     monkeypatch.setattr(fitfile, "save_garment_fit", lambda out, fit: log.setdefault("saved", (out, fit)))
     return log, pf, shape, light
 
@@ -1011,22 +1019,28 @@ def test_fit_garment_video_chains_the_stages_into_a_garment_fit(tmp_path, monkey
     assert sp is log["space"] and cam2 is camera and m2 is pf.masks and start == 1 and x_start.tolist() == [7.0]
     assert list(constraints) == [6] and np.array_equal(constraints[6]["spine_02"], [3, 4])
     assert np.array_equal(frame_ids, [5, 6, 7])
-    assert [e[0] for e in log["iou"]] == [1.0, 2.0, 3.0] and all(e[1] == "F" and e[2] is camera for e in log["iou"])
+    # the poses of steps 4b-4c: tracked (1, 2, 3), then refined on the refined shape (+10)
+    assert [e[0] for e in log["iou"]] == [11.0, 12.0, 13.0]
+    assert all(e[1] == "F" and e[2] is camera for e in log["iou"])
     assert all(np.array_equal(e[3], pm) for e, pm in zip(log["iou"], pf.masks, strict=True))
     imgs, m3, posed, F, cam3 = log["appearance"]
-    assert imgs is pf.images and m3 is pf.masks and posed == [1.0, 2.0, 3.0] and F == "F" and cam3 is camera
+    assert imgs is pf.images and m3 is pf.masks and posed == [11.0, 12.0, 13.0] and F == "F" and cam3 is camera
     assert log["saved"] == (tmp_path / "out", fit)
     assert fit.source == str(Path("clip.mp4").absolute())
     assert fit.fps == 24.0 and np.array_equal(fit.frame_ids, [5, 6, 7])
     assert fit.camera is camera and fit.template == "6k" and fit.bone_names == ("Root", "spine_02")
     assert fit.phenotype == {"height": 0.4} and fit.local == {"neck": 0.1} and fit.stature_m == 1.70
-    assert np.allclose(fit.rotations[:, 0, 0], [0.1, 0.2, 0.3]) and np.array_equal(fit.translations[:, 0], [1, 2, 3])
+    assert np.allclose(fit.rotations[:, 0, 0], [0.1, 0.2, 0.3]) and np.array_equal(fit.translations[:, 0], [11, 12, 13])
     assert np.array_equal(fit.silhouette_iou, [0.9, 0.7, 0.95]) and fit.masks is pf.masks
     assert fit.lighting is light and np.array_equal(fit.albedo, np.full((4, 3), 0.5))
     sh, poses, m4, cam4, stature4, template4, allowance = log["refine"]  # step 4b: the tracked poses, held
     assert sh is shape and poses == [1.0, 2.0, 3.0] and m4 is pf.masks and cam4 is camera and stature4 == 1.72
     assert template4 == "6k" and allowance == CLOTHING_ALLOWANCE_M
-    assert set(fit.timings_ms) == {"masks", "shape", "pose", "shape_refinement", "appearance"}
+    b5, poses5, m5, cam5, allowance5 = log["refine_poses"]  # step 4c: the tracked poses on the refined body
+    assert b5 is shape.body and poses5 == [1.0, 2.0, 3.0] and m5 is pf.masks and cam5 is camera
+    assert allowance5 == CLOTHING_ALLOWANCE_M
+    assert len(log["refines"]) == 1  # 4b once: refining the shape again on the new poses was not kept
+    assert set(fit.timings_ms) == {"masks", "shape", "pose", "shape_refinement", "pose_refinement", "appearance"}
     assert all(v >= 0 for v in fit.timings_ms.values())
     assert fit.warnings == ("fitted stature 1.700 m differs from the given 1.720 m by over 1 cm",
                             "1 of 3 frames have a silhouette IoU below 0.80")
@@ -1036,7 +1050,7 @@ def test_fit_garment_video_without_appearance_keys_or_warnings(tmp_path, monkeyp
     log, pf, shape, light = stand_in_fit(monkeypatch, stature_fit=1.715, ious=(0.8, 0.85, 0.9))
     fit = gf.fit_garment_video("clip.mp4", 1.72, appearance=False, shape_refinement=False)
     assert log["shape"][3] == "2k" and log["track"][5] is None and "appearance" not in log and "saved" not in log
-    assert "refine" not in log
+    assert "refine" not in log and "refine_poses" not in log
     assert fit.lighting is None and fit.albedo is None and set(fit.timings_ms) == {"masks", "shape", "pose"}
     assert fit.warnings == ()  # 5 mm off the stature and IoU 0.80 are fine
     assert log["shape"][1].fx == pytest.approx(gf.focal_from_vfov(48))
@@ -1071,7 +1085,7 @@ def test_fit_garment_video_times_each_stage_per_frame_and_refuses_a_used_folder(
     monkeypatch.setattr(gf, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
     fit = gf.fit_garment_video("clip.mp4", 1.70)
     assert fit.timings_ms == {"masks": 166.7, "shape": 166.7, "pose": 166.7, "shape_refinement": 166.7,
-                              "appearance": 166.7}  # 500 ms / 3
+                              "pose_refinement": 166.7, "appearance": 166.7}  # 500 ms / 3
     used = tmp_path / "out"
     used.mkdir()
     (used / "fit.json").write_text("{}")

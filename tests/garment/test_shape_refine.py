@@ -110,7 +110,8 @@ def test_refine_garment_fit_is_step_4b_on_a_finished_fit(clip):
                      local=local, stature_m=clip["stature"], rotations=np.stack([p.rotations for p in poses]),
                      translations=np.stack([p.translation for p in poses]), silhouette_iou=np.zeros(len(poses)),
                      masks=np.stack(clip["masks"]), lighting=None, albedo=None, timings_ms={"pose": 1.0})
-    refined = gf.refine_garment_fit(fit, np.zeros((len(poses), 1, 1, 3), np.uint8), clip["stature"], 0.0)
+    refined = gf.refine_garment_fit(fit, np.zeros((len(poses), 1, 1, 3), np.uint8), clip["stature"], 0.0,
+                                    pose_refinement=False)  # step 4c: tests/garment/test_garment_pose_refine.py
     direct = refine_shape_to_silhouettes(phenotype, local, "2k", poses, clip["masks"], clip["camera"],
                                          clip["stature"], allowance_m=0.0)
     assert refined.phenotype == direct.phenotype and refined.local == direct.local

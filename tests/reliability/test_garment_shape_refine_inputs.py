@@ -1,4 +1,5 @@
-"""``bodystudio garment fit --clothing-mm MM`` / ``--no-shape-refinement`` (the final shape refinement, gar13c):
+"""``bodystudio garment fit --clothing-mm MM`` / ``--no-shape-refinement`` (the final shape refinement, gar13c) /
+``--no-pose-refinement`` (the poses refined on the refined shape, gar13d):
 a thickness outside 0-30 mm or not a number is refused in one line before any work, nothing written; valid
 values reach the fit."""
 
@@ -43,10 +44,12 @@ def test_api_refuses_before_any_work(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
-@pytest.mark.parametrize("args, refine, allowance", [([], True, None), (["--no-shape-refinement"], False, None),
-                                                     (["--clothing-mm", "4"], True, 0.004),
-                                                     (["--clothing-mm", "0"], True, 0.0)])
-def test_options_reach_the_fit(tiny_session, tmp_path, capfd, monkeypatch, args, refine, allowance):
+@pytest.mark.parametrize("args, refine, allowance, poses", [([], True, None, True),
+                                                            (["--no-shape-refinement"], False, None, True),
+                                                            (["--no-pose-refinement"], True, None, False),
+                                                            (["--clothing-mm", "4"], True, 0.004, True),
+                                                            (["--clothing-mm", "0"], True, 0.0, True)])
+def test_options_reach_the_fit(tiny_session, tmp_path, capfd, monkeypatch, args, refine, allowance, poses):
     import bodystudio.garment.fit as gf
 
     seen = {}
@@ -58,5 +61,5 @@ def test_options_reach_the_fit(tiny_session, tmp_path, capfd, monkeypatch, args,
     monkeypatch.setattr(gf, "fit_garment_video", fake)
     r = run_inprocess(["garment", "fit", tiny_session, "--stature", "1.7", "--out", tmp_path / "o", *args], capfd)
     assert_clean_error(r, 2, "stop here")
-    assert seen["shape_refinement"] is refine
+    assert seen["shape_refinement"] is refine and seen["pose_refinement"] is poses
     assert seen["clothing_allowance_m"] == (None if allowance is None else pytest.approx(allowance))
