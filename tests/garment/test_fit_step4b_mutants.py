@@ -89,6 +89,13 @@ def _stand_ins(monkeypatch, stature_fit=1.715, ious=(0.9, 0.85, 0.7)):
         return gf.ShapeFit(PH2, {"neck": 0.3}, body, shape.reference, shape.xs)
 
     monkeypatch.setattr(gf, "refine_fit_shape", refine)
+
+    def refine_poses(body_, poses, masks, camera, allowance_m):  # step 4c (gar13d): the poses on the refined body
+        log["poses"] = (body_, poses, masks, camera, allowance_m)
+        return poses
+
+    monkeypatch.setattr(gf, "refine_fit_poses", refine_poses)
+    log["body"] = body
     it = itertools.cycle(ious)
 
     def iou(V, F, camera, mask):
@@ -132,7 +139,12 @@ def test_refine_garment_fit_refines_with_the_fits_poses_and_recomputes_what_depe
     assert out.warnings == tuple(gf.fit_warnings(1.715, 1.72, np.array([0.9, 0.85, 0.7])))
     assert out.lighting is None and out.albedo is None and "appearance" not in log
     # 0.25 s over 3 frames: 83.3 ms each; the fit's own timings kept, not changed in place
-    assert out.timings_ms == {"pose": 12.5, "shape_refinement": 83.3} and fit.timings_ms == {"pose": 12.5}
+    assert out.timings_ms == {"pose": 12.5, "shape_refinement": 83.3, "pose_refinement": 83.3}
+    assert fit.timings_ms == {"pose": 12.5}
+    # step 4c got the refined body, the fit's poses, masks and camera, and the allowance
+    body_, poses_4c, masks_4c, camera_4c, allowance_4c = log["poses"]
+    assert body_ is log["body"] and poses_4c is poses and masks_4c is fit.masks and camera_4c == "camera"
+    assert allowance_4c == CLOTHING_ALLOWANCE_M
     np.testing.assert_array_equal(out.rotations, fit.rotations)
     assert out.source == fit.source and out.frame_ids is fit.frame_ids
 
@@ -148,10 +160,16 @@ def test_refine_garment_fit_takes_the_allowance_and_re_estimates_the_appearance(
     assert posed == [float(t) for t in fit.translations[:, 0]]
     assert out.albedo == "NEW ALBEDO" and out.lighting == "NEW LIGHTING"
     # ticks 0.25 s apart: the refinement and the appearance each 250 ms over 3 frames, to 0.1 ms
-    assert out.timings_ms == {"pose": 12.5, "shape_refinement": 83.3, "appearance": 83.3}
+    assert out.timings_ms == {"pose": 12.5, "shape_refinement": 83.3, "pose_refinement": 83.3, "appearance": 83.3}
     assert out.warnings == ("fitted stature 1.650 m differs from the given 1.700 m by over 1 cm",)
     gf.refine_garment_fit(fit, images, 1.70, allowance_m=0.012)
-    assert log["refine"][6] == 0.012
+    assert log["refine"][6] == 0.012 and log["poses"][4] == 0.012
+
+
+def test_refine_garment_fit_without_pose_refinement_keeps_the_poses(monkeypatch):
+    log = _stand_ins(monkeypatch)
+    out = gf.refine_garment_fit(_finished_fit(), np.zeros((3, 6, 8, 3), np.uint8), 1.72, pose_refinement=False)
+    assert "poses" not in log and out.timings_ms == {"pose": 12.5, "shape_refinement": 83.3}
 
 
 @pytest.mark.parametrize("mm", [-0.001, 0.0301, float("nan"), float("inf")])
