@@ -253,7 +253,6 @@ def test_accepted_refusal_and_warning_and_pass(caplog):
     assert r["ok"] is False and len(r["problems"]) == 1 and r["warnings"] == []
     assert r["mismatch_warn"] == 0.045 and r["mismatch_refuse"] == 0.08
     assert r["problems"][0] in caplog.text
-    caplog.clear()
     with caplog.at_level(logging.WARNING, logger="bodystudio.mirror.plausibility"):
         r = P.check_source_body(_off(1.05, {5: 1.2, 10: 0.9}), s)
     worst = "ShoulderRight-ElbowRight 0.79x, KneeLeft-AnkleLeft 1.06x"
