@@ -283,6 +283,44 @@ def test_one_camera_alone_is_explained_by_the_whole_box_and_an_empty_mask_is_coh
     assert all(coh[c] == 0.0 for c in ("c0", "c1", "c3")), coh
 
 
+def test_a_camera_near_the_body_and_one_that_sees_part_of_it_keep_a_consistent_rig_coherent():
+    """A fifth camera 1 m from the sphere (the box's nearest voxels 0.4 m from it, its voxel spheres 3-22 px wide)
+    and, instead, one whose image holds only part of the sphere (principal point at column 8: the left third is
+    outside its image): every view stays 1.0; the part-view does not carve what it cannot see. With c0's mask moved
+    by 20 px the near camera is explained 0.562 (pinned, as the ring's figures)."""
+    V, F = _sphere()
+    cams = _ring()
+    near = _look_at("near", [0.0, 0.0, -1.0], f=100.0, w=160, h=160)
+    masks = _masks(V, F, cams + [near])
+    assert P.silhouette_coherence(cams + [near], masks, np.zeros(3)) == {**{f"c{k}": 1.0 for k in range(4)},
+                                                                          "near": 1.0}
+    moved = dict(masks, c0=np.roll(masks["c0"], 20, axis=0))
+    coh = P.silhouette_coherence(cams + [near], moved, np.zeros(3))
+    assert coh["near"] == pytest.approx(0.5622, abs=0.004) and coh["c0"] == pytest.approx(0.6087, abs=0.005)
+    c1 = cams[1]
+    part = Camera("part", [[200, 0, 8], [0, 200, 48], [0, 0, 1]], None, c1.R, c1.t, 96, 96)
+    pmasks = _masks(V, F, cams + [part])
+    assert 0 < pmasks["part"][:, 0].sum() and pmasks["part"].sum() < masks["c1"].sum()
+    assert P.silhouette_coherence(cams + [part], pmasks, np.zeros(3)) == {**{f"c{k}": 1.0 for k in range(4)},
+                                                                           "part": 1.0}
+
+
+def test_a_box_smaller_than_a_voxel_is_one_voxel_and_a_bar_ending_in_the_box():
+    """Half sizes of 1 cm (under the 4 cm voxel): one voxel at the centre, drawn as a disc of its reach (3 px) in
+    each 20 px disc: 0.026. A 1.5 m bar hanging below the centre (y from -1.5 to 0): the box (y >= -1.1) explains
+    its upper 1.1 m plus the voxels' reach: 0.797 in both views across it."""
+    V, F = _sphere()
+    cams = _ring()
+    masks = _masks(V, F, cams)
+    tiny = P.silhouette_coherence(cams, masks, np.zeros(3), half_size_m=(0.01, 0.01, 0.01))
+    assert tiny == {f"c{k}": pytest.approx(0.02609, abs=0.001) for k in range(4)}
+    Vb, Fb = _box((0.1, 0.75, 0.1), (0.0, -0.75, 0.0))
+    views = [_look_at("x", [4.0, 0.3, 0.2], w=200, h=200, f=60.0), _look_at("z", [0.2, 0.3, 4.0], w=200, h=200,
+                                                                           f=60.0)]
+    coh = P.silhouette_coherence(views, _masks(Vb, Fb, views), np.zeros(3))
+    assert coh == {"x": pytest.approx(0.7971, abs=0.004), "z": pytest.approx(0.7971, abs=0.004)}
+
+
 # --- frame_plausibility and coherence_frames ---------------------------------------------------------------------
 
 def test_frame_plausibility_holds_the_figures_it_was_given_inputs_for():
