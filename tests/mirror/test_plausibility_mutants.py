@@ -112,6 +112,10 @@ def test_segment_lengths_are_nan_where_a_joint_is_untracked_or_not_finite():
     assert [k for k in range(12) if np.isnan(out[k])] == sorted(gone)
     keep = [k for k in range(12) if k not in gone]
     assert out[keep] == pytest.approx(LENGTHS[keep], abs=1e-12)
+    # an infinite position of a tracked joint is no length either
+    P_ = _joints()
+    P_[names.index("WristRight")] = [np.inf, 0.0, 0.0]
+    assert np.isnan(P.segment_lengths(P_, np.ones(len(names), bool), "v2")[7])
     # a tracked list of 0/1 ints counts as booleans
     assert np.isnan(P.segment_lengths(_joints(), tracked.astype(int), "v2")[4])
 
@@ -127,7 +131,7 @@ def test_source_segment_lengths_measure_the_skeleton_as_the_kinect_would():
 def test_session_segment_lengths_median_of_one_player_over_frames():
     """Player 1's frames at scales 1.0, 1.1, 0.95 (median 1.0 x); player 2 (twice as tall) and frames without
     bodies are ignored; a joint untracked in one frame leaves that segment's median to the other frames."""
-    frames = {0: _frame(_body(1, 1.0), _body(2, 2.0)), 1: _frame(), 2: _frame(_body(2, 2.0)),
+    frames = {0: _frame(_body(2, 2.0), _body(1, 1.0)), 1: _frame(), 2: _frame(_body(2, 2.0)),
               3: _frame(_body(1, 1.1, untracked=("KneeLeft",))), 4: _frame(_body(1, 0.95)), 5: _frame(None)}
     frames[5].kinect_bodies = None
     med, version, n = P.session_segment_lengths(_Session(frames))
@@ -246,6 +250,11 @@ def test_another_persons_body_is_refused_with_the_file_and_the_fix():
         P.check_source_body(body, _actor_session(path="S"), source="other.npz")
 
 
+def _logged(caplog):
+    """The messages this module's logger wrote, as the user reads them."""
+    return [rec.getMessage() for rec in caplog.records if rec.name == "bodystudio.mirror.plausibility"]
+
+
 def test_accepted_refusal_and_warning_and_pass(caplog):
     s = _actor_session(path="S")
     with caplog.at_level(logging.WARNING, logger="bodystudio.mirror.plausibility"):
@@ -253,6 +262,7 @@ def test_accepted_refusal_and_warning_and_pass(caplog):
     assert r["ok"] is False and len(r["problems"]) == 1 and r["warnings"] == []
     assert r["mismatch_warn"] == 0.045 and r["mismatch_refuse"] == 0.08
     assert r["problems"][0] in caplog.text
+    assert _logged(caplog) == [r["problems"][0]]
     with caplog.at_level(logging.WARNING, logger="bodystudio.mirror.plausibility"):
         r = P.check_source_body(_off(1.05, {5: 1.2, 10: 0.9}), s)
     worst = "ShoulderRight-ElbowRight 0.79x, KneeLeft-AnkleLeft 1.06x"
@@ -260,6 +270,7 @@ def test_accepted_refusal_and_warning_and_pass(caplog):
     assert r["warnings"] == [f"S/mirror/source_body.npz fits player 1 of S loosely: "
                              f"{_detail(1 / 1.05, math.log(1.05), worst)}"]
     assert r["warnings"][0] in caplog.text
+    assert _logged(caplog)[-1] == r["warnings"][0]
     r = P.check_source_body(SimpleNamespace(skeleton=_skeleton(1.04)), s)
     assert r["ok"] is True and r["warnings"] == [] and r["problems"] == []
     assert r["mismatch"] == pytest.approx(math.log(1.04))
@@ -335,6 +346,7 @@ def test_check_init_warns_about_unseen_groups_and_cut_edges(caplog):
                              "model's guess; record the actor fully in view (2-3 m from the Kinect) for the first "
                              "seconds"]
     assert r["min_seen"] == 0.5 and r["warnings"][0] in caplog.text
+    assert _logged(caplog) == r["warnings"]
     assert r["seen"] == {"legs": 0.25, "head": 1.0}
     # half the frames is enough for a group (>= 0.5), an edge cut in half of them warns (>= 0.5)
     frames = {i: _frame(_body(1, untracked=("Head", "KneeLeft") if i < 2 else ()),
@@ -372,22 +384,39 @@ def _scene(shift=(0, 0), size=(120, 160), box=(30, 90, 50, 110)):
     return rgb, mask
 
 
-@pytest.mark.parametrize("shift", [(0, 0), (3, -2), (-5, 4), (0, 7)])
-def test_registration_offset_finds_the_shift_back_onto_the_edges(shift):
+@pytest.mark.parametrize("shift, gain", [((0, 0), 1.0), ((3, -2), 59.06), ((-5, 4), 59.06), ((0, 7), 2.1935)])
+def test_registration_offset_finds_the_shift_back_onto_the_edges(shift, gain):
+    """The shift back is exact; the edge gain (the best shift's mean Sobel magnitude over the unshifted one's) is
+    large when the unshifted outline misses both edges of a corner, ~2 when it still lies on one side's edges."""
     rgb, mask = _scene(shift)
-    dx, dy, gain = P.registration_offset(rgb, mask)
-    assert abs(dx + shift[0]) <= 1 and abs(dy + shift[1]) <= 1
-    if shift == (0, 0):
-        assert gain == 1.0
-    else:
-        assert gain > 1.5  # the edges are much stronger on the moved-back outline
+    dx, dy, g = P.registration_offset(rgb, mask)
+    assert (dx, dy) == (-shift[0], -shift[1])
+    assert g == pytest.approx(gain, rel=2e-3)
+
+
+def test_registration_offset_gain_without_any_edge_under_the_outline():
+    """No colour edge under the unshifted outline (a flat image but for a faint step 10 px right of the mask): the
+    gain is the best score over 1e-9, not over 1."""
+    rgb = np.full((120, 160, 3), 100, np.uint8)
+    rgb[:, 80:] = 101
+    mask = np.zeros((120, 160), bool)
+    mask[30:90, 40:70] = True
+    dx, _, gain = P.registration_offset(rgb, mask)
+    assert dx in (10, 11) and gain > 1e8
 
 
 def test_registration_offset_search_radius_and_an_outline_near_the_border():
     rgb, mask = _scene((9, 0))
-    assert P.registration_offset(rgb, mask)[:2] in [(-9, 0), (-8, 0), (-10, 0)]
-    dx, _, _ = P.registration_offset(rgb, mask, radius_px=4)
-    assert dx == -4 or dx == -3  # the best within +-4 px
+    assert P.registration_offset(rgb, mask)[:2] == (-9, 0)
+    # within +-4 px: the farthest shift in the edges' direction (the Sobel reaches the edge from 1 px)
+    assert P.registration_offset(*_scene((-5, -5)), radius_px=4)[:2] == (4, 4)
+    assert P.registration_offset(*_scene((-5, 0)), radius_px=4)[:2] == (4, 0)
+    # the outline on rows 14 and 106, columns 14 and 146 (the search radius from the border: 14 px of 120 x 160):
+    # the outline pixels kept are those every shift can read; the edges 1 px down and 2 px right
+    rgb, mask = _scene((-2, -1), box=(15, 108, 16, 149))
+    ys, xs = np.nonzero(mask)
+    assert (ys.min(), ys.max(), xs.min(), xs.max()) == (14, 106, 14, 146)
+    assert P.registration_offset(rgb, mask)[:2] == (2, 1)
     # a mask whose outline lies within the search radius of the image border everywhere: no shift
     rgb, mask = _scene(box=(5, 115, 5, 155))
     assert P.registration_offset(rgb, mask) == (0, 0, 1.0)
@@ -432,6 +461,8 @@ def test_depth_color_registration_is_the_median_shift_over_the_frames():
     assert r["offset_px"] == pytest.approx(math.hypot(*r["shift"]))
     assert -6 <= r["shift"][0] <= -4
     assert all(set(row) == {"frame", "dx", "dy", "edge_gain"} for row in r["frames"])
+    g = P.registration_offset(*_scene((5, 0)))[2]
+    assert r["frames"][1]["edge_gain"] == round(g, 3) and round(g, 3) != round(g, 4)
     assert P.depth_color_registration(s)["frames"][0]["frame"] == 0 and len(P.depth_color_registration(s)["frames"]) \
         == P.REGISTRATION_FRAMES == 6
 
@@ -440,8 +471,8 @@ def test_depth_color_registration_skips_frames_it_cannot_use():
     s = _reg_session([(5, 0)] * 4, players=[False, True, True, True])  # frame 0 has only player 2
     r = P.depth_color_registration(s, n_frames=2)
     assert [row["frame"] for row in r["frames"]] == [1, 3]
-    s.frames[3].kinect_rgb = None  # no colour image
-    s.frames[1].kinect_player = np.zeros_like(s.frames[1].kinect_player)  # the player not in the mask
+    s.frames[1].kinect_rgb = None  # no colour image
+    s.frames[3].kinect_player = np.zeros_like(s.frames[3].kinect_player)  # the player not in the mask
     r = P.depth_color_registration(s, n_frames=3)
     assert [row["frame"] for row in r["frames"]] == [2]
     s.frames[2].kinect_depth_m = None
@@ -457,6 +488,11 @@ def test_depth_color_registration_needs_500_mask_pixels_of_the_colour_images_siz
     small[40:60, 60:84] = 1  # 480 pixels
     s.frames[0].kinect_player = small
     assert P.depth_color_registration(s)["frames"] == []
+    small[:] = 0
+    small[40:60, 60:85] = 1  # 500: enough
+    s.frames[0].kinect_player = small
+    s.frames[0].kinect_depth_m = np.where(small > 0, 2.0, 3.0)
+    assert len(P.depth_color_registration(s)["frames"]) == 1
     small[40:61, 60:84] = 1  # 504
     s.frames[0].kinect_depth_m = np.where(small > 0, 2.0, 3.0)
     assert len(P.depth_color_registration(s)["frames"]) == 1
