@@ -116,9 +116,17 @@ def test_depth_range_argument_and_missing_readings():
     # render()'s raster covers rows 11..29, columns 10..28: rows 11..19 of columns 20..28 are -inf, 10 rows x 9
     # columns are left
     assert out["coverage"] == pytest.approx(90 / 361) and out["gap_m"] == 0.0 and out["ratio"] == 1.0
-    # every reading missing: no gap, no ratio
-    none = P.depth_agreement(V, F, np.full((40, 48), np.nan), cam)
-    assert none["coverage"] == 0.0 and none["gap_m"] == math.inf and math.isnan(none["ratio"])
+    # every reading missing (NaN, or +-inf: no reading either): no gap, no ratio
+    for missing in (np.nan, np.inf, -np.inf):
+        none = P.depth_agreement(V, F, np.full((40, 48), missing), cam)
+        assert none["coverage"] == 0.0 and none["gap_m"] == math.inf and math.isnan(none["ratio"]), missing
+
+
+def test_a_body_nearer_than_a_metre_is_covered():
+    """The mesh's pixels are those render() covers at any depth: a plane 0.75 m away, read at 0.75 m."""
+    V, F = _square(10, 29, 10, 29, z=0.75)
+    out = P.depth_agreement(V, F, np.full((40, 48), 0.75), _front_camera())
+    assert out == {"coverage": 1.0, "gap_m": 0.0, "ratio": 1.0, "pixels": 361}
 
 
 def test_depth_gap_is_the_median_not_the_mean():
@@ -334,11 +342,13 @@ def test_frame_plausibility_holds_the_figures_it_was_given_inputs_for():
     assert set(out) == {"silhouette_iou"} and min(out["silhouette_iou"].values()) > 0.95
     out = P.frame_plausibility(V, F, cams, masks, coherence=True)
     assert set(out) == {"silhouette_iou", "coherence"} and out["coherence"] == {f"c{k}": 1.0 for k in range(4)}
-    # the box goes around the mesh's mean: a sphere away from the origin stays coherent
-    V2, _ = _sphere(center=(0.5, 0.0, 0.2))
-    cams2 = _ring(center=(0.5, 0.0, 0.2))
+    # the box goes around the mesh's mean point: a sphere 1.3 m from the origin stays coherent
+    V2, _ = _sphere(center=(1.0, 0.0, -0.8))
+    cams2 = _ring(center=(1.0, 0.0, -0.8))
     out = P.frame_plausibility(V2, F, cams2, _masks(V2, F, cams2), coherence=True)
     assert out["coherence"] == {f"c{k}": 1.0 for k in range(4)}
+    # two cameras: each one's coherence from the other
+    assert P.frame_plausibility(V, F, cams[:2], masks, coherence=True)["coherence"] == {"c0": 1.0, "c1": 1.0}
     # one camera: no coherence (nothing to leave out)
     assert set(P.frame_plausibility(V, F, cams[:1], masks, coherence=True)) == {"silhouette_iou"}
     # depth needs the map and its camera
