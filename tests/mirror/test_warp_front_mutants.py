@@ -216,8 +216,9 @@ def _field(h, w, shift, inside):
 
 
 MASKS = {"middle": (20, 50, 30, 70), "top_left_corner": (0, 12, 0, 15), "right_edge": (40, 70, 90, 100),
-         "empty": (0, 0, 0, 0)}
-INSIDE = {"around": (10, 60, 20, 85), "whole": (0, 80, 0, 100), "corner": (0, 20, 0, 25), "none": (0, 0, 0, 0)}
+         "empty": (0, 0, 0, 0), "disc": None}
+INSIDE = {"around": (10, 60, 20, 85), "whole": (0, 80, 0, 100), "corner": (0, 20, 0, 25), "none": (0, 0, 0, 0),
+          "one_column": (10, 60, 40, 41), "one_row": (30, 31, 20, 85)}
 
 
 @pytest.mark.parametrize("mask", list(MASKS))
@@ -227,15 +228,19 @@ def test_warp_foreground_is_the_whole_image_remap(mask, inside, shift):
     rng = np.random.default_rng(5)
     rgb = rng.integers(0, 256, (80, 100, 3), dtype=np.uint8)
     m = np.zeros((80, 100), bool)
-    r0, r1, c0, c1 = MASKS[mask]
-    m[r0:r1, c0:c1] = True
+    if MASKS[mask] is None:  # a disc: its box holds background pixels, whose colour must not be dragged in
+        rows, cols = np.mgrid[0:80, 0:100]
+        m = (cols - 50) ** 2 + (rows - 35) ** 2 <= 18 ** 2
+    else:
+        r0, r1, c0, c1 = MASKS[mask]
+        m[r0:r1, c0:c1] = True
     field = _field(80, 100, shift, INSIDE[inside])
     out, alpha = warp_foreground(rgb, m, field)
     want, want_alpha = _warp_whole_image(rgb, m, field)
     np.testing.assert_array_equal(out, want)
     np.testing.assert_array_equal(alpha, want_alpha)
     assert out.dtype == np.uint8 and alpha.dtype == np.float32 and out.shape == rgb.shape
-    if mask == "middle" and inside in ("whole", "around"):
+    if mask in ("middle", "disc") and inside in ("whole", "around", "one_column", "one_row"):
         assert (alpha > 0).any() and ((alpha > 0) & (alpha < 1)).any()
 
 
