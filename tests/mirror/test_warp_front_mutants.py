@@ -255,3 +255,22 @@ def test_warp_foreground_of_a_uint8_mask_and_a_field_pointing_at_the_last_pixel(
     np.testing.assert_array_equal(out, want)
     np.testing.assert_array_equal(alpha, want_alpha)
     assert alpha[29, 39] > 0 and alpha[29, 39] < 1  # the last pixel samples half outside the image
+
+
+# --- mls_transforms: the affine closed form with every entry of A non-zero ----------------------------------------
+
+@pytest.mark.parametrize("alpha", [1.0, 2.0])
+def test_affine_mls_reproduces_a_sheared_rotated_map_exactly(alpha):
+    """Handles moved by one affine map with rotation, shear and unequal scales (every entry of its linear part
+    non-zero): Eq. 5's affine solution is that map at every point, A its linear part (row vectors)."""
+    from bodystudio.mirror.warp import mls_transforms
+
+    rng = np.random.default_rng(11)
+    p = rng.uniform(0, 200, (25, 2))
+    M = np.array([[1.1, 0.3], [-0.25, 0.9]])
+    t = np.array([4.0, -7.5])
+    q = p @ M + t
+    v = rng.uniform(10, 190, (40, 2))
+    A, mapped = mls_transforms(v, p, q, kind="affine", alpha=alpha)
+    np.testing.assert_allclose(A, np.broadcast_to(M, A.shape), atol=1e-9)
+    np.testing.assert_allclose(mapped, v @ M + t, atol=1e-7)
