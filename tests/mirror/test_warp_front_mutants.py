@@ -140,6 +140,15 @@ def test_front_render_leaves_out_triangles_behind_the_camera():
     assert fr.mask.sum() == 0 or (fr.depth[fr.mask] > 0).all()
 
 
+def test_front_render_of_a_box_nearer_than_a_metre():
+    cam = _camera()
+    V, F = _box((0.1, 0.08, 0.05), (0.0, 0.0, 0.8))
+    full, front = render(V, F, cam), front_render(V, F, cam)
+    assert front.mask.sum() > 1000
+    np.testing.assert_array_equal(front.mask, full.mask)
+    np.testing.assert_array_equal(front.depth, full.depth)
+
+
 # --- warp_pairs(closed=True) --------------------------------------------------------------------------------------
 
 def _pairs_scene():
