@@ -144,3 +144,21 @@ def test_unseen_pixels_beyond_the_reach_change_nothing():
     np.testing.assert_array_equal(refine_foreground(corner, seen, unseen=unseen, unseen_reach_px=8), person)
     inner, band = foreground_band(seen, 6)
     assert band.any() and inner.any()
+
+
+def test_a_decoy_of_the_persons_colour_beyond_the_reach_stays_background():
+    """A second disc of the person's colour (a decoy) 30 px right of the person, inside the unseen view, beyond
+    the 12 px reach: it never joins the band, so it stays background; unseen pixels within the reach (the
+    person's own cut-off left part) are completed. The decoy inside the reach (reach 40) is taken: the reach
+    decides."""
+    rgb = np.full((H, W, 3), (40, 90, 200), np.uint8)
+    person = _disc(40, 40, 16)
+    decoy = _disc(95, 40, 8)
+    rgb[person | decoy] = (200, 60, 40)
+    seen = person & (np.arange(W)[None, :] >= 35)
+    unseen = (np.arange(W)[None, :] < 35) | (np.arange(W)[None, :] >= 75)
+    unseen = np.broadcast_to(unseen, (H, W))
+    np.testing.assert_array_equal(refine_foreground(rgb, seen, unseen=unseen, unseen_reach_px=12), person)
+    far = refine_foreground(rgb, seen, unseen=unseen, unseen_reach_px=40)
+    np.testing.assert_array_equal(far & person, person)
+    assert (far & decoy).sum() > 0
