@@ -148,13 +148,15 @@ def test_unseen_pixels_beyond_the_reach_change_nothing():
 
 def test_a_decoy_of_the_persons_colour_beyond_the_reach_stays_background():
     """A second disc of the person's colour (a decoy) 30 px right of the person, inside the unseen view, beyond
-    the 12 px reach: it never joins the band, so it stays background; unseen pixels within the reach (the
+    the 12 px reach, and a small one in the corner of the person's box grown by the reach (unseen, but 24 px from the
+    person): neither joins the band, so both stay background; unseen pixels within the reach (the
     person's own cut-off left part) are completed. The decoy inside the reach (reach 40) is taken: the reach
     decides."""
     rgb = np.full((H, W, 3), (40, 90, 200), np.uint8)
     person = _disc(40, 40, 16)
     decoy = _disc(95, 40, 8)
-    rgb[person | decoy] = (200, 60, 40)
+    corner = _disc(16, 16, 3)  # in the mask's box grown by the reach, but 24 px from the person: beyond it
+    rgb[person | decoy | corner] = (200, 60, 40)
     seen = person & (np.arange(W)[None, :] >= 35)
     unseen = (np.arange(W)[None, :] < 35) | (np.arange(W)[None, :] >= 75)
     unseen = np.broadcast_to(unseen, (H, W))
