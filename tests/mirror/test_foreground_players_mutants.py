@@ -164,3 +164,23 @@ def test_a_decoy_of_the_persons_colour_beyond_the_reach_stays_background():
     far = refine_foreground(rgb, seen, unseen=unseen, unseen_reach_px=40)
     np.testing.assert_array_equal(far & person, person)
     assert (far & decoy).sum() > 0
+
+
+def test_nearest_player_depths_of_a_near_player_and_unlabelled_mask_pixels():
+    """A player 0.9 m from the camera takes its own median (any reading > 0 counts); mask pixels labelled 0 (no
+    player) are nobody's: a band pixel next to them alone keeps ``z_all``."""
+    mask = np.zeros((40, 100), bool)
+    mask[10:30, 10:30] = True
+    mask[10:30, 60:80] = True
+    mask[10:30, 40:50] = True  # a third blob, unlabelled
+    labels = np.zeros((40, 100), np.uint8)
+    labels[:, :35] = 1
+    labels[:, 55:] = 2
+    depth = np.where(mask, 0.9, 0.0)
+    depth[10:30, 60:80] = 3.0
+    inner = np.zeros_like(mask)
+    inner[12:28, 12:28] = True
+    inner[12:28, 62:78] = True
+    inner[12:28, 42:48] = True
+    br, bc = np.array([20, 20, 20]), np.array([9, 59, 51])
+    assert _nearest_player_depths(labels, mask, inner, depth, 2, br, bc, 7.0).tolist() == [0.9, 3.0, 7.0]
