@@ -75,7 +75,8 @@ def source_segment_lengths(skeleton, version: str) -> np.ndarray:
 def session_segment_lengths(session, player: int = 1, frames=None, max_frames: int = CHECK_FRAMES
                             ) -> tuple[np.ndarray, str | None, int]:
     """Per segment, the median over the session's frames of the tracked lengths of ``player``; the joint set's
-    version and the number of frames that had the player."""
+    version (the first known set read; frames with an unknown or another set are skipped) and the number of
+    frames measured."""
     ids = list(session.frame_ids if frames is None else frames)
     if len(ids) > max_frames:
         ids = [ids[int(round(k))] for k in np.linspace(0, len(ids) - 1, max_frames)]
@@ -85,9 +86,10 @@ def session_segment_lengths(session, player: int = 1, frames=None, max_frames: i
             if int(body["player"]) != int(player):
                 continue
             names = list(body["names"])
-            version = "v2" if names == kinect_joint_names("v2") else "v1" if names == kinect_joint_names("v1") else None
-            if version is None:
-                continue
+            v = "v2" if names == kinect_joint_names("v2") else "v1" if names == kinect_joint_names("v1") else None
+            if v is None or (version is not None and v != version):
+                continue  # an unknown joint set, or another set than the frames before: skipped, not the verdict
+            version = v
             rows.append(segment_lengths(body["positions"], body["tracked"], version))
     if not rows:
         return np.full(len(SEGMENTS), np.nan), version, 0

@@ -158,6 +158,18 @@ def test_session_segment_lengths_v1_unknown_joint_sets_and_nothing_tracked():
     assert n == 1 and np.isnan(med[6]) and np.isfinite(np.delete(med, 6)).all()
 
 
+def test_an_odd_joint_set_in_the_last_frame_does_not_silence_the_check():
+    """mutB's finding: the version came from the last body read, so a last frame with an unknown (or the other)
+    joint set made the whole check NaN and a body of another person passed unseen."""
+    odd = dict(_body(1), names=list(reversed(kinect_joint_names("v2"))))
+    frames = {0: _frame(_body(1, 1.3)), 1: _frame(_body(1, 1.3)), 2: _frame(odd),
+              3: _frame(_body(1, 1.0, version="v1"))}
+    med, version, n = P.session_segment_lengths(_Session(frames))
+    assert version == "v2" and n == 2 and med == pytest.approx(1.3 * LENGTHS, abs=1e-12)
+    r = P.source_body_agreement(SimpleNamespace(skeleton=_skeleton()), _Session(frames))
+    assert r["frames"] == 2 and r["scale"] == pytest.approx(1.3, abs=1e-9)
+
+
 def test_session_segment_lengths_spread_over_the_frames():
     """Frame i at scale 1 + i / 1000; with ``max_frames`` 3 of 100 frames, frames 0, 50 and 99 are read (median:
     frame 50); the default reads 60 frames; ``frames`` restricts the ids."""
