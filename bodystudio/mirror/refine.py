@@ -44,6 +44,7 @@ from bodystudio.body.pose import Pose
 from bodystudio.body.skeleton import Skeleton
 from bodystudio.errors import InputError
 from bodystudio.mirror.track import blend_skin
+from bodystudio.mirror.track import posed_frames as _posed_frames
 
 #: Bones whose swing is refined (their twist is the IK's); the Root gets its full rotation and translation.
 #: spine_03, head, hands and feet added to the first set: warp_iou +0.003 / +0.005 / +0.001 on MIR-SYNTH
@@ -148,26 +149,6 @@ def _forward_kinematics(plan: _RefinePlan, parents, pose: Pose) -> tuple[np.ndar
     products cached in the plan; and the top rows (B, 3, 4) of the skinning transforms ``M_j A_j^-1``."""
     return _posed_frames(plan.rest_relative, plan.rest_inverse, Rotation.from_rotvec(pose.rotations).as_matrix(),
                          np.asarray(pose.translation, float), np.asarray(parents, np.int64))
-
-
-@njit(cache=True)
-def _posed_frames(rest_relative, rest_inverse, local_rotations, translation, parents):
-    """``M_j = M_parent (A_parent^-1 A_j) L_j`` down the chain (parents before children), the root moved by
-    ``translation``; and ``(M_j A_j^-1)[:3]``."""
-    B = len(parents)
-    M = np.zeros((B, 4, 4))
-    transforms = np.empty((B, 3, 4))
-    local = np.eye(4)
-    for j in range(B):
-        local[:3, :3] = local_rotations[j]
-        Mj = rest_relative[j] @ local
-        if parents[j] < 0:
-            Mj[:3, 3] += translation
-        else:
-            Mj = M[parents[j]] @ Mj
-        M[j] = Mj
-        transforms[j] = (Mj @ rest_inverse[j])[:3]
-    return M, transforms
 
 
 def _skin(plan: _RefinePlan, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
