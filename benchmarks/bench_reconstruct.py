@@ -201,8 +201,11 @@ TRACK_MODES = (("per-frame init, hull, no gate, frame lengths", False, "hull", F
                ("per-frame init, fields", False, "fields", True, "sequence", 0),
                ("per-frame init, fields, joint smoothing 2", False, "fields", True, "sequence", 2),
                ("tracker, frame lengths", True, "fields", True, "frame", 0),
+               ("tracker, 6 fit it, No = 8 (before issue 15's frame time)", True, "fields", True, "sequence", 0),
                ("tracker", True, "fields", True, "sequence", 0),
                ("tracker, joint smoothing 2", True, "fields", True, "sequence", 2))
+#: The tracker as first measured: every tracked frame 6 fit iterations and the run's No (the rows so named).
+TRACK_BEFORE = {"iterations": 6, "min_decrease": 0.0, "outer_iterations": 0}
 REGION_NAMES = ("head", "torso", "crotch", "arms", "hands", "legs", "feet")
 
 
@@ -249,9 +252,14 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
     frame0 = session.frame(session.frame_ids[0])
     T0 = initialise_pose(fit_body, frame_joints(session, frame0, "tracker", None)).bone_transforms
     rest_delta = cotangent_weights(body.vertices, body.faces)
-    params = TrackParams()
+    params = TrackParams(**TRACK_BEFORE)  # the tracker as first measured (6 it, No = 8)
+    fast = TrackParams()  # a tracked frame now (issue 15's frame time): fewer fit and outer iterations
+    no_fast = fast.outer_iterations or RapidSkinParams().outer_iterations
+    fast_fit = f"tracking fit (<= {fast.iterations} it, stops on the energy's plateau), tracked frame now"
+    fast_match, fast_solve = f"matching (No = {no_fast} x 10 views), tracked frame now", \
+        f"solver (GS, No = {no_fast} x Ni = 8), tracked frame now"
     ms: dict[str, list[float]] = {}
-    wall: dict[int, list[float]] = {1: [], 2: []}
+    wall: dict[tuple[str, int], list[float]] = {(m, k): [] for m in ("default", "fast") for k in (1, 2)}
     with threadpool_limits(1):
         for rep in range(repeats + 1):  # the first run compiles
             steps = {}
@@ -267,6 +275,7 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
             steps["fields fit (10 it)"], T = cpu(refine_bone_transforms, fit_body, init2.bone_transforms, None,
                                                  data_term=silhouette_data_term(fields, params))
             steps["tracking fit (6 it)"], Tt = cpu(track_bone_transforms, fit_body, T0, fields, params)
+            steps[fast_fit], _ = cpu(track_bone_transforms, fit_body, T0, fields, fast)
             steps["lost-track checks"], _ = cpu(checks, T0, Tt, fields)
             steps["pose 13K (LBS)"], P = cpu(pose_template, body, T, init.global_scale)
             steps["cotangent weights 13K (per frame)"], _ = cpu(cotangent_weights, P.vertices, body.faces)
@@ -278,20 +287,28 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
                 share = r.matching_s / max(r.matching_s + r.solver_s, 1e-12)
                 steps[f"matching (No = 8 x 10 views{label})"] = deform * share
                 steps[f"solver (GS, No = 8 x Ni = 8{label})"] = deform * (1 - share)
+            t = time.process_time()
+            r = deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(outer_iterations=no_fast),
+                                       delta=rest_delta, fields=fields)
+            deform = 1000 * (time.process_time() - t)
+            share = r.matching_s / max(r.matching_s + r.solver_s, 1e-12)
+            steps[fast_match], steps[fast_solve] = deform * share, deform * (1 - share)
             # the gated deformation's wall time on one and two numba threads (the cameras' matching and the
             # gate's points in prange; everything else in a frame is one thread)
-            for threads in (1, 2):
-                numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-                t = time.perf_counter()
-                deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(), delta=rest_delta,
-                                       fields=fields)
-                wall[threads].append(1000 * (time.perf_counter() - t))
+            for mode, outer in (("default", 8), ("fast", no_fast)):
+                for threads in (1, 2):
+                    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+                    t = time.perf_counter()
+                    deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(outer_iterations=outer),
+                                           delta=rest_delta, fields=fields)
+                    wall[mode, threads].append(1000 * (time.perf_counter() - t))
             numba.set_num_threads(1)
             if rep:
                 for k, v in steps.items():
                     ms.setdefault(k, []).append(v)
     med = {k: statistics.median(v) for k, v in ms.items()}
-    wall_1, wall_2 = statistics.median(wall[1][1:]), statistics.median(wall[2][1:])
+    wall_1, wall_2 = statistics.median(wall["default", 1][1:]), statistics.median(wall["default", 2][1:])
+    fast_1, fast_2 = statistics.median(wall["fast", 1][1:]), statistics.median(wall["fast", 2][1:])
     reads = med["read masks"] + med["read joints"] + med["pose 13K (LBS)"]
     common = reads + med["matching (No = 8 x 10 views)"] + med["solver (GS, No = 8 x Ni = 8)"]
     ungated = reads + med["matching (No = 8 x 10 views, no hull gate)"] \
@@ -300,6 +317,8 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
         + med["cotangent weights 13K (per frame)"]
     fields_init = med["pose init from joints (2.5K + 13K)"] + med["distance fields"] + med["fields fit (10 it)"]
     tracked = common + med["distance fields"] + med["tracking fit (6 it)"] + med["lost-track checks"]
+    tracked_now = reads + med["distance fields"] + med[fast_fit] + med["lost-track checks"] + med[fast_match] \
+        + med[fast_solve]
     rows = [[k, v] for k, v in med.items()]
     rows += [["**whole frame, first default** (joints + carved hull fit + per-frame cotangents, no gate)", old],
              ["**whole frame, second default** (joints + distance-field fit, rest cotangents, no gate)",
@@ -314,7 +333,13 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
                                                               + med["solver (GS, No = 8 x Ni = 8)"])],
              ["**whole frame, tracked frame, two cores** (the same scaling)",
               tracked - (1 - wall_2 / wall_1) * (med["matching (No = 8 x 10 views)"]
-                                                 + med["solver (GS, No = 8 x Ni = 8)"])]]
+                                                 + med["solver (GS, No = 8 x Ni = 8)"])],
+             [f"**whole frame, tracked frame now** (previous pose + fit to the plateau + checks, No = {no_fast}, "
+              "gate)", tracked_now],
+             [f"deformation, tracked frame now (No = {no_fast}), wall ms, one numba thread", fast_1],
+             [f"deformation, tracked frame now (No = {no_fast}), wall ms, two numba threads", fast_2],
+             ["**whole frame, tracked frame now, two cores** (its deformation's CPU ms scaled by its two-thread / "
+              "one-thread wall)", tracked_now - (1 - fast_2 / fast_1) * (med[fast_match] + med[fast_solve])]]
     return markdown_table(["step (frame 1, 13K, 10 cameras 640x480, one thread)", "CPU ms (median)"], rows)
 
 
@@ -327,6 +352,7 @@ def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
     from bodystudio.capture.synth import synth_session
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams
     from bodystudio.reconstruct.sequence import reconstruct_session
+    from bodystudio.reconstruct.tracking import TrackParams
 
     numba.set_num_threads(1)
     time_rows, acc_rows, out = [], [], {}
@@ -340,9 +366,10 @@ def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
             for mode, tracking, refine_with, gated, lengths, smoothing in TRACK_MODES:
                 params = RapidSkinParams(constraints=constraints, hull_gate_m=RapidSkinParams().hull_gate_m * gated)
                 with threadpool_limits(1):
+                    track_params = TrackParams(**TRACK_BEFORE) if "(before" in mode else TrackParams()
                     s = reconstruct_session(path, template="13k", constraints=constraints, tracking=tracking,
                                             refine_with=refine_with, params=params, bone_lengths=lengths,
-                                            joint_smoothing=smoothing)
+                                            joint_smoothing=smoothing, track_params=track_params)
                 frames = json.loads((path / "reconstruct" / "frames.json").read_text())["frames"]
                 # frame 0 compiles and initialises in both modes; the steady state is the later frames
                 later = frames[1:] or frames
@@ -365,6 +392,8 @@ def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
 
 
 def run(quick: bool = False) -> str:
+    from bodystudio.reconstruct.tracking import TrackParams
+
     n_frames = 2 if quick else 6
     with tempfile.TemporaryDirectory(prefix="bench-reconstruct-") as tmp:
         session = _session(Path(tmp), n_frames)
@@ -412,7 +441,11 @@ def run(quick: bool = False) -> str:
         "(`--bone-lengths frame`, the previous behaviour), the others with one set per run, the median over its "
         "frames (the default); 'per-frame init, fields' is the default; 'joint smoothing 2': the tracked "
         "joints smoothed over +-2 frames (`--joint-smoothing 2`); 'tracker' (`--tracking`): the previous "
-        "frame's pose fitted to the distance fields, re-initialised on a lost track. Whole-frame ms by step are "
+        "frame's pose fitted to the distance fields, re-initialised on a lost track; a tracked frame's fit stops "
+        "on the data energy's plateau and its deformation re-matches fewer times (`TrackParams`: "
+        f"min_decrease {TrackParams().min_decrease:g}, No = {TrackParams().outer_iterations or 8}); "
+        "'tracker, 6 fit it, No = 8 (before ...)': every tracked frame 6 fit iterations and No = 8, the tracker "
+        "as first measured. Whole-frame ms by step are "
         "means over frames 1.. "
         "(frame 0 initialises in both modes), numba and BLAS on one thread, wall time on the shared machine.",
         track_time,

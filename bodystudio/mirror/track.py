@@ -33,6 +33,13 @@ from bodystudio.body.skeleton import Skeleton
 from bodystudio.body.skinning import skinning_transforms
 from bodystudio.errors import InputError
 
+# the sparse skinning kernel moved to geometry (shared with reconstruct); the names stay importable here
+from bodystudio.geometry.skinning import (
+    blend_skin,  # noqa: F401
+    blend_skin_pair,
+)
+from bodystudio.geometry.skinning import sparse_skin_weights as _sparse_weights
+
 #: Kinect v1 names of the v2 joints the IK uses (v1 lacks Neck, hand tips and thumbs).
 V1_NAMES = {"SpineBase": "HipCenter", "SpineMid": "Spine", "SpineShoulder": "ShoulderCenter"}
 
@@ -256,23 +263,6 @@ def posed_kinect_joints(skeleton: Skeleton, pose: Pose, version: str = "v2") -> 
     return kinect_joints(skeleton, heads, tails, version)
 
 
-_SPARSE_CACHE: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-
-
-def _sparse_weights(weights: np.ndarray, k: int = 6) -> tuple[np.ndarray, np.ndarray]:
-    """The ``k`` largest skin weights of each vertex (indices and renormalised values), cached per array."""
-    hit = _SPARSE_CACHE.get(id(weights))
-    if hit is not None and hit[0] is weights:
-        return hit[1], hit[2]
-    idx = np.ascontiguousarray(np.argsort(-weights, axis=1)[:, :k])  # contiguous once, not per call
-    w = np.take_along_axis(weights, idx, 1)
-    w = w / w.sum(1, keepdims=True)
-    if len(_SPARSE_CACHE) >= 8:
-        _SPARSE_CACHE.clear()
-    _SPARSE_CACHE[id(weights)] = (weights, idx, w)  # holding the array keeps its id from being reused
-    return idx, w
-
-
 def skin_vertices(vertices: np.ndarray, weights: np.ndarray, skeleton: Skeleton, pose: Pose,
                   subset: np.ndarray | None = None, transforms: np.ndarray | None = None) -> np.ndarray:
     """Linear blend skinning of rest ``vertices`` by ``pose``, optionally only the rows ``subset``.
@@ -346,8 +336,8 @@ def skin_source_and_target(source_vertices: np.ndarray, target_vertices: np.ndar
     One rig, one set of skin weights: the two bodies differ only in their rest shapes and skeletons. The target's
     local rotations are ``R_T^T (R_S L R_S^T) R_T`` as matrices (no rotation-vector round trip), both chains are
     posed in numba from their rest-frame products (the source's cached) and each vertex's six weights are read
-    once for both bodies (:func:`blend_skin_pair`); ~0.5 ms for two 6k bodies against ~2 for two
-    :func:`skin_vertices` calls (most of it ``skinning_transforms``' numpy forward kinematics)."""
+    once for both bodies (:func:`bodystudio.geometry.skinning.blend_skin_pair`); ~0.5 ms for two 6k bodies
+    against ~2 for two :func:`skin_vertices` calls (most of it ``skinning_transforms``' numpy forward kinematics)."""
     parents = np.asarray(source_skeleton.parents, np.int64)
     L = Rotation.from_rotvec(pose.rotations).as_matrix()
     Rs, Rt = source_skeleton.rest_rotations, target_skeleton.rest_rotations
@@ -358,68 +348,3 @@ def skin_source_and_target(source_vertices: np.ndarray, target_vertices: np.ndar
     idx, w = _sparse_weights(weights)
     return blend_skin_pair(Ts, Tt, idx, w, np.ascontiguousarray(source_vertices, dtype=np.float64),
                            np.ascontiguousarray(target_vertices, dtype=np.float64))
-
-
-@njit(cache=True)
-def blend_skin_pair(source_transforms, target_transforms, weight_idx, weight_val, source_rest, target_rest):
-    """:func:`blend_skin` of two bodies with the same skin weights (points only): each vertex's weights read once,
-    its two blended matrices accumulated in one loop; the same sums in the same order as two calls."""
-    n, k_max = weight_idx.shape
-    Vs = np.empty((n, 3))
-    Vt = np.empty((n, 3))
-    Ms = np.empty((3, 4))
-    Mt = np.empty((3, 4))
-    for i in range(n):
-        Ms[:] = 0.0
-        Mt[:] = 0.0
-        for k in range(k_max):
-            w = weight_val[i, k]
-            if w == 0.0:
-                continue
-            S = source_transforms[weight_idx[i, k]]
-            T = target_transforms[weight_idx[i, k]]
-            for r in range(3):
-                for c in range(4):
-                    Ms[r, c] += w * S[r, c]
-                    Mt[r, c] += w * T[r, c]
-        for r in range(3):
-            Vs[i, r] = Ms[r, 0] * source_rest[i, 0] + Ms[r, 1] * source_rest[i, 1] + Ms[r, 2] * source_rest[i, 2] \
-                + Ms[r, 3]
-            Vt[i, r] = Mt[r, 0] * target_rest[i, 0] + Mt[r, 1] * target_rest[i, 1] + Mt[r, 2] * target_rest[i, 2] \
-                + Mt[r, 3]
-    return Vs, Vt
-
-
-@njit(cache=True)
-def blend_skin(transforms, weight_idx, weight_val, rest_vertices, rest_normals):
-    """Linear blend skinning ``(sum_k w_k T_k) v`` of points, and of unit normals when ``rest_normals`` has a row
-    per point (an empty (0, 3) array: points only), skipping the zero weights (2.2 bones of the six on average):
-    the numpy gather of (n, 6, 4, 4) transforms and its two einsums took ~2 ms for a 6k body, this ~0.2
-    (MIRFAST2). ``transforms`` (B, 3, 4); returns ``(V, N)``, ``N`` empty without normals."""
-    n, k_max = weight_idx.shape
-    with_normals = rest_normals.shape[0] == n
-    V = np.empty((n, 3))
-    N = np.empty((n if with_normals else 0, 3))
-    M = np.empty((3, 4))
-    for i in range(n):
-        M[:] = 0.0
-        for k in range(k_max):
-            w = weight_val[i, k]
-            if w == 0.0:
-                continue
-            T = transforms[weight_idx[i, k]]
-            for r in range(3):
-                for c in range(4):
-                    M[r, c] += w * T[r, c]
-        for r in range(3):
-            V[i, r] = M[r, 0] * rest_vertices[i, 0] + M[r, 1] * rest_vertices[i, 1] + M[r, 2] * rest_vertices[i, 2] \
-                + M[r, 3]
-        if with_normals:
-            length = 0.0
-            for r in range(3):
-                N[i, r] = M[r, 0] * rest_normals[i, 0] + M[r, 1] * rest_normals[i, 1] + M[r, 2] * rest_normals[i, 2]
-                length += N[i, r] * N[i, r]
-            length = max(np.sqrt(length), 1e-12)
-            for r in range(3):
-                N[i, r] /= length
-    return V, N

@@ -20,8 +20,8 @@ import numpy as np
 from bodystudio.body.ik import rotation_between
 from bodystudio.body.kinect import kinect_joint_names, kinect_joints
 from bodystudio.body.skinning import inverse_linear_blend_skinning as unpose  # noqa: F401 (re-exported)
-from bodystudio.body.skinning import linear_blend_skinning
 from bodystudio.errors import InputError
+from bodystudio.geometry.skinning import blend_skin, sparse_skin_weights
 
 #: Upper-body joints fitted by the global transform T_G.
 TORSO_JOINTS = ("SpineBase", "SpineMid", "SpineShoulder", "Neck", "ShoulderLeft", "ShoulderRight", "HipLeft",
@@ -165,7 +165,10 @@ def pose_template(body, bone_transforms: np.ndarray, global_scale: float = 1.0, 
     skel = body.skeleton
     T = np.asarray(bone_transforms, dtype=np.float64)
     V0 = body.vertices if rest_vertices is None else np.asarray(rest_vertices, dtype=np.float64)
-    V = linear_blend_skinning(V0, body.weights, T)
+    # sparse LBS (the few non-zero weights of each vertex; equal to the dense blend to rounding): 13K 6.5 -> ~0.5 ms
+    idx, w = sparse_skin_weights(body.weights, k=None)
+    V = blend_skin(np.ascontiguousarray(T[:, :3, :]), np.ascontiguousarray(idx), np.ascontiguousarray(w),
+                   np.ascontiguousarray(V0), np.empty((0, 3)))[0]
     heads = np.einsum("bij,bj->bi", T[:, :3, :3], skel.heads) + T[:, :3, 3]
     tails = np.einsum("bij,bj->bi", T[:, :3, :3], skel.tails) + T[:, :3, 3]
     return PoseInit(V, T, kinect_joints(skel, heads, tails, version), global_scale)

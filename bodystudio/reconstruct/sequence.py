@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +61,7 @@ from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observa
 from bodystudio.reconstruct.tracking import (
     SilhouetteFields,
     TrackParams,
+    carry_deformed_mesh,
     energy_jumped,
     lost_track_reason,
     outside_fraction,
@@ -399,9 +400,16 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                     detail["energy"] = outside_fraction(pose_template(fit_body, init.bone_transforms).vertices,
                                                         fields, track_params.outside_px)
                     t_track += time.perf_counter() - t1
+            V_start, frame_params = init.vertices, params
+            if track == "tracked":
+                if track_params.warm_mesh:
+                    V_start = carry_deformed_mesh(state["V"], state["posed"], init.vertices)
+                if track_params.outer_iterations:  # never more re-matchings than the run's No
+                    frame_params = replace(params, outer_iterations=min(params.outer_iterations,
+                                                                        track_params.outer_iterations))
             if tracking:
                 state = {"T": init.bone_transforms, "scale": init.global_scale, "joints": J,
-                         "energy": detail["energy"]}
+                         "energy": detail["energy"], "posed": init.vertices}
             # The smoothness prior keeps the generic template's delta coordinates, so shape errors in
             # regions no silhouette sees are not baked in and carried from frame to frame.
             reference = init.vertices if rest is body.vertices else pose_template(body, init.bone_transforms).vertices
@@ -410,10 +418,12 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             if "silhouette" not in params.constraints:
                 masks = None
             delta = rest_delta if rest_delta is not None else cotangent_weights(reference, F)
-            result = deform_to_observations(init.vertices, F, cameras, masks, params, depth=depth, delta=delta,
+            result = deform_to_observations(V_start, F, cameras, masks, frame_params, depth=depth, delta=delta,
                                             smooth_reference=reference, fields=fields)
             t_frame = time.perf_counter() - t_start
             V = result.vertices
+            if tracking:
+                state["V"] = V
             check_masks = masks
             if check_masks is None and "mask" in session.streams:
                 check_masks = {name: frame.masks[name] for name in frame.masks}
@@ -451,6 +461,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "joint_smoothing": int(joint_smoothing),
                    "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
                    "params": asdict(params), "n_vertices": int(len(body.vertices)),
+                   "track_params": asdict(track_params) if tracking else None,
                    "plausibility": verdict}, deletes=previous)
     return summarize(records)
 

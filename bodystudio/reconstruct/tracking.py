@@ -13,9 +13,10 @@ A tracked frame starts that fit from the previous frame's bone transforms
 (:func:`track_bone_transforms`); a re-initialised one from the frame's tracker joints.
 
 Measured (docs/reconstruct.md): the implicit hull is as accurate as the carved hull and cheaper, and
-is the default refinement; tracking from the previous frame is off by default, since on the 30 fps
-benchmark sessions it carries the first frame's pose error along (p90 +0.0-0.9 mm against initialising
-every frame from its joints), and its time saving over the per-frame refinement is small.
+is the default refinement. Tracking from the previous frame is off by default. A tracked frame fits until
+the data energy plateaus and re-matches ``outer_iterations`` (3) times instead of the run's ``No`` (8):
+the whole tracked frame ~240 -> ~100 ms CPU at 13K and 10 views, and on the three 30 fps benchmark
+sessions its p90 is at or below the previous tracker's and the per-frame initialisation's.
 
 The lost-track check (:func:`lost_track_reason`), in this order, re-initialises from the tracker joints
 (or the hull) with the full articulated fit:
@@ -58,8 +59,16 @@ class TrackParams:
     ``outside_px``: a vertex counts as outside a silhouette beyond this distance (the fit template is
     generic, so its limbs poke out by a few pixels on a good fit); ``inside_weight``: weight of vertices
     inside the implicit hull (as the hull fit's); ``inside_m``: vertices deeper inside are ignored;
-    ``iterations``: Gauss-Newton iterations of the tracking fit; ``joint_weight``: pull of the tracked
-    joints per squared metre (0: silhouettes only).
+    ``iterations``: Gauss-Newton iterations of the tracking fit, at most: it stops once an iteration lowered
+    the data energy by less than ``min_decrease`` (a fraction; the previous frame's pose is close, so two or
+    three steps reach the plateau); ``joint_weight``: pull of the tracked joints per squared metre (0:
+    silhouettes only).
+
+    The tracked frame's deformation (issue 15's frame time): ``warm_mesh`` starts Algorithm 1 from the
+    previous frame's deformed mesh carried by the change of the posed template
+    (:func:`carry_deformed_mesh`) instead of the posed template, and ``outer_iterations`` (``No`` of a
+    tracked frame; 0: the deformation's own) re-matches fewer times from that closer start. A
+    re-initialised frame (first, lost track) runs the full deformation from its posed template.
     """
 
     joint_jump_m: float = 0.25
@@ -74,13 +83,18 @@ class TrackParams:
     prior_weight: float = 0.05
     joint_weight: float = 0.0
     joint_bones: tuple[str, ...] = REFINE_BONES
+    min_decrease: float = 0.01
+    warm_mesh: bool = False
+    outer_iterations: int = 3
 
     def __post_init__(self):
         for name, value, lo, hi in (("joint_jump_m", self.joint_jump_m, 1e-3, 10.0),
                                     ("prior_outside_max", self.prior_outside_max, 0.0, 1.0),
                                     ("energy_abs", self.energy_abs, 0.0, 1.0),
                                     ("energy_ratio", self.energy_ratio, 1.0, 100.0),
-                                    ("iterations", self.iterations, 1, 100)):
+                                    ("iterations", self.iterations, 1, 100),
+                                    ("min_decrease", self.min_decrease, 0.0, 1.0),
+                                    ("outer_iterations", self.outer_iterations, 0, 100)):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
 
@@ -111,9 +125,19 @@ class SilhouetteFields:
                 y0, y1, x0, x1 = 0, H, 0, W
             inside = full[y0:y1, x0:x1].astype(np.uint8)
             out_d = cv2.distanceTransform(1 - inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-            in_d = cv2.distanceTransform(inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
             # pixel centres: +d outside, -d inside; the contour lies half-way, so shift by 0.5
-            self.sdf[cam.name] = np.where(inside > 0, 0.5 - in_d, out_d - 0.5).astype(np.float32)
+            sdf = out_d - np.float32(0.5)
+            if len(ys):
+                # The inside distances on the silhouette's bounding box grown by one pixel only: that ring is all
+                # outside, and the nearest outside pixel of an inside one is at most as far as its clamp onto the
+                # ring, so the exact transform of the small box is the big one's (tested); half the pixels.
+                b0, b1 = max(ys[0] - 1, y0), min(ys[-1] + 2, y1)
+                a0, a1 = max(xs[0] - 1, x0), min(xs[-1] + 2, x1)
+                core = inside[b0 - y0:b1 - y0, a0 - x0:a1 - x0]
+                in_d = cv2.distanceTransform(core, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+                box = sdf[b0 - y0:b1 - y0, a0 - x0:a1 - x0]
+                np.copyto(box, np.float32(0.5) - in_d, where=core > 0)
+            self.sdf[cam.name] = sdf
             self.offset[cam.name] = (x0, y0)
         # the same fields packed for the compiled implicit-hull pass (one padded array, camera constants)
         C = len(self.cameras)
@@ -449,12 +473,25 @@ def track_bone_transforms(body, previous: np.ndarray, fields: SilhouetteFields,
     """
     params = params or TrackParams()
     refine = PoseRefineParams(iterations=params.iterations, prior_weight=params.prior_weight,
-                              robust_m=params.robust_m)
+                              robust_m=params.robust_m, min_decrease=params.min_decrease)
     anchors = None
     if joint_transforms is not None and params.joint_weight > 0:
         anchors = (*joint_anchors(body, joint_transforms, params.joint_bones), params.joint_weight)
     return refine_bone_transforms(body, previous, None, refine, data_term=silhouette_data_term(fields, params),
                                   anchors=anchors)
+
+
+def carry_deformed_mesh(previous_deformed: np.ndarray, previous_posed: np.ndarray,
+                        posed: np.ndarray) -> np.ndarray:
+    """The previous frame's deformed mesh moved to this frame's pose: ``V_prev + (P - P_prev)``.
+
+    ``P_prev`` and ``P`` are the template posed (Eq. 12 of Rapid Skin) by the previous and this frame's
+    bone transforms; the deformation's offsets from its posed template are carried over as they are
+    (not rotated with their bones: between video frames a segment turns a few degrees, so an offset of
+    a few millimetres moves by a few hundredths of one). The warm start of a tracked frame's Algorithm 1.
+    """
+    return np.asarray(previous_deformed, dtype=np.float64) + (np.asarray(posed, dtype=np.float64)
+                                                              - np.asarray(previous_posed, dtype=np.float64))
 
 
 def torso_joint_jump_m(joints: np.ndarray | None, previous: np.ndarray | None) -> float:

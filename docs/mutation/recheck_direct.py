@@ -48,7 +48,7 @@ if hasattr(mod, "_session"):  # tests/mirror/test_evaluate_mutants.py: the small
 
 
 class _Caplog:
-    """Enough of pytest's caplog for ``at_level`` and ``text``."""
+    """Enough of pytest's caplog for ``at_level``, ``set_level``, ``records`` and ``text``."""
 
     def __init__(self):
         import logging
@@ -66,6 +66,11 @@ class _Caplog:
     @property
     def text(self):
         return "\n".join(r.getMessage() for r in self.records)
+
+    def set_level(self, level, logger=None):
+        import logging
+
+        logging.getLogger(logger).setLevel(level)  # not undone: each mutant runs in a fork that is thrown away
 
     def at_level(self, level, logger=None):
         import contextlib

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from bodystudio.errors import InputError
+from bodystudio.reconstruct.rapid_skin import RapidSkinParams
 from bodystudio.reconstruct.tracking import (
     SilhouetteFields,
     TrackParams,
@@ -74,6 +75,11 @@ def test_tracking_record_and_lost_track(runs):
     # the tracked frames skip the hull and its articulated fit; the re-initialised ones run it
     assert all(f["refine_ms"] == 0 for f in frames if f["track"] == "tracked")
     assert frames[0]["refine_ms"] > 0 and frames[JUMP_FRAME]["refine_ms"] > 0
+    # a tracked frame runs the fast path (TrackParams.outer_iterations re-matchings); a re-initialised one all No
+    no, no_tracked = RapidSkinParams().outer_iterations, TrackParams().outer_iterations
+    assert 0 < no_tracked < no
+    assert [len(f["n_silhouette"]) for f in frames] == [no if f["track"] != "tracked" else no_tracked
+                                                        for f in frames]
     # before the jump the previous pose lies inside the silhouettes; after it, mostly outside
     assert frames[1]["track_check"]["prior_outside"] < 0.05
     assert frames[JUMP_FRAME]["track_check"]["prior_outside"] > 0.5
