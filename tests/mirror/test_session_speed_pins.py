@@ -52,3 +52,71 @@ def test_source_and_target_in_one_pass_are_the_two_skinnings(reshaped, seed):
     Vs_sub, Vt_sub = posed_source_and_target(body, Vt, pose, rig, subset=sub)
     np.testing.assert_allclose(Vs_sub, Vs_want[sub], rtol=0, atol=1e-12)
     np.testing.assert_allclose(Vt_sub, Vt_want[sub], rtol=0, atol=1e-11)
+
+
+def _mask_box_numpy(mask, margin_px):
+    """refine.mask_box as numpy computed it before MIR12e."""
+    m = np.asarray(mask, bool)
+    ys, xs = np.flatnonzero(m.any(1)), np.flatnonzero(m.any(0))
+    if not len(ys):
+        return None
+    return (max(ys[0] - margin_px, 0), min(ys[-1] + margin_px + 1, m.shape[0]),
+            max(xs[0] - margin_px, 0), min(xs[-1] + margin_px + 1, m.shape[1]))
+
+
+def test_mask_box_in_numba_is_numpys():
+    from bodystudio.mirror.refine import mask_box
+
+    rng = np.random.default_rng(5)
+    for trial in range(40):
+        mask = rng.random((48, 64)) < (0.002 if trial % 3 else 0.05)
+        if trial % 7 == 0:
+            mask[:] = False
+        for margin in (0, 3, 40):
+            assert mask_box(mask, margin) == _mask_box_numpy(mask, margin)
+            assert mask_box(mask.astype(np.uint8), margin) == _mask_box_numpy(mask, margin)
+
+
+def _two_people(rng, shape=(240, 420)):
+    """A mask of two blobs ~200 px apart (two players) and the box / silhouette boxes of the refinement."""
+    import cv2
+
+    from bodystudio.mirror.refine import mask_box
+
+    mask = np.zeros(shape, np.uint8)
+    for cx in (100, 310):
+        for _ in range(2):
+            cv2.ellipse(mask, (cx + int(rng.integers(-20, 20)), 120 + int(rng.integers(-30, 30))),
+                        (int(rng.integers(10, 40)), int(rng.integers(20, 80))), float(rng.uniform(0, 180)), 0, 360,
+                        1, -1)
+    allowed = mask.astype(bool)
+    return allowed, mask_box(allowed, 40), mask_box(allowed, 0)
+
+
+@pytest.mark.parametrize("spread_px", [6.0, 60.0])
+def test_the_distance_near_one_body_is_the_whole_box_transform_where_it_is_read(spread_px):
+    """MIR12e's window around the body (clipped away from the other player) reads the whole box's transform at
+    every sample and its central differences; with points far outside (spread 60 px) the check grows the window."""
+    from bodystudio.mirror.refine import _distance_near_the_body, _sample, silhouette_distance
+
+    rng = np.random.default_rng(12)
+    clipped = 0
+    for _ in range(8):
+        allowed, box, sil = _two_people(rng)
+        whole, origin = silhouette_distance(allowed, 40, box)
+        ys, xs = np.nonzero(allowed[:, :205])  # around the left player
+        pick = rng.choice(len(ys), 300)
+        points = np.c_[xs[pick], ys[pick]] - origin + rng.normal(0, spread_px, (300, 2))
+        h, w = whole.shape
+        points = points[(points[:, 0] >= 1) & (points[:, 1] >= 1) & (points[:, 0] < w - 2) & (points[:, 1] < h - 2)]
+        dist = np.full_like(whole, np.nan)
+        done, d = _distance_near_the_body(dist, allowed, box, sil, points, None)
+        clipped += done[3] - done[2] < sil[3] - sil[2]
+        np.testing.assert_allclose(d, _sample(whole, points), atol=1e-4)
+        probes = (points[None] + np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])[:, None]).reshape(-1, 2)
+        np.testing.assert_allclose(_sample(dist, probes), _sample(whole, probes), atol=1e-4)
+    if spread_px < 10:
+        assert clipped == 8  # the other player's side was left out every time
+    else:
+        assert clipped < 8  # some windows had to grow back
+
