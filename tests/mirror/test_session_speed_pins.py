@@ -120,3 +120,22 @@ def test_the_distance_near_one_body_is_the_whole_box_transform_where_it_is_read(
     else:
         assert clipped < 8  # some windows had to grow back
 
+
+
+def test_player_points_in_one_pass_are_numpys_point_cloud():
+    """frames.point_cloud's numba pass (MIR12e) against the numpy mask, gathers and camera_to_world it replaced."""
+    from bodystudio.geometry.camera import Camera
+    from bodystudio.mirror.frames import _player_points, depth_ray_table
+
+    cam = Camera.look_at("kinect", eye=(0.3, 1.1, 2.6), target=(0.0, 0.9, 0.0), fx=285.0, width=320, height=240)
+    rng = np.random.default_rng(6)
+    depth = np.where(rng.random((240, 320)) < 0.9, rng.uniform(0.5, 4.0, (240, 320)), 0.0)
+    player = rng.integers(0, 3, (240, 320)).astype(np.uint8)
+    rays = depth_ray_table(cam)
+    for p in (1, 2, 5):
+        sel = (player == p) & (depth > 0)
+        z = depth[sel]
+        want = cam.camera_to_world(np.c_[rays[sel] * z[:, None], z])
+        got = _player_points(depth, player, rays, p, cam.R, cam.t)
+        assert got.shape == want.shape
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-14)
