@@ -1,14 +1,16 @@
 """Mirror session steps, another tree's modules against this one's, called alternately in one process (MIR12e).
 
-``PYTHONPATH=. python benchmarks/mirror_session_steps_ab.py /work/main [rounds]``: the per-frame session side of a
-two-actor frame (the depth-to-colour registration, shared; per actor the IK, the target rig, the posed source and
-target bodies, the player's point cloud and the pose refinement against its mask, depth and joints) with the
-``frames``, ``track``, ``refine`` and ``reshape`` modules of the other tree (loaded from its files, each other's
-imports among them resolved to the other tree's) and this tree's, called one after the other ``rounds`` times
-(default 21) on the last frame of a 14-frame two-actor v1 synthetic session (the actors' mean-shape bodies, the
-target +10 cm / +10 kg, as ``bench_mirror``'s refinement timing); numba / OpenCV / BLAS on one thread; prints the
-median process CPU ms per step (other, this) and the two-actor session total. The pattern of
-``mirror_image_steps_ab.py``: on a loaded shared machine only this call-by-call alternation separates them.
+``PYTHONPATH=. python benchmarks/mirror_session_steps_ab.py /work/main [rounds [session folder]]``: the per-frame
+session side of a two-actor frame (the depth-to-colour registration and the split of its player mask, shared;
+per actor the IK, the target rig, the posed source and target bodies, the player's point cloud and the pose
+refinement against its mask, depth and joints) with the ``frames``, ``track``, ``refine`` and ``reshape`` modules
+of the other tree (loaded from its files, each other's imports among them resolved to the other tree's; the
+player masks: its ``run.player_masks``, or the inline expressions it had before MIR12e) and this tree's, called
+one after the other ``rounds`` times (default 21) on the last frame of a 14-frame two-actor v1 synthetic session
+(written to a temporary folder, or kept in the given one; the actors' mean-shape bodies, the target +10 cm /
++10 kg, as ``bench_mirror``'s refinement timing); numba / OpenCV / BLAS on one thread; prints the median process
+CPU ms per step (other, this) and the two-actor session total. The pattern of ``mirror_image_steps_ab.py``: on a
+loaded shared machine only this call-by-call alternation separates them.
 """
 
 from __future__ import annotations
@@ -81,7 +83,8 @@ def _steps(mods: dict, session, model, rounds_out: dict) -> dict:
     Vt = model.vertices(ct)
     plan = R.refine_plan(body.vertices, body.faces, body.weights, body.skeleton, sensor.version)
     _, players = F.register_depth_to_color(frame.depth_m, frame.player, sensor)
-    steps = {"registration": lambda: F.register_depth_to_color(frame.depth_m, frame.player, sensor)}
+    steps = {"registration": lambda: F.register_depth_to_color(frame.depth_m, frame.player, sensor),
+             "player masks": lambda: mods["player_masks"](players, (1, 2), True)}
     for p in (1, 2):
         tracked = frame.body(p)
         pose = T.ik_pose(body.skeleton, tracked.positions, tracked.tracked, sensor.version)
@@ -102,14 +105,27 @@ def _steps(mods: dict, session, model, rounds_out: dict) -> dict:
     return steps
 
 
+def _inline_player_masks(players_c, players, several):
+    """session_inputs' masks before MIR12e (run.py, inline)."""
+    person = players_c == players[0] if not several else np.isin(players_c, players)
+    others = (players_c > 0) & ~person
+    return person, others, np.where(person, players_c, 0).astype(np.uint8) if several else None
+
+
 def compare(other_tree: str | Path, rounds: int = 21, folder: str | Path | None = None) -> dict:
     """{step: (other ms, this ms)} and "two actors" (the sums) (see the module docstring)."""
     from benchmarks.bench_mirror import one_core
     from bodystudio.body.statistical import load_statistical_model
-    from bodystudio.mirror import frames, refine, reshape, track
+    from bodystudio.mirror import frames, refine, reshape, run, track
 
     other = _load_tree(Path(other_tree) / "bodystudio" / "mirror")
-    this = {"frames": frames, "track": track, "refine": refine, "reshape": reshape}
+    this = {"frames": frames, "track": track, "refine": refine, "reshape": reshape,
+            "player_masks": run.player_masks}
+    # the run's split of the registered player mask (session_inputs); a tree without run.player_masks had it
+    # inline as these expressions (before MIR12e)
+    other["player_masks"] = _inline_player_masks
+    if "def player_masks(" in (Path(other_tree) / "bodystudio" / "mirror" / "run.py").read_text():
+        other["player_masks"] = run.player_masks
     model = load_statistical_model("6k", progress=False)
     with tempfile.TemporaryDirectory() as tmp, one_core():
         session = _session(Path(folder) if folder else Path(tmp) / "s")

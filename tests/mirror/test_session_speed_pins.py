@@ -139,3 +139,23 @@ def test_player_points_in_one_pass_are_numpys_point_cloud():
         got = _player_points(depth, player, rays, p, cam.R, cam.t)
         assert got.shape == want.shape
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("players", [(1,), (2,), (1, 2), (2, 3, 5)])
+def test_player_masks_are_the_isin_and_where_masks(players):
+    """run.player_masks (MIR12e) against the np.isin / np.where expressions session_inputs had inline."""
+    from bodystudio.mirror.run import player_masks
+
+    rng = np.random.default_rng(8)
+    players_c = rng.integers(0, 7, (48, 64)).astype(np.uint8)
+    several = len(players) > 1
+    person, others, labels = player_masks(players_c, players, several)
+    want = players_c == players[0] if not several else np.isin(players_c, players)
+    np.testing.assert_array_equal(person, want)
+    np.testing.assert_array_equal(others, (players_c > 0) & ~want)
+    if several:
+        old = np.where(want, players_c, 0).astype(np.uint8)
+        assert labels.dtype == old.dtype == np.uint8
+        np.testing.assert_array_equal(labels, old)
+    else:
+        assert labels is None
