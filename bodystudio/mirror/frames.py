@@ -158,6 +158,10 @@ def _register(depth, player, rays, T, K, dist, width, height, footprint, zbuf, p
                     if zc < zbuf[rr, cc]:
                         zbuf[rr, cc] = zc
                         pbuf[rr, cc] = player[r, c]
+    for rr in range(height):  # colour pixels no depth pixel reached: 0 (was a numpy isfinite pass, MIR12e)
+        for cc in range(width):
+            if zbuf[rr, cc] == np.inf:
+                zbuf[rr, cc] = 0.0
 
 
 def register_depth_to_color(depth_m: np.ndarray, player: np.ndarray,
@@ -179,7 +183,6 @@ def register_depth_to_color(depth_m: np.ndarray, player: np.ndarray,
     footprint = 0.5 * (col.fx / d.fx + col.fy / d.fy)
     _register(depth_m, player, depth_ray_table(d), np.ascontiguousarray(sensor.depth_to_color, dtype=np.float64),
               col.K, col.dist, col.width, col.height, footprint, zbuf, pbuf)
-    zbuf[~np.isfinite(zbuf)] = 0.0
     return zbuf, pbuf
 
 

@@ -159,3 +159,66 @@ def test_player_masks_are_the_isin_and_where_masks(players):
         np.testing.assert_array_equal(labels, old)
     else:
         assert labels is None
+
+
+
+def _register_reference(depth, player, rays, T, K, dist, width, height, footprint):
+    """The SDK's registration as frames._register splats it, in Python (the same operations in the same order),
+    with numpy's zeroing of the unreached pixels after it (before MIR12e)."""
+    import math
+
+    k1, k2, p1, p2, k3 = dist
+    zbuf = np.full((height, width), np.inf)
+    pbuf = np.zeros((height, width), np.uint8)
+    for r in range(depth.shape[0]):
+        for c in range(depth.shape[1]):
+            z = depth[r, c]
+            if z <= 0.0:
+                continue
+            x, y = rays[r, c, 0] * z, rays[r, c, 1] * z
+            xc = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
+            yc = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
+            zc = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+            if zc <= 0.0:
+                continue
+            a, b = xc / zc, yc / zc
+            r2 = a * a + b * b
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            ad = a * radial + 2.0 * p1 * a * b + p2 * (r2 + 2.0 * a * a)
+            bd = b * radial + p1 * (r2 + 2.0 * b * b) + 2.0 * p2 * a * b
+            u = K[0, 0] * ad + K[0, 1] * bd + K[0, 2]
+            v = K[1, 1] * bd + K[1, 2]
+            half = 0.5 * footprint * z / zc + 0.25
+            for rr in range(max(math.ceil(v - half), 0), min(math.floor(v + half), height - 1) + 1):
+                for cc in range(max(math.ceil(u - half), 0), min(math.floor(u + half), width - 1) + 1):
+                    if zc < zbuf[rr, cc]:
+                        zbuf[rr, cc] = zc
+                        pbuf[rr, cc] = player[r, c]
+    zbuf[~np.isfinite(zbuf)] = 0.0
+    return zbuf, pbuf
+
+
+def test_registration_is_bit_for_bit_the_one_before_mir12e():
+    """register_depth_to_color with the unreached pixels zeroed in its numba pass (MIR12e) against the splat and
+    numpy's isfinite pass it had before."""
+    from bodystudio.geometry.camera import Camera, RGBDSensor
+    from bodystudio.mirror.frames import depth_ray_table, register_depth_to_color
+
+    depth_cam = Camera.look_at("d", eye=(0.0, 1.0, 3.0), target=(0.0, 1.0, 0.0), fx=285.0, width=80, height=60)
+    color = Camera.look_at("c", eye=(0.025, 1.0, 3.0), target=(0.025, 1.0, 0.0), fx=525.0, width=160, height=120,
+                           dist=np.array([0.05, -0.01, 0.001, -0.001, 0.0]))
+    T = np.eye(4)
+    T[:3, :3] = color.R @ depth_cam.R.T
+    T[:3, 3] = color.t - T[:3, :3] @ depth_cam.t
+    sensor = RGBDSensor("kinect", "v1", depth_cam, color, T)
+    rng = np.random.default_rng(9)
+    depth = np.where(rng.random((60, 80)) < 0.8, rng.uniform(0.8, 4.0, (60, 80)), 0.0)
+    depth[:, :6] = 0.0  # a strip no depth reaches
+    player = rng.integers(0, 3, (60, 80)).astype(np.uint8)
+    got_z, got_p = register_depth_to_color(depth, player, sensor)
+    footprint = 0.5 * (color.fx / depth_cam.fx + color.fy / depth_cam.fy)
+    want_z, want_p = _register_reference(depth, player, depth_ray_table(depth_cam), T, color.K, color.dist, 160,
+                                         120, footprint)
+    assert 0 < (want_z > 0).sum() < want_z.size
+    np.testing.assert_array_equal(got_z, want_z)
+    np.testing.assert_array_equal(got_p, want_p)
