@@ -158,6 +158,10 @@ def _register(depth, player, rays, T, K, dist, width, height, footprint, zbuf, p
                     if zc < zbuf[rr, cc]:
                         zbuf[rr, cc] = zc
                         pbuf[rr, cc] = player[r, c]
+    for rr in range(height):  # colour pixels no depth pixel reached: 0 (was a numpy isfinite pass, MIR12e)
+        for cc in range(width):
+            if zbuf[rr, cc] == np.inf:
+                zbuf[rr, cc] = 0.0
 
 
 def register_depth_to_color(depth_m: np.ndarray, player: np.ndarray,
@@ -179,7 +183,6 @@ def register_depth_to_color(depth_m: np.ndarray, player: np.ndarray,
     footprint = 0.5 * (col.fx / d.fx + col.fy / d.fy)
     _register(depth_m, player, depth_ray_table(d), np.ascontiguousarray(sensor.depth_to_color, dtype=np.float64),
               col.K, col.dist, col.width, col.height, footprint, zbuf, pbuf)
-    zbuf[~np.isfinite(zbuf)] = 0.0
     return zbuf, pbuf
 
 
@@ -199,7 +202,32 @@ def point_cloud(frame: MirrorFrame, sensor: RGBDSensor, player: int) -> np.ndarr
     d = sensor.depth
     if frame.depth_m.shape != (d.height, d.width):
         raise InputError(f"point_cloud: depth {frame.depth_m.shape} is not the depth camera's ({d.height}, {d.width})")
-    sel = (frame.player == int(player)) & (frame.depth_m > 0)
-    z = frame.depth_m[sel]
-    xy = depth_ray_table(d)[sel]
-    return d.camera_to_world(np.c_[xy * z[:, None], z])
+    return _player_points(np.ascontiguousarray(frame.depth_m, dtype=np.float64),
+                          np.ascontiguousarray(frame.player, dtype=np.uint8), depth_ray_table(d), int(player),
+                          np.ascontiguousarray(d.R, dtype=np.float64), np.ascontiguousarray(d.t, dtype=np.float64))
+
+
+@njit(cache=True)
+def _player_points(depth, player, rays, which, R, t):
+    """The depth pixels of player ``which`` with a measurement, back-projected (``rays`` times the depth) and moved
+    into the studio frame (``(P - t) R``, as ``Camera.camera_to_world``), in raster order, in one pass (MIR12e:
+    the mask, the gathers and the transform were ~0.35 ms of numpy per player and frame)."""
+    h, w = depth.shape
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            if player[r, c] == which and depth[r, c] > 0.0:
+                n += 1
+    out = np.empty((n, 3))
+    k = 0
+    for r in range(h):
+        for c in range(w):
+            z = depth[r, c]
+            if player[r, c] == which and z > 0.0:
+                x = rays[r, c, 0] * z - t[0]
+                y = rays[r, c, 1] * z - t[1]
+                zz = z - t[2]
+                for j in range(3):
+                    out[k, j] = x * R[0, j] + y * R[1, j] + zz * R[2, j]
+                k += 1
+    return out

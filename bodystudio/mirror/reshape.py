@@ -22,7 +22,7 @@ from bodystudio.body.skeleton import Skeleton
 from bodystudio.body.statistical import StatisticalBodyModel
 from bodystudio.errors import InputError
 from bodystudio.mirror.init import SourceBody, refit_skeleton_from_vertices
-from bodystudio.mirror.track import skin_vertices
+from bodystudio.mirror.track import skin_source_and_target, skin_vertices
 
 EDIT_NAMES = ("taller", "heavier", "muscular", "chest", "waist", "hips")
 #: The statistical model attribute each edit changes (units: metres, kg, the model's muscularity 0-1).
@@ -141,5 +141,7 @@ def posed_source_and_target(source: SourceBody, target_vertices_rest, pose: Pose
     if Vt.shape != source.vertices.shape:
         raise InputError(f"target vertices {Vt.shape} do not match the source body's {source.vertices.shape}")
     skel_t = target_skeleton(source, Vt) if target_rig is None else target_rig
+    if subset is None:  # both bodies in one pass (the same values to ~1e-15 m)
+        return skin_source_and_target(source.vertices, Vt, source.weights, source.skeleton, skel_t, pose)
     Vs = skin_vertices(source.vertices, source.weights, source.skeleton, pose, subset=subset)
     return Vs, skin_vertices(Vt, source.weights, skel_t, transfer_pose(pose, source.skeleton, skel_t), subset=subset)

@@ -366,6 +366,19 @@ def frame_pairs(sources, targets, faces, camera, correspondence: str = CORRESPON
     return actors_warp_pairs(sources, targets, faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=dense, closed=True)
 
 
+def player_masks(players_c: np.ndarray, players: tuple[int, ...], several: bool
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The colour-registered player mask ``players_c`` (uint8 ids) split into the reshaped players' pixels
+    (``person``), the other players' (``others``) and, for ``several``, the reshaped players' labels (uint8,
+    0 elsewhere). One comparison per player ORed, and the labels as a product: ``np.isin`` and
+    ``np.where(..).astype`` took ~1.2 ms of the two-actor frame for the same masks (MIR12e)."""
+    person = players_c == players[0]
+    for p in players[1:]:
+        person |= players_c == p
+    others = (players_c > 0) & ~person
+    return person, others, (players_c * person).astype(np.uint8, copy=False) if several else None
+
+
 @dataclass
 class _Actor:
     """One reshaped player's state through a run: its body, target (Eq. 4), refinement plan, last pose, ramp."""
@@ -443,13 +456,11 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         if seen is None or (measured & ~seen).any():
             seen = measured if seen is None else seen | measured
             unseen = cv2.dilate(seen.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
-        person = players_c == players[0] if not several else np.isin(players_c, players)
-        others = (players_c > 0) & ~person
+        person, others, labels = player_masks(players_c, players, several)
         t2 = time.perf_counter()
         timings["register"] = (t2 - t1) * 1e3
         base = dict(index=int(i), rgb=frame.rgb, person_mask=person, others_mask=others, depth_color=depth_c,
-                    timings_ms=timings, unseen=unseen,
-                    person_labels=np.where(person, players_c, 0).astype(np.uint8) if several else None)
+                    timings_ms=timings, unseen=unseen, person_labels=labels)
         present, warning = [], None
         for a in actors:
             tracked = frame.body(a.player)

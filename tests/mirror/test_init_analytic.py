@@ -845,21 +845,23 @@ def test_time_init_and_track_reports_per_frame_means(monkeypatch, model):
     tracked[-1] = False
     obs = [InitObservation(f, None, posed_kinect_joints(sk, _pose(sk, seed=f, scale=0.05)), tracked, "v2")
            for f in range(3)]
-    clocks([100.0, 102.0, 110.0, 113.0, 120.0, 124.0], [50.0, 51.0, 55.0, 55.5, 56.0, 58.5])
+    clocks([100.0, 102.0, 110.0, 113.0, 120.0, 124.0, 130.0, 131.5],
+           [50.0, 51.0, 55.0, 55.5, 56.0, 58.5, 60.0, 60.75])
     out = init_mod.time_init_and_track(obs, model, view_point="eye", track_frames=5, passes=2)
     assert got["init"] == (obs, model, "eye", 2)
     assert out == {"init_s": 2.0, "init_cpu_s": 1.0, "init_frames": 3, "ik_ms": 1000 * 3.0 / 5,
-                   "ik_cpu_ms": 1000 * 0.5 / 5, "skin_ms": 1000 * 4.0 / 5, "skin_cpu_ms": 1000 * 2.5 / 5}
+                   "ik_cpu_ms": 1000 * 0.5 / 5, "skin_ms": 1000 * 4.0 / 5, "skin_cpu_ms": 1000 * 2.5 / 5,
+                   "bodies_ms": 1000 * 1.5 / 5, "bodies_cpu_ms": 1000 * 0.75 / 5}
     assert [j for j, *_ in ik_calls] == [obs[i % 3].joints[0, 0] for i in range(5)]
     assert all(t is tracked and v == "v2" for _, t, v, _ in ik_calls)
     assert ik_calls[0][3] is None and all(prev is not None for *_, prev in ik_calls[1:])
     # the defaults: 90 frames, three passes; no frames: the per-frame figures are the totals
     ik_calls.clear()
-    clocks([0.0, 1.0, 2.0, 3.0, 4.0, 5.0] * 2, [0.0] * 12)
+    clocks([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0] * 2, [0.0] * 16)
     out = init_mod.time_init_and_track(obs, model)
     assert len(ik_calls) == 90 and got["init"][2:] == (None, 3) and out["ik_ms"] == pytest.approx(1000 / 90)
     out = init_mod.time_init_and_track(obs, model, track_frames=0)
-    assert out["ik_ms"] == 1000.0 and out["skin_ms"] == 1000.0
+    assert out["ik_ms"] == 1000.0 and out["skin_ms"] == 1000.0 and out["bodies_ms"] == 1000.0
 
 
 def test_initialise_source_body_loads_the_6k_model_by_default(monkeypatch, model):

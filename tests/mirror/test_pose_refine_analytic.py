@@ -136,13 +136,18 @@ def _equal_poses(a, b, tol=1e-6):
 
 
 @pytest.mark.parametrize("variant", ["all terms", "two steps", "other player and border", "silhouette only",
-                                     "no joints"])
+                                     "no joints", "second player to the side", "far off, second player to the side"])
 def test_the_fast_refinement_gives_the_reference_pose(case, variant):
     from refine_reference import refine_pose_reference
 
     body, plan, camera, true, V_true, mask, points = case
     sk = body.skeleton
-    ik = _planted(sk, true, (0.04, -0.02, 0.05), 10.0)
+    if variant == "second player to the side":  # a small error: the window around the body holds (MIR12e)
+        ik = _planted(sk, true, (0.01, -0.005, 0.01), 3.0)
+    elif variant.startswith("far off"):  # points far outside: the window is grown back to the mask's box
+        ik = _planted(sk, true, (0.15, 0.0, -0.1), 25.0)
+    else:
+        ik = _planted(sk, true, (0.04, -0.02, 0.05), 10.0)
     rng = np.random.default_rng(7)
     joints = posed_kinect_joints(sk, true) + rng.normal(0, 0.015, (25, 3))
     tracked = np.ones(25, bool)
@@ -160,12 +165,29 @@ def test_the_fast_refinement_gives_the_reference_pose(case, variant):
         others[ys.min() + 60:ys.min() + 160, xs.max() - 5:xs.max() + 40] = True
         fg = mask & ~others
         fg[200:260, 0:40] = True
+    elif variant.endswith("second player to the side"):
+        # MIR12e: the distance transform's window is clipped to this body, away from the other player's pixels
+        # (a body width to the side); far off, the window check must grow it back
+        others = np.zeros_like(mask)
+        ys, xs = np.nonzero(mask)
+        keep = xs + (xs.max() - xs.min() + 60) < mask.shape[1]
+        others[ys[keep], xs[keep] + (xs.max() - xs.min() + 60)] = True
     elif variant == "silhouette only":
         args = {}
         w = RefineWeights(depth_weight=0.0, joint_weight=0.0)
     elif variant == "no joints":
         args = dict(depth_points=points)
-    fast = refine_pose(plan, sk, ik, camera, fg, others=others, iterations=iterations, weights=w, **args)
+    from bodystudio.mirror import refine as refine_module
+
+    checks = []
+    exact = refine_module._window_is_exact
+    refine_module._window_is_exact = lambda *a: checks.append(exact(*a)) or checks[-1]
+    try:
+        fast = refine_pose(plan, sk, ik, camera, fg, others=others, iterations=iterations, weights=w, **args)
+    finally:
+        refine_module._window_is_exact = exact
+    if variant.endswith("second player to the side"):  # the case takes the path it names
+        assert checks == ([False] if variant.startswith("far off") else [True])
     reference = refine_pose_reference(plan, sk, ik, camera, fg, others=others, iterations=iterations, weights=w,
                                       **args)
     moved = np.abs(reference.rotations - ik.rotations).max() + np.abs(reference.translation - ik.translation).max()
