@@ -226,7 +226,7 @@ class CaptureOptions:
     # as the prior's centre) alternated with the sequence fit. Off: the model's rest mesh and regressed joints.
     body_rest_shape: bool = False
     body_rest_rounds: int = 0
-    body_rest_prior_weight: float = 10.0  # per frame, one population standard deviation vs a pair 1 mm off
+    body_rest_prior_weight: float = 100.0  # per frame, one population standard deviation vs a pair 1 mm off
     body_rest_iterations: int = 3  # Gauss-Newton steps per round (re-paired each)
     body_rest_frame_stride: int = 4  # every this-many-th frame enters the rest-shape fit (it is shared)
     body_rest_arm_length_weight: float = 100.0  # measured arm length (known shape), per frame, vs one depth pair
