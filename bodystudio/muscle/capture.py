@@ -225,9 +225,9 @@ class CaptureOptions:
     # rounds of ``refine.fit_body_rest_shape`` (the parameters fitted to the depth with the poses held, the projection
     # as the prior's centre) alternated with the sequence fit. Off: the model's rest mesh and regressed joints.
     # Measured (6k, 200 frames, measured shape, Kinect v2 at 1 m; docs/muscle.md eighth pass), median / p90 mm of
-    # 501 / 504 / 508: default 4.61 / 7.74, 5.47 / 9.07, 6.44 / 13.45; projection only 4.41 / 7.60, 5.98 / 9.79, -;
-    # 2 rounds at prior 100 3.52 / 6.29, 5.57 / 8.15, 4.48 / 7.88, but the bulge error on 501 1.06 -> 1.75 mm (goal
-    # 1.5) and ~900 ms CPU per frame: off.
+    # 501 / 504 / 507 / 508: default 4.61 / 7.74, 5.47 / 9.07, 4.74 / 7.99, 6.44 / 13.45; 2 rounds at prior 100
+    # 3.52 / 6.29, 5.57 / 8.15, 7.65 / 12.95, 4.48 / 7.88 (507 loses), the bulge error on 501 1.06 -> 1.75 mm (goal
+    # 1.5), ~900 ms CPU per frame: off. Projection only: 501 4.41 / 7.60, 504 5.98 / 9.79.
     body_rest_shape: bool = False
     body_rest_rounds: int = 0
     body_rest_prior_weight: float = 100.0  # per frame, one population standard deviation vs a pair 1 mm off
