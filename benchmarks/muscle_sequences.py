@@ -31,6 +31,10 @@ VARIANTS = {
     # (with the default visibility filter)
     "a0t10": dict(sequence_fit_skeleton=True, sequence_fit_root=True, sequence_depth_huber_only=True,
                   sequence_torso_pair_weight=0.0, sequence_tracker_weight=10.0, norm_limit=0.05),
+    # the eighth pass: the rest arm and skeleton from the body model's shape space, the regression projected into it
+    # ("body_skeleton"), then fitted to the depth in two rounds alternated with the sequence fit ("body_rest")
+    "body_skeleton": {"body_rest_shape": True},
+    "body_rest": {"body_rest_shape": True, "body_rest_rounds": 2},
 }
 KEYS = ("median_mm", "p90_mm", "surface_median_mm", "surface_p90_mm", "front_median_mm", "back_median_mm",
         "bulge_err_mm", "jitter_mm", "cpu_ms_per_frame")

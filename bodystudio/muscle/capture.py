@@ -69,6 +69,7 @@ from bodystudio.muscle.refine import (
     arm_pose_from_part_transforms,
     correspondence_weights,
     fit_arm_sequence_skeleton,
+    fit_body_rest_shape,
     fit_rest_shape_correction,
     fit_shape_parameters,
     initial_arm_pose_from_joints,
@@ -218,6 +219,22 @@ class CaptureOptions:
     # extension -0.1 % (set A).
     personal_rounds: int = 0
     personal_prior_weight: float = 0.05
+    # Rest arm and skeleton from the body model's own shape space (``model.body_shape_space``): the regressed rest
+    # mesh (Eq. 6-9) projected into it (``model.project_to_body_space``: the subject's MakeHuman macro parameters and
+    # local arm, shoulder and torso target weights), its joints MakeHuman's for that shape; then ``body_rest_rounds``
+    # rounds of ``refine.fit_body_rest_shape`` (the parameters fitted to the depth with the poses held, the projection
+    # as the prior's centre) alternated with the sequence fit. Off: the model's rest mesh and regressed joints.
+    # Measured (6k, 200 frames, measured shape, Kinect v2 at 1 m; docs/muscle.md eighth pass), median / p90 mm of
+    # 501 / 504 / 507 / 508: default 4.61 / 7.74, 5.47 / 9.07, 4.74 / 7.99, 6.44 / 13.45; 2 rounds at prior 100
+    # 3.52 / 6.29, 5.57 / 8.15, 7.65 / 12.95, 4.48 / 7.88 (507 loses), the bulge error on 501 1.06 -> 1.75 mm (goal
+    # 1.5), ~900 ms CPU per frame: off. Projection only: 501 4.41 / 7.60, 504 5.98 / 9.79.
+    body_rest_shape: bool = False
+    body_rest_rounds: int = 0
+    body_rest_prior_weight: float = 100.0  # per frame, one population standard deviation vs a pair 1 mm off
+    body_rest_iterations: int = 3  # Gauss-Newton steps per round (re-paired each)
+    body_rest_frame_stride: int = 4  # every this-many-th frame enters the rest-shape fit (it is shared)
+    body_rest_arm_length_weight: float = 100.0  # measured arm length (known shape), per frame, vs one depth pair
+    body_rest_fit_placement: bool = True  # the shared torso translation solved with the rest shape
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape
@@ -240,6 +257,8 @@ class CaptureOptions:
             raise InputError(f"sequence_placement_prior_m must be >= 0, got {self.sequence_placement_prior_m}")
         if not self.sequence_torso_pair_weight >= 0:
             raise InputError(f"sequence_torso_pair_weight must be >= 0, got {self.sequence_torso_pair_weight}")
+        if self.body_rest_rounds < 0 or self.body_rest_frame_stride < 1 or not self.body_rest_prior_weight > 0:
+            raise InputError("body_rest_rounds must be >= 0, body_rest_frame_stride >= 1, body_rest_prior_weight > 0")
         if not self.sequence_pinned_se_m >= 0:
             raise InputError(f"sequence_pinned_se_m must be >= 0, got {self.sequence_pinned_se_m}")
 
@@ -296,6 +315,12 @@ class _Timer:
         t1 = time.perf_counter()
         self.ms[step] = self.ms.get(step, 0.0) + 1000.0 * (t1 - t0)
         return t1
+
+
+def _shifted(pose: ArmPose, translation: np.ndarray) -> ArmPose:
+    root = pose.root.copy()
+    root[:3, 3] += translation
+    return ArmPose(root, pose.angles)
 
 
 def _inverse_similarity(S):
@@ -449,8 +474,27 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     if model is not None and o.sequence_rounds > 0:
         t0 = time.perf_counter()
         J_model = J
-        for r in range(o.personal_rounds + 1):
-            if r > 0:  # poses -> rest shape -> poses (the rest shape and the poses stop trading errors)
+        body_rounds = o.body_rest_rounds if o.body_rest_shape else 0
+        if o.body_rest_shape:
+            from bodystudio.muscle.model import body_shape_space, project_to_body_space
+
+            space = body_shape_space(template)
+            prior_mean, prior_sigma = space.prior(shape)
+            anchor = J[0].copy()  # the rest mesh's shoulder stays where the model's sits (the placement's frame)
+            body_x = prior_mean = project_to_body_space(space, base, J, prior_mean, prior_sigma)
+            base, J_model = space.rest_and_joints(body_x, anchor)
+        for r in range(max(o.personal_rounds, body_rounds) + 1):
+            if r > 0 and body_rounds > 0:  # poses -> the body model's rest shape and skeleton -> poses
+                sub = slice(None, None, o.body_rest_frame_stride)
+                body_x, shift = fit_body_rest_shape(
+                    space, model, poses[sub], frames_t[sub], body_x, anchor,
+                    prior_mean, prior_sigma, o.body_rest_prior_weight, o.norm_limit, o.sequence_huber_m,
+                    o.body_rest_iterations, o.body_rest_fit_placement,
+                    None if known_shape is None else known_shape.arm_length_m, o.body_rest_arm_length_weight,
+                    None if tracker_t is None else tracker_t[sub], o.sequence_tracker_weight)
+                base, J_model = space.rest_and_joints(body_x, anchor)
+                poses = [_shifted(p, shift) for p in poses]
+            elif r > 0:  # poses -> rest shape -> poses (the rest shape and the poses stop trading errors)
                 base = fit_rest_shape_correction(model, shape, poses, frames_t, base, J, o.personal_prior_weight,
                                                  o.norm_limit, o.sequence_huber_m)
             poses, J = fit_arm_sequence_skeleton(

@@ -597,3 +597,175 @@ def capture_samples(capture, name: str, shape: ArmShapeParams | None = None, str
         raise InputError(f"capture {name!r} has no frames with joint angles (a no-model capture); "
                          "capture it with the model to extend the dataset")
     return out
+
+
+# --- the body model's own shape space (replaces Eq. 6-9 per subject; issue 11, eighth pass) ---------------------
+
+#: macro parameters of the body model fitted per subject (MakeHuman's; :class:`bodystudio.body.Phenotype`)
+BODY_MACRO_NAMES = ("gender", "age", "muscle", "weight", "height", "proportions", "african", "asian", "caucasian")
+#: population mean and spread of each macro parameter (``bodystudio.body.population``'s distribution: gender a
+#: coin mixed to the middle, age U(0.5, 0.875), weight 0.15 + 0.8 Beta(3, 3), height ~0.5 +- 0.07, proportions
+#: U(0.3, 0.8), ethnic Dirichlet(1, 1, 1)); gender and muscle are centred on the measured sex / muscularity instead
+BODY_MACRO_PRIOR = {"gender": (0.5, 0.05), "age": (0.6875, 0.108), "muscle": (0.5, 0.05), "weight": (0.55, 0.15),
+                    "height": (0.5, 0.07), "proportions": (0.55, 0.144), "african": (1 / 3, 0.24),
+                    "asian": (1 / 3, 0.24), "caucasian": (1 / 3, 0.24)}
+#: spread of a local target's weight in the prior (MakeHuman's local modifiers, [-1, 1]; the population samples
+#: its few at sigma 0.15-0.25)
+BODY_LOCAL_PRIOR_SIGMA = 0.25
+#: a local target enters the space when it moves a vertex of the arm region or one of its joints at least this far
+BODY_LOCAL_MIN_EFFECT_M = 0.002
+
+
+@dataclass(frozen=True, eq=False)
+class BodyShapeSpace:
+    """The body model's shape space restricted to an arm template: rest arm and joints as functions of the macro
+    parameters (:data:`BODY_MACRO_NAMES`) and of the weights of the local targets that move the region.
+
+    ``rows`` are the template's vertices followed by the shoulder, elbow and wrist heads (each a linear function of
+    the full body's vertices: :func:`bodystudio.body.skeleton.skeleton_from_vertices`); ``base`` (r, 3) their
+    unshaped positions, ``macro_deltas`` (M, r, 3) / ``local_deltas`` (L, r, 3) the targets restricted to them.
+    A parameter vector ``x`` is the macro values then the local target weights."""
+
+    base: np.ndarray
+    macro_names: list
+    macro_deltas: np.ndarray
+    local_names: list
+    local_deltas: np.ndarray
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.base) - 3
+
+    @property
+    def n_parameters(self) -> int:
+        return len(BODY_MACRO_NAMES) + len(self.local_names)
+
+    def macro_weights(self, x: np.ndarray) -> np.ndarray:
+        """Weights (M,) of the macro targets for the macro values ``x[:9]`` (MakeHuman's blend)."""
+        from bodystudio.body.phenotype import Phenotype, macro_target_weights
+
+        v = np.clip(np.asarray(x[:len(BODY_MACRO_NAMES)], np.float64), 0.0, 1.0)
+        v[6:] = np.maximum(v[6:], 1e-3)  # the ethnic weights are normalised by their sum
+        w = macro_target_weights(Phenotype(**dict(zip(BODY_MACRO_NAMES, v.tolist(), strict=True))), self.macro_names)
+        return np.array([w.get(n, 0.0) for n in self.macro_names])
+
+    def shaped_rows(self, x: np.ndarray) -> np.ndarray:
+        """The rows (r, 3) for parameters ``x``: the region's vertices and the three joints."""
+        x = np.asarray(x, np.float64)
+        return (self.base + np.tensordot(self.macro_weights(x), self.macro_deltas, axes=1)
+                + np.tensordot(x[len(BODY_MACRO_NAMES):], self.local_deltas, axes=1))
+
+    def rest_and_joints(self, x: np.ndarray, shoulder: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Rest arm (n, 3) and rest shoulder, elbow, wrist (3, 3), moved so the shoulder is at ``shoulder``
+        (default the origin: the model's shoulder-centred frame)."""
+        R = self.shaped_rows(x)
+        R = R - R[-3] + (np.zeros(3) if shoulder is None else np.asarray(shoulder, np.float64))
+        return R[:-3], R[-3:]
+
+    def jacobian(self, x: np.ndarray, step: float = 1e-4) -> np.ndarray:
+        """d rows / d x (P, r, 3), shoulder-relative (the shoulder row's derivative subtracted): the macro columns by
+        one-sided differences into the unit interval (MakeHuman's blend is piecewise multilinear), the local ones
+        exact."""
+        x = np.asarray(x, np.float64)
+        m = len(BODY_MACRO_NAMES)
+        w0 = self.macro_weights(x)
+        cols = []
+        for k in range(m):
+            h = step if x[k] + step <= 1.0 else -step
+            xk = x.copy()
+            xk[k] += h
+            cols.append(np.tensordot((self.macro_weights(xk) - w0) / h, self.macro_deltas, axes=1))
+        D = np.concatenate([np.stack(cols), self.local_deltas]) if cols else self.local_deltas
+        return D - D[:, -3:-2]
+
+    def prior(self, shape=None) -> tuple[np.ndarray, np.ndarray]:
+        """Prior mean and spread (P,) of the parameters: the population's, gender and muscle at the measured sex and
+        muscularity of ``shape`` (an ArmShapeParams) when given, local weights 0."""
+        mean = np.array([BODY_MACRO_PRIOR[n][0] for n in BODY_MACRO_NAMES])
+        sigma = np.array([BODY_MACRO_PRIOR[n][1] for n in BODY_MACRO_NAMES])
+        if shape is not None:
+            mean[0] = 0.05 + 0.9 * float(shape.sex) if shape.sex in (0.0, 1.0) else float(shape.sex)
+            mean[2] = float(shape.muscularity)
+        L = len(self.local_names)
+        return np.r_[mean, np.zeros(L)], np.r_[sigma, np.full(L, BODY_LOCAL_PRIOR_SIGMA)]
+
+
+@lru_cache(maxsize=4)
+def _body_shape_space(resolution: str, side: str) -> BodyShapeSpace:
+    from bodystudio.body.makehuman import load_base, load_targets
+    from bodystudio.body.model import rig_definition, template_topology
+    from bodystudio.body.phenotype import local_modifiers
+    from bodystudio.muscle.arm import _region, _side_suffix
+
+    base = load_base()
+    lib = load_targets(len(base.vertices))
+    ids, _ = template_topology(resolution)
+    arm_ids, _ = _region(resolution, side)
+    full_ids = arm_ids if ids is None else np.asarray(ids)[arm_ids]
+    rig = rig_definition()
+    s = _side_suffix(side)
+    heads = rig.head_regressor[[rig.bone_names.index(f"{b}{s}") for b in ("upperarm", "lowerarm", "hand")]]
+    n_all = len(base.vertices)
+
+    def restrict(V):  # (n_all, 3) -> rows (r, 3)
+        return np.concatenate([V[full_ids], heads @ V])
+
+    def target_rows(name):
+        idx, d = lib.delta(name)
+        D = np.zeros((n_all, 3))
+        D[idx] = d
+        return restrict(D)
+
+    macro_names = [n for n in lib.names if n.startswith("macrodetails/")]
+    other = "r-" if side == "left" else "l-"
+    local_names = []
+    for mod, pair in sorted(local_modifiers(base.data_dir).items()):
+        if mod.startswith(other):
+            continue
+        for t in pair:
+            full = next((n for n in lib.names if not n.startswith("macrodetails") and n.rsplit("/", 1)[-1] == t), None)
+            if t and full is not None and full not in local_names:
+                local_names.append(full)
+    local = [(n, target_rows(n)) for n in local_names]
+    local = [(n, D) for n, D in local if np.abs(D - D[-3]).max() >= BODY_LOCAL_MIN_EFFECT_M]
+    return BodyShapeSpace(restrict(np.asarray(base.vertices, np.float64)), macro_names,
+                          np.stack([target_rows(n) for n in macro_names]), [n for n, _ in local],
+                          np.stack([D for _, D in local]) if local else np.zeros((0, len(full_ids) + 3, 3)))
+
+
+def body_shape_space(template: ArmTemplate) -> BodyShapeSpace:
+    """The body model's shape space on ``template``'s region (cached per resolution and side; needs the body
+    assets): what a subject's rest arm can be in the model the synthetic and real subjects are shaped by, far
+    richer than Eq. 6-9's five measurements (age, proportions, ethnic mix, MakeHuman's local arm, shoulder and
+    torso targets)."""
+    return _body_shape_space(template.resolution, template.side)
+
+
+def body_parameters_of(phenotype, local: dict, space: BodyShapeSpace) -> np.ndarray:
+    """The parameter vector of a body (its phenotype and local modifier values) in ``space`` (local targets outside
+    the space are dropped): for tests and for the truth's own point in the space."""
+    from bodystudio.body.makehuman import load_base, load_targets
+    from bodystudio.body.phenotype import local_target_weights
+
+    base = load_base()
+    lib = load_targets(len(base.vertices))
+    w = local_target_weights(local or {}, base.data_dir, lib.names)
+    macro = [float(getattr(phenotype, n)) for n in BODY_MACRO_NAMES]
+    return np.r_[macro, [w.get(n, 0.0) for n in space.local_names]]
+
+
+def project_to_body_space(space: BodyShapeSpace, rest: np.ndarray, joints: np.ndarray, prior_mean: np.ndarray,
+                          prior_sigma: np.ndarray, prior_weight: float = 1e-3, iterations: int = 6) -> np.ndarray:
+    """The parameters whose rest arm and joints are nearest ``rest`` (n, 3) and ``joints`` (3, 3), both relative to
+    their shoulder (Gauss-Newton on the vertex distances, a Tikhonov prior ``prior_weight`` per vertex on the
+    standardised parameters, in (1 mm)^2): the point of the body space a regressed rest mesh (Eq. 6-9) stands for."""
+    target = np.concatenate([np.asarray(rest, np.float64) - joints[0], np.asarray(joints, np.float64) - joints[0]])
+    x = np.asarray(prior_mean, np.float64).copy()
+    lam = prior_weight * len(target) * 1e-6 / np.asarray(prior_sigma, np.float64) ** 2
+    for _ in range(iterations):
+        R = space.shaped_rows(x)
+        r = (R - R[-3] - target).ravel()
+        G = space.jacobian(x).reshape(len(x), -1).T
+        x += np.linalg.solve(G.T @ G + np.diag(lam), -(G.T @ r) - lam * (x - prior_mean))
+        x[:len(BODY_MACRO_NAMES)] = np.clip(x[:len(BODY_MACRO_NAMES)], 0.0, 1.0)
+    return x

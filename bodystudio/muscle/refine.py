@@ -580,6 +580,104 @@ def fit_rest_shape_correction(model, shape, poses: list[ArmPose], frames: list[D
     return rest + (c @ E).reshape(-1, 3)
 
 
+def fit_body_rest_shape(space, model, poses: list[ArmPose], frames: list[DepthFrame], x0: np.ndarray,
+                        shoulder: np.ndarray, prior_mean: np.ndarray, prior_sigma: np.ndarray,
+                        prior_weight: float = 1.0, norm_limit: float = 0.9, huber_m: float = 0.004,
+                        iterations: int = 3, fit_placement: bool = True, arm_length_m: float | None = None,
+                        arm_length_weight: float = 0.0, tracker_joints: np.ndarray | None = None,
+                        tracker_weight: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Per-subject rest shape in the body model's own shape space: replaces Eq. 6-9 (``v_base + d_l + d_theta``
+    and the joint regression) of Arm-Muscle Capture by the subject's MakeHuman parameters fitted to the depth.
+
+    ``space`` (:func:`bodystudio.muscle.model.body_shape_space`) gives the rest arm and its shoulder, elbow and wrist
+    as functions of the macro parameters (gender, age, muscle, weight, height, proportions, ethnic mix) and the
+    weights of the local targets that move the region; the rest mesh sits with its shoulder at ``shoulder`` (the
+    capture's placement frame). With every frame's pose held, the posed mesh of Eq. 12 (``skinning(v_rest + d_rho)``,
+    Eq. 10's pose term with the norm limit on top) is affine in the rest vertices and the joints (the skinning's
+    translations are linear in the joint centres), so each Gauss-Newton step is one linear least squares over all
+    frames' point-to-plane pairs (Sec. 5.2 filters; re-paired each step; Huber weights ``huber_m`` on each pair's
+    distance at the step's start) with a Tikhonov prior towards the population: ``prior_weight`` per frame on
+    ``|(x - prior_mean) / prior_sigma|^2`` in units of (1 mm)^2, so one standard deviation costs a frame as much as
+    ``prior_weight`` pairs 1 mm off their planes. The macro parameters enter through MakeHuman's piecewise
+    multilinear blend (linearised each step), the local weights linearly. ``fit_placement``: the shared torso
+    translation (the placement, which trades with the shoulder's place in the skin) is solved too.
+    ``arm_length_m`` (measured; the paper's Table 1): the rest chain's length held to it with ``arm_length_weight``
+    per frame (point-to-plane pairs let the arm slide along itself). ``tracker_joints`` (frames, 3, 3): the body
+    tracker's shoulder, elbow and wrist, compared with the posed rest joints at ``tracker_weight`` per coordinate (1
+    per depth pair), as in the sequence fit: noisy per frame but unbiased, they hold the skeleton where the held
+    poses' errors would move it. The unseen side follows the seen one through
+    the body model. Returns ``(x, translation (3,))``: the parameters and the placement change to add to every
+    pose's root.
+    """
+    from bodystudio.muscle.model import limit_displacement_norms, pose_displacements
+
+    x = np.asarray(x0, np.float64).copy()
+    W = np.asarray(model.part_weights, np.float64)
+    m = 9  # macro parameters, clipped to MakeHuman's unit interval
+    n_t = 3 if fit_placement else 0
+    d_rho = [limit_displacement_norms(pose_displacements(model, p.angles), norm_limit) for p in poses]
+    mean, sigma = np.asarray(prior_mean, np.float64), np.asarray(prior_sigma, np.float64)
+    T_frames = len(poses)
+    shift = np.zeros(3)
+    tracked = [None] * T_frames if tracker_joints is None or tracker_weight <= 0 else np.asarray(tracker_joints)
+    for _ in range(iterations):
+        rest, J = space.rest_and_joints(x, shoulder)
+        D = space.jacobian(x)  # (P, n + 3, 3)
+        Dv, DJ = D[:, :-3], D[:, -3:].reshape(len(D), 9)
+        P = len(x) + n_t
+        GtG, Gtr = np.zeros((P, P)), np.zeros(P)
+        for p, fr, dr, tj in zip(poses, frames, d_rho, tracked, strict=True):
+            pose = ArmPose(p.root.copy(), p.angles)
+            pose.root[:3, 3] += shift
+            Tp = part_transforms(J, pose)
+            if tj is not None:  # posed joints, linear in the rest joints (and the placement) with the pose held
+                PJ = posed_joints(J, pose)
+                dPJ = np.stack([(posed_joints(J + e.reshape(3, 3), pose) - PJ).ravel() for e in np.eye(9)], axis=1)
+                Gj = dPJ @ DJ.T
+                if n_t:
+                    Gj = np.c_[Gj, np.tile(np.eye(3), (3, 1))]
+                GtG += tracker_weight * Gj.T @ Gj
+                Gtr += tracker_weight * Gj.T @ (PJ - tj).ravel()
+            M = pose_arm(rest + dr, W, J, pose)
+            idx, q, nrm = fr.plane_pairs(M)
+            if len(idx) == 0:
+                continue
+            r = np.einsum("kd,kd->k", M[idx] - q, nrm)
+            w = np.minimum(1.0, huber_m / np.maximum(np.abs(r), 1e-12)) if huber_m > 0 else np.ones(len(r))
+            A = np.einsum("kp,pij->kij", W[idx], Tp[:, :3, :3])
+            An = np.einsum("kij,ki->kj", A, nrm)  # n^T A per paired vertex
+            # d t / d J: the parts' translations are linear in the joint centres (exact differences)
+            dT = np.stack([(part_transforms(J + e.reshape(3, 3), pose)[:, :3, 3] - Tp[:, :3, 3])
+                           for e in np.eye(9)])  # (9, parts, 3)
+            dtJ = np.einsum("kp,cpd,kd->kc", W[idx], dT, nrm)  # (k, 9)
+            G = np.einsum("kj,Pkj->kP", An, Dv[:, idx, :]) + dtJ @ DJ.T
+            if n_t:
+                G = np.c_[G, nrm]
+            GtG += G.T @ (w[:, None] * G)
+            Gtr += G.T @ (w * r)
+        lam = prior_weight * T_frames * 1e-6
+        reg = np.zeros(P)
+        reg[:len(x)] = lam / sigma ** 2
+        rhs = -Gtr
+        rhs[:len(x)] -= reg[:len(x)] * (x - mean)
+        H = GtG + np.diag(reg)
+        if arm_length_m is not None and arm_length_weight > 0:
+            bones = np.diff(J, axis=0)
+            lengths = np.linalg.norm(bones, axis=1)
+            u = bones / lengths[:, None]
+            DJ3 = DJ.reshape(len(D), 3, 3)
+            g = np.einsum("bd,Pbd->P", u, DJ3[:, 1:] - DJ3[:, :-1])  # d(chain length)/dx
+            a = arm_length_weight * T_frames
+            H[:len(x), :len(x)] += a * np.outer(g, g)
+            rhs[:len(x)] -= a * g * (lengths.sum() - arm_length_m)
+        step = np.linalg.solve(H, rhs)
+        x += step[:len(x)]
+        x[:m] = np.clip(x[:m], 0.0, 1.0)
+        if n_t:
+            shift += step[len(x):]
+    return x, shift
+
+
 def skin_template(base: np.ndarray, part_weights: np.ndarray, joints: np.ndarray, pose: ArmPose) -> np.ndarray:
     """The template posed by four-part LBS (Eq. 12 without the model's displacements)."""
     return pose_arm(base, part_weights, joints, pose)

@@ -75,3 +75,13 @@ def test_muscle_floor_refuses_bad_arguments_in_one_line(args, tmp_path, capsys):
     assert exc.value.code == 2
     assert args[0] in capsys.readouterr().err.strip().splitlines()[-1]
     assert not (tmp_path / "w").exists()
+
+
+def test_muscle_rest_ceiling_refuses_a_bad_session_in_one_line(tmp_path, capsys):
+    from benchmarks.muscle_rest_ceiling import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--work", str(tmp_path), "--session", "504"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "SUBJECT:NOISE_SEED" in err[-1] and not list(tmp_path.iterdir())
