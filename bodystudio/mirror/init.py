@@ -703,6 +703,9 @@ def time_init_and_track(observations, model: StatisticalBodyModel, view_point=No
     skin_s, skin_cpu_s = time.perf_counter() - w0, time.process_time() - c0
     from bodystudio.mirror.track import skin_source_and_target
 
+    if poses:  # the numba kernels' compile (or cache load) outside the timer, as a running mirror has it behind it
+        skin_source_and_target(source.vertices, source.vertices, source.weights, source.skeleton, source.skeleton,
+                               poses[0])
     w0, c0 = time.perf_counter(), time.process_time()
     for pose in poses:  # what the run does per actor: the source and the target body in one pass (MIR12e); the
         # target's rest shape and rig do not change the cost, the source's stand in for them
