@@ -179,7 +179,7 @@ def _points(plotter, name):
     return np.asarray(plotter.actors[name].GetMapper().GetInput().GetPoints().GetData())
 
 
-def _scene(view):
+def _scene_of(view):
     from bodystudio.viewer.mirror import scene_for_mirror
     from bodystudio.viewer.scene import make_plotter
 
@@ -199,7 +199,7 @@ def test_scene_shows_each_run_players_body_side_by_side_and_says_whose(session, 
     fp1, fp2 = source_fingerprint(b1), source_fingerprint(b2)
     name = Path(s.path).name
     # two players: the first 0.4 m left, the second 0.4 m right, in the run's order
-    title, names, pts = _scene(open_mirror_view(_run(s, tmp_path / "a", players=[2, 1],
+    title, names, pts = _scene_of(open_mirror_view(_run(s, tmp_path / "a", players=[2, 1],
                                                      source_fingerprints={"1": fp1, "2": fp2})))
     assert title == f"{name}  frame 12: input | mirror (taller +0.15) | truth (edited body)" \
         "  + source bodies of players 2, 1"
@@ -207,19 +207,19 @@ def test_scene_shows_each_run_players_body_side_by_side_and_says_whose(session, 
     assert np.allclose(pts["source-body"], b2.vertices - [SOURCE_BODY_SPACING_M / 2, 0, 0], atol=1e-5)
     assert np.allclose(pts["source-body-player1"], b1.vertices + [SOURCE_BODY_SPACING_M / 2, 0, 0], atol=1e-5)
     # one player (2): its body in place, the title names it
-    title, names, pts = _scene(open_mirror_view(_run(s, tmp_path / "b", player=2, source_fingerprints={"2": fp2})))
+    title, names, pts = _scene_of(open_mirror_view(_run(s, tmp_path / "b", player=2, source_fingerprints={"2": fp2})))
     assert title.endswith("  + source body of player 2") and "input | mirror" in title
     assert np.allclose(pts["source-body"], b2.vertices, atol=1e-5) and len(pts) == 1
     # player 1 alone: "+ source body"
-    title, names, pts = _scene(open_mirror_view(_run(s, tmp_path / "c", source_fingerprint=fp1)))
+    title, names, pts = _scene_of(open_mirror_view(_run(s, tmp_path / "c", source_fingerprint=fp1)))
     assert title.endswith("(edited body)  + source body") and np.allclose(pts["source-body"], b1.vertices, atol=1e-5)
     # no body at all
-    title, names, pts = _scene(open_mirror_view(_run(s, tmp_path / "d", player=3)))
+    title, names, pts = _scene_of(open_mirror_view(_run(s, tmp_path / "d", player=3)))
     assert title.endswith("  (no source body yet)") and not pts
     # a body the run did not use: left out, the title says so (whose, with several players)
-    title, names, pts = _scene(open_mirror_view(_run(s, tmp_path / "e", source_fingerprint=fp2)))
+    title, names, pts = _scene_of(open_mirror_view(_run(s, tmp_path / "e", source_fingerprint=fp2)))
     assert title.endswith("  (source body changed since this run: re-run `bodystudio mirror run`)") and not pts
-    title, names, pts = _scene(open_mirror_view(_run(s, tmp_path / "f", players=[1, 2],
+    title, names, pts = _scene_of(open_mirror_view(_run(s, tmp_path / "f", players=[1, 2],
                                                      source_fingerprints={"1": fp1, "2": fp1})))
     assert title.endswith("  (source body of player 2 changed since this run: re-run `bodystudio mirror run`)")
     assert set(pts) == {"source-body"} and np.allclose(pts["source-body"], b1.vertices - [0.4, 0, 0], atol=1e-5)
