@@ -223,3 +223,24 @@ def test_scene_shows_each_run_players_body_side_by_side_and_says_whose(session, 
                                                      source_fingerprints={"1": fp1, "2": fp1})))
     assert title.endswith("  (source body of player 2 changed since this run: re-run `bodystudio mirror run`)")
     assert set(pts) == {"source-body"} and np.allclose(pts["source-body"], b1.vertices - [0.4, 0, 0], atol=1e-5)
+
+
+def test_open_mirror_view_finds_the_sessions_own_run_and_names_a_gone_session(session, tmp_path):
+    from bodystudio.errors import SessionError
+    from bodystudio.viewer.mirror import open_mirror_view
+
+    s, _, _ = session
+    linked = tmp_path / "linked"  # the shared session by links, with a run of its own in mirror/run
+    (linked / "mirror").mkdir(parents=True)
+    for p in Path(s.path).iterdir():
+        if p.name != "mirror":
+            (linked / p.name).symlink_to(p)
+    for p in (Path(s.path) / "mirror").iterdir():
+        (linked / "mirror" / p.name).symlink_to(p)
+    _run(s, linked / "mirror" / "run", player=2, players=[2])
+    view = open_mirror_view(linked)
+    assert view.run_dir == linked / "mirror" / "run"
+    assert view.source_path == linked / "mirror" / "source_body_player2.npz"
+    bare = _manifest(tmp_path / "bare", frames=[])  # a run that names no session
+    with pytest.raises(SessionError, match=r"bare: the run's session \. is gone; view the session folder instead$"):
+        open_mirror_view(bare)
