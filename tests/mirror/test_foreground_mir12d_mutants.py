@@ -97,3 +97,12 @@ def test_no_measured_sure_foreground_means_no_depth_term(monkeypatch):
     depth[inner.nonzero()[0][0], inner.nonzero()[1][0]] = 1.7
     _cut(rgb, mask, inner, band, depth=depth)
     assert np.all(seen[-1][6] == 1.5) and seen[-1][5] is depth
+
+
+def test_box3_blurs_any_histogram_in_float32():
+    """``_box3`` takes counts of any dtype and blurs them in float32, as ``colour_log_table`` always did."""
+    h = np.arange(4096, dtype=np.float64).reshape(16, 16, 16) / 7.0
+    got = F._box3(h)
+    want = F._box3(h.astype(np.float32))
+    assert got.dtype == np.float32 and np.array_equal(got, want)
+    assert not np.array_equal(want.astype(np.float64), F._box3_axes(h.copy()))  # float64 sums differ
