@@ -244,3 +244,30 @@ def test_open_mirror_view_finds_the_sessions_own_run_and_names_a_gone_session(se
     bare = _manifest(tmp_path / "bare", frames=[])  # a run that names no session
     with pytest.raises(SessionError, match=r"bare: the run's session \. is gone; view the session folder instead$"):
         open_mirror_view(bare)
+
+
+def test_open_mirror_view_keeps_the_session_and_names_a_folder_that_is_neither(session, tmp_path):
+    from bodystudio.errors import SessionError
+    from bodystudio.viewer.mirror import open_mirror_view
+
+    s, _, _ = session
+    assert Path(open_mirror_view(s.path).session.path) == Path(s.path)
+    assert Path(open_mirror_view(_run(s, tmp_path / "r", player=2)).session.path) == Path(s.path)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SessionError, match=r"empty: neither a mirror session \(kinect/player\) nor a mirror run "
+                                           r"folder \(run\.json\)$"):
+        open_mirror_view(tmp_path / "empty")
+
+
+def test_scene_picks_a_changed_frame_and_shows_the_key_help_by_default(session, tmp_path):
+    from bodystudio.viewer.mirror import mirror_frames, open_mirror_view, scene_for_mirror
+    from bodystudio.viewer.scene import make_plotter
+
+    s, _, _ = session
+    view = open_mirror_view(_run(s, tmp_path / "r"))
+    plotter = scene_for_mirror(view, plotter=make_plotter(off_screen=True))
+    try:
+        assert "key-help" in plotter.actors
+        assert f"frame {mirror_frames(view, 1)[0]}: " in plotter.actors["title"].GetText(2)
+    finally:
+        plotter.close()
