@@ -1,0 +1,171 @@
+"""The warp's plain-Python steps after helper mir12d's commits (8eadf9c, 55c5280, be34697, e335b15), pinned for
+mutation testing (issue 17; docs/mutation/mirror-warp.md, "After mir12d").
+
+``warp_pairs``' input checks, rim vertices, z-buffer camera and closed-body path; the similarity / rigid dispatch of
+``mls_transforms`` (Eq. 5 of Real-time Reshaping: a 2x2 linear part per point); the float64 pairs of
+``_check_pairs`` (float32 pairs give the field of the same pairs in float64, bit for bit).
+"""
+
+import numpy as np
+import pytest
+
+from bodystudio.errors import InputError
+from bodystudio.geometry.camera import Camera
+from bodystudio.mirror import warp as Wp
+
+
+def _cam(width=320, height=200):
+    return Camera("c", np.array([[200.0, 0.0, 150.0], [0.0, 200.0, 110.0], [0.0, 0.0, 1.0]]), np.zeros(5),
+                  np.eye(3), np.zeros(3), width, height)
+
+
+def _plate(half=0.2, n=9, z=2.0, x=0.0, flip=False):
+    u = np.linspace(-half, half, n)
+    X, Y = np.meshgrid(u + x, u)
+    V = np.c_[X.ravel(), Y.ravel(), np.full(n * n, z)]
+    F = []
+    for r in range(n - 1):
+        for c in range(n - 1):
+            a = r * n + c
+            F += [[a, a + n, a + 1], [a + 1, a + n, a + n + 1]]
+    F = np.array(F)
+    return V, (F[:, ::-1] if flip else F)
+
+
+def _half_cylinder(radius=0.3, n=25, rows=6, z=2.0):
+    """A half-cylinder bulging towards the camera: its sides are seen edge-on (rim vertices)."""
+    a = np.linspace(-np.pi / 2, np.pi / 2, n)
+    y = np.linspace(-0.2, 0.2, rows)
+    A, Y = np.meshgrid(a, y)
+    V = np.c_[radius * np.sin(A).ravel(), Y.ravel(), (z - radius * np.cos(A)).ravel()]
+    F = []
+    for r in range(rows - 1):
+        for c in range(n - 1):
+            i = r * n + c
+            F += [[i, i + n, i + 1], [i + 1, i + n, i + n + 1]]
+    return V, np.array(F)
+
+
+@pytest.mark.parametrize("Vs, Vt", [(np.zeros((5, 2)), np.zeros((5, 2))), (np.zeros((5, 3)), np.zeros((6, 3))),
+                                    (np.zeros((2, 5, 3)), np.zeros((2, 5, 3)))])
+def test_warp_pairs_needs_two_n_by_3_vertex_arrays(Vs, Vt):
+    with pytest.raises(InputError, match=r"^source and target vertices must both be \(n, 3\), got \("):
+        Wp.warp_pairs(Vs, Vt, np.zeros((0, 3), int), _cam())
+
+
+@pytest.mark.parametrize("rim_cos, ok", [(0.0, False), (-0.1, False), (1e-6, True), (1.0, True), (1.0001, False),
+                                         (1.5, False)])
+def test_rim_cos_lies_in_0_1(rim_cos, ok):
+    V, F = _plate()
+    if ok:
+        Wp.warp_pairs(V, V, F, _cam(), n_handles=5, rim_cos=rim_cos)
+    else:
+        with pytest.raises(InputError, match=rf"^rim_cos must lie in \(0, 1\] \(None: no rim vertices\), got "
+                                             rf"{rim_cos}$"):
+            Wp.warp_pairs(V, V, F, _cam(), n_handles=5, rim_cos=rim_cos)
+
+
+def test_rim_vertices_join_the_evenly_spread_handles():
+    """The handles are the evenly spread ids and the rim vertices (``|cos| < rim_cos``), each kept where visible:
+    exactly the union filtered by the visibility every vertex gets (``n_handles`` = all of them)."""
+    V, F = _half_cylinder()
+    cam = _cam()
+    visible = Wp.warp_pairs(V, V, F, cam, n_handles=len(V)).ids
+    spread = np.unique(np.linspace(0, len(V) - 1, 6).round().astype(np.int64))
+    for max_cos in (0.6, 0.8):
+        rim = Wp.rim_vertices(V, F, cam.center, max_cos)
+        extra = np.intersect1d(np.setdiff1d(rim, spread), visible)
+        assert len(extra) >= 4 and len(np.intersect1d(spread, visible)) >= 4
+        p = Wp.warp_pairs(V, V, F, cam, n_handles=6, rim_cos=max_cos)
+        np.testing.assert_array_equal(p.ids, np.intersect1d(np.union1d(spread, rim), visible))
+    assert len(Wp.rim_vertices(V, F, cam.center, 0.6)) < len(Wp.rim_vertices(V, F, cam.center, 0.8))
+
+
+def _spy_render(monkeypatch):
+    import bodystudio.capture.render as R
+
+    seen = []
+    real = R.render
+
+    def spy(V, F, camera, *a, **k):
+        seen.append((np.asarray(F).copy(), camera))
+        return real(V, F, camera, *a, **k)
+
+    monkeypatch.setattr(R, "render", spy)
+    return seen
+
+
+@pytest.mark.parametrize("scale, size", [(0.25, (80, 50)), (0.5, (160, 100)), (0.001, (1, 1)), (0.004, (1, 1))])
+def test_the_z_buffers_are_the_whole_image_at_z_buffer_scale(monkeypatch, scale, size):
+    V, F = _plate()
+    cam = _cam()
+    seen = _spy_render(monkeypatch)
+    Wp.warp_pairs(V, V * [1.1, 1.0, 1.0], F, cam, n_handles=10, z_buffer_scale=scale)
+    assert len(seen) == 2
+    for _, small in seen:
+        assert (small.width, small.height) == size
+        sx, sy = size[0] / 320, size[1] / 200
+        want = Wp.crop_camera(cam, 0, 0, size[0], size[1], (sx, sy))
+        np.testing.assert_allclose(small.K, want.K, atol=1e-12)
+
+
+def test_closed_bodies_draw_only_their_camera_facing_triangles(monkeypatch):
+    """Two plates, one wound towards the camera and one away: ``closed`` draws the facing one only, in both
+    z-buffers; open meshes draw every triangle."""
+    Va, Fa = _plate(x=-0.3)
+    Vb, Fb = _plate(x=0.3, flip=True)
+    V, F = np.vstack([Va, Vb]), np.vstack([Fa, Fb + len(Va)])
+    cam = _cam()
+    front = Wp.facing_faces(cam.project(V), F)
+    assert 0 < len(front) < len(F)
+    seen = _spy_render(monkeypatch)
+    Wp.warp_pairs(V, V, F, cam, n_handles=20, closed=True)
+    assert len(seen) == 2 and all(np.array_equal(f, F[front]) for f, _ in seen)
+    seen.clear()
+    Wp.warp_pairs(V, V, F, cam, n_handles=20)
+    assert all(np.array_equal(f, F) for f, _ in seen)
+
+
+def test_float32_vertices_give_the_float64_pairs():
+    V, F = _half_cylinder()
+    Vt = V * [1.1, 1.0, 1.0] + [0.02, 0.0, 0.0]
+    cam = _cam()
+    V32, Vt32 = V.astype(np.float32), Vt.astype(np.float32)
+    p = Wp.warp_pairs(V32, Vt32, F, cam, n_handles=40, dense=True, grid=(50, 80))
+    q = Wp.warp_pairs(V32.astype(np.float64), Vt32.astype(np.float64), F, cam, n_handles=40, dense=True,
+                      grid=(50, 80))
+    assert p.src_uv.dtype == np.float64
+    np.testing.assert_array_equal(p.src_uv, q.src_uv)
+    np.testing.assert_array_equal(p.dst_uv, q.dst_uv)
+    np.testing.assert_array_equal(p.dense.source_uv, q.dense.source_uv)
+
+
+def test_float32_pairs_give_the_float64_field():
+    rng = np.random.default_rng(5)
+    s = rng.uniform(20, 100, (40, 2)).astype(np.float32)
+    t = (s * np.float32(1.07) + np.float32(3.3)).astype(np.float32)
+    a, b = Wp._check_pairs(s, t)
+    assert a.dtype == b.dtype == np.float64
+    for kind in ("affine", "similarity"):
+        f32 = Wp.mls_warp_field(s, t, (120, 160), (30, 40), kind=kind, alpha=2.0)
+        f64 = Wp.mls_warp_field(s.astype(np.float64), t.astype(np.float64), (120, 160), (30, 40), kind=kind,
+                                alpha=2.0)
+        np.testing.assert_array_equal(f32, f64)
+
+
+@pytest.mark.parametrize("kind", ["similarity", "rigid", "affine"])
+def test_each_point_gets_a_2x2_linear_part(kind):
+    """Eq. 5: the linear part is 2x2 (the similarity / rigid ones [[a, b], [-b, a]]); handles moved by a rotation
+    by 30 degrees and a scale 1.5 are reproduced exactly by every kind (rigid: the rotation only)."""
+    rng = np.random.default_rng(2)
+    p = rng.uniform(0, 50, (12, 2))
+    th = np.deg2rad(30.0)
+    M = np.array([[np.cos(th), np.sin(th)], [-np.sin(th), np.cos(th)]])
+    q = 1.5 * p @ M + [4.0, -2.0]
+    v = rng.uniform(0, 50, (7, 2))
+    A, mapped = Wp.mls_transforms(v, p, q, kind)
+    assert A.shape == (7, 2, 2) and mapped.shape == (7, 2)
+    want = M if kind == "rigid" else 1.5 * M
+    np.testing.assert_allclose(A, np.broadcast_to(want, (7, 2, 2)), atol=1e-9)
+    if kind != "rigid":
+        np.testing.assert_allclose(mapped, 1.5 * v @ M + [4.0, -2.0], atol=1e-9)
