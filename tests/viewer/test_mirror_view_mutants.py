@@ -124,6 +124,10 @@ def test_source_body_mesh_is_the_players_rest_mesh_on_its_template(session, tmp_
     save_source_body(tmp_path / "six.npz", body6)
     mesh6 = source_body_mesh(MirrorView(None, None, tmp_path / "six.npz"))
     assert np.array_equal(mesh6.vertices, body6.vertices) and np.array_equal(mesh6.faces, F6)
+    full = _body(13380, 7)  # the full template: no vertex ids
+    save_source_body(tmp_path / "full.npz", full)
+    mesh = source_body_mesh(MirrorView(None, None, tmp_path / "full.npz"))
+    assert np.array_equal(mesh.vertices, full.vertices) and np.array_equal(mesh.faces, template_topology("full")[1])
     save_source_body(tmp_path / "odd.npz", _body(_n_2k() + 1, 6))
     with pytest.raises(InputError, match=r"odd\.npz: a source body with 2\d+ vertices is in no body template; "
                                          r"rerun `bodystudio mirror init`"):
@@ -271,3 +275,36 @@ def test_scene_picks_a_changed_frame_and_shows_the_key_help_by_default(session, 
         assert f"frame {mirror_frames(view, 1)[0]}: " in plotter.actors["title"].GetText(2)
     finally:
         plotter.close()
+
+
+def _strip(plotter):
+    actor = plotter.actors["mirror-strip"]
+    return np.array(actor.GetBounds()), actor.GetTexture().GetInput().GetDimensions()[:2]
+
+
+@pytest.mark.parametrize("with_run", [True, False])
+def test_the_strip_stands_centred_at_1_1_m_one_panel_width_per_panel_at_most_1280_px(session, tmp_path, with_run):
+    from bodystudio.viewer.mirror import PANEL_WIDTH_M, PANEL_Z_M, open_mirror_view, scene_for_mirror
+    from bodystudio.viewer.scene import make_plotter
+
+    s, _, _ = session
+    view = open_mirror_view(_run(s, tmp_path / "r") if with_run else s.path)
+    n = 3 if with_run else 2  # input | mirror | truth; before a run input | truth
+    given = make_plotter(off_screen=True)
+    plotter = scene_for_mirror(view, 12, plotter=given)
+    try:
+        assert plotter is given
+        bounds, texture = _strip(plotter)
+        width = PANEL_WIDTH_M * n
+        height = width * 480 / (640 * n)
+        np.testing.assert_allclose(bounds, [-width / 2, width / 2, 1.1 - height / 2, 1.1 + height / 2, PANEL_Z_M,
+                                            PANEL_Z_M], atol=1e-6)
+        assert tuple(texture) == ((960, 240) if with_run else (1280, 480))  # 1920 px wide strip: every 2nd pixel
+    finally:
+        plotter.close()
+    if not with_run:
+        plotter = scene_for_mirror(view, 12)  # no plotter given: an off-screen one of its own
+        try:
+            assert "mirror-strip" in plotter.actors and "source-body" in plotter.actors
+        finally:
+            plotter.close()
