@@ -169,3 +169,67 @@ def test_each_point_gets_a_2x2_linear_part(kind):
     np.testing.assert_allclose(A, np.broadcast_to(want, (7, 2, 2)), atol=1e-9)
     if kind != "rigid":
         np.testing.assert_allclose(mapped, 1.5 * v @ M + [4.0, -2.0], atol=1e-9)
+
+
+def test_pairs_are_the_vertices_inside_the_image_borders_included():
+    """A plate larger than the view of a 301 x 201 camera, vertices every 0.25 m at 2 m: those projected to
+    0 <= u <= 300, 0 <= v <= 200 (the borders exactly hit) are the pairs, the rest are not."""
+    cam = Camera("c", np.array([[200.0, 0.0, 150.0], [0.0, 200.0, 100.0], [0.0, 0.0, 1.0]]), np.zeros(5), np.eye(3),
+                 np.zeros(3), 301, 201)
+    xs, ys = np.linspace(-1.75, 1.75, 15), np.linspace(-1.25, 1.25, 11)
+    X, Y = np.meshgrid(xs, ys)
+    V = np.c_[X.ravel(), Y.ravel(), np.full(X.size, 2.0)]
+    F = np.array([[a, a + 15, a + 1] for r in range(10) for a in range(r * 15, r * 15 + 14)]
+                 + [[a + 1, a + 15, a + 16] for r in range(10) for a in range(r * 15, r * 15 + 14)])
+    uv = cam.project(V)
+    assert {0.0, 300.0} <= set(uv[:, 0]) and {0.0, 200.0} <= set(uv[:, 1])
+    inside = np.flatnonzero((uv[:, 0] >= 0) & (uv[:, 0] <= 300) & (uv[:, 1] >= 0) & (uv[:, 1] <= 200))
+    assert 0 < len(inside) < len(V)
+    for options in ({}, {"z_buffer_scale": 1.0}, {"dense": True, "grid": (50, 75)}):
+        p = Wp.warp_pairs(V, V, F, cam, n_handles=len(V), **options)
+        np.testing.assert_array_equal(p.ids, inside)
+
+
+@pytest.mark.parametrize("options", [{}, {"z_buffer_scale": 0.5}, {"z_buffer_scale": 1.0},
+                                     {"dense": True, "grid": (50, 80)}])
+def test_a_vertex_hidden_in_either_body_is_no_pair(options):
+    """A back plate partly behind a front plate in the source, the front plate moved aside in the target: the back
+    plate's vertices hidden in the source are dropped, whatever the z-buffer resolution."""
+    cam = _cam()
+    back, Fb = _plate(half=0.3, n=13, z=3.0)
+    front, Ff = _plate(half=0.15, n=5, z=2.0, x=0.1)
+    Vs = np.vstack([back, front])
+    Vt = np.vstack([back, front + [0.9, 0.0, 0.0]])
+    F = np.vstack([Fb, Ff + len(back)])
+    uv = cam.project(Vs)
+    fu = cam.project(front)
+    hidden = ((uv[:len(back), 0] > fu[:, 0].min() + 2) & (uv[:len(back), 0] < fu[:, 0].max() - 2)
+              & (uv[:len(back), 1] > fu[:, 1].min() + 2) & (uv[:len(back), 1] < fu[:, 1].max() - 2))
+    shown = ((uv[:len(back), 0] < fu[:, 0].min() - 6) | (uv[:len(back), 0] > fu[:, 0].max() + 6)
+             | (uv[:len(back), 1] < fu[:, 1].min() - 6) | (uv[:len(back), 1] > fu[:, 1].max() + 6))
+    assert hidden.sum() >= 4 and shown.sum() >= 30
+    ids = set(Wp.warp_pairs(Vs, Vt, F, cam, n_handles=len(Vs), **options).ids)
+    assert not ids & set(np.flatnonzero(hidden)) and set(np.flatnonzero(shown)) <= ids
+    assert set(range(len(back), len(Vs))) <= ids  # the front plate is seen in both
+    # the other way round (hidden in the target only): dropped as well
+    ids = set(Wp.warp_pairs(Vt, Vs, F, cam, n_handles=len(Vs), **options).ids)
+    assert not ids & set(np.flatnonzero(hidden)) and set(np.flatnonzero(shown)) <= ids
+
+
+def test_closed_dense_correspondence_is_the_facing_triangles_with_their_groups():
+    """``closed`` with ``dense``: the target raster holds the front faces only, so the correspondence and the
+    nodes' persons are looked up in those faces (the away-facing plate listed first shifts their ids)."""
+    Vb, Fb = _plate(x=-0.3, flip=True)
+    Va, Fa = _plate(x=0.3)
+    V, F = np.vstack([Vb, Va]), np.vstack([Fb, Fa + len(Vb)])
+    groups = np.r_[np.full(len(Fb), 3), np.full(len(Fa), 7)]
+    cam = _cam()
+    Vt = V + [0.02, 0.01, 0.0]
+    closed = Wp.warp_pairs(V, Vt, F, cam, n_handles=20, dense=True, grid=(50, 80), face_groups=groups, closed=True)
+    both = Wp.warp_pairs(V, Vt, F, cam, n_handles=20, dense=True, grid=(50, 80), face_groups=groups)
+    cov_c = np.isfinite(closed.dense.source_uv[..., 0])
+    cov_b = np.isfinite(both.dense.source_uv[..., 0])
+    assert 0 < cov_c.sum() < cov_b.sum() and not (cov_c & ~cov_b).any()
+    np.testing.assert_array_equal(closed.dense.source_uv[cov_c], both.dense.source_uv[cov_c])
+    nodes = np.isfinite(closed.dense.grid_source_uv[..., 0])
+    assert nodes.any() and (closed.dense.grid_groups[nodes] == 7).all()
