@@ -233,3 +233,88 @@ def test_closed_dense_correspondence_is_the_facing_triangles_with_their_groups()
     np.testing.assert_array_equal(closed.dense.source_uv[cov_c], both.dense.source_uv[cov_c])
     nodes = np.isfinite(closed.dense.grid_source_uv[..., 0])
     assert nodes.any() and (closed.dense.grid_groups[nodes] == 7).all()
+
+
+def _boxes_by_hand(m, margin):
+    """people_boxes written out column by column: a new group after more than 2 margin + 1 empty columns."""
+    h, w = m.shape
+    groups, last = [], None
+    for c in range(w):
+        if m[:, c].any():
+            if last is None or c - last > 2 * margin + 1:
+                groups.append([c, c])
+            groups[-1][1] = c
+            last = c
+    out = []
+    for c0, c1 in groups:
+        rows = [r for r in range(h) if m[r, c0:c1 + 1].any()]
+        out.append(((max(rows[0] - margin, 0), min(rows[-1] + margin + 1, h)),
+                    (max(c0 - margin, 0), min(c1 + margin + 1, w))))
+    return out
+
+
+@pytest.mark.parametrize("gap", [4, 5, 6, 7, 12])
+def test_people_boxes_split_where_more_than_2_margin_plus_1_columns_are_empty(gap):
+    """margin 2: gaps of 4 empty columns or less keep one box, 5 and more split (np.diff of the columns > 5)."""
+    m = np.zeros((30, 60), bool)
+    m[3:9, 10:14] = True  # person 1, rows 3..8
+    m[12:20, 14 + gap:20 + gap] = True  # person 2, rows 12..19, `gap` empty columns to its left
+    m[25, 14 + gap + 2] = True  # a pixel of person 2 lower down
+    boxes = Wp.people_boxes(m, 2)
+    assert boxes == _boxes_by_hand(m, 2)
+    if gap >= 5:  # np.diff of the columns is gap + 1
+        assert boxes == [((1, 11), (8, 16)), ((10, 28), (12 + gap, 22 + gap))]
+    else:
+        assert boxes == [((1, 28), (8, 22 + gap))]
+
+
+def test_people_boxes_at_the_image_edges_and_three_people():
+    m = np.zeros((20, 50), bool)
+    m[0:4, 0:3] = True
+    m[5:9, 20:22] = True
+    m[16:20, 47:50] = True
+    assert Wp.people_boxes(m, 3) == _boxes_by_hand(m, 3) == [((0, 7), (0, 6)), ((2, 12), (17, 25)),
+                                                             ((13, 20), (44, 50))]
+    assert Wp.people_boxes(np.zeros((5, 5), bool), 3) == []
+    assert Wp.people_boxes(m.astype(np.uint8) * 7, 3) == _boxes_by_hand(m, 3)
+
+
+def test_targets_outside_the_image_solve_the_border_nodes_and_only_within_reach():
+    """Target points 10 px beyond each border mark the nearest border nodes (clipped, not wrapped round); a node
+    farther than the margin (+1 cell) from every target stays unsolved (OUTSIDE_PX)."""
+    H, W = 120, 160
+    rng = np.random.default_rng(4)
+    d = rng.uniform(0, 4, 12)  # not collinear
+    for t in (np.c_[-10.0 - d, rng.uniform(40, 80, 12)], np.c_[rng.uniform(60, 100, 12), -10.0 - d],
+              np.c_[W + 10.0 + d, rng.uniform(40, 80, 12)], np.c_[rng.uniform(60, 100, 12), H + 10.0 + d]):
+        s = t + rng.uniform(-3, 3, t.shape)
+        f = Wp.mls_warp_field(s, t, (H, W), (30, 40), roi_margin_px=8.0)
+        x = int(np.clip(t[0, 0], 0, W - 1))
+        y = int(np.clip(t[0, 1], 0, H - 1))
+        assert (f[y, x] > Wp.OUTSIDE_PX).all()  # the border next to the targets is solved
+        far = (np.abs(np.arange(W)[None, :] - np.clip(t[:, 0], 0, W - 1).mean()) > 60) | \
+              (np.abs(np.arange(H)[:, None] - np.clip(t[:, 1], 0, H - 1).mean()) > 60)
+        assert (f[far] == Wp.OUTSIDE_PX).all()
+
+
+def test_a_person_with_fewer_than_3_pairs_is_not_solved_and_3_are_enough():
+    H, W = 120, 160
+    rng = np.random.default_rng(6)
+    a = rng.uniform(10, 40, (10, 2))
+    for n, solved in ((2, False), (3, True)):
+        b = np.array([[130.0, 95.0], [140.0, 100.0], [135.0, 108.0]])[:n]
+        t = np.vstack([a, b])
+        f = Wp.mls_warp_field(t + 1.0, t, (H, W), (30, 40), roi_margin_px=6.0, groups=[0] * 10 + [1] * n)
+        assert (f[100, 136] > Wp.OUTSIDE_PX).all() == solved and (f[25, 25] > Wp.OUTSIDE_PX).all()
+        if solved:
+            np.testing.assert_allclose(f[100, 136], [137.0, 101.0], atol=1e-3)  # the shift of its three pairs
+
+
+def test_the_field_uses_the_local_radius():
+    rng = np.random.default_rng(8)
+    s = rng.uniform(20, 140, (60, 2))
+    t = s + np.c_[np.sin(s[:, 1] / 9.0), np.cos(s[:, 0] / 7.0)] * 4
+    f_all = Wp.mls_warp_field(s, t, (120, 160), (30, 40), alpha=2.0)
+    f_near = Wp.mls_warp_field(s, t, (120, 160), (30, 40), alpha=2.0, radius_px=12.0)
+    on = f_all[..., 0] > Wp.OUTSIDE_PX
+    assert np.abs(f_all[on] - f_near[on]).max() > 0.05
