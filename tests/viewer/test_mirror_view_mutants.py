@@ -308,3 +308,20 @@ def test_the_strip_stands_centred_at_1_1_m_one_panel_width_per_panel_at_most_128
             assert "mirror-strip" in plotter.actors and "source-body" in plotter.actors
         finally:
             plotter.close()
+
+
+def test_scene_goes_on_after_a_changed_body_and_names_every_changed_player(session, tmp_path):
+    from bodystudio.mirror.init import source_fingerprint
+    from bodystudio.viewer.mirror import open_mirror_view
+
+    s, b1, b2 = session
+    fp1, fp2 = source_fingerprint(b1), source_fingerprint(b2)
+    title, names, pts = _scene_of(open_mirror_view(_run(s, tmp_path / "a", players=[1, 2],
+                                                        source_fingerprints={"1": fp2, "2": fp2})))
+    assert title.endswith("  (source body of player 1 changed since this run: re-run `bodystudio mirror run`)")
+    assert set(pts) == {"source-body-player2"} and np.allclose(pts["source-body-player2"], b2.vertices + [0.4, 0, 0],
+                                                               atol=1e-5)
+    title, names, pts = _scene_of(open_mirror_view(_run(s, tmp_path / "b", players=[1, 2],
+                                                        source_fingerprints={"1": fp2, "2": fp1})))
+    assert title.endswith("  (source body of player 1, 2 changed since this run: re-run `bodystudio mirror run`)")
+    assert not pts
