@@ -318,3 +318,55 @@ def test_the_field_uses_the_local_radius():
     f_near = Wp.mls_warp_field(s, t, (120, 160), (30, 40), alpha=2.0, radius_px=12.0)
     on = f_all[..., 0] > Wp.OUTSIDE_PX
     assert np.abs(f_all[on] - f_near[on]).max() > 0.05
+
+
+def _warp_whole_image(rgb, mask, field):
+    """warp_foreground before MIRFAST3 / MIR12d: both remaps over the whole image, the field's channels apart."""
+    import cv2
+
+    m8 = mask.astype(np.uint8) * 255
+    premult = rgb * mask[..., None].astype(np.uint8)
+    fx, fy = np.ascontiguousarray(field[..., 0]), np.ascontiguousarray(field[..., 1])
+    a8 = cv2.remap(m8, fx, fy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    o = cv2.remap(premult, fx, fy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    er, ec = np.nonzero((a8 > 0) & (a8 < 255))
+    a = a8[er, ec].astype(np.float32)[:, None] / 255.0
+    o[er, ec] = np.clip(o[er, ec] / a + 0.5, 0, 255).astype(np.uint8)
+    return o, a8.astype(np.float32) * np.float32(1.0 / 255.0)
+
+
+@pytest.mark.parametrize("shift", [(3.0, 2.0), (2.37, -1.61), (-4.5, 0.25)])
+def test_warp_foreground_is_the_whole_image_remap_on_the_fields_box(shift):
+    """A disc of saturated colours on a busy background, a sub-pixel shift on the field's box (OUTSIDE_PX on the
+    left and top bands): image and alpha are the whole-image remap's bit for bit, alpha in float32."""
+    H, W = 60, 80
+    rng = np.random.default_rng(1)
+    rgb = rng.integers(0, 256, (H, W, 3)).astype(np.uint8)
+    rows, cols = np.mgrid[0:H, 0:W]
+    mask = (cols - 45) ** 2 + (rows - 32) ** 2 <= 12 ** 2
+    rgb[mask] = [255, 255, 40]
+    rgb[mask & (cols > 45)] = [255, 0, 255]
+    field = np.stack([cols + shift[0], rows + shift[1]], -1).astype(np.float32)
+    field[:, :20] = Wp.OUTSIDE_PX
+    field[:15] = Wp.OUTSIDE_PX
+    out, alpha = Wp.warp_foreground(rgb, mask, field)
+    want_o, want_a = _warp_whole_image(rgb, mask, field)
+    assert alpha.dtype == np.float32 and out.dtype == np.uint8
+    np.testing.assert_array_equal(alpha, want_a)
+    np.testing.assert_array_equal(out, want_o)
+    assert (out[alpha == 0] == 0).all() and (((alpha > 0) & (alpha < 1)).sum() > 0) == (shift[0] % 1 > 0)
+
+
+def test_warp_foreground_of_a_field_one_pixel_wide_or_all_outside():
+    H, W = 30, 40
+    rgb = np.full((H, W, 3), 200, np.uint8)
+    mask = np.zeros((H, W), bool)
+    mask[10:20, 10:20] = True
+    rows, cols = np.mgrid[0:H, 0:W]
+    for keep in ((slice(None), slice(14, 15)), (slice(14, 15), slice(None))):  # one column, one row
+        field = np.full((H, W, 2), Wp.OUTSIDE_PX, np.float32)
+        field[keep] = np.stack([cols, rows], -1)[keep]
+        out, alpha = Wp.warp_foreground(rgb, mask, field)
+        assert alpha.sum() == 10 and (out[alpha > 0] == 200).all()
+    out, alpha = Wp.warp_foreground(rgb, mask, np.full((H, W, 2), Wp.OUTSIDE_PX, np.float32))
+    assert alpha.dtype == np.float32 and not alpha.any() and not out.any()
