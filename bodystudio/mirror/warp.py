@@ -182,7 +182,7 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
     args = (np.ascontiguousarray(v), np.ascontiguousarray(px), np.ascontiguousarray(py),
             np.ascontiguousarray(monomials), float(alpha), EPS_PX2)
     S = _weighted_sums(*args) if radius_px is None else _weighted_sums_local(*args, float(radius_px))  # (N, k)
-    if kind != "affine":  # one numba pass over the points: the same arithmetic as the numpy below (MIR12d)
+    if kind != "affine":  # one numba pass over the points (MIR12d)
         A = np.empty((len(v), 2, 2))
         mapped = np.empty((len(v), 2))
         _similarity_closed_form(S, v, c, kind == "rigid", A, mapped)
@@ -191,36 +191,21 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
     ps = S[:, 1:3] / W[:, None]  # p*
     qs = S[:, 3:5] / W[:, None]  # q*
     A = np.empty((len(v), 2, 2))
-    if kind == "affine":
-        # sum w p^ p^T and sum w p^ q^T with p^ = p - p*, q^ = q - q* (expanded: sum w p p^T - W p* p*^T)
-        Pxx = S[:, 5] - W * ps[:, 0] ** 2
-        Pxy = S[:, 6] - W * ps[:, 0] * ps[:, 1]
-        Pyy = S[:, 7] - W * ps[:, 1] ** 2
-        Qxx = S[:, 8] - W * ps[:, 0] * qs[:, 0]
-        Qxy = S[:, 9] - W * ps[:, 0] * qs[:, 1]
-        Qyx = S[:, 10] - W * ps[:, 1] * qs[:, 0]
-        Qyy = S[:, 11] - W * ps[:, 1] * qs[:, 1]
-        det = Pxx * Pyy - Pxy * Pxy
-        det = np.where(np.abs(det) > 1e-12 * (Pxx * Pyy + 1e-300), det, np.nan)
-        # A = P^-1 Q (row-vector convention: M(x) = x A)
-        A[:, 0, 0] = (Pyy * Qxx - Pxy * Qyx) / det
-        A[:, 0, 1] = (Pyy * Qxy - Pxy * Qyy) / det
-        A[:, 1, 0] = (-Pxy * Qxx + Pxx * Qyx) / det
-        A[:, 1, 1] = (-Pxy * Qxy + Pxx * Qyy) / det
-    else:
-        # complex form: M(x) = z x, z = sum w conj(p^) q^ / sum w |p^|^2 (similarity); z / |z| (rigid), with
-        # sum w |p^|^2 = Pxx + Pyy, Re = Qxx + Qyy, Im = Qxy - Qyx expanded as above
-        mu = S[:, 5] - W * (ps[:, 0] ** 2 + ps[:, 1] ** 2)
-        zr = (S[:, 6] - W * (ps[:, 0] * qs[:, 0] + ps[:, 1] * qs[:, 1])) / mu
-        zi = (S[:, 7] - W * (ps[:, 0] * qs[:, 1] - ps[:, 1] * qs[:, 0])) / mu
-        if kind == "rigid":
-            norm = np.hypot(zr, zi)
-            zr, zi = zr / norm, zi / norm
-        # row vector [x, y] times [[zr, zi], [-zi, zr]] = (zr x - zi y, zi x + zr y) = z * (x + i y)
-        A[:, 0, 0] = zr
-        A[:, 0, 1] = zi
-        A[:, 1, 0] = -zi
-        A[:, 1, 1] = zr
+    # affine: sum w p^ p^T and sum w p^ q^T with p^ = p - p*, q^ = q - q* (expanded: sum w p p^T - W p* p*^T)
+    Pxx = S[:, 5] - W * ps[:, 0] ** 2
+    Pxy = S[:, 6] - W * ps[:, 0] * ps[:, 1]
+    Pyy = S[:, 7] - W * ps[:, 1] ** 2
+    Qxx = S[:, 8] - W * ps[:, 0] * qs[:, 0]
+    Qxy = S[:, 9] - W * ps[:, 0] * qs[:, 1]
+    Qyx = S[:, 10] - W * ps[:, 1] * qs[:, 0]
+    Qyy = S[:, 11] - W * ps[:, 1] * qs[:, 1]
+    det = Pxx * Pyy - Pxy * Pxy
+    det = np.where(np.abs(det) > 1e-12 * (Pxx * Pyy + 1e-300), det, np.nan)
+    # A = P^-1 Q (row-vector convention: M(x) = x A)
+    A[:, 0, 0] = (Pyy * Qxx - Pxy * Qyx) / det
+    A[:, 0, 1] = (Pyy * Qxy - Pxy * Qyy) / det
+    A[:, 1, 0] = (-Pxy * Qxx + Pxx * Qyx) / det
+    A[:, 1, 1] = (-Pxy * Qxy + Pxx * Qyy) / det
     mapped = np.einsum("ni,nij->nj", v - ps, A) + qs + c
     return A, mapped
 
@@ -228,8 +213,11 @@ def mls_transforms(points: np.ndarray, handles: np.ndarray, deformed: np.ndarray
 @njit(cache=True, error_model="numpy")  # a degenerate layout (mu = 0) gives inf / NaN as numpy does, no exception
 def _similarity_closed_form(S, v, c, rigid, A, mapped):
     """Eq. 5's similarity (``rigid``: rigid) closed form per point from its weighted sums ``S`` (N, 8) (see
-    :func:`mls_transforms`): ``A`` (N, 2, 2) and ``mapped`` (N, 2) filled in, operation for operation the numpy
-    expressions of the affine branch's sibling (kept below for ``affine``), so the same values bit for bit."""
+    :func:`mls_transforms`): ``A`` (N, 2, 2) and ``mapped`` (N, 2) filled in. Complex form: M(x) = z x,
+    z = sum w conj(p^) q^ / sum w |p^|^2 (similarity), z / |z| (rigid), with p^ = p - p*, q^ = q - q* expanded as
+    sums (sum w |p^|^2 = S5 - W |p*|^2, ...); the row vector [x, y] times [[zr, zi], [-zi, zr]] is z (x + i y).
+    (The numpy expressions it replaced, operation for operation: the same values bit for bit, MIR12d; the numpy
+    branch was removed as unreachable.)"""
     for a in range(S.shape[0]):
         W = S[a, 0]
         psx, psy = S[a, 1] / W, S[a, 2] / W
