@@ -60,18 +60,26 @@ TOLERANT_RECALL_TRUST = 0.65
 DEPTH_RANGE_M = (0.4, 5.0)
 
 
-def silhouette_agreement(V: np.ndarray, F: np.ndarray, cameras, masks: dict) -> dict[str, float]:
-    """Per camera, the IoU of the fitted mesh's silhouette with the camera's mask: how well the fit explains
-    the silhouette data (Eq. 7 of Rapid Skin) of each view."""
+def fitted_silhouettes(V: np.ndarray, F: np.ndarray, cameras) -> dict[str, np.ndarray]:
+    """Per camera, the fitted mesh's silhouette (bool image): the constraint matching's rasteriser (render()'s
+    depth and ids cost ~4x more)."""
     from bodystudio.reconstruct.silhouette import _rasterize_mask
 
     F = np.ascontiguousarray(F, dtype=np.int64)
+    V = np.asarray(V, dtype=np.float64)
+    return {cam.name: _rasterize_mask(np.ascontiguousarray(cam.project(V)), F, cam.width, cam.height,
+                                      np.zeros((cam.height, cam.width), np.bool_)) for cam in cameras}
+
+
+def silhouette_agreement(V: np.ndarray, F: np.ndarray, cameras, masks: dict,
+                         fitted: dict | None = None) -> dict[str, float]:
+    """Per camera, the IoU of the fitted mesh's silhouette with the camera's mask: how well the fit explains
+    the silhouette data (Eq. 7 of Rapid Skin) of each view. ``fitted``: :func:`fitted_silhouettes` when already
+    drawn."""
+    fitted = fitted_silhouettes(V, F, cameras) if fitted is None else fitted
     out = {}
     for cam in cameras:
-        # the silhouette alone (the constraint matching's rasteriser; render()'s depth and ids cost ~4x more)
-        uv = cam.project(np.asarray(V, dtype=np.float64))
-        mine = _rasterize_mask(np.ascontiguousarray(uv), F, cam.width, cam.height,
-                               np.zeros((cam.height, cam.width), np.bool_))
+        mine = fitted[cam.name]
         ref = np.asarray(masks[cam.name]) > 0
         union = np.count_nonzero(mine | ref)
         out[cam.name] = float(np.count_nonzero(mine & ref) / union) if union else 1.0
@@ -79,20 +87,18 @@ def silhouette_agreement(V: np.ndarray, F: np.ndarray, cameras, masks: dict) -> 
 
 
 def silhouette_tolerant_agreement(V: np.ndarray, F: np.ndarray, cameras, masks: dict,
-                                   tolerance_px_at_640: float = TOLERANCE_PX_AT_640) -> dict[str, dict[str, float]]:
+                                   tolerance_px_at_640: float = TOLERANCE_PX_AT_640,
+                                   fitted: dict | None = None) -> dict[str, dict[str, float]]:
     """Per camera, the fit's silhouette against the mask up to a band of a few pixels (the data term of Eq. 7 of
     Rapid Skin without the segmentation's own noise): ``precision``, the share of the fit's silhouette within
-    the band of the mask, and ``recall``, the share of the mask within the band of the fit's silhouette."""
+    the band of the mask, and ``recall``, the share of the mask within the band of the fit's silhouette.
+    ``fitted``: :func:`fitted_silhouettes` when already drawn."""
     import cv2
 
-    from bodystudio.reconstruct.silhouette import _rasterize_mask
-
-    F = np.ascontiguousarray(F, dtype=np.int64)
+    fitted = fitted_silhouettes(V, F, cameras) if fitted is None else fitted
     out = {}
     for cam in cameras:
-        uv = cam.project(np.asarray(V, dtype=np.float64))
-        mine = _rasterize_mask(np.ascontiguousarray(uv), F, cam.width, cam.height,
-                               np.zeros((cam.height, cam.width), np.bool_))
+        mine = fitted[cam.name]
         ref = np.asarray(masks[cam.name]) > 0
         band = tolerance_px_at_640 * cam.width / 640.0
         rows, cols = np.nonzero(mine | ref)
@@ -189,8 +195,10 @@ def frame_plausibility(V: np.ndarray, F: np.ndarray, cameras, masks: dict | None
     :func:`silhouette_coherence` around the fit, and with depth ``depth`` (:func:`depth_agreement`)."""
     out: dict = {}
     if masks is not None:
-        out["silhouette_iou"] = silhouette_agreement(V, F, cameras, masks)
-        tolerant = silhouette_tolerant_agreement(V, F, cameras, masks)
+        cameras = list(cameras)
+        fitted = fitted_silhouettes(V, F, cameras)  # drawn once for both agreements
+        out["silhouette_iou"] = silhouette_agreement(V, F, cameras, masks, fitted=fitted)
+        tolerant = silhouette_tolerant_agreement(V, F, cameras, masks, fitted=fitted)
         out["silhouette_precision_tol"] = {c: v["precision"] for c, v in tolerant.items()}
         out["silhouette_recall_tol"] = {c: v["recall"] for c, v in tolerant.items()}
         if coherence and len(list(cameras)) > 1:
