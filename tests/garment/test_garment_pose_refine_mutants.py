@@ -54,12 +54,9 @@ class _Space:
         return V if ids is None else V[ids]
 
 
-@pytest.fixture()
-def stand_ins(monkeypatch):
-    """The prior 0.2 * x[6]; Eq. 6 ``depth`` per probe (0 unless set), the calls recorded."""
+def _stub_terms(monkeypatch, state):
+    """The prior 0.2 * x[6]; Eq. 6 ``state.depth`` per probe, its calls recorded in ``state.calls``."""
     from bodystudio.garment import fit as gf
-
-    state = SimpleNamespace(depth=0.0, calls=[])
 
     def prior(x, space):
         return np.array([0.2 * x[6]])
@@ -70,18 +67,27 @@ def stand_ins(monkeypatch):
 
     monkeypatch.setattr(gf, "pose_prior_residuals", prior)
     monkeypatch.setattr(gf, "interpenetration_residuals", inter)
+
+
+@pytest.fixture()
+def stand_ins():
+    """The stand-in space filmed at its true pose ``X_TRUE`` (the matte), the probes, the stubs' state."""
+    from bodystudio.garment import fit as gf
+
     space = _Space()
     cam = gf.camera_hypothesis(W, H)
     spheres = SimpleNamespace(probe_ids=np.arange(3, len(space.V0), 11))
     mask = gf.model_silhouette(space.vertices(X_TRUE), space.body.faces, cam)
-    return SimpleNamespace(space=space, camera=cam, spheres=spheres, target=gf.silhouette_target(mask), state=state)
+    return SimpleNamespace(space=space, camera=cam, spheres=spheres, target=gf.silhouette_target(mask),
+                           state=SimpleNamespace(depth=0.0, calls=[]))
 
 
-def test_other_residuals_terms(stand_ins):
+def test_other_residuals_terms(stand_ins, monkeypatch):
     from bodystudio.garment import fit as gf
     from bodystudio.garment.pose_refine import _other_residuals
 
     s = stand_ins
+    _stub_terms(monkeypatch, s.state)
     s.state.depth = 0.004
     x = X_TRUE + [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.1]
     a, b = x + 0.05, x - 0.1
@@ -114,12 +120,13 @@ def test_other_residuals_terms(stand_ins):
     np.testing.assert_allclose(rn[1:], np.sqrt(gf.GAMMA_INTERPENETRATION) * s.camera.fx / 0.1 * 0.004 / np.sqrt(n))
 
 
-def test_energy_is_rim_rows_plus_other_terms(stand_ins):
+def test_energy_is_rim_rows_plus_other_terms(stand_ins, monkeypatch):
     from bodystudio.garment.pose_refine import _other_residuals, pose_refinement_energy
     from bodystudio.garment.shape_refine import silhouette_rows
     from bodystudio.geometry.mesh import vertex_normals
 
     s = stand_ins
+    _stub_terms(monkeypatch, s.state)
     s.state.depth = 0.003
     x = X_TRUE + [0.0, 0.1, 0.0, 0.02, 0.0, 0.0, 0.05]
     nb = [X_TRUE]
@@ -135,10 +142,11 @@ def test_energy_is_rim_rows_plus_other_terms(stand_ins):
         pose_refinement_energy(x, s.space, s.spheres, s.camera, s.target, nb, 0.0)
 
 
-def test_recovers_a_planted_pose(stand_ins):
+def test_recovers_a_planted_pose(stand_ins, monkeypatch):
     from bodystudio.garment.pose_refine import pose_refinement_energy, refine_frame_pose
 
     s = stand_ins
+    _stub_terms(monkeypatch, s.state)
     x0 = X_TRUE + [0.0, 0.0, 0.05, 0.02, 0.0, 0.0, 0.0]
     x, e0, e1 = refine_frame_pose(x0, s.space, s.spheres, s.camera, s.target, [], 0.0, steps=12)
     np.testing.assert_allclose(e0, pose_refinement_energy(x0, s.space, s.spheres, s.camera, s.target, [], 0.0))
@@ -175,6 +183,7 @@ def test_first_system_and_the_step_cap(stand_ins, monkeypatch):
     from bodystudio.geometry.mesh import vertex_normals
 
     s = stand_ins
+    _stub_terms(monkeypatch, s.state)
     s.state.depth = 0.002
     x0 = X_TRUE + [0.0, 0.15, 0.0, 0.03, 0.0, -0.04, -0.08]
     nb = [X_TRUE + 0.01]
