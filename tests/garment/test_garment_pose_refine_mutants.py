@@ -59,10 +59,12 @@ def _stub_terms(monkeypatch, state):
     from bodystudio.garment import fit as gf
 
     def prior(x, space):
+        state.prior_spaces.append(space)
         return np.array([0.2 * x[6]])
 
     def inter(V, T, spheres):
         state.calls.append((V.copy(), np.asarray(T).copy()))
+        state.spheres.append(spheres)
         return np.full(len(V), state.depth)
 
     monkeypatch.setattr(gf, "pose_prior_residuals", prior)
@@ -79,7 +81,7 @@ def stand_ins():
     spheres = SimpleNamespace(probe_ids=np.arange(3, len(space.V0), 11))
     mask = gf.model_silhouette(space.vertices(X_TRUE), space.body.faces, cam)
     return SimpleNamespace(space=space, camera=cam, spheres=spheres, target=gf.silhouette_target(mask),
-                           state=SimpleNamespace(depth=0.0, calls=[]))
+                           state=SimpleNamespace(depth=0.0, calls=[], prior_spaces=[], spheres=[]))
 
 
 def test_other_residuals_terms(stand_ins, monkeypatch):
@@ -106,6 +108,7 @@ def test_other_residuals_terms(stand_ins, monkeypatch):
     V, T = s.state.calls[-1]
     np.testing.assert_allclose(V, s.space.vertices(x, s.spheres.probe_ids))
     np.testing.assert_allclose(T, s.space.transforms(x))
+    assert s.state.spheres[-1] is s.spheres and s.state.prior_spaces[-1] is s.space
     r1 = _other_residuals(x, s.space, s.spheres, s.camera, [a])
     np.testing.assert_allclose(r1[:nt], gf.temporal_residuals(x, a))
     np.testing.assert_allclose(r1[nt:], r2[2 * nt:])
@@ -337,6 +340,9 @@ def test_sweeps_use_the_previous_sweeps_neighbours(monkeypatch, caplog):
         np.testing.assert_allclose(p.rotations[2], x[6:9])
         np.testing.assert_allclose(p.translation, x[3:6])
     assert "pose refinement sweep 2: mean energy 502.0000" in caplog.text
+    assert [r.getMessage() for r in caplog.records if r.name == "bodystudio.garment.pose_refine"][-1] == \
+        "pose refinement sweep 2: mean energy 502.0000"
+    assert info.energies.shape == (3, 2)
     assert "pose refinement sweep 1: mean energy 202.0000" in caplog.text
     # the defaults: POSE_REFINE_SWEEPS sweeps of POSE_REFINE_STEPS steps; no sweeps return the input
     calls.clear()
@@ -347,6 +353,61 @@ def test_sweeps_use_the_previous_sweeps_neighbours(monkeypatch, caplog):
     assert not calls
     np.testing.assert_allclose(info0.X, X0)
     np.testing.assert_array_equal(info0.energies, 0.0)
+
+
+def test_step_cap_per_parameter(stand_ins, monkeypatch):
+    """H = I: the undamped step is -r / 1.001; rotations are capped at 0.1 rad, the translation at 0.01 m, the
+    stretch (a bone parameter) at 0.1: a step 1.5 times the translation's cap is scaled by 1 / 1.5."""
+    from bodystudio.garment import pose_refine as pr
+    from bodystudio.garment import shape_refine as sr
+
+    s = stand_ins
+    want = np.array([0.05, 0.0, 0.0, 0.015, 0.0, 0.0, 0.12])
+    r = -want * (1.0 + 1e-3)
+    tried = []
+
+    def energy(x, *a):
+        tried.append(np.array(x, float))
+        return 1.0 if len(tried) == 1 else 0.5
+
+    with monkeypatch.context() as m:
+        m.setattr(pr, "pose_refinement_energy", energy)
+        m.setattr(sr, "silhouette_rows", lambda V, N, J, *a: (np.eye(7), r))
+        m.setattr(pr, "_other_residuals", lambda x, *a: np.zeros(1))
+        x, e0, e1 = pr.refine_frame_pose(X_TRUE, s.space, s.spheres, s.camera, s.target, [], 0.0, steps=1)
+    np.testing.assert_allclose(x - X_TRUE, want / 1.5, rtol=1e-6, atol=1e-12)
+    assert (e0, e1) == (1.0, 0.5)
+
+
+def test_a_parameter_the_rows_do_not_see_stays_solvable(stand_ins, monkeypatch):
+    """A zero column of the rows (H_ii = 0): the damping adds damping * 1e-9 (positive) to that diagonal entry."""
+    from bodystudio.garment import pose_refine as pr
+    from bodystudio.garment import shape_refine as sr
+
+    s = stand_ins
+    A = np.random.default_rng(1).normal(size=(12, 7))
+    A[:, 6] = 0.0
+    spy = _SolveSpy()
+    with monkeypatch.context() as m:
+        m.setattr(pr.np.linalg, "solve", spy)
+        m.setattr(pr, "pose_refinement_energy", lambda x, *a: 1.0)
+        m.setattr(sr, "silhouette_rows", lambda V, N, J, *a: (A, np.ones(12)))
+        m.setattr(pr, "_other_residuals", lambda x, *a: np.zeros(1))
+        pr.refine_frame_pose(X_TRUE, s.space, s.spheres, s.camera, s.target, [], 0.0, steps=1)
+    np.testing.assert_allclose([M[6, 6] for M, _ in spy.calls], [1e-12, 1e-11, 1e-10, 1e-9], rtol=1e-6)
+
+
+def test_an_integer_start_is_a_float_start(stand_ins, monkeypatch):
+    from bodystudio.garment.pose_refine import refine_frame_pose
+
+    s = stand_ins
+    _stub_terms(monkeypatch, s.state)
+    x0 = np.array([0, 0, 0, 0, 0, -3, 0])
+    xi, ei0, ei1 = refine_frame_pose(x0, s.space, s.spheres, s.camera, s.target, [], 0.0, steps=2)
+    xf, ef0, ef1 = refine_frame_pose(x0.astype(float), s.space, s.spheres, s.camera, s.target, [], 0.0, steps=2)
+    assert ei1 < ei0
+    np.testing.assert_allclose(xi, xf)
+    assert (ei0, ei1) == (ef0, ef1)
 
 
 def test_constants():
