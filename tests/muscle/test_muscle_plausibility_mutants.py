@@ -1,0 +1,398 @@
+"""Fast analytic tests of the arm capture's self-checks (muscle/plausibility.py), for mutation testing (issue 17).
+
+tests/reliability/test_muscle_plausibility.py builds Kinect sessions and captures them (minutes); here hand-made
+arrays: a pinhole depth camera at the origin looking along +z, depth maps with known readings, tracked joints at
+known places, figures dicts on each side of every threshold of ``capture_verdict``, a stand-in session for
+``session_checks``, and the small helpers (segment distances, regions, medians, the shape range, JSON safety).
+"""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+W, H, F = 64, 48, 50.0
+
+
+def _camera():
+    from bodystudio.geometry.camera import Camera
+
+    K = np.array([[F, 0.0, W / 2], [0.0, F, H / 2], [0.0, 0.0, 1.0]])
+    return Camera("depth", K, np.zeros(5), np.eye(3), np.zeros(3), W, H)
+
+
+def test_segment_distances():
+    from bodystudio.muscle.plausibility import segment_distances
+
+    a, b = np.array([0.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0])
+    P = np.array([[1.0, 3.0, 0.0], [-1.0, 0.0, 0.0], [4.0, 0.0, 4.0], [0.5, 0.0, -0.25], [2.0, 1.0, 0.0]])
+    np.testing.assert_allclose(segment_distances(P, a, b), [3.0, 1.0, np.hypot(2.0, 4.0), 0.25, 1.0])
+    # a degenerate segment: distance to the point
+    np.testing.assert_allclose(segment_distances(P, a, a), np.linalg.norm(P, axis=1))
+
+
+def test_region_of_vertices():
+    from bodystudio.muscle.plausibility import region_of_vertices
+
+    Wt = np.array([[0.7, 0.3, 0, 0], [0.2, 0.5, 0.3, 0], [0, 0.3, 0.6, 0.1], [0, 0, 0.4, 0.6], [0, 0.5, 0.4, 0.1]])
+    reg = region_of_vertices(Wt)
+    assert list(reg) == ["upperarm", "forearm"]
+    assert reg["upperarm"].tolist() == [False, True, False, False, True]
+    assert reg["forearm"].tolist() == [False, False, True, False, False]
+
+
+def test_tracked_arm():
+    from bodystudio.muscle.plausibility import tracked_arm
+
+    names = ["Head", "WristLeft", "ShoulderLeft", "ElbowLeft", "ShoulderRight", "ElbowRight"]
+    pos = np.arange(18, dtype=float).reshape(6, 3)
+    J = tracked_arm({"names": names, "positions": pos.tolist()}, "left")
+    np.testing.assert_array_equal(J, pos[[2, 3, 1]])
+    assert J.dtype == np.float64
+    assert tracked_arm({"names": names, "positions": pos}, "right") is None  # no WristRight
+    assert tracked_arm(None, "left") is None
+
+
+def test_depth_to_tracker_ratio():
+    from bodystudio.muscle.plausibility import depth_to_tracker_ratio
+
+    cam = _camera()
+    D = np.zeros((H, W))
+    # joint 0 at (u, v) = (20, 10), z 1.0: readings 0.95 in the 5x5 window (one zero, one NaN ignored)
+    D[8:13, 18:23] = 0.95
+    D[10, 20] = 0.0
+    D[9, 19] = np.nan
+    D[12, 22] = 1.05  # the median of 23 readings stays 0.95
+    # joint 1 at (40, 30), z 2.0: window of radius 1 at a border-free place, readings 1.0 and 3.0 -> median 2.0
+    D[29:32, 39:42] = 1.0
+    D[29:31, 39:42] = 3.0  # 6 x 3.0, 3 x 1.0 -> median 3.0
+    # joint 2 behind the camera; joint 3 projects outside the image; joint 4 at (2, 1) (window clipped), z 0.5
+    D[0:3, 0:4] = 0.6
+    D[4, 0] = 100.0  # outside the clipped window of radius 2 around (2, 1)
+    J = np.array([[(20 - W / 2) / F * 1.0, (10 - H / 2) / F * 1.0, 1.0],
+                  [(40 - W / 2) / F * 2.0, (30 - H / 2) / F * 2.0, 2.0],
+                  [0.0, 0.0, -1.0], [5.0, 0.0, 1.0],
+                  [(2 - W / 2) / F * 0.5, (1 - H / 2) / F * 0.5, 0.5],
+                  [(60 - W / 2) / F * 1.0, (40 - H / 2) / F * 1.0, 1.0]])  # joint 5: no reading
+    r = depth_to_tracker_ratio(D, cam, J)
+    np.testing.assert_allclose(r[[0, 4]], [0.95, 0.6 / 0.5])
+    assert np.isnan(r[[2, 3, 5]]).all()
+    r1 = depth_to_tracker_ratio(D, cam, J, window_px=1)
+    np.testing.assert_allclose(r1[1], 3.0 / 2.0)
+    D2 = D.copy()
+    D2[10, 20] = np.inf  # an infinite reading counts as none
+    D2[8:13, 18:23] = np.where(np.isfinite(D2[8:13, 18:23]), D2[8:13, 18:23], np.inf)
+    np.testing.assert_allclose(depth_to_tracker_ratio(D2, cam, J)[0], 0.95)
+    # the edge of the image: u = w - 1 and v = h - 1 are inside, u = w is not
+    J2 = np.array([[(W - 1 - W / 2) / F, (H - 1 - H / 2) / F, 1.0], [(W - W / 2) / F, 0.0, 1.0],
+                   [(0 - W / 2) / F, (0 - H / 2) / F, 1.0]])
+    D3 = np.full((H, W), 0.9)
+    r3 = depth_to_tracker_ratio(D3, cam, J2)
+    np.testing.assert_allclose(r3[[0, 2]], [0.9, 0.9])
+    assert np.isnan(r3[1])
+
+
+def test_arm_geometry():
+    from bodystudio.geometry.camera import Camera
+    from bodystudio.muscle.plausibility import arm_geometry
+
+    cam = _camera()
+    d, ang = arm_geometry(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 3.0], [9.0, 9.0, 9.0]]), cam)
+    assert d == pytest.approx(2.0) and ang == pytest.approx(0.0, abs=1e-6)
+    d, ang = arm_geometry(np.array([[1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0, 0, 0]]), cam)
+    assert d == pytest.approx(np.sqrt(2.0)) and ang == pytest.approx(45.0)
+    d, ang = arm_geometry(np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0], [0, 0, 0]]), cam)
+    assert ang == pytest.approx(180.0)
+    # a camera away from the origin: the distance from its centre
+    moved = Camera("d", cam.K, np.zeros(5), np.eye(3), np.array([0.0, 0.0, -1.0]), W, H)  # centre at z = 1
+    d, ang = arm_geometry(np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 4.0], [0, 0, 0]]), moved)
+    assert d == pytest.approx(2.0)
+    assert arm_geometry(np.zeros((3, 3)), cam) == (0.0, 90.0)
+
+
+def test_median_figures():
+    from bodystudio.muscle.plausibility import _median_figures
+
+    inf, nan = float("inf"), float("nan")
+    rows = [{"upperarm": {"residual_mm": 3.0, "explained": 0.9}, "forearm": {"residual_mm": inf, "explained": nan},
+             "points_explained": 0.5, "sampling_mm": nan},
+            {"upperarm": {"residual_mm": 5.0, "explained": 0.7}, "forearm": {"residual_mm": nan, "explained": nan},
+             "points_explained": 0.9, "sampling_mm": 2.0},
+            {"upperarm": {"residual_mm": 10.0, "explained": 0.2}, "forearm": {"residual_mm": inf, "explained": nan},
+             "points_explained": inf, "sampling_mm": 4.0}]
+    out = _median_figures(rows)
+    assert out["upperarm"] == {"residual_mm": 5.0, "explained": 0.7}
+    assert out["forearm"] == {"residual_mm": inf, "explained": 0.0}
+    assert out["points_explained"] == pytest.approx(0.7) and out["sampling_mm"] == pytest.approx(3.0)
+    out = _median_figures(rows[:1])
+    assert np.isnan(out["sampling_mm"]) and out["points_explained"] == 0.5
+    assert set(out) == {"upperarm", "forearm", "points_explained", "sampling_mm"}
+
+
+def test_shape_extrapolation():
+    from bodystudio.muscle.plausibility import shape_extrapolation
+
+    model = SimpleNamespace(shape_range=lambda: {"bmi": (20.0, 30.0), "muscularity": (0.2, 0.6),
+                                                 "height_m": (1.6, 1.8), "arm_length_m": (0.7, 0.7)})
+    shape = SimpleNamespace(bmi=25.0, muscularity=0.1, height_m=1.9, arm_length_m=0.7000001)
+    out = shape_extrapolation(shape, model)
+    assert list(out) == ["bmi", "muscularity", "height_m", "arm_length_m"]
+    assert out["bmi"] == {"value": 25.0, "range": [20.0, 30.0], "outside": 0.0}
+    assert out["muscularity"]["outside"] == pytest.approx(0.25)
+    assert out["height_m"]["outside"] == pytest.approx(0.5)
+    assert out["arm_length_m"]["outside"] == pytest.approx(100.0, rel=1e-3)  # 1e-7 over a 1e-9 floor
+    assert isinstance(out["bmi"]["value"], float)
+
+
+def test_json_safe():
+    from bodystudio.muscle.plausibility import _json_safe
+
+    v = {"a": float("nan"), "b": [1.0, float("inf"), (np.float32(2.5), -np.inf)], "c": {"d": np.float64(3.0)},
+         "e": "x", "f": 3}
+    out = _json_safe(v)
+    assert out == {"a": None, "b": [1.0, None, [2.5, None]], "c": {"d": 3.0}, "e": "x", "f": 3}
+    assert type(out["c"]["d"]) is float and type(out["b"][2][0]) is float
+
+
+# --- capture_verdict ----------------------------------------------------------------------------------
+
+def _clean(**over):
+    f = {"depth_to_tracker_ratio": 0.95, "arm_distance_m": {"left": 1.0, "right": 1.3},
+         "arm_off_axis_deg": {"left": 5.0, "right": 20.0}, "sampling_at_1m_mm": 2.7, "sampling_at_arm_mm": 2.7,
+         "mode": "full", "upperarm": {"residual_mm": 5.0, "explained": 0.9},
+         "forearm": {"residual_mm": 6.0, "explained": 0.9}, "points_explained": 0.99, "sampling_mm": 2.5,
+         "tracker_joint_residual_mm": {"shoulder": 20.0, "elbow": 15.0, "wrist": 10.0}}
+    f.update(over)
+    return f
+
+
+def _verdict(f, side="left", path="s1"):
+    from bodystudio.muscle.plausibility import capture_verdict
+
+    return capture_verdict(f, side, path)
+
+
+def test_verdict_clean_and_thresholds():
+    v = _verdict(_clean())
+    assert v["ok"] is True and v["problems"] == [] and v["warnings"] == []
+    assert v["thresholds"] == {"depth_ratio_range": [0.88, 1.03], "side_nearer_m": 0.15, "far_m": 1.3,
+                               "sampling_warn_mm": 3.5, "residual_refuse_mm": 20.0, "points_explained_refuse": 0.8,
+                               "residual_warn_mm": 11.0, "points_explained_warn": 0.95,
+                               "joint_residual_warn_mm": 45.0, "shape_outside_warn": 0.1}
+    assert v["figures"]["upperarm"] == {"residual_mm": 5.0, "explained": 0.9}
+    assert _verdict(_clean(sampling_mm=float("nan")))["figures"]["sampling_mm"] is None
+    # every threshold's own value passes
+    edge = _clean(depth_to_tracker_ratio=1.03, sampling_mm=3.5, points_explained=0.95,
+                  upperarm={"residual_mm": 11.0, "explained": 0.9},
+                  tracker_joint_residual_mm={"shoulder": 45.0, "elbow": 1.0, "wrist": 1.0})
+    assert _verdict(edge)["warnings"] == [] and _verdict(edge)["ok"]
+    assert _verdict(_clean(depth_to_tracker_ratio=0.88))["ok"]
+    assert _verdict(_clean(arm_distance_m={"left": 1.3, "right": 1.6}))["ok"]  # 1.3 m is inside the window
+    assert _verdict({})["ok"] and _verdict({})["warnings"] == []
+
+
+def test_verdict_depth_ratio():
+    v = _verdict(_clean(depth_to_tracker_ratio=9.5), path="/data/s1")
+    assert v["ok"] is False
+    assert v["problems"] == [
+        "the depth where the tracked left arm's joints are reads 9.5x their distance, 9.50 m: no arm in range of the "
+        "0.5-1.3 m depth window (a consistent session: 0.94-0.98): the depth is in another unit or the tracker "
+        "belongs to another recording; check the unit of /data/s1/kinect/depth (re-import with the right "
+        "--depth-scale) and /data/s1/kinect/calibration.json"]
+    v = _verdict(_clean(depth_to_tracker_ratio=1.048))
+    assert v["problems"][0].startswith("the depth where the tracked left arm's joints are reads 1.05x their distance "
+                                       "(a consistent")
+    v = _verdict(_clean(depth_to_tracker_ratio=0.87))
+    assert len(v["problems"]) == 1 and "reads 0.87x their distance (a" in v["problems"][0]
+    v = _verdict(_clean(depth_to_tracker_ratio=0.45, arm_distance_m={"left": 1.0, "right": 1.3}))
+    assert "0.45 m: no arm in range" in v["problems"][0]
+    v = _verdict(_clean(depth_to_tracker_ratio=0.2, arm_distance_m={"left": 2.5, "right": 2.8}), path=None)
+    assert "reads 0.2x their distance, 0.50 m: no arm" in v["problems"][0]  # 0.5 is not inside (strict)
+    assert "unit of kinect/depth" in v["problems"][0]
+    v = _verdict(_clean(depth_to_tracker_ratio=0.5, arm_distance_m={"left": 2.6, "right": 2.8}))
+    assert "reads 0.5x their distance, 1.30 m: no arm" in v["problems"][0]  # 1.3 is not inside (strict)
+    v = _verdict(_clean(depth_to_tracker_ratio=0.5, arm_distance_m={"left": 1.0, "right": 1.3}))
+    assert "0.50 m: no arm in range" in v["problems"][0]
+    v = _verdict(_clean(depth_to_tracker_ratio=1.2, arm_distance_m={"right": 1.0}))
+    assert "reads 1.2x their distance (a" in v["problems"][0]
+    assert _verdict(_clean(depth_to_tracker_ratio=float("nan")))["ok"]
+    v = _verdict(_clean(depth_to_tracker_ratio=2.0), side="right")
+    assert v["problems"][0].startswith("the depth where the tracked right arm's joints are reads 2x their "
+                                       "distance, 2.60 m")
+
+
+def test_verdict_side_and_distance():
+    v = _verdict(_clean(arm_distance_m={"left": 1.35, "right": 1.2},
+                        arm_off_axis_deg={"left": 30.0, "right": 4.0}))
+    assert v["problems"] == [
+        "the Kinect faces the right arm (1.20 m away, 4 deg off its axis) while the capture is of the left arm "
+        "(1.35 m, 30 deg): the session records the right arm; capture it with --side right and a model built with "
+        "--side right"]
+    v = _verdict(_clean(arm_distance_m={"left": 1.3, "right": 1.0}, arm_off_axis_deg={"left": 1.0, "right": 2.0}),
+                 side="right")
+    assert v["ok"]  # the other arm farther
+    v = _verdict(_clean(arm_distance_m={"left": 1.0, "right": 1.2}, arm_off_axis_deg={"left": 1.0, "right": 2.0}),
+                 side="right")
+    assert v["problems"][0].startswith("the Kinect faces the left arm (1.00 m away, 1 deg")
+    v = _verdict(_clean(arm_distance_m={"left": 0.5, "right": 0.649}, arm_off_axis_deg={"left": 1.0, "right": 2.0}),
+                 side="right")
+    assert v["ok"]  # 0.149 m nearer is not enough
+    v = _verdict(_clean(arm_distance_m={"left": 0.5, "right": 0.65}, arm_off_axis_deg={"left": 1.0, "right": 2.0}),
+                 side="right")
+    assert not v["ok"]  # exactly 0.15 m nearer
+    v = _verdict(_clean(arm_distance_m={"left": 1.6, "right": 1.9}, sampling_at_arm_mm=4.4))
+    assert v["problems"] == [
+        "the left arm is 1.60 m from the Kinect, beyond the capture's depth window (up to 1.3 m); there the depth "
+        "samples the arm every 4.4 mm against 2.7 mm at 1 m, too sparse for the model's few-millimetre accuracy: "
+        "record with the sensor about 1 m from the arm"]
+    v = _verdict({"arm_distance_m": {"left": 1.6}})
+    assert "every nan mm against nan mm at 1 m" in v["problems"][0]
+    from bodystudio.muscle.plausibility import capture_verdict
+
+    v = capture_verdict(_clean(arm_distance_m={"left": 1.6, "right": 1.9}), "left", "s", far_m=2.0)
+    assert v["ok"] and v["thresholds"]["far_m"] == 2.0
+    v = capture_verdict(_clean(depth_to_tracker_ratio=0.5, arm_distance_m={"left": 1.0, "right": 1.3}), "left", "s",
+                        near_m=0.4)
+    assert "0.50 m: no arm" not in v["problems"][0] and "0.4-1.3 m" not in v["problems"][0]
+    v = capture_verdict(_clean(depth_to_tracker_ratio=0.5, arm_distance_m={"left": 0.7, "right": 1.3}), "left", "s",
+                        near_m=0.4)
+    assert "0.35 m: no arm in range of the 0.4-1.3 m depth window" in v["problems"][0]
+
+
+def test_verdict_sampling_warns():
+    v = _verdict(_clean(sampling_mm=3.6))
+    assert v["ok"] and v["warnings"] == [
+        "the depth samples the arm every 3.6 mm (at 1 m: 2.7 mm); the capture's accuracy was measured at about 1 m: "
+        "expect larger errors, or record closer"]
+    assert "(at 1 m: nan mm)" in _verdict({"sampling_mm": 4.0})["warnings"][0]
+
+
+def test_verdict_depth_residuals():
+    v = _verdict(_clean(forearm={"residual_mm": 20.5, "explained": 0.1}), path="p")
+    assert v["problems"] == ["the fitted forearm does not explain the depth (its visible skin is 20 mm from the depth "
+                             "points, median; consistent captures <= 9.1 mm): check p/kinect/calibration.json and "
+                             "the arm side"]
+    assert v["warnings"] == []  # no warning next to a problem
+    assert _verdict(_clean(upperarm={"residual_mm": 20.0, "explained": 0.5}))["ok"]
+    v = _verdict(_clean(points_explained=0.79))
+    assert v["problems"] == ["the fitted arm explains 79% of the depth points around the tracked arm (consistent "
+                             "captures >= 98%): check s1/kinect/calibration.json and the arm side"]
+    assert _verdict(_clean(points_explained=float("nan")))["ok"]
+    v = _verdict(_clean(points_explained=0.8))
+    assert v["ok"] and len(v["warnings"]) == 1
+    v = _verdict(_clean(upperarm={"residual_mm": 13.04, "explained": 0.6}, points_explained=0.912))
+    assert v["ok"] and v["warnings"] == [
+        "the fitted arm explains the depth less well than a consistent capture (visible skin upperarm 13.0 mm, "
+        "forearm 6.0 mm from the depth points, 91% of the arm's points explained; consistent <= 9.1 mm, >= 98%): "
+        "the body tracker may be out of sync with the depth (s1/kinect/joints) or the calibration off; the fitted "
+        "shape and poses are suspect"]
+    v = _verdict(_clean(forearm={"residual_mm": 11.01, "explained": 0.6}))
+    assert len(v["warnings"]) == 1 and "forearm 11.0 mm" in v["warnings"][0]
+    # the ablations (model only, NICP only) keep their figures without a verdict on them
+    for mode in ("model", "nicp"):
+        v = _verdict(_clean(mode=mode, forearm={"residual_mm": 50.0, "explained": 0.1}, points_explained=0.5))
+        assert v["ok"] and v["warnings"] == [], mode
+    v = _verdict(_clean(points_explained=0.9, upperarm=None, forearm=None))
+    assert v["warnings"][0].startswith("the fitted arm explains the depth less well than a consistent capture "
+                                       "(visible skin  from the depth points, 90% of")
+    # a problem elsewhere silences the residual warning
+    v = _verdict(_clean(points_explained=0.9, sampling_mm=2.0, arm_distance_m={"left": 1.6, "right": 1.9}))
+    assert len(v["problems"]) == 1 and v["warnings"] == []
+
+
+def test_verdict_joints_and_shape():
+    v = _verdict(_clean(tracker_joint_residual_mm={"shoulder": 20.0, "elbow": 61.4, "wrist": 50.0}))
+    assert v["ok"] and v["warnings"] == ["the fitted elbow is 61 mm from the body tracker's (median over frames; "
+                                         "consistent captures <= 27 mm): the tracker or the fit is off"]
+    shape = {"bmi": {"value": 32.0, "range": [18.5, 30.0], "outside": 0.174},
+             "muscularity": {"value": 0.5, "range": [0.0, 1.0], "outside": 0.0},
+             "height_m": {"value": 1.905, "range": [1.5, 1.9], "outside": 0.0125}}
+    v = _verdict(_clean(shape=shape))
+    assert v["ok"] and v["warnings"] == [
+        "the subject lies outside the model's training range, so the model extrapolates (bmi 32 (trained on "
+        "18.5-30)): its muscle shapes are less certain; extend the model with such subjects (muscle model extend)"]
+    v = _verdict(_clean(shape=shape, shape_given=True))
+    assert "(bmi 32 (trained on 18.5-30); height_m 1.91 (trained on 1.5-1.9))" in v["warnings"][0]
+    shape["bmi"]["outside"] = 0.1
+    assert _verdict(_clean(shape=shape))["warnings"] == []
+
+
+def test_refuse_and_check_before_capture():
+    from bodystudio.errors import ImplausibleResultError
+    from bodystudio.muscle import plausibility as mp
+
+    bad = mp.capture_verdict(_clean(points_explained=0.5), "left", "s9")
+    with pytest.raises(ImplausibleResultError) as e:
+        mp._refuse(bad, "s9", False)
+    assert str(e.value) == f"s9: arm capture not written, {bad['problems'][0]}; or pass --accept-implausible"
+    assert mp._refuse(bad, "s9", True) is None
+    assert mp._refuse(mp.capture_verdict(_clean(), "left", "s9"), "s9", False) is None
+
+
+class _Session:
+    """A stand-in session: frames with a depth map and tracker joints; ``kinect.depth`` the camera."""
+
+    def __init__(self, frames, path="sess"):
+        self.kinect = SimpleNamespace(depth=_camera())
+        self.frames, self.path, self.asked = frames, path, []
+
+    def frame(self, fid):
+        self.asked.append(fid)
+        return self.frames[fid]
+
+
+def _joints_at(z_left, z_right, x_left=-0.2, x_right=0.2):
+    names = ["ShoulderLeft", "ElbowLeft", "WristLeft", "ShoulderRight", "ElbowRight", "WristRight"]
+    P = [[x_left, -0.1, z_left], [x_left, 0.0, z_left], [x_left, 0.1, z_left],
+         [x_right, -0.1, z_right], [x_right, 0.0, z_right], [x_right, 0.1, z_right]]
+    return {"names": names, "positions": P}
+
+
+def test_session_checks_and_before_capture():
+    from bodystudio.errors import ImplausibleResultError
+    from bodystudio.muscle import plausibility as mp
+
+    frames = {}
+    for fid, scale in zip(range(7), (0.95, 0.95, 0.96, 0.94, 0.95, 9.0, 9.0), strict=True):
+        frames[fid] = SimpleNamespace(kinect_joints=_joints_at(1.0, 1.3), kinect_depth_m=np.full((H, W), scale))
+    frames[1] = SimpleNamespace(kinect_joints=None, kinect_depth_m=np.full((H, W), 5.0))  # skipped: no joints
+    frames[2] = SimpleNamespace(kinect_joints=_joints_at(1.0, 1.3), kinect_depth_m=None)  # skipped: no depth
+    s = _Session(frames)
+    out = mp.session_checks(s, list(range(7)), "left")
+    assert s.asked == [0, 1, 2, 3, 4]  # the first RATIO_FRAMES frames
+    assert out["depth_to_tracker_ratio"] == pytest.approx(0.95)
+    assert out["sampling_at_1m_mm"] == pytest.approx(1000.0 / F)
+    mid = np.array([-0.2, -0.05, 1.0])
+    assert out["arm_distance_m"]["left"] == pytest.approx(np.linalg.norm(mid))
+    assert out["arm_distance_m"]["right"] == pytest.approx(np.linalg.norm([0.2, -0.05, 1.3]))
+    assert out["arm_off_axis_deg"]["left"] == pytest.approx(np.degrees(np.arccos(1.0 / np.linalg.norm(mid))))
+    assert out["sampling_at_arm_mm"] == pytest.approx(1000.0 * np.linalg.norm(mid) / F)
+    assert mp.check_before_capture(s, range(7), "left") == out
+    # the geometry of the first frame with joints only: frame 3's arms elsewhere do not count
+    frames[3] = SimpleNamespace(kinect_joints=_joints_at(2.0, 2.0), kinect_depth_m=np.full((H, W), 1.9))
+    out3 = mp.session_checks(_Session(frames), list(range(7)), "left")
+    assert out3["arm_distance_m"]["left"] == pytest.approx(np.linalg.norm(mid))
+    assert out3["depth_to_tracker_ratio"] == pytest.approx(0.95)  # 6 of 12 readings 0.95, 3 of 0.95*, 3 of 0.95
+    # the wrong unit: refused before the capture, unless accepted
+    bad = {0: SimpleNamespace(kinect_joints=_joints_at(1.0, 1.3), kinect_depth_m=np.full((H, W), 9.0))}
+    with pytest.raises(ImplausibleResultError, match=r"^sess: arm capture not written, the depth where"):
+        mp.check_before_capture(_Session(bad), [0], "left")
+    assert mp.check_before_capture(_Session(bad), [0], "left", accept_implausible=True)["depth_to_tracker_ratio"] \
+        == pytest.approx(9.0)
+    # the right arm: its own distance
+    out_r = mp.session_checks(_Session(bad), [0], "right")
+    assert out_r["sampling_at_arm_mm"] == pytest.approx(1000.0 * np.linalg.norm([0.2, -0.05, 1.3]) / F)
+    # tracked, but no reading where the arm is: NaN ratio; no joints at all: no ratio
+    empty = {0: SimpleNamespace(kinect_joints=_joints_at(1.0, 1.3), kinect_depth_m=np.zeros((H, W)))}
+    assert np.isnan(mp.session_checks(_Session(empty), [0], "left")["depth_to_tracker_ratio"])
+    none = {0: SimpleNamespace(kinect_joints=None, kinect_depth_m=np.zeros((H, W)))}
+    out_n = mp.session_checks(_Session(none), [0], "left")
+    assert out_n == {"sampling_at_1m_mm": pytest.approx(1000.0 / F)}
+    # only the other arm tracked: geometry without this side's sampling
+    one = {0: SimpleNamespace(kinect_joints={"names": _joints_at(1, 1)["names"][3:],
+                                             "positions": _joints_at(1.0, 1.3)["positions"][3:]},
+                              kinect_depth_m=np.full((H, W), 0.95))}
+    assert mp.session_checks(_Session(one), [0], "left") == {"sampling_at_1m_mm": pytest.approx(1000.0 / F)}
+    s_none = _Session({})
+    s_none.kinect = None
+    assert mp.session_checks(s_none, [0], "left") == {}
