@@ -396,3 +396,96 @@ def test_session_checks_and_before_capture():
     s_none = _Session({})
     s_none.kinect = None
     assert mp.session_checks(s_none, [0], "left") == {}
+
+
+def test_depth_to_tracker_ratio_window_and_readings():
+    """One reading at a time around a joint at (u, v) = (20, 10), z 1 m: counted inside the 5x5 window only;
+    non-finite readings count as none; a window clipped at the image's top-left corner; a moved camera."""
+    from bodystudio.geometry.camera import Camera
+    from bodystudio.muscle.plausibility import depth_to_tracker_ratio
+
+    cam = _camera()
+    J = np.array([[(20 - W / 2) / F, (10 - H / 2) / F, 1.0]])
+    for dv, du in ((0, 0), (-2, -2), (2, 2), (-2, 2), (2, -2), (-3, 0), (3, 0), (0, -3), (0, 3), (3, 3)):
+        D = np.zeros((H, W))
+        D[10 + dv, 20 + du] = 0.9
+        r = depth_to_tracker_ratio(D, cam, J)[0]
+        if max(abs(dv), abs(du)) <= 2:
+            assert r == pytest.approx(0.9), (dv, du)
+        else:
+            assert np.isnan(r), (dv, du)
+        r3 = depth_to_tracker_ratio(D, cam, J, window_px=3)[0]
+        assert r3 == pytest.approx(0.9), (dv, du)
+    for bad in (np.nan, np.inf, -np.inf):
+        D = np.zeros((H, W))
+        D[10, 20] = 0.8
+        D[11, 21] = bad
+        assert depth_to_tracker_ratio(D, cam, J)[0] == pytest.approx(0.8), bad
+    # float32 depth: the median of two readings is taken in float64
+    D = np.zeros((H, W), np.float32)
+    D[10, 20], D[11, 21] = 0.1, 0.2
+    want = (float(np.float32(0.1)) + float(np.float32(0.2))) / 2.0
+    assert depth_to_tracker_ratio(D, cam, J)[0] == want
+    # the corner: the window starts at row / column 0
+    Jc = np.array([[(1 - W / 2) / F, (1 - H / 2) / F, 1.0]])
+    D = np.zeros((H, W))
+    D[0, 0] = 0.7
+    assert depth_to_tracker_ratio(D, cam, Jc)[0] == pytest.approx(0.7)
+    # the bottom edge: v = h is outside
+    Jb = np.array([[(20 - W / 2) / F, (H - H / 2) / F, 1.0]])
+    D = np.full((H, W), 0.9)
+    assert np.isnan(depth_to_tracker_ratio(D, cam, Jb)[0])
+    # a camera 1 m along +z (centre (0, 0, 1)): the joint's distance is from the centre
+    moved = Camera("d", cam.K, np.zeros(5), np.eye(3), np.array([0.0, 0.0, -1.0]), W, H)
+    Jm = np.array([[(20 - W / 2) / F * 2.0, (10 - H / 2) / F * 2.0, 3.0]])
+    D = np.zeros((H, W))
+    D[10, 20] = 1.8
+    assert depth_to_tracker_ratio(D, moved, Jm)[0] == pytest.approx(0.9)
+
+
+def test_segment_and_geometry_edges():
+    from scipy.spatial.transform import Rotation
+
+    from bodystudio.geometry.camera import Camera
+    from bodystudio.muscle.plausibility import arm_geometry, segment_distances, tracked_arm
+
+    a, b = np.array([1.0, 1.0, 0.0]), np.array([1.5, 1.0, 0.0])  # a short segment away from the origin
+    P = np.array([[1.25, 2.0, 0.0], [0.0, 1.0, 0.0], [2.0, 1.0, 0.0], [1.4, 1.0, 0.3]])
+    np.testing.assert_allclose(segment_distances(P, a, b), [1.0, 1.0, 0.5, 0.3])
+    cam = _camera()
+    d, ang = arm_geometry(np.array([[0.5, 0.0, 0.5], [0.5, 0.0, 0.5], [0, 0, 0]]), cam)
+    assert d == pytest.approx(np.sqrt(0.5)) and ang == pytest.approx(45.0)
+    # a mid point along the rotated optical axis whose cosine rounds to 1 + 2e-16: clipped, 0 and 180 deg
+    R = Rotation.random(random_state=1).as_matrix()
+    rot = Camera("r", cam.K, np.zeros(5), R, np.zeros(3), W, H)
+    mid = 1.1 * R[2]
+    assert arm_geometry(np.array([mid, mid, mid]), rot)[1] == 0.0
+    assert arm_geometry(np.array([-mid, -mid, -mid]), rot)[1] == 180.0
+    names = ["ShoulderLeft", "ElbowLeft", "WristLeft"]
+    J = tracked_arm({"names": names, "positions": [[1, 2, 3], [4, 5, 6], [7, 8, 9]]}, "left")
+    assert J.dtype == np.float64
+
+
+def test_verdict_default_mode_and_both_regions():
+    base = _clean()
+    del base["mode"]
+    v = _verdict({**base, "upperarm": {"residual_mm": 25.0, "explained": 0.1}})
+    assert v["problems"] == ["the fitted upperarm does not explain the depth (its visible skin is 25 mm from the depth "
+                             "points, median; consistent captures <= 9.1 mm): check s1/kinect/calibration.json and "
+                             "the arm side"]
+    v = _verdict({**base, "points_explained": 0.5})
+    assert len(v["problems"]) == 1
+    v = _verdict(_clean(upperarm={"residual_mm": 20.0, "explained": 0.5}))
+    assert v["ok"] and len(v["warnings"]) == 1 and "upperarm 20.0 mm" in v["warnings"][0]
+
+
+def test_before_capture_message_names_side_and_session():
+    from bodystudio.errors import ImplausibleResultError
+    from bodystudio.muscle import plausibility as mp
+
+    bad = {0: SimpleNamespace(kinect_joints=_joints_at(1.0, 1.3), kinect_depth_m=np.full((H, W), 9.0))}
+    with pytest.raises(ImplausibleResultError) as e:
+        mp.check_before_capture(_Session(bad, path="/data/s7"), [0], "right")
+    msg = str(e.value)
+    assert msg.startswith("/data/s7: arm capture not written, the depth where the tracked right arm's joints")
+    assert "check the unit of /data/s7/kinect/depth" in msg
