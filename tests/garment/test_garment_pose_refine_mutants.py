@@ -414,3 +414,47 @@ def test_constants():
     from bodystudio.garment import pose_refine as pr
 
     assert pr.POSE_FD_STEP == 1e-3 and pr.MAX_POSE_STEP == 0.1
+
+
+def test_fit_wiring_of_steps_4b_and_4c(monkeypatch):
+    """``fit.refine_fit_shape_and_poses``: step 4b's shape, then (with ``pose_refinement``) every pose refined on
+    that shape's body by ``refine_fit_poses`` (= ``refine_poses_to_silhouettes(...)[0]``); timings in ms per frame."""
+    from bodystudio.garment import fit as gf
+    from bodystudio.garment import pose_refine as pr
+
+    calls = []
+    shape_out = SimpleNamespace(body="body-4b")
+
+    def shape_step(shape, poses, masks, camera, stature, template, allowance):
+        calls.append(("4b", shape, list(poses), masks, camera, stature, template, allowance))
+        return shape_out
+
+    def pose_step(body, poses, masks, camera, allowance):
+        calls.append(("4c", body, list(poses), masks, camera, allowance))
+        return ["p1", "p2", "p3", "p4"], "info"
+
+    monkeypatch.setattr(gf, "refine_fit_shape", shape_step)
+    monkeypatch.setattr(pr, "refine_poses_to_silhouettes", pose_step)
+    assert gf.refine_fit_poses("b", ["a"], "m", "c", 0.02) == ["p1", "p2", "p3", "p4"]
+    assert calls.pop() == ("4c", "b", ["a"], "m", "c", 0.02)
+    timings = {"pose": 1.0}
+    poses = ["q1", "q2", "q3", "q4"]
+    shape, out = gf.refine_fit_shape_and_poses("s0", poses, "masks", "cam", 1.7, "2k", 0.01, timings=timings)
+    assert shape is shape_out and out == ["p1", "p2", "p3", "p4"]
+    assert calls == [("4b", "s0", poses, "masks", "cam", 1.7, "2k", 0.01), ("4c", "body-4b", poses, "masks", "cam",
+                                                                             0.01)]
+    assert set(timings) == {"pose", "shape_refinement", "pose_refinement"} and timings["pose"] == 1.0
+    assert 0.0 <= timings["shape_refinement"] < 1e3 and 0.0 <= timings["pose_refinement"] < 1e3
+    # the time per frame: a clock that advances 8 s per call over 4 frames reads 2000 ms per frame
+    clock = iter(np.arange(0.0, 80.0, 8.0))
+    monkeypatch.setattr(gf.time, "perf_counter", lambda: float(next(clock)))
+    t2 = {}
+    gf.refine_fit_shape_and_poses("s0", poses, "masks", "cam", 1.7, "2k", 0.01, timings=t2)
+    assert t2 == {"shape_refinement": 2000.0, "pose_refinement": 2000.0}
+    calls.clear()
+    t3 = {}
+    shape, out = gf.refine_fit_shape_and_poses("s0", poses, "masks", "cam", 1.7, "2k", 0.01, pose_refinement=False,
+                                               timings=t3)
+    assert out is poses and [c[0] for c in calls] == ["4b"] and set(t3) == {"shape_refinement"}
+    shape, out = gf.refine_fit_shape_and_poses("s0", poses, "masks", "cam", 1.7, "2k", 0.01)  # no timings given
+    assert out == ["p1", "p2", "p3", "p4"]
