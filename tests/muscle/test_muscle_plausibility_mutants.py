@@ -489,3 +489,129 @@ def test_before_capture_message_names_side_and_session():
     msg = str(e.value)
     assert msg.startswith("/data/s7: arm capture not written, the depth where the tracked right arm's joints")
     assert "check the unit of /data/s7/kinect/depth" in msg
+
+
+# --- frame_depth_agreement with the depth pipeline stubbed -----------------------------------------------
+
+def _grid(n=6, z=1.0, step=0.04):
+    """A flat n x n vertex grid at depth ``z`` facing the camera, two triangles per cell."""
+    xs = (np.arange(n) - (n - 1) / 2) * step
+    X, Y = np.meshgrid(xs, xs)
+    V = np.c_[X.ravel(), Y.ravel(), np.full(n * n, z)]
+    Fc = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a = i * n + j
+            Fc += [[a, a + 1, a + n], [a + 1, a + n + 1, a + n]]
+    return V, np.array(Fc)
+
+
+@pytest.fixture()
+def depth_stubs():
+    return SimpleNamespace(points=np.zeros((0, 3)), vis=None, options=[], depths=[], fail=False)
+
+
+def _stub_depth(monkeypatch, st):
+    from bodystudio.errors import InputError
+    from bodystudio.muscle import depth as md
+    from bodystudio.muscle import evaluate as me
+
+    def clean(depth, options):
+        st.depths.append(depth)
+        st.options.append(options)
+        if st.fail:
+            raise InputError("depth: no arm in range")
+        return "cleaned"
+
+    def cloud(d, camera):
+        assert d == "cleaned"
+        return st.points, None
+
+    monkeypatch.setattr(md, "clean_depth", clean)
+    monkeypatch.setattr(md, "depth_point_cloud", cloud)
+    monkeypatch.setattr(me, "visible_vertices", lambda V, F, cam: st.vis.copy())
+
+
+def test_frame_depth_agreement_figures(depth_stubs, monkeypatch):
+    from bodystudio.muscle.depth import DepthCleanupOptions
+    from bodystudio.muscle.plausibility import frame_depth_agreement
+
+    st = depth_stubs
+    _stub_depth(monkeypatch, st)
+    cam = _camera()
+    V, Fc = _grid()
+    n = len(V)
+    # each vertex's depth point dz behind it (the grid step 40 mm >> dz): upper half 4 mm, the rest 8 or 15 mm
+    dz = np.where(np.arange(n) < n // 2, 0.004, np.where(np.arange(n) % 2 == 0, 0.008, 0.015))
+    far = np.array([[0.0, 0.0, 2.5], [0.5, 0.5, 1.0]])  # two points away from the arm
+    st.points = np.r_[V + np.c_[np.zeros((n, 2)), dz], far]
+    st.vis = np.ones(n, bool)
+    st.vis[[0, n - 1]] = False  # two hidden vertices
+    regions = {"upperarm": np.arange(n) < n // 2, "forearm": np.arange(n) >= n // 2}
+    tracked = np.array([[0.0, -0.2, 1.0], [0.0, 0.0, 1.0], [0.0, 0.2, 1.0]])
+    out = frame_depth_agreement(V, Fc, regions, "D", cam, tracked)
+    assert st.depths == ["D"] and st.options[0] == DepthCleanupOptions()
+    up = regions["upperarm"] & st.vis
+    fo = regions["forearm"] & st.vis
+    assert out["upperarm"] == {"residual_mm": pytest.approx(4.0), "explained": 1.0, "vertices": int(up.sum())}
+    assert out["forearm"]["residual_mm"] == pytest.approx(float(np.median(1000 * dz[fo])))
+    assert out["forearm"]["explained"] == pytest.approx(float(np.mean(dz[fo] <= 0.010)))
+    assert out["forearm"]["vertices"] == int(fo.sum()) == n // 2 - 1
+    # the arm's points: within 6 cm of the tracked bones (the segment x = 0, z = 1, |y| <= 0.2)
+    P = st.points
+    near = (np.hypot(P[:, 0], P[:, 2] - 1.0) <= 0.06) & (np.abs(P[:, 1]) <= 0.2)
+    assert 0 < near.sum() < n
+    assert out["arm_points"] == int(near.sum())
+    assert out["points_explained"] == pytest.approx(float(np.mean(dz[near[:n]] <= 0.010)))
+    z_med = float(np.median(st.points[near, 2]))
+    assert out["sampling_mm"] == pytest.approx(1000.0 * z_med / F)
+    assert isinstance(out["arm_points"], int) and isinstance(out["upperarm"]["vertices"], int)
+    # custom options are passed on
+    opts = DepthCleanupOptions(near_m=0.2)
+    frame_depth_agreement(V, Fc, regions, "D", cam, tracked, opts)
+    assert st.options[-1] is opts
+    # without the tracker: the points within 6 cm of the fitted vertices (the far ones are not)
+    out2 = frame_depth_agreement(V, Fc, regions, "D", cam, None)
+    assert out2["arm_points"] == n
+    assert out2["points_explained"] == pytest.approx(float(np.mean(dz <= 0.010)))
+    # a region with no visible vertex
+    st.vis = np.zeros(n, bool)
+    st.vis[n - 2] = True
+    out3 = frame_depth_agreement(V, Fc, regions, "D", cam, tracked)
+    assert np.isnan(out3["upperarm"]["residual_mm"]) and np.isnan(out3["upperarm"]["explained"])
+    assert out3["upperarm"]["vertices"] == 0 and out3["forearm"]["vertices"] == 1
+    # no arm point near the tracked bones: nothing explained, no sampling
+    out4 = frame_depth_agreement(V, Fc, regions, "D", cam, tracked + [5.0, 0.0, 0.0])
+    assert out4["points_explained"] == 0.0 and np.isnan(out4["sampling_mm"]) and out4["arm_points"] == 0
+
+
+def test_frame_depth_agreement_no_depth(depth_stubs, monkeypatch):
+    from bodystudio.muscle.plausibility import frame_depth_agreement
+
+    st = depth_stubs
+    _stub_depth(monkeypatch, st)
+    cam = _camera()
+    V, Fc = _grid()
+    n = len(V)
+    st.vis = np.arange(n) % 3 == 0
+    regions = {"upperarm": np.arange(n) < 10, "forearm": np.arange(n) >= 10}
+    for fail in (True, False):  # the cleanup refuses (no arm in range), or no point at all
+        st.fail = fail
+        out = frame_depth_agreement(V, Fc, regions, "D", cam, None)
+        assert out == {"upperarm": {"residual_mm": float("inf"), "explained": 0.0,
+                                    "vertices": int((st.vis & regions["upperarm"]).sum())},
+                       "forearm": {"residual_mm": float("inf"), "explained": 0.0,
+                                   "vertices": int((st.vis & regions["forearm"]).sum())},
+                       "points_explained": 0.0, "sampling_mm": pytest.approx(float("nan"), nan_ok=True),
+                       "arm_points": 0}
+        assert np.isnan(out["sampling_mm"])
+
+
+def test_point_to_mesh():
+    from bodystudio.muscle.plausibility import _point_to_mesh_m
+
+    V, Fc = _grid()
+    P = np.array([[0.0, 0.0, 1.003], [0.01, 0.02, 0.95], [0.3, 0.0, 1.0]], np.float32)
+    d = _point_to_mesh_m(P, V.astype(np.float32), Fc.astype(np.int32))
+    np.testing.assert_allclose(d, [0.003, 0.05, 0.3 - 0.1], atol=1e-6)
+    assert d.dtype == np.float64
