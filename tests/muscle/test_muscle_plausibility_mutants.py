@@ -618,3 +618,54 @@ def test_point_to_mesh():
     d = _point_to_mesh_m(P, V.astype(np.float32), Fc.astype(np.int32))
     np.testing.assert_allclose(d, [0.003, 0.05, 0.3 - 0.1], atol=1e-6)
     assert d.dtype == np.float64
+
+
+def test_frame_depth_agreement_edges(depth_stubs, monkeypatch):
+    """Thresholds met exactly (10 mm, 6 cm count), a bent tracked arm (shoulder-elbow and elbow-wrist, not
+    shoulder-wrist), one depth point only, a moved camera's sampling, the stubs' arguments."""
+    from bodystudio.geometry.camera import Camera
+    from bodystudio.muscle import depth as md
+    from bodystudio.muscle import evaluate as me
+    from bodystudio.muscle.plausibility import frame_depth_agreement
+
+    st = depth_stubs
+    _stub_depth(monkeypatch, st)
+    seen = []
+    monkeypatch.setattr(md, "depth_point_cloud", lambda d, camera: (seen.append(camera), st.points)[1:] + (None,))
+    monkeypatch.setattr(me, "visible_vertices", lambda V, Fc, cam: (seen.append((V, Fc, cam)), st.vis.copy())[1])
+    cam = Camera("d", _camera().K, np.zeros(5), np.eye(3), np.array([0.0, 0.0, -1.0]), W, H)  # centre z = 1
+    V, Fc = _grid(z=0.0, step=0.5)  # vertices 0.5 m apart, the plane z = 0
+    n = len(V)
+    regions = {"upperarm": np.ones(n, bool), "forearm": np.zeros(n, bool)}
+    st.vis = np.ones(n, bool)
+    # depth points: one exactly 10 mm from vertex 0, one 9.995 mm from vertex 1, the rest 20 mm
+    dz = np.full(n, 0.02)
+    dz[0], dz[1] = 0.01, 0.00999
+    st.points = V + np.c_[np.zeros((n, 2)), dz]
+    out = frame_depth_agreement(V, Fc, regions, "D", cam, None)
+    assert out["upperarm"]["explained"] == pytest.approx(2 / n)
+    assert seen[0] is cam and seen[1][0] is not None and seen[1][1] is Fc and seen[1][2] is cam
+    np.testing.assert_allclose(seen[1][0], V)
+    # sampling along the optical axis from the camera centre (z = 1; the points lie behind it here: negative)
+    assert out["sampling_mm"] == pytest.approx(1000.0 * float(np.median(st.points[:, 2] - 1.0)) / F)
+    # exactly 6 cm from the fitted vertices counts (no tracker); 6 cm from the tracked upper arm counts
+    o = np.zeros(3)  # the grid's middle vertex
+    Vo, Fo = _grid(n=5, z=0.0, step=0.5)
+    assert np.all(Vo[12] == o)
+    regions5 = {"upperarm": np.ones(25, bool), "forearm": np.zeros(25, bool)}
+    st.vis = np.ones(25, bool)
+    st.points = np.array([[0.06, 0.0, 0.0], [0.0601, 0.0, 0.0]])
+    out = frame_depth_agreement(Vo, Fo, regions5, "D", cam, None)
+    assert out["arm_points"] == 1
+    elbow = np.array([0.0, 1.0, 0.0])
+    tracked = np.array([o, elbow, elbow + [1.0, 0.0, 0.0]])  # bent 90 deg at the elbow
+    st.points = np.array([[0.06, 0.5, 0.0],  # exactly 6 cm off the upper arm
+                          [0.5, 0.95, 0.0],  # 5 cm off the forearm
+                          [0.5, 0.5, 0.0]])  # on the shoulder-wrist line, far from both bones
+    out = frame_depth_agreement(Vo, Fo, regions5, "D", cam, tracked)
+    assert out["arm_points"] == 2
+    # one depth point is a depth point
+    st.points = np.array([[0.0, 0.0, 0.005]])
+    out = frame_depth_agreement(Vo, Fo, regions5, "D", cam, None)
+    assert out["arm_points"] == 1 and out["points_explained"] == 1.0
+    assert out["upperarm"]["residual_mm"] < 1000.0
