@@ -668,4 +668,5 @@ def test_frame_depth_agreement_edges(depth_stubs, monkeypatch):
     st.points = np.array([[0.0, 0.0, 0.005]])
     out = frame_depth_agreement(Vo, Fo, regions5, "D", cam, None)
     assert out["arm_points"] == 1 and out["points_explained"] == 1.0
-    assert out["upperarm"]["residual_mm"] < 1000.0
+    want = 1000.0 * float(np.median(np.linalg.norm(Vo - st.points[0], axis=1)))
+    assert out["upperarm"]["residual_mm"] == pytest.approx(want)
