@@ -638,12 +638,13 @@ def test_frame_depth_agreement_edges(depth_stubs, monkeypatch):
     n = len(V)
     regions = {"upperarm": np.ones(n, bool), "forearm": np.zeros(n, bool)}
     st.vis = np.ones(n, bool)
-    # depth points: one exactly 10 mm from vertex 0, one 9.995 mm from vertex 1, the rest 20 mm
+    # depth points: one exactly 10 mm from vertex 0, one 9.995 mm from vertex 1 (the plane's corners), the rest 20 mm
     dz = np.full(n, 0.02)
-    dz[0], dz[1] = 0.01, 0.00999
+    dz[0], dz[1] = 0.01, 0.009995
     st.points = V + np.c_[np.zeros((n, 2)), dz]
     out = frame_depth_agreement(V, Fc, regions, "D", cam, None)
     assert out["upperarm"]["explained"] == pytest.approx(2 / n)
+    assert out["points_explained"] == pytest.approx(2 / n)  # the same two, by the point-to-mesh distance
     assert seen[0] is cam and seen[1][0] is not None and seen[1][1] is Fc and seen[1][2] is cam
     np.testing.assert_allclose(seen[1][0], V)
     # sampling along the optical axis from the camera centre (z = 1; the points lie behind it here: negative)
@@ -660,8 +661,7 @@ def test_frame_depth_agreement_edges(depth_stubs, monkeypatch):
     elbow = np.array([0.0, 1.0, 0.0])
     tracked = np.array([o, elbow, elbow + [1.0, 0.0, 0.0]])  # bent 90 deg at the elbow
     st.points = np.array([[0.06, 0.5, 0.0],  # exactly 6 cm off the upper arm
-                          [0.5, 0.95, 0.0],  # 5 cm off the forearm
-                          [0.5, 0.5, 0.0]])  # on the shoulder-wrist line, far from both bones
+                          [0.5, 0.95, 0.0]])  # 5 cm off the forearm (both far from the shoulder-wrist line)
     out = frame_depth_agreement(Vo, Fo, regions5, "D", cam, tracked)
     assert out["arm_points"] == 2
     # one depth point is a depth point
