@@ -670,3 +670,124 @@ def test_frame_depth_agreement_edges(depth_stubs, monkeypatch):
     assert out["arm_points"] == 1 and out["points_explained"] == 1.0
     want = 1000.0 * float(np.median(np.linalg.norm(Vo - st.points[0], axis=1)))
     assert out["upperarm"]["residual_mm"] == pytest.approx(want)
+
+
+# --- capture_checks / check_after_capture on a stand-in capture ----------------------------------------
+
+def _row(k):
+    return {"upperarm": {"residual_mm": 2.0 + k, "explained": 0.9}, "forearm": {"residual_mm": 3.0 + k,
+                                                                                  "explained": 0.8},
+            "points_explained": 0.99, "sampling_mm": 2.5, "arm_points": 10}
+
+
+def _capture_case(monkeypatch, n=7, mode="full", stages=True, shape=True):
+    from bodystudio.muscle import plausibility as mp
+
+    seen = []
+
+    def agreement(vertices, faces, regions, depth, camera, tracked):
+        seen.append((vertices, faces, sorted(regions), depth, camera, None if tracked is None else tracked.copy()))
+        return _row(vertices if isinstance(vertices, int) else 100 + vertices[0])
+
+    monkeypatch.setattr(mp, "frame_depth_agreement", agreement)
+    fitted = np.zeros((n, 3, 3))
+    fitted[:, 1, 0] = 0.05  # the fitted elbow 50 mm from the tracker's, the others on it
+    monkeypatch.setattr(mp, "fitted_world_joints", lambda c: fitted if c.joints is not None else None)
+    names = ["ShoulderLeft", "ElbowLeft", "WristLeft"]
+    frames = {10 + k: SimpleNamespace(kinect_joints={"names": names, "positions": np.zeros((3, 3))},
+                                      kinect_depth_m=f"D{10 + k}") for k in range(n)}
+    session = _Session(frames, path="sp")
+    template = SimpleNamespace(part_weights=np.array([[0, 1, 0, 0], [0, 0, 1, 0]]), side="left")
+    capture = SimpleNamespace(n_frames=n, frame_ids=[10 + k for k in range(n)], vertices=list(range(n)), faces="F",
+                              mode=mode, joints="J", stages={"model": [[k] for k in range(n)]} if stages else None,
+                              shape=SimpleNamespace(bmi=25.0, muscularity=0.9, height_m=1.8, arm_length_m=0.7)
+                              if shape else None)
+    model = SimpleNamespace(subjects=[1], shape_range=lambda: {"bmi": (20.0, 30.0), "muscularity": (0.0, 0.5),
+                                                               "height_m": (1.6, 1.9), "arm_length_m": (0.6, 0.8)})
+    return mp, capture, session, template, model, seen
+
+
+def test_capture_checks_on_a_stand_in(monkeypatch):
+    mp, capture, session, template, model, seen = _capture_case(monkeypatch)
+    out = mp.capture_checks(capture, session, template, model, max_frames=4, shape_given=True)
+    # 4 frames evenly spaced over 7: 0, 2, 4, 6
+    assert session.asked == [10, 12, 14, 16]
+    real = [s for s in seen if isinstance(s[0], int)]
+    assert [s[0] for s in real] == [0, 2, 4, 6] and [s[3] for s in real] == ["D10", "D12", "D14", "D16"]
+    assert all(s[1] == "F" and s[2] == ["forearm", "upperarm"] and s[4] is session.kinect.depth for s in real)
+    np.testing.assert_array_equal(real[0][5], np.zeros((3, 3)))
+    assert [s[0] for s in seen if not isinstance(s[0], int)] == [[0], [2], [4], [6]]
+    assert out["frames_checked"] == 4 and out["mode"] == "full"
+    assert out["upperarm"] == {"residual_mm": 2.0 + 3.0, "explained": 0.9}  # median of 2, 4, 6, 8
+    assert out["forearm"]["residual_mm"] == 3.0 + 3.0 and out["points_explained"] == 0.99
+    assert out["model_only"] == {"upperarm": {"residual_mm": 2.0 + 103.0, "explained": 0.9},
+                                 "forearm": {"residual_mm": 3.0 + 103.0, "explained": 0.8}}
+    assert out["tracker_joint_residual_mm"] == {"shoulder": 0.0, "elbow": 50.0, "wrist": 0.0}
+    assert out["shape"]["muscularity"]["outside"] == pytest.approx(0.8) and out["shape_given"] is True
+    # defaults: up to 40 frames (all 7 here), shape not given
+    mp2, capture, session, template, model, seen = _capture_case(monkeypatch)
+    out = mp2.capture_checks(capture, session, template, model)
+    assert out["frames_checked"] == 7 and session.asked == list(range(10, 17)) and out["shape_given"] is False
+    # no model stage / another mode / no model / no shape / a model without subjects / no fitted joints
+    mp3, capture, session, template, model, seen = _capture_case(monkeypatch, mode="model", shape=False)
+    capture.joints = None
+    out = mp3.capture_checks(capture, session, template, model)
+    assert "model_only" not in out and "shape" not in out and "tracker_joint_residual_mm" not in out
+    assert out["mode"] == "model"
+    mp4, capture, session, template, model, seen = _capture_case(monkeypatch, stages=False)
+    out = mp4.capture_checks(capture, session, template, SimpleNamespace(subjects=[]))
+    assert "model_only" not in out and "shape" not in out
+    assert "shape" not in mp4.capture_checks(capture, session, template, None)
+    capture.stages = {}
+    assert "model_only" not in mp4.capture_checks(capture, session, template, None)
+    # a frame without the tracked arm: no joint residual from it, the depth check still runs untracked
+    mp5, capture, session, template, model, seen = _capture_case(monkeypatch, n=2, stages=False)
+    session.frames[11] = SimpleNamespace(kinect_joints=None, kinect_depth_m="D11")
+    out = mp5.capture_checks(capture, session, template, model)
+    assert seen[-1][5] is None and out["tracker_joint_residual_mm"]["elbow"] == 50.0
+    # a single frame
+    mp6, capture, session, template, model, seen = _capture_case(monkeypatch, n=1, stages=False)
+    assert mp6.capture_checks(capture, session, template, model)["frames_checked"] == 1
+
+
+def test_check_after_capture(monkeypatch, caplog):
+    import logging
+
+    from bodystudio.errors import ImplausibleResultError
+
+    mp, capture, session, template, model, seen = _capture_case(monkeypatch)
+    before = {"depth_to_tracker_ratio": 0.95, "sampling_at_1m_mm": 2.7}
+    with caplog.at_level(logging.INFO, logger="bodystudio.muscle.plausibility"):
+        v = mp.check_after_capture(capture, session, template, model, before)
+    assert v["ok"] and v["figures"]["depth_to_tracker_ratio"] == 0.95 and v["figures"]["frames_checked"] == 7
+    assert v["figures"]["shape_given"] is False
+    assert v["warnings"] and v["warnings"][0].startswith("the fitted elbow is 50 mm")
+    msgs = [r.getMessage() for r in caplog.records if r.name == "bodystudio.muscle.plausibility"]
+    assert msgs == [f"sp: {w}" for w in v["warnings"]]
+    v = mp.check_after_capture(capture, session, template, model, before, shape_given=True)
+    assert v["figures"]["shape_given"] is True
+    # a problem (the depth in another unit) refuses the capture, naming the session and the capture's side
+    bad = {**before, "depth_to_tracker_ratio": 5.0}
+    with pytest.raises(ImplausibleResultError, match=r"^sp: arm capture not written, the depth where the tracked left"):
+        mp.check_after_capture(capture, session, template, model, bad)
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="bodystudio.muscle.plausibility"):
+        v = mp.check_after_capture(capture, session, template, model, bad, accept_implausible=True)
+    assert not v["ok"]
+    msgs = [r.getMessage() for r in caplog.records if r.name == "bodystudio.muscle.plausibility"]
+    assert msgs[-1] == f"sp: {v['problems'][0]}" and len(msgs) == len(v["warnings"]) + len(v["problems"])
+
+
+def test_fitted_world_joints(monkeypatch):
+    from bodystudio.muscle import nicp, refine
+    from bodystudio.muscle.plausibility import fitted_world_joints
+
+    monkeypatch.setattr(refine, "posed_joints", lambda joints, p: joints * p)
+    monkeypatch.setattr(nicp, "apply_similarity", lambda sim, X: sim * X + 1.0)
+    J = np.arange(9.0).reshape(3, 3)
+    cap = SimpleNamespace(joints=J, poses=[1.0, 2.0], similarity=10.0)
+    out = fitted_world_joints(cap)
+    np.testing.assert_allclose(out, np.stack([10.0 * J + 1.0, 20.0 * J + 1.0]))
+    assert fitted_world_joints(SimpleNamespace(joints=None, poses=[1.0], similarity=1.0)) is None
+    assert fitted_world_joints(SimpleNamespace(joints=J, poses=[], similarity=1.0)) is None
+    assert fitted_world_joints(SimpleNamespace(joints=J, poses=[None], similarity=1.0)) is None
