@@ -690,11 +690,11 @@ def _capture_case(monkeypatch, n=7, mode="full", stages=True, shape=True):
         return _row(vertices if isinstance(vertices, int) else 100 + vertices[0])
 
     monkeypatch.setattr(mp, "frame_depth_agreement", agreement)
-    fitted = np.zeros((n, 3, 3))
-    fitted[:, 1, 0] = 0.05  # the fitted elbow 50 mm from the tracker's, the others on it
+    fitted = np.full((n, 3, 3), 0.1)
+    fitted[:, 1, 0] += 0.0501234  # the fitted elbow 50.12 mm from the tracker's, the others on it
     monkeypatch.setattr(mp, "fitted_world_joints", lambda c: fitted if c.joints is not None else None)
     names = ["ShoulderLeft", "ElbowLeft", "WristLeft"]
-    frames = {10 + k: SimpleNamespace(kinect_joints={"names": names, "positions": np.zeros((3, 3))},
+    frames = {10 + k: SimpleNamespace(kinect_joints={"names": names, "positions": np.full((3, 3), 0.1)},
                                       kinect_depth_m=f"D{10 + k}") for k in range(n)}
     session = _Session(frames, path="sp")
     template = SimpleNamespace(part_weights=np.array([[0, 1, 0, 0], [0, 0, 1, 0]]), side="left")
@@ -715,14 +715,17 @@ def test_capture_checks_on_a_stand_in(monkeypatch):
     real = [s for s in seen if isinstance(s[0], int)]
     assert [s[0] for s in real] == [0, 2, 4, 6] and [s[3] for s in real] == ["D10", "D12", "D14", "D16"]
     assert all(s[1] == "F" and s[2] == ["forearm", "upperarm"] and s[4] is session.kinect.depth for s in real)
-    np.testing.assert_array_equal(real[0][5], np.zeros((3, 3)))
-    assert [s[0] for s in seen if not isinstance(s[0], int)] == [[0], [2], [4], [6]]
+    np.testing.assert_array_equal(real[0][5], np.full((3, 3), 0.1))
+    stage = [s for s in seen if not isinstance(s[0], int)]
+    assert [s[0] for s in stage] == [[0], [2], [4], [6]] and [s[3] for s in stage] == ["D10", "D12", "D14", "D16"]
+    assert all(s[1] == "F" and s[4] is session.kinect.depth for s in stage)
+    np.testing.assert_array_equal(stage[0][5], np.full((3, 3), 0.1))
     assert out["frames_checked"] == 4 and out["mode"] == "full"
     assert out["upperarm"] == {"residual_mm": 2.0 + 3.0, "explained": 0.9}  # median of 2, 4, 6, 8
     assert out["forearm"]["residual_mm"] == 3.0 + 3.0 and out["points_explained"] == 0.99
     assert out["model_only"] == {"upperarm": {"residual_mm": 2.0 + 103.0, "explained": 0.9},
                                  "forearm": {"residual_mm": 3.0 + 103.0, "explained": 0.8}}
-    assert out["tracker_joint_residual_mm"] == {"shoulder": 0.0, "elbow": 50.0, "wrist": 0.0}
+    assert out["tracker_joint_residual_mm"] == {"shoulder": 0.0, "elbow": 50.12, "wrist": 0.0}
     assert out["shape"]["muscularity"]["outside"] == pytest.approx(0.8) and out["shape_given"] is True
     # defaults: up to 40 frames (all 7 here), shape not given
     mp2, capture, session, template, model, seen = _capture_case(monkeypatch)
@@ -744,7 +747,11 @@ def test_capture_checks_on_a_stand_in(monkeypatch):
     mp5, capture, session, template, model, seen = _capture_case(monkeypatch, n=2, stages=False)
     session.frames[11] = SimpleNamespace(kinect_joints=None, kinect_depth_m="D11")
     out = mp5.capture_checks(capture, session, template, model)
-    assert seen[-1][5] is None and out["tracker_joint_residual_mm"]["elbow"] == 50.0
+    assert seen[-1][5] is None and out["tracker_joint_residual_mm"]["elbow"] == 50.12
+    # the default: at most 40 frames; a model without a subjects attribute gives no shape figures
+    mp7, capture, session, template, model, seen = _capture_case(monkeypatch, n=45, stages=False)
+    out = mp7.capture_checks(capture, session, template, SimpleNamespace(shape_range=model.shape_range))
+    assert out["frames_checked"] == 40 and "shape" not in out
     # a single frame
     mp6, capture, session, template, model, seen = _capture_case(monkeypatch, n=1, stages=False)
     assert mp6.capture_checks(capture, session, template, model)["frames_checked"] == 1
@@ -770,6 +777,8 @@ def test_check_after_capture(monkeypatch, caplog):
     bad = {**before, "depth_to_tracker_ratio": 5.0}
     with pytest.raises(ImplausibleResultError, match=r"^sp: arm capture not written, the depth where the tracked left"):
         mp.check_after_capture(capture, session, template, model, bad)
+    v = mp.check_after_capture(capture, session, template, model, bad, accept_implausible=True)
+    assert "check the unit of sp/kinect/depth" in v["problems"][0]
     n0 = len(caplog.records)  # (no caplog.clear(): the direct recheck's caplog has none)
     with caplog.at_level(logging.INFO, logger="bodystudio.muscle.plausibility"):
         v = mp.check_after_capture(capture, session, template, model, bad, accept_implausible=True)
