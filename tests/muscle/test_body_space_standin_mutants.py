@@ -236,9 +236,9 @@ def _poses(shift=np.zeros(3)):
     return out
 
 
-@pytest.fixture
-def case(monkeypatch):
-    """The stand-in space, model and a planted subject's frames (true poses, the placement 3 mm off the start's)."""
+def _case(monkeypatch):
+    """The stand-in space, model and a planted subject's frames (true poses, the placement 3 mm off the start's);
+    built per test (the tests change its frames), a plain function so the direct recheck builds it afresh too."""
     seen = {}
     monkeypatch.setattr(mm, "pose_displacements", lambda model, angles: np.zeros((N_V, 3)))
 
@@ -272,7 +272,8 @@ def _fit(c, **kw):
     return fit_body_rest_shape(c.space, c.model, _poses(), c.frames, c.x0, c.shoulder, c.mean, c.sigma, **args)
 
 
-def test_the_body_rest_shape_and_placement_are_recovered_from_point_to_plane_pairs(case):
+def test_the_body_rest_shape_and_placement_are_recovered_from_point_to_plane_pairs(monkeypatch):
+    case = _case(monkeypatch)
     x, shift = _fit(case, norm_limit=0.7)
     np.testing.assert_allclose(_identifiable(x), _identifiable(case.x_true), atol=1e-5)
     np.testing.assert_allclose(shift, case.shift, atol=1e-7)
@@ -282,7 +283,8 @@ def test_the_body_rest_shape_and_placement_are_recovered_from_point_to_plane_pai
     np.testing.assert_allclose(_identifiable(x), _identifiable(case.x_true), atol=1e-5)
 
 
-def test_without_placement_the_shift_is_zero_and_the_shape_absorbs_what_it_can(case):
+def test_without_placement_the_shift_is_zero_and_the_shape_absorbs_what_it_can(monkeypatch):
+    case = _case(monkeypatch)
     x, shift = _fit(case, fit_placement=False)
     assert shift.shape == (3,) and np.all(shift == 0.0)
     assert np.abs(_identifiable(x) - _identifiable(case.x_true)).max() > 1e-3
@@ -291,7 +293,8 @@ def test_without_placement_the_shift_is_zero_and_the_shape_absorbs_what_it_can(c
     assert np.all(s0 == 0.0)
 
 
-def test_the_fits_prior_holds_the_population_when_it_outweighs_the_pairs(case):
+def test_the_fits_prior_holds_the_population_when_it_outweighs_the_pairs(monkeypatch):
+    case = _case(monkeypatch)
     x, _ = _fit(case, prior_weight=1e12)
     np.testing.assert_allclose(x[9:], case.mean[9:], atol=1e-6)
     # a moderate prior lands in between: the local weights pulled toward 0 by an amount that grows with the weight
@@ -299,14 +302,16 @@ def test_the_fits_prior_holds_the_population_when_it_outweighs_the_pairs(case):
     assert errs[0] < 1e-5 < errs[1] < errs[2]
 
 
-def test_huber_weights_cap_an_outlier_pairs_pull(case):
+def test_huber_weights_cap_an_outlier_pairs_pull(monkeypatch):
+    case = _case(monkeypatch)
     case.frames[0].outlier = 0.05
     err_huber = np.abs(_identifiable(_fit(case, huber_m=0.004)[0]) - _identifiable(case.x_true)).max()
     err_plain = np.abs(_identifiable(_fit(case, huber_m=0.0)[0]) - _identifiable(case.x_true)).max()
     assert err_huber < 0.5 * err_plain
 
 
-def test_frames_without_pairs_are_skipped_and_the_tracker_holds_the_skeleton(case):
+def test_frames_without_pairs_are_skipped_and_the_tracker_holds_the_skeleton(monkeypatch):
+    case = _case(monkeypatch)
     for f in case.frames:
         f.keep = np.zeros(0, int)
     tracked = np.stack([posed_joints(case.J, ArmPose(p.root.copy(), p.angles)) for p in _poses(case.shift)])
@@ -324,7 +329,8 @@ def test_frames_without_pairs_are_skipped_and_the_tracker_holds_the_skeleton(cas
     np.testing.assert_allclose(x3, case.mean, atol=1e-9)
 
 
-def test_the_measured_arm_length_holds_the_chain(case):
+def test_the_measured_arm_length_holds_the_chain(monkeypatch):
+    case = _case(monkeypatch)
     for f in case.frames:
         f.keep = np.zeros(0, int)
     _, J0 = case.space.rest_and_joints(case.mean, case.shoulder)
@@ -340,7 +346,8 @@ def test_the_measured_arm_length_holds_the_chain(case):
     assert np.linalg.norm(np.diff(J, axis=0), axis=1).sum() == pytest.approx(L0, abs=1e-3)
 
 
-def test_the_poses_are_held_and_their_part_transforms_used(case):
+def test_the_poses_are_held_and_their_part_transforms_used(monkeypatch):
+    case = _case(monkeypatch)
     # the fit uses the given poses: fitting with wrong poses gives a wrong shape
     wrong = [ArmPose(p.root, p.angles * 1.3) for p in _poses()]
     x, _ = fit_body_rest_shape(case.space, case.model, wrong, case.frames, case.x0, case.shoulder, case.mean,
