@@ -354,3 +354,41 @@ def test_the_poses_are_held_and_their_part_transforms_used(monkeypatch):
                                case.sigma, 1e-9, 0.9, 0.0, 8)
     assert np.abs(_identifiable(x) - _identifiable(case.x_true)).max() > 1e-3
     assert part_transforms(case.J, _poses()[0]).shape == (4, 4, 4)
+
+
+def test_integer_parameters_are_read_as_floats():
+    # x given as integers (0 / 1 macro values, whole local weights): the ethnic floor and the Jacobian's steps stay
+    s = _space()
+    xi = [1, 0, 1, 0, 1, 0, 0, 0, 0, 1, 0, -1]
+    xf = np.array(xi, float)
+    np.testing.assert_allclose(s.macro_weights(xi), s.macro_weights(xf), atol=0)
+    assert np.isclose(s.macro_weights(xi)[7:], 1 / 3).all()
+    np.testing.assert_allclose(s.jacobian(np.array(xi)), s.jacobian(xf), atol=1e-12)
+    mean, sigma = s.prior()
+    rows = s.shaped_rows(X_MID)
+    got = project_to_body_space(s, rows[:-3], rows[-3:], np.round(mean).astype(int), sigma, prior_weight=1e-9)
+    want = project_to_body_space(s, rows[:-3], rows[-3:], np.round(mean), sigma, prior_weight=1e-9)
+    np.testing.assert_allclose(got, want, atol=1e-12)
+
+
+def test_a_step_that_lands_on_one_is_taken_forward():
+    s = _space()
+    x = X_MID.copy()
+    x[3] = 0.5  # forward to 1.0: maxweight slope 2, minweight 0; backward to 0.0 would give minweight slope -2
+    d = 2 * s.macro_deltas[3]
+    np.testing.assert_allclose(s.jacobian(x, step=0.5)[3], d - d[-3], atol=1e-12)
+
+
+def test_the_projections_defaults_and_its_lower_clip():
+    s = _space()
+    mean, sigma = s.prior()
+    rng = np.random.default_rng(8)
+    rows = s.shaped_rows(X_MID) + 0.004 * rng.normal(size=(N_V + 3, 3))
+    np.testing.assert_allclose(project_to_body_space(s, rows[:-3], rows[-3:], mean, sigma),
+                               project_to_body_space(s, rows[:-3], rows[-3:], mean, sigma, 1e-3, 6), atol=0)
+    assert np.abs(project_to_body_space(s, rows[:-3], rows[-3:], mean, sigma, 1e-3, 7)
+                  - project_to_body_space(s, rows[:-3], rows[-3:], mean, sigma, 1e-3, 6)).max() > 0
+    # a subject "more female than female": gender (weight of macrodetails/male) held at 0
+    low = s.shaped_rows(np.r_[0.0, X_MID[1:]]) - 0.5 * (s.macro_deltas[0] - s.macro_deltas[0, -3])
+    x = project_to_body_space(s, low[:-3], low[-3:], mean, sigma, prior_weight=1e-9)
+    assert x[0] == 0.0 and np.all(x[:9] >= 0.0)
