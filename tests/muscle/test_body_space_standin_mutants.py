@@ -384,11 +384,23 @@ def test_the_projections_defaults_and_its_lower_clip():
     mean, sigma = s.prior()
     rng = np.random.default_rng(8)
     rows = s.shaped_rows(X_MID) + 0.004 * rng.normal(size=(N_V + 3, 3))
-    np.testing.assert_allclose(project_to_body_space(s, rows[:-3], rows[-3:], mean, sigma),
-                               project_to_body_space(s, rows[:-3], rows[-3:], mean, sigma, 1e-3, 6), atol=0)
+    np.testing.assert_array_equal(project_to_body_space(s, rows[:-3], rows[-3:], mean, sigma),
+                                  project_to_body_space(s, rows[:-3], rows[-3:], mean, sigma, 1e-3, 6))
     assert np.abs(project_to_body_space(s, rows[:-3], rows[-3:], mean, sigma, 1e-3, 7)
                   - project_to_body_space(s, rows[:-3], rows[-3:], mean, sigma, 1e-3, 6)).max() > 0
     # a subject "more female than female": gender (weight of macrodetails/male) held at 0
     low = s.shaped_rows(np.r_[0.0, X_MID[1:]]) - 0.5 * (s.macro_deltas[0] - s.macro_deltas[0, -3])
     x = project_to_body_space(s, low[:-3], low[-3:], mean, sigma, prior_weight=1e-9)
     assert x[0] == 0.0 and np.all(x[:9] >= 0.0)
+
+
+def test_single_precision_inputs_are_projected_in_double_precision():
+    # a float32 rest mesh (e.g. read from a PLY) and float32 spreads: subtracted and squared in float64
+    s = _space()
+    mean, sigma = s.prior()
+    rows = (s.shaped_rows(X_MID) + np.array([0.31, 1.17, -0.23])).astype(np.float32)
+    s32 = sigma.astype(np.float32)
+    got = project_to_body_space(s, rows[:-3], rows[-3:], mean, s32, prior_weight=10.0)
+    want = project_to_body_space(s, rows[:-3].astype(float), rows[-3:].astype(float), mean, s32.astype(float),
+                                 prior_weight=10.0)
+    np.testing.assert_array_equal(got, want)
