@@ -207,10 +207,17 @@ class _Frame:
         self.outlier = outlier
 
     def plane_pairs(self, M):
+        assert M.shape == self.truth.shape
+        assert np.abs(M - self.truth).max() < 0.2  # the posed mesh is near its pairs
         q = self.truth[self.keep].copy()
         if self.outlier is not None:
             q[0] += self.outlier * self.normals[self.keep[0]]
         return self.keep, q, self.normals[self.keep]
+
+
+def _displacements(model, angles):
+    """Stand-in for Eq. 10's pose displacements: a few mm, depending on the elbow angle."""
+    return 0.004 * np.sin(np.arange(N_V * 3).reshape(N_V, 3) + 3 * np.asarray(angles)[1, 2])
 
 
 def _weights():
@@ -240,7 +247,7 @@ def _case(monkeypatch):
     """The stand-in space, model and a planted subject's frames (true poses, the placement 3 mm off the start's);
     built per test (the tests change its frames), a plain function so the direct recheck builds it afresh too."""
     seen = {}
-    monkeypatch.setattr(mm, "pose_displacements", lambda model, angles: np.zeros((N_V, 3)))
+    monkeypatch.setattr(mm, "pose_displacements", _displacements)
 
     def limit(d, lim):
         seen.setdefault("limits", []).append(lim)
@@ -256,7 +263,7 @@ def _case(monkeypatch):
     rng = np.random.default_rng(5)
     frames = []
     for p in _poses(true_shift):
-        M = pose_arm(rest, model.part_weights, J, p)
+        M = pose_arm(rest + _displacements(model, p.angles), model.part_weights, J, p)
         n = rng.normal(size=(N_V, 3))
         frames.append(_Frame(M, n / np.linalg.norm(n, axis=1, keepdims=True)))
     mean, sigma = s.prior()
@@ -269,7 +276,8 @@ def _case(monkeypatch):
 def _fit(c, **kw):
     args = dict(prior_weight=1e-9, huber_m=0.0, iterations=8)
     args.update(kw)
-    return fit_body_rest_shape(c.space, c.model, _poses(), c.frames, c.x0, c.shoulder, c.mean, c.sigma, **args)
+    x0 = args.pop("x0", c.x0)
+    return fit_body_rest_shape(c.space, c.model, _poses(), c.frames, x0, c.shoulder, c.mean, c.sigma, **args)
 
 
 def test_the_body_rest_shape_and_placement_are_recovered_from_point_to_plane_pairs(monkeypatch):
@@ -405,3 +413,30 @@ def test_single_precision_inputs_are_projected_in_double_precision():
     want = project_to_body_space(s, rows[:-3].astype(float), rows[-3:].astype(float), mean, s32.astype(float),
                                  prior_weight=10.0)
     np.testing.assert_array_equal(got, want)
+
+
+def test_the_fits_defaults_and_frames_with_few_pairs(monkeypatch):
+    case = _case(monkeypatch)
+    c = case
+    a = fit_body_rest_shape(c.space, c.model, _poses(), c.frames, c.x0, c.shoulder, c.mean, c.sigma)
+    b = fit_body_rest_shape(c.space, c.model, _poses(), c.frames, c.x0, c.shoulder, c.mean, c.sigma, 1.0, 0.9, 0.004,
+                            3, True, None, 0.0, None, 0.0)
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+    assert c.seen["limits"][:4] == [0.9] * 4
+    # integer start (0 / 1 macros, whole local weights) read as floats
+    xi = np.r_[[0, 1, 1, 1, 1, 1, 0, 1, 0], [0, 0, 0]]
+    np.testing.assert_allclose(_fit(c, x0=xi.astype(int))[0], _fit(c, x0=xi.astype(float))[0], atol=1e-12)
+    # Huber weights never above 1: a threshold no residual reaches is the plain fit
+    np.testing.assert_allclose(_fit(c, huber_m=1e3, prior_weight=1.0)[0], _fit(c, huber_m=0.0, prior_weight=1.0)[0],
+                               atol=1e-12)
+    # a first frame without pairs is skipped, the others still count
+    c.frames[0].keep = np.zeros(0, int)
+    x, shift = _fit(c)
+    np.testing.assert_allclose(_identifiable(x), _identifiable(c.x_true), atol=1e-5)
+    np.testing.assert_allclose(shift, c.shift, atol=1e-7)
+    # frames with a single pair each still pull the shape off the prior
+    for f in c.frames:
+        f.keep = np.array([5])
+    x1, _ = _fit(c, prior_weight=1.0, fit_placement=False, iterations=1)
+    assert np.abs(x1[9:] - c.mean[9:]).max() > 1e-4
