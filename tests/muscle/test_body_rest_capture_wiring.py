@@ -32,6 +32,9 @@ def test_the_body_rest_fit_gets_the_priors_spread_the_placement_switch_and_the_m
     np.testing.assert_array_equal(fb.args[7], sigma)
     assert len(fb.args[2]) == len(s.depths)  # stride 1: every frame
     assert fb.args[11:15] == (1, False, s.shape.arm_length_m, 7.0)
+    # the rest mesh's shoulder stays where the model's regressed one sits (the joints the projection was given)
+    np.testing.assert_array_equal(fb.args[5], p.args[2][0])
+    assert np.abs(fb.args[5]).max() > 1e-3
     _, J0 = space.rest_and_joints(p.out, fb.args[5])
     np.testing.assert_allclose(fb.args[5], spies["fit_arm_sequence_skeleton"][0].args[4][0], atol=1e-12)
     np.testing.assert_allclose(J0[0], fb.args[5], atol=1e-12)
