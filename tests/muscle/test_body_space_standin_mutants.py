@@ -217,6 +217,7 @@ class _Frame:
 
 def _displacements(model, angles):
     """Stand-in for Eq. 10's pose displacements: a few mm, depending on the elbow angle."""
+    assert model.part_weights.shape == (N_V, 4)
     return 0.004 * np.sin(np.arange(N_V * 3).reshape(N_V, 3) + 3 * np.asarray(angles)[1, 2])
 
 
@@ -277,7 +278,8 @@ def _fit(c, **kw):
     args = dict(prior_weight=1e-9, huber_m=0.0, iterations=8)
     args.update(kw)
     x0 = args.pop("x0", c.x0)
-    return fit_body_rest_shape(c.space, c.model, _poses(), c.frames, x0, c.shoulder, c.mean, c.sigma, **args)
+    sigma = args.pop("sigma", c.sigma)
+    return fit_body_rest_shape(c.space, c.model, _poses(), c.frames, x0, c.shoulder, c.mean, sigma, **args)
 
 
 def test_the_body_rest_shape_and_placement_are_recovered_from_point_to_plane_pairs(monkeypatch):
@@ -440,3 +442,61 @@ def test_the_fits_defaults_and_frames_with_few_pairs(monkeypatch):
         f.keep = np.array([5])
     x1, _ = _fit(c, prior_weight=1.0, fit_placement=False, iterations=1)
     assert np.abs(x1[9:] - c.mean[9:]).max() > 1e-4
+
+
+def test_the_arm_length_term_and_the_prior_are_the_energys_gauss_newton(monkeypatch):
+    # no pairs: the fit minimises prior_weight T 1e-6 |(x - mean) / sigma|^2 + w T (chain length - measured)^2;
+    # at its result the energy's gradient (central differences over the local weights) vanishes
+    c = _case(monkeypatch)
+    for f in c.frames:
+        f.keep = np.zeros(0, int)
+    _, J0 = c.space.rest_and_joints(c.mean, c.shoulder)
+    target = np.linalg.norm(np.diff(J0, axis=0), axis=1).sum() + 0.01
+    pw, w, T = 2.0, 0.3, 4
+
+    def energy(x):
+        _, J = c.space.rest_and_joints(x, c.shoulder)
+        L = np.linalg.norm(np.diff(J, axis=0), axis=1).sum()
+        return pw * T * 1e-6 * np.sum(((x - c.mean) / c.sigma) ** 2) + w * T * (L - target) ** 2
+
+    def grad(x):
+        out = []
+        for k in range(9, 12):
+            e = np.zeros(12)
+            e[k] = 1e-6
+            out.append((energy(x + e) - energy(x - e)) / 2e-6)
+        return np.array(out)
+
+    x, _ = _fit(c, prior_weight=pw, arm_length_m=target, arm_length_weight=w, fit_placement=False, iterations=12)
+    g0 = np.abs(grad(c.mean)).max()
+    assert g0 > 1e-4 and np.abs(grad(x)).max() < 1e-3 * g0
+    assert np.abs(x[9:] - c.mean[9:]).max() > 1e-3  # both terms act
+    # a measured length without weight, or a weight without a measured length: no term
+    np.testing.assert_allclose(_fit(c, prior_weight=pw, arm_length_m=None, arm_length_weight=w,
+                                    fit_placement=False)[0], c.mean, atol=1e-12)
+
+
+def test_the_fits_inputs_are_checked_and_read_in_double_precision(monkeypatch):
+    c = _case(monkeypatch)
+    with pytest.raises(ValueError):  # one frame per pose
+        fit_body_rest_shape(c.space, c.model, _poses(), c.frames[:3], c.x0, c.shoulder, c.mean, c.sigma)
+    # a tracker weight without tracker joints is no tracker term
+    np.testing.assert_array_equal(_fit(c, tracker_weight=1.0, prior_weight=1.0)[0], _fit(c, prior_weight=1.0)[0])
+    s32 = c.sigma.astype(np.float32)
+    np.testing.assert_array_equal(_fit(c, prior_weight=5.0, sigma=s32)[0],
+                                  _fit(c, prior_weight=5.0, sigma=s32.astype(float))[0])
+
+
+def test_the_fitted_macro_parameters_stay_in_the_unit_interval(monkeypatch):
+    c = _case(monkeypatch)
+    for sign, bound in ((-1.0, 0.0), (1.0, 1.0)):  # a subject beyond the model's range in gender, both ways
+        xb = c.x_true.copy()
+        xb[0] = bound
+        rest, J = c.space.rest_and_joints(xb, c.shoulder)
+        d = c.space.macro_deltas[0] - c.space.macro_deltas[0, -3]
+        rest = rest + sign * 0.5 * d[:-3]
+        J = J + sign * 0.5 * d[-3:]
+        for f, p in zip(c.frames, _poses(c.shift), strict=True):
+            f.truth = pose_arm(rest + _displacements(c.model, p.angles), c.model.part_weights, J, p)
+        x, _ = _fit(c)
+        assert x[0] == bound and np.all(x[:9] >= 0.0) and np.all(x[:9] <= 1.0)
