@@ -480,6 +480,11 @@ def test_the_fits_inputs_are_checked_and_read_in_double_precision(monkeypatch):
     c = _case(monkeypatch)
     with pytest.raises(ValueError):  # one frame per pose
         fit_body_rest_shape(c.space, c.model, _poses(), c.frames[:3], c.x0, c.shoulder, c.mean, c.sigma)
+    # a measured length or tracker joints without their weight (default 0) are no term
+    tracked = np.zeros((4, 3, 3))
+    plain = _fit(c, prior_weight=1.0)[0]
+    np.testing.assert_array_equal(_fit(c, prior_weight=1.0, arm_length_m=0.1)[0], plain)
+    np.testing.assert_array_equal(_fit(c, prior_weight=1.0, tracker_joints=tracked)[0], plain)
     # a tracker weight without tracker joints is no tracker term
     np.testing.assert_array_equal(_fit(c, tracker_weight=1.0, prior_weight=1.0)[0], _fit(c, prior_weight=1.0)[0])
     s32 = c.sigma.astype(np.float32)
