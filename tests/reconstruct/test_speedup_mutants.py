@@ -96,11 +96,12 @@ def test_fit_sparse_weights_every_non_zero_unnormalised_and_cached():
     assert min(sizes) >= 1 and max(sizes) == 8
 
 
-def test_one_blas_thread_limits_blas_and_is_made_once():
+def test_one_blas_thread_limits_blas_and_is_made_once(monkeypatch):
     from threadpoolctl import threadpool_info
 
     from bodystudio.reconstruct import articulated_fit as af
 
+    monkeypatch.setattr(af, "_BLAS", None)  # the first call makes the controller
     with af._one_blas_thread():
         blas = [p for p in threadpool_info() if p["user_api"] == "blas"]
         assert blas and all(p["num_threads"] == 1 for p in blas)
