@@ -173,3 +173,18 @@ def test_track_bone_transforms_passes_min_decrease_to_the_fit(monkeypatch):
     r = seen["refine"]
     assert (r.min_decrease, r.iterations, r.prior_weight, r.robust_m) == (0.07, 5, params.prior_weight,
                                                                           params.robust_m)
+
+
+def test_fields_of_an_empty_mask_are_the_whole_image_all_outside():
+    """A view with no silhouette: its field is the whole image, all outside (no inside transform to take)."""
+    from bodystudio.geometry.camera import Camera
+    from bodystudio.reconstruct.tracking import SilhouetteFields
+
+    H, W = 40, 50
+    cams = [Camera.look_at(f"c{i}", (0, 0, 3), (0, 0, 0), fx=100.0, width=W, height=H) for i in range(2)]
+    yy, xx = np.mgrid[:H, :W]
+    masks = {"c0": np.zeros((H, W), bool), "c1": (yy - 20) ** 2 + (xx - 25) ** 2 < 64}
+    fields = SilhouetteFields(cams, masks, margin_px=5)
+    assert fields.offset["c0"] == (0, 0) and fields.sdf["c0"].shape == (H, W)
+    assert fields.sdf["c0"].dtype == np.float32 and fields.sdf["c0"].min() > 0
+    assert fields.sdf["c1"].dtype == np.float32 and fields.sdf["c1"].min() < -5.0
