@@ -40,11 +40,19 @@ if missing:
 
 
 def body(fn):
-    m = re.search(rf"^def {re.escape(fn)}\(.*?(?=^\S)", src, re.S | re.M)
-    return m.group(0).splitlines()
+    """The lines of mutmut's function (or method: indented in its class) ``fn``, up to the next line as shallow."""
+    m = re.search(rf"^( *)def {re.escape(fn)}\(", src, re.M)
+    lines = src[m.start():].splitlines()
+    indent = len(m.group(1))
+    out = [lines[0]]
+    for ln in lines[1:]:
+        if ln.strip() and len(ln) - len(ln.lstrip()) <= indent and not ln.lstrip().startswith(")"):
+            break
+        out.append(ln)
+    return out
 
 
-KILLED = {1, -6, -7, -8, 134, 135, 136}  # a failing test, or SIGABRT / SIGBUS / SIGFPE
+KILLED = {1, -6, -7, -8, -11, 134, 135, 136, 139}  # a failing test, or SIGABRT / SIGBUS / SIGFPE / SIGSEGV
 counts: dict[str, int] = {}
 survivors = []
 for n in names:
@@ -52,12 +60,14 @@ for n in names:
     status = "killed" if c in KILLED else ("survived" if c == 0 else "not checked" if c is None else f"exit {c}")
     counts[status] = counts.get(status, 0) + 1
     if status != "killed":
-        short = n.rsplit(".", 1)[1]
+        short = n.split(".x", 1)[1]
+        short = "x" + short
         orig = short.rsplit("__mutmut", 1)[0] + "__mutmut_orig"
         diff = [ln for ln in difflib.unified_diff(body(orig), body(short), lineterm="", n=0)
                 if ln[:1] in "+-" and not ln.startswith(("---", "+++")) and " def " not in f" {ln[1:4]} "
                 and not re.match(r"[+-]def x", ln)]
-        survivors.append({"mutant": short[2:] if short.startswith("x_") else short, "status": status, "diff": diff})
+        shown = short[2:] if short.startswith("x_") else short[1:].strip("\u01c1").replace("\u01c1", ".")
+        survivors.append({"mutant": shown, "status": status, "diff": diff})
 killed = counts.get("killed", 0)
 results = json.loads(mutate.RESULTS.read_text())
 history = results.get(args.key, {}).get("history", [])

@@ -63,3 +63,18 @@ def test_window_is_exact_reads_the_mask_box_in_the_boxs_frame():
     assert not _window_is_exact((20, 100, 20, 99), box, sil, np.array([[60.0, 60.0]]), np.array([32.5]))
     assert _window_is_exact((20, 99, 20, 100), box, sil, np.array([[60.0, 60.0]]), np.array([32.0]))
     assert not _window_is_exact((20, 99, 20, 100), box, sil, np.array([[60.0, 60.0]]), np.array([32.5]))
+
+
+def test_mask_box_of_edge_cases():
+    """A mask in the first row only, a one-pixel mask, a non-2-D or empty mask (None)."""
+    from bodystudio.mirror.refine import mask_box
+
+    m = np.zeros((5, 6), bool)
+    m[0, 2:4] = True
+    assert mask_box(m, 0) == (0, 1, 2, 4)
+    assert mask_box(m, 1) == (0, 2, 1, 5)
+    assert mask_box(np.ones((1, 1), bool), 0) == (0, 1, 0, 1)
+    assert mask_box(np.ones(5, bool), 3) is None
+    assert mask_box(np.ones((2, 3, 4), bool), 3) is None
+    assert mask_box(np.zeros((0, 4), bool), 3) is None
+    assert mask_box(np.zeros((4, 4), bool), 3) is None

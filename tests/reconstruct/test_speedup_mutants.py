@@ -139,7 +139,8 @@ def test_min_decrease_zero_runs_every_iteration_even_when_the_energy_rises(body_
 
 
 @pytest.mark.parametrize("name,value", [("min_decrease", -0.01), ("min_decrease", 1.5),
-                                        ("outer_iterations", -1), ("outer_iterations", 101)])
+                                        ("outer_iterations", -1), ("outer_iterations", 101),
+                                        ("iterations", 0), ("iterations", 101)])
 def test_track_params_new_settings_out_of_range(name, value):
     from bodystudio.reconstruct.tracking import TrackParams
 
@@ -151,7 +152,7 @@ def test_track_params_new_settings_bounds_accepted():
     from bodystudio.reconstruct.tracking import TrackParams
 
     for name, value in (("min_decrease", 0.0), ("min_decrease", 1.0), ("outer_iterations", 0),
-                        ("outer_iterations", 100)):
+                        ("outer_iterations", 100), ("iterations", 1), ("iterations", 100)):
         assert getattr(TrackParams(**{name: value}), name) == value
     p = TrackParams()
     assert (p.min_decrease, p.outer_iterations, p.warm_mesh) == (0.01, 3, False)
@@ -168,7 +169,7 @@ def test_track_bone_transforms_passes_min_decrease_to_the_fit(monkeypatch):
 
     monkeypatch.setattr(tracking, "refine_bone_transforms", fake_refine)
     monkeypatch.setattr(tracking, "silhouette_data_term", lambda fields, params: None)
-    params = tracking.TrackParams(min_decrease=0.07, iterations=5)
+    params = tracking.TrackParams(min_decrease=0.07, iterations=5, robust_m=0.0123, prior_weight=0.321)
     tracking.track_bone_transforms(None, np.eye(4)[None], None, params)
     r = seen["refine"]
     assert (r.min_decrease, r.iterations, r.prior_weight, r.robust_m) == (0.07, 5, params.prior_weight,
