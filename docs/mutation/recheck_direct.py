@@ -105,13 +105,15 @@ def cases(fn):
 
 def fixture(name):
     """A fixture's value, built once: the ones above, else a ``@pytest.fixture`` of the test module (e.g. ``case``
-    of test_pose_refine_analytic.py) or of its folder's conftest.py (called with its own fixtures; yield fixtures
-    are not supported)."""
+    of test_pose_refine_analytic.py) or of its folder's conftest.py or tests/conftest.py (called with its own
+    fixtures; yield fixtures are not supported)."""
     if name not in fixture_values:
         defn = getattr(mod, name, None)
         if defn is None:
             conftest = importlib.import_module(test_rel.rsplit("/", 1)[0].replace("/", ".") + ".conftest")
-            defn = getattr(conftest, name)
+            defn = getattr(conftest, name, None)
+            if defn is None:  # a session fixture of tests/conftest.py (e.g. body_2k)
+                defn = getattr(importlib.import_module("tests.conftest"), name)
         fn = defn._get_wrapped_function() if hasattr(defn, "_get_wrapped_function") else defn
         fixture_values[name] = fn(**{a: fixture(a) for a in inspect.signature(fn).parameters})
     return fixture_values[name]
