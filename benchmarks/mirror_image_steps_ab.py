@@ -41,6 +41,21 @@ def _cpu_ms(fn) -> float:
     return (time.process_time() - c) * 1e3
 
 
+def alternate_cpu_ms(steps: dict, rounds: int, digits: int = 2) -> dict:
+    """``{name: (other ms, this ms)}``: each step's two calls ``(other, this)`` run once to warm up, then called
+    alternately ``rounds`` times; the median process CPU ms of each, rounded to ``digits``."""
+    out = {}
+    for name, (a, b) in steps.items():
+        a()
+        b()
+        ta, tb = [], []
+        for _ in range(rounds):
+            ta.append(_cpu_ms(a))
+            tb.append(_cpu_ms(b))
+        out[name] = (round(float(np.median(ta)), digits), round(float(np.median(tb)), digits))
+    return out
+
+
 def actor_labels(case) -> np.ndarray | None:
     """The player of each pixel of a bench frame's player mask (each actor's side of the frame), as the run passes
     the graph cut when it reshapes several players; None for one actor."""
@@ -97,15 +112,7 @@ def _steps(case, ow, of, oc, rounds: int) -> dict:
                          lambda: W.warp_foreground(case.rgb, fg_t, f_t)),
         "compose": (lambda: oc.compose(wo, ao, bg, case.rgb, fg_o), lambda: C.compose(wt, at, bg, case.rgb, fg_t)),
     }
-    out = {}
-    for name, (a, b) in steps.items():
-        a()
-        b()
-        ta, tb = [], []
-        for _ in range(rounds):
-            ta.append(_cpu_ms(a))
-            tb.append(_cpu_ms(b))
-        out[name] = (round(float(np.median(ta)), 2), round(float(np.median(tb)), 2))
+    out = alternate_cpu_ms(steps, rounds)
     out["sum"] = (round(sum(v[0] for v in out.values()), 2), round(sum(v[1] for v in out.values()), 2))
     return out
 

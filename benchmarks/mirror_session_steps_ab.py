@@ -23,10 +23,11 @@ os.environ["NUMBA_CACHE_DIR"] = tempfile.mkdtemp(prefix="mirror_ab_numba_")  # b
 import importlib.util  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+
+from benchmarks.mirror_image_steps_ab import alternate_cpu_ms  # noqa: E402
 
 _MODULES = ("frames", "track", "refine", "reshape")  # in import order: each may import the ones before it
 
@@ -51,12 +52,6 @@ def _load_tree(root: Path) -> dict:
             else:
                 sys.modules[f"bodystudio.mirror.{n}"] = m
     return out
-
-
-def _cpu_ms(fn) -> float:
-    c = time.process_time()
-    fn()
-    return (time.process_time() - c) * 1e3
 
 
 def _session(folder: Path):
@@ -130,16 +125,7 @@ def compare(other_tree: str | Path, rounds: int = 21, folder: str | Path | None 
     with tempfile.TemporaryDirectory() as tmp, one_core():
         session = _session(Path(folder) if folder else Path(tmp) / "s")
         so, st = _steps(other, session, model, {}), _steps(this, session, model, {})
-        out = {}
-        for name in so:
-            a, b = so[name], st[name]
-            a()
-            b()
-            ta, tb = [], []
-            for _ in range(rounds):
-                ta.append(_cpu_ms(a))
-                tb.append(_cpu_ms(b))
-            out[name] = (round(float(np.median(ta)), 3), round(float(np.median(tb)), 3))
+        out = alternate_cpu_ms({name: (so[name], st[name]) for name in so}, rounds, digits=3)
     out["two actors"] = (round(sum(v[0] for v in out.values()), 2), round(sum(v[1] for v in out.values()), 2))
     return out
 
