@@ -194,6 +194,7 @@ def main(argv=None) -> int:
     rows = []
     with tempfile.TemporaryDirectory(prefix="planted_") as tmp:
         work = Path(tmp)
+        commit = git_commit()  # the tree copied now is the one replayed (commits landing meanwhile are not)
         scratch_copy(ROOT, work)
         for bug in bugs:  # check every anchor before spending minutes on the first bug
             plant(work / bug.module, bug.old, bug.old)
@@ -201,7 +202,7 @@ def main(argv=None) -> int:
             row = run_bug(bug, work, args.timeout)
             print(f"{row['id']:28s} {row['result']:14s} {row['seconds']:5d} s  {row['first_failure']}", flush=True)
             rows.append(row)
-    args.out.write_text(render(rows, git_commit()))
+    args.out.write_text(render(rows, commit))
     print(f"wrote {args.out}")
     return 0 if all(r["result"] == "caught" for r in rows) else 1
 
