@@ -574,6 +574,18 @@ def test_session_arm_choice():
     assert cap_mod.session_arm_choice(_fake_session(gt={"arm": None})[0], side="right") == ("6k", "right")
 
 
+def stub_capture_checks(monkeypatch) -> list:
+    """trust4's self-checks of ``capture_session_arm`` stood in (these tests check the wiring around them: the checks
+    have their own tests): each call recorded as ``(name, args, kwargs)``; before returns "BEFORE", after "AFTER"."""
+    import bodystudio.muscle.plausibility as plausibility
+
+    calls = []
+    monkeypatch.setattr(plausibility, "check_before_capture",
+                        lambda *a, **k: calls.append(("before", a, k)) or "BEFORE")
+    monkeypatch.setattr(plausibility, "check_after_capture", lambda *a, **k: calls.append(("after", a, k)) or "AFTER")
+    return calls
+
+
 def test_capture_session_arm_opens_session_template_and_model(monkeypatch, tiny_arm_model_path):
     import bodystudio.capture.session as session_mod
 
@@ -581,14 +593,20 @@ def test_capture_session_arm_opens_session_template_and_model(monkeypatch, tiny_
     opened = []
     monkeypatch.setattr(session_mod, "open_session", lambda p: opened.append(p) or session)
     seen = {}
+    checks = stub_capture_checks(monkeypatch)
 
     def fake_sequence(s, model, template, options, frames=None, known_shape=None):
         seen.update(session=s, model=model, template=template, options=options, frames=frames, known=known_shape)
-        return "CAPTURE"
+        return SimpleNamespace(name="CAPTURE")
 
     monkeypatch.setattr(cap_mod, "capture_arm_sequence", fake_sequence)
     out = cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", frames=2, known_shape="K")
-    assert out == "CAPTURE" and opened == ["S"] and seen["session"] is session
+    assert out.name == "CAPTURE" and opened == ["S"] and seen["session"] is session
+    # the checks before and after the capture, the verdict kept on it
+    assert [c[0] for c in checks] == ["before", "after"] and out.plausibility == "AFTER"
+    assert checks[0][1] == (session, session.frame_ids[:2], "left", False)  # the side the session says
+    assert checks[1][1][0] is out and checks[1][1][1] is session and checks[1][1][4] == "BEFORE"
+    assert checks[1][2] == {"shape_given": True}
     assert seen["options"] == CaptureOptions(mode="model") and seen["frames"] == slice(0, 2) and seen["known"] == "K"
     assert seen["template"].resolution == "2k" and seen["template"].side == "left"
     assert seen["model"].template_key == seen["template"].key
@@ -621,7 +639,8 @@ def test_capture_session_arm_accepts_each_template_and_passes_it_on(monkeypatch)
     monkeypatch.setattr(model_mod, "load_arm_model", lambda path, template: loaded.append((path, template)) or "M")
     monkeypatch.setattr(cap_mod, "capture_arm_sequence",
                         lambda s, model, template, options, frames=None, known_shape=None: seen.update(
-                            model=model, template=template))
+                            model=model, template=template) or SimpleNamespace())
+    stub_capture_checks(monkeypatch)
     for res in ("6k", "2k", "full"):
         for side in ("left", "right"):
             cap_mod.capture_session_arm("S", "m.npz", mode="nicp", resolution=res, side=side)

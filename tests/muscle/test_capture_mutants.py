@@ -20,6 +20,7 @@ from bodystudio.muscle.nicp import NicpOptions, apply_similarity
 from tests.muscle.test_capture import _two_plates
 from tests.muscle.test_capture_analytic import (
     Spies,  # records each wrapped call  # the scene of test_capture.py's visibility tests
+    stub_capture_checks,  # trust4's self-checks stood in
 )
 
 FAST = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1, sequence_max_nfev=3,
@@ -142,7 +143,9 @@ def test_the_capture_for_extension_sets_the_extension_options_and_needs_the_sequ
     monkeypatch.setattr(session_mod, "open_session", lambda p: session)
     seen = {}
     monkeypatch.setattr(cap_mod, "capture_arm_sequence",
-                        lambda s, model, template, options, frames=None, known_shape=None: seen.update(o=options))
+                        lambda s, model, template, options, frames=None, known_shape=None: seen.update(o=options)
+                        or SimpleNamespace())
+    stub_capture_checks(monkeypatch)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", for_extension=True)
     assert seen["o"] == CaptureOptions(mode="model", sequence_fit_skeleton=True, sequence_fit_root=True,
                                        sequence_depth_huber_only=True)
