@@ -12,6 +12,7 @@ import pytest
 from bodystudio.errors import InputError
 from bodystudio.geometry.camera import Camera
 from bodystudio.mirror import warp as Wp
+from tests.mirror.test_warp_dense_analytic import _plate as dense_plate
 
 
 def _cam(width=320, height=200):
@@ -20,15 +21,8 @@ def _cam(width=320, height=200):
 
 
 def _plate(half=0.2, n=9, z=2.0, x=0.0, flip=False):
-    u = np.linspace(-half, half, n)
-    X, Y = np.meshgrid(u + x, u)
-    V = np.c_[X.ravel(), Y.ravel(), np.full(n * n, z)]
-    F = []
-    for r in range(n - 1):
-        for c in range(n - 1):
-            a = r * n + c
-            F += [[a, a + n, a + 1], [a + 1, a + n, a + n + 1]]
-    F = np.array(F)
+    """test_warp_dense_analytic's plate (``n`` x ``n`` vertices at depth ``z``), its winding reversed with ``flip``."""
+    V, F = dense_plate(half, n, z, x)
     return V, (F[:, ::-1] if flip else F)
 
 
