@@ -19,7 +19,7 @@ rotations and the root translation, on its own skeleton (Eq. 3 of the target's r
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -98,6 +98,7 @@ class _IKPlan:
     segments: tuple[_Segment, ...]
     order: tuple[int, ...]  # drivers and their ancestors, parents first
     driver_segment: dict
+    flat: tuple = ()  # the same plan as flat arrays for :func:`_ik_kernel` (:func:`_flat_plan`)
 
 
 @lru_cache(maxsize=16)
@@ -136,8 +137,35 @@ def _plan(skeleton: Skeleton, version: str) -> _IKPlan:
             tlist.append(_Target(index[name], w, tuple(terms)))
         segments.append(_Segment(d, tuple(tlist), tuple(sorted(chain))))  # bone order is topological
     visit = sorted({a for s in segments for a in ancestors(s.driver)})
-    return _IKPlan(skeleton.rest_rotations, np.asarray(skeleton.heads, float), np.asarray(skeleton.tails, float),
+    plan = _IKPlan(skeleton.rest_rotations, np.asarray(skeleton.heads, float), np.asarray(skeleton.tails, float),
                    parents, tuple(segments), tuple(visit), {s.driver: s for s in segments})
+    return replace(plan, flat=_flat_plan(plan))
+
+
+def _flat_plan(plan: _IKPlan) -> tuple:
+    """The plan's segments as flat arrays (CSR-style offsets) for :func:`_ik_kernel`: the segment of each bone (-1:
+    none), each segment's chain, targets (Kinect joint, weight) and each target's terms (bone, is_tail, weight)."""
+    B = len(plan.parents)
+    seg_of = np.full(B, -1, np.int64)
+    chain_ptr, chain, target_ptr, t_joint, t_weight, term_ptr, terms, term_w = [0], [], [0], [], [], [0], [], []
+    for k, seg in enumerate(plan.segments):
+        seg_of[seg.driver] = k
+        chain += seg.chain
+        chain_ptr.append(len(chain))
+        for t in seg.targets:
+            t_joint.append(t.joint)
+            t_weight.append(t.weight)
+            for b, is_tail, tw in t.terms:
+                terms.append((b, int(is_tail)))
+                term_w.append(tw)
+            term_ptr.append(len(terms))
+        target_ptr.append(len(t_joint))
+    i64 = np.int64
+    return (np.ascontiguousarray(plan.rest_rotations, np.float64), np.ascontiguousarray(plan.heads, np.float64),
+            np.ascontiguousarray(plan.tails, np.float64), np.asarray(plan.parents, i64), np.asarray(plan.order, i64),
+            seg_of, np.asarray(chain_ptr, i64), np.asarray(chain, i64).reshape(-1), np.asarray(target_ptr, i64),
+            np.asarray(t_joint, i64), np.asarray(t_weight, np.float64), np.asarray(term_ptr, i64),
+            np.asarray(terms, i64).reshape(-1, 2), np.asarray(term_w, np.float64))
 
 
 def check_kinect_joints(kinect_positions, tracked, version: str) -> tuple[np.ndarray, np.ndarray]:
@@ -162,9 +190,12 @@ def _procrustes(U: np.ndarray, V: np.ndarray, w: np.ndarray) -> np.ndarray | Non
     return Us @ D @ Vt
 
 
-def ik_pose(skeleton: Skeleton, kinect_positions, tracked=None, version: str = "v2",
-            previous: Pose | None = None) -> Pose:
-    """Pose of ``skeleton`` whose joints fit the Kinect joints: the IK solve of §5.2 (root, then down the chains).
+def ik_pose_numpy(skeleton: Skeleton, kinect_positions, tracked=None, version: str = "v2",
+                  previous: Pose | None = None) -> Pose:
+    """:func:`ik_pose` as numpy computed it bone by bone before MIR12f (~0.9 ms a frame, ~40 % of it the Python of
+    the 3x3 algebra): the reference the numba kernel is pinned to (tests/mirror/test_session_speed_pins.py).
+
+    Pose of ``skeleton`` whose joints fit the Kinect joints: the IK solve of §5.2 (root, then down the chains).
 
     ``kinect_positions`` (J, 3) metres in the studio frame with NaN where the SDK gave nothing;
     ``tracked`` (J,) False for inferred joints (they count with :data:`INFERRED_WEIGHT`). ``previous``
@@ -237,6 +268,239 @@ def ik_pose(skeleton: Skeleton, kinect_positions, tracked=None, version: str = "
         local = np.transpose(Rr[idx], (0, 2, 1)) @ L[idx] @ Rr[idx]
         rotvecs[idx] = Rotation.from_matrix(local).as_rotvec()
     return Pose(rotvecs, translation)
+
+
+#: :func:`_ik_kernel`'s failures, raised by :func:`ik_pose` as the numpy path raised them.
+_IK_ERRORS = {1: "no tracked pelvis joints in this frame: the body cannot be tracked",
+              2: "fewer than two tracked pelvis/spine joints in this frame: the body cannot be tracked"}
+
+
+def ik_pose(skeleton: Skeleton, kinect_positions, tracked=None, version: str = "v2",
+            previous: Pose | None = None) -> Pose:
+    """Pose of ``skeleton`` whose joints fit the Kinect joints: the IK solve of §5.2 (root, then down the chains).
+
+    ``kinect_positions`` (J, 3) metres in the studio frame with NaN where the SDK gave nothing;
+    ``tracked`` (J,) False for inferred joints (they count with :data:`INFERRED_WEIGHT`). ``previous``
+    warm-starts every bone (the last frame's pose); without it the solve starts from the rest pose. A
+    body with fewer than two usable pelvis/spine joints raises InputError (the frame cannot be tracked).
+
+    One numba pass (:func:`_ik_kernel`, MIR12f): the operations of :func:`ik_pose_numpy` in its order, the
+    rotation-vector conversions scipy's formulas; the same pose to ~1e-13 (0.9 -> ~0.05 ms a frame).
+    """
+    K, tracked = check_kinect_joints(kinect_positions, tracked, version)
+    plan = _plan(skeleton, version)
+    B = len(plan.parents)
+    if previous is None:
+        rotvecs = np.zeros((B, 3))
+        translation = np.zeros(3)
+    else:
+        if previous.rotations.shape != (B, 3):
+            raise InputError(f"previous pose has {len(previous.rotations)} bones, the skeleton {B}")
+        rotvecs = np.array(previous.rotations, dtype=np.float64)
+        translation = np.array(previous.translation, dtype=np.float64)
+    status = _ik_kernel(np.ascontiguousarray(K), np.ascontiguousarray(tracked), INFERRED_WEIGHT, _DEGENERATE_RATIO,
+                        rotvecs, translation, *plan.flat)
+    if status:
+        raise InputError(_IK_ERRORS[status])
+    return Pose(rotvecs, translation)
+
+
+@njit(cache=True)
+def _rotvec_matrix(rx, ry, rz, out):
+    """``Rotation.from_rotvec(r).as_matrix()`` (scipy's quaternion formulas) into ``out`` (3, 3)."""
+    angle = np.sqrt(rx * rx + ry * ry + rz * rz)
+    if angle <= 1e-3:
+        a2 = angle * angle
+        scale = 0.5 - a2 / 48 + a2 * a2 / 3840
+    else:
+        scale = np.sin(angle / 2) / angle
+    x, y, z, w = rx * scale, ry * scale, rz * scale, np.cos(angle / 2)
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    out[0, 0] = x2 - y2 - z2 + w2
+    out[0, 1] = 2 * (xy - zw)
+    out[0, 2] = 2 * (xz + yw)
+    out[1, 0] = 2 * (xy + zw)
+    out[1, 1] = -x2 + y2 - z2 + w2
+    out[1, 2] = 2 * (yz - xw)
+    out[2, 0] = 2 * (xz - yw)
+    out[2, 1] = 2 * (yz + xw)
+    out[2, 2] = -x2 - y2 + z2 + w2
+
+
+@njit(cache=True)
+def _matrix_rotvec(m, out):
+    """``Rotation.from_matrix(m).as_rotvec()`` of a rotation matrix (scipy's: the largest of the diagonal and the
+    trace picks the quaternion's formula, normalised, w >= 0, then the rotation vector) into ``out`` (3,)."""
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    choice = 0
+    best = m[0, 0]
+    for k, v in ((1, m[1, 1]), (2, m[2, 2]), (3, trace)):
+        if v > best:
+            best = v
+            choice = k
+    if choice == 0:
+        q = (1 - trace + 2 * m[0, 0], m[1, 0] + m[0, 1], m[2, 0] + m[0, 2], m[2, 1] - m[1, 2])
+    elif choice == 1:
+        q = (m[1, 0] + m[0, 1], 1 - trace + 2 * m[1, 1], m[2, 1] + m[1, 2], m[0, 2] - m[2, 0])
+    elif choice == 2:
+        q = (m[2, 0] + m[0, 2], m[2, 1] + m[1, 2], 1 - trace + 2 * m[2, 2], m[1, 0] - m[0, 1])
+    else:
+        q = (m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1], 1 + trace)
+    norm = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    x, y, z, w = q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm
+    if w < 0 or (w == 0 and (x < 0 or (x == 0 and (y < 0 or (y == 0 and z < 0))))):
+        x, y, z, w = -x, -y, -z, -w
+    angle = 2 * np.arctan2(np.sqrt(x * x + y * y + z * z), w)
+    if angle <= 1e-3:
+        a2 = angle * angle
+        scale = 2 + a2 / 12 + 7 * a2 * a2 / 2880
+    else:
+        scale = angle / np.sin(angle / 2.0)
+    out[0] = scale * x
+    out[1] = scale * y
+    out[2] = scale * z
+
+
+@njit(cache=True)
+def _procrustes_kernel(U, V, w, n, ratio, R):
+    """:func:`_procrustes` of the first ``n`` rows into ``R``; False where it returns None."""
+    H = np.zeros((3, 3))
+    for k in range(n):
+        for a in range(3):
+            for b in range(3):
+                H[a, b] += V[k, a] * w[k] * U[k, b]
+    Us, S, Vt = np.linalg.svd(H)
+    if S[0] <= 0 or S[1] < ratio * S[0]:
+        return False
+    d = np.sign(np.linalg.det(Us @ Vt))
+    if d == 0:
+        d = 1.0
+    Us[:, 2] *= d
+    R[:, :] = Us @ Vt
+    return True
+
+
+@njit(cache=True)
+def _rotation_between_kernel(u0, u1, u2, v0, v1, v2, R):
+    """:func:`bodystudio.body.ik.rotation_between` of unit vectors ``u``, ``v`` into ``R``."""
+    c = u0 * v0 + u1 * v1 + u2 * v2
+    if c < -1.0 + 1e-9:
+        if abs(u0) < 0.9:  # u x (1, 0, 0)
+            a0, a1, a2 = 0.0, u2, -u1
+        else:  # u x (0, 1, 0)
+            a0, a1, a2 = -u2, 0.0, u0
+        na = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        axis = np.array([a0 / na, a1 / na, a2 / na])
+        R[:, :] = 2.0 * np.outer(axis, axis) - np.eye(3)
+        return
+    w0, w1, w2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+    Km = np.array([[0.0, -w2, w1], [w2, 0.0, -w0], [-w1, w0, 0.0]])
+    R[:, :] = np.eye(3) + Km + Km @ Km / (1.0 + c)
+
+
+@njit(cache=True)
+def _ik_kernel(K, tracked, inferred_weight, ratio, rotvecs, translation, Rr, H, T, P, order, seg_of, chain_ptr,
+               chain, target_ptr, t_joint, t_weight, term_ptr, terms, term_w):
+    """:func:`ik_pose_numpy`'s solve on the flat plan (:func:`_flat_plan`), ``rotvecs`` and ``translation`` (the
+    warm start) updated in place; returns 0, or the code of an :data:`_IK_ERRORS` failure."""
+    B = P.shape[0]
+    J = K.shape[0]
+    joint_w = np.zeros(J)
+    for i in range(J):
+        if np.isfinite(K[i, 0]) and np.isfinite(K[i, 1]) and np.isfinite(K[i, 2]):
+            joint_w[i] = 1.0 if tracked[i] else inferred_weight
+    L = np.empty((B, 3, 3))
+    local = np.empty((3, 3))
+    for b in range(B):
+        _rotvec_matrix(rotvecs[b, 0], rotvecs[b, 1], rotvecs[b, 2], local)
+        L[b] = Rr[b] @ local @ Rr[b].T
+    W = np.empty((B, 3, 3))
+    ph = np.empty((B, 3))
+    Wc = np.empty((B, 3, 3))
+    pc = np.empty((B, 3))
+    changed = np.zeros(B, np.bool_)
+    n_targets = t_joint.shape[0]
+    current = np.empty((n_targets, 3))
+    observed = np.empty((n_targets, 3))
+    w = np.empty(n_targets)
+    R = np.empty((3, 3))
+    for j in order:
+        p = P[j]
+        if p < 0:
+            W[j] = L[j]
+            ph[j] = H[j] + translation
+        else:
+            W[j] = W[p] @ L[j]
+            ph[j] = W[p] @ (H[j] - H[p]) + ph[p]
+        s = seg_of[j]
+        if s < 0:
+            continue
+        # the segment's usable targets, posed with the driver at (W[j], ph[j]) and the rest warm-started
+        Wc[j] = W[j]
+        pc[j] = ph[j]
+        for c in chain[chain_ptr[s]:chain_ptr[s + 1]]:
+            q = P[c]
+            Wc[c] = Wc[q] @ L[c]
+            pc[c] = Wc[q] @ (H[c] - H[q]) + pc[q]
+        n = 0
+        for t in range(target_ptr[s], target_ptr[s + 1]):
+            jw = joint_w[t_joint[t]]
+            if jw <= 0:
+                continue
+            acc = np.zeros(3)
+            for e in range(term_ptr[t], term_ptr[t + 1]):
+                b = terms[e, 0]
+                if terms[e, 1]:
+                    acc += term_w[e] * (pc[b] + Wc[b] @ (T[b] - H[b]))
+                else:
+                    acc += term_w[e] * pc[b]
+            current[n] = acc
+            observed[n] = K[t_joint[t]]
+            w[n] = t_weight[t] * jw
+            n += 1
+        if n == 0:
+            if p < 0:
+                return 1
+            continue
+        if p < 0:
+            if n < 2:
+                return 2
+            wsum = 0.0
+            mc = np.zeros(3)
+            mo = np.zeros(3)
+            for k in range(n):
+                mc += w[k] * current[k]
+                mo += w[k] * observed[k]
+                wsum += w[k]
+            mc /= wsum
+            mo /= wsum
+            if not (n >= 3 and _procrustes_kernel(current[:n] - mc, observed[:n] - mo, w, n, ratio, R)):
+                R[:, :] = np.eye(3)
+            W[j] = R @ W[j]
+            ph[j] = R @ (ph[j] - mc) + mo
+            translation[:] = ph[j] - H[j]
+        else:
+            U = current[:n] - ph[j]
+            V = observed[:n] - ph[j]
+            if not (n >= 2 and _procrustes_kernel(U, V, w, n, ratio, R)):
+                u = np.zeros(3)
+                v = np.zeros(3)
+                for k in range(n):
+                    u += w[k] * U[k]
+                    v += w[k] * V[k]
+                nu = np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+                nv = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+                if nu < 1e-9 or nv < 1e-9:
+                    continue
+                _rotation_between_kernel(u[0] / nu, u[1] / nu, u[2] / nu, v[0] / nv, v[1] / nv, v[2] / nv, R)
+            W[j] = R @ W[j]
+        L[j] = W[j] if p < 0 else W[p].T @ W[j]
+        changed[j] = True
+    for j in range(B):
+        if changed[j]:
+            _matrix_rotvec(Rr[j].T @ L[j] @ Rr[j], rotvecs[j])
+    return 0
 
 
 def _segment_joints(d, W_d, ph_d, seg: _Segment, targets, L, H, T, P) -> np.ndarray:
