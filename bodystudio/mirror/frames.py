@@ -153,11 +153,26 @@ def _register(depth, player, rays, T, K, dist, width, height, footprint, zbuf, p
             c1 = min(int(np.floor(u + half)), width - 1)
             r0 = max(int(np.ceil(v - half)), 0)
             r1 = min(int(np.floor(v + half)), height - 1)
+            pl = player[r, c]
+            if c1 - c0 < 3 and r1 - r0 < 3 and c0 + 2 < width and r0 + 2 < height:
+                # the usual footprint (2-3 pixels a side): a fixed 3x3 block whose z-tests are selects, the pixels
+                # past the footprint written back unchanged; the loops of the footprint's 2 or 3 pixels and the
+                # z-tests mispredicted (MIR12f: 3.3 -> 2.4 ms a v1 frame, the same depth and ids bit for bit)
+                for dr in range(3):
+                    rr = r0 + dr
+                    okr = rr <= r1
+                    for dc in range(3):
+                        cc = c0 + dc
+                        old = zbuf[rr, cc]
+                        take = okr and cc <= c1 and zc < old
+                        zbuf[rr, cc] = zc if take else old
+                        pbuf[rr, cc] = pl if take else pbuf[rr, cc]
+                continue
             for rr in range(r0, r1 + 1):
                 for cc in range(c0, c1 + 1):
                     if zc < zbuf[rr, cc]:
                         zbuf[rr, cc] = zc
-                        pbuf[rr, cc] = player[r, c]
+                        pbuf[rr, cc] = pl
     for rr in range(height):  # colour pixels no depth pixel reached: 0 (was a numpy isfinite pass, MIR12e)
         for cc in range(width):
             if zbuf[rr, cc] == np.inf:

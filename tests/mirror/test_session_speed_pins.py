@@ -198,14 +198,17 @@ def _register_reference(depth, player, rays, T, K, dist, width, height, footprin
     return zbuf, pbuf
 
 
-def test_registration_is_bit_for_bit_the_one_before_mir12e():
-    """register_depth_to_color with the unreached pixels zeroed in its numba pass (MIR12e) against the splat and
-    numpy's isfinite pass it had before."""
+@pytest.mark.parametrize("color_fx", [525.0, 1100.0])
+def test_registration_is_bit_for_bit_the_one_before_mir12e(color_fx):
+    """register_depth_to_color with the unreached pixels zeroed in its numba pass (MIR12e) and the usual footprint
+    splatted as a fixed 3x3 block of selects (MIR12f) against the splat and numpy's isfinite pass it had before:
+    a Kinect v1's footprint (2-3 colour pixels a side, the block) and a colour camera of twice the focal length
+    (3-5 pixels: the general loop), depth pixels at the colour image's border included."""
     from bodystudio.geometry.camera import Camera, RGBDSensor
     from bodystudio.mirror.frames import depth_ray_table, register_depth_to_color
 
     depth_cam = Camera.look_at("d", eye=(0.0, 1.0, 3.0), target=(0.0, 1.0, 0.0), fx=285.0, width=80, height=60)
-    color = Camera.look_at("c", eye=(0.025, 1.0, 3.0), target=(0.025, 1.0, 0.0), fx=525.0, width=160, height=120,
+    color = Camera.look_at("c", eye=(0.025, 1.0, 3.0), target=(0.025, 1.0, 0.0), fx=color_fx, width=160, height=120,
                            dist=np.array([0.05, -0.01, 0.001, -0.001, 0.0]))
     T = np.eye(4)
     T[:3, :3] = color.R @ depth_cam.R.T
