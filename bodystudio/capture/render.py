@@ -82,8 +82,9 @@ def _edge(ia, xa, ya, ib, xb, yb, px, py):
 
 
 @njit(cache=True)
-def _rasterize(uv, z, F, width, height, zbuf, tri_id, bary):
-    """Z-buffer rasterisation with edge functions and perspective-correct barycentrics."""
+def _rasterize(uv, z, F, width, height, zbuf, tri_id, bary, ids=True):
+    """Z-buffer rasterisation with edge functions and perspective-correct barycentrics (``ids`` False: the z-buffer
+    only, ``tri_id`` and ``bary`` untouched)."""
     for f in range(F.shape[0]):
         i0, i1, i2 = F[f, 0], F[f, 1], F[f, 2]
         z0, z1, z2 = z[i0], z[i1], z[i2]
@@ -132,6 +133,8 @@ def _rasterize(uv, z, F, width, height, zbuf, tri_id, bary):
                 depth = 1.0 / inv_depth
                 if depth < zbuf[py, px]:  # float32 buffer: ties closer than ~1e-7 z are resolved by order
                     zbuf[py, px] = depth
+                    if not ids:
+                        continue
                     tri_id[py, px] = f
                     p0 = b0 * iz0 * depth
                     p1 = b1 * iz1 * depth
@@ -195,6 +198,20 @@ def render(V: np.ndarray, F: np.ndarray, camera: Camera) -> RenderResult:
     mask = tri_id >= 0
     depth[~mask] = 0.0
     return RenderResult(mask, depth, tri_id, bary)
+
+
+def render_silhouette_depth(V: np.ndarray, F: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`render`'s ``mask`` and ``depth`` alone (the same z-buffer bit for bit), without the triangle ids and
+    barycentrics: the mirror's source body needs only its silhouette and depth (MIR12f: ~15 % of a render)."""
+    V, F = _check_mesh(V, F)
+    uv, z = np.empty((len(V), 2)), np.empty(len(V))
+    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
+    depth = np.full((camera.height, camera.width), np.inf, dtype=np.float32)
+    _rasterize(uv, z, F, camera.width, camera.height, depth, np.empty((0, 0), np.int32),
+               np.empty((0, 0, 3), np.float32), False)
+    mask = depth < np.inf
+    depth[~mask] = 0.0
+    return mask, depth
 
 
 def render_depth(V: np.ndarray, F: np.ndarray, camera: Camera) -> np.ndarray:

@@ -702,7 +702,7 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
     mesh is closed and wound outwards (the statistical model's bodies): the z-buffers draw the camera-facing
     triangles only (:func:`front_render`, half the work); otherwise every triangle, both sides.
     """
-    from bodystudio.capture.render import render
+    from bodystudio.capture.render import render, render_silhouette_depth
 
     Vs = np.asarray(source_vertices, dtype=np.float64)
     Vt = np.asarray(target_vertices, dtype=np.float64)
@@ -732,10 +732,15 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
     # closed bodies: each z-buffer draws the triangles facing the camera (their projections, at hand, tell: the
     # crop's are an affine map of them); the target raster's triangle ids then index its front faces
     drawn = [facing_faces(uv, F) if closed else None for uv, _ in projected]
-    for V, (uv_all, z_all), front in zip((Vs, Vt), projected, drawn, strict=True):
+    for k, (V, (uv_all, z_all), front) in enumerate(zip((Vs, Vt), projected, drawn, strict=True)):
         uv, z = uv_all[ids], z_all[ids]
-        raster = render(V, F if front is None else F[front], small)
-        zbuf = raster.depth
+        # the source's raster is read for its silhouette and depth only: no triangle ids and barycentrics (MIR12f)
+        if k == 0:
+            raster = render_silhouette_depth(V, F if front is None else F[front], small)
+            zbuf = raster[1]
+        else:
+            raster = render(V, F if front is None else F[front], small)
+            zbuf = raster.depth
         col = np.clip(np.round((uv[:, 0] - x0 + 0.5) * sx - 0.5), 0, w - 1)
         row = np.clip(np.round((uv[:, 1] - y0 + 0.5) * sy - 0.5), 0, h - 1)
         ok = _finite_rows(uv) & (z > 0)
@@ -753,7 +758,7 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
         F_t = F if front is None else F[front]
         groups_t = face_groups if face_groups is None or front is None else np.asarray(face_groups)[front]
         source_uv = dense_source_uv(Vs, F_t, rasters[1], camera, projected=uv_s if np.all(z_s > 0) else None)
-        correspondence = DenseCorrespondence((x0, y0), source_uv, rasters[0].mask,
+        correspondence = DenseCorrespondence((x0, y0), source_uv, rasters[0][0],
                                              *_grid_samples(source_uv, rasters[1].triangle_id, (x0, y0), camera,
                                                             grid, groups_t))
     return WarpPairs(uvs[0][keep], uvs[1][keep], ids[keep], correspondence)

@@ -227,3 +227,37 @@ def test_finite_rows_is_isfinite_all_over_the_last_axis():
     grid = np.random.default_rng(8).normal(size=(7, 9, 2))
     grid[grid > 1.2] = np.nan
     np.testing.assert_array_equal(_finite_rows(grid), np.isfinite(grid).all(2))
+
+
+@pytest.mark.parametrize("actors", [1, 2])
+def test_source_silhouette_and_depth_alone_are_the_renders(actors, monkeypatch):
+    """warp_pairs renders the source body's silhouette and depth without triangle ids and barycentrics (MIR12f,
+    capture.render.render_silhouette_depth): the same mask and z-buffer as render's, front faces and both sides,
+    and the same pairs and dense correspondence of the bench frames bit for bit as with the full render."""
+    from bodystudio.capture import render as R
+    from bodystudio.mirror import warp as W
+    from bodystudio.mirror.run import frame_pairs
+
+    case = cached_image_case(None, 0, actors)
+    S, T = np.split(case.source_vertices, actors), np.split(case.target_vertices, actors)
+    F1 = case.faces[: len(case.faces) // actors]
+    V = np.concatenate(S)
+    F_all = np.concatenate([F1 + k * len(S[0]) for k in range(actors)])
+    for faces in (F_all, F_all[W.facing_faces(case.camera.project(V), F_all)]):
+        mask, depth = R.render_silhouette_depth(V, faces, case.camera)
+        full = R.render(V, faces, case.camera)
+        assert mask.sum() > 10000
+        np.testing.assert_array_equal(mask, full.mask)
+        np.testing.assert_array_equal(depth, full.depth)
+    got = frame_pairs(S, T, F1, case.camera)
+
+    def full_render(V, F, camera):
+        r = R.render(V, F, camera)
+        return r.mask, r.depth
+
+    monkeypatch.setattr(R, "render_silhouette_depth", full_render)
+    want = frame_pairs(S, T, F1, case.camera)
+    for name in ("src_uv", "dst_uv", "ids", "groups"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    for name in ("origin", "source_uv", "source_mask", "grid_source_uv", "grid_groups"):
+        np.testing.assert_array_equal(getattr(got.dense, name), getattr(want.dense, name))
