@@ -399,8 +399,9 @@ def _full_remap(rgb, mask, field):
 
 @pytest.mark.parametrize("actors", [1, 2])
 def test_warp_on_the_fields_box_is_the_whole_image_remap(actors):
-    """The warp remaps only the box where the field points inside and premultiplies only the mask's box: the same
-    image and alpha, bit for bit, as remapping the whole frame (dense and MLS fields, an empty field)."""
+    """The warp remaps only the box where the field points inside and premultiplies only the mask's box, colour and
+    mask as one RGBA image (MIR12f): the same image and alpha, bit for bit, as remapping the colour and the mask of
+    the whole frame apart (dense and MLS fields, an empty field, a shift, a random sub-pixel field on noise)."""
     case = cached_image_case(None, 0, actors)
     for dense in (case.dense, None):
         field = mls_warp_field(case.src_uv, case.dst_uv, kind="similarity", alpha=MLS_ALPHA, groups=case.pair_groups,
@@ -416,6 +417,14 @@ def test_warp_on_the_fields_box_is_the_whole_image_remap(actors):
     got, want = warp_foreground(case.rgb, case.true_mask, shifted), _full_remap(case.rgb, case.true_mask, shifted)
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
+    rng = np.random.default_rng(actors)
+    noise = rng.integers(0, 256, case.rgb.shape).astype(np.uint8)
+    blobs = rng.random(case.true_mask.shape) < 0.7
+    wobbly = (shifted + rng.uniform(-6.0, 6.0, shifted.shape)).astype(np.float32)
+    got, want = warp_foreground(noise, blobs, wobbly), _full_remap(noise, blobs, wobbly)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert 0.2 < np.mean((got[1] > 0) & (got[1] < 1))  # soft edges everywhere: the division by coverage ran
 
 
 def test_front_faces_render_the_same_silhouette_and_nearly_the_same_z_buffer():
