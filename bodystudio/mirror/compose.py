@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from bodystudio.errors import InputError
 
@@ -139,14 +140,27 @@ def compose(warped_rgb, warped_mask, background: BackgroundModel, rgb, fg_mask, 
     if cw:
         x, y, w, h = cx, cy, cw, ch
         roi = (slice(y, y + h), slice(x, x + w))
-        a_roi = alpha[roi]
         # alpha 1 takes the warped colour as it is, alpha 0 leaves the frame: only the soft edge is blended (the
-        # same float32 sums as blending the whole box, which two actors' box made 2 ms; MIRFAST2)
-        out[roi] = cv2.copyTo(warped_rgb[roi], (a_roi >= 1.0).view(np.uint8), out[roi])
-        er, ec = np.nonzero((a_roi > 0) & (a_roi < 1.0))
-        if len(er):
-            er, ec = er + y, ec + x
-            a = alpha[er, ec][:, None]
-            blended = warped_rgb[er, ec].astype(np.float32) * a + out[er, ec].astype(np.float32) * (1.0 - a)
-            out[er, ec] = np.clip(blended + 0.5, 0, 255).astype(np.uint8)
+        # same float32 sums as blending the whole box, which two actors' box made 2 ms; MIRFAST2), in one numba pass
+        # over the box (MIR12f: was a copy under a mask, and numpy's masks, nonzero and gathers for the edge)
+        _blend_warped(out[roi], warped_rgb[roi], alpha[roi])
     return out
+
+
+@njit(cache=True)
+def _blend_warped(out, warped, alpha):
+    """``out`` (h, w, 3) uint8, in place: ``warped`` where ``alpha >= 1``; where ``0 < alpha < 1``
+    ``clip(warped a + out (1 - a) + 0.5, 0, 255)`` truncated to uint8, in float32 as numpy computed it."""
+    h, w = alpha.shape
+    one = np.float32(1.0)
+    for r in range(h):
+        for c in range(w):
+            a = alpha[r, c]
+            if a >= one:
+                for ch in range(3):
+                    out[r, c, ch] = warped[r, c, ch]
+            elif a > 0:
+                b = one - a
+                for ch in range(3):
+                    x = np.float32(warped[r, c, ch]) * a + np.float32(out[r, c, ch]) * b + np.float32(0.5)
+                    out[r, c, ch] = np.uint8(min(max(x, np.float32(0.0)), np.float32(255.0)))
