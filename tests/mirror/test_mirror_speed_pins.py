@@ -261,3 +261,57 @@ def test_source_silhouette_and_depth_alone_are_the_renders(actors, monkeypatch):
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
     for name in ("origin", "source_uv", "source_mask", "grid_source_uv", "grid_groups"):
         np.testing.assert_array_equal(getattr(got.dense, name), getattr(want.dense, name))
+
+
+def _rim_vertices_numpy(V, faces, eye, max_cos):
+    """warp.rim_vertices as numpy computed it before MIR12f."""
+    from bodystudio.mirror.warp import _area_weighted_normals
+
+    N = _area_weighted_normals(np.ascontiguousarray(V), np.ascontiguousarray(faces, dtype=np.int64))
+    ray = V - np.asarray(eye, dtype=np.float64)
+    norm = np.linalg.norm(N, axis=1) * np.linalg.norm(ray, axis=1)
+    cos = np.einsum("ij,ij->i", N, ray) / np.maximum(norm, 1e-300)
+    return np.flatnonzero((np.abs(cos) < max_cos) & (norm > 0))
+
+
+def _body_crop_numpy(uv_list, camera, margin_px):
+    """warp._body_crop as numpy computed it before MIR12f."""
+    from bodystudio.mirror.warp import _finite_rows
+
+    pts = np.concatenate([uv[_finite_rows(uv)] for uv in uv_list])
+    if not len(pts):
+        return None
+    x0 = int(max(np.floor(pts[:, 0].min() - margin_px), 0))
+    y0 = int(max(np.floor(pts[:, 1].min() - margin_px), 0))
+    x1 = int(min(np.ceil(pts[:, 0].max() + margin_px) + 1, camera.width))
+    y1 = int(min(np.ceil(pts[:, 1].max() + margin_px) + 1, camera.height))
+    return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
+
+
+@pytest.mark.parametrize("actors", [1, 2])
+def test_rim_test_crop_bounds_and_spread_ids_in_numba_are_numpys(actors):
+    """The pairs' rim test and crop bounds in one numba pass each and the spread ids cached (MIR12f): the same ids
+    and boxes as the numpy code, on the bench frames' bodies (two rim thresholds, an unused vertex), on points with
+    NaN and inf, none finite; the cached ids are numpy's and read-only."""
+    from bodystudio.mirror import warp as W
+
+    case = cached_image_case(None, 0, actors)
+    eye = case.camera.center
+    V = np.concatenate([case.target_vertices, [[0.1, 1.0, 2.0]]])  # the last vertex is on no face
+    for max_cos in (0.3, 0.05):
+        got = W.rim_vertices(V, case.faces, eye, max_cos)
+        want = _rim_vertices_numpy(V, case.faces, eye, max_cos)
+        assert len(want) > 100
+        np.testing.assert_array_equal(got, want)
+    uv = case.camera.project(case.source_vertices)
+    rng = np.random.default_rng(6)
+    odd = uv.copy()
+    odd[rng.integers(0, len(uv), 50)] = np.nan
+    odd[rng.integers(0, len(uv), 5), 0] = np.inf
+    for uv_list in ([uv], [odd, uv + 7.0], [odd[:0]], [np.full((4, 2), np.nan)], [uv - 1e4]):
+        for margin in (10.0, 0.0):
+            assert W._body_crop(uv_list, case.camera, margin) == _body_crop_numpy(uv_list, case.camera, margin)
+    for n, k in ((len(V), 400), (30, 400), (1, 5)):
+        ids = W._spread_ids(n, k)
+        np.testing.assert_array_equal(ids, np.unique(np.linspace(0, n - 1, min(k, n)).round().astype(np.int64)))
+        assert not ids.flags.writeable
