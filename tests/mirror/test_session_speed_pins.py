@@ -267,3 +267,26 @@ def test_ik_in_numba_is_the_numpy_ik(version):
         assert str(a.value) == str(b.value)
         messages.add(str(a.value))
     assert len(messages) == 2
+
+
+def test_target_rest_chains_cached_by_content_follow_the_rig(reshaped):
+    """skin_source_and_target caches the target's rest-frame products by the rig's content (the run builds an equal
+    rig every frame, MIR12f): rigs of two targets called in turn, and an equal rig built anew, each pose their own
+    body as skin_vertices does."""
+    from bodystudio.mirror.track import _CONTENT_CHAINS
+
+    body, Vt, rig = reshaped
+    model = load_statistical_model("6k", progress=False)
+    ct = target_coeffs(model, body.coeffs, {"taller": -0.1, "heavier": -10})
+    Vt2 = model.vertices(ct)
+    rig2 = target_skeleton(body, Vt2, model, ct)
+    rig_again = target_skeleton(body, Vt, model, target_coeffs(model, body.coeffs, {"taller": 0.1, "heavier": 15}))
+    assert rig_again is not rig
+    rng = np.random.default_rng(8)
+    pose = Pose(rng.normal(0, 0.5, (body.skeleton.n_bones, 3)), rng.normal(0, 1, 3))
+    _CONTENT_CHAINS.clear()
+    for V, r in ((Vt, rig), (Vt2, rig2), (Vt, rig_again), (Vt2, rig2)):
+        _, got = posed_source_and_target(body, V, pose, r)
+        want = skin_vertices(V, body.weights, r, transfer_pose(pose, body.skeleton, r))
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-11)
+    assert len(_CONTENT_CHAINS) == 2
