@@ -79,13 +79,16 @@ def _spy_render(monkeypatch):
     import bodystudio.capture.render as R
 
     seen = []
-    real = R.render
 
-    def spy(V, F, camera, *a, **k):
-        seen.append((np.asarray(F).copy(), camera))
-        return real(V, F, camera, *a, **k)
+    def spying(real):
+        def spy(V, F, camera, *a, **k):
+            seen.append((np.asarray(F).copy(), camera))
+            return real(V, F, camera, *a, **k)
+        return spy
 
-    monkeypatch.setattr(R, "render", spy)
+    # both z-buffers: the source's silhouette and depth alone (render_silhouette_depth, MIR12f), the target's render
+    monkeypatch.setattr(R, "render", spying(R.render))
+    monkeypatch.setattr(R, "render_silhouette_depth", spying(R.render_silhouette_depth))
     return seen
 
 
