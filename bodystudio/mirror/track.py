@@ -363,6 +363,42 @@ def _matrix_rotvec(m, out):
 
 
 @njit(cache=True)
+def _mm(A, B):
+    """``A @ B`` of 3x3 matrices as loops (numba's ``@`` goes through BLAS, whose bindings took seconds to compile)."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+    return out
+
+
+@njit(cache=True)
+def _mtm(A, B):
+    """``A.T @ B`` of 3x3 matrices as loops."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[0, i] * B[0, j] + A[1, i] * B[1, j] + A[2, i] * B[2, j]
+    return out
+
+
+@njit(cache=True)
+def _mv(A, v):
+    """``A @ v`` of a 3x3 matrix and a 3-vector as loops."""
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = A[i, 0] * v[0] + A[i, 1] * v[1] + A[i, 2] * v[2]
+    return out
+
+
+@njit(cache=True)
+def _det3(M):
+    """Determinant of a 3x3 matrix."""
+    return (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+            + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
+
+
+@njit(cache=True)
 def _procrustes_kernel(U, V, w, n, ratio, R):
     """:func:`_procrustes` of the first ``n`` rows into ``R``; False where it returns None."""
     H = np.zeros((3, 3))
@@ -373,11 +409,11 @@ def _procrustes_kernel(U, V, w, n, ratio, R):
     Us, S, Vt = np.linalg.svd(H)
     if S[0] <= 0 or S[1] < ratio * S[0]:
         return False
-    d = np.sign(np.linalg.det(Us @ Vt))
+    d = np.sign(_det3(_mm(Us, Vt)))
     if d == 0:
         d = 1.0
     Us[:, 2] *= d
-    R[:, :] = Us @ Vt
+    R[:, :] = _mm(Us, Vt)
     return True
 
 
@@ -391,12 +427,18 @@ def _rotation_between_kernel(u0, u1, u2, v0, v1, v2, R):
         else:  # u x (0, 1, 0)
             a0, a1, a2 = -u2, 0.0, u0
         na = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-        axis = np.array([a0 / na, a1 / na, a2 / na])
-        R[:, :] = 2.0 * np.outer(axis, axis) - np.eye(3)
+        axis = (a0 / na, a1 / na, a2 / na)
+        for i in range(3):
+            for j in range(3):
+                R[i, j] = 2.0 * axis[i] * axis[j] - (1.0 if i == j else 0.0)
         return
     w0, w1, w2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
-    Km = np.array([[0.0, -w2, w1], [w2, 0.0, -w0], [-w1, w0, 0.0]])
-    R[:, :] = np.eye(3) + Km + Km @ Km / (1.0 + c)
+    Km = np.zeros((3, 3))
+    Km[0, 1], Km[0, 2], Km[1, 0], Km[1, 2], Km[2, 0], Km[2, 1] = -w2, w1, w2, -w0, -w1, w0
+    KK = _mm(Km, Km)
+    for i in range(3):
+        for j in range(3):
+            R[i, j] = (1.0 if i == j else 0.0) + Km[i, j] + KK[i, j] / (1.0 + c)
 
 
 @njit(cache=True)
@@ -414,7 +456,7 @@ def _ik_kernel(K, tracked, inferred_weight, ratio, rotvecs, translation, Rr, H, 
     local = np.empty((3, 3))
     for b in range(B):
         _rotvec_matrix(rotvecs[b, 0], rotvecs[b, 1], rotvecs[b, 2], local)
-        L[b] = Rr[b] @ local @ Rr[b].T
+        L[b] = _mm(_mm(Rr[b], local), Rr[b].T)
     W = np.empty((B, 3, 3))
     ph = np.empty((B, 3))
     Wc = np.empty((B, 3, 3))
@@ -431,8 +473,8 @@ def _ik_kernel(K, tracked, inferred_weight, ratio, rotvecs, translation, Rr, H, 
             W[j] = L[j]
             ph[j] = H[j] + translation
         else:
-            W[j] = W[p] @ L[j]
-            ph[j] = W[p] @ (H[j] - H[p]) + ph[p]
+            W[j] = _mm(W[p], L[j])
+            ph[j] = _mv(W[p], H[j] - H[p]) + ph[p]
         s = seg_of[j]
         if s < 0:
             continue
@@ -441,8 +483,8 @@ def _ik_kernel(K, tracked, inferred_weight, ratio, rotvecs, translation, Rr, H, 
         pc[j] = ph[j]
         for c in chain[chain_ptr[s]:chain_ptr[s + 1]]:
             q = P[c]
-            Wc[c] = Wc[q] @ L[c]
-            pc[c] = Wc[q] @ (H[c] - H[q]) + pc[q]
+            Wc[c] = _mm(Wc[q], L[c])
+            pc[c] = _mv(Wc[q], H[c] - H[q]) + pc[q]
         n = 0
         for t in range(target_ptr[s], target_ptr[s + 1]):
             jw = joint_w[t_joint[t]]
@@ -452,7 +494,7 @@ def _ik_kernel(K, tracked, inferred_weight, ratio, rotvecs, translation, Rr, H, 
             for e in range(term_ptr[t], term_ptr[t + 1]):
                 b = terms[e, 0]
                 if terms[e, 1]:
-                    acc += term_w[e] * (pc[b] + Wc[b] @ (T[b] - H[b]))
+                    acc += term_w[e] * (pc[b] + _mv(Wc[b], T[b] - H[b]))
                 else:
                     acc += term_w[e] * pc[b]
             current[n] = acc
@@ -476,9 +518,10 @@ def _ik_kernel(K, tracked, inferred_weight, ratio, rotvecs, translation, Rr, H, 
             mc /= wsum
             mo /= wsum
             if not (n >= 3 and _procrustes_kernel(current[:n] - mc, observed[:n] - mo, w, n, ratio, R)):
-                R[:, :] = np.eye(3)
-            W[j] = R @ W[j]
-            ph[j] = R @ (ph[j] - mc) + mo
+                R[:, :] = 0.0
+                R[0, 0] = R[1, 1] = R[2, 2] = 1.0
+            W[j] = _mm(R, W[j])
+            ph[j] = _mv(R, ph[j] - mc) + mo
             translation[:] = ph[j] - H[j]
         else:
             U = current[:n] - ph[j]
@@ -494,12 +537,12 @@ def _ik_kernel(K, tracked, inferred_weight, ratio, rotvecs, translation, Rr, H, 
                 if nu < 1e-9 or nv < 1e-9:
                     continue
                 _rotation_between_kernel(u[0] / nu, u[1] / nu, u[2] / nu, v[0] / nv, v[1] / nv, v[2] / nv, R)
-            W[j] = R @ W[j]
-        L[j] = W[j] if p < 0 else W[p].T @ W[j]
+            W[j] = _mm(R, W[j])
+        L[j] = W[j] if p < 0 else _mtm(W[p], W[j])
         changed[j] = True
     for j in range(B):
         if changed[j]:
-            _matrix_rotvec(Rr[j].T @ L[j] @ Rr[j], rotvecs[j])
+            _matrix_rotvec(_mm(_mtm(Rr[j], L[j]), Rr[j]), rotvecs[j])
     return 0
 
 
