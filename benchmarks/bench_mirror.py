@@ -154,6 +154,14 @@ def _session_side(quick: bool) -> tuple[list[str], float | None, float | None, f
         session = open_session(f"{tmp}/s")
         model = load_statistical_model("6k", progress=False)
         observations, _ = init.collect_observations(session)
+        # the IK's numba kernel (MIR12f) compiled before the timing: its first compile (~10 s CPU, once per install
+        # and per edit of mirror/track.py, then loaded from numba's cache in ~0.15 s) is not per-frame work, and the
+        # §4 initialisation's figure would otherwise say whether the cache was warm
+        if observations:
+            from bodystudio.mirror.track import ik_pose
+
+            o = observations[0]
+            ik_pose(model.skeleton(np.zeros(len(model.stddev))), o.joints, o.tracked, o.version)
         track = init.time_init_and_track(observations, model, view_point=session.kinect.depth.center,
                                          track_frames=30)
         last = frames.read_mirror_frame(session, session.frame_ids[-1])
