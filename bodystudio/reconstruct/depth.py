@@ -81,7 +81,7 @@ def depth_observation(depth_m: np.ndarray, camera, depth_range_m: tuple[float, f
 
 def depth_constraints(V: np.ndarray, N: np.ndarray, obs: DepthObservation, sigma_m: float = 0.02,
                       max_distance_m: float = 0.05, min_normal_dot: float = 0.5, F: np.ndarray | None = None,
-                      reach_m: float = 0.0, reach_sigma_m: float = 0.04) -> DepthConstraints:
+                      reach_m: float = 0.0, reach_sigma_m: float = 0.05) -> DepthConstraints:
     """Point-to-plane constraints of visible vertices to their projectively associated depth points.
 
     Weight ``k = exp(-d^2 / 2 sigma^2)`` of the initial point-to-point distance ``d`` (Eq. 10's scheme in 3D).
@@ -114,7 +114,8 @@ def depth_constraints(V: np.ndarray, N: np.ndarray, obs: DepthObservation, sigma
     far = np.zeros(len(ids), bool)
     if F is not None and reach_m > max_distance_m:
         far = ~near & agree & (d < reach_m)
-        far[far] = model_front_vertices(V, F, cam, z[ids[far]], px[ids[far]])
+        if far.any():
+            far[far] = model_front_vertices(V, F, cam, z[ids[far]], px[ids[far]])
     keep = near | far
     ids, q, nq, d, far = ids[keep], q[keep], nq[keep], d[keep], far[keep]
     k = np.exp(-(d * d) / (2.0 * np.where(far, reach_sigma_m, sigma_m) ** 2))
