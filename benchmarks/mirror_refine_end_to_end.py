@@ -10,9 +10,25 @@ line per run with the scores and the per-step median milliseconds (wall, so only
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import json
 import tempfile
 from pathlib import Path
+
+
+@contextlib.contextmanager
+def _trunk_off(off: bool):
+    """``refine_pose`` without E_trunk while the block runs (the run imports it from the module when it starts)."""
+    from bodystudio.mirror import refine
+
+    original = refine.refine_pose
+    if off:
+        refine.refine_pose = functools.partial(original, weights=refine.RefineWeights(trunk_rad=None))
+    try:
+        yield
+    finally:
+        refine.refine_pose = original
 
 
 def main() -> None:
@@ -23,6 +39,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--source", default=None, help="source body .npz name inside SESSION/mirror/")
+    parser.add_argument("--runs", nargs="+", default=["ik", "refine"], choices=["ik", "refine", "refine-no-trunk"],
+                        help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
+                             "(MIR12g's A/B)")
     parser.add_argument("--out", type=Path, default=None, help="folder for the run folders (default: a temporary one)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -31,13 +50,14 @@ def main() -> None:
             session = open_session(path)
             src = None if args.source is None else path / "mirror" / args.source
             body, _ = load_source(session, src)
-            for refine in (False, True):
-                run = out / f"{path.name}_{'refine' if refine else 'ik'}"
-                doc = run_mirror(session, session.metadata["edits"], None, source=src, side_by_side=False,
-                                 progress=False, run_dir=run, ramp_frames=0, refine_pose=refine)
+            for name in args.runs:
+                run = out / f"{path.name}_{name}"
+                with _trunk_off(name == "refine-no-trunk"):
+                    doc = run_mirror(session, session.metadata["edits"], None, source=src, side_by_side=False,
+                                     progress=False, run_dir=run, ramp_frames=0, refine_pose=name != "ik")
                 scores = evaluate_mirror(session, run, source=body)
                 keep = ("warp_iou", "warp_iou_unwarped", "fg_iou", "psnr_person", "ssim_person", "joint_err_mm")
-                print(json.dumps({"session": path.name, "refine_pose": refine, **{k: scores.get(k) for k in keep},
+                print(json.dumps({"session": path.name, "run": name, **{k: scores.get(k) for k in keep},
                                   "ms_per_frame": {k: round(v, 2) for k, v in doc["summary"]["ms_per_frame"].items()}}),
                       flush=True)
 
