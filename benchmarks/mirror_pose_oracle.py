@@ -25,6 +25,7 @@ source: what a depth refinement would minimise).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import time
 from pathlib import Path
 
@@ -56,6 +57,10 @@ SHAPE_ORACLE_VARIANTS: dict[str, dict] = {
     "depth x4": {"weights": RefineWeights(depth_weight=4.0)},
     "silhouette x4": {"weights": RefineWeights(sil_weight=4.0)},
     **{f"trunk {deg} deg": {"weights": RefineWeights(trunk_rad=float(np.radians(deg)))} for deg in (2, 4, 8, 16)},
+    "trunk 16 deg and the hands": {"trunk_bones": ("spine_01", "spine_02", "spine_03", "neck_01", "head",
+                                                    "clavicle_l", "clavicle_r", "hand_l", "hand_r")},
+    "trunk 16 deg without the clavicles": {"trunk_bones": ("spine_01", "spine_02", "spine_03", "neck_01", "head")},
+    "trunk 16 deg, spine only": {"trunk_bones": ("spine_01", "spine_02", "spine_03")},
     **{f"trunk {deg} deg, 2 steps": {"weights": RefineWeights(trunk_rad=float(np.radians(deg))), "iterations": 2}
        for deg in (4, 8)},
 }
@@ -397,8 +402,10 @@ def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_s
                     session.kinect.version, iterations=n_steps)
             if name == "fitted shape":
                 for vname, kwargs in (fitted_variants or {}).items():
-                    poses[vname] = refine_pose(plans[name], b.skeleton, ik[name], camera, fg, tracked.positions,
-                                               tracked.tracked, points, others, session.kinect.version, **kwargs)
+                    kwargs = dict(kwargs)
+                    with _trunk_bones(kwargs.pop("trunk_bones", None)):
+                        poses[vname] = refine_pose(plans[name], b.skeleton, ik[name], camera, fg, tracked.positions,
+                                                   tracked.tracked, points, others, session.kinect.version, **kwargs)
             poses["true pose"] = pose_from_world(b.skeleton, world_rotations(true_sk, true_pose), translation)
             W_true = world_rotations(true_sk, true_pose)
             for pname, pose in poses.items():
@@ -542,6 +549,20 @@ def score_temporal(session, stride: int = 4, player: int = 1, source=None, filte
         out[key] = float(np.mean([r[key] for r in rows]))
     out["per frame"] = rows
     return out
+
+
+@contextlib.contextmanager
+def _trunk_bones(bones):
+    """``refine.TRUNK_BONES`` set to ``bones`` while the block runs (None: as it is)."""
+    from bodystudio.mirror import refine
+
+    original = refine.TRUNK_BONES
+    if bones is not None:
+        refine.TRUNK_BONES = tuple(bones)
+    try:
+        yield
+    finally:
+        refine.TRUNK_BONES = original
 
 
 def poses_fitted_true(body, true_sk, true_pose, root):

@@ -1,10 +1,13 @@
 """End to end with and without ``mirror run --refine-pose``: warp_iou, PSNR and SSIM of every tracked frame.
 
-Usage: PYTHONPATH=. python benchmarks/mirror_refine_end_to_end.py [--source NAME.npz] [--out DIR] SESSION [...]
+Usage: PYTHONPATH=. python benchmarks/mirror_refine_end_to_end.py [--source NAME.npz] [--out DIR]
+[--runs ik refine refine-no-trunk refine-2-steps] SESSION [...]
 
 Per synthetic mirror session (with ``gt/mirror``), ``run_mirror`` with the session's edits at once (no ramp, no
-video) into ``DIR/<session>_ik`` and ``DIR/<session>_refine``, then ``evaluate_mirror`` on each; prints one JSON
-line per run with the scores and the per-step median milliseconds (wall, so only comparable at one load).
+video) into ``DIR/<session>_<run>`` for each of ``--runs`` (default ``ik refine``: the IK pose, the refined pose;
+``refine-no-trunk``: refined without E_trunk, ``refine-2-steps``: two Gauss-Newton steps, MIR12g), then
+``evaluate_mirror`` on each; prints one JSON line per run with the scores and the per-step median milliseconds
+(wall, so only comparable at one load).
 """
 
 from __future__ import annotations
@@ -18,13 +21,16 @@ from pathlib import Path
 
 
 @contextlib.contextmanager
-def _trunk_off(off: bool):
-    """``refine_pose`` without E_trunk while the block runs (the run imports it from the module when it starts)."""
+def _refine_as(run: str):
+    """``refine_pose`` as the ``run`` wants it while the block runs: without E_trunk (``refine-no-trunk``) or with
+    two steps (``refine-2-steps``); the run imports it from the module when it starts."""
     from bodystudio.mirror import refine
 
     original = refine.refine_pose
-    if off:
+    if run == "refine-no-trunk":
         refine.refine_pose = functools.partial(original, weights=refine.RefineWeights(trunk_rad=None))
+    elif run == "refine-2-steps":
+        refine.refine_pose = functools.partial(original, iterations=2)
     try:
         yield
     finally:
@@ -39,9 +45,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--source", default=None, help="source body .npz name inside SESSION/mirror/")
-    parser.add_argument("--runs", nargs="+", default=["ik", "refine"], choices=["ik", "refine", "refine-no-trunk"],
+    parser.add_argument("--runs", nargs="+", default=["ik", "refine"],
+                        choices=["ik", "refine", "refine-no-trunk", "refine-2-steps"],
                         help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
-                             "(MIR12g's A/B)")
+                             "or with two Gauss-Newton steps (MIR12g's A/B)")
     parser.add_argument("--out", type=Path, default=None, help="folder for the run folders (default: a temporary one)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -52,7 +59,7 @@ def main() -> None:
             body, _ = load_source(session, src)
             for name in args.runs:
                 run = out / f"{path.name}_{name}"
-                with _trunk_off(name == "refine-no-trunk"):
+                with _refine_as(name):
                     doc = run_mirror(session, session.metadata["edits"], None, source=src, side_by_side=False,
                                      progress=False, run_dir=run, ramp_frames=0, refine_pose=name != "ik")
                 scores = evaluate_mirror(session, run, source=body)
