@@ -288,6 +288,15 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
 
 
 #: Body regions of the shape oracle's per-region rows, by the vertex's dominant skin-weight bone.
+#: Parts of the true pose swapped into the refined one by ``--shape --swap-parts`` (MIR12g): world rotations of
+#: these bones (their children keep theirs); ``root``: the Root's rotation and its true head (the root's rotation
+#: alone swings the body about the floor point: 28-38 mm of vertex error).
+REFINED_SWAPS = {"root": ("Root",),
+                 "pelvis and spine": ("pelvis", "spine_01", "spine_02", "spine_03"),
+                 "neck and head": ("neck_01", "head"), "arms": ("clavicle_l", "clavicle_r", "upperarm_l", "upperarm_r",
+                                                               "lowerarm_l", "lowerarm_r", "hand_l", "hand_r"),
+                 "legs": ("thigh_l", "thigh_r", "calf_l", "calf_r", "foot_l", "foot_r")}
+
 #: Bone groups whose swing error ``--shape`` reports (MIR12g).
 SWING_GROUPS = {"spine_01": ("spine_01",), "spine_02, spine_03": ("spine_02", "spine_03"),
                 "neck, head": ("neck_01", "head"), "clavicles": ("clavicle_l", "clavicle_r"),
@@ -316,7 +325,7 @@ def signed_distance_px(mask: np.ndarray) -> np.ndarray:
 
 
 def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_steps=(1,), per_frame=None,
-                fitted_variants=None) -> dict[str, float]:
+                fitted_variants=None, swap_parts: bool = False) -> dict[str, float]:
     """What a better *shape* would buy (MIR12c): the fitted and the true rest bodies, each posed by its own IK,
     its own refined pose (``refine_pose`` as the run) and the true pose; plus, per body region, where the
     fitted body posed by the true pose misses: the signed distance (px, + outside) of its projected rim vertices
@@ -324,7 +333,8 @@ def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_s
 
     ``per_frame``: a path; each scored frame's row is written there as JSON lines (``frame``: its index).
     ``fitted_variants``: name -> keyword arguments of ``refine_pose`` (MIR12g), further refined poses of the fitted
-    body scored as ``fitted shape, NAME``."""
+    body scored as ``fitted shape, NAME``; ``swap_parts``: also the fitted body's refined pose with one part of the
+    true pose swapped in (:data:`REFINED_SWAPS`)."""
     from bodystudio.body.pose import Pose
     from bodystudio.body.skeleton import Skeleton
     from bodystudio.geometry.mesh import vertex_normals
@@ -408,6 +418,14 @@ def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_s
                                                    tracked.tracked, points, others, session.kinect.version, **kwargs)
             poses["true pose"] = pose_from_world(b.skeleton, world_rotations(true_sk, true_pose), translation)
             W_true = world_rotations(true_sk, true_pose)
+            if name == "fitted shape" and swap_parts:  # the refined pose with one part's true world rotations
+                refined = poses["refined pose"]
+                W_ref = world_rotations(b.skeleton, refined)
+                for part, bone_names in REFINED_SWAPS.items():
+                    idx = [sk.bone_names.index(n) for n in bone_names]
+                    poses[f"refined, true {part}"] = pose_from_world(b.skeleton, _replace(W_ref, W_true, idx),
+                                                                     translation if part == "root" else
+                                                                     refined.translation)
             for pname, pose in poses.items():
                 Vs, Vt = posed_source_and_target(b, Vt_rest, pose, t_rig)
                 row[f"{name}, {pname}"] = warp_iou(Vs, Vt)
@@ -637,6 +655,8 @@ def main() -> None:
                         help="with --shape: the pose refinement's Gauss-Newton steps scored (the run's: 1)")
     parser.add_argument("--variants", nargs="*", default=[], choices=sorted(SHAPE_ORACLE_VARIANTS),
                         help="with --shape: further refined poses of the fitted body (SHAPE_ORACLE_VARIANTS)")
+    parser.add_argument("--swap-parts", action="store_true",
+                        help="with --shape: the refined pose with one part of the true pose swapped in (REFINED_SWAPS)")
     parser.add_argument("--temporal", action="store_true",
                         help="the refined poses smoothed over time by each of TEMPORAL_FILTERS (MIR12g)")
     parser.add_argument("--per-frame", type=Path, default=None,
@@ -658,7 +678,8 @@ def main() -> None:
         if args.shape:
             results[p.name] = score_shape(open_session(p), args.stride, source=src,
                                           refine_steps=tuple(args.refine_steps), per_frame=args.per_frame,
-                                          fitted_variants={k: SHAPE_ORACLE_VARIANTS[k] for k in args.variants})
+                                          fitted_variants={k: SHAPE_ORACLE_VARIANTS[k] for k in args.variants},
+                                          swap_parts=args.swap_parts)
         else:
             results[p.name] = score(open_session(p), args.stride, source=src, refine_only=args.refine_only)
     keys = list(next(iter(results.values())))

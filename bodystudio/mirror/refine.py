@@ -7,7 +7,7 @@ target's. This step refines the root (translation and rotation) and the swing of
 clavicles, limbs, hands and feet (not their twist, which an oracle measured to cost the warp nothing:
 docs/mirror.md "MIR12") by a few Gauss-Newton steps of the energy
 
-``E = w_sil (E_out + E_cover) + w_depth E_depth + w_joint E_joint + E_prior``
+``E = w_sil (E_out + E_cover) + w_depth E_depth + w_joint E_joint + E_trunk + E_prior``
 
 * ``E_out``: the distance outside the foreground mask of every projected (subsampled) source vertex: a body
   point projecting outside the person's silhouette is wrong whatever occludes it (the distance-transform
@@ -16,6 +16,9 @@ docs/mirror.md "MIR12") by a few Gauss-Newton steps of the energy
   image normal): the mask's outline must be drawn by the body's outline;
 * ``E_depth``: point-to-plane distance of the player's depth points to their nearest front-facing vertex;
 * ``E_joint``: the Kinect joints as soft targets (the IK's objective, tracked joints weighted up);
+* ``E_trunk``: the bend of the spine, neck, head and clavicles against their parents held near the rest pose
+  (a weak pose prior, 16 degrees: the Kinect joints give these short bones to 5-12 degrees and the surface hardly
+  shows a bend of the lower spine; MIR12g, docs/mirror.md "Who owns the last 0.04");
 * ``E_prior``: Tikhonov damping of the change from the IK pose.
 
 Every residual is linear in the parameters to first order through the skinning: a vertex ``v`` moves by
