@@ -5,7 +5,8 @@ Usage: PYTHONPATH=. python benchmarks/mirror_refine_end_to_end.py [--source NAME
 
 Per synthetic mirror session (with ``gt/mirror``), ``run_mirror`` with the session's edits at once (no ramp, no
 video) into ``DIR/<session>_<run>`` for each of ``--runs`` (default ``ik refine``: the IK pose, the refined pose;
-``refine-no-trunk``: refined without E_trunk, ``refine-2-steps``: two Gauss-Newton steps, MIR12g), then
+``refine-no-trunk``: refined without E_trunk, ``refine-2-steps``: two Gauss-Newton steps, ``refine-no-edge``:
+without the warp's edge clamp, MIR12g), then
 ``evaluate_mirror`` on each; prints one JSON line per run with the scores and the per-step median milliseconds
 (wall, so only comparable at one load).
 """
@@ -22,8 +23,9 @@ from pathlib import Path
 
 @contextlib.contextmanager
 def _refine_as(run: str):
-    """``refine_pose`` as the ``run`` wants it while the block runs: without E_trunk (``refine-no-trunk``) or with
-    two steps (``refine-2-steps``); the run imports it from the module when it starts."""
+    """``refine_pose`` (and the warp) as the ``run`` wants it while the block runs: without E_trunk
+    (``refine-no-trunk``), with two steps (``refine-2-steps``), without ``warp.edge_clamped`` (``refine-no-edge``);
+    the run imports ``refine_pose`` from the module when it starts, ``warp_foreground`` calls the clamp by name."""
     from bodystudio.mirror import refine
 
     original = refine.refine_pose
@@ -31,10 +33,16 @@ def _refine_as(run: str):
         refine.refine_pose = functools.partial(original, weights=refine.RefineWeights(trunk_rad=None))
     elif run == "refine-2-steps":
         refine.refine_pose = functools.partial(original, iterations=2)
+    from bodystudio.mirror import warp
+
+    clamp = warp.edge_clamped
+    if run == "refine-no-edge":  # source positions outside the image stay outside (before MIR12g)
+        warp.edge_clamped = lambda xy, shape, reach_px=0.0: xy
     try:
         yield
     finally:
         refine.refine_pose = original
+        warp.edge_clamped = clamp
 
 
 def main() -> None:
@@ -46,9 +54,9 @@ def main() -> None:
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--source", default=None, help="source body .npz name inside SESSION/mirror/")
     parser.add_argument("--runs", nargs="+", default=["ik", "refine"],
-                        choices=["ik", "refine", "refine-no-trunk", "refine-2-steps"],
+                        choices=["ik", "refine", "refine-no-trunk", "refine-2-steps", "refine-no-edge"],
                         help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
-                             "or with two Gauss-Newton steps (MIR12g's A/B)")
+                             "or with two Gauss-Newton steps, or without the warp's edge clamp (MIR12g's A/Bs)")
     parser.add_argument("--out", type=Path, default=None, help="folder for the run folders (default: a temporary one)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
