@@ -549,6 +549,17 @@ def test_a_person_cut_by_the_image_edge_goes_on_beyond_it_when_moved_into_the_im
     field = shifted(10.0)
     field[:, :10] = OUTSIDE_PX
     assert not (warp_foreground(rgb, fg, field)[1][:, :10] > 0).any()
+    # the other three edges: a body cut by the top, right and bottom edge moved 10 px into the image
+    for sl, d, grown in (((slice(0, 50), slice(200, 400)), (0.0, 10.0), (slice(0, 60), slice(200, 400))),
+                         ((slice(100, 300), slice(590, W)), (-10.0, 0.0), (slice(100, 300), slice(580, W))),
+                         ((slice(430, H), slice(200, 400)), (0.0, -10.0), (slice(420, H), slice(200, 400)))):
+        cut = np.zeros_like(fg)
+        cut[sl] = True
+        moved = np.stack([xs - d[0], ys - d[1]], axis=-1)
+        a = warp_foreground(rgb, cut, moved)[1] > 0.5
+        expected = np.zeros_like(fg)
+        expected[grown] = True
+        assert (a == expected).mean() > 0.999 and a[grown].all(), d
     # the clamp leaves a field inside the image as it is (the same array), and copies before it changes one
     inside = shifted(0.0)
     assert edge_clamped(inside, (H, W)) is inside
