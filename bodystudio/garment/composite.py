@@ -178,7 +178,7 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
                          depth: bool = True, sigma_px: float | None = None, hem: bool = True) -> RefinedFrame:
     """§7 on one frame: flow correction (§7.1), silhouette RBF warp (§7.2-7.3, Eq. 9), depth compositing (§7.3),
     then the hem matte (ours: :func:`bodystudio.garment.refine.hem_matte`, the new garment's hem lines moved onto
-    the worn garment's edges in the video, at most ``HEM_REACH_PX_AT_480`` px at a 480-px-high frame).
+    the worn garment's edges in the video, at most ``HEM_REACH_FRACTION`` of the frame height).
 
     The flow correction is used only when it is larger than the flow resolves
     (:func:`bodystudio.garment.refine.flow_correction_is_significant`); otherwise the frame is warped by §7.2 alone.
@@ -215,7 +215,7 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
     image, shown = refine.depth_composite(frame, g_rgb, g_mask, g_depth, b_depth, use_depth=depth)
     hem_applied = False
     if hem:
-        reach_px = refine.HEM_REACH_PX_AT_480 * H / 480.0
+        reach_px = refine.HEM_REACH_FRACTION * H
         worn, error = refine.worn_garment_probability(frame, person_mask, shown, reach_px)
         if error <= refine.MAX_HEM_CLASSIFIER_ERROR:
             matte = refine.hem_matte(shown, worn, person_mask, reach_px)

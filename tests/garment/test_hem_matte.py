@@ -107,7 +107,7 @@ def _layer(shown):
 
 @pytest.mark.parametrize("hem", [True, False])
 def test_refine_and_composite_applies_the_matte_at_the_frames_scale(hem):
-    # 240x320: the reach is 4 px (8 at 480 px high); the hem 3 rows too low, the sleeve 3 columns short
+    # 240 px high: the reach is 4 px (a 60th of the height); the hem 3 rows too low, the sleeve 3 columns short
     frame, person, worn = actor(s=2)
     shown = person & (rect(person.shape, 40, 163, 100, 220) | rect(person.shape, 60, 90, 220, 257))
     layer = _layer(shown)
