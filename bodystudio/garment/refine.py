@@ -316,10 +316,11 @@ def depth_composite(frame: np.ndarray, garment_rgb: np.ndarray, garment_mask: np
 
 #: The hem matte's reach: how far the new garment's hem lines may move to the worn garment's edges measured in the
 #: video, as a fraction of the frame height (8 px at 480 px high, 10.7 px at 640; measured on the kept fits of
-#: subjects 37 / 21 / 3 at 640 px high: 8 px gave 0.990 / 0.986 / 0.991, 10.7 px 0.994 / 0.992 / 0.996).
+#: subjects 37 / 21 / 3 at 640 px high: 8 px gave 0.990 / 0.986 / 0.991, 10.7 px 0.992 / 0.992 / 0.996).
 HEM_REACH_FRACTION = 1.0 / 60.0
 #: Hem matting is skipped when the worn garment's colour and the rest of the actor's are not this separable
-#: (balanced error of the colour classifier on its own training pixels): a shirt the colour of the skin.
+#: (balanced error of the colour model on held-out pixels, see ``worn_garment_probability``): a shirt the colour of
+#: the skin. The benchmark's frames measure 0.000-0.015.
 MAX_HEM_CLASSIFIER_ERROR = 0.12
 #: Bins of the colour histograms: chromaticity r and g, brightness.
 _HEM_BINS = (32, 32, 8)
@@ -387,7 +388,9 @@ def hem_matte(garment_shown: np.ndarray, worn_probability: np.ndarray, person_ma
     as an arm in front of the shirt) each pixel is garment where the video shows the worn garment
     (``worn_probability`` > 0.5 after a 5x5 median): the band is re-segmented by the video. A garment pixel is
     given up only where the worn garment's edge is within ``reach_px`` (a new garment longer than the worn one,
-    over bare skin, keeps its hem: there is no worn edge near it). Outside the band the composite is unchanged,
+    over bare skin, keeps its hem: there is no worn edge near it), and added only where a pixel of the actor that is
+    not the worn garment is within ``reach_px`` (a new garment shorter than the worn one is not lengthened along
+    it). Outside the band the composite is unchanged,
     so the snap moves a hem by at most ``reach_px``. Returns the new bool (H, W) garment region.
     """
     worn = cv2.medianBlur((worn_probability > 0.5).astype(np.uint8) * 255, 5) > 0
