@@ -209,7 +209,7 @@ def test_all_noise_is_jitter_then_shadow_then_holes_then_the_lost_limb():
 
 # --- rewrite_masks over a session folder -------------------------------------------------------------------------
 
-def _session(tmp_path):
+def _make_session(tmp_path):
     S = tmp_path / "s"
     files = {}
 
@@ -233,14 +233,14 @@ def _session(tmp_path):
 
 
 def test_rewrite_masks_applies_the_change_to_every_mask_file_in_order_with_one_generator(tmp_path):
-    S = _session(tmp_path)
+    S = _make_session(tmp_path)
     before = {str(p.relative_to(S)): p.read_bytes() for p in S.rglob("*") if p.is_file()}
     calls = []
 
     def change(m, cam, frame, rng):
         calls.append((cam, frame, m.copy(), float(rng.random())))
-        out = np.zeros(m.shape, np.uint8)
-        out[:, : 1 + len(calls)] = 3  # any non-zero value is written as 255
+        out = np.zeros(m.shape, bool)  # a bool mask, as the mask_* generators return
+        out[:, : 1 + len(calls)] = True
         return out
 
     faults.rewrite_masks(S, change, seed=5)
@@ -264,7 +264,7 @@ def test_rewrite_masks_applies_the_change_to_every_mask_file_in_order_with_one_g
 
 def test_rewrite_masks_default_seed_is_7_and_a_colour_mask_is_read_as_grey(tmp_path):
     """A mask saved with three channels is read as one grey channel (the change sees a 2-D mask)."""
-    S = _session(tmp_path)
+    S = _make_session(tmp_path)
     rel = "cam_00/mask/000000.png"
     colour = np.zeros((6, 8, 3), np.uint8)
     colour[2:4, 2:5] = 255
