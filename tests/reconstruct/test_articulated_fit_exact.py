@@ -1,0 +1,200 @@
+"""The hull fit's Gauss-Newton loops (:mod:`bodystudio.reconstruct.articulated_fit`, Rapid Skin Sec. IV) on exact
+data: the "hull" is the 2k template's own surface in a known pose (no voxels, no carving), so the fit must find that
+pose from a start 7 cm (joints) away, to a fraction of a millimetre. Behaviour, not implementation: the recovered
+joints, scale and surface, the step clamps (a step never longer than ``max_step_*``), the stop rule, the prior's
+pull towards the start, the unfitted bones kept; ``refine_bone_transforms`` (the same step on the Eq. 11 bone
+transforms) likewise. Each fit ~0.5-1 s; the carved-hull fits on rendered sessions are
+tests/reconstruct/test_articulated_fit.py.
+"""
+
+from types import SimpleNamespace
+
+import igl
+import numpy as np
+import pytest
+
+from bodystudio.body.kinect import kinect_joints
+from bodystudio.body.pose import Pose
+from bodystudio.body.skinning import forward_kinematics, posed_joints
+from bodystudio.errors import InputError
+from bodystudio.reconstruct import articulated_fit as af
+from bodystudio.reconstruct.pose_init import pose_template
+
+TRUE = {"Root": [0.0, 0.2, 0.0], "spine_02": [0.05, 0.0, 0.03], "upperarm_l": [0.1, 0.2, 0.3],
+        "lowerarm_r": [0.0, 0.3, 0.3], "thigh_l": [0.2, 0.0, 0.0], "calf_r": [0.3, 0.0, 0.0],
+        "neck_01": [0.1, 0.0, 0.0], "hand_l": [0.0, 0.0, 0.4]}  # hand_l: not a fitted bone, its rotation is the start's
+
+
+@pytest.fixture(scope="module")
+def case():
+    from bodystudio.body import build_body
+
+    body = build_body(resolution="2k")
+    skel = body.skeleton
+    rot = np.zeros((skel.n_bones, 3))
+    for k, v in TRUE.items():
+        rot[skel.index(k)] = v
+    true = Pose(rot, [0.1, 0.05, -0.2])
+    V, _ = body.pose(true)
+    fitted = np.isin(np.arange(skel.n_bones), af._fit_bone_indices(skel))[:, None]
+    noise = np.random.default_rng(0).normal(scale=0.08, size=rot.shape)
+    init = Pose(rot + np.where(fitted, noise, 0.0), true.translation + [0.03, -0.02, 0.02])
+    h, t = posed_joints(skel, true)
+    return SimpleNamespace(body=body, skel=skel, true=true, V=V, init=init,
+                           joints=kinect_joints(skel, h, t, "v2"))
+
+
+def _hull(body, V):
+    """The surface ``V`` as a hull: its vertices, faces, outward normals and centroid."""
+    return SimpleNamespace(vertices=V, faces=body.faces, normals=igl.per_vertex_normals(V, body.faces),
+                           centroid=V.mean(axis=0))
+
+
+def _joints(case, pose, scale=1.0):
+    h, t = posed_joints(case.skel, pose)
+    return scale * kinect_joints(case.skel, h, t, "v2")
+
+
+def test_the_fit_finds_the_pose_of_an_exact_hull(case):
+    start = af.joint_error_m(_joints(case, case.init), case.joints)
+    assert start > 0.06
+    fit = af.articulated_fit(case.body, _hull(case.body, case.V), case.init)
+    err = af.joint_error_m(fit.joints, case.joints)
+    assert err < 0.0015 and err < 0.03 * start  # measured 0.69 mm from 73 mm
+    assert fit.converged and 3 <= fit.iterations < 40
+    assert fit.fit_error_m < 0.001  # 0.36 mm
+    assert abs(fit.scale - 1.0) < 0.001
+    np.testing.assert_allclose(fit.pose.translation, case.true.translation, atol=0.005)
+    # the joints are those of the template scaled by ``scale`` in the returned pose
+    h, t = posed_joints(af.scaled_body(case.body, fit.scale).skeleton, fit.pose)
+    np.testing.assert_allclose(fit.joints, kinect_joints(case.skel, h, t, "v2"), atol=1e-9)
+    # the error is the symmetric surface distance of the fitted template
+    V, _ = af.scaled_body(case.body, fit.scale).pose(fit.pose)
+    assert fit.fit_error_m == pytest.approx(af.symmetric_hull_distance(V, case.body.faces,
+                                                                       _hull(case.body, case.V)), rel=1e-9)
+    # unfitted bones keep the start's rotation
+    hand = case.skel.index("hand_l")
+    np.testing.assert_array_equal(fit.pose.rotations[hand], case.init.rotations[hand])
+    unfitted = ~np.isin(np.arange(case.skel.n_bones), af._fit_bone_indices(case.skel))
+    np.testing.assert_array_equal(fit.pose.rotations[unfitted], case.init.rotations[unfitted])
+
+
+def test_the_fit_finds_the_scale_of_a_larger_subject(case):
+    """The hull 8 % larger (about the origin): the template scale comes out 1.08 and the returned pose poses the
+    template scaled by it onto the hull."""
+    hull = _hull(case.body, case.V * 1.08)
+    fit = af.articulated_fit(case.body, hull, case.init)
+    assert fit.scale == pytest.approx(1.08, abs=0.002)
+    assert af.joint_error_m(fit.joints, case.joints * 1.08) < 0.0015
+    V, _ = af.scaled_body(case.body, fit.scale).pose(fit.pose)
+    assert np.linalg.norm(V - case.V * 1.08, axis=1).mean() < 0.0015  # 1.07 mm
+    np.testing.assert_allclose(fit.pose.translation, case.true.translation * 1.08, atol=0.005)
+    # started from a scale: the pose given poses the template at that scale
+    start = Pose(case.true.rotations, case.true.translation * 1.05)
+    fit = af.articulated_fit(case.body, hull, start, scale=1.05)
+    assert fit.scale == pytest.approx(1.08, abs=0.002) and af.joint_error_m(fit.joints, case.joints * 1.08) < 0.0015
+    # without fit_scale the scale stays and the fit cannot explain the hull
+    fixed = af.articulated_fit(case.body, hull, case.init, af.ArticulatedFitParams(fit_scale=False))
+    assert fixed.scale == 1.0 and fixed.fit_error_m > 0.005
+
+
+def test_steps_are_clamped(case):
+    """From the true pose, an 8 % larger hull: the first step is the log-scale clamp, exactly exp(0.03); from the
+    perturbed start, three steps move the root by at most 3 x max_step_m and a bone by at most 3 x max_step_rad."""
+    fit = af.articulated_fit(case.body, _hull(case.body, case.V * 1.08), case.true, iterations=1)
+    assert fit.scale == pytest.approx(np.exp(0.03), rel=1e-12) and fit.iterations == 1 and not fit.converged
+    fit = af.articulated_fit(case.body, _hull(case.body, case.V * 1.08), case.true,
+                             af.ArticulatedFitParams(max_step_log_scale=0.01), iterations=2)
+    assert fit.scale == pytest.approx(np.exp(0.02), rel=1e-12)
+    hull = _hull(case.body, case.V)
+    fit = af.articulated_fit(case.body, hull, case.init, af.ArticulatedFitParams(max_step_m=0.001), iterations=3)
+    moved = np.linalg.norm(fit.pose.translation - case.init.translation)
+    assert 0.002 < moved <= 0.003 + 1e-9
+    fit = af.articulated_fit(case.body, hull, case.init, af.ArticulatedFitParams(max_step_rad=0.004), iterations=3)
+    turned = np.linalg.norm(fit.pose.rotations - case.init.rotations, axis=1).max()
+    assert 0.008 < turned <= 0.012 + 1e-6
+
+
+def test_the_stop_rule_and_the_iteration_counts(case):
+    hull = _hull(case.body, case.V)
+    fit = af.articulated_fit(case.body, hull, case.init, af.ArticulatedFitParams(tolerance=0.0, iterations=12))
+    assert fit.iterations == 12 and not fit.converged
+    fit = af.articulated_fit(case.body, hull, case.init, af.ArticulatedFitParams(iterations=3))
+    assert fit.iterations == 3 and not fit.converged
+    fit = af.articulated_fit(case.body, hull, case.init, af.ArticulatedFitParams(iterations=3), iterations=5)
+    assert fit.iterations == 5
+    # a loose tolerance stops early
+    fit = af.articulated_fit(case.body, hull, case.init, af.ArticulatedFitParams(tolerance=0.01))
+    assert fit.converged and fit.iterations < 10
+
+
+def test_the_prior_holds_the_limbs_to_the_start(case):
+    """A strong prior keeps the joints near the start (40 mm of its 73); without one the exact data are met to
+    0.05 mm."""
+    hull = _hull(case.body, case.V)
+    held = af.articulated_fit(case.body, hull, case.init, af.ArticulatedFitParams(prior_weight=1e3))
+    assert af.joint_error_m(held.joints, case.joints) > 0.025
+    free = af.articulated_fit(case.body, hull, case.init, af.ArticulatedFitParams(prior_weight=0.0))
+    assert af.joint_error_m(free.joints, case.joints) < 0.0003
+
+
+def test_fit_body_to_hull_from_the_a_pose_on_exact_data(case):
+    """No start: the yaw and arm hypotheses from the A-pose at the hull find the pose (a mild one)."""
+    rot = np.zeros((case.skel.n_bones, 3))
+    rot[case.skel.index("lowerarm_l")] = [0.0, 0.0, 0.3]
+    rot[case.skel.index("upperarm_r")] = [0.0, 0.0, 0.2]
+    pose = Pose(rot, [0.0, 0.02, 0.1])
+    V, _ = case.body.pose(pose)
+    params = af.ArticulatedFitParams(iterations=20, coarse_iterations=6, arm_raise_candidates_deg=(45.0,),
+                                     yaw_candidates_deg=(180.0, 0.0))
+    fit = af.fit_body_to_hull(case.body, _hull(case.body, V), params=params)
+    assert af.joint_error_m(fit.joints, _joints(case, pose)) < 0.005
+
+
+# --- refine_bone_transforms on exact data ---------------------------------------------------------------------------
+
+def _transforms(case, pose):
+    return forward_kinematics(case.skel, pose) @ np.linalg.inv(case.skel.rest_frames)
+
+
+def _surface_error(case, T):
+    return float(np.linalg.norm(pose_template(case.body, T).vertices - case.V, axis=1).mean())
+
+
+def test_refine_bone_transforms_fits_the_exact_hull(case):
+    T0 = _transforms(case, case.init)
+    start = _surface_error(case, T0)
+    assert start > 0.07
+    T = af.refine_bone_transforms(case.body, T0, _hull(case.body, case.V))
+    assert _surface_error(case, T) < 0.003 and _surface_error(case, T) < 0.04 * start  # 1.8 mm from 81 mm
+    np.testing.assert_array_equal(T0, _transforms(case, case.init))  # the input is left alone
+    # the bones keep their lengths: each transform stays a rotation plus a translation
+    np.testing.assert_allclose(np.einsum("bji,bjk->bik", T[:, :3, :3], T[:, :3, :3]),
+                               np.tile(np.eye(3), (len(T), 1, 1)), atol=1e-9)
+    # no iteration: the start, as a copy
+    T1 = af.refine_bone_transforms(case.body, T0, _hull(case.body, case.V), af.PoseRefineParams(iterations=0))
+    np.testing.assert_array_equal(T1, T0)
+    assert T1 is not T0
+
+
+def test_refine_prior_tolerance_and_anchors(case):
+    T0 = _transforms(case, case.init)
+    hull = _hull(case.body, case.V)
+    held = af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(prior_weight=1e4))
+    free = af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(prior_weight=0.0))
+    assert _surface_error(case, held) > 2 * _surface_error(case, free)
+    assert _surface_error(case, free) < 0.003
+    # a step clamp: one iteration moves the root by at most max_step_m
+    one = af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(iterations=1, max_step_m=0.002))
+    root = case.skel.index("Root")
+    assert np.linalg.norm(one[root, :3, 3] - T0[root, :3, 3]) <= 0.002 + 1e-9
+    # pelvis anchors at the true pelvis joints pull the pelvis there even with a weak data term
+    T_true = _transforms(case, case.true)
+    anchors = af.pelvis_anchors(case.body, T_true, weight=1e6)
+    pel = anchors[0]
+    fit = af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(iterations=10), anchors=anchors)
+    X = np.einsum("mij,mj->mi", fit[pel, :3, :3], anchors[1]) + fit[pel, :3, 3]
+    X0 = np.einsum("mij,mj->mi", T0[pel, :3, :3], anchors[1]) + T0[pel, :3, 3]
+    assert np.abs(X - anchors[2]).max() < 0.1 * np.abs(X0 - anchors[2]).max()
+    with pytest.raises(InputError, match=r"^pose refinement: the template has no bone\(s\) tail_01$"):
+        af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(bones=("pelvis", "tail_01")))
