@@ -170,12 +170,26 @@ def test_empty_silhouettes():
 
 
 def test_per_camera_by_name():
+    """Each camera against its own mask; a view where both are empty does not end the loop."""
     fit = _rect((10, 30), (10, 30))
-    cams = [_cam("b", width=320), _cam("a")]
-    masks = {"a": _rect((10, 30), (14, 34)), "b": _rect((10, 30), (12, 32)), "c": fit}
-    out = P.silhouette_tolerant_agreement(None, None, cams, masks, fitted={"a": fit, "b": fit, "c": ~fit})
-    assert out == {"b": {"precision": 0.95, "recall": 0.95}, "a": {"precision": 0.95, "recall": 0.95}}
-    assert list(out) == ["b", "a"]
+    cams = [_cam("e"), _cam("b", width=320), _cam("a")]
+    masks = {"a": _rect((10, 30), (14, 34)), "b": _rect((10, 30), (12, 32)), "c": fit, "e": np.zeros((40, 48))}
+    out = P.silhouette_tolerant_agreement(None, None, cams, masks,
+                                          fitted={"a": fit, "b": fit, "c": ~fit, "e": np.zeros((40, 48), bool)})
+    assert out == {"e": {"precision": 1.0, "recall": 1.0}, "b": {"precision": 0.95, "recall": 0.95},
+                   "a": {"precision": 0.95, "recall": 0.95}}
+    assert list(out) == ["e", "b", "a"]
+
+
+def test_the_band_distance_is_opencvs_5x5_chamfer():
+    """The thresholds (0.95 / 0.65) were measured with OpenCV's 5x5 chamfer distance: a knight's move (2, 1) is
+    2.1969 px there (the exact distance 2.236): inside a 2.2 px band."""
+    fit = np.zeros((40, 48), bool)
+    mask = np.zeros((40, 48), bool)
+    fit[10, 10] = True
+    mask[12, 11] = True
+    assert _tolerant(fit, mask, tolerance_px_at_640=2.2) == {"precision": 1.0, "recall": 1.0}
+    assert _exact(fit, mask, 2.2) == (0.0, 0.0)
 
 
 def test_frame_plausibility_records_precision_and_recall_from_the_mesh():
@@ -249,6 +263,8 @@ def test_a_noisy_view_between_the_iou_thresholds_gets_the_noise_warning_not_the_
         "camera a agree less with the fit or the other cameras (silhouette IoU a 0.80; coherence -); the calibration "
         "or masks may be off"]
     fr = _frame({"a": 0.85, "b": 0.95}, {"a": 0.5, "b": 1.0}, {"a": 0.5, "b": 1.0})
+    assert P.run_plausibility([fr])["warnings"] == []
+    fr = _frame({"a": 0.85, "b": 0.95}, {"a": 0.99, "b": 1.0}, {"a": 0.8, "b": 1.0})  # inside the band: still nothing
     assert P.run_plausibility([fr])["warnings"] == []
 
 
