@@ -82,6 +82,9 @@ def test_pose_template_of_the_template_and_the_v1_joints(body):
     heads = np.einsum("bij,bj->bi", T[:, :3, :3], body.skeleton.heads) + T[:, :3, 3]
     tails = np.einsum("bij,bj->bi", T[:, :3, :3], body.skeleton.tails) + T[:, :3, 3]
     np.testing.assert_allclose(out.joints, kinect_joints(body.skeleton, heads, tails, "v1"), atol=1e-12)
+    # float32 transforms are kept as float64 (the PoseInit's transforms feed the refinement in float64)
+    out32 = pose_template(body, T.astype(np.float32))
+    assert out32.bone_transforms.dtype == np.float64 and out32.vertices.dtype == np.float64
 
 
 # --- bones, subtrees, weights --------------------------------------------------------------------------------------
