@@ -55,6 +55,17 @@ def _joints(case, pose, scale=1.0):
     return scale * kinect_joints(case.skel, h, t, "v2")
 
 
+def test_two_gauss_newton_steps_already_remove_nine_tenths_of_the_error(case):
+    """Gauss-Newton on exact data converges fast: two steps leave 6.5 % of the start's joint error (one: 25 %), the
+    refinement of the bone transforms 8.9 % of the surface error."""
+    start = af.joint_error_m(_joints(case, case.init), case.joints)
+    fit = af.articulated_fit(case.body, _hull(case.body, case.V), case.init, iterations=2)
+    assert af.joint_error_m(fit.joints, case.joints) < 0.1 * start and abs(fit.scale - 1.0) < 0.002
+    T0 = _transforms(case, case.init)
+    T = af.refine_bone_transforms(case.body, T0, _hull(case.body, case.V), af.PoseRefineParams(iterations=2))
+    assert _surface_error(case, T) < 0.12 * _surface_error(case, T0)
+
+
 def test_the_fit_finds_the_pose_of_an_exact_hull(case):
     start = af.joint_error_m(_joints(case, case.init), case.joints)
     assert start > 0.06
