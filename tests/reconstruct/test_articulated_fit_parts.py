@@ -206,10 +206,10 @@ def test_joint_error_over_the_major_joints_or_the_named_ones():
     from bodystudio.body.kinect import kinect_joint_names
 
     names = kinect_joint_names("v2")
-    G = np.zeros((25, 3))
-    J = np.zeros((25, 3))
-    J[names.index("ElbowLeft")] = [0.03, 0.04, 0.0]  # 5 cm
-    J[names.index("HandLeft")] = [1.0, 0.0, 0.0]  # not a major joint
+    G = np.tile([0.5, 1.0, -0.2], (25, 1))
+    J = G.copy()
+    J[names.index("ElbowLeft")] += [0.03, 0.04, 0.0]  # 5 cm
+    J[names.index("HandLeft")] += [1.0, 0.0, 0.0]  # not a major joint
     assert af.joint_error_m(J, G) == pytest.approx(0.05 / len(af.MAJOR_JOINTS), abs=1e-15)
     assert af.joint_error_m(J.tolist(), G.tolist(), ("ElbowLeft", "HandLeft")) == pytest.approx(0.525, abs=1e-15)
     assert af.joint_error_m(J, G, ("ElbowLeft",)) == pytest.approx(0.05, abs=1e-15)
@@ -253,20 +253,22 @@ def test_hull_data_term_on_a_plane():
     0.5 by default), Huber beyond 3 cm, a template normal within 78 degrees of the hull's (cos > 0.2) or no weight;
     every template vertex is a row, the gradient the hull normal."""
     g = np.linspace(-1.0, 1.0, 21)
-    P = np.array([[x, 0.0, z] for x in g for z in g])
+    P = np.array([[x, 0.1, z] for x in g for z in g])  # the plane y = 0.1
     hull = SimpleNamespace(vertices=P, normals=np.tile([0.0, 1.0, 0.0], (len(P), 1)))
     term = af.hull_data_term(hull, af.PoseRefineParams())
-    V = np.array([[0.0, 0.02, 0.0], [0.1, -0.02, 0.1], [0.2, 0.06, 0.0], [0.3, -0.09, 0.0], [0.0, 0.01, 0.0],
-                  [0.0, 0.01, 0.0]])
+    V = np.array([[0.0, 0.12, 0.0], [0.1, 0.08, 0.1], [0.2, 0.16, 0.0], [0.3, 0.01, 0.0], [0.0, 0.11, 0.0],
+                  [0.0, 0.11, 0.0], [0.0, 0.11, 0.0], [0.4, 0.1, 0.4]])
     up = [0.0, 1.0, 0.0]
-    N = np.array([up, up, up, up, [1.0, 0.0, 0.0], [np.sqrt(1 - 0.21 ** 2), 0.21, 0.0]])
+    N = np.array([up, up, up, up, [1.0, 0.0, 0.0], [np.sqrt(1 - 0.21 ** 2), 0.21, 0.0], [np.sqrt(0.96), 0.2, 0.0],
+                  up])
     rows, r, w, G = term(V, N)
-    np.testing.assert_array_equal(rows, np.arange(6))
-    np.testing.assert_allclose(r, [0.02, -0.02, 0.06, -0.09, 0.01, 0.01], atol=1e-15)
-    np.testing.assert_allclose(w, [1.0, 0.5, 0.5, 0.5 / 3, 0.0, 1.0], atol=1e-12)
-    np.testing.assert_array_equal(G, np.tile(up, (6, 1)))
+    np.testing.assert_array_equal(rows, np.arange(8))
+    np.testing.assert_allclose(r, [0.02, -0.02, 0.06, -0.09, 0.01, 0.01, 0.01, 0.0], atol=1e-15)
+    # a normal exactly 0.2 from the hull's is not compatible; a point on the plane is not inside
+    np.testing.assert_allclose(w, [1.0, 0.5, 0.5, 0.5 / 3, 0.0, 1.0, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_array_equal(G, np.tile(up, (8, 1)))
     term = af.hull_data_term(hull, af.PoseRefineParams(robust_m=0.1, inside_weight=0.2))
-    np.testing.assert_allclose(term(V, N)[2], [1.0, 0.2, 1.0, 0.2, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(term(V, N)[2], [1.0, 0.2, 1.0, 0.2, 0.0, 1.0, 0.0, 1.0], atol=1e-12)
 
 
 # --- the wrappers: refine_bone_transforms, articulated_fit --------------------------------------------------------
@@ -275,6 +277,7 @@ def test_refine_bone_transforms_needs_data_and_adds_the_pelvis_anchors(body, mon
     seen = {}
 
     def fake(b, T, data_term, params, anchors=None):
+        assert b is body
         seen.update(T=T, data_term=data_term, params=params, anchors=anchors)
         return "OUT"
 
@@ -295,9 +298,9 @@ def test_refine_bone_transforms_needs_data_and_adds_the_pelvis_anchors(body, mon
     a = seen["anchors"]
     pel = [body.skeleton.index(b) for b in af.PELVIS_BONES]
     assert a[0].tolist() == [2, *pel] and a[3].tolist() == [4.0, 7.0, 7.0, 7.0]
-    af.refine_bone_transforms(body, T, None, af.PoseRefineParams(pelvis_weight=2.0, pelvis_bones=("pelvis",)),
+    af.refine_bone_transforms(body, T, None, af.PoseRefineParams(pelvis_weight=0.5, pelvis_bones=("pelvis",)),
                               data_term=term)
-    assert seen["anchors"][0].tolist() == [body.skeleton.index("pelvis")] and seen["anchors"][3] == 2.0
+    assert seen["anchors"][0].tolist() == [body.skeleton.index("pelvis")] and seen["anchors"][3] == 0.5
     af.refine_bone_transforms(body, T, None, af.PoseRefineParams(pelvis_weight=0.0), data_term=term, anchors=mine)
     assert seen["anchors"] is mine
 
@@ -322,14 +325,16 @@ def _fit(err, converged=True, scale=1.0, tag=""):
                            pose=Pose(np.zeros((53, 3)), np.zeros(3)))
 
 
-def test_warm_start_and_its_fallback(body, monkeypatch):
+def test_warm_start_and_its_fallback(body, monkeypatch, caplog):
     calls = []
 
     def warm_fit(b, hull, init, params, iterations=None, scale=1.0):
+        assert b is body and hull == "H" and isinstance(params, af.ArticulatedFitParams)
         calls.append(("warm", init, scale))
         return state["warm"]
 
     def cold_fit(b, hull, params):
+        assert b is body and hull == "H" and isinstance(params, af.ArticulatedFitParams)
         calls.append(("cold", params))
         return state["cold"]
 
@@ -345,15 +350,23 @@ def test_warm_start_and_its_fallback(body, monkeypatch):
     calls.clear()
     assert af.fit_body_to_hull(body, "H", prev, previous_scale=1.3) is state["warm"]
     assert calls == [("warm", prev, 1.3)]
+    calls.clear()
+    af.fit_body_to_hull(body, "H", prev)
+    assert calls == [("warm", prev, 1.0)]
     # unconverged: the better of both, the warm one on a tie
     for warm_err, cold_err, winner in ((0.01, 0.02, "warm"), (0.03, 0.02, "cold"), (0.02, 0.02, "warm")):
         state.update(warm=_fit(warm_err, converged=False, tag="warm"), cold=_fit(cold_err, tag="cold"))
         calls.clear()
-        assert af.fit_body_to_hull(body, "H", prev).tag == winner
+        with caplog.at_level("DEBUG", logger="bodystudio.reconstruct.articulated_fit"):
+            assert af.fit_body_to_hull(body, "H", prev).tag == winner
         assert [c[0] for c in calls] == ["warm", "cold"]
+        assert caplog.records[-1].getMessage() == (f"hull fit: warm start did not converge ({warm_err:.4f} m), "
+                                                   f"A-pose start {cold_err:.4f} m")
     # "always": the search even after a converged warm start; "never": not even after an unconverged one
     state.update(warm=_fit(0.03, tag="warm"), cold=_fit(0.02, tag="cold"))
-    assert af.fit_body_to_hull(body, "H", prev, P(warm_fallback="always")).tag == "cold"
+    with caplog.at_level("DEBUG", logger="bodystudio.reconstruct.articulated_fit"):
+        assert af.fit_body_to_hull(body, "H", prev, P(warm_fallback="always")).tag == "cold"
+    assert caplog.records[-1].getMessage() == "hull fit: warm start converged (0.0300 m), A-pose start 0.0200 m"
     state.update(warm=_fit(0.03, converged=False, tag="warm"))
     calls.clear()
     assert af.fit_body_to_hull(body, "H", prev, P(warm_fallback="never")).tag == "warm"
@@ -364,7 +377,7 @@ def test_warm_start_and_its_fallback(body, monkeypatch):
         af.fit_body_to_hull(body, "H", Pose.rest(3))
 
 
-def test_the_a_pose_search_keeps_the_best_yaw_then_better_arm_raises_then_the_refinement(body, monkeypatch):
+def test_the_a_pose_search_keeps_the_best_yaw_then_better_arm_raises_then_the_refinement(body, monkeypatch, caplog):
     """Stood-in fits whose errors depend on the start: yaw 90 is best; raising the left arm 90 degrees (from
     the arm reset straight) improves on it, the right arm's raises do not; the refinement from the best is kept
     only when it is no worse."""
@@ -373,30 +386,38 @@ def test_the_a_pose_search_keeps_the_best_yaw_then_better_arm_raises_then_the_re
     calls = []
 
     def a_pose(b, hull, yaw):
+        assert b is body and hull == "H"
         rot = np.zeros((skel.n_bones, 3))
         rot[ul] = [0.1, 0.0, 0.0]
         rot[ll] = [0.2, 0.0, 0.0]
         return Pose(rot, [yaw, 0.0, 0.0])
 
     def raise_(b, pose, side, deg):
+        assert b is body
         return Pose(pose.rotations, pose.translation + [0.0, {"l": 1.0, "r": 2.0}[side], deg])
 
-    errors = {(90.0, 0.0, 0.0): 0.05, (0.0, 0.0, 0.0): 0.06, (180.0, 0.0, 0.0): 0.07,
-              (90.0, 1.0, 45.0): 0.05, (90.0, 1.0, 90.0): 0.04, (90.0, 3.0, 135.0): 0.045,
-              (90.0, 3.0, 180.0): 0.041}
+    errors = {(90.0, 0.0, 0.0): 0.05, (0.0, 0.0, 0.0): 0.060001, (180.0, 0.0, 0.0): 0.07,
+              (90.0, 1.0, 45.0): 0.05, (90.0, 1.0, 90.0): 0.04, (90.0, 3.0, 135.0): 0.04501,
+              (90.0, 3.0, 180.0): 0.04}  # a tie with the best so far: not taken
     final = {"err": 0.03}
 
     def fit(b, hull, init, params, iterations=None, scale=1.0):
+        assert b is body and hull == "H" and params is given
         key = tuple(float(x) for x in init.translation)
         calls.append((key, iterations, scale, init.rotations[[ul, ll]].copy()))
         err = final["err"] if iterations is None else errors[key]
-        return SimpleNamespace(fit_error_m=err, pose=init, scale=scale + 0.01, key=key)
+        return SimpleNamespace(fit_error_m=err, pose=init, scale=scale + 0.01, key=key, refined=iterations is None)
 
     monkeypatch.setattr(af, "a_pose_at_hull", a_pose)
     monkeypatch.setattr(af, "raise_arm", raise_)
     monkeypatch.setattr(af, "articulated_fit", fit)
-    params = af.ArticulatedFitParams(yaw_candidates_deg=(0.0, 90.0, 180.0), coarse_iterations=7)
-    out = af._fit_from_a_pose(body, "H", params)
+    params = given = af.ArticulatedFitParams(yaw_candidates_deg=(0.0, 90.0, 180.0), coarse_iterations=7)
+    with caplog.at_level("DEBUG", logger="bodystudio.reconstruct.articulated_fit"):
+        out = af._fit_from_a_pose(body, "H", params)
+    assert [r.getMessage() for r in caplog.records] == [
+        "hull fit: yaw candidates (0.0, 90.0, 180.0) -> fit errors [0.06 0.05 0.07] m",
+        "hull fit: arm l raise candidates -> fit errors [0.05 0.04] m",
+        "hull fit: arm r raise candidates -> fit errors [0.045 0.04 ] m"]
     keys = [c[0] for c in calls]
     assert keys[:3] == [(0.0, 0.0, 0.0), (90.0, 0.0, 0.0), (180.0, 0.0, 0.0)]
     assert all(c[1] == 7 for c in calls[:7]) and calls[7][1] is None
@@ -406,18 +427,25 @@ def test_the_a_pose_search_keeps_the_best_yaw_then_better_arm_raises_then_the_re
     np.testing.assert_array_equal(calls[3][3], 0.0)  # the arm reset before raising
     assert calls[3][2] == pytest.approx(1.01) and calls[5][2] == pytest.approx(1.02)  # the best fit's scale
     assert keys[7] == (90.0, 1.0, 90.0) and calls[7][2] == pytest.approx(1.02)
-    assert out.fit_error_m == 0.03
+    assert out.fit_error_m == 0.03 and out.refined
     # a refinement that comes out worse is dropped; an equal one is kept
     final["err"] = 0.0401
     calls.clear()
     out = af._fit_from_a_pose(body, "H", params)
-    assert out.fit_error_m == 0.04 and out.key == (90.0, 1.0, 90.0)
+    assert out.fit_error_m == 0.04 and out.key == (90.0, 1.0, 90.0) and not out.refined
     final["err"] = 0.04
     calls.clear()
-    assert af._fit_from_a_pose(body, "H", params).key == (90.0, 1.0, 90.0) and len(calls) == 8
+    out = af._fit_from_a_pose(body, "H", params)
+    assert out.key == (90.0, 1.0, 90.0) and out.refined and len(calls) == 8
     assert calls[-1][1] is None
     with pytest.raises(InputError, match=r"^articulated fit from the A-pose needs at least one root yaw candidate$"):
         af._fit_from_a_pose(body, "H", af.ArticulatedFitParams(yaw_candidates_deg=()))
+    # the round to 4 decimals in the log
+    errors[(0.0, 0.0, 0.0)] = 0.06004
+    caplog.clear()
+    with caplog.at_level("DEBUG", logger="bodystudio.reconstruct.articulated_fit"):
+        af._fit_from_a_pose(body, "H", params)
+    assert caplog.records[0].getMessage().endswith("fit errors [0.06 0.05 0.07] m")
 
 
 def test_hull_joints_carves_then_fits(monkeypatch):
