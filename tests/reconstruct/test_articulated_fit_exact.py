@@ -209,3 +209,16 @@ def test_refine_prior_tolerance_and_anchors(case):
     assert np.abs(X - anchors[2]).max() < 0.1 * np.abs(X0 - anchors[2]).max()
     with pytest.raises(InputError, match=r"^pose refinement: the template has no bone\(s\) tail_01$"):
         af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(bones=("pelvis", "tail_01")))
+
+
+def test_refine_prior_holds_a_leg_to_the_pelvis(case):
+    """Only the left thigh off by 0.3 rad (its refined parent is the root segment, the pelvis): a strong prior keeps
+    it there (40 mm surface error from 31 mm), none lets the exact data set it (0.14 mm)."""
+    rot = case.true.rotations.copy()
+    rot[case.skel.index("thigh_l")] += [0.3, 0.0, 0.0]
+    T0 = _transforms(case, Pose(rot, case.true.translation))
+    start = _surface_error(case, T0)
+    hull = _hull(case.body, case.V)
+    held = af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(prior_weight=1e4))
+    free = af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(prior_weight=0.0))
+    assert _surface_error(case, held) > 0.5 * start and _surface_error(case, free) < 0.1 * start
