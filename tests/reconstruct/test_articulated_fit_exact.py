@@ -222,3 +222,27 @@ def test_refine_prior_holds_a_leg_to_the_pelvis(case):
     held = af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(prior_weight=1e4))
     free = af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(prior_weight=0.0))
     assert _surface_error(case, held) > 0.5 * start and _surface_error(case, free) < 0.1 * start
+
+
+def test_refine_damping_rotation_clamp_and_a_translation_already_right(case):
+    """Heavy Levenberg damping (1e3 x the mean diagonal) keeps three steps near the start (98 %), none converges
+    (4 %); with a loose translation limit the rotation clamp holds the root segment's first turn to max_step_rad;
+    with the translation already right, a loose tolerance does not stop the rotations after one step (9 % left
+    against 24 %); missing bones are named."""
+    from scipy.spatial.transform import Rotation
+
+    hull = _hull(case.body, case.V)
+    T0 = _transforms(case, case.init)
+    start = _surface_error(case, T0)
+    heavy = af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(iterations=3, damping=1e3))
+    none = af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(iterations=3, damping=0.0))
+    assert _surface_error(case, heavy) > 0.9 * start and _surface_error(case, none) < 0.1 * start
+    one = af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(iterations=1, max_step_m=1.0,
+                                                                             max_step_rad=0.01))
+    turned = Rotation.from_matrix(one[:, :3, :3] @ T0[:, :3, :3].transpose(0, 2, 1)).magnitude()
+    assert turned[case.skel.index("pelvis")] <= 0.01 + 1e-9 and 0.005 < turned.max() < 0.05
+    Ti = _transforms(case, Pose(case.init.rotations, case.true.translation))
+    loose = af.refine_bone_transforms(case.body, Ti, hull, af.PoseRefineParams(tolerance=0.01))
+    assert _surface_error(case, loose) < 0.15 * _surface_error(case, Ti)
+    with pytest.raises(InputError, match=r"^pose refinement: the template has no bone\(s\) tail_01, wing_l$"):
+        af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(bones=("pelvis", "tail_01", "wing_l")))
