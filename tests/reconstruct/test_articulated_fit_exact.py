@@ -246,3 +246,17 @@ def test_refine_damping_rotation_clamp_and_a_translation_already_right(case):
     assert _surface_error(case, loose) < 0.15 * _surface_error(case, Ti)
     with pytest.raises(InputError, match=r"^pose refinement: the template has no bone\(s\) tail_01, wing_l$"):
         af.refine_bone_transforms(case.body, T0, hull, af.PoseRefineParams(bones=("pelvis", "tail_01", "wing_l")))
+
+
+def test_refined_segments_stay_joined(case):
+    """Each segment turns about its placed head with its subtree (leaves first, so an ancestor's turn does not move a
+    head before its own turn about it): after refining, every bone's head placed by its own transform is where its
+    parent's transform puts that point, as in the start (to 1e-9 m)."""
+    sk = case.skel
+    T = af.refine_bone_transforms(case.body, _transforms(case, case.init), _hull(case.body, case.V),
+                                  af.PoseRefineParams(iterations=3))
+    for b in range(sk.n_bones):
+        p = sk.parents[b]
+        if p >= 0:
+            own = T[b, :3, :3] @ sk.heads[b] + T[b, :3, 3]
+            np.testing.assert_allclose(own, T[p, :3, :3] @ sk.heads[b] + T[p, :3, 3], atol=1e-9)
