@@ -302,3 +302,27 @@ def test_template_points_inside_the_hull_count_less(case):
             .joints[elbow, 1] - case.joints[elbow, 1] for w in (0.0, 0.5, 1.0)]
     assert 0.005 < lift[2] and lift[0] < 0.02
     assert lift[0] - lift[1] > 0.0001 and lift[1] - lift[2] > 0.0001
+
+
+def test_hull_samples_is_how_many_hull_points_are_matched(case, monkeypatch):
+    """``hull_samples``: every k-th hull surface point (from the first) is matched to the template, k the hull's size
+    over ``hull_samples`` (at least 1): 2502 points -> all for 3000, every 5th (501) for 500, 2 for 2, 1 for 1 or 0."""
+    from scipy.spatial import cKDTree
+
+    queried = []
+
+    class Tree(cKDTree):
+        def query(self, x, *a, **k):
+            queried.append(np.array(x, copy=True))
+            return super().query(x, *a, **k)
+
+    monkeypatch.setattr(af, "cKDTree", Tree)
+    hull = _hull(case.body, case.V)
+    n = len(case.V)
+    for samples, want in ((3000, np.arange(n)), (500, np.arange(0, n, 5)), (2, np.array([0, n // 2])),
+                          (1, np.array([0])), (0, np.array([0]))):
+        queried.clear()
+        af.articulated_fit(case.body, hull, case.init, af.ArticulatedFitParams(hull_samples=samples), iterations=1)
+        # per iteration: template -> hull (the template's points), then hull -> template (the sampled hull points)
+        assert len(queried) == 2 and len(queried[0]) == n
+        np.testing.assert_array_equal(queried[1], case.V[want])
