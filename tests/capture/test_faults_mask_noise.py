@@ -280,3 +280,17 @@ def test_rewrite_masks_default_seed_is_7_and_a_colour_mask_is_read_as_grey(tmp_p
     m, first = seen[("cam_00", 0)]
     assert m.shape == (6, 8) and m.sum() == 6 and m[2:4, 2:5].all()
     assert first == np.random.default_rng(7).random()
+
+
+def test_mask_holes_and_limb_lost_take_tiny_and_empty_masks():
+    """A mask of fewer pixels than holes gets a hole at each pixel at most (it raised ValueError: 12 distinct
+    centres asked of 5 pixels); an empty mask passes through both generators unchanged."""
+    from bodystudio.capture import faults
+
+    tiny = np.zeros((20, 20), bool)
+    tiny[10, 8:13] = True
+    out = faults.mask_holes(tiny, "cam_00", 0, np.random.default_rng(0))
+    assert out.shape == tiny.shape and not (out & ~tiny).any() and not out.any()
+    empty = np.zeros((20, 20), bool)
+    assert not faults.mask_holes(empty, "cam_00", 0, np.random.default_rng(0)).any()
+    assert not faults.mask_limb_lost(empty, "cam_00", 0, np.random.default_rng(0)).any()
