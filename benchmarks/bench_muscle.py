@@ -23,7 +23,9 @@ model against the model extended with the captured subjects 601-604 (and, to see
 learn at all, with their ground-truth meshes; each with and without the sex input). The captures use the
 per-subject skeleton and torso placement (``EXTENSION_CAPTURE``) and each captured rest mesh is centred on
 its fitted shoulder for a woman, the model's regressed one for a man (``--extension-centre``; docs/muscle.md,
-fifth pass); ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
+fifth pass); each captured subject's shape row is its rest mesh's nearest arm of the body model's shape space
+(``--extension-captured-rest body``, docs/muscle.md, "Dataset extension, seventh pass"; the captured mesh's rows
+are scored beside it); ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
 pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
     python -m benchmarks.bench_muscle --frames 20     # quick check (also: --quick)

@@ -28,8 +28,10 @@ normal equations of the pose regression), so :func:`extend_arm_model` adds captu
 re-solves without the original meshes. The sex column has its own, weaker Tikhonov weight
 (``sex_regularization``): it is learned from the few added women alone, and the common weight
 (1, against a column sum of squares of 2 for two women with one base-pose mesh each) shrank it by a
-third (docs/muscle.md, "Dataset extension"). Saved as a versioned ``.npz`` with the subjects it was
-learned from and the template key; loading it for another template is refused.
+third (docs/muscle.md, "Dataset extension"). A captured subject's shape row can be its rest mesh's nearest
+arm of the body model's shape space (:func:`body_space_rest_mesh`: where the shoulder sits in the skin and how the
+vertices lie along it, which a depth capture does not see; seventh extension pass). Saved as a versioned ``.npz``
+with the subjects it was learned from and the template key; loading it for another template is refused.
 """
 
 from __future__ import annotations
