@@ -162,3 +162,36 @@ def test_model_front_vertices_against_the_templates_raster():
     empty = np.array([[2, 2], [px[plane, 1], px[plane, 0]]])  # the second: the plane pixel's row/column swapped
     assert raster[2, 2] == 0 and raster[empty[1, 1], empty[1, 0]] == 0
     assert not model_front_vertices(V, F, cam, np.array([0.005, 0.005]), empty).any()
+
+
+def _facing(u, cos):
+    """A unit normal at angle ``arccos(cos)`` from the unit direction ``u``, tilted in the x-z plane's normal."""
+    w = np.cross(u, [0.0, 1.0, 0.0])
+    w /= np.linalg.norm(w)
+    return cos * u + np.sqrt(1.0 - cos * cos) * w
+
+
+def test_only_vertices_facing_the_sensor_inside_its_image_pair():
+    """The candidates: ``n . (c - v) > 0.2 |c - v|`` (facing, strict: exactly 0.2 is out) and a pixel inside the
+    image (columns 0 .. W-1, rows 0 .. H-1; -1 would wrap to the far border, W or H would not index)."""
+    cam, *_ = _scene()
+    C = cam.center
+    s = np.sign(cam.project(np.array([[0.0, 0.1, 0.0]]))[0, 1] - 40.0)  # image rows per world y
+    pts = np.array([[0.0, 0.0, 0.0],  # facing exactly at the bound: out
+                    [0.1, 0.1, 0.0],  # facing with cos 0.22: in
+                    [0.18, 0.0, 0.0],  # grazing (cos ~0.004): out
+                    [-0.5, 0.05, 0.0], [-0.51, 0.05, 0.0], [0.51, 0.05, 0.0],  # columns 0, -1, W
+                    [0.05, -0.4 * s, 0.0], [0.05, -0.41 * s, 0.0], [0.05, 0.41 * s, 0.0]])  # rows 0, -1, H
+    px = np.round(cam.project(pts)).astype(int)
+    assert px[3:6, 0].tolist() == [0, -1, cam.width] and px[6:9, 1].tolist() == [0, -1, cam.height]
+    N = np.tile(UP, (len(pts), 1))
+    N[0] = [np.sqrt(1.0 - 0.04), 0.0, 0.2]
+    assert np.sum(N[0] * (C - pts[0])) == 0.2 * np.linalg.norm(C - pts[0])  # exactly the bound
+    N[1] = _facing((C - pts[1]) / np.linalg.norm(C - pts[1]), 0.22)
+    N[2] = np.array([0.98, 0.0, 0.2]) / np.linalg.norm([0.98, 0.0, 0.2])
+    entries = {i: (0.01, N[i], None) for i in range(6) if i != 5}  # the observed normal agrees with the vertex's
+    entries.update({6: (0.01, UP, None), 7: (0.01, UP, None)})
+    obs = _obs(cam, pts, entries)
+    assert sorted(_pairs(depth_constraints(pts, N, obs))) == [1, 3, 6]
+    # one candidate is enough
+    assert list(_pairs(depth_constraints(pts[[3]], N[[3]], obs))) == [0]
