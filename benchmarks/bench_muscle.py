@@ -23,7 +23,9 @@ model against the model extended with the captured subjects 601-604 (and, to see
 learn at all, with their ground-truth meshes; each with and without the sex input). The captures use the
 per-subject skeleton and torso placement (``EXTENSION_CAPTURE``) and each captured rest mesh is centred on
 its fitted shoulder for a woman, the model's regressed one for a man (``--extension-centre``; docs/muscle.md,
-fifth pass); ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
+fifth pass); each captured subject's shape row is its rest mesh's nearest arm of the body model's shape space
+(``--extension-captured-rest body``, docs/muscle.md, "Dataset extension, seventh pass"; the captured mesh's rows
+are scored beside it); ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
 pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
     python -m benchmarks.bench_muscle --frames 20     # quick check (also: --quick)
@@ -206,12 +208,17 @@ def _change_pct(before: dict, after: dict) -> float:
 
 #: the extension variants of the held-out table: (key, label); "no sex" adds the same meshes with the sex hidden
 #: (every subject male: the model before sex became an input)
-EXTENSION_VARIANTS = (("captured_nosex", "captures, no sex"), ("captured", "captures, with sex"),
+EXTENSION_VARIANTS = (("captured_nosex", "captures, no sex"), ("captured_mesh", "captures, with sex, mesh rows"),
+                      ("captured", "captures, with sex"),
                       ("truth_nosex", "truth meshes, no sex"), ("truth", "truth meshes, with sex"))
 
 
 CENTRE_WORDS = {"fitted": "the capture's fitted shoulder", "regressed": "the model's regressed shoulder",
                 "sex": "the fitted shoulder (women) or the regressed one (men)"}
+
+
+REST_WORDS = {"mesh": "", "body": ", taken as its nearest arm of the body model's shape space (`--captured-rest "
+                               "body`; the column 'mesh rows' adds the captured rest mesh itself)"}
 
 
 def extension_section(data: dict) -> str:
@@ -265,7 +272,8 @@ def extension_section(data: dict) -> str:
             f"({data['n_extended']} in all), captured with the original model (full pipeline, "
             f"options {data.get('capture_options', {})}, {data.get('per_group', 1)} per group), each rest mesh "
             f"centred on {CENTRE_WORDS[data.get('centre', 'fitted')]}, every {EXTENSION_STRIDE}rd frame added "
-            "(pose rows each; their mean rest shape one shape row) "
+            "(pose rows each; their mean rest shape one shape row" + REST_WORDS[data.get("captured_rest", "mesh")]
+            + ") "
             "with the subject's measured shape parameters and sex (as the "
             "paper's Table 1; the capture also used them). For comparison: the same subjects' ground-truth "
             "meshes (1 base-pose + 8 posed each, own joints) instead of their captures, and both without the sex "
@@ -386,11 +394,14 @@ def extension_seeds(per_group: int) -> list[tuple[int, str]]:
             for seed in seeds[:per_group]]
 
 
-def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = "sex") -> None:
+def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = "sex",
+                   captured_rest: str = "body") -> None:
     """Held-out model-only error, original against extended models (captures and ground-truth meshes).
 
     ``per_group`` captured subjects per out-of-range group; ``centre``: where each captured rest mesh is
-    centred (``model.capture_samples``; "fitted" is the construction before the fifth pass).
+    centred (``model.capture_samples``; "fitted" is the construction before the fifth pass); ``captured_rest``:
+    each captured subject's shape row, its rest mesh's nearest body-space arm ("body", seventh pass) or the mesh
+    ("mesh"; with "body" the mesh rows are scored too, as "captured_mesh").
     """
     from benchmarks.muscle_extension_ceiling import model_surface_error_mm
     from bodystudio.fileio import write_json
@@ -423,10 +434,12 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
         added.append({"seed": seed, "label": label, "gender": subj.gender, "bmi": subj.bmi,
                       "height_m": subj.height_m, "frames": n_frames, "samples": len(new),
                       "median_mm": sc["median_mm"], "centre": centre})
-    extended = {"captured": extend_arm_model(model, ext_samples),
-                "captured_nosex": extend_arm_model(model, _without_sex(ext_samples)),
+    extended = {"captured": extend_arm_model(model, ext_samples, captured_rest=captured_rest),
+                "captured_nosex": extend_arm_model(model, _without_sex(ext_samples), captured_rest=captured_rest),
                 "truth": extend_arm_model(model, truth_samples),
                 "truth_nosex": extend_arm_model(model, _without_sex(truth_samples))}
+    if captured_rest != "mesh":
+        extended["captured_mesh"] = extend_arm_model(model, ext_samples, captured_rest="mesh")
     held = []
     cases = [(name, seed, label) for name, seeds in HELD_OUT_SETS for seed, label in zip(seeds, labels, strict=True)]
     for name, seed, label in [*cases, ("", IN_RANGE_SEED, "in range")]:
@@ -446,7 +459,8 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
                                             ("truth", extended["truth"]))}
         held.append(row)
     write_json(work / "extension.json", {"n_original": len(model.subjects), "per_group": per_group,
-                                         "centre": centre, "capture_options": {**EXTENSION_CAPTURE,
+                                         "centre": centre, "captured_rest": captured_rest,
+                                         "capture_options": {**EXTENSION_CAPTURE,
                                                                                **CAPTURE_OVERRIDES},
                                          "n_extended": len(extended["captured"].subjects),
                                          "shape_range": model.shape_range(), "added": added, "held": held})
@@ -549,6 +563,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="extension step: centre each captured rest mesh on the capture's fitted shoulder "
                              "for a woman and the model's regressed one for a man (sex, default), or always "
                              "on one of them")
+    parser.add_argument("--extension-captured-rest", choices=("body", "mesh"), default="body",
+                        help="extension step: each captured subject's shape row, its rest mesh's nearest arm of "
+                             "the body model's shape space (body, default) or the captured mesh (mesh)")
     parser.add_argument("--capture-option", action="append", default=[], metavar="KEY=VALUE",
                         help="a CaptureOptions field for every capture (Python literal), e.g. "
                              "sequence_fit_skeleton=True; repeatable")
@@ -563,7 +580,7 @@ def main(argv: list[str] | None = None) -> None:
     {"prepare": lambda: step_prepare(args.work, n),
      "compare": lambda: step_compare(args.work, tuple(m for m in args.methods.split(",") if m)),
      "extension": lambda: step_extension(args.work, min(EXTENSION_FRAMES, n), args.extension_per_group,
-                                         args.extension_centre),
+                                         args.extension_centre, args.extension_captured_rest),
      "pronation": lambda: step_pronation(args.work, min(PRONATION_FRAMES, max(n, 10))),
      "render": lambda: print(render(args.work, n))}[args.step]()
 

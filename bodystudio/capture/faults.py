@@ -133,7 +133,8 @@ def mask_holes(m, cam, frame, rng):
 
     ys, xs = np.nonzero(m)
     out = m.astype(np.uint8).copy()
-    for i in rng.choice(len(ys), size=int(rng.integers(6, 13)), replace=False) if len(ys) else []:
+    centres = rng.choice(len(ys), size=min(int(rng.integers(6, 13)), len(ys)), replace=False) if len(ys) else []
+    for i in centres:
         cv2.circle(out, (int(xs[i]), int(ys[i])), int(rng.integers(2, 5)), 0, -1)
     return out > 0
 
@@ -144,6 +145,8 @@ def mask_limb_lost(m, cam, frame, rng):
     if frame != 0 or cam != "cam_00":
         return m
     ys, xs = np.nonzero(m)
+    if not len(ys):
+        return m
     x0, x1, y0, y1 = xs.min(), xs.max(), ys.min(), ys.max()
     out = m.copy()
     out[int(y0 + 0.15 * (y1 - y0)):int(y0 + 0.55 * (y1 - y0)), int(x1 - 0.2 * (x1 - x0)):] = False

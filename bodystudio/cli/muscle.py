@@ -27,6 +27,7 @@ KINECTS = ("v1", "v2")
 RESOLUTIONS = ("6k", "2k", "full")
 SIDES = ("left", "right")
 CENTRES = ("sex", "fitted", "regressed")  # model.capture_samples(centre=...)
+CAPTURED_RESTS = ("body", "mesh")  # model.extend_arm_model(captured_rest=...)
 DISTANCE_RANGE_M = (0.5, 3.0)  # Kinect v1 sees from 0.5 m (v2 also); beyond 3 m the arm is a few pixels wide
 MAX_FRAMES = 2000  # the .glb's weights track is T^2 floats
 
@@ -345,7 +346,13 @@ def model_extend(
     centre: str = typer.Option("sex", "--centre", help="where each captured rest mesh is centred: sex (a "
                                "woman's fitted shoulder, a man's regressed one) | fitted | regressed (the "
                                "shoulder the capture's own model regresses, recorded in the capture; MODEL "
-                               "for captures made before it was recorded); docs/muscle.md"),
+                               "for captures made before it was recorded); only with --captured-rest mesh (body "
+                               "rows put the shoulder where the body model does); docs/muscle.md"),
+    captured_rest: str = typer.Option("body", "--captured-rest", help="each captured subject's shape row: body (its "
+                                      "rest mesh's nearest arm of the body model's shape space: the shoulder and "
+                                      "the vertices' layout along the skin, which a depth capture does not see, "
+                                      "from the body model) | mesh (the captured rest mesh as it is); "
+                                      "docs/muscle.md"),
 ) -> None:
     """Dataset extension (issue 11 §4): add captured subjects to a model and re-learn it.
 
@@ -357,6 +364,7 @@ def model_extend(
 
     check_range("--stride", stride, 1, 1000)
     check_choice("--centre", centre, CENTRES)
+    check_choice("--captured-rest", captured_rest, CAPTURED_RESTS)
     if out.suffix.lower() != ".npz":
         raise InputError(f"--out {out}: an arm model is a .npz file")
     shapes = [_parse_shape(text) for text in shape or ()]
@@ -392,7 +400,7 @@ def model_extend(
                        "nothing); captures made with it extend the model more (docs/muscle.md)", err=True)
         samples += capture_samples(capture, f"capture_{folder.resolve().name}", subject_shape, stride,
                                    model=model, centre=centre)
-    extended = extend_arm_model(model, samples)
+    extended = extend_arm_model(model, samples, captured_rest=captured_rest)
     save_arm_model(out, extended)
     typer.echo(f"wrote {out}: {len(extended.subjects)} subjects ({len(captures)} added from captures)")
 

@@ -28,8 +28,10 @@ normal equations of the pose regression), so :func:`extend_arm_model` adds captu
 re-solves without the original meshes. The sex column has its own, weaker Tikhonov weight
 (``sex_regularization``): it is learned from the few added women alone, and the common weight
 (1, against a column sum of squares of 2 for two women with one base-pose mesh each) shrank it by a
-third (docs/muscle.md, "Dataset extension"). Saved as a versioned ``.npz`` with the subjects it was
-learned from and the template key; loading it for another template is refused.
+third (docs/muscle.md, "Dataset extension"). A captured subject's shape row can be its rest mesh's nearest
+arm of the body model's shape space (:func:`body_space_rest_mesh`: where the shoulder sits in the skin and how the
+vertices lie along it, which a depth capture does not see; seventh extension pass). Saved as a versioned ``.npz``
+with the subjects it was learned from and the template key; loading it for another template is refused.
 """
 
 from __future__ import annotations
@@ -67,6 +69,14 @@ SEX_NAMES = {"male": 1.0, "m": 1.0, "female": 0.0, "f": 0.0}
 # Tikhonov weight of the sex column: measured on ground-truth extensions (docs/muscle.md), 1.0 -> 0.1
 # takes the held-out out-of-range change from -23 % to -29 %.
 SEX_REGULARIZATION = 0.1
+# Where a captured subject's shape row comes from (dataset extension): "mesh", its captured rest mesh as it is; "body",
+# that mesh's nearest arm of the body model's shape space (:func:`body_space_rest_mesh`), which puts the subject's
+# shoulder where the body model's joint regressor puts it in that skin and the vertices where the body model lays
+# them along it (neither is seen by a depth camera; docs/muscle.md, "Dataset extension, seventh pass").
+CAPTURED_REST_CHOICES = ("mesh", "body")
+# Prior weight of that fit (per vertex, on the standardised body parameters, in (1 mm)^2): chosen on a third seed
+# set of held-out subjects (641-664, 621-625), 3 / 10 / 30 -> -19.2 / -18.6 / -17.3 % (docs/muscle.md).
+CAPTURED_REST_PRIOR_WEIGHT = 3.0
 
 
 def parse_sex(value, source: str = "sex") -> float:
@@ -351,8 +361,58 @@ def unposed_sample(s: ArmSample, part_weights, predict_joints) -> np.ndarray:
     return unpose_arm(s.vertices, part_weights, J, s.pose) - origin
 
 
-def _subject_rows(samples: list[ArmSample], part_weights, predict_joints, prior: ArmModel | None):
-    """Unposed meshes of one subject -> (base-pose rows, subject base mesh, pose rows (angles, d))."""
+def body_space_rest_mesh(space: BodyShapeSpace, rest: np.ndarray, shape: ArmShapeParams,
+                         prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT, iterations: int = 8):
+    """A rest mesh (n, 3) as its nearest arm of the body model's shape space (dataset extension of captures).
+
+    Gauss-Newton over the body parameters ``x`` (macro values, local target weights) and a free translation ``t``:
+    ``min |B(x) + t - rest|^2 + prior``, ``B(x)`` the space's rest arm relative to its own shoulder (MakeHuman's joint
+    regressor), the prior the population's (:meth:`BodyShapeSpace.prior`: gender and muscle at the subject's sex and
+    muscularity, nothing from its BMI or height) with ``prior_weight`` per vertex on the standardised parameters in
+    (1 mm)^2, started at its mean. Returns ``(B(x), x, t)``: the arm relative to the shoulder the body model puts
+    in this skin (``rest - t`` is the given mesh so centred), the parameters, the shoulder's place in ``rest``'s frame.
+
+    Why: a depth capture sees the skin, not where the shoulder joint sits in it nor how the vertices lie along it;
+    as a shape row, a captured rest mesh carried 0.02-0.6 of its subject's departure from the model, while its body
+    space fit carries 0.4-0.9 (docs/muscle.md, seventh pass).
+    """
+    rest = np.asarray(rest, dtype=np.float64)
+    if rest.shape != (space.n_vertices, 3) or not np.isfinite(rest).all():
+        raise InputError(f"rest mesh of shape {rest.shape}: the body space's arm template has ({space.n_vertices}, 3)")
+    if not (np.isfinite(prior_weight) and prior_weight > 0):
+        raise InputError(f"prior_weight={prior_weight} must be > 0")
+    mean, sigma = space.prior(shape)
+    x, t = mean.copy(), np.zeros(3)
+    n, P = len(rest), len(mean)
+    lam = np.r_[prior_weight * n * 1e-6 / sigma ** 2, np.zeros(3)]
+    translation = np.tile(np.eye(3), (n, 1))
+    for _ in range(iterations):
+        R = space.shaped_rows(x)
+        r = (R[:-3] - R[-3] + t - rest).ravel()
+        G = np.c_[space.jacobian(x)[:, :-3].reshape(P, -1).T, translation]
+        step = np.linalg.solve(G.T @ G + np.diag(lam), -(G.T @ r) - lam * np.r_[x - mean, np.zeros(3)])
+        x, t = x + step[:P], t + step[P:]
+        x[:len(BODY_MACRO_NAMES)] = np.clip(x[:len(BODY_MACRO_NAMES)], 0.0, 1.0)
+    R = space.shaped_rows(x)
+    return R[:-3] - R[-3], x, t
+
+
+def body_space_for_model(model: ArmModel) -> BodyShapeSpace:
+    """The body model's shape space on ``model``'s arm template (resolution and side from its template key)."""
+    resolution, side = model.template_key.split("-")[:2]
+    space = _body_shape_space(resolution, side)
+    if space.n_vertices != model.n_vertices:
+        raise InputError(f"arm model template {model.template_key}: the body model's {resolution} {side} arm has "
+                         f"{space.n_vertices} vertices, not {model.n_vertices}; rebuild the model")
+    return space
+
+
+def _subject_rows(samples: list[ArmSample], part_weights, predict_joints, prior: ArmModel | None,
+                  body_space: BodyShapeSpace | None = None, prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT):
+    """Unposed meshes of one subject -> (base-pose rows, subject base mesh, pose rows (angles, d)).
+
+    ``body_space``: a captured subject's shape row is its rest mesh's nearest body-space arm
+    (:func:`body_space_rest_mesh`); the pose rows stay relative to the captured rest mesh."""
     unposed, angles = [], []
     for s in samples:
         unposed.append(unposed_sample(s, part_weights, predict_joints))
@@ -369,6 +429,10 @@ def _subject_rows(samples: list[ArmSample], part_weights, predict_joints, prior:
         # pass), held-out sets A / B: a row per frame -11.7 / -11.7 %, one row -12.3 / -14.1 %.
         base_rows = np.mean([u - pose_displacements(prior, a) for u, a in zip(unposed, angles, strict=True)],
                             axis=0)[None]
+        if body_space is not None:
+            base = base_rows[0]
+            return body_space_rest_mesh(body_space, base, samples[0].shape, prior_weight)[0][None], base, angles, \
+                unposed - base
     else:
         raise InputError(f"subject {samples[0].subject!r} has no mesh in the base pose (all joint angles "
                          f"< {np.degrees(BASE_POSE_TOL_RAD):.0f} deg); add one or extend an existing model")
@@ -424,7 +488,9 @@ def learn_arm_model(samples: list[ArmSample], template: ArmTemplate, regularizat
     return _add_subjects(model, samples, prior=None, source=source)
 
 
-def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | None, source: str) -> ArmModel:
+def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | None, source: str,
+                  body_space: BodyShapeSpace | None = None,
+                  prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT) -> ArmModel:
     groups = _group(samples)
     taken = {s["name"] for s in model.subjects}
     clash = sorted(set(groups) & taken)
@@ -436,7 +502,8 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
     subjects = list(model.subjects)
     for name, group in groups.items():
         shape = group[0].shape
-        base_rows, _, angles, d = _subject_rows(group, model.part_weights, lambda s: model_joints(model, s), prior)
+        base_rows, _, angles, d = _subject_rows(group, model.part_weights, lambda s: model_joints(model, s), prior,
+                                                body_space, prior_weight)
         expected = model.base_vertices + length_displacements(model, shape)
         shape_rows.append(np.tile(shape.as_row(), (len(base_rows), 1)))
         residuals.append((base_rows - expected).reshape(len(base_rows), -1))
@@ -448,7 +515,10 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
             xj = np.r_[1.0, _z(model, shape.as_vector())]
             jtx += np.outer(xj, xj)
             jty += np.outer(xj, np.mean(known, axis=0).reshape(9))
-        subjects.append({"name": name, "shape": shape.to_dict(), "n_meshes": len(group), "source": source})
+        entry = {"name": name, "shape": shape.to_dict(), "n_meshes": len(group), "source": source}
+        if body_space is not None and len(base_rows) == 1 and prior is not None:
+            entry["rest"] = f"body space (prior weight {prior_weight:g})"
+        subjects.append(entry)
     rows, R = np.concatenate(shape_rows), np.concatenate(residuals)
     q = model.regularization
     shape_coeffs = fit_shape_coefficients(model, rows, R)
@@ -459,15 +529,22 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
                    subjects=subjects)
 
 
-def extend_arm_model(model: ArmModel, captures: list[ArmSample], source: str = "capture") -> ArmModel:
+def extend_arm_model(model: ArmModel, captures: list[ArmSample], source: str = "capture",
+                     captured_rest: str = "mesh", prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT) -> ArmModel:
     """Dataset extension (§1 contribution 2, issue §4): add captured subjects and re-learn Eq. 6-10.
 
     Subjects without a base-pose mesh (captured sequences) get their base mesh from every frame minus
     the current model's pose term, averaged over the frames into one shape row (a subject counts once
     in Eq. 7, however many frames were captured). The population terms (v_base, d_l, joints) are kept.
+    ``captured_rest``: that row as captured (``"mesh"``) or its nearest arm of the body model's shape space
+    (``"body"``, :func:`body_space_rest_mesh` with ``prior_weight``; the benchmark's and ``muscle model extend``'s
+    default). Subjects with a base-pose mesh (ground truth) are added as they are either way.
     """
     _check_samples(captures, model.n_vertices)
-    return _add_subjects(model, captures, prior=model, source=source)
+    if captured_rest not in CAPTURED_REST_CHOICES:
+        raise InputError(f"captured_rest={captured_rest!r} must be one of {', '.join(CAPTURED_REST_CHOICES)}")
+    space = body_space_for_model(model) if captured_rest == "body" else None
+    return _add_subjects(model, captures, prior=model, source=source, body_space=space, prior_weight=prior_weight)
 
 
 # --- files ----------------------------------------------------------------------------------------------

@@ -18,7 +18,8 @@ def test_per_group_takes_the_first_seeds_of_every_group():
 
 
 @pytest.mark.parametrize("argv", [["--extension-per-group", "0"], ["--extension-per-group", "5"],
-                                  ["--extension-per-group", "two"], ["--extension-centre", "elbow"]])
+                                  ["--extension-per-group", "two"], ["--extension-centre", "elbow"],
+                                  ["--extension-captured-rest", "skin"]])
 def test_bad_extension_options_exit_2_before_any_work(argv, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--step", "extension", "--work", str(tmp_path / "w"), *argv])

@@ -1,5 +1,5 @@
 """Bad input for the extension options (issue 11, sixth pass): ``muscle capture --for-extension`` and
-``muscle model extend --centre``: one line, exit 2, nothing written."""
+``muscle model extend --centre`` / ``--captured-rest``: one line, exit 2, nothing written."""
 
 import pytest
 
@@ -31,6 +31,13 @@ def test_capture_for_extension_conflicts(arm_session, tiny_arm_model_path, tmp_p
 def test_extend_refuses_an_unknown_centre(tiny_arm_model_path, tmp_path, capsys, value):
     run_bad(["muscle", "model", "extend", tiny_arm_model_path, tmp_path, "--out", tmp_path / "m2.npz",
              "--centre", value], capsys, f"--centre {value!r}: valid: sex, fitted, regressed")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("value", ["surface", "", "BODY"])
+def test_extend_refuses_an_unknown_captured_rest(tiny_arm_model_path, tmp_path, capsys, value):
+    run_bad(["muscle", "model", "extend", tiny_arm_model_path, tmp_path, "--out", tmp_path / "m2.npz",
+             "--captured-rest", value], capsys, f"--captured-rest {value!r}: valid: body, mesh")
     assert list(tmp_path.iterdir()) == []
 
 
