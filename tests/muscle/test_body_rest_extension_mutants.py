@@ -348,3 +348,18 @@ def test_body_rows_with_a_bad_prior_weight_are_refused(stand_in):
     frames = _frames(model, _rel(stand_in[0], X_TRUE))
     with pytest.raises(InputError, match=r"^prior_weight=0.0 must be > 0$"):
         extend_arm_model(model, frames, captured_rest="body", prior_weight=0.0)
+
+
+def test_a_ground_truth_subject_keeps_its_base_pose_mesh_and_no_body_space_record(stand_in):
+    """A subject with one base-pose mesh is added as it is with ``captured_rest="body"`` (extend_arm_model's
+    docstring), and its record must not claim a body-space row."""
+    space, _ = stand_in
+    model = _tiny_model()
+    rest = _planted(space, X_TRUE, T_TRUE, noise=0.003)
+    J = mm.model_joints(model, SHAPE)
+    gt = [ArmSample("gt", SHAPE, rest + J[0], ArmPose.rest())] + _frames(model, rest, "gt", poses=POSES[1:])
+    ext = extend_arm_model(model, gt, captured_rest="body")
+    expected = model.base_vertices + mm.length_displacements(model, SHAPE)
+    np.testing.assert_allclose(ext.shape_residuals[3], (rest - expected).ravel(), atol=1e-12)
+    assert ext.shape_residuals.shape[0] == 4
+    assert "rest" not in ext.subjects[-1], ext.subjects[-1]
