@@ -260,8 +260,9 @@ def _frames(model, rest, name="cap", shape=SHAPE, poses=POSES):
                                             model.part_weights, J, p), p) for p in poses]
 
 
-@pytest.fixture
-def stand_in(monkeypatch):
+def _stand_in(monkeypatch):
+    """The stand-in space in place of the body model's (a helper, not a fixture: the direct recheck builds fixtures
+    once)."""
     space = _space()
     calls = []
     monkeypatch.setattr(mm, "_body_shape_space", lambda r, s: calls.append((r, s)) or space)
@@ -275,8 +276,8 @@ def _captured_base(model, frames):
 
 
 @pytest.mark.parametrize("prior_weight", [None, 0.5])
-def test_body_rows_are_the_body_space_fit_of_the_captured_base_mesh(stand_in, prior_weight):
-    space, calls = stand_in
+def test_body_rows_are_the_body_space_fit_of_the_captured_base_mesh(monkeypatch, prior_weight):
+    space, calls = _stand_in(monkeypatch)
     model = _tiny_model()
     rest = _planted(space, X_TRUE + np.r_[np.zeros(M), 0.3, 0.1, -0.2], T_TRUE, noise=0.003)
     frames = _frames(model, rest)
@@ -318,8 +319,8 @@ def test_mesh_rows_and_the_default_keep_the_captured_base_mesh_and_build_no_spac
         assert ext.subjects[-1] == {"name": "cap", "shape": SHAPE.to_dict(), "n_meshes": 3, "source": "capture"}
 
 
-def test_two_captured_subjects_each_get_their_own_fit(stand_in):
-    space, _ = stand_in
+def test_two_captured_subjects_each_get_their_own_fit(monkeypatch):
+    space, _ = _stand_in(monkeypatch)
     model = _tiny_model()
     other = ArmShapeParams(30.0, 0.9, 1.8, 0.64, sex=1.0)
     r1 = _planted(space, X_TRUE, T_TRUE, seed=1)
@@ -343,17 +344,17 @@ def test_unknown_captured_rest_is_refused_before_any_space_is_built(monkeypatch)
             extend_arm_model(model, frames, captured_rest=bad)
 
 
-def test_body_rows_with_a_bad_prior_weight_are_refused(stand_in):
+def test_body_rows_with_a_bad_prior_weight_are_refused(monkeypatch):
     model = _tiny_model()
-    frames = _frames(model, _rel(stand_in[0], X_TRUE))
+    frames = _frames(model, _rel(_stand_in(monkeypatch)[0], X_TRUE))
     with pytest.raises(InputError, match=r"^prior_weight=0.0 must be > 0$"):
         extend_arm_model(model, frames, captured_rest="body", prior_weight=0.0)
 
 
-def test_a_ground_truth_subject_keeps_its_base_pose_mesh_and_no_body_space_record(stand_in):
+def test_a_ground_truth_subject_keeps_its_base_pose_mesh_and_no_body_space_record(monkeypatch):
     """A subject with one base-pose mesh is added as it is with ``captured_rest="body"`` (extend_arm_model's
     docstring), and its record must not claim a body-space row."""
-    space, _ = stand_in
+    space, _ = _stand_in(monkeypatch)
     model = _tiny_model()
     rest = _planted(space, X_TRUE, T_TRUE, noise=0.003)
     J = mm.model_joints(model, SHAPE)
