@@ -516,7 +516,8 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
             jtx += np.outer(xj, xj)
             jty += np.outer(xj, np.mean(known, axis=0).reshape(9))
         entry = {"name": name, "shape": shape.to_dict(), "n_meshes": len(group), "source": source}
-        if body_space is not None and len(base_rows) == 1 and prior is not None:
+        in_base = [np.abs(s.pose.angles).max() <= BASE_POSE_TOL_RAD for s in group]
+        if body_space is not None and prior is not None and not any(in_base):  # _subject_rows' body-space row
             entry["rest"] = f"body space (prior weight {prior_weight:g})"
         subjects.append(entry)
     rows, R = np.concatenate(shape_rows), np.concatenate(residuals)
