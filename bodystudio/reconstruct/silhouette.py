@@ -409,14 +409,17 @@ _CLOSED_CACHE: dict = {}
 
 
 def _is_closed_cached(F: np.ndarray) -> bool:
-    """:func:`is_closed_mesh` memoised on the face array's bytes (one template, many frames)."""
+    """:func:`is_closed_mesh` memoised on the face array's content (one template, many frames): keyed by a
+    hash of every 97th face and checked against a stored copy (hashing all 26K faces was 0.8 ms a frame;
+    the comparison is ~0.1 ms)."""
     F = np.ascontiguousarray(F, dtype=np.int64)
-    key = hashlib.blake2b(F.tobytes(), digest_size=16).digest()
-    if key not in _CLOSED_CACHE:
+    key = (F.shape, hashlib.blake2b(F[::97].tobytes(), digest_size=16).digest())
+    hit = _CLOSED_CACHE.get(key)
+    if hit is None or not np.array_equal(hit[0], F):
         if len(_CLOSED_CACHE) > 16:
             _CLOSED_CACHE.clear()
-        _CLOSED_CACHE[key] = is_closed_mesh(F)
-    return _CLOSED_CACHE[key]
+        hit = _CLOSED_CACHE[key] = (F.copy(), is_closed_mesh(F))
+    return hit[1]
 
 
 class SilhouetteViews:
