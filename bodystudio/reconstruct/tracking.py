@@ -161,7 +161,7 @@ class SilhouetteFields:
         (zero beyond the fields): the implicit visual hull of :func:`silhouette_data_term`."""
         return _implicit_hull(np.ascontiguousarray(V, dtype=np.float64), self._R, self._t, self._K, self._dist,
                               self._has_dist, self._size, self._packed_sdf, self._shapes, self._offsets,
-                              self.margin_px)
+                              self.margin_px, numba.get_num_threads())
 
     def hull_gate(self, V: np.ndarray, vertex: np.ndarray, origin: np.ndarray, direction: np.ndarray,
                   gate_m: float) -> np.ndarray:
@@ -292,14 +292,29 @@ def silhouette_data_term(fields: SilhouetteFields, params: TrackParams):
     return term
 
 
-@numba.njit(cache=True)
-def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+@numba.njit(cache=True, parallel=True)
+def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, chunks):
     """One compiled pass of the implicit visual hull over vertices and cameras (see
-    :meth:`SilhouetteFields.implicit_hull`; OpenCV projection as :meth:`Camera.project_with_depth`)."""
-    n, C = V.shape[0], R.shape[0]
+    :meth:`SilhouetteFields.implicit_hull`; OpenCV projection as :meth:`Camera.project_with_depth`). The
+    vertices run in ``prange`` as ``chunks`` contiguous chunks (one per numba thread, passed in as for
+    :func:`_hull_max`); each vertex's arithmetic is the serial loop's, so the values are the same on any
+    number of threads."""
+    n = V.shape[0]
     best = np.full(n, -np.inf)
     G = np.zeros((n, 3))
-    for i in range(n):
+    chunks = max(min(chunks, n), 1)
+    size_chunk = (n + chunks - 1) // chunks
+    for ch in numba.prange(chunks):
+        _implicit_hull_range(V, best, G, ch * size_chunk, min(n, (ch + 1) * size_chunk), R, t, K, dist, has_dist,
+                             size, sdf, shapes, offsets, margin)
+    return best, G
+
+
+@numba.njit(cache=True, inline="always")
+def _implicit_hull_range(V, best, G, lo, hi, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+    """:func:`_implicit_hull` of the vertices ``lo:hi`` into ``best`` and ``G``."""
+    C = R.shape[0]
+    for i in range(lo, hi):
         X, Y, Z = V[i, 0], V[i, 1], V[i, 2]
         for c in range(C):
             xc = R[c, 0, 0] * X + R[c, 0, 1] * Y + R[c, 0, 2] * Z + t[c, 0]
@@ -343,7 +358,6 @@ def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margi
                 g2 = -s * (gu * fx * xc + gv * fy * yc) / (z * z)
                 for k in range(3):
                     G[i, k] = g0 * R[c, 0, k] + g1 * R[c, 1, k] + g2 * R[c, 2, k]
-    return best, G
 
 
 @numba.njit(cache=True, parallel=True)

@@ -92,3 +92,28 @@ def test_parallel_gate_decides_as_the_reference_on_one_and_two_threads(scene):
         cases += [np.sum(~above), np.sum(above & (h_v <= 0)), np.sum(above & (h_v > 0) & ref),
                   np.sum(above & (h_v > 0) & ~ref)]
     assert np.all(cases >= 5), cases
+
+
+def test_implicit_hull_in_prange_equals_the_serial_pass_on_one_and_two_threads(scene):
+    """The fit's implicit hull and its gradient (``max_c d_c z_c / f_c``) with the vertices in ``prange``
+    chunks: bit for bit the one-thread values (and an odd count, so the chunks are uneven), and the same as
+    a plain per-camera evaluation of the fields (the numpy reference, to rounding)."""
+    V, F, cams, masks = scene
+    fields = SilhouetteFields(cams, masks)
+    rng = np.random.default_rng(3)
+    P = np.vstack([rng.uniform(-0.3, 0.3, (1001, 3)), 1.02 * V])
+    one = _with_threads(1, fields.implicit_hull, P)
+    two = _with_threads(2, fields.implicit_hull, P)
+    np.testing.assert_array_equal(one[0], two[0])
+    np.testing.assert_array_equal(one[1], two[1])
+    ref = np.full(len(P), -np.inf)
+    for cam in cams:
+        uv, z = cam.project_with_depth(P)
+        d, _, ok = fields.sample(cam, uv)
+        f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
+        ref = np.where(ok & (z > 1e-6), np.maximum(ref, d * z / f), ref)
+    seen = np.isfinite(ref)
+    assert seen.sum() > 1000 and (ref[seen] > 0).sum() > 200 and (ref[seen] < 0).sum() > 200
+    np.testing.assert_allclose(one[0][seen], ref[seen], atol=1e-9)
+    assert np.all(np.isinf(one[0][~seen]))
+    assert np.abs(one[1]).max() > 0
