@@ -222,6 +222,14 @@ def _project_all(V, R, t, K, dist):
     n = V.shape[0]
     uv = np.empty((n, 2))
     z = np.empty(n)
+    _project_into(V, R, t, K, dist, uv, z)
+    return uv, z
+
+
+@numba.njit(cache=True)
+def _project_into(V, R, t, K, dist, uv, z):
+    """:func:`_project_all` into the buffers ``uv`` and ``z``."""
+    n = V.shape[0]
     r00, r01, r02, r10, r11, r12 = R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2]
     r20, r21, r22, t0, t1, t2 = R[2, 0], R[2, 1], R[2, 2], t[0], t[1], t[2]
     k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
@@ -242,7 +250,6 @@ def _project_all(V, R, t, K, dist):
         if not z[i] > 0.0:
             uv[i, 0] = np.nan
             uv[i, 1] = np.nan
-    return uv, z
 
 
 @numba.njit(cache=True)
@@ -297,7 +304,7 @@ def area_weighted_normals(V, F):
 
 @numba.njit(cache=True)
 def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, own, facing, tau_px, rim_cos,
-                probe_m, outline_px):
+                probe_m, outline_px, uv, z):
     """Rim vertices of one view matched with its silhouette contour (Rapid Skin §III.B, Eq. 6-7).
 
     Projects the vertices (Eq. 6), keeps rim vertices (``|n . ray| < rim_cos``) and their outward
@@ -305,10 +312,11 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
     (triangles whose bounding box misses every probe tile cannot cover a probe pixel, so the test is
     exact), drops rim vertices whose probe lies inside it (occluded), searches ``mask`` along the
     projected normal (``+-tau``) and turns each match into a viewing ray through the matched pixel
-    (Eq. 7). Returns vertex ids, signed offsets ``t`` (pixels) and unit ray directions.
+    (Eq. 7). Returns vertex ids, signed offsets ``t`` (pixels) and unit ray directions; the projection of
+    every vertex is left in ``uv`` and ``z`` (for the visual-hull gate).
     """
     n = V.shape[0]
-    uv, z = _project_all(V, R, t, K, dist)
+    _project_into(V, R, t, K, dist, uv, z)
     cand = np.empty(n, np.int64)
     cdir = np.empty((n, 2))
     cpix = np.empty((n, 2), np.int64)
@@ -371,7 +379,7 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
 
 @numba.njit(cache=True, parallel=True)
 def _match_views(V, N, F, R, t, K, dist, has_dist, center, width, height, masks, owns, facing, tau_px, rim_cos,
-                 probe_m, outline_px):
+                 probe_m, outline_px, uv, z):
     """:func:`_match_view` of every camera in one compiled call, ``prange`` over the cameras (each its own
     mask and outline buffer, so the views run on as many threads as numba has); the matches concatenated
     in camera order, as the per-view loop of :func:`silhouette_constraints` builds them, with their camera
@@ -383,7 +391,7 @@ def _match_views(V, N, F, R, t, K, dist, has_dist, center, width, height, masks,
     counts = np.zeros(C, np.int64)
     for c in numba.prange(C):
         ids, offs, dirs = _match_view(V, N, F, R[c], t[c], K[c], dist[c], has_dist[c], center[c], width, height,
-                                      masks[c], owns[c], facing, tau_px, rim_cos, probe_m, outline_px)
+                                      masks[c], owns[c], facing, tau_px, rim_cos, probe_m, outline_px, uv[c], z[c])
         m = ids.shape[0]
         counts[c] = m
         ids_c[c, :m] = ids
@@ -459,6 +467,28 @@ class SilhouetteViews:
                                     dtype=np.float64).reshape(C, 5),
                            np.array([v[8] for v in self.views], dtype=np.bool_),
                            np.array([v[7] for v in self.views], dtype=np.float64).reshape(C, 3), w, h)
+        self._projected = None  # (V, uv (C, n, 2), z (C, n)) of the last packed matching
+
+    def projection(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Pixels ``(C, n, 2)`` (NaN behind a camera) and depths ``(C, n)`` of every vertex in every view as the
+        last :func:`silhouette_constraints` call projected them (Eq. 6), if that call matched this very array
+        ``V`` (the same memory, shape and strides: ``np.ascontiguousarray`` may hand back a view of it; the
+        reference kept here keeps that memory from being reused) on the packed path; None otherwise. The
+        visual-hull gate reads its vertices' fields there instead of projecting them again."""
+        if self._projected is None:
+            return None
+        W = self._projected[0]
+        if not (W.__array_interface__["data"][0] == V.__array_interface__["data"][0] and W.shape == V.shape
+                and W.strides == V.strides and W.dtype == V.dtype):
+            return None
+        return self._projected[1], self._projected[2]
+
+    def _projection_buffers(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        C, n = len(self.views), len(V)
+        if self._projected is None or self._projected[2].shape != (C, n):
+            self._projected = (None, np.empty((C, n, 2)), np.empty((C, n)))
+        self._projected = (V, self._projected[1], self._projected[2])
+        return self._projected[1], self._projected[2]
 
 
 def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras, masks: dict | None,
@@ -477,9 +507,10 @@ def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras,
     F = np.ascontiguousarray(F, dtype=np.int64)
     if views.packed is not None:  # all cameras in one compiled call (prange over them)
         masks3, owns, Rs, ts, Ks, dists, has_dists, centers3, w, h = views.packed
+        uv, z = views._projection_buffers(V)
         vid, off, direction, cam_of = _match_views(V, N, F, Rs, ts, Ks, dists, has_dists, centers3, w, h, masks3,
                                                    owns, views.facing, float(tau_px), float(rim_cos),
-                                                   _NORMAL_PROBE_M, _OUTLINE_STEP_PX)
+                                                   _NORMAL_PROBE_M, _OUTLINE_STEP_PX, uv, z)
         if len(vid) == 0:
             return SilhouetteConstraints.empty()
         origin = centers3[cam_of]
@@ -487,7 +518,8 @@ def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras,
         vids, directions, offsets, cam_ids, centers = [], [], [], [], []
         for c, (cam, mask, own, K, dcoef, R, t, center, has_dist) in enumerate(views.views):
             ids, o, d = _match_view(V, N, F, R, t, K, dcoef, has_dist, center, cam.width, cam.height, mask, own,
-                                    views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M, _OUTLINE_STEP_PX)
+                                    views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M, _OUTLINE_STEP_PX,
+                                    np.empty((len(V), 2)), np.empty(len(V)))
             if len(ids) == 0:
                 continue
             vids.append(ids)

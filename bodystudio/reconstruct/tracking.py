@@ -164,16 +164,23 @@ class SilhouetteFields:
                               self.margin_px, numba.get_num_threads())
 
     def hull_gate(self, V: np.ndarray, vertex: np.ndarray, origin: np.ndarray, direction: np.ndarray,
-                  gate_m: float) -> np.ndarray:
+                  gate_m: float, projected: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """Keep mask of the visual-hull gate (:func:`bodystudio.reconstruct.rapid_skin.hull_consistent_constraints`)
         in one compiled pass: ``hull(q) <= max(hull(v), 0) + gate_m`` with ``q`` the point of each constraint's
         ray nearest its vertex. The same values as two :meth:`implicit_hull` calls, without the gradient,
-        ``hull(v)`` once per distinct vertex, and ``hull(q)`` stopping at the first camera that rejects."""
+        ``hull(v)`` once per distinct vertex, and ``hull(q)`` stopping at the first camera that rejects.
+        ``projected``: the pixels ``(C, n, 2)`` and depths ``(C, n)`` of all of ``V`` in these cameras, as the
+        matching projected them (:meth:`SilhouetteViews.projection`, the same arithmetic), so ``hull(v)`` only
+        reads the fields."""
+        if projected is None:
+            uv, z = np.zeros((0, 0, 2)), np.zeros((0, 0))
+        else:
+            uv, z = projected
         return _hull_gate(np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(vertex, dtype=np.int64),
                           np.ascontiguousarray(origin, dtype=np.float64),
                           np.ascontiguousarray(direction, dtype=np.float64), float(gate_m), self._R, self._t,
                           self._K, self._dist, self._has_dist, self._size, self._packed_sdf, self._shapes,
-                          self._offsets, self.margin_px, numba.get_num_threads())
+                          self._offsets, self.margin_px, numba.get_num_threads(), projected is not None, uv, z)
 
     def sample(self, cam, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bilinear signed distance ``(m,)`` and its image gradient ``(m, 2)`` at pixels ``uv``; ``ok``
@@ -429,9 +436,49 @@ def _hull_max_range(X, limit, best, lo, hi, R, t, K, dist, has_dist, size, sdf, 
                 best[i] = r
 
 
+@numba.njit(cache=True, parallel=True)
+def _hull_max_at(order, uv, z, K, size_px, sdf, shapes, offsets, margin, chunks):
+    """:func:`_hull_max` of the vertices ``order`` (no limit) from their pixels ``uv[c, i]`` and depths
+    ``z[c, i]`` already projected (by :func:`bodystudio.reconstruct.silhouette._project_into`, the same
+    arithmetic as :func:`_hull_max_range`'s projection, so the same values): the field reads only."""
+    n = order.shape[0]
+    best = np.full(n, -np.inf)
+    chunks = max(min(chunks, n), 1)
+    size = (n + chunks - 1) // chunks
+    for ch in numba.prange(chunks):
+        lo, hi = ch * size, min(n, (ch + 1) * size)
+        for c in range(K.shape[0]):
+            f = 0.5 * (K[c, 0, 0] + K[c, 1, 1])
+            umax, vmax = size_px[c, 0] - 1.0, size_px[c, 1] - 1.0
+            ou, ov, sw, sh = offsets[c, 0], offsets[c, 1], shapes[c, 1] - 1, shapes[c, 0] - 1
+            field = sdf[c]
+            for k in range(lo, hi):
+                i = order[k]
+                zc = z[c, i]
+                if not zc > 1e-6:
+                    continue
+                u, v = uv[c, i, 0], uv[c, i, 1]
+                if not (u >= 0.0 and v >= 0.0 and u <= umax and v <= vmax):
+                    continue
+                uu, vv = u - ou, v - ov
+                d = margin
+                if uu >= 0.0 and vv >= 0.0 and uu < sw and vv < sh:
+                    xi, yi = int(uu), int(vv)
+                    ax, ay = uu - xi, vv - yi
+                    s00 = np.float64(field[yi, xi])
+                    s10 = np.float64(field[yi, xi + 1])
+                    s01 = np.float64(field[yi + 1, xi])
+                    s11 = np.float64(field[yi + 1, xi + 1])
+                    d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
+                r = d * zc / f
+                if r > best[k]:
+                    best[k] = r
+    return best
+
+
 @numba.njit(cache=True)
 def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin,
-               chunks):
+               chunks, has_projection, uv, z):
     """Keep mask of :meth:`SilhouetteFields.hull_gate`: ``hull(v)`` of each distinct vertex once (a rim
     vertex has matches in several views), then ``hull(q)`` of the targets, each target dropped from the
     camera loop as soon as it exceeds ``max(hull(v), 0) + gate_m`` (the max only grows, so the decision is
@@ -445,10 +492,13 @@ def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, si
             slot[vertex[j]] = nu
             order[nu] = vertex[j]
             nu += 1
-    P = np.empty((nu, 3))
-    for k in range(nu):
-        P[k, 0], P[k, 1], P[k, 2] = V[order[k], 0], V[order[k], 1], V[order[k], 2]
-    hv = _hull_max(P, np.full(nu, np.inf), R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, chunks)
+    if has_projection:
+        hv = _hull_max_at(order[:nu], uv, z, K, size, sdf, shapes, offsets, margin, chunks)
+    else:
+        P = np.empty((nu, 3))
+        for k in range(nu):
+            P[k, 0], P[k, 1], P[k, 2] = V[order[k], 0], V[order[k], 1], V[order[k], 2]
+        hv = _hull_max(P, np.full(nu, np.inf), R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, chunks)
     Q = np.empty((m, 3))
     limit = np.empty(m)
     for j in range(m):

@@ -117,3 +117,39 @@ def test_implicit_hull_in_prange_equals_the_serial_pass_on_one_and_two_threads(s
     np.testing.assert_allclose(one[0][seen], ref[seen], atol=1e-9)
     assert np.all(np.isinf(one[0][~seen]))
     assert np.abs(one[1]).max() > 0
+
+
+def test_gate_reads_the_matchings_projections_and_decides_the_same(scene, monkeypatch):
+    """rec15c: the gate's hull(v) from the pixels and depths the matching already computed
+    (``SilhouetteViews.projection``) instead of projecting again: the same keep masks as the projecting gate
+    and the numpy reference, on one and two threads (half the cameras distorted); the projection is offered
+    only for the array just matched; the deformation's vertices bit for bit with the sharing on and off."""
+    from bodystudio.reconstruct import rapid_skin
+    from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
+
+    V, F, cams, masks = scene
+    fields = SilhouetteFields(cams, masks)
+    views = SilhouetteViews(cams, masks, F)
+    rng = np.random.default_rng(11)
+    for scale in (0.9, 1.15):
+        Vs = scale * V + rng.normal(0.0, 0.003, V.shape)
+        sil = silhouette_constraints(Vs, F, area_weighted_normals(Vs, F), cams, masks, views=views)
+        projected = views.projection(Vs)
+        assert projected is not None and projected[0].shape == (len(cams), len(V), 2)
+        assert views.projection(Vs.copy()) is None and views.projection(Vs[::-1]) is None
+        uv_ref = np.array([c.project(Vs) for c in cams])
+        np.testing.assert_allclose(projected[0], uv_ref, atol=1e-6)
+        ref = hull_gate_reference(Vs, sil, fields, 0.001)
+        assert 0 < ref.sum() < len(ref)
+        for threads in (1, 2):
+            got = _with_threads(threads, fields.hull_gate, Vs, sil.vertex, sil.origin, sil.direction, 0.001,
+                                projected)
+            np.testing.assert_array_equal(got, ref)
+    unpacked = SilhouetteViews(cams[:1], masks, F)
+    silhouette_constraints(V, F, area_weighted_normals(V, F), cams[:1], masks, views=unpacked)
+    assert unpacked.packed is None and unpacked.projection(V) is None
+    shared = deform_to_observations(0.95 * V, F, cams, masks, RapidSkinParams(outer_iterations=3))
+    monkeypatch.setattr(rapid_skin, "_same_cameras", lambda fields, views: False)
+    alone = deform_to_observations(0.95 * V, F, cams, masks, RapidSkinParams(outer_iterations=3))
+    np.testing.assert_array_equal(shared.vertices, alone.vertices)
+    assert np.abs(shared.vertices - 0.95 * V).max() > 1e-3
