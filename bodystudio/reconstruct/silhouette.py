@@ -38,27 +38,51 @@ _TILE = 8
 @numba.njit(cache=True)
 def _rasterize_needed(uv, F, width, height, mask, facing, need):
     """:func:`_rasterize_mask` restricted to triangles whose bounding box touches a tile flagged in
-    ``need``; pixels in flagged tiles come out exactly as in the full raster."""
+    ``need``; pixels in flagged tiles come out exactly as in the full raster.
+
+    The pixel-centre box of a triangle is ``ceil(min)`` .. ``floor(max)`` of its vertices, i.e. the min of
+    their ceils and the max of their floors (both monotone): computed once per vertex (clamped a little
+    beyond the image, which changes no box inside it) instead of once per triangle, and a triangle whose box
+    spans at most two tiles each way reads its (up to four) tiles without branching; the same triangles
+    are drawn (rec15c: 4.9 -> 4.7 ms a pass of 10 views, A/B alternated)."""
     th, tw = need.shape
+    n = uv.shape[0]
+    box = np.zeros((n, 4), np.int32)  # ceil(u), floor(u), ceil(v), floor(v); a NaN vertex fails the area test
+    for i in range(n):
+        u, v = uv[i, 0], uv[i, 1]
+        if u == u and v == v:
+            u = min(max(u, -2.0), width + 2.0)
+            v = min(max(v, -2.0), height + 2.0)
+            box[i, 0], box[i, 1] = int(np.ceil(u)), int(np.floor(u))
+            box[i, 2], box[i, 3] = int(np.ceil(v)), int(np.floor(v))
     for f in range(F.shape[0]):
         a, b, c = F[f, 0], F[f, 1], F[f, 2]
         ax, ay, bx, by, cx, cy = uv[a, 0], uv[a, 1], uv[b, 0], uv[b, 1], uv[c, 0], uv[c, 1]
         area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
         if not np.isfinite(area) or area == 0.0 or area * facing < 0.0:
             continue
-        x0 = max(int(np.ceil(min(ax, bx, cx))), 0)
-        x1 = min(int(np.floor(max(ax, bx, cx))), width - 1)
-        y0 = max(int(np.ceil(min(ay, by, cy))), 0)
-        y1 = min(int(np.floor(max(ay, by, cy))), height - 1)
-        if x0 > x1 or y0 > y1:
-            continue
-        hit = False
-        for ty in range(y0 // _TILE, min(y1 // _TILE, th - 1) + 1):
-            for tx in range(x0 // _TILE, min(x1 // _TILE, tw - 1) + 1):
-                if need[ty, tx]:
-                    hit = True
-        if not hit:
-            continue
+        x0 = max(min(box[a, 0], box[b, 0], box[c, 0]), 0)
+        x1 = min(max(box[a, 1], box[b, 1], box[c, 1]), width - 1)
+        y0 = max(min(box[a, 2], box[b, 2], box[c, 2]), 0)
+        y1 = min(max(box[a, 3], box[b, 3], box[c, 3]), height - 1)
+        tx0, tx1 = x0 // _TILE, min(x1 // _TILE, tw - 1)
+        ty0, ty1 = y0 // _TILE, min(y1 // _TILE, th - 1)
+        if tx1 - tx0 <= 1 and ty1 - ty0 <= 1:
+            # indices clamped so that an empty box reads some tile; the emptiness test decides
+            cx0, cx1 = min(max(tx0, 0), tw - 1), min(max(tx1, 0), tw - 1)
+            cy0, cy1 = min(max(ty0, 0), th - 1), min(max(ty1, 0), th - 1)
+            if not ((need[cy0, cx0] | need[cy0, cx1] | need[cy1, cx0] | need[cy1, cx1]) & (x0 <= x1) & (y0 <= y1)):
+                continue
+        else:
+            if x0 > x1 or y0 > y1:
+                continue
+            hit = False
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
+                    if need[ty, tx]:
+                        hit = True
+            if not hit:
+                continue
         s = 1.0 if area > 0 else -1.0
         for y in range(y0, y1 + 1):
             for x in range(x0, x1 + 1):
