@@ -144,9 +144,10 @@ def _fields_before(cameras, masks, margin):
 def test_fields_equal_the_construction_before():
     """rec15c's faster SilhouetteFields (box by cv2.boundingRect, bool masks read as bytes, the transforms
     written into the packed array) gives the fields, offsets and packed array of the construction before:
-    bool and 0/255 masks, an empty view, a full view and one touching the image's corner. To the float32 ulp,
-    not bit for bit: OpenCV's precise transform itself differs by an ulp from call to call on the same input
-    (c2's box: two distinct results in 300 calls on one thread, measured), so any two builds may."""
+    bool and 0/255 masks, an empty view, a full view and one touching the image's corner. To a few float32
+    ulp, not bit for bit: OpenCV's precise transform itself differs by an ulp from call to call on the same
+    input (c2's box: two distinct results in 300 calls on one thread, measured), so any two builds may, and
+    the half-pixel shift can double it (1.0000001 and 1.0 become -0.5000001 and -0.5: 2 ulp there)."""
     from bodystudio.reconstruct.tracking import SilhouetteFields
 
     H, W, margin = 70, 90, 12
@@ -162,8 +163,8 @@ def test_fields_equal_the_construction_before():
         for cam, sdf, off in zip(cams, sdfs, offsets, strict=True):
             assert fields.offset[cam.name] == off
             assert fields.sdf[cam.name].dtype == np.float32 and fields.sdf[cam.name].shape == sdf.shape
-            np.testing.assert_array_max_ulp(fields.sdf[cam.name], sdf, maxulp=1)
-        np.testing.assert_array_max_ulp(fields._packed_sdf, packed, maxulp=1)
+            np.testing.assert_array_max_ulp(fields.sdf[cam.name], sdf, maxulp=4)
+        np.testing.assert_array_max_ulp(fields._packed_sdf, packed, maxulp=4)
         np.testing.assert_array_equal(fields._shapes, [s.shape for s in sdfs])
         assert np.array_equal(fields._packed_sdf == 0, packed == 0)  # the padding, and no value lost
     assert fields.sdf["c0"].min() < -5.0 and fields.sdf["c0"].max() > 5.0
