@@ -1,7 +1,8 @@
 """Garment §6-7: render on the fitted actor, refine in image space (flow §7.1, RBF silhouette warp §7.2-7.3),
-composite by depth; garment_iou / PSNR / SSIM against the true render, with each refinement step ablated in
-the same run, on hidden subjects, with a perturbed oracle fit and the real §4 fit (with and without its final shape
-refinement, step 4b, and with 4b but without the poses refined on the refined shape, step 4c)."""
+composite by depth, then the hem matte onto the worn garment's edges (gar13e); garment_iou / PSNR / SSIM against the
+true render, with each refinement step ablated in the same run, on hidden subjects, with a perturbed oracle fit and the
+real §4 fit (with and without its final shape refinement, step 4b, and with 4b but without the poses refined on the
+refined shape, step 4c)."""
 
 from __future__ import annotations
 
@@ -15,8 +16,8 @@ from benchmarks.timing import markdown_table
 #: Subjects the tests do not use (tests: 3, 4), each with its motion.
 SUBJECTS = ((21, "walk"), (37, "arm_flex"))
 CONFIGS = (("full refinement", {}), ("no flow (§7.1 off)", {"flow": False}), ("no RBF warp (§7.2 off)", {"rbf": False}),
-           ("no depth compositing", {"depth": False}),
-           ("unrefined (3D render only)", {"flow": False, "rbf": False, "depth": True}))
+           ("no depth compositing", {"depth": False}), ("no hem matte", {"hem": False}),
+           ("unrefined (3D render only)", {"flow": False, "rbf": False, "depth": True, "hem": False}))
 REAL_FIT = "real fit (§4)"
 #: The real fit without the final shape refinement of step 4b (gar13c), scored with the full §7 refinement only.
 REAL_FIT_NO_4B = "real fit, no shape refinement (4b)"

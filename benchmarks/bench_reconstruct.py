@@ -40,24 +40,29 @@ def _accuracy(session_path: Path, frames: str) -> tuple[str, dict]:
     from bodystudio.reconstruct.sequence import reconstruct_session
 
     rows, results = [], {}
-    # (constraints, warm start, pose refinement, visual-hull gate): each mode with the default refined pose
-    # and with the paper's initialisation from the tracker joints alone, side by side; the default gate on
-    # silhouette matches (issue 15) beside the paper's ungated matching
-    gate = RapidSkinParams().hull_gate_m
-    cases = [(("silhouette",), False, True, gate), (("silhouette",), False, True, 0.0),
-             (("silhouette",), False, False, gate), (("silhouette",), True, True, gate),
-             (("depth",), False, True, gate), (("depth",), False, False, gate),
-             (("silhouette", "depth"), False, True, gate), (("silhouette", "depth"), False, True, 0.0),
-             (("silhouette", "depth"), False, False, gate), (("silhouette", "depth"), True, True, gate)]
-    for constraints, warm, refine, hull_gate_m in cases:
+    # (constraints, warm start, pose refinement, visual-hull gate, depth reach): each mode with the default refined
+    # pose and with the paper's initialisation from the tracker joints alone, side by side; the default gate on
+    # silhouette matches (issue 15) beside the paper's ungated matching, and depth's far pairs for the template's
+    # own front surface (issue 15, rec15b) beside the previous association
+    gate, reach = RapidSkinParams().hull_gate_m, RapidSkinParams().depth_reach_m
+    cases = [(("silhouette",), False, True, gate, reach), (("silhouette",), False, True, 0.0, reach),
+             (("silhouette",), False, False, gate, reach), (("silhouette",), True, True, gate, reach),
+             (("depth",), False, True, gate, reach), (("depth",), False, True, gate, 0.0),
+             (("depth",), False, False, gate, reach),
+             (("silhouette", "depth"), False, True, gate, reach), (("silhouette", "depth"), False, True, 0.0, reach),
+             (("silhouette", "depth"), False, True, gate, 0.0),
+             (("silhouette", "depth"), False, False, gate, reach), (("silhouette", "depth"), True, True, gate, reach)]
+    for constraints, warm, refine, hull_gate_m, depth_reach_m in cases:
         # per-frame initialisation, as before the tracker: this session samples a whole walk cycle in 6
         # frames, far from video rate (the tracker's table is _tracking's)
         s = reconstruct_session(session_path, solver="gs", template="13k", joints="tracker",
                                 constraints=constraints, frames=frames, warm_start=warm, refine_pose=refine,
                                 tracking=False, params=RapidSkinParams(constraints=constraints,
-                                                                       hull_gate_m=hull_gate_m))
+                                                                       hull_gate_m=hull_gate_m,
+                                                                       depth_reach_m=depth_reach_m))
         name = ",".join(constraints) + (" (warm start)" if warm else "") + ("" if refine else " (tracker init only)")
         name += "" if hull_gate_m else " (no hull gate)"
+        name += "" if depth_reach_m else " (no depth reach)"
         results[name] = s
         rows.append([name, s["frames"], s["median_mm"], s["p90_mm"], s["median_all_mm"],
                      s["p90_all_mm"], s["hausdorff_mm"], s["pct_under_10mm"], s["iou_min"],
@@ -443,7 +448,9 @@ def run(quick: bool = False) -> str:
         "transforms (2.5K template) to the implicit visual hull of the silhouettes' distance fields before the "
         "deformation; 'tracker init only' is the paper's initialisation (`--no-refine-pose`). Every frame is "
         "initialised from its joints (these 6 frames span a whole walk cycle, far from video rate; the "
-        "tracker's tables are below). Init ms is wall time on the shared machine.",
+        "tracker's tables are below). 'no depth reach': depth pairs only within 5 cm of a vertex not more than 4 cm "
+        "behind its depth pixel (before issue 15's depth reach: now the template's own front surface pairs up to "
+        "10 cm). Init ms is wall time on the shared machine.",
         acc_table,
         f"Default, median / p90 on the visible surface (goals <= 4 / <= 10 mm): silhouettes {sil['median_mm']:.2f} / "
         f"{sil['p90_mm']:.2f} mm, silhouettes + depth {both['median_mm']:.2f} / {both['p90_mm']:.2f} mm; "

@@ -25,6 +25,7 @@ source: what a depth refinement would minimise).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import time
 from pathlib import Path
 
@@ -45,6 +46,23 @@ REFINE_VARIANTS = {
     "refined, without spine_03, head, hands, feet": {"plan": TRUNK_AND_LIMB_BONES},
     "refined, warm-started by the previous frame's correction": {"warm": True},
     "refined every 2nd frame, the correction carried to the next": {"warm": "every 2nd"},
+}
+
+#: Further refined poses of the fitted body that ``--shape --variants NAME ...`` scores (keyword arguments of
+#: ``refine_pose``; MIR12g).
+SHAPE_ORACLE_VARIANTS: dict[str, dict] = {
+    "2 steps": {"iterations": 2},
+    "no joints": {"weights": RefineWeights(joint_weight=0.0)},
+    "joints x4": {"weights": RefineWeights(joint_weight=4.0)},
+    "depth x4": {"weights": RefineWeights(depth_weight=4.0)},
+    "silhouette x4": {"weights": RefineWeights(sil_weight=4.0)},
+    **{f"trunk {deg} deg": {"weights": RefineWeights(trunk_rad=float(np.radians(deg)))} for deg in (2, 4, 8, 16)},
+    "trunk 16 deg and the hands": {"trunk_bones": ("spine_01", "spine_02", "spine_03", "neck_01", "head",
+                                                    "clavicle_l", "clavicle_r", "hand_l", "hand_r")},
+    "trunk 16 deg without the clavicles": {"trunk_bones": ("spine_01", "spine_02", "spine_03", "neck_01", "head")},
+    "trunk 16 deg, spine only": {"trunk_bones": ("spine_01", "spine_02", "spine_03")},
+    **{f"trunk {deg} deg, 2 steps": {"weights": RefineWeights(trunk_rad=float(np.radians(deg))), "iterations": 2}
+       for deg in (4, 8)},
 }
 
 LIMBS = ("upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
@@ -270,6 +288,21 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
 
 
 #: Body regions of the shape oracle's per-region rows, by the vertex's dominant skin-weight bone.
+#: Parts of the true pose swapped into the refined one by ``--shape --swap-parts`` (MIR12g): world rotations of
+#: these bones (their children keep theirs); ``root``: the Root's rotation and its true head (the root's rotation
+#: alone swings the body about the floor point: 28-38 mm of vertex error).
+REFINED_SWAPS = {"root": ("Root",),
+                 "pelvis and spine": ("pelvis", "spine_01", "spine_02", "spine_03"),
+                 "neck and head": ("neck_01", "head"), "arms": ("clavicle_l", "clavicle_r", "upperarm_l", "upperarm_r",
+                                                               "lowerarm_l", "lowerarm_r", "hand_l", "hand_r"),
+                 "legs": ("thigh_l", "thigh_r", "calf_l", "calf_r", "foot_l", "foot_r")}
+
+#: Bone groups whose swing error ``--shape`` reports (MIR12g).
+SWING_GROUPS = {"spine_01": ("spine_01",), "spine_02, spine_03": ("spine_02", "spine_03"),
+                "neck, head": ("neck_01", "head"), "clavicles": ("clavicle_l", "clavicle_r"),
+                "upper arms": ("upperarm_l", "upperarm_r"), "forearms": ("lowerarm_l", "lowerarm_r"),
+                "thighs": ("thigh_l", "thigh_r"), "calves": ("calf_l", "calf_r")}
+
 REGIONS = {"torso": ("pelvis", "spine_01", "spine_02", "spine_03", "clavicle_l", "clavicle_r"),
            "head, neck": ("neck_01", "head"),
            "arms": ("upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r"),
@@ -291,11 +324,17 @@ def signed_distance_px(mask: np.ndarray) -> np.ndarray:
     return (cv2.distanceTransform(1 - m, cv2.DIST_L2, 5) - cv2.distanceTransform(m, cv2.DIST_L2, 5)).astype(float)
 
 
-def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_steps=(1,)) -> dict[str, float]:
+def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_steps=(1,), per_frame=None,
+                fitted_variants=None, swap_parts: bool = False) -> dict[str, float]:
     """What a better *shape* would buy (MIR12c): the fitted and the true rest bodies, each posed by its own IK,
     its own refined pose (``refine_pose`` as the run) and the true pose; plus, per body region, where the
     fitted body posed by the true pose misses: the signed distance (px, + outside) of its projected rim vertices
-    to the true silhouette and the signed normal error of its vertices (mm, + the fitted surface outside)."""
+    to the true silhouette and the signed normal error of its vertices (mm, + the fitted surface outside).
+
+    ``per_frame``: a path; each scored frame's row is written there as JSON lines (``frame``: its index).
+    ``fitted_variants``: name -> keyword arguments of ``refine_pose`` (MIR12g), further refined poses of the fitted
+    body scored as ``fitted shape, NAME``; ``swap_parts``: also the fitted body's refined pose with one part of the
+    true pose swapped in (:data:`REFINED_SWAPS`)."""
     from bodystudio.body.pose import Pose
     from bodystudio.body.skeleton import Skeleton
     from bodystudio.geometry.mesh import vertex_normals
@@ -371,10 +410,36 @@ def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_s
                 poses["refined pose" if n_steps == 1 else f"refined pose, {n_steps} steps"] = refine_pose(
                     plans[name], b.skeleton, ik[name], camera, fg, tracked.positions, tracked.tracked, points, others,
                     session.kinect.version, iterations=n_steps)
+            if name == "fitted shape":
+                for vname, kwargs in (fitted_variants or {}).items():
+                    kwargs = dict(kwargs)
+                    with _trunk_bones(kwargs.pop("trunk_bones", None)):
+                        poses[vname] = refine_pose(plans[name], b.skeleton, ik[name], camera, fg, tracked.positions,
+                                                   tracked.tracked, points, others, session.kinect.version, **kwargs)
             poses["true pose"] = pose_from_world(b.skeleton, world_rotations(true_sk, true_pose), translation)
+            W_true = world_rotations(true_sk, true_pose)
+            if name == "fitted shape" and swap_parts:  # the refined pose with one part's true world rotations
+                refined = poses["refined pose"]
+                W_ref = world_rotations(b.skeleton, refined)
+                for part, bone_names in REFINED_SWAPS.items():
+                    idx = [sk.bone_names.index(n) for n in bone_names]
+                    poses[f"refined, true {part}"] = pose_from_world(b.skeleton, _replace(W_ref, W_true, idx),
+                                                                     translation if part == "root" else
+                                                                     refined.translation)
             for pname, pose in poses.items():
                 Vs, Vt = posed_source_and_target(b, Vt_rest, pose, t_rig)
                 row[f"{name}, {pname}"] = warp_iou(Vs, Vt)
+                row[f"{name}, {pname}: displacement err mm"] = 1e3 * np.linalg.norm(
+                    (Vt - Vs) - (gt["target_vertices"][k] - Vs_t), axis=1).mean()
+                if name == "fitted shape":  # where the pose is off: bone swing against the true pose (degrees)
+                    W = world_rotations(b.skeleton, pose)
+                    for group, bone_names in SWING_GROUPS.items():
+                        idx = [sk.bone_names.index(n) for n in bone_names]
+                        row[f"{name}, {pname}: swing err deg, {group}"] = float(np.mean(
+                            swing_twist_errors(sk, W, W_true, idx)[0]))
+                    R_err = W[root] @ W_true[root].T
+                    row[f"{name}, {pname}: root rotation err deg"] = float(np.degrees(np.arccos(np.clip(
+                        (np.trace(R_err) - 1) / 2, -1, 1))))
                 row[f"{name}, {pname}: source vertex err mm"] = 1e3 * np.linalg.norm(Vs - Vs_t, axis=1).mean()
                 row[f"{name}, {pname}: source silhouette IoU"] = mask_iou(
                     _silhouette(Vs, faces, camera), true_source)
@@ -392,10 +457,130 @@ def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_s
                 if name != "true vertices":
                     row[f"{name}, {region}: normal err mm (+ outside)"] = float(np.mean(err_n[regions == region]))
         rows.append(row)
+        if per_frame is not None:
+            import json
+
+            with open(per_frame, "a") as f:
+                f.write(json.dumps({"session": Path(session.path).name, "frame": int(i), **row}) + "\n")
     out = {"frames": len(rows)}
     for key in rows[0]:
         out[key] = float(np.mean([r[key] for r in rows]))
     return out
+
+
+#: Temporal filters of the refined poses scored by ``--temporal`` (MIR12g): name -> (kind, parameter). ``centred``:
+#: the mean over +-k frames (not causal: a bound on what smoothing can buy); ``ema``: x_t = a m_t + (1 - a) x_{t-1};
+#: ``alpha-beta``: the constant-velocity alpha-beta filter with (alpha, beta).
+TEMPORAL_FILTERS = {"refined (the run)": ("none", None), "centred mean +-1": ("centred", 1),
+                    "centred mean +-2": ("centred", 2), "centred mean +-4": ("centred", 4),
+                    "ema 0.5": ("ema", 0.5), "alpha-beta 0.5 / 0.1": ("alpha-beta", (0.5, 0.1)),
+                    "alpha-beta 0.3 / 0.05": ("alpha-beta", (0.3, 0.05))}
+
+
+def filter_sequence(X: np.ndarray, kind: str, param) -> np.ndarray:
+    """Rows of ``X`` (T, D) (the frames' pose vectors) filtered over time by ``kind`` (see TEMPORAL_FILTERS)."""
+    X = np.asarray(X, float)
+    if kind == "none":
+        return X.copy()
+    if kind == "centred":
+        return np.array([X[max(0, t - param): t + param + 1].mean(0) for t in range(len(X))])
+    out = np.empty_like(X)
+    x, v = X[0].copy(), np.zeros(X.shape[1])
+    out[0] = x
+    for t in range(1, len(X)):
+        if kind == "ema":
+            x = param * X[t] + (1 - param) * x
+        else:
+            a, b = param
+            pred = x + v
+            r = X[t] - pred
+            x, v = pred + a * r, v + b * r
+        out[t] = x
+    return out
+
+
+def score_temporal(session, stride: int = 4, player: int = 1, source=None, filters=None) -> dict[str, float]:
+    """What smoothing the refined poses over time buys (MIR12g): the fitted body's IK pose refined every tracked
+    frame (as the run), the sequence of poses (local rotation vectors and the root translation) filtered by each
+    of ``filters`` (:data:`TEMPORAL_FILTERS`), every ``stride``-th frame scored by the run's dense warp."""
+    from bodystudio.body.pose import Pose
+    from bodystudio.mirror.compose import update_background
+    from bodystudio.mirror.evaluate import mask_iou
+    from bodystudio.mirror.foreground import refine_foreground
+    from bodystudio.mirror.frames import point_cloud, read_mirror_frame, register_depth_to_color
+    from bodystudio.mirror.refine import refine_plan, refine_pose
+    from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
+    from bodystudio.mirror.run import MLS_ALPHA, MLS_RADIUS_PX, N_HANDLES, RIM_COS, load_source
+    from bodystudio.mirror.track import ik_pose
+    from bodystudio.mirror.warp import mls_warp_field, warp_foreground, warp_pairs
+
+    filters = TEMPORAL_FILTERS if filters is None else filters
+    body, model = load_source(session, source)
+    c_target = target_coeffs(model, body.coeffs, session.metadata["edits"])
+    target_rest = model.vertices(c_target)
+    rig = target_skeleton(body, target_rest, model, c_target)
+    camera, faces = session.kinect.color, body.faces
+    plan = refine_plan(body.vertices, faces, body.weights, body.skeleton, session.kinect.version)
+    background, previous, seq, scored = None, None, [], []
+    for i in session.frame_ids:
+        frame = read_mirror_frame(session, i)
+        depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, session.kinect)
+        person = players_c == player
+        tracked = frame.body(player)
+        if tracked is None:
+            background = update_background(background, frame.rgb, players_c > 0)
+            seq = []  # a gap in the tracking restarts the filters
+            continue
+        previous = ik = ik_pose(body.skeleton, tracked.positions, tracked.tracked, session.kinect.version,
+                                previous=previous)
+        points = point_cloud(frame, session.kinect, player)
+        points = points[points[:, 1] > 0.02]
+        fg = refine_foreground(frame.rgb, person, depth_c, background=background)
+        others = (players_c > 0) & ~person
+        background = update_background(background, frame.rgb, fg | (players_c > 0))
+        pose = refine_pose(plan, body.skeleton, ik, camera, fg, tracked.positions, tracked.tracked, points, others,
+                           session.kinect.version)
+        seq.append(np.r_[pose.rotations.ravel(), pose.translation])
+        gt = session.frame(i).gt_mirror
+        if i % stride or gt is None or player not in list(gt["players"]):
+            continue
+        k = list(gt["players"]).index(player)
+        if not gt["reported"][k]:
+            continue
+        scored.append((i, len(seq) - 1, id(seq), frame.rgb, fg, session.frame(i).gt_target_person == player))
+        scored[-1] = scored[-1] + (seq,)
+    rows = []
+    for i, t, _, rgb, fg, true_target, s in scored:
+        row = {"frame": int(i)}
+        X = np.array(s)
+        for name, (kind, param) in filters.items():
+            x = filter_sequence(X[: t + 1] if kind != "centred" else X, kind, param)[t]
+            pose = Pose(x[:-3].reshape(-1, 3), x[-3:])
+            Vs, Vt = posed_source_and_target(body, target_rest, pose, rig)
+            p = warp_pairs(Vs, Vt, faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=True)
+            field = mls_warp_field(p.src_uv, p.dst_uv, (camera.height, camera.width), kind="similarity",
+                                   alpha=MLS_ALPHA, radius_px=MLS_RADIUS_PX, dense=p.dense)
+            row[name] = mask_iou(warp_foreground(rgb, fg, field)[1] > 0.5, true_target)
+        rows.append(row)
+    out = {"frames": len(rows)}
+    for key in filters:
+        out[key] = float(np.mean([r[key] for r in rows]))
+    out["per frame"] = rows
+    return out
+
+
+@contextlib.contextmanager
+def _trunk_bones(bones):
+    """``refine.TRUNK_BONES`` set to ``bones`` while the block runs (None: as it is)."""
+    from bodystudio.mirror import refine
+
+    original = refine.TRUNK_BONES
+    if bones is not None:
+        refine.TRUNK_BONES = tuple(bones)
+    try:
+        yield
+    finally:
+        refine.TRUNK_BONES = original
 
 
 def poses_fitted_true(body, true_sk, true_pose, root):
@@ -468,13 +653,35 @@ def main() -> None:
                              "pose, and per body region where the fitted body misses")
     parser.add_argument("--refine-steps", type=int, nargs="+", default=[1],
                         help="with --shape: the pose refinement's Gauss-Newton steps scored (the run's: 1)")
+    parser.add_argument("--variants", nargs="*", default=[], choices=sorted(SHAPE_ORACLE_VARIANTS),
+                        help="with --shape: further refined poses of the fitted body (SHAPE_ORACLE_VARIANTS)")
+    parser.add_argument("--swap-parts", action="store_true",
+                        help="with --shape: the refined pose with one part of the true pose swapped in (REFINED_SWAPS)")
+    parser.add_argument("--temporal", action="store_true",
+                        help="the refined poses smoothed over time by each of TEMPORAL_FILTERS (MIR12g)")
+    parser.add_argument("--per-frame", type=Path, default=None,
+                        help="with --shape: append each scored frame's row to this file (JSON lines)")
     args = parser.parse_args()
     results = {}
     for p in args.sessions:
         src = None if args.source is None else p / "mirror" / args.source
-        results[p.name] = score_shape(open_session(p), args.stride, source=src,
-                                      refine_steps=tuple(args.refine_steps)) if args.shape else \
-            score(open_session(p), args.stride, source=src, refine_only=args.refine_only)
+        if args.temporal:
+            results[p.name] = score_temporal(open_session(p), args.stride, source=src)
+            rows = results[p.name].pop("per frame")
+            if args.per_frame is not None:
+                import json
+
+                with open(args.per_frame, "a") as f:
+                    for r in rows:
+                        f.write(json.dumps({"session": p.name, **r}) + "\n")
+            continue
+        if args.shape:
+            results[p.name] = score_shape(open_session(p), args.stride, source=src,
+                                          refine_steps=tuple(args.refine_steps), per_frame=args.per_frame,
+                                          fitted_variants={k: SHAPE_ORACLE_VARIANTS[k] for k in args.variants},
+                                          swap_parts=args.swap_parts)
+        else:
+            results[p.name] = score(open_session(p), args.stride, source=src, refine_only=args.refine_only)
     keys = list(next(iter(results.values())))
     print("| score | " + " | ".join(results) + " |")
     print("|---|" + "---|" * len(results))

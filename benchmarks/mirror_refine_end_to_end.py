@@ -1,18 +1,48 @@
 """End to end with and without ``mirror run --refine-pose``: warp_iou, PSNR and SSIM of every tracked frame.
 
-Usage: PYTHONPATH=. python benchmarks/mirror_refine_end_to_end.py [--source NAME.npz] [--out DIR] SESSION [...]
+Usage: PYTHONPATH=. python benchmarks/mirror_refine_end_to_end.py [--source NAME.npz] [--out DIR]
+[--runs ik refine refine-no-trunk refine-2-steps] SESSION [...]
 
 Per synthetic mirror session (with ``gt/mirror``), ``run_mirror`` with the session's edits at once (no ramp, no
-video) into ``DIR/<session>_ik`` and ``DIR/<session>_refine``, then ``evaluate_mirror`` on each; prints one JSON
-line per run with the scores and the per-step median milliseconds (wall, so only comparable at one load).
+video) into ``DIR/<session>_<run>`` for each of ``--runs`` (default ``ik refine``: the IK pose, the refined pose;
+``refine-no-trunk``: refined without E_trunk, ``refine-2-steps``: two Gauss-Newton steps, ``refine-no-edge``:
+without the warp's edge clamp, MIR12g), then
+``evaluate_mirror`` on each; prints one JSON line per run with the scores and the per-step median milliseconds
+(wall, so only comparable at one load).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import json
 import tempfile
 from pathlib import Path
+
+
+@contextlib.contextmanager
+def _refine_as(run: str):
+    """``refine_pose`` (and the warp) as the ``run`` wants it while the block runs: without E_trunk
+    (``refine-no-trunk``), with two steps (``refine-2-steps``), without ``warp.edge_clamped`` (``refine-no-edge``);
+    the run imports ``refine_pose`` from the module when it starts, ``warp_foreground`` calls the clamp by name."""
+    from bodystudio.mirror import refine
+
+    original = refine.refine_pose
+    if run == "refine-no-trunk":
+        refine.refine_pose = functools.partial(original, weights=refine.RefineWeights(trunk_rad=None))
+    elif run == "refine-2-steps":
+        refine.refine_pose = functools.partial(original, iterations=2)
+    from bodystudio.mirror import warp
+
+    clamp = warp.edge_clamped
+    if run == "refine-no-edge":  # source positions outside the image stay outside (before MIR12g)
+        warp.edge_clamped = lambda xy, shape, reach_px=0.0: xy
+    try:
+        yield
+    finally:
+        refine.refine_pose = original
+        warp.edge_clamped = clamp
 
 
 def main() -> None:
@@ -23,6 +53,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--source", default=None, help="source body .npz name inside SESSION/mirror/")
+    parser.add_argument("--runs", nargs="+", default=["ik", "refine"],
+                        choices=["ik", "refine", "refine-no-trunk", "refine-2-steps", "refine-no-edge"],
+                        help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
+                             "or with two Gauss-Newton steps, or without the warp's edge clamp (MIR12g's A/Bs)")
     parser.add_argument("--out", type=Path, default=None, help="folder for the run folders (default: a temporary one)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -31,13 +65,14 @@ def main() -> None:
             session = open_session(path)
             src = None if args.source is None else path / "mirror" / args.source
             body, _ = load_source(session, src)
-            for refine in (False, True):
-                run = out / f"{path.name}_{'refine' if refine else 'ik'}"
-                doc = run_mirror(session, session.metadata["edits"], None, source=src, side_by_side=False,
-                                 progress=False, run_dir=run, ramp_frames=0, refine_pose=refine)
+            for name in args.runs:
+                run = out / f"{path.name}_{name}"
+                with _refine_as(name):
+                    doc = run_mirror(session, session.metadata["edits"], None, source=src, side_by_side=False,
+                                     progress=False, run_dir=run, ramp_frames=0, refine_pose=name != "ik")
                 scores = evaluate_mirror(session, run, source=body)
                 keep = ("warp_iou", "warp_iou_unwarped", "fg_iou", "psnr_person", "ssim_person", "joint_err_mm")
-                print(json.dumps({"session": path.name, "refine_pose": refine, **{k: scores.get(k) for k in keep},
+                print(json.dumps({"session": path.name, "run": name, **{k: scores.get(k) for k in keep},
                                   "ms_per_frame": {k: round(v, 2) for k, v in doc["summary"]["ms_per_frame"].items()}}),
                       flush=True)
 

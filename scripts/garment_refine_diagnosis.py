@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 CONFIGS = {"full": {}, "no_flow": {"flow": False}, "no_rbf": {"rbf": False}, "no_depth": {"depth": False},
-           "unrefined": {"flow": False, "rbf": False}}
+           "no_hem": {"hem": False}, "unrefined": {"flow": False, "rbf": False, "hem": False}}
 PARTS = ("arms", "forearms", "collar", "hem", "torso")
 
 

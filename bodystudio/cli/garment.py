@@ -90,6 +90,8 @@ def garment_render(
     no_flow: bool = typer.Option(False, "--no-flow", help="skip the optical-flow motion correction (§7.1)"),
     no_rbf: bool = typer.Option(False, "--no-rbf", help="skip the silhouette RBF warp (§7.2)"),
     no_depth: bool = typer.Option(False, "--no-depth", help="no depth compositing: the garment over everything"),
+    no_hem: bool = typer.Option(False, "--no-hem", help="keep the new garment's hem lines where the fitted body puts "
+                                "them (no hem matte onto the worn garment's edges)"),
     seed: int = typer.Option(0, "--seed", help="cloth colours"),
 ) -> None:
     """Dress the fitted actor, render with the fit's lights, refine in image space and composite: writes
@@ -102,8 +104,9 @@ def garment_render(
 
         raise InputError(f"{fit_dir}: no such fit folder; run 'bodystudio garment fit VIDEO --out {fit_dir}' first")
     doc = render_garment_video(fit_dir, garment, texture, out, flow=not no_flow, rbf=not no_rbf, depth=not no_depth,
-                               seed=seed, progress=True)
+                               seed=seed, progress=True, hem=not no_hem)
     ms = ", ".join(f"{k} {v:.0f}" for k, v in doc["ms_per_frame"].items())
     typer.echo(f"wrote {fit_dir / 'render'} and {out}: {len(doc['frame_ids'])} frames of {texture} {garment} "
-               f"(ms per frame: {ms}; flow correction used in {doc['n_flow_applied']} of them"
+               f"(ms per frame: {ms}; flow correction used in {doc['n_flow_applied']} of them, hem matte in "
+               f"{doc['n_hem_applied']}"
                f"{'' if doc['options']['flow'] else ', --no-flow'})")

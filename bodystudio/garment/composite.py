@@ -31,8 +31,8 @@ RENDER_DIR = "render"
 RENDER_JSON = "render.json"
 RENDER_FORMAT = "bodystudio-garment-render"
 STEPS = ("render", "flow", "rbf", "composite", "write")
-#: The §7 refinement steps that can be switched off (ablations).
-OPTIONS = ("flow", "rbf", "depth")
+#: The §7 refinement steps that can be switched off (ablations); ``hem``: the hem matte (ours, gar13e).
+OPTIONS = ("flow", "rbf", "depth", "hem")
 
 
 # ------------------------------------------------------------------------------------------ oracle fits
@@ -161,7 +161,9 @@ def perturbed_fit(fit, seed: int = 0, pose_deg: float = 3.0, translation_m: floa
 class RefinedFrame:
     """One composited frame: ``image`` uint8 RGB, ``garment_mask`` the garment pixels it shows, ``unrefined_mask``
     the garment pixels of the plain 3D composite, the warp ``field`` (H, W, 2) used and ms per step;
-    ``flow_applied`` whether §7.1's correction was used (asked for, and above what the flow resolves)."""
+    ``flow_applied`` whether §7.1's correction was used (asked for, and above what the flow resolves);
+    ``hem_applied`` whether the hem matte was (asked for, and the worn garment's colour told apart from the rest of
+    the actor's)."""
 
     image: np.ndarray
     garment_mask: np.ndarray
@@ -169,14 +171,19 @@ class RefinedFrame:
     field: np.ndarray
     timings_ms: dict
     flow_applied: bool = False
+    hem_applied: bool = False
 
 
 def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow: bool = True, rbf: bool = True,
-                         depth: bool = True, sigma_px: float | None = None) -> RefinedFrame:
-    """§7 on one frame: flow correction (§7.1), silhouette RBF warp (§7.2-7.3, Eq. 9), depth compositing (§7.3).
+                         depth: bool = True, sigma_px: float | None = None, hem: bool = True) -> RefinedFrame:
+    """§7 on one frame: flow correction (§7.1), silhouette RBF warp (§7.2-7.3, Eq. 9), depth compositing (§7.3),
+    then the hem matte (ours: :func:`bodystudio.garment.refine.hem_matte`, the new garment's hem lines moved onto
+    the worn garment's edges in the video, at most ``HEM_REACH_FRACTION`` of the frame height).
 
     The flow correction is used only when it is larger than the flow resolves
     (:func:`bodystudio.garment.refine.flow_correction_is_significant`); otherwise the frame is warped by §7.2 alone.
+    The hem matte is used only when the worn garment's colour is told apart from the rest of the actor's
+    (``MAX_HEM_CLASSIFIER_ERROR``).
 
     ``layer`` is a :class:`bodystudio.garment.render.GarmentLayer` of the fitted body in this frame.
     """
@@ -206,10 +213,18 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
     g_depth = refine.warp_image(layer.depth, field, nearest=True)
     b_depth = refine.warp_image(layer.body_depth, field, nearest=True)
     image, shown = refine.depth_composite(frame, g_rgb, g_mask, g_depth, b_depth, use_depth=depth)
+    hem_applied = False
+    if hem:
+        reach_px = refine.HEM_REACH_FRACTION * H
+        worn, error = refine.worn_garment_probability(frame, person_mask, shown, reach_px)
+        if error <= refine.MAX_HEM_CLASSIFIER_ERROR:
+            matte = refine.hem_matte(shown, worn, person_mask, reach_px)
+            image = refine.composite_hem_matte(image, frame, matte, shown, g_rgb, g_mask)
+            shown, hem_applied = matte, True
     _, unrefined = refine.depth_composite(frame, layer.rgb, layer.mask, layer.depth, layer.body_depth, True)
     t3 = time.perf_counter()
     timings.update(flow=(t1 - t0) * 1e3, rbf=(t2 - t1) * 1e3, composite=(t3 - t2) * 1e3)
-    return RefinedFrame(image, shown, unrefined, field, timings, flow_applied)
+    return RefinedFrame(image, shown, unrefined, field, timings, flow_applied, hem_applied)
 
 
 def default_lighting(camera):
@@ -321,7 +336,7 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                          out_video: str | os.PathLike | None = None, flow: bool = True, rbf: bool = True,
                          depth: bool = True, seed: int = 0, texture_size: int = 512, shadows: bool = True,
                          progress: bool = False, fit=None, command: str = "bodystudio garment render",
-                         min_frame_iou: float | None = None) -> dict:
+                         min_frame_iou: float | None = None, hem: bool = True) -> dict:
     """Dress the fitted body of ``fit_dir`` in ``garment`` with cloth ``texture``, render, refine (§7) and
     composite every frame; commit ``fit_dir/render/`` (render.json, frames/, garment_masks/) and ``out_video``
     as one unit. Returns render.json. ``fit`` overrides the fit read from ``fit_dir`` (oracle fits). Frames whose
@@ -372,7 +387,7 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                 t0 = time.perf_counter()
                 if not fitted[i]:  # a frame the fit could not match: the video passes through unchanged
                     image, shown, ms, status = frame, np.zeros((H, W), dtype=bool), {}, "passed_through"
-                    flow_applied = False
+                    flow_applied = hem_applied = False
                     t2 = time.perf_counter()
                 else:
                     pose = fit.pose(i)
@@ -380,10 +395,10 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                     layer = render_garment_layer(V, body.faces, cloth, pose_garment(cloth, body, pose), fit.camera,
                                                  lighting, albedo, shadows)
                     t1 = time.perf_counter()
-                    result = refine_and_composite(frame, fit.masks[i], layer, flow, rbf, depth)
+                    result = refine_and_composite(frame, fit.masks[i], layer, flow, rbf, depth, hem=hem)
                     t2 = time.perf_counter()
                     image, shown, status = result.image, result.garment_mask, "ok"
-                    flow_applied = result.flow_applied
+                    flow_applied, hem_applied = result.flow_applied, result.hem_applied
                     ms = {"render": (t1 - t0) * 1e3, **result.timings_ms}
                 w.write_bytes(f"frames/{int(fid):05d}.png", _png(image))
                 w.write_bytes(f"garment_masks/{int(fid):05d}.png", _png(shown.astype(np.uint8) * 255))
@@ -394,7 +409,7 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                     steps_ms[k].append(v)
                 # the flow gate's decision: options.flow says it was asked for, not that it was used
                 per_frame.append({"frame": int(fid), "status": status, "garment_px": int(shown.sum()),
-                                  "flow_applied": bool(flow_applied),
+                                  "flow_applied": bool(flow_applied), "hem_applied": bool(hem_applied),
                                   "ms": {k: round(v, 2) for k, v in ms.items()}})
                 bar.advance(task)
         finally:
@@ -402,12 +417,13 @@ def render_garment_video(fit_dir: str | os.PathLike, garment: str = "tshirt", te
                 video.close()
         doc = {"format": RENDER_FORMAT, "version": 1, "fit": str(fit_dir), "garment": garment, "texture": texture,
                "seed": seed, "texture_size": texture_size,
-               "options": {"flow": flow, "rbf": rbf, "depth": depth, "shadows": shadows},
+               "options": {"flow": flow, "rbf": rbf, "depth": depth, "hem": hem, "shadows": shadows},
                "min_frame_iou": min_frame_iou,
                "video": None if out_video is None else str(out_video), "frame_ids": [int(f) for f in fit.frame_ids],
                "ms_per_frame": {k: round(float(np.median(v)), 2) for k, v in steps_ms.items() if v},
                "ms_per_frame_statistic": "median", "n_passed_through": int((~fitted).sum()),
                "n_flow_applied": sum(f["flow_applied"] for f in per_frame),
+               "n_hem_applied": sum(f["hem_applied"] for f in per_frame),
                "wall_s": round(time.perf_counter() - t_start, 2),
                "frames": per_frame}
         return w.commit(doc)

@@ -7,7 +7,7 @@ target's. This step refines the root (translation and rotation) and the swing of
 clavicles, limbs, hands and feet (not their twist, which an oracle measured to cost the warp nothing:
 docs/mirror.md "MIR12") by a few Gauss-Newton steps of the energy
 
-``E = w_sil (E_out + E_cover) + w_depth E_depth + w_joint E_joint + E_prior``
+``E = w_sil (E_out + E_cover) + w_depth E_depth + w_joint E_joint + E_trunk + E_prior``
 
 * ``E_out``: the distance outside the foreground mask of every projected (subsampled) source vertex: a body
   point projecting outside the person's silhouette is wrong whatever occludes it (the distance-transform
@@ -16,6 +16,9 @@ docs/mirror.md "MIR12") by a few Gauss-Newton steps of the energy
   image normal): the mask's outline must be drawn by the body's outline;
 * ``E_depth``: point-to-plane distance of the player's depth points to their nearest front-facing vertex;
 * ``E_joint``: the Kinect joints as soft targets (the IK's objective, tracked joints weighted up);
+* ``E_trunk``: the bend of the spine, neck, head and clavicles against their parents held near the rest pose
+  (a weak pose prior, 16 degrees: the Kinect joints give these short bones to 5-12 degrees and the surface hardly
+  shows a bend of the lower spine; MIR12g, docs/mirror.md "Who owns the last 0.04");
 * ``E_prior``: Tikhonov damping of the change from the IK pose.
 
 Every residual is linear in the parameters to first order through the skinning: a vertex ``v`` moves by
@@ -55,6 +58,12 @@ SWING_BONES = ("spine_01", "spine_02", "spine_03", "neck_01", "head", "clavicle_
 #: The first set (MIR12b's oracle compares it).
 TRUNK_AND_LIMB_BONES = ("spine_01", "spine_02", "neck_01", "clavicle_l", "clavicle_r", "upperarm_l", "upperarm_r",
                         "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
+#: Bones whose bend against the parent E_trunk holds near the rest pose (``RefineWeights.trunk_rad``): the spine,
+#: neck, head and clavicles, short bones whose direction the Kinect joints give to 5-12 degrees and the body's
+#: surface hardly shows (docs/mirror.md, MIR12g).
+TRUNK_BONES = ("spine_01", "spine_02", "spine_03", "neck_01", "head", "clavicle_l", "clavicle_r")
+#: E_trunk's scale: 16 degrees of bend count as one (a weak pull; 2-8 degrees measured no better on the warp).
+TRUNK_RAD = float(np.radians(16.0))
 #: Gauss-Newton steps per frame: on MIR-SYNTH 41 / 42 one step scores the warp as well as two or three
 #: (warp_iou 0.913 / 0.894 against 0.913 / 0.894 / 0.912 / 0.894) at half the cost (docs/mirror.md).
 ITERATIONS = 1
@@ -80,6 +89,10 @@ class RefineWeights:
     sil_weight: float = 1.0  # relative weights of the terms (their sums are normalised per sample)
     depth_weight: float = 1.0
     joint_weight: float = 1.0
+    # E_trunk: the bend of each of TRUNK_BONES against its parent (its swing away from the rest pose), this scale
+    # in radians (16 degrees; None: no such term). On MIR-SYNTH 41 / 42 / 43 it takes spine_01's swing error from
+    # 6-9 to 1.5-1.8 degrees and the displacement error from 7.7 / 8.3 / 6.7 to 5.6 / 6.7 / 5.0 mm (MIR12g)
+    trunk_rad: float | None = TRUNK_RAD
 
 
 @dataclass(frozen=True, eq=False)
@@ -531,6 +544,24 @@ def _any_in_window(image, y0, y1, x0, x1):
     return False
 
 
+def trunk_bends(M: np.ndarray, world: np.ndarray, rest_rotations: np.ndarray, parents, bones: np.ndarray,
+                axes: np.ndarray) -> np.ndarray:
+    """(n, 2) the bend of each of ``bones`` against its parent, as the components on its two swing ``axes``
+    (n, 2, 3) of the rotation vector taking the bone's rest direction (turned with its parent) onto its posed one;
+    ``M`` the posed frames, ``world`` the world rotations (:func:`_bone_frames`).
+
+    A swing ``delta`` about ``e_k`` of bone ``j`` turns its direction about ``e_k`` and leaves its parent alone, so
+    the bend becomes ``bend_k + delta_k`` to first order: the residual of E_trunk, ``(bend_k + delta_k) / s``.
+    """
+    d = M[bones, :3, 1]
+    q = np.einsum("nij,nj->ni", world[np.asarray(parents)[bones]], rest_rotations[bones][:, :, 1])
+    n = np.cross(q, d)
+    s = np.linalg.norm(n, axis=1)
+    angle = np.arctan2(s, np.einsum("ij,ij->i", q, d))
+    b = n * (angle / np.maximum(s, 1e-12))[:, None]
+    return np.einsum("nkj,nj->nk", axes, b)
+
+
 def apply_update(skeleton: Skeleton, pose: Pose, delta: np.ndarray, bones: np.ndarray, axes: np.ndarray,
                  world: np.ndarray) -> Pose:
     """The pose turned by ``delta`` (root translation, root rotation vector in world axes, two swing angles per
@@ -710,6 +741,10 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
     eye = camera.center
     parents = skeleton.parents
     rest_rotations = np.ascontiguousarray(skeleton.rest_rotations)
+    trunk = None
+    if weights.trunk_rad is not None:  # positions among the swing bones
+        names = [skeleton.bone_names[b] for b in bones[1:]]
+        trunk = np.array([names.index(n) for n in TRUNK_BONES if n in names], int)
     for _ in range(max(0, int(iterations))):
         M, transforms = _forward_kinematics(plan, parents, pose)
         world, heads, axes = _bone_frames(M, rest_rotations, bones)
@@ -785,6 +820,11 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         H = np.triu(H) + np.triu(H, 1).T
         H[np.diag_indices(n_par)] += 1.0 / prior_scale**2
         grad = Jtr + total / prior_scale**2
+        if trunk is not None:  # E_trunk: each trunk bone's bend (its swing off the rest pose) plus its own swing
+            bend = trunk_bends(M, world, rest_rotations, parents, bones[1 + trunk], axes[trunk])
+            cols = (6 + 2 * trunk[:, None] + np.arange(2)).ravel()
+            H[cols, cols] += 1.0 / weights.trunk_rad**2
+            grad[cols] += bend.ravel() / weights.trunk_rad**2
         try:
             delta = -np.linalg.solve(H, grad)
         except np.linalg.LinAlgError:

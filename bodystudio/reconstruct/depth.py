@@ -21,6 +21,9 @@ FLYING_PIXEL_M = 0.03
 FLOOR_M = 0.015
 #: A vertex is hidden when the observed surface is this much closer to the sensor along its pixel.
 OCCLUSION_M = 0.04
+#: A vertex is the template's own front surface at its pixel when it is at most this far behind the
+#: template's depth raster there (the raster interpolates the surface at the pixel centre, not at the vertex).
+MODEL_FRONT_M = 0.01
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,10 +80,18 @@ def depth_observation(depth_m: np.ndarray, camera, depth_range_m: tuple[float, f
 
 
 def depth_constraints(V: np.ndarray, N: np.ndarray, obs: DepthObservation, sigma_m: float = 0.02,
-                      max_distance_m: float = 0.05, min_normal_dot: float = 0.5) -> DepthConstraints:
+                      max_distance_m: float = 0.05, min_normal_dot: float = 0.5, F: np.ndarray | None = None,
+                      reach_m: float = 0.0, reach_sigma_m: float = 0.05) -> DepthConstraints:
     """Point-to-plane constraints of visible vertices to their projectively associated depth points.
 
     Weight ``k = exp(-d^2 / 2 sigma^2)`` of the initial point-to-point distance ``d`` (Eq. 10's scheme in 3D).
+    A vertex counts as hidden where the observed surface is more than ``OCCLUSION_M`` closer to the sensor,
+    and pairs further apart than ``max_distance_m`` are dropped: that also drops the largest errors of the
+    visible surface (a chest 5 cm inside the body it should fit). With the faces ``F`` and ``reach_m >
+    max_distance_m`` (ours, issue 15's worst regions: depth owns what silhouettes cannot see) visibility
+    comes from the template itself (:func:`model_front_vertices`: the vertex is its own front surface in the
+    sensor's view, so no limb of it is in front), and such vertices pair with depth points up to ``reach_m``
+    away, those beyond ``max_distance_m`` with ``k = exp(-d^2 / 2 reach_sigma^2)``.
     """
     cam = obs.camera
     uv, z = cam.project_with_depth(V)
@@ -95,12 +106,26 @@ def depth_constraints(V: np.ndarray, N: np.ndarray, obs: DepthObservation, sigma
     has = obs.valid[r, c]
     ids, r, c = ids[has], r[has], c[has]
     observed = obs.depth_m[r, c]
-    visible = observed > z[ids] - OCCLUSION_M
-    ids, r, c = ids[visible], r[visible], c[visible]
     q = obs.points[r, c]
     nq = obs.normals[r, c]
     d = np.linalg.norm(V[ids] - q, axis=1)
     agree = np.sum(N[ids] * nq, axis=1) > min_normal_dot
-    keep = (d < max_distance_m) & agree
-    ids, q, nq, d = ids[keep], q[keep], nq[keep], d[keep]
-    return DepthConstraints(ids.astype(np.int64), q, nq, np.exp(-(d * d) / (2.0 * sigma_m * sigma_m)))
+    near = (observed > z[ids] - OCCLUSION_M) & (d < max_distance_m) & agree
+    far = np.zeros(len(ids), bool)
+    if F is not None and reach_m > max_distance_m:
+        far = ~near & agree & (d < reach_m)
+        if far.any():
+            far[far] = model_front_vertices(V, F, cam, z[ids[far]], px[ids[far]])
+    keep = near | far
+    ids, q, nq, d, far = ids[keep], q[keep], nq[keep], d[keep], far[keep]
+    k = np.exp(-(d * d) / (2.0 * np.where(far, reach_sigma_m, sigma_m) ** 2))
+    return DepthConstraints(ids.astype(np.int64), q, nq, k)
+
+
+def model_front_vertices(V: np.ndarray, F: np.ndarray, cam, z: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """Whether points of the mesh ``(V, F)`` at camera depth ``z`` and pixel ``px`` lie on its own front
+    surface in ``cam``: at most ``MODEL_FRONT_M`` behind the mesh's depth raster at that pixel."""
+    from bodystudio.capture.render import render_depth
+
+    own = render_depth(V, F, cam)[px[:, 1], px[:, 0]]
+    return (own > 0) & (z <= own + MODEL_FRONT_M)

@@ -49,6 +49,11 @@ class RapidSkinParams:
     constraints: tuple[str, ...] = ("silhouette",)
     depth_sigma_m: float = 0.02
     depth_max_m: float = 0.05
+    #: Depth pairs up to this far (m) for vertices that are the template's own front surface in the sensor's
+    #: view, weighted with ``depth_reach_sigma_m`` (:func:`bodystudio.reconstruct.depth.depth_constraints`;
+    #: issue 15's worst regions); 0: only up to ``depth_max_m``, as before.
+    depth_reach_m: float = 0.10
+    depth_reach_sigma_m: float = 0.05
     jacobi_iterations_factor: int = 4
     #: Drop a silhouette constraint whose target point leaves the visual hull by more than this (m) beyond
     #: where its vertex already is (:func:`hull_consistent_constraints`); 0 keeps every match (the paper).
@@ -69,6 +74,8 @@ class RapidSkinParams:
                 ("rim_cos", self.rim_cos, 0.0, 0.99, "cosine"),
                 ("depth_sigma_m", self.depth_sigma_m, 1e-4, 1.0, "metres"),
                 ("depth_max_m", self.depth_max_m, 1e-3, 1.0, "metres"),
+                ("depth_reach_m", self.depth_reach_m, 0.0, 1.0, "metres; 0 pairs depth only up to depth_max_m"),
+                ("depth_reach_sigma_m", self.depth_reach_sigma_m, 1e-4, 1.0, "metres"),
                 ("hull_gate_m", self.hull_gate_m, 0.0, 1.0, "metres; 0 turns the visual-hull gate off")):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"{name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}] ({flag})")
@@ -145,7 +152,8 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
         if gate:
             sil = hull_consistent_constraints(V, sil, fields, params.hull_gate_m,
                                               projected=views.projection(V) if share else None)
-        dep = (depth_constraints(V, N, depth, params.depth_sigma_m, params.depth_max_m)
+        dep = (depth_constraints(V, N, depth, params.depth_sigma_m, params.depth_max_m, F=F,
+                                  reach_m=params.depth_reach_m, reach_sigma_m=params.depth_reach_sigma_m)
                if use_depth else DepthConstraints.empty())
         t1 = time.perf_counter()
         cs = ConstraintSet(delta, delta_rest, sil, dep)

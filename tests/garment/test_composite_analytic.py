@@ -437,7 +437,7 @@ def test_render_loop_composites_fitted_frames_and_passes_the_others_through(tmp_
     assert albedo is fit.albedo and shadows is False
     assert doc["format"] == "bodystudio-garment-render" and doc["version"] == 1
     assert doc["garment"] == "skirt" and doc["texture"] == "checks" and doc["seed"] == 3 and doc["texture_size"] == 32
-    assert doc["options"] == {"flow": True, "rbf": True, "depth": True, "shadows": False}
+    assert doc["options"] == {"flow": True, "rbf": True, "depth": True, "hem": True, "shadows": False}
     assert doc["min_frame_iou"] == 0.8 and doc["n_passed_through"] == 1 and doc["video"] is None
     assert doc["frame_ids"] == [2, 5, 8] and doc["fit"] == str(tmp_path / "fit")
     assert [f["status"] for f in doc["frames"]] == ["ok", "passed_through", "ok"]
@@ -469,11 +469,13 @@ def test_render_loop_options_lights_and_video(tmp_path, monkeypatch):
     fit, calls = stand_in_render(monkeypatch, frames, [MIN_FRAME_IOU, 0.9], lighting=lights)  # >= passes
     fit.albedo = np.zeros((4, 3))  # not one per body vertex: the render falls back to its own
     video = tmp_path / "out.mp4"
-    doc = cp.render_garment_video(tmp_path / "fit", fit=fit, out_video=video, flow=False, rbf=False, depth=False)
+    doc = cp.render_garment_video(tmp_path / "fit", fit=fit, out_video=video, flow=False, rbf=False, depth=False,
+                                  hem=False)
     assert calls["dress"] == [("tshirt", "stripes", 512, 0)]
     light, albedo, shadows = calls["render"][0]
     assert light is lights and albedo is None and shadows is True
-    assert doc["options"] == {"flow": False, "rbf": False, "depth": False, "shadows": True}
+    assert doc["options"] == {"flow": False, "rbf": False, "depth": False, "hem": False, "shadows": True}
+    assert doc["n_hem_applied"] == 0 and not any(f["hem_applied"] for f in doc["frames"])
     assert doc["video"] == str(video) and video.read_bytes()[4:8] == b"ftyp"
     assert doc["min_frame_iou"] == MIN_FRAME_IOU and doc["n_passed_through"] == 0
     assert all(f["garment_px"] == toy_layer(H, W).mask.sum() for f in doc["frames"])  # no depth test
@@ -721,7 +723,7 @@ def test_composite_errors_are_iou_psnr_and_ssim_in_the_true_person(tmp_path, mon
     assert got["psnr_person"] == np.inf  # one exact frame
     assert got["psnr_person_per_frame"][:2] == [round(v, 2) for v in psnrs[:2]]
     assert got["ssim_person"] == pytest.approx(np.mean(ssims), abs=1e-9)
-    assert got["render_options"] == {"flow": True, "rbf": True, "depth": True, "shadows": True}
+    assert got["render_options"] == {"flow": True, "rbf": True, "depth": True, "hem": True, "shadows": True}
     assert set(got["render_ms_per_frame"]) == {"render", "flow", "rbf", "composite", "write"}
 
 

@@ -2,7 +2,8 @@
 
 It forms the whole Jacobian ``J`` (one row per residual, 44 columns) and ``J^T J`` from it, outlines the mask over
 the whole image and projects every vertex's Jacobian: the implementation the run used until MIRFAST. Kept here, as a
-test helper, so that tests/mirror/test_pose_refine_fast.py can pin the fast implementation to it.
+test helper, so that tests/mirror/test_pose_refine_fast.py can pin the fast implementation to it. MIR12g's E_trunk
+is added here from the pose's local rotations (the fast one takes it from the posed frames).
 """
 
 import cv2
@@ -14,6 +15,7 @@ from bodystudio.body.pose import Pose
 from bodystudio.errors import InputError
 from bodystudio.mirror.refine import (
     RIM_COS,
+    TRUNK_BONES,
     _one_blas_thread,
     _sample,
     silhouette_distance,
@@ -214,6 +216,20 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
             res.append((scale[:, None] * (P[use] - K[use])).ravel())
         if not rows:
             break
+        if weights.trunk_rad is not None:  # E_trunk (MIR12g): each trunk bone's swing off the rest pose
+            for n, name in enumerate(skeleton.bone_names[j] for j in bones[1:]):
+                if name not in TRUNK_BONES:
+                    continue
+                j = bones[1 + n]
+                y = np.array([0.0, 1.0, 0.0])  # the bone's axis in its own frame
+                Ly = Rotation.from_rotvec(pose.rotations[j]).apply(y)
+                c = np.cross(y, Ly)
+                bend_local = c / max(np.linalg.norm(c), 1e-12) * np.arctan2(np.linalg.norm(c), y @ Ly)
+                bend = world[parents[j]] @ skeleton.rest_rotations[j] @ bend_local
+                row = np.zeros((2, n_par))
+                row[0, 6 + 2 * n] = row[1, 7 + 2 * n] = 1.0 / weights.trunk_rad
+                rows.append(row)
+                res.append(axes[n] @ bend / weights.trunk_rad)
         A = np.vstack(rows)
         b = np.concatenate(res)
         # E_prior on the total change from the IK pose (``total``): (total + delta) / scale

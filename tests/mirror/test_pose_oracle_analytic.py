@@ -5,7 +5,9 @@ that keeps the IK's bone directions and takes the true twist gives back the true
 the twist was wrong, and leaves the planted swing in place when the swing was wrong; world rotations and
 poses convert into each other exactly. The shape oracle's parts (MIR12c): the signed silhouette distance of a
 disc, the rim distances of a sphere seen by a camera (the rim lies on the outline; a sphere 2 % too small lies
-inside it by that fraction of its radius in pixels), the region of a vertex by its dominant bone.
+inside it by that fraction of its radius in pixels), the region of a vertex by its dominant bone. MIR12g's
+temporal filters of the refined poses: on a ramp the centred mean is exact away from the ends, the EMA lags by
+(1 - a) / a steps of the slope and the alpha-beta filter catches up with it; on noise about a constant each smooths.
 """
 
 import numpy as np
@@ -15,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from benchmarks.mirror_pose_oracle import (
     REGIONS,
     _rim_distances,
+    filter_sequence,
     oracle_swing,
     oracle_twist,
     pose_from_world,
@@ -121,3 +124,17 @@ def test_vertex_regions_by_dominant_bone(skeleton):
     W[2, names.index("hand_r")] = 1.0
     assert list(vertex_regions(W, names)) == ["thighs", "head, neck", "other"]
     assert all(b in names for bones in REGIONS.values() for b in bones)
+
+
+def test_the_temporal_filters_of_the_refined_poses():
+    t = np.arange(60.0)
+    ramp = np.c_[0.01 * t, -0.02 * t]
+    assert np.allclose(filter_sequence(ramp, "none", None), ramp)
+    assert np.allclose(filter_sequence(ramp, "centred", 2)[2:-2], ramp[2:-2])
+    ema = filter_sequence(ramp, "ema", 0.5)
+    assert np.allclose(ramp[-1] - ema[-1], (1 - 0.5) / 0.5 * np.array([0.01, -0.02]), atol=1e-9)
+    ab = filter_sequence(ramp, "alpha-beta", (0.5, 0.1))
+    assert np.abs(ab[-1] - ramp[-1]).max() < 1e-3 < np.abs(ab[5] - ramp[5]).max()  # starts at rest, catches up
+    noise = np.random.default_rng(0).normal(0.0, 1.0, (400, 3))
+    for kind, param in (("centred", 2), ("ema", 0.5), ("alpha-beta", (0.5, 0.1))):
+        assert filter_sequence(noise, kind, param)[20:].std() < 0.85 * noise[20:].std(), kind

@@ -2,9 +2,11 @@
 
 Each test builds its own small handle layout, so it runs in well under a second: the similarity / rigid
 closed forms against the complex-number formula written out per point, degenerate (collinear) handles,
-the grid field's region of interest and per-person groups, and the foreground warp's edge colours.
+the grid field's region of interest and per-person groups, and the foreground warp's edge colours; a person
+cut by the image's edge, moved into the image, goes on beyond it (MIR12g).
 """
 
+import cv2
 import numpy as np
 import pytest
 
@@ -12,6 +14,7 @@ from bodystudio.errors import InputError
 from bodystudio.mirror.warp import (
     EPS_PX2,
     OUTSIDE_PX,
+    edge_clamped,
     mls_grid_nodes,
     mls_transforms,
     mls_warp_field,
@@ -512,3 +515,55 @@ def test_visible_pairs_take_800_evenly_spread_candidates_by_default():
     cam = _occluder_scene()[2]
     _, _, ids = visible_vertex_pairs(V, V, F, cam)
     np.testing.assert_array_equal(ids, np.unique(np.linspace(0, 899, 800).round().astype(int)))
+
+
+def test_a_person_cut_by_the_image_edge_goes_on_beyond_it_when_moved_into_the_image():
+    """MIR12g: a person whose body is cut by the left edge (columns 0-49, rows 100-299) moved 10 px to the right:
+    the warped silhouette is columns 0-59, the edge's pixels standing in for the body beyond it (before: a 10 px
+    gap along the edge); a field pointing farther out than EDGE_REACH_PX, or at OUTSIDE_PX (no foreground), stays
+    empty. The identity field and the unclamped remap fail it."""
+    H, W = 480, 640
+    fg = np.zeros((H, W), bool)
+    fg[100:300, :50] = True
+    rgb = np.zeros((H, W, 3), np.uint8)
+    rgb[fg] = (200, 120, 40)
+    rgb[100:300, 0] = (10, 220, 30)  # the edge column's colour fills what lies beyond it
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float32)
+
+    def shifted(dx):
+        return np.stack([xs - dx, ys], axis=-1)
+
+    want = np.zeros_like(fg)
+    want[100:300, :60] = True
+    colour, alpha = warp_foreground(rgb, fg, shifted(10.0))
+    warped = alpha > 0.5
+    assert (warped == want).mean() > 0.999 and warped[100:300, :10].all()
+    assert (colour[150, :9] == (10, 220, 30)).all() and (colour[150, 20] == (200, 120, 40)).all()
+    assert not (warp_foreground(rgb, fg, np.stack([xs, ys], -1))[1][100:300, 50:60] > 0.5).any()  # identity
+    unclamped = cv2.remap(fg.astype(np.uint8), shifted(10.0), None, cv2.INTER_LINEAR, borderValue=0)
+    assert not unclamped[100:300, :9].any()  # what the remap alone gives: the gap
+    # farther out than the reach: no foreground (the field's own limit on the left)
+    far = warp_foreground(rgb, fg, shifted(30.0))[1] > 0.5
+    assert not far[100:300, :13].any() and far[100:300, 17:80].all()
+    # OUTSIDE_PX marks no foreground, even next to the edge
+    field = shifted(10.0)
+    field[:, :10] = OUTSIDE_PX
+    assert not (warp_foreground(rgb, fg, field)[1][:, :10] > 0).any()
+    # the other three edges: a body cut by the top, right and bottom edge moved 10 px into the image
+    for sl, d, grown in (((slice(0, 50), slice(200, 400)), (0.0, 10.0), (slice(0, 60), slice(200, 400))),
+                         ((slice(100, 300), slice(590, W)), (-10.0, 0.0), (slice(100, 300), slice(580, W))),
+                         ((slice(430, H), slice(200, 400)), (0.0, -10.0), (slice(420, H), slice(200, 400)))):
+        cut = np.zeros_like(fg)
+        cut[sl] = True
+        moved = np.stack([xs - d[0], ys - d[1]], axis=-1)
+        a = warp_foreground(rgb, cut, moved)[1] > 0.5
+        expected = np.zeros_like(fg)
+        expected[grown] = True
+        assert (a == expected).mean() > 0.999 and a[grown].all(), d
+    # the clamp leaves a field inside the image as it is (the same array), and copies before it changes one
+    inside = shifted(0.0)
+    assert edge_clamped(inside, (H, W)) is inside
+    moved = shifted(10.0)
+    before = moved.copy()
+    edge_clamped(moved, (H, W))
+    assert np.array_equal(moved, before)

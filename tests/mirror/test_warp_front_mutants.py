@@ -200,9 +200,15 @@ def test_closed_pairs_of_two_actors_keep_each_nodes_person():
 # --- warp_foreground: the whole-image remap -----------------------------------------------------------------------
 
 def _warp_whole_image(rgb, mask, field):
-    """warp_foreground before MIRFAST3: both remaps over the whole image (the reference)."""
+    """warp_foreground before MIRFAST3: both remaps over the whole image (the reference); since MIR12g a source
+    position less than 16 px (-OUTSIDE_PX) off the image, other than OUTSIDE_PX itself, is taken on its edge."""
     m8 = mask.astype(np.uint8) * np.uint8(255)
-    mx, my = field[..., 0], field[..., 1]
+    h, w = mask.shape
+    mx, my = field[..., 0].copy(), field[..., 1].copy()
+    valid = mx > OUTSIDE_PX
+    near = valid & (mx > -16) & (my > -16) & (mx < w - 1 + 16) & (my < h - 1 + 16)
+    mx[near] = np.clip(mx[near], 0, w - 1)
+    my[near] = np.clip(my[near], 0, h - 1)
     alpha8 = cv2.remap(m8, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     premult = cv2.bitwise_and(rgb, rgb, mask=m8)
     out = cv2.remap(premult, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
@@ -263,7 +269,8 @@ def test_warp_foreground_of_a_uint8_mask_and_a_field_pointing_at_the_last_pixel(
     want, want_alpha = _warp_whole_image(rgb, m.astype(bool), field)
     np.testing.assert_array_equal(out, want)
     np.testing.assert_array_equal(alpha, want_alpha)
-    assert alpha[29, 39] > 0 and alpha[29, 39] < 1  # the last pixel samples half outside the image
+    # the last pixel samples half a pixel beyond the image: taken on its edge since MIR12g (before: half outside)
+    assert alpha[29, 39] == 1
 
 
 # --- mls_transforms: the affine closed form with every entry of A non-zero ----------------------------------------

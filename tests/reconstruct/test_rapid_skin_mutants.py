@@ -118,8 +118,8 @@ def test_depth_only_needs_no_masks(sphere_scene, monkeypatch):
     dep = DepthConstraints(np.array([0, 1]), V[:2] * 1.1, V[:2] / 0.3, np.array([0.5, 0.5]))
     seen = []
 
-    def fake_depth(V_, N_, obs, sigma, max_m):
-        seen.append((obs, sigma, max_m))
+    def fake_depth(V_, N_, obs, sigma, max_m, F=None, reach_m=None, reach_sigma_m=None):
+        seen.append((obs, sigma, max_m, F.shape, reach_m, reach_sigma_m))
         meshes.append((np.array(V_), np.array(N_)))
         return dep
 
@@ -128,8 +128,10 @@ def test_depth_only_needs_no_masks(sphere_scene, monkeypatch):
     monkeypatch.setattr(rapid_skin, "depth_constraints", fake_depth)
     obs = object()
     r = deform_to_observations(V, F, cams, None, RapidSkinParams(outer_iterations=2, constraints=("depth",),
-                                                                 depth_sigma_m=0.03, depth_max_m=0.07), depth=obs)
-    assert seen == [(obs, 0.03, 0.07)] * 2
+                                                                 depth_sigma_m=0.03, depth_max_m=0.07,
+                                                                 depth_reach_m=0.12, depth_reach_sigma_m=0.06),
+                               depth=obs)
+    assert seen == [(obs, 0.03, 0.07, F.shape, 0.12, 0.06)] * 2
     # the depth matcher sees the current mesh and its unit normals (outward on the sphere)
     for (Vd, Nd), call in zip(meshes, rec.calls, strict=True):
         np.testing.assert_array_equal(Vd, call["V"])
@@ -180,6 +182,7 @@ def test_default_params_are_the_papers():
             p.depth_sigma_m, p.depth_max_m, p.jacobi_iterations_factor) == \
         (8, 8, 30.0, 40.0, 0.2, "gs", ("silhouette",), 0.02, 0.05, 4)
     assert p.hull_gate_m == 0.001  # ours (issue 15): the visual-hull gate, 1 mm
+    assert (p.depth_reach_m, p.depth_reach_sigma_m) == (0.10, 0.05)  # ours (issue 15): depth's far pairs
 
 
 _RANGES = [("outer_iterations", "--outer", 1, 100, "iterations"),
@@ -189,6 +192,8 @@ _RANGES = [("outer_iterations", "--outer", 1, 100, "iterations"),
            ("rim_cos", "rim_cos", 0.0, 0.99, "cosine"),
            ("depth_sigma_m", "depth_sigma_m", 1e-4, 1.0, "metres"),
            ("depth_max_m", "depth_max_m", 1e-3, 1.0, "metres"),
+           ("depth_reach_m", "depth_reach_m", 0.0, 1.0, "metres; 0 pairs depth only up to depth_max_m"),
+           ("depth_reach_sigma_m", "depth_reach_sigma_m", 1e-4, 1.0, "metres"),
            ("hull_gate_m", "hull_gate_m", 0.0, 1.0, "metres; 0 turns the visual-hull gate off")]
 
 

@@ -33,7 +33,8 @@ def test_render_writes_frames_masks_video_and_json(fit_dir, tmp_path, capfd, mon
     r = run_inprocess(["garment", "render", fit_dir, "--garment", "skirt", "--texture", "checks", "--out", out], capfd)
     assert_clean_error(r, 0, "")
     doc = json.loads((fit_dir / "render" / "render.json").read_text())
-    assert doc["garment"] == "skirt" and doc["options"] == {"flow": True, "rbf": True, "depth": True, "shadows": True}
+    assert doc["garment"] == "skirt" and doc["options"] == {"flow": True, "rbf": True, "depth": True, "hem": True,
+                                                                 "shadows": True}
     assert set(doc["ms_per_frame"]) == {"render", "flow", "rbf", "composite", "write"}
     assert sorted(p.name for p in (fit_dir / "render" / "frames").iterdir()) == ["00000.png", "00001.png"]
     assert len(list((fit_dir / "render" / "garment_masks").iterdir())) == 2
@@ -46,11 +47,14 @@ def test_render_writes_frames_masks_video_and_json(fit_dir, tmp_path, capfd, mon
     # the switched-off steps are not run (was: their per-frame ms < 5, a wall-clock bound that failed under load)
     monkeypatch.setattr(refine, "garment_motion_correction", never)
     monkeypatch.setattr(refine, "silhouette_rbf_warp", never)
-    r = run_inprocess(["garment", "render", fit_dir, "--out", out, "--no-flow", "--no-rbf", "--no-depth"], capfd)
+    monkeypatch.setattr(refine, "hem_matte", never)
+    monkeypatch.setattr(refine, "worn_garment_probability", never)
+    r = run_inprocess(["garment", "render", fit_dir, "--out", out, "--no-flow", "--no-rbf", "--no-depth", "--no-hem"],
+                      capfd)
     assert_clean_error(r, 0, "")
     doc = json.loads((fit_dir / "render" / "render.json").read_text())
-    assert doc["options"] == {"flow": False, "rbf": False, "depth": False, "shadows": True}
-    assert doc["n_flow_applied"] == 0
+    assert doc["options"] == {"flow": False, "rbf": False, "depth": False, "hem": False, "shadows": True}
+    assert doc["n_flow_applied"] == 0 and doc["n_hem_applied"] == 0
 
 
 @pytest.mark.parametrize("case, phrase", [
