@@ -265,6 +265,19 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
         f"solver (GS, No = {no_fast} x Ni = 8), tracked frame now"
     ms: dict[str, list[float]] = {}
     wall: dict[tuple[str, int], list[float]] = {(m, k): [] for m in ("default", "fast") for k in (1, 2)}
+    end_to_end: dict[tuple[str, int], list[float]] = {}
+
+    def tracked_frame_now(path, frame_id):
+        """A tracked frame as ``reconstruct_frames`` runs it, from frame 0's pose (the prior)."""
+        frame = open_session(path).frame(frame_id)
+        masks = read_masks(frame)
+        fields = SilhouetteFields(cams, masks)
+        outside_fraction(pose_template(fit_body, T0).vertices, fields)
+        T = track_bone_transforms(fit_body, T0, fields, fast)
+        outside_fraction(pose_template(fit_body, T).vertices, fields)
+        P = pose_template(body, T, 1.0)
+        return deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(outer_iterations=no_fast),
+                                      delta=rest_delta, fields=fields)
     with threadpool_limits(1):
         for rep in range(repeats + 1):  # the first run compiles
             steps = {}
@@ -307,6 +320,17 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
                     deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(outer_iterations=outer),
                                            delta=rest_delta, fields=fields)
                     wall[mode, threads].append(1000 * (time.perf_counter() - t))
+            # the whole tracked frame end to end (masks read to deformed mesh) on one and two numba threads:
+            # process CPU (all threads), the main thread's CPU (with two threads: its share of the parallel
+            # kernels plus everything serial, i.e. the frame's wall on an idle two-core machine when the
+            # split is even) and wall, back to back
+            for threads in (1, 2):
+                numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+                clocks = (time.process_time(), time.thread_time(), time.perf_counter())
+                tracked_frame_now(session_path, session.frame_ids[1])
+                for name, t0, t1 in zip(("cpu", "main", "wall"), clocks,
+                                        (time.process_time(), time.thread_time(), time.perf_counter()), strict=True):
+                    end_to_end.setdefault((name, threads), []).append(1000 * (t1 - t0))
             numba.set_num_threads(1)
             if rep:
                 for k, v in steps.items():
@@ -345,6 +369,12 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
              [f"deformation, tracked frame now (No = {no_fast}), wall ms, two numba threads", fast_2],
              ["**whole frame, tracked frame now, two cores** (its deformation's CPU ms scaled by its two-thread / "
               "one-thread wall)", tracked_now - (1 - fast_2 / fast_1) * (med[fast_match] + med[fast_solve])]]
+    e2e = {k: statistics.median(v[1:]) for k, v in end_to_end.items()}
+    rows += [["**whole frame, tracked frame now, end to end, one numba thread**: CPU ms / wall ms",
+              f"{e2e['cpu', 1]:.1f} / {e2e['wall', 1]:.1f}"],
+             ["**whole frame, tracked frame now, end to end, two numba threads**: CPU ms (all threads) / main "
+              "thread's CPU ms (the idle two-core wall when the split is even) / wall ms",
+              f"{e2e['cpu', 2]:.1f} / {e2e['main', 2]:.1f} / {e2e['wall', 2]:.1f}"]]
     return markdown_table(["step (frame 1, 13K, 10 cameras 640x480, one thread)", "CPU ms (median)"], rows)
 
 

@@ -137,6 +137,8 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
     gate = use_sil and params.hull_gate_m > 0
     if gate and fields is None:
         fields = SilhouetteFields(cameras, masks)
+    # the gate reads its vertices' fields at the matching's projections when both use the same cameras
+    share = gate and isinstance(fields, SilhouetteFields) and views.packed is not None and _same_cameras(fields, views)
     result.matching_s += time.perf_counter() - t0
     inner = params.inner_iterations
     if params.solver == "jacobi":
@@ -148,7 +150,8 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
                                       views=views)
                if use_sil else SilhouetteConstraints.empty())
         if gate:
-            sil = hull_consistent_constraints(V, sil, fields, params.hull_gate_m)
+            sil = hull_consistent_constraints(V, sil, fields, params.hull_gate_m,
+                                              projected=views.projection(V) if share else None)
         dep = (depth_constraints(V, N, depth, params.depth_sigma_m, params.depth_max_m, F=F,
                                   reach_m=params.depth_reach_m, reach_sigma_m=params.depth_reach_sigma_m)
                if use_depth else DepthConstraints.empty())
@@ -166,8 +169,18 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
     return result
 
 
+def _same_cameras(fields: SilhouetteFields, views: SilhouetteViews) -> bool:
+    """The fields' cameras are the views' packed ones, in the same order (rotations, translations,
+    intrinsics, distortion and image sizes equal)."""
+    _, _, Rs, ts, Ks, dists, _, _, w, h = views.packed
+    return (len(fields.cameras) == len(Rs) and np.array_equal(fields._R, Rs) and np.array_equal(fields._t, ts)
+            and np.array_equal(fields._K, Ks) and np.array_equal(fields._dist, dists)
+            and bool(np.all(fields._size == (w, h))))
+
+
 def hull_consistent_constraints(V: np.ndarray, sil: SilhouetteConstraints, fields: SilhouetteFields,
-                                gate_m: float) -> SilhouetteConstraints:
+                                gate_m: float, projected: tuple[np.ndarray, np.ndarray] | None = None
+                                ) -> SilhouetteConstraints:
     """The silhouette constraints (Eq. 7 of Rapid Skin) whose target stays inside the visual hull.
 
     A constraint pulls its vertex onto the viewing ray of the contour pixel it matched, i.e. to the point
@@ -177,12 +190,15 @@ def hull_consistent_constraints(V: np.ndarray, sil: SilhouetteConstraints, field
     ``q`` in empty space beside it, which the other cameras see outside their silhouettes. Kept: the
     constraints with ``hull(q) <= max(hull(v), 0) + gate_m`` (``hull`` the implicit visual hull of
     ``fields``, metres, > 0 outside): a step may not take a vertex further out of the hull than it is.
+    ``projected``: ``V`` in the fields' cameras as the matching projected it
+    (:meth:`bodystudio.reconstruct.silhouette.SilhouetteViews.projection`), so ``hull(v)`` is not projected
+    again (the same decisions).
     """
     if not len(sil):
         return sil
     o, d = sil.origin, sil.direction
     if isinstance(fields, SilhouetteFields):
-        keep = fields.hull_gate(V, sil.vertex, o, d, gate_m)  # one compiled pass, the same decisions (tested)
+        keep = fields.hull_gate(V, sil.vertex, o, d, gate_m, projected)  # one compiled pass, the same decisions
     else:  # any object with ``implicit_hull`` (the analytic hulls of the tests)
         keep = hull_gate_reference(V, sil, fields, gate_m)
     if keep.all():

@@ -112,39 +112,41 @@ class SilhouetteFields:
         self.cameras = list(cameras)
         self.margin_px = float(margin_px)
         self.sdf, self.offset = {}, {}
+        boxes = []
         for cam in self.cameras:
             if cam.name not in masks:
                 raise InputError(f"tracking: no mask for camera {cam.name}")
-            full = np.asarray(masks[cam.name]) > 0
+            mask = np.asarray(masks[cam.name])
+            # a boolean mask is read as its bytes (a compare of a 640x480 bool image was 0.17 ms)
+            full = np.ascontiguousarray(mask if mask.dtype == np.bool_ else mask > 0).view(np.uint8)
             H, W = full.shape
-            ys, xs = np.nonzero(np.any(full, axis=1))[0], np.nonzero(np.any(full, axis=0))[0]
-            if len(ys):
-                y0, y1 = max(ys[0] - margin_px, 0), min(ys[-1] + margin_px + 1, H)
-                x0, x1 = max(xs[0] - margin_px, 0), min(xs[-1] + margin_px + 1, W)
+            bx, by, bw, bh = cv2.boundingRect(full)  # the foreground's box (0, 0, 0, 0 when empty)
+            if bw:
+                y0, y1 = max(by - margin_px, 0), min(by + bh + margin_px, H)
+                x0, x1 = max(bx - margin_px, 0), min(bx + bw + margin_px, W)
             else:
                 y0, y1, x0, x1 = 0, H, 0, W
-            inside = full[y0:y1, x0:x1].astype(np.uint8)
-            out_d = cv2.distanceTransform(1 - inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            boxes.append((full, (bx, by, bw, bh), (y0, y1, x0, x1)))
+        C = len(self.cameras)
+        shapes = np.array([(y1 - y0, x1 - x0) for _, _, (y0, y1, x0, x1) in boxes], dtype=np.int64).reshape(C, 2)
+        # the fields are written straight into the packed array of the compiled passes; ``sdf`` views it
+        self._packed_sdf = np.zeros((C, *(shapes.max(axis=0) if C else (1, 1))), np.float32)
+        for k, (cam, (full, (bx, by, bw, bh), (y0, y1, x0, x1))) in enumerate(zip(self.cameras, boxes, strict=True)):
+            sdf = self._packed_sdf[k, :y1 - y0, :x1 - x0]
+            sdf[:] = cv2.distanceTransform(1 - full[y0:y1, x0:x1], cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
             # pixel centres: +d outside, -d inside; the contour lies half-way, so shift by 0.5
-            sdf = out_d - np.float32(0.5)
-            if len(ys):
+            np.subtract(sdf, np.float32(0.5), out=sdf)
+            if bw:
                 # The inside distances on the silhouette's bounding box grown by one pixel only: that ring is all
                 # outside, and the nearest outside pixel of an inside one is at most as far as its clamp onto the
                 # ring, so the exact transform of the small box is the big one's (tested); half the pixels.
-                b0, b1 = max(ys[0] - 1, y0), min(ys[-1] + 2, y1)
-                a0, a1 = max(xs[0] - 1, x0), min(xs[-1] + 2, x1)
-                core = inside[b0 - y0:b1 - y0, a0 - x0:a1 - x0]
+                b0, b1 = max(by - 1, y0), min(by + bh + 1, y1)
+                a0, a1 = max(bx - 1, x0), min(bx + bw + 1, x1)
+                core = np.ascontiguousarray(full[b0:b1, a0:a1])
                 in_d = cv2.distanceTransform(core, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-                box = sdf[b0 - y0:b1 - y0, a0 - x0:a1 - x0]
-                np.copyto(box, np.float32(0.5) - in_d, where=core > 0)
+                np.copyto(sdf[b0 - y0:b1 - y0, a0 - x0:a1 - x0], np.float32(0.5) - in_d, where=core.view(np.bool_))
             self.sdf[cam.name] = sdf
             self.offset[cam.name] = (x0, y0)
-        # the same fields packed for the compiled implicit-hull pass (one padded array, camera constants)
-        C = len(self.cameras)
-        shapes = np.array([self.sdf[c.name].shape for c in self.cameras], dtype=np.int64).reshape(C, 2)
-        self._packed_sdf = np.zeros((C, *(shapes.max(axis=0) if C else (1, 1))), np.float32)
-        for k, cam in enumerate(self.cameras):
-            self._packed_sdf[k, :shapes[k, 0], :shapes[k, 1]] = self.sdf[cam.name]
         self._shapes = shapes
         self._offsets = np.array([self.offset[c.name] for c in self.cameras], dtype=np.float64).reshape(C, 2)
         self._R = np.array([c.R for c in self.cameras], dtype=np.float64).reshape(C, 3, 3)
@@ -159,19 +161,26 @@ class SilhouetteFields:
         (zero beyond the fields): the implicit visual hull of :func:`silhouette_data_term`."""
         return _implicit_hull(np.ascontiguousarray(V, dtype=np.float64), self._R, self._t, self._K, self._dist,
                               self._has_dist, self._size, self._packed_sdf, self._shapes, self._offsets,
-                              self.margin_px)
+                              self.margin_px, numba.get_num_threads())
 
     def hull_gate(self, V: np.ndarray, vertex: np.ndarray, origin: np.ndarray, direction: np.ndarray,
-                  gate_m: float) -> np.ndarray:
+                  gate_m: float, projected: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """Keep mask of the visual-hull gate (:func:`bodystudio.reconstruct.rapid_skin.hull_consistent_constraints`)
         in one compiled pass: ``hull(q) <= max(hull(v), 0) + gate_m`` with ``q`` the point of each constraint's
         ray nearest its vertex. The same values as two :meth:`implicit_hull` calls, without the gradient,
-        ``hull(v)`` once per distinct vertex, and ``hull(q)`` stopping at the first camera that rejects."""
+        ``hull(v)`` once per distinct vertex, and ``hull(q)`` stopping at the first camera that rejects.
+        ``projected``: the pixels ``(C, n, 2)`` and depths ``(C, n)`` of all of ``V`` in these cameras, as the
+        matching projected them (:meth:`SilhouetteViews.projection`, the same arithmetic), so ``hull(v)`` only
+        reads the fields."""
+        if projected is None:
+            uv, z = np.zeros((0, 0, 2)), np.zeros((0, 0))
+        else:
+            uv, z = projected
         return _hull_gate(np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(vertex, dtype=np.int64),
                           np.ascontiguousarray(origin, dtype=np.float64),
                           np.ascontiguousarray(direction, dtype=np.float64), float(gate_m), self._R, self._t,
                           self._K, self._dist, self._has_dist, self._size, self._packed_sdf, self._shapes,
-                          self._offsets, self.margin_px, numba.get_num_threads())
+                          self._offsets, self.margin_px, numba.get_num_threads(), projected is not None, uv, z)
 
     def sample(self, cam, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bilinear signed distance ``(m,)`` and its image gradient ``(m, 2)`` at pixels ``uv``; ``ok``
@@ -290,14 +299,29 @@ def silhouette_data_term(fields: SilhouetteFields, params: TrackParams):
     return term
 
 
-@numba.njit(cache=True)
-def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+@numba.njit(cache=True, parallel=True)
+def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, chunks):
     """One compiled pass of the implicit visual hull over vertices and cameras (see
-    :meth:`SilhouetteFields.implicit_hull`; OpenCV projection as :meth:`Camera.project_with_depth`)."""
-    n, C = V.shape[0], R.shape[0]
+    :meth:`SilhouetteFields.implicit_hull`; OpenCV projection as :meth:`Camera.project_with_depth`). The
+    vertices run in ``prange`` as ``chunks`` contiguous chunks (one per numba thread, passed in as for
+    :func:`_hull_max`); each vertex's arithmetic is the serial loop's, so the values are the same on any
+    number of threads."""
+    n = V.shape[0]
     best = np.full(n, -np.inf)
     G = np.zeros((n, 3))
-    for i in range(n):
+    chunks = max(min(chunks, n), 1)
+    size_chunk = (n + chunks - 1) // chunks
+    for ch in numba.prange(chunks):
+        _implicit_hull_range(V, best, G, ch * size_chunk, min(n, (ch + 1) * size_chunk), R, t, K, dist, has_dist,
+                             size, sdf, shapes, offsets, margin)
+    return best, G
+
+
+@numba.njit(cache=True, inline="always")
+def _implicit_hull_range(V, best, G, lo, hi, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+    """:func:`_implicit_hull` of the vertices ``lo:hi`` into ``best`` and ``G``."""
+    C = R.shape[0]
+    for i in range(lo, hi):
         X, Y, Z = V[i, 0], V[i, 1], V[i, 2]
         for c in range(C):
             xc = R[c, 0, 0] * X + R[c, 0, 1] * Y + R[c, 0, 2] * Z + t[c, 0]
@@ -341,7 +365,6 @@ def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margi
                 g2 = -s * (gu * fx * xc + gv * fy * yc) / (z * z)
                 for k in range(3):
                     G[i, k] = g0 * R[c, 0, k] + g1 * R[c, 1, k] + g2 * R[c, 2, k]
-    return best, G
 
 
 @numba.njit(cache=True, parallel=True)
@@ -413,9 +436,49 @@ def _hull_max_range(X, limit, best, lo, hi, R, t, K, dist, has_dist, size, sdf, 
                 best[i] = r
 
 
+@numba.njit(cache=True, parallel=True)
+def _hull_max_at(order, uv, z, K, size_px, sdf, shapes, offsets, margin, chunks):
+    """:func:`_hull_max` of the vertices ``order`` (no limit) from their pixels ``uv[c, i]`` and depths
+    ``z[c, i]`` already projected (by :func:`bodystudio.reconstruct.silhouette._project_into`, the same
+    arithmetic as :func:`_hull_max_range`'s projection, so the same values): the field reads only."""
+    n = order.shape[0]
+    best = np.full(n, -np.inf)
+    chunks = max(min(chunks, n), 1)
+    size = (n + chunks - 1) // chunks
+    for ch in numba.prange(chunks):
+        lo, hi = ch * size, min(n, (ch + 1) * size)
+        for c in range(K.shape[0]):
+            f = 0.5 * (K[c, 0, 0] + K[c, 1, 1])
+            umax, vmax = size_px[c, 0] - 1.0, size_px[c, 1] - 1.0
+            ou, ov, sw, sh = offsets[c, 0], offsets[c, 1], shapes[c, 1] - 1, shapes[c, 0] - 1
+            field = sdf[c]
+            for k in range(lo, hi):
+                i = order[k]
+                zc = z[c, i]
+                if not zc > 1e-6:
+                    continue
+                u, v = uv[c, i, 0], uv[c, i, 1]
+                if not (u >= 0.0 and v >= 0.0 and u <= umax and v <= vmax):
+                    continue
+                uu, vv = u - ou, v - ov
+                d = margin
+                if uu >= 0.0 and vv >= 0.0 and uu < sw and vv < sh:
+                    xi, yi = int(uu), int(vv)
+                    ax, ay = uu - xi, vv - yi
+                    s00 = np.float64(field[yi, xi])
+                    s10 = np.float64(field[yi, xi + 1])
+                    s01 = np.float64(field[yi + 1, xi])
+                    s11 = np.float64(field[yi + 1, xi + 1])
+                    d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
+                r = d * zc / f
+                if r > best[k]:
+                    best[k] = r
+    return best
+
+
 @numba.njit(cache=True)
 def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin,
-               chunks):
+               chunks, has_projection, uv, z):
     """Keep mask of :meth:`SilhouetteFields.hull_gate`: ``hull(v)`` of each distinct vertex once (a rim
     vertex has matches in several views), then ``hull(q)`` of the targets, each target dropped from the
     camera loop as soon as it exceeds ``max(hull(v), 0) + gate_m`` (the max only grows, so the decision is
@@ -429,10 +492,13 @@ def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, si
             slot[vertex[j]] = nu
             order[nu] = vertex[j]
             nu += 1
-    P = np.empty((nu, 3))
-    for k in range(nu):
-        P[k, 0], P[k, 1], P[k, 2] = V[order[k], 0], V[order[k], 1], V[order[k], 2]
-    hv = _hull_max(P, np.full(nu, np.inf), R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, chunks)
+    if has_projection:
+        hv = _hull_max_at(order[:nu], uv, z, K, size, sdf, shapes, offsets, margin, chunks)
+    else:
+        P = np.empty((nu, 3))
+        for k in range(nu):
+            P[k, 0], P[k, 1], P[k, 2] = V[order[k], 0], V[order[k], 1], V[order[k], 2]
+        hv = _hull_max(P, np.full(nu, np.inf), R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, chunks)
     Q = np.empty((m, 3))
     limit = np.empty(m)
     for j in range(m):

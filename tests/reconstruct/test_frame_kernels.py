@@ -2,8 +2,10 @@
 replaced, on small random inputs (seconds): the skinned parts and the articulated fit's normal equations,
 and the warm start of a tracked frame's deformation."""
 
+import cv2
 import numpy as np
 
+from bodystudio.geometry.camera import Camera
 from bodystudio.reconstruct.articulated_fit import data_normal_equations, skinned_parts
 from bodystudio.reconstruct.tracking import carry_deformed_mesh
 
@@ -108,6 +110,64 @@ def test_fields_inside_transform_on_the_small_box_equals_the_full_box():
         assert fields.offset[cam.name] == (x0, y0)
         np.testing.assert_allclose(fields.sdf[cam.name], ref, atol=1e-5)
         assert fields.sdf[cam.name].min() < -3.0  # deep inside pixels are exercised
+
+
+def _fields_before(cameras, masks, margin):
+    """The per-camera fields and packed array as SilhouetteFields built them before the box of
+    ``cv2.boundingRect`` and the in-place writes (np.any boxes, separate arrays packed afterwards)."""
+    sdfs, offsets = [], []
+    for cam in cameras:
+        full = np.asarray(masks[cam.name]) > 0
+        H, W = full.shape
+        ys, xs = np.nonzero(np.any(full, axis=1))[0], np.nonzero(np.any(full, axis=0))[0]
+        if len(ys):
+            y0, y1 = max(ys[0] - margin, 0), min(ys[-1] + margin + 1, H)
+            x0, x1 = max(xs[0] - margin, 0), min(xs[-1] + margin + 1, W)
+        else:
+            y0, y1, x0, x1 = 0, H, 0, W
+        inside = full[y0:y1, x0:x1].astype(np.uint8)
+        sdf = cv2.distanceTransform(1 - inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) - np.float32(0.5)
+        if len(ys):
+            b0, b1 = max(ys[0] - 1, y0), min(ys[-1] + 2, y1)
+            a0, a1 = max(xs[0] - 1, x0), min(xs[-1] + 2, x1)
+            core = inside[b0 - y0:b1 - y0, a0 - x0:a1 - x0]
+            in_d = cv2.distanceTransform(core, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            np.copyto(sdf[b0 - y0:b1 - y0, a0 - x0:a1 - x0], np.float32(0.5) - in_d, where=core > 0)
+        sdfs.append(sdf)
+        offsets.append((x0, y0))
+    packed = np.zeros((len(sdfs), max(s.shape[0] for s in sdfs), max(s.shape[1] for s in sdfs)), np.float32)
+    for k, sdf in enumerate(sdfs):
+        packed[k, :sdf.shape[0], :sdf.shape[1]] = sdf
+    return sdfs, offsets, packed
+
+
+def test_fields_equal_the_construction_before():
+    """rec15c's faster SilhouetteFields (box by cv2.boundingRect, bool masks read as bytes, the transforms
+    written into the packed array) gives the fields, offsets and packed array of the construction before:
+    bool and 0/255 masks, an empty view, a full view and one touching the image's corner. To a few float32
+    ulp, not bit for bit: OpenCV's precise transform itself differs by an ulp from call to call on the same
+    input (c2's box: two distinct results in 300 calls on one thread, measured), so any two builds may, and
+    the half-pixel shift can double it (1.0000001 and 1.0 become -0.5000001 and -0.5: 2 ulp there)."""
+    from bodystudio.reconstruct.tracking import SilhouetteFields
+
+    H, W, margin = 70, 90, 12
+    cams = [Camera.look_at(f"c{i}", (0, 0, 3), (0, 0, 0), fx=100.0, width=W, height=H) for i in range(5)]
+    yy, xx = np.mgrid[:H, :W]
+    masks = {"c0": ((yy - 30) ** 2 + (xx - 40) ** 2 < 15 ** 2) | ((yy > 20) & (yy < 26) & (xx > 10) & (xx < 70)),
+             "c1": (xx < 25) & (yy > 5),
+             "c2": ((yy - 10) ** 2 / 4 + (xx - 70) ** 2 < 40) | ((xx > 30) & (xx < 34) & (yy > 40)),
+             "c3": np.zeros((H, W), bool), "c4": np.ones((H, W), bool)}
+    for mk in (masks, {k: v.astype(np.uint8) * 255 for k, v in masks.items()}):
+        fields = SilhouetteFields(cams, mk, margin_px=margin)
+        sdfs, offsets, packed = _fields_before(cams, mk, margin)
+        for cam, sdf, off in zip(cams, sdfs, offsets, strict=True):
+            assert fields.offset[cam.name] == off
+            assert fields.sdf[cam.name].dtype == np.float32 and fields.sdf[cam.name].shape == sdf.shape
+            np.testing.assert_array_max_ulp(fields.sdf[cam.name], sdf, maxulp=4)
+        np.testing.assert_array_max_ulp(fields._packed_sdf, packed, maxulp=4)
+        np.testing.assert_array_equal(fields._shapes, [s.shape for s in sdfs])
+        assert np.array_equal(fields._packed_sdf == 0, packed == 0)  # the padding, and no value lost
+    assert fields.sdf["c0"].min() < -5.0 and fields.sdf["c0"].max() > 5.0
 
 
 def test_fit_stops_when_the_data_energy_plateaus(body_2k, synthetic_capture):

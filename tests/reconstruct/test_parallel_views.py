@@ -92,3 +92,64 @@ def test_parallel_gate_decides_as_the_reference_on_one_and_two_threads(scene):
         cases += [np.sum(~above), np.sum(above & (h_v <= 0)), np.sum(above & (h_v > 0) & ref),
                   np.sum(above & (h_v > 0) & ~ref)]
     assert np.all(cases >= 5), cases
+
+
+def test_implicit_hull_in_prange_equals_the_serial_pass_on_one_and_two_threads(scene):
+    """The fit's implicit hull and its gradient (``max_c d_c z_c / f_c``) with the vertices in ``prange``
+    chunks: bit for bit the one-thread values (and an odd count, so the chunks are uneven), and the same as
+    a plain per-camera evaluation of the fields (the numpy reference, to rounding)."""
+    V, F, cams, masks = scene
+    fields = SilhouetteFields(cams, masks)
+    rng = np.random.default_rng(3)
+    P = np.vstack([rng.uniform(-0.3, 0.3, (1001, 3)), 1.02 * V])
+    one = _with_threads(1, fields.implicit_hull, P)
+    two = _with_threads(2, fields.implicit_hull, P)
+    np.testing.assert_array_equal(one[0], two[0])
+    np.testing.assert_array_equal(one[1], two[1])
+    ref = np.full(len(P), -np.inf)
+    for cam in cams:
+        uv, z = cam.project_with_depth(P)
+        d, _, ok = fields.sample(cam, uv)
+        f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
+        ref = np.where(ok & (z > 1e-6), np.maximum(ref, d * z / f), ref)
+    seen = np.isfinite(ref)
+    assert seen.sum() > 1000 and (ref[seen] > 0).sum() > 200 and (ref[seen] < 0).sum() > 200
+    np.testing.assert_allclose(one[0][seen], ref[seen], atol=1e-9)
+    assert np.all(np.isinf(one[0][~seen]))
+    assert np.abs(one[1]).max() > 0
+
+
+def test_gate_reads_the_matchings_projections_and_decides_the_same(scene, monkeypatch):
+    """rec15c: the gate's hull(v) from the pixels and depths the matching already computed
+    (``SilhouetteViews.projection``) instead of projecting again: the same keep masks as the projecting gate
+    and the numpy reference, on one and two threads (half the cameras distorted); the projection is offered
+    only for the array just matched; the deformation's vertices bit for bit with the sharing on and off."""
+    from bodystudio.reconstruct import rapid_skin
+    from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
+
+    V, F, cams, masks = scene
+    fields = SilhouetteFields(cams, masks)
+    views = SilhouetteViews(cams, masks, F)
+    rng = np.random.default_rng(11)
+    for scale in (0.9, 1.15):
+        Vs = scale * V + rng.normal(0.0, 0.003, V.shape)
+        sil = silhouette_constraints(Vs, F, area_weighted_normals(Vs, F), cams, masks, views=views)
+        projected = views.projection(Vs)
+        assert projected is not None and projected[0].shape == (len(cams), len(V), 2)
+        assert views.projection(Vs.copy()) is None and views.projection(Vs[::-1]) is None
+        uv_ref = np.array([c.project(Vs) for c in cams])
+        np.testing.assert_allclose(projected[0], uv_ref, atol=1e-6)
+        ref = hull_gate_reference(Vs, sil, fields, 0.001)
+        assert 0 < ref.sum() < len(ref)
+        for threads in (1, 2):
+            got = _with_threads(threads, fields.hull_gate, Vs, sil.vertex, sil.origin, sil.direction, 0.001,
+                                projected)
+            np.testing.assert_array_equal(got, ref)
+    unpacked = SilhouetteViews(cams[:1], masks, F)
+    silhouette_constraints(V, F, area_weighted_normals(V, F), cams[:1], masks, views=unpacked)
+    assert unpacked.packed is None and unpacked.projection(V) is None
+    shared = deform_to_observations(0.95 * V, F, cams, masks, RapidSkinParams(outer_iterations=3))
+    monkeypatch.setattr(rapid_skin, "_same_cameras", lambda fields, views: False)
+    alone = deform_to_observations(0.95 * V, F, cams, masks, RapidSkinParams(outer_iterations=3))
+    np.testing.assert_array_equal(shared.vertices, alone.vertices)
+    assert np.abs(shared.vertices - 0.95 * V).max() > 1e-3

@@ -82,6 +82,19 @@ def test_closed_mesh_test_is_cached_per_face_array(monkeypatch):
     assert max(sizes) == 17 and min(sizes[5:]) == 1
 
 
+def test_closed_mesh_cache_tells_apart_face_arrays_that_share_the_hashed_rows():
+    """The cache key hashes every 97th face only; a face array equal there but different elsewhere (a face
+    flipped: open, inconsistently oriented) is compared in full and gets its own answer."""
+    S._CLOSED_CACHE.clear()
+    V, F = _sphere()
+    F = np.asarray(F, dtype=np.int64)
+    assert len(F) > 200 and S._is_closed_cached(F)
+    flipped = F.copy()
+    flipped[50] = flipped[50, ::-1]  # row 50 is not hashed (0, 97, 194, ...)
+    assert not S._is_closed_cached(flipped) and not is_closed_mesh(flipped)
+    assert S._is_closed_cached(F)  # and the closed one is still answered as closed
+
+
 def test_defaults_of_the_helpers():
     V, F = _sphere()
     N = area_weighted_normals(V, F)

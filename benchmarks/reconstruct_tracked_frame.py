@@ -1,0 +1,96 @@
+"""The tracked frame's step table (issue 15's frame time): CPU of the whole process, CPU of the main thread and
+wall, per step, on one or two numba threads.
+
+Usage: PYTHONPATH=. python benchmarks/reconstruct_tracked_frame.py [--cache DIR] [--repeats 9] [--threads 1|2]
+
+A tracked frame as ``reconstruct_frames`` runs it (``--tracking``, ``TrackParams()``): walk s31 frame 1 at 30 fps
+(10 cameras 640x480, 13K template) from frame 0's pose as the prior: read the masks, distance fields, the
+lost-track prior check, the tracking fit to the energy's plateau, the energy check, the 13K posing and the
+deformation (No = 3, gate); BLAS on one thread. Prints the median and the minimum over ``--repeats`` frames of
+each step. With two numba threads the main thread's CPU is its share of every ``prange`` plus everything
+serial: the frame's wall on an idle two-core machine when the split is even (a waiting thread burns nothing
+under ``OMP_WAIT_POLICY=PASSIVE``). On a loaded machine compare trees by running this script alternately
+with ``PYTHONPATH`` on each (docs/reconstruct.md, rec15c).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import bodystudio  # noqa: F401  (first: its OMP_WAIT_POLICY default must precede numba's threads)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", type=Path, default=None, help="session folder to reuse (made when missing)")
+    ap.add_argument("--repeats", type=int, default=9)
+    ap.add_argument("--threads", type=int, default=1, choices=(1, 2))
+    args = ap.parse_args()
+    import numba
+    from threadpoolctl import threadpool_limits
+
+    from bodystudio.body import build_body
+    from bodystudio.capture.session import open_session
+    from bodystudio.capture.synth import synth_session
+    from bodystudio.geometry.laplacian import cotangent_weights
+    from bodystudio.reconstruct.pose_init import initialise_pose, pose_template
+    from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
+    from bodystudio.reconstruct.sequence import frame_joints
+    from bodystudio.reconstruct.tracking import SilhouetteFields, TrackParams, outside_fraction, track_bone_transforms
+
+    path = args.cache or Path(tempfile.mkdtemp()) / "walk31"
+    if not (path / "session.json").exists():
+        synth_session(path, n_cameras=10, n_frames=3, motion="walk", subject_seed=31, template="full", fps=30.0)
+    numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    session = open_session(path)
+    cams = list(session.cameras)
+    body, fit_body = build_body(resolution="full"), build_body(resolution="2k")
+    T0 = initialise_pose(fit_body, frame_joints(session, session.frame(session.frame_ids[0]), "tracker",
+                                                None)).bone_transforms
+    rest_delta = cotangent_weights(body.vertices, body.faces)
+    track = TrackParams()
+    params = RapidSkinParams(outer_iterations=track.outer_iterations or RapidSkinParams().outer_iterations)
+
+    def clocks():
+        return np.array([time.process_time(), time.thread_time(), time.perf_counter()])
+
+    def timed(steps, name, f, *a):
+        t = clocks()
+        out = f(*a)
+        steps[name] = 1000 * (clocks() - t)
+        return out
+
+    def frame():
+        steps: dict[str, np.ndarray] = {}
+        fr = open_session(path).frame(session.frame_ids[1])
+        masks = timed(steps, "read masks (10 PNG)", lambda: {n: fr.masks[n] for n in fr.masks})
+        fields = timed(steps, "distance fields", SilhouetteFields, cams, masks)
+        timed(steps, "lost-track prior check", lambda: outside_fraction(pose_template(fit_body, T0).vertices, fields))
+        T = timed(steps, "tracking fit (to the plateau)", track_bone_transforms, fit_body, T0, fields, track)
+        timed(steps, "energy check", lambda: outside_fraction(pose_template(fit_body, T).vertices, fields))
+        P = timed(steps, "pose 13K (LBS)", pose_template, body, T, 1.0)
+        timed(steps, f"deformation (No = {params.outer_iterations}: matching, gate, GS)", deform_to_observations,
+              P.vertices, body.faces, cams, masks, params, None, rest_delta, None, None, None, fields)
+        steps["whole tracked frame"] = sum(steps.values())
+        return steps
+
+    runs: dict[str, list] = {}
+    with threadpool_limits(1):
+        frame()  # compiles
+        for _ in range(args.repeats):
+            for name, v in frame().items():
+                runs.setdefault(name, []).append(v)
+    print(f"{numba.get_num_threads()} numba thread(s), {args.repeats} frames; ms: median (min)")
+    print(f"{'step':48s} {'CPU':>15s} {'main thread CPU':>17s} {'wall':>15s}")
+    for name, v in runs.items():
+        med, lo = np.median(np.array(v), axis=0), np.min(np.array(v), axis=0)
+        print(f"{name:48s} " + " ".join(f"{m:7.1f} ({n:5.1f})" for m, n in zip(med, lo, strict=True)))
+
+
+if __name__ == "__main__":
+    main()
