@@ -15,7 +15,7 @@ from bodystudio.mirror.track import posed_kinect_joints, skin_vertices
 LIMBS = ("upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
 
 
-def _scene(body):
+def _trunk_scene(body):
     sk = body.skeleton
     true = Pose(np.zeros((sk.n_bones, 3)), np.zeros(3))
     camera = Camera.look_at("kinect", eye=(0.3, 1.0, 2.6), target=(0.0, 0.95, 0.0), fx=525.0)
@@ -33,7 +33,7 @@ def _scene(body):
 def test_the_trunk_prior_holds_only_the_trunk_bones_the_plan_swings(body_2k):
     body = body_2k
     sk = body.skeleton
-    camera, mask, ik, joints = _scene(body)
+    camera, mask, ik, joints = _trunk_scene(body)
     for bones, acts in ((LIMBS, False), (("spine_01", *LIMBS), True)):
         plan = refine_plan(body.vertices, body.faces, body.weights, sk, swing_bones=bones)
         on = refine_pose(plan, sk, ik, camera, mask, joints)
