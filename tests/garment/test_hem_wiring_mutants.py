@@ -91,3 +91,33 @@ def test_depth_compositing_is_on_by_default_and_the_frame_record_is_whole():
     assert out.field.shape == (*person.shape, 2) and not out.field.any()
     assert set(out.timings_ms) == {"flow", "rbf", "composite"} and all(v >= 0 for v in out.timings_ms.values())
     assert out.flow_applied is False and out.hem_applied is False
+
+
+def test_the_render_loop_passes_each_option_on_and_counts_the_frames_the_matte_and_the_flow_were_used_on(
+        tmp_path, monkeypatch):
+    """render_garment_video's wiring: the options reach refine_and_composite as given, and the per-frame flags
+    (and n_hem_applied) are what it reports, for the two frames the fit matches (the stand-in fit of
+    test_composite_analytic.py; the refinement itself a spy)."""
+    from tests.garment.test_composite_analytic import stand_in_render
+
+    H, W = 40, 48
+    frames = [np.full((H, W, 3), 60, np.uint8)] * 3
+    fit, _ = stand_in_render(monkeypatch, frames, [0.9, 0.5, 0.9])
+    seen = []
+
+    def spy(frame, mask, layer, flow=True, rbf=True, depth=True, sigma_px=None, hem=True):
+        seen.append((flow, rbf, depth, hem))
+        shown = layer.mask.copy()
+        return cp.RefinedFrame(frame.copy(), shown, shown, np.zeros((H, W, 2), np.float32),
+                               {"flow": 0.0, "rbf": 0.0, "composite": 0.0}, flow_applied=flow, hem_applied=hem)
+
+    monkeypatch.setattr(cp, "refine_and_composite", spy)
+    for flow, hem in ((True, True), (False, True), (True, False)):
+        seen.clear()
+        doc = cp.render_garment_video(tmp_path / f"fit{flow}{hem}", fit=fit, flow=flow, rbf=False, depth=True,
+                                      hem=hem)
+        assert seen == [(flow, False, True, hem)] * 2
+        assert [f["hem_applied"] for f in doc["frames"]] == [hem, False, hem]
+        assert [f["flow_applied"] for f in doc["frames"]] == [flow, False, flow]
+        assert doc["n_hem_applied"] == 2 * hem and doc["n_flow_applied"] == 2 * flow
+        assert doc["options"]["hem"] is hem and doc["options"]["flow"] is flow
