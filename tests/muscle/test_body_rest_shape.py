@@ -179,6 +179,46 @@ def test_the_body_rest_shape_is_off_by_default_and_its_options_are_checked():
     o = CaptureOptions()
     assert (o.body_rest_shape, o.body_rest_rounds, o.body_rest_prior_weight, o.body_rest_frame_stride) == (
         False, 0, 100.0, 4)
+    assert not o.body_rest_fit_poses  # the ninth pass's joint fit: a switch too
     for bad in ({"body_rest_rounds": -1}, {"body_rest_frame_stride": 0}, {"body_rest_prior_weight": 0.0}):
         with pytest.raises(InputError, match="body_rest"):
             CaptureOptions(**bad)
+
+
+def test_the_joint_fit_recovers_the_rest_shape_where_the_held_poses_are_off(planted):
+    """The ninth pass: the planted subject's start poses off by a few degrees per frame (shoulder and elbow).
+    With the poses held the rest shape absorbs their error; fitted jointly with the rest shape (one Gauss-Newton
+    over both, the angles eliminated per frame) the rest shape and the angles are recovered."""
+    from bodystudio.muscle.refine import elbow_axes, fit_body_rest_shape_and_poses
+
+    s = planted
+    rng = np.random.default_rng(3)
+    _, J_true = s.space.rest_and_joints(s.x_true, s.shoulder)
+    h, _ = elbow_axes(J_true)
+    off = []
+    for p in s.poses:
+        flex = float(p.angles[1] @ h)
+        d = rng.normal(0.0, np.radians(2.5), 4)
+        off.append(ArmPose(p.root, np.stack([p.angles[0] + d[:3], elbow_rotvec(J_true, flex + d[3], 0.0),
+                                             p.angles[2]])))
+    kw = dict(prior_weight=0.01, norm_limit=0.5, huber_m=0.0, iterations=10)
+    held = fit_body_rest_shape(s.space, s.model, off, s.frames, s.mean, s.shoulder, s.mean, s.sigma, **kw)
+    x, shift, poses = fit_body_rest_shape_and_poses(s.space, s.model, off, s.frames, s.mean, s.shoulder, s.mean,
+                                                    s.sigma, angle_damping=1e-3, **kw)
+    rest_err = [_rest_error_mm(s, held[0]), _rest_error_mm(s, x)]
+
+    def angle_err(ps):
+        return max(np.degrees(np.linalg.norm(p.angles[:2] - q.angles[:2], axis=1)).max()
+                   for p, q in zip(ps, s.poses, strict=True))
+
+    assert angle_err(off) > 4.0  # measured 6.3 deg at worst
+    assert rest_err[1] < 2.5 and angle_err(poses) < 1.0, (rest_err, angle_err(poses))  # measured 1.80 mm, 0.58 deg
+    assert rest_err[0] > 20.0, rest_err  # held: 69.7 mm (the weak prior lets the shape take the pose errors)
+    np.testing.assert_allclose(shift, s.offset, atol=2e-3)
+
+
+def _rest_error_mm(s, x):
+    """Median distance (mm) of the rest arm for ``x`` from the planted one, shoulder on shoulder."""
+    rest, _ = s.space.rest_and_joints(x, s.shoulder)
+    true, _ = s.space.rest_and_joints(s.x_true, s.shoulder)
+    return float(1000 * np.median(np.linalg.norm(rest - true, axis=1)[s.arm]))
