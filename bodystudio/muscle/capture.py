@@ -68,6 +68,7 @@ from bodystudio.muscle.refine import (
     DepthFrame,
     arm_pose_from_part_transforms,
     correspondence_weights,
+    depth_energy_mm,
     fit_arm_sequence_skeleton,
     fit_body_rest_shape,
     fit_body_rest_shape_and_poses,
@@ -239,6 +240,11 @@ class CaptureOptions:
     # The strided frames' joint angles solved with the rest shape in one Gauss-Newton
     # (``refine.fit_body_rest_shape_and_poses``) instead of held (docs/muscle.md, ninth pass).
     body_rest_fit_poses: bool = False
+    # Rounds of the rest-shape fit stop when the depth energy (``refine.depth_energy_mm`` of the sequence fit's
+    # meshes on the frames the rest-shape fit does not use) stops falling, and the round with the lowest energy is
+    # kept (a data-side choice, never the truth). Measured (200 frames, docs/muscle.md ninth pass): 507's second
+    # round raised it (2.49 -> 2.70 mm) while the error rose 4.90 -> 7.65 mm (bones 4-6 mm too long).
+    body_rest_keep_best: bool = True
     body_rest_angle_damping: float = 1.0  # per angle coordinate times a 0.3 m lever, per Gauss-Newton step
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
@@ -521,6 +527,9 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
         anchor = J[0].copy()  # the rest mesh's shoulder stays where the model's sits (the placement's frame)
         body_x = prior_mean = project_to_body_space(space, base, J, prior_mean, prior_sigma)
         base, J_model = space.rest_and_joints(body_x, anchor)
+    best = None
+    held_out = slice(o.body_rest_frame_stride // 2, None, o.body_rest_frame_stride) if o.body_rest_frame_stride > 1 \
+        else slice(None)
     for r in range(max(o.personal_rounds, body_rounds) + 1):
         if r > 0 and body_rounds > 0:  # poses -> the body model's rest shape and skeleton -> poses
             sub = slice(None, None, o.body_rest_frame_stride)
@@ -548,6 +557,13 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
             torso_pair_weight=o.sequence_torso_pair_weight,
             tracker_placement_weight=None if o.sequence_placement_prior_m <= 0 or tracker_t is None
             else tracker_placement_prior_weight(tracker_t, o.sequence_placement_prior_m))
+        if body_rounds > 0 and o.body_rest_keep_best:
+            energy = depth_energy_mm(model, poses[held_out], frames_t[held_out], base, J, o.norm_limit,
+                                     o.sequence_huber_m)
+            log.info("rest-shape round %d: depth energy %.3f mm", r, energy)
+            if best is not None and energy >= best[0]:
+                return best[1:]  # the energy stopped falling: the previous round's
+            best = (energy, poses, base, J)
     return poses, base, J
 
 

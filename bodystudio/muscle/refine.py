@@ -679,6 +679,23 @@ def fit_body_rest_shape(space, model, poses: list[ArmPose], frames: list[DepthFr
 
 
 
+def depth_energy_mm(model, poses: list[ArmPose], frames: list[DepthFrame], rest: np.ndarray, joints: np.ndarray,
+                    norm_limit: float = 0.9, huber_m: float = 0.004) -> float:
+    """The data energy of the model meshes (Eq. 12 on ``rest`` and ``joints``) against the depth: the root mean
+    Huber point-to-plane residual (``huber_m`` scale) over the filtered pairs of Sec. 5.2, in mm.
+
+    A data-side figure (no ground truth) for choosing between rounds of the rest-shape fit (docs/muscle.md, ninth
+    pass): the sequence fit and the rest-shape fit each lower their own energy, the alternation need not."""
+    total, count = 0.0, 0
+    for p, fr in zip(poses, frames, strict=True):
+        M = skeleton_model_mesh(model, p, rest, joints, norm_limit)
+        k, q, n = fr.plane_pairs(M)
+        r = np.abs(np.einsum("kd,kd->k", M[k] - q, n))
+        total += float(np.where(r < huber_m, 0.5 * r * r, huber_m * (r - 0.5 * huber_m)).sum())
+        count += len(r)
+    return 1000.0 * float(np.sqrt(2.0 * total / max(count, 1)))
+
+
 def fit_body_rest_shape_and_poses(space, model, poses: list[ArmPose], frames: list[DepthFrame], x0: np.ndarray,
                                   shoulder: np.ndarray, prior_mean: np.ndarray, prior_sigma: np.ndarray,
                                   prior_weight: float = 1.0, norm_limit: float = 0.9, huber_m: float = 0.004,

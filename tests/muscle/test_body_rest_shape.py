@@ -222,3 +222,43 @@ def _rest_error_mm(s, x):
     rest, _ = s.space.rest_and_joints(x, s.shoulder)
     true, _ = s.space.rest_and_joints(s.x_true, s.shoulder)
     return float(1000 * np.median(np.linalg.norm(rest - true, axis=1)[s.arm]))
+
+
+@pytest.mark.parametrize("fit_poses", [False, True])
+def test_the_rest_shape_rounds_stop_when_the_depth_energy_stops_falling(monkeypatch, scene, fit_poses):  # noqa: F811
+    """``body_rest_keep_best`` (the ninth pass): the rounds of the rest-shape fit stop at the first round whose depth
+    energy (on the frames the rest-shape fit does not use) is not below the previous round's, and that previous
+    round's poses, rest arm and skeleton are the capture's; ``body_rest_fit_poses`` fits the strided frames' angles
+    with the rest shape (``refine.fit_body_rest_shape_and_poses``, the same arguments otherwise)."""
+    from bodystudio.muscle import capture as cap
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_frames
+    from bodystudio.muscle.nicp import NicpOptions
+
+    s = scene
+    energies = iter([3.0, 2.0, 2.5])
+    seen = []
+
+    def energy(model, poses, frames, rest, joints, norm_limit, huber_m):
+        seen.append((len(poses), joints.copy()))
+        return next(energies)
+
+    monkeypatch.setattr(cap, "depth_energy_mm", energy)
+    name = "fit_body_rest_shape_and_poses" if fit_poses else "fit_body_rest_shape"
+    spies = Spies(monkeypatch, (name, "fit_arm_sequence_skeleton"))
+    fast = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1,
+                sequence_max_nfev=3, nicp=NicpOptions(iterations=2), pose_sigma_frames=0.0)
+    o = CaptureOptions(mode="model", body_rest_shape=True, body_rest_rounds=3, body_rest_frame_stride=2,
+                       body_rest_prior_weight=3.0, body_rest_iterations=1, body_rest_fit_poses=fit_poses, **fast)
+    c = capture_arm_frames(s.depths, s.camera, s.template, s.model, o, s.tracker, known_shape=s.shape)
+    fits = spies["fit_arm_sequence_skeleton"]
+    assert len(fits) == 3 and len(spies[name]) == 2  # round 2 raised the energy: no round 3
+    assert [n for n, _ in seen] == [len(s.depths) // 2] * 3  # frames 1, 3, ...: not the rest-shape fit's
+    np.testing.assert_allclose(c.joints, fits[1].out[1], atol=1e-12)  # round 1's skeleton, not round 2's
+    assert np.abs(fits[2].out[1] - fits[1].out[1]).max() > 1e-6
+    for p, q in zip(c.poses, fits[1].out[0], strict=True):
+        np.testing.assert_allclose(p.angles, q.angles, atol=1e-12)
+    if fit_poses:
+        args = spies[name][0].args
+        assert args[8:14] == (3.0, o.norm_limit, o.sequence_huber_m, 1, s.shape.arm_length_m,
+                              o.body_rest_arm_length_weight)
+        assert args[15:] == (o.sequence_tracker_weight, o.body_rest_angle_damping)
