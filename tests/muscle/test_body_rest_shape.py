@@ -262,3 +262,25 @@ def test_the_rest_shape_rounds_stop_when_the_depth_energy_stops_falling(monkeypa
         assert args[8:14] == (3.0, o.norm_limit, o.sequence_huber_m, 1, s.shape.arm_length_m,
                               o.body_rest_arm_length_weight)
         assert args[15:] == (o.sequence_tracker_weight, o.body_rest_angle_damping)
+
+
+def test_the_depth_energy_is_zero_at_the_truth_and_grows_with_a_misplacement(planted):
+    """``refine.depth_energy_mm``: the root mean Huber point-to-plane residual (mm) of the model meshes over the
+    filtered pairs; ~0 for the planted subject's own meshes, ~the offset for a placement 3 mm off (under the Huber
+    scale)."""
+    from bodystudio.muscle.refine import depth_energy_mm
+
+    s = planted
+    rest, J = s.space.rest_and_joints(s.x_true, s.shoulder)
+
+    def placed(offset):
+        out = []
+        for p in s.poses:
+            root = p.root.copy()
+            root[:3, 3] += s.offset + offset
+            out.append(ArmPose(root, p.angles))
+        return out
+
+    assert depth_energy_mm(s.model, placed(np.zeros(3)), s.frames, rest, J, 0.5) < 0.05
+    off = depth_energy_mm(s.model, placed(np.array([0.0, 0.0, 0.003])), s.frames, rest, J, 0.5)
+    assert 1.0 < off < 3.2, off
