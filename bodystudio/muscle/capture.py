@@ -238,12 +238,16 @@ class CaptureOptions:
     body_rest_arm_length_weight: float = 100.0  # measured arm length (known shape), per frame, vs one depth pair
     body_rest_fit_placement: bool = True  # the shared torso translation solved with the rest shape
     # The strided frames' joint angles solved with the rest shape in one Gauss-Newton
-    # (``refine.fit_body_rest_shape_and_poses``) instead of held (docs/muscle.md, ninth pass).
+    # (``refine.fit_body_rest_shape_and_poses``) instead of held (docs/muscle.md, ninth pass). Measured (6k, 200
+    # frames, measured shape, 2 rounds): 507 4.74 / 7.99 (default), 7.65 / 12.95 (held) -> 3.64 / 7.43 mm median /
+    # p90; on 40-frame subsets 501 loses (model stage 3.62 held -> 4.33 mm); 501 / 504 / 508 not measured at 200
+    # frames: off.
     body_rest_fit_poses: bool = False
     # Rounds of the rest-shape fit stop when the depth energy (``refine.depth_energy_mm`` of the sequence fit's
     # meshes on the frames the rest-shape fit does not use) stops falling, and the round with the lowest energy is
     # kept (a data-side choice, never the truth). Measured (200 frames, docs/muscle.md ninth pass): 507's second
-    # round raised it (2.49 -> 2.70 mm) while the error rose 4.90 -> 7.65 mm (bones 4-6 mm too long).
+    # round raised it (every 4th frame: 2.49 -> 2.70 mm) while the error rose 4.90 -> 7.65 mm (model stage; bones
+    # 4-6 mm too long).
     body_rest_keep_best: bool = True
     body_rest_angle_damping: float = 1.0  # per angle coordinate times a 0.3 m lever, per Gauss-Newton step
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
