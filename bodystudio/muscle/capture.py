@@ -239,9 +239,9 @@ class CaptureOptions:
     body_rest_fit_placement: bool = True  # the shared torso translation solved with the rest shape
     # The strided frames' joint angles solved with the rest shape in one Gauss-Newton
     # (``refine.fit_body_rest_shape_and_poses``) instead of held (docs/muscle.md, ninth pass). Measured (6k, 200
-    # frames, measured shape, 2 rounds): 507 4.74 / 7.99 (default), 7.65 / 12.95 (held) -> 3.64 / 7.43 mm median /
-    # p90; on 40-frame subsets 501 loses (model stage 3.62 held -> 4.33 mm); 501 / 504 / 508 not measured at 200
-    # frames: off.
+    # frames, measured shape, 2 rounds), median / p90 mm of 501 / 504 / 507 / 508: default 4.61 / 7.74, 5.47 / 9.07,
+    # 4.74 / 7.99, 6.44 / 13.45 -> 3.72 / 6.52, 4.21 / 7.12, 3.64 / 7.43, 3.97 / 7.89, but 501's bulge error 1.06 ->
+    # 2.51 mm (goal 1.5): off.
     body_rest_fit_poses: bool = False
     # Rounds of the rest-shape fit stop when the depth energy (``refine.depth_energy_mm`` of the sequence fit's
     # meshes on the frames the rest-shape fit does not use) stops falling, and the round with the lowest energy is
