@@ -35,6 +35,11 @@ VARIANTS = {
     # ("body_skeleton"), then fitted to the depth in two rounds alternated with the sequence fit ("body_rest")
     "body_skeleton": {"body_rest_shape": True},
     "body_rest": {"body_rest_shape": True, "body_rest_rounds": 2},
+    # the ninth pass: "body_rest" keeps the round with the lowest depth energy (``body_rest_keep_best``, on by
+    # default); "body_rest_all_rounds" is the eighth pass's (every round kept); "body_rest_joint" fits the strided
+    # frames' angles with the rest shape (``refine.fit_body_rest_shape_and_poses``)
+    "body_rest_all_rounds": {"body_rest_shape": True, "body_rest_rounds": 2, "body_rest_keep_best": False},
+    "body_rest_joint": {"body_rest_shape": True, "body_rest_rounds": 2, "body_rest_fit_poses": True},
 }
 KEYS = ("median_mm", "p90_mm", "surface_median_mm", "surface_p90_mm", "front_median_mm", "back_median_mm",
         "bulge_err_mm", "jitter_mm", "cpu_ms_per_frame")

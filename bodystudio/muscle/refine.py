@@ -678,6 +678,141 @@ def fit_body_rest_shape(space, model, poses: list[ArmPose], frames: list[DepthFr
     return x, shift
 
 
+
+def depth_energy_mm(model, poses: list[ArmPose], frames: list[DepthFrame], rest: np.ndarray, joints: np.ndarray,
+                    norm_limit: float = 0.9, huber_m: float = 0.004) -> float:
+    """The data energy of the model meshes (Eq. 12 on ``rest`` and ``joints``) against the depth: the root mean
+    Huber point-to-plane residual (``huber_m`` scale) over the filtered pairs of Sec. 5.2, in mm.
+
+    A data-side figure (no ground truth) for choosing between rounds of the rest-shape fit (docs/muscle.md, ninth
+    pass): the sequence fit and the rest-shape fit each lower their own energy, the alternation need not."""
+    total, count = 0.0, 0
+    for p, fr in zip(poses, frames, strict=True):
+        M = skeleton_model_mesh(model, p, rest, joints, norm_limit)
+        k, q, n = fr.plane_pairs(M)
+        r = np.abs(np.einsum("kd,kd->k", M[k] - q, n))
+        total += float(np.where(r < huber_m, 0.5 * r * r, huber_m * (r - 0.5 * huber_m)).sum())
+        count += len(r)
+    return 1000.0 * float(np.sqrt(2.0 * total / max(count, 1)))
+
+
+def fit_body_rest_shape_and_poses(space, model, poses: list[ArmPose], frames: list[DepthFrame], x0: np.ndarray,
+                                  shoulder: np.ndarray, prior_mean: np.ndarray, prior_sigma: np.ndarray,
+                                  prior_weight: float = 1.0, norm_limit: float = 0.9, huber_m: float = 0.004,
+                                  iterations: int = 3, arm_length_m: float | None = None,
+                                  arm_length_weight: float = 0.0, tracker_joints: np.ndarray | None = None,
+                                  tracker_weight: float = 0.0, angle_damping: float = 1.0,
+                                  ) -> tuple[np.ndarray, np.ndarray, list[ArmPose]]:
+    """:func:`fit_body_rest_shape` with every given frame's joint angles as unknowns too: one Gauss-Newton over the
+    body parameters, the shared placement and each frame's shoulder rotation (3) and elbow hinge flexion (1) of
+    Sec. 6.2 (the forearm twist and the wrist held, as in :func:`fit_arm_sequence_skeleton`).
+
+    With the poses held, a pose error of the capture is absorbed by the rest shape (docs/muscle.md, ninth pass).
+    Here the posed mesh of Eq. 12 is linearised in each frame's four angles as well (finite differences of
+    :func:`skeleton_model_mesh` over the paired vertices, the pose term of Eq. 10 included) and the angles are
+    eliminated per frame by a Schur complement (a 4 x 4 block each), so a step costs little more than the held-pose
+    fit's. Each frame's angles are damped towards their value at the step's start by ``angle_damping`` per coordinate
+    times a 0.3 m lever (Levenberg), in the units of the depth pairs. The energy, the prior, the tracker and the arm
+    length are :func:`fit_body_rest_shape`'s. Returns ``(x, translation (3,), poses)``: the poses with the placement
+    change added to their roots.
+    """
+    from bodystudio.muscle.model import limit_displacement_norms, pose_displacements
+
+    x = np.asarray(x0, np.float64).copy()
+    W = np.asarray(model.part_weights, np.float64)
+    m = 9
+    n_x = len(x)
+    P = n_x + 3
+    mean, sigma = np.asarray(prior_mean, np.float64), np.asarray(prior_sigma, np.float64)
+    T_frames = len(poses)
+    shift = np.zeros(3)
+    tracked = [None] * T_frames if tracker_joints is None or tracker_weight <= 0 else np.asarray(tracker_joints)
+    _, J = space.rest_and_joints(x, shoulder)
+    h, f = elbow_axes(J)
+    twist = [float(p.angles[1] @ f) for p in poses]
+    angles = [np.r_[p.angles[0], p.angles[1] @ h] for p in poses]
+    lever2 = angle_damping * 0.3 ** 2
+    eps = 1e-5
+
+    def pose_of(k, a, J):
+        root = poses[k].root.copy()
+        root[:3, 3] += shift
+        return ArmPose(root, np.vstack([a[:3], elbow_rotvec(J, a[3], twist[k]), poses[k].angles[2]]))
+
+    def mesh_of(pose, rest, J):
+        d_rho = limit_displacement_norms(pose_displacements(model, pose.angles), norm_limit)
+        return pose_arm(rest + d_rho, W, J, pose)
+
+    for _ in range(iterations):
+        rest, J = space.rest_and_joints(x, shoulder)
+        D = space.jacobian(x)
+        Dv, DJ = D[:, :-3], D[:, -3:].reshape(len(D), 9)
+        H_ss, g_s = np.zeros((P, P)), np.zeros(P)
+        blocks = []
+        for k, (fr, tj) in enumerate(zip(frames, tracked, strict=True)):
+            a = angles[k]
+            pose = pose_of(k, a, J)
+            Tp = part_transforms(J, pose)
+            H_sa, H_aa, g_a = np.zeros((P, 4)), lever2 * np.eye(4), np.zeros(4)
+            M = mesh_of(pose, rest, J)
+            idx, q, nrm = fr.plane_pairs(M)
+            if tj is not None:
+                PJ = posed_joints(J, pose)
+                dPJ = np.stack([(posed_joints(J + e.reshape(3, 3), pose) - PJ).ravel() for e in np.eye(9)], axis=1)
+                Gj = np.c_[dPJ @ DJ.T, np.tile(np.eye(3), (3, 1))]
+                Aj = np.stack([(posed_joints(J, pose_of(k, a + eps * e, J)) - PJ).ravel() / eps for e in np.eye(4)],
+                              axis=1)
+                rj = (PJ - tj).ravel()
+                H_ss += tracker_weight * Gj.T @ Gj
+                g_s += tracker_weight * Gj.T @ rj
+                H_sa += tracker_weight * Gj.T @ Aj
+                H_aa += tracker_weight * Aj.T @ Aj
+                g_a += tracker_weight * Aj.T @ rj
+            if len(idx):
+                r = np.einsum("kd,kd->k", M[idx] - q, nrm)
+                w = np.minimum(1.0, huber_m / np.maximum(np.abs(r), 1e-12)) if huber_m > 0 else np.ones(len(r))
+                A = np.einsum("kp,pij->kij", W[idx], Tp[:, :3, :3])
+                An = np.einsum("kij,ki->kj", A, nrm)
+                dT = np.stack([(part_transforms(J + e.reshape(3, 3), pose)[:, :3, 3] - Tp[:, :3, 3])
+                               for e in np.eye(9)])
+                dtJ = np.einsum("kp,cpd,kd->kc", W[idx], dT, nrm)
+                G = np.c_[np.einsum("kj,Pkj->kP", An, Dv[:, idx, :]) + dtJ @ DJ.T, nrm]
+                Ga = np.stack([np.einsum("kd,kd->k", mesh_of(pose_of(k, a + eps * e, J), rest, J)[idx] - M[idx], nrm)
+                               / eps for e in np.eye(4)], axis=1)
+                H_ss += G.T @ (w[:, None] * G)
+                g_s += G.T @ (w * r)
+                H_sa += G.T @ (w[:, None] * Ga)
+                H_aa += Ga.T @ (w[:, None] * Ga)
+                g_a += Ga.T @ (w * r)
+            blocks.append((H_sa, H_aa, g_a))
+        lam = prior_weight * T_frames * 1e-6
+        H = H_ss.copy()
+        rhs = -g_s
+        H[np.arange(n_x), np.arange(n_x)] += lam / sigma ** 2
+        rhs[:n_x] -= lam / sigma ** 2 * (x - mean)
+        if arm_length_m is not None and arm_length_weight > 0:
+            bones = np.diff(J, axis=0)
+            lengths = np.linalg.norm(bones, axis=1)
+            u = bones / lengths[:, None]
+            DJ3 = DJ.reshape(len(D), 3, 3)
+            g = np.einsum("bd,Pbd->P", u, DJ3[:, 1:] - DJ3[:, :-1])
+            c = arm_length_weight * T_frames
+            H[:n_x, :n_x] += c * np.outer(g, g)
+            rhs[:n_x] -= c * g * (lengths.sum() - arm_length_m)
+        for H_sa, H_aa, g_a in blocks:  # the frames' angles eliminated (Schur complement)
+            K = np.linalg.solve(H_aa, H_sa.T)
+            H -= H_sa @ K
+            rhs += K.T @ g_a
+        step = np.linalg.solve(H, rhs)
+        for k, (H_sa, H_aa, g_a) in enumerate(blocks):
+            angles[k] = angles[k] + np.linalg.solve(H_aa, -g_a - H_sa.T @ step)
+        x += step[:n_x]
+        x[:m] = np.clip(x[:m], 0.0, 1.0)
+        shift += step[n_x:]
+    _, J = space.rest_and_joints(x, shoulder)
+    return x, shift, [pose_of(k, angles[k], J) for k in range(T_frames)]
+
+
 def skin_template(base: np.ndarray, part_weights: np.ndarray, joints: np.ndarray, pose: ArmPose) -> np.ndarray:
     """The template posed by four-part LBS (Eq. 12 without the model's displacements)."""
     return pose_arm(base, part_weights, joints, pose)

@@ -179,6 +179,108 @@ def test_the_body_rest_shape_is_off_by_default_and_its_options_are_checked():
     o = CaptureOptions()
     assert (o.body_rest_shape, o.body_rest_rounds, o.body_rest_prior_weight, o.body_rest_frame_stride) == (
         False, 0, 100.0, 4)
+    assert not o.body_rest_fit_poses  # the ninth pass's joint fit: a switch too
     for bad in ({"body_rest_rounds": -1}, {"body_rest_frame_stride": 0}, {"body_rest_prior_weight": 0.0}):
         with pytest.raises(InputError, match="body_rest"):
             CaptureOptions(**bad)
+
+
+def test_the_joint_fit_recovers_the_rest_shape_where_the_held_poses_are_off(planted):
+    """The ninth pass: the planted subject's start poses off by a few degrees per frame (shoulder and elbow).
+    With the poses held the rest shape absorbs their error; fitted jointly with the rest shape (one Gauss-Newton
+    over both, the angles eliminated per frame) the rest shape and the angles are recovered."""
+    from bodystudio.muscle.refine import elbow_axes, fit_body_rest_shape_and_poses
+
+    s = planted
+    rng = np.random.default_rng(3)
+    _, J_true = s.space.rest_and_joints(s.x_true, s.shoulder)
+    h, _ = elbow_axes(J_true)
+    off = []
+    for p in s.poses:
+        flex = float(p.angles[1] @ h)
+        d = rng.normal(0.0, np.radians(2.5), 4)
+        off.append(ArmPose(p.root, np.stack([p.angles[0] + d[:3], elbow_rotvec(J_true, flex + d[3], 0.0),
+                                             p.angles[2]])))
+    kw = dict(prior_weight=0.01, norm_limit=0.5, huber_m=0.0, iterations=10)
+    held = fit_body_rest_shape(s.space, s.model, off, s.frames, s.mean, s.shoulder, s.mean, s.sigma, **kw)
+    x, shift, poses = fit_body_rest_shape_and_poses(s.space, s.model, off, s.frames, s.mean, s.shoulder, s.mean,
+                                                    s.sigma, angle_damping=1e-3, **kw)
+    rest_err = [_rest_error_mm(s, held[0]), _rest_error_mm(s, x)]
+
+    def angle_err(ps):
+        return max(np.degrees(np.linalg.norm(p.angles[:2] - q.angles[:2], axis=1)).max()
+                   for p, q in zip(ps, s.poses, strict=True))
+
+    assert angle_err(off) > 4.0  # measured 6.3 deg at worst
+    assert rest_err[1] < 2.5 and angle_err(poses) < 1.0, (rest_err, angle_err(poses))  # measured 1.80 mm, 0.58 deg
+    assert rest_err[0] > 20.0, rest_err  # held: 69.7 mm (the weak prior lets the shape take the pose errors)
+    np.testing.assert_allclose(shift, s.offset, atol=2e-3)
+
+
+def _rest_error_mm(s, x):
+    """Median distance (mm) of the rest arm for ``x`` from the planted one, shoulder on shoulder."""
+    rest, _ = s.space.rest_and_joints(x, s.shoulder)
+    true, _ = s.space.rest_and_joints(s.x_true, s.shoulder)
+    return float(1000 * np.median(np.linalg.norm(rest - true, axis=1)[s.arm]))
+
+
+@pytest.mark.parametrize("fit_poses", [False, True])
+def test_the_rest_shape_rounds_stop_when_the_depth_energy_stops_falling(monkeypatch, scene, fit_poses):  # noqa: F811
+    """``body_rest_keep_best`` (the ninth pass): the rounds of the rest-shape fit stop at the first round whose depth
+    energy (on the frames the rest-shape fit does not use) is not below the previous round's, and that previous
+    round's poses, rest arm and skeleton are the capture's; ``body_rest_fit_poses`` fits the strided frames' angles
+    with the rest shape (``refine.fit_body_rest_shape_and_poses``, the same arguments otherwise)."""
+    from bodystudio.muscle import capture as cap
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_frames
+    from bodystudio.muscle.nicp import NicpOptions
+
+    s = scene
+    energies = iter([3.0, 2.0, 2.5])
+    seen = []
+
+    def energy(model, poses, frames, rest, joints, norm_limit, huber_m):
+        seen.append((len(poses), joints.copy()))
+        return next(energies)
+
+    monkeypatch.setattr(cap, "depth_energy_mm", energy)
+    name = "fit_body_rest_shape_and_poses" if fit_poses else "fit_body_rest_shape"
+    spies = Spies(monkeypatch, (name, "fit_arm_sequence_skeleton"))
+    fast = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1,
+                sequence_max_nfev=3, nicp=NicpOptions(iterations=2), pose_sigma_frames=0.0)
+    o = CaptureOptions(mode="model", body_rest_shape=True, body_rest_rounds=3, body_rest_frame_stride=2,
+                       body_rest_prior_weight=3.0, body_rest_iterations=1, body_rest_fit_poses=fit_poses, **fast)
+    c = capture_arm_frames(s.depths, s.camera, s.template, s.model, o, s.tracker, known_shape=s.shape)
+    fits = spies["fit_arm_sequence_skeleton"]
+    assert len(fits) == 3 and len(spies[name]) == 2  # round 2 raised the energy: no round 3
+    assert [n for n, _ in seen] == [len(s.depths) // 2] * 3  # frames 1, 3, ...: not the rest-shape fit's
+    np.testing.assert_allclose(c.joints, fits[1].out[1], atol=1e-12)  # round 1's skeleton, not round 2's
+    assert np.abs(fits[2].out[1] - fits[1].out[1]).max() > 1e-6
+    for p, q in zip(c.poses, fits[1].out[0], strict=True):
+        np.testing.assert_allclose(p.angles, q.angles, atol=1e-12)
+    if fit_poses:
+        args = spies[name][0].args
+        assert args[8:14] == (3.0, o.norm_limit, o.sequence_huber_m, 1, s.shape.arm_length_m,
+                              o.body_rest_arm_length_weight)
+        assert args[15:] == (o.sequence_tracker_weight, o.body_rest_angle_damping)
+
+
+def test_the_depth_energy_is_zero_at_the_truth_and_grows_with_a_misplacement(planted):
+    """``refine.depth_energy_mm``: the root mean Huber point-to-plane residual (mm) of the model meshes over the
+    filtered pairs; ~0 for the planted subject's own meshes, ~the offset for a placement 3 mm off (under the Huber
+    scale)."""
+    from bodystudio.muscle.refine import depth_energy_mm
+
+    s = planted
+    rest, J = s.space.rest_and_joints(s.x_true, s.shoulder)
+
+    def placed(offset):
+        out = []
+        for p in s.poses:
+            root = p.root.copy()
+            root[:3, 3] += s.offset + offset
+            out.append(ArmPose(root, p.angles))
+        return out
+
+    assert depth_energy_mm(s.model, placed(np.zeros(3)), s.frames, rest, J, 0.5) < 0.05
+    off = depth_energy_mm(s.model, placed(np.array([0.0, 0.0, 0.003])), s.frames, rest, J, 0.5)
+    assert 1.0 < off < 3.2, off
