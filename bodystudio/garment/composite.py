@@ -184,10 +184,11 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
     With the flow on, the frame is warped, composited and matted twice, with §7.1's correction and without it
     (§7.2 alone), and where the two garment regions differ the video decides per pixel
     (:func:`bodystudio.garment.refine.arbitrate_flow_correction`: garment where the hem matte's colour model says
-    the actor's worn garment is there). Where the matte does not run (``hem=False``, or the worn garment's colour
-    is not told apart from the rest of the actor's, ``MAX_HEM_CLASSIFIER_ERROR``) the correction is used whole, and
-    only when it is larger than the flow resolves (:func:`bodystudio.garment.refine.flow_correction_is_significant`);
-    otherwise the frame is warped by §7.2 alone.
+    the actor's worn garment is there); the garment's colours are the corrected warp's when the correction is
+    larger than the flow resolves (:func:`bodystudio.garment.refine.flow_correction_is_significant`), else §7.2's
+    alone (pixels only the other hypothesis shows take its colours). Where the matte does not run (``hem=False``,
+    or the worn garment's colour is not told apart from the rest of the actor's, ``MAX_HEM_CLASSIFIER_ERROR``) the
+    correction is used whole when it is that large, otherwise the frame is warped by §7.2 alone.
 
     ``layer`` is a :class:`bodystudio.garment.render.GarmentLayer` of the fitted body in this frame.
     """
@@ -211,15 +212,19 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
     if correction is not None:
         # timed as part of ``composite`` (the second hypothesis and the arbitration)
         plain = _warp_and_matte(frame, person_mask, layer, zero, rbf, depth, sigma_px, hem, timings, None)
+        significant = refine.flow_correction_is_significant(correction, layer.mask)  # else the render's smear
         if main["worn"] is not None:
+            # the region: the video decides where the two differ; the colours: the corrected warp's only where the
+            # correction is larger than the flow resolves (below, the flow moves the texture by the albedo's smear)
             shown = refine.arbitrate_flow_correction(main["shown"], plain["shown"], main["worn"], person_mask)
-            image = image.copy()
-            from_plain = shown & ~main["shown"]
-            image[from_plain] = plain["image"][from_plain]
-            dropped = main["shown"] & ~shown
+            base, other = (main, plain) if significant else (plain, main)
+            image, field = base["image"].copy(), base["field"]
+            from_other = shown & ~base["shown"]
+            image[from_other] = other["image"][from_other]
+            dropped = base["shown"] & ~shown
             image[dropped] = frame[dropped]
             flow_applied = True
-        elif refine.flow_correction_is_significant(correction, layer.mask):  # else it is the render's smear
+        elif significant:
             flow_applied = True
         else:
             image, shown, field = plain["image"], plain["shown"], plain["field"]
