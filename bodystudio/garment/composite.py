@@ -161,7 +161,8 @@ def perturbed_fit(fit, seed: int = 0, pose_deg: float = 3.0, translation_m: floa
 class RefinedFrame:
     """One composited frame: ``image`` uint8 RGB, ``garment_mask`` the garment pixels it shows, ``unrefined_mask``
     the garment pixels of the plain 3D composite, the warp ``field`` (H, W, 2) used and ms per step;
-    ``flow_applied`` whether §7.1's correction was used (asked for, and above what the flow resolves);
+    ``flow_applied`` whether §7.1's correction was used (asked for, and then either arbitrated per pixel by the
+    video or, without the hem matte, above what the flow resolves);
     ``hem_applied`` whether the hem matte was (asked for, and the worn garment's colour told apart from the rest of
     the actor's)."""
 
@@ -180,10 +181,14 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
     then the hem matte (ours: :func:`bodystudio.garment.refine.hem_matte`, the new garment's hem lines moved onto
     the worn garment's edges in the video, at most ``HEM_REACH_FRACTION`` of the frame height).
 
-    The flow correction is used only when it is larger than the flow resolves
-    (:func:`bodystudio.garment.refine.flow_correction_is_significant`); otherwise the frame is warped by §7.2 alone.
-    The hem matte is used only when the worn garment's colour is told apart from the rest of the actor's
-    (``MAX_HEM_CLASSIFIER_ERROR``).
+    With the flow on, the frame is warped, composited and matted twice, with §7.1's correction and without it
+    (§7.2 alone), and where the two garment regions differ the video decides per pixel
+    (:func:`bodystudio.garment.refine.arbitrate_flow_correction`: garment where the hem matte's colour model says
+    the actor's worn garment is there); the garment's colours are the corrected warp's when the correction is
+    larger than the flow resolves (:func:`bodystudio.garment.refine.flow_correction_is_significant`), else §7.2's
+    alone (pixels only the other hypothesis shows take its colours). Where the matte does not run (``hem=False``,
+    or the worn garment's colour is not told apart from the rest of the actor's, ``MAX_HEM_CLASSIFIER_ERROR``) the
+    correction is used whole when it is that large, otherwise the frame is warped by §7.2 alone.
 
     ``layer`` is a :class:`bodystudio.garment.render.GarmentLayer` of the fitted body in this frame.
     """
@@ -192,14 +197,53 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
     H, W = person_mask.shape
     timings = {}
     t0 = time.perf_counter()
-    field = np.zeros((H, W, 2), dtype=np.float32)
-    flow_applied = False
+    correction = None
     if flow:
         correction = refine.garment_motion_correction(frame, person_mask, layer.body_image, layer.body_mask,
                                                       layer.mask)
-        if refine.flow_correction_is_significant(correction, layer.mask):  # else it is the render's smear
-            field, flow_applied = correction, True
     t1 = time.perf_counter()
+    zero = np.zeros((H, W, 2), dtype=np.float32)
+    # with the flow, both hypotheses are warped and composited: the flow-corrected one and §7.2 alone; the video
+    # decides between them per pixel (below), or, where its colours do not separate, the gate per frame
+    main = _warp_and_matte(frame, person_mask, layer, zero if correction is None else correction, rbf, depth,
+                           sigma_px, hem, timings, t1)
+    flow_applied = False
+    image, shown, field = main["image"], main["shown"], main["field"]
+    if correction is not None:
+        # timed as part of ``composite`` (the second hypothesis and the arbitration)
+        plain = _warp_and_matte(frame, person_mask, layer, zero, rbf, depth, sigma_px, hem, timings, None)
+        significant = refine.flow_correction_is_significant(correction, layer.mask)  # else the render's smear
+        if main["worn"] is not None:
+            # the region: the video decides where the two differ; the colours: the corrected warp's only where the
+            # correction is larger than the flow resolves (below, the flow moves the texture by the albedo's smear)
+            shown = refine.arbitrate_flow_correction(main["shown"], plain["shown"], main["worn"], person_mask)
+            base, other = (main, plain) if significant else (plain, main)
+            image, field = base["image"].copy(), base["field"]
+            from_other = shown & ~base["shown"]
+            image[from_other] = other["image"][from_other]
+            dropped = base["shown"] & ~shown
+            image[dropped] = frame[dropped]
+            flow_applied = True
+        elif significant:
+            flow_applied = True
+        else:
+            image, shown, field = plain["image"], plain["shown"], plain["field"]
+    hem_applied = main["worn"] is not None
+    _, unrefined = refine.depth_composite(frame, layer.rgb, layer.mask, layer.depth, layer.body_depth, True)
+    t3 = time.perf_counter()
+    timings.update(flow=(t1 - t0) * 1e3, composite=(t3 - t0) * 1e3 - (t1 - t0) * 1e3 - timings.get("rbf", 0.0))
+    return RefinedFrame(image, shown, unrefined, field, timings, flow_applied, hem_applied)
+
+
+def _warp_and_matte(frame: np.ndarray, person_mask: np.ndarray, layer, field: np.ndarray, rbf: bool, depth: bool,
+                    sigma_px: float | None, hem: bool, timings: dict, start: float | None) -> dict:
+    """§7.2-7.3 and the hem matte on one frame after the backward warp ``field`` (§7.1's correction, or zeros):
+    ``image``, ``shown`` (the composited garment region), ``field`` (with §7.2's warp concatenated) and ``worn``
+    (the worn-garment probability the matte used; None when the matte was off or skipped). Adds the RBF time to
+    ``timings['rbf']`` (from ``start``, a ``time.perf_counter()``; not timed when None)."""
+    from bodystudio.garment import refine
+
+    H, W = person_mask.shape
     if rbf:
         g_mask = refine.warp_image(layer.mask, field)
         b_mask = refine.warp_image(layer.body_mask, field)
@@ -207,24 +251,22 @@ def refine_and_composite(frame: np.ndarray, person_mask: np.ndarray, layer, flow
         kwargs = {} if sigma_px is None else {"sigma_px": sigma_px}
         silhouette = refine.silhouette_rbf_warp(tgt, src - tgt, (H, W), **kwargs)
         field = refine.concatenate_warps(field, silhouette)
-    t2 = time.perf_counter()
+    if start is not None:
+        timings["rbf"] = timings.get("rbf", 0.0) + (time.perf_counter() - start) * 1e3
     g_rgb = refine.warp_image(layer.rgb, field)
     g_mask = refine.warp_image(layer.mask, field)
     g_depth = refine.warp_image(layer.depth, field, nearest=True)
     b_depth = refine.warp_image(layer.body_depth, field, nearest=True)
     image, shown = refine.depth_composite(frame, g_rgb, g_mask, g_depth, b_depth, use_depth=depth)
-    hem_applied = False
+    worn = None
     if hem:
         reach_px = refine.HEM_REACH_FRACTION * H
-        worn, error = refine.worn_garment_probability(frame, person_mask, shown, reach_px)
+        probability, error = refine.worn_garment_probability(frame, person_mask, shown, reach_px)
         if error <= refine.MAX_HEM_CLASSIFIER_ERROR:
-            matte = refine.hem_matte(shown, worn, person_mask, reach_px)
+            matte = refine.hem_matte(shown, probability, person_mask, reach_px)
             image = refine.composite_hem_matte(image, frame, matte, shown, g_rgb, g_mask)
-            shown, hem_applied = matte, True
-    _, unrefined = refine.depth_composite(frame, layer.rgb, layer.mask, layer.depth, layer.body_depth, True)
-    t3 = time.perf_counter()
-    timings.update(flow=(t1 - t0) * 1e3, rbf=(t2 - t1) * 1e3, composite=(t3 - t2) * 1e3)
-    return RefinedFrame(image, shown, unrefined, field, timings, flow_applied, hem_applied)
+            shown, worn = matte, probability
+    return {"image": image, "shown": shown, "field": field, "worn": worn}
 
 
 def default_lighting(camera):

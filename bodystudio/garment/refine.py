@@ -426,3 +426,20 @@ def composite_hem_matte(composite: np.ndarray, frame: np.ndarray, matte: np.ndar
         colour = garment_rgb[iy[ys, xs], ix[ys, xs]]
         out[ys, xs] = np.clip(np.round(colour * 255.0), 0, 255).astype(np.uint8)
     return out
+
+
+def arbitrate_flow_correction(corrected: np.ndarray, uncorrected: np.ndarray, worn_probability: np.ndarray,
+                              person_mask: np.ndarray) -> np.ndarray:
+    """§7.1's correction accepted per pixel where the video confirms it (ours, gar13f): the garment region of the
+    flow-corrected composite (``corrected``, after §7.2, §7.3 and the hem matte) and of the one without the
+    correction (``uncorrected``) agree almost everywhere; where they differ, a pixel is garment when the video shows
+    the actor's worn garment there (``worn_probability`` > 0.5, :func:`worn_garment_probability`, inside
+    ``person_mask``), else not. The flow's move of the garment region is kept where it moves it toward the worn
+    garment's pixels and undone where it moves it away (onto the background or the actor's skin); the Eq. 8 field
+    itself still carries the texture.
+
+    Returns the bool (H, W) garment region.
+    """
+    worn = (worn_probability > 0.5) & person_mask
+    return (corrected & uncorrected) | ((corrected ^ uncorrected) & worn)
+
