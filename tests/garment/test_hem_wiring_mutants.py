@@ -7,15 +7,7 @@ import numpy as np
 
 from bodystudio.garment import composite as cp
 from bodystudio.garment import refine
-
-SKIN = np.array([170.0, 120.0, 95.0])
-SHIRT = np.array([40.0, 60.0, 140.0])
-
-
-def rect(shape, y0, y1, x0, x1):
-    m = np.zeros(shape, bool)
-    m[y0:y1, x0:x1] = True
-    return m
+from tests.garment.test_hem_matte import SHIRT, SKIN, rect
 
 
 def _actor(H=240, W=320):
