@@ -1,6 +1,7 @@
 """Mutation-testing gaps of gar13f's flow arbitration (issue 17, mutK): ``arbitrate_flow_correction``'s threshold
 (a worn-garment probability of exactly 0.5 is not "the video sees the worn garment", the docstring's ``> 0.5``) and
-the wiring of ``refine_and_composite`` that chooses the region and the colours between the two hypotheses. Toy
+the wiring of ``refine_and_composite`` that chooses the region and the colours between the two hypotheses, and
+``_warp_and_matte``, which builds each hypothesis (the RBF displacement sign, depths sampled nearest). Toy
 frames of two flat colours, as in test_flow_arbitration.py (seconds)."""
 
 from types import SimpleNamespace
