@@ -49,11 +49,12 @@ class _Planes:
         self.truth, self.normals = truth, normals
         self.offset = np.zeros(len(normals)) if offset is None else offset
         self.keep = np.arange(N_V) if keep is None else np.asarray(keep)
+        self.single = False  # each kept vertex paired once (with its first plane)
 
     def plane_pairs(self, M):
         assert M.shape == self.truth.shape and np.abs(M - self.truth).max() < 0.2
-        idx = np.r_[self.keep, self.keep]
-        sel = np.r_[self.keep, self.keep + N_V]
+        idx = self.keep if self.single else np.r_[self.keep, self.keep]
+        sel = self.keep if self.single else np.r_[self.keep, self.keep + N_V]
         n = self.normals[sel]
         return idx, self.truth[idx] + self.offset[sel, None] * n, n
 
@@ -246,6 +247,11 @@ def test_the_tracker_and_the_arm_length_enter_the_step_as_the_held_pose_fits_ter
     kw = _full_kw(prior_weight=5.0, iterations=2, tracker_joints=tracked, tracker_weight=3.0, arm_length_m=L,
                   arm_length_weight=50.0, angle_damping=0.5)
     _assert_same(_fit(c, **kw), _reference(c, kw, 2))
+    # a weight under 1 still counts
+    kw_small = {**kw, "arm_length_weight": 0.5, "tracker_weight": 0.0}
+    small = _fit(c, **kw_small)
+    _assert_same(small, _reference(c, {**kw_small, "tracker_joints": None}, 2))
+    assert np.abs(small[0] - _fit(c, **{**kw_small, "arm_length_m": None})[0]).max() > 5e-5
     # each term acts: without it the answer moves
     base = _fit(c, **kw)
     for drop in (dict(tracker_weight=0.0), dict(tracker_joints=None), dict(arm_length_weight=0.0),
@@ -274,11 +280,12 @@ def test_the_macro_parameters_are_clipped_to_the_unit_interval(monkeypatch):
         d = s.macro_deltas[0] - s.macro_deltas[0, -3]
         xb = X_MID.copy()
         xb[0] = bound
+        xb[9] = -0.3
         c = _case(monkeypatch, x_true=xb, extra=sign * 0.5 * d)
         c.x0[0] = 0.5 + 0.3 * sign
         x, _, _ = _fit(c, prior_weight=1e-9, huber_m=0.0, iterations=4, angle_damping=1e-3)
         assert x[0] == bound and np.all(x[:9] >= 0.0) and np.all(x[:9] <= 1.0), x
-        assert x[9:].min() < -0.05  # the local weights are not clipped
+        assert x[9] < -0.1  # the local weights are not clipped
     # zero steps: the start returned, the placement unmoved, the poses rebuilt from their angles
     xz, sz, pz = _fit(c, iterations=0)
     np.testing.assert_array_equal(xz, c.x0)
@@ -308,8 +315,8 @@ def test_the_depth_energy_is_the_root_mean_huber_residual_in_mm(monkeypatch):
         assert got == pytest.approx(want, rel=1e-9), hub
     assert c.seen["limits"][-1] == 0.7
     default = depth_energy_mm(c.model, c.true_poses, c.frames, rest, J)
-    assert default == depth_energy_mm(c.model, c.true_poses, c.frames, rest, J, 0.9, 0.004)
     assert c.seen["limits"][-1] == 0.9
+    assert default == depth_energy_mm(c.model, c.true_poses, c.frames, rest, J, 0.9, 0.004)
     # the meshes are Eq. 12's on the given rest mesh and joints
     M = skeleton_model_mesh(c.model, c.true_poses[0], rest, J, 0.9)
     np.testing.assert_allclose(M, c.frames[0].truth, atol=1e-12)
@@ -319,7 +326,33 @@ def test_the_depth_energy_is_the_root_mean_huber_residual_in_mm(monkeypatch):
     r0 = offs[0]
     want = 1000 * np.sqrt(2 * np.where(r0 < 0.004, 0.5 * r0 * r0, 0.004 * (r0 - 0.002)).sum() / len(r0))
     assert depth_energy_mm(c.model, c.true_poses, c.frames, rest, J) == pytest.approx(want, rel=1e-9)
+    c.frames[0].single = True  # one pair in all: its own residual (1 mm, under the Huber scale)
+    c.frames[0].keep = np.array([3])
+    assert depth_energy_mm(c.model, c.true_poses, c.frames, rest, J) == pytest.approx(1.0, rel=1e-9)
     c.frames[0].keep = np.zeros(0, int)
     assert depth_energy_mm(c.model, c.true_poses, c.frames, rest, J) == 0.0
     with pytest.raises(ValueError):  # one frame per pose
         depth_energy_mm(c.model, c.true_poses[:2], c.frames, rest, J)
+
+
+def test_the_inputs_are_checked_and_read_in_double_precision_and_lone_terms_without_weight_are_none(monkeypatch):
+    c = _case(monkeypatch, noise=0.001)
+    with pytest.raises(ValueError):  # one frame per pose
+        fit_body_rest_shape_and_poses(c.space, c.model, c.poses, c.frames[:4], c.x0, c.shoulder, c.mean, c.sigma)
+    plain = _fit(c, prior_weight=3.0)
+    # a measured length or tracker joints without their weight (default 0) are no term
+    np.testing.assert_array_equal(_fit(c, prior_weight=3.0, arm_length_m=0.3)[0], plain[0])
+    tracked = np.zeros((T, 3, 3))
+    np.testing.assert_array_equal(_fit(c, prior_weight=3.0, tracker_joints=tracked)[0], plain[0])
+    # float32 spreads are read in double precision; an integer start is read as floats
+    s32 = c.sigma.astype(np.float32)
+    a = fit_body_rest_shape_and_poses(c.space, c.model, c.poses, c.frames, c.x0, c.shoulder, c.mean, s32, 5.0)
+    b = fit_body_rest_shape_and_poses(c.space, c.model, c.poses, c.frames, c.x0, c.shoulder, c.mean,
+                                      s32.astype(float), 5.0)
+    np.testing.assert_array_equal(a[0], b[0])
+    xi = np.r_[[1, 1, 1, 1, 1, 1, 0, 1, 0], [0, 0, 0]]
+    got = fit_body_rest_shape_and_poses(c.space, c.model, c.poses, c.frames, xi, c.shoulder, c.mean, c.sigma,
+                                        iterations=1)
+    want = fit_body_rest_shape_and_poses(c.space, c.model, c.poses, c.frames, xi.astype(float), c.shoulder, c.mean,
+                                         c.sigma, iterations=1)
+    np.testing.assert_array_equal(got[0], want[0])
