@@ -45,17 +45,18 @@ def _stage(monkeypatch, energies=None, **opts):
         return out, J + 0.001 * (k + 1)
 
     def held(space_, model, poses, frames, x, anchor, mean, sigma, *args):
-        seen.held.append(SimpleNamespace(poses=poses, frames=frames, x=x.copy(), anchor=anchor, args=args))
+        seen.held.append(SimpleNamespace(poses=poses, frames=frames, x=x.copy(), anchor=anchor, args=args,
+                                         space=space_, model=model, mean=mean, sigma=sigma))
         return x + 1.0, np.array([0.001, 0.0, -0.002]) * len(seen.held)
 
     def joint(space_, model, poses, frames, x, anchor, mean, sigma, *args):
         seen.joint.append(SimpleNamespace(poses=poses, frames=frames, x=x.copy(), anchor=anchor, args=args,
-                                          mean=mean, sigma=sigma))
+                                          mean=mean, sigma=sigma, space=space_, model=model))
         junk = [ArmPose(np.eye(4) * 7, p.angles * 0 + 9) for p in poses]  # the joint fit's poses are not used
         return x + 1.0, np.array([0.001, 0.0, -0.002]) * len(seen.joint), junk
 
     def energy(model, poses, frames, rest, joints, norm_limit, huber_m):
-        seen.energy.append(SimpleNamespace(poses=poses, frames=frames, rest=rest, joints=joints,
+        seen.energy.append(SimpleNamespace(model=model, poses=poses, frames=frames, rest=rest, joints=joints,
                                            norm_limit=norm_limit, huber_m=huber_m))
         return energies[len(seen.energy) - 1]
 
@@ -78,6 +79,7 @@ def _stage(monkeypatch, energies=None, **opts):
     J = np.array([[0.0, 1.0, 0.0], [0.3, 1.0, 0.0], [0.55, 1.0, 0.0]])
     known = SimpleNamespace(arm_length_m=0.61)
     out = cap.sequence_stage("model", "template", "shape", poses, frames, tracker, np.zeros((4, 3)), J, o, known)
+    seen.space = space
     return out, seen, o, poses, frames, tracker, J
 
 
@@ -100,8 +102,10 @@ def test_the_rounds_stop_at_the_first_energy_not_below_the_previous_and_keep_tha
         np.testing.assert_array_equal(e.rest, seen.seq[r].rest)
         np.testing.assert_array_equal(e.joints, seen.seq[r].J + 0.001 * (r + 1))
         assert (e.norm_limit, e.huber_m) == (o.norm_limit, o.sequence_huber_m)
-    assert "rest-shape round 1: depth energy 2.000 mm" in caplog.text
-    assert "rest-shape round 2: depth energy 2.500 mm" in caplog.text
+    assert [r.getMessage() for r in caplog.records if r.name == cap.__name__ and "rest-shape" in r.getMessage()] \
+        == ["rest-shape round 0: depth energy 3.000 mm", "rest-shape round 1: depth energy 2.000 mm",
+            "rest-shape round 2: depth energy 2.500 mm"]
+    assert all(e.model == "model" for e in seen.energy)
     # the rest-shape fit's frames are the others (0, 4, 8), its tracker joints theirs
     assert [h.frames for h in seen.held] == [frames[0::4]] * 2
     assert len(poses0) == N_FRAMES
@@ -145,6 +149,8 @@ def test_the_switch_calls_the_joint_fit_with_the_held_pose_fits_arguments_and_it
     assert first.args[:6] == (7.0, o.norm_limit, o.sequence_huber_m, 2, 0.61, 40.0)
     np.testing.assert_array_equal(first.args[6], tracker[0::4])
     assert first.args[7:] == (0.25, 0.3)
+    assert first.space is seen.space and first.model == "model"
+    assert len(first.poses) == 3
     np.testing.assert_array_equal(first.x, [1.0])
     np.testing.assert_array_equal(first.anchor, J0[0])
     np.testing.assert_array_equal(first.mean, [1.0])  # the projection is the prior's mean
@@ -165,8 +171,19 @@ def test_the_held_pose_fit_gets_the_placement_switch(monkeypatch):
     _, seen, o, _, frames, tracker, _ = _stage(monkeypatch, energies=[3.0, 2.0, 2.5], body_rest_prior_weight=7.0,
                                                body_rest_fit_placement=False)
     assert seen.joint == [] and len(seen.held) == 2
-    a = seen.held[0].args
+    h = seen.held[0]
+    assert h.space is seen.space and h.model == "model" and len(h.poses) == 3 and h.frames == frames[0::4]
+    np.testing.assert_array_equal(h.anchor, np.array([[0.0, 1.0, 0.0]])[0])
+    np.testing.assert_array_equal(h.mean, [1.0])
+    np.testing.assert_array_equal(h.sigma, [0.2])
+    a = h.args
     assert a[:7] == (7.0, o.norm_limit, o.sequence_huber_m, o.body_rest_iterations, False, 0.61,
                      o.body_rest_arm_length_weight)
     np.testing.assert_array_equal(a[7], tracker[0::4])
     assert a[8:] == (o.sequence_tracker_weight,)
+
+
+def test_one_rest_shape_round_is_also_stopped(monkeypatch):
+    (poses, base, J), seen, *_ = _stage(monkeypatch, energies=[2.0, 3.0], body_rest_rounds=1)
+    assert len(seen.seq) == 2 and len(seen.energy) == 2
+    np.testing.assert_array_equal(J, seen.seq[0].J + 0.001)  # round 0's: round 1 raised the energy
