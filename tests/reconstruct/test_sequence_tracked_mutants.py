@@ -172,8 +172,9 @@ def _session(depth=False):
     return NS(path=Path("/stand-in/session"), streams={"mask"}, frame=frame)
 
 
-@pytest.fixture
-def rec(monkeypatch):
+def _stand_ins(monkeypatch):
+    """Every heavy step of the run replaced (a fresh record per test: the direct mutant recheck calls the tests
+    without pytest's fixtures)."""
     r = Rec()
     for name in ("initialise_pose", "pose_template", "outside_fraction", "track_bone_transforms",
                  "refine_bone_transforms", "deform_to_observations", "unpose", "smooth_joint_track",
@@ -212,7 +213,8 @@ EXPECTED_PRIOR = [1.0, 0.18, 0.5, 0.18, 1.0, 0.18, 0.18, 0.18]
 EXPECTED_ENERGY = [0.1, 0.1, 0.1, 1.0, 0.1, 0.1, 0.1, 0.18]
 
 
-def test_lost_track_reasons_and_check_figures_frame_by_frame(rec, tmp_path):
+def test_lost_track_reasons_and_check_figures_frame_by_frame(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     summary, frames, meta = _run(rec, tmp_path)
     assert [f["frame"] for f in frames] == FRAMES
     assert [f["track"] for f in frames] == EXPECTED_TRACK
@@ -238,7 +240,8 @@ def test_lost_track_reasons_and_check_figures_frame_by_frame(rec, tmp_path):
     assert rec.calls["fields"] == FRAMES
 
 
-def test_tracked_frames_pose_the_template_with_the_fit_and_the_previous_scale(rec, tmp_path):
+def test_tracked_frames_pose_the_template_with_the_fit_and_the_previous_scale(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     _summary, frames, _meta = _run(rec, tmp_path)
     deform = rec.calls["deform"]
     body = BODIES["6k"]
@@ -271,7 +274,8 @@ def test_tracked_frames_pose_the_template_with_the_fit_and_the_previous_scale(re
         np.testing.assert_allclose(rec.saved[f"{fid:05d}.ply"], deform[k]["V"] + [0, 0, 0.001 * (k + 1)])
 
 
-def test_tracked_frame_timings_are_the_steps_between_clock_reads(rec, tmp_path):
+def test_tracked_frame_timings_are_the_steps_between_clock_reads(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     summary, frames, _meta = _run(rec, tmp_path)
     # clock reads per frame: lost-track check 2 s (+1 s for the energy of an initialised frame), fields 1 s
     for f, track in zip(frames, EXPECTED_TRACK, strict=True):
@@ -287,7 +291,8 @@ def test_tracked_frame_timings_are_the_steps_between_clock_reads(rec, tmp_path):
         assert f["fields_ms"] == 1000.0
 
 
-def test_warm_mesh_carries_the_previous_result_and_the_outer_count_is_capped(rec, tmp_path):
+def test_warm_mesh_carries_the_previous_result_and_the_outer_count_is_capped(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=True, outer_iterations=7)
     _s, frames, meta = _run(rec, tmp_path, track=track)
     assert [f["track"] for f in frames] == EXPECTED_TRACK
@@ -315,7 +320,8 @@ def test_warm_mesh_carries_the_previous_result_and_the_outer_count_is_capped(rec
     assert not np.allclose(deform[1]["V"], posed[11])
 
 
-def test_outer_count_zero_keeps_the_runs_settings_and_no_warm_mesh_starts_from_the_pose(rec, tmp_path):
+def test_outer_count_zero_keeps_the_runs_settings_and_no_warm_mesh_starts_from_the_pose(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=False, outer_iterations=0)
     _run(rec, tmp_path, track=track)
     deform = rec.calls["deform"]
@@ -323,7 +329,8 @@ def test_outer_count_zero_keeps_the_runs_settings_and_no_warm_mesh_starts_from_t
     assert all(d["params"].outer_iterations == 5 for d in deform)
 
 
-def test_energy_after_a_refined_initialisation_is_of_the_refined_pose(rec, tmp_path):
+def test_energy_after_a_refined_initialisation_is_of_the_refined_pose(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     _s, frames, meta = _run(rec, tmp_path, refine_pose=True, frames=FRAMES[:3])
     # the refinement moves the pose 5 mm up: the energy of an initialised frame is of that pose
     assert frames[0]["track_check"]["energy"] == pytest.approx(0.1 + 0.005 / (0.1 * OUTSIDE_PX))
@@ -338,7 +345,8 @@ def test_energy_after_a_refined_initialisation_is_of_the_refined_pose(rec, tmp_p
     np.testing.assert_allclose(rec.calls["track"][0][1], SK[0] + [0, 0.005, 0], atol=1e-12)
 
 
-def test_joint_anchors_come_from_this_frames_joints(rec, tmp_path):
+def test_joint_anchors_come_from_this_frames_joints(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     track = TrackParams(outside_px=OUTSIDE_PX, joint_weight=0.5)
     _run(rec, tmp_path, track=track, frames=FRAMES[:2])
     (body, _prev, fid, params, T_joints), = rec.calls["track"]
@@ -350,7 +358,8 @@ def test_joint_anchors_come_from_this_frames_joints(rec, tmp_path):
     np.testing.assert_allclose(inits[1][1], _joints(11), atol=1e-12)
 
 
-def test_tracking_without_silhouette_constraints_still_reads_the_masks(rec, tmp_path):
+def test_tracking_without_silhouette_constraints_still_reads_the_masks(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     params = RapidSkinParams(outer_iterations=5, constraints=("depth",))
     _s, frames, _meta = _run(rec, tmp_path, params=params, frames=FRAMES[:3], depth=True)
     assert [f["track"] for f in frames] == ["first", "tracked", "silhouette"]
@@ -359,7 +368,8 @@ def test_tracking_without_silhouette_constraints_still_reads_the_masks(rec, tmp_
     assert [d["fields"].fid for d in rec.calls["deform"]] == FRAMES[:3]
 
 
-def test_per_frame_run_builds_no_fit_body_and_no_fields(rec, tmp_path):
+def test_per_frame_run_builds_no_fit_body_and_no_fields(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     params = RapidSkinParams(outer_iterations=5, constraints=("depth",))
     _s, frames, meta = _run(rec, tmp_path, params=params, frames=FRAMES[:2], depth=True, tracking=False)
     assert rec.calls["build"] == ["6k"]
@@ -370,7 +380,8 @@ def test_per_frame_run_builds_no_fit_body_and_no_fields(rec, tmp_path):
     assert rec.calls["track"] == []
 
 
-def test_warm_start_poses_the_running_mean_of_the_unposed_results(rec, tmp_path):
+def test_warm_start_poses_the_running_mean_of_the_unposed_results(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     _s, _frames, meta = _run(rec, tmp_path, tracking=False, warm_start=True, frames=FRAMES[:4])
     assert meta["warm_start"] is True
     body = BODIES["6k"]
@@ -393,13 +404,15 @@ def test_warm_start_poses_the_running_mean_of_the_unposed_results(rec, tmp_path)
     assert len(rec.calls["unpose"]) == 4
 
 
-def test_no_warm_start_keeps_the_template_rest_shape(rec, tmp_path):
+def test_no_warm_start_keeps_the_template_rest_shape(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     _run(rec, tmp_path, tracking=False, warm_start=False, frames=FRAMES[:3])
     assert rec.calls["unpose"] == []
     assert all(r is BODIES["6k"].vertices for _b, _J, r in rec.calls["init"])
 
 
-def test_warm_start_with_tracking_poses_the_tracked_frame_on_the_running_mean(rec, tmp_path):
+def test_warm_start_with_tracking_poses_the_tracked_frame_on_the_running_mean(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     _s, frames, _meta = _run(rec, tmp_path, warm_start=True, frames=FRAMES[:2])
     assert [f["track"] for f in frames] == ["first", "tracked"]
     body = BODIES["6k"]
@@ -410,7 +423,8 @@ def test_warm_start_with_tracking_poses_the_tracked_frame_on_the_running_mean(re
     np.testing.assert_allclose(rec.calls["deform"][1]["reference"], body.vertices + T, atol=1e-12)
 
 
-def test_joint_smoothing_feeds_the_smoothed_track_and_its_lengths(rec, tmp_path):
+def test_joint_smoothing_feeds_the_smoothed_track_and_its_lengths(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     _s, _frames, meta = _run(rec, tmp_path, tracking=False, refine_pose=True, joint_smoothing=3,
                              bone_lengths="sequence", frames=FRAMES[:4])
     (frames_arg, raw, half), = rec.calls["smooth"]
@@ -431,7 +445,8 @@ def test_joint_smoothing_feeds_the_smoothed_track_and_its_lengths(rec, tmp_path)
     assert meta["joint_smoothing"] == 3 and type(meta["joint_smoothing"]) is int
 
 
-def test_joint_smoothing_with_frame_lengths_and_given_refinement(rec, tmp_path):
+def test_joint_smoothing_with_frame_lengths_and_given_refinement(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     mine = PoseRefineParams(iterations=4)
     _s, _f, meta = _run(rec, tmp_path, tracking=False, refine_pose=True, joint_smoothing=2, bone_lengths="frame",
                         refine_params=mine, frames=FRAMES[:2])
@@ -441,7 +456,8 @@ def test_joint_smoothing_with_frame_lengths_and_given_refinement(rec, tmp_path):
     np.testing.assert_allclose(rec.calls["init"][1][1], _joints(11) + [0, 0, 0.02], atol=1e-12)
 
 
-def test_no_smoothing_reads_each_frames_joints_and_the_runs_lengths(rec, tmp_path):
+def test_no_smoothing_reads_each_frames_joints_and_the_runs_lengths(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     _s, _f, meta = _run(rec, tmp_path, tracking=False, refine_pose=True, joint_smoothing=0,
                         bone_lengths="sequence", frames=FRAMES[:3])
     assert rec.calls["smooth"] == []
@@ -453,7 +469,8 @@ def test_no_smoothing_reads_each_frames_joints_and_the_runs_lengths(rec, tmp_pat
         np.testing.assert_allclose(rec.calls["with_lengths"][k][0], _joints(fid), atol=1e-12)
 
 
-def test_hull_joints_are_never_smoothed(rec, tmp_path):
+def test_hull_joints_are_never_smoothed(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     _s, _f, meta = _run(rec, tmp_path, tracking=False, refine_pose=True, joint_smoothing=3, joints="hull",
                         bone_lengths="sequence", frames=FRAMES[:3])
     assert rec.calls["smooth"] == [] and rec.calls["seq_lengths"] == [] and rec.calls["with_lengths"] == []
@@ -463,7 +480,8 @@ def test_hull_joints_are_never_smoothed(rec, tmp_path):
 
 
 @pytest.mark.parametrize("k, ok", [(-1, False), (0, True), (50, True), (51, False)])
-def test_joint_smoothing_range(rec, tmp_path, k, ok):
+def test_joint_smoothing_range(monkeypatch, tmp_path, k, ok):
+    rec = _stand_ins(monkeypatch)
     if ok:
         _run(rec, tmp_path, tracking=False, joint_smoothing=k, frames=FRAMES[:1])
     else:
@@ -471,7 +489,8 @@ def test_joint_smoothing_range(rec, tmp_path, k, ok):
             _run(rec, tmp_path, tracking=False, joint_smoothing=k, frames=FRAMES[:1])
 
 
-def test_run_joints_reads_the_selected_frames_and_smooths_them(rec, tmp_path):
+def test_run_joints_reads_the_selected_frames_and_smooths_them(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
     out = seq.run_joints(_session(), [11, 13], "tracker", None, 4)
     (frames_arg, raw, half), = rec.calls["smooth"]
     np.testing.assert_array_equal(frames_arg, [11, 13])
