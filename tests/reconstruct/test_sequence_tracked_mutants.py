@@ -105,6 +105,7 @@ class Rec:
         return _truth(fields.fid) + [FIT_BIAS.get(fields.fid, 0.0), 0.0, 0.0]
 
     def refine_bone_transforms(self, body, T, hull, params=None, data_term=None, anchors=None):
+        assert body is BODIES["2k"]  # the refinement's 2.5K template
         self.calls["refine"].append((body, np.array(T), hull, params, data_term))
         return np.asarray(T) + [0.0, 0.005, 0.0]
 
@@ -117,6 +118,7 @@ class Rec:
                   n_silhouette=7, n_depth=0)
 
     def unpose(self, V, weights, T):
+        assert weights is BODIES["6k"].weights
         self.calls["unpose"].append(np.array(T))
         return np.asarray(V) - T
 
@@ -137,10 +139,12 @@ class Rec:
         return BODIES[resolution]
 
     def fields(self, cameras, masks):
+        assert [c.name for c in cameras] == ["c0"]
         self.calls["fields"].append(int(masks["c0"][0, 0]))
         return Fields(cameras, masks)
 
     def fit_body_to_hull(self, body, hull, previous_pose=None):
+        assert body is BODIES["2k"]
         self.calls["hull_fit"].append((body, hull, previous_pose))
         return NS(joints=_joints(hull), pose=("pose", hull))
 
@@ -195,12 +199,13 @@ def _stand_ins(monkeypatch):
 
 
 def _run(rec, tmp_path, frames=FRAMES, tracking=True, track=None, refine_pose=False, warm_start=False,
-         joints="tracker", bone_lengths="frame", joint_smoothing=0, params=None, refine_params=None, depth=False):
+         joints="tracker", bone_lengths="frame", joint_smoothing=0, params=None, refine_params=None, depth=False,
+         joints_path=None):
     writer = Writer(tmp_path)
     params = params or RapidSkinParams(outer_iterations=5)
     track = track if track is not None else TrackParams(outside_px=OUTSIDE_PX)
     summary = seq.reconstruct_frames(_session(depth), writer, list(frames), [NS(name="c0")],
-                                     NS(depth="depth-camera"), params, "gs", "6k", joints, None, warm_start,
+                                     NS(depth="depth-camera"), params, "gs", "6k", joints, joints_path, warm_start,
                                      refine_pose, False, False, tracking=tracking, track_params=track,
                                      refine_with="fields", rest_cotangents=True, refine_params=refine_params,
                                      bone_lengths=bone_lengths, joint_smoothing=joint_smoothing)
@@ -506,3 +511,78 @@ def test_run_joints_reads_the_selected_frames_and_smooths_them(monkeypatch, tmp_
     out = seq.run_joints(_session(), [12], "file", str(d), 0)
     np.testing.assert_allclose(out, [_joints(12) + 0.1], atol=1e-12)
     assert rec.calls["smooth"][-1][2] == 0
+
+
+def _joints_files(folder: Path, shift=0.05):
+    """Per-frame joint files 5 cm off the session's tracker joints (so the source read is told apart)."""
+    import json
+
+    folder.mkdir()
+    for fid in FRAMES:
+        (folder / f"{fid:05d}.json").write_text(json.dumps({"names": list(NAMES),
+                                                            "positions": (_joints(fid) + shift).tolist()}))
+    return folder
+
+
+@pytest.mark.parametrize("smoothing, lengths", [(0, "frame"), (0, "sequence"), (2, "frame")])
+def test_joints_files_are_read_from_the_folder_given(monkeypatch, tmp_path, smoothing, lengths):
+    rec = _stand_ins(monkeypatch)
+    d = _joints_files(tmp_path / "joints")
+    _run(rec, tmp_path / "run", tracking=False, joints="file", joints_path=str(d), joint_smoothing=smoothing,
+         bone_lengths=lengths, frames=FRAMES[:2])
+    extra = np.array([0, 0, 0.01 * smoothing]) + ([0, 0.002, 0] if lengths == "sequence" else [0, 0, 0])
+    for k, fid in enumerate(FRAMES[:2]):
+        np.testing.assert_allclose(rec.calls["init"][k][1], _joints(fid) + 0.05 + extra, atol=1e-12)
+    if lengths == "sequence":
+        np.testing.assert_allclose(rec.calls["seq_lengths"][0], [_joints(f) + 0.05 for f in FRAMES[:2]])
+
+
+def test_per_frame_run_without_refinement_deforms_to_the_frames_masks(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
+    _s, _f, meta = _run(rec, tmp_path, tracking=False, refine_pose=False, frames=FRAMES[:2])
+    assert [d["masks"]["c0"][0, 0] for d in rec.calls["deform"]] == FRAMES[:2]
+    assert rec.calls["build"] == ["6k"]
+    assert meta["refine_bones"] == [] and meta["refine_pose"] is False
+
+
+@pytest.mark.parametrize("constraints", [("depth",), ("silhouette",)])
+def test_hull_joints_without_refinement_read_the_masks_and_fit_the_2k_body(monkeypatch, tmp_path, constraints):
+    rec = _stand_ins(monkeypatch)
+    params = RapidSkinParams(outer_iterations=5, constraints=constraints)
+    _run(rec, tmp_path, tracking=False, refine_pose=False, joints="hull", params=params, frames=FRAMES[:2],
+         depth=True)
+    assert [c[1] for c in rec.calls["hull_fit"]] == FRAMES[:2]
+    assert rec.calls["build"] == ["6k", "2k"]
+
+
+def test_template_poses_are_of_the_template_body(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
+    _run(rec, tmp_path)
+    inits = [b for b, _J, _r in rec.calls["init"]]
+    poses = [b for b, *_ in rec.calls["pose"]]
+    # per frame: the template's init from the joints, or its pose by the tracking fit; the 2k body for the checks
+    assert sum(b is BODIES["6k"] for b in inits) == 5 and sum(b is BODIES["6k"] for b in poses) == 3
+    assert set(map(id, inits + poses)) == {id(BODIES["6k"]), id(BODIES["2k"])}
+
+
+def test_refined_pose_with_warm_start_poses_the_running_rest_shape_at_the_joints_scale(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
+    frames = [12, 13]
+    _run(rec, tmp_path, tracking=False, refine_pose=True, warm_start=True, frames=frames)
+    body = BODIES["6k"]
+    deform = rec.calls["deform"]
+    V0 = deform[0]["V"] + [0, 0, 0.001]
+    T0 = _joints(12)[0] + [0, 0.005, 0]
+    np.testing.assert_allclose(deform[0]["V"], body.vertices * (1 + 0.5 * 0.12) + T0, atol=1e-12)
+    rest = (body.vertices + (V0 - T0)) / 2
+    T1 = _joints(13)[0] + [0, 0.005, 0]
+    np.testing.assert_allclose(deform[1]["V"], rest * (1 + 0.5 * 0.64) + T1, atol=1e-12)
+    np.testing.assert_allclose(rec.calls["unpose"][1], T1, atol=1e-12)
+    # the refined pose and the smoothness reference pose the template, not the refinement's 2k body
+    assert len(rec.calls["pose"]) == 3 and all(b is body for b, *_ in rec.calls["pose"])
+
+
+def test_run_joints_default_is_as_tracked(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
+    seq.run_joints(_session(), [11], "tracker", None)
+    assert rec.calls["smooth"][0][2] == 0
