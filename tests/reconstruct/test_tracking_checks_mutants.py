@@ -280,6 +280,10 @@ def test_fields_read_a_0_255_mask_as_a_bool_one_and_have_exact_values():
     col = S[:, 30 - x0]
     np.testing.assert_array_equal(col[12 - y0:20 - y0], [2.5, 1.5, 0.5, -0.5, -1.5, -2.5, -3.5, -4.5])
     np.testing.assert_array_equal(col[20 - y0:28 - y0], [-4.5, -3.5, -2.5, -1.5, -0.5, 0.5, 1.5, 2.5])
+    # row 20 towards the right edge (column 39, the rectangle's last): inside -3.5 .. -0.5, then outside
+    np.testing.assert_array_equal(S[20 - y0, 36 - x0:42 - x0], [-3.5, -2.5, -1.5, -0.5, 0.5, 1.5])
+    np.testing.assert_array_equal(S[20 - y0, 18 - x0:24 - x0], [1.5, 0.5, -0.5, -1.5, -2.5, -3.5])
+    assert S.dtype == np.float32 and fields._packed_sdf.dtype == np.float32
 
 
 def test_fields_of_a_concave_mask_and_at_the_image_corner():
@@ -302,6 +306,9 @@ def test_fields_of_a_concave_mask_and_at_the_image_corner():
 def test_fields_of_no_camera():
     f = SilhouetteFields([], {})
     assert f._packed_sdf.shape == (0, 1, 1)
+    cam, _fields, _mask = _camera_and_fields()
+    empty = SilhouetteFields([cam], {"c0": np.zeros((40, 60), bool)}, margin_px=6)
+    assert empty.offset["c0"] == (0, 0) and empty.sdf["c0"].shape == (40, 60)
     assert outside_fraction(np.zeros((2, 3)), f) == 0.0
 
 
