@@ -165,6 +165,7 @@ class Writer:
 
     def commit(self, meta, deletes=()):
         self.meta = meta
+        self.deletes = list(deletes)
 
 
 def _session(depth=False):
@@ -586,3 +587,265 @@ def test_run_joints_default_is_as_tracked(monkeypatch, tmp_path):
     rec = _stand_ins(monkeypatch)
     seq.run_joints(_session(), [11], "tracker", None)
     assert rec.calls["smooth"][0][2] == 0
+
+
+# --- the rest of the run's record on the same stand-ins: timings, self-check, scores, files, run.json, summary -------
+
+def _recording(monkeypatch, verdict=None):
+    """:func:`_stand_ins` plus recorders of the self-check, the scores, the progress bar and the files."""
+    import bodystudio.capture.session as session_mod
+
+    rec = _stand_ins(monkeypatch)
+    rec.plaus, rec.scores, rec.run_checks, rec.bar, rec.meshes = [], [], [], [], []
+
+    def plausibility(V, F, cameras, masks, depth, depth_cam, coherence=False):
+        rec.plaus.append(dict(V=np.array(V), F=F, cameras=cameras, masks=masks, depth=depth, depth_cam=depth_cam,
+                              coherence=coherence))
+        return {"frame_check": len(rec.plaus)}
+
+    def run_check(frames, path):
+        rec.run_checks.append((frames, path))
+        return verdict or {"ok": True, "warnings": [], "problems": []}
+
+    def score(V, F, frame, cameras, regions=None, joints=None):
+        rec.scores.append(dict(V=np.array(V), F=F, fid=frame.frame_id, cameras=cameras, regions=regions,
+                               joints=joints))
+        return {"visible_median_mm": 1.0 + frame.frame_id, "visible_p90_mm": 2.0, "hausdorff_mm": 3.0,
+                "pct_under_10mm": 4.0, "iou_min": 0.5, "median_mm": 5.0, "p90_mm": 6.0}
+
+    class Bar:
+        def __init__(self, enabled):
+            rec.bar.append(("enabled", enabled))
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def add_task(self, text, total):
+            rec.bar.append(("task", text, total))
+            return "task-id"
+
+        def advance(self, task):
+            rec.bar.append(("advance", task))
+
+    monkeypatch.setattr(seq, "frame_plausibility", plausibility)
+    monkeypatch.setattr(seq, "run_plausibility", run_check)
+    monkeypatch.setattr(seq, "score_frame", score)
+    monkeypatch.setattr(seq, "vertex_regions", lambda body: ("regions", id(body)))
+    monkeypatch.setattr(seq, "save_mesh", lambda path, mesh: rec.meshes.append((path, np.array(mesh.vertices),
+                                                                                 mesh.faces)))
+    monkeypatch.setattr(session_mod, "progress_bar", Bar)
+    return rec
+
+
+def _run_all(rec, tmp_path, frames=(10, 11, 12), score=False, params=None, depth=False, streams=("mask",),
+             **kw):
+    writer = Writer(tmp_path)
+    (tmp_path / "meshes" / "00003.ply").write_text("old")
+    session = _session(depth)
+    session.streams = set(streams)
+    params = params or RapidSkinParams(outer_iterations=5)
+    summary = seq.reconstruct_frames(session, writer, list(frames), [NS(name="c0")], NS(depth="depth-camera"),
+                                     params, "gs", "6k", kw.pop("joints", "tracker"), None, False,
+                                     kw.pop("refine_pose", False), score, True, **kw)
+    return summary, writer
+
+
+def test_frame_record_timings_and_counts_on_the_ticking_clock(monkeypatch, tmp_path):
+    rec = _recording(monkeypatch)
+    summary, writer = _run_all(rec, tmp_path, bone_lengths="frame")
+    frames = writer.json["frames.json"]["frames"]
+    assert set(writer.json) == {"frames.json"}
+    for k, f in enumerate(frames):
+        # reads: start, read, t0, t1, fields, init, frame: read 1 s, fields 1 s, init 3 s, frame 6 s
+        assert f == {"frame": 10 + k, "track": "per_frame", "solver_ms": 250.0, "matching_ms": 125.0,
+                     "init_ms": 3000.0, "refine_ms": 0.0, "track_ms": 0.0, "fields_ms": 1000.0, "read_ms": 1000.0,
+                     "frame_ms": 6000.0, "other_ms": 1000 * (6 - 1 - 3 - 0.25 - 0.125), "n_silhouette": 7,
+                     "n_depth": 0, "ms_per_frame": 3375.0, "plausibility": {"frame_check": k + 1}}
+    assert summary == {"frames": 3, "ms_per_frame": 3375.0, "solver_ms": 250.0, "matching_ms": 125.0,
+                       "init_ms": 3000.0, "refine_ms": 0.0, "frame_ms": 6000.0, "read_ms": 1000.0,
+                       "fields_ms": 1000.0, "track_ms": 0.0, "other_ms": 1625.0, "n_tracked": 0}
+    # the progress bar: enabled as asked, one task of the frames, advanced once per frame
+    assert rec.bar == [("enabled", True), ("task", "rapid skin gs 6k", 3)] + [("advance", "task-id")] * 3
+
+
+def test_self_check_inputs_per_frame_and_the_runs_verdict(monkeypatch, tmp_path):
+    rec = _recording(monkeypatch)
+    _summary, writer = _run_all(rec, tmp_path, frames=(10, 11, 12, 13, 14), bone_lengths="frame")
+    body = BODIES["6k"]
+    assert [p["coherence"] for p in rec.plaus] == [True, False, True, False, True]  # first, middle, last
+    for k, p in enumerate(rec.plaus):
+        np.testing.assert_array_equal(p["V"], rec.calls["deform"][k]["V"] + [0, 0, 0.001 * (k + 1)])
+        assert p["F"] is body.faces and [c.name for c in p["cameras"]] == ["c0"]
+        assert p["masks"]["c0"][0, 0] == 10 + k and p["depth"] is None and p["depth_cam"] is None
+    (checks, path), = rec.run_checks
+    assert checks == [{"frame_check": k + 1} for k in range(5)] and path == Path("/stand-in/session")
+    assert writer.meta["plausibility"] == {"ok": True, "warnings": [], "problems": []}
+
+
+def test_depth_frames_check_their_depth_and_a_mask_stream_supplies_the_masks(monkeypatch, tmp_path):
+    rec = _recording(monkeypatch)
+    params = RapidSkinParams(outer_iterations=5, constraints=("depth",))
+    _run_all(rec, tmp_path, frames=(10, 11), params=params, depth=True, bone_lengths="frame")
+    for k, p in enumerate(rec.plaus):
+        assert p["masks"]["c0"][0, 0] == 10 + k  # not fitted, but the session has masks: the check reads them
+        assert p["depth"].sum() == 8.0 and p["depth_cam"] == "depth-camera"
+    assert all(d["masks"] is None for d in rec.calls["deform"])
+    rec2 = _recording(monkeypatch)
+    _run_all(rec2, tmp_path / "b", frames=(10,), params=params, depth=True, streams=(), bone_lengths="frame")
+    assert rec2.plaus[0]["masks"] is None
+
+
+def test_depth_constraints_feed_the_depth_observation_and_a_missing_image_is_refused(monkeypatch, tmp_path):
+    from bodystudio.errors import SessionError
+
+    rec = _recording(monkeypatch)
+    seen = []
+
+    def deform(V, F, cameras, masks, params, depth=None, **kw):
+        seen.append(depth)
+        return NS(vertices=np.asarray(V), solver_s=0.0, matching_s=0.0, n_silhouette=1, n_depth=3)
+
+    monkeypatch.setattr(seq, "deform_to_observations", deform)
+    params = RapidSkinParams(outer_iterations=5, constraints=("silhouette", "depth"))
+    _s, writer = _run_all(rec, tmp_path, frames=(10,), params=params, depth=True, bone_lengths="frame")
+    assert seen == [("depth", 8.0)]
+    assert writer.json["frames.json"]["frames"][0]["n_depth"] == 3
+    with pytest.raises(SessionError, match=r"^/stand-in/session frame 10: no Kinect depth image; use --constraints "
+                                           r"silhouette$"):
+        _run_all(rec, tmp_path / "b", frames=(10,), params=params, depth=False, bone_lengths="frame")
+
+
+def test_meshes_scores_and_run_json(monkeypatch, tmp_path):
+    rec = _recording(monkeypatch)
+    summary, writer = _run_all(rec, tmp_path, frames=(10, 12), score=True, bone_lengths="sequence")
+    body = BODIES["6k"]
+    assert [p.relative_to(tmp_path).as_posix() for p, _V, _F in rec.meshes] == ["meshes/00010.ply",
+                                                                              "meshes/00012.ply"]
+    for k, (_p, V, F) in enumerate(rec.meshes):
+        np.testing.assert_array_equal(V, rec.calls["deform"][k]["V"] + [0, 0, 0.001 * (k + 1)])
+        np.testing.assert_array_equal(F, body.faces)
+    for k, s in enumerate(rec.scores):
+        np.testing.assert_array_equal(s["V"], rec.meshes[k][1])
+        assert s["F"] is body.faces and s["fid"] == (10, 12)[k] and s["regions"] == ("regions", id(body))
+        np.testing.assert_array_equal(s["joints"], _joints((10, 12)[k]) + [0, 0.002, 0])
+    frames = writer.json["frames.json"]["frames"]
+    assert [f["metrics"]["visible_median_mm"] for f in frames] == [11.0, 13.0]
+    meta = writer.meta
+    assert meta["solver"] == "gs" and meta["template"] == "6k" and meta["joints"] == "tracker"
+    assert meta["constraints"] == ["silhouette"] and type(meta["constraints"]) is list
+    assert meta["frames"] == [10, 12] and meta["refine_pose"] is False and meta["refine_with"] == "fields"
+    assert meta["rest_cotangents"] is True and meta["bone_lengths"] == "sequence"
+    assert meta["params"] == asdict(RapidSkinParams(outer_iterations=5))
+    assert meta["n_vertices"] == 4 and type(meta["n_vertices"]) is int
+    assert writer.deletes == ["meshes/00003.ply"]
+    assert summary["frames"] == 2 and summary["median_mm"] == 12.0 and "init_joint_error_mm" not in summary
+
+
+def test_scores_off_need_no_regions(monkeypatch, tmp_path):
+    rec = _recording(monkeypatch)
+    monkeypatch.setattr(seq, "vertex_regions", lambda body: pytest.fail("regions without scores"))
+    _s, writer = _run_all(rec, tmp_path, frames=(10,), score=False, bone_lengths="frame")
+    assert rec.scores == [] and "metrics" not in writer.json["frames.json"]["frames"][0]
+
+
+def test_an_implausible_run_is_refused_unless_accepted(monkeypatch, tmp_path):
+    from bodystudio.errors import ImplausibleResultError
+
+    bad = {"ok": False, "warnings": ["w1"], "problems": ["camera c0 moved", "p2"]}
+    rec = _recording(monkeypatch, verdict=bad)
+    with pytest.raises(ImplausibleResultError, match=r"^/stand-in/session: reconstruction not written, camera c0 "
+                                                     r"moved; or pass --accept-implausible$"):
+        _run_all(rec, tmp_path, frames=(10,), bone_lengths="frame", accept_implausible=False)
+    _s, writer = _run_all(rec, tmp_path / "b", frames=(10,), bone_lengths="frame")  # a chunk's default: accepted
+    assert writer.meta["plausibility"] is bad
+
+
+def test_refinement_to_the_carved_hull(monkeypatch, tmp_path):
+    rec = _recording(monkeypatch)
+    hulls = []
+    monkeypatch.setattr(seq, "visual_hull", lambda cameras, masks: hulls.append(int(masks["c0"][0, 0])) or
+                        int(masks["c0"][0, 0]))
+    _s, writer = _run_all(rec, tmp_path, frames=(10, 11), refine_pose=True, refine_with="hull",
+                          bone_lengths="frame")
+    assert [c[2] for c in rec.calls["refine"]] == [10, 11] and all(c[4] is None for c in rec.calls["refine"])
+    assert hulls == [10, 11] and writer.meta["refine_with"] == "hull"
+    # joints from the hull: its hull is the refinement's (carved once per frame)
+    hulls.clear()
+    rec2 = _recording(monkeypatch)
+    monkeypatch.setattr(seq, "visual_hull", lambda cameras, masks: hulls.append(int(masks["c0"][0, 0])) or
+                        int(masks["c0"][0, 0]))
+    _run_all(rec2, tmp_path / "b", frames=(10, 11), refine_pose=True, refine_with="hull", joints="hull",
+             bone_lengths="frame")
+    assert hulls == [10, 11] and [c[2] for c in rec2.calls["refine"]] == [10, 11]
+    # the refined pose poses the template at the joints' scale
+    body = BODIES["6k"]
+    T = _joints(11)[0] + [0, 0.005, 0]
+    np.testing.assert_allclose(rec.calls["deform"][1]["V"], body.vertices * (1 + 0.5 * 0.02) + T, atol=1e-12)
+    assert writer.json["frames.json"]["frames"][0]["refine_ms"] == 1000.0
+
+
+def test_given_bone_lengths_and_bad_settings(monkeypatch, tmp_path):
+    rec = _recording(monkeypatch)
+    L = np.linspace(0.1, 0.5, 25)
+    _s, writer = _run_all(rec, tmp_path, frames=(10,), bone_lengths=list(L))
+    np.testing.assert_array_equal(rec.calls["with_lengths"][0][1], L)
+    assert writer.meta["bone_lengths"] == "given" and rec.calls["seq_lengths"] == []
+    with pytest.raises(InputError, match=r"^bone lengths: need one per Kinect v2 joint \(25\), got shape \(24,\)$"):
+        _run_all(rec, tmp_path / "b", frames=(10,), bone_lengths=np.ones(24))
+    with pytest.raises(InputError, match=r"^unknown bone lengths 'median'; valid: frame, sequence$"):
+        _run_all(rec, tmp_path / "c", frames=(10,), bone_lengths="median")
+    with pytest.raises(InputError, match=r"^unknown pose refinement data 'depth'; valid: fields, hull$"):
+        _run_all(rec, tmp_path / "d", frames=(10,), refine_with="depth")
+
+
+def test_posed_cotangents_per_frame(monkeypatch, tmp_path):
+    rec = _recording(monkeypatch)
+    _s, writer = _run_all(rec, tmp_path, frames=(10, 11), rest_cotangents=False, bone_lengths="frame")
+    for d in rec.calls["deform"]:
+        assert d["delta"] == ("cot", float(np.sum(d["reference"])))
+    assert writer.meta["rest_cotangents"] is False
+
+
+def test_the_frames_defaults(monkeypatch, tmp_path):
+    """Positional call (a batch chunk's): no tracking, the run's bone lengths, rest cotangents, verdicts accepted."""
+    rec = _recording(monkeypatch, verdict={"ok": False, "warnings": [], "problems": ["p"]})
+    writer = Writer(tmp_path)
+    seq.reconstruct_frames(_session(), writer, [10, 11], [NS(name="c0")], NS(depth="d"),
+                           RapidSkinParams(outer_iterations=5), "gs", "6k", "tracker", None, False, False, False,
+                           False)
+    assert writer.meta["tracking"] is False and writer.meta["track_params"] is None
+    assert writer.meta["bone_lengths"] == "sequence" and len(rec.calls["seq_lengths"]) == 1
+    assert writer.meta["rest_cotangents"] is True and writer.meta["refine_with"] == "fields"
+    assert writer.meta["joint_smoothing"] == 0 and rec.calls["smooth"] == []
+    assert rec.calls["fields"] == [] and rec.calls["build"] == ["6k"]
+
+
+def test_summary_of_scored_records():
+    records = [
+        {"ms_per_frame": 10.0, "solver_ms": 4.0, "matching_ms": 2.0, "init_ms": 1.0, "refine_ms": 3.0, "frame_ms": 20.0,
+         "read_ms": 1.0, "fields_ms": 2.0, "track_ms": 3.0, "other_ms": 4.0, "track": "tracked",
+         "metrics": {"visible_median_mm": 2.0, "visible_p90_mm": 6.0, "hausdorff_mm": 30.0, "pct_under_10mm": 90.0,
+                     "iou_min": 0.9, "median_mm": 3.0, "p90_mm": 8.0, "joint_error_mm": 40.0}},
+        {"ms_per_frame": 20.0, "solver_ms": 6.0, "matching_ms": 4.0, "frame_ms": 30.0, "read_ms": 3.0,
+         "fields_ms": 4.0, "track_ms": 5.0, "other_ms": 6.0, "track": "first",
+         "metrics": {"visible_median_mm": 4.0, "visible_p90_mm": 10.0, "hausdorff_mm": 50.0, "pct_under_10mm": 70.0,
+                     "iou_min": 0.8, "median_mm": 5.0, "p90_mm": 12.0}},
+        {"ms_per_frame": 30.0, "solver_ms": 8.0, "matching_ms": 6.0, "init_ms": 5.0, "refine_ms": 6.0,
+         "frame_ms": 40.0, "fields_ms": 6.0, "track_ms": 7.0, "other_ms": 8.0, "track": "tracked", "metrics": None},
+    ]
+    out = seq.summarize(records)
+    assert out == {"frames": 3, "ms_per_frame": 20.0, "solver_ms": 6.0, "matching_ms": 4.0, "init_ms": 2.0,
+                   "refine_ms": 3.0, "frame_ms": 30.0, "fields_ms": 4.0, "track_ms": 5.0, "other_ms": 6.0,
+                   "n_tracked": 2, "median_mm": 3.0, "p90_mm": 8.0, "hausdorff_mm": 50.0, "pct_under_10mm": 80.0,
+                   "iou_min": 0.8, "median_all_mm": 4.0, "p90_all_mm": 10.0, "init_joint_error_mm": 40.0}
+    assert all(type(v) is float for k, v in out.items() if k not in ("frames", "n_tracked"))
+    # read_ms is missing in one record: left out; no joint errors: no init_joint_error_mm
+    records[1]["metrics"].pop("visible_median_mm")
+    records[0]["metrics"].pop("joint_error_mm")
+    with pytest.raises(KeyError):
+        seq.summarize(records)
+    records[1]["metrics"]["visible_median_mm"] = 4.0
+    assert "init_joint_error_mm" not in seq.summarize(records)
