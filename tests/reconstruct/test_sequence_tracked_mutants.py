@@ -54,13 +54,13 @@ def _truth(fid):
 
 
 class Clock:
-    """``time.perf_counter`` ticking 1 s per read."""
+    """``time.perf_counter`` ticking ``step`` (1 s) per read."""
 
-    def __init__(self):
-        self.t = 0.0
+    def __init__(self, step=1.0):
+        self.t, self.step = 0.0, step
 
     def perf_counter(self):
-        self.t += 1.0
+        self.t += self.step
         return self.t
 
 
@@ -111,6 +111,7 @@ class Rec:
 
     def deform_to_observations(self, V, F, cameras, masks, params, depth=None, delta=None, smooth_reference=None,
                                fields=None):
+        assert F is BODIES["6k"].faces and [c.name for c in cameras] == ["c0"]
         k = len(self.calls["deform"])
         self.calls["deform"].append(dict(V=np.array(V), params=params, masks=masks, delta=delta,
                                          reference=np.array(smooth_reference), fields=fields))
@@ -187,9 +188,21 @@ def _stand_ins(monkeypatch):
         monkeypatch.setattr(seq, name, getattr(r, name))
     monkeypatch.setattr(seq, "SilhouetteFields", r.fields)
     monkeypatch.setattr(seq, "silhouette_data_term", lambda fields, params: ("data", fields.fid, params))
-    monkeypatch.setattr(seq, "visual_hull", lambda cameras, masks: int(masks["c0"][0, 0]))
-    monkeypatch.setattr(seq, "cotangent_weights", lambda V, F: ("cot", float(np.sum(V))))
-    monkeypatch.setattr(seq, "depth_observation", lambda image, cam: ("depth", float(image.sum())))
+    def hull(cameras, masks):
+        assert [c.name for c in cameras] == ["c0"]
+        return int(masks["c0"][0, 0])
+
+    def cot(V, F):
+        assert F is BODIES["6k"].faces
+        return ("cot", float(np.sum(V)))
+
+    def depth(image, cam):
+        assert cam == "depth-camera"
+        return ("depth", float(image.sum()))
+
+    monkeypatch.setattr(seq, "visual_hull", hull)
+    monkeypatch.setattr(seq, "cotangent_weights", cot)
+    monkeypatch.setattr(seq, "depth_observation", depth)
     monkeypatch.setattr(seq, "frame_plausibility", lambda *a, **k: {"ok": True})
     monkeypatch.setattr(seq, "run_plausibility", lambda frames, path: {"ok": True, "warnings": [], "problems": []})
     monkeypatch.setattr(seq, "save_mesh", lambda path, mesh: r.__dict__.setdefault("saved", {}).update(
@@ -608,6 +621,7 @@ def _recording(monkeypatch, verdict=None):
         return verdict or {"ok": True, "warnings": [], "problems": []}
 
     def score(V, F, frame, cameras, regions=None, joints=None):
+        assert [c.name for c in cameras] == ["c0"]
         rec.scores.append(dict(V=np.array(V), F=F, fid=frame.frame_id, cameras=cameras, regions=regions,
                                joints=joints))
         return {"visible_median_mm": 1.0 + frame.frame_id, "visible_p90_mm": 2.0, "hausdorff_mm": 3.0,
@@ -667,6 +681,12 @@ def test_frame_record_timings_and_counts_on_the_ticking_clock(monkeypatch, tmp_p
     assert summary == {"frames": 3, "ms_per_frame": 3375.0, "solver_ms": 250.0, "matching_ms": 125.0,
                        "init_ms": 3000.0, "refine_ms": 0.0, "frame_ms": 6000.0, "read_ms": 1000.0,
                        "fields_ms": 1000.0, "track_ms": 0.0, "other_ms": 1625.0, "n_tracked": 0}
+    # on a clock of 0.5 s per read every figure halves (a product, not a quotient, of the clock)
+    rec2 = _recording(monkeypatch)
+    monkeypatch.setattr(seq, "time", Clock(0.5))
+    _s2, writer2 = _run_all(rec2, tmp_path / "half", frames=(10,), bone_lengths="frame")
+    f = writer2.json["frames.json"]["frames"][0]
+    assert (f["read_ms"], f["fields_ms"], f["init_ms"], f["frame_ms"]) == (500.0, 500.0, 1500.0, 3000.0)
     # the progress bar: enabled as asked, one task of the frames, advanced once per frame
     assert rec.bar == [("enabled", True), ("task", "rapid skin gs 6k", 3)] + [("advance", "task-id")] * 3
 
@@ -696,6 +716,9 @@ def test_depth_frames_check_their_depth_and_a_mask_stream_supplies_the_masks(mon
     rec2 = _recording(monkeypatch)
     _run_all(rec2, tmp_path / "b", frames=(10,), params=params, depth=True, streams=(), bone_lengths="frame")
     assert rec2.plaus[0]["masks"] is None
+    rec3 = _recording(monkeypatch)
+    _run_all(rec3, tmp_path / "c", frames=(10,), streams=(), bone_lengths="frame")
+    assert rec3.plaus[0]["masks"]["c0"][0, 0] == 10
 
 
 def test_depth_constraints_feed_the_depth_observation_and_a_missing_image_is_refused(monkeypatch, tmp_path):
@@ -766,20 +789,24 @@ def test_an_implausible_run_is_refused_unless_accepted(monkeypatch, tmp_path):
 def test_refinement_to_the_carved_hull(monkeypatch, tmp_path):
     rec = _recording(monkeypatch)
     hulls = []
-    monkeypatch.setattr(seq, "visual_hull", lambda cameras, masks: hulls.append(int(masks["c0"][0, 0])) or
+    monkeypatch.setattr(seq, "visual_hull", lambda cameras, masks: hulls.append((cameras[0].name,
+                                                                                 int(masks["c0"][0, 0]))) or
                         int(masks["c0"][0, 0]))
+    mine = PoseRefineParams(iterations=3)
     _s, writer = _run_all(rec, tmp_path, frames=(10, 11), refine_pose=True, refine_with="hull",
-                          bone_lengths="frame")
+                          bone_lengths="frame", refine_params=mine)
     assert [c[2] for c in rec.calls["refine"]] == [10, 11] and all(c[4] is None for c in rec.calls["refine"])
-    assert hulls == [10, 11] and writer.meta["refine_with"] == "hull"
+    assert all(c[3] is mine for c in rec.calls["refine"])
+    assert hulls == [("c0", 10), ("c0", 11)] and writer.meta["refine_with"] == "hull"
     # joints from the hull: its hull is the refinement's (carved once per frame)
     hulls.clear()
     rec2 = _recording(monkeypatch)
-    monkeypatch.setattr(seq, "visual_hull", lambda cameras, masks: hulls.append(int(masks["c0"][0, 0])) or
+    monkeypatch.setattr(seq, "visual_hull", lambda cameras, masks: hulls.append((cameras[0].name,
+                                                                                 int(masks["c0"][0, 0]))) or
                         int(masks["c0"][0, 0]))
     _run_all(rec2, tmp_path / "b", frames=(10, 11), refine_pose=True, refine_with="hull", joints="hull",
              bone_lengths="frame")
-    assert hulls == [10, 11] and [c[2] for c in rec2.calls["refine"]] == [10, 11]
+    assert hulls == [("c0", 10), ("c0", 11)] and [c[2] for c in rec2.calls["refine"]] == [10, 11]
     # the refined pose poses the template at the joints' scale
     body = BODIES["6k"]
     T = _joints(11)[0] + [0, 0.005, 0]
@@ -849,3 +876,12 @@ def test_summary_of_scored_records():
         seq.summarize(records)
     records[1]["metrics"]["visible_median_mm"] = 4.0
     assert "init_joint_error_mm" not in seq.summarize(records)
+
+
+def test_tracking_with_hull_joints_checks_no_joint_jump(monkeypatch, tmp_path):
+    rec = _recording(monkeypatch)
+    _s, writer = _run_all(rec, tmp_path, frames=(10, 11), joints="hull", tracking=True,
+                          track_params=TrackParams(outside_px=OUTSIDE_PX), bone_lengths="frame")
+    frames = writer.json["frames.json"]["frames"]
+    assert [f["track"] for f in frames] == ["first", "tracked"]
+    assert [f["track_check"]["joint_jump_m"] for f in frames] == [0.0, 0.0]
