@@ -28,7 +28,9 @@ def _stand_ins(monkeypatch):
 
     monkeypatch.setattr(init_mod, "time", NS(perf_counter=wall, process_time=cpu))
     source = NS(vertices=np.zeros((3, 3)), weights=np.ones((3, 1)), skeleton="skeleton", frames_used=(0, 1))
-    monkeypatch.setattr(init_mod, "initialise_from_observations", lambda obs, m, view_point=None, passes=3: source)
+    # (**kw: main's later initialisation also takes the depth camera)
+    monkeypatch.setattr(init_mod, "initialise_from_observations", lambda obs, m, view_point=None, passes=3, **kw:
+                        source)
     monkeypatch.setattr(init_mod, "ik_pose", lambda sk, joints, tracked, version, previous=None: ("pose", joints))
     monkeypatch.setattr(init_mod, "skin_vertices", lambda *a, **k: None)
 
