@@ -1,0 +1,188 @@
+"""``reconstruct.sequence``'s input readers and the run's verdict in closed form (issue 17).
+
+``--frames`` parsing (every form, every refusal's exact line), Kinect v1 / v2 joint names to the v2 array, a frame's
+joints from the tracker or a folder of files (each refusal's line, the person-size span check) and one set of bone
+lengths per run; the self-check verdict refused, accepted and logged. Tiny inputs, < 1 s.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from types import SimpleNamespace as NS
+
+import numpy as np
+import pytest
+
+import bodystudio.reconstruct.sequence as seq
+from bodystudio.body.kinect import kinect_joint_names
+from bodystudio.errors import FileFormatError, ImplausibleResultError, InputError, SessionError
+
+V2 = kinect_joint_names("v2")
+IDS = [3, 4, 5, 6, 7, 8]
+
+
+@pytest.mark.parametrize("text, expected", [(None, IDS), ("", IDS), ("4:6", [4, 5]), (":5", [3, 4]), ("6:", [6, 7, 8]),
+                                            ("5", [5]), ("3:9", IDS), (" 4 : 6 ", [4, 5]), ("8", [8]), ("3", [3])])
+def test_parse_frames_selects(text, expected):
+    got = seq.parse_frames(text, IDS)
+    assert got == expected and type(got) is list
+    assert got is not IDS
+
+
+@pytest.mark.parametrize("text, message", [
+    ("a:b", "--frames 'a:b' must be A:B (B exclusive) or a single frame number"),
+    ("x", "--frames 'x' must be A:B (B exclusive) or a single frame number"),
+    ("1:2:3", "--frames '1:2:3' must be A:B (B exclusive) or a single frame number"),
+    ("5:5", "--frames '5:5': A must be below B (B exclusive), e.g. 3:9"),
+    ("6:4", "--frames '6:4': A must be below B (B exclusive), e.g. 3:9"),
+    ("2:5", "--frames '2:5' reaches outside the session, which has 6 frames (3:9); give a range within 3:9"),
+    ("4:10", "--frames '4:10' reaches outside the session, which has 6 frames (3:9); give a range within 3:9"),
+    ("9", "--frames '9' reaches outside the session, which has 6 frames (3:9); give a range within 3:9"),
+    ("2", "--frames '2' reaches outside the session, which has 6 frames (3:9); give a range within 3:9"),
+])
+def test_parse_frames_refuses(text, message):
+    with pytest.raises(InputError) as err:
+        seq.parse_frames(text, IDS)
+    assert str(err.value) == message
+
+
+def test_parse_frames_in_a_gap_selects_no_frame():
+    with pytest.raises(InputError) as err:
+        seq.parse_frames("5:7", [3, 4, 7, 8])
+    assert str(err.value) == "--frames '5:7' selects no frame; the session has frames 3..8"
+    assert seq.parse_frames("4:8", [3, 4, 7, 8]) == [4, 7]
+
+
+def test_joints_v2_maps_v1_names_and_untracked_joints():
+    names = ["HipCenter", "Spine", "ShoulderCenter", "Head", "HandLeft"]
+    P = np.arange(15.0).reshape(5, 3) / 10
+    flat = P.ravel().tolist()
+    J = seq.joints_v2(names, flat, [True, True, True, False, True])
+    assert J.shape == (25, 3) and J.dtype == np.float64
+    for name, row in (("SpineBase", 0), ("SpineMid", 1), ("SpineShoulder", 2), ("HandLeft", 4)):
+        np.testing.assert_array_equal(J[V2.index(name)], P[row])
+    assert np.isnan(J[V2.index("Head")]).all()
+    assert np.isnan(np.delete(J, [V2.index(n) for n in ("SpineBase", "SpineMid", "SpineShoulder", "HandLeft")],
+                              axis=0)).all()
+    # without tracked flags every joint given is kept; the input is not written to
+    P2 = P.copy()
+    J2 = seq.joints_v2(names, P2)
+    np.testing.assert_array_equal(J2[V2.index("Head")], P[3])
+    np.testing.assert_array_equal(P2, P)
+    seq.joints_v2(names, P2, np.array([1, 1, 1, 0, 1]))
+    np.testing.assert_array_equal(P2, P)
+
+
+def _skeleton(scale=1.0):
+    return (np.random.default_rng(1).uniform(-0.4, 0.4, (25, 3)) + [0, 1, 0]) * scale
+
+
+def _frame(fid, joints=None):
+    data = None if joints is None else {"names": list(V2), "positions": joints.tolist(), "tracked": [True] * 25}
+    return NS(frame_id=fid, kinect_joints=data)
+
+
+SESSION = NS(path=Path("/s"))
+
+
+def test_frame_joints_from_the_tracker_and_its_refusals():
+    S = _skeleton()
+    np.testing.assert_array_equal(seq.frame_joints(SESSION, _frame(4, S), "tracker", None), S)
+    with pytest.raises(SessionError) as err:
+        seq.frame_joints(SESSION, _frame(4), "tracker", None)
+    assert str(err.value) == "/s frame 4: no Kinect tracker joints; use --joints file --joints-path DIR"
+    few = S.copy()
+    few[2:] = np.nan
+    with pytest.raises(InputError) as err:
+        seq.frame_joints(SESSION, _frame(4, few), "tracker", None)
+    assert str(err.value) == "/s frame 4: no valid joints (fewer than 3 tracked); check the tracker output"
+    three = S.copy()
+    three[3:] = np.nan
+    np.testing.assert_array_equal(seq.frame_joints(SESSION, _frame(4, three), "tracker", None)[:3], S[:3])
+    with pytest.raises(InputError) as err:
+        seq.frame_joints(SESSION, _frame(4, S), "depth", None)
+    assert str(err.value) == "unknown joint source 'depth'; valid: tracker, file, hull"
+
+
+def test_frame_joints_span_of_a_person():
+    line = np.full((25, 3), np.nan)
+    line[0], line[1], line[2] = [0, 0, 0], [0, 3.5, 0], [0, 1.0, 0]
+    np.testing.assert_array_equal(seq.frame_joints(SESSION, _frame(4, line), "tracker", None)[1], [0, 3.5, 0])
+    line[1] = [0, 3.5001, 0]
+    with pytest.raises(InputError) as err:
+        seq.frame_joints(SESSION, _frame(4, line), "tracker", None)
+    assert str(err.value) == ("/s frame 4: the joints span 3.5 m, more than a person (3.5 m); give positions in "
+                              "metres in the studio's world frame")
+    # the span is the largest distance between any two joints (not from the first one)
+    line[0], line[1], line[2] = [0, 1.0, 0], [0, 2.9, 0], [0, -0.7, 0]
+    with pytest.raises(InputError, match="the joints span 3.6 m"):
+        seq.frame_joints(SESSION, _frame(4, line), "tracker", None)
+
+
+def test_frame_joints_from_files_and_their_refusals(tmp_path):
+    S = _skeleton()
+    (tmp_path / "00007.json").write_text(json.dumps({"names": list(V2), "positions": S.tolist()}))
+    np.testing.assert_allclose(seq.frame_joints(SESSION, _frame(7), "file", tmp_path), S, atol=1e-15)
+    np.testing.assert_allclose(seq.frame_joints(SESSION, _frame(7), "file", str(tmp_path)), S, atol=1e-15)
+    tracked = [True] * 24 + [False]
+    (tmp_path / "00008.json").write_text(json.dumps({"names": list(V2), "positions": S.tolist(), "tracked": tracked}))
+    J = seq.frame_joints(SESSION, _frame(8), "file", tmp_path)
+    assert np.isnan(J[24]).all() and np.isfinite(J[:24]).all()
+    with pytest.raises(InputError) as err:
+        seq.frame_joints(SESSION, _frame(7), "file", None)
+    assert str(err.value) == "--joints file needs --joints-path DIR with NNNNN.json files ({names, positions})"
+    (tmp_path / "00009.json").write_text(json.dumps({"names": list(V2)}))
+    with pytest.raises(InputError) as err:
+        seq.frame_joints(SESSION, _frame(9), "file", tmp_path)
+    assert str(err.value) == f"{tmp_path}/00009.json: needs names and positions ('positions')"
+    (tmp_path / "00010.json").write_text(json.dumps({"names": list(V2), "positions": [[0, 1]] * 25}))
+    with pytest.raises(InputError, match=r"^.*/00010\.json: needs names and positions \(cannot reshape"):
+        seq.frame_joints(SESSION, _frame(10), "file", tmp_path)
+    with pytest.raises(FileFormatError, match=r"00011\.json: joints file not found"):
+        seq.frame_joints(SESSION, _frame(11), "file", tmp_path)
+    (tmp_path / "00012.json").write_text(json.dumps({"names": list(V2), "positions": (S * 1000).tolist()}))
+    with pytest.raises(InputError) as err:
+        seq.frame_joints(SESSION, _frame(12), "file", tmp_path)
+    assert str(err.value).startswith(f"{tmp_path}/00012.json: the joints span ")
+
+
+def test_run_bone_lengths_are_the_sequences(monkeypatch, tmp_path):
+    got = []
+    monkeypatch.setattr(seq, "sequence_bone_lengths", lambda frames: got.append(frames) or "lengths")
+    frames = {4: _skeleton(1.0), 5: _skeleton(1.1)}
+    session = NS(path=Path("/s"), frame=lambda f: _frame(f, frames[f]))
+    assert seq.run_bone_lengths(session, [4, 5], "tracker", None) == "lengths"
+    (frames_of,) = got
+    assert len(frames_of) == 2
+    np.testing.assert_array_equal(frames_of[1], frames[5])
+    for f in (4, 5):
+        data = {"names": list(V2), "positions": (frames[f] + 0.1).tolist()}
+        (tmp_path / f"{f:05d}.json").write_text(json.dumps(data))
+    seq.run_bone_lengths(session, [5], "file", str(tmp_path))
+    np.testing.assert_allclose(got[1][0], frames[5] + 0.1, atol=1e-15)
+
+
+def test_judge_run_refuses_accepts_and_logs(monkeypatch, caplog):
+    verdicts = []
+
+    def run_check(frames, path):
+        verdicts.append((frames, path))
+        return dict(result)
+
+    monkeypatch.setattr(seq, "run_plausibility", run_check)
+    records = [{"plausibility": {"a": 1}}, {"plausibility": None}, {}, {"plausibility": {"b": 2}}]
+    result = {"ok": True, "warnings": ["masks noisy"], "problems": []}
+    with caplog.at_level(logging.WARNING, logger="bodystudio.reconstruct.sequence"):
+        out = seq.judge_run(records, Path("/s"), False)
+    assert out == result and verdicts[-1] == ([{"a": 1}, {"b": 2}], Path("/s"))
+    assert [r.getMessage() for r in caplog.records] == ["/s: masks noisy"]
+    assert all(r.levelno == logging.WARNING for r in caplog.records)
+    result = {"ok": False, "warnings": ["w"], "problems": ["camera c1 moved", "second"]}
+    with pytest.raises(ImplausibleResultError) as err:
+        seq.judge_run(records, Path("/s"), False)
+    assert str(err.value) == "/s: reconstruction not written, camera c1 moved; or pass --accept-implausible"
+    caplog.records.clear()
+    with caplog.at_level(logging.WARNING, logger="bodystudio.reconstruct.sequence"):
+        assert seq.judge_run(records, Path("/s"), True) == result
+    assert [r.getMessage() for r in caplog.records] == ["/s: w", "/s: camera c1 moved", "/s: second"]
