@@ -72,6 +72,11 @@ def test_joints_v2_maps_v1_names_and_untracked_joints():
     np.testing.assert_array_equal(P2, P)
     seq.joints_v2(names, P2, np.array([1, 1, 1, 0, 1]))
     np.testing.assert_array_equal(P2, P)
+    # integer positions (a JSON of whole numbers) and 0 / 1 flags: read as floats and as booleans
+    J3 = seq.joints_v2(names, [[0, 1, 2], [3, 4, 5], [6, 7, 8], [9, 10, 11], [1, 1, 1]], [1, 1, 1, 0, 1])
+    assert np.isnan(J3[V2.index("Head")]).all()
+    np.testing.assert_array_equal(J3[V2.index("HandLeft")], [1.0, 1.0, 1.0])
+    np.testing.assert_array_equal(J3[V2.index("SpineShoulder")], [6.0, 7.0, 8.0])
 
 
 def _skeleton(scale=1.0):
@@ -89,6 +94,10 @@ SESSION = NS(path=Path("/s"))
 def test_frame_joints_from_the_tracker_and_its_refusals():
     S = _skeleton()
     np.testing.assert_array_equal(seq.frame_joints(SESSION, _frame(4, S), "tracker", None), S)
+    untracked = _frame(4, S)
+    untracked.kinect_joints["tracked"][5] = False
+    J = seq.frame_joints(SESSION, untracked, "tracker", None)
+    assert np.isnan(J[5]).all() and np.isfinite(np.delete(J, 5, axis=0)).all()
     with pytest.raises(SessionError) as err:
         seq.frame_joints(SESSION, _frame(4), "tracker", None)
     assert str(err.value) == "/s frame 4: no Kinect tracker joints; use --joints file --joints-path DIR"
