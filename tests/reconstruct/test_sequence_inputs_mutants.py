@@ -195,3 +195,180 @@ def test_judge_run_refuses_accepts_and_logs(monkeypatch, caplog):
     with caplog.at_level(logging.WARNING, logger="bodystudio.reconstruct.sequence"):
         assert seq.judge_run(records, Path("/s"), True) == result
     assert [r.getMessage() for r in caplog.records] == ["/s: w", "/s: camera c1 moved", "/s: second"]
+
+
+# --- the session entry, the run folder's layout, the ground-truth joints and a frame's scores (stand-ins) -----------
+
+def _session_stand_in(monkeypatch, cams=("c0", "c1"), manifest_cams=None, kinect="sensor", ids=(3, 4, 5)):
+    import bodystudio.capture.session as session_mod
+
+    calls = {}
+    session = NS(path=Path("/s"), cameras=[NS(name=c) for c in cams],
+                 camera_names=list(manifest_cams or cams), frame_ids=list(ids), kinect=kinect)
+
+    def open_session(path):
+        calls["open"] = path
+        return session
+
+    class Writer:
+        def __init__(self, layout, command, meta):
+            calls["writer"] = (layout, command, meta)
+
+        def __enter__(self):
+            return "writer"
+
+        def __exit__(self, *exc):
+            return False
+
+    def frames(*args, **kw):
+        calls["frames"] = (args, kw)
+        return {"summary": 1}
+
+    monkeypatch.setattr(session_mod, "open_session", open_session)
+    monkeypatch.setattr(seq, "RunWriter", Writer)
+    monkeypatch.setattr(seq, "reconstruct_frames", frames)
+    return calls, session
+
+
+def test_reconstruct_session_forwards_every_setting(monkeypatch):
+    from bodystudio.reconstruct.articulated_fit import PoseRefineParams
+    from bodystudio.reconstruct.rapid_skin import RapidSkinParams
+    from bodystudio.reconstruct.tracking import TrackParams
+
+    calls, session = _session_stand_in(monkeypatch)
+    tp, rp = TrackParams(iterations=4), PoseRefineParams(iterations=2)
+    out = seq.reconstruct_session("/in", solver="cg", template="2k", joints="file", constraints=("silhouette", "depth"),
+                                  frames="4:6", joints_path="/j", warm_start=True, refine_pose=False, score=False,
+                                  progress=True, tracking=True, track_params=tp, refine_with="hull",
+                                  rest_cotangents=False, refine_params=rp, bone_lengths="frame", joint_smoothing=3,
+                                  accept_implausible=True)
+    assert out == {"summary": 1} and calls["open"] == "/in"
+    layout, command, meta = calls["writer"]
+    assert layout == seq.reconstruction_layout(Path("/s")) and command == "bodystudio reconstruct"
+    assert meta == {"session": "/s", "template": "2k"}
+    args, kw = calls["frames"]
+    assert args[0] is session and args[1] == "writer" and args[2] == [4, 5]
+    assert [c.name for c in args[3]] == ["c0", "c1"] and args[4] == "sensor"
+    assert args[5] == RapidSkinParams(solver="cg", constraints=("silhouette", "depth"))
+    assert args[6:] == ("cg", "2k", "file", "/j", True, False, False, True)
+    assert kw == dict(tracking=True, track_params=tp, refine_with="hull", rest_cotangents=False, refine_params=rp,
+                      bone_lengths="frame", joint_smoothing=3, accept_implausible=True)
+
+
+def test_reconstruct_session_defaults_and_given_params(monkeypatch):
+    from bodystudio.reconstruct.rapid_skin import RapidSkinParams
+
+    calls, session = _session_stand_in(monkeypatch)
+    seq.reconstruct_session("/in")
+    args, kw = calls["frames"]
+    assert args[2] == [3, 4, 5] and args[5] == RapidSkinParams(solver="gs", constraints=("silhouette",))
+    assert args[6:] == ("gs", "13k", "tracker", None, False, True, True, False)
+    assert kw == dict(tracking=False, track_params=None, refine_with="fields", rest_cotangents=True, refine_params=None,
+                      bone_lengths="sequence", joint_smoothing=0, accept_implausible=False)
+    assert calls["writer"][2] == {"session": "/s", "template": "13k"}
+    mine = RapidSkinParams(outer_iterations=2)
+    seq.reconstruct_session("/in", params=mine, solver="cg")
+    assert calls["frames"][0][5] is mine and calls["frames"][0][6] == "cg"
+
+
+@pytest.mark.parametrize("kw, error, message", [
+    (dict(template="9k"), InputError, "unknown template '9k'; valid: 13k, 6k, 2k"),
+    (dict(joints="imu"), InputError, "unknown joint source 'imu'; valid: tracker, file, hull"),
+    (dict(joints="file"), InputError,
+     "--joints file needs --joints-path DIR with NNNNN.json files ({names, positions})"),
+    (dict(constraints=("silhouette", "depth"), kinect=None), SessionError,
+     "/s: no Kinect calibration, so no depth constraints; use --constraints silhouette"),
+    (dict(manifest_cams=("c0", "c2")), SessionError,
+     "/s: the manifest lists cameras c0, c2 but calibration/cameras.json has c0, c1; camera/session mismatch"),
+])
+def test_reconstruct_session_refusals(monkeypatch, kw, error, message):
+    calls, _ = _session_stand_in(monkeypatch, manifest_cams=kw.pop("manifest_cams", None),
+                                 kinect=kw.pop("kinect", "sensor"))
+    with pytest.raises(error) as err:
+        seq.reconstruct_session("/in", **kw)
+    assert str(err.value) == message
+    assert "frames" not in calls and "writer" not in calls
+
+
+def test_every_template_name_and_the_file_source_with_a_folder(monkeypatch):
+    calls, _ = _session_stand_in(monkeypatch)
+    for t in ("13k", "6k", "2k", "full", "2.5k"):
+        seq.reconstruct_session("/in", template=t)
+        assert calls["frames"][0][7] == t
+    seq.reconstruct_session("/in", joints="file", joints_path="/j")
+    seq.reconstruct_session("/in", joints="hull")
+    seq.reconstruct_session("/in", constraints=("depth",))
+    assert calls["frames"][0][5].constraints == ("depth",)
+
+
+def test_reconstruction_layout():
+    from bodystudio.runfolder import RunLayout
+
+    layout = seq.reconstruction_layout("/s")
+    assert layout == RunLayout(Path("/s/reconstruct"), "run.json", ".", "/s/reconstruct")
+
+
+def test_gt_kinect_joints_from_the_posed_skeleton(monkeypatch):
+    from bodystudio.body.skeleton import Skeleton
+
+    got = []
+
+    def kj(sk, heads, tails, version):
+        got.append((sk, heads, tails, version))
+        return "joints"
+
+    monkeypatch.setattr(seq, "kinect_joints", kj)
+    heads, tails = np.zeros((2, 3)), np.ones((2, 3))
+    frame = NS(gt_joints={"bone_names": ["pelvis", "spine_01"], "heads": heads, "tails": tails})
+    assert seq.gt_kinect_joints(frame, None) == "joints"
+    sk, h, t, version = got[0]
+    assert isinstance(sk, Skeleton) and sk.bone_names == ("pelvis", "spine_01") and version == "v2"
+    np.testing.assert_array_equal(sk.parents, [-1, -1])
+    np.testing.assert_array_equal(sk.rolls, [0.0, 0.0])
+    assert sk.heads is heads and sk.tails is tails and h is heads and t is tails
+    assert seq.gt_kinect_joints(NS(gt_joints=None), None) is None
+
+    def missing(*a):
+        raise InputError("no such bone")
+
+    monkeypatch.setattr(seq, "kinect_joints", missing)
+    assert seq.gt_kinect_joints(frame, None) is None
+
+
+def test_score_frame_against_the_ground_truth(monkeypatch):
+    calls = {}
+    gt = NS(vertices="GV", faces="GF")
+    cams = [NS(name="c0"), NS(name="c1")]
+
+    def visible(V, F, cameras):
+        calls["visible"] = (V, F, cameras)
+        return "vis"
+
+    def surface(V, F, GV, GF, vis):
+        calls["surface"] = (V, F, GV, GF, vis)
+        return NS(as_dict=lambda: {"visible_median_mm": 1.0})
+
+    def iou(V, F, cameras, masks):
+        calls["iou"] = (V, F, cameras, masks)
+        return {"c0": 0.9, "c1": 0.7}
+
+    monkeypatch.setattr(seq, "visible_vertices", visible)
+    monkeypatch.setattr(seq, "surface_error", surface)
+    monkeypatch.setattr(seq, "silhouette_iou", iou)
+    monkeypatch.setattr(seq, "region_errors", lambda V, GV, GF, regions: ("regions", V, GV, GF, regions))
+    monkeypatch.setattr(seq, "gt_kinect_joints", lambda frame, names: None if frame.no_gt_joints else "GJ")
+    monkeypatch.setattr(seq, "joint_error_mm", lambda J, gtj: ("je", J, gtj))
+    frame = NS(gt_mesh=gt, session=NS(streams={"gt_mask", "mask"}), gt_masks={"c0": "g0", "c1": "g1", "c2": "g2"},
+               masks={"c0": "m0", "c1": "m1"}, no_gt_joints=False)
+    out = seq.score_frame("V", "F", frame, cams, regions="R", joints="J")
+    assert out == {"visible_median_mm": 1.0, "iou": {"c0": 0.9, "c1": 0.7}, "iou_min": 0.7,
+                   "regions": ("regions", "V", "GV", "GF", "R"), "joint_error_mm": ("je", "J", "GJ")}
+    assert calls["visible"] == ("GV", "GF", cams) and calls["surface"] == ("V", "F", "GV", "GF", "vis")
+    assert calls["iou"] == ("V", "F", cams, {"c0": "g0", "c1": "g1"})
+    # without ground-truth masks the fitted masks; no regions, no joints, no GT joints: those keys left out
+    frame.session.streams = {"mask"}
+    frame.no_gt_joints = True
+    out = seq.score_frame("V", "F", frame, cams, joints="J")
+    assert calls["iou"][3] == {"c0": "m0", "c1": "m1"}
+    assert set(out) == {"visible_median_mm", "iou", "iou_min"}
+    assert seq.score_frame("V", "F", NS(gt_mesh=None), cams) is None
