@@ -372,3 +372,114 @@ def test_score_frame_against_the_ground_truth(monkeypatch):
     assert calls["iou"][3] == {"c0": "m0", "c1": "m1"}
     assert set(out) == {"visible_median_mm", "iou", "iou_min"}
     assert seq.score_frame("V", "F", NS(gt_mesh=None), cams) is None
+
+
+def _run_folder(tmp_path, run, frames=None):
+    out = tmp_path / "reconstruct"
+    (out / "meshes").mkdir(parents=True)
+    if run is not None:
+        (out / "run.json").write_text(json.dumps(run))
+    if frames is not None:
+        (out / "frames.json").write_text(json.dumps({"frames": frames}))
+    return out
+
+
+def _checks(monkeypatch):
+    calls = {"readable": [], "verify": []}
+    monkeypatch.setattr(seq, "check_readable", lambda layout: calls["readable"].append(layout))
+    monkeypatch.setattr(seq, "verify_run_files", lambda layout, run, only: calls["verify"].append((layout, run, only)))
+    return calls
+
+
+def test_read_reconstruction_checks_the_folder_and_lists_the_meshes(monkeypatch, tmp_path):
+    calls = _checks(monkeypatch)
+    files = {"frames.json": "h", "meshes/00003.ply": "h", "meshes/00005.ply": "h"}
+    run = {"frames": [3, "4", 5], "n_vertices": 4, "run": {"files": files}}
+    out = _run_folder(tmp_path, run)
+    got, meshes = seq.read_reconstruction(tmp_path)
+    assert got == run and meshes == {3: out / "meshes/00003.ply", 5: out / "meshes/00005.ply"}
+    layout = seq.reconstruction_layout(tmp_path)
+    assert calls["readable"] == [layout] and calls["verify"] == [(layout, run["run"], None)]
+    seq.read_reconstruction(tmp_path, frame=5)
+    assert calls["verify"][-1] == (layout, run["run"], ("frames.json", "meshes/00005.ply"))
+    seq.read_reconstruction(str(tmp_path), frame=0)
+    assert calls["verify"][-1][2] == ("frames.json", "meshes/00000.ply")
+
+
+@pytest.mark.parametrize("run, message", [
+    (None, "{m}: missing (a reconstruction by an older bodystudio, or files copied in by hand); re-run "
+           "`bodystudio reconstruct {s}`"),
+    ([1, 2], "{m}: not a reconstruction run record; re-run reconstruct"),
+    ({"frames": "3", "n_vertices": 4}, "{m}: not a reconstruction run record; re-run reconstruct"),
+    ({"frames": [3]}, "{m}: not a reconstruction run record; re-run reconstruct"),
+    ({"n_vertices": 4}, "{m}: not a reconstruction run record; re-run reconstruct"),
+])
+def test_read_reconstruction_refusals(monkeypatch, tmp_path, run, message):
+    calls = _checks(monkeypatch)
+    _run_folder(tmp_path, run)
+    with pytest.raises(SessionError) as err:
+        seq.read_reconstruction(tmp_path)
+    assert str(err.value) == message.format(m=tmp_path / "reconstruct" / "run.json", s=tmp_path)
+    assert len(calls["readable"]) == 1 and calls["verify"] == []
+
+
+def _evaluate_stand_ins(monkeypatch, tmp_path, n_vertices=4, gt=True):
+    import bodystudio.capture.session as session_mod
+
+    calls = _checks(monkeypatch)
+    calls["score"], calls["load"] = [], []
+    session = NS(path=tmp_path, cameras=(NS(name="c0"),),
+                 frame=lambda f: NS(frame_id=f, gt_mesh="GT" if gt else None))
+    monkeypatch.setattr(session_mod, "open_session", lambda path: session)
+    monkeypatch.setattr(seq, "read_reconstruction", lambda path: calls.setdefault("read", path) and
+                        ({"n_vertices": 4, "template": "2k"}, {}))
+
+    def load(path):
+        calls["load"].append(path)
+        return NS(vertices=np.zeros((n_vertices, 3)), faces="F")
+
+    def score(V, F, frame, cameras):
+        calls["score"].append((len(V), F, frame.frame_id, cameras))
+        return {"visible_median_mm": float(frame.frame_id), "visible_p90_mm": 2.0, "hausdorff_mm": 3.0,
+                "pct_under_10mm": 4.0, "iou_min": 0.5, "median_mm": 5.0, "p90_mm": 6.0}
+
+    monkeypatch.setattr(seq, "load_mesh", load)
+    monkeypatch.setattr(seq, "score_frame", score)
+    return calls
+
+
+def _record(fid):
+    return {"frame": fid, "ms_per_frame": 1.0, "solver_ms": 2.0, "matching_ms": 3.0, "track": "tracked"}
+
+
+def test_evaluate_session_scores_each_recorded_mesh(monkeypatch, tmp_path):
+    calls = _evaluate_stand_ins(monkeypatch, tmp_path)
+    out_dir = _run_folder(tmp_path, {"frames": [3, 5]}, [_record(3), _record(5)])
+    out = seq.evaluate_session("/in")
+    assert calls["read"] == tmp_path
+    assert calls["load"] == [out_dir / "meshes" / "00003.ply", out_dir / "meshes" / "00005.ply"]
+    assert [(n, F, f) for n, F, f, _c in calls["score"]] == [(4, "F", 3), (4, "F", 5)]
+    assert all(list(c) == [NS(name="c0")] and type(c) is list for *_, c in calls["score"])
+    assert out["frames"] == 2 and out["median_mm"] == 4.0 and out["n_tracked"] == 2 and out["solver_ms"] == 2.0
+    # frames.json alone (no run.json) is read too
+    (out_dir / "run.json").unlink()
+    assert seq.evaluate_session("/in")["frames"] == 2
+
+
+def test_evaluate_session_refusals(monkeypatch, tmp_path):
+    calls = _evaluate_stand_ins(monkeypatch, tmp_path)
+    out_dir = tmp_path / "reconstruct"
+    with pytest.raises(SessionError) as err:
+        seq.evaluate_session("/in")
+    assert str(err.value) == f"{out_dir}: no reconstruction yet; run `bodystudio reconstruct {tmp_path}` first"
+    assert calls["readable"] == [seq.reconstruction_layout(tmp_path)]
+    _run_folder(tmp_path, {"frames": [3]}, [_record(3)])
+    _evaluate_stand_ins(monkeypatch, tmp_path, n_vertices=5)
+    with pytest.raises(SessionError) as err:
+        seq.evaluate_session("/in")
+    assert str(err.value) == (f"{out_dir / 'meshes' / '00003.ply'}: 5 vertices but run.json says template 2k (4); "
+                              "the folder mixes two runs, re-run reconstruct")
+    _evaluate_stand_ins(monkeypatch, tmp_path, gt=False)
+    with pytest.raises(SessionError) as err:
+        seq.evaluate_session("/in")
+    assert str(err.value) == f"{tmp_path}: frame 3 has no ground-truth mesh to score against"
