@@ -282,6 +282,7 @@ def test_reconstruct_session_defaults_and_given_params(monkeypatch):
      "/s: the manifest lists cameras c0, c2 but calibration/cameras.json has c0, c1; camera/session mismatch"),
 ])
 def test_reconstruct_session_refusals(monkeypatch, kw, error, message):
+    kw = dict(kw)  # the case's own dict is not written to (the direct recheck runs each case twice)
     calls, _ = _session_stand_in(monkeypatch, manifest_cams=kw.pop("manifest_cams", None),
                                  kinect=kw.pop("kinect", "sensor"))
     with pytest.raises(error) as err:
