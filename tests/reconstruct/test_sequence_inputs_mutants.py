@@ -431,7 +431,8 @@ def _evaluate_stand_ins(monkeypatch, tmp_path, n_vertices=4, gt=True):
     calls["score"], calls["load"] = [], []
     session = NS(path=tmp_path, cameras=(NS(name="c0"),),
                  frame=lambda f: NS(frame_id=f, gt_mesh="GT" if gt else None))
-    monkeypatch.setattr(session_mod, "open_session", lambda path: session)
+    calls["opened"] = []
+    monkeypatch.setattr(session_mod, "open_session", lambda path: calls["opened"].append(path) or session)
     monkeypatch.setattr(seq, "read_reconstruction", lambda path: calls.setdefault("read", path) and
                         ({"n_vertices": 4, "template": "2k"}, {}))
 
@@ -484,3 +485,16 @@ def test_evaluate_session_refusals(monkeypatch, tmp_path):
     with pytest.raises(SessionError) as err:
         seq.evaluate_session("/in")
     assert str(err.value) == f"{tmp_path}: frame 3 has no ground-truth mesh to score against"
+
+
+def test_malformed_records_are_named_in_the_refusal(monkeypatch, tmp_path):
+    _checks(monkeypatch)
+    out = _run_folder(tmp_path, None)
+    (out / "run.json").write_text("{not json")
+    with pytest.raises(FileFormatError, match=r"run\.json: not a valid reconstruction run record \("):
+        seq.read_reconstruction(tmp_path)
+    calls = _evaluate_stand_ins(monkeypatch, tmp_path)
+    (out / "frames.json").write_text("[broken")
+    with pytest.raises(FileFormatError, match=r"frames\.json: not a valid reconstruction record \("):
+        seq.evaluate_session("/in")
+    assert calls["opened"] == ["/in"]
