@@ -234,7 +234,8 @@ def transform_to_default_pose(points, kinect_joints, body: BodyModel, tracked=No
     ``view_point`` (the depth camera centre) only body vertices facing it (the cosine between normal and
     viewing ray above ``min_facing_cos``) are matched. Returns P_0
     (N, 3) with NaN rows for points farther than ``max_distance_m`` from the posed body (not the actor);
-    with ``details`` a :class:`DefaultPoseCloud`.
+    with ``details`` a :class:`DefaultPoseCloud`. ``pose``: the pose of the (bone-scaled) body to unpose by instead
+    of the IK on the joints (:func:`refined_init_pose`'s).
     """
     P = np.asarray(points, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3:
