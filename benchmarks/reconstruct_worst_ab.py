@@ -6,7 +6,8 @@ Usage: PYTHONPATH=. python benchmarks/reconstruct_worst_ab.py ROOT [--variants '
 
 ROOT holds the benchmark's 30 fps hidden-subject sessions (``synth_session(ROOT / "walk31", n_cameras=10,
 n_frames=6, motion="walk", subject_seed=31, template="full", fps=30)``, likewise turn 3 and arm_flex 12; made
-when missing). Each variant is a set of :class:`RapidSkinParams` fields (``t_NAME``: :class:`TrackParams`) over
+when missing). Each variant is a set of :class:`RapidSkinParams` fields (``t_NAME``: :class:`TrackParams`,
+``m_NAME``: the tracked frames' :class:`MatchSchedule`) over
 the defaults (``default`` = none);
 every (session, constraints, mode) runs all variants back to back, so the rows compare on the same
 frames.
@@ -99,6 +100,7 @@ def main() -> None:
     from bodystudio.reconstruct.evaluate import vertex_regions
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams
     from bodystudio.reconstruct.sequence import reconstruct_session
+    from bodystudio.reconstruct.silhouette import MatchSchedule
     from bodystudio.reconstruct.tracking import TrackParams
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -127,8 +129,11 @@ def main() -> None:
             for tracking in modes:
                 for vname, kw in parse_variants(args.variants):
                     track_kw = {k[2:]: v for k, v in kw.items() if k.startswith("t_")}
+                    match_kw = {k[2:]: v for k, v in kw.items() if k.startswith("m_")}
+                    if match_kw:
+                        track_kw["matching"] = MatchSchedule(**match_kw)
                     params = RapidSkinParams(constraints=cons,
-                                             **{k: v for k, v in kw.items() if not k.startswith("t_")})
+                                             **{k: v for k, v in kw.items() if k[:2] not in ("t_", "m_")})
                     with threadpool_limits(1):
                         s = reconstruct_session(path, template="13k", constraints=cons, tracking=tracking,
                                                 params=params, track_params=TrackParams(**track_kw))
