@@ -32,6 +32,7 @@ The lost-track check (:func:`lost_track_reason`), in this order, re-initialises 
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -107,6 +108,17 @@ class TrackParams:
                 raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
 
 
+_FIELD_POOLS: dict = {}
+
+
+def _field_pool(threads: int) -> ThreadPoolExecutor:
+    """One thread pool per size for :class:`SilhouetteFields`'s transforms, kept for the process."""
+    pool = _FIELD_POOLS.get(threads)
+    if pool is None:
+        pool = _FIELD_POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="bodystudio-fields")
+    return pool
+
+
 class SilhouetteFields:
     """Per-camera signed distance fields of one frame's silhouettes (px; > 0 outside, < 0 inside).
 
@@ -142,7 +154,9 @@ class SilhouetteFields:
         shapes = np.array([(y1 - y0, x1 - x0) for _, _, (y0, y1, x0, x1) in boxes], dtype=np.int64).reshape(C, 2)
         # the fields are written straight into the packed array of the compiled passes; ``sdf`` views it
         self._packed_sdf = np.zeros((C, *(shapes.max(axis=0) if C else (1, 1))), np.float32)
-        for k, (cam, (full, (bx, by, bw, bh), (y0, y1, x0, x1))) in enumerate(zip(self.cameras, boxes, strict=True)):
+
+        def transform(k):
+            full, (bx, by, bw, bh), (y0, y1, x0, x1) = boxes[k]
             sdf = self._packed_sdf[k, :y1 - y0, :x1 - x0]
             sdf[:] = cv2.distanceTransform(1 - full[y0:y1, x0:x1], cv2.DIST_L2, dist_mask)
             # pixel centres: +d outside, -d inside; the contour lies half-way, so shift by 0.5
@@ -156,7 +170,20 @@ class SilhouetteFields:
                 core = np.ascontiguousarray(full[b0:b1, a0:a1])
                 in_d = cv2.distanceTransform(core, cv2.DIST_L2, dist_mask)
                 np.copyto(sdf[b0 - y0:b1 - y0, a0 - x0:a1 - x0], np.float32(0.5) - in_d, where=core.view(np.bool_))
-            self.sdf[cam.name] = sdf
+
+        # The views' transforms are independent and OpenCV releases the GIL: with more than one numba thread (the
+        # cores the frame may use) every other view runs on the pool's threads while this one does the rest, each
+        # writing its own slice (the same arrays).
+        threads = min(numba.get_num_threads(), C)
+        helpers = [_field_pool(threads - 1).submit(transform, k) for k in range(1, C, threads)] if threads > 1 else []
+        for k in range(C):
+            if threads == 1 or k % threads != 1:
+                transform(k)
+        for f in helpers:
+            f.result()
+        for k, cam in enumerate(self.cameras):
+            (y0, y1, x0, x1) = boxes[k][2]
+            self.sdf[cam.name] = self._packed_sdf[k, :y1 - y0, :x1 - x0]
             self.offset[cam.name] = (x0, y0)
         self._shapes = shapes
         self._offsets = np.array([self.offset[c.name] for c in self.cameras], dtype=np.float64).reshape(C, 2)

@@ -202,3 +202,28 @@ def test_tracked_frames_default_to_the_measured_tradeoffs():
     assert t.matching == MatchSchedule(cheap_iterations=1, keep_outline=True)
     assert [t.matching.matching_args(o, 3, 10)["outline"] for o in range(3)] == ["draw", "full", "keep"]
     assert [t.matching.gate_at(o, 3) for o in range(3)] == ["each"] * 3
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_fields_on_two_threads_equal_the_serial_ones(scene, exact):
+    """With two numba threads every other view's transform runs on a pool thread: the same arrays, bit for bit
+    (OpenCV's precise transform may differ by an ulp between calls, so compare the chamfer one exactly and the
+    precise one to 4 ulp, as test_frame_kernels.py)."""
+    import numba
+
+    V, F, cams, masks = scene
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = SilhouetteFields(cams, masks, exact=exact)
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+        two = SilhouetteFields(cams, masks, exact=exact)
+    finally:
+        numba.set_num_threads(before)
+    if exact:
+        np.testing.assert_array_max_ulp(one._packed_sdf, two._packed_sdf, maxulp=4)
+    else:
+        np.testing.assert_array_equal(one._packed_sdf, two._packed_sdf)
+    for cam in cams:
+        assert one.offset[cam.name] == two.offset[cam.name]
+        assert np.shares_memory(two.sdf[cam.name], two._packed_sdf)
