@@ -506,11 +506,12 @@ class MatchSchedule:
         return max(n_outer - self.cheap_iterations, 1) if self.cheap_iterations else n_outer
 
     def matching_args(self, outer: int, n_outer: int, n_views: int) -> dict:
-        """Keyword arguments of :func:`silhouette_constraints` at outer iteration ``outer`` of ``n_outer``."""
+        """Keyword arguments of :func:`silhouette_constraints` at outer iteration ``outer`` of ``n_outer`` (none
+        where the matching is the exact one)."""
         first = self.first_cheap(n_outer)
         if outer < first:
             keep_next = self.keep_outline and self.cheap_iterations and outer == first - 1
-            return {"outline": "full" if keep_next else "draw"}
+            return {"outline": "full"} if keep_next else {}
         use_view = None
         if self.view_stride > 1:
             use_view = (np.arange(n_views) % self.view_stride) == (outer % self.view_stride)
