@@ -73,8 +73,9 @@ class TrackParams:
     re-initialised frame (first, lost track) runs the full deformation from its posed template.
     ``matching``: the tracked frame's :class:`bodystudio.reconstruct.silhouette.MatchSchedule` (which of its
     outer iterations match the cheaper way; default: the last one reads the outline raster drawn at the one
-    before); ``exact_fields``: the run's :class:`SilhouetteFields` by the exact distance transform (default
-    False: the 5x5 chamfer one, ~2x faster). Both measured in docs/reconstruct.md (rec15e);
+    before and keeps the visual-hull gate's decisions of the earlier ones); ``exact_fields``: the run's
+    :class:`SilhouetteFields` by the exact distance transform (default False: the 5x5 chamfer one, ~2x
+    faster). Both measured in docs/reconstruct.md (rec15e);
     ``TrackParams(matching=MatchSchedule(), exact_fields=True)`` is the tracker before them.
     """
 
@@ -93,7 +94,7 @@ class TrackParams:
     min_decrease: float = 0.01
     warm_mesh: bool = False
     outer_iterations: int = 3
-    matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True)
+    matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True, gate="reuse")
     exact_fields: bool = False
 
     def __post_init__(self):
