@@ -64,6 +64,10 @@ class RapidSkinParams:
     matching: MatchSchedule = MatchSchedule()
 
     def __post_init__(self):
+        if isinstance(self.matching, dict):  # as ``asdict`` wrote it (a batch's options, run.json)
+            object.__setattr__(self, "matching", MatchSchedule(**self.matching))
+        if not isinstance(self.matching, MatchSchedule):
+            raise InputError(f"matching must be a MatchSchedule, got {type(self.matching).__name__}")
         if self.solver not in SOLVERS:
             raise InputError(f"unknown solver {self.solver!r}; valid: {', '.join(SOLVERS)}")
         bad = [c for c in self.constraints if c not in CONSTRAINT_KINDS]

@@ -247,3 +247,16 @@ def test_fields_on_two_threads_equal_the_serial_ones(scene, exact):
     for cam in cams:
         assert one.offset[cam.name] == two.offset[cam.name]
         assert np.shares_memory(two.sdf[cam.name], two._packed_sdf)
+
+
+def test_params_with_a_schedule_round_trip_through_asdict():
+    """The CLI hands a batch its RapidSkinParams as ``asdict`` (bodystudio/batch.py): the schedule comes back."""
+    from dataclasses import asdict
+
+    p = RapidSkinParams(matching=MatchSchedule(cheap_iterations=2, keep_outline=True, gate="reuse"))
+    assert RapidSkinParams(**asdict(p)) == p
+    assert RapidSkinParams(**asdict(RapidSkinParams())).matching == MatchSchedule()
+    with pytest.raises(InputError):
+        RapidSkinParams(matching=3)
+    with pytest.raises(InputError):
+        RapidSkinParams(matching={"gate": "sometimes"})
