@@ -58,6 +58,7 @@ from bodystudio.reconstruct.pose_init import (
     with_bone_lengths,
 )
 from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
+from bodystudio.reconstruct.shape_prior import shape_prior_mesh
 from bodystudio.reconstruct.tracking import (
     SilhouetteFields,
     TrackParams,
@@ -213,7 +214,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         progress: bool = False, tracking: bool = False, track_params: TrackParams | None = None,
                         refine_with: str = "fields", rest_cotangents: bool = True,
                         refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence",
-                        joint_smoothing: int = 0, accept_implausible: bool = False) -> dict:
+                        joint_smoothing: int = 0, accept_implausible: bool = False, shape_prior: bool = False
+                        ) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
@@ -255,7 +257,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    track_params=track_params, refine_with=refine_with,
                                    rest_cotangents=rest_cotangents, refine_params=refine_params,
                                    bone_lengths=bone_lengths, joint_smoothing=joint_smoothing,
-                                   accept_implausible=accept_implausible)
+                                   accept_implausible=accept_implausible, shape_prior=shape_prior)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -268,7 +270,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        joints_path, warm_start, refine_pose, score, progress, tracking: bool = False,
                        track_params: TrackParams | None = None, refine_with: str = "fields",
                        rest_cotangents: bool = True, refine_params: PoseRefineParams | None = None,
-                       bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True) -> dict:
+                       bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True,
+                       shape_prior: bool = False) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -286,6 +289,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     here, for a batch chunk, whose whole run is judged by :func:`bodystudio.batch.reconstruct_batch`).
     """
     from bodystudio.body import build_body
+    from bodystudio.body.statistical import load_statistical_model
     from bodystudio.capture.session import progress_bar
 
     track_params = track_params or TrackParams()
@@ -316,6 +320,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
         lengths = run_bone_lengths(session, selected, joints, joints_path)
     body = build_body(resolution=TEMPLATES[template])
     F = body.faces
+    shape_model = load_statistical_model(TEMPLATES[template], progress=False) if shape_prior else None
     regions = vertex_regions(body) if score else None
     rest_delta = cotangent_weights(body.vertices, F) if rest_cotangents else None
     rest = body.vertices
@@ -421,6 +426,21 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             delta = rest_delta if rest_delta is not None else cotangent_weights(reference, F)
             result = deform_to_observations(V_start, F, cameras, masks, frame_params, depth=depth, delta=delta,
                                             smooth_reference=reference, fields=fields)
+            if shape_model is not None:
+                # issue 15: the shape space's fit to the first pass starts and regularises a second pass, so
+                # the surfaces no view sees take the fitted body's shape instead of the generic template's
+                t1 = time.perf_counter()
+                prior = shape_prior_mesh(shape_model, body, result.vertices, init.bone_transforms,
+                                         init.global_scale)
+                t_prior = time.perf_counter() - t1
+                second = deform_to_observations(prior, F, cameras, masks, frame_params, depth=depth, delta=delta,
+                                                smooth_reference=prior, fields=fields)
+                second.solver_s += result.solver_s
+                second.matching_s += result.matching_s
+                second.n_silhouette = result.n_silhouette + second.n_silhouette
+                second.n_depth = result.n_depth + second.n_depth
+                t_init += t_prior
+                result = second
             t_frame = time.perf_counter() - t_start
             V = result.vertices
             if tracking:
@@ -459,7 +479,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "constraints": list(params.constraints), "frames": selected,
                    "warm_start": warm_start, "refine_pose": refine_pose, "tracking": tracking,
                    "refine_with": refine_with, "rest_cotangents": rest_cotangents, "bone_lengths": bone_lengths,
-                   "joint_smoothing": int(joint_smoothing),
+                   "joint_smoothing": int(joint_smoothing), "shape_prior": bool(shape_prior),
                    "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
                    "params": asdict(params), "n_vertices": int(len(body.vertices)),
                    "track_params": asdict(track_params) if tracking else None,
