@@ -368,8 +368,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 track = lost_track_reason(state is None, jump, prior_out, track_params) or "tracked"
                 if track == "tracked":
                     T_joints = (initialise_pose(fit_body, J).bone_transforms
-                                if J is not None and (track_params.joint_weight > 0 or track_params.head_weight > 0)
-                                else None)
+                                if J is not None and track_params.joint_weight > 0 else None)
                     T = track_bone_transforms(fit_body, state["T"], fields, track_params, T_joints)
                     energy = outside_fraction(pose_template(fit_body, T).vertices, fields, track_params.outside_px)
                     detail["energy"] = energy

@@ -42,7 +42,6 @@ from bodystudio.body.kinect import kinect_joint_names
 from bodystudio.errors import InputError
 from bodystudio.reconstruct.articulated_fit import (
     REFINE_BONES,
-    REFINE_BONES_WITH_HEAD,
     PoseRefineParams,
     _huber_weights,
     refine_bone_transforms,
@@ -87,7 +86,6 @@ class TrackParams:
     min_decrease: float = 0.01
     warm_mesh: bool = False
     outer_iterations: int = 3
-    head_weight: float = 0.0
 
     def __post_init__(self):
         for name, value, lo, hi in (("joint_jump_m", self.joint_jump_m, 1e-3, 10.0),
@@ -96,8 +94,7 @@ class TrackParams:
                                     ("energy_ratio", self.energy_ratio, 1.0, 100.0),
                                     ("iterations", self.iterations, 1, 100),
                                     ("min_decrease", self.min_decrease, 0.0, 1.0),
-                                    ("outer_iterations", self.outer_iterations, 0, 100),
-                                    ("head_weight", self.head_weight, 0.0, 1e6)):
+                                    ("outer_iterations", self.outer_iterations, 0, 100)):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
 
@@ -518,11 +515,6 @@ def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, si
     return keep
 
 
-#: The segments whose ends :attr:`TrackParams.head_weight` pulls towards the frame's tracker joints (Neck,
-#: Head: the neck's pitch and the head's).
-HEAD_ANCHOR_BONES = ("neck_01", "head")
-
-
 def joint_anchors(body, joint_transforms: np.ndarray, bones=REFINE_BONES):
     """Heads and tails of the refined ``bones`` placed by the bone transforms of the frame's tracker
     joints (:func:`bodystudio.reconstruct.pose_init.initialise_pose`): ``(bones, rest_points, targets)``."""
@@ -546,20 +538,11 @@ def track_bone_transforms(body, previous: np.ndarray, fields: SilhouetteFields,
     (``joint_weight``), which keeps the silhouettes' blind directions from drifting over frames.
     """
     params = params or TrackParams()
-    head = params.head_weight > 0 and joint_transforms is not None
     refine = PoseRefineParams(iterations=params.iterations, prior_weight=params.prior_weight,
-                              robust_m=params.robust_m, min_decrease=params.min_decrease,
-                              bones=REFINE_BONES_WITH_HEAD if head else REFINE_BONES)
-    parts = []
-    if joint_transforms is not None and params.joint_weight > 0:
-        parts.append((*joint_anchors(body, joint_transforms, params.joint_bones), params.joint_weight))
-    if head:
-        parts.append((*joint_anchors(body, joint_transforms, HEAD_ANCHOR_BONES), params.head_weight))
+                              robust_m=params.robust_m, min_decrease=params.min_decrease)
     anchors = None
-    if parts:
-        anchors = (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
-                   np.concatenate([p[2] for p in parts]),
-                   np.concatenate([np.full(len(p[0]), float(p[3])) for p in parts]))
+    if joint_transforms is not None and params.joint_weight > 0:
+        anchors = (*joint_anchors(body, joint_transforms, params.joint_bones), params.joint_weight)
     return refine_bone_transforms(body, previous, None, refine, data_term=silhouette_data_term(fields, params),
                                   anchors=anchors)
 
