@@ -8,7 +8,10 @@ Reshaping §3) couples those surfaces to the ones the cameras do see. Here the d
 is brought back to the rest pose with the frame's bone transforms (the inverse of Eq. 12), the shape space's
 coefficients are fitted to it by robust, ridge-regularised least squares (:func:`fit_shape_coefficients`),
 and the fitted shape, posed with the same transforms (Eq. 12), is both the start and the smoothness
-reference of a second pass of Algorithm 1 (:func:`shape_prior_mesh`).
+reference of a second pass of Algorithm 1 (:func:`shape_prior_mesh`; ``shape_prior="frame"`` of
+:func:`bodystudio.reconstruct.sequence.reconstruct_session`). With ``shape_prior="run"`` the first frame
+does so and every later frame starts from (and is regularised towards) the mean of the coefficients fitted
+to the frames before it, in one pass: the subject's shape does not change over a run.
 """
 
 from __future__ import annotations
@@ -46,14 +49,23 @@ def fit_shape_coefficients(model, rest_vertices: np.ndarray, ridge: float = 1e-4
     return c
 
 
+def deformed_shape_coefficients(model, body, deformed: np.ndarray, bone_transforms: np.ndarray,
+                                ridge: float = 1e-4, robust_m: float = 0.02) -> np.ndarray:
+    """Shape-space coefficients of a deformed mesh: Algorithm 1's result for the template ``body`` posed by
+    ``bone_transforms`` (Eq. 12), un-skinned with them and fitted by :func:`fit_shape_coefficients`."""
+    rest = unpose(np.asarray(deformed, dtype=np.float64), body.weights, bone_transforms)
+    return fit_shape_coefficients(model, rest, ridge, robust_m)
+
+
+def posed_shape(model, body, coeffs: np.ndarray, bone_transforms: np.ndarray, global_scale: float = 1.0
+                ) -> np.ndarray:
+    """The shape space's rest shape ``coeffs`` skinned (Eq. 12) with ``body``'s weights and ``bone_transforms``."""
+    return pose_template(body, bone_transforms, global_scale, rest_vertices=model.vertices(coeffs)).vertices
+
+
 def shape_prior_mesh(model, body, deformed: np.ndarray, bone_transforms: np.ndarray, global_scale: float = 1.0,
                      ridge: float = 1e-4, robust_m: float = 0.02) -> np.ndarray:
-    """The shape space's fit to a deformed mesh, posed as it: ``(n, 3)`` world vertices.
-
-    ``deformed`` is Algorithm 1's result for the template ``body`` posed by ``bone_transforms`` (Eq. 12); it
-    is un-skinned with them, :func:`fit_shape_coefficients` fits the shape space to it, and the fitted rest
-    shape is skinned again with the same transforms and ``body``'s weights.
-    """
-    rest = unpose(np.asarray(deformed, dtype=np.float64), body.weights, bone_transforms)
-    c = fit_shape_coefficients(model, rest, ridge, robust_m)
-    return pose_template(body, bone_transforms, global_scale, rest_vertices=model.vertices(c)).vertices
+    """The shape space's fit to a deformed mesh, posed as it: ``(n, 3)`` world vertices
+    (:func:`deformed_shape_coefficients` then :func:`posed_shape` with the same transforms)."""
+    c = deformed_shape_coefficients(model, body, deformed, bone_transforms, ridge, robust_m)
+    return posed_shape(model, body, c, bone_transforms, global_scale)
