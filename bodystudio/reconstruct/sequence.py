@@ -232,6 +232,10 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     accurate, docs/reconstruct.md), every frame is initialised from its joints (:func:`reconstruct_frames`).
     ``refine_with``: ``fields`` (default) fits the refinement to the implicit visual hull of the
     silhouettes' distance fields, ``hull`` to the carved visual hull.
+    ``shape_prior`` (issue 15's unseen surfaces, :mod:`bodystudio.reconstruct.shape_prior`; off by default,
+    measured in docs/reconstruct.md): ``frame`` fits the statistical body model's shape space to each frame's
+    deformation and runs Algorithm 1 again from that shape (``shape_prior_outer`` re-matchings, 0: the
+    frame's own), ``run`` starts every later frame from the mean shape fitted to the frames before it.
     """
     from bodystudio.capture.session import open_session
 
