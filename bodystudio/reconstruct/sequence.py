@@ -218,7 +218,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         refine_with: str = "fields", rest_cotangents: bool = True,
                         refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence",
                         joint_smoothing: int = 0, accept_implausible: bool = False, shape_prior: str = "off",
-                        shape_prior_outer: int = 0) -> dict:
+                        shape_prior_outer: int = 0, shape_prior_first_outer: int = 0) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
@@ -265,7 +265,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    rest_cotangents=rest_cotangents, refine_params=refine_params,
                                    bone_lengths=bone_lengths, joint_smoothing=joint_smoothing,
                                    accept_implausible=accept_implausible, shape_prior=shape_prior,
-                                   shape_prior_outer=shape_prior_outer)
+                                   shape_prior_outer=shape_prior_outer,
+                                   shape_prior_first_outer=shape_prior_first_outer)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -279,7 +280,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        track_params: TrackParams | None = None, refine_with: str = "fields",
                        rest_cotangents: bool = True, refine_params: PoseRefineParams | None = None,
                        bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True,
-                       shape_prior: str = "off", shape_prior_outer: int = 0) -> dict:
+                       shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0
+                       ) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -328,6 +330,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
         lengths = run_bone_lengths(session, selected, joints, joints_path)
     body = build_body(resolution=TEMPLATES[template])
     F = body.faces
+    if not 0 <= int(shape_prior_first_outer) <= 100:
+        raise InputError(f"shape_prior_first_outer {shape_prior_first_outer}: give 0 (the run's No) to 100 outer "
+                         "iterations")
     if not 0 <= int(shape_prior_outer) <= 100:
         raise InputError(f"shape_prior_outer {shape_prior_outer}: give 0 (the run's No) to 100 outer iterations")
     if shape_prior not in SHAPE_PRIORS:
@@ -443,7 +448,12 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 V_start = reference
                 t_init += time.perf_counter() - t1
             delta = rest_delta if rest_delta is not None else cotangent_weights(reference, F)
-            result = deform_to_observations(V_start, F, cameras, masks, frame_params, depth=depth, delta=delta,
+            first_params = frame_params
+            if shape_model is not None and shape_prior_first_outer and (shape_prior == "frame" or not shape_coeffs):
+                # the pass the shape space is fitted to stops before the outer iterations drift
+                first_params = replace(frame_params, outer_iterations=min(frame_params.outer_iterations,
+                                                                          shape_prior_first_outer))
+            result = deform_to_observations(V_start, F, cameras, masks, first_params, depth=depth, delta=delta,
                                             smooth_reference=reference, fields=fields)
             if shape_model is not None and (shape_prior == "frame" or not shape_coeffs):
                 # issue 15: the shape space's fit to the first pass starts and regularises a second pass, so
@@ -509,6 +519,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "refine_with": refine_with, "rest_cotangents": rest_cotangents, "bone_lengths": bone_lengths,
                    "joint_smoothing": int(joint_smoothing), "shape_prior": shape_prior,
                    "shape_prior_outer": int(shape_prior_outer),
+                   "shape_prior_first_outer": int(shape_prior_first_outer),
                    "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
                    "params": asdict(params), "n_vertices": int(len(body.vertices)),
                    "track_params": asdict(track_params) if tracking else None,

@@ -33,6 +33,10 @@ def test_shape_prior_passes_and_record(small_session):
     # every frame: the first pass (No = 3) then the second from the fitted shape (2)
     assert run["shape_prior"] == "frame" and run["shape_prior_outer"] == 2
     assert [len(f["n_silhouette"]) for f in frames] == [5, 5]
+    _, frames_short, run_short = _run(small_session, shape_prior="frame", shape_prior_outer=2,
+                                      shape_prior_first_outer=1)
+    # the pass the shape space is fitted to stopped after one matching
+    assert run_short["shape_prior_first_outer"] == 1 and [len(f["n_silhouette"]) for f in frames_short] == [3, 3]
     whole, frames_run, _ = _run(small_session, shape_prior="run")
     # the run's shape: two passes at the first frame, one from the fitted shape after it
     assert [len(f["n_silhouette"]) for f in frames_run] == [6, 3]
@@ -47,3 +51,5 @@ def test_shape_prior_errors(small_session):
         reconstruct_session(small_session.path, template="2k", shape_prior="pca")
     with pytest.raises(InputError, match="shape_prior_outer"):
         reconstruct_session(small_session.path, template="2k", shape_prior="frame", shape_prior_outer=-1)
+    with pytest.raises(InputError, match="shape_prior_first_outer"):
+        reconstruct_session(small_session.path, template="2k", shape_prior="frame", shape_prior_first_outer=101)
