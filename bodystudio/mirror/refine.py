@@ -21,6 +21,10 @@ docs/mirror.md "MIR12") by a few Gauss-Newton steps of the energy
   shows a bend of the lower spine; MIR12g, docs/mirror.md "Who owns the last 0.04");
 * ``E_prior``: Tikhonov damping of the change from the IK pose.
 
+The run's plan also refines the twist of spine_01 and spine_02 (:data:`TWIST_BONES`: the upper body's yaw against
+the pelvis, which the IK takes from different joints), and a step turns the root about the body's centroid, not
+the Root bone's head on the floor (:data:`ROOT_PIVOT`; MIR12h, docs/mirror.md "The root's yaw and pivot").
+
 Every residual is linear in the parameters to first order through the skinning: a vertex ``v`` moves by
 ``dt + w x (v - h_root)`` for the root and ``s_j(v) (e_j x (v - h_j))`` for bone ``j``'s swing about the axes
 ``e_j`` perpendicular to the posed bone, where ``s_j(v)`` is the skin weight of ``v`` on ``j``'s subtree.
@@ -67,6 +71,17 @@ TRUNK_RAD = float(np.radians(16.0))
 #: Gauss-Newton steps per frame: on MIR-SYNTH 41 / 42 one step scores the warp as well as two or three
 #: (warp_iou 0.913 / 0.894 against 0.913 / 0.894 / 0.912 / 0.894) at half the cost (docs/mirror.md).
 ITERATIONS = 1
+#: Bones whose twist (the turn about the bone) the run's plan refines as well (``refine_plan(twist_bones=...)``):
+#: the upper body's yaw against the pelvis. The IK takes the pelvis's yaw from the hip joints and the shoulders'
+#: from the shoulder joints, each to ~4 degrees; with the spine's twist fixed the root could only turn both
+#: together, so the refinement left the root's yaw as the IK gave it (3.0-4.0 degrees off on MIR-SYNTH 41 / 42 /
+#: 43). With these two: 1.8-3.1 degrees, warp_iou +0.004 / +0.005 / +0.006 (docs/mirror.md, MIR12h).
+TWIST_BONES = ("spine_01", "spine_02")
+#: Where the root's rotation turns in a step: "centroid" (the posed body's centroid; the translation makes up the
+#: difference) or "head" (the Root bone's head, on the floor between the feet: a few degrees of tilt about it move
+#: the pelvis by centimetres, and the step's first-order rotation shrinks the body toward the floor by
+#: ``angle^2 / 2`` of its height, which a second step used to take out). MIR12h; "head" is the pivot before.
+ROOT_PIVOT = "centroid"
 #: Every ``VERTEX_STRIDE``-th vertex enters the silhouette and depth terms.
 VERTEX_STRIDE = 2
 #: Rim vertices: ``|cos|`` of the (skinned) normal and the viewing ray below this.
@@ -109,6 +124,7 @@ class _RefinePlan:
     joint_moves: np.ndarray  # (J, 1 + S) how much Kinect joint k moves with bone j's rotation (0..1)
     rest_relative: np.ndarray  # (B, 4, 4) A_parent^-1 A_j (the root: A_root), for the forward kinematics
     rest_inverse: np.ndarray  # (B, 4, 4) A_j^-1
+    n_twist: int = 0  # the last n_twist entries of ``bones`` turn about the bone itself (its twist), one column used
 
 
 def _descendants(parents, j) -> np.ndarray:
@@ -122,18 +138,18 @@ def _descendants(parents, j) -> np.ndarray:
 
 def refine_plan(vertices_rest: np.ndarray, faces: np.ndarray, weights: np.ndarray, skeleton: Skeleton,
                 version: str = "v2", stride: int = VERTEX_STRIDE,
-                swing_bones: tuple[str, ...] = SWING_BONES) -> _RefinePlan:
+                swing_bones: tuple[str, ...] = SWING_BONES, twist_bones: tuple[str, ...] = ()) -> _RefinePlan:
     """The per-body data of :func:`refine_pose` (computed once per source body); ``swing_bones`` the bones
-    whose swing is refined."""
+    whose swing is refined, ``twist_bones`` those whose twist (the turn about the bone) is refined too."""
     from bodystudio.geometry.mesh import vertex_normals
 
     names = skeleton.bone_names
-    missing = [b for b in ("Root", *swing_bones) if b not in names]
+    missing = [b for b in ("Root", *swing_bones, *twist_bones) if b not in names]
     if missing:
         raise InputError(f"pose refinement needs the game_engine rig; bone {missing[0]!r} is missing")
     parents = np.asarray(skeleton.parents)
     root = int(np.flatnonzero(parents < 0)[0])
-    bones = np.array([root] + [names.index(b) for b in swing_bones])
+    bones = np.array([root] + [names.index(b) for b in (*swing_bones, *twist_bones)])
     subset = np.arange(0, len(vertices_rest), max(1, int(stride)))
     W = np.asarray(weights, float)[subset]
     inside = np.stack([_descendants(parents, j) for j in bones], axis=1).astype(float)  # (B, 1 + S)
@@ -154,7 +170,7 @@ def refine_plan(vertices_rest: np.ndarray, faces: np.ndarray, weights: np.ndarra
     A = skeleton.rest_frames
     rel = np.array([A[j] if p < 0 else np.linalg.solve(A[p], A[j]) for j, p in enumerate(parents)])
     return _RefinePlan(subset, np.asarray(vertices_rest, float)[subset], N, idx, val, subtree, bones, moves, rel,
-                       np.linalg.inv(A))
+                       np.linalg.inv(A), len(twist_bones))
 
 
 def _forward_kinematics(plan: _RefinePlan, parents, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
@@ -580,12 +596,18 @@ def _turned_rotations(rest_rotations, parents, delta, axes, world, bones):
     in the rest frame: ``log(Rr^T L_j' Rr)``."""
     n = len(bones)
     out = np.empty((n, 3))
-    turn = np.empty(3)
+    turns = np.empty((n, 3))
     for b in range(n):
         if b == 0:
-            turn[:] = delta[3:6]
+            turns[b] = delta[3:6]
         else:
-            turn[:] = delta[6 + 2 * (b - 1)] * axes[b - 1, 0] + delta[7 + 2 * (b - 1)] * axes[b - 1, 1]
+            turns[b] = delta[6 + 2 * (b - 1)] * axes[b - 1, 0] + delta[7 + 2 * (b - 1)] * axes[b - 1, 1]
+    turn = np.empty(3)
+    for b in range(n):
+        turn[:] = turns[b]
+        for c in range(n):  # a bone listed twice (its swing and its twist) turns by both
+            if c != b and bones[c] == bones[b]:
+                turn += turns[c]
         L = _rotation_matrix(turn) @ world[bones[b]]
         if parents[b] >= 0:
             L = world[parents[b]].T @ L
@@ -692,8 +714,9 @@ def refine_pose(plan: _RefinePlan, skeleton: Skeleton, pose: Pose, camera, foreg
     refined mask in the colour image of ``camera``), the player's ``depth_points`` (N, 3) and the Kinect joints.
 
     ``others``: pixels of other players (a body point projecting there may be occluded, not outside).
-    Root translation/rotation and the swing of the plan's bones (:data:`SWING_BONES` by default) change;
-    every other rotation, and every twist, is the IK's. ``iterations`` Gauss-Newton steps from ``pose``.
+    Root translation/rotation and the swing of the plan's bones (:data:`SWING_BONES` by default) change, and the
+    twist of its twist bones (none by default; the run's plan :data:`TWIST_BONES`); every other rotation, and every
+    other twist, is the IK's. ``iterations`` Gauss-Newton steps from ``pose``.
     """
     with _one_blas_thread():
         return _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tracked, depth_points,
@@ -748,7 +771,13 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
     for _ in range(max(0, int(iterations))):
         M, transforms = _forward_kinematics(plan, parents, pose)
         world, heads, axes = _bone_frames(M, rest_rotations, bones)
+        for k in range(len(bones) - 1 - plan.n_twist, len(bones) - 1):  # twist entries: about the bone, one column
+            axes[k, 0] = M[bones[k + 1], :3, 1]
+            axes[k, 1] = 0.0
         V, N = _skin(plan, transforms)
+        root_head = heads[0].copy()
+        if ROOT_PIVOT == "centroid":  # the root's rotation turns about the body's centroid (the kernels' heads[0])
+            heads[0] = V.mean(axis=0)
         Pc = V @ camera.R.T + camera.t
         uv, _ = camera.project_with_depth(V)
         H = np.zeros((n_par, n_par))
@@ -831,4 +860,7 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
             return start
         total = total + delta
         pose = apply_update(skeleton, pose, delta, bones, axes, world)
+        if ROOT_PIVOT == "centroid":  # v -> R (v - c) + c + dt moves the root head h by (R - I)(h - c) + dt
+            pose = Pose(pose.rotations, pose.translation + (_rotation_matrix(delta[3:6]) - np.eye(3))
+                        @ (root_head - heads[0]))
     return pose if np.all(np.isfinite(pose.rotations)) else start
