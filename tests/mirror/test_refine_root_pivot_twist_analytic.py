@@ -169,3 +169,34 @@ def test_the_fast_refinement_with_twist_entries_gives_the_reference_pose(case):
     assert np.abs(reference.translation - ik.translation).max() > 1e-3  # the case exercises the step
     np.testing.assert_allclose(fast.rotations, reference.rotations, atol=1e-6)
     np.testing.assert_allclose(fast.translation, reference.translation, atol=1e-6)
+
+
+def test_the_one_pass_projection_is_the_cameras():
+    """``refine._project_body`` (MIR12h: the projection, the window and rim tests in one numba pass) against
+    ``Camera.project_with_depth`` and numpy's tests, with lens distortion and points behind the camera."""
+    rng = np.random.default_rng(3)
+    camera = Camera.look_at("kinect", eye=(0.3, 1.0, 2.6), target=(0.0, 0.95, 0.0), fx=525.0)
+    camera = Camera(camera.name, camera.K, np.array([0.08, -0.2, 0.002, -0.001, 0.05]), camera.R, camera.t,
+                    camera.width, camera.height)
+    V = np.r_[rng.normal([0.0, 1.0, 0.0], [0.6, 0.6, 0.3], (400, 3)), [[0.3, 1.0, 3.5], [0.3, 1.0, 2.6001]]]
+    N = rng.normal(size=V.shape)
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    origin, dist_shape = np.array([150.0, 60.0]), np.array([300.0, 350.0])
+    Pc, uv, local, in_box, rim, cos = refine_module._project_body(
+        V, N, camera.R, camera.t, camera.K, np.asarray(camera.dist, float), camera.has_distortion, camera.center,
+        camera.width, camera.height, origin, dist_shape, 0.3)
+    uv_ref, z = camera.project_with_depth(V)
+    np.testing.assert_allclose(Pc, V @ camera.R.T + camera.t, atol=1e-12)
+    np.testing.assert_allclose(uv, uv_ref, atol=1e-9)
+    assert np.isnan(uv[-2:]).all() and z[-2] < 0  # behind the camera: no pixel, in no window
+    with np.errstate(invalid="ignore"):
+        ok = (uv_ref[:, 0] >= 0) & (uv_ref[:, 0] <= camera.width - 1) & (uv_ref[:, 1] >= 0) \
+            & (uv_ref[:, 1] <= camera.height - 1)
+        lo = uv_ref - origin
+        box = ok & (lo[:, 0] >= 1) & (lo[:, 1] >= 1) & (lo[:, 0] < dist_shape[0] - 2) & (lo[:, 1] < dist_shape[1] - 2)
+    ray = V - camera.center
+    cos_ref = np.einsum("ij,ij->i", N, ray) / np.linalg.norm(ray, axis=1)
+    np.testing.assert_allclose(cos, cos_ref, atol=1e-12)
+    np.testing.assert_array_equal(in_box, box)
+    np.testing.assert_array_equal(rim, ok & (np.abs(cos_ref) < 0.3))
+    assert 50 < box.sum() < ok.sum() < len(V) - 2 and 0 < rim.sum() < ok.sum()  # every test is exercised
