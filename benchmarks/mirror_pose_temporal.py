@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bodystudio.mirror.refine import RefineWeights
+
 #: name -> keyword arguments of ``refine_pose`` plus ``twist`` (the plan's twist bones; the run's
 #: :data:`~bodystudio.mirror.refine.TWIST_BONES` when not given), ``pivot`` (``refine.ROOT_PIVOT``; the run's when not
 #: given), ``joint_bias`` (the Kinect joints less the running mean of their offset from the refined body's, in the
@@ -41,6 +43,10 @@ VARIANTS: dict[str, dict] = {
     "twist spine_01-03": {"twist": ("spine_01", "spine_02", "spine_03")},
     "twist spine_01-02, neck": {"twist": ("spine_01", "spine_02", "neck_01")},
     "twist spine_01-02, thighs": {"twist": ("spine_01", "spine_02", "thigh_l", "thigh_r")},
+    "twist spine_01-02, clavicles": {"twist": ("spine_01", "spine_02", "clavicle_l", "clavicle_r")},
+    "trunk 8 deg": {"weights": RefineWeights(trunk_rad=float(np.radians(8.0)))},
+    "joints x0.5": {"weights": RefineWeights(joint_weight=0.5)},
+    "depth x2": {"weights": RefineWeights(depth_weight=2.0)},
 }
 
 
