@@ -163,7 +163,7 @@ def _session_side(quick: bool) -> tuple[list[str], float | None, float | None, f
             o = observations[0]
             ik_pose(model.skeleton(np.zeros(len(model.stddev))), o.joints, o.tracked, o.version)
         track = init.time_init_and_track(observations, model, view_point=session.kinect.depth.center,
-                                         track_frames=30)
+                                         track_frames=30, depth_camera=session.kinect.depth)
         last = frames.read_mirror_frame(session, session.frame_ids[-1])
         register = _median_ms(lambda: frames.register_depth_to_color(last.depth_m, last.player, session.kinect),
                               5)

@@ -41,11 +41,19 @@ def parse_value(v: str):
 
 
 def parse_variants(text: str) -> list[tuple[str, dict]]:
-    """``NAME=k:v,k:v;NAME2=...`` -> [(NAME, {k: v})]."""
+    """``NAME=k:v,k:v;NAME2=...`` -> [(NAME, {k: v})]. Keys ``m_NAME`` are fields of the tracked frames'
+    :class:`MatchSchedule` (issue 15's frame time, e.g. ``m_cheap_iterations:2,m_keep_outline:True``): they
+    become one ``t_matching``, over the exact ``MatchSchedule()`` (not the tracker's default: name every field).
+    """
+    from bodystudio.reconstruct.silhouette import MatchSchedule
+
     out = []
     for part in text.split(";"):
         name, _, kv = part.partition("=")
         kw = {k: parse_value(v) for k, _, v in (item.partition(":") for item in filter(None, kv.split(",")))}
+        match_kw = {k[2:]: kw.pop(k) for k in [k for k in kw if k.startswith("m_")]}
+        if match_kw:
+            kw["t_matching"] = MatchSchedule(**match_kw)
         out.append((name.strip(), kw))
     return out
 

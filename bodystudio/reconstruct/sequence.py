@@ -348,7 +348,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 if lengths is not None:
                     J = with_bone_lengths(J, lengths)
             t1 = time.perf_counter()
-            fields = SilhouetteFields(cameras, masks) if tracking or (refine_pose and refine_with == "fields") else None
+            fields = (SilhouetteFields(cameras, masks, exact=track_params.exact_fields or not tracking)
+                      if tracking or (refine_pose and refine_with == "fields") else None)
             t_fields = time.perf_counter() - t1
             track = "per_frame"
             detail = {}
@@ -407,6 +408,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 if track_params.outer_iterations:  # never more re-matchings than the run's No
                     frame_params = replace(params, outer_iterations=min(params.outer_iterations,
                                                                         track_params.outer_iterations))
+                frame_params = replace(frame_params, matching=track_params.matching)
             if tracking:
                 state = {"T": init.bone_transforms, "scale": init.global_scale, "joints": J,
                          "energy": detail["energy"], "posed": init.vertices}
