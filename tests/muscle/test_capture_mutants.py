@@ -150,7 +150,7 @@ def test_the_capture_for_extension_sets_the_extension_options_and_needs_the_sequ
     stub_capture_checks(monkeypatch)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", for_extension=True)
     assert seen["o"] == CaptureOptions(mode="model", sequence_fit_skeleton=True, sequence_fit_root=True,
-                                       sequence_depth_huber_only=True)
+                                       sequence_depth_huber_only=True, body_rest_shape=False, norm_limit=0.5)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, for_extension=True)
     assert seen["o"] == CaptureOptions(mode="full", **cap_mod.EXTENSION_CAPTURE)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", for_extension=False)
