@@ -260,6 +260,9 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
     params = TrackParams(**TRACK_BEFORE)  # the tracker as first measured (6 it, No = 8)
     fast = TrackParams()  # a tracked frame now (issue 15's frame time): fewer fit and outer iterations
     no_fast = fast.outer_iterations or RapidSkinParams().outer_iterations
+    # and (rec15e) the tracked frame's cheaper last matching and chamfer distance fields
+    fast_params = RapidSkinParams(outer_iterations=no_fast, matching=fast.matching)
+    fast_fields = f"distance fields ({'exact' if fast.exact_fields else 'chamfer'}), tracked frame now"
     fast_fit = f"tracking fit (<= {fast.iterations} it, stops on the energy's plateau), tracked frame now"
     fast_match, fast_solve = f"matching (No = {no_fast} x 10 views), tracked frame now", \
         f"solver (GS, No = {no_fast} x Ni = 8), tracked frame now"
@@ -271,13 +274,12 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
         """A tracked frame as ``reconstruct_frames`` runs it, from frame 0's pose (the prior)."""
         frame = open_session(path).frame(frame_id)
         masks = read_masks(frame)
-        fields = SilhouetteFields(cams, masks)
+        fields = SilhouetteFields(cams, masks, exact=fast.exact_fields)
         outside_fraction(pose_template(fit_body, T0).vertices, fields)
         T = track_bone_transforms(fit_body, T0, fields, fast)
         outside_fraction(pose_template(fit_body, T).vertices, fields)
         P = pose_template(body, T, 1.0)
-        return deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(outer_iterations=no_fast),
-                                      delta=rest_delta, fields=fields)
+        return deform_to_observations(P.vertices, body.faces, cams, masks, fast_params, delta=rest_delta, fields=fields)
     with threadpool_limits(1):
         for rep in range(repeats + 1):  # the first run compiles
             steps = {}
@@ -290,6 +292,7 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
             steps["visual hull (carved)"], hull = cpu(visual_hull, cams, masks)
             steps["hull fit (10 it)"], _ = cpu(refine_bone_transforms, fit_body, init2.bone_transforms, hull)
             steps["distance fields"], fields = cpu(SilhouetteFields, cams, masks)
+            steps[fast_fields], fields_now = cpu(SilhouetteFields, cams, masks, 48, fast.exact_fields)
             steps["fields fit (10 it)"], T = cpu(refine_bone_transforms, fit_body, init2.bone_transforms, None,
                                                  data_term=silhouette_data_term(fields, params))
             steps["tracking fit (6 it)"], Tt = cpu(track_bone_transforms, fit_body, T0, fields, params)
@@ -306,19 +309,19 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
                 steps[f"matching (No = 8 x 10 views{label})"] = deform * share
                 steps[f"solver (GS, No = 8 x Ni = 8{label})"] = deform * (1 - share)
             t = time.process_time()
-            r = deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(outer_iterations=no_fast),
-                                       delta=rest_delta, fields=fields)
+            r = deform_to_observations(P.vertices, body.faces, cams, masks, fast_params, delta=rest_delta,
+                                       fields=fields_now)
             deform = 1000 * (time.process_time() - t)
             share = r.matching_s / max(r.matching_s + r.solver_s, 1e-12)
             steps[fast_match], steps[fast_solve] = deform * share, deform * (1 - share)
             # the gated deformation's wall time on one and two numba threads (the cameras' matching and the
             # gate's points in prange; everything else in a frame is one thread)
-            for mode, outer in (("default", 8), ("fast", no_fast)):
+            for mode, run_params in (("default", RapidSkinParams()), ("fast", fast_params)):
                 for threads in (1, 2):
                     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
                     t = time.perf_counter()
-                    deform_to_observations(P.vertices, body.faces, cams, masks, RapidSkinParams(outer_iterations=outer),
-                                           delta=rest_delta, fields=fields)
+                    deform_to_observations(P.vertices, body.faces, cams, masks, run_params, delta=rest_delta,
+                                           fields=fields if mode == "default" else fields_now)
                     wall[mode, threads].append(1000 * (time.perf_counter() - t))
             # the whole tracked frame end to end (masks read to deformed mesh) on one and two numba threads:
             # process CPU (all threads), the main thread's CPU (with two threads: its share of the parallel
@@ -346,7 +349,7 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
         + med["cotangent weights 13K (per frame)"]
     fields_init = med["pose init from joints (2.5K + 13K)"] + med["distance fields"] + med["fields fit (10 it)"]
     tracked = common + med["distance fields"] + med["tracking fit (6 it)"] + med["lost-track checks"]
-    tracked_now = reads + med["distance fields"] + med[fast_fit] + med["lost-track checks"] + med[fast_match] \
+    tracked_now = reads + med[fast_fields] + med[fast_fit] + med["lost-track checks"] + med[fast_match] \
         + med[fast_solve]
     rows = [[k, v] for k, v in med.items()]
     rows += [["**whole frame, first default** (joints + carved hull fit + per-frame cotangents, no gate)", old],

@@ -2,6 +2,7 @@
 wall, per step, on one or two numba threads.
 
 Usage: PYTHONPATH=. python benchmarks/reconstruct_tracked_frame.py [--cache DIR] [--repeats 9] [--threads 1|2]
+       [--compare]
 
 A tracked frame as ``reconstruct_frames`` runs it (``--tracking``, ``TrackParams()``): walk s31 frame 1 at 30 fps
 (10 cameras 640x480, 13K template) from frame 0's pose as the prior: read the masks, distance fields, the
@@ -10,7 +11,9 @@ deformation (No = 3, gate); BLAS on one thread. Prints the median and the minimu
 each step. With two numba threads the main thread's CPU is its share of every ``prange`` plus everything
 serial: the frame's wall on an idle two-core machine when the split is even (a waiting thread burns nothing
 under ``OMP_WAIT_POLICY=PASSIVE``). On a loaded machine compare trees by running this script alternately
-with ``PYTHONPATH`` on each (docs/reconstruct.md, rec15c).
+with ``PYTHONPATH`` on each (docs/reconstruct.md, rec15c); ``--compare`` alternates the default tracked frame
+frame by frame with the exact one (exact distance fields, every outline drawn: the tracker before rec15e's
+trade-offs) in one process.
 """
 
 from __future__ import annotations
@@ -30,6 +33,8 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=None, help="session folder to reuse (made when missing)")
     ap.add_argument("--repeats", type=int, default=9)
     ap.add_argument("--threads", type=int, default=1, choices=(1, 2))
+    ap.add_argument("--compare", action="store_true",
+                    help="alternate frame by frame with the exact tracked frame (exact fields, every matching drawn)")
     args = ap.parse_args()
     import numba
     from threadpoolctl import threadpool_limits
@@ -41,6 +46,7 @@ def main() -> None:
     from bodystudio.reconstruct.pose_init import initialise_pose, pose_template
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
     from bodystudio.reconstruct.sequence import frame_joints
+    from bodystudio.reconstruct.silhouette import MatchSchedule
     from bodystudio.reconstruct.tracking import SilhouetteFields, TrackParams, outside_fraction, track_bone_transforms
 
     path = args.cache or Path(tempfile.mkdtemp()) / "walk31"
@@ -53,8 +59,9 @@ def main() -> None:
     T0 = initialise_pose(fit_body, frame_joints(session, session.frame(session.frame_ids[0]), "tracker",
                                                 None)).bone_transforms
     rest_delta = cotangent_weights(body.vertices, body.faces)
-    track = TrackParams()
-    params = RapidSkinParams(outer_iterations=track.outer_iterations or RapidSkinParams().outer_iterations)
+    configs = {"default": TrackParams()}
+    if args.compare:
+        configs = {"exact (before rec15e)": TrackParams(matching=MatchSchedule(), exact_fields=True), **configs}
 
     def clocks():
         return np.array([time.process_time(), time.thread_time(), time.perf_counter()])
@@ -65,11 +72,13 @@ def main() -> None:
         steps[name] = 1000 * (clocks() - t)
         return out
 
-    def frame():
+    def frame(track):
+        params = RapidSkinParams(outer_iterations=track.outer_iterations or RapidSkinParams().outer_iterations,
+                                 matching=track.matching)
         steps: dict[str, np.ndarray] = {}
         fr = open_session(path).frame(session.frame_ids[1])
         masks = timed(steps, "read masks (10 PNG)", lambda: {n: fr.masks[n] for n in fr.masks})
-        fields = timed(steps, "distance fields", SilhouetteFields, cams, masks)
+        fields = timed(steps, "distance fields", SilhouetteFields, cams, masks, 48, track.exact_fields)
         timed(steps, "lost-track prior check", lambda: outside_fraction(pose_template(fit_body, T0).vertices, fields))
         T = timed(steps, "tracking fit (to the plateau)", track_bone_transforms, fit_body, T0, fields, track)
         timed(steps, "energy check", lambda: outside_fraction(pose_template(fit_body, T).vertices, fields))
@@ -79,17 +88,20 @@ def main() -> None:
         steps["whole tracked frame"] = sum(steps.values())
         return steps
 
-    runs: dict[str, list] = {}
+    runs: dict[str, dict[str, list]] = {c: {} for c in configs}
     with threadpool_limits(1):
-        frame()  # compiles
+        for track in configs.values():
+            frame(track)  # compiles
         for _ in range(args.repeats):
-            for name, v in frame().items():
-                runs.setdefault(name, []).append(v)
-    print(f"{numba.get_num_threads()} numba thread(s), {args.repeats} frames; ms: median (min)")
-    print(f"{'step':48s} {'CPU':>15s} {'main thread CPU':>17s} {'wall':>15s}")
-    for name, v in runs.items():
-        med, lo = np.median(np.array(v), axis=0), np.min(np.array(v), axis=0)
-        print(f"{name:48s} " + " ".join(f"{m:7.1f} ({n:5.1f})" for m, n in zip(med, lo, strict=True)))
+            for cname, track in configs.items():  # alternated frame by frame: the same load on each
+                for name, v in frame(track).items():
+                    runs[cname].setdefault(name, []).append(v)
+    for cname, steps in runs.items():
+        print(f"{cname}: {numba.get_num_threads()} numba thread(s), {args.repeats} frames; ms: median (min)")
+        print(f"{'step':48s} {'CPU':>15s} {'main thread CPU':>17s} {'wall':>15s}")
+        for name, v in steps.items():
+            med, lo = np.median(np.array(v), axis=0), np.min(np.array(v), axis=0)
+            print(f"{name:48s} " + " ".join(f"{m:7.1f} ({n:5.1f})" for m, n in zip(med, lo, strict=True)))
 
 
 if __name__ == "__main__":

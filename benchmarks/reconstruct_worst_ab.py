@@ -7,7 +7,8 @@ Usage: PYTHONPATH=. python benchmarks/reconstruct_worst_ab.py ROOT [--variants '
 ROOT holds the benchmark's 30 fps hidden-subject sessions (``synth_session(ROOT / "walk31", n_cameras=10,
 n_frames=6, motion="walk", subject_seed=31, template="full", fps=30)``, likewise turn 3 and arm_flex 12; made
 when missing). Each variant is a set of :class:`RapidSkinParams` fields (``t_NAME``: :class:`TrackParams`) over
-the defaults (``default`` = none);
+the defaults (``default`` = none; ``r_NAME``: a keyword of :func:`reconstruct_session`, e.g.
+``r_joint_smoothing:2``);
 every (session, constraints, mode) runs all variants back to back, so the rows compare on the same
 frames.
 Printed per row: median / p90 (visible) / Hausdorff mm and the region p90s (mean over frames), as the
@@ -41,11 +42,19 @@ def parse_value(v: str):
 
 
 def parse_variants(text: str) -> list[tuple[str, dict]]:
-    """``NAME=k:v,k:v;NAME2=...`` -> [(NAME, {k: v})]."""
+    """``NAME=k:v,k:v;NAME2=...`` -> [(NAME, {k: v})]. Keys ``m_NAME`` are fields of the tracked frames'
+    :class:`MatchSchedule` (issue 15's frame time, e.g. ``m_cheap_iterations:2,m_keep_outline:True``): they
+    become one ``t_matching``, over the exact ``MatchSchedule()`` (not the tracker's default: name every field).
+    """
+    from bodystudio.reconstruct.silhouette import MatchSchedule
+
     out = []
     for part in text.split(";"):
         name, _, kv = part.partition("=")
         kw = {k: parse_value(v) for k, _, v in (item.partition(":") for item in filter(None, kv.split(",")))}
+        match_kw = {k[2:]: kw.pop(k) for k in [k for k in kw if k.startswith("m_")]}
+        if match_kw:
+            kw["t_matching"] = MatchSchedule(**match_kw)
         out.append((name.strip(), kw))
     return out
 
@@ -127,11 +136,12 @@ def main() -> None:
             for tracking in modes:
                 for vname, kw in parse_variants(args.variants):
                     track_kw = {k[2:]: v for k, v in kw.items() if k.startswith("t_")}
+                    run_kw = {k[2:]: v for k, v in kw.items() if k.startswith("r_")}
                     params = RapidSkinParams(constraints=cons,
-                                             **{k: v for k, v in kw.items() if not k.startswith("t_")})
+                                             **{k: v for k, v in kw.items() if not k.startswith(("t_", "r_"))})
                     with threadpool_limits(1):
                         s = reconstruct_session(path, template="13k", constraints=cons, tracking=tracking,
-                                                params=params, track_params=TrackParams(**track_kw))
+                                                params=params, track_params=TrackParams(**track_kw), **run_kw)
                     fr = json.loads((path / "reconstruct" / "frames.json").read_text())["frames"]
                     reg = [np.mean([f["metrics"]["regions"][r]["p90_mm"] for f in fr]) for r in REGIONS]
                     haus = [f["metrics"]["hausdorff_mm"] for f in fr]

@@ -24,6 +24,11 @@ closest-vertex distances). Deviations from the paper, each measured (docs/mirror
   tracked Kinect joints, unposed by the inverse transform of the bone carrying each, are matched too
   (weight :data:`JOINT_WEIGHT` per joint): only the front of the body is seen, and the joints pin the
   limb lengths and stature that the surface alone leaves loose.
+* From the second pass on, each frame's IK pose is refined against the SDK's player mask in the depth image, the
+  depth points and the joints (:func:`refined_init_pose`, one step of ``mirror.refine.refine_pose``) before the
+  closest-vertex correspondences and the inverse LBS: the IK's trunk and root are degrees off, and the cloud
+  unposed by them bends the shape fit; with 5 passes (the fit was still converging after 3) the posed vertex error
+  falls from 11.1 to 7.5 mm on 9 sessions (MIR12i).
 
 The skeleton is refitted by Eq. 3 (each joint moves with the mean displacement of the vertices around it).
 """
@@ -87,6 +92,14 @@ MAX_POOLED_POINTS = 6000
 #: Closest-point re-matchings of the Eq. 2 fit in the first and later passes (the fit converges
 #: linearly along the shape directions that move vertices along the surface, e.g. stature).
 ICP_ITERATIONS = (40, 20)
+#: Passes of the initialisation (each redoes the transform to the default pose with the previous pass's shape, then
+#: Eq. 2): the fit was still converging after 3 (MIR12i: the posed vertex error on 9 sessions 11.1 mm with 3 passes,
+#: 9.8 with 4, 8.6 with 4 and the refined unposing, 7.5 with 5 and the refined unposing; docs/mirror.md).
+INIT_PASSES = 5
+#: From the second pass on, each frame's IK pose is refined by this many steps of ``refine.refine_pose`` against
+#: the SDK player mask in the depth image, the depth and the joints before the correspondences and the inverse LBS
+#: (:func:`refined_init_pose`; 0: the IK's pose, as the paper).
+UNPOSE_REFINE_STEPS = 1
 #: Weight of one unposed Kinect joint relative to one depth point in the shape fit (later passes).
 JOINT_WEIGHT = 3.0
 #: Per-coordinate noise (metres) that sets the weight of the shape prior in Eq. 2.
@@ -146,6 +159,8 @@ class InitObservation:
     version: str
     foreground: np.ndarray | None = None  # (H, W) bool, the player's refined foreground in the colour image
     others: np.ndarray | None = None  # (H, W) bool, other players' pixels there
+    player_mask: np.ndarray | None = None  # (h, w) bool, the SDK's player mask of the actor in the depth image
+    others_depth: np.ndarray | None = None  # (h, w) bool, other players' pixels in the depth image
 
 
 @dataclass(frozen=True, eq=False)
@@ -211,7 +226,7 @@ def _vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 def transform_to_default_pose(points, kinect_joints, body: BodyModel, tracked=None, version: str = "v2",
                               view_point=None, scale_bones: bool = True, max_distance_m: float = MAX_CORRESPONDENCE_M,
-                              details: bool = False, min_facing_cos: float = 0.0):
+                              details: bool = False, min_facing_cos: float = 0.0, pose=None):
     """P_in -> P_0 of §4: bone scaling, IK down the chains, closest-vertex correspondences, inverse LBS.
 
     ``points`` (N, 3) depth points of the actor in the studio frame; ``kinect_joints`` (J, 3) the SDK's
@@ -219,14 +234,16 @@ def transform_to_default_pose(points, kinect_joints, body: BodyModel, tracked=No
     ``view_point`` (the depth camera centre) only body vertices facing it (the cosine between normal and
     viewing ray above ``min_facing_cos``) are matched. Returns P_0
     (N, 3) with NaN rows for points farther than ``max_distance_m`` from the posed body (not the actor);
-    with ``details`` a :class:`DefaultPoseCloud`.
+    with ``details`` a :class:`DefaultPoseCloud`. ``pose``: the pose of the (bone-scaled) body to unpose by instead
+    of the IK on the joints (:func:`refined_init_pose`'s).
     """
     P = np.asarray(points, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3:
         raise InputError(f"point cloud must be (N, 3), got {P.shape}")
     K, tracked = check_kinect_joints(kinect_joints, tracked, version)
     bodyD = bone_scaled_body(body, K, tracked, version) if scale_bones else body
-    pose = ik_pose(bodyD.skeleton, K, tracked, version)
+    if pose is None:
+        pose = ik_pose(bodyD.skeleton, K, tracked, version)
     S = skinning_transforms(bodyD.skeleton, pose)
     V = skin_vertices(bodyD.vertices, bodyD.weights, bodyD.skeleton, pose, transforms=S)
     candidates = np.arange(len(V))
@@ -419,13 +436,15 @@ def _subsample(P: np.ndarray, n: int, seed: int) -> np.ndarray:
     return P[np.random.default_rng(seed).choice(len(P), n, replace=False)]
 
 
-def initialise_from_observations(observations, model: StatisticalBodyModel, view_point=None, passes: int = 3,
+def initialise_from_observations(observations, model: StatisticalBodyModel, view_point=None, passes: int = INIT_PASSES,
                                  floor_y: float | None = 0.0, floor_margin_m: float = 0.02,
                                  joint_weight: float = JOINT_WEIGHT, max_frames: int = MAX_FIT_FRAMES,
                                  max_distance_m: float = INIT_CORRESPONDENCE_M,
                                  trim_m: float = FIT_TRIM_M, min_facing_cos: float = INIT_FACING_COS,
-                                 camera=None, silhouette_frames: int = 0) -> SourceBody:
-    """§4 over several frames: per-frame transform + Eq. 2 fit, averaged; ``passes`` - 1 refinements; Eq. 3.
+                                 camera=None, silhouette_frames: int = 0,
+                                 point_sigma_m: float = POINT_SIGMA_M, depth_camera=None,
+                                 unpose_refine_steps: int = UNPOSE_REFINE_STEPS) -> SourceBody:
+    """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
     plane ``y = floor_y`` are dropped (the player mask reaches onto the floor at the feet; None keeps them).
@@ -436,6 +455,10 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     With ``silhouette_frames`` > 0 and the colour ``camera``, the shape is then refined against the silhouettes
     (``foreground``) of that many fitted frames, evenly spread, with their depth and joints, stature and mass held
     (:func:`bodystudio.mirror.shape_refine.refine_shape_to_silhouettes`; docs/mirror.md, MIR12c).
+    With the ``depth_camera`` (the Kinect's depth camera) and observations that carry the SDK's ``player_mask``, the
+    passes after the first unpose each frame with the IK pose refined by ``unpose_refine_steps`` steps against the
+    mask, the depth and the joints (:func:`refined_init_pose`; 0: the IK's). ``point_sigma_m``: the shape prior's
+    point noise (:func:`fit_shape`).
     """
     model = check_model(model)
     obs = []
@@ -458,10 +481,18 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     residual = np.nan
     for pass_ in range(max(1, passes)):
         pooled, matches, seen, joints0 = [], [], [], []
+        plan = None
+        if pass_ > 0 and unpose_refine_steps > 0 and depth_camera is not None:
+            from bodystudio.mirror.refine import refine_plan
+
+            plan = refine_plan(body.vertices, body.faces, body.weights, body.skeleton, obs[0][0].version)
         for o, P in obs:
+            pose = None
+            if plan is not None and o.player_mask is not None:
+                pose = refined_init_pose(plan, body, o, P, depth_camera, unpose_refine_steps)
             cloud = transform_to_default_pose(P, o.joints, body, o.tracked, o.version, view_point=view_point,
                                               scale_bones=pass_ == 0, max_distance_m=max_distance_m, details=True,
-                                              min_facing_cos=min_facing_cos)
+                                              min_facing_cos=min_facing_cos, pose=pose)
             ok = cloud.correspondence >= 0
             if ok.sum() >= MIN_POINTS:
                 pooled.append(cloud.points[ok])
@@ -481,7 +512,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                      iterations=ICP_ITERATIONS[min(pass_, len(ICP_ITERATIONS) - 1)],
                                      joints_default=np.array(joints0) if joints0 else None,
                                      joint_weight=joint_weight, version=obs[0][0].version, trim_m=trim_m,
-                                     return_residual=True)
+                                     point_sigma_m=point_sigma_m, return_residual=True)
         skeleton = refit_skeleton(model, coeffs)
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,
                          vertex_ids=model.vertex_ids)
@@ -499,6 +530,21 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     # joints then move by the same regressor (reshape.target_skeleton), warp_iou +0.002 / +0.011 (docs/mirror.md)
     return SourceBody(coeffs, body.vertices, model.skeleton(coeffs), tuple(int(o.frame) for o, _ in obs),
                       1000.0 * float(np.median(residuals)), model.weights, model.faces)
+
+
+def refined_init_pose(plan, body: BodyModel, observation: InitObservation, points: np.ndarray, depth_camera,
+                      steps: int = UNPOSE_REFINE_STEPS):
+    """The pose of the current shape estimate ``body`` in one init frame for §4's inverse LBS: the IK on the frame's
+    Kinect joints (§5.2), refined by ``steps`` Gauss-Newton steps of :func:`bodystudio.mirror.refine.refine_pose`
+    against the SDK's player mask in the depth image (``depth_camera``), the depth ``points`` and the joints.
+
+    The IK alone is 5-12 degrees off on the trunk and the root (docs/mirror.md, MIR12g), and a pose that is off
+    unposes the cloud wrongly: the shape fit then absorbs the error (MIR12i)."""
+    from bodystudio.mirror.refine import refine_pose
+
+    pose = ik_pose(body.skeleton, observation.joints, observation.tracked, observation.version)
+    return refine_pose(plan, body.skeleton, pose, depth_camera, observation.player_mask, observation.joints,
+                       observation.tracked, points, observation.others_depth, observation.version, iterations=steps)
 
 
 def _session_version(names) -> str:
@@ -568,7 +614,8 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
             foreground = refine_foreground(frame.rgb, players_c == player, depth_c, background=background)
             others = (players_c > 0) & (players_c != player)
         out.append(InitObservation(i, points, body.positions, body.tracked, _session_version(body.names),
-                                   foreground, others))
+                                   foreground, others, frame.player == player,
+                                   (frame.player != 0) & (frame.player != player)))
         first = i if first is None else first
     if not out:
         reason = max(why, key=why.get)
@@ -582,7 +629,7 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
 
 
 def initialise_source_body(session, model: StatisticalBodyModel | None = None, frames=None, player: int = 1,
-                           n_frames: int = DEFAULT_INIT_FRAMES, passes: int = 3,
+                           n_frames: int = DEFAULT_INIT_FRAMES, passes: int = INIT_PASSES,
                            silhouette_shape: bool = False) -> SourceBody:
     """§4 on a mirror session: the source body of ``player`` from up to ``n_frames`` frames (~3 s at 30 fps);
     ``silhouette_shape``: then refined against :data:`SILHOUETTE_FRAMES` frames' silhouettes (MIR12c)."""
@@ -593,7 +640,7 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
     model = check_model(model)
     obs, sensor = collect_observations(session, frames, player, n_frames, silhouettes=silhouette_shape)
     return initialise_from_observations(obs, model, view_point=sensor.depth.center, passes=passes,
-                                        camera=sensor.color if silhouette_shape else None,
+                                        depth_camera=sensor.depth, camera=sensor.color if silhouette_shape else None,
                                         silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0)
 
 
@@ -676,7 +723,7 @@ def load_source_body(path: str | Path, model: StatisticalBodyModel | None = None
 # --- timing for benchmarks/bench_mirror.py ---------------------------------------------------------
 
 def time_init_and_track(observations, model: StatisticalBodyModel, view_point=None, track_frames: int = 90,
-                        passes: int = 3) -> dict:
+                        passes: int = INIT_PASSES, depth_camera=None) -> dict:
     """Timings of the initialisation over ``observations`` and of the per-frame tracking, for benchmarks/.
 
     Returns wall-clock and CPU (``time.process_time``, immune to other processes on a shared machine)
@@ -687,7 +734,8 @@ def time_init_and_track(observations, model: StatisticalBodyModel, view_point=No
     "skin_cpu_ms", "bodies_ms", "bodies_cpu_ms"}`` (the per-frame figures are means over the frames).
     """
     w0, c0 = time.perf_counter(), time.process_time()
-    source = initialise_from_observations(observations, model, view_point=view_point, passes=passes)
+    source = initialise_from_observations(observations, model, view_point=view_point, passes=passes,
+                                          depth_camera=depth_camera)
     init_s, init_cpu_s = time.perf_counter() - w0, time.process_time() - c0
     frames = [observations[i % len(observations)] for i in range(track_frames)]
     poses = []

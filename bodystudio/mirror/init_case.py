@@ -77,7 +77,8 @@ def synthetic_scene(subject_seed: int, n_frames: int = 6, motion: str = "walk", 
         heads, tails = posed_joints(body.skeleton, pose)
         K, tracked = simulate_tracker_joints(heads, tails, body.skeleton, version, rng, noise_m=joint_noise_m,
                                              bone_length_jitter=3 * joint_noise_m)
-        obs.append(InitObservation(i, back_project(depth, sensor.depth), K, tracked, version))
+        person = drop_flying_pixels(depth) > 0  # the SDK's player mask: this scene has no room behind the actor
+        obs.append(InitObservation(i, back_project(depth, sensor.depth), K, tracked, version, player_mask=person))
         truths.append(kinect_joints(body.skeleton, heads, tails, version))
         out_poses.append(pose)
     return Scene(body, measure_body(body), sensor, obs, out_poses, truths)

@@ -18,6 +18,7 @@ from bodystudio.errors import InputError
 from bodystudio.geometry.laplacian import DeltaOperator, cotangent_delta_coordinates
 from bodystudio.reconstruct.depth import DepthObservation, depth_constraints
 from bodystudio.reconstruct.silhouette import (
+    MatchSchedule,
     SilhouetteViews,
     area_weighted_normals,
     check_masks,
@@ -58,8 +59,15 @@ class RapidSkinParams:
     #: Drop a silhouette constraint whose target point leaves the visual hull by more than this (m) beyond
     #: where its vertex already is (:func:`hull_consistent_constraints`); 0 keeps every match (the paper).
     hull_gate_m: float = 0.001
+    #: Cheaper matchings after the first outer iteration (issue 15's frame time; :class:`MatchSchedule`, exact
+    #: by default).
+    matching: MatchSchedule = MatchSchedule()
 
     def __post_init__(self):
+        if isinstance(self.matching, dict):  # as ``asdict`` wrote it (a batch's options, run.json)
+            object.__setattr__(self, "matching", MatchSchedule(**self.matching))
+        if not isinstance(self.matching, MatchSchedule):
+            raise InputError(f"matching must be a MatchSchedule, got {type(self.matching).__name__}")
         if self.solver not in SOLVERS:
             raise InputError(f"unknown solver {self.solver!r}; valid: {', '.join(SOLVERS)}")
         bad = [c for c in self.constraints if c not in CONSTRAINT_KINDS]
@@ -140,6 +148,8 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
     # the gate reads its vertices' fields at the matching's projections when both use the same cameras
     share = gate and isinstance(fields, SilhouetteFields) and views.packed is not None and _same_cameras(fields, views)
     result.matching_s += time.perf_counter() - t0
+    # the gate's decisions per (camera, vertex): 0 undecided, 1 kept, 2 dropped (MatchSchedule.gate "reuse")
+    gate_memo = np.zeros(len(cameras) * len(V), np.int8) if gate and params.matching.gate == "reuse" else None
     inner = params.inner_iterations
     if params.solver == "jacobi":
         inner *= params.jacobi_iterations_factor
@@ -147,11 +157,14 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
         t0 = time.perf_counter()
         N = area_weighted_normals(V, F)
         sil = (silhouette_constraints(V, F, N, cameras, masks, params.tau_px, params.alpha_px, params.rim_cos,
-                                      views=views)
+                                      views=views, **params.matching.matching_args(outer, params.outer_iterations,
+                                                                                       len(cameras)))
                if use_sil else SilhouetteConstraints.empty())
-        if gate:
+        gate_mode = params.matching.gate_at(outer, params.outer_iterations) if gate else "off"
+        if gate_mode != "off":
             sil = hull_consistent_constraints(V, sil, fields, params.hull_gate_m,
-                                              projected=views.projection(V) if share else None)
+                                              projected=views.projection(V) if share else None,
+                                              memo=gate_memo, reuse=gate_mode == "reuse")
         dep = (depth_constraints(V, N, depth, params.depth_sigma_m, params.depth_max_m, F=F,
                                   reach_m=params.depth_reach_m, reach_sigma_m=params.depth_reach_sigma_m)
                if use_depth else DepthConstraints.empty())
@@ -179,8 +192,8 @@ def _same_cameras(fields: SilhouetteFields, views: SilhouetteViews) -> bool:
 
 
 def hull_consistent_constraints(V: np.ndarray, sil: SilhouetteConstraints, fields: SilhouetteFields,
-                                gate_m: float, projected: tuple[np.ndarray, np.ndarray] | None = None
-                                ) -> SilhouetteConstraints:
+                                gate_m: float, projected: tuple[np.ndarray, np.ndarray] | None = None,
+                                memo: np.ndarray | None = None, reuse: bool = True) -> SilhouetteConstraints:
     """The silhouette constraints (Eq. 7 of Rapid Skin) whose target stays inside the visual hull.
 
     A constraint pulls its vertex onto the viewing ray of the contour pixel it matched, i.e. to the point
@@ -192,15 +205,37 @@ def hull_consistent_constraints(V: np.ndarray, sil: SilhouetteConstraints, field
     ``fields``, metres, > 0 outside): a step may not take a vertex further out of the hull than it is.
     ``projected``: ``V`` in the fields' cameras as the matching projected it
     (:meth:`bodystudio.reconstruct.silhouette.SilhouetteViews.projection`), so ``hull(v)`` is not projected
-    again (the same decisions).
+    again (the same decisions). ``memo`` (int8, ``cameras * len(V)``; needs ``sil.camera``): decisions of earlier
+    calls by (camera, vertex), 1 kept and 2 dropped, reused as they are (``reuse``; otherwise all pairs are gated
+    anew); only undecided pairs are gated, and their decisions written in (issue 15's frame time: inexact, the
+    target has moved with its vertex since).
     """
     if not len(sil):
         return sil
+    if memo is not None and sil.camera is not None:
+        slot = sil.camera * len(V) + sil.vertex
+        known = memo[slot] if reuse else np.zeros(len(slot), np.int8)
+        todo = known == 0
+        keep = known == 1
+        if todo.any():
+            part = SilhouetteConstraints(sil.vertex[todo], sil.origin[todo], sil.direction[todo], sil.k[todo])
+            new = _gate_keep(V, part, fields, gate_m, projected)
+            keep[todo] = new
+            memo[slot[todo]] = np.where(new, 1, 2)
+        return _kept(sil, keep)
+    keep = _gate_keep(V, sil, fields, gate_m, projected)
+    return _kept(sil, keep)
+
+
+def _gate_keep(V, sil, fields, gate_m, projected):
     o, d = sil.origin, sil.direction
     if isinstance(fields, SilhouetteFields):
-        keep = fields.hull_gate(V, sil.vertex, o, d, gate_m, projected)  # one compiled pass, the same decisions
-    else:  # any object with ``implicit_hull`` (the analytic hulls of the tests)
-        keep = hull_gate_reference(V, sil, fields, gate_m)
+        return fields.hull_gate(V, sil.vertex, o, d, gate_m, projected)  # one compiled pass, the same decisions
+    return hull_gate_reference(V, sil, fields, gate_m)  # any object with ``implicit_hull`` (the tests' hulls)
+
+
+def _kept(sil: SilhouetteConstraints, keep: np.ndarray) -> SilhouetteConstraints:
+    o, d = sil.origin, sil.direction
     if keep.all():
         return sil
     return SilhouetteConstraints(sil.vertex[keep], o[keep], d[keep], sil.k[keep],

@@ -17,12 +17,13 @@ frame (:class:`SilhouetteViews`) for Algorithm 1's ``No`` re-matchings.
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass
 
 import numba
 import numpy as np
 
 from bodystudio.capture.render import render
-from bodystudio.errors import SessionError
+from bodystudio.errors import InputError, SessionError
 from bodystudio.reconstruct.solver import SilhouetteConstraints
 
 #: Step (pixels) along the projected normal used for the template-outline test.
@@ -328,7 +329,7 @@ def area_weighted_normals(V, F):
 
 @numba.njit(cache=True)
 def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, own, facing, tau_px, rim_cos,
-                probe_m, outline_px, uv, z):
+                probe_m, outline_px, uv, z, outline_mode=0, rim_stride=1):
     """Rim vertices of one view matched with its silhouette contour (Rapid Skin §III.B, Eq. 6-7).
 
     Projects the vertices (Eq. 6), keeps rim vertices (``|n . ray| < rim_cos``) and their outward
@@ -338,6 +339,10 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
     projected normal (``+-tau``) and turns each match into a viewing ray through the matched pixel
     (Eq. 7). Returns vertex ids, signed offsets ``t`` (pixels) and unit ray directions; the projection of
     every vertex is left in ``uv`` and ``z`` (for the visual-hull gate).
+
+    ``outline_mode`` (issue 15's frame time): 0 draws the outline raster where the probes need it (exact);
+    1 draws all of it, so that 2 can keep it as it is (the outline of an earlier outer iteration: the mesh
+    moved by millimetres since). ``rim_stride`` keeps every ``rim_stride``-th vertex id as a rim candidate.
     """
     n = V.shape[0]
     _project_into(V, R, t, K, dist, uv, z)
@@ -348,7 +353,7 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
     tiles_h = (height + _TILE - 1) // _TILE
     need = np.zeros((tiles_h, tiles_w), np.uint8)
     nc = 0
-    for i in range(n):
+    for i in range(0, n, rim_stride):
         u, v = uv[i, 0], uv[i, 1]
         if not (z[i] > 0.0 and u >= 0.0 and u < width and v >= 0.0 and v < height):
             continue
@@ -371,8 +376,11 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
         cpix[nc, 0], cpix[nc, 1] = ox, oy
         need[oy // _TILE, ox // _TILE] = 1
         nc += 1
-    own[:, :] = 0
-    _rasterize_needed(uv, F, width, height, own, facing, need)
+    if outline_mode == 1:
+        need[:, :] = 1
+    if outline_mode != 2:
+        own[:, :] = 0
+        _rasterize_needed(uv, F, width, height, own, facing, need)
     ids = np.empty(nc, np.int64)
     offs = np.empty(nc)
     dirs = np.empty((nc, 3))
@@ -403,19 +411,23 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
 
 @numba.njit(cache=True, parallel=True)
 def _match_views(V, N, F, R, t, K, dist, has_dist, center, width, height, masks, owns, facing, tau_px, rim_cos,
-                 probe_m, outline_px, uv, z):
+                 probe_m, outline_px, uv, z, outline_mode, rim_stride, use_view):
     """:func:`_match_view` of every camera in one compiled call, ``prange`` over the cameras (each its own
     mask and outline buffer, so the views run on as many threads as numba has); the matches concatenated
     in camera order, as the per-view loop of :func:`silhouette_constraints` builds them, with their camera
-    ids. The per-view arithmetic is :func:`_match_view`'s, so the constraints are bit-identical."""
+    ids. The per-view arithmetic is :func:`_match_view`'s, so the constraints are bit-identical. Cameras with
+    ``use_view[c]`` false are not matched (nor projected into ``uv`` / ``z``)."""
     C, n = R.shape[0], V.shape[0]
     ids_c = np.empty((C, n), np.int64)
     offs_c = np.empty((C, n))
     dirs_c = np.empty((C, n, 3))
     counts = np.zeros(C, np.int64)
     for c in numba.prange(C):
+        if not use_view[c]:
+            continue
         ids, offs, dirs = _match_view(V, N, F, R[c], t[c], K[c], dist[c], has_dist[c], center[c], width, height,
-                                      masks[c], owns[c], facing, tau_px, rim_cos, probe_m, outline_px, uv[c], z[c])
+                                      masks[c], owns[c], facing, tau_px, rim_cos, probe_m, outline_px, uv[c], z[c],
+                                      outline_mode, rim_stride)
         m = ids.shape[0]
         counts[c] = m
         ids_c[c, :m] = ids
@@ -452,6 +464,64 @@ def _is_closed_cached(F: np.ndarray) -> bool:
             _CLOSED_CACHE.clear()
         hit = _CLOSED_CACHE[key] = (F.copy(), is_closed_mesh(F))
     return hit[1]
+
+
+@dataclass(frozen=True)
+class MatchSchedule:
+    """Cheaper matchings at the last outer iterations of Algorithm 1 (issue 15's frame time; by default every
+    outer iteration matches every view, rim vertex and outline, as the paper).
+
+    The last ``cheap_iterations`` outer iterations (never the first: it moves the mesh the most) match with:
+    ``keep_outline``, the occlusion raster (the template's own outline) drawn whole at the iteration before
+    them and kept (the mesh moves by millimetres between them), read ``kept_outline_step_px`` out from a rim
+    vertex (the occlusion test's step; a vertex that moved inwards since reads further in the kept outline);
+    ``rim_stride`` / ``view_stride``, every
+    ``k``-th rim vertex / camera only (the cameras rotate with the iteration); ``gate``, the visual-hull gate:
+    ``"each"`` decides every match, ``"reuse"`` keeps the decision an earlier outer iteration of the frame made
+    for the same vertex in the same view and decides only the new pairs (the target moves with its vertex,
+    by millimetres), ``"off"`` gates nothing. A tracked frame (No = 3) with ``cheap_iterations = 2`` has one
+    full matching; a re-initialised one (No = 8) six.
+    """
+
+    cheap_iterations: int = 0
+    keep_outline: bool = False
+    kept_outline_step_px: float = _OUTLINE_STEP_PX
+    rim_stride: int = 1
+    view_stride: int = 1
+    gate: str = "each"
+
+    def __post_init__(self):
+        for name, value, lo, hi in (("cheap_iterations", self.cheap_iterations, 0, 100),
+                                    ("rim_stride", self.rim_stride, 1, 16), ("view_stride", self.view_stride, 1, 16)):
+            if not lo <= value <= hi:
+                raise InputError(f"matching {name} {value} is out of range; use a value in [{lo}, {hi}]")
+        if not (np.isfinite(self.kept_outline_step_px) and 0.5 <= self.kept_outline_step_px <= 20.0):
+            raise InputError(f"matching kept_outline_step_px {self.kept_outline_step_px:g} is out of range; use a "
+                             "value in [0.5, 20] (pixels)")
+        if self.gate not in ("each", "reuse", "off"):
+            raise InputError(f"matching gate {self.gate!r} is unknown; use each, reuse or off")
+
+    def first_cheap(self, n_outer: int) -> int:
+        """The first outer iteration (from 0) that matches the cheaper way (``n_outer``: none)."""
+        return max(n_outer - self.cheap_iterations, 1) if self.cheap_iterations else n_outer
+
+    def matching_args(self, outer: int, n_outer: int, n_views: int) -> dict:
+        """Keyword arguments of :func:`silhouette_constraints` at outer iteration ``outer`` of ``n_outer`` (none
+        where the matching is the exact one)."""
+        first = self.first_cheap(n_outer)
+        if outer < first:
+            keep_next = self.keep_outline and self.cheap_iterations and outer == first - 1
+            return {"outline": "full"} if keep_next else {}
+        use_view = None
+        if self.view_stride > 1:
+            use_view = (np.arange(n_views) % self.view_stride) == (outer % self.view_stride)
+        return {"outline": "keep" if self.keep_outline else "draw", "rim_stride": self.rim_stride,
+                "use_view": use_view,
+                "outline_step_px": self.kept_outline_step_px if self.keep_outline else _OUTLINE_STEP_PX}
+
+    def gate_at(self, outer: int, n_outer: int) -> str:
+        """The gate's mode at outer iteration ``outer`` of ``n_outer``: each, reuse or off."""
+        return "each" if outer < self.first_cheap(n_outer) else self.gate
 
 
 class SilhouetteViews:
@@ -492,6 +562,7 @@ class SilhouetteViews:
                            np.array([v[8] for v in self.views], dtype=np.bool_),
                            np.array([v[7] for v in self.views], dtype=np.float64).reshape(C, 3), w, h)
         self._projected = None  # (V, uv (C, n, 2), z (C, n)) of the last packed matching
+        self.outline_whole = False  # the outline buffers hold whole rasters (``outline="full"``) of one mesh
 
     def projection(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """Pixels ``(C, n, 2)`` (NaN behind a camera) and depths ``(C, n)`` of every vertex in every view as the
@@ -499,7 +570,7 @@ class SilhouetteViews:
         ``V`` (the same memory, shape and strides: ``np.ascontiguousarray`` may hand back a view of it; the
         reference kept here keeps that memory from being reused) on the packed path; None otherwise. The
         visual-hull gate reads its vertices' fields there instead of projecting them again."""
-        if self._projected is None:
+        if self._projected is None or self._projected[0] is None:
             return None
         W = self._projected[0]
         if not (W.__array_interface__["data"][0] == V.__array_interface__["data"][0] and W.shape == V.shape
@@ -517,33 +588,55 @@ class SilhouetteViews:
 
 def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras, masks: dict | None,
                            tau_px: float = 30.0, alpha_px: float = 40.0, rim_cos: float = 0.2,
-                           views: SilhouetteViews | None = None) -> SilhouetteConstraints:
+                           views: SilhouetteViews | None = None, outline: str = "draw", rim_stride: int = 1,
+                           use_view: np.ndarray | None = None, outline_step_px: float = _OUTLINE_STEP_PX
+                           ) -> SilhouetteConstraints:
     """Match rim vertices with silhouette contours in every camera (Rapid Skin §III.B, Eq. 6, 7, 10).
 
     ``masks`` maps camera names to boolean ``(H, W)`` silhouettes; ``views`` (from
     :class:`SilhouetteViews`) may carry them prepared. Returns viewing-ray constraints, one numba pass
     per camera (:func:`_match_view`).
+
+    Faster, inexact matchings (issue 15's frame time; exact by default): ``outline="keep"`` reuses the
+    occlusion raster ``views`` kept from its last ``outline="full"`` call (drawn whole) instead of drawing
+    the template's outline again; ``rim_stride`` keeps every ``rim_stride``-th vertex as a rim candidate;
+    ``use_view`` (bool per camera) matches only those views; ``outline_step_px``: how far out along the
+    projected normal the occlusion test reads the outline.
     """
     if views is None:
         views = SilhouetteViews(cameras, masks, F)
+    mode = {"draw": 0, "full": 1, "keep": 2}[outline]
+    if mode == 2 and not views.outline_whole:
+        mode = 1  # nothing whole to keep yet
     V = np.ascontiguousarray(V, dtype=np.float64)
     N = np.ascontiguousarray(N, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
+    C = len(views.views)
+    use = np.ones(C, np.bool_) if use_view is None else np.ascontiguousarray(use_view, dtype=np.bool_)
+    if mode == 1:
+        use = np.ones(C, np.bool_)  # a whole outline for every view, to keep
+    stride = max(int(rim_stride), 1)
     if views.packed is not None:  # all cameras in one compiled call (prange over them)
         masks3, owns, Rs, ts, Ks, dists, has_dists, centers3, w, h = views.packed
         uv, z = views._projection_buffers(V)
         vid, off, direction, cam_of = _match_views(V, N, F, Rs, ts, Ks, dists, has_dists, centers3, w, h, masks3,
                                                    owns, views.facing, float(tau_px), float(rim_cos),
-                                                   _NORMAL_PROBE_M, _OUTLINE_STEP_PX, uv, z)
+                                                   _NORMAL_PROBE_M, float(outline_step_px), uv, z, mode, stride,
+                                                   use)
+        if not use.all():  # the skipped views' projections are stale: the gate projects for itself
+            views._projected = (None, uv, z)
+        views.outline_whole = mode in (1, 2)
         if len(vid) == 0:
             return SilhouetteConstraints.empty()
         origin = centers3[cam_of]
     else:
         vids, directions, offsets, cam_ids, centers = [], [], [], [], []
         for c, (cam, mask, own, K, dcoef, R, t, center, has_dist) in enumerate(views.views):
+            if not use[c]:
+                continue
             ids, o, d = _match_view(V, N, F, R, t, K, dcoef, has_dist, center, cam.width, cam.height, mask, own,
-                                    views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M, _OUTLINE_STEP_PX,
-                                    np.empty((len(V), 2)), np.empty(len(V)))
+                                    views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M,
+                                    float(outline_step_px), np.empty((len(V), 2)), np.empty(len(V)), mode, stride)
             if len(ids) == 0:
                 continue
             vids.append(ids)
@@ -551,6 +644,7 @@ def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras,
             offsets.append(o)
             cam_ids.append(c)
             centers.append(center)
+        views.outline_whole = mode in (1, 2)
         if not vids:
             return SilhouetteConstraints.empty()
         # one vectorised pass over all views (elementwise, so the same values as per view)

@@ -675,7 +675,9 @@ def _fake_frames(monkeypatch, frames, n_points=MIN_POINTS):
         assert isinstance(session, _Session)
         reads.append(i)
         bodies, depth = frames.get(i, ([], np.ones((2, 2))))
-        return SimpleNamespace(index=i, bodies=bodies, depth_m=depth)
+        player = np.zeros(np.shape(depth), np.uint8)  # the SDK's player mask: every body's label in one row
+        player.flat[: len(bodies)] = [b.player for b in bodies]
+        return SimpleNamespace(index=i, bodies=bodies, depth_m=depth, player=player)
 
     def cloud(frame, sensor, player):
         assert sensor is not None and sensor.depth is not None
@@ -708,12 +710,17 @@ def test_collect_observations_reads_every_stride_th_frame_from_the_first_seen(mo
     np.testing.assert_array_equal(obs[0].joints, _tracked_body(1).positions)
     np.testing.assert_array_equal(obs[0].tracked, _tracked_body(1).tracked)
     np.testing.assert_array_equal(obs[0].points, np.full((MIN_POINTS, 3), 2.01))
+    # the SDK's player mask in the depth image: this player's pixels, and the other players' (MIR12i)
+    np.testing.assert_array_equal(obs[0].player_mask, [[True, False], [False, False]])
+    np.testing.assert_array_equal(obs[0].others_depth, [[False, True], [False, False]])
     # another player, and exactly the given frames (no stride, no window)
     reads.clear()
     obs, _ = collect_observations(_Session(30), frames=[3, 4, 20], player=2, n_frames=2, stride=5)
     assert [o.frame for o in obs] == [3, 4, 20] and reads == [3, 4, 20]
     np.testing.assert_array_equal(obs[1].points, np.full((MIN_POINTS, 3), 4.02))
     np.testing.assert_array_equal(obs[1].joints, _tracked_body(2).positions)
+    np.testing.assert_array_equal(obs[1].player_mask, [[False, True], [False, False]])
+    np.testing.assert_array_equal(obs[1].others_depth, [[True, False], [False, False]])
     # stride 0 or negative reads every frame
     obs, _ = collect_observations(_Session(30), n_frames=4, stride=0)
     assert [o.frame for o in obs] == [2, 3, 4, 5]
@@ -793,9 +800,10 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
         calls["silhouettes"] = silhouettes
         return ["obs"], session.kinect
 
-    def fit(obs, m, view_point=None, passes=3, camera=None, silhouette_frames=0):
+    def fit(obs, m, view_point=None, passes=3, camera=None, silhouette_frames=0, depth_camera=None):
         calls["fit"] = (obs, m, view_point, passes)
         calls["silhouette"] = (camera, silhouette_frames)
+        calls["depth_camera"] = depth_camera
         return "source"
 
     monkeypatch.setattr(init_mod, "collect_observations", collect)
@@ -805,9 +813,10 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
     assert calls["collect"] == ([1], 2, 5)
     assert calls["fit"][0] == ["obs"] and calls["fit"][1] is model and calls["fit"][3] == 1
     np.testing.assert_array_equal(calls["fit"][2], [0.0, 1.0, 3.0])
+    assert calls["depth_camera"] is session.kinect.depth  # the refined unposing's camera (MIR12i)
     assert calls["silhouettes"] is False and calls["silhouette"] == (None, 0)  # MIR12c's refinement off by default
     init_mod.initialise_source_body(session, model)
-    assert calls["collect"] == (None, 1, init_mod.DEFAULT_INIT_FRAMES) and calls["fit"][3] == 3
+    assert calls["collect"] == (None, 1, init_mod.DEFAULT_INIT_FRAMES) and calls["fit"][3] == init_mod.INIT_PASSES == 5
     session.kinect.color = "colour camera"
     init_mod.initialise_source_body(session, model, silhouette_shape=True)
     assert calls["silhouettes"] is True and calls["silhouette"] == ("colour camera", init_mod.SILHOUETTE_FRAMES)
@@ -827,8 +836,9 @@ def test_time_init_and_track_reports_per_frame_means(monkeypatch, model):
 
     got = {}
 
-    def fake_init(obs, m, view_point=None, passes=3):
+    def fake_init(obs, m, view_point=None, passes=3, depth_camera=None):
         got["init"] = (obs, m, view_point, passes)
+        got["depth_camera"] = depth_camera
         return source
 
     monkeypatch.setattr(init_mod, "initialise_from_observations", fake_init)
@@ -847,19 +857,20 @@ def test_time_init_and_track_reports_per_frame_means(monkeypatch, model):
            for f in range(3)]
     clocks([100.0, 102.0, 110.0, 113.0, 120.0, 124.0, 130.0, 131.5],
            [50.0, 51.0, 55.0, 55.5, 56.0, 58.5, 60.0, 60.75])
-    out = init_mod.time_init_and_track(obs, model, view_point="eye", track_frames=5, passes=2)
-    assert got["init"] == (obs, model, "eye", 2)
+    out = init_mod.time_init_and_track(obs, model, view_point="eye", track_frames=5, passes=2, depth_camera="depth")
+    assert got["init"] == (obs, model, "eye", 2) and got["depth_camera"] == "depth"
     assert out == {"init_s": 2.0, "init_cpu_s": 1.0, "init_frames": 3, "ik_ms": 1000 * 3.0 / 5,
                    "ik_cpu_ms": 1000 * 0.5 / 5, "skin_ms": 1000 * 4.0 / 5, "skin_cpu_ms": 1000 * 2.5 / 5,
                    "bodies_ms": 1000 * 1.5 / 5, "bodies_cpu_ms": 1000 * 0.75 / 5}
     assert [j for j, *_ in ik_calls] == [obs[i % 3].joints[0, 0] for i in range(5)]
     assert all(t is tracked and v == "v2" for _, t, v, _ in ik_calls)
     assert ik_calls[0][3] is None and all(prev is not None for *_, prev in ik_calls[1:])
-    # the defaults: 90 frames, three passes; no frames: the per-frame figures are the totals
+    # the defaults: 90 frames, five passes, no depth camera; no frames: the per-frame figures are the totals
     ik_calls.clear()
     clocks([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0] * 2, [0.0] * 16)
     out = init_mod.time_init_and_track(obs, model)
-    assert len(ik_calls) == 90 and got["init"][2:] == (None, 3) and out["ik_ms"] == pytest.approx(1000 / 90)
+    assert len(ik_calls) == 90 and got["init"][2:] == (None, 5) and got["depth_camera"] is None
+    assert out["ik_ms"] == pytest.approx(1000 / 90)
     out = init_mod.time_init_and_track(obs, model, track_frames=0)
     assert out["ik_ms"] == 1000.0 and out["skin_ms"] == 1000.0 and out["bodies_ms"] == 1000.0
 
@@ -917,12 +928,12 @@ def test_initialisation_wires_the_passes(monkeypatch, model):
 
     monkeypatch.setattr(init_mod, "transform_to_default_pose", tdp)
     monkeypatch.setattr(init_mod, "fit_shape", fit)
-    src = initialise_from_observations(obs, model, view_point=eye)
+    src = initialise_from_observations(obs, model, view_point=eye, passes=3)
     assert len(calls["fit"]) == 3 and len(calls["tdp"]) == 12
     for p, f in enumerate(calls["fit"]):
         t = calls["tdp"][4 * p: 4 * p + 4]
         assert all(c.kw == dict(view_point=eye, scale_bones=p == 0, max_distance_m=INIT_CORRESPONDENCE_M,
-                                details=True, min_facing_cos=INIT_FACING_COS) for c in t)
+                                details=True, min_facing_cos=INIT_FACING_COS, pose=None) for c in t)
         assert [c.version for c in t] == ["v2", "v1", "v2", "v2"]
         assert [c.tracked for c in t] == [tracked, v1.tracked, tracked, base.tracked]
         expect_c = np.zeros(model.n_components) if p == 0 else 0.1 * p * model.stddev
