@@ -251,8 +251,9 @@ def test_reconstruct_session_forwards_every_setting(monkeypatch):
     assert [c.name for c in args[3]] == ["c0", "c1"] and args[4] == "sensor"
     assert args[5] == RapidSkinParams(solver="cg", constraints=("silhouette", "depth"))
     assert args[6:] == ("cg", "2k", "file", "/j", True, False, False, True)
-    assert kw == dict(tracking=True, track_params=tp, refine_with="hull", rest_cotangents=False, refine_params=rp,
-                      bone_lengths="frame", joint_smoothing=3, accept_implausible=True)
+    assert {k: v for k, v in kw.items() if not k.startswith("shape_prior")} == dict(
+        tracking=True, track_params=tp, refine_with="hull", rest_cotangents=False, refine_params=rp,
+        bone_lengths="frame", joint_smoothing=3, accept_implausible=True)
 
 
 def test_reconstruct_session_defaults_and_given_params(monkeypatch):
@@ -263,8 +264,11 @@ def test_reconstruct_session_defaults_and_given_params(monkeypatch):
     args, kw = calls["frames"]
     assert args[2] == [3, 4, 5] and args[5] == RapidSkinParams(solver="gs", constraints=("silhouette",))
     assert args[6:] == ("gs", "13k", "tracker", None, False, True, True, False)
-    assert kw == dict(tracking=False, track_params=None, refine_with="fields", rest_cotangents=True, refine_params=None,
-                      bone_lengths="sequence", joint_smoothing=0, accept_implausible=False)
+    assert {k: v for k, v in kw.items() if not k.startswith("shape_prior")} == dict(
+        tracking=False, track_params=None, refine_with="fields", rest_cotangents=True, refine_params=None,
+        bone_lengths="sequence", joint_smoothing=0, accept_implausible=False)
+    assert {k: v for k, v in kw.items() if k.startswith("shape_prior")} in (
+        {}, {"shape_prior": "off", "shape_prior_outer": 0, "shape_prior_first_outer": 0})
     assert calls["writer"][2] == {"session": "/s", "template": "13k"}
     mine = RapidSkinParams(outer_iterations=2)
     seq.reconstruct_session("/in", params=mine, solver="cg")

@@ -139,9 +139,10 @@ class Rec:
         self.calls["build"].append(resolution)
         return BODIES[resolution]
 
-    def fields(self, cameras, masks):
+    def fields(self, cameras, masks, **kw):
         assert [c.name for c in cameras] == ["c0"]
         self.calls["fields"].append(int(masks["c0"][0, 0]))
+        self.calls.setdefault("fields_kw", []).append(kw)
         return Fields(cameras, masks)
 
     def fit_body_to_hull(self, body, hull, previous_pose=None):
@@ -257,6 +258,8 @@ def test_lost_track_reasons_and_check_figures_frame_by_frame(monkeypatch, tmp_pa
         assert T_joints is None  # joint_weight 0: no joint anchors
     assert rec.calls["build"] == ["6k", "2k"]
     assert rec.calls["fields"] == FRAMES
+    # a tracked run's fields by the tracker's transform (TrackParams.exact_fields, default the chamfer one)
+    assert rec.calls["fields_kw"] == [{"exact": False}] * len(FRAMES)
 
 
 def test_tracked_frames_pose_the_template_with_the_fit_and_the_previous_scale(monkeypatch, tmp_path):
@@ -284,7 +287,8 @@ def test_tracked_frames_pose_the_template_with_the_fit_and_the_previous_scale(mo
         # outer count: the tracked frame's min(run, tracking), the others the run's own settings object
         if track == "tracked":
             assert deform[k]["params"].outer_iterations == 3
-            assert deform[k]["params"] == replace(deform[0]["params"], outer_iterations=3)
+            assert deform[k]["params"] == replace(deform[0]["params"], outer_iterations=3,
+                                                  matching=TrackParams().matching)
         else:
             assert deform[k]["params"] is deform[0]["params"]
             assert deform[k]["params"].outer_iterations == 5
@@ -344,7 +348,10 @@ def test_outer_count_zero_keeps_the_runs_settings_and_no_warm_mesh_starts_from_t
     track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=False, outer_iterations=0)
     _run(rec, tmp_path, track=track)
     deform = rec.calls["deform"]
-    assert all(d["params"] is deform[0]["params"] for d in deform)
+    # the run's settings but, on a tracked frame, the tracker's matching schedule
+    for d, t in zip(deform, EXPECTED_TRACK, strict=True):
+        assert d["params"] == (replace(deform[0]["params"], matching=track.matching) if t == "tracked"
+                               else deform[0]["params"])
     assert all(d["params"].outer_iterations == 5 for d in deform)
 
 
@@ -885,3 +892,9 @@ def test_tracking_with_hull_joints_checks_no_joint_jump(monkeypatch, tmp_path):
     frames = writer.json["frames.json"]["frames"]
     assert [f["track"] for f in frames] == ["first", "tracked"]
     assert [f["track_check"]["joint_jump_m"] for f in frames] == [0.0, 0.0]
+
+
+def test_refinement_fields_without_tracking_are_exact(monkeypatch, tmp_path):
+    rec = _stand_ins(monkeypatch)
+    _run(rec, tmp_path, tracking=False, refine_pose=True, frames=FRAMES[:2])
+    assert rec.calls["fields_kw"] in ([{}, {}], [{"exact": True}, {"exact": True}])
