@@ -94,6 +94,10 @@ SHAPE_ROW_PRIOR_WEIGHT = 0.01
 # numbers (docs/muscle.md, "Dataset extension, eighth pass").
 BODY_FORM_INPUTS = {"gender": ("sex",), "muscle": ("muscularity",), "weight": ("bmi", "muscularity", "height_m"),
                     "height": ("height_m", "sex"), "proportions": ("height_m", "arm_length_m", "sex")}
+# Tikhonov weight of those regressions' four continuous inputs, times the model's ``regularization`` (the sex column
+# keeps ``sex_regularization``): chosen on set C, x1 / x3 -> extended with ground-truth meshes 6.45 / 6.07 mm mean
+# (in range 3.97 / 3.82 mm); the macros of ten training men are a noisy function of the numbers (docs/muscle.md).
+BODY_FORM_REGULARIZATION_SCALE = 3.0
 
 
 def parse_sex(value, source: str = "sex") -> float:
@@ -286,7 +290,8 @@ def fit_shape_coefficients(model: ArmModel, rows: np.ndarray, residuals: np.ndar
 
 def fit_body_form(model: ArmModel, rows: np.ndarray, residuals: np.ndarray,
                   params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The body form's two regressions on :func:`shape_design` (Tikhonov weights as Eq. 7's): the rows' body-space
+    """The body form's two regressions on :func:`shape_design` (Tikhonov weights as Eq. 7's, the first's continuous
+    inputs times :data:`BODY_FORM_REGULARIZATION_SCALE`): the rows' body-space
     parameters ``params`` (R, P; standardised by the population prior), each on its own inputs
     (:func:`body_form_columns`) -> ``body_coeffs``, then Eq. 7 on what the
     body model's arm at the *regressed* parameters leaves of each row (``v_base + d_l + residual`` minus it) ->
@@ -294,7 +299,8 @@ def fit_body_form(model: ArmModel, rows: np.ndarray, residuals: np.ndarray,
     space = body_space_for_model(model)
     mean, sigma = space.prior()
     X = shape_design(model, rows)
-    q2 = np.r_[0.0, np.full(X.shape[1] - 2, model.regularization), model.sex_regularization] ** 2
+    q2 = np.r_[0.0, np.full(X.shape[1] - 2, model.regularization * BODY_FORM_REGULARIZATION_SCALE),
+               model.sex_regularization] ** 2
     U = (np.asarray(params) - mean) / sigma
     A = np.zeros((X.shape[1], U.shape[1]))
     for p in range(U.shape[1]):
