@@ -30,8 +30,18 @@ re-solves without the original meshes. The sex column has its own, weaker Tikhon
 (1, against a column sum of squares of 2 for two women with one base-pose mesh each) shrank it by a
 third (docs/muscle.md, "Dataset extension"). A captured subject's shape row can be its rest mesh's nearest
 arm of the body model's shape space (:func:`body_space_rest_mesh`: where the shoulder sits in the skin and how the
-vertices lie along it, which a depth capture does not see; seventh extension pass). Saved as a versioned ``.npz``
-with the subjects it was learned from and the template key; loading it for another template is refused.
+vertices lie along it, which a depth capture does not see; seventh extension pass).
+
+The shape term has two forms (``shape_form``, :data:`SHAPE_FORMS`): ``"linear"``, Eq. 6-7 as above (one linear map from
+the five shape numbers to the vertex displacements; the paper's), and ``"body"`` (eighth extension pass): each shape
+row's parameters in the body model's shape space (:func:`shape_row_parameters`) are regressed on the numbers, each
+parameter on the numbers that describe it (:data:`BODY_FORM_INPUTS`: the gender macro on sex, the weight macro on BMI,
+muscularity and height, ...), the rest mesh is the body model's arm at the regressed parameters (MakeHuman's blend of
+its targets: non-linear in the numbers, so a subject outside the rows' range is reached through the body model's
+own targets for that range) plus Eq. 6-7's linear regression of what that arm leaves of each row
+(:func:`fit_body_form`). Saved as a versioned ``.npz`` with the subjects it was learned from and the template key
+(version 3: the form, and for the body form the rows' parameters and their regression); loading it for another
+template is refused.
 """
 
 from __future__ import annotations
