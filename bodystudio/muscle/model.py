@@ -101,8 +101,11 @@ SHAPE_ROW_PRIOR_WEIGHT = 0.01
 # ethnic mix and the local targets, are the rows' mean: individual, not predicted by the numbers). Regressing every
 # parameter on every number overfits the ten training men (in-range subject 620 6.28 -> 9.86 mm); chosen on the third
 # held-out set C against all numbers / the six first macros on all numbers / these plus the local targets on all
-# numbers (docs/muscle.md, "Dataset extension, eighth pass").
-BODY_FORM_INPUTS = {"gender": ("sex",), "muscle": ("muscularity",), "weight": ("bmi", "muscularity", "height_m"),
+# numbers; the weight macro's BMI x muscularity product (MakeHuman's BMI is not linear in its weight and muscle
+# macros: a heavy man of muscularity 0 got 0.95 for his 0.81) on set C, -34.8 -> -36.8 % (docs/muscle.md, "Dataset
+# extension, eighth pass"). Names: the columns of :func:`body_form_design`.
+BODY_FORM_INPUTS = {"gender": ("sex",), "muscle": ("muscularity",),
+                    "weight": ("bmi", "muscularity", "height_m", "bmi*muscularity"),
                     "height": ("height_m", "sex"), "proportions": ("height_m", "arm_length_m", "sex")}
 # Tikhonov weight of those regressions' four continuous inputs, times the model's ``regularization`` (the sex column
 # keeps ``sex_regularization``): chosen on set C, x1 / x3 -> extended with ground-truth meshes 6.45 / 6.07 mm mean
@@ -234,7 +237,7 @@ class ArmModel:
     version: int = MODEL_VERSION
     sex_regularization: float = SEX_REGULARIZATION  # Tikhonov weight of the shape term's sex column
     # The shape term's form (:data:`SHAPE_FORMS`). "body": ``shape_params`` (R, P) each shape row's body-space
-    # parameters (:func:`body_space_rest_mesh`), ``body_coeffs`` (6, P) their regression on :func:`shape_design` in
+    # parameters (:func:`body_space_rest_mesh`), ``body_coeffs`` (7, P) their regression on :func:`body_form_design` in
     # units of the population prior's spread, ``shape_coeffs`` the linear regression of what is left of the rows.
     shape_form: str = "linear"
     shape_params: np.ndarray | None = None
@@ -308,9 +311,9 @@ def fit_body_form(model: ArmModel, rows: np.ndarray, residuals: np.ndarray,
     ``shape_coeffs``. Returns ``(body_coeffs, shape_coeffs)``."""
     space = body_space_for_model(model)
     mean, sigma = space.prior()
-    X = shape_design(model, rows)
-    q2 = np.r_[0.0, np.full(X.shape[1] - 2, model.regularization * BODY_FORM_REGULARIZATION_SCALE),
-               model.sex_regularization] ** 2
+    X = body_form_design(model, rows)
+    q = model.regularization * BODY_FORM_REGULARIZATION_SCALE
+    q2 = np.r_[0.0, q, q, q, q, model.sex_regularization, q] ** 2
     U = (np.asarray(params) - mean) / sigma
     A = np.zeros((X.shape[1], U.shape[1]))
     for p in range(U.shape[1]):
@@ -324,10 +327,16 @@ def fit_body_form(model: ArmModel, rows: np.ndarray, residuals: np.ndarray,
     return A, fit_shape_coefficients(model, rows, left)
 
 
+def body_form_design(model: ArmModel, rows: np.ndarray) -> np.ndarray:
+    """Design rows (R, 7) of the body form's parameter regression: :func:`shape_design`, ``z(bmi) z(muscularity)``."""
+    X = shape_design(model, rows)
+    return np.c_[X, X[:, 1] * X[:, 2]]
+
+
 def body_form_columns(p: int) -> list[int]:
-    """The columns of :func:`shape_design` that body-space parameter ``p`` is regressed on (:data:`BODY_FORM_INPUTS`;
-    the intercept alone for a parameter not listed there)."""
-    names = (*SHAPE_NAMES, "sex")
+    """The columns of :func:`body_form_design` that body-space parameter ``p`` is regressed on
+    (:data:`BODY_FORM_INPUTS`; the intercept alone for a parameter not listed there)."""
+    names = (*SHAPE_NAMES, "sex", "bmi*muscularity")
     inputs = BODY_FORM_INPUTS.get(BODY_MACRO_NAMES[p], ()) if p < len(BODY_MACRO_NAMES) else ()
     return [0, *(1 + names.index(n) for n in inputs)]
 
@@ -378,7 +387,7 @@ def regressed_body_parameters(model: ArmModel, shape: ArmShapeParams) -> np.ndar
     """The body-space parameters (P,) the body form regresses from the five shape numbers: Eq. 6's design row times
     ``model.body_coeffs``, in units of the population prior's spread about its mean (:meth:`BodyShapeSpace.prior`)."""
     mean, sigma = body_space_for_model(model).prior()
-    return mean + sigma * (shape_design(model, shape.as_row())[0] @ model.body_coeffs)
+    return mean + sigma * (body_form_design(model, shape.as_row())[0] @ model.body_coeffs)
 
 
 def body_form_rest_vertices(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
@@ -753,7 +762,7 @@ def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None)
     if form == "body":
         params, coeffs = body.get("shape_params"), body.get("body_coeffs")
         if params is None or coeffs is None or params.ndim != 2 or len(params) != len(arrays["shape_rows"]) \
-                or coeffs.shape != (2 + SHAPE_REGRESSORS, params.shape[1]) or not np.isfinite(coeffs).all():
+                or coeffs.shape != (3 + SHAPE_REGRESSORS, params.shape[1]) or not np.isfinite(coeffs).all():
             raise FileFormatError(f"{path}: arm model of the body form lacks consistent shape_params / body_coeffs; "
                                   "rebuild the model")
         body = {"shape_params": params, "body_coeffs": coeffs}
