@@ -25,7 +25,10 @@ per-subject skeleton and torso placement (``EXTENSION_CAPTURE``) and each captur
 its fitted shoulder for a woman, the model's regressed one for a man (``--extension-centre``; docs/muscle.md,
 fifth pass); each captured subject's shape row is its rest mesh's nearest arm of the body model's shape space
 (``--extension-captured-rest body``, docs/muscle.md, "Dataset extension, seventh pass"; the captured mesh's rows
-are scored beside it); ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
+are scored beside it); the original and extended models' shape term is the body form (``--extension-shape-form
+body``: body-space parameters regressed on the shape numbers; docs/muscle.md, "Dataset extension, eighth pass"; the
+prepared model's linear form extended with the same captures is scored beside it, against the prepared model);
+``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
 pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
     python -m benchmarks.bench_muscle --frames 20     # quick check (also: --quick)
