@@ -25,7 +25,10 @@ per-subject skeleton and torso placement (``EXTENSION_CAPTURE``) and each captur
 its fitted shoulder for a woman, the model's regressed one for a man (``--extension-centre``; docs/muscle.md,
 fifth pass); each captured subject's shape row is its rest mesh's nearest arm of the body model's shape space
 (``--extension-captured-rest body``, docs/muscle.md, "Dataset extension, seventh pass"; the captured mesh's rows
-are scored beside it); ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
+are scored beside it); the original and extended models' shape term is the body form (``--extension-shape-form
+body``: body-space parameters regressed on the shape numbers; docs/muscle.md, "Dataset extension, eighth pass"; the
+prepared model's linear form extended with the same captures is scored beside it, against the prepared model);
+``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
 pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
     python -m benchmarks.bench_muscle --frames 20     # quick check (also: --quick)
@@ -209,8 +212,12 @@ def _change_pct(before: dict, after: dict) -> float:
 #: the extension variants of the held-out table: (key, label); "no sex" adds the same meshes with the sex hidden
 #: (every subject male: the model before sex became an input)
 EXTENSION_VARIANTS = (("captured_nosex", "captures, no sex"), ("captured_mesh", "captures, with sex, mesh rows"),
+                      ("captured_linear", "captures, with sex, linear shape term (before the body form)"),
                       ("captured", "captures, with sex"),
                       ("truth_nosex", "truth meshes, no sex"), ("truth", "truth meshes, with sex"))
+#: the original model each variant's change is measured against (default "original": the training men in the run's
+#: shape form; "original_linear": the prepared model, the linear Eq. 6-7)
+VARIANT_BASELINE = {"captured_linear": "original_linear"}
 
 
 CENTRE_WORDS = {"fitted": "the capture's fitted shoulder", "regressed": "the model's regressed shoulder",
@@ -221,6 +228,13 @@ REST_WORDS = {"mesh": "", "body": ", taken as its nearest arm of the body model'
                                "body`; the column 'mesh rows' adds the captured rest mesh itself)"}
 
 
+FORM_WORDS = {"linear": "", "body": (
+    "in the body form of the shape term (`--extension-shape-form body`: the rows' body-space parameters regressed on "
+    "the shape numbers, the rest mesh through the body model, a linear term for the rest; the original model's rows "
+    "refitted in the same form; the column 'linear shape term' is the same captures in the linear Eq. 6-7, measured "
+    "against the prepared model) ")}
+
+
 def extension_section(data: dict) -> str:
     rows, means = [], {}
     for h in data["held"]:
@@ -229,7 +243,7 @@ def extension_section(data: dict) -> str:
                  f"{h['height_m']:.2f}", f"{o['median_mm']:.2f}"]
         for key, _ in EXTENSION_VARIANTS:
             if key in h:
-                c = _change_pct(o, h[key])
+                c = _change_pct(h.get(VARIANT_BASELINE.get(key, "original"), o), h[key])
                 cells.append(f"{h[key]['median_mm']:.2f} ({c:+.0f} %)")
                 if h["label"] != "in range":
                     means.setdefault((h.get("set", ""), key), []).append(c)
@@ -266,6 +280,16 @@ def extension_section(data: dict) -> str:
                    "vertices' layout along the skin, which a depth capture cannot see; "
                    "`muscle_extension_ceiling`), mean change of the out-of-range subjects, captures / truth "
                    "meshes: " + "; ".join(cells) + ".")
+    if data.get("shape_form", "linear") != "linear" and all("original_linear" in h for h in data["held"]):
+        cells = []
+        for held_set in dict.fromkeys(h.get("set", "") for h in data["held"] if h["label"] != "in range"):
+            hs = [h for h in data["held"] if h.get("set", "") == held_set and h["label"] != "in range"]
+            change = np.mean([_change_pct(h["original_linear"], h["captured"]) for h in hs])
+            cells.append(f"set {held_set} {change:+.1f} %"
+                         f" ({np.mean([h['original_linear']['median_mm'] for h in hs]):.2f} -> "
+                         f"{np.mean([h['captured']['median_mm'] for h in hs]):.2f} mm mean)")
+        surface += ("\n\nAgainst the prepared (linear) original model instead, the body-form extension from captures: "
+                    + "; ".join(cells) + ".")
     return ("### Dataset extension (issue 11 §4)\n\n"
             f"Original model: {data['n_original']} training subjects (men), BMI {r['bmi'][0]:.1f}-{r['bmi'][1]:.1f}, "
             f"height {r['height_m'][0]:.2f}-{r['height_m'][1]:.2f} m. Extended: + the captured subjects below "
@@ -273,7 +297,7 @@ def extension_section(data: dict) -> str:
             f"options {data.get('capture_options', {})}, {data.get('per_group', 1)} per group), each rest mesh "
             f"centred on {CENTRE_WORDS[data.get('centre', 'fitted')]}, every {EXTENSION_STRIDE}rd frame added "
             "(pose rows each; their mean rest shape one shape row" + REST_WORDS[data.get("captured_rest", "mesh")]
-            + ") "
+            + ") " + FORM_WORDS[data.get("shape_form", "linear")] +
             "with the subject's measured shape parameters and sex (as the "
             "paper's Table 1; the capture also used them). For comparison: the same subjects' ground-truth "
             "meshes (1 base-pose + 8 posed each, own joints) instead of their captures, and both without the sex "
@@ -395,21 +419,30 @@ def extension_seeds(per_group: int) -> list[tuple[int, str]]:
 
 
 def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = "sex",
-                   captured_rest: str = "body") -> None:
+                   captured_rest: str = "body", shape_form: str = "body") -> None:
     """Held-out model-only error, original against extended models (captures and ground-truth meshes).
 
     ``per_group`` captured subjects per out-of-range group; ``centre``: where each captured rest mesh is
     centred (``model.capture_samples``; "fitted" is the construction before the fifth pass); ``captured_rest``:
     each captured subject's shape row, its rest mesh's nearest body-space arm ("body", seventh pass) or the mesh
-    ("mesh"; with "body" the mesh rows are scored too, as "captured_mesh").
+    ("mesh"; with "body" the mesh rows are scored too, as "captured_mesh"); ``shape_form``: the shape term of the
+    original and extended models (``model.SHAPE_FORMS``; "body": eighth pass; the prepared model is linear, and with
+    "body" its training rows are refitted in the body form, the linear extension scored too as "captured_linear").
     """
     from benchmarks.muscle_extension_ceiling import model_surface_error_mm
     from bodystudio.fileio import write_json
-    from bodystudio.muscle.model import capture_samples, extend_arm_model, load_arm_model, model_error_mm
+    from bodystudio.muscle.model import (
+        capture_samples,
+        extend_arm_model,
+        load_arm_model,
+        model_error_mm,
+        with_shape_form,
+    )
     from bodystudio.muscle.synthetic import sample_arm_subject, subject_arm_samples, synth_arm_session
 
     template = _template()
-    model = load_arm_model(work / "model.npz", template)
+    prepared = load_arm_model(work / "model.npz", template)
+    model = prepared  # the capturing model (the prepared one, as before); the extension's original: ``original``
     from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
     from bodystudio.muscle.evaluate import evaluate_arm_capture
 
@@ -434,12 +467,15 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
         added.append({"seed": seed, "label": label, "gender": subj.gender, "bmi": subj.bmi,
                       "height_m": subj.height_m, "frames": n_frames, "samples": len(new),
                       "median_mm": sc["median_mm"], "centre": centre})
-    extended = {"captured": extend_arm_model(model, ext_samples, captured_rest=captured_rest),
-                "captured_nosex": extend_arm_model(model, _without_sex(ext_samples), captured_rest=captured_rest),
-                "truth": extend_arm_model(model, truth_samples),
-                "truth_nosex": extend_arm_model(model, _without_sex(truth_samples))}
+    original = with_shape_form(prepared, shape_form)
+    extended = {"captured": extend_arm_model(original, ext_samples, captured_rest=captured_rest),
+                "captured_nosex": extend_arm_model(original, _without_sex(ext_samples), captured_rest=captured_rest),
+                "truth": extend_arm_model(original, truth_samples),
+                "truth_nosex": extend_arm_model(original, _without_sex(truth_samples))}
     if captured_rest != "mesh":
-        extended["captured_mesh"] = extend_arm_model(model, ext_samples, captured_rest="mesh")
+        extended["captured_mesh"] = extend_arm_model(original, ext_samples, captured_rest="mesh")
+    if shape_form != prepared.shape_form:
+        extended["captured_linear"] = extend_arm_model(prepared, ext_samples, captured_rest=captured_rest)
     held = []
     cases = [(name, seed, label) for name, seeds in HELD_OUT_SETS for seed, label in zip(seeds, labels, strict=True)]
     for name, seed, label in [*cases, ("", IN_RANGE_SEED, "in range")]:
@@ -447,19 +483,20 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
                 else out_of_range_subject(seed, label))
         test = subject_arm_samples(subj, RESOLUTION, n_shapes=1, n_poses=12, seed=2)
         row = {"seed": seed, "set": name, "label": label, "gender": subj.gender, "bmi": subj.bmi,
-               "height_m": subj.height_m, "original": model_error_mm(model, test, use_sample_joints=True),
-               "original_regressed": model_error_mm(model, test, fit_translation=True),
+               "height_m": subj.height_m, "original": model_error_mm(original, test, use_sample_joints=True),
+               "original_linear": model_error_mm(prepared, test, use_sample_joints=True),
+               "original_regressed": model_error_mm(original, test, fit_translation=True),
                "extended_regressed": model_error_mm(extended["captured"], test, fit_translation=True)}
         for key, m in extended.items():
             row[key] = model_error_mm(m, _without_sex(test) if key.endswith("nosex") else test,
                                       use_sample_joints=True)
         # the same without the vertices' layout along the skin, which no depth capture sees (sixth pass)
         row["surface_mm"] = {key: model_surface_error_mm(m, test)
-                             for key, m in (("original", model), ("captured", extended["captured"]),
+                             for key, m in (("original", original), ("captured", extended["captured"]),
                                             ("truth", extended["truth"]))}
         held.append(row)
     write_json(work / "extension.json", {"n_original": len(model.subjects), "per_group": per_group,
-                                         "centre": centre, "captured_rest": captured_rest,
+                                         "centre": centre, "captured_rest": captured_rest, "shape_form": shape_form,
                                          "capture_options": {**EXTENSION_CAPTURE,
                                                                                **CAPTURE_OVERRIDES},
                                          "n_extended": len(extended["captured"].subjects),
@@ -566,6 +603,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--extension-captured-rest", choices=("body", "mesh"), default="body",
                         help="extension step: each captured subject's shape row, its rest mesh's nearest arm of "
                              "the body model's shape space (body, default) or the captured mesh (mesh)")
+    parser.add_argument("--extension-shape-form", choices=("body", "linear"), default="body",
+                        help="extension step: the shape term of the original and extended models, the body form "
+                             "(body-space parameters regressed on the shape numbers, default) or the linear Eq. 6-7")
     parser.add_argument("--capture-option", action="append", default=[], metavar="KEY=VALUE",
                         help="a CaptureOptions field for every capture (Python literal), e.g. "
                              "sequence_fit_skeleton=True; repeatable")
@@ -580,7 +620,8 @@ def main(argv: list[str] | None = None) -> None:
     {"prepare": lambda: step_prepare(args.work, n),
      "compare": lambda: step_compare(args.work, tuple(m for m in args.methods.split(",") if m)),
      "extension": lambda: step_extension(args.work, min(EXTENSION_FRAMES, n), args.extension_per_group,
-                                         args.extension_centre, args.extension_captured_rest),
+                                         args.extension_centre, args.extension_captured_rest,
+                                         args.extension_shape_form),
      "pronation": lambda: step_pronation(args.work, min(PRONATION_FRAMES, max(n, 10))),
      "render": lambda: print(render(args.work, n))}[args.step]()
 

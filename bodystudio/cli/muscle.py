@@ -28,6 +28,7 @@ RESOLUTIONS = ("6k", "2k", "full")
 SIDES = ("left", "right")
 CENTRES = ("sex", "fitted", "regressed")  # model.capture_samples(centre=...)
 CAPTURED_RESTS = ("body", "mesh")  # model.extend_arm_model(captured_rest=...)
+SHAPE_FORMS = ("body", "linear")  # model.extend_arm_model(shape_form=...)
 DISTANCE_RANGE_M = (0.5, 3.0)  # Kinect v1 sees from 0.5 m (v2 also); beyond 3 m the arm is a few pixels wide
 MAX_FRAMES = 2000  # the .glb's weights track is T^2 floats
 
@@ -355,6 +356,11 @@ def model_extend(
                                       "the vertices' layout along the skin, which a depth capture does not see, "
                                       "from the body model) | mesh (the captured rest mesh as it is); "
                                       "docs/muscle.md"),
+    shape_form: str = typer.Option("body", "--shape-form", help="the extended model's shape term: body (the rows' "
+                                   "body-space parameters regressed on the shape numbers, the rest mesh made by the "
+                                   "body model, a linear term for what it leaves; a linear MODEL's rows are refitted "
+                                   "so) | linear (the paper's Eq. 6-7: one linear map from the shape numbers to the "
+                                   "vertices); docs/muscle.md"),
 ) -> None:
     """Dataset extension (issue 11 §4): add captured subjects to a model and re-learn it.
 
@@ -367,6 +373,7 @@ def model_extend(
     check_range("--stride", stride, 1, 1000)
     check_choice("--centre", centre, CENTRES)
     check_choice("--captured-rest", captured_rest, CAPTURED_RESTS)
+    check_choice("--shape-form", shape_form, SHAPE_FORMS)
     if out.suffix.lower() != ".npz":
         raise InputError(f"--out {out}: an arm model is a .npz file")
     shapes = [_parse_shape(text) for text in shape or ()]
@@ -402,9 +409,10 @@ def model_extend(
                        "nothing); captures made with it extend the model more (docs/muscle.md)", err=True)
         samples += capture_samples(capture, f"capture_{folder.resolve().name}", subject_shape, stride,
                                    model=model, centre=centre)
-    extended = extend_arm_model(model, samples, captured_rest=captured_rest)
+    extended = extend_arm_model(model, samples, captured_rest=captured_rest, shape_form=shape_form)
     save_arm_model(out, extended)
-    typer.echo(f"wrote {out}: {len(extended.subjects)} subjects ({len(captures)} added from captures)")
+    typer.echo(f"wrote {out}: {len(extended.subjects)} subjects ({len(captures)} added from captures), "
+               f"{shape_form} shape term")
 
 
 def _has_fitted_skeleton(capture, model) -> bool:
@@ -462,6 +470,7 @@ def model_info(model_path: Path = typer.Argument(..., metavar="MODEL", help="arm
 
     model = load_arm_model(model_path)
     info = {"template_key": model.template_key, "version": model.version, "n_vertices": model.n_vertices,
-            "regularization": model.regularization, "n_subjects": len(model.subjects),
+            "regularization": model.regularization, "shape_form": model.shape_form,
+            "n_subjects": len(model.subjects),
             "shape_range": model.shape_range() if model.subjects else {}, "subjects": model.subjects}
     typer.echo(json.dumps(info, indent=2))

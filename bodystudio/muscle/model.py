@@ -30,8 +30,18 @@ re-solves without the original meshes. The sex column has its own, weaker Tikhon
 (1, against a column sum of squares of 2 for two women with one base-pose mesh each) shrank it by a
 third (docs/muscle.md, "Dataset extension"). A captured subject's shape row can be its rest mesh's nearest
 arm of the body model's shape space (:func:`body_space_rest_mesh`: where the shoulder sits in the skin and how the
-vertices lie along it, which a depth capture does not see; seventh extension pass). Saved as a versioned ``.npz``
-with the subjects it was learned from and the template key; loading it for another template is refused.
+vertices lie along it, which a depth capture does not see; seventh extension pass).
+
+The shape term has two forms (``shape_form``, :data:`SHAPE_FORMS`): ``"linear"``, Eq. 6-7 as above (one linear map from
+the five shape numbers to the vertex displacements; the paper's), and ``"body"`` (eighth extension pass): each shape
+row's parameters in the body model's shape space (:func:`shape_row_parameters`) are regressed on the numbers, each
+parameter on the numbers that describe it (:data:`BODY_FORM_INPUTS`: the gender macro on sex, the weight macro on BMI,
+muscularity and height, ...), the rest mesh is the body model's arm at the regressed parameters (MakeHuman's blend of
+its targets: non-linear in the numbers, so a subject outside the rows' range is reached through the body model's
+own targets for that range) plus Eq. 6-7's linear regression of what that arm leaves of each row
+(:func:`fit_body_form`). Saved as a versioned ``.npz`` with the subjects it was learned from and the template key
+(version 3: the form, and for the body form the rows' parameters and their regression); loading it for another
+template is refused.
 """
 
 from __future__ import annotations
@@ -56,7 +66,9 @@ from bodystudio.muscle.arm import ArmPose, ArmTemplate, arm_template, part_trans
 log = logging.getLogger(__name__)
 
 MODEL_FORMAT = "bodystudio-arm-model"
-MODEL_VERSION = 2  # 2: sex in the shape regression (version 1 files are read as all-male models)
+MODEL_VERSION = 3  # 2: sex in the shape regression (version 1 files are read as all-male models); 3: the shape
+# term's form (``shape_form``) and, for the body form, the body-space parameters of each shape row and their regression
+# (version 2 files are read as the linear form they are)
 # A training mesh is in the base pose when no joint is rotated more than this (the paper compares angles).
 BASE_POSE_TOL_RAD = np.deg2rad(8.0)
 N_LENGTH_COMPONENTS = 8
@@ -77,6 +89,28 @@ CAPTURED_REST_CHOICES = ("mesh", "body")
 # Prior weight of that fit (per vertex, on the standardised body parameters, in (1 mm)^2): chosen on a third seed
 # set of held-out subjects (641-664, 621-625), 3 / 10 / 30 -> -19.2 / -18.6 / -17.3 % (docs/muscle.md).
 CAPTURED_REST_PRIOR_WEIGHT = 3.0
+# The shape term's form (Eq. 6-7): "linear", one Tikhonov regression of the rows' vertex displacements on the five shape
+# numbers (the paper's); "body", a regression of the rows' body-space parameters on the five numbers, the rest mesh
+# made through the body model's own blend of its targets, plus the linear regression of what the body space does not
+# express (:func:`body_form_rest_vertices`; docs/muscle.md, "Dataset extension, eighth pass").
+SHAPE_FORMS = ("linear", "body")
+# Prior weight of the projection of a shape row into the body space (:func:`body_space_rest_mesh`, per vertex, on the
+# standardised parameters, in (1 mm)^2): a ground-truth row lies in the space, the prior only breaks its ties.
+SHAPE_ROW_PRIOR_WEIGHT = 0.01
+# Which of the five shape numbers each body-space parameter of the body form is regressed on (the others, the age, the
+# ethnic mix and the local targets, are the rows' mean: individual, not predicted by the numbers). Regressing every
+# parameter on every number overfits the ten training men (in-range subject 620 6.28 -> 9.86 mm); chosen on the third
+# held-out set C against all numbers / the six first macros on all numbers / these plus the local targets on all
+# numbers; the weight macro's BMI x muscularity product (MakeHuman's BMI is not linear in its weight and muscle
+# macros: a heavy man of muscularity 0 got 0.95 for his 0.81) on set C, -34.8 -> -36.8 % (docs/muscle.md, "Dataset
+# extension, eighth pass"). Names: the columns of :func:`body_form_design`.
+BODY_FORM_INPUTS = {"gender": ("sex",), "muscle": ("muscularity",),
+                    "weight": ("bmi", "muscularity", "height_m", "bmi*muscularity"),
+                    "height": ("height_m", "sex"), "proportions": ("height_m", "arm_length_m", "sex")}
+# Tikhonov weight of those regressions' four continuous inputs, times the model's ``regularization`` (the sex column
+# keeps ``sex_regularization``): chosen on set C, x1 / x3 -> extended with ground-truth meshes 6.45 / 6.07 mm mean
+# (in range 3.97 / 3.82 mm); the macros of ten training men are a noisy function of the numbers (docs/muscle.md).
+BODY_FORM_REGULARIZATION_SCALE = 3.0
 
 
 def parse_sex(value, source: str = "sex") -> float:
@@ -202,6 +236,12 @@ class ArmModel:
     subjects: list = field(default_factory=list)  # [{"name", "shape": {...}, "n_meshes", "source"}]
     version: int = MODEL_VERSION
     sex_regularization: float = SEX_REGULARIZATION  # Tikhonov weight of the shape term's sex column
+    # The shape term's form (:data:`SHAPE_FORMS`). "body": ``shape_params`` (R, P) each shape row's body-space
+    # parameters (:func:`body_space_rest_mesh`), ``body_coeffs`` (7, P) their regression on :func:`body_form_design` in
+    # units of the population prior's spread, ``shape_coeffs`` the linear regression of what is left of the rows.
+    shape_form: str = "linear"
+    shape_params: np.ndarray | None = None
+    body_coeffs: np.ndarray | None = None
 
     @property
     def n_vertices(self) -> int:
@@ -261,6 +301,63 @@ def fit_shape_coefficients(model: ArmModel, rows: np.ndarray, residuals: np.ndar
     return tikhonov_from_normal_equations(X.T @ X, X.T @ residuals, 0.0, column_weights=q)
 
 
+def fit_body_form(model: ArmModel, rows: np.ndarray, residuals: np.ndarray,
+                  params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The body form's two regressions on :func:`shape_design` (Tikhonov weights as Eq. 7's, the first's continuous
+    inputs times :data:`BODY_FORM_REGULARIZATION_SCALE`): the rows' body-space
+    parameters ``params`` (R, P; standardised by the population prior), each on its own inputs
+    (:func:`body_form_columns`) -> ``body_coeffs``, then Eq. 7 on what the
+    body model's arm at the *regressed* parameters leaves of each row (``v_base + d_l + residual`` minus it) ->
+    ``shape_coeffs``. Returns ``(body_coeffs, shape_coeffs)``."""
+    space = body_space_for_model(model)
+    mean, sigma = space.prior()
+    X = body_form_design(model, rows)
+    q = model.regularization * BODY_FORM_REGULARIZATION_SCALE
+    q2 = np.r_[0.0, q, q, q, q, model.sex_regularization, q] ** 2
+    U = (np.asarray(params) - mean) / sigma
+    A = np.zeros((X.shape[1], U.shape[1]))
+    for p in range(U.shape[1]):
+        cols = body_form_columns(p)
+        A[cols, p] = np.linalg.solve(X[:, cols].T @ X[:, cols] + np.diag(q2[cols]), X[:, cols].T @ U[:, p])
+    left = np.empty_like(residuals)
+    for i, (row, r) in enumerate(zip(rows, residuals, strict=True)):
+        shape = ArmShapeParams.from_vector(row[:4], sex=row[4])
+        rest = model.base_vertices + length_displacements(model, shape) + r.reshape(-1, 3)
+        left[i] = (rest - space.rest_and_joints(mean + sigma * (X[i] @ A))[0]).ravel()
+    return A, fit_shape_coefficients(model, rows, left)
+
+
+def body_form_design(model: ArmModel, rows: np.ndarray) -> np.ndarray:
+    """Design rows (R, 7) of the body form's parameter regression: :func:`shape_design`, ``z(bmi) z(muscularity)``."""
+    X = shape_design(model, rows)
+    return np.c_[X, X[:, 1] * X[:, 2]]
+
+
+def body_form_columns(p: int) -> list[int]:
+    """The columns of :func:`body_form_design` that body-space parameter ``p`` is regressed on
+    (:data:`BODY_FORM_INPUTS`; the intercept alone for a parameter not listed there)."""
+    names = (*SHAPE_NAMES, "sex", "bmi*muscularity")
+    inputs = BODY_FORM_INPUTS.get(BODY_MACRO_NAMES[p], ()) if p < len(BODY_MACRO_NAMES) else ()
+    return [0, *(1 + names.index(n) for n in inputs)]
+
+
+def shape_row_parameters(model: ArmModel, rows: np.ndarray, residuals: np.ndarray,
+                         prior_weight: float = SHAPE_ROW_PRIOR_WEIGHT) -> np.ndarray:
+    """Each shape row's body-space parameters (R, P): its rest mesh ``v_base + d_l + residual`` projected into the
+    body model's shape space (:func:`body_space_rest_mesh`, free translation, ``prior_weight``)."""
+    space = body_space_for_model(model)
+    out = np.empty((len(rows), space.n_parameters))
+    for i, (row, r) in enumerate(zip(rows, residuals, strict=True)):
+        same = [j for j in range(i) if np.array_equal(rows[j], row) and np.array_equal(residuals[j], r)]
+        if same:  # a subject's repeated base-pose meshes: one projection
+            out[i] = out[same[0]]
+            continue
+        shape = ArmShapeParams.from_vector(row[:4], sex=row[4])
+        rest = model.base_vertices + length_displacements(model, shape) + r.reshape(-1, 3)
+        out[i] = body_space_rest_mesh(space, rest, shape, prior_weight)[1]
+    return out
+
+
 # --- evaluation of the model ---------------------------------------------------------------------------
 
 def _z(model: ArmModel, x: np.ndarray) -> np.ndarray:
@@ -275,8 +372,29 @@ def length_displacements(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
 
 
 def shape_displacements(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
-    """``d_theta`` (n, 3) = w0 + w1 BMI + w2 muscularity + w3 height + w4 arm length + w5 (1 - sex) (Eq. 6)."""
-    return (shape_design(model, shape.as_row())[0] @ model.shape_coeffs).reshape(-1, 3)
+    """``d_theta`` (n, 3) = w0 + w1 BMI + w2 muscularity + w3 height + w4 arm length + w5 (1 - sex) (Eq. 6).
+
+    In the body form (``model.shape_form == "body"``) the term is the body model's arm at the regressed parameters
+    minus ``v_base + d_l``, plus Eq. 6's linear term of what the body space does not express
+    (:func:`body_form_rest_vertices`)."""
+    d = (shape_design(model, shape.as_row())[0] @ model.shape_coeffs).reshape(-1, 3)
+    if model.shape_form == "body":
+        d = d + body_form_rest_vertices(model, shape) - model.base_vertices - length_displacements(model, shape)
+    return d
+
+
+def regressed_body_parameters(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
+    """The body-space parameters (P,) the body form regresses from the five shape numbers: Eq. 6's design row times
+    ``model.body_coeffs``, in units of the population prior's spread about its mean (:meth:`BodyShapeSpace.prior`)."""
+    mean, sigma = body_space_for_model(model).prior()
+    return mean + sigma * (body_form_design(model, shape.as_row())[0] @ model.body_coeffs)
+
+
+def body_form_rest_vertices(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
+    """The body form's rest arm (n, 3) before its linear residual term: the body model's arm (its own blend of the
+    macro and local targets, non-linear in the shape numbers) at :func:`regressed_body_parameters`, relative to the
+    shoulder MakeHuman's joint regressor puts in it."""
+    return body_space_for_model(model).rest_and_joints(regressed_body_parameters(model, shape))[0]
 
 
 def pose_displacements(model: ArmModel, angles: np.ndarray) -> np.ndarray:
@@ -522,16 +640,25 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
         subjects.append(entry)
     rows, R = np.concatenate(shape_rows), np.concatenate(residuals)
     q = model.regularization
-    shape_coeffs = fit_shape_coefficients(model, rows, R)
+    params = body_coeffs = None
+    if model.shape_form == "body":
+        known = model.shape_params if model.shape_params is not None else np.zeros((0, 0))
+        n_known = len(known) if len(known) == len(model.shape_rows) else 0  # a linear model's rows: projected here
+        params = np.concatenate([known[:n_known].reshape(n_known, -1),
+                                 shape_row_parameters(model, rows[n_known:], R[n_known:])])
+        body_coeffs, shape_coeffs = fit_body_form(model, rows, R, params)
+    else:
+        shape_coeffs = fit_shape_coefficients(model, rows, R)
     pose_coeffs = tikhonov_from_normal_equations(xtx, xtd, q)
     joint_coeffs = tikhonov_from_normal_equations(jtx, jty, q)
     return replace(model, shape_coeffs=shape_coeffs, pose_coeffs=pose_coeffs, joint_coeffs=joint_coeffs,
                    shape_rows=rows, shape_residuals=R, pose_xtx=xtx, pose_xtd=xtd, joint_xtx=jtx, joint_xty=jty,
-                   subjects=subjects)
+                   subjects=subjects, shape_params=params, body_coeffs=body_coeffs)
 
 
 def extend_arm_model(model: ArmModel, captures: list[ArmSample], source: str = "capture",
-                     captured_rest: str = "mesh", prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT) -> ArmModel:
+                     captured_rest: str = "mesh", prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT,
+                     shape_form: str | None = None) -> ArmModel:
     """Dataset extension (§1 contribution 2, issue §4): add captured subjects and re-learn Eq. 6-10.
 
     Subjects without a base-pose mesh (captured sequences) get their base mesh from every frame minus
@@ -540,12 +667,34 @@ def extend_arm_model(model: ArmModel, captures: list[ArmSample], source: str = "
     ``captured_rest``: that row as captured (``"mesh"``) or its nearest arm of the body model's shape space
     (``"body"``, :func:`body_space_rest_mesh` with ``prior_weight``; the benchmark's and ``muscle model extend``'s
     default). Subjects with a base-pose mesh (ground truth) are added as they are either way.
+    ``shape_form``: the extended model's shape term (:data:`SHAPE_FORMS`; None keeps ``model``'s); "body" on a linear
+    model projects its stored rows into the body space first (the pose and joint terms are unchanged).
     """
     _check_samples(captures, model.n_vertices)
     if captured_rest not in CAPTURED_REST_CHOICES:
         raise InputError(f"captured_rest={captured_rest!r} must be one of {', '.join(CAPTURED_REST_CHOICES)}")
-    space = body_space_for_model(model) if captured_rest == "body" else None
-    return _add_subjects(model, captures, prior=model, source=source, body_space=space, prior_weight=prior_weight)
+    if shape_form is not None and shape_form not in SHAPE_FORMS:
+        raise InputError(f"shape_form={shape_form!r} must be one of {', '.join(SHAPE_FORMS)}")
+    space = body_space_for_model(model) if captured_rest == "body" or shape_form == "body" else None
+    target = with_shape_form(model, shape_form or model.shape_form)
+    return _add_subjects(target, captures, prior=model, source=source,
+                         body_space=space if captured_rest == "body" else None, prior_weight=prior_weight)
+
+
+def with_shape_form(model: ArmModel, shape_form: str) -> ArmModel:
+    """``model`` with its shape term in ``shape_form`` (:data:`SHAPE_FORMS`), learned from its own stored rows (a
+    linear model's rows are projected into the body space for the body form; the other terms are unchanged)."""
+    if shape_form not in SHAPE_FORMS:
+        raise InputError(f"shape_form={shape_form!r} must be one of {', '.join(SHAPE_FORMS)}")
+    if shape_form == model.shape_form:
+        return model
+    if shape_form == "linear":
+        return replace(model, shape_form="linear", shape_params=None, body_coeffs=None,
+                       shape_coeffs=fit_shape_coefficients(model, model.shape_rows, model.shape_residuals))
+    params = shape_row_parameters(model, model.shape_rows, model.shape_residuals)
+    converted = replace(model, shape_form="body", shape_params=params)
+    body_coeffs, shape_coeffs = fit_body_form(converted, model.shape_rows, model.shape_residuals, params)
+    return replace(converted, body_coeffs=body_coeffs, shape_coeffs=shape_coeffs)
 
 
 # --- files ----------------------------------------------------------------------------------------------
@@ -559,9 +708,13 @@ def save_arm_model(path: str | os.PathLike, model: ArmModel) -> None:
     """Write the model as a versioned ``.npz`` (atomic): arrays + JSON header (format, version, key, subjects)."""
     header = {"format": MODEL_FORMAT, "version": MODEL_VERSION, "template_key": model.template_key,
               "regularization": model.regularization, "sex_regularization": model.sex_regularization,
-              "subjects": model.subjects}
+              "subjects": model.subjects, "shape_form": model.shape_form}
+    body = {}
+    if model.shape_form == "body":
+        body = {"shape_params": model.shape_params, "body_coeffs": model.body_coeffs}
+        header["body_space"] = {"local_targets": list(body_space_for_model(model).local_names)}
     with atomic_write(path, "wb") as f:
-        np.savez_compressed(f, header=np.array(json.dumps(header)), **{k: getattr(model, k) for k in _ARRAYS})
+        np.savez_compressed(f, header=np.array(json.dumps(header)), **{k: getattr(model, k) for k in _ARRAYS}, **body)
 
 
 def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None) -> ArmModel:
@@ -573,6 +726,7 @@ def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None)
         with np.load(path, allow_pickle=False) as z:
             header = json.loads(str(z["header"]))
             arrays = {k: np.array(z[k]) for k in _ARRAYS}
+            body = {k: np.array(z[k]) for k in ("shape_params", "body_coeffs") if k in z.files}
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, EOFError) as exc:
         raise FileFormatError(f"{path}: not a bodystudio arm model ({type(exc).__name__}: {exc}); "
                               "rebuild it with `bodystudio muscle model build`") from None
@@ -580,7 +734,7 @@ def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None)
         raise FileFormatError(f"{path}: not a bodystudio arm model (format {header.get('format')!r})"
                               if isinstance(header, dict) else f"{path}: not a bodystudio arm model")
     version = header.get("version")
-    if version not in (1, MODEL_VERSION) or isinstance(version, bool):
+    if version not in (1, 2, MODEL_VERSION) or isinstance(version, bool):
         raise FileFormatError(f"{path}: arm model version {version!r} is not supported (this "
                               f"bodystudio reads versions 1-{MODEL_VERSION}); rebuild it with "
                               "`bodystudio muscle model build`")
@@ -601,10 +755,30 @@ def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None)
     if arrays["pose_coeffs"].shape != (10, 3 * n) or arrays["shape_coeffs"].shape[1:] != (3 * n,) \
             or not all(np.isfinite(arrays[k]).all() for k in ("base_vertices", "pose_coeffs", "shape_coeffs")):
         raise FileFormatError(f"{path}: arm model arrays are inconsistent or not finite; rebuild the model")
+    form = header.get("shape_form", "linear")  # version 1-2 files: the linear form
+    if form not in SHAPE_FORMS:
+        raise FileFormatError(f"{path}: arm model shape_form {form!r} is not one of {', '.join(SHAPE_FORMS)}; "
+                              "rebuild the model")
+    if form == "body":
+        params, coeffs = body.get("shape_params"), body.get("body_coeffs")
+        if params is None or coeffs is None or params.ndim != 2 or len(params) != len(arrays["shape_rows"]) \
+                or coeffs.shape != (3 + SHAPE_REGRESSORS, params.shape[1]) or not np.isfinite(coeffs).all():
+            raise FileFormatError(f"{path}: arm model of the body form lacks consistent shape_params / body_coeffs; "
+                                  "rebuild the model")
+        body = {"shape_params": params, "body_coeffs": coeffs}
+    else:
+        body = {}
     model = ArmModel(header["template_key"], **{k: arrays[k] for k in _ARRAYS if k != "arm_mask"},
                      arm_mask=arrays["arm_mask"].astype(bool), regularization=float(header["regularization"]),
                      subjects=list(header.get("subjects", [])), version=MODEL_VERSION,
-                     sex_regularization=float(sex_q))
+                     sex_regularization=float(sex_q), shape_form=form, **body)
+    if form == "body":
+        saved = (header.get("body_space") or {}).get("local_targets")
+        space = body_space_for_model(model)
+        if saved != list(space.local_names) or space.n_parameters != body["body_coeffs"].shape[1]:
+            raise FileFormatError(f"{path}: arm model of the body form was learned on another body shape space "
+                                  f"({len(saved or [])} local targets, this body model's {len(space.local_names)}); "
+                                  "re-extend it with `bodystudio muscle model extend --shape-form body`")
     if template is not None and template.key != model.template_key:
         raise InputError(f"{path}: model was built for arm template {model.template_key}, not {template.key}; "
                          "use the same --resolution and --side as the model or rebuild it for this template")

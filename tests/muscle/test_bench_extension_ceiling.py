@@ -53,3 +53,25 @@ def test_the_extension_section_reports_the_point_to_surface_change():
     assert "mean change -10 %" in text
     del held[0]["surface_mm"]
     assert "point-to-surface" not in extension_section(data)
+
+
+def test_the_extension_section_measures_the_linear_column_against_the_linear_original():
+    """In the body form (eighth pass) the 'linear shape term' column is the change against the prepared (linear)
+    model, the others against the body-form original; the section adds the body form against the linear original."""
+    from benchmarks.bench_muscle import extension_section
+
+    def err(x):
+        return {"median_mm": x}
+
+    held = [{"seed": 611 + i, "set": "A", "label": "x", "gender": 0.0, "bmi": 17.0, "height_m": 1.6,
+             "original": err(10.0), "original_linear": err(8.0), "captured": err(6.0), "captured_linear": err(6.0),
+             "truth": err(5.0), "original_regressed": err(10.0), "extended_regressed": err(9.0)} for i in range(2)]
+    data = {"held": held, "added": [], "shape_range": {"bmi": (20, 28), "height_m": (1.7, 1.9)},
+            "n_original": 10, "n_extended": 14, "centre": "sex", "shape_form": "body"}
+    text = extension_section(data)
+    assert "6.00 (-25 %)" in text and "6.00 (-40 %)" in text  # the linear column against 8, the body one against 10
+    assert "mean change -40 %" in text
+    assert "Against the prepared (linear) original model instead, the body-form extension from captures: set A " \
+           "-25.0 % (8.00 -> 6.00 mm mean)." in text
+    data["shape_form"] = "linear"
+    assert "Against the prepared" not in extension_section(data)

@@ -34,7 +34,7 @@ def test_for_extension_fits_the_skeleton(extension_capture, tiny_arm_model_path)
     assert moved_mm.max() > 0.5, moved_mm
 
 
-def _api_model(capture_path, model_path, centre, captured_rest="body"):
+def _api_model(capture_path, model_path, centre, captured_rest="body", shape_form="body"):
     from bodystudio.muscle.capture import load_arm_capture
     from bodystudio.muscle.model import ArmShapeParams, capture_samples, extend_arm_model, load_arm_model
 
@@ -42,12 +42,13 @@ def _api_model(capture_path, model_path, centre, captured_rest="body"):
     shape = ArmShapeParams(22, 0.5, 1.75, 0.5, sex=1.0)
     samples = capture_samples(load_arm_capture(capture_path), f"capture_{capture_path.name}", shape, 2,
                               model=model, centre=centre)
-    return extend_arm_model(model, samples, captured_rest=captured_rest)
+    return extend_arm_model(model, samples, captured_rest=captured_rest, shape_form=shape_form)
 
 
 def test_extend_centres_by_sex_by_default_as_the_api(extension_capture, tiny_arm_model_path, tmp_path, capsys):
-    """The CLI's default is the API's ``centre="sex"`` with body-space rows (seventh pass); ``--captured-rest mesh
-    --centre fitted`` is the API's old construction, and with mesh rows the centring matters for a man."""
+    """The CLI's default is the API's ``centre="sex"`` with body-space rows (seventh pass) in the body form of the
+    shape term (eighth pass); ``--captured-rest mesh --centre fitted --shape-form linear`` is the API's old
+    construction, and with mesh rows the centring matters for a man."""
     from bodystudio.muscle.model import load_arm_model
 
     out = tmp_path / "m2.npz"
@@ -55,22 +56,25 @@ def test_extend_centres_by_sex_by_default_as_the_api(extension_capture, tiny_arm
                  "--stride", "2", "--shape", f"{SHAPE},sex=male"]) == 0
     cli = load_arm_model(out)
     by_sex = _api_model(extension_capture, tiny_arm_model_path, "sex")
-    for key in ("shape_coeffs", "pose_coeffs", "joint_coeffs"):
+    assert cli.shape_form == by_sex.shape_form == "body"
+    for key in ("shape_coeffs", "pose_coeffs", "joint_coeffs", "body_coeffs", "shape_params"):
         np.testing.assert_allclose(getattr(cli, key), getattr(by_sex, key), rtol=0, atol=1e-12)
     assert cli.subjects[-1]["rest"].startswith("body space")
-    fitted = _api_model(extension_capture, tiny_arm_model_path, "fitted", "mesh")
+    fitted = _api_model(extension_capture, tiny_arm_model_path, "fitted", "mesh", "linear")
     # a man's mesh rows centred on the regressed shoulder are not the old default's (his fitted shoulder)
-    assert np.abs(_api_model(extension_capture, tiny_arm_model_path, "sex", "mesh").shape_coeffs
+    assert np.abs(_api_model(extension_capture, tiny_arm_model_path, "sex", "mesh", "linear").shape_coeffs
                   - fitted.shape_coeffs).max() > 1e-5
-    assert np.abs(cli.shape_coeffs - fitted.shape_coeffs).max() > 1e-5
+    assert np.abs(_api_model(extension_capture, tiny_arm_model_path, "sex", "body", "linear").shape_coeffs
+                  - fitted.shape_coeffs).max() > 1e-5
     out2 = tmp_path / "m_fitted.npz"
     assert main(["muscle", "model", "extend", str(tiny_arm_model_path), str(extension_capture), "--out",
                  str(out2), "--stride", "2", "--shape", f"{SHAPE},sex=male", "--centre", "fitted",
-                 "--captured-rest", "mesh"]) == 0
+                 "--captured-rest", "mesh", "--shape-form", "linear"]) == 0
     np.testing.assert_allclose(load_arm_model(out2).shape_coeffs, fitted.shape_coeffs, rtol=0, atol=1e-12)
     assert "captured without --for-extension" not in capsys.readouterr().err
     assert main(["muscle", "model", "info", str(out)]) == 0
-    assert json.loads(capsys.readouterr().out)["n_subjects"] == 3
+    info = json.loads(capsys.readouterr().out)
+    assert info["n_subjects"] == 3 and info["shape_form"] == "body"
 
 
 def test_the_batch_hash_keeps_old_units_and_tells_the_extension_apart(tmp_path):

@@ -389,7 +389,7 @@ def test_header_without_subjects_loads_with_none(saved, tmp_path):
 
 @pytest.mark.parametrize("change, phrase", [
     ({"format": "other"}, r"not a bodystudio arm model \(format 'other'\)"),
-    ({"version": 99}, r"arm model version 99 is not supported \(this bodystudio reads versions 1-2\); rebuild it with "
+    ({"version": 99}, r"arm model version 99 is not supported \(this bodystudio reads versions 1-3\); rebuild it with "
                       r"`bodystudio muscle model build`"),
     ({"template_key": None}, "arm model header lacks template_key / regularization / subjects; rebuild it with "
                              "`bodystudio muscle model build`"),

@@ -131,7 +131,7 @@ def test_broken_sex_fields_in_a_model_file_are_refused(arm_model_2k, tmp_path):
     header = json.loads(str(arrays.pop("header")))
     cases = [({**header, "sex_regularization": -1}, {}, "sex_regularization"),
              ({**header, "sex_regularization": "x"}, {}, "sex_regularization"),
-             ({**header, "version": 3}, {}, "version 3"),
+             ({**header, "version": 4}, {}, "version 4"),
              ({**header, "version": True}, {}, "version True"),
              (header, {"shape_rows": arrays["shape_rows"][:, :4]}, "inconsistent"),
              ({**header, "version": 1}, {"shape_coeffs": arrays["shape_coeffs"][:3]}, "inconsistent")]

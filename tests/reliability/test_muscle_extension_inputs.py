@@ -1,5 +1,5 @@
 """Bad input for the extension options (issue 11, sixth pass): ``muscle capture --for-extension`` and
-``muscle model extend --centre`` / ``--captured-rest``: one line, exit 2, nothing written."""
+``muscle model extend --centre`` / ``--captured-rest`` / ``--shape-form``: one line, exit 2, nothing written."""
 
 import pytest
 
@@ -38,6 +38,13 @@ def test_extend_refuses_an_unknown_centre(tiny_arm_model_path, tmp_path, capsys,
 def test_extend_refuses_an_unknown_captured_rest(tiny_arm_model_path, tmp_path, capsys, value):
     run_bad(["muscle", "model", "extend", tiny_arm_model_path, tmp_path, "--out", tmp_path / "m2.npz",
              "--captured-rest", value], capsys, f"--captured-rest {value!r}: valid: body, mesh")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("value", ["kernel", "", "BODY"])
+def test_extend_refuses_an_unknown_shape_form(tiny_arm_model_path, tmp_path, capsys, value):
+    run_bad(["muscle", "model", "extend", tiny_arm_model_path, tmp_path, "--out", tmp_path / "m2.npz",
+             "--shape-form", value], capsys, f"--shape-form {value!r}: valid: body, linear")
     assert list(tmp_path.iterdir()) == []
 
 

@@ -22,7 +22,7 @@ def arm_session(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def models(tmp_path_factory, tiny_arm_model_path):
-    """A tiny 2k model saved as version 2 and rewritten as version 1 (no sex)."""
+    """A tiny 2k model rewritten as version 2 (no shape form) and as version 1 (no sex)."""
     import shutil
 
     folder = tmp_path_factory.mktemp("models")
@@ -30,10 +30,12 @@ def models(tmp_path_factory, tiny_arm_model_path):
     with np.load(folder / "v2.npz") as z:
         arrays = {k: z[k] for k in z.files}
     header = json.loads(str(arrays.pop("header")))
+    header.pop("shape_form", None)  # a version-2 file: no shape form (the linear one)
+    np.savez(folder / "v2.npz", header=np.array(json.dumps({**header, "version": 2})), **arrays)
     del header["sex_regularization"]
     arrays["shape_rows"], arrays["shape_coeffs"] = arrays["shape_rows"][:, :4], arrays["shape_coeffs"][:5]
     np.savez(folder / "v1.npz", header=np.array(json.dumps({**header, "version": 1})), **arrays)
-    np.savez(folder / "v3.npz", header=np.array(json.dumps({**header, "version": 3})), **arrays)
+    np.savez(folder / "v4.npz", header=np.array(json.dumps({**header, "version": 4})), **arrays)
     np.savez(folder / "badsex.npz", header=np.array(json.dumps({**header, "version": 2, "sex_regularization": -1})),
              **arrays)
     return folder
@@ -61,7 +63,7 @@ def test_shape_names_list_sex(arm_session, models, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("name, phrase", [
-    ("v3.npz", "arm model version 3 is not supported"),
+    ("v4.npz", "arm model version 4 is not supported"),
     ("badsex.npz", "sex_regularization -1 is not a positive number"),
 ])
 def test_unreadable_model_versions_and_fields(arm_session, models, tmp_path, capsys, name, phrase):
@@ -71,10 +73,11 @@ def test_unreadable_model_versions_and_fields(arm_session, models, tmp_path, cap
 
 
 def test_a_version_1_model_is_upgraded_with_one_warning(arm_session, models, tmp_path, capsys, caplog):
-    """An old model still captures and extends; a woman's capture extends it into a version-2 model."""
+    """An old model still captures and extends; a woman's capture extends it into a current-version model."""
     with caplog.at_level(logging.WARNING):
         assert main(["muscle", "model", "info", str(models / "v1.npz")]) == 0
-    assert json.loads(capsys.readouterr().out)["version"] == 2
+    info = json.loads(capsys.readouterr().out)
+    assert info["version"] == 3 and info["shape_form"] == "linear"
     warning = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
     assert len(warning) == 1 and "version 1" in warning[0] and "male" in warning[0] and "\n" not in warning[0]
     cap = tmp_path / "cap"
@@ -88,4 +91,4 @@ def test_a_version_1_model_is_upgraded_with_one_warning(arm_session, models, tmp
     capsys.readouterr()
     assert main(["muscle", "model", "info", str(tmp_path / "m2.npz")]) == 0
     info = json.loads(capsys.readouterr().out)
-    assert info["version"] == 2 and info["subjects"][-1]["shape"]["sex"] == 0.0
+    assert info["version"] == 3 and info["subjects"][-1]["shape"]["sex"] == 0.0
