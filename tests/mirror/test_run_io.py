@@ -52,7 +52,7 @@ def test_a_stream_books_cpu_ms_next_to_wall_ms_and_the_encoder(tmp_path):
     assert e["ms"] == pytest.approx(sum(s["cpu_ms_per_frame"].values()) + s["encoder_cpu_ms_per_frame"])
     assert e["ms_without_io"] == pytest.approx(sum(v for k, v in s["cpu_ms_per_frame"].items() if k != "write"))
     assert e["fps"] < e["fps_without_io"] and s["end_to_end_wall"]["fps"] < s["end_to_end_wall"]["fps_without_io"]
-    assert s["cpu_s"] > 0 and 0 < s["fps_cpu"] < 1e3
+    assert s["cpu_s"] >= sum(sum(f["cpu_ms"].values()) for f in doc["frames"]) / 1e3 * 0.9
     without = mirror_stream(inputs[:1], tmp_path / "run2", None)["summary"]
     assert without["encoder_cpu_ms_per_frame"] is None
 
