@@ -203,7 +203,8 @@ def _refine_pose_ms(session, model, frame, frames) -> tuple[float, float] | None
     pose = ik_pose(body.skeleton, tracked.positions, tracked.tracked, sensor.version)
     _, players = frames.register_depth_to_color(frame.depth_m, frame.player, sensor)
     points = frames.point_cloud(frame, sensor, 1)
-    plan = refine.refine_plan(body.vertices, body.faces, body.weights, body.skeleton, sensor.version)
+    plan = refine.refine_plan(body.vertices, body.faces, body.weights, body.skeleton, sensor.version,
+                              twist_bones=refine.TWIST_BONES)  # the run's plan (MIR12h)
     return _median_ms(lambda: refine.refine_pose(plan, body.skeleton, pose, sensor.color, players == 1,
                                                  tracked.positions, tracked.tracked, points[points[:, 1] > 0.02],
                                                  (players > 0) & (players != 1), sensor.version), 7)

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bodystudio.mirror.refine import TRUNK_AND_LIMB_BONES, RefineWeights
+from bodystudio.mirror.refine import TRUNK_AND_LIMB_BONES, TWIST_BONES, RefineWeights
 
 #: The refined poses scored (docs/mirror.md, MIR12b): keyword arguments of ``refine_pose`` plus ``mask``
 #: ("fg": the graph cut's foreground, "person": the raw SDK player mask), ``plan`` (the swing bones) and
@@ -165,7 +165,8 @@ def score(session, stride: int = 4, player: int = 1, source=None, refine_only: b
     non_root = [j for j in range(sk.n_bones) if sk.parents[j] >= 0]
     root = int(np.flatnonzero(np.asarray(sk.parents) < 0)[0])
     background, previous, rows = None, None, []
-    plans = {None: refine_plan(body.vertices, faces, body.weights, sk, session.kinect.version)}
+    plans = {None: refine_plan(body.vertices, faces, body.weights, sk, session.kinect.version,
+                               twist_bones=TWIST_BONES)}  # the run's plan (MIR12h)
     for kw in REFINE_VARIANTS.values():
         if "plan" in kw:
             plans[kw["plan"]] = refine_plan(body.vertices, faces, body.weights, sk, session.kinect.version,
@@ -364,7 +365,8 @@ def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_s
                                       sk.rolls))}
     camera, faces = session.kinect.color, body.faces
     root = int(np.flatnonzero(np.asarray(sk.parents) < 0)[0])
-    plans = {name: refine_plan(b.vertices, faces, b.weights, b.skeleton, session.kinect.version)
+    plans = {name: refine_plan(b.vertices, faces, b.weights, b.skeleton, session.kinect.version,
+                               twist_bones=TWIST_BONES)
              for name, (b, _, _) in bodies.items()}
     regions = vertex_regions(body.weights, sk.bone_names)
     background, previous, rows = None, {}, []
@@ -520,7 +522,8 @@ def score_temporal(session, stride: int = 4, player: int = 1, source=None, filte
     target_rest = model.vertices(c_target)
     rig = target_skeleton(body, target_rest, model, c_target)
     camera, faces = session.kinect.color, body.faces
-    plan = refine_plan(body.vertices, faces, body.weights, body.skeleton, session.kinect.version)
+    plan = refine_plan(body.vertices, faces, body.weights, body.skeleton, session.kinect.version,
+                       twist_bones=TWIST_BONES)
     background, previous, seq, scored = None, None, [], []
     for i in session.frame_ids:
         frame = read_mirror_frame(session, i)

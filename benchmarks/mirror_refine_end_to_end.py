@@ -1,12 +1,13 @@
 """End to end with and without ``mirror run --refine-pose``: warp_iou, PSNR and SSIM of every tracked frame.
 
 Usage: PYTHONPATH=. python benchmarks/mirror_refine_end_to_end.py [--source NAME.npz] [--out DIR]
-[--runs ik refine refine-no-trunk refine-2-steps] SESSION [...]
+[--runs ik refine refine-no-trunk refine-2-steps refine-before-mir12h] SESSION [...]
 
 Per synthetic mirror session (with ``gt/mirror``), ``run_mirror`` with the session's edits at once (no ramp, no
 video) into ``DIR/<session>_<run>`` for each of ``--runs`` (default ``ik refine``: the IK pose, the refined pose;
 ``refine-no-trunk``: refined without E_trunk, ``refine-2-steps``: two Gauss-Newton steps, ``refine-no-edge``:
-without the warp's edge clamp, MIR12g), then
+without the warp's edge clamp, MIR12g; ``refine-before-mir12h``: the root turned about its head and no spine twist,
+MIR12h), then
 ``evaluate_mirror`` on each; prints one JSON line per run with the scores and the per-step median milliseconds
 (wall, so only comparable at one load).
 """
@@ -28,7 +29,9 @@ def _refine_as(run: str):
     the run imports ``refine_pose`` from the module when it starts, ``warp_foreground`` calls the clamp by name."""
     from bodystudio.mirror import refine
 
-    original = refine.refine_pose
+    original, twist, pivot = refine.refine_pose, refine.TWIST_BONES, refine.ROOT_PIVOT
+    if run == "refine-before-mir12h":  # the run reads both when it starts
+        refine.TWIST_BONES, refine.ROOT_PIVOT = (), "head"
     if run == "refine-no-trunk":
         refine.refine_pose = functools.partial(original, weights=refine.RefineWeights(trunk_rad=None))
     elif run == "refine-2-steps":
@@ -41,7 +44,7 @@ def _refine_as(run: str):
     try:
         yield
     finally:
-        refine.refine_pose = original
+        refine.refine_pose, refine.TWIST_BONES, refine.ROOT_PIVOT = original, twist, pivot
         warp.edge_clamped = clamp
 
 
@@ -54,7 +57,8 @@ def main() -> None:
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--source", default=None, help="source body .npz name inside SESSION/mirror/")
     parser.add_argument("--runs", nargs="+", default=["ik", "refine"],
-                        choices=["ik", "refine", "refine-no-trunk", "refine-2-steps", "refine-no-edge"],
+                        choices=["ik", "refine", "refine-no-trunk", "refine-2-steps", "refine-no-edge",
+                                 "refine-before-mir12h"],
                         help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
                              "or with two Gauss-Newton steps, or without the warp's edge clamp (MIR12g's A/Bs)")
     parser.add_argument("--out", type=Path, default=None, help="folder for the run folders (default: a temporary one)")

@@ -76,7 +76,8 @@ def _steps(mods: dict, session, model, rounds_out: dict) -> dict:
     body = SourceBody(c, model.vertices(c), model.skeleton(c), (), 0.0, model.weights, model.faces)
     ct = RS.target_coeffs(model, c, {"taller": 0.1, "heavier": 10})
     Vt = model.vertices(ct)
-    plan = R.refine_plan(body.vertices, body.faces, body.weights, body.skeleton, sensor.version)
+    plan = R.refine_plan(body.vertices, body.faces, body.weights, body.skeleton, sensor.version,
+                         twist_bones=R.TWIST_BONES)  # the run's plan (MIR12h)
     _, players = F.register_depth_to_color(frame.depth_m, frame.player, sensor)
     steps = {"registration": lambda: F.register_depth_to_color(frame.depth_m, frame.player, sensor),
              "player masks": lambda: mods["player_masks"](players, (1, 2), True)}

@@ -24,6 +24,9 @@ from pathlib import Path
 #: the settings compared (``CaptureOptions`` fields over its defaults)
 VARIANTS = {
     "default": {},
+    # the default before the tenth pass: the model's regressed rest arm and joints, the 50 % norm limit
+    "previous_default": {"body_rest_shape": False, "body_rest_rounds": 0, "body_rest_fit_poses": False,
+                         "norm_limit": 0.5},
     # the default with the pinned-sequence gate off (placement held, no skeleton, norm limit 0.5): the sixth pass's
     "unpinned": {"sequence_pinned_se_m": 0.0},
     # the sixth pass's best on 501 (``capture.PINNED_SEQUENCE``, a pinned sequence's setting when the gate is on):

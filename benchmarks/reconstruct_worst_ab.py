@@ -7,7 +7,8 @@ Usage: PYTHONPATH=. python benchmarks/reconstruct_worst_ab.py ROOT [--variants '
 ROOT holds the benchmark's 30 fps hidden-subject sessions (``synth_session(ROOT / "walk31", n_cameras=10,
 n_frames=6, motion="walk", subject_seed=31, template="full", fps=30)``, likewise turn 3 and arm_flex 12; made
 when missing). Each variant is a set of :class:`RapidSkinParams` fields (``t_NAME``: :class:`TrackParams`) over
-the defaults (``default`` = none);
+the defaults (``default`` = none; ``r_NAME``: a keyword of :func:`reconstruct_session`, e.g.
+``r_joint_smoothing:2``);
 every (session, constraints, mode) runs all variants back to back, so the rows compare on the same
 frames.
 Printed per row: median / p90 (visible) / Hausdorff mm and the region p90s (mean over frames), as the
@@ -135,11 +136,12 @@ def main() -> None:
             for tracking in modes:
                 for vname, kw in parse_variants(args.variants):
                     track_kw = {k[2:]: v for k, v in kw.items() if k.startswith("t_")}
+                    run_kw = {k[2:]: v for k, v in kw.items() if k.startswith("r_")}
                     params = RapidSkinParams(constraints=cons,
-                                             **{k: v for k, v in kw.items() if not k.startswith("t_")})
+                                             **{k: v for k, v in kw.items() if not k.startswith(("t_", "r_"))})
                     with threadpool_limits(1):
                         s = reconstruct_session(path, template="13k", constraints=cons, tracking=tracking,
-                                                params=params, track_params=TrackParams(**track_kw))
+                                                params=params, track_params=TrackParams(**track_kw), **run_kw)
                     fr = json.loads((path / "reconstruct" / "frames.json").read_text())["frames"]
                     reg = [np.mean([f["metrics"]["regions"][r]["p90_mm"] for f in fr]) for r in REGIONS]
                     haus = [f["metrics"]["hausdorff_mm"] for f in fr]

@@ -96,12 +96,14 @@ def capture(
                                            "bmi=..,muscularity=..,height_m=..,arm_length_m=..[,sex=male|female] "
                                            "(the paper's Table 1; a batch: once per SESSION, in order; "
                                            "default: fitted from the first frames)"),
-    no_sequence_fit: bool = typer.Option(False, "--no-sequence-fit", help="skip the whole-sequence pose fit "
-                                         "(docs/muscle.md: better captures with it; captures meant to extend a "
-                                         "model extended it more without it)"),
+    no_sequence_fit: bool = typer.Option(False, "--no-sequence-fit", help="skip the whole-sequence pose fit and "
+                                         "the rest arm and skeleton fitted with it in the body model's shape space "
+                                         "(docs/muscle.md: better captures with them; the model's regressed rest "
+                                         "arm and joints instead)"),
     for_extension: bool = typer.Option(False, "--for-extension", help="capture to extend a model (muscle model "
                                        "extend): the subject's skeleton and the torso placement fitted with the "
-                                       "sequence (docs/muscle.md: the extension's best captures)"),
+                                       "sequence, on the model's regressed rest arm, 50 % norm limit "
+                                       "(docs/muscle.md: the extension's best captures)"),
     scheduler: str | None = typer.Option(None, "--scheduler", help="batch: " + batch_cli.SCHEDULER_HELP),
     workers: int | None = typer.Option(None, "--workers", help="batch: " + batch_cli.WORKERS_HELP),
     force: bool = typer.Option(False, "--force", help="batch: redo every sequence, also those already captured"),

@@ -21,6 +21,10 @@ docs/mirror.md "MIR12") by a few Gauss-Newton steps of the energy
   shows a bend of the lower spine; MIR12g, docs/mirror.md "Who owns the last 0.04");
 * ``E_prior``: Tikhonov damping of the change from the IK pose.
 
+The run's plan also refines the twist of spine_01 and spine_02 (:data:`TWIST_BONES`: the upper body's yaw against
+the pelvis, which the IK takes from different joints), and a step turns the root about the body's centroid, not
+the Root bone's head on the floor (:data:`ROOT_PIVOT`; MIR12h, docs/mirror.md "The root's yaw and pivot").
+
 Every residual is linear in the parameters to first order through the skinning: a vertex ``v`` moves by
 ``dt + w x (v - h_root)`` for the root and ``s_j(v) (e_j x (v - h_j))`` for bone ``j``'s swing about the axes
 ``e_j`` perpendicular to the posed bone, where ``s_j(v)`` is the skin weight of ``v`` on ``j``'s subtree.
@@ -67,6 +71,17 @@ TRUNK_RAD = float(np.radians(16.0))
 #: Gauss-Newton steps per frame: on MIR-SYNTH 41 / 42 one step scores the warp as well as two or three
 #: (warp_iou 0.913 / 0.894 against 0.913 / 0.894 / 0.912 / 0.894) at half the cost (docs/mirror.md).
 ITERATIONS = 1
+#: Bones whose twist (the turn about the bone) the run's plan refines as well (``refine_plan(twist_bones=...)``):
+#: the upper body's yaw against the pelvis. The IK takes the pelvis's yaw from the hip joints and the shoulders'
+#: from the shoulder joints, each to ~4 degrees; with the spine's twist fixed the root could only turn both
+#: together, so the refinement left the root's yaw as the IK gave it (3.0-4.0 degrees off on MIR-SYNTH 41 / 42 /
+#: 43). With these two: 1.8-3.1 degrees, warp_iou +0.004 / +0.005 / +0.006 (docs/mirror.md, MIR12h).
+TWIST_BONES = ("spine_01", "spine_02")
+#: Where the root's rotation turns in a step: "centroid" (the posed body's centroid; the translation makes up the
+#: difference) or "head" (the Root bone's head, on the floor between the feet: a few degrees of tilt about it move
+#: the pelvis by centimetres, and the step's first-order rotation shrinks the body toward the floor by
+#: ``angle^2 / 2`` of its height, which a second step used to take out). MIR12h; "head" is the pivot before.
+ROOT_PIVOT = "centroid"
 #: Every ``VERTEX_STRIDE``-th vertex enters the silhouette and depth terms.
 VERTEX_STRIDE = 2
 #: Rim vertices: ``|cos|`` of the (skinned) normal and the viewing ray below this.
@@ -109,6 +124,7 @@ class _RefinePlan:
     joint_moves: np.ndarray  # (J, 1 + S) how much Kinect joint k moves with bone j's rotation (0..1)
     rest_relative: np.ndarray  # (B, 4, 4) A_parent^-1 A_j (the root: A_root), for the forward kinematics
     rest_inverse: np.ndarray  # (B, 4, 4) A_j^-1
+    n_twist: int = 0  # the last n_twist entries of ``bones`` turn about the bone itself (its twist), one column used
 
 
 def _descendants(parents, j) -> np.ndarray:
@@ -122,18 +138,18 @@ def _descendants(parents, j) -> np.ndarray:
 
 def refine_plan(vertices_rest: np.ndarray, faces: np.ndarray, weights: np.ndarray, skeleton: Skeleton,
                 version: str = "v2", stride: int = VERTEX_STRIDE,
-                swing_bones: tuple[str, ...] = SWING_BONES) -> _RefinePlan:
+                swing_bones: tuple[str, ...] = SWING_BONES, twist_bones: tuple[str, ...] = ()) -> _RefinePlan:
     """The per-body data of :func:`refine_pose` (computed once per source body); ``swing_bones`` the bones
-    whose swing is refined."""
+    whose swing is refined, ``twist_bones`` those whose twist (the turn about the bone) is refined too."""
     from bodystudio.geometry.mesh import vertex_normals
 
     names = skeleton.bone_names
-    missing = [b for b in ("Root", *swing_bones) if b not in names]
+    missing = [b for b in ("Root", *swing_bones, *twist_bones) if b not in names]
     if missing:
         raise InputError(f"pose refinement needs the game_engine rig; bone {missing[0]!r} is missing")
     parents = np.asarray(skeleton.parents)
     root = int(np.flatnonzero(parents < 0)[0])
-    bones = np.array([root] + [names.index(b) for b in swing_bones])
+    bones = np.array([root] + [names.index(b) for b in (*swing_bones, *twist_bones)])
     subset = np.arange(0, len(vertices_rest), max(1, int(stride)))
     W = np.asarray(weights, float)[subset]
     inside = np.stack([_descendants(parents, j) for j in bones], axis=1).astype(float)  # (B, 1 + S)
@@ -154,7 +170,7 @@ def refine_plan(vertices_rest: np.ndarray, faces: np.ndarray, weights: np.ndarra
     A = skeleton.rest_frames
     rel = np.array([A[j] if p < 0 else np.linalg.solve(A[p], A[j]) for j, p in enumerate(parents)])
     return _RefinePlan(subset, np.asarray(vertices_rest, float)[subset], N, idx, val, subtree, bones, moves, rel,
-                       np.linalg.inv(A))
+                       np.linalg.inv(A), len(twist_bones))
 
 
 def _forward_kinematics(plan: _RefinePlan, parents, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
@@ -189,7 +205,12 @@ def accumulate_normal_equations(H: np.ndarray, Jtr: np.ndarray, P: np.ndarray, a
 
 @njit(cache=True)
 def _add_row(H, Jtr, p, ax, ay, az, s, heads, axes, residual, row, cols):
-    """One residual's row (see :func:`accumulate_normal_equations`) added to ``H`` (upper triangle) and ``Jtr``."""
+    """One residual's row (see :func:`accumulate_normal_equations`) added to ``H`` (upper triangle) and ``Jtr``.
+
+    The last entries of ``heads`` may be twist entries (MIR12h: ``H`` then has one column for each, after the swing
+    columns, instead of two: ``H`` is ``6 + 2 S + T`` wide for ``1 + S + T`` entries): their axis is the bone."""
+    n_twist = 4 + 2 * heads.shape[0] - H.shape[0]
+    first_twist = heads.shape[0] - n_twist
     k = 0
     for c in range(heads.shape[0]):
         sc = s[c]
@@ -203,6 +224,11 @@ def _add_row(H, Jtr, p, ax, ay, az, s, heads, axes, residual, row, cols):
             for q in range(6):
                 cols[q] = q
             k = 6
+        elif c >= first_twist:
+            e0 = axes[c - 1, 0]
+            row[k] = sc * (e0[0] * cx + e0[1] * cy + e0[2] * cz)
+            cols[k] = 4 + 2 * first_twist + (c - first_twist)
+            k += 1
         else:
             e0 = axes[c - 1, 0]
             e1 = axes[c - 1, 1]
@@ -580,12 +606,18 @@ def _turned_rotations(rest_rotations, parents, delta, axes, world, bones):
     in the rest frame: ``log(Rr^T L_j' Rr)``."""
     n = len(bones)
     out = np.empty((n, 3))
-    turn = np.empty(3)
+    turns = np.empty((n, 3))
     for b in range(n):
         if b == 0:
-            turn[:] = delta[3:6]
+            turns[b] = delta[3:6]
         else:
-            turn[:] = delta[6 + 2 * (b - 1)] * axes[b - 1, 0] + delta[7 + 2 * (b - 1)] * axes[b - 1, 1]
+            turns[b] = delta[6 + 2 * (b - 1)] * axes[b - 1, 0] + delta[7 + 2 * (b - 1)] * axes[b - 1, 1]
+    turn = np.empty(3)
+    for b in range(n):
+        turn[:] = turns[b]
+        for c in range(n):  # a bone listed twice (its swing and its twist) turns by both
+            if c != b and bones[c] == bones[b]:
+                turn += turns[c]
         L = _rotation_matrix(turn) @ world[bones[b]]
         if parents[b] >= 0:
             L = world[parents[b]].T @ L
@@ -640,6 +672,53 @@ def _rotation_vector(R):
     return scale * q[:3]
 
 
+@njit(cache=True)
+def _project_body(V, N, R, t, K, lens, has_distortion, eye, width, height, origin, dist_shape, rim_cos):
+    """One pass over the skinned points: camera coordinates ``Pc`` (n, 3), pixels ``uv`` (n, 2; NaN behind the
+    camera; :meth:`Camera.project_with_depth`'s formulas with OpenCV's distortion), pixels in the distance window
+    ``local = uv - origin``, whether each lies inside the window (1 px in, 2 px off its far sides) and in the
+    image, whether it is on the rim (in the image, ``|cos| < rim_cos``) and the cosine of its normal ``N`` with
+    the viewing ray from ``eye``. MIR12h: numpy's ten passes over the arrays cost ~0.4 ms more a step (A/B in one
+    process on MIR-SYNTH 41)."""
+    n = V.shape[0]
+    Pc = np.empty((n, 3))
+    uv = np.empty((n, 2))
+    local = np.empty((n, 2))
+    in_box = np.zeros(n, np.bool_)
+    rim = np.zeros(n, np.bool_)
+    cos = np.empty(n)
+    k1, k2, p1, p2, k3 = lens[0], lens[1], lens[2], lens[3], lens[4]
+    for i in range(n):
+        for r in range(3):
+            Pc[i, r] = V[i, 0] * R[r, 0] + V[i, 1] * R[r, 1] + V[i, 2] * R[r, 2] + t[r]
+        z = Pc[i, 2]
+        if z <= 0:
+            x = y = np.nan
+        else:
+            x = Pc[i, 0] / z
+            y = Pc[i, 1] / z
+        if has_distortion:
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+            y = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+            x = xd
+        u = K[0, 0] * x + K[0, 1] * y + K[0, 2]
+        v = K[1, 1] * y + K[1, 2]
+        uv[i, 0] = u
+        uv[i, 1] = v
+        lu = u - origin[0]
+        lv = v - origin[1]
+        local[i, 0] = lu
+        local[i, 1] = lv
+        ok = u >= 0 and u <= width - 1 and v >= 0 and v <= height - 1  # False for NaN
+        in_box[i] = ok and lu >= 1 and lv >= 1 and lu < dist_shape[0] - 2 and lv < dist_shape[1] - 2
+        rx, ry, rz = V[i, 0] - eye[0], V[i, 1] - eye[1], V[i, 2] - eye[2]
+        cos[i] = (N[i, 0] * rx + N[i, 1] * ry + N[i, 2] * rz) / np.sqrt(rx * rx + ry * ry + rz * rz)
+        rim[i] = ok and abs(cos[i]) < rim_cos
+    return Pc, uv, local, in_box, rim, cos
+
+
 #: The pixel steps of the distance transform's central differences: +x, -x, +y, -y.
 _STEPS_PX = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
 
@@ -692,8 +771,9 @@ def refine_pose(plan: _RefinePlan, skeleton: Skeleton, pose: Pose, camera, foreg
     refined mask in the colour image of ``camera``), the player's ``depth_points`` (N, 3) and the Kinect joints.
 
     ``others``: pixels of other players (a body point projecting there may be occluded, not outside).
-    Root translation/rotation and the swing of the plan's bones (:data:`SWING_BONES` by default) change;
-    every other rotation, and every twist, is the IK's. ``iterations`` Gauss-Newton steps from ``pose``.
+    Root translation/rotation and the swing of the plan's bones (:data:`SWING_BONES` by default) change, and the
+    twist of its twist bones (none by default; the run's plan :data:`TWIST_BONES`); every other rotation, and every
+    other twist, is the IK's. ``iterations`` Gauss-Newton steps from ``pose``.
     """
     with _one_blas_thread():
         return _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tracked, depth_points,
@@ -734,11 +814,13 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
             pts = pts[rng.choice(len(pts), weights.depth_samples, replace=False)]
     bones = plan.bones
     S = len(bones) - 1
-    n_par = 6 + 2 * S
+    n_swing = S - plan.n_twist
+    n_par = 6 + 2 * n_swing + plan.n_twist  # a twist entry has one column (MIR12h)
     prior_scale = np.r_[np.full(3, weights.prior_m), np.full(n_par - 3, weights.prior_rad)]
     start = pose
     total = np.zeros(n_par)
     eye = camera.center
+    lens = np.asarray(camera.dist, np.float64) if camera.has_distortion else np.zeros(5)
     parents = skeleton.parents
     rest_rotations = np.ascontiguousarray(skeleton.rest_rotations)
     trunk = None
@@ -748,20 +830,22 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
     for _ in range(max(0, int(iterations))):
         M, transforms = _forward_kinematics(plan, parents, pose)
         world, heads, axes = _bone_frames(M, rest_rotations, bones)
+        for k in range(len(bones) - 1 - plan.n_twist, len(bones) - 1):  # twist entries: about the bone, one column
+            axes[k, 0] = M[bones[k + 1], :3, 1]
+            axes[k, 1] = 0.0
         V, N = _skin(plan, transforms)
-        Pc = V @ camera.R.T + camera.t
-        uv, _ = camera.project_with_depth(V)
+        root_head = heads[0].copy()
+        if ROOT_PIVOT == "centroid":  # the root's rotation turns about the body's centroid (the kernels' heads[0])
+            heads[0] = V.mean(axis=0)
+        Pc, uv, local, in_box_mask, rim_mask, cos = _project_body(
+            V, N, camera.R, camera.t, camera.K, lens, camera.has_distortion, eye, camera.width, camera.height,
+            origin, dist_shape.astype(np.float64), RIM_COS)
         H = np.zeros((n_par, n_par))
         Jtr = np.zeros(n_par)
         used = False
-        with np.errstate(invalid="ignore"):  # NaN pixels (behind the camera) are not ``ok``
-            ok = (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
         # E_out: projected body points outside the silhouette, pulled down the distance transform
         # (points beyond the box are more than its margin out; they have no gradient there and are left out)
-        local = uv - origin
-        with np.errstate(invalid="ignore"):
-            in_box = np.flatnonzero(ok & (local[:, 0] >= 1) & (local[:, 1] >= 1) & (local[:, 0] < dist_shape[0] - 2)
-                                    & (local[:, 1] < dist_shape[1] - 2))
+        in_box = np.flatnonzero(in_box_mask)
         if box is not None:
             done, d_in = _distance_near_the_body(dist_out, allowed, box, silhouette, local[in_box], done)
         else:
@@ -777,9 +861,7 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
                                               camera.fx, camera.fy, camera.R, plan.subtree_weight, heads, axes)
             used = True
         # E_cover: the mask's outline pixels onto the nearest projected rim vertex, along its image normal
-        ray = V - eye
-        cos = np.einsum("ij,ij->i", N, ray) / np.linalg.norm(ray, axis=1)
-        rim = np.flatnonzero(ok & (np.abs(cos) < RIM_COS))
+        rim = np.flatnonzero(rim_mask)
         if len(rim) >= 3 and len(outline):
             dist, nearest = nearest_within(uv[rim], outline, 25.0)
             keep = np.isfinite(dist)
@@ -830,5 +912,10 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         except np.linalg.LinAlgError:
             return start
         total = total + delta
+        if plan.n_twist:  # apply_update's layout: two columns per entry (a twist entry's second axis is 0)
+            delta = np.r_[delta[:6 + 2 * n_swing], np.c_[delta[6 + 2 * n_swing:], np.zeros(plan.n_twist)].ravel()]
         pose = apply_update(skeleton, pose, delta, bones, axes, world)
+        if ROOT_PIVOT == "centroid":  # v -> R (v - c) + c + dt moves the root head h by (R - I)(h - c) + dt
+            pose = Pose(pose.rotations, pose.translation + (_rotation_matrix(delta[3:6]) - np.eye(3))
+                        @ (root_head - heads[0]))
     return pose if np.all(np.isfinite(pose.rotations)) else start

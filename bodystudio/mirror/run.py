@@ -509,10 +509,11 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     camera = sensor.color
     if refine:
         from bodystudio.mirror.frames import point_cloud
-        from bodystudio.mirror.refine import refine_plan, refine_pose
+        from bodystudio.mirror.refine import TWIST_BONES, refine_plan, refine_pose
 
         for a in actors:
-            a.plan = refine_plan(a.body.vertices, a.body.faces, a.body.weights, a.body.skeleton, sensor.version)
+            a.plan = refine_plan(a.body.vertices, a.body.faces, a.body.weights, a.body.skeleton, sensor.version,
+                                 twist_bones=TWIST_BONES)
     last_rgb = None
     seen = None
     for i in (session.frame_ids if frames is None else frames):

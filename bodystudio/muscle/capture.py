@@ -98,7 +98,10 @@ TRACKER_JOINTS = {"left": ("ShoulderLeft", "ElbowLeft", "WristLeft"),
 # Measured (docs/muscle.md, fifth pass; the benchmark's extension step), mean change of the held-out
 # out-of-range subjects' model-only error, sets A / B: captures without the sequence fit -6.6 / -5.7 %; with
 # this setting, each rest mesh centred by sex (``model.capture_samples(centre="sex")``) -11.7 / -11.7 %.
-EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True}
+# The regressed rest arm and the 50 % norm limit it was measured with are kept: the body rest shape (the capture's
+# default since the tenth pass) has not been measured for the extension.
+EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
+                     "body_rest_shape": False, "norm_limit": 0.5}
 # The setting of a sequence that pins its shared torso placement and skeleton (``CaptureOptions.sequence_pinned_se_m``,
 # off by default): the skeleton and placement fitted with every frame's angles, Huber on the depth pairs only, the
 # chest's pairs off, the tracker's joints at 10, and a 5 % norm limit (the fitted skeleton carries a lower model biceps;
@@ -127,8 +130,10 @@ class CaptureOptions:
     # paper's 90 % left the biceps 10 % of its pose bulge (8.5 -> 0.9 mm at 90 deg flexion), which the sensor cannot
     # show at strong flexion (the forearm hides 82 % of the biceps at 80-120 deg). Measured (6k, 501, 200 frames,
     # measured shape, with refine_visible_only; docs/muscle.md sixth pass): 0.9 -> 0.5: bulge 1.72 -> 0.96 mm, median
-    # 4.76 -> 4.71 mm; 24-frame subjects 5 / 602 (little flexion) within 0.1 mm.
-    norm_limit: float = 0.5
+    # 4.76 -> 4.71 mm; 24-frame subjects 5 / 602 (little flexion) within 0.1 mm. 0.5 -> 0.2 with the body rest shape and
+    # the joint fit (the default below; docs/muscle.md tenth pass): with the placement right the model's biceps is
+    # too low at strong flexion, and a smaller cut keeps more of the pose bulge (501's bulge 2.51 -> 1.91 mm).
+    norm_limit: float = 0.2
     refine_pose: bool = True
     sigma_frames: float = 1.0  # Eq. 14
     refine_data_weight: float = 0.3  # measured (6k, 24 frames): 1.0 -> 0.3: 6.4 -> 6.2 mm, jitter 2.2 -> 1.8 mm
@@ -229,9 +234,10 @@ class CaptureOptions:
     # Measured (6k, 200 frames, measured shape, Kinect v2 at 1 m; docs/muscle.md eighth pass), median / p90 mm of
     # 501 / 504 / 507 / 508: default 4.61 / 7.74, 5.47 / 9.07, 4.74 / 7.99, 6.44 / 13.45; 2 rounds at prior 100
     # 3.52 / 6.29, 5.57 / 8.15, 7.65 / 12.95, 4.48 / 7.88 (507 loses), the bulge error on 501 1.06 -> 1.75 mm (goal
-    # 1.5), ~900 ms CPU per frame: off. Projection only: 501 4.41 / 7.60, 504 5.98 / 9.79.
-    body_rest_shape: bool = False
-    body_rest_rounds: int = 0
+    # 1.5), ~900 ms CPU per frame. Projection only: 501 4.41 / 7.60, 504 5.98 / 9.79. On by default (2 rounds) with
+    # the joint fit of the poses below and norm_limit 0.2 (docs/muscle.md tenth pass).
+    body_rest_shape: bool = True
+    body_rest_rounds: int = 2
     body_rest_prior_weight: float = 100.0  # per frame, one population standard deviation vs a pair 1 mm off
     body_rest_iterations: int = 3  # Gauss-Newton steps per round (re-paired each)
     body_rest_frame_stride: int = 4  # every this-many-th frame enters the rest-shape fit (it is shared)
@@ -241,8 +247,9 @@ class CaptureOptions:
     # (``refine.fit_body_rest_shape_and_poses``) instead of held (docs/muscle.md, ninth pass). Measured (6k, 200
     # frames, measured shape, 2 rounds), median / p90 mm of 501 / 504 / 507 / 508: default 4.61 / 7.74, 5.47 / 9.07,
     # 4.74 / 7.99, 6.44 / 13.45 -> 3.72 / 6.52, 4.21 / 7.12, 3.64 / 7.43, 3.97 / 7.89, but 501's bulge error 1.06 ->
-    # 2.51 mm (goal 1.5): off.
-    body_rest_fit_poses: bool = False
+    # 2.51 mm (goal 1.5). The default, with norm_limit 0.2 (end to end: 3.69 / 6.46, 4.19 / 7.10, 3.63 / 7.45,
+    # 3.94 / 7.89 mm; bulge 1.91 / 1.07 / 1.12 / 0.74 mm, 501 over the 1.5 mm goal; docs/muscle.md tenth pass).
+    body_rest_fit_poses: bool = True
     # Rounds of the rest-shape fit stop when the depth energy (``refine.depth_energy_mm`` of the sequence fit's
     # meshes on the frames the rest-shape fit does not use) stops falling, and the round with the lowest energy is
     # kept (a data-side choice, never the truth). Measured (200 frames, docs/muscle.md ninth pass): 507's second
@@ -274,6 +281,9 @@ class CaptureOptions:
             raise InputError(f"sequence_torso_pair_weight must be >= 0, got {self.sequence_torso_pair_weight}")
         if self.body_rest_rounds < 0 or self.body_rest_frame_stride < 1 or not self.body_rest_prior_weight > 0:
             raise InputError("body_rest_rounds must be >= 0, body_rest_frame_stride >= 1, body_rest_prior_weight > 0")
+        if self.personal_rounds > 0 and self.body_rest_shape and self.body_rest_rounds > 0:
+            raise InputError("personal_rounds and the body rest shape's rounds are two rest-shape fits and only one "
+                             "runs; set body_rest_shape=False to use personal_rounds")
         if not self.sequence_pinned_se_m >= 0:
             raise InputError(f"sequence_pinned_se_m must be >= 0, got {self.sequence_pinned_se_m}")
 

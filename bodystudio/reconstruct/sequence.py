@@ -58,6 +58,7 @@ from bodystudio.reconstruct.pose_init import (
     with_bone_lengths,
 )
 from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
+from bodystudio.reconstruct.shape_prior import deformed_shape_coefficients, posed_shape, shape_prior_mesh
 from bodystudio.reconstruct.tracking import (
     SilhouetteFields,
     TrackParams,
@@ -76,6 +77,9 @@ log = logging.getLogger(__name__)
 
 TEMPLATES = {"13k": "full", "6k": "6k", "2k": "2k", "full": "full", "2.5k": "2k"}
 JOINT_SOURCES = ("tracker", "file", "hull")
+#: The body-shape prior for surfaces no view sees (:mod:`bodystudio.reconstruct.shape_prior`): none, a second
+#: pass per frame from the shape space's fit to the first, or the run's fitted shape as each later frame's start.
+SHAPE_PRIORS = ("off", "frame", "run")
 #: What the pose refinement fits: the silhouettes' distance fields (an implicit visual hull, default) or
 #: the carved visual hull.
 REFINE_DATA = ("fields", "hull")
@@ -213,7 +217,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         progress: bool = False, tracking: bool = False, track_params: TrackParams | None = None,
                         refine_with: str = "fields", rest_cotangents: bool = True,
                         refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence",
-                        joint_smoothing: int = 0, accept_implausible: bool = False) -> dict:
+                        joint_smoothing: int = 0, accept_implausible: bool = False, shape_prior: str = "off",
+                        shape_prior_outer: int = 0, shape_prior_first_outer: int = 0) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
@@ -227,6 +232,10 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     accurate, docs/reconstruct.md), every frame is initialised from its joints (:func:`reconstruct_frames`).
     ``refine_with``: ``fields`` (default) fits the refinement to the implicit visual hull of the
     silhouettes' distance fields, ``hull`` to the carved visual hull.
+    ``shape_prior`` (issue 15's unseen surfaces, :mod:`bodystudio.reconstruct.shape_prior`; off by default,
+    measured in docs/reconstruct.md): ``frame`` fits the statistical body model's shape space to each frame's
+    deformation and runs Algorithm 1 again from that shape (``shape_prior_outer`` re-matchings, 0: the
+    frame's own), ``run`` starts every later frame from the mean shape fitted to the frames before it.
     """
     from bodystudio.capture.session import open_session
 
@@ -255,7 +264,9 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    track_params=track_params, refine_with=refine_with,
                                    rest_cotangents=rest_cotangents, refine_params=refine_params,
                                    bone_lengths=bone_lengths, joint_smoothing=joint_smoothing,
-                                   accept_implausible=accept_implausible)
+                                   accept_implausible=accept_implausible, shape_prior=shape_prior,
+                                   shape_prior_outer=shape_prior_outer,
+                                   shape_prior_first_outer=shape_prior_first_outer)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -268,7 +279,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        joints_path, warm_start, refine_pose, score, progress, tracking: bool = False,
                        track_params: TrackParams | None = None, refine_with: str = "fields",
                        rest_cotangents: bool = True, refine_params: PoseRefineParams | None = None,
-                       bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True) -> dict:
+                       bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True,
+                       shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0
+                       ) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -286,6 +299,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     here, for a batch chunk, whose whole run is judged by :func:`bodystudio.batch.reconstruct_batch`).
     """
     from bodystudio.body import build_body
+    from bodystudio.body.statistical import load_statistical_model
     from bodystudio.capture.session import progress_bar
 
     track_params = track_params or TrackParams()
@@ -316,6 +330,15 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
         lengths = run_bone_lengths(session, selected, joints, joints_path)
     body = build_body(resolution=TEMPLATES[template])
     F = body.faces
+    if not 0 <= int(shape_prior_first_outer) <= 100:
+        raise InputError(f"shape_prior_first_outer {shape_prior_first_outer}: give 0 (the run's No) to 100 outer "
+                         "iterations")
+    if not 0 <= int(shape_prior_outer) <= 100:
+        raise InputError(f"shape_prior_outer {shape_prior_outer}: give 0 (the run's No) to 100 outer iterations")
+    if shape_prior not in SHAPE_PRIORS:
+        raise InputError(f"unknown shape prior {shape_prior!r}; valid: {', '.join(SHAPE_PRIORS)}")
+    shape_model = load_statistical_model(TEMPLATES[template], progress=False) if shape_prior != "off" else None
+    shape_coeffs = []  # shape_prior "run": the coefficients fitted to each frame so far
     regions = vertex_regions(body) if score else None
     rest_delta = cotangent_weights(body.vertices, F) if rest_cotangents else None
     rest = body.vertices
@@ -419,9 +442,45 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             depth = depth_observation(depth_image, sensor.depth) if depth_image is not None else None
             if "silhouette" not in params.constraints:
                 masks = None
+            if shape_model is not None and shape_prior == "run" and shape_coeffs:
+                # the run's shape so far: this frame's start and smoothness reference (one pass)
+                t1 = time.perf_counter()
+                reference = posed_shape(shape_model, body, np.mean(shape_coeffs, axis=0), init.bone_transforms,
+                                        init.global_scale)
+                V_start = reference
+                t_init += time.perf_counter() - t1
             delta = rest_delta if rest_delta is not None else cotangent_weights(reference, F)
-            result = deform_to_observations(V_start, F, cameras, masks, frame_params, depth=depth, delta=delta,
+            first_params = frame_params
+            if shape_model is not None and shape_prior_first_outer and (shape_prior == "frame" or not shape_coeffs):
+                # the pass the shape space is fitted to stops before the outer iterations drift
+                first_params = replace(frame_params, outer_iterations=min(frame_params.outer_iterations,
+                                                                          shape_prior_first_outer))
+            result = deform_to_observations(V_start, F, cameras, masks, first_params, depth=depth, delta=delta,
                                             smooth_reference=reference, fields=fields)
+            if shape_model is not None and (shape_prior == "frame" or not shape_coeffs):
+                # issue 15: the shape space's fit to the first pass starts and regularises a second pass, so
+                # the surfaces no view sees take the fitted body's shape instead of the generic template's
+                t1 = time.perf_counter()
+                prior = shape_prior_mesh(shape_model, body, result.vertices, init.bone_transforms,
+                                         init.global_scale)
+                t_prior = time.perf_counter() - t1
+                second_params = frame_params
+                if shape_prior_outer:  # the second pass starts closer: fewer re-matchings
+                    second_params = replace(frame_params, outer_iterations=min(frame_params.outer_iterations,
+                                                                                 shape_prior_outer))
+                second = deform_to_observations(prior, F, cameras, masks, second_params, depth=depth, delta=delta,
+                                                smooth_reference=prior, fields=fields)
+                second.solver_s += result.solver_s
+                second.matching_s += result.matching_s
+                second.n_silhouette = result.n_silhouette + second.n_silhouette
+                second.n_depth = result.n_depth + second.n_depth
+                t_init += t_prior
+                result = second
+            if shape_model is not None and shape_prior == "run":
+                t1 = time.perf_counter()
+                shape_coeffs.append(deformed_shape_coefficients(shape_model, body, result.vertices,
+                                                                init.bone_transforms))
+                t_init += time.perf_counter() - t1
             t_frame = time.perf_counter() - t_start
             V = result.vertices
             if tracking:
@@ -460,7 +519,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "constraints": list(params.constraints), "frames": selected,
                    "warm_start": warm_start, "refine_pose": refine_pose, "tracking": tracking,
                    "refine_with": refine_with, "rest_cotangents": rest_cotangents, "bone_lengths": bone_lengths,
-                   "joint_smoothing": int(joint_smoothing),
+                   "joint_smoothing": int(joint_smoothing), "shape_prior": shape_prior,
+                   "shape_prior_outer": int(shape_prior_outer),
+                   "shape_prior_first_outer": int(shape_prior_first_outer),
                    "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
                    "params": asdict(params), "n_vertices": int(len(body.vertices)),
                    "track_params": asdict(track_params) if tracking else None,

@@ -3,7 +3,8 @@
 It forms the whole Jacobian ``J`` (one row per residual, 44 columns) and ``J^T J`` from it, outlines the mask over
 the whole image and projects every vertex's Jacobian: the implementation the run used until MIRFAST. Kept here, as a
 test helper, so that tests/mirror/test_pose_refine_fast.py can pin the fast implementation to it. MIR12g's E_trunk
-is added here from the pose's local rotations (the fast one takes it from the posed frames).
+is added here from the pose's local rotations (the fast one takes it from the posed frames). MIR12h's root pivot
+(the body's centroid) and twist entries are added the same way as in the fast one.
 """
 
 import cv2
@@ -63,6 +64,8 @@ def apply_update(skeleton, pose: Pose, delta: np.ndarray, bones: np.ndarray, axe
     parents = np.asarray(skeleton.parents)[bones]
     rotvecs = pose.rotations.copy()
     turns = np.vstack([delta[3:6], delta[6::2, None] * axes[:, 0] + delta[7::2, None] * axes[:, 1]])
+    # a bone listed twice (its swing, then its twist: MIR12h) turns by both
+    turns = np.array([turns[bones == b].sum(0) for b in bones])
     Wp = np.where((parents < 0)[:, None, None], np.eye(3), world[np.maximum(parents, 0)])
     # W_j' = W_p' L_j' with L_j' = W_p^T exp(w) W_j: first order the same turn of j's subtree in world axes
     L_new = np.transpose(Wp, (0, 2, 1)) @ Rotation.from_rotvec(turns).as_matrix() @ world[bones]
@@ -152,8 +155,14 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         a = np.cross(directions, helper)
         a /= np.linalg.norm(a, axis=1, keepdims=True)
         axes = np.stack([a, np.cross(directions, a)], axis=1)  # (S, 2, 3): two axes perpendicular to each bone
+        n_twist = getattr(plan, "n_twist", 0)
+        if n_twist:  # MIR12h: the last entries turn about the bone itself (one column, the other unused)
+            axes[len(axes) - n_twist:, 0] = directions[len(axes) - n_twist:]
+            axes[len(axes) - n_twist:, 1] = 0.0
         transforms = M @ plan.rest_inverse
         V, N = _skin(plan, transforms)
+        # MIR12h: the root turns about the body's centroid (its head is on the floor), the translation makes up
+        root_head, heads[0] = heads[0].copy(), V.mean(axis=0)
         rows, res = [], []
         uv, Dp = _projection_jacobian(camera, V)
         ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) \
@@ -217,7 +226,8 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         if not rows:
             break
         if weights.trunk_rad is not None:  # E_trunk (MIR12g): each trunk bone's swing off the rest pose
-            for n, name in enumerate(skeleton.bone_names[j] for j in bones[1:]):
+            swing_entries = bones[1:len(bones) - getattr(plan, "n_twist", 0)]  # not the twist entries (MIR12h)
+            for n, name in enumerate(skeleton.bone_names[j] for j in swing_entries):
                 if name not in TRUNK_BONES:
                     continue
                 j = bones[1 + n]
@@ -241,5 +251,7 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
             return start
         total = total + delta
         pose = apply_update(skeleton, pose, delta, bones, axes, world)
+        turn = Rotation.from_rotvec(delta[3:6]).as_matrix()
+        pose = Pose(pose.rotations, pose.translation + (turn - np.eye(3)) @ (root_head - heads[0]))
     return pose if np.all(np.isfinite(pose.rotations)) else start
 

@@ -17,7 +17,8 @@ def _posed_err_mm(body, pose, truth):
 def test_refined_init_pose_brings_each_frames_pose_toward_the_truth(walk_scene):
     """The true body in the walk scene's six frames (1 cm joint noise, 3 % bone jitter): the IK's posed vertices are
     15.9 mm off on average (13.7-19.7 per frame), one refinement step against the mask, the depth and the joints
-    10.5 mm, two 7.2 mm (measured). The IK returned unchanged, or the steps ignored, fails."""
+    10.5 mm, two 7.2 mm (measured; since MIR12h turns the root about the body's centroid, one step 8.3 mm and two
+    7.4). The IK returned unchanged, or the steps ignored, fails."""
     body = walk_scene.body
     plan = refine_plan(body.vertices, body.faces, body.weights, body.skeleton, "v2")
     err = {0: [], 1: [], 2: []}
@@ -30,8 +31,8 @@ def test_refined_init_pose_brings_each_frames_pose_toward_the_truth(walk_scene):
             err[steps].append(_posed_err_mm(body, refined, truth))
     ik, one, two = (float(np.mean(err[k])) for k in (0, 1, 2))
     assert ik > 13.0  # the IK's error is there to correct
-    assert one < 0.75 * ik and one < 12.0
-    assert two < 0.85 * one and two < 8.5
+    assert one < 0.75 * ik and one < 9.5
+    assert two < 0.95 * one and two < 8.5
 
 
 @pytest.fixture(scope="module")

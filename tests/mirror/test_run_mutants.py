@@ -526,7 +526,9 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
         b.weights = f"w{b.p}"
     h, w = 12, 16
     plans, refined = [], []
-    monkeypatch.setattr(refine_mod, "refine_plan", lambda *a: plans.append(a) or f"plan{a[3][-1]}")
+    plan_kwargs = []
+    monkeypatch.setattr(refine_mod, "refine_plan",
+                        lambda *a, **kw: plans.append(a) or plan_kwargs.append(kw) or f"plan{a[3][-1]}")
     cloud = np.array([[0.0, 0.01, 2.0], [0.0, 0.5, 2.0], [0.0, 0.03, 2.0], [0.0, 0.02, 2.0]])
     def point_cloud(frame, sensor, p):
         assert sensor is session.kinect and frame.rgb.shape == (h, w, 3)
@@ -550,6 +552,8 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
     assert [p[3] for p in plans] == (["sk1", "sk2"] if several else ["sk1"])
     assert all(p[0] is b.vertices and p[1] == "faces" and p[2] == b.weights and p[4] == "v2"
                for p, b in zip(plans, [b1, b2], strict=False))
+    # the run's plan refines the spine's twist too (MIR12h)
+    assert plan_kwargs == [{"twist_bones": refine_mod.TWIST_BONES}] * len(plans)
     o = out[0]
     assert o.src_uv is None and o.late_pairs is not None and o.edit_fraction == 0.5
     assert o.players == ((1, 2) if several else None)

@@ -19,9 +19,10 @@ def test_the_body_rest_fit_gets_the_priors_spread_the_placement_switch_and_the_m
     s = scene
     spies = Spies(monkeypatch, ("fit_body_rest_shape", "fit_arm_sequence_skeleton"))
     proj = Spies(monkeypatch, ("project_to_body_space",), module=model_mod)
+    # the held-pose fit (the joint fit, the default, has its own wiring tests in test_sequence_stage_stop_mutants.py)
     o = CaptureOptions(mode="model", body_rest_shape=True, body_rest_rounds=1, body_rest_frame_stride=1,
                        body_rest_iterations=1, body_rest_fit_placement=False, body_rest_arm_length_weight=7.0,
-                       nicp=NicpOptions(iterations=2), **FAST)
+                       body_rest_fit_poses=False, nicp=NicpOptions(iterations=2), **FAST)
     capture_arm_frames(s.depths, s.camera, s.template, s.model, o, s.tracker, known_shape=s.shape)
     (p,) = proj["project_to_body_space"]
     (fb,) = spies["fit_body_rest_shape"]

@@ -138,7 +138,7 @@ def test_the_capture_takes_its_rest_arm_and_skeleton_from_the_body_space(monkeyp
     fast = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1,
                 sequence_max_nfev=3, nicp=NicpOptions(iterations=2), pose_sigma_frames=0.0)
     o = CaptureOptions(mode="model", body_rest_shape=True, body_rest_rounds=1, body_rest_frame_stride=2,
-                       body_rest_prior_weight=3.0, body_rest_iterations=2, **fast)
+                       body_rest_prior_weight=3.0, body_rest_iterations=2, body_rest_fit_poses=False, **fast)
     c = capture_arm_frames(s.depths, s.camera, s.template, s.model, o, s.tracker, known_shape=s.shape)
     (p,) = proj["project_to_body_space"]
     (fb,) = spies["fit_body_rest_shape"]
@@ -165,24 +165,31 @@ def test_the_capture_takes_its_rest_arm_and_skeleton_from_the_body_space(monkeyp
     for i in range(len(c.vertices)):
         np.testing.assert_allclose(c.vertices[i], apply_similarity(c.similarity, skeleton_model_mesh(
             s.model, c.poses[i], rest, J, o.norm_limit)), atol=1e-12)
-    off = capture_arm_frames(s.depths, s.camera, s.template, s.model, CaptureOptions(mode="model", **fast), s.tracker,
+    off = capture_arm_frames(s.depths, s.camera, s.template, s.model,
+                             CaptureOptions(mode="model", body_rest_shape=False, **fast), s.tracker,
                              known_shape=s.shape)
     assert len(spies["fit_body_rest_shape"]) == 1 and np.abs(off.joints - c.joints).max() > 1e-4
 
 
-def test_the_body_rest_shape_is_off_by_default_and_its_options_are_checked():
-    """Off by default (docs/muscle.md eighth pass: 501 and 508 better, 507 2.9 mm worse); bad values are
+def test_the_body_rest_shape_is_on_by_default_with_the_joint_fit_and_its_options_are_checked():
+    """On by default, 2 rounds, with the joint fit of the poses and a 20 % norm limit (docs/muscle.md tenth pass:
+    median and p90 lower on 501 / 504 / 507 / 508; the eighth pass's held-pose fit lost on 507); bad values are
     refused in one line."""
     from bodystudio.errors import InputError
     from bodystudio.muscle.capture import CaptureOptions
 
     o = CaptureOptions()
     assert (o.body_rest_shape, o.body_rest_rounds, o.body_rest_prior_weight, o.body_rest_frame_stride) == (
-        False, 0, 100.0, 4)
-    assert not o.body_rest_fit_poses  # the ninth pass's joint fit: a switch too
+        True, 2, 100.0, 4)
+    assert o.body_rest_fit_poses and o.body_rest_keep_best and o.norm_limit == 0.2  # the ninth pass's joint fit
     for bad in ({"body_rest_rounds": -1}, {"body_rest_frame_stride": 0}, {"body_rest_prior_weight": 0.0}):
         with pytest.raises(InputError, match="body_rest"):
             CaptureOptions(**bad)
+    # the personal rest shape is the other rest-shape fit: with the body rest rounds on it would be ignored
+    with pytest.raises(InputError, match="^personal_rounds and the body rest shape's rounds .* body_rest_shape=False"):
+        CaptureOptions(personal_rounds=1)
+    assert CaptureOptions(personal_rounds=1, body_rest_shape=False).personal_rounds == 1
+    assert CaptureOptions(personal_rounds=1, body_rest_rounds=0).personal_rounds == 1
 
 
 def test_the_joint_fit_recovers_the_rest_shape_where_the_held_poses_are_off(planted):

@@ -523,7 +523,7 @@ def test_a_sequence_whose_tracker_pins_the_placement_gets_the_pinned_setting():
     pinned = sequence_options(o, _noisy_tracker(200, 0.011))
     assert {k: getattr(pinned, k) for k in PINNED_SEQUENCE} == PINNED_SEQUENCE
     assert replace(pinned, **{k: getattr(o, k) for k in PINNED_SEQUENCE}) == o
-    assert pinned.norm_limit == 0.05 and o.norm_limit == 0.5
+    assert pinned.norm_limit == 0.05 and o.norm_limit == 0.2
     assert sequence_options(o, _noisy_tracker(24, 0.011)) is o
     assert sequence_options(o, _noisy_tracker(200, 0.025)) is o
     exact = _noisy_tracker(PINNED_MIN_FRAMES, 0.0)
@@ -562,7 +562,7 @@ def test_the_pinned_setting_reaches_the_sequence_fit(arm_session_2k, arm_model_2
                                 "torso_pair_weight")}
     assert got == ({"norm_limit": 0.05, "tracker_weight": 10.0, "fit_root": True, "fit_skeleton": True,
                     "depth_huber_only": True, "torso_pair_weight": 0.0} if se_m else
-                   {"norm_limit": 0.5, "tracker_weight": 30.0, "fit_root": False, "fit_skeleton": False,
+                   {"norm_limit": 0.2, "tracker_weight": 30.0, "fit_root": False, "fit_skeleton": False,
                     "depth_huber_only": False, "torso_pair_weight": 1.0})
 
 

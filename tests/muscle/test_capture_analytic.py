@@ -16,6 +16,7 @@ from bodystudio.muscle import capture as cap_mod
 from bodystudio.muscle.arm import ArmPose
 from bodystudio.muscle.capture import ArmCapture, CaptureOptions, capture_arm_frames
 from bodystudio.muscle.depth import DepthCleanupOptions
+from bodystudio.muscle.evaluate import visible_vertices
 from bodystudio.muscle.nicp import NicpOptions, apply_similarity
 
 FAST = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1, sequence_max_nfev=3,
@@ -52,8 +53,10 @@ def scene(tiny_arm_model_path):
                            truths=np.stack(truths), tracker=np.stack(joints))
 
 
-def _median_mm(V, truths):
-    return 1000 * float(np.mean([np.median(np.linalg.norm(V[i] - truths[i], axis=1)) for i in range(len(V))]))
+def _median_mm(V, truths, mask=None):
+    """Mean over frames of the per-frame median vertex error (mm), over ``mask`` (frames, vertices) if given."""
+    err = np.linalg.norm(np.asarray(V) - truths, axis=2)
+    return 1000 * float(np.mean([np.median(err[i] if mask is None else err[i][mask[i]]) for i in range(len(V))]))
 
 
 class Spies:
@@ -84,9 +87,21 @@ def test_full_beats_the_model_stage_which_beats_nicp_alone(scene):
                               CaptureOptions(mode="nicp", **FAST))
     e_full, e_model, e_nicp = (_median_mm(V, scene.truths) for V in (full.vertices, full.stages["model"],
                                                                         nicp.vertices))
-    # Measured (tiny 2k model, 3 noise-free frames, elbow 0-20 deg): full 6.4, model stage 8.0, NICP alone 10.8 mm.
-    assert e_full < 0.9 * e_model and e_model < 0.85 * e_nicp, (e_full, e_model, e_nicp)
-    assert e_full < 8.0
+    # Sec. 7's claim: the refinement pulls the surface the sensor sees towards the depth. On the arm vertices the
+    # sensor sees (the truth's z-buffer), median per frame: full 3.98 / 4.27 / 4.52 vs model stage 4.78 / 4.87 /
+    # 6.10 mm (ratios 0.83 / 0.88 / 0.74; before the body rest shape was the default 0.81 / 0.84 / 0.70); a dropped
+    # refinement, or one frame left unrefined, gives 1.0 in a frame. Over every vertex (the torso and the unseen side,
+    # which the refinement leaves to its ARAP) the full run lands near 6.2-6.3 mm whatever the model stage: the body
+    # rest shape lowered the model stage (7.44 -> 7.02 mm), so less is left to gain there (6.33 vs 7.02, 0.90; before
+    # 6.19 vs 7.44, 0.83).
+    seen = np.stack([visible_vertices(V, scene.template.faces, scene.camera) for V in scene.truths])
+    seen &= scene.template.arm_mask
+    f_full, f_model = ([_median_mm(V[i:i + 1], scene.truths[i:i + 1], seen[i:i + 1]) for i in range(3)]
+                       for V in (full.vertices, full.stages["model"]))
+    assert all(a < 0.9 * b for a, b in zip(f_full, f_model, strict=True)), (f_full, f_model)
+    assert np.mean(f_full) < 0.85 * np.mean(f_model), (f_full, f_model)
+    assert e_full < e_model and e_model < 0.85 * e_nicp, (e_full, e_model, e_nicp)
+    assert e_full < 7.0
     assert full.mode == "full" and nicp.mode == "nicp"
     assert set(full.stages) == {"nicp", "model"} and set(nicp.stages) == {"nicp"}
     np.testing.assert_array_equal(nicp.vertices, nicp.stages["nicp"])
@@ -138,7 +153,9 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
                        tracker_weight=20.0, tracker_root_weight=2.0, tracker_pose_weight=25.0, pose_sigma_frames=0.8,
                        tracker_arm_length_weight=50.0, huber_m=0.001, sequence_rounds=1, sequence_smooth_weight=7.0,
                        sequence_huber_m=0.003, sequence_max_nfev=2, sequence_fit_root=True,
-                       sequence_tracker_weight=15.0, smooth_weight=6.0)
+                       sequence_tracker_weight=15.0, smooth_weight=6.0, body_rest_shape=False)
+    # (the model's regressed rest arm and joints: the body rest shape's wiring is test_body_rest_shape.py's and
+    # test_sequence_stage_stop_mutants.py's)
     # the tracker's shoulder moves 4 mm a frame: the start is frame 0's
     tracker = scene.tracker + np.arange(3)[:, None, None] * np.array([0.004, 0.0, 0.0])
     c = capture_arm_frames(scene.depths, scene.camera, scene.template, scene.model, o,
@@ -330,7 +347,7 @@ def test_the_sequence_fit_poses_make_the_model_meshes(scene, monkeypatch):
     from bodystudio.muscle.model import model_mesh
 
     spies = Spies(monkeypatch, ("fit_arm_sequence_skeleton", "fit_shape_parameters"))
-    o = CaptureOptions(mode="model", **{**FAST, "pose_sigma_frames": 0.0, "norm_limit": 0.5})
+    o = CaptureOptions(mode="model", **{**FAST, "pose_sigma_frames": 0.0, "norm_limit": 0.5, "body_rest_shape": False})
     c = capture_arm_frames(scene.depths[:2], scene.camera, scene.template, scene.model, o, known_shape=scene.shape)
     (seq,) = spies["fit_arm_sequence_skeleton"]
     assert c.poses is seq.out[0] and seq.args[5] == 0.5
@@ -481,8 +498,11 @@ def test_capture_option_defaults_are_the_measured_ones():
     assert (o.mode, o.depth, o.nicp, o.first_frame_nicp_iterations, o.shape_frames, o.shape_rounds, o.norm_limit,
             o.refine_pose, o.sigma_frames, o.refine_data_weight, o.refine_iterations, o.detail_sigma_frames,
             o.joint_radius_m, o.joint_gain, o.refine_visible_only) == ("full", DepthCleanupOptions(), NicpOptions(),
-                                                                       12, 8, 4, 0.5, True, 1.0, 0.3, 4, 1.5, 0.06,
+                                                                       12, 8, 4, 0.2, True, 1.0, 0.3, 4, 1.5, 0.06,
                                                                        1.0, True)
+    # the rest arm from the body model's shape space, fitted with the strided frames' poses (docs/muscle.md tenth pass)
+    assert (o.body_rest_shape, o.body_rest_rounds, o.body_rest_fit_poses, o.body_rest_keep_best,
+            o.personal_rounds) == (True, 2, True, True, 0)
     assert (o.tracker_weight, o.tracker_root_weight, o.tracker_pose_weight, o.pose_sigma_frames,
             o.tracker_arm_length_weight, o.huber_m, o.sequence_rounds, o.sequence_smooth_weight, o.sequence_huber_m,
             o.sequence_max_nfev, o.sequence_fit_root, o.sequence_tracker_weight, o.smooth_weight, o.with_scale,
@@ -810,7 +830,7 @@ def test_the_personal_rounds_alternate_rest_shape_and_skeleton_fit_and_make_the_
                                         "sequence_fit_skeleton": True, "sequence_skeleton_prior_weight": 40.0,
                                         "sequence_free_joints": (False, True, True), "sequence_depth_huber_only": True,
                                         "sequence_huber_m": 0.002, "personal_rounds": 1,
-                                        "personal_prior_weight": 0.3})
+                                        "personal_prior_weight": 0.3, "body_rest_shape": False})
     c = capture_arm_frames(scene.depths[:2], scene.camera, scene.template, scene.model, o, known_shape=scene.shape)
     first, second = spies["fit_arm_sequence_skeleton"]
     (rs,) = spies["fit_rest_shape_correction"]

@@ -95,10 +95,12 @@ def test_the_placement_prior_and_chest_weight_must_be_non_negative_numbers(name)
 
 
 def test_the_extension_setting_and_the_new_defaults():
+    # the extension keeps the setting it was measured with (the regressed rest arm, the 50 % norm limit)
     assert cap_mod.EXTENSION_CAPTURE == {"sequence_fit_skeleton": True, "sequence_fit_root": True,
-                                         "sequence_depth_huber_only": True}
+                                         "sequence_depth_huber_only": True, "body_rest_shape": False,
+                                         "norm_limit": 0.5}
     o = CaptureOptions()
-    assert o.refine_visible_only is True and o.norm_limit == 0.5
+    assert o.refine_visible_only is True and o.norm_limit == 0.2
     assert o.sequence_placement_prior_m == 0.0 and o.sequence_torso_pair_weight == 1.0
 
 
@@ -148,7 +150,7 @@ def test_the_capture_for_extension_sets_the_extension_options_and_needs_the_sequ
     stub_capture_checks(monkeypatch)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", for_extension=True)
     assert seen["o"] == CaptureOptions(mode="model", sequence_fit_skeleton=True, sequence_fit_root=True,
-                                       sequence_depth_huber_only=True)
+                                       sequence_depth_huber_only=True, body_rest_shape=False, norm_limit=0.5)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, for_extension=True)
     assert seen["o"] == CaptureOptions(mode="full", **cap_mod.EXTENSION_CAPTURE)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", for_extension=False)
@@ -175,12 +177,15 @@ def test_the_placement_prior_weight_and_chest_weight_reach_the_sequence_fit(scen
     o = CaptureOptions(mode="model", **FAST, sequence_placement_prior_m=0.02, sequence_torso_pair_weight=0.25)
     c = capture_arm_frames(scene.depths, scene.camera, scene.template, scene.model, o, tracker_joints=scene.tracker,
                            known_shape=scene.shape)
-    (fit,) = spies["fit_arm_sequence_skeleton"]
-    (w,) = spies["tracker_placement_prior_weight"]
-    tracker_t = fit.args[6]
-    assert tracker_t is not None and w.args == (tracker_t, 0.02)
-    assert fit.kwargs["tracker_placement_weight"] == tracker_placement_prior_weight(tracker_t, 0.02) > 0
-    assert fit.kwargs["torso_pair_weight"] == 0.25
+    fits = spies["fit_arm_sequence_skeleton"]  # one per rest-shape round (the body rest shape is on by default)
+    weights = spies["tracker_placement_prior_weight"]
+    assert len(fits) >= 1 and len(weights) == len(fits)
+    tracker_t = fits[0].args[6]
+    for fit, w in zip(fits, weights, strict=True):
+        assert fit.args[6] is tracker_t and w.args == (tracker_t, 0.02)
+        assert fit.kwargs["tracker_placement_weight"] == tracker_placement_prior_weight(tracker_t, 0.02) > 0
+        assert fit.kwargs["torso_pair_weight"] == 0.25
+    n_weights = len(weights)
     np.testing.assert_allclose(apply_similarity(c.similarity, tracker_t.reshape(-1, 3)),
                                scene.tracker.reshape(-1, 3), atol=1e-9)  # the tracker in the template's frame
     for placement, tracker in ((0.0, scene.tracker), (0.02, None)):
@@ -189,7 +194,7 @@ def test_the_placement_prior_weight_and_chest_weight_reach_the_sequence_fit(scen
                            known_shape=scene.shape)
         assert spies["fit_arm_sequence_skeleton"][-1].kwargs["tracker_placement_weight"] is None
         assert spies["fit_arm_sequence_skeleton"][-1].kwargs["torso_pair_weight"] == 1.0
-    assert len(spies["tracker_placement_prior_weight"]) == 1
+    assert len(spies["tracker_placement_prior_weight"]) == n_weights
 
 
 # --- the visible-only refinement ---------------------------------------------------------------------------------

@@ -140,7 +140,7 @@ def test_the_gates_options_reach_the_sequence_fit(monkeypatch, se_m):
                                 "torso_pair_weight")}
     assert got == ({"norm_limit": 0.05, "tracker_weight": 10.0, "fit_root": True, "fit_skeleton": True,
                     "depth_huber_only": True, "torso_pair_weight": 0.0} if se_m else
-                   {"norm_limit": 0.5, "tracker_weight": o.sequence_tracker_weight, "fit_root": False,
+                   {"norm_limit": 0.2, "tracker_weight": o.sequence_tracker_weight, "fit_root": False,
                     "fit_skeleton": False, "depth_huber_only": False, "torso_pair_weight": 1.0})
 
 
@@ -152,7 +152,14 @@ def test_a_model_capture_returns_the_rest_joints_its_model_regresses_for_its_sha
                            CaptureOptions(mode="model", **FAST), tracker_joints=scene.tracker, known_shape=scene.shape)
     assert c.regressed_joints.shape == (3, 3) and c.regressed_joints.dtype == np.float64
     np.testing.assert_allclose(c.regressed_joints, model_joints(scene.model, c.shape), atol=1e-12)
-    # no skeleton fitted (the default): the capture's joints are those same regressed ones, a copy of its own
+    # the default: the body model's skeleton fitted to the depth (body_rest_shape), not the regressed joints
+    assert c.joints.shape == (3, 3) and c.joints.dtype == np.float64 and c.joints is not c.regressed_joints
+    assert np.abs(c.joints - c.regressed_joints).max() > 1e-4
+    # no skeleton fitted: the capture's joints are those same regressed ones, a copy of its own
+    c = capture_arm_frames(scene.depths, scene.camera, scene.template, scene.model,
+                           CaptureOptions(mode="model", body_rest_shape=False, **FAST), tracker_joints=scene.tracker,
+                           known_shape=scene.shape)
+    np.testing.assert_allclose(c.regressed_joints, model_joints(scene.model, c.shape), atol=1e-12)
     assert c.joints.shape == (3, 3) and c.joints.dtype == np.float64 and c.joints is not c.regressed_joints
     np.testing.assert_allclose(c.joints, c.regressed_joints, atol=1e-12)
     n = capture_arm_frames(scene.depths, scene.camera, scene.template, None,

@@ -1,0 +1,71 @@
+"""A body-shape prior for the surfaces no view sees (issue 15's crotch, neck and lower back).
+
+Rapid Skin's smoothness constraints (Eq. 9) keep the delta coordinates (Eq. 8) of the posed generic
+template wherever no silhouette or depth constraint reaches, so there the result is the template's shape:
+the crotch under the fitted pelvis, the chin crease, the lumbar curve behind a hanging arm. The statistical
+body model (:mod:`bodystudio.body.statistical`, the PCA shape space of Avatar Reshaping §4.1 / Real-time
+Reshaping §3) couples those surfaces to the ones the cameras do see. Here the deformed mesh of a first pass
+is brought back to the rest pose with the frame's bone transforms (the inverse of Eq. 12), the shape space's
+coefficients are fitted to it by robust, ridge-regularised least squares (:func:`fit_shape_coefficients`),
+and the fitted shape, posed with the same transforms (Eq. 12), is both the start and the smoothness
+reference of a second pass of Algorithm 1 (:func:`shape_prior_mesh`; ``shape_prior="frame"`` of
+:func:`bodystudio.reconstruct.sequence.reconstruct_session`). With ``shape_prior="run"`` the first frame
+does so and every later frame starts from (and is regularised towards) the mean of the coefficients fitted
+to the frames before it, in one pass: the subject's shape does not change over a run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bodystudio.errors import InputError
+from bodystudio.reconstruct.pose_init import pose_template, unpose
+
+
+def fit_shape_coefficients(model, rest_vertices: np.ndarray, ridge: float = 1e-4, robust_m: float = 0.02,
+                           iterations: int = 3) -> np.ndarray:
+    """Shape-space coefficients ``c`` of ``rest_vertices`` ``(n, 3)``: min sum_i w_i |v_i - (mean + B c)_i|^2
+    + ridge sum_k (c_k / sigma_k)^2, the PCA space of Avatar Reshaping §4.1 (Eq. 1 there, ``M = M_mean +
+    sum beta_k B_k``) with each component's population spread ``sigma_k`` as its prior.
+
+    Vertices off by more than ``robust_m`` after a fit get the weight ``robust_m / d`` in the next of the
+    ``iterations`` (Huber's), so the regions a first deformation got wrong (the crotch it did not see,
+    fingers it matched to the next finger) do not bend the whole body's shape towards them.
+    """
+    V = np.asarray(rest_vertices, dtype=np.float64)
+    if V.shape != model.mean.shape:
+        raise InputError(f"shape prior: {V.shape} vertices for a {model.resolution} shape space of "
+                         f"{model.mean.shape[0]}; use the template of the shape space's resolution")
+    B = model.basis.reshape(model.n_components, -1).T  # (3n, k)
+    y = (V - model.mean).ravel()
+    prior = ridge / np.square(model.stddev)
+    w = np.ones(len(V))
+    c = np.zeros(model.n_components)
+    for _ in range(max(1, int(iterations))):
+        wr = np.repeat(w, 3)
+        c = np.linalg.solve(B.T @ (wr[:, None] * B) + np.diag(prior), B.T @ (wr * y))
+        d = np.linalg.norm((y - B @ c).reshape(-1, 3), axis=1)
+        w = np.minimum(1.0, robust_m / np.maximum(d, 1e-12))
+    return c
+
+
+def deformed_shape_coefficients(model, body, deformed: np.ndarray, bone_transforms: np.ndarray,
+                                ridge: float = 1e-4, robust_m: float = 0.02) -> np.ndarray:
+    """Shape-space coefficients of a deformed mesh: Algorithm 1's result for the template ``body`` posed by
+    ``bone_transforms`` (Eq. 12), un-skinned with them and fitted by :func:`fit_shape_coefficients`."""
+    rest = unpose(np.asarray(deformed, dtype=np.float64), body.weights, bone_transforms)
+    return fit_shape_coefficients(model, rest, ridge, robust_m)
+
+
+def posed_shape(model, body, coeffs: np.ndarray, bone_transforms: np.ndarray, global_scale: float = 1.0
+                ) -> np.ndarray:
+    """The shape space's rest shape ``coeffs`` skinned (Eq. 12) with ``body``'s weights and ``bone_transforms``."""
+    return pose_template(body, bone_transforms, global_scale, rest_vertices=model.vertices(coeffs)).vertices
+
+
+def shape_prior_mesh(model, body, deformed: np.ndarray, bone_transforms: np.ndarray, global_scale: float = 1.0,
+                     ridge: float = 1e-4, robust_m: float = 0.02) -> np.ndarray:
+    """The shape space's fit to a deformed mesh, posed as it: ``(n, 3)`` world vertices
+    (:func:`deformed_shape_coefficients` then :func:`posed_shape` with the same transforms)."""
+    c = deformed_shape_coefficients(model, body, deformed, bone_transforms, ridge, robust_m)
+    return posed_shape(model, body, c, bone_transforms, global_scale)
