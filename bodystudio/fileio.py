@@ -297,19 +297,24 @@ def read_image(path: str | os.PathLike, flags: int | None = None) -> np.ndarray:
     return decode_image(data, path, flags)
 
 
+#: x264's presets, fastest first (``Mp4Writer(preset=...)``).
+X264_PRESETS = ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow")
+
+
 class Mp4Writer:
     """H.264 MP4 through imageio-ffmpeg from RGB uint8 frames of ``size`` (w, h). ``path`` may have no
     extension (a run's staged file): the container is named explicitly. A write that ffmpeg refuses (disk
-    full, path gone) raises a one-line FileFormatError naming the file."""
+    full, path gone) raises a one-line FileFormatError naming the file. ``preset``: x264's speed / size trade-off
+    (:data:`X264_PRESETS`), the same quality setting."""
 
-    def __init__(self, path: str | os.PathLike, size: tuple[int, int], fps: float):
+    def __init__(self, path: str | os.PathLike, size: tuple[int, int], fps: float, preset: str = "veryfast"):
         import imageio_ffmpeg
 
         self.path = Path(path)
         self._gen = imageio_ffmpeg.write_frames(str(path), size, fps=fps, codec="libx264", pix_fmt_in="rgb24",
                                                 pix_fmt_out="yuv420p", quality=7, macro_block_size=8,
                                                 ffmpeg_log_level="error",
-                                                output_params=["-f", "mp4", "-preset", "veryfast"])
+                                                output_params=["-f", "mp4", "-preset", preset])
         self._gen.send(None)
 
     def write(self, rgb) -> None:

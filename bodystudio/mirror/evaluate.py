@@ -15,7 +15,8 @@ run``: ``frames/``, ``masks/foreground/``, ``masks/warped/``, ``run.json``) and 
 * ``psnr_person`` (dB, pooled MSE) and ``ssim_person`` (Wang et al. 2004, Gaussian window) of the run's
   output frames against the target renders, in a band around the person: the union of the true source
   and target masks dilated by ``band_px``;
-* ``ms_per_frame`` by step and ``fps`` from ``run.json``.
+* ``ms_per_frame`` by step and ``fps`` from ``run.json``; with a run from MIR12j on, ``cpu_ms_per_frame`` and the
+  frames per second end to end with and without reading and writing, one core (CPU) and wall (``speed_scores``).
 
 The result is strict JSON (no ``NaN``/``Infinity``, which RFC 8259 parsers refuse): the PSNR of output
 frames identical to the target renders in the band is infinite, so ``psnr_person`` is then ``null`` and
@@ -403,4 +404,21 @@ def evaluate_mirror(session, run_dir: str | Path | None = None, source=None, ban
         **{k: v for k, v in images.items() if k != "scored_frames"},
         "ms_per_frame": {k: float(v) for k, v in ms.items()},
         "ms_per_frame_total": float(sum(ms.values())) if ms else None,
-        "fps": summary.get("fps_wall")})
+        "fps": summary.get("fps_wall"), **speed_scores(summary)})
+
+
+def speed_scores(summary: dict) -> dict:
+    """A run's speed from its ``run.json`` summary: per-step CPU ms and frames per second end to end with and
+    without the reading and writing, on one core (CPU ms, the video encoder's process included) and on the wall
+    clock (per-step medians summed). A run from before MIR12j has only wall ms: the CPU entries are None."""
+    from bodystudio.mirror.run import end_to_end
+
+    ms = summary.get("ms_per_frame") if isinstance(summary.get("ms_per_frame"), dict) else {}
+    cpu = summary.get("cpu_ms_per_frame") if isinstance(summary.get("cpu_ms_per_frame"), dict) else None
+    wall = end_to_end({k: float(v) for k, v in ms.items()}) if ms else {}
+    one_core = end_to_end({k: float(v) for k, v in cpu.items()}, summary.get("encoder_cpu_ms_per_frame")) \
+        if cpu else {}
+    return {"cpu_ms_per_frame": None if cpu is None else {k: float(v) for k, v in cpu.items()},
+            "encoder_cpu_ms_per_frame": summary.get("encoder_cpu_ms_per_frame"),
+            "fps_end_to_end_cpu": one_core.get("fps"), "fps_without_io_cpu": one_core.get("fps_without_io"),
+            "fps_end_to_end_wall": wall.get("fps"), "fps_without_io_wall": wall.get("fps_without_io")}

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from bodystudio.errors import BodyStudioError, FileFormatError, InputError
-from bodystudio.fileio import Mp4Writer, atomic_write
+from bodystudio.fileio import X264_PRESETS, Mp4Writer, atomic_write
 from bodystudio.mirror.compose import BackgroundModel, compose, update_background
 from bodystudio.mirror.foreground import refine_foreground
 from bodystudio.mirror.warp import (
@@ -98,6 +98,9 @@ class MirrorInput:
     late_pairs: Callable | None = None
     players: tuple | None = None  # the players reshaped in this frame when the run reshapes several (else None)
     person_labels: np.ndarray | None = None  # (H, W) uint8 the player of each person_mask pixel (several players)
+    # the steps' CPU ms (``time.process_time``, all threads of the process) next to ``timings_ms``' wall ms; the
+    # frame's steps (late_pairs' too) add theirs to this same dict
+    cpu_ms: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,6 +114,7 @@ class FrameResult:
     status: str  # "ok", "empty" (nobody in view: passes through) or "passed_through" (warning)
     warning: str | None
     timings_ms: dict
+    cpu_ms: dict = field(default_factory=dict)  # the steps' CPU ms (process_time) next to timings_ms' wall ms
 
 
 def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str = "similarity",
@@ -124,6 +128,7 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
     rgb = inp.rgb
     H, W = rgb.shape[:2]
     timings = dict(inp.timings_ms)
+    cpu = inp.cpu_ms  # the frame's own dict: late_pairs books its steps' CPU there too
     empty = np.zeros((H, W), bool)
     others = empty if inp.others_mask is None else inp.others_mask
     person = empty if inp.person_mask is None else inp.person_mask
@@ -132,70 +137,134 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
             (inp.src_uv is None or len(inp.src_uv) < MIN_PAIRS):
         inp = _too_few_pairs(inp)
     if inp.warning is not None or not has_person:
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         background = update_background(background, rgb, person | others, unverified=inp.unseen)
         timings["background"] = (time.perf_counter() - t) * 1e3
+        cpu["background"] = (time.process_time() - c) * 1e3
         status = "passed_through" if inp.warning is not None else "empty"
-        result = FrameResult(inp.index, rgb.copy(), person.copy(), person.copy(), status, inp.warning, timings)
+        result = FrameResult(inp.index, rgb.copy(), person.copy(), person.copy(), status, inp.warning, timings, cpu)
         return result, background
     if background is None:
         background = update_background(None, rgb, np.ones((H, W), bool))  # nothing learnt yet: inpaint holes
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     options = dict(foreground_options or {})
     if inp.person_labels is not None:  # several players: each band pixel's depth against its own player's
         options["labels"] = inp.person_labels
     fg = refine_foreground(rgb, person, inp.depth_color, background=background, unseen=inp.unseen, **options)
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     timings["foreground"] = (t1 - t0) * 1e3
+    cpu["foreground"] = (c1 - c0) * 1e3
     if inp.late_pairs is not None:  # its own steps (refine_pose, bodies, pairs) time themselves
         pairs = inp.late_pairs(fg, timings)
         groups = getattr(pairs, "groups", None)
         inp = MirrorInput(inp.index, rgb, inp.person_mask, inp.others_mask, inp.depth_color, pairs.src_uv,
                           pairs.dst_uv, None, timings, inp.pair_groups if groups is None else groups, inp.unseen,
-                          inp.edit_fraction, pairs.dense, players=inp.players, person_labels=inp.person_labels)
+                          inp.edit_fraction, pairs.dense, players=inp.players, person_labels=inp.person_labels,
+                          cpu_ms=cpu)
         if len(pairs.src_uv) < MIN_PAIRS:
             return mirror_frame(_too_few_pairs(inp), background, kind, foreground_options, alpha)
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.process_time()
     warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind, alpha=alpha, groups=inp.pair_groups,
                                 radius_px=MLS_RADIUS_PX, dense=inp.dense)
-    t2 = time.perf_counter()
+    t2, c2 = time.perf_counter(), time.process_time()
     warped_rgb, alpha = warp_foreground(rgb, fg, warp_field)
-    t3 = time.perf_counter()
+    t3, c3 = time.perf_counter(), time.process_time()
     out = compose(warped_rgb, alpha, background, rgb, fg)  # bystanders (others) stay as they are
-    t4 = time.perf_counter()
+    t4, c4 = time.perf_counter(), time.process_time()
     background = update_background(background, rgb, fg | person | others, unverified=inp.unseen)
-    t5 = time.perf_counter()
-    for step, a, b in zip(IMAGE_STEPS[1:], (t1, t2, t3, t4), (t2, t3, t4, t5), strict=True):
+    t5, c5 = time.perf_counter(), time.process_time()
+    for step, a, b, ca, cb in zip(IMAGE_STEPS[1:], (t1, t2, t3, t4), (t2, t3, t4, t5), (c1, c2, c3, c4),
+                                  (c2, c3, c4, c5), strict=True):
         timings[step] = (b - a) * 1e3
-    return FrameResult(inp.index, out, fg, alpha > 0.5, "ok", None, timings), background
+        cpu[step] = (cb - ca) * 1e3
+    return FrameResult(inp.index, out, fg, alpha > 0.5, "ok", None, timings, cpu), background
 
 
 def _too_few_pairs(inp: MirrorInput) -> MirrorInput:
     return MirrorInput(inp.index, inp.rgb, inp.person_mask, inp.others_mask, inp.depth_color, None, None,
                        f"only {0 if inp.src_uv is None else len(inp.src_uv)} visible vertex pairs "
-                       f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups, inp.unseen)
+                       f"(need {MIN_PAIRS})", inp.timings_ms, inp.pair_groups, inp.unseen, cpu_ms=inp.cpu_ms)
 
 
 # ---------------------------------------------------------------------------------------------- outputs
 
+#: PNG encoder settings of the run's outputs (lossless: the same pixels as any other setting, tested). Output
+#: frames: the Up filter on every row and Huffman-only deflate. libpng's adaptive filter choice, which tries all five
+#: filters on every row, was half the encoder's time: 640x480 output frames of session 43 in 8.0 instead of 15.1 ms
+#: CPU, 488 instead of 468 kB. Masks (0 / 255): no filter and run-length deflate, 0.4 instead of 3.0 ms, 1.7 instead
+#: of 39 kB (MIR12j, docs/mirror.md "Reading and writing").
+PNG_FRAME_PARAMS = (cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
+                    cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP)
+PNG_MASK_PARAMS = (cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE,
+                   cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE)
+
+
 def _png(image: np.ndarray) -> bytes:
-    # Huffman-only deflate: a noisy 640x480 frame in 19 instead of 26 ms CPU, and 15 % smaller
-    params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
+    """PNG bytes of an RGB output frame (:data:`PNG_FRAME_PARAMS`) or a grey mask (:data:`PNG_MASK_PARAMS`)."""
+    params = list(PNG_MASK_PARAMS if image.ndim == 2 else PNG_FRAME_PARAMS)
     ok, data = cv2.imencode(".png", image if image.ndim == 2 else image[..., ::-1], params)
     if not ok:
         raise FileFormatError("cannot encode a PNG frame")
     return data.tobytes()
 
 
-def _summary(results: list[dict], steps_ms: dict[str, list[float]], wall_s: float) -> dict:
+#: The steps that read the session and write the outputs (the rest is the mirror's compute).
+IO_STEPS = ("read", "write")
+
+
+def end_to_end(ms: Mapping[str, float], encoder_ms: float | None = None) -> dict:
+    """Milliseconds and frames per second of a frame end to end, from per-step ``ms`` (medians of one clock), with
+    the reading and writing (``IO_STEPS``, plus ``encoder_ms`` per frame: the video encoder's own process) and
+    without them (the compute steps alone, what the benchmark's fps counts)."""
+    with_io = float(sum(ms.values())) + (encoder_ms or 0.0)
+    without = float(sum(v for k, v in ms.items() if k not in IO_STEPS))
+    return {"ms": with_io, "fps": 1e3 / with_io if with_io > 0 else None,
+            "ms_without_io": without, "fps_without_io": 1e3 / without if without > 0 else None}
+
+
+def _summary(results: list[dict], steps_ms: dict[str, list[float]], wall_s: float,
+             steps_cpu_ms: dict[str, list[float]] | None = None, cpu_s: float | None = None,
+             encoder_cpu_s: float | None = None) -> dict:
     # medians: the first frames carry the numba compilation and the video encoder's start
     ms = {k: float(np.median(v)) for k, v in steps_ms.items() if v}
     image_ms = sum(ms.get(k, 0.0) for k in IMAGE_STEPS)
     counts = {s: sum(r["status"] == s for r in results) for s in ("ok", "empty", "passed_through")}
-    return {"frames": len(results), **{f"n_{k}": v for k, v in counts.items()},
-            "n_warnings": counts["passed_through"], "ms_per_frame": ms, "ms_per_frame_statistic": "median",
-            "image_steps_ms": image_ms, "image_steps_fps": 1e3 / image_ms if image_ms > 0 else None,
-            "wall_s": wall_s, "fps_wall": len(results) / wall_s if wall_s > 0 else None}
+    n = len(results)
+    out = {"frames": n, **{f"n_{k}": v for k, v in counts.items()},
+           "n_warnings": counts["passed_through"], "ms_per_frame": ms, "ms_per_frame_statistic": "median",
+           "image_steps_ms": image_ms, "image_steps_fps": 1e3 / image_ms if image_ms > 0 else None,
+           "wall_s": wall_s, "fps_wall": n / wall_s if wall_s > 0 else None}
+    if steps_cpu_ms is not None:
+        cpu = {k: float(np.median(v)) for k, v in steps_cpu_ms.items() if v}
+        encoder_ms = None if encoder_cpu_s is None else encoder_cpu_s * 1e3 / max(n, 1)
+        out.update({
+            # the same steps in CPU ms of this process (time.process_time): what one core pays, whatever the load
+            "cpu_ms_per_frame": cpu,
+            # the video encoder (ffmpeg, its own process) in CPU ms per frame, its start and end included
+            "encoder_cpu_ms_per_frame": encoder_ms,
+            # a frame end to end, with and without reading and writing: CPU (one core) and wall (medians summed)
+            "end_to_end_cpu": end_to_end(cpu, encoder_ms), "end_to_end_wall": end_to_end(ms),
+            # the whole loop's CPU: the set-up of the first frame and numba's compilation on a fresh install included
+            # (~25 s on session 43), so no frame rate is made of it
+            "cpu_s": cpu_s})
+    return out
+
+
+def _children_cpu_s() -> float:
+    """CPU seconds of this process's finished child processes (the video encoders once closed)."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def check_video_preset(preset: str) -> str:
+    """``preset`` if it is an x264 preset (``fileio.X264_PRESETS``), else a one-line InputError. ``veryfast``, the
+    default, is the video of earlier runs; ``ultrafast`` encodes session 43's frames in 3.3 instead of 7.6 ms CPU of
+    the encoder at the same PSNR (33.7 / 33.4 dB) in a 3.3 times larger file (docs/mirror.md)."""
+    if preset not in X264_PRESETS:
+        raise InputError(f"--video-preset {preset!r}; valid: {', '.join(X264_PRESETS)} (fastest first)")
+    return preset
 
 
 def video_paths(out_video, side_by_side: bool = True) -> list[tuple[str, Path]]:
@@ -219,12 +288,13 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
                   fps: float = 30.0, side_by_side: bool = True, kind: str = "similarity", manifest: dict | None = None,
                   progress: bool = False, total: int | None = None, command: str = "bodystudio mirror run",
                   foreground_options: dict | None = None, background: BackgroundModel | None = None,
-                  preview: str | Path | None = None) -> dict:
+                  preview: str | Path | None = None, video_preset: str = "veryfast") -> dict:
     """Run the image steps over ``inputs`` and commit frames, masks, video(s) and ``run.json`` as one unit.
 
     Returns the ``run.json`` content. A frame whose processing raises a user-level error passes
     through with that warning; nothing is published if the run itself fails (the previous run stays).
-    ``preview``: a PNG rewritten (atomically) with every output frame, for a live display.
+    ``preview``: a PNG rewritten (atomically) with every output frame, for a live display. ``video_preset``:
+    the x264 preset of the videos (:func:`check_video_preset`).
     """
     from bodystudio.runfolder import RunLayout, RunWriter
 
@@ -232,13 +302,16 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
         raise InputError(f"--warp {kind!r}; valid: {', '.join(MLS_KINDS)}")
     if not 1.0 <= float(fps) <= 240.0:
         raise InputError(f"fps must lie in 1..240, got {fps}")
+    check_video_preset(video_preset)
     run_dir = Path(run_dir)
     videos = video_paths(out_video, side_by_side)
     layout = RunLayout(run_dir, RUN_JSON, ".", str(run_dir))
     results: list[dict] = []
     steps_ms: dict[str, list[float]] = {s: [] for s in STEPS}
+    steps_cpu_ms: dict[str, list[float]] = {s: [] for s in STEPS}
     writers: dict[str, Mp4Writer] = {}
-    t_start = time.perf_counter()
+    t_start, c_start = time.perf_counter(), time.process_time()
+    children_start = _children_cpu_s()
     from bodystudio.capture.session import progress_bar
 
     with RunWriter(layout, command, {"stage": "mirror", "kind": kind}) as w, progress_bar(progress) as bar:
@@ -250,10 +323,10 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
                 except BodyStudioError as exc:  # one bad frame never stops the run
                     res = FrameResult(inp.index, inp.rgb.copy(), np.zeros(inp.rgb.shape[:2], bool),
                                       np.zeros(inp.rgb.shape[:2], bool), "passed_through", str(exc),
-                                      dict(inp.timings_ms))
+                                      dict(inp.timings_ms), dict(inp.cpu_ms))
                 if res.warning:
                     log.warning("frame %d passes through: %s", res.index, res.warning)
-                t = time.perf_counter()
+                t, c = time.perf_counter(), time.process_time()
                 name = f"{res.index:05d}.png"
                 w.write_bytes(f"frames/{name}", _png(res.output))
                 w.write_bytes(f"masks/foreground/{name}", _png(res.foreground.astype(np.uint8) * 255))
@@ -262,17 +335,21 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
                     frame = res.output if key == "output" else np.hstack([inp.rgb, res.output])
                     if key not in writers:  # absolute: a relative --out is the user's cwd, not the run folder
                         writers[key] = Mp4Writer(w.path_for(Path(path).absolute()), (frame.shape[1], frame.shape[0]),
-                                                 fps)
+                                                 fps, video_preset)
                     writers[key].write(frame)
                 if preview is not None:
                     with atomic_write(preview, "wb") as f:
                         f.write(_png(res.output))
                 res.timings_ms["write"] = (time.perf_counter() - t) * 1e3
+                res.cpu_ms["write"] = (time.process_time() - c) * 1e3
                 for step, value in res.timings_ms.items():
                     steps_ms.setdefault(step, []).append(value)
+                for step, value in res.cpu_ms.items():
+                    steps_cpu_ms.setdefault(step, []).append(value)
                 record = {"index": res.index, "status": res.status, "warning": res.warning,
                           "edit_fraction": inp.edit_fraction,
-                          "ms": {k: round(v, 3) for k, v in res.timings_ms.items()}}
+                          "ms": {k: round(v, 3) for k, v in res.timings_ms.items()},
+                          "cpu_ms": {k: round(v, 3) for k, v in res.cpu_ms.items()}}
                 if inp.players is not None:  # a run of several players: who was reshaped in this frame
                     record["players"] = list(inp.players) if res.status == "ok" else []
                 results.append(record)
@@ -282,7 +359,8 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
                 writer.close()
         if not results:
             raise InputError(f"{run_dir}: no frames to process; check the session's frames or --frames")
-        summary = _summary(results, steps_ms, time.perf_counter() - t_start)
+        summary = _summary(results, steps_ms, time.perf_counter() - t_start, steps_cpu_ms,
+                           time.process_time() - c_start, _children_cpu_s() - children_start if writers else None)
         doc = {"format": RUN_FORMAT, "version": RUN_VERSION, **(manifest or {}), "kind": kind, "fps": fps,
                "videos": {k: str(p) for k, p in videos}, "summary": summary, "frames": results}
         return w.commit(doc)
@@ -439,17 +517,18 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     last_rgb = None
     seen = None
     for i in (session.frame_ids if frames is None else frames):
-        timings = {}
-        t = time.perf_counter()
+        timings, cpu = {}, {}
+        t, c = time.perf_counter(), time.process_time()
         try:
             frame = read_mirror_frame(session, int(i))
         except BodyStudioError as exc:
             rgb = last_rgb if last_rgb is not None else np.zeros((camera.height, camera.width, 3), np.uint8)
-            yield MirrorInput(int(i), rgb, warning=f"frame unreadable: {exc}", timings_ms=timings)
+            yield MirrorInput(int(i), rgb, warning=f"frame unreadable: {exc}", timings_ms=timings, cpu_ms=cpu)
             continue
         last_rgb = frame.rgb
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.process_time()
         timings["read"] = (t1 - t) * 1e3
+        cpu["read"] = (c1 - c) * 1e3
         depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, sensor)
         # where the depth camera has ever measured (its view is narrower than the colour camera's); grown only when
         # a frame measures somewhere new, so its dilation is redone only then
@@ -458,10 +537,11 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
             seen = measured if seen is None else seen | measured
             unseen = cv2.dilate(seen.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
         person, others, labels = player_masks(players_c, players, several)
-        t2 = time.perf_counter()
+        t2, c2 = time.perf_counter(), time.process_time()
         timings["register"] = (t2 - t1) * 1e3
+        cpu["register"] = (c2 - c1) * 1e3
         base = dict(index=int(i), rgb=frame.rgb, person_mask=person, others_mask=others, depth_color=depth_c,
-                    timings_ms=timings, unseen=unseen, person_labels=labels)
+                    timings_ms=timings, unseen=unseen, person_labels=labels, cpu_ms=cpu)
         present, warning = [], None
         for a in actors:
             tracked = frame.body(a.player)
@@ -503,15 +583,16 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
             shapes.append((s, Vt_rest, rig))
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
+        cpu["ik"] = (time.process_time() - c2) * 1e3
         fraction = min(s for s, _, _ in shapes)
         reshaped = tuple(a.player for a, _, _ in present) if several else None
 
         def bodies_and_pairs(foreground, timings, poses=poses, frame=frame, present=present, shapes=shapes,
-                             players_c=players_c, others=others):
+                             players_c=players_c, others=others, cpu=cpu):
             """Pose refinement (with the frame's refined ``foreground`` when given), the bodies, the pairs."""
             sources, targets = [], []
             for (a, tracked, _), pose, (_, Vt_rest, rig) in zip(present, poses, shapes, strict=True):
-                t = time.perf_counter()
+                t, c = time.perf_counter(), time.process_time()
                 if foreground is not None:
                     points = point_cloud(frame, sensor, a.player)
                     points = points[points[:, 1] > 0.02]  # not the floor under the feet
@@ -524,16 +605,19 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
                     except BodyStudioError as exc:  # mirror_stream passes the frame through with this warning
                         who = f" of player {a.player}" if several else ""
                         raise InputError(f"pose refinement{who} failed: {exc}") from exc
-                    t_refined = time.perf_counter()
+                    t_refined, c_refined = time.perf_counter(), time.process_time()
                     timings["refine_pose"] = timings.get("refine_pose", 0.0) + (t_refined - t) * 1e3
-                    t = t_refined
+                    cpu["refine_pose"] = cpu.get("refine_pose", 0.0) + (c_refined - c) * 1e3
+                    t, c = t_refined, c_refined
                 Vs, Vt = posed_source_and_target(a.body, Vt_rest, pose, rig)
                 sources.append(Vs)
                 targets.append(Vt)
                 timings["bodies"] = timings.get("bodies", 0.0) + (time.perf_counter() - t) * 1e3
-            t_bodies = time.perf_counter()
+                cpu["bodies"] = cpu.get("bodies", 0.0) + (time.process_time() - c) * 1e3
+            t_bodies, c_bodies = time.perf_counter(), time.process_time()
             pairs = frame_pairs(sources, targets, present[0][0].body.faces, camera, correspondence)
             timings["pairs"] = (time.perf_counter() - t_bodies) * 1e3
+            cpu["pairs"] = (time.process_time() - c_bodies) * 1e3
             return pairs
 
         if refine:  # the pose waits for the graph cut's foreground (mirror_frame calls back)
@@ -573,7 +657,7 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
                progress: bool = True, run_dir: str | Path | None = None, player=1, kind: str = "similarity",
                ramp_frames: int = 30, frames: Iterable[int] | None = None, live: str | Path | None = None,
                live_timeout_s: float = 5.0, correspondence: str = CORRESPONDENCE, refine_pose: bool = True,
-               accept_implausible: bool = False) -> dict:
+               accept_implausible: bool = False, video_preset: str = "veryfast") -> dict:
     """``bodystudio mirror run``: reshape the actor(s) of ``session`` by ``edits`` and write the video and run folder.
 
     ``session`` an opened session or its path; ``player`` a Kinect player id or a sequence of them (all reshaped
@@ -590,6 +674,7 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     tracked skeleton and the depth-to-colour registration against the colour edges first
     (:mod:`bodystudio.mirror.plausibility`: another person's body or a misregistered Kinect is refused unless
     ``accept_implausible``; the verdicts go to run.json's ``plausibility``, per player when there are several).
+    ``video_preset``: the x264 preset of the videos (:func:`check_video_preset`; default ``veryfast``).
     Returns run.json's content (per-step timings in ``summary.ms_per_frame``; several players: ``players``,
     ``source_fingerprints`` and each frame's ``players``).
     """
@@ -615,6 +700,7 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
         raise InputError(f"--warp {kind!r}; valid: {', '.join(MLS_KINDS)}")
     if correspondence not in CORRESPONDENCES:
         raise InputError(f"--correspondence {correspondence!r}; valid: {', '.join(CORRESPONDENCES)}")
+    check_video_preset(video_preset)
     video_paths(out_video, side_by_side)
     if isinstance(session, (str, os.PathLike)):
         session = open_session(session)
@@ -677,7 +763,7 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
                 else _stage_module("frames").recording_fingerprint(session, ids),
                 "live": None if live is None else str(Path(live).resolve()),
                 "edits": edits, "player": players[0], "ramp_frames": int(ramp_frames),
-                "correspondence": correspondence, "refine_pose": bool(refine_pose),
+                "correspondence": correspondence, "refine_pose": bool(refine_pose), "video_preset": video_preset,
                 "source_fingerprint": fingerprint(first) if hasattr(first, "coeffs")
                 else None}  # a stand-in body (tests) has none
     if plausibility is not None:
@@ -689,7 +775,7 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     inputs = session_inputs(frames_from, bodies, model, edits, players if several else players[0], ramp_frames, ids,
                             correspondence, bool(refine_pose))
     return mirror_stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total,
-                         preview=run_dir / "live_latest.png" if live is not None else None)
+                         preview=run_dir / "live_latest.png" if live is not None else None, video_preset=video_preset)
 
 
 # ---------------------------------------------------------------------------------------------- live mode

@@ -230,8 +230,9 @@ def test_summary_is_medians_counts_and_rates():
 def test_png_frames_are_rgb_and_lossless():
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 256, (9, 11, 3), dtype=np.uint8)
-    # fast PNGs: deflate level 1, Huffman only
-    params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
+    # fast PNGs (MIR12j): deflate level 1, Huffman only, the Up filter on every row (not libpng's adaptive choice)
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
+              cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
     assert run_mod._png(rgb) == cv2.imencode(".png", rgb[..., ::-1], params)[1].tobytes()
     assert run_mod._png(rgb) != cv2.imencode(".png", rgb[..., ::-1])[1].tobytes()
     back = cv2.imdecode(np.frombuffer(run_mod._png(rgb), np.uint8), cv2.IMREAD_UNCHANGED)
@@ -243,6 +244,10 @@ def test_png_frames_are_rgb_and_lossless():
             run_mod._png(gray)
     np.testing.assert_array_equal(cv2.imdecode(np.frombuffer(run_mod._png(gray), np.uint8), cv2.IMREAD_UNCHANGED),
                                   gray)
+    # masks: no filter, run-length deflate
+    mask_params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE,
+                   cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE]
+    assert run_mod._png(gray) == cv2.imencode(".png", gray, mask_params)[1].tobytes()
 
 
 def test_video_paths(tmp_path):
@@ -466,16 +471,23 @@ def test_pixels_the_depth_camera_never_saw_are_marked_unseen(monkeypatch):
     np.testing.assert_array_equal(out[2].unseen, expect)
 
 
+def _stand_in_clock(start: int = 100):
+    """``run_mod.time`` with a wall clock of 1 s and a CPU clock of 2 s a reading (each its own counter): a step timed
+    on both is 1000 ms wall and 2000 ms CPU."""
+    wall, cpu = iter(range(start, 100000)), iter(range(start, 100000))
+    return SimpleNamespace(perf_counter=lambda: float(next(wall)), process_time=lambda: 2.0 * next(cpu))
+
+
 def test_session_inputs_for_another_player_and_their_timings(monkeypatch):
     # player 2 (the 2x2 block; not tracked in the stand-in frames): player 1's pixels are the others
     out, _ = _session_inputs(monkeypatch, {0: {}}, player=2)
     assert out[0].person_mask.sum() == 4 and out[0].others_mask.sum() == 16
     assert out[0].warning == "player 2 is in the mask but no body is tracked"
-    ticks = iter(range(100, 1000))
-    monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
+    monkeypatch.setattr(run_mod, "time", _stand_in_clock())
     out, _ = _session_inputs(monkeypatch, {0: {}, 1: {}})
     assert out[0].timings_ms == {"read": 1000.0, "register": 1000.0, "ik": 1000.0, "bodies": 1000.0,
                                  "pairs": 1000.0}
+    assert out[0].cpu_ms == {k: 2000.0 for k in out[0].timings_ms}  # CPU ms booked step by step beside them
 
 
 def test_session_inputs_need_a_kinect(monkeypatch):
@@ -514,9 +526,12 @@ def _wired(monkeypatch, got):
     monkeypatch.setattr(run_mod, "load_source", load)
     monkeypatch.setattr(run_mod, "session_inputs", inputs)
 
-    def stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total, preview=None):
+    def stream(inputs, run_dir, out_video, fps, side_by_side, kind, manifest, progress, total, preview=None,
+               video_preset="veryfast"):
         got["stream"] = dict(inputs=inputs, run_dir=run_dir, out_video=out_video, fps=fps, sbs=side_by_side, kind=kind,
                              manifest=manifest, progress=progress, total=total, preview=preview)
+        if video_preset != "veryfast":
+            got["stream"]["video_preset"] = video_preset
         return "DOC"
 
     monkeypatch.setattr(run_mod, "mirror_stream", stream)
@@ -576,7 +591,7 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
     assert s["manifest"] == {"session": str(tmp_path.resolve()), "session_run_id": "r1",
                              "session_fingerprint": None, "live": None,
                              "edits": {"taller": 0.1}, "player": 2, "ramp_frames": 5,
-                             "correspondence": run_mod.CORRESPONDENCE, "refine_pose": True,
+                             "correspondence": run_mod.CORRESPONDENCE, "refine_pose": True, "video_preset": "veryfast",
                              "source_fingerprint": None}
     # the defaults, and the limits of each range accepted
     got.clear()
@@ -596,6 +611,11 @@ def test_run_mirror_checks_options_then_wires_the_steps(tmp_path, monkeypatch):
     assert got["inputs"][8] is False and got["stream"]["manifest"]["refine_pose"] is False
     with pytest.raises(InputError, match="^--correspondence 'tps'; valid: dense, mls$"):
         run_mirror(session, {}, None, correspondence="tps")
+    # the x264 preset of the videos (MIR12j): checked before anything runs, passed to the stream, kept in run.json
+    with pytest.raises(InputError, match="^--video-preset 'quick'; valid: ultrafast, superfast, veryfast, faster, "):
+        run_mirror(session, {}, None, video_preset="quick")
+    run_mirror(session, {}, None, video_preset="ultrafast")
+    assert got["stream"]["video_preset"] == "ultrafast" and got["stream"]["manifest"]["video_preset"] == "ultrafast"
     # a source body given as an object is not looked for on disk
     (tmp_path / "mirror" / "source_body.npz").unlink()
     with pytest.raises(FileFormatError, match="source_body.npz: source body not found; run 'bodystudio mirror init "
@@ -865,13 +885,13 @@ def test_stream_limits_defaults_and_failed_frame_masks(tmp_path, monkeypatch):
 
 def test_step_timings_are_milliseconds_of_each_step(scene, monkeypatch):
     """With a stand-in clock that ticks one second per reading, every timed step takes 1000 ms."""
-    ticks = iter(range(100, 1000))
-    monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
+    monkeypatch.setattr(run_mod, "time", _stand_in_clock())
     res, _ = mirror_frame(MirrorInput(1, scene.rgb, scene.person, None, None, scene.src, scene.dst,
-                                      timings_ms={"read": 2.5}), scene.background)
+                                      timings_ms={"read": 2.5}, cpu_ms={"read": 1.5}), scene.background)
     assert res.timings_ms == {"read": 2.5, **{s: 1000.0 for s in IMAGE_STEPS}}
+    assert res.cpu_ms == {"read": 1.5, **{s: 2000.0 for s in IMAGE_STEPS}}
     res, _ = mirror_frame(MirrorInput(2, scene.rgb, scene.person, warning="w"), scene.background)
-    assert res.timings_ms == {"background": 1000.0}
+    assert res.timings_ms == {"background": 1000.0} and res.cpu_ms == {"background": 2000.0}
 
 
 def test_stream_writes_the_masks_and_times_each_write(scene, tmp_path, monkeypatch):
@@ -879,8 +899,7 @@ def test_stream_writes_the_masks_and_times_each_write(scene, tmp_path, monkeypat
     summary's step medians and the wall time come out exactly."""
     inp = MirrorInput(0, scene.rgb, scene.person, None, None, scene.src, scene.dst)
     run = tmp_path / "run"
-    ticks = iter(range(100, 10000))
-    monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
+    monkeypatch.setattr(run_mod, "time", _stand_in_clock())
     doc = mirror_stream([inp], run, None, background=scene.background)
     fg = cv2.imread(str(run / "masks" / "foreground" / "00000.png"), cv2.IMREAD_UNCHANGED)
     warped = cv2.imread(str(run / "masks" / "warped" / "00000.png"), cv2.IMREAD_UNCHANGED)
@@ -890,6 +909,13 @@ def test_stream_writes_the_masks_and_times_each_write(scene, tmp_path, monkeypat
     assert doc["summary"]["ms_per_frame"]["write"] == 1000.0 and doc["summary"]["ms_per_frame"]["warp"] == 1000.0
     # start, 6 image-step readings, 2 write readings, end: 9 s
     assert doc["summary"]["wall_s"] == 9.0
+    # the same readings on the CPU clock (2 s each); no video: no encoder CPU, end to end is the steps' sum
+    s = doc["summary"]
+    assert doc["frames"][0]["cpu_ms"]["write"] == 2000.0 and s["cpu_ms_per_frame"]["warp"] == 2000.0
+    assert s["cpu_s"] == 18.0 and s["encoder_cpu_ms_per_frame"] is None
+    assert s["end_to_end_cpu"] == {"ms": 12000.0, "fps": 1e3 / 12000.0, "ms_without_io": 10000.0,
+                                   "fps_without_io": 0.1}
+    assert s["end_to_end_wall"]["ms"] == 6000.0 and s["end_to_end_wall"]["ms_without_io"] == 5000.0
     with pytest.raises(InputError, match=f"^{tmp_path / 'none'}: no frames to process; check the session's frames "
                        "or --frames$"):
         mirror_stream([], tmp_path / "none", None)

@@ -584,12 +584,19 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
     # the refined pose poses the bodies
     assert rec["pairs"][-1] == (("several", [1.0, 5.5]) if several else ("one", 1.0))
     # on a stand-in clock (1 s a tick): each player's refinement and bodies are summed, the pairs timed once
-    ticks = iter(range(100, 1000))
-    monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
+    ticks, cpu_ticks = iter(range(100, 1000)), iter(range(100, 1000))
+    monkeypatch.setattr(run_mod, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks)),
+                                                         process_time=lambda: 2.0 * next(cpu_ticks)))
     timings = {}
+    for k in ("refine_pose", "bodies", "pairs"):
+        o.cpu_ms.pop(k, None)
     o.late_pairs(fg, timings)
     n = 2 if several else 1
     assert timings == {"refine_pose": 1000.0 * n, "bodies": 1000.0 * n, "pairs": 1000.0}
+    # and their CPU ms (2 s a reading) in the frame's cpu_ms, beside its read, register and ik
+    assert {k: o.cpu_ms[k] for k in ("refine_pose", "bodies", "pairs")} == \
+        {"refine_pose": 2000.0 * n, "bodies": 2000.0 * n, "pairs": 2000.0}
+    assert {"read", "register", "ik"} <= set(o.cpu_ms)
     if several:
         with pytest.raises(InputError, match="^pose refinement of player 2 failed: no silhouette$"):
             out[1].late_pairs(fg, {})

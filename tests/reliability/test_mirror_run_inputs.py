@@ -32,6 +32,8 @@ CASES = [
     ("out-under-a-file", ["{kinect}", "--out", "{t}/file/o.mp4"], "is a file, not a folder"),
     ("bad-warp", ["{kinect}", "--out", "{t}/o.mp4", "--warp", "bilinear"], "--warp"),
     ("bad-correspondence", ["{kinect}", "--out", "{t}/o.mp4", "--correspondence", "sparse"], "--correspondence"),
+    ("bad-video-preset", ["{kinect}", "--out", "{t}/o.mp4", "--video-preset", "fastest"], "--video-preset 'fastest'"),
+    ("empty-video-preset", ["{kinect}", "--out", "{t}/o.mp4", "--video-preset", ""], "--video-preset ''"),
     ("bad-player", ["{kinect}", "--out", "{t}/o.mp4", "--player", "9"], "--player"),
     ("bad-ramp", ["{kinect}", "--out", "{t}/o.mp4", "--ramp-frames", "-1"], "--ramp-frames"),
     ("bad-live-timeout", ["{kinect}", "--out", "{t}/o.mp4", "--live-timeout", "0"], "--live-timeout"),
