@@ -26,10 +26,14 @@ MODEL = object()  # the shape space the stand-ins expect to be handed
 
 
 @pytest.fixture(scope="module")
-def session_3(tmp_path_factory):
+def session_3():
+    import tempfile
+    from pathlib import Path
+
     from bodystudio.capture.synth import synth_session
 
-    return synth_session(tmp_path_factory.mktemp("spw") / "walk", n_cameras=2, n_frames=3, motion="walk",
+    # a folder of its own (not tmp_path_factory): docs/mutation/recheck_direct.py builds the fixture too
+    return synth_session(Path(tempfile.mkdtemp(prefix="spw-")) / "walk", n_cameras=2, n_frames=3, motion="walk",
                          subject_seed=23, resolution=(160, 120), template="2k", noise=False, kinect="v2")
 
 
