@@ -193,3 +193,19 @@ def test_hundred_outer_iterations_accepted(session_3, monkeypatch):
                        shape_prior_first_outer=100)
     assert [d["outer"] for d in log.deform] == [NO, NO]
     assert run["shape_prior_outer"] == 100 and run["shape_prior_first_outer"] == 100
+
+
+def test_a_batch_chunk_runs_without_the_prior(session_3, monkeypatch):
+    """bodystudio.batch calls reconstruct_frames with none of the shape-prior keywords: one pass, off in run.json."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.runfolder import RunWriter
+
+    log = _fakes(monkeypatch)
+    session = open_session(session_3.path)
+    params = RapidSkinParams(outer_iterations=NO)
+    with RunWriter(sequence.reconstruction_layout(session.path), "test", {}) as writer:
+        sequence.reconstruct_frames(session, writer, [session.frame_ids[0]], list(session.cameras), session.kinect,
+                                    params, "gs", "2k", "tracker", None, False, False, False, False)
+    run = json.loads((session.path / "reconstruct" / "run.json").read_text())
+    assert [d["outer"] for d in log.deform] == [NO] and log.load == [] and log.prior == []
+    assert run["shape_prior"] == "off" and run["shape_prior_outer"] == 0 and run["shape_prior_first_outer"] == 0
