@@ -80,6 +80,7 @@ def _fakes(monkeypatch):
 
     def init(*a, **kw):
         log.inits.append(real_init(*a, **kw))
+        log.clock[0] += 4.0  # the initialisation's own time, which the prior's adds to
         return log.inits[-1]
 
     monkeypatch.setattr(sequence, "deform_to_observations", deform)
@@ -91,9 +92,9 @@ def _fakes(monkeypatch):
     return log
 
 
-def _run(session, monkeypatch, frames="0:2", **kw):
+def _run(session, monkeypatch, frames="0:2", refine_pose=False, **kw):
     log = _fakes(monkeypatch)
-    sequence.reconstruct_session(session.path, template="2k", frames=frames, refine_pose=False, score=False,
+    sequence.reconstruct_session(session.path, template="2k", frames=frames, refine_pose=refine_pose, score=False,
                                  accept_implausible=True, constraints=("silhouette", "depth"),
                                  params=RapidSkinParams(outer_iterations=NO, constraints=("silhouette", "depth")),
                                  **kw)
@@ -112,7 +113,7 @@ def test_off_runs_one_pass_and_loads_no_shape_space(session_3, monkeypatch):
     assert log.load == [] and log.prior == log.coeffs == log.posed == []
     assert [d["outer"] for d in log.deform] == [NO, NO]
     assert run["shape_prior"] == "off" and run["shape_prior_outer"] == 0 and run["shape_prior_first_outer"] == 0
-    assert [f["init_ms"] for f in frames] == [0.0, 0.0]
+    assert [f["init_ms"] for f in frames] == [4000.0, 4000.0]
 
 
 @pytest.mark.parametrize("first_outer, outer, expected", [(0, 0, [NO, NO]), (1, 2, [1, 2]), (2, 5, [2, NO])])
@@ -141,7 +142,7 @@ def test_frame_prior_starts_and_regularises_a_second_pass(session_3, monkeypatch
                                                                             for j in range(expected[1])]
         assert f["solver_ms"] == pytest.approx(1000 * (0.25 / (k + 1) + 0.25 / (k + 2)))
         assert f["matching_ms"] == pytest.approx(1000 * (0.0625 / (k + 1) + 0.0625 / (k + 2)))
-        assert f["init_ms"] == pytest.approx(1000.0)
+        assert f["init_ms"] == pytest.approx(5000.0)
         fid = run["frames"][i]
         mesh = load_mesh(session_3.path / "reconstruct" / "meshes" / f"{fid:05d}.ply")
         np.testing.assert_allclose(mesh.vertices, second["out"], atol=1e-5)
@@ -157,7 +158,7 @@ def test_run_prior_carries_the_mean_coefficients(session_3, monkeypatch):
     assert [d["outer"] for d in log.deform] == [1, 2, NO, NO]
     assert len(log.prior) == 1 and len(log.coeffs) == 3 and len(log.posed) == 2
     for c, init, d in zip(log.coeffs, log.inits, [log.deform[1], log.deform[2], log.deform[3]], strict=True):
-        assert c["model"] is MODEL
+        assert c["model"] is MODEL and c["body"].vertices.shape == init.vertices.shape
         np.testing.assert_array_equal(c["deformed"], d["out"])
         np.testing.assert_array_equal(c["T"], init.bone_transforms)
     for p, init, d, mean in zip(log.posed, log.inits[1:], log.deform[2:], ([1.0, 10, 100], [1.5, 15, 150]),
@@ -168,7 +169,7 @@ def test_run_prior_carries_the_mean_coefficients(session_3, monkeypatch):
         assert p["scale"] == init.global_scale
         np.testing.assert_array_equal(d["start"], init.vertices + 0.002)
         np.testing.assert_array_equal(d["reference"], init.vertices + 0.002)
-    assert [f["init_ms"] for f in frames] == pytest.approx([1125.0, 156.25, 156.25])
+    assert [f["init_ms"] for f in frames] == pytest.approx([5125.0, 4156.25, 4156.25])
     assert frames[1]["n_silhouette"] == [200, 201, 202]
 
 
@@ -209,3 +210,11 @@ def test_a_batch_chunk_runs_without_the_prior(session_3, monkeypatch):
     run = json.loads((session.path / "reconstruct" / "run.json").read_text())
     assert [d["outer"] for d in log.deform] == [NO] and log.load == [] and log.prior == []
     assert run["shape_prior"] == "off" and run["shape_prior_outer"] == 0 and run["shape_prior_first_outer"] == 0
+
+
+def test_both_passes_get_the_frames_silhouette_fields(session_3, monkeypatch):
+    """With the pose refined on the silhouettes' distance fields, both passes are handed those fields."""
+    log, _, _ = _run(session_3, monkeypatch, frames="0", refine_pose=True, shape_prior="frame")
+    first, second = log.deform
+    assert first["fields"] is not None
+    _same_inputs(first, second)
