@@ -218,3 +218,20 @@ def test_both_passes_get_the_frames_silhouette_fields(session_3, monkeypatch):
     first, second = log.deform
     assert first["fields"] is not None
     _same_inputs(first, second)
+
+
+def test_delta_coordinates_of_the_rest_template_or_of_the_runs_shape(session_3, monkeypatch):
+    """Eq. 8's weights: of the template's rest shape by default; with ``rest_cotangents=False`` of each pass's
+    smoothness reference, so in ``run`` mode of the run's shape (posed_shape's mesh)."""
+    from bodystudio.body import build_body
+    from bodystudio.geometry.laplacian import cotangent_weights
+
+    F = build_body(resolution="2k").faces
+    log, _, _ = _run(session_3, monkeypatch, shape_prior="run")
+    rest = cotangent_weights(log.prior[0]["body"].vertices, F).weights
+    for d in log.deform:
+        np.testing.assert_allclose(d["delta"].weights, rest, rtol=1e-12)
+    log, _, _ = _run(session_3, monkeypatch, shape_prior="run", rest_cotangents=False)
+    for d in log.deform[0], log.deform[2]:  # the first pass of frame 0 (the posed template), frame 1's only pass
+        np.testing.assert_allclose(d["delta"].weights, cotangent_weights(d["reference"], F).weights, rtol=1e-12)
+    assert np.abs(log.deform[2]["delta"].weights - rest).max() > 1e-6
