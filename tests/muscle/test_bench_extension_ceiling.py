@@ -75,3 +75,11 @@ def test_the_extension_section_measures_the_linear_column_against_the_linear_ori
            "-25.0 % (8.00 -> 6.00 mm mean)." in text
     data["shape_form"] = "linear"
     assert "Against the prepared" not in extension_section(data)
+
+
+def test_the_goal_line_gives_every_held_out_set_its_verdict():
+    from benchmarks.bench_muscle import _other_sets_goal
+
+    assert _other_sets_goal({("B", "captured"): [-20.0, -26.0]}) == " Set B (other seeds): -23 %: **not met**."
+    assert _other_sets_goal({("B", "captured"): [-30.0, -34.0]}) == " Set B (other seeds): -32 %: met."
+    assert _other_sets_goal({("A", "captured"): [-40.0]}) == ""
