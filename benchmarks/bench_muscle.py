@@ -317,7 +317,8 @@ def _other_sets_goal(means: dict) -> str:
     for held_set, _ in HELD_OUT_SETS[1:]:
         if (held_set, "captured") in means:
             change = float(np.mean(means[(held_set, "captured")]))
-            parts.append(f" Set {held_set} (other seeds): {change:+.0f} %: {'met' if change <= -30.0 else '**not met**'}.")
+            verdict = "met" if change <= -30.0 else "**not met**"
+            parts.append(f" Set {held_set} (other seeds): {change:+.0f} %: {verdict}.")
     return "".join(parts)
 
 
