@@ -79,6 +79,7 @@ from bodystudio.muscle.refine import (
     posed_joints,
     procrustes_part_transforms,
     refine_surface,
+    refit_arm_poses_to_depth,
     skeleton_model_mesh,
     smooth_arm_poses,
     time_consistent_correspondences,
@@ -109,6 +110,13 @@ EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "
 PINNED_MIN_FRAMES = 60
 PINNED_SEQUENCE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
                    "sequence_torso_pair_weight": 0.0, "sequence_tracker_weight": 10.0, "norm_limit": 0.05}
+
+
+# The last per-frame pose refit (``CaptureOptions.pose_refit``): ``refine.refit_arm_poses_to_depth``'s keywords. The
+# tracker's joints at a weight that matches their noise (10 mm per axis plus 3 % bone-length jitter per frame,
+# against ~1-2 mm per depth pair), not the sequence fit's 30; each frame's angles held to the sequence fit's by the
+# prior (its lever as the sequence fit's smoothing). docs/muscle.md, tenth pass.
+POSE_REFIT = {"tracker_weight": 1.0, "prior_weight": 1.0, "iterations": 3}
 
 
 @dataclass(frozen=True)
@@ -258,6 +266,10 @@ class CaptureOptions:
     # Rotation likewise: a one-sided view of a near-cylinder leaves the roll about the arm free
     # (measured: 18 deg roll, 18 -> 25 mm on the first frame; translation only: 18 -> 15.5 mm).
     with_rotation: bool = False
+    # A last per-frame refit of the shoulder and elbow angles against each frame's depth on the rest arm and skeleton
+    # the sequence stage settled on (``refine.refit_arm_poses_to_depth`` with :data:`POSE_REFIT`), before the pose
+    # smoothing (docs/muscle.md, tenth pass). Off by default.
+    pose_refit: bool = False
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -491,6 +503,13 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         poses, base, J = sequence_stage(model, template, shape, poses, frames_t, tracker_t, base, J, o, known_shape)
         model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("sequence_fit", t0)
+    if model is not None and o.pose_refit:
+        t0 = time.perf_counter()
+        refit = dict(POSE_REFIT)
+        poses = refit_arm_poses_to_depth(model, poses, frames_t, base, J, o.norm_limit, o.sequence_huber_m,
+                                         tracker_t, refit.pop("tracker_weight"), **refit)
+        model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
+        timer.add("pose_refit", t0)
     if model is not None and o.pose_sigma_frames > 0:
         t0 = time.perf_counter()
         poses = smooth_arm_poses(poses, o.pose_sigma_frames)
