@@ -15,13 +15,20 @@ and the Sec. 7 refinement (``capture._refinement``) re-run on it alone. Rows (ea
   the capture's poses;
 - ``true rest, poses re-fitted``: the same rest arm, then the sequence fit (``refine.fit_arm_sequence_skeleton``
   with the options' settings) re-fits the angles on it;
-- ``all truth``: the truth's rest arm, angles and placement (the model's pose term and the refinement's floor);
-- ``pose refit``: the candidate fix (``refine.refit_poses_to_depth``), data-side.
+- ``all truth``: the truth's rest arm, angles and placement (the model's pose term and the refinement's floor).
 
 Each row goes through the same smoothing (not for the truth's angles) and Sec. 7 refinement.
 
-    python -m benchmarks.muscle_owners --work W --session 501 --session 508 \
-        --options body_rest_shape=True,body_rest_rounds=2,body_rest_fit_poses=True,norm_limit=0.2
+    python -m benchmarks.muscle_owners --work W --session 501 --session 508 [--pre DIR] \
+        [--options body_rest_shape=True,body_rest_rounds=2,body_rest_fit_poses=True,norm_limit=0.2]
+
+With ``--refit NAME:KEY=VALUE,...`` (repeatable; ``none``: the sequence stage's poses as they are) the rows are
+instead ``refine.refit_arm_poses_to_depth`` after the sequence stage with those keywords, scored the same way, with
+the data-side ``heldout_energy_mm`` (the refit on the even frames only, judged on the odd frames' depth) that chose
+``capture.POSE_REFIT``:
+
+    python -m benchmarks.muscle_owners --work W --session 501 --pre DIR --refit none \
+        --refit pr:tracker_weight=0.03,prior_weight=0.1,iterations=3
 
 docs/muscle.md "Capture, tenth pass".
 """
