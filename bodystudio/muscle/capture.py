@@ -79,6 +79,7 @@ from bodystudio.muscle.refine import (
     posed_joints,
     procrustes_part_transforms,
     refine_surface,
+    refit_arm_poses_to_depth,
     skeleton_model_mesh,
     smooth_arm_poses,
     time_consistent_correspondences,
@@ -112,6 +113,16 @@ EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "
 PINNED_MIN_FRAMES = 60
 PINNED_SEQUENCE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
                    "sequence_torso_pair_weight": 0.0, "sequence_tracker_weight": 10.0, "norm_limit": 0.05}
+
+
+# The last per-frame pose refit (``CaptureOptions.pose_refit``): ``refine.refit_arm_poses_to_depth``'s keywords. The
+# tracker's joints nearer the weight their noise warrants (10 mm per axis plus 3 % bone-length jitter per frame,
+# against ~1-2 mm per depth pair) than the sequence fit's 30; each frame's angles weakly held to the sequence fit's.
+# Chosen by the depth energy of held-out frames (``benchmarks.muscle_owners.heldout_energy_mm``), never the truth:
+# lowest of the 8 settings tried on 501 / 504 / 507 / 508 (200 frames). Measured there (the joint fit, 20 % norm
+# limit; docs/muscle.md eleventh pass), median / p90 mm 3.69 / 6.48, 4.19 / 7.10, 3.64 / 7.43, 3.94 / 7.90 -> 3.63 /
+# 5.81, 3.64 / 5.81, 3.16 / 6.29, 3.40 / 7.03; ~33 ms CPU per frame.
+POSE_REFIT = {"tracker_weight": 0.03, "prior_weight": 0.1, "iterations": 3}
 
 
 @dataclass(frozen=True)
@@ -265,6 +276,12 @@ class CaptureOptions:
     # Rotation likewise: a one-sided view of a near-cylinder leaves the roll about the arm free
     # (measured: 18 deg roll, 18 -> 25 mm on the first frame; translation only: 18 -> 15.5 mm).
     with_rotation: bool = False
+    # A last per-frame refit of the shoulder and elbow angles against each frame's depth on the rest arm and skeleton
+    # the sequence stage settled on (``refine.refit_arm_poses_to_depth`` with :data:`POSE_REFIT`), before the pose
+    # smoothing (docs/muscle.md, eleventh pass). Off by default: it won on all four held-out sessions (median -0.06 to
+    # -0.55 mm, p90 -0.67 to -1.29 mm, bulge and jitter within the goals) on the cached per-frame state; end to end
+    # on 501 / 508: 3.62 / 5.79, 3.40 / 7.01 mm, 847 / 851 ms CPU per frame (the whole capture).
+    pose_refit: bool = False
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -501,6 +518,13 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         poses, base, J = sequence_stage(model, template, shape, poses, frames_t, tracker_t, base, J, o, known_shape)
         model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("sequence_fit", t0)
+    if model is not None and o.pose_refit:
+        t0 = time.perf_counter()
+        refit = dict(POSE_REFIT)
+        poses = refit_arm_poses_to_depth(model, poses, frames_t, base, J, o.norm_limit, o.sequence_huber_m,
+                                         tracker_t, refit.pop("tracker_weight"), **refit)
+        model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
+        timer.add("pose_refit", t0)
     if model is not None and o.pose_sigma_frames > 0:
         t0 = time.perf_counter()
         poses = smooth_arm_poses(poses, o.pose_sigma_frames)

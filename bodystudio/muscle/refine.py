@@ -880,3 +880,67 @@ def refine_surface(model_vertices: np.ndarray, faces: np.ndarray, vectors: np.nd
     M = np.asarray(model_vertices, np.float64)
     system = arap_system(M, faces)
     return arap_deformation(system, M, M + vectors, weights, data_weight, iterations)
+
+
+# --- a last per-frame pose refit (beyond the paper) ----------------------------------------------
+
+
+def refit_arm_poses_to_depth(model, poses: list[ArmPose], frames: list[DepthFrame], rest: np.ndarray,
+                             joints: np.ndarray, norm_limit: float = 0.9, huber_m: float = 0.004,
+                             tracker_joints: np.ndarray | None = None, tracker_weight: float = 0.0,
+                             prior_weight: float = 1.0, iterations: int = 3, fit_translation: bool = False,
+                             translation_weight: float = 1.0) -> list[ArmPose]:
+    """Each frame's shoulder rotation (3) and elbow hinge flexion (1) refitted against its own depth points, with the
+    rest arm and skeleton held (Gauss-Newton, Huber weights on the point-to-plane pairs as iteratively reweighted
+    least squares, re-paired each step); ``fit_translation``: the frame's root translation too.
+
+    Goes beyond the paper: Sec. 6.2 fits the angles once per frame against the ARAP mesh, before the subject's rest
+    arm is known; here they are fitted last, on the rest arm and skeleton the sequence stage settled on (Eq. 12 with
+    the pose term of Eq. 10), so the angles and the rest arm agree. Each frame's angles are held to their start (the
+    sequence fit's, which carries the tracker and the temporal prior) by ``prior_weight`` per coordinate times a
+    0.3 m lever, the translation by ``translation_weight`` per coordinate, and the tracker's joints (``tracker_joints``
+    (T, 3, 3)) enter at ``tracker_weight`` per coordinate (1 per depth pair). The forearm twist and the wrist are
+    held (unobservable, :func:`refine_arm_pose`). The Jacobian is by finite differences of
+    :func:`skeleton_model_mesh` on the paired vertices.
+    """
+    J = np.asarray(joints, np.float64)
+    rest = np.asarray(rest, np.float64)
+    h, f = elbow_axes(J)
+    n_a = 7 if fit_translation else 4
+    eps = 1e-6
+    prior = np.r_[np.full(4, prior_weight * 0.3 ** 2), np.full(n_a - 4, translation_weight)]
+    tracked = [None] * len(poses) if tracker_joints is None or tracker_weight <= 0 else np.asarray(tracker_joints)
+    out = []
+    for p, fr, tj in zip(poses, frames, tracked, strict=True):
+        twist = float(p.angles[1] @ f)
+        a0 = np.r_[p.angles[0], p.angles[1] @ h, np.zeros(n_a - 4)]
+
+        def pose_of(a, p=p, twist=twist):
+            root = p.root.copy()
+            root[:3, 3] += a[4:7] if n_a == 7 else 0.0
+            return ArmPose(root, np.vstack([a[:3], elbow_rotvec(J, a[3], twist), p.angles[2]]))
+
+        a = a0.copy()
+        for _ in range(iterations):
+            pose = pose_of(a)
+            M = skeleton_model_mesh(model, pose, rest, J, norm_limit)
+            idx, q, nrm = fr.plane_pairs(M)
+            H = np.diag(prior)
+            g = prior * (a - a0)
+            if len(idx):
+                r = np.einsum("kd,kd->k", M[idx] - q, nrm)
+                w = np.minimum(1.0, huber_m / np.maximum(np.abs(r), 1e-12)) if huber_m > 0 else np.ones(len(r))
+                G = np.stack([np.einsum("kd,kd->k", skeleton_model_mesh(model, pose_of(a + eps * e), rest, J,
+                                                                        norm_limit)[idx] - M[idx], nrm) / eps
+                              for e in np.eye(n_a)], axis=1)
+                H += G.T @ (w[:, None] * G)
+                g += G.T @ (w * r)
+            if tj is not None:
+                PJ = posed_joints(J, pose)
+                Gj = np.stack([(posed_joints(J, pose_of(a + eps * e)) - PJ).ravel() / eps for e in np.eye(n_a)],
+                              axis=1)
+                H += tracker_weight * Gj.T @ Gj
+                g += tracker_weight * Gj.T @ (PJ - tj).ravel()
+            a = a - np.linalg.solve(H, g)
+        out.append(pose_of(a))
+    return out
