@@ -1,4 +1,4 @@
-"""Helpers of ``benchmarks.muscle_owners`` (issue 11, eleventh pass): the truth's pieces moved into the capture's space."""
+"""Helpers of ``benchmarks.muscle_owners`` (issue 11, pass 11): the truth's pieces moved into the capture's space."""
 
 import numpy as np
 

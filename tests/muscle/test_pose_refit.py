@@ -125,7 +125,7 @@ def test_the_capture_refits_the_sequence_stages_poses_when_asked(monkeypatch, sc
 
 
 def test_at_the_capture_weight_the_refit_follows_the_depth_not_the_trackers_noise(planted):  # noqa: F811
-    """The eleventh pass's reason for :data:`capture.POSE_REFIT`'s tracker weight: the tracker's joints 10 mm off per axis
+    """Pass 11's reason for :data:`capture.POSE_REFIT`'s tracker weight: the tracker's joints 10 mm off per axis
     (the simulated Kinect tracker's per-frame noise) against the exact one-sided depth. At the sequence fit's weight
     (30 per coordinate) the angles follow the tracker's noise by degrees and the meshes are millimetres off; at
     POSE_REFIT's they follow the depth."""
