@@ -76,6 +76,9 @@ def test_matching_args_per_outer_iteration_exactly():
         assert a["outline"] == "keep" and a["rim_stride"] == 1 and a["outline_step_px"] == 5.0
         assert a["use_view"].dtype == np.bool_
         np.testing.assert_array_equal(a["use_view"], np.arange(7) % 3 == o % 3)
+    two = MatchSchedule(cheap_iterations=2, view_stride=2)  # the smallest stride that skips views
+    for o in (3, 4):
+        np.testing.assert_array_equal(two.matching_args(o, 5, 5)["use_view"], np.arange(5) % 2 == o % 2)
     # all iterations cheap but the first: the first one draws whole
     every = MatchSchedule(cheap_iterations=9, keep_outline=True)
     assert every.matching_args(0, 3, 2) == {"outline": "full"}
@@ -214,6 +217,9 @@ def test_outline_bookkeeping_of_the_matching(scene, packed):
     kept = silhouette_constraints(V, F, N, cams, None, 20.0, 5.0, 0.2, views=views, outline="keep")
     assert views.outline_whole is True
     assert len(kept) != len(ref)  # read in the moved mesh's outline, not redrawn
+    # "full" redraws whole even where a whole outline (of the moved mesh) is kept
+    _equal(silhouette_constraints(V, F, N, cams, None, 20.0, 5.0, 0.2, views=views, outline="full"), ref)
+    _equal(silhouette_constraints(V, F, N, cams, None, 20.0, 5.0, 0.2, views=views, outline="keep"), ref)
     silhouette_constraints(V, F, N, cams, None, 20.0, 5.0, 0.2, views=views)
     assert views.outline_whole is False
     near = silhouette_constraints(V, F, N, cams, None, 20.0, 5.0, 0.2, views=views, outline_step_px=0.5)
