@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from bodystudio.body import Pose
+from bodystudio.body.kinect import kinect_joint_names
 from bodystudio.mirror import init as init_mod
 from bodystudio.mirror import refine as refine_mod
 from bodystudio.mirror.init import (
@@ -35,19 +36,20 @@ def model():
     return _model_2k()
 
 
-def _frame(model, pose, eye, frame=0, mask=True):
+def _frame(model, pose, eye, frame=0, mask=True, version="v2"):
     """Noise-free depth of the mean body in ``pose`` (its vertices facing ``eye``) and its Kinect joints; with
     ``mask`` stand-in SDK player / other-player masks (distinct arrays, to check which is handed on)."""
     body = model.body(np.zeros(model.n_components))
     V = skin_vertices(body.vertices, body.weights, body.skeleton, pose)
     N = _vertex_normals(V, body.faces)
     facing = np.einsum("nd,nd->n", N, eye - V) > 0.3 * np.linalg.norm(eye - V, axis=1)
-    K = posed_kinect_joints(body.skeleton, pose, "v2")
+    K = posed_kinect_joints(body.skeleton, pose, version)
     player = np.zeros((4, 5), bool) if mask else None
     others = np.ones((4, 5), bool) if mask else None
     if mask:
         player[1, frame % 5] = True
-    return InitObservation(frame, V[facing], K, np.ones(len(K), bool), "v2", player_mask=player, others_depth=others)
+    return InitObservation(frame, V[facing], K, np.ones(len(K), bool), version, player_mask=player,
+                           others_depth=others)
 
 
 def _pose(n_bones, seed):
@@ -59,7 +61,17 @@ def test_refined_init_pose_refines_the_ik_of_the_frame(monkeypatch, model):
     body = model.body(np.zeros(model.n_components))
     eye = np.array([0.0, 1.0, 3.0])
     obs = _frame(model, _pose(body.skeleton.n_bones, 1), eye)
+    elbow = kinect_joint_names("v2").index("ElbowLeft")  # lost by the tracker, and far off
+    obs.tracked[elbow] = False
+    obs.joints[elbow] += 0.3
     ik = ik_pose(body.skeleton, obs.joints, obs.tracked, obs.version)
+    asked = []
+
+    def spy_ik(*args):
+        asked.append(args)
+        return ik_pose(*args)
+
+    monkeypatch.setattr(init_mod, "ik_pose", spy_ik)
     got = {}
 
     def refine_pose(plan, skeleton, pose, camera, foreground, *args, **kw):
@@ -76,8 +88,15 @@ def test_refined_init_pose_refines_the_ik_of_the_frame(monkeypatch, model):
     joints, tracked, pts, others, version = got["args"]
     assert joints is obs.joints and tracked is obs.tracked and pts is points and others is obs.others_depth
     assert version == "v2" and got["kw"] == {"iterations": 3}
+    assert len(asked) == 1 and asked[0][0] is body.skeleton and asked[0][1] is obs.joints
+    assert asked[0][2] is obs.tracked and asked[0][3] == "v2"
     refined_init_pose("plan", body, obs, points, "depth-cam")
     assert got["kw"] == {"iterations": UNPOSE_REFINE_STEPS}
+    v1 = _frame(model, _pose(body.skeleton.n_bones, 1), eye, version="v1")  # the IK reads the frame's joint set
+    refined_init_pose("plan", body, v1, v1.points, "depth-cam")
+    np.testing.assert_array_equal(got["pose"].translation, ik_pose(body.skeleton, v1.joints, v1.tracked,
+                                                                   "v1").translation)
+    assert got["args"][-1] == "v1"
 
 
 def test_transform_to_default_pose_unposes_by_a_given_pose(model):

@@ -204,6 +204,7 @@ def test_outline_bookkeeping_of_the_matching(scene, packed):
     V, F, cams, masks = scene
     N = area_weighted_normals(V, F)
     ref = silhouette_constraints(V, F, N, cams, masks, 20.0, 5.0, 0.2)
+    assert (ref.vertex % 2 == 1).any() and (ref.vertex % 2 == 0).any()  # every rim vertex a candidate by default
     views = SilhouetteViews(cams, masks, F)
     if not packed:
         views.packed = None
