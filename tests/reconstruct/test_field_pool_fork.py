@@ -38,3 +38,35 @@ def test_fields_built_in_a_forked_child_do_not_wait_on_the_parents_pool():
     finally:
         numba.set_num_threads(before)
     assert os.waitstatus_to_exitcode(status) == 0  # -14 (SIGALRM): the child waited on a pool with no thread
+
+
+def test_one_named_pool_per_size_is_kept():
+    """The transform pool of a size is made once and kept (not one leaked executor per frame), with that many
+    workers, its threads named after the fields (what a profiler shows)."""
+    pool = tracking._field_pool(2)
+    assert tracking._field_pool(2) is pool and tracking._FIELD_POOLS[2] is pool
+    assert pool._max_workers == 2 and pool._thread_name_prefix == "bodystudio-fields"
+    assert tracking._field_pool(1) is not pool and tracking._field_pool(1)._max_workers == 1
+
+
+def test_chamfer_fields_are_opencvs_mask_5_transform_inside_and_out():
+    """``exact=False``: both transforms (the outside one and the inside core's) are OpenCV's 5x5 chamfer one,
+    shifted by the half pixel, over the box of the default 48 px margin."""
+    import cv2
+
+    cam = Camera.look_at("c0", (0.0, 0.4, 3.0), (0, 0, 0), fx=300.0, width=160, height=120)
+    mask = np.zeros((120, 160), bool)
+    mask[30:90, 50:100] = True
+    mask[40:50, 100:130] = True
+    f = SilhouetteFields([cam], {"c0": mask}, exact=False)
+    assert f.margin_px == 48.0
+    x0, y0 = f.offset["c0"]
+    assert (x0, y0) == (2, 0)  # the box 50..130 x 30..90 widened by 48 px, clipped to the image
+    sdf = f.sdf["c0"]
+    crop = mask[y0:y0 + sdf.shape[0], x0:x0 + sdf.shape[1]]
+    out = cv2.distanceTransform((~crop).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5) - np.float32(0.5)
+    np.testing.assert_array_equal(sdf[~crop], out[~crop])
+    core = np.ascontiguousarray(mask[29:91, 49:131]).astype(np.uint8)  # the box and one pixel around
+    inside = np.float32(0.5) - cv2.distanceTransform(core, cv2.DIST_L2, cv2.DIST_MASK_5)
+    got = sdf[29 - y0:91 - y0, 49 - x0:131 - x0]
+    np.testing.assert_array_equal(got[core.astype(bool)], inside[core.astype(bool)])
