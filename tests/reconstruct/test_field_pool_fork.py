@@ -70,3 +70,16 @@ def test_chamfer_fields_are_opencvs_mask_5_transform_inside_and_out():
     inside = np.float32(0.5) - cv2.distanceTransform(core, cv2.DIST_L2, cv2.DIST_MASK_5)
     got = sdf[29 - y0:91 - y0, 49 - x0:131 - x0]
     np.testing.assert_array_equal(got[core.astype(bool)], inside[core.astype(bool)])
+
+
+def test_each_views_field_is_its_box_of_the_packed_array():
+    """Views of different boxes: each ``sdf`` is exactly its box (the packed array is padded to the largest)."""
+    cams = [Camera.look_at(f"c{i}", (0.0, 0.4, 3.0), (0, 0, 0), fx=300.0, width=160, height=120) for i in range(2)]
+    big, small = np.zeros((120, 160), bool), np.zeros((120, 160), bool)
+    big[30:90, 50:130] = True
+    small[50:60, 70:80] = True
+    f = SilhouetteFields(cams, {"c0": big, "c1": small}, exact=False)
+    assert f._packed_sdf.shape == (2, 120, 158)
+    assert f.offset["c1"] == (22, 2) and f.sdf["c1"].shape == (106, 106)
+    assert f.offset["c0"] == (2, 0) and f.sdf["c0"].shape == (120, 158)
+    assert f.sdf["c1"].max() > 40 and f.sdf["c1"].min() < -4  # a field, not padding
