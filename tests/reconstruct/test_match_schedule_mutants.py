@@ -162,6 +162,15 @@ def test_gate_memo_records_reuses_and_fills_in_decisions():
     assert ball.asked == 4  # two unique vertices and two targets
 
 
+def test_gate_memo_is_reused_by_default():
+    V, sil = _ball_constraints()
+    memo = np.zeros(2 * len(V), np.int8)
+    slot = sil.camera * len(V) + sil.vertex
+    memo[slot] = 1  # every pair decided "keep" earlier
+    ball = _Ball()
+    assert len(hull_consistent_constraints(V, sil, ball, 0.001, memo=memo)) == len(sil) and ball.asked == 0
+
+
 def test_gate_memo_needs_cameras_and_everything_kept_is_the_input():
     V, sil = _ball_constraints()
     memo = np.zeros(2 * len(V), np.int8)
@@ -233,6 +242,10 @@ def test_outline_bookkeeping_of_the_matching(scene, packed):
     one = silhouette_constraints(V, F, N, cams, None, 20.0, 5.0, 0.2, views=views, outline="keep",
                                  use_view=np.array([False, False, True, False]))
     assert len(one) and set(one.camera) == {2}
+    strided = silhouette_constraints(V, F, N, cams, None, 20.0, 5.0, 0.2, views=views, rim_stride=3)
+    sel = ref.vertex % 3 == 0
+    assert 0 < len(strided) == sel.sum()
+    _equal(strided, SilhouetteConstraints(*(getattr(ref, name)[sel] for name in FIELDS)))
 
 
 def test_projection_is_offered_only_after_a_matching_of_every_view(scene):
@@ -252,11 +265,12 @@ def test_deformation_hands_each_outer_iteration_its_matching_and_gate(scene, mon
     each, reuse) with one memo shared by the frame's calls (cameras x vertices, int8); a schedule gating nothing
     at its cheap iteration does not call the gate there; the paper's schedule gives no memo."""
     V, F, cams, masks = scene
-    calls = {"sil": [], "gate": []}
+    calls = {"sil": [], "gate": [], "views": []}
     real_sil, real_gate = rapid_skin.silhouette_constraints, rapid_skin.hull_consistent_constraints
 
     def sil(*a, **kw):
         calls["sil"].append({k: v for k, v in kw.items() if k != "views"})
+        calls["views"].append({"views": kw.get("views")})
         return real_sil(*a, **kw)
 
     def gate(*a, **kw):
@@ -275,6 +289,18 @@ def test_deformation_hands_each_outer_iteration_its_matching_and_gate(scene, mon
     assert all(m is memos[0] for m in memos) and memos[0].dtype == np.int8 and memos[0].shape == (4 * len(V),)
     assert set(np.unique(memos[0])) <= {0, 1, 2} and (memos[0] > 0).any()
     assert min(r.n_silhouette) > 0
+    first = calls["views"][0]["views"]
+    assert isinstance(first, SilhouetteViews)  # one views object for the frame: its outline is kept
+    assert all(c["views"] is first for c in calls["views"])
+    calls["sil"].clear()
+    calls["gate"].clear()
+    calls["views"].clear()
+    rot = MatchSchedule(cheap_iterations=2, view_stride=2)  # the cameras rotate at the cheap iterations
+    deform_to_observations(start, F, cams, masks, RapidSkinParams(outer_iterations=3, inner_iterations=2,
+                                                                  matching=rot))
+    assert calls["sil"][0].get("use_view") is None
+    np.testing.assert_array_equal(calls["sil"][1]["use_view"], [False, True, False, True])
+    np.testing.assert_array_equal(calls["sil"][2]["use_view"], [True, False, True, False])
     calls["sil"].clear()
     calls["gate"].clear()
     off = MatchSchedule(cheap_iterations=1, rim_stride=2, gate="off")
