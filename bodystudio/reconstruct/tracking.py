@@ -32,6 +32,7 @@ The lost-track check (:func:`lost_track_reason`), in this order, re-initialises 
 
 from __future__ import annotations
 
+import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -110,6 +111,9 @@ class TrackParams:
 
 
 _FIELD_POOLS: dict = {}
+# A pool's threads do not survive a fork: a forked child (mutmut's per-mutant fork, a fork-started worker) would
+# queue its transforms on a pool with no thread and wait for ever; it starts pools of its own instead.
+os.register_at_fork(after_in_child=_FIELD_POOLS.clear)
 
 
 def _field_pool(threads: int) -> ThreadPoolExecutor:
