@@ -100,9 +100,10 @@ TRACKER_JOINTS = {"left": ("ShoulderLeft", "ElbowLeft", "WristLeft"),
 # out-of-range subjects' model-only error, sets A / B: captures without the sequence fit -6.6 / -5.7 %; with
 # this setting, each rest mesh centred by sex (``model.capture_samples(centre="sex")``) -11.7 / -11.7 %.
 # The regressed rest arm and the 50 % norm limit it was measured with are kept: the body rest shape (the capture's
-# default since the tenth pass) has not been measured for the extension.
+# default since the tenth pass) and the last pose refit (the default since the eleventh) have not been measured for
+# the extension.
 EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
-                     "body_rest_shape": False, "norm_limit": 0.5}
+                     "body_rest_shape": False, "norm_limit": 0.5, "pose_refit": False}
 # The setting of a sequence that pins its shared torso placement and skeleton (``CaptureOptions.sequence_pinned_se_m``,
 # off by default): the skeleton and placement fitted with every frame's angles, Huber on the depth pairs only, the
 # chest's pairs off, the tracker's joints at 10, and a 5 % norm limit (the fitted skeleton carries a lower model biceps;
@@ -278,10 +279,11 @@ class CaptureOptions:
     with_rotation: bool = False
     # A last per-frame refit of the shoulder and elbow angles against each frame's depth on the rest arm and skeleton
     # the sequence stage settled on (``refine.refit_arm_poses_to_depth`` with :data:`POSE_REFIT`), before the pose
-    # smoothing (docs/muscle.md, eleventh pass). Off by default: it won on all four held-out sessions (median -0.06 to
-    # -0.55 mm, p90 -0.67 to -1.29 mm, bulge and jitter within the goals) on the cached per-frame state; end to end
-    # on 501 / 508: 3.62 / 5.79, 3.40 / 7.01 mm, 847 / 851 ms CPU per frame (the whole capture).
-    pose_refit: bool = False
+    # smoothing (docs/muscle.md, eleventh pass). On by default: end to end on the four held-out 200-frame sessions
+    # (`benchmarks.muscle_sequences ... --variant "refit:pose_refit=True"`) median / p90 mm 501 3.69 / 6.46 -> 3.62 /
+    # 5.79, 504 4.19 / 7.10 -> 3.64 / 5.83, 507 3.63 / 7.45 -> 3.16 / 6.28, 508 3.94 / 7.89 -> 3.40 / 7.01; bulge 1.91
+    # / 1.07 / 1.12 / 0.74 -> 1.59 / 1.13 / 0.57 / 0.72 mm; jitter +0.09-0.11 mm; 760-776 ms CPU per frame.
+    pose_refit: bool = True
 
     def __post_init__(self):
         if self.mode not in MODES:

@@ -94,7 +94,7 @@ def test_the_tracker_and_the_prior_hold_the_angles(planted):  # noqa: F811
 def test_the_capture_refits_the_sequence_stages_poses_when_asked(monkeypatch, scene):  # noqa: F811
     """``CaptureOptions(pose_refit=True)``: the sequence stage's poses, rest arm and skeleton go to
     ``refit_arm_poses_to_depth`` with the tracker in the template's space and :data:`capture.POSE_REFIT`; its poses
-    are the capture's (no smoothing here). Off (the default): never called."""
+    are the capture's (no smoothing here). Off: never called; on by default since the eleventh pass."""
     from bodystudio.muscle.capture import POSE_REFIT, CaptureOptions, capture_arm_frames
     from bodystudio.muscle.nicp import NicpOptions
     from tests.muscle.test_capture_analytic import Spies
@@ -103,8 +103,9 @@ def test_the_capture_refits_the_sequence_stages_poses_when_asked(monkeypatch, sc
     fast = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1,
                 sequence_max_nfev=3, nicp=NicpOptions(iterations=2), pose_sigma_frames=0.0, mode="model")
     spies = Spies(monkeypatch, ("refit_arm_poses_to_depth", "fit_arm_sequence_skeleton"))
-    off = capture_arm_frames(s.depths, s.camera, s.template, s.model, CaptureOptions(**fast), s.tracker,
-                             known_shape=s.shape)
+    assert CaptureOptions().pose_refit
+    off = capture_arm_frames(s.depths, s.camera, s.template, s.model, CaptureOptions(pose_refit=False, **fast),
+                             s.tracker, known_shape=s.shape)
     assert spies["refit_arm_poses_to_depth"] == []
     on = capture_arm_frames(s.depths, s.camera, s.template, s.model, CaptureOptions(pose_refit=True, **fast),
                             s.tracker, known_shape=s.shape)
