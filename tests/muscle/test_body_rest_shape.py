@@ -136,7 +136,7 @@ def test_the_capture_takes_its_rest_arm_and_skeleton_from_the_body_space(monkeyp
     spies = Spies(monkeypatch, ("fit_body_rest_shape", "fit_arm_sequence_skeleton"))
     proj = Spies(monkeypatch, ("project_to_body_space",), module=model_mod)
     fast = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1,
-                sequence_max_nfev=3, nicp=NicpOptions(iterations=2), pose_sigma_frames=0.0)
+                sequence_max_nfev=3, nicp=NicpOptions(iterations=2), pose_sigma_frames=0.0, pose_refit=False)
     o = CaptureOptions(mode="model", body_rest_shape=True, body_rest_rounds=1, body_rest_frame_stride=2,
                        body_rest_prior_weight=3.0, body_rest_iterations=2, body_rest_fit_poses=False, **fast)
     c = capture_arm_frames(s.depths, s.camera, s.template, s.model, o, s.tracker, known_shape=s.shape)
@@ -253,7 +253,7 @@ def test_the_rest_shape_rounds_stop_when_the_depth_energy_stops_falling(monkeypa
     name = "fit_body_rest_shape_and_poses" if fit_poses else "fit_body_rest_shape"
     spies = Spies(monkeypatch, (name, "fit_arm_sequence_skeleton"))
     fast = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1,
-                sequence_max_nfev=3, nicp=NicpOptions(iterations=2), pose_sigma_frames=0.0)
+                sequence_max_nfev=3, nicp=NicpOptions(iterations=2), pose_sigma_frames=0.0, pose_refit=False)
     o = CaptureOptions(mode="model", body_rest_shape=True, body_rest_rounds=3, body_rest_frame_stride=2,
                        body_rest_prior_weight=3.0, body_rest_iterations=1, body_rest_fit_poses=fit_poses, **fast)
     c = capture_arm_frames(s.depths, s.camera, s.template, s.model, o, s.tracker, known_shape=s.shape)

@@ -19,8 +19,12 @@ from bodystudio.muscle.depth import DepthCleanupOptions
 from bodystudio.muscle.evaluate import visible_vertices
 from bodystudio.muscle.nicp import NicpOptions, apply_similarity
 
+# The last pose refit (on by default since the eleventh pass) off: these tests check the other steps' wiring and the
+# model stage the refinement starts from (the refit's own wiring and accuracy: tests/muscle/test_pose_refit.py). With
+# it on, this 3-frame case's model stage already sits at the depth where the sensor sees the arm (seen-vertex medians
+# 3.85 / 2.88 / 3.60 mm, the full run 3.96 / 3.09 / 3.53), so the refinement's claim is tested without it.
 FAST = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1, sequence_max_nfev=3,
-            nicp=NicpOptions(iterations=2))
+            nicp=NicpOptions(iterations=2), pose_refit=False)
 
 
 @pytest.fixture(scope="module")
@@ -153,7 +157,7 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
                        tracker_weight=20.0, tracker_root_weight=2.0, tracker_pose_weight=25.0, pose_sigma_frames=0.8,
                        tracker_arm_length_weight=50.0, huber_m=0.001, sequence_rounds=1, sequence_smooth_weight=7.0,
                        sequence_huber_m=0.003, sequence_max_nfev=2, sequence_fit_root=True,
-                       sequence_tracker_weight=15.0, smooth_weight=6.0, body_rest_shape=False)
+                       sequence_tracker_weight=15.0, smooth_weight=6.0, body_rest_shape=False, pose_refit=False)
     # (the model's regressed rest arm and joints: the body rest shape's wiring is test_body_rest_shape.py's and
     # test_sequence_stage_stop_mutants.py's)
     # the tracker's shoulder moves 4 mm a frame: the start is frame 0's
@@ -283,7 +287,7 @@ def test_the_arm_length_and_tracker_weight_without_a_tracker_and_with_a_known_sh
 
     o = CaptureOptions(mode="model", shape_frames=5, shape_rounds=1, first_frame_nicp_iterations=1,
                        nicp=NicpOptions(iterations=1), tracker_root_weight=3.0, sequence_rounds=0,
-                       pose_sigma_frames=0.0)
+                       pose_sigma_frames=0.0, pose_refit=False)
     c = capture_arm_frames(scene.depths[:2], scene.camera, scene.template, scene.model, o, known_shape=scene.shape)
     (f,) = spies["fit_shape_parameters"]
     assert len(f.args[2]) == 2 and len(f.args[3]) == 2  # shape_frames beyond the sequence: all its frames

@@ -102,7 +102,7 @@ def test_the_capture_refits_the_sequence_stages_poses_when_asked(monkeypatch, sc
     s = scene
     fast = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1,
                 sequence_max_nfev=3, nicp=NicpOptions(iterations=2), pose_sigma_frames=0.0, mode="model")
-    spies = Spies(monkeypatch, ("refit_arm_poses_to_depth", "fit_arm_sequence_skeleton"))
+    spies = Spies(monkeypatch, ("refit_arm_poses_to_depth", "sequence_stage"))
     assert CaptureOptions().pose_refit
     off = capture_arm_frames(s.depths, s.camera, s.template, s.model, CaptureOptions(pose_refit=False, **fast),
                              s.tracker, known_shape=s.shape)
@@ -110,10 +110,12 @@ def test_the_capture_refits_the_sequence_stages_poses_when_asked(monkeypatch, sc
     on = capture_arm_frames(s.depths, s.camera, s.template, s.model, CaptureOptions(pose_refit=True, **fast),
                             s.tracker, known_shape=s.shape)
     (call,) = spies["refit_arm_poses_to_depth"]
-    seq = spies["fit_arm_sequence_skeleton"][-1].out
+    # the sequence stage's result (its last sequence fit may be a rest-shape round the stop undid)
+    seq = spies["sequence_stage"][-1].out
     for p, q in zip(call.args[1], seq[0], strict=True):
         np.testing.assert_allclose(p.angles, q.angles, atol=1e-12)
-    np.testing.assert_allclose(call.args[4], seq[1], atol=1e-12)
+    np.testing.assert_allclose(call.args[3], seq[1], atol=1e-12)  # the rest arm
+    np.testing.assert_allclose(call.args[4], seq[2], atol=1e-12)  # the skeleton
     assert call.args[5:7] == (CaptureOptions().norm_limit, CaptureOptions().sequence_huber_m)
     np.testing.assert_allclose(call.args[7] + on.similarity[2], s.tracker, atol=1e-9)  # template space (a shift)
     assert call.args[8] == POSE_REFIT["tracker_weight"]
