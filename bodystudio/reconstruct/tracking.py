@@ -135,8 +135,8 @@ class SilhouetteFields:
 
     def __init__(self, cameras, masks: dict, margin_px: int = 48, exact: bool = True):
         self.cameras = list(cameras)
-        # ``exact=False``: OpenCV's 5x5 chamfer transform (issue 15's frame time: ~2.5x faster, within ~0.2 px of
-        # the exact distance up to 10 px from the contour, 1.6 px at most on a 640x480 view)
+        # ``exact=False``: OpenCV's 5x5 chamfer transform (issue 15's frame time: ~2x faster, 5.8 instead of 11.6 ms a
+        # frame; within 0.2 px of the exact distance up to 10 px from the contour, 1.6 px at most on a 640x480 view)
         dist_mask = cv2.DIST_MASK_PRECISE if exact else cv2.DIST_MASK_5
         self.margin_px = float(margin_px)
         self.sdf, self.offset = {}, {}
