@@ -184,7 +184,7 @@ def depth_constraints(V: np.ndarray, N: np.ndarray, obs: DepthObservation, sigma
     if len(ids) == 0:
         return DepthConstraints.empty()
     if far.any():
-        own = _model_depth(V, np.ascontiguousarray(F, dtype=np.int64), cam, uv, z)[rc[far, 0], rc[far, 1]]
+        own = _model_depth_at(np.ascontiguousarray(F, dtype=np.int64), cam, uv, z, rc[far])
         front = (own > 0) & (z[ids[far]] <= own + MODEL_FRONT_M)
         keep = ~far
         keep[far] = front
@@ -194,14 +194,55 @@ def depth_constraints(V: np.ndarray, N: np.ndarray, obs: DepthObservation, sigma
     return DepthConstraints(ids, obs.points[r, c], obs.normals[r, c], k)
 
 
-def _model_depth(V, F, cam, uv, z) -> np.ndarray:
-    """The mesh's camera-z raster in ``cam`` (0 where empty) from its projection ``uv, z``: :func:`render_depth`'s
-    z-buffer bit for bit, without the triangle ids and barycentrics."""
-    depth = np.full((cam.height, cam.width), np.inf, dtype=np.float32)
-    _rasterize(uv, z, F, cam.width, cam.height, depth, np.empty((0, 0), np.int32), np.empty((0, 0, 3), np.float32),
-               False)
-    depth[depth == np.inf] = 0.0
-    return depth
+def _model_depth_at(F, cam, uv, z, pixels) -> np.ndarray:
+    """The mesh's camera z (0 where it does not cover the pixel) at ``pixels`` ((row, col) rows) of ``cam``, from
+    its projection ``uv, z``: :func:`render_depth`'s z-buffer there bit for bit, without the triangle ids and
+    barycentrics, drawing only the triangles whose pixel box touches a ``_TILE``-pixel tile holding one of
+    ``pixels`` (every triangle that covers such a pixel, in the same order)."""
+    H, W = cam.height, cam.width
+    need = np.zeros(((H + _TILE - 1) // _TILE, (W + _TILE - 1) // _TILE), np.bool_)
+    need[pixels[:, 0] // _TILE, pixels[:, 1] // _TILE] = True
+    depth = np.full((H, W), np.inf, dtype=np.float32)
+    _rasterize(uv, z, F[_faces_touching(uv, F, W, H, need)], W, H, depth, np.empty((0, 0), np.int32),
+               np.empty((0, 0, 3), np.float32), False)
+    own = depth[pixels[:, 0], pixels[:, 1]]
+    own[own == np.inf] = 0.0
+    return own
+
+
+#: Tile size (pixels) of :func:`_model_depth_at`'s triangle culling.
+_TILE = 8
+
+
+@njit(cache=True)
+def _faces_touching(uv, F, width, height, need):
+    """Triangles whose pixel-centre box (``_rasterize``'s: ``ceil(min)`` .. ``floor(max)`` clipped to the image)
+    touches a tile flagged in ``need``; a triangle with a non-finite vertex (which ``_rasterize`` skips) is not."""
+    m = F.shape[0]
+    keep = np.zeros(m, np.bool_)
+    th, tw = need.shape
+    for f in range(m):
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        xa, xb, xc, ya, yb, yc = uv[a, 0], uv[b, 0], uv[c, 0], uv[a, 1], uv[b, 1], uv[c, 1]
+        if not (np.isfinite(xa) and np.isfinite(xb) and np.isfinite(xc) and np.isfinite(ya) and np.isfinite(yb)
+                and np.isfinite(yc)):
+            continue
+        lo_x, hi_x = min(xa, min(xb, xc)), max(xa, max(xb, xc))
+        lo_y, hi_y = min(ya, min(yb, yc)), max(ya, max(yb, yc))
+        if hi_x < 0.0 or hi_y < 0.0 or lo_x > width or lo_y > height:
+            continue
+        x0 = max(int(np.ceil(lo_x)), 0)
+        x1 = min(int(np.floor(hi_x)), width - 1)
+        y0 = max(int(np.ceil(lo_y)), 0)
+        y1 = min(int(np.floor(hi_y)), height - 1)
+        if x0 > x1 or y0 > y1:
+            continue
+        for ty in range(y0 // _TILE, min(y1 // _TILE, th - 1) + 1):
+            for tx in range(x0 // _TILE, min(x1 // _TILE, tw - 1) + 1):
+                if need[ty, tx]:
+                    keep[f] = True
+        # a kept triangle is drawn whole; its pixels outside the tiles are never read
+    return keep
 
 
 @njit(cache=True)

@@ -115,3 +115,23 @@ def test_the_pixel_grid_is_the_cameras_undistortion():
     assert normalised_pixel_grid(cam) is grid  # cached
     other = Camera.look_at("d", (0.0, 1.0, 2.0), (0.0, 1.0, 0.0), fx=101.0, width=40, height=30)
     assert not np.allclose(normalised_pixel_grid(other), grid)
+
+
+def test_the_culled_raster_is_the_full_one_at_its_pixels(scene):
+    """The far pairs' visibility reads the template's depth raster drawn only where their pixels' tiles are: the
+    same z-buffer values as the full render there (scattered pixels, tile corners, the image border)."""
+    from bodystudio.capture.render import _project
+    from bodystudio.reconstruct.depth import _model_depth_at
+
+    V, F, cam, D = scene
+    uv, z = np.empty((len(V), 2)), np.empty(len(V))
+    _project(V, cam.R, cam.t, cam.K, cam.dist, uv, z)
+    full = render_depth(V, F, cam)
+    rng = np.random.default_rng(0)
+    pixels = np.c_[rng.integers(0, cam.height, 40), rng.integers(0, cam.width, 40)]
+    covered = np.argwhere(full > 0)
+    pixels = np.r_[pixels, covered[rng.choice(len(covered), 40, replace=False)], [[0, 0], [119, 159], [63, 71],
+                                                                                  [64, 72], [7, 8]]]
+    np.testing.assert_array_equal(_model_depth_at(F, cam, uv, z, pixels), full[pixels[:, 0], pixels[:, 1]])
+    one = covered[len(covered) // 2][None]
+    np.testing.assert_array_equal(_model_depth_at(F, cam, uv, z, one), full[one[:, 0], one[:, 1]])
