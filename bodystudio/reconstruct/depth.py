@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numba import njit
 from scipy.ndimage import median_filter
@@ -108,14 +109,15 @@ def _median9(a):
     return a[4]
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _observe(D, xy, lo, hi, floor_m, flying_m, R, t, center, P, N, depth_out, ok):
     """:func:`depth_observation`'s pass: range, flying pixels (3x3 median, reflected border), unprojection, floor,
-    then the normals of pixels whose four neighbours are valid. Writes ``P``, ``N``, ``depth_out``, ``ok``."""
+    then the normals of pixels whose four neighbours are valid. Writes ``P``, ``N``, ``depth_out``, ``ok``. Rows
+    in ``prange`` (each pixel's arithmetic is the serial loop's: the same arrays on any number of threads)."""
     H, W = D.shape
     valid = np.zeros((H, W), np.bool_)
-    window = np.empty(9)
-    for r in range(H):
+    for r in numba.prange(H):
+        window = np.empty(9)
         for c in range(W):
             d = D[r, c]
             if not np.isfinite(d) or not (d > lo and d < hi):
@@ -135,7 +137,7 @@ def _observe(D, xy, lo, hi, floor_m, flying_m, R, t, center, P, N, depth_out, ok
             for j in range(3):
                 P[r, c, j] = px * R[0, j] + py * R[1, j] + pz * R[2, j]
             valid[r, c] = P[r, c, 1] >= floor_m
-    for r in range(1, H - 1):
+    for r in numba.prange(1, H - 1):
         for c in range(1, W - 1):
             if not (valid[r, c] and valid[r, c + 1] and valid[r, c - 1] and valid[r + 1, c] and valid[r - 1, c]):
                 continue

@@ -135,3 +135,21 @@ def test_the_culled_raster_is_the_full_one_at_its_pixels(scene):
     np.testing.assert_array_equal(_model_depth_at(F, cam, uv, z, pixels), full[pixels[:, 0], pixels[:, 1]])
     one = covered[len(covered) // 2][None]
     np.testing.assert_array_equal(_model_depth_at(F, cam, uv, z, one), full[one[:, 0], one[:, 1]])
+
+
+def test_the_observation_is_the_same_on_two_threads(scene):
+    """The rows run in ``prange``: the same arrays on one and two numba threads."""
+    import numba
+
+    V, F, cam, D = scene
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = depth_observation(D, cam)
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+        two = depth_observation(D, cam)
+    finally:
+        numba.set_num_threads(before)
+    for a, b in ((one.points, two.points), (one.normals, two.normals), (one.depth_m, two.depth_m),
+                 (one.valid, two.valid)):
+        np.testing.assert_array_equal(a, b)
