@@ -51,12 +51,12 @@ def main() -> None:
     from bodystudio.capture.synth import synth_session
     from bodystudio.geometry.laplacian import cotangent_weights
     from bodystudio.reconstruct import rapid_skin
-    from bodystudio.reconstruct.depth import (
-        depth_constraints,
-        depth_constraints_reference,
-        depth_observation,
-        depth_observation_reference,
-    )
+    from bodystudio.reconstruct.depth import depth_constraints, depth_observation
+
+    try:
+        from bodystudio.reconstruct.depth import depth_constraints_reference, depth_observation_reference
+    except ImportError:  # a tree before rec15f (PYTHONPATH on it, for the A/B of whole trees): its path is numpy's
+        depth_constraints_reference, depth_observation_reference = depth_constraints, depth_observation
     from bodystudio.reconstruct.pose_init import initialise_pose, pose_template
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
     from bodystudio.reconstruct.sequence import frame_joints
