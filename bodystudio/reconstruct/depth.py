@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 from scipy.ndimage import median_filter
 
-from bodystudio.capture.render import _project, _rasterize
+from bodystudio.capture.render import depth_buffer, project_vertices
 from bodystudio.errors import InputError
 from bodystudio.reconstruct.solver import DepthConstraints
 
@@ -176,8 +176,7 @@ def depth_constraints(V: np.ndarray, N: np.ndarray, obs: DepthObservation, sigma
     """
     cam = obs.camera
     V = np.ascontiguousarray(V, dtype=np.float64)
-    uv, z = np.empty((len(V), 2)), np.empty(len(V))
-    _project(V, cam.R, cam.t, cam.K, cam.dist, uv, z)
+    uv, z = project_vertices(V, cam)
     reach = F is not None and reach_m > max_distance_m
     ids, rc, d, far = _depth_pairs(V, np.ascontiguousarray(N, dtype=np.float64), uv, z,
                                    np.ascontiguousarray(cam.center, dtype=np.float64), obs.valid, obs.depth_m,
@@ -204,10 +203,7 @@ def _model_depth_at(F, cam, uv, z, pixels) -> np.ndarray:
     H, W = cam.height, cam.width
     need = np.zeros(((H + _TILE - 1) // _TILE, (W + _TILE - 1) // _TILE), np.bool_)
     need[pixels[:, 0] // _TILE, pixels[:, 1] // _TILE] = True
-    depth = np.full((H, W), np.inf, dtype=np.float32)
-    _rasterize(uv, z, F[_faces_touching(uv, F, W, H, need)], W, H, depth, np.empty((0, 0), np.int32),
-               np.empty((0, 0, 3), np.float32), False)
-    own = depth[pixels[:, 0], pixels[:, 1]]
+    own = depth_buffer(uv, z, F[_faces_touching(uv, F, W, H, need)], W, H)[pixels[:, 0], pixels[:, 1]]
     own[own == np.inf] = 0.0
     return own
 

@@ -120,13 +120,14 @@ def test_the_pixel_grid_is_the_cameras_undistortion():
 def test_the_culled_raster_is_the_full_one_at_its_pixels(scene):
     """The far pairs' visibility reads the template's depth raster drawn only where their pixels' tiles are: the
     same z-buffer values as the full render there (scattered pixels, tile corners, the image border)."""
-    from bodystudio.capture.render import _project
+    from bodystudio.capture.render import depth_buffer, project_vertices
     from bodystudio.reconstruct.depth import _model_depth_at
 
     V, F, cam, D = scene
-    uv, z = np.empty((len(V), 2)), np.empty(len(V))
-    _project(V, cam.R, cam.t, cam.K, cam.dist, uv, z)
+    uv, z = project_vertices(V, cam)
     full = render_depth(V, F, cam)
+    whole = depth_buffer(uv, z, F, cam.width, cam.height)  # the renderer's z-buffer, empty pixels inf
+    np.testing.assert_array_equal(np.where(np.isinf(whole), 0, whole), full)
     rng = np.random.default_rng(0)
     pixels = np.c_[rng.integers(0, cam.height, 40), rng.integers(0, cam.width, 40)]
     covered = np.argwhere(full > 0)
