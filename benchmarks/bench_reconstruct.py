@@ -219,6 +219,7 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
     previous default (carved hull), the new default (distance fields) and the tracker (from frame 0's
     pose): CPU time stays meaningful on a loaded machine where wall time does not."""
     import time
+    from dataclasses import replace
 
     import numba
     from threadpoolctl import threadpool_limits
@@ -227,6 +228,7 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
     from bodystudio.capture.session import open_session
     from bodystudio.geometry.laplacian import cotangent_weights
     from bodystudio.reconstruct.articulated_fit import refine_bone_transforms
+    from bodystudio.reconstruct.depth import depth_observation, depth_observation_reference
     from bodystudio.reconstruct.pose_init import initialise_pose, pose_template
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
     from bodystudio.reconstruct.sequence import frame_joints
@@ -270,21 +272,32 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
     wall: dict[tuple[str, int], list[float]] = {(m, k): [] for m in ("default", "fast") for k in (1, 2)}
     end_to_end: dict[tuple[str, int], list[float]] = {}
 
-    def tracked_frame_now(path, frame_id):
-        """A tracked frame as ``reconstruct_frames`` runs it, from frame 0's pose (the prior)."""
+    sensor = session.kinect  # the depth rows (issue 15's accuracy goals are for silhouettes + depth)
+    depth_params = replace(fast_params, constraints=("silhouette", "depth"))
+
+    def tracked_frame_now(path, frame_id, with_depth=False):
+        """A tracked frame as ``reconstruct_frames`` runs it, from frame 0's pose (the prior); ``with_depth``: with
+        the Kinect depth (its PNG, the observation, the depth constraints)."""
         frame = open_session(path).frame(frame_id)
         masks = read_masks(frame)
+        depth = depth_observation(frame.kinect_depth_m, sensor.depth) if with_depth else None
         fields = SilhouetteFields(cams, masks, exact=fast.exact_fields)
         outside_fraction(pose_template(fit_body, T0).vertices, fields)
         T = track_bone_transforms(fit_body, T0, fields, fast)
         outside_fraction(pose_template(fit_body, T).vertices, fields)
         P = pose_template(body, T, 1.0)
-        return deform_to_observations(P.vertices, body.faces, cams, masks, fast_params, delta=rest_delta, fields=fields)
+        return deform_to_observations(P.vertices, body.faces, cams, masks, depth_params if with_depth else fast_params,
+                                      depth=depth, delta=rest_delta, fields=fields)
     with threadpool_limits(1):
         for rep in range(repeats + 1):  # the first run compiles
             steps = {}
             frame = open_session(session_path).frame(session.frame_ids[1])
             steps["read masks"], masks = cpu(read_masks, frame)
+            if sensor is not None:
+                steps["read depth (PNG)"], D = cpu(lambda f: f.kinect_depth_m, frame)
+                steps["depth observation (numpy, before rec15f)"], _ = cpu(depth_observation_reference, D,
+                                                                           sensor.depth)
+                steps["depth observation (compiled), now"], _ = cpu(depth_observation, D, sensor.depth)
             steps["read joints"], J = cpu(frame_joints, session, frame, "tracker", None)
             t_pose, init2 = cpu(initialise_pose, fit_body, J)
             t_pose13, init = cpu(initialise_pose, body, J)
@@ -329,11 +342,13 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
             # split is even) and wall, back to back
             for threads in (1, 2):
                 numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-                clocks = (time.process_time(), time.thread_time(), time.perf_counter())
-                tracked_frame_now(session_path, session.frame_ids[1])
-                for name, t0, t1 in zip(("cpu", "main", "wall"), clocks,
-                                        (time.process_time(), time.thread_time(), time.perf_counter()), strict=True):
-                    end_to_end.setdefault((name, threads), []).append(1000 * (t1 - t0))
+                for with_depth in (False, True) if sensor is not None else (False,):
+                    clocks = (time.process_time(), time.thread_time(), time.perf_counter())
+                    tracked_frame_now(session_path, session.frame_ids[1], with_depth)
+                    for name, t0, t1 in zip(("cpu", "main", "wall"), clocks,
+                                            (time.process_time(), time.thread_time(), time.perf_counter()),
+                                            strict=True):
+                        end_to_end.setdefault((name, threads, with_depth), []).append(1000 * (t1 - t0))
             numba.set_num_threads(1)
             if rep:
                 for k, v in steps.items():
@@ -374,10 +389,16 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
               "one-thread wall)", tracked_now - (1 - fast_2 / fast_1) * (med[fast_match] + med[fast_solve])]]
     e2e = {k: statistics.median(v[1:]) for k, v in end_to_end.items()}
     rows += [["**whole frame, tracked frame now, end to end, one numba thread**: CPU ms / wall ms",
-              f"{e2e['cpu', 1]:.1f} / {e2e['wall', 1]:.1f}"],
+              f"{e2e['cpu', 1, False]:.1f} / {e2e['wall', 1, False]:.1f}"],
              ["**whole frame, tracked frame now, end to end, two numba threads**: CPU ms (all threads) / main "
               "thread's CPU ms (the idle two-core wall when the split is even) / wall ms",
-              f"{e2e['cpu', 2]:.1f} / {e2e['main', 2]:.1f} / {e2e['wall', 2]:.1f}"]]
+              f"{e2e['cpu', 2, False]:.1f} / {e2e['main', 2, False]:.1f} / {e2e['wall', 2, False]:.1f}"]]
+    if sensor is not None:
+        rows += [["**whole frame, tracked frame now, silhouettes + depth, end to end, one numba thread**: CPU ms / "
+                  "wall ms", f"{e2e['cpu', 1, True]:.1f} / {e2e['wall', 1, True]:.1f}"],
+                 ["**whole frame, tracked frame now, silhouettes + depth, end to end, two numba threads**: CPU ms "
+                  "(all threads) / main thread's CPU ms / wall ms",
+                  f"{e2e['cpu', 2, True]:.1f} / {e2e['main', 2, True]:.1f} / {e2e['wall', 2, True]:.1f}"]]
     return markdown_table(["step (frame 1, 13K, 10 cameras 640x480, one thread)", "CPU ms (median)"], rows)
 
 

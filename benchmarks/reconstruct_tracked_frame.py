@@ -2,7 +2,7 @@
 wall, per step, on one or two numba threads.
 
 Usage: PYTHONPATH=. python benchmarks/reconstruct_tracked_frame.py [--cache DIR] [--repeats 9] [--threads 1|2]
-       [--compare]
+       [--compare] [--constraints sil|sil,depth] [--compare-depth]
 
 A tracked frame as ``reconstruct_frames`` runs it (``--tracking``, ``TrackParams()``): walk s31 frame 1 at 30 fps
 (10 cameras 640x480, 13K template) from frame 0's pose as the prior: read the masks, distance fields, the
@@ -13,7 +13,10 @@ serial: the frame's wall on an idle two-core machine when the split is even (a w
 under ``OMP_WAIT_POLICY=PASSIVE``). On a loaded machine compare trees by running this script alternately
 with ``PYTHONPATH`` on each (docs/reconstruct.md, rec15c); ``--compare`` alternates the default tracked frame
 frame by frame with the exact one (exact distance fields, every outline drawn: the tracker before rec15e's
-trade-offs) in one process.
+trade-offs) in one process. ``--constraints sil,depth`` adds the Kinect depth (issue 15's accuracy goals are for
+silhouettes + depth): its PNG in the read step, the depth observation (cleaning, unprojection, normals) as a
+step, and the depth constraints in every outer iteration of the deformation; ``--compare-depth`` alternates it
+with the numpy depth path before rec15f (:func:`depth_observation_reference`, :func:`depth_constraints_reference`).
 """
 
 from __future__ import annotations
@@ -35,7 +38,11 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1, choices=(1, 2))
     ap.add_argument("--compare", action="store_true",
                     help="alternate frame by frame with the exact tracked frame (exact fields, every matching drawn)")
+    ap.add_argument("--constraints", default="sil", choices=("sil", "sil,depth"))
+    ap.add_argument("--compare-depth", action="store_true",
+                    help="with --constraints sil,depth: alternate with the numpy depth path (before rec15f)")
     args = ap.parse_args()
+    use_depth = args.constraints == "sil,depth"
     import numba
     from threadpoolctl import threadpool_limits
 
@@ -43,6 +50,13 @@ def main() -> None:
     from bodystudio.capture.session import open_session
     from bodystudio.capture.synth import synth_session
     from bodystudio.geometry.laplacian import cotangent_weights
+    from bodystudio.reconstruct import rapid_skin
+    from bodystudio.reconstruct.depth import depth_constraints, depth_observation
+
+    try:
+        from bodystudio.reconstruct.depth import depth_constraints_reference, depth_observation_reference
+    except ImportError:  # a tree before rec15f (PYTHONPATH on it, for the A/B of whole trees): its path is numpy's
+        depth_constraints_reference, depth_observation_reference = depth_constraints, depth_observation
     from bodystudio.reconstruct.pose_init import initialise_pose, pose_template
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
     from bodystudio.reconstruct.sequence import frame_joints
@@ -59,9 +73,13 @@ def main() -> None:
     T0 = initialise_pose(fit_body, frame_joints(session, session.frame(session.frame_ids[0]), "tracker",
                                                 None)).bone_transforms
     rest_delta = cotangent_weights(body.vertices, body.faces)
-    configs = {"default": TrackParams()}
+    sensor = session.kinect.depth if use_depth else None
+    configs = {"default": (TrackParams(), False)}
     if args.compare:
-        configs = {"exact (before rec15e)": TrackParams(matching=MatchSchedule(), exact_fields=True), **configs}
+        configs = {"exact (before rec15e)": (TrackParams(matching=MatchSchedule(), exact_fields=True), False),
+                   **configs}
+    if args.compare_depth and use_depth:
+        configs = {"numpy depth (before rec15f)": (TrackParams(), True), **configs}
 
     def clocks():
         return np.array([time.process_time(), time.thread_time(), time.perf_counter()])
@@ -72,30 +90,40 @@ def main() -> None:
         steps[name] = 1000 * (clocks() - t)
         return out
 
-    def frame(track):
+    def frame(track, reference_depth):
         params = RapidSkinParams(outer_iterations=track.outer_iterations or RapidSkinParams().outer_iterations,
-                                 matching=track.matching)
+                                 matching=track.matching,
+                                 constraints=("silhouette", "depth") if use_depth else ("silhouette",))
+        rapid_skin.depth_constraints = depth_constraints_reference if reference_depth else depth_constraints
+        observe = depth_observation_reference if reference_depth else depth_observation
         steps: dict[str, np.ndarray] = {}
         fr = open_session(path).frame(session.frame_ids[1])
         masks = timed(steps, "read masks (10 PNG)", lambda: {n: fr.masks[n] for n in fr.masks})
+        depth = None
+        if use_depth:
+            D = timed(steps, "read depth (PNG)", lambda: fr.kinect_depth_m)
+            depth = timed(steps, "depth observation", observe, D, sensor)
         fields = timed(steps, "distance fields", SilhouetteFields, cams, masks, 48, track.exact_fields)
         timed(steps, "lost-track prior check", lambda: outside_fraction(pose_template(fit_body, T0).vertices, fields))
         T = timed(steps, "tracking fit (to the plateau)", track_bone_transforms, fit_body, T0, fields, track)
         timed(steps, "energy check", lambda: outside_fraction(pose_template(fit_body, T).vertices, fields))
         P = timed(steps, "pose 13K (LBS)", pose_template, body, T, 1.0)
-        timed(steps, f"deformation (No = {params.outer_iterations}: matching, gate, GS)", deform_to_observations,
-              P.vertices, body.faces, cams, masks, params, None, rest_delta, None, None, None, fields)
+        what = "matching, gate, depth, GS" if use_depth else "matching, gate, GS"
+        timed(steps, f"deformation (No = {params.outer_iterations}: {what})",
+              deform_to_observations, P.vertices, body.faces, cams, masks, params, depth, rest_delta, None, None, None,
+              fields)
         steps["whole tracked frame"] = sum(steps.values())
         return steps
 
     runs: dict[str, dict[str, list]] = {c: {} for c in configs}
     with threadpool_limits(1):
-        for track in configs.values():
-            frame(track)  # compiles
+        for track, reference_depth in configs.values():
+            frame(track, reference_depth)  # compiles
         for _ in range(args.repeats):
-            for cname, track in configs.items():  # alternated frame by frame: the same load on each
-                for name, v in frame(track).items():
+            for cname, (track, reference_depth) in configs.items():  # alternated frame by frame: the same load
+                for name, v in frame(track, reference_depth).items():
                     runs[cname].setdefault(name, []).append(v)
+    rapid_skin.depth_constraints = depth_constraints
     for cname, steps in runs.items():
         print(f"{cname}: {numba.get_num_threads()} numba thread(s), {args.repeats} frames; ms: median (min)")
         print(f"{'step':48s} {'CPU':>15s} {'main thread CPU':>17s} {'wall':>15s}")

@@ -200,6 +200,26 @@ def render(V: np.ndarray, F: np.ndarray, camera: Camera) -> RenderResult:
     return RenderResult(mask, depth, tri_id, bary)
 
 
+def project_vertices(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (n, 2) (NaN behind the camera) and camera z (n,) of vertices ``V`` as the rasteriser projects them
+    (OpenCV distortion), for :func:`depth_buffer`."""
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    uv, z = np.empty((len(V), 2)), np.empty(len(V))
+    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
+    return uv, z
+
+
+def depth_buffer(uv: np.ndarray, z: np.ndarray, F: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The z-buffer (height, width) float32 of the triangles ``F`` over vertices projected to ``uv, z``
+    (:func:`project_vertices`), ``inf`` where none covers the pixel: :func:`render_depth`'s, bit for bit, before
+    its empty pixels become 0. Drawing a subset of ``F`` (in their order) leaves the pixels that only those
+    triangles can cover as the whole mesh's."""
+    depth = np.full((height, width), np.inf, dtype=np.float32)
+    _rasterize(uv, z, np.ascontiguousarray(F, dtype=np.int64), width, height, depth, np.empty((0, 0), np.int32),
+               np.empty((0, 0, 3), np.float32), False)
+    return depth
+
+
 def render_silhouette_depth(V: np.ndarray, F: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """:func:`render`'s ``mask`` and ``depth`` alone (the same z-buffer bit for bit), without the triangle ids and
     barycentrics: the mirror's source body needs only its silhouette and depth (MIR12f: ~15 % of a render)."""

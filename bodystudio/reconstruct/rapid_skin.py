@@ -218,7 +218,9 @@ def hull_consistent_constraints(V: np.ndarray, sil: SilhouetteConstraints, field
         todo = known == 0
         keep = known == 1
         if todo.any():
-            part = SilhouetteConstraints(sil.vertex[todo], sil.origin[todo], sil.direction[todo], sil.k[todo])
+            # all undecided (every pass but a reusing one): the constraints as they are, not a copy of them
+            part = sil if todo.all() else SilhouetteConstraints(sil.vertex[todo], sil.origin[todo],
+                                                                sil.direction[todo], sil.k[todo])
             new = _gate_keep(V, part, fields, gate_m, projected)
             keep[todo] = new
             memo[slot[todo]] = np.where(new, 1, 2)

@@ -478,9 +478,9 @@ def _hull_max_range(X, limit, best, lo, hi, R, t, K, dist, has_dist, size, sdf, 
                 s01 = np.float64(field[yi + 1, xi])
                 s11 = np.float64(field[yi + 1, xi + 1])
                 d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
-            r = d * z / f
-            if r > best[i]:
-                best[i] = r
+            # a select, not a branch: whether a later camera raises the max is a coin flip for the branch predictor
+            # (rec15f: 3.3 -> 2.6 ms for a pass's 11.6K targets, the same values)
+            best[i] = max(best[i], d * z / f)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -517,9 +517,7 @@ def _hull_max_at(order, uv, z, K, size_px, sdf, shapes, offsets, margin, chunks)
                     s01 = np.float64(field[yi + 1, xi])
                     s11 = np.float64(field[yi + 1, xi + 1])
                     d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
-                r = d * zc / f
-                if r > best[k]:
-                    best[k] = r
+                best[k] = max(best[k], d * zc / f)  # a select, as in _hull_max_range (1.2 -> 0.7 ms a pass)
     return best
 
 
