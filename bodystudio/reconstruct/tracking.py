@@ -138,6 +138,10 @@ class SilhouetteFields:
         # ``exact=False``: OpenCV's 5x5 chamfer transform (issue 15's frame time: ~2x faster, 5.8 instead of 11.6 ms a
         # frame; within 0.2 px of the exact distance up to 10 px from the contour, 1.6 px at most on a 640x480 view)
         dist_mask = cv2.DIST_MASK_PRECISE if exact else cv2.DIST_MASK_5
+        if not margin_px >= 1:
+            # with no margin a silhouette that fills its box has no outside pixel to measure the inside from: its
+            # inside distances come out ~1e19 and the fit reads them as the data
+            raise InputError(f"tracking: SilhouetteFields margin_px must be >= 1 pixel, got {margin_px}")
         self.margin_px = float(margin_px)
         self.sdf, self.offset = {}, {}
         boxes = []

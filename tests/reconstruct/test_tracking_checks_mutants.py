@@ -326,13 +326,16 @@ def test_sample_at_the_box_edges_and_a_two_pixel_box():
     cam2 = Camera.look_at("c0", (0, 0, 2), (0, 0, 0), fx=100.0, width=W, height=H)
     tiny = np.zeros((H, W), bool)
     tiny[10:12, 20:22] = True
-    f = SilhouetteFields([cam2], {"c0": tiny}, margin_px=0)
-    assert f.sdf["c0"].shape == (2, 2)
-    # (with no margin the box holds no outside pixel, so only points off it are read: the margin, 0)
-    d, g, ok = f.sample(cam2, np.array([[5.0, 5.0], [-1.0, 5.0], [21.0, 10.0]]))
-    np.testing.assert_array_equal(d, [0.0, 0.0, 0.0])
-    np.testing.assert_array_equal(g, 0.0)
-    np.testing.assert_array_equal(ok, [True, False, True])
+    # no margin: a silhouette filling its box has no outside pixel to measure from (its inside read ~1e19): refused
+    with pytest.raises(InputError, match="margin_px must be >= 1"):
+        SilhouetteFields([cam2], {"c0": tiny}, margin_px=0)
+    f = SilhouetteFields([cam2], {"c0": tiny}, margin_px=1)
+    assert f.sdf["c0"].shape == (4, 4)
+    # one pixel of margin: off the box the margin (1), the 2x2 square's pixel centres half a pixel inside
+    d, g, ok = f.sample(cam2, np.array([[5.0, 5.0], [-1.0, 5.0], [20.0, 10.0], [21.0, 11.0]]))
+    np.testing.assert_array_equal(d, [1.0, 1.0, -0.5, -0.5])
+    np.testing.assert_array_equal(g[:3], 0.0)  # flat inside the square; the last one reads the ring beyond it
+    np.testing.assert_array_equal(ok, [True, False, True, True])
 
 
 def test_outside_fraction_beyond_the_box_reads_the_margin_and_the_threshold_is_strict():
