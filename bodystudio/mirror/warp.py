@@ -241,8 +241,9 @@ def _similarity_closed_form(S, v, c, rigid, A, mapped):
 #: How far outside the target body's outline (pixels) the dense warp maps outline onto outline
 #: (:func:`refine_outline`'s ``band_px`` as :func:`mls_warp_field` passes it); farther out nothing of the person
 #: shows. MIR12k: the person's pixels beyond the fitted source body's outline, carried out there by the band (6 px
-#: before) and by MLS farther out, are mostly the fitted bodies' pose and shape errors, not the person: end to end on
-#: sessions 41 / 42 / 43 warp_iou 0.956 / 0.924 / 0.941 -> 0.960 / 0.936 / 0.950 with 1 px (docs/mirror.md).
+#: before) and by MLS farther out, are mostly the fitted bodies' pose and shape errors, not the person: end to end
+#: on sessions 41 / 42 / 43 warp_iou 0.956 / 0.924 / 0.941 -> 0.960 / 0.934 / 0.950 with 1 px, and the warp field
+#: 4.5 -> 1.8 ms CPU on one actor (no MLS solve; docs/mirror.md).
 OUTLINE_BAND_PX = 1.0
 
 
