@@ -64,8 +64,9 @@ RIM_COS = 0.3
 #: the field of ~1200 pairs in 6 instead of 14 ms with the same warp_iou (docs/mirror.md).
 MLS_RADIUS_PX = 32.0
 #: The warp's correspondence by default (``warp.CORRESPONDENCES``): ``dense``, the target body rasterised with
-#: each pixel mapped to the same surface point of the source body and its outline onto the source's outline,
-#: MLS farther out; ``mls``, Eq. 5 from the vertex pairs only. MIR-SYNTH sessions 41 / 42 (docs/mirror.md):
+#: each pixel mapped to the same surface point of the source body and its outline onto the source's outline
+#: (1 px beyond it since MIR12k; MLS farther out before); ``mls``, Eq. 5 from the vertex pairs only. MIR-SYNTH
+#: sessions 41 / 42 (docs/mirror.md):
 #: true-vertex ceiling 0.905 / 0.915 -> 0.958 / 0.981, the pipeline 0.869 / 0.855 -> 0.887 / 0.878, end to end
 #: (41 / 42 / 43) 0.876 / 0.863 / 0.858 -> 0.893 / 0.886 / 0.883, for ~6-7 ms more per frame (6k bodies).
 CORRESPONDENCE = "dense"

@@ -630,8 +630,9 @@ def _premultiplied_rgba(rgb, mask, r0, r1, c0, c1, out):
 
 
 #: Where the warp field comes from: ``dense``, the target body rasterised, each pixel it covers mapped to the
-#: same surface point on the source body, its outline onto the source's outline, MLS (Eq. 5) from the vertex
-#: pairs and the covered grid nodes farther out; ``mls``, Eq. 5 from the sparse vertex pairs everywhere (the paper).
+#: same surface point on the source body, its outline onto the source's outline in a 1 px band, nothing farther out
+#: (MIR12k; before it MLS, Eq. 5, from the vertex pairs and the covered grid nodes beyond a 6 px band); ``mls``,
+#: Eq. 5 from the sparse vertex pairs everywhere (the paper).
 CORRESPONDENCES = ("dense", "mls")
 
 
