@@ -81,8 +81,8 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
 
     field = field_of("similarity")()
     warped, alpha = warp_foreground(case.rgb, fg, field)
-    name = "dense correspondence + MLS outside" if dense else "MLS similarity (handles within 32 px)"
-    other = "MLS similarity (handles within 32 px)" if dense else "dense correspondence + MLS outside"
+    name = "dense correspondence, 1 px outline band" if dense else "MLS similarity (handles within 32 px)"
+    other = "MLS similarity (handles within 32 px)" if dense else "dense correspondence, 1 px outline band"
     out = {
         f"pairs (visibility + projection, rim{', dense' if dense else ''})": _median_ms(pairs, repeats),
         "foreground: graph cut (PyMaxflow)": _median_ms(
@@ -123,10 +123,20 @@ def _accuracy(case) -> dict[str, float]:
     return out
 
 
-def _session_side(quick: bool) -> tuple[list[str], float | None, float | None, float | None]:
+def _refine_steps(n_players: int) -> int:
+    """The run's Gauss-Newton steps per player when it reshapes ``n_players`` (MIR12k; 1 before it)."""
+    try:
+        from bodystudio.mirror.run import refine_steps
+    except ImportError:
+        return 1
+    return refine_steps(n_players)
+
+
+def _session_side(quick: bool) -> tuple[list[str], float | None, float | None, dict | None]:
     """Markdown lines: the session side per frame, from MIR-SYNTH's and MIR-BODY's timing functions; its CPU ms
     per frame split into what the actors share (the depth-to-colour registration) and what each actor costs (IK,
-    skinning its source and target body), and the pose refinement's per actor (``--refine-pose``; None without).
+    skinning its source and target body), and the pose refinement's per actor (``--refine-pose``; None without):
+    ``{players reshaped: CPU ms}``, the run's steps for one player and for two (:func:`_refine_steps`).
 
     A synthetic mirror session is written (as ``synthetic.time_synth_mirror`` does), its observations fitted and
     tracked (``init.time_init_and_track``: the §4 fit, IK and skinning per frame), and the depth-to-colour
@@ -178,17 +188,23 @@ def _session_side(quick: bool) -> tuple[list[str], float | None, float | None, f
                      f"{track['skin_cpu_ms']:.1f}); the §4 initialisation "
                      f"{track['init_cpu_s']:.2f} s CPU over {track['init_frames']} frames. Synthesis: "
                      + ", ".join(f"{k} {v:.2f}" for k, v in synth.items() if isinstance(v, (int, float))) + ".")
-        refine_ms = _refine_pose_ms(session, model, last, frames)
-        if refine_ms is not None:
-            lines.append(f"`--refine-pose`: the pose refinement {refine_ms[0]:.1f} ms CPU ({refine_ms[1]:.1f} wall) "
-                         "per frame, one Gauss-Newton step (the mean shape posed by the IK against the player mask, "
-                         "depth and joints of the last frame).")
-    return (lines, register[0], track["ik_cpu_ms"] + track["bodies_cpu_ms"],
-            None if refine_ms is None else refine_ms[0])
+        refine_ms = {}
+        for players in (1, 2):
+            steps = _refine_steps(players)
+            ms = _refine_pose_ms(session, model, last, frames, steps)
+            if ms is None:
+                break
+            refine_ms[players] = ms[0]
+            lines.append(f"`--refine-pose`, {players} player{'s' if players > 1 else ''} reshaped: the pose "
+                         f"refinement {ms[0]:.1f} ms CPU ({ms[1]:.1f} wall) per frame and player, {steps} "
+                         f"Gauss-Newton step{'s' if steps > 1 else ''} (the mean shape posed by the IK against the "
+                         "player mask, depth and joints of the last frame).")
+    return (lines, register[0], track["ik_cpu_ms"] + track["bodies_cpu_ms"], refine_ms or None)
 
 
-def _refine_pose_ms(session, model, frame, frames) -> tuple[float, float] | None:
-    """CPU and wall ms of :func:`bodystudio.mirror.refine.refine_pose` on ``frame`` (None without the module)."""
+def _refine_pose_ms(session, model, frame, frames, iterations: int = 1) -> tuple[float, float] | None:
+    """CPU and wall ms of :func:`bodystudio.mirror.refine.refine_pose` (``iterations`` Gauss-Newton steps) on
+    ``frame`` (None without the module)."""
     import importlib
 
     try:
@@ -211,7 +227,8 @@ def _refine_pose_ms(session, model, frame, frames) -> tuple[float, float] | None
                               twist_bones=refine.TWIST_BONES)  # the run's plan (MIR12h)
     return _median_ms(lambda: refine.refine_pose(plan, body.skeleton, pose, sensor.color, players == 1,
                                                  tracked.positions, tracked.tracked, points[points[:, 1] > 0.02],
-                                                 (players > 0) & (players != 1), sensor.version), 7)
+                                                 (players > 0) & (players != 1), sensor.version,
+                                                 iterations=iterations), 7)
 
 
 def run(quick: bool = False) -> str:
@@ -256,16 +273,17 @@ def run(quick: bool = False) -> str:
                       f"{totals['1 actor']:.1f} + registration, IK and the bodies {session_ms:.1f}; reading PNG frames "
                       "from disk and writing the outputs not included: a live mirror gets frames from the SDK and "
                       "shows them).", ""]
-            if refine_ms is not None:
-                lines += [f"**With the pose refinement (`--refine-pose`): {end_to_end + refine_ms:.1f} ms "
-                          f"CPU per frame = {1e3 / (end_to_end + refine_ms):.1f} fps** (the same run's figures plus "
-                          f"{refine_ms:.1f}).", ""]
+            one, each = (None, None) if refine_ms is None else (refine_ms[1], refine_ms[2])
+            if one is not None:
+                lines += [f"**With the pose refinement (`--refine-pose`): {end_to_end + one:.1f} ms "
+                          f"CPU per frame = {1e3 / (end_to_end + one):.1f} fps** (the same run's figures plus "
+                          f"{one:.1f}).", ""]
             # two actors: one registration, each actor its own IK, refinement and two skinned bodies
-            two = totals["2 actors"] + register_ms + 2 * (actor_ms + (refine_ms or 0.0))
+            two = totals["2 actors"] + register_ms + 2 * (actor_ms + (each or 0.0))
             lines += [f"**End to end, two actors, one core: {two:.1f} ms CPU per frame = {1e3 / two:.1f} fps** "
-                      f"{'with' if refine_ms is not None else 'without'} the pose refinement (image steps "
+                      f"{'with' if each is not None else 'without'} the pose refinement (image steps "
                       f"{totals['2 actors']:.1f} + registration {register_ms:.1f} + 2 x (IK and the bodies "
-                      f"{actor_ms:.1f}{f' + refinement {refine_ms:.1f}' if refine_ms is not None else ''}); the "
+                      f"{actor_ms:.1f}{f' + refinement {each:.1f}' if each is not None else ''}); the "
                       "per-actor figures are the one-actor session's).", ""]
     except Exception as exc:  # another module's timing helper must not hide these figures
         lines += [f"Session side: its timing helpers failed ({type(exc).__name__}: {exc}).", ""]

@@ -27,10 +27,11 @@ def mirror_run(
                                     "(default SESSION/mirror/run)"),
     player: list[int] | None = typer.Option(None, help="Kinect player id to reshape, 1..6 (default 1); repeat to "
                                             "reshape several players: --player 1 --player 2"),
-    warp: str = typer.Option("similarity", help="MLS variant: affine | similarity | rigid"),
+    warp: str = typer.Option("similarity", help="MLS variant: affine | similarity | rigid (the MLS of "
+                             "--correspondence mls; the dense warp solves no MLS)"),
     correspondence: str = typer.Option("dense", help="warp correspondence: dense (the target body rasterised, "
-                                       "each pixel mapped to the same surface point, outline onto outline; MLS "
-                                       "farther out) | mls (Eq. 5 from vertex pairs only, the paper)"),
+                                       "each pixel mapped to the same surface point, outline onto outline, 1 px "
+                                       "beyond it) | mls (Eq. 5 from vertex pairs only, the paper)"),
     refine_pose: bool = typer.Option(True, "--refine-pose/--no-refine-pose",
                                      help="refine each frame's IK pose (root, swing of spine and limbs) so the "
                                      "projected body fits the foreground, depth and joints (default): warp_iou "

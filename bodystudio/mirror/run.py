@@ -64,11 +64,23 @@ RIM_COS = 0.3
 #: the field of ~1200 pairs in 6 instead of 14 ms with the same warp_iou (docs/mirror.md).
 MLS_RADIUS_PX = 32.0
 #: The warp's correspondence by default (``warp.CORRESPONDENCES``): ``dense``, the target body rasterised with
-#: each pixel mapped to the same surface point of the source body and its outline onto the source's outline,
-#: MLS farther out; ``mls``, Eq. 5 from the vertex pairs only. MIR-SYNTH sessions 41 / 42 (docs/mirror.md):
+#: each pixel mapped to the same surface point of the source body and its outline onto the source's outline
+#: (1 px beyond it since MIR12k; MLS farther out before); ``mls``, Eq. 5 from the vertex pairs only. MIR-SYNTH
+#: sessions 41 / 42 (docs/mirror.md):
 #: true-vertex ceiling 0.905 / 0.915 -> 0.958 / 0.981, the pipeline 0.869 / 0.855 -> 0.887 / 0.878, end to end
 #: (41 / 42 / 43) 0.876 / 0.863 / 0.858 -> 0.893 / 0.886 / 0.883, for ~6-7 ms more per frame (6k bodies).
 CORRESPONDENCE = "dense"
+#: Gauss-Newton steps of the pose refinement (``mirror run --refine-pose``) per frame when the run reshapes one player;
+#: one per player when it reshapes several (:func:`refine_steps`). MIR12k: the dense warp without MLS outside the
+#: body (``warp.OUTLINE_BAND_PX``) took 2.7 ms CPU off a one-actor frame and 5.2 off a two-actor one; a second
+#: step (~2.6 ms an actor) fits a one-player run in that, not two players' at 30 fps. End to end on sessions
+#: 41 / 42 / 43 (one reshaped player each): warp_iou +0.003 / +0.006 / +0.003 (docs/mirror.md).
+REFINE_STEPS_ONE_PLAYER = 2
+
+
+def refine_steps(n_players: int) -> int:
+    """Gauss-Newton steps of each player's pose refinement in a run that reshapes ``n_players`` players."""
+    return REFINE_STEPS_ONE_PLAYER if int(n_players) == 1 else 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -511,6 +523,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         from bodystudio.mirror.frames import point_cloud
         from bodystudio.mirror.refine import TWIST_BONES, refine_plan, refine_pose
 
+        steps = refine_steps(len(actors))
         for a in actors:
             a.plan = refine_plan(a.body.vertices, a.body.faces, a.body.weights, a.body.skeleton, sensor.version,
                                  twist_bones=TWIST_BONES)
@@ -601,7 +614,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
                     fg = foreground if not several else foreground & ~not_mine
                     try:
                         pose = refine_pose(a.plan, a.body.skeleton, pose, camera, fg, tracked.positions,
-                                           tracked.tracked, points, not_mine, sensor.version)
+                                           tracked.tracked, points, not_mine, sensor.version, iterations=steps)
                     except BodyStudioError as exc:  # mirror_stream passes the frame through with this warning
                         who = f" of player {a.player}" if several else ""
                         raise InputError(f"pose refinement{who} failed: {exc}") from exc

@@ -344,8 +344,9 @@ def test_dense_node_grid_of_the_wrong_shape_is_refused():
 
 
 def test_the_dense_correspondence_object_gives_the_nodes_and_the_band():
-    """``dense=`` takes the grid nodes and groups from the object and refines the band with ``band_px`` /
-    ``inner_band_px``: the same as passing the nodes and refining by hand."""
+    """``dense=`` with ``mls_outside``: takes the grid nodes and groups from the object and refines the band with
+    ``band_px`` / ``inner_band_px``: the same as passing the nodes and refining by hand. Without it (the default
+    since MIR12k) only the body and the band are set, every other pixel maps outside, and the band is 1 px."""
     H, W = 40, 110
     d = _straight_edge_case()
     nodes = np.full((20, 55, 2), np.nan, np.float32)
@@ -353,13 +354,14 @@ def test_the_dense_correspondence_object_gives_the_nodes_and_the_band():
     d = DenseCorrespondence(d.origin, d.source_uv, d.source_mask, nodes, np.zeros((20, 55), np.int64))
     s, t = _square_pairs(30.0, 20.0, 6.0, [1.0, 1.0])
     got = mls_warp_field(s, t, shape=(H, W), grid=(20, 55), kind="similarity", dense=d, band_px=3.0,
-                         inner_band_px=2.0)
+                         inner_band_px=2.0, mls_outside=True)
     by_hand = mls_warp_field(s, t, shape=(H, W), grid=(20, 55), kind="similarity", dense_src_uv=nodes)
     refine_outline(by_hand, d, 3.0, 2.0)
     np.testing.assert_array_equal(got, by_hand)
+    assert (by_hand[30:, :5] != OUTSIDE_PX).any()  # the MLS solve reaches past the band
     default = mls_warp_field(s, t, shape=(H, W), grid=(20, 55), kind="similarity", dense=d)
-    by_hand = mls_warp_field(s, t, shape=(H, W), grid=(20, 55), kind="similarity", dense_src_uv=nodes)
-    refine_outline(by_hand, d, 6.0, 8.0)
+    by_hand = np.full((H, W, 2), OUTSIDE_PX, np.float32)
+    refine_outline(by_hand, d, 1.0, 8.0)
     np.testing.assert_array_equal(default, by_hand)
 
 

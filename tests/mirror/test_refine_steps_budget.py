@@ -1,0 +1,42 @@
+"""MIR12k: the pose refinement takes two Gauss-Newton steps when the run reshapes one player, one per player when it
+reshapes several (the second step paid for by the dense warp's dropped MLS solve; two players keep 30 fps)."""
+
+import numpy as np
+import pytest
+
+from bodystudio.mirror import run as run_mod
+from bodystudio.mirror.refine import ITERATIONS
+
+
+def test_one_player_gets_two_steps_several_get_one_each():
+    assert ITERATIONS == 1  # refine_pose's own default stays one step (init, oracle scripts)
+    assert run_mod.REFINE_STEPS_ONE_PLAYER == 2
+    assert run_mod.refine_steps(1) == 2
+    assert [run_mod.refine_steps(n) for n in (2, 3, 6)] == [1, 1, 1]
+
+
+@pytest.mark.parametrize("several", [False, True])
+def test_session_inputs_pass_the_steps_to_every_refinement(monkeypatch, several):
+    """The frames' ``late_pairs`` refine each present player's pose with ``refine_steps(players reshaped)`` steps."""
+    from test_run_mutants import _two_player_session
+
+    from bodystudio.mirror import frames as frames_mod
+    from bodystudio.mirror import refine as refine_mod
+
+    session, b1, b2, model, rec, blocks, spec = _two_player_session(monkeypatch)
+    for b in (b1, b2):
+        b.weights = f"w{b.p}"
+    monkeypatch.setattr(refine_mod, "refine_plan", lambda *a, **kw: "plan")
+    monkeypatch.setattr(frames_mod, "point_cloud", lambda frame, sensor, p: np.array([[0.0, 0.5, 2.0]]))
+    steps = []
+
+    def refine_pose(*args, iterations=refine_mod.ITERATIONS, **kwargs):
+        steps.append(iterations)
+        return args[2]
+
+    monkeypatch.setattr(refine_mod, "refine_pose", refine_pose)
+    players, bodies = ([1, 2], [b1, b2]) if several else (1, b1)
+    for o in run_mod.session_inputs(session, bodies, model, {"taller": 1.0}, players, 2, [0, 5], refine=True):
+        if o.late_pairs is not None:
+            o.late_pairs(np.ones(o.rgb.shape[:2], bool), {})
+    assert steps and set(steps) == ({1} if several else {2})
