@@ -46,6 +46,8 @@ _FD_STEP = {"stature_m": 0.01, "mass_kg": 1.0, "chest_m": 0.01, "waist_m": 0.01,
             "arm_length_m": 0.01, "leg_length_m": 0.01}
 _TOLERANCE = {"stature_m": 5e-4, "mass_kg": 0.1, "chest_m": 2e-3, "waist_m": 2e-3, "hip_m": 2e-3,
               "arm_length_m": 1e-3, "leg_length_m": 1e-3}
+# an edit that ends more than this many tolerances off a target is refused (``edit``): 2.5 mm of stature, 0.5 kg
+_REACH_FACTOR = 5.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -188,23 +190,51 @@ class StatisticalBodyModel:
             names = tuple(n for n in MESH_ATTRIBUTE_NAMES if n in deltas)
         before = self.measure(c0)
         targets = {n: before[n] + float(deltas.get(n, 0.0)) for n in names}
-        return self._match_measured(c0 + step @ self.semantic_directions, targets, iterations)
+        c, residual = self._match_measured(c0 + step @ self.semantic_directions, targets, iterations,
+                                           with_residual=True)
+        if iterations > 0:
+            # A wrong body with exit 0 is the worst answer: an edit the shape space cannot make with the other
+            # measurements held (e.g. 17 cm shorter at the same leg length) is refused, not returned half-made.
+            tol = np.array([_TOLERANCE[n] for n in targets])
+            off = np.abs(residual) / (_REACH_FACTOR * tol)
+            if off.max() > 1.0:
+                worst = list(targets)[int(np.argmax(off))]
+                asked = ", ".join(f"{n} {v:+g}" for n, v in deltas.items())
+                raise InputError(f"edit ({asked}) is not reachable for this body with the other measurements "
+                                 f"{'held' if others == 'held' else 'following'}: {worst} ends "
+                                 f"{-residual[list(targets).index(worst)]:+.3g} off its target; use a smaller edit")
+        return c
 
-    def _match_measured(self, c: np.ndarray, targets: dict[str, float], iterations: int = 5) -> np.ndarray:
-        """Newton steps along the targets' semantic directions until the measured attributes equal ``targets``."""
+    def _match_measured(self, c: np.ndarray, targets: dict[str, float], iterations: int = 5,
+                        with_residual: bool = False):
+        """Newton steps along the targets' semantic directions until the measured attributes equal ``targets``.
+
+        Each step is the full Gauss-Newton step when it lowers the residual (in units of each attribute's
+        tolerance), else halved up to three times; with none lowering it the iteration stops at the best body
+        so far (a full step far from a reachable target once made a -45000 kg body). ``with_residual``: also
+        return ``targets - measured`` of the returned coefficients.
+        """
         names = list(targets)
         goal = np.array([targets[n] for n in names])
         tol = np.array([_TOLERANCE[n] for n in names])
         h = np.array([_FD_STEP[n] for n in names])
         D = self.semantic_directions[[self.attribute_names.index(n) for n in names]]
+        m = self._mesh_attributes(c, names)
         for _ in range(iterations):
-            m = self._mesh_attributes(c, names)
             residual = goal - m
             if np.all(np.abs(residual) < tol):
                 break
             J = np.stack([(self._mesh_attributes(c + h[j] * D[j], names) - m) / h[j] for j in range(len(names))], 1)
-            c = c + np.linalg.lstsq(J, residual, rcond=None)[0] @ D
-        return c
+            step = np.linalg.lstsq(J, residual, rcond=None)[0] @ D
+            cost = np.linalg.norm(residual / tol)
+            for alpha in (1.0, 0.5, 0.25, 0.125):
+                m_try = self._mesh_attributes(c + alpha * step, names)
+                if np.linalg.norm((goal - m_try) / tol) < cost:
+                    c, m = c + alpha * step, m_try
+                    break
+            else:
+                break
+        return (c, goal - m) if with_residual else c
 
     def _mesh_attributes(self, c: np.ndarray, names: list[str]) -> np.ndarray:
         m = self.measure(c)

@@ -194,3 +194,9 @@ def test_cli_init_silhouette_shape_on_a_small_mirror_session(tmp_path, capfd):
     assert on["silhouette_shape"] is True and off["silhouette_shape"] is False
     assert abs(on["stature_m"] - off["stature_m"]) < 0.003 and abs(on["mass_kg"] - off["mass_kg"]) < 0.5
     assert np.abs(on["coeffs"] - off["coeffs"]).max() > 1e-4
+
+
+def test_an_edit_the_body_cannot_take_is_refused(model):
+    """A target the shape space cannot make with the other measurements held: one line, never a half-made body."""
+    with pytest.raises(InputError, match=r"edit \(stature_m -0.3\) is not reachable .* use a smaller edit"):
+        target_coeffs(model, np.zeros(model.n_components), {"taller": -0.3})

@@ -28,6 +28,8 @@ from .conftest import run_bad
     (["--frames", "100000"], "--frames 100000: must be in"),
     (["--kinect", "v3"], "--kinect 'v3': valid: v1, v2"),
     (["--motion", "dance"], "--motion 'dance': valid:"),
+    # in range but not reachable for subject 3 with the other measurements held (body.statistical's edit)
+    (["--taller", "-0.3"], "edit (stature_m -0.3) is not reachable for this body"),
     (["--subject-seed", "-1"], "--subject-seed -1: must be in"),
     (["--seed", "-3"], "--seed -3: must be in"),
 ])
