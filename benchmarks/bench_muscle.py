@@ -213,11 +213,13 @@ def _change_pct(before: dict, after: dict) -> float:
 #: (every subject male: the model before sex became an input)
 EXTENSION_VARIANTS = (("captured_nosex", "captures, no sex"), ("captured_mesh", "captures, with sex, mesh rows"),
                       ("captured_linear", "captures, with sex, linear shape term (before the body form)"),
+                      ("captured_weight_regressed", "captures, with sex, weight macro regressed (before the ninth "
+                                                    "pass)"),
                       ("captured", "captures, with sex"),
                       ("truth_nosex", "truth meshes, no sex"), ("truth", "truth meshes, with sex"))
 #: the original model each variant's change is measured against (default "original": the training men in the run's
 #: shape form; "original_linear": the prepared model, the linear Eq. 6-7)
-VARIANT_BASELINE = {"captured_linear": "original_linear"}
+VARIANT_BASELINE = {"captured_linear": "original_linear", "captured_weight_regressed": "original_weight_regressed"}
 
 
 CENTRE_WORDS = {"fitted": "the capture's fitted shoulder", "regressed": "the model's regressed shoulder",
@@ -230,9 +232,11 @@ REST_WORDS = {"mesh": "", "body": ", taken as its nearest arm of the body model'
 
 FORM_WORDS = {"linear": "", "body": (
     "in the body form of the shape term (`--extension-shape-form body`: the rows' body-space parameters regressed on "
-    "the shape numbers, the rest mesh through the body model, a linear term for the rest; the original model's rows "
-    "refitted in the same form; the column 'linear shape term' is the same captures in the linear Eq. 6-7, measured "
-    "against the prepared model) ")}
+    "the shape numbers, the weight macro solved from the BMI through the body model's own measurement, the rest mesh "
+    "through the body model, a linear term for the rest; the original model's rows refitted in the same form; the "
+    "column 'linear shape term' is the same captures in the linear Eq. 6-7, measured against the prepared model; "
+    "'weight macro regressed' the body form with the weight macro regressed on the numbers, against its own "
+    "original) ")}
 
 
 def extension_section(data: dict) -> str:
@@ -488,6 +492,11 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
         extended["captured_mesh"] = extend_arm_model(original, ext_samples, captured_rest="mesh")
     if shape_form != prepared.shape_form:
         extended["captured_linear"] = extend_arm_model(prepared, ext_samples, captured_rest=captured_rest)
+    weight_regressed = None  # the body form before the ninth pass: the weight macro regressed on the numbers
+    if original.shape_form == "body" and original.body_weight != "regressed":
+        weight_regressed = with_shape_form(prepared, "body", body_weight="regressed")
+        extended["captured_weight_regressed"] = extend_arm_model(weight_regressed, ext_samples,
+                                                                 captured_rest=captured_rest)
     held = []
     cases = [(name, seed, label) for name, seeds in HELD_OUT_SETS for seed, label in zip(seeds, labels, strict=True)]
     for name, seed, label in [*cases, ("", IN_RANGE_SEED, "in range")]:
@@ -499,6 +508,8 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
                "original_linear": model_error_mm(prepared, test, use_sample_joints=True),
                "original_regressed": model_error_mm(original, test, fit_translation=True),
                "extended_regressed": model_error_mm(extended["captured"], test, fit_translation=True)}
+        if weight_regressed is not None:
+            row["original_weight_regressed"] = model_error_mm(weight_regressed, test, use_sample_joints=True)
         for key, m in extended.items():
             row[key] = model_error_mm(m, _without_sex(test) if key.endswith("nosex") else test,
                                       use_sample_joints=True)

@@ -357,10 +357,10 @@ def model_extend(
                                       "from the body model) | mesh (the captured rest mesh as it is); "
                                       "docs/muscle.md"),
     shape_form: str = typer.Option("body", "--shape-form", help="the extended model's shape term: body (the rows' "
-                                   "body-space parameters regressed on the shape numbers, the rest mesh made by the "
-                                   "body model, a linear term for what it leaves; a linear MODEL's rows are refitted "
-                                   "so) | linear (the paper's Eq. 6-7: one linear map from the shape numbers to the "
-                                   "vertices); docs/muscle.md"),
+                                   "body-space parameters regressed on the shape numbers, the weight macro solved from "
+                                   "the BMI, the rest mesh made by the body model, a linear term for what it "
+                                   "leaves; a linear MODEL's rows are refitted so) | linear (the paper's Eq. 6-7: "
+                                   "one linear map from the shape numbers to the vertices); docs/muscle.md"),
 ) -> None:
     """Dataset extension (issue 11 §4): add captured subjects to a model and re-learn it.
 
@@ -471,6 +471,7 @@ def model_info(model_path: Path = typer.Argument(..., metavar="MODEL", help="arm
     model = load_arm_model(model_path)
     info = {"template_key": model.template_key, "version": model.version, "n_vertices": model.n_vertices,
             "regularization": model.regularization, "shape_form": model.shape_form,
+            **({"body_weight": model.body_weight} if model.shape_form == "body" else {}),
             "n_subjects": len(model.subjects),
             "shape_range": model.shape_range() if model.subjects else {}, "subjects": model.subjects}
     typer.echo(json.dumps(info, indent=2))

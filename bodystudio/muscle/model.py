@@ -111,6 +111,13 @@ BODY_FORM_INPUTS = {"gender": ("sex",), "muscle": ("muscularity",),
 # keeps ``sex_regularization``): chosen on set C, x1 / x3 -> extended with ground-truth meshes 6.45 / 6.07 mm mean
 # (in range 3.97 / 3.82 mm); the macros of ten training men are a noisy function of the numbers (docs/muscle.md).
 BODY_FORM_REGULARIZATION_SCALE = 3.0
+# The body form's weight macro: "regressed", on ``BODY_FORM_INPUTS["weight"]`` (the eighth pass's); "bmi", solved per
+# query from the subject's BMI through the body model's own measurement (:func:`body_weight_for_bmi`: the 6k body's
+# mass from its volume over its stature squared, as the subjects are measured) at its other regressed parameters.
+# MakeHuman's BMI is not linear in its weight and muscle macros. Measured on set C (docs/muscle.md, "Dataset extension,
+# ninth pass"): the solution alone against an offset regressed on it (intercept / the weight's four inputs).
+BODY_WEIGHT_CHOICES = ("regressed", "bmi")
+BODY_FORM_WEIGHT = "bmi"
 
 
 def parse_sex(value, source: str = "sex") -> float:
@@ -242,6 +249,9 @@ class ArmModel:
     shape_form: str = "linear"
     shape_params: np.ndarray | None = None
     body_coeffs: np.ndarray | None = None
+    # The body form's weight macro (:data:`BODY_WEIGHT_CHOICES`): "bmi", solved from the BMI (``body_coeffs``' weight
+    # column zero); "regressed", Eq. 7 on its inputs.
+    body_weight: str = "regressed"
 
     @property
     def n_vertices(self) -> int:
@@ -308,7 +318,10 @@ def fit_body_form(model: ArmModel, rows: np.ndarray, residuals: np.ndarray,
     parameters ``params`` (R, P; standardised by the population prior), each on its own inputs
     (:func:`body_form_columns`) -> ``body_coeffs``, then Eq. 7 on what the
     body model's arm at the *regressed* parameters leaves of each row (``v_base + d_l + residual`` minus it) ->
-    ``shape_coeffs``. Returns ``(body_coeffs, shape_coeffs)``."""
+    ``shape_coeffs``. Returns ``(body_coeffs, shape_coeffs)``.
+
+    With ``model.body_weight == "bmi"`` the weight macro is not regressed (its column is zero): the regressed
+    parameters take the weight that gives the row's BMI at their other parameters (:func:`body_weight_for_bmi`)."""
     space = body_space_for_model(model)
     mean, sigma = space.prior()
     X = body_form_design(model, rows)
@@ -317,14 +330,27 @@ def fit_body_form(model: ArmModel, rows: np.ndarray, residuals: np.ndarray,
     U = (np.asarray(params) - mean) / sigma
     A = np.zeros((X.shape[1], U.shape[1]))
     for p in range(U.shape[1]):
-        cols = body_form_columns(p)
+        cols = body_form_columns(p, model.body_weight)
+        if not cols:
+            continue
         A[cols, p] = np.linalg.solve(X[:, cols].T @ X[:, cols] + np.diag(q2[cols]), X[:, cols].T @ U[:, p])
     left = np.empty_like(residuals)
     for i, (row, r) in enumerate(zip(rows, residuals, strict=True)):
         shape = ArmShapeParams.from_vector(row[:4], sex=row[4])
         rest = model.base_vertices + length_displacements(model, shape) + r.reshape(-1, 3)
-        left[i] = (rest - space.rest_and_joints(mean + sigma * (X[i] @ A))[0]).ravel()
+        x = _body_parameters(space, model.body_weight, X[i] @ A, shape.bmi)
+        left[i] = (rest - space.rest_and_joints(x)[0]).ravel()
     return A, fit_shape_coefficients(model, rows, left)
+
+
+def _body_parameters(space: BodyShapeSpace, body_weight: str, u: np.ndarray, bmi: float) -> np.ndarray:
+    """Body-space parameters from the regressed standardised ones ``u`` (P,); "bmi": the weight macro solved."""
+    mean, sigma = space.prior()
+    x = mean + sigma * u
+    if body_weight == "bmi":
+        w = BODY_MACRO_NAMES.index("weight")
+        x[w] = body_weight_for_bmi(space, x, bmi)
+    return x
 
 
 def body_form_design(model: ArmModel, rows: np.ndarray) -> np.ndarray:
@@ -333,11 +359,14 @@ def body_form_design(model: ArmModel, rows: np.ndarray) -> np.ndarray:
     return np.c_[X, X[:, 1] * X[:, 2]]
 
 
-def body_form_columns(p: int) -> list[int]:
+def body_form_columns(p: int, body_weight: str = "regressed") -> list[int]:
     """The columns of :func:`body_form_design` that body-space parameter ``p`` is regressed on
-    (:data:`BODY_FORM_INPUTS`; the intercept alone for a parameter not listed there)."""
+    (:data:`BODY_FORM_INPUTS`; the intercept alone for a parameter not listed there; none for the weight macro with
+    ``body_weight == "bmi"``, which :func:`body_weight_for_bmi` solves)."""
     names = (*SHAPE_NAMES, "sex", "bmi*muscularity")
     inputs = BODY_FORM_INPUTS.get(BODY_MACRO_NAMES[p], ()) if p < len(BODY_MACRO_NAMES) else ()
+    if body_weight == "bmi" and p < len(BODY_MACRO_NAMES) and BODY_MACRO_NAMES[p] == "weight":
+        return []
     return [0, *(1 + names.index(n) for n in inputs)]
 
 
@@ -385,9 +414,12 @@ def shape_displacements(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
 
 def regressed_body_parameters(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
     """The body-space parameters (P,) the body form regresses from the five shape numbers: Eq. 6's design row times
-    ``model.body_coeffs``, in units of the population prior's spread about its mean (:meth:`BodyShapeSpace.prior`)."""
-    mean, sigma = body_space_for_model(model).prior()
-    return mean + sigma * (body_form_design(model, shape.as_row())[0] @ model.body_coeffs)
+    ``model.body_coeffs``, in units of the population prior's spread about its mean (:meth:`BodyShapeSpace.prior`);
+    with ``model.body_weight == "bmi"`` the weight macro is :func:`body_weight_for_bmi` at the other regressed
+    parameters plus the regressed offset."""
+    space = body_space_for_model(model)
+    return _body_parameters(space, model.body_weight, body_form_design(model, shape.as_row())[0] @ model.body_coeffs,
+                            shape.bmi)
 
 
 def body_form_rest_vertices(model: ArmModel, shape: ArmShapeParams) -> np.ndarray:
@@ -681,18 +713,25 @@ def extend_arm_model(model: ArmModel, captures: list[ArmSample], source: str = "
                          body_space=space if captured_rest == "body" else None, prior_weight=prior_weight)
 
 
-def with_shape_form(model: ArmModel, shape_form: str) -> ArmModel:
+def with_shape_form(model: ArmModel, shape_form: str, body_weight: str | None = None) -> ArmModel:
     """``model`` with its shape term in ``shape_form`` (:data:`SHAPE_FORMS`), learned from its own stored rows (a
-    linear model's rows are projected into the body space for the body form; the other terms are unchanged)."""
+    linear model's rows are projected into the body space for the body form; the other terms are unchanged).
+    ``body_weight``: the body form's weight macro (:data:`BODY_WEIGHT_CHOICES`; None: a body-form model's own, else
+    :data:`BODY_FORM_WEIGHT`)."""
     if shape_form not in SHAPE_FORMS:
         raise InputError(f"shape_form={shape_form!r} must be one of {', '.join(SHAPE_FORMS)}")
-    if shape_form == model.shape_form:
+    if body_weight is not None and body_weight not in BODY_WEIGHT_CHOICES:
+        raise InputError(f"body_weight={body_weight!r} must be one of {', '.join(BODY_WEIGHT_CHOICES)}")
+    if shape_form == model.shape_form and (shape_form == "linear" or body_weight in (None, model.body_weight)):
         return model
     if shape_form == "linear":
-        return replace(model, shape_form="linear", shape_params=None, body_coeffs=None,
+        return replace(model, shape_form="linear", shape_params=None, body_coeffs=None, body_weight="regressed",
                        shape_coeffs=fit_shape_coefficients(model, model.shape_rows, model.shape_residuals))
-    params = shape_row_parameters(model, model.shape_rows, model.shape_residuals)
-    converted = replace(model, shape_form="body", shape_params=params)
+    if model.shape_form == "body":
+        params = model.shape_params
+    else:
+        params = shape_row_parameters(model, model.shape_rows, model.shape_residuals)
+    converted = replace(model, shape_form="body", shape_params=params, body_weight=body_weight or BODY_FORM_WEIGHT)
     body_coeffs, shape_coeffs = fit_body_form(converted, model.shape_rows, model.shape_residuals, params)
     return replace(converted, body_coeffs=body_coeffs, shape_coeffs=shape_coeffs)
 
@@ -713,6 +752,7 @@ def save_arm_model(path: str | os.PathLike, model: ArmModel) -> None:
     if model.shape_form == "body":
         body = {"shape_params": model.shape_params, "body_coeffs": model.body_coeffs}
         header["body_space"] = {"local_targets": list(body_space_for_model(model).local_names)}
+        header["body_weight"] = model.body_weight
     with atomic_write(path, "wb") as f:
         np.savez_compressed(f, header=np.array(json.dumps(header)), **{k: getattr(model, k) for k in _ARRAYS}, **body)
 
@@ -765,7 +805,11 @@ def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None)
                 or coeffs.shape != (3 + SHAPE_REGRESSORS, params.shape[1]) or not np.isfinite(coeffs).all():
             raise FileFormatError(f"{path}: arm model of the body form lacks consistent shape_params / body_coeffs; "
                                   "rebuild the model")
-        body = {"shape_params": params, "body_coeffs": coeffs}
+        weight = header.get("body_weight", "regressed")  # files before the ninth pass: the regressed weight
+        if weight not in BODY_WEIGHT_CHOICES:
+            raise FileFormatError(f"{path}: arm model body_weight {weight!r} is not one of "
+                                  f"{', '.join(BODY_WEIGHT_CHOICES)}; rebuild the model")
+        body = {"shape_params": params, "body_coeffs": coeffs, "body_weight": weight}
     else:
         body = {}
     model = ArmModel(header["template_key"], **{k: arrays[k] for k in _ARRAYS if k != "arm_mask"},
@@ -1021,3 +1065,85 @@ def project_to_body_space(space: BodyShapeSpace, rest: np.ndarray, joints: np.nd
         x += np.linalg.solve(G.T @ G + np.diag(lam), -(G.T @ r) - lam * (x - prior_mean))
         x[:len(BODY_MACRO_NAMES)] = np.clip(x[:len(BODY_MACRO_NAMES)], 0.0, 1.0)
     return x
+
+
+@lru_cache(maxsize=4)
+def _body_measure(local_names: tuple) -> tuple:
+    """What :func:`body_space_bmi` needs of the 6k body (the resolution :func:`measure_arm_shape` measures): its rest
+    vertices (n, 3), the targets' deltas on them (3n, K) (the macro targets, then each local target of the space with
+    its other-side twin: a local modifier moves both sides), the columns of the local twins, the faces closed over its
+    boundary loops and those loops."""
+    import igl
+    import scipy.sparse as sp
+
+    from bodystudio.body.makehuman import load_base, load_targets
+    from bodystudio.body.measure import close_boundary_loops
+    from bodystudio.body.model import template_topology
+
+    base = load_base()
+    lib = load_targets(len(base.vertices))
+    ids, faces = template_topology("6k")
+    ids = np.asarray(ids)
+    macro = [n for n in lib.names if n.startswith("macrodetails/")]
+    names, local_cols = list(macro), []
+    for n in local_names:
+        head, _, tail = n.rpartition("/")
+        twin = {"l-": "r-", "r-": "l-"}.get(tail[:2])
+        twin = f"{head}/{twin}{tail[2:]}" if twin else None
+        cols = [len(names)]
+        names.append(n)
+        if twin is not None and twin in lib._row:
+            cols.append(len(names))
+            names.append(twin)
+        local_cols.append(cols)
+    rows = (3 * ids[:, None] + np.arange(3)).ravel()
+    D = sp.csr_matrix(lib.matrix(names))[rows]
+    V0 = np.asarray(base.vertices, np.float64)[ids]
+    F = np.ascontiguousarray(faces, dtype=np.int64)
+    loops = [np.asarray(loop, dtype=np.int64) for loop in igl.boundary_loop_all(F) if len(loop) >= 3]
+    Fc = close_boundary_loops(V0, F)[1]
+    return V0, D, macro, local_cols, Fc, loops
+
+
+def body_space_bmi(space: BodyShapeSpace, x: np.ndarray) -> tuple[float, float]:
+    """(BMI, stature m) of the body at body-space parameters ``x``, measured as :func:`measure_arm_shape` measures a
+    subject (the 6k body's mass from its enclosed volume, its stature): the body model's own measurement. Local
+    targets outside the space are zero."""
+    from bodystudio.body.measure import BODY_DENSITY_KG_M3, enclosed_volume
+
+    V0, D, macro, local_cols, Fc, loops = _body_measure(tuple(space.local_names))
+    x = np.asarray(x, np.float64)
+    w = np.zeros(D.shape[1])
+    w[:len(macro)] = space.macro_weights(x)  # the space's macro targets are the same list (:func:`_body_shape_space`)
+    for cols, v in zip(local_cols, x[len(BODY_MACRO_NAMES):], strict=True):
+        w[cols] = v
+    V = V0 + (D @ w).reshape(-1, 3)
+    stature = float(V[:, 1].max() - V[:, 1].min())
+    Vc = np.vstack([V, *(V[loop].mean(0, keepdims=True) for loop in loops)])
+    return enclosed_volume(Vc, Fc) * BODY_DENSITY_KG_M3 / stature ** 2, stature
+
+
+def body_weight_for_bmi(space: BodyShapeSpace, x: np.ndarray, bmi: float) -> float:
+    """The weight macro in [0, 1] whose body, at the other parameters of ``x``, has BMI ``bmi`` through
+    :func:`body_space_bmi` (Brent's method; 0 or 1 where the BMI is out of the body model's reach there): the weight
+    a subject of that BMI has in the body model, as MakeHuman's weight and muscle macros make BMI non-linearly."""
+    return _body_weight_for_bmi(space, np.asarray(x, np.float64).tobytes(), round(float(bmi), 9))
+
+
+@lru_cache(maxsize=4096)
+def _body_weight_for_bmi(space: BodyShapeSpace, key: bytes, bmi: float) -> float:
+    from scipy.optimize import brentq
+
+    x = np.frombuffer(key, dtype=np.float64).copy()
+    w = BODY_MACRO_NAMES.index("weight")
+
+    def excess(v):
+        x[w] = v
+        return body_space_bmi(space, x)[0] - bmi
+
+    lo, hi = excess(0.0), excess(1.0)
+    if lo >= 0.0:
+        return 0.0
+    if hi <= 0.0:
+        return 1.0
+    return float(brentq(excess, 0.0, 1.0, xtol=1e-4, rtol=1e-6, maxiter=30))
