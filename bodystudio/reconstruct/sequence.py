@@ -48,6 +48,7 @@ from bodystudio.reconstruct.evaluate import (
     visible_vertices,
 )
 from bodystudio.reconstruct.plausibility import coherence_frames, frame_plausibility, run_plausibility
+from bodystudio.reconstruct.pose_depth import DEPTH_BONES, bone_vertices, combined_data_term, depth_data_term
 from bodystudio.reconstruct.pose_init import (
     initialise_pose,
     joints_from_mapping,
@@ -218,7 +219,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         refine_with: str = "fields", rest_cotangents: bool = True,
                         refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence",
                         joint_smoothing: int = 0, accept_implausible: bool = False, shape_prior: str = "off",
-                        shape_prior_outer: int = 0, shape_prior_first_outer: int = 0) -> dict:
+                        shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
+                        refine_depth: float = 0.0, refine_depth_bones="neck") -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
@@ -236,6 +238,9 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     measured in docs/reconstruct.md): ``frame`` fits the statistical body model's shape space to each frame's
     deformation and runs Algorithm 1 again from that shape (``shape_prior_outer`` re-matchings, 0: the
     frame's own), ``run`` starts every later frame from the mean shape fitted to the frames before it.
+    ``refine_depth`` (issue 15's neck front; 0: off) weights the Kinect's point-to-plane residuals in the pose
+    refinement beside the silhouettes (:mod:`bodystudio.reconstruct.pose_depth`; with depth constraints), of
+    the vertices of ``refine_depth_bones`` (``neck``: the neck and head, default; ``all``; or bone names).
     """
     from bodystudio.capture.session import open_session
 
@@ -266,7 +271,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    bone_lengths=bone_lengths, joint_smoothing=joint_smoothing,
                                    accept_implausible=accept_implausible, shape_prior=shape_prior,
                                    shape_prior_outer=shape_prior_outer,
-                                   shape_prior_first_outer=shape_prior_first_outer)
+                                   shape_prior_first_outer=shape_prior_first_outer, refine_depth=refine_depth,
+                                   refine_depth_bones=refine_depth_bones)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -280,8 +286,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        track_params: TrackParams | None = None, refine_with: str = "fields",
                        rest_cotangents: bool = True, refine_params: PoseRefineParams | None = None,
                        bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True,
-                       shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0
-                       ) -> dict:
+                       shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
+                       refine_depth: float = 0.0, refine_depth_bones="neck") -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -335,6 +341,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                          "iterations")
     if not 0 <= int(shape_prior_outer) <= 100:
         raise InputError(f"shape_prior_outer {shape_prior_outer}: give 0 (the run's No) to 100 outer iterations")
+    if not (np.isfinite(refine_depth) and 0.0 <= refine_depth <= 1000.0):
+        raise InputError(f"refine_depth {refine_depth:g}: give a weight in [0, 1000] (0: the refinement fits the "
+                         "silhouettes only)")
     if shape_prior not in SHAPE_PRIORS:
         raise InputError(f"unknown shape prior {shape_prior!r}; valid: {', '.join(SHAPE_PRIORS)}")
     shape_model = load_statistical_model(TEMPLATES[template], progress=False) if shape_prior != "off" else None
@@ -345,6 +354,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     shape_sum, n_seen = body.vertices.copy(), 1
     hull_pose = None
     fit_body = build_body(resolution="2k") if refine_pose or joints == "hull" or tracking else None
+    depth_rows = None
+    if refine_depth > 0 and fit_body is not None and refine_depth_bones != "all":
+        depth_rows = bone_vertices(fit_body, DEPTH_BONES if refine_depth_bones == "neck" else refine_depth_bones)
     state = None  # the previous frame's (bone transforms, global scale, tracker joints, silhouette energy)
     records = []
     probe = coherence_frames(len(selected))
@@ -397,6 +409,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                         init = pose_template(body, T, state["scale"], rest_vertices=rest)
                 t_track = time.perf_counter() - t1
             hull = None
+            depth = None
             t_refine = 0.0
             if init is None:
                 if joints == "hull":
@@ -411,8 +424,14 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                     # The template and the refinement's 2.5K template share one skeleton, so the corrected
                     # bone transforms pose the template directly.
                     if refine_with == "fields":
+                        term = silhouette_data_term(fields, track_params)
+                        if refine_depth > 0 and depth_image is not None:
+                            # issue 15: the depth sees the neck's front, which the silhouettes do not
+                            depth = depth_observation(depth_image, sensor.depth)
+                            term = combined_data_term(term, depth_data_term(depth, fit_body.faces, refine_depth,
+                                                                             vertices=depth_rows))
                         T = refine_bone_transforms(fit_body, init.bone_transforms, None, refine_params,
-                                                   data_term=silhouette_data_term(fields, track_params))
+                                                   data_term=term)
                     else:
                         if hull is None:
                             hull = visual_hull(cameras, masks)
@@ -439,7 +458,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             # regions no silhouette sees are not baked in and carried from frame to frame.
             reference = init.vertices if rest is body.vertices else pose_template(body, init.bone_transforms).vertices
             t_init = time.perf_counter() - t0
-            depth = depth_observation(depth_image, sensor.depth) if depth_image is not None else None
+            if depth is None and depth_image is not None:
+                depth = depth_observation(depth_image, sensor.depth)
             if "silhouette" not in params.constraints:
                 masks = None
             if shape_model is not None and shape_prior == "run" and shape_coeffs:
@@ -521,7 +541,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "refine_with": refine_with, "rest_cotangents": rest_cotangents, "bone_lengths": bone_lengths,
                    "joint_smoothing": int(joint_smoothing), "shape_prior": shape_prior,
                    "shape_prior_outer": int(shape_prior_outer),
-                   "shape_prior_first_outer": int(shape_prior_first_outer),
+                   "shape_prior_first_outer": int(shape_prior_first_outer), "refine_depth": float(refine_depth),
                    "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
                    "params": asdict(params), "n_vertices": int(len(body.vertices)),
                    "track_params": asdict(track_params) if tracking else None,

@@ -1,0 +1,86 @@
+"""reconstruct_session's ``refine_depth`` wiring (issue 15's neck front): the pose refinement gets the Kinect's
+depth term beside the silhouettes' with the given weight, only where depth constraints are on, and run.json
+records it. The depth term itself is tested in test_pose_depth_neck.py."""
+
+import json
+import tempfile
+from pathlib import Path
+
+import pytest
+
+import bodystudio.reconstruct.sequence as sequence
+from bodystudio.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def session_3():
+    from bodystudio.capture.synth import synth_session
+
+    return synth_session(Path(tempfile.mkdtemp(prefix="rdw-")) / "walk", n_cameras=2, n_frames=3, motion="walk",
+                         subject_seed=23, resolution=(160, 120), template="2k", noise=False, kinect="v2").path
+
+
+def _record(monkeypatch):
+    calls = {"depth": [], "rows": []}
+    real_depth_term = sequence.depth_data_term
+
+    def depth_term(obs, F, weight, vertices=None):
+        calls["depth"].append((obs, weight))
+        calls["vertices"] = vertices
+        inner = real_depth_term(obs, F, weight, vertices=vertices)
+
+        def term(V, N):
+            out = inner(V, N)
+            calls["rows"].append(("depth", len(out[0])))
+            return out
+
+        return term
+
+    def refine(body, T, hull, params, data_term=None, anchors=None):
+        from bodystudio.geometry.mesh import vertex_normals
+        from bodystudio.reconstruct.pose_init import pose_template
+
+        V = pose_template(body, T).vertices  # the frame's initial pose: its neck and head face the Kinect
+        N = vertex_normals(V, body.faces)
+        calls["rows"].append(("all", len(data_term(V, N)[0])))
+        return T
+
+    monkeypatch.setattr(sequence, "depth_data_term", depth_term)
+    monkeypatch.setattr(sequence, "refine_bone_transforms", refine)
+    return calls
+
+
+@pytest.mark.parametrize("weight", [0.0, 2.5])
+def test_depth_term_joins_the_refinement_with_its_weight(monkeypatch, session_3, weight):
+    calls = _record(monkeypatch)
+    sequence.reconstruct_session(session_3, template="2k", constraints=("silhouette", "depth"), score=False,
+                                 refine_depth=weight, params=sequence.RapidSkinParams(
+                                     constraints=("silhouette", "depth"), outer_iterations=1, inner_iterations=1),
+                                 accept_implausible=True)
+    run = json.loads((Path(session_3) / "reconstruct" / "run.json").read_text())
+    assert run["refine_depth"] == weight
+    if weight == 0.0:
+        assert calls["depth"] == []
+        return
+    assert [w for _, w in calls["depth"]] == [weight] * 3  # once per frame (per-frame initialisation)
+    assert all(obs.n_points > 0 for obs, _ in calls["depth"])
+    # the neck's and head's vertices of the 2.5K refinement template only (pose_depth.DEPTH_BONES)
+    mask = calls["vertices"]
+    assert mask is not None and 0 < mask.sum() < 0.25 * len(mask)
+    # each refinement's data term stacks the silhouette rows and this frame's depth rows
+    pairs = list(zip(calls["rows"][0::2], calls["rows"][1::2], strict=True))
+    assert all(d[0] == "depth" and a[0] == "all" and a[1] > d[1] > 0 for d, a in pairs)
+
+
+def test_no_depth_term_without_depth_constraints(monkeypatch, session_3):
+    calls = _record(monkeypatch)
+    sequence.reconstruct_session(session_3, template="2k", constraints=("silhouette",), score=False, refine_depth=3.0,
+                                 params=sequence.RapidSkinParams(outer_iterations=1, inner_iterations=1),
+                                 accept_implausible=True)
+    assert calls["depth"] == []
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), 1e4])
+def test_bad_depth_weight_is_a_one_line_error(session_3, bad):
+    with pytest.raises(InputError, match="refine_depth"):
+        sequence.reconstruct_session(session_3, template="2k", constraints=("silhouette", "depth"), refine_depth=bad)
