@@ -35,6 +35,7 @@ from bodystudio.reconstruct.solver import (
 from bodystudio.reconstruct.tracking import SilhouetteFields
 
 CONSTRAINT_KINDS = ("silhouette", "depth")
+HOLD_REGIONS = ("all", "torso")
 
 
 @dataclass(frozen=True)
@@ -67,12 +68,18 @@ class RapidSkinParams:
     #: (:func:`surface_hold_constraints`); 0 (default): off, the paper's Algorithm 1.
     surface_hold_k: float = 0.0
     surface_hold_from: int = 1
+    #: Which vertices the hold keeps: ``all``, or ``torso`` (the template's torso region, where the drift is;
+    #: the caller passes the mask, :func:`deform_to_observations`' ``hold_vertices``).
+    surface_hold_region: str = "all"
 
     def __post_init__(self):
         if isinstance(self.matching, dict):  # as ``asdict`` wrote it (a batch's options, run.json)
             object.__setattr__(self, "matching", MatchSchedule(**self.matching))
         if not isinstance(self.matching, MatchSchedule):
             raise InputError(f"matching must be a MatchSchedule, got {type(self.matching).__name__}")
+        if self.surface_hold_region not in HOLD_REGIONS:
+            raise InputError(f"unknown surface_hold_region {self.surface_hold_region!r}; valid: "
+                             f"{', '.join(HOLD_REGIONS)}")
         if self.solver not in SOLVERS:
             raise InputError(f"unknown solver {self.solver!r}; valid: {', '.join(SOLVERS)}")
         bad = [c for c in self.constraints if c not in CONSTRAINT_KINDS]
@@ -111,7 +118,8 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
                            params: RapidSkinParams = RapidSkinParams(), depth: DepthObservation | None = None,
                            delta: DeltaOperator | None = None, lme: LMESystem | None = None,
                            smooth_reference: np.ndarray | None = None, callback=None,
-                           fields: SilhouetteFields | None = None) -> DeformResult:
+                           fields: SilhouetteFields | None = None,
+                           hold_vertices: np.ndarray | None = None) -> DeformResult:
     """Algorithm 1 of Rapid Skin: deform ``V_init`` until its rims match the silhouettes in ``masks``.
 
     ``cameras`` is an iterable of ``Camera``; ``masks`` maps camera names to ``(H, W)`` silhouettes.
@@ -120,7 +128,8 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
     (default ``V_init``, Algorithm 1 line 1); ``delta`` may carry its precomputed cotangent weights.
     ``callback(outer, V)`` sees the mesh after every outer iteration. ``fields`` (the frame's
     :class:`SilhouetteFields`, computed here when not given) gate the matches by the visual hull
-    (``params.hull_gate_m``).
+    (``params.hull_gate_m``). ``hold_vertices`` (a boolean mask) limits ``params.surface_hold_k``'s hold to
+    those vertices.
     """
     cameras = list(cameras)
     use_sil = "silhouette" in params.constraints
@@ -180,8 +189,11 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
                if use_depth else DepthConstraints.empty())
         planes = dep
         if hold is not None:
+            exclude = dep.vertex
+            if hold_vertices is not None:
+                exclude = np.union1d(exclude, np.flatnonzero(~np.asarray(hold_vertices, bool)))
             planes = _concat_depth(dep, surface_hold_constraints(hold[0], hold[1], params.surface_hold_k,
-                                                                 exclude=dep.vertex))
+                                                                 exclude=exclude))
         t1 = time.perf_counter()
         cs = ConstraintSet(delta, delta_rest, sil, planes)
         V = solve_constraints(V, cs, params.solver, inner, lme)

@@ -349,6 +349,10 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     shape_model = load_statistical_model(TEMPLATES[template], progress=False) if shape_prior != "off" else None
     shape_coeffs = []  # shape_prior "run": the coefficients fitted to each frame so far
     regions = vertex_regions(body) if score else None
+    hold = {}  # Algorithm 1's hold_vertices, only when a region is asked for
+    if params.surface_hold_k > 0 and params.surface_hold_region != "all":
+        # issue 15's drift is the torso's: limbs need the later re-matchings
+        hold["hold_vertices"] = (regions if regions is not None else vertex_regions(body)) == params.surface_hold_region
     rest_delta = cotangent_weights(body.vertices, F) if rest_cotangents else None
     rest = body.vertices
     shape_sum, n_seen = body.vertices.copy(), 1
@@ -476,7 +480,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 first_params = replace(frame_params, outer_iterations=min(frame_params.outer_iterations,
                                                                           shape_prior_first_outer))
             result = deform_to_observations(V_start, F, cameras, masks, first_params, depth=depth, delta=delta,
-                                            smooth_reference=reference, fields=fields)
+                                            smooth_reference=reference, fields=fields, **hold)
             if shape_model is not None and (shape_prior == "frame" or not shape_coeffs):
                 # issue 15: the shape space's fit to the first pass starts and regularises a second pass, so
                 # the surfaces no view sees take the fitted body's shape instead of the generic template's
@@ -489,7 +493,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                     second_params = replace(frame_params, outer_iterations=min(frame_params.outer_iterations,
                                                                                  shape_prior_outer))
                 second = deform_to_observations(prior, F, cameras, masks, second_params, depth=depth, delta=delta,
-                                                smooth_reference=prior, fields=fields)
+                                                smooth_reference=prior, fields=fields, **hold)
                 second.solver_s += result.solver_s
                 second.matching_s += result.matching_s
                 second.n_silhouette = result.n_silhouette + second.n_silhouette
