@@ -360,7 +360,14 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     fit_body = build_body(resolution="2k") if refine_pose or joints == "hull" or tracking else None
     depth_rows = None
     if refine_depth > 0 and fit_body is not None and refine_depth_bones != "all":
-        depth_rows = bone_vertices(fit_body, DEPTH_BONES if refine_depth_bones == "neck" else refine_depth_bones)
+        bones = refine_depth_bones
+        if isinstance(bones, str):  # "neck" or bone names joined by "+"
+            bones = DEPTH_BONES if bones == "neck" else tuple(b for b in bones.split("+") if b)
+        missing = [b for b in bones if b not in fit_body.skeleton.bone_names]
+        if missing or not bones:
+            raise InputError(f"refine_depth_bones: no bone(s) {', '.join(missing) or '(none given)'} in the template; "
+                             "give neck, all or bone names joined by +")
+        depth_rows = bone_vertices(fit_body, bones)
     state = None  # the previous frame's (bone transforms, global scale, tracker joints, silhouette energy)
     records = []
     probe = coherence_frames(len(selected))

@@ -6,6 +6,7 @@ import json
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import bodystudio.reconstruct.sequence as sequence
@@ -84,3 +85,28 @@ def test_no_depth_term_without_depth_constraints(monkeypatch, session_3):
 def test_bad_depth_weight_is_a_one_line_error(session_3, bad):
     with pytest.raises(InputError, match="refine_depth"):
         sequence.reconstruct_session(session_3, template="2k", constraints=("silhouette", "depth"), refine_depth=bad)
+
+
+def test_depth_bones_select_the_rows(monkeypatch, session_3):
+    from bodystudio.body import build_body
+    from bodystudio.reconstruct.pose_depth import bone_vertices
+
+    fit = build_body(resolution="2k")
+    masks = {}
+    for bones in ("neck", "all", "spine_03+neck_01+head"):
+        calls = _record(monkeypatch)
+        sequence.reconstruct_session(session_3, template="2k", constraints=("silhouette", "depth"), score=False,
+                                     refine_depth=1.0, refine_depth_bones=bones, frames="0:1", accept_implausible=True,
+                                     params=sequence.RapidSkinParams(constraints=("silhouette", "depth"),
+                                                                     outer_iterations=1, inner_iterations=1))
+        masks[bones] = calls["vertices"]
+    assert masks["all"] is None
+    np.testing.assert_array_equal(masks["neck"], bone_vertices(fit, ("neck_01", "head")))
+    assert masks["spine_03+neck_01+head"].sum() > masks["neck"].sum()
+    assert np.all(masks["spine_03+neck_01+head"][masks["neck"]])
+
+
+def test_unknown_depth_bone_is_a_one_line_error(session_3):
+    with pytest.raises(InputError, match="refine_depth_bones: no bone"):
+        sequence.reconstruct_session(session_3, template="2k", constraints=("silhouette", "depth"), refine_depth=1.0,
+                                     refine_depth_bones="spine_99")
