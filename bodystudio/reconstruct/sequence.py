@@ -220,7 +220,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence",
                         joint_smoothing: int = 0, accept_implausible: bool = False, shape_prior: str = "off",
                         shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
-                        refine_depth: float = 0.0, refine_depth_bones="neck") -> dict:
+                        refine_depth: float = 0.0, refine_depth_bones="neck",
+                        refine_depth_guard: float = 0.0) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
@@ -272,7 +273,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    accept_implausible=accept_implausible, shape_prior=shape_prior,
                                    shape_prior_outer=shape_prior_outer,
                                    shape_prior_first_outer=shape_prior_first_outer, refine_depth=refine_depth,
-                                   refine_depth_bones=refine_depth_bones)
+                                   refine_depth_bones=refine_depth_bones, refine_depth_guard=refine_depth_guard)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -287,7 +288,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        rest_cotangents: bool = True, refine_params: PoseRefineParams | None = None,
                        bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True,
                        shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
-                       refine_depth: float = 0.0, refine_depth_bones="neck") -> dict:
+                       refine_depth: float = 0.0, refine_depth_bones="neck",
+                       refine_depth_guard: float = 0.0) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -439,10 +441,22 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                         if refine_depth > 0 and depth_image is not None:
                             # issue 15: the depth sees the neck's front, which the silhouettes do not
                             depth = depth_observation(depth_image, sensor.depth)
-                            term = combined_data_term(term, depth_data_term(depth, fit_body.faces, refine_depth,
+                            both = combined_data_term(term, depth_data_term(depth, fit_body.faces, refine_depth,
                                                                              vertices=depth_rows))
-                        T = refine_bone_transforms(fit_body, init.bone_transforms, None, refine_params,
-                                                   data_term=term)
+                            T = refine_bone_transforms(fit_body, init.bone_transforms, None, refine_params,
+                                                       data_term=both)
+                            if refine_depth_guard > 0:
+                                # the depth's pose only where the silhouettes do not contradict it
+                                T_sil = refine_bone_transforms(fit_body, init.bone_transforms, None, refine_params,
+                                                               data_term=term)
+                                e_sil, e_both = (outside_fraction(pose_template(fit_body, X).vertices, fields,
+                                                                  track_params.outside_px) for X in (T_sil, T))
+                                detail["refine_depth_outside"] = [e_sil, e_both]
+                                if e_both > (1.0 + refine_depth_guard) * e_sil + 1e-4:
+                                    T = T_sil
+                        else:
+                            T = refine_bone_transforms(fit_body, init.bone_transforms, None, refine_params,
+                                                       data_term=term)
                     else:
                         if hull is None:
                             hull = visual_hull(cameras, masks)
@@ -537,6 +551,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "n_silhouette": result.n_silhouette, "n_depth": result.n_depth,
                    "ms_per_frame": 1000 * (result.solver_s + result.matching_s + t_init),
                    "plausibility": plausibility}
+            if "refine_depth_outside" in detail:
+                rec["refine_depth_outside"] = [float(e) for e in detail.pop("refine_depth_outside")]
             if detail:
                 rec["track_check"] = {k: float(v) for k, v in detail.items()}
             if score:
@@ -553,6 +569,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "joint_smoothing": int(joint_smoothing), "shape_prior": shape_prior,
                    "shape_prior_outer": int(shape_prior_outer),
                    "shape_prior_first_outer": int(shape_prior_first_outer), "refine_depth": float(refine_depth),
+                   "refine_depth_guard": float(refine_depth_guard),
+                   "refine_depth_bones": (refine_depth_bones if isinstance(refine_depth_bones, str)
+                                          else "+".join(refine_depth_bones)),
                    "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
                    "params": asdict(params), "n_vertices": int(len(body.vertices)),
                    "track_params": asdict(track_params) if tracking else None,

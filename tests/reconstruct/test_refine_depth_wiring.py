@@ -5,6 +5,7 @@ records it. The depth term itself is tested in test_pose_depth_neck.py."""
 import json
 import tempfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -59,7 +60,7 @@ def test_depth_term_joins_the_refinement_with_its_weight(monkeypatch, session_3,
                                      constraints=("silhouette", "depth"), outer_iterations=1, inner_iterations=1),
                                  accept_implausible=True)
     run = json.loads((Path(session_3) / "reconstruct" / "run.json").read_text())
-    assert run["refine_depth"] == weight
+    assert run["refine_depth"] == weight and run["refine_depth_bones"] == "neck"
     if weight == 0.0:
         assert calls["depth"] == []
         return
@@ -110,3 +111,43 @@ def test_unknown_depth_bone_is_a_one_line_error(session_3):
     with pytest.raises(InputError, match="refine_depth_bones: no bone"):
         sequence.reconstruct_session(session_3, template="2k", constraints=("silhouette", "depth"), refine_depth=1.0,
                                      refine_depth_bones="spine_99")
+
+
+@pytest.mark.parametrize(("e_both", "kept"), [(0.0104, "depth"), (0.0108, "silhouettes"), (0.03, "silhouettes")])
+def test_guard_keeps_the_depth_pose_only_where_the_silhouettes_agree(monkeypatch, session_3, e_both, kept):
+    """``refine_depth_guard`` 0.05: the pose refined with the depth term is kept unless it leaves more than 5 % more
+    of the 2.5K template outside the silhouettes than the silhouettes-only refinement (issue 15: the turn's torso
+    twisted by the depth term, 0.16 -> 0.52 % outside at its frame 0)."""
+    combine = sequence.combined_data_term
+
+    def tagged(*terms):
+        term = combine(*terms)
+        term.both = True
+        return term
+
+    def refine(body, T, hull, params, data_term=None, anchors=None):
+        out = np.array(T, dtype=np.float64)
+        if getattr(data_term, "both", False):
+            out[:, 0, 3] += 0.5  # the depth's pose: the whole body 0.5 m along x
+        return out
+
+    starts = []
+
+    def deform(V_start, F, cameras, masks, params, **kw):
+        starts.append(np.asarray(V_start).mean(axis=0))
+        return SimpleNamespace(vertices=np.asarray(V_start), solver_s=0.0, matching_s=0.0, n_silhouette=[0],
+                               n_depth=[0])
+
+    def outside(V, fields, outside_px=2.0):
+        return e_both if np.asarray(V)[:, 0].mean() > 0.3 else 0.01
+
+    monkeypatch.setattr(sequence, "combined_data_term", tagged)
+    monkeypatch.setattr(sequence, "refine_bone_transforms", refine)
+    monkeypatch.setattr(sequence, "deform_to_observations", deform)
+    monkeypatch.setattr(sequence, "outside_fraction", outside)
+    sequence.reconstruct_session(session_3, template="2k", constraints=("silhouette", "depth"), score=False,
+                                 refine_depth=3.0, refine_depth_guard=0.05, frames="0:1", accept_implausible=True,
+                                 params=sequence.RapidSkinParams(constraints=("silhouette", "depth")))
+    frames = json.loads((Path(session_3) / "reconstruct" / "frames.json").read_text())["frames"]
+    assert frames[0]["refine_depth_outside"] == [0.01, e_both]
+    assert (starts[0][0] > 0.3) == (kept == "depth")
