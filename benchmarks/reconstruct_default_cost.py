@@ -5,9 +5,10 @@ Usage: PYTHONPATH=. python benchmarks/reconstruct_default_cost.py SESSION [--fra
 
 SESSION: one of ``reconstruct_worst_ab.py``'s 30 fps sessions (13K, no scoring). Settings: ``default`` (per-frame
 initialisation, the defaults), ``js2`` (per-frame, ``joint_smoothing=2``), ``js2rdn3`` (per-frame, js 2 and the
-neck's depth term in the pose refinement, ``refine_depth=3``) and ``tracked`` (``tracking=True`` with js 2 and the
-early-fitted shape prior, rec15d's best tracked setting). Prints ``time.process_time`` of each whole run (one
-thread) and the median per setting, per frame.
+neck's depth term in the pose refinement, ``refine_depth=3``), ``tracked`` (``tracking=True`` with js 2 and the
+early-fitted shape prior, rec15d's best tracked setting) and ``cand`` (``tracked`` with the whole body's depth term
+in the refinement, its silhouette guard 0.05 and the torso's surface hold, k 1; rec15g). Prints
+``time.process_time`` of each whole run (one thread) and the median per setting, per frame.
 """
 
 from __future__ import annotations
@@ -17,9 +18,12 @@ import time
 
 import numpy as np
 
+TRACKED = {"tracking": True, "joint_smoothing": 2, "shape_prior": "frame", "shape_prior_outer": 3,
+           "shape_prior_first_outer": 2}
 SETTINGS = {"default": {}, "js2": {"joint_smoothing": 2}, "js2rdn3": {"joint_smoothing": 2, "refine_depth": 3.0},
-            "tracked": {"tracking": True, "joint_smoothing": 2, "shape_prior": "frame", "shape_prior_outer": 3,
-                        "shape_prior_first_outer": 2}}
+            "tracked": TRACKED,
+            "cand": {**TRACKED, "refine_depth": 3.0, "refine_depth_bones": "all", "refine_depth_guard": 0.05,
+                     "params": {"surface_hold_k": 1.0, "surface_hold_region": "torso"}}}
 
 
 def main() -> None:
@@ -38,9 +42,10 @@ def main() -> None:
     numba.set_num_threads(1)
     cons = {"sil": ("silhouette",), "sil,depth": ("silhouette", "depth")}[args.constraints]
 
-    def run(**kw):
-        reconstruct_session(args.session, template="13k", constraints=cons, params=RapidSkinParams(constraints=cons),
-                            frames=args.frames, score=False, accept_implausible=True, **kw)
+    def run(params=None, **kw):
+        reconstruct_session(args.session, template="13k", constraints=cons,
+                            params=RapidSkinParams(constraints=cons, **(params or {})), frames=args.frames, score=False,
+                            accept_implausible=True, **kw)
 
     from bodystudio.capture.session import open_session
 
