@@ -221,7 +221,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         joint_smoothing: int = 0, accept_implausible: bool = False, shape_prior: str = "off",
                         shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
                         refine_depth: float = 0.0, refine_depth_bones="neck",
-                        refine_depth_guard: float = 0.0) -> dict:
+                        refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
@@ -273,7 +273,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    accept_implausible=accept_implausible, shape_prior=shape_prior,
                                    shape_prior_outer=shape_prior_outer,
                                    shape_prior_first_outer=shape_prior_first_outer, refine_depth=refine_depth,
-                                   refine_depth_bones=refine_depth_bones, refine_depth_guard=refine_depth_guard)
+                                   refine_depth_bones=refine_depth_bones, refine_depth_guard=refine_depth_guard,
+                                   smoothing_guard=smoothing_guard)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -289,7 +290,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True,
                        shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
                        refine_depth: float = 0.0, refine_depth_bones="neck",
-                       refine_depth_guard: float = 0.0) -> dict:
+                       refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -343,6 +344,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                          "iterations")
     if not 0 <= int(shape_prior_outer) <= 100:
         raise InputError(f"shape_prior_outer {shape_prior_outer}: give 0 (the run's No) to 100 outer iterations")
+    for name, guard in (("refine_depth_guard", refine_depth_guard), ("smoothing_guard", smoothing_guard)):
+        if not (np.isfinite(guard) and 0.0 <= guard <= 10.0):
+            raise InputError(f"{name} {guard:g}: give a relative tolerance in [0, 10] (0: off)")
     if not (np.isfinite(refine_depth) and 0.0 <= refine_depth <= 1000.0):
         raise InputError(f"refine_depth {refine_depth:g}: give a weight in [0, 1000] (0: the refinement fits the "
                          "silhouettes only)")
@@ -401,6 +405,17 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             t_fields = time.perf_counter() - t1
             track = "per_frame"
             detail = {}
+            if smoothed is not None and smoothing_guard > 0 and fields is not None and fit_body is not None:
+                # issue 15: the smoothing assumes video rate; where the smoothed joints' pose leaves more of the
+                # template outside the silhouettes than the frame's own joints', the motion was not a line
+                J_raw = frame_joints(session, frame, joints, Path(joints_path) if joints_path else None)
+                if lengths is not None:
+                    J_raw = with_bone_lengths(J_raw, lengths)
+                e_smooth, e_raw = (outside_fraction(initialise_pose(fit_body, X).vertices, fields,
+                                                    track_params.outside_px) for X in (J, J_raw))
+                detail["smoothing_outside"] = [e_raw, e_smooth]
+                if e_smooth > (1.0 + smoothing_guard) * e_raw + 1e-4:
+                    J = J_raw
             init = None
             t_track = 0.0
             if tracking:
@@ -408,7 +423,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 jump = torso_joint_jump_m(J, state["joints"]) if state else 0.0
                 prior_out = (outside_fraction(pose_template(fit_body, state["T"]).vertices, fields,
                                               track_params.outside_px) if state else 1.0)
-                detail = {"joint_jump_m": jump, "prior_outside": prior_out}
+                detail.update(joint_jump_m=jump, prior_outside=prior_out)
                 track = lost_track_reason(state is None, jump, prior_out, track_params) or "tracked"
                 if track == "tracked":
                     T_joints = (initialise_pose(fit_body, J).bone_transforms
@@ -551,6 +566,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "n_silhouette": result.n_silhouette, "n_depth": result.n_depth,
                    "ms_per_frame": 1000 * (result.solver_s + result.matching_s + t_init),
                    "plausibility": plausibility}
+            if "smoothing_outside" in detail:
+                rec["smoothing_outside"] = [float(e) for e in detail.pop("smoothing_outside")]
             if "refine_depth_outside" in detail:
                 rec["refine_depth_outside"] = [float(e) for e in detail.pop("refine_depth_outside")]
             if detail:
@@ -569,7 +586,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "joint_smoothing": int(joint_smoothing), "shape_prior": shape_prior,
                    "shape_prior_outer": int(shape_prior_outer),
                    "shape_prior_first_outer": int(shape_prior_first_outer), "refine_depth": float(refine_depth),
-                   "refine_depth_guard": float(refine_depth_guard),
+                   "refine_depth_guard": float(refine_depth_guard), "smoothing_guard": float(smoothing_guard),
                    "refine_depth_bones": (refine_depth_bones if isinstance(refine_depth_bones, str)
                                           else "+".join(refine_depth_bones)),
                    "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
