@@ -3,7 +3,6 @@ depth term beside the silhouettes' with the given weight, only where depth const
 records it. The depth term itself is tested in test_pose_depth_neck.py."""
 
 import json
-import tempfile
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -15,11 +14,11 @@ from bodystudio.errors import InputError
 
 
 @pytest.fixture(scope="module")
-def session_3():
-    from bodystudio.capture.synth import synth_session
+def session_3(small_synth_session, tmp_path_factory):
+    """A copy of the suite's shared small session (4 cameras, 3 frames, 320x240, Kinect v1)."""
+    import shutil
 
-    return synth_session(Path(tempfile.mkdtemp(prefix="rdw-")) / "walk", n_cameras=2, n_frames=3, motion="walk",
-                         subject_seed=23, resolution=(160, 120), template="2k", noise=False, kinect="v2").path
+    return shutil.copytree(small_synth_session, tmp_path_factory.mktemp("rdw") / "session")
 
 
 def _record(monkeypatch):

@@ -4,7 +4,6 @@ silhouettes as the frame's own joints' pose; at a low frame rate (the benchmark'
 walk cycle) the line through five frames is not the motion (frame 3: 213 mm Hausdorff)."""
 
 import json
-import tempfile
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -16,11 +15,11 @@ from bodystudio.errors import InputError
 
 
 @pytest.fixture(scope="module")
-def session_3():
-    from bodystudio.capture.synth import synth_session
+def session_3(small_synth_session, tmp_path_factory):
+    """A copy of the suite's shared small session (4 cameras, 3 frames, 320x240, Kinect v1)."""
+    import shutil
 
-    return synth_session(Path(tempfile.mkdtemp(prefix="sgd-")) / "walk", n_cameras=2, n_frames=3, motion="walk",
-                         subject_seed=23, resolution=(160, 120), template="2k", noise=False, kinect="v2").path
+    return shutil.copytree(small_synth_session, tmp_path_factory.mktemp("sgd") / "session")
 
 
 @pytest.mark.parametrize(("e_smooth", "kept"), [(0.0104, "smoothed"), (0.0108, "raw"), (0.05, "raw")])
