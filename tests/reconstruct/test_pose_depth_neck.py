@@ -91,3 +91,19 @@ def test_combined_term_stacks_its_parts(body_2k, scene):
     np.testing.assert_array_equal(rows[len(rows1):], rows1)
     np.testing.assert_allclose(w[:len(rows1)], w1)
     assert G.shape == (2 * len(rows1), 3)
+
+
+def test_vertex_mask_keeps_only_the_neck_and_head_rows(body_2k, scene):
+    from bodystudio.geometry.mesh import vertex_normals
+    from bodystudio.reconstruct.pose_depth import DEPTH_BONES, bone_vertices
+
+    truth, _, obs = scene
+    V = truth.vertices
+    N = vertex_normals(V, body_2k.faces)
+    mask = bone_vertices(body_2k, DEPTH_BONES)
+    rows_all = depth_data_term(obs, body_2k.faces)(V, N)[0]
+    rows = depth_data_term(obs, body_2k.faces, vertices=mask)(V, N)[0]
+    assert 0 < len(rows) < 0.3 * len(rows_all)  # the face and the front of the neck only
+    np.testing.assert_array_equal(rows, rows_all[mask[rows_all]])
+    names = list(body_2k.skeleton.bone_names)
+    assert set(np.unique(np.argmax(body_2k.weights[rows], axis=1))) <= {names.index(b) for b in DEPTH_BONES}
