@@ -7,7 +7,8 @@ SESSION: one of ``reconstruct_worst_ab.py``'s 30 fps sessions (13K, no scoring).
 initialisation, the defaults), ``js2`` (per-frame, ``joint_smoothing=2``), ``js2rdn3`` (per-frame, js 2 and the
 neck's depth term in the pose refinement, ``refine_depth=3``), ``tracked`` (``tracking=True`` with js 2 and the
 early-fitted shape prior, rec15d's best tracked setting) and ``cand`` (``tracked`` with the whole body's depth term
-in the refinement, its silhouette guard 0.05 and the torso's surface hold, k 1; rec15g). Prints
+in the refinement, its silhouette guard 0.05 and the torso's surface hold, k 1; rec15g), ``cand_sg`` (with the
+joint smoothing's guard 0.05 as well). Prints
 ``time.process_time`` of each whole run (one thread) and the median per setting, per frame.
 """
 
@@ -24,6 +25,7 @@ SETTINGS = {"default": {}, "js2": {"joint_smoothing": 2}, "js2rdn3": {"joint_smo
             "tracked": TRACKED,
             "cand": {**TRACKED, "refine_depth": 3.0, "refine_depth_bones": "all", "refine_depth_guard": 0.05,
                      "params": {"surface_hold_k": 1.0, "surface_hold_region": "torso"}}}
+SETTINGS["cand_sg"] = {**SETTINGS["cand"], "smoothing_guard": 0.05}
 
 
 def main() -> None:
