@@ -35,6 +35,7 @@ from bodystudio.reconstruct.solver import (
 from bodystudio.reconstruct.tracking import SilhouetteFields
 
 CONSTRAINT_KINDS = ("silhouette", "depth")
+HOLD_REGIONS = ("all", "torso")
 
 
 @dataclass(frozen=True)
@@ -62,12 +63,23 @@ class RapidSkinParams:
     #: Cheaper matchings after the first outer iteration (issue 15's frame time; :class:`MatchSchedule`, exact
     #: by default).
     matching: MatchSchedule = MatchSchedule()
+    #: Issue 15's outer-iteration drift: each vertex no depth pair reaches is kept near the tangent plane it
+    #: had after outer iteration ``surface_hold_from`` (0: the start mesh) with this weight
+    #: (:func:`surface_hold_constraints`); 0 (default): off, the paper's Algorithm 1.
+    surface_hold_k: float = 0.0
+    surface_hold_from: int = 1
+    #: Which vertices the hold keeps: ``all``, or ``torso`` (the template's torso region, where the drift is;
+    #: the caller passes the mask, :func:`deform_to_observations`' ``hold_vertices``).
+    surface_hold_region: str = "all"
 
     def __post_init__(self):
         if isinstance(self.matching, dict):  # as ``asdict`` wrote it (a batch's options, run.json)
             object.__setattr__(self, "matching", MatchSchedule(**self.matching))
         if not isinstance(self.matching, MatchSchedule):
             raise InputError(f"matching must be a MatchSchedule, got {type(self.matching).__name__}")
+        if self.surface_hold_region not in HOLD_REGIONS:
+            raise InputError(f"unknown surface_hold_region {self.surface_hold_region!r}; valid: "
+                             f"{', '.join(HOLD_REGIONS)}")
         if self.solver not in SOLVERS:
             raise InputError(f"unknown solver {self.solver!r}; valid: {', '.join(SOLVERS)}")
         bad = [c for c in self.constraints if c not in CONSTRAINT_KINDS]
@@ -84,7 +96,9 @@ class RapidSkinParams:
                 ("depth_max_m", self.depth_max_m, 1e-3, 1.0, "metres"),
                 ("depth_reach_m", self.depth_reach_m, 0.0, 1.0, "metres; 0 pairs depth only up to depth_max_m"),
                 ("depth_reach_sigma_m", self.depth_reach_sigma_m, 1e-4, 1.0, "metres"),
-                ("hull_gate_m", self.hull_gate_m, 0.0, 1.0, "metres; 0 turns the visual-hull gate off")):
+                ("hull_gate_m", self.hull_gate_m, 0.0, 1.0, "metres; 0 turns the visual-hull gate off"),
+                ("surface_hold_k", self.surface_hold_k, 0.0, 1.0, "weight; 0 turns the surface hold off"),
+                ("surface_hold_from", self.surface_hold_from, 0, 100, "outer iteration")):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"{name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}] ({flag})")
 
@@ -104,7 +118,8 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
                            params: RapidSkinParams = RapidSkinParams(), depth: DepthObservation | None = None,
                            delta: DeltaOperator | None = None, lme: LMESystem | None = None,
                            smooth_reference: np.ndarray | None = None, callback=None,
-                           fields: SilhouetteFields | None = None) -> DeformResult:
+                           fields: SilhouetteFields | None = None,
+                           hold_vertices: np.ndarray | None = None) -> DeformResult:
     """Algorithm 1 of Rapid Skin: deform ``V_init`` until its rims match the silhouettes in ``masks``.
 
     ``cameras`` is an iterable of ``Camera``; ``masks`` maps camera names to ``(H, W)`` silhouettes.
@@ -113,7 +128,8 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
     (default ``V_init``, Algorithm 1 line 1); ``delta`` may carry its precomputed cotangent weights.
     ``callback(outer, V)`` sees the mesh after every outer iteration. ``fields`` (the frame's
     :class:`SilhouetteFields`, computed here when not given) gate the matches by the visual hull
-    (``params.hull_gate_m``).
+    (``params.hull_gate_m``). ``hold_vertices`` (a boolean mask) limits ``params.surface_hold_k``'s hold to
+    those vertices.
     """
     cameras = list(cameras)
     use_sil = "silhouette" in params.constraints
@@ -153,9 +169,12 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
     inner = params.inner_iterations
     if params.solver == "jacobi":
         inner *= params.jacobi_iterations_factor
+    hold = None
     for outer in range(params.outer_iterations):
         t0 = time.perf_counter()
         N = area_weighted_normals(V, F)
+        if params.surface_hold_k > 0 and outer == params.surface_hold_from:
+            hold = (V.copy(), N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12))
         sil = (silhouette_constraints(V, F, N, cameras, masks, params.tau_px, params.alpha_px, params.rim_cos,
                                       views=views, **params.matching.matching_args(outer, params.outer_iterations,
                                                                                        len(cameras)))
@@ -168,8 +187,15 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
         dep = (depth_constraints(V, N, depth, params.depth_sigma_m, params.depth_max_m, F=F,
                                   reach_m=params.depth_reach_m, reach_sigma_m=params.depth_reach_sigma_m)
                if use_depth else DepthConstraints.empty())
+        planes = dep
+        if hold is not None:
+            exclude = dep.vertex
+            if hold_vertices is not None:
+                exclude = np.union1d(exclude, np.flatnonzero(~np.asarray(hold_vertices, bool)))
+            planes = _concat_depth(dep, surface_hold_constraints(hold[0], hold[1], params.surface_hold_k,
+                                                                 exclude=exclude))
         t1 = time.perf_counter()
-        cs = ConstraintSet(delta, delta_rest, sil, dep)
+        cs = ConstraintSet(delta, delta_rest, sil, planes)
         V = solve_constraints(V, cs, params.solver, inner, lme)
         t2 = time.perf_counter()
         result.matching_s += t1 - t0
@@ -180,6 +206,27 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
             callback(outer + 1, V)
     result.vertices = V
     return result
+
+
+def surface_hold_constraints(V_hold: np.ndarray, N_hold: np.ndarray, k: float,
+                             exclude: np.ndarray | None = None) -> DepthConstraints:
+    """Point-to-plane constraints ``n_h . (v_i - v_h) = 0`` keeping each vertex near the tangent plane it had in
+    ``V_hold`` (unit normals ``N_hold``), weight ``k``: a membrane hold in the form of the depth constraint
+    (Rapid Skin §VI's extension, ``C_d`` of the solver) for issue 15's outer-iteration drift, where rim matches
+    of one side camera pull the upper back outwards step by step. Tangential sliding stays free; vertices in
+    ``exclude`` (those a depth pair reaches) get none.
+    """
+    keep = np.ones(len(V_hold), bool)
+    if exclude is not None and len(exclude):
+        keep[np.asarray(exclude, dtype=np.int64)] = False
+    ids = np.flatnonzero(keep).astype(np.int64)
+    return DepthConstraints(ids, np.ascontiguousarray(V_hold[ids]), np.ascontiguousarray(N_hold[ids]),
+                            np.full(len(ids), float(k)))
+
+
+def _concat_depth(a: DepthConstraints, b: DepthConstraints) -> DepthConstraints:
+    return DepthConstraints(np.concatenate([a.vertex, b.vertex]), np.concatenate([a.point, b.point]),
+                            np.concatenate([a.normal, b.normal]), np.concatenate([a.k, b.k]))
 
 
 def _same_cameras(fields: SilhouetteFields, views: SilhouetteViews) -> bool:

@@ -48,6 +48,7 @@ from bodystudio.reconstruct.evaluate import (
     visible_vertices,
 )
 from bodystudio.reconstruct.plausibility import coherence_frames, frame_plausibility, run_plausibility
+from bodystudio.reconstruct.pose_depth import DEPTH_BONES, bone_vertices, combined_data_term, depth_data_term
 from bodystudio.reconstruct.pose_init import (
     initialise_pose,
     joints_from_mapping,
@@ -218,7 +219,9 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         refine_with: str = "fields", rest_cotangents: bool = True,
                         refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence",
                         joint_smoothing: int = 0, accept_implausible: bool = False, shape_prior: str = "off",
-                        shape_prior_outer: int = 0, shape_prior_first_outer: int = 0) -> dict:
+                        shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
+                        refine_depth: float = 0.0, refine_depth_bones="neck",
+                        refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
@@ -236,6 +239,9 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     measured in docs/reconstruct.md): ``frame`` fits the statistical body model's shape space to each frame's
     deformation and runs Algorithm 1 again from that shape (``shape_prior_outer`` re-matchings, 0: the
     frame's own), ``run`` starts every later frame from the mean shape fitted to the frames before it.
+    ``refine_depth`` (issue 15's neck front; 0: off) weights the Kinect's point-to-plane residuals in the pose
+    refinement beside the silhouettes (:mod:`bodystudio.reconstruct.pose_depth`; with depth constraints), of
+    the vertices of ``refine_depth_bones`` (``neck``: the neck and head, default; ``all``; or bone names).
     """
     from bodystudio.capture.session import open_session
 
@@ -266,7 +272,9 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    bone_lengths=bone_lengths, joint_smoothing=joint_smoothing,
                                    accept_implausible=accept_implausible, shape_prior=shape_prior,
                                    shape_prior_outer=shape_prior_outer,
-                                   shape_prior_first_outer=shape_prior_first_outer)
+                                   shape_prior_first_outer=shape_prior_first_outer, refine_depth=refine_depth,
+                                   refine_depth_bones=refine_depth_bones, refine_depth_guard=refine_depth_guard,
+                                   smoothing_guard=smoothing_guard)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -280,8 +288,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        track_params: TrackParams | None = None, refine_with: str = "fields",
                        rest_cotangents: bool = True, refine_params: PoseRefineParams | None = None,
                        bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True,
-                       shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0
-                       ) -> dict:
+                       shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
+                       refine_depth: float = 0.0, refine_depth_bones="neck",
+                       refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -335,16 +344,36 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                          "iterations")
     if not 0 <= int(shape_prior_outer) <= 100:
         raise InputError(f"shape_prior_outer {shape_prior_outer}: give 0 (the run's No) to 100 outer iterations")
+    for name, guard in (("refine_depth_guard", refine_depth_guard), ("smoothing_guard", smoothing_guard)):
+        if not (np.isfinite(guard) and 0.0 <= guard <= 10.0):
+            raise InputError(f"{name} {guard:g}: give a relative tolerance in [0, 10] (0: off)")
+    if not (np.isfinite(refine_depth) and 0.0 <= refine_depth <= 1000.0):
+        raise InputError(f"refine_depth {refine_depth:g}: give a weight in [0, 1000] (0: the refinement fits the "
+                         "silhouettes only)")
     if shape_prior not in SHAPE_PRIORS:
         raise InputError(f"unknown shape prior {shape_prior!r}; valid: {', '.join(SHAPE_PRIORS)}")
     shape_model = load_statistical_model(TEMPLATES[template], progress=False) if shape_prior != "off" else None
     shape_coeffs = []  # shape_prior "run": the coefficients fitted to each frame so far
     regions = vertex_regions(body) if score else None
+    hold = {}  # Algorithm 1's hold_vertices, only when a region is asked for
+    if params.surface_hold_k > 0 and params.surface_hold_region != "all":
+        # issue 15's drift is the torso's: limbs need the later re-matchings
+        hold["hold_vertices"] = (regions if regions is not None else vertex_regions(body)) == params.surface_hold_region
     rest_delta = cotangent_weights(body.vertices, F) if rest_cotangents else None
     rest = body.vertices
     shape_sum, n_seen = body.vertices.copy(), 1
     hull_pose = None
     fit_body = build_body(resolution="2k") if refine_pose or joints == "hull" or tracking else None
+    depth_rows = None
+    if refine_depth > 0 and fit_body is not None and refine_depth_bones != "all":
+        bones = refine_depth_bones
+        if isinstance(bones, str):  # "neck" or bone names joined by "+"
+            bones = DEPTH_BONES if bones == "neck" else tuple(b for b in bones.split("+") if b)
+        missing = [b for b in bones if b not in fit_body.skeleton.bone_names]
+        if missing or not bones:
+            raise InputError(f"refine_depth_bones: no bone(s) {', '.join(missing) or '(none given)'} in the template; "
+                             "give neck, all or bone names joined by +")
+        depth_rows = bone_vertices(fit_body, bones)
     state = None  # the previous frame's (bone transforms, global scale, tracker joints, silhouette energy)
     records = []
     probe = coherence_frames(len(selected))
@@ -376,6 +405,17 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             t_fields = time.perf_counter() - t1
             track = "per_frame"
             detail = {}
+            if smoothed is not None and smoothing_guard > 0 and fields is not None and fit_body is not None:
+                # issue 15: the smoothing assumes video rate; where the smoothed joints' pose leaves more of the
+                # template outside the silhouettes than the frame's own joints', the motion was not a line
+                J_raw = frame_joints(session, frame, joints, Path(joints_path) if joints_path else None)
+                if lengths is not None:
+                    J_raw = with_bone_lengths(J_raw, lengths)
+                e_smooth, e_raw = (outside_fraction(initialise_pose(fit_body, X).vertices, fields,
+                                                    track_params.outside_px) for X in (J, J_raw))
+                detail["smoothing_outside"] = [e_raw, e_smooth]
+                if e_smooth > (1.0 + smoothing_guard) * e_raw + 1e-4:
+                    J = J_raw
             init = None
             t_track = 0.0
             if tracking:
@@ -383,7 +423,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 jump = torso_joint_jump_m(J, state["joints"]) if state else 0.0
                 prior_out = (outside_fraction(pose_template(fit_body, state["T"]).vertices, fields,
                                               track_params.outside_px) if state else 1.0)
-                detail = {"joint_jump_m": jump, "prior_outside": prior_out}
+                detail.update(joint_jump_m=jump, prior_outside=prior_out)
                 track = lost_track_reason(state is None, jump, prior_out, track_params) or "tracked"
                 if track == "tracked":
                     T_joints = (initialise_pose(fit_body, J).bone_transforms
@@ -397,6 +437,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                         init = pose_template(body, T, state["scale"], rest_vertices=rest)
                 t_track = time.perf_counter() - t1
             hull = None
+            depth = None
             t_refine = 0.0
             if init is None:
                 if joints == "hull":
@@ -411,8 +452,26 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                     # The template and the refinement's 2.5K template share one skeleton, so the corrected
                     # bone transforms pose the template directly.
                     if refine_with == "fields":
-                        T = refine_bone_transforms(fit_body, init.bone_transforms, None, refine_params,
-                                                   data_term=silhouette_data_term(fields, track_params))
+                        term = silhouette_data_term(fields, track_params)
+                        if refine_depth > 0 and depth_image is not None:
+                            # issue 15: the depth sees the neck's front, which the silhouettes do not
+                            depth = depth_observation(depth_image, sensor.depth)
+                            both = combined_data_term(term, depth_data_term(depth, fit_body.faces, refine_depth,
+                                                                             vertices=depth_rows))
+                            T = refine_bone_transforms(fit_body, init.bone_transforms, None, refine_params,
+                                                       data_term=both)
+                            if refine_depth_guard > 0:
+                                # the depth's pose only where the silhouettes do not contradict it
+                                T_sil = refine_bone_transforms(fit_body, init.bone_transforms, None, refine_params,
+                                                               data_term=term)
+                                e_sil, e_both = (outside_fraction(pose_template(fit_body, X).vertices, fields,
+                                                                  track_params.outside_px) for X in (T_sil, T))
+                                detail["refine_depth_outside"] = [e_sil, e_both]
+                                if e_both > (1.0 + refine_depth_guard) * e_sil + 1e-4:
+                                    T = T_sil
+                        else:
+                            T = refine_bone_transforms(fit_body, init.bone_transforms, None, refine_params,
+                                                       data_term=term)
                     else:
                         if hull is None:
                             hull = visual_hull(cameras, masks)
@@ -439,7 +498,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             # regions no silhouette sees are not baked in and carried from frame to frame.
             reference = init.vertices if rest is body.vertices else pose_template(body, init.bone_transforms).vertices
             t_init = time.perf_counter() - t0
-            depth = depth_observation(depth_image, sensor.depth) if depth_image is not None else None
+            if depth is None and depth_image is not None:
+                depth = depth_observation(depth_image, sensor.depth)
             if "silhouette" not in params.constraints:
                 masks = None
             if shape_model is not None and shape_prior == "run" and shape_coeffs:
@@ -456,7 +516,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 first_params = replace(frame_params, outer_iterations=min(frame_params.outer_iterations,
                                                                           shape_prior_first_outer))
             result = deform_to_observations(V_start, F, cameras, masks, first_params, depth=depth, delta=delta,
-                                            smooth_reference=reference, fields=fields)
+                                            smooth_reference=reference, fields=fields, **hold)
             if shape_model is not None and (shape_prior == "frame" or not shape_coeffs):
                 # issue 15: the shape space's fit to the first pass starts and regularises a second pass, so
                 # the surfaces no view sees take the fitted body's shape instead of the generic template's
@@ -469,7 +529,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                     second_params = replace(frame_params, outer_iterations=min(frame_params.outer_iterations,
                                                                                  shape_prior_outer))
                 second = deform_to_observations(prior, F, cameras, masks, second_params, depth=depth, delta=delta,
-                                                smooth_reference=prior, fields=fields)
+                                                smooth_reference=prior, fields=fields, **hold)
                 second.solver_s += result.solver_s
                 second.matching_s += result.matching_s
                 second.n_silhouette = result.n_silhouette + second.n_silhouette
@@ -506,6 +566,10 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "n_silhouette": result.n_silhouette, "n_depth": result.n_depth,
                    "ms_per_frame": 1000 * (result.solver_s + result.matching_s + t_init),
                    "plausibility": plausibility}
+            if "smoothing_outside" in detail:
+                rec["smoothing_outside"] = [float(e) for e in detail.pop("smoothing_outside")]
+            if "refine_depth_outside" in detail:
+                rec["refine_depth_outside"] = [float(e) for e in detail.pop("refine_depth_outside")]
             if detail:
                 rec["track_check"] = {k: float(v) for k, v in detail.items()}
             if score:
@@ -521,7 +585,10 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "refine_with": refine_with, "rest_cotangents": rest_cotangents, "bone_lengths": bone_lengths,
                    "joint_smoothing": int(joint_smoothing), "shape_prior": shape_prior,
                    "shape_prior_outer": int(shape_prior_outer),
-                   "shape_prior_first_outer": int(shape_prior_first_outer),
+                   "shape_prior_first_outer": int(shape_prior_first_outer), "refine_depth": float(refine_depth),
+                   "refine_depth_guard": float(refine_depth_guard), "smoothing_guard": float(smoothing_guard),
+                   "refine_depth_bones": (refine_depth_bones if isinstance(refine_depth_bones, str)
+                                          else "+".join(refine_depth_bones)),
                    "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
                    "params": asdict(params), "n_vertices": int(len(body.vertices)),
                    "track_params": asdict(track_params) if tracking else None,

@@ -241,7 +241,8 @@ def test_reconstruct_session_forwards_every_setting(monkeypatch):
                                   frames="4:6", joints_path="/j", warm_start=True, refine_pose=False, score=False,
                                   progress=True, tracking=True, track_params=tp, refine_with="hull",
                                   rest_cotangents=False, refine_params=rp, bone_lengths="frame", joint_smoothing=3,
-                                  accept_implausible=True)
+                                  accept_implausible=True, refine_depth=2.0, refine_depth_bones="all",
+                                  refine_depth_guard=0.1, smoothing_guard=0.2)
     assert out == {"summary": 1} and calls["open"] == "/in"
     layout, command, meta = calls["writer"]
     assert layout == seq.reconstruction_layout(Path("/s")) and command == "bodystudio reconstruct"
@@ -251,9 +252,12 @@ def test_reconstruct_session_forwards_every_setting(monkeypatch):
     assert [c.name for c in args[3]] == ["c0", "c1"] and args[4] == "sensor"
     assert args[5] == RapidSkinParams(solver="cg", constraints=("silhouette", "depth"))
     assert args[6:] == ("cg", "2k", "file", "/j", True, False, False, True)
-    assert {k: v for k, v in kw.items() if not k.startswith("shape_prior")} == dict(
+    newer = ("shape_prior", "refine_depth", "smoothing_guard")  # keywords of issue 15's later passes
+    assert {k: v for k, v in kw.items() if not k.startswith(newer)} == dict(
         tracking=True, track_params=tp, refine_with="hull", rest_cotangents=False, refine_params=rp,
         bone_lengths="frame", joint_smoothing=3, accept_implausible=True)
+    assert {k: v for k, v in kw.items() if k.startswith(("refine_depth", "smoothing_guard"))} == dict(
+        refine_depth=2.0, refine_depth_bones="all", refine_depth_guard=0.1, smoothing_guard=0.2)
 
 
 def test_reconstruct_session_defaults_and_given_params(monkeypatch):
@@ -264,9 +268,12 @@ def test_reconstruct_session_defaults_and_given_params(monkeypatch):
     args, kw = calls["frames"]
     assert args[2] == [3, 4, 5] and args[5] == RapidSkinParams(solver="gs", constraints=("silhouette",))
     assert args[6:] == ("gs", "13k", "tracker", None, False, True, True, False)
-    assert {k: v for k, v in kw.items() if not k.startswith("shape_prior")} == dict(
+    newer = ("shape_prior", "refine_depth", "smoothing_guard")  # keywords of issue 15's later passes
+    assert {k: v for k, v in kw.items() if not k.startswith(newer)} == dict(
         tracking=False, track_params=None, refine_with="fields", rest_cotangents=True, refine_params=None,
         bone_lengths="sequence", joint_smoothing=0, accept_implausible=False)
+    assert {k: v for k, v in kw.items() if k.startswith(("refine_depth", "smoothing_guard"))} == dict(
+        refine_depth=0.0, refine_depth_bones="neck", refine_depth_guard=0.0, smoothing_guard=0.0)
     assert {k: v for k, v in kw.items() if k.startswith("shape_prior")} in (
         {}, {"shape_prior": "off", "shape_prior_outer": 0, "shape_prior_first_outer": 0})
     assert calls["writer"][2] == {"session": "/s", "template": "13k"}
