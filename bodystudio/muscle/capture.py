@@ -85,6 +85,7 @@ from bodystudio.muscle.refine import (
     time_consistent_correspondences,
     tracker_mean_standard_error,
     tracker_placement_prior_weight,
+    unseen_hold_weights,
 )
 
 log = logging.getLogger(__name__)
@@ -156,6 +157,12 @@ class CaptureOptions:
     # limit 0.9; docs/muscle.md sixth pass): median / p90 5.10 / 8.57 -> 4.76 / 7.73 mm, jitter +0.19 -> +0.15 mm,
     # bulge 1.21 -> 1.72 mm (the lift had hidden the norm limit's cut: norm_limit 0.5 takes it to 0.96 mm).
     refine_visible_only: bool = True
+    # The vertices the sensor does not see (no Sec. 7 correspondence and hidden by the model mesh's own z-buffer) held
+    # to the model mesh in the last ARAP (``refine.unseen_hold_weights``: this weight, 1 = one agreeing pair, ramped in
+    # over ``refine_unseen_band_m`` from the nearest seen vertex; 0: off, the unseen side follows the seen side's pull
+    # as a rigid piece).
+    refine_unseen_hold: float = 0.0
+    refine_unseen_band_m: float = 0.02
     detail_sigma_frames: float = 1.5  # refinement detail averaged over +-2 frames (0: off)
     joint_radius_m: float = 0.06  # Sec. 7.2 closeness-to-joint factor
     joint_gain: float = 1.0
@@ -290,6 +297,9 @@ class CaptureOptions:
             raise InputError(f"capture mode {self.mode!r} is not one of {', '.join(MODES)}")
         if not 0 < self.norm_limit <= 1:
             raise InputError(f"norm_limit must be in (0, 1], got {self.norm_limit}")
+        if not (self.refine_unseen_hold >= 0 and self.refine_unseen_band_m >= 0):
+            raise InputError(f"refine_unseen_hold and refine_unseen_band_m must be >= 0, got "
+                             f"{self.refine_unseen_hold} and {self.refine_unseen_band_m}")
         if self.sigma_frames <= 0 or self.shape_frames < 1:
             raise InputError("sigma_frames must be > 0 and shape_frames >= 1")
         if self.sequence_rounds < 0 or self.sequence_huber_m < 0 or self.huber_m < 0:
@@ -612,18 +622,24 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
     """Sec. 7 over the sequence: per-frame correspondences, Eq. 13-14 averaging, Sec. 7.2 weights, last ARAP.
 
     ``o.refine_visible_only`` (needs ``camera`` and the Sec. 5.1 ``similarity``): pairs of vertices the model mesh
-    itself hides from the sensor are dropped (:func:`model_visible_vertices`)."""
+    itself hides from the sensor are dropped (:func:`model_visible_vertices`). ``o.refine_unseen_hold``: the vertices
+    with no pair that the model mesh hides from the sensor are held to the model mesh (``refine.unseen_hold_weights``).
+    """
     t0 = time.perf_counter()
-    vecs, valid = [], []
+    vecs, valid, seen = [], [], []
     for M, (P, N), tree in zip(model_meshes, clouds_t, trees, strict=True):
         Nv = vertex_normals(M, F)
         pairs = closest_point_correspondences(M, P, N, tree)
         pairs = filter_correspondences(M, Nv, pairs, C, arm, adjacency, o.nicp.filters)
-        if o.refine_visible_only and camera is not None:
-            pairs.kept &= model_visible_vertices(apply_similarity(similarity, M), F, camera)
+        visible = None
+        if camera is not None and (o.refine_visible_only or o.refine_unseen_hold > 0):
+            visible = model_visible_vertices(apply_similarity(similarity, M), F, camera)
+        if o.refine_visible_only and visible is not None:
+            pairs.kept &= visible
         # Along the depth point's normal only (point-to-plane, as in NICP): the rest is sliding.
         vecs.append(np.where(pairs.kept[:, None], plane_targets(M, pairs) - M, 0.0))
         valid.append(pairs.kept)
+        seen.append(pairs.kept if visible is None else pairs.kept | visible)
     out = []
     n = len(model_meshes)
     for i, M in enumerate(model_meshes):
@@ -634,7 +650,9 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
         c, ok = time_consistent_correspondences([vecs[j] for j in idx], [valid[j] for j in idx], o.sigma_frames)
         w = correspondence_weights(c, vertex_normals(M, F), M, posed_joints(joints, poses[i]), ok,
                                    o.joint_radius_m, o.joint_gain)
-        out.append(refine_surface(M, F, c, w, o.refine_data_weight, o.refine_iterations))
+        hold = None if o.refine_unseen_hold <= 0 else unseen_hold_weights(M, ok | seen[i], o.refine_unseen_hold,
+                                                                          o.refine_unseen_band_m)
+        out.append(refine_surface(M, F, c, w, o.refine_data_weight, o.refine_iterations, hold))
     if o.detail_sigma_frames > 0 and n >= 3:
         # The refinement's detail (refined minus model mesh) of each vertex, averaged over +-2 frames
         # with Gaussian weights: Eq. 13-14 applied to the result of the last ARAP as well.
