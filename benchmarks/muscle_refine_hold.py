@@ -18,9 +18,11 @@ figures that need no truth:
   in the frame (the part of the result no depth point supports).
 
 Rows: ``model`` (no refinement), the variants (``NAME:KEY=VALUE,...`` over ``CaptureOptions()``; ``default``: as it
-is). With ``--diagnose`` the default refinement's change of the back side is split by whether the back vertex has a
-correspondence of its own (the model's z-buffer disagrees with the truth's) or only follows the ARAP, and the
-diagnostic variants (no temporal averaging, no normal-agreement weight, no detail smoothing) are added.
+is; the key ``hold_seen='zbuffer'``: the hold on every vertex the model mesh's z-buffer hides, the facing ones too,
+instead of ``capture.hold_seen_vertices``). With ``--diagnose`` the default refinement's change of the back side is
+split by whether the back vertex has a correspondence of its own (the model's z-buffer disagrees with the truth's)
+or only follows the ARAP, and the diagnostic variants (no temporal averaging, no normal-agreement weight, no detail
+smoothing) are added.
 
     python -m benchmarks.muscle_refine_hold --work W --session 501 --frames 60 --diagnose \
         --variant hold:refine_unseen_hold=1.0
@@ -88,9 +90,10 @@ def refine(p: dict, options) -> list[np.ndarray]:
                           similarity=p["state"]["S"])
 
 
-def frame_pairs(p: dict, options) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
-    """Each frame's Sec. 7 correspondence vectors, validity and seen vertices (paired, or shown to the sensor by the
-    model mesh's z-buffer), as ``capture._refinement`` makes them."""
+def frame_pairs(p: dict, options) -> tuple[list, list, list, list]:
+    """Each frame's Sec. 7 correspondence vectors, validity and seen vertices (``capture.hold_seen_vertices``; and
+    without the facing ones: paired, or shown to the sensor by the model mesh's z-buffer), as ``capture._refinement``
+    makes them."""
     from bodystudio.geometry.mesh import vertex_normals
     from bodystudio.muscle import capture as cm
     from bodystudio.muscle.nicp import (
@@ -101,7 +104,7 @@ def frame_pairs(p: dict, options) -> tuple[list[np.ndarray], list[np.ndarray], l
     )
 
     F = np.asarray(p["template"].faces, np.int64)
-    vecs, valid, seen = [], [], []
+    vecs, valid, seen, seen_zbuffer = [], [], [], []
     for M, f in zip(p["meshes"], p["frames"], strict=True):
         pairs = closest_point_correspondences(M, f.points, f.normals, f.tree)
         pairs = filter_correspondences(M, vertex_normals(M, F), pairs, f.sensor_center, f.arm_mask, f.adjacency,
@@ -111,8 +114,9 @@ def frame_pairs(p: dict, options) -> tuple[list[np.ndarray], list[np.ndarray], l
             pairs.kept &= visible
         vecs.append(np.where(pairs.kept[:, None], plane_targets(M, pairs) - M, 0.0))
         valid.append(pairs.kept)
-        seen.append(pairs.kept | visible)
-    return vecs, valid, seen
+        seen.append(cm.hold_seen_vertices(M, vertex_normals(M, F), f.sensor_center, pairs.kept, visible))
+        seen_zbuffer.append(pairs.kept | visible)
+    return vecs, valid, seen, seen_zbuffer
 
 
 def heldout_mm(p: dict, options, vecs, valid, seen, huber_m: float = 0.004) -> float:
@@ -232,10 +236,10 @@ def session_rows(work: Path, subject_seed: int, n_frames: int, variants: dict, d
 
     p = prepared(work, subject_seed, n_frames)
     base = cm.CaptureOptions()
-    vecs, valid, seen = frame_pairs(p, base)
+    vecs, valid, seen_facing, seen_zbuffer = frame_pairs(p, base)
     rows = {"model": score(p, p["meshes"])}
     rows["model"]["unseen_shift_mm"] = 0.0
-    rows["model"]["rim_heldout_mm"] = heldout_rim_mm(p, cm.CaptureOptions(mode="model"), vecs, valid, seen)
+    rows["model"]["rim_heldout_mm"] = heldout_rim_mm(p, cm.CaptureOptions(mode="model"), vecs, valid, seen_facing)
     print(subject_seed, "model", json.dumps({k: round(rows["model"].get(k, float("nan")), 3) for k in KEYS}),
           flush=True)
     todo = dict(variants)
@@ -243,11 +247,20 @@ def session_rows(work: Path, subject_seed: int, n_frames: int, variants: dict, d
         import bodystudio.muscle.capture as capture_module
 
         todo = {"default": {}, **todo}
+    real_seen = cm.hold_seen_vertices
     for label, kw in todo.items():
+        kw = dict(kw)
+        zbuffer = kw.pop("hold_seen", "facing") == "zbuffer"  # the hold on every vertex the z-buffer hides
+        seen = seen_zbuffer if zbuffer else seen_facing
         o = cm.CaptureOptions(**kw)
-        t0 = time.process_time()
-        out = refine(p, o)
-        cpu = time.process_time() - t0
+        if zbuffer:
+            cm.hold_seen_vertices = lambda M, N, C, paired, visible: paired if visible is None else paired | visible
+        try:
+            t0 = time.process_time()
+            out = refine(p, o)
+            cpu = time.process_time() - t0
+        finally:
+            cm.hold_seen_vertices = real_seen
         r = score(p, out)
         r["refine_cpu_ms_per_frame"] = 1000.0 * cpu / p["n"]
         unpaired = ~np.stack(valid) & p["template"].arm_mask[None]

@@ -157,10 +157,10 @@ class CaptureOptions:
     # limit 0.9; docs/muscle.md sixth pass): median / p90 5.10 / 8.57 -> 4.76 / 7.73 mm, jitter +0.19 -> +0.15 mm,
     # bulge 1.21 -> 1.72 mm (the lift had hidden the norm limit's cut: norm_limit 0.5 takes it to 0.96 mm).
     refine_visible_only: bool = True
-    # The vertices the sensor does not see (no Sec. 7 correspondence and hidden by the model mesh's own z-buffer) held
-    # to the model mesh in the last ARAP (``refine.unseen_hold_weights``: this weight, 1 = one agreeing pair, ramped in
-    # over ``refine_unseen_band_m`` from the nearest seen vertex; 0: off, the unseen side follows the seen side's pull
-    # as a rigid piece).
+    # The vertices the sensor does not see (no Sec. 7 correspondence and facing away from it: ``hold_seen_vertices``)
+    # held to the model mesh in the last ARAP (``refine.unseen_hold_weights``: this weight, 1 = one agreeing pair,
+    # ramped in over ``refine_unseen_band_m`` from the nearest seen vertex; 0: off, the unseen side follows the seen
+    # side's pull as a rigid piece).
     refine_unseen_hold: float = 0.0
     refine_unseen_band_m: float = 0.02
     detail_sigma_frames: float = 1.5  # refinement detail averaged over +-2 frames (0: off)
@@ -623,7 +623,8 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
 
     ``o.refine_visible_only`` (needs ``camera`` and the Sec. 5.1 ``similarity``): pairs of vertices the model mesh
     itself hides from the sensor are dropped (:func:`model_visible_vertices`). ``o.refine_unseen_hold``: the vertices
-    with no pair that the model mesh hides from the sensor are held to the model mesh (``refine.unseen_hold_weights``).
+    with no pair that face away from the sensor (:func:`hold_seen_vertices`) are held to the model mesh
+    (``refine.unseen_hold_weights``).
     """
     t0 = time.perf_counter()
     vecs, valid, seen = [], [], []
@@ -632,14 +633,13 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
         pairs = closest_point_correspondences(M, P, N, tree)
         pairs = filter_correspondences(M, Nv, pairs, C, arm, adjacency, o.nicp.filters)
         visible = None
-        if camera is not None and (o.refine_visible_only or o.refine_unseen_hold > 0):
+        if o.refine_visible_only and camera is not None:
             visible = model_visible_vertices(apply_similarity(similarity, M), F, camera)
-        if o.refine_visible_only and visible is not None:
             pairs.kept &= visible
         # Along the depth point's normal only (point-to-plane, as in NICP): the rest is sliding.
         vecs.append(np.where(pairs.kept[:, None], plane_targets(M, pairs) - M, 0.0))
         valid.append(pairs.kept)
-        seen.append(pairs.kept if visible is None else pairs.kept | visible)
+        seen.append(hold_seen_vertices(M, Nv, C, pairs.kept, visible))
     out = []
     n = len(model_meshes)
     for i, M in enumerate(model_meshes):
@@ -652,7 +652,7 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
                                    o.joint_radius_m, o.joint_gain)
         hold = None if o.refine_unseen_hold <= 0 else unseen_hold_weights(M, ok | seen[i], o.refine_unseen_hold,
                                                                           o.refine_unseen_band_m)
-        out.append(refine_surface(M, F, c, w, o.refine_data_weight, o.refine_iterations, hold))
+        out.append(refine_surface(M, F, c, w, o.refine_data_weight, o.refine_iterations, hold=hold))
     if o.detail_sigma_frames > 0 and n >= 3:
         # The refinement's detail (refined minus model mesh) of each vertex, averaged over +-2 frames
         # with Gaussian weights: Eq. 13-14 applied to the result of the last ARAP as well.
@@ -668,6 +668,17 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
     return out
 
 
+
+
+def hold_seen_vertices(vertices: np.ndarray, normals: np.ndarray, sensor_center: np.ndarray, paired: np.ndarray,
+                       visible: np.ndarray | None = None) -> np.ndarray:
+    """The vertices ``refine.unseen_hold_weights`` leaves free: the paired ones and those facing the sensor (Eq. 1's
+    front side; the z-buffer's ``visible`` vertices face it too). A front-facing vertex hidden behind the forearm is
+    the biceps the seen side's pull may lift, not the back; chosen over the z-buffer alone (the hidden front-facing
+    vertices held too) by the held-out depth energy, docs/muscle.md twelfth pass."""
+    facing = np.einsum("kd,kd->k", normals, sensor_center - vertices) > 0
+    out = np.asarray(paired, bool) | facing
+    return out if visible is None else out | visible
 
 
 def model_visible_vertices(vertices: np.ndarray, faces: np.ndarray, camera, tolerance_m: float = 0.01) -> np.ndarray:

@@ -132,3 +132,16 @@ def test_the_hold_options_are_validated():
         cm.CaptureOptions(refine_unseen_hold=-1.0)
     with pytest.raises(InputError, match="refine_unseen_band_m"):
         cm.CaptureOptions(refine_unseen_band_m=float("nan"))
+
+
+def test_a_front_facing_vertex_hidden_behind_another_part_stays_free():
+    # the biceps behind the forearm at strong flexion faces the sensor: the seen side's pull may lift it; a vertex
+    # facing away is the back, held
+    V = np.array([[0.0, 0, 0.0], [0.0, 0, 0.05], [0.1, 0, 0.0]])
+    N = np.array([[0.0, 0, -1.0], [0.0, 0, 1.0], [0.0, 0, 1.0]])
+    paired = np.array([False, False, True])
+    visible = np.zeros(3, bool)
+    np.testing.assert_array_equal(cm.hold_seen_vertices(V, N, SENSOR, paired, visible), [True, False, True])
+    np.testing.assert_array_equal(cm.hold_seen_vertices(V, N, SENSOR, paired, np.array([False, True, False])),
+                                  [True, True, True])
+    np.testing.assert_array_equal(cm.hold_seen_vertices(V, N, SENSOR, paired, None), [True, False, True])
