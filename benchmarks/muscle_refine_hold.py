@@ -18,14 +18,15 @@ figures that need no truth:
   in the frame (the part of the result no depth point supports).
 
 Rows: ``model`` (no refinement), the variants (``NAME:KEY=VALUE,...`` over ``CaptureOptions()``; ``default``: as it
-is; the key ``hold_seen='zbuffer'``: the hold on every vertex the model mesh's z-buffer hides, the facing ones too,
-instead of ``capture.hold_seen_vertices``). With ``--diagnose`` the default refinement's change of the back side is
-split by whether the back vertex has a correspondence of its own (the model's z-buffer disagrees with the truth's)
-or only follows the ARAP, and the diagnostic variants (no temporal averaging, no normal-agreement weight, no detail
-smoothing) are added.
+is, the hold on since the twelfth pass; the key ``hold_seen='zbuffer'``: the hold on every vertex the model mesh's
+z-buffer hides, the facing ones too, instead of ``capture.hold_seen_vertices``). With ``--diagnose`` the refinement
+without the hold ("no hold") is added, its change of the back side split by whether the back vertex has a
+correspondence of its own (the model's z-buffer disagrees with the truth's) or only follows the ARAP, and the
+diagnostic variants of it (no temporal averaging, no normal-agreement weight, no detail smoothing).
 
-    python -m benchmarks.muscle_refine_hold --work W --session 501 --frames 60 --diagnose \
-        --variant hold:refine_unseen_hold=1.0
+    python -m benchmarks.muscle_refine_hold --work W --session 501 --frames 60 --diagnose --variant default
+    python -m benchmarks.muscle_refine_hold --work W --session 501 --frames 200 \
+        --variant before:refine_unseen_hold=0.0 --variant default
 
 docs/muscle.md "Capture, twelfth pass".
 """
@@ -246,7 +247,7 @@ def session_rows(work: Path, subject_seed: int, n_frames: int, variants: dict, d
     if diagnose:
         import bodystudio.muscle.capture as capture_module
 
-        todo = {"default": {}, **todo}
+        todo = {"no hold": {"refine_unseen_hold": 0.0}, **todo}
     real_seen = cm.hold_seen_vertices
     for label, kw in todo.items():
         kw = dict(kw)
@@ -268,7 +269,7 @@ def session_rows(work: Path, subject_seed: int, n_frames: int, variants: dict, d
         r["unseen_shift_mm"] = float(np.median(shift[unpaired]))
         r["heldout_mm"] = heldout_mm(p, o, vecs, valid, seen)
         r["rim_heldout_mm"] = heldout_rim_mm(p, o, vecs, valid, seen)
-        if diagnose and label == "default":
+        if diagnose and label == "no hold":
             r.update(back_diagnosis(p, out, valid))
         rows[label] = r
         print(subject_seed, label, json.dumps({k: round(v, 3) for k, v in r.items() if isinstance(v, float)}),
@@ -279,8 +280,9 @@ def session_rows(work: Path, subject_seed: int, n_frames: int, variants: dict, d
 
 
 def _diagnostic_rows(p: dict, cm, subject_seed: int) -> dict:
-    """The default refinement with one of its parts taken out: the temporal average (sigma -> 0.05 frames), the
-    normal-agreement weight (every valid pair weight 1, the joint factor kept), the detail smoothing (off)."""
+    """The refinement without the hold (as it was before the twelfth pass) with one of its parts taken out: the
+    temporal average (sigma -> 0.05 frames), the normal-agreement weight (every valid pair weight 1, the joint factor
+    kept), the detail smoothing (off)."""
     rows = {}
     real = cm.correspondence_weights
 
@@ -288,9 +290,10 @@ def _diagnostic_rows(p: dict, cm, subject_seed: int) -> dict:
         w = real(np.zeros_like(vectors), normals, vertices, joints, valid, joint_radius_m, joint_gain, 1.0)
         return w
 
-    for label, kw, patch in (("no temporal average", {"sigma_frames": 0.05}, None),
-                             ("no normal-agreement weight", {}, flat),
-                             ("no detail smoothing", {"detail_sigma_frames": 0.0}, None)):
+    off = {"refine_unseen_hold": 0.0}
+    for label, kw, patch in (("no temporal average", {"sigma_frames": 0.05, **off}, None),
+                             ("no normal-agreement weight", off, flat),
+                             ("no detail smoothing", {"detail_sigma_frames": 0.0, **off}, None)):
         if patch is not None:
             cm.correspondence_weights = patch
         try:

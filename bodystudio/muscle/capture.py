@@ -101,10 +101,10 @@ TRACKER_JOINTS = {"left": ("ShoulderLeft", "ElbowLeft", "WristLeft"),
 # out-of-range subjects' model-only error, sets A / B: captures without the sequence fit -6.6 / -5.7 %; with
 # this setting, each rest mesh centred by sex (``model.capture_samples(centre="sex")``) -11.7 / -11.7 %.
 # The regressed rest arm and the 50 % norm limit it was measured with are kept: the body rest shape (the capture's
-# default since the tenth pass) and the last pose refit (the default since the eleventh) have not been measured for
-# the extension.
+# default since the tenth pass), the last pose refit (the default since the eleventh) and the refinement's hold of the
+# unseen side (the twelfth) have not been measured for the extension.
 EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
-                     "body_rest_shape": False, "norm_limit": 0.5, "pose_refit": False}
+                     "body_rest_shape": False, "norm_limit": 0.5, "pose_refit": False, "refine_unseen_hold": 0.0}
 # The setting of a sequence that pins its shared torso placement and skeleton (``CaptureOptions.sequence_pinned_se_m``,
 # off by default): the skeleton and placement fitted with every frame's angles, Huber on the depth pairs only, the
 # chest's pairs off, the tracker's joints at 10, and a 5 % norm limit (the fitted skeleton carries a lower model biceps;
@@ -159,9 +159,15 @@ class CaptureOptions:
     refine_visible_only: bool = True
     # The vertices the sensor does not see (no Sec. 7 correspondence and facing away from it: ``hold_seen_vertices``)
     # held to the model mesh in the last ARAP (``refine.unseen_hold_weights``: this weight, 1 = one agreeing pair,
-    # ramped in over ``refine_unseen_band_m`` from the nearest seen vertex; 0: off, the unseen side follows the seen
-    # side's pull as a rigid piece).
-    refine_unseen_hold: float = 0.0
+    # ramped in over ``refine_unseen_band_m`` from the nearest seen vertex). 0: off, the unseen side follows the seen
+    # side's pull as a rigid piece, which made the full pipeline worse than the model stage once the pose refit put the
+    # model on the depth. Chosen by data-side figures (the residual of held-out rim pairs, the held-out frames' depth
+    # energy; ``benchmarks.muscle_refine_hold``); measured on the four 200-frame sessions (docs/muscle.md twelfth pass),
+    # median / p90 / back mm, off -> 1: 501 3.63 / 5.81 / 4.35 -> 3.20 / 5.36 / 3.77, 504 3.64 / 5.81 / 4.12 -> 3.42 /
+    # 5.35 / 3.76, 507 3.16 / 6.29 / 3.72 -> 2.83 / 5.75 / 3.21, 508 3.40 / 7.03 / 4.01 -> 3.28 / 6.22 / 3.68 (model
+    # stage 3.21 / 5.38 / 3.72, 3.46 / 5.37 / 3.74, 2.90 / 5.75 / 3.17, 3.39 / 6.22 / 3.66); jitter +0.09-0.11 ->
+    # +0.04-0.05 mm; bulge 1.58 / 1.13 / 0.57 / 0.72 -> 1.69 / 1.23 / 0.49 / 0.77 mm.
+    refine_unseen_hold: float = 1.0
     refine_unseen_band_m: float = 0.02
     detail_sigma_frames: float = 1.5  # refinement detail averaged over +-2 frames (0: off)
     joint_radius_m: float = 0.06  # Sec. 7.2 closeness-to-joint factor
