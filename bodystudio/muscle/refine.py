@@ -868,18 +868,48 @@ def correspondence_weights(vectors: np.ndarray, normals: np.ndarray, vertices: n
     return np.where(valid, agree * near, 0.0)
 
 
+def unseen_hold_weights(vertices: np.ndarray, seen: np.ndarray, hold_weight: float, band_m: float) -> np.ndarray:
+    """Weight (n,) holding each vertex the sensor does not see to the model mesh in the last ARAP of Sec. 7.
+
+    ``hold_weight`` times ``min(1, d / band_m)``, ``d`` the distance from the vertex to the nearest ``seen`` vertex
+    (one with a correspondence, or one the model mesh itself shows to the sensor): 0 on the seen surface, rising over
+    a band of ``band_m`` around it, full on the side the sensor does not see. Without it the unseen vertices carry no
+    data term and the ARAP carries them with the seen side's pull as a rigid piece (the back of the arm moved 0.9 mm
+    on 501, away from the truth; docs/muscle.md, twelfth pass), where the paper's refinement adds "the surface detail
+    the depth points support" and the back has none.
+    """
+    V = np.asarray(vertices, np.float64)
+    ok = np.asarray(seen, bool)
+    if hold_weight <= 0 or not ok.any():
+        return np.where(ok, 0.0, max(hold_weight, 0.0))
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(V[ok]).query(V)
+    ramp = np.ones(len(V)) if band_m <= 0 else np.clip(d / band_m, 0.0, 1.0)
+    return hold_weight * np.where(ok, 0.0, ramp)
+
+
 def refine_surface(model_vertices: np.ndarray, faces: np.ndarray, vectors: np.ndarray, weights: np.ndarray,
-                   data_weight: float = 1.0, iterations: int = 4) -> np.ndarray:
+                   data_weight: float = 1.0, iterations: int = 4, hold: np.ndarray | None = None) -> np.ndarray:
     """The last ARAP deformation of Sec. 7: the model mesh pulled along the weighted, averaged correspondences.
 
     The model mesh is both the ARAP rest shape and the start, so the refinement adds only the surface
     detail the depth points support (Sec. 7: "slightly beyond the deformation space" of the model).
+    ``hold`` (n,): per-vertex weights of a soft constraint to the model mesh itself (:func:`unseen_hold_weights`:
+    the vertices without correspondences), on the same scale as ``weights``; a vertex with both gets their sum,
+    pulled to the weighted mean of its target and its model position.
     """
     from bodystudio.muscle.nicp import arap_deformation, arap_system
 
     M = np.asarray(model_vertices, np.float64)
+    c = np.asarray(vectors, np.float64)
+    w = np.asarray(weights, np.float64)
+    if hold is not None:
+        total = w + np.asarray(hold, np.float64)
+        c = c * np.divide(w, total, out=np.zeros_like(total), where=total > 0)[:, None]
+        w = total
     system = arap_system(M, faces)
-    return arap_deformation(system, M, M + vectors, weights, data_weight, iterations)
+    return arap_deformation(system, M, M + c, w, data_weight, iterations)
 
 
 # --- a last per-frame pose refit (beyond the paper) ----------------------------------------------
