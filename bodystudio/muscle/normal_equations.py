@@ -15,6 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+#: rows of a Jacobian summed per ``np.einsum`` call in :func:`normal_matrix` (their order is fixed, so is the sum)
+ROWS_PER_BLOCK = 256
+
 
 def ordered_product(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``A @ B`` (2-D by 1-D or 2-D) summed in numpy's fixed order, whatever the BLAS thread count."""
@@ -25,8 +28,13 @@ def ordered_product(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 def normal_matrix(G: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
     """``G^T diag(w) G`` (P, P) of a Jacobian ``G`` (k, P) with per-row weights ``w`` (k,) (default 1), in a fixed
     summation order; exactly symmetric."""
-    Gt = np.ascontiguousarray(np.asarray(G, np.float64).T)
-    H = np.einsum("pk,qk->pq", Gt, Gt if w is None else Gt * np.asarray(w, np.float64))
+    G = np.ascontiguousarray(G, np.float64)
+    wG = G if w is None else G * np.asarray(w, np.float64)[:, None]
+    H = np.zeros((G.shape[1], G.shape[1]))
+    # blocks of rows, each a sum of rank-1 updates: 2.7 ms for 1000 x 108 (one einsum over all rows: 41 ms, a dot
+    # per entry: more; BLAS 0.6 ms)
+    for s in range(0, len(G), ROWS_PER_BLOCK):
+        H += np.einsum("kp,kq->pq", G[s:s + ROWS_PER_BLOCK], wG[s:s + ROWS_PER_BLOCK])
     return 0.5 * (H + H.T)
 
 
