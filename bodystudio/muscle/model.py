@@ -62,6 +62,7 @@ from bodystudio.body.population import sample_subject
 from bodystudio.errors import FileFormatError, InputError
 from bodystudio.fileio import atomic_write
 from bodystudio.muscle.arm import ArmPose, ArmTemplate, arm_template, part_transforms, pose_arm
+from bodystudio.muscle.normal_equations import normal_matrix, normal_rhs, spd_solve
 
 log = logging.getLogger(__name__)
 
@@ -948,8 +949,8 @@ class BodyShapeSpace:
     def shaped_rows(self, x: np.ndarray) -> np.ndarray:
         """The rows (r, 3) for parameters ``x``: the region's vertices and the three joints."""
         x = np.asarray(x, np.float64)
-        return (self.base + np.tensordot(self.macro_weights(x), self.macro_deltas, axes=1)
-                + np.tensordot(x[len(BODY_MACRO_NAMES):], self.local_deltas, axes=1))
+        return (self.base + np.einsum("m,mrd->rd", self.macro_weights(x), self.macro_deltas)
+                + np.einsum("l,lrd->rd", x[len(BODY_MACRO_NAMES):], self.local_deltas))
 
     def rest_and_joints(self, x: np.ndarray, shoulder: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Rest arm (n, 3) and rest shoulder, elbow, wrist (3, 3), moved so the shoulder is at ``shoulder``
@@ -970,7 +971,7 @@ class BodyShapeSpace:
             h = step if x[k] + step <= 1.0 else -step
             xk = x.copy()
             xk[k] += h
-            cols.append(np.tensordot((self.macro_weights(xk) - w0) / h, self.macro_deltas, axes=1))
+            cols.append(np.einsum("m,mrd->rd", (self.macro_weights(xk) - w0) / h, self.macro_deltas))
         D = np.concatenate([np.stack(cols), self.local_deltas]) if cols else self.local_deltas
         return D - D[:, -3:-2]
 
@@ -1062,7 +1063,7 @@ def project_to_body_space(space: BodyShapeSpace, rest: np.ndarray, joints: np.nd
         R = space.shaped_rows(x)
         r = (R - R[-3] - target).ravel()
         G = space.jacobian(x).reshape(len(x), -1).T
-        x += np.linalg.solve(G.T @ G + np.diag(lam), -(G.T @ r) - lam * (x - prior_mean))
+        x += spd_solve(normal_matrix(G) + np.diag(lam), -normal_rhs(G, r) - lam * (x - prior_mean))
         x[:len(BODY_MACRO_NAMES)] = np.clip(x[:len(BODY_MACRO_NAMES)], 0.0, 1.0)
     return x
 

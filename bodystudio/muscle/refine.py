@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from bodystudio.errors import InputError
 from bodystudio.muscle.arm import ArmPose, part_transforms, pose_arm
 from bodystudio.muscle.nicp import similarity_transform
+from bodystudio.muscle.normal_equations import normal_matrix, normal_rhs, ordered_product, spd_solve
 
 # --- Sec. 6.2 mesh projection -------------------------------------------------------------------
 
@@ -574,10 +575,10 @@ def fit_rest_shape_correction(model, shape, poses: list[ArmPose], frames: list[D
         w = np.minimum(1.0, huber_m / np.maximum(np.abs(r), 1e-12)) if huber_m > 0 else np.ones(len(r))
         An = np.einsum("kij,ki->kj", A, n)  # n^T A
         G = np.einsum("kj,ckj->kc", An, Ev[:, idx, :])
-        GtG += G.T @ (w[:, None] * G)
-        Gtb -= G.T @ (w * r)
-    c = np.linalg.solve(GtG + prior_weight * len(poses) * np.eye(k), Gtb)
-    return rest + (c @ E).reshape(-1, 3)
+        GtG += normal_matrix(G, w)
+        Gtb -= normal_rhs(G, r, w)
+    c = spd_solve(GtG + prior_weight * len(poses) * np.eye(k), Gtb)
+    return rest + np.einsum("k,kn->n", c, E).reshape(-1, 3)
 
 
 def fit_body_rest_shape(space, model, poses: list[ArmPose], frames: list[DepthFrame], x0: np.ndarray,
@@ -633,11 +634,11 @@ def fit_body_rest_shape(space, model, poses: list[ArmPose], frames: list[DepthFr
             if tj is not None:  # posed joints, linear in the rest joints (and the placement) with the pose held
                 PJ = posed_joints(J, pose)
                 dPJ = np.stack([(posed_joints(J + e.reshape(3, 3), pose) - PJ).ravel() for e in np.eye(9)], axis=1)
-                Gj = dPJ @ DJ.T
+                Gj = ordered_product(dPJ, DJ.T)
                 if n_t:
                     Gj = np.c_[Gj, np.tile(np.eye(3), (3, 1))]
-                GtG += tracker_weight * Gj.T @ Gj
-                Gtr += tracker_weight * Gj.T @ (PJ - tj).ravel()
+                GtG += tracker_weight * normal_matrix(Gj)
+                Gtr += tracker_weight * normal_rhs(Gj, (PJ - tj).ravel())
             M = pose_arm(rest + dr, W, J, pose)
             idx, q, nrm = fr.plane_pairs(M)
             if len(idx) == 0:
@@ -650,11 +651,11 @@ def fit_body_rest_shape(space, model, poses: list[ArmPose], frames: list[DepthFr
             dT = np.stack([(part_transforms(J + e.reshape(3, 3), pose)[:, :3, 3] - Tp[:, :3, 3])
                            for e in np.eye(9)])  # (9, parts, 3)
             dtJ = np.einsum("kp,cpd,kd->kc", W[idx], dT, nrm)  # (k, 9)
-            G = np.einsum("kj,Pkj->kP", An, Dv[:, idx, :]) + dtJ @ DJ.T
+            G = np.einsum("kj,Pkj->kP", An, Dv[:, idx, :]) + ordered_product(dtJ, DJ.T)
             if n_t:
                 G = np.c_[G, nrm]
-            GtG += G.T @ (w[:, None] * G)
-            Gtr += G.T @ (w * r)
+            GtG += normal_matrix(G, w)
+            Gtr += normal_rhs(G, r, w)
         lam = prior_weight * T_frames * 1e-6
         reg = np.zeros(P)
         reg[:len(x)] = lam / sigma ** 2
@@ -670,7 +671,7 @@ def fit_body_rest_shape(space, model, poses: list[ArmPose], frames: list[DepthFr
             a = arm_length_weight * T_frames
             H[:len(x), :len(x)] += a * np.outer(g, g)
             rhs[:len(x)] -= a * g * (lengths.sum() - arm_length_m)
-        step = np.linalg.solve(H, rhs)
+        step = spd_solve(H, rhs)
         x += step[:len(x)]
         x[:m] = np.clip(x[:m], 0.0, 1.0)
         if n_t:
@@ -759,15 +760,15 @@ def fit_body_rest_shape_and_poses(space, model, poses: list[ArmPose], frames: li
             if tj is not None:
                 PJ = posed_joints(J, pose)
                 dPJ = np.stack([(posed_joints(J + e.reshape(3, 3), pose) - PJ).ravel() for e in np.eye(9)], axis=1)
-                Gj = np.c_[dPJ @ DJ.T, np.tile(np.eye(3), (3, 1))]
+                Gj = np.c_[ordered_product(dPJ, DJ.T), np.tile(np.eye(3), (3, 1))]
                 Aj = np.stack([(posed_joints(J, pose_of(k, a + eps * e, J)) - PJ).ravel() / eps for e in np.eye(4)],
                               axis=1)
                 rj = (PJ - tj).ravel()
-                H_ss += tracker_weight * Gj.T @ Gj
-                g_s += tracker_weight * Gj.T @ rj
-                H_sa += tracker_weight * Gj.T @ Aj
-                H_aa += tracker_weight * Aj.T @ Aj
-                g_a += tracker_weight * Aj.T @ rj
+                H_ss += tracker_weight * normal_matrix(Gj)
+                g_s += tracker_weight * normal_rhs(Gj, rj)
+                H_sa += tracker_weight * normal_rhs(Gj, Aj)
+                H_aa += tracker_weight * normal_matrix(Aj)
+                g_a += tracker_weight * normal_rhs(Aj, rj)
             if len(idx):
                 r = np.einsum("kd,kd->k", M[idx] - q, nrm)
                 w = np.minimum(1.0, huber_m / np.maximum(np.abs(r), 1e-12)) if huber_m > 0 else np.ones(len(r))
@@ -776,14 +777,14 @@ def fit_body_rest_shape_and_poses(space, model, poses: list[ArmPose], frames: li
                 dT = np.stack([(part_transforms(J + e.reshape(3, 3), pose)[:, :3, 3] - Tp[:, :3, 3])
                                for e in np.eye(9)])
                 dtJ = np.einsum("kp,cpd,kd->kc", W[idx], dT, nrm)
-                G = np.c_[np.einsum("kj,Pkj->kP", An, Dv[:, idx, :]) + dtJ @ DJ.T, nrm]
+                G = np.c_[np.einsum("kj,Pkj->kP", An, Dv[:, idx, :]) + ordered_product(dtJ, DJ.T), nrm]
                 Ga = np.stack([np.einsum("kd,kd->k", mesh_of(pose_of(k, a + eps * e, J), rest, J)[idx] - M[idx], nrm)
                                / eps for e in np.eye(4)], axis=1)
-                H_ss += G.T @ (w[:, None] * G)
-                g_s += G.T @ (w * r)
-                H_sa += G.T @ (w[:, None] * Ga)
-                H_aa += Ga.T @ (w[:, None] * Ga)
-                g_a += Ga.T @ (w * r)
+                H_ss += normal_matrix(G, w)
+                g_s += normal_rhs(G, r, w)
+                H_sa += normal_rhs(G, Ga, w)
+                H_aa += normal_matrix(Ga, w)
+                g_a += normal_rhs(Ga, r, w)
             blocks.append((H_sa, H_aa, g_a))
         lam = prior_weight * T_frames * 1e-6
         H = H_ss.copy()
@@ -800,12 +801,12 @@ def fit_body_rest_shape_and_poses(space, model, poses: list[ArmPose], frames: li
             H[:n_x, :n_x] += c * np.outer(g, g)
             rhs[:n_x] -= c * g * (lengths.sum() - arm_length_m)
         for H_sa, H_aa, g_a in blocks:  # the frames' angles eliminated (Schur complement)
-            K = np.linalg.solve(H_aa, H_sa.T)
-            H -= H_sa @ K
-            rhs += K.T @ g_a
-        step = np.linalg.solve(H, rhs)
+            K = spd_solve(H_aa, H_sa.T)
+            H -= ordered_product(H_sa, K)
+            rhs += ordered_product(K.T, g_a)
+        step = spd_solve(0.5 * (H + H.T), rhs)
         for k, (H_sa, H_aa, g_a) in enumerate(blocks):
-            angles[k] = angles[k] + np.linalg.solve(H_aa, -g_a - H_sa.T @ step)
+            angles[k] = angles[k] + spd_solve(H_aa, -g_a - ordered_product(H_sa.T, step))
         x += step[:n_x]
         x[:m] = np.clip(x[:m], 0.0, 1.0)
         shift += step[n_x:]
