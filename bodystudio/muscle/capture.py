@@ -560,6 +560,21 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                       regressed_joints=None if model is None else np.asarray(model_joints(model, shape), np.float64))
 
 
+def sequence_tracker_weight(o: CaptureOptions, model, poses: list[ArmPose], frames_t: list[DepthFrame],
+                            rest: np.ndarray, joints: np.ndarray, tracker_t: np.ndarray | None) -> float:
+    """The tracker's weight per coordinate in the sequence fit: ``o.sequence_tracker_weight``, or with None the
+    noise-weighted one (``refine.noise_weighted_tracker_weight``) of the depth pairs' spread at ``poses`` on
+    ``rest`` and ``joints`` and the tracker's own noise (0 without a tracker)."""
+    if o.sequence_tracker_weight is not None:
+        return o.sequence_tracker_weight
+    if tracker_t is None:
+        return 0.0
+    sigma_d = depth_residual_sigma_m(model, poses, frames_t, rest, joints, o.norm_limit)
+    weight = noise_weighted_tracker_weight(sigma_d, tracker_noise_sigma_m(tracker_t))
+    log.info("the sequence fit's tracker weight %.4f (depth %.2f mm)", weight, 1000 * sigma_d)
+    return weight
+
+
 def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], frames_t: list[DepthFrame],
                    tracker_t: np.ndarray | None, base: np.ndarray, J: np.ndarray, o: CaptureOptions,
                    known_shape=None) -> tuple[list[ArmPose], np.ndarray, np.ndarray]:
@@ -579,13 +594,9 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
     best = None
     held_out = slice(o.body_rest_frame_stride // 2, None, o.body_rest_frame_stride) if o.body_rest_frame_stride > 1 \
         else slice(None)
-    seq_tw = 0.0 if o.sequence_tracker_weight is None else o.sequence_tracker_weight
     for r in range(max(o.personal_rounds, body_rounds) + 1):
-        if o.sequence_tracker_weight is None and tracker_t is not None:
-            # the depth's spread at the current poses (round 0: the per-frame stage's on the projected rest arm)
-            sigma_d = depth_residual_sigma_m(model, poses, frames_t, base, J if r > 0 else J_model, o.norm_limit)
-            seq_tw = noise_weighted_tracker_weight(sigma_d, tracker_noise_sigma_m(tracker_t))
-            log.info("sequence round %d: the tracker's noise-weighted weight %.4f", r, seq_tw)
+        # the depth's spread at the current poses (round 0: the per-frame stage's, on the projected rest arm)
+        seq_tw = sequence_tracker_weight(o, model, poses, frames_t, base, J if r > 0 else J_model, tracker_t)
         if r > 0 and body_rounds > 0:  # poses -> the body model's rest shape and skeleton -> poses
             sub = slice(None, None, o.body_rest_frame_stride)
             common = (o.body_rest_prior_weight, o.norm_limit, o.sequence_huber_m, o.body_rest_iterations)
