@@ -205,11 +205,17 @@ class CaptureOptions:
     sequence_max_nfev: int = 15
     sequence_fit_root: bool = False
     # The tracker's joints in the sequence fit, per coordinate (1 per depth pair). None: weighted by their noise
-    # (``refine.noise_weighted_tracker_weight``: (depth sigma / tracker sigma)^2, both estimated from the data before
-    # each sequence fit, ``refine.depth_residual_sigma_m`` and ``refine.tracker_noise_sigma_m``).
+    # (``capture.sequence_tracker_weight``: (depth sigma / tracker sigma)^2, both estimated from the data before each
+    # sequence fit; ~0.1 then ~0.02 on the 200-frame sessions). Not the default: measured on the cached state of 501
+    # / 507 (200 frames, with the pose refit; docs/muscle.md thirteenth capture pass) median / p90 mm 3.63 / 5.81,
+    # 3.16 / 6.29 -> 3.57 / 5.77, 3.22 / 6.45; at 3: 3.62 / 5.81, 3.17 / 6.35. The depth pairs carry the rest arm's
+    # error (on 507 they pull the elbow 1-2 mm towards the sensor), which the tracker's unbiased joints hold back.
     sequence_tracker_weight: float | None = 30.0
     # The tracker's joints in the body rest-shape fit (``refine.fit_body_rest_shape[_and_poses]``), per coordinate;
-    # None: ``sequence_tracker_weight`` (the two fits shared one weight before the thirteenth capture pass).
+    # None: the sequence fit's (the two fits shared one weight before the thirteenth capture pass). The eleventh
+    # pass's gain of ``sequence_tracker_weight=3`` on 501 was this fit's (cached state, with the refit: both at 3
+    # 2.92 / 4.97 mm, the sequence fit alone at 3 3.62 / 5.81, default 3.63 / 5.81), and so was most of its loss on
+    # 507 (3.30 / 6.86, 3.17 / 6.35, default 3.16 / 6.29).
     body_rest_tracker_weight: float | None = None
     # The subject's skeleton (rest shoulder, elbow, wrist; the elbow hinge with them) fitted once per sequence
     # with every frame's angles in the sequence fit (``refine.fit_arm_sequence_skeleton``), held to the
