@@ -215,7 +215,8 @@ class CaptureOptions:
     # None: the sequence fit's (the two fits shared one weight before the thirteenth capture pass). The eleventh
     # pass's gain of ``sequence_tracker_weight=3`` on 501 was this fit's (cached state, with the refit: both at 3
     # 2.92 / 4.97 mm, the sequence fit alone at 3 3.62 / 5.81, default 3.63 / 5.81), and so was most of its loss on
-    # 507 (3.30 / 6.86, 3.17 / 6.35, default 3.16 / 6.29).
+    # 507 (3.30 / 6.86, 3.17 / 6.35, default 3.16 / 6.29); this fit alone at 3 / 10: 501 2.91 / 4.98, 3.20 / 5.34,
+    # 507 3.24 / 6.74, 3.16 / 6.45 (the held-out depth energy prefers both on 507: it cannot see the back side).
     body_rest_tracker_weight: float | None = None
     # The subject's skeleton (rest shoulder, elbow, wrist; the elbow hinge with them) fitted once per sequence
     # with every frame's angles in the sequence fit (``refine.fit_arm_sequence_skeleton``), held to the
