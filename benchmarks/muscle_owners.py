@@ -271,8 +271,9 @@ def owner_rows(work: Path, subject_seed: int, options: dict, name: str, pre: Pat
     if not refit_rest:
         row("all truth", with_shoulders(true_poses, J_t, shoulders), base_t, J_t, smooth=False)
         return rows
+    tracker_weight = cm.sequence_tracker_weight(o, model, poses, frames, base_t, J_t, state["tracker_t"])
     refit, _ = fit_arm_sequence_skeleton(
-        model, state["shape"], poses, frames, J_t, o.norm_limit, state["tracker_t"], o.sequence_tracker_weight,
+        model, state["shape"], poses, frames, J_t, o.norm_limit, state["tracker_t"], tracker_weight,
         o.sequence_smooth_weight, o.sequence_rounds, o.sequence_max_nfev, o.sequence_huber_m, o.sequence_fit_root,
         False, o.sequence_skeleton_prior_weight, o.sequence_depth_huber_only, rest=base_t,
         torso_pair_weight=o.sequence_torso_pair_weight)

@@ -69,6 +69,7 @@ from bodystudio.muscle.refine import (
     arm_pose_from_part_transforms,
     correspondence_weights,
     depth_energy_mm,
+    depth_residual_sigma_m,
     fit_arm_sequence_skeleton,
     fit_body_rest_shape,
     fit_body_rest_shape_and_poses,
@@ -76,6 +77,7 @@ from bodystudio.muscle.refine import (
     fit_shape_parameters,
     initial_arm_pose_from_joints,
     model_based_filtering,
+    noise_weighted_tracker_weight,
     posed_joints,
     procrustes_part_transforms,
     refine_surface,
@@ -84,6 +86,7 @@ from bodystudio.muscle.refine import (
     smooth_arm_poses,
     time_consistent_correspondences,
     tracker_mean_standard_error,
+    tracker_noise_sigma_m,
     tracker_placement_prior_weight,
     unseen_hold_weights,
 )
@@ -217,7 +220,20 @@ class CaptureOptions:
     sequence_huber_m: float = 0.004
     sequence_max_nfev: int = 15
     sequence_fit_root: bool = False
-    sequence_tracker_weight: float = 30.0  # the tracker's joints in the sequence fit, per coordinate
+    # The tracker's joints in the sequence fit, per coordinate (1 per depth pair). None: weighted by their noise
+    # (``capture.sequence_tracker_weight``: (depth sigma / tracker sigma)^2, both estimated from the data before each
+    # sequence fit; ~0.1 then ~0.02 on the 200-frame sessions). Not the default: measured on the cached state of 501
+    # / 507 (200 frames, with the pose refit; docs/muscle.md thirteenth capture pass) median / p90 mm 3.63 / 5.81,
+    # 3.16 / 6.29 -> 3.57 / 5.77, 3.22 / 6.45; at 3: 3.62 / 5.81, 3.17 / 6.35. The depth pairs carry the rest arm's
+    # error (on 507 they pull the elbow 1-2 mm towards the sensor), which the tracker's unbiased joints hold back.
+    sequence_tracker_weight: float | None = 30.0
+    # The tracker's joints in the body rest-shape fit (``refine.fit_body_rest_shape[_and_poses]``), per coordinate;
+    # None: the sequence fit's (the two fits shared one weight before the thirteenth capture pass). The eleventh
+    # pass's gain of ``sequence_tracker_weight=3`` on 501 was this fit's (cached state, with the refit: both at 3
+    # 2.92 / 4.97 mm, the sequence fit alone at 3 3.62 / 5.81, default 3.63 / 5.81), and so was most of its loss on
+    # 507 (3.30 / 6.86, 3.17 / 6.35, default 3.16 / 6.29); this fit alone at 3 / 10: 501 2.91 / 4.98, 3.20 / 5.34,
+    # 507 3.24 / 6.74, 3.16 / 6.45 (the held-out depth energy prefers both on 507: it cannot see the back side).
+    body_rest_tracker_weight: float | None = None
     # The subject's skeleton (rest shoulder, elbow, wrist; the elbow hinge with them) fitted once per sequence
     # with every frame's angles in the sequence fit (``refine.fit_arm_sequence_skeleton``), held to the
     # model's regression by ``sequence_skeleton_prior_weight`` per coordinate (1 per depth pair). Off: measured
@@ -570,6 +586,21 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                       regressed_joints=None if model is None else np.asarray(model_joints(model, shape), np.float64))
 
 
+def sequence_tracker_weight(o: CaptureOptions, model, poses: list[ArmPose], frames_t: list[DepthFrame],
+                            rest: np.ndarray, joints: np.ndarray, tracker_t: np.ndarray | None) -> float:
+    """The tracker's weight per coordinate in the sequence fit: ``o.sequence_tracker_weight``, or with None the
+    noise-weighted one (``refine.noise_weighted_tracker_weight``) of the depth pairs' spread at ``poses`` on
+    ``rest`` and ``joints`` and the tracker's own noise (0 without a tracker)."""
+    if o.sequence_tracker_weight is not None:
+        return o.sequence_tracker_weight
+    if tracker_t is None:
+        return 0.0
+    sigma_d = depth_residual_sigma_m(model, poses, frames_t, rest, joints, o.norm_limit)
+    weight = noise_weighted_tracker_weight(sigma_d, tracker_noise_sigma_m(tracker_t))
+    log.info("the sequence fit's tracker weight %.4f (depth %.2f mm)", weight, 1000 * sigma_d)
+    return weight
+
+
 def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], frames_t: list[DepthFrame],
                    tracker_t: np.ndarray | None, base: np.ndarray, J: np.ndarray, o: CaptureOptions,
                    known_shape=None) -> tuple[list[ArmPose], np.ndarray, np.ndarray]:
@@ -590,27 +621,30 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
     held_out = slice(o.body_rest_frame_stride // 2, None, o.body_rest_frame_stride) if o.body_rest_frame_stride > 1 \
         else slice(None)
     for r in range(max(o.personal_rounds, body_rounds) + 1):
+        # the depth's spread at the current poses (round 0: the per-frame stage's, on the projected rest arm)
+        seq_tw = sequence_tracker_weight(o, model, poses, frames_t, base, J if r > 0 else J_model, tracker_t)
         if r > 0 and body_rounds > 0:  # poses -> the body model's rest shape and skeleton -> poses
             sub = slice(None, None, o.body_rest_frame_stride)
             common = (o.body_rest_prior_weight, o.norm_limit, o.sequence_huber_m, o.body_rest_iterations)
             length = (None if known_shape is None else known_shape.arm_length_m, o.body_rest_arm_length_weight)
             tracked = None if tracker_t is None else tracker_t[sub]
+            rest_tw = seq_tw if o.body_rest_tracker_weight is None else o.body_rest_tracker_weight
             if o.body_rest_fit_poses:
                 body_x, shift, _ = fit_body_rest_shape_and_poses(
                     space, model, poses[sub], frames_t[sub], body_x, anchor, prior_mean, prior_sigma, *common,
-                    *length, tracked, o.sequence_tracker_weight, o.body_rest_angle_damping)
+                    *length, tracked, rest_tw, o.body_rest_angle_damping)
             else:
                 body_x, shift = fit_body_rest_shape(
                     space, model, poses[sub], frames_t[sub], body_x, anchor, prior_mean, prior_sigma, *common,
-                    o.body_rest_fit_placement, *length, tracked, o.sequence_tracker_weight)
+                    o.body_rest_fit_placement, *length, tracked, rest_tw)
             base, J_model = space.rest_and_joints(body_x, anchor)
             poses = [_shifted(p, shift) for p in poses]
         elif r > 0:  # poses -> rest shape -> poses (the rest shape and the poses stop trading errors)
             base = fit_rest_shape_correction(model, shape, poses, frames_t, base, J, o.personal_prior_weight,
                                              o.norm_limit, o.sequence_huber_m)
         poses, J = fit_arm_sequence_skeleton(
-            model, shape, poses, frames_t, J_model, o.norm_limit, tracker_t, o.sequence_tracker_weight,
-            o.sequence_smooth_weight, o.sequence_rounds, o.sequence_max_nfev, o.sequence_huber_m,
+            model, shape, poses, frames_t, J_model, o.norm_limit, tracker_t, seq_tw, o.sequence_smooth_weight,
+            o.sequence_rounds, o.sequence_max_nfev, o.sequence_huber_m,
             o.sequence_fit_root, o.sequence_fit_skeleton, o.sequence_skeleton_prior_weight,
             o.sequence_depth_huber_only, rest=base, free_joints=o.sequence_free_joints,
             torso_pair_weight=o.sequence_torso_pair_weight,

@@ -547,6 +547,45 @@ def tracker_mean_standard_error(tracker_joints: np.ndarray) -> float:
     return float(np.sqrt(np.mean(S.var(axis=0)) / len(S)))
 
 
+def tracker_noise_sigma_m(tracker_joints: np.ndarray, floor_m: float = 0.001) -> float:
+    """The body tracker's per-coordinate noise (m), estimated from its own track: ``sqrt(mean(d2^2) / 6)`` over every
+    joint and coordinate, ``d2`` the frame-to-frame second difference of the tracked joints (T, J, 3), at least
+    ``floor_m`` (a noise-free synthetic track would otherwise get an unbounded weight).
+
+    White noise of standard deviation sigma has a second difference of variance 6 sigma^2; the arm's own motion at
+    30 fps adds little to it (an elbow swinging 1 rad over a 3 s period: ~5 mrad per frame^2, ~1.5 mm at the wrist,
+    against 11-13 mm of the Kinect v2's per-frame noise and bone-length jitter). No ground truth: the track itself."""
+    X = np.asarray(tracker_joints, np.float64).reshape(len(tracker_joints), -1, 3)
+    if len(X) < 3:
+        raise InputError(f"the tracker's noise needs at least 3 frames of joints, got {len(X)}")
+    d2 = X[:-2] - 2.0 * X[1:-1] + X[2:]
+    return max(float(np.sqrt(np.mean(d2 * d2) / 6.0)), floor_m)
+
+
+def depth_residual_sigma_m(model, poses: list[ArmPose], frames: list[DepthFrame], rest: np.ndarray,
+                           joints: np.ndarray, norm_limit: float = 0.9, stride: int = 10) -> float:
+    """Robust standard deviation (m) of the depth pairs' point-to-plane residuals (the filtered pairs of Sec. 5.2 of
+    the model meshes of Eq. 12 on ``rest`` and ``joints``), every ``stride``-th frame: 1.4826 x the median absolute
+    residual (the pairs on the wrong surface, which the fits' Huber weights cut, do not inflate it)."""
+    r = []
+    for p, fr in zip(poses[::stride], frames[::stride], strict=True):
+        M = skeleton_model_mesh(model, p, rest, joints, norm_limit)
+        k, q, n = fr.plane_pairs(M)
+        r.append(np.einsum("kd,kd->k", M[k] - q, n))
+    r = np.concatenate(r) if r else np.zeros(0)
+    return float(1.4826 * np.median(np.abs(r))) if len(r) else 0.0
+
+
+def noise_weighted_tracker_weight(depth_sigma_m: float, tracker_sigma_m: float) -> float:
+    """The tracker's weight per coordinate against 1 per depth pair when every term is weighted by 1 / sigma^2 (the
+    maximum-likelihood weighting of independent Gaussian residuals): ``(depth_sigma_m / tracker_sigma_m)^2``.
+
+    The sequence fit of Sec. 6.2 had the tracker's joints at a fixed 30 per coordinate: with the Kinect v2's ~12 mm
+    per coordinate and ~2 mm per depth pair, ~1000 times what their noise warrants (docs/muscle.md, capture passes
+    eleven and thirteen)."""
+    return float((depth_sigma_m / max(tracker_sigma_m, 1e-9)) ** 2)
+
+
 def fit_rest_shape_correction(model, shape, poses: list[ArmPose], frames: list[DepthFrame], rest: np.ndarray,
                               joints: np.ndarray, prior_weight: float = 0.05, norm_limit: float = 0.9,
                               huber_m: float = 0.004, basis: np.ndarray | None = None) -> np.ndarray:
