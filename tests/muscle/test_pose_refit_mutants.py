@@ -257,3 +257,22 @@ def test_zero_steps_return_the_start_and_the_lists_must_match(monkeypatch):
         _refit(c, start[:-1])
     with pytest.raises(ValueError):
         _refit(c, start, tracker_joints=_tracked(c)[:-1], tracker_weight=1.0)
+
+
+def test_the_trackers_joints_need_a_positive_weight_and_the_skeleton_is_read_in_double_precision(monkeypatch):
+    """Joints given without a weight (the default 0), or with weight 0 where the tracker lost a frame (NaN), are
+    not used; joints in single precision are read as doubles (the hinge axis from them is the same)."""
+    c = _case(monkeypatch, noise=0.002)
+    start = _start(c, twist=0.1)
+    bare = _refit(c, start, iterations=2)
+    tracked = _tracked(c)
+    lost = tracked.copy()
+    lost[2] = np.nan
+    for kw in (dict(tracker_joints=tracked), dict(tracker_joints=lost, tracker_weight=0.0)):
+        for p, q in zip(_refit(c, start, iterations=2, **kw), bare, strict=True):
+            np.testing.assert_array_equal(p.angles, q.angles)
+    J32 = c.J.astype(np.float32)
+    single = refit_arm_poses_to_depth(c.model, start, c.frames, c.rest, J32, iterations=2)
+    double = refit_arm_poses_to_depth(c.model, start, c.frames, c.rest, J32.astype(np.float64), iterations=2)
+    for p, q in zip(single, double, strict=True):
+        np.testing.assert_allclose(p.angles, q.angles, rtol=0, atol=1e-13)
