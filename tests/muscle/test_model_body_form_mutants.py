@@ -381,3 +381,62 @@ def test_version_2_files_read_as_linear_and_bad_body_form_files_are_refused(monk
     # the stand-in's local targets are what the file records
     assert space.n_parameters == len(BODY_MACRO_NAMES) + 3 and N_V == 12
     assert SHAPE.sex == 0.0
+
+
+def test_rows_and_residuals_of_different_lengths_are_refused(monkeypatch):
+    model, space, _ = _model(monkeypatch)
+    rows, res = model.shape_rows, model.shape_residuals
+    for r, d in ((rows, res[:-1]), (rows[:-1], res)):
+        with pytest.raises(ValueError):
+            shape_row_parameters(model, r, d)
+
+
+def test_stored_parameters_are_kept_as_given_and_stale_ones_all_replaced(monkeypatch):
+    """The rows' stored parameters (given, not a projection: as the planted 2k test gives them) are kept for the
+    old rows; stored parameters whose count does not match the rows are replaced by projections, all of them (a
+    one-row model included)."""
+    model, space, _ = _model(monkeypatch)
+    rng = np.random.default_rng(13)
+    frames = _frames(model, space.rest_and_joints(space.prior()[0])[0], name="new", shape=SHAPE)
+    given = space.prior()[0] + 0.1 * rng.normal(size=(len(model.shape_rows), space.n_parameters))
+    body = replace(with_shape_form(model, "body"), shape_params=given)
+    ext = extend_arm_model(body, frames)
+    np.testing.assert_array_equal(ext.shape_params[:-1], given)
+    np.testing.assert_allclose(ext.shape_params[-1:], _ref_params(ext, space, ext.shape_rows[-1:],
+                                                                  ext.shape_residuals[-1:]), rtol=0, atol=1e-12)
+    for stale in (given[:-1], given[:1]):
+        ext2 = extend_arm_model(replace(body, shape_params=stale), frames)
+        np.testing.assert_allclose(ext2.shape_params, _ref_params(ext2, space, ext2.shape_rows, ext2.shape_residuals),
+                                   rtol=0, atol=1e-12)
+    one = replace(body, shape_rows=model.shape_rows[:1], shape_residuals=model.shape_residuals[:1], shape_params=None)
+    ext1 = extend_arm_model(one, frames)
+    np.testing.assert_allclose(ext1.shape_params, _ref_params(ext1, space, ext1.shape_rows, ext1.shape_residuals),
+                               rtol=0, atol=1e-12)
+
+
+def test_body_rows_with_either_form_and_the_source_reach_the_record(monkeypatch):
+    model, space, calls = _model(monkeypatch)
+    frames = _frames(model, space.rest_and_joints(space.prior()[0])[0], name="new")
+    for form in (None, "linear", "body"):
+        ext = extend_arm_model(model, frames, captured_rest="body", shape_form=form)
+        assert ext.subjects[-1]["rest"].startswith("body space"), form
+        assert ext.subjects[-1]["source"] == "capture"
+    assert extend_arm_model(model, frames, source="ground truth").subjects[-1]["source"] == "ground truth"
+
+
+def test_the_file_keeps_the_subjects_and_the_sex_weight_and_reads_versions_1_to_3_only(monkeypatch, tmp_path):
+    model, space, _ = _model(monkeypatch)
+    body = with_shape_form(model, "body")
+    save_arm_model(tmp_path / "b.npz", body)
+    back = load_arm_model(tmp_path / "b.npz")
+    assert back.subjects == body.subjects and back.sex_regularization == 0.2 and back.regularization == 0.7
+    save_arm_model(tmp_path / "l.npz", model)
+    v1 = load_arm_model(_rewrite(tmp_path / "l.npz", tmp_path / "v1.npz",  # no sex column, no form: linear
+                                 lambda h: {k: v for k, v in h.items() if k not in ("shape_form", "sex_regularization")}
+                                 | {"version": 1}, arrays={"shape_rows": model.shape_rows[:, :4],
+                                                           "shape_coeffs": model.shape_coeffs[:5]}))
+    assert v1.shape_form == "linear" and v1.shape_params is None
+    for bad in (4, 0, True, "3"):
+        path = _rewrite(tmp_path / "b.npz", tmp_path / f"v{bad}.npz", lambda h, bad=bad: {**h, "version": bad})
+        with pytest.raises(FileFormatError, match="is not supported"):
+            load_arm_model(path)
