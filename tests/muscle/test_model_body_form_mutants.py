@@ -422,6 +422,8 @@ def test_body_rows_with_either_form_and_the_source_reach_the_record(monkeypatch)
         assert ext.subjects[-1]["rest"].startswith("body space"), form
         assert ext.subjects[-1]["source"] == "capture"
     assert extend_arm_model(model, frames, source="ground truth").subjects[-1]["source"] == "ground truth"
+    ext = extend_arm_model(model, frames, captured_rest="body", shape_form="body", prior_weight=0.5)
+    assert ext.subjects[-1]["rest"] == "body space (prior weight 0.5)"
 
 
 def test_the_file_keeps_the_subjects_and_the_sex_weight_and_reads_versions_1_to_3_only(monkeypatch, tmp_path):
