@@ -29,6 +29,7 @@ def test_the_twist_bones_are_the_plans_last_entries_and_counted(body):  # noqa: 
         np.testing.assert_array_equal(twist.subtree_weight[:, S + k], plain.subtree_weight[:, c])
         np.testing.assert_array_equal(twist.joint_moves[:, S + k], plain.joint_moves[:, c])
     np.testing.assert_array_equal(twist.subtree_weight[:, :S], plain.subtree_weight)
+    np.testing.assert_allclose(twist.rest_inverse, np.linalg.inv(sk.rest_frames), rtol=0, atol=1e-12)
     few = rf.refine_plan(body.vertices, body.faces, body.weights, sk, swing_bones=("thigh_l",), twist_bones=("calf_l",))
     assert list(few.bones) == [names.index("Root"), names.index("thigh_l"), names.index("calf_l")]
     assert few.n_twist == 1
