@@ -677,8 +677,8 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
     if model.shape_form == "body":
         known = model.shape_params if model.shape_params is not None else np.zeros((0, 0))
         n_known = len(known) if len(known) == len(model.shape_rows) else 0  # a linear model's rows: projected here
-        params = np.concatenate([known[:n_known].reshape(n_known, -1),
-                                 shape_row_parameters(model, rows[n_known:], R[n_known:])])
+        new = shape_row_parameters(model, rows[n_known:], R[n_known:])
+        params = np.concatenate([known[:n_known].reshape(n_known, new.shape[1]), new])
         body_coeffs, shape_coeffs = fit_body_form(model, rows, R, params)
     else:
         shape_coeffs = fit_shape_coefficients(model, rows, R)

@@ -107,6 +107,10 @@ def fixture(name):
     """A fixture's value, built once: the ones above, else a ``@pytest.fixture`` of the test module (e.g. ``case``
     of test_pose_refine_analytic.py) or of its folder's conftest.py or tests/conftest.py (called with its own
     fixtures; yield fixtures are not supported)."""
+    if name == "tmp_path_factory" and name not in fixture_values:  # e.g. tests/conftest.py's tiny_arm_model_path
+        from types import SimpleNamespace
+
+        fixture_values[name] = SimpleNamespace(mktemp=lambda base, numbered=True: Path(tempfile.mkdtemp(prefix=base)))
     if name not in fixture_values:
         defn = getattr(mod, name, None)
         if defn is None:
