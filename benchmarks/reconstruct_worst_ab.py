@@ -28,7 +28,7 @@ import numpy as np
 REGIONS = ("head", "torso", "crotch", "arms", "hands", "legs", "feet")
 SESSIONS = {"walk31": ("walk", 31), "turn3": ("turn", 3), "arm_flex12": ("arm_flex", 12)}
 # rec15h's held-out sessions (subjects and motion seeds no setting was tuned on): MOTION SUBJECT s SEED
-HELD_OUT = ("walk58s1", "turn66s2", "arm_flex71s3")
+HELD_OUT = ("walk58s1", "turn66s2", "arm_flex71s3", "arms_raise79s4")
 
 
 def session_spec(name: str) -> tuple[str, int, int]:
