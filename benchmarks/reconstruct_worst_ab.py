@@ -27,6 +27,21 @@ import numpy as np
 
 REGIONS = ("head", "torso", "crotch", "arms", "hands", "legs", "feet")
 SESSIONS = {"walk31": ("walk", 31), "turn3": ("turn", 3), "arm_flex12": ("arm_flex", 12)}
+# rec15h's held-out sessions (subjects and motion seeds no setting was tuned on): MOTION SUBJECT s SEED
+HELD_OUT = ("walk58s1", "turn66s2", "arm_flex71s3", "arms_raise79s4")
+
+
+def session_spec(name: str) -> tuple[str, int, int]:
+    """``walk31`` -> ("walk", 31, 0); ``turn66s2`` -> ("turn", 66, 2) (motion, subject, motion seed)."""
+    import re
+
+    from bodystudio.capture.motion import MOTIONS
+
+    motions = "|".join(sorted(MOTIONS, key=len, reverse=True))
+    m = re.fullmatch(rf"({motions})(\d+)(?:s(\d+))?", name.split("_copy")[0])
+    if m is None:
+        raise SystemExit(f"--sessions {name!r}: name a session MOTION SUBJECT[sSEED], e.g. walk31 or turn66s2")
+    return m.group(1), int(m.group(2)), int(m.group(3) or 0)
 
 
 def parse_value(v: str):
@@ -45,12 +60,19 @@ def parse_variants(text: str) -> list[tuple[str, dict]]:
     """``NAME=k:v,k:v;NAME2=...`` -> [(NAME, {k: v})]. Keys ``m_NAME`` are fields of the tracked frames'
     :class:`MatchSchedule` (issue 15's frame time, e.g. ``m_cheap_iterations:2,m_keep_outline:True``): they
     become one ``t_matching``, over the exact ``MatchSchedule()`` (not the tracker's default: name every field).
+    ``NAME=@accurate`` is :data:`bodystudio.reconstruct.presets.ACCURATE_SETTINGS` and ``ACCURATE_PARAMS`` (the
+    CLI's ``--accurate``; its tracking comes from ``--modes``: run it with ``--modes tracking``).
     """
+    from bodystudio.reconstruct.presets import ACCURATE_PARAMS, ACCURATE_SETTINGS
     from bodystudio.reconstruct.silhouette import MatchSchedule
 
     out = []
     for part in text.split(";"):
         name, _, kv = part.partition("=")
+        if kv.strip() == "@accurate":
+            out.append((name.strip(), {**{f"r_{k}": v for k, v in ACCURATE_SETTINGS.items() if k != "tracking"},
+                                       **ACCURATE_PARAMS}))
+            continue
         kw = {k: parse_value(v) for k, _, v in (item.partition(":") for item in filter(None, kv.split(",")))}
         match_kw = {k[2:]: kw.pop(k) for k in [k for k in kw if k.startswith("m_")]}
         if match_kw:
@@ -129,9 +151,9 @@ def main() -> None:
     for sname in args.sessions.split(","):
         path = args.root / sname
         if not path.exists():
-            motion, subject = SESSIONS[sname.split("_copy")[0]]
+            motion, subject, seed = session_spec(sname)
             synth_session(path, n_cameras=10, n_frames=6, motion=motion, subject_seed=subject, template="full",
-                          fps=30.0)
+                          fps=30.0, seed=seed)
         for cons in cons_list:
             for tracking in modes:
                 for vname, kw in parse_variants(args.variants):

@@ -50,6 +50,11 @@ def reconstruct(
     workers: int | None = typer.Option(None, "--workers", help="run chunks on a local cluster of N worker processes"),
     chunk: int | None = typer.Option(None, "--chunk", help="frames per work unit on a cluster (default 10)"),
     force: bool = typer.Option(False, "--force", help="on a cluster: redo every chunk, also unchanged ones"),
+    accurate: bool = typer.Option(False, "--accurate", help="the accurate setting (reconstruct.presets."
+                                  "ACCURATE_SETTINGS): tracking, joint smoothing 2 and the shape prior, the "
+                                  "whole body's depth in the pose refinement and a torso hold, each with its "
+                                  "guard; measured with --constraints silhouette,depth (docs/reconstruct.md); "
+                                  "sequential path only"),
     accept_implausible: bool = typer.Option(False, "--accept-implausible", help="write the result even when its "
                                             "self-check finds a camera the fit cannot explain (silhouette IoU "
                                             "< 0.75) or depth that does not fit the body (docs/reconstruct.md)"),
@@ -70,14 +75,22 @@ def reconstruct(
         raise InputError(f"--bone-lengths {bone_lengths!r}: use {' or '.join(BONE_LENGTHS)}")
     if not 0 <= joint_smoothing <= 50:
         raise InputError(f"--joint-smoothing {joint_smoothing}: give a half window of 0..50 frames")
-    check_output_folder(session / "reconstruct", "reconstruct output")
-    params = RapidSkinParams(outer_iterations=outer, inner_iterations=inner, tau_px=tau, alpha_px=alpha,
-                             solver=solver, constraints=_constraints(constraints))
     import os
 
     from bodystudio.batch import ENV_SCHEDULER
+    from bodystudio.reconstruct.presets import ACCURATE_SETTINGS, accurate_keywords
 
-    if scheduler is not None or workers is not None or chunk is not None or os.environ.get(ENV_SCHEDULER):
+    on_cluster = scheduler is not None or workers is not None or chunk is not None or os.environ.get(ENV_SCHEDULER)
+    if accurate and on_cluster:
+        raise InputError("--accurate runs on the sequential path only (it tracks and smooths over neighbouring "
+                         f"frames); drop --workers/--scheduler/--chunk (and ${ENV_SCHEDULER}) or drop --accurate")
+    if accurate and joint_smoothing not in (0, ACCURATE_SETTINGS["joint_smoothing"]):
+        raise InputError(f"--accurate sets --joint-smoothing {ACCURATE_SETTINGS['joint_smoothing']} itself; "
+                         f"drop --joint-smoothing {joint_smoothing} or drop --accurate")
+    check_output_folder(session / "reconstruct", "reconstruct output")
+    params = RapidSkinParams(outer_iterations=outer, inner_iterations=inner, tau_px=tau, alpha_px=alpha,
+                             solver=solver, constraints=_constraints(constraints))
+    if on_cluster:
         if tracking:
             raise InputError("--tracking runs on the sequential path only; drop --workers/--scheduler/--chunk "
                              f"(and ${ENV_SCHEDULER}) or drop --tracking")
@@ -91,11 +104,14 @@ def reconstruct(
                                           joints_path=str(joints_path) if joints_path else None,
                                           accept_implausible=accept_implausible)
     else:  # the sequential path stays the default (no cluster start-up, one warm start over the session)
+        run_kw = {"params": params, "tracking": tracking, "joint_smoothing": joint_smoothing}
+        if accurate:
+            run_kw = accurate_keywords(params)
         summary = reconstruct_session(session, solver=solver, template=template, joints=joints,
                                       constraints=params.constraints, frames=frames, joints_path=joints_path,
-                                      params=params, warm_start=warm_start, refine_pose=refine_pose, score=score,
-                                      progress=True, tracking=tracking, bone_lengths=bone_lengths,
-                                      joint_smoothing=joint_smoothing, accept_implausible=accept_implausible)
+                                      warm_start=warm_start, refine_pose=refine_pose, score=score,
+                                      progress=True, bone_lengths=bone_lengths,
+                                      accept_implausible=accept_implausible, **run_kw)
     table = Table(title=f"Rapid Skin: {session} ({solver}, {template}, {constraints})")
     table.add_column("figure")
     table.add_column("value", justify="right")
