@@ -196,6 +196,9 @@ TRACK_SESSIONS = (("walk", 31), ("turn", 3), ("arm_flex", 12))
 TRACK_FPS = 30.0
 STEPS = ("read_ms", "init_ms", "fields_ms", "refine_ms", "track_ms", "matching_ms", "solver_ms", "other_ms",
          "frame_ms")
+#: ``bodystudio reconstruct --accurate`` (``reconstruct.presets``: the tracker, guarded joint smoothing 2, the shape
+#: prior, the whole body's depth in the pose refinement, the torso hold; docs/reconstruct.md, rec15g / rec15h)
+ACCURATE_MODE = "accurate (--accurate)"
 #: (label, tracking, refinement data, hull gate on the silhouette matches, bone lengths, joint smoothing): the
 #: previous defaults (carved hull; distance fields without the gate; each frame's tracked bone lengths), the
 #: per-frame init with the gate and one set of bone lengths per run (the default), with the joints smoothed over
@@ -208,7 +211,8 @@ TRACK_MODES = (("per-frame init, hull, no gate, frame lengths", False, "hull", F
                ("tracker, frame lengths", True, "fields", True, "frame", 0),
                ("tracker, 6 fit it, No = 8 (before issue 15's frame time)", True, "fields", True, "sequence", 0),
                ("tracker", True, "fields", True, "sequence", 0),
-               ("tracker, joint smoothing 2", True, "fields", True, "sequence", 2))
+               ("tracker, joint smoothing 2", True, "fields", True, "sequence", 2),
+               (ACCURATE_MODE, True, "fields", True, "sequence", 2))
 #: The tracker as first measured: every tracked frame 6 fit iterations and the run's No (the rows so named).
 TRACK_BEFORE = {"iterations": 6, "min_decrease": 0.0, "outer_iterations": 0}
 REGION_NAMES = ("head", "torso", "crotch", "arms", "hands", "legs", "feet")
@@ -409,6 +413,7 @@ def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
     from threadpoolctl import threadpool_limits
 
     from bodystudio.capture.synth import synth_session
+    from bodystudio.reconstruct.presets import accurate_keywords
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams
     from bodystudio.reconstruct.sequence import reconstruct_session
     from bodystudio.reconstruct.tracking import TrackParams
@@ -426,9 +431,13 @@ def _tracking(tmp: Path, n_frames: int) -> tuple[str, str, dict]:
                 params = RapidSkinParams(constraints=constraints, hull_gate_m=RapidSkinParams().hull_gate_m * gated)
                 with threadpool_limits(1):
                     track_params = TrackParams(**TRACK_BEFORE) if "(before" in mode else TrackParams()
-                    s = reconstruct_session(path, template="13k", constraints=constraints, tracking=tracking,
-                                            refine_with=refine_with, params=params, bone_lengths=lengths,
-                                            joint_smoothing=smoothing, track_params=track_params)
+                    if mode == ACCURATE_MODE:
+                        s = reconstruct_session(path, template="13k", constraints=constraints,
+                                                **accurate_keywords(params))
+                    else:
+                        s = reconstruct_session(path, template="13k", constraints=constraints, tracking=tracking,
+                                                refine_with=refine_with, params=params, bone_lengths=lengths,
+                                                joint_smoothing=smoothing, track_params=track_params)
                 frames = json.loads((path / "reconstruct" / "frames.json").read_text())["frames"]
                 # frame 0 compiles and initialises in both modes; the steady state is the later frames
                 later = frames[1:] or frames
@@ -506,7 +515,11 @@ def run(quick: bool = False) -> str:
         "on the data energy's plateau and its deformation re-matches fewer times (`TrackParams`: "
         f"min_decrease {TrackParams().min_decrease:g}, No = {TrackParams().outer_iterations or 8}); "
         "'tracker, 6 fit it, No = 8 (before ...)': every tracked frame 6 fit iterations and No = 8, the tracker "
-        "as first measured. Whole-frame ms by step are "
+        "as first measured; 'accurate (--accurate)': `bodystudio reconstruct --accurate` (the tracker, the "
+        "joints smoothed over +-2 frames with a silhouette guard, the body model's shape prior, the whole body's "
+        "Kinect depth in the pose refinement with a silhouette guard, the torso held against the outer "
+        "iterations' drift; `reconstruct.presets`; tuned on these three sessions, checked on four held-out ones in "
+        "docs/reconstruct.md). Whole-frame ms by step are "
         "means over frames 1.. "
         "(frame 0 initialises in both modes), numba and BLAS on one thread, wall time on the shared machine.",
         track_time,
