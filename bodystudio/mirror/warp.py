@@ -302,10 +302,14 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
     t_roi, groups_roi = t, groups
     if dense is not None and not mls_outside:  # the body and its outline band only (MIR12k)
         out = np.full((H, W, 2), OUTSIDE_PX, np.float32)
-        refine_outline(out, dense, band_px, inner_band_px)
-        if foreground is not None and extra_reach_px is not None:
-            carry_extras(out, dense, foreground_extras(foreground, dense, extra_reach_px))
-        return out
+        if foreground is None or extra_reach_px is None:
+            return refine_outline(out, dense, band_px, inner_band_px)
+        distances: list = []
+        refine_outline(out, dense, band_px, inner_band_px, distances)
+        if extra_reach_px < _outline_margin_px(band_px, inner_band_px) - 1 and \
+                not _beyond_reach(foreground, distances, extra_reach_px):
+            return out  # no foreground that far out (most frames): the outline's distances tell, no transform
+        return carry_extras(out, dense, foreground_extras(foreground, dense, extra_reach_px))
     if dense is not None:
         dense_src_uv, dense_groups = dense.grid_source_uv, dense.grid_groups
     if dense_src_uv is not None:
@@ -352,6 +356,31 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
     if dense is not None:
         refine_outline(out, dense, band_px, inner_band_px)
     return out
+
+
+def _beyond_reach(fg_mask: np.ndarray, distances: list, reach_px: float) -> bool:
+    """Whether a pixel of ``fg_mask`` may lie more than ``reach_px`` outside the source body: one outside every box
+    of :func:`refine_outline`'s ``distances``, or one in a box whose signed distance says so (within a box's margin
+    its distances are the image's: :func:`people_boxes`; so False means :func:`foreground_extras` finds none)."""
+    m8 = fg_mask.view(np.uint8) if fg_mask.dtype == bool else (np.asarray(fg_mask) != 0).astype(np.uint8)
+    left = cv2.countNonZero(m8)
+    for (y0, y1, x0, x1), sd in distances:
+        sub = m8[y0:y1, x0:x1]
+        left -= cv2.countNonZero(sub)
+        # outside the silhouette the signed distance is 0.5 - the distance (``_signed_distance``)
+        if _any_beyond(sub, sd, np.float32(0.5 - reach_px)):
+            return True
+    return left > 0
+
+
+@njit(cache=True)
+def _any_beyond(fg, sd, below):
+    """Whether any pixel of ``fg`` has ``sd`` below ``below``."""
+    for r in range(fg.shape[0]):
+        for c in range(fg.shape[1]):
+            if fg[r, c] and sd[r, c] < below:
+                return True
+    return False
 
 
 def foreground_extras(fg_mask: np.ndarray, dense, reach_px: float = EXTRA_REACH_PX):
@@ -464,7 +493,8 @@ def upsample_field(field: np.ndarray, shape=(480, 640)) -> np.ndarray:
     return out
 
 
-def refine_outline(field: np.ndarray, dense, band_px: float = 6.0, inner_px: float = 8.0) -> np.ndarray:
+def refine_outline(field: np.ndarray, dense, band_px: float = 6.0, inner_px: float = 8.0,
+                   distances: list | None = None) -> np.ndarray:
     """The backward field set per pixel on the target body and around its outline (in place; returns it).
 
     On the pixels the target body covers the field takes the exact correspondence (``dense.source_uv``: the
@@ -477,7 +507,8 @@ def refine_outline(field: np.ndarray, dense, band_px: float = 6.0, inner_px: flo
     handles does.) The covered pixels within ``inner_px`` of the outline are moved the same way, to lie as far
     inside the source's outline as they lie inside the target's, so the map stays continuous across the outline
     (MIR-SYNTH 41 / 42, true vertices: 0.948 / 0.965 without, 0.958 / 0.981 with 8 px). Outside the band the
-    grid field stays.
+    grid field stays. ``distances``: a list that gets, per person's box of the crop, its image box
+    ``(y0, y1, x0, x1)`` and the source silhouette's signed distance there (:func:`foreground_extras` reuses them).
     """
     x0, y0 = dense.origin
     inside = np.isfinite(dense.source_uv[..., 0])
@@ -490,9 +521,11 @@ def refine_outline(field: np.ndarray, dense, band_px: float = 6.0, inner_px: flo
         dist, label = cv2.distanceTransformWithLabels((~sub).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
                                                       labelType=cv2.DIST_LABEL_PIXEL)
         depth_in = cv2.distanceTransform(sub.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+        sd = _signed_distance(dense.source_mask[r0:r1, c0:c1])
         _outline_band(field[y0 + r0:y0 + r1, x0 + c0:x0 + c1], dense.source_uv[r0:r1, c0:c1], sub, dist, label,
-                      _signed_distance(dense.source_mask[r0:r1, c0:c1]), float(band_px), float(x0 + c0),
-                      float(y0 + r0), depth_in, float(inner_px))
+                      sd, float(band_px), float(x0 + c0), float(y0 + r0), depth_in, float(inner_px))
+        if distances is not None:
+            distances.append(((y0 + r0, y0 + r1, x0 + c0, x0 + c1), sd))
     return field
 
 

@@ -18,8 +18,11 @@ from bodystudio.mirror.warp import (
     OUTLINE_BAND_PX,
     OUTSIDE_PX,
     DenseCorrespondence,
+    carry_extras,
+    foreground_extras,
     mls_grid_nodes,
     mls_warp_field,
+    refine_outline,
     warp_foreground,
 )
 
@@ -168,3 +171,22 @@ def test_the_extras_need_to_reach_beyond_the_threshold():
     plain = mls_warp_field(src_pts, dst_pts, (H, W), grid=(H // 4, W // 4), kind="similarity", alpha=2.0,
                            radius_px=32.0, dense=dense)
     np.testing.assert_array_equal(field, plain)
+
+
+def test_the_quick_check_for_no_extras_is_the_full_one():
+    """``mls_warp_field`` skips the extras' own distance transform where the outline's distances show no foreground
+    beyond reach; with rims of every width around the threshold the field is the full path's (refine_outline, then
+    carry_extras of foreground_extras), and the rims beyond it are carried."""
+    dense, src_pts, dst_pts, _, _, _ = _case()
+    yy, xx = np.mgrid[0:H, 0:W]
+    r = np.hypot(xx - CX, yy - CY)
+    carried = 0
+    for rim in np.arange(EXTRA_REACH_PX - 2.0, EXTRA_REACH_PX + 3.0, 0.5):
+        person = r < R_SOURCE + rim
+        field = mls_warp_field(src_pts, dst_pts, (H, W), grid=(H // 4, W // 4), kind="similarity", alpha=2.0,
+                               radius_px=32.0, dense=dense, foreground=person)
+        full = refine_outline(np.full((H, W, 2), OUTSIDE_PX, np.float32), dense, OUTLINE_BAND_PX, 8.0)
+        carry_extras(full, dense, foreground_extras(person, dense))
+        np.testing.assert_array_equal(field, full)
+        carried += int((field != OUTSIDE_PX).any(-1).sum() > (np.hypot(xx - CX, yy - CY) < R_TARGET + 1.5).sum())
+    assert 2 <= carried <= 6, carried
