@@ -173,6 +173,25 @@ def test_the_extras_need_to_reach_beyond_the_threshold():
     np.testing.assert_array_equal(field, plain)
 
 
+def test_no_extras_transform_where_the_foreground_stays_within_reach(monkeypatch):
+    """The 3 px rim alone: the outline's distances tell, ``foreground_extras`` (its distance transform) is not run."""
+    from bodystudio.mirror import warp
+
+    dense, src_pts, dst_pts, _, _, _ = _case()
+    yy, xx = np.mgrid[0:H, 0:W]
+    person = np.hypot(xx - CX, yy - CY) < R_SOURCE + 3.0
+    plain = mls_warp_field(src_pts, dst_pts, (H, W), grid=(H // 4, W // 4), kind="similarity", alpha=2.0,
+                           radius_px=32.0, dense=dense)
+
+    def never(*a, **k):
+        raise AssertionError("foreground_extras run where no foreground reaches beyond the threshold")
+
+    monkeypatch.setattr(warp, "foreground_extras", never)
+    field = mls_warp_field(src_pts, dst_pts, (H, W), grid=(H // 4, W // 4), kind="similarity", alpha=2.0,
+                           radius_px=32.0, dense=dense, foreground=person)
+    np.testing.assert_array_equal(field, plain)
+
+
 def test_the_quick_check_for_no_extras_is_the_full_one():
     """``mls_warp_field`` skips the extras' own distance transform where the outline's distances show no foreground
     beyond reach; with rims of every width around the threshold the field is the full path's (refine_outline, then
@@ -190,3 +209,14 @@ def test_the_quick_check_for_no_extras_is_the_full_one():
         np.testing.assert_array_equal(field, full)
         carried += int((field != OUTSIDE_PX).any(-1).sum() > (np.hypot(xx - CX, yy - CY) < R_TARGET + 1.5).sum())
     assert 2 <= carried <= 6, carried
+    # a bag held apart from the body, beyond the outline's boxes (their margin: 12 px), with the 3 px rim: carried
+    person = r < R_SOURCE + 3.0
+    person[56:64, 126:134] = True
+    field = mls_warp_field(src_pts, dst_pts, (H, W), grid=(H // 4, W // 4), kind="similarity", alpha=2.0,
+                           radius_px=32.0, dense=dense, foreground=person)
+    full = refine_outline(np.full((H, W, 2), OUTSIDE_PX, np.float32), dense, OUTLINE_BAND_PX, 8.0)
+    carry_extras(full, dense, foreground_extras(person, dense))
+    np.testing.assert_array_equal(field, full)
+    # moved in by ~6 px with the side, and ~15 % shorter as the radial displacement squeezes it (6 rows of 8)
+    shown = (field != OUTSIDE_PX).all(-1) & (r > R_TARGET + 8.0)
+    assert shown[56:64, 120:128].sum() == 48 and shown.sum() == 48
