@@ -76,8 +76,9 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
         return frame_pairs(sources, targets, F1, case.camera, "dense" if dense else "mls")
 
     def field_of(kind, radius_px=MLS_RADIUS_PX, dense=dense):
+        # the run's call: with the refined foreground, whose extras beyond the fitted body the dense warp carries
         return lambda: mls_warp_field(case.src_uv, case.dst_uv, kind=kind, alpha=MLS_ALPHA, groups=case.pair_groups,
-                                      radius_px=radius_px, dense=case.dense if dense else None)
+                                      radius_px=radius_px, dense=case.dense if dense else None, foreground=fg)
 
     field = field_of("similarity")()
     warped, alpha = warp_foreground(case.rgb, fg, field)

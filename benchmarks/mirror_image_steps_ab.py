@@ -96,18 +96,20 @@ def _steps(case, ow, of, oc, rounds: int) -> dict:
     fg_o = of.refine_foreground(case.rgb, case.player_mask, background=bg)
     fg_t = F.refine_foreground(case.rgb, case.player_mask, background=bg, labels=labels)
 
-    def field(mod, p):
+    def field(mod, p, fg):
+        # the run's call: with its refined foreground where the tree's field takes it (MIR12l: the extras carried)
+        extra = {"foreground": fg} if "foreground" in inspect.signature(mod.mls_warp_field).parameters else {}
         return lambda: mod.mls_warp_field(p.src_uv, p.dst_uv, kind="similarity", alpha=MLS_ALPHA, groups=p.groups,
-                                          radius_px=MLS_RADIUS_PX, dense=p.dense)
+                                          radius_px=MLS_RADIUS_PX, dense=p.dense, **extra)
 
-    f_o, f_t = field(ow, po)(), field(W, pt)()
+    f_o, f_t = field(ow, po, fg_o)(), field(W, pt, fg_t)()
     wo, ao = ow.warp_foreground(case.rgb, fg_o, f_o)
     wt, at = W.warp_foreground(case.rgb, fg_t, f_t)
     steps = {
         "pairs": (other_pairs, this_pairs),
         "graph cut": (lambda: of.refine_foreground(case.rgb, case.player_mask, background=bg),
                       lambda: F.refine_foreground(case.rgb, case.player_mask, background=bg, labels=labels)),
-        "warp field": (field(ow, po), field(W, pt)),
+        "warp field": (field(ow, po, fg_o), field(W, pt, fg_t)),
         "warp (remap)": (lambda: ow.warp_foreground(case.rgb, fg_o, f_o),
                          lambda: W.warp_foreground(case.rgb, fg_t, f_t)),
         "compose": (lambda: oc.compose(wo, ao, bg, case.rgb, fg_o), lambda: C.compose(wt, at, bg, case.rgb, fg_t)),

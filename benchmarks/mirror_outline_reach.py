@@ -13,7 +13,13 @@ scored against the target's true silhouette (player 1). Variants:
 * ``bandB``: ``band_px=B`` (the run's field since MIR12k with another band);
 * ``innerB``: ``inner_band_px=B``;
 * ``scaleM_B``: the band's pixels ``d`` px outside the target mapped ``M d`` px outside the source's outline,
-  nothing beyond ``B`` px.
+  nothing beyond ``B`` px;
+* ``extraN``: the run's field with the foreground regions reaching more than ``N`` px outside the fitted source body
+  carried (``extra_reach_px=N``, MIR12l); ``noextra``: none carried (MIR12k's field).
+
+With ``--reach`` also, per frame, how far the true foreground of player 1 (``gt/person``) and the run's refined
+foreground reach outside the fitted source body's silhouette: the largest distance and the pixels beyond 2-16 px
+(summed), the misalignment distribution ``EXTRA_REACH_PX`` is chosen on.
 
 ``--iterations K``: the pose refinement's Gauss-Newton steps (the run's own otherwise). Prints, over all scored
 frames and over those from ``--first`` on (the frames ``eval mirror`` scores after the CLI's 30-frame ramp), the
@@ -82,7 +88,26 @@ def variant_field(name: str, field_fn, src, dst, shape, kw) -> np.ndarray:
         scaled_outline(f, dense, b, 8.0, m)
         f[inside_distance(dense, shape)[1] > b] = OUTSIDE_PX
         return f
+    if name == "noextra":
+        return field_fn(src, dst, shape, **{**kw, "extra_reach_px": None})
+    if name.startswith("extra"):
+        return field_fn(src, dst, shape, **{**kw, "extra_reach_px": float(name[5:])})
     raise SystemExit(f"unknown variant {name!r}")
+
+
+REACH_PX = (2, 4, 6, 8, 10, 12, 16)
+
+
+def outside_reach(mask: np.ndarray, dense) -> dict:
+    """How far ``mask`` (H, W) reaches outside the fitted source body (``dense.source_mask``): the largest distance
+    and the pixel counts beyond each of :data:`REACH_PX`."""
+    H, W = mask.shape
+    x0, y0 = dense.origin
+    h, w = dense.source_mask.shape
+    body = np.zeros((H, W), np.uint8)
+    body[y0:y0 + h, x0:x0 + w] = dense.source_mask
+    d = cv2.distanceTransform(1 - body, cv2.DIST_L2, cv2.DIST_MASK_5)[mask]
+    return {"max": float(d.max()) if d.size else 0.0, **{f"gt{n}": int((d > n).sum()) for n in REACH_PX}}
 
 
 def main() -> None:
@@ -96,6 +121,8 @@ def main() -> None:
     parser.add_argument("--frames", default=None, help="a slice A:B[:C] of the session's frame ids")
     parser.add_argument("--iterations", type=int, default=None, help="Gauss-Newton steps of the pose refinement")
     parser.add_argument("--variants", nargs="*", default=["mls6", "cut2", "cut1", "band2", "band0"])
+    parser.add_argument("--reach", action="store_true", help="the foreground's reach outside the source body")
+    parser.add_argument("--rows", type=Path, default=None, help="write each frame's row to this JSON-lines file")
     args = parser.parse_args()
     if args.iterations is not None:
         R.refine_steps = lambda n, k=args.iterations: k
@@ -107,6 +134,7 @@ def main() -> None:
         state["fields"] = {"base": f}
         if kw.get("dense") is not None:
             state["inside"] = inside_distance(kw["dense"], shape)
+            state["dense"] = kw["dense"]
             for v in args.variants:
                 state["fields"][v] = variant_field(v, field_fn, src, dst, shape, kw)
         return f
@@ -123,6 +151,9 @@ def main() -> None:
         target = frame.gt_target_person == 1
         inside, d = state["inside"]
         row = {"i": state["index"], "body_iou": mask_iou(inside, target)}
+        if args.reach:
+            row["reach_true"] = outside_reach(frame.gt_person == 1, state["dense"])
+            row["reach_fg"] = outside_reach(np.asarray(fg, bool), state["dense"])
         for name, vf in state["fields"].items():
             w = warp_fn(rgb, fg, vf)[1] > 0.5
             row[name] = mask_iou(w, target)
@@ -148,6 +179,17 @@ def main() -> None:
         R.run_mirror(session, session.metadata["edits"], None, side_by_side=False, progress=False,
                      run_dir=Path(tmp) / "run", ramp_frames=0, refine_pose=True, frames=ids)
     rows = state["rows"]
+    if args.rows is not None:
+        args.rows.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    if args.reach:
+        for key in ("reach_true", "reach_fg"):
+            mx = np.array([r[key]["max"] for r in rows])
+            print(json.dumps({"session": args.session.name, key: {
+                "max_px_median": round(float(np.median(mx)), 1), "max_px_p90": round(float(np.percentile(mx, 90)), 1),
+                "max_px_max": round(float(mx.max()), 1),
+                **{f"px_beyond_{n}": int(sum(r[key][f"gt{n}"] for r in rows)) for n in REACH_PX},
+                **{f"frames_beyond_{n}": int(sum(r[key][f"gt{n}"] > 0 for r in rows)) for n in REACH_PX}}}),
+                  flush=True)
     names = ["base", *args.variants]
     for label, sel in (("all", rows), (f"from frame {args.first}", [r for r in rows if r["i"] >= args.first])):
         if not sel:

@@ -177,7 +177,7 @@ def mirror_frame(inp: MirrorInput, background: BackgroundModel | None, kind: str
             return mirror_frame(_too_few_pairs(inp), background, kind, foreground_options, alpha)
         t1, c1 = time.perf_counter(), time.process_time()
     warp_field = mls_warp_field(inp.src_uv, inp.dst_uv, (H, W), kind=kind, alpha=alpha, groups=inp.pair_groups,
-                                radius_px=MLS_RADIUS_PX, dense=inp.dense)
+                                radius_px=MLS_RADIUS_PX, dense=inp.dense, foreground=fg)
     t2, c2 = time.perf_counter(), time.process_time()
     warped_rgb, alpha = warp_foreground(rgb, fg, warp_field)
     t3, c3 = time.perf_counter(), time.process_time()

@@ -13,6 +13,10 @@ All weighted sums of the closed-form solutions (affine, similarity, rigid) are e
 monomials of the handles, accumulated by one numba pass per node; the mirror sums only over the handles
 within 32 px of a node (``radius_px``; with weight exponent 2 the far ones add nothing a pixel can see).
 The handles are the target's rim vertices plus an evenly spread set (:func:`visible_vertex_pairs`).
+
+With the dense correspondence (the run's default) the field is set per pixel on the target body and in a 1 px band
+around it (MIR12k), and the foreground regions reaching well beyond the fitted source body (hair, a bag: MIR12l,
+:func:`foreground_extras`) move with their nearest body pixel (:func:`carry_extras`).
 """
 
 from __future__ import annotations
@@ -245,13 +249,22 @@ def _similarity_closed_form(S, v, c, rigid, A, mapped):
 #: on sessions 41 / 42 / 43 warp_iou 0.956 / 0.924 / 0.941 -> 0.960 / 0.934 / 0.950 with 1 px, and the warp field
 #: 4.5 -> 1.8 ms CPU on one actor (no MLS solve; docs/mirror.md).
 OUTLINE_BAND_PX = 1.0
+#: How far outside the fitted source body's silhouette (pixels) the person's foreground may reach and still be taken
+#: for the fit's misalignment, which the warp cuts (:data:`OUTLINE_BAND_PX`); a region of foreground reaching farther
+#: out is something the body does not explain (hair, a bag, loose clothes) and the warp carries it
+#: (:func:`foreground_extras`, :func:`carry_extras`). MIR12l: chosen on how far the run's foreground reaches outside
+#: the fitted source body on sessions 41 / 42 / 43 (per frame at most 10 / 11 / 13 px, 90th percentile 7 / 9 / 10):
+#: end to end warp_iou 0.9635 / 0.9407 / 0.9524 -> 0.9634 / 0.9406 / 0.9515, a bag or hair beyond it kept
+#: (docs/mirror.md).
+EXTRA_REACH_PX = 8.0
 
 
 def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: str = "affine",
                    roi_margin_px: float = 24.0, alpha: float = 1.0, groups=None,
                    radius_px: float | None = None, dense=None, dense_src_uv=None,
                    dense_groups=None, band_px: float = OUTLINE_BAND_PX, inner_band_px: float = 8.0,
-                   mls_outside: bool = False) -> np.ndarray:
+                   mls_outside: bool = False, foreground=None,
+                   extra_reach_px: float | None = EXTRA_REACH_PX) -> np.ndarray:
     """Backward warp field (H, W, 2) float32 for ``cv2.remap``, Eq. 5 of Real-time Reshaping on a 160x120 grid.
 
     ``src_pts`` (n, 2) are the source body's projected vertices (where the person is in the input),
@@ -274,6 +287,9 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
     every pixel farther out maps outside the image (no foreground) and no MLS is solved (MIR12k:
     :data:`OUTLINE_BAND_PX`). ``mls_outside``: with ``dense``, the field beyond the band is Eq. 5's MLS as before
     MIR12k (``dense`` gives ``dense_src_uv``/``dense_groups`` and the band is refined on the up-sampled field).
+    ``foreground`` (H, W) the person's foreground mask: with ``dense`` (not ``mls_outside``), the regions of it that
+    reach more than ``extra_reach_px`` outside the fitted source body (hair, a bag) are carried beyond the band
+    (:func:`carry_extras`, MIR12l; None: cut as the rest).
     """
     if radius_px is not None and not (np.isfinite(radius_px) and radius_px > 0):
         raise InputError(f"MLS radius_px must be a positive number of pixels (or None: all handles), got {radius_px}")
@@ -292,7 +308,14 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
     t_roi, groups_roi = t, groups
     if dense is not None and not mls_outside:  # the body and its outline band only (MIR12k)
         out = np.full((H, W, 2), OUTSIDE_PX, np.float32)
-        return refine_outline(out, dense, band_px, inner_band_px)
+        if foreground is None or extra_reach_px is None:
+            return refine_outline(out, dense, band_px, inner_band_px)
+        distances: list = []
+        refine_outline(out, dense, band_px, inner_band_px, distances)
+        if extra_reach_px < _outline_margin_px(band_px, inner_band_px) - 1 and \
+                not _beyond_reach(foreground, distances, extra_reach_px):
+            return out  # no foreground that far out (most frames): the outline's distances tell, no transform
+        return carry_extras(out, dense, foreground_extras(foreground, dense, extra_reach_px))
     if dense is not None:
         dense_src_uv, dense_groups = dense.grid_source_uv, dense.grid_groups
     if dense_src_uv is not None:
@@ -341,6 +364,121 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
     return out
 
 
+def _beyond_reach(fg_mask: np.ndarray, distances: list, reach_px: float) -> bool:
+    """Whether a pixel of ``fg_mask`` may lie more than ``reach_px`` outside the source body: one outside every box
+    of :func:`refine_outline`'s ``distances``, or one in a box whose signed distance says so (within a box's margin
+    its distances are the image's: :func:`people_boxes`; so False means :func:`foreground_extras` finds none)."""
+    m8 = fg_mask.view(np.uint8) if fg_mask.dtype == bool else (np.asarray(fg_mask) != 0).astype(np.uint8)
+    left = cv2.countNonZero(m8)
+    for (y0, y1, x0, x1), sd in distances:
+        sub = m8[y0:y1, x0:x1]
+        left -= cv2.countNonZero(sub)
+        # outside the silhouette the signed distance is 0.5 - the distance (``_signed_distance``)
+        if _any_beyond(sub, sd, np.float32(0.5 - reach_px)):
+            return True
+    return left > 0
+
+
+@njit(cache=True)
+def _any_beyond(fg, sd, below):
+    """Whether any pixel of ``fg`` has ``sd`` below ``below``."""
+    for r in range(fg.shape[0]):
+        for c in range(fg.shape[1]):
+            if fg[r, c] and sd[r, c] < below:
+                return True
+    return False
+
+
+def foreground_extras(fg_mask: np.ndarray, dense, reach_px: float = EXTRA_REACH_PX):
+    """The foreground the fitted source body does not explain: (mask (h, w) bool, (x0, y0)) of an image box, or None.
+
+    A pixel of ``fg_mask`` (H, W) outside the source body's silhouette (``dense.source_mask``) is an extra when it lies
+    more than ``reach_px`` outside it, or within ``reach_px + 1`` of such a pixel (the part of a bag or of hair
+    between the body and ``reach_px``, so the carried region stays attached); the rest of the foreground outside the
+    body, a ring a few pixels wide, is the fitted body's misalignment (MIR12k cuts it)."""
+    fg = np.asarray(fg_mask)
+    H, W = fg.shape
+    m8 = fg.view(np.uint8) if fg.dtype == bool else (fg != 0).astype(np.uint8)
+    bx, by, bw, bh = cv2.boundingRect(m8)
+    if bw == 0 or bh == 0:
+        return None
+    x0, y0 = dense.origin
+    h, w = dense.source_mask.shape
+    r = int(np.ceil(reach_px)) + 1
+    # the box: the foreground's and the body's crop, so that every distance to the body within reach is exact there
+    X0, Y0 = max(min(bx, x0) - r, 0), max(min(by, y0) - r, 0)
+    X1, Y1 = min(max(bx + bw, x0 + w) + r, W), min(max(by + bh, y0 + h) + r, H)
+    body = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
+    body[y0 - Y0:y0 - Y0 + h, x0 - X0:x0 - X0 + w] = dense.source_mask
+    outside = cv2.distanceTransform(1 - body, cv2.DIST_L2, cv2.DIST_MASK_5)
+    fg_box = m8[Y0:Y1, X0:X1] > 0
+    core = fg_box & (outside > reach_px)
+    if not core.any():
+        return None
+    near = cv2.dilate(core.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    return fg_box & (near > 0) & (body == 0), (X0, Y0)
+
+
+def carry_extras(field: np.ndarray, dense, extras) -> np.ndarray:
+    """The backward field (in place; returns it) also showing the foreground extras (:func:`foreground_extras`).
+
+    Each output pixel that shows nothing (OUTSIDE_PX) takes the displacement of its nearest pixel on the target body
+    (``field`` there minus its position: the body's own correspondence, Eq. 5's dense counterpart), so an extra moves
+    with the part of the body it is attached to; it keeps that source position where it lands on an extra, and
+    shows nothing elsewhere (the misalignment ring stays cut)."""
+    if extras is None:
+        return field
+    mask, (ex, ey) = extras
+    H, W = field.shape[:2]
+    x0, y0 = dense.origin
+    inside = np.isfinite(dense.source_uv[..., 0])
+    rows, cols = np.nonzero(inside)
+    if not len(rows):
+        return field
+    d = field[y0 + rows, x0 + cols] - np.stack([x0 + cols, y0 + rows], 1).astype(np.float32)
+    # every output pixel that can land on an extra lies within the largest displacement of the extras' box
+    reach = int(min(np.ceil(np.nanmax(np.abs(d))), 256.0)) + 1 if np.isfinite(d).any() else 0
+    eh, ew = mask.shape
+    X0, Y0 = max(min(ex, x0) - reach, 0), max(min(ey, y0) - reach, 0)
+    X1 = min(max(ex + ew, x0 + inside.shape[1]) + reach, W)
+    Y1 = min(max(ey + eh, y0 + inside.shape[0]) + reach, H)
+    body = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
+    body[y0 - Y0:y0 - Y0 + inside.shape[0], x0 - X0:x0 - X0 + inside.shape[1]] = inside
+    _, label = cv2.distanceTransformWithLabels(1 - body, cv2.DIST_L2, cv2.DIST_MASK_5,
+                                               labelType=cv2.DIST_LABEL_PIXEL)
+    _carry(field[Y0:Y1, X0:X1], body, label, mask, float(ex), float(ey), OUTSIDE_PX)
+    return field
+
+
+@njit(cache=True)
+def _carry(crop, body, label, extras, ex, ey, outside):
+    """:func:`carry_extras` on a box of the field: ``label`` numbers the body's pixels in raster order; ``extras`` is
+    a mask whose pixel (0, 0) is the image's ``(ex, ey)``."""
+    h, w = body.shape
+    zr = np.empty(h * w, np.int64)
+    zc = np.empty(h * w, np.int64)
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            if body[r, c]:
+                zr[n], zc[n] = r, c
+                n += 1
+    eh, ew = extras.shape
+    for r in range(h):
+        for c in range(w):
+            if body[r, c] or crop[r, c, 0] != outside:
+                continue
+            k = label[r, c] - 1
+            # this pixel moved as its nearest body pixel is: that pixel's source position, offset as this one is
+            ux = crop[zr[k], zc[k], 0] + (c - zc[k])
+            uy = crop[zr[k], zc[k], 1] + (r - zr[k])
+            er = int(np.floor(uy - ey + 0.5))
+            ec = int(np.floor(ux - ex + 0.5))
+            if 0 <= er < eh and 0 <= ec < ew and extras[er, ec]:
+                crop[r, c, 0] = ux
+                crop[r, c, 1] = uy
+
+
 def upsample_field(field: np.ndarray, shape=(480, 640)) -> np.ndarray:
     """The grid field (gh, gw, 2) up-sampled bilinearly to (H, W, 2); pixels next to unsolved nodes map outside."""
     H, W = int(shape[0]), int(shape[1])
@@ -361,7 +499,8 @@ def upsample_field(field: np.ndarray, shape=(480, 640)) -> np.ndarray:
     return out
 
 
-def refine_outline(field: np.ndarray, dense, band_px: float = 6.0, inner_px: float = 8.0) -> np.ndarray:
+def refine_outline(field: np.ndarray, dense, band_px: float = 6.0, inner_px: float = 8.0,
+                   distances: list | None = None) -> np.ndarray:
     """The backward field set per pixel on the target body and around its outline (in place; returns it).
 
     On the pixels the target body covers the field takes the exact correspondence (``dense.source_uv``: the
@@ -374,7 +513,8 @@ def refine_outline(field: np.ndarray, dense, band_px: float = 6.0, inner_px: flo
     handles does.) The covered pixels within ``inner_px`` of the outline are moved the same way, to lie as far
     inside the source's outline as they lie inside the target's, so the map stays continuous across the outline
     (MIR-SYNTH 41 / 42, true vertices: 0.948 / 0.965 without, 0.958 / 0.981 with 8 px). Outside the band the
-    grid field stays.
+    grid field stays. ``distances``: a list that gets, per person's box of the crop, its image box
+    ``(y0, y1, x0, x1)`` and the source silhouette's signed distance there (:func:`foreground_extras` reuses them).
     """
     x0, y0 = dense.origin
     inside = np.isfinite(dense.source_uv[..., 0])
@@ -387,9 +527,11 @@ def refine_outline(field: np.ndarray, dense, band_px: float = 6.0, inner_px: flo
         dist, label = cv2.distanceTransformWithLabels((~sub).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
                                                       labelType=cv2.DIST_LABEL_PIXEL)
         depth_in = cv2.distanceTransform(sub.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+        sd = _signed_distance(dense.source_mask[r0:r1, c0:c1])
         _outline_band(field[y0 + r0:y0 + r1, x0 + c0:x0 + c1], dense.source_uv[r0:r1, c0:c1], sub, dist, label,
-                      _signed_distance(dense.source_mask[r0:r1, c0:c1]), float(band_px), float(x0 + c0),
-                      float(y0 + r0), depth_in, float(inner_px))
+                      sd, float(band_px), float(x0 + c0), float(y0 + r0), depth_in, float(inner_px))
+        if distances is not None:
+            distances.append(((y0 + r0, y0 + r1, x0 + c0, x0 + c1), sd))
     return field
 
 
@@ -631,7 +773,8 @@ def _premultiplied_rgba(rgb, mask, r0, r1, c0, c1, out):
 
 #: Where the warp field comes from: ``dense``, the target body rasterised, each pixel it covers mapped to the
 #: same surface point on the source body, its outline onto the source's outline in a 1 px band, nothing farther out
-#: (MIR12k; before it MLS, Eq. 5, from the vertex pairs and the covered grid nodes beyond a 6 px band); ``mls``,
+#: but the foreground the body does not explain (MIR12l: :data:`EXTRA_REACH_PX`) (MIR12k; before it MLS, Eq. 5, from
+#: the vertex pairs and the covered grid nodes beyond a 6 px band); ``mls``,
 #: Eq. 5 from the sparse vertex pairs everywhere (the paper).
 CORRESPONDENCES = ("dense", "mls")
 

@@ -192,6 +192,8 @@ def test_the_image_steps_get_the_frames_inputs(scene, monkeypatch):
     assert kw == {"background": scene.background, "unseen": unseen, "band_px": 4}
     src, dst, shape, kw = seen["field"]
     assert src is scene.src and dst is scene.dst and shape == (H, W)
+    # the refined foreground too: the warp carries what of it reaches well beyond the fitted body (MIR12l)
+    assert kw.pop("foreground") is seen["fg"]
     assert kw == {"kind": "affine", "alpha": MLS_ALPHA, "groups": groups, "radius_px": MLS_RADIUS_PX,
                   "dense": "the dense correspondence"}
     fg, kw = seen["update"][-1]
