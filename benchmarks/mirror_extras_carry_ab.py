@@ -1,0 +1,98 @@
+"""The field with extras (a bag and hair) against the field without, MIR12l's carry against MIR12m's, in one process.
+
+``PYTHONPATH=. python benchmarks/mirror_extras_carry_ab.py [rounds]``: the bench's rendered person (true bodies,
++10 % stature +15 kg) with a bag held out beside the hip and hair on the head, painted into its foreground as
+tests/mirror/test_warp_extras_frame.py does; ``mls_warp_field(..., dense=, foreground=fg, extra_reach_px=8)`` timed
+with the reference extras functions (MIR12l's, ``_foreground_extras_reference`` / ``_carry_extras_reference``) and
+with this tree's, alternately, ``rounds`` times (default 15), and the same call on the frame without the bag and
+hair; numba / OpenCV on one thread; prints the median process CPU ms of each and whether the fields are equal.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import cv2
+import numpy as np
+
+from bodystudio.mirror import warp
+from bodystudio.mirror.image_case import cached_image_case
+from bodystudio.mirror.run import N_HANDLES, RIM_COS
+from bodystudio.mirror.warp import EXTRA_REACH_PX, mls_warp_field, warp_pairs
+
+BAG_OUT_PX = int(EXTRA_REACH_PX) + 14
+HAIR_UP_PX = int(EXTRA_REACH_PX) + 6
+
+
+def frame_with_extras():
+    """(pairs, foreground without extras, foreground with a bag and hair) on the bench's rendered person."""
+    case = cached_image_case(None)
+    fg = case.true_mask.copy()
+    rows = np.flatnonzero(fg.any(1))
+    mid = (rows[0] + rows[-1]) // 2 + 10  # about the hip
+    extras = fg.copy()
+    for r in range(mid, mid + 24):  # a bag attached to the body's right side
+        right = np.flatnonzero(fg[r])[-1]
+        extras[r, right - 2:right + BAG_OUT_PX] = True
+    top = rows[0]
+    cols = np.flatnonzero(fg[top + 4])
+    extras[top - HAIR_UP_PX:top + 4, cols[0] - 2:cols[-1] + 3] = True  # hair on the head
+    pairs = warp_pairs(case.source_vertices, case.target_vertices, case.faces, case.camera, N_HANDLES,
+                       rim_cos=RIM_COS, dense=True, closed=True)
+    return pairs, fg, extras
+
+
+def _cpu_ms(fn) -> float:
+    c = time.process_time()
+    fn()
+    return (time.process_time() - c) * 1e3
+
+
+def main(rounds: int = 15) -> dict:
+    cv2.setNumThreads(1)
+    try:
+        import numba
+        numba.set_num_threads(1)
+    except (ImportError, ValueError):
+        pass
+    pairs, fg, extras = frame_with_extras()
+    shape = fg.shape
+
+    def field(foreground):
+        return mls_warp_field(pairs.src_uv, pairs.dst_uv, shape, dense=pairs.dense, foreground=foreground,
+                              extra_reach_px=EXTRA_REACH_PX)
+
+    new_fx, new_cx = warp.foreground_extras, warp.carry_extras
+    ref_fx = getattr(warp, "_foreground_extras_reference", new_fx)
+    ref_cx = getattr(warp, "_carry_extras_reference", new_cx)
+
+    def old():
+        warp.foreground_extras, warp.carry_extras = ref_fx, ref_cx
+        try:
+            return field(extras)
+        finally:
+            warp.foreground_extras, warp.carry_extras = new_fx, new_cx
+
+    def new():
+        return field(extras)
+
+    def without():
+        return field(fg)
+
+    a, b = old(), new()
+    same = bool(np.array_equal(a, b))
+    carried = int(((a[..., 0] != warp.OUTSIDE_PX) & (without()[..., 0] == warp.OUTSIDE_PX)).sum())
+    times = {"without extras": [], "extras, MIR12l": [], "extras, this tree": []}
+    for _ in range(rounds):
+        times["without extras"].append(_cpu_ms(without))
+        times["extras, MIR12l"].append(_cpu_ms(old))
+        times["extras, this tree"].append(_cpu_ms(new))
+    out = {k: round(float(np.median(v)), 2) for k, v in times.items()}
+    out["fields equal"] = same
+    out["carried pixels"] = carried
+    return out
+
+
+if __name__ == "__main__":
+    print(main(int(sys.argv[1]) if len(sys.argv) > 1 else 15))
