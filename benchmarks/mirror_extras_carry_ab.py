@@ -64,8 +64,11 @@ def main(rounds: int = 15) -> dict:
                               extra_reach_px=EXTRA_REACH_PX)
 
     new_fx, new_cx = warp.foreground_extras, warp.carry_extras
-    ref_fx = getattr(warp, "_foreground_extras_reference", new_fx)
     ref_cx = getattr(warp, "_carry_extras_reference", new_cx)
+    ref_fx_own = getattr(warp, "_foreground_extras_reference", None)
+
+    def ref_fx(fg_mask, dense, reach_px, distances=None):  # MIR12l's own distance transform
+        return (ref_fx_own or new_fx)(fg_mask, dense, reach_px)
 
     def old():
         warp.foreground_extras, warp.carry_extras = ref_fx, ref_cx

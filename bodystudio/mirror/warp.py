@@ -315,7 +315,7 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
         if extra_reach_px < _outline_margin_px(band_px, inner_band_px) - 1 and \
                 not _beyond_reach(foreground, distances, extra_reach_px):
             return out  # no foreground that far out (most frames): the outline's distances tell, no transform
-        return carry_extras(out, dense, foreground_extras(foreground, dense, extra_reach_px))
+        return carry_extras(out, dense, foreground_extras(foreground, dense, extra_reach_px, distances))
     if dense is not None:
         dense_src_uv, dense_groups = dense.grid_source_uv, dense.grid_groups
     if dense_src_uv is not None:
@@ -389,8 +389,79 @@ def _any_beyond(fg, sd, below):
     return False
 
 
-def foreground_extras(fg_mask: np.ndarray, dense, reach_px: float = EXTRA_REACH_PX):
+def foreground_extras(fg_mask: np.ndarray, dense, reach_px: float = EXTRA_REACH_PX, distances: list | None = None):
     """The foreground the fitted source body does not explain: (mask (h, w) bool, (x0, y0)) of an image box, or None.
+
+    A pixel of ``fg_mask`` (H, W) outside the source body's silhouette (``dense.source_mask``) is an extra when it lies
+    more than ``reach_px`` outside it, or within ``reach_px + 1`` of such a pixel (the part of a bag or of hair
+    between the body and ``reach_px``, so the carried region stays attached); the rest of the foreground outside the
+    body, a ring a few pixels wide, is the fitted body's misalignment (MIR12k cuts it).
+
+    ``distances``: :func:`refine_outline`'s per-person boxes and signed distances (MIR12m): the extras' cores are
+    read from them instead of a distance transform of their own (the same chamfer distances: each box holds its
+    person's whole silhouette; the foreground outside every box lies farther than ``reach_px`` from any person when
+    each box reaches that far beyond its silhouette, else :func:`_foreground_extras_reference`), and the attachment
+    is grown around the cores only. The same extras as :func:`_foreground_extras_reference`, in a smaller box."""
+    if distances is None:
+        return _foreground_extras_reference(fg_mask, dense, reach_px)
+    fg = np.asarray(fg_mask)
+    H, W = fg.shape
+    m8 = fg.view(np.uint8) if fg.dtype == bool else (fg != 0).astype(np.uint8)
+    bx, by, bw, bh = cv2.boundingRect(m8)
+    if bw == 0 or bh == 0:
+        return None
+    x0, y0 = dense.origin
+    h, w = dense.source_mask.shape
+    silhouettes = []
+    for (r0, r1, c0, c1), _ in distances:
+        sx, sy, sw, sh = cv2.boundingRect(dense.source_mask[r0 - y0:r1 - y0, c0 - x0:c1 - x0].view(np.uint8))
+        silhouettes.append((c0 + sx, r0 + sy, c0 + sx + sw, r0 + sy + sh) if sw else None)
+    if not _boxes_hold_reach(distances, silhouettes, reach_px, H, W):
+        return _foreground_extras_reference(fg_mask, dense, reach_px)
+    core = m8[by:by + bh, bx:bx + bw] > 0
+    for ((r0, r1, c0, c1), sd), s in zip(distances, silhouettes, strict=True):
+        R0, R1, C0, C1 = max(r0, by), min(r1, by + bh), max(c0, bx), min(c1, bx + bw)
+        if s is not None and R0 < R1 and C0 < C1:  # none: all of the box's foreground beyond reach
+            # outside the silhouette the signed distance is 0.5 - the distance, exactly (``_signed_distance``; the
+            # distances are multiples of 2^-16)
+            outside = np.float32(0.5) - sd[R0 - r0:R1 - r0, C0 - c0:C1 - c0]
+            core[R0 - by:R1 - by, C0 - bx:C1 - bx] &= outside > reach_px
+    cx, cy, cw, ch = cv2.boundingRect(core.view(np.uint8))
+    if cw == 0 or ch == 0:
+        return None
+    r = int(np.ceil(reach_px)) + 1
+    X0, Y0 = max(bx + cx - r, 0), max(by + cy - r, 0)
+    X1, Y1 = min(bx + cx + cw + r, W), min(by + cy + ch + r, H)
+    seeds = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
+    seeds[by + cy - Y0:by + cy + ch - Y0, bx + cx - X0:bx + cx + cw - X0] = core[cy:cy + ch, cx:cx + cw]
+    near = cv2.dilate(seeds, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    body = np.zeros((Y1 - Y0, X1 - X0), bool)
+    ix0, iy0, ix1, iy1 = max(X0, x0), max(Y0, y0), min(X1, x0 + w), min(Y1, y0 + h)
+    if ix0 < ix1 and iy0 < iy1:
+        body[iy0 - Y0:iy1 - Y0, ix0 - X0:ix1 - X0] = dense.source_mask[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0]
+    return (m8[Y0:Y1, X0:X1] > 0) & (near > 0) & ~body, (X0, Y0)
+
+
+def _boxes_hold_reach(distances, silhouettes, reach_px, H, W) -> bool:
+    """Whether each box of ``distances`` reaches more than ``reach_px`` beyond its silhouette's bounding box
+    (``silhouettes``, image ``(x0, y0, x1, y1)``; None: no silhouette pixel in the box) on each side but the image's
+    edge, and lies more than ``reach_px`` from every other silhouette's (people side by side): then the foreground
+    outside every box, and that in a box beyond ``reach_px`` by its own distances, is beyond ``reach_px`` from all."""
+    need = int(np.floor(reach_px)) + 1
+    for i, ((r0, r1, c0, c1), _) in enumerate(distances):
+        s = silhouettes[i]
+        if s is not None and ((c0 > 0 and s[0] - c0 < need) or (r0 > 0 and s[1] - r0 < need) or
+                              (c1 < W and c1 - s[2] < need) or (r1 < H and r1 - s[3] < need)):
+            return False
+        for j, o in enumerate(silhouettes):
+            if j != i and o is not None and max(o[0] - c1, c0 - o[2], o[1] - r1, r0 - o[3]) + 1 < need:
+                return False
+    return True
+
+
+def _foreground_extras_reference(fg_mask: np.ndarray, dense, reach_px: float = EXTRA_REACH_PX):
+    """:func:`foreground_extras` as MIR12l wrote it (its own distance transform over the foreground's and the body's
+    box): (mask (h, w) bool, (x0, y0)) of an image box, or None.
 
     A pixel of ``fg_mask`` (H, W) outside the source body's silhouette (``dense.source_mask``) is an extra when it lies
     more than ``reach_px`` outside it, or within ``reach_px + 1`` of such a pixel (the part of a bag or of hair

@@ -17,6 +17,7 @@ from bodystudio.mirror.warp import (
     OUTSIDE_PX,
     DenseCorrespondence,
     _carry_extras_reference,
+    _foreground_extras_reference,
     carry_extras,
     foreground_extras,
     mls_warp_field,
@@ -85,6 +86,8 @@ def test_the_rendered_frame_field_is_the_reference_bit_for_bit(monkeypatch):
 
     new = field()
     monkeypatch.setattr(warp, "carry_extras", _carry_extras_reference)
+    monkeypatch.setattr(warp, "foreground_extras", lambda fg, dense, reach, distances=None:
+                        _foreground_extras_reference(fg, dense, reach))
     ref = field()
     nothing = mls_warp_field(pairs.src_uv, pairs.dst_uv, person.shape, dense=pairs.dense, foreground=None)
     carried = int((ref != nothing).any(-1).sum())
@@ -105,3 +108,78 @@ def test_planted_bugs_change_the_field(monkeypatch):
     monkeypatch.setattr(warp, "_extras_boxes", lambda *a: boxes(*a)[:1])
     new, ref, _ = _fields(dense, person)
     assert not np.array_equal(new, ref)
+
+
+def _painted(extras, shape):
+    out = np.zeros(shape, bool)
+    if extras is not None:
+        mask, (x0, y0) = extras
+        out[y0:y0 + mask.shape[0], x0:x0 + mask.shape[1]] = mask
+    return out
+
+
+def _extras_both(dense, person):
+    distances = []
+    refine_outline(np.full(person.shape + (2,), OUTSIDE_PX, np.float32), dense, OUTLINE_BAND_PX, 8.0, distances)
+    return (_painted(foreground_extras(person, dense, EXTRA_REACH_PX, distances), person.shape),
+            _painted(warp._foreground_extras_reference(person, dense, EXTRA_REACH_PX), person.shape))
+
+
+def _cropped(dense, x0, y0, w, h):
+    """``dense`` on the crop of its image at (x0, y0), w x h (the run's crop holds the bodies only)."""
+    return DenseCorrespondence((x0, y0), dense.source_uv[y0:y0 + h, x0:x0 + w].copy(),
+                               dense.source_mask[y0:y0 + h, x0:x0 + w].copy(), dense.grid_source_uv)
+
+
+def _two_discs():
+    """Two disc persons side by side (the second the first moved 150 px right) on a 320 px wide image."""
+    dense, person = _disc((4, 3))
+    wide = np.zeros((person.shape[0], 320), bool)
+    wide[:, :160], wide[:, 150:310] = person, wide[:, 150:310] | person
+    uv = np.full(wide.shape + (2,), np.nan, np.float32)
+    uv[:, :160] = dense.source_uv
+    right = dense.source_uv + np.float32([150.0, 0.0])
+    uv[:, 150:310] = np.where(np.isfinite(right), right, uv[:, 150:310])
+    mask = np.zeros_like(wide)
+    mask[:, :160] = dense.source_mask
+    mask[:, 150:310] |= dense.source_mask
+    return DenseCorrespondence((0, 0), uv, mask, dense.grid_source_uv), wide
+
+
+@pytest.mark.parametrize("case", ["disc", "moved", "two", "cropped"])
+def test_the_extras_from_the_outline_distances_are_the_reference(case, monkeypatch):
+    """The cores read from ``refine_outline``'s distances (one person, two side by side; a crop whose box is cut by
+    its edge falls back to the extras' own transform): the same extras as MIR12l's, and the same carried field."""
+    dense, person = {"disc": lambda: _disc((0, 0)), "moved": lambda: _disc((-14, 11)), "two": _two_discs,
+                     "cropped": lambda: _disc((0, 0))}[case]()
+    if case == "cropped":
+        dense = _cropped(dense, 50, 30, 62, 62)
+    calls = []
+    monkeypatch.setattr(warp, "_foreground_extras_reference",
+                        lambda *a: calls.append(1) or _foreground_extras_reference(*a))
+    new, ref = _extras_both(dense, person)
+    assert len(calls) == (2 if case == "cropped" else 1)  # the fast path but where the crop cuts the box
+    assert ref.sum() >= 150, ref.sum()
+    np.testing.assert_array_equal(new, ref)
+
+
+def test_the_rendered_frame_extras_are_the_reference():
+    pairs, person = _rendered_frame()
+    new, ref = _extras_both(pairs.dense, person)
+    assert ref.sum() >= 600, ref.sum()
+    np.testing.assert_array_equal(new, ref)
+
+
+def test_planted_bugs_in_the_extras_change_them(monkeypatch):
+    """The boxes' reach not checked (a crop cut at the silhouette), or the cores' distance test dropped: other
+    extras."""
+    dense, person = _disc((0, 0))
+    monkeypatch.setattr(warp, "_boxes_hold_reach", lambda *a: True)
+    new, ref = _extras_both(_cropped(dense, 50, 30, 62, 62), person)
+    assert not np.array_equal(new, ref)
+    monkeypatch.undo()
+    distances = []
+    refine_outline(np.full(person.shape + (2,), OUTSIDE_PX, np.float32), dense, OUTLINE_BAND_PX, 8.0, distances)
+    far = [(box, np.full_like(sd, -100.0)) for box, sd in distances]
+    assert not np.array_equal(_painted(foreground_extras(person, dense, EXTRA_REACH_PX, far), person.shape),
+                              _painted(warp._foreground_extras_reference(person, dense, EXTRA_REACH_PX), person.shape))
