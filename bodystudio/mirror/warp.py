@@ -432,9 +432,16 @@ def foreground_extras(fg_mask: np.ndarray, dense, reach_px: float = EXTRA_REACH_
     r = int(np.ceil(reach_px)) + 1
     X0, Y0 = max(bx + cx - r, 0), max(by + cy - r, 0)
     X1, Y1 = min(bx + cx + cw + r, W), min(by + cy + ch + r, H)
-    seeds = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
-    seeds[by + cy - Y0:by + cy + ch - Y0, bx + cx - X0:bx + cx + cw - X0] = core[cy:cy + ch, cx:cx + cw]
-    near = cv2.dilate(seeds, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    # the dilation of the cores is the union of each group's (the hair, a bag): their boxes only, not the box between
+    near = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    for gx0, gy0, gx1, gy1 in _extras_boxes(core, bx - X0, by - Y0):
+        a0, b0 = max(gx0 - r, 0), max(gy0 - r, 0)
+        a1, b1 = min(gx1 + r, X1 - X0), min(gy1 + r, Y1 - Y0)
+        seeds = np.zeros((b1 - b0, a1 - a0), np.uint8)
+        seeds[gy0 - b0:gy1 - b0, gx0 - a0:gx1 - a0] = core[gy0 - (by - Y0):gy1 - (by - Y0),
+                                                           gx0 - (bx - X0):gx1 - (bx - X0)]
+        near[b0:b1, a0:a1] |= cv2.dilate(seeds, disc)
     body = np.zeros((Y1 - Y0, X1 - X0), bool)
     ix0, iy0, ix1, iy1 = max(X0, x0), max(Y0, y0), min(X1, x0 + w), min(Y1, y0 + h)
     if ix0 < ix1 and iy0 < iy1:
