@@ -533,7 +533,9 @@ def carry_extras(field: np.ndarray, dense, extras) -> np.ndarray:
         visit = (max(int(np.floor(tx0 - 0.5 - dx1)) - 1, ref[0]), max(int(np.floor(ty0 - 0.5 - dy1)) - 1, ref[1]),
                  min(int(np.ceil(tx1 - 0.5 - dx0)) + 2, ref[2]), min(int(np.ceil(ty1 - 0.5 - dy0)) + 2, ref[3]))
         if visit[0] < visit[2] and visit[1] < visit[3]:
-            _carry_near(field, inside, (x0, y0), mask, (ex, ey), visit, ref)
+            # the visited pixels lie about as far from the body as the body moves (and the extras reach): one
+            # transform mostly (a fixed 16 px: two, the second larger; the bench frame's head moves 35 px)
+            _carry_near(field, inside, (x0, y0), mask, (ex, ey), visit, ref, reach + 8)
     return field
 
 
@@ -555,14 +557,13 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
-def _carry_near(field, inside, origin, mask, offset, visit, ref):
+def _carry_near(field, inside, origin, mask, offset, visit, ref, grow: int = 16):
     """:func:`carry_extras` on the output pixels of the box ``visit`` (x0, y0, x1, y1) only: the labelled distance
-    transform on it grown (within the reference's box ``ref``) until it holds, for each of its pixels, every body
-    pixel as near as the nearest it found."""
+    transform on it grown by ``grow`` (within the reference's box ``ref``), and more until it holds, for each of its
+    pixels, every body pixel as near as the nearest it found."""
     x0, y0 = origin
     h, w = inside.shape
     CX0, CY0, CX1, CY1 = visit
-    grow = 16
     while True:
         BX0, BY0 = max(CX0 - grow, ref[0]), max(CY0 - grow, ref[1])
         BX1, BY1 = min(CX1 + grow, ref[2]), min(CY1 + grow, ref[3])
