@@ -553,8 +553,10 @@ def _extras_boxes(mask: np.ndarray, ex: int, ey: int) -> list[tuple[int, int, in
 
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
     """``[(start, stop), ...]`` of the runs of True in ``flags`` (1-D)."""
-    edges = np.flatnonzero(np.diff(np.r_[0, flags.astype(np.int8), 0]))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+    padded = np.zeros(len(flags) + 2, np.int8)
+    padded[1:-1] = flags
+    edges = np.flatnonzero(padded[1:] != padded[:-1]).tolist()
+    return list(zip(edges[::2], edges[1::2], strict=True))
 
 
 def _carry_near(field, inside, origin, mask, offset, visit, ref, grow: int = 16):
