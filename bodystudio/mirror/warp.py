@@ -533,9 +533,10 @@ def carry_extras(field: np.ndarray, dense, extras) -> np.ndarray:
         visit = (max(int(np.floor(tx0 - 0.5 - dx1)) - 1, ref[0]), max(int(np.floor(ty0 - 0.5 - dy1)) - 1, ref[1]),
                  min(int(np.ceil(tx1 - 0.5 - dx0)) + 2, ref[2]), min(int(np.ceil(ty1 - 0.5 - dy0)) + 2, ref[3]))
         if visit[0] < visit[2] and visit[1] < visit[3]:
-            # the visited pixels lie about as far from the body as the body moves (and the extras reach): one
-            # transform mostly (a fixed 16 px: two, the second larger; the bench frame's head moves 35 px)
-            _carry_near(field, inside, (x0, y0), mask, (ex, ey), visit, ref, reach + 8)
+            # the visited pixels lie up to about half the body's largest displacement from it (and the extras'
+            # reach): one transform on the bench frame, whose head moves 35 px (16 px: two, the second larger;
+            # the whole displacement + 8 px: one, larger)
+            _carry_near(field, inside, (x0, y0), mask, (ex, ey), visit, ref, reach // 2 + 16)
     return field
 
 
