@@ -183,3 +183,39 @@ def test_planted_bugs_in_the_extras_change_them(monkeypatch):
     far = [(box, np.full_like(sd, -100.0)) for box, sd in distances]
     assert not np.array_equal(_painted(foreground_extras(person, dense, EXTRA_REACH_PX, far), person.shape),
                               _painted(warp._foreground_extras_reference(person, dense, EXTRA_REACH_PX), person.shape))
+
+
+def test_the_two_actor_frame_field_is_the_reference_bit_for_bit(monkeypatch):
+    """The bench's two-actor frame, each actor with a bag at the hip and hair on the head."""
+    import cv2
+
+    case = cached_image_case(None, actors=2)
+    n, actor = cv2.connectedComponents(case.true_mask.astype(np.uint8))
+    person = case.true_mask.copy()
+    for k in range(1, n):
+        own = actor == k
+        rows = np.flatnonzero(own.any(1))
+        if len(rows) < 100:
+            continue
+        mid = (rows[0] + rows[-1]) // 2 + 10
+        for r in range(mid, mid + 20):
+            right = np.flatnonzero(own[r])[-1]
+            person[r, right - 2:right + int(EXTRA_REACH_PX) + 12] = True
+        cols = np.flatnonzero(own[rows[0] + 4])
+        person[rows[0] - int(EXTRA_REACH_PX) - 5:rows[0] + 4, cols[0] - 2:cols[-1] + 3] = True
+
+    def field():
+        return mls_warp_field(case.src_uv, case.dst_uv, person.shape, groups=case.pair_groups, dense=case.dense,
+                              foreground=person)
+
+    monkeypatch.setattr(warp, "_foreground_extras_reference", None)  # the fast path: the outline's distances
+    new = field()
+    monkeypatch.undo()
+    monkeypatch.setattr(warp, "carry_extras", _carry_extras_reference)
+    monkeypatch.setattr(warp, "foreground_extras", lambda fg, dense, reach, distances=None:
+                        _foreground_extras_reference(fg, dense, reach))
+    ref = field()
+    nothing = mls_warp_field(case.src_uv, case.dst_uv, person.shape, groups=case.pair_groups, dense=case.dense)
+    carried = int((ref != nothing).any(-1).sum())
+    assert carried >= 1000, carried
+    np.testing.assert_array_equal(new, ref)
