@@ -414,7 +414,7 @@ def foreground_extras(fg_mask: np.ndarray, dense, reach_px: float = EXTRA_REACH_
     h, w = dense.source_mask.shape
     silhouettes = []
     for (r0, r1, c0, c1), _ in distances:
-        sx, sy, sw, sh = cv2.boundingRect(dense.source_mask[r0 - y0:r1 - y0, c0 - x0:c1 - x0].view(np.uint8))
+        sx, sy, sw, sh = cv2.boundingRect(dense.source_mask[r0 - y0:r1 - y0, c0 - x0:c1 - x0].astype(np.uint8))
         silhouettes.append((c0 + sx, r0 + sy, c0 + sx + sw, r0 + sy + sh) if sw else None)
     if not _boxes_hold_reach(distances, silhouettes, reach_px, H, W):
         return _foreground_extras_reference(fg_mask, dense, reach_px)
