@@ -315,7 +315,7 @@ def mls_warp_field(src_pts, dst_pts, shape=(480, 640), grid=(120, 160), kind: st
         if extra_reach_px < _outline_margin_px(band_px, inner_band_px) - 1 and \
                 not _beyond_reach(foreground, distances, extra_reach_px):
             return out  # no foreground that far out (most frames): the outline's distances tell, no transform
-        return carry_extras(out, dense, foreground_extras(foreground, dense, extra_reach_px))
+        return carry_extras(out, dense, foreground_extras(foreground, dense, extra_reach_px, distances))
     if dense is not None:
         dense_src_uv, dense_groups = dense.grid_source_uv, dense.grid_groups
     if dense_src_uv is not None:
@@ -389,8 +389,86 @@ def _any_beyond(fg, sd, below):
     return False
 
 
-def foreground_extras(fg_mask: np.ndarray, dense, reach_px: float = EXTRA_REACH_PX):
+def foreground_extras(fg_mask: np.ndarray, dense, reach_px: float = EXTRA_REACH_PX, distances: list | None = None):
     """The foreground the fitted source body does not explain: (mask (h, w) bool, (x0, y0)) of an image box, or None.
+
+    A pixel of ``fg_mask`` (H, W) outside the source body's silhouette (``dense.source_mask``) is an extra when it lies
+    more than ``reach_px`` outside it, or within ``reach_px + 1`` of such a pixel (the part of a bag or of hair
+    between the body and ``reach_px``, so the carried region stays attached); the rest of the foreground outside the
+    body, a ring a few pixels wide, is the fitted body's misalignment (MIR12k cuts it).
+
+    ``distances``: :func:`refine_outline`'s per-person boxes and signed distances (MIR12m): the extras' cores are
+    read from them instead of a distance transform of their own (the same chamfer distances: each box holds its
+    person's whole silhouette; the foreground outside every box lies farther than ``reach_px`` from any person when
+    each box reaches that far beyond its silhouette, else :func:`_foreground_extras_reference`), and the attachment
+    is grown around the cores only. The same extras as :func:`_foreground_extras_reference`, in a smaller box."""
+    if distances is None:
+        return _foreground_extras_reference(fg_mask, dense, reach_px)
+    fg = np.asarray(fg_mask)
+    H, W = fg.shape
+    m8 = fg.view(np.uint8) if fg.dtype == bool else (fg != 0).astype(np.uint8)
+    bx, by, bw, bh = cv2.boundingRect(m8)
+    if bw == 0 or bh == 0:
+        return None
+    x0, y0 = dense.origin
+    h, w = dense.source_mask.shape
+    silhouettes = []
+    for (r0, r1, c0, c1), _ in distances:
+        sx, sy, sw, sh = cv2.boundingRect(dense.source_mask[r0 - y0:r1 - y0, c0 - x0:c1 - x0].astype(np.uint8))
+        silhouettes.append((c0 + sx, r0 + sy, c0 + sx + sw, r0 + sy + sh) if sw else None)
+    if not _boxes_hold_reach(distances, silhouettes, reach_px, H, W):
+        return _foreground_extras_reference(fg_mask, dense, reach_px)
+    core = m8[by:by + bh, bx:bx + bw] > 0
+    for ((r0, r1, c0, c1), sd), s in zip(distances, silhouettes, strict=True):
+        R0, R1, C0, C1 = max(r0, by), min(r1, by + bh), max(c0, bx), min(c1, bx + bw)
+        if s is not None and R0 < R1 and C0 < C1:  # none: all of the box's foreground beyond reach
+            # outside the silhouette the signed distance is 0.5 - the distance, exactly (``_signed_distance``; the
+            # distances are multiples of 2^-16)
+            outside = np.float32(0.5) - sd[R0 - r0:R1 - r0, C0 - c0:C1 - c0]
+            core[R0 - by:R1 - by, C0 - bx:C1 - bx] &= outside > reach_px
+    cx, cy, cw, ch = cv2.boundingRect(core.view(np.uint8))
+    if cw == 0 or ch == 0:
+        return None
+    r = int(np.ceil(reach_px)) + 1
+    X0, Y0 = max(bx + cx - r, 0), max(by + cy - r, 0)
+    X1, Y1 = min(bx + cx + cw + r, W), min(by + cy + ch + r, H)
+    # the dilation of the cores is the union of each group's (the hair, a bag): their boxes only, not the box between
+    near = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    for gx0, gy0, gx1, gy1 in _extras_boxes(core, bx - X0, by - Y0):
+        a0, b0 = max(gx0 - r, 0), max(gy0 - r, 0)
+        a1, b1 = min(gx1 + r, X1 - X0), min(gy1 + r, Y1 - Y0)
+        seeds = np.zeros((b1 - b0, a1 - a0), np.uint8)
+        seeds[gy0 - b0:gy1 - b0, gx0 - a0:gx1 - a0] = core[gy0 - (by - Y0):gy1 - (by - Y0),
+                                                           gx0 - (bx - X0):gx1 - (bx - X0)]
+        near[b0:b1, a0:a1] |= cv2.dilate(seeds, disc)
+    body = np.zeros((Y1 - Y0, X1 - X0), bool)
+    ix0, iy0, ix1, iy1 = max(X0, x0), max(Y0, y0), min(X1, x0 + w), min(Y1, y0 + h)
+    if ix0 < ix1 and iy0 < iy1:
+        body[iy0 - Y0:iy1 - Y0, ix0 - X0:ix1 - X0] = dense.source_mask[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0]
+    return (m8[Y0:Y1, X0:X1] > 0) & (near > 0) & ~body, (X0, Y0)
+
+
+def _boxes_hold_reach(distances, silhouettes, reach_px, H, W) -> bool:
+    """Whether each box of ``distances`` reaches more than ``reach_px`` beyond its silhouette's bounding box
+    (``silhouettes``, image ``(x0, y0, x1, y1)``; None: no silhouette pixel in the box) on each side but the image's
+    edge, and lies more than ``reach_px`` from every other silhouette's (people side by side): then the foreground
+    outside every box, and that in a box beyond ``reach_px`` by its own distances, is beyond ``reach_px`` from all."""
+    need = int(np.floor(reach_px)) + 1
+    for i, ((r0, r1, c0, c1), _) in enumerate(distances):
+        s = silhouettes[i]
+        if s is not None and ((c0 > 0 and s[0] - c0 < need) or (r0 > 0 and s[1] - r0 < need) or
+                              (c1 < W and c1 - s[2] < need) or (r1 < H and r1 - s[3] < need)):
+            return False
+        for j, o in enumerate(silhouettes):
+            if j != i and o is not None and max(o[0] - c1, c0 - o[2], o[1] - r1, r0 - o[3]) + 1 < need:
+                return False
+    return True
+
+
+def _foreground_extras_reference(fg_mask: np.ndarray, dense, reach_px: float = EXTRA_REACH_PX):
+    """:func:`foreground_extras` as MIR12l wrote it (its own distance transform over the foreground's and the body's
+    box): (mask (h, w) bool, (x0, y0)) of an image box, or None.
 
     A pixel of ``fg_mask`` (H, W) outside the source body's silhouette (``dense.source_mask``) is an extra when it lies
     more than ``reach_px`` outside it, or within ``reach_px + 1`` of such a pixel (the part of a bag or of hair
@@ -421,6 +499,150 @@ def foreground_extras(fg_mask: np.ndarray, dense, reach_px: float = EXTRA_REACH_
 
 def carry_extras(field: np.ndarray, dense, extras) -> np.ndarray:
     """The backward field (in place; returns it) also showing the foreground extras (:func:`foreground_extras`).
+
+    Each output pixel that shows nothing (OUTSIDE_PX) takes the displacement of its nearest pixel on the target body
+    (``field`` there minus its position: the body's own correspondence, Eq. 5's dense counterpart), so an extra moves
+    with the part of the body it is attached to; it keeps that source position where it lands on an extra, and
+    shows nothing elsewhere (the misalignment ring stays cut).
+
+    MIR12m: only the output pixels that can land on an extra are visited (the extras' box less the range of the
+    body's displacements), and the labelled distance transform runs on their box grown until it holds, for each of
+    them, every body pixel as near as the nearest it found (the chamfer distance is at least the larger of the two
+    offsets); the same field as :func:`_carry_extras_reference`, which transformed the whole body's box."""
+    if extras is None:
+        return field
+    mask, (ex, ey) = extras
+    H, W = field.shape[:2]
+    x0, y0 = dense.origin
+    inside = np.isfinite(dense.source_uv[..., 0])
+    h, w = inside.shape
+    if not inside.any():
+        return field
+    lo_hi = _displacement_range(field[y0:y0 + h, x0:x0 + w], inside, float(x0), float(y0))
+    if not np.all(np.isfinite(lo_hi)) or lo_hi[4] > 255.0:
+        return _carry_extras_reference(field, dense, extras)
+    dx0, dx1, dy0, dy1, largest = (float(v) for v in lo_hi)
+    # the reference's box: nothing outside it changes
+    reach = int(np.ceil(largest)) + 1
+    eh, ew = mask.shape
+    ref = (max(min(ex, x0) - reach, 0), max(min(ey, y0) - reach, 0),
+           min(max(ex + ew, x0 + w) + reach, W), min(max(ey + eh, y0 + h) + reach, H))
+    for tx0, ty0, tx1, ty1 in _extras_boxes(mask, ex, ey):
+        # an output pixel lands on the box [tx0, tx1) x [ty0, ty1) when its position plus a displacement rounds
+        # into it
+        visit = (max(int(np.floor(tx0 - 0.5 - dx1)) - 1, ref[0]), max(int(np.floor(ty0 - 0.5 - dy1)) - 1, ref[1]),
+                 min(int(np.ceil(tx1 - 0.5 - dx0)) + 2, ref[2]), min(int(np.ceil(ty1 - 0.5 - dy0)) + 2, ref[3]))
+        if visit[0] < visit[2] and visit[1] < visit[3]:
+            # the visited pixels lie up to about half the body's largest displacement from it (and the extras'
+            # reach): one transform on the bench frame, whose head moves 35 px (16 px: two, the second larger;
+            # the whole displacement + 8 px: one, larger)
+            _carry_near(field, inside, (x0, y0), mask, (ex, ey), visit, ref, reach // 2 + 16)
+    return field
+
+
+def _extras_boxes(mask: np.ndarray, ex: int, ey: int) -> list[tuple[int, int, int, int]]:
+    """Image boxes ``(x0, y0, x1, y1)`` that hold the extras' pixels: the mask's rows split where empty rows part
+    them, each band's columns where empty columns do (the hair above the head, a bag at the hip: a box each)."""
+    m = np.asarray(mask, bool)
+    boxes = []
+    for r0, r1 in _runs(m.any(1)):
+        for c0, c1 in _runs(m[r0:r1].any(0)):
+            rows = np.flatnonzero(m[r0:r1, c0:c1].any(1))
+            boxes.append((ex + c0, ey + r0 + int(rows[0]), ex + c1, ey + r0 + int(rows[-1]) + 1))
+    return boxes
+
+
+def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """``[(start, stop), ...]`` of the runs of True in ``flags`` (1-D)."""
+    padded = np.zeros(len(flags) + 2, np.int8)
+    padded[1:-1] = flags
+    edges = np.flatnonzero(padded[1:] != padded[:-1]).tolist()
+    return list(zip(edges[::2], edges[1::2], strict=True))
+
+
+def _carry_near(field, inside, origin, mask, offset, visit, ref, grow: int = 16):
+    """:func:`carry_extras` on the output pixels of the box ``visit`` (x0, y0, x1, y1) only: the labelled distance
+    transform on it grown by ``grow`` (within the reference's box ``ref``), and more until it holds, for each of its
+    pixels, every body pixel as near as the nearest it found."""
+    x0, y0 = origin
+    h, w = inside.shape
+    CX0, CY0, CX1, CY1 = visit
+    while True:
+        BX0, BY0 = max(CX0 - grow, ref[0]), max(CY0 - grow, ref[1])
+        BX1, BY1 = min(CX1 + grow, ref[2]), min(CY1 + grow, ref[3])
+        whole = (BX0, BY0, BX1, BY1) == tuple(ref)
+        body = np.zeros((BY1 - BY0, BX1 - BX0), np.uint8)
+        ix0, iy0, ix1, iy1 = max(BX0, x0), max(BY0, y0), min(BX1, x0 + w), min(BY1, y0 + h)
+        if ix0 < ix1 and iy0 < iy1:
+            body[iy0 - BY0:iy1 - BY0, ix0 - BX0:ix1 - BX0] = inside[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0]
+        if not body.any():
+            if whole:
+                return
+            grow *= 2
+            continue
+        dist, label = cv2.distanceTransformWithLabels(1 - body, cv2.DIST_L2, cv2.DIST_MASK_5,
+                                                      labelType=cv2.DIST_LABEL_PIXEL)
+        # a body pixel outside the box lies farther than ``grow`` from every visited pixel in x or y, so farther
+        # by the chamfer distance too: none is as near as the nearest found once that is within ``grow - 2``
+        nearest = float(dist[CY0 - BY0:CY1 - BY0, CX0 - BX0:CX1 - BX0].max())
+        if whole or nearest <= grow - 2:
+            break
+        grow = int(np.ceil(nearest)) + 4
+    _carry_box(field[BY0:BY1, BX0:BX1], body, label, mask, float(offset[0]), float(offset[1]), OUTSIDE_PX,
+               CY0 - BY0, CY1 - BY0, CX0 - BX0, CX1 - BX0)
+
+
+@njit(cache=True)
+def _displacement_range(crop, inside, x0, y0):
+    """(min dx, max dx, min dy, max dy, largest |d|) of the backward displacement ``crop - position`` over the
+    ``inside`` pixels (float32 as :func:`_carry_extras_reference` computes it); all NaN where one is not finite."""
+    out = np.array([np.inf, -np.inf, np.inf, -np.inf, 0.0])
+    for r in range(inside.shape[0]):
+        for c in range(inside.shape[1]):
+            if inside[r, c]:
+                dx = crop[r, c, 0] - np.float32(x0 + c)
+                dy = crop[r, c, 1] - np.float32(y0 + r)
+                if not (np.isfinite(dx) and np.isfinite(dy)):
+                    out[:] = np.nan
+                    return out
+                out[0] = min(out[0], dx)
+                out[1] = max(out[1], dx)
+                out[2] = min(out[2], dy)
+                out[3] = max(out[3], dy)
+                out[4] = max(out[4], abs(dx), abs(dy))
+    return out
+
+
+@njit(cache=True)
+def _carry_box(crop, body, label, extras, ex, ey, outside, r0, r1, c0, c1):
+    """:func:`_carry` on the rows ``r0:r1`` and columns ``c0:c1`` of the box only."""
+    h, w = body.shape
+    zr = np.empty(h * w, np.int64)
+    zc = np.empty(h * w, np.int64)
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            if body[r, c]:
+                zr[n], zc[n] = r, c
+                n += 1
+    eh, ew = extras.shape
+    for r in range(r0, r1):
+        for c in range(c0, c1):
+            if body[r, c] or crop[r, c, 0] != outside:
+                continue
+            k = label[r, c] - 1
+            ux = crop[zr[k], zc[k], 0] + (c - zc[k])
+            uy = crop[zr[k], zc[k], 1] + (r - zr[k])
+            er = int(np.floor(uy - ey + 0.5))
+            ec = int(np.floor(ux - ex + 0.5))
+            if 0 <= er < eh and 0 <= ec < ew and extras[er, ec]:
+                crop[r, c, 0] = ux
+                crop[r, c, 1] = uy
+
+
+def _carry_extras_reference(field: np.ndarray, dense, extras) -> np.ndarray:
+    """:func:`carry_extras` as MIR12l wrote it (the reference its tests compare with): the labelled distance transform
+    over the whole body and the extras' box grown by the body's largest displacement.
 
     Each output pixel that shows nothing (OUTSIDE_PX) takes the displacement of its nearest pixel on the target body
     (``field`` there minus its position: the body's own correspondence, Eq. 5's dense counterpart), so an extra moves
