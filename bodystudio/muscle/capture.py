@@ -233,7 +233,8 @@ class CaptureOptions:
     # wherever the optimiser happened to be and a 1e-12 m input change moved the 4-frame capture by 5.5 mm; with
     # IRLS it stops on ftol after 5-10 evaluations and the same change moves it 5e-5 mm
     # (``benchmarks/muscle_sequence_stability.py``). 6k, 200 frames, median / p90 mm (``muscle_sequences``, "hub"):
-    # 501 3.20 / 5.35 -> 3.29 / 5.48, 507 2.83 / 5.73 -> 2.80 / 5.66; CPU 816 -> 577 ms per frame.
+    # 501 3.20 / 5.35 -> 3.29 / 5.48, 504 3.42 / 5.33 -> 2.89 / 4.75, 507 2.83 / 5.73 -> 2.80 / 5.66, 508 3.29 / 6.21
+    # -> 3.18 / 6.25 (mean 3.18 / 5.66 -> 3.04 / 5.54); CPU 852 -> 570 ms per frame.
     sequence_depth_huber_only: bool = True
     # The chest's (torso part's) depth pairs in the sequence fit, scaled by this weight (1: as the arm's). A model
     # whose chest does not match the subject's drags the fitted placement. Measured with the fourth pass's variant
