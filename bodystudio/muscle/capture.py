@@ -243,7 +243,15 @@ class CaptureOptions:
     sequence_fit_skeleton: bool = False
     sequence_skeleton_prior_weight: float = 100.0
     sequence_free_joints: tuple = (True, True, True)  # shoulder, elbow, wrist: which rest joints are fitted
-    sequence_depth_huber_only: bool = False  # Huber weights (IRLS) on the depth pairs only, not the tracker
+    # Huber weights (IRLS) on the depth pairs only, the tracker, prior and skeleton terms quadratic. On by default
+    # (the thread count pass, docs/muscle.md "Capture, the thread count"): with scipy's Huber loss on every residual
+    # the sequence fit's trf stopped at its evaluation limit in every call (15, 50 or 200 alike), so its result was
+    # wherever the optimiser happened to be and a 1e-12 m input change moved the 4-frame capture by 5.5 mm; with
+    # IRLS it stops on ftol after 5-10 evaluations and the same change moves it 5e-5 mm
+    # (``benchmarks/muscle_sequence_stability.py``). 6k, 200 frames, median / p90 mm (``muscle_sequences``, "hub"):
+    # 501 3.20 / 5.35 -> 3.29 / 5.48, 504 3.42 / 5.33 -> 2.89 / 4.75, 507 2.83 / 5.73 -> 2.80 / 5.66, 508 3.29 / 6.21
+    # -> 3.18 / 6.25 (mean 3.18 / 5.66 -> 3.04 / 5.54); CPU 852 -> 570 ms per frame.
+    sequence_depth_huber_only: bool = True
     # The chest's (torso part's) depth pairs in the sequence fit, scaled by this weight (1: as the arm's). A model
     # whose chest does not match the subject's drags the fitted placement. Measured with the fourth pass's variant
     # (skeleton and placement fitted, Huber on the depth only; 6k, 24 frames, measured shape; docs/muscle.md, fifth

@@ -557,7 +557,9 @@ def test_the_pinned_setting_reaches_the_sequence_fit(arm_session_2k, arm_model_2
     monkeypatch.setattr(capture, "PINNED_MIN_FRAMES", 3)
     with pytest.raises(Stop):
         capture_arm_sequence(arm_session_2k, arm_model_2k, arm_template_2k,
-                             CaptureOptions(shape_frames=2, sequence_pinned_se_m=se_m), frames=slice(0, 3))
+                             CaptureOptions(shape_frames=2, sequence_pinned_se_m=se_m,
+                                            sequence_depth_huber_only=False),  # the pinned setting sets it
+                             frames=slice(0, 3))
     got = {k: seen[k] for k in ("norm_limit", "tracker_weight", "fit_root", "fit_skeleton", "depth_huber_only",
                                 "torso_pair_weight")}
     assert got == ({"norm_limit": 0.05, "tracker_weight": 10.0, "fit_root": True, "fit_skeleton": True,

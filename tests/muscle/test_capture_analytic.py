@@ -157,6 +157,7 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
                        tracker_weight=20.0, tracker_root_weight=2.0, tracker_pose_weight=25.0, pose_sigma_frames=0.8,
                        tracker_arm_length_weight=50.0, huber_m=0.001, sequence_rounds=1, sequence_smooth_weight=7.0,
                        sequence_huber_m=0.003, sequence_max_nfev=2, sequence_fit_root=True,
+                       sequence_depth_huber_only=False,  # not the default: the option must reach the fit
                        sequence_tracker_weight=15.0, smooth_weight=6.0, body_rest_shape=False, pose_refit=False)
     # (the model's regressed rest arm and joints: the body rest shape's wiring is test_body_rest_shape.py's and
     # test_sequence_stage_stop_mutants.py's)
@@ -871,7 +872,7 @@ def test_the_new_sequence_option_defaults_are_the_measured_ones():
                                "sequence_tracker_weight": 10.0, "norm_limit": 0.05}
     assert (o.sequence_fit_skeleton, o.sequence_skeleton_prior_weight, o.sequence_free_joints,
             o.sequence_depth_huber_only, o.personal_rounds, o.personal_prior_weight) == (False, 100.0,
-                                                                                       (True, True, True), False, 0,
+                                                                                       (True, True, True), True, 0,
                                                                                        0.05)
 
 

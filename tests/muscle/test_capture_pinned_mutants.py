@@ -132,7 +132,8 @@ def test_the_gates_options_reach_the_sequence_fit(monkeypatch, se_m):
 
     monkeypatch.setattr(cap_mod, "fit_arm_sequence_skeleton", record)
     monkeypatch.setattr(cap_mod, "PINNED_MIN_FRAMES", 2)
-    o = CaptureOptions(mode="model", **FAST, sequence_pinned_se_m=se_m)
+    o = CaptureOptions(mode="model", **FAST, sequence_pinned_se_m=se_m,
+                       sequence_depth_huber_only=False)  # not the default: the pinned setting must set it
     with pytest.raises(_Stop):
         capture_arm_frames(scene.depths, scene.camera, scene.template, scene.model, o, tracker_joints=scene.tracker,
                            known_shape=scene.shape)
