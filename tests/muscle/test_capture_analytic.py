@@ -91,19 +91,23 @@ def test_full_beats_the_model_stage_which_beats_nicp_alone(scene):
                               CaptureOptions(mode="nicp", **FAST))
     e_full, e_model, e_nicp = (_median_mm(V, scene.truths) for V in (full.vertices, full.stages["model"],
                                                                         nicp.vertices))
-    # Sec. 7's claim: the refinement pulls the surface the sensor sees towards the depth. On the arm vertices the
-    # sensor sees (the truth's z-buffer), median per frame: full 3.98 / 4.27 / 4.52 vs model stage 4.78 / 4.87 /
-    # 6.10 mm (ratios 0.83 / 0.88 / 0.74; before the body rest shape was the default 0.81 / 0.84 / 0.70); a dropped
-    # refinement, or one frame left unrefined, gives 1.0 in a frame. Over every vertex (the torso and the unseen side,
-    # which the refinement leaves to its ARAP) the full run lands near 6.2-6.3 mm whatever the model stage: the body
-    # rest shape lowered the model stage (7.44 -> 7.02 mm), so less is left to gain there (6.33 vs 7.02, 0.90; before
-    # 6.19 vs 7.44, 0.83).
+    # Sec. 7 refines every frame on the surface the sensor sees (the truth's z-buffer). On this noise-free case of the
+    # model's own mesh the model stage is in the truth's class: with the sequence fit converged (IRLS Huber, the default
+    # since mus11m) and the rest-shape fits' fixed summation order (mus11i) the model stage's seen-vertex medians are
+    # 3.57 / 2.54 / 3.10 mm and the full run's 3.52 / 2.55 / 3.31 (ratios 0.99 / 1.00 / 1.07; 0.83 / 0.88 / 0.74
+    # before both, when the model stage was 4.8-6.1 mm): the refinement has nothing left to gain here, so the test
+    # asserts that it ran on every frame (median seen displacement 0.63-0.77 mm; a dropped refinement or one frame left
+    # unrefined gives 0) and costs no accuracy; its gain on the seen side is the benchmark's (docs/BENCHMARKS.md: front
+    # median full vs model only) and the unseen side's hold is tests/muscle/test_refine_unseen_hold.py.
     seen = np.stack([visible_vertices(V, scene.template.faces, scene.camera) for V in scene.truths])
     seen &= scene.template.arm_mask
     f_full, f_model = ([_median_mm(V[i:i + 1], scene.truths[i:i + 1], seen[i:i + 1]) for i in range(3)]
                        for V in (full.vertices, full.stages["model"]))
-    assert all(a < 0.9 * b for a, b in zip(f_full, f_model, strict=True)), (f_full, f_model)
-    assert np.mean(f_full) < 0.85 * np.mean(f_model), (f_full, f_model)
+    moved = [1000 * float(np.median(np.linalg.norm(full.vertices[i] - full.stages["model"][i], axis=1)[seen[i]]))
+             for i in range(3)]
+    assert min(moved) > 0.3, moved
+    assert all(a < 1.15 * b for a, b in zip(f_full, f_model, strict=True)), (f_full, f_model)
+    assert np.mean(f_full) < 1.05 * np.mean(f_model), (f_full, f_model)
     assert e_full < e_model and e_model < 0.85 * e_nicp, (e_full, e_model, e_nicp)
     assert e_full < 7.0
     assert full.mode == "full" and nicp.mode == "nicp"
