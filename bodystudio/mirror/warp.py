@@ -615,7 +615,10 @@ def _displacement_range(crop, inside, x0, y0):
 
 @njit(cache=True)
 def _carry_box(crop, body, label, extras, ex, ey, outside, r0, r1, c0, c1):
-    """:func:`_carry` on the rows ``r0:r1`` and columns ``c0:c1`` of the box only."""
+    """:func:`carry_extras` on the rows ``r0:r1`` and columns ``c0:c1`` of a box of the field: ``label`` numbers the
+    body's pixels in raster order; ``extras`` is a mask whose pixel (0, 0) is the image's ``(ex, ey)``. Each empty
+    pixel moves as its nearest body pixel does (that pixel's source position, offset as this one is) and keeps it
+    where it lands on an extra."""
     h, w = body.shape
     zr = np.empty(h * w, np.int64)
     zc = np.empty(h * w, np.int64)
@@ -668,37 +671,9 @@ def _carry_extras_reference(field: np.ndarray, dense, extras) -> np.ndarray:
     body[y0 - Y0:y0 - Y0 + inside.shape[0], x0 - X0:x0 - X0 + inside.shape[1]] = inside
     _, label = cv2.distanceTransformWithLabels(1 - body, cv2.DIST_L2, cv2.DIST_MASK_5,
                                                labelType=cv2.DIST_LABEL_PIXEL)
-    _carry(field[Y0:Y1, X0:X1], body, label, mask, float(ex), float(ey), OUTSIDE_PX)
+    _carry_box(field[Y0:Y1, X0:X1], body, label, mask, float(ex), float(ey), OUTSIDE_PX, 0, body.shape[0], 0,
+               body.shape[1])
     return field
-
-
-@njit(cache=True)
-def _carry(crop, body, label, extras, ex, ey, outside):
-    """:func:`carry_extras` on a box of the field: ``label`` numbers the body's pixels in raster order; ``extras`` is
-    a mask whose pixel (0, 0) is the image's ``(ex, ey)``."""
-    h, w = body.shape
-    zr = np.empty(h * w, np.int64)
-    zc = np.empty(h * w, np.int64)
-    n = 0
-    for r in range(h):
-        for c in range(w):
-            if body[r, c]:
-                zr[n], zc[n] = r, c
-                n += 1
-    eh, ew = extras.shape
-    for r in range(h):
-        for c in range(w):
-            if body[r, c] or crop[r, c, 0] != outside:
-                continue
-            k = label[r, c] - 1
-            # this pixel moved as its nearest body pixel is: that pixel's source position, offset as this one is
-            ux = crop[zr[k], zc[k], 0] + (c - zc[k])
-            uy = crop[zr[k], zc[k], 1] + (r - zr[k])
-            er = int(np.floor(uy - ey + 0.5))
-            ec = int(np.floor(ux - ex + 0.5))
-            if 0 <= er < eh and 0 <= ec < ew and extras[er, ec]:
-                crop[r, c, 0] = ux
-                crop[r, c, 1] = uy
 
 
 def upsample_field(field: np.ndarray, shape=(480, 640)) -> np.ndarray:
