@@ -198,11 +198,11 @@ class StatisticalBodyModel:
             tol = np.array([_TOLERANCE[n] for n in targets])
             off = np.abs(residual) / (_REACH_FACTOR * tol)
             if off.max() > 1.0:
-                worst = list(targets)[int(np.argmax(off))]
+                k = int(np.argmax(off))
                 asked = ", ".join(f"{n} {v:+g}" for n, v in deltas.items())
                 raise InputError(f"edit ({asked}) is not reachable for this body with the other measurements "
-                                 f"{'held' if others == 'held' else 'following'}: {worst} ends "
-                                 f"{-residual[list(targets).index(worst)]:+.3g} off its target; use a smaller edit")
+                                 f"{'held' if others == 'held' else 'following'}: {list(targets)[k]} ends "
+                                 f"{-residual[k]:+.3g} off its target; use a smaller edit")
         return c
 
     def _match_measured(self, c: np.ndarray, targets: dict[str, float], iterations: int = 5,
