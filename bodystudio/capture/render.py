@@ -209,15 +209,34 @@ def project_vertices(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndar
     return uv, z
 
 
-def depth_buffer(uv: np.ndarray, z: np.ndarray, F: np.ndarray, width: int, height: int) -> np.ndarray:
+def depth_buffer(uv: np.ndarray, z: np.ndarray, F: np.ndarray, width: int, height: int,
+                 tiles: np.ndarray | None = None, tile_px: int = 8) -> np.ndarray:
     """The z-buffer (height, width) float32 of the triangles ``F`` over vertices projected to ``uv, z``
     (:func:`project_vertices`), ``inf`` where none covers the pixel: :func:`render_depth`'s, bit for bit, before
     its empty pixels become 0. Drawing a subset of ``F`` (in their order) leaves the pixels that only those
-    triangles can cover as the whole mesh's."""
-    depth = np.full((height, width), np.inf, dtype=np.float32)
+    triangles can cover as the whole mesh's. ``tiles`` (bool, one per ``tile_px`` square): only the flagged
+    tiles' pixels are defined (the buffer starts at ``inf`` there and nowhere else: a caller that reads a few
+    pixels does not clear the whole image, ~0.5 ms at 512x424); the others hold arbitrary values."""
+    if tiles is None:
+        depth = np.full((height, width), np.inf, dtype=np.float32)
+    else:
+        depth = np.empty((height, width), dtype=np.float32)
+        _fill_tiles(depth, np.ascontiguousarray(tiles, dtype=np.bool_), int(tile_px), np.float32(np.inf))
     _rasterize(uv, z, np.ascontiguousarray(F, dtype=np.int64), width, height, depth, np.empty((0, 0), np.int32),
                np.empty((0, 0, 3), np.float32), False)
     return depth
+
+
+@njit(cache=True)
+def _fill_tiles(image, tiles, tile_px, value):
+    """``value`` into the pixels of the ``tile_px`` squares flagged in ``tiles`` (clipped to the image)."""
+    H, W = image.shape
+    for ty in range(tiles.shape[0]):
+        for tx in range(tiles.shape[1]):
+            if tiles[ty, tx]:
+                for y in range(ty * tile_px, min((ty + 1) * tile_px, H)):
+                    for x in range(tx * tile_px, min((tx + 1) * tile_px, W)):
+                        image[y, x] = value
 
 
 def render_silhouette_depth(V: np.ndarray, F: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:

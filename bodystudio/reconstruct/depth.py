@@ -199,11 +199,12 @@ def _model_depth_at(F, cam, uv, z, pixels) -> np.ndarray:
     """The mesh's camera z (0 where it does not cover the pixel) at ``pixels`` ((row, col) rows) of ``cam``, from
     its projection ``uv, z``: :func:`render_depth`'s z-buffer there bit for bit, without the triangle ids and
     barycentrics, drawing only the triangles whose pixel box touches a ``_TILE``-pixel tile holding one of
-    ``pixels`` (every triangle that covers such a pixel, in the same order)."""
+    ``pixels`` (every triangle that covers such a pixel, in the same order), into a buffer cleared on those tiles
+    only."""
     H, W = cam.height, cam.width
     need = np.zeros(((H + _TILE - 1) // _TILE, (W + _TILE - 1) // _TILE), np.bool_)
     need[pixels[:, 0] // _TILE, pixels[:, 1] // _TILE] = True
-    own = depth_buffer(uv, z, F[_faces_touching(uv, F, W, H, need)], W, H)[pixels[:, 0], pixels[:, 1]]
+    own = depth_buffer(uv, z, F[_faces_touching(uv, F, W, H, need)], W, H, need, _TILE)[pixels[:, 0], pixels[:, 1]]
     own[own == np.inf] = 0.0
     return own
 

@@ -136,6 +136,15 @@ def test_the_culled_raster_is_the_full_one_at_its_pixels(scene):
     np.testing.assert_array_equal(_model_depth_at(F, cam, uv, z, pixels), full[pixels[:, 0], pixels[:, 1]])
     one = covered[len(covered) // 2][None]
     np.testing.assert_array_equal(_model_depth_at(F, cam, uv, z, one), full[one[:, 0], one[:, 1]])
+    # the buffer cleared only on flagged tiles (rec15i): every pixel of those tiles as the whole buffer's, with
+    # tiles of 7 px that the image's edges clip, empty and covered ones
+    tiles = np.zeros(((cam.height + 6) // 7, (cam.width + 6) // 7), bool)
+    tiles[::3, ::2] = True
+    tiles[-1, -1] = True
+    part = depth_buffer(uv, z, F, cam.width, cam.height, tiles, 7)
+    flagged = np.kron(tiles, np.ones((7, 7), bool))[:cam.height, :cam.width]
+    assert flagged[-1, -1] and (np.isinf(whole) & flagged).any() and (np.isfinite(whole) & flagged).sum() > 100
+    np.testing.assert_array_equal(part[flagged], whole[flagged])
 
 
 def test_the_observation_is_the_same_on_two_threads(scene):
