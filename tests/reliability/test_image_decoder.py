@@ -107,3 +107,24 @@ def test_rule_on_libpng_lines():
     assert not colour_profile_warning("libpng warning: iCCP: unexpected zlib return code")
     assert not colour_profile_warning("libpng warning: IDAT: Too many IDATs found")
     assert not colour_profile_warning("libpng warning: tEXt: CRC error")
+
+
+
+def test_the_reused_capture_file_carries_nothing_to_the_next_image(tmp_path, capfd):
+    """The decoder's stderr capture file is made once per process (issue 15's frame time, rec15i): a damaged image's
+    warnings and an accepted profile warning stay with their image; the intact image read after each decodes
+    silently, and the program's own output between them reaches the terminal."""
+    import os
+
+    from bodystudio.fileio import decode_image
+
+    with pytest.raises(FileFormatError, match="CRC"):
+        _read(tmp_path, _png(bad_crc=b"IDAT"))
+    image, _ = _read(tmp_path, _png())
+    assert np.array_equal(image, IMAGE)
+    os.write(2, b"the program's own line\n")
+    assert np.array_equal(decode_image(_png([(b"sRGB", b"\x09")]), "p.png"), IMAGE)  # warns, accepted
+    assert np.array_equal(decode_image(_png(), "q.png"), IMAGE)
+    with pytest.raises(FileFormatError, match="tEXt"):
+        decode_image(_png([(b"tEXt", b"Software\x00cam")], bad_crc=b"tEXt"), "r.png")
+    assert capfd.readouterr().err == "the program's own line\n"
