@@ -270,43 +270,37 @@ def outside_fraction(V: np.ndarray, fields: SilhouetteFields, outside_px: float 
 @numba.njit(cache=True)
 def _outside_count(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, outside_px):
     """Vertices seen more than ``outside_px`` outside a silhouette by some camera (:func:`outside_fraction`):
-    projection as :meth:`Camera.project_with_depth`, bilinear distance as :meth:`SilhouetteFields.sample`."""
+    projection as :meth:`Camera.project_with_depth`, bilinear distance as :meth:`SilhouetteFields.sample`. The
+    cameras outermost, each projecting every vertex in one vectorised pass (:func:`_project_points`) and testing
+    those no earlier camera saw outside (rec15i; the decisions of the vertex-major loop that stopped at a vertex's
+    first such camera)."""
     n, C = V.shape[0], R.shape[0]
-    count = 0
-    for i in range(n):
-        X, Y, Z = V[i, 0], V[i, 1], V[i, 2]
-        for c in range(C):
-            xc = R[c, 0, 0] * X + R[c, 0, 1] * Y + R[c, 0, 2] * Z + t[c, 0]
-            yc = R[c, 1, 0] * X + R[c, 1, 1] * Y + R[c, 1, 2] * Z + t[c, 1]
-            z = R[c, 2, 0] * X + R[c, 2, 1] * Y + R[c, 2, 2] * Z + t[c, 2]
-            if not z > 0.0:
+    out = np.zeros(n, np.bool_)
+    Vf = V.reshape(-1)
+    pu, pv, pz = np.empty(n), np.empty(n), np.empty(n)
+    for c in range(C):
+        _project_points(Vf, R[c], t[c], K[c], dist[c], has_dist[c], pu, pv, pz)
+        umax, vmax = size[c, 0] - 1.0, size[c, 1] - 1.0
+        ou, ov, sw, sh = offsets[c, 0], offsets[c, 1], shapes[c, 1] - 1, shapes[c, 0] - 1
+        field = sdf[c]
+        for i in range(n):
+            if out[i] or not pz[i] > 0.0:
                 continue
-            x, y = xc / z, yc / z
-            if has_dist[c]:
-                k1, k2, p1, p2, k3 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3], dist[c, 4]
-                r2 = x * x + y * y
-                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-                xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-                yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-                x, y = xd, yd
-            u = K[c, 0, 0] * x + K[c, 0, 1] * y + K[c, 0, 2]
-            v = K[c, 1, 1] * y + K[c, 1, 2]
-            if not (u >= 0.0 and v >= 0.0 and u <= size[c, 0] - 1.0 and v <= size[c, 1] - 1.0):
+            u, v = pu[i], pv[i]
+            if not (u >= 0.0 and v >= 0.0 and u <= umax and v <= vmax):
                 continue
-            uu, vv = u - offsets[c, 0], v - offsets[c, 1]
+            uu, vv = u - ou, v - ov
             d = margin
-            if uu >= 0.0 and vv >= 0.0 and uu < shapes[c, 1] - 1 and vv < shapes[c, 0] - 1:
+            if uu >= 0.0 and vv >= 0.0 and uu < sw and vv < sh:
                 xi, yi = int(uu), int(vv)
                 ax, ay = uu - xi, vv - yi
-                s00 = np.float64(sdf[c, yi, xi])
-                s10 = np.float64(sdf[c, yi, xi + 1])
-                s01 = np.float64(sdf[c, yi + 1, xi])
-                s11 = np.float64(sdf[c, yi + 1, xi + 1])
+                s00 = np.float64(field[yi, xi])
+                s10 = np.float64(field[yi, xi + 1])
+                s01 = np.float64(field[yi + 1, xi])
+                s11 = np.float64(field[yi + 1, xi + 1])
                 d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
-            if d > outside_px:
-                count += 1
-                break
-    return count
+            out[i] = d > outside_px
+    return int(out.sum())
 
 
 def outside_fraction_reference(V: np.ndarray, fields: SilhouetteFields, outside_px: float = 2.0) -> float:
@@ -366,52 +360,113 @@ def _implicit_hull(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margi
 
 @numba.njit(cache=True, inline="always")
 def _implicit_hull_range(V, best, G, lo, hi, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
-    """:func:`_implicit_hull` of the vertices ``lo:hi`` into ``best`` and ``G``."""
+    """:func:`_implicit_hull` of the vertices ``lo:hi`` into ``best`` and ``G``: the cameras outermost, each
+    projecting the range in one vectorised pass (:func:`_project_points`) and raising a vertex's max where its
+    value is strictly above (the first maximising camera, as the vertex-major loop's ``r > best``), then the
+    gradient of each vertex at its maximising camera alone (issue 15's frame time, rec15i; the same values as
+    :func:`_implicit_hull_range_reference`, tested)."""
     C = R.shape[0]
-    for i in range(lo, hi):
-        X, Y, Z = V[i, 0], V[i, 1], V[i, 2]
-        for c in range(C):
-            xc = R[c, 0, 0] * X + R[c, 0, 1] * Y + R[c, 0, 2] * Z + t[c, 0]
-            yc = R[c, 1, 0] * X + R[c, 1, 1] * Y + R[c, 1, 2] * Z + t[c, 1]
-            z = R[c, 2, 0] * X + R[c, 2, 1] * Y + R[c, 2, 2] * Z + t[c, 2]
+    m = hi - lo
+    if m <= 0:
+        return
+    Vf = V[lo:hi].reshape(-1)
+    pu, pv, pz = np.empty(m), np.empty(m), np.empty(m)
+    arg = np.full(m, -1, np.int64)
+    for c in range(C):
+        _project_points(Vf, R[c], t[c], K[c], dist[c], has_dist[c], pu, pv, pz)
+        umax, vmax = size[c, 0] - 1.0, size[c, 1] - 1.0
+        ou, ov, sw, sh = offsets[c, 0], offsets[c, 1], shapes[c, 1] - 1, shapes[c, 0] - 1
+        f = 0.5 * (K[c, 0, 0] + K[c, 1, 1])
+        field = sdf[c]
+        for k in range(m):
+            z = pz[k]
             if not z > 1e-6:
                 continue
-            x, y = xc / z, yc / z
-            if has_dist[c]:
-                k1, k2, p1, p2, k3 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3], dist[c, 4]
-                r2 = x * x + y * y
-                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-                xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-                yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-                x, y = xd, yd
-            fx, fy = K[c, 0, 0], K[c, 1, 1]
-            u = fx * x + K[c, 0, 1] * y + K[c, 0, 2]
-            v = fy * y + K[c, 1, 2]
-            if not (u >= 0.0 and v >= 0.0 and u <= size[c, 0] - 1.0 and v <= size[c, 1] - 1.0):
+            u, v = pu[k], pv[k]
+            if not (u >= 0.0 and v >= 0.0 and u <= umax and v <= vmax):
                 continue
-            uu, vv = u - offsets[c, 0], v - offsets[c, 1]
-            d, gu, gv = margin, 0.0, 0.0
-            if uu >= 0.0 and vv >= 0.0 and uu < shapes[c, 1] - 1 and vv < shapes[c, 0] - 1:
+            uu, vv = u - ou, v - ov
+            d = margin
+            if uu >= 0.0 and vv >= 0.0 and uu < sw and vv < sh:
                 xi, yi = int(uu), int(vv)
                 ax, ay = uu - xi, vv - yi
-                s00 = np.float64(sdf[c, yi, xi])
-                s10 = np.float64(sdf[c, yi, xi + 1])
-                s01 = np.float64(sdf[c, yi + 1, xi])
-                s11 = np.float64(sdf[c, yi + 1, xi + 1])
+                s00 = np.float64(field[yi, xi])
+                s10 = np.float64(field[yi, xi + 1])
+                s01 = np.float64(field[yi + 1, xi])
+                s11 = np.float64(field[yi + 1, xi + 1])
                 d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
-                gu = (1 - ay) * (s10 - s00) + ay * (s11 - s01)
-                gv = (1 - ax) * (s01 - s00) + ax * (s11 - s10)
-            f = 0.5 * (fx + fy)
             r = d * z / f
-            if r > best[i]:
-                best[i] = r
-                # d(uv)/d(Pc) of the pinhole model, scaled to metres per pixel at the vertex's depth, to world
-                s = z / f
-                g0 = s * gu * fx / z
-                g1 = s * gv * fy / z
-                g2 = -s * (gu * fx * xc + gv * fy * yc) / (z * z)
-                for k in range(3):
-                    G[i, k] = g0 * R[c, 0, k] + g1 * R[c, 1, k] + g2 * R[c, 2, k]
+            up = r > best[lo + k]
+            best[lo + k] = r if up else best[lo + k]
+            arg[k] = c if up else arg[k]
+    for k in range(m):
+        c = arg[k]
+        if c >= 0:
+            _implicit_hull_at(V, best, G, lo + k, c, c + 1, R, t, K, dist, has_dist, size, sdf, shapes, offsets,
+                              margin, True)
+
+
+@numba.njit(cache=True, inline="always")
+def _implicit_hull_at(V, best, G, i, c0, c1, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin, gradient):
+    """Vertex ``i`` of :func:`_implicit_hull` over the cameras ``c0:c1``, vertex-major (the loop before rec15i):
+    raises ``best[i]`` where a camera's value is above it and takes that camera's gradient into ``G[i]``; with
+    ``gradient`` the gradient is written for the last camera whatever its value (the maximising one, known)."""
+    X, Y, Z = V[i, 0], V[i, 1], V[i, 2]
+    for c in range(c0, c1):
+        xc = R[c, 0, 0] * X + R[c, 0, 1] * Y + R[c, 0, 2] * Z + t[c, 0]
+        yc = R[c, 1, 0] * X + R[c, 1, 1] * Y + R[c, 1, 2] * Z + t[c, 1]
+        z = R[c, 2, 0] * X + R[c, 2, 1] * Y + R[c, 2, 2] * Z + t[c, 2]
+        if not z > 1e-6:
+            continue
+        x, y = xc / z, yc / z
+        if has_dist[c]:
+            k1, k2, p1, p2, k3 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3], dist[c, 4]
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+            yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+            x, y = xd, yd
+        fx, fy = K[c, 0, 0], K[c, 1, 1]
+        u = fx * x + K[c, 0, 1] * y + K[c, 0, 2]
+        v = fy * y + K[c, 1, 2]
+        if not (u >= 0.0 and v >= 0.0 and u <= size[c, 0] - 1.0 and v <= size[c, 1] - 1.0):
+            continue
+        uu, vv = u - offsets[c, 0], v - offsets[c, 1]
+        d, gu, gv = margin, 0.0, 0.0
+        if uu >= 0.0 and vv >= 0.0 and uu < shapes[c, 1] - 1 and vv < shapes[c, 0] - 1:
+            xi, yi = int(uu), int(vv)
+            ax, ay = uu - xi, vv - yi
+            s00 = np.float64(sdf[c, yi, xi])
+            s10 = np.float64(sdf[c, yi, xi + 1])
+            s01 = np.float64(sdf[c, yi + 1, xi])
+            s11 = np.float64(sdf[c, yi + 1, xi + 1])
+            d = (1 - ay) * ((1 - ax) * s00 + ax * s10) + ay * ((1 - ax) * s01 + ax * s11)
+            gu = (1 - ay) * (s10 - s00) + ay * (s11 - s01)
+            gv = (1 - ax) * (s01 - s00) + ax * (s11 - s10)
+        f = 0.5 * (fx + fy)
+        r = d * z / f
+        if gradient or r > best[i]:
+            best[i] = r
+            # d(uv)/d(Pc) of the pinhole model, scaled to metres per pixel at the vertex's depth, to world
+            s = z / f
+            g0 = s * gu * fx / z
+            g1 = s * gv * fy / z
+            g2 = -s * (gu * fx * xc + gv * fy * yc) / (z * z)
+            for k in range(3):
+                G[i, k] = g0 * R[c, 0, k] + g1 * R[c, 1, k] + g2 * R[c, 2, k]
+
+
+@numba.njit(cache=True)
+def _implicit_hull_reference(V, R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin):
+    """:func:`_implicit_hull` vertex-major on one thread, each vertex over all cameras (the loop before rec15i),
+    kept as the equality test's reference."""
+    n = V.shape[0]
+    best = np.full(n, -np.inf)
+    G = np.zeros((n, 3))
+    for i in range(n):
+        _implicit_hull_at(V, best, G, i, 0, R.shape[0], R, t, K, dist, has_dist, size, sdf, shapes, offsets, margin,
+                          False)
+    return best, G
 
 
 @numba.njit(cache=True, parallel=True)

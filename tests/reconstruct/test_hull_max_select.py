@@ -63,3 +63,30 @@ def test_the_limited_max_decides_as_the_full_one(scene):
     assert 200 < (full > limit).sum() < len(X) - 200
     below = ~(full > limit)
     np.testing.assert_array_equal(limited[below], full[below])  # a kept point read every camera
+
+
+@pytest.mark.parametrize("chunks", [1, 3])
+def test_the_camera_major_hull_and_gradient_are_the_vertex_major_ones(scene, chunks):
+    """:func:`_implicit_hull` with the cameras outermost and each camera's points projected in one vectorised pass
+    (rec15i), the gradient taken at the maximising camera afterwards: the values and gradients of the vertex-major
+    loop it replaced (:func:`_implicit_hull_reference`) bit for bit, in any number of chunks."""
+    from bodystudio.reconstruct.tracking import _implicit_hull, _implicit_hull_reference
+
+    fields, X = scene
+    best, G = _implicit_hull(X, *_args(fields), chunks)
+    ref_best, ref_G = _implicit_hull_reference(X, *_args(fields))
+    np.testing.assert_array_equal(best, ref_best)
+    np.testing.assert_array_equal(G, ref_G)
+    moved = (np.abs(G).sum(axis=1) > 0) & np.isfinite(best)
+    assert moved.sum() > 1000 and (np.isfinite(best) & ~moved).any()  # gradients, and points beyond the fields
+
+
+def test_the_camera_major_outside_share_is_the_reference_one(scene):
+    """:func:`outside_fraction` with the cameras outermost (rec15i) decides every point as the per-camera numpy
+    path, at thresholds where some and where most points are outside."""
+    from bodystudio.reconstruct.tracking import outside_fraction, outside_fraction_reference
+
+    fields, X = scene
+    shares = [outside_fraction(X, fields, px) for px in (-3.0, 2.0, 9.0)]
+    assert shares == [outside_fraction_reference(X, fields, px) for px in (-3.0, 2.0, 9.0)]
+    assert 0.05 < shares[2] < shares[1] < shares[0] < 1.0
