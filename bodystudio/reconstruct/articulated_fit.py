@@ -151,7 +151,9 @@ def _sparse_weights(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return hit[1], hit[2]
     K = int(max(1, (weights > 0).sum(axis=1).max()))
     idx = np.argsort(-weights, axis=1)[:, :K]
-    out = idx, np.take_along_axis(weights, idx, axis=1)
+    # contiguous int64 / float64, so a fit's np.ascontiguousarray hands back these very arrays (no copy a call)
+    out = np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(np.take_along_axis(weights, idx, axis=1),
+                                                                          dtype=np.float64)
     if len(_SPARSE_CACHE) >= 8:
         _SPARSE_CACHE.clear()
     _SPARSE_CACHE[id(weights)] = (weights, *out)  # holding the array keeps its id from being reused
@@ -209,6 +211,99 @@ def data_normal_equations(C, bone_idx, bone_w, D, heads, rows, r, w, G):
         vals[0], vals[1], vals[2] = gx, gy, gz
         nnz = 3
         for j in range(n_seg):
+            a = 0.0
+            lx = 0.0
+            ly = 0.0
+            lz = 0.0
+            for k in range(K):
+                d = D[bone_idx[i, k], j]
+                if d != 0.0:
+                    a += bone_w[i, k] * d
+                    lx += d * C[i, k, 0]
+                    ly += d * C[i, k, 1]
+                    lz += d * C[i, k, 2]
+            if a == 0.0:
+                continue
+            lx -= a * heads[j, 0]
+            ly -= a * heads[j, 1]
+            lz -= a * heads[j, 2]
+            base = 3 + 3 * j
+            cols[nnz], cols[nnz + 1], cols[nnz + 2] = base, base + 1, base + 2
+            vals[nnz] = ly * gz - lz * gy
+            vals[nnz + 1] = lz * gx - lx * gz
+            vals[nnz + 2] = lx * gy - ly * gx
+            nnz += 3
+        wm = w[m]
+        rm = r[m]
+        for p in range(nnz):  # cols ascend, so the upper triangle; mirrored below
+            wv = wm * vals[p]
+            g[cols[p]] += wv * rm
+            for q in range(p, nnz):
+                H[cols[p], cols[q]] += wv * vals[q]
+    for p in range(n_par):
+        for q in range(p):
+            H[p, q] = H[q, p]
+    return H, g
+
+
+@numba.njit(cache=True)
+def vertex_segments(bone_idx, D):
+    """The fitted segments each vertex follows, CSR ``(ptr, seg)`` in ascending segment order: ``j`` with some
+    influence ``k`` of the vertex in segment j's subtree (``D[bone_idx[i, k], j] != 0``). Fixed for a fit, so
+    :func:`data_normal_equations_listed` skips the other segments without looking at them."""
+    n, K = bone_idx.shape
+    n_seg = D.shape[1]
+    ptr = np.zeros(n + 1, np.int64)
+    seg = np.empty(n * n_seg, np.int64)
+    m = 0
+    for i in range(n):
+        for j in range(n_seg):
+            hit = False
+            for k in range(K):
+                if D[bone_idx[i, k], j] != 0.0:
+                    hit = True
+            if hit:
+                seg[m] = j
+                m += 1
+        ptr[i + 1] = m
+    return ptr, seg[:m]
+
+
+_SEGMENT_CACHE: dict = {}
+
+
+def _vertex_segments_cached(bone_idx: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`vertex_segments` memoised on the skin's index array (the same object for a body's weights,
+    :func:`_sparse_weights`) and the segments: a tracked sequence fits the same template every frame."""
+    key = (id(bone_idx), D.shape, D.tobytes())
+    hit = _SEGMENT_CACHE.get(key)
+    if hit is None or hit[0] is not bone_idx:
+        if len(_SEGMENT_CACHE) >= 8:
+            _SEGMENT_CACHE.clear()
+        hit = _SEGMENT_CACHE[key] = (bone_idx, *vertex_segments(bone_idx, D))  # holding it keeps its id unique
+    return hit[1], hit[2]
+
+
+@numba.njit(cache=True)
+def data_normal_equations_listed(C, bone_idx, bone_w, D, heads, rows, r, w, G, seg_ptr, seg):
+    """:func:`data_normal_equations` reading each row's segments from :func:`vertex_segments` instead of
+    scanning all of them (issue 15's frame time, rec15i): the same terms in the same order, so the same ``H`` and
+    ``g`` bit for bit (tested)."""
+    n_seg = D.shape[1]
+    n_par = 3 + 3 * n_seg
+    H = np.zeros((n_par, n_par))
+    g = np.zeros(n_par)
+    K = bone_idx.shape[1]
+    cols = np.empty(n_par, np.int64)
+    vals = np.empty(n_par)
+    for m in range(rows.shape[0]):
+        i = rows[m]
+        gx, gy, gz = G[m, 0], G[m, 1], G[m, 2]
+        cols[0], cols[1], cols[2] = 0, 1, 2
+        vals[0], vals[1], vals[2] = gx, gy, gz
+        nnz = 3
+        for e in range(seg_ptr[i], seg_ptr[i + 1]):
+            j = seg[e]
             a = 0.0
             lx = 0.0
             ly = 0.0
@@ -613,6 +708,7 @@ def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefinePa
     fitted_parent = np.array(fitted_parent)
     # leaves first, so each rotation is about its head before an ancestor's rotation moves it
     order = sorted(range(nJ), key=lambda j: -D[bones[j]].sum())
+    seg_ptr, seg = _vertex_segments_cached(bone_idx, D)  # the segments each vertex follows (normal equations)
     Q = np.tile(np.eye(3), (nJ, 1, 1))  # accumulated world correction of each segment
     T = T.copy()
     n_par = 3 + 3 * nJ
@@ -631,10 +727,10 @@ def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefinePa
         if params.min_decrease > 0 and energy > (1.0 - params.min_decrease) * previous_energy:
             break  # the last step lowered the data energy by less than min_decrease: converged
         previous_energy = energy
-        H, g = data_normal_equations(C, bone_idx, bone_w, D, heads, np.ascontiguousarray(ids, dtype=np.int64),
-                                     np.ascontiguousarray(r, dtype=np.float64),
-                                     np.ascontiguousarray(np.broadcast_to(w, r.shape), dtype=np.float64),
-                                     np.ascontiguousarray(G, dtype=np.float64))
+        H, g = data_normal_equations_listed(C, bone_idx, bone_w, D, heads, np.ascontiguousarray(ids, dtype=np.int64),
+                                            np.ascontiguousarray(r, dtype=np.float64),
+                                            np.ascontiguousarray(np.broadcast_to(w, r.shape), dtype=np.float64),
+                                            np.ascontiguousarray(G, dtype=np.float64), seg_ptr, seg)
         if anchors is not None:
             a_bones, a_rest, a_target, a_weight = anchors
             X = np.einsum("mij,mj->mi", T[a_bones, :3, :3], a_rest) + T[a_bones, :3, 3]

@@ -61,6 +61,26 @@ def test_normal_equations_equal_the_dense_jacobian():
     assert np.abs(H[3:, 3:]).max() > 1.0  # the rotation blocks are exercised, not only the translation
 
 
+def test_listed_normal_equations_are_the_scanning_ones_bit_for_bit():
+    """rec15i: each row reads its segments from :func:`vertex_segments` (fixed for a fit) instead of scanning all;
+    the same ``H`` and ``g`` bit for bit, with zero weights, a bone in no segment and rows repeated."""
+    from bodystudio.reconstruct.articulated_fit import data_normal_equations_listed, vertex_segments
+
+    rng = np.random.default_rng(6)
+    T, rest, bone_idx, bone_w, D, heads = _random_rig(rng, n=80, n_seg=6)
+    bone_idx[0] = 0  # vertex 0 follows bone 0 alone, which is in no segment
+    C, _ = skinned_parts(T, rest, bone_idx, bone_w)
+    rows = np.r_[rng.choice(np.arange(1, len(rest)), 59, replace=False), [0, 3, 3]].astype(np.int64)
+    r, w, G = rng.normal(size=62), rng.uniform(0.1, 1.0, 62), rng.normal(size=(62, 3))
+    ptr, seg = vertex_segments(bone_idx, D)
+    listed = [set(seg[ptr[i]:ptr[i + 1]]) for i in range(len(rest))]
+    assert listed == [{j for j in range(D.shape[1]) if D[bone_idx[i], j].any()} for i in range(len(rest))]
+    assert any(not s for s in listed) and any(len(s) > 1 for s in listed)
+    H, g = data_normal_equations_listed(C, bone_idx, bone_w, D, heads, rows, r, w, G, ptr, seg)
+    H_ref, g_ref = data_normal_equations(C, bone_idx, bone_w, D, heads, rows, r, w, G)
+    assert np.array_equal(H, H_ref) and np.array_equal(g, g_ref) and np.abs(H[3:, 3:]).max() > 1.0
+
+
 def test_carry_deformed_mesh_moves_the_offsets_with_the_pose():
     rng = np.random.default_rng(5)
     P_prev = rng.normal(size=(30, 3))
