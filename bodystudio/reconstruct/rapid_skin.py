@@ -259,6 +259,12 @@ def hull_consistent_constraints(V: np.ndarray, sil: SilhouetteConstraints, field
     """
     if not len(sil):
         return sil
+    if memo is not None and sil.camera is not None and isinstance(fields, SilhouetteFields):
+        # the memo's bookkeeping, the gate and the kept constraints in one compiled pass (rec15i: ~0.6 ms of
+        # Python a pass), the same decisions and arrays as the path below
+        keep = fields.hull_gate_memo(V, sil.vertex, sil.camera, sil.origin, sil.direction, gate_m, memo, reuse,
+                                     projected)
+        return _kept(sil, keep)
     if memo is not None and sil.camera is not None:
         slot = sil.camera * len(V) + sil.vertex
         known = memo[slot] if reuse else np.zeros(len(slot), np.int8)

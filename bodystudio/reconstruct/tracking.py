@@ -229,6 +229,25 @@ class SilhouetteFields:
                           self._K, self._dist, self._has_dist, self._size, self._packed_sdf, self._shapes,
                           self._offsets, self.margin_px, numba.get_num_threads(), projected is not None, uv, z)
 
+    def hull_gate_memo(self, V: np.ndarray, vertex: np.ndarray, camera: np.ndarray, origin: np.ndarray,
+                       direction: np.ndarray, gate_m: float, memo: np.ndarray, reuse: bool,
+                       projected: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """Keep mask of :func:`bodystudio.reconstruct.rapid_skin.hull_consistent_constraints` with its ``memo``
+        (int8 per (camera, vertex): 0 undecided, 1 kept, 2 dropped) in one compiled pass: with ``reuse`` the pairs
+        decided before keep their decision, the others are gated by :meth:`hull_gate` (in their order) and their
+        decisions written in; without it every pair is gated and written."""
+        if projected is None:
+            uv, z = np.zeros((0, 0, 2)), np.zeros((0, 0))
+        else:
+            uv, z = projected
+        return _hull_gate_memo(np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(vertex, dtype=np.int64),
+                               np.ascontiguousarray(camera, dtype=np.int64),
+                               np.ascontiguousarray(origin, dtype=np.float64),
+                               np.ascontiguousarray(direction, dtype=np.float64), float(gate_m), memo, bool(reuse),
+                               self._R, self._t, self._K, self._dist, self._has_dist, self._size, self._packed_sdf,
+                               self._shapes, self._offsets, self.margin_px, numba.get_num_threads(),
+                               projected is not None, uv, z)
+
     def sample(self, cam, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bilinear signed distance ``(m,)`` and its image gradient ``(m, 2)`` at pixels ``uv``; ``ok``
         marks pixels inside the image (outside it the distance is unknown)."""
@@ -640,6 +659,37 @@ def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, si
     keep = np.empty(m, np.bool_)
     for j in range(m):
         keep[j] = not hq[j] > limit[j]
+    return keep
+
+
+@numba.njit(cache=True)
+def _hull_gate_memo(V, vertex, camera, origin, direction, gate_m, memo, reuse, R, t, K, dist, has_dist, size, sdf,
+                    shapes, offsets, margin, chunks, has_projection, uv, z):
+    """:meth:`SilhouetteFields.hull_gate_memo`: the undecided pairs (all without ``reuse``) through
+    :func:`_hull_gate` in their order, the decisions of the others read from ``memo``."""
+    m, n = vertex.shape[0], V.shape[0]
+    keep = np.empty(m, np.bool_)
+    todo = np.empty(m, np.int64)
+    nt = 0
+    for j in range(m):
+        known = memo[camera[j] * n + vertex[j]] if reuse else 0
+        keep[j] = known == 1
+        if known == 0:
+            todo[nt] = j
+            nt += 1
+    if nt == 0:
+        return keep
+    if nt == m:
+        new = _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, size, sdf, shapes, offsets,
+                         margin, chunks, has_projection, uv, z)
+    else:
+        sub = todo[:nt]
+        new = _hull_gate(V, vertex[sub], origin[sub], direction[sub], gate_m, R, t, K, dist, has_dist, size, sdf,
+                         shapes, offsets, margin, chunks, has_projection, uv, z)
+    for k in range(nt):
+        j = todo[k]
+        keep[j] = new[k]
+        memo[camera[j] * n + vertex[j]] = 1 if new[k] else 2
     return keep
 
 

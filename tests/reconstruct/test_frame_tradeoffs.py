@@ -174,6 +174,31 @@ def test_gate_reuse_keeps_earlier_decisions_and_decides_new_pairs(scene):
     assert len(again) <= len(sil)
 
 
+def test_the_compiled_memo_is_the_python_one(scene):
+    """rec15i: with :class:`SilhouetteFields` the memo's bookkeeping runs compiled with the gate
+    (:meth:`SilhouetteFields.hull_gate_memo`); the same constraints and the same memo after each call as the
+    Python bookkeeping (a hull that only has ``implicit_hull``), fresh, reused on a moved mesh, partly undecided."""
+
+    class _Hull:  # the fields' implicit hull alone: hull_consistent_constraints' Python memo path
+        def __init__(self, fields):
+            self.implicit_hull = fields.implicit_hull
+
+    V, F, cams, masks = scene
+    fields = SilhouetteFields(cams, masks)
+    sil = silhouette_constraints(V, F, area_weighted_normals(V, F), cams, masks, 20.0, 5.0, 0.2)
+    slot = sil.camera * len(V) + sil.vertex
+    a, b = np.zeros(len(cams) * len(V), np.int8), np.zeros(len(cams) * len(V), np.int8)
+    far = V + np.array([0.05, 0.0, 0.0])
+    for X, reuse, forget in ((V, False, None), (far, True, None), (far, True, slot[::3]), (far, False, None)):
+        if forget is not None:
+            a[forget] = 0
+            b[forget] = 0
+        _equal(hull_consistent_constraints(X, sil, fields, 0.001, memo=a, reuse=reuse),
+               hull_consistent_constraints(X, sil, _Hull(fields), 0.001, memo=b, reuse=reuse))
+        np.testing.assert_array_equal(a, b)
+    assert (a[slot] == 2).any() and (a[slot] == 1).any()
+
+
 def test_chamfer_fields_are_within_a_fifth_of_a_pixel_near_the_contour(scene):
     """``exact=False``: OpenCV's 5x5 chamfer transform; near the contour (where the fit, the gate and the
     lost-track check read) within 0.2 px of the exact signed distance, everywhere within 2 px (measured 0.10 /
