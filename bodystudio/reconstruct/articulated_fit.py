@@ -714,6 +714,11 @@ def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefinePa
     n_par = 3 + 3 * nJ
     rest = np.ascontiguousarray(body.vertices, dtype=np.float64)
     is_child = D[bones] > 0  # is_child[i, j]: segment i lies in segment j's subtree
+    # index lists fixed for the fit (the boolean masks they replace select the same rows in the same order)
+    subtree_bones = [np.flatnonzero(D[:, j] > 0) for j in range(nJ)]
+    child_segments = [np.flatnonzero(is_child[:, j]) for j in range(nJ)]
+    prior_segments = np.flatnonzero(fitted_parent >= 0)
+    prior_diag = (3 + 3 * prior_segments[:, None] + np.arange(3)).ravel()
     previous_energy = np.inf
     for _ in range(params.iterations):
         # weighted per-influence skinned positions C (n, K, 3); the lever arms about each segment's head
@@ -744,9 +749,11 @@ def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefinePa
         # j's rotation on top of its ancestors', so only it changes that relative rotation
         Qp = Q[np.maximum(fitted_parent, 0)]
         rel = Rotation.from_matrix(Qp.transpose(0, 2, 1) @ Q).as_rotvec()
-        for j in np.flatnonzero(fitted_parent >= 0):
+        # the prior's diagonal in one assignment (rec15i): adding prior_weight * I added 0.0 off the diagonal, which
+        # changes no entry (H is accumulated from +0.0, so none is -0.0)
+        H[prior_diag, prior_diag] += params.prior_weight
+        for j in prior_segments:
             cj = slice(3 + 3 * j, 6 + 3 * j)
-            H[cj, cj] += params.prior_weight * np.eye(3)
             g[cj] += params.prior_weight * Qp[j] @ rel[j]
         H[np.diag_indices(n_par)] += params.damping * (np.diag(H).mean() + 1e-12)
         delta = -np.linalg.solve(H, g)
@@ -759,9 +766,9 @@ def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefinePa
             G = np.eye(4)
             G[:3, :3] = R[j]
             G[:3, 3] = heads[j] - R[j] @ heads[j]
-            sub = D[:, j] > 0
+            sub = subtree_bones[j]
             T[sub] = G @ T[sub]
-            Q[is_child[:, j]] = R[j] @ Q[is_child[:, j]]
+            Q[child_segments[j]] = R[j] @ Q[child_segments[j]]
         T[:, :3, 3] += dt
         if np.linalg.norm(dt) < params.tolerance and np.abs(dw).max() < params.tolerance * 10:
             break
