@@ -215,6 +215,8 @@ EXTENSION_VARIANTS = (("captured_nosex", "captures, no sex"), ("captured_mesh", 
                       ("captured_linear", "captures, with sex, linear shape term (before the body form)"),
                       ("captured_weight_regressed", "captures, with sex, weight macro regressed (before the ninth "
                                                     "pass)"),
+                      ("captured_own_rows", "captures, with sex, one row per added subject (before the tenth "
+                                            "pass)"),
                       ("captured", "captures, with sex"),
                       ("truth_nosex", "truth meshes, no sex"), ("truth", "truth meshes, with sex"))
 #: the original model each variant's change is measured against (default "original": the training men in the run's
@@ -435,7 +437,7 @@ def extension_seeds(per_group: int) -> list[tuple[int, str]]:
 
 
 def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = "sex",
-                   captured_rest: str = "body", shape_form: str = "body") -> None:
+                   captured_rest: str = "body", shape_form: str = "body", subject_rows: str = "training") -> None:
     """Held-out model-only error, original against extended models (captures and ground-truth meshes).
 
     ``per_group`` captured subjects per out-of-range group; ``centre``: where each captured rest mesh is
@@ -443,7 +445,9 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
     each captured subject's shape row, its rest mesh's nearest body-space arm ("body", seventh pass) or the mesh
     ("mesh"; with "body" the mesh rows are scored too, as "captured_mesh"); ``shape_form``: the shape term of the
     original and extended models (``model.SHAPE_FORMS``; "body": eighth pass; the prepared model is linear, and with
-    "body" its training rows are refitted in the body form, the linear extension scored too as "captured_linear").
+    "body" its training rows are refitted in the body form, the linear extension scored too as "captured_linear");
+    ``subject_rows``: each added subject's weight in the shape regression (``model.SUBJECT_ROWS_CHOICES``; "training":
+    tenth pass, with "own" scored too as "captured_own_rows").
     """
     from benchmarks.muscle_extension_ceiling import model_surface_error_mm
     from bodystudio.fileio import write_json
@@ -484,19 +488,24 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
                       "height_m": subj.height_m, "frames": n_frames, "samples": len(new),
                       "median_mm": sc["median_mm"], "centre": centre})
     original = with_shape_form(prepared, shape_form)
-    extended = {"captured": extend_arm_model(original, ext_samples, captured_rest=captured_rest),
-                "captured_nosex": extend_arm_model(original, _without_sex(ext_samples), captured_rest=captured_rest),
-                "truth": extend_arm_model(original, truth_samples),
-                "truth_nosex": extend_arm_model(original, _without_sex(truth_samples))}
+    rows = {"subject_rows": subject_rows}
+    extended = {"captured": extend_arm_model(original, ext_samples, captured_rest=captured_rest, **rows),
+                "captured_nosex": extend_arm_model(original, _without_sex(ext_samples), captured_rest=captured_rest,
+                                                   **rows),
+                "truth": extend_arm_model(original, truth_samples, **rows),
+                "truth_nosex": extend_arm_model(original, _without_sex(truth_samples), **rows)}
+    if subject_rows != "own":
+        extended["captured_own_rows"] = extend_arm_model(original, ext_samples, captured_rest=captured_rest,
+                                                         subject_rows="own")
     if captured_rest != "mesh":
-        extended["captured_mesh"] = extend_arm_model(original, ext_samples, captured_rest="mesh")
+        extended["captured_mesh"] = extend_arm_model(original, ext_samples, captured_rest="mesh", **rows)
     if shape_form != prepared.shape_form:
-        extended["captured_linear"] = extend_arm_model(prepared, ext_samples, captured_rest=captured_rest)
+        extended["captured_linear"] = extend_arm_model(prepared, ext_samples, captured_rest=captured_rest, **rows)
     weight_regressed = None  # the body form before the ninth pass: the weight macro regressed on the numbers
     if original.shape_form == "body" and original.body_weight != "regressed":
         weight_regressed = with_shape_form(prepared, "body", body_weight="regressed")
         extended["captured_weight_regressed"] = extend_arm_model(weight_regressed, ext_samples,
-                                                                 captured_rest=captured_rest)
+                                                                 captured_rest=captured_rest, **rows)
     held = []
     cases = [(name, seed, label) for name, seeds in HELD_OUT_SETS for seed, label in zip(seeds, labels, strict=True)]
     for name, seed, label in [*cases, ("", IN_RANGE_SEED, "in range")]:
@@ -520,6 +529,7 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
         held.append(row)
     write_json(work / "extension.json", {"n_original": len(model.subjects), "per_group": per_group,
                                          "centre": centre, "captured_rest": captured_rest, "shape_form": shape_form,
+                                         "subject_rows": subject_rows,
                                          "capture_options": {**EXTENSION_CAPTURE,
                                                                                **CAPTURE_OVERRIDES},
                                          "n_extended": len(extended["captured"].subjects),
@@ -629,6 +639,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--extension-shape-form", choices=("body", "linear"), default="body",
                         help="extension step: the shape term of the original and extended models, the body form "
                              "(body-space parameters regressed on the shape numbers, default) or the linear Eq. 6-7")
+    parser.add_argument("--extension-subject-rows", choices=("training", "own"), default="training",
+                        help="extension step: each added subject's shape row repeated to as many rows as a training "
+                             "subject has (training, default) or one row (own)")
     parser.add_argument("--capture-option", action="append", default=[], metavar="KEY=VALUE",
                         help="a CaptureOptions field for every capture (Python literal), e.g. "
                              "sequence_fit_skeleton=True; repeatable")
@@ -644,7 +657,7 @@ def main(argv: list[str] | None = None) -> None:
      "compare": lambda: step_compare(args.work, tuple(m for m in args.methods.split(",") if m)),
      "extension": lambda: step_extension(args.work, min(EXTENSION_FRAMES, n), args.extension_per_group,
                                          args.extension_centre, args.extension_captured_rest,
-                                         args.extension_shape_form),
+                                         args.extension_shape_form, args.extension_subject_rows),
      "pronation": lambda: step_pronation(args.work, min(PRONATION_FRAMES, max(n, 10))),
      "render": lambda: print(render(args.work, n))}[args.step]()
 
