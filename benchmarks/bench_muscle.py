@@ -28,6 +28,8 @@ fifth pass); each captured subject's shape row is its rest mesh's nearest arm of
 are scored beside it); the original and extended models' shape term is the body form (``--extension-shape-form
 body``: body-space parameters regressed on the shape numbers; docs/muscle.md, "Dataset extension, eighth pass"; the
 prepared model's linear form extended with the same captures is scored beside it, against the prepared model);
+each added subject's shape row is repeated to as many rows as a training subject has (``--extension-subject-rows
+training``; docs/muscle.md, "Dataset extension, tenth pass"; one row per subject, ``own``, is scored beside it);
 ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
 pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
