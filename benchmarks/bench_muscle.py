@@ -28,8 +28,8 @@ fifth pass); each captured subject's shape row is its rest mesh's nearest arm of
 are scored beside it); the original and extended models' shape term is the body form (``--extension-shape-form
 body``: body-space parameters regressed on the shape numbers; docs/muscle.md, "Dataset extension, eighth pass"; the
 prepared model's linear form extended with the same captures is scored beside it, against the prepared model);
-each added subject's shape row is repeated to as many rows as a training subject has (``--extension-subject-rows
-training``; docs/muscle.md, "Dataset extension, tenth pass"; one row per subject, ``own``, is scored beside it);
+each added subject's shape row repeated to as many rows as a training subject has (``--extension-subject-rows
+training``; docs/muscle.md, "Dataset extension, tenth pass"; not the default) is scored beside it;
 ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
 pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
@@ -217,9 +217,10 @@ EXTENSION_VARIANTS = (("captured_nosex", "captures, no sex"), ("captured_mesh", 
                       ("captured_linear", "captures, with sex, linear shape term (before the body form)"),
                       ("captured_weight_regressed", "captures, with sex, weight macro regressed (before the ninth "
                                                     "pass)"),
-                      ("captured_own_rows", "captures, with sex, one row per added subject (before the tenth "
-                                            "pass)"),
+                      ("captured_own_rows", "captures, with sex, one row per added subject"),
                       ("captured", "captures, with sex"),
+                      ("captured_training_rows", "captures, with sex, each added subject's row repeated to a "
+                                                 "training subject's (not kept, tenth pass)"),
                       ("truth_nosex", "truth meshes, no sex"), ("truth", "truth meshes, with sex"))
 #: the original model each variant's change is measured against (default "original": the training men in the run's
 #: shape form; "original_linear": the prepared model, the linear Eq. 6-7)
@@ -439,7 +440,7 @@ def extension_seeds(per_group: int) -> list[tuple[int, str]]:
 
 
 def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = "sex",
-                   captured_rest: str = "body", shape_form: str = "body", subject_rows: str = "training") -> None:
+                   captured_rest: str = "body", shape_form: str = "body", subject_rows: str = "own") -> None:
     """Held-out model-only error, original against extended models (captures and ground-truth meshes).
 
     ``per_group`` captured subjects per out-of-range group; ``centre``: where each captured rest mesh is
@@ -448,8 +449,9 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
     ("mesh"; with "body" the mesh rows are scored too, as "captured_mesh"); ``shape_form``: the shape term of the
     original and extended models (``model.SHAPE_FORMS``; "body": eighth pass; the prepared model is linear, and with
     "body" its training rows are refitted in the body form, the linear extension scored too as "captured_linear");
-    ``subject_rows``: each added subject's weight in the shape regression (``model.SUBJECT_ROWS_CHOICES``; "training":
-    tenth pass, with "own" scored too as "captured_own_rows").
+    ``subject_rows``: each added subject's weight in the shape regression (``model.SUBJECT_ROWS_CHOICES``; with "own"
+    the tenth pass's "training" is scored too as "captured_training_rows", and the other way round as
+    "captured_own_rows").
     """
     from benchmarks.muscle_extension_ceiling import model_surface_error_mm
     from bodystudio.fileio import write_json
@@ -496,9 +498,9 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
                                                    **rows),
                 "truth": extend_arm_model(original, truth_samples, **rows),
                 "truth_nosex": extend_arm_model(original, _without_sex(truth_samples), **rows)}
-    if subject_rows != "own":
-        extended["captured_own_rows"] = extend_arm_model(original, ext_samples, captured_rest=captured_rest,
-                                                         subject_rows="own")
+    other_rows = "training" if subject_rows == "own" else "own"
+    extended[f"captured_{other_rows}_rows"] = extend_arm_model(original, ext_samples, captured_rest=captured_rest,
+                                                               subject_rows=other_rows)
     if captured_rest != "mesh":
         extended["captured_mesh"] = extend_arm_model(original, ext_samples, captured_rest="mesh", **rows)
     if shape_form != prepared.shape_form:
@@ -641,9 +643,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--extension-shape-form", choices=("body", "linear"), default="body",
                         help="extension step: the shape term of the original and extended models, the body form "
                              "(body-space parameters regressed on the shape numbers, default) or the linear Eq. 6-7")
-    parser.add_argument("--extension-subject-rows", choices=("training", "own"), default="training",
-                        help="extension step: each added subject's shape row repeated to as many rows as a training "
-                             "subject has (training, default) or one row (own)")
+    parser.add_argument("--extension-subject-rows", choices=("own", "training"), default="own",
+                        help="extension step: one shape row per added subject (own, default) or its row repeated to "
+                             "as many rows as a training subject has (training)")
     parser.add_argument("--capture-option", action="append", default=[], metavar="KEY=VALUE",
                         help="a CaptureOptions field for every capture (Python literal), e.g. "
                              "sequence_fit_skeleton=True; repeatable")

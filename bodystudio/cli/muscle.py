@@ -29,7 +29,7 @@ SIDES = ("left", "right")
 CENTRES = ("sex", "fitted", "regressed")  # model.capture_samples(centre=...)
 CAPTURED_RESTS = ("body", "mesh")  # model.extend_arm_model(captured_rest=...)
 SHAPE_FORMS = ("body", "linear")  # model.extend_arm_model(shape_form=...)
-SUBJECT_ROWS = ("training", "own")  # model.extend_arm_model(subject_rows=...)
+SUBJECT_ROWS = ("own", "training")  # model.extend_arm_model(subject_rows=...)
 DISTANCE_RANGE_M = (0.5, 3.0)  # Kinect v1 sees from 0.5 m (v2 also); beyond 3 m the arm is a few pixels wide
 MAX_FRAMES = 2000  # the .glb's weights track is T^2 floats
 
@@ -362,9 +362,9 @@ def model_extend(
                                    "the BMI, the rest mesh made by the body model, a linear term for what it "
                                    "leaves; a linear MODEL's rows are refitted so) | linear (the paper's Eq. 6-7: "
                                    "one linear map from the shape numbers to the vertices); docs/muscle.md"),
-    subject_rows: str = typer.Option("training", "--subject-rows", help="how much each added subject weighs in the "
-                                     "shape regression: training (as many rows as one of MODEL's training subjects) | "
-                                     "own (its one row: a third of a training subject of the benchmark's model); "
+    subject_rows: str = typer.Option("own", "--subject-rows", help="how much each added subject weighs in the shape "
+                                     "regression: own (its one row: a third of a training subject of the benchmark's "
+                                     "model) | training (as many rows as one of MODEL's training subjects); "
                                      "docs/muscle.md"),
 ) -> None:
     """Dataset extension (issue 11 §4): add captured subjects to a model and re-learn it.

@@ -539,8 +539,8 @@ def test_a_captured_subject_is_one_shape_row_the_mean_of_its_frames(arm_model_2k
     assert len(ext.shape_rows) == len(model.shape_rows) + 1
     expected = (rest - J[0] - model.base_vertices - M.length_displacements(model, shape)) + (2 * a + 6 * b) / 8
     np.testing.assert_allclose(ext.shape_residuals[-1], expected.ravel(), atol=1e-9)
-    # The default (tenth pass): that row repeated to as many rows as a training subject of the model has (2 here).
-    ext = extend_arm_model(model, frames)
+    # The tenth pass's option: that row repeated to as many rows as a training subject of the model has (2 here).
+    ext = extend_arm_model(model, frames, subject_rows="training")
     assert M.training_rows_per_subject(model) == 2 and len(ext.shape_rows) == len(model.shape_rows) + 2
     np.testing.assert_allclose(ext.shape_residuals[-2:], np.tile(expected.ravel(), (2, 1)), atol=1e-9)
     np.testing.assert_array_equal(ext.shape_rows[-2:], np.tile(shape.as_row(), (2, 1)))

@@ -52,7 +52,7 @@ def test_extend_refuses_an_unknown_shape_form(tiny_arm_model_path, tmp_path, cap
 @pytest.mark.parametrize("value", ["one", "", "TRAINING"])
 def test_extend_refuses_an_unknown_subject_rows(tiny_arm_model_path, tmp_path, capsys, value):
     run_bad(["muscle", "model", "extend", tiny_arm_model_path, tmp_path, "--out", tmp_path / "m2.npz",
-             "--subject-rows", value], capsys, f"--subject-rows {value!r}: valid: training, own")
+             "--subject-rows", value], capsys, f"--subject-rows {value!r}: valid: own, training")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -62,7 +62,7 @@ def test_extend_api_refuses_an_unknown_subject_rows(tiny_arm_model_path):
 
     model = load_arm_model(tiny_arm_model_path)
     sample = ArmSample("x", ArmShapeParams(22.0, 0.5, 1.75, 0.5), model.base_vertices.copy(), None)
-    with pytest.raises(InputError, match="subject_rows='each' must be one of training, own"):
+    with pytest.raises(InputError, match="subject_rows='each' must be one of own, training"):
         extend_arm_model(model, [sample], subject_rows="each")
 
 
