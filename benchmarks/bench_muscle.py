@@ -246,11 +246,12 @@ FORM_WORDS = {"linear": "", "body": (
 
 def extension_section(data: dict) -> str:
     rows, means = [], {}
+    variants = [(k, label) for k, label in EXTENSION_VARIANTS if any(k in h for h in data["held"])]  # the run's
     for h in data["held"]:
         o = h["original"]
         cells = [f"{h['seed']} ({h['label']})", h.get("set", ""), _gender(h["gender"]), f"{h['bmi']:.1f}",
                  f"{h['height_m']:.2f}", f"{o['median_mm']:.2f}"]
-        for key, _ in EXTENSION_VARIANTS:
+        for key, _ in variants:
             if key in h:
                 c = _change_pct(h.get(VARIANT_BASELINE.get(key, "original"), o), h[key])
                 cells.append(f"{h[key]['median_mm']:.2f} ({c:+.0f} %)")
@@ -265,9 +266,9 @@ def extension_section(data: dict) -> str:
     for held_set in dict.fromkeys(h.get("set", "") for h in data["held"] if h["label"] != "in range"):
         rows.append(["**mean change, out of range**", held_set, "", "", "", "",
                      *(f"**{np.mean(means[(held_set, k)]):+.1f} %**" if (held_set, k) in means else "-"
-                       for k, _ in EXTENSION_VARIANTS), ""])
+                       for k, _ in variants), ""])
     held_table = markdown_table(["held-out subject", "set", "sex", "BMI", "height m", "original median mm",
-                                 *(f"{label} mm" for _, label in EXTENSION_VARIANTS),
+                                 *(f"{label} mm" for _, label in variants),
                                  "captures with sex, regressed joints + translation"], rows)
     added_table = markdown_table(["captured subject (added)", "sex", "BMI", "height m", "frames captured",
                                   "meshes added", "capture median mm"],
