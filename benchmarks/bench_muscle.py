@@ -28,6 +28,8 @@ fifth pass); each captured subject's shape row is its rest mesh's nearest arm of
 are scored beside it); the original and extended models' shape term is the body form (``--extension-shape-form
 body``: body-space parameters regressed on the shape numbers; docs/muscle.md, "Dataset extension, eighth pass"; the
 prepared model's linear form extended with the same captures is scored beside it, against the prepared model);
+each added subject's shape row repeated to as many rows as a training subject has (``--extension-subject-rows
+training``; docs/muscle.md, "Dataset extension, tenth pass"; not the default) is scored beside it;
 ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
 pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
@@ -215,7 +217,10 @@ EXTENSION_VARIANTS = (("captured_nosex", "captures, no sex"), ("captured_mesh", 
                       ("captured_linear", "captures, with sex, linear shape term (before the body form)"),
                       ("captured_weight_regressed", "captures, with sex, weight macro regressed (before the ninth "
                                                     "pass)"),
+                      ("captured_own_rows", "captures, with sex, one row per added subject"),
                       ("captured", "captures, with sex"),
+                      ("captured_training_rows", "captures, with sex, each added subject's row repeated to a "
+                                                 "training subject's (not kept, tenth pass)"),
                       ("truth_nosex", "truth meshes, no sex"), ("truth", "truth meshes, with sex"))
 #: the original model each variant's change is measured against (default "original": the training men in the run's
 #: shape form; "original_linear": the prepared model, the linear Eq. 6-7)
@@ -241,11 +246,12 @@ FORM_WORDS = {"linear": "", "body": (
 
 def extension_section(data: dict) -> str:
     rows, means = [], {}
+    variants = [(k, label) for k, label in EXTENSION_VARIANTS if any(k in h for h in data["held"])]  # the run's
     for h in data["held"]:
         o = h["original"]
         cells = [f"{h['seed']} ({h['label']})", h.get("set", ""), _gender(h["gender"]), f"{h['bmi']:.1f}",
                  f"{h['height_m']:.2f}", f"{o['median_mm']:.2f}"]
-        for key, _ in EXTENSION_VARIANTS:
+        for key, _ in variants:
             if key in h:
                 c = _change_pct(h.get(VARIANT_BASELINE.get(key, "original"), o), h[key])
                 cells.append(f"{h[key]['median_mm']:.2f} ({c:+.0f} %)")
@@ -260,9 +266,9 @@ def extension_section(data: dict) -> str:
     for held_set in dict.fromkeys(h.get("set", "") for h in data["held"] if h["label"] != "in range"):
         rows.append(["**mean change, out of range**", held_set, "", "", "", "",
                      *(f"**{np.mean(means[(held_set, k)]):+.1f} %**" if (held_set, k) in means else "-"
-                       for k, _ in EXTENSION_VARIANTS), ""])
+                       for k, _ in variants), ""])
     held_table = markdown_table(["held-out subject", "set", "sex", "BMI", "height m", "original median mm",
-                                 *(f"{label} mm" for _, label in EXTENSION_VARIANTS),
+                                 *(f"{label} mm" for _, label in variants),
                                  "captures with sex, regressed joints + translation"], rows)
     added_table = markdown_table(["captured subject (added)", "sex", "BMI", "height m", "frames captured",
                                   "meshes added", "capture median mm"],
@@ -435,7 +441,7 @@ def extension_seeds(per_group: int) -> list[tuple[int, str]]:
 
 
 def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = "sex",
-                   captured_rest: str = "body", shape_form: str = "body") -> None:
+                   captured_rest: str = "body", shape_form: str = "body", subject_rows: str = "own") -> None:
     """Held-out model-only error, original against extended models (captures and ground-truth meshes).
 
     ``per_group`` captured subjects per out-of-range group; ``centre``: where each captured rest mesh is
@@ -443,7 +449,10 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
     each captured subject's shape row, its rest mesh's nearest body-space arm ("body", seventh pass) or the mesh
     ("mesh"; with "body" the mesh rows are scored too, as "captured_mesh"); ``shape_form``: the shape term of the
     original and extended models (``model.SHAPE_FORMS``; "body": eighth pass; the prepared model is linear, and with
-    "body" its training rows are refitted in the body form, the linear extension scored too as "captured_linear").
+    "body" its training rows are refitted in the body form, the linear extension scored too as "captured_linear");
+    ``subject_rows``: each added subject's weight in the shape regression (``model.SUBJECT_ROWS_CHOICES``; with "own"
+    the tenth pass's "training" is scored too as "captured_training_rows", and the other way round as
+    "captured_own_rows").
     """
     from benchmarks.muscle_extension_ceiling import model_surface_error_mm
     from bodystudio.fileio import write_json
@@ -484,19 +493,24 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
                       "height_m": subj.height_m, "frames": n_frames, "samples": len(new),
                       "median_mm": sc["median_mm"], "centre": centre})
     original = with_shape_form(prepared, shape_form)
-    extended = {"captured": extend_arm_model(original, ext_samples, captured_rest=captured_rest),
-                "captured_nosex": extend_arm_model(original, _without_sex(ext_samples), captured_rest=captured_rest),
-                "truth": extend_arm_model(original, truth_samples),
-                "truth_nosex": extend_arm_model(original, _without_sex(truth_samples))}
+    rows = {"subject_rows": subject_rows}
+    extended = {"captured": extend_arm_model(original, ext_samples, captured_rest=captured_rest, **rows),
+                "captured_nosex": extend_arm_model(original, _without_sex(ext_samples), captured_rest=captured_rest,
+                                                   **rows),
+                "truth": extend_arm_model(original, truth_samples, **rows),
+                "truth_nosex": extend_arm_model(original, _without_sex(truth_samples), **rows)}
+    other_rows = "training" if subject_rows == "own" else "own"
+    extended[f"captured_{other_rows}_rows"] = extend_arm_model(original, ext_samples, captured_rest=captured_rest,
+                                                               subject_rows=other_rows)
     if captured_rest != "mesh":
-        extended["captured_mesh"] = extend_arm_model(original, ext_samples, captured_rest="mesh")
+        extended["captured_mesh"] = extend_arm_model(original, ext_samples, captured_rest="mesh", **rows)
     if shape_form != prepared.shape_form:
-        extended["captured_linear"] = extend_arm_model(prepared, ext_samples, captured_rest=captured_rest)
+        extended["captured_linear"] = extend_arm_model(prepared, ext_samples, captured_rest=captured_rest, **rows)
     weight_regressed = None  # the body form before the ninth pass: the weight macro regressed on the numbers
     if original.shape_form == "body" and original.body_weight != "regressed":
         weight_regressed = with_shape_form(prepared, "body", body_weight="regressed")
         extended["captured_weight_regressed"] = extend_arm_model(weight_regressed, ext_samples,
-                                                                 captured_rest=captured_rest)
+                                                                 captured_rest=captured_rest, **rows)
     held = []
     cases = [(name, seed, label) for name, seeds in HELD_OUT_SETS for seed, label in zip(seeds, labels, strict=True)]
     for name, seed, label in [*cases, ("", IN_RANGE_SEED, "in range")]:
@@ -520,6 +534,7 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
         held.append(row)
     write_json(work / "extension.json", {"n_original": len(model.subjects), "per_group": per_group,
                                          "centre": centre, "captured_rest": captured_rest, "shape_form": shape_form,
+                                         "subject_rows": subject_rows,
                                          "capture_options": {**EXTENSION_CAPTURE,
                                                                                **CAPTURE_OVERRIDES},
                                          "n_extended": len(extended["captured"].subjects),
@@ -629,6 +644,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--extension-shape-form", choices=("body", "linear"), default="body",
                         help="extension step: the shape term of the original and extended models, the body form "
                              "(body-space parameters regressed on the shape numbers, default) or the linear Eq. 6-7")
+    parser.add_argument("--extension-subject-rows", choices=("own", "training"), default="own",
+                        help="extension step: one shape row per added subject (own, default) or its row repeated to "
+                             "as many rows as a training subject has (training)")
     parser.add_argument("--capture-option", action="append", default=[], metavar="KEY=VALUE",
                         help="a CaptureOptions field for every capture (Python literal), e.g. "
                              "sequence_fit_skeleton=True; repeatable")
@@ -644,7 +662,7 @@ def main(argv: list[str] | None = None) -> None:
      "compare": lambda: step_compare(args.work, tuple(m for m in args.methods.split(",") if m)),
      "extension": lambda: step_extension(args.work, min(EXTENSION_FRAMES, n), args.extension_per_group,
                                          args.extension_centre, args.extension_captured_rest,
-                                         args.extension_shape_form),
+                                         args.extension_shape_form, args.extension_subject_rows),
      "pronation": lambda: step_pronation(args.work, min(PRONATION_FRAMES, max(n, 10))),
      "render": lambda: print(render(args.work, n))}[args.step]()
 

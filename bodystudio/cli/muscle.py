@@ -29,6 +29,7 @@ SIDES = ("left", "right")
 CENTRES = ("sex", "fitted", "regressed")  # model.capture_samples(centre=...)
 CAPTURED_RESTS = ("body", "mesh")  # model.extend_arm_model(captured_rest=...)
 SHAPE_FORMS = ("body", "linear")  # model.extend_arm_model(shape_form=...)
+SUBJECT_ROWS = ("own", "training")  # model.extend_arm_model(subject_rows=...)
 DISTANCE_RANGE_M = (0.5, 3.0)  # Kinect v1 sees from 0.5 m (v2 also); beyond 3 m the arm is a few pixels wide
 MAX_FRAMES = 2000  # the .glb's weights track is T^2 floats
 
@@ -361,6 +362,10 @@ def model_extend(
                                    "the BMI, the rest mesh made by the body model, a linear term for what it "
                                    "leaves; a linear MODEL's rows are refitted so) | linear (the paper's Eq. 6-7: "
                                    "one linear map from the shape numbers to the vertices); docs/muscle.md"),
+    subject_rows: str = typer.Option("own", "--subject-rows", help="how much each added subject weighs in the shape "
+                                     "regression: own (its one row: a third of a training subject of the benchmark's "
+                                     "model) | training (as many rows as one of MODEL's training subjects); "
+                                     "docs/muscle.md"),
 ) -> None:
     """Dataset extension (issue 11 §4): add captured subjects to a model and re-learn it.
 
@@ -374,6 +379,7 @@ def model_extend(
     check_choice("--centre", centre, CENTRES)
     check_choice("--captured-rest", captured_rest, CAPTURED_RESTS)
     check_choice("--shape-form", shape_form, SHAPE_FORMS)
+    check_choice("--subject-rows", subject_rows, SUBJECT_ROWS)
     if out.suffix.lower() != ".npz":
         raise InputError(f"--out {out}: an arm model is a .npz file")
     shapes = [_parse_shape(text) for text in shape or ()]
@@ -409,7 +415,8 @@ def model_extend(
                        "nothing); captures made with it extend the model more (docs/muscle.md)", err=True)
         samples += capture_samples(capture, f"capture_{folder.resolve().name}", subject_shape, stride,
                                    model=model, centre=centre)
-    extended = extend_arm_model(model, samples, captured_rest=captured_rest, shape_form=shape_form)
+    extended = extend_arm_model(model, samples, captured_rest=captured_rest, shape_form=shape_form,
+                                subject_rows=subject_rows)
     save_arm_model(out, extended)
     typer.echo(f"wrote {out}: {len(extended.subjects)} subjects ({len(captures)} added from captures), "
                f"{shape_form} shape term")

@@ -290,7 +290,7 @@ def test_a_subject_with_one_mesh_and_unknown_joints(arm_model_2k, arm_training_2
     model = arm_model_2k
     shape = arm_training_2k[0][0].shape
     V = model_mesh(model, shape, ArmPose.rest(), 0.0)
-    ext = extend_arm_model(model, [ArmSample("one", shape, V, ArmPose.rest())])
+    ext = extend_arm_model(model, [ArmSample("one", shape, V, ArmPose.rest())], subject_rows="own")
     assert ext.subjects[-1]["n_meshes"] == 1 and len(ext.shape_rows) == len(model.shape_rows) + 1
     J = model_joints(model, shape)
     row = V - J[0] - model.base_vertices - M.length_displacements(model, shape)
@@ -313,7 +313,7 @@ def test_a_sequence_without_a_base_pose_mesh_loses_the_priors_pose_term(arm_mode
     np.testing.assert_allclose(base, rest, atol=1e-9)
     for a, di in zip(angles, d, strict=True):
         np.testing.assert_allclose(di, M.pose_displacements(model, a), atol=1e-9)
-    ext = extend_arm_model(model, frames)
+    ext = extend_arm_model(model, frames, subject_rows="own")
     assert len(ext.shape_rows) == len(model.shape_rows) + 1
     np.testing.assert_allclose(ext.pose_xtd - model.pose_xtd,
                                sum(np.outer(np.r_[1.0, a], di.ravel()) for a, di in zip(angles, d, strict=True)),
@@ -535,7 +535,12 @@ def test_a_captured_subject_is_one_shape_row_the_mean_of_its_frames(arm_model_2k
         offset = a if k < 2 else b
         V = pose_arm(rest + offset + M.pose_displacements(model, p.angles), model.part_weights, J, p)
         frames.append(ArmSample("seq", shape, V, p))
-    ext = extend_arm_model(model, frames)
+    ext = extend_arm_model(model, frames, subject_rows="own")
     assert len(ext.shape_rows) == len(model.shape_rows) + 1
     expected = (rest - J[0] - model.base_vertices - M.length_displacements(model, shape)) + (2 * a + 6 * b) / 8
     np.testing.assert_allclose(ext.shape_residuals[-1], expected.ravel(), atol=1e-9)
+    # The tenth pass's option: that row repeated to as many rows as a training subject of the model has (2 here).
+    ext = extend_arm_model(model, frames, subject_rows="training")
+    assert M.training_rows_per_subject(model) == 2 and len(ext.shape_rows) == len(model.shape_rows) + 2
+    np.testing.assert_allclose(ext.shape_residuals[-2:], np.tile(expected.ravel(), (2, 1)), atol=1e-9)
+    np.testing.assert_array_equal(ext.shape_rows[-2:], np.tile(shape.as_row(), (2, 1)))

@@ -1,4 +1,5 @@
-"""``benchmarks.bench_muscle --step extension``: ``--extension-per-group`` and ``--extension-centre`` (fifth pass)."""
+"""``benchmarks.bench_muscle --step extension``: ``--extension-per-group`` and ``--extension-centre`` (fifth pass),
+``--extension-subject-rows`` (tenth)."""
 
 import pytest
 
@@ -19,7 +20,7 @@ def test_per_group_takes_the_first_seeds_of_every_group():
 
 @pytest.mark.parametrize("argv", [["--extension-per-group", "0"], ["--extension-per-group", "5"],
                                   ["--extension-per-group", "two"], ["--extension-centre", "elbow"],
-                                  ["--extension-captured-rest", "skin"]])
+                                  ["--extension-captured-rest", "skin"], ["--extension-subject-rows", "each"]])
 def test_bad_extension_options_exit_2_before_any_work(argv, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--step", "extension", "--work", str(tmp_path / "w"), *argv])

@@ -1,5 +1,6 @@
 """Bad input for the extension options (issue 11, sixth pass): ``muscle capture --for-extension`` and
-``muscle model extend --centre`` / ``--captured-rest`` / ``--shape-form``: one line, exit 2, nothing written."""
+``muscle model extend --centre`` / ``--captured-rest`` / ``--shape-form`` / ``--subject-rows``: one line, exit 2,
+nothing written."""
 
 import pytest
 
@@ -46,6 +47,23 @@ def test_extend_refuses_an_unknown_shape_form(tiny_arm_model_path, tmp_path, cap
     run_bad(["muscle", "model", "extend", tiny_arm_model_path, tmp_path, "--out", tmp_path / "m2.npz",
              "--shape-form", value], capsys, f"--shape-form {value!r}: valid: body, linear")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("value", ["one", "", "TRAINING"])
+def test_extend_refuses_an_unknown_subject_rows(tiny_arm_model_path, tmp_path, capsys, value):
+    run_bad(["muscle", "model", "extend", tiny_arm_model_path, tmp_path, "--out", tmp_path / "m2.npz",
+             "--subject-rows", value], capsys, f"--subject-rows {value!r}: valid: own, training")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_extend_api_refuses_an_unknown_subject_rows(tiny_arm_model_path):
+    from bodystudio.errors import InputError
+    from bodystudio.muscle.model import ArmSample, ArmShapeParams, extend_arm_model, load_arm_model
+
+    model = load_arm_model(tiny_arm_model_path)
+    sample = ArmSample("x", ArmShapeParams(22.0, 0.5, 1.75, 0.5), model.base_vertices.copy(), None)
+    with pytest.raises(InputError, match="subject_rows='each' must be one of own, training"):
+        extend_arm_model(model, [sample], subject_rows="each")
 
 
 def test_capture_module_refuses_an_extension_capture_without_the_sequence_fit(arm_session, tiny_arm_model_path):
