@@ -98,7 +98,7 @@ def swing_twist_errors(skeleton, W_est, W_true, bones) -> tuple[np.ndarray, np.n
     for j in bones:
         a = skeleton.rest_rotations[j][:, 1]
         d_e, d_t = W_est[j] @ a, W_true[j] @ a
-        swing.append(np.degrees(np.arccos(np.clip(d_e @ d_t, -1, 1))))
+        swing.append(np.degrees(np.arctan2(np.linalg.norm(np.cross(d_e, d_t)), d_e @ d_t)))  # exact near 0
         aligned = rotation_between(d_t, d_e) @ W_true[j]
         x_e, x_a = W_est[j] @ skeleton.rest_rotations[j][:, 0], aligned @ skeleton.rest_rotations[j][:, 0]
         twist.append(np.degrees(np.arctan2(np.cross(x_a, x_e) @ d_e, x_a @ x_e)))
