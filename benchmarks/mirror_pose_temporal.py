@@ -47,9 +47,6 @@ VARIANTS: dict[str, dict] = {
     "trunk 8 deg": {"weights": RefineWeights(trunk_rad=float(np.radians(8.0)))},
     "joints x0.5": {"weights": RefineWeights(joint_weight=0.5)},
     "depth x2": {"weights": RefineWeights(depth_weight=2.0)},
-    "2 steps, edge 0.5 px": {"iterations": 2, "weights": RefineWeights(edge_px=0.5)},
-    "2 steps, edge 0.75 px": {"iterations": 2, "weights": RefineWeights(edge_px=0.75)},
-    "2 steps, edge 1 px": {"iterations": 2, "weights": RefineWeights(edge_px=1.0)},
     "3 steps": {"iterations": 3},
     "2 steps, 1000 depth points": {"iterations": 2, "weights": RefineWeights(depth_samples=1000)},
     "2 steps, joints x0.5": {"iterations": 2, "weights": RefineWeights(joint_weight=0.5)},
@@ -61,8 +58,6 @@ VARIANTS: dict[str, dict] = {
         depth_samples=2000, sil_samples=1200)},
     "4 steps, 2000 depth points, 1200 outline pixels": {"iterations": 4, "weights": RefineWeights(
         depth_samples=2000, sil_samples=1200)},
-    **{f"2 steps, cover normals {c} px": {"iterations": 2, "weights": RefineWeights(cover_normal_px=float(c))}
-       for c in (4, 8, 16)},
 }
 
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import json
 import tempfile
 from pathlib import Path
@@ -32,12 +31,17 @@ def _refine_as(run: str, weights: dict | None = None):
     original, twist, pivot = refine.refine_pose, refine.TWIST_BONES, refine.ROOT_PIVOT
     if run == "refine-before-mir12h":  # the run reads both when it starts
         refine.TWIST_BONES, refine.ROOT_PIVOT = (), "head"
+    def overriding(**over):  # the run passes iterations and weights itself (MIR12n): these replace its own
+        def refine_pose(*args, **kwargs):
+            return original(*args, **{**kwargs, **over})
+        return refine_pose
+
     if run == "refine-no-trunk":
-        refine.refine_pose = functools.partial(original, weights=refine.RefineWeights(trunk_rad=None))
+        refine.refine_pose = overriding(weights=refine.RefineWeights(trunk_rad=None))
     elif run == "refine-2-steps":
-        refine.refine_pose = functools.partial(original, iterations=2)
+        refine.refine_pose = overriding(iterations=2)
     elif run == "refine-weights":
-        refine.refine_pose = functools.partial(original, weights=refine.RefineWeights(**(weights or {})))
+        refine.refine_pose = overriding(weights=refine.RefineWeights(**(weights or {})))
     from bodystudio.mirror import warp
 
     clamp = warp.edge_clamped
@@ -63,7 +67,7 @@ def main() -> None:
                                  "refine-before-mir12h", "refine-weights"],
                         help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
                              "or with two Gauss-Newton steps, or without the warp's edge clamp (MIR12g's A/Bs)")
-    parser.add_argument("--weights", default="", help="refine-weights: RefineWeights fields, e.g. cover_normal_px=8")
+    parser.add_argument("--weights", default="", help="refine-weights: RefineWeights fields, e.g. depth_samples=2000")
     parser.add_argument("--out", type=Path, default=None, help="folder for the run folders (default: a temporary one)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:

@@ -108,14 +108,6 @@ class RefineWeights:
     # in radians (16 degrees; None: no such term). On MIR-SYNTH 41 / 42 / 43 it takes spine_01's swing error from
     # 6-9 to 1.5-1.8 degrees and the displacement error from 7.7 / 8.3 / 6.7 to 5.6 / 6.7 / 5.0 mm (MIR12g)
     trunk_rad: float | None = TRUNK_RAD
-    # where the mask's edge lies beyond its outline pixels' centres (px): E_out's residual is a point's distance
-    # past it (not to the last inside pixel centre) and E_cover's targets are moved out to it along the rim's image
-    # normal. 0: both pull the projected outline onto the outline pixels' centres, half a pixel inside the edge
-    edge_px: float = 0.0
-    # E_cover's matching (px; 0: by position only): an outline pixel's nearest rim vertex is sought in (u, v, c n)
-    # with ``n`` the mask's outward normal there and the rim's image normal, so that a rim point facing the other
-    # way (an arm's inner side beside the torso's outline, a leg behind the other) counts 2c px farther
-    cover_normal_px: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -272,11 +264,10 @@ def accumulate_image_normal_equations(H, Jtr, V, Pc, ids, image_dirs, residuals,
 
 
 @njit(cache=True)
-def accumulate_outline_normal_equations(H, Jtr, V, N, Pc, uv, ids, targets, scale, fx, fy, R, s, heads, axes,
-                                        edge_px=0.0):
+def accumulate_outline_normal_equations(H, Jtr, V, N, Pc, uv, ids, targets, scale, fx, fy, R, s, heads, axes):
     """``E_cover``'s rows: outline pixel ``targets`` (m, 2) onto the projected rim points ``V[ids]`` along the
-    image normal ``n2`` (their normal ``N`` projected, unit): residual ``scale (n2 . (uv - target) - edge_px)``
-    (the target moved ``edge_px`` out along ``n2``), added by :func:`accumulate_image_normal_equations`'s rule."""
+    image normal ``n2`` (their normal ``N`` projected, unit): residual ``scale n2 . (uv - target)``, added by
+    :func:`accumulate_image_normal_equations`'s rule."""
     row = np.empty(H.shape[0])
     cols = np.empty(H.shape[0], np.int64)
     Du = np.empty(3)
@@ -291,7 +282,7 @@ def accumulate_outline_normal_equations(H, Jtr, V, N, Pc, uv, ids, targets, scal
         nv = Dv[0] * N[i, 0] + Dv[1] * N[i, 1] + Dv[2] * N[i, 2]
         length = max(np.sqrt(nu * nu + nv * nv), 1e-9)
         nu, nv = nu / length, nv / length
-        residual = scale * (nu * (uv[i, 0] - targets[m, 0]) + nv * (uv[i, 1] - targets[m, 1]) - edge_px)
+        residual = scale * (nu * (uv[i, 0] - targets[m, 0]) + nv * (uv[i, 1] - targets[m, 1]))
         _add_row(H, Jtr, V[i], scale * (nu * Du[0] + nv * Dv[0]), scale * (nu * Du[1] + nv * Dv[1]),
                  scale * (nu * Du[2] + nv * Dv[2]), s[i], heads, axes, residual, row, cols)
 
@@ -531,33 +522,6 @@ def _distance_where_needed(dist_out: np.ndarray, allowed: np.ndarray, box, silho
     crop = (~allowed[by0 + y0:by0 + y1, bx0 + x0:bx0 + x1]).astype(np.uint8)
     dist_out[y0:y1, x0:x1] = cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_5)
     return window
-
-
-def mask_outward_normals(mask: np.ndarray, pixels: np.ndarray, radius_px: int = 2) -> np.ndarray:
-    """(m, 2) unit outward normals of ``mask`` at ``pixels`` (m, 2) ``(x, y)``: minus the mean offset of the mask's
-    pixels in the ``(2 r + 1)^2`` window around each (its first moment; zero where the window is all inside)."""
-    m = np.asarray(mask, bool)
-    if not len(pixels):
-        return np.zeros((0, 2))
-    x = pixels[:, 0].astype(int)
-    y = pixels[:, 1].astype(int)
-    g = np.zeros((len(pixels), 2))
-    for dy in range(-radius_px, radius_px + 1):
-        for dx in range(-radius_px, radius_px + 1):
-            inside = m[np.clip(y + dy, 0, m.shape[0] - 1), np.clip(x + dx, 0, m.shape[1] - 1)]
-            g[:, 0] += dx * inside
-            g[:, 1] += dy * inside
-    return -g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
-
-
-def image_normals(Pc: np.ndarray, N: np.ndarray, camera) -> np.ndarray:
-    """(n, 2) unit image directions of the world normals ``N`` at camera points ``Pc`` (the undistorted
-    projection's derivative applied to ``N``, as :func:`accumulate_outline_normal_equations` takes them)."""
-    Nc = N @ camera.R.T
-    z = np.maximum(Pc[:, 2], 1e-6)
-    n2 = np.c_[camera.fx * (Nc[:, 0] - Pc[:, 0] * Nc[:, 2] / z),
-               camera.fy * (Nc[:, 1] - Pc[:, 1] * Nc[:, 2] / z)] / z[:, None]
-    return n2 / np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-9)
 
 
 def mask_outline(mask: np.ndarray, keep_out: np.ndarray | None = None,
@@ -836,7 +800,6 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
     rng = np.random.default_rng(0)
     if len(outline) > weights.sil_samples:
         outline = outline[rng.choice(len(outline), weights.sil_samples, replace=False)]
-    outline_normals = mask_outward_normals(fg, outline) if weights.cover_normal_px > 0 else None
     K = T = None
     if kinect_positions is not None:
         from bodystudio.mirror.track import check_kinect_joints
@@ -887,31 +850,24 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
             done, d_in = _distance_near_the_body(dist_out, allowed, box, silhouette, local[in_box], done)
         else:
             d_in = _sample(dist_out, local[in_box])
-        outside = d_in > max(0.5, weights.edge_px)
+        outside = d_in > 0.5
         out = in_box[outside]
         if len(out):
             lo = local[out]
             around = _sample(dist_out, (lo[None] + _STEPS_PX[:, None]).reshape(-1, 2)).reshape(4, -1)
             g = np.c_[around[0] - around[1], around[2] - around[3]] / 2.0  # central differences
             scale = weights.sil_weight ** 0.5 / (weights.sil_px * max(len(out), len(outline), 1) ** 0.5)
-            past = np.minimum(d_in[outside], 30.0) - weights.edge_px
-            accumulate_image_normal_equations(H, Jtr, V, Pc, out, scale * g, scale * past,
+            accumulate_image_normal_equations(H, Jtr, V, Pc, out, scale * g, scale * np.minimum(d_in[outside], 30.0),
                                               camera.fx, camera.fy, camera.R, plan.subtree_weight, heads, axes)
             used = True
         # E_cover: the mask's outline pixels onto the nearest projected rim vertex, along its image normal
         rim = np.flatnonzero(rim_mask)
         if len(rim) >= 3 and len(outline):
-            if outline_normals is None:
-                dist, nearest = nearest_within(uv[rim], outline, 25.0)
-            else:
-                c = weights.cover_normal_px
-                dist, nearest = nearest_within(np.c_[uv[rim], c * image_normals(Pc[rim], N[rim], camera)],
-                                               np.c_[outline, c * outline_normals], 25.0)
+            dist, nearest = nearest_within(uv[rim], outline, 25.0)
             keep = np.isfinite(dist)
             scale = weights.sil_weight ** 0.5 / (weights.sil_px * max(len(outline), 1) ** 0.5)
             accumulate_outline_normal_equations(H, Jtr, V, N, Pc, uv, rim[nearest[keep]], outline[keep], scale,
-                                                camera.fx, camera.fy, camera.R, plan.subtree_weight, heads, axes,
-                                                weights.edge_px)
+                                                camera.fx, camera.fy, camera.R, plan.subtree_weight, heads, axes)
             used = True
         # E_depth: point-to-plane to the nearest front-facing vertex (within 5 cm)
         if pts is not None:
