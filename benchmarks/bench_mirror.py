@@ -124,6 +124,16 @@ def _accuracy(case) -> dict[str, float]:
     return out
 
 
+def _refine_weights(n_players: int) -> dict:
+    """``{"weights": the run's RefineWeights}`` for ``n_players`` reshaped (MIR12n: 2000 depth points for one), or
+    ``{}`` in a checkout before it."""
+    try:
+        from bodystudio.mirror.run import refine_weights
+    except ImportError:
+        return {}
+    return {"weights": refine_weights(n_players)}
+
+
 def _refine_steps(n_players: int) -> int:
     """The run's Gauss-Newton steps per player when it reshapes ``n_players`` (MIR12k; 1 before it)."""
     try:
@@ -192,7 +202,7 @@ def _session_side(quick: bool) -> tuple[list[str], float | None, float | None, d
         refine_ms = {}
         for players in (1, 2):
             steps = _refine_steps(players)
-            ms = _refine_pose_ms(session, model, last, frames, steps)
+            ms = _refine_pose_ms(session, model, last, frames, steps, **_refine_weights(players))
             if ms is None:
                 break
             refine_ms[players] = ms[0]
@@ -203,9 +213,9 @@ def _session_side(quick: bool) -> tuple[list[str], float | None, float | None, d
     return (lines, register[0], track["ik_cpu_ms"] + track["bodies_cpu_ms"], refine_ms or None)
 
 
-def _refine_pose_ms(session, model, frame, frames, iterations: int = 1) -> tuple[float, float] | None:
-    """CPU and wall ms of :func:`bodystudio.mirror.refine.refine_pose` (``iterations`` Gauss-Newton steps) on
-    ``frame`` (None without the module)."""
+def _refine_pose_ms(session, model, frame, frames, iterations: int = 1, weights=None) -> tuple[float, float] | None:
+    """CPU and wall ms of :func:`bodystudio.mirror.refine.refine_pose` (``iterations`` Gauss-Newton steps, the run's
+    ``weights`` where given) on ``frame`` (None without the module)."""
     import importlib
 
     try:
@@ -229,7 +239,8 @@ def _refine_pose_ms(session, model, frame, frames, iterations: int = 1) -> tuple
     return _median_ms(lambda: refine.refine_pose(plan, body.skeleton, pose, sensor.color, players == 1,
                                                  tracked.positions, tracked.tracked, points[points[:, 1] > 0.02],
                                                  (players > 0) & (players != 1), sensor.version,
-                                                 iterations=iterations), 7)
+                                                 iterations=iterations,
+                                                 **({} if weights is None else {"weights": weights})), 7)
 
 
 def run(quick: bool = False) -> str:

@@ -63,6 +63,25 @@ SHAPE_ORACLE_VARIANTS: dict[str, dict] = {
     "trunk 16 deg, spine only": {"trunk_bones": ("spine_01", "spine_02", "spine_03")},
     **{f"trunk {deg} deg, 2 steps": {"weights": RefineWeights(trunk_rad=float(np.radians(deg))), "iterations": 2}
        for deg in (4, 8)},
+    # MIR12n: with the true shape too (``--variants-on-true-shape``): what limits the refinement's fit
+    "2 steps, no joints": {"iterations": 2, "weights": RefineWeights(joint_weight=0.0)},
+    "2 steps, no trunk prior": {"iterations": 2, "weights": RefineWeights(trunk_rad=None)},
+    "2 steps, no depth": {"iterations": 2, "weights": RefineWeights(depth_weight=0.0)},
+    "2 steps, 2000 depth points": {"iterations": 2, "weights": RefineWeights(depth_samples=2000)},
+    "2 steps, no joints, no trunk prior": {"iterations": 2, "weights": RefineWeights(joint_weight=0.0,
+                                                                                      trunk_rad=None)},
+    "4 steps": {"iterations": 4},
+    "2 steps, no silhouette": {"iterations": 2, "weights": RefineWeights(sil_weight=0.0)},
+    "2 steps, joints x0.25": {"iterations": 2, "weights": RefineWeights(joint_weight=0.25)},
+    "2 steps, 8000 depth points": {"iterations": 2, "weights": RefineWeights(depth_samples=8000)},
+    "2 steps, silhouette only": {"iterations": 2, "weights": RefineWeights(depth_weight=0.0, joint_weight=0.0,
+                                                                           trunk_rad=None)},
+    "2 steps, E_out only": {"iterations": 2, "weights": RefineWeights(depth_weight=0.0, joint_weight=0.0,
+                                                                      trunk_rad=None, sil_samples=0)},
+    "2 steps, depth only": {"iterations": 2, "weights": RefineWeights(sil_weight=0.0, joint_weight=0.0,
+                                                                      trunk_rad=None)},
+    "2 steps, joints only": {"iterations": 2, "weights": RefineWeights(sil_weight=0.0, depth_weight=0.0,
+                                                                       trunk_rad=None)},
 }
 
 LIMBS = ("upperarm_l", "upperarm_r", "lowerarm_l", "lowerarm_r", "thigh_l", "thigh_r", "calf_l", "calf_r")
@@ -326,7 +345,8 @@ def signed_distance_px(mask: np.ndarray) -> np.ndarray:
 
 
 def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_steps=(1,), per_frame=None,
-                fitted_variants=None, swap_parts: bool = False) -> dict[str, float]:
+                fitted_variants=None, swap_parts: bool = False, variants_on_true: bool = False,
+                from_true: bool = False, true_fg: bool = False, all_depth: bool = False) -> dict[str, float]:
     """What a better *shape* would buy (MIR12c): the fitted and the true rest bodies, each posed by its own IK,
     its own refined pose (``refine_pose`` as the run) and the true pose; plus, per body region, where the
     fitted body posed by the true pose misses: the signed distance (px, + outside) of its projected rim vertices
@@ -390,8 +410,10 @@ def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_s
             continue
         true_pose = Pose(gt["pose_rotations"][k].astype(float), gt["pose_translations"][k].astype(float))
         points = point_cloud(frame, session.kinect, player)
-        points = points[points[:, 1] > 0.02][:: max(1, len(points) // 2000)]
+        points = points[points[:, 1] > 0.02][:: 1 if all_depth else max(1, len(points) // 2000)]
         fg = refine_foreground(frame.rgb, person, depth_c, background=background)
+        if true_fg:  # MIR12n: the true person mask instead of the graph cut's
+            fg = session.frame(i).gt_person == player
         others = (players_c > 0) & ~person
         true_target = session.frame(i).gt_target_person == player
         true_source = session.frame(i).gt_person == player
@@ -412,16 +434,27 @@ def score_shape(session, stride: int = 4, player: int = 1, source=None, refine_s
                 poses["refined pose" if n_steps == 1 else f"refined pose, {n_steps} steps"] = refine_pose(
                     plans[name], b.skeleton, ik[name], camera, fg, tracked.positions, tracked.tracked, points, others,
                     session.kinect.version, iterations=n_steps)
-            if name == "fitted shape":
+            if name == "fitted shape" or variants_on_true:
                 for vname, kwargs in (fitted_variants or {}).items():
                     kwargs = dict(kwargs)
                     with _trunk_bones(kwargs.pop("trunk_bones", None)):
                         poses[vname] = refine_pose(plans[name], b.skeleton, ik[name], camera, fg, tracked.positions,
                                                    tracked.tracked, points, others, session.kinect.version, **kwargs)
             poses["true pose"] = pose_from_world(b.skeleton, world_rotations(true_sk, true_pose), translation)
+            if from_true:  # MIR12n: is the energy's minimum biased away from the true pose, or is it the start?
+                poses["refined from the true pose, 2 steps"] = refine_pose(
+                    plans[name], b.skeleton, poses["true pose"], camera, fg, tracked.positions, tracked.tracked,
+                    points, others, session.kinect.version, iterations=2)
+                for vname, kwargs in (fitted_variants or {}).items():
+                    kwargs = dict(kwargs)
+                    with _trunk_bones(kwargs.pop("trunk_bones", None)):
+                        poses[f"from the true pose, {vname}"] = refine_pose(
+                            plans[name], b.skeleton, poses["true pose"], camera, fg, tracked.positions,
+                            tracked.tracked, points, others, session.kinect.version, **kwargs)
             W_true = world_rotations(true_sk, true_pose)
             if name == "fitted shape" and swap_parts:  # the refined pose with one part's true world rotations
-                refined = poses["refined pose"]
+                last = max(refine_steps)  # the swaps go into the pose of the most steps scored
+                refined = poses["refined pose" if last == 1 else f"refined pose, {last} steps"]
                 W_ref = world_rotations(b.skeleton, refined)
                 for part, bone_names in REFINED_SWAPS.items():
                     idx = [sk.bone_names.index(n) for n in bone_names]
@@ -658,6 +691,14 @@ def main() -> None:
                         help="with --shape: the pose refinement's Gauss-Newton steps scored (the run's: 1)")
     parser.add_argument("--variants", nargs="*", default=[], choices=sorted(SHAPE_ORACLE_VARIANTS),
                         help="with --shape: further refined poses of the fitted body (SHAPE_ORACLE_VARIANTS)")
+    parser.add_argument("--variants-on-true-shape", action="store_true",
+                        help="with --shape --variants: the variants' refined poses of the true shape too")
+    parser.add_argument("--all-depth", action="store_true",
+                        help="with --shape: every depth point of the player (the run's), not every n-th of 2000")
+    parser.add_argument("--true-fg", action="store_true",
+                        help="with --shape: the true person mask as the foreground (refinement and warp)")
+    parser.add_argument("--from-true", action="store_true",
+                        help="with --shape: also the refinement (2 steps) started from the true pose")
     parser.add_argument("--swap-parts", action="store_true",
                         help="with --shape: the refined pose with one part of the true pose swapped in (REFINED_SWAPS)")
     parser.add_argument("--temporal", action="store_true",
@@ -682,7 +723,9 @@ def main() -> None:
             results[p.name] = score_shape(open_session(p), args.stride, source=src,
                                           refine_steps=tuple(args.refine_steps), per_frame=args.per_frame,
                                           fitted_variants={k: SHAPE_ORACLE_VARIANTS[k] for k in args.variants},
-                                          swap_parts=args.swap_parts)
+                                          swap_parts=args.swap_parts,
+                                          variants_on_true=args.variants_on_true_shape, from_true=args.from_true,
+                                          true_fg=args.true_fg, all_depth=args.all_depth)
         else:
             results[p.name] = score(open_session(p), args.stride, source=src, refine_only=args.refine_only)
     keys = list(next(iter(results.values())))

@@ -47,7 +47,22 @@ VARIANTS: dict[str, dict] = {
     "trunk 8 deg": {"weights": RefineWeights(trunk_rad=float(np.radians(8.0)))},
     "joints x0.5": {"weights": RefineWeights(joint_weight=0.5)},
     "depth x2": {"weights": RefineWeights(depth_weight=2.0)},
+    "3 steps": {"iterations": 3},
+    "2 steps, 1000 depth points": {"iterations": 2, "weights": RefineWeights(depth_samples=1000)},
+    "2 steps, joints x0.5": {"iterations": 2, "weights": RefineWeights(joint_weight=0.5)},
+    "2 steps, depth x2": {"iterations": 2, "weights": RefineWeights(depth_weight=2.0)},
+    "2 steps, silhouette x2": {"iterations": 2, "weights": RefineWeights(sil_weight=2.0)},
+    "2 steps, 2000 depth points": {"iterations": 2, "weights": RefineWeights(depth_samples=2000)},
+    "3 steps, 1000 depth points": {"iterations": 3, "weights": RefineWeights(depth_samples=1000)},
+    "3 steps, 2000 depth points, 1200 outline pixels": {"iterations": 3, "weights": RefineWeights(
+        depth_samples=2000, sil_samples=1200)},
+    "4 steps, 2000 depth points, 1200 outline pixels": {"iterations": 4, "weights": RefineWeights(
+        depth_samples=2000, sil_samples=1200)},
 }
+
+
+#: The CLI's edit ramp (tracked frames): ``eval mirror`` scores the frames after it, also printed apart.
+RAMP_FRAMES = 30
 
 
 class JointBias:
@@ -136,7 +151,7 @@ def score(session, variants: dict[str, dict], stride: int = 4, player: int = 1, 
                                        twist_bones=twist)
     state = {name: {"ik": None, "refined": None, "bias": JointBias(sk, session.kinect.version)}
              for name in ["IK", *variants]}
-    background, rows, ms = None, [], {name: [] for name in variants}
+    background, rows, ms, n_tracked = None, [], {name: [] for name in variants}, 0
     for i in session.frame_ids:
         frame = read_mirror_frame(session, i)
         depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, session.kinect)
@@ -147,6 +162,7 @@ def score(session, variants: dict[str, dict], stride: int = 4, player: int = 1, 
             for s in state.values():
                 s["ik"] = s["refined"] = None
             continue
+        n_tracked += 1
         points = point_cloud(frame, session.kinect, player)
         points = points[points[:, 1] > 0.02]
         fg = refine_foreground(frame.rgb, person, depth_c, background=background)
@@ -187,7 +203,7 @@ def score(session, variants: dict[str, dict], stride: int = 4, player: int = 1, 
         poses["true pose"] = pose_from_world(sk, W_true, true_pose.translation + true_sk.heads[root] - sk.heads[root])
         true_target = session.frame(i).gt_target_person == player
         Vs_t, Vt_t = gt["source_vertices"][k].astype(float), gt["target_vertices"][k].astype(float)
-        row = {"session": Path(session.path).name, "frame": int(i)}
+        row = {"session": Path(session.path).name, "frame": int(i), "tracked": n_tracked}
         for name, pose in poses.items():
             Vs, Vt = posed_source_and_target(body, target_rest, pose, rig)
             p = warp_pairs(Vs, Vt, faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=True)
@@ -217,11 +233,14 @@ def score(session, variants: dict[str, dict], stride: int = 4, player: int = 1, 
             with open(per_frame, "a") as f:
                 f.write(json.dumps(row) + "\n")
     out = {"frames": len(rows), **{f"{n}: refine ms CPU": float(np.median(v)) for n, v in ms.items()}}
+    late = [r for r in rows if r["tracked"] > RAMP_FRAMES]
     for key in rows[0]:
-        if key in ("session", "frame"):
+        if key in ("session", "frame", "tracked"):
             continue
         vals = np.array([r[key] for r in rows], float)
         out[key] = tuple(vals.mean(0)) if vals.ndim > 1 else float(vals.mean())
+        if ":" not in key and late:  # warp_iou over the frames `eval mirror` scores after the CLI's ramp
+            out[f"{key} (after the ramp)"] = float(np.mean([r[key] for r in late]))
     return out
 
 

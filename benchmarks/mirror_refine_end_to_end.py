@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import json
 import tempfile
 from pathlib import Path
 
 
 @contextlib.contextmanager
-def _refine_as(run: str):
+def _refine_as(run: str, weights: dict | None = None):
     """``refine_pose`` (and the warp) as the ``run`` wants it while the block runs: without E_trunk
     (``refine-no-trunk``), with two steps (``refine-2-steps``), without ``warp.edge_clamped`` (``refine-no-edge``);
     the run imports ``refine_pose`` from the module when it starts, ``warp_foreground`` calls the clamp by name."""
@@ -32,10 +31,17 @@ def _refine_as(run: str):
     original, twist, pivot = refine.refine_pose, refine.TWIST_BONES, refine.ROOT_PIVOT
     if run == "refine-before-mir12h":  # the run reads both when it starts
         refine.TWIST_BONES, refine.ROOT_PIVOT = (), "head"
+    def overriding(**over):  # the run passes iterations and weights itself (MIR12n): these replace its own
+        def refine_pose(*args, **kwargs):
+            return original(*args, **{**kwargs, **over})
+        return refine_pose
+
     if run == "refine-no-trunk":
-        refine.refine_pose = functools.partial(original, weights=refine.RefineWeights(trunk_rad=None))
+        refine.refine_pose = overriding(weights=refine.RefineWeights(trunk_rad=None))
     elif run == "refine-2-steps":
-        refine.refine_pose = functools.partial(original, iterations=2)
+        refine.refine_pose = overriding(iterations=2)
+    elif run == "refine-weights":
+        refine.refine_pose = overriding(weights=refine.RefineWeights(**(weights or {})))
     from bodystudio.mirror import warp
 
     clamp = warp.edge_clamped
@@ -58,9 +64,10 @@ def main() -> None:
     parser.add_argument("--source", default=None, help="source body .npz name inside SESSION/mirror/")
     parser.add_argument("--runs", nargs="+", default=["ik", "refine"],
                         choices=["ik", "refine", "refine-no-trunk", "refine-2-steps", "refine-no-edge",
-                                 "refine-before-mir12h"],
+                                 "refine-before-mir12h", "refine-weights"],
                         help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
                              "or with two Gauss-Newton steps, or without the warp's edge clamp (MIR12g's A/Bs)")
+    parser.add_argument("--weights", default="", help="refine-weights: RefineWeights fields, e.g. depth_samples=2000")
     parser.add_argument("--out", type=Path, default=None, help="folder for the run folders (default: a temporary one)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -71,12 +78,15 @@ def main() -> None:
             body, _ = load_source(session, src)
             for name in args.runs:
                 run = out / f"{path.name}_{name}"
-                with _refine_as(name):
+                weights = {k: int(v) if v.isdigit() else float(v)
+                           for k, v in (kv.split("=") for kv in args.weights.split(",") if kv)}
+                with _refine_as(name, weights):
                     doc = run_mirror(session, session.metadata["edits"], None, source=src, side_by_side=False,
                                      progress=False, run_dir=run, ramp_frames=0, refine_pose=name != "ik")
                 scores = evaluate_mirror(session, run, source=body)
                 keep = ("warp_iou", "warp_iou_unwarped", "fg_iou", "psnr_person", "ssim_person", "joint_err_mm")
-                print(json.dumps({"session": path.name, "run": name, **{k: scores.get(k) for k in keep},
+                print(json.dumps({"session": path.name, "run": name, "weights": args.weights if name == "refine-weights"
+                                  else "", **{k: scores.get(k) for k in keep},
                                   "ms_per_frame": {k: round(v, 2) for k, v in doc["summary"]["ms_per_frame"].items()}}),
                       flush=True)
 

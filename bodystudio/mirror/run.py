@@ -78,9 +78,27 @@ CORRESPONDENCE = "dense"
 REFINE_STEPS_ONE_PLAYER = 2
 
 
+#: Depth points of E_depth per Gauss-Newton step when the run reshapes one player (the refinement's default, 400, when
+#: it reshapes several, and in ``mirror init``). MIR12n: the refined pose's error is mostly this frame's noise (started
+#: at the true pose with the true shape and mask, two steps move it 5.6 mm away); 2000 points take that to 4.9 mm
+#: (8000: 4.9) and warp_iou +0.0012 / +0.0009 / +0.0010 on sessions 42 / 41 / 43, +0.0000 / +0.0003 on the held-out
+#: 45 / 46, for ~1.1 ms CPU a step, which a one-player run has (docs/mirror.md).
+REFINE_DEPTH_SAMPLES_ONE_PLAYER = 2000
+
+
 def refine_steps(n_players: int) -> int:
     """Gauss-Newton steps of each player's pose refinement in a run that reshapes ``n_players`` players."""
     return REFINE_STEPS_ONE_PLAYER if int(n_players) == 1 else 1
+
+
+def refine_weights(n_players: int):
+    """The pose refinement's :class:`~bodystudio.mirror.refine.RefineWeights` in a run that reshapes ``n_players``
+    players: :data:`REFINE_DEPTH_SAMPLES_ONE_PLAYER` depth points for one, the defaults for several."""
+    from bodystudio.mirror.refine import RefineWeights
+
+    if int(n_players) == 1:
+        return RefineWeights(depth_samples=REFINE_DEPTH_SAMPLES_ONE_PLAYER)
+    return RefineWeights()
 
 
 @dataclass(frozen=True, eq=False)
@@ -524,6 +542,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         from bodystudio.mirror.refine import TWIST_BONES, refine_plan, refine_pose
 
         steps = refine_steps(len(actors))
+        weights = refine_weights(len(actors))
         for a in actors:
             a.plan = refine_plan(a.body.vertices, a.body.faces, a.body.weights, a.body.skeleton, sensor.version,
                                  twist_bones=TWIST_BONES)
@@ -614,7 +633,8 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
                     fg = foreground if not several else foreground & ~not_mine
                     try:
                         pose = refine_pose(a.plan, a.body.skeleton, pose, camera, fg, tracked.positions,
-                                           tracked.tracked, points, not_mine, sensor.version, iterations=steps)
+                                           tracked.tracked, points, not_mine, sensor.version, iterations=steps,
+                                           weights=weights)
                     except BodyStudioError as exc:  # mirror_stream passes the frame through with this warning
                         who = f" of player {a.player}" if several else ""
                         raise InputError(f"pose refinement{who} failed: {exc}") from exc

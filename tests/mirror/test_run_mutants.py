@@ -536,10 +536,11 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
 
     monkeypatch.setattr(frames_mod, "point_cloud", point_cloud)
 
-    def refine_pose(plan, skeleton, pose, camera, fg, positions, tracked, points, occluders, version, iterations):
+    def refine_pose(plan, skeleton, pose, camera, fg, positions, tracked, points, occluders, version, iterations,
+                    weights):
         refined.append(dict(plan=plan, skeleton=skeleton, pose=pose, camera=camera, fg=fg.copy(),
                             joints=positions[0, 0], tracked=tracked, points=points, occluders=occluders.copy(),
-                            version=version, iterations=iterations))
+                            version=version, iterations=iterations, depth_samples=weights.depth_samples))
         if pose == "pose2.5":
             raise InputError("no silhouette")
         if pose == "pose1.5" and not several:
@@ -568,6 +569,7 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
     assert r1["skeleton"] == "sk1" and r1["camera"] is session.kinect.color and r1["version"] == "v2"
     # two Gauss-Newton steps when the run reshapes one player, one each for several (MIR12k, run.refine_steps)
     assert [r["iterations"] for r in refined] == ([1, 1] if several else [2])
+    assert [r["depth_samples"] for r in refined] == ([400, 400] if several else [2000])  # MIR12n
     assert r1["tracked"].dtype == bool and r1["tracked"].all()
     np.testing.assert_array_equal(r1["points"], cloud[[1, 2]] + [1, 0, 0])  # above 2 cm: not the floor
     mask = {p: np.zeros((h, w), bool) for p in blocks}
