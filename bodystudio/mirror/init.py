@@ -29,6 +29,8 @@ closest-vertex distances). Deviations from the paper, each measured (docs/mirror
   closest-vertex correspondences and the inverse LBS: the IK's trunk and root are degrees off, and the cloud
   unposed by them bends the shape fit; with 5 passes (the fit was still converging after 3) the posed vertex error
   falls from 11.1 to 7.5 mm on 9 sessions (MIR12i).
+* Optionally (``bone_length_weight``, off by default; MIR12o) the SDK's joint distances (bone lengths, shoulder and
+  hip width), averaged over the init frames, are matched too: pose-free, so without the unposing's error.
 
 The skeleton is refitted by Eq. 3 (each joint moves with the mean displacement of the vertices around it).
 """
@@ -108,7 +110,8 @@ POINT_SIGMA_M = 0.01
 #: SDK's, averaged over every init frame (:func:`kinect_bone_lengths`). A distance between two joints does not
 #: depend on the pose, so unlike the unposed joints it carries no unposing error: on the walking sessions the
 #: fitted body's shoulders came out 15 mm too wide (42) or 9 mm too narrow (46) while the SDK's mean over the
-#: init frames was within 2 mm of the truth (docs/mirror.md, MIR12o).
+#: ~80 tracked frames of the init window was within 2 mm (42) / 5 mm (46) of the truth, over the every-third frames
+#: the init reads within 8 mm (docs/mirror.md, MIR12o).
 BONE_PAIRS = (("ShoulderLeft", "ShoulderRight"), ("ShoulderLeft", "ElbowLeft"), ("ElbowLeft", "WristLeft"),
               ("ShoulderRight", "ElbowRight"), ("ElbowRight", "WristRight"), ("HipLeft", "HipRight"),
               ("HipLeft", "KneeLeft"), ("KneeLeft", "AnkleLeft"), ("HipRight", "KneeRight"),
@@ -116,7 +119,7 @@ BONE_PAIRS = (("ShoulderLeft", "ShoulderRight"), ("ShoulderLeft", "ElbowLeft"), 
               ("Neck", "Head"))
 #: Weight of one frame's measured joint distance in the shape fit, in units of one depth point (whose noise is
 #: POINT_SIGMA_M per coordinate): the mean over the n frames that measure a pair enters with n times this weight,
-#: as the n frames' own residuals would (a session's ~30 init frames: ~30). 0 (the default) leaves the distances
+#: as the n frames' own residuals would (a session's init: 19-28 frames per pair). 0 (the default) leaves the distances
 #: out; 1 is the option measured in docs/mirror.md (MIR12o): a better source shape on the walking sessions, but the
 #: Eq. 4 target's displacement, which depends erratically on the source coefficients, lost a held-out session's
 #: warp_iou (46: -0.003), so it stays off.
@@ -542,6 +545,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     frame behind it (:data:`BONE_LENGTH_WEIGHT`).
     """
     model = check_model(model)
+    if not (np.isfinite(bone_length_weight) and bone_length_weight >= 0):
+        raise InputError(f"bone_length_weight must be a finite number >= 0 (0: no joint distances), "
+                         f"got {bone_length_weight!r}")
     observations = list(observations)
     obs = []
     for o in observations:

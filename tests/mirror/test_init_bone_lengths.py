@@ -14,6 +14,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bodystudio.body.kinect import kinect_joint_names
+from bodystudio.errors import InputError
 from bodystudio.mirror.init import (
     BONE_LENGTH_WEIGHT,
     BONE_PAIRS,
@@ -180,6 +181,9 @@ def test_initialisation_passes_the_mean_distances_with_their_frame_counts(model,
     np.testing.assert_allclose(weight, np.full(len(BONE_PAIRS), 2.0 * 12))  # 12 observations, 4 fitted
     init_mod.initialise_from_observations(obs, model, passes=1, max_frames=4)
     assert seen[1] == (None, 0.0)
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="bone_length_weight must be a finite number >= 0"):
+            init_mod.initialise_from_observations(obs, model, passes=1, bone_length_weight=bad)
 
 
 def _all_points_matched(P, joints, body, tracked=None, version="v2", details=False, **kwargs):
