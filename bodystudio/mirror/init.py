@@ -121,7 +121,7 @@ BONE_PAIRS = (("ShoulderLeft", "ShoulderRight"), ("ShoulderLeft", "ElbowLeft"), 
 #: POINT_SIGMA_M per coordinate): the mean over the n frames that measure a pair enters with n times this weight,
 #: as the n frames' own residuals would (a session's init: 19-28 frames per pair). 0 (the default) leaves the distances
 #: out; 1 is the option measured in docs/mirror.md (MIR12o): a better source shape on the walking sessions, but the
-#: Eq. 4 target's displacement, which depends erratically on the source coefficients, lost a held-out session's
+#: Eq. 4 target's displacement, steep in some source coefficient directions, lost a held-out session's
 #: warp_iou (46: -0.003), so it stays off.
 BONE_LENGTH_WEIGHT = 0.0
 #: Outlier rejections of the initialisation, both measured from the *current shape estimate* (the mean body
