@@ -29,6 +29,8 @@ closest-vertex distances). Deviations from the paper, each measured (docs/mirror
   closest-vertex correspondences and the inverse LBS: the IK's trunk and root are degrees off, and the cloud
   unposed by them bends the shape fit; with 5 passes (the fit was still converging after 3) the posed vertex error
   falls from 11.1 to 7.5 mm on 9 sessions (MIR12i).
+* Optionally (``bone_length_weight``, off by default; MIR12o) the SDK's joint distances (bone lengths, shoulder and
+  hip width), averaged over the init frames, are matched too: pose-free, so without the unposing's error.
 
 The skeleton is refitted by Eq. 3 (each joint moves with the mean displacement of the vertices around it).
 """
@@ -104,6 +106,24 @@ UNPOSE_REFINE_STEPS = 1
 JOINT_WEIGHT = 3.0
 #: Per-coordinate noise (metres) that sets the weight of the shape prior in Eq. 2.
 POINT_SIGMA_M = 0.01
+#: Kinect joint pairs whose distance (a bone length, or the shoulder / hip width) the shape fit matches to the
+#: SDK's, averaged over every init frame (:func:`kinect_bone_lengths`). A distance between two joints does not
+#: depend on the pose, so unlike the unposed joints it carries no unposing error: on the walking sessions the
+#: fitted body's shoulders came out 15 mm too wide (42) or 9 mm too narrow (46) while the SDK's mean over the
+#: ~80 tracked frames of the init window was within 2 mm (42) / 5 mm (46) of the truth, over the every-third frames
+#: the init reads within 8 mm (docs/mirror.md, MIR12o).
+BONE_PAIRS = (("ShoulderLeft", "ShoulderRight"), ("ShoulderLeft", "ElbowLeft"), ("ElbowLeft", "WristLeft"),
+              ("ShoulderRight", "ElbowRight"), ("ElbowRight", "WristRight"), ("HipLeft", "HipRight"),
+              ("HipLeft", "KneeLeft"), ("KneeLeft", "AnkleLeft"), ("HipRight", "KneeRight"),
+              ("KneeRight", "AnkleRight"), ("SpineBase", "SpineShoulder"), ("SpineShoulder", "Neck"),
+              ("Neck", "Head"))
+#: Weight of one frame's measured joint distance in the shape fit, in units of one depth point (whose noise is
+#: POINT_SIGMA_M per coordinate): the mean over the n frames that measure a pair enters with n times this weight,
+#: as the n frames' own residuals would (a session's init: 19-28 frames per pair). 0 (the default) leaves the distances
+#: out; 1 is the option measured in docs/mirror.md (MIR12o): a better source shape on the walking sessions, but the
+#: Eq. 4 target's displacement, steep in some source coefficient directions, lost a held-out session's
+#: warp_iou (46: -0.003), so it stays off.
+BONE_LENGTH_WEIGHT = 0.0
 #: Outlier rejections of the initialisation, both measured from the *current shape estimate* (the mean body
 #: in the first pass): a depth point farther than INIT_CORRESPONDENCE_M from the posed B^D is not used, and
 #: in Eq. 2 a pair farther than FIT_TRIM_M after the first matching is dropped. With the tight values first
@@ -293,7 +313,7 @@ def unposed_kinect_joints(joints, tracked, skeleton: Skeleton, pose, version: st
 def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, candidates=None,
               correspondence=None, joints_default=None, joint_weight: float = 0.0, version: str = "v2",
               iterations: int = 4, symmetric: bool = False, point_sigma_m: float = POINT_SIGMA_M, trim_m: float = 0.05,
-              return_residual: bool = False):
+              return_residual: bool = False, bone_lengths=None, bone_length_weight: float = 0.0):
     """Coefficients minimising Eq. 2, ``sum_i |p_i - v_k(i)(alpha)|^2``, for a cloud in the default pose.
 
     ``k(i)`` is the closest vertex (among ``candidates``, e.g. the vertices the sensor saw) and is
@@ -303,6 +323,8 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
     point noise ``point_sigma_m^2`` keeps unobserved directions (the back) at the population's
     expectation. Pairs farther than ``trim_m`` after the first match are dropped as outliers. With
     ``return_residual`` also returns the median point-to-vertex distance (metres) of the final fit.
+    ``bone_lengths`` (len(:data:`BONE_PAIRS`),) measured joint distances (NaN: not measured) are matched with
+    ``bone_length_weight`` (one number, or one per pair) each (:func:`bone_length_rows`).
     """
     P = np.asarray(points_default, dtype=np.float64)
     finite = np.all(np.isfinite(P), axis=1)
@@ -327,6 +349,9 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
         joint_rows = (sw * np.hstack([Jb[:, j].reshape(k, -1).T, np.tile(np.eye(3), (len(j), 1))]),
                       sw * (Jd[f, j] - Jm[j]).ravel())
     data_tree = cKDTree(P) if symmetric else None
+    length_weights = None
+    if bone_lengths is not None and np.any(np.asarray(bone_length_weight) > 0):
+        length_weights = np.broadcast_to(np.asarray(bone_length_weight, dtype=np.float64), (len(BONE_PAIRS),))
     for it in range(iterations):
         V = model.vertices(c)
         if it == 0 and given is not None:
@@ -358,6 +383,10 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
         if joint_rows is not None:
             AtA += joint_rows[0].T @ joint_rows[0]
             Atb += joint_rows[0].T @ joint_rows[1]
+        if length_weights is not None:
+            A_len, b_len, rows = bone_length_rows(model, c, bone_lengths, version)
+            AtA[:k, :k] += (A_len.T * length_weights[rows]) @ A_len
+            Atb[:k] += (A_len.T * length_weights[rows]) @ b_len
         AtA[np.arange(k), np.arange(k)] += prior
         x = np.linalg.solve(AtA, Atb)
         c, t = x[:k], x[k:]
@@ -379,6 +408,58 @@ def _model_kinect_joints(model: StatisticalBodyModel, version: str) -> tuple[np.
     basis = np.stack([skeleton_kinect_joints(sk, h, t, version) for h, t in zip(model.joint_basis_heads,
                                                                          model.joint_basis_tails, strict=True)])
     return mean, basis
+
+
+def bone_pair_indices(version: str) -> np.ndarray:
+    """(len(BONE_PAIRS), 2) joint indices of each pair in ``version``'s joint set, -1 where it has no such joint
+    (Kinect v1 has no Neck)."""
+    index = {n: i for i, n in enumerate(kinect_joint_names(version))}
+    return np.array([(index.get(_kinect_name(a, version), -1), index.get(_kinect_name(b, version), -1))
+                     for a, b in BONE_PAIRS])
+
+
+def kinect_bone_lengths(observations, version: str) -> tuple[np.ndarray, np.ndarray]:
+    """The SDK's joint distances of :data:`BONE_PAIRS` (metres) and the number of frames behind each: the mean over
+    the frames that track both joints after dropping the frames more than 3 median absolute deviations off its
+    median; NaN (and 0 frames) where fewer than three frames track the pair. Pose-free: the distance of two joints
+    is the same in every frame up to the SDK's noise (1 cm per joint, 3 % bone-length jitter per frame), which the
+    mean over ~30 frames takes to ~3 mm."""
+    pairs = bone_pair_indices(version)
+    lengths = [[] for _ in pairs]
+    for o in observations:
+        if o.version != version:
+            continue
+        K = np.asarray(o.joints, dtype=np.float64)
+        ok = np.asarray(o.tracked, bool) & np.all(np.isfinite(K), axis=1)
+        for n, (a, b) in enumerate(pairs):
+            if a >= 0 and b >= 0 and ok[a] and ok[b]:
+                lengths[n].append(float(np.linalg.norm(K[a] - K[b])))
+    out, counts = np.full(len(pairs), np.nan), np.zeros(len(pairs), dtype=np.int64)
+    for n, values in enumerate(lengths):
+        v = np.asarray(values)
+        if len(v) >= 3:
+            med = np.median(v)
+            kept = v[np.abs(v - med) <= 3.0 * max(np.median(np.abs(v - med)), 1e-3)]
+            out[n], counts[n] = float(kept.mean()), len(kept)
+    return out, counts
+
+
+def bone_length_rows(model: StatisticalBodyModel, coeffs, bone_lengths,
+                     version: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Linearised rows ``A c = b`` of the joint-distance term: ``u^T (J_a(c) - J_b(c)) = L_ab`` with ``u`` the pair's
+    current direction (the model's Kinect joints are linear in ``c``, so the row is exact along ``u`` and the
+    distance is matched to first order; it is re-linearised at every re-matching of Eq. 2). Pairs with a NaN
+    length (or a joint the version lacks) give no row; the third array says which pairs gave one."""
+    Jm, Jb = _model_kinect_joints(model, version)
+    pairs = bone_pair_indices(version)
+    L = np.asarray(bone_lengths, dtype=np.float64)
+    keep = np.isfinite(L) & np.all(pairs >= 0, axis=1)
+    a, b = pairs[keep, 0], pairs[keep, 1]
+    D_mean, D_basis = Jm[a] - Jm[b], Jb[:, a] - Jb[:, b]  # (P, 3), (k, P, 3)
+    d = D_mean + np.tensordot(np.asarray(coeffs, float), D_basis, axes=1)
+    u = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    A = np.einsum("kpd,pd->pk", D_basis, u)
+    return A, L[keep] - np.einsum("pd,pd->p", D_mean, u), keep
 
 
 # --- Eq. 3 skeleton refit --------------------------------------------------------------------------
@@ -443,7 +524,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  trim_m: float = FIT_TRIM_M, min_facing_cos: float = INIT_FACING_COS,
                                  camera=None, silhouette_frames: int = 0,
                                  point_sigma_m: float = POINT_SIGMA_M, depth_camera=None,
-                                 unpose_refine_steps: int = UNPOSE_REFINE_STEPS) -> SourceBody:
+                                 unpose_refine_steps: int = UNPOSE_REFINE_STEPS,
+                                 bone_length_weight: float = BONE_LENGTH_WEIGHT) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -458,9 +540,15 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     With the ``depth_camera`` (the Kinect's depth camera) and observations that carry the SDK's ``player_mask``, the
     passes after the first unpose each frame with the IK pose refined by ``unpose_refine_steps`` steps against the
     mask, the depth and the joints (:func:`refined_init_pose`; 0: the IK's). ``point_sigma_m``: the shape prior's
-    point noise (:func:`fit_shape`).
+    point noise (:func:`fit_shape`). ``bone_length_weight`` > 0: the fit also matches the SDK's joint distances of
+    :data:`BONE_PAIRS`, averaged over every observation (:func:`kinect_bone_lengths`), each with that weight per
+    frame behind it (:data:`BONE_LENGTH_WEIGHT`).
     """
     model = check_model(model)
+    if not (np.isfinite(bone_length_weight) and bone_length_weight >= 0):
+        raise InputError(f"bone_length_weight must be a finite number >= 0 (0: no joint distances), "
+                         f"got {bone_length_weight!r}")
+    observations = list(observations)
     obs = []
     for o in observations:
         P = np.asarray(o.points, dtype=np.float64)
@@ -478,6 +566,10 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     body = model.body(np.zeros(model.n_components))
     coeffs = np.zeros(model.n_components)
     rng = np.random.default_rng(0)
+    bone_lengths, length_weight = None, 0.0
+    if bone_length_weight > 0:
+        bone_lengths, n_frames = kinect_bone_lengths(observations, obs[0][0].version)
+        length_weight = bone_length_weight * n_frames
     residual = np.nan
     for pass_ in range(max(1, passes)):
         pooled, matches, seen, joints0 = [], [], [], []
@@ -512,7 +604,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                      iterations=ICP_ITERATIONS[min(pass_, len(ICP_ITERATIONS) - 1)],
                                      joints_default=np.array(joints0) if joints0 else None,
                                      joint_weight=joint_weight, version=obs[0][0].version, trim_m=trim_m,
-                                     point_sigma_m=point_sigma_m, return_residual=True)
+                                     point_sigma_m=point_sigma_m, return_residual=True, bone_lengths=bone_lengths,
+                                     bone_length_weight=length_weight)
         skeleton = refit_skeleton(model, coeffs)
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,
                          vertex_ids=model.vertex_ids)
@@ -630,9 +723,11 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
 
 def initialise_source_body(session, model: StatisticalBodyModel | None = None, frames=None, player: int = 1,
                            n_frames: int = DEFAULT_INIT_FRAMES, passes: int = INIT_PASSES,
-                           silhouette_shape: bool = False) -> SourceBody:
+                           silhouette_shape: bool = False,
+                           bone_length_weight: float = BONE_LENGTH_WEIGHT) -> SourceBody:
     """§4 on a mirror session: the source body of ``player`` from up to ``n_frames`` frames (~3 s at 30 fps);
-    ``silhouette_shape``: then refined against :data:`SILHOUETTE_FRAMES` frames' silhouettes (MIR12c)."""
+    ``silhouette_shape``: then refined against :data:`SILHOUETTE_FRAMES` frames' silhouettes (MIR12c);
+    ``bone_length_weight`` > 0: the SDK's joint distances enter the fit (:data:`BONE_LENGTH_WEIGHT`, MIR12o)."""
     if model is None:
         from bodystudio.body.statistical import load_statistical_model
 
@@ -641,7 +736,8 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
     obs, sensor = collect_observations(session, frames, player, n_frames, silhouettes=silhouette_shape)
     return initialise_from_observations(obs, model, view_point=sensor.depth.center, passes=passes,
                                         depth_camera=sensor.depth, camera=sensor.color if silhouette_shape else None,
-                                        silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0)
+                                        silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0,
+                                        bone_length_weight=bone_length_weight)
 
 
 # --- persistence -----------------------------------------------------------------------------------

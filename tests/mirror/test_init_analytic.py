@@ -800,10 +800,12 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
         calls["silhouettes"] = silhouettes
         return ["obs"], session.kinect
 
-    def fit(obs, m, view_point=None, passes=3, camera=None, silhouette_frames=0, depth_camera=None):
+    def fit(obs, m, view_point=None, passes=3, camera=None, silhouette_frames=0, depth_camera=None,
+            bone_length_weight=None):
         calls["fit"] = (obs, m, view_point, passes)
         calls["silhouette"] = (camera, silhouette_frames)
         calls["depth_camera"] = depth_camera
+        calls["bone_length_weight"] = bone_length_weight
         return "source"
 
     monkeypatch.setattr(init_mod, "collect_observations", collect)
@@ -815,6 +817,9 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
     np.testing.assert_array_equal(calls["fit"][2], [0.0, 1.0, 3.0])
     assert calls["depth_camera"] is session.kinect.depth  # the refined unposing's camera (MIR12i)
     assert calls["silhouettes"] is False and calls["silhouette"] == (None, 0)  # MIR12c's refinement off by default
+    assert calls["bone_length_weight"] == 0.0  # MIR12o's joint distances off by default
+    init_mod.initialise_source_body(session, model, bone_length_weight=1.5)
+    assert calls["bone_length_weight"] == 1.5
     init_mod.initialise_source_body(session, model)
     assert calls["collect"] == (None, 1, init_mod.DEFAULT_INIT_FRAMES) and calls["fit"][3] == init_mod.INIT_PASSES == 5
     session.kinect.color = "colour camera"

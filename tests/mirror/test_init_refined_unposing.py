@@ -49,7 +49,8 @@ def _rest_err_mm(source, truth):
 def test_refined_unposing_brings_the_fitted_rest_shape_closer(walk7, model_6k):
     """Five passes with the refined unposing against five with the IK's pose (the same fit otherwise): rest vertex
     error 5.35 against 7.17 mm, stature -0.8 against -5.2 mm (measured; three passes, the IK's pose, as before
-    MIR12i: 7.48 mm, -9.4 mm). The refinement skipped (the IK's pose used) fails."""
+    MIR12i: 7.48 mm, -9.4 mm; with MIR12o's joint distances in the fit, an option: 5.45 against 7.01 mm, stature
+    +2.2 against -4.4 mm). The refinement skipped (the IK's pose used) fails."""
     eye, depth = walk7.sensor.depth.center, walk7.sensor.depth
     refined = initialise_from_observations(walk7.observations, model_6k, view_point=eye, depth_camera=depth)
     ik = initialise_from_observations(walk7.observations, model_6k, view_point=eye, depth_camera=depth,

@@ -82,6 +82,27 @@ def test_points_far_from_the_joints_are_refused(model, standing):
         initialise_from_observations(obs, model)
 
 
+@pytest.mark.parametrize("weight", [-1.0, float("nan"), float("inf")])
+def test_bad_bone_length_weight(model, standing, weight):
+    """MIR12o's joint-distance option: a weight that is not a finite number >= 0 is refused before any work."""
+    K, P = standing
+    obs = [InitObservation(0, P, K, np.ones(J, bool), "v2")]
+    with pytest.raises(InputError, match="bone_length_weight must be a finite number >= 0"):
+        initialise_from_observations(obs, model, bone_length_weight=weight)
+
+
+def test_bone_lengths_without_any_tracked_pair(model, standing):
+    """The option on frames whose joints track no pair in three frames adds no rows: the fit is the one without."""
+    K, P = standing
+    tracked = np.ones(J, bool)
+    tracked[[kinect_joint_names("v2").index(n) for n in ("ShoulderLeft", "ShoulderRight", "HipLeft", "HipRight",
+                                                          "SpineShoulder", "Neck")]] = False
+    obs = [InitObservation(i, P, K, tracked, "v2") for i in range(2)]
+    with_option = initialise_from_observations(obs, model, passes=1, bone_length_weight=1.0)
+    without = initialise_from_observations(obs, model, passes=1)
+    np.testing.assert_array_equal(with_option.coeffs, without.coeffs)
+
+
 def test_wrong_model(standing):
     K, P = standing
     obs = [InitObservation(0, P, K, np.ones(J, bool), "v2")]
