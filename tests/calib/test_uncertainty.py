@@ -1,6 +1,7 @@
 """The calibration's own uncertainty: do the propagated sigmas predict the true error against ground
 truth, and are the known under-constrained captures of issue 16 flagged?"""
 
+import functools
 import json
 
 import numpy as np
@@ -19,7 +20,9 @@ from bodystudio.calib.uncertainty import (
 from bodystudio.geometry.camera import ring_rig
 
 
+@functools.cache
 def _capture(cameras, poses, width, seed, noise_px):
+    """(board, true rig, observations) of a seeded synthetic capture; cached: the tests only read them."""
     spec = board_for_resolution(width)
     rig = ring_rig(cameras, width=width, height=width * 3 // 4)
     rng = np.random.default_rng(seed)
@@ -27,13 +30,21 @@ def _capture(cameras, poses, width, seed, noise_px):
     return spec, rig, synthetic_charuco_observations(rig, spec, board_poses, noise_px, rng)
 
 
+@functools.cache
+def _calibrated(case, options):
+    """The calibration of ``_capture(*case)``, once per (case, options) (frozen, so a cache key): the fast tests'
+    captures are three of the slow test's twelve (CalibrationOptions(sigma_inflation=1.0) equals the defaults)."""
+    spec, _, obs = _capture(*case)
+    return calibrate_cameras(obs, spec, options)
+
+
 def _consistency(cases):
     """With i.i.d. Gaussian corner noise the covariance must stay right (the view-field term estimates ~0);
     rendered captures: benchmarks/bench_calib.py, docs/calibration.md."""
     out = []
     for case in cases:
-        spec, rig, obs = _capture(*case)
-        res = calibrate_cameras(obs, spec, CalibrationOptions(sigma_inflation=1.0))
+        rig = _capture(*case)[1]
+        res = _calibrated(case, CalibrationOptions(sigma_inflation=1.0))
         out += list(uncertainty_consistency(res.rig, rig, res.uncertainty).values())
     return out
 
@@ -68,8 +79,7 @@ def test_sigmas_predict_the_true_error_over_many_captures():
 
 
 def test_good_capture_is_certain():
-    spec, rig, obs = _capture(8, 24, 1280, 0, 0.2)
-    unc = calibrate_cameras(obs, spec).uncertainty
+    unc = _calibrated((8, 24, 1280, 0, 0.2), CalibrationOptions()).uncertainty
     assert unc.ok and unc.verdict == "ok" and unc.advice() == [] and unc.sigma_inflation == 1.0
     # Measured: centre sigma 0.53-0.96 mm, focal sigma <= 0.022 % (Gaussian corners: view field 0.009 px).
     assert max(c.center_sigma_mm for c in unc.cameras) < 2.0
@@ -78,8 +88,7 @@ def test_good_capture_is_certain():
 
 def test_four_cameras_twelve_poses_is_flagged():
     """Issue 16's case: 0.4 px RMS, centres 70 mm off, previously exit 0 without a word."""
-    spec, rig, obs = _capture(4, 12, 640, 0, 0.3)
-    unc = calibrate_cameras(obs, spec).uncertainty
+    unc = _calibrated((4, 12, 640, 0, 0.3), CalibrationOptions()).uncertainty
     assert not unc.ok
     assert all(c.verdict == "uncertain" for c in unc.cameras)
     assert all(c.center_sigma_mm > 2.0 for c in unc.cameras)

@@ -47,6 +47,25 @@ def test_a_second_init_needs_force(mirror_session, capfd):
     assert json.loads(summary.read_text())["resolution"] == "6k"
 
 
+# The probe child records the 6k init's fit; the children killed at a file event replay it instead of fitting again
+# (the source body's two files are the only file events, the same ones, checked against a fitting child).
+RECORD_INIT = """
+import pickle
+import bodystudio.mirror.init as init
+_initialise = init.initialise_source_body
+def recorded(*args, **kwargs):
+    source = _initialise(*args, **kwargs)
+    open({path!r}, "wb").write(pickle.dumps(source))
+    return source
+init.initialise_source_body = recorded
+"""
+REPLAY_INIT = """
+import pickle
+import bodystudio.mirror.init as init
+init.initialise_source_body = lambda *args, **kwargs: pickle.loads(open({path!r}, "rb").read())
+"""
+
+
 @pytest.mark.slow
 def test_mirror_init_killed_around_its_commit_point(mirror_session, tmp_path, capfd):
     """source_body.npz and source_body.json are one unit: killed before the commit point the previous pair
@@ -67,7 +86,10 @@ def test_mirror_init_killed_around_its_commit_point(mirror_session, tmp_path, ca
     probe = tmp_path / "probe"
     shutil.copytree(base, probe)
     new = ["--resolution", "6k", "--frames", "3", "--force"]
-    assert run_child(["mirror", "init", str(probe / "s"), *new], probe, event_log=log).returncode == 0
+    record, replay = tmp_path / "record.py", tmp_path / "replay.py"
+    record.write_text(RECORD_INIT.format(path=str(tmp_path / "source.pkl")))
+    replay.write_text(REPLAY_INIT.format(path=str(tmp_path / "source.pkl")))
+    assert run_child(["mirror", "init", str(probe / "s"), *new], probe, event_log=log, setup=record).returncode == 0
     events = read_events(log)
     commit = next(k + 1 for k, e in enumerate(events) if e.endswith("commit.json"))
     for kill_at in (1, commit, commit + 1):
@@ -75,7 +97,8 @@ def test_mirror_init_killed_around_its_commit_point(mirror_session, tmp_path, ca
         shutil.copytree(base, work)
         mirror = work / "s" / "mirror"
         before = {p: (mirror / p).read_bytes() for p in ("source_body.npz", "source_body.json")}
-        assert run_child(["mirror", "init", str(work / "s"), *new], work, kill_at=kill_at).returncode == -9
+        assert run_child(["mirror", "init", str(work / "s"), *new], work, kill_at=kill_at,
+                         setup=replay).returncode == -9
         if kill_at <= commit:
             assert {p: (mirror / p).read_bytes() for p in before} == before
         assert run_inprocess(["recover", mirror / "source_body.npz"], capfd).rc == 0

@@ -176,12 +176,37 @@ sr.refine_shape_to_silhouettes = functools.partial(sr.refine_shape_to_silhouette
 """
 
 
+# The first (complete) run records its fit; the runs killed at a file event replay it into their folder instead of
+# fitting again: the fit's files are its only file events (the same ones, checked against a fitting child).
+RECORD_FIT = """
+import pickle
+_fit_video = f.fit_garment_video
+def recorded(*args, **kwargs):
+    fit = _fit_video(*args, **kwargs)
+    open({path!r}, "wb").write(pickle.dumps(fit))
+    return fit
+f.fit_garment_video = recorded
+"""
+REPLAY_FIT = """
+import pickle
+import bodystudio.garment.fit as f
+from bodystudio.garment.fitfile import save_garment_fit
+def replayed(source, stature_m, out_dir=None, **kwargs):
+    fit = pickle.loads(open({path!r}, "rb").read())
+    save_garment_fit(out_dir, fit)
+    return fit
+f.fit_garment_video = replayed
+"""
+
+
 def test_killed_fit_leaves_no_half_written_folder(tiny_session, tmp_path):
     from bodystudio.errors import BodyStudioError
     from bodystudio.garment.fitfile import load_garment_fit
 
-    setup = tmp_path / "quick.py"
-    setup.write_text(QUICK_FIT)
+    recorded = tmp_path / "fit.pkl"
+    setup, replay = tmp_path / "quick.py", tmp_path / "replay.py"
+    setup.write_text(QUICK_FIT + RECORD_FIT.format(path=str(recorded)))
+    replay.write_text(REPLAY_FIT.format(path=str(recorded)))
     work = tmp_path / "w"
     work.mkdir()
     log = tmp_path / "events.json"
@@ -194,7 +219,7 @@ def test_killed_fit_leaves_no_half_written_folder(tiny_session, tmp_path):
     for k in sorted({1, 2, len(events) // 2, len(events) - 1, len(events)}):
         w = tmp_path / f"k{k}"
         w.mkdir()
-        r = run_child(args, w, kill_at=k, setup=setup)
+        r = run_child(args, w, kill_at=k, setup=replay)
         assert r.returncode == -9
         out = w / "fit"
         if k == len(events):  # killed at the very last rename: the fit is complete or refused, never mixed

@@ -135,24 +135,56 @@ def test_textured_export_reads_back_as_the_same_rig(rigged, tmp_path):
                                   np.sort(plain.faces, axis=1)[np.lexsort(np.sort(plain.faces, 1).T)])
 
 
+# The slow test's kill-point children replay the fit the first run computed (same scan, template and seed, so
+# the same result) instead of repeating it: every file event comes after the fit, so the events and the kill
+# points are the same; the time-based kill runs the real fit (its moment depends on the fit's duration).
+REPLAY_FIT = """
+import pickle
+import bodystudio.rig.pipeline as pipeline
+
+def replayed_rig(mesh, model, weights="harmonic", stage=None, seed=0):
+    result = pickle.loads(open({path!r}, "rb").read())
+    for name in ("fit", "skeleton", "weights"):
+        if stage is not None:
+            stage(name)
+    return result
+
+pipeline.rig_scan = replayed_rig
+"""
+
+
 @pytest.mark.slow
-def test_rig_killed_at_seeded_points(tmp_path):
+def test_rig_killed_at_seeded_points(tmp_path, monkeypatch):
     """The real command on a small synthetic scan, killed at a seeded set of file events and times."""
+    import pickle
+
+    import bodystudio.rig.pipeline as pipeline
     from bodystudio.register.synthetic import save_synthetic_scan, synthetic_scan
 
     scan, gt = synthetic_scan(11, "a", 5000, 1.0, True)
     root = tmp_path / "root"
     save_synthetic_scan(root / "scan.ply", scan, gt)
     base = root / "out"
+    real_rig, fit_path = pipeline.rig_scan, tmp_path / "rig_result.pkl"
+
+    def recorded(*args, **kwargs):
+        result = real_rig(*args, **kwargs)
+        fit_path.write_bytes(pickle.dumps(result))
+        return result
+
+    monkeypatch.setattr(pipeline, "rig_scan", recorded)
     assert main(["rig", str(root / "scan.ply"), "--out", str(base / "a.glb"), "--template", "2k"]) == 0
+    monkeypatch.undo()
+    replay = tmp_path / "replay_fit.py"
+    replay.write_text(REPLAY_FIT.format(path=str(fit_path)))
     rigged = (root, json.loads((base / "a.rig.json").read_text())["run"]["run_id"], snapshot(base))
     out, previous_id, previous = _copy(rigged, tmp_path / "probe")
     log = tmp_path / "events.json"
-    assert run_child(new_run(root, out), tmp_path, event_log=log).returncode == 0
+    assert run_child(new_run(root, out), tmp_path, event_log=log, setup=replay).returncode == 0
     seen = set()
     for k in kill_points(read_events(log), seed=16, n=2):
         out, previous_id, previous = _copy(rigged, tmp_path / f"k{k}")
-        assert run_child(new_run(root, out), tmp_path, kill_at=k).returncode == -9
+        assert run_child(new_run(root, out), tmp_path, kill_at=k, setup=replay).returncode == -9
         seen.add(reader_state(out, previous_id, previous))
         _recover_and_check(out, previous_id, previous)
     out, previous_id, previous = _copy(rigged, tmp_path / "t")

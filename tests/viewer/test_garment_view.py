@@ -188,7 +188,7 @@ def test_view_html_carries_every_frame_and_draws_in_chromium(garment_case, tmp_p
         assert "texture" in objects["garment"] and "texture" in objects["garment-strip"]
         V = np.frombuffer(base64.b64decode(objects["fitted-body"]["positions"]), "<f4").reshape(-1, 3)
         np.testing.assert_allclose(V, fitted_scene(view, f["id"]).body_vertices, atol=1e-5)
-    page = chromium(html, size=(900, 800))
+    page = chromium(html, size=(900, 800), screenshot=False)  # the page loads and draws; no picture checked
     assert page["console"] == [], page["console"]
     assert 'data-viewer-status="ok"' in page["dom"]
 
