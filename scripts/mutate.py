@@ -14,6 +14,7 @@ the module) and pytest-gremlins 43 of 71 in 10 min. mutmut does not mutate decor
 
 Usage: python scripts/mutate.py --modules bodystudio/rig/weights.py ... [--timeout 900] [--jobs 2] [--ref HEAD]
        [--tests tests/calib/test_calibrate_mutants.py] [--functions chromaticity_groups solve_lights ...]
+       [--key "bodystudio/garment/lighting.py (b089271 functions)"]
 """
 
 from __future__ import annotations
@@ -355,6 +356,8 @@ def main(argv=None) -> int:
                     "the score is then a lower bound of the full selection's")
     ap.add_argument("--functions", nargs="+", help="mutate only these functions of the (one) module (Class.method "
                     "for a method); the result is kept under 'MODULE (functions)' next to the module's own row")
+    ap.add_argument("--key", help="results.json key of this run (default: the module, or 'MODULE (functions)' with "
+                    "--functions, which earlier --functions runs of the module share and this run would replace)")
     ap.add_argument("--score-only", action="store_true", help="with --resume: score the kept tree as it is, "
                     "without running mutmut (after the direct recheck wrote its verdicts into the .meta files)")
     ap.add_argument("--resume", type=Path, help="go on in this kept scratch tree (one module): only mutants "
@@ -369,14 +372,14 @@ def main(argv=None) -> int:
         print(f"mutate: no such module(s): {' '.join(missing)}; list files under bodystudio/", file=sys.stderr)
         return 2
     results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-    if args.functions and len(args.modules) != 1:
-        print("mutate: --functions needs exactly one module", file=sys.stderr)
+    if (args.functions or args.key) and len(args.modules) != 1:
+        print(f"mutate: {'--functions' if args.functions else '--key'} needs exactly one module", file=sys.stderr)
         return 2
     status = 0
     for module in args.modules:
         r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.resume, args.tests, args.functions,
                        args.score_only and args.resume is not None)
-        key = f"{module} (functions)" if args.functions else module
+        key = args.key or (f"{module} (functions)" if args.functions else module)
         # re-read: another run (another module) may have written its result meanwhile
         results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
         if r.get("error") and key in results and not results[key].get("error"):

@@ -84,3 +84,15 @@ def test_an_error_entry_renders_and_a_measured_run_appends_its_history(report, t
     assert got["wall_s"] == 10.0  # both boxes
     text = mutate.render({"a.py": {"module": "a.py", "error": "no tests found"}, f"{MODULE} (functions)": got})
     assert "| `a.py` | no tests found |" in text and "**100.0%** (4 / 4)" in text
+
+
+def test_a_key_of_its_own_leaves_the_shared_functions_entry_alone(report, tmp_path, monkeypatch):
+    results, entry = report
+    work = _tree(tmp_path / "kept")
+    monkeypatch.setattr(mutate, "run_module", lambda *a, **k: dict(entry, history=None, score=0.5, killed=2))
+    key = f"{MODULE} (mutR lines)"
+    assert mutate.main(["--modules", MODULE, "--functions", "spd_solve", "--resume", str(work), "--score-only",
+                        "--key", key]) == 0
+    got = json.loads(results.read_text())
+    assert got[f"{MODULE} (functions)"] == entry and got[key]["score"] == 0.5
+    assert mutate.main(["--modules", MODULE, "bodystudio/muscle/model.py", "--key", key]) == 2
