@@ -158,3 +158,38 @@ def test_a_reach_other_than_the_default_reaches_the_reference():
         got = foreground_extras(person, cropped, reach, distances)
         want = warp._foreground_extras_reference(person, cropped, reach)
         np.testing.assert_array_equal(got[0], want[0])
+
+
+@functools.cache
+def _random_case(seed):
+    """A disc person at a random place, shrunk or grown and moved up to 12 px, with three rectangles of foreground
+    (some reaching a border, some one pixel thin) around it."""
+    rng = np.random.default_rng(seed)
+    H, W = 56, 72
+    centre = (float(rng.integers(16, W - 16)), float(rng.integers(16, H - 16)))
+    r_source = float(rng.integers(9, 14))
+    dense, person = _disc((H, W), centre, tuple(rng.integers(-12, 13, 2)), r_source,
+                          r_source * float(rng.uniform(0.7, 1.3)))
+    for _ in range(3):
+        w, h = int(rng.integers(1, 14)), int(rng.integers(1, 14))
+        x, y = int(rng.integers(0, W - w + 1)), int(rng.integers(0, H - h + 1))
+        person[y:y + h, x:x + w] = True
+    return dense, person
+
+
+@pytest.mark.parametrize("seed", range(16))
+def test_random_discs_and_extras_carry_as_the_reference(seed):
+    dense, person = _random_case(seed)
+    new, ref = _extras_both(dense, person)
+    np.testing.assert_array_equal(new, ref)
+    field, ref_field, _ = _fields(dense, person)
+    np.testing.assert_array_equal(field, ref_field)
+
+
+def test_an_extra_low_and_left_of_its_body_is_visited():
+    """The visited box of a bag below and left of the body (its top row beyond its right column)."""
+    dense, person = _disc((64, 80), (22.0, 40.0), (3, -4))
+    person[52:60, 0:9] = True
+    field, ref_field, carried = _fields(dense, person)
+    assert carried > 0
+    np.testing.assert_array_equal(field, ref_field)
