@@ -14,6 +14,7 @@ the module) and pytest-gremlins 43 of 71 in 10 min. mutmut does not mutate decor
 
 Usage: python scripts/mutate.py --modules bodystudio/rig/weights.py ... [--timeout 900] [--jobs 2] [--ref HEAD]
        [--tests tests/calib/test_calibrate_mutants.py] [--functions chromaticity_groups solve_lights ...]
+       [--key "bodystudio/garment/lighting.py (b089271 functions)"]
 """
 
 from __future__ import annotations
@@ -135,9 +136,12 @@ def _to_run(work: Path, module: str, functions: list[str] | None, resuming: bool
     globs = mutant_globs(module, functions)
     if not (globs and resuming):
         return globs
-    codes: dict = {}
-    for meta in (work / "mutants").rglob("*.meta"):
-        codes.update(json.loads(meta.read_text()).get("exit_code_by_key", {}))
+    meta = work / "mutants" / (module + ".meta")
+    if not meta.is_file():
+        # the kept tree has no mutants of the module yet (the box ended while mutmut was generating them): the
+        # functions' globs, so mutmut generates the mutants and runs them all
+        return globs
+    codes = json.loads(meta.read_text()).get("exit_code_by_key", {})
     return sorted(n for n, c in codes.items() if c is None and in_functions(n, globs))
 
 
@@ -221,6 +225,11 @@ def run_module(module: str, timeout_s: int, jobs: int, keep: bool, ref: str | No
         total = sum(counts.values()) - counts.get("skipped", 0)
         if proc.returncode not in (0, 124, 137) or not status:
             print(proc.stdout[-2000:], proc.stderr[-4000:], sep="\n", file=sys.stderr)
+        if not total:
+            return {"module": module, "tests": tests, "wall_s": round(wall, 1),
+                    "error": f"no mutant of {module}{' (' + ' '.join(functions) + ')' if functions else ''} has a "
+                             f"result in {work}: mutmut generated or ran none (see its output above); rerun with "
+                             f"a longer --timeout"}
         out = {"module": module, "commit": commit, "tests": tests, "counts": counts, "killed": killed, "total": total,
                 "score": round(killed / total, 4) if total else None, "wall_s": round(wall, 1),
                 "timed_out": timed_out, "survivors": survivors}
@@ -347,6 +356,8 @@ def main(argv=None) -> int:
                     "the score is then a lower bound of the full selection's")
     ap.add_argument("--functions", nargs="+", help="mutate only these functions of the (one) module (Class.method "
                     "for a method); the result is kept under 'MODULE (functions)' next to the module's own row")
+    ap.add_argument("--key", help="results.json key of this run (default: the module, or 'MODULE (functions)' with "
+                    "--functions, which earlier --functions runs of the module share and this run would replace)")
     ap.add_argument("--score-only", action="store_true", help="with --resume: score the kept tree as it is, "
                     "without running mutmut (after the direct recheck wrote its verdicts into the .meta files)")
     ap.add_argument("--resume", type=Path, help="go on in this kept scratch tree (one module): only mutants "
@@ -361,15 +372,21 @@ def main(argv=None) -> int:
         print(f"mutate: no such module(s): {' '.join(missing)}; list files under bodystudio/", file=sys.stderr)
         return 2
     results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-    if args.functions and len(args.modules) != 1:
-        print("mutate: --functions needs exactly one module", file=sys.stderr)
+    if (args.functions or args.key) and len(args.modules) != 1:
+        print(f"mutate: {'--functions' if args.functions else '--key'} needs exactly one module", file=sys.stderr)
         return 2
+    status = 0
     for module in args.modules:
         r = run_module(module, args.timeout, args.jobs, args.keep, args.ref, args.resume, args.tests, args.functions,
                        args.score_only and args.resume is not None)
-        key = f"{module} (functions)" if args.functions else module
+        key = args.key or (f"{module} (functions)" if args.functions else module)
         # re-read: another run (another module) may have written its result meanwhile
         results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+        if r.get("error") and key in results and not results[key].get("error"):
+            # a run that measured nothing never replaces a measured entry (its score and history)
+            print(f"   {r['error']}; results.json keeps its entry for {key}", file=sys.stderr)
+            status = 1
+            continue
         if args.resume is not None and r.get("wall_s") is not None:  # the wall time of both boxes
             r["wall_s"] += results.get(key, {}).get("wall_s", 0.0)
         if r.get("score") is not None:
@@ -382,11 +399,12 @@ def main(argv=None) -> int:
         results[key] = r
         write_report(results)
         if r.get("error"):
-            print(f"   {r['error']}")
+            print(f"   {r['error']}", file=sys.stderr)
+            status = 1
         else:
             print(f"   score {r['score']:.1%} ({r['killed']} / {r['total']}), {r['counts']}, {r['wall_s']:.0f} s",
                   flush=True)
-    return 0
+    return status
 
 
 if __name__ == "__main__":

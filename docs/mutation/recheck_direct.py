@@ -96,7 +96,7 @@ def cases(fn):
     for combo in itertools.product(*[[(m.args[0], v) for v in m.args[1]] for m in marks]):
         params = {}
         for argnames, value in combo:
-            keys = [a.strip() for a in argnames.split(",")]
+            keys = list(argnames) if isinstance(argnames, (tuple, list)) else [a.strip() for a in argnames.split(",")]
             vals = value if len(keys) > 1 else (value,)
             params.update(dict(zip(keys, vals, strict=True)))
         out.append(params)
