@@ -269,6 +269,123 @@ def vertex_segments(bone_idx, D):
     return ptr, seg[:m]
 
 
+@numba.njit(cache=True)
+def quaternion_rotation_matrices(rotvecs):
+    """Rotation matrices of rotation vectors by the unit quaternion ``(sin(a/2) w/a, cos(a/2))`` (Rodrigues'
+    formula in quaternion form, scipy's ``Rotation.from_rotvec(w).as_matrix()`` compiled: the same formulas and
+    small-angle series; issue 15's frame time, rec15j)."""
+    n = rotvecs.shape[0]
+    out = np.empty((n, 3, 3))
+    for i in range(n):
+        wx, wy, wz = rotvecs[i, 0], rotvecs[i, 1], rotvecs[i, 2]
+        angle = np.sqrt(wx * wx + wy * wy + wz * wz)
+        if angle <= 1e-3:
+            a2 = angle * angle
+            scale = 0.5 - a2 / 48.0 + a2 * a2 / 3840.0
+        else:
+            scale = np.sin(angle / 2.0) / angle
+        x, y, z, w = scale * wx, scale * wy, scale * wz, np.cos(angle / 2.0)
+        x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+        xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+        out[i, 0, 0], out[i, 0, 1], out[i, 0, 2] = x2 - y2 - z2 + w2, 2.0 * (xy - zw), 2.0 * (xz + yw)
+        out[i, 1, 0], out[i, 1, 1], out[i, 1, 2] = 2.0 * (xy + zw), -x2 + y2 - z2 + w2, 2.0 * (yz - xw)
+        out[i, 2, 0], out[i, 2, 1], out[i, 2, 2] = 2.0 * (xz - yw), 2.0 * (yz + xw), -x2 - y2 + z2 + w2
+    return out
+
+
+@numba.njit(cache=True)
+def rotation_vector_of_matrix(m):
+    """Rotation vector of a rotation matrix: Markley's quaternion (the largest of the trace and the diagonal
+    picks the stable formula) and its log ``2 atan2(|q_xyz|, q_w) q_xyz / |q_xyz|``, scipy's
+    ``Rotation.from_matrix(m).as_rotvec()`` compiled without its re-orthogonalisation (the matrices here are
+    products of rotations; issue 15's frame time, rec15j)."""
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    q = np.empty(4)
+    choice, best = 0, m[0, 0]  # the first largest of (m00, m11, m22, trace), as argmax picks it
+    for d in (1, 2):
+        if m[d, d] > best:
+            choice, best = d, m[d, d]
+    if tr > best:
+        choice = 3
+    if choice == 3:
+        q[0], q[1], q[2], q[3] = m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1], 1.0 + tr
+    else:
+        i = choice
+        j = (i + 1) % 3
+        k = (j + 1) % 3
+        q[i] = 1.0 - tr + 2.0 * m[i, i]
+        q[j] = m[j, i] + m[i, j]
+        q[k] = m[k, i] + m[i, k]
+        q[3] = m[k, j] - m[j, k]
+    qn = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[3] < 0.0:
+        qn = -qn
+    x, y, z, w = q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn
+    angle = 2.0 * np.arctan2(np.sqrt(x * x + y * y + z * z), w)
+    if angle <= 1e-3:
+        a2 = angle * angle
+        scale = 2.0 + a2 / 12.0 + 7.0 * a2 * a2 / 2880.0
+    else:
+        scale = angle / np.sin(angle / 2.0)
+    return scale * x, scale * y, scale * z
+
+
+@numba.njit(cache=True)
+def rotation_vectors_of_matrices(matrices):
+    """:func:`rotation_vector_of_matrix` of each of ``(n, 3, 3)`` matrices, ``(n, 3)``."""
+    out = np.empty((matrices.shape[0], 3))
+    for i in range(matrices.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = rotation_vector_of_matrix(matrices[i])
+    return out
+
+
+@numba.njit(cache=True)
+def segment_prior_gradient(Q, fitted_parent, prior_segments, prior_weight, g):
+    """Adds the prior's gradient ``prior_weight Q_p log(Q_p^T Q_j)`` of each segment with a refined parent to
+    ``g`` (the rotation block of segment j at ``3 + 3 j``), compiled (issue 15's frame time, rec15j)."""
+    rel = np.empty((3, 3))
+    for j in prior_segments:
+        p = max(fitted_parent[j], 0)
+        for a in range(3):
+            for b in range(3):
+                rel[a, b] = Q[p, 0, a] * Q[j, 0, b] + Q[p, 1, a] * Q[j, 1, b] + Q[p, 2, a] * Q[j, 2, b]
+        rx, ry, rz = rotation_vector_of_matrix(rel)
+        for a in range(3):
+            g[3 + 3 * j + a] += prior_weight * (Q[p, a, 0] * rx + Q[p, a, 1] * ry + Q[p, a, 2] * rz)
+
+
+@numba.njit(cache=True)
+def rotate_segments(T, Q, dw, heads, order, sub_ptr, sub_idx, child_ptr, child_idx):
+    """Each refined segment ``j`` (leaves first) and its subtree rotated by ``exp(dw_j)`` about its head: ``T_b <-
+    [R_j, h_j - R_j h_j] T_b`` for the bones ``b`` of its subtree, ``Q_c <- R_j Q_c`` for its refined descendants
+    (the Gauss-Newton update of :func:`refine_bone_transforms`), compiled (issue 15's frame time, rec15j)."""
+    R = quaternion_rotation_matrices(dw)
+    tmp = np.empty((4, 4))
+    tq = np.empty((3, 3))
+    for j in order:
+        Rj = R[j]
+        off = np.empty(3)
+        for a in range(3):
+            off[a] = heads[j, a] - (Rj[a, 0] * heads[j, 0] + Rj[a, 1] * heads[j, 1] + Rj[a, 2] * heads[j, 2])
+        for s in range(sub_ptr[j], sub_ptr[j + 1]):
+            b = sub_idx[s]
+            for a in range(3):
+                for c in range(4):
+                    tmp[a, c] = (Rj[a, 0] * T[b, 0, c] + Rj[a, 1] * T[b, 1, c] + Rj[a, 2] * T[b, 2, c]
+                                 + off[a] * T[b, 3, c])
+            for a in range(3):
+                for c in range(4):
+                    T[b, a, c] = tmp[a, c]
+        for s in range(child_ptr[j], child_ptr[j + 1]):
+            ci = child_idx[s]
+            for a in range(3):
+                for c in range(3):
+                    tq[a, c] = Rj[a, 0] * Q[ci, 0, c] + Rj[a, 1] * Q[ci, 1, c] + Rj[a, 2] * Q[ci, 2, c]
+            for a in range(3):
+                for c in range(3):
+                    Q[ci, a, c] = tq[a, c]
+
+
 _SEGMENT_CACHE: dict = {}
 
 
@@ -608,6 +725,10 @@ class PoseRefineParams:
     min_decrease: float = 0.0
     pelvis_weight: float = 0.0
     pelvis_bones: tuple[str, ...] = PELVIS_BONES
+    #: The rotation bookkeeping of each iteration (the prior's relative rotations, the segments' update) in
+    #: compiled code instead of scipy's ``Rotation`` and numpy's 4x4 products (issue 15's frame time, rec15j): the
+    #: same formulas, not the same rounding (BLAS's products, scipy's re-orthogonalisation), so not bit-equal.
+    compiled_rotations: bool = False
 
 
 def refine_bone_transforms(body, transforms: np.ndarray, hull: VisualHull | None,
@@ -689,36 +810,66 @@ def hull_data_term(hull: VisualHull, params: PoseRefineParams):
     return term
 
 
-def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefineParams, anchors=None) -> np.ndarray:
-    skel = body.skeleton
-    missing = [b for b in params.bones if b not in skel.bone_names]
-    if missing:
-        raise InputError(f"pose refinement: the template has no bone(s) {', '.join(missing)}")
-    bones = np.array([skel.index(b) for b in params.bones])
+_FIT_SEGMENTS_CACHE: dict = {}
+
+
+def _fit_segments_cached(skel, bone_names: tuple[str, ...]):
+    """The refinement's segment bookkeeping of ``bone_names`` on ``skel``, made once per skeleton (rec15j: 0.3 ms a
+    fit, one a tracked frame): the bone ids, the subtree matrix ``D``, each segment's nearest refined ancestor
+    (-1: the root segment), the update order (leaves first, so each rotation is about its head before an
+    ancestor's rotation moves it), each segment's subtree bones and refined descendants (as lists and flattened for
+    :func:`rotate_segments`), and the prior's segments and diagonal. Read only."""
+    key = (id(skel), bone_names)
+    hit = _FIT_SEGMENTS_CACHE.get(key)
+    if hit is not None and hit[0] is skel:
+        return hit[1]
+    bones = np.array([skel.index(b) for b in bone_names])
     D = _subtree_matrix(skel, bones)
-    bone_idx, bone_w = _sparse_weights(body.weights)
-    bone_idx = np.ascontiguousarray(bone_idx, dtype=np.int64)
-    bone_w = np.ascontiguousarray(bone_w, dtype=np.float64)
     nJ = len(bones)
-    # nearest refined ancestor of each refined segment (-1: the root segment)
     fitted_parent = []
     for j, b in enumerate(bones):
         anc = [i for i in range(nJ) if i != j and D[b, i]]
         fitted_parent.append(min(anc, key=lambda i: D[:, i].sum()) if anc else -1)
     fitted_parent = np.array(fitted_parent)
-    # leaves first, so each rotation is about its head before an ancestor's rotation moves it
     order = sorted(range(nJ), key=lambda j: -D[bones[j]].sum())
+    is_child = D[bones] > 0  # is_child[i, j]: segment i lies in segment j's subtree
+    # index lists fixed for the fit (the boolean masks they replace select the same rows in the same order)
+    subtree_bones = [np.flatnonzero(D[:, j] > 0) for j in range(nJ)]
+    child_segments = [np.flatnonzero(is_child[:, j]) for j in range(nJ)]
+    order_arr = np.array(order, dtype=np.int64)
+    sub_ptr = np.cumsum([0] + [len(x) for x in subtree_bones]).astype(np.int64)
+    sub_idx = np.concatenate(subtree_bones).astype(np.int64)
+    child_ptr = np.cumsum([0] + [len(x) for x in child_segments]).astype(np.int64)
+    child_idx = np.concatenate(child_segments).astype(np.int64)
+    prior_segments = np.flatnonzero(fitted_parent >= 0)
+    prior_diag = (3 + 3 * prior_segments[:, None] + np.arange(3)).ravel()
+    out = (bones, D, fitted_parent, order, subtree_bones, child_segments, order_arr, sub_ptr, sub_idx, child_ptr,
+           child_idx, prior_segments, prior_diag)
+    for a in out:
+        if isinstance(a, np.ndarray):
+            a.flags.writeable = False
+    if len(_FIT_SEGMENTS_CACHE) >= 8:
+        _FIT_SEGMENTS_CACHE.clear()
+    _FIT_SEGMENTS_CACHE[key] = (skel, out)
+    return out
+
+
+def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefineParams, anchors=None) -> np.ndarray:
+    skel = body.skeleton
+    missing = [b for b in params.bones if b not in skel.bone_names]
+    if missing:
+        raise InputError(f"pose refinement: the template has no bone(s) {', '.join(missing)}")
+    (bones, D, fitted_parent, order, subtree_bones, child_segments, order_arr, sub_ptr, sub_idx, child_ptr,
+     child_idx, prior_segments, prior_diag) = _fit_segments_cached(skel, tuple(params.bones))
+    bone_idx, bone_w = _sparse_weights(body.weights)
+    bone_idx = np.ascontiguousarray(bone_idx, dtype=np.int64)
+    bone_w = np.ascontiguousarray(bone_w, dtype=np.float64)
+    nJ = len(bones)
     seg_ptr, seg = _vertex_segments_cached(bone_idx, D)  # the segments each vertex follows (normal equations)
     Q = np.tile(np.eye(3), (nJ, 1, 1))  # accumulated world correction of each segment
     T = T.copy()
     n_par = 3 + 3 * nJ
     rest = np.ascontiguousarray(body.vertices, dtype=np.float64)
-    is_child = D[bones] > 0  # is_child[i, j]: segment i lies in segment j's subtree
-    # index lists fixed for the fit (the boolean masks they replace select the same rows in the same order)
-    subtree_bones = [np.flatnonzero(D[:, j] > 0) for j in range(nJ)]
-    child_segments = [np.flatnonzero(is_child[:, j]) for j in range(nJ)]
-    prior_segments = np.flatnonzero(fitted_parent >= 0)
-    prior_diag = (3 + 3 * prior_segments[:, None] + np.arange(3)).ravel()
     previous_energy = np.inf
     for _ in range(params.iterations):
         # weighted per-influence skinned positions C (n, K, 3); the lever arms about each segment's head
@@ -747,28 +898,34 @@ def _refine_bone_transforms(body, T: np.ndarray, data_term, params: PoseRefinePa
                 g += Ja.T @ (a_w * ((X - a_target) @ e))
         # prior on each segment's correction relative to its refined parent, Q_p^T Q_j; dw_j is segment
         # j's rotation on top of its ancestors', so only it changes that relative rotation
-        Qp = Q[np.maximum(fitted_parent, 0)]
-        rel = Rotation.from_matrix(Qp.transpose(0, 2, 1) @ Q).as_rotvec()
         # the prior's diagonal in one assignment (rec15i): adding prior_weight * I added 0.0 off the diagonal, which
         # changes no entry (H is accumulated from +0.0, so none is -0.0)
         H[prior_diag, prior_diag] += params.prior_weight
-        for j in prior_segments:
-            cj = slice(3 + 3 * j, 6 + 3 * j)
-            g[cj] += params.prior_weight * Qp[j] @ rel[j]
+        if params.compiled_rotations:
+            segment_prior_gradient(Q, fitted_parent, prior_segments, float(params.prior_weight), g)
+        else:
+            Qp = Q[np.maximum(fitted_parent, 0)]
+            rel = rotation_vectors_of_matrices(Qp.transpose(0, 2, 1) @ Q)
+            for j in prior_segments:
+                cj = slice(3 + 3 * j, 6 + 3 * j)
+                g[cj] += params.prior_weight * Qp[j] @ rel[j]
         H[np.diag_indices(n_par)] += params.damping * (np.diag(H).mean() + 1e-12)
         delta = -np.linalg.solve(H, g)
         dt, dw = delta[:3], delta[3:].reshape(nJ, 3)
         shrink = min(1.0, params.max_step_m / max(np.linalg.norm(dt), 1e-12),
                      params.max_step_rad / max(np.linalg.norm(dw, axis=1).max(), 1e-12))
         dt, dw = dt * shrink, dw * shrink
-        R = Rotation.from_rotvec(dw).as_matrix()
-        for j in order:
-            G = np.eye(4)
-            G[:3, :3] = R[j]
-            G[:3, 3] = heads[j] - R[j] @ heads[j]
-            sub = subtree_bones[j]
-            T[sub] = G @ T[sub]
-            Q[child_segments[j]] = R[j] @ Q[child_segments[j]]
+        if params.compiled_rotations:
+            rotate_segments(T, Q, np.ascontiguousarray(dw), heads, order_arr, sub_ptr, sub_idx, child_ptr, child_idx)
+        else:
+            R = quaternion_rotation_matrices(np.ascontiguousarray(dw))
+            for j in order:
+                G = np.eye(4)
+                G[:3, :3] = R[j]
+                G[:3, 3] = heads[j] - R[j] @ heads[j]
+                sub = subtree_bones[j]
+                T[sub] = G @ T[sub]
+                Q[child_segments[j]] = R[j] @ Q[child_segments[j]]
         T[:, :3, 3] += dt
         if np.linalg.norm(dt) < params.tolerance and np.abs(dw).max() < params.tolerance * 10:
             break

@@ -293,9 +293,12 @@ def _kept(sil: SilhouetteConstraints, keep: np.ndarray) -> SilhouetteConstraints
     o, d = sil.origin, sil.direction
     if keep.all():
         return sil
-    return SilhouetteConstraints(sil.vertex[keep], o[keep], d[keep], sil.k[keep],
-                                 None if sil.camera is None else sil.camera[keep],
-                                 None if sil.pixel_distance is None else sil.pixel_distance[keep])
+    # the kept rows' ids once and ``take`` (rec15j): six boolean selections counted the mask six times (a gate's
+    # ~12K constraints 0.37 -> 0.23 ms); the same rows in the same order
+    rows = np.flatnonzero(keep)
+    return SilhouetteConstraints(sil.vertex.take(rows), o.take(rows, axis=0), d.take(rows, axis=0), sil.k.take(rows),
+                                 None if sil.camera is None else sil.camera.take(rows),
+                                 None if sil.pixel_distance is None else sil.pixel_distance.take(rows))
 
 
 def hull_gate_reference(V: np.ndarray, sil: SilhouetteConstraints, fields, gate_m: float) -> np.ndarray:

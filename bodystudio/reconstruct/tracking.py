@@ -78,6 +78,8 @@ class TrackParams:
     :class:`SilhouetteFields` by the exact distance transform (default False: the 5x5 chamfer one, ~2x
     faster). Both measured in docs/reconstruct.md (rec15e);
     ``TrackParams(matching=MatchSchedule(), exact_fields=True)`` is the tracker before them.
+    ``compiled_rotations``: the tracking fit's rotation bookkeeping compiled
+    (:attr:`bodystudio.reconstruct.articulated_fit.PoseRefineParams.compiled_rotations`; rec15j).
     """
 
     joint_jump_m: float = 0.25
@@ -97,6 +99,7 @@ class TrackParams:
     outer_iterations: int = 3
     matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True, gate="reuse")
     exact_fields: bool = False
+    compiled_rotations: bool = False
 
     def __post_init__(self):
         for name, value, lo, hi in (("joint_jump_m", self.joint_jump_m, 1e-3, 10.0),
@@ -717,7 +720,8 @@ def track_bone_transforms(body, previous: np.ndarray, fields: SilhouetteFields,
     """
     params = params or TrackParams()
     refine = PoseRefineParams(iterations=params.iterations, prior_weight=params.prior_weight,
-                              robust_m=params.robust_m, min_decrease=params.min_decrease)
+                              robust_m=params.robust_m, min_decrease=params.min_decrease,
+                              compiled_rotations=params.compiled_rotations)
     anchors = None
     if joint_transforms is not None and params.joint_weight > 0:
         anchors = (*joint_anchors(body, joint_transforms, params.joint_bones), params.joint_weight)

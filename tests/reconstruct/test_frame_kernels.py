@@ -239,3 +239,22 @@ def test_sparse_skin_weights_keep_every_non_zero():
     got = blend_skin(np.ascontiguousarray(T[:, :3, :]), np.ascontiguousarray(idx), np.ascontiguousarray(w), V,
                      np.empty((0, 3)))[0]
     np.testing.assert_allclose(got, linear_blend_skinning(V, W, T), atol=1e-12)
+
+
+def test_kept_constraints_are_the_boolean_selection():
+    """``_kept`` (rec15j: the kept rows' ids once and ``take``) selects what boolean indexing selects, in order,
+    with and without the optional camera / pixel-distance columns; all kept returns the constraints themselves."""
+    from bodystudio.reconstruct.rapid_skin import _kept
+    from bodystudio.reconstruct.solver import SilhouetteConstraints
+
+    rng = np.random.default_rng(3)
+    m = 200
+    full = SilhouetteConstraints(rng.integers(0, 50, m), rng.normal(size=(m, 3)), rng.normal(size=(m, 3)),
+                                 rng.random(m), rng.integers(0, 4, m), rng.random(m))
+    keep = rng.random(m) > 0.3
+    for sil in (full, SilhouetteConstraints(full.vertex, full.origin, full.direction, full.k)):
+        out = _kept(sil, keep)
+        for name in ("vertex", "origin", "direction", "k", "camera", "pixel_distance"):
+            a, b = getattr(out, name), getattr(sil, name)
+            assert (a is None and b is None) or np.array_equal(a, b[keep])
+        assert _kept(sil, np.ones(m, bool)) is sil
