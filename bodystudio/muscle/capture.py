@@ -75,6 +75,7 @@ from bodystudio.muscle.refine import (
     fit_body_rest_shape_and_poses,
     fit_rest_shape_correction,
     fit_shape_parameters,
+    grazing_pairs,
     initial_arm_pose_from_joints,
     model_based_filtering,
     noise_weighted_tracker_weight,
@@ -175,6 +176,17 @@ class CaptureOptions:
     # +0.04-0.05 mm; bulge 1.58 / 1.13 / 0.57 / 0.72 -> 1.69 / 1.23 / 0.49 / 0.77 mm.
     refine_unseen_hold: float = 1.0
     refine_unseen_band_m: float = 0.02
+    # Sec. 7 pairs dropped where the model vertex's normal meets the sensor's ray at |cos| below this (the rim of the
+    # seen side, ``refine.grazing_pairs``). 0: off.
+    refine_min_facing_cos: float = 0.0
+    # The Sec. 7 refinement's own depth clean-up: the median filter's aperture (1: off, 3 or 5) and the Gaussian's
+    # sigma (px, 0: off) of the clouds its correspondences are made with (``refinement_depth_options``); None: the
+    # pipeline's ``depth`` (median 5, Gaussian 1). Smoothing a depth map of a convex arm moves its samples behind the
+    # skin (measured on 501: the seen side's targets -0.54 mm along the true normal with median 5 + Gaussian 1,
+    # -0.15 with median 3 alone); the refinement averages its pairs over three frames (Eq. 13-14) and its detail over
+    # five, so it needs less of the filters' noise removal than the per-frame fits do.
+    refine_depth_median_px: int | None = None
+    refine_depth_gaussian_sigma_px: float | None = None
     detail_sigma_frames: float = 1.5  # refinement detail averaged over +-2 frames (0: off)
     joint_radius_m: float = 0.06  # Sec. 7.2 closeness-to-joint factor
     joint_gain: float = 1.0
@@ -330,6 +342,12 @@ class CaptureOptions:
             raise InputError(f"capture mode {self.mode!r} is not one of {', '.join(MODES)}")
         if not 0 < self.norm_limit <= 1:
             raise InputError(f"norm_limit must be in (0, 1], got {self.norm_limit}")
+        if self.refine_depth_median_px not in (None, 1, 3, 5):
+            raise InputError(f"refine_depth_median_px must be 1 (off), 3 or 5, got {self.refine_depth_median_px}")
+        if self.refine_depth_gaussian_sigma_px is not None and not self.refine_depth_gaussian_sigma_px >= 0:
+            raise InputError(f"refine_depth_gaussian_sigma_px must be >= 0, got {self.refine_depth_gaussian_sigma_px}")
+        if not 0 <= self.refine_min_facing_cos < 1:
+            raise InputError(f"refine_min_facing_cos must be in [0, 1), got {self.refine_min_facing_cos}")
         if not (self.refine_unseen_hold >= 0 and self.refine_unseen_band_m >= 0):
             raise InputError(f"refine_unseen_hold and refine_unseen_band_m must be >= 0, got "
                              f"{self.refine_unseen_hold} and {self.refine_unseen_band_m}")
@@ -581,7 +599,18 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     elif o.mode == "model":
         out_t = model_meshes
     else:
-        out_t = _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, J, o, timer,
+        refine_clouds, refine_trees = clouds_t, trees
+        refine_depth = refinement_depth_options(o)
+        if refine_depth != o.depth:
+            t0 = time.perf_counter()
+            refine_clouds = []
+            for k, d in enumerate(depths):
+                P, N = depth_point_cloud(clean_depth(d, refine_depth, source=f"depth frame {ids[k]}"), camera,
+                                         source=f"depth frame {ids[k]}")
+                refine_clouds.append((apply_similarity(Sinv, P), N @ S[1]))
+            refine_trees = [cKDTree(P) for P, _ in refine_clouds]
+            timer.add("depth", t0)
+        out_t = _refinement(model_meshes, poses, refine_clouds, refine_trees, F, C, arm, adjacency, J, o, timer,
                             camera=camera, similarity=S)
     out = np.stack([apply_similarity(S, X) for X in out_t])
     stages = {"nicp": np.stack([apply_similarity(S, X) for X in nicp_meshes])}
@@ -592,6 +621,14 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     return ArmCapture(out, F, poses, shape, S, o.mode, template.key, timer.ms, ids, stages=stages,
                       joints=None if model is None else np.asarray(J, np.float64),
                       regressed_joints=None if model is None else np.asarray(model_joints(model, shape), np.float64))
+
+
+def refinement_depth_options(o: CaptureOptions) -> DepthCleanupOptions:
+    """The Sec. 4 clean-up of the depth the Sec. 7 refinement pairs with: ``o.depth`` with the refinement's own median
+    aperture and Gaussian sigma where they are set."""
+    changes = {k: v for k, v in (("median_px", o.refine_depth_median_px),
+                                 ("gaussian_sigma_px", o.refine_depth_gaussian_sigma_px)) if v is not None}
+    return replace(o.depth, **changes) if changes else o.depth
 
 
 def sequence_tracker_weight(o: CaptureOptions, model, poses: list[ArmPose], frames_t: list[DepthFrame],
@@ -687,6 +724,8 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
         if o.refine_visible_only and camera is not None:
             visible = model_visible_vertices(apply_similarity(similarity, M), F, camera)
             pairs.kept &= visible
+        if o.refine_min_facing_cos > 0:
+            pairs.kept &= ~grazing_pairs(M, Nv, C, o.refine_min_facing_cos)
         # Along the depth point's normal only (point-to-plane, as in NICP): the rest is sliding.
         vecs.append(np.where(pairs.kept[:, None], plane_targets(M, pairs) - M, 0.0))
         valid.append(pairs.kept)
