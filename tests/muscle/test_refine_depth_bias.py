@@ -1,5 +1,6 @@
 """The Sec. 7 refinement's own depth clean-up and its rim filter (`refine_depth_median_px`,
-`refine_depth_gaussian_sigma_px`, `refine_min_facing_cos`; docs/muscle.md "Capture, fourteenth pass").
+`refine_depth_gaussian_sigma_px`, `refine_min_facing_cos`: the capture's defaults since docs/muscle.md "Capture,
+fourteenth pass"; ``PIPELINE`` below is the refinement before it).
 
 A planted case: a tube of 4 cm radius (an arm's cross-section) 1 m in front of a Kinect v2, its noise-free depth
 rendered from a fine mesh. The Sec. 4 clean-up's Gaussian moves the samples of the convex surface behind the skin
@@ -24,6 +25,7 @@ from bodystudio.muscle.refine import grazing_pairs
 CENTRE = np.array([0.0, 1.0, 0.0])
 RADIUS = 0.04
 UNFILTERED = {"refine_depth_median_px": 1, "refine_depth_gaussian_sigma_px": 0.0}
+PIPELINE = {"refine_depth_median_px": None, "refine_depth_gaussian_sigma_px": None, "refine_min_facing_cos": 0.0}
 
 
 def tube(radius=RADIUS, length=0.3, n_around=32, n_along=31):
@@ -67,22 +69,26 @@ def _radial_bias_mm(P, camera, min_cos=0.75):
 
 def test_the_pipelines_smoothing_moves_the_convex_surface_behind_the_skin_and_the_refinements_does_not(scene):
     camera, _ = scene
-    pipeline = _radial_bias_mm(_cloud(scene, cm.CaptureOptions())[0], camera)
+    pipeline = _radial_bias_mm(_cloud(scene, cm.CaptureOptions(**PIPELINE))[0], camera)
     own = _radial_bias_mm(_cloud(scene, cm.CaptureOptions(**UNFILTERED))[0], camera)
+    default = _radial_bias_mm(_cloud(scene, cm.CaptureOptions())[0], camera)
     median3 = _radial_bias_mm(_cloud(scene, cm.CaptureOptions(refine_depth_median_px=3,
                                                               refine_depth_gaussian_sigma_px=0.0))[0], camera)
     assert pipeline < -0.08  # measured -0.128 mm
     assert abs(own) < 0.02 and abs(median3) < 0.02  # measured -0.002 mm both
+    assert abs(default) < 0.5 * abs(pipeline)  # the capture's default (median off, Gaussian 0.5 px)
 
 
 def test_the_refinement_options_change_only_the_filters_they_name():
-    base = cm.CaptureOptions()
+    base = cm.CaptureOptions(**PIPELINE)
     assert cm.refinement_depth_options(base) is base.depth
-    o = cm.refinement_depth_options(cm.CaptureOptions(refine_depth_median_px=3))
+    o = cm.refinement_depth_options(cm.CaptureOptions(**{**PIPELINE, "refine_depth_median_px": 3}))
     assert (o.median_px, o.gaussian_sigma_px, o.thinning_px) == (3, base.depth.gaussian_sigma_px,
                                                                  base.depth.thinning_px)
-    o = cm.refinement_depth_options(cm.CaptureOptions(refine_depth_gaussian_sigma_px=0.0))
+    o = cm.refinement_depth_options(cm.CaptureOptions(**{**PIPELINE, "refine_depth_gaussian_sigma_px": 0.0}))
     assert (o.median_px, o.gaussian_sigma_px) == (base.depth.median_px, 0.0)
+    o = cm.refinement_depth_options(cm.CaptureOptions())
+    assert (o.median_px, o.gaussian_sigma_px, o.thinning_px) == (1, 0.5, base.depth.thinning_px)
 
 
 def _refined(scene, options):
@@ -104,8 +110,8 @@ def _refined(scene, options):
 
 
 def test_the_refinement_with_its_own_clean_up_keeps_a_right_model_on_the_skin(scene):
-    sunk = _refined(scene, {})
-    kept = _refined(scene, UNFILTERED)
+    sunk = _refined(scene, PIPELINE)
+    kept = _refined(scene, {**UNFILTERED, "refine_min_facing_cos": 0.0})
     assert sunk < -0.08  # the pipeline's depth pulls the seen side in (measured -0.116 mm)
     assert abs(kept) < 0.03  # measured +0.009 mm
 
@@ -128,11 +134,14 @@ def test_the_refinement_drops_the_rim_pairs_only_when_asked(scene, monkeypatch):
         return real(vectors, valid, sigma)
 
     monkeypatch.setattr(cm, "time_consistent_correspondences", spy)
-    _refined(scene, {})
+    _refined(scene, {"refine_min_facing_cos": 0.0})
     everything = seen[0]
     seen.clear()
     _refined(scene, {"refine_min_facing_cos": 0.8})
     assert 0 < seen[0] < everything
+    seen.clear()
+    _refined(scene, {})
+    assert seen[0] < everything  # on by default
 
 
 @pytest.mark.parametrize("field, value", [("refine_depth_median_px", 4), ("refine_depth_median_px", 0),
@@ -192,12 +201,15 @@ def test_the_capture_pairs_its_refinement_with_the_refinements_own_clean_up(arm_
     own = [depth_point_cloud(clean_depth(d, cm.refinement_depth_options(cm.CaptureOptions(**UNFILTERED))), camera)[0]
            for d in depths]
     pipeline = [depth_point_cloud(clean_depth(d, cm.CaptureOptions().depth), camera)[0] for d in depths]
+    by_default = [depth_point_cloud(clean_depth(d, cm.refinement_depth_options(cm.CaptureOptions())), camera)[0]
+                  for d in depths]
     assert len(handed) == 3
     for got, want, other in zip(handed, own, pipeline, strict=True):
         assert got.shape == want.shape
         np.testing.assert_allclose(got, want, atol=1e-9)
         assert got.shape != other.shape or np.abs(got - other).max() > 1e-4
-    default = _capture_clouds(arm_scene, monkeypatch)
-    for got, want in zip(default, pipeline, strict=True):
+    for got, want in zip(_capture_clouds(arm_scene, monkeypatch), by_default, strict=True):
+        np.testing.assert_allclose(got, want, atol=1e-9)
+    for got, want in zip(_capture_clouds(arm_scene, monkeypatch, **PIPELINE), pipeline, strict=True):
         np.testing.assert_allclose(got, want, atol=1e-9)
     assert _capture_clouds(arm_scene, monkeypatch, mode="model", **UNFILTERED) is None
