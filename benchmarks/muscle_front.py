@@ -3,7 +3,8 @@
 ``--step cache``: the whole capture of a session at ``CaptureOptions()`` (measured shape, as the benchmark runs it),
 with the inputs of its Sec. 7 refinement (``capture._refinement``: the model meshes, poses, depth clouds in the
 template's space, rest joints, the Sec. 5.1 similarity) saved to ``W/front_SUBJECT_state.pkl`` and the end-to-end
-scores to ``W/front_SUBJECT_default.json``. ``--step variants``: the refinement alone re-run on that state per variant
+scores to ``W/front_SUBJECT_state.json`` (``--noise-seed N``: the session ``W/seq_SUBJECT_sN_200``, files
+``front_SUBJECT_sN_state.*``). ``--step variants``: the refinement alone re-run on that state per variant
 (``NAME:KEY=VALUE,...`` over ``CaptureOptions()``), scored against the truth, with ``--diagnose`` the front side's
 error split into its part along the true surface's normal and its tangential part (sliding, which no depth pair can
 see), the share of front vertices with a Sec. 7 pair, and the pairs' residuals against the true surface.
@@ -25,23 +26,47 @@ from pathlib import Path
 import numpy as np
 
 
-def state_path(work: Path, subject_seed: int) -> Path:
-    return work / f"front_{subject_seed}_state.pkl"
+def state_path(work: Path, subject_seed: int, noise_seed: int = 0) -> Path:
+    tag = f"{subject_seed}" if noise_seed == 0 else f"{subject_seed}_s{noise_seed}"
+    return work / f"front_{tag}_state.pkl"
 
 
-def step_cache(work: Path, subject_seed: int, n_frames: int = 200) -> dict:
+def ground_truth(work: Path, subject_seed: int, noise_seed: int, n_frames: int) -> dict:
+    """``muscle_owners.ground_truth`` of the session with ``noise_seed`` (its motion differs from seed 0's)."""
+    from benchmarks import muscle_owners as mo
+
+    if noise_seed == 0:
+        return mo.ground_truth(work, subject_seed, n_frames)
+    from benchmarks import bench_muscle as bm
+    from benchmarks.muscle_sequences import session_of
+    from bodystudio.muscle.arm import ArmPose
+    from bodystudio.muscle.evaluate import session_ground_truth
+    from bodystudio.muscle.refine import elbow_axes
+
+    subject, session = session_of(work, subject_seed, noise_seed, n_frames)
+    truth = bm.truth_template(subject)
+    ids = list(session.frame_ids)
+    G, vis, gtJ = session_ground_truth(session, truth, ids)
+    poses = [ArmPose.from_dict(session.frame(i).gt_arm_pose) for i in ids]
+    h, _ = elbow_axes(truth.joints)
+    flex = np.array([np.degrees(abs(p.angles[1] @ h)) for p in poses])
+    return {"G": G, "vis": vis, "gtJ": gtJ, "poses": poses, "template": truth, "flexion_deg": flex,
+            "camera": session.kinect.depth, "subject": subject}
+
+
+def step_cache(work: Path, subject_seed: int, n_frames: int = 200, noise_seed: int = 0) -> dict:
     """Capture the session end to end at ``CaptureOptions()`` and keep the refinement's inputs."""
     from benchmarks import bench_muscle as bm
     from benchmarks.muscle_energy import work_model
     from benchmarks.muscle_sequences import session_of
     from bodystudio.muscle import capture as cm
 
-    out = work / f"front_{subject_seed}_default.json"
-    if out.is_file() and state_path(work, subject_seed).is_file():
+    out = state_path(work, subject_seed, noise_seed).with_suffix(".json")
+    if out.is_file() and state_path(work, subject_seed, noise_seed).is_file():
         return json.loads(out.read_text())
     template = bm._template()
     model = work_model(work, template)
-    subject, session = session_of(work, subject_seed, 0, n_frames)
+    subject, session = session_of(work, subject_seed, noise_seed, n_frames)
     real = cm._refinement
     kept = {}
 
@@ -59,25 +84,24 @@ def step_cache(work: Path, subject_seed: int, n_frames: int = 200) -> dict:
         cm._refinement = real
     kept["frame_ids"] = list(capture.frame_ids)
     kept["timings_ms"] = capture.timings_ms
-    with open(state_path(work, subject_seed), "wb") as fh:
+    with open(state_path(work, subject_seed, noise_seed), "wb") as fh:
         pickle.dump(kept, fh, protocol=pickle.HIGHEST_PROTOCOL)
     out.write_text(json.dumps(scores))
     return scores
 
 
-def load_state(work: Path, subject_seed: int) -> dict:
+def load_state(work: Path, subject_seed: int, noise_seed: int = 0) -> dict:
     """The cached refinement inputs of a session (``step_cache``) with the truth (world) and the depth trees."""
     from scipy.spatial import cKDTree
 
-    from benchmarks import muscle_owners as mo
     from bodystudio.muscle.nicp import vertex_neighbourhoods
 
-    with open(state_path(work, subject_seed), "rb") as fh:
+    with open(state_path(work, subject_seed, noise_seed), "rb") as fh:
         p = pickle.load(fh)
     p["trees"] = [cKDTree(P) for P, _ in p["clouds_t"]]
     p["adjacency"] = vertex_neighbourhoods(p["F"], len(p["model_meshes"][0]), rings=2)
-    p["truth"] = mo.ground_truth(work, subject_seed, len(p["model_meshes"]))
-    p["work"], p["subject_seed"] = work, subject_seed
+    p["truth"] = ground_truth(work, subject_seed, noise_seed, len(p["model_meshes"]))
+    p["work"], p["subject_seed"], p["noise_seed"] = work, subject_seed, noise_seed
     return p
 
 
@@ -99,7 +123,7 @@ def refinement_clouds(p: dict, options) -> tuple[list, list]:
         for old in [k for k in p if isinstance(k, tuple) and k[0] == "clouds"]:
             del p[old]  # one option's clouds at a time (~0.4 GB per 200 frames)
         if "raw" not in p:
-            _, session = session_of(p["work"], p["subject_seed"], 0, len(p["model_meshes"]))
+            _, session = session_of(p["work"], p["subject_seed"], p["noise_seed"], len(p["model_meshes"]))
             p["raw"] = [session.frame(f).kinect_depth_m for f in p["frame_ids"]]
         Sinv = cm._inverse_similarity(p["similarity"])
         clouds = []
@@ -214,10 +238,10 @@ KEYS = ("median_mm", "p90_mm", "front_median_mm", "back_median_mm", "bulge_err_m
         "wrist_front")
 
 
-def step_variants(work: Path, subject_seed: int, variants: dict, diagnose: bool = False) -> dict:
+def step_variants(work: Path, subject_seed: int, variants: dict, diagnose: bool = False, noise_seed: int = 0) -> dict:
     from bodystudio.muscle import capture as cm
 
-    p = load_state(work, subject_seed)
+    p = load_state(work, subject_seed, noise_seed)
     Xm = to_world(p, p["model_meshes"])
     rows = {"model": score(p, Xm)}
     for name, kw in variants.items():
@@ -241,9 +265,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--session", type=int, action="append", required=True, help="subject seed (repeatable)")
     parser.add_argument("--step", choices=("cache", "variants"), default="cache")
     parser.add_argument("--frames", type=int, default=200)
+    parser.add_argument("--noise-seed", type=int, default=0)
     parser.add_argument("--variant", action="append", default=[], help="NAME or NAME:KEY=VALUE,... (repeatable)")
     parser.add_argument("--diagnose", action="store_true")
     args = parser.parse_args(argv)
+    if args.noise_seed < 0:
+        parser.error(f"--noise-seed {args.noise_seed}: needs a whole number >= 0")
     if args.step == "variants":
         from benchmarks.muscle_regions import parse_variant
         from bodystudio.errors import InputError
@@ -256,12 +283,13 @@ def main(argv: list[str] | None = None) -> None:
                 CaptureOptions(**kw)
         except (ValueError, SyntaxError, TypeError, InputError) as exc:
             parser.error(f"--variant: {exc}")
-        results = {s: step_variants(args.work, s, variants, args.diagnose) for s in args.session}
+        results = {s: step_variants(args.work, s, variants, args.diagnose, args.noise_seed) for s in args.session}
         (args.work / f"front_variants_{int(time.time())}.json").write_text(json.dumps(results))
         return
     for s in args.session:
         t0 = time.process_time()
-        print(s, step_cache(args.work, s, args.frames), f"{time.process_time() - t0:.0f} s CPU", flush=True)
+        print(s, step_cache(args.work, s, args.frames, args.noise_seed), f"{time.process_time() - t0:.0f} s CPU",
+              flush=True)
 
 
 if __name__ == "__main__":

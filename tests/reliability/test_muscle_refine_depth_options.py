@@ -39,3 +39,13 @@ def test_muscle_front_refuses_a_bad_variant_before_any_work(variant, tmp_path, c
     assert exc.value.code == 2
     assert "--variant" in capsys.readouterr().err
     assert not (tmp_path / "w").exists()
+
+
+def test_muscle_front_refuses_a_negative_noise_seed_before_any_work(tmp_path, capsys):
+    from benchmarks.muscle_front import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--work", str(tmp_path / "w"), "--session", "501", "--noise-seed", "-1"])
+    assert exc.value.code == 2
+    assert "--noise-seed" in capsys.readouterr().err
+    assert not (tmp_path / "w").exists()
