@@ -620,6 +620,12 @@ def parse_capture_options(items: list[str], error) -> dict:
             out[key] = ast.literal_eval(value)
         except (ValueError, SyntaxError):
             error(f"--capture-option {item!r}: {value!r} is not a Python literal (True, 100.0, (False, True, True))")
+    from bodystudio.errors import InputError
+
+    try:
+        CaptureOptions(**out)
+    except InputError as exc:
+        error(f"--capture-option: {exc}")
     return out
 
 

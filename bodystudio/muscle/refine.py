@@ -908,6 +908,14 @@ def correspondence_weights(vectors: np.ndarray, normals: np.ndarray, vertices: n
     return np.where(valid, agree * near, 0.0)
 
 
+def grazing_pairs(vertices: np.ndarray, normals: np.ndarray, sensor_center: np.ndarray, min_cos: float) -> np.ndarray:
+    """Vertices (n,) bool whose normal meets the sensor's ray at ``|cos| < min_cos``: the rim of the seen side, where
+    the depth's samples lie off the surface (the Kinect's grazing-angle mixtures and the border pixels' normals)."""
+    ray = np.asarray(vertices, np.float64) - np.asarray(sensor_center, np.float64)
+    cos = np.einsum("kd,kd->k", normals, ray) / np.maximum(np.linalg.norm(ray, axis=1), 1e-12)
+    return np.abs(cos) < min_cos
+
+
 def unseen_hold_weights(vertices: np.ndarray, seen: np.ndarray, hold_weight: float, band_m: float) -> np.ndarray:
     """Weight (n,) holding each vertex the sensor does not see to the model mesh in the last ARAP of Sec. 7.
 

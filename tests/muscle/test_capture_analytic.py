@@ -170,14 +170,19 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     c = capture_arm_frames(scene.depths, scene.camera, scene.template, scene.model, o,
                            tracker_joints=tracker, frame_ids=[4, 5, 6])
     # Sec. 4: each frame cleaned with the options, errors named after the frame id
-    assert [k.args[1] for k in spies["clean_depth"]] == [depth_o] * 3
-    assert [k.kwargs["source"] for k in spies["clean_depth"]] == ["depth frame 4", "depth frame 5", "depth frame 6"]
+    # (then the Sec. 7 refinement's own clean-up of the same frames: the options' with its median and Gaussian)
+    from dataclasses import replace
+
+    assert [k.args[1] for k in spies["clean_depth"]] == [depth_o] * 3 + [replace(
+        depth_o, median_px=o.refine_depth_median_px, gaussian_sigma_px=o.refine_depth_gaussian_sigma_px)] * 3
+    assert [k.kwargs["source"] for k in spies["clean_depth"]] == ["depth frame 4", "depth frame 5",
+                                                                  "depth frame 6"] * 2
     assert [k.kwargs["source"] for k in spies["depth_point_cloud"]] == ["depth frame 4", "depth frame 5",
-                                                                        "depth frame 6"]
-    for k, call in enumerate(spies["clean_depth"]):
-        assert call.args[0] is scene.depths[k]
-        assert spies["depth_point_cloud"][k].args[0] is call.out
-        assert spies["depth_point_cloud"][k].args[1] is scene.camera
+                                                                        "depth frame 6"] * 2
+    for i, call in enumerate(spies["clean_depth"]):
+        assert call.args[0] is scene.depths[i % 3]
+        assert spies["depth_point_cloud"][i].args[0] is call.out
+        assert spies["depth_point_cloud"][i].args[1] is scene.camera
     # Sec. 5.1: started at the tracker's shoulder, the first cloud, options passed
     (ra,) = spies["rigid_alignment_with_scale"]
     s0, R0, t0 = ra.kwargs["initial"]
@@ -406,11 +411,12 @@ def test_the_refinement_detail_is_averaged_over_five_frames(scene, monkeypatch, 
     assert [len(k.args[1]) for k in tcc] == [2, 3, 2]
 
 
-def depth_point_cloud_t(scene, Sinv, S):
-    """Frame 0's cleaned cloud in the template's space (points by the inverse similarity, normals rotated)."""
-    from bodystudio.muscle.depth import clean_depth, depth_point_cloud
+def depth_point_cloud_t(scene, Sinv, S, options=None):
+    """Frame 0's cleaned cloud in the template's space (points by the inverse similarity, normals rotated); with
+    ``options`` (DepthCleanupOptions) cleaned with them."""
+    from bodystudio.muscle.depth import DepthCleanupOptions, clean_depth, depth_point_cloud
 
-    P, N = depth_point_cloud(clean_depth(scene.depths[0]), scene.camera)
+    P, N = depth_point_cloud(clean_depth(scene.depths[0], options or DepthCleanupOptions()), scene.camera)
     return apply_similarity(Sinv, P), N @ S[1]
 
 
@@ -443,13 +449,18 @@ def test_one_frame_refinement_uses_only_that_frame(scene, monkeypatch):
     assert cw.args[2] is M
     np.testing.assert_allclose(cw.args[1], vertex_normals(M, F), atol=1e-12)
     Sinv = cap_mod._inverse_similarity(c.similarity)
-    P, N = depth_point_cloud_t(scene, Sinv, c.similarity)
+    # (the refinement's own clean-up of the depth, docs/muscle.md fourteenth capture pass)
+    P, N = depth_point_cloud_t(scene, Sinv, c.similarity, cap_mod.refinement_depth_options(o))
     pairs = nicp.closest_point_correspondences(M, P, N)
     C = apply_similarity(Sinv, scene.camera.center[None])[0]
     pairs = nicp.filter_correspondences(M, vertex_normals(M, F), pairs, C, scene.template.arm_mask,
                                         nicp.vertex_neighbourhoods(F, len(M), rings=2), o.nicp.filters)
     # and only vertices the model mesh itself does not hide from the sensor (refine_visible_only, the default)
     kept = pairs.kept & cap_mod.model_visible_vertices(apply_similarity(c.similarity, M), F, scene.camera)
+    # and not the rim seen edge-on (refine_min_facing_cos, the default)
+    from bodystudio.muscle.refine import grazing_pairs
+
+    kept &= ~grazing_pairs(M, vertex_normals(M, F), C, o.refine_min_facing_cos)
     np.testing.assert_array_equal(ok, kept)
     np.testing.assert_allclose(vec, np.where(kept[:, None], nicp.plane_targets(M, pairs) - M, 0.0), atol=1e-12)
     assert spies["refine_surface"][0].args[2] is tcc.out[0] and spies["refine_surface"][0].args[3] is cw.out
