@@ -555,9 +555,9 @@ def tracker_noise_sigma_m(tracker_joints: np.ndarray, floor_m: float = 0.001) ->
     White noise of standard deviation sigma has a second difference of variance 6 sigma^2; the arm's own motion at
     30 fps adds little to it (an elbow swinging 1 rad over a 3 s period: ~5 mrad per frame^2, ~1.5 mm at the wrist,
     against 11-13 mm of the Kinect v2's per-frame noise and bone-length jitter). No ground truth: the track itself."""
+    if len(tracker_joints) < 3:  # before the reshape: an empty track cannot be reshaped to (0, -1, 3)
+        raise InputError(f"the tracker's noise needs at least 3 frames of joints, got {len(tracker_joints)}")
     X = np.asarray(tracker_joints, np.float64).reshape(len(tracker_joints), -1, 3)
-    if len(X) < 3:
-        raise InputError(f"the tracker's noise needs at least 3 frames of joints, got {len(X)}")
     d2 = X[:-2] - 2.0 * X[1:-1] + X[2:]
     return max(float(np.sqrt(np.mean(d2 * d2) / 6.0)), floor_m)
 

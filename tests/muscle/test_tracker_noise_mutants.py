@@ -47,7 +47,7 @@ def test_white_noise_reads_as_its_own_sigma():
     assert rf.tracker_noise_sigma_m(X) == pytest.approx(0.012, rel=0.02)
 
 
-@pytest.mark.parametrize("frames", [1, 2])
+@pytest.mark.parametrize("frames", [0, 1, 2])  # 0: an empty track, refused before the reshape
 def test_the_trackers_noise_needs_three_frames(frames):
     with pytest.raises(InputError, match=rf"^the tracker's noise needs at least 3 frames of joints, got {frames}$"):
         rf.tracker_noise_sigma_m(np.zeros((frames, 3, 3)))
