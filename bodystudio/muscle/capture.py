@@ -309,6 +309,14 @@ class CaptureOptions:
     # 4-6 mm too long).
     body_rest_keep_best: bool = True
     body_rest_angle_damping: float = 1.0  # per angle coordinate times a 0.3 m lever, per Gauss-Newton step
+    # The grazing pairs left out of the rest-shape fit (``refine.grazing_pairs``: vertices whose normal makes less
+    # than this cosine with the direction to the sensor; 0: off). Near a limb's silhouette the cleaned depth stops
+    # short of the surface and a grazing vertex's pair plane lies outside the convex limb (501, the truth's own
+    # vertices at cos < 0.3: 4.6 mm behind their pairs' planes, mean), which pulls the fitted arm's sides outwards
+    # (docs/muscle.md, fourteenth pass, rest arm). ``sequence_min_facing_cos``: the same in the fits of the poses (the
+    # sequence fit and the last pose refit).
+    body_rest_min_facing_cos: float = 0.0
+    sequence_min_facing_cos: float = 0.0
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape
@@ -346,6 +354,9 @@ class CaptureOptions:
         if self.personal_rounds > 0 and self.body_rest_shape and self.body_rest_rounds > 0:
             raise InputError("personal_rounds and the body rest shape's rounds are two rest-shape fits and only one "
                              "runs; set body_rest_shape=False to use personal_rounds")
+        if not (0 <= self.body_rest_min_facing_cos < 1 and 0 <= self.sequence_min_facing_cos < 1):
+            raise InputError(f"body_rest_min_facing_cos and sequence_min_facing_cos must be in [0, 1), got "
+                             f"{self.body_rest_min_facing_cos} and {self.sequence_min_facing_cos}")
         if not self.sequence_pinned_se_m >= 0:
             raise InputError(f"sequence_pinned_se_m must be >= 0, got {self.sequence_pinned_se_m}")
 
@@ -566,8 +577,9 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     if model is not None and o.pose_refit:
         t0 = time.perf_counter()
         refit = dict(POSE_REFIT)
-        poses = refit_arm_poses_to_depth(model, poses, frames_t, base, J, o.norm_limit, o.sequence_huber_m,
-                                         tracker_t, refit.pop("tracker_weight"), **refit)
+        poses = refit_arm_poses_to_depth(model, poses, facing_frames(frames_t, o.sequence_min_facing_cos), base, J,
+                                         o.norm_limit, o.sequence_huber_m, tracker_t, refit.pop("tracker_weight"),
+                                         **refit)
         model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("pose_refit", t0)
     if model is not None and o.pose_sigma_frames > 0:
@@ -609,6 +621,11 @@ def sequence_tracker_weight(o: CaptureOptions, model, poses: list[ArmPose], fram
     return weight
 
 
+def facing_frames(frames: list[DepthFrame], min_facing_cos: float) -> list[DepthFrame]:
+    """The frames with their grazing pairs dropped (``refine.grazing_pairs``; 0: the frames as they are)."""
+    return frames if min_facing_cos <= 0 else [replace(f, min_facing_cos=min_facing_cos) for f in frames]
+
+
 def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], frames_t: list[DepthFrame],
                    tracker_t: np.ndarray | None, base: np.ndarray, J: np.ndarray, o: CaptureOptions,
                    known_shape=None) -> tuple[list[ArmPose], np.ndarray, np.ndarray]:
@@ -625,6 +642,8 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
         anchor = J[0].copy()  # the rest mesh's shoulder stays where the model's sits (the placement's frame)
         body_x = prior_mean = project_to_body_space(space, base, J, prior_mean, prior_sigma)
         base, J_model = space.rest_and_joints(body_x, anchor)
+    rest_frames = facing_frames(frames_t, o.body_rest_min_facing_cos)
+    frames_t = facing_frames(frames_t, o.sequence_min_facing_cos)
     best = None
     held_out = slice(o.body_rest_frame_stride // 2, None, o.body_rest_frame_stride) if o.body_rest_frame_stride > 1 \
         else slice(None)
@@ -639,11 +658,11 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
             rest_tw = seq_tw if o.body_rest_tracker_weight is None else o.body_rest_tracker_weight
             if o.body_rest_fit_poses:
                 body_x, shift, _ = fit_body_rest_shape_and_poses(
-                    space, model, poses[sub], frames_t[sub], body_x, anchor, prior_mean, prior_sigma, *common,
+                    space, model, poses[sub], rest_frames[sub], body_x, anchor, prior_mean, prior_sigma, *common,
                     *length, tracked, rest_tw, o.body_rest_angle_damping)
             else:
                 body_x, shift = fit_body_rest_shape(
-                    space, model, poses[sub], frames_t[sub], body_x, anchor, prior_mean, prior_sigma, *common,
+                    space, model, poses[sub], rest_frames[sub], body_x, anchor, prior_mean, prior_sigma, *common,
                     o.body_rest_fit_placement, *length, tracked, rest_tw)
             base, J_model = space.rest_and_joints(body_x, anchor)
             poses = [_shifted(p, shift) for p in poses]
