@@ -19,6 +19,15 @@ does, and is scored against the truth:
     python -m benchmarks.muscle_rest_arm --work W --session 501 --session 504 --session 507 --session 508 \\
         --variant default --variant "graze:body_rest_min_facing_cos=0.3,body_rest_prior_weight=50.0"
 
+With ``--known-poses`` the capture is left out: the truth's joint angles and roots are held, the Kinect depth of
+every 2nd frame is cleaned as the capture does (Sec. 4), and ``refine.fit_body_rest_shape`` (the measured arm length
+at the capture's weight, no tracker) fits the rest arm from the regression's projection (also the prior's centre);
+each variant's keywords are ``prior_weight``, ``min_facing_cos`` and ``stride`` (of those frames). The figures: the
+rest arm as above and ``posed`` (the median distance of the posed fitted arm from the truth's, muscle_rest_ceiling's):
+
+    python -m benchmarks.muscle_rest_arm --work W --session 501 --known-poses --variant base:stride=2 \
+        --variant graze:stride=2,min_facing_cos=0.3,prior_weight=50.0
+
 docs/muscle.md "Capture, fourteenth pass (the rest arm)".
 """
 
@@ -102,6 +111,75 @@ def variant_rows(work: Path, subject_seed: int, variants: dict) -> dict:
     return rows
 
 
+def known_pose_rows(work: Path, subject_seed: int, variants: dict) -> dict:
+    """{variant: figures} of the rest-shape fit with the truth's poses held (module docstring, ``--known-poses``)."""
+    from dataclasses import replace
+
+    from scipy.spatial import cKDTree
+
+    from benchmarks import bench_muscle as bm
+    from benchmarks.muscle_energy import work_model
+    from benchmarks.muscle_sequences import session_of
+    from bodystudio.muscle.arm import ArmPose
+    from bodystudio.muscle.capture import CaptureOptions
+    from bodystudio.muscle.depth import clean_depth, depth_point_cloud
+    from bodystudio.muscle.evaluate import visible_vertices
+    from bodystudio.muscle.model import (
+        body_shape_space,
+        model_joints,
+        model_rest_vertices,
+        project_to_body_space,
+    )
+    from bodystudio.muscle.nicp import vertex_neighbourhoods
+    from bodystudio.muscle.refine import DepthFrame, fit_body_rest_shape, skeleton_model_mesh
+
+    template = bm._template()
+    model = work_model(work, template)
+    subject, session = session_of(work, subject_seed, 0, 200)
+    truth, shape = bm.truth_template(subject), bm.shape_of(subject)
+    space = body_shape_space(template)
+    o = CaptureOptions()
+    F = np.asarray(template.faces, np.int64)
+    adjacency = vertex_neighbourhoods(F, len(template.vertices), rings=2)
+    camera = session.kinect.depth
+    frames, poses, meshes, vis = [], [], [], []
+    for fid in session.frame_ids[::2]:
+        fr = session.frame(fid)
+        P, N = depth_point_cloud(clean_depth(fr.kinect_depth_m, o.depth), camera)
+        frames.append(DepthFrame(P, N, cKDTree(P), camera.center, template.arm_mask, adjacency, o.nicp.filters, F))
+        poses.append(ArmPose.from_dict(fr.gt_arm_pose))
+        meshes.append(np.asarray(fr.gt_arm_mesh.vertices, np.float64))
+        vis.append(visible_vertices(meshes[-1], F, camera))
+    seen = np.mean(vis, axis=0) > 0.5
+    shoulder = truth.joints[0]
+    mean, sigma = space.prior(shape)
+    x_reg = project_to_body_space(space, model_rest_vertices(model, shape), model_joints(model, shape), mean, sigma)
+
+    def figures(x, shift):
+        rest, J = space.rest_and_joints(x, shoulder)
+        d = []
+        for p, G in zip(poses, meshes, strict=True):
+            root = p.root.copy()
+            root[:3, 3] += shift
+            M = skeleton_model_mesh(model, ArmPose(root, p.angles), rest, J, o.norm_limit)
+            d.append(np.linalg.norm(M - G, axis=1)[template.arm_mask])
+        return {"posed": 1000.0 * float(np.median(d)), **rest_arm_error(rest, J, truth, seen, template)}
+
+    rows = {"regression": figures(x_reg, np.zeros(3))}
+    for name, kw in variants.items():
+        stride = int(kw.get("stride", 2))
+        fr = [replace(f, min_facing_cos=float(kw.get("min_facing_cos", 0.0))) for f in frames[::stride]]
+        x, shift = fit_body_rest_shape(space, model, poses[::stride], fr, x_reg, shoulder, x_reg, sigma,
+                                       float(kw.get("prior_weight", o.body_rest_prior_weight)), o.norm_limit,
+                                       o.sequence_huber_m, o.body_rest_iterations, True, shape.arm_length_m,
+                                       o.body_rest_arm_length_weight)
+        rows[name] = figures(x, shift)
+    for name, row in rows.items():
+        print(subject_seed, name, json.dumps({k: round(v, 2) for k, v in row.items()}), flush=True)
+    return rows
+
+
+KNOWN_POSE_KEYS = {"prior_weight", "min_facing_cos", "stride"}
 COLUMNS = ("median_mm", "p90_mm", "front_median_mm", "back_median_mm", "bulge_err_mm", "jitter_mm", "rest",
            "rest_front", "rest_back", "rest_centred", "rest_elbow_mm", "rest_wrist_mm", "sequence_cpu_s")
 
@@ -126,7 +204,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--work", type=Path, required=True)
     parser.add_argument("--session", action="append", type=int, default=[], help="subject seed (repeatable)")
     parser.add_argument("--variant", action="append", default=[], help="NAME[:KEY=VALUE,...] over CaptureOptions() "
-                        "(sequence-stage options only; 'default': CaptureOptions())")
+                        "(sequence-stage options only; 'default': CaptureOptions()); with --known-poses the keys "
+                        "prior_weight, min_facing_cos, stride")
+    parser.add_argument("--known-poses", action="store_true", help="the rest-shape fit alone, the truth's poses held")
     args = parser.parse_args(argv)
     from bodystudio.errors import InputError
     from bodystudio.muscle.capture import CaptureOptions
@@ -134,11 +214,21 @@ def main(argv: list[str] | None = None) -> None:
     try:
         variants = dict(parse_variant(v) for v in (args.variant or ["default"]))
         for options in variants.values():
-            CaptureOptions(**options)
+            if args.known_poses:
+                if set(options) - KNOWN_POSE_KEYS:
+                    raise ValueError(f"unknown keys {sorted(set(options) - KNOWN_POSE_KEYS)} with --known-poses "
+                                     f"(use {', '.join(sorted(KNOWN_POSE_KEYS))})")
+            else:
+                CaptureOptions(**options)
     except (ValueError, SyntaxError, TypeError, InputError) as exc:
         parser.error(f"--variant: {exc}")
     args.work.mkdir(parents=True, exist_ok=True)
     results = {}
+    if args.known_poses:
+        for s in args.session or [501]:
+            results[s] = known_pose_rows(args.work, s, variants)
+        print(render(results, ("posed", *COLUMNS[6:12])))
+        return
     for s in args.session or [501]:
         results[s] = variant_rows(args.work, s, variants)
         path = args.work / f"rest_{s}.json"

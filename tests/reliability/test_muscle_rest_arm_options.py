@@ -23,10 +23,12 @@ def test_the_facing_cosines_are_off_by_default():
 
 
 @pytest.mark.parametrize("variant", ["g:body_rest_min_facing_cos=1.5", "g:no_such_option=1",
-                                     "g:body_rest_min_facing_cos", "g:sequence_min_facing_cos=-1"])
+                                     "g:body_rest_min_facing_cos", "g:sequence_min_facing_cos=-1",
+                                     "--known-poses g:norm_limit=0.2"])
 def test_the_benchmark_refuses_a_bad_variant_before_any_work(variant, tmp_path, capsys):
+    *flags, variant = variant.split()
     with pytest.raises(SystemExit) as exc:
-        main(["--work", str(tmp_path / "w"), "--session", "501", "--variant", variant])
+        main(["--work", str(tmp_path / "w"), "--session", "501", *flags, "--variant", variant])
     assert exc.value.code == 2
     assert "--variant" in capsys.readouterr().err
     assert not (tmp_path / "w").exists()
