@@ -28,6 +28,13 @@ rest arm as above and ``posed`` (the median distance of the posed fitted arm fro
     python -m benchmarks.muscle_rest_arm --work W --session 501 --known-poses --variant base:stride=2 \
         --variant graze:stride=2,min_facing_cos=0.3,prior_weight=50.0
 
+With ``--depth-bias`` the pairs' bias instead: every 10th frame's truth mesh paired with its cleaned depth (Sec. 4
+at ``CaptureOptions()``' settings, and without the median and Gaussian filters) by ``DepthFrame.plane_pairs`` (the
+Sec. 5.2 filters), the signed point-to-plane residual (mm, > 0: the truth in front of the depth's plane, nearer the
+sensor) per bin of the truth vertex normal's cosine with the direction to the sensor:
+
+    python -m benchmarks.muscle_rest_arm --work W --session 501 --depth-bias
+
 docs/muscle.md "Capture, fourteenth pass (the rest arm)".
 """
 
@@ -179,6 +186,49 @@ def known_pose_rows(work: Path, subject_seed: int, variants: dict) -> dict:
     return rows
 
 
+FACING_BINS = ((0.9, 1.01), (0.7, 0.9), (0.5, 0.7), (0.3, 0.5), (0.0, 0.3))
+
+
+def depth_bias_rows(work: Path, subject_seed: int, frame_step: int = 10) -> dict:
+    """{depth clean-up: {cosine bin: (pairs, mean, median residual mm)}} (module docstring, ``--depth-bias``)."""
+    from scipy.spatial import cKDTree
+
+    from benchmarks import bench_muscle as bm
+    from benchmarks.muscle_sequences import session_of
+    from bodystudio.geometry.mesh import vertex_normals
+    from bodystudio.muscle.capture import CaptureOptions
+    from bodystudio.muscle.depth import DepthCleanupOptions, clean_depth, depth_point_cloud
+    from bodystudio.muscle.nicp import vertex_neighbourhoods
+    from bodystudio.muscle.refine import DepthFrame
+
+    template = bm._template()
+    _, session = session_of(work, subject_seed, 0, 200)
+    camera = session.kinect.depth
+    o = CaptureOptions()
+    F = np.asarray(template.faces, np.int64)
+    adjacency = vertex_neighbourhoods(F, template.n_vertices, rings=2)
+    cleanups = {"cleaned (Sec. 4)": o.depth, "no median / Gaussian": DepthCleanupOptions(median_px=1,
+                                                                                         gaussian_sigma_px=0.0)}
+    out = {}
+    for label, depth_options in cleanups.items():
+        r_all, c_all = [], []
+        for fid in list(session.frame_ids)[::frame_step]:
+            fr = session.frame(fid)
+            G = np.asarray(fr.gt_arm_mesh.vertices, np.float64)
+            P, N = depth_point_cloud(clean_depth(fr.kinect_depth_m, depth_options), camera)
+            frame = DepthFrame(P, N, cKDTree(P), camera.center, template.arm_mask, adjacency, o.nicp.filters, F)
+            k, q, n = frame.plane_pairs(G)
+            to_sensor = camera.center - G[k]
+            r_all.append(1000.0 * np.einsum("kd,kd->k", G[k] - q, n))
+            c_all.append(np.einsum("kd,kd->k", vertex_normals(G, F)[k], to_sensor)
+                         / np.linalg.norm(to_sensor, axis=1))
+        r, c = np.concatenate(r_all), np.concatenate(c_all)
+        out[label] = {f"{lo:.1f}-{min(hi, 1.0):.1f}": (int(m.sum()), float(r[m].mean()), float(np.median(r[m])))
+                      for lo, hi in FACING_BINS for m in [(c >= lo) & (c < hi)] if m.any()}
+        print(subject_seed, label, json.dumps(out[label]), flush=True)
+    return out
+
+
 KNOWN_POSE_KEYS = {"prior_weight", "min_facing_cos", "stride"}
 COLUMNS = ("median_mm", "p90_mm", "front_median_mm", "back_median_mm", "bulge_err_mm", "jitter_mm", "rest",
            "rest_front", "rest_back", "rest_centred", "rest_elbow_mm", "rest_wrist_mm", "sequence_cpu_s")
@@ -207,6 +257,7 @@ def main(argv: list[str] | None = None) -> None:
                         "(sequence-stage options only; 'default': CaptureOptions()); with --known-poses the keys "
                         "prior_weight, min_facing_cos, stride")
     parser.add_argument("--known-poses", action="store_true", help="the rest-shape fit alone, the truth's poses held")
+    parser.add_argument("--depth-bias", action="store_true", help="the truth's pairs' residuals per facing angle")
     args = parser.parse_args(argv)
     from bodystudio.errors import InputError
     from bodystudio.muscle.capture import CaptureOptions
@@ -224,6 +275,16 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--variant: {exc}")
     args.work.mkdir(parents=True, exist_ok=True)
     results = {}
+    if args.depth_bias:
+        from benchmarks.timing import markdown_table
+
+        rows = []
+        for s in args.session or [501]:
+            for label, bins in depth_bias_rows(args.work, s).items():
+                rows += [[f"{s}", label, b, f"{n}", f"{mean:+.2f}", f"{med:+.2f}"]
+                         for b, (n, mean, med) in bins.items()]
+        print(markdown_table(["session", "depth", "cos", "pairs", "mean mm", "median mm"], rows))
+        return
     if args.known_poses:
         for s in args.session or [501]:
             results[s] = known_pose_rows(args.work, s, variants)
