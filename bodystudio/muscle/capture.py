@@ -314,7 +314,10 @@ class CaptureOptions:
     # short of the surface and a grazing vertex's pair plane lies outside the convex limb (501, the truth's own
     # vertices at cos < 0.3: 4.6 mm behind their pairs' planes, mean), which pulls the fitted arm's sides outwards
     # (docs/muscle.md, fourteenth pass, rest arm). ``sequence_min_facing_cos``: the same in the fits of the poses (the
-    # sequence fit and the last pose refit).
+    # sequence fit and the last pose refit). Measured (200 frames, median / p90 mm, bulge): the rest fit's at 0.3 takes
+    # 501's rest arm 3.09 -> 2.77 mm but the capture 3.29 / 5.48 -> 3.49 / 6.05; the pose fits' at 0.3: 501 3.10 /
+    # 5.25, 504 2.84 / 4.77, 507 2.82 / 5.44, 508 3.26 / 6.19 (default 3.29 / 5.48, 2.89 / 4.75, 2.80 / 5.66, 3.18 /
+    # 6.25), the bulge error up on all four (mean 0.95 -> 1.08). Both off.
     body_rest_min_facing_cos: float = 0.0
     sequence_min_facing_cos: float = 0.0
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
