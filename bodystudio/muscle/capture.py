@@ -110,7 +110,8 @@ TRACKER_JOINTS = {"left": ("ShoulderLeft", "ElbowLeft", "WristLeft"),
 # The refinement's hold of the unseen side (the capture's default since the twelfth pass) is off here: not measured
 # for the extension.
 EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
-                     "body_rest_shape": False, "norm_limit": 0.5, "pose_refit": False, "refine_unseen_hold": 0.0}
+                     "body_rest_shape": False, "norm_limit": 0.5, "pose_refit": False, "refine_unseen_hold": 0.0,
+                     "sequence_min_facing_cos": 0.0}
 # The setting of a sequence that pins its shared torso placement and skeleton (``CaptureOptions.sequence_pinned_se_m``,
 # off by default): the skeleton and placement fitted with every frame's angles, Huber on the depth pairs only, the
 # chest's pairs off, the tracker's joints at 10, and a 5 % norm limit (the fitted skeleton carries a lower model biceps;
@@ -233,7 +234,12 @@ class CaptureOptions:
     # 2.92 / 4.97 mm, the sequence fit alone at 3 3.62 / 5.81, default 3.63 / 5.81), and so was most of its loss on
     # 507 (3.30 / 6.86, 3.17 / 6.35, default 3.16 / 6.29); this fit alone at 3 / 10: 501 2.91 / 4.98, 3.20 / 5.34,
     # 507 3.24 / 6.74, 3.16 / 6.45 (the held-out depth energy prefers both on 507: it cannot see the back side).
-    body_rest_tracker_weight: float | None = None
+    # 10 by default since the fourteenth pass (mus11o), with ``sequence_min_facing_cos=0.3``: measured together on the
+    # four 200-frame sessions (median / p90 mm) 501 3.29 / 5.48 -> 2.70 / 4.72, 504 2.89 / 4.75 -> 2.63 / 4.57, 507
+    # 2.80 / 5.66 -> 2.84 / 5.60, 508 3.18 / 6.25 -> 3.14 / 5.91 (mean 3.04 / 5.53 -> 2.83 / 5.20; the bulge error
+    # 0.95 -> 1.10 mm, 501 over the 1.5 mm goal either way); this weight alone: 3.12 / 5.09, 2.74 / 4.68, 2.88 / 5.79,
+    # 3.03 / 6.00 (docs/muscle.md, fourteenth pass, the rest arm).
+    body_rest_tracker_weight: float | None = 10.0
     # The subject's skeleton (rest shoulder, elbow, wrist; the elbow hinge with them) fitted once per sequence
     # with every frame's angles in the sequence fit (``refine.fit_arm_sequence_skeleton``), held to the
     # model's regression by ``sequence_skeleton_prior_weight`` per coordinate (1 per depth pair). Off: measured
@@ -317,9 +323,10 @@ class CaptureOptions:
     # sequence fit and the last pose refit). Measured (200 frames, median / p90 mm, bulge): the rest fit's at 0.3 takes
     # 501's rest arm 3.09 -> 2.77 mm but the capture 3.29 / 5.48 -> 3.49 / 6.05; the pose fits' at 0.3: 501 3.10 /
     # 5.25, 504 2.84 / 4.77, 507 2.82 / 5.44, 508 3.26 / 6.19 (default 3.29 / 5.48, 2.89 / 4.75, 2.80 / 5.66, 3.18 /
-    # 6.25), the bulge error up on all four (mean 0.95 -> 1.08). Both off.
+    # 6.25), the bulge error up on all four (mean 0.95 -> 1.08). The rest fit's off; the pose fits' 0.3 by default
+    # since the fourteenth pass (mus11o), with ``body_rest_tracker_weight=10``: the figures there.
     body_rest_min_facing_cos: float = 0.0
-    sequence_min_facing_cos: float = 0.0
+    sequence_min_facing_cos: float = 0.3
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape

@@ -17,9 +17,9 @@ def test_a_facing_cosine_outside_zero_to_one_is_refused(field, value):
     assert "\n" not in str(exc.value) and "[0, 1)" in str(exc.value)
 
 
-def test_the_facing_cosines_are_off_by_default():
+def test_the_facing_cosines_default_to_the_measured_ones():
     o = CaptureOptions()
-    assert o.body_rest_min_facing_cos == 0.0 and o.sequence_min_facing_cos == 0.0
+    assert o.body_rest_min_facing_cos == 0.0 and o.sequence_min_facing_cos == 0.3
 
 
 @pytest.mark.parametrize("variant", ["g:body_rest_min_facing_cos=1.5", "g:no_such_option=1",
