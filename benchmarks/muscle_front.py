@@ -167,7 +167,7 @@ def sec7_pairs(p: dict, options) -> tuple[list, list]:
         filter_correspondences,
         plane_targets,
     )
-    from bodystudio.muscle.refine import grazing_pairs
+    from bodystudio.muscle.refine import edge_on_pairs
 
     targets, kept = [], []
     clouds, trees = refinement_clouds(p, options)
@@ -178,7 +178,7 @@ def sec7_pairs(p: dict, options) -> tuple[list, list]:
         if options.refine_visible_only:
             pairs.kept &= cm.model_visible_vertices(apply_similarity(p["similarity"], M), p["F"], p["camera"])
         if options.refine_min_facing_cos > 0:
-            pairs.kept &= ~grazing_pairs(M, vertex_normals(M, p["F"]), p["C"], options.refine_min_facing_cos)
+            pairs.kept &= ~edge_on_pairs(M, vertex_normals(M, p["F"]), p["C"], options.refine_min_facing_cos)
         targets.append(np.where(pairs.kept[:, None], plane_targets(M, pairs), np.nan))
         kept.append(pairs.kept)
     return targets, kept

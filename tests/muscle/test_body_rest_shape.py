@@ -149,7 +149,7 @@ def test_the_capture_takes_its_rest_arm_and_skeleton_from_the_body_space(monkeyp
     assert fb.args[8:12] == (3.0, o.norm_limit, o.sequence_huber_m, 2)
     scale, R, t = c.similarity
     np.testing.assert_allclose(fb.args[-2], (s.tracker[[0, 2]] - t) @ R / scale, atol=1e-12)
-    assert fb.args[-1] == o.sequence_tracker_weight
+    assert fb.args[-1] == o.body_rest_tracker_weight == 10.0  # the rest fit's own (fourteenth pass)
     x, shift = fb.out
     rest, J = space.rest_and_joints(x, fb.args[5])
     rest0, J0 = space.rest_and_joints(p.out, fb.args[5])
@@ -268,7 +268,7 @@ def test_the_rest_shape_rounds_stop_when_the_depth_energy_stops_falling(monkeypa
         args = spies[name][0].args
         assert args[8:14] == (3.0, o.norm_limit, o.sequence_huber_m, 1, s.shape.arm_length_m,
                               o.body_rest_arm_length_weight)
-        assert args[15:] == (o.sequence_tracker_weight, o.body_rest_angle_damping)
+        assert args[15:] == (o.body_rest_tracker_weight, o.body_rest_angle_damping)
 
 
 def test_the_depth_energy_is_zero_at_the_truth_and_grows_with_a_misplacement(planted):

@@ -458,9 +458,9 @@ def test_one_frame_refinement_uses_only_that_frame(scene, monkeypatch):
     # and only vertices the model mesh itself does not hide from the sensor (refine_visible_only, the default)
     kept = pairs.kept & cap_mod.model_visible_vertices(apply_similarity(c.similarity, M), F, scene.camera)
     # and not the rim seen edge-on (refine_min_facing_cos, the default)
-    from bodystudio.muscle.refine import grazing_pairs
+    from bodystudio.muscle.refine import edge_on_pairs
 
-    kept &= ~grazing_pairs(M, vertex_normals(M, F), C, o.refine_min_facing_cos)
+    kept &= ~edge_on_pairs(M, vertex_normals(M, F), C, o.refine_min_facing_cos)
     np.testing.assert_array_equal(ok, kept)
     np.testing.assert_allclose(vec, np.where(kept[:, None], nicp.plane_targets(M, pairs) - M, 0.0), atol=1e-12)
     assert spies["refine_surface"][0].args[2] is tcc.out[0] and spies["refine_surface"][0].args[3] is cw.out

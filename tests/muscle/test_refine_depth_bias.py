@@ -20,7 +20,7 @@ from bodystudio.muscle import capture as cm
 from bodystudio.muscle.arm import ArmPose
 from bodystudio.muscle.depth import clean_depth, depth_point_cloud
 from bodystudio.muscle.nicp import vertex_neighbourhoods
-from bodystudio.muscle.refine import grazing_pairs
+from bodystudio.muscle.refine import edge_on_pairs
 
 CENTRE = np.array([0.0, 1.0, 0.0])
 RADIUS = 0.04
@@ -116,13 +116,13 @@ def test_the_refinement_with_its_own_clean_up_keeps_a_right_model_on_the_skin(sc
     assert abs(kept) < 0.03  # measured +0.009 mm
 
 
-def test_grazing_pairs_are_the_rim_seen_edge_on():
+def test_edge_on_pairs_are_the_rim_seen_edge_on():
     sensor = np.array([0.0, 0.0, -1.0])
     V = np.zeros((4, 3))
     N = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [np.sqrt(0.5), 0.0, -np.sqrt(0.5)], [0.0, 0.3, -np.sqrt(0.91)]])
-    np.testing.assert_array_equal(grazing_pairs(V, N, sensor, 0.5), [False, True, False, False])
-    np.testing.assert_array_equal(grazing_pairs(V, N, sensor, 0.75), [False, True, True, False])
-    assert not grazing_pairs(V, N, sensor, 0.0).any()
+    np.testing.assert_array_equal(edge_on_pairs(V, N, sensor, 0.5), [False, True, False, False])
+    np.testing.assert_array_equal(edge_on_pairs(V, N, sensor, 0.75), [False, True, True, False])
+    assert not edge_on_pairs(V, N, sensor, 0.0).any()
 
 
 def test_the_refinement_drops_the_rim_pairs_only_when_asked(scene, monkeypatch):

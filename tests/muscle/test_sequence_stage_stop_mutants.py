@@ -71,7 +71,8 @@ def _stage(monkeypatch, energies=None, **opts):
     monkeypatch.setattr(cap, "fit_rest_shape_correction", correction)
     # the held-pose fit unless a test asks for the joint fit (the default since the tenth pass)
     base = dict(mode="model", body_rest_shape=True, body_rest_rounds=3, body_rest_frame_stride=4,
-                sequence_placement_prior_m=0.0, body_rest_fit_poses=False)
+                sequence_placement_prior_m=0.0, body_rest_fit_poses=False, sequence_min_facing_cos=0.0,
+                body_rest_tracker_weight=None)  # None: the sequence fit's tracker weight, as these tests pin
     base.update(opts)
     o = CaptureOptions(**base)
     poses = [ArmPose(np.eye(4), np.full((3, 3), 0.1 * k)) for k in range(N_FRAMES)]

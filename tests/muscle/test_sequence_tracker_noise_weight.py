@@ -118,7 +118,7 @@ def test_the_capture_weights_the_sequence_fits_tracker_by_the_noise_and_the_rest
     assert refine_mod.tracker_noise_sigma_m(s.tracker) == 0.001  # the scene's exact tracker: held at the floor
 
     spies = Spies(monkeypatch, names)
-    o = CaptureOptions(sequence_tracker_weight=None, **fast)
+    o = CaptureOptions(sequence_tracker_weight=None, body_rest_tracker_weight=None, **fast)
     capture_arm_frames(s.depths, s.camera, s.template, s.model, o, s.tracker, known_shape=s.shape)
     (rc,) = spies["fit_body_rest_shape_and_poses"]
     assert rc.args[15] == spies["noise_weighted_tracker_weight"][1].out  # None: the sequence fit's weight
