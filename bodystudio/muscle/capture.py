@@ -255,7 +255,9 @@ class CaptureOptions:
     # four 200-frame sessions (median / p90 mm) 501 3.29 / 5.48 -> 2.70 / 4.72, 504 2.89 / 4.75 -> 2.63 / 4.57, 507
     # 2.80 / 5.66 -> 2.84 / 5.60, 508 3.18 / 6.25 -> 3.14 / 5.91 (mean 3.04 / 5.53 -> 2.83 / 5.20; the bulge error
     # 0.95 -> 1.10 mm, 501 over the 1.5 mm goal either way); this weight alone: 3.12 / 5.09, 2.74 / 4.68, 2.88 / 5.79,
-    # 3.03 / 6.00 (docs/muscle.md, fourteenth pass, the rest arm).
+    # 3.03 / 6.00 (docs/muscle.md, fourteenth pass, the rest arm). With the refinement's own depth and rim filter
+    # (``refine_min_facing_cos`` above) as well, the default: 2.62 / 4.64, 2.57 / 4.50, 2.76 / 5.51, 3.08 / 5.91, mean
+    # 2.76 / 5.14, bulge 1.43 / 0.86 / 0.43 / 0.69 (docs/muscle.md, "the two branches together").
     body_rest_tracker_weight: float | None = 10.0
     # The subject's skeleton (rest shoulder, elbow, wrist; the elbow hinge with them) fitted once per sequence
     # with every frame's angles in the sequence fit (``refine.fit_arm_sequence_skeleton``), held to the
