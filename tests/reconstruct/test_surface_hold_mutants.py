@@ -154,7 +154,7 @@ def test_hold_settings_range_ends_and_defaults():
 
 # --- reconstruct_frames' wiring: the template's region mask handed to Algorithm 1 -------------------------------
 
-def _frames_run(monkeypatch, tmp_path, params, score=False):
+def _frames_run(monkeypatch, tmp_path, params, shape_prior="off"):
     from tests.reconstruct.test_sequence_tracked_mutants import BODIES, Writer, _session, _stand_ins
 
     rec = _stand_ins(monkeypatch)
@@ -168,22 +168,27 @@ def _frames_run(monkeypatch, tmp_path, params, score=False):
     calls = []
     monkeypatch.setattr(seq, "deform_to_observations", deform)
     monkeypatch.setattr(seq, "vertex_regions", lambda body: calls.append(body) or labels)
-    monkeypatch.setattr(seq, "score_frame", lambda *a, **k: {}, raising=False)
+    import bodystudio.body.statistical as statistical
+
+    monkeypatch.setattr(statistical, "load_statistical_model", lambda resolution, progress=True: "space")
+    monkeypatch.setattr(seq, "shape_prior_mesh", lambda model, body, V, T, scale=1.0: np.asarray(V) + 0.001)
     seq.reconstruct_frames(_session(), Writer(tmp_path), [10, 11], [NS(name="c0")], NS(depth="depth-camera"), params,
-                           "gs", "6k", "tracker", None, False, False, score, False, tracking=False,
-                           bone_lengths="frame")
+                           "gs", "6k", "tracker", None, False, False, False, False, tracking=False,
+                           bone_lengths="frame", shape_prior=shape_prior)
     assert all(b is BODIES["6k"] for b in calls)
     return got, calls, rec
 
 
+@pytest.mark.parametrize("shape_prior", ["off", "frame"])
 @pytest.mark.parametrize(("kw", "mask"), [
     (dict(surface_hold_k=0.3, surface_hold_region="torso"), [True, False, True, False]),
     (dict(surface_hold_k=0.3), None),
     (dict(surface_hold_region="torso"), None),
 ])
-def test_reconstruct_frames_hands_the_torso_mask(monkeypatch, tmp_path, kw, mask):
-    got, calls, _rec = _frames_run(monkeypatch, tmp_path, RapidSkinParams(**kw))
-    assert len(got) == 2
+def test_reconstruct_frames_hands_the_torso_mask(monkeypatch, tmp_path, kw, mask, shape_prior):
+    """Both passes of a frame (the shape prior's second one too) get the template's torso mask."""
+    got, calls, _rec = _frames_run(monkeypatch, tmp_path, RapidSkinParams(**kw), shape_prior)
+    assert len(got) == (2 if shape_prior == "off" else 4)
     for g in got:
         if mask is None:
             assert "hold_vertices" not in g
