@@ -42,6 +42,10 @@ def test_median_of_the_training_subjects_rows():
     m.subjects[3]["shape"] = {"bmi": 30.0, "muscularity": 0.5, "height_m": 1.8}  # no arm length
     assert training_rows_per_subject(m) == 2
     assert type(training_rows_per_subject(m)) is int
+    # the subjects skipped come first: the ones after them still count
+    m = _model([("capture", _shape(26), 1), ("training", None, 0), ("training", _shape(20), 3),
+                ("training", _shape(21), 3)])
+    assert training_rows_per_subject(m) == 3
 
 
 def test_rounding_floor_and_no_training_subject():
@@ -68,8 +72,9 @@ def test_rows_match_exactly_within_1e_12_and_by_sex():
     assert training_rows_per_subject(_model([("training", woman, 0)], extra_rows=[edge] * 3)) == 3
 
 
-@pytest.fixture
-def extend(monkeypatch):
+def _extend(monkeypatch):
+    """``extend_arm_model``'s helpers replaced; the keywords ``_add_subjects`` gets (a helper, not a fixture: the
+    direct mutant recheck calls the tests with a fresh monkeypatch only)."""
     seen = []
     monkeypatch.setattr(M, "_check_samples", lambda captures, n: None)
     monkeypatch.setattr(M, "with_shape_form", lambda model, form: model)
@@ -78,17 +83,21 @@ def extend(monkeypatch):
     return seen
 
 
-def test_extend_passes_subject_rows_and_defaults_to_own(extend):
+def test_extend_passes_subject_rows_and_defaults_to_own(monkeypatch):
+    extend = _extend(monkeypatch)
     model = NS(n_vertices=4, shape_form="linear")
     assert M.extend_arm_model(model, []) == "extended"
-    assert extend[-1]["subject_rows"] == "own"
+    assert extend[-1]["subject_rows"] == "own" and extend[-1]["prior_weight"] == M.CAPTURED_REST_PRIOR_WEIGHT
+    M.extend_arm_model(model, [], prior_weight=0.25, subject_rows="training")
+    assert extend[-1]["prior_weight"] == 0.25 and extend[-1]["subject_rows"] == "training"
     for rows in ("own", "training"):
         M.extend_arm_model(model, [], subject_rows=rows)
         assert extend[-1]["subject_rows"] == rows
 
 
 @pytest.mark.parametrize("bad", ["twice", "Training", "", None])
-def test_extend_refuses_other_subject_rows(extend, bad):
+def test_extend_refuses_other_subject_rows(monkeypatch, bad):
+    extend = _extend(monkeypatch)
     with pytest.raises(InputError, match=rf"^subject_rows={bad!r} must be one of own, training$"):
         M.extend_arm_model(NS(n_vertices=4, shape_form="linear"), [], subject_rows=bad)
     assert extend == []
