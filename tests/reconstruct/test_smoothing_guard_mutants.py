@@ -33,7 +33,7 @@ OUTSIDE_PX = 3.5
 
 def _file_joints(fid):
     """The joints folder's frame (not the session's tracker joints): a per-frame lift in x."""
-    return SK + [0.0, 0.0, 0.0] + [0.001 * fid, 0.0, 0.0]
+    return SK + [0.001 * fid, 0.0, 0.0]
 
 
 def _joints_dir(tmp_path):
