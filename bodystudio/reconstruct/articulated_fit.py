@@ -197,53 +197,13 @@ def data_normal_equations(C, bone_idx, bone_w, D, heads, rows, r, w, G):
     (root translation, then the segments' rotations about their heads), ``lever_ij`` the vertex's skinned
     parts carried by segment j minus its share of the head, zero for segments the vertex does not follow;
     only those non-zero blocks are accumulated (a vertex follows a few of the 18 segments)."""
-    n_seg = D.shape[1]
-    n_par = 3 + 3 * n_seg
-    H = np.zeros((n_par, n_par))
-    g = np.zeros(n_par)
-    K = bone_idx.shape[1]
-    cols = np.empty(n_par, np.int64)
-    vals = np.empty(n_par)
-    for m in range(rows.shape[0]):
-        i = rows[m]
-        gx, gy, gz = G[m, 0], G[m, 1], G[m, 2]
-        cols[0], cols[1], cols[2] = 0, 1, 2
-        vals[0], vals[1], vals[2] = gx, gy, gz
-        nnz = 3
+    n, n_seg = bone_idx.shape[0], D.shape[1]  # every segment listed for every vertex: the scan of all 18
+    seg_ptr = np.arange(n + 1) * n_seg
+    seg = np.empty(n * n_seg, np.int64)
+    for i in range(n):
         for j in range(n_seg):
-            a = 0.0
-            lx = 0.0
-            ly = 0.0
-            lz = 0.0
-            for k in range(K):
-                d = D[bone_idx[i, k], j]
-                if d != 0.0:
-                    a += bone_w[i, k] * d
-                    lx += d * C[i, k, 0]
-                    ly += d * C[i, k, 1]
-                    lz += d * C[i, k, 2]
-            if a == 0.0:
-                continue
-            lx -= a * heads[j, 0]
-            ly -= a * heads[j, 1]
-            lz -= a * heads[j, 2]
-            base = 3 + 3 * j
-            cols[nnz], cols[nnz + 1], cols[nnz + 2] = base, base + 1, base + 2
-            vals[nnz] = ly * gz - lz * gy
-            vals[nnz + 1] = lz * gx - lx * gz
-            vals[nnz + 2] = lx * gy - ly * gx
-            nnz += 3
-        wm = w[m]
-        rm = r[m]
-        for p in range(nnz):  # cols ascend, so the upper triangle; mirrored below
-            wv = wm * vals[p]
-            g[cols[p]] += wv * rm
-            for q in range(p, nnz):
-                H[cols[p], cols[q]] += wv * vals[q]
-    for p in range(n_par):
-        for q in range(p):
-            H[p, q] = H[q, p]
-    return H, g
+            seg[i * n_seg + j] = j
+    return data_normal_equations_listed(C, bone_idx, bone_w, D, heads, rows, r, w, G, seg_ptr, seg)
 
 
 @numba.njit(cache=True)
