@@ -119,6 +119,125 @@ def is_closed_mesh(F: np.ndarray) -> bool:
     return bool(np.all(pos < len(key)) and np.all(key[np.minimum(pos, len(key) - 1)] == rkey))
 
 
+def outline_edge_table(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The undirected edges of a closed, consistently oriented mesh (:func:`is_closed_mesh`) for
+    :func:`_outline_edges`: ends ``a < b`` and the faces ``f_ab`` (traversing a -> b) and ``f_ba`` (b -> a), int32."""
+    F = np.asarray(F, dtype=np.int64)
+    a = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
+    b = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
+    face = np.tile(np.arange(len(F), dtype=np.int64), 3)
+    n = int(F.max()) + 1
+    key = a * n + b
+    order = np.argsort(key, kind="stable")
+    fwd = a < b
+    opposite = order[np.searchsorted(key[order], b[fwd] * n + a[fwd])]
+    return tuple(np.ascontiguousarray(x, dtype=np.int32) for x in (a[fwd], b[fwd], face[fwd], face[opposite]))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _front_faces(uvf, Ff, facing, front):
+    """Triangles :func:`_rasterize_needed` draws with ``facing = +-1`` (finite, non-zero screen area of that sign),
+    one branch-free pass over flat views."""
+    for f in range(front.shape[0]):
+        a, b, c = Ff[3 * f], Ff[3 * f + 1], Ff[3 * f + 2]
+        ax, ay, bx, by = uvf[2 * a], uvf[2 * a + 1], uvf[2 * b], uvf[2 * b + 1]
+        cx, cy = uvf[2 * c], uvf[2 * c + 1]
+        area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        front[f] = (area * facing > 0.0) & (abs(area) < np.inf)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _boundary_edge_ids(face_ab, face_ba, front, out):
+    """Ids of the edges with a drawn triangle on one side only, compacted without a branch (they are ~10 % of the
+    edges, spread: a branch per edge mispredicts); returns their number."""
+    k = 0
+    for e in range(face_ab.shape[0]):
+        out[k] = e
+        k += front[face_ab[e]] != front[face_ba[e]]
+    return k
+
+
+@numba.njit(cache=True)
+def _outline_edges(uv, edge_a, edge_b, face_ab, front, boundary, n_boundary, height, edges, rows):
+    """The boundary of the drawn triangles' union as directed edges ``(x0, y0, x1, y1)`` (as their drawn triangle
+    traverses them) with the pixel-centre rows ``r0 .. r1`` they cross (``min(y) <= r < max(y)``, in the image);
+    edges that cross none are left out. Returns their number."""
+    k = 0
+    for j in range(n_boundary):
+        e = boundary[j]
+        a, b = edge_a[e], edge_b[e]
+        if not front[face_ab[e]]:
+            a, b = b, a
+        y0, y1 = uv[a, 1], uv[b, 1]
+        r0 = np.ceil(min(max(min(y0, y1), 0.0), height))
+        r1 = np.ceil(min(max(max(y0, y1), 0.0), height)) - 1.0
+        edges[k, 0], edges[k, 1], edges[k, 2], edges[k, 3] = uv[a, 0], y0, uv[b, 0], y1
+        rows[k, 0], rows[k, 1] = int(r0), int(r1)
+        k += r1 >= r0
+    return k
+
+
+@numba.njit(cache=True)
+def _outline_rows(edges, rows, k, height):
+    """The outline edges' crossings of the pixel-centre rows: row ``r``'s are ``start[r]:start[r + 1]``, at
+    ``x_cross`` with ``sign`` +1 where the edge runs down the image (``y0 < y1``), -1 up."""
+    start = np.zeros(height + 1, np.int64)
+    for i in range(k):
+        for r in range(rows[i, 0], rows[i, 1] + 1):
+            start[r + 1] += 1
+    for r in range(height):
+        start[r + 1] += start[r]
+    x_cross = np.empty(start[height])
+    sign = np.empty(start[height], np.int64)
+    fill = start[:height].copy()
+    for i in range(k):
+        x0, y0, x1, y1 = edges[i, 0], edges[i, 1], edges[i, 2], edges[i, 3]
+        slope = (x1 - x0) / (y1 - y0)  # y1 != y0: the edge crosses a row
+        for r in range(rows[i, 0], rows[i, 1] + 1):
+            j = fill[r]
+            x_cross[j] = x0 + (r - y0) * slope
+            sign[j] = 1 if y0 < y1 else -1
+            fill[r] = j + 1
+    return start, x_cross, sign
+
+
+@numba.njit(cache=True)
+def _outline_covers(start, x_cross, sign, px, py):
+    """Whether pixel centre ``(px, py)`` lies in the union of the drawn triangles: the winding number of its
+    boundary (the signed crossings right of the pixel on its row, Sunday's rule) is the number of drawn triangles
+    covering it, so non-zero exactly where :func:`_rasterize_needed` sets it (up to rounding at a pixel centre
+    on an edge: one on an outline crossing counts as covered, as the raster's inclusive edge tests have it). One
+    branch-free pass over the row's crossings."""
+    w = 0
+    on_edge = False
+    for j in range(start[py], start[py + 1]):
+        w += sign[j] * (x_cross[j] > px)
+        on_edge |= x_cross[j] == px
+    return w != 0 or on_edge
+
+
+@numba.njit(cache=True)
+def _draw_outline(uv, F, facing, edge_a, edge_b, face_ab, face_ba, height, boundary, edges, rows):
+    """:func:`_front_faces`, :func:`_boundary_edge_ids` and :func:`_outline_edges` of one view; returns the
+    number of outline edges left in ``edges`` / ``rows``."""
+    front = np.empty(F.shape[0], np.bool_)
+    _front_faces(uv.reshape(-1), F.reshape(-1), facing, front)
+    nb = _boundary_edge_ids(face_ab, face_ba, front, boundary)
+    return _outline_edges(uv, edge_a, edge_b, face_ab, front, boundary, nb, height, edges, rows)
+
+
+@numba.njit(cache=True)
+def outline_coverage(edges, rows, count, width, height):
+    """The ``(height, width)`` uint8 mask of the pixel centres inside an outline of :func:`_draw_outline` (a
+    view's kept one: :meth:`SilhouetteViews.kept_outline`), :func:`_rasterize_mask`'s mask; for tests."""
+    start, x_cross, sign = _outline_rows(edges, rows, count, height)
+    out = np.zeros((height, width), np.uint8)
+    for y in range(height):
+        for x in range(width):
+            out[y, x] = _outline_covers(start, x_cross, sign, x, y)
+    return out
+
+
 def silhouette_mask(V: np.ndarray, F: np.ndarray, camera) -> np.ndarray:
     """Binary mask ``(H, W)`` of the mesh's projection, by the capture stage's renderer (the same
     rasteriser that made the ground-truth masks, so silhouette IoUs compare like with like)."""
@@ -338,7 +457,8 @@ def area_weighted_normals(V, F):
 
 @numba.njit(cache=True)
 def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, own, facing, tau_px, rim_cos,
-                probe_m, outline_px, uv, z, outline_mode=0, rim_stride=1):
+                probe_m, outline_px, uv, z, outline_mode, rim_stride, edge_table, boundary, outline_edges,
+                outline_rows, outline_count):
     """Rim vertices of one view matched with its silhouette contour (Rapid Skin §III.B, Eq. 6-7).
 
     Projects the vertices (Eq. 6), keeps rim vertices (``|n . ray| < rim_cos``) and their outward
@@ -352,6 +472,12 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
     ``outline_mode`` (issue 15's frame time): 0 draws the outline raster where the probes need it (exact);
     1 draws all of it, so that 2 can keep it as it is (the outline of an earlier outer iteration: the mesh
     moved by millimetres since). ``rim_stride`` keeps every ``rim_stride``-th vertex id as a rim candidate.
+
+    On a closed mesh (``edge_table`` from :func:`outline_edge_table`, ``(4, E)``; empty otherwise) the outline is
+    not rasterised: its boundary edges are kept in ``outline_edges`` / ``outline_rows`` (``outline_count[0]`` of
+    them, ``boundary`` their scratch) and a probe is inside where their winding number is not zero
+    (:func:`_outline_covers`; issue 15's frame time, rec15k: the same pixels as the raster, without its loop over
+    every triangle's box). Modes 0 and 1 are then the same, and 2 reads the kept edges.
     """
     n = V.shape[0]
     _project_into(V, R, t, K, dist, uv, z)
@@ -383,11 +509,19 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
         cpix[nc, 0], cpix[nc, 1] = ox, oy
         need[oy // _TILE, ox // _TILE] = 1
         nc += 1
-    if outline_mode == 1:
-        need[:, :] = 1
-    if outline_mode != 2:
-        own[:, :] = 0
-        _rasterize_needed(uv, F, width, height, own, facing, need)
+    closed = edge_table.shape[1] > 0
+    if closed:
+        if outline_mode != 2:
+            outline_count[0] = _draw_outline(uv, F, facing, edge_table[0], edge_table[1], edge_table[2],
+                                             edge_table[3], height, boundary, outline_edges, outline_rows)
+        row_start, x_cross, cross_sign = _outline_rows(outline_edges, outline_rows, outline_count[0], height)
+    else:
+        row_start, x_cross, cross_sign = np.zeros(1, np.int64), np.zeros(0), np.zeros(0, np.int64)
+        if outline_mode == 1:
+            need[:, :] = 1
+        if outline_mode != 2:
+            own[:, :] = 0
+            _rasterize_needed(uv, F, width, height, own, facing, need)
     ids = np.empty(nc, np.int64)
     offs = np.empty(nc)
     dirs = np.empty((nc, 3))
@@ -395,7 +529,10 @@ def _match_view(V, N, F, R, t, K, dist, has_dist, center, width, height, mask, o
     steps = int(np.ceil(tau_px))
     for c in range(nc):
         # Occlusion: one step outwards must leave the template's own projected silhouette.
-        if own[cpix[c, 1], cpix[c, 0]] != 0:
+        if closed:
+            if _outline_covers(row_start, x_cross, cross_sign, cpix[c, 0], cpix[c, 1]):
+                continue
+        elif own[cpix[c, 1], cpix[c, 0]] != 0:
             continue
         i = cand[c]
         u, v, dx, dy = uv[i, 0], uv[i, 1], cdir[c, 0], cdir[c, 1]
@@ -432,7 +569,8 @@ def _rim_flags(Vf, Nf, uvf, z, center, width, height, rim_cos, rim):
 
 @numba.njit(cache=True, parallel=True)
 def _match_views(V, N, F, R, t, K, dist, has_dist, center, width, height, masks, owns, facing, tau_px, rim_cos,
-                 probe_m, outline_px, uv, z, outline_mode, rim_stride, use_view):
+                 probe_m, outline_px, uv, z, outline_mode, rim_stride, use_view, edge_table, boundary, outline_edges,
+                 outline_rows, outline_count):
     """:func:`_match_view` of every camera in one compiled call, ``prange`` over the cameras (each its own
     mask and outline buffer, so the views run on as many threads as numba has); the matches concatenated
     in camera order, as the per-view loop of :func:`silhouette_constraints` builds them, with their camera
@@ -448,7 +586,8 @@ def _match_views(V, N, F, R, t, K, dist, has_dist, center, width, height, masks,
             continue
         ids, offs, dirs = _match_view(V, N, F, R[c], t[c], K[c], dist[c], has_dist[c], center[c], width, height,
                                       masks[c], owns[c], facing, tau_px, rim_cos, probe_m, outline_px, uv[c], z[c],
-                                      outline_mode, rim_stride)
+                                      outline_mode, rim_stride, edge_table, boundary[c], outline_edges[c],
+                                      outline_rows[c], outline_count[c:c + 1])
         m = ids.shape[0]
         counts[c] = m
         ids_c[c, :m] = ids
@@ -483,8 +622,20 @@ def _is_closed_cached(F: np.ndarray) -> bool:
     if hit is None or not np.array_equal(hit[0], F):
         if len(_CLOSED_CACHE) > 16:
             _CLOSED_CACHE.clear()
-        hit = _CLOSED_CACHE[key] = (F.copy(), is_closed_mesh(F))
+        hit = _CLOSED_CACHE[key] = [F.copy(), is_closed_mesh(F), None]
     return hit[1]
+
+
+def _outline_table_cached(F: np.ndarray) -> np.ndarray:
+    """:func:`outline_edge_table` of a closed mesh as one ``(4, E)`` int32 array, memoised with
+    :func:`_is_closed_cached` (~3 ms at 13K, once per template); ``(4, 0)`` for any other mesh."""
+    if not _is_closed_cached(F):
+        return np.zeros((4, 0), np.int32)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    hit = _CLOSED_CACHE[(F.shape, hashlib.blake2b(F[::97].tobytes(), digest_size=16).digest())]
+    if hit[2] is None:
+        hit[2] = np.ascontiguousarray(np.stack(outline_edge_table(F)))
+    return hit[2]
 
 
 @dataclass(frozen=True)
@@ -550,11 +701,18 @@ class SilhouetteViews:
 
     Algorithm 1 re-matches the same masks ``No`` times; the float masks, camera matrices and the
     template-outline raster buffers are built here once instead of at every outer iteration. With the
-    template faces ``F`` of a closed mesh the outline raster draws front-facing triangles only.
+    template faces ``F`` of a closed mesh the outline is that of the front-facing triangles, kept as their
+    boundary edges (``outline``: per view the edges' scratch ids, ``(x0, y0, x1, y1)``, rows and count; the
+    matching's occlusion test reads their winding number) instead of a raster.
     """
 
     def __init__(self, cameras, masks: dict, F: np.ndarray | None = None):
         self.facing = 1.0 if F is not None and _is_closed_cached(F) else 0.0
+        self.faces = None if F is None else np.ascontiguousarray(F, dtype=np.int64)
+        self.edge_table = _outline_table_cached(self.faces) if self.facing else np.zeros((4, 0), np.int32)
+        C, E = len(cameras), self.edge_table.shape[1]
+        self.outline = (np.empty((C, E), np.int32), np.empty((C, E, 4)), np.empty((C, E, 2), np.int32),
+                        np.zeros(C, np.int64))
         self.views = []
         for cam in cameras:
             mask = np.asarray(masks[cam.name])
@@ -584,6 +742,22 @@ class SilhouetteViews:
                            np.array([v[7] for v in self.views], dtype=np.float64).reshape(C, 3), w, h)
         self._projected = None  # (V, uv (C, n, 2), z (C, n)) of the last packed matching
         self.outline_whole = False  # the outline buffers hold whole rasters (``outline="full"``) of one mesh
+
+    def kept_outline(self, c: int) -> np.ndarray:
+        """The ``(H, W)`` uint8 mask of view ``c``'s outline as the last matching left it (the raster buffer, or
+        on a closed mesh the coverage of its kept edges): what ``outline="keep"`` reads."""
+        cam = self.views[c][0]
+        if self.edge_table.shape[1]:
+            _, edges, rows, count = self.outline
+            return outline_coverage(edges[c], rows[c], count[c], cam.width, cam.height)
+        return self.packed[1][c] if self.packed is not None else self.views[c][2]
+
+    def _edge_table_for(self, F: np.ndarray) -> np.ndarray:
+        """The closed mesh's edge table if ``F`` is the mesh these views were made with, else an empty one (the
+        raster path)."""
+        if self.edge_table.shape[1] and (F is self.faces or np.array_equal(F, self.faces)):
+            return self.edge_table
+        return np.zeros((4, 0), np.int32)
 
     def projection(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """Pixels ``(C, n, 2)`` (NaN behind a camera) and depths ``(C, n)`` of every vertex in every view as the
@@ -637,13 +811,14 @@ def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras,
     if mode == 1:
         use = np.ones(C, np.bool_)  # a whole outline for every view, to keep
     stride = max(int(rim_stride), 1)
+    edge_table, outline = views._edge_table_for(F), views.outline
     if views.packed is not None:  # all cameras in one compiled call (prange over them)
         masks3, owns, Rs, ts, Ks, dists, has_dists, centers3, w, h = views.packed
         uv, z = views._projection_buffers(V)
         vid, off, direction, cam_of = _match_views(V, N, F, Rs, ts, Ks, dists, has_dists, centers3, w, h, masks3,
                                                    owns, views.facing, float(tau_px), float(rim_cos),
                                                    _NORMAL_PROBE_M, float(outline_step_px), uv, z, mode, stride,
-                                                   use)
+                                                   use, edge_table, *outline)
         if not use.all():  # the skipped views' projections are stale: the gate projects for itself
             views._projected = (None, uv, z)
         views.outline_whole = mode in (1, 2)
@@ -657,7 +832,8 @@ def silhouette_constraints(V: np.ndarray, F: np.ndarray, N: np.ndarray, cameras,
                 continue
             ids, o, d = _match_view(V, N, F, R, t, K, dcoef, has_dist, center, cam.width, cam.height, mask, own,
                                     views.facing, float(tau_px), float(rim_cos), _NORMAL_PROBE_M,
-                                    float(outline_step_px), np.empty((len(V), 2)), np.empty(len(V)), mode, stride)
+                                    float(outline_step_px), np.empty((len(V), 2)), np.empty(len(V)), mode, stride,
+                                    edge_table, outline[0][c], outline[1][c], outline[2][c], outline[3][c:c + 1])
             if len(ids) == 0:
                 continue
             vids.append(ids)
