@@ -632,15 +632,19 @@ def _hull_gate(V, vertex, origin, direction, gate_m, R, t, K, dist, has_dist, si
     """Keep mask of :meth:`SilhouetteFields.hull_gate`: ``hull(v)`` of each distinct vertex once (a rim
     vertex has matches in several views), then ``hull(q)`` of the targets, each target dropped from the
     camera loop as soon as it exceeds ``max(hull(v), 0) + gate_m`` (the max only grows, so the decision is
-    the full max's)."""
+    the full max's). The distinct vertices are read in the order of their ids (neighbours on the mesh, near in
+    every image: the fields' reads stay in cache; issue 15's frame time, rec15k: ~0.7 -> ~0.5 ms a pass of ~7K
+    vertices, the same values, each vertex's max over the cameras in their order)."""
     m = vertex.shape[0]
     slot = np.full(V.shape[0], -1, np.int64)
+    for j in range(m):
+        slot[vertex[j]] = 0
     order = np.empty(m, np.int64)
     nu = 0
-    for j in range(m):
-        if slot[vertex[j]] < 0:
-            slot[vertex[j]] = nu
-            order[nu] = vertex[j]
+    for i in range(V.shape[0]):
+        if slot[i] == 0:
+            slot[i] = nu
+            order[nu] = i
             nu += 1
     if has_projection:
         hv = _hull_max_at(order[:nu], uv, z, K, size, sdf, shapes, offsets, margin, chunks)
