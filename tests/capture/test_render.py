@@ -147,3 +147,25 @@ def test_flat_plane_colour_is_lambert():
     img2 = render_rgb(V, F, cam, vertex_colors=colours)
     expected2 = np.round(np.clip(colours[0] * lambert_shading(n[None])[0], 0, 1) * 255)
     assert np.abs(img2.reshape(-1, 3).astype(float) - expected2).max() <= 1
+
+
+def test_vectorised_projection_is_the_per_vertex_loop_bit_for_bit():
+    """``_project`` (flat, branch-free: issue 15's frame time, rec15k) against the per-vertex loop it replaced, with
+    and without distortion, a skewed K, vertices behind the camera, at z = 0 and NaN."""
+    from bodystudio.capture.render import _project, _project_reference
+
+    rng = np.random.default_rng(0)
+    R, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    t = np.array([0.1, -0.2, 2.5])
+    K = np.array([[520.0, 0.3, 320.0], [0.0, 515.0, 240.0], [0.0, 0.0, 1.0]])
+    V = rng.normal(0.0, 3.0, (2000, 3))
+    V[0] = R.T @ (np.array([0.3, 0.2, 0.0]) - t)  # z = 0 in the camera
+    V[1, 2] = np.nan
+    V = np.ascontiguousarray(V)
+    for dist in (np.zeros(5), np.array([-0.2, 0.05, 0.001, -0.002, 0.01])):
+        uv, z, uv_ref, z_ref = np.empty((len(V), 2)), np.empty(len(V)), np.empty((len(V), 2)), np.empty(len(V))
+        _project(V, R, t, K, dist, uv, z)
+        _project_reference(V, R, t, K, dist, uv_ref, z_ref)
+        assert 100 < np.isnan(uv[:, 0]).sum() < 1900 and np.isnan(uv[1]).all()
+        np.testing.assert_array_equal(uv, uv_ref)
+        np.testing.assert_array_equal(z, z_ref)
