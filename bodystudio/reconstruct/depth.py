@@ -216,7 +216,48 @@ _TILE = 8
 @njit(cache=True)
 def _faces_touching(uv, F, width, height, need):
     """Triangles whose pixel-centre box (``_rasterize``'s: ``ceil(min)`` .. ``floor(max)`` clipped to the image)
-    touches a tile flagged in ``need``; a triangle with a non-finite vertex (which ``_rasterize`` skips) is not."""
+    touches a tile flagged in ``need``; a triangle with a non-finite vertex (which ``_rasterize`` skips) is not.
+
+    The box's ends are the min of the vertices' ceils and the max of their floors (both monotone), taken once per
+    vertex (clamped a little beyond the image, which changes no box that meets it) instead of once per triangle
+    (issue 15's frame time, rec15k: 0.39 -> 0.33 ms a call at 13K, the same triangles;
+    :func:`_faces_touching_reference` is the loop before)."""
+    n = uv.shape[0]
+    box = np.zeros((n, 4), np.int64)
+    finite = np.zeros(n, np.bool_)
+    for i in range(n):
+        u, v = uv[i, 0], uv[i, 1]
+        if np.isfinite(u) and np.isfinite(v):
+            finite[i] = True
+            u = min(max(u, -2.0), width + 2.0)
+            v = min(max(v, -2.0), height + 2.0)
+            box[i, 0], box[i, 1] = int(np.ceil(u)), int(np.floor(u))
+            box[i, 2], box[i, 3] = int(np.ceil(v)), int(np.floor(v))
+    m = F.shape[0]
+    keep = np.zeros(m, np.bool_)
+    th, tw = need.shape
+    for f in range(m):
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        if not (finite[a] and finite[b] and finite[c]):
+            continue
+        x0 = max(min(box[a, 0], box[b, 0], box[c, 0]), 0)
+        x1 = min(max(box[a, 1], box[b, 1], box[c, 1]), width - 1)
+        y0 = max(min(box[a, 2], box[b, 2], box[c, 2]), 0)
+        y1 = min(max(box[a, 3], box[b, 3], box[c, 3]), height - 1)
+        if x0 > x1 or y0 > y1:
+            continue
+        for ty in range(y0 // _TILE, min(y1 // _TILE, th - 1) + 1):
+            for tx in range(x0 // _TILE, min(x1 // _TILE, tw - 1) + 1):
+                if need[ty, tx]:
+                    keep[f] = True
+        # a kept triangle is drawn whole; its pixels outside the tiles are never read
+    return keep
+
+
+@njit(cache=True)
+def _faces_touching_reference(uv, F, width, height, need):
+    """:func:`_faces_touching` with each triangle's box from its vertices' coordinates (before rec15k), kept as the
+    equality test's reference."""
     m = F.shape[0]
     keep = np.zeros(m, np.bool_)
     th, tw = need.shape
@@ -240,7 +281,6 @@ def _faces_touching(uv, F, width, height, need):
             for tx in range(x0 // _TILE, min(x1 // _TILE, tw - 1) + 1):
                 if need[ty, tx]:
                     keep[f] = True
-        # a kept triangle is drawn whole; its pixels outside the tiles are never read
     return keep
 
 

@@ -163,3 +163,28 @@ def test_the_observation_is_the_same_on_two_threads(scene):
     for a, b in ((one.points, two.points), (one.normals, two.normals), (one.depth_m, two.depth_m),
                  (one.valid, two.valid)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_the_triangle_cull_from_vertex_boxes_is_the_per_triangle_one(scene):
+    """``_faces_touching`` (each vertex's ceil / floor once, rec15k) keeps the triangles of the per-triangle loop
+    before it: views with the mesh partly off the image, vertices behind the camera (NaN) or at infinity, tiles
+    flagged at random, on the border and none."""
+    from bodystudio.capture.render import project_vertices
+    from bodystudio.reconstruct.depth import _TILE, _faces_touching, _faces_touching_reference
+
+    V, F, cam, _ = scene
+    uv, _ = project_vertices(V, cam)
+    uv = np.ascontiguousarray(uv)
+    rng = np.random.default_rng(3)
+    th, tw = (cam.height + _TILE - 1) // _TILE, (cam.width + _TILE - 1) // _TILE
+    cases = [uv, uv * 1.7 - 40.0, uv.copy(), uv.copy()]
+    cases[2][::9] = np.nan
+    cases[3][::13, 0] = np.inf
+    for points in cases:
+        for need in (rng.random((th, tw)) < 0.2, np.zeros((th, tw), bool), np.pad(np.zeros((th - 2, tw - 2), bool), 1,
+                                                                                   constant_values=True)):
+            got = _faces_touching(points, F, cam.width, cam.height, need)
+            ref = _faces_touching_reference(points, F, cam.width, cam.height, need)
+            np.testing.assert_array_equal(got, ref)
+    assert 0 < _faces_touching(cases[2], F, cam.width, cam.height, np.ones((th, tw), bool)).sum() < \
+        _faces_touching(uv, F, cam.width, cam.height, np.ones((th, tw), bool)).sum()
