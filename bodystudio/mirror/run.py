@@ -27,6 +27,7 @@ import numpy as np
 
 from bodystudio.errors import BodyStudioError, FileFormatError, InputError
 from bodystudio.fileio import X264_PRESETS, Mp4Writer, atomic_write
+from bodystudio.mirror import track as _track
 from bodystudio.mirror.compose import BackgroundModel, compose, update_background
 from bodystudio.mirror.foreground import refine_foreground
 from bodystudio.mirror.warp import (
@@ -84,6 +85,11 @@ REFINE_STEPS_ONE_PLAYER = 2
 #: (8000: 4.9) and warp_iou +0.0012 / +0.0009 / +0.0010 on sessions 42 / 41 / 43, +0.0000 / +0.0003 on the held-out
 #: 45 / 46, for ~1.1 ms CPU a step, which a one-player run has (docs/mirror.md).
 REFINE_DEPTH_SAMPLES_ONE_PLAYER = 2000
+
+
+#: The limbs whose twist each frame's IK pose drops before the refinement and the bodies
+#: (:func:`bodystudio.mirror.track.untwisted_pose`; () keeps the IK's warm-started twist, as before MIR12p).
+UNTWIST_BONES = _track.UNTWIST_BONES
 
 
 def refine_steps(n_players: int) -> int:
@@ -521,7 +527,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     """
     from bodystudio.mirror.frames import read_mirror_frame, register_depth_to_color
     from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
-    from bodystudio.mirror.track import ik_pose
+    from bodystudio.mirror.track import ik_pose, untwisted_pose
 
     sensor = session.kinect
     if sensor is None:
@@ -597,8 +603,9 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         poses = []
         for a, tracked, _ in present:
             try:
-                poses.append(ik_pose(a.body.skeleton, tracked.positions, tracked.tracked, sensor.version,
-                                     previous=a.previous))
+                pose = ik_pose(a.body.skeleton, tracked.positions, tracked.tracked, sensor.version,
+                               previous=a.previous)
+                poses.append(untwisted_pose(a.body.skeleton, pose, UNTWIST_BONES) if UNTWIST_BONES else pose)
             except BodyStudioError as exc:
                 warning = f"tracking failed: {exc}" if not several else f"tracking player {a.player} failed: {exc}"
                 break
