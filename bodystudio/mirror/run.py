@@ -27,6 +27,7 @@ import numpy as np
 
 from bodystudio.errors import BodyStudioError, FileFormatError, InputError
 from bodystudio.fileio import X264_PRESETS, Mp4Writer, atomic_write
+from bodystudio.mirror import track as _track
 from bodystudio.mirror.compose import BackgroundModel, compose, update_background
 from bodystudio.mirror.foreground import refine_foreground
 from bodystudio.mirror.warp import (
@@ -84,6 +85,17 @@ REFINE_STEPS_ONE_PLAYER = 2
 #: (8000: 4.9) and warp_iou +0.0012 / +0.0009 / +0.0010 on sessions 42 / 41 / 43, +0.0000 / +0.0003 on the held-out
 #: 45 / 46, for ~1.1 ms CPU a step, which a one-player run has (docs/mirror.md).
 REFINE_DEPTH_SAMPLES_ONE_PLAYER = 2000
+
+
+#: True: a run that reshapes one player registers both posed bodies in the image plane to the player's refined
+#: foreground before the warp (:func:`bodystudio.mirror.image_plane.register_to_outline`: per-bone 2D translations
+#: from the source outline's offsets; the bodies' pairs are made again); several players never. MIR12p: end to end
+#: 42 / 41 / 43 warp_iou +0.0010 / +0.0009 / +0.0006, held out 45 / 46 / 47 / 48 +0.0005 / +0.0007 / -0.0001 /
+#: +0.0004 for a second pairing a frame: off (docs/mirror.md).
+REGISTER_OUTLINE_ONE_PLAYER = False
+#: The limbs whose twist each frame's IK pose drops before the refinement and the bodies
+#: (:func:`bodystudio.mirror.track.untwisted_pose`; () keeps the IK's warm-started twist, as before MIR12p).
+UNTWIST_BONES = _track.UNTWIST_BONES
 
 
 def refine_steps(n_players: int) -> int:
@@ -521,7 +533,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     """
     from bodystudio.mirror.frames import read_mirror_frame, register_depth_to_color
     from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
-    from bodystudio.mirror.track import ik_pose
+    from bodystudio.mirror.track import ik_pose, untwisted_pose
 
     sensor = session.kinect
     if sensor is None:
@@ -539,6 +551,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     camera = sensor.color
     if refine:
         from bodystudio.mirror.frames import point_cloud
+        from bodystudio.mirror.image_plane import register_to_outline
         from bodystudio.mirror.refine import TWIST_BONES, refine_plan, refine_pose
 
         steps = refine_steps(len(actors))
@@ -597,8 +610,9 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         poses = []
         for a, tracked, _ in present:
             try:
-                poses.append(ik_pose(a.body.skeleton, tracked.positions, tracked.tracked, sensor.version,
-                                     previous=a.previous))
+                pose = ik_pose(a.body.skeleton, tracked.positions, tracked.tracked, sensor.version,
+                               previous=a.previous)
+                poses.append(untwisted_pose(a.body.skeleton, pose, UNTWIST_BONES) if UNTWIST_BONES else pose)
             except BodyStudioError as exc:
                 warning = f"tracking failed: {exc}" if not several else f"tracking player {a.player} failed: {exc}"
                 break
@@ -622,7 +636,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         def bodies_and_pairs(foreground, timings, poses=poses, frame=frame, present=present, shapes=shapes,
                              players_c=players_c, others=others, cpu=cpu):
             """Pose refinement (with the frame's refined ``foreground`` when given), the bodies, the pairs."""
-            sources, targets = [], []
+            sources, targets, fgs = [], [], []
             for (a, tracked, _), pose, (_, Vt_rest, rig) in zip(present, poses, shapes, strict=True):
                 t, c = time.perf_counter(), time.process_time()
                 if foreground is not None:
@@ -631,6 +645,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
                     # several players: this one's foreground is the cut's without the other players' pixels
                     not_mine = others if not several else (players_c > 0) & (players_c != a.player)
                     fg = foreground if not several else foreground & ~not_mine
+                    fgs.append(fg)
                     try:
                         pose = refine_pose(a.plan, a.body.skeleton, pose, camera, fg, tracked.positions,
                                            tracked.tracked, points, not_mine, sensor.version, iterations=steps,
@@ -649,6 +664,13 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
                 cpu["bodies"] = cpu.get("bodies", 0.0) + (time.process_time() - c) * 1e3
             t_bodies, c_bodies = time.perf_counter(), time.process_time()
             pairs = frame_pairs(sources, targets, present[0][0].body.faces, camera, correspondence)
+            if fgs and len(actors) == 1 and REGISTER_OUTLINE_ONE_PLAYER and pairs.dense is not None:
+                body = present[0][0].body
+                Vs, Vt, _ = register_to_outline(sources[0], targets[0], body.faces, body.weights,
+                                                body.skeleton.parents, camera, fgs[0], pairs.dense.source_mask,
+                                                pairs.dense.source_depth, pairs.dense.origin)
+                if Vs is not sources[0]:  # too few outline vertices: the bodies as they are
+                    pairs = frame_pairs([Vs], [Vt], body.faces, camera, correspondence)
             timings["pairs"] = (time.perf_counter() - t_bodies) * 1e3
             cpu["pairs"] = (time.process_time() - c_bodies) * 1e3
             return pairs

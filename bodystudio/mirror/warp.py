@@ -984,7 +984,8 @@ class DenseCorrespondence:
     covers, the input pixel where the source body shows the same surface point (:func:`dense_source_uv`),
     NaN elsewhere; ``source_mask`` (h, w) the source body's silhouette; ``grid_source_uv`` (gh, gw, 2) the same
     at the warp grid's nodes (the mean of the 2x2 pixels around each node; NaN unless all four are covered),
-    ``grid_groups`` (gh, gw) the person at each node (None: one).
+    ``grid_groups`` (gh, gw) the person at each node (None: one); ``source_depth`` (h, w) the source body's z-buffer
+    (0 where it does not cover; :func:`warp_pairs` keeps it for :mod:`bodystudio.mirror.image_plane`).
     """
 
     origin: tuple[int, int]
@@ -992,6 +993,7 @@ class DenseCorrespondence:
     source_mask: np.ndarray
     grid_source_uv: np.ndarray
     grid_groups: np.ndarray | None = None
+    source_depth: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -1209,7 +1211,7 @@ def warp_pairs(source_vertices: np.ndarray, target_vertices: np.ndarray, faces: 
         source_uv = dense_source_uv(Vs, F_t, rasters[1], camera, projected=uv_s if np.all(z_s > 0) else None)
         correspondence = DenseCorrespondence((x0, y0), source_uv, rasters[0][0],
                                              *_grid_samples(source_uv, rasters[1].triangle_id, (x0, y0), camera,
-                                                            grid, groups_t))
+                                                            grid, groups_t), source_depth=rasters[0][1])
     return WarpPairs(uvs[0][keep], uvs[1][keep], ids[keep], correspondence)
 
 

@@ -397,6 +397,13 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, play
     monkeypatch.setattr(frames_mod, "read_mirror_frame", read)
     monkeypatch.setattr(frames_mod, "register_depth_to_color", register)
     monkeypatch.setattr(track_mod, "ik_pose", f.ik)
+
+    def untwisted(skeleton, pose, bones):  # MIR12p: the IK's limbs untwisted on the body's skeleton, marked "u"
+        assert skeleton == "sk" and bones == run_mod.UNTWIST_BONES
+        return "u" + pose
+
+    monkeypatch.setattr(track_mod, "untwisted_pose", untwisted)
+
     def target(m, coeffs, edits):
         assert m is model
         return coeffs + edits["taller"]
@@ -433,12 +440,12 @@ def test_session_inputs_warn_per_frame_and_ramp_the_edit(monkeypatch):
     # the edit is reached over ramp_frames tracked frames: V_S + s (V_T - V_S), V_T = 10 here
     assert [o.edit_fraction for o in ok] == pytest.approx([1 / 3, 2 / 3, 1.0, 1.0])
     assert [t for t, _ in f.bodies] == pytest.approx([4.0, 7.0, 10.0, 10.0])
-    assert [p for _, p in f.bodies] == ["pose4", "pose5", "pose7", "pose8"]
+    assert [p for _, p in f.bodies] == ["upose4", "upose5", "upose7", "upose8"]  # the untwisted poses
     assert ok[0].dst_uv[0, 0] == pytest.approx(4.0) and ok[0].src_uv[0, 0] == 1.0
     np.testing.assert_array_equal(ok[0].depth_color, np.full((CH, CW), 0.8))
     assert all(o.dense == "dense" for o in ok)  # the default correspondence is the dense one, passed on
-    # the IK is warm-started from the last successful pose
-    assert f.ik_calls == [(4.0, None), (5.0, "pose4"), (6.0, "pose5"), (7.0, "pose5"), (8.0, "pose7")]
+    # the IK is warm-started from the last successful pose, untwisted
+    assert f.ik_calls == [(4.0, None), (5.0, "upose4"), (6.0, "upose5"), (7.0, "upose5"), (8.0, "upose7")]
     # masks: the person, the other players
     assert out[4].person_mask.sum() == 16 and out[4].others_mask.sum() == 4
     assert not (out[4].person_mask & out[4].others_mask).any()

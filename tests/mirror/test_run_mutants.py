@@ -447,6 +447,12 @@ def _two_player_session(monkeypatch):
     monkeypatch.setattr(frames_mod, "read_mirror_frame", read)
     monkeypatch.setattr(frames_mod, "register_depth_to_color", lambda d, p, s: (np.full(p.shape, 0.8), p))
     monkeypatch.setattr(track_mod, "ik_pose", ik)
+
+    def untwisted(skeleton, pose, bones):  # the run's untwisting (MIR12p), recorded, as the identity
+        rec.setdefault("untwisted", []).append((skeleton, pose, bones))
+        return pose
+
+    monkeypatch.setattr(track_mod, "untwisted_pose", untwisted)
     monkeypatch.setattr(reshape_mod, "target_coeffs", lambda m, c, e: c + e["taller"])
     monkeypatch.setattr(reshape_mod, "posed_source_and_target", lambda b, vt, pose, r: (b.vertices, vt))
     monkeypatch.setattr(reshape_mod, "target_skeleton", rig)
@@ -500,6 +506,11 @@ def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
     assert rec["ik"] == [("sk1", 0, None), ("sk2", 0, None), ("sk1", 1, "pose1.0"), ("sk1", 4, "pose1.1"),
                          ("sk2", 4, "pose2.0"), ("sk1", 5, "pose1.1"), ("sk2", 5, "pose2.0"), ("sk2", 6, "pose2.5")]
     assert rec["dense"] == [run_mod.CORRESPONDENCE == "dense"] * 4
+    # every pose the IK gives is untwisted on its own skeleton with the run's limbs (MIR12p)
+    assert [(sk, pose) for sk, pose, _ in rec["untwisted"]] == [
+        ("sk1", "pose1.0"), ("sk2", "pose2.0"), ("sk1", "pose1.1"), ("sk1", "pose1.4"), ("sk1", "pose1.5"),
+        ("sk2", "pose2.5"), ("sk2", "pose2.6")]
+    assert {bones for _, _, bones in rec["untwisted"]} == {run_mod.UNTWIST_BONES}
     # the correspondence asked reaches the pairs; an edit of 2 ramps the coefficients by s (c_T - c_S)
     rec["rig"].clear()
     list(run_mod.session_inputs(session, [b1, b2], model, {"taller": 2.0}, [1, 2], 2, [0], "mls"))

@@ -32,6 +32,7 @@ def _stand_ins(monkeypatch):
     monkeypatch.setattr(init_mod, "initialise_from_observations", lambda obs, m, view_point=None, passes=3, **kw:
                         source)
     monkeypatch.setattr(init_mod, "ik_pose", lambda sk, joints, tracked, version, previous=None: ("pose", joints))
+    monkeypatch.setattr(init_mod, "untwisted_pose", lambda sk, pose, bones: pose)  # MIR12p, timed with the IK
     monkeypatch.setattr(init_mod, "skin_vertices", lambda *a, **k: None)
 
     def bodies(Vs, Vt, W, sk_s, sk_t, pose):
