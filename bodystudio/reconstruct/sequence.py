@@ -491,6 +491,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                     frame_params = replace(params, outer_iterations=min(params.outer_iterations,
                                                                         track_params.outer_iterations))
                 frame_params = replace(frame_params, matching=track_params.matching)
+                if track_params.tau_px:  # the nearer start's search range, never above the run's
+                    frame_params = replace(frame_params, tau_px=min(frame_params.tau_px, track_params.tau_px))
             if tracking:
                 state = {"T": init.bone_transforms, "scale": init.global_scale, "joints": J,
                          "energy": detail["energy"], "posed": init.vertices}

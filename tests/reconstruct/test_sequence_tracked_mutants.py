@@ -288,7 +288,7 @@ def test_tracked_frames_pose_the_template_with_the_fit_and_the_previous_scale(mo
         if track == "tracked":
             assert deform[k]["params"].outer_iterations == 3
             assert deform[k]["params"] == replace(deform[0]["params"], outer_iterations=3,
-                                                  matching=TrackParams().matching)
+                                                  matching=TrackParams().matching, tau_px=TrackParams().tau_px)
         else:
             assert deform[k]["params"] is deform[0]["params"]
             assert deform[k]["params"].outer_iterations == 5
@@ -350,8 +350,8 @@ def test_outer_count_zero_keeps_the_runs_settings_and_no_warm_mesh_starts_from_t
     deform = rec.calls["deform"]
     # the run's settings but, on a tracked frame, the tracker's matching schedule
     for d, t in zip(deform, EXPECTED_TRACK, strict=True):
-        assert d["params"] == (replace(deform[0]["params"], matching=track.matching) if t == "tracked"
-                               else deform[0]["params"])
+        assert d["params"] == (replace(deform[0]["params"], matching=track.matching, tau_px=track.tau_px)
+                               if t == "tracked" else deform[0]["params"])
     assert all(d["params"].outer_iterations == 5 for d in deform)
 
 
