@@ -83,7 +83,10 @@ class TrackParams:
     centimetres from the surface at most, while the paper's 30 px reach ~20 cm at 3 m (f ~ 450 px): the far
     crossings it finds are other body parts' contours (a head's rim vertex inside a raised arm's silhouette, a
     fingertip reaching the next finger's), each pulling its vertex 10-20 cm into a spike (issue 15, rec15l;
-    docs/reconstruct.md).
+    docs/reconstruct.md). ``neck_joint``: the template each frame deforms is posed with its neck's base on the
+    frame's tracked Neck joint (:func:`bodystudio.reconstruct.pose_init.neck_at_joint`; Eq. 11 places it by the
+    spine's transform, 3-7 cm beside it on the hidden subjects); the tracker's own pose (the next frame's prior)
+    is the fit's, unchanged.
     ``compiled_rotations``: the tracking fit's rotation bookkeeping compiled
     (:attr:`bodystudio.reconstruct.articulated_fit.PoseRefineParams.compiled_rotations`; rec15j).
     """
@@ -104,6 +107,7 @@ class TrackParams:
     warm_mesh: bool = False
     outer_iterations: int = 3
     tau_px: float = 15.0
+    neck_joint: bool = True
     matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True, gate="reuse")
     exact_fields: bool = False
     compiled_rotations: bool = False

@@ -1,6 +1,7 @@
-"""``TrackParams(tau_px=...)`` (rec15l): the tracked frame's contour search range, 15 px by default, 0 for the run's;
-out-of-range values are one-line errors naming the setting and its range. Its wiring and its effect:
-tests/reconstruct/test_tracked_search_range.py."""
+"""``TrackParams(tau_px=...)`` and ``TrackParams(neck_joint=...)`` (rec15l): the tracked frame's contour search range,
+15 px by default, 0 for the run's, out-of-range values one-line errors naming the setting and its range; the neck
+on the tracked Neck joint, on by default. Wiring and effect: tests/reconstruct/test_tracked_search_range.py and
+test_neck_at_joint.py."""
 
 import pytest
 
@@ -18,3 +19,14 @@ def test_the_default_and_the_refusals():
         with pytest.raises(InputError, match=r"^tracking tau_px .* is out of range; use a value in \[0, 500\]$"):
             TrackParams(tau_px=bad)
     assert TrackParams(tau_px=0).tau_px == 0
+
+
+def test_the_neck_placement_is_on_by_default_and_recorded():
+    """``TrackParams(neck_joint=...)`` (rec15l): on by default, off by ``False``; run.json's ``track_params`` (the
+    dataclass as a dict) records both new settings."""
+    from dataclasses import asdict
+
+    assert TrackParams().neck_joint is True
+    assert TrackParams(neck_joint=False).neck_joint is False
+    rec = asdict(TrackParams(tau_px=12.5, neck_joint=False))
+    assert rec["tau_px"] == 12.5 and rec["neck_joint"] is False
