@@ -2,7 +2,7 @@
 wall, per step, on one or two numba threads.
 
 Usage: PYTHONPATH=. python benchmarks/reconstruct_tracked_frame.py [--cache DIR] [--repeats 9] [--threads 1|2]
-       [--compare] [--constraints sil|sil,depth] [--compare-depth]
+       [--compare] [--constraints sil|sil,depth] [--compare-depth] [--compare-tau]
 
 A tracked frame as ``reconstruct_frames`` runs it (``--tracking``, ``TrackParams()``): walk s31 frame 1 at 30 fps
 (10 cameras 640x480, 13K template) from frame 0's pose as the prior: read the masks, distance fields, the
@@ -16,7 +16,8 @@ frame by frame with the exact one (exact distance fields, every outline drawn: t
 trade-offs) in one process. ``--constraints sil,depth`` adds the Kinect depth (issue 15's accuracy goals are for
 silhouettes + depth): its PNG in the read step, the depth observation (cleaning, unprojection, normals) as a
 step, and the depth constraints in every outer iteration of the deformation; ``--compare-depth`` alternates it
-with the numpy depth path before rec15f (:func:`depth_observation_reference`, :func:`depth_constraints_reference`).
+with the numpy depth path before rec15f (:func:`depth_observation_reference`, :func:`depth_constraints_reference`);
+``--compare-tau`` with the run's 30 px contour search (``TrackParams(tau_px=0)``, before rec15l's 15 px).
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ def main() -> None:
     ap.add_argument("--constraints", default="sil", choices=("sil", "sil,depth"))
     ap.add_argument("--compare-depth", action="store_true",
                     help="with --constraints sil,depth: alternate with the numpy depth path (before rec15f)")
+    ap.add_argument("--compare-tau", action="store_true",
+                    help="alternate with the run's 30 px contour search on the tracked frame (before rec15l)")
     args = ap.parse_args()
     use_depth = args.constraints == "sil,depth"
     import numba
@@ -80,6 +83,8 @@ def main() -> None:
                    **configs}
     if args.compare_depth and use_depth:
         configs = {"numpy depth (before rec15f)": (TrackParams(), True), **configs}
+    if args.compare_tau:
+        configs = {"tau 30 px (before rec15l)": (TrackParams(tau_px=0), False), **configs}
 
     def clocks():
         return np.array([time.process_time(), time.thread_time(), time.perf_counter()])
@@ -91,9 +96,12 @@ def main() -> None:
         return out
 
     def frame(track, reference_depth):
-        params = RapidSkinParams(outer_iterations=track.outer_iterations or RapidSkinParams().outer_iterations,
+        run = RapidSkinParams()
+        params = RapidSkinParams(outer_iterations=track.outer_iterations or run.outer_iterations,
                                  matching=track.matching,
-                                 constraints=("silhouette", "depth") if use_depth else ("silhouette",))
+                                 constraints=("silhouette", "depth") if use_depth else ("silhouette",),
+                                 # the tracked frame's search range as reconstruct_frames sets it (rec15l)
+                                 tau_px=min(run.tau_px, getattr(track, "tau_px", 0) or run.tau_px))
         rapid_skin.depth_constraints = depth_constraints_reference if reference_depth else depth_constraints
         observe = depth_observation_reference if reference_depth else depth_observation
         steps: dict[str, np.ndarray] = {}

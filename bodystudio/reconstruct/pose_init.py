@@ -159,6 +159,30 @@ def initialise_pose(body, joints: np.ndarray, version: str = "v2", rest_vertices
     return pose_template(body, T, float(np.cbrt(np.linalg.det(TG[:3, :3]))), version, rest_vertices)
 
 
+def neck_at_joint(body, bone_transforms: np.ndarray, neck: np.ndarray) -> np.ndarray:
+    """Bone transforms ``(B, 4, 4)`` with the neck bone's base moved onto the tracked Neck joint ``neck`` and its
+    end kept: Fig. 4a's limb transform of ``neck_01`` about ``neck``, onto where ``bone_transforms`` put its tail.
+
+    Eq. 11 places the neck bone by its parent's transform (spine_03, fitted to SpineMid -> SpineShoulder), so where
+    the template's SpineShoulder -> Neck span differs from the subject's, the neck's base lands beside the tracked
+    Neck joint and the neck is posed from there (issue 15: 28-71 mm behind / below it on the hidden male subjects,
+    whose span is 1.02-1.09 of SpineMid -> SpineShoulder where the androgynous template's is 0.80). The head keeps
+    its transform, so the head's fit is unchanged. Returns ``bone_transforms`` itself when the template has no
+    ``neck_01`` or ``neck`` is not finite.
+    """
+    skel = body.skeleton
+    neck = np.asarray(neck, dtype=np.float64)
+    if "neck_01" not in skel.bone_names or not np.all(np.isfinite(neck)):
+        return bone_transforms
+    b = skel.index("neck_01")
+    T = np.array(bone_transforms, dtype=np.float64)
+    base, tail = skel.heads[b], skel.tails[b]
+    moved = T[b].copy()
+    moved[:3, 3] += neck - _apply(T[b], base)
+    T[b] = limb_transform(moved, base, tail, _apply(bone_transforms[b], tail))
+    return T
+
+
 def pose_template(body, bone_transforms: np.ndarray, global_scale: float = 1.0, version: str = "v2",
                   rest_vertices: np.ndarray | None = None) -> PoseInit:
     """The template ``body`` (or ``rest_vertices``) posed by bone transforms ``(B, 4, 4)``: LBS, Eq. 12."""

@@ -52,6 +52,7 @@ from bodystudio.reconstruct.pose_depth import DEPTH_BONES, bone_vertices, combin
 from bodystudio.reconstruct.pose_init import (
     initialise_pose,
     joints_from_mapping,
+    neck_at_joint,
     pose_template,
     sequence_bone_lengths,
     smooth_joint_track,
@@ -90,6 +91,8 @@ OUTPUT_DIR = "reconstruct"
 RUN_MANIFEST = "run.json"
 #: The largest distance between two joints of one person (arms raised, ~2.3 m) with a margin, in metres.
 MAX_JOINT_SPAN_M = 3.5
+#: The Kinect v2 Neck joint's row (:func:`bodystudio.reconstruct.pose_init.neck_at_joint`).
+NECK_JOINT = kinect_joint_names("v2").index("Neck")
 #: Kinect v1 joint names that have a v2 counterpart.
 V1_TO_V2 = {"HipCenter": "SpineBase", "Spine": "SpineMid", "ShoulderCenter": "SpineShoulder"}
 
@@ -374,6 +377,13 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             raise InputError(f"refine_depth_bones: no bone(s) {', '.join(missing) or '(none given)'} in the template; "
                              "give neck, all or bone names joined by +")
         depth_rows = bone_vertices(fit_body, bones)
+    def placed_neck(T, J):
+        """The transforms the deformed template is posed with: a tracked run's neck on the frame's tracked Neck
+        joint (issue 15, rec15l: :func:`neck_at_joint`), the tracker's pose ``T`` kept as the next frame's prior."""
+        if not (tracking and track_params.neck_joint) or J is None:
+            return T
+        return neck_at_joint(body, T, J[NECK_JOINT])
+
     state = None  # the previous frame's (bone transforms, global scale, tracker joints, silhouette energy)
     records = []
     probe = coherence_frames(len(selected))
@@ -416,7 +426,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 detail["smoothing_outside"] = [e_raw, e_smooth]
                 if e_smooth > (1.0 + smoothing_guard) * e_raw + 1e-4:
                     J = J_raw
-            init = None
+            init = fit_T = None
             t_track = 0.0
             if tracking:
                 t1 = time.perf_counter()
@@ -434,7 +444,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                     if energy_jumped(energy, state["energy"], track_params):
                         track = "energy_jump"
                     else:
-                        init = pose_template(body, T, state["scale"], rest_vertices=rest)
+                        fit_T = T  # the posing below places the neck (one LBS of the 13K template a frame)
+                        init = pose_template(body, placed_neck(T, J), state["scale"], rest_vertices=rest)
                 t_track = time.perf_counter() - t1
             hull = None
             depth = None
@@ -483,6 +494,11 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                     detail["energy"] = outside_fraction(pose_template(fit_body, init.bone_transforms).vertices,
                                                         fields, track_params.outside_px)
                     t_track += time.perf_counter() - t1
+            if fit_T is None:  # a (re-)initialised frame: its fitted pose, posed again with the neck placed
+                fit_T = init.bone_transforms
+                placed = placed_neck(fit_T, J)
+                if placed is not fit_T:
+                    init = pose_template(body, placed, init.global_scale, rest_vertices=rest)
             V_start, frame_params = init.vertices, params
             if track == "tracked":
                 if track_params.warm_mesh:
@@ -491,8 +507,10 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                     frame_params = replace(params, outer_iterations=min(params.outer_iterations,
                                                                         track_params.outer_iterations))
                 frame_params = replace(frame_params, matching=track_params.matching)
+                if track_params.tau_px:  # the nearer start's search range, never above the run's
+                    frame_params = replace(frame_params, tau_px=min(frame_params.tau_px, track_params.tau_px))
             if tracking:
-                state = {"T": init.bone_transforms, "scale": init.global_scale, "joints": J,
+                state = {"T": fit_T, "scale": init.global_scale, "joints": J,
                          "energy": detail["energy"], "posed": init.vertices}
             # The smoothness prior keeps the generic template's delta coordinates, so shape errors in
             # regions no silhouette sees are not baked in and carried from frame to frame.

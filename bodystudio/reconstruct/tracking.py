@@ -78,6 +78,15 @@ class TrackParams:
     :class:`SilhouetteFields` by the exact distance transform (default False: the 5x5 chamfer one, ~2x
     faster). Both measured in docs/reconstruct.md (rec15e);
     ``TrackParams(matching=MatchSchedule(), exact_fields=True)`` is the tracker before them.
+    ``tau_px``: the tracked frame's contour search range (Algorithm 1's ``tau``; never above the run's; 0: the
+    run's). The tracked frame starts from the previous frame's pose fitted to this frame's silhouettes, a few
+    centimetres from the surface at most, while the paper's 30 px reach ~20 cm at 3 m (f ~ 450 px): the far
+    crossings it finds are other body parts' contours (a head's rim vertex inside a raised arm's silhouette, a
+    fingertip reaching the next finger's), each pulling its vertex 10-20 cm into a spike (issue 15, rec15l;
+    docs/reconstruct.md). ``neck_joint``: the template each frame deforms is posed with its neck's base on the
+    frame's tracked Neck joint (:func:`bodystudio.reconstruct.pose_init.neck_at_joint`; Eq. 11 places it by the
+    spine's transform, 3-7 cm beside it on the hidden subjects); the tracker's own pose (the next frame's prior)
+    is the fit's, unchanged.
     ``compiled_rotations``: the tracking fit's rotation bookkeeping compiled
     (:attr:`bodystudio.reconstruct.articulated_fit.PoseRefineParams.compiled_rotations`; rec15j).
     """
@@ -97,6 +106,8 @@ class TrackParams:
     min_decrease: float = 0.01
     warm_mesh: bool = False
     outer_iterations: int = 3
+    tau_px: float = 15.0
+    neck_joint: bool = True
     matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True, gate="reuse")
     exact_fields: bool = False
     compiled_rotations: bool = False
@@ -108,7 +119,8 @@ class TrackParams:
                                     ("energy_ratio", self.energy_ratio, 1.0, 100.0),
                                     ("iterations", self.iterations, 1, 100),
                                     ("min_decrease", self.min_decrease, 0.0, 1.0),
-                                    ("outer_iterations", self.outer_iterations, 0, 100)):
+                                    ("outer_iterations", self.outer_iterations, 0, 100),
+                                    ("tau_px", self.tau_px, 0.0, 500.0)):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
 

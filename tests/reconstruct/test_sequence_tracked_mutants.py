@@ -94,6 +94,11 @@ class Rec:
         self.calls["pose"].append((body, T.copy(), global_scale, rest_vertices))
         return NS(bone_transforms=T, global_scale=global_scale, vertices=rest * global_scale + T, joints=None)
 
+    def neck_at_joint(self, body, bone_transforms, neck):
+        """The neck's placement (rec15l) as the identity: the same transforms object, so nothing is posed again."""
+        self.calls.setdefault("neck", []).append((body, np.array(bone_transforms), np.array(neck)))
+        return bone_transforms
+
     def outside_fraction(self, V, fields, outside_px=2.0):
         """0.1 + the posed fit body's centroid's distance to the frame's truth over 0.1 px-metres, at most 1."""
         target = BODIES["2k"].vertices.mean(0) + _truth(fields.fid)
@@ -183,7 +188,7 @@ def _stand_ins(monkeypatch):
     """Every heavy step of the run replaced (a fresh record per test: the direct mutant recheck calls the tests
     without pytest's fixtures)."""
     r = Rec()
-    for name in ("initialise_pose", "pose_template", "outside_fraction", "track_bone_transforms",
+    for name in ("initialise_pose", "pose_template", "neck_at_joint", "outside_fraction", "track_bone_transforms",
                  "refine_bone_transforms", "deform_to_observations", "unpose", "smooth_joint_track",
                  "sequence_bone_lengths", "with_bone_lengths", "fit_body_to_hull"):
         monkeypatch.setattr(seq, name, getattr(r, name))
@@ -288,7 +293,7 @@ def test_tracked_frames_pose_the_template_with_the_fit_and_the_previous_scale(mo
         if track == "tracked":
             assert deform[k]["params"].outer_iterations == 3
             assert deform[k]["params"] == replace(deform[0]["params"], outer_iterations=3,
-                                                  matching=TrackParams().matching)
+                                                  matching=TrackParams().matching, tau_px=TrackParams().tau_px)
         else:
             assert deform[k]["params"] is deform[0]["params"]
             assert deform[k]["params"].outer_iterations == 5
@@ -350,8 +355,8 @@ def test_outer_count_zero_keeps_the_runs_settings_and_no_warm_mesh_starts_from_t
     deform = rec.calls["deform"]
     # the run's settings but, on a tracked frame, the tracker's matching schedule
     for d, t in zip(deform, EXPECTED_TRACK, strict=True):
-        assert d["params"] == (replace(deform[0]["params"], matching=track.matching) if t == "tracked"
-                               else deform[0]["params"])
+        assert d["params"] == (replace(deform[0]["params"], matching=track.matching, tau_px=track.tau_px)
+                               if t == "tracked" else deform[0]["params"])
     assert all(d["params"].outer_iterations == 5 for d in deform)
 
 

@@ -1,0 +1,32 @@
+"""``TrackParams(tau_px=...)`` and ``TrackParams(neck_joint=...)`` (rec15l): the tracked frame's contour search range,
+15 px by default, 0 for the run's, out-of-range values one-line errors naming the setting and its range; the neck
+on the tracked Neck joint, on by default. Wiring and effect: tests/reconstruct/test_tracked_search_range.py and
+test_neck_at_joint.py."""
+
+import pytest
+
+from bodystudio.errors import InputError
+from bodystudio.reconstruct.rapid_skin import RapidSkinParams
+from bodystudio.reconstruct.tracking import TrackParams
+
+
+def test_the_default_and_the_refusals():
+    assert TrackParams().tau_px == 15.0
+    assert RapidSkinParams().tau_px == 30.0  # the per-frame path keeps the paper's
+    for ok in (0.0, 500.0):
+        TrackParams(tau_px=ok)
+    for bad in (-1.0, 500.5, float("nan")):
+        with pytest.raises(InputError, match=r"^tracking tau_px .* is out of range; use a value in \[0, 500\]$"):
+            TrackParams(tau_px=bad)
+    assert TrackParams(tau_px=0).tau_px == 0
+
+
+def test_the_neck_placement_is_on_by_default_and_recorded():
+    """``TrackParams(neck_joint=...)`` (rec15l): on by default, off by ``False``; run.json's ``track_params`` (the
+    dataclass as a dict) records both new settings."""
+    from dataclasses import asdict
+
+    assert TrackParams().neck_joint is True
+    assert TrackParams(neck_joint=False).neck_joint is False
+    rec = asdict(TrackParams(tau_px=12.5, neck_joint=False))
+    assert rec["tau_px"] == 12.5 and rec["neck_joint"] is False
