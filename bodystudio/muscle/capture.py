@@ -212,6 +212,11 @@ class CaptureOptions:
     # over +-5: median 4.91 / 5.51 / 7.94 / 8.28 / 5.52 -> 4.73 / 5.37 / 7.82 / 8.29 / 5.37 mm, jitter
     # +0.52 / +0.63 / - / - / +0.78 -> +0.26 / +0.26 / +0.23 / +0.22 / +0.26 mm; sigma 4 worse on both 2 and 5.
     pose_sigma_frames: float = 2.5
+    # The smoothing's polynomial degree: 0 the Gaussian-weighted mean, 2 a local quadratic over the same window
+    # (``refine.smooth_arm_poses``), which keeps the motion's turning points where the mean cuts them (501, 200
+    # frames: the mean at sigma 2.5 puts 0.6-0.8 deg of elbow-flexion error at the flexion extremes; the fifteenth
+    # pass in docs/muscle.md).
+    pose_smoothing_degree: int = 0
     # Fitted shape only: the arm length (a shape parameter) held near the tracker's shoulder-elbow-wrist chain
     # length averaged over every frame, per frame of the sequence (1 per depth pair). The depth's point-to-plane
     # pairs let the arm slide along itself, and the 8-frame tracker term left it 0.9-1.4 cm short. Measured (6k,
@@ -392,6 +397,12 @@ class CaptureOptions:
         if not (0 <= self.body_rest_min_facing_cos < 1 and 0 <= self.sequence_min_facing_cos < 1):
             raise InputError(f"body_rest_min_facing_cos and sequence_min_facing_cos must be in [0, 1), got "
                              f"{self.body_rest_min_facing_cos} and {self.sequence_min_facing_cos}")
+        degree = self.pose_smoothing_degree
+        if isinstance(degree, bool) or not isinstance(degree, int | np.integer) or not 0 <= degree <= 3:
+            raise InputError(f"pose_smoothing_degree must be 0 (the Gaussian mean), 1, 2 or 3, got "
+                             f"{self.pose_smoothing_degree!r}")
+        if not self.pose_sigma_frames >= 0:
+            raise InputError(f"pose_sigma_frames must be >= 0 (0: no smoothing), got {self.pose_sigma_frames}")
         if not self.sequence_pinned_se_m >= 0:
             raise InputError(f"sequence_pinned_se_m must be >= 0, got {self.sequence_pinned_se_m}")
 
@@ -619,7 +630,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         timer.add("pose_refit", t0)
     if model is not None and o.pose_sigma_frames > 0:
         t0 = time.perf_counter()
-        poses = smooth_arm_poses(poses, o.pose_sigma_frames)
+        poses = smooth_arm_poses(poses, o.pose_sigma_frames, degree=o.pose_smoothing_degree)
         model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("model_filtering", t0)
     if model is None:
