@@ -3,11 +3,8 @@
 cycle's turning points, the local quadratic over the same kind of window keeps them and still takes the noise out."""
 
 import numpy as np
-import pytest
 
-from bodystudio.errors import InputError
 from bodystudio.muscle.arm import ArmPose
-from bodystudio.muscle.capture import CaptureOptions
 from bodystudio.muscle.refine import smooth_arm_poses
 
 
@@ -68,16 +65,3 @@ def test_degree_zero_is_the_gaussian_mean_and_short_windows_fall_back_to_it():
     np.testing.assert_allclose(out[0], g @ a[:3] / g.sum(), atol=1e-14)
     assert abs(out[4] - g[::-1] @ a[2:5] / g.sum()) > 1e-6  # an inner frame: the quadratic, not the mean
     assert smooth_arm_poses(_poses(a), 0.0, degree=2)[3].angles[1, 0] == a[3]  # sigma 0: off
-
-
-@pytest.mark.parametrize("degree", [-1, 4, 2.0, True, "2"])
-def test_capture_options_refuse_a_bad_smoothing_degree(degree):
-    with pytest.raises(InputError, match="pose_smoothing_degree") as exc:
-        CaptureOptions(pose_smoothing_degree=degree)
-    assert "\n" not in str(exc.value)
-
-
-@pytest.mark.parametrize("sigma", [-1.0, float("nan")])
-def test_capture_options_refuse_a_negative_smoothing_sigma(sigma):
-    with pytest.raises(InputError, match="pose_sigma_frames"):
-        CaptureOptions(pose_sigma_frames=sigma)
