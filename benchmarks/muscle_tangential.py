@@ -230,11 +230,13 @@ def session_rows(work: Path, subject_seed: int, name: str = "default", variants:
               flush=True)
         return X
 
-    smoothed = smooth_arm_poses(poses, o.pose_sigma_frames, degree=o.pose_smoothing_degree)
+    smoothed = smooth_arm_poses(poses, o.pose_sigma_frames, degree=o.pose_smoothing_degree,
+                                shoulder_degree=o.shoulder_smoothing_degree)
     X = row("capture", smoothed)
     for label, kw in (variants or {}).items():
         ov = cm.CaptureOptions(**kw)
-        row(label, smooth_arm_poses(poses, ov.pose_sigma_frames, degree=ov.pose_smoothing_degree), ov)
+        row(label, smooth_arm_poses(poses, ov.pose_sigma_frames, degree=ov.pose_smoothing_degree,
+                                    shoulder_degree=ov.shoulder_smoothing_degree), ov)
     if not oracles:
         return rows
     _, sess = session_of(work, subject_seed, 0, 200)
@@ -264,7 +266,7 @@ def session_rows(work: Path, subject_seed: int, name: str = "default", variants:
     return rows
 
 
-SMOOTHING_KEYS = {"pose_sigma_frames", "pose_smoothing_degree"}
+SMOOTHING_KEYS = {"pose_sigma_frames", "pose_smoothing_degree", "shoulder_smoothing_degree"}
 COLUMNS = ("median_mm", "p90_mm", "front", "front_normal", "front_tangential", "back_median_mm", "bulge_err_mm",
            "jitter_mm", "elbow_hinge_rms_deg", "shoulder_twist_rms_deg")
 

@@ -222,6 +222,9 @@ class CaptureOptions:
     # 2.40 / 4.20, 504 2.57 / 4.50 -> 2.43 / 4.26, 507 2.76 / 5.51 -> 2.58 / 5.33, 508 3.08 / 5.91 -> 3.10 / 5.85;
     # 501 noise seed 1 (no choice) 2.47 / 4.69 -> 2.46 / 4.71; bulge and jitter unchanged or lower.
     pose_smoothing_degree: int = 2
+    # The shoulder rotation's own degree (None: ``pose_smoothing_degree``): 0 keeps the mean for the slow shoulder,
+    # whose twist about the upper arm the quadratic leaves noisier (fifteenth pass).
+    shoulder_smoothing_degree: int | None = None
     # Fitted shape only: the arm length (a shape parameter) held near the tracker's shoulder-elbow-wrist chain
     # length averaged over every frame, per frame of the sequence (1 per depth pair). The depth's point-to-plane
     # pairs let the arm slide along itself, and the 8-frame tracker term left it 0.9-1.4 cm short. Measured (6k,
@@ -402,10 +405,12 @@ class CaptureOptions:
         if not (0 <= self.body_rest_min_facing_cos < 1 and 0 <= self.sequence_min_facing_cos < 1):
             raise InputError(f"body_rest_min_facing_cos and sequence_min_facing_cos must be in [0, 1), got "
                              f"{self.body_rest_min_facing_cos} and {self.sequence_min_facing_cos}")
-        degree = self.pose_smoothing_degree
-        if isinstance(degree, bool) or not isinstance(degree, int | np.integer) or not 0 <= degree <= 3:
-            raise InputError(f"pose_smoothing_degree must be 0 (the Gaussian mean), 1, 2 or 3, got "
-                             f"{self.pose_smoothing_degree!r}")
+        for name in ("pose_smoothing_degree", "shoulder_smoothing_degree"):
+            degree = getattr(self, name)
+            if degree is None and name == "shoulder_smoothing_degree":
+                continue
+            if isinstance(degree, bool) or not isinstance(degree, int | np.integer) or not 0 <= degree <= 3:
+                raise InputError(f"{name} must be 0 (the Gaussian mean), 1, 2 or 3, got {degree!r}")
         if not self.pose_sigma_frames >= 0:
             raise InputError(f"pose_sigma_frames must be >= 0 (0: no smoothing), got {self.pose_sigma_frames}")
         if not self.sequence_pinned_se_m >= 0:
@@ -635,7 +640,8 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         timer.add("pose_refit", t0)
     if model is not None and o.pose_sigma_frames > 0:
         t0 = time.perf_counter()
-        poses = smooth_arm_poses(poses, o.pose_sigma_frames, degree=o.pose_smoothing_degree)
+        poses = smooth_arm_poses(poses, o.pose_sigma_frames, degree=o.pose_smoothing_degree,
+                                 shoulder_degree=o.shoulder_smoothing_degree)
         model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("model_filtering", t0)
     if model is None:

@@ -65,3 +65,17 @@ def test_degree_zero_is_the_gaussian_mean_and_short_windows_fall_back_to_it():
     np.testing.assert_allclose(out[0], g @ a[:3] / g.sum(), atol=1e-14)
     assert abs(out[4] - g[::-1] @ a[2:5] / g.sum()) > 1e-6  # an inner frame: the quadratic, not the mean
     assert smooth_arm_poses(_poses(a), 0.0, degree=2)[3].angles[1, 0] == a[3]  # sigma 0: off
+
+
+def test_the_shoulder_can_keep_the_mean_while_the_elbow_takes_the_quadratic():
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(30, 3, 3))
+    poses = [ArmPose(np.eye(4), a) for a in A]
+    mixed = np.stack([p.angles for p in smooth_arm_poses(poses, 5.0, degree=2, shoulder_degree=0)])
+    mean = np.stack([p.angles for p in smooth_arm_poses(poses, 5.0)])
+    quad = np.stack([p.angles for p in smooth_arm_poses(poses, 5.0, degree=2)])
+    np.testing.assert_allclose(mixed[:, 0], mean[:, 0], atol=1e-14)
+    np.testing.assert_allclose(mixed[:, 1:], quad[:, 1:], atol=1e-14)
+    assert np.abs(mean[:, 0] - quad[:, 0]).max() > 1e-3  # the two degrees differ on this noise
+    same = np.stack([p.angles for p in smooth_arm_poses(poses, 5.0, degree=2, shoulder_degree=2)])
+    np.testing.assert_array_equal(same, quad)

@@ -15,6 +15,14 @@ def test_capture_options_refuse_a_bad_smoothing_degree(degree):
     assert "\n" not in str(exc.value)
 
 
+@pytest.mark.parametrize("degree", [-1, 4, 0.0, False])
+def test_capture_options_refuse_a_bad_shoulder_smoothing_degree(degree):
+    with pytest.raises(InputError, match="shoulder_smoothing_degree") as exc:
+        CaptureOptions(shoulder_smoothing_degree=degree)
+    assert "\n" not in str(exc.value)
+    assert CaptureOptions(shoulder_smoothing_degree=None).shoulder_smoothing_degree is None  # None: the elbow's
+
+
 @pytest.mark.parametrize("sigma", [-1.0, float("nan")])
 def test_capture_options_refuse_a_negative_smoothing_sigma(sigma):
     with pytest.raises(InputError, match="pose_sigma_frames") as exc:
@@ -22,7 +30,8 @@ def test_capture_options_refuse_a_negative_smoothing_sigma(sigma):
     assert "\n" not in str(exc.value)
 
 
-@pytest.mark.parametrize("item", ["pose_smoothing_degree=5", "pose_smoothing_degree=1.5", "pose_sigma_frames=-2.0"])
+@pytest.mark.parametrize("item", ["pose_smoothing_degree=5", "pose_smoothing_degree=1.5", "pose_sigma_frames=-2.0",
+                                  "shoulder_smoothing_degree=9"])
 def test_bench_muscle_capture_option_refused_before_any_work(item, tmp_path, capsys):
     from benchmarks.bench_muscle import main
 
@@ -34,7 +43,8 @@ def test_bench_muscle_capture_option_refused_before_any_work(item, tmp_path, cap
 
 
 @pytest.mark.parametrize("variant", ["bad:pose_smoothing_degree=7", "bad:pose_sigma_frames=-1.0",
-                                     "bad:norm_limit=0.5", "bad:pose_smoothing_degree=oops"])
+                                     "bad:norm_limit=0.5", "bad:pose_smoothing_degree=oops",
+                                     "bad:shoulder_smoothing_degree=-1"])
 def test_muscle_tangential_refuses_a_bad_variant_before_any_work(variant, tmp_path, capsys):
     from benchmarks.muscle_tangential import main
 
