@@ -220,7 +220,8 @@ class CaptureOptions:
     # (``refine.smooth_arm_poses``), which keeps the motion's turning points. Measured (200 frames, noise seed 0,
     # sigma chosen on 501): the mean at sigma 2.5 -> the quadratic at sigma 5, median / p90 mm 501 2.62 / 4.64 ->
     # 2.40 / 4.20, 504 2.57 / 4.50 -> 2.43 / 4.26, 507 2.76 / 5.51 -> 2.58 / 5.33, 508 3.08 / 5.91 -> 3.10 / 5.85;
-    # 501 noise seed 1 (no choice) 2.47 / 4.69 -> 2.46 / 4.71; bulge and jitter unchanged or lower.
+    # noise seeds used for no choice 501:1 2.47 / 4.69 -> 2.46 / 4.71, 501:2 2.25 / 4.18 -> 2.14 / 4.11; bulge and
+    # jitter unchanged or lower.
     pose_smoothing_degree: int = 2
     # The shoulder rotation's own degree (None: ``pose_smoothing_degree``): 0 keeps the mean for the slow shoulder,
     # whose twist about the upper arm the quadratic leaves noisier (fifteenth pass).
