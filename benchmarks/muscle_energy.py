@@ -163,7 +163,8 @@ def energies(work: Path, seed: int, n_frames: int = 24, options: dict | None = N
     args = (model, inputs["shape"], inputs["poses"], inputs["frames"], J0)
     poses, J = fit_arm_sequence_skeleton(*args, tracker_joints=inputs["tracker"], rest=inputs["rest"], **kw)
     e, m = energy_terms(model, inputs, poses, J, kw, kw["fit_skeleton"])
-    smoothed = smooth_arm_poses(poses, CaptureOptions().pose_sigma_frames)
+    smoothed = smooth_arm_poses(poses, CaptureOptions().pose_sigma_frames,
+                                degree=CaptureOptions().pose_smoothing_degree)
     meshes = [skeleton_model_mesh(model, p, inputs["rest"], J, kw["norm_limit"]) for p in smoothed]
     f = inputs["frames"][0]
     refined = _refinement(meshes, smoothed, [(fr.points, fr.normals) for fr in inputs["frames"]],

@@ -126,7 +126,7 @@ def finish(model, template, frames, state, options, poses, base, J, smooth: bool
     from bodystudio.muscle.refine import skeleton_model_mesh, smooth_arm_poses
 
     if smooth and options.pose_sigma_frames > 0:
-        poses = smooth_arm_poses(poses, options.pose_sigma_frames)
+        poses = smooth_arm_poses(poses, options.pose_sigma_frames, degree=options.pose_smoothing_degree)
     M = [skeleton_model_mesh(model, p, base, J, options.norm_limit) for p in poses]
     out = cm._refinement(M, poses, [(f.points, f.normals) for f in frames], [f.tree for f in frames],
                          np.asarray(template.faces, np.int64), frames[0].sensor_center, template.arm_mask,
@@ -258,7 +258,8 @@ def owner_rows(work: Path, subject_seed: int, options: dict, name: str, pre: Pat
 
     row("capture", poses, base, J)
     rows["capture"]["sequence_stage_cpu_s"] = round(seq_cpu, 1)
-    smoothed = smooth_arm_poses(poses, o.pose_sigma_frames) if o.pose_sigma_frames > 0 else poses
+    smoothed = smooth_arm_poses(poses, o.pose_sigma_frames, degree=o.pose_smoothing_degree) \
+        if o.pose_sigma_frames > 0 else poses
     shoulders = true_J[:, 0]
     angles_true = [ArmPose(p.root, g.angles) for p, g in zip(smoothed, true_poses, strict=True)]
     row("true angles", angles_true, base, J, smooth=False)

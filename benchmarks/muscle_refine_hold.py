@@ -73,7 +73,7 @@ def prepared(work: Path, subject_seed: int, n_frames: int, name: str = STATE_NAM
         with open(path, "wb") as fh:
             pickle.dump((refit, refit_cpu), fh, protocol=pickle.HIGHEST_PROTOCOL)
     n = min(n_frames, len(refit))
-    smoothed = smooth_arm_poses(refit[:n], o.pose_sigma_frames)
+    smoothed = smooth_arm_poses(refit[:n], o.pose_sigma_frames, degree=o.pose_smoothing_degree)
     meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in smoothed]
     cut = {k: (v[:n] if k in ("G", "vis", "gtJ", "poses", "flexion_deg") else v) for k, v in truth.items()}
     return {"template": template, "state": state, "frames": frames[:n], "poses": smoothed, "meshes": meshes,

@@ -88,7 +88,8 @@ def subject_rows(work: Path, seed: int, n_frames: int, variants: dict) -> dict:
             kw["tracker_placement_weight"] = tracker_placement_prior_weight(tracker, length)
         poses, J = fit_arm_sequence_skeleton(model, inputs["shape"], inputs["poses"], inputs["frames"], J0,
                                              tracker_joints=tracker, rest=inputs["rest"], **kw)
-        smoothed = smooth_arm_poses(poses, CaptureOptions().pose_sigma_frames)
+        smoothed = smooth_arm_poses(poses, CaptureOptions().pose_sigma_frames,
+                                    degree=CaptureOptions().pose_smoothing_degree)
         model_stage = meshes_of(smoothed, J) - t
         f = inputs["frames"][0]
         full = np.stack(_refinement(list(model_stage), smoothed, [(fr.points, fr.normals) for fr in inputs["frames"]],

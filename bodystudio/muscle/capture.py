@@ -109,11 +109,13 @@ TRACKER_JOINTS = {"left": ("ShoulderLeft", "ElbowLeft", "WristLeft"),
 # setting's extended model 6.37 mm mean on C; with the body rest shape, the 20 % limit and the pose refit added 6.58 mm
 # (better captures of 601, 603, 604, a worse one of the heavy man 602); ``CaptureOptions()`` (no skeleton fit) 6.97 mm.
 # The refinement's hold of the unseen side (the capture's default since the twelfth pass), its rim filter and its own
-# depth clean-up (the fourteenth) are off here: not measured for the extension.
+# depth clean-up (the fourteenth) are off here, and the pose smoothing stays the Gaussian mean at sigma 2.5 (the
+# fifteenth pass's local quadratic): not measured for the extension.
 EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
                      "body_rest_shape": False, "norm_limit": 0.5, "pose_refit": False, "refine_unseen_hold": 0.0,
                      "refine_min_facing_cos": 0.0, "refine_depth_median_px": None,
-                     "refine_depth_gaussian_sigma_px": None, "sequence_min_facing_cos": 0.0}
+                     "refine_depth_gaussian_sigma_px": None, "sequence_min_facing_cos": 0.0,
+                     "pose_sigma_frames": 2.5, "pose_smoothing_degree": 0}
 # The setting of a sequence that pins its shared torso placement and skeleton (``CaptureOptions.sequence_pinned_se_m``,
 # off by default): the skeleton and placement fitted with every frame's angles, Huber on the depth pairs only, the
 # chest's pairs off, the tracker's joints at 10, and a 5 % norm limit (the fitted skeleton carries a lower model biceps;
@@ -211,7 +213,20 @@ class CaptureOptions:
     # (6k, measured shape; subjects 2 / 5 / 7 / 9 24 frames, 501 200 frames), sigma 1.5 over +-2 frames -> 2.5
     # over +-5: median 4.91 / 5.51 / 7.94 / 8.28 / 5.52 -> 4.73 / 5.37 / 7.82 / 8.29 / 5.37 mm, jitter
     # +0.52 / +0.63 / - / - / +0.78 -> +0.26 / +0.26 / +0.23 / +0.22 / +0.26 mm; sigma 4 worse on both 2 and 5.
-    pose_sigma_frames: float = 2.5
+    # Since the fifteenth pass (docs/muscle.md) a local quadratic over +-10 frames, sigma 5 (``pose_smoothing_degree``
+    # 2): the mean at sigma 2.5 cut the flexion cycle's turning points (elbow hinge 0.6-0.8 deg off there).
+    pose_sigma_frames: float = 5.0
+    # The smoothing's polynomial degree: 0 the Gaussian-weighted mean, 2 a local quadratic over the same window
+    # (``refine.smooth_arm_poses``), which keeps the motion's turning points. Measured (200 frames, noise seed 0,
+    # sigma chosen on 501): the mean at sigma 2.5 -> the quadratic at sigma 5, median / p90 mm 501 2.62 / 4.64 ->
+    # 2.40 / 4.20, 504 2.57 / 4.50 -> 2.43 / 4.26, 507 2.76 / 5.51 -> 2.58 / 5.33, 508 3.08 / 5.91 -> 3.10 / 5.85;
+    # noise seeds used for no choice 501:1 2.47 / 4.69 -> 2.46 / 4.71, 501:2 2.25 / 4.18 -> 2.14 / 4.11; bulge and
+    # jitter unchanged or lower.
+    pose_smoothing_degree: int = 2
+    # The shoulder rotation's own degree (None: ``pose_smoothing_degree``): 0 keeps the mean for the slow shoulder,
+    # whose twist about the upper arm the quadratic leaves noisier. Measured (fifteenth pass, the four sessions): the
+    # twist 0.1-0.3 deg truer, the capture not better (mean median / p90 2.63 / 4.91 -> 2.63 / 5.07 mm): off.
+    shoulder_smoothing_degree: int | None = None
     # Fitted shape only: the arm length (a shape parameter) held near the tracker's shoulder-elbow-wrist chain
     # length averaged over every frame, per frame of the sequence (1 per depth pair). The depth's point-to-plane
     # pairs let the arm slide along itself, and the 8-frame tracker term left it 0.9-1.4 cm short. Measured (6k,
@@ -392,6 +407,14 @@ class CaptureOptions:
         if not (0 <= self.body_rest_min_facing_cos < 1 and 0 <= self.sequence_min_facing_cos < 1):
             raise InputError(f"body_rest_min_facing_cos and sequence_min_facing_cos must be in [0, 1), got "
                              f"{self.body_rest_min_facing_cos} and {self.sequence_min_facing_cos}")
+        for name in ("pose_smoothing_degree", "shoulder_smoothing_degree"):
+            degree = getattr(self, name)
+            if degree is None and name == "shoulder_smoothing_degree":
+                continue
+            if isinstance(degree, bool) or not isinstance(degree, int | np.integer) or not 0 <= degree <= 3:
+                raise InputError(f"{name} must be 0 (the Gaussian mean), 1, 2 or 3, got {degree!r}")
+        if not self.pose_sigma_frames >= 0:
+            raise InputError(f"pose_sigma_frames must be >= 0 (0: no smoothing), got {self.pose_sigma_frames}")
         if not self.sequence_pinned_se_m >= 0:
             raise InputError(f"sequence_pinned_se_m must be >= 0, got {self.sequence_pinned_se_m}")
 
@@ -619,7 +642,8 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         timer.add("pose_refit", t0)
     if model is not None and o.pose_sigma_frames > 0:
         t0 = time.perf_counter()
-        poses = smooth_arm_poses(poses, o.pose_sigma_frames)
+        poses = smooth_arm_poses(poses, o.pose_sigma_frames, degree=o.pose_smoothing_degree,
+                                 shoulder_degree=o.shoulder_smoothing_degree)
         model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("model_filtering", t0)
     if model is None:

@@ -341,23 +341,45 @@ def model_based_filtering(model, shape, root: np.ndarray, deformed: np.ndarray, 
     return model_mesh(model, shape, pose, norm_limit=norm_limit), pose
 
 
-def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: int | None = None) -> list[ArmPose]:
+def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: int | None = None,
+                     degree: int = 0, shoulder_degree: int | None = None) -> list[ArmPose]:
     """Joint angles averaged over neighbouring frames with Gaussian weights (the Eq. 13-14 window on poses).
 
     Arm motion is quasi-static (Sec. 3), so frame-to-frame changes beyond a smooth trajectory are
     depth and tracker noise; rotation vectors of one joint change little within a few frames and average
     linearly. The window is symmetric (no lag on a steady motion, unlike the previous-frame prior of
     ``refine_arm_pose``) and reaches ``radius`` frames each side (default ``max(2, ceil(2 sigma))``).
+
+    ``degree`` 0 is the weighted mean; ``degree`` 2 fits a quadratic in time to each angle over the same
+    Gaussian-weighted window and takes its value at the frame (a local polynomial, Savitzky-Golay with
+    Gaussian weights), which keeps a motion's turning points: the mean cuts each extreme by about
+    ``sigma^2 / 2`` times the angle's second difference (0.6-0.8 deg of elbow flexion at sigma 2.5 on the
+    benchmark's 3.3 s flexion cycle; docs/muscle.md "Capture, fifteenth pass"). At the sequence's ends the
+    window is cut short; a window of fewer than ``degree + 2`` frames falls back to the mean.
+    ``shoulder_degree`` (None: ``degree``) is the shoulder rotation's own degree: the shoulder moves slowly, so the
+    mean's bias is small there and its lower noise wins (the fifteenth pass).
     """
     if sigma_frames <= 0 or len(poses) < 3:
         return list(poses)
     radius = max(2, int(np.ceil(2.0 * sigma_frames))) if radius is None else radius
     A = np.stack([p.angles for p in poses])
+    degrees = (degree if shoulder_degree is None else shoulder_degree, degree, degree)
+
+    def window_row(k, w, d):
+        if d > 0 and len(k) >= d + 2:
+            # weighted least squares of the angles on 1, k, ..., k^d; the value at k = 0 is a fixed linear
+            # combination of the window's frames (the first row of the hat matrix)
+            V = np.vander(k.astype(np.float64), d + 1, increasing=True)
+            return np.linalg.solve(V.T @ (w[:, None] * V), (V * w[:, None]).T)[0]
+        return w / w.sum()
+
     out = []
     for i, p in enumerate(poses):
         lo, hi = max(0, i - radius), min(len(poses), i + radius + 1)
-        w = np.exp(-((np.arange(lo, hi) - i) ** 2) / (2.0 * sigma_frames ** 2))
-        out.append(ArmPose(p.root, np.tensordot(w / w.sum(), A[lo:hi], axes=1)))
+        k = np.arange(lo, hi) - i
+        w = np.exp(-(k ** 2) / (2.0 * sigma_frames ** 2))
+        rows = {d: window_row(k, w, d) for d in set(degrees)}
+        out.append(ArmPose(p.root, np.stack([rows[d] @ A[lo:hi, j] for j, d in enumerate(degrees)])))
     return out
 
 

@@ -277,7 +277,7 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     np.testing.assert_array_equal(seq.args[4], mbf[-1].args[8])
     assert [p is m.out[1] for p, m in zip(seq.args[2], last, strict=True)] == [True] * 3
     (sm,) = spies["smooth_arm_poses"]
-    assert sm.args[0] is seq.out[0] and sm.args[1] == 0.8
+    assert sm.args[0] is seq.out[0] and sm.args[1] == 0.8 and sm.kwargs == {"degree": 2}  # the default degree
     assert c.poses is sm.out
     # the model meshes rebuilt from the smoothed poses with the norm limit
     for i in range(3):
@@ -526,8 +526,9 @@ def test_capture_option_defaults_are_the_measured_ones():
     assert (o.tracker_weight, o.tracker_root_weight, o.tracker_pose_weight, o.pose_sigma_frames,
             o.tracker_arm_length_weight, o.huber_m, o.sequence_rounds, o.sequence_smooth_weight, o.sequence_huber_m,
             o.sequence_max_nfev, o.sequence_fit_root, o.sequence_tracker_weight, o.smooth_weight, o.with_scale,
-            o.with_rotation) == (30.0, 1.0, 30.0, 2.5, 100.0, 0.0, 3, 10.0, 0.004, 15, False, 30.0, 10.0, False,
+            o.with_rotation) == (30.0, 1.0, 30.0, 5.0, 100.0, 0.0, 3, 10.0, 0.004, 15, False, 30.0, 10.0, False,
                                  False)
+    assert o.pose_smoothing_degree == 2  # the local quadratic (docs/muscle.md fifteenth pass)
 
 
 # --- small pieces ---------------------------------------------------------------------------------------
@@ -846,7 +847,7 @@ def test_the_personal_rounds_alternate_rest_shape_and_skeleton_fit_and_make_the_
 
     spies = Spies(monkeypatch, ("fit_arm_sequence_skeleton", "fit_rest_shape_correction", "fit_shape_parameters",
                                 "smooth_arm_poses"))
-    o = CaptureOptions(mode="model", **{**FAST, "pose_sigma_frames": 0.7, "norm_limit": 0.6,
+    o = CaptureOptions(mode="model", **{**FAST, "pose_sigma_frames": 0.7, "pose_smoothing_degree": 2, "norm_limit": 0.6,
                                         "sequence_fit_skeleton": True, "sequence_skeleton_prior_weight": 40.0,
                                         "sequence_free_joints": (False, True, True), "sequence_depth_huber_only": True,
                                         "sequence_huber_m": 0.002, "personal_rounds": 1,
@@ -869,6 +870,7 @@ def test_the_personal_rounds_alternate_rest_shape_and_skeleton_fit_and_make_the_
     np.testing.assert_array_equal(c.joints, second.out[1])
     (sm,) = spies["smooth_arm_poses"]
     assert sm.args[0] is second.out[0] and c.poses is sm.out
+    assert sm.args[1] == 0.7 and sm.kwargs == {"degree": 2}
     for i in range(2):
         np.testing.assert_allclose(c.vertices[i], apply_similarity(c.similarity, skeleton_model_mesh(
             scene.model, sm.out[i], rs.out, second.out[1], 0.6)), atol=1e-12)

@@ -100,8 +100,11 @@ def test_the_extension_setting_and_the_new_defaults():
                                          "sequence_depth_huber_only": True, "body_rest_shape": False,
                                          "norm_limit": 0.5, "pose_refit": False, "refine_unseen_hold": 0.0,
                                          "refine_min_facing_cos": 0.0, "refine_depth_median_px": None,
-                                         "refine_depth_gaussian_sigma_px": None, "sequence_min_facing_cos": 0.0}
+                                         "refine_depth_gaussian_sigma_px": None, "sequence_min_facing_cos": 0.0,
+                                         "pose_sigma_frames": 2.5, "pose_smoothing_degree": 0}
     o = CaptureOptions()
+    # docs/muscle.md fifteenth pass: the pose smoothing's local quadratic at sigma 5
+    assert (o.pose_sigma_frames, o.pose_smoothing_degree) == (5.0, 2)
     # docs/muscle.md fourteenth pass (the rest arm): the pose fits without the grazing pairs, the rest fit's tracker 10
     assert o.sequence_min_facing_cos == 0.3 and o.body_rest_min_facing_cos == 0.0 and o.body_rest_tracker_weight == 10.0
     assert o.refine_visible_only is True and o.norm_limit == 0.2 and o.pose_refit is True
@@ -160,7 +163,7 @@ def test_the_capture_for_extension_sets_the_extension_options_and_needs_the_sequ
                                        sequence_depth_huber_only=True, body_rest_shape=False, norm_limit=0.5,
                                        pose_refit=False, refine_unseen_hold=0.0, refine_min_facing_cos=0.0,
                                        refine_depth_median_px=None, refine_depth_gaussian_sigma_px=None,
-                                       sequence_min_facing_cos=0.0)
+                                       sequence_min_facing_cos=0.0, pose_sigma_frames=2.5, pose_smoothing_degree=0)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, for_extension=True)
     assert seen["o"] == CaptureOptions(mode="full", **cap_mod.EXTENSION_CAPTURE)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", for_extension=False)
