@@ -17,8 +17,9 @@ from bodystudio.geometry.mesh import vertex_normals
 from bodystudio.muscle import capture as cm
 from bodystudio.muscle.depth import clean_depth, depth_point_cloud
 from bodystudio.muscle.nicp import NicpOptions, apply_similarity, vertex_neighbourhoods
-from bodystudio.muscle.refine import edge_on_pairs
+from bodystudio.muscle.refine import DepthFrame, edge_on_pairs, grazing_pairs
 from tests.muscle.test_capture_analytic import Spies, scene  # noqa: F401  (the tiny capture scene)
+from tests.muscle.test_refine_depth_bias import tube
 
 FAST = dict(shape_frames=1, shape_rounds=1, first_frame_nicp_iterations=1, sequence_rounds=0,
             nicp=NicpOptions(iterations=1), pose_refit=False, body_rest_shape=False, pose_sigma_frames=0.0)
@@ -164,3 +165,41 @@ def test_the_rest_fits_get_the_rest_cut_and_their_own_inputs(scene, monkeypatch,
     np.testing.assert_allclose(anchor, spies["fit_arm_sequence_skeleton"][0].args[4][0], atol=1e-12)
     for seq in spies["fit_arm_sequence_skeleton"]:
         assert {f.min_facing_cos for f in seq.args[3]} == {0.25}
+
+
+def test_the_cuts_at_their_exact_cosine_near_the_sensor():
+    """A vertex off the origin half a metre from the sensor (the ray's length enters, not only its direction), its
+    normal at cosine 0.8 exactly (0.6, 0, 0.8): neither cut takes a vertex at its own threshold."""
+    V = np.array([[1.0, 2.0, 3.0]])
+    sensor = V[0] + [0.0, 0.0, 0.5]
+    N = np.array([[0.6, 0.0, 0.8]])
+    assert not grazing_pairs(V, N, sensor, 0.8)[0] and grazing_pairs(V, N, sensor, 0.81)[0]
+    assert not grazing_pairs(V, N, sensor, 0.5)[0]
+    assert not edge_on_pairs(V, N, sensor, 0.8)[0] and edge_on_pairs(V, N, sensor, 0.81)[0]
+    assert not edge_on_pairs(V, N, sensor, 0.5)[0]
+    assert not edge_on_pairs(V, -N, sensor, 0.5)[0]  # facing away at the same angle: not the rim either
+
+
+def test_plane_pairs_drop_the_grazing_ones_only_with_a_cut():
+    """With every Sec. 5.2 filter off (the front-side one too) a frame whose cloud is the mesh itself pairs every
+    vertex; its grazing cut keeps exactly the vertices ``grazing_pairs`` does not name, the back side among them
+    only without the cut."""
+    from scipy.spatial import cKDTree
+
+    from bodystudio.muscle.nicp import CorrespondenceFilters
+
+    V, F = tube(n_around=16, n_along=5)
+    N = vertex_normals(V, F)
+    sensor = np.array([0.0, 1.0, 1.0])
+    off = CorrespondenceFilters(arm_only=False, front_only=False, normals=False, neighbours=False, length=False,
+                                duplicates=False)
+    frame = DepthFrame(V, N, cKDTree(V), sensor, np.ones(len(V), bool), vertex_neighbourhoods(F, len(V)), off, F)
+    k, q, n = frame.plane_pairs(V)
+    np.testing.assert_array_equal(k, np.arange(len(V)))
+    np.testing.assert_allclose(q, V, atol=0.0)
+    for cos in (0.3, 0.6):
+        kc, qc, nc = DepthFrame(V, N, cKDTree(V), sensor, np.ones(len(V), bool), vertex_neighbourhoods(F, len(V)),
+                                off, F, min_facing_cos=cos).plane_pairs(V)
+        np.testing.assert_array_equal(kc, np.flatnonzero(~grazing_pairs(V, N, sensor, cos)))
+        np.testing.assert_allclose(qc, V[kc], atol=0.0)
+        np.testing.assert_allclose(nc, N[kc], atol=0.0)
