@@ -30,3 +30,28 @@ def test_the_compiled_memo_reads_the_fields_margin_beyond_their_boxes(scene):  #
         np.testing.assert_array_equal(a, b)
     slot = sil.camera * len(V) + sil.vertex
     assert (a[slot] == 2).any() and (a[slot] == 1).any()
+
+
+def test_the_gate_with_a_memo_runs_compiled_and_hands_on_the_projection(scene, monkeypatch):  # noqa: F811
+    """``hull_consistent_constraints`` with fields, a memo and constraints that know their cameras takes the compiled
+    memo (rec15i), handing it the caller's projection; the same constraints with a projection as without."""
+    V, F, cams, masks = scene
+    fields = SilhouetteFields(cams, masks)
+    sil = silhouette_constraints(V, F, area_weighted_normals(V, F), cams, masks, 20.0, 5.0, 0.2)
+    seen = []
+    real = SilhouetteFields.hull_gate_memo
+
+    def spy(self, *args, **kwargs):
+        seen.append(args[8] if len(args) > 8 else kwargs.get("projected"))
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(SilhouetteFields, "hull_gate_memo", spy)
+    n = len(cams) * len(V)
+    plain = hull_consistent_constraints(V, sil, fields, 0.001, memo=np.zeros(n, np.int8), reuse=False)
+    assert seen == [None]
+    uv = np.stack([c.project_with_depth(V)[0] for c in cams])
+    z = np.stack([c.project_with_depth(V)[1] for c in cams])
+    given = hull_consistent_constraints(V, sil, fields, 0.001, projected=(uv, z), memo=np.zeros(n, np.int8),
+                                        reuse=False)
+    assert len(seen) == 2 and seen[1] is not None and seen[1][0] is uv and seen[1][1] is z
+    _equal(given, plain)
