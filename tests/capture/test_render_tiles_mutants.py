@@ -1,6 +1,7 @@
-"""Mutation test of rec15i's tile-cleared z-buffer (issue 17, branch mutT; docs/mutation/capture-render.md): without
-``tile_px`` the flagged tiles are 8 pixels square (the docstring's default); the pixels of those tiles are the whole
-buffer's. ``tests/reconstruct/test_depth_compiled.py`` pins the caller's 7- and 8-pixel tiles on a body."""
+"""Mutation tests of rec15i's tile-cleared z-buffer (issue 17, branch mutT; docs/mutation/capture-render.md,
+reconstruct-depth.md): without ``tile_px`` the flagged tiles are 8 pixels square (the docstring's default) and the
+pixels of those tiles are the whole buffer's; the depth term hands it the tiles of its pixels and its own tile size.
+``tests/reconstruct/test_depth_compiled.py`` pins the caller's 7- and 8-pixel tiles on a body."""
 
 import numpy as np
 
