@@ -21,7 +21,8 @@ Dataset extension: model-only error (the model mesh from the subject's true shap
 Eq. 12 without the norm limit) of held-out subjects' ground-truth meshes, original
 model against the model extended with the captured subjects 601-604 (and, to see what the model can
 learn at all, with their ground-truth meshes; each with and without the sex input). The captures use the
-per-subject skeleton and torso placement (``EXTENSION_CAPTURE``) and each captured rest mesh is centred on
+per-subject skeleton and torso placement on the capture's defaults of the extension's eleventh pass
+(``EXTENSION_CAPTURE``, pinned; docs/muscle.md) and each captured rest mesh is centred on
 its fitted shoulder for a woman, the model's regressed one for a man (``--extension-centre``; docs/muscle.md,
 fifth pass); each captured subject's shape row is its rest mesh's nearest arm of the body model's shape space
 (``--extension-captured-rest body``, docs/muscle.md, "Dataset extension, seventh pass"; the captured mesh's rows
