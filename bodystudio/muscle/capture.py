@@ -112,8 +112,8 @@ TRACKER_JOINTS = {"left": ("ShoulderLeft", "ElbowLeft", "WristLeft"),
 # extended model's mean median mm on C (601-604 / 671-674 added) 6.37 / 6.84 -> 6.29 / 6.45, C's in-range men 3.60 /
 # 3.73 -> 3.63 / 3.33; the captures' own medians 7.61 / 9.67 -> 5.95 / 7.04 mm. Before it they were off here: the
 # regressed rest arm, a 50 % limit and no pose refit (better on C than the then defaults in the ninth pass), and the
-# later ones unmeasured; the hold of the unseen side alone (on the regressed rest arm) ties the rows to the model:
-# C 6.37 -> 7.53 mm.
+# later ones unmeasured; the hold of the unseen side on the regressed rest arm (with the cuts) ties the rows to the
+# model: C 6.43 -> 7.53 mm.
 EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
                      "body_rest_shape": True, "body_rest_tracker_weight": 10.0, "norm_limit": 0.2, "pose_refit": True,
                      "refine_unseen_hold": 1.0, "refine_min_facing_cos": 0.35, "refine_depth_median_px": 1,
