@@ -21,7 +21,8 @@ Dataset extension: model-only error (the model mesh from the subject's true shap
 Eq. 12 without the norm limit) of held-out subjects' ground-truth meshes, original
 model against the model extended with the captured subjects 601-604 (and, to see what the model can
 learn at all, with their ground-truth meshes; each with and without the sex input). The captures use the
-per-subject skeleton and torso placement (``EXTENSION_CAPTURE``) and each captured rest mesh is centred on
+per-subject skeleton and torso placement on the capture's defaults of the extension's eleventh pass
+(``EXTENSION_CAPTURE``, pinned; docs/muscle.md) and each captured rest mesh is centred on
 its fitted shoulder for a woman, the model's regressed one for a man (``--extension-centre``; docs/muscle.md,
 fifth pass); each captured subject's shape row is its rest mesh's nearest arm of the body model's shape space
 (``--extension-captured-rest body``, docs/muscle.md, "Dataset extension, seventh pass"; the captured mesh's rows
@@ -29,7 +30,8 @@ are scored beside it); the original and extended models' shape term is the body 
 body``: body-space parameters regressed on the shape numbers; docs/muscle.md, "Dataset extension, eighth pass"; the
 prepared model's linear form extended with the same captures is scored beside it, against the prepared model);
 each added subject's shape row repeated to as many rows as a training subject has (``--extension-subject-rows
-training``; docs/muscle.md, "Dataset extension, tenth pass"; not the default) is scored beside it;
+training``; docs/muscle.md, "Dataset extension, tenth pass"; not the default) is scored beside it, and so is the
+captured rows' body-space prior at 30 with the weight macro's at 3 (``ROW_PRIOR_OPTION``; eleventh pass; an option);
 ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
 pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
@@ -82,6 +84,10 @@ HELD_OUT_SEEDS = (611, 612, 613, 614)
 # choices (the sex input, its Tikhonov weight) were checked on, so that they are not fitted to set A.
 HELD_OUT_SETS = (("A", HELD_OUT_SEEDS), ("B", (631, 632, 633, 634)))
 IN_RANGE_SEED = 620
+#: the captured rows' body-space prior weights scored beside the default (``extend_arm_model(prior_weight=,
+#: weight_prior_weight=)``: every parameter but the weight macro, the weight macro; docs/muscle.md, "Dataset extension,
+#: eleventh pass": an option, off)
+ROW_PRIOR_OPTION = (30.0, 3.0)
 #: ``CaptureOptions`` fields set for every capture of the run (``--capture-option KEY=VALUE``), to measure variants
 CAPTURE_OVERRIDES: dict = {}
 GOALS = {"median_mm": 2.0, "p90_mm": 5.0, "bulge_err_mm": 1.5, "jitter_mm": 0.5, "cpu_ms_per_frame": 1000.0}
@@ -221,6 +227,8 @@ EXTENSION_VARIANTS = (("captured_nosex", "captures, no sex"), ("captured_mesh", 
                       ("captured", "captures, with sex"),
                       ("captured_training_rows", "captures, with sex, each added subject's row repeated to a "
                                                  "training subject's (not kept, tenth pass)"),
+                      ("captured_row_prior", "captures, with sex, row prior 30 with the weight macro's 3 (an option, "
+                                             "eleventh pass)"),
                       ("truth_nosex", "truth meshes, no sex"), ("truth", "truth meshes, with sex"))
 #: the original model each variant's change is measured against (default "original": the training men in the run's
 #: shape form; "original_linear": the prepared model, the linear Eq. 6-7)
@@ -504,6 +512,9 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
                                                                subject_rows=other_rows)
     if captured_rest != "mesh":
         extended["captured_mesh"] = extend_arm_model(original, ext_samples, captured_rest="mesh", **rows)
+        extended["captured_row_prior"] = extend_arm_model(original, ext_samples, captured_rest=captured_rest,
+                                                          prior_weight=ROW_PRIOR_OPTION[0],
+                                                          weight_prior_weight=ROW_PRIOR_OPTION[1], **rows)
     if shape_form != prepared.shape_form:
         extended["captured_linear"] = extend_arm_model(prepared, ext_samples, captured_rest=captured_rest, **rows)
     weight_regressed = None  # the body form before the ninth pass: the weight macro regressed on the numbers

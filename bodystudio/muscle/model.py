@@ -523,7 +523,8 @@ def unposed_sample(s: ArmSample, part_weights, predict_joints) -> np.ndarray:
 
 
 def body_space_rest_mesh(space: BodyShapeSpace, rest: np.ndarray, shape: ArmShapeParams,
-                         prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT, iterations: int = 8):
+                         prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT, iterations: int = 8,
+                         weight_prior_weight: float | None = None):
     """A rest mesh (n, 3) as its nearest arm of the body model's shape space (dataset extension of captures).
 
     Gauss-Newton over the body parameters ``x`` (macro values, local target weights) and a free translation ``t``:
@@ -532,6 +533,9 @@ def body_space_rest_mesh(space: BodyShapeSpace, rest: np.ndarray, shape: ArmShap
     muscularity, nothing from its BMI or height) with ``prior_weight`` per vertex on the standardised parameters in
     (1 mm)^2, started at its mean. Returns ``(B(x), x, t)``: the arm relative to the shoulder the body model puts
     in this skin (``rest - t`` is the given mesh so centred), the parameters, the shoulder's place in ``rest``'s frame.
+    ``weight_prior_weight``: the weight macro's own prior weight (None: ``prior_weight``); the prior takes nothing from
+    the BMI, so a strong prior pulls a heavy subject's weight to the population's (docs/muscle.md, "Dataset extension,
+    eleventh pass": ``prior_weight=30, weight_prior_weight=3`` measured, an option).
 
     Why: a depth capture sees the skin, not where the shoulder joint sits in it nor how the vertices lie along it;
     as a shape row, a captured rest mesh carried 0.02-0.6 of its subject's departure from the model, while its body
@@ -540,12 +544,14 @@ def body_space_rest_mesh(space: BodyShapeSpace, rest: np.ndarray, shape: ArmShap
     rest = np.asarray(rest, dtype=np.float64)
     if rest.shape != (space.n_vertices, 3) or not np.isfinite(rest).all():
         raise InputError(f"rest mesh of shape {rest.shape}: the body space's arm template has ({space.n_vertices}, 3)")
-    if not (np.isfinite(prior_weight) and prior_weight > 0):
-        raise InputError(f"prior_weight={prior_weight} must be > 0")
+    _check_prior_weights(prior_weight, weight_prior_weight)
     mean, sigma = space.prior(shape)
     x, t = mean.copy(), np.zeros(3)
     n, P = len(rest), len(mean)
-    lam = np.r_[prior_weight * n * 1e-6 / sigma ** 2, np.zeros(3)]
+    weights = np.full(P, float(prior_weight))
+    if weight_prior_weight is not None:
+        weights[BODY_MACRO_NAMES.index("weight")] = weight_prior_weight
+    lam = np.r_[weights * n * 1e-6 / sigma ** 2, np.zeros(3)]
     translation = np.tile(np.eye(3), (n, 1))
     for _ in range(iterations):
         R = space.shaped_rows(x)
@@ -556,6 +562,13 @@ def body_space_rest_mesh(space: BodyShapeSpace, rest: np.ndarray, shape: ArmShap
         x[:len(BODY_MACRO_NAMES)] = np.clip(x[:len(BODY_MACRO_NAMES)], 0.0, 1.0)
     R = space.shaped_rows(x)
     return R[:-3] - R[-3], x, t
+
+
+def _check_prior_weights(prior_weight: float, weight_prior_weight: float | None) -> None:
+    if not (np.isfinite(prior_weight) and prior_weight > 0):
+        raise InputError(f"prior_weight={prior_weight} must be > 0")
+    if weight_prior_weight is not None and not (np.isfinite(weight_prior_weight) and weight_prior_weight > 0):
+        raise InputError(f"weight_prior_weight={weight_prior_weight} must be > 0 (or None: prior_weight's)")
 
 
 def body_space_for_model(model: ArmModel) -> BodyShapeSpace:
@@ -569,7 +582,8 @@ def body_space_for_model(model: ArmModel) -> BodyShapeSpace:
 
 
 def _subject_rows(samples: list[ArmSample], part_weights, predict_joints, prior: ArmModel | None,
-                  body_space: BodyShapeSpace | None = None, prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT):
+                  body_space: BodyShapeSpace | None = None, prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT,
+                  weight_prior_weight: float | None = None):
     """Unposed meshes of one subject -> (base-pose rows, subject base mesh, pose rows (angles, d)).
 
     ``body_space``: a captured subject's shape row is its rest mesh's nearest body-space arm
@@ -592,8 +606,9 @@ def _subject_rows(samples: list[ArmSample], part_weights, predict_joints, prior:
                             axis=0)[None]
         if body_space is not None:
             base = base_rows[0]
-            return body_space_rest_mesh(body_space, base, samples[0].shape, prior_weight)[0][None], base, angles, \
-                unposed - base
+            row = body_space_rest_mesh(body_space, base, samples[0].shape, prior_weight,
+                                       weight_prior_weight=weight_prior_weight)[0]
+            return row[None], base, angles, unposed - base
     else:
         raise InputError(f"subject {samples[0].subject!r} has no mesh in the base pose (all joint angles "
                          f"< {np.degrees(BASE_POSE_TOL_RAD):.0f} deg); add one or extend an existing model")
@@ -664,7 +679,8 @@ def training_rows_per_subject(model: ArmModel) -> int:
 
 def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | None, source: str,
                   body_space: BodyShapeSpace | None = None,
-                  prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT, subject_rows: str = "own") -> ArmModel:
+                  prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT, subject_rows: str = "own",
+                  weight_prior_weight: float | None = None) -> ArmModel:
     """``subject_rows`` (:data:`SUBJECT_ROWS_CHOICES`): "training" repeats each added subject's base-pose rows up to
     :func:`training_rows_per_subject` of ``model`` (a subject counts as much as a training subject in Eq. 7)."""
     groups = _group(samples)
@@ -680,7 +696,7 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
     for name, group in groups.items():
         shape = group[0].shape
         base_rows, _, angles, d = _subject_rows(group, model.part_weights, lambda s: model_joints(model, s), prior,
-                                                body_space, prior_weight)
+                                                body_space, prior_weight, weight_prior_weight)
         if len(base_rows) < rows_each:
             base_rows = base_rows[np.arange(rows_each) % len(base_rows)]
         expected = model.base_vertices + length_displacements(model, shape)
@@ -697,7 +713,8 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
         entry = {"name": name, "shape": shape.to_dict(), "n_meshes": len(group), "source": source}
         in_base = [np.abs(s.pose.angles).max() <= BASE_POSE_TOL_RAD for s in group]
         if body_space is not None and prior is not None and not any(in_base):  # _subject_rows' body-space row
-            entry["rest"] = f"body space (prior weight {prior_weight:g})"
+            entry["rest"] = f"body space (prior weight {prior_weight:g})" if weight_prior_weight is None else \
+                f"body space (prior weight {prior_weight:g}, weight macro {weight_prior_weight:g})"
         subjects.append(entry)
     rows, R = np.concatenate(shape_rows), np.concatenate(residuals)
     q = model.regularization
@@ -719,7 +736,8 @@ def _add_subjects(model: ArmModel, samples: list[ArmSample], prior: ArmModel | N
 
 def extend_arm_model(model: ArmModel, captures: list[ArmSample], source: str = "capture",
                      captured_rest: str = "mesh", prior_weight: float = CAPTURED_REST_PRIOR_WEIGHT,
-                     shape_form: str | None = None, subject_rows: str = SUBJECT_ROWS) -> ArmModel:
+                     shape_form: str | None = None, subject_rows: str = SUBJECT_ROWS,
+                     weight_prior_weight: float | None = None) -> ArmModel:
     """Dataset extension (§1 contribution 2, issue §4): add captured subjects and re-learn Eq. 6-10.
 
     Subjects without a base-pose mesh (captured sequences) get their base mesh from every frame minus
@@ -733,8 +751,14 @@ def extend_arm_model(model: ArmModel, captures: list[ArmSample], source: str = "
     ``subject_rows``: "own" (default, :data:`SUBJECT_ROWS`) keeps the rows an added subject brings; "training" repeats
     them up to the rows a training subject of ``model`` has, so that it weighs as much in Eq. 7 (measured, not kept:
     docs/muscle.md, "Dataset extension, tenth pass").
+    ``weight_prior_weight``: the weight macro's prior weight in a captured row's body-space fit (None, the default:
+    ``prior_weight``'s; :func:`body_space_rest_mesh`). Measured, an option: ``prior_weight=30, weight_prior_weight=3``
+    lowers the held-out set C's error with two sets of added subjects (docs/muscle.md, "Dataset extension, eleventh
+    pass").
     """
     _check_samples(captures, model.n_vertices)
+    if captured_rest == "body":
+        _check_prior_weights(prior_weight, weight_prior_weight)
     if subject_rows not in SUBJECT_ROWS_CHOICES:
         raise InputError(f"subject_rows={subject_rows!r} must be one of {', '.join(SUBJECT_ROWS_CHOICES)}")
     if captured_rest not in CAPTURED_REST_CHOICES:
@@ -745,7 +769,7 @@ def extend_arm_model(model: ArmModel, captures: list[ArmSample], source: str = "
     target = with_shape_form(model, shape_form or model.shape_form)
     return _add_subjects(target, captures, prior=model, source=source,
                          body_space=space if captured_rest == "body" else None, prior_weight=prior_weight,
-                         subject_rows=subject_rows)
+                         subject_rows=subject_rows, weight_prior_weight=weight_prior_weight)
 
 
 def with_shape_form(model: ArmModel, shape_form: str, body_weight: str | None = None) -> ArmModel:

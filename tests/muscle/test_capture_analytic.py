@@ -277,7 +277,8 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
     np.testing.assert_array_equal(seq.args[4], mbf[-1].args[8])
     assert [p is m.out[1] for p, m in zip(seq.args[2], last, strict=True)] == [True] * 3
     (sm,) = spies["smooth_arm_poses"]
-    assert sm.args[0] is seq.out[0] and sm.args[1] == 0.8 and sm.kwargs == {"degree": 2}  # the default degree
+    # the default degrees
+    assert sm.args[0] is seq.out[0] and sm.args[1] == 0.8 and sm.kwargs == {"degree": 2, "shoulder_degree": None}
     assert c.poses is sm.out
     # the model meshes rebuilt from the smoothed poses with the norm limit
     for i in range(3):

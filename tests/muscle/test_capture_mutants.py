@@ -95,12 +95,14 @@ def test_the_placement_prior_and_chest_weight_must_be_non_negative_numbers(name)
 
 
 def test_the_extension_setting_and_the_new_defaults():
-    # the extension keeps the setting it was measured with (the regressed rest arm, the 50 % norm limit)
+    # the extension keeps the setting it was measured with, pinned (docs/muscle.md, "Dataset extension, eleventh
+    # pass": the skeleton fit on the capture's defaults of that pass)
     assert cap_mod.EXTENSION_CAPTURE == {"sequence_fit_skeleton": True, "sequence_fit_root": True,
-                                         "sequence_depth_huber_only": True, "body_rest_shape": False,
-                                         "norm_limit": 0.5, "pose_refit": False, "refine_unseen_hold": 0.0,
-                                         "refine_min_facing_cos": 0.0, "refine_depth_median_px": None,
-                                         "refine_depth_gaussian_sigma_px": None, "sequence_min_facing_cos": 0.0,
+                                         "sequence_depth_huber_only": True, "body_rest_shape": True,
+                                         "body_rest_tracker_weight": 10.0, "norm_limit": 0.2, "pose_refit": True,
+                                         "refine_unseen_hold": 1.0, "refine_min_facing_cos": 0.35,
+                                         "refine_depth_median_px": 1, "refine_depth_gaussian_sigma_px": 0.5,
+                                         "sequence_min_facing_cos": 0.3,
                                          "pose_sigma_frames": 2.5, "pose_smoothing_degree": 0}
     o = CaptureOptions()
     # docs/muscle.md fifteenth pass: the pose smoothing's local quadratic at sigma 5
@@ -160,10 +162,11 @@ def test_the_capture_for_extension_sets_the_extension_options_and_needs_the_sequ
     stub_capture_checks(monkeypatch)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", for_extension=True)
     assert seen["o"] == CaptureOptions(mode="model", sequence_fit_skeleton=True, sequence_fit_root=True,
-                                       sequence_depth_huber_only=True, body_rest_shape=False, norm_limit=0.5,
-                                       pose_refit=False, refine_unseen_hold=0.0, refine_min_facing_cos=0.0,
-                                       refine_depth_median_px=None, refine_depth_gaussian_sigma_px=None,
-                                       sequence_min_facing_cos=0.0, pose_sigma_frames=2.5, pose_smoothing_degree=0)
+                                       sequence_depth_huber_only=True, body_rest_shape=True,
+                                       body_rest_tracker_weight=10.0, norm_limit=0.2, pose_refit=True,
+                                       refine_unseen_hold=1.0, refine_min_facing_cos=0.35, refine_depth_median_px=1,
+                                       refine_depth_gaussian_sigma_px=0.5, sequence_min_facing_cos=0.3,
+                                       pose_sigma_frames=2.5, pose_smoothing_degree=0)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, for_extension=True)
     assert seen["o"] == CaptureOptions(mode="full", **cap_mod.EXTENSION_CAPTURE)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", for_extension=False)

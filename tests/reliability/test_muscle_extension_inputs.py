@@ -74,3 +74,14 @@ def test_capture_module_refuses_an_extension_capture_without_the_sequence_fit(ar
         capture_session_arm(arm_session, tiny_arm_model_path, sequence_fit=False, for_extension=True)
     with pytest.raises(InputError, match="needs the model and the sequence fit"):
         capture_session_arm(arm_session, None, mode="nicp", for_extension=True)
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, float("nan"), float("inf")])
+def test_extend_api_refuses_a_bad_weight_prior_weight(tiny_arm_model_path, value):
+    from bodystudio.errors import InputError
+    from bodystudio.muscle.model import ArmSample, ArmShapeParams, extend_arm_model, load_arm_model
+
+    model = load_arm_model(tiny_arm_model_path)
+    sample = ArmSample("x", ArmShapeParams(22.0, 0.5, 1.75, 0.5), model.base_vertices.copy(), None)
+    with pytest.raises(InputError, match=r"^weight_prior_weight=.* must be > 0 \(or None: prior_weight's\)$"):
+        extend_arm_model(model, [sample], captured_rest="body", weight_prior_weight=value)
