@@ -12,7 +12,8 @@ filters of the run's bone rotations (exponential, alpha-beta: a constant-velocit
 frame), a centred (non-causal) mean over +-k frames, the run with one group of bones (or their swing / their twist
 alone) taken from the true pose, and the signed twist error of the arms over the session (mean, spread, and at the
 first, middle and last frame). MIR12q: the mean error (bias) of the trunk bones' world rotations in the true pelvis's
-rest axes (x: to the body's left, a positive x a forward lean; y: a yaw to the left) for the IK and the run, and the
+rest axes (x: to the body's left, a positive x a forward lean; y: a yaw to the left) for the IK, the run and the IK
+on the true rest skeleton (what the fitted skeleton adds), and the
 share of the displacement error that is the same in every frame (the norm of its mean over frames, in the true
 root's axes); ``--posture``: E_trunk centred on the run's running mean posture (``run.POSTURE_BONES``, MIR12q).
 """
@@ -57,7 +58,8 @@ def record(session, untwist: bool, player: int = 1, posture_bones=()) -> dict:
     true_sk = Skeleton(sk.bone_names, sk.parents, actors["source_heads"][a], actors["source_tails"][a], sk.rolls)
     root = int(np.flatnonzero(parents < 0)[0])
     plan = refine_plan(body.vertices, body.faces, body.weights, sk, session.kinect.version, twist_bones=TWIST_BONES)
-    rec = {k: [] for k in ("tracked", "ik", "run", "true", "run_t", "true_t")}
+    rec = {k: [] for k in ("tracked", "ik", "run", "true", "run_t", "true_t", "ik_true_skeleton")}
+    previous_true = None
     background, previous, n, posture = None, None, 0, None
     for i in session.frame_ids:
         frame = read_mirror_frame(session, i)
@@ -66,7 +68,7 @@ def record(session, untwist: bool, player: int = 1, posture_bones=()) -> dict:
         tracked = frame.body(player)
         if tracked is None:
             background = update_background(background, frame.rgb, players_c > 0)
-            previous = None
+            previous = previous_true = None
             continue
         n += 1
         points = point_cloud(frame, session.kinect, player)
@@ -77,6 +79,9 @@ def record(session, untwist: bool, player: int = 1, posture_bones=()) -> dict:
         if untwist:
             ik = untwisted_pose(sk, ik, UNTWIST_BONES)
         previous = ik
+        # the same IK on the true rest skeleton: what the fitted skeleton adds to the IK's error (MIR12q)
+        previous_true = ik_pose(true_sk, tracked.positions, tracked.tracked, session.kinect.version,
+                                previous=previous_true)
         pose = refine_pose(plan, sk, ik, session.kinect.color, fg, tracked.positions, tracked.tracked, points,
                            (players_c > 0) & ~person, session.kinect.version, iterations=refine_steps(1),
                            weights=refine_weights(1), posture=posture)
@@ -91,7 +96,7 @@ def record(session, untwist: bool, player: int = 1, posture_bones=()) -> dict:
         tp = pose_from_world(sk, W_true, true_pose.translation + true_sk.heads[root] - sk.heads[root])
         for key, value in (("tracked", n), ("ik", world_rotations(sk, ik)), ("run", world_rotations(sk, pose)),
                            ("true", world_rotations(sk, tp)), ("run_t", pose.translation),
-                           ("true_t", tp.translation)):
+                           ("true_t", tp.translation), ("ik_true_skeleton", world_rotations(true_sk, previous_true))):
             rec[key].append(value)
     return {k: np.array(v) for k, v in rec.items()}
 
@@ -189,15 +194,16 @@ def main() -> None:
                 twist[i, j] = _between(d_true, d_run) @ rec["true"][i, j]
         rows[f"true {group} (swing / twist alone)"] = (err_mm(whole), err_mm(swing), err_mm(twist))
     pelvis = names.index("pelvis")
-    print("| bone | IK: mean rotation error deg (x, y, z) | the run |\n|---|---|---|")
+    print("| bone | IK: mean rotation error deg (x, y, z) | the run | the IK on the true rest skeleton |")
+    print("|---|---|---|---|")
     for bone in ("Root", "spine_01", "spine_02", "spine_03", "neck_01", "head"):
         j = names.index(bone)
         row = []
-        for key in ("ik", "run"):
+        for key in ("ik", "run", "ik_true_skeleton"):
             Wp = rec["true"][:, pelvis]
             E = np.transpose(Wp, (0, 2, 1)) @ rec[key][:, j] @ np.transpose(rec["true"][:, j], (0, 2, 1)) @ Wp
             row.append(np.degrees(Rotation.from_matrix(E).as_rotvec()).mean(0))
-        print(f"| {bone} | {' / '.join(f'{x:+.2f}' for x in row[0])} | {' / '.join(f'{x:+.2f}' for x in row[1])} |")
+        print("| " + " | ".join([bone] + [" / ".join(f"{x:+.2f}" for x in r) for r in row]) + " |")
     errors = [1e3 * (displacement(rec["run"][i], rec["run_t"][i]) - truth[i]) @ rec["true"][i, 0] for i in range(n)]
     print(f"\nthe run's displacement error: {np.mean([np.linalg.norm(e, axis=1).mean() for e in errors]):.2f} mm, "
           f"its mean over frames (a bias): {np.linalg.norm(np.mean(errors, axis=0), axis=1).mean():.2f} mm\n")
