@@ -813,6 +813,9 @@ def refine_pose(plan: _RefinePlan, skeleton: Skeleton, pose: Pose, camera, foreg
     other twist, is the IK's. ``iterations`` Gauss-Newton steps from ``pose``. ``posture`` (B, 3): where E_trunk
     holds each trunk bone (its direction in the parent's frame, :func:`posture_directions`); None: the rest pose.
     """
+    if posture is not None and np.shape(posture) != (skeleton.n_bones, 3):
+        raise InputError(f"refine_pose: posture of shape {np.shape(posture)}; give one direction per bone, "
+                         f"({skeleton.n_bones}, 3) (refine.posture_directions), or None for the rest pose")
     with _one_blas_thread():
         return _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tracked, depth_points,
                             others, version, iterations, weights, posture)
