@@ -1,7 +1,7 @@
 """Which part of the run's pose the reshape's displacement error comes from, and whether a temporal filter lowers it
 (MIR12p).
 
-Usage: PYTHONPATH=. python benchmarks/mirror_displacement_error.py [--twisted] SESSION
+Usage: PYTHONPATH=. python benchmarks/mirror_displacement_error.py [--twisted] [--posture] SESSION
 
 Every tracked frame of player 1 is posed as a one-player run poses it (the IK warm-started by the last one, its limbs
 untwisted unless ``--twisted``: before MIR12p; the refinement's two steps against the graph cut's foreground). The
@@ -11,7 +11,11 @@ the run's 0.944 and the true pose's 0.951: ``benchmarks/mirror_image_plane.py``)
 filters of the run's bone rotations (exponential, alpha-beta: a constant-velocity predictor corrected by each
 frame), a centred (non-causal) mean over +-k frames, the run with one group of bones (or their swing / their twist
 alone) taken from the true pose, and the signed twist error of the arms over the session (mean, spread, and at the
-first, middle and last frame).
+first, middle and last frame). MIR12q: the mean error (bias) of the trunk bones' world rotations in the true pelvis's
+rest axes (x: to the body's left, a positive x a forward lean; y: a yaw to the left) for the IK, the run and the IK
+on the true rest skeleton (what the fitted skeleton adds), and the
+share of the displacement error that is the same in every frame (the norm of its mean over frames, in the true
+root's axes); ``--posture``: E_trunk centred on the run's running mean posture (``run.POSTURE_BONES``, MIR12q).
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ GROUPS = {
 }
 
 
-def record(session, untwist: bool, player: int = 1) -> dict:
+def record(session, untwist: bool, player: int = 1, posture_bones=()) -> dict:
     """Per tracked frame: the IK, the run's refined pose and the true pose (the fitted skeleton's), world rotations."""
     from benchmarks.mirror_pose_oracle import pose_from_world, world_rotations
     from bodystudio.body.pose import Pose
@@ -42,8 +46,8 @@ def record(session, untwist: bool, player: int = 1) -> dict:
     from bodystudio.mirror.compose import update_background
     from bodystudio.mirror.foreground import refine_foreground
     from bodystudio.mirror.frames import point_cloud, read_mirror_frame, register_depth_to_color
-    from bodystudio.mirror.refine import TWIST_BONES, refine_plan, refine_pose
-    from bodystudio.mirror.run import UNTWIST_BONES, load_source, refine_steps, refine_weights
+    from bodystudio.mirror.refine import TWIST_BONES, refine_plan, refine_pose, updated_posture
+    from bodystudio.mirror.run import POSTURE_WINDOW, UNTWIST_BONES, load_source, refine_steps, refine_weights
     from bodystudio.mirror.track import ik_pose, untwisted_pose
 
     body, model = load_source(session)
@@ -54,8 +58,9 @@ def record(session, untwist: bool, player: int = 1) -> dict:
     true_sk = Skeleton(sk.bone_names, sk.parents, actors["source_heads"][a], actors["source_tails"][a], sk.rolls)
     root = int(np.flatnonzero(parents < 0)[0])
     plan = refine_plan(body.vertices, body.faces, body.weights, sk, session.kinect.version, twist_bones=TWIST_BONES)
-    rec = {k: [] for k in ("tracked", "ik", "run", "true", "run_t", "true_t")}
-    background, previous, n = None, None, 0
+    rec = {k: [] for k in ("tracked", "ik", "run", "true", "run_t", "true_t", "ik_true_skeleton")}
+    previous_true = None
+    background, previous, n, posture = None, None, 0, None
     for i in session.frame_ids:
         frame = read_mirror_frame(session, i)
         depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, session.kinect)
@@ -63,7 +68,7 @@ def record(session, untwist: bool, player: int = 1) -> dict:
         tracked = frame.body(player)
         if tracked is None:
             background = update_background(background, frame.rgb, players_c > 0)
-            previous = None
+            previous = previous_true = None
             continue
         n += 1
         points = point_cloud(frame, session.kinect, player)
@@ -74,9 +79,14 @@ def record(session, untwist: bool, player: int = 1) -> dict:
         if untwist:
             ik = untwisted_pose(sk, ik, UNTWIST_BONES)
         previous = ik
+        # the same IK on the true rest skeleton: what the fitted skeleton adds to the IK's error (MIR12q)
+        previous_true = ik_pose(true_sk, tracked.positions, tracked.tracked, session.kinect.version,
+                                previous=previous_true)
         pose = refine_pose(plan, sk, ik, session.kinect.color, fg, tracked.positions, tracked.tracked, points,
                            (players_c > 0) & ~person, session.kinect.version, iterations=refine_steps(1),
-                           weights=refine_weights(1))
+                           weights=refine_weights(1), posture=posture)
+        if posture_bones:
+            posture = updated_posture(posture, sk, pose, n, POSTURE_WINDOW, posture_bones)
         gt = session.frame(i).gt_mirror
         if gt is None or player not in list(gt["players"]) or not gt["reported"][list(gt["players"]).index(player)]:
             continue
@@ -86,7 +96,7 @@ def record(session, untwist: bool, player: int = 1) -> dict:
         tp = pose_from_world(sk, W_true, true_pose.translation + true_sk.heads[root] - sk.heads[root])
         for key, value in (("tracked", n), ("ik", world_rotations(sk, ik)), ("run", world_rotations(sk, pose)),
                            ("true", world_rotations(sk, tp)), ("run_t", pose.translation),
-                           ("true_t", tp.translation)):
+                           ("true_t", tp.translation), ("ik_true_skeleton", world_rotations(true_sk, previous_true))):
             rec[key].append(value)
     return {k: np.array(v) for k, v in rec.items()}
 
@@ -140,9 +150,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("session", type=Path)
     parser.add_argument("--twisted", action="store_true", help="the IK's warm-started twist (before MIR12p)")
+    parser.add_argument("--posture", action="store_true", help="E_trunk centred on the running mean posture")
     args = parser.parse_args()
     session = open_session(args.session)
-    rec = record(session, untwist=not args.twisted)
+    rec = record(session, untwist=not args.twisted,
+                 posture_bones=("spine_02", "neck_01", "head") if args.posture else ())
     body, model = load_source(session)
     sk = body.skeleton
     c_t = target_coeffs(model, body.coeffs, session.metadata["edits"])
@@ -181,7 +193,22 @@ def main() -> None:
                 swing[i, j] = _between(d_run, d_true) @ rec["run"][i, j]
                 twist[i, j] = _between(d_true, d_run) @ rec["true"][i, j]
         rows[f"true {group} (swing / twist alone)"] = (err_mm(whole), err_mm(swing), err_mm(twist))
-    print(f"| {args.session.name}{' (twisted)' if args.twisted else ''}, {n} frames | displacement err mm |")
+    pelvis = names.index("pelvis")
+    print("| bone | IK: mean rotation error deg (x, y, z) | the run | the IK on the true rest skeleton |")
+    print("|---|---|---|---|")
+    for bone in ("Root", "spine_01", "spine_02", "spine_03", "neck_01", "head"):
+        j = names.index(bone)
+        row = []
+        for key in ("ik", "run", "ik_true_skeleton"):
+            Wp = rec["true"][:, pelvis]
+            E = np.transpose(Wp, (0, 2, 1)) @ rec[key][:, j] @ np.transpose(rec["true"][:, j], (0, 2, 1)) @ Wp
+            row.append(np.degrees(Rotation.from_matrix(E).as_rotvec()).mean(0))
+        print("| " + " | ".join([bone] + [" / ".join(f"{x:+.2f}" for x in r) for r in row]) + " |")
+    errors = [1e3 * (displacement(rec["run"][i], rec["run_t"][i]) - truth[i]) @ rec["true"][i, 0] for i in range(n)]
+    print(f"\nthe run's displacement error: {np.mean([np.linalg.norm(e, axis=1).mean() for e in errors]):.2f} mm, "
+          f"its mean over frames (a bias): {np.linalg.norm(np.mean(errors, axis=0), axis=1).mean():.2f} mm\n")
+    print(f"| {args.session.name}{' (twisted)' if args.twisted else ''}{' (posture)' if args.posture else ''}, "
+          f"{n} frames | displacement err mm |")
     print("|---|---|")
     for name, v in rows.items():
         print(f"| {name} | {' / '.join(f'{x:.2f}' for x in np.atleast_1d(v))} |")

@@ -8,7 +8,8 @@ video) into ``DIR/<session>_<run>`` for each of ``--runs`` (default ``ik refine`
 ``refine-no-trunk``: refined without E_trunk, ``refine-2-steps``: two Gauss-Newton steps, ``refine-no-edge``:
 without the warp's edge clamp, MIR12g; ``refine-before-mir12h``: the root turned about its head and no spine twist,
 MIR12h; ``refine-twisted``: the IK's limbs keep their warm-started twist, before MIR12p; ``refine-registered``: the
-bodies registered to the outline, ``run.REGISTER_OUTLINE_ONE_PLAYER``), then
+bodies registered to the outline, ``run.REGISTER_OUTLINE_ONE_PLAYER``; ``refine-posture``: E_trunk centred on the run's
+running mean posture of spine_02, neck_01 and head, ``run.POSTURE_BONES``, MIR12q), then
 ``evaluate_mirror`` on each; prints one JSON line per run with the scores and the per-step median milliseconds
 (wall, so only comparable at one load).
 """
@@ -47,10 +48,13 @@ def _refine_as(run: str, weights: dict | None = None):
     from bodystudio.mirror import warp
 
     untwist, register = run_module.UNTWIST_BONES, run_module.REGISTER_OUTLINE_ONE_PLAYER
+    posture = run_module.POSTURE_BONES
     if run == "refine-twisted":  # the IK's warm-started limb twist (before MIR12p)
         run_module.UNTWIST_BONES = ()
     if run == "refine-registered":  # the bodies registered to the outline (MIR12p's option)
         run_module.REGISTER_OUTLINE_ONE_PLAYER = True
+    if run == "refine-posture":  # E_trunk centred on the running mean posture (MIR12q's option)
+        run_module.POSTURE_BONES = ("spine_02", "neck_01", "head")
     clamp = warp.edge_clamped
     if run == "refine-no-edge":  # source positions outside the image stay outside (before MIR12g)
         warp.edge_clamped = lambda xy, shape, reach_px=0.0: xy
@@ -60,6 +64,7 @@ def _refine_as(run: str, weights: dict | None = None):
         refine.refine_pose, refine.TWIST_BONES, refine.ROOT_PIVOT = original, twist, pivot
         warp.edge_clamped = clamp
         run_module.UNTWIST_BONES, run_module.REGISTER_OUTLINE_ONE_PLAYER = untwist, register
+        run_module.POSTURE_BONES = posture
 
 
 def main() -> None:
@@ -72,7 +77,8 @@ def main() -> None:
     parser.add_argument("--source", default=None, help="source body .npz name inside SESSION/mirror/")
     parser.add_argument("--runs", nargs="+", default=["ik", "refine"],
                         choices=["ik", "refine", "refine-no-trunk", "refine-2-steps", "refine-no-edge",
-                                 "refine-before-mir12h", "refine-weights", "refine-twisted", "refine-registered"],
+                                 "refine-before-mir12h", "refine-weights", "refine-twisted", "refine-registered",
+                                 "refine-posture"],
                         help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
                              "or with two Gauss-Newton steps, or without the warp's edge clamp (MIR12g's A/Bs)")
     parser.add_argument("--weights", default="", help="refine-weights: RefineWeights fields, e.g. depth_samples=2000")

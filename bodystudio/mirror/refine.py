@@ -571,21 +571,58 @@ def _any_in_window(image, y0, y1, x0, x1):
 
 
 def trunk_bends(M: np.ndarray, world: np.ndarray, rest_rotations: np.ndarray, parents, bones: np.ndarray,
-                axes: np.ndarray) -> np.ndarray:
+                axes: np.ndarray, posture: np.ndarray | None = None) -> np.ndarray:
     """(n, 2) the bend of each of ``bones`` against its parent, as the components on its two swing ``axes``
     (n, 2, 3) of the rotation vector taking the bone's rest direction (turned with its parent) onto its posed one;
-    ``M`` the posed frames, ``world`` the world rotations (:func:`_bone_frames`).
+    ``M`` the posed frames, ``world`` the world rotations (:func:`_bone_frames`). ``posture`` (B, 3): each bone's
+    direction in its parent's frame (rest-world axes, :func:`posture_directions`) to bend from instead of the rest
+    direction (a subject's static stoop or nod).
 
     A swing ``delta`` about ``e_k`` of bone ``j`` turns its direction about ``e_k`` and leaves its parent alone, so
     the bend becomes ``bend_k + delta_k`` to first order: the residual of E_trunk, ``(bend_k + delta_k) / s``.
     """
     d = M[bones, :3, 1]
-    q = np.einsum("nij,nj->ni", world[np.asarray(parents)[bones]], rest_rotations[bones][:, :, 1])
+    centre = rest_rotations[bones][:, :, 1] if posture is None else posture[bones]
+    q = np.einsum("nij,nj->ni", world[np.asarray(parents)[bones]], centre)
     n = np.cross(q, d)
     s = np.linalg.norm(n, axis=1)
     angle = np.arctan2(s, np.einsum("ij,ij->i", q, d))
     b = n * (angle / np.maximum(s, 1e-12))[:, None]
     return np.einsum("nkj,nj->nk", axes, b)
+
+
+def posture_directions(skeleton: Skeleton, pose: Pose) -> np.ndarray:
+    """(B, 3) each bone's posed direction in its parent's frame, in rest-world axes (``W_p^T d_j``; the root: its
+    rest direction): what :func:`trunk_bends` bends from, averaged over frames a subject's static posture."""
+    from bodystudio.body.skinning import forward_kinematics
+
+    G = forward_kinematics(skeleton, pose)[:, :3, :3]
+    world = G @ np.transpose(skeleton.rest_rotations, (0, 2, 1))
+    parents = np.asarray(skeleton.parents)
+    out = skeleton.rest_rotations[:, :, 1].copy()
+    child = parents >= 0
+    out[child] = np.einsum("nji,nj->ni", world[parents[child]], G[child][:, :, 1])
+    return out
+
+
+def updated_posture(posture: np.ndarray | None, skeleton: Skeleton, pose: Pose, frames: int, window: int,
+                    bones=None) -> np.ndarray:
+    """E_trunk's centre (:func:`trunk_bends`' ``posture``) after one more frame's ``pose``: for ``bones`` (names;
+    None: all) the running mean of :func:`posture_directions` (``frames`` seen so far, this one included; an
+    exponential mean of ``window`` frames once there are more), every other bone its rest direction.
+
+    Its fixed point is the mean bend that the data terms alone would give: a prior held at that centre no longer
+    shrinks a subject's static stoop or nod towards the rest pose, as one held at the rest pose does."""
+    d = posture_directions(skeleton, pose)
+    rest = skeleton.rest_rotations[:, :, 1]
+    if posture is not None:
+        rate = 1.0 / min(max(int(frames), 1), max(int(window), 1))
+        d = (1.0 - rate) * posture + rate * d
+        d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    if bones is not None:
+        keep = ~np.isin(np.asarray(skeleton.bone_names), list(bones))
+        d[keep] = rest[keep]
+    return d
 
 
 def apply_update(skeleton: Skeleton, pose: Pose, delta: np.ndarray, bones: np.ndarray, axes: np.ndarray,
@@ -766,22 +803,26 @@ def _one_blas_thread():
 def refine_pose(plan: _RefinePlan, skeleton: Skeleton, pose: Pose, camera, foreground: np.ndarray,
                 kinect_positions=None, tracked=None, depth_points=None, others: np.ndarray | None = None,
                 version: str = "v2", iterations: int = ITERATIONS,
-                weights: RefineWeights = RefineWeights()) -> Pose:
+                weights: RefineWeights = RefineWeights(), posture: np.ndarray | None = None) -> Pose:
     """The IK ``pose`` refined by Gauss-Newton so that the projected body fits ``foreground`` (the person's
     refined mask in the colour image of ``camera``), the player's ``depth_points`` (N, 3) and the Kinect joints.
 
     ``others``: pixels of other players (a body point projecting there may be occluded, not outside).
     Root translation/rotation and the swing of the plan's bones (:data:`SWING_BONES` by default) change, and the
     twist of its twist bones (none by default; the run's plan :data:`TWIST_BONES`); every other rotation, and every
-    other twist, is the IK's. ``iterations`` Gauss-Newton steps from ``pose``.
+    other twist, is the IK's. ``iterations`` Gauss-Newton steps from ``pose``. ``posture`` (B, 3): where E_trunk
+    holds each trunk bone (its direction in the parent's frame, :func:`posture_directions`); None: the rest pose.
     """
+    if posture is not None and np.shape(posture) != (skeleton.n_bones, 3):
+        raise InputError(f"refine_pose: posture of shape {np.shape(posture)}; give one direction per bone, "
+                         f"({skeleton.n_bones}, 3) (refine.posture_directions), or None for the rest pose")
     with _one_blas_thread():
         return _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tracked, depth_points,
-                            others, version, iterations, weights)
+                            others, version, iterations, weights, posture)
 
 
 def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tracked, depth_points, others,
-                 version, iterations, weights) -> Pose:
+                 version, iterations, weights, posture=None) -> Pose:
     fg = np.asarray(foreground, bool)
     if fg.shape != (camera.height, camera.width):
         raise InputError(f"refine_pose: foreground {fg.shape} is not the camera's ({camera.height}, {camera.width})")
@@ -903,7 +944,7 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
         H[np.diag_indices(n_par)] += 1.0 / prior_scale**2
         grad = Jtr + total / prior_scale**2
         if trunk is not None:  # E_trunk: each trunk bone's bend (its swing off the rest pose) plus its own swing
-            bend = trunk_bends(M, world, rest_rotations, parents, bones[1 + trunk], axes[trunk])
+            bend = trunk_bends(M, world, rest_rotations, parents, bones[1 + trunk], axes[trunk], posture)
             cols = (6 + 2 * trunk[:, None] + np.arange(2)).ravel()
             H[cols, cols] += 1.0 / weights.trunk_rad**2
             grad[cols] += bend.ravel() / weights.trunk_rad**2

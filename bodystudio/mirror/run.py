@@ -93,6 +93,12 @@ REFINE_DEPTH_SAMPLES_ONE_PLAYER = 2000
 #: 42 / 41 / 43 warp_iou +0.0010 / +0.0009 / +0.0006, held out 45 / 46 / 47 / 48 +0.0005 / +0.0007 / -0.0001 /
 #: +0.0004 for a second pairing a frame: off (docs/mirror.md).
 REGISTER_OUTLINE_ONE_PLAYER = False
+#: Trunk bones whose E_trunk centre follows the run's own running mean of their bend (the subject's static posture,
+#: :func:`bodystudio.mirror.refine.updated_posture`, over POSTURE_WINDOW frames) instead of the rest pose; () holds
+#: them at the rest pose. MIR12q: displacement error 42 / 41 / 43 / 52 / 53 3.30 / 2.87 / 2.70 / 5.68 / 2.87 ->
+#: 3.26 / 2.95 / 2.62 / 5.24 / 2.85 mm with the three below: off (docs/mirror.md).
+POSTURE_BONES: tuple[str, ...] = ()
+POSTURE_WINDOW = 30
 #: The limbs whose twist each frame's IK pose drops before the refinement and the bodies
 #: (:func:`bodystudio.mirror.track.untwisted_pose`; () keeps the IK's warm-started twist, as before MIR12p).
 UNTWIST_BONES = _track.UNTWIST_BONES
@@ -510,6 +516,8 @@ class _Actor:
     plan: object = None
     previous: object = None
     tracked_frames: int = 0
+    posture: object = None  # E_trunk's centre (POSTURE_BONES), None: the rest pose
+    refined_frames: int = 0
 
 
 def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp_frames: int = 30,
@@ -552,7 +560,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     if refine:
         from bodystudio.mirror.frames import point_cloud
         from bodystudio.mirror.image_plane import register_to_outline
-        from bodystudio.mirror.refine import TWIST_BONES, refine_plan, refine_pose
+        from bodystudio.mirror.refine import TWIST_BONES, refine_plan, refine_pose, updated_posture
 
         steps = refine_steps(len(actors))
         weights = refine_weights(len(actors))
@@ -649,7 +657,11 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
                     try:
                         pose = refine_pose(a.plan, a.body.skeleton, pose, camera, fg, tracked.positions,
                                            tracked.tracked, points, not_mine, sensor.version, iterations=steps,
-                                           weights=weights)
+                                           weights=weights, posture=a.posture)
+                        if POSTURE_BONES:
+                            a.refined_frames += 1
+                            a.posture = updated_posture(a.posture, a.body.skeleton, pose, a.refined_frames,
+                                                        POSTURE_WINDOW, POSTURE_BONES)
                     except BodyStudioError as exc:  # mirror_stream passes the frame through with this warning
                         who = f" of player {a.player}" if several else ""
                         raise InputError(f"pose refinement{who} failed: {exc}") from exc

@@ -324,3 +324,68 @@ def test_the_trunk_prior_straightens_a_bend_the_image_hardly_sees(case):
     # and the body comes closer to the truth for it
     errs = [_vertex_err_mm(body, p, V_true) for p in (ik, without, with_prior)]
     assert errs[2] < errs[1] < errs[0], errs  # measured 6.4 -> 3.3 without, 3.1 with
+
+
+# --- E_trunk centred on a subject's posture (issue 12, MIR12q) ---------------------------------------------------
+
+def _stooped(case, deg=8.0):
+    """The case's pose with the trunk at rest but spine_02 bent ``deg`` forward and the head nodded as far: a static
+    posture (the synthetic motions draw one per subject, ``capture.motion._posture_noise``)."""
+    body, _, _, case_true, _, _, _ = case
+    sk = body.skeleton
+    from bodystudio.mirror.refine import TRUNK_BONES
+
+    rot = case_true.rotations.copy()
+    for name in TRUNK_BONES:
+        rot[sk.index(name)] = 0.0
+    for name in ("spine_02", "head"):
+        rot[sk.index(name)] = Rotation.from_euler("x", deg, degrees=True).as_rotvec()
+    return Pose(rot, np.zeros(3))
+
+
+def test_posture_directions_are_the_rest_directions_at_rest_and_trunk_bends_vanish_at_the_posture(case):
+    from bodystudio.mirror.refine import _bone_frames, _forward_kinematics, posture_directions, trunk_bends
+
+    body, plan, *_ = case
+    sk = body.skeleton
+    rest = posture_directions(sk, Pose(np.zeros((sk.n_bones, 3)), np.zeros(3)))
+    assert np.abs(rest - sk.rest_rotations[:, :, 1]).max() < 1e-9
+    pose = _stooped(case)
+    mine = posture_directions(sk, pose)
+    j = sk.index("spine_02")
+    assert abs(np.degrees(np.arccos(np.clip(mine[j] @ rest[j], -1, 1))) - 8.0) < 1e-6
+    M, _ = _forward_kinematics(plan, sk.parents, pose)
+    world, _, axes = _bone_frames(M, np.ascontiguousarray(sk.rest_rotations), plan.bones)
+    k = list(plan.bones[1:]).index(j)
+    bones, ax = plan.bones[1 + k:2 + k], axes[k:k + 1]
+    args = (M, world, sk.rest_rotations, sk.parents, bones, ax)
+    assert abs(np.degrees(np.linalg.norm(trunk_bends(*args))) - 8.0) < 1e-6
+    assert np.linalg.norm(trunk_bends(*args, mine)) < 1e-9
+
+
+def test_the_trunk_prior_centred_on_the_posture_keeps_a_stoop_the_rest_centred_one_shrinks(case):
+    """The person stands with a static stoop and the IK has it right (joints, silhouette and depth are the truth's):
+    E_trunk held at the rest pose pulls spine_02 and the head back towards it; held at the subject's posture (its
+    running mean, :func:`updated_posture`, over frames of that pose) nothing moves. A posture ignored by E_trunk,
+    a running mean that stays at the rest pose or updates the wrong bones fails."""
+    from bodystudio.mirror.refine import posture_directions, updated_posture
+
+    body, plan, camera, *_ = case
+    sk = body.skeleton
+    true = _stooped(case)
+    _, mask, points = _seen(body, camera, true)
+    joints = posed_kinect_joints(sk, true)
+    posture = None
+    for n in range(1, 41):
+        posture = updated_posture(posture, sk, true, n, 10, ("spine_02", "neck_01", "head"))
+    d = posture_directions(sk, true)
+    for name in ("spine_02", "head"):
+        assert np.abs(posture[sk.index(name)] - d[sk.index(name)]).max() < 1e-9
+    for name in ("spine_01", "spine_03", "clavicle_l"):  # not listed: the rest direction
+        assert np.abs(posture[sk.index(name)] - sk.rest_rotations[sk.index(name), :, 1]).max() < 1e-12
+    at_rest = refine_pose(plan, sk, true, camera, mask, joints, None, points)
+    centred = refine_pose(plan, sk, true, camera, mask, joints, None, points, posture=posture)
+    for name, moved in (("spine_02", 3.0), ("head", 3.0)):
+        j = sk.index(name)
+        err = [_bend_deg(p, j) - 8.0 for p in (at_rest, centred)]
+        assert err[0] < -moved and abs(err[1]) < 0.2, (name, err)  # measured spine_02 -6.4 / 0.06, head -7.2 / 0.03 deg

@@ -548,7 +548,8 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
     monkeypatch.setattr(frames_mod, "point_cloud", point_cloud)
 
     def refine_pose(plan, skeleton, pose, camera, fg, positions, tracked, points, occluders, version, iterations,
-                    weights):
+                    weights, posture=None):
+        assert posture is None  # E_trunk at the rest pose unless run.POSTURE_BONES (MIR12q, off)
         refined.append(dict(plan=plan, skeleton=skeleton, pose=pose, camera=camera, fg=fg.copy(),
                             joints=positions[0, 0], tracked=tracked, points=points, occluders=occluders.copy(),
                             version=version, iterations=iterations, depth_samples=weights.depth_samples))

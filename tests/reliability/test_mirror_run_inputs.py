@@ -133,3 +133,20 @@ def test_a_player_is_never_paired_with_another_players_body(sessions, tmp_path, 
         assert_clean_error(result, 2, phrase)
         assert sorted(p.name for p in (session / "mirror").iterdir()) == ["source_body.npz"]
         assert not out.exists()
+
+
+def test_a_posture_of_the_wrong_shape_is_a_one_line_error():
+    """MIR12q: ``refine_pose(posture=)`` (E_trunk's centre, one direction per bone) refuses another shape before any
+    work, naming the shape it wants; the run's option (``run.POSTURE_BONES``) is off by default."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from bodystudio.errors import InputError
+    from bodystudio.mirror import run
+    from bodystudio.mirror.refine import refine_pose
+
+    skeleton = SimpleNamespace(n_bones=53)
+    with pytest.raises(InputError, match=r"\(53, 3\)"):
+        refine_pose(None, skeleton, None, None, np.zeros((4, 4), bool), posture=np.zeros((52, 3)))
+    assert run.POSTURE_BONES == ()
