@@ -871,7 +871,7 @@ def test_the_personal_rounds_alternate_rest_shape_and_skeleton_fit_and_make_the_
     np.testing.assert_array_equal(c.joints, second.out[1])
     (sm,) = spies["smooth_arm_poses"]
     assert sm.args[0] is second.out[0] and c.poses is sm.out
-    assert sm.args[1] == 0.7 and sm.kwargs == {"degree": 2}
+    assert sm.args[1] == 0.7 and sm.kwargs == {"degree": 2, "shoulder_degree": None}
     for i in range(2):
         np.testing.assert_allclose(c.vertices[i], apply_similarity(c.similarity, skeleton_model_mesh(
             scene.model, sm.out[i], rs.out, second.out[1], 0.6)), atol=1e-12)
