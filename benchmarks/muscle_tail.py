@@ -228,6 +228,71 @@ def session_tail(work: Path, subject_seed: int, noise_seed: int = 0, variant: di
     return out
 
 
+def rest_variant_rows(work: Path, subject_seed: int, variants: dict) -> dict:
+    """{variant: tail figures} of the sequence stage re-run per variant of ``CaptureOptions`` on the cached per-frame
+    stage (``muscle_owners.capture_state``, ``W/owners_SUBJECT_def_200.pkl``; the sequence stage cached as
+    ``muscle_rest_arm.sequence_of``'s ``W/rest_SUBJECT_NAME_sequence.pkl``), then the last pose refit, the pose
+    smoothing and the Sec. 7 refinement on its own depth clean-up, as ``capture_arm_frames`` runs them."""
+    from scipy.spatial import cKDTree
+
+    from benchmarks import bench_muscle as bm
+    from benchmarks.muscle_energy import work_model
+    from benchmarks.muscle_owners import capture_state, depth_frames, ground_truth
+    from benchmarks.muscle_rest_arm import sequence_of
+    from benchmarks.muscle_sequences import session_of
+    from bodystudio.muscle import capture as cm
+    from bodystudio.muscle.depth import clean_depth, depth_point_cloud
+    from bodystudio.muscle.nicp import apply_similarity
+    from bodystudio.muscle.refine import refit_arm_poses_to_depth, skeleton_model_mesh, smooth_arm_poses
+
+    template = bm._template()
+    model = work_model(work, template)
+    state = capture_state(work, subject_seed, {}, "def")
+    truth = ground_truth(work, subject_seed)
+    _, session = session_of(work, subject_seed, 0, len(truth["G"]))
+    raw = [session.frame(f).kinect_depth_m for f in session.frame_ids]
+    camera, S = truth["camera"], state["S"]
+    Sinv = cm._inverse_similarity(S)
+    F = np.asarray(template.faces, np.int64)
+    refine_clouds = {}
+    rows = {}
+    for name, options in variants.items():
+        o = cm.CaptureOptions(**options)
+        frames = depth_frames(state, template, o)
+        poses, base, J, seq_cpu = sequence_of(work, subject_seed, name, model, template, state, frames, o)
+        refit = dict(cm.POSE_REFIT)
+        poses = refit_arm_poses_to_depth(model, poses, cm.facing_frames(frames, o.sequence_min_facing_cos), base, J,
+                                         o.norm_limit, o.sequence_huber_m, state["tracker_t"],
+                                         refit.pop("tracker_weight"), **refit)
+        if o.pose_sigma_frames > 0:
+            poses = smooth_arm_poses(poses, o.pose_sigma_frames)
+        M = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
+        d = cm.refinement_depth_options(o)
+        if d not in refine_clouds:
+            clouds = []
+            for depth in raw:
+                P, N = depth_point_cloud(clean_depth(depth, d), camera)
+                clouds.append((apply_similarity(Sinv, P), N @ S[1]))
+            refine_clouds[d] = (clouds, [cKDTree(P) for P, _ in clouds])
+        clouds, trees = refine_clouds[d]
+        out = cm._refinement(M, poses, clouds, trees, F, frames[0].sensor_center, template.arm_mask,
+                             frames[0].adjacency, J, o, cm._Timer(), camera=camera, similarity=S)
+        X = np.stack([apply_similarity(S, x) for x in out])
+        from bodystudio.muscle.evaluate import score_arm_sequence
+
+        row = tail_breakdown(X, truth, truth["template"])
+        row.update({k: v for k, v in score_arm_sequence(X, truth["G"], truth["template"], truth["vis"],
+                                                        truth["gtJ"]).items() if k not in row})
+        row["rest"] = rest_arm_rows({"truth": truth, "rest": base, "rest_joints": J})
+        row["sequence_cpu_s"] = seq_cpu
+        rows[name] = row
+        short = {k: round(row[k], 2) for k in ("median_mm", "p90_mm", "over5_pct", "front_median_mm",
+                                                "back_median_mm", "bulge_err_mm", "jitter_mm")}
+        short.update({f"pp_{k[7:]}": round(row[k]["part_pp"], 2) for k in row if k.startswith("region:")})
+        print(subject_seed, name, json.dumps(short), flush=True)
+    return rows
+
+
 def print_table(results: dict) -> None:
     subjects = list(results)
     keys = [k for k in results[subjects[0]] if isinstance(results[subjects[0]][k], dict)]
@@ -251,17 +316,28 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--work", type=Path, required=True)
     parser.add_argument("--session", type=int, action="append", required=True, help="subject seed (repeatable)")
     parser.add_argument("--noise-seed", type=int, default=0)
-    parser.add_argument("--variant", default="default", help="NAME or NAME:KEY=VALUE,... over CaptureOptions()")
+    parser.add_argument("--variant", action="append", default=[],
+                        help="NAME or NAME:KEY=VALUE,... over CaptureOptions() (repeatable with --rest-variants)")
+    parser.add_argument("--rest-variants", action="store_true",
+                        help="re-run the sequence stage per variant on the cached per-frame stage (rest_variant_rows)")
     args = parser.parse_args(argv)
     from benchmarks.muscle_regions import parse_variant
     from bodystudio.errors import InputError
     from bodystudio.muscle.capture import CaptureOptions
 
     try:
-        name, kw = ("default", {}) if args.variant == "default" else parse_variant(args.variant)
-        CaptureOptions(**kw)
+        variants = dict(("default", {}) if v == "default" else parse_variant(v) for v in args.variant or ["default"])
+        for kw in variants.values():
+            CaptureOptions(**kw)
     except (ValueError, SyntaxError, TypeError, InputError) as exc:
         parser.error(f"--variant: {exc}")
+    if args.rest_variants:
+        results = {s: rest_variant_rows(args.work, s, variants) for s in args.session}
+        (args.work / f"tail_rest_variants_{int(time.time())}.json").write_text(json.dumps(results))
+        return
+    if len(variants) > 1:
+        parser.error("--variant: one variant without --rest-variants")
+    name, kw = next(iter(variants.items()))
     results = {}
     for s in args.session:
         t0 = time.process_time()

@@ -316,6 +316,11 @@ class CaptureOptions:
     body_rest_shape: bool = True
     body_rest_rounds: int = 2
     body_rest_prior_weight: float = 100.0  # per frame, one population standard deviation vs a pair 1 mm off
+    # The prior's spread of every local target weight of the body space (``model.BODY_LOCAL_PRIOR_SIGMA``), and with
+    # ``body_rest_population_locals`` > 0 the body population's own spread times it on the targets the population varies
+    # (``model.population_local_sigma``; ``body_rest_local_sigma`` then on the others only; 0: off).
+    body_rest_local_sigma: float = 0.25
+    body_rest_population_locals: float = 0.0
     body_rest_iterations: int = 3  # Gauss-Newton steps per round (re-paired each)
     body_rest_frame_stride: int = 4  # every this-many-th frame enters the rest-shape fit (it is shared)
     body_rest_arm_length_weight: float = 100.0  # measured arm length (known shape), per frame, vs one depth pair
@@ -384,6 +389,9 @@ class CaptureOptions:
             raise InputError(f"sequence_placement_prior_m must be >= 0, got {self.sequence_placement_prior_m}")
         if not self.sequence_torso_pair_weight >= 0:
             raise InputError(f"sequence_torso_pair_weight must be >= 0, got {self.sequence_torso_pair_weight}")
+        if not (self.body_rest_local_sigma > 0 and self.body_rest_population_locals >= 0):
+            raise InputError(f"body_rest_local_sigma must be > 0 and body_rest_population_locals >= 0, got "
+                             f"{self.body_rest_local_sigma} and {self.body_rest_population_locals}")
         if self.body_rest_rounds < 0 or self.body_rest_frame_stride < 1 or not self.body_rest_prior_weight > 0:
             raise InputError("body_rest_rounds must be >= 0, body_rest_frame_stride >= 1, body_rest_prior_weight > 0")
         if self.personal_rounds > 0 and self.body_rest_shape and self.body_rest_rounds > 0:
@@ -675,6 +683,19 @@ def sequence_tracker_weight(o: CaptureOptions, model, poses: list[ArmPose], fram
     return weight
 
 
+def body_rest_local_sigma(o: CaptureOptions, space) -> np.ndarray | None:
+    """The rest-shape fit's prior spread of the body space's local target weights: None (every target at
+    ``model.BODY_LOCAL_PRIOR_SIGMA``) unless ``o.body_rest_population_locals`` or ``o.body_rest_local_sigma`` says
+    otherwise (``model.population_local_sigma``)."""
+    from bodystudio.muscle.model import BODY_LOCAL_PRIOR_SIGMA, population_local_sigma
+
+    if o.body_rest_population_locals > 0:
+        return population_local_sigma(space, o.body_rest_local_sigma, o.body_rest_population_locals)
+    if o.body_rest_local_sigma != BODY_LOCAL_PRIOR_SIGMA:
+        return np.full(len(space.local_names), o.body_rest_local_sigma)
+    return None
+
+
 def facing_frames(frames: list[DepthFrame], min_facing_cos: float) -> list[DepthFrame]:
     """The frames with their grazing pairs dropped (``refine.grazing_pairs``; 0: the frames as they are)."""
     return frames if min_facing_cos <= 0 else [replace(f, min_facing_cos=min_facing_cos) for f in frames]
@@ -692,7 +713,7 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
         from bodystudio.muscle.model import body_shape_space, project_to_body_space
 
         space = body_shape_space(template)
-        prior_mean, prior_sigma = space.prior(shape)
+        prior_mean, prior_sigma = space.prior(shape, body_rest_local_sigma(o, space))
         anchor = J[0].copy()  # the rest mesh's shoulder stays where the model's sits (the placement's frame)
         body_x = prior_mean = project_to_body_space(space, base, J, prior_mean, prior_sigma)
         base, J_model = space.rest_and_joints(body_x, anchor)
