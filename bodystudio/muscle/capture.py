@@ -316,11 +316,19 @@ class CaptureOptions:
     body_rest_shape: bool = True
     body_rest_rounds: int = 2
     body_rest_prior_weight: float = 100.0  # per frame, one population standard deviation vs a pair 1 mm off
-    # The prior's spread of every local target weight of the body space (``model.BODY_LOCAL_PRIOR_SIGMA``), and with
-    # ``body_rest_population_locals`` > 0 the body population's own spread times it on the targets the population varies
-    # (``model.population_local_sigma``; ``body_rest_local_sigma`` then on the others only; 0: off).
-    body_rest_local_sigma: float = 0.25
-    body_rest_population_locals: float = 0.0
+    # The prior's spread of the body space's local target weights: with ``body_rest_population_locals`` > 0 the body
+    # population's own spread times it on the targets the population varies and ``body_rest_local_sigma`` on the 84
+    # others (``model.population_local_sigma``); with 0, ``body_rest_local_sigma`` on every target (0.25,
+    # ``model.BODY_LOCAL_PRIOR_SIGMA``: the prior before the fifteenth pass). Every target at one spread, the fit
+    # explained the seen front with targets no subject of the population carries (the neck moved down, the forearm
+    # narrowed, the torso's depth shrunk) and the shoulder's unseen back, armpit and deltoid followed them 2-4 mm inside
+    # the skin: the vertex-frames over 5 mm on 507 / 508 (docs/muscle.md, fifteenth pass, mus11r). Measured (200
+    # frames, median / p90 mm, before -> 1.0 with 0.1): 501 2.62 / 4.64 -> 2.41 / 4.24, 504 2.57 / 4.50 -> 2.31 / 4.26,
+    # 507 2.76 / 5.51 -> 2.36 / 5.02, 508 3.08 / 5.91 -> 3.06 / 5.96 (mean 2.76 / 5.14 -> 2.54 / 4.87); 513, used for
+    # no choice, 3.73 / 6.16 -> 3.50 / 5.75. 0.05 for the others: 507 2.13 / 4.70 but 508 3.26 / 6.20 (its upper arm
+    # 3.4 population sd fat); every target at 0.1: 507 2.71 / 6.12, 508 4.21 / 9.02.
+    body_rest_local_sigma: float = 0.1
+    body_rest_population_locals: float = 1.0
     body_rest_iterations: int = 3  # Gauss-Newton steps per round (re-paired each)
     body_rest_frame_stride: int = 4  # every this-many-th frame enters the rest-shape fit (it is shared)
     body_rest_arm_length_weight: float = 100.0  # measured arm length (known shape), per frame, vs one depth pair
@@ -684,9 +692,10 @@ def sequence_tracker_weight(o: CaptureOptions, model, poses: list[ArmPose], fram
 
 
 def body_rest_local_sigma(o: CaptureOptions, space) -> np.ndarray | None:
-    """The rest-shape fit's prior spread of the body space's local target weights: None (every target at
-    ``model.BODY_LOCAL_PRIOR_SIGMA``) unless ``o.body_rest_population_locals`` or ``o.body_rest_local_sigma`` says
-    otherwise (``model.population_local_sigma``)."""
+    """The rest-shape fit's prior spread of the body space's local target weights (``model.population_local_sigma``
+    with ``o.body_rest_population_locals`` > 0, the default), or None: every target at
+    ``model.BODY_LOCAL_PRIOR_SIGMA`` (``o.body_rest_population_locals`` 0 and ``o.body_rest_local_sigma`` that
+    spread)."""
     from bodystudio.muscle.model import BODY_LOCAL_PRIOR_SIGMA, population_local_sigma
 
     if o.body_rest_population_locals > 0:

@@ -54,7 +54,11 @@ def test_prior_takes_the_local_spread_and_refuses_a_wrong_one(space_2k):  # noqa
             space_2k.prior(None, bad)
 
 
-@pytest.mark.parametrize("options, expect", [({}, "uniform"), ({"body_rest_local_sigma": 0.1}, "tight"),
+@pytest.mark.parametrize("options, expect", [({"body_rest_population_locals": 0.0, "body_rest_local_sigma": 0.25},
+                                              "uniform"),
+                                             ({"body_rest_population_locals": 0.0, "body_rest_local_sigma": 0.1},
+                                              "tight"),
+                                             ({}, "default"),
                                              ({"body_rest_population_locals": 2.0, "body_rest_local_sigma": 0.05},
                                               "population")])
 def test_the_capture_hands_the_projection_and_the_rest_fit_the_options_spread(monkeypatch, scene, options,  # noqa: F811
@@ -80,6 +84,9 @@ def test_the_capture_hands_the_projection_and_the_rest_fit_the_options_spread(mo
         np.testing.assert_array_equal(local, np.full(L, model_mod.BODY_LOCAL_PRIOR_SIGMA))
     elif expect == "tight":
         np.testing.assert_array_equal(local, np.full(L, 0.1))
+    elif expect == "default":  # the population's spread on its targets, 0.1 on the others (the fifteenth pass)
+        np.testing.assert_array_equal(local, model_mod.population_local_sigma(space, 0.1, 1.0))
+        assert o.body_rest_population_locals == 1.0 and o.body_rest_local_sigma == 0.1
     else:
         np.testing.assert_array_equal(local, model_mod.population_local_sigma(space, 0.05, 2.0))
     np.testing.assert_array_equal(fb.args[7][:9], space.prior(s.shape)[1][:9])

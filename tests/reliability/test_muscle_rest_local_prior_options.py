@@ -19,9 +19,9 @@ def test_a_bad_local_prior_option_is_refused_in_one_line(field, value):
     assert "\n" not in str(exc.value) and field in str(exc.value)
 
 
-def test_the_local_prior_defaults_to_one_spread_for_every_target():
+def test_the_local_prior_defaults_to_the_measured_one():
     o = CaptureOptions()
-    assert o.body_rest_local_sigma == 0.25 and o.body_rest_population_locals == 0.0
+    assert o.body_rest_local_sigma == 0.1 and o.body_rest_population_locals == 1.0
 
 
 @pytest.mark.parametrize("args", [["--variant", "p:body_rest_local_sigma=0"],
