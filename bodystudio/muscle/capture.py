@@ -324,9 +324,10 @@ class CaptureOptions:
     # narrowed, the torso's depth shrunk) and the shoulder's unseen back, armpit and deltoid followed them 2-4 mm inside
     # the skin: the vertex-frames over 5 mm on 507 / 508 (docs/muscle.md, fifteenth pass, mus11r). Measured (200
     # frames, median / p90 mm, before -> 1.0 with 0.1): 501 2.62 / 4.64 -> 2.41 / 4.24, 504 2.57 / 4.50 -> 2.31 / 4.26,
-    # 507 2.76 / 5.51 -> 2.36 / 5.02, 508 3.08 / 5.91 -> 3.06 / 5.96 (mean 2.76 / 5.14 -> 2.54 / 4.87); 513, used for
-    # no choice, 3.73 / 6.16 -> 3.50 / 5.75. 0.05 for the others: 507 2.13 / 4.70 but 508 3.26 / 6.20 (its upper arm
-    # 3.4 population sd fat); every target at 0.1: 507 2.71 / 6.12, 508 4.21 / 9.02.
+    # 507 2.76 / 5.51 -> 2.36 / 5.02, 508 3.08 / 5.91 -> 3.06 / 5.96 (mean 2.76 / 5.14 -> 2.54 / 4.87); used for no
+    # choice: subject 513 3.73 / 6.16 -> 3.50 / 5.75, 501's noise seed 1 2.47 / 4.69 -> 2.38 / 4.66. 0.05 for the
+    # others: 507 2.13 / 4.70 but 508 3.26 / 6.20 (its upper arm 3.4 population sd fat); every target at 0.1: 507
+    # 2.71 / 6.12, 508 4.21 / 9.02.
     body_rest_local_sigma: float = 0.1
     body_rest_population_locals: float = 1.0
     body_rest_iterations: int = 3  # Gauss-Newton steps per round (re-paired each)
