@@ -76,12 +76,19 @@ def step_cache(work: Path, subject_seed: int, n_frames: int = 200, noise_seed: i
                     joints=joints, camera=camera, similarity=similarity)
         return real(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, joints, o, timer, camera, similarity)
 
-    cm._refinement = keep
+    real_stage = cm.sequence_stage
+
+    def keep_rest(*args, **kwargs):
+        poses, rest, J = real_stage(*args, **kwargs)
+        kept.update(rest=rest, rest_joints=J)  # the model meshes' rest arm (``skeleton_model_mesh``)
+        return poses, rest, J
+
+    cm._refinement, cm.sequence_stage = keep, keep_rest
     try:
         capture, scores = bm.capture_and_score(session, model, template, bm.truth_template(subject), "full",
                                                known_shape=bm.shape_of(subject))
     finally:
-        cm._refinement = real
+        cm._refinement, cm.sequence_stage = real, real_stage
     kept["frame_ids"] = list(capture.frame_ids)
     kept["timings_ms"] = capture.timings_ms
     with open(state_path(work, subject_seed, noise_seed), "wb") as fh:

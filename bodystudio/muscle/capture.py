@@ -114,12 +114,14 @@ TRACKER_JOINTS = {"left": ("ShoulderLeft", "ElbowLeft", "WristLeft"),
 # regressed rest arm, a 50 % limit and no pose refit (better on C than the then defaults in the ninth pass), and the
 # later ones unmeasured; the hold of the unseen side on the regressed rest arm (with the cuts) ties the rows to the
 # model: C 6.43 -> 7.53 mm. The pose smoothing stays the Gaussian mean at sigma 2.5 (the capture's local quadratic of
-# the fifteenth pass is not measured for the extension).
+# the fifteenth pass is not measured for the extension), and so does the rest fit's prior on the local targets (0.25 on
+# every target; the fifteenth pass's population prior is not measured for the extension).
 EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
                      "body_rest_shape": True, "body_rest_tracker_weight": 10.0, "norm_limit": 0.2, "pose_refit": True,
                      "refine_unseen_hold": 1.0, "refine_min_facing_cos": 0.35, "refine_depth_median_px": 1,
                      "refine_depth_gaussian_sigma_px": 0.5, "sequence_min_facing_cos": 0.3,
-                     "pose_sigma_frames": 2.5, "pose_smoothing_degree": 0}
+                     "pose_sigma_frames": 2.5, "pose_smoothing_degree": 0, "body_rest_population_locals": 0.0,
+                     "body_rest_local_sigma": 0.25}
 # The setting of a sequence that pins its shared torso placement and skeleton (``CaptureOptions.sequence_pinned_se_m``,
 # off by default): the skeleton and placement fitted with every frame's angles, Huber on the depth pairs only, the
 # chest's pairs off, the tracker's joints at 10, and a 5 % norm limit (the fitted skeleton carries a lower model biceps;
@@ -335,6 +337,20 @@ class CaptureOptions:
     body_rest_shape: bool = True
     body_rest_rounds: int = 2
     body_rest_prior_weight: float = 100.0  # per frame, one population standard deviation vs a pair 1 mm off
+    # The prior's spread of the body space's local target weights: with ``body_rest_population_locals`` > 0 the body
+    # population's own spread times it on the targets the population varies and ``body_rest_local_sigma`` on the 84
+    # others (``model.population_local_sigma``); with 0, ``body_rest_local_sigma`` on every target (0.25,
+    # ``model.BODY_LOCAL_PRIOR_SIGMA``: the prior before the fifteenth pass). Every target at one spread, the fit
+    # explained the seen front with targets no subject of the population carries (the neck moved down, the forearm
+    # narrowed, the torso's depth shrunk) and the shoulder's unseen back, armpit and deltoid followed them 2-4 mm inside
+    # the skin: the vertex-frames over 5 mm on 507 / 508 (docs/muscle.md, fifteenth pass, mus11r). Measured (200
+    # frames, median / p90 mm, before -> 1.0 with 0.1): 501 2.62 / 4.64 -> 2.41 / 4.24, 504 2.57 / 4.50 -> 2.31 / 4.26,
+    # 507 2.76 / 5.51 -> 2.36 / 5.02, 508 3.08 / 5.91 -> 3.06 / 5.96 (mean 2.76 / 5.14 -> 2.54 / 4.87); used for no
+    # choice: subject 513 3.73 / 6.16 -> 3.50 / 5.75, 501's noise seed 1 2.47 / 4.69 -> 2.38 / 4.66. 0.05 for the
+    # others: 507 2.13 / 4.70 but 508 3.26 / 6.20 (its upper arm 3.4 population sd fat); every target at 0.1: 507
+    # 2.71 / 6.12, 508 4.21 / 9.02.
+    body_rest_local_sigma: float = 0.1
+    body_rest_population_locals: float = 1.0
     body_rest_iterations: int = 3  # Gauss-Newton steps per round (re-paired each)
     body_rest_frame_stride: int = 4  # every this-many-th frame enters the rest-shape fit (it is shared)
     body_rest_arm_length_weight: float = 100.0  # measured arm length (known shape), per frame, vs one depth pair
@@ -403,6 +419,9 @@ class CaptureOptions:
             raise InputError(f"sequence_placement_prior_m must be >= 0, got {self.sequence_placement_prior_m}")
         if not self.sequence_torso_pair_weight >= 0:
             raise InputError(f"sequence_torso_pair_weight must be >= 0, got {self.sequence_torso_pair_weight}")
+        if not (self.body_rest_local_sigma > 0 and self.body_rest_population_locals >= 0):
+            raise InputError(f"body_rest_local_sigma must be > 0 and body_rest_population_locals >= 0, got "
+                             f"{self.body_rest_local_sigma} and {self.body_rest_population_locals}")
         if self.body_rest_rounds < 0 or self.body_rest_frame_stride < 1 or not self.body_rest_prior_weight > 0:
             raise InputError("body_rest_rounds must be >= 0, body_rest_frame_stride >= 1, body_rest_prior_weight > 0")
         if self.personal_rounds > 0 and self.body_rest_shape and self.body_rest_rounds > 0:
@@ -703,6 +722,20 @@ def sequence_tracker_weight(o: CaptureOptions, model, poses: list[ArmPose], fram
     return weight
 
 
+def body_rest_local_sigma(o: CaptureOptions, space) -> np.ndarray | None:
+    """The rest-shape fit's prior spread of the body space's local target weights (``model.population_local_sigma``
+    with ``o.body_rest_population_locals`` > 0, the default), or None: every target at
+    ``model.BODY_LOCAL_PRIOR_SIGMA`` (``o.body_rest_population_locals`` 0 and ``o.body_rest_local_sigma`` that
+    spread)."""
+    from bodystudio.muscle.model import BODY_LOCAL_PRIOR_SIGMA, population_local_sigma
+
+    if o.body_rest_population_locals > 0:
+        return population_local_sigma(space, o.body_rest_local_sigma, o.body_rest_population_locals)
+    if o.body_rest_local_sigma != BODY_LOCAL_PRIOR_SIGMA:
+        return np.full(len(space.local_names), o.body_rest_local_sigma)
+    return None
+
+
 def facing_frames(frames: list[DepthFrame], min_facing_cos: float) -> list[DepthFrame]:
     """The frames with their grazing pairs dropped (``refine.grazing_pairs``; 0: the frames as they are)."""
     return frames if min_facing_cos <= 0 else [replace(f, min_facing_cos=min_facing_cos) for f in frames]
@@ -720,7 +753,7 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
         from bodystudio.muscle.model import body_shape_space, project_to_body_space
 
         space = body_shape_space(template)
-        prior_mean, prior_sigma = space.prior(shape)
+        prior_mean, prior_sigma = space.prior(shape, body_rest_local_sigma(o, space))
         anchor = J[0].copy()  # the rest mesh's shoulder stays where the model's sits (the placement's frame)
         body_x = prior_mean = project_to_body_space(space, base, J, prior_mean, prior_sigma)
         base, J_model = space.rest_and_joints(body_x, anchor)

@@ -1033,16 +1033,49 @@ class BodyShapeSpace:
         D = np.concatenate([np.stack(cols), self.local_deltas]) if cols else self.local_deltas
         return D - D[:, -3:-2]
 
-    def prior(self, shape=None) -> tuple[np.ndarray, np.ndarray]:
+    def prior(self, shape=None, local_sigma: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Prior mean and spread (P,) of the parameters: the population's, gender and muscle at the measured sex and
-        muscularity of ``shape`` (an ArmShapeParams) when given, local weights 0."""
+        muscularity of ``shape`` (an ArmShapeParams) when given, local weights 0, each with spread
+        :data:`BODY_LOCAL_PRIOR_SIGMA` or ``local_sigma`` (L,) (e.g. :func:`population_local_sigma`)."""
         mean = np.array([BODY_MACRO_PRIOR[n][0] for n in BODY_MACRO_NAMES])
         sigma = np.array([BODY_MACRO_PRIOR[n][1] for n in BODY_MACRO_NAMES])
         if shape is not None:
             mean[0] = 0.05 + 0.9 * float(shape.sex) if shape.sex in (0.0, 1.0) else float(shape.sex)
             mean[2] = float(shape.muscularity)
         L = len(self.local_names)
-        return np.r_[mean, np.zeros(L)], np.r_[sigma, np.full(L, BODY_LOCAL_PRIOR_SIGMA)]
+        local = np.full(L, BODY_LOCAL_PRIOR_SIGMA) if local_sigma is None else np.asarray(local_sigma, np.float64)
+        if local.shape != (L,) or not (local > 0).all():
+            raise InputError(f"local_sigma must be {L} spreads > 0 (one per local target of the space), got shape "
+                             f"{local.shape}")
+        return np.r_[mean, np.zeros(L)], np.r_[sigma, local]
+
+
+def population_local_sigma(space: BodyShapeSpace, other_sigma: float, scale: float = 1.0) -> np.ndarray:
+    """Prior spread (L,) of the space's local target weights as the body population varies them
+    (``bodystudio.body.population.LOCAL_SPREAD``: each sampled modifier's spread times ``scale`` on both of its
+    targets, both sides), ``other_sigma`` on every target the population holds at 0 (the neck's, the torso's
+    measurements, the forearm's scale ...).
+
+    The macro prior (:data:`BODY_MACRO_PRIOR`) is the population's already; with every local target at
+    :data:`BODY_LOCAL_PRIOR_SIGMA` the rest-shape fit explains the seen front with targets no subject of the
+    population carries (507 / 504: the neck moved down, the forearm narrowed, the torso's depth shrunk), and the side no
+    depth frame sees follows them (docs/muscle.md, fifteenth pass)."""
+    from bodystudio.body.makehuman import load_base, load_targets
+    from bodystudio.body.phenotype import local_target_weights
+    from bodystudio.body.population import LOCAL_SPREAD
+
+    if not (other_sigma > 0 and scale > 0):
+        raise InputError(f"other_sigma and scale must be > 0, got {other_sigma} and {scale}")
+    base = load_base()
+    names = load_targets(len(base.vertices)).names
+    sigma = np.full(len(space.local_names), float(other_sigma))
+    index = {n: i for i, n in enumerate(space.local_names)}
+    for modifier, spread in LOCAL_SPREAD.items():
+        for value in (-1.0, 1.0):
+            for target in local_target_weights({modifier: value}, base.data_dir, names):
+                if target in index:
+                    sigma[index[target]] = spread * scale
+    return sigma
 
 
 @lru_cache(maxsize=4)

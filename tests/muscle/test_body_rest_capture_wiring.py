@@ -27,7 +27,9 @@ def test_the_body_rest_fit_gets_the_priors_spread_the_placement_switch_and_the_m
     (p,) = proj["project_to_body_space"]
     (fb,) = spies["fit_body_rest_shape"]
     space = fb.args[0]
-    mean, sigma = space.prior(s.shape)
+    from bodystudio.muscle.capture import body_rest_local_sigma
+
+    mean, sigma = space.prior(s.shape, body_rest_local_sigma(o, space))
     np.testing.assert_array_equal(p.args[3], mean)  # the projection starts at the measured sex / muscularity's prior
     np.testing.assert_array_equal(p.args[4], sigma)
     np.testing.assert_array_equal(fb.args[7], sigma)

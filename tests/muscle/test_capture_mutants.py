@@ -103,7 +103,8 @@ def test_the_extension_setting_and_the_new_defaults():
                                          "refine_unseen_hold": 1.0, "refine_min_facing_cos": 0.35,
                                          "refine_depth_median_px": 1, "refine_depth_gaussian_sigma_px": 0.5,
                                          "sequence_min_facing_cos": 0.3,
-                                         "pose_sigma_frames": 2.5, "pose_smoothing_degree": 0}
+                                         "pose_sigma_frames": 2.5, "pose_smoothing_degree": 0,
+                                         "body_rest_population_locals": 0.0, "body_rest_local_sigma": 0.25}
     o = CaptureOptions()
     # docs/muscle.md fifteenth pass: the pose smoothing's local quadratic at sigma 5
     assert (o.pose_sigma_frames, o.pose_smoothing_degree) == (5.0, 2)
@@ -166,7 +167,8 @@ def test_the_capture_for_extension_sets_the_extension_options_and_needs_the_sequ
                                        body_rest_tracker_weight=10.0, norm_limit=0.2, pose_refit=True,
                                        refine_unseen_hold=1.0, refine_min_facing_cos=0.35, refine_depth_median_px=1,
                                        refine_depth_gaussian_sigma_px=0.5, sequence_min_facing_cos=0.3,
-                                       pose_sigma_frames=2.5, pose_smoothing_degree=0)
+                                       pose_sigma_frames=2.5, pose_smoothing_degree=0,
+                                       body_rest_population_locals=0.0, body_rest_local_sigma=0.25)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, for_extension=True)
     assert seen["o"] == CaptureOptions(mode="full", **cap_mod.EXTENSION_CAPTURE)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", for_extension=False)

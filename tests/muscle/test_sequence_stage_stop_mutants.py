@@ -23,7 +23,7 @@ class _Space:
     def __init__(self):
         self.calls = []
 
-    def prior(self, shape):
+    def prior(self, shape, local_sigma=None):
         return np.array([0.5]), np.array([0.2])
 
     def rest_and_joints(self, x, anchor):
@@ -72,7 +72,8 @@ def _stage(monkeypatch, energies=None, **opts):
     # the held-pose fit unless a test asks for the joint fit (the default since the tenth pass)
     base = dict(mode="model", body_rest_shape=True, body_rest_rounds=3, body_rest_frame_stride=4,
                 sequence_placement_prior_m=0.0, body_rest_fit_poses=False, sequence_min_facing_cos=0.0,
-                body_rest_tracker_weight=None)  # None: the sequence fit's tracker weight, as these tests pin
+                body_rest_tracker_weight=None,  # None: the sequence fit's tracker weight, as these tests pin
+                body_rest_population_locals=0.0, body_rest_local_sigma=0.25)  # the stand-in space has no targets
     base.update(opts)
     o = CaptureOptions(**base)
     poses = [ArmPose(np.eye(4), np.full((3, 3), 0.1 * k)) for k in range(N_FRAMES)]
