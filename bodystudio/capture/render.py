@@ -160,7 +160,8 @@ def _project_flat(Vf, R, t, K, dist, uvf, z):
     """:func:`_project` over flat views with numpy's division and no branch in the loop, which LLVM vectorises (issue
     15's frame time, rec15k: the depth term projects the 13K template every outer iteration); elementwise the
     operations of the per-vertex loop it replaced, so the same values (a vertex at ``z <= 0`` or NaN: NaN pixels,
-    as before)."""
+    as before). The silhouette matching projects its vertices and probes with it too
+    (``reconstruct.silhouette``, rec15i)."""
     r00, r01, r02, r10, r11, r12 = R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2]
     r20, r21, r22, t0, t1, t2 = R[2, 0], R[2, 1], R[2, 2], t[0], t[1], t[2]
     k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from bodystudio.capture.render import render
+from bodystudio.capture.render import _project_flat, render  # _project_flat: the flat, vectorised projection
 from bodystudio.errors import InputError, SessionError
 from bodystudio.reconstruct.solver import SilhouetteConstraints
 
@@ -374,35 +374,6 @@ def _project_all(V, R, t, K, dist):
 def _project_into(V, R, t, K, dist, uv, z):
     """:func:`_project_all` into the buffers ``uv`` and ``z`` (all three C-contiguous)."""
     _project_flat(V.reshape(-1), R, t, K, dist, uv.reshape(-1), z)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _project_flat(Vf, R, t, K, dist, uvf, z):
-    """:func:`_project_into` over flat views of ``V`` and ``uv``: constant strides and numpy's division (no
-    zero-division branch) let LLVM vectorise the loop (issue 15's frame time, rec15i: 13K vertices 76 -> 14 us a
-    view); elementwise the same operations, so the same values. A vertex at ``z = 0`` gets NaN pixels as one
-    behind the camera (it raised ZeroDivisionError before)."""
-    n = z.shape[0]
-    r00, r01, r02, r10, r11, r12 = R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2]
-    r20, r21, r22, t0, t1, t2 = R[2, 0], R[2, 1], R[2, 2], t[0], t[1], t[2]
-    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
-    fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
-    for i in range(n):
-        X, Y, Z = Vf[3 * i], Vf[3 * i + 1], Vf[3 * i + 2]
-        zc = r20 * X + r21 * Y + r22 * Z + t2
-        x = (r00 * X + r01 * Y + r02 * Z + t0) / zc
-        y = (r10 * X + r11 * Y + r12 * Z + t1) / zc
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-        uvf[2 * i] = fx * xd + sk * yd + cx
-        uvf[2 * i + 1] = fy * yd + cy
-        z[i] = zc
-    for i in range(n):
-        if not z[i] > 0.0:
-            uvf[2 * i] = np.nan
-            uvf[2 * i + 1] = np.nan
 
 
 @numba.njit(cache=True)
