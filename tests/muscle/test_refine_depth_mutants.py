@@ -160,7 +160,8 @@ def test_the_rest_fits_get_the_rest_cut_and_their_own_inputs(scene, monkeypatch,
     assert model is s.model and len(poses) == len(frames) == 3
     assert {f.min_facing_cos for f in frames} == {0.2}
     assert body_x.shape == prior_mean.shape == prior_sigma.shape == (space.n_parameters,)
-    np.testing.assert_array_equal(prior_sigma, space.prior(s.shape)[1])
+    # the prior's spread the capture gives its rest fits (mus11r: the body population's on the local targets)
+    np.testing.assert_array_equal(prior_sigma, space.prior(s.shape, local_sigma=cm.body_rest_local_sigma(o, space))[1])
     assert np.asarray(anchor).shape == (3,)
     np.testing.assert_allclose(anchor, spies["fit_arm_sequence_skeleton"][0].args[4][0], atol=1e-12)
     for seq in spies["fit_arm_sequence_skeleton"]:
