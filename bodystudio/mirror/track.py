@@ -32,6 +32,7 @@ from bodystudio.body.pose import Pose
 from bodystudio.body.skeleton import Skeleton
 from bodystudio.body.skinning import skinning_transforms
 from bodystudio.errors import InputError
+from bodystudio.geometry.rotation import rotvec_matrix_into
 
 # the sparse skinning kernel moved to geometry (shared with reconstruct); the names stay importable here
 from bodystudio.geometry.skinning import (
@@ -306,29 +307,6 @@ def ik_pose(skeleton: Skeleton, kinect_positions, tracked=None, version: str = "
 
 
 @njit(cache=True)
-def _rotvec_matrix(rx, ry, rz, out):
-    """``Rotation.from_rotvec(r).as_matrix()`` (scipy's quaternion formulas) into ``out`` (3, 3)."""
-    angle = np.sqrt(rx * rx + ry * ry + rz * rz)
-    if angle <= 1e-3:
-        a2 = angle * angle
-        scale = 0.5 - a2 / 48 + a2 * a2 / 3840
-    else:
-        scale = np.sin(angle / 2) / angle
-    x, y, z, w = rx * scale, ry * scale, rz * scale, np.cos(angle / 2)
-    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
-    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
-    out[0, 0] = x2 - y2 - z2 + w2
-    out[0, 1] = 2 * (xy - zw)
-    out[0, 2] = 2 * (xz + yw)
-    out[1, 0] = 2 * (xy + zw)
-    out[1, 1] = -x2 + y2 - z2 + w2
-    out[1, 2] = 2 * (yz - xw)
-    out[2, 0] = 2 * (xz - yw)
-    out[2, 1] = 2 * (yz + xw)
-    out[2, 2] = -x2 - y2 + z2 + w2
-
-
-@njit(cache=True)
 def _matrix_rotvec(m, out):
     """``Rotation.from_matrix(m).as_rotvec()`` of a rotation matrix (scipy's: the largest of the diagonal and the
     trace picks the quaternion's formula, normalised, w >= 0, then the rotation vector) into ``out`` (3,)."""
@@ -455,7 +433,7 @@ def _ik_kernel(K, tracked, inferred_weight, ratio, rotvecs, translation, Rr, H, 
     L = np.empty((B, 3, 3))
     local = np.empty((3, 3))
     for b in range(B):
-        _rotvec_matrix(rotvecs[b, 0], rotvecs[b, 1], rotvecs[b, 2], local)
+        rotvec_matrix_into(rotvecs[b, 0], rotvecs[b, 1], rotvecs[b, 2], local)
         L[b] = _mm(_mm(Rr[b], local), Rr[b].T)
     W = np.empty((B, 3, 3))
     ph = np.empty((B, 3))

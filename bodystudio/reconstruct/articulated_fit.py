@@ -43,6 +43,7 @@ from bodystudio.body.kinect import kinect_joint_names, kinect_joints
 from bodystudio.body.pose import Pose
 from bodystudio.body.skinning import forward_kinematics, posed_joints
 from bodystudio.errors import InputError
+from bodystudio.geometry.rotation import rotvec_matrix_into
 from bodystudio.reconstruct.visual_hull import VisualHull, visual_hull
 
 log = logging.getLogger(__name__)
@@ -237,19 +238,7 @@ def quaternion_rotation_matrices(rotvecs):
     n = rotvecs.shape[0]
     out = np.empty((n, 3, 3))
     for i in range(n):
-        wx, wy, wz = rotvecs[i, 0], rotvecs[i, 1], rotvecs[i, 2]
-        angle = np.sqrt(wx * wx + wy * wy + wz * wz)
-        if angle <= 1e-3:
-            a2 = angle * angle
-            scale = 0.5 - a2 / 48.0 + a2 * a2 / 3840.0
-        else:
-            scale = np.sin(angle / 2.0) / angle
-        x, y, z, w = scale * wx, scale * wy, scale * wz, np.cos(angle / 2.0)
-        x2, y2, z2, w2 = x * x, y * y, z * z, w * w
-        xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
-        out[i, 0, 0], out[i, 0, 1], out[i, 0, 2] = x2 - y2 - z2 + w2, 2.0 * (xy - zw), 2.0 * (xz + yw)
-        out[i, 1, 0], out[i, 1, 1], out[i, 1, 2] = 2.0 * (xy + zw), -x2 + y2 - z2 + w2, 2.0 * (yz - xw)
-        out[i, 2, 0], out[i, 2, 1], out[i, 2, 2] = 2.0 * (xz - yw), 2.0 * (yz + xw), -x2 - y2 + z2 + w2
+        rotvec_matrix_into(rotvecs[i, 0], rotvecs[i, 1], rotvecs[i, 2], out[i])
     return out
 
 
