@@ -23,6 +23,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import errno
+import glob
 import json
 import logging
 import os
@@ -449,7 +450,34 @@ def apply_commit(layout: RunLayout, plan: dict) -> None:
                                                                         default=_json_default) + "\n").encode()
         with atomic_write(layout.root / plan.get("manifest_name", layout.manifest), "wb") as f:
             f.write(raw)
-    shutil.rmtree(layout.staging, ignore_errors=True)
+    remove_staging(layout)
+
+
+def remove_staging(layout: RunLayout) -> None:
+    """Delete the staging folder in one step as a reader sees it: renamed to ``<staging>.stale.<pid>``, then deleted.
+
+    A plain recursive delete killed halfway through left the staging folder, empty, beside the complete result
+    it had just committed, which reads as an interrupted write (a batch re-run redid such a unit). A killed
+    delete now leaves only the ``.stale.`` folder, which the next writer of the layout removes.
+    """
+    tomb = layout.staging.with_name(f"{layout.staging.name}.stale.{os.getpid()}")
+    shutil.rmtree(tomb, ignore_errors=True)
+    try:
+        os.replace(layout.staging, tomb)
+    except FileNotFoundError:
+        return
+    shutil.rmtree(tomb, ignore_errors=True)
+
+
+def remove_stale_staging(layout: RunLayout) -> int:
+    """Delete the ``.stale.`` folders a killed :func:`remove_staging` left; returns how many.
+
+    Nothing reads them, so deleting one that its own process is still deleting is harmless.
+    """
+    stale = list(layout.root.glob(f"{glob.escape(layout.staging.name)}.stale.*"))
+    for p in stale:
+        shutil.rmtree(p, ignore_errors=True)
+    return len(stale)
 
 
 def recover_layout(layout: RunLayout) -> str | None:
@@ -480,6 +508,8 @@ def recover_layout(layout: RunLayout) -> str | None:
         n = sum(1 for p in layout.staging.rglob("*") if p.is_file())
         shutil.rmtree(layout.staging)
         message = f"discarded an uncommitted write ({n} files); the previous result stays"
+    if remove_stale_staging(layout):
+        message = message or "removed the leftover of a finished write"
     if layout.lock.exists():
         layout.lock.unlink(missing_ok=True)  # stale: lock_holder found no live process
         message = message or "removed a stale lock"
@@ -487,14 +517,17 @@ def recover_layout(layout: RunLayout) -> str | None:
 
 
 def layouts_under(path: Path) -> list[RunLayout]:
-    """Every lock or staging folder in ``path`` (a folder) and its direct sub-folders."""
-    folders = [path] + sorted(p for p in path.iterdir() if p.is_dir() and not p.name.endswith("staging"))
+    """Every lock or staging folder (or a staging folder's ``.stale.`` leftover) in ``path`` (a folder) and its
+    direct sub-folders."""
+    folders = [path] + sorted(p for p in path.iterdir() if p.is_dir() and not p.name.endswith("staging")
+                              and ".stale." not in p.name)
     found = {}
     for folder in folders:
         for p in folder.iterdir():
+            name = p.name.split(".stale.")[0] if p.is_dir() else p.name  # a lock's .stale. copy is no layout
             for suffix in ("staging", "lock"):
-                if p.name.startswith(".") and p.name.endswith(suffix) and ".stale." not in p.name:
-                    prefix = p.name[: -len(suffix)]
+                if name.startswith(".") and name.endswith(suffix) and ".stale." not in name:
+                    prefix = name[: -len(suffix)]
                     target = folder if prefix == "." else folder / prefix[1:-1]
                     # a session's commit records predate manifest_name: its manifest is session.json
                     found[(folder, prefix)] = RunLayout(folder, "session.json" if prefix == "." else "", prefix,
@@ -559,6 +592,7 @@ class RunWriter:
             if layout.staging.exists():
                 raise OutputLockedError(f"{layout.name}: a previous write was interrupted before its commit; run "
                                         f"`bodystudio recover {layout.name}` first (the previous result stays)")
+            remove_stale_staging(layout)
             layout.staging.mkdir(parents=True)
         except BaseException:
             self._release()
@@ -645,7 +679,7 @@ class RunWriter:
 
     def abort(self) -> None:
         """Discard the staged files; the previous result stays. Releases the lock."""
-        shutil.rmtree(self.layout.staging, ignore_errors=True)
+        remove_staging(self.layout)
         self.committed = True
         self._release()
 

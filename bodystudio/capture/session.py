@@ -31,7 +31,6 @@ import json
 import logging
 import os
 import re
-import shutil
 import weakref
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -54,6 +53,8 @@ from bodystudio.runfolder import (
     read_lock,
     recover_layout,
     release_lock,
+    remove_staging,
+    remove_stale_staging,
 )
 
 log = logging.getLogger(__name__)
@@ -873,6 +874,7 @@ class SessionWriter:
         if (self.path / STAGING).exists():
             raise SessionError(f"{self.path / STAGING}: another write is in progress or was interrupted; run "
                                f"`bodystudio capture recover {self.path}` first")
+        remove_stale_staging(session_layout(self.path))
         if self.update:
             self._manifest = json.loads(json.dumps(open_session(self.path).manifest))
             self._manifest.setdefault("metadata", {}).update(self.metadata)
@@ -902,7 +904,7 @@ class SessionWriter:
 
     def abort(self) -> None:
         """Discard the staged files (the previous state stays); a new session's empty folder goes too."""
-        shutil.rmtree(self.path / STAGING, ignore_errors=True)
+        remove_staging(session_layout(self.path))
         self._staged = {}
         release_lock(session_layout(self.path))
         if not self.update and self.path.is_dir() and not any(self.path.iterdir()):
