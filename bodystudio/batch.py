@@ -258,8 +258,15 @@ class _UnitWriter(RunWriter):
 
 
 def unit_is_complete(layout: RunLayout, inputs_sha256: str) -> bool:
-    """True when the unit's committed manifest has these inputs and every file it lists is intact."""
+    """True when the unit's committed manifest has these inputs and every file it lists is intact.
+
+    A killed worker's write that passed its commit point (a commit record in the staging folder) is finished
+    here first (:func:`recover_layout`, idempotent): its unit is complete, not to be redone. An uncommitted
+    leftover makes the unit partial (redone; the worker discards the leftover first).
+    """
     try:
+        if layout.commit_record.is_file():
+            recover_layout(layout)  # refuses (False below) while a live worker still holds the unit
         if check_readable(layout) is not None or not layout.manifest_path.is_file():
             return False
         manifest = read_json(layout.manifest_path, "batch unit record")

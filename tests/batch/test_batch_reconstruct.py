@@ -134,13 +134,17 @@ def test_killed_client_rerun_redoes_nothing_done(batch_session, cluster, tmp_pat
     finally:
         time.sleep(1.5)  # the workers notice their client is gone (bodystudio.batch exits them)
         os.killpg(proc.pid, signal.SIGKILL) if _group_alive(proc.pid) else None
-    done = sorted(p.parent.name for p in chunks.glob("*/unit.json"))
+    # done: a unit past its commit point (its manifest written, or a commit record its worker was killed
+    # carrying out: the re-run finishes that one, it does not redo it)
+    done = sorted({p.parent.name for p in chunks.glob("*/unit.json")}
+                  | {p.parents[1].name for p in chunks.glob("*/.staging/commit.json")})
     assert done, proc.stderr.read().decode()
-    before = {name: _mtimes(chunks / name) for name in done}
+    settled = [name for name in done if not (chunks / name / ".staging").exists()]
+    before = {name: _mtimes(chunks / name) for name in settled}
     _, report = reconstruct_batch(s, cluster, ReconstructOptions(template="2k", refine_pose=False, score=False,
                                                                  params=asdict(PARAMS)), chunk=1)
     assert {n for n, st in report.status.items() if st == "skipped"} == set(done)
-    assert {name: _mtimes(chunks / name) for name in done} == before
+    assert {name: _mtimes(chunks / name) for name in settled} == before
     record = json.loads((chunks / RECORD).read_text())["units"]
     assert all(record[n]["action"] == "skipped" for n in done)
     assert read_reconstruction(s)[0]["frames"] == [0, 1, 2, 3]

@@ -9,8 +9,10 @@ that the next writer (or ``bodystudio recover``) removes.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
+import socket
 from pathlib import Path
 
 import pytest
@@ -84,3 +86,29 @@ def test_batch_unit_killed_in_cleanup_is_skipped(monkeypatch, tmp_path):
     _commit_killed_in_cleanup(monkeypatch, w, {"frames": [0, 1]})
     assert unit_is_complete(layout, "abc")
     assert not unit_is_complete(layout, "another input")
+
+
+def test_batch_unit_killed_past_its_commit_point_is_finished_not_redone(monkeypatch, tmp_path):
+    """Killed after the commit record, before any move: the client's check finishes the write (a skip)."""
+    import bodystudio.runfolder as runfolder
+
+    layout = unit_layout(tmp_path / "chunks" / "00000-00001")
+    w = _UnitWriter(layout, "bodystudio reconstruct (batch unit)", {}, {"inputs_sha256": "abc"})
+    w.write_bytes("meshes/00000.ply", b"ply")
+
+    def killed(*a, **kw):
+        raise _Killed
+
+    with monkeypatch.context() as m:
+        m.setattr(runfolder, "apply_commit", killed)
+        with pytest.raises(_Killed):
+            w.commit({"frames": [0, 1]})
+    assert layout.commit_record.is_file() and not layout.manifest_path.exists()
+    worker = {"pid": os.getppid(), "host": socket.gethostname(), "start": runfolder._process_start(os.getppid()),
+              "command": "bodystudio reconstruct (batch unit)", "since": "now"}
+    layout.lock.write_text(json.dumps(worker))  # a live worker (another process) still holds the unit
+    assert not unit_is_complete(layout, "abc")
+    assert layout.commit_record.is_file() and not layout.manifest_path.exists()  # not touched
+    layout.lock.unlink()  # the worker dies (its lock stale or gone)
+    assert unit_is_complete(layout, "abc")
+    assert not layout.staging.exists() and (layout.root / "meshes" / "00000.ply").read_bytes() == b"ply"
