@@ -385,6 +385,22 @@ def test_layouts_under_finds_every_interrupted_write_one_level_deep(tmp_path):
     assert layouts_under(tmp_path / "alone") == []
 
 
+def test_recover_of_a_folder_finds_an_avatar_with_stale_in_its_name(tmp_path):
+    """``.stale.`` inside a user's file name is no leftover: ``recover DIR`` said "nothing to recover" for an
+    interrupted ``a.stale.glb`` (its lock and staging were skipped), while ``recover DIR/a.stale.glb`` worked."""
+    out = tmp_path / "avatars"
+    _write(out / ".a.stale.glb.staging" / "a.stale.glb", "G")
+    _write(out / ".b.stale.glb.staging.stale.12" / "b.stale.glb", "G")
+    _write(out / ".c.stale.glb.lock", json.dumps({"pid": _dead_pid(), "host": HOST, "command": "killed"}))
+    _write(out / "v2.stale.glb" / ".staging" / "x", "x")  # a user's sub-folder with .stale. in its name
+    assert sorted(lay.prefix for lay in layouts_under(out)) == [".", ".a.stale.glb.", ".b.stale.glb.", ".c.stale.glb."]
+    assert sorted(recover(out)) == [
+        f"{out / 'a.stale.glb'}: discarded an uncommitted write (1 files); the previous result stays",
+        f"{out / 'b.stale.glb'}: removed the leftover of a finished write",
+        f"{out / 'c.stale.glb'}: removed a stale lock",
+        f"{out / 'v2.stale.glb'}: discarded an uncommitted write (1 files); the previous result stays"]
+    assert _names(out) == ["v2.stale.glb"]
+
 
 # ---------------------------------------------------------------------------------------------- readers
 
