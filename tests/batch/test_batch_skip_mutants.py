@@ -39,7 +39,7 @@ from bodystudio.batch import (
 )
 from bodystudio.errors import InputError
 from bodystudio.fileio import sha256_file
-from bodystudio.runfolder import RunLayout, RunWriter
+from bodystudio.runfolder import OutputLockedError, RunLayout, RunWriter, acquire_lock
 
 
 def _sha(text: str | bytes) -> str:
@@ -58,6 +58,7 @@ SESSION_FILES = {
     "calibration/cameras.json": "c0",
     "cam0/00000.png": "f0", "cam0/00001.png": "f1", "cam1/00002.png": "f2", "kinect/depth_00003.png": "f3",
     "cam0/background_00001.png": "bg",  # a background image named like a frame belongs to every chunk
+    "cam1/background_00000.png": "bg0",
     "frames/00002/meta.json": "dir",  # only the file name is read: this file is of no frame
     "cam0/123456.png": "six",  # six digits: no frame number
     "cam0/00009.png": "f9",  # a number that is no frame of the session: kept
@@ -67,7 +68,8 @@ SESSION_FILES = {
 def test_frame_files_keeps_a_chunks_frames_and_the_files_of_no_frame():
     keep = _frame_files(SESSION_FILES, [0, 1, 2, 3], [1, 2])
     assert keep == {"calibration/cameras.json": "c0", "cam0/00001.png": "f1", "cam1/00002.png": "f2",
-                    "cam0/background_00001.png": "bg", "frames/00002/meta.json": "dir", "cam0/123456.png": "six",
+                    "cam0/background_00001.png": "bg", "cam1/background_00000.png": "bg0",
+                    "frames/00002/meta.json": "dir", "cam0/123456.png": "six",
                     "cam0/00009.png": "f9"}
     assert "cam0/00000.png" in _frame_files(SESSION_FILES, [0, 1, 2, 3], [0])
     assert _frame_files({"a/00001_00003.png": "x"}, [1, 3], [3]) == {"a/00001_00003.png": "x"}  # one of its frames
@@ -85,6 +87,10 @@ def test_chunk_inputs_sha256_is_of_its_files_frames_and_options():
     for changed in ({**SESSION_FILES, "cam0/00001.png": "edited"}, {**SESSION_FILES, "calibration/cameras.json": "e"}):
         assert chunk_inputs_sha256(changed, [0, 1, 2, 3], [1, 2], options) != got
     assert chunk_inputs_sha256(SESSION_FILES, [0, 1, 2, 3], [1, 2], ReconstructOptions(template="2k")) != got
+    # a library caller's Path hashes as its text (the CLI hands strings)
+    as_path = ReconstructOptions(joints="file", joints_path=Path("/j"))
+    assert chunk_inputs_sha256(SESSION_FILES, [0, 1, 2, 3], [1], as_path) == chunk_inputs_sha256(
+        SESSION_FILES, [0, 1, 2, 3], [1], ReconstructOptions(joints="file", joints_path="/j"))
 
 
 def _session(frame_ids, files):
@@ -119,6 +125,11 @@ def test_sequence_inputs_sha256_of_a_session(monkeypatch, tmp_path):
     h.update(json.dumps({"calibration.json": "c", "kinect/00000.png": "a", "kinect/00001.png": "b"},
                         sort_keys=True).encode())
     assert sequence_inputs_sha256(tmp_path, ext, "m1") == h.hexdigest()
+    # the session manifest's file order does not matter; a Path hashes as its text
+    monkeypatch.setattr(cs, "open_session", lambda p: _session([0, 1, 2], dict(reversed(list(files.items())))))
+    assert sequence_inputs_sha256(tmp_path, opts, "m1") == got
+    assert sequence_inputs_sha256(tmp_path, MuscleOptions(model=Path("/m.npz")), None) == sequence_inputs_sha256(
+        tmp_path, MuscleOptions(model="/m.npz"), None)
 
 
 def test_sequence_inputs_sha256_of_an_unreadable_session_hashes_its_error(tmp_path):
@@ -320,20 +331,40 @@ def _no_time(entry: dict) -> dict:
     return {k: v for k, v in entry.items() if k != "time"}
 
 
-def test_run_units_skips_complete_units_and_records_every_outcome(stand_in, tmp_path):
+def test_run_units_skips_complete_units_and_records_every_outcome(stand_in, tmp_path, caplog, monkeypatch):
+    import time
+
     previous = {"a": {"status": "failed", "error": "old error", "seconds": 3.5, "note": "kept"},
+                "c": {"status": "done", "seconds": 9.0, "note": "of an earlier run"},
                 "gone": {"status": "done", "inputs_sha256": "x"}}
     units = _units({"a": {"seconds": 1.0}, "b": {"seconds": 2.25}, "c": InputError("bad scan\nsecond line"),
                     "d": ValueError("boom\nmore"), "e": RuntimeError()}, complete={"a"})
-    report = _go(stand_in, tmp_path, units, previous=previous, progress=True)
+    units[1].update(scan="/s/b.ply", session="/s/b")
+    monkeypatch.setenv("TZ", "Asia/Kolkata")  # the record's times are UTC whatever the time zone
+    time.tzset()
+    try:
+        t0 = time.perf_counter()
+        with caplog.at_level("WARNING", logger="bodystudio.batch"):
+            report = _go(stand_in, tmp_path, units, previous=previous, progress=True)
+        took = time.perf_counter() - t0
+    finally:
+        monkeypatch.delenv("TZ")
+        time.tzset()
+    assert caplog.messages == ["c failed: bad scan\\nsecond line", "d failed: ValueError: boom",
+                               "e failed: RuntimeError: RuntimeError"]
+    now = time.gmtime()
+    for entry in json.loads(stand_in.record.read_text())["units"].values():
+        if "time" in entry:
+            t = time.strptime(entry["time"], "%Y-%m-%dT%H:%M:%SZ")
+            assert abs((t.tm_hour * 60 + t.tm_min) - (now.tm_hour * 60 + now.tm_min)) % (24 * 60) <= 2
     assert stand_in.submitted == ["b", "c", "d", "e"]
     assert report.status == {"a": "skipped", "b": "done", "c": "failed", "d": "failed", "e": "failed"}
     # a BodyStudioError is one line by construction (its line breaks shown as \\n), without its type's name
     assert report.errors == {"c": "bad scan\\nsecond line", "d": "ValueError: boom", "e": "RuntimeError: RuntimeError"}
     assert report.seconds == {"b": 2.25} and report.record == stand_in.record and report.dashboard == "http://dash"
-    assert report.wall_s > 0
+    assert 0 < report.wall_s <= took
     record = json.loads(stand_in.record.read_text())
-    assert record["version"] == __version__ and list(record["units"]) == ["a", "gone", "b", "c", "d", "e"]
+    assert record["version"] == __version__ and list(record["units"]) == ["a", "c", "gone", "b", "d", "e"]
     units_rec = {k: _no_time(v) if k != "gone" else v for k, v in record["units"].items()}
     base = {"frames": [1, 2], "output": "/o/{}", "inputs_sha256": "sha-{}"}
 
@@ -344,15 +375,16 @@ def test_run_units_skips_complete_units_and_records_every_outcome(stand_in, tmp_
         # a skipped unit keeps what the record said of it (its time), never an old error
         "a": {"seconds": 3.5, "note": "kept", **entry("a"), "status": "done", "action": "skipped"},
         "gone": {"status": "done", "inputs_sha256": "x"},
-        "b": entry("b", status="done", action="computed", seconds=2.25),
+        "b": entry("b", status="done", action="computed", seconds=2.25, scan="/s/b.ply", session="/s/b"),
         "c": entry("c", status="failed", action="failed", error="bad scan\\nsecond line"),
         "d": entry("d", status="failed", action="failed", error="ValueError: boom"),
         "e": entry("e", status="failed", action="failed", error="RuntimeError: RuntimeError"),
     }
     # the record is on disk before the first result (the skipped units, the previous ones) and after each
     assert [list(s["units"]) for s in stand_in.snapshots] == [
-        ["a", "gone"], ["a", "gone", "b"], ["a", "gone", "b", "c"], ["a", "gone", "b", "c", "d"],
-        ["a", "gone", "b", "c", "d", "e"]]
+        ["a", "c", "gone"], ["a", "c", "gone", "b"], ["a", "c", "gone", "b"], ["a", "c", "gone", "b", "d"],
+        ["a", "c", "gone", "b", "d", "e"]]
+    assert stand_in.snapshots[2]["units"]["c"]["status"] == "failed"  # written as it failed
     assert stand_in.bar == [("enabled", True), ("add", "doing", 5, 1)] + [("advance", 7)] * 4
 
 
@@ -394,6 +426,11 @@ def test_rig_batch_hashes_each_scan_with_its_options_and_skips_a_complete_rig(st
 
     def submit(fn, *args, key, pure):
         calls.append((fn.__name__, args, key, pure))
+        holder = json.loads((out / ".batch.lock").read_text())  # the client holds the output's lock meanwhile
+        assert holder["command"] == "bodystudio batch rig"
+        with pytest.raises(OutputLockedError) as err:  # ... so a second batch is refused, naming the folder
+            acquire_lock(RunLayout(out, "batch.json", ".batch.", str(out)), "second")
+        assert str(err.value).startswith(f"{out}: being written by pid ")
         return _Future(None, {"seconds": 0.5})
 
     stand_in.client.submit = submit
@@ -409,9 +446,57 @@ def test_rig_batch_hashes_each_scan_with_its_options_and_skips_a_complete_rig(st
     assert {n: (e["inputs_sha256"], e["scan"], e["output"]) for n, e in rec.items()} == {
         "a.ply": (sha["a.ply"], str(scans / "a.ply"), str(out / "a.glb")),
         "b.obj": (sha["b.obj"], str(scans / "b.obj"), str(out / "b.glb"))}
-    assert not (out / ".batch.lock").exists() and (out / ".batch").is_dir()
+    assert sorted(p.name for p in out.iterdir()) == [".batch", "a.glb", "a.rig.json", "batch.json"]
+    assert stand_in.bar == [("enabled", False), ("add", "rig 2 scans", 2, 1), ("advance", 7)]
     with pytest.raises(InputError, match="--template '4k': use 6k, 13k or 2k"):
         batch.rig_batch(scans, out, stand_in.client, template="4k")
+    import os
+    import socket
+
+    from bodystudio.runfolder import _process_start
+
+    (out / ".batch.lock").write_text(json.dumps({"pid": os.getppid(), "host": socket.gethostname(), "command": "w",
+                                                 "start": _process_start(os.getppid()), "since": "now"}))
+    with pytest.raises(OutputLockedError, match=f"^{out}: being written by pid {os.getppid()} "):
+        batch.rig_batch(scans, out, stand_in.client, template="2k")  # another batch writes this folder
+    (out / ".batch.lock").unlink()
+    with pytest.raises(InputError, match=f"^--out {scans / 'a.ply'}: exists and is a file"):
+        batch.rig_batch(scans, scans / "a.ply", stand_in.client)
+    for template in ("6k", "13k", None):  # the valid ones, and the default 6k
+        calls.clear()
+        kw = {} if template is None else {"template": template}
+        stand_in.record = tmp_path / f"o{template}" / "batch.json"
+        out = tmp_path / f"o{template}"
+        batch.rig_batch(scans, out, stand_in.client, **kw)
+        opts = options_sha256({"template": template or "6k", "version": __version__})
+        assert [c[1][2:4] for c in calls] == [(template or "6k", _sha(sha256_file(scans / s) + opts))
+                                              for s in ("a.ply", "b.obj")]
+
+
+def test_load_record_reads_the_units_of_a_record_and_nothing_else(tmp_path):
+    p = tmp_path / "batch.json"
+    assert batch._load_record(p) == {}  # no record yet
+    for bad in ("{", "[]", '{"units": []}', '{"version": "0"}', '"x"'):
+        p.write_text(bad)
+        assert batch._load_record(p) == {}, bad
+    p.write_text('{"version": "0", "units": {"a": {"status": "done"}}}')
+    assert batch._load_record(p) == {"a": {"status": "done"}}
+
+
+def test_unit_writer_records_the_unit_in_its_manifest(tmp_path):
+    layout = unit_layout(tmp_path / "u")
+    w = _UnitWriter(layout, "cmd", {"session": "s"}, {"inputs_sha256": "abc", "frames": [3]})
+    assert w.unit == {"inputs_sha256": "abc", "frames": [3]} and w.producer == {"session": "s"}
+    w.write_bytes("old.txt", b"x")
+    first = w.commit({"k": 1})
+    assert first["run"]["command"] == "cmd"
+    assert layout.manifest_path.read_bytes() == (json.dumps(first, indent=2) + "\n").encode()
+    w = _UnitWriter(layout, "cmd", {}, {"inputs_sha256": "def"})
+    w.write_bytes("new.txt", b"y")
+    manifest = w.commit({"k": 2}, deletes=["old.txt"], indent=4)
+    assert manifest["unit"] == {"inputs_sha256": "def"} and manifest["k"] == 2
+    assert layout.manifest_path.read_bytes() == (json.dumps(manifest, indent=4) + "\n").encode()
+    assert not (layout.root / "old.txt").exists() and unit_is_complete(layout, "def")
 
 
 if __name__ == "__main__":
