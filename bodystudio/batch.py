@@ -270,7 +270,9 @@ def unit_is_complete(layout: RunLayout, inputs_sha256: str) -> bool:
         if check_readable(layout) is not None or not layout.manifest_path.is_file():
             return False
         manifest = read_json(layout.manifest_path, "batch unit record")
-        if not isinstance(manifest, dict) or manifest.get("unit", {}).get("inputs_sha256") != inputs_sha256:
+        unit = manifest.get("unit") if isinstance(manifest, dict) else None
+        # valid JSON of another shape (edited by hand) is redone, not an AttributeError that stops the client
+        if not isinstance(unit, dict) or unit.get("inputs_sha256") != inputs_sha256:
             return False
         verify_run_files(layout, manifest.get("run"))
     except BodyStudioError:

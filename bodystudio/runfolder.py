@@ -27,6 +27,7 @@ import glob
 import json
 import logging
 import os
+import re
 import shutil
 import socket
 import sys
@@ -44,6 +45,8 @@ log = logging.getLogger(__name__)
 COMMIT = "commit.json"
 #: Seconds an unreadable (empty, half-written) lock file is taken as being created right now.
 LOCK_GRACE_S = 10.0
+#: A staging folder's leftover of a killed :func:`remove_staging` (``<staging>.stale.<pid>``)
+_TOMB = re.compile(r"(.+)\.stale\.\d+")
 
 
 class OutputLockedError(BodyStudioError):
@@ -520,13 +523,16 @@ def layouts_under(path: Path) -> list[RunLayout]:
     """Every lock or staging folder (or a staging folder's ``.stale.`` leftover) in ``path`` (a folder) and its
     direct sub-folders."""
     folders = [path] + sorted(p for p in path.iterdir() if p.is_dir() and not p.name.endswith("staging")
-                              and ".stale." not in p.name)
+                              and not _TOMB.fullmatch(p.name))
     found = {}
     for folder in folders:
         for p in folder.iterdir():
-            name = p.name.split(".stale.")[0] if p.is_dir() else p.name  # a lock's .stale. copy is no layout
+            # a lock's .stale. copy (a file, ending in the pid) is no layout; ".stale." elsewhere in a name is the
+            # user's (an avatar a.stale.glb has the lock .a.stale.glb.lock)
+            tomb = _TOMB.fullmatch(p.name) if p.is_dir() else None
+            name = tomb.group(1) if tomb else p.name
             for suffix in ("staging", "lock"):
-                if name.startswith(".") and name.endswith(suffix) and ".stale." not in name:
+                if name.startswith(".") and name.endswith(suffix):
                     prefix = name[: -len(suffix)]
                     target = folder if prefix == "." else folder / prefix[1:-1]
                     # a session's commit records predate manifest_name: its manifest is session.json
