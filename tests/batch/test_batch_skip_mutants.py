@@ -183,9 +183,9 @@ def test_an_interrupted_or_foreign_unit_is_redone(tmp_path, damage):
     if damage == "staging":  # killed before its commit: the previous result is whole, but not of this run
         (layout.staging / "x").parent.mkdir()
         (layout.staging / "x").write_text("x")
-    elif damage == "record":
-        layout.staging.mkdir()
-        layout.commit_record.write_text('{"moves": []}')
+    elif damage == "record":  # an unreadable commit record: nothing to finish (a readable one is finished:
+        layout.staging.mkdir()  # tests/reliability/test_commit_cleanup_kill.py)
+        layout.commit_record.write_text('{"moves": ')
     elif damage == "no manifest":
         layout.manifest_path.unlink()
     elif damage == "list manifest":
