@@ -9,7 +9,8 @@ video) into ``DIR/<session>_<run>`` for each of ``--runs`` (default ``ik refine`
 without the warp's edge clamp, MIR12g; ``refine-before-mir12h``: the root turned about its head and no spine twist,
 MIR12h; ``refine-twisted``: the IK's limbs keep their warm-started twist, before MIR12p; ``refine-registered``: the
 bodies registered to the outline, ``run.REGISTER_OUTLINE_ONE_PLAYER``; ``refine-posture``: E_trunk centred on the run's
-running mean posture of spine_02, neck_01 and head, ``run.POSTURE_BONES``, MIR12q), then
+running mean posture of spine_02, neck_01 and head, ``run.POSTURE_BONES``, MIR12q; ``refine-registered-posture``: both
+options, MIR12r), then
 ``evaluate_mirror`` on each; prints one JSON line per run with the scores and the per-step median milliseconds
 (wall, so only comparable at one load).
 """
@@ -51,9 +52,9 @@ def _refine_as(run: str, weights: dict | None = None):
     posture = run_module.POSTURE_BONES
     if run == "refine-twisted":  # the IK's warm-started limb twist (before MIR12p)
         run_module.UNTWIST_BONES = ()
-    if run == "refine-registered":  # the bodies registered to the outline (MIR12p's option)
+    if run in ("refine-registered", "refine-registered-posture"):  # the bodies registered to the outline (MIR12p)
         run_module.REGISTER_OUTLINE_ONE_PLAYER = True
-    if run == "refine-posture":  # E_trunk centred on the running mean posture (MIR12q's option)
+    if run in ("refine-posture", "refine-registered-posture"):  # E_trunk on the running mean posture (MIR12q)
         run_module.POSTURE_BONES = ("spine_02", "neck_01", "head")
     clamp = warp.edge_clamped
     if run == "refine-no-edge":  # source positions outside the image stay outside (before MIR12g)
@@ -78,7 +79,7 @@ def main() -> None:
     parser.add_argument("--runs", nargs="+", default=["ik", "refine"],
                         choices=["ik", "refine", "refine-no-trunk", "refine-2-steps", "refine-no-edge",
                                  "refine-before-mir12h", "refine-weights", "refine-twisted", "refine-registered",
-                                 "refine-posture"],
+                                 "refine-posture", "refine-registered-posture"],
                         help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
                              "or with two Gauss-Newton steps, or without the warp's edge clamp (MIR12g's A/Bs)")
     parser.add_argument("--weights", default="", help="refine-weights: RefineWeights fields, e.g. depth_samples=2000")

@@ -142,6 +142,17 @@ SILHOUETTE_FRAMES = 6
 #: the sides of the torso and limbs are never measured, and when their vertices could still be matched,
 #: points near the visible edge pulled them in and the body came out narrow (light).
 INIT_FACING_COS = 0.26
+#: SDK trunk joints :func:`refit_trunk_joints` moves the source skeleton's joints to (their mean position in the
+#: default pose, each frame unposed by the refined pose of the fitted body), and the bone ends each one is:
+#: ``mirror init --trunk-refit``, MIR12r. The statistical model's joint regressor puts the joints where the fitted
+#: *surface* puts them, and a joint deep inside the trunk (SpineShoulder, the top of spine_03) is the one it places
+#: worst against that surface: 5-9 mm forward of it on four of ten sessions, which leans the IK's upper spine back
+#: (docs/mirror.md).
+TRUNK_REFIT_JOINTS = {"SpineMid": (("spine_02", "head"), ("spine_01", "tail")),
+                      "SpineShoulder": (("spine_03", "tail"),),
+                      "Neck": (("neck_01", "head"),)}
+#: Rounds of :func:`refit_trunk_joints` (each poses the body again on the moved joints before unposing them).
+TRUNK_REFIT_ROUNDS = 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,7 +161,8 @@ class SourceBody:
 
     coeffs: np.ndarray  # (k,) StatisticalBodyModel coefficients
     vertices: np.ndarray  # (n, 3) rest pose (model template topology)
-    skeleton: Skeleton  # the statistical model's joints for ``coeffs`` (mirror init); Eq. 3's refit in older files
+    skeleton: Skeleton  # the statistical model's joints for ``coeffs`` (mirror init; its trunk joints moved onto the
+    # SDK's with ``--trunk-refit``, :func:`refit_trunk_joints`); Eq. 3's refit in older files
     frames_used: tuple[int, ...]
     residual_mm: float  # median point-to-surface distance of the init fit
     weights: np.ndarray | None = None  # (n, B) skin weights (the model's); None until attached
@@ -525,7 +537,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  camera=None, silhouette_frames: int = 0,
                                  point_sigma_m: float = POINT_SIGMA_M, depth_camera=None,
                                  unpose_refine_steps: int = UNPOSE_REFINE_STEPS,
-                                 bone_length_weight: float = BONE_LENGTH_WEIGHT) -> SourceBody:
+                                 bone_length_weight: float = BONE_LENGTH_WEIGHT,
+                                 trunk_refit: bool = False) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -542,7 +555,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     mask, the depth and the joints (:func:`refined_init_pose`; 0: the IK's). ``point_sigma_m``: the shape prior's
     point noise (:func:`fit_shape`). ``bone_length_weight`` > 0: the fit also matches the SDK's joint distances of
     :data:`BONE_PAIRS`, averaged over every observation (:func:`kinect_bone_lengths`), each with that weight per
-    frame behind it (:data:`BONE_LENGTH_WEIGHT`).
+    frame behind it (:data:`BONE_LENGTH_WEIGHT`). ``trunk_refit``: the skeleton's trunk joints then moved onto the SDK's
+    (:func:`refit_trunk_joints` over the fitted frames; MIR12r).
     """
     model = check_model(model)
     if not (np.isfinite(bone_length_weight) and bone_length_weight >= 0):
@@ -621,7 +635,12 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         body = model.body(coeffs)
     # tracked with the model's own joints (its joint regressor), not Eq. 3's nearest-vertex means: the target's
     # joints then move by the same regressor (reshape.target_skeleton), warp_iou +0.002 / +0.011 (docs/mirror.md)
-    return SourceBody(coeffs, body.vertices, model.skeleton(coeffs), tuple(int(o.frame) for o, _ in obs),
+    skeleton = model.skeleton(coeffs)
+    if trunk_refit:
+        skeleton = refit_trunk_joints(BodyModel(body.vertices, model.faces, skeleton, model.weights, model.resolution,
+                                                model.rig, vertex_ids=model.vertex_ids), obs, depth_camera,
+                                      unpose_refine_steps=unpose_refine_steps)
+    return SourceBody(coeffs, body.vertices, skeleton, tuple(int(o.frame) for o, _ in obs),
                       1000.0 * float(np.median(residuals)), model.weights, model.faces)
 
 
@@ -638,6 +657,65 @@ def refined_init_pose(plan, body: BodyModel, observation: InitObservation, point
     pose = ik_pose(body.skeleton, observation.joints, observation.tracked, observation.version)
     return refine_pose(plan, body.skeleton, pose, depth_camera, observation.player_mask, observation.joints,
                        observation.tracked, points, observation.others_depth, observation.version, iterations=steps)
+
+
+def refit_trunk_joints(body: BodyModel, frames, depth_camera=None, joints=tuple(TRUNK_REFIT_JOINTS),
+                       rounds: int = TRUNK_REFIT_ROUNDS, unpose_refine_steps: int = UNPOSE_REFINE_STEPS) -> Skeleton:
+    """The fitted ``body``'s skeleton with its trunk joints moved onto the SDK's (§4's unposing applied to the joints).
+
+    ``frames``: (:class:`InitObservation`, depth points) pairs of the init. Per round, each frame's pose of the body
+    (the IK on the SDK joints, refined by :func:`refined_init_pose` against the player mask and the depth when the
+    ``depth_camera`` and the frame's ``player_mask`` are there) brings the SDK's ``joints`` (names of
+    :data:`TRUNK_REFIT_JOINTS`) to the default pose by the inverse transform of the bone carrying each
+    (:func:`unposed_kinect_joints`); the bone ends each joint is move to the joint's mean over the frames (values
+    more than 3 median absolute deviations from the median dropped, per axis) in height and depth; across the body
+    they stay on the skeleton's midline. A joint seen in fewer than three frames, or missing from the frames'
+    Kinect version (v1 has no Neck), stays. The pose is fitted to the depth and the mask as well as to the joints, so
+    a joint that the skeleton places off the surface around it comes back where the SDK sees it against that surface;
+    the next round poses the body on the moved joints."""
+    from bodystudio.mirror.refine import refine_plan
+
+    frames = list(frames)
+    unknown = [j for j in joints if j not in TRUNK_REFIT_JOINTS]
+    if unknown:
+        raise InputError(f"refit_trunk_joints: unknown trunk joint {unknown[0]!r}; valid: "
+                         f"{', '.join(TRUNK_REFIT_JOINTS)}")
+    sk = body.skeleton
+    if not frames or not joints:
+        return sk
+    version = frames[0][0].version
+    names = kinect_joint_names(version)
+    for _ in range(max(int(rounds), 0)):
+        posed = BodyModel(body.vertices, body.faces, sk, body.weights, body.resolution, body.rig,
+                          vertex_ids=body.vertex_ids)
+        plan = None
+        if depth_camera is not None and unpose_refine_steps > 0:
+            plan = refine_plan(posed.vertices, posed.faces, posed.weights, sk, version)
+        unposed = []
+        for o, P in frames:
+            if o.version != version:
+                continue
+            pose = (refined_init_pose(plan, posed, o, P, depth_camera, unpose_refine_steps)
+                    if plan is not None and o.player_mask is not None else ik_pose(sk, o.joints, o.tracked, o.version))
+            unposed.append(unposed_kinect_joints(o.joints, o.tracked, sk, pose, o.version))
+        U = np.array(unposed)
+        heads, tails = sk.heads.copy(), sk.tails.copy()
+        for joint in joints:
+            name = _kinect_name(joint, version)
+            if name not in names or len(U) == 0:
+                continue
+            values = U[:, names.index(name)]
+            values = values[np.all(np.isfinite(values), axis=1)]
+            if len(values) < 3:
+                continue
+            med = np.median(values, axis=0)
+            spread = 3.0 * np.maximum(np.median(np.abs(values - med), axis=0), 1e-3)
+            mean = np.array([values[np.abs(values[:, a] - med[a]) <= spread[a], a].mean() for a in range(3)])
+            for bone, end in TRUNK_REFIT_JOINTS[joint]:
+                ends = heads if end == "head" else tails
+                ends[sk.index(bone), 1:] = mean[1:]
+        sk = Skeleton(sk.bone_names, sk.parents, heads, tails, sk.rolls)
+    return sk
 
 
 def _session_version(names) -> str:
@@ -724,10 +802,11 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
 def initialise_source_body(session, model: StatisticalBodyModel | None = None, frames=None, player: int = 1,
                            n_frames: int = DEFAULT_INIT_FRAMES, passes: int = INIT_PASSES,
                            silhouette_shape: bool = False,
-                           bone_length_weight: float = BONE_LENGTH_WEIGHT) -> SourceBody:
+                           bone_length_weight: float = BONE_LENGTH_WEIGHT, trunk_refit: bool = False) -> SourceBody:
     """§4 on a mirror session: the source body of ``player`` from up to ``n_frames`` frames (~3 s at 30 fps);
     ``silhouette_shape``: then refined against :data:`SILHOUETTE_FRAMES` frames' silhouettes (MIR12c);
-    ``bone_length_weight`` > 0: the SDK's joint distances enter the fit (:data:`BONE_LENGTH_WEIGHT`, MIR12o)."""
+    ``bone_length_weight`` > 0: the SDK's joint distances enter the fit (:data:`BONE_LENGTH_WEIGHT`, MIR12o);
+    ``trunk_refit``: the skeleton's trunk joints moved onto the SDK's (:func:`refit_trunk_joints`, MIR12r)."""
     if model is None:
         from bodystudio.body.statistical import load_statistical_model
 
@@ -737,7 +816,7 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
     return initialise_from_observations(obs, model, view_point=sensor.depth.center, passes=passes,
                                         depth_camera=sensor.depth, camera=sensor.color if silhouette_shape else None,
                                         silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0,
-                                        bone_length_weight=bone_length_weight)
+                                        bone_length_weight=bone_length_weight, trunk_refit=trunk_refit)
 
 
 # --- persistence -----------------------------------------------------------------------------------

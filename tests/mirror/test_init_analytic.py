@@ -801,8 +801,9 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
         return ["obs"], session.kinect
 
     def fit(obs, m, view_point=None, passes=3, camera=None, silhouette_frames=0, depth_camera=None,
-            bone_length_weight=None):
+            bone_length_weight=None, trunk_refit=None):
         calls["fit"] = (obs, m, view_point, passes)
+        calls["trunk_refit"] = trunk_refit
         calls["silhouette"] = (camera, silhouette_frames)
         calls["depth_camera"] = depth_camera
         calls["bone_length_weight"] = bone_length_weight
@@ -818,8 +819,11 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
     assert calls["depth_camera"] is session.kinect.depth  # the refined unposing's camera (MIR12i)
     assert calls["silhouettes"] is False and calls["silhouette"] == (None, 0)  # MIR12c's refinement off by default
     assert calls["bone_length_weight"] == 0.0  # MIR12o's joint distances off by default
+    assert calls["trunk_refit"] is False  # MIR12r's trunk refit off by default
     init_mod.initialise_source_body(session, model, bone_length_weight=1.5)
     assert calls["bone_length_weight"] == 1.5
+    init_mod.initialise_source_body(session, model, trunk_refit=True)
+    assert calls["trunk_refit"] is True
     init_mod.initialise_source_body(session, model)
     assert calls["collect"] == (None, 1, init_mod.DEFAULT_INIT_FRAMES) and calls["fit"][3] == init_mod.INIT_PASSES == 5
     session.kinect.color = "colour camera"

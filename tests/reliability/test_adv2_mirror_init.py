@@ -47,6 +47,25 @@ def test_a_second_init_needs_force(mirror_session, capfd):
     assert json.loads(summary.read_text())["resolution"] == "6k"
 
 
+def test_trunk_refit_with_too_few_frames_keeps_the_skeleton(mirror_session, tmp_path, capfd):
+    """`mirror init --trunk-refit` (MIR12r) on a copy of the 12-frame session (the init reads one frame with the
+    actor, fewer than the three a joint's mean needs): exit 0, the summary says so, and the body is the plain init's
+    bit for bit (no joint moved on too few frames, no error). The moving case: tests/mirror/test_init_trunk_refit.py."""
+    import shutil
+
+    copy = tmp_path / "s"
+    shutil.copytree(mirror_session, copy)
+    shutil.rmtree(copy / "mirror", ignore_errors=True)
+    bodies = {}
+    for flag in ("--no-trunk-refit", "--trunk-refit"):
+        result = run_inprocess(["mirror", "init", copy, "--resolution", "2k", flag, "--force"], capfd)
+        assert_clean_error(result, 0, "")
+        summary = json.loads((copy / "mirror" / "source_body.json").read_text())
+        assert summary["trunk_refit"] is (flag == "--trunk-refit") and len(summary["frames_used"]) == 1
+        bodies[flag] = (copy / "mirror" / "source_body.npz").read_bytes()
+    assert bodies["--trunk-refit"] == bodies["--no-trunk-refit"]
+
+
 # The probe child records the 6k init's fit; the children killed at a file event replay it instead of fitting again
 # (the source body's two files are the only file events, the same ones, checked against a fitting child).
 RECORD_INIT = """

@@ -221,3 +221,27 @@ def test_an_edit_the_body_cannot_take_is_refused(model):
     """A target the shape space cannot make with the other measurements held: one line, never a half-made body."""
     with pytest.raises(InputError, match=r"edit \(stature_m -0.3\) is not reachable .* use a smaller edit"):
         target_coeffs(model, np.zeros(model.n_components), {"taller": -0.3})
+
+
+# --- `mirror init --trunk-refit` (MIR12r) ---------------------------------------------------------------------
+
+def test_trunk_refit_of_an_unknown_joint_is_refused(model):
+    from bodystudio.mirror.init import refit_trunk_joints
+
+    with pytest.raises(InputError, match=r"unknown trunk joint 'Spine'; valid: SpineMid, SpineShoulder, Neck"):
+        refit_trunk_joints(model.body(np.zeros(model.n_components)), [], None, joints=("Spine",))
+
+
+def test_cli_init_trunk_refit_refuses_a_session_without_kinect(studio, capfd):
+    result = run_inprocess(["mirror", "init", studio.session, "--trunk-refit"], capfd)
+    assert_clean_error(result, 2, "no Kinect calibration")
+    assert not (Path(studio.session) / "mirror").exists()
+
+
+@pytest.mark.parametrize("args, phrase", [
+    (["--trunk-refit", "--player", "7"], "--player 7"),
+    (["--trunk-refit", "--frames", "0"], "--frames 0"),
+])
+def test_cli_init_trunk_refit_bad_options(studio, capfd, args, phrase):
+    result = run_inprocess(["mirror", "init", studio.session, *args], capfd)
+    assert_clean_error(result, 2, phrase)
