@@ -382,7 +382,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
         joint (issue 15, rec15l: :func:`neck_at_joint`), the tracker's pose ``T`` kept as the next frame's prior."""
         if not (tracking and track_params.neck_joint) or J is None:
             return T
-        return neck_at_joint(body, T, J[NECK_JOINT])
+        return neck_at_joint(body, T, J[NECK_JOINT], unstretch_head=track_params.unstretch_head)
 
     state = None  # the previous frame's (bone transforms, global scale, tracker joints, silhouette energy)
     records = []

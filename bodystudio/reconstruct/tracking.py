@@ -86,7 +86,9 @@ class TrackParams:
     docs/reconstruct.md). ``neck_joint``: the template each frame deforms is posed with its neck's base on the
     frame's tracked Neck joint (:func:`bodystudio.reconstruct.pose_init.neck_at_joint`; Eq. 11 places it by the
     spine's transform, 3-7 cm beside it on the hidden subjects); the tracker's own pose (the next frame's prior)
-    is the fit's, unchanged.
+    is the fit's, unchanged. ``unstretch_head``: that placement also takes Eq. 11's segment stretch off the head
+    (``neck_at_joint(..., unstretch_head=True)``; issue 15, rec15m: the neck and head are aimed and stretched as one
+    segment from the misplaced neck base, 1.24-1.43x on the hidden subjects, and the head kept it).
     ``compiled_rotations``: the tracking fit's rotation bookkeeping compiled
     (:attr:`bodystudio.reconstruct.articulated_fit.PoseRefineParams.compiled_rotations`; rec15j).
     """
@@ -108,6 +110,7 @@ class TrackParams:
     outer_iterations: int = 3
     tau_px: float = 15.0
     neck_joint: bool = True
+    unstretch_head: bool = True
     matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True, gate="reuse")
     exact_fields: bool = False
     compiled_rotations: bool = False

@@ -94,9 +94,10 @@ class Rec:
         self.calls["pose"].append((body, T.copy(), global_scale, rest_vertices))
         return NS(bone_transforms=T, global_scale=global_scale, vertices=rest * global_scale + T, joints=None)
 
-    def neck_at_joint(self, body, bone_transforms, neck):
-        """The neck's placement (rec15l) as the identity: the same transforms object, so nothing is posed again."""
-        self.calls.setdefault("neck", []).append((body, np.array(bone_transforms), np.array(neck)))
+    def neck_at_joint(self, body, bone_transforms, neck, unstretch_head=False):
+        """The neck's placement (rec15l; the head unstretched, rec15m) as the identity: the same transforms object, so
+        nothing is posed again."""
+        self.calls.setdefault("neck", []).append((body, np.array(bone_transforms), np.array(neck), unstretch_head))
         return bone_transforms
 
     def outside_fraction(self, V, fields, outside_px=2.0):

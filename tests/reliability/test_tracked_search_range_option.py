@@ -30,3 +30,12 @@ def test_the_neck_placement_is_on_by_default_and_recorded():
     assert TrackParams(neck_joint=False).neck_joint is False
     rec = asdict(TrackParams(tau_px=12.5, neck_joint=False))
     assert rec["tau_px"] == 12.5 and rec["neck_joint"] is False
+
+
+def test_the_unstretched_head_is_on_by_default_and_recorded():
+    """``TrackParams(unstretch_head=...)`` (rec15m): on by default, off by ``False`` (the head keeps Eq. 11's segment
+    stretch, rec15l's placement); run.json's ``track_params`` records it. Effect: test_unstretched_head.py."""
+    from dataclasses import asdict
+
+    assert TrackParams().unstretch_head is True
+    assert asdict(TrackParams(unstretch_head=False))["unstretch_head"] is False
