@@ -39,3 +39,19 @@ def test_the_unstretched_head_is_on_by_default_and_recorded():
 
     assert TrackParams().unstretch_head is True
     assert asdict(TrackParams(unstretch_head=False))["unstretch_head"] is False
+
+
+def test_the_initialised_frames_outer_count_default_range_and_record():
+    """``TrackParams(initial_outer_iterations=...)`` (rec15m): 3 by default, 0 for the run's ``No``, out-of-range
+    values a one-line error naming the setting and its range; run.json records it. Wiring:
+    tests/reconstruct/test_initial_outer_iterations.py."""
+    from dataclasses import asdict
+
+    assert TrackParams().initial_outer_iterations == 3
+    for ok in (0, 100):
+        TrackParams(initial_outer_iterations=ok)
+    for bad in (-1, 101, float("nan")):
+        with pytest.raises(InputError, match=r"^tracking initial_outer_iterations .* is out of range; use a value in "
+                                             r"\[0, 100\]$"):
+            TrackParams(initial_outer_iterations=bad)
+    assert asdict(TrackParams(initial_outer_iterations=0))["initial_outer_iterations"] == 0
