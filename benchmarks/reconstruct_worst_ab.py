@@ -122,6 +122,8 @@ def where_lines(path: Path, body, regions, bones) -> list[str]:
 
 
 def main() -> None:
+    from dataclasses import replace
+
     import numba
     from threadpoolctl import threadpool_limits
 
@@ -161,9 +163,11 @@ def main() -> None:
                     run_kw = {k[2:]: v for k, v in kw.items() if k.startswith("r_")}
                     params = RapidSkinParams(constraints=cons,
                                              **{k: v for k, v in kw.items() if not k.startswith(("t_", "r_"))})
+                    # a preset may bring its own tracker settings (@accurate: rec15m); t_ fields go over them
+                    track = replace(run_kw.pop("track_params", None) or TrackParams(), **track_kw)
                     with threadpool_limits(1):
                         s = reconstruct_session(path, template="13k", constraints=cons, tracking=tracking,
-                                                params=params, track_params=TrackParams(**track_kw), **run_kw)
+                                                params=params, track_params=track, **run_kw)
                     fr = json.loads((path / "reconstruct" / "frames.json").read_text())["frames"]
                     reg = [np.mean([f["metrics"]["regions"][r]["p90_mm"] for f in fr]) for r in REGIONS]
                     haus = [f["metrics"]["hausdorff_mm"] for f in fr]

@@ -159,7 +159,7 @@ def initialise_pose(body, joints: np.ndarray, version: str = "v2", rest_vertices
     return pose_template(body, T, float(np.cbrt(np.linalg.det(TG[:3, :3]))), version, rest_vertices)
 
 
-def neck_at_joint(body, bone_transforms: np.ndarray, neck: np.ndarray) -> np.ndarray:
+def neck_at_joint(body, bone_transforms: np.ndarray, neck: np.ndarray, unstretch_head: bool = False) -> np.ndarray:
     """Bone transforms ``(B, 4, 4)`` with the neck bone's base moved onto the tracked Neck joint ``neck`` and its
     end kept: Fig. 4a's limb transform of ``neck_01`` about ``neck``, onto where ``bone_transforms`` put its tail.
 
@@ -169,6 +169,13 @@ def neck_at_joint(body, bone_transforms: np.ndarray, neck: np.ndarray) -> np.nda
     whose span is 1.02-1.09 of SpineMid -> SpineShoulder where the androgynous template's is 0.80). The head keeps
     its transform, so the head's fit is unchanged. Returns ``bone_transforms`` itself when the template has no
     ``neck_01`` or ``neck`` is not finite.
+
+    ``unstretch_head`` (issue 15, rec15m): Eq. 11 stretches the neck and head as one segment (Fig. 4a) from that
+    misplaced base onto the tracked Head joint, 1.24-1.43x on the hidden subjects, and the head keeps the stretch
+    (placing the neck takes it off the neck only). The head and its children then get the segment's rotation at the
+    run's scale (the polar rotation of the head's transform times its middle singular value, the scale across the
+    stretch) about the head's midpoint (the Head joint, where the fit put the head), and the neck ends at the head's
+    new base.
     """
     skel = body.skeleton
     neck = np.asarray(neck, dtype=np.float64)
@@ -179,8 +186,31 @@ def neck_at_joint(body, bone_transforms: np.ndarray, neck: np.ndarray) -> np.nda
     base, tail = skel.heads[b], skel.tails[b]
     moved = T[b].copy()
     moved[:3, 3] += neck - _apply(T[b], base)
-    T[b] = limb_transform(moved, base, tail, _apply(bone_transforms[b], tail))
+    end = _apply(bone_transforms[b], tail)
+    if unstretch_head and "head" in skel.bone_names:
+        h = skel.index("head")
+        U, S, Vt = np.linalg.svd(T[h, :3, :3])
+        rigid = np.eye(4)
+        rigid[:3, :3] = float(np.median(S)) * (U @ Vt)
+        mid = 0.5 * (skel.heads[h] + skel.tails[h])
+        rigid[:3, 3] = _apply(T[h], mid) - rigid[:3, :3] @ mid
+        change = rigid @ np.linalg.inv(T[h])
+        for j in (h, *_descendants(skel, h)):
+            T[j] = change @ T[j]
+        end = _apply(T[h], skel.heads[h])
+    T[b] = limb_transform(moved, base, tail, end)
     return T
+
+
+def _descendants(skel, bone: int) -> list[int]:
+    """Bones below ``bone`` in the skeleton (not itself)."""
+    out, todo = [], [bone]
+    while todo:
+        k = todo.pop()
+        children = [j for j, p in enumerate(skel.parents) if p == k]
+        out += children
+        todo += children
+    return out
 
 
 def pose_template(body, bone_transforms: np.ndarray, global_scale: float = 1.0, version: str = "v2",

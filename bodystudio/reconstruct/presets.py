@@ -7,7 +7,8 @@ its silhouette guard 0.05, the statistical body model's shape prior per frame (3
 ``ACCURATE_PARAMS``: the torso held to the frame's first iterate (``RapidSkinParams.surface_hold_k`` 1.0). It met
 all 12 accuracy goals (silhouettes + depth) on the three 30 fps sessions it was tuned on, against the default's 9;
 on held-out sessions: docs/reconstruct.md, "The accurate setting on held-out sessions (rec15h)". It needs the
-sequential path (tracking and smoothing use the neighbouring frames) and was measured with depth constraints.
+sequential path (tracking and smoothing use the neighbouring frames) and was measured with depth constraints. Its
+tracker keeps the head's Eq. 11 stretch (``TrackParams(unstretch_head=False)``; docs/reconstruct.md, rec15m).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from bodystudio.reconstruct.rapid_skin import RapidSkinParams
+from bodystudio.reconstruct.tracking import TrackParams
 
 #: keywords of :func:`reconstruct_session` that ``bodystudio reconstruct --accurate`` sets
 ACCURATE_SETTINGS: dict = {
@@ -27,6 +29,9 @@ ACCURATE_SETTINGS: dict = {
     "refine_depth": 3.0,
     "refine_depth_bones": "all",
     "refine_depth_guard": 0.05,
+    # rec15m: the tracked default's unstretched head costs this setting p90 on 5 of 7 sessions (it refines the head
+    # as its own segment); it keeps the head as before
+    "track_params": TrackParams(unstretch_head=False),
 }
 
 #: :class:`RapidSkinParams` fields the accurate setting sets over the caller's

@@ -382,7 +382,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
         joint (issue 15, rec15l: :func:`neck_at_joint`), the tracker's pose ``T`` kept as the next frame's prior."""
         if not (tracking and track_params.neck_joint) or J is None:
             return T
-        return neck_at_joint(body, T, J[NECK_JOINT])
+        return neck_at_joint(body, T, J[NECK_JOINT], unstretch_head=track_params.unstretch_head)
 
     state = None  # the previous frame's (bone transforms, global scale, tracker joints, silhouette energy)
     records = []
@@ -500,6 +500,10 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 if placed is not fit_T:
                     init = pose_template(body, placed, init.global_scale, rest_vertices=rest)
             V_start, frame_params = init.vertices, params
+            if tracking and track != "tracked" and track_params.initial_outer_iterations:
+                # issue 15, rec15m: the first frame's later re-matchings drift the upper back outwards
+                frame_params = replace(params, outer_iterations=min(params.outer_iterations,
+                                                                    track_params.initial_outer_iterations))
             if track == "tracked":
                 if track_params.warm_mesh:
                     V_start = carry_deformed_mesh(state["V"], state["posed"], init.vertices)

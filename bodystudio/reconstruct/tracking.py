@@ -86,7 +86,11 @@ class TrackParams:
     docs/reconstruct.md). ``neck_joint``: the template each frame deforms is posed with its neck's base on the
     frame's tracked Neck joint (:func:`bodystudio.reconstruct.pose_init.neck_at_joint`; Eq. 11 places it by the
     spine's transform, 3-7 cm beside it on the hidden subjects); the tracker's own pose (the next frame's prior)
-    is the fit's, unchanged.
+    is the fit's, unchanged. ``unstretch_head``: that placement also takes Eq. 11's segment stretch off the head
+    (``neck_at_joint(..., unstretch_head=True)``; issue 15, rec15m: the neck and head are aimed and stretched as one
+    segment from the misplaced neck base, 1.24-1.43x on the hidden subjects, and the head kept it).
+    ``initial_outer_iterations``: ``No`` of a tracked run's first and re-initialised frames (0: the run's; never
+    more): the upper back drifts outwards over the later re-matchings of the run's 8 (issue 15, rec15m).
     ``compiled_rotations``: the tracking fit's rotation bookkeeping compiled
     (:attr:`bodystudio.reconstruct.articulated_fit.PoseRefineParams.compiled_rotations`; rec15j).
     """
@@ -108,6 +112,8 @@ class TrackParams:
     outer_iterations: int = 3
     tau_px: float = 15.0
     neck_joint: bool = True
+    unstretch_head: bool = True
+    initial_outer_iterations: int = 3
     matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True, gate="reuse")
     exact_fields: bool = False
     compiled_rotations: bool = False
@@ -120,6 +126,7 @@ class TrackParams:
                                     ("iterations", self.iterations, 1, 100),
                                     ("min_decrease", self.min_decrease, 0.0, 1.0),
                                     ("outer_iterations", self.outer_iterations, 0, 100),
+                                    ("initial_outer_iterations", self.initial_outer_iterations, 0, 100),
                                     ("tau_px", self.tau_px, 0.0, 500.0)):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")

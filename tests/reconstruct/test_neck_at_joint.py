@@ -93,8 +93,8 @@ def test_the_tracked_run_poses_the_deformation_with_the_neck_and_tracks_its_own_
     shift = np.array([0.0, 0.0, 0.25])
     calls = []
 
-    def place(body, T, neck):
-        calls.append((body, np.array(T), np.array(neck)))
+    def place(body, T, neck, unstretch_head=False):
+        calls.append((body, np.array(T), np.array(neck), unstretch_head))
         return np.asarray(T) + shift
 
     monkeypatch.setattr(seq, "neck_at_joint", place)
@@ -110,6 +110,7 @@ def test_the_tracked_run_poses_the_deformation_with_the_neck_and_tracks_its_own_
         assert calls[k][0] is body
         np.testing.assert_allclose(calls[k][1], fit, atol=1e-12)
         np.testing.assert_allclose(calls[k][2], _joints(fid)[NECK], atol=1e-12)  # this frame's Neck joint
+        assert calls[k][3] is True  # the head unstretched (rec15m's TrackParams.unstretch_head, on by default)
         np.testing.assert_allclose(deform[k]["V"], body.vertices * scale + fit + shift, atol=1e-12)
         fitted[fid] = fit
     assert [f[2] for f in fits] == [11, 15, 16, 17]  # the tracking fits (15: an energy jump, re-initialised)
@@ -122,3 +123,8 @@ def test_the_tracked_run_poses_the_deformation_with_the_neck_and_tracks_its_own_
     _run(rec, tmp_path / "off", track=replace(track, neck_joint=False))
     assert calls == []
     np.testing.assert_allclose(rec.calls["deform"][0]["V"], body.vertices * 1.0 + _joints(FRAMES[0])[0], atol=1e-12)
+    # the head's stretch kept: the placement is asked without the unstretching
+    rec = _stand_ins(monkeypatch)
+    monkeypatch.setattr(seq, "neck_at_joint", place)
+    _run(rec, tmp_path / "stretched", track=replace(track, unstretch_head=False))
+    assert len(calls) == len(FRAMES) and all(c[3] is False for c in calls)

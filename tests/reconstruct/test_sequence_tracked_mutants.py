@@ -94,9 +94,10 @@ class Rec:
         self.calls["pose"].append((body, T.copy(), global_scale, rest_vertices))
         return NS(bone_transforms=T, global_scale=global_scale, vertices=rest * global_scale + T, joints=None)
 
-    def neck_at_joint(self, body, bone_transforms, neck):
-        """The neck's placement (rec15l) as the identity: the same transforms object, so nothing is posed again."""
-        self.calls.setdefault("neck", []).append((body, np.array(bone_transforms), np.array(neck)))
+    def neck_at_joint(self, body, bone_transforms, neck, unstretch_head=False):
+        """The neck's placement (rec15l; the head unstretched, rec15m) as the identity: the same transforms object, so
+        nothing is posed again."""
+        self.calls.setdefault("neck", []).append((body, np.array(bone_transforms), np.array(neck), unstretch_head))
         return bone_transforms
 
     def outside_fraction(self, V, fields, outside_px=2.0):
@@ -223,7 +224,8 @@ def _run(rec, tmp_path, frames=FRAMES, tracking=True, track=None, refine_pose=Fa
          joints_path=None):
     writer = Writer(tmp_path)
     params = params or RapidSkinParams(outer_iterations=5)
-    track = track if track is not None else TrackParams(outside_px=OUTSIDE_PX)
+    # the re-initialised frames at the run's own No (rec15m's initial_outer_iterations: test_initial_outer_iterations)
+    track = track if track is not None else TrackParams(outside_px=OUTSIDE_PX, initial_outer_iterations=0)
     summary = seq.reconstruct_frames(_session(depth), writer, list(frames), [NS(name="c0")],
                                      NS(depth="depth-camera"), params, "gs", "6k", joints, joints_path, warm_start,
                                      refine_pose, False, False, tracking=tracking, track_params=track,
@@ -251,7 +253,7 @@ def test_lost_track_reasons_and_check_figures_frame_by_frame(monkeypatch, tmp_pa
         assert f["track_check"]["prior_outside"] == pytest.approx(prior, abs=1e-9)
         assert f["track_check"]["energy"] == pytest.approx(energy, abs=1e-9)
     assert meta["tracking"] is True
-    assert meta["track_params"] == asdict(TrackParams(outside_px=OUTSIDE_PX))
+    assert meta["track_params"] == asdict(TrackParams(outside_px=OUTSIDE_PX, initial_outer_iterations=0))
     # the tracking fit runs where the check keeps the track, from the previous frame's pose, on this frame's fields
     fits = rec.calls["track"]
     assert [c[2] for c in fits] == [11, 15, 16, 17]
@@ -321,7 +323,7 @@ def test_tracked_frame_timings_are_the_steps_between_clock_reads(monkeypatch, tm
 
 def test_warm_mesh_carries_the_previous_result_and_the_outer_count_is_capped(monkeypatch, tmp_path):
     rec = _stand_ins(monkeypatch)
-    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=True, outer_iterations=7)
+    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=True, outer_iterations=7, initial_outer_iterations=0)
     _s, frames, meta = _run(rec, tmp_path, track=track)
     assert [f["track"] for f in frames] == EXPECTED_TRACK
     assert meta["track_params"]["warm_mesh"] is True
@@ -350,7 +352,7 @@ def test_warm_mesh_carries_the_previous_result_and_the_outer_count_is_capped(mon
 
 def test_outer_count_zero_keeps_the_runs_settings_and_no_warm_mesh_starts_from_the_pose(monkeypatch, tmp_path):
     rec = _stand_ins(monkeypatch)
-    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=False, outer_iterations=0)
+    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=False, outer_iterations=0, initial_outer_iterations=0)
     _run(rec, tmp_path, track=track)
     deform = rec.calls["deform"]
     # the run's settings but, on a tracked frame, the tracker's matching schedule

@@ -18,7 +18,7 @@ from tests.reconstruct.test_sequence_tracked_mutants import EXPECTED_TRACK, OUTS
 def test_tracked_frames_search_the_nearer_range(monkeypatch, tmp_path, run_tau, track_tau, tracked_tau):
     rec = _stand_ins(monkeypatch)
     params = RapidSkinParams(outer_iterations=5, tau_px=run_tau)
-    track = TrackParams(outside_px=OUTSIDE_PX, tau_px=track_tau)
+    track = TrackParams(outside_px=OUTSIDE_PX, tau_px=track_tau, initial_outer_iterations=0)
     _run(rec, tmp_path, params=params, track=track)
     deform = rec.calls["deform"]
     assert [d["params"].tau_px for d in deform] == [tracked_tau if t == "tracked" else run_tau
