@@ -887,22 +887,47 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
         raise SessionError(f"{session.path}: no Kinect calibration; the arm capture needs a depth session")
     ids = session.frame_ids[frames] if frames is not None else session.frame_ids
     depths = []
-    tracker = []
     for fid in ids:
-        fr = session.frame(fid)
-        d = fr.kinect_depth_m
+        d = session.frame(fid).kinect_depth_m
         if d is None:
             raise SessionError(f"{session.path}: frame {fid} has no Kinect depth image")
         depths.append(d)
-        joints = fr.kinect_joints
-        want = TRACKER_JOINTS[template.side]
-        if joints is not None and all(n in joints["names"] for n in want):
-            tracker.append(joints["positions"][[joints["names"].index(n) for n in want]])
-    tracker = np.stack(tracker) if len(tracker) == len(ids) else None
+    tracker = session_arm_tracker(session, ids, template.side)
     capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids), known_shape)
     capture.session_path = str(Path(session.path).resolve())
     capture.source_fingerprint = stream_fingerprint(session, "kinect_depth", ids)
     return capture
+
+
+def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
+    """The body tracker's shoulder, elbow and wrist of ``side`` in every frame of ``ids`` (T, 3, 3), or None when
+    no frame has them (the capture then fits the depth alone). A sequence tracked in some frames only is refused
+    (SessionError naming the first frame without them): a joint stored as null (NaN) stopped the shape fit with
+    a traceback, and an absent one dropped the tracker from every frame, which left the fit without its hold on
+    the arm and the self-check blaming the calibration or the arm side."""
+    from bodystudio.capture.session import stream_path
+
+    want = TRACKER_JOINTS[side]
+    rows, gaps = [], []
+    for fid in ids:
+        joints = session.frame(fid).kinect_joints
+        arm = None
+        if joints is not None and all(n in joints["names"] for n in want):
+            arm = np.asarray(joints["positions"], np.float64)[[joints["names"].index(n) for n in want]]
+        if arm is None or not np.all(np.isfinite(arm)):
+            gaps.append(fid)
+        else:
+            rows.append(arm)
+    if not rows:
+        return None
+    if gaps:
+        before = list(ids).index(gaps[0])
+        fix = f", or capture the {before} frames before it (--frames {before})" if before else ""
+        raise SessionError(f"{Path(session.path) / stream_path('kinect_joints', gaps[0])}: the body tracker's "
+                           f"{', '.join(want)} are missing or null in {len(gaps)} of {len(ids)} frames (first "
+                           f"{gaps[0]}); the arm capture needs them in every frame or in none: re-export the joints "
+                           f"with the gaps filled{fix}")
+    return np.stack(rows)
 
 
 def session_arm_choice(session, resolution: str | None = None, side: str | None = None) -> tuple[str, str]:

@@ -159,13 +159,15 @@ def _point_to_mesh_m(points: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.nda
 
 
 def tracked_arm(joints: dict | None, side: str) -> np.ndarray | None:
-    """The body tracker's shoulder, elbow and wrist (3, 3) of ``side`` in one frame's joints, or None."""
+    """The body tracker's shoulder, elbow and wrist (3, 3) of ``side`` in one frame's joints, or None (also when one
+    of them is stored as null: not reported in that frame)."""
     from bodystudio.muscle.capture import TRACKER_JOINTS
 
     want = TRACKER_JOINTS[side]
     if joints is None or not all(n in joints["names"] for n in want):
         return None
-    return np.asarray(joints["positions"], np.float64)[[joints["names"].index(n) for n in want]]
+    arm = np.asarray(joints["positions"], np.float64)[[joints["names"].index(n) for n in want]]
+    return arm if np.all(np.isfinite(arm)) else None
 
 
 def depth_to_tracker_ratio(depth_m: np.ndarray, camera, joints: np.ndarray, window_px: int = 2) -> np.ndarray:
