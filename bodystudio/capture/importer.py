@@ -299,14 +299,25 @@ def read_timestamps(path: Path) -> np.ndarray:
     if not path.is_file():
         raise FileFormatError(f"{path}: timestamps file not found; give one <camera>.txt per camera")
     out = []
+    previous = None
     for n, line in enumerate(path.read_text().splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
         try:
-            out.append(float(line.replace(",", " ").split()[0]))
+            t = float(line.replace(",", " ").split()[0])
         except ValueError:
             raise FileFormatError(f"{path}:{n}: {line!r} is not a time in seconds") from None
+        if not np.isfinite(t):
+            raise FileFormatError(f"{path}:{n}: {line!r} is not a time in seconds")
+        # a repeated or earlier time is a duplicated or reordered frame: matched by nearest time it became a
+        # repeated frame of the session, or frames out of time order, with exit 0
+        if previous is not None and t <= previous[0]:
+            raise FileFormatError(f"{path}:{n}: time {t:g} s is not after line {previous[1]}'s {previous[0]:g} s "
+                                  "(a duplicated or out-of-order frame); one time per frame, increasing, in the "
+                                  "order of the camera's frames: remove the duplicate or sort the frames")
+        previous = (t, n)
+        out.append(t)
     if not out:
         raise FileFormatError(f"{path}: no timestamps")
     return np.asarray(out)
@@ -600,12 +611,17 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
         raise InputError("nothing to import: give --images, --videos or --tum")
     if n_frames is not None:
         total = min(total, n_frames)
-    for what, available, where in (("TUM depth/colour pairs", len(tum_pairs) if tum_pairs is not None else None,
-                                    tum / "depth.txt" if tum is not None else None),
-                                   ("joint frames", len(track.positions) if track is not None else None, joints)):
-        if available is not None and available < total:
-            raise FileFormatError(f"{where}: {available} {what} but the recording has {total} frames; "
-                                  f"pass --frames {available}")
+    # joints are per recorded frame: with --timestamps the first camera's frame (the synchronisation drops the
+    # frames another camera missed; by session index the joints after a dropped frame were a frame late, exit 0)
+    joint_index = [p[names[0]] for p in plan[:total]] if frame_times is not None else list(range(total))
+    for what, available, index, where in (
+            ("TUM depth/colour pairs", len(tum_pairs) if tum_pairs is not None else None, range(total),
+             tum / "depth.txt" if tum is not None else None),
+            ("joint frames", len(track.positions) if track is not None else None, joint_index, joints)):
+        if available is not None and total and available <= index[-1]:
+            fitting = sum(1 for k in index if k < available)
+            raise FileFormatError(f"{where}: {available} {what} but the recording has {index[-1] + 1} frames; "
+                                  + (f"pass --frames {fitting}" if fitting else "give one per recorded frame"))
 
     scale = None
     metadata = {"generator": "bodystudio capture import", "inputs": {
@@ -647,10 +663,10 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
                     _check_size(mask, rig[name], str(source.files[k]))
                     writer.write_mask(name, i, mask > 0)
                 if track is not None:
-                    positions = track.positions[i]
+                    positions = track.positions[joint_index[i]]
                     if joints_frame == "kinect-sdk":
                         positions = kinect_sdk_to_studio(positions, sensor)
-                    writer.write_kinect_joints(i, track.names, positions, track.tracked[i],
+                    writer.write_kinect_joints(i, track.names, positions, track.tracked[joint_index[i]],
                                                joint_set=sensor.version if sensor is not None else None)
                 bar.advance(task)
     finally:

@@ -1,0 +1,62 @@
+"""``capture import --timestamps`` on a recording with a duplicated or reordered frame, and with tracker joints when
+the synchronisation drops a frame (adversarial pass 4).
+
+Before: a camera's times file with a repeated time, an earlier time or ``nan`` imported with exit 0 (matched by
+nearest time, a repeated time became the same image in two session frames, and the first camera's reordered times
+became frames out of time order); and ``--joints`` went to session frames by session index, so once the
+synchronisation dropped a frame another camera missed, every later frame got the joints of the frame before it. Now a
+time that is not after the previous line's is refused naming the file and line, and the joints follow the first
+camera's frame, as the images do."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tests.reliability.conftest import assert_clean_error, run_inprocess
+
+NAMES = ["SpineBase", "Neck", "Head"]
+
+
+def _times(folder, **per_camera):
+    folder.mkdir()
+    for cam, lines in per_camera.items():
+        (folder / f"{cam}.txt").write_text("".join(f"{t}\n" for t in lines))
+    return folder
+
+
+@pytest.mark.parametrize("cam_01", [["0.0", "0.0"], ["0.033", "0.0"], ["0.0", "nan"]],
+                         ids=["duplicated", "out_of_order", "nan"])
+def test_a_time_not_after_the_previous_is_refused(studio, tmp_path, capfd, cam_01):
+    stamps = _times(tmp_path / "ts", cam_00=["0.0", "0.033"], cam_01=cam_01)
+    out = tmp_path / "S"
+    result = run_inprocess(["capture", "import", out, "--cameras", studio.cameras_json, "--images", studio.images,
+                            "--timestamps", stamps], capfd)
+    assert_clean_error(result, 2, f"{stamps / 'cam_01.txt'}:2:")
+    assert not out.exists()
+
+
+def test_joints_follow_the_first_cameras_frame_when_a_frame_is_dropped(studio, tmp_path, capfd):
+    from bodystudio.capture.session import open_session
+
+    # cam_01 has no frame within half a period of cam_00's first: the session is cam_00's second frame only
+    stamps = _times(tmp_path / "ts", cam_00=["0.0", "0.033"], cam_01=["0.033", "0.5"])
+    frames = np.array([[[0.0, 0.9, 0.0], [0.0, 1.4, 0.0], [0.0, 1.6, 0.0]],
+                       [[0.5, 0.9, 0.0], [0.5, 1.4, 0.0], [0.5, 1.6, 0.0]]])
+    joints = tmp_path / "joints.json"
+    joints.write_text(json.dumps({"names": NAMES, "frames": frames.tolist()}))
+    out = tmp_path / "S"
+    result = run_inprocess(["capture", "import", out, "--cameras", studio.cameras_json, "--images", studio.images,
+                            "--timestamps", stamps, "--joints", joints], capfd)
+    assert_clean_error(result, 0, "")
+    session = open_session(out)
+    assert len(session) == 1
+    np.testing.assert_allclose(session.frame(session.frame_ids[0]).kinect_joints["positions"], frames[1])
+    # a joints file one frame short of the first camera's frames is refused with the --frames that fits
+    short = tmp_path / "short.json"
+    short.write_text(json.dumps({"names": NAMES, "frames": frames[:1].tolist()}))
+    result = run_inprocess(["capture", "import", tmp_path / "S2", "--cameras", studio.cameras_json, "--images",
+                            studio.images, "--timestamps", stamps, "--joints", short], capfd)
+    assert_clean_error(result, 2, "1 joint frames but the recording has 2 frames; give one per recorded frame")
