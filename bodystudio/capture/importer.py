@@ -628,6 +628,12 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
         k: str(v) for k, v in dict(cameras=cameras, images=images, videos=videos, timestamps=timestamps,
                                    backgrounds=backgrounds, tum=tum, kinect_calibration=kinect_calibration,
                                    joints=joints).items() if v is not None}}
+    fps = recording_fps(frame_times if frame_times is not None else
+                        [p[0] for p in tum_pairs] if tum_pairs is not None and plan is None else None,
+                        Path(timestamps) / f"{names[0]}.txt" if frame_times is not None else tum / "depth.txt"
+                        if tum is not None else None)
+    if fps is not None:  # readers assume 30 without it: a 15 fps recording's mirror video played twice as fast
+        metadata["fps"] = fps
     try:
         with progress_bar(progress) as bar, SessionWriter(out, rig, source="import", metadata=metadata,
                                                                       command="bodystudio capture import") as writer:
@@ -674,6 +680,20 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
             s.close()
     log.info("imported %d frames of %d cameras into %s", total, len(names), out)
     return open_session(out)
+
+
+def recording_fps(frame_times, source: Path | None = None) -> float | None:
+    """The frame rate of a recording from its frame times (s): one over the median frame period (None with fewer
+    than two frames: readers then assume 30). A rate outside 1..240 fps is refused naming ``source`` (times in
+    milliseconds read as a frame every 33 s)."""
+    if frame_times is None or len(frame_times) < 2:
+        return None
+    period = float(np.median(np.diff(np.sort(np.asarray(frame_times, np.float64)))))
+    fps = 1.0 / period if period > 0 else float("inf")
+    if not 1.0 <= fps <= 240.0:
+        raise FileFormatError(f"{source}: the median frame period {period:g} s is not a camera's (1..240 fps); give "
+                              "the times in seconds")
+    return round(fps, 3)
 
 
 def _cameras_for_import(cameras, frame_root, videos, sensor):

@@ -60,3 +60,21 @@ def test_joints_follow_the_first_cameras_frame_when_a_frame_is_dropped(studio, t
     result = run_inprocess(["capture", "import", tmp_path / "S2", "--cameras", studio.cameras_json, "--images",
                             studio.images, "--timestamps", stamps, "--joints", short], capfd)
     assert_clean_error(result, 2, "1 joint frames but the recording has 2 frames; give one per recorded frame")
+
+
+def test_the_recordings_frame_rate_is_recorded_and_milliseconds_refused(studio, tmp_path, capfd):
+    """A 15 fps recording: session metadata fps 15 (readers assumed 30 without it: ``mirror run``'s video played
+    twice as fast); times written in milliseconds are refused (a frame every 66.7 s)."""
+    from bodystudio.capture.session import open_session
+
+    stamps = _times(tmp_path / "ts", cam_00=["10.0", "10.0667"], cam_01=["10.001", "10.0677"])
+    out = tmp_path / "S"
+    result = run_inprocess(["capture", "import", out, "--cameras", studio.cameras_json, "--images", studio.images,
+                            "--timestamps", stamps], capfd)
+    assert_clean_error(result, 0, "")
+    assert open_session(out).metadata["fps"] == pytest.approx(15.0, abs=0.01)
+    ms = _times(tmp_path / "ms", cam_00=["0", "66.7"], cam_01=["0.5", "67.2"])
+    result = run_inprocess(["capture", "import", tmp_path / "S2", "--cameras", studio.cameras_json, "--images",
+                            studio.images, "--timestamps", ms], capfd)
+    assert_clean_error(result, 2, f"{ms / 'cam_00.txt'}: the median frame period 66.7 s is not a camera's")
+    assert not (tmp_path / "S2").exists()
