@@ -797,6 +797,12 @@ def _check_manifest(m: Any, source: Path) -> None:
         raise SessionError(f"{source}: manifest field 'cameras' must list camera names (letters, digits, _ . -)")
     if not all(type(f) is int and f >= 0 for f in m["frames"]):
         raise SessionError(f"{source}: manifest field 'frames' must list non-negative integer frame ids")
+    # the writer sorts them; a repeated or reordered id (a hand-merged manifest) was processed twice or out of time
+    # order by every stage (tracking, smoothing, the arm capture's neighbouring frames), with exit 0
+    bad = next((k for k in range(1, len(m["frames"])) if m["frames"][k] <= m["frames"][k - 1]), None)
+    if bad is not None:
+        raise SessionError(f"{source}: manifest field 'frames' lists frame {m['frames'][bad]} after "
+                           f"{m['frames'][bad - 1]}; each frame id once, increasing: fix session.json or re-import")
     if not all(isinstance(s, str) for s in m["streams"]):
         raise SessionError(f"{source}: manifest field 'streams' must list stream names")
     for rel, digest in m["files"].items():
