@@ -429,7 +429,7 @@ class Frame:
 
     @cached_property
     def kinect_joints(self) -> dict | None:
-        """``{"names": [...], "positions": (J, 3) metres in the studio frame, "tracked": (J,) bool}``.
+        """``{"names": [...], "positions": (J, 3) metres in the studio frame, "tracked": (J,) bool, "player"}``.
 
         With several bodies in the frame this is the one with the lowest player id; None when nobody is
         tracked (see :attr:`kinect_bodies` for all of them).
@@ -438,7 +438,7 @@ class Frame:
         if not bodies:
             return None
         first = min(bodies, key=lambda b: b["player"])
-        return {k: first[k] for k in ("names", "positions", "tracked", "joint_set")}
+        return {k: first[k] for k in ("names", "positions", "tracked", "joint_set", "player")}
 
     def _optional_labels(self, stream: str) -> np.ndarray | None:
         rel = self._optional(stream)
