@@ -474,6 +474,34 @@ def load_joints(path: str | os.PathLike) -> JointTrack:
     return track
 
 
+#: Where the Kinect's depth camera sees the tracked person: the median joint this far in front of it (m; the
+#: sensors' range is 0.5-4.5 m) and projecting within half an image of the depth image.
+JOINTS_IN_VIEW_M = (0.3, 8.0)
+
+
+def check_joints_frame(track: JointTrack, sensor, joints_frame: str, source: Path) -> None:
+    """Refuse joints given in the other frame than ``--joints-frame`` says: studio-frame joints read as the Kinect
+    SDK's camera space, or the SDK's read as the studio's, put the person ~0 m from the depth camera and far outside
+    its image (the synthetic studio: 0.0-0.02 m, 1000+ px off), which the import stored with exit 0 and the stages
+    then fitted to."""
+    P = track.positions.reshape(-1, 3)
+    if joints_frame == "kinect-sdk":
+        P = kinect_sdk_to_studio(P, sensor)
+    camera = sensor.depth
+    C = camera.world_to_camera(P)
+    z = float(np.median(C[:, 2]))
+    u, v = (np.median(C[:, :2] / np.maximum(C[:, 2:3], 1e-6), axis=0) * np.diag(camera.K)[:2] + camera.K[:2, 2])
+    W, H = camera.width, camera.height
+    lo, hi = JOINTS_IN_VIEW_M
+    if lo <= z <= hi and -W / 2 <= u <= 1.5 * W and -H / 2 <= v <= 1.5 * H:
+        return
+    other = "studio" if joints_frame == "kinect-sdk" else "kinect-sdk"
+    raise FileFormatError(f"{source}: read as --joints-frame {joints_frame}, the joints lie {z:.2f} m in front of "
+                          f"the Kinect depth camera at pixel ({u:.0f}, {v:.0f}) of its {W}x{H} image, not where it "
+                          f"sees a person; if they are in the {other} frame pass --joints-frame {other}, else check "
+                          "the --kinect-calibration")
+
+
 def json_or_error(path: Path):
     if not path.is_file():  # a pipe would block the read forever
         raise FileFormatError(f"{path}: not a regular file")
@@ -605,6 +633,8 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
             tum_pairs = [tum_pairs[j] if abs(stamps[j] - t) <= TUM_MAX_DIFFERENCE_S else None
                          for j, t in zip(nearest, frame_times, strict=True)]
     track = load_joints(joints) if joints is not None else None
+    if track is not None and sensor is not None:
+        check_joints_frame(track, sensor, joints_frame, Path(joints))
 
     total = len(plan) if plan is not None else len(tum_pairs) if tum_pairs is not None else None
     if total is None:
