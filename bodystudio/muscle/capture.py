@@ -951,6 +951,24 @@ def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
     return np.stack(rows)
 
 
+#: The frame rate the capture's temporal filters (Eq. 14's sigma, the pose smoothing, the refinement's detail; all
+#: in frames) were measured at: every synthetic arm session's.
+CAPTURE_FPS = 30.0
+
+
+def session_fps(session_path) -> float:
+    """The session's recorded frame rate (``metadata.fps``: synthetic sessions, imports with frame times), else
+    :data:`CAPTURE_FPS`: the rate ``arm.glb`` is played at (a 15 fps recording's was written at 30, twice as fast)."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.errors import BodyStudioError
+
+    try:
+        fps = float((open_session(session_path).metadata or {}).get("fps", CAPTURE_FPS))
+    except (BodyStudioError, TypeError, ValueError, AttributeError):
+        return CAPTURE_FPS
+    return fps if 1.0 <= fps <= 240.0 else CAPTURE_FPS
+
+
 def session_arm_choice(session, resolution: str | None = None, side: str | None = None) -> tuple[str, str]:
     """The arm template's resolution and side: as given, else the session's (a synthetic arm session records
     them in its ground truth), else 6k / left."""

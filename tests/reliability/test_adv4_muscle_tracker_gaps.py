@@ -108,3 +108,22 @@ def test_a_second_person_entering_with_a_lower_player_id_is_not_followed(arm_ses
     ids = clean.frame_ids
     assert session_arm_tracker(planted, ids, "left") == pytest.approx(session_arm_tracker(clean, ids, "left"))
     assert session_checks(planted, ids, "left") == session_checks(clean, ids, "left")
+
+
+def test_a_15_fps_recording_plays_at_15_fps_and_is_warned_about(arm_session, tmp_path, capfd):
+    """A session recorded at 15 fps (``metadata.fps``, which ``capture import`` now records): ``arm.glb`` was written
+    at 30 fps (played twice as fast); its key times now follow the session's rate, and a warning says that the
+    capture's temporal smoothing counts frames measured at 30 fps."""
+    import numpy as np
+
+    from bodystudio.muscle.export import read_morph_glb
+
+    S, out = tmp_path / "S", tmp_path / "cap"
+    shutil.copytree(arm_session, S)
+    manifest = json.loads((S / "session.json").read_text())
+    manifest["metadata"]["fps"] = 15.0
+    (S / "session.json").write_text(json.dumps(manifest))
+    result = run_inprocess(["muscle", "capture", S, "--out", out, "--no-model", "--frames", "2"], capfd)
+    assert_clean_error(result, 0, "")
+    assert "recorded at 15 fps" in result.stderr and "2x the time" in result.stderr
+    np.testing.assert_allclose(read_morph_glb(out / "arm.glb").times, np.arange(2) / 15.0, atol=1e-6)
