@@ -357,9 +357,16 @@ def read_tum_list(path: Path) -> list[tuple[float, str]]:
             continue
         parts = line.split()
         try:
-            out.append((float(parts[0]), parts[1]))
+            t = float(parts[0])
+            out.append((t, parts[1]))
         except (ValueError, IndexError):
             raise FileFormatError(f"{path}:{n}: expected 'timestamp filename', got {line.strip()!r}") from None
+        # a repeated or earlier time (a duplicated or spliced list) paired one depth image with two colour frames:
+        # one depth frame twice in the session, exit 0
+        if not np.isfinite(t) or (len(out) > 1 and t <= out[-2][0]):
+            raise FileFormatError(f"{path}:{n}: time {parts[0]} is not after the previous line's "
+                                  f"{out[-2][0] if len(out) > 1 else 'none'} (a duplicated or out-of-order frame); "
+                                  "a TUM list holds one line per frame in time order")
     return out
 
 

@@ -78,3 +78,20 @@ def test_the_recordings_frame_rate_is_recorded_and_milliseconds_refused(studio, 
                             studio.images, "--timestamps", ms], capfd)
     assert_clean_error(result, 2, f"{ms / 'cam_00.txt'}: the median frame period 66.7 s is not a camera's")
     assert not (tmp_path / "S2").exists()
+
+
+def test_a_tum_list_with_a_repeated_time_is_refused(tmp_path):
+    """TUM's depth.txt / rgb.txt with a line repeated: both copies were paired with a colour frame, so one depth image
+    became two session frames (exit 0); now refused naming the line."""
+    from bodystudio.capture.importer import read_tum_list
+    from bodystudio.errors import FileFormatError
+
+    ok = tmp_path / "ok.txt"
+    ok.write_text("# depth maps\n100.000 depth/a.png\n100.033 depth/b.png\n")
+    assert read_tum_list(ok) == [(100.0, "depth/a.png"), (100.033, "depth/b.png")]
+    for lines in (["100.0 depth/a.png", "100.0 depth/a.png"], ["100.033 depth/b.png", "100.0 depth/a.png"],
+                  ["nan depth/a.png"]):
+        bad = tmp_path / "depth.txt"
+        bad.write_text("# depth maps\n" + "\n".join(lines) + "\n")
+        with pytest.raises(FileFormatError, match=rf"^{bad}:{len(lines) + 1}: time .* is not after"):
+            read_tum_list(bad)
