@@ -351,7 +351,7 @@ def read_tum_list(path: Path) -> list[tuple[float, str]]:
     """A TUM ``depth.txt``/``rgb.txt``: ``timestamp filename`` lines, ``#`` comments."""
     if not path.is_file():
         raise FileFormatError(f"{path}: not found; a TUM RGB-D folder has depth.txt and rgb.txt")
-    out = []
+    out, seen = [], {}
     for n, line in enumerate(path.read_text().splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
@@ -361,12 +361,14 @@ def read_tum_list(path: Path) -> list[tuple[float, str]]:
             out.append((t, parts[1]))
         except (ValueError, IndexError):
             raise FileFormatError(f"{path}:{n}: expected 'timestamp filename', got {line.strip()!r}") from None
-        # a repeated or earlier time (a duplicated or spliced list) paired one depth image with two colour frames:
-        # one depth frame twice in the session, exit 0
-        if not np.isfinite(t) or (len(out) > 1 and t <= out[-2][0]):
-            raise FileFormatError(f"{path}:{n}: time {parts[0]} is not after the previous line's "
-                                  f"{out[-2][0] if len(out) > 1 else 'none'} (a duplicated or out-of-order frame); "
-                                  "a TUM list holds one line per frame in time order")
+        # a repeated time (a duplicated line) was paired with two colour frames when the colour stream runs faster
+        # than the depth (60 / 30 fps): one depth image in two session frames, exit 0. Lines out of order are
+        # harmless (the pairs are sorted by time).
+        if not np.isfinite(t) or t in seen:
+            raise FileFormatError(f"{path}:{n}: time {parts[0]} "
+                                  + (f"repeats line {seen[t]}'s (a duplicated frame); remove the duplicate"
+                                     if t in seen else "is not a time in seconds"))
+        seen[t] = n
     return out
 
 

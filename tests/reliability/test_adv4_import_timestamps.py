@@ -81,17 +81,22 @@ def test_the_recordings_frame_rate_is_recorded_and_milliseconds_refused(studio, 
 
 
 def test_a_tum_list_with_a_repeated_time_is_refused(tmp_path):
-    """TUM's depth.txt / rgb.txt with a line repeated: both copies were paired with a colour frame, so one depth image
-    became two session frames (exit 0); now refused naming the line."""
-    from bodystudio.capture.importer import read_tum_list
+    """TUM's depth.txt with a line repeated and a 60 fps colour list: both copies were paired with a colour frame, so
+    one depth image became two session frames (exit 0); now refused naming the line. Lines out of order still read
+    (the pairs are sorted by time)."""
+    from bodystudio.capture.importer import associate_tum, read_tum_list
     from bodystudio.errors import FileFormatError
 
+    depth = [(100 + k / 30, f"depth/{k}.png") for k in range(4)]
+    colour = [(100.003 + k / 60, f"rgb/{k}.png") for k in range(8)]
+    twice = associate_tum([*depth[:3], depth[2], depth[3]], colour)
+    assert [p[1] for p in twice].count("depth/2.png") == 2  # what the refusal prevents
     ok = tmp_path / "ok.txt"
-    ok.write_text("# depth maps\n100.000 depth/a.png\n100.033 depth/b.png\n")
-    assert read_tum_list(ok) == [(100.0, "depth/a.png"), (100.033, "depth/b.png")]
-    for lines in (["100.0 depth/a.png", "100.0 depth/a.png"], ["100.033 depth/b.png", "100.0 depth/a.png"],
-                  ["nan depth/a.png"]):
+    ok.write_text("# depth maps\n100.033 depth/b.png\n100.000 depth/a.png\n")
+    assert read_tum_list(ok) == [(100.033, "depth/b.png"), (100.0, "depth/a.png")]
+    for lines, phrase in ((["100.0 depth/a.png", "100.0 depth/a.png"], "3: time 100.0 repeats line 2's"),
+                          (["nan depth/a.png"], "2: time nan is not a time in seconds")):
         bad = tmp_path / "depth.txt"
         bad.write_text("# depth maps\n" + "\n".join(lines) + "\n")
-        with pytest.raises(FileFormatError, match=rf"^{bad}:{len(lines) + 1}: time .* is not after"):
+        with pytest.raises(FileFormatError, match=rf"^{bad}:{phrase}"):
             read_tum_list(bad)
