@@ -211,10 +211,18 @@ def read_image_file(path: Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
     return image
 
 
+def frame_order(path: Path) -> list:
+    """Sort key of a frame file: its name with each run of digits compared as a number, so that a recorder's
+    unpadded ``frame_9.png, frame_10.png`` keep their order (by plain name ``frame_10`` came before ``frame_2``:
+    frames out of time order, exit 0); zero-padded names sort as by plain name."""
+    return [(0, int(part), part) if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", path.name)]
+
+
 def image_files(folder: Path) -> list[Path]:
-    """The image files of a folder by name; a non-regular entry with an image name (a FIFO would block the
-    import) is an error, not silently skipped or read."""
-    found = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    """The image files of a folder in frame order (:func:`frame_order`); a non-regular entry with an image name (a
+    FIFO would block the import) is an error, not silently skipped or read."""
+    found = sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".")),
+                   key=frame_order)
     for p in found:
         if not p.is_file():
             raise FileFormatError(f"{p}: not a regular file (a folder, pipe or device); remove it from the "
@@ -452,7 +460,7 @@ def load_joints(path: str | os.PathLike) -> JointTrack:
     """Tracker joints: per-frame JSON folder, one JSON (``names`` + ``frames``) or CSV ``frame,joint,x,y,z``."""
     path = Path(path)
     if path.is_dir():
-        files = sorted(path.glob("*.json"))
+        files = sorted(path.glob("*.json"), key=frame_order)
         if not files:
             raise FileFormatError(f"{path}: no per-frame joint JSON files")
         per_frame = [_joint_frame(json_or_error(f), f) for f in files]

@@ -11,6 +11,7 @@ camera's frame, as the images do."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -100,3 +101,37 @@ def test_a_tum_list_with_a_repeated_time_is_refused(tmp_path):
         bad.write_text("# depth maps\n" + "\n".join(lines) + "\n")
         with pytest.raises(FileFormatError, match=rf"^{bad}:{phrase}"):
             read_tum_list(bad)
+
+
+def test_unpadded_frame_numbers_keep_their_order(studio, tmp_path, capfd):
+    """A recorder's unpadded names (``f9.png``, ``f10.png``; per-frame joints ``9.json``, ``10.json``): sorted by
+    plain name ``f10`` came first, the session's frames out of time order with exit 0. Digit runs now sort as
+    numbers."""
+    import shutil
+
+    import cv2
+
+    from bodystudio.capture.importer import frame_order
+    from bodystudio.capture.session import open_session
+
+    names = ["f2.png", "f10.png", "f9.png", "f1.png", "g.png", "f01.png"]
+    assert sorted(names, key=lambda n: frame_order(Path(n))) == ["f01.png", "f1.png", "f2.png", "f9.png", "f10.png",
+                                                                 "g.png"]
+    images = tmp_path / "images"
+    for cam in ("cam_00", "cam_01"):
+        (images / cam).mkdir(parents=True)
+        first, second = sorted((studio.images / cam).iterdir())
+        shutil.copy(first, images / cam / "f9.png")
+        shutil.copy(second, images / cam / "f10.png")
+    joints = tmp_path / "joints"
+    joints.mkdir()
+    for k, frame in ((9, 0), (10, 1)):
+        (joints / f"{k}.json").write_text(json.dumps({"names": NAMES, "positions": [[frame, 1.0, 0.0]] * 3}))
+    out = tmp_path / "S"
+    result = run_inprocess(["capture", "import", out, "--cameras", studio.cameras_json, "--images", images,
+                            "--joints", joints], capfd)
+    assert_clean_error(result, 0, "")
+    session = open_session(out)
+    want = cv2.imread(str(sorted((studio.images / "cam_00").iterdir())[0]))[..., ::-1]
+    assert np.array_equal(session.frame(0).images["cam_00"], want)
+    assert session.frame(1).kinect_joints["positions"][0, 0] == 1.0
