@@ -707,7 +707,7 @@ def capture_unit(session_path: str, unit_root: str, options: MuscleOptions, inpu
     t0 = time.perf_counter()
     if setup is not None:
         setup()
-    from bodystudio.muscle.capture import capture_session_arm, write_arm_capture_files
+    from bodystudio.muscle.capture import capture_session_arm, session_fps, write_arm_capture_files
     from bodystudio.muscle.model import ArmShapeParams
 
     layout = unit_layout(Path(unit_root))
@@ -718,7 +718,7 @@ def capture_unit(session_path: str, unit_root: str, options: MuscleOptions, inpu
     unit = {"inputs_sha256": inputs_sha256, "session": str(session_path), "pid": os.getpid()}
     with _UnitWriter(layout, "bodystudio muscle capture (batch unit)", {"session": str(session_path)},
                      unit) as writer:
-        write_arm_capture_files(writer.path_for, capture)
+        write_arm_capture_files(writer.path_for, capture, session_fps(session_path))
         writer.commit({"mode": capture.mode, "n_frames": capture.n_frames, "template_key": capture.template_key})
     return {"seconds": time.perf_counter() - t0, "frames": capture.n_frames, "pid": os.getpid()}
 

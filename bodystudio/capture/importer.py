@@ -211,10 +211,18 @@ def read_image_file(path: Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
     return image
 
 
+def frame_order(path: Path) -> list:
+    """Sort key of a frame file: its name with each run of digits compared as a number, so that a recorder's
+    unpadded ``frame_9.png, frame_10.png`` keep their order (by plain name ``frame_10`` came before ``frame_2``:
+    frames out of time order, exit 0); zero-padded names sort as by plain name."""
+    return [(0, int(part), part) if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", path.name)]
+
+
 def image_files(folder: Path) -> list[Path]:
-    """The image files of a folder by name; a non-regular entry with an image name (a FIFO would block the
-    import) is an error, not silently skipped or read."""
-    found = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    """The image files of a folder in frame order (:func:`frame_order`); a non-regular entry with an image name (a
+    FIFO would block the import) is an error, not silently skipped or read."""
+    found = sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".")),
+                   key=frame_order)
     for p in found:
         if not p.is_file():
             raise FileFormatError(f"{p}: not a regular file (a folder, pipe or device); remove it from the "
@@ -299,14 +307,25 @@ def read_timestamps(path: Path) -> np.ndarray:
     if not path.is_file():
         raise FileFormatError(f"{path}: timestamps file not found; give one <camera>.txt per camera")
     out = []
+    previous = None
     for n, line in enumerate(path.read_text().splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
         try:
-            out.append(float(line.replace(",", " ").split()[0]))
+            t = float(line.replace(",", " ").split()[0])
         except ValueError:
             raise FileFormatError(f"{path}:{n}: {line!r} is not a time in seconds") from None
+        if not np.isfinite(t):
+            raise FileFormatError(f"{path}:{n}: {line!r} is not a time in seconds")
+        # a repeated or earlier time is a duplicated or reordered frame: matched by nearest time it became a
+        # repeated frame of the session, or frames out of time order, with exit 0
+        if previous is not None and t <= previous[0]:
+            raise FileFormatError(f"{path}:{n}: time {t:g} s is not after line {previous[1]}'s {previous[0]:g} s "
+                                  "(a duplicated or out-of-order frame); one time per frame, increasing, in the "
+                                  "order of the camera's frames: remove the duplicate or sort the frames")
+        previous = (t, n)
+        out.append(t)
     if not out:
         raise FileFormatError(f"{path}: no timestamps")
     return np.asarray(out)
@@ -340,15 +359,24 @@ def read_tum_list(path: Path) -> list[tuple[float, str]]:
     """A TUM ``depth.txt``/``rgb.txt``: ``timestamp filename`` lines, ``#`` comments."""
     if not path.is_file():
         raise FileFormatError(f"{path}: not found; a TUM RGB-D folder has depth.txt and rgb.txt")
-    out = []
+    out, seen = [], {}
     for n, line in enumerate(path.read_text().splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         parts = line.split()
         try:
-            out.append((float(parts[0]), parts[1]))
+            t = float(parts[0])
+            out.append((t, parts[1]))
         except (ValueError, IndexError):
             raise FileFormatError(f"{path}:{n}: expected 'timestamp filename', got {line.strip()!r}") from None
+        # a repeated time (a duplicated line) was paired with two colour frames when the colour stream runs faster
+        # than the depth (60 / 30 fps): one depth image in two session frames, exit 0. Lines out of order are
+        # harmless (the pairs are sorted by time).
+        if not np.isfinite(t) or t in seen:
+            raise FileFormatError(f"{path}:{n}: time {parts[0]} "
+                                  + (f"repeats line {seen[t]}'s (a duplicated frame); remove the duplicate"
+                                     if t in seen else "is not a time in seconds"))
+        seen[t] = n
     return out
 
 
@@ -432,7 +460,7 @@ def load_joints(path: str | os.PathLike) -> JointTrack:
     """Tracker joints: per-frame JSON folder, one JSON (``names`` + ``frames``) or CSV ``frame,joint,x,y,z``."""
     path = Path(path)
     if path.is_dir():
-        files = sorted(path.glob("*.json"))
+        files = sorted(path.glob("*.json"), key=frame_order)
         if not files:
             raise FileFormatError(f"{path}: no per-frame joint JSON files")
         per_frame = [_joint_frame(json_or_error(f), f) for f in files]
@@ -461,6 +489,34 @@ def load_joints(path: str | os.PathLike) -> JointTrack:
         raise FileFormatError(f"{path}: joint coordinates up to {np.abs(track.positions).max():.0f} look like "
                               "millimetres; give metres")
     return track
+
+
+#: Where the Kinect's depth camera sees the tracked person: the median joint this far in front of it (m; the
+#: sensors' range is 0.5-4.5 m) and projecting within half an image of the depth image.
+JOINTS_IN_VIEW_M = (0.3, 8.0)
+
+
+def check_joints_frame(track: JointTrack, sensor, joints_frame: str, source: Path) -> None:
+    """Refuse joints given in the other frame than ``--joints-frame`` says: studio-frame joints read as the Kinect
+    SDK's camera space, or the SDK's read as the studio's, put the person ~0 m from the depth camera and far outside
+    its image (the synthetic studio: 0.0-0.02 m, 1000+ px off), which the import stored with exit 0 and the stages
+    then fitted to."""
+    P = track.positions.reshape(-1, 3)
+    if joints_frame == "kinect-sdk":
+        P = kinect_sdk_to_studio(P, sensor)
+    camera = sensor.depth
+    C = camera.world_to_camera(P)
+    z = float(np.median(C[:, 2]))
+    u, v = (np.median(C[:, :2] / np.maximum(C[:, 2:3], 1e-6), axis=0) * np.diag(camera.K)[:2] + camera.K[:2, 2])
+    W, H = camera.width, camera.height
+    lo, hi = JOINTS_IN_VIEW_M
+    if lo <= z <= hi and -W / 2 <= u <= 1.5 * W and -H / 2 <= v <= 1.5 * H:
+        return
+    other = "studio" if joints_frame == "kinect-sdk" else "kinect-sdk"
+    raise FileFormatError(f"{source}: read as --joints-frame {joints_frame}, the joints lie {z:.2f} m in front of "
+                          f"the Kinect depth camera at pixel ({u:.0f}, {v:.0f}) of its {W}x{H} image, not where it "
+                          f"sees a person; if they are in the {other} frame pass --joints-frame {other}, else check "
+                          "the --kinect-calibration")
 
 
 def json_or_error(path: Path):
@@ -594,24 +650,37 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
             tum_pairs = [tum_pairs[j] if abs(stamps[j] - t) <= TUM_MAX_DIFFERENCE_S else None
                          for j, t in zip(nearest, frame_times, strict=True)]
     track = load_joints(joints) if joints is not None else None
+    if track is not None and sensor is not None:
+        check_joints_frame(track, sensor, joints_frame, Path(joints))
 
     total = len(plan) if plan is not None else len(tum_pairs) if tum_pairs is not None else None
     if total is None:
         raise InputError("nothing to import: give --images, --videos or --tum")
     if n_frames is not None:
         total = min(total, n_frames)
-    for what, available, where in (("TUM depth/colour pairs", len(tum_pairs) if tum_pairs is not None else None,
-                                    tum / "depth.txt" if tum is not None else None),
-                                   ("joint frames", len(track.positions) if track is not None else None, joints)):
-        if available is not None and available < total:
-            raise FileFormatError(f"{where}: {available} {what} but the recording has {total} frames; "
-                                  f"pass --frames {available}")
+    # joints are per recorded frame: with --timestamps the first camera's frame (the synchronisation drops the
+    # frames another camera missed; by session index the joints after a dropped frame were a frame late, exit 0)
+    joint_index = [p[names[0]] for p in plan[:total]] if frame_times is not None else list(range(total))
+    for what, available, index, where in (
+            ("TUM depth/colour pairs", len(tum_pairs) if tum_pairs is not None else None, range(total),
+             tum / "depth.txt" if tum is not None else None),
+            ("joint frames", len(track.positions) if track is not None else None, joint_index, joints)):
+        if available is not None and total and available <= index[-1]:
+            fitting = sum(1 for k in index if k < available)
+            raise FileFormatError(f"{where}: {available} {what} but the recording has {index[-1] + 1} frames; "
+                                  + (f"pass --frames {fitting}" if fitting else "give one per recorded frame"))
 
     scale = None
     metadata = {"generator": "bodystudio capture import", "inputs": {
         k: str(v) for k, v in dict(cameras=cameras, images=images, videos=videos, timestamps=timestamps,
                                    backgrounds=backgrounds, tum=tum, kinect_calibration=kinect_calibration,
                                    joints=joints).items() if v is not None}}
+    fps = recording_fps(frame_times if frame_times is not None else
+                        [p[0] for p in tum_pairs] if tum_pairs is not None and plan is None else None,
+                        Path(timestamps) / f"{names[0]}.txt" if frame_times is not None else tum / "depth.txt"
+                        if tum is not None else None)
+    if fps is not None:  # readers assume 30 without it: a 15 fps recording's mirror video played twice as fast
+        metadata["fps"] = fps
     try:
         with progress_bar(progress) as bar, SessionWriter(out, rig, source="import", metadata=metadata,
                                                                       command="bodystudio capture import") as writer:
@@ -647,10 +716,10 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
                     _check_size(mask, rig[name], str(source.files[k]))
                     writer.write_mask(name, i, mask > 0)
                 if track is not None:
-                    positions = track.positions[i]
+                    positions = track.positions[joint_index[i]]
                     if joints_frame == "kinect-sdk":
                         positions = kinect_sdk_to_studio(positions, sensor)
-                    writer.write_kinect_joints(i, track.names, positions, track.tracked[i],
+                    writer.write_kinect_joints(i, track.names, positions, track.tracked[joint_index[i]],
                                                joint_set=sensor.version if sensor is not None else None)
                 bar.advance(task)
     finally:
@@ -658,6 +727,20 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
             s.close()
     log.info("imported %d frames of %d cameras into %s", total, len(names), out)
     return open_session(out)
+
+
+def recording_fps(frame_times, source: Path | None = None) -> float | None:
+    """The frame rate of a recording from its frame times (s): one over the median frame period (None with fewer
+    than two frames: readers then assume 30). A rate outside 1..240 fps is refused naming ``source`` (times in
+    milliseconds read as a frame every 33 s)."""
+    if frame_times is None or len(frame_times) < 2:
+        return None
+    period = float(np.median(np.diff(np.sort(np.asarray(frame_times, np.float64)))))
+    fps = 1.0 / period if period > 0 else float("inf")
+    if not 1.0 <= fps <= 240.0:
+        raise FileFormatError(f"{source}: the median frame period {period:g} s is not a camera's (1..240 fps); give "
+                              "the times in seconds")
+    return round(fps, 3)
 
 
 def _cameras_for_import(cameras, frame_root, videos, sensor):

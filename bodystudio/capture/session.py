@@ -429,7 +429,7 @@ class Frame:
 
     @cached_property
     def kinect_joints(self) -> dict | None:
-        """``{"names": [...], "positions": (J, 3) metres in the studio frame, "tracked": (J,) bool}``.
+        """``{"names": [...], "positions": (J, 3) metres in the studio frame, "tracked": (J,) bool, "player"}``.
 
         With several bodies in the frame this is the one with the lowest player id; None when nobody is
         tracked (see :attr:`kinect_bodies` for all of them).
@@ -438,7 +438,7 @@ class Frame:
         if not bodies:
             return None
         first = min(bodies, key=lambda b: b["player"])
-        return {k: first[k] for k in ("names", "positions", "tracked", "joint_set")}
+        return {k: first[k] for k in ("names", "positions", "tracked", "joint_set", "player")}
 
     def _optional_labels(self, stream: str) -> np.ndarray | None:
         rel = self._optional(stream)
@@ -797,6 +797,12 @@ def _check_manifest(m: Any, source: Path) -> None:
         raise SessionError(f"{source}: manifest field 'cameras' must list camera names (letters, digits, _ . -)")
     if not all(type(f) is int and f >= 0 for f in m["frames"]):
         raise SessionError(f"{source}: manifest field 'frames' must list non-negative integer frame ids")
+    # the writer sorts them; a repeated or reordered id (a hand-merged manifest) was processed twice or out of time
+    # order by every stage (tracking, smoothing, the arm capture's neighbouring frames), with exit 0
+    bad = next((k for k in range(1, len(m["frames"])) if m["frames"][k] <= m["frames"][k - 1]), None)
+    if bad is not None:
+        raise SessionError(f"{source}: manifest field 'frames' lists frame {m['frames'][bad]} after "
+                           f"{m['frames'][bad - 1]}; each frame id once, increasing: fix session.json or re-import")
     if not all(isinstance(s, str) for s in m["streams"]):
         raise SessionError(f"{source}: manifest field 'streams' must list stream names")
     for rel, digest in m["files"].items():

@@ -119,7 +119,7 @@ def capture(
     Several SESSIONs, or --workers / --scheduler: a batch, one sequence per dask work unit, resumable
     (docs/batch.md); $BODYSTUDIO_SCHEDULER gives the batch's cluster address.
     """
-    from bodystudio.muscle.capture import capture_session_arm, write_arm_capture
+    from bodystudio.muscle.capture import CAPTURE_FPS, capture_session_arm, session_fps, write_arm_capture
     from bodystudio.muscle.export import check_new_output
 
     if shape and no_model:
@@ -166,9 +166,14 @@ def capture(
     result = capture_session_arm(session_paths[0], model_path, mode, resolution, side, frames,
                                  shapes[0] if shapes else None, sequence_fit=not no_sequence_fit,
                                  for_extension=for_extension, accept_implausible=accept_implausible)
-    write_arm_capture(out, result)
+    fps = session_fps(session_paths[0])
+    write_arm_capture(out, result, fps=fps)
     for line in (result.plausibility or {}).get("warnings", []):
         typer.echo(f"warning: {line}", err=True)
+    if abs(fps / CAPTURE_FPS - 1.0) > 0.1:
+        typer.echo(f"warning: {session_paths[0]} was recorded at {fps:g} fps; the capture's temporal smoothing counts "
+                   f"frames and was measured at {CAPTURE_FPS:g} fps (docs/muscle.md), so it spans "
+                   f"{CAPTURE_FPS / fps:.2g}x the time here", err=True)
     typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
 
 

@@ -255,7 +255,7 @@ def depth_color_registration(session, player: int = 1, n_frames: int = REGISTRAT
         return {"offset_px": float("nan"), "shift": None, "frames": []}
     picks = sorted({with_player[int(round(k))] for k in np.linspace(0, len(with_player) - 1,
                                                                    min(n_frames, len(with_player)))})
-    rows = []
+    rows, images = [], []
     for i in picks:
         frame = session.frame(i)
         rgb, depth, players = frame.kinect_rgb, frame.kinect_depth_m, frame.kinect_player
@@ -267,10 +267,17 @@ def depth_color_registration(session, player: int = 1, n_frames: int = REGISTRAT
             continue
         dx, dy, gain = registration_offset(rgb, mask)
         rows.append({"frame": int(i), "dx": int(dx), "dy": int(dy), "edge_gain": round(gain, 3)})
+        images.append((rgb, mask))
     if not rows:
         return {"offset_px": float("nan"), "shift": None, "frames": []}
     shift = (float(np.median([r["dx"] for r in rows])), float(np.median([r["dy"] for r in rows])))
-    return {"offset_px": float(np.hypot(*shift)), "shift": list(shift), "frames": rows}
+    out = {"offset_px": float(np.hypot(*shift)), "shift": list(shift), "frames": rows}
+    if out["offset_px"] > REGISTRATION_WARN_PX:
+        # misregistered: the same search on the colour images mirrored left-right (an exporter's or a webcam
+        # driver's "mirror" setting), which a recalibration would not fix
+        flipped = [registration_offset(np.ascontiguousarray(rgb[:, ::-1]), mask)[:2] for rgb, mask in images]
+        out["offset_mirrored_px"] = float(np.hypot(*np.median(np.asarray(flipped, float), axis=0)))
+    return out
 
 
 def check_registration(session, player: int = 1, accept_implausible: bool = False) -> dict:
@@ -285,10 +292,16 @@ def check_registration(session, player: int = 1, accept_implausible: bool = Fals
     offset = report["offset_px"]
     if np.isfinite(offset) and offset > REGISTRATION_WARN_PX:
         dx, dy = report["shift"]
-        line = (f"{session.path}/kinect/calibration.json: the depth registered into the colour image lands "
-                f"{offset:.0f} px off the person's edges (shift {dx:+.0f}, {dy:+.0f} px over {len(report['frames'])} "
-                f"frames; registered <= {REGISTRATION_WARN_PX:.0f} px): the colour camera's intrinsics or "
-                "depth_to_color are off; re-calibrate the Kinect (bodystudio calib kinect)")
+        mirrored = report.get("offset_mirrored_px", float("inf"))
+        if mirrored <= REGISTRATION_WARN_PX:
+            line = (f"{session.path}/kinect/rgb: the colour images are mirrored left-right (the depth registered "
+                    f"into them lands {offset:.0f} px off the person's edges, {mirrored:.0f} px when they are "
+                    f"flipped, over {len(report['frames'])} frames): re-import the Kinect colour stream unmirrored")
+        else:
+            line = (f"{session.path}/kinect/calibration.json: the depth registered into the colour image lands "
+                    f"{offset:.0f} px off the person's edges (shift {dx:+.0f}, {dy:+.0f} px over "
+                    f"{len(report['frames'])} frames; registered <= {REGISTRATION_WARN_PX:.0f} px): the colour "
+                    "camera's intrinsics or depth_to_color are off; re-calibrate the Kinect (bodystudio calib kinect)")
         (report["problems"] if offset > REGISTRATION_REFUSE_PX else report["warnings"]).append(line)
     return _verdict(report, accept_implausible)
 

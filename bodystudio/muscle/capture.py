@@ -887,22 +887,86 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
         raise SessionError(f"{session.path}: no Kinect calibration; the arm capture needs a depth session")
     ids = session.frame_ids[frames] if frames is not None else session.frame_ids
     depths = []
-    tracker = []
     for fid in ids:
-        fr = session.frame(fid)
-        d = fr.kinect_depth_m
+        d = session.frame(fid).kinect_depth_m
         if d is None:
             raise SessionError(f"{session.path}: frame {fid} has no Kinect depth image")
         depths.append(d)
-        joints = fr.kinect_joints
-        want = TRACKER_JOINTS[template.side]
-        if joints is not None and all(n in joints["names"] for n in want):
-            tracker.append(joints["positions"][[joints["names"].index(n) for n in want]])
-    tracker = np.stack(tracker) if len(tracker) == len(ids) else None
+    tracker = session_arm_tracker(session, ids, template.side)
     capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids), known_shape)
     capture.session_path = str(Path(session.path).resolve())
     capture.source_fingerprint = stream_fingerprint(session, "kinect_depth", ids)
     return capture
+
+
+def arm_subject_player(session, ids) -> int | None:
+    """The tracked person the arm capture follows: the lowest player id of the first frame of ``ids`` with joints
+    (:attr:`Frame.kinect_joints`), held over the sequence (None: no frame has joints, or they record no player)."""
+    for fid in ids:
+        joints = session.frame(fid).kinect_joints
+        if joints is not None:
+            return joints.get("player")
+    return None
+
+
+def subject_joints(frame, player: int | None) -> dict | None:
+    """One frame's joints of ``player`` (:func:`arm_subject_player`; None: the frame's first body). With the lowest
+    id the frame's first body changed hands when a second person came into view with a lower id than the
+    subject's, and the capture fitted the arm to that person's joints from then on."""
+    joints = frame.kinect_joints
+    if player is None or joints is None or joints.get("player", player) == player:
+        return joints
+    return next((body for body in frame.kinect_bodies or [] if body["player"] == player), None)
+
+
+def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
+    """The body tracker's shoulder, elbow and wrist of ``side`` in every frame of ``ids`` (T, 3, 3), or None when
+    no frame has them (the capture then fits the depth alone). A sequence tracked in some frames only is refused
+    (SessionError naming the first frame without them): a joint stored as null (NaN) stopped the shape fit with
+    a traceback, and an absent one dropped the tracker from every frame, which left the fit without its hold on
+    the arm and the self-check blaming the calibration or the arm side."""
+    from bodystudio.capture.session import stream_path
+
+    want = TRACKER_JOINTS[side]
+    rows, gaps = [], []
+    player = arm_subject_player(session, ids)
+    for fid in ids:
+        joints = subject_joints(session.frame(fid), player)
+        arm = None
+        if joints is not None and all(n in joints["names"] for n in want):
+            arm = np.asarray(joints["positions"], np.float64)[[joints["names"].index(n) for n in want]]
+        if arm is None or not np.all(np.isfinite(arm)):
+            gaps.append(fid)
+        else:
+            rows.append(arm)
+    if not rows:
+        return None
+    if gaps:
+        before = list(ids).index(gaps[0])
+        fix = f", or capture the {before} frames before it (--frames {before})" if before else ""
+        raise SessionError(f"{Path(session.path) / stream_path('kinect_joints', gaps[0])}: the body tracker's "
+                           f"{', '.join(want)} are missing or null in {len(gaps)} of {len(ids)} frames (first "
+                           f"{gaps[0]}); the arm capture needs them in every frame or in none: re-export the joints "
+                           f"with the gaps filled{fix}")
+    return np.stack(rows)
+
+
+#: The frame rate the capture's temporal filters (Eq. 14's sigma, the pose smoothing, the refinement's detail; all
+#: in frames) were measured at: every synthetic arm session's.
+CAPTURE_FPS = 30.0
+
+
+def session_fps(session_path) -> float:
+    """The session's recorded frame rate (``metadata.fps``: synthetic sessions, imports with frame times), else
+    :data:`CAPTURE_FPS`: the rate ``arm.glb`` is played at (a 15 fps recording's was written at 30, twice as fast)."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.errors import BodyStudioError
+
+    try:
+        fps = float((open_session(session_path).metadata or {}).get("fps", CAPTURE_FPS))
+    except (BodyStudioError, TypeError, ValueError, AttributeError):
+        return CAPTURE_FPS
+    return fps if 1.0 <= fps <= 240.0 else CAPTURE_FPS
 
 
 def session_arm_choice(session, resolution: str | None = None, side: str | None = None) -> tuple[str, str]:

@@ -159,13 +159,15 @@ def _point_to_mesh_m(points: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.nda
 
 
 def tracked_arm(joints: dict | None, side: str) -> np.ndarray | None:
-    """The body tracker's shoulder, elbow and wrist (3, 3) of ``side`` in one frame's joints, or None."""
+    """The body tracker's shoulder, elbow and wrist (3, 3) of ``side`` in one frame's joints, or None (also when one
+    of them is stored as null: not reported in that frame)."""
     from bodystudio.muscle.capture import TRACKER_JOINTS
 
     want = TRACKER_JOINTS[side]
     if joints is None or not all(n in joints["names"] for n in want):
         return None
-    return np.asarray(joints["positions"], np.float64)[[joints["names"].index(n) for n in want]]
+    arm = np.asarray(joints["positions"], np.float64)[[joints["names"].index(n) for n in want]]
+    return arm if np.all(np.isfinite(arm)) else None
 
 
 def depth_to_tracker_ratio(depth_m: np.ndarray, camera, joints: np.ndarray, window_px: int = 2) -> np.ndarray:
@@ -204,11 +206,16 @@ def session_checks(session, frame_ids: list, side: str) -> dict:
     sensor faces (:func:`arm_geometry` of both tracked arms on the first frame). Empty without tracker joints."""
     if session.kinect is None:
         return {}
+    from bodystudio.muscle.capture import subject_joints
+
     camera = session.kinect.depth
     ratios, geometry = [], {}
+    player = None  # the capture's (capture.arm_subject_player): the first frame with joints gives it
     for fid in frame_ids[:RATIO_FRAMES]:
         frame = session.frame(fid)
-        joints = frame.kinect_joints
+        if player is None and frame.kinect_joints is not None:
+            player = frame.kinect_joints.get("player")
+        joints = subject_joints(frame, player)
         mine = tracked_arm(joints, side)
         if mine is None or frame.kinect_depth_m is None:
             continue
@@ -246,10 +253,15 @@ def capture_checks(capture, session, template, model=None, max_frames: int = 40,
     picks = sorted({int(round(x)) for x in np.linspace(0, n - 1, min(n, max_frames))})
     fitted = fitted_world_joints(capture)
     model_meshes = capture.stages.get("model") if capture.stages else None
+    from bodystudio.muscle.capture import subject_joints
+
     rows, model_rows, joint_mm = [], [], []
+    player = None  # the capture's (capture.arm_subject_player): the first frame with joints gives it
     for k in picks:
         frame = session.frame(capture.frame_ids[k])
-        tracked = tracked_arm(frame.kinect_joints, template.side)
+        if player is None and frame.kinect_joints is not None:
+            player = frame.kinect_joints.get("player")
+        tracked = tracked_arm(subject_joints(frame, player), template.side)
         depth = frame.kinect_depth_m
         rows.append(frame_depth_agreement(capture.vertices[k], capture.faces, regions, depth, camera, tracked))
         if model_meshes is not None and capture.mode == "full":

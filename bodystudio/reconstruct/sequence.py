@@ -47,7 +47,12 @@ from bodystudio.reconstruct.evaluate import (
     vertex_regions,
     visible_vertices,
 )
-from bodystudio.reconstruct.plausibility import coherence_frames, frame_plausibility, run_plausibility
+from bodystudio.reconstruct.plausibility import (
+    coherence_frames,
+    frame_plausibility,
+    run_plausibility,
+    untracked_limb_joints,
+)
 from bodystudio.reconstruct.pose_depth import DEPTH_BONES, bone_vertices, combined_data_term, depth_data_term
 from bodystudio.reconstruct.pose_init import (
     initialise_pose,
@@ -573,6 +578,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             plausibility = frame_plausibility(V, F, cameras, check_masks, depth_image,
                                               sensor.depth if depth_image is not None else None,
                                               coherence=len(records) in probe)
+            untracked = untracked_limb_joints(J)
+            if untracked:  # recorded where the tracker missed a limb joint (frames.json stays as it was elsewhere)
+                plausibility["untracked_limb_joints"] = untracked
             save_mesh(writer.path_for(f"meshes/{fid:05d}.ply"), Mesh(V, F))
             if warm_start:
                 # Running mean of the un-skinned results: the subject's shape accumulates while each

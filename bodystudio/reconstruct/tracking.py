@@ -127,7 +127,16 @@ class TrackParams:
                                     ("min_decrease", self.min_decrease, 0.0, 1.0),
                                     ("outer_iterations", self.outer_iterations, 0, 100),
                                     ("initial_outer_iterations", self.initial_outer_iterations, 0, 100),
-                                    ("tau_px", self.tau_px, 0.0, 500.0)):
+                                    ("tau_px", self.tau_px, 0.0, 500.0),
+                                    # the fit's data and prior terms: robust_m 0 gave every silhouette residual
+                                    # weight 0 (the previous pose returned unchanged), a negative weight pushed
+                                    # away from the data or the prior, both with exit 0
+                                    ("outside_px", self.outside_px, 0.0, 100.0),
+                                    ("inside_weight", self.inside_weight, 0.0, 10.0),
+                                    ("inside_m", self.inside_m, 0.0, 1.0),
+                                    ("robust_m", self.robust_m, 1e-4, 1.0),
+                                    ("prior_weight", self.prior_weight, 0.0, 1e6),
+                                    ("joint_weight", self.joint_weight, 0.0, 1e9)):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
 
