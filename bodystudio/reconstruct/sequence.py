@@ -509,6 +509,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 frame_params = replace(frame_params, matching=track_params.matching)
                 if track_params.tau_px:  # the nearer start's search range, never above the run's
                     frame_params = replace(frame_params, tau_px=min(frame_params.tau_px, track_params.tau_px))
+                if track_params.inner_iterations:
+                    frame_params = replace(frame_params, inner_iterations=track_params.inner_iterations)
             if tracking:
                 state = {"T": fit_T, "scale": init.global_scale, "joints": J,
                          "energy": detail["energy"], "posed": init.vertices}

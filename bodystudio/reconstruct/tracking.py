@@ -87,6 +87,12 @@ class TrackParams:
     frame's tracked Neck joint (:func:`bodystudio.reconstruct.pose_init.neck_at_joint`; Eq. 11 places it by the
     spine's transform, 3-7 cm beside it on the hidden subjects); the tracker's own pose (the next frame's prior)
     is the fit's, unchanged.
+    ``inner_iterations``: the tracked frame's Gauss-Seidel sweeps per outer iteration (Algorithm 1's ``Ni``; 0: the
+    run's). The template is thinner or stouter than the subject by centimetres, and the silhouettes pull only its
+    rims: the surface between them (a heavier subject's lower back, which no rim and no depth pair reaches) follows
+    through the smoothness constraints by about one ring of vertices per sweep, and 3 x 8 sweeps left it 25-35 mm
+    inside the truth. 2 outer iterations x 40 sweeps cost what 3 x 8 did (one full matching fewer) and carry the
+    pull (issue 15, rec15n; docs/reconstruct.md).
     ``compiled_rotations``: the tracking fit's rotation bookkeeping compiled
     (:attr:`bodystudio.reconstruct.articulated_fit.PoseRefineParams.compiled_rotations`; rec15j).
     """
@@ -105,8 +111,9 @@ class TrackParams:
     joint_bones: tuple[str, ...] = REFINE_BONES
     min_decrease: float = 0.01
     warm_mesh: bool = False
-    outer_iterations: int = 3
+    outer_iterations: int = 2
     tau_px: float = 15.0
+    inner_iterations: int = 40
     neck_joint: bool = True
     matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True, gate="reuse")
     exact_fields: bool = False
@@ -120,7 +127,8 @@ class TrackParams:
                                     ("iterations", self.iterations, 1, 100),
                                     ("min_decrease", self.min_decrease, 0.0, 1.0),
                                     ("outer_iterations", self.outer_iterations, 0, 100),
-                                    ("tau_px", self.tau_px, 0.0, 500.0)):
+                                    ("tau_px", self.tau_px, 0.0, 500.0),
+                                    ("inner_iterations", self.inner_iterations, 0, 1000)):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
 

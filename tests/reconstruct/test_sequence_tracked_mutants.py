@@ -291,9 +291,10 @@ def test_tracked_frames_pose_the_template_with_the_fit_and_the_previous_scale(mo
         assert deform[k]["delta"] == ("cot", float(np.sum(body.vertices)))
         # outer count: the tracked frame's min(run, tracking), the others the run's own settings object
         if track == "tracked":
-            assert deform[k]["params"].outer_iterations == 3
-            assert deform[k]["params"] == replace(deform[0]["params"], outer_iterations=3,
-                                                  matching=TrackParams().matching, tau_px=TrackParams().tau_px)
+            assert deform[k]["params"].outer_iterations == TrackParams().outer_iterations == 2
+            assert deform[k]["params"] == replace(deform[0]["params"], outer_iterations=2,
+                                                  matching=TrackParams().matching, tau_px=TrackParams().tau_px,
+                                                  inner_iterations=TrackParams().inner_iterations)
         else:
             assert deform[k]["params"] is deform[0]["params"]
             assert deform[k]["params"].outer_iterations == 5
@@ -350,7 +351,7 @@ def test_warm_mesh_carries_the_previous_result_and_the_outer_count_is_capped(mon
 
 def test_outer_count_zero_keeps_the_runs_settings_and_no_warm_mesh_starts_from_the_pose(monkeypatch, tmp_path):
     rec = _stand_ins(monkeypatch)
-    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=False, outer_iterations=0)
+    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=False, outer_iterations=0, inner_iterations=0)
     _run(rec, tmp_path, track=track)
     deform = rec.calls["deform"]
     # the run's settings but, on a tracked frame, the tracker's matching schedule

@@ -25,7 +25,8 @@ def test_tracked_frames_search_the_nearer_range(monkeypatch, tmp_path, run_tau, 
                                                     for t in EXPECTED_TRACK]
     for d, t in zip(deform, EXPECTED_TRACK, strict=True):
         if t == "tracked":  # nothing else of the run's settings changes with it
-            assert d["params"] == replace(params, outer_iterations=3, matching=track.matching, tau_px=tracked_tau)
+            assert d["params"] == replace(params, outer_iterations=track.outer_iterations, matching=track.matching,
+                                          tau_px=tracked_tau, inner_iterations=track.inner_iterations)
         else:
             assert d["params"] is params
 
