@@ -500,6 +500,11 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 if placed is not fit_T:
                     init = pose_template(body, placed, init.global_scale, rest_vertices=rest)
             V_start, frame_params = init.vertices, params
+            if tracking and track != "tracked" and (track_params.first_outer_iterations
+                                                    or track_params.first_inner_iterations):
+                frame_params = replace(params, outer_iterations=track_params.first_outer_iterations
+                                       or params.outer_iterations,
+                                       inner_iterations=track_params.first_inner_iterations or params.inner_iterations)
             if track == "tracked":
                 if track_params.warm_mesh:
                     V_start = carry_deformed_mesh(state["V"], state["posed"], init.vertices)

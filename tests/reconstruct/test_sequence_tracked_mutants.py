@@ -295,9 +295,11 @@ def test_tracked_frames_pose_the_template_with_the_fit_and_the_previous_scale(mo
             assert deform[k]["params"] == replace(deform[0]["params"], outer_iterations=2,
                                                   matching=TrackParams().matching, tau_px=TrackParams().tau_px,
                                                   inner_iterations=TrackParams().inner_iterations)
-        else:
-            assert deform[k]["params"] is deform[0]["params"]
-            assert deform[k]["params"].outer_iterations == 5
+        else:  # a re-initialised frame: the tracker's first-frame settings (rec15n), the same for each
+            assert deform[k]["params"] == deform[0]["params"] == replace(
+                deform[0]["params"], outer_iterations=TrackParams().first_outer_iterations,
+                inner_iterations=TrackParams().first_inner_iterations)
+            assert deform[k]["params"].outer_iterations == 3
     # the results written are the deformation's
     for k, fid in enumerate(FRAMES):
         np.testing.assert_allclose(rec.saved[f"{fid:05d}.ply"], deform[k]["V"] + [0, 0, 0.001 * (k + 1)])
@@ -322,7 +324,8 @@ def test_tracked_frame_timings_are_the_steps_between_clock_reads(monkeypatch, tm
 
 def test_warm_mesh_carries_the_previous_result_and_the_outer_count_is_capped(monkeypatch, tmp_path):
     rec = _stand_ins(monkeypatch)
-    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=True, outer_iterations=7)
+    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=True, outer_iterations=7, first_outer_iterations=0,
+                        first_inner_iterations=0)
     _s, frames, meta = _run(rec, tmp_path, track=track)
     assert [f["track"] for f in frames] == EXPECTED_TRACK
     assert meta["track_params"]["warm_mesh"] is True
@@ -351,7 +354,8 @@ def test_warm_mesh_carries_the_previous_result_and_the_outer_count_is_capped(mon
 
 def test_outer_count_zero_keeps_the_runs_settings_and_no_warm_mesh_starts_from_the_pose(monkeypatch, tmp_path):
     rec = _stand_ins(monkeypatch)
-    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=False, outer_iterations=0, inner_iterations=0)
+    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=False, outer_iterations=0, inner_iterations=0,
+                        first_outer_iterations=0, first_inner_iterations=0)
     _run(rec, tmp_path, track=track)
     deform = rec.calls["deform"]
     # the run's settings but, on a tracked frame, the tracker's matching schedule

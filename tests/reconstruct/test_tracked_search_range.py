@@ -27,8 +27,9 @@ def test_tracked_frames_search_the_nearer_range(monkeypatch, tmp_path, run_tau, 
         if t == "tracked":  # nothing else of the run's settings changes with it
             assert d["params"] == replace(params, outer_iterations=track.outer_iterations, matching=track.matching,
                                           tau_px=tracked_tau, inner_iterations=track.inner_iterations)
-        else:
-            assert d["params"] is params
+        else:  # a re-initialised frame: the tracker's first-frame sweeps (rec15n), the run's search range
+            assert d["params"] == replace(params, outer_iterations=track.first_outer_iterations,
+                                          inner_iterations=track.first_inner_iterations)
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,8 @@ from tests.reconstruct.test_sequence_tracked_mutants import EXPECTED_TRACK, OUTS
 def test_tracked_frames_run_their_own_sweeps(monkeypatch, tmp_path, run_inner, track_inner, tracked_inner):
     rec = _stand_ins(monkeypatch)
     params = RapidSkinParams(outer_iterations=5, inner_iterations=run_inner)
-    track = TrackParams(outside_px=OUTSIDE_PX, inner_iterations=track_inner)
+    track = TrackParams(outside_px=OUTSIDE_PX, inner_iterations=track_inner, first_outer_iterations=0,
+                        first_inner_iterations=0)
     _run(rec, tmp_path, params=params, track=track)
     deform = rec.calls["deform"]
     assert [d["params"].inner_iterations for d in deform] == [tracked_inner if t == "tracked" else run_inner
@@ -28,8 +29,32 @@ def test_tracked_frames_run_their_own_sweeps(monkeypatch, tmp_path, run_inner, t
             assert d["params"] == replace(params, outer_iterations=min(5, track.outer_iterations),
                                           matching=track.matching, tau_px=track.tau_px,
                                           inner_iterations=tracked_inner)
-        else:
+        else:  # first_*_iterations 0: a re-initialised frame runs the run's own settings object
             assert d["params"] is params
+
+
+@pytest.mark.parametrize(("first_outer", "first_inner"), [(3, 40), (0, 0), (0, 24), (6, 0)])
+def test_reinitialised_frames_of_a_tracked_run_run_the_first_frames_settings(monkeypatch, tmp_path, first_outer,
+                                                                            first_inner):
+    """``first_outer_iterations`` / ``first_inner_iterations``: a re-initialised frame of a tracked run (first, lost
+    track) runs them (0: the run's); the tracked frames keep theirs; the per-frame mode never reads them."""
+    rec = _stand_ins(monkeypatch)
+    params = RapidSkinParams(outer_iterations=5, inner_iterations=8)
+    track = TrackParams(outside_px=OUTSIDE_PX, first_outer_iterations=first_outer, first_inner_iterations=first_inner)
+    _run(rec, tmp_path, params=params, track=track)
+    first = replace(params, outer_iterations=first_outer or 5, inner_iterations=first_inner or 8)
+    for d, t in zip(rec.calls["deform"], EXPECTED_TRACK, strict=True):
+        if t == "tracked":
+            assert d["params"] == replace(params, outer_iterations=min(5, track.outer_iterations),
+                                          matching=track.matching, tau_px=track.tau_px,
+                                          inner_iterations=track.inner_iterations)
+        else:
+            assert d["params"] == first
+            if not (first_outer or first_inner):
+                assert d["params"] is params
+    rec = _stand_ins(monkeypatch)
+    _run(rec, tmp_path / "per_frame", params=params, track=track, tracking=False)
+    assert all(d["params"] is params for d in rec.calls["deform"])
 
 
 @pytest.fixture(scope="module")
