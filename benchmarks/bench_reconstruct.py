@@ -214,7 +214,7 @@ TRACK_MODES = (("per-frame init, hull, no gate, frame lengths", False, "hull", F
                ("tracker, joint smoothing 2", True, "fields", True, "sequence", 2),
                (ACCURATE_MODE, True, "fields", True, "sequence", 2))
 #: The tracker as first measured: every tracked frame 6 fit iterations and the run's No (the rows so named).
-TRACK_BEFORE = {"iterations": 6, "min_decrease": 0.0, "outer_iterations": 0}
+TRACK_BEFORE = {"iterations": 6, "min_decrease": 0.0, "outer_iterations": 0, "inner_iterations": 0}
 REGION_NAMES = ("head", "torso", "crotch", "arms", "hands", "legs", "feet")
 
 
@@ -266,12 +266,13 @@ def _frame_steps(session_path: Path, repeats: int) -> str:
     params = TrackParams(**TRACK_BEFORE)  # the tracker as first measured (6 it, No = 8)
     fast = TrackParams()  # a tracked frame now (issue 15's frame time): fewer fit and outer iterations
     no_fast = fast.outer_iterations or RapidSkinParams().outer_iterations
+    ni_fast = fast.inner_iterations or RapidSkinParams().inner_iterations  # its sweeps (rec15n)
     # and (rec15e) the tracked frame's cheaper last matching and chamfer distance fields
-    fast_params = RapidSkinParams(outer_iterations=no_fast, matching=fast.matching)
+    fast_params = RapidSkinParams(outer_iterations=no_fast, inner_iterations=ni_fast, matching=fast.matching)
     fast_fields = f"distance fields ({'exact' if fast.exact_fields else 'chamfer'}), tracked frame now"
     fast_fit = f"tracking fit (<= {fast.iterations} it, stops on the energy's plateau), tracked frame now"
     fast_match, fast_solve = f"matching (No = {no_fast} x 10 views), tracked frame now", \
-        f"solver (GS, No = {no_fast} x Ni = 8), tracked frame now"
+        f"solver (GS, No = {no_fast} x Ni = {ni_fast}), tracked frame now"
     ms: dict[str, list[float]] = {}
     wall: dict[tuple[str, int], list[float]] = {(m, k): [] for m in ("default", "fast") for k in (1, 2)}
     end_to_end: dict[tuple[str, int], list[float]] = {}
@@ -513,7 +514,8 @@ def run(quick: bool = False) -> str:
         "joints smoothed over +-2 frames (`--joint-smoothing 2`); 'tracker' (`--tracking`): the previous "
         "frame's pose fitted to the distance fields, re-initialised on a lost track; a tracked frame's fit stops "
         "on the data energy's plateau and its deformation re-matches fewer times (`TrackParams`: "
-        f"min_decrease {TrackParams().min_decrease:g}, No = {TrackParams().outer_iterations or 8}); "
+        f"min_decrease {TrackParams().min_decrease:g}, No = {TrackParams().outer_iterations or 8} x Ni = "
+        f"{TrackParams().inner_iterations or 8}); "
         "'tracker, 6 fit it, No = 8 (before ...)': every tracked frame 6 fit iterations and No = 8, the tracker "
         "as first measured; 'accurate (--accurate)': `bodystudio reconstruct --accurate` (the tracker, the "
         "joints smoothed over +-2 frames with a silhouette guard, the body model's shape prior, the whole body's "

@@ -17,7 +17,9 @@ trade-offs) in one process. ``--constraints sil,depth`` adds the Kinect depth (i
 silhouettes + depth): its PNG in the read step, the depth observation (cleaning, unprojection, normals) as a
 step, and the depth constraints in every outer iteration of the deformation; ``--compare-depth`` alternates it
 with the numpy depth path before rec15f (:func:`depth_observation_reference`, :func:`depth_constraints_reference`);
-``--compare-tau`` with the run's 30 px contour search (``TrackParams(tau_px=0)``, before rec15l's 15 px).
+``--compare-tau`` with the run's 30 px contour search (``TrackParams(tau_px=0)``, before rec15l's 15 px);
+``--compare-track 'outer_iterations:3,inner_iterations:0'`` with those :class:`TrackParams` fields (numbers) over the
+default (here: the tracked frame's 3 x 8 sweeps before rec15n's 2 x 40).
 """
 
 from __future__ import annotations
@@ -44,6 +46,9 @@ def main() -> None:
                     help="with --constraints sil,depth: alternate with the numpy depth path (before rec15f)")
     ap.add_argument("--compare-tau", action="store_true",
                     help="alternate with the run's 30 px contour search on the tracked frame (before rec15l)")
+    ap.add_argument("--compare-track", default=None, metavar="K:V,...",
+                    help="alternate with these TrackParams fields over the default, e.g. 'outer_iterations:3,"
+                         "inner_iterations:0' (the tracked frame before rec15n)")
     args = ap.parse_args()
     use_depth = args.constraints == "sil,depth"
     import numba
@@ -85,6 +90,10 @@ def main() -> None:
         configs = {"numpy depth (before rec15f)": (TrackParams(), True), **configs}
     if args.compare_tau:
         configs = {"tau 30 px (before rec15l)": (TrackParams(tau_px=0), False), **configs}
+    if args.compare_track:
+        kv = {k: float(v) if "." in v else int(v)
+              for k, _, v in (item.partition(":") for item in args.compare_track.split(","))}
+        configs = {f"TrackParams({args.compare_track})": (TrackParams(**kv), False), **configs}
 
     def clocks():
         return np.array([time.process_time(), time.thread_time(), time.perf_counter()])
@@ -98,6 +107,8 @@ def main() -> None:
     def frame(track, reference_depth):
         run = RapidSkinParams()
         params = RapidSkinParams(outer_iterations=track.outer_iterations or run.outer_iterations,
+                                 # the tracked frame's sweeps as reconstruct_frames sets them (rec15n)
+                                 inner_iterations=getattr(track, "inner_iterations", 0) or run.inner_iterations,
                                  matching=track.matching,
                                  constraints=("silhouette", "depth") if use_depth else ("silhouette",),
                                  # the tracked frame's search range as reconstruct_frames sets it (rec15l)

@@ -61,7 +61,8 @@ def parse_variants(text: str) -> list[tuple[str, dict]]:
     :class:`MatchSchedule` (issue 15's frame time, e.g. ``m_cheap_iterations:2,m_keep_outline:True``): they
     become one ``t_matching``, over the exact ``MatchSchedule()`` (not the tracker's default: name every field).
     ``NAME=@accurate`` is :data:`bodystudio.reconstruct.presets.ACCURATE_SETTINGS` and ``ACCURATE_PARAMS`` (the
-    CLI's ``--accurate``; its tracking comes from ``--modes``: run it with ``--modes tracking``).
+    CLI's ``--accurate``; its tracking comes from ``--modes``: run it with ``--modes tracking``);
+    ``NAME=@accurate,k:v,...`` the preset with more keys over it (e.g. ``t_outer_iterations:3``).
     """
     from bodystudio.reconstruct.presets import ACCURATE_PARAMS, ACCURATE_SETTINGS
     from bodystudio.reconstruct.silhouette import MatchSchedule
@@ -69,9 +70,11 @@ def parse_variants(text: str) -> list[tuple[str, dict]]:
     out = []
     for part in text.split(";"):
         name, _, kv = part.partition("=")
-        if kv.strip() == "@accurate":
+        if kv.strip().split(",")[0] == "@accurate":  # ``@accurate,k:v,...``: the preset and more keys over it
             out.append((name.strip(), {**{f"r_{k}": v for k, v in ACCURATE_SETTINGS.items() if k != "tracking"},
-                                       **ACCURATE_PARAMS}))
+                                       **ACCURATE_PARAMS,
+                                       **{k: parse_value(v) for k, _, v in (item.partition(":") for item in
+                                                                            filter(None, kv.split(",")[1:]))}}))
             continue
         kw = {k: parse_value(v) for k, _, v in (item.partition(":") for item in filter(None, kv.split(",")))}
         match_kw = {k[2:]: kw.pop(k) for k in [k for k in kw if k.startswith("m_")]}

@@ -505,10 +505,13 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 if placed is not fit_T:
                     init = pose_template(body, placed, init.global_scale, rest_vertices=rest)
             V_start, frame_params = init.vertices, params
-            if tracking and track != "tracked" and track_params.initial_outer_iterations:
-                # issue 15, rec15m: the first frame's later re-matchings drift the upper back outwards
-                frame_params = replace(params, outer_iterations=min(params.outer_iterations,
-                                                                    track_params.initial_outer_iterations))
+            if tracking and track != "tracked" and (track_params.initial_outer_iterations
+                                                    or track_params.initial_inner_iterations):
+                # issue 15: the first frame's later re-matchings drift the upper back outwards (rec15m); more
+                # sweeps carry the rims' pull to what no rim reaches (rec15n)
+                no, ni = track_params.initial_outer_iterations, track_params.initial_inner_iterations
+                frame_params = replace(params, outer_iterations=min(params.outer_iterations, no) if no
+                                       else params.outer_iterations, inner_iterations=ni or params.inner_iterations)
             if track == "tracked":
                 if track_params.warm_mesh:
                     V_start = carry_deformed_mesh(state["V"], state["posed"], init.vertices)
@@ -518,6 +521,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 frame_params = replace(frame_params, matching=track_params.matching)
                 if track_params.tau_px:  # the nearer start's search range, never above the run's
                     frame_params = replace(frame_params, tau_px=min(frame_params.tau_px, track_params.tau_px))
+                if track_params.inner_iterations:
+                    frame_params = replace(frame_params, inner_iterations=track_params.inner_iterations)
             if tracking:
                 state = {"T": fit_T, "scale": init.global_scale, "joints": J,
                          "energy": detail["energy"], "posed": init.vertices}

@@ -91,6 +91,14 @@ class TrackParams:
     segment from the misplaced neck base, 1.24-1.43x on the hidden subjects, and the head kept it).
     ``initial_outer_iterations``: ``No`` of a tracked run's first and re-initialised frames (0: the run's; never
     more): the upper back drifts outwards over the later re-matchings of the run's 8 (issue 15, rec15m).
+    ``inner_iterations``: the tracked frame's Gauss-Seidel sweeps per outer iteration (Algorithm 1's ``Ni``; 0: the
+    run's). The template is thinner or stouter than the subject by centimetres, and the silhouettes pull only its
+    rims: the surface between them (a heavier subject's lower back, which no rim and no depth pair reaches) follows
+    through the smoothness constraints by about one ring of vertices per sweep, and 3 x 8 sweeps left it 25-35 mm
+    inside the truth. 2 outer iterations x 40 sweeps cost what 3 x 8 did (one full matching fewer) and carry the
+    pull (issue 15, rec15n; docs/reconstruct.md). ``initial_inner_iterations``: the same for a tracked run's
+    re-initialised frames (first, lost track; 0: the run's ``Ni``): with ``initial_outer_iterations`` 3 x 40
+    instead of 8 x 8, more reach with fewer re-matchings (less of the first frame's drift), ~45 instead of ~85 ms.
     ``compiled_rotations``: the tracking fit's rotation bookkeeping compiled
     (:attr:`bodystudio.reconstruct.articulated_fit.PoseRefineParams.compiled_rotations`; rec15j).
     """
@@ -109,11 +117,13 @@ class TrackParams:
     joint_bones: tuple[str, ...] = REFINE_BONES
     min_decrease: float = 0.01
     warm_mesh: bool = False
-    outer_iterations: int = 3
+    outer_iterations: int = 2
     tau_px: float = 15.0
+    inner_iterations: int = 40
     neck_joint: bool = True
     unstretch_head: bool = True
     initial_outer_iterations: int = 3
+    initial_inner_iterations: int = 40
     matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True, gate="reuse")
     exact_fields: bool = False
     compiled_rotations: bool = False
@@ -136,7 +146,9 @@ class TrackParams:
                                     ("inside_m", self.inside_m, 0.0, 1.0),
                                     ("robust_m", self.robust_m, 1e-4, 1.0),
                                     ("prior_weight", self.prior_weight, 0.0, 1e6),
-                                    ("joint_weight", self.joint_weight, 0.0, 1e9)):
+                                    ("joint_weight", self.joint_weight, 0.0, 1e9),
+                                    ("inner_iterations", self.inner_iterations, 0, 1000),
+                                    ("initial_inner_iterations", self.initial_inner_iterations, 0, 1000)):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
 

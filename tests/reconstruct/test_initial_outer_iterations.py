@@ -16,14 +16,16 @@ from tests.reconstruct.test_sequence_tracked_mutants import EXPECTED_TRACK, OUTS
 def test_the_initialised_frames_take_the_smaller_count(monkeypatch, tmp_path, run_no, initial, first_no):
     rec = _stand_ins(monkeypatch)
     params = RapidSkinParams(outer_iterations=run_no)
-    track = TrackParams(outside_px=OUTSIDE_PX, initial_outer_iterations=initial)
+    # the sweeps of those frames held at the run's (rec15n's initial_inner_iterations: test_tracked_sweeps.py)
+    track = TrackParams(outside_px=OUTSIDE_PX, initial_outer_iterations=initial, initial_inner_iterations=0)
     _run(rec, tmp_path, params=params, track=track)
     deform = rec.calls["deform"]
     assert len(deform) == len(EXPECTED_TRACK)
     for d, t in zip(deform, EXPECTED_TRACK, strict=True):
         if t == "tracked":  # the tracked frame's own settings, as before
             assert d["params"] == replace(params, outer_iterations=min(run_no, track.outer_iterations),
-                                          matching=track.matching, tau_px=min(params.tau_px, track.tau_px))
+                                          matching=track.matching, tau_px=min(params.tau_px, track.tau_px),
+                                          inner_iterations=track.inner_iterations)
         elif initial:  # first, silhouette, joint_jump, energy_jump: only the count changes
             assert d["params"] == replace(params, outer_iterations=first_no)
         else:

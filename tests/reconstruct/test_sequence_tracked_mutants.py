@@ -224,8 +224,7 @@ def _run(rec, tmp_path, frames=FRAMES, tracking=True, track=None, refine_pose=Fa
          joints_path=None):
     writer = Writer(tmp_path)
     params = params or RapidSkinParams(outer_iterations=5)
-    # the re-initialised frames at the run's own No (rec15m's initial_outer_iterations: test_initial_outer_iterations)
-    track = track if track is not None else TrackParams(outside_px=OUTSIDE_PX, initial_outer_iterations=0)
+    track = track if track is not None else TrackParams(outside_px=OUTSIDE_PX)
     summary = seq.reconstruct_frames(_session(depth), writer, list(frames), [NS(name="c0")],
                                      NS(depth="depth-camera"), params, "gs", "6k", joints, joints_path, warm_start,
                                      refine_pose, False, False, tracking=tracking, track_params=track,
@@ -253,7 +252,7 @@ def test_lost_track_reasons_and_check_figures_frame_by_frame(monkeypatch, tmp_pa
         assert f["track_check"]["prior_outside"] == pytest.approx(prior, abs=1e-9)
         assert f["track_check"]["energy"] == pytest.approx(energy, abs=1e-9)
     assert meta["tracking"] is True
-    assert meta["track_params"] == asdict(TrackParams(outside_px=OUTSIDE_PX, initial_outer_iterations=0))
+    assert meta["track_params"] == asdict(TrackParams(outside_px=OUTSIDE_PX))
     # the tracking fit runs where the check keeps the track, from the previous frame's pose, on this frame's fields
     fits = rec.calls["track"]
     assert [c[2] for c in fits] == [11, 15, 16, 17]
@@ -293,12 +292,15 @@ def test_tracked_frames_pose_the_template_with_the_fit_and_the_previous_scale(mo
         assert deform[k]["delta"] == ("cot", float(np.sum(body.vertices)))
         # outer count: the tracked frame's min(run, tracking), the others the run's own settings object
         if track == "tracked":
+            assert deform[k]["params"].outer_iterations == TrackParams().outer_iterations == 2
+            assert deform[k]["params"] == replace(deform[0]["params"], outer_iterations=2,
+                                                  matching=TrackParams().matching, tau_px=TrackParams().tau_px,
+                                                  inner_iterations=TrackParams().inner_iterations)
+        else:  # a re-initialised frame: the tracker's first-frame settings (rec15n), the same for each
+            assert deform[k]["params"] == deform[0]["params"] == replace(
+                deform[0]["params"], outer_iterations=TrackParams().initial_outer_iterations,
+                inner_iterations=TrackParams().initial_inner_iterations)
             assert deform[k]["params"].outer_iterations == 3
-            assert deform[k]["params"] == replace(deform[0]["params"], outer_iterations=3,
-                                                  matching=TrackParams().matching, tau_px=TrackParams().tau_px)
-        else:
-            assert deform[k]["params"] is deform[0]["params"]
-            assert deform[k]["params"].outer_iterations == 5
     # the results written are the deformation's
     for k, fid in enumerate(FRAMES):
         np.testing.assert_allclose(rec.saved[f"{fid:05d}.ply"], deform[k]["V"] + [0, 0, 0.001 * (k + 1)])
@@ -323,7 +325,8 @@ def test_tracked_frame_timings_are_the_steps_between_clock_reads(monkeypatch, tm
 
 def test_warm_mesh_carries_the_previous_result_and_the_outer_count_is_capped(monkeypatch, tmp_path):
     rec = _stand_ins(monkeypatch)
-    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=True, outer_iterations=7, initial_outer_iterations=0)
+    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=True, outer_iterations=7, initial_outer_iterations=0,
+                        initial_inner_iterations=0)
     _s, frames, meta = _run(rec, tmp_path, track=track)
     assert [f["track"] for f in frames] == EXPECTED_TRACK
     assert meta["track_params"]["warm_mesh"] is True
@@ -352,7 +355,8 @@ def test_warm_mesh_carries_the_previous_result_and_the_outer_count_is_capped(mon
 
 def test_outer_count_zero_keeps_the_runs_settings_and_no_warm_mesh_starts_from_the_pose(monkeypatch, tmp_path):
     rec = _stand_ins(monkeypatch)
-    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=False, outer_iterations=0, initial_outer_iterations=0)
+    track = TrackParams(outside_px=OUTSIDE_PX, warm_mesh=False, outer_iterations=0, inner_iterations=0,
+                        initial_outer_iterations=0, initial_inner_iterations=0)
     _run(rec, tmp_path, track=track)
     deform = rec.calls["deform"]
     # the run's settings but, on a tracked frame, the tracker's matching schedule

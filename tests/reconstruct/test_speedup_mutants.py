@@ -155,7 +155,7 @@ def test_track_params_new_settings_bounds_accepted():
                         ("outer_iterations", 100), ("iterations", 1), ("iterations", 100)):
         assert getattr(TrackParams(**{name: value}), name) == value
     p = TrackParams()
-    assert (p.min_decrease, p.outer_iterations, p.warm_mesh) == (0.01, 3, False)
+    assert (p.min_decrease, p.outer_iterations, p.warm_mesh) == (0.01, 2, False)  # No 3 -> 2 (rec15n)
 
 
 def test_track_bone_transforms_passes_min_decrease_to_the_fit(monkeypatch):

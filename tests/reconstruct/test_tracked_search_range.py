@@ -18,16 +18,18 @@ from tests.reconstruct.test_sequence_tracked_mutants import EXPECTED_TRACK, OUTS
 def test_tracked_frames_search_the_nearer_range(monkeypatch, tmp_path, run_tau, track_tau, tracked_tau):
     rec = _stand_ins(monkeypatch)
     params = RapidSkinParams(outer_iterations=5, tau_px=run_tau)
-    track = TrackParams(outside_px=OUTSIDE_PX, tau_px=track_tau, initial_outer_iterations=0)
+    track = TrackParams(outside_px=OUTSIDE_PX, tau_px=track_tau)
     _run(rec, tmp_path, params=params, track=track)
     deform = rec.calls["deform"]
     assert [d["params"].tau_px for d in deform] == [tracked_tau if t == "tracked" else run_tau
                                                     for t in EXPECTED_TRACK]
     for d, t in zip(deform, EXPECTED_TRACK, strict=True):
         if t == "tracked":  # nothing else of the run's settings changes with it
-            assert d["params"] == replace(params, outer_iterations=3, matching=track.matching, tau_px=tracked_tau)
-        else:
-            assert d["params"] is params
+            assert d["params"] == replace(params, outer_iterations=track.outer_iterations, matching=track.matching,
+                                          tau_px=tracked_tau, inner_iterations=track.inner_iterations)
+        else:  # a re-initialised frame: the tracker's first-frame sweeps (rec15n), the run's search range
+            assert d["params"] == replace(params, outer_iterations=track.initial_outer_iterations,
+                                          inner_iterations=track.initial_inner_iterations)
 
 
 @pytest.fixture(scope="module")

@@ -76,7 +76,7 @@ def test_tracking_record_and_lost_track(runs):
     assert all(f["refine_ms"] == 0 for f in frames if f["track"] == "tracked")
     assert frames[0]["refine_ms"] > 0 and frames[JUMP_FRAME]["refine_ms"] > 0
     # a tracked frame runs the fast path (TrackParams.outer_iterations re-matchings); a re-initialised one
-    # TrackParams.initial_outer_iterations of the run's No (rec15m)
+    # TrackParams.initial_outer_iterations of the run's No (rec15m; 3)
     no, no_tracked = RapidSkinParams().outer_iterations, TrackParams().outer_iterations
     no_first = min(no, TrackParams().initial_outer_iterations)
     assert 0 < no_tracked < no and 0 < no_first < no
