@@ -1,7 +1,7 @@
 """``TrackParams(inner_iterations=..., initial_outer_iterations=..., initial_inner_iterations=...)`` (rec15n):
 the tracked frame's Gauss-Seidel sweeps per outer iteration, 40 by default with 2 outer iterations (was the run's 8
-with 3), and a tracked run's re-initialised frames' 3 x 40 (was the run's 8 x 8); 0 for the run's, out-of-range values one-line
-errors naming the setting and its range. Wiring and effect: tests/reconstruct/test_tracked_sweeps.py."""
+with 3), and a tracked run's re-initialised frames' 3 x 40 (was the run's 8 x 8); 0 for the run's, out-of-range
+values one-line errors naming the setting and its range. Wiring and effect: tests/reconstruct/test_tracked_sweeps.py."""
 
 from dataclasses import asdict
 
