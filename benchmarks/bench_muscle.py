@@ -31,7 +31,8 @@ body``: body-space parameters regressed on the shape numbers; docs/muscle.md, "D
 prepared model's linear form extended with the same captures is scored beside it, against the prepared model);
 each added subject's shape row repeated to as many rows as a training subject has (``--extension-subject-rows
 training``; docs/muscle.md, "Dataset extension, tenth pass"; not the default) is scored beside it, and so is the
-captured rows' body-space prior at 30 with the weight macro's at 3 (``ROW_PRIOR_OPTION``; eleventh pass; an option);
+captured rows' body-space prior at 3 on every parameter, the default before the twelfth pass (``ROW_PRIOR_OPTION``;
+30 with the weight macro's at 3 since); held-out set D (``CHECK_SETS``, twelfth pass) is scored beside A and B;
 ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
 pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
@@ -89,9 +90,9 @@ HELD_OUT_SETS = (("A", HELD_OUT_SEEDS), ("B", (631, 632, 633, 634)))
 CHECK_SETS = (("D", tuple(s + g for s in (710, 720, 730, 740, 750) for g in (1, 2, 3, 4))),)
 IN_RANGE_SEED = 620
 #: the captured rows' body-space prior weights scored beside the default (``extend_arm_model(prior_weight=,
-#: weight_prior_weight=)``: every parameter but the weight macro, the weight macro; docs/muscle.md, "Dataset extension,
-#: eleventh pass": an option, off)
-ROW_PRIOR_OPTION = (30.0, 3.0)
+#: weight_prior_weight=)``: every parameter but the weight macro, the weight macro): the default before the twelfth
+#: pass, 3 on every parameter (30 / 3 since; docs/muscle.md, "Dataset extension, twelfth pass")
+ROW_PRIOR_OPTION = (3.0, None)
 #: ``CaptureOptions`` fields set for every capture of the run (``--capture-option KEY=VALUE``), to measure variants
 CAPTURE_OVERRIDES: dict = {}
 GOALS = {"median_mm": 2.0, "p90_mm": 5.0, "bulge_err_mm": 1.5, "jitter_mm": 0.5, "cpu_ms_per_frame": 1000.0}
@@ -239,8 +240,8 @@ EXTENSION_VARIANTS = (("captured_nosex", "captures, no sex"), ("captured_mesh", 
                       ("captured", "captures, with sex"),
                       ("captured_training_rows", "captures, with sex, each added subject's row repeated to a "
                                                  "training subject's (not kept, tenth pass)"),
-                      ("captured_row_prior", "captures, with sex, row prior 30 with the weight macro's 3 (an option, "
-                                             "eleventh pass)"),
+                      ("captured_row_prior", "captures, with sex, row prior 3 on every parameter (the default before "
+                                             "the twelfth pass)"),
                       ("truth_nosex", "truth meshes, no sex"), ("truth", "truth meshes, with sex"))
 #: the original model each variant's change is measured against (default "original": the training men in the run's
 #: shape form; "original_linear": the prepared model, the linear Eq. 6-7)
