@@ -31,7 +31,8 @@ body``: body-space parameters regressed on the shape numbers; docs/muscle.md, "D
 prepared model's linear form extended with the same captures is scored beside it, against the prepared model);
 each added subject's shape row repeated to as many rows as a training subject has (``--extension-subject-rows
 training``; docs/muscle.md, "Dataset extension, tenth pass"; not the default) is scored beside it, and so is the
-captured rows' body-space prior at 30 with the weight macro's at 3 (``ROW_PRIOR_OPTION``; eleventh pass; an option);
+captured rows' body-space prior at 3 on every parameter, the default before the twelfth pass (``ROW_PRIOR_OPTION``;
+30 with the weight macro's at 3 since); held-out set D (``CHECK_SETS``, twelfth pass) is scored beside A and B;
 ``--extension-per-group N`` adds up to 3 more captured subjects per group. Pronation: the
 pipeline's forearm twist (from its per-frame joint angles) against the truth's.
 
@@ -83,11 +84,15 @@ HELD_OUT_SEEDS = (611, 612, 613, 614)
 # Set A: the goal's held-out subjects; set B: a second disjoint set (same groups, other seeds) that the
 # choices (the sex input, its Tikhonov weight) were checked on, so that they are not fitted to set A.
 HELD_OUT_SETS = (("A", HELD_OUT_SEEDS), ("B", (631, 632, 633, 634)))
+#: Set D: five more held-out subjects per group (seeds no other set, capture or choice uses; docs/muscle.md, "Dataset
+#: extension, twelfth pass"), the evidence for a choice that B's figures had already seen. A held-out seed's last digit
+#: is its group's place in ``OUT_OF_RANGE`` (1-4), as in A and B.
+CHECK_SETS = (("D", tuple(s + g for s in (710, 720, 730, 740, 750) for g in (1, 2, 3, 4))),)
 IN_RANGE_SEED = 620
 #: the captured rows' body-space prior weights scored beside the default (``extend_arm_model(prior_weight=,
-#: weight_prior_weight=)``: every parameter but the weight macro, the weight macro; docs/muscle.md, "Dataset extension,
-#: eleventh pass": an option, off)
-ROW_PRIOR_OPTION = (30.0, 3.0)
+#: weight_prior_weight=)``: every parameter but the weight macro, the weight macro): the default before the twelfth
+#: pass, 3 on every parameter (30 / 3 since; docs/muscle.md, "Dataset extension, twelfth pass")
+ROW_PRIOR_OPTION = (3.0, None)
 #: ``CaptureOptions`` fields set for every capture of the run (``--capture-option KEY=VALUE``), to measure variants
 CAPTURE_OVERRIDES: dict = {}
 GOALS = {"median_mm": 2.0, "p90_mm": 5.0, "bulge_err_mm": 1.5, "jitter_mm": 0.5, "cpu_ms_per_frame": 1000.0}
@@ -118,6 +123,14 @@ def out_of_range_subject(seed: int, label: str):
 
     gender, bmi, height = OUT_OF_RANGE[label]
     return sample_arm_subject(seed, gender=gender, bmi_range=bmi, height_range_m=height)
+
+
+def held_out_group(seed: int) -> str:
+    """The out-of-range group (``OUT_OF_RANGE``'s label) of a held-out seed: its last digit, 1-4, is the place."""
+    place = seed % 10 - 1
+    if not 0 <= place < len(OUT_OF_RANGE):
+        raise ValueError(f"held-out seed {seed}: its last digit must be 1-{len(OUT_OF_RANGE)} (the group's place)")
+    return list(OUT_OF_RANGE)[place]
 
 
 def truth_template(subject):
@@ -227,8 +240,8 @@ EXTENSION_VARIANTS = (("captured_nosex", "captures, no sex"), ("captured_mesh", 
                       ("captured", "captures, with sex"),
                       ("captured_training_rows", "captures, with sex, each added subject's row repeated to a "
                                                  "training subject's (not kept, tenth pass)"),
-                      ("captured_row_prior", "captures, with sex, row prior 30 with the weight macro's 3 (an option, "
-                                             "eleventh pass)"),
+                      ("captured_row_prior", "captures, with sex, row prior 3 on every parameter (the default before "
+                                             "the twelfth pass)"),
                       ("truth_nosex", "truth meshes, no sex"), ("truth", "truth meshes, with sex"))
 #: the original model each variant's change is measured against (default "original": the training men in the run's
 #: shape form; "original_linear": the prepared model, the linear Eq. 6-7)
@@ -324,7 +337,8 @@ def extension_section(data: dict) -> str:
             "+ 12 random poses each, true shape parameters, sex and poses) on the subject's own rest joints; last "
             "column: the model's regressed joints with the best translation removed (what a capture's root fit "
             "absorbs). Set A (611-614) is the goal's; set B (631-634, same groups, other seeds) was held out "
-            "as well, to check that the choices made on set A carry over:\n\n" + held_table +
+            "as well, to check that the choices made on set A carry over; set D (711-754, five per group, seeds no "
+            "choice saw) checks the choices made after a look at B:\n\n" + held_table +
             f"\n\nGoal (captures, set A): mean change {mean_change:+.0f} %, -30 % or better: {verdict}."
             + _other_sets_goal(means) + surface)
 
@@ -332,7 +346,7 @@ def extension_section(data: dict) -> str:
 def _other_sets_goal(means: dict) -> str:
     """The goal's verdict on the held-out sets beyond the first (other seeds): they check the first's choices."""
     parts = []
-    for held_set, _ in HELD_OUT_SETS[1:]:
+    for held_set, _ in (*HELD_OUT_SETS[1:], *CHECK_SETS):
         if (held_set, "captured") in means:
             change = float(np.mean(means[(held_set, "captured")]))
             verdict = "met" if change <= -30.0 else "**not met**"
@@ -524,6 +538,7 @@ def step_extension(work: Path, n_frames: int, per_group: int = 1, centre: str = 
                                                                  captured_rest=captured_rest, **rows)
     held = []
     cases = [(name, seed, label) for name, seeds in HELD_OUT_SETS for seed, label in zip(seeds, labels, strict=True)]
+    cases += [(name, seed, held_out_group(seed)) for name, seeds in CHECK_SETS for seed in seeds]
     for name, seed, label in [*cases, ("", IN_RANGE_SEED, "in range")]:
         subj = (sample_arm_subject(seed, gender="male", bmi_range=(22.0, 26.0)) if label == "in range"
                 else out_of_range_subject(seed, label))

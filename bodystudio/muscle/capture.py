@@ -113,9 +113,12 @@ TRACKER_JOINTS = {"left": ("ShoulderLeft", "ElbowLeft", "WristLeft"),
 # 3.73 -> 3.63 / 3.33; the captures' own medians 7.61 / 9.67 -> 5.95 / 7.04 mm. Before it they were off here: the
 # regressed rest arm, a 50 % limit and no pose refit (better on C than the then defaults in the ninth pass), and the
 # later ones unmeasured; the hold of the unseen side on the regressed rest arm (with the cuts) ties the rows to the
-# model: C 6.43 -> 7.53 mm. The pose smoothing stays the Gaussian mean at sigma 2.5 (the capture's local quadratic of
-# the fifteenth pass is not measured for the extension), and so does the rest fit's prior on the local targets (0.25 on
-# every target; the fifteenth pass's population prior is not measured for the extension).
+# model: C 6.43 -> 7.53 mm. The pose smoothing stays the Gaussian mean at sigma 2.5, and the rest fit's prior on the
+# local targets 0.25 on every target: measured for the extension (docs/muscle.md, "Dataset extension, twelfth pass";
+# set C, 601-604 added, change and mean mm), the fifteenth pass's local quadratic changes the captures (5.96 -> 5.75 mm
+# mean median) and not the extension (-23.4 %, 6.29 mm either way); its population prior on the local targets costs
+# the extension (-23.4 -> -15.5 %, 6.29 -> 6.99 mm; both: -19.4 -> -18.1 % with 671-674 added): an out-of-range
+# subject lies outside the in-range population's spread (the short woman 603's row 4.44 -> 8.47 mm from her truth).
 EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
                      "body_rest_shape": True, "body_rest_tracker_weight": 10.0, "norm_limit": 0.2, "pose_refit": True,
                      "refine_unseen_hold": 1.0, "refine_min_facing_cos": 0.35, "refine_depth_median_px": 1,

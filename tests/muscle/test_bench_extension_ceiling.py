@@ -83,3 +83,6 @@ def test_the_goal_line_gives_every_held_out_set_its_verdict():
     assert _other_sets_goal({("B", "captured"): [-20.0, -26.0]}) == " Set B (other seeds): -23 %: **not met**."
     assert _other_sets_goal({("B", "captured"): [-30.0, -34.0]}) == " Set B (other seeds): -32 %: met."
     assert _other_sets_goal({("A", "captured"): [-40.0]}) == ""
+    # set D (twelfth pass) gets its verdict after B's
+    assert _other_sets_goal({("D", "captured"): [-29.0, -33.0], ("B", "captured"): [-20.0]}) == \
+        " Set B (other seeds): -20 %: **not met**. Set D (other seeds): -31 %: met."

@@ -20,6 +20,8 @@ from bodystudio.muscle.model import (
     BODY_MACRO_NAMES,
     BODY_MACRO_PRIOR,
     CAPTURED_REST_PRIOR_WEIGHT,
+    EXTENSION_ROW_PRIOR_WEIGHT,
+    EXTENSION_ROW_WEIGHT_PRIOR_WEIGHT,
     ArmModel,
     ArmSample,
     ArmShapeParams,
@@ -296,10 +298,10 @@ def test_body_rows_are_the_body_space_fit_of_the_captured_base_mesh(monkeypatch,
     frames = _frames(model, rest)
     kw = {} if prior_weight is None else {"prior_weight": prior_weight}
     ext = extend_arm_model(model, frames, captured_rest="body", **kw)
-    w = CAPTURED_REST_PRIOR_WEIGHT if prior_weight is None else prior_weight
+    w = EXTENSION_ROW_PRIOR_WEIGHT if prior_weight is None else prior_weight
     base = _captured_base(model, frames)
     np.testing.assert_allclose(base, rest, atol=1e-9)  # the pose term is removed exactly
-    fitted = body_space_rest_mesh(space, base, SHAPE, w)[0]
+    fitted = body_space_rest_mesh(space, base, SHAPE, w, weight_prior_weight=EXTENSION_ROW_WEIGHT_PRIOR_WEIGHT)[0]
     expected = model.base_vertices + mm.length_displacements(model, SHAPE)
     assert calls == [("tiny", "left")]
     assert ext.shape_residuals.shape == (4, 3 * N_V)
@@ -316,7 +318,7 @@ def test_body_rows_are_the_body_space_fit_of_the_captured_base_mesh(monkeypatch,
     np.testing.assert_allclose(ext.shape_coeffs, mm.fit_shape_coefficients(model, ext.shape_rows,
                                                                            ext.shape_residuals), atol=1e-12)
     assert ext.subjects[-1] == {"name": "cap", "shape": SHAPE.to_dict(), "n_meshes": 3, "source": "capture",
-                                "rest": f"body space (prior weight {w:g})"}
+                                "rest": f"body space (prior weight {w:g}, weight macro 3)"}
     assert [s["name"] for s in ext.subjects] == ["m0", "m1", "m2", "cap"]
 
 
@@ -341,11 +343,12 @@ def test_two_captured_subjects_each_get_their_own_fit(monkeypatch):
     f1, f2 = _frames(model, r1, "a"), _frames(model, r2, "b", other, POSES[:1])  # b: one frame
     ext = extend_arm_model(model, f1 + f2, captured_rest="body", source="kinect")
     for row, frames, shape in ((3, f1, SHAPE), (4, f2, other)):
-        fitted = body_space_rest_mesh(space, _captured_base(model, frames), shape)[0]
+        fitted = body_space_rest_mesh(space, _captured_base(model, frames), shape, EXTENSION_ROW_PRIOR_WEIGHT,
+                                      weight_prior_weight=EXTENSION_ROW_WEIGHT_PRIOR_WEIGHT)[0]
         expected = model.base_vertices + mm.length_displacements(model, shape)
         np.testing.assert_allclose(ext.shape_residuals[row], (fitted - expected).ravel(), atol=1e-12)
     assert [s["source"] for s in ext.subjects[3:]] == ["kinect", "kinect"]
-    assert [s["rest"] for s in ext.subjects[3:]] == ["body space (prior weight 3)"] * 2
+    assert [s["rest"] for s in ext.subjects[3:]] == ["body space (prior weight 30, weight macro 3)"] * 2
 
 
 def test_unknown_captured_rest_is_refused_before_any_space_is_built(monkeypatch):

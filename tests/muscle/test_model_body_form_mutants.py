@@ -431,6 +431,8 @@ def test_body_rows_with_either_form_and_the_source_reach_the_record(monkeypatch)
         assert ext.subjects[-1]["source"] == "capture"
     assert extend_arm_model(model, frames, source="ground truth").subjects[-1]["source"] == "ground truth"
     ext = extend_arm_model(model, frames, captured_rest="body", shape_form="body", prior_weight=0.5)
+    assert ext.subjects[-1]["rest"] == "body space (prior weight 0.5, weight macro 3)"
+    ext = extend_arm_model(model, frames, captured_rest="body", prior_weight=0.5, weight_prior_weight=None)
     assert ext.subjects[-1]["rest"] == "body space (prior weight 0.5)"
 
 

@@ -87,7 +87,8 @@ def test_extend_passes_subject_rows_and_defaults_to_own(monkeypatch):
     extend = _extend(monkeypatch)
     model = NS(n_vertices=4, shape_form="linear")
     assert M.extend_arm_model(model, []) == "extended"
-    assert extend[-1]["subject_rows"] == "own" and extend[-1]["prior_weight"] == M.CAPTURED_REST_PRIOR_WEIGHT
+    assert extend[-1]["subject_rows"] == "own" and extend[-1]["prior_weight"] == M.EXTENSION_ROW_PRIOR_WEIGHT == 30.0
+    assert extend[-1]["weight_prior_weight"] == M.EXTENSION_ROW_WEIGHT_PRIOR_WEIGHT == 3.0
     M.extend_arm_model(model, [], prior_weight=0.25, subject_rows="training")
     assert extend[-1]["prior_weight"] == 0.25 and extend[-1]["subject_rows"] == "training"
     for rows in ("own", "training"):
