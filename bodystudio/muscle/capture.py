@@ -66,6 +66,7 @@ from bodystudio.muscle.nicp import (
 )
 from bodystudio.muscle.refine import (
     DepthFrame,
+    DepthOutline,
     arm_pose_from_part_transforms,
     correspondence_weights,
     depth_energy_mm,
@@ -381,6 +382,14 @@ class CaptureOptions:
     # since the fourteenth pass (mus11o), with ``body_rest_tracker_weight=10``: the figures there.
     body_rest_min_facing_cos: float = 0.0
     sequence_min_facing_cos: float = 0.3
+    # Outline pairs in the rest-shape fit (``refine.outline_pairs``: each rim vertex of the arm region against the raw
+    # depth map's occluding contour along its normal's image direction; 0: off), per pair relative to a depth pair,
+    # each target moved ``body_rest_outline_offset_m`` outwards (the contour's bias: on the truth's own rim of 501 /
+    # 504 / 507 it lies 0.37-0.40 mm inside, mean over every 5th frame's rim vertices). The
+    # sensor sees the upper arm's sides edge-on: their outline bounds the arm's girth where no depth pair reaches
+    # (docs/muscle.md, sixteenth pass).
+    body_rest_outline_weight: float = 0.0
+    body_rest_outline_offset_m: float = 0.0
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape
@@ -427,6 +436,9 @@ class CaptureOptions:
         if self.personal_rounds > 0 and self.body_rest_shape and self.body_rest_rounds > 0:
             raise InputError("personal_rounds and the body rest shape's rounds are two rest-shape fits and only one "
                              "runs; set body_rest_shape=False to use personal_rounds")
+        if not (self.body_rest_outline_weight >= 0 and abs(self.body_rest_outline_offset_m) <= 0.01):
+            raise InputError(f"body_rest_outline_weight must be >= 0 and body_rest_outline_offset_m within +-0.01 m, "
+                             f"got {self.body_rest_outline_weight} and {self.body_rest_outline_offset_m}")
         if not (0 <= self.body_rest_min_facing_cos < 1 and 0 <= self.sequence_min_facing_cos < 1):
             raise InputError(f"body_rest_min_facing_cos and sequence_min_facing_cos must be in [0, 1), got "
                              f"{self.body_rest_min_facing_cos} and {self.sequence_min_facing_cos}")
@@ -592,6 +604,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         apply_similarity(Sinv, tracker_joints.reshape(-1, 3)).reshape(-1, 3, 3)
     frames_t = [DepthFrame(P, N, tree, C, arm, adjacency, o.nicp.filters, F)
                 for (P, N), tree in zip(clouds_t, trees, strict=True)]
+    frames_t = with_outlines(frames_t, depths, camera, S, template, o)
     timer.add("rigid_alignment", t0)
 
     n_frames = len(depths)
@@ -734,6 +747,18 @@ def body_rest_local_sigma(o: CaptureOptions, space) -> np.ndarray | None:
     if o.body_rest_local_sigma != BODY_LOCAL_PRIOR_SIGMA:
         return np.full(len(space.local_names), o.body_rest_local_sigma)
     return None
+
+
+def with_outlines(frames: list[DepthFrame], depths: list[np.ndarray], camera, S, template: ArmTemplate,
+                  o: CaptureOptions) -> list[DepthFrame]:
+    """The frames with their raw depth maps for the rest-shape fit's outline pairs (``refine.DepthOutline``) when
+    ``o.body_rest_outline_weight`` > 0 (the other fits use the depth pairs only), else the frames as they are."""
+    if o.body_rest_outline_weight <= 0:
+        return frames
+    return [replace(f, outline=DepthOutline(np.asarray(d, np.float64), camera, S, o.body_rest_outline_weight,
+                                            template.arm_mask, o.body_rest_outline_offset_m, o.depth.near_m,
+                                            o.depth.far_m))
+            for f, d in zip(frames, depths, strict=True)]
 
 
 def facing_frames(frames: list[DepthFrame], min_facing_cos: float) -> list[DepthFrame]:
