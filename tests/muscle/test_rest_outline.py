@@ -108,7 +108,8 @@ def test_the_capture_attaches_each_frames_raw_depth_only_when_asked(scene):  # n
     frames = [DepthFrame(np.zeros((1, 3)), np.zeros((1, 3)), None, camera.center, None, None, None, F)] * 2
     template = SimpleNamespace(arm_mask=np.ones(len(V), bool))
     S = (1.0, np.eye(3), np.zeros(3))
-    assert cm.with_outlines(frames, [depth, depth], camera, S, template, cm.CaptureOptions()) is frames
+    off = cm.CaptureOptions(body_rest_outline_weight=0.0)
+    assert cm.with_outlines(frames, [depth, depth], camera, S, template, off) is frames
     o = cm.CaptureOptions(body_rest_outline_weight=2.0, body_rest_outline_offset_m=0.0004,
                           depth=DepthCleanupOptions(near_m=0.6, far_m=1.2))
     second = depth + 0.001
