@@ -10,6 +10,12 @@ true surface's normal / tangential, the tangential part along the bone / around 
 
     python -m benchmarks.muscle_tail --work W --session 501 --session 504 --session 507 --session 508
 
+The rest-shape fit's outline pairs (docs/muscle.md "Capture, sixteenth pass"):
+
+    python -m benchmarks.muscle_tail --work W --rest-variants --session 508 --session 513 \
+        --variant "pop10:body_rest_outline_weight=0.0,body_rest_population_locals=1.0" \
+        --variant "ol1x2:body_rest_outline_weight=1.0,body_rest_population_locals=2.0"
+
 docs/muscle.md "Capture, fifteenth pass".
 """
 
