@@ -134,15 +134,16 @@ class DepthFrame:
 def weighted_pairs(frame: DepthFrame, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The frame's depth pairs (:meth:`DepthFrame.plane_pairs`) followed by its outline pairs (``frame.outline``,
     :func:`outline_pairs`) when it has them: vertex ids, targets, directions and each pair's weight (1 for a depth
-    pair, ``frame.outline.weight`` for an outline pair)."""
+    pair, ``frame.outline.weight`` for an outline pair). Any frame with ``plane_pairs`` will do (no ``outline``:
+    none)."""
     idx, q, nrm = frame.plane_pairs(vertices)
-    if frame.outline is None or frame.outline.weight <= 0:
+    outline = getattr(frame, "outline", None)
+    if outline is None or outline.weight <= 0:
         return idx, q, nrm, np.ones(len(idx))
     from bodystudio.geometry.mesh import vertex_normals
 
-    ko, qo, no = frame.outline.pairs(vertices, vertex_normals(vertices, frame.faces))
-    return (np.r_[idx, ko], np.r_[q, qo], np.r_[nrm, no],
-            np.r_[np.ones(len(idx)), np.full(len(ko), frame.outline.weight)])
+    ko, qo, no = outline.pairs(vertices, vertex_normals(vertices, frame.faces))
+    return (np.r_[idx, ko], np.r_[q, qo], np.r_[nrm, no], np.r_[np.ones(len(idx)), np.full(len(ko), outline.weight)])
 
 
 def grazing_pairs(vertices: np.ndarray, normals: np.ndarray, sensor_center: np.ndarray,
