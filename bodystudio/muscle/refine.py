@@ -163,8 +163,9 @@ def grazing_pairs(vertices: np.ndarray, normals: np.ndarray, sensor_center: np.n
 def outline_pairs(vertices: np.ndarray, normals: np.ndarray, depth_m: np.ndarray, camera, candidates: np.ndarray,
                   max_facing_cos: float = 0.3, search_px: float = 6.0, step_px: float = 0.25, jump_m: float = 0.03,
                   near_m: float = 0.5, far_m: float = 1.3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Outline pairs of the limb's rim against the depth map's occluding contour (world frame): vertex ids, targets,
-    unit directions, as point-to-plane pairs (the silhouette term of Rapid Skin's Eq. 10 lifted to 3-D).
+    """Outline pairs of the limb's rim against the depth map's occluding contour, Eq. 6-7 of Rapid Skin (rim vertices
+    searched along their normal's image direction, pulled to the contour's viewing ray) as point-to-plane pairs
+    (world frame): vertex ids, targets, unit directions.
 
     Sec. 5.2 drops the rim (its depth is mixed with the background; the fourteenth pass's ``grazing_pairs``), so the
     fit never sees the limb's width in the image plane, which bounds its girth on the side the sensor does not see.
