@@ -10,6 +10,12 @@ true surface's normal / tangential, the tangential part along the bone / around 
 
     python -m benchmarks.muscle_tail --work W --session 501 --session 504 --session 507 --session 508
 
+The rest-shape fit's outline pairs (docs/muscle.md "Capture, sixteenth pass"):
+
+    python -m benchmarks.muscle_tail --work W --rest-variants --session 508 --session 513 \
+        --variant "pop10:body_rest_outline_weight=0.0,body_rest_population_locals=1.0" \
+        --variant "ol1x2:body_rest_outline_weight=1.0,body_rest_population_locals=2.0"
+
 docs/muscle.md "Capture, fifteenth pass".
 """
 
@@ -258,14 +264,15 @@ def rest_variant_rows(work: Path, subject_seed: int, variants: dict) -> dict:
     rows = {}
     for name, options in variants.items():
         o = cm.CaptureOptions(**options)
-        frames = depth_frames(state, template, o)
+        frames = cm.with_outlines(depth_frames(state, template, o), raw, camera, S, template, o)
         poses, base, J, seq_cpu = sequence_of(work, subject_seed, name, model, template, state, frames, o)
         refit = dict(cm.POSE_REFIT)
         poses = refit_arm_poses_to_depth(model, poses, cm.facing_frames(frames, o.sequence_min_facing_cos), base, J,
                                          o.norm_limit, o.sequence_huber_m, state["tracker_t"],
                                          refit.pop("tracker_weight"), **refit)
         if o.pose_sigma_frames > 0:
-            poses = smooth_arm_poses(poses, o.pose_sigma_frames)
+            poses = smooth_arm_poses(poses, o.pose_sigma_frames, degree=o.pose_smoothing_degree,
+                                     shoulder_degree=o.shoulder_smoothing_degree)
         M = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         d = cm.refinement_depth_options(o)
         if d not in refine_clouds:

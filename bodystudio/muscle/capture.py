@@ -66,6 +66,7 @@ from bodystudio.muscle.nicp import (
 )
 from bodystudio.muscle.refine import (
     DepthFrame,
+    DepthOutline,
     arm_pose_from_part_transforms,
     correspondence_weights,
     depth_energy_mm,
@@ -119,12 +120,13 @@ TRACKER_JOINTS = {"left": ("ShoulderLeft", "ElbowLeft", "WristLeft"),
 # mean median) and not the extension (-23.4 %, 6.29 mm either way); its population prior on the local targets costs
 # the extension (-23.4 -> -15.5 %, 6.29 -> 6.99 mm; both: -19.4 -> -18.1 % with 671-674 added): an out-of-range
 # subject lies outside the in-range population's spread (the short woman 603's row 4.44 -> 8.47 mm from her truth).
+# No outline pairs in the rest fit either (the sixteenth pass's, not measured for the extension).
 EXTENSION_CAPTURE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "sequence_depth_huber_only": True,
                      "body_rest_shape": True, "body_rest_tracker_weight": 10.0, "norm_limit": 0.2, "pose_refit": True,
                      "refine_unseen_hold": 1.0, "refine_min_facing_cos": 0.35, "refine_depth_median_px": 1,
                      "refine_depth_gaussian_sigma_px": 0.5, "sequence_min_facing_cos": 0.3,
                      "pose_sigma_frames": 2.5, "pose_smoothing_degree": 0, "body_rest_population_locals": 0.0,
-                     "body_rest_local_sigma": 0.25}
+                     "body_rest_local_sigma": 0.25, "body_rest_outline_weight": 0.0}
 # The setting of a sequence that pins its shared torso placement and skeleton (``CaptureOptions.sequence_pinned_se_m``,
 # off by default): the skeleton and placement fitted with every frame's angles, Huber on the depth pairs only, the
 # chest's pairs off, the tracker's joints at 10, and a 5 % norm limit (the fitted skeleton carries a lower model biceps;
@@ -352,8 +354,10 @@ class CaptureOptions:
     # choice: subject 513 3.73 / 6.16 -> 3.50 / 5.75, 501's noise seed 1 2.47 / 4.69 -> 2.38 / 4.66. 0.05 for the
     # others: 507 2.13 / 4.70 but 508 3.26 / 6.20 (its upper arm 3.4 population sd fat); every target at 0.1: 507
     # 2.71 / 6.12, 508 4.21 / 9.02.
+    # Since the sixteenth pass (with the outline pairs below) the population's spread doubled: the outline says how far
+    # from the population's middle the arm's girth is, so the prior may let it go (docs/muscle.md, sixteenth pass).
     body_rest_local_sigma: float = 0.1
-    body_rest_population_locals: float = 1.0
+    body_rest_population_locals: float = 2.0
     body_rest_iterations: int = 3  # Gauss-Newton steps per round (re-paired each)
     body_rest_frame_stride: int = 4  # every this-many-th frame enters the rest-shape fit (it is shared)
     body_rest_arm_length_weight: float = 100.0  # measured arm length (known shape), per frame, vs one depth pair
@@ -384,6 +388,16 @@ class CaptureOptions:
     # since the fourteenth pass (mus11o), with ``body_rest_tracker_weight=10``: the figures there.
     body_rest_min_facing_cos: float = 0.0
     sequence_min_facing_cos: float = 0.3
+    # Outline pairs in the rest-shape fit (``refine.outline_pairs``: each rim vertex of the arm region against the raw
+    # depth map's occluding contour along its normal's image direction; 0: off), per pair relative to a depth pair,
+    # each target moved ``body_rest_outline_offset_m`` outwards (the contour's bias: on the truth's own rim of 501 /
+    # 504 / 507 it lies 0.37-0.40 mm inside, mean over every 5th frame's rim vertices). The
+    # sensor sees the upper arm's sides edge-on: their outline bounds the arm's girth where no depth pair reaches
+    # (docs/muscle.md, sixteenth pass). Measured (200 frames, median / p90 mm, the fifteenth pass's default -> weight 1
+    # with the population's spread doubled): 501 2.18 / 3.94 -> 1.65 / 3.75, 504 2.31 / 4.21 -> 1.95 / 3.63, 507 2.20 /
+    # 4.89 -> 2.13 / 4.34, 508 3.11 / 5.93 -> 2.10 / 3.75; used for no choice: 513 3.62 / 5.88 -> 2.85 / 4.81.
+    body_rest_outline_weight: float = 1.0
+    body_rest_outline_offset_m: float = 0.0004
     smooth_weight: float = 10.0  # joint angles held near the previous frame's (per coordinate, 0.3 m lever)
     # Sec. 5.1's scale: off by default. Point-to-point pairs of a one-sided view shrink the template
     # (measured: scale 0.77, 38 mm median error on the first frame vs 14 mm rigid); the model's shape
@@ -430,6 +444,9 @@ class CaptureOptions:
         if self.personal_rounds > 0 and self.body_rest_shape and self.body_rest_rounds > 0:
             raise InputError("personal_rounds and the body rest shape's rounds are two rest-shape fits and only one "
                              "runs; set body_rest_shape=False to use personal_rounds")
+        if not (self.body_rest_outline_weight >= 0 and abs(self.body_rest_outline_offset_m) <= 0.01):
+            raise InputError(f"body_rest_outline_weight must be >= 0 and body_rest_outline_offset_m within +-0.01 m, "
+                             f"got {self.body_rest_outline_weight} and {self.body_rest_outline_offset_m}")
         if not (0 <= self.body_rest_min_facing_cos < 1 and 0 <= self.sequence_min_facing_cos < 1):
             raise InputError(f"body_rest_min_facing_cos and sequence_min_facing_cos must be in [0, 1), got "
                              f"{self.body_rest_min_facing_cos} and {self.sequence_min_facing_cos}")
@@ -595,6 +612,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         apply_similarity(Sinv, tracker_joints.reshape(-1, 3)).reshape(-1, 3, 3)
     frames_t = [DepthFrame(P, N, tree, C, arm, adjacency, o.nicp.filters, F)
                 for (P, N), tree in zip(clouds_t, trees, strict=True)]
+    frames_t = with_outlines(frames_t, depths, camera, S, template, o)
     timer.add("rigid_alignment", t0)
 
     n_frames = len(depths)
@@ -737,6 +755,18 @@ def body_rest_local_sigma(o: CaptureOptions, space) -> np.ndarray | None:
     if o.body_rest_local_sigma != BODY_LOCAL_PRIOR_SIGMA:
         return np.full(len(space.local_names), o.body_rest_local_sigma)
     return None
+
+
+def with_outlines(frames: list[DepthFrame], depths: list[np.ndarray], camera, S, template: ArmTemplate,
+                  o: CaptureOptions) -> list[DepthFrame]:
+    """The frames with their raw depth maps for the rest-shape fit's outline pairs (``refine.DepthOutline``) when
+    ``o.body_rest_outline_weight`` > 0 (the other fits use the depth pairs only), else the frames as they are."""
+    if o.body_rest_outline_weight <= 0:
+        return frames
+    return [replace(f, outline=DepthOutline(np.asarray(d, np.float64), camera, S, o.body_rest_outline_weight,
+                                            template.arm_mask, o.body_rest_outline_offset_m, o.depth.near_m,
+                                            o.depth.far_m))
+            for f, d in zip(frames, depths, strict=True)]
 
 
 def facing_frames(frames: list[DepthFrame], min_facing_cos: float) -> list[DepthFrame]:

@@ -69,6 +69,35 @@ def _pose_from_vector(x: np.ndarray) -> ArmPose:
 
 
 @dataclass(frozen=True, eq=False)
+class DepthOutline:
+    """One frame's raw depth map for :func:`outline_pairs`: the depth camera (world), the capture's similarity
+    ``(s, R, t)`` (template space -> world) and the outline pairs' weight (per pair, 1 = a depth pair's); the rim
+    vertices searched are those of ``candidates`` (the arm region)."""
+
+    depth_m: np.ndarray
+    camera: object
+    similarity: tuple
+    weight: float
+    candidates: np.ndarray
+    offset_m: float = 0.0
+    near_m: float = 0.5
+    far_m: float = 1.3
+
+    def pairs(self, vertices: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`outline_pairs` of template-space ``vertices`` / ``normals``, in template space; each target moved
+        ``offset_m`` outwards (the contour's own bias: on the truth's rim it lies 0.4 mm inside; docs/muscle.md,
+        sixteenth pass)."""
+        from bodystudio.muscle.nicp import apply_similarity
+
+        s, R, t = self.similarity
+        Vw = apply_similarity(self.similarity, vertices)
+        k, q, n = outline_pairs(Vw, np.asarray(normals) @ R.T, self.depth_m, self.camera, self.candidates,
+                                near_m=self.near_m, far_m=self.far_m)
+        q = q + self.offset_m * n
+        return k, ((q - t) @ R) / s, n @ R
+
+
+@dataclass(frozen=True, eq=False)
 class DepthFrame:
     """One frame's depth data for the model fit: points, normals, their k-d tree, sensor, filters."""
 
@@ -81,6 +110,7 @@ class DepthFrame:
     filters: object
     faces: np.ndarray
     min_facing_cos: float = 0.0  # > 0: the grazing pairs are dropped too (:func:`grazing_pairs`)
+    outline: DepthOutline | None = None  # the rest-shape fit's outline pairs (:func:`weighted_pairs`)
 
     def plane_pairs(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Filtered closest-point pairs of ``vertices`` (Sec. 5.2): vertex ids, depth points, point normals.
@@ -101,6 +131,21 @@ class DepthFrame:
         return k, pairs.targets[k], pairs.target_normals[k]
 
 
+def weighted_pairs(frame: DepthFrame, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The frame's depth pairs (:meth:`DepthFrame.plane_pairs`) followed by its outline pairs (``frame.outline``,
+    :func:`outline_pairs`) when it has them: vertex ids, targets, directions and each pair's weight (1 for a depth
+    pair, ``frame.outline.weight`` for an outline pair). Any frame with ``plane_pairs`` will do (no ``outline``:
+    none)."""
+    idx, q, nrm = frame.plane_pairs(vertices)
+    outline = getattr(frame, "outline", None)
+    if outline is None or outline.weight <= 0:
+        return idx, q, nrm, np.ones(len(idx))
+    from bodystudio.geometry.mesh import vertex_normals
+
+    ko, qo, no = outline.pairs(vertices, vertex_normals(vertices, frame.faces))
+    return (np.r_[idx, ko], np.r_[q, qo], np.r_[nrm, no], np.r_[np.ones(len(idx)), np.full(len(ko), outline.weight)])
+
+
 def grazing_pairs(vertices: np.ndarray, normals: np.ndarray, sensor_center: np.ndarray,
                   min_facing_cos: float) -> np.ndarray:
     """Vertices (n,) bool whose normal makes less than ``min_facing_cos`` with the direction to the sensor.
@@ -113,6 +158,67 @@ def grazing_pairs(vertices: np.ndarray, normals: np.ndarray, sensor_center: np.n
     to_sensor = np.asarray(sensor_center, np.float64) - np.asarray(vertices, np.float64)
     cos = np.einsum("kd,kd->k", normals, to_sensor) / np.maximum(np.linalg.norm(to_sensor, axis=1), 1e-12)
     return cos < min_facing_cos
+
+
+def outline_pairs(vertices: np.ndarray, normals: np.ndarray, depth_m: np.ndarray, camera, candidates: np.ndarray,
+                  max_facing_cos: float = 0.3, search_px: float = 6.0, step_px: float = 0.25, jump_m: float = 0.03,
+                  near_m: float = 0.5, far_m: float = 1.3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Outline pairs of the limb's rim against the depth map's occluding contour, Eq. 6-7 of Rapid Skin (rim vertices
+    searched along their normal's image direction, pulled to the contour's viewing ray) as point-to-plane pairs
+    (world frame): vertex ids, targets, unit directions.
+
+    Sec. 5.2 drops the rim (its depth is mixed with the background; the fourteenth pass's ``grazing_pairs``), so the
+    fit never sees the limb's width in the image plane, which bounds its girth on the side the sensor does not see.
+    Each candidate vertex seen edge-on (its normal's cosine with the direction to the sensor under
+    ``max_facing_cos``) is searched along its normal's image direction, ``search_px`` either way in ``step_px``
+    steps over the raw depth (segmented to [``near_m``, ``far_m``], no filter: a filter moves the border) for the
+    contour: the step where the pixels stop being as near as the vertex (depth under the vertex's + ``jump_m``: the
+    limb itself or something in front of it). The pair's target is the vertex moved by that signed distance (pixels
+    times depth over the focal length) along its normal made perpendicular to the view ray, its direction that
+    normal: a vertex whose contour lies outside it is pulled out. Dropped: vertices behind the sensor, a contour
+    not found within the search, and one whose inner side is not the vertex's own surface (depth more than
+    ``jump_m`` from the vertex's: something in front)."""
+    V = np.asarray(vertices, np.float64)
+    N = np.asarray(normals, np.float64)
+    depth = np.asarray(depth_m, np.float64)
+    H, W = depth.shape
+    ray = V - camera.center
+    ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
+    cos = -np.einsum("kd,kd->k", N, ray)
+    z = camera.world_to_camera(V)[:, 2]
+    k = np.flatnonzero(np.asarray(candidates, bool) & (np.abs(cos) < max_facing_cos) & (z > 0.1))
+    empty = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+    if len(k) == 0:
+        return empty
+    n_perp = N[k] - np.einsum("kd,kd->k", N[k], ray[k])[:, None] * ray[k]
+    n_perp /= np.maximum(np.linalg.norm(n_perp, axis=1, keepdims=True), 1e-12)
+    uv = camera.project(V[k])
+    m2 = camera.project(V[k] + 1e-3 * n_perp) - uv
+    m2 /= np.maximum(np.linalg.norm(m2, axis=1, keepdims=True), 1e-12)
+    t = np.arange(-search_px, search_px + 0.5 * step_px, step_px)
+    P = uv[:, None, :] + t[None, :, None] * m2[:, None, :]
+    cols, rows = np.rint(P[..., 0]).astype(np.int64), np.rint(P[..., 1]).astype(np.int64)
+    inside = (cols >= 0) & (cols < W) & (rows >= 0) & (rows < H)
+    d = np.where(inside, depth[np.clip(rows, 0, H - 1), np.clip(cols, 0, W - 1)], 0.0)
+    valid = np.isfinite(d) & (d >= near_m) & (d <= far_m)
+    near = valid & (d < z[k, None] + jump_m)
+    c = len(t) // 2
+    # the contour: the first step outward from the centre that is not near (centre near) or the last near step
+    # inward (centre not near); its position halfway between the two steps
+    out_first = np.where(~near[:, c:], np.arange(c, len(t))[None, :], len(t)).min(axis=1)
+    in_last = np.where(near[:, :c + 1], np.arange(c + 1)[None, :], -1).max(axis=1)
+    at_centre = near[:, c]
+    edge_i = np.where(at_centre, out_first, in_last + 1)
+    found = (edge_i > 0) & (edge_i < len(t))
+    inner = np.clip(edge_i - 1, 0, len(t) - 1)
+    d_in = d[np.arange(len(k)), inner]
+    found &= np.abs(d_in - z[k]) < jump_m
+    if not found.any():
+        return empty
+    edge_px = t[np.clip(edge_i, 0, len(t) - 1)] - 0.5 * step_px
+    e_m = edge_px * z[k] / camera.fx
+    k, e_m, n_perp = k[found], e_m[found], n_perp[found]
+    return k, V[k] + e_m[:, None] * n_perp, n_perp
 
 
 def _model_residuals(mesh: np.ndarray, pairs, deformed: np.ndarray | None, nicp_weight: float) -> np.ndarray:
@@ -723,11 +829,11 @@ def fit_body_rest_shape(space, model, poses: list[ArmPose], frames: list[DepthFr
                 GtG += tracker_weight * normal_matrix(Gj)
                 Gtr += tracker_weight * normal_rhs(Gj, (PJ - tj).ravel())
             M = pose_arm(rest + dr, W, J, pose)
-            idx, q, nrm = fr.plane_pairs(M)
+            idx, q, nrm, wp = weighted_pairs(fr, M)
             if len(idx) == 0:
                 continue
             r = np.einsum("kd,kd->k", M[idx] - q, nrm)
-            w = np.minimum(1.0, huber_m / np.maximum(np.abs(r), 1e-12)) if huber_m > 0 else np.ones(len(r))
+            w = wp * (np.minimum(1.0, huber_m / np.maximum(np.abs(r), 1e-12)) if huber_m > 0 else 1.0)
             A = np.einsum("kp,pij->kij", W[idx], Tp[:, :3, :3])
             An = np.einsum("kij,ki->kj", A, nrm)  # n^T A per paired vertex
             # d t / d J: the parts' translations are linear in the joint centres (exact differences)
@@ -839,7 +945,7 @@ def fit_body_rest_shape_and_poses(space, model, poses: list[ArmPose], frames: li
             Tp = part_transforms(J, pose)
             H_sa, H_aa, g_a = np.zeros((P, 4)), lever2 * np.eye(4), np.zeros(4)
             M = mesh_of(pose, rest, J)
-            idx, q, nrm = fr.plane_pairs(M)
+            idx, q, nrm, wp = weighted_pairs(fr, M)
             if tj is not None:
                 PJ = posed_joints(J, pose)
                 dPJ = np.stack([(posed_joints(J + e.reshape(3, 3), pose) - PJ).ravel() for e in np.eye(9)], axis=1)
@@ -854,7 +960,7 @@ def fit_body_rest_shape_and_poses(space, model, poses: list[ArmPose], frames: li
                 g_a += tracker_weight * normal_rhs(Aj, rj)
             if len(idx):
                 r = np.einsum("kd,kd->k", M[idx] - q, nrm)
-                w = np.minimum(1.0, huber_m / np.maximum(np.abs(r), 1e-12)) if huber_m > 0 else np.ones(len(r))
+                w = wp * (np.minimum(1.0, huber_m / np.maximum(np.abs(r), 1e-12)) if huber_m > 0 else 1.0)
                 A = np.einsum("kp,pij->kij", W[idx], Tp[:, :3, :3])
                 An = np.einsum("kij,ki->kj", A, nrm)
                 dT = np.stack([(part_transforms(J + e.reshape(3, 3), pose)[:, :3, 3] - Tp[:, :3, 3])

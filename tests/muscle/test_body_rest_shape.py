@@ -137,8 +137,12 @@ def test_the_capture_takes_its_rest_arm_and_skeleton_from_the_body_space(monkeyp
     proj = Spies(monkeypatch, ("project_to_body_space",), module=model_mod)
     fast = dict(shape_frames=2, shape_rounds=1, first_frame_nicp_iterations=3, sequence_rounds=1,
                 sequence_max_nfev=3, nicp=NicpOptions(iterations=2), pose_sigma_frames=0.0, pose_refit=False)
+    # without the outline pairs (on by default since the sixteenth pass; their own tests: test_rest_outline.py): on
+    # this noise-free render the contour lies ~1 mm outside the mesh (the tube test there), the depth energy of the
+    # fitted round rises and the capture keeps round 0's rest arm, which this test does not follow
     o = CaptureOptions(mode="model", body_rest_shape=True, body_rest_rounds=1, body_rest_frame_stride=2,
-                       body_rest_prior_weight=3.0, body_rest_iterations=2, body_rest_fit_poses=False, **fast)
+                       body_rest_prior_weight=3.0, body_rest_iterations=2, body_rest_fit_poses=False,
+                       body_rest_outline_weight=0.0, **fast)
     c = capture_arm_frames(s.depths, s.camera, s.template, s.model, o, s.tracker, known_shape=s.shape)
     (p,) = proj["project_to_body_space"]
     (fb,) = spies["fit_body_rest_shape"]

@@ -104,8 +104,12 @@ def test_the_extension_setting_and_the_new_defaults():
                                          "refine_depth_median_px": 1, "refine_depth_gaussian_sigma_px": 0.5,
                                          "sequence_min_facing_cos": 0.3,
                                          "pose_sigma_frames": 2.5, "pose_smoothing_degree": 0,
-                                         "body_rest_population_locals": 0.0, "body_rest_local_sigma": 0.25}
+                                         "body_rest_population_locals": 0.0, "body_rest_local_sigma": 0.25,
+                                         "body_rest_outline_weight": 0.0}
     o = CaptureOptions()
+    # docs/muscle.md sixteenth pass: the outline pairs in the rest fit, the population's spread doubled
+    assert (o.body_rest_outline_weight, o.body_rest_outline_offset_m, o.body_rest_population_locals) == (1.0, 0.0004,
+                                                                                                         2.0)
     # docs/muscle.md fifteenth pass: the pose smoothing's local quadratic at sigma 5
     assert (o.pose_sigma_frames, o.pose_smoothing_degree) == (5.0, 2)
     # docs/muscle.md fourteenth pass (the rest arm): the pose fits without the grazing pairs, the rest fit's tracker 10
@@ -168,7 +172,8 @@ def test_the_capture_for_extension_sets_the_extension_options_and_needs_the_sequ
                                        refine_unseen_hold=1.0, refine_min_facing_cos=0.35, refine_depth_median_px=1,
                                        refine_depth_gaussian_sigma_px=0.5, sequence_min_facing_cos=0.3,
                                        pose_sigma_frames=2.5, pose_smoothing_degree=0,
-                                       body_rest_population_locals=0.0, body_rest_local_sigma=0.25)
+                                       body_rest_population_locals=0.0, body_rest_local_sigma=0.25,
+                                       body_rest_outline_weight=0.0)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, for_extension=True)
     assert seen["o"] == CaptureOptions(mode="full", **cap_mod.EXTENSION_CAPTURE)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", for_extension=False)
