@@ -71,6 +71,11 @@ JOINT_RESIDUAL_WARN_MM = 45.0
 #: (height) are flagged; 611 (0.049-0.095: BMI, muscularity, height) and 612 (BMI 32, fitted in range at 25.5)
 #: are not. A shape the user gives (--shape, measured) is flagged as soon as it leaves the range.
 SHAPE_OUTSIDE_WARN = 0.10
+#: The subject's sex (given with --shape: 1 male, 0 female) this far from every training subject's: the model
+#: describes the other sex's arm (its female column is zero until women are added: ``muscle model extend``). The
+#: benchmark's all-male model on 200 frames (docs/muscle.md, "Capture, seventeenth pass"): the men 501-514 (sex
+#: 0.89-1.0) 1.65-2.85 mm median, the women 516 / 518 (sex 0.07 / 0.08) 6.8 / 7.1 mm (p90 15.7 / 17.8).
+SEX_OUTSIDE_WARN = 0.5
 
 
 def region_of_vertices(part_weights: np.ndarray) -> dict[str, np.ndarray]:
@@ -305,6 +310,13 @@ def shape_extrapolation(shape, model) -> dict:
         value = float(getattr(shape, name))
         width = max(hi - lo, 1e-9)
         out[name] = {"value": value, "range": [lo, hi], "outside": float(max(lo - value, value - hi, 0.0) / width)}
+    rows = getattr(model, "shape_rows", None)
+    if rows is not None and np.ndim(rows) == 2 and np.shape(rows)[1] > len(SHAPE_NAMES):
+        sexes = np.asarray(rows, np.float64)[:, len(SHAPE_NAMES)]
+        value = float(getattr(shape, "sex", 1.0))
+        # sex spans 0 (female) to 1 (male): the distance to the nearest training subject's, not a share of a span
+        out["sex"] = {"value": value, "range": [float(sexes.min()), float(sexes.max())],
+                      "outside": float(np.min(np.abs(sexes - value)))}
     return out
 
 
@@ -374,18 +386,27 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
     shape = figures.get("shape")
     if shape:
         margin = 0.0 if figures.get("shape_given") else SHAPE_OUTSIDE_WARN
-        outside = [n for n, s in shape.items() if s["outside"] > margin]
+        outside = [n for n, s in shape.items() if n != "sex" and s["outside"] > margin]
         if outside:
             listing = "; ".join(f"{n} {shape[n]['value']:.3g} (trained on {shape[n]['range'][0]:.3g}-"
                                 f"{shape[n]['range'][1]:.3g})" for n in outside)
             warnings.append(f"the subject lies outside the model's training range, so the model extrapolates "
                             f"({listing}): its muscle shapes are less certain; extend the model with such "
                             "subjects (muscle model extend)")
+        sex = shape.get("sex")
+        if sex and sex["outside"] > SEX_OUTSIDE_WARN:
+            given, trained, missing = ("female", "men", "women") if sex["value"] < 0.5 else ("male", "women", "men")
+            warnings.append(f"the subject is {given} (sex {sex['value']:.2g}) and the model was trained on {trained} "
+                            f"only (sex {sex['range'][0]:.2g}-{sex['range'][1]:.2g}): its rest arm, joints and muscle "
+                            f"shapes are a {trained[:-2]}an's, and such captures were measured 3-4x less accurate "
+                            f"(7 mm median against 2 mm); extend the model with {missing} (muscle model extend) "
+                            "before relying on this capture")
     return {"thresholds": {"depth_ratio_range": list(DEPTH_RATIO_RANGE), "side_nearer_m": SIDE_NEARER_M,
                            "far_m": far_m, "sampling_warn_mm": SAMPLING_WARN_MM,
                            "residual_refuse_mm": RESIDUAL_REFUSE_MM, "points_explained_refuse": POINTS_EXPLAINED_REFUSE,
                            "residual_warn_mm": RESIDUAL_WARN_MM, "points_explained_warn": POINTS_EXPLAINED_WARN,
-                           "joint_residual_warn_mm": JOINT_RESIDUAL_WARN_MM, "shape_outside_warn": SHAPE_OUTSIDE_WARN},
+                           "joint_residual_warn_mm": JOINT_RESIDUAL_WARN_MM, "shape_outside_warn": SHAPE_OUTSIDE_WARN,
+                           "sex_outside_warn": SEX_OUTSIDE_WARN},
             "figures": _json_safe(figures), "warnings": warnings, "problems": problems, "ok": not problems}
 
 

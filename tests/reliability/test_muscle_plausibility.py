@@ -138,3 +138,39 @@ def test_verdict_on_recorded_figures():
     # the out-of-range subjects' captures (residual <= 7.9 mm, points >= 0.983) raise no such warning
     assert capture_verdict({**clean, "upperarm": {"residual_mm": 7.9, "explained": 0.52}, "points_explained": 0.983},
                            "left")["warnings"] == []
+
+
+def test_a_woman_captured_with_a_model_of_men_is_written_with_a_warning(sessions, arm_model, tmp_path, capfd):
+    """--shape sex=female with a model trained on men only (every ``muscle model build`` model): the capture used
+    to exit 0 without a word, while the benchmark's all-male model captures women 3-4x worse (516 / 518: 6.8 / 7.1
+    mm median against 1.65-2.85 for the men 501-514). It is written, with one warning naming the cause and the fix,
+    and the sex against the training subjects' in plausibility.json."""
+    out = tmp_path / "cap"
+    shape = "bmi=23,muscularity=0.6,height_m=1.71,arm_length_m=0.48,sex=female"
+    result = run_inprocess(["muscle", "capture", sessions["clean"], "--out", out, "--model", arm_model, "--frames", "2",
+                            "--no-refine", "--shape", shape], capfd)
+    assert_clean_error(result, 0, "")
+    assert "the subject is female" in result.stderr and "trained on men only" in result.stderr, result.stderr
+    assert "muscle model extend" in result.stderr
+    verdict = json.loads((out / "plausibility.json").read_text())
+    assert verdict["ok"] and len(verdict["warnings"]) == 1, verdict["warnings"]
+    sex = verdict["figures"]["shape"]["sex"]
+    assert sex == {"value": 0.0, "range": [1.0, 1.0], "outside": 1.0}
+
+
+def test_sex_verdict_on_recorded_figures():
+    """The sexes of the benchmark's subjects against the all-male model: the men (0.89-1.0: 508, 511) pass, the
+    women (516: 0.074, 518: 0.085) warn; a model extended with a woman warns on neither."""
+    from bodystudio.muscle.plausibility import capture_verdict
+
+    def verdict(value, lo=1.0):
+        outside = min(abs(value - lo), abs(value - 1.0))
+        return capture_verdict({"shape": {"sex": {"value": value, "range": [lo, 1.0], "outside": outside}},
+                                "shape_given": True}, "left")
+
+    assert verdict(0.891)["warnings"] == [] and verdict(0.92)["warnings"] == []
+    for value in (0.074, 0.085):
+        warnings = verdict(value)["warnings"]
+        assert len(warnings) == 1 and f"female (sex {value:.2g})" in warnings[0] and "extend the model with women" \
+            in warnings[0], warnings
+    assert verdict(0.074, lo=0.0)["warnings"] == []
