@@ -76,6 +76,12 @@ SHAPE_OUTSIDE_WARN = 0.10
 #: benchmark's all-male model on 200 frames (docs/muscle.md, "Capture, seventeenth pass"): the men 501-514 (sex
 #: 0.89-1.0) 1.65-2.85 mm median, the women 516 / 518 (sex 0.07 / 0.08) 6.8 / 7.1 mm (p90 15.7 / 17.8).
 SEX_OUTSIDE_WARN = 0.5
+#: The fitted rest skeleton's forearm (or upper arm) turned this far (degrees) from the model's regressed one for the
+#: subject's shape: the rest fit bent the skeleton to make a shape the model does not describe fit the depth, and the
+#: vertices slide along the skin. 200-frame captures at the default (docs/muscle.md, "Capture, seventeenth pass"):
+#: the men 501-513 forearm 0.43-1.68 deg (fitted 0.36-0.59 deg from the truth's), the women 516 / 518 2.86 / 3.15
+#: deg (4.6 / 4.8 from the truth's; 6.8 / 7.1 mm median error); upper arm <= 0.4 deg in all.
+REST_BONE_TURN_WARN_DEG = 2.3
 
 
 def region_of_vertices(part_weights: np.ndarray) -> dict[str, np.ndarray]:
@@ -279,6 +285,9 @@ def capture_checks(capture, session, template, model=None, max_frames: int = 40,
     if joint_mm:
         out["tracker_joint_residual_mm"] = dict(zip(("shoulder", "elbow", "wrist"),
                                                     np.median(joint_mm, axis=0).round(2).tolist(), strict=True))
+    turn = rest_bone_turn_deg(capture.joints, getattr(capture, "regressed_joints", None))
+    if turn is not None:
+        out["rest_bone_turn_deg"] = turn
     if model is not None and capture.shape is not None and getattr(model, "subjects", None):
         out["shape"] = shape_extrapolation(capture.shape, model)
         out["shape_given"] = bool(shape_given)
@@ -296,6 +305,18 @@ def _median_figures(rows: list[dict]) -> dict:
         vals = [r[key] for r in rows if np.isfinite(r[key])]
         out[key] = float(np.median(vals)) if vals else float("nan")
     return out
+
+
+def rest_bone_turn_deg(fitted, regressed) -> dict | None:
+    """Angle (degrees) between the fitted rest skeleton's upper arm and forearm (shoulder, elbow, wrist (3, 3)) and
+    the model's regressed ones for the subject's shape (the rest joints the model's Eq. 6 puts the arm on); None
+    without both."""
+    if fitted is None or regressed is None:
+        return None
+    F, R = np.diff(np.asarray(fitted, np.float64), axis=0), np.diff(np.asarray(regressed, np.float64), axis=0)
+    cos = np.sum(F * R, axis=1) / np.maximum(np.linalg.norm(F, axis=1) * np.linalg.norm(R, axis=1), 1e-12)
+    return dict(zip(("upperarm", "forearm"), np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).round(3).tolist(),
+                    strict=True))
 
 
 def shape_extrapolation(shape, model) -> dict:
@@ -383,6 +404,14 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
         worst = max(joints, key=joints.get)
         warnings.append(f"the fitted {worst} is {joints[worst]:.0f} mm from the body tracker's (median over frames; "
                         f"consistent captures <= {JOINT_RESIDUAL_CLEAN_MM:g} mm): the tracker or the fit is off")
+    turn = figures.get("rest_bone_turn_deg")
+    if turn and max(turn.values()) > REST_BONE_TURN_WARN_DEG:
+        bone = max(turn, key=turn.get)
+        warnings.append(f"the rest fit turned the subject's {bone} {turn[bone]:.1f} deg away from the model's for this "
+                        f"shape (captures that match the model <= {REST_BONE_TURN_WARN_DEG:g} deg): the model does not "
+                        "describe this arm (a woman captured with a model of men did this), so the skin fits the depth "
+                        "while its vertices slide along it (measured: 7 mm median error against 2 mm); extend the "
+                        "model with such subjects (muscle model extend)")
     shape = figures.get("shape")
     if shape:
         margin = 0.0 if figures.get("shape_given") else SHAPE_OUTSIDE_WARN
@@ -406,7 +435,7 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
                            "residual_refuse_mm": RESIDUAL_REFUSE_MM, "points_explained_refuse": POINTS_EXPLAINED_REFUSE,
                            "residual_warn_mm": RESIDUAL_WARN_MM, "points_explained_warn": POINTS_EXPLAINED_WARN,
                            "joint_residual_warn_mm": JOINT_RESIDUAL_WARN_MM, "shape_outside_warn": SHAPE_OUTSIDE_WARN,
-                           "sex_outside_warn": SEX_OUTSIDE_WARN},
+                           "sex_outside_warn": SEX_OUTSIDE_WARN, "rest_bone_turn_warn_deg": REST_BONE_TURN_WARN_DEG},
             "figures": _json_safe(figures), "warnings": warnings, "problems": problems, "ok": not problems}
 
 
