@@ -425,8 +425,10 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
         sex = shape.get("sex")
         if sex and sex["outside"] > SEX_OUTSIDE_WARN:
             given, trained, missing = ("female", "men", "women") if sex["value"] < 0.5 else ("male", "women", "men")
+            lo, hi = sex["range"]
+            span = f"{lo:.2g}" if lo == hi else f"{lo:.2g}-{hi:.2g}"
             warnings.append(f"the subject is {given} (sex {sex['value']:.2g}) and the model was trained on {trained} "
-                            f"only (sex {sex['range'][0]:.2g}-{sex['range'][1]:.2g}): its rest arm, joints and muscle "
+                            f"only (sex {span}): its rest arm, joints and muscle "
                             f"shapes are a {trained[:-2]}an's, and such captures were measured 3-4x less accurate "
                             f"(7 mm median against 2 mm); extend the model with {missing} (muscle model extend) "
                             "before relying on this capture")
