@@ -19,7 +19,11 @@ After the capture (:func:`capture_checks`), from the session's own depth and tra
 * the body tracker's shoulder, elbow and wrist against the fitted ones (median over frames, mm);
 * the depth sampling on the arm: the median pixel footprint (mm) where the arm is seen;
 * the fitted (or given) shape parameters against the model's training range (Eq. 6 regresses them linearly:
-  outside the range the model extrapolates).
+  outside the range the model extrapolates), and a given sex against the training subjects' (an all-male model
+  describes a man's arm);
+* the fitted rest skeleton's bones against the model's regressed ones (:func:`rest_bone_turn_deg`): a model that does
+  not describe the arm (a woman's with an all-male model) is made to fit the depth by turning the forearm, and the
+  skin's vertices then slide along the depth surface (7 mm median error with the surface on the depth).
 
 :func:`capture_verdict` turns the figures into a verdict (``warnings``, ``problems``, ``ok``);
 :func:`check_before_capture` and :func:`check_after_capture` (called by ``capture_session_arm``) refuse a
