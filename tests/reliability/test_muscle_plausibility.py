@@ -106,10 +106,10 @@ def test_subject_outside_the_training_range_is_captured_with_a_warning(sessions,
     assert_clean_error(result, 0, "")
     assert "the model extrapolates" in result.stderr and "bmi 33" in result.stderr, result.stderr
     verdict = json.loads((out / "plausibility.json").read_text())
-    # the given shape is not the session's subject's (501: BMI 23, 1.71 m), so the rest fit turns the 1.98 m man's
-    # regressed skeleton to the arm it sees: warned too
-    assert verdict["ok"] and len(verdict["warnings"]) == 2 and "turned the subject's" in verdict["warnings"][0]
-    assert verdict["figures"]["rest_bone_turn_deg"]["upperarm"] > 2.3
+    assert verdict["ok"] and len(verdict["warnings"]) == 1
+    # the given shape is not the session's subject's (501: BMI 23, 1.71 m): the rest fit turns the 1.98 m man's
+    # regressed skeleton to the arm it sees (recorded, no verdict: a good capture of a short man turns it as far)
+    assert verdict["figures"]["rest_bone_turn_deg"]["upperarm"] > 1.0
     shape = verdict["figures"]["shape"]
     assert shape["bmi"]["outside"] > 0.5 and shape["height_m"]["outside"] > 0.2 and shape["muscularity"]["outside"] == 0
 
@@ -180,10 +180,10 @@ def test_sex_verdict_on_recorded_figures():
     assert verdict(0.074, lo=0.0)["warnings"] == []
 
 
-def test_rest_bone_turn_on_recorded_figures():
-    """The fitted rest skeleton's bones against the model's regressed ones (200-frame captures, the all-male model):
-    the men's forearms turned 0.43-1.68 deg pass, the women's 2.86 / 3.15 deg (6.8 / 7.1 mm median error) warn; the
-    angle itself is measured, not read back (a bone turned 3 deg about the elbow reads 3.0)."""
+def test_rest_bone_turn_is_recorded_without_a_verdict():
+    """The fitted rest skeleton's bones against the model's regressed ones: measured, not read back (a forearm turned
+    3 deg about the elbow reads 3.0); recorded without a warning, since it does not separate the failing captures
+    (the women 512 / 516 / 518: 2.9-4.1 deg) from a good one (the short man 514: 3.4 deg)."""
     from scipy.spatial.transform import Rotation
 
     from bodystudio.muscle.plausibility import capture_verdict, rest_bone_turn_deg
@@ -196,6 +196,5 @@ def test_rest_bone_turn_on_recorded_figures():
     turn = rest_bone_turn_deg(fitted, regressed)
     assert turn["upperarm"] == pytest.approx(0.0, abs=1e-6) and turn["forearm"] == pytest.approx(3.0, abs=1e-3)
     assert rest_bone_turn_deg(None, regressed) is None
-    for forearm, warned in ((0.43, False), (1.68, False), (2.86, True), (3.15, True)):
-        warnings = capture_verdict({"rest_bone_turn_deg": {"upperarm": 0.4, "forearm": forearm}}, "left")["warnings"]
-        assert bool(warnings) is warned and (not warned or f"forearm {forearm:.1f} deg" in warnings[0]), warnings
+    verdict = capture_verdict({"rest_bone_turn_deg": turn}, "left")
+    assert verdict["warnings"] == [] and verdict["figures"]["rest_bone_turn_deg"] == turn
