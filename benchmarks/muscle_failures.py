@@ -5,8 +5,9 @@ Kinect v2 at 1 m, the measured shape, ``CaptureOptions()``), the capture (cached
 its error against the truth (median / p90, and the median by the true elbow angle), the subject's sex, and the
 truth-free figures of :mod:`bodystudio.muscle.plausibility` (the rest skeleton's turn from the model's regressed one,
 the depth residuals, the tracker's joints) with the verdict's warnings. W holds the benchmark's ``model.npz`` and
-the sessions (``benchmarks.muscle_sequences.session_of`` makes missing ones). Without truth the turn is what
-separates the women's captures (516, 518) from the men's: docs/muscle.md, "Capture, seventeenth pass".
+the sessions (``benchmarks.muscle_sequences.session_of`` makes missing ones). The women 512 / 516 / 518 fail
+(7-8.5 mm), the men pass; the turn does not separate them (514, a good capture, turns 3.4 deg): docs/muscle.md,
+"Capture, seventeenth pass".
 """
 
 from __future__ import annotations
