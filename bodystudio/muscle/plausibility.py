@@ -19,7 +19,11 @@ After the capture (:func:`capture_checks`), from the session's own depth and tra
 * the body tracker's shoulder, elbow and wrist against the fitted ones (median over frames, mm);
 * the depth sampling on the arm: the median pixel footprint (mm) where the arm is seen;
 * the fitted (or given) shape parameters against the model's training range (Eq. 6 regresses them linearly:
-  outside the range the model extrapolates).
+  outside the range the model extrapolates), and a given sex against the training subjects' (an all-male model
+  describes a man's arm);
+* the fitted rest skeleton's bones against the model's regressed ones (:func:`rest_bone_turn_deg`), recorded
+  without a verdict: the women 512 / 516 / 518 captured with the all-male model (7-8.5 mm median) turn the forearm
+  2.9-4.1 deg, the men 501-513 / 517 0.08-1.68, but the short man 514 (a good capture, 1.85 mm) 3.4 deg.
 
 :func:`capture_verdict` turns the figures into a verdict (``warnings``, ``problems``, ``ok``);
 :func:`check_before_capture` and :func:`check_after_capture` (called by ``capture_session_arm``) refuse a
@@ -71,6 +75,12 @@ JOINT_RESIDUAL_WARN_MM = 45.0
 #: (height) are flagged; 611 (0.049-0.095: BMI, muscularity, height) and 612 (BMI 32, fitted in range at 25.5)
 #: are not. A shape the user gives (--shape, measured) is flagged as soon as it leaves the range.
 SHAPE_OUTSIDE_WARN = 0.10
+#: The subject's sex (given with --shape: 1 male, 0 female) this far from every training subject's: the model
+#: describes the other sex's arm (its female column is zero until women are added: ``muscle model extend``). The
+#: benchmark's all-male model on 200 frames (docs/muscle.md, "Capture, seventeenth pass"): the men 501-517 (sex
+#: 0.89-1.0) 1.65-2.85 mm median, the women 516 / 518 / 512 (sex 0.07 / 0.08 / 0.01) 6.8 / 7.1 / 8.5 mm (p90 15.7 /
+#: 17.8 / 20.3).
+SEX_OUTSIDE_WARN = 0.5
 
 
 def region_of_vertices(part_weights: np.ndarray) -> dict[str, np.ndarray]:
@@ -274,6 +284,9 @@ def capture_checks(capture, session, template, model=None, max_frames: int = 40,
     if joint_mm:
         out["tracker_joint_residual_mm"] = dict(zip(("shoulder", "elbow", "wrist"),
                                                     np.median(joint_mm, axis=0).round(2).tolist(), strict=True))
+    turn = rest_bone_turn_deg(capture.joints, getattr(capture, "regressed_joints", None))
+    if turn is not None:
+        out["rest_bone_turn_deg"] = turn
     if model is not None and capture.shape is not None and getattr(model, "subjects", None):
         out["shape"] = shape_extrapolation(capture.shape, model)
         out["shape_given"] = bool(shape_given)
@@ -293,6 +306,18 @@ def _median_figures(rows: list[dict]) -> dict:
     return out
 
 
+def rest_bone_turn_deg(fitted, regressed) -> dict | None:
+    """Angle (degrees) between the fitted rest skeleton's upper arm and forearm (shoulder, elbow, wrist (3, 3)) and
+    the model's regressed ones for the subject's shape (the rest joints the model's Eq. 6 puts the arm on); None
+    without both."""
+    if fitted is None or regressed is None:
+        return None
+    F, R = np.diff(np.asarray(fitted, np.float64), axis=0), np.diff(np.asarray(regressed, np.float64), axis=0)
+    cos = np.sum(F * R, axis=1) / np.maximum(np.linalg.norm(F, axis=1) * np.linalg.norm(R, axis=1), 1e-12)
+    return dict(zip(("upperarm", "forearm"), np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).round(3).tolist(),
+                    strict=True))
+
+
 def shape_extrapolation(shape, model) -> dict:
     """Per shape parameter of Eq. 6 (BMI, muscularity, height, arm length): the value, the model's training
     range, and how far outside it the value lies as a share of the range's span (0 inside)."""
@@ -305,6 +330,13 @@ def shape_extrapolation(shape, model) -> dict:
         value = float(getattr(shape, name))
         width = max(hi - lo, 1e-9)
         out[name] = {"value": value, "range": [lo, hi], "outside": float(max(lo - value, value - hi, 0.0) / width)}
+    rows = getattr(model, "shape_rows", None)
+    if rows is not None and np.ndim(rows) == 2 and np.shape(rows)[1] > len(SHAPE_NAMES):
+        sexes = np.asarray(rows, np.float64)[:, len(SHAPE_NAMES)]
+        value = float(getattr(shape, "sex", 1.0))
+        # sex spans 0 (female) to 1 (male): the distance to the nearest training subject's, not a share of a span
+        out["sex"] = {"value": value, "range": [float(sexes.min()), float(sexes.max())],
+                      "outside": float(np.min(np.abs(sexes - value)))}
     return out
 
 
@@ -374,18 +406,29 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
     shape = figures.get("shape")
     if shape:
         margin = 0.0 if figures.get("shape_given") else SHAPE_OUTSIDE_WARN
-        outside = [n for n, s in shape.items() if s["outside"] > margin]
+        outside = [n for n, s in shape.items() if n != "sex" and s["outside"] > margin]
         if outside:
             listing = "; ".join(f"{n} {shape[n]['value']:.3g} (trained on {shape[n]['range'][0]:.3g}-"
                                 f"{shape[n]['range'][1]:.3g})" for n in outside)
             warnings.append(f"the subject lies outside the model's training range, so the model extrapolates "
                             f"({listing}): its muscle shapes are less certain; extend the model with such "
                             "subjects (muscle model extend)")
+        sex = shape.get("sex")
+        if sex and sex["outside"] > SEX_OUTSIDE_WARN:
+            given, trained, missing = ("female", "men", "women") if sex["value"] < 0.5 else ("male", "women", "men")
+            lo, hi = sex["range"]
+            span = f"{lo:.2g}" if lo == hi else f"{lo:.2g}-{hi:.2g}"
+            warnings.append(f"the subject is {given} (sex {sex['value']:.2g}) and the model was trained on {trained} "
+                            f"only (sex {span}): its rest arm, joints and muscle "
+                            f"shapes are a {trained[:-2]}an's, and such captures were measured 3-4x less accurate "
+                            f"(7 mm median against 2 mm); extend the model with {missing} (muscle model extend) "
+                            "before relying on this capture")
     return {"thresholds": {"depth_ratio_range": list(DEPTH_RATIO_RANGE), "side_nearer_m": SIDE_NEARER_M,
                            "far_m": far_m, "sampling_warn_mm": SAMPLING_WARN_MM,
                            "residual_refuse_mm": RESIDUAL_REFUSE_MM, "points_explained_refuse": POINTS_EXPLAINED_REFUSE,
                            "residual_warn_mm": RESIDUAL_WARN_MM, "points_explained_warn": POINTS_EXPLAINED_WARN,
-                           "joint_residual_warn_mm": JOINT_RESIDUAL_WARN_MM, "shape_outside_warn": SHAPE_OUTSIDE_WARN},
+                           "joint_residual_warn_mm": JOINT_RESIDUAL_WARN_MM, "shape_outside_warn": SHAPE_OUTSIDE_WARN,
+                           "sex_outside_warn": SEX_OUTSIDE_WARN},
             "figures": _json_safe(figures), "warnings": warnings, "problems": problems, "ok": not problems}
 
 

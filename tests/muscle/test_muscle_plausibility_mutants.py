@@ -178,7 +178,8 @@ def test_verdict_clean_and_thresholds():
     assert v["thresholds"] == {"depth_ratio_range": [0.88, 1.03], "side_nearer_m": 0.15, "far_m": 1.3,
                                "sampling_warn_mm": 3.5, "residual_refuse_mm": 20.0, "points_explained_refuse": 0.8,
                                "residual_warn_mm": 11.0, "points_explained_warn": 0.95,
-                               "joint_residual_warn_mm": 45.0, "shape_outside_warn": 0.1}
+                               "joint_residual_warn_mm": 45.0, "shape_outside_warn": 0.1,
+                               "sex_outside_warn": 0.5}
     assert v["figures"]["upperarm"] == {"residual_mm": 5.0, "explained": 0.9}
     assert _verdict(_clean(sampling_mm=float("nan")))["figures"]["sampling_mm"] is None
     # every threshold's own value passes
