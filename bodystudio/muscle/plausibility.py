@@ -423,6 +423,14 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
                             f"shapes are a {trained[:-2]}an's, and such captures were measured 3-4x less accurate "
                             f"(7 mm median against 2 mm); extend the model with {missing} (muscle model extend) "
                             "before relying on this capture")
+        elif sex and not figures.get("shape_given") and sex["range"][0] == sex["range"][1]:
+            # nothing in the depth tells a woman's capture from a man's (docs/muscle.md, seventeenth pass): with
+            # no sex given, the capture assumes the only one the model knows, and says so
+            trained, other = ("men", "woman") if sex["range"][0] >= 0.5 else ("women", "man")
+            warnings.append(f"the subject's sex was not given (--shape): assumed like every training subject of the "
+                            f"model ({trained} only); a {other}'s capture with this model was measured 3-4x less "
+                            f"accurate (7 mm median against 2 mm); give --shape with the subject's sex, or extend "
+                            f"the model with {other.replace('an', 'en')} (muscle model extend)")
     return {"thresholds": {"depth_ratio_range": list(DEPTH_RATIO_RANGE), "side_nearer_m": SIDE_NEARER_M,
                            "far_m": far_m, "sampling_warn_mm": SAMPLING_WARN_MM,
                            "residual_refuse_mm": RESIDUAL_REFUSE_MM, "points_explained_refuse": POINTS_EXPLAINED_REFUSE,

@@ -60,7 +60,12 @@ def test_clean_session_passes_its_self_check(sessions, arm_model, tmp_path, capf
     result = run_inprocess(["muscle", "capture", sessions["clean"], "--out", out, "--model", arm_model], capfd)
     assert_clean_error(result, 0, "")
     verdict = json.loads((out / "plausibility.json").read_text())
-    assert verdict["ok"] and not verdict["problems"] and not verdict["warnings"], verdict
+    assert verdict["ok"] and not verdict["problems"], verdict
+    # the one warning: no sex given, and the model knows men only (a woman's capture would be 3-4x off)
+    assert len(verdict["warnings"]) == 1, verdict
+    assert verdict["warnings"][0].startswith("the subject's sex was not given (--shape): assumed like every training "
+                                             "subject of the model (men only)"), verdict
+    assert "extend the model with women (muscle model extend)" in verdict["warnings"][0]
     figures = verdict["figures"]
     assert 0.9 < figures["depth_to_tracker_ratio"] < 1.0
     assert figures["arm_distance_m"]["right"] - figures["arm_distance_m"]["left"] > 0.2
@@ -178,6 +183,15 @@ def test_sex_verdict_on_recorded_figures():
         assert len(warnings) == 1 and f"female (sex {value:.2g})" in warnings[0] and "extend the model with women" \
             in warnings[0], warnings
     assert verdict(0.074, lo=0.0)["warnings"] == []
+    # no sex given (the fitted shape's is the model's): said when the model knows one sex only, never twice
+    fitted = {"shape": {"sex": {"value": 1.0, "range": [1.0, 1.0], "outside": 0.0}}, "shape_given": False}
+    warnings = capture_verdict(fitted, "left")["warnings"]
+    assert len(warnings) == 1 and "sex was not given" in warnings[0] and "with women" in warnings[0], warnings
+    women = {"shape": {"sex": {"value": 0.0, "range": [0.0, 0.0], "outside": 0.0}}, "shape_given": False}
+    assert "(women only)" in capture_verdict(women, "left")["warnings"][0]
+    both = {"shape": {"sex": {"value": 1.0, "range": [0.0, 1.0], "outside": 0.0}}, "shape_given": False}
+    assert capture_verdict(both, "left")["warnings"] == []
+    assert capture_verdict({**fitted, "shape_given": True}, "left")["warnings"] == []
 
 
 def test_rest_bone_turn_is_recorded_without_a_verdict():
