@@ -176,15 +176,16 @@ def test_weighted_pairs_of_a_frame_without_an_outline_attribute():
 
 
 def test_contours_at_the_end_of_the_search_are_the_references():
-    """Thin tubes whose contours lie 5-7 px outside their rims: the search's last steps (6 px) decide."""
+    """Thin tubes whose contours lie 5-7 px outside their rims and wide ones whose contours lie 5-7 px inside: the
+    search's first and last steps (6 px) decide."""
     camera, depth, _, _ = _tube_scene("x")
     cand = None
     far_px = []
-    for r in (0.0245, 0.025, 0.0255, 0.026, 0.0265):
+    for r in (0.0245, 0.025, 0.0255, 0.026, 0.0265, 0.0535, 0.054, 0.0545, 0.055, 0.0555):
         V, F = tube(radius=r)
         N = vertex_normals(V, F)
         cand = np.ones(len(V), bool)
         k, q, n = _check(V, N, depth, camera, cand)
         z = camera.world_to_camera(V[k])[:, 2]
         far_px += list(np.einsum("kd,kd->k", q - V[k], n) * camera.fx / z)
-    assert max(far_px) > 5.7, max(far_px)
+    assert max(far_px) > 5.7 and min(far_px) < -5.7, (max(far_px), min(far_px))
