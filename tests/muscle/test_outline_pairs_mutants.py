@@ -189,3 +189,16 @@ def test_contours_at_the_end_of_the_search_are_the_references():
         z = camera.world_to_camera(V[k])[:, 2]
         far_px += list(np.einsum("kd,kd->k", q - V[k], n) * camera.fx / z)
     assert max(far_px) > 5.7 and min(far_px) < -5.7, (max(far_px), min(far_px))
+
+
+@pytest.mark.parametrize("weight", [None, 0.5])
+def test_the_capture_attaches_the_outlines_at_the_default_weight_and_below_one(weight):
+    """``with_outlines`` at the capture's default (weight 1: on since the sixteenth pass) and at 0.5."""
+    from bodystudio.muscle import capture as cm
+    from bodystudio.muscle.refine import DepthFrame
+
+    camera, depth, V, _ = _tube_scene("x")
+    frames = [DepthFrame(np.zeros((1, 3)), np.zeros((1, 3)), None, camera.center, None, None, None, None)]
+    o = cm.CaptureOptions() if weight is None else cm.CaptureOptions(body_rest_outline_weight=weight)
+    out = cm.with_outlines(frames, [depth], camera, (1.0, np.eye(3), np.zeros(3)), SimpleNamespace(arm_mask=None), o)
+    assert out[0].outline is not None and out[0].outline.weight == (1.0 if weight is None else weight)
