@@ -679,14 +679,21 @@ def test_lock_holder(tmp_path):
     assert lock_holder(lay) == {"pid": "?", "host": "?", "command": "unknown command", "since": "just now"}
 
 
+def _utc_now() -> str:
+    """Now in UTC, in the lock's ``since`` format."""
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+
+
 def test_acquire_lock_records_this_process_and_release_removes_only_its_own(tmp_path):
     lay = _layout(tmp_path)
+    before = _utc_now()
     acquire_lock(lay, "bodystudio x")
+    after = _utc_now()
     holder = read_lock(lay.lock)
     assert set(holder) == {"pid", "host", "start", "command", "since"}
     assert (holder["pid"], holder["host"], holder["command"]) == (os.getpid(), HOST, "bodystudio x")
     assert holder["start"] == rf._process_start(os.getpid()) is not None
-    assert abs(time.mktime(time.strptime(holder["since"], "%Y-%m-%dT%H:%M:%SZ")) - time.mktime(time.gmtime())) < 60
+    assert before <= holder["since"] <= after  # the acquisition's UTC time, to the second (ISO strings sort as times)
     assert lay.lock.read_text().endswith("}\n")
     umask = os.umask(0)
     os.umask(umask)
@@ -705,10 +712,10 @@ def test_acquire_lock_since_is_utc_whatever_the_time_zone(tmp_path, monkeypatch)
     time.tzset()
     try:
         lay = _layout(tmp_path)
+        before = _utc_now()
         acquire_lock(lay, "t")
-        since = time.strptime(read_lock(lay.lock)["since"], "%Y-%m-%dT%H:%M:%SZ")
-        now = time.gmtime()
-        assert abs((since.tm_hour * 60 + since.tm_min) - (now.tm_hour * 60 + now.tm_min)) % (24 * 60) <= 2
+        after = _utc_now()
+        assert before <= read_lock(lay.lock)["since"] <= after  # local time would read 5 h 30 min later
     finally:
         monkeypatch.delenv("TZ")
         time.tzset()
