@@ -393,21 +393,26 @@ _FRAME_NUMBER = re.compile(r"(?<!\d)(\d{5})(?!\d)")
 
 
 def chunk_inputs_sha256(session_files: dict[str, str], all_frames: list[int], frames: list[int],
-                        options: ReconstructOptions) -> str:
+                        options: ReconstructOptions, players: list | None = None) -> str:
     """sha256 over the chunk's inputs: the session files of its frames, the files of no frame (calibration,
-    background) and the options. A file of another frame does not change the chunk."""
+    background), the options and the run's subject in its frames (``players``, ``[[frame, player id], ...]``;
+    None: the joints are not the tracker's). A file of another frame does not change the chunk."""
     keep = _frame_files(session_files, all_frames, frames)
     h = hashlib.sha256(json.dumps(keep, sort_keys=True).encode())
     h.update(json.dumps({"frames": frames, "options": asdict(options)}, sort_keys=True, default=str).encode())
+    if players is not None:
+        h.update(json.dumps({"players": players}).encode())
     return h.hexdigest()
 
 
 def reconstruct_chunk(session_path: str, frames: list[int], options: ReconstructOptions, unit_root: str,
-                      inputs_sha256: str) -> dict:
+                      inputs_sha256: str, players: list | None = None) -> dict:
     """One work unit, on a worker: Rapid Skin over consecutive ``frames`` into ``unit_root`` (atomic).
 
     The chunk starts from its first frame's tracker (and refined) pose; with ``warm_start`` the shape is
-    carried over inside the chunk only. A leftover of a killed attempt is discarded first.
+    carried over inside the chunk only. ``players`` (``[[frame, player id], ...]``): the run's subject in these
+    frames, chosen by the client over the whole run (a chunk that starts after a second person came into view
+    with a lower id must not choose them). A leftover of a killed attempt is discarded first.
     """
     from bodystudio.capture.session import open_session
     from bodystudio.reconstruct.rapid_skin import RapidSkinParams
@@ -424,7 +429,8 @@ def reconstruct_chunk(session_path: str, frames: list[int], options: Reconstruct
         reconstruct_frames(session, writer, list(frames), list(session.cameras), session.kinect, params,
                             options.solver, options.template, options.joints, options.joints_path,
                             options.warm_start, options.refine_pose, options.score, False,
-                            bone_lengths=options.bone_lengths if options.lengths is None else options.lengths)
+                            bone_lengths=options.bone_lengths if options.lengths is None else options.lengths,
+                            subject=None if players is None else {int(f): p for f, p in players})
     return {"frames": list(frames), "seconds": time.perf_counter() - t0, "pid": os.getpid()}
 
 
@@ -446,6 +452,7 @@ def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, fra
         parse_frames,
         reconstruction_layout,
         run_bone_lengths,
+        run_subject,
         summarize,
     )
 
@@ -464,8 +471,10 @@ def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, fra
     selected = parse_frames(frames, session.frame_ids)
     if options.bone_lengths not in BONE_LENGTHS:
         raise InputError(f"unknown bone lengths {options.bone_lengths!r}; valid: {', '.join(BONE_LENGTHS)}")
+    # the run's subject, chosen once over all its frames (each chunk gets its frames' share)
+    subject = run_subject(session, selected, options.joints)
     if options.bone_lengths == "sequence" and options.joints != "hull" and options.lengths is None:
-        lengths = run_bone_lengths(session, selected, options.joints, options.joints_path)
+        lengths = run_bone_lengths(session, selected, options.joints, options.joints_path, subject)
         options = replace(options, lengths=tuple(float(x) for x in lengths))
     layout = reconstruction_layout(session.path)
     chunks_root = layout.root / CHUNKS_DIR
@@ -479,15 +488,17 @@ def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, fra
         units = []
         for fr in chunk_frames(selected, chunk):
             name = chunk_name(fr)
-            sha = chunk_inputs_sha256(session.files, session.frame_ids, fr, options)
+            players = None if subject is None else [[f, subject[f]] for f in fr]
+            sha = chunk_inputs_sha256(session.files, session.frame_ids, fr, options, players)
             root = chunks_root / name
             units.append({"name": name, "frames": fr, "inputs_sha256": sha, "root": root, "output": str(root),
+                          "players": players,
                           "complete": (lambda r=root, s=sha: unit_is_complete(unit_layout(r), s))})
         record_path = chunks_root / RECORD
 
         def submit(unit):
             return client.submit(reconstruct_chunk, str(session.path), unit["frames"], options, str(unit["root"]),
-                                 unit["inputs_sha256"], key=task_key("reconstruct", unit),
+                                 unit["inputs_sha256"], unit["players"], key=task_key("reconstruct", unit),
                                  pure=False)
 
         report = _run_units(client, units, submit, record_path, force, progress,
@@ -497,16 +508,18 @@ def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, fra
             raise BatchError(report.failure_message("chunks"))
     finally:
         release_lock(layout)
-    records = _assemble_reconstruction(layout, units, options, selected, chunk, session.path, accept_implausible)
+    records = _assemble_reconstruction(layout, units, options, selected, chunk, session.path, accept_implausible,
+                                       subject)
     return summarize(records), report
 
 
 def _assemble_reconstruction(layout: RunLayout, units: list[dict], options: ReconstructOptions,
                              selected: list[int], chunk: int, session_path=None,
-                             accept_implausible: bool = False) -> list[dict]:
+                             accept_implausible: bool = False, subject: dict | None = None) -> list[dict]:
     """Publish the chunks as one reconstruction run (meshes, frames.json, run.json last), judged as one run by
-    the reconstruction's self-check (:func:`bodystudio.reconstruct.sequence.judge_run`)."""
-    from bodystudio.reconstruct.sequence import judge_run
+    the reconstruction's self-check (:func:`bodystudio.reconstruct.sequence.judge_run`); ``subject``: the run's
+    player per frame (:func:`bodystudio.reconstruct.sequence.run_subject`), recorded as the sequential run does."""
+    from bodystudio.reconstruct.sequence import judge_run, subject_record
 
     records = []
     with RunWriter(layout, "bodystudio reconstruct (batch)", {"template": options.template}) as writer:
@@ -529,7 +542,7 @@ def _assemble_reconstruction(layout: RunLayout, units: list[dict], options: Reco
                        "constraints": list(first["constraints"]), "frames": selected,
                        "warm_start": options.warm_start, "refine_pose": options.refine_pose,
                        "bone_lengths": options.bone_lengths, "params": first["params"],
-                       "n_vertices": first["n_vertices"],
+                       "n_vertices": first["n_vertices"], **subject_record(subject),
                        "plausibility": verdict,
                        "batch": {"chunk": chunk, "units": [u["name"] for u in units]}}, deletes=previous)
     return records

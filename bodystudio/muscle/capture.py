@@ -932,26 +932,6 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
     return capture
 
 
-def arm_subject_player(session, ids) -> int | None:
-    """The tracked person the arm capture follows: the lowest player id of the first frame of ``ids`` with joints
-    (:attr:`Frame.kinect_joints`), held over the sequence (None: no frame has joints, or they record no player)."""
-    for fid in ids:
-        joints = session.frame(fid).kinect_joints
-        if joints is not None:
-            return joints.get("player")
-    return None
-
-
-def subject_joints(frame, player: int | None) -> dict | None:
-    """One frame's joints of ``player`` (:func:`arm_subject_player`; None: the frame's first body). With the lowest
-    id the frame's first body changed hands when a second person came into view with a lower id than the
-    subject's, and the capture fitted the arm to that person's joints from then on."""
-    joints = frame.kinect_joints
-    if player is None or joints is None or joints.get("player", player) == player:
-        return joints
-    return next((body for body in frame.kinect_bodies or [] if body["player"] == player), None)
-
-
 def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
     """The body tracker's shoulder, elbow and wrist of ``side`` in every frame of ``ids`` (T, 3, 3), or None when
     no frame has them (the capture then fits the depth alone). A sequence tracked in some frames only is refused
@@ -959,12 +939,13 @@ def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
     a traceback, and an absent one dropped the tracker from every frame, which left the fit without its hold on
     the arm and the self-check blaming the calibration or the arm side."""
     from bodystudio.capture.session import stream_path
+    from bodystudio.capture.subject import follow_subject, frame_bodies
 
     want = TRACKER_JOINTS[side]
     rows, gaps = [], []
-    player = arm_subject_player(session, ids)
-    for fid in ids:
-        joints = subject_joints(session.frame(fid), player)
+    # the first frame's person, followed (a second person coming into view with a lower player id is not taken)
+    subject = follow_subject(frame_bodies(session.frame(fid)) for fid in ids)
+    for fid, joints in zip(ids, subject, strict=True):
         arm = None
         if joints is not None and all(n in joints["names"] for n in want):
             arm = np.asarray(joints["positions"], np.float64)[[joints["names"].index(n) for n in want]]

@@ -216,16 +216,13 @@ def session_checks(session, frame_ids: list, side: str) -> dict:
     sensor faces (:func:`arm_geometry` of both tracked arms on the first frame). Empty without tracker joints."""
     if session.kinect is None:
         return {}
-    from bodystudio.muscle.capture import subject_joints
+    from bodystudio.capture.subject import follow_subject, frame_bodies
 
     camera = session.kinect.depth
     ratios, geometry = [], {}
-    player = None  # the capture's (capture.arm_subject_player): the first frame with joints gives it
-    for fid in frame_ids[:RATIO_FRAMES]:
-        frame = session.frame(fid)
-        if player is None and frame.kinect_joints is not None:
-            player = frame.kinect_joints.get("player")
-        joints = subject_joints(frame, player)
+    frames = [session.frame(fid) for fid in frame_ids[:RATIO_FRAMES]]
+    # the capture's person (the first frame's, followed: capture.session_arm_tracker)
+    for frame, joints in zip(frames, follow_subject(frame_bodies(f) for f in frames), strict=True):
         mine = tracked_arm(joints, side)
         if mine is None or frame.kinect_depth_m is None:
             continue
@@ -263,15 +260,14 @@ def capture_checks(capture, session, template, model=None, max_frames: int = 40,
     picks = sorted({int(round(x)) for x in np.linspace(0, n - 1, min(n, max_frames))})
     fitted = fitted_world_joints(capture)
     model_meshes = capture.stages.get("model") if capture.stages else None
-    from bodystudio.muscle.capture import subject_joints
+    from bodystudio.capture.subject import follow_subject, frame_bodies
 
     rows, model_rows, joint_mm = [], [], []
-    player = None  # the capture's (capture.arm_subject_player): the first frame with joints gives it
-    for k in picks:
-        frame = session.frame(capture.frame_ids[k])
-        if player is None and frame.kinect_joints is not None:
-            player = frame.kinect_joints.get("player")
-        tracked = tracked_arm(subject_joints(frame, player), template.side)
+    frames = [session.frame(capture.frame_ids[k]) for k in picks]
+    # the capture's person (the first frame's, followed: capture.session_arm_tracker)
+    subject = follow_subject(frame_bodies(f) for f in frames)
+    for k, frame, joints in zip(picks, frames, subject, strict=True):
+        tracked = tracked_arm(joints, template.side)
         depth = frame.kinect_depth_m
         rows.append(frame_depth_agreement(capture.vertices[k], capture.faces, regions, depth, camera, tracked))
         if model_meshes is not None and capture.mode == "full":

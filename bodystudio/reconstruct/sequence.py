@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from bodystudio.body.kinect import kinect_joint_names, kinect_joints
+from bodystudio.capture.subject import subject_body
 from bodystudio.errors import ImplausibleResultError, InputError, SessionError
 from bodystudio.fileio import read_json
 from bodystudio.geometry.laplacian import cotangent_weights
@@ -138,11 +139,15 @@ def joints_v2(names: list[str], positions: np.ndarray, tracked: np.ndarray | Non
     return joints_from_mapping(mapping, kinect_joint_names("v2"))
 
 
-def frame_joints(session, frame, source: str, joints_dir: Path | None) -> np.ndarray:
-    """The frame's tracker joints (studio frame) from the session or a folder of per-frame JSON files."""
+def frame_joints(session, frame, source: str, joints_dir: Path | None, player: int | None = None) -> np.ndarray:
+    """The frame's tracker joints (studio frame) from the session or a folder of per-frame JSON files; ``player``:
+    the run's subject in this frame (:func:`run_subject`; None: the frame's lowest player id)."""
     where = f"{session.path} frame {frame.frame_id}"
     if source == "tracker":
-        data = frame.kinect_joints
+        data = frame.kinect_joints if player is None else subject_body(frame, player)
+        if data is None and frame.kinect_joints is not None:
+            raise SessionError(f"{where}: the run's subject (player {player}) is not among the tracked bodies; "
+                               "reconstruct the frames before it (--frames A:B)")
         if data is None:
             raise SessionError(f"{where}: no Kinect tracker joints; use --joints file --joints-path DIR")
         J = joints_v2(data["names"], data["positions"], data["tracked"])
@@ -168,19 +173,78 @@ def frame_joints(session, frame, source: str, joints_dir: Path | None) -> np.nda
     return J
 
 
-def run_joints(session, selected, joints: str, joints_path, smoothing: int = 0) -> np.ndarray:
+def run_joints(session, selected, joints: str, joints_path, smoothing: int = 0,
+               subject: dict | None = None) -> np.ndarray:
     """The ``selected`` frames' joints ``(T, 25, 3)``, smoothed over time with a half window of ``smoothing``
-    frames (:func:`bodystudio.reconstruct.pose_init.smooth_joint_track`; 0: as tracked)."""
+    frames (:func:`bodystudio.reconstruct.pose_init.smooth_joint_track`; 0: as tracked); ``subject``: the run's
+    player per frame (:func:`run_subject`)."""
     jdir = Path(joints_path) if joints_path else None
-    raw = np.array([frame_joints(session, session.frame(f), joints, jdir) for f in selected])
+    subject = subject or {}
+    raw = np.array([frame_joints(session, session.frame(f), joints, jdir, subject.get(f)) for f in selected])
     return smooth_joint_track(np.asarray(selected), raw, smoothing)
 
 
-def run_bone_lengths(session, selected, joints: str, joints_path) -> np.ndarray:
+def run_bone_lengths(session, selected, joints: str, joints_path, subject: dict | None = None) -> np.ndarray:
     """One set of bone lengths for a run (``--bone-lengths sequence``): the median over its ``selected``
-    frames of the tracked lengths (:func:`bodystudio.reconstruct.pose_init.sequence_bone_lengths`)."""
+    frames of the tracked lengths (:func:`bodystudio.reconstruct.pose_init.sequence_bone_lengths`) of the run's
+    subject (``subject``: its player per frame, :func:`run_subject`)."""
     jdir = Path(joints_path) if joints_path else None
-    return sequence_bone_lengths([frame_joints(session, session.frame(f), joints, jdir) for f in selected])
+    subject = subject or {}
+    return sequence_bone_lengths([frame_joints(session, session.frame(f), joints, jdir, subject.get(f))
+                                  for f in selected])
+
+
+def subject_record(subject: dict | None) -> dict:
+    """run.json's record of the run's subject (:func:`run_subject`): ``subject_player``, the tracker's id of the
+    person reconstructed (at the first frame), and ``subject_players`` ``{frame: id}`` where the tracker gave them
+    another id later; empty when the joints are not the session's tracker's."""
+    if subject is None:
+        return {}
+    ids = [p for p in subject.values() if p is not None]
+    first = ids[0] if ids else None
+    out: dict = {"subject_player": first}
+    if any(p != first for p in ids):
+        out["subject_players"] = {str(f): p for f, p in subject.items()}
+    return out
+
+
+def subject_depth(session, frame, depth_m: np.ndarray, player: int) -> np.ndarray:
+    """The frame's depth without the pixels the tracker's player mask gives to another person
+    (:func:`bodystudio.capture.subject.other_players_removed`; unchanged where the frame has no mask)."""
+    from bodystudio.capture.session import stream_path
+    from bodystudio.capture.subject import other_players_removed
+
+    try:
+        return other_players_removed(depth_m, frame.kinect_player, player)
+    except ValueError as exc:
+        raise SessionError(f"{session.path / stream_path('kinect_player', frame.frame_id)}: {exc}; "
+                           "regenerate the session") from None
+
+
+def run_subject(session, selected, joints: str, player: int | None = None) -> dict[int, int | None] | None:
+    """The run's subject: ``{frame id: player id}`` over ``selected`` (:func:`bodystudio.capture.subject.
+    session_subject`: chosen at the first frame with a tracked body, its lowest id unless ``player``, and followed),
+    None unless ``joints`` is the session's tracker. A frame whose tracked bodies do not include the subject is
+    refused (SessionError naming its joints file and the fix) rather than fitted to another person."""
+    from bodystudio.capture.session import stream_path
+    from bodystudio.capture.subject import absent_frames, frame_bodies, session_subject
+
+    if joints != "tracker":
+        return None
+    subject = session_subject(session, selected, player)
+    gone = absent_frames(subject, session)
+    if gone:
+        chosen = next((p for p in subject.values() if p is not None), player)
+        before = [f for f in selected if f < gone[0]]
+        others = sorted(b["player"] for b in frame_bodies(session.frame(gone[0])))
+        fix = f"reconstruct the frames before it (--frames {before[0]}:{gone[0]})" if before else \
+            "choose the frames where the subject is tracked (--frames A:B)"
+        raise SessionError(f"{session.path / stream_path('kinect_joints', gone[0])}: the run's subject (player "
+                           f"{chosen}, chosen at its first tracked frame) is not tracked in {len(gone)} of "
+                           f"{len(selected)} frames (first {gone[0]}, where the tracker reports player"
+                           f"{'s' if len(others) > 1 else ''} {', '.join(map(str, others))}: another person); "
+                           f"{fix}, or use --joints hull")
+    return subject
 
 
 def gt_kinect_joints(frame, skeleton_names) -> np.ndarray | None:
@@ -229,7 +293,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         joint_smoothing: int = 0, accept_implausible: bool = False, shape_prior: str = "off",
                         shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
                         refine_depth: float = 0.0, refine_depth_bones="neck",
-                        refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0) -> dict:
+                        refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0,
+                        player: int | None = None) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
@@ -250,8 +315,10 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     ``refine_depth`` (issue 15's neck front; 0: off) weights the Kinect's point-to-plane residuals in the pose
     refinement beside the silhouettes (:mod:`bodystudio.reconstruct.pose_depth`; with depth constraints), of
     the vertices of ``refine_depth_bones`` (``neck``: the neck and head, default; ``all``; or bone names).
+    ``player``: the Kinect player id of the person to reconstruct (default: the lowest id of the first frame with
+    a tracked body), followed over the run (:func:`run_subject`).
     """
-    from bodystudio.capture.session import open_session
+    from bodystudio.capture.session import MAX_PLAYERS, open_session
 
     if template not in TEMPLATES:
         raise InputError(f"unknown template {template!r}; valid: 13k, 6k, 2k")
@@ -259,6 +326,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
         raise InputError(f"unknown joint source {joints!r}; valid: {', '.join(JOINT_SOURCES)}")
     if joints == "file" and joints_path is None:
         raise InputError("--joints file needs --joints-path DIR with NNNNN.json files ({names, positions})")
+    if player is not None and (type(player) is not int or not 1 <= player <= MAX_PLAYERS):
+        raise InputError(f"player {player!r}: the Kinect SDK numbers players 1 to {MAX_PLAYERS}")
     session = open_session(path)
     params = params or RapidSkinParams(solver=solver, constraints=tuple(constraints))
     cameras = list(session.cameras)
@@ -271,6 +340,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     if "depth" in params.constraints and sensor is None:
         raise SessionError(f"{session.path}: no Kinect calibration, so no depth constraints; "
                            "use --constraints silhouette")
+    subject = run_subject(session, selected, joints, player)  # refused here, before the run folder is touched
     layout = reconstruction_layout(session.path)
     with RunWriter(layout, "bodystudio reconstruct", {"session": str(session.path), "template": template}) as writer:
         return reconstruct_frames(session, writer, selected, cameras, sensor, params, solver, template, joints,
@@ -282,7 +352,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    shape_prior_outer=shape_prior_outer,
                                    shape_prior_first_outer=shape_prior_first_outer, refine_depth=refine_depth,
                                    refine_depth_bones=refine_depth_bones, refine_depth_guard=refine_depth_guard,
-                                   smoothing_guard=smoothing_guard)
+                                   smoothing_guard=smoothing_guard, subject=subject)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -298,7 +368,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True,
                        shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
                        refine_depth: float = 0.0, refine_depth_bones="neck",
-                       refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0) -> dict:
+                       refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0, subject: dict | None = None,
+                       player: int | None = None) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -314,6 +385,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     frames.json and the run's verdict to run.json (``plausibility``); an implausible run raises
     :class:`ImplausibleResultError` before anything is committed unless ``accept_implausible`` (the default
     here, for a batch chunk, whose whole run is judged by :func:`bodystudio.batch.reconstruct_batch`).
+    ``subject`` (``{frame id: player id}``, :func:`run_subject`) is the person the tracker joints, the bone
+    lengths and the depth are taken of; None: chosen over ``selected`` (``player``: its id, else the first
+    tracked frame's lowest), which a batch chunk must not do (it gets the whole run's).
     """
     from bodystudio.body import build_body
     from bodystudio.body.statistical import load_statistical_model
@@ -333,18 +407,21 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
         raise InputError(f"unknown bone lengths {bone_lengths!r}; valid: {', '.join(BONE_LENGTHS)}")
     if not 0 <= int(joint_smoothing) <= 50:
         raise InputError(f"--joint-smoothing {joint_smoothing}: give a half window of 0..50 frames")
+    if subject is None:
+        subject = run_subject(session, selected, joints, player)
+    players = subject or {}
     smoothed = None
     if refine_params is None and joint_smoothing and joints != "hull":
         # with steadier Neck and Head joints the head's own pitch pays (docs/reconstruct.md)
         refine_params = PoseRefineParams(bones=REFINE_BONES_WITH_HEAD)
     if joint_smoothing and joints != "hull":
         # the run's tracked joints smoothed over time (and the bone lengths taken of them)
-        smoothed = dict(zip(selected, run_joints(session, selected, joints, joints_path, joint_smoothing),
+        smoothed = dict(zip(selected, run_joints(session, selected, joints, joints_path, joint_smoothing, players),
                             strict=True))
         if bone_lengths == "sequence":
             lengths = sequence_bone_lengths(list(smoothed.values()))
     elif bone_lengths == "sequence" and joints != "hull":
-        lengths = run_bone_lengths(session, selected, joints, joints_path)
+        lengths = run_bone_lengths(session, selected, joints, joints_path, players)
     body = build_body(resolution=TEMPLATES[template])
     F = body.faces
     if not 0 <= int(shape_prior_first_outer) <= 100:
@@ -406,12 +483,15 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 if depth_image is None:
                     raise SessionError(f"{session.path} frame {fid}: no Kinect depth image; "
                                        "use --constraints silhouette")
+                if players.get(fid) is not None and "kinect_player" in session.streams:
+                    depth_image = subject_depth(session, frame, depth_image, players[fid])
             t_read = time.perf_counter() - t_start
             t0 = time.perf_counter()
             J = None
             if joints != "hull":
                 J = (smoothed[fid] if smoothed is not None
-                     else frame_joints(session, frame, joints, Path(joints_path) if joints_path else None))
+                     else frame_joints(session, frame, joints, Path(joints_path) if joints_path else None,
+                                       players.get(fid)))
                 if lengths is not None:
                     J = with_bone_lengths(J, lengths)
             t1 = time.perf_counter()
@@ -423,7 +503,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             if smoothed is not None and smoothing_guard > 0 and fields is not None and fit_body is not None:
                 # issue 15: the smoothing assumes video rate; where the smoothed joints' pose leaves more of the
                 # template outside the silhouettes than the frame's own joints', the motion was not a line
-                J_raw = frame_joints(session, frame, joints, Path(joints_path) if joints_path else None)
+                J_raw = frame_joints(session, frame, joints, Path(joints_path) if joints_path else None,
+                                     players.get(fid))
                 if lengths is not None:
                     J_raw = with_bone_lengths(J_raw, lengths)
                 e_smooth, e_raw = (outside_fraction(initialise_pose(fit_body, X).vertices, fields,
@@ -627,7 +708,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "refine_bones": list((refine_params or PoseRefineParams()).bones) if refine_pose else [],
                    "params": asdict(params), "n_vertices": int(len(body.vertices)),
                    "track_params": asdict(track_params) if tracking else None,
-                   "plausibility": verdict}, deletes=previous)
+                   **subject_record(subject), "plausibility": verdict}, deletes=previous)
     return summarize(records)
 
 

@@ -204,7 +204,8 @@ def _session_stand_in(monkeypatch, cams=("c0", "c1"), manifest_cams=None, kinect
 
     calls = {}
     session = NS(path=Path("/s"), cameras=[NS(name=c) for c in cams],
-                 camera_names=list(manifest_cams or cams), frame_ids=list(ids), kinect=kinect)
+                 camera_names=list(manifest_cams or cams), frame_ids=list(ids), kinect=kinect,
+                 frame=lambda f: NS(kinect_joints=None))  # nobody tracked: rel5's run subject of no one
 
     def open_session(path):
         calls["open"] = path
@@ -252,7 +253,7 @@ def test_reconstruct_session_forwards_every_setting(monkeypatch):
     assert [c.name for c in args[3]] == ["c0", "c1"] and args[4] == "sensor"
     assert args[5] == RapidSkinParams(solver="cg", constraints=("silhouette", "depth"))
     assert args[6:] == ("cg", "2k", "file", "/j", True, False, False, True)
-    newer = ("shape_prior", "refine_depth", "smoothing_guard")  # keywords of issue 15's later passes
+    newer = ("shape_prior", "refine_depth", "smoothing_guard", "subject")  # issue 15's later keywords, rel5's
     assert {k: v for k, v in kw.items() if not k.startswith(newer)} == dict(
         tracking=True, track_params=tp, refine_with="hull", rest_cotangents=False, refine_params=rp,
         bone_lengths="frame", joint_smoothing=3, accept_implausible=True)
@@ -268,7 +269,7 @@ def test_reconstruct_session_defaults_and_given_params(monkeypatch):
     args, kw = calls["frames"]
     assert args[2] == [3, 4, 5] and args[5] == RapidSkinParams(solver="gs", constraints=("silhouette",))
     assert args[6:] == ("gs", "13k", "tracker", None, False, True, True, False)
-    newer = ("shape_prior", "refine_depth", "smoothing_guard")  # keywords of issue 15's later passes
+    newer = ("shape_prior", "refine_depth", "smoothing_guard", "subject")  # issue 15's later keywords, rel5's
     assert {k: v for k, v in kw.items() if not k.startswith(newer)} == dict(
         tracking=False, track_params=None, refine_with="fields", rest_cotangents=True, refine_params=None,
         bone_lengths="sequence", joint_smoothing=0, accept_implausible=False)

@@ -26,8 +26,8 @@ def session_3(small_synth_session, tmp_path_factory):
 def test_guard_keeps_the_smoothed_joints_only_where_the_silhouettes_agree(monkeypatch, session_3, e_smooth, kept):
     real_run_joints = sequence.run_joints
 
-    def run_joints(session, selected, joints, joints_path, smoothing=0):
-        return real_run_joints(session, selected, joints, joints_path, 0) + np.array([0.5, 0.0, 0.0])
+    def run_joints(session, selected, joints, joints_path, smoothing=0, subject=None):
+        return real_run_joints(session, selected, joints, joints_path, 0, subject) + np.array([0.5, 0.0, 0.0])
 
     starts = []
 

@@ -1,0 +1,122 @@
+"""The run's subject among the Kinect body tracker's people: chosen once per run, followed across frames.
+
+The Kinect SDKs track up to six people and number them 1..6 (the ``player`` of each body in
+``kinect/joints/NNNNN.json``, the pixel values of ``kinect/player/NNNNN.png``; docs/session-format.md). A stage
+that took each frame's lowest player id (:attr:`bodystudio.capture.session.Frame.kinect_joints`) fitted a second
+person who came into view with a lower id than the subject's from that frame on (adversarial pass 4: the arm
+capture, then ``reconstruct``). Here the subject is chosen once, at the run's first frame with a tracked body (its
+lowest id, or the id the caller gives), and followed frame to frame by its id; where that id is gone, a body
+whose joints lie within :data:`SUBJECT_FOLLOW_M` of the subject's last joints is the subject tracked again under
+a new id (the SDK numbers a person anew after losing them), and otherwise the frame has no subject: None, for the
+caller to report, never another person.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Sequence
+
+import numpy as np
+
+#: A body whose joints lie this close (median over the joints both report, metres) to the subject's last tracked
+#: joints is the subject under a new player id; two people stand further apart than this (shoulder to shoulder
+#: their spines ~0.5 m), and a person moves ~0.05 m between frames at 30 fps.
+SUBJECT_FOLLOW_M = 0.3
+
+
+def frame_bodies(frame) -> list[dict]:
+    """A frame's tracked bodies (``[{"player", "names", "positions", ...}]``, :attr:`Frame.kinect_bodies`); a frame
+    object with only ``kinect_joints`` gives that one body; ``[]`` when nobody is tracked. A body without a player
+    id is player 1, as the session reader reads the single-body layout."""
+    bodies = getattr(frame, "kinect_bodies", None)
+    if bodies is None:
+        joints = getattr(frame, "kinect_joints", None)
+        bodies = [] if joints is None else [joints]
+    return [b if "player" in b else {**b, "player": 1} for b in bodies]
+
+
+def body_distance_m(a: dict, b: dict) -> float:
+    """Median distance (metres) between two bodies' joints of the same name that both report (finite); inf
+    when they share none."""
+    pa = dict(zip(a["names"], np.asarray(a["positions"], np.float64).reshape(-1, 3), strict=True))
+    pb = dict(zip(b["names"], np.asarray(b["positions"], np.float64).reshape(-1, 3), strict=True))
+    d = [float(np.linalg.norm(pa[n] - pb[n])) for n in pa if n in pb and np.all(np.isfinite(pa[n]))
+         and np.all(np.isfinite(pb[n]))]
+    return float(np.median(d)) if d else float("inf")
+
+
+def first_player(bodies: Sequence[dict]) -> int | None:
+    """The subject a run chooses at its first frame with a tracked body: the lowest player id there (None: nobody
+    tracked)."""
+    return min((b["player"] for b in bodies), default=None)
+
+
+def follow_subject(bodies_by_frame: Iterable[Sequence[dict]], player: int | None = None,
+                   follow_m: float = SUBJECT_FOLLOW_M) -> Iterator[dict | None]:
+    """The subject's body in each frame of ``bodies_by_frame`` (each a list of bodies, :func:`frame_bodies`),
+    lazily: frames are read only as far as the caller iterates. ``player``: the subject's id; None chooses it at the
+    first frame with a body (:func:`first_player`). A frame yields the body with the subject's current id; where
+    that id is gone, the body nearest the subject's last joints within ``follow_m`` (:func:`body_distance_m`),
+    whose id the subject keeps from then on; otherwise None (the subject is not in the frame)."""
+    last = None
+    chosen = player is not None
+    for bodies in bodies_by_frame:
+        bodies = list(bodies or [])
+        if not chosen and bodies:
+            player, chosen = first_player(bodies), True
+        mine = next((b for b in bodies if b["player"] == player), None) if chosen else None
+        if mine is None and last is not None:
+            near = [(body_distance_m(b, last), k) for k, b in enumerate(bodies)]
+            near = [(d, k) for d, k in near if d <= follow_m]
+            if near:
+                mine = bodies[min(near)[1]]
+                player = mine["player"]
+        if mine is not None:
+            last = mine
+        yield mine
+
+
+def subject_players(bodies_by_frame: Iterable[Sequence[dict]], player: int | None = None,
+                    follow_m: float = SUBJECT_FOLLOW_M) -> list[int | None]:
+    """The subject's player id in each frame (:func:`follow_subject`; None where the subject is not tracked)."""
+    return [None if body is None else body["player"] for body in follow_subject(bodies_by_frame, player, follow_m)]
+
+
+def subject_body(frame, player: int | None) -> dict | None:
+    """The frame's body of ``player`` (:func:`subject_players`; None: the frame's lowest id, as
+    :attr:`Frame.kinect_joints`), or None when that player is not tracked in the frame."""
+    bodies = frame_bodies(frame)
+    if player is None:
+        return min(bodies, key=lambda b: b["player"], default=None)
+    return next((b for b in bodies if b["player"] == player), None)
+
+
+def session_subject(session, frame_ids: Sequence[int], player: int | None = None) -> dict[int, int | None]:
+    """``{frame id: the subject's player id}`` over a run's frames (:func:`subject_players`, read from each frame's
+    ``kinect/joints``; None where the subject is absent). Computed once per run: a batch chunk that starts after a
+    second person came into view gets the run's subject, not the lowest id of its own first frame."""
+    ids = list(frame_ids)
+    return dict(zip(ids, subject_players((frame_bodies(session.frame(f)) for f in ids), player), strict=True))
+
+
+def absent_frames(players: dict[int, int | None], session) -> list[int]:
+    """The frames of ``players`` (:func:`session_subject`) where the tracker reports people but not the subject:
+    the run must not take one of them instead (frames with nobody tracked are the joints reader's to refuse)."""
+    return [f for f, p in players.items() if p is None and frame_bodies(session.frame(f))]
+
+
+def other_players_removed(depth_m: np.ndarray, player_mask: np.ndarray | None, player: int | None) -> np.ndarray:
+    """The depth image without the pixels the body tracker gives to another person (``kinect/player``: 0 nobody,
+    k = player k): 0 (no reading) there, so no depth constraint pairs the subject's template with them. Unchanged
+    without a player mask or a subject id, or where the mask shows nobody else; ValueError when the mask is not the
+    depth image's size."""
+    if player_mask is None or player is None:
+        return depth_m
+    mask = np.asarray(player_mask)
+    if mask.shape != np.shape(depth_m):
+        raise ValueError(f"the player mask is {mask.shape[::-1]} pixels, the depth image {np.shape(depth_m)[::-1]}")
+    others = (mask > 0) & (mask != player)
+    if not others.any():
+        return depth_m
+    out = np.array(depth_m, dtype=np.float64, copy=True)
+    out[others] = 0.0
+    return out
