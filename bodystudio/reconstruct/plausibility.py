@@ -69,6 +69,15 @@ LIMB_JOINTS = ("ElbowLeft", "WristLeft", "ElbowRight", "WristRight", "KneeLeft",
 #: (its neighbours 15.4 / 15.7 mm) with every IoU >= 0.9, the other figures of this check blind to it; one arm's
 #: two joints (and its hand's) untracked: the run 5.1 / 15.9 mm against 4.7 / 13.9 mm clean.
 LIMB_UNTRACKED_WARN = 4
+#: A frame whose fitted pose puts a limb joint further than this (mm) from the tracker's (:func:`tracker_joint_
+#: residual`) is counted as far. Good runs (10 cameras 640x480, walk31 / walk58s1 / turn3 / arm_flex12 / ...,
+#: per-frame, --tracking and --accurate): <= 50 mm in every frame (the tracker's noise, which the refinement
+#: corrects); --tracking on 4 cameras at 160x120 (adv4's tiny session): 315-321 mm in both tracked frames, the
+#: arms lost inside the visual hull (p90 77-78 mm against 14-15 mm per frame) with every silhouette IoU >= 0.86.
+TRACKER_JOINT_FAR_MM = 150.0
+#: The run is refused when at least this share of its tracked frames (``--tracking``) is far: the tracking lost
+#: the limbs; fewer (or far frames the joints initialised) are warned about.
+TRACKING_LOST_REFUSE_SHARE = 0.5
 
 
 def untracked_limb_joints(joints: np.ndarray | None) -> int | None:
@@ -80,6 +89,29 @@ def untracked_limb_joints(joints: np.ndarray | None) -> int | None:
     names = kinect_joint_names("v2")
     J = np.asarray(joints, np.float64)
     return int(sum(not np.all(np.isfinite(J[names.index(n)])) for n in LIMB_JOINTS))
+
+
+def tracker_joint_residual(fitted_joints: np.ndarray | None, tracker_joints: np.ndarray | None) -> dict | None:
+    """How far the fitted pose's limb joints lie from the frame's tracker joints, both Kinect v2 ``(25, 3)``
+    (:data:`LIMB_JOINTS` finite in both): ``max_mm``, ``median_mm`` and the ``joint`` of the largest (None when
+    none is in both). The per-frame path starts every frame on the tracker's joints and the refinement corrects
+    them by the tracker's own error; a tracked frame (``--tracking``) uses them only to (re-)initialise, so a
+    limb the tracking lost inside the visual hull shows here and nowhere else in the silhouettes' figures."""
+    from bodystudio.body.kinect import kinect_joint_names
+
+    if fitted_joints is None or tracker_joints is None:
+        return None
+    names = kinect_joint_names("v2")
+    rows = [names.index(n) for n in LIMB_JOINTS]
+    A = np.asarray(fitted_joints, np.float64)[rows]
+    B = np.asarray(tracker_joints, np.float64)[rows]
+    ok = np.all(np.isfinite(A), axis=1) & np.all(np.isfinite(B), axis=1)
+    if not ok.any():
+        return None
+    d = 1000.0 * np.linalg.norm(A[ok] - B[ok], axis=1)
+    worst = int(np.argmax(d))
+    return {"max_mm": float(d[worst]), "median_mm": float(np.median(d)),
+            "joint": [n for n, k in zip(LIMB_JOINTS, ok, strict=True) if k][worst]}
 
 
 def fitted_silhouettes(V: np.ndarray, F: np.ndarray, cameras) -> dict[str, np.ndarray]:
@@ -312,6 +344,7 @@ def run_plausibility(frames: list[dict], session_path=None) -> dict:
             warnings.append(f"camera{'s' if len(weak) > 1 else ''} {', '.join(weak)} agree less with the fit or "
                             f"the other cameras (silhouette IoU {_listing(weak, iou)}; coherence "
                             f"{_listing(weak, coherence)}); the calibration or masks may be off")
+    _tracker_joint_verdict(frames, where, report, warnings, problems)
     lost = [f for f in frames if f.get("untracked_limb_joints", 0) >= LIMB_UNTRACKED_WARN]
     if lost:
         report["frames_limbs_untracked"] = len(lost)
@@ -337,6 +370,37 @@ def run_plausibility(frames: list[dict], session_path=None) -> dict:
     report["problems"] = problems
     report["ok"] = not problems
     return report
+
+
+def _tracker_joint_verdict(frames: list[dict], where: str, report: dict, warnings: list, problems: list) -> None:
+    """The fitted limbs against the tracker's joints (:func:`tracker_joint_residual`, per frame
+    ``tracker_joint_residual`` with ``tracked``: a ``--tracking`` frame that did not re-initialise): a problem when
+    :data:`TRACKING_LOST_REFUSE_SHARE` of the tracked frames put a limb joint over :data:`TRACKER_JOINT_FAR_MM`
+    from the tracker's, a warning when fewer frames do (or frames the joints initialised)."""
+    residuals = [f["tracker_joint_residual"] for f in frames if f.get("tracker_joint_residual")]
+    if not residuals:
+        return
+    far = [r for r in residuals if r["max_mm"] > TRACKER_JOINT_FAR_MM]
+    tracked = [r for r in residuals if r.get("tracked")]
+    far_tracked = [r for r in far if r.get("tracked")]
+    worst = max(residuals, key=lambda r: r["max_mm"])
+    report["tracker_joints"] = {"max_mm": worst["max_mm"], "joint": worst["joint"], "frames_far": len(far),
+                                "tracked_frames": len(tracked), "tracked_frames_far": len(far_tracked),
+                                "far_mm": TRACKER_JOINT_FAR_MM, "refuse_share": TRACKING_LOST_REFUSE_SHARE}
+    if not far:
+        return
+    at = f", frame {worst['frame']}" if "frame" in worst else ""
+    if far_tracked and len(far_tracked) >= TRACKING_LOST_REFUSE_SHARE * len(tracked):
+        problems.append(f"the tracking lost the limbs: {len(far_tracked)} of {len(tracked)} tracked frames put a "
+                        f"limb joint over {TRACKER_JOINT_FAR_MM:.0f} mm from {where}kinect/joints' (worst "
+                        f"{worst['joint']} {worst['max_mm']:.0f} mm{at}; good runs <= 50 mm) where the silhouettes "
+                        "do not hold them (few or small views); reconstruct without --tracking (each frame from its "
+                        "joints), or record more cameras or a higher resolution")
+    else:
+        warnings.append(f"{len(far)} of {len(residuals)} frames put a limb joint over {TRACKER_JOINT_FAR_MM:.0f} mm "
+                        f"from {where}kinect/joints' (worst {worst['joint']} {worst['max_mm']:.0f} mm{at}; good "
+                        "runs <= 50 mm; frames.json: tracker_joint_residual): the fit or the tracker is wrong there; "
+                        "check the joints, or reconstruct those frames without --tracking")
 
 
 def _listing(names, values: dict) -> str:

@@ -52,6 +52,7 @@ from bodystudio.reconstruct.plausibility import (
     coherence_frames,
     frame_plausibility,
     run_plausibility,
+    tracker_joint_residual,
     untracked_limb_joints,
 )
 from bodystudio.reconstruct.pose_depth import DEPTH_BONES, bone_vertices, combined_data_term, depth_data_term
@@ -664,6 +665,11 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             plausibility = frame_plausibility(V, F, cameras, check_masks, depth_image,
                                               sensor.depth if depth_image is not None else None,
                                               coherence=len(records) in probe)
+            if joints != "hull":
+                residual = tracker_joint_residual(init.joints, J)
+                if residual is not None:  # a tracked frame's limbs follow the silhouettes alone (adv4's tiny session)
+                    plausibility["tracker_joint_residual"] = {**residual, "frame": int(fid),
+                                                              "tracked": track == "tracked"}
             untracked = untracked_limb_joints(J)
             if untracked:  # recorded where the tracker missed a limb joint (frames.json stays as it was elsewhere)
                 plausibility["untracked_limb_joints"] = untracked

@@ -685,6 +685,11 @@ def _run_all(rec, tmp_path, frames=(10, 11, 12), score=False, params=None, depth
     return summary, writer
 
 
+def _no_residual(frame: int) -> dict:
+    """rel5's figure of a frame whose fitted limb joints are the tracker's (the stand-ins pose on the joints)."""
+    return {"max_mm": 0.0, "median_mm": 0.0, "joint": "ElbowLeft", "frame": frame, "tracked": False}
+
+
 def test_frame_record_timings_and_counts_on_the_ticking_clock(monkeypatch, tmp_path):
     rec = _recording(monkeypatch)
     summary, writer = _run_all(rec, tmp_path, bone_lengths="frame")
@@ -695,7 +700,8 @@ def test_frame_record_timings_and_counts_on_the_ticking_clock(monkeypatch, tmp_p
         assert f == {"frame": 10 + k, "track": "per_frame", "solver_ms": 250.0, "matching_ms": 125.0,
                      "init_ms": 3000.0, "refine_ms": 0.0, "track_ms": 0.0, "fields_ms": 1000.0, "read_ms": 1000.0,
                      "frame_ms": 6000.0, "other_ms": 1000 * (6 - 1 - 3 - 0.25 - 0.125), "n_silhouette": 7,
-                     "n_depth": 0, "ms_per_frame": 3375.0, "plausibility": {"frame_check": k + 1}}
+                     "n_depth": 0, "ms_per_frame": 3375.0,
+                     "plausibility": {"frame_check": k + 1, "tracker_joint_residual": _no_residual(10 + k)}}
     assert summary == {"frames": 3, "ms_per_frame": 3375.0, "solver_ms": 250.0, "matching_ms": 125.0,
                        "init_ms": 3000.0, "refine_ms": 0.0, "frame_ms": 6000.0, "read_ms": 1000.0,
                        "fields_ms": 1000.0, "track_ms": 0.0, "other_ms": 1625.0, "n_tracked": 0}
@@ -719,7 +725,8 @@ def test_self_check_inputs_per_frame_and_the_runs_verdict(monkeypatch, tmp_path)
         assert p["F"] is body.faces and [c.name for c in p["cameras"]] == ["c0"]
         assert p["masks"]["c0"][0, 0] == 10 + k and p["depth"] is None and p["depth_cam"] is None
     (checks, path), = rec.run_checks
-    assert checks == [{"frame_check": k + 1} for k in range(5)] and path == Path("/stand-in/session")
+    assert checks == [{"frame_check": k + 1, "tracker_joint_residual": _no_residual(10 + k)} for k in range(5)]
+    assert path == Path("/stand-in/session")
     assert writer.meta["plausibility"] == {"ok": True, "warnings": [], "problems": []}
 
 
