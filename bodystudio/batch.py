@@ -436,13 +436,14 @@ def reconstruct_chunk(session_path: str, frames: list[int], options: Reconstruct
 
 def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, frames: str | None = None,
                       chunk: int = 10, force: bool = False, progress: bool = False,
-                      accept_implausible: bool = False) -> tuple[dict, BatchReport]:
+                      accept_implausible: bool = False, player: int | None = None) -> tuple[dict, BatchReport]:
     """``bodystudio reconstruct SESSION --workers N``: chunks on the cluster, then one committed run.
 
     Chunks are written to ``SESSION/reconstruct/chunks/AAAAA-BBBBB/`` (each its own atomic run with its
     inputs' sha256, the record of completed units), then assembled into ``SESSION/reconstruct/`` as one
     run exactly like the sequential path's (same ``run.json`` keys plus ``batch``). Failed chunks: nothing
-    is assembled and :class:`BatchError` names them; a re-run redoes only those.
+    is assembled and :class:`BatchError` names them; a re-run redoes only those. ``player``: the Kinect id of the
+    person to reconstruct (default: the first tracked frame's lowest), chosen here for every chunk.
     """
     from bodystudio.capture.session import open_session
     from bodystudio.reconstruct.sequence import (
@@ -472,7 +473,7 @@ def reconstruct_batch(path: str | Path, client, options: ReconstructOptions, fra
     if options.bone_lengths not in BONE_LENGTHS:
         raise InputError(f"unknown bone lengths {options.bone_lengths!r}; valid: {', '.join(BONE_LENGTHS)}")
     # the run's subject, chosen once over all its frames (each chunk gets its frames' share)
-    subject = run_subject(session, selected, options.joints)
+    subject = run_subject(session, selected, options.joints, player)
     if options.bone_lengths == "sequence" and options.joints != "hull" and options.lengths is None:
         lengths = run_bone_lengths(session, selected, options.joints, options.joints_path, subject)
         options = replace(options, lengths=tuple(float(x) for x in lengths))

@@ -55,6 +55,9 @@ def reconstruct(
                                   "whole body's depth in the pose refinement and a torso hold, each with its "
                                   "guard; measured with --constraints silhouette,depth (docs/reconstruct.md); "
                                   "sequential path only"),
+    player: int | None = typer.Option(None, "--player", help="Kinect player id (1-6) of the person to reconstruct "
+                                      "(default: the lowest id of the first frame with a tracked body); followed "
+                                      "over the run, recorded in run.json (subject_player)"),
     accept_implausible: bool = typer.Option(False, "--accept-implausible", help="write the result even when its "
                                             "self-check finds a camera the fit cannot explain (silhouette IoU "
                                             "< 0.75) or depth that does not fit the body (docs/reconstruct.md)"),
@@ -75,6 +78,13 @@ def reconstruct(
         raise InputError(f"--bone-lengths {bone_lengths!r}: use {' or '.join(BONE_LENGTHS)}")
     if not 0 <= joint_smoothing <= 50:
         raise InputError(f"--joint-smoothing {joint_smoothing}: give a half window of 0..50 frames")
+    from bodystudio.capture.session import MAX_PLAYERS
+
+    if player is not None and not 1 <= player <= MAX_PLAYERS:
+        raise InputError(f"--player {player}: the Kinect SDK numbers players 1 to {MAX_PLAYERS}")
+    if player is not None and joints != "tracker":
+        raise InputError(f"--player chooses among the session's tracked bodies; drop it or use --joints tracker "
+                         f"(not {joints})")
     import os
 
     from bodystudio.batch import ENV_SCHEDULER
@@ -102,7 +112,7 @@ def reconstruct(
                                           template=template, joints=joints, warm_start=warm_start,
                                           refine_pose=refine_pose, score=score, bone_lengths=bone_lengths,
                                           joints_path=str(joints_path) if joints_path else None,
-                                          accept_implausible=accept_implausible)
+                                          accept_implausible=accept_implausible, player=player)
     else:  # the sequential path stays the default (no cluster start-up, one warm start over the session)
         run_kw = {"params": params, "tracking": tracking, "joint_smoothing": joint_smoothing}
         if accurate:
@@ -111,7 +121,7 @@ def reconstruct(
                                       constraints=params.constraints, frames=frames, joints_path=joints_path,
                                       warm_start=warm_start, refine_pose=refine_pose, score=score,
                                       progress=True, bone_lengths=bone_lengths,
-                                      accept_implausible=accept_implausible, **run_kw)
+                                      accept_implausible=accept_implausible, player=player, **run_kw)
     table = Table(title=f"Rapid Skin: {session} ({solver}, {template}, {constraints})")
     table.add_column("figure")
     table.add_column("value", justify="right")
@@ -121,7 +131,7 @@ def reconstruct(
 
 
 def _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, params, accept_implausible=False,
-                            **options) -> dict:
+                            player=None, **options) -> dict:
     """``--workers/--scheduler/--chunk``: chunks of frames on a dask cluster (bodystudio.batch)."""
     from dataclasses import asdict
 
@@ -132,15 +142,17 @@ def _reconstruct_on_cluster(session, scheduler, workers, chunk, force, frames, p
         raise InputError(f"--chunk {chunk}: give at least 1 frame per work unit")
     resolve_scheduler(scheduler, workers)
     from bodystudio.capture.session import open_session
-    from bodystudio.reconstruct.sequence import parse_frames
+    from bodystudio.reconstruct.sequence import parse_frames, run_subject
 
-    selected = parse_frames(frames, open_session(session).frame_ids)  # refused before a cluster starts
+    opened = open_session(session)
+    selected = parse_frames(frames, opened.frame_ids)  # refused before a cluster starts
+    run_subject(opened, selected, options["joints"], player)  # a frame without the run's subject too
     opts = ReconstructOptions(solver=params.solver, params=asdict(params), **options)
     units = -(-len(selected) // (chunk or 10))
     with batch_client(scheduler, workers, units=units) as client:
         print_cluster(client)
         summary, report = reconstruct_batch(session, client, opts, frames=frames, chunk=chunk or 10, force=force,
-                                            progress=True, accept_implausible=accept_implausible)
+                                            progress=True, accept_implausible=accept_implausible, player=player)
     print_report(report, f"reconstruct {session}")
     return summary
 

@@ -240,11 +240,12 @@ def run_subject(session, selected, joints: str, player: int | None = None) -> di
         others = sorted(b["player"] for b in frame_bodies(session.frame(gone[0])))
         fix = f"reconstruct the frames before it (--frames {before[0]}:{gone[0]})" if before else \
             "choose the frames where the subject is tracked (--frames A:B)"
+        how = "given" if player is not None else "the first tracked frame's lowest id"
         raise SessionError(f"{session.path / stream_path('kinect_joints', gone[0])}: the run's subject (player "
-                           f"{chosen}, chosen at its first tracked frame) is not tracked in {len(gone)} of "
-                           f"{len(selected)} frames (first {gone[0]}, where the tracker reports player"
-                           f"{'s' if len(others) > 1 else ''} {', '.join(map(str, others))}: another person); "
-                           f"{fix}, or use --joints hull")
+                           f"{chosen}, {how}) is not tracked in {len(gone)} of {len(selected)} frames (first "
+                           f"{gone[0]}, where the tracker reports player{'s' if len(others) > 1 else ''} "
+                           f"{', '.join(map(str, others))}: another person); {fix}, choose the person with "
+                           "--player N, or use --joints hull")
     return subject
 
 
@@ -329,6 +330,9 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
         raise InputError("--joints file needs --joints-path DIR with NNNNN.json files ({names, positions})")
     if player is not None and (type(player) is not int or not 1 <= player <= MAX_PLAYERS):
         raise InputError(f"player {player!r}: the Kinect SDK numbers players 1 to {MAX_PLAYERS}")
+    if player is not None and joints != "tracker":
+        raise InputError(f"player {player}: chooses among the session's tracked bodies; use joints 'tracker' "
+                         f"(not {joints!r}) or no player")
     session = open_session(path)
     params = params or RapidSkinParams(solver=solver, constraints=tuple(constraints))
     cameras = list(session.cameras)

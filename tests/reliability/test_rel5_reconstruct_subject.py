@@ -263,3 +263,34 @@ def test_the_depth_constraints_leave_another_players_pixels_out(sessions, tmp_pa
     assert bystander[:ENTERS] == subject[:ENTERS]
     for f in range(ENTERS, FRAMES):
         assert all(b < s - 150 for b, s in zip(bystander[f], subject[f], strict=True)), (f, bystander[f], subject[f])
+
+
+@pytest.mark.parametrize("args, phrase", [
+    (["--player", "0"], "--player 0: the Kinect SDK numbers players 1 to 6"),
+    (["--player", "7"], "--player 7: the Kinect SDK numbers players 1 to 6"),
+    (["--player", "1", "--joints", "hull"], "--player chooses among the session's tracked bodies"),
+    (["--player", "3"], "the run's subject (player 3, given) is not tracked in 4 of 4 frames"),
+], ids=["zero", "seven", "hull", "absent"])
+def test_player_option_out_of_range_or_absent_is_refused(sessions, tmp_path, capfd, args, phrase):
+    """``reconstruct --player N`` (new): out of the SDK's 1..6, with joints that are not the tracker's, or a player
+    the session never tracks: one line, exit 2, nothing written."""
+    S = tmp_path / "S"
+    shutil.copytree(sessions[0], S)
+    result = run_inprocess(["reconstruct", S, "--template", "2k", "--no-refine-pose", "--outer", "1", "--inner",
+                            "2", *args], capfd)
+    assert_clean_error(result, 2, phrase)
+    assert not (S / "reconstruct").exists()
+
+
+def test_player_option_chooses_the_bystander_when_asked(sessions, tmp_path, capfd):
+    """``--player 1`` on the planted session: frames 0-1 have no player 1 (only the subject), so refused naming
+    frame 0 and the fix; on frames 2-3 alone (--frames 2:4) the bystander is reconstructed, and run.json says so."""
+    S = tmp_path / "S"
+    shutil.copytree(sessions[1], S)
+    base = ["reconstruct", S, "--template", "2k", "--no-refine-pose", "--outer", "1", "--inner", "2", "--no-score",
+            "--player", "1", "--accept-implausible"]
+    refused = run_inprocess(base, capfd)
+    assert_clean_error(refused, 2, "the run's subject (player 1, given) is not tracked in 2 of 4 frames (first 0")
+    result = run_inprocess([*base, "--frames", "2:4"], capfd)
+    assert_clean_error(result, 0, "")
+    assert json.loads((S / "reconstruct" / "run.json").read_text())["subject_player"] == 1
