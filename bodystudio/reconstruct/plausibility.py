@@ -397,8 +397,8 @@ def _tracker_joint_verdict(frames: list[dict], where: str, report: dict, warning
         problems.append(f"the tracking lost the limbs: {len(far_tracked)} of {len(tracked)} tracked frames put a "
                         f"limb joint over {TRACKER_JOINT_FAR_MM:.0f} mm from the tracker's ({where}kinect/joints; "
                         f"worst {worst['joint']} {worst['max_mm']:.0f} mm{at}; good runs <= 60 mm) where the "
-                        "silhouettes do not hold them (few or small views); reconstruct without --tracking (each "
-                        "frame from its joints), or record more cameras or a higher resolution")
+                        "silhouettes do not hold them (few or small views); reconstruct without --tracking or "
+                        "--accurate (each frame from its joints), or record more cameras or a higher resolution")
     else:
         warnings.append(f"{len(far)} of {len(residuals)} frames put a limb joint over {TRACKER_JOINT_FAR_MM:.0f} mm "
                         f"from the tracker's ({where}kinect/joints; worst {worst['joint']} {worst['max_mm']:.0f} "
