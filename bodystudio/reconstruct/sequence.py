@@ -67,7 +67,12 @@ from bodystudio.reconstruct.pose_init import (
     with_bone_lengths,
 )
 from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
-from bodystudio.reconstruct.shape_prior import deformed_shape_coefficients, posed_shape, shape_prior_mesh
+from bodystudio.reconstruct.shape_prior import (
+    deformed_shape_coefficients,
+    posed_shape,
+    region_blend_weights,
+    shape_prior_mesh,
+)
 from bodystudio.reconstruct.tracking import (
     SilhouetteFields,
     TrackParams,
@@ -88,7 +93,10 @@ TEMPLATES = {"13k": "full", "6k": "6k", "2k": "2k", "full": "full", "2.5k": "2k"
 JOINT_SOURCES = ("tracker", "file", "hull")
 #: The body-shape prior for surfaces no view sees (:mod:`bodystudio.reconstruct.shape_prior`): none, a second
 #: pass per frame from the shape space's fit to the first, or the run's fitted shape as each later frame's start.
-SHAPE_PRIORS = ("off", "frame", "run")
+SHAPE_PRIORS = ("off", "frame", "run", "carried")
+#: Where the shape prior acts (``shape_prior_region``): everywhere, or the named regions of
+#: :func:`bodystudio.reconstruct.evaluate.vertex_regions` (and ``lower_torso``), joined by ``+``.
+SHAPE_PRIOR_REGIONS = ("head", "torso", "lower_torso", "crotch", "arms", "hands", "legs", "feet")
 #: What the pose refinement fits: the silhouettes' distance fields (an implicit visual hull, default) or
 #: the carved visual hull.
 REFINE_DATA = ("fields", "hull")
@@ -296,7 +304,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
                         refine_depth: float = 0.0, refine_depth_bones="neck",
                         refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0,
-                        player: int | None = None) -> dict:
+                        player: int | None = None, shape_prior_region: str = "all") -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
@@ -313,7 +321,12 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     ``shape_prior`` (issue 15's unseen surfaces, :mod:`bodystudio.reconstruct.shape_prior`; off by default,
     measured in docs/reconstruct.md): ``frame`` fits the statistical body model's shape space to each frame's
     deformation and runs Algorithm 1 again from that shape (``shape_prior_outer`` re-matchings, 0: the
-    frame's own), ``run`` starts every later frame from the mean shape fitted to the frames before it.
+    frame's own), ``run`` starts every later frame from the mean shape fitted to the frames before it,
+    ``carried`` fits it to the (re-)initialised frames' one pass only and starts the tracked frames from it
+    (with ``tracking``; no second pass, so ``shape_prior_outer`` / ``shape_prior_first_outer`` do not apply, and no
+    fit on a tracked frame). ``shape_prior_region`` (``all``, or region
+    names joined by ``+``, :data:`SHAPE_PRIOR_REGIONS`) restricts the fitted shape to those regions, the
+    template's elsewhere (:func:`bodystudio.reconstruct.shape_prior.region_blend_weights`).
     ``refine_depth`` (issue 15's neck front; 0: off) weights the Kinect's point-to-plane residuals in the pose
     refinement beside the silhouettes (:mod:`bodystudio.reconstruct.pose_depth`; with depth constraints), of
     the vertices of ``refine_depth_bones`` (``neck``: the neck and head, default; ``all``; or bone names).
@@ -357,7 +370,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    shape_prior_outer=shape_prior_outer,
                                    shape_prior_first_outer=shape_prior_first_outer, refine_depth=refine_depth,
                                    refine_depth_bones=refine_depth_bones, refine_depth_guard=refine_depth_guard,
-                                   smoothing_guard=smoothing_guard, subject=subject)
+                                   smoothing_guard=smoothing_guard, subject=subject,
+                                   shape_prior_region=shape_prior_region)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -374,7 +388,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
                        refine_depth: float = 0.0, refine_depth_bones="neck",
                        refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0, subject: dict | None = None,
-                       player: int | None = None) -> dict:
+                       player: int | None = None, shape_prior_region: str = "all") -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -442,9 +456,21 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                          "silhouettes only)")
     if shape_prior not in SHAPE_PRIORS:
         raise InputError(f"unknown shape prior {shape_prior!r}; valid: {', '.join(SHAPE_PRIORS)}")
+    if shape_prior == "carried" and not tracking:
+        raise InputError("shape prior 'carried' carries the initialised frames' shape into the tracked frames; "
+                         "use it with tracking, or shape_prior 'run' / 'frame'")
+    prior_regions = () if shape_prior_region == "all" else tuple(str(shape_prior_region).split("+"))
+    unknown = [r for r in prior_regions if r not in SHAPE_PRIOR_REGIONS]
+    if unknown or (shape_prior_region != "all" and not prior_regions):
+        raise InputError(f"shape_prior_region {shape_prior_region!r}: give all or region names joined by + "
+                         f"({', '.join(SHAPE_PRIOR_REGIONS)})")
     shape_model = load_statistical_model(TEMPLATES[template], progress=False) if shape_prior != "off" else None
-    shape_coeffs = []  # shape_prior "run": the coefficients fitted to each frame so far
+    shape_coeffs = []  # shape_prior "run" / "carried": the coefficients fitted to each (initialised) frame so far
     regions = vertex_regions(body) if score else None
+    prior_kw = {}  # the shape prior's region weights, only when a region is asked for
+    if prior_regions and shape_model is not None:
+        prior_kw["region_weights"] = region_blend_weights(
+            body, regions if regions is not None else vertex_regions(body), prior_regions)
     hold = {}  # Algorithm 1's hold_vertices, only when a region is asked for
     if params.surface_hold_k > 0 and params.surface_hold_region != "all":
         # issue 15's drift is the torso's: limbs need the later re-matchings
@@ -620,27 +646,30 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 depth = depth_observation(depth_image, sensor.depth)
             if "silhouette" not in params.constraints:
                 masks = None
-            if shape_model is not None and shape_prior == "run" and shape_coeffs:
+            carried = shape_prior == "carried"
+            if (shape_model is not None and shape_coeffs
+                    and (shape_prior == "run" or (carried and track == "tracked"))):
                 # the run's shape so far: this frame's start and smoothness reference (one pass)
                 t1 = time.perf_counter()
                 reference = posed_shape(shape_model, body, np.mean(shape_coeffs, axis=0), init.bone_transforms,
-                                        init.global_scale)
+                                        init.global_scale, **prior_kw)
                 V_start = reference
                 t_init += time.perf_counter() - t1
             delta = rest_delta if rest_delta is not None else cotangent_weights(reference, F)
             first_params = frame_params
-            if shape_model is not None and shape_prior_first_outer and (shape_prior == "frame" or not shape_coeffs):
+            if (shape_model is not None and shape_prior_first_outer and not carried
+                    and (shape_prior == "frame" or not shape_coeffs)):
                 # the pass the shape space is fitted to stops before the outer iterations drift
                 first_params = replace(frame_params, outer_iterations=min(frame_params.outer_iterations,
                                                                           shape_prior_first_outer))
             result = deform_to_observations(V_start, F, cameras, masks, first_params, depth=depth, delta=delta,
                                             smooth_reference=reference, fields=fields, **hold)
-            if shape_model is not None and (shape_prior == "frame" or not shape_coeffs):
+            if shape_model is not None and not carried and (shape_prior == "frame" or not shape_coeffs):
                 # issue 15: the shape space's fit to the first pass starts and regularises a second pass, so
                 # the surfaces no view sees take the fitted body's shape instead of the generic template's
                 t1 = time.perf_counter()
                 prior = shape_prior_mesh(shape_model, body, result.vertices, init.bone_transforms,
-                                         init.global_scale)
+                                         init.global_scale, **prior_kw)
                 t_prior = time.perf_counter() - t1
                 second_params = frame_params
                 if shape_prior_outer:  # the second pass starts closer: fewer re-matchings
@@ -654,7 +683,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 second.n_depth = result.n_depth + second.n_depth
                 t_init += t_prior
                 result = second
-            if shape_model is not None and shape_prior == "run":
+            if shape_model is not None and (shape_prior == "run" or (carried and track != "tracked")):
                 t1 = time.perf_counter()
                 shape_coeffs.append(deformed_shape_coefficients(shape_model, body, result.vertices,
                                                                 init.bone_transforms))
@@ -711,7 +740,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "refine_with": refine_with, "rest_cotangents": rest_cotangents, "bone_lengths": bone_lengths,
                    "joint_smoothing": int(joint_smoothing), "shape_prior": shape_prior,
                    "shape_prior_outer": int(shape_prior_outer),
-                   "shape_prior_first_outer": int(shape_prior_first_outer), "refine_depth": float(refine_depth),
+                   "shape_prior_first_outer": int(shape_prior_first_outer),
+                   "shape_prior_region": str(shape_prior_region),
+                   "refine_depth": float(refine_depth),
                    "refine_depth_guard": float(refine_depth_guard), "smoothing_guard": float(smoothing_guard),
                    "refine_depth_bones": (refine_depth_bones if isinstance(refine_depth_bones, str)
                                           else "+".join(refine_depth_bones)),

@@ -17,6 +17,7 @@ to the frames before it, in one pass: the subject's shape does not change over a
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from bodystudio.errors import InputError
 from bodystudio.reconstruct.pose_init import pose_template, unpose
@@ -57,15 +58,63 @@ def deformed_shape_coefficients(model, body, deformed: np.ndarray, bone_transfor
     return fit_shape_coefficients(model, rest, ridge, robust_m)
 
 
-def posed_shape(model, body, coeffs: np.ndarray, bone_transforms: np.ndarray, global_scale: float = 1.0
-                ) -> np.ndarray:
-    """The shape space's rest shape ``coeffs`` skinned (Eq. 12) with ``body``'s weights and ``bone_transforms``."""
-    return pose_template(body, bone_transforms, global_scale, rest_vertices=model.vertices(coeffs)).vertices
+def region_shape(model, body, coeffs: np.ndarray, region_weights: np.ndarray | None = None) -> np.ndarray:
+    """The rest shape the prior poses: the shape space's ``coeffs`` where ``region_weights`` ``(n,)`` is 1, the
+    template ``body``'s own rest shape where it is 0, blended between (None: the shape space's everywhere)."""
+    shape = model.vertices(coeffs)
+    if region_weights is None:
+        return shape
+    w = np.asarray(region_weights, dtype=np.float64)[:, None]
+    return body.vertices + w * (shape - body.vertices)
+
+
+def region_blend_weights(body, regions: np.ndarray, names: tuple[str, ...], falloff_rings: int = 4) -> np.ndarray:
+    """Per-vertex weight ``(n,)`` of the shape prior restricted to the ``regions`` named ``names``
+    (:func:`bodystudio.reconstruct.evaluate.vertex_regions`' labels, and ``lower_torso``: the torso's vertices
+    below the top of the ``spine_02`` bone in the rest pose): 1 inside, falling to 0 over ``falloff_rings`` rings
+    of the mesh outside (the region's mean over each vertex's one-ring, repeated), so the blended rest shape has
+    no step at the region's border for the smoothness constraints (Eq. 9) to keep."""
+    regions = np.asarray(regions, dtype=object)
+    inside = np.zeros(len(regions), dtype=bool)
+    for name in names:
+        if name == "lower_torso":
+            skel = body.skeleton
+            top = skel.tails[skel.bone_names.index("spine_02")][1]
+            inside |= (regions == "torso") & (body.vertices[:, 1] < top)
+        else:
+            inside |= regions == name
+    A = one_ring(body.faces, len(regions))
+    mean = sp.diags(1.0 / np.asarray(A.sum(axis=1)).ravel()) @ A
+    w = inside.astype(np.float64)
+    for _ in range(int(falloff_rings)):
+        w = np.maximum(mean @ w, inside)
+    return w
+
+
+def one_ring(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
+    """``(n, n)`` 0/1 adjacency of the mesh's edges with the diagonal set (each vertex and its one-ring)."""
+    F = np.asarray(faces)
+    i = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
+    j = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
+    A = sp.coo_matrix((np.ones(2 * len(i)), (np.concatenate([i, j]), np.concatenate([j, i]))),
+                      shape=(n_vertices, n_vertices)).tocsr()
+    A = A + sp.identity(n_vertices, format="csr")
+    A.data[:] = 1.0
+    return A
+
+
+def posed_shape(model, body, coeffs: np.ndarray, bone_transforms: np.ndarray, global_scale: float = 1.0,
+                region_weights: np.ndarray | None = None) -> np.ndarray:
+    """The shape space's rest shape ``coeffs`` skinned (Eq. 12) with ``body``'s weights and ``bone_transforms``
+    (``region_weights``: only there, :func:`region_shape`)."""
+    return pose_template(body, bone_transforms, global_scale,
+                         rest_vertices=region_shape(model, body, coeffs, region_weights)).vertices
 
 
 def shape_prior_mesh(model, body, deformed: np.ndarray, bone_transforms: np.ndarray, global_scale: float = 1.0,
-                     ridge: float = 1e-4, robust_m: float = 0.02) -> np.ndarray:
+                     ridge: float = 1e-4, robust_m: float = 0.02, region_weights: np.ndarray | None = None
+                     ) -> np.ndarray:
     """The shape space's fit to a deformed mesh, posed as it: ``(n, 3)`` world vertices
     (:func:`deformed_shape_coefficients` then :func:`posed_shape` with the same transforms)."""
     c = deformed_shape_coefficients(model, body, deformed, bone_transforms, ridge, robust_m)
-    return posed_shape(model, body, c, bone_transforms, global_scale)
+    return posed_shape(model, body, c, bone_transforms, global_scale, region_weights)

@@ -98,7 +98,9 @@ class TrackParams:
     inside the truth. 2 outer iterations x 40 sweeps cost what 3 x 8 did (one full matching fewer) and carry the
     pull (issue 15, rec15n; docs/reconstruct.md). ``initial_inner_iterations``: the same for a tracked run's
     re-initialised frames (first, lost track; 0: the run's ``Ni``): with ``initial_outer_iterations`` 3 x 40
-    instead of 8 x 8, more reach with fewer re-matchings (less of the first frame's drift), ~45 instead of ~85 ms.
+    instead of 8 x 8, more reach with fewer re-matchings (less of the first frame's drift), ~45 instead of ~85 ms;
+    64 sweeps (rec15p) carry the first frame's rims further still: walk 31's first-frame upper back 30.5 -> 28.6 mm
+    (its Hausdorff goal), medians and p90s lower on the four tuning sessions, ~+14 ms on those frames only.
     ``compiled_rotations``: the tracking fit's rotation bookkeeping compiled
     (:attr:`bodystudio.reconstruct.articulated_fit.PoseRefineParams.compiled_rotations`; rec15j).
     """
@@ -123,7 +125,7 @@ class TrackParams:
     neck_joint: bool = True
     unstretch_head: bool = True
     initial_outer_iterations: int = 3
-    initial_inner_iterations: int = 40
+    initial_inner_iterations: int = 64
     matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True, gate="reuse")
     exact_fields: bool = False
     compiled_rotations: bool = False

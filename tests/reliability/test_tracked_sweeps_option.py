@@ -25,7 +25,7 @@ def test_the_default_and_the_refusals():
 
 
 def test_the_first_frames_default_and_refusals():
-    assert (TrackParams().initial_outer_iterations, TrackParams().initial_inner_iterations) == (3, 40)
+    assert (TrackParams().initial_outer_iterations, TrackParams().initial_inner_iterations) == (3, 64)  # rec15p
     assert (RapidSkinParams().outer_iterations, RapidSkinParams().inner_iterations) == (8, 8)  # per-frame: the paper's
     for name, hi in (("initial_outer_iterations", 100), ("initial_inner_iterations", 1000)):
         TrackParams(**{name: 0})
