@@ -116,7 +116,8 @@ def test_frame_rate_is_one_over_the_median_period():
 
 
 @pytest.mark.parametrize(("times", "period"), [([0.0, 2.0, 4.0], "2"), ([0.0, 0.004], "0.004"),
-                                               ([5.0, 5.0, 5.0], "0"), ([0, 66.7, 133.4], "66.7")])
+                                               ([5.0, 5.0, 5.0], "0"), ([0, 66.7, 133.4], "66.7"),
+                                               ([0.0, 1 / 240.5], "0.004158")])
 def test_frame_rates_outside_a_camera_are_refused(times, period):
     src = Path("ts/cam_00.txt")
     with _raises(FileFormatError, f"{src}: the median frame period {period} s is not a camera's (1..240 fps); give "
@@ -140,6 +141,10 @@ def test_image_files_and_joint_folders_in_frame_order(tmp_path):
     for n in ("f10.png", "f9.PNG", "f100.jpg", ".f1.png", "notes.txt"):
         (images / n).write_bytes(b"")
     assert [p.name for p in image_files(images)] == ["f9.PNG", "f10.png", "f100.jpg"]
+    (images / "f50.png").mkdir()  # a folder with an image's name: refused, not skipped
+    with _raises(FileFormatError, f"{images / 'f50.png'}: not a regular file (a folder, pipe or device); remove it "
+                                  "from the image folder"):
+        image_files(images)
     joints = tmp_path / "joints"
     joints.mkdir()
     for k in (10, 9, 100):
@@ -170,12 +175,12 @@ def test_manifest_frames_increasing_are_taken():
 
 # --- the arm capture's tracked person -------------------------------------------------------------------------------
 
-def _session(per_frame):
+def _stand_in_session(per_frame):
     return NS(frame=lambda fid: NS(kinect_joints=per_frame[fid]))
 
 
 def test_the_subject_is_the_first_frame_with_joints_player():
-    s = _session({3: None, 4: {"player": 2}, 5: {"player": 1}, 6: {"names": []}})
+    s = _stand_in_session({3: None, 4: {"player": 2}, 5: {"player": 1}, 6: {"names": []}})
     assert arm_subject_player(s, [3, 4, 5]) == 2
     assert arm_subject_player(s, [5, 4]) == 1
     assert arm_subject_player(s, [3]) is None
@@ -195,3 +200,15 @@ def test_subject_joints_follow_the_player():
     assert subject_joints(NS(kinect_joints=None, kinect_bodies=[subject]), 4) is None
     unnamed = {"names": ["c"]}  # a joints record from before the player was kept: taken as the subject's
     assert subject_joints(NS(kinect_joints=unnamed, kinect_bodies=[subject]), 4) is unnamed
+
+
+def test_the_frames_first_body_records_its_player():
+    """``Frame.kinect_joints`` (the lowest player id's body) carries ``player``, which ``arm_subject_player`` reads."""
+    from bodystudio.capture.session import Frame
+
+    bodies = [{"player": p, "names": [f"n{p}"], "positions": np.full((1, 3), p), "tracked": np.ones(1, bool),
+               "joint_set": "v2"} for p in (3, 2, 5)]
+    frame = Frame(None, 0)
+    frame.__dict__["kinect_bodies"] = bodies  # the parsed joints file (cached_property's slot)
+    assert frame.kinect_joints == {k: bodies[1][k] for k in ("names", "positions", "tracked", "joint_set", "player")}
+    assert arm_subject_player(NS(frame=lambda fid: frame), [0]) == 2
