@@ -1,8 +1,9 @@
 """adv4's validation functions called directly (issue 17, mutation testing): the camera times file
 (``importer.read_timestamps``), TUM's lists (``read_tum_list``), the recording's frame rate (``recording_fps``), the
 frame files' natural order (``frame_order`` and its two callers), the session manifest's frame-order check
-(``session._check_manifest``) and the arm capture's tracked person (``muscle.capture.arm_subject_player`` /
-``subject_joints``). The adv4 files run them through ``capture import`` / ``muscle capture`` on the studio
+(``session._check_manifest``) and the frame's first body's player (the arm capture's tracked person, mutated here
+in ``muscle.capture.arm_subject_player`` / ``subject_joints`` before rel5a moved it to ``capture/subject.py``).
+The adv4 files run them through ``capture import`` / ``muscle capture`` on the studio
 session (seconds per case, capfd); here each refusal's whole message, each boundary and each return value, on files
 of a few lines and stand-in frames; < 1 s."""
 
@@ -10,7 +11,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from types import SimpleNamespace as NS
 
 import numpy as np
 import pytest
@@ -25,7 +25,6 @@ from bodystudio.capture.importer import (
 )
 from bodystudio.capture.session import CAMERAS_JSON, SESSION_FORMAT, SESSION_VERSION, _check_manifest
 from bodystudio.errors import FileFormatError, SessionError
-from bodystudio.muscle.capture import arm_subject_player, subject_joints
 
 _NOT_AFTER = ("(a duplicated or out-of-order frame); one time per frame, increasing, in the order of the camera's "
               "frames: remove the duplicate or sort the frames")
@@ -173,37 +172,11 @@ def test_manifest_frames_increasing_are_taken():
         _check_manifest(_manifest(frames), Path("S/session.json"))
 
 
-# --- the arm capture's tracked person -------------------------------------------------------------------------------
-
-def _stand_in_session(per_frame):
-    return NS(frame=lambda fid: NS(kinect_joints=per_frame[fid]))
-
-
-def test_the_subject_is_the_first_frame_with_joints_player():
-    s = _stand_in_session({3: None, 4: {"player": 2}, 5: {"player": 1}, 6: {"names": []}})
-    assert arm_subject_player(s, [3, 4, 5]) == 2
-    assert arm_subject_player(s, [5, 4]) == 1
-    assert arm_subject_player(s, [3]) is None
-    assert arm_subject_player(s, []) is None
-    assert arm_subject_player(s, [6, 4]) is None  # joints that record no player: none followed
-
-
-def test_subject_joints_follow_the_player():
-    first = {"player": 1, "names": ["a"]}
-    subject = {"player": 4, "names": ["b"]}
-    frame = NS(kinect_joints=first, kinect_bodies=[first, subject])
-    assert subject_joints(frame, None) is first
-    assert subject_joints(frame, 1) is first
-    assert subject_joints(frame, 4) is subject
-    assert subject_joints(frame, 7) is None
-    assert subject_joints(NS(kinect_joints=first, kinect_bodies=None), 4) is None
-    assert subject_joints(NS(kinect_joints=None, kinect_bodies=[subject]), 4) is None
-    unnamed = {"names": ["c"]}  # a joints record from before the player was kept: taken as the subject's
-    assert subject_joints(NS(kinect_joints=unnamed, kinect_bodies=[subject]), 4) is unnamed
-
+# --- the frame's first body (the arm capture's and reconstruct's subject: bodystudio/capture/subject.py,
+# mutated with tests/capture/test_subject_mutants.py) -------------------------------------------------------------
 
 def test_the_frames_first_body_records_its_player():
-    """``Frame.kinect_joints`` (the lowest player id's body) carries ``player``, which ``arm_subject_player`` reads."""
+    """``Frame.kinect_joints`` (the lowest player id's body) carries ``player``."""
     from bodystudio.capture.session import Frame
 
     bodies = [{"player": p, "names": [f"n{p}"], "positions": np.full((1, 3), p), "tracked": np.ones(1, bool),
@@ -211,4 +184,3 @@ def test_the_frames_first_body_records_its_player():
     frame = Frame(None, 0)
     frame.__dict__["kinect_bodies"] = bodies  # the parsed joints file (cached_property's slot)
     assert frame.kinect_joints == {k: bodies[1][k] for k in ("names", "positions", "tracked", "joint_set", "player")}
-    assert arm_subject_player(NS(frame=lambda fid: frame), [0]) == 2
