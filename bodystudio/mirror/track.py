@@ -703,3 +703,45 @@ def untwisted_pose(skeleton: Skeleton, pose: Pose, bones=UNTWIST_BONES) -> Pose:
     ch = np.array(sorted(changed))
     rv[ch] = Rotation.from_matrix(np.transpose(Rr[ch], (0, 2, 1)) @ L[ch] @ Rr[ch]).as_rotvec()
     return Pose(rv, np.array(pose.translation, dtype=np.float64))
+
+
+def upright_root(skeleton: Skeleton, pose: Pose, up=(0.0, 1.0, 0.0)) -> Pose:
+    """The same posed body with the root turned about the world's ``up`` axis only (MIR12s).
+
+    The game_engine rig's ``Root`` is the floor anchor between the feet: it carries no skin weight, and its one
+    child (the pelvis) takes any posed frame through its own rotation and the pose's translation, so the root's
+    tilt is free for the posed source (a gauge: the IK and the refinement leave 3-5 degrees of it on a walk). It is
+    not free for the target: the target's joints hang off the root's rest frame, so a tilt ``e`` of the root turns
+    the reshape's change of the pelvis height (-8 cm for 17 cm shorter) by ``e``, a few mm forward or back that a
+    person side-on shows as a shift of the whole outline. Here the root keeps only its turn about ``up`` (the
+    swing-twist decomposition), its children keep their world rotations and the translation keeps their heads in
+    place: every posed vertex and joint of the source stays (to rounding), the target no longer depends on the tilt.
+    A root with children at different rest heads cannot keep them all: InputError.
+    """
+    parents = np.asarray(skeleton.parents)
+    roots = np.flatnonzero(parents < 0)
+    up = np.asarray(up, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    Rr = skeleton.rest_rotations
+    rv = np.array(pose.rotations, dtype=np.float64)
+    translation = np.array(pose.translation, dtype=np.float64)
+    for r in roots:
+        children = np.flatnonzero(parents == r)
+        if not len(children):
+            continue
+        if np.abs(skeleton.heads[children] - skeleton.heads[children[0]]).max() > 1e-9:
+            raise InputError(f"upright_root: the root {skeleton.bone_names[r]!r} has children at different rest "
+                             "heads; the root's tilt cannot move into them")
+        bones = np.r_[r, children]
+        L = Rr[bones] @ Rotation.from_rotvec(rv[bones]).as_matrix() @ np.transpose(Rr[bones], (0, 2, 1))
+        W = L[0]  # the root's rotation in world axes; L[1:] its children's, in rest-world axes
+        q = Rotation.from_matrix(W).as_quat()  # (x, y, z, w): the twist about up keeps w and the part along up
+        s, c = q[:3] @ up, q[3]
+        norm = np.hypot(s, c)
+        s, c = (0.0, 1.0) if norm < 1e-12 else (s / norm, c / norm)
+        K = np.array([[0.0, -up[2], up[1]], [up[2], 0.0, -up[0]], [-up[1], up[0], 0.0]])
+        W_up = np.eye(3) + 2.0 * c * s * K + 2.0 * s * s * (K @ K)  # the rotation of the unit quaternion (s up, c)
+        translation = translation + (W - W_up) @ (skeleton.heads[children[0]] - skeleton.heads[r])
+        L_new = np.concatenate([W_up[None], W_up.T @ W @ L[1:]])  # each child keeps its world rotation
+        rv[bones] = Rotation.from_matrix(np.transpose(Rr[bones], (0, 2, 1)) @ L_new @ Rr[bones]).as_rotvec()
+    return Pose(rv, translation)
