@@ -105,7 +105,7 @@ UNTWIST_BONES = _track.UNTWIST_BONES
 #: True: the bodies are posed with the root turned about the vertical only, its tilt moved into the pelvis
 #: (:func:`bodystudio.mirror.track.upright_root`: the source's posed vertices stay, the target's no longer turn with
 #: the root's tilt, a gauge of the source fit). MIR12s: end to end 52 0.9287 -> 0.9338, 41 / 42 / 43 +0.0005 /
-#: +0.0001 / +0.0007, 13 of 14 sessions hold or gain, 48 -0.0002 (docs/mirror.md).
+#: +0.0001 / +0.0007, 13 of 14 sessions hold or gain, 48 -0.0002; 0.03 ms a frame and actor (docs/mirror.md).
 UPRIGHT_ROOT = True
 
 

@@ -732,16 +732,24 @@ def upright_root(skeleton: Skeleton, pose: Pose, up=(0.0, 1.0, 0.0)) -> Pose:
         if np.abs(skeleton.heads[children] - skeleton.heads[children[0]]).max() > 1e-9:
             raise InputError(f"upright_root: the root {skeleton.bone_names[r]!r} has children at different rest "
                              "heads; the root's tilt cannot move into them")
-        bones = np.r_[r, children]
-        L = Rr[bones] @ Rotation.from_rotvec(rv[bones]).as_matrix() @ np.transpose(Rr[bones], (0, 2, 1))
-        W = L[0]  # the root's rotation in world axes; L[1:] its children's, in rest-world axes
-        q = Rotation.from_matrix(W).as_quat()  # (x, y, z, w): the twist about up keeps w and the part along up
-        s, c = q[:3] @ up, q[3]
+        M = np.empty((3, 3))
+        rotvec_matrix_into(rv[r, 0], rv[r, 1], rv[r, 2], M)  # scipy's values, without its per-call overhead
+        W = Rr[r] @ M @ Rr[r].T  # the root's rotation in world axes
+        a = np.empty(3)
+        _matrix_rotvec(W, a)
+        angle = np.linalg.norm(a)  # the twist about up of the unit quaternion (sin(angle / 2) a / angle, cos(...))
+        s = 0.0 if angle < 1e-15 else np.sin(angle / 2.0) * (a @ up) / angle
+        c = np.cos(angle / 2.0)
         norm = np.hypot(s, c)
         s, c = (0.0, 1.0) if norm < 1e-12 else (s / norm, c / norm)
         K = np.array([[0.0, -up[2], up[1]], [up[2], 0.0, -up[0]], [-up[1], up[0], 0.0]])
-        W_up = np.eye(3) + 2.0 * c * s * K + 2.0 * s * s * (K @ K)  # the rotation of the unit quaternion (s up, c)
+        W_up = np.eye(3) + 2.0 * c * s * K + 2.0 * s * s * (K @ K)  # the rotation of the quaternion (s up, c)
         translation = translation + (W - W_up) @ (skeleton.heads[children[0]] - skeleton.heads[r])
-        L_new = np.concatenate([W_up[None], W_up.T @ W @ L[1:]])  # each child keeps its world rotation
-        rv[bones] = Rotation.from_matrix(np.transpose(Rr[bones], (0, 2, 1)) @ L_new @ Rr[bones]).as_rotvec()
+        turn = W_up.T @ W
+        for j in children:  # each child keeps its world rotation: W_up L_j' = W L_j
+            rotvec_matrix_into(rv[j, 0], rv[j, 1], rv[j, 2], M)
+            _matrix_rotvec(Rr[j].T @ turn @ Rr[j] @ M, a)
+            rv[j] = a
+        _matrix_rotvec(Rr[r].T @ W_up @ Rr[r], a)
+        rv[r] = a
     return Pose(rv, translation)
