@@ -10,7 +10,9 @@ without the warp's edge clamp, MIR12g; ``refine-before-mir12h``: the root turned
 MIR12h; ``refine-twisted``: the IK's limbs keep their warm-started twist, before MIR12p; ``refine-registered``: the
 bodies registered to the outline, ``run.REGISTER_OUTLINE_ONE_PLAYER``; ``refine-posture``: E_trunk centred on the run's
 running mean posture of spine_02, neck_01 and head, ``run.POSTURE_BONES``, MIR12q; ``refine-registered-posture``: both
-options, MIR12r), then
+options, MIR12r; ``refine-root-kept``: the target skeleton keeps the source's root, ``reshape.TARGET_ROOT = "source"``,
+before MIR12s; ``refine-upright``: the bodies posed with an upright root, ``run.UPRIGHT_ROOT``, MIR12s;
+``refine-root-kept-upright``: both), then
 ``evaluate_mirror`` on each; prints one JSON line per run with the scores and the per-step median milliseconds
 (wall, so only comparable at one load).
 """
@@ -50,8 +52,16 @@ def _refine_as(run: str, weights: dict | None = None):
 
     untwist, register = run_module.UNTWIST_BONES, run_module.REGISTER_OUTLINE_ONE_PLAYER
     posture = run_module.POSTURE_BONES
+    from bodystudio.mirror import reshape
+
+    target_root = reshape.TARGET_ROOT
+    if run in ("refine-root-kept", "refine-root-kept-upright"):  # the source's root kept (before MIR12s)
+        reshape.TARGET_ROOT = "source"
     if run == "refine-twisted":  # the IK's warm-started limb twist (before MIR12p)
         run_module.UNTWIST_BONES = ()
+    upright = run_module.UPRIGHT_ROOT
+    if run in ("refine-upright", "refine-root-kept-upright"):  # the root's tilt moved into the pelvis (MIR12s)
+        run_module.UPRIGHT_ROOT = True
     if run in ("refine-registered", "refine-registered-posture"):  # the bodies registered to the outline (MIR12p)
         run_module.REGISTER_OUTLINE_ONE_PLAYER = True
     if run in ("refine-posture", "refine-registered-posture"):  # E_trunk on the running mean posture (MIR12q)
@@ -66,6 +76,8 @@ def _refine_as(run: str, weights: dict | None = None):
         warp.edge_clamped = clamp
         run_module.UNTWIST_BONES, run_module.REGISTER_OUTLINE_ONE_PLAYER = untwist, register
         run_module.POSTURE_BONES = posture
+        reshape.TARGET_ROOT = target_root
+        run_module.UPRIGHT_ROOT = upright
 
 
 def main() -> None:
@@ -79,7 +91,8 @@ def main() -> None:
     parser.add_argument("--runs", nargs="+", default=["ik", "refine"],
                         choices=["ik", "refine", "refine-no-trunk", "refine-2-steps", "refine-no-edge",
                                  "refine-before-mir12h", "refine-weights", "refine-twisted", "refine-registered",
-                                 "refine-posture", "refine-registered-posture"],
+                                 "refine-posture", "refine-registered-posture", "refine-root-kept", "refine-upright",
+                                 "refine-root-kept-upright"],
                         help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
                              "or with two Gauss-Newton steps, or without the warp's edge clamp (MIR12g's A/Bs)")
     parser.add_argument("--weights", default="", help="refine-weights: RefineWeights fields, e.g. depth_samples=2000")

@@ -31,6 +31,10 @@ EDIT_ATTRIBUTES = {"taller": "stature_m", "heavier": "mass_kg", "muscular": "mus
 #: Allowed range of each edit (symmetric): beyond it the PCA model leaves the population it was learnt on.
 EDIT_RANGES = {"taller": 0.30, "heavier": 40.0, "muscular": 0.5, "chest": 0.30, "waist": 0.30, "hips": 0.30}
 EDIT_UNITS = {"taller": "m", "heavier": "kg", "muscular": "", "chest": "m", "waist": "m", "hips": "m"}
+#: Where the target skeleton's root goes when its joints come from the model's regressor (:func:`target_skeleton`):
+#: "model", moved by the regressor's change like every other joint (the ground truth's Eq. 4 target), or "source",
+#: the source's rest root kept (before MIR12s).
+TARGET_ROOT = "model"
 #: Default largest change of each edit per frame in :func:`ramp_edits` (about 1 s for +-0.15 m or +-15 kg at 30 fps).
 RAMP_STEP_PER_FRAME = {"taller": 0.005, "heavier": 0.5, "muscular": 0.02, "chest": 0.005, "waist": 0.005,
                        "hips": 0.005}
@@ -98,25 +102,32 @@ def ramp_edits(current: dict[str, float], wanted: dict[str, float], max_step=Non
 
 
 def target_skeleton(source: SourceBody, target_vertices_rest, model: StatisticalBodyModel | None = None,
-                    target_coeffs=None) -> Skeleton:
+                    target_coeffs=None, keep_root: bool | None = None) -> Skeleton:
     """The target body's skeleton: with ``model`` and ``target_coeffs``, the source's joints moved by the change
     of the statistical model's own joints (its joint regressor, ``model.skeleton(c_T) - model.skeleton(c_S)``,
     exact for a target built as ``V_S + B(c_T) - B(c_S)``); else by Eq. 3 (joints move with their neighbouring
     vertices).
 
     The root bone is not a joint of the body but its anchor on the floor (the game_engine rig's ``Root``
-    lies on the floor between the feet, where the pose's translation puts it): it keeps the source's rest
-    head and tail, so the target stands on the source's spot. Eq. 3 would move it with the nearest
-    vertices (the feet of a bigger body: +2 cm up and +4 cm forward for +17 cm / +15 kg), and since the
-    root's head offset enters the posed body untouched by the root's rotation, the target then slid 4 cm
-    along the world z axis whichever way the person faced (warp_iou 0.75 -> 0.86 on a MIR-SYNTH session
-    with a side-on walk-in, docs/mirror.md).
+    lies on the floor between the feet, where the pose's translation puts it). Eq. 3 would move it with the
+    nearest vertices (the feet of a bigger body: +2 cm up and +4 cm forward for +17 cm / +15 kg), and since
+    the root's head offset ``d`` enters the posed body untouched by the root's rotation (the posed target
+    moves by ``(I - R_root) d``), the target then slid 4 cm along the world z axis whichever way the person
+    faced (warp_iou 0.75 -> 0.86 on a MIR-SYNTH session with a side-on walk-in, docs/mirror.md): with Eq. 3
+    the root keeps the source's rest head and tail. The model's regressor moves it by a few millimetres
+    (-3 to +6 mm forward for +-10 cm with -+15 kg), and the Eq. 4 target of the ground truth
+    (``synthetic.target_rest_body``) moves it so: with ``model`` the root follows the regressor too unless
+    ``keep_root`` (default :data:`TARGET_ROOT` == "source"), which cost a person side-on ~4 mm (0.7 px) of
+    the displacement (MIR12s).
     """
-    if model is not None and target_coeffs is not None:
+    regressed = model is not None and target_coeffs is not None
+    if regressed:
         sk_s, sk_t = model.skeleton(source.coeffs), model.skeleton(target_coeffs)
         src = source.skeleton
         skeleton = Skeleton(src.bone_names, src.parents, src.heads + sk_t.heads - sk_s.heads,
                             src.tails + sk_t.tails - sk_s.tails, src.rolls)
+        if not (TARGET_ROOT == "source" if keep_root is None else keep_root):
+            return skeleton
     else:
         skeleton = refit_skeleton_from_vertices(source.vertices, source.skeleton, target_vertices_rest,
                                                 source.joint_neighbourhoods)

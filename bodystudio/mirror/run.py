@@ -102,6 +102,11 @@ POSTURE_WINDOW = 30
 #: The limbs whose twist each frame's IK pose drops before the refinement and the bodies
 #: (:func:`bodystudio.mirror.track.untwisted_pose`; () keeps the IK's warm-started twist, as before MIR12p).
 UNTWIST_BONES = _track.UNTWIST_BONES
+#: True: the bodies are posed with the root turned about the vertical only, its tilt moved into the pelvis
+#: (:func:`bodystudio.mirror.track.upright_root`: the source's posed vertices stay, the target's no longer turn with
+#: the root's tilt, a gauge of the source fit). MIR12s: end to end 52 0.9287 -> 0.9338, 41 / 42 / 43 +0.0005 /
+#: +0.0001 / +0.0007, 13 of 14 sessions hold or gain, 48 -0.0002; 0.03 ms a frame and actor (docs/mirror.md).
+UPRIGHT_ROOT = True
 
 
 def refine_steps(n_players: int) -> int:
@@ -541,7 +546,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     """
     from bodystudio.mirror.frames import read_mirror_frame, register_depth_to_color
     from bodystudio.mirror.reshape import posed_source_and_target, target_coeffs, target_skeleton
-    from bodystudio.mirror.track import ik_pose, untwisted_pose
+    from bodystudio.mirror.track import ik_pose, untwisted_pose, upright_root
 
     sensor = session.kinect
     if sensor is None:
@@ -669,6 +674,8 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
                     timings["refine_pose"] = timings.get("refine_pose", 0.0) + (t_refined - t) * 1e3
                     cpu["refine_pose"] = cpu.get("refine_pose", 0.0) + (c_refined - c) * 1e3
                     t, c = t_refined, c_refined
+                if UPRIGHT_ROOT:  # the root's tilt is the source's gauge and would turn the target (MIR12s)
+                    pose = upright_root(a.body.skeleton, pose)
                 Vs, Vt = posed_source_and_target(a.body, Vt_rest, pose, rig)
                 sources.append(Vs)
                 targets.append(Vt)

@@ -703,3 +703,53 @@ def untwisted_pose(skeleton: Skeleton, pose: Pose, bones=UNTWIST_BONES) -> Pose:
     ch = np.array(sorted(changed))
     rv[ch] = Rotation.from_matrix(np.transpose(Rr[ch], (0, 2, 1)) @ L[ch] @ Rr[ch]).as_rotvec()
     return Pose(rv, np.array(pose.translation, dtype=np.float64))
+
+
+def upright_root(skeleton: Skeleton, pose: Pose, up=(0.0, 1.0, 0.0)) -> Pose:
+    """The same posed body with the root turned about the world's ``up`` axis only (MIR12s).
+
+    The game_engine rig's ``Root`` is the floor anchor between the feet: it carries no skin weight, and its one
+    child (the pelvis) takes any posed frame through its own rotation and the pose's translation, so the root's
+    tilt is free for the posed source (a gauge: the IK and the refinement leave 3-5 degrees of it on a walk). It is
+    not free for the target: the target's joints hang off the root's rest frame, so a tilt ``e`` of the root turns
+    the reshape's change of the pelvis height (-8 cm for 17 cm shorter) by ``e``, a few mm forward or back that a
+    person side-on shows as a shift of the whole outline. Here the root keeps only its turn about ``up`` (the
+    swing-twist decomposition), its children keep their world rotations and the translation keeps their heads in
+    place: every posed vertex and joint of the source stays (to rounding), the target no longer depends on the tilt.
+    A root with children at different rest heads cannot keep them all: InputError.
+    """
+    parents = np.asarray(skeleton.parents)
+    roots = np.flatnonzero(parents < 0)
+    up = np.asarray(up, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    Rr = skeleton.rest_rotations
+    rv = np.array(pose.rotations, dtype=np.float64)
+    translation = np.array(pose.translation, dtype=np.float64)
+    for r in roots:
+        children = np.flatnonzero(parents == r)
+        if not len(children):
+            continue
+        if np.abs(skeleton.heads[children] - skeleton.heads[children[0]]).max() > 1e-9:
+            raise InputError(f"upright_root: the root {skeleton.bone_names[r]!r} has children at different rest "
+                             "heads; the root's tilt cannot move into them")
+        M = np.empty((3, 3))
+        rotvec_matrix_into(rv[r, 0], rv[r, 1], rv[r, 2], M)  # scipy's values, without its per-call overhead
+        W = Rr[r] @ M @ Rr[r].T  # the root's rotation in world axes
+        a = np.empty(3)
+        _matrix_rotvec(W, a)
+        angle = np.linalg.norm(a)  # the twist about up of the unit quaternion (sin(angle / 2) a / angle, cos(...))
+        s = 0.0 if angle < 1e-15 else np.sin(angle / 2.0) * (a @ up) / angle
+        c = np.cos(angle / 2.0)
+        norm = np.hypot(s, c)
+        s, c = (0.0, 1.0) if norm < 1e-12 else (s / norm, c / norm)
+        K = np.array([[0.0, -up[2], up[1]], [up[2], 0.0, -up[0]], [-up[1], up[0], 0.0]])
+        W_up = np.eye(3) + 2.0 * c * s * K + 2.0 * s * s * (K @ K)  # the rotation of the quaternion (s up, c)
+        translation = translation + (W - W_up) @ (skeleton.heads[children[0]] - skeleton.heads[r])
+        turn = W_up.T @ W
+        for j in children:  # each child keeps its world rotation: W_up L_j' = W L_j
+            rotvec_matrix_into(rv[j, 0], rv[j, 1], rv[j, 2], M)
+            _matrix_rotvec(Rr[j].T @ turn @ Rr[j] @ M, a)
+            rv[j] = a
+        _matrix_rotvec(Rr[r].T @ W_up @ Rr[r], a)
+        rv[r] = a
+    return Pose(rv, translation)

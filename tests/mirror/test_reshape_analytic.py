@@ -192,8 +192,9 @@ def test_posed_target_uses_the_rig_given_and_poses_only_the_subset(model_source)
 
 def test_target_skeleton_from_the_model_moves_the_joints_by_the_regressor(model_6k, model_source):
     """With the model and the target's coefficients (what ``mirror run`` does, lead 4) the source's joints move by
-    ``model.skeleton(c_T) - model.skeleton(c_S)``, whatever the source skeleton is; the root stays. On a source
-    that carries the model's own joints this is the model's target skeleton exactly, and it differs from Eq. 3's."""
+    ``model.skeleton(c_T) - model.skeleton(c_S)``, whatever the source skeleton is, the root too (MIR12s; with
+    ``keep_root`` it stays, before MIR12s). On a source that carries the model's own joints this is the model's
+    target skeleton exactly, and it differs from Eq. 3's."""
     c_s = model_source.coeffs
     c_t = target_coeffs(model_6k, c_s, {"taller": 0.17, "heavier": 15.0})
     V_t = model_6k.vertices(c_t)
@@ -202,14 +203,49 @@ def test_target_skeleton_from_the_model_moves_the_joints_by_the_regressor(model_
     # a source with Eq. 3's skeleton (an older source_body.npz): moved by the regressor's change
     moved = target_skeleton(model_source, V_t, model_6k, c_t)
     eq3 = model_source.skeleton
-    np.testing.assert_allclose(moved.heads[~roots], (eq3.heads + sk_t.heads - sk_s.heads)[~roots], atol=1e-12)
-    np.testing.assert_allclose(moved.tails[~roots], (eq3.tails + sk_t.tails - sk_s.tails)[~roots], atol=1e-12)
-    np.testing.assert_array_equal(moved.heads[roots], eq3.heads[roots])
-    # a source with the model's joints (what mirror init writes): the model's target skeleton, root kept
+    np.testing.assert_allclose(moved.heads, eq3.heads + sk_t.heads - sk_s.heads, atol=1e-12)
+    np.testing.assert_allclose(moved.tails, eq3.tails + sk_t.tails - sk_s.tails, atol=1e-12)
+    kept = target_skeleton(model_source, V_t, model_6k, c_t, keep_root=True)
+    np.testing.assert_array_equal(kept.heads[roots], eq3.heads[roots])
+    np.testing.assert_array_equal(kept.tails[roots], eq3.tails[roots])
+    np.testing.assert_array_equal(kept.heads[~roots], moved.heads[~roots])
+    # a source with the model's joints (what mirror init writes): the model's target skeleton
     own = SourceBody(c_s, model_source.vertices, sk_s, (0,), 0.0, model_6k.weights, model_6k.faces)
     exact = target_skeleton(own, V_t, model_6k, c_t)
-    np.testing.assert_allclose(exact.heads[~roots], sk_t.heads[~roots], atol=1e-12)
-    np.testing.assert_allclose(exact.tails[~roots], sk_t.tails[~roots], atol=1e-12)
-    np.testing.assert_array_equal(exact.heads[roots], sk_s.heads[roots])
+    np.testing.assert_allclose(exact.heads, sk_t.heads, atol=1e-12)
+    np.testing.assert_allclose(exact.tails, sk_t.tails, atol=1e-12)
     by_eq3 = target_skeleton(own, V_t)
     assert np.abs(by_eq3.heads - exact.heads)[~roots].max() > 1e-3  # Eq. 3 is another skeleton
+    np.testing.assert_array_equal(by_eq3.heads[roots], sk_s.heads[roots])  # Eq. 3 keeps the root whatever
+
+
+def test_posed_target_of_a_side_on_person_is_the_ground_truths(model_6k):
+    """The mirror's target (the source's vertices and joints moved by the model's change, posed as the source) is the
+    synthetic studio's Eq. 4 target (``synthetic.target_rest_body``) posed by the same pose, to 1e-9 m, for a person
+    turned 80 degrees from the sensor. +10 cm with -15 kg moves the model's floor anchor (the ``Root``) 3 mm back:
+    a target that keeps the source's root is off by ``(I - R_root) d``, ~4 mm side-on (MIR12s: warp_iou 0.931 ->
+    0.946 on a walk that crosses the room side-on)."""
+    from scipy.spatial.transform import Rotation
+
+    from bodystudio.body.pose import transfer_pose
+    from bodystudio.mirror.synthetic import target_rest_body
+
+    actor = build_body(*sample_population(1, seed=11)[0], resolution="6k")
+    target, c_s, c_t = target_rest_body(model_6k, actor, {"taller": 0.1, "heavier": -15.0})
+    sk = actor.skeleton
+    root = int(np.flatnonzero(np.asarray(sk.parents) < 0)[0])
+    d = target.skeleton.heads[root] - sk.heads[root]
+    assert np.linalg.norm(d) > 1e-3  # the anchor moves: the case that tells the two conventions apart
+    rot = np.random.default_rng(3).normal(0.0, 0.1, (sk.n_bones, 3))
+    world = Rotation.from_rotvec([0.0, np.radians(80.0), 0.0]).as_matrix()
+    rot[root] = Rotation.from_matrix(sk.rest_rotations[root].T @ world @ sk.rest_rotations[root]).as_rotvec()
+    pose = Pose(rot, np.array([0.2, 0.0, 0.4]))
+    truth, _ = target.pose(transfer_pose(pose, sk, target.skeleton))
+    source = SourceBody(c_s, actor.vertices, sk, (0,), 0.0, actor.weights, actor.faces)
+    Vt_rest = actor.vertices + model_6k.vertices(c_t) - model_6k.vertices(c_s)
+    for keep_root, lo, hi in ((None, 0.0, 1e-9), (True, 3e-3, 1e-2)):
+        rig = target_skeleton(source, Vt_rest, model_6k, c_t, keep_root=keep_root)
+        _, Vt = posed_source_and_target(source, Vt_rest, pose, rig)
+        err = np.linalg.norm(Vt - truth, axis=1)
+        assert lo <= err.mean() <= hi, (keep_root, err.mean())
+    np.testing.assert_allclose(err, np.linalg.norm((np.eye(3) - world) @ d), atol=1e-9)  # all of it the anchor

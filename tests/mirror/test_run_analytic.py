@@ -404,6 +404,12 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, play
 
     monkeypatch.setattr(track_mod, "untwisted_pose", untwisted)
 
+    def upright(skeleton, pose):  # MIR12s: the bodies' pose with the root's tilt moved into the pelvis, marked "r"
+        assert skeleton == "sk"
+        return "r" + pose
+
+    monkeypatch.setattr(track_mod, "upright_root", upright)
+
     def target(m, coeffs, edits):
         assert m is model
         return coeffs + edits["taller"]
@@ -440,7 +446,8 @@ def test_session_inputs_warn_per_frame_and_ramp_the_edit(monkeypatch):
     # the edit is reached over ramp_frames tracked frames: V_S + s (V_T - V_S), V_T = 10 here
     assert [o.edit_fraction for o in ok] == pytest.approx([1 / 3, 2 / 3, 1.0, 1.0])
     assert [t for t, _ in f.bodies] == pytest.approx([4.0, 7.0, 10.0, 10.0])
-    assert [p for _, p in f.bodies] == ["upose4", "upose5", "upose7", "upose8"]  # the untwisted poses
+    # the untwisted poses, with an upright root for the bodies (MIR12s)
+    assert [p for _, p in f.bodies] == ["rupose4", "rupose5", "rupose7", "rupose8"]
     assert ok[0].dst_uv[0, 0] == pytest.approx(4.0) and ok[0].src_uv[0, 0] == 1.0
     np.testing.assert_array_equal(ok[0].depth_color, np.full((CH, CW), 0.8))
     assert all(o.dense == "dense" for o in ok)  # the default correspondence is the dense one, passed on

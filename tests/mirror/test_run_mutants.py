@@ -453,6 +453,12 @@ def _two_player_session(monkeypatch):
         return pose
 
     monkeypatch.setattr(track_mod, "untwisted_pose", untwisted)
+
+    def upright(skeleton, pose):  # the bodies' upright root (MIR12s), recorded, as the identity
+        rec.setdefault("upright", []).append((skeleton, pose))
+        return pose
+
+    monkeypatch.setattr(track_mod, "upright_root", upright)
     monkeypatch.setattr(reshape_mod, "target_coeffs", lambda m, c, e: c + e["taller"])
     monkeypatch.setattr(reshape_mod, "posed_source_and_target", lambda b, vt, pose, r: (b.vertices, vt))
     monkeypatch.setattr(reshape_mod, "target_skeleton", rig)
@@ -511,6 +517,8 @@ def test_session_inputs_reshape_several_players_each_on_its_own(monkeypatch):
         ("sk1", "pose1.0"), ("sk2", "pose2.0"), ("sk1", "pose1.1"), ("sk1", "pose1.4"), ("sk1", "pose1.5"),
         ("sk2", "pose2.5"), ("sk2", "pose2.6")]
     assert {bones for _, _, bones in rec["untwisted"]} == {run_mod.UNTWIST_BONES}
+    # each body is posed with an upright root on its own skeleton (MIR12s), once per reshaped player and frame
+    assert [sk for sk, _ in rec["upright"]] == ["sk1", "sk2", "sk1", "sk1", "sk2", "sk2"]
     # the correspondence asked reaches the pairs; an edit of 2 ramps the coefficients by s (c_T - c_S)
     rec["rig"].clear()
     list(run_mod.session_inputs(session, [b1, b2], model, {"taller": 2.0}, [1, 2], 2, [0], "mls"))
@@ -619,3 +627,14 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
     else:
         with pytest.raises(InputError, match="^pose refinement failed: no cut$"):
             out[1].late_pairs(fg, {})
+
+
+def test_session_inputs_pose_the_bodies_with_the_tilted_root_when_upright_is_off(monkeypatch):
+    """``run.UPRIGHT_ROOT = False`` (before MIR12s): the bodies take the IK's pose as it is, no upright_root call."""
+    session, b1, b2, model, rec, _, _ = _two_player_session(monkeypatch)
+    monkeypatch.setattr(run_mod, "UPRIGHT_ROOT", False)
+    out = list(run_mod.session_inputs(session, [b1, b2], model, {"taller": 1.0}, [1, 2], 2, [0, 1]))
+    assert [o.warning for o in out] == [None, None] and "upright" not in rec
+    monkeypatch.setattr(run_mod, "UPRIGHT_ROOT", True)
+    list(run_mod.session_inputs(session, [b1, b2], model, {"taller": 1.0}, [1, 2], 2, [0, 1]))
+    assert [sk for sk, _ in rec["upright"]] == ["sk1", "sk2", "sk1"]
