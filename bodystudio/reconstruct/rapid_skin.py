@@ -105,13 +105,15 @@ class RapidSkinParams:
 
 @dataclass
 class DeformResult:
-    """Deformed vertices plus timings (seconds) and per-outer-iteration constraint counts."""
+    """Deformed vertices plus timings (seconds) and per-outer-iteration constraint counts; ``silhouette_vertices``:
+    the vertices with a silhouette constraint in the last outer iteration (each once or more, one per pair)."""
 
     vertices: np.ndarray
     solver_s: float = 0.0
     matching_s: float = 0.0
     n_silhouette: list = field(default_factory=list)
     n_depth: list = field(default_factory=list)
+    silhouette_vertices: np.ndarray | None = None
 
 
 def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: dict | None,
@@ -201,6 +203,7 @@ def deform_to_observations(V_init: np.ndarray, F: np.ndarray, cameras, masks: di
         result.matching_s += t1 - t0
         result.solver_s += t2 - t1
         result.n_silhouette.append(len(sil))
+        result.silhouette_vertices = sil.vertex
         result.n_depth.append(len(dep))
         if callback is not None:
             callback(outer + 1, V)

@@ -68,9 +68,11 @@ from bodystudio.reconstruct.pose_init import (
 )
 from bodystudio.reconstruct.rapid_skin import RapidSkinParams, deform_to_observations
 from bodystudio.reconstruct.shape_prior import (
+    back_patch,
     deformed_shape_coefficients,
     posed_shape,
     region_blend_weights,
+    rim_reach,
     shape_prior_mesh,
 )
 from bodystudio.reconstruct.tracking import (
@@ -304,7 +306,8 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
                         refine_depth: float = 0.0, refine_depth_bones="neck",
                         refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0,
-                        player: int | None = None, shape_prior_region: str = "all") -> dict:
+                        player: int | None = None, shape_prior_region: str = "all",
+                        shape_prior_reach: float = 0.0) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
@@ -327,6 +330,11 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     fit on a tracked frame). ``shape_prior_region`` (``all``, or region
     names joined by ``+``, :data:`SHAPE_PRIOR_REGIONS`) restricts the fitted shape to those regions, the
     template's elsewhere (:func:`bodystudio.reconstruct.shape_prior.region_blend_weights`).
+    ``shape_prior_reach`` (``carried`` only; 0: off) gates ``carried`` by the run's own data: a (re-)initialised
+    frame's fitted shape is carried only where the silhouettes' rims reached less than this share of the middle of
+    the back (:func:`bodystudio.reconstruct.shape_prior.back_patch` / ``rim_reach``, the deformation's last outer
+    iteration): a back the rims reach is carried out by the side views (the walks) and the fitted shape would
+    take that up, a back no rim reaches (a stout subject's, behind the arms) is the template's (issue 15, rec15q).
     ``refine_depth`` (issue 15's neck front; 0: off) weights the Kinect's point-to-plane residuals in the pose
     refinement beside the silhouettes (:mod:`bodystudio.reconstruct.pose_depth`; with depth constraints), of
     the vertices of ``refine_depth_bones`` (``neck``: the neck and head, default; ``all``; or bone names).
@@ -371,7 +379,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    shape_prior_first_outer=shape_prior_first_outer, refine_depth=refine_depth,
                                    refine_depth_bones=refine_depth_bones, refine_depth_guard=refine_depth_guard,
                                    smoothing_guard=smoothing_guard, subject=subject,
-                                   shape_prior_region=shape_prior_region)
+                                   shape_prior_region=shape_prior_region, shape_prior_reach=shape_prior_reach)
 
 
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
@@ -388,7 +396,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
                        refine_depth: float = 0.0, refine_depth_bones="neck",
                        refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0, subject: dict | None = None,
-                       player: int | None = None, shape_prior_region: str = "all") -> dict:
+                       player: int | None = None, shape_prior_region: str = "all",
+                       shape_prior_reach: float = 0.0) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -459,6 +468,13 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     if shape_prior == "carried" and not tracking:
         raise InputError("shape prior 'carried' carries the initialised frames' shape into the tracked frames; "
                          "use it with tracking, or shape_prior 'run' / 'frame'")
+    if not (np.isfinite(shape_prior_reach) and 0.0 <= shape_prior_reach <= 1.0):
+        raise InputError(f"shape_prior_reach {shape_prior_reach:g}: give a share of the back's vertices in [0, 1] "
+                         "(0: off)")
+    if shape_prior_reach > 0 and shape_prior != "carried":
+        raise InputError(f"shape_prior_reach {shape_prior_reach:g} gates the carried shape prior; use it with "
+                         f"shape_prior 'carried' (not {shape_prior!r}) or leave it 0")
+    back = back_patch(body) if shape_prior_reach > 0 else None
     prior_regions = () if shape_prior_region == "all" else tuple(str(shape_prior_region).split("+"))
     unknown = [r for r in prior_regions if r not in SHAPE_PRIOR_REGIONS]
     if unknown or (shape_prior_region != "all" and not prior_regions):
@@ -683,7 +699,11 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 second.n_depth = result.n_depth + second.n_depth
                 t_init += t_prior
                 result = second
-            if shape_model is not None and (shape_prior == "run" or (carried and track != "tracked")):
+            reached = False
+            if back is not None and carried and track != "tracked":
+                detail["back_rim_reach"] = rim_reach(result.silhouette_vertices, back)
+                reached = detail["back_rim_reach"] >= shape_prior_reach  # the rims carry this back: not a shape
+            if shape_model is not None and (shape_prior == "run" or (carried and track != "tracked" and not reached)):
                 t1 = time.perf_counter()
                 shape_coeffs.append(deformed_shape_coefficients(shape_model, body, result.vertices,
                                                                 init.bone_transforms))
@@ -725,6 +745,8 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                 rec["smoothing_outside"] = [float(e) for e in detail.pop("smoothing_outside")]
             if "refine_depth_outside" in detail:
                 rec["refine_depth_outside"] = [float(e) for e in detail.pop("refine_depth_outside")]
+            if "back_rim_reach" in detail:
+                rec["back_rim_reach"] = float(detail.pop("back_rim_reach"))
             if detail:
                 rec["track_check"] = {k: float(v) for k, v in detail.items()}
             if score:
@@ -742,6 +764,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                    "shape_prior_outer": int(shape_prior_outer),
                    "shape_prior_first_outer": int(shape_prior_first_outer),
                    "shape_prior_region": str(shape_prior_region),
+                   "shape_prior_reach": float(shape_prior_reach),
                    "refine_depth": float(refine_depth),
                    "refine_depth_guard": float(refine_depth_guard), "smoothing_guard": float(smoothing_guard),
                    "refine_depth_bones": (refine_depth_bones if isinstance(refine_depth_bones, str)

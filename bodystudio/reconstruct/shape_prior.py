@@ -91,6 +91,34 @@ def region_blend_weights(body, regions: np.ndarray, names: tuple[str, ...], fall
     return w
 
 
+#: The bones whose skin is the middle of the back (rec15p: where turn 66's and the walks' maxima sit).
+BACK_BONES = ("spine_02", "spine_03")
+
+
+def back_patch(body) -> np.ndarray:
+    """Boolean ``(n,)``: the template's middle of the back, the vertices skinned mostly to :data:`BACK_BONES` whose
+    rest-pose normal faces backwards (``n_z < -0.5``; the rest pose faces +z). The surface where the walks'
+    side-view rims carry the back out and a stout subject's back, reached by no rim, stays inside (issue 15,
+    rec15p / rec15q)."""
+    import igl
+
+    names = body.skeleton.bone_names
+    dominant = np.argmax(body.weights, axis=1)
+    N = igl.per_vertex_normals(np.asarray(body.vertices, dtype=np.float64), np.asarray(body.faces))
+    return np.isin(dominant, [names.index(b) for b in BACK_BONES if b in names]) & (N[:, 2] < -0.5)
+
+
+def rim_reach(silhouette_vertices: np.ndarray | None, patch: np.ndarray) -> float:
+    """The share (0..1) of the ``patch``'s vertices that have a silhouette constraint (Rapid Skin Eq. 10's rim
+    pairs, ``silhouette_vertices`` of the deformation's last outer iteration): how much of it the rims reach."""
+    n = int(np.count_nonzero(patch))
+    if n == 0 or silhouette_vertices is None:
+        return 0.0
+    hit = np.zeros(len(patch), dtype=bool)
+    hit[np.asarray(silhouette_vertices, dtype=np.int64)] = True
+    return float(np.count_nonzero(hit & patch)) / n
+
+
 def one_ring(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
     """``(n, n)`` 0/1 adjacency of the mesh's edges with the diagonal set (each vertex and its one-ring)."""
     F = np.asarray(faces)

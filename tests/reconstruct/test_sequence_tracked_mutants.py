@@ -122,7 +122,7 @@ class Rec:
         self.calls["deform"].append(dict(V=np.array(V), params=params, masks=masks, delta=delta,
                                          reference=np.array(smooth_reference), fields=fields))
         return NS(vertices=np.asarray(V) + [0.0, 0.0, 0.001 * (k + 1)], solver_s=0.25, matching_s=0.125,
-                  n_silhouette=7, n_depth=0)
+                  n_silhouette=7, n_depth=0, silhouette_vertices=np.array([k]))
 
     def unpose(self, V, weights, T):
         assert weights is BODIES["6k"].weights

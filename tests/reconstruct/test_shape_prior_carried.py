@@ -91,7 +91,7 @@ def test_region_shape_is_the_space_inside_the_template_outside_and_recovers_a_pl
 
 # --- reconstruct_frames' wiring on the tracked path's stand-ins -------------------------------------------------
 
-def _carried_run(monkeypatch, tmp_path, region="all", tracking=True):
+def _carried_run(monkeypatch, tmp_path, region="all", tracking=True, reach=0.0, prior="carried"):
     rec = _stand_ins(monkeypatch)
     import bodystudio.body.statistical as statistical
 
@@ -118,7 +118,8 @@ def _carried_run(monkeypatch, tmp_path, region="all", tracking=True):
     seq.reconstruct_frames(_session(), writer, list(FRAMES), [NS(name="c0")], NS(depth="depth-camera"),
                            RapidSkinParams(outer_iterations=5), "gs", "6k", "tracker", None, False, False, False,
                            False, tracking=tracking, track_params=TrackParams(outside_px=OUTSIDE_PX),
-                           bone_lengths="frame", shape_prior="carried", shape_prior_region=region)
+                           bone_lengths="frame", shape_prior=prior, shape_prior_region=region,
+                           shape_prior_reach=reach)
     return rec, fits, poses, writer
 
 
