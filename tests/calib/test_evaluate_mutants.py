@@ -4,6 +4,7 @@ reprojection RMS by a per-point loop, and the uncertainty check's z-scores and M
 Pure numpy, no calibration is run; the file runs in well under a second.
 """
 
+import warnings
 from functools import cache
 from types import SimpleNamespace
 
@@ -113,8 +114,22 @@ def test_report_without_per_camera_figures_and_no_report():
 
 def test_a_camera_that_sees_no_volume_point_scores_nan():
     gt = CameraRig([Camera.look_at("away", (0, 1, 5), (0, 1, 10), width=100, height=100)])
-    out = ev.evaluate_calibration(gt, gt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no mean of an empty selection
+        out = ev.evaluate_calibration(gt, gt)
     assert np.isnan(out["cameras"]["away"]["volume_reproj_rms_px"]) and out["cameras"]["away"]["center_err_mm"] == 0
+
+
+def test_volume_points_near_the_camera_count():
+    """A camera standing at the volume's edge: in-view points from 5 cm to 2 m deep, all scored."""
+    g = Camera.look_at("near", (0.0, 1.1, 1.05), (0.0, 1.0, -1.0), fx=300.0, width=640, height=480)
+    e = moved(g, [0.002, 0.0, 0.0], [0.0, 0.004, 0.0])
+    P = ev.volume_points()
+    uv, z = g.project_with_depth(P)
+    seen = g.in_image(uv) & (z > 0)
+    assert (z[seen] < 1.0).sum() > 50 and (z[seen] > 1.0).sum() > 50
+    out = ev.evaluate_calibration(CameraRig([e]), CameraRig([g]))
+    assert out["cameras"]["near"]["volume_reproj_rms_px"] == pytest.approx(rms_by_hand(e, g, P), rel=1e-12)
 
 
 def test_similarity_alignment_removes_a_moved_and_scaled_world():
@@ -137,6 +152,7 @@ def test_similarity_alignment_removes_a_moved_and_scaled_world():
     aligned = ev._aligned(est, gt)
     for g in gt:
         a = aligned[g.name]
+        assert a.name == g.name
         np.testing.assert_allclose(a.center, g.center, atol=1e-9)
         np.testing.assert_allclose(a.R, g.R, atol=1e-12)
         np.testing.assert_array_equal(a.K, g.K)
@@ -199,7 +215,10 @@ def test_uncertainty_consistency_z_scores_and_mahalanobis_by_hand():
                      est_of(gt["b"], [[1.0, 0, 0], [0, 1.0, 0], [0, 0, 0]], [0.0, 0.0, 0.0])])
     cov_a = [[4.0, 1.0, 0.0], [1.0, 9.0, 0.0], [0.0, 0.0, 16.0]]
     unc = SimpleNamespace(cameras=[_uncertain("a", cov=cov_a, verdict="uncertain", center_sigma=5.4),
-                                   _uncertain("b", sig=(0.5, 0.0, 1.0, 1.0))])
+                                   _uncertain("b", sig=(0.5, 0.0, 1.0, 1.0)),
+                                   _uncertain("c", sig=(2.0, 2.0, 1.0, 4.0))])
+    gt = CameraRig(list(gt) + [gt["a"].with_name("c")])
+    est = CameraRig(list(est) + [est_of(gt["c"], [[7.0, 0, 0], [0, 0, 0], [0, 0, 0]], [0.0, 0.0, 0.0])])
     out = ev.uncertainty_consistency(est, gt, unc)
     a = out["a"]
     d = np.array([2.0, -3.0, 4.0])
@@ -216,6 +235,9 @@ def test_uncertainty_consistency_z_scores_and_mahalanobis_by_hand():
     b = out["b"]
     assert b["fx_z"] == 2.0 and b["fy_z"] == float("inf") and b["within_3sigma"] is False  # a zero sigma
     assert b["center_mahalanobis2"] == 0.0
+    c = out["c"]
+    assert c["fx_z"] == 3.5 and c["center_mahalanobis2"] == 0.0 and c["within_3sigma"] is False  # 3.5 sigma is out
+    assert list(out) == ["a", "b", "c"]
     assert all(type(v) is float for k, v in b.items() if k not in ("verdict", "within_3sigma"))
 
 
