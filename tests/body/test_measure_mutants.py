@@ -117,6 +117,7 @@ def test_has_boundary_is_some_directed_edge_without_its_opposite():
     tet = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]])
     assert not ms.has_boundary(tet) and ms.has_boundary(tet[[0, 1, 2]])
     assert not ms.has_boundary(tet[:, [1, 2, 0]]) and not ms.has_boundary(tet[:, ::-1])
+    assert ms.has_boundary(np.array([[0, 1, 2]])) and ms.has_boundary(np.array([[2, 0, 1]]))  # one triangle
 
 
 @pytest.mark.parametrize("hole", [[0, 1], [4, 5, 6, 7], [0, 1, 2, 3]])
@@ -129,6 +130,9 @@ def test_closing_the_box_gives_its_exact_volume_either_orientation(hole):
         assert len(Vc) == len(BOX) + n_loops and len(Fc) == len(F) + 4 * n_loops
         np.testing.assert_array_equal(Vc[: len(BOX)], BOX)
         np.testing.assert_array_equal(Fc[: len(F)], F)
+        fans = Fc[len(F):]
+        assert sorted(set(fans[:, 2].tolist())) == list(range(len(BOX), len(BOX) + n_loops))  # around the new centres
+        assert (fans[:, 2] >= len(BOX)).all() and (fans[:, :2] < len(BOX)).all()
         assert volume_by_hand(Vc, Fc) == pytest.approx(sign * 0.06, abs=1e-15)
         assert ms.enclosed_volume(Vc, Fc) == pytest.approx(sign * 0.06, abs=1e-15)
         # the fan's centre is the loop's centroid
@@ -149,10 +153,28 @@ def test_a_triangular_hole_is_closed_too():
         assert ms.body_mass(tet, np.delete(T, drop, axis=0)) == pytest.approx(1010.0 / 6, abs=1e-12)
 
 
+def test_loops_that_libigl_lists_the_other_way_round_are_turned(monkeypatch):
+    """The fan must run each boundary edge against the faces: a loop listed against the faces' direction is
+    reversed first (libigl lists them along the faces; the branch is kept for other conventions)."""
+    import igl
+
+    listed = igl.boundary_loop_all
+    monkeypatch.setattr(igl, "boundary_loop_all", lambda F: [list(loop)[::-1] for loop in listed(F)])
+    for hole in ([0, 1], [4, 5, 6, 7]):
+        F = np.delete(BOX_FACES, hole, axis=0)
+        Vc, Fc = ms.close_boundary_loops(BOX, F)
+        assert not boundary_by_hand(Fc)
+        assert volume_by_hand(Vc, Fc) == pytest.approx(0.06, abs=1e-15)
+
+
 def test_a_closed_mesh_is_returned_as_it_is():
     V, F = ms.close_boundary_loops(BOX, BOX_FACES)
     assert V is BOX and np.array_equal(F, BOX_FACES)
     assert F.dtype == np.int64
+    V, F = ms.close_boundary_loops(BOX, BOX_FACES.astype(np.int32))
+    assert F.dtype == np.int64 and np.array_equal(F, BOX_FACES)
+    Vc, Fc = ms.close_boundary_loops(BOX, BOX_FACES[2:].astype(np.int32))
+    assert Fc.dtype == np.int64
 
 
 def test_volume_and_mass_of_boxes_and_a_tetrahedron():
@@ -210,6 +232,11 @@ def test_sections_of_tubes_sloping_and_apart():
         assert ms.torso_girth(V, F, h) == pytest.approx(girth_by_hand(V, F, h), abs=1e-12)
     # above the L only the leaning tube is cut
     assert ms.torso_girth(V, F, 0.8) == pytest.approx(2 * (1.0 + 0.08), abs=1e-12)
+    # a tetrahedron cut below its apex: a 3-point curve, the triangle's perimeter
+    tet = np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0], [0.0, 0.0, 0.3], [0.0, 1.0, 0.0]])
+    T = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]])
+    assert [len(c) for c in ms.horizontal_section_curves(tet, T, 0.5)] == [3]
+    assert ms.torso_girth(tet, T, 0.5) == pytest.approx(0.5 * (0.4 + 0.3 + 0.5), abs=1e-12)
     # a single triangle gives a 2-point curve, dropped
     tri_V = np.array([[5.0, 0.0, 0.0], [5.1, 1.0, 0.0], [5.2, 0.0, 0.1]])
     assert len(ms.horizontal_section_curves(tri_V, np.array([[0, 1, 2]]), 0.5)[0]) == 2
@@ -243,7 +270,9 @@ def _check_nearest(got, ids):
 
 def test_template_landmarks_are_the_nearest_kept_vertices():
     body = body_2k()
+    ms._TEMPLATE_LANDMARKS.clear()  # computed here, not left over from an earlier test in this process
     want = ms.landmark_vertices(body.vertex_ids)
+    assert ms.landmark_vertices(body.vertex_ids) is want  # kept per template
     _check_nearest(want, body.vertex_ids)
     assert ms.landmark_vertices(list(body.vertex_ids)) == want  # any sequence of ids, cached by value
     assert ms.landmark_vertices(np.asarray(body.vertex_ids, np.int32)) == want
@@ -278,9 +307,28 @@ def test_measure_attributes_of_the_2k_body_by_hand():
         assert np.isnan(got["muscularity"]) and all(type(v) is float for v in got.values())
     assert waist < min(want["chest_m"], hip) and 40 < want["mass_kg"] < 120
     assert ms.measure_attributes(V.tolist(), F.tolist(), muscularity=0.25)["muscularity"] == 0.25
+    # float32 vertices are measured in float64
+    V32 = V.astype(np.float32)
+    assert ms.measure_attributes(V32, F, muscularity=0.5) == \
+        ms.measure_attributes(V32.astype(np.float64), F, muscularity=0.5)
+    # the arm length is the mean of both sides: a left wrist moved 2 cm out
+    V2 = V.copy()
+    V2[L.wrist[0]] += [0.02, 0.0, 0.0]
+    arms = [np.linalg.norm(V2[L.acromion[s]] - V2[L.elbow[s]]) + np.linalg.norm(V2[L.elbow[s]] - V2[L.wrist[s]])
+            for s in (0, 1)]
+    assert abs(arms[0] - arms[1]) > 1e-3
+    assert ms.measure_attributes(V2, F)["arm_length_m"] == pytest.approx((arms[0] + arms[1]) / 2, rel=1e-12)
     m = ms.measure_body(body)
     assert {k: m[k] for k in want} == pytest.approx(want, rel=1e-9)
     assert m["muscularity"] == body.phenotype.muscle
+    # the body's own vertex ids name the landmarks (a template's ids in another order: other landmark vertices)
+    from types import SimpleNamespace
+
+    shuffled = SimpleNamespace(vertices=V, faces=F, vertex_ids=np.asarray(body.vertex_ids)[::-1].copy(),
+                               phenotype=body.phenotype)
+    np.testing.assert_equal(ms.measure_body(shuffled), ms.measure_attributes(  # NaN girths: the bands are off
+        V, F, vertex_ids=shuffled.vertex_ids, muscularity=body.phenotype.muscle))
+    assert ms.measure_body(shuffled)["arm_length_m"] != pytest.approx(m["arm_length_m"], rel=1e-3)
 
 
 def test_band_constants():
