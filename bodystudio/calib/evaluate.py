@@ -61,11 +61,12 @@ def evaluate_calibration(est: CameraRig, gt: CameraRig, report: dict | None = No
         if report and n in report.get("cameras", {}):
             entry["reproj_rms_px"] = report["cameras"][n]["reproj_rms_px"]
         per[n] = entry
-    keys = list(next(iter(per.values())).keys())
-    overall = {k: float(np.mean([p[k] for p in per.values()])) for k in keys}
+    # a report may cover some cameras only: each figure over the cameras that have it
+    keys = list(dict.fromkeys(k for p in per.values() for k in p))
+    overall = {k: float(np.mean([p[k] for p in per.values() if k in p])) for k in keys}
     if report and "reproj_rms_px" in report:
         overall["reproj_rms_px"] = float(report["reproj_rms_px"])
-    worst = {k: float(np.max([p[k] for p in per.values()])) for k in keys}
+    worst = {k: float(np.max([p[k] for p in per.values() if k in p])) for k in keys}
     return {"align": align, "overall": overall, "max": worst, "cameras": per}
 
 
