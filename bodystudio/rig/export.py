@@ -41,7 +41,10 @@ def _local_bind_transforms(avatar: Avatar) -> tuple[np.ndarray, np.ndarray]:
 
 
 def skin_arrays(weights: np.ndarray, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """JOINTS_0 (uint16) and WEIGHTS_0 (float32, rows summing to 1 in float32) from dense weights."""
+    """JOINTS_0 (uint16) and WEIGHTS_0 (float32, rows summing to 1 in float32) from dense weights; always ``k``
+    columns (a rig of fewer bones gets zero-weight slots: the accessors are declared VEC4)."""
+    if weights.shape[1] < k:
+        weights = np.pad(weights, ((0, 0), (0, k - weights.shape[1])))
     idx = np.argsort(-weights, axis=1)[:, :k]
     w = np.take_along_axis(weights, idx, axis=1).astype(np.float32)
     w[w < 1e-6] = 0.0
