@@ -20,6 +20,7 @@ so a failed, killed or concurrent re-run never leaves a folder that mixes two ru
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from dataclasses import asdict, replace
@@ -99,6 +100,11 @@ SHAPE_PRIORS = ("off", "frame", "run", "carried")
 #: Where the shape prior acts (``shape_prior_region``): everywhere, or the named regions of
 #: :func:`bodystudio.reconstruct.evaluate.vertex_regions` (and ``lower_torso``), joined by ``+``.
 SHAPE_PRIOR_REGIONS = ("head", "torso", "lower_torso", "crotch", "arms", "hands", "legs", "feet")
+#: A tracked run's shape prior when none is asked for (``shape_prior="auto"``; docs/reconstruct.md, rec15p / rec15q):
+#: the shape space fitted to a (re-)initialised frame whose back the rims reach on less than 0.4 of its vertices,
+#: carried into the tracked frames, everywhere but the crotch. Without tracking ``auto`` is ``off``.
+TRACKED_SHAPE_PRIOR = {"shape_prior": "carried", "shape_prior_reach": 0.4,
+                       "shape_prior_region": "head+torso+arms+hands+legs+feet"}
 #: What the pose refinement fits: the silhouettes' distance fields (an implicit visual hull, default) or
 #: the carved visual hull.
 REFINE_DATA = ("fields", "hull")
@@ -302,12 +308,12 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                         progress: bool = False, tracking: bool = False, track_params: TrackParams | None = None,
                         refine_with: str = "fields", rest_cotangents: bool = True,
                         refine_params: PoseRefineParams | None = None, bone_lengths: str = "sequence",
-                        joint_smoothing: int = 0, accept_implausible: bool = False, shape_prior: str = "off",
+                        joint_smoothing: int = 0, accept_implausible: bool = False, shape_prior: str = "auto",
                         shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
                         refine_depth: float = 0.0, refine_depth_bones="neck",
                         refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0,
-                        player: int | None = None, shape_prior_region: str = "all",
-                        shape_prior_reach: float = 0.0) -> dict:
+                        player: int | None = None, shape_prior_region: str | None = None,
+                        shape_prior_reach: float | None = None) -> dict:
     """Reconstruct every selected frame of a session; writes ``SESSION/reconstruct/`` and returns a summary.
 
     The run checks itself (:mod:`bodystudio.reconstruct.plausibility`): a camera whose silhouette the fit
@@ -321,8 +327,9 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     accurate, docs/reconstruct.md), every frame is initialised from its joints (:func:`reconstruct_frames`).
     ``refine_with``: ``fields`` (default) fits the refinement to the implicit visual hull of the
     silhouettes' distance fields, ``hull`` to the carved visual hull.
-    ``shape_prior`` (issue 15's unseen surfaces, :mod:`bodystudio.reconstruct.shape_prior`; off by default,
-    measured in docs/reconstruct.md): ``frame`` fits the statistical body model's shape space to each frame's
+    ``shape_prior`` (issue 15's unseen surfaces, :mod:`bodystudio.reconstruct.shape_prior`; ``auto``, the default:
+    :data:`TRACKED_SHAPE_PRIOR` with ``tracking``, ``off`` without, :func:`resolve_shape_prior`; measured in
+    docs/reconstruct.md): ``frame`` fits the statistical body model's shape space to each frame's
     deformation and runs Algorithm 1 again from that shape (``shape_prior_outer`` re-matchings, 0: the
     frame's own), ``run`` starts every later frame from the mean shape fitted to the frames before it,
     ``carried`` fits it to the (re-)initialised frames' one pass only and starts the tracked frames from it
@@ -330,6 +337,7 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
     fit on a tracked frame). ``shape_prior_region`` (``all``, or region
     names joined by ``+``, :data:`SHAPE_PRIOR_REGIONS`) restricts the fitted shape to those regions, the
     template's elsewhere (:func:`bodystudio.reconstruct.shape_prior.region_blend_weights`).
+    ``shape_prior_region`` / ``shape_prior_reach`` None: the ``auto`` setting's, else ``all`` / 0.
     ``shape_prior_reach`` (``carried`` only; 0: off) gates ``carried`` by the run's own data: a (re-)initialised
     frame's fitted shape is carried only where the silhouettes' rims reached less than this share of the middle of
     the back (:func:`bodystudio.reconstruct.shape_prior.back_patch` / ``rim_reach``, the deformation's last outer
@@ -382,6 +390,20 @@ def reconstruct_session(path: str | Path, solver: str = "gs", template: str = "1
                                    shape_prior_region=shape_prior_region, shape_prior_reach=shape_prior_reach)
 
 
+def resolve_shape_prior(tracking: bool, shape_prior: str = "auto", reach: float | None = None,
+                        region: str | None = None) -> tuple[str, float, str]:
+    """The run's shape prior, gate and region: ``auto`` is :data:`TRACKED_SHAPE_PRIOR` with ``tracking`` (its gate
+    and region unless given) and ``off`` without; any other prior keeps what is given (``reach`` None: 0, ungated;
+    ``region`` None: ``all``)."""
+    if shape_prior == "auto":
+        if tracking:
+            auto = TRACKED_SHAPE_PRIOR
+            return (auto["shape_prior"], auto["shape_prior_reach"] if reach is None else reach,
+                    auto["shape_prior_region"] if region is None else region)
+        shape_prior = "off"
+    return shape_prior, 0.0 if reach is None else reach, "all" if region is None else region
+
+
 def reconstruction_layout(session_path: str | Path) -> RunLayout:
     """Lock, staging and manifest (``run.json``) of ``SESSION/reconstruct/``."""
     out_dir = Path(session_path) / OUTPUT_DIR
@@ -393,11 +415,11 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                        track_params: TrackParams | None = None, refine_with: str = "fields",
                        rest_cotangents: bool = True, refine_params: PoseRefineParams | None = None,
                        bone_lengths="sequence", joint_smoothing: int = 0, accept_implausible: bool = True,
-                       shape_prior: str = "off", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
+                       shape_prior: str = "auto", shape_prior_outer: int = 0, shape_prior_first_outer: int = 0,
                        refine_depth: float = 0.0, refine_depth_bones="neck",
                        refine_depth_guard: float = 0.0, smoothing_guard: float = 0.0, subject: dict | None = None,
-                       player: int | None = None, shape_prior_region: str = "all",
-                       shape_prior_reach: float = 0.0) -> dict:
+                       player: int | None = None, shape_prior_region: str | None = None,
+                       shape_prior_reach: float | None = None) -> dict:
     """Reconstruct the ``selected`` frames into the open ``writer`` (warm start and tracking within the
     list); the sequential run and each batch chunk (:mod:`bodystudio.batch`) call it.
 
@@ -463,8 +485,10 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     if not (np.isfinite(refine_depth) and 0.0 <= refine_depth <= 1000.0):
         raise InputError(f"refine_depth {refine_depth:g}: give a weight in [0, 1000] (0: the refinement fits the "
                          "silhouettes only)")
-    if shape_prior not in SHAPE_PRIORS:
-        raise InputError(f"unknown shape prior {shape_prior!r}; valid: {', '.join(SHAPE_PRIORS)}")
+    if shape_prior not in (*SHAPE_PRIORS, "auto"):
+        raise InputError(f"unknown shape prior {shape_prior!r}; valid: auto, {', '.join(SHAPE_PRIORS)}")
+    shape_prior, shape_prior_reach, shape_prior_region = resolve_shape_prior(tracking, shape_prior, shape_prior_reach,
+                                                                             shape_prior_region)
     if shape_prior == "carried" and not tracking:
         raise InputError("shape prior 'carried' carries the initialised frames' shape into the tracked frames; "
                          "use it with tracking, or shape_prior 'run' / 'frame'")
@@ -480,11 +504,13 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     if unknown or (shape_prior_region != "all" and not prior_regions):
         raise InputError(f"shape_prior_region {shape_prior_region!r}: give all or region names joined by + "
                          f"({', '.join(SHAPE_PRIOR_REGIONS)})")
-    shape_model = load_statistical_model(TEMPLATES[template], progress=False) if shape_prior != "off" else None
+    use_shape = shape_prior != "off"
+    # loaded on first use: a gated run whose rims reach every initialised frame's back never fits a shape
+    shape_model = functools.cache(lambda: load_statistical_model(TEMPLATES[template], progress=False))
     shape_coeffs = []  # shape_prior "run" / "carried": the coefficients fitted to each (initialised) frame so far
     regions = vertex_regions(body) if score else None
     prior_kw = {}  # the shape prior's region weights, only when a region is asked for
-    if prior_regions and shape_model is not None:
+    if prior_regions and use_shape:
         prior_kw["region_weights"] = region_blend_weights(
             body, regions if regions is not None else vertex_regions(body), prior_regions)
     hold = {}  # Algorithm 1's hold_vertices, only when a region is asked for
@@ -663,28 +689,28 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             if "silhouette" not in params.constraints:
                 masks = None
             carried = shape_prior == "carried"
-            if (shape_model is not None and shape_coeffs
+            if (use_shape and shape_coeffs
                     and (shape_prior == "run" or (carried and track == "tracked"))):
                 # the run's shape so far: this frame's start and smoothness reference (one pass)
                 t1 = time.perf_counter()
-                reference = posed_shape(shape_model, body, np.mean(shape_coeffs, axis=0), init.bone_transforms,
+                reference = posed_shape(shape_model(), body, np.mean(shape_coeffs, axis=0), init.bone_transforms,
                                         init.global_scale, **prior_kw)
                 V_start = reference
                 t_init += time.perf_counter() - t1
             delta = rest_delta if rest_delta is not None else cotangent_weights(reference, F)
             first_params = frame_params
-            if (shape_model is not None and shape_prior_first_outer and not carried
+            if (use_shape and shape_prior_first_outer and not carried
                     and (shape_prior == "frame" or not shape_coeffs)):
                 # the pass the shape space is fitted to stops before the outer iterations drift
                 first_params = replace(frame_params, outer_iterations=min(frame_params.outer_iterations,
                                                                           shape_prior_first_outer))
             result = deform_to_observations(V_start, F, cameras, masks, first_params, depth=depth, delta=delta,
                                             smooth_reference=reference, fields=fields, **hold)
-            if shape_model is not None and not carried and (shape_prior == "frame" or not shape_coeffs):
+            if use_shape and not carried and (shape_prior == "frame" or not shape_coeffs):
                 # issue 15: the shape space's fit to the first pass starts and regularises a second pass, so
                 # the surfaces no view sees take the fitted body's shape instead of the generic template's
                 t1 = time.perf_counter()
-                prior = shape_prior_mesh(shape_model, body, result.vertices, init.bone_transforms,
+                prior = shape_prior_mesh(shape_model(), body, result.vertices, init.bone_transforms,
                                          init.global_scale, **prior_kw)
                 t_prior = time.perf_counter() - t1
                 second_params = frame_params
@@ -703,9 +729,9 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
             if back is not None and carried and track != "tracked":
                 detail["back_rim_reach"] = rim_reach(result.silhouette_vertices, back)
                 reached = detail["back_rim_reach"] >= shape_prior_reach  # the rims carry this back: not a shape
-            if shape_model is not None and (shape_prior == "run" or (carried and track != "tracked" and not reached)):
+            if use_shape and (shape_prior == "run" or (carried and track != "tracked" and not reached)):
                 t1 = time.perf_counter()
-                shape_coeffs.append(deformed_shape_coefficients(shape_model, body, result.vertices,
+                shape_coeffs.append(deformed_shape_coefficients(shape_model(), body, result.vertices,
                                                                 init.bone_transforms))
                 t_init += time.perf_counter() - t1
             t_frame = time.perf_counter() - t_start

@@ -276,8 +276,8 @@ def test_reconstruct_session_defaults_and_given_params(monkeypatch):
     assert {k: v for k, v in kw.items() if k.startswith(("refine_depth", "smoothing_guard"))} == dict(
         refine_depth=0.0, refine_depth_bones="neck", refine_depth_guard=0.0, smoothing_guard=0.0)
     assert {k: v for k, v in kw.items() if k.startswith("shape_prior")} in (
-        {}, {"shape_prior": "off", "shape_prior_outer": 0, "shape_prior_first_outer": 0, "shape_prior_region": "all",
-             "shape_prior_reach": 0.0})
+        {}, {"shape_prior": "auto", "shape_prior_outer": 0, "shape_prior_first_outer": 0, "shape_prior_region": None,
+             "shape_prior_reach": None})
     assert calls["writer"][2] == {"session": "/s", "template": "13k"}
     mine = RapidSkinParams(outer_iterations=2)
     seq.reconstruct_session("/in", params=mine, solver="cg")

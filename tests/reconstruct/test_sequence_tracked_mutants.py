@@ -229,7 +229,9 @@ def _run(rec, tmp_path, frames=FRAMES, tracking=True, track=None, refine_pose=Fa
                                      NS(depth="depth-camera"), params, "gs", "6k", joints, joints_path, warm_start,
                                      refine_pose, False, False, tracking=tracking, track_params=track,
                                      refine_with="fields", rest_cotangents=True, refine_params=refine_params,
-                                     bone_lengths=bone_lengths, joint_smoothing=joint_smoothing)
+                                     bone_lengths=bone_lengths, joint_smoothing=joint_smoothing,
+                                     shape_prior="off")  # the stand-in body has no shape space: the tracked
+    # default's carried prior (TRACKED_SHAPE_PRIOR) is tested in test_tracked_shape_prior_default.py
     return summary, writer.json["frames.json"]["frames"], writer.meta
 
 
@@ -681,7 +683,8 @@ def _run_all(rec, tmp_path, frames=(10, 11, 12), score=False, params=None, depth
     params = params or RapidSkinParams(outer_iterations=5)
     summary = seq.reconstruct_frames(session, writer, list(frames), [NS(name="c0")], NS(depth="depth-camera"),
                                      params, "gs", "6k", kw.pop("joints", "tracker"), None, False,
-                                     kw.pop("refine_pose", False), score, True, **kw)
+                                     kw.pop("refine_pose", False), score, True,
+                                     **{"shape_prior": "off", **kw})
     return summary, writer
 
 

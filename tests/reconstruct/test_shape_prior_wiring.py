@@ -174,7 +174,7 @@ def test_run_prior_carries_the_mean_coefficients(session_3, monkeypatch):
 
 
 @pytest.mark.parametrize("kw, message", [
-    (dict(shape_prior="pca"), r"^unknown shape prior 'pca'; valid: off, frame, run, carried$"),
+    (dict(shape_prior="pca"), r"^unknown shape prior 'pca'; valid: auto, off, frame, run, carried$"),
     (dict(shape_prior="frame", shape_prior_outer=-1),
      r"^shape_prior_outer -1: give 0 \(the run's No\) to 100 outer iterations$"),
     (dict(shape_prior="frame", shape_prior_outer=101),

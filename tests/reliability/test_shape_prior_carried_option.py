@@ -13,11 +13,14 @@ from bodystudio.errors import InputError
 from tests.reconstruct.test_shape_prior_carried import _carried_run
 
 
-def test_the_defaults_are_off():
+def test_the_defaults_are_auto():
+    """'auto': the gated carried prior with tracking (TRACKED_SHAPE_PRIOR, rec15q), off without."""
     for fn in (seq.reconstruct_session, seq.reconstruct_frames):
         params = inspect.signature(fn).parameters
-        assert params["shape_prior"].default == "off"
-        assert params["shape_prior_region"].default == "all"
+        assert params["shape_prior"].default == "auto"
+        assert params["shape_prior_region"].default is None
+    assert seq.resolve_shape_prior(False) == ("off", 0.0, "all")
+    assert seq.resolve_shape_prior(True)[0] == "carried"
     assert "carried" in seq.SHAPE_PRIORS
     assert seq.SHAPE_PRIOR_REGIONS == ("head", "torso", "lower_torso", "crotch", "arms", "hands", "legs", "feet")
 

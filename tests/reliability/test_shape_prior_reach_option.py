@@ -12,9 +12,11 @@ from bodystudio.errors import InputError
 from tests.reconstruct.test_shape_prior_carried import _carried_run
 
 
-def test_the_gate_is_off_by_default():
+def test_the_gate_is_the_auto_settings():
+    """None: the tracked default's gate (0.4) with shape_prior 'auto' and tracking, else 0 (off)."""
     for fn in (seq.reconstruct_session, seq.reconstruct_frames):
-        assert inspect.signature(fn).parameters["shape_prior_reach"].default == 0.0
+        assert inspect.signature(fn).parameters["shape_prior_reach"].default is None
+    assert seq.resolve_shape_prior(True)[1] == 0.4 and seq.resolve_shape_prior(True, "carried")[1] == 0.0
 
 
 @pytest.mark.parametrize("bad", [-0.1, 1.5, float("nan"), float("inf")])
