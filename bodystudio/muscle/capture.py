@@ -432,6 +432,15 @@ class CaptureOptions:
     # 5.79, 504 4.19 / 7.10 -> 3.64 / 5.83, 507 3.63 / 7.45 -> 3.16 / 6.28, 508 3.94 / 7.89 -> 3.40 / 7.01; bulge 1.91
     # / 1.07 / 1.12 / 0.74 -> 1.59 / 1.13 / 0.57 / 0.72 mm; jitter +0.09-0.11 mm; 760-776 ms CPU per frame.
     pose_refit: bool = True
+    # At a rate other than 30 fps, the pose smoothing (``pose_sigma_frames``) and the two pose priors
+    # (``smooth_weight``, ``sequence_smooth_weight``) kept at their frame values, the refinement's windows and the
+    # rest fit's stride still scaled (:func:`options_at_frame_rate`). Off: every temporal filter keeps its width in
+    # seconds. Measured (round rel5b, docs/muscle.md "Frame rate"; 200 frames at 30 fps sampled at 15, median / p90
+    # mm; chosen on 501, 504 held out): all in time 1.80 / 3.57, 2.13 / 3.92 -> this 1.71 / 3.11, 2.09 / 3.48 (30 fps:
+    # 1.65 / 3.75, 1.95 / 3.63); half the frames in a window average half the noise, which a window twice as long in
+    # time makes up for on this slow motion. Off by default: two sessions of one motion and one noise seed, and at 10
+    # fps it spans three times the time (a faster motion's turning points are cut).
+    pose_filters_per_frame: bool = False
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -495,7 +504,8 @@ def options_at_frame_rate(options: CaptureOptions, fps: float, source: str = "th
     frames: its weight scales with the rate. The sequence fit's second-difference prior is a smoothing spline whose
     width in frames goes as weight^(1/4): its weight scales with the rate^4. The rest-shape fit takes every
     ``body_rest_frame_stride``-th frame: the same spacing in seconds. ``shape_frames`` stays a count: it is how many
-    depth frames the shape fit sees, not a filter. A rate outside [:data:`MIN_CAPTURE_FPS`,
+    depth frames the shape fit sees, not a filter. ``options.pose_filters_per_frame`` (off): the pose smoothing and
+    the two pose priors keep their frame values. A rate outside [:data:`MIN_CAPTURE_FPS`,
     :data:`MAX_CAPTURE_FPS`] is refused (InputError naming ``source``)."""
     if not (np.isfinite(fps) and MIN_CAPTURE_FPS <= fps <= MAX_CAPTURE_FPS):
         low = np.isfinite(fps) and fps < MIN_CAPTURE_FPS
@@ -508,13 +518,14 @@ def options_at_frame_rate(options: CaptureOptions, fps: float, source: str = "th
         return options
     s = float(fps) / CAPTURE_FPS
     o = options
+    pose = {} if o.pose_filters_per_frame else dict(
+        pose_sigma_frames=o.pose_sigma_frames * s, smooth_weight=o.smooth_weight * s,
+        sequence_smooth_weight=o.sequence_smooth_weight * s ** 4)
     return replace(o, sigma_frames=o.sigma_frames * s,
                    refine_window_frames=max(1, round(o.refine_window_frames * s)),
                    detail_sigma_frames=o.detail_sigma_frames * s,
                    detail_window_frames=max(1, round(o.detail_window_frames * s)),
-                   pose_sigma_frames=o.pose_sigma_frames * s, smooth_weight=o.smooth_weight * s,
-                   sequence_smooth_weight=o.sequence_smooth_weight * s ** 4,
-                   body_rest_frame_stride=max(1, round(o.body_rest_frame_stride * s)))
+                   body_rest_frame_stride=max(1, round(o.body_rest_frame_stride * s)), **pose)
 
 
 def capture_frame_rate(session) -> float:

@@ -70,6 +70,16 @@ def test_every_temporal_field_follows_the_rate():
                        "smooth_weight", "sequence_smooth_weight", "body_rest_frame_stride"}
 
 
+def test_the_pose_filters_per_frame_option_keeps_only_the_pose_filters_in_frames():
+    """``pose_filters_per_frame`` (off by default; measured better at 15 fps on 501 and 504, docs/muscle.md): the pose
+    smoothing and the two pose priors keep their frame values, the refinement's windows and the stride still scale."""
+    o = CaptureOptions(pose_filters_per_frame=True)
+    half = options_at_frame_rate(o, 15.0)
+    assert (half.pose_sigma_frames, half.smooth_weight, half.sequence_smooth_weight) == (5.0, 10.0, 10.0)
+    assert (half.sigma_frames, half.detail_sigma_frames, half.body_rest_frame_stride) == (0.5, 0.75, 2)
+    assert options_at_frame_rate(o, 30.0) is o and not CaptureOptions().pose_filters_per_frame
+
+
 @pytest.mark.parametrize("fps, why", [(9.9, "below the 10 fps"), (0.0, "below the 10 fps"),
                                       (float("nan"), "not a depth camera's rate"),
                                       (500.0, "not a depth camera's rate")])
