@@ -532,7 +532,8 @@ def capture_frame_rate(session) -> float:
     """The session's recorded frame rate (``metadata.fps``: synthetic sessions, imports with frame times), or
     :data:`CAPTURE_FPS` when it records none (readers assume 30). A rate that is no number, or outside
     [:data:`MIN_CAPTURE_FPS`, :data:`MAX_CAPTURE_FPS`], is refused naming the session (InputError)."""
-    fps = (getattr(session, "metadata", None) or {}).get("fps")
+    metadata = getattr(session, "metadata", None)
+    fps = metadata.get("fps") if isinstance(metadata, dict) else None
     if fps is None:
         return CAPTURE_FPS
     source = f"{session.path}"
@@ -955,8 +956,9 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
             deltas = None
         else:  # a recording faster than 30 fps: the same time span, more frames
             deltas = [j - i for j in idx]
-        c, ok = time_consistent_correspondences([vecs[j] for j in idx], [valid[j] for j in idx], o.sigma_frames,
-                                                deltas)
+        window = ([vecs[j] for j in idx], [valid[j] for j in idx], o.sigma_frames)
+        c, ok = time_consistent_correspondences(*window) if deltas is None else \
+            time_consistent_correspondences(*window, deltas)
         w = correspondence_weights(c, vertex_normals(M, F), M, posed_joints(joints, poses[i]), ok,
                                    o.joint_radius_m, o.joint_gain)
         hold = None if o.refine_unseen_hold <= 0 else unseen_hold_weights(M, ok | seen[i], o.refine_unseen_hold,

@@ -172,3 +172,53 @@ def test_synth_arm_samples_the_same_motion_at_another_rate(tmp_path, capfd):
     result = run_inprocess(["synth", "arm", out, "--subject-seed", "1", "--fps", "0"], capfd)
     assert_clean_error(result, 2, "--fps 0.0: must be in [1, 240]")
     assert not out.exists()
+
+
+def _tube(radius=0.04, n_around=24, n_along=13):
+    t = np.linspace(0.0, 2.0 * np.pi, n_around, endpoint=False)
+    x = np.linspace(-0.15, 0.15, n_along)
+    V = np.array([[xi, 1.0 + radius * np.sin(ti), radius * np.cos(ti)] for xi in x for ti in t])
+    F = []
+    for i in range(n_along - 1):
+        for j in range(n_around):
+            a, b = i * n_around + j, i * n_around + (j + 1) % n_around
+            F += [[a, a + n_around, b], [b, a + n_around, b + n_around]]
+    return V, np.array(F)
+
+
+def test_the_refinement_at_60_fps_averages_over_the_same_time(monkeypatch):
+    """``capture._refinement`` at 60 fps: Eq. 13's window is frames i-2..i+2 (the same +-1/30 s), cut at the ends,
+    and the detail's +-4 frames; on five identical frames (a tube, its depth points 1 mm outside it) every window
+    gives the 30 fps result."""
+    from scipy.spatial import cKDTree
+
+    from bodystudio.geometry.mesh import vertex_normals
+    from bodystudio.muscle import capture as cm
+    from bodystudio.muscle.nicp import vertex_neighbourhoods
+
+    V, F = _tube()
+    N = vertex_normals(V, F)
+    P = V + 0.001 * N
+    seen = []
+    real = cm.time_consistent_correspondences
+
+    def spy(vectors, valid, sigma, deltas=None):
+        seen.append(None if deltas is None else list(deltas))
+        return real(vectors, valid, sigma, deltas)
+
+    monkeypatch.setattr(cm, "time_consistent_correspondences", spy)
+    joints = np.array([[-1.0, 0, 0], [-0.9, 0, 0], [-0.8, 0, 0]])
+
+    def refined(fps):
+        o = options_at_frame_rate(CaptureOptions(refine_min_facing_cos=0.0), fps)
+        return np.stack(cm._refinement([V] * 5, [ArmPose.rest()] * 5, [(P, N)] * 5, [cKDTree(P)] * 5, F,
+                                       np.array([0.0, 1.0, 1.0]), np.ones(len(V), bool),
+                                       vertex_neighbourhoods(F, len(V)), joints, o, cm._Timer()))
+
+    at30 = refined(30.0)
+    assert seen == [None] * 5
+    seen.clear()
+    at60 = refined(60.0)
+    assert seen == [[0, 1, 2], [-1, 0, 1, 2], [-2, -1, 0, 1, 2], [-2, -1, 0, 1], [-2, -1, 0]]
+    assert np.abs(at30 - V).max() > 2e-4  # the refinement moved the seen side towards its points
+    np.testing.assert_allclose(at60, at30, atol=1e-9)
