@@ -147,6 +147,10 @@ def main(argv: list[str] | None = None) -> None:
         sessions = [parse_session(s) for s in (args.session or ["501:1"])]
     except (ValueError, SyntaxError) as exc:
         parser.error(str(exc))
+    from bodystudio.muscle.synthetic import MAX_SYNTH_FPS, MIN_SYNTH_FPS
+
+    if not MIN_SYNTH_FPS <= args.fps <= MAX_SYNTH_FPS:  # NaN too
+        parser.error(f"--fps {args.fps:g}: must be in [{MIN_SYNTH_FPS:g}, {MAX_SYNTH_FPS:g}]")
     args.work.mkdir(parents=True, exist_ok=True)
     rows = [run_case(args.work, s, n, args.frames, name, opts, args.fps) for s, n in sessions
             for name, opts in variants]

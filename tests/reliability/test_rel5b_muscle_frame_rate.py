@@ -222,3 +222,13 @@ def test_the_refinement_at_60_fps_averages_over_the_same_time(monkeypatch):
     assert seen == [[0, 1, 2], [-1, 0, 1, 2], [-2, -1, 0, 1, 2], [-2, -1, 0, 1], [-2, -1, 0]]
     assert np.abs(at30 - V).max() > 2e-4  # the refinement moved the seen side towards its points
     np.testing.assert_allclose(at60, at30, atol=1e-9)
+
+
+@pytest.mark.parametrize("fps", ["0", "nan", "500"])
+def test_muscle_sequences_refuses_a_bad_rate_before_any_work(fps, tmp_path, capsys):
+    from benchmarks.muscle_sequences import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--work", str(tmp_path / "w"), "--session", "501:0", "--frames", "4", "--fps", fps])
+    assert exc.value.code == 2 and "--fps" in capsys.readouterr().err
+    assert not (tmp_path / "w").exists()
