@@ -436,10 +436,11 @@ class CaptureOptions:
     # (``smooth_weight``, ``sequence_smooth_weight``) kept at their frame values, the refinement's windows and the
     # rest fit's stride still scaled (:func:`options_at_frame_rate`). Off: every temporal filter keeps its width in
     # seconds. Measured (round rel5b, docs/muscle.md "Frame rate"; 200 frames at 30 fps sampled at 15, median / p90
-    # mm; chosen on 501, 504 held out): all in time 1.80 / 3.57, 2.13 / 3.92 -> this 1.71 / 3.11, 2.09 / 3.48 (30 fps:
-    # 1.65 / 3.75, 1.95 / 3.63); half the frames in a window average half the noise, which a window twice as long in
-    # time makes up for on this slow motion. Off by default: two sessions of one motion and one noise seed, and at 10
-    # fps it spans three times the time (a faster motion's turning points are cut).
+    # mm; chosen on 501, 504 and 507 held out): all in time 1.80 / 3.57, 2.13 / 3.92, 2.70 / 5.58 -> this 1.71 / 3.11,
+    # 2.09 / 3.48, 2.71 / 5.36 (30 fps: 1.65 / 3.75, 1.95 / 3.63, 2.13 / 4.34); half the frames in a window average
+    # half the noise, which a window twice as long in time makes up for on this slow motion. Off by default: three
+    # sessions of one motion and one noise seed, and at 10 fps it spans three times the time (a faster motion's turning
+    # points are cut).
     pose_filters_per_frame: bool = False
 
     def __post_init__(self):
