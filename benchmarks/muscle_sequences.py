@@ -48,25 +48,32 @@ KEYS = ("median_mm", "p90_mm", "surface_median_mm", "surface_p90_mm", "front_med
         "bulge_err_mm", "jitter_mm", "cpu_ms_per_frame")
 
 
-def session_of(work: Path, subject_seed: int, noise_seed: int, n_frames: int):
-    """The subject and its (cached) session."""
+def session_of(work: Path, subject_seed: int, noise_seed: int, n_frames: int, fps: float = 30.0):
+    """The subject and its (cached) session; another ``fps`` than 30: the same motion sampled at that rate
+    (``W/seq_SUBJECT_sNOISE_FRAMES_FPSfps``)."""
     from benchmarks.bench_muscle import RESOLUTION
     from bodystudio.capture.session import open_session
     from bodystudio.muscle.synthetic import sample_arm_subject, synth_arm_session
 
     subject = sample_arm_subject(subject_seed)
-    path = work / f"seq_{subject_seed}_s{noise_seed}_{n_frames}"
+    path = work / f"seq_{subject_seed}_s{noise_seed}_{n_frames}{_fps_tag(fps)}"
     if not path.is_dir():
         synth_arm_session(path, subject=subject, motion="elbow_flex", n_frames=n_frames, kinect="v2",
-                          distance_m=1.0, resolution=RESOLUTION, seed=noise_seed)
+                          distance_m=1.0, resolution=RESOLUTION, seed=noise_seed, fps=fps)
     return subject, open_session(path)
 
 
-def run_case(work: Path, subject_seed: int, noise_seed: int, n_frames: int, name: str, options: dict) -> dict:
+def _fps_tag(fps: float) -> str:
+    """The session name's suffix of a rate other than 30 fps (none at 30: the cached sessions keep their names)."""
+    return "" if fps == 30.0 else f"_{fps:g}fps"
+
+
+def run_case(work: Path, subject_seed: int, noise_seed: int, n_frames: int, name: str, options: dict,
+             fps: float = 30.0) -> dict:
     from benchmarks import bench_muscle as bm
     from benchmarks.muscle_energy import work_model
 
-    out = work / f"seq_{subject_seed}_s{noise_seed}_{n_frames}_{name}.json"
+    out = work / f"seq_{subject_seed}_s{noise_seed}_{n_frames}{_fps_tag(fps)}_{name}.json"
     if out.is_file():
         return json.loads(out.read_text())
     claim = out.with_suffix(".running")  # another process on the same work folder runs this case: skip it
@@ -77,7 +84,7 @@ def run_case(work: Path, subject_seed: int, noise_seed: int, n_frames: int, name
         return None
     template = bm._template()
     model = work_model(work, template)
-    subject, session = session_of(work, subject_seed, noise_seed, n_frames)
+    subject, session = session_of(work, subject_seed, noise_seed, n_frames, fps)
     bm.CAPTURE_OVERRIDES.clear()
     bm.CAPTURE_OVERRIDES.update(options)
     try:
@@ -85,7 +92,7 @@ def run_case(work: Path, subject_seed: int, noise_seed: int, n_frames: int, name
                                          known_shape=bm.shape_of(subject))
     finally:
         bm.CAPTURE_OVERRIDES.clear()
-    row = {"subject": subject_seed, "noise_seed": noise_seed, "frames": n_frames, "variant": name,
+    row = {"subject": subject_seed, "noise_seed": noise_seed, "frames": n_frames, "fps": fps, "variant": name,
            "options": {k: repr(v) for k, v in options.items()}, **{k: scores.get(k) for k in KEYS}}
     out.write_text(json.dumps(row))
     claim.unlink()
@@ -96,9 +103,14 @@ def render(rows: list[dict]) -> str:
     from benchmarks.timing import markdown_table
 
     return markdown_table(["session", "variant", *KEYS],
-                          [[f"{r['subject']}:{r['noise_seed']} ({r['frames']})", r["variant"],
+                          [[f"{r['subject']}:{r['noise_seed']} ({r['frames']}{_fps_label(r)})", r["variant"],
                             *(f"{r[k]:.0f}" if k.endswith("per_frame") else f"{r[k]:.2f}" for k in KEYS)]
                            for r in rows])
+
+
+def _fps_label(row: dict) -> str:
+    fps = row.get("fps", 30.0)
+    return "" if fps == 30.0 else f" at {fps:g} fps"
 
 
 def parse_session(text: str) -> tuple[int, int]:
@@ -126,6 +138,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--work", type=Path, required=True)
     parser.add_argument("--session", action="append", default=[], help="SUBJECT:NOISE_SEED (repeatable)")
     parser.add_argument("--frames", type=int, default=200)
+    parser.add_argument("--fps", type=float, default=30.0, help="the sessions' frame rate (the same motion in seconds; "
+                        "e.g. --frames 100 --fps 15 is the 200-frame 30 fps motion sampled at 15 fps)")
     parser.add_argument("--variant", action="append", default=[], help="NAME or NAME:KEY=VALUE,... (repeatable)")
     args = parser.parse_args(argv)
     try:
@@ -133,8 +147,13 @@ def main(argv: list[str] | None = None) -> None:
         sessions = [parse_session(s) for s in (args.session or ["501:1"])]
     except (ValueError, SyntaxError) as exc:
         parser.error(str(exc))
+    from bodystudio.muscle.synthetic import MAX_SYNTH_FPS, MIN_SYNTH_FPS
+
+    if not MIN_SYNTH_FPS <= args.fps <= MAX_SYNTH_FPS:  # NaN too
+        parser.error(f"--fps {args.fps:g}: must be in [{MIN_SYNTH_FPS:g}, {MAX_SYNTH_FPS:g}]")
     args.work.mkdir(parents=True, exist_ok=True)
-    rows = [run_case(args.work, s, n, args.frames, name, opts) for s, n in sessions for name, opts in variants]
+    rows = [run_case(args.work, s, n, args.frames, name, opts, args.fps) for s, n in sessions
+            for name, opts in variants]
     print(render([r for r in rows if r is not None]))
 
 

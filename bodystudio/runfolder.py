@@ -144,6 +144,36 @@ def lock_is_stale(holder: dict | None, path: Path) -> bool:
     return start is not None and _process_start(pid) not in (None, start)
 
 
+def remove_stale_lock(path: Path, own_is_stale: bool = False) -> bool:
+    """Remove the lock at ``path`` if it is stale, compare-and-remove: the lock is renamed to
+    ``<lock>.stale.<pid>`` first (of two processes removing it, only one gets it), then what was renamed is read
+    again, and removed only when it is still stale (:func:`lock_is_stale`; ``own_is_stale``: a lock of this very
+    process too, as :func:`lock_holder` counts it). A live lock renamed here (another writer took the stale one
+    over between the caller's check and the rename) goes back to ``path`` without replacing a lock created
+    meanwhile. True when a stale lock was removed, False when there was none or it was live."""
+    stale = path.with_name(f"{path.name}.stale.{os.getpid()}")
+    try:
+        os.replace(path, stale)
+    except FileNotFoundError:
+        return False
+    holder = read_lock(stale)
+    own = (own_is_stale and holder is not None and holder["pid"] == os.getpid()
+           and holder.get("host") == socket.gethostname())
+    if own or lock_is_stale(holder, stale):
+        stale.unlink(missing_ok=True)
+        return True
+    try:
+        os.link(stale, path)  # back, unless a third writer created the lock in between (then that one holds it)
+    except FileExistsError:
+        log.warning("%s: a lock renamed as stale was live (pid %s) and another lock was taken meanwhile",
+                    path, holder.get("pid") if holder else "?")
+    except OSError:  # a file system without hard links
+        if not path.exists():
+            os.replace(stale, path)
+    stale.unlink(missing_ok=True)
+    return False
+
+
 def lock_holder(layout: RunLayout) -> dict | None:
     """The live holder of the layout's lock other than this process, or None."""
     path = layout.lock
@@ -194,11 +224,7 @@ def acquire_lock(layout: RunLayout, command: str) -> None:
                                                                          "since": "just now"})) from None
             log.warning("%s: taking over the stale lock of pid %s (%s)", layout.name,
                         holder.get("pid") if holder else "?", holder.get("command") if holder else "unreadable")
-            # Rename before unlinking, so that of two processes taking it over only one removes it.
-            stale = layout.lock.with_name(f"{layout.lock.name}.stale.{os.getpid()}")
-            with contextlib.suppress(FileNotFoundError):
-                os.replace(layout.lock, stale)
-                stale.unlink()
+            remove_stale_lock(layout.lock)  # a lock that turned live meanwhile stays: the next O_EXCL is refused
             continue
         except OSError as exc:
             if disk_full(exc):
@@ -513,8 +539,9 @@ def recover_layout(layout: RunLayout) -> str | None:
         message = f"discarded an uncommitted write ({n} files); the previous result stays"
     if remove_stale_staging(layout):
         message = message or "removed the leftover of a finished write"
-    if layout.lock.exists():
-        layout.lock.unlink(missing_ok=True)  # stale: lock_holder found no live process
+    # lock_holder found no live process at the start, but a writer may have taken the stale lock over since: the
+    # lock is compared and removed (a live one stays), never unlinked unread
+    if layout.lock.exists() and remove_stale_lock(layout.lock, own_is_stale=True):
         message = message or "removed a stale lock"
     return message
 

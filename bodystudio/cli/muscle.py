@@ -51,7 +51,9 @@ def synth_arm(
     out: Path = typer.Argument(..., help="new session folder"),
     subject_seed: int = typer.Option(..., "--subject-seed", help="arm subject drawn from the population (seed)"),
     motion: str = typer.Option("elbow_flex", "--motion", help="elbow_flex | abduction | pronation"),
-    frames: int = typer.Option(200, "--frames", help="frames at 30 fps"),
+    frames: int = typer.Option(200, "--frames", help="frames, sampled at --fps"),
+    fps: float = typer.Option(30.0, "--fps", help="frame rate the motion is sampled at (the same motion in seconds "
+                              "at every rate; recorded as the session's metadata.fps)"),
     kinect: str = typer.Option("v2", "--kinect", help="simulated depth sensor: v1 | v2"),
     distance: float = typer.Option(1.0, "--distance", help="sensor to subject distance (m)"),
     seed: int = typer.Option(0, "--seed", help="motion variation and sensor noise"),
@@ -59,9 +61,10 @@ def synth_arm(
 ) -> None:
     """Synthesise a Kinect arm sequence with ground truth (arm meshes, joint angles) per frame."""
     from bodystudio.muscle.export import check_new_output
-    from bodystudio.muscle.synthetic import synth_arm_session
+    from bodystudio.muscle.synthetic import MAX_SYNTH_FPS, MIN_SYNTH_FPS, synth_arm_session
 
     check_choice("--motion", motion, ARM_MOTIONS)
+    check_range("--fps", fps, MIN_SYNTH_FPS, MAX_SYNTH_FPS)
     check_choice("--kinect", kinect, KINECTS)
     check_choice("--resolution", resolution, RESOLUTIONS)
     check_range("--frames", frames, 1, MAX_FRAMES)
@@ -69,8 +72,8 @@ def synth_arm(
     check_range("--subject-seed", subject_seed, 0, 2**31 - 1)
     check_new_output(out, "session folder")
     session = synth_arm_session(out, subject_seed=subject_seed, motion=motion, n_frames=frames, kinect=kinect,
-                                distance_m=distance, seed=seed, resolution=resolution)
-    typer.echo(f"wrote {out}: {len(session)} frames of {motion} (Kinect {kinect} at {distance:g} m), "
+                                distance_m=distance, seed=seed, resolution=resolution, fps=fps)
+    typer.echo(f"wrote {out}: {len(session)} frames of {motion} at {fps:g} fps (Kinect {kinect} at {distance:g} m), "
                f"streams {', '.join(session.streams)}")
 
 
@@ -119,7 +122,7 @@ def capture(
     Several SESSIONs, or --workers / --scheduler: a batch, one sequence per dask work unit, resumable
     (docs/batch.md); $BODYSTUDIO_SCHEDULER gives the batch's cluster address.
     """
-    from bodystudio.muscle.capture import CAPTURE_FPS, capture_session_arm, session_fps, write_arm_capture
+    from bodystudio.muscle.capture import capture_session_arm, session_fps, write_arm_capture
     from bodystudio.muscle.export import check_new_output
 
     if shape and no_model:
@@ -170,11 +173,22 @@ def capture(
     write_arm_capture(out, result, fps=fps)
     for line in (result.plausibility or {}).get("warnings", []):
         typer.echo(f"warning: {line}", err=True)
-    if abs(fps / CAPTURE_FPS - 1.0) > 0.1:
-        typer.echo(f"warning: {session_paths[0]} was recorded at {fps:g} fps; the capture's temporal smoothing counts "
-                   f"frames and was measured at {CAPTURE_FPS:g} fps (docs/muscle.md), so it spans "
-                   f"{CAPTURE_FPS / fps:.2g}x the time here", err=True)
     typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
+
+
+def _check_frame_rates(session_paths) -> None:
+    """Every session's frame rate one the capture's temporal filters serve (``capture.capture_frame_rate``), before
+    a batch starts: a 5 fps sequence is refused in one line, not as a failed unit after the others ran."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.errors import BodyStudioError
+    from bodystudio.muscle.capture import capture_frame_rate
+
+    for path in session_paths:
+        try:
+            session = open_session(path)
+        except BodyStudioError:
+            continue  # the unit reports an unreadable session itself (batch.sequence_inputs_sha256)
+        capture_frame_rate(session)
 
 
 def _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, shapes, scheduler, workers,
@@ -194,6 +208,7 @@ def _capture_batch(session_paths, out, model_path, mode, resolution, side, frame
 
     # refuse bad input before starting a cluster
     check_capture_sessions(session_paths)
+    _check_frame_rates(session_paths)
     if frames is not None:
         _check_frames_in_sessions(session_paths, frames)
     check_output_folder(out, "--out")

@@ -57,11 +57,32 @@ def parse_frame_range(frames: str | None, n_available: int, where: str) -> slice
     return slice(a, b)
 
 
+#: The frame rates a fit may carry (``fitfile`` refuses a fit.json outside them: ``garment render`` could not write it)
+MIN_FPS, MAX_FPS = 1.0, 240.0
+
+
+def checked_fps(value, source: str, fix: str) -> float:
+    """``value`` as a frame rate in [:data:`MIN_FPS`, :data:`MAX_FPS`], else a one-line InputError naming ``source``
+    and ``fix``. Before, a session's ``metadata.fps`` of 0, NaN or 1e6 went into the fit and its fit.json, which
+    ``garment render`` then refused naming fit.json (after the minutes of the fit, exit 0), and a text rate raised
+    ValueError."""
+    try:
+        fps = float(value)
+    except (TypeError, ValueError):
+        fps = float("nan")
+    if isinstance(value, bool) or not MIN_FPS <= fps <= MAX_FPS:
+        raise InputError(f"{source}: frame rate {value!r} is not one in {MIN_FPS:g}..{MAX_FPS:g} fps; {fix}")
+    return fps
+
+
 def session_person_frames(path: str | os.PathLike, frames: str | None = None) -> PersonFrames:
     """Frames and person masks of a session's first camera (``cam_00/rgb``, ``cam_00/mask``)."""
     from bodystudio.capture.session import open_session
 
     session = open_session(path)
+    metadata = session.metadata if isinstance(session.metadata, dict) else {}
+    fps = checked_fps(metadata.get("fps", 30.0), f"{Path(path) / 'session.json'} (metadata.fps)",
+                      "regenerate or re-import the session (capture import records the rate from the frame times)")
     if not session.camera_names or "rgb" not in session.streams or "mask" not in session.streams:
         raise InputError(f"{path}: session has no rgb and mask streams; run 'bodystudio capture silhouettes' "
                          f"first or pass the video file")
@@ -72,7 +93,6 @@ def session_person_frames(path: str | os.PathLike, frames: str | None = None) ->
         fr = session.frame(fid)
         images.append(fr.images[cam])
         masks.append(fr.masks[cam])
-    fps = float(session.metadata.get("fps", 30.0))
     return PersonFrames(str(Path(path)), fps, np.asarray(ids, np.int64), np.stack(images), np.stack(masks),
                         source_fingerprint(session, ids, cam))
 
@@ -120,6 +140,7 @@ def read_video(path: str | os.PathLike, frames: str | None = None) -> tuple[np.n
         raise FileFormatError(f"{path}: unreadable video ({first}); pass a video file ffmpeg can decode") from None
     if not out:
         raise FileFormatError(f"{path}: the video has no frames; pass a video with the actor in it")
+    fps = checked_fps(fps, str(path), "re-encode the video at its real rate (ffmpeg -r 30)")
     images = np.stack(out)
     return images[parse_frame_range(frames, len(images), str(path))], fps
 

@@ -149,9 +149,26 @@ PINNED_SEQUENCE = {"sequence_fit_skeleton": True, "sequence_fit_root": True, "se
 POSE_REFIT = {"tracker_weight": 0.03, "prior_weight": 0.1, "iterations": 3}
 
 
+#: The frame rate the capture's temporal filters were measured at (every synthetic arm session's). Their fields below
+#: count frames at this rate (``sigma_frames``, ``pose_sigma_frames``, ...: a time in units of 1 / 30 s);
+#: :func:`options_at_frame_rate` turns them into the recording's frames, so a 30 fps capture is the one measured.
+CAPTURE_FPS = 30.0
+#: Below this rate the temporal filters have nothing left to average (the refinement's Eq. 13-14 window of
+#: sigma 1/30 s puts 1 % of its weight on the neighbouring frames at 10 fps, none below) and the model-based tracking
+#: starts each frame from a previous one 100 ms or more away: a recording this slow is refused.
+MIN_CAPTURE_FPS = 10.0
+#: ... and above this it is no camera's (``capture import`` refuses it too).
+MAX_CAPTURE_FPS = 240.0
+
+
 @dataclass(frozen=True)
 class CaptureOptions:
-    """Switches and parameters of the whole pipeline (defaults: Kinect v2 at about 1 m)."""
+    """Switches and parameters of the whole pipeline (defaults: Kinect v2 at about 1 m).
+
+    The temporal ones (``sigma_frames``, ``refine_window_frames``, ``detail_sigma_frames``, ``detail_window_frames``,
+    ``pose_sigma_frames``, ``smooth_weight``, ``sequence_smooth_weight``, ``body_rest_frame_stride``) are times in
+    frames at :data:`CAPTURE_FPS`; the capture turns them into the recording's frames
+    (:func:`options_at_frame_rate`)."""
 
     mode: str = "full"  # full | nicp (no model, Fig. 6a) | model (no refinement)
     depth: DepthCleanupOptions = DepthCleanupOptions()
@@ -171,6 +188,7 @@ class CaptureOptions:
     norm_limit: float = 0.2
     refine_pose: bool = True
     sigma_frames: float = 1.0  # Eq. 14
+    refine_window_frames: int = 1  # Eq. 13's window: frames i-1, i, i+1
     refine_data_weight: float = 0.3  # measured (6k, 24 frames): 1.0 -> 0.3: 6.4 -> 6.2 mm, jitter 2.2 -> 1.8 mm
     refine_iterations: int = 4
     # Sec. 7 pairs only for vertices the model mesh itself does not hide from the sensor (a z-buffer of the mesh);
@@ -207,6 +225,7 @@ class CaptureOptions:
     refine_depth_median_px: int | None = 1
     refine_depth_gaussian_sigma_px: float | None = 0.5
     detail_sigma_frames: float = 1.5  # refinement detail averaged over +-2 frames (0: off)
+    detail_window_frames: int = 2
     joint_radius_m: float = 0.06  # Sec. 7.2 closeness-to-joint factor
     joint_gain: float = 1.0
     # Body-tracker joints in the shape fit, per coordinate vs 1 per depth pair. Measured (6k, subject 2,
@@ -413,6 +432,16 @@ class CaptureOptions:
     # 5.79, 504 4.19 / 7.10 -> 3.64 / 5.83, 507 3.63 / 7.45 -> 3.16 / 6.28, 508 3.94 / 7.89 -> 3.40 / 7.01; bulge 1.91
     # / 1.07 / 1.12 / 0.74 -> 1.59 / 1.13 / 0.57 / 0.72 mm; jitter +0.09-0.11 mm; 760-776 ms CPU per frame.
     pose_refit: bool = True
+    # At a rate other than 30 fps, the pose smoothing (``pose_sigma_frames``) and the two pose priors
+    # (``smooth_weight``, ``sequence_smooth_weight``) kept at their frame values, the refinement's windows and the
+    # rest fit's stride still scaled (:func:`options_at_frame_rate`). Off: every temporal filter keeps its width in
+    # seconds. Measured (round rel5b, docs/muscle.md "Frame rate"; 200 frames at 30 fps sampled at 15, median / p90
+    # mm; chosen on 501, 504 and 507 held out): all in time 1.80 / 3.57, 2.13 / 3.92, 2.70 / 5.58 -> this 1.71 / 3.11,
+    # 2.09 / 3.48, 2.71 / 5.36 (30 fps: 1.65 / 3.75, 1.95 / 3.63, 2.13 / 4.34); half the frames in a window average
+    # half the noise, which a window twice as long in time makes up for on this slow motion. Off by default: three
+    # sessions of one motion and one noise seed, and at 10 fps it spans three times the time (a faster motion's turning
+    # points are cut).
+    pose_filters_per_frame: bool = False
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -430,6 +459,10 @@ class CaptureOptions:
                              f"{self.refine_unseen_hold} and {self.refine_unseen_band_m}")
         if self.sigma_frames <= 0 or self.shape_frames < 1:
             raise InputError("sigma_frames must be > 0 and shape_frames >= 1")
+        for name in ("refine_window_frames", "detail_window_frames"):
+            window = getattr(self, name)
+            if isinstance(window, bool) or not isinstance(window, int | np.integer) or window < 1:
+                raise InputError(f"{name} must be a whole number of frames >= 1, got {window!r}")
         if self.sequence_rounds < 0 or self.sequence_huber_m < 0 or self.huber_m < 0:
             raise InputError("sequence_rounds, sequence_huber_m and huber_m must be >= 0")
         if not self.sequence_placement_prior_m >= 0:
@@ -460,6 +493,56 @@ class CaptureOptions:
             raise InputError(f"pose_sigma_frames must be >= 0 (0: no smoothing), got {self.pose_sigma_frames}")
         if not self.sequence_pinned_se_m >= 0:
             raise InputError(f"sequence_pinned_se_m must be >= 0, got {self.sequence_pinned_se_m}")
+
+
+def options_at_frame_rate(options: CaptureOptions, fps: float, source: str = "the recording") -> CaptureOptions:
+    """``options`` for a recording at ``fps``: every temporal field (a time in frames at :data:`CAPTURE_FPS`) in the
+    recording's frames; ``options`` itself at 30 fps (the measured capture, bit for bit).
+
+    The Gaussian windows keep their width in seconds (Eq. 14's sigma, the refinement detail's, the pose smoothing's,
+    whose reach follows its sigma), and the windows' reach too (at least one frame each side). The previous-frame
+    prior of the per-frame fit (``smooth_weight``) is an exponential smoother whose time constant is ~weight / data
+    frames: its weight scales with the rate. The sequence fit's second-difference prior is a smoothing spline whose
+    width in frames goes as weight^(1/4): its weight scales with the rate^4. The rest-shape fit takes every
+    ``body_rest_frame_stride``-th frame: the same spacing in seconds. ``shape_frames`` stays a count: it is how many
+    depth frames the shape fit sees, not a filter. ``options.pose_filters_per_frame`` (off): the pose smoothing and
+    the two pose priors keep their frame values. A rate outside [:data:`MIN_CAPTURE_FPS`,
+    :data:`MAX_CAPTURE_FPS`] is refused (InputError naming ``source``)."""
+    if not (np.isfinite(fps) and MIN_CAPTURE_FPS <= fps <= MAX_CAPTURE_FPS):
+        low = np.isfinite(fps) and fps < MIN_CAPTURE_FPS
+        why = (f"below the {MIN_CAPTURE_FPS:g} fps the arm capture's temporal filters need (Eq. 13-14's window, the "
+               "pose smoothing and the model-based tracking span 1/30 s and more); record at 15 fps or more"
+               if low else f"not a depth camera's rate ({MIN_CAPTURE_FPS:g}-{MAX_CAPTURE_FPS:g} fps); fix the "
+               "session's metadata.fps (bodystudio capture import records it from the frame times)")
+        raise InputError(f"{source}: recorded at {fps:g} fps, {why}")
+    if fps == CAPTURE_FPS:
+        return options
+    s = float(fps) / CAPTURE_FPS
+    o = options
+    pose = {} if o.pose_filters_per_frame else dict(
+        pose_sigma_frames=o.pose_sigma_frames * s, smooth_weight=o.smooth_weight * s,
+        sequence_smooth_weight=o.sequence_smooth_weight * s ** 4)
+    return replace(o, sigma_frames=o.sigma_frames * s,
+                   refine_window_frames=max(1, round(o.refine_window_frames * s)),
+                   detail_sigma_frames=o.detail_sigma_frames * s,
+                   detail_window_frames=max(1, round(o.detail_window_frames * s)),
+                   body_rest_frame_stride=max(1, round(o.body_rest_frame_stride * s)), **pose)
+
+
+def capture_frame_rate(session) -> float:
+    """The session's recorded frame rate (``metadata.fps``: synthetic sessions, imports with frame times), or
+    :data:`CAPTURE_FPS` when it records none (readers assume 30). A rate that is no number, or outside
+    [:data:`MIN_CAPTURE_FPS`, :data:`MAX_CAPTURE_FPS`], is refused naming the session (InputError)."""
+    metadata = getattr(session, "metadata", None)
+    fps = metadata.get("fps") if isinstance(metadata, dict) else None
+    if fps is None:
+        return CAPTURE_FPS
+    source = f"{session.path}"
+    if isinstance(fps, bool) or not isinstance(fps, int | float):
+        raise InputError(f"{Path(session.path) / 'session.json'}: metadata.fps {fps!r} is not a frame rate; fix it "
+                         "or re-import the recording (bodystudio capture import records it from the frame times)")
+    options_at_frame_rate(CaptureOptions(), float(fps), source)  # refuses a rate the filters cannot serve
+    return float(fps)
 
 
 @dataclass
@@ -540,7 +623,7 @@ def sequence_options(options: CaptureOptions, tracker_joints: np.ndarray) -> Cap
 
 def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, model=None,
                        options: CaptureOptions = CaptureOptions(), tracker_joints: np.ndarray | None = None,
-                       frame_ids: list | None = None, known_shape=None) -> ArmCapture:
+                       frame_ids: list | None = None, known_shape=None, fps: float = CAPTURE_FPS) -> ArmCapture:
     """The Arm-Muscle Capture pipeline on depth maps (metres, 0 = none) of one depth ``camera``.
 
     ``tracker_joints`` (T, 3, 3): shoulder, elbow, wrist per frame from the body tracker (world). The
@@ -549,8 +632,10 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     subject); the first ``shape_frames`` inform the arm length in the shape fit.
     ``known_shape`` (ArmShapeParams): the subject's measured BMI, muscularity, height and arm length
     (the paper's Table 1 lists them per subject); only the torso placement is then fitted.
+    ``fps``: the recording's frame rate; the options' temporal fields are times at 30 fps
+    (:func:`options_at_frame_rate`; a rate below 10 fps is refused).
     """
-    o = options
+    o = options_at_frame_rate(options, fps)
     if o.mode != "nicp" and model is None:
         raise InputError(f"capture mode {o.mode!r} needs a statistical arm model; pass one or use mode 'nicp'")
     if model is not None and getattr(model, "template_key", template.key) != template.key:
@@ -862,12 +947,19 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
         seen.append(hold_seen_vertices(M, Nv, C, pairs.kept, visible))
     out = []
     n = len(model_meshes)
+    r = o.refine_window_frames
     for i, M in enumerate(model_meshes):
-        lo, hi = max(i - 1, 0), min(i + 1, n - 1)
+        lo, hi = max(i - r, 0), min(i + r, n - 1)
         idx = list(range(lo, hi + 1))
-        if len(idx) == 2:
-            idx = [i, hi if hi != i else lo]
-        c, ok = time_consistent_correspondences([vecs[j] for j in idx], [valid[j] for j in idx], o.sigma_frames)
+        if r == 1:  # the paper's i-1, i, i+1 (at a sequence end: the frame and its one neighbour)
+            if len(idx) == 2:
+                idx = [i, hi if hi != i else lo]
+            deltas = None
+        else:  # a recording faster than 30 fps: the same time span, more frames
+            deltas = [j - i for j in idx]
+        window = ([vecs[j] for j in idx], [valid[j] for j in idx], o.sigma_frames)
+        c, ok = time_consistent_correspondences(*window) if deltas is None else \
+            time_consistent_correspondences(*window, deltas)
         w = correspondence_weights(c, vertex_normals(M, F), M, posed_joints(joints, poses[i]), ok,
                                    o.joint_radius_m, o.joint_gain)
         hold = None if o.refine_unseen_hold <= 0 else unseen_hold_weights(M, ok | seen[i], o.refine_unseen_hold,
@@ -877,7 +969,7 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
         # The refinement's detail (refined minus model mesh) of each vertex, averaged over +-2 frames
         # with Gaussian weights: Eq. 13-14 applied to the result of the last ARAP as well.
         D = np.stack(out) - np.stack(model_meshes)
-        k = np.arange(-2, 3)
+        k = np.arange(-o.detail_window_frames, o.detail_window_frames + 1)
         g = np.exp(-(k ** 2) / (2.0 * o.detail_sigma_frames ** 2))
         smoothed = []
         for i in range(n):
@@ -918,6 +1010,7 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
     sensor = session.kinect
     if sensor is None:
         raise SessionError(f"{session.path}: no Kinect calibration; the arm capture needs a depth session")
+    fps = capture_frame_rate(session)  # before any frame is read: a rate the filters cannot serve is refused
     ids = session.frame_ids[frames] if frames is not None else session.frame_ids
     depths = []
     for fid in ids:
@@ -926,7 +1019,7 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
             raise SessionError(f"{session.path}: frame {fid} has no Kinect depth image")
         depths.append(d)
     tracker = session_arm_tracker(session, ids, template.side)
-    capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids), known_shape)
+    capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids), known_shape, fps)
     capture.session_path = str(Path(session.path).resolve())
     capture.source_fingerprint = stream_fingerprint(session, "kinect_depth", ids)
     return capture
@@ -965,22 +1058,12 @@ def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
     return np.stack(rows)
 
 
-#: The frame rate the capture's temporal filters (Eq. 14's sigma, the pose smoothing, the refinement's detail; all
-#: in frames) were measured at: every synthetic arm session's.
-CAPTURE_FPS = 30.0
-
-
 def session_fps(session_path) -> float:
-    """The session's recorded frame rate (``metadata.fps``: synthetic sessions, imports with frame times), else
-    :data:`CAPTURE_FPS`: the rate ``arm.glb`` is played at (a 15 fps recording's was written at 30, twice as fast)."""
+    """The frame rate of the session at ``session_path`` (:func:`capture_frame_rate`): the rate ``arm.glb`` is played
+    at and the capture's temporal filters are scaled to (a 15 fps recording's was written at 30, twice as fast)."""
     from bodystudio.capture.session import open_session
-    from bodystudio.errors import BodyStudioError
 
-    try:
-        fps = float((open_session(session_path).metadata or {}).get("fps", CAPTURE_FPS))
-    except (BodyStudioError, TypeError, ValueError, AttributeError):
-        return CAPTURE_FPS
-    return fps if 1.0 <= fps <= 240.0 else CAPTURE_FPS
+    return capture_frame_rate(open_session(session_path))
 
 
 def session_arm_choice(session, resolution: str | None = None, side: str | None = None) -> tuple[str, str]:
@@ -1011,6 +1094,7 @@ def capture_session_arm(session_path: str | Path, model_path: str | Path | None,
     if mode not in MODES:
         raise InputError(f"capture mode {mode!r}: valid: {', '.join(MODES)}")
     session = open_session(session_path)
+    capture_frame_rate(session)  # a rate the temporal filters cannot serve: refused before the body and model load
     if frames is not None and frames > len(session.frame_ids):
         raise InputError(f"--frames {frames}: {session_path} has {len(session.frame_ids)} frames")
     resolution, side = session_arm_choice(session, resolution, side)
@@ -1134,6 +1218,7 @@ def load_arm_capture(folder: str | Path) -> ArmCapture:
                       regressed_joints=regressed)
 
 
-__all__ = ["EXTENSION_CAPTURE", "MODES", "ArmCapture", "CaptureOptions", "CorrespondenceFilters", "NicpOptions",
-           "capture_arm_frames", "capture_arm_sequence", "capture_session_arm", "load_arm_capture",
-           "session_arm_choice", "write_arm_capture", "write_arm_capture_files"]
+__all__ = ["CAPTURE_FPS", "EXTENSION_CAPTURE", "MIN_CAPTURE_FPS", "MODES", "ArmCapture", "CaptureOptions",
+           "CorrespondenceFilters", "NicpOptions", "capture_arm_frames", "capture_arm_sequence", "capture_frame_rate",
+           "capture_session_arm", "load_arm_capture", "options_at_frame_rate", "session_arm_choice",
+           "write_arm_capture", "write_arm_capture_files"]

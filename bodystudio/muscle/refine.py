@@ -1012,15 +1012,22 @@ def skin_template(base: np.ndarray, part_weights: np.ndarray, joints: np.ndarray
 
 
 def time_consistent_correspondences(vectors: list[np.ndarray], valid: list[np.ndarray],
-                                    sigma_frames: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                                    sigma_frames: float = 1.0, deltas: list[int] | None = None,
+                                    ) -> tuple[np.ndarray, np.ndarray]:
     """Correspondence vectors averaged over frames i-1, i, i+1 with Gaussian weights, Eq. 13-14.
 
     ``vectors``/``valid`` hold the (n, 3) correspondence vectors and (n,) validity of frames
     i-1, i, i+1 (pass two at a sequence end, with the current frame first or last as it is). Each
     vertex averages the frames where its pair is valid with ``w_{i+delta} = exp(-delta^2 / 2 sigma^2)``;
-    returns the averaged vectors and the vertices valid in the current frame.
+    returns the averaged vectors and the vertices valid in the current frame. ``deltas``: each frame's offset
+    from frame i (one of them 0) for a wider window (a recording faster than 30 fps: the same time span).
     """
-    if len(vectors) == 3:
+    if deltas is not None:
+        deltas = [int(d) for d in deltas]
+        if len(deltas) != len(vectors) or deltas.count(0) != 1:
+            raise InputError(f"deltas {deltas}: one offset per frame and exactly one 0 (the current frame)")
+        cur = deltas.index(0)
+    elif len(vectors) == 3:
         deltas = (-1, 0, 1)
         cur = 1
     elif len(vectors) == 2:

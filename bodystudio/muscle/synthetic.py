@@ -58,6 +58,8 @@ log = logging.getLogger(__name__)
 
 ARM_MOTIONS = ("elbow_flex", "abduction", "pronation")
 FPS = 30.0
+#: the frame rates a synthetic arm session may be sampled at
+MIN_SYNTH_FPS, MAX_SYNTH_FPS = 1.0, 240.0
 # Peak bulge amplitudes (metres) of a fully active muscle of a maximally muscular lean arm.
 BICEPS_AMPLITUDE_M = 0.020
 TRICEPS_AMPLITUDE_M = 0.012
@@ -330,8 +332,9 @@ def _shoulder_rotvec(template: ArmTemplate, elevation_deg: float, forward_deg: f
     return R.as_rotvec()
 
 
-def arm_angle_sequence(motion: str, n_frames: int, seed: int = 0) -> np.ndarray:
-    """(n_frames, 4) elbow flexion, shoulder elevation, forearm pronation, forward flexion (degrees) at 30 fps.
+def arm_angle_sequence(motion: str, n_frames: int, seed: int = 0, fps: float = FPS) -> np.ndarray:
+    """(n_frames, 4) elbow flexion, shoulder elevation, forearm pronation, forward flexion (degrees) at ``fps``
+    (frame ``k`` shows time ``k / fps``: the same motion sampled at another rate).
 
     ``elbow_flex``: flexion 15-140 deg with abduction/adduction 30-70 deg (the paper's sequences);
     ``abduction``: elevation 20-95 deg, elbow slightly bent; ``pronation``: elbow at ~90 deg, forearm
@@ -341,8 +344,10 @@ def arm_angle_sequence(motion: str, n_frames: int, seed: int = 0) -> np.ndarray:
         raise InputError(f"unknown arm motion {motion!r}; valid: {', '.join(ARM_MOTIONS)}")
     if n_frames < 1:
         raise InputError(f"need at least one frame, got {n_frames}")
+    if not (np.isfinite(fps) and MIN_SYNTH_FPS <= fps <= MAX_SYNTH_FPS):
+        raise InputError(f"fps {fps}: must be in [{MIN_SYNTH_FPS:g}, {MAX_SYNTH_FPS:g}] (a depth camera's rate)")
     rng = np.random.default_rng([seed, 30])
-    t = np.arange(n_frames) / FPS
+    t = np.arange(n_frames) / float(fps)
     period = 3.3 * rng.uniform(0.9, 1.1)
     ph = rng.uniform(0, 2 * np.pi, 3)
     amp = rng.uniform(0.9, 1.0, 3)
@@ -374,10 +379,11 @@ def arm_pose_from_angles(template: ArmTemplate, flexion_deg: float, elevation_de
     return ArmPose(np.eye(4) if root is None else root, angles)
 
 
-def arm_motion(template: ArmTemplate, motion: str, n_frames: int = 200, seed: int = 0) -> list[ArmPose]:
-    """ArmPoses of ``motion`` (30 fps) for this arm (torso still)."""
+def arm_motion(template: ArmTemplate, motion: str, n_frames: int = 200, seed: int = 0,
+               fps: float = FPS) -> list[ArmPose]:
+    """ArmPoses of ``motion`` (sampled at ``fps``) for this arm (torso still)."""
     return [arm_pose_from_angles(template, *row[:3], forward_deg=row[3])
-            for row in arm_angle_sequence(motion, n_frames, seed)]
+            for row in arm_angle_sequence(motion, n_frames, seed, fps)]
 
 
 # --- ground-truth frames and the Kinect arm session ----------------------------------------------------
@@ -416,12 +422,13 @@ def arm_sensor(template: ArmTemplate, kinect: str = "v2", distance_m: float = 1.
 
 def synth_arm_session(out: str | os.PathLike, subject_seed: int = 0, motion: str = "elbow_flex", n_frames: int = 200,
                       kinect: str = "v2", distance_m: float = 1.0, seed: int = 0, resolution: str = "6k",
-                      side: str = "left", noise: bool = True, subject: ArmSubject | None = None):
+                      side: str = "left", noise: bool = True, subject: ArmSubject | None = None, fps: float = FPS):
     """Write a Kinect-only arm session (depth, tracker joints, calibration) with per-frame ground truth.
 
     Ground truth: ``gt/arm/NNNNN.ply`` (arm mesh in the ArmTemplate topology), ``gt/arm_pose/NNNNN.json``
     (ArmPose), ``gt/pose`` (body pose), ``gt/phenotype.json`` (subject, arm template key). ``subject``
-    overrides ``subject_seed`` (e.g. an out-of-range subject from :func:`sample_arm_subject`).
+    overrides ``subject_seed`` (e.g. an out-of-range subject from :func:`sample_arm_subject`). ``fps``: the rate the
+    motion is sampled at (recorded as ``metadata.fps``; the motion's speed in seconds is the same at every rate).
     """
     from bodystudio.body.kinect import kinect_joint_names
     from bodystudio.capture.kinect import simulate_kinect_depth, simulate_tracker_joints
@@ -436,12 +443,12 @@ def synth_arm_session(out: str | os.PathLike, subject_seed: int = 0, motion: str
     subject = subject or sample_arm_subject(subject_seed)
     body = subject_body(subject, resolution)
     template = arm_template(body, side)
-    poses = arm_motion(template, motion, n_frames, seed)
+    poses = arm_motion(template, motion, n_frames, seed, fps)
     sensor = arm_sensor(template, kinect, distance_m)
     rng = np.random.default_rng([seed, subject.seed, 4242])
     variation = MuscleVariation.from_seed(subject.seed)
     metadata = {"generator": "bodystudio synth arm", "subject_seed": subject.seed, "motion": motion, "seed": seed,
-                "kinect": kinect, "template": resolution, "side": side, "fps": FPS, "distance_m": distance_m,
+                "kinect": kinect, "template": resolution, "side": side, "fps": float(fps), "distance_m": distance_m,
                 "arm_template_key": template.key, "noise": noise}
     with SessionWriter(out, CameraRig([]), source="synthetic", metadata=metadata) as writer:
         writer.write_gt_subject(subject.phenotype.to_dict(), subject.local, template=resolution, rig=body.rig,

@@ -576,9 +576,9 @@ def _fake_session(n=3, joints=True, side_names=("ShoulderLeft", "ElbowLeft", "Wr
 def test_capture_arm_sequence_reads_depth_and_tracker_joints(monkeypatch):
     seen = {}
 
-    def fake_frames(depths, camera, template, model, options, tracker, ids, known):
+    def fake_frames(depths, camera, template, model, options, tracker, ids, known, fps):
         seen.update(depths=depths, camera=camera, tracker=tracker, ids=ids, known=known, options=options, model=model,
-                    template=template)
+                    template=template, fps=fps)
         return ArmCapture(np.zeros((len(depths), 1, 3)), np.zeros((0, 3)), [], None, (1.0, np.eye(3), np.zeros(3)),
                           options.mode, "k")
 
@@ -590,7 +590,7 @@ def test_capture_arm_sequence_reads_depth_and_tracker_joints(monkeypatch):
     assert seen["ids"] == [1, 2] and [d[0, 0] for d in seen["depths"]] == [1.0, 2.0] and seen["camera"] == "CAM"
     np.testing.assert_array_equal(seen["tracker"], pos[1:3, 1:4])
     assert seen["known"] == "SHAPE" and seen["options"] is o and seen["model"] == "MODEL"
-    assert seen["template"] is left
+    assert seen["template"] is left and seen["fps"] == 30.0  # no metadata.fps: the 30 fps readers assume
     assert c.session_path == str(__import__("pathlib").Path("/tmp/fake-session").resolve())
     cap_mod.capture_arm_sequence(session, None, left)
     assert seen["ids"] == [0, 1, 2] and seen["options"] == CaptureOptions() and seen["known"] is None

@@ -303,10 +303,10 @@ def test_the_session_defaults_and_the_subject_seed(tmp_path, monkeypatch):
     monkeypatch.setattr(syn, "sample_arm_subject", lambda seed: asked.setdefault("subject", seed) is None or s)
     monkeypatch.setattr(syn, "subject_body", lambda subject, resolution: asked.update(body=(subject, resolution))
                         or body)
-    monkeypatch.setattr(syn, "arm_motion", lambda template, motion, n, seed: asked.update(motion=(motion, n, seed))
-                        or real_motion(template, motion, 1, seed))
+    monkeypatch.setattr(syn, "arm_motion", lambda template, motion, n, seed, fps=syn.FPS: asked.update(
+        motion=(motion, n, seed, fps)) or real_motion(template, motion, 1, seed, fps))
     session = syn.synth_arm_session(tmp_path / "c", subject_seed=3)
-    assert asked == {"subject": 3, "body": (s, "6k"), "motion": ("elbow_flex", 200, 0)}
+    assert asked == {"subject": 3, "body": (s, "6k"), "motion": ("elbow_flex", 200, 0, 30.0)}
     assert session.metadata == {"generator": "bodystudio synth arm", "subject_seed": 3, "motion": "elbow_flex",
                                 "seed": 0, "kinect": "v2", "template": "6k", "side": "left", "fps": syn.FPS,
                                 "distance_m": 1.0, "arm_template_key": T.key, "noise": True}
