@@ -260,3 +260,20 @@ def test_the_scan_sample_factor_sets_the_scan_sample():
     c = _fit(max_iterations=1, scan=double, scan_sample_factor=1)[0].history[0]
     assert a == b and c != pytest.approx(a, rel=1e-6)
     assert F.SCAN_SAMPLE_PER_MODEL_VERTEX == 2
+
+
+def test_clutter_beyond_the_reach_is_never_paired():
+    # a 5 cm ball 0.3 m behind the body (clutter, a second object): the reach (0.25 m, shrinking to 0.03 m) keeps
+    # its points out of every pair, so the fit is the clean scan's
+    scan = _scan()
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    cluttered = Mesh(np.r_[scan.vertices, ball.vertices + [0.0, 0.3, -0.45]],
+                     np.r_[scan.faces, ball.faces + len(scan.vertices)])
+    body = _posed(_model(), C_TRUE, TRUE_POSE)
+    gap = np.linalg.norm(body[:, None] - (ball.vertices + [0.0, 0.3, -0.45])[None], axis=2).min()
+    assert 0.25 < gap < 0.5
+    fit, _ = _fit(scan=cluttered)
+    np.testing.assert_allclose(fit.pose.rotations[:3], TRUE_POSE.rotations[:3], atol=0.01)
+    np.testing.assert_allclose(fit.pose.translation, TRUE_POSE.translation, atol=0.003)
+    np.testing.assert_allclose(fit.coeffs, C_TRUE, atol=0.05)
+    assert fit.history[-1] < 2.0
