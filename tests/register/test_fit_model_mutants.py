@@ -277,3 +277,31 @@ def test_clutter_beyond_the_reach_is_never_paired():
     np.testing.assert_allclose(fit.pose.translation, TRUE_POSE.translation, atol=0.003)
     np.testing.assert_allclose(fit.coeffs, C_TRUE, atol=0.05)
     assert fit.history[-1] < 2.0
+
+
+def test_each_iteration_anneals_the_pose_prior_and_samples_the_model_vertices():
+    # spies on the two steps' calls: the prior's scale max(1, 100 * 0.5^it) (the module docstring's anneal), and
+    # Masuda's sample of min(n, 1500) model vertices drawn without replacement (here all 648, in some order)
+    seen_scales, seen_samples = [], []
+    real_pose_step, real_pairs = F.fit_pose_step, F.compatible_pairs
+
+    def pose_step(*args, **kw):
+        seen_scales.append(kw.get("prior_scale", "default"))
+        return real_pose_step(*args, **kw)
+
+    def pairs(*args, **kw):
+        seen_samples.append(kw.get("model_sample"))
+        return real_pairs(*args, **kw)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(F, "fit_pose_step", pose_step)
+    mp.setattr(F, "compatible_pairs", pairs)
+    try:
+        _fit(max_iterations=10)
+    finally:
+        mp.undo()
+    assert (F.PRIOR_ANNEAL_START, F.PRIOR_ANNEAL_RATE, F.MODEL_SAMPLE) == (100.0, 0.5, 1500)
+    np.testing.assert_allclose(seen_scales, [100, 50, 25, 12.5, 6.25, 3.125, 1.5625, 1.0, 1.0, 1.0])
+    assert len(seen_samples) == 10
+    for s in seen_samples:
+        assert s is not None and sorted(s.tolist()) == list(range(648))
