@@ -7,7 +7,12 @@ double coverage) and perspective-correct barycentrics.
 
 Lens distortion: vertices are projected with the full OpenCV distortion model, then each triangle is
 rasterised linearly between its distorted vertex positions. For a body mesh (edges of a few pixels)
-the error of this approximation is far below a pixel.
+the error of this approximation is far below a pixel. A vertex beyond the distortion polynomial's monotonic
+radius (:func:`bodystudio.geometry.camera.distortion_monotonic_radius`, where ``r_d(r)`` stops increasing and
+the model folds points from beside the lens back into the image) is not drawable, like one behind the camera:
+every triangle that uses it is dropped, in the colour, depth and id buffers alike (mir12t; before, a room's
+ceiling corners 60 degrees off the axis folded into the mirror studio's colour images as grey wedges). Dropping
+is exact where such triangles lie outside the image (big planes split finely enough); there is no clipping.
 
 Pixel convention (OpenCV): the centre of pixel ``(row, col)`` is at image coordinates ``(u, v) = (col, row)``.
 """
@@ -207,6 +212,30 @@ def _project_reference(V, R, t, K, dist, uv, z):
         uv[i, 1] = K[1, 1] * yd + K[1, 2]
 
 
+@njit(cache=True)
+def _drop_folded(V, R, t, r2_max, uv):
+    """NaN pixels for the vertices in front of the camera whose normalised radius squared exceeds ``r2_max`` (the
+    distortion's monotonic range): the rasteriser skips every triangle with a NaN vertex."""
+    for i in range(V.shape[0]):
+        xc = R[0, 0] * V[i, 0] + R[0, 1] * V[i, 1] + R[0, 2] * V[i, 2] + t[0]
+        yc = R[1, 0] * V[i, 0] + R[1, 1] * V[i, 1] + R[1, 2] * V[i, 2] + t[1]
+        zc = R[2, 0] * V[i, 0] + R[2, 1] * V[i, 1] + R[2, 2] * V[i, 2] + t[2]
+        if zc > 0.0 and xc * xc + yc * yc > r2_max * zc * zc:
+            uv[i, 0] = np.nan
+            uv[i, 1] = np.nan
+
+
+def _project_drawable(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_project`, with NaN pixels also for the vertices beyond ``camera.monotonic_radius`` (nothing changes
+    for a camera without a fold, or where no vertex reaches it)."""
+    uv, z = np.empty((len(V), 2)), np.empty(len(V))
+    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
+    r_max = camera.monotonic_radius
+    if np.isfinite(r_max):
+        _drop_folded(V, camera.R, camera.t, r_max * r_max, uv)
+    return uv, z
+
+
 def _check_mesh(V, F) -> tuple[np.ndarray, np.ndarray]:
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
@@ -221,11 +250,11 @@ def render(V: np.ndarray, F: np.ndarray, camera: Camera) -> RenderResult:
     """Rasterise mesh ``(V, F)`` into ``camera``: silhouette, depth, triangle ids and barycentrics.
 
     Both triangle orientations are drawn (no back-face culling); the nearest surface wins. There is
-    no near-plane clipping: triangles with a vertex less than 1 mm in front of the camera are skipped.
+    no near-plane clipping: triangles with a vertex less than 1 mm in front of the camera, or beyond the
+    distortion's monotonic radius (``camera.monotonic_radius``), are skipped.
     """
     V, F = _check_mesh(V, F)
-    uv, z = np.empty((len(V), 2)), np.empty(len(V))
-    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
+    uv, z = _project_drawable(V, camera)
     H, W = camera.height, camera.width
     depth = np.full((H, W), np.inf, dtype=np.float32)  # the z-buffer; empty pixels become 0 below
     tri_id = np.full((H, W), -1, dtype=np.int32)
@@ -237,12 +266,9 @@ def render(V: np.ndarray, F: np.ndarray, camera: Camera) -> RenderResult:
 
 
 def project_vertices(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels (n, 2) (NaN behind the camera) and camera z (n,) of vertices ``V`` as the rasteriser projects them
-    (OpenCV distortion), for :func:`depth_buffer`."""
-    V = np.ascontiguousarray(V, dtype=np.float64)
-    uv, z = np.empty((len(V), 2)), np.empty(len(V))
-    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
-    return uv, z
+    """Pixels (n, 2) (NaN behind the camera or beyond the lens's monotonic radius) and camera z (n,) of vertices
+    ``V`` as the rasteriser projects them (OpenCV distortion), for :func:`depth_buffer`."""
+    return _project_drawable(np.ascontiguousarray(V, dtype=np.float64), camera)
 
 
 def depth_buffer(uv: np.ndarray, z: np.ndarray, F: np.ndarray, width: int, height: int,
@@ -279,8 +305,7 @@ def render_silhouette_depth(V: np.ndarray, F: np.ndarray, camera: Camera) -> tup
     """:func:`render`'s ``mask`` and ``depth`` alone (the same z-buffer bit for bit), without the triangle ids and
     barycentrics: the mirror's source body needs only its silhouette and depth (MIR12f: ~15 % of a render)."""
     V, F = _check_mesh(V, F)
-    uv, z = np.empty((len(V), 2)), np.empty(len(V))
-    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
+    uv, z = _project_drawable(V, camera)
     depth = np.full((camera.height, camera.width), np.inf, dtype=np.float32)
     _rasterize(uv, z, F, camera.width, camera.height, depth, np.empty((0, 0), np.int32),
                np.empty((0, 0, 3), np.float32), False)
