@@ -213,16 +213,24 @@ def _project_reference(V, R, t, K, dist, uv, z):
 
 
 @njit(cache=True)
-def _drop_folded(V, R, t, r2_max, uv):
+def _drop_folded(Vf, R, t, r2_max, uvf):
     """NaN pixels for the vertices in front of the camera whose normalised radius squared exceeds ``r2_max`` (the
-    distortion's monotonic range): the rasteriser skips every triangle with a NaN vertex."""
-    for i in range(V.shape[0]):
-        xc = R[0, 0] * V[i, 0] + R[0, 1] * V[i, 1] + R[0, 2] * V[i, 2] + t[0]
-        yc = R[1, 0] * V[i, 0] + R[1, 1] * V[i, 1] + R[1, 2] * V[i, 2] + t[1]
-        zc = R[2, 0] * V[i, 0] + R[2, 1] * V[i, 1] + R[2, 2] * V[i, 2] + t[2]
-        if zc > 0.0 and xc * xc + yc * yc > r2_max * zc * zc:
-            uv[i, 0] = np.nan
-            uv[i, 1] = np.nan
+    distortion's monotonic range): the rasteriser skips every triangle with a NaN vertex. Over flat views (``Vf``
+    (3n,), ``uvf`` (2n,)); the test is a first loop without a branch, the rare write a second."""
+    n = Vf.shape[0] // 3
+    beyond = np.empty(n)
+    r00, r01, r02, r10, r11, r12 = R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2]
+    r20, r21, r22, t0, t1, t2 = R[2, 0], R[2, 1], R[2, 2], t[0], t[1], t[2]
+    for i in range(n):
+        X, Y, Z = Vf[3 * i], Vf[3 * i + 1], Vf[3 * i + 2]
+        xc = r00 * X + r01 * Y + r02 * Z + t0
+        yc = r10 * X + r11 * Y + r12 * Z + t1
+        zc = r20 * X + r21 * Y + r22 * Z + t2
+        beyond[i] = min(xc * xc + yc * yc - r2_max * zc * zc, zc)
+    for i in range(n):
+        if beyond[i] > 0.0:
+            uvf[2 * i] = np.nan
+            uvf[2 * i + 1] = np.nan
 
 
 def _project_drawable(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
@@ -232,7 +240,7 @@ def _project_drawable(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.nda
     _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
     r_max = camera.monotonic_radius
     if np.isfinite(r_max):
-        _drop_folded(V, camera.R, camera.t, r_max * r_max, uv)
+        _drop_folded(V.reshape(-1), camera.R, camera.t, r_max * r_max, uv.reshape(-1))
     return uv, z
 
 
