@@ -15,11 +15,11 @@ def _camera(dist=FOLDING):
                           dist=dist)
 
 
-def _triangle_at_radius(r: float, spread_deg: float = 12.0, size: float = 0.04):
-    """A small triangle 1 m in front of the camera centred at normalised radius ``r`` (along +x)."""
+def _triangle_at_radius(r: float, spread_deg: float = 12.0, size: float = 0.04, depth_m: float = 1.0):
+    """A small triangle ``depth_m`` in front of the camera at normalised radius ``r`` (along +x)."""
     angles = np.radians([0.0, spread_deg, -spread_deg])
     radii = np.array([r, r + size, r + size])
-    V = np.stack([radii * np.cos(angles), radii * np.sin(angles), -np.ones(3)], axis=1)
+    V = depth_m * np.stack([radii * np.cos(angles), radii * np.sin(angles), -np.ones(3)], axis=1)
     return V, np.array([[0, 1, 2]])
 
 
@@ -39,16 +39,17 @@ def test_monotonic_radius_closed_form():
 
 def test_triangle_beyond_the_monotonic_radius_is_not_drawn():
     cam = _camera()
-    V, F = _triangle_at_radius(2.35)  # r_d(2.35) = 0.46: the polynomial folds it into the image
+    # r_d(2.35) = 0.46: the polynomial folds it into the image; 0.5 m away, the test must compare x^2 + y^2 with
+    # r_max^2 z^2, not r_max^2
+    V, F = _triangle_at_radius(2.35, depth_m=0.5)
     uv, _ = project_vertices(V, cam)
     assert np.isnan(uv).all()
     for mask in (render(V, F, cam).mask, render_silhouette_depth(V, F, cam)[0]):
         assert not mask.any()
     plate = np.full((240, 320, 3), 7, np.uint8)
     assert np.array_equal(render_rgb(V, F, cam, background=plate), plate)
-    # the same triangle through a lens without the fold's terms lies outside the image; one well inside the
-    # monotonic range is drawn, and its pixels are those of the fold-free projection's straight edges
-    V_in, F_in = _triangle_at_radius(0.3, spread_deg=20.0, size=0.1)
+    # one well inside the monotonic range is drawn, by every path alike
+    V_in, F_in = _triangle_at_radius(0.3, spread_deg=20.0, size=0.1, depth_m=2.0)
     result = render(V_in, F_in, cam)
     assert result.mask.sum() > 200
     assert np.array_equal(depth_buffer(*project_vertices(V_in, cam), F_in, 320, 240) < np.inf, result.mask)
