@@ -7,7 +7,12 @@ double coverage) and perspective-correct barycentrics.
 
 Lens distortion: vertices are projected with the full OpenCV distortion model, then each triangle is
 rasterised linearly between its distorted vertex positions. For a body mesh (edges of a few pixels)
-the error of this approximation is far below a pixel.
+the error of this approximation is far below a pixel. A vertex beyond the distortion polynomial's monotonic
+radius (:func:`bodystudio.geometry.camera.distortion_monotonic_radius`, where ``r_d(r)`` stops increasing and
+the model folds points from beside the lens back into the image) is not drawable, like one behind the camera:
+every triangle that uses it is dropped, in the colour, depth and id buffers alike (mir12t; before, a room's
+ceiling corners 60 degrees off the axis folded into the mirror studio's colour images as grey wedges). Dropping
+is exact where such triangles lie outside the image (big planes split finely enough); there is no clipping.
 
 Pixel convention (OpenCV): the centre of pixel ``(row, col)`` is at image coordinates ``(u, v) = (col, row)``.
 """
@@ -207,6 +212,38 @@ def _project_reference(V, R, t, K, dist, uv, z):
         uv[i, 1] = K[1, 1] * yd + K[1, 2]
 
 
+@njit(cache=True)
+def _drop_folded(Vf, R, t, r2_max, uvf):
+    """NaN pixels for the vertices in front of the camera whose normalised radius squared exceeds ``r2_max`` (the
+    distortion's monotonic range): the rasteriser skips every triangle with a NaN vertex. Over flat views (``Vf``
+    (3n,), ``uvf`` (2n,)); the test is a first loop without a branch, the rare write a second."""
+    n = Vf.shape[0] // 3
+    beyond = np.empty(n)
+    r00, r01, r02, r10, r11, r12 = R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2]
+    r20, r21, r22, t0, t1, t2 = R[2, 0], R[2, 1], R[2, 2], t[0], t[1], t[2]
+    for i in range(n):
+        X, Y, Z = Vf[3 * i], Vf[3 * i + 1], Vf[3 * i + 2]
+        xc = r00 * X + r01 * Y + r02 * Z + t0
+        yc = r10 * X + r11 * Y + r12 * Z + t1
+        zc = r20 * X + r21 * Y + r22 * Z + t2
+        beyond[i] = min(xc * xc + yc * yc - r2_max * zc * zc, zc)
+    for i in range(n):
+        if beyond[i] > 0.0:
+            uvf[2 * i] = np.nan
+            uvf[2 * i + 1] = np.nan
+
+
+def _project_drawable(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_project`, with NaN pixels also for the vertices beyond ``camera.monotonic_radius`` (nothing changes
+    for a camera without a fold, or where no vertex reaches it)."""
+    uv, z = np.empty((len(V), 2)), np.empty(len(V))
+    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
+    r_max = camera.monotonic_radius
+    if np.isfinite(r_max):
+        _drop_folded(V.reshape(-1), camera.R, camera.t, r_max * r_max, uv.reshape(-1))
+    return uv, z
+
+
 def _check_mesh(V, F) -> tuple[np.ndarray, np.ndarray]:
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
@@ -221,11 +258,11 @@ def render(V: np.ndarray, F: np.ndarray, camera: Camera) -> RenderResult:
     """Rasterise mesh ``(V, F)`` into ``camera``: silhouette, depth, triangle ids and barycentrics.
 
     Both triangle orientations are drawn (no back-face culling); the nearest surface wins. There is
-    no near-plane clipping: triangles with a vertex less than 1 mm in front of the camera are skipped.
+    no near-plane clipping: triangles with a vertex less than 1 mm in front of the camera, or beyond the
+    distortion's monotonic radius (``camera.monotonic_radius``), are skipped.
     """
     V, F = _check_mesh(V, F)
-    uv, z = np.empty((len(V), 2)), np.empty(len(V))
-    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
+    uv, z = _project_drawable(V, camera)
     H, W = camera.height, camera.width
     depth = np.full((H, W), np.inf, dtype=np.float32)  # the z-buffer; empty pixels become 0 below
     tri_id = np.full((H, W), -1, dtype=np.int32)
@@ -237,12 +274,9 @@ def render(V: np.ndarray, F: np.ndarray, camera: Camera) -> RenderResult:
 
 
 def project_vertices(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels (n, 2) (NaN behind the camera) and camera z (n,) of vertices ``V`` as the rasteriser projects them
-    (OpenCV distortion), for :func:`depth_buffer`."""
-    V = np.ascontiguousarray(V, dtype=np.float64)
-    uv, z = np.empty((len(V), 2)), np.empty(len(V))
-    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
-    return uv, z
+    """Pixels (n, 2) (NaN behind the camera or beyond the lens's monotonic radius) and camera z (n,) of vertices
+    ``V`` as the rasteriser projects them (OpenCV distortion), for :func:`depth_buffer`."""
+    return _project_drawable(np.ascontiguousarray(V, dtype=np.float64), camera)
 
 
 def depth_buffer(uv: np.ndarray, z: np.ndarray, F: np.ndarray, width: int, height: int,
@@ -279,8 +313,7 @@ def render_silhouette_depth(V: np.ndarray, F: np.ndarray, camera: Camera) -> tup
     """:func:`render`'s ``mask`` and ``depth`` alone (the same z-buffer bit for bit), without the triangle ids and
     barycentrics: the mirror's source body needs only its silhouette and depth (MIR12f: ~15 % of a render)."""
     V, F = _check_mesh(V, F)
-    uv, z = np.empty((len(V), 2)), np.empty(len(V))
-    _project(V, camera.R, camera.t, camera.K, camera.dist, uv, z)
+    uv, z = _project_drawable(V, camera)
     depth = np.full((camera.height, camera.width), np.inf, dtype=np.float32)
     _rasterize(uv, z, F, camera.width, camera.height, depth, np.empty((0, 0), np.int32),
                np.empty((0, 0, 3), np.float32), False)

@@ -134,8 +134,10 @@ def _quad(a, b, c, d, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
 
 def mirror_room() -> Room:
     """The furnished room in front of the Kinect (floor y = 0; back wall 4.3 m from the sensor)."""
-    # the room stops 1.5 m in front of the sensor: triangles reaching beside or behind a distorted camera
-    # would project wildly (the rasteriser draws straight edges between distorted vertices)
+    # the room stops 1.5 m in front of the sensor: its big triangles stay where straight edges between distorted
+    # vertices are close to the lens's curves. Its ceiling's near corners still lie beyond the v2 colour lens's
+    # monotonic radius (60 degrees off the axis); the renderer drops the triangles there (mir12t; before, they
+    # folded back into the colour images as grey wedges at the top corners)
     parts = [
         (_quad((-2.8, 0, -1.3), (2.8, 0, -1.3), (2.8, 0, 1.5), (-2.8, 0, 1.5), 10), "floor"),
         (_quad((-2.8, 0, -1.3), (2.8, 0, -1.3), (2.8, 2.8, -1.3), (-2.8, 2.8, -1.3), 6), "wall"),
