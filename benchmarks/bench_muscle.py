@@ -402,7 +402,7 @@ def step_prepare(work: Path, n_frames: int) -> None:
     if not (work / "model.npz").is_file():
         t0 = time.perf_counter()
         # the paper's all-male dataset (issue 11), whatever ``muscle model build`` gives a user (docs/muscle.md,
-        # "women in the capture")
+        # "Women in the capture")
         samples, _ = training_dataset(RESOLUTION, n_women=0)
         model = learn_arm_model(samples, _template())
         save_arm_model(work / "model.npz", model)

@@ -317,7 +317,7 @@ def model_build(
     subjects: int = typer.Option(10, "--subjects", help="training men (BMI 20-28, as the paper's)"),
     women: int = typer.Option(0, "--women", help="training women besides the men (the population's women's BMI, "
                               "17.5-23.5; 0: men only, the paper's): a model that knows a woman's arm "
-                              "(docs/muscle.md, \"women in the capture\")"),
+                              "(docs/muscle.md, \"Women in the capture\")"),
     shapes: int = typer.Option(3, "--shapes", help="base-pose meshes per subject"),
     poses: int = typer.Option(24, "--poses", help="posed meshes per subject"),
     regularization: float = typer.Option(1.0, "--regularization", help="Tikhonov weight of Eq. 6-10"),

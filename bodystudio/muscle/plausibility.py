@@ -434,6 +434,14 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
                             f"accurate (7 mm median against 2 mm); give --shape with the subject's sex, and for a "
                             f"{other} a model that knows {other.replace('an', 'en')} ("
                             + ("muscle model build --women 5)" if other == "woman" else "muscle model build)"))
+        elif sex and not figures.get("shape_given"):
+            # a model of both sexes (muscle model build --women K) gives a woman's arm only when told: the capture
+            # fits no sex (docs/muscle.md, "Women in the capture": 516 without --shape 7.38 mm, with sex=female 2.83)
+            taken = "male" if sex["value"] >= 0.5 else "female"
+            warnings.append(f"the subject's sex was not given (--shape): taken as {taken} (sex {sex['value']:.2g}); "
+                            f"the model knows both sexes but gives a woman's arm only when told, and a woman captured "
+                            f"so was measured 2.6x less accurate (7.4 mm median against 2.8 with sex=female); give "
+                            f"--shape with the subject's sex")
     return {"thresholds": {"depth_ratio_range": list(DEPTH_RATIO_RANGE), "side_nearer_m": SIDE_NEARER_M,
                            "far_m": far_m, "sampling_warn_mm": SAMPLING_WARN_MM,
                            "residual_refuse_mm": RESIDUAL_REFUSE_MM, "points_explained_refuse": POINTS_EXPLAINED_REFUSE,

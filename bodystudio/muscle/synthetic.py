@@ -501,7 +501,7 @@ __all__ = [
 TRAINING_BMI_RANGE = (20.0, 28.0)
 # The training women's BMI (``training_dataset(n_women=K)``): the population's women (``body.population``), 5-95 % of
 # 143 of them measured as the subjects are (17.6-23.2; its men 19.7-24.4), rounded out to half units. The paper's
-# dataset has no women; this is a range a user's model should know (docs/muscle.md, "women in the capture").
+# dataset has no women; this is a range a user's model should know (docs/muscle.md, "Women in the capture").
 TRAINING_BMI_RANGE_WOMEN = (17.5, 23.5)
 # First seed of the training women (``WOMEN_SEED_BASE + 17 * seed + i``): their own seeds, apart from the men's
 # 1000-1099 and the held-out subjects' 5xx-7xx.

@@ -1,6 +1,6 @@
 """A model that knows both sexes (``training_dataset(n_women=K)``, ``muscle model build --women K``): the women
 drawn as the men are, from their own seeds; the model's female column (Eq. 6's ``1 - sex``) learned; a woman's rest
-arm and her capture nearer the truth than with the men-only model (docs/muscle.md, "women in the capture")."""
+arm and her capture nearer the truth than with the men-only model (docs/muscle.md, "Women in the capture")."""
 
 from types import SimpleNamespace
 

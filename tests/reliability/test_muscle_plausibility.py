@@ -183,14 +183,18 @@ def test_sex_verdict_on_recorded_figures():
         assert len(warnings) == 1 and f"female (sex {value:.2g})" in warnings[0] and "build a model that knows " \
             "women (muscle model build --women 5)" in warnings[0], warnings
     assert verdict(0.074, lo=0.0)["warnings"] == []
-    # no sex given (the fitted shape's is the model's): said when the model knows one sex only, never twice
+    # no sex given (the fitted shape's is the model's male): said once, with the fix for a model of one sex
     fitted = {"shape": {"sex": {"value": 1.0, "range": [1.0, 1.0], "outside": 0.0}}, "shape_given": False}
     warnings = capture_verdict(fitted, "left")["warnings"]
     assert len(warnings) == 1 and "sex was not given" in warnings[0] and "knows women" in warnings[0], warnings
     women = {"shape": {"sex": {"value": 0.0, "range": [0.0, 0.0], "outside": 0.0}}, "shape_given": False}
     assert "(women only)" in capture_verdict(women, "left")["warnings"][0]
+    # a model of both sexes (muscle model build --women K) knows a woman's arm, but only when told the sex
     both = {"shape": {"sex": {"value": 1.0, "range": [0.0, 1.0], "outside": 0.0}}, "shape_given": False}
-    assert capture_verdict(both, "left")["warnings"] == []
+    warnings = capture_verdict(both, "left")["warnings"]
+    assert len(warnings) == 1 and warnings[0].startswith("the subject's sex was not given (--shape): taken as male "
+                                                         "(sex 1); the model knows both sexes"), warnings
+    assert capture_verdict({**both, "shape_given": True}, "left")["warnings"] == []
     assert capture_verdict({**fitted, "shape_given": True}, "left")["warnings"] == []
 
 

@@ -1,4 +1,4 @@
-"""``muscle model build --women K``: training women besides the men (docs/muscle.md, "women in the capture").
+"""``muscle model build --women K``: training women besides the men (docs/muscle.md, "Women in the capture").
 
 Bad counts are refused in one line before any work, nothing written; a good one reaches the training set as that
 many women after the men (``training_dataset(n_women=K)``), the men as without it.
