@@ -315,9 +315,10 @@ def model_build(
     resolution: str = typer.Option("6k", "--resolution", help="arm template: 6k | 2k | full"),
     side: str = typer.Option("left", "--side", help="left | right"),
     subjects: int = typer.Option(10, "--subjects", help="training men (BMI 20-28, as the paper's)"),
-    women: int = typer.Option(0, "--women", help="training women besides the men (the population's women's BMI, "
-                              "17.5-23.5; 0: men only, the paper's): a model that knows a woman's arm "
-                              "(docs/muscle.md, \"Women in the capture\")"),
+    women: int = typer.Option(5, "--women", help="training women besides the men (the population's women's BMI, "
+                              "17.5-23.5): a model that knows a woman's arm, given her sex with --shape (the "
+                              "default since mus11x; 0: men only, the paper's and the benchmark's; docs/muscle.md, "
+                              "\"Women in the capture\")"),
     shapes: int = typer.Option(3, "--shapes", help="base-pose meshes per subject"),
     poses: int = typer.Option(24, "--poses", help="posed meshes per subject"),
     regularization: float = typer.Option(1.0, "--regularization", help="Tikhonov weight of Eq. 6-10"),

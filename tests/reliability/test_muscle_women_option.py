@@ -24,7 +24,7 @@ def test_model_build_bad_women(tmp_path, capsys, args, phrase):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("args, men, women", [([], 10, 0), (["--women", "3"], 10, 3),
+@pytest.mark.parametrize("args, men, women", [([], 10, 5), (["--women", "0"], 10, 0), (["--women", "3"], 10, 3),
                                               (["--subjects", "2", "--women", "1"], 2, 1)])
 def test_model_build_passes_the_women_on(tmp_path, capsys, monkeypatch, args, men, women):
     """The counts reach ``training_dataset`` (the learning is stubbed: this is the CLI's wiring); the summary line
