@@ -401,7 +401,9 @@ def step_prepare(work: Path, n_frames: int) -> None:
     work.mkdir(parents=True, exist_ok=True)
     if not (work / "model.npz").is_file():
         t0 = time.perf_counter()
-        samples, _ = training_dataset(RESOLUTION)
+        # the paper's all-male dataset (issue 11), whatever ``muscle model build`` gives a user (docs/muscle.md,
+        # "Women in the capture")
+        samples, _ = training_dataset(RESOLUTION, n_women=0)
         model = learn_arm_model(samples, _template())
         save_arm_model(work / "model.npz", model)
         write_json(work / "model.json", {"subjects": len(model.subjects), "meshes": len(samples),

@@ -10,7 +10,9 @@ runs here on sessions of other subjects the tests do not use and on other noise 
 ``--session SUBJECT:NOISE_SEED`` (``sample_arm_subject(SUBJECT)``, ``synth_arm_session(..., seed=NOISE_SEED)``,
 cached in ``W/seq_SUBJECT_sNOISE_FRAMES``); ``--variant NAME`` (one of :data:`VARIANTS`) or
 ``NAME:KEY=VALUE,...`` (``CaptureOptions`` fields). ``W/model.npz``: the benchmark's model (its prepare step),
-learned there when missing. Each run writes ``W/seq_SUBJECT_sNOISE_FRAMES_NAME.json``; the table is printed.
+learned there when missing (another model, e.g. ``muscle model build --women 5``: its own W, the sessions linked).
+``--no-shape``: the shape fitted, as ``muscle capture`` without ``--shape`` (``..._NAME_noshape.json``). Each run writes
+``W/seq_SUBJECT_sNOISE_FRAMES_NAME.json``; the table is printed.
 docs/muscle.md "seventh pass".
 """
 
@@ -69,11 +71,14 @@ def _fps_tag(fps: float) -> str:
 
 
 def run_case(work: Path, subject_seed: int, noise_seed: int, n_frames: int, name: str, options: dict,
-             fps: float = 30.0) -> dict:
+             fps: float = 30.0, shape_given: bool = True) -> dict:
+    """One capture, scored; ``shape_given=False`` fits the shape (``muscle capture`` without ``--shape``: the sex taken
+    as male) instead of passing the subject's measured one."""
     from benchmarks import bench_muscle as bm
     from benchmarks.muscle_energy import work_model
 
-    out = work / f"seq_{subject_seed}_s{noise_seed}_{n_frames}{_fps_tag(fps)}_{name}.json"
+    out = work / (f"seq_{subject_seed}_s{noise_seed}_{n_frames}{_fps_tag(fps)}_{name}"
+                  f"{'' if shape_given else '_noshape'}.json")
     if out.is_file():
         return json.loads(out.read_text())
     claim = out.with_suffix(".running")  # another process on the same work folder runs this case: skip it
@@ -89,10 +94,11 @@ def run_case(work: Path, subject_seed: int, noise_seed: int, n_frames: int, name
     bm.CAPTURE_OVERRIDES.update(options)
     try:
         _, scores = bm.capture_and_score(session, model, template, bm.truth_template(subject), "full",
-                                         known_shape=bm.shape_of(subject))
+                                         known_shape=bm.shape_of(subject) if shape_given else None)
     finally:
         bm.CAPTURE_OVERRIDES.clear()
-    row = {"subject": subject_seed, "noise_seed": noise_seed, "frames": n_frames, "fps": fps, "variant": name,
+    row = {"subject": subject_seed, "noise_seed": noise_seed, "frames": n_frames, "fps": fps,
+           "variant": name if shape_given else f"{name} (no --shape)",
            "options": {k: repr(v) for k, v in options.items()}, **{k: scores.get(k) for k in KEYS}}
     out.write_text(json.dumps(row))
     claim.unlink()
@@ -141,6 +147,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--fps", type=float, default=30.0, help="the sessions' frame rate (the same motion in seconds; "
                         "e.g. --frames 100 --fps 15 is the 200-frame 30 fps motion sampled at 15 fps)")
     parser.add_argument("--variant", action="append", default=[], help="NAME or NAME:KEY=VALUE,... (repeatable)")
+    parser.add_argument("--no-shape", action="store_true",
+                        help="fit the shape instead of giving the measured one (muscle capture without --shape)")
     args = parser.parse_args(argv)
     try:
         variants = [parse_variant(v) for v in (args.variant or list(VARIANTS))]
@@ -152,8 +160,8 @@ def main(argv: list[str] | None = None) -> None:
     if not MIN_SYNTH_FPS <= args.fps <= MAX_SYNTH_FPS:  # NaN too
         parser.error(f"--fps {args.fps:g}: must be in [{MIN_SYNTH_FPS:g}, {MAX_SYNTH_FPS:g}]")
     args.work.mkdir(parents=True, exist_ok=True)
-    rows = [run_case(args.work, s, n, args.frames, name, opts, args.fps) for s, n in sessions
-            for name, opts in variants]
+    rows = [run_case(args.work, s, n, args.frames, name, opts, args.fps, not args.no_shape)
+            for s, n in sessions for name, opts in variants]
     print(render([r for r in rows if r is not None]))
 
 

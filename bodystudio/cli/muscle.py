@@ -329,7 +329,11 @@ def model_build(
     out: Path = typer.Option(..., "--out", help="new model file (.npz)"),
     resolution: str = typer.Option("6k", "--resolution", help="arm template: 6k | 2k | full"),
     side: str = typer.Option("left", "--side", help="left | right"),
-    subjects: int = typer.Option(10, "--subjects", help="training subjects (men, BMI 20-28, as the paper's)"),
+    subjects: int = typer.Option(10, "--subjects", help="training men (BMI 20-28, as the paper's)"),
+    women: int = typer.Option(5, "--women", help="training women besides the men (the population's women's BMI, "
+                              "17.5-23.5): a model that knows a woman's arm, given her sex with --shape (the "
+                              "default since mus11x; 0: men only, the paper's and the benchmark's; docs/muscle.md, "
+                              "\"Women in the capture\")"),
     shapes: int = typer.Option(3, "--shapes", help="base-pose meshes per subject"),
     poses: int = typer.Option(24, "--poses", help="posed meshes per subject"),
     regularization: float = typer.Option(1.0, "--regularization", help="Tikhonov weight of Eq. 6-10"),
@@ -342,6 +346,10 @@ def model_build(
     check_choice("--resolution", resolution, RESOLUTIONS)
     check_choice("--side", side, SIDES)
     check_range("--subjects", subjects, 2, 100)
+    check_range("--women", women, 0, 100)
+    if subjects + women > 100:
+        raise InputError(f"--subjects {subjects} --women {women}: {subjects + women} training subjects; at most 100 "
+                         "in all")
     check_range("--shapes", shapes, 1, 10)
     check_range("--poses", poses, 1, 500)
     check_range("--regularization", regularization, 0.0, 1e6)
@@ -351,10 +359,11 @@ def model_build(
     from bodystudio.muscle.export import check_new_output
 
     check_new_output(out, "model file")
-    samples, _ = training_dataset(resolution, subjects, shapes, poses, seed, side)
+    samples, _ = training_dataset(resolution, subjects, shapes, poses, seed, side, n_women=women)
     model = learn_arm_model(samples, _arm_template(resolution, side), regularization)
     save_arm_model(out, model)
-    typer.echo(f"wrote {out}: {len(model.subjects)} subjects, {len(samples)} meshes, template {model.template_key}")
+    typer.echo(f"wrote {out}: {len(model.subjects)} subjects ({subjects} men, {women} women), {len(samples)} meshes, "
+               f"template {model.template_key}")
 
 
 @model_app.command("extend")

@@ -76,7 +76,8 @@ JOINT_RESIDUAL_WARN_MM = 45.0
 #: are not. A shape the user gives (--shape, measured) is flagged as soon as it leaves the range.
 SHAPE_OUTSIDE_WARN = 0.10
 #: The subject's sex (given with --shape: 1 male, 0 female) this far from every training subject's: the model
-#: describes the other sex's arm (its female column is zero until women are added: ``muscle model extend``). The
+#: describes the other sex's arm (its female column is zero unless women are in it: ``muscle model build --women K``,
+#: ``muscle model extend``). The
 #: benchmark's all-male model on 200 frames (docs/muscle.md, "Capture, seventeenth pass"): the men 501-517 (sex
 #: 0.89-1.0) 1.65-2.85 mm median, the women 516 / 518 / 512 (sex 0.07 / 0.08 / 0.01) 6.8 / 7.1 / 8.5 mm (p90 15.7 /
 #: 17.8 / 20.3).
@@ -414,19 +415,29 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
             given, trained, missing = ("female", "men", "women") if sex["value"] < 0.5 else ("male", "women", "men")
             lo, hi = sex["range"]
             span = f"{lo:.2g}" if lo == hi else f"{lo:.2g}-{hi:.2g}"
+            fix = "build a model that knows women (muscle model build --women 5) and capture again" \
+                if missing == "women" else "capture with a model that knows men (muscle model build)"
             warnings.append(f"the subject is {given} (sex {sex['value']:.2g}) and the model was trained on {trained} "
                             f"only (sex {span}): its rest arm, joints and muscle "
                             f"shapes are a {trained[:-2]}an's, and such captures were measured 3-4x less accurate "
-                            f"(7 mm median against 2 mm); extend the model with {missing} (muscle model extend) "
-                            "before relying on this capture")
+                            f"(7 mm median against 2 mm); {fix} before relying on this capture")
         elif sex and not figures.get("shape_given") and sex["range"][0] == sex["range"][1]:
             # nothing in the depth tells a woman's capture from a man's (docs/muscle.md, seventeenth pass): with
             # no sex given, the capture assumes the only one the model knows, and says so
             trained, other = ("men", "woman") if sex["range"][0] >= 0.5 else ("women", "man")
             warnings.append(f"the subject's sex was not given (--shape): assumed like every training subject of the "
                             f"model ({trained} only); a {other}'s capture with this model was measured 3-4x less "
-                            f"accurate (7 mm median against 2 mm); give --shape with the subject's sex, or extend "
-                            f"the model with {other.replace('an', 'en')} (muscle model extend)")
+                            f"accurate (7 mm median against 2 mm); give --shape with the subject's sex, and for a "
+                            f"{other} a model that knows {other.replace('an', 'en')} ("
+                            + ("muscle model build --women 5)" if other == "woman" else "muscle model build)"))
+        elif sex and not figures.get("shape_given"):
+            # a model of both sexes (muscle model build --women K) gives a woman's arm only when told: the capture
+            # fits no sex (docs/muscle.md, "Women in the capture": 516 without --shape 7.38 mm, with sex=female 2.83)
+            taken = "male" if sex["value"] >= 0.5 else "female"
+            warnings.append(f"the subject's sex was not given (--shape): taken as {taken} (sex {sex['value']:.2g}); "
+                            f"the model knows both sexes but gives a woman's arm only when told, and a woman captured "
+                            f"so was measured 2.6x less accurate (7.4 mm median against 2.8 with sex=female); give "
+                            f"--shape with the subject's sex")
     return {"thresholds": {"depth_ratio_range": list(DEPTH_RATIO_RANGE), "side_nearer_m": SIDE_NEARER_M,
                            "far_m": far_m, "sampling_warn_mm": SAMPLING_WARN_MM,
                            "residual_refuse_mm": RESIDUAL_REFUSE_MM, "points_explained_refuse": POINTS_EXPLAINED_REFUSE,

@@ -506,6 +506,13 @@ __all__ = [
 # --- the "previous high-fidelity dataset" ------------------------------------------------------------------
 
 TRAINING_BMI_RANGE = (20.0, 28.0)
+# The training women's BMI (``training_dataset(n_women=K)``): the population's women (``body.population``), 5-95 % of
+# 143 of them measured as the subjects are (17.6-23.2; its men 19.7-24.4), rounded out to half units. The paper's
+# dataset has no women; this is a range a user's model should know (docs/muscle.md, "Women in the capture").
+TRAINING_BMI_RANGE_WOMEN = (17.5, 23.5)
+# First seed of the training women (``WOMEN_SEED_BASE + 17 * seed + i``): their own seeds, apart from the men's
+# 1000-1099 and the held-out subjects' 5xx-7xx.
+WOMEN_SEED_BASE = 3000
 
 
 def random_arm_poses(template: ArmTemplate, n_poses: int, seed: int, pronation: bool = True) -> list[ArmPose]:
@@ -542,13 +549,24 @@ def subject_arm_samples(subject: ArmSubject, resolution: str = "6k", n_shapes: i
 
 
 def training_dataset(resolution: str = "6k", n_subjects: int = 10, n_shapes: int = 3, n_poses: int = 24,
-                     seed: int = 0, side: str = "left") -> tuple[list, list[ArmSubject]]:
+                     seed: int = 0, side: str = "left", n_women: int = 0) -> tuple[list, list[ArmSubject]]:
     """The paper's "previous high-fidelity dataset" as ground-truth meshes (§6.1, issue 11 §1).
 
-    ``n_subjects`` men with BMI in 20-28 (seeds 1000 + i), each with ``n_shapes`` base-pose meshes and
-    ``n_poses`` posed meshes. Returns (samples, subjects).
+    ``n_subjects`` men with BMI in 20-28 (seeds 1000 + 17 seed + i), each with ``n_shapes`` base-pose meshes and
+    ``n_poses`` posed meshes; then ``n_women`` women drawn the same way from their own seeds
+    (``WOMEN_SEED_BASE + 17 seed + i``) with the population's women's BMI (:data:`TRAINING_BMI_RANGE_WOMEN`). The
+    paper's set is men only (``n_women=0``, the default): the model's sex column (Eq. 6's ``1 - sex``) stays zero and
+    a woman's capture gets a man's arm (docs/muscle.md, "Capture, seventeenth pass"). The men are the same whatever
+    ``n_women`` is. Returns (samples, subjects).
     """
+    if int(n_subjects) < 0 or int(n_women) < 0:
+        raise InputError(f"training_dataset: n_subjects={n_subjects} and n_women={n_women} must be >= 0")
+    if int(n_subjects) + int(n_women) < 2:
+        raise InputError(f"training_dataset: {n_subjects} men and {n_women} women; the arm model needs at least "
+                         "two training subjects")
     subjects = [sample_arm_subject(1000 + 17 * seed + i, gender="male", bmi_range=TRAINING_BMI_RANGE)
                 for i in range(n_subjects)]
+    subjects += [sample_arm_subject(WOMEN_SEED_BASE + 17 * seed + i, gender="female",
+                                    bmi_range=TRAINING_BMI_RANGE_WOMEN) for i in range(n_women)]
     samples = [s for subj in subjects for s in subject_arm_samples(subj, resolution, n_shapes, n_poses, seed, side)]
     return samples, subjects

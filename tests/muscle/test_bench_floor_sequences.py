@@ -85,3 +85,29 @@ def test_muscle_rest_ceiling_refuses_a_bad_session_in_one_line(tmp_path, capsys)
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert "SUBJECT:NOISE_SEED" in err[-1] and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("flag, known, suffix", [([], "measured", ""), (["--no-shape"], None, "_noshape")])
+def test_muscle_sequences_no_shape_fits_the_shape(flag, known, suffix, tmp_path, monkeypatch, capsys):
+    """``--no-shape``: the capture gets no measured shape (``muscle capture`` without ``--shape``: the sex taken as
+    male), under its own file name, so both runs of one session sit side by side (docs/muscle.md, "Women in the
+    capture"); the capture and its model stubbed."""
+    import json
+
+    import benchmarks.bench_muscle as bm
+    import benchmarks.muscle_energy as energy
+    import benchmarks.muscle_sequences as seq
+
+    given = []
+    monkeypatch.setattr(bm, "_template", lambda: None)
+    monkeypatch.setattr(bm, "truth_template", lambda subject: None)
+    monkeypatch.setattr(bm, "shape_of", lambda subject: "measured")
+    monkeypatch.setattr(energy, "work_model", lambda work, template: None)
+    monkeypatch.setattr(seq, "session_of", lambda work, s, n, f, fps=30.0: ("subject", "session"))
+    monkeypatch.setattr(bm, "capture_and_score", lambda *a, known_shape: given.append(known_shape) or (
+        None, {k: 1.0 for k in seq.KEYS}))
+    seq.main(["--work", str(tmp_path), "--session", "516:0", "--frames", "2", "--variant", "default", *flag])
+    assert given == [known]
+    row = json.loads((tmp_path / f"seq_516_s0_2_default{suffix}.json").read_text())
+    assert row["variant"] == "default" + (" (no --shape)" if flag else "")
+    assert ("(no --shape)" in capsys.readouterr().out) == bool(flag)

@@ -75,10 +75,10 @@ def test_capture_glb_plays_the_captured_meshes(nicp_capture):
 
 @pytest.mark.slow
 def test_model_build_capture_extend_info(arm_session, tmp_path, capsys):
-    """The whole chain on a small model (2 training subjects): each command's output feeds the next."""
+    """The whole chain on a small model (2 training men, 1 woman): each command's output feeds the next."""
     model, cap, ext = tmp_path / "m.npz", tmp_path / "cap", tmp_path / "m2.npz"
     assert main(["muscle", "model", "build", "--out", str(model), "--resolution", "2k", "--subjects", "2",
-                 "--shapes", "1", "--poses", "3"]) == 0
+                 "--women", "1", "--shapes", "1", "--poses", "3"]) == 0
     from bodystudio.capture.session import open_session
 
     truth = open_session(arm_session).gt_subject["arm"]["subject"]
@@ -96,7 +96,7 @@ def test_model_build_capture_extend_info(arm_session, tmp_path, capsys):
     assert f"{cap}: shape from the measured subject of" in capsys.readouterr().err  # says where the shape came from
     assert main(["muscle", "model", "info", str(ext)]) == 0
     info = json.loads(capsys.readouterr().out)
-    assert info["n_subjects"] == 3 and info["subjects"][-1]["name"] == "capture_cap"
+    assert info["n_subjects"] == 4 and info["subjects"][-1]["name"] == "capture_cap"
     assert info["subjects"][-1]["n_meshes"] == 2 and info["subjects"][-1]["source"] == "capture"
     # the captured subject's shape is the session's measured one, not the fit
     assert info["subjects"][-1]["shape"]["bmi"] == pytest.approx(truth["bmi"])

@@ -65,7 +65,7 @@ def test_clean_session_passes_its_self_check(sessions, arm_model, tmp_path, capf
     assert len(verdict["warnings"]) == 1, verdict
     assert verdict["warnings"][0].startswith("the subject's sex was not given (--shape): assumed like every training "
                                              "subject of the model (men only)"), verdict
-    assert "extend the model with women (muscle model extend)" in verdict["warnings"][0]
+    assert "for a woman a model that knows women (muscle model build --women 5)" in verdict["warnings"][0]
     figures = verdict["figures"]
     assert 0.9 < figures["depth_to_tracker_ratio"] < 1.0
     assert figures["arm_distance_m"]["right"] - figures["arm_distance_m"]["left"] > 0.2
@@ -150,17 +150,17 @@ def test_verdict_on_recorded_figures():
 
 
 def test_a_woman_captured_with_a_model_of_men_is_written_with_a_warning(sessions, arm_model, tmp_path, capfd):
-    """--shape sex=female with a model trained on men only (every ``muscle model build`` model): the capture used
-    to exit 0 without a word, while the benchmark's all-male model captures women 3-4x worse (516 / 518: 6.8 / 7.1
-    mm median against 1.65-2.85 for the men 501-514). It is written, with one warning naming the cause and the fix,
-    and the sex against the training subjects' in plausibility.json."""
+    """--shape sex=female with a model trained on men only (``muscle model build --women 0``, the benchmark's): the
+    capture used to exit 0 without a word, while the benchmark's all-male model captures women 3-4x worse (516 / 518:
+    6.8 / 7.1 mm median against 1.65-2.85 for the men 501-514). It is written, with one warning naming the cause and
+    the fix, and the sex against the training subjects' in plausibility.json."""
     out = tmp_path / "cap"
     shape = "bmi=23,muscularity=0.6,height_m=1.71,arm_length_m=0.48,sex=female"
     result = run_inprocess(["muscle", "capture", sessions["clean"], "--out", out, "--model", arm_model, "--frames", "2",
                             "--no-refine", "--shape", shape], capfd)
     assert_clean_error(result, 0, "")
     assert "the subject is female" in result.stderr and "trained on men only" in result.stderr, result.stderr
-    assert "muscle model extend" in result.stderr
+    assert "muscle model build --women 5" in result.stderr
     verdict = json.loads((out / "plausibility.json").read_text())
     assert verdict["ok"] and len(verdict["warnings"]) == 1, verdict["warnings"]
     sex = verdict["figures"]["shape"]["sex"]
@@ -180,17 +180,21 @@ def test_sex_verdict_on_recorded_figures():
     assert verdict(0.891)["warnings"] == [] and verdict(0.92)["warnings"] == []
     for value in (0.074, 0.085):
         warnings = verdict(value)["warnings"]
-        assert len(warnings) == 1 and f"female (sex {value:.2g})" in warnings[0] and "extend the model with women" \
-            in warnings[0], warnings
+        assert len(warnings) == 1 and f"female (sex {value:.2g})" in warnings[0] and "build a model that knows " \
+            "women (muscle model build --women 5)" in warnings[0], warnings
     assert verdict(0.074, lo=0.0)["warnings"] == []
-    # no sex given (the fitted shape's is the model's): said when the model knows one sex only, never twice
+    # no sex given (the fitted shape's is the model's male): said once, with the fix for a model of one sex
     fitted = {"shape": {"sex": {"value": 1.0, "range": [1.0, 1.0], "outside": 0.0}}, "shape_given": False}
     warnings = capture_verdict(fitted, "left")["warnings"]
-    assert len(warnings) == 1 and "sex was not given" in warnings[0] and "with women" in warnings[0], warnings
+    assert len(warnings) == 1 and "sex was not given" in warnings[0] and "knows women" in warnings[0], warnings
     women = {"shape": {"sex": {"value": 0.0, "range": [0.0, 0.0], "outside": 0.0}}, "shape_given": False}
     assert "(women only)" in capture_verdict(women, "left")["warnings"][0]
+    # a model of both sexes (muscle model build --women K) knows a woman's arm, but only when told the sex
     both = {"shape": {"sex": {"value": 1.0, "range": [0.0, 1.0], "outside": 0.0}}, "shape_given": False}
-    assert capture_verdict(both, "left")["warnings"] == []
+    warnings = capture_verdict(both, "left")["warnings"]
+    assert len(warnings) == 1 and warnings[0].startswith("the subject's sex was not given (--shape): taken as male "
+                                                         "(sex 1); the model knows both sexes"), warnings
+    assert capture_verdict({**both, "shape_given": True}, "left")["warnings"] == []
     assert capture_verdict({**fitted, "shape_given": True}, "left")["warnings"] == []
 
 
