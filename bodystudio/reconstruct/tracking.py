@@ -108,8 +108,10 @@ class TrackParams:
     (:attr:`bodystudio.reconstruct.articulated_fit.PoseRefineParams.compiled_rotations`; rec15j).
     ``limbs_far_mm``: the ``limbs_far`` check's distance (mm) between a limb joint of the tracking fit's pose and the
     frame's tracker joint (0: off). A per-frame fit's limb joints lie <= 57 mm from the tracker's on every measured
-    session (the tracker's noise and the template's joint placement, which the refinement corrects); a lost limb
-    176-321 mm (rec15r; docs/reconstruct.md).
+    session, and the tracked frames of the eight 640x480 sessions <= 58 mm (the tracker's noise and the template's
+    joint placement, which the refinement corrects); tracked frames on 4-6 small views at 65-321 mm fitted p90
+    12-97 mm where their re-initialisation fits 8-14 mm. 80 mm: 1.4x the largest good frame, below the 88 mm frame
+    that fitted p90 19.9 mm against 10.4 re-initialised (rec15r; docs/reconstruct.md).
     """
 
     joint_jump_m: float = 0.25
@@ -136,7 +138,7 @@ class TrackParams:
     matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True, gate="reuse")
     exact_fields: bool = False
     compiled_rotations: bool = False
-    limbs_far_mm: float = 100.0
+    limbs_far_mm: float = 80.0
 
     def __post_init__(self):
         for name, value, lo, hi in (("joint_jump_m", self.joint_jump_m, 1e-3, 10.0),

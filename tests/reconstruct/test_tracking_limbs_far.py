@@ -47,7 +47,7 @@ def test_the_frame_whose_limb_left_the_joint_is_reinitialised(monkeypatch, tmp_p
     expected[mut.FRAMES.index(FAR_FRAME)] = "limbs_far"
     assert [f["track"] for f in frames] == expected
     assert summary["n_tracked"] == 2
-    assert meta["track_params"]["limbs_far_mm"] == 100.0
+    assert meta["track_params"]["limbs_far_mm"] == 80.0
     limb_mm = {f["frame"]: f["track_check"].get("limb_joint_mm") for f in frames}
     # only the tracking fit's pose is compared (the frames the check kept or re-initialised after the fit)
     assert limb_mm[FAR_FRAME] == pytest.approx(300.0, abs=1e-6)
@@ -75,8 +75,8 @@ def test_off_or_within_the_distance_the_frame_stays_tracked(monkeypatch, tmp_pat
 
 def test_the_rule_and_its_range():
     p = TrackParams()
-    assert p.limbs_far_mm == 100.0
-    assert limbs_far(100.001, p) and not limbs_far(100.0, p) and not limbs_far(None, p)
+    assert p.limbs_far_mm == 80.0
+    assert limbs_far(80.001, p) and not limbs_far(80.0, p) and not limbs_far(None, p)
     assert not limbs_far(1e6, TrackParams(limbs_far_mm=0.0))
     for bad in (-1.0, np.nan, np.inf, 1e5):
         with pytest.raises(InputError, match=r"^tracking limbs_far_mm \S+ is out of range; use a value in \[0, "):
