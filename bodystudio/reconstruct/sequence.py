@@ -81,6 +81,7 @@ from bodystudio.reconstruct.tracking import (
     TrackParams,
     carry_deformed_mesh,
     energy_jumped,
+    limbs_far,
     lost_track_reason,
     outside_fraction,
     silhouette_data_term,
@@ -427,7 +428,7 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
     silhouettes (:mod:`bodystudio.reconstruct.tracking`); the joints' initialisation and the hull fit
     run at the first frame and when the lost-track check fires. frames.json records per frame
     ``track`` (``tracked``, or why it was initialised: first, joint_jump, silhouette, energy_jump,
-    per_frame) and the whole-frame time by step. With ``rest_cotangents`` (default) the cotangent
+    limbs_far, per_frame) and the whole-frame time by step. With ``rest_cotangents`` (default) the cotangent
     weights of Eq. 8 come from the template's rest shape, computed once per run, and only the delta
     coordinates are taken of each frame's posed template: measured equal in accuracy to weights of the
     posed template (p90 within +-0.3 mm on 3 frames of a 13K walk), ~15 ms per 13K frame saved.
@@ -598,10 +599,17 @@ def reconstruct_frames(session, writer: RunWriter, selected, cameras, sensor, pa
                     T_joints = (initialise_pose(fit_body, J).bone_transforms
                                 if J is not None and track_params.joint_weight > 0 else None)
                     T = track_bone_transforms(fit_body, state["T"], fields, track_params, T_joints)
-                    energy = outside_fraction(pose_template(fit_body, T).vertices, fields, track_params.outside_px)
+                    fitted = pose_template(fit_body, T)
+                    energy = outside_fraction(fitted.vertices, fields, track_params.outside_px)
                     detail["energy"] = energy
+                    # rec15r: a limb lost inside the visual hull of few or small views leaves the tracker's joint
+                    residual = tracker_joint_residual(fitted.joints, J)
+                    if residual is not None:
+                        detail["limb_joint_mm"] = residual["max_mm"]
                     if energy_jumped(energy, state["energy"], track_params):
                         track = "energy_jump"
+                    elif limbs_far(residual and residual["max_mm"], track_params):
+                        track = "limbs_far"
                     else:
                         fit_T = T  # the posing below places the neck (one LBS of the 13K template a frame)
                         init = pose_template(body, placed_neck(T, J), state["scale"], rest_vertices=rest)

@@ -27,7 +27,10 @@ The lost-track check (:func:`lost_track_reason`), in this order, re-initialises 
 - ``silhouette``: the prior pose (the previous frame's) has more than ``prior_outside_max`` of the fit
   template's vertices projecting outside a silhouette: the person is no longer where the track is;
 - ``energy_jump``: after the tracking fit, the outside share (the silhouette energy) is above
-  ``energy_abs`` and ``energy_ratio`` times the previous frame's: the fit did not follow.
+  ``energy_abs`` and ``energy_ratio`` times the previous frame's: the fit did not follow;
+- ``limbs_far``: after the tracking fit, a limb joint of the fitted pose (elbows, wrists, knees, ankles) lies
+  more than ``limbs_far_mm`` from the frame's tracker joint: the limb was lost inside the visual hull of few or
+  small views, where the silhouettes cannot hold it (rec15r; docs/reconstruct.md).
 """
 
 from __future__ import annotations
@@ -52,7 +55,7 @@ from bodystudio.reconstruct.pose_init import TORSO_JOINTS
 from bodystudio.reconstruct.silhouette import MatchSchedule
 
 #: Why a frame was (re-)initialised instead of tracked; ``tracked`` when it was not.
-TRACK_REASONS = ("first", "joint_jump", "silhouette", "energy_jump", "tracked", "per_frame")
+TRACK_REASONS = ("first", "joint_jump", "silhouette", "energy_jump", "limbs_far", "tracked", "per_frame")
 
 
 @dataclass(frozen=True)
@@ -103,6 +106,12 @@ class TrackParams:
     (its Hausdorff goal), medians and p90s lower on the four tuning sessions, ~+14 ms on those frames only.
     ``compiled_rotations``: the tracking fit's rotation bookkeeping compiled
     (:attr:`bodystudio.reconstruct.articulated_fit.PoseRefineParams.compiled_rotations`; rec15j).
+    ``limbs_far_mm``: the ``limbs_far`` check's distance (mm) between a limb joint of the tracking fit's pose and the
+    frame's tracker joint (0: off). A per-frame fit's limb joints lie <= 57 mm from the tracker's on every measured
+    session, and the tracked frames of the eight 640x480 sessions <= 58 mm (the tracker's noise and the template's
+    joint placement, which the refinement corrects); tracked frames on 4-6 small views at 65-321 mm fitted p90
+    12-97 mm where their re-initialisation fits 8-14 mm. 80 mm: 1.4x the largest good frame, below the 88 mm frame
+    that fitted p90 19.9 mm against 10.4 re-initialised (rec15r; docs/reconstruct.md).
     """
 
     joint_jump_m: float = 0.25
@@ -129,6 +138,7 @@ class TrackParams:
     matching: MatchSchedule = MatchSchedule(cheap_iterations=1, keep_outline=True, gate="reuse")
     exact_fields: bool = False
     compiled_rotations: bool = False
+    limbs_far_mm: float = 80.0
 
     def __post_init__(self):
         for name, value, lo, hi in (("joint_jump_m", self.joint_jump_m, 1e-3, 10.0),
@@ -150,7 +160,8 @@ class TrackParams:
                                     ("prior_weight", self.prior_weight, 0.0, 1e6),
                                     ("joint_weight", self.joint_weight, 0.0, 1e9),
                                     ("inner_iterations", self.inner_iterations, 0, 1000),
-                                    ("initial_inner_iterations", self.initial_inner_iterations, 0, 1000)):
+                                    ("initial_inner_iterations", self.initial_inner_iterations, 0, 1000),
+                                    ("limbs_far_mm", self.limbs_far_mm, 0.0, 10000.0)):
             if not np.isfinite(value) or not lo <= value <= hi:
                 raise InputError(f"tracking {name} {value:g} is out of range; use a value in [{lo:g}, {hi:g}]")
 
@@ -811,6 +822,13 @@ def lost_track_reason(first: bool, joint_jump_m: float, prior_outside: float,
     if prior_outside > params.prior_outside_max:
         return "silhouette"
     return None
+
+
+def limbs_far(limb_joint_mm: float | None, params: TrackParams) -> bool:
+    """The tracking fit's pose put a limb joint ``limb_joint_mm`` (the largest over the limb joints tracked in
+    the frame, :func:`bodystudio.reconstruct.plausibility.tracker_joint_residual`; None: none tracked) further than
+    ``limbs_far_mm`` from the frame's tracker joint (``limbs_far``; 0: off)."""
+    return bool(params.limbs_far_mm > 0 and limb_joint_mm is not None and limb_joint_mm > params.limbs_far_mm)
 
 
 def energy_jumped(energy: float, previous_energy: float | None, params: TrackParams) -> bool:

@@ -6,7 +6,11 @@ stays >= 0.86 and the depth agrees, so the run ended with exit 0 and a passing s
 joints then lie 315-321 mm from the tracker's joints of the same frame (good runs, per frame, tracked and
 accurate, 10 cameras at 640x480: <= 58 mm): the self-check now refuses a run whose tracked frames are that far
 (:data:`bodystudio.reconstruct.plausibility.TRACKER_JOINT_FAR_MM`), naming the cause and the fix, and writes
-nothing; the same session reconstructed per frame passes unwarned."""
+nothing; the same session reconstructed per frame passes unwarned.
+
+rec15r: the tracker now re-initialises such a frame from its joints (``limbs_far``: a limb joint of the tracking
+fit's pose over ``TrackParams.limbs_far_mm`` = 80 mm from the tracker's), so ``--tracking`` on this session fits
+every frame well and passes; the refusal stays for a run whose check is off (or a drift under 80 mm per frame)."""
 
 from __future__ import annotations
 
@@ -30,13 +34,39 @@ def tiny(tmp_path_factory):
     return path
 
 
-def test_tracking_that_lost_the_limbs_is_refused(tiny, tmp_path, capfd):
+def test_tracking_that_lost_the_limbs_is_refused(tiny, tmp_path):
+    """With the lost-track check's ``limbs_far`` off the tracked frames keep the lost arms (315-321 mm, p90 78-84
+    mm): the self-check refuses the run and writes nothing."""
+    from bodystudio.errors import ImplausibleResultError
+    from bodystudio.reconstruct.sequence import reconstruct_session
+    from bodystudio.reconstruct.tracking import TrackParams
+
+    S = tmp_path / "S"
+    shutil.copytree(tiny, S)
+    with pytest.raises(ImplausibleResultError, match="the tracking lost the limbs: 2 of 2 tracked frames") as err:
+        reconstruct_session(S, template="2k", constraints=("silhouette", "depth"), tracking=True,
+                            track_params=TrackParams(limbs_far_mm=0.0))
+    assert "reconstruct without --tracking" in str(err.value) and "kinect/joints" in str(err.value)
+    assert not (S / "reconstruct" / "run.json").exists() and not (S / "reconstruct" / "meshes").exists()
+
+
+def test_tracking_reinitialises_the_frame_whose_limbs_left_the_joints(tiny, tmp_path, capfd):
+    """rec15r: frame 1's tracking fit puts WristRight 315 mm from the tracker's: the frame is re-initialised from
+    its joints (``limbs_far``), frame 2 tracks from there (48 mm); run p90 60.7 -> 13.6 mm, Hausdorff 209 -> 98 mm,
+    refused -> passes. Fails with the check dropped (the run is refused)."""
     S = tmp_path / "S"
     shutil.copytree(tiny, S)
     result = run_inprocess(["reconstruct", S, *RUN, "--tracking"], capfd)
-    assert_clean_error(result, 2, "the tracking lost the limbs: 2 of 2 tracked frames")
-    assert "reconstruct without --tracking" in result.stderr and "kinect/joints" in result.stderr
-    assert not (S / "reconstruct" / "run.json").exists() and not (S / "reconstruct" / "meshes").exists()
+    assert_clean_error(result, 0, "")
+    run = json.loads((S / "reconstruct" / "run.json").read_text())
+    assert run["track_params"]["limbs_far_mm"] == 80.0
+    assert run["plausibility"]["ok"] and run["plausibility"]["warnings"] == []
+    frames = json.loads((S / "reconstruct" / "frames.json").read_text())["frames"]
+    assert [f["track"] for f in frames] == ["first", "limbs_far", "tracked"]
+    assert frames[1]["track_check"]["limb_joint_mm"] > 250.0
+    assert frames[2]["track_check"]["limb_joint_mm"] < 80.0
+    assert max(f["plausibility"]["tracker_joint_residual"]["max_mm"] for f in frames) < 80.0
+    assert max(f["metrics"]["p90_mm"] for f in frames) <= 16.0
 
 
 def test_the_same_session_per_frame_passes_unwarned(tiny, tmp_path, capfd):
