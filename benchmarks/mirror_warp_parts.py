@@ -33,11 +33,27 @@ def group_of(bone: str) -> str:
     return f"other:{bone}"
 
 
+def nearest_part_image(vertices: np.ndarray, faces: np.ndarray, camera, part: np.ndarray, names) -> tuple:
+    """The body rendered in ``camera`` and, for every pixel, the index in ``names`` of the part (``part``: a group
+    name per vertex) of the nearest rendered pixel (the first vertex of the triangle there): (render result, (h, w)
+    int image)."""
+    import cv2
+
+    from bodystudio.capture.render import render
+
+    r = render(vertices, faces, camera)
+    part_px = np.full(r.mask.shape, -1, np.int64)
+    part_px[r.mask] = np.searchsorted(names, part[faces[r.triangle_id[r.mask], 0]])
+    _, label = cv2.distanceTransformWithLabels((~r.mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
+                                               labelType=cv2.DIST_LABEL_PIXEL)
+    rows, cols = np.nonzero(r.mask)
+    return r, part_px[rows[label - 1], cols[label - 1]]
+
+
 def parts_of_the_loss(session_path, first_frame: int = 0) -> dict:
     """Missed / extra pixels per body part over the scored frames (see the module docstring)."""
     import cv2
 
-    from bodystudio.capture.render import render
     from bodystudio.capture.session import open_session
     from bodystudio.mirror.evaluate import mask_iou
     from bodystudio.mirror.run import load_source
@@ -64,13 +80,8 @@ def parts_of_the_loss(session_path, first_frame: int = 0) -> dict:
             continue
         target = frame.gt_target_person == 1
         warped = cv2.imread(str(run_dir / "masks" / "warped" / f"{i:05d}.png"), cv2.IMREAD_GRAYSCALE) > 127
-        r = render(np.asarray(gt["target_vertices"][k], float), faces, session.kinect.color)
-        part_px = np.full(r.mask.shape, -1, np.int64)
-        part_px[r.mask] = np.searchsorted(names, part[faces[r.triangle_id[r.mask], 0]])
-        _, label = cv2.distanceTransformWithLabels((~r.mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
-                                                   labelType=cv2.DIST_LABEL_PIXEL)
-        rows, cols = np.nonzero(r.mask)
-        nearest = part_px[rows[label - 1], cols[label - 1]]
+        r, nearest = nearest_part_image(np.asarray(gt["target_vertices"][k], float), faces, session.kinect.color,
+                                        part, names)
         missed, added = target & ~warped, warped & ~target
         for g, name in enumerate(names):
             miss[name] += int(np.count_nonzero(missed & (nearest == g)))

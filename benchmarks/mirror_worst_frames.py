@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.mirror_warp_parts import group_of
+from benchmarks.mirror_warp_parts import group_of, nearest_part_image
 
 
 def root_yaw_deg(world_root: np.ndarray, camera_R: np.ndarray) -> float:
@@ -37,7 +37,6 @@ def frame_losses(session_path, run_dir, player: int | None = None):
 
     from benchmarks.mirror_pose_oracle import world_rotations
     from bodystudio.body.pose import Pose
-    from bodystudio.capture.render import render
     from bodystudio.capture.session import open_session
     from bodystudio.mirror.evaluate import mask_iou
     from bodystudio.mirror.run import load_source
@@ -71,13 +70,8 @@ def frame_losses(session_path, run_dir, player: int | None = None):
             near &= (frame.gt_person == 0) | source
             near &= (frame.gt_target_person == 0) | target
             warped, fg = warped & near, fg & near
-        r = render(np.asarray(gt["target_vertices"][k], float), faces, session.kinect.color)
-        part_px = np.full(r.mask.shape, -1, np.int64)
-        part_px[r.mask] = np.searchsorted(names, part[faces[r.triangle_id[r.mask], 0]])
-        _, label = cv2.distanceTransformWithLabels((~r.mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
-                                                   labelType=cv2.DIST_LABEL_PIXEL)
-        rr, cc = np.nonzero(r.mask)
-        nearest = part_px[rr[label - 1], cc[label - 1]]
+        _, nearest = nearest_part_image(np.asarray(gt["target_vertices"][k], float), faces, session.kinect.color,
+                                        part, names)
         missed, added = target & ~warped, warped & ~target
         ys, xs = np.nonzero(target)
         rows.append({
