@@ -91,8 +91,10 @@ REFINE_DEPTH_SAMPLES_ONE_PLAYER = 2000
 #: foreground before the warp (:func:`bodystudio.mirror.image_plane.register_to_outline`: per-bone 2D translations
 #: from the source outline's offsets; the bodies' pairs are made again); several players never. MIR12p: end to end
 #: 42 / 41 / 43 warp_iou +0.0010 / +0.0009 / +0.0006, held out 45 / 46 / 47 / 48 +0.0005 / +0.0007 / -0.0001 /
-#: +0.0004 for a second pairing a frame: off (docs/mirror.md).
-REGISTER_OUTLINE_ONE_PLAYER = False
+#: +0.0004 for a second pairing a frame: off then. mir12u, on the 14 sessions re-made with the fixed renderer and
+#: this stop's defaults: +0.0003 to +0.0012 on every one (42 0.9492 -> 0.9501), for +4.8 ms a frame (the pairs step
+#: 2.8 -> 7.7 ms on 42, quiet machine, BLAS held to one thread): on (docs/mirror.md).
+REGISTER_OUTLINE_ONE_PLAYER = True
 #: Trunk bones whose E_trunk centre follows the run's own running mean of their bend (the subject's static posture,
 #: :func:`bodystudio.mirror.refine.updated_posture`, over POSTURE_WINDOW frames) instead of the rest pose; () holds
 #: them at the rest pose. MIR12q: displacement error 42 / 41 / 43 / 52 / 53 3.30 / 2.87 / 2.70 / 5.68 / 2.87 ->

@@ -155,9 +155,17 @@ def test_the_run_registers_one_players_bodies_and_pairs_them_again(monkeypatch, 
     else:  # the player's foreground, then the registered bodies paired
         assert calls == [(1.0, "w1", "parents1", int(fg.sum()), "mask", "depth", (1, 2))]
         assert rec["pairs"] == [("one", 1.0), ("one", 101.0)]
-    monkeypatch.setattr(run_mod, "REGISTER_OUTLINE_ONE_PLAYER", False)  # the default (MIR12p)
+    monkeypatch.setattr(run_mod, "REGISTER_OUTLINE_ONE_PLAYER", False)  # the option off
     calls.clear()
     rec["pairs"].clear()
     for o in run_mod.session_inputs(session, bodies, model, {"taller": 1.0}, players, 2, [1], refine=True):
         o.late_pairs(fg, {})
     assert calls == [] and rec["pairs"] == [("one", 1.0)]
+
+
+def test_the_registration_is_on_by_default():
+    """mir12u: the outline registration gains on every one of the 14 re-made sessions: a run reshaping one player
+    registers its bodies unless REGISTER_OUTLINE_ONE_PLAYER is switched off."""
+    from bodystudio.mirror import run as run_mod
+
+    assert run_mod.REGISTER_OUTLINE_ONE_PLAYER is True
