@@ -53,7 +53,7 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
     """Per-step (CPU ms, wall ms) of the image steps on one :class:`ImageCase`, and of the alternatives."""
     from bodystudio.mirror.compose import compose, update_background
     from bodystudio.mirror.foreground import refine_foreground
-    from bodystudio.mirror.run import frame_pairs
+    from bodystudio.mirror.run import REGISTER_OUTLINE_ONE_PLAYER, frame_pairs, registered_pairs
     from bodystudio.mirror.warp import mls_warp_field, warp_foreground
 
     dense = CORRESPONDENCE == "dense"
@@ -71,9 +71,19 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
                           0).astype(np.uint8)
     fg = refine_foreground(case.rgb, case.player_mask, background=background, labels=labels)
 
-    def pairs(dense=dense):
-        # the run's call (run.frame_pairs): one actor's pairs, or all actors' in one call (one z-buffer per body)
-        return frame_pairs(sources, targets, F1, case.camera, "dense" if dense else "mls")
+    register = n_actors == 1 and dense and REGISTER_OUTLINE_ONE_PLAYER
+    if register:  # the run's registration of one player's bodies to the refined outline (MIR12p), in the step
+        from bodystudio.body.statistical import load_statistical_model
+
+        model = load_statistical_model("2k", progress=False)
+
+    def pairs(dense=dense, register=register):
+        # the run's call (run.frame_pairs): one actor's pairs, or all actors' in one call (one z-buffer per body);
+        # one player's registered to the graph cut's outline and paired again (run.registered_pairs)
+        p = frame_pairs(sources, targets, F1, case.camera, "dense" if dense else "mls")
+        if register:
+            p = registered_pairs(p, sources[0], targets[0], F1, model.weights, model.parents, case.camera, fg)
+        return p
 
     def field_of(kind, radius_px=MLS_RADIUS_PX, dense=dense):
         # the run's call: with the refined foreground, whose extras beyond the fitted body the dense warp carries
@@ -85,7 +95,8 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
     name = "dense correspondence, 1 px outline band" if dense else "MLS similarity (handles within 32 px)"
     other = "MLS similarity (handles within 32 px)" if dense else "dense correspondence, 1 px outline band"
     out = {
-        f"pairs (visibility + projection, rim{', dense' if dense else ''})": _median_ms(pairs, repeats),
+        f"pairs (visibility + projection, rim{', dense' if dense else ''}; one player's registered to the outline "
+        "and paired again)": _median_ms(pairs, repeats),
         "foreground: graph cut (PyMaxflow)": _median_ms(
             lambda: refine_foreground(case.rgb, case.player_mask, background=background, labels=labels), repeats),
         f"warp field: {name}": _median_ms(field_of("similarity"), repeats),
@@ -94,7 +105,9 @@ def image_step_times(case, repeats: int = 7) -> tuple[dict, dict]:
         "background update": _median_ms(lambda: update_background(background, case.rgb, fg), repeats),
     }
     side = {
-        f"pairs{'' if dense else ', dense'}, not used": _median_ms(lambda: pairs(not dense), repeats),
+        f"pairs{'' if dense else ', dense'}, not used": _median_ms(lambda: pairs(not dense, False), repeats),
+        "pairs without the outline registration (`run.REGISTER_OUTLINE_ONE_PLAYER = False`), not used": _median_ms(
+            lambda: pairs(dense, False), repeats),
         f"warp field: {other}, not used": _median_ms(field_of("similarity", dense=not dense), repeats),
         "foreground: GrabCut (OpenCV), not used": _median_ms(
             lambda: refine_foreground(case.rgb, case.player_mask, method="grabcut"), max(3, repeats // 2)),

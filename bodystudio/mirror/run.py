@@ -499,6 +499,24 @@ def frame_pairs(sources, targets, faces, camera, correspondence: str = CORRESPON
     return actors_warp_pairs(sources, targets, faces, camera, N_HANDLES, rim_cos=RIM_COS, dense=dense, closed=True)
 
 
+def registered_pairs(pairs, Vs: np.ndarray, Vt: np.ndarray, faces, weights, parents, camera, foreground,
+                     correspondence: str = CORRESPONDENCE):
+    """One player's warp constraints after the bodies' registration to the refined ``foreground`` (MIR12p,
+    :data:`REGISTER_OUTLINE_ONE_PLAYER`): the posed source ``Vs`` and target ``Vt`` moved in the image plane by
+    :func:`bodystudio.mirror.image_plane.register_to_outline` and paired again (:func:`frame_pairs`); ``pairs``
+    (their first pairing, dense) unchanged where too few outline vertices register. The run and
+    ``benchmarks/bench_mirror.py`` both call this."""
+    from bodystudio.mirror.image_plane import register_to_outline
+
+    if pairs.dense is None:
+        return pairs
+    Vs2, Vt2, _ = register_to_outline(Vs, Vt, faces, weights, parents, camera, foreground, pairs.dense.source_mask,
+                                      pairs.dense.source_depth, pairs.dense.origin)
+    if Vs2 is Vs:  # too few outline vertices: the bodies as they are
+        return pairs
+    return frame_pairs([Vs2], [Vt2], faces, camera, correspondence)
+
+
 def player_masks(players_c: np.ndarray, players: tuple[int, ...], several: bool
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The colour-registered player mask ``players_c`` (uint8 ids) split into the reshaped players' pixels
@@ -566,7 +584,6 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     camera = sensor.color
     if refine:
         from bodystudio.mirror.frames import point_cloud
-        from bodystudio.mirror.image_plane import register_to_outline
         from bodystudio.mirror.refine import TWIST_BONES, refine_plan, refine_pose, updated_posture
 
         steps = refine_steps(len(actors))
@@ -687,11 +704,8 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
             pairs = frame_pairs(sources, targets, present[0][0].body.faces, camera, correspondence)
             if fgs and len(actors) == 1 and REGISTER_OUTLINE_ONE_PLAYER and pairs.dense is not None:
                 body = present[0][0].body
-                Vs, Vt, _ = register_to_outline(sources[0], targets[0], body.faces, body.weights,
-                                                body.skeleton.parents, camera, fgs[0], pairs.dense.source_mask,
-                                                pairs.dense.source_depth, pairs.dense.origin)
-                if Vs is not sources[0]:  # too few outline vertices: the bodies as they are
-                    pairs = frame_pairs([Vs], [Vt], body.faces, camera, correspondence)
+                pairs = registered_pairs(pairs, sources[0], targets[0], body.faces, body.weights,
+                                         body.skeleton.parents, camera, fgs[0], correspondence)
             timings["pairs"] = (time.perf_counter() - t_bodies) * 1e3
             cpu["pairs"] = (time.process_time() - c_bodies) * 1e3
             return pairs

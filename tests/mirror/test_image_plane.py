@@ -169,3 +169,30 @@ def test_the_registration_is_on_by_default():
     from bodystudio.mirror import run as run_mod
 
     assert run_mod.REGISTER_OUTLINE_ONE_PLAYER is True
+
+
+def test_registered_pairs_pairs_the_moved_bodies_again_or_keeps_the_first_pairing(body):
+    """``run.registered_pairs`` (the run's and bench_mirror's one call): the bodies moved onto the outline and paired
+    again; the first pairing itself where too few outline vertices register or there is no dense correspondence."""
+    from types import SimpleNamespace
+
+    from bodystudio.mirror.run import registered_pairs
+
+    cam = _camera()
+    V = body.vertices
+    Vt = V * [0.97, 0.95, 0.97]
+    seen = warp_pairs(image_plane_shift(V, np.tile([2.5, -1.5], (len(V), 1)), cam), V, body.faces, cam, 400,
+                      dense=True)
+    x0, y0 = seen.dense.origin
+    fg = np.zeros((480, 640), bool)
+    h, w = seen.dense.source_mask.shape
+    fg[y0:y0 + h, x0:x0 + w] = seen.dense.source_mask
+    pairs = warp_pairs(V, Vt, body.faces, cam, 400, dense=True)
+    again = registered_pairs(pairs, V, Vt, body.faces, body.weights, body.skeleton.parents, cam, fg, "dense")
+    assert again is not pairs and again.dense is not None
+    assert _iou(pairs, fg) < 0.87 and _iou(again, fg) > 0.94  # the registered bodies' pairs, not the first ones
+    kept = registered_pairs(pairs, V, Vt, body.faces, body.weights, body.skeleton.parents, cam, np.zeros_like(fg),
+                            "dense")
+    assert kept is pairs
+    sparse = SimpleNamespace(dense=None)
+    assert registered_pairs(sparse, V, Vt, body.faces, body.weights, body.skeleton.parents, cam, fg) is sparse
