@@ -235,10 +235,10 @@ def _png() -> bytes:
 _IMDECODE = cv2.imdecode
 
 
-def _noisy_decoder(monkeypatch, lines: str, result: bool = True):
+def _noisy_decoder(monkeypatch, lines: str | bytes, result: bool = True):
     """``cv2.imdecode`` that writes ``lines`` to file descriptor 2, as libjpeg / libpng do, then decodes."""
     def imdecode(buf, flags):
-        os.write(2, lines.encode())
+        os.write(2, lines if isinstance(lines, bytes) else lines.encode())
         return _IMDECODE(buf, flags) if result else None
 
     monkeypatch.setattr(cv2, "imdecode", imdecode)
@@ -388,7 +388,7 @@ def test_mp4_writer_refusal_names_the_file(tmp_path):
 
 # ---------------------------------------------------------------------------------------------- atomic writes
 # atomic_path / atomic_write are @contextlib.contextmanager generators, which mutmut does not mutate: these cases are
-# what docs/mutation/fileio-atomic-plant.py plants its bugs against.
+# what docs/mutation/fileio-plant.py plants its bugs against.
 
 def test_atomic_path_keeps_the_extension_libraries_pick_a_format_by(tmp_path):
     with fio.atomic_path(tmp_path / "new" / "deeper" / "b.npz") as tmp:
@@ -458,3 +458,75 @@ def test_a_process_without_a_stderr_decodes_without_capturing(monkeypatch, capfd
         m.setattr(fio.os, "dup", no_fd2)
         assert fio.decode_image(_png(), "a.png")[0, 0].tolist() == [10, 120, 250]
     assert capfd.readouterr().err == ""
+
+
+# ``_native_stderr_captured`` is a @contextlib.contextmanager generator (no mutmut mutant): the cases below are what
+# docs/mutation/fileio-plant.py's capture plants run against.
+
+def test_each_image_gets_only_its_own_decoder_lines(monkeypatch, capfd):
+    """The capture file is reused: a long capture then a short one must read the short one alone (emptied and
+    rewound, no stale bytes or holes), and fd 2 is the terminal again after each."""
+    _noisy_decoder(monkeypatch, "x" * 300 + "\nPremature end of JPEG file\n")
+    with pytest.raises(FileFormatError, match=r"damaged image \(Premature end of JPEG file\)"):
+        fio.decode_image(_png(), "a.jpg")
+    _noisy_decoder(monkeypatch, "Corrupt JPEG data: bad Huffman code\n")
+    with pytest.raises(FileFormatError, match=r"damaged image \(Corrupt JPEG data: bad Huffman code\)"):
+        fio.decode_image(_png(), "b.jpg")
+    _noisy_decoder(monkeypatch, "short\n")
+    fio.decode_image(_png(), "c.png")
+    os.write(2, b"the program's own line\n")
+    assert capfd.readouterr().err == "x" * 300 + "\nshort\nthe program's own line\n"
+
+
+def test_bytes_that_are_not_utf8_do_not_hide_the_warning(monkeypatch, capfd):
+    _noisy_decoder(monkeypatch, b"\xff\xfe raw\nlibpng error: IDAT: CRC error\n")
+    with pytest.raises(FileFormatError, match=r"damaged image \(libpng error: IDAT: CRC error\)"):
+        fio.decode_image(_png(), "a.png")
+    assert capfd.readouterr().err == "\ufffd\ufffd raw\n"
+
+
+def test_decoding_leaks_no_file_descriptor():
+    before = len(os.listdir("/proc/self/fd"))
+    for _ in range(20):
+        fio.decode_image(_png(), "a.png")
+    assert len(os.listdir("/proc/self/fd")) == before
+
+
+def test_two_threads_decoding_take_turns_on_fd_2(monkeypatch):
+    """fd 2 and the capture file are the process's: a second thread's decode waits until the first one's capture
+    is read back, so each image gets its own lines (A waits 0.3 s for B to get in; B must not)."""
+    import threading
+    import time
+
+    a_inside, b_inside = threading.Event(), threading.Event()
+    spans, messages = {}, {}
+
+    def imdecode(buf, flags):
+        name = threading.current_thread().name
+        start = time.monotonic()
+        if name == "A":
+            a_inside.set()
+            b_inside.wait(0.3)
+        else:
+            b_inside.set()
+        os.write(2, f"Corrupt JPEG data: from {name}\n".encode())
+        spans[name] = (start, time.monotonic())
+        return None
+
+    def decode(name):
+        if name == "B":
+            a_inside.wait(5)
+        try:
+            fio.decode_image(b"x", name)
+        except FileFormatError as exc:
+            messages[name] = str(exc)
+
+    monkeypatch.setattr(cv2, "imdecode", imdecode)
+    threads = [threading.Thread(target=decode, args=(n,), name=n) for n in "AB"]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(10)
+    assert messages == {n: f"{n}: unreadable image (truncated, damaged or not an image: Corrupt JPEG data: from {n}); "
+                           "replace or remove it" for n in "AB"}
+    assert spans["B"][0] >= spans["A"][1]  # B's decode started after A's ended

@@ -1,13 +1,14 @@
-"""Plant bugs in fileio.py's atomic writes by hand in a scratch copy and run their tests (``atomic_path`` and
-``atomic_write`` are ``@contextlib.contextmanager`` generators: mutmut gives them no mutant)."""
-# usage (from the repository root): python docs/mutation/fileio-atomic-plant.py [TEST ...]
+"""Plant bugs in fileio.py's atomic writes and its decoder's stderr capture by hand in a scratch copy and run their
+tests (``atomic_path``, ``atomic_write`` and ``_native_stderr_captured`` are ``@contextlib.contextmanager``
+generators: mutmut gives them no mutant)."""
+# usage (from the repository root): python docs/mutation/fileio-plant.py [TEST ...]
 import os
 import shutil
 import subprocess
 import sys
 
 src_root = os.getcwd()
-work = "/work/wt-mutBB-work/fileio-atomic-plant"
+work = "/work/wt-mutBB-work/fileio-plant"
 F = "bodystudio/fileio.py"
 FULL_1 = ('        if disk_full(exc):\n            raise OutputSpaceError(path, exc.strerror or "no space left on '
           'device") from None\n        raise\n    os.close(fd)\n')
@@ -35,6 +36,21 @@ mutants = [
     (FULL_2, FULL_2.replace('exc.strerror or "no space left on device"', "exc.strerror"), "write: no default reason"),
     ("open(tmp, mode) as f:", 'open(tmp, "wb") as f:', "atomic_write's mode ignored"),
     ("        os.replace(tmp, path)\n", "        os.rename(tmp, path)\n", "os.rename (equivalent on POSIX)"),
+    # _native_stderr_captured
+    ("            os.ftruncate(fd, 0)\n", "            pass\n", "capture: file not emptied"),
+    ("            os.lseek(fd, 0, os.SEEK_SET)\n            os.dup2(fd, 2)\n", "            os.dup2(fd, 2)\n",
+     "capture: not rewound before (a hole of NULs before the lines)"),
+    ("            os.dup2(fd, 2)\n", "            pass\n", "capture: fd 2 never redirected"),
+    ("                os.dup2(saved, 2)\n", "                pass\n", "capture: fd 2 never restored"),
+    ("                os.lseek(fd, 0, os.SEEK_SET)\n                chunks = []\n", "                chunks = []\n",
+     "capture: not rewound before reading"),
+    ("                    chunk = os.read(fd, size)\n", "                    chunk = os.read(fd, 1)\n",
+     "capture: read a byte at a time (equivalent: perf)"),
+    ('.decode("utf-8", "replace")', '.decode("utf-8")', "capture: strict UTF-8"),
+    ('                out.append(b"".join(chunks).decode("utf-8", "replace"))\n', "                pass\n",
+     "capture: nothing handed back"),
+    ("            os.close(saved)\n", "            pass\n", "capture: the saved fd leaks"),
+    ("    with _stderr_lock:\n", "    with contextlib.nullcontext():\n", "capture: no lock between threads"),
 ]
 tests = sys.argv[1:] or ["tests/reliability/test_fileio_mutants.py", "tests/test_fileio.py"]
 if os.path.exists(work):
