@@ -216,3 +216,18 @@ def test_recover_removes_a_lock_this_very_process_left(tmp_path):
     assert rf.lock_holder(lay) is None
     assert recover_layout(lay) == "removed a stale lock"
     assert not lay.lock.exists() and not list(lay.root.iterdir())
+
+
+def test_a_command_that_fails_releases_its_read_locks_and_library_use_registers_none_after(tmp_path):
+    """``command_read_locks`` (decorated: planted by hand, docs/mutation/runfolder-plant.py): a command ending in an
+    exception releases its read locks like one that ends well, and reads after the command (library use in the
+    same process) register nothing."""
+    lay = _layout(tmp_path)
+    lay.root.mkdir()
+    with pytest.raises(KeyError), command_read_locks():
+        assert hold_read_lock(lay, "bodystudio view") is not None and lay.readers.is_dir()
+        raise KeyError("the command failed")
+    assert not lay.readers.exists() and rf._HELD == [] and rf._HOLDING == [False]
+    with command_read_locks():
+        hold_read_lock(lay, "bodystudio view")
+    assert hold_read_lock(lay) is None and not lay.readers.exists() and rf._HOLDING == [False]
