@@ -231,3 +231,48 @@ def test_a_command_that_fails_releases_its_read_locks_and_library_use_registers_
     with command_read_locks():
         hold_read_lock(lay, "bodystudio view")
     assert hold_read_lock(lay) is None and not lay.readers.exists() and rf._HOLDING == [False]
+
+
+def test_the_manifest_is_written_after_every_move_and_delete_and_before_the_staging_goes(tmp_path, monkeypatch):
+    """The commit's order is the scheme itself (module docstring, step 4): a process killed between two steps
+    leaves either the previous manifest (the new one not yet written) or a complete result; never a new manifest
+    over files not moved yet. Every rename is watched: the manifest's is the last but the staging folder's."""
+    lay = _layout(tmp_path)
+    (lay.root).mkdir()
+    (lay.root / "old.txt").write_text("old")
+    real_replace = os.replace
+    renames = []
+
+    def watched(src, dst):
+        renames.append((Path(src), Path(dst), sorted(p.name for p in lay.root.iterdir() if not p.name.startswith("."))))
+        return real_replace(src, dst)
+
+    with RunWriter(lay, "t") as w:
+        w.write_bytes("a.txt", b"A")
+        w.write_bytes("sub/b.txt", b"B")
+        monkeypatch.setattr(rf.os, "replace", watched)
+        w.commit({}, deletes=["old.txt"])
+        monkeypatch.setattr(rf.os, "replace", real_replace)
+    targets = [dst for _, dst, _ in renames]
+    record = targets.index(lay.commit_record)
+    manifest = targets.index(lay.manifest_path)
+    moved = [targets.index(lay.root / "a.txt"), targets.index(lay.root / "sub" / "b.txt")]
+    assert record < min(moved) and max(moved) < manifest == len(renames) - 2  # record, moves, manifest, staging
+    assert renames[-1][0] == lay.staging and ".stale." in renames[-1][1].name
+    assert renames[manifest][2] == ["a.txt", "sub"]  # the old file deleted before the manifest, not after
+
+
+def test_the_lock_is_held_while_the_commit_is_carried_out(tmp_path, monkeypatch):
+    lay = _layout(tmp_path)
+    real_apply = rf.apply_commit
+    seen = []
+
+    def watched(layout, plan):
+        seen.append((layout.commit_record.is_file(), rf.read_lock(layout.lock)["pid"]))
+        return real_apply(layout, plan)
+
+    monkeypatch.setattr(rf, "apply_commit", watched)
+    with RunWriter(lay, "t") as w:
+        w.write_bytes("a.txt", b"A")
+        w.commit({})
+    assert seen == [(True, os.getpid())] and not lay.lock.exists()
