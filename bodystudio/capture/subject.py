@@ -50,29 +50,90 @@ def first_player(bodies: Sequence[dict]) -> int | None:
     return min((b["player"] for b in bodies), default=None)
 
 
+#: How far (metres, median over the joints) a person moves at most between two frames at 30 fps (3 m/s). The
+#: mirror (:class:`SubjectFollower` with ``step_m``) takes a body holding the subject's id only within
+#: ``follow_m + step_m * (frames the subject was missed)`` of its last joints: further, it is another person the SDK
+#: gave the id (two actors crossing swap ids; a freed id goes to whoever is tracked next), never the subject.
+SUBJECT_STEP_M = 0.1
+
+
+class SubjectFollower:
+    """One subject followed frame by frame (:func:`follow_subject` over a whole run; the mirror steps one per actor
+    through a live stream, :func:`follow_subjects`).
+
+    ``player``: the subject's id (None: the first frame with a body chooses, :func:`first_player`). Each frame the
+    subject is the body nearest its last joints within ``follow_m`` (under whatever id: the SDK renumbers a person it
+    lost, and two crossing actors can swap ids); where none is that near, the body holding the subject's current id,
+    when ``step_m`` is None (the behaviour of reconstruct and muscle capture) or it lies within
+    ``follow_m + step_m * missed`` of the last joints (``missed``: frames since the subject was last seen);
+    otherwise the frame has no subject (None). ``player`` follows the id the subject holds, ``last`` its last
+    tracked body."""
+
+    def __init__(self, player: int | None = None, follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None):
+        self.player, self.follow_m, self.step_m = player, float(follow_m), step_m
+        self.chosen = player is not None
+        self.last: dict | None = None
+        self.missed = 0
+
+    def candidates(self, bodies: Sequence[dict]) -> list[tuple[int, float, int]]:
+        """``(tier, distance m, index)`` of the bodies that may be the subject, best first: tier 0 the bodies within
+        ``follow_m`` of its last joints (nearest first; before it was ever seen, the body holding its id), tier 1
+        the body holding its id farther away (only within the ``step_m`` reach when that is set)."""
+        if not self.chosen:
+            return []
+        if self.last is None:
+            return [(0, 0.0, k) for k, b in enumerate(bodies) if b["player"] == self.player][:1]
+        dist = [body_distance_m(b, self.last) for b in bodies]
+        near = sorted((0, d, k) for k, d in enumerate(dist) if d <= self.follow_m)
+        holder = next((k for k, b in enumerate(bodies) if b["player"] == self.player), None)
+        if holder is not None and all(k != holder for _, _, k in near):
+            reach = np.inf if self.step_m is None else self.follow_m + self.step_m * self.missed
+            if dist[holder] <= reach:
+                near.append((1, dist[holder], holder))
+        return near
+
+    def take(self, body: dict | None) -> dict | None:
+        """Record this frame's subject (None: not found) and return it."""
+        if body is None:
+            self.missed += 1
+        else:
+            self.player, self.last, self.missed, self.chosen = body["player"], body, 0, True
+        return body
+
+    def follow(self, bodies: Sequence[dict]) -> dict | None:
+        """The subject's body in this frame's ``bodies`` (:func:`frame_bodies`), or None."""
+        bodies = list(bodies or [])
+        if not self.chosen and bodies:
+            self.player, self.chosen = first_player(bodies), True
+        best = self.candidates(bodies)
+        return self.take(bodies[best[0][2]] if best else None)
+
+
+def follow_subjects(followers: Sequence[SubjectFollower], bodies: Sequence[dict]) -> list[dict | None]:
+    """Each follower's body in one frame, no body given to two: the (tier, distance) best pairs first, so two actors
+    who swapped ids are each found by their joints. Advances every follower (:meth:`SubjectFollower.take`)."""
+    bodies = list(bodies or [])
+    pairs = sorted((c[0], c[1], c[2], j) for j, f in enumerate(followers) for c in f.candidates(bodies))
+    found: list[dict | None] = [None] * len(followers)
+    used: set[int] = set()
+    for _, _, k, j in pairs:
+        if found[j] is None and k not in used:
+            found[j] = bodies[k]
+            used.add(k)
+    return [f.take(b) for f, b in zip(followers, found, strict=True)]
+
+
 def follow_subject(bodies_by_frame: Iterable[Sequence[dict]], player: int | None = None,
-                   follow_m: float = SUBJECT_FOLLOW_M) -> Iterator[dict | None]:
+                   follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None) -> Iterator[dict | None]:
     """The subject's body in each frame of ``bodies_by_frame`` (each a list of bodies, :func:`frame_bodies`),
     lazily: frames are read only as far as the caller iterates. ``player``: the subject's id; None chooses it at the
-    first frame with a body (:func:`first_player`). A frame yields the body with the subject's current id; where
-    that id is gone, the body nearest the subject's last joints within ``follow_m`` (:func:`body_distance_m`),
-    whose id the subject keeps from then on; otherwise None (the subject is not in the frame)."""
-    last = None
-    chosen = player is not None
+    first frame with a body (:func:`first_player`). A frame yields the body nearest the subject's last joints within
+    ``follow_m`` (:func:`body_distance_m`), whose id the subject keeps from then on, else the body holding the
+    subject's id (within the ``step_m`` reach when given, :class:`SubjectFollower`), otherwise None (the subject is
+    not in the frame)."""
+    follower = SubjectFollower(player, follow_m, step_m)
     for bodies in bodies_by_frame:
-        bodies = list(bodies or [])
-        if not chosen and bodies:
-            player, chosen = first_player(bodies), True
-        mine = next((b for b in bodies if b["player"] == player), None) if chosen else None
-        if mine is None and last is not None:
-            near = [(body_distance_m(b, last), k) for k, b in enumerate(bodies)]
-            near = [(d, k) for d, k in near if d <= follow_m]
-            if near:
-                mine = bodies[min(near)[1]]
-                player = mine["player"]
-        if mine is not None:
-            last = mine
-        yield mine
+        yield follower.follow(bodies)
 
 
 def subject_players(bodies_by_frame: Iterable[Sequence[dict]], player: int | None = None,
