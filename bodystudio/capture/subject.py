@@ -78,7 +78,8 @@ class SubjectFollower:
     def candidates(self, bodies: Sequence[dict]) -> list[tuple[int, float, int]]:
         """``(tier, distance m, index)`` of the bodies that may be the subject, best first: tier 0 the bodies within
         ``follow_m`` of its last joints (nearest first; before it was ever seen, the body holding its id), tier 1
-        the body holding its id farther away (only within the ``step_m`` reach when that is set)."""
+        the body holding its id farther away (only within the ``step_m`` reach when that is set, or when it shares no
+        finite joint with the last ones)."""
         if not self.chosen:
             return []
         if self.last is None:
@@ -88,7 +89,8 @@ class SubjectFollower:
         holder = next((k for k, b in enumerate(bodies) if b["player"] == self.player), None)
         if holder is not None and all(k != holder for _, _, k in near):
             reach = np.inf if self.step_m is None else self.follow_m + self.step_m * self.missed
-            if dist[holder] <= reach:
+            # no joint in common with the last ones (all NaN): nothing tells it apart, the id decides
+            if dist[holder] <= reach or not np.isfinite(dist[holder]):
                 near.append((1, dist[holder], holder))
         return near
 
@@ -97,7 +99,9 @@ class SubjectFollower:
         if body is None:
             self.missed += 1
         else:
-            self.player, self.last, self.missed, self.chosen = body["player"], body, 0, True
+            self.player, self.missed, self.chosen = body["player"], 0, True
+            if np.isfinite(np.asarray(body["positions"], np.float64)).all(axis=-1).any():
+                self.last = body  # a body without a finite joint leaves the reference where it was
         return body
 
     def follow(self, bodies: Sequence[dict]) -> dict | None:
@@ -137,9 +141,10 @@ def follow_subject(bodies_by_frame: Iterable[Sequence[dict]], player: int | None
 
 
 def subject_players(bodies_by_frame: Iterable[Sequence[dict]], player: int | None = None,
-                    follow_m: float = SUBJECT_FOLLOW_M) -> list[int | None]:
+                    follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None) -> list[int | None]:
     """The subject's player id in each frame (:func:`follow_subject`; None where the subject is not tracked)."""
-    return [None if body is None else body["player"] for body in follow_subject(bodies_by_frame, player, follow_m)]
+    return [None if body is None else body["player"]
+            for body in follow_subject(bodies_by_frame, player, follow_m, step_m)]
 
 
 def subject_body(frame, player: int | None) -> dict | None:
@@ -151,12 +156,14 @@ def subject_body(frame, player: int | None) -> dict | None:
     return next((b for b in bodies if b["player"] == player), None)
 
 
-def session_subject(session, frame_ids: Sequence[int], player: int | None = None) -> dict[int, int | None]:
+def session_subject(session, frame_ids: Sequence[int], player: int | None = None,
+                    step_m: float | None = None) -> dict[int, int | None]:
     """``{frame id: the subject's player id}`` over a run's frames (:func:`subject_players`, read from each frame's
     ``kinect/joints``; None where the subject is absent). Computed once per run: a batch chunk that starts after a
     second person came into view gets the run's subject, not the lowest id of its own first frame."""
     ids = list(frame_ids)
-    return dict(zip(ids, subject_players((frame_bodies(session.frame(f)) for f in ids), player), strict=True))
+    return dict(zip(ids, subject_players((frame_bodies(session.frame(f)) for f in ids), player, step_m=step_m),
+                    strict=True))
 
 
 def absent_frames(players: dict[int, int | None], session) -> list[int]:

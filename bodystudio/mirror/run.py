@@ -627,7 +627,10 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
             unseen = cv2.dilate(seen.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
         found = follow_subjects([a.follower for a in actors], [_tracked_record(b) for b in frame.bodies])
         tracked_as = tuple(None if f is None else f["player"] for f in found)
-        ids = tuple(pid for pid in tracked_as if pid is not None)
+        # the players' ids in this frame's mask: where found, the id each holds; where not, the id it held last unless
+        # a tracked body (someone else) holds it now
+        ids = tuple(a.follower.player for a, f in zip(actors, found, strict=True)
+                    if f is not None or frame.body(a.follower.player) is None)
         if ids:
             person, others, labels = player_masks(players_c, ids, several)
         else:  # none of the run's players tracked: whoever is in the mask is someone else
@@ -643,6 +646,9 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
             pid = a.follower.player
             if f is None:
                 held = f" (last tracked as {pid})" if pid != a.player else ""
+                if frame.body(pid) is None and (players_c == pid).any():
+                    warning = f"player {a.player}{held} is in the mask but no body is tracked"
+                    break
                 if frame.bodies:  # people tracked, none of them the player: never reshape another in its place
                     missing = True
                     if not several:
@@ -650,11 +656,7 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
                                    f"{', '.join(str(b.player) for b in frame.bodies)}): the run's subject is not "
                                    "found near its last joints; the frame passes through unchanged")
                         break
-                    continue  # left out of the frame, as a player out of view
-                if (players_c == pid).any():
-                    warning = f"player {a.player}{held} is in the mask but no body is tracked"
-                    break
-                continue  # this player is not in view
+                continue  # left out of the frame, as a player out of view
             mine = person if not several else players_c == pid
             present.append((a, f["tracked_body"], mine, pid))
         if warning is None and present:

@@ -219,7 +219,7 @@ def test_summary_is_medians_counts_and_rates():
     steps = {"read": [1.0, 3.0, 2.0], "foreground": [4.0, 6.0, 5.0], "warp": [1.0, 1.0, 4.0], "compose": [],
              "write": [9.0]}
     s = run_mod._summary(rows, steps, 2.5)
-    assert s == {"frames": 5, "n_ok": 3, "n_empty": 1, "n_passed_through": 1, "n_warnings": 1,
+    assert s == {"frames": 5, "n_ok": 3, "n_empty": 1, "n_passed_through": 1, "n_warnings": 1, "n_subject_missing": 0,
                  "ms_per_frame": {"read": 2.0, "foreground": 5.0, "warp": 1.0, "write": 9.0},
                  "ms_per_frame_statistic": "median", "image_steps_ms": 6.0, "image_steps_fps": 1e3 / 6.0,
                  "wall_s": 2.5, "fps_wall": 2.0}
@@ -338,15 +338,18 @@ class _Frames:
         s = self.spec[i]
         if s.get("unreadable"):
             raise FileFormatError(f"frame {i}: broken PNG")
-        body = None if s.get("untracked") else SimpleNamespace(positions=np.full((25, 3), float(i)),
-                                                               tracked=np.ones(25, bool))
+        # the frame index in the first joint only: the body stands still (the run follows it by its joints)
+        positions = np.zeros((25, 3))
+        positions[0, 0] = float(i)
+        body = None if s.get("untracked") else SimpleNamespace(player=1, names=tuple(f"j{k}" for k in range(25)),
+                                                               positions=positions, tracked=np.ones(25, bool))
         player = np.zeros((CH, CW), np.uint8)
         player[s.get("person", slice(2, 6)), 4:8] = 1
         player[8:10, 12:14] = 2
         depth = np.zeros((CH, CW)) if s.get("no_depth") else np.ones((CH, CW))
         seen = s.get("seen", (slice(None), slice(0, CW)))
         return SimpleNamespace(rgb=np.full((CH, CW, 3), i, np.uint8), depth_m=depth, player=player, seen=seen,
-                               body=lambda p: body if p == 1 else None)
+                               body=lambda p: body if p == 1 else None, bodies=() if body is None else (body,))
 
     def ik(self, skeleton, positions, tracked, version, previous=None):
         assert skeleton == "sk" and version == "v2" and tracked is not None and tracked.dtype == bool

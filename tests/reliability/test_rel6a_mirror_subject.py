@@ -179,3 +179,19 @@ def test_the_follower_finds_two_swapped_actors_each_by_their_joints():
     old = SubjectFollower(1)
     old.follow([body(1, 0.0)])
     assert old.follow([body(1, 1.5)]) is not None
+
+
+def test_mirror_init_follows_the_actor_too(studio, tmp_path):
+    """``mirror init --player 1``'s observations (joints, depth points, player masks) read actor 1 under id 2 in the
+    swapped frame, as in the clean session (before: actor 2's joints and depth points in the init's fit)."""
+    from bodystudio.capture.session import open_session
+    from bodystudio.mirror.init import collect_observations
+
+    clean = open_session(studio / "clean")
+    swapped = open_session(_plant(studio, tmp_path, "swapped", _swap, _swap_bodies))
+    obs0, _ = collect_observations(clean, frames=FRAMES, player=1)
+    obs1, _ = collect_observations(swapped, frames=FRAMES, player=1)
+    assert [o.frame for o in obs1] == FRAMES
+    for a, b in zip(obs0, obs1, strict=True):
+        assert np.array_equal(a.points, b.points) and np.array_equal(a.joints, b.joints, equal_nan=True)
+        assert np.array_equal(a.player_mask, b.player_mask)
