@@ -52,9 +52,13 @@ def first_player(bodies: Sequence[dict]) -> int | None:
 
 #: How far (metres, median over the joints) a person moves at most between two frames at 30 fps (3 m/s). The
 #: mirror (:class:`SubjectFollower` with ``step_m``) takes a body holding the subject's id only within
-#: ``follow_m + step_m * (frames the subject was missed)`` of its last joints: further, it is another person the SDK
-#: gave the id (two actors crossing swap ids; a freed id goes to whoever is tracked next), never the subject.
+#: ``jump_m + step_m * (frames the subject was missed)`` of its last joints: further, it is another person the SDK
+#: gave the id (a freed id goes to whoever is tracked next), never the subject.
 SUBJECT_STEP_M = 0.1
+#: How far the subject's own skeleton may jump between two frames under the same id (a tracker glitch, a fit that
+#: flips; session 46's synthetic walk-in lands 0.43 m at frame 44, and a 0.3 m reach dropped 2 of its frames), and
+#: less than two people stand apart (the two-actor sessions: ~1.0 m).
+SUBJECT_JUMP_M = 0.6
 
 
 class SubjectFollower:
@@ -65,12 +69,14 @@ class SubjectFollower:
     subject is the body nearest its last joints within ``follow_m`` (under whatever id: the SDK renumbers a person it
     lost, and two crossing actors can swap ids); where none is that near, the body holding the subject's current id,
     when ``step_m`` is None (the behaviour of reconstruct and muscle capture) or it lies within
-    ``follow_m + step_m * missed`` of the last joints (``missed``: frames since the subject was last seen);
+    ``max(follow_m, jump_m) + step_m * missed`` of the last joints (``missed``: frames since the subject was last
+    seen);
     otherwise the frame has no subject (None). ``player`` follows the id the subject holds, ``last`` its last
     tracked body."""
 
-    def __init__(self, player: int | None = None, follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None):
-        self.player, self.follow_m, self.step_m = player, float(follow_m), step_m
+    def __init__(self, player: int | None = None, follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None,
+                 jump_m: float = SUBJECT_JUMP_M):
+        self.player, self.follow_m, self.step_m, self.jump_m = player, float(follow_m), step_m, float(jump_m)
         self.chosen = player is not None
         self.last: dict | None = None
         self.missed = 0
@@ -88,7 +94,7 @@ class SubjectFollower:
         near = sorted((0, d, k) for k, d in enumerate(dist) if d <= self.follow_m)
         holder = next((k for k, b in enumerate(bodies) if b["player"] == self.player), None)
         if holder is not None and all(k != holder for _, _, k in near):
-            reach = np.inf if self.step_m is None else self.follow_m + self.step_m * self.missed
+            reach = np.inf if self.step_m is None else max(self.follow_m, self.jump_m) + self.step_m * self.missed
             # no joint in common with the last ones (all NaN): nothing tells it apart, the id decides
             if dist[holder] <= reach or not np.isfinite(dist[holder]):
                 near.append((1, dist[holder], holder))

@@ -545,6 +545,16 @@ def _tracked_record(body) -> dict:
     return {"player": body.player, "names": body.names, "positions": body.positions, "tracked_body": body}
 
 
+def _colour_or_none(session, i: int, camera) -> np.ndarray | None:
+    """Frame ``i``'s Kinect colour image when it reads and has the colour camera's size, else None (rel6a: a frame
+    whose depth, player mask or joints were damaged passed the previous frame's colour through, a frozen frame)."""
+    try:
+        rgb = session.frame(i).kinect_rgb
+    except BodyStudioError:
+        return None
+    return rgb if rgb is not None and rgb.shape == (camera.height, camera.width, 3) else None
+
+
 def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp_frames: int = 30,
                    frames: Iterable[int] | None = None,
                    correspondence: str = CORRESPONDENCE, refine: bool = False) -> Iterator[MirrorInput]:
@@ -561,9 +571,9 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     (:class:`bodystudio.capture.subject.SubjectFollower` with :data:`~bodystudio.capture.subject.SUBJECT_STEP_M`):
     the SDK renumbers a person it lost and two crossing actors can swap ids, so the frame's body nearest the player's
     last joints (within 0.3 m) is the player under whatever id it holds, and a body holding the player's id farther
-    than a person moves is someone else. A run of one player whose subject is not found while the tracker reports
-    other people passes the frame through with a warning (``subject_missing``); a bystander is never reshaped in
-    the subject's place.
+    than a skeleton jumps in a frame (0.6 m, plus 0.1 m per frame the player was missed) is someone else. A run of
+    one player whose subject is not found while the tracker reports other people passes the frame through with a
+    warning (``subject_missing``); a bystander is never reshaped in the subject's place.
 
     The target body is computed once (Eq. 4) and reached gradually: the target rest shape is
     ``V_S + s (V_T - V_S)`` with ``s`` going 0 -> 1 over ``ramp_frames`` tracked frames of that player (Eq. 4 is
@@ -611,7 +621,9 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         try:
             frame = read_mirror_frame(session, int(i))
         except BodyStudioError as exc:
-            rgb = last_rgb if last_rgb is not None else np.zeros((camera.height, camera.width, 3), np.uint8)
+            rgb = _colour_or_none(session, int(i), camera)  # a damaged depth / mask / joints file: its own colour
+            if rgb is None:  # the colour itself unreadable: the last frame's, as a live mirror shows
+                rgb = last_rgb if last_rgb is not None else np.zeros((camera.height, camera.width, 3), np.uint8)
             yield MirrorInput(int(i), rgb, warning=f"frame unreadable: {exc}", timings_ms=timings, cpu_ms=cpu)
             continue
         last_rgb = frame.rgb

@@ -359,6 +359,20 @@ class _Frames:
         return f"pose{int(positions[0, 0])}"
 
 
+class _ColourOnly:
+    """The session's frame ``i`` as the run reads its colour alone after the whole frame failed to read: readable only
+    where the spec says ``colour_ok`` (a damaged depth / mask / joints file beside a good colour image)."""
+
+    def __init__(self, i, spec):
+        self.i, self.spec = i, spec
+
+    @property
+    def kinect_rgb(self):
+        if not self.spec.get("colour_ok"):
+            raise FileFormatError(f"frame {self.i}: broken colour PNG")
+        return np.full((CH, CW, 3), 40 + self.i, np.uint8)
+
+
 def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, player=1):
     from bodystudio.mirror import frames as frames_mod
     from bodystudio.mirror import reshape as reshape_mod
@@ -421,7 +435,8 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, play
     monkeypatch.setattr(reshape_mod, "posed_source_and_target", posed)
     monkeypatch.setattr(reshape_mod, "target_skeleton", rig)
     monkeypatch.setattr(run_mod, "warp_pairs", pairs)
-    session = SimpleNamespace(path="S", frame_ids=sorted(spec), kinect=SimpleNamespace(color=camera, version="v2"))
+    session = SimpleNamespace(path="S", frame_ids=sorted(spec), kinect=SimpleNamespace(color=camera, version="v2"),
+                              frame=lambda i: _ColourOnly(i, spec[i]))
     body = SimpleNamespace(coeffs=np.zeros(1), vertices=np.full((3, 3), 1.0), skeleton="sk", faces="faces")
     model = SimpleNamespace(vertices=lambda c: np.full((3, 3), 1.0 + 9.0 * c[0]))
     if ramp_frames is None:  # the defaults: player 1, 30 ramp frames
@@ -469,6 +484,9 @@ def test_session_inputs_ramp_zero_and_unreadable_frames(monkeypatch):
     assert out[0].warning == "frame unreadable: frame 0: broken PNG"
     assert out[0].rgb.shape == (CH, CW, 3) and out[0].rgb.dtype == np.uint8 and not out[0].rgb.any()
     assert out[2].warning.startswith("frame unreadable") and (out[2].rgb == 1).all()  # the last good frame
+    # rel6a: a frame whose depth (mask, joints) is damaged shows its own colour, not the last frame's (frozen)
+    own, _ = _session_inputs(monkeypatch, {0: {}, 1: {"unreadable": True, "colour_ok": True}}, ramp_frames=0)
+    assert own[1].warning == "frame unreadable: frame 1: broken PNG" and (own[1].rgb == 41).all()
     assert [o.edit_fraction for o in out if o.src_uv is not None] == [1.0, 1.0]
     # only the given frames
     out, _ = _session_inputs(monkeypatch, spec, frames=[3, 1])

@@ -8,6 +8,11 @@ Now each reshaped player is followed by its joints (:class:`bodystudio.capture.s
 reshaped, a bystander never is in their place, and a frame without the actor passes through unchanged with a
 warning, counted in run.json (``n_subject_missing``; per frame ``tracked_as``).
 
+Mid-stream faults (audited on a real-size copy of session 47, docs/mirror.md "Bad input"): a damaged depth image,
+player mask or colour image in a frame the run's self-checks sampled refused the whole run (the same damage in a
+frame they did not sample passed through); a frame whose depth or mask was damaged showed the previous frame's
+colour. Each now passes through unchanged with a warning, the run going on.
+
 One small synthetic two-actor session (12 frames: 10 of the empty room, then actors 1 and 2 standing apart), its
 source body of player 1 from the ground truth (no ``mirror init``), copies with the ids planted: frame 11 swapped, or
 actor 1 gone in frame 11 with actor 2 holding id 1.
@@ -170,12 +175,13 @@ def test_the_follower_finds_two_swapped_actors_each_by_their_joints():
     got = follow_subjects([a, b], [body(1, 0.78), body(2, 0.03)])  # the ids swapped
     assert [g["player"] for g in got] == [2, 1] and (a.player, b.player) == (2, 1)
     # the actor gone and its id given to someone 1.5 m away: not the actor; the id holder is taken within
-    # follow_m + step_m * (frames missed) of the last joints (0.3 m, then 0.4 m after one missed frame)
-    lone = SubjectFollower(1, step_m=0.1)
+    # jump_m + step_m * (frames missed) of the last joints (0.6 m, then 0.7 m after one missed frame)
+    lone = SubjectFollower(1, step_m=0.1, jump_m=0.6)
     assert lone.follow([body(1, 0.0)])["player"] == 1
     assert lone.follow([body(1, 1.5)]) is None
-    assert lone.follow([body(1, 0.42)]) is None and lone.missed == 2
-    assert lone.follow([body(1, 0.48)]) is not None and lone.missed == 0
+    assert lone.follow([body(1, 0.72)]) is None and lone.missed == 2
+    assert lone.follow([body(1, 0.78)]) is not None and lone.missed == 0
+    assert lone.follow([body(1, 1.3)]) is not None  # a 0.52 m jump under its own id: a glitch, still the actor
     old = SubjectFollower(1)
     old.follow([body(1, 0.0)])
     assert old.follow([body(1, 1.5)]) is not None
@@ -195,3 +201,105 @@ def test_mirror_init_follows_the_actor_too(studio, tmp_path):
     for a, b in zip(obs0, obs1, strict=True):
         assert np.array_equal(a.points, b.points) and np.array_equal(a.joints, b.joints, equal_nan=True)
         assert np.array_equal(a.player_mask, b.player_mask)
+
+
+def _put(session, rel, data: bytes):
+    (session / rel).write_bytes(data)
+    restamp(session, rel)
+
+
+def _png(image) -> bytes:
+    import cv2
+
+    return cv2.imencode(".png", image)[1].tobytes()
+
+
+def _read(session, rel):
+    import cv2
+
+    return cv2.imread(str(session / rel), cv2.IMREAD_UNCHANGED)
+
+
+def _no_bodies(s):
+    rel = f"kinect/joints/{PLANTED:05d}.json"
+    _put(s, rel, json.dumps({**json.loads((s / rel).read_text()), "bodies": []}).encode())
+
+
+def _nan_joints(s):
+    rel = f"kinect/joints/{PLANTED:05d}.json"
+    data = json.loads((s / rel).read_text())
+    for b in data["bodies"]:
+        b["positions"] = [[float("nan")] * 3 for _ in b["positions"]]
+    _put(s, rel, json.dumps(data).encode())
+
+
+def _truncated(stream):
+    def plant(s):
+        rel = f"kinect/{stream}/{PLANTED:05d}.png"
+        data = (s / rel).read_bytes()
+        _put(s, rel, data[: len(data) // 2])
+    return plant
+
+
+def _depth_resized(s):
+    import cv2
+
+    rel = f"kinect/depth/{PLANTED:05d}.png"
+    _put(s, rel, _png(cv2.resize(_read(s, rel), (160, 120), interpolation=cv2.INTER_NEAREST)))
+
+
+def _depth_zero(s):
+    rel = f"kinect/depth/{PLANTED:05d}.png"
+    _put(s, rel, _png(np.zeros_like(_read(s, rel))))
+
+
+def _mask(change):
+    def plant(s):
+        rel = f"kinect/player/{PLANTED:05d}.png"
+        _put(s, rel, _png(change(_read(s, rel))))
+    return plant
+
+
+#: Mid-stream faults in frame 11 of a recorded session (audited on a real-size copy of session 47, docs/mirror.md
+#: "Bad input"): each passes the frame through unchanged with a warning, the run goes on (exit 0).
+FAULTS = [
+    ("no-body-tracked", _no_bodies, "player 1 is in the mask but no body is tracked"),
+    ("joints-nan", _nan_joints, "tracking failed: no tracked pelvis joints"),
+    ("depth-truncated", _truncated("depth"), "depth/00011.png: unreadable image (truncated"),
+    ("depth-other-size", _depth_resized, "depth/00011.png: image is 160x120 but kinect/calibration.json says"),
+    ("depth-none-measured", _depth_zero, "depth missing (no depth measurement in the frame)"),
+    ("mask-value-9", _mask(lambda m: np.where(m > 0, 9, 0).astype(np.uint8)), "values 0...6, got uint8 up to 9"),
+    ("mask-empty", _mask(np.zeros_like), "body 1 is tracked but its player mask is empty"),
+    ("colour-truncated", _truncated("rgb"), "rgb/00011.png: unreadable image (truncated"),
+]
+
+
+@pytest.mark.parametrize("case, plant, phrase", FAULTS, ids=[f[0] for f in FAULTS])
+def test_a_bad_frame_mid_stream_passes_through_with_a_warning(case, plant, phrase, studio, tmp_path):
+    from bodystudio.capture.session import open_session
+
+    s = tmp_path / "s"
+    shutil.copytree(studio / "clean", s)
+    plant(s)
+    doc, run = _run(s, studio, tmp_path, "run")
+    f10, f11 = doc["frames"]
+    assert f10["status"] == "ok" and f11["status"] == "passed_through" and phrase in f11["warning"], f11
+    assert doc["summary"]["n_warnings"] == 1
+    # unchanged: the frame's own colour image (an unreadable one: the last frame's, as a live mirror shows)
+    shown = 10 if case == "colour-truncated" else PLANTED
+    assert np.array_equal(_frame(run, PLANTED)[..., ::-1], open_session(studio / "clean").frame(shown).kinect_rgb)
+
+
+def test_a_file_missing_from_a_recorded_session_is_one_line_and_nothing_is_written(studio, tmp_path, capfd):
+    """A recorded session whose manifest lists a file that is gone is refused up front (the session is incomplete),
+    in one line, exit 2, no run folder and no video."""
+    from .conftest import assert_clean_error, run_inprocess
+
+    s = tmp_path / "s"
+    shutil.copytree(studio / "clean", s)
+    shutil.copy(studio / "body1.npz", s / "body1.npz")
+    (s / f"kinect/depth/{PLANTED:05d}.png").unlink()
+    result = run_inprocess(["mirror", "run", s, "--source", s / "body1.npz", "--out", tmp_path / "o.mp4",
+                            "--no-refine-pose", "--accept-implausible"], capfd)
+    assert_clean_error(result, 2, f"kinect/depth/{PLANTED:05d}.png: missing (listed in session.json)")
+    assert not (s / "mirror").exists() and not (tmp_path / "o.mp4").exists()
