@@ -66,3 +66,21 @@ def test_mutmuts_tree_gets_the_benchmarks_the_tests_import(tmp_path, monkeypatch
     finally:
         configuration.reset_config()
     assert (tmp_path / "mutants" / "benchmarks" / "bench_x.py").read_text() == "X = 1\n"
+
+
+def test_a_truncated_png_is_named_without_opencvs_log_prefix():
+    """rel6a's audit: a PNG cut inside its image data gave "unreadable image (... : [ WARN:0@7.629] global
+    grfmt_png.cpp:793 readFromStreamOrBuffer PNG input buffer is incomplete)"; the one line now says what is wrong."""
+    import cv2
+
+    from bodystudio.errors import FileFormatError
+    from bodystudio.fileio import decode_image
+
+    rng = np.random.default_rng(0)
+    data = cv2.imencode(".png", rng.integers(0, 4000, (200, 200), dtype=np.uint16))[1].tobytes()
+    for cut in (2000, len(data) // 2):
+        with pytest.raises(FileFormatError) as err:
+            decode_image(data[:cut], "kinect/depth/00025.png", cv2.IMREAD_UNCHANGED)
+        line = str(err.value)
+        assert line.startswith("kinect/depth/00025.png: unreadable image (truncated, damaged or not an image: ")
+        assert "PNG input buffer is incomplete" in line and "WARN" not in line and ".cpp" not in line, line
