@@ -37,6 +37,14 @@ def frame_bodies(frame) -> list[dict]:
 def body_distance_m(a: dict, b: dict) -> float:
     """Median distance (metres) between two bodies' joints of the same name that both report (finite); inf
     when they share none."""
+    if tuple(a["names"]) == tuple(b["names"]):  # one joint set (every frame of a run): the arrays row by row
+        xa = np.asarray(a["positions"], np.float64).reshape(-1, 3)
+        xb = np.asarray(b["positions"], np.float64).reshape(-1, 3)
+        if len(xa) == len(xb) == len(a["names"]) and len(set(a["names"])) == len(xa):
+            both = np.isfinite(xa).all(axis=1) & np.isfinite(xb).all(axis=1)
+            # the mirror follows its actors every frame: a followed actor among 2 bodies 0.14 instead of 0.89 ms a
+            # frame with the dicts below (rel6a, load 10 on 2 cores)
+            return float(np.median(np.linalg.norm(xa[both] - xb[both], axis=1))) if both.any() else float("inf")
     pa = dict(zip(a["names"], np.asarray(a["positions"], np.float64).reshape(-1, 3), strict=True))
     pb = dict(zip(b["names"], np.asarray(b["positions"], np.float64).reshape(-1, 3), strict=True))
     d = [float(np.linalg.norm(pa[n] - pb[n])) for n in pa if n in pb and np.all(np.isfinite(pa[n]))
