@@ -200,6 +200,7 @@ _DECODER_WARNING = re.compile(r"^(libpng (warning|error)|Premature end of JPEG|C
                               r"Huffman|Inconsistent progression|Invalid SOS|Invalid component|"
                               r"Application transferred too few|Unknown APP|Ss=|Suspension|"
                               r"\[ ?WARN:.*(imgcodecs|grfmt|loadsave|imdecode))", re.MULTILINE)
+_OPENCV_LOG_PREFIX = re.compile(r"^\[ ?WARN:[^\]]*\]\s*(global\s+)?\S+\.cpp(:\d+)?\s+\w+\s+")
 #: The one kind of libpng warning that does not refuse an image: the content of a colour-management chunk
 #: (iCCP, sRGB, cHRM, gAMA) that libpng finds non-conforming, e.g. "iCCP: known incorrect sRGB profile"
 #: (the HP/Photoshop sRGB profile many tools embed), "iCCP: cHRM chunk does not match sRGB", "iCCP: profile
@@ -284,7 +285,10 @@ def decode_image(data: bytes, source: str | os.PathLike, flags: int | None = Non
     text = captured[0] if captured else ""
     profile = [line.strip() for line in text.splitlines() if colour_profile_warning(line)]
     text = "\n".join(line for line in text.splitlines() if not colour_profile_warning(line))
-    warnings = [line.strip() for line in text.splitlines() if _DECODER_WARNING.match(line.strip())]
+    # OpenCV's own log lines lose their prefix ("[ WARN:0@0.103] global grfmt_png.cpp:793 readFromStreamOrBuffer "):
+    # the one-line error says what is wrong with the file, not where in OpenCV it was noticed (rel6a)
+    warnings = [_OPENCV_LOG_PREFIX.sub("", line.strip()) for line in text.splitlines()
+                if _DECODER_WARNING.match(line.strip())]
     others = [line for line in text.splitlines() if line.strip() and not _DECODER_WARNING.match(line.strip())]
     if others:  # not the decoder's (another thread's output): give it back
         sys.stderr.write("\n".join(others) + "\n")

@@ -110,6 +110,10 @@ def order_fast_first(work: Path) -> None:
         conftest.write_text(text + ORDER_HOOK)
 
 
+#: Folders besides ``bodystudio`` and ``tests`` that tests import, copied into mutmut's mutants/ tree.
+ALSO_COPY = ("benchmarks/",)
+
+
 def mutmut_config(module: str, tests: list[str]) -> str:
     return "\n".join([
         "", "[tool.mutmut]",
@@ -118,7 +122,10 @@ def mutmut_config(module: str, tests: list[str]) -> str:
         f"pytest_add_cli_args_test_selection = {json.dumps(tests)}",
         # fast tier only; no pytest cache in the scratch tree
         'pytest_add_cli_args = ["-m", "not slow", "-p", "no:cacheprovider"]',
-        "use_git_change_detection = false", "",
+        "use_git_change_detection = false",
+        # mutmut copies tests/ into its mutants/ tree but not benchmarks/: a test importing it (the bench's helpers)
+        # failed to import there, and every mutant it covers counted "not checked" (mutAA's rel5b entry)
+        f"also_copy = {json.dumps(list(ALSO_COPY))}", "",
     ])
 
 

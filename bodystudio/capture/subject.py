@@ -37,6 +37,14 @@ def frame_bodies(frame) -> list[dict]:
 def body_distance_m(a: dict, b: dict) -> float:
     """Median distance (metres) between two bodies' joints of the same name that both report (finite); inf
     when they share none."""
+    if tuple(a["names"]) == tuple(b["names"]):  # one joint set (every frame of a run): the arrays row by row
+        xa = np.asarray(a["positions"], np.float64).reshape(-1, 3)
+        xb = np.asarray(b["positions"], np.float64).reshape(-1, 3)
+        if len(xa) == len(xb) == len(a["names"]) and len(set(a["names"])) == len(xa):
+            both = np.isfinite(xa).all(axis=1) & np.isfinite(xb).all(axis=1)
+            # the mirror follows its actors every frame: a followed actor among 2 bodies 0.14 instead of 0.89 ms a
+            # frame with the dicts below (rel6a, load 10 on 2 cores)
+            return float(np.median(np.linalg.norm(xa[both] - xb[both], axis=1))) if both.any() else float("inf")
     pa = dict(zip(a["names"], np.asarray(a["positions"], np.float64).reshape(-1, 3), strict=True))
     pb = dict(zip(b["names"], np.asarray(b["positions"], np.float64).reshape(-1, 3), strict=True))
     d = [float(np.linalg.norm(pa[n] - pb[n])) for n in pa if n in pb and np.all(np.isfinite(pa[n]))
@@ -50,35 +58,107 @@ def first_player(bodies: Sequence[dict]) -> int | None:
     return min((b["player"] for b in bodies), default=None)
 
 
+#: How far (metres, median over the joints) a person moves at most between two frames at 30 fps (3 m/s). The
+#: mirror (:class:`SubjectFollower` with ``step_m``) takes a body holding the subject's id only within
+#: ``jump_m + step_m * (frames the subject was missed)`` of its last joints: further, it is another person the SDK
+#: gave the id (a freed id goes to whoever is tracked next), never the subject.
+SUBJECT_STEP_M = 0.1
+#: How far the subject's own skeleton may jump between two frames under the same id (a tracker glitch, a fit that
+#: flips; session 46's synthetic walk-in lands 0.43 m at frame 44, and a 0.3 m reach dropped 2 of its frames), and
+#: less than two people stand apart (the two-actor sessions: ~1.0 m).
+SUBJECT_JUMP_M = 0.6
+
+
+class SubjectFollower:
+    """One subject followed frame by frame (:func:`follow_subject` over a whole run; the mirror steps one per actor
+    through a live stream, :func:`follow_subjects`).
+
+    ``player``: the subject's id (None: the first frame with a body chooses, :func:`first_player`). Each frame the
+    subject is the body nearest its last joints within ``follow_m`` (under whatever id: the SDK renumbers a person it
+    lost, and two crossing actors can swap ids); where none is that near, the body holding the subject's current id,
+    when ``step_m`` is None (the behaviour of reconstruct and muscle capture) or it lies within
+    ``max(follow_m, jump_m) + step_m * missed`` of the last joints (``missed``: frames since the subject was last
+    seen);
+    otherwise the frame has no subject (None). ``player`` follows the id the subject holds, ``last`` its last
+    tracked body."""
+
+    def __init__(self, player: int | None = None, follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None,
+                 jump_m: float = SUBJECT_JUMP_M):
+        self.player, self.follow_m, self.step_m, self.jump_m = player, float(follow_m), step_m, float(jump_m)
+        self.chosen = player is not None
+        self.last: dict | None = None
+        self.missed = 0
+
+    def candidates(self, bodies: Sequence[dict]) -> list[tuple[int, float, int]]:
+        """``(tier, distance m, index)`` of the bodies that may be the subject, best first: tier 0 the bodies within
+        ``follow_m`` of its last joints (nearest first; before it was ever seen, the body holding its id), tier 1
+        the body holding its id farther away (only within the ``step_m`` reach when that is set, or when it shares no
+        finite joint with the last ones)."""
+        if not self.chosen:
+            return []
+        if self.last is None:
+            return [(0, 0.0, k) for k, b in enumerate(bodies) if b["player"] == self.player][:1]
+        dist = [body_distance_m(b, self.last) for b in bodies]
+        near = sorted((0, d, k) for k, d in enumerate(dist) if d <= self.follow_m)
+        holder = next((k for k, b in enumerate(bodies) if b["player"] == self.player), None)
+        if holder is not None and all(k != holder for _, _, k in near):
+            reach = np.inf if self.step_m is None else max(self.follow_m, self.jump_m) + self.step_m * self.missed
+            # no joint in common with the last ones (all NaN): nothing tells it apart, the id decides
+            if dist[holder] <= reach or not np.isfinite(dist[holder]):
+                near.append((1, dist[holder], holder))
+        return near
+
+    def take(self, body: dict | None) -> dict | None:
+        """Record this frame's subject (None: not found) and return it."""
+        if body is None:
+            self.missed += 1
+        else:
+            self.player, self.missed, self.chosen = body["player"], 0, True
+            if np.isfinite(np.asarray(body["positions"], np.float64)).all(axis=-1).any():
+                self.last = body  # a body without a finite joint leaves the reference where it was
+        return body
+
+    def follow(self, bodies: Sequence[dict]) -> dict | None:
+        """The subject's body in this frame's ``bodies`` (:func:`frame_bodies`), or None."""
+        bodies = list(bodies or [])
+        if not self.chosen and bodies:
+            self.player, self.chosen = first_player(bodies), True
+        best = self.candidates(bodies)
+        return self.take(bodies[best[0][2]] if best else None)
+
+
+def follow_subjects(followers: Sequence[SubjectFollower], bodies: Sequence[dict]) -> list[dict | None]:
+    """Each follower's body in one frame, no body given to two: the (tier, distance) best pairs first, so two actors
+    who swapped ids are each found by their joints. Advances every follower (:meth:`SubjectFollower.take`)."""
+    bodies = list(bodies or [])
+    pairs = sorted((c[0], c[1], c[2], j) for j, f in enumerate(followers) for c in f.candidates(bodies))
+    found: list[dict | None] = [None] * len(followers)
+    used: set[int] = set()
+    for _, _, k, j in pairs:
+        if found[j] is None and k not in used:
+            found[j] = bodies[k]
+            used.add(k)
+    return [f.take(b) for f, b in zip(followers, found, strict=True)]
+
+
 def follow_subject(bodies_by_frame: Iterable[Sequence[dict]], player: int | None = None,
-                   follow_m: float = SUBJECT_FOLLOW_M) -> Iterator[dict | None]:
+                   follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None) -> Iterator[dict | None]:
     """The subject's body in each frame of ``bodies_by_frame`` (each a list of bodies, :func:`frame_bodies`),
     lazily: frames are read only as far as the caller iterates. ``player``: the subject's id; None chooses it at the
-    first frame with a body (:func:`first_player`). A frame yields the body with the subject's current id; where
-    that id is gone, the body nearest the subject's last joints within ``follow_m`` (:func:`body_distance_m`),
-    whose id the subject keeps from then on; otherwise None (the subject is not in the frame)."""
-    last = None
-    chosen = player is not None
+    first frame with a body (:func:`first_player`). A frame yields the body nearest the subject's last joints within
+    ``follow_m`` (:func:`body_distance_m`), whose id the subject keeps from then on, else the body holding the
+    subject's id (within the ``step_m`` reach when given, :class:`SubjectFollower`), otherwise None (the subject is
+    not in the frame)."""
+    follower = SubjectFollower(player, follow_m, step_m)
     for bodies in bodies_by_frame:
-        bodies = list(bodies or [])
-        if not chosen and bodies:
-            player, chosen = first_player(bodies), True
-        mine = next((b for b in bodies if b["player"] == player), None) if chosen else None
-        if mine is None and last is not None:
-            near = [(body_distance_m(b, last), k) for k, b in enumerate(bodies)]
-            near = [(d, k) for d, k in near if d <= follow_m]
-            if near:
-                mine = bodies[min(near)[1]]
-                player = mine["player"]
-        if mine is not None:
-            last = mine
-        yield mine
+        yield follower.follow(bodies)
 
 
 def subject_players(bodies_by_frame: Iterable[Sequence[dict]], player: int | None = None,
-                    follow_m: float = SUBJECT_FOLLOW_M) -> list[int | None]:
+                    follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None) -> list[int | None]:
     """The subject's player id in each frame (:func:`follow_subject`; None where the subject is not tracked)."""
-    return [None if body is None else body["player"] for body in follow_subject(bodies_by_frame, player, follow_m)]
+    return [None if body is None else body["player"]
+            for body in follow_subject(bodies_by_frame, player, follow_m, step_m)]
 
 
 def subject_body(frame, player: int | None) -> dict | None:
@@ -90,12 +170,14 @@ def subject_body(frame, player: int | None) -> dict | None:
     return next((b for b in bodies if b["player"] == player), None)
 
 
-def session_subject(session, frame_ids: Sequence[int], player: int | None = None) -> dict[int, int | None]:
+def session_subject(session, frame_ids: Sequence[int], player: int | None = None,
+                    step_m: float | None = None) -> dict[int, int | None]:
     """``{frame id: the subject's player id}`` over a run's frames (:func:`subject_players`, read from each frame's
     ``kinect/joints``; None where the subject is absent). Computed once per run: a batch chunk that starts after a
     second person came into view gets the run's subject, not the lowest id of its own first frame."""
     ids = list(frame_ids)
-    return dict(zip(ids, subject_players((frame_bodies(session.frame(f)) for f in ids), player), strict=True))
+    return dict(zip(ids, subject_players((frame_bodies(session.frame(f)) for f in ids), player, step_m=step_m),
+                    strict=True))
 
 
 def absent_frames(players: dict[int, int | None], session) -> list[int]:

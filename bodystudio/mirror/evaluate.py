@@ -215,6 +215,11 @@ def image_scores(session, run_dir: str | Path, run: dict, band_px: int = BAND_PX
     player = int(run.get("player", 1))
     several = len(run.get("players") or ()) > 1  # mirror run --player 1 --player 2
     status = {f["index"]: f.get("status") for f in run["frames"]}
+    # the Kinect id the player held in each frame (run.json's tracked_as, the run's players in order; rel6a): the
+    # SDK's raw mask of a renumbered actor is under that id, not the run's
+    order = [int(p) for p in run.get("players") or [player]]
+    held = {f["index"]: f["tracked_as"][order.index(player)] for f in run["frames"]
+            if player in order and len(f.get("tracked_as") or ()) == len(order)}
     fg, fg_raw, warp, unwarped, ssim = [], [], [], [], []
     sse, count, scored, passed = 0.0, 0, [], 0
     # the run reaches the edit gradually, over its first ``ramp_frames`` tracked ("ok") frames; the ground
@@ -243,7 +248,7 @@ def image_scores(session, run_dir: str | Path, run: dict, band_px: int = BAND_PX
         if output.shape != target_rgb.shape or refined.shape != truth.shape or warped.shape != truth.shape:
             raise FileFormatError(f"{run_dir / 'frames' / name}: image size {output.shape[1]}x{output.shape[0]} is "
                                   f"not the session's colour {truth.shape[1]}x{truth.shape[0]}; re-run the mirror")
-        raw = player_mask_in_color(read_mirror_frame(session, i), session.kinect, player)
+        raw = player_mask_in_color(read_mirror_frame(session, i), session.kinect, held.get(i) or player)
         if several:  # the run's masks hold every reshaped player: score this one's, those near it, not another's
             mine = cv2.dilate((truth | target).astype(np.uint8), np.ones((2 * NEAR_PX + 1,) * 2, np.uint8)) > 0
             mine &= (frame.gt_person == 0) | truth

@@ -740,6 +740,7 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
     if sensor is None:
         raise InputError(f"{session.path}: no Kinect calibration (kinect/calibration.json); "
                          "the mirror needs a Kinect RGB-D session")
+    from bodystudio.capture.subject import SUBJECT_STEP_M, SubjectFollower
     from bodystudio.mirror.compose import update_background
     from bodystudio.mirror.foreground import refine_foreground
     from bodystudio.mirror.frames import point_cloud, read_mirror_frame, register_depth_to_color
@@ -754,6 +755,10 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
     out, why = [], {"no person": 0, "no joints": 0, "no depth": 0}
     first = None
     background = None
+    # the actor is ``player`` where first tracked, then followed by its joints over the frames read (a person moves
+    # step_m a frame, ``stride`` frames between two reads): the SDK renumbers a person it lost, crossing actors swap
+    # ids, and the init must not fit the person who holds the id after a swap (rel6a)
+    follower = SubjectFollower(player, step_m=SUBJECT_STEP_M * max(int(stride), 1))
     for i in ids:
         if frames is None and first is not None:
             if i >= first + n_frames:
@@ -761,7 +766,10 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
             if (i - first) % max(int(stride), 1):
                 continue
         frame = read_mirror_frame(session, i)
-        bodies = [b for b in frame.bodies if b.player == player]
+        subject = follower.follow([{"player": b.player, "names": b.names, "positions": b.positions}
+                                   for b in frame.bodies])
+        pid = player if subject is None else int(subject["player"])
+        bodies = [b for b in frame.bodies if b.player == pid] if subject is not None else []
         if not bodies:
             why["no person" if not frame.bodies else "no joints"] += 1
             if silhouettes and first is None and frame.depth_m is not None:
@@ -775,18 +783,18 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
         if frame.depth_m is None or not np.any(frame.depth_m > 0):
             why["no depth"] += 1
             continue
-        points = point_cloud(frame, sensor, player)
+        points = point_cloud(frame, sensor, pid)
         if len(points) < MIN_POINTS:
             why["no person"] += 1
             continue
         foreground = others = None
         if silhouettes:
             depth_c, players_c = register_depth_to_color(frame.depth_m, frame.player, sensor)
-            foreground = refine_foreground(frame.rgb, players_c == player, depth_c, background=background)
-            others = (players_c > 0) & (players_c != player)
+            foreground = refine_foreground(frame.rgb, players_c == pid, depth_c, background=background)
+            others = (players_c > 0) & (players_c != pid)
         out.append(InitObservation(i, points, body.positions, body.tracked, _session_version(body.names),
-                                   foreground, others, frame.player == player,
-                                   (frame.player != 0) & (frame.player != player)))
+                                   foreground, others, frame.player == pid,
+                                   (frame.player != 0) & (frame.player != pid)))
         first = i if first is None else first
     if not out:
         reason = max(why, key=why.get)

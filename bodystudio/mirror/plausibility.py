@@ -17,7 +17,7 @@ import numpy as np
 
 from bodystudio.body.kinect import kinect_joint_names
 from bodystudio.body.kinect import kinect_joints as skeleton_kinect_joints
-from bodystudio.errors import ImplausibleResultError
+from bodystudio.errors import BodyStudioError, ImplausibleResultError
 
 #: Kinect segments compared (the limbs and spine §4 scales the body's bones to; hands, feet and head left
 #: out: their joints are the tracker's noisiest).
@@ -72,6 +72,16 @@ def source_segment_lengths(skeleton, version: str) -> np.ndarray:
     return segment_lengths(J, None, version)
 
 
+def frame_bodies_or_none(session, i) -> list[dict]:
+    """Frame ``i``'s tracked bodies, ``[]`` when its joints file cannot be read: the checks skip a damaged frame, which
+    the run passes through with its own warning (rel6a: a self-check that sampled it refused the whole run, one that
+    did not let it run; the same damage one frame later gave the other answer)."""
+    try:
+        return session.frame(i).kinect_bodies or []
+    except BodyStudioError:
+        return []
+
+
 def session_segment_lengths(session, player: int = 1, frames=None, max_frames: int = CHECK_FRAMES
                             ) -> tuple[np.ndarray, str | None, int]:
     """Per segment, the median over the session's frames of the tracked lengths of ``player``; the joint set's
@@ -82,7 +92,7 @@ def session_segment_lengths(session, player: int = 1, frames=None, max_frames: i
         ids = [ids[int(round(k))] for k in np.linspace(0, len(ids) - 1, max_frames)]
     rows, version = [], None
     for i in ids:
-        for body in session.frame(i).kinect_bodies or []:
+        for body in frame_bodies_or_none(session, i):
             if int(body["player"]) != int(player):
                 continue
             names = list(body["names"])
@@ -159,7 +169,7 @@ def init_coverage(session, frames, player: int = 1) -> dict:
     n = 0
     for i in frames:
         frame = session.frame(i)
-        bodies = [b for b in frame.kinect_bodies or [] if int(b["player"]) == int(player)]
+        bodies = [b for b in frame_bodies_or_none(session, i) if int(b["player"]) == int(player)]
         if not bodies:
             continue
         n += 1
@@ -168,7 +178,10 @@ def init_coverage(session, frames, player: int = 1) -> dict:
         for group, joints in INIT_REQUIRED_JOINTS.items():
             if all(j in names and tracked[names.index(j)] for j in joints):
                 seen[group] += 1
-        mask = frame.kinect_player
+        try:
+            mask = frame.kinect_player
+        except BodyStudioError:  # a damaged mask: the frame's edges are not known
+            mask = None
         if mask is not None:
             mine = np.asarray(mask) == int(player)
             for edge, line in (("top", mine[0]), ("bottom", mine[-1]), ("left", mine[:, 0]), ("right", mine[:, -1])):
@@ -250,7 +263,7 @@ def depth_color_registration(session, player: int = 1, n_frames: int = REGISTRAT
     from bodystudio.mirror.frames import register_depth_to_color
 
     with_player = [i for i in session.frame_ids
-                   if any(int(b["player"]) == int(player) for b in session.frame(i).kinect_bodies or [])]
+                   if any(int(b["player"]) == int(player) for b in frame_bodies_or_none(session, i))]
     if not with_player:
         return {"offset_px": float("nan"), "shift": None, "frames": []}
     picks = sorted({with_player[int(round(k))] for k in np.linspace(0, len(with_player) - 1,
@@ -258,10 +271,13 @@ def depth_color_registration(session, player: int = 1, n_frames: int = REGISTRAT
     rows, images = [], []
     for i in picks:
         frame = session.frame(i)
-        rgb, depth, players = frame.kinect_rgb, frame.kinect_depth_m, frame.kinect_player
-        if rgb is None or depth is None or players is None:  # no player mask: nothing to register (the run decides)
+        try:  # a damaged frame is skipped here; the run passes it through with its own warning
+            rgb, depth, players = frame.kinect_rgb, frame.kinect_depth_m, frame.kinect_player
+            if rgb is None or depth is None or players is None:  # no player mask: nothing to register (the run decides)
+                continue
+            _, players_c = register_depth_to_color(depth, players, session.kinect)
+        except BodyStudioError:
             continue
-        _, players_c = register_depth_to_color(depth, players, session.kinect)
         mask = players_c == int(player)
         if np.count_nonzero(mask) < 500 or mask.shape != rgb.shape[:2]:
             continue

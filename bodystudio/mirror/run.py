@@ -152,6 +152,10 @@ class MirrorInput:
     # the refined foreground of the frame (``--refine-pose``); src_uv/dst_uv/dense are then None until called
     late_pairs: Callable | None = None
     players: tuple | None = None  # the players reshaped in this frame when the run reshapes several (else None)
+    # per reshaped player (the run's order), the Kinect id it holds in this frame (None: not found); the SDK renumbers
+    # a person it lost and two crossing actors can swap ids (capture.subject.SubjectFollower)
+    tracked_as: tuple | None = None
+    subject_missing: bool = False  # a reshaped player not found while the tracker reports other people
     person_labels: np.ndarray | None = None  # (H, W) uint8 the player of each person_mask pixel (several players)
     # the steps' CPU ms (``time.process_time``, all threads of the process) next to ``timings_ms``' wall ms; the
     # frame's steps (late_pairs' too) add theirs to this same dict
@@ -286,7 +290,11 @@ def _summary(results: list[dict], steps_ms: dict[str, list[float]], wall_s: floa
     counts = {s: sum(r["status"] == s for r in results) for s in ("ok", "empty", "passed_through")}
     n = len(results)
     out = {"frames": n, **{f"n_{k}": v for k, v in counts.items()},
-           "n_warnings": counts["passed_through"], "ms_per_frame": ms, "ms_per_frame_statistic": "median",
+           "n_warnings": counts["passed_through"],
+           # frames where a reshaped player was not found while the tracker reported other people (passed through
+           # for one player; left out of the frame when several are reshaped)
+           "n_subject_missing": sum(bool(r.get("subject_missing")) for r in results),
+           "ms_per_frame": ms, "ms_per_frame_statistic": "median",
            "image_steps_ms": image_ms, "image_steps_fps": 1e3 / image_ms if image_ms > 0 else None,
            "wall_s": wall_s, "fps_wall": n / wall_s if wall_s > 0 else None}
     if steps_cpu_ms is not None:
@@ -407,6 +415,10 @@ def mirror_stream(inputs: Iterable[MirrorInput], run_dir: str | Path, out_video:
                           "cpu_ms": {k: round(v, 3) for k, v in res.cpu_ms.items()}}
                 if inp.players is not None:  # a run of several players: who was reshaped in this frame
                     record["players"] = list(inp.players) if res.status == "ok" else []
+                if inp.tracked_as is not None:  # the Kinect id each reshaped player held (None: not found)
+                    record["tracked_as"] = list(inp.tracked_as)
+                if inp.subject_missing:
+                    record["subject_missing"] = True
                 results.append(record)
                 bar.advance(task)
         finally:
@@ -543,6 +555,22 @@ class _Actor:
     tracked_frames: int = 0
     posture: object = None  # E_trunk's centre (POSTURE_BONES), None: the rest pose
     refined_frames: int = 0
+    follower: object = None  # capture.subject.SubjectFollower: the Kinect id this player holds, frame to frame
+
+
+def _tracked_record(body) -> dict:
+    """A :class:`~bodystudio.mirror.frames.TrackedBody` as the body record :mod:`bodystudio.capture.subject` follows."""
+    return {"player": body.player, "names": body.names, "positions": body.positions, "tracked_body": body}
+
+
+def _colour_or_none(session, i: int, camera) -> np.ndarray | None:
+    """Frame ``i``'s Kinect colour image when it reads and has the colour camera's size, else None (rel6a: a frame
+    whose depth, player mask or joints were damaged passed the previous frame's colour through, a frozen frame)."""
+    try:
+        rgb = session.frame(i).kinect_rgb
+    except BodyStudioError:
+        return None
+    return rgb if rgb is not None and rgb.shape == (camera.height, camera.width, 3) else None
 
 
 def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp_frames: int = 30,
@@ -556,6 +584,14 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     their pairs from one :func:`frame_pairs` call. A chosen player not in view is left out of the frame; one in
     the mask but not tracked (or tracked with an empty mask, or whose tracking fails) passes the frame through
     with a warning, as for one player.
+
+    Each player is the id given at its first tracked frame and then followed by its joints
+    (:class:`bodystudio.capture.subject.SubjectFollower` with :data:`~bodystudio.capture.subject.SUBJECT_STEP_M`):
+    the SDK renumbers a person it lost and two crossing actors can swap ids, so the frame's body nearest the player's
+    last joints (within 0.3 m) is the player under whatever id it holds, and a body holding the player's id farther
+    than a skeleton jumps in a frame (0.6 m, plus 0.1 m per frame the player was missed) is someone else. A run of
+    one player whose subject is not found while the tracker reports other people passes the frame through with a
+    warning (``subject_missing``); a bystander is never reshaped in the subject's place.
 
     The target body is computed once (Eq. 4) and reached gradually: the target rest shape is
     ``V_S + s (V_T - V_S)`` with ``s`` going 0 -> 1 over ``ramp_frames`` tracked frames of that player (Eq. 4 is
@@ -577,10 +613,13 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     bodies = tuple(body) if several else (body,)
     if len(bodies) != len(players) or not players:
         raise InputError(f"session_inputs: {len(players)} players but {len(bodies)} source bodies")
+    from bodystudio.capture.subject import SUBJECT_STEP_M, SubjectFollower, follow_subjects
+
     actors = []
     for p, b in zip(players, bodies, strict=True):
         c_target = target_coeffs(model, b.coeffs, edits)
-        actors.append(_Actor(p, b, c_target, model.vertices(c_target)))
+        actors.append(_Actor(p, b, c_target, model.vertices(c_target),
+                             follower=SubjectFollower(p, step_m=SUBJECT_STEP_M)))
     camera = sensor.color
     if refine:
         from bodystudio.mirror.frames import point_cloud
@@ -599,7 +638,9 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         try:
             frame = read_mirror_frame(session, int(i))
         except BodyStudioError as exc:
-            rgb = last_rgb if last_rgb is not None else np.zeros((camera.height, camera.width, 3), np.uint8)
+            rgb = _colour_or_none(session, int(i), camera)  # a damaged depth / mask / joints file: its own colour
+            if rgb is None:  # the colour itself unreadable: the last frame's, as a live mirror shows
+                rgb = last_rgb if last_rgb is not None else np.zeros((camera.height, camera.width, 3), np.uint8)
             yield MirrorInput(int(i), rgb, warning=f"frame unreadable: {exc}", timings_ms=timings, cpu_ms=cpu)
             continue
         last_rgb = frame.rgb
@@ -613,34 +654,52 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         if seen is None or (measured & ~seen).any():
             seen = measured if seen is None else seen | measured
             unseen = cv2.dilate(seen.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
-        person, others, labels = player_masks(players_c, players, several)
+        found = follow_subjects([a.follower for a in actors], [_tracked_record(b) for b in frame.bodies])
+        tracked_as = tuple(None if f is None else f["player"] for f in found)
+        # the players' ids in this frame's mask: where found, the id each holds; where not, the id it held last unless
+        # a tracked body (someone else) holds it now
+        ids = tuple(a.follower.player for a, f in zip(actors, found, strict=True)
+                    if f is not None or frame.body(a.follower.player) is None)
+        if ids:
+            person, others, labels = player_masks(players_c, ids, several)
+        else:  # none of the run's players tracked: whoever is in the mask is someone else
+            person = np.zeros(players_c.shape, bool)
+            others, labels = players_c > 0, np.zeros(players_c.shape, np.uint8) if several else None
         t2, c2 = time.perf_counter(), time.process_time()
         timings["register"] = (t2 - t1) * 1e3
         cpu["register"] = (c2 - c1) * 1e3
         base = dict(index=int(i), rgb=frame.rgb, person_mask=person, others_mask=others, depth_color=depth_c,
-                    timings_ms=timings, unseen=unseen, person_labels=labels, cpu_ms=cpu)
-        present, warning = [], None
-        for a in actors:
-            tracked = frame.body(a.player)
-            mine = person if not several else players_c == a.player
-            if tracked is None:
-                if mine.any():
-                    warning = f"player {a.player} is in the mask but no body is tracked"
+                    timings_ms=timings, unseen=unseen, person_labels=labels, cpu_ms=cpu, tracked_as=tracked_as)
+        present, warning, missing = [], None, False
+        for a, f in zip(actors, found, strict=True):
+            pid = a.follower.player
+            if f is None:
+                held = f" (last tracked as {pid})" if pid != a.player else ""
+                if frame.body(pid) is None and (players_c == pid).any():
+                    warning = f"player {a.player}{held} is in the mask but no body is tracked"
                     break
-                continue  # this player is not in view
-            present.append((a, tracked, mine))
+                if frame.bodies:  # people tracked, none of them the player: never reshape another in its place
+                    missing = True
+                    if not several:
+                        warning = (f"player {a.player}{held} is not among the tracked bodies (players "
+                                   f"{', '.join(str(b.player) for b in frame.bodies)}): the run's subject is not "
+                                   "found near its last joints; the frame passes through unchanged")
+                        break
+                continue  # left out of the frame, as a player out of view
+            mine = person if not several else players_c == pid
+            present.append((a, f["tracked_body"], mine, pid))
         if warning is None and present:
             if not (frame.depth_m > 0).any():
                 warning = "depth missing (no depth measurement in the frame)"
             else:
-                empty = next((a for a, _, mine in present if not mine.any()), None)
+                empty = next((a for a, _, mine, _ in present if not mine.any()), None)
                 if empty is not None:
                     warning = f"body {empty.player} is tracked but its player mask is empty"
         if warning is not None or not present:
-            yield MirrorInput(**base, warning=warning, players=() if several else None)
+            yield MirrorInput(**base, warning=warning, players=() if several else None, subject_missing=missing)
             continue
         poses = []
-        for a, tracked, _ in present:
+        for a, tracked, _, _ in present:
             try:
                 pose = ik_pose(a.body.skeleton, tracked.positions, tracked.tracked, sensor.version,
                                previous=a.previous)
@@ -649,10 +708,10 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
                 warning = f"tracking failed: {exc}" if not several else f"tracking player {a.player} failed: {exc}"
                 break
         if warning is not None:
-            yield MirrorInput(**base, warning=warning, players=() if several else None)
+            yield MirrorInput(**base, warning=warning, players=() if several else None, subject_missing=missing)
             continue
         shapes = []
-        for (a, _, _), pose in zip(present, poses, strict=True):
+        for (a, _, _, _), pose in zip(present, poses, strict=True):
             a.previous = pose
             a.tracked_frames += 1
             s = min(1.0, a.tracked_frames / max(int(ramp_frames), 1))
@@ -663,19 +722,19 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         timings["ik"] = (t3 - t2) * 1e3
         cpu["ik"] = (time.process_time() - c2) * 1e3
         fraction = min(s for s, _, _ in shapes)
-        reshaped = tuple(a.player for a, _, _ in present) if several else None
+        reshaped = tuple(a.player for a, _, _, _ in present) if several else None
 
         def bodies_and_pairs(foreground, timings, poses=poses, frame=frame, present=present, shapes=shapes,
                              players_c=players_c, others=others, cpu=cpu):
             """Pose refinement (with the frame's refined ``foreground`` when given), the bodies, the pairs."""
             sources, targets, fgs = [], [], []
-            for (a, tracked, _), pose, (_, Vt_rest, rig) in zip(present, poses, shapes, strict=True):
+            for (a, tracked, _, pid), pose, (_, Vt_rest, rig) in zip(present, poses, shapes, strict=True):
                 t, c = time.perf_counter(), time.process_time()
                 if foreground is not None:
-                    points = point_cloud(frame, sensor, a.player)
+                    points = point_cloud(frame, sensor, pid)
                     points = points[points[:, 1] > 0.02]  # not the floor under the feet
                     # several players: this one's foreground is the cut's without the other players' pixels
-                    not_mine = others if not several else (players_c > 0) & (players_c != a.player)
+                    not_mine = others if not several else (players_c > 0) & (players_c != pid)
                     fg = foreground if not several else foreground & ~not_mine
                     fgs.append(fg)
                     try:
@@ -711,11 +770,13 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
             return pairs
 
         if refine:  # the pose waits for the graph cut's foreground (mirror_frame calls back)
-            yield MirrorInput(**base, edit_fraction=fraction, late_pairs=bodies_and_pairs, players=reshaped)
+            yield MirrorInput(**base, edit_fraction=fraction, late_pairs=bodies_and_pairs, players=reshaped,
+                              subject_missing=missing)
             continue
         pairs = bodies_and_pairs(None, timings)
         yield MirrorInput(**base, src_uv=pairs.src_uv, dst_uv=pairs.dst_uv, edit_fraction=fraction,
-                          dense=pairs.dense, pair_groups=getattr(pairs, "groups", None), players=reshaped)
+                          dense=pairs.dense, pair_groups=getattr(pairs, "groups", None), players=reshaped,
+                          subject_missing=missing)
 
 
 def _stage_module(name: str):

@@ -33,6 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from bodystudio.body import Pose, Skeleton
 from bodystudio.body.skinning import forward_kinematics, linear_blend_skinning, skinning_transforms
+from bodystudio.errors import InputError
 from bodystudio.geometry.mesh import Mesh, vertex_normals
 from bodystudio.register.initial_pose import coarse_scan_skeleton, initial_pose
 
@@ -245,7 +246,12 @@ def compatible_pairs(model_V: np.ndarray, model_F: np.ndarray, model_N: np.ndarr
     """Compatible closest-point pairs both ways: ``(model triangle corners (s, 3), barycentrics (s, 3),
     scan points (s, 3), their scan vertex indices (s,))``. A pair counts when the normals agree within 60° and
     the points are within ``max_dist``; model vertices (all, or those of ``model_sample``) map to scan
-    vertices, scan vertices (``scan_sample``) to the closest compatible point of the model."""
+    vertices, scan vertices (``scan_sample``) to the closest compatible point of the model. ``k``: how many nearest
+    points each side looks among for a compatible one (1: the nearest only; the fit uses 8)."""
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        raise InputError(f"compatible_pairs: k = {k!r}; give how many nearest points to look among, an integer >= 1")
+    # a list of ranks keeps cKDTree's (n, k) result for k = 1 too (a plain k = 1 gives (n,) and einsum failed, mutZ)
+    k = list(range(1, int(k) + 1))
     model_sample = np.arange(len(model_V)) if model_sample is None else model_sample
     d, nn = scan_tree.query(model_V[model_sample], k=k, distance_upper_bound=max_dist)
     ok = np.isfinite(d)

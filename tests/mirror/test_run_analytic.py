@@ -219,7 +219,7 @@ def test_summary_is_medians_counts_and_rates():
     steps = {"read": [1.0, 3.0, 2.0], "foreground": [4.0, 6.0, 5.0], "warp": [1.0, 1.0, 4.0], "compose": [],
              "write": [9.0]}
     s = run_mod._summary(rows, steps, 2.5)
-    assert s == {"frames": 5, "n_ok": 3, "n_empty": 1, "n_passed_through": 1, "n_warnings": 1,
+    assert s == {"frames": 5, "n_ok": 3, "n_empty": 1, "n_passed_through": 1, "n_warnings": 1, "n_subject_missing": 0,
                  "ms_per_frame": {"read": 2.0, "foreground": 5.0, "warp": 1.0, "write": 9.0},
                  "ms_per_frame_statistic": "median", "image_steps_ms": 6.0, "image_steps_fps": 1e3 / 6.0,
                  "wall_s": 2.5, "fps_wall": 2.0}
@@ -338,15 +338,18 @@ class _Frames:
         s = self.spec[i]
         if s.get("unreadable"):
             raise FileFormatError(f"frame {i}: broken PNG")
-        body = None if s.get("untracked") else SimpleNamespace(positions=np.full((25, 3), float(i)),
-                                                               tracked=np.ones(25, bool))
+        # the frame index in the first joint only: the body stands still (the run follows it by its joints)
+        positions = np.zeros((25, 3))
+        positions[0, 0] = float(i)
+        body = None if s.get("untracked") else SimpleNamespace(player=1, names=tuple(f"j{k}" for k in range(25)),
+                                                               positions=positions, tracked=np.ones(25, bool))
         player = np.zeros((CH, CW), np.uint8)
         player[s.get("person", slice(2, 6)), 4:8] = 1
         player[8:10, 12:14] = 2
         depth = np.zeros((CH, CW)) if s.get("no_depth") else np.ones((CH, CW))
         seen = s.get("seen", (slice(None), slice(0, CW)))
         return SimpleNamespace(rgb=np.full((CH, CW, 3), i, np.uint8), depth_m=depth, player=player, seen=seen,
-                               body=lambda p: body if p == 1 else None)
+                               body=lambda p: body if p == 1 else None, bodies=() if body is None else (body,))
 
     def ik(self, skeleton, positions, tracked, version, previous=None):
         assert skeleton == "sk" and version == "v2" and tracked is not None and tracked.dtype == bool
@@ -354,6 +357,20 @@ class _Frames:
         if positions[0, 0] in self.spec_fail:
             raise InputError("pelvis not tracked")
         return f"pose{int(positions[0, 0])}"
+
+
+class _ColourOnly:
+    """The session's frame ``i`` as the run reads its colour alone after the whole frame failed to read: readable only
+    where the spec says ``colour_ok`` (a damaged depth / mask / joints file beside a good colour image)."""
+
+    def __init__(self, i, spec):
+        self.i, self.spec = i, spec
+
+    @property
+    def kinect_rgb(self):
+        if not self.spec.get("colour_ok"):
+            raise FileFormatError(f"frame {self.i}: broken colour PNG")
+        return np.full((CH, CW, 3), 40 + self.i, np.uint8)
 
 
 def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, player=1):
@@ -418,7 +435,8 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, play
     monkeypatch.setattr(reshape_mod, "posed_source_and_target", posed)
     monkeypatch.setattr(reshape_mod, "target_skeleton", rig)
     monkeypatch.setattr(run_mod, "warp_pairs", pairs)
-    session = SimpleNamespace(path="S", frame_ids=sorted(spec), kinect=SimpleNamespace(color=camera, version="v2"))
+    session = SimpleNamespace(path="S", frame_ids=sorted(spec), kinect=SimpleNamespace(color=camera, version="v2"),
+                              frame=lambda i: _ColourOnly(i, spec[i]))
     body = SimpleNamespace(coeffs=np.zeros(1), vertices=np.full((3, 3), 1.0), skeleton="sk", faces="faces")
     model = SimpleNamespace(vertices=lambda c: np.full((3, 3), 1.0 + 9.0 * c[0]))
     if ramp_frames is None:  # the defaults: player 1, 30 ramp frames
@@ -466,6 +484,9 @@ def test_session_inputs_ramp_zero_and_unreadable_frames(monkeypatch):
     assert out[0].warning == "frame unreadable: frame 0: broken PNG"
     assert out[0].rgb.shape == (CH, CW, 3) and out[0].rgb.dtype == np.uint8 and not out[0].rgb.any()
     assert out[2].warning.startswith("frame unreadable") and (out[2].rgb == 1).all()  # the last good frame
+    # rel6a: a frame whose depth (mask, joints) is damaged shows its own colour, not the last frame's (frozen)
+    own, _ = _session_inputs(monkeypatch, {0: {}, 1: {"unreadable": True, "colour_ok": True}}, ramp_frames=0)
+    assert own[1].warning == "frame unreadable: frame 1: broken PNG" and (own[1].rgb == 41).all()
     assert [o.edit_fraction for o in out if o.src_uv is not None] == [1.0, 1.0]
     # only the given frames
     out, _ = _session_inputs(monkeypatch, spec, frames=[3, 1])

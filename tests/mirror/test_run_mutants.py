@@ -395,6 +395,14 @@ def test_stream_records_the_players_reshaped_in_each_frame(tmp_path, monkeypatch
     assert "players" not in doc["frames"][0]
 
 
+def _at(p, i):
+    """Player ``p``'s joints in frame ``i``: 10 p m along x, the frame index added to the first joint only (the ik
+    stand-in reads both from it); the players stand still and 10 m apart, so the run follows each by its joints."""
+    positions = np.full((25, 3), 10.0 * p)
+    positions[0, 0] += i
+    return positions
+
+
 def _two_player_session(monkeypatch):
     """Stand-ins for the frames and body steps of two players (1, 2) and a bystander (3); they record their calls."""
     from bodystudio.mirror import frames as frames_mod
@@ -419,10 +427,10 @@ def _two_player_session(monkeypatch):
         player = np.zeros((h, w), np.uint8)
         for p in spec[i][0]:
             player[blocks[p]] = p
-        bodies = {p: SimpleNamespace(positions=np.full((25, 3), 10.0 * p + i), tracked=np.ones(25, bool))
-                  for p in spec[i][1]}
+        bodies = {p: SimpleNamespace(player=p, names=tuple(f"j{k}" for k in range(25)), positions=_at(p, i),
+                                     tracked=np.ones(25, bool)) for p in spec[i][1]}
         return SimpleNamespace(rgb=np.full((h, w, 3), i, np.uint8), depth_m=np.full((h, w), float(i < 7)),
-                               player=player, body=bodies.get)
+                               player=player, body=bodies.get, bodies=tuple(bodies[p] for p in sorted(bodies)))
 
     def ik(skeleton, positions, tracked, version, previous=None):
         p, i = divmod(int(positions[0, 0]), 10)
