@@ -52,13 +52,26 @@ EXTRA_TESTS = {
     "bodystudio/muscle/capture.py": ["tests/muscle/test_capture*.py", "tests/reliability/test_muscle_inputs.py"],
     # the mirror's pose refinement: its files are named after the step (test_pose_refine_*), not the module
     "bodystudio/mirror/refine.py": ["tests/mirror/test_pose_refine*.py"],
+    # the package's top-level modules: their files sit in tests/ and tests/reliability/ (mutBB's runs)
+    "bodystudio/fileio.py": ["tests/reliability/test_image_decoder.py",
+                             "tests/reliability/test_decoder_capture_file_mutants.py",
+                             "tests/reliability/test_fileio_mutants.py"],
+    # _process_alive's mutants signal the process they probe: only test_process_alive_mutants.py (which probes a
+    # child it starts) may run them; run that function apart (docs/mutation/runfolder.md)
+    "bodystudio/runfolder.py": ["tests/reliability/test_commit_cleanup_kill.py",
+                                "tests/reliability/test_runfolder_mutants.py",
+                                "tests/reliability/test_remove_stale_lock_mutants.py",
+                                "tests/reliability/test_rel5b_recover_race.py",
+                                "tests/reliability/test_runfolder_staging_mutants.py",
+                                "tests/reliability/test_process_alive_mutants.py"],
 }
 
 
 def tests_for(module: str, root: Path) -> list[str]:
     """Test files of ``module``: tests/<stage>/test_<name>*.py plus EXTRA_TESTS, those that exist."""
-    parts = Path(module).with_suffix("").parts  # ("bodystudio", stage, name)
-    patterns = [f"tests/{parts[1]}/test_{parts[-1]}*.py"] + EXTRA_TESTS.get(module, [])
+    parts = Path(module).with_suffix("").parts  # ("bodystudio", stage, name) or ("bodystudio", name)
+    folder = f"tests/{parts[1]}/" if len(parts) > 2 else "tests/"
+    patterns = [f"{folder}test_{parts[-1]}*.py"] + EXTRA_TESTS.get(module, [])
     found = sorted({p for pat in patterns for p in glob.glob(pat, root_dir=root)})
     return found
 

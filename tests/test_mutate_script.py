@@ -96,3 +96,14 @@ def test_a_key_of_its_own_leaves_the_shared_functions_entry_alone(report, tmp_pa
     got = json.loads(results.read_text())
     assert got[f"{MODULE} (functions)"] == entry and got[key]["score"] == 0.5
     assert mutate.main(["--modules", MODULE, "bodystudio/muscle/model.py", "--key", key]) == 2
+
+
+def test_the_test_files_of_a_top_level_module_are_found():
+    """``tests_for`` of a module at the package's top (``bodystudio/fileio.py``) looks in tests/ itself (it looked
+    for tests/fileio/, which does not exist, and handed mutmut nothing but EXTRA_TESTS); runfolder's six files."""
+    root = Path(__file__).resolve().parent.parent
+    fileio = mutate.tests_for("bodystudio/fileio.py", root)
+    assert "tests/test_fileio.py" in fileio and "tests/reliability/test_fileio_mutants.py" in fileio
+    runfolder = mutate.tests_for("bodystudio/runfolder.py", root)
+    assert len(runfolder) == 6 and "tests/reliability/test_process_alive_mutants.py" in runfolder
+    assert mutate.tests_for("bodystudio/mirror/refine.py", root)[0].startswith("tests/mirror/test_")
