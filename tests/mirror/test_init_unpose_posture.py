@@ -74,6 +74,48 @@ def test_off_by_default():
     assert UNPOSE_POSTURE_BONES == () and POSTURE_BONES == ("spine_02", "neck_01", "head")
 
 
+@pytest.mark.parametrize("bones", [("spine_02", "head"), ()])
+def test_each_pass_centres_on_the_previous_passs_refined_poses(monkeypatch, bones):
+    """Four passes on two frames (stand-in refinement and Eq. 2 fit, the 2K model): the first refined pass holds the
+    rest pose (no posture handed on), each later one the :func:`session_posture` of the previous pass's refined poses
+    on its own shape estimate's skeleton; without bones no pass is handed a posture."""
+    from bodystudio.mirror import refine as refine_mod
+    from bodystudio.mirror.track import ik_pose
+    from tests.mirror.test_init_unposing_wiring import _frame, _model_2k, _pose
+
+    model = _model_2k()
+    eye = np.array([0.0, 1.0, 3.0])
+    n_bones = model.body(np.zeros(model.n_components)).skeleton.n_bones
+    obs = [_frame(model, _pose(n_bones, 3), eye, frame=0), _frame(model, _pose(n_bones, 4), eye, frame=1)]
+    calls = []
+
+    def refined(plan, body, o, P, camera, steps, **kw):
+        pose = ik_pose(body.skeleton, o.joints, o.tracked, o.version)  # each frame bent its own way (_pose)
+        calls.append((body, pose, kw))
+        return pose
+
+    fits = []
+
+    def fit(P0, m, coeffs, **kw):
+        fits.append(1)
+        return np.full(m.n_components, 0.1 * len(fits)) * m.stddev, 0.004
+
+    monkeypatch.setattr(refine_mod, "refine_plan", lambda *args: "plan")
+    monkeypatch.setattr(init_mod, "refined_init_pose", refined)
+    monkeypatch.setattr(init_mod, "fit_shape", fit)
+    initialise_from_observations(obs, model, view_point=eye, passes=4, depth_camera="cam",
+                                 unpose_posture_bones=bones)
+    bodies = list(dict.fromkeys(b for b, _, _ in calls))
+    assert len(bodies) == 3 and len(calls) == 6
+    assert all("posture" not in kw for b, _, kw in calls if b is bodies[0] or not bones)
+    for k in (1, 2) if bones else ():
+        expected = session_posture(bodies[k].skeleton, [q for b, q, _ in calls if b is bodies[k - 1]], bones)
+        for b, _, kw in calls:
+            if b is bodies[k]:
+                np.testing.assert_allclose(kw["posture"], expected, atol=1e-12)
+        assert np.abs(expected - bodies[k].skeleton.rest_rotations[:, :, 1]).max() > 0.01
+
+
 @pytest.fixture(scope="module")
 def stooped_side_on():
     """52's posture draw (the walk's seed 7 + 101: spine_02 bent 7 degrees, the head 4) on subject 42, walking on the
