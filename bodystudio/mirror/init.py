@@ -153,6 +153,15 @@ TRUNK_REFIT_JOINTS = {"SpineMid": (("spine_02", "head"), ("spine_01", "tail")),
                       "Neck": (("neck_01", "head"),)}
 #: Rounds of :func:`refit_trunk_joints` (each poses the body again on the moved joints before unposing them).
 TRUNK_REFIT_ROUNDS = 2
+#: Trunk bones whose E_trunk centre the refined unposing (:func:`refined_init_pose`) takes from the subject's own
+#: static posture, the mean over the previous pass's refined poses (:func:`session_posture`), instead of the rest
+#: pose; empty: the rest pose (the default). E_trunk at rest straightens a person's habitual stoop in every unposed
+#: frame, and the shape fit takes up what is left of it: on 52 (a 5 degree stoop at spine_02) the fitted body's
+#: chest came out 16 mm small and its hips 17 mm wide, and the Eq. 4 displacement of a -17 cm / -15 kg edit 4.6 mm
+#: off the truth's (0.8 on 42, the same subject upright). ``mirror init --unpose-posture`` (mir12v, docs/mirror.md).
+UNPOSE_POSTURE_BONES: tuple[str, ...] = ()
+#: The bones ``--unpose-posture`` centres (MIR12q's: the bones whose static bend the run's E_trunk shrinks).
+POSTURE_BONES = ("spine_02", "neck_01", "head")
 
 
 @dataclass(frozen=True, eq=False)
@@ -538,7 +547,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  point_sigma_m: float = POINT_SIGMA_M, depth_camera=None,
                                  unpose_refine_steps: int = UNPOSE_REFINE_STEPS,
                                  bone_length_weight: float = BONE_LENGTH_WEIGHT,
-                                 trunk_refit: bool = False) -> SourceBody:
+                                 trunk_refit: bool = False,
+                                 unpose_posture_bones=UNPOSE_POSTURE_BONES) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -556,9 +566,16 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     point noise (:func:`fit_shape`). ``bone_length_weight`` > 0: the fit also matches the SDK's joint distances of
     :data:`BONE_PAIRS`, averaged over every observation (:func:`kinect_bone_lengths`), each with that weight per
     frame behind it (:data:`BONE_LENGTH_WEIGHT`). ``trunk_refit``: the skeleton's trunk joints then moved onto the SDK's
-    (:func:`refit_trunk_joints` over the fitted frames; MIR12r).
+    (:func:`refit_trunk_joints` over the fitted frames; MIR12r). ``unpose_posture_bones`` (names): from the third
+    pass on, the refined unposing holds those trunk bones at the subject's static posture, the mean of the previous
+    pass's refined poses (:func:`session_posture`), instead of at rest (:data:`UNPOSE_POSTURE_BONES`).
     """
     model = check_model(model)
+    unpose_posture_bones = tuple(unpose_posture_bones)
+    unknown = sorted(set(unpose_posture_bones) - set(model.bone_names))
+    if unknown:
+        raise InputError(f"unpose_posture_bones: unknown bone(s) {unknown}; use trunk bones such as "
+                         f"{', '.join(POSTURE_BONES)}")
     if not (np.isfinite(bone_length_weight) and bone_length_weight >= 0):
         raise InputError(f"bone_length_weight must be a finite number >= 0 (0: no joint distances), "
                          f"got {bone_length_weight!r}")
@@ -585,7 +602,11 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         bone_lengths, n_frames = kinect_bone_lengths(observations, obs[0][0].version)
         length_weight = bone_length_weight * n_frames
     residual = np.nan
+    refined_poses: list = []  # the previous pass's refined poses: the subject's static posture
     for pass_ in range(max(1, passes)):
+        posture = session_posture(body.skeleton, refined_poses, unpose_posture_bones) \
+            if unpose_posture_bones and refined_poses else None
+        refined_poses = []
         pooled, matches, seen, joints0 = [], [], [], []
         plan = None
         if pass_ > 0 and unpose_refine_steps > 0 and depth_camera is not None:
@@ -595,7 +616,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         for o, P in obs:
             pose = None
             if plan is not None and o.player_mask is not None:
-                pose = refined_init_pose(plan, body, o, P, depth_camera, unpose_refine_steps)
+                pose = refined_init_pose(plan, body, o, P, depth_camera, unpose_refine_steps) if posture is None \
+                    else refined_init_pose(plan, body, o, P, depth_camera, unpose_refine_steps, posture=posture)
+                refined_poses.append(pose)
             cloud = transform_to_default_pose(P, o.joints, body, o.tracked, o.version, view_point=view_point,
                                               scale_bones=pass_ == 0, max_distance_m=max_distance_m, details=True,
                                               min_facing_cos=min_facing_cos, pose=pose)
@@ -645,18 +668,41 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
 
 
 def refined_init_pose(plan, body: BodyModel, observation: InitObservation, points: np.ndarray, depth_camera,
-                      steps: int = UNPOSE_REFINE_STEPS):
+                      steps: int = UNPOSE_REFINE_STEPS, posture: np.ndarray | None = None):
     """The pose of the current shape estimate ``body`` in one init frame for §4's inverse LBS: the IK on the frame's
     Kinect joints (§5.2), refined by ``steps`` Gauss-Newton steps of :func:`bodystudio.mirror.refine.refine_pose`
     against the SDK's player mask in the depth image (``depth_camera``), the depth ``points`` and the joints.
 
     The IK alone is 5-12 degrees off on the trunk and the root (docs/mirror.md, MIR12g), and a pose that is off
-    unposes the cloud wrongly: the shape fit then absorbs the error (MIR12i)."""
+    unposes the cloud wrongly: the shape fit then absorbs the error (MIR12i). ``posture`` (B, 3): E_trunk's centre
+    (``refine_pose``'s; :func:`session_posture`), None: the rest pose."""
     from bodystudio.mirror.refine import refine_pose
 
     pose = ik_pose(body.skeleton, observation.joints, observation.tracked, observation.version)
     return refine_pose(plan, body.skeleton, pose, depth_camera, observation.player_mask, observation.joints,
-                       observation.tracked, points, observation.others_depth, observation.version, iterations=steps)
+                       observation.tracked, points, observation.others_depth, observation.version, iterations=steps,
+                       posture=posture)
+
+
+def session_posture(skeleton: Skeleton, poses, bones) -> np.ndarray:
+    """A subject's static posture as E_trunk's centre (``refine.refine_pose``'s ``posture``, MIR12q's): for each of
+    ``bones`` (names) the mean over ``poses`` of its direction in its parent's frame
+    (:func:`bodystudio.mirror.refine.posture_directions`, on ``skeleton``: poses of an earlier shape estimate carry
+    their bends over by their local rotations), every other bone its rest direction.
+
+    A person's habitual stoop or nod is the same in every frame, so the mean over frames keeps it while E_trunk
+    still pulls each frame's noise towards it; the IK and the data alone hold the bend the mean starts from."""
+    from bodystudio.mirror.refine import posture_directions
+
+    poses = list(poses)
+    rest = skeleton.rest_rotations[:, :, 1].copy()
+    if not poses:
+        return rest
+    d = np.mean([posture_directions(skeleton, p) for p in poses], axis=0)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    keep = ~np.isin(np.asarray(skeleton.bone_names), list(bones))
+    d[keep] = rest[keep]
+    return d
 
 
 def refit_trunk_joints(body: BodyModel, frames, depth_camera=None, joints=tuple(TRUNK_REFIT_JOINTS),
@@ -810,11 +856,14 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
 def initialise_source_body(session, model: StatisticalBodyModel | None = None, frames=None, player: int = 1,
                            n_frames: int = DEFAULT_INIT_FRAMES, passes: int = INIT_PASSES,
                            silhouette_shape: bool = False,
-                           bone_length_weight: float = BONE_LENGTH_WEIGHT, trunk_refit: bool = False) -> SourceBody:
+                           bone_length_weight: float = BONE_LENGTH_WEIGHT, trunk_refit: bool = False,
+                           unpose_posture: bool = False) -> SourceBody:
     """§4 on a mirror session: the source body of ``player`` from up to ``n_frames`` frames (~3 s at 30 fps);
     ``silhouette_shape``: then refined against :data:`SILHOUETTE_FRAMES` frames' silhouettes (MIR12c);
     ``bone_length_weight`` > 0: the SDK's joint distances enter the fit (:data:`BONE_LENGTH_WEIGHT`, MIR12o);
-    ``trunk_refit``: the skeleton's trunk joints moved onto the SDK's (:func:`refit_trunk_joints`, MIR12r)."""
+    ``trunk_refit``: the skeleton's trunk joints moved onto the SDK's (:func:`refit_trunk_joints`, MIR12r);
+    ``unpose_posture``: the refined unposing holds :data:`POSTURE_BONES` at the subject's own static posture
+    (:func:`session_posture`, mir12v); off: :data:`UNPOSE_POSTURE_BONES`."""
     if model is None:
         from bodystudio.body.statistical import load_statistical_model
 
@@ -824,7 +873,8 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
     return initialise_from_observations(obs, model, view_point=sensor.depth.center, passes=passes,
                                         depth_camera=sensor.depth, camera=sensor.color if silhouette_shape else None,
                                         silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0,
-                                        bone_length_weight=bone_length_weight, trunk_refit=trunk_refit)
+                                        bone_length_weight=bone_length_weight, trunk_refit=trunk_refit,
+                                        unpose_posture_bones=POSTURE_BONES if unpose_posture else UNPOSE_POSTURE_BONES)
 
 
 # --- persistence -----------------------------------------------------------------------------------

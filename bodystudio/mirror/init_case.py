@@ -63,12 +63,19 @@ def back_project(depth_m: np.ndarray, camera, player_mask: bool = True) -> np.nd
 
 def synthetic_scene(subject_seed: int, n_frames: int = 6, motion: str = "walk", version: str = "v2",
                     resolution: str = "6k", seed: int = 0, offset=(0.1, 0.0, 0.2), frame_stride: int = 1,
-                    noise: bool = True, joint_noise_m: float = 0.01) -> Scene:
+                    noise: bool = True, joint_noise_m: float = 0.01, yaw_deg: float = 0.0) -> Scene:
+    """``subject_seed``'s population body doing ``motion`` (``seed``: its draw, the posture's too, and the noise),
+    every ``frame_stride``-th of ``n_frames * frame_stride`` frames, moved by ``offset`` and, with ``yaw_deg``,
+    turned about the vertical (90: its left side to the sensor, as a walk-in shows it)."""
     phenotype, local = sample_population(1, seed=subject_seed)[0]
     body = build_body(phenotype, local, resolution=resolution)
     sensor = kinect_v2() if version == "v2" else kinect_v1("320x240")
     rng = np.random.default_rng(seed)
     poses = motion_sequence(motion, n_frames * frame_stride, body.skeleton, seed=seed)[::frame_stride]
+    if yaw_deg:
+        from bodystudio.mirror.synthetic import _yaw
+
+        poses = [_yaw(body.skeleton, p, float(np.radians(yaw_deg)), p.translation) for p in poses]
     obs, truths, out_poses = [], [], []
     for i, pose in enumerate(poses):
         pose = type(pose)(pose.rotations, pose.translation + np.asarray(offset))

@@ -801,9 +801,10 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
         return ["obs"], session.kinect
 
     def fit(obs, m, view_point=None, passes=3, camera=None, silhouette_frames=0, depth_camera=None,
-            bone_length_weight=None, trunk_refit=None):
+            bone_length_weight=None, trunk_refit=None, unpose_posture_bones=None):
         calls["fit"] = (obs, m, view_point, passes)
         calls["trunk_refit"] = trunk_refit
+        calls["unpose_posture_bones"] = unpose_posture_bones
         calls["silhouette"] = (camera, silhouette_frames)
         calls["depth_camera"] = depth_camera
         calls["bone_length_weight"] = bone_length_weight
@@ -820,6 +821,9 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
     assert calls["silhouettes"] is False and calls["silhouette"] == (None, 0)  # MIR12c's refinement off by default
     assert calls["bone_length_weight"] == 0.0  # MIR12o's joint distances off by default
     assert calls["trunk_refit"] is False  # MIR12r's trunk refit off by default
+    assert calls["unpose_posture_bones"] == () == init_mod.UNPOSE_POSTURE_BONES  # mir12v's posture off by default
+    init_mod.initialise_source_body(session, model, unpose_posture=True)
+    assert calls["unpose_posture_bones"] == ("spine_02", "neck_01", "head") == init_mod.POSTURE_BONES
     init_mod.initialise_source_body(session, model, bone_length_weight=1.5)
     assert calls["bone_length_weight"] == 1.5
     init_mod.initialise_source_body(session, model, trunk_refit=True)

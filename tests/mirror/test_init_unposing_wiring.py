@@ -87,11 +87,14 @@ def test_refined_init_pose_refines_the_ik_of_the_frame(monkeypatch, model):
     np.testing.assert_array_equal(got["pose"].translation, ik.translation)
     joints, tracked, pts, others, version = got["args"]
     assert joints is obs.joints and tracked is obs.tracked and pts is points and others is obs.others_depth
-    assert version == "v2" and got["kw"] == {"iterations": 3}
+    assert version == "v2" and got["kw"] == {"iterations": 3, "posture": None}  # E_trunk at rest (mir12v: None)
     assert len(asked) == 1 and asked[0][0] is body.skeleton and asked[0][1] is obs.joints
     assert asked[0][2] is obs.tracked and asked[0][3] == "v2"
     refined_init_pose("plan", body, obs, points, "depth-cam")
-    assert got["kw"] == {"iterations": UNPOSE_REFINE_STEPS}
+    assert got["kw"] == {"iterations": UNPOSE_REFINE_STEPS, "posture": None}
+    posture = np.ones((body.skeleton.n_bones, 3))  # the subject's posture is handed on as it is (mir12v)
+    refined_init_pose("plan", body, obs, points, "depth-cam", 2, posture=posture)
+    assert got["kw"]["iterations"] == 2 and got["kw"]["posture"] is posture
     v1 = _frame(model, _pose(body.skeleton.n_bones, 1), eye, version="v1")  # the IK reads the frame's joint set
     refined_init_pose("plan", body, v1, v1.points, "depth-cam")
     np.testing.assert_array_equal(got["pose"].translation, ik_pose(body.skeleton, v1.joints, v1.tracked,

@@ -245,3 +245,28 @@ def test_cli_init_trunk_refit_refuses_a_session_without_kinect(studio, capfd):
 def test_cli_init_trunk_refit_bad_options(studio, capfd, args, phrase):
     result = run_inprocess(["mirror", "init", studio.session, *args], capfd)
     assert_clean_error(result, 2, phrase)
+
+
+# --- `mirror init --unpose-posture` (mir12v) ------------------------------------------------------------------
+
+def test_unpose_posture_of_an_unknown_bone_is_refused(model):
+    """A bone the model's rig lacks is one line naming it, before any frame is read."""
+    with pytest.raises(InputError, match=r"unpose_posture_bones: unknown bone\(s\) \['Spine', 'neck'\]"):
+        initialise_from_observations([], model, unpose_posture_bones=("spine_02", "neck", "Spine"))
+
+
+def test_cli_init_unpose_posture_refuses_a_session_without_kinect(studio, capfd):
+    result = run_inprocess(["mirror", "init", studio.session, "--unpose-posture"], capfd)
+    assert_clean_error(result, 2, "no Kinect calibration")
+    assert not (Path(studio.session) / "mirror").exists()
+
+
+@pytest.mark.parametrize("args, phrase", [
+    (["--unpose-posture", "--player", "0"], "--player 0"),
+    (["--unpose-posture", "--frames", "901"], "--frames 901"),
+    (["--unpose-posture", "--resolution", "13k"], "--resolution '13k'"),
+])
+def test_cli_init_unpose_posture_bad_options(studio, capfd, args, phrase):
+    result = run_inprocess(["mirror", "init", studio.session, *args], capfd)
+    assert_clean_error(result, 2, phrase)
+    assert not (Path(studio.session) / "mirror").exists()
