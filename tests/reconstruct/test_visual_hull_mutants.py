@@ -267,3 +267,28 @@ def test_refusals():
             call()
         assert str(err.value) == message
     vh.carve_occupancy(cams, masks, BOUNDS, 0.1, max_missing_views=3, levels=1)  # all but one view may miss
+
+
+def test_points_beyond_one_and_a_half_corner_radii_are_not_folded_into_the_image():
+    """A barrel lens whose distortion folds back to the principal point at 1.5 corner radii (docstring of
+    _consistent_views): points just inside that radius land near the centre and hit an all-foreground mask, points
+    just beyond it (folded onto the same pixels) are dropped. The principal point is off centre and fx != fy, so the
+    radius depends on which of cx, cy, width - cx, height - cy, fx, fy it is built from."""
+    w, h, cx, cy, fx, fy = 64, 40, 40.0, 22.0, 50.0, 70.0
+    r_max = 1.5 * np.hypot(max(cx, w - cx) / fx, max(cy, h - cy) / fy)  # the docstring's rule, by hand
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    cam = Camera("barrel", K, [-1.0 / r_max ** 2, 0.0, 0.0, 0.0, 0.0], np.eye(3), np.zeros(3), w, h)
+    mask = np.ones((h, w), bool)
+    directions = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [0.6, 0.8]])
+    P, expected = [], []
+    for d in directions:
+        for scale, inside in ((0.99, True), (1.01, False)):
+            xy = scale * r_max * d
+            P.append([xy[0] * 2.0, xy[1] * 2.0, 2.0])  # 2 m in front of the camera
+            expected.append(inside)
+    P = np.array(P)
+    uv, _ = cam.project_with_depth(P)
+    assert ((uv >= 0) & (uv < [w, h])).all()  # every point, inside or beyond, projects into the image
+    for radius in (0.0, 0.01):
+        np.testing.assert_array_equal(vh._consistent_views([cam], [mask], [vh._mask_distance(mask)], P, radius, 0),
+                                      expected)
