@@ -292,3 +292,21 @@ def test_points_beyond_one_and_a_half_corner_radii_are_not_folded_into_the_image
     for radius in (0.0, 0.01):
         np.testing.assert_array_equal(vh._consistent_views([cam], [mask], [vh._mask_distance(mask)], P, radius, 0),
                                       expected)
+
+
+def test_the_coarse_test_keeps_a_cell_whose_sphere_may_reach_the_silhouette():
+    """Three coarse cells on a 40 x 40 camera (f = 100 px) whose bounding spheres reach a one-pixel silhouette though
+    their centres miss it: one left of the image, one above it (the silhouette 2 px in and 2 px along from the
+    image edge: 5.4 px from the centre, the sphere 5.6 px), one 0.5 m in front of the camera (8 px away, the sphere
+    10.2 px there; 5.6 px at 1 m). The test only prunes: each must be kept."""
+    K = np.array([[100.0, 0.0, 20.0], [0.0, 100.0, 20.0], [0.0, 0.0, 1.0]])
+    cam = Camera("flat", K, None, np.eye(3), np.zeros(3), 40, 40)
+    mask = np.zeros((40, 40), bool)
+    mask[12, 2] = mask[2, 12] = mask[20, 28] = True
+    pixels_depths = [((-3, 10), 1.0), ((10, -3), 1.0), ((20, 20), 0.5)]
+    P = np.array([[(u - 20) / 100 * z, (v - 20) / 100 * z, z] for (u, v), z in pixels_depths])
+    np.testing.assert_allclose(cam.project(P), [uv for uv, _ in pixels_depths], atol=1e-9)
+    radius = 4.6 / 100  # r_px = 100 * R / z + 1 = 5.6 px at 1 m
+    dist = vh._mask_distance(mask)
+    np.testing.assert_array_equal(vh._consistent_views([cam], [mask], [dist], P, radius, 0), [True, True, True])
+    np.testing.assert_array_equal(vh._consistent_views([cam], [mask], [dist], P, 0.0, 0), [False, False, False])
