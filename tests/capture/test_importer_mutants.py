@@ -540,3 +540,134 @@ def test_the_imports_refusals_come_before_anything_is_written(tmp_path):
     assert imp.import_recording(tmp_path / "o6", cameras=cams, images=images, n_frames=5).frame_ids == [0, 1]
     for o in ("o2", "o3", "o4", "o5"):
         assert not (tmp_path / o).exists()
+
+
+# --- EasyMocap writer, frame sources, backgrounds ---------------------------------------------------------------
+
+def test_easymocap_files_written_are_what_opencvs_filestorage_reads(tmp_path):
+    a = _cam("a", (0.5, 1.2, 3.0), 50.0, dist=(0.1, -0.05, 0.001, 0.002, 0.01))
+    b = _cam("b 2", (-1.0, 1.0, 2.0), 60.0)
+    imp.save_easymocap_cameras(tmp_path / "out", CameraRig({"a": a, "b 2": b}))
+    fi = cv2.FileStorage(str(tmp_path / "out" / "intri.yml"), cv2.FILE_STORAGE_READ)
+    fe = cv2.FileStorage(str(tmp_path / "out" / "extri.yml"), cv2.FILE_STORAGE_READ)
+    names = fi.getNode("names")
+    assert [names.at(i).string() for i in range(names.size())] == ["a", "b 2"]
+    for c in (a, b):
+        assert np.array_equal(fi.getNode(f"K_{c.name}").mat(), c.K)
+        assert np.array_equal(fi.getNode(f"dist_{c.name}").mat(), c.dist[None])
+        assert (fi.getNode(f"W_{c.name}").real(), fi.getNode(f"H_{c.name}").real()) == (64, 48)
+        assert np.allclose(cv2.Rodrigues(fe.getNode(f"R_{c.name}").mat())[0], c.R, atol=1e-12)
+        assert np.array_equal(fe.getNode(f"Rot_{c.name}").mat(), c.R)
+        assert np.array_equal(fe.getNode(f"T_{c.name}").mat(), c.t[:, None])
+    fi.release()
+    fe.release()
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["extri.yml", "intri.yml"]
+
+
+def test_frame_sources_and_their_refusals(tmp_path):
+    root = tmp_path / "images"
+    for k in (10, 9, 2):
+        _png(root / "a" / f"f{k}.png", _rgb(k))
+    (root / "b").mkdir()
+    (root / "c").mkdir()
+    sources = imp.camera_sources(root, ["a"], videos=False)
+    src = sources["a"]
+    assert len(src) == 3 and src.where == root / "a"
+    image, where = src.read(1)
+    assert np.array_equal(image, _rgb(9)) and where == str(root / "a" / "f9.png")
+    src.close()
+    with _raises(FileFormatError, f"{root / 'b'}: no images (.png, .jpg, .jpeg, .bmp, .tif, .tiff) in this camera "
+                                  "folder"):
+        imp.camera_sources(root, ["a", "b"], videos=False)
+    with _raises(FileFormatError, f"{root / 'd'}: missing image folder for camera d (the calibration lists it); found "
+                                  "a, b, c"):
+        imp.camera_sources(root, ["d"], videos=False)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "x.avi").mkdir()
+    with _raises(FileFormatError, f"{empty / 'd'}: missing image folder for camera d (the calibration lists it); "
+                                  "found x.avi"):
+        imp.camera_sources(empty, ["d"], videos=False)
+    (empty / "x.avi").rmdir()
+    with _raises(FileFormatError, f"{empty / 'd'}: missing image folder for camera d (the calibration lists it); "
+                                  "found no folders"):
+        imp.camera_sources(empty, ["d"], videos=False)
+    with _raises(FileFormatError, f"{empty / 'd'}.*: no video for camera d (the calibration lists it); found no "
+                                  "videos; name each video after its camera"):
+        imp.camera_sources(empty, ["d"], videos=True)
+    (empty / "e.MP4").write_bytes(b"")
+    (empty / "f.txt").write_bytes(b"")
+    with _raises(FileFormatError, f"{empty / 'd'}.*: no video for camera d (the calibration lists it); found e.MP4; "
+                                  "name each video after its camera"):
+        imp.camera_sources(empty, ["d"], videos=True)
+    (empty / "d.avi").write_bytes(b"not a video")
+    with _raises(FileFormatError, f"{empty / 'd.avi'}: cannot open the video (unsupported codec or not a video); "
+                                  "convert it (e.g. ffmpeg -c:v mjpeg) or export an image folder"):
+        imp.camera_sources(empty, ["d"], videos=True)
+
+
+def _video(path, frames):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (W, H))
+    assert writer.isOpened()
+    for f in frames:
+        writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    writer.release()
+
+
+def test_a_video_is_read_in_order_and_a_missing_frame_is_named(tmp_path):
+    flat = [np.full((H, W, 3), v, np.uint8) for v in ((200, 30, 30), (30, 200, 30), (30, 30, 200))]
+    _video(tmp_path / "a.avi", flat)
+    src = imp.camera_sources(tmp_path, ["a"], videos=True)["a"]
+    assert len(src) == 3 and src.where == tmp_path / "a.avi"
+    image, where = src.read(1)  # frame 0 skipped
+    assert where == f"{tmp_path / 'a.avi'} frame 1" and np.abs(image.astype(int) - flat[1]).max() < 12
+    image, _ = src.read(2)
+    assert np.abs(image.astype(int) - flat[2]).max() < 12
+    with _raises(ValueError, "video frames must be read in increasing order"):
+        src.read(2)
+    src.close()
+    src = imp.VideoSource(tmp_path / "a.avi")
+    with _raises(FileFormatError, f"{tmp_path / 'a.avi'}: frame 5 cannot be decoded (the video has 3 frames by its "
+                                  "header); the file is truncated or damaged"):
+        src.read(5)
+    src.close()
+    assert imp._frame_sizes(tmp_path, videos=True) == {"a": (W, H)}
+
+
+def test_frame_sizes_from_the_first_image_and_backgrounds_of_each_kind(tmp_path):
+    _png(tmp_path / "images" / "a" / "0.png", _rgb(0))
+    _png(tmp_path / "images" / "b" / "0.png", _rgb(1, size=(4, 2)))
+    (tmp_path / "images" / "c").mkdir()
+    (tmp_path / "images" / "x.png").write_bytes(b"")
+    assert imp._frame_sizes(tmp_path / "images", videos=False) == {"a": (W, H), "b": (4, 2)}
+    rig = CameraRig({n: Camera.look_at(n, (0.0, 1.0, 3.0 + i), (0, 1, 0), fx=10.0, width=W, height=H)
+                     for i, n in enumerate(("a", "b", "c"))})
+    bg = tmp_path / "bg"
+    _png(bg / "a" / "1.png", _rgb(5))
+    _png(bg / "a" / "0.png", _rgb(4))
+    _png(bg / "b.png", _rgb(6))
+    _video(bg / "c.avi", [_rgb(7), _rgb(8)])
+    from bodystudio.capture.session import SessionWriter
+
+    with SessionWriter(tmp_path / "s", rig) as w:
+        imp._import_backgrounds(w, bg, rig)
+    from bodystudio.capture.session import open_session
+
+    s = open_session(tmp_path / "s")
+    a = s.background_frames("a")
+    assert len(a) == 2 and np.array_equal(a[0], _rgb(4)) and np.array_equal(a[1], _rgb(5))
+    assert len(s.background_frames("b")) == 1 and np.array_equal(s.background_frames("b")[0], _rgb(6))
+    assert len(s.background_frames("c")) == 2
+    (bg / "b.png").unlink()
+    with SessionWriter(tmp_path / "t", rig) as w, \
+            _raises(FileFormatError, f"{bg / 'b'}: no empty-studio frames for camera b (a folder, an image or a video "
+                                     "named after the camera)"):
+        imp._import_backgrounds(w, bg, rig)
+    _png(bg / "b.png", _rgb(6, size=(4, 2)))
+    with SessionWriter(tmp_path / "u", rig) as w, \
+            _raises(FileFormatError, f"{bg / 'b.png'}: image is 4x2 but the calibration of b says 8x6; use the "
+                                     "matching calibration or frames"):
+        imp._import_backgrounds(w, bg, rig)
+    with SessionWriter(tmp_path / "v", rig) as w, \
+            _raises(FileFormatError, f"{tmp_path / 'none'}: no such backgrounds folder"):
+        imp._import_backgrounds(w, tmp_path / "none", rig)
