@@ -298,18 +298,18 @@ def test_verify_counts_the_files_and_names_the_first_problem(tmp_path):
         opened.verify()
 
 
-def _session(files, cameras=("cam_00", "cam_01"), frames=(0, 1), streams=("rgb",)):
+def _in_memory_session(files, cameras=("cam_00", "cam_01"), frames=(0, 1), streams=("rgb",)):
     return Session(Path("S"), {"cameras": list(cameras), "frames": list(frames), "streams": list(streams),
                                "files": {f: "ab" for f in files}})
 
 
 def test_unbacked_entries_name_cameras_frames_and_streams_without_files():
     full = [f"{c}/rgb/{f:05d}.png" for c in ("cam_00", "cam_01") for f in (0, 1)]
-    assert _session(full)._unbacked_entries() == []
+    assert _in_memory_session(full)._unbacked_entries() == []
     # a camera backed only by its ground-truth masks; the frames backed by the Kinect's files
-    assert _session(["cam_00/rgb/00000.png", "gt/masks/cam_01/00000.png", "kinect/joints/00001.json"],
+    assert _in_memory_session(["cam_00/rgb/00000.png", "gt/masks/cam_01/00000.png", "kinect/joints/00001.json"],
                     streams=())._unbacked_entries() == []
-    problems = _session(["cam_0/rgb/00000.png", "cam_01/background/00001.png", "cam_01/rgb/00000.extra.png",
+    problems = _in_memory_session(["cam_0/rgb/00000.png", "cam_01/background/00001.png", "cam_01/rgb/00000.extra.png",
                          "gt/mirror/actors.npz"], cameras=("cam_00", "cam_01", "cam_0"), frames=(0, 1, 2),
                         streams=("rgb", "kinect_depth", "background", "made_up"))._unbacked_entries()
     assert problems == [
@@ -319,12 +319,12 @@ def test_unbacked_entries_name_cameras_frames_and_streams_without_files():
         "S/session.json: cam_00/rgb/00000.png (rgb of a listed camera and frame) is not in the manifest (8 such)",
         "S/session.json: stream kinect_depth is listed but has no files"]
     # holes in another camera stream are not the rgb stream's rule; a stream with some files is backed
-    assert _session(full + ["cam_00/mask/00001.png", "kinect/depth/00000.png"],
+    assert _in_memory_session(full + ["cam_00/mask/00001.png", "kinect/depth/00000.png"],
                     streams=("rgb", "mask", "kinect_depth"))._unbacked_entries() == []
-    holes = _session(full[:3], streams=("rgb",))._unbacked_entries()
+    holes = _in_memory_session(full[:3], streams=("rgb",))._unbacked_entries()
     assert holes == ["S/session.json: cam_01/rgb/00001.png (rgb of a listed camera and frame) is not in the "
                      "manifest (1 such)"]
-    assert _session(["cam_00/rgb/00000.png"], cameras=("cam_00",), frames=(0,),
+    assert _in_memory_session(["cam_00/rgb/00000.png"], cameras=("cam_00",), frames=(0,),
                     streams=("mask", "rgb"))._unbacked_entries() == [
         "S/session.json: stream mask is listed but has no files"]
 
@@ -355,9 +355,9 @@ def test_frame_lookup_iteration_and_the_frame_list_in_messages(tmp_path):
     with _raises(SessionError, f"{s.path / 'session.json'}: no frame 7; frames are 3..5 (3 frames)"):
         s.frame(7)
     with _raises(SessionError, "S/session.json: no frame 1; frames are [0, 2]"):
-        _session([], frames=(0, 2)).frame(1)
+        _in_memory_session([], frames=(0, 2)).frame(1)
     with _raises(SessionError, "S/session.json: no frame 0; frames are none"):
-        _session([], frames=()).frame(0)
+        _in_memory_session([], frames=()).frame(0)
 
 
 def test_stream_paths_and_the_fingerprint_over_the_manifests_lines():

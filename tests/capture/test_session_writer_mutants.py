@@ -372,3 +372,101 @@ def test_staging_is_atomic_per_file_and_its_hash_is_of_the_bytes(tmp_path):
     assert (s / ".staging/notes/x.bin").read_bytes() == b"abc"
     assert sorted(p.name for p in (s / ".staging").rglob("*") if p.is_file()) == ["00007.png", "cameras.json", "x.bin"]
     w.abort()
+
+
+def _each_frame_writer(w, frame):
+    """Every writer of a per-frame file, each called alone for ``frame``."""
+    rng = np.random.default_rng(frame)
+    V, F = rng.normal(size=(3, 3)), np.array([[0, 1, 2]])
+    from bodystudio.body import Pose
+
+    return {
+        "rgb": lambda: w.write_image("cam_00", frame, _rgb(frame)),
+        "mask": lambda: w.write_mask("cam_00", frame, np.eye(H, W)),
+        "gt_layers": lambda: w.write_layers("cam_00", frame, np.zeros((H, W), np.uint8)),
+        "gt_target": lambda: w.write_target("cam_00", frame, _rgb(frame)),
+        "kinect_depth": lambda: w.write_kinect_depth(frame, np.ones((H, W))),
+        "kinect_rgb": lambda: w.write_kinect_rgb(frame, _rgb(frame)),
+        "kinect_joints": lambda: w.write_kinect_joints(frame, ["a"], [[0, 1, 2]]),
+        "kinect_player": lambda: w.write_kinect_player(frame, np.zeros((H, W), np.uint8)),
+        "gt_mesh": lambda: w.write_gt_mesh(frame, V, F),
+        "gt_joints": lambda: w.write_gt_joints(frame, ["root"], V[:1], V[1:2]),
+        "gt_pose": lambda: w.write_gt_pose(frame, Pose(np.zeros((1, 3)), np.zeros(3)), ["root"]),
+        "gt_arm_mesh": lambda: w.write_gt_arm_mesh(frame, V, F),
+        "gt_arm_pose": lambda: w.write_gt_arm_pose(frame, {"elbow": [0, 0, 1]}),
+        "gt_person": lambda: w.write_gt_person(frame, np.zeros((H, W), np.uint8)),
+        "gt_target_rgb": lambda: w.write_gt_target_rgb(frame, _rgb(frame)),
+        "gt_mirror": lambda: w.write_gt_mirror(frame, {"a": np.zeros(2)}),
+    }
+
+
+def test_each_per_frame_writer_alone_lists_its_frame_and_stream(tmp_path):
+    s = tmp_path / "s"
+    with SessionWriter(s, _rig()) as w:
+        calls = _each_frame_writer(w, 0)
+        for k, stream in enumerate(calls):
+            _each_frame_writer(w, k + 3)[stream]()
+    m = _manifest(s)
+    assert m["frames"] == list(range(3, 3 + len(calls)))
+    assert m["streams"] == list(calls)
+    for k, stream in enumerate(calls):
+        rel = sess.stream_path(stream, k + 3, "cam_00")
+        assert rel in m["files"] and (s / rel).is_file()
+
+
+def test_tracked_flags_are_json_booleans(tmp_path):
+    s = tmp_path / "s"
+    with SessionWriter(s, _rig()) as w:
+        w.write_kinect_joints(0, ["a", "b"], [[0, 1, 2], [1, 2, 3]])
+        w.write_kinect_joints(1, ["a", "b"], [[0, 1, 2], [1, 2, 3]], tracked=[1, 0])
+        w.write_kinect_bodies(2, [{"player": 1, "names": ["a"], "positions": [[0, 1, 2]]},
+                                  {"player": 2, "names": ["a"], "positions": [[0, 1, 2]], "tracked": [0]}])
+    for frame, want in ((0, [True, True]), (1, [True, False])):
+        got = _json(s / f"kinect/joints/{frame:05d}.json")["tracked"]
+        assert got == want and all(type(x) is bool for x in got)
+    bodies = _json(s / "kinect/joints/00002.json")["bodies"]
+    assert [b["tracked"] for b in bodies] == [[True], [False]]
+    assert all(type(x) is bool for b in bodies for x in b["tracked"])
+    assert all(type(x) is float for b in bodies for p in b["positions"] for x in p)
+
+
+def test_an_update_of_a_manifest_without_metadata_adds_it(tmp_path):
+    s = tmp_path / "s"
+    with SessionWriter(s, _rig()) as w:
+        w.write_image("cam_00", 0, _rgb(0))
+    m = _manifest(s)
+    del m["metadata"]
+    (s / "session.json").write_text(json.dumps(m))
+    with SessionWriter(s, update=True, metadata={"k": 1}):
+        pass
+    assert _manifest(s)["metadata"] == {"k": 1}
+
+
+def test_the_progress_bar_goes_to_stderr_and_only_on_a_terminal(monkeypatch):
+    import rich.console
+
+    bar = sess.progress_bar(True)
+    assert bar.console.stderr is True and bar.disable is (not bar.console.is_terminal)
+    assert [type(c).__name__ for c in bar.columns] == ["TextColumn", "BarColumn", "MofNCompleteColumn",
+                                                      "TimeRemainingColumn"]
+    assert bar.columns[0].text_format == "{task.description}"
+    monkeypatch.setattr(rich.console.Console, "is_terminal", property(lambda self: True))
+    assert sess.progress_bar(True).disable is False and sess.progress_bar(False).disable is True
+    monkeypatch.setattr(rich.console.Console, "is_terminal", property(lambda self: False))
+    assert sess.progress_bar(True).disable is True
+
+
+def test_recover_says_what_it_did_and_refuses_a_live_writer(tmp_path):
+    s = tmp_path / "s"
+    with SessionWriter(s, _rig()) as w:
+        w.write_image("cam_00", 0, _rgb(0))
+    assert sess.recover_session(s) == "nothing to recover"
+    assert sess.recover_session(str(s)) == "nothing to recover"
+    layout = sess.session_layout(f"{s}/")
+    assert layout.root == s and layout.manifest == "session.json" and layout.prefix == "." and layout.what == f"{s}/"
+    (s / ".lock").write_text(json.dumps({"pid": 4242, "host": "elsewhere-" + socket.gethostname(),
+                                         "command": "bodystudio synth", "since": "t0"}))
+    with _raises(SessionError, f"{s}: being written by pid 4242 on elsewhere-{socket.gethostname()} (bodystudio "
+                               f"synth, since t0); wait for it to finish (if that process is gone, delete "
+                               f"{s / '.lock'}); nothing to recover while it runs"):
+        sess.recover_session(s)
