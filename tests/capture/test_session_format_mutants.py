@@ -700,3 +700,93 @@ def test_kinect_calibration_refusals_name_the_file_and_what_it_needs(tmp_path):
     (tmp_path / "k.json").write_text(json.dumps({"depth": depth}))
     with _raises(FileFormatError, f"{tmp_path / 'k.json'}: not a Kinect calibration (KeyError: 'color'){tail}"):
         sess.load_kinect_calibration(tmp_path / "k.json")
+
+
+# --- the survivors of the first recheck ---------------------------------------------------------------------------
+
+def test_repeated_frame_ids_a_top_level_entry_and_the_manifests_path_in_open_refusals(tmp_path):
+    with _raises(SessionError, f"{SRC}: manifest field 'frames' lists frame 0 after 0; each frame id once, "
+                               "increasing: fix session.json or re-import"):
+        sess._check_manifest(_manifest(frames=[0, 0]), SRC)
+    assert _in_memory_session(["cam_00/rgb/00000.png", "readme.txt"], cameras=("cam_00",), frames=(0,),
+                              streams=("rgb",))._unbacked_entries() == []
+    s = _write(tmp_path / "s")
+    m = json.loads((s / "session.json").read_text())
+    m["cameras"] = ["cam 00"]
+    (s / "session.json").write_text(json.dumps(m))
+    with _raises(SessionError, f"{s / 'session.json'}: manifest field 'cameras' must list camera names (letters, "
+                               "digits, _ . -)"):
+        open_session(s)
+
+
+def test_iterated_frames_read_their_session(tmp_path):
+    s = open_session(_write(tmp_path / "s", frames=(0, 1)))
+    assert [np.array_equal(f.images["cam_01"], _rgb(10 * f.frame_id + 1)) for f in s] == [True, True]
+
+
+def test_a_body_with_integer_positions_and_tracked_flags_reads_as_float64_and_bool():
+    body = sess._parse_body({"names": ["a", "b"], "positions": [[0, 1, 2], [3, 4, 5]], "tracked": [1, 0]},
+                            Path("j.json"), None)
+    assert body["positions"].dtype == np.float64 and body["tracked"].dtype == bool
+    assert body["tracked"].tolist() == [True, False]
+    assert sess._parse_body({"names": ["a"], "positions": [[0, 1, 2]]}, Path("j.json"), None)["tracked"].dtype == bool
+
+
+def test_an_rgba_png_decodes_to_rgb_and_a_16_bit_one_to_8_bit_colour():
+    from PIL import Image
+
+    rgba = np.dstack([_rgb(7), np.full((H, W), 128, np.uint8)])
+    buf = io.BytesIO()
+    Image.fromarray(rgba, "RGBA").save(buf, format="PNG")
+    out = sess.decode_png(buf.getvalue(), "x", True)
+    assert out.shape == (H, W, 3) and np.array_equal(out, _rgb(7))
+    deep = np.full((H, W), 0x1234, np.uint16)
+    out = sess.decode_png(sess.encode_png(deep), "x", True)
+    assert out.dtype == np.uint8 and out.shape == (H, W, 3)
+
+
+def test_an_integer_depth_to_color_matrix_reads_as_float64(tmp_path):
+    depth = _camera_dict((0.1, 1.2, 2.5), 50.0)
+    sensor = sess.kinect_calibration_from_dict({"depth": depth, "color": depth, "depth_to_color": np.eye(4, dtype=int)
+                                                .tolist()}, "k.json")
+    assert sensor.depth_to_color.dtype == np.float64 and np.array_equal(sensor.depth_to_color, np.eye(4))
+    (tmp_path / "k.json").write_text("{ nope")
+    try:
+        json.loads("{ nope")
+    except ValueError as exc:
+        why = str(exc)
+    with _raises(FileFormatError, f"{tmp_path / 'k.json'}: not a valid Kinect calibration ({why}); fix or regenerate "
+                                  "the file"):
+        sess.load_kinect_calibration(tmp_path / "k.json")
+
+
+def test_float32_and_integer_vertices_are_stored_as_float64():
+    for V in (np.arange(9, dtype=np.float32).reshape(3, 3) / 7, np.arange(9).reshape(3, 3)):
+        got, F = sess.parse_ply_bytes(sess.mesh_ply_bytes(V, [[0, 1, 2]]), "m.ply")
+        assert got.dtype == np.float64 and np.array_equal(got, V.astype(np.float64)) and F.tolist() == [[0, 1, 2]]
+
+
+def test_the_header_ends_at_the_first_end_header_and_non_ascii_header_bytes_are_ours_to_refuse():
+    # vertex bytes that spell the header's last line: the body starts after the first one
+    V = np.frombuffer(b"end_header\n" + b"\x00" * 61, dtype="<f8").reshape(3, 3)
+    assert np.all(np.isfinite(V))
+    got, _ = sess.parse_ply_bytes(sess.mesh_ply_bytes(V, [[0, 0, 0]]), "m.ply")
+    assert np.array_equal(got, V)
+    data = _ply(3, 1, np.zeros(9).tobytes() + _faces([[0, 1, 2]]), "comment caf\xe9\n".replace("\xe9", "?"))
+    assert sess.parse_ply_bytes(data.replace(b"caf?", b"caf\xe9"), "m.ply")[1].tolist() == [[0, 1, 2]]
+    with _raises(SessionError, "m.ply: not a bodystudio ground-truth PLY; regenerate the session"):
+        sess.parse_ply_bytes(b"pl\xff\nend_header\n", "m.ply")
+
+
+def test_damaged_ground_truth_files_in_a_session_name_the_file(tmp_path):
+    s = tmp_path / "s"
+    with SessionWriter(s, _rig(), source="synthetic") as w:
+        w.write_image("cam_00", 0, _rgb(0))
+        w.write_gt_mesh(0, np.zeros((3, 3)), [[0, 1, 2]])
+    _rewrite(s, "gt/meshes/00000.ply", b"ply\nend_header\n")
+    with _raises(SessionError, f"{s / 'gt/meshes/00000.ply'}: not a bodystudio ground-truth PLY; regenerate the "
+                               "session"):
+        open_session(s).frame(0)._optional_mesh("gt_mesh")
+    _rewrite(s, "cam_00/rgb/00000.png", b"\x89PNG\r\n\x1a\n broken")
+    with pytest.raises(SessionError, match="^" + re.escape(f"{s / 'cam_00/rgb/00000.png'}: unreadable image")):
+        open_session(s).read_image("cam_00/rgb/00000.png", True)
