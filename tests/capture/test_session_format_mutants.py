@@ -790,3 +790,11 @@ def test_damaged_ground_truth_files_in_a_session_name_the_file(tmp_path):
     _rewrite(s, "cam_00/rgb/00000.png", b"\x89PNG\r\n\x1a\n broken")
     with pytest.raises(SessionError, match="^" + re.escape(f"{s / 'cam_00/rgb/00000.png'}: unreadable image")):
         open_session(s).read_image("cam_00/rgb/00000.png", True)
+
+
+def test_float32_depth_is_rounded_to_the_nearest_millimetre_of_its_exact_value():
+    # 0.5035 as float32 is 0.50349998...: 503 mm; in float32 arithmetic 0.5035 * 1000 rounds up to 503.5 -> 504
+    d = np.array([[0.5035, 0.5065, 2.0005]], np.float32)
+    want = np.rint(d.astype(np.float64) * 1000.0)
+    assert want.tolist() == [[503, 507, 2000]]
+    assert sess.depth_to_png_mm(d).tolist() == want.tolist()
