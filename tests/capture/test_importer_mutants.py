@@ -671,3 +671,22 @@ def test_frame_sizes_from_the_first_image_and_backgrounds_of_each_kind(tmp_path)
     with SessionWriter(tmp_path / "v", rig) as w, \
             _raises(FileFormatError, f"{tmp_path / 'none'}: no such backgrounds folder"):
         imp._import_backgrounds(w, tmp_path / "none", rig)
+
+
+def test_integer_joints_read_as_float64_positions_and_bool_flags(tmp_path):
+    d = tmp_path / "joints"
+    d.mkdir()
+    (d / "0.json").write_text(json.dumps({"names": ["a"], "positions": [[1, 2, 3]], "tracked": [0]}))
+    (d / "1.json").write_text(json.dumps({"joints": {"a": [4, 5, 6]}}))
+    track = imp.load_joints(d)
+    assert track.positions.dtype == np.float64 and track.tracked.dtype == bool
+    assert track.tracked.tolist() == [[False], [True]]
+    for data in ({"names": ["a"], "positions": [[1, 2, 3]], "tracked": [1]}, {"joints": {"a": [1, 2, 3]}}):
+        names, pos, tracked = imp._joint_frame(data, Path("f.json"))
+        assert pos.dtype == np.float64 and tracked.dtype == bool
+    p = tmp_path / "j.csv"
+    p.write_text("frame,joint,x,y,z,tracked\n0,a,1,2,3,0\n")
+    assert imp.load_joints(p).tracked.dtype == bool
+    p.write_text("frame,joint,x,y,z\n0,a,1,nan,3\n")
+    with _raises(FileFormatError, f"{p}: joint positions contain NaN or infinity"):
+        imp.load_joints(p)
