@@ -690,3 +690,13 @@ def test_integer_joints_read_as_float64_positions_and_bool_flags(tmp_path):
     p.write_text("frame,joint,x,y,z\n0,a,1,nan,3\n")
     with _raises(FileFormatError, f"{p}: joint positions contain NaN or infinity"):
         imp.load_joints(p)
+
+
+def test_two_reference_frames_already_set_the_tolerance_and_the_writer_makes_or_reuses_its_folder(tmp_path):
+    got = imp.synchronise_by_timestamps({"a": np.array([0.0, 1.0]), "b": np.array([0.0, 1.75])})
+    assert got == [{"a": 0, "b": 0}]  # half of the 1 s period: 1.75 is too far from 1.0
+    rig = CameraRig({"a": _cam("a", (0.5, 1.2, 3.0), 50.0)})
+    nested = tmp_path / "x" / "y"
+    imp.save_easymocap_cameras(nested, rig)
+    imp.save_easymocap_cameras(nested, rig)  # again, into the existing folder
+    assert np.allclose(imp.load_studio_cameras(nested)["a"].K, rig["a"].K)
