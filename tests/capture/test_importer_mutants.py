@@ -700,3 +700,138 @@ def test_two_reference_frames_already_set_the_tolerance_and_the_writer_makes_or_
     imp.save_easymocap_cameras(nested, rig)
     imp.save_easymocap_cameras(nested, rig)  # again, into the existing folder
     assert np.allclose(imp.load_studio_cameras(nested)["a"].K, rig["a"].K)
+
+
+def _timed_recording(tmp_path):
+    """cam_00 records 4 frames 1/16 s apart, cam_01 misses the third; masks per source frame; TUM depth for the
+    first, second and fourth time only (the third's pair is 0.05 s late); joints per cam_00 frame."""
+    rig, sensor, _ = _recording(tmp_path, n=1)
+    import shutil
+
+    shutil.rmtree(tmp_path / "images")
+    shutil.rmtree(tmp_path / "tum")
+    times = {"cam_00": [0.0, 0.0625, 0.125, 0.1875], "cam_01": [0.002, 0.0645, 0.1895]}
+    (tmp_path / "ts").mkdir()
+    for c, ts in times.items():
+        (tmp_path / "ts" / f"{c}.txt").write_text("\n".join(str(t) for t in ts) + "\n")
+        for k in range(len(ts)):
+            _png(tmp_path / "images" / c / f"{k}.png", _rgb(20 * k + int(c[-1])))
+            m = np.zeros((H, W), np.uint8)
+            m[k % H, :] = 255 if k % 2 else 1  # any non-zero value is the subject
+            _png(tmp_path / "masks" / c / f"{k}.png", m)
+    tum = tmp_path / "tum"
+    lines = []
+    for k, t in enumerate([0.0, 0.0625, 0.175, 0.1875]):
+        (tum / "depth").mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(tum / "depth" / f"{k}.png"), np.full((H, W), 10000 + 1000 * k, np.uint16))
+        _png(tum / "rgb" / f"{k}.png", _rgb(200 + k))
+        lines.append((t, f"depth/{k}.png", f"rgb/{k}.png"))
+    (tum / "depth.txt").write_text("".join(f"{t} {d}\n" for t, d, _ in lines))
+    (tum / "rgb.txt").write_text("".join(f"{t + 0.001} {r}\n" for t, _, r in lines))
+    person = np.array([[0.0, 1.0, 0.0], [0.0, 1.4, 0.1]])
+    frames = [person + [0.01 * k, 0, 0] for k in range(4)]
+    (tmp_path / "joints.json").write_text(json.dumps({"names": ["a", "b"], "frames": [f.tolist() for f in frames],
+                                                      "tracked": [[True, k != 3] for k in range(4)]}))
+    _png(tmp_path / "bg" / "cam_00.png", _rgb(300))
+    _png(tmp_path / "bg" / "cam_01.png", _rgb(301))
+    return rig, sensor, frames
+
+
+def test_a_timestamped_recording_with_masks_backgrounds_and_a_late_depth_frame(tmp_path, caplog):
+    import logging
+
+    _, _, frames = _timed_recording(tmp_path)
+    args = dict(cameras=tmp_path / "cameras.json", images=tmp_path / "images", timestamps=tmp_path / "ts",
+                backgrounds=tmp_path / "bg", tum=tmp_path / "tum", kinect_calibration=tmp_path / "kinect.json",
+                joints=tmp_path / "joints.json", masks=tmp_path / "masks")
+    with caplog.at_level(logging.INFO, logger="bodystudio.capture.importer"):
+        s = imp.import_recording(tmp_path / "out", **args)
+    assert [r.getMessage() for r in caplog.records if r.name == "bodystudio.capture.importer"] == [
+        f"imported 3 frames of 2 cameras into {tmp_path / 'out'}"]
+    assert s.frame_ids == [0, 1, 2] and s.metadata["fps"] == round(1 / 0.09375, 3)  # median of 1/16 s and 1/8 s
+    assert s.metadata["inputs"] == {k: str(v) for k, v in args.items() if k != "masks"}
+    assert _json_lock_free(tmp_path / "out")
+    source = {"cam_00": [0, 1, 3], "cam_01": [0, 1, 2]}  # cam_00's third frame has no cam_01 frame near it
+    for i, f in enumerate(s):
+        for c, ks in source.items():
+            assert np.array_equal(f.images[c], _rgb(20 * ks[i] + int(c[-1])))
+            want = np.zeros((H, W), bool)
+            want[ks[i] % H, :] = True
+            assert np.array_equal(f.masks[c], want)
+        assert np.allclose(f.kinect_joints["positions"], frames[source["cam_00"][i]])
+        assert f.kinect_joints["tracked"].tolist() == [True, source["cam_00"][i] != 3]
+    depth = [s.frame(i).kinect_depth_m for i in range(3)]
+    assert np.allclose(depth[0], 2.0) and np.allclose(depth[1], 2.2) and depth[2] is not None
+    assert np.allclose(depth[2], 2.6)  # the fourth pair (t = 0.1875), not the late third
+    assert np.array_equal(s.background_frames("cam_01")[0], _rgb(301))
+    (tmp_path / "tum" / "depth.txt").write_text("0.0 depth/0.png\n0.0625 depth/1.png\n0.2875 depth/3.png\n")
+    (tmp_path / "tum" / "rgb.txt").write_text("0.001 rgb/0.png\n0.0635 rgb/1.png\n0.2885 rgb/3.png\n")
+    s = imp.import_recording(tmp_path / "out2", **{**args, "n_frames": 3})
+    assert s.frame(2).kinect_depth_m is None and s.frame(2).kinect_rgb is None  # no pair within 0.02 s
+    assert s.frame(1).kinect_rgb is not None
+
+
+def _json_lock_free(out):
+    return not (out / ".lock").exists() and not (out / ".staging").exists()
+
+
+def test_more_import_refusals_and_bounds(tmp_path):
+    _timed_recording(tmp_path)
+    base = dict(cameras=tmp_path / "cameras.json", images=tmp_path / "images", timestamps=tmp_path / "ts")
+    (tmp_path / "ts" / "cam_01.txt").write_text("0.0\n0.1\n")
+    with _raises(FileFormatError, f"{tmp_path / 'ts' / 'cam_01.txt'}: 2 timestamps but {tmp_path / 'images' / 'cam_01'}"
+                                  " has 3 frames"):
+        imp.import_recording(tmp_path / "o1", **base)
+    (tmp_path / "ts" / "cam_01.txt").write_text("0.002\n0.0645\n0.1895\n")
+    (tmp_path / "masks" / "cam_01" / "2.png").unlink()
+    with _raises(FileFormatError, f"{tmp_path / 'masks' / 'cam_01'}: 2 masks but frame 2 is needed; give one mask per "
+                                  "frame"):
+        imp.import_recording(tmp_path / "o2", masks=tmp_path / "masks", **base)
+    _png(tmp_path / "masks" / "cam_01" / "2.png", np.zeros((2, 4), np.uint8))
+    with _raises(FileFormatError, f"{tmp_path / 'masks' / 'cam_01' / '2.png'}: image is 4x2 but the calibration of "
+                                  "cam_01 says 8x6; use the matching calibration or frames"):
+        imp.import_recording(tmp_path / "o3", masks=tmp_path / "masks", **base)
+    (tmp_path / "none.json").write_text(json.dumps({"names": ["a"], "frames": []}))
+    with _raises(FileFormatError, f"{tmp_path / 'none.json'}: 0 joint frames but the recording has 3 frames; give one "
+                                  "per recorded frame"):
+        imp.import_recording(tmp_path / "o4", cameras=tmp_path / "cameras.json", images=tmp_path / "images",
+                             joints=tmp_path / "none.json", n_frames=4)
+    assert imp.import_recording(tmp_path / "o5", cameras=tmp_path / "cameras.json", images=tmp_path / "masks",
+                                n_frames=1).frame_ids == [0]
+    tum, kin = tmp_path / "tum", tmp_path / "kinect.json"
+    one = tmp_path / "tum1"
+    (one / "depth").mkdir(parents=True)
+    cv2.imwrite(str(one / "depth" / "0.png"), np.full((H, W), 3, np.uint16))
+    _png(one / "rgb" / "0.png", _rgb(0))
+    (one / "depth.txt").write_text("1.0 depth/0.png\n")
+    (one / "rgb.txt").write_text("1.0 rgb/0.png\n")
+    for scale, metres in ((1.0, 3.0), (0.5, 6.0)):  # any positive number of units per metre
+        s = imp.import_recording(tmp_path / f"o6_{scale}", tum=one, kinect_calibration=kin, depth_scale=scale)
+        assert np.allclose(s.frame(0).kinect_depth_m, metres)
+    cv2.imwrite(str(tum / "depth" / "1.png"), np.full((H, W), 200, np.uint8))
+    with _raises(FileFormatError, f"{tum / 'depth/1.png'}: depth must be a 16-bit PNG, got uint8 (8-bit images lose "
+                                  "the depth); export 16-bit depth"):
+        imp.import_recording(tmp_path / "o7", tum=tum, kinect_calibration=kin)
+    cv2.imwrite(str(tum / "depth" / "1.png"), np.full((2, 4), 10000, np.uint16))
+    with _raises(FileFormatError, f"{tum / 'depth/1.png'}: image is 4x2 but the calibration of k_depth says 8x6; use "
+                                  "the matching calibration or frames"):
+        imp.import_recording(tmp_path / "o8", tum=tum, kinect_calibration=kin)
+    _png(tum / "rgb" / "0.png", _rgb(0, size=(4, 2)))
+    with _raises(FileFormatError, f"{tum / 'rgb/0.png'}: image is 4x2 but the calibration of k_color says 8x6; use "
+                                  "the matching calibration or frames"):
+        imp.import_recording(tmp_path / "o9", tum=tum, kinect_calibration=kin)
+    _png(tmp_path / "images" / "cam_01" / "1.png", _rgb(0, size=(4, 2)))
+    with _raises(FileFormatError, f"{tmp_path / 'images' / 'cam_01' / '1.png'}: image is 4x2 but the calibration of "
+                                  "cam_01 says 8x6; use the matching calibration or frames"):
+        imp.import_recording(tmp_path / "o10", **base)
+
+
+def test_easymocap_cameras_without_sizes_take_them_from_the_first_frames(tmp_path):
+    a, b = _cam("cam_00", (0.5, 1.2, 3.0), 3.0), _cam("cam_01", (-1.0, 1.0, 2.0), 3.0)
+    a = Camera(a.name, np.array([[3.0, 0, 3.5], [0, 3.0, 2.5], [0, 0, 1]]), a.dist, a.R, a.t, W, H)
+    b = Camera(b.name, a.K, b.dist, b.R, b.t, W, H)
+    _easymocap(tmp_path / "calib", [a, b], sizes=False)
+    for c in ("cam_00", "cam_01"):
+        _png(tmp_path / "images" / c / "0.png", _rgb(int(c[-1])))
+    s = imp.import_recording(tmp_path / "out", cameras=tmp_path / "calib", images=tmp_path / "images")
+    assert [(s.cameras[c].width, s.cameras[c].height) for c in ("cam_00", "cam_01")] == [(W, H), (W, H)]
