@@ -835,3 +835,19 @@ def test_easymocap_cameras_without_sizes_take_them_from_the_first_frames(tmp_pat
         _png(tmp_path / "images" / c / "0.png", _rgb(int(c[-1])))
     s = imp.import_recording(tmp_path / "out", cameras=tmp_path / "calib", images=tmp_path / "images")
     assert [(s.cameras[c].width, s.cameras[c].height) for c in ("cam_00", "cam_01")] == [(W, H), (W, H)]
+
+
+def test_a_depth_frame_pairs_once_bounds_of_the_units_and_names_listed(tmp_path):
+    assert imp.associate_tum([(1.0, "a")], [(1.0, "x"), (1.005, "y")]) == [(1.0, "a", "x")]
+    with _raises(FileFormatError, "d.png: depth units are ambiguous (median 0.50 m as TUM units or 2.50 m as "
+                                  "millimetres); pass --depth-scale 5000 or --depth-scale 1000"):
+        imp.depth_scale_of(np.array([[2500]], np.uint16), "d.png", None)  # 0.5 m is inside the range
+    with _raises(FileFormatError, "d.png: depth values (median 1) are not in a known unit; pass --depth-scale "
+                                  "(units per metre)"):
+        imp.depth_scale_of(np.array([[1, 1, 1, 10000]], np.uint16), "d.png", None)  # 1 is a measurement
+    assert imp._safe_name("CAM 01") == "CAM_01" and imp._safe_name("Cam.A-1") == "Cam.A-1"
+    (tmp_path / "e.MP4").write_bytes(b"")
+    (tmp_path / "g.avi").write_bytes(b"")
+    with _raises(FileFormatError, f"{tmp_path / 'd'}.*: no video for camera d (the calibration lists it); found e.MP4, "
+                                  "g.avi; name each video after its camera"):
+        imp.camera_sources(tmp_path, ["d"], videos=True)
