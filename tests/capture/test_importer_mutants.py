@@ -842,8 +842,8 @@ def test_a_depth_frame_pairs_once_bounds_of_the_units_and_names_listed(tmp_path)
     with _raises(FileFormatError, "d.png: depth units are ambiguous (median 0.50 m as TUM units or 2.50 m as "
                                   "millimetres); pass --depth-scale 5000 or --depth-scale 1000"):
         imp.depth_scale_of(np.array([[2500]], np.uint16), "d.png", None)  # 0.5 m is inside the range
-    with _raises(FileFormatError, "d.png: depth values (median 1) are not in a known unit; pass --depth-scale "
-                                  "(units per metre)"):
+    with _raises(FileFormatError, "d.png: depth looks like metres (median 1.00 m at 1 per metre, 0.00 m at TUM's "
+                                  "5000); pass --depth-scale 1"):
         imp.depth_scale_of(np.array([[1, 1, 1, 10000]], np.uint16), "d.png", None)  # 1 is a measurement
     assert imp._safe_name("CAM 01") == "CAM_01" and imp._safe_name("Cam.A-1") == "Cam.A-1"
     (tmp_path / "e.MP4").write_bytes(b"")
