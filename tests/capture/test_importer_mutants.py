@@ -851,3 +851,36 @@ def test_a_depth_frame_pairs_once_bounds_of_the_units_and_names_listed(tmp_path)
     with _raises(FileFormatError, f"{tmp_path / 'd'}.*: no video for camera d (the calibration lists it); found e.MP4, "
                                   "g.avi; name each video after its camera"):
         imp.camera_sources(tmp_path, ["d"], videos=True)
+
+
+def test_easymocap_details_and_imports_without_a_kinect_or_without_frames(tmp_path):
+    a = _cam("a", (0.5, 1.2, 3.0), 50.0)
+    folder = tmp_path / "c"
+    folder.mkdir()
+    _yml(folder / "intri.yml", ["a"], {"K_a": a.K, "W_a": 64})  # no dist_; W_ without H_
+    _yml(folder / "extri.yml", ["a"], {"R_a": cv2.Rodrigues(a.R)[0], "T_a": a.t[:, None]})
+    rig = imp.load_studio_cameras(folder, {"a": (64, 48)})
+    assert rig["a"].dist.shape == (5,) and not rig["a"].dist.any() and rig["a"].height == 48
+    (folder / "names.yml").write_text("%YAML:1.0\n---\nnames:\n  - 3\n  - 4\n")
+    fs = cv2.FileStorage(str(folder / "names.yml"), cv2.FILE_STORAGE_READ)
+    assert imp._storage_names(fs, folder / "names.yml") == ["3", "4"]
+    fs.release()
+    # joints without a Kinect calibration; a mask file in colour (red only) is the subject where its grey is not 0
+    (tmp_path / "r").mkdir()
+    _, _, frames = _recording(tmp_path / "r", n=2)
+    r = tmp_path / "r"
+    for c in ("cam_00", "cam_01"):
+        for k in range(2):
+            m = np.zeros((H, W, 3), np.uint8)
+            m[k, :, 0] = 200
+            _png(r / "masks" / c / f"{k}.png", m)
+    s = imp.import_recording(tmp_path / "o1", cameras=r / "cameras.json", images=r / "images", joints=r / "joints.json",
+                             masks=r / "masks")
+    assert s.frame(1).kinect_joints["joint_set"] is None and np.allclose(s.frame(1).kinect_joints["positions"],
+                                                                         frames[1])
+    assert s.frame(1).masks["cam_01"][1].all() and s.frame(1).masks["cam_01"].sum() == W
+    # EasyMocap cameras and TUM depth only: no frames to take sizes from, none needed
+    _easymocap(tmp_path / "em", [_cam("cam_00", (0.5, 1.2, 3.0), 50.0)])
+    s = imp.import_recording(tmp_path / "o2", cameras=tmp_path / "em", tum=r / "tum",
+                             kinect_calibration=r / "kinect.json")
+    assert s.camera_names == ["cam_00"] and s.frame_ids == [0, 1] and s.frame(0).kinect_depth_m is not None
