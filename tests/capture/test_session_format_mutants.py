@@ -798,3 +798,38 @@ def test_float32_depth_is_rounded_to_the_nearest_millimetre_of_its_exact_value()
     want = np.rint(d.astype(np.float64) * 1000.0)
     assert want.tolist() == [[503, 507, 2000]]
     assert sess.depth_to_png_mm(d).tolist() == want.tolist()
+
+
+# --- the decorated readers (cached properties: mutmut makes no mutant; docs/mutation/capture-session-plant.py) ---
+
+def test_property_readers_check_what_they_read(tmp_path):
+    s = tmp_path / "s"
+    with SessionWriter(s, _rig(), source="synthetic") as w:
+        w.write_image("cam_00", 0, _rgb(0))
+        w.write_mask("cam_00", 0, np.ones((H, W), bool))
+        w.write_kinect_depth(0, np.ones((H, W)))
+        w.write_kinect_player(0, np.zeros((H, W), np.uint8))
+        w.write_kinect_joints(0, ["a"], [[0, 1, 2]])
+    mask = np.zeros((H, W), np.uint8)
+    mask[0, :3] = (127, 128, 255)
+    _rewrite(s, "cam_00/mask/00000.png", sess.encode_png(mask))
+    assert open_session(s).frame(0).masks["cam_00"][0, :4].tolist() == [False, True, True, False]
+    _rewrite(s, "kinect/depth/00000.png", sess.encode_png(np.full((H, W), 200, np.uint8)))
+    with _raises(SessionError, f"{s / 'kinect/depth/00000.png'}: depth must be a 16-bit PNG in millimetres, got uint8; "
+                               "re-import with the right --depth-scale"):
+        _ = open_session(s).frame(0).kinect_depth_m
+    for image, shown in ((np.full((H, W), 7, np.uint8), "uint8 up to 7"), (np.full((H, W), 1, np.uint16),
+                                                                          "uint16 up to 1")):
+        _rewrite(s, "kinect/player/00000.png", sess.encode_png(image))
+        with _raises(SessionError, f"{s / 'kinect/player/00000.png'}: a player mask must be an 8-bit PNG with values "
+                                   f"0...6, got {shown}; regenerate the session"):
+            _ = open_session(s).frame(0).kinect_player
+    _rewrite(s, "kinect/player/00000.png", sess.encode_png(np.full((H, W), 6, np.uint8)))
+    assert open_session(s).frame(0).kinect_player.max() == 6
+    src = s / "kinect/joints/00000.json"
+    body = {"names": ["a"], "positions": [[0, 1, 2]]}
+    for data, why in (([body], "top level must be an object"), ({"bodies": {"0": body}}, "'bodies' must be a list"),
+                      ({"bodies": [{**body, "player": 2}, {**body, "player": 2}]}, "player ids [2, 2] repeat")):
+        _rewrite(s, "kinect/joints/00000.json", json.dumps(data).encode())
+        with _raises(SessionError, f"{src}: malformed joints ({why}); regenerate the session"):
+            _ = open_session(s).frame(0).kinect_bodies
