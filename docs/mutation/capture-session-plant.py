@@ -1,7 +1,7 @@
 """Plant the session readers' mutants that mutmut cannot make (``Frame``'s and ``Session``'s ``cached_property`` /
 ``property`` readers: mutmut does not mutate decorated functions) by hand in a scratch copy and run the session
 format's fast tests against each."""
-# usage (from the repository root): python docs/mutation/capture-session-plant.py [TEST_FILE ...]
+# usage (from the repository root): [PLANT_ONLY="name;name"] python docs/mutation/capture-session-plant.py [TEST_FILE ...]
 import os
 import shutil
 import subprocess
@@ -98,7 +98,8 @@ shutil.copy2(os.path.join(src_root, "pyproject.toml"), work)
 clean = open(os.path.join(work, S)).read()
 env = {**os.environ, "PYTHONPATH": work, "NUMBA_CACHE_DIR": os.path.join(work, ".numba")}
 killed = 0
-for old, new, name in [("import", "import", "clean")] + mutants:
+only = [n for n in os.environ.get("PLANT_ONLY", "").split(";") if n]  # re-run these names only (";"-separated)
+for old, new, name in [("import", "import", "clean")] + [m for m in mutants if not only or m[2] in only]:
     assert clean.count(old) >= 1, name
     open(os.path.join(work, S), "w").write(clean.replace(old, new, 1))
     r = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-m", "not slow", *tests],

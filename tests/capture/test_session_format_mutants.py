@@ -833,3 +833,16 @@ def test_property_readers_check_what_they_read(tmp_path):
         _rewrite(s, "kinect/joints/00000.json", json.dumps(data).encode())
         with _raises(SessionError, f"{src}: malformed joints ({why}); regenerate the session"):
             _ = open_session(s).frame(0).kinect_bodies
+
+
+def test_bodies_take_the_files_joint_set_and_the_old_layout_is_player_one(tmp_path):
+    s = tmp_path / "s"
+    with SessionWriter(s, _rig(), source="synthetic") as w:
+        w.write_image("cam_00", 0, _rgb(0))
+        w.write_kinect_bodies(0, [{"player": 4, "names": ["a"], "positions": [[0, 1, 2]]}], joint_set="v1")
+    (body,) = open_session(s).frame(0).kinect_bodies
+    assert body["player"] == 4 and body["joint_set"] == "v1"
+    old = {"joint_set": "v2", "player": 3, "names": ["a"], "positions": [[0, 1, 2]]}
+    _rewrite(s, "kinect/joints/00000.json", json.dumps(old).encode())
+    f = open_session(s).frame(0)
+    assert [(b["player"], b["joint_set"]) for b in f.kinect_bodies] == [(1, "v2")] and f.kinect_joints["player"] == 1
