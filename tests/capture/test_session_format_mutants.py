@@ -846,3 +846,28 @@ def test_bodies_take_the_files_joint_set_and_the_old_layout_is_player_one(tmp_pa
     _rewrite(s, "kinect/joints/00000.json", json.dumps(old).encode())
     f = open_session(s).frame(0)
     assert [(b["player"], b["joint_set"]) for b in f.kinect_bodies] == [(1, "v2")] and f.kinect_joints["player"] == 1
+
+
+def test_ground_truth_properties_and_the_manifests_optional_fields(tmp_path):
+    from bodystudio.body import Pose
+
+    rng = np.random.default_rng(8)
+    V, F = rng.normal(size=(4, 3)), np.array([[0, 1, 2], [1, 2, 3]])
+    heads, tails = rng.normal(size=(2, 3)), rng.normal(size=(2, 3))
+    rot = rng.normal(size=(2, 3)) * 0.2
+    s = tmp_path / "s"
+    with SessionWriter(s, _rig(), source="synthetic", metadata={"seed": 3}) as w:
+        w.write_gt_target_rgb(0, _rgb(5))
+        w.write_gt_arm_mesh(0, V, F)
+        w.write_gt_mesh(0, V * 2, F[:1])
+        w.write_gt_joints(0, ["root", "spine"], heads, tails)
+        w.write_gt_pose(1, Pose(rot, np.zeros(3)), ["root", "spine"])  # a frame with a pose and no joints
+    opened = open_session(s)
+    f = opened.frame(0)
+    assert np.array_equal(f.gt_target_rgb, _rgb(5))
+    assert np.array_equal(f.gt_arm_mesh.vertices, V) and np.array_equal(f.gt_arm_mesh.faces, F)
+    assert np.array_equal(f.gt_joints["heads"], heads) and np.array_equal(f.gt_joints["tails"], tails)
+    assert opened.frame(1).gt_joints is None and np.allclose(opened.frame(1).gt_pose.rotations, rot, atol=1e-12)
+    assert opened.metadata == {"seed": 3} and opened.source == "synthetic"
+    bare = Session(Path("S"), {})
+    assert bare.source == "unknown" and bare.metadata == {}
