@@ -871,3 +871,16 @@ def test_ground_truth_properties_and_the_manifests_optional_fields(tmp_path):
     assert opened.metadata == {"seed": 3} and opened.source == "synthetic"
     bare = Session(Path("S"), {})
     assert bare.source == "unknown" and bare.metadata == {}
+
+
+def test_the_cameras_are_checksum_checked_and_the_albedo_properties_read_their_keys(tmp_path):
+    s = _write(tmp_path / "s", frames=(0,))
+    _rewrite(s, "gt/albedo.json", json.dumps({"albedo": [[0.1, 0.2, 0.3]], "appearance": [[0.9, 0.8, 0.7]]}).encode())
+    opened = open_session(s)
+    assert opened.gt_albedo.tolist() == [[0.1, 0.2, 0.3]] and opened.gt_appearance_albedo.tolist() == [[0.9, 0.8, 0.7]]
+    rig = json.loads((s / "calibration/cameras.json").read_text())
+    rig["cameras"]["cam_00"]["t"] = [0.0, 0.0, 9.0]
+    (s / "calibration/cameras.json").write_text(json.dumps(rig))  # a hand edit the manifest does not know
+    with _raises(SessionError, f"{s / 'calibration/cameras.json'}: corrupted (sha256 differs from session.json); "
+                               "re-import or regenerate it"):
+        _ = open_session(s).cameras
