@@ -884,3 +884,12 @@ def test_the_cameras_are_checksum_checked_and_the_albedo_properties_read_their_k
     with _raises(SessionError, f"{s / 'calibration/cameras.json'}: corrupted (sha256 differs from session.json); "
                                "re-import or regenerate it"):
         _ = open_session(s).cameras
+
+
+def test_the_mirror_actors_file_reads_back(tmp_path):
+    s = _write(tmp_path / "s", frames=(0,))
+    assert open_session(s).gt_mirror_actors is None
+    with SessionWriter(s, update=True) as w:
+        w.write_gt_mirror_actors({"rest": np.arange(6.0).reshape(2, 3), "ids": np.array([3, 4])})
+    actors = open_session(s).gt_mirror_actors
+    assert sorted(actors) == ["ids", "rest"] and actors["ids"].tolist() == [3, 4] and actors["rest"][1, 2] == 5.0
