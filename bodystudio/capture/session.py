@@ -102,7 +102,8 @@ BACKGROUND = "{cam}/background/{index:05d}.png"
 DEPTH_MM_PER_M = 1000.0
 #: The Kinect SDKs track at most six bodies; player mask values are 0 (nobody) or the player 1..6.
 MAX_PLAYERS = 6
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+# \Z, not $: "$" also matches before a trailing newline, which let "cam_00\n" through as a folder name
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*\Z")
 
 
 def stream_path(stream: str, frame: int, camera: str | None = None) -> str:
