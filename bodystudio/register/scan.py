@@ -79,10 +79,8 @@ def read_scan_file(path: str | Path) -> Mesh:
     try:
         if visual.kind == "texture":
             visual = visual.to_color()
-        if visual.kind == "vertex":
+        if visual.kind in ("vertex", "face"):  # face colours: trimesh averages each vertex's faces
             colors = np.asarray(visual.vertex_colors)[:, :3].astype(np.uint8)
-        elif visual.kind == "face":
-            colors = np.asarray(visual.to_color().vertex_colors)[:, :3].astype(np.uint8)
     except Exception as exc:  # a broken texture must not stop the geometry from loading
         log.warning("%s: cannot read colours (%s); continuing without", path, exc)
     V, F = checked_mesh_arrays(path, loaded.vertices, loaded.faces)
