@@ -294,8 +294,11 @@ def load_scan(path: str | Path, units: str | None = None, up_axis: str | None = 
         R0[1, k] = s
         R0[2, (k + 1) % 3] = 1.0
         R0[0] = np.cross(R0[1], R0[2])
-        R, _, facing_name = detect_orientation(mesh.vertices @ R0.T, area)
+        R, _, _ = detect_orientation(mesh.vertices @ R0.T, area)
         R = R @ R0
+        # named in the file's axes (detect_orientation names those of the frame R0 turned the scan to)
+        k = int(np.argmax(np.abs(R[2])))
+        facing_name = ("+" if R[2, k] > 0 else "-") + "xyz"[k]
         up_name = up_axis
     height = float(np.ptp(mesh.vertices @ R[1]))
     if units is None:
