@@ -78,6 +78,17 @@ def _glb(texture: bool = False, colors: bool = True):
     return ex.glb_bytes(_avatar(colors), texture)
 
 
+def _glb_json(data: bytes) -> dict:
+    """The JSON chunk of a GLB, read by the container format's own layout (12-byte header, chunk length + type)."""
+    import struct
+
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
+    assert magic == b"glTF" and version == 2 and length == len(data)
+    chunk_length, chunk_type = struct.unpack_from("<I4s", data, 12)
+    assert chunk_type == b"JSON"
+    return json.loads(data[20: 20 + chunk_length])
+
+
 def _normals(V, F):
     """Area-weighted unit vertex normals by a loop over the faces."""
     N = np.zeros_like(V)
@@ -222,6 +233,9 @@ def test_glb_fields_read_back_with_pygltflib():
     av = _avatar()
     data, vmap = _glb()
     assert vmap is None and ex.glb_bytes(av) == (data, None)  # no texture by default
+    raw = _glb_json(data)
+    assert raw["asset"] == {"version": "2.0", "generator": "bodystudio rig"}
+    assert raw["buffers"] == [{"byteLength": max(v["byteOffset"] + v["byteLength"] for v in raw["bufferViews"])}]
     g, blob = _read(data)
     assert g.asset.version == "2.0" and g.asset.generator == "bodystudio rig"
     prim = g.meshes[0].primitives[0]
@@ -538,6 +552,14 @@ def test_write_rig_textured_without_bvh_records_the_vertex_map(tmp_path):
     assert set(manifest["run"]["files"]) == {"A.glb"}
 
 
+def test_write_rig_without_texture_by_default(tmp_path):
+    glb = tmp_path / "A.glb"
+    with RunWriter(ex.rig_layout(glb), "test rig") as w:
+        manifest = ex.write_rig(w, glb, _avatar())
+    assert glb.read_bytes() == _glb()[0] and "vertex_source" not in manifest
+    assert set(manifest["run"]["files"]) == {"A.glb"}
+
+
 def test_write_rig_bvh_without_poses_has_no_frames(tmp_path):
     _written(tmp_path, poses=None)
     assert (tmp_path / "m.bvh").read_text().endswith("Frames: 0\nFrame Time: 0.033333\n")
@@ -579,3 +601,11 @@ def test_check_rig_pair_refusals_word_for_word(tmp_path):
     rig.write_text(json.dumps({"bones": [], "run": {"run_id": "r1", "files": {"A.glb": sha256_file(glb)}},
                                "n_vertices": 7}))
     assert ex.check_rig_pair(glb, 42)["n_vertices"] == 7
+    # only the glb is checked: the BVH the run also wrote may be gone or replaced
+    rig.write_text(json.dumps({"bones": [], "run": {"run_id": "r1", "files": {"A.glb": sha256_file(glb),
+                                                                              "m.bvh": "0" * 64}}}))
+    assert ex.check_rig_pair(glb)["bones"] == []
+    rig.write_text("{not json")
+    with pytest.raises(FileFormatError) as e:
+        ex.check_rig_pair(glb)
+    assert str(e.value).startswith(f"{rig}: not a valid rig description (")
