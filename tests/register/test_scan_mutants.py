@@ -398,13 +398,14 @@ def test_load_scan_detects_a_rotated_centimetre_scan_and_keeps_the_translation(t
 
 
 @pytest.mark.parametrize("axis", ["+x", "-x", "+y", "-y", "+z", "-z"])
-def test_load_scan_with_each_up_axis_given(tmp_path, axis):
+@pytest.mark.parametrize("facing", [1.0, -1.0])
+def test_load_scan_with_each_up_axis_given(tmp_path, axis, facing):
     scan = _person("a")
     k, s = "xyz".index(axis[1]), 1.0 if axis[0] == "+" else -1.0
     # the canonical y goes to file axis k with sign s; the facing z to another axis, right-handed
     P = np.zeros((3, 3))
     P[k, 1] = s
-    P[(k + 2) % 3, 2] = -1.0
+    P[(k + 2) % 3, 2] = facing
     P[:, 0] = np.cross(P[:, 1], P[:, 2])
     path = _saved(tmp_path, "s.ply", scan.vertices @ P.T, scan.faces)
     mesh, report = sc.load_scan(path, units="m", up_axis=axis)
@@ -413,6 +414,35 @@ def test_load_scan_with_each_up_axis_given(tmp_path, axis):
     assert report.facing_axis == _axis_name(P, 2)
     assert report.notes == ()
     np.testing.assert_allclose(mesh.vertices, scan.vertices, atol=1e-9)
+
+
+def test_the_given_up_axis_wins_over_the_shape(tmp_path):
+    # an upright scan (y up, facing +z) said to be +x / -y up is turned so that that axis points up, as asked; the
+    # detection alone turned it back upright and only reported the axis it was given. Lying on its side it loads
+    # (the user's word); standing on its head it is refused as no standing person
+    scan = _person("a")
+    path = _saved(tmp_path, "s.ply", scan.vertices, scan.faces)
+    _, report = sc.load_scan(path, units="m", up_axis="+x")
+    np.testing.assert_allclose(report.to_canonical[1], [1.0, 0.0, 0.0], atol=1e-12)
+    assert report.up_axis == "+x" and report.facing_axis == "+z"
+    with pytest.raises(InputError) as e:
+        sc.load_scan(path, units="m", up_axis="-y")
+    assert str(e.value).startswith(f"{path}: the shape has no head")
+
+
+def test_detect_orientation_with_the_vertical_known():
+    scan = _person("random")
+    area = vertex_areas(scan.vertices, scan.faces)
+    for P in _proper_permutations():
+        k = int(np.flatnonzero(P[:, 1])[0])
+        if P[k, 1] < 0:
+            continue  # up given means that axis points up
+        R, up, facing = sc.detect_orientation(scan.vertices @ P.T, area, up=k)
+        np.testing.assert_allclose(R @ P, np.eye(3), atol=1e-12)
+        assert (up, facing) == (_axis_name(P, 1), _axis_name(P, 2))
+    # upside down but said to be up: kept upside down (y stays the vertical, pointing where it was said to)
+    R, up, _ = sc.detect_orientation(scan.vertices * [1, -1, -1], area, up=1)
+    assert up == "+y" and np.allclose(R[1], [0, 1, 0])
 
 
 def test_load_scan_units_given_and_refusals(tmp_path, monkeypatch):
