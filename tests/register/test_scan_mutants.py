@@ -70,6 +70,9 @@ def test_read_scan_file_refusals_word_for_word(tmp_path):
     with pytest.raises(FileFormatError) as e:
         sc.read_scan_file(broken)
     assert str(e.value).startswith(f"{broken}: not a readable mesh (") and str(e.value).endswith(")")
+    import re
+
+    assert re.match(rf"{re.escape(str(broken))}: not a readable mesh \((\w+Error|\w+Exception): ", str(e.value))
     assert e.value.__cause__ is None and e.value.__suppress_context__
     cloud = tmp_path / "cloud.ply"
     pts = np.random.default_rng(0).normal(size=(7, 3))
@@ -128,6 +131,26 @@ def test_vertex_face_and_texture_colours_become_vertex_colours(tmp_path, caplog)
     assert sc.read_scan_file(plain).vertex_colors is None
 
 
+def test_a_mesh_without_faces_one_face_and_nan_vertices(tmp_path, monkeypatch):
+    import trimesh
+
+    V, F = _sphere()
+    one = tmp_path / "one.ply"
+    save_mesh(one, Mesh(V[:3], F[:1] * 0 + [0, 1, 2]))
+    assert sc.read_scan_file(one).n_faces == 1
+    nan = tmp_path / "nan.ply"
+    Vn = V.copy()
+    Vn[5] = np.nan
+    save_mesh(nan, Mesh(Vn, F))
+    with pytest.raises(FileFormatError) as e:
+        sc.read_scan_file(nan)
+    assert str(e.value) == f"{nan}: 1 vertices are NaN or infinite"
+    monkeypatch.setattr(trimesh, "load", lambda *a, **k: trimesh.Trimesh(V, np.zeros((0, 3), int), process=False))
+    with pytest.raises(FileFormatError) as e:
+        sc.read_scan_file(one)
+    assert str(e.value) == f"{one}: found 42 vertices and no triangles; give a triangle mesh scan"
+
+
 def test_a_broken_texture_is_skipped_with_a_warning(tmp_path, caplog, monkeypatch):
     import trimesh
 
@@ -181,6 +204,7 @@ def test_clean_scan_counts_each_repair():
     assert out.n_vertices == 45 and removed_v == len(V2) - 45
     assert out.n_faces == 81 and removed_f == len(F2) - 81
     assert out.metadata == {"source": "x.ply"} and out.vertices.dtype == np.float64 and out.faces.dtype == np.int64
+    assert out.vertex_colors.dtype == np.uint8
     kept = np.r_[np.arange(n), n + 7, n + 8, n + 9]
     order = [int(np.flatnonzero(np.all(np.isclose(V2[kept], p), axis=1))[0]) for p in out.vertices]
     np.testing.assert_array_equal(out.vertex_colors, col[kept][order])
@@ -213,6 +237,8 @@ def test_central_fraction_and_weighted_mean_by_hand():
     # lo 0, hi 10: strictly between 3.5 and 6.5 are 4, 5, 6
     assert sc._central_fraction(x, w) == pytest.approx((5 + 6 + 7) / 66)
     assert sc._central_fraction(np.array([0.0, 3.5, 5.0, 6.5, 10.0]), np.ones(5)) == pytest.approx(0.2)
+    # lo 10, hi 20: strictly between 13.5 and 16.5 are 14, 15, 16
+    assert sc._central_fraction(x + 10.0, w) == pytest.approx((5 + 6 + 7) / 66)
     assert sc._weighted_mean(np.array([1.0, 3.0]), np.array([1.0, 3.0])) == pytest.approx(2.5)
     assert sc._weighted_mean(np.array([1.0, 3.0]), np.zeros(2)) == pytest.approx(2.0)
 
@@ -268,6 +294,17 @@ def test_winding_repair_by_signed_volume_per_piece():
     empty = np.zeros((0, 3), np.int32)
     out, n = sc.orient_faces_outward(V, empty)
     assert n == 0 and out is empty
+    out, n = sc.orient_faces_outward(V, F[:, ::-1].astype(np.int32))
+    assert n == 80 and out.dtype == np.int64
+    # one face wound inwards (about the centroid of all the vertices) is turned
+    out, n = sc.orient_faces_outward(V, F[:1, ::-1])
+    assert n == 1
+    np.testing.assert_array_equal(out, F[:1])
+    # a flat square through the centroid has no volume: neither inwards nor outwards, left as it is
+    sq = np.array([[-1.0, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]])
+    Fs = np.array([[0, 1, 2], [0, 2, 3]])
+    out, n = sc.orient_faces_outward(sq, Fs)
+    assert n == 0 and out is Fs
 
 
 def test_a_piece_is_everything_connected_through_any_corner():
@@ -304,6 +341,8 @@ def test_surface_samples_are_uniform_over_the_area():
         np.testing.assert_allclose(Q.mean(0), (a + b + c) / 3, atol=0.03)
         assert abs((lam.sum(1) <= 0.5).mean() - 0.25) < 0.03  # the corner a's quarter of the area
     assert len(sc.surface_samples(V, F, 10)) == 10
+    small = sc.surface_samples(V * 0.1, F, 50)  # total area 0.04: sampled all the same
+    assert small.shape == (50, 3) and not np.isin(small, V * 0.1).all(axis=1).any()
     flat = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])
     assert sc.surface_samples(flat, np.array([[0, 1, 2]])) is flat
 
@@ -330,6 +369,9 @@ def test_head_to_chest_ratios_of_stacked_boxes():
     assert isinstance(got, tuple) and len(got) == 2
     np.testing.assert_allclose(got, _ratios_by_hand(V, F), rtol=1e-12)
     assert 0.27 < got[0] < 0.33 and 0.6 < got[1] < 0.7
+    person = _person("a")
+    np.testing.assert_allclose(sc.head_to_chest_ratios(person.vertices, person.faces),
+                               _ratios_by_hand(person.vertices, person.faces), rtol=1e-12)
     # a column whose top band has too few samples (< 20) to measure: NaN
     V2, F2 = _boxes([(-0.2, 0.2, 0.0, 1.0, -0.1, 0.1), (-0.0005, 0.0005, 1.0, 1.2, -0.0005, 0.0005)])
     r = sc.head_to_chest_ratios(V2, F2)
@@ -344,6 +386,11 @@ def test_check_standing_person_refuses_a_box_word_for_word():
     assert str(e.value) == (f"box.ply: the shape has no head: its top is {r[0]:.2f}x as wide and {r[1]:.2f}x as deep "
                             "as its middle (a person's head is under half as wide as the shoulders), so it is not a "
                             "person standing upright; give a body scan")
+    V, F = _boxes([(-0.2, 0.2, 0.0, 0.85, -0.1, 0.1), (-0.18, 0.18, 0.85, 1.0, -0.08, 0.08)])
+    r = sc.head_to_chest_ratios(V, F)
+    with pytest.raises(InputError) as e:
+        sc.check_standing_person(Mesh(V, F), "col.ply")
+    assert f"its top is {r[0]:.2f}x as wide and {r[1]:.2f}x as deep" in str(e.value) and f"{r[0]:.2f}" != f"{r[1]:.2f}"
     # narrow on top in one direction only: not refused; nor a top too thin to measure
     V, F = _boxes([(-0.2, 0.2, 0.0, 0.88, -0.1, 0.1), (-0.2, 0.2, 0.88, 1.0, -0.02, 0.02)])
     assert sc.check_standing_person(Mesh(V, F), "x") is None
@@ -453,6 +500,10 @@ def test_load_scan_units_given_and_refusals(tmp_path, monkeypatch):
     np.testing.assert_allclose(report.to_canonical, np.eye(3) * 0.001)
     mesh, report = sc.load_scan(path, units="cm")  # believed: a 16 m tall body is the user's choice
     assert report.units == "cm" and np.isclose(np.ptp(mesh.vertices[:, 1]), 10.0 * np.ptp(scan.vertices[:, 1]))
+    big = _saved(tmp_path, "big.ply", scan.vertices * 5.0, scan.faces)
+    with pytest.raises(InputError) as e:
+        sc.load_scan(big)
+    assert str(e.value).startswith(f"{big}: the scan is ") and str(e.value).endswith("rescale it to metres")
     with pytest.raises(InputError) as e:
         sc.load_scan(path, units="in")
     assert str(e.value) == "unknown units 'in'; valid: m, cm, mm"
