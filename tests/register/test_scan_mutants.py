@@ -271,6 +271,35 @@ def test_orientation_undoes_every_proper_permutation(pose):
         assert (up, facing) == (_axis_name(P, 1), _axis_name(P, 2))
 
 
+def _box_person(lift_left_foot=False):
+    """A standing person of boxes, 1 m tall, facing +z: legs, feet with the toes 10 cm ahead of the shins, a trunk
+    wider than deep, arms down beside it, a head (each box subdivided three times: vertices every 1-2 cm)."""
+    import trimesh
+
+    lift = 0.1 if lift_left_foot else 0.0
+    parts = [(-0.16, -0.04, 0.05, 0.45, -0.05, 0.05), (0.04, 0.16, 0.05 + lift, 0.45, -0.05, 0.05),
+             (-0.16, -0.04, 0.0, 0.05, -0.05, 0.15), (0.04, 0.16, lift, 0.05 + lift, -0.05, 0.15),
+             (-0.2, 0.2, 0.45, 0.85, -0.1, 0.1), (-0.27, -0.21, 0.5, 0.82, -0.04, 0.04),
+             (0.21, 0.27, 0.5, 0.82, -0.04, 0.04), (-0.07, 0.07, 0.86, 1.0, -0.08, 0.08)]
+    ms = [trimesh.creation.box(bounds=[[x0, y0, z0], [x1, y1, z1]]).subdivide().subdivide().subdivide()
+          for x0, x1, y0, y1, z0, z1 in parts]
+    m = trimesh.util.concatenate(ms)
+    return np.asarray(m.vertices), np.asarray(m.faces)
+
+
+@pytest.mark.parametrize("lift", [False, True])
+def test_orientation_of_a_box_person_every_proper_permutation(lift):
+    # each cue decides on its own here: the height (1.0 m against 0.54 m), the skin above mid-height (trunk, arms,
+    # head), the trunk 0.4 wide and 0.2 deep, the feet 10 cm ahead of the shins (one foot lifted 10 cm: only the
+    # other one is the lowest slice) and the head top no further forward than the neck
+    V, F = _box_person(lift)
+    area = vertex_areas(V, F)
+    for P in _proper_permutations():
+        R, up, facing = sc.detect_orientation(V @ P.T, area)
+        np.testing.assert_allclose(R @ P, np.eye(3), atol=1e-12)
+        assert (up, facing) == (_axis_name(P, 1), _axis_name(P, 2))
+
+
 # ------------------------------------------------------------------------------------------------ winding
 
 def test_winding_repair_by_signed_volume_per_piece():
