@@ -302,3 +302,146 @@ def test_align_limb_without_rings_keeps_the_pose():
     assert _limb_error(body, out, scan, LEFT_ARM) < 0.012
     changed = np.flatnonzero(np.any(out.rotations != start.rotations, axis=1))
     assert set(changed) == {sk.index(b) for b in LEFT_ARM}
+
+
+def _coarse_by_loops(V, area):
+    """coarse_scan_skeleton written out from its docstring with loops and a sorting weighted median."""
+    def wmedian(x, w):
+        pairs = sorted(zip(x, w, strict=True))
+        total, acc = sum(w), 0.0
+        for xi, wi in pairs:
+            acc += wi
+            if acc >= 0.5 * total:
+                return xi
+        return pairs[-1][0]
+
+    floor, top = V[:, 1].min(), V[np.argmax(V[:, 1])]
+    h = V[:, 1].max() - floor
+    plane = wmedian(V[:, 0], area)
+    band = [i for i in range(len(V)) if abs(V[i, 1] - (floor + 0.52 * h)) < 0.02 * h]
+    core = [i for i in band if abs(V[i, 0] - plane) < 0.12 * h] or band
+    pelvis = np.array([wmedian(V[core, 0], area[core]), floor + 0.52 * h, wmedian(V[core, 2], area[core])])
+    upper = [i for i in range(len(V)) if V[i, 1] > floor + 0.35 * h]
+    lower = [i for i in range(len(V)) if V[i, 1] < floor + 0.08 * h]
+    hands, feet = {}, {}
+    for side in (1.0, -1.0):
+        cand = [i for i in upper if side * (V[i, 0] - pelvis[0]) > 0.05 * h] or upper
+        hands[side] = V[max(cand, key=lambda i, s=side: s * (V[i, 0] - pelvis[0])
+                            - 0.3 * max(V[i, 1] - pelvis[1], 0.0))]
+        cand = [i for i in lower if side * (V[i, 0] - pelvis[0]) > 0] or lower
+        feet[side] = V[max(cand, key=lambda i: V[i, 2])]
+    return floor, top, pelvis, hands, feet
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_coarse_skeleton_of_shifted_jittered_point_sets_against_loops(seed):
+    # POINTS shuffled (the head top not first), moved off the origin, jittered, with a hand raised so high that its
+    # height penalty makes a point near the body score better, and random vertex weights from one triangle fan
+    rng = np.random.default_rng(seed)
+    P = np.vstack([POINTS, [[0.35, 2.3, 0.0]], rng.normal(size=(12, 3)) * [0.3, 0.5, 0.2] + [0, 1.0, 0]])
+    P = P + rng.normal(size=P.shape) * 0.01 + rng.normal(size=3) * [0.5, 0.3, 0.5]
+    P = P[rng.permutation(len(P))]
+    c = ip.coarse_scan_skeleton(P)
+    floor, top, pelvis, hands, feet = _coarse_by_loops(P, np.ones(len(P)))
+    assert c.floor_y == floor
+    np.testing.assert_array_equal(c.head_top, top)
+    np.testing.assert_allclose(c.pelvis, pelvis, atol=1e-12)
+    for side in (1.0, -1.0):
+        np.testing.assert_array_equal(c.hand_tips[side], hands[side])
+        np.testing.assert_array_equal(c.foot_tips[side], feet[side])
+    F = np.array([[i, (i + 1) % len(P), (i + 5) % len(P)] for i in range(0, len(P), 2)])
+    from bodystudio.geometry.mesh import vertex_areas
+
+    c = ip.coarse_scan_skeleton(P, F)
+    floor, top, pelvis, hands, feet = _coarse_by_loops(P, vertex_areas(P, F))
+    np.testing.assert_allclose(c.pelvis, pelvis, atol=1e-12)
+    for side in (1.0, -1.0):
+        np.testing.assert_array_equal(c.hand_tips[side], hands[side])
+
+
+def test_initial_pose_of_a_model_off_the_origin():
+    # the same model moved by d (skeleton and rest mesh): the initial translation moves by -d but for the floor
+    from bodystudio.body.skeleton import Skeleton
+
+    body, _, scan = _case()
+    sk = body.skeleton
+    d = np.array([0.07, 0.02, -0.05])
+    moved = Skeleton(sk.bone_names, sk.parents, sk.heads + d, sk.tails + d, sk.rolls)
+    p0 = ip.initial_pose(sk, body.weights, body.vertices, scan)
+    p1 = ip.initial_pose(moved, body.weights, body.vertices + d, scan)
+    np.testing.assert_allclose(p1.translation, p0.translation - d, atol=1e-12)
+    np.testing.assert_allclose(p1.rotations, p0.rotations, atol=1e-9)
+
+
+@cache
+def _leg_case():
+    """The 2k body with the right leg swung 0.8 rad forward: more than the straight aim's 0.35 rad cap."""
+    body = _body()
+    sk = body.skeleton
+    rot = np.zeros((sk.n_bones, 3))
+    rot[sk.index("thigh_r")] = [-0.8, 0, 0]
+    scan = linear_blend_skinning(body.vertices, body.weights, skinning_transforms(sk, Pose(rot, np.zeros(3))))
+    return body, scan
+
+
+def test_the_straight_aim_swings_a_leg_at_most_0_35_rad_towards_its_toe():
+    body, scan = _leg_case()
+    sk = body.skeleton
+    coarse = ip.coarse_scan_skeleton(scan)
+    p = ip.initial_pose(sk, body.weights, body.vertices, scan)
+    start = Pose(np.zeros((sk.n_bones, 3)), p.translation)
+    for root, side, kind in ip.LIMB_CHAINS[2:]:
+        j = sk.index(root)
+        end = ip._chain_end_vertex(sk, body.weights, body.vertices, root, kind)
+        angles = []
+        for q in (start, p):
+            posed = linear_blend_skinning(body.vertices[[end]], body.weights[[end]], skinning_transforms(sk, q))[0]
+            o = forward_kinematics(sk, q)[j, :3, 3]
+            d, e = posed - o, coarse.foot_tips[side] - o
+            angles.append(np.arccos(np.clip(d @ e / np.linalg.norm(d) / np.linalg.norm(e), -1, 1)))
+        # turned towards the toe by the whole angle, or by 0.35 rad when it is larger
+        assert angles[1] == pytest.approx(max(angles[0] - 0.35, 0.0), abs=1e-6)
+        if side < 0:
+            assert angles[0] > 0.4  # the swung leg needs more than the cap (0.41 rad)
+
+
+def test_the_model_tips_come_from_the_models_own_area_weighted_skeleton(monkeypatch):
+    body, _, scan = _case()
+    F = body.faces
+    seen = []
+    real = ip.limb_tips
+    monkeypatch.setattr(ip, "limb_tips", lambda V, F_, c: seen.append(c) or real(V, F_, c))
+    ip.initial_pose(body.skeleton, body.weights, body.vertices, scan, faces=F, scan_faces=F)
+    want = ip.coarse_scan_skeleton(body.vertices, F)
+    np.testing.assert_array_equal(seen[0].pelvis, want.pelvis)
+    assert not np.array_equal(ip.coarse_scan_skeleton(body.vertices).pelvis, want.pelvis)
+
+
+def test_a_limb_without_a_tip_is_left_to_the_straight_aim():
+    body, _, scan = _case()
+    sk, F = body.skeleton, body.faces
+    coarse = ip.coarse_scan_skeleton(scan, F)
+    left = scan[:, 0] - coarse.pelvis[0] > 0.05 * coarse.stature_m
+    F_scan = F[~np.any(left[F], axis=1)]
+    assert ip.limb_tips(scan, F_scan, coarse)["hand", 1.0] == -1
+    p = ip.initial_pose(sk, body.weights, body.vertices, scan, coarse, faces=F, scan_faces=F_scan)
+    for b in ("lowerarm_l", "hand_l"):
+        np.testing.assert_array_equal(p.rotations[sk.index(b)], 0.0)
+    assert np.any(p.rotations[sk.index("lowerarm_r")] != 0)
+
+
+def test_tips_at_vertex_zero_are_tips():
+    # the model and the scan renumbered so that both left hand tips are vertex 0: the arm is still aligned
+    body, _, scan = _case()
+    sk, F = body.skeleton, body.faces
+    m_tip = ip.limb_tips(body.vertices, F, ip.coarse_scan_skeleton(body.vertices, F))["hand", 1.0]
+    s_tip = ip.limb_tips(scan, F, ip.coarse_scan_skeleton(scan, F))["hand", 1.0]
+    assert m_tip == s_tip  # the scan is the posed model: the same vertex
+    order = np.r_[m_tip, np.delete(np.arange(len(scan)), m_tip)]
+    inv = np.argsort(order)
+    V, W, S, F2 = body.vertices[order], body.weights[order], scan[order], inv[F]
+    assert ip.limb_tips(S, F2, ip.coarse_scan_skeleton(S, F2))["hand", 1.0] == 0
+    p = ip.initial_pose(sk, W, V, S, faces=F2, scan_faces=F2)
+    got = linear_blend_skinning(V, W, skinning_transforms(sk, p))
+    owned = W[:, [sk.index(b) for b in LEFT_ARM]].sum(1) > 0.5
+    assert np.median(np.linalg.norm(got[owned] - S[owned], axis=1)) < 0.012
