@@ -98,6 +98,16 @@ def test_coarse_skeleton_of_a_hand_made_point_set():
     np.testing.assert_array_equal(c.foot_tips[-1.0], POINTS[12])
 
 
+def test_a_raised_hand_is_the_tip_though_a_point_near_the_body_scores_better():
+    # the left side's only point beyond 0.05 statures (0.1 m) is a hand raised to 1.95 m: score
+    # 0.35 - 0.3 * 0.91 = 0.077, below the hip point (0.1, 1.05)'s 0.097; the tip is still taken among the points
+    # out to the side
+    P = np.vstack([np.delete(POINTS, [4, 5, 6], axis=0), [[0.35, 1.95, 0.0]]])
+    c = ip.coarse_scan_skeleton(P)
+    np.testing.assert_array_equal(c.hand_tips[1.0], [0.35, 1.95, 0.0])
+    np.testing.assert_array_equal(c.hand_tips[-1.0], POINTS[7])
+
+
 def test_coarse_skeleton_weighs_by_vertex_area():
     # one big triangle on vertices 3, 13, 14: only they have area; the median plane is then x = -0.05 and the
     # hip core's only weighted point is vertex 3
