@@ -287,12 +287,13 @@ def _box_person(lift_left_foot=False):
     return np.asarray(m.vertices), np.asarray(m.faces)
 
 
-@pytest.mark.parametrize("lift", [False, True])
-def test_orientation_of_a_box_person_every_proper_permutation(lift):
+@pytest.mark.parametrize("lift,offset", [(False, (0.0, 0.0, 0.0)), (True, (0.0, 0.0, 0.0)), (False, (3.0, -2.0, 5.0))])
+def test_orientation_of_a_box_person_every_proper_permutation(lift, offset):
     # each cue decides on its own here: the height (1.0 m against 0.54 m), the skin above mid-height (trunk, arms,
     # head), the trunk 0.4 wide and 0.2 deep, the feet 10 cm ahead of the shins (one foot lifted 10 cm: only the
-    # other one is the lowest slice) and the head top no further forward than the neck
+    # other one is the lowest slice) and the head top no further forward than the neck; also far from the origin
     V, F = _box_person(lift)
+    V = V + offset
     area = vertex_areas(V, F)
     for P in _proper_permutations():
         R, up, facing = sc.detect_orientation(V @ P.T, area)
