@@ -102,7 +102,8 @@ def test_a_raised_hand_is_the_tip_though_a_point_near_the_body_scores_better():
     # the left side's only point beyond 0.05 statures (0.1 m) is a hand raised to 1.95 m: score
     # 0.35 - 0.3 * 0.91 = 0.077, below the hip point (0.1, 1.05)'s 0.097; the tip is still taken among the points
     # out to the side
-    P = np.vstack([np.delete(POINTS, [4, 5, 6], axis=0), [[0.35, 1.95, 0.0]]])
+    # a point far out at 0.5 m (below the upper part, 0.35 statures = 0.7 m) is no hand candidate
+    P = np.vstack([np.delete(POINTS, [4, 5, 6], axis=0), [[0.35, 1.95, 0.0], [0.9, 0.5, 0.0]]])
     c = ip.coarse_scan_skeleton(P)
     np.testing.assert_array_equal(c.hand_tips[1.0], [0.35, 1.95, 0.0])
     np.testing.assert_array_equal(c.hand_tips[-1.0], POINTS[7])
@@ -222,8 +223,13 @@ def test_rotate_bone_towards_adds_the_world_rotation():
     G1 = forward_kinematics(sk, out)[:, :3, :3]
     Rc = Rotation.from_rotvec(axis / np.linalg.norm(axis) * 0.1).as_matrix()
     np.testing.assert_allclose(G1[j], Rc @ G0[j], atol=1e-10)
-    # parallel directions (any length): unchanged
+    # parallel directions (any length): unchanged; the test is relative to both lengths
     assert ip._rotate_bone_towards(sk, pose, j, a, 3.0 * a) is pose
+    # 1 mm off a direction 10^8 m long: 1e-11 rad apart, parallel by the relative test (not by an absolute one)
+    a2, eps = np.array([0.1, 0.7, 0.3]), np.array([0.0, 0.0, 1e-3])
+    for d_model, d_scan in ((a2, a2 * 1.3e8 + eps), (a2 * 1.3e8 + eps, a2)):
+        assert np.linalg.norm(np.cross(d_model, d_scan)) > 1e-4
+        assert ip._rotate_bone_towards(sk, pose, j, d_model, d_scan) is pose
 
 
 def _limb_error(body, pose, scan, bones):
@@ -455,3 +461,40 @@ def test_tips_at_vertex_zero_are_tips():
     got = linear_blend_skinning(V, W, skinning_transforms(sk, p))
     owned = W[:, [sk.index(b) for b in LEFT_ARM]].sum(1) > 0.5
     assert np.median(np.linalg.norm(got[owned] - S[owned], axis=1)) < 0.012
+
+
+@pytest.mark.parametrize("owner", ["hand_l", "index_01_l", "middle_01_l", "ring_01_l", "pinky_01_l", "thumb_01_l",
+                                   "foot_l", "ball_l"])
+def test_chain_end_of_a_stand_in_rig_whose_farthest_vertex_belongs_to_one_bone(owner):
+    # each hand / finger / foot bone owns one vertex; the one of `owner` is the farthest from the shoulder (the most
+    # forward for a foot): it is the chain end only if `owner` counts as part of the hand (foot)
+    from types import SimpleNamespace
+
+    names = ("upperarm_l", "hand_l", "index_01_l", "middle_01_l", "ring_01_l", "pinky_01_l", "thumb_01_l",
+             "thigh_l", "foot_l", "ball_l", "hand_r", "foot_r")
+    sk = SimpleNamespace(bone_names=names, heads=np.zeros((len(names), 3)), index=names.index)
+    V = np.zeros((len(names), 3))
+    V[:, 0] = np.arange(len(names)) * 0.01 + 0.1  # ordinary distances
+    V[:, 2] = np.arange(len(names)) * 0.001
+    k = names.index(owner)
+    V[k] = [2.0, 0.0, 2.0]  # the farthest and the most forward
+    V[names.index("hand_r")] = V[names.index("foot_r")] = [3.0, 0.0, 3.0]  # other side: never counted
+    W = np.eye(len(names))
+    kind = "foot" if owner in ("foot_l", "ball_l") else "hand"
+    root = "thigh_l" if kind == "foot" else "upperarm_l"
+    assert ip._chain_end_vertex(sk, W, V, root, kind) == k
+
+
+def test_crossed_feet_are_told_apart_by_their_thighs():
+    # legs crossed (each thigh swung 0.35 rad across): the left toe lies right of the right one; the tips still
+    # follow the legs, as on the rest body (the same vertices: the scan is the posed model)
+    body = _body()
+    sk, F = body.skeleton, body.faces
+    rot = np.zeros((sk.n_bones, 3))
+    rot[sk.index("thigh_l")] = [0, 0, 0.35]
+    rot[sk.index("thigh_r")] = [0, 0, -0.35]
+    scan = linear_blend_skinning(body.vertices, body.weights, skinning_transforms(sk, Pose(rot, np.zeros(3))))
+    rest = ip.limb_tips(body.vertices, F, ip.coarse_scan_skeleton(body.vertices, F))
+    tips = ip.limb_tips(scan, F, ip.coarse_scan_skeleton(scan, F))
+    assert scan[tips["foot", 1.0], 0] < scan[tips["foot", -1.0], 0]  # crossed
+    assert (tips["foot", 1.0], tips["foot", -1.0]) == (rest["foot", 1.0], rest["foot", -1.0])
