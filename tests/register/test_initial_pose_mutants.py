@@ -104,9 +104,10 @@ def test_a_raised_hand_is_the_tip_though_a_point_near_the_body_scores_better():
     # out to the side
     # a point far out at 0.5 m (below the upper part, 0.35 statures = 0.7 m) is no hand candidate
     P = np.vstack([np.delete(POINTS, [4, 5, 6], axis=0), [[0.35, 1.95, 0.0], [0.9, 0.5, 0.0]]])
-    c = ip.coarse_scan_skeleton(P)
-    np.testing.assert_array_equal(c.hand_tips[1.0], [0.35, 1.95, 0.0])
-    np.testing.assert_array_equal(c.hand_tips[-1.0], POINTS[7])
+    for shift in (0.0, 0.5):  # also with the body 0.5 m off the origin
+        c = ip.coarse_scan_skeleton(P + [shift, 0.0, 0.0])
+        np.testing.assert_array_equal(c.hand_tips[1.0], [0.35 + shift, 1.95, 0.0])
+        np.testing.assert_array_equal(c.hand_tips[-1.0], POINTS[7] + [shift, 0.0, 0.0])
 
 
 def test_coarse_skeleton_weighs_by_vertex_area():
@@ -199,6 +200,11 @@ def test_limb_tips_of_a_hand_cut_off_and_no_legs():
     F = body.faces[~np.any(left[body.faces], axis=1)]
     tips = ip.limb_tips(scan, F, coarse)
     assert tips["hand", 1.0] == -1 and tips["hand", -1.0] >= 0
+    # the same with a toe renumbered as vertex 1 (far from the chest): "no tip" is not vertex 1
+    toe = tips["foot", 1.0]
+    order = np.r_[0, toe, np.delete(np.arange(len(scan)), [0, toe])]
+    tips = ip.limb_tips(scan[order], np.argsort(order)[F], coarse)
+    assert tips["hand", 1.0] == -1 and tips["foot", 1.0] == 1
 
 
 def test_rotate_bone_towards_adds_the_world_rotation():
