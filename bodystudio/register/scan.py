@@ -79,10 +79,8 @@ def read_scan_file(path: str | Path) -> Mesh:
     try:
         if visual.kind == "texture":
             visual = visual.to_color()
-        if visual.kind == "vertex":
+        if visual.kind in ("vertex", "face"):  # face colours: trimesh averages each vertex's faces
             colors = np.asarray(visual.vertex_colors)[:, :3].astype(np.uint8)
-        elif visual.kind == "face":
-            colors = np.asarray(visual.to_color().vertex_colors)[:, :3].astype(np.uint8)
     except Exception as exc:  # a broken texture must not stop the geometry from loading
         log.warning("%s: cannot read colours (%s); continuing without", path, exc)
     V, F = checked_mesh_arrays(path, loaded.vertices, loaded.faces)
@@ -135,8 +133,9 @@ def _weighted_mean(x: np.ndarray, w: np.ndarray) -> float:
     return float(np.average(x, weights=w + 1e-12))
 
 
-def detect_orientation(V: np.ndarray, area: np.ndarray) -> tuple[np.ndarray, str, str]:
-    """Rotation taking a standing scan to y up, facing +z, with the axis names assumed.
+def detect_orientation(V: np.ndarray, area: np.ndarray, up: int | None = None) -> tuple[np.ndarray, str, str]:
+    """Rotation taking a standing scan to y up, facing +z, with the axis names assumed; ``up`` (an axis index, that
+    axis pointing up) when the vertical is known, and only the facing is detected.
 
     * Vertical axis: the longest one when it is clearly longest; when the two longest are alike (arms
       spread), the lateral one holds most surface near its middle (torso, head and legs; only arms reach
@@ -151,15 +150,17 @@ def detect_orientation(V: np.ndarray, area: np.ndarray) -> tuple[np.ndarray, str
     The earlier cues (feet wider apart than the head; depth = smallest extent; both feet against both
     shins) failed on 5 of the random poses.
     """
-    ext = V.max(0) - V.min(0)
-    first, second, _ = np.argsort(-ext)
-    if ext[first] > 1.3 * ext[second]:
-        up = int(first)  # arms down or bent: the body is taller than wide
-    else:  # arms spread (T-pose): the vertical axis has less surface near its middle
-        up = int(first if _central_fraction(V[:, first], area) < _central_fraction(V[:, second], area) else second)
+    given_up = up is not None
+    if not given_up:
+        ext = V.max(0) - V.min(0)
+        first, second, _ = np.argsort(-ext)
+        if ext[first] > 1.3 * ext[second]:
+            up = int(first)  # arms down or bent: the body is taller than wide
+        else:  # arms spread (T-pose): the vertical axis has less surface near its middle
+            up = int(first if _central_fraction(V[:, first], area) < _central_fraction(V[:, second], area) else second)
     y = V[:, up]
     h = y.max() - y.min()
-    up_sign = 1.0 if area[y > y.min() + 0.5 * h].sum() >= area[y < y.min() + 0.5 * h].sum() else -1.0
+    up_sign = 1.0 if given_up or area[y > y.min() + 0.5 * h].sum() >= area[y < y.min() + 0.5 * h].sum() else -1.0
     height = (y - y.min()) / h if up_sign > 0 else (y.max() - y) / h
     a, b = [k for k in range(3) if k != up]
     trunk = (height > 0.45) & (height < 0.8)
@@ -296,8 +297,11 @@ def load_scan(path: str | Path, units: str | None = None, up_axis: str | None = 
         R0[1, k] = s
         R0[2, (k + 1) % 3] = 1.0
         R0[0] = np.cross(R0[1], R0[2])
-        R, _, facing_name = detect_orientation(mesh.vertices @ R0.T, area)
+        R, _, _ = detect_orientation(mesh.vertices @ R0.T, area, up=1)  # the given axis stays up
         R = R @ R0
+        # named in the file's axes (detect_orientation names those of the frame R0 turned the scan to)
+        k = int(np.argmax(np.abs(R[2])))
+        facing_name = ("+" if R[2, k] > 0 else "-") + "xyz"[k]
         up_name = up_axis
     height = float(np.ptp(mesh.vertices @ R[1]))
     if units is None:
