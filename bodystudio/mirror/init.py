@@ -87,8 +87,13 @@ MAX_POINTS = 2500
 MIN_POINTS = 300
 #: collect_observations reads every this-many-th frame of the initialisation window.
 INIT_FRAME_STRIDE = 3
-#: At most this many frames (those with the most person points) enter the fit.
+#: At most this many frames enter the fit.
 MAX_FIT_FRAMES = 15
+#: Which MAX_FIT_FRAMES of more usable frames enter the fit. "first": the ones with the most person points after
+#: each frame's cloud is cut to MAX_POINTS, which every frame of a walk-in reaches, so in practice the first ones (a
+#: walk-in: all side-on); "spread": evenly spread over the usable frames, so a walk-in's side-on, turning and facing
+#: views all enter (mir12w: the shape of session 57, 3.45 kg heavy from the side-on frames, 0.72 kg; docs/mirror.md).
+INIT_FRAME_CHOICE = "first"
 #: Points of all frames' default-pose clouds pooled into one Eq. 2 fit (a random subset).
 MAX_POOLED_POINTS = 6000
 #: Closest-point re-matchings of the Eq. 2 fit in the first and later passes (the fit converges
@@ -548,13 +553,15 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  unpose_refine_steps: int = UNPOSE_REFINE_STEPS,
                                  bone_length_weight: float = BONE_LENGTH_WEIGHT,
                                  trunk_refit: bool = False,
-                                 unpose_posture_bones=UNPOSE_POSTURE_BONES) -> SourceBody:
+                                 unpose_posture_bones=UNPOSE_POSTURE_BONES,
+                                 frame_choice: str | None = None) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
     plane ``y = floor_y`` are dropped (the player mask reaches onto the floor at the feet; None keeps them).
-    Of more than ``max_frames`` usable frames the ``max_frames`` with the most person points are used
-    (the actor fully in view and facing the sensor; consecutive frames add little new information).
+    Of more than ``max_frames`` usable frames, ``frame_choice`` (None: :data:`INIT_FRAME_CHOICE`) picks which are used:
+    ``"first"`` the ``max_frames`` with the most person points once each cloud is cut to :data:`MAX_POINTS` (so in
+    practice the first ones), ``"spread"`` ``max_frames`` evenly spread over them (consecutive frames add little).
     ``max_distance_m`` and ``trim_m`` are the outlier rejections (see :data:`INIT_CORRESPONDENCE_M`);
     only vertices facing the depth camera by more than ``min_facing_cos`` take points (:data:`INIT_FACING_COS`).
     With ``silhouette_frames`` > 0 and the colour ``camera``, the shape is then refined against the silhouettes
@@ -576,6 +583,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     if unknown:
         raise InputError(f"unpose_posture_bones: unknown bone(s) {unknown}; use trunk bones such as "
                          f"{', '.join(POSTURE_BONES)}")
+    frame_choice = INIT_FRAME_CHOICE if frame_choice is None else frame_choice
+    if frame_choice not in ("first", "spread"):
+        raise InputError(f"frame_choice must be 'first' or 'spread', got {frame_choice!r}")
     if not (np.isfinite(bone_length_weight) and bone_length_weight >= 0):
         raise InputError(f"bone_length_weight must be a finite number >= 0 (0: no joint distances), "
                          f"got {bone_length_weight!r}")
@@ -592,7 +602,10 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         raise InputError(f"no frame with at least {MIN_POINTS} depth points on the person: "
                          "the actor must stand fully in view of the Kinect during initialisation")
     if len(obs) > max_frames:
-        best = sorted(np.argsort([-len(P) for _, P in obs], kind="stable")[:max_frames])
+        if frame_choice == "spread":
+            best = np.unique(np.linspace(0, len(obs) - 1, max_frames).round().astype(int))
+        else:
+            best = sorted(np.argsort([-len(P) for _, P in obs], kind="stable")[:max_frames])
         obs = [obs[i] for i in best]
     body = model.body(np.zeros(model.n_components))
     coeffs = np.zeros(model.n_components)

@@ -91,6 +91,15 @@ def test_bad_bone_length_weight(model, standing, weight):
         initialise_from_observations(obs, model, bone_length_weight=weight)
 
 
+@pytest.mark.parametrize("choice", ["most", "", 3])
+def test_bad_frame_choice(model, standing, choice):
+    """mir12w's frame choice of the init: anything but 'first' / 'spread' is refused before any work."""
+    K, P = standing
+    obs = [InitObservation(0, P, K, np.ones(J, bool), "v2")]
+    with pytest.raises(InputError, match="frame_choice must be 'first' or 'spread'"):
+        initialise_from_observations(obs, model, frame_choice=choice)
+
+
 def test_bone_lengths_without_any_tracked_pair(model, standing):
     """The option on frames whose joints track no pair in three frames adds no rows: the fit is the one without."""
     K, P = standing
