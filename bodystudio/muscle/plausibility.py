@@ -20,7 +20,8 @@ After the capture (:func:`capture_checks`), from the session's own depth and tra
 * the depth sampling on the arm: the median pixel footprint (mm) where the arm is seen;
 * the fitted (or given) shape parameters against the model's training range (Eq. 6 regresses them linearly:
   outside the range the model extrapolates), and a given sex against the training subjects' (an all-male model
-  describes a man's arm);
+  describes a man's arm); without ``--shape`` the sex the capture chose from the depth when the model knows women
+  (``capture.sex_from_depth_energies``: both held-out depth energies, warned when they lie within the margin);
 * the fitted rest skeleton's bones against the model's regressed ones (:func:`rest_bone_turn_deg`), recorded
   without a verdict: the women 512 / 516 / 518 captured with the all-male model (7-8.5 mm median) turn the forearm
   2.9-4.1 deg, the men 501-513 / 517 0.08-1.68, but the short man 514 (a good capture, 1.85 mm) 3.4 deg.
