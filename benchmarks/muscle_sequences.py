@@ -11,7 +11,10 @@ runs here on sessions of other subjects the tests do not use and on other noise 
 cached in ``W/seq_SUBJECT_sNOISE_FRAMES``); ``--variant NAME`` (one of :data:`VARIANTS`) or
 ``NAME:KEY=VALUE,...`` (``CaptureOptions`` fields). ``W/model.npz``: the benchmark's model (its prepare step),
 learned there when missing (another model, e.g. ``muscle model build --women 5``: its own W, the sessions linked).
-``--no-shape``: the shape fitted, as ``muscle capture`` without ``--shape`` (``..._NAME_noshape.json``). Each run writes
+The measured shape is given as a user types it (:func:`typed_shape`: the sex ``male`` / ``female``, MakeHuman's
+gender rounded; before, the fractional gender, e.g. 0.89, gave a man 11 % of a woman's offset in a model that knows
+women). ``--no-shape``: the shape fitted, as ``muscle capture`` without ``--shape``, the sex chosen from the depth when
+the model knows women (``..._NAME_noshape.json``; the row's ``sex_fit``). Each run writes
 ``W/seq_SUBJECT_sNOISE_FRAMES_NAME.json``; the table is printed.
 docs/muscle.md "seventh pass".
 """
@@ -70,6 +73,16 @@ def _fps_tag(fps: float) -> str:
     return "" if fps == 30.0 else f"_{fps:g}fps"
 
 
+def typed_shape(subject):
+    """The subject's measured shape as ``muscle capture --shape`` takes it from a user: BMI, muscularity, height, arm
+    length and ``sex=male|female`` (1 / 0: MakeHuman's fractional gender rounded)."""
+    from dataclasses import replace
+
+    from benchmarks import bench_muscle as bm
+
+    return replace(bm.shape_of(subject), sex=1.0 if subject.gender >= 0.5 else 0.0)
+
+
 def run_case(work: Path, subject_seed: int, noise_seed: int, n_frames: int, name: str, options: dict,
              fps: float = 30.0, shape_given: bool = True) -> dict:
     """One capture, scored; ``shape_given=False`` fits the shape (``muscle capture`` without ``--shape``: the sex taken
@@ -93,13 +106,14 @@ def run_case(work: Path, subject_seed: int, noise_seed: int, n_frames: int, name
     bm.CAPTURE_OVERRIDES.clear()
     bm.CAPTURE_OVERRIDES.update(options)
     try:
-        _, scores = bm.capture_and_score(session, model, template, bm.truth_template(subject), "full",
-                                         known_shape=bm.shape_of(subject) if shape_given else None)
+        capture, scores = bm.capture_and_score(session, model, template, bm.truth_template(subject), "full",
+                                               known_shape=typed_shape(subject) if shape_given else None)
     finally:
         bm.CAPTURE_OVERRIDES.clear()
     row = {"subject": subject_seed, "noise_seed": noise_seed, "frames": n_frames, "fps": fps,
            "variant": name if shape_given else f"{name} (no --shape)",
-           "options": {k: repr(v) for k, v in options.items()}, **{k: scores.get(k) for k in KEYS}}
+           "options": {k: repr(v) for k, v in options.items()}, **{k: scores.get(k) for k in KEYS},
+           "sex": float(capture.shape.sex), "sex_fit": capture.sex_fit}
     out.write_text(json.dumps(row))
     claim.unlink()
     return row

@@ -173,6 +173,10 @@ def capture(
     write_arm_capture(out, result, fps=fps)
     for line in (result.plausibility or {}).get("warnings", []):
         typer.echo(f"warning: {line}", err=True)
+    if result.sex_fit is not None:
+        e = result.sex_fit["energy_mm"]
+        typer.echo(f"the subject's sex from the depth: {result.sex_fit['chosen']} (held-out depth energy as a man "
+                   f"{e['male']:.3f} mm, as a woman {e['female']:.3f} mm; params.json sex_fit)")
     typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
 
 

@@ -442,6 +442,18 @@ class CaptureOptions:
     # sessions of one motion and one noise seed, and at 10 fps it spans three times the time (a faster motion's turning
     # points are cut).
     pose_filters_per_frame: bool = False
+    # Without the subject's shape (``known_shape``, ``--shape``) and with a model that knows women, the capture is run
+    # as a man and as a woman from the Sec. 6.2 shape fit through the sequence stage, and the sex whose model meshes
+    # explain the held-out frames' depth better (:func:`held_out_depth_energy_mm`) is kept (:func:`candidate_sexes`,
+    # :func:`sex_from_depth_energies`); two energies within ``sex_margin_mm`` are recorded as ambiguous (the capture
+    # warns). Off: the subject taken as male (the paper's), as with an all-male model. Measured (docs/muscle.md, "The
+    # sex from the depth"; mixed model, 100 frames, no --shape), the energies as a man / as a woman, mm: the women
+    # 512 4.48 / 3.45, 516 3.91 / 3.63, 518 3.62 / 3.27 (median 10.70 / 5.37, 6.95 / 3.33, 7.30 / 3.76 mm); the men
+    # 501 3.51 / 4.83, 504 3.94 / 5.04, 507 3.75 / 5.02 (kept male: the capture as before). The evidence of the first 8
+    # frames' shape fit alone took 504 and 519 for women (0.7 / 1.5 mm the wrong way), that of the sequence fit's first
+    # round 518 for a man. The margin: a third of the smallest gap of those seven, 516's 0.28 mm.
+    sex_from_depth: bool = True
+    sex_margin_mm: float = 0.1
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -493,6 +505,9 @@ class CaptureOptions:
             raise InputError(f"pose_sigma_frames must be >= 0 (0: no smoothing), got {self.pose_sigma_frames}")
         if not self.sequence_pinned_se_m >= 0:
             raise InputError(f"sequence_pinned_se_m must be >= 0, got {self.sequence_pinned_se_m}")
+        if not self.sex_margin_mm >= 0:
+            raise InputError(f"sex_margin_mm must be >= 0 (the held-out depth energies' difference below which the sex "
+                             f"from the depth is ambiguous), got {self.sex_margin_mm}")
 
 
 def options_at_frame_rate(options: CaptureOptions, fps: float, source: str = "the recording") -> CaptureOptions:
@@ -570,6 +585,8 @@ class ArmCapture:
     regressed_joints: np.ndarray | None = None
     # the capture's self-check (muscle.plausibility.check_after_capture): figures, warnings, problems
     plausibility: dict | None = None
+    # the subject's sex chosen from the depth (no --shape, a model that knows women): :func:`sex_from_depth_energies`
+    sex_fit: dict | None = None
 
     @property
     def n_frames(self) -> int:
@@ -649,7 +666,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     F = np.asarray(template.faces, np.int64)
     W = template.part_weights
     arm = template.arm_mask
-    shape = None
+    shape = sex_fit = None
     if model is not None:
         # The model's own mesh at the population's mean shape is the template (the paper's base mesh).
         from bodystudio.muscle.model import ArmShapeParams, model_joints, model_rest_vertices
@@ -705,62 +722,88 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     tracked_arm_length = None if tracker_joints is None else float(np.mean(
         np.linalg.norm(np.diff(tracker_joints, axis=1), axis=2).sum(axis=1)))
     nicp_meshes, kept_masks = [], []
-    model_meshes, poses = [], []
     system_rest = arap_system(posed0, F)
     current = posed0
     first_iters = replace(o.nicp, iterations=o.first_frame_nicp_iterations)
-    root = np.eye(4)
     n_shape = min(o.shape_frames, n_frames)
-    for k in range(n_frames):
-        P, N = clouds_t[k]
+    # Non-rigid ICP from the rest pose: the shape fit's first frames (every frame without a model), shared by the
+    # sexes a subject of unknown sex is captured as.
+    for k in range(n_shape if model is not None else n_frames):
         t0 = time.perf_counter()
-        system = system_rest if (model is None or k < n_shape) else arap_system(current, F)
-        X, pairs = nonrigid_icp(system, F, current, P, N, C, arm, adjacency, first_iters if k == 0 else o.nicp,
-                                tree=trees[k])
+        X, pairs = nonrigid_icp(system_rest, F, current, *clouds_t[k], C, arm, adjacency,
+                                first_iters if k == 0 else o.nicp, tree=trees[k])
         nicp_meshes.append(X)
         kept_masks.append(pairs.kept.astype(np.float64))
-        t0 = timer.add("nonrigid_icp", t0)
+        timer.add("nonrigid_icp", t0)
         current = X
-        if model is None or k + 1 < n_shape:
-            continue
-        if k + 1 == n_shape:
-            # Sec. 6.2: shape parameters (and the torso placement), once per sequence, from the first
-            # frames; alternated with those frames' joint angles (the root and the shoulder trade off).
-            fit_poses = [arm_pose_from_part_transforms(procrustes_part_transforms(base, m, W, w + 0.05))
-                         for m, w in zip(nicp_meshes, kept_masks, strict=True)]
-            fit_poses = [ArmPose(np.eye(4), np.vstack([p.angles[:2], np.zeros((1, 3))])) for p in fit_poses]
-            for _ in range(o.shape_rounds):
-                shape, root = fit_shape_parameters(
-                    model, nicp_meshes, fit_poses, frames_t[:n_shape], shape,
-                    tracker_joints=None if tracker_t is None else tracker_t[:n_shape],
-                    tracker_weight=o.tracker_weight if known_shape is None else o.tracker_root_weight,
-                    fixed_shape=known_shape is not None, arm_length=tracked_arm_length,
-                    arm_length_weight=o.tracker_arm_length_weight * n_frames, huber_m=o.huber_m)
-                base, J = model_rest_vertices(model, shape), model_joints(model, shape)
-                fit_poses = [model_based_filtering(model, shape, root, nicp_meshes[j], base, W, kept_masks[j],
-                                                   frames_t[j], J, o.norm_limit, o.refine_pose,
-                                                   None if tracker_t is None else tracker_t[j],
-                                                   o.tracker_pose_weight, huber_m=o.huber_m)[1]
-                             for j in range(n_shape)]
-            t0 = timer.add("shape_fit", t0)
-            todo = range(n_shape)
-        else:
-            todo = [k]
-        for j in todo:
-            mm, pp = model_based_filtering(model, shape, root, nicp_meshes[j], base, W, kept_masks[j], frames_t[j],
+
+    def shape_stage(start):
+        """Sec. 6.2: shape parameters (and the torso placement), once per sequence, from the first frames; alternated
+        with those frames' joint angles (the root and the shoulder trade off)."""
+        shape, root = start, np.eye(4)
+        base, J = model_rest_vertices(model, shape), model_joints(model, shape)
+        fit_poses = [arm_pose_from_part_transforms(procrustes_part_transforms(base, m, W, w + 0.05))
+                     for m, w in zip(nicp_meshes[:n_shape], kept_masks[:n_shape], strict=True)]
+        fit_poses = [ArmPose(np.eye(4), np.vstack([p.angles[:2], np.zeros((1, 3))])) for p in fit_poses]
+        for _ in range(o.shape_rounds):
+            shape, root = fit_shape_parameters(
+                model, nicp_meshes[:n_shape], fit_poses, frames_t[:n_shape], shape,
+                tracker_joints=None if tracker_t is None else tracker_t[:n_shape],
+                tracker_weight=o.tracker_weight if known_shape is None else o.tracker_root_weight,
+                fixed_shape=known_shape is not None, arm_length=tracked_arm_length,
+                arm_length_weight=o.tracker_arm_length_weight * n_frames, huber_m=o.huber_m)
+            base, J = model_rest_vertices(model, shape), model_joints(model, shape)
+            fit_poses = [model_based_filtering(model, shape, root, nicp_meshes[j], base, W, kept_masks[j],
+                                               frames_t[j], J, o.norm_limit, o.refine_pose,
+                                               None if tracker_t is None else tracker_t[j],
+                                               o.tracker_pose_weight, huber_m=o.huber_m)[1]
+                         for j in range(n_shape)]
+        return shape, root, base, J
+
+    def tracked(start):
+        """The shape fit from ``start`` (its sex), every frame's model-based filtering (the frames after the first
+        ones registered from the previous model mesh) and the sequence stage: (nicp meshes, kept masks, model meshes,
+        poses, shape, rest mesh, rest joints)."""
+        t0 = time.perf_counter()
+        shape, root, base, J = shape_stage(start)
+        t0 = timer.add("shape_fit", t0)
+        meshes, kept, model_meshes, poses = list(nicp_meshes), list(kept_masks), [], []
+        for j in range(n_frames):
+            if j >= n_shape:
+                system = arap_system(model_meshes[-1], F)
+                X, pairs = nonrigid_icp(system, F, model_meshes[-1], *clouds_t[j], C, arm, adjacency, o.nicp,
+                                        tree=trees[j])
+                meshes.append(X)
+                kept.append(pairs.kept.astype(np.float64))
+                t0 = timer.add("nonrigid_icp", t0)
+            mm, pp = model_based_filtering(model, shape, root, meshes[j], base, W, kept[j], frames_t[j],
                                            J, o.norm_limit, o.refine_pose,
                                            None if tracker_t is None else tracker_t[j], o.tracker_pose_weight,
                                            poses[-1] if poses else None, o.smooth_weight, o.huber_m)
             model_meshes.append(mm)
             poses.append(pp)
-        current = model_meshes[-1]
-        timer.add("model_filtering", t0)
+            if j >= n_shape - 1:
+                t0 = timer.add("model_filtering", t0)
+        if o.sequence_rounds > 0:
+            t0 = time.perf_counter()
+            poses, base, J = sequence_stage(model, template, shape, poses, frames_t, tracker_t, base, J, o,
+                                            known_shape)
+            model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
+            timer.add("sequence_fit", t0)
+        return meshes, kept, model_meshes, poses, shape, base, J
 
-    if model is not None and o.sequence_rounds > 0:
-        t0 = time.perf_counter()
-        poses, base, J = sequence_stage(model, template, shape, poses, frames_t, tracker_t, base, J, o, known_shape)
-        model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
-        timer.add("sequence_fit", t0)
+    model_meshes, poses = [], []
+    if model is not None:
+        sexes = candidate_sexes(model, o, known_shape)
+        runs = {sex: tracked(replace(shape, sex=sex)) for sex in sexes}
+        if len(runs) > 1:  # the subject's sex from the depth: the capture as each sex, the one the depth prefers kept
+            energies = {sex: held_out_depth_energy_mm(model, r[3], frames_t, r[5], r[6], o)
+                        for sex, r in runs.items()}
+            sex_fit = sex_from_depth_energies(energies, o.sex_margin_mm)
+            log.info("the subject's sex from the depth: %s (held-out depth energy as a man %.3f, as a woman %.3f mm)",
+                     sex_fit["chosen"], energies[1.0], energies[0.0])
+            sexes = (sex_fit["sex"],)
+        nicp_meshes, kept_masks, model_meshes, poses, shape, base, J = runs[sexes[0]]
     if model is not None and o.pose_refit:
         t0 = time.perf_counter()
         refit = dict(POSE_REFIT)
@@ -802,7 +845,48 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
 
     return ArmCapture(out, F, poses, shape, S, o.mode, template.key, timer.ms, ids, stages=stages,
                       joints=None if model is None else np.asarray(J, np.float64),
-                      regressed_joints=None if model is None else np.asarray(model_joints(model, shape), np.float64))
+                      regressed_joints=None if model is None else np.asarray(model_joints(model, shape), np.float64),
+                      sex_fit=sex_fit)
+
+
+def held_out_depth_energy_mm(model, poses: list[ArmPose], frames_t: list[DepthFrame], rest: np.ndarray,
+                              joints: np.ndarray, o: CaptureOptions) -> float:
+    """The depth energy (``refine.depth_energy_mm``) of the model meshes on the frames the rest-shape fit leaves out
+    (every ``o.body_rest_frame_stride``-th from its middle; all with a stride of 1), their grazing pairs dropped as in
+    the sequence fit: the figure the rest-shape rounds keep their best by, here the evidence between two sexes."""
+    stride = o.body_rest_frame_stride
+    held_out = slice(stride // 2, None, stride) if stride > 1 else slice(None)
+    return depth_energy_mm(model, poses[held_out], facing_frames(frames_t, o.sequence_min_facing_cos)[held_out], rest,
+                           joints, o.norm_limit, o.sequence_huber_m)
+
+
+def model_knows_women(model) -> bool:
+    """Whether ``model`` was trained on a woman (a training row of sex < 0.5: Eq. 6's female column ``1 - sex`` is
+    then learned, non-zero; ``muscle model build --women K``, ``muscle model extend`` with women)."""
+    rows = getattr(model, "shape_rows", None)
+    return rows is not None and np.ndim(rows) == 2 and np.shape(rows)[1] > 4 and bool(np.min(rows[:, 4]) < 0.5)
+
+
+def candidate_sexes(model, o: CaptureOptions, known_shape=None) -> tuple[float, ...]:
+    """The sexes the Sec. 6.2 shape fit is run with: the given one (``known_shape``, ``--shape``); without it male
+    (1.0, the paper's subjects) and female (0.0) when ``o.sex_from_depth`` and the model knows women
+    (:func:`model_knows_women`), else male alone (what an all-male model describes; the capture warns)."""
+    if known_shape is not None:
+        return (float(known_shape.sex),)
+    if o.sex_from_depth and model_knows_women(model):
+        return (1.0, 0.0)
+    return (1.0,)
+
+
+def sex_from_depth_energies(energies: dict, margin_mm: float) -> dict:
+    """The subject's sex from the depth energies (``refine.depth_energy_mm``, mm) of the shape fitted as a man
+    (key 1.0) and as a woman (0.0) on the same frames: the lower one's, ``ambiguous`` when the two lie within
+    ``margin_mm`` (the capture then warns with the figures: give the sex with --shape). Returns the run record's
+    ``sex_fit``: ``{"sex", "chosen", "energy_mm": {"male", "female"}, "margin_mm", "ambiguous"}``."""
+    male, female = float(energies[1.0]), float(energies[0.0])
+    sex = 0.0 if female < male else 1.0
+    return {"sex": sex, "chosen": "female" if sex == 0.0 else "male", "energy_mm": {"male": male, "female": female},
+            "margin_mm": float(margin_mm), "ambiguous": bool(abs(male - female) <= margin_mm)}
 
 
 def refinement_depth_options(o: CaptureOptions) -> DepthCleanupOptions:
@@ -1148,7 +1232,8 @@ def write_arm_capture_files(path_for: Callable[[str], Path], capture: ArmCapture
               "session": capture.session_path, "session_fingerprint": capture.source_fingerprint,
               "joints": None if capture.joints is None else np.asarray(capture.joints, float).tolist(),
               "regressed_joints": None if capture.regressed_joints is None
-              else np.asarray(capture.regressed_joints, float).tolist()}
+              else np.asarray(capture.regressed_joints, float).tolist(),
+              "sex_fit": capture.sex_fit}
     write_json(path_for("params.json"), params)
     if capture.plausibility is not None:
         write_json(path_for("plausibility.json"), capture.plausibility)
@@ -1205,6 +1290,9 @@ def load_arm_capture(folder: str | Path) -> ArmCapture:
         regressed = params.get("regressed_joints")
         regressed = None if regressed is None else np.asarray(regressed, float).reshape(3, 3)
         shape = _capture_shape(params.get("shape"), str(p))
+        sex_fit = params.get("sex_fit")
+        if sex_fit is not None and not isinstance(sex_fit, dict):
+            raise ValueError(f"sex_fit {sex_fit!r} is not a record")
     except (OSError, ValueError, KeyError, TypeError, IndexError, InputError) as exc:
         raise FileFormatError(f"{folder}: not a readable arm capture folder ({type(exc).__name__}: {exc}); "
                               "re-run bodystudio muscle capture") from None
@@ -1215,7 +1303,7 @@ def load_arm_capture(folder: str | Path) -> ArmCapture:
     return ArmCapture(V, F, poses, shape, S, params.get("mode", "full"), params.get("template_key", ""),
                       dict(params.get("timings_ms", {})), list(params.get("frame_ids", range(n))),
                       params.get("session"), joints=joints, source_fingerprint=params.get("session_fingerprint"),
-                      regressed_joints=regressed)
+                      regressed_joints=regressed, sex_fit=sex_fit)
 
 
 __all__ = ["CAPTURE_FPS", "EXTENSION_CAPTURE", "MIN_CAPTURE_FPS", "MODES", "ArmCapture", "CaptureOptions",

@@ -20,7 +20,8 @@ After the capture (:func:`capture_checks`), from the session's own depth and tra
 * the depth sampling on the arm: the median pixel footprint (mm) where the arm is seen;
 * the fitted (or given) shape parameters against the model's training range (Eq. 6 regresses them linearly:
   outside the range the model extrapolates), and a given sex against the training subjects' (an all-male model
-  describes a man's arm);
+  describes a man's arm); without ``--shape`` the sex the capture chose from the depth when the model knows women
+  (``capture.sex_from_depth_energies``: both held-out depth energies, warned when they lie within the margin);
 * the fitted rest skeleton's bones against the model's regressed ones (:func:`rest_bone_turn_deg`), recorded
   without a verdict: the women 512 / 516 / 518 captured with the all-male model (7-8.5 mm median) turn the forearm
   2.9-4.1 deg, the men 501-513 / 517 0.08-1.68, but the short man 514 (a good capture, 1.85 mm) 3.4 deg.
@@ -287,6 +288,8 @@ def capture_checks(capture, session, template, model=None, max_frames: int = 40,
     if model is not None and capture.shape is not None and getattr(model, "subjects", None):
         out["shape"] = shape_extrapolation(capture.shape, model)
         out["shape_given"] = bool(shape_given)
+    if getattr(capture, "sex_fit", None) is not None:
+        out["sex_fit"] = capture.sex_fit
     return out
 
 
@@ -430,6 +433,17 @@ def capture_verdict(figures: dict, side: str, session_path=None, near_m: float =
                             f"accurate (7 mm median against 2 mm); give --shape with the subject's sex, and for a "
                             f"{other} a model that knows {other.replace('an', 'en')} ("
                             + ("muscle model build --women 5)" if other == "woman" else "muscle model build)"))
+        elif sex and not figures.get("shape_given") and figures.get("sex_fit"):
+            # the sex chosen from the depth (capture.sex_from_depth_energies): recorded; warned when the two fits'
+            # held-out depth energies lie within the margin (docs/muscle.md, "The sex from the depth")
+            fit = figures["sex_fit"]
+            if fit.get("ambiguous"):
+                e = fit["energy_mm"]
+                warnings.append(f"the subject's sex was not given (--shape) and the depth hardly tells it: captured "
+                                f"as a man the held-out depth energy is {e['male']:.3f} mm, as a woman "
+                                f"{e['female']:.3f} mm (within {fit['margin_mm']:g} mm); taken as {fit['chosen']}, "
+                                f"and a capture of the wrong sex was measured 2-3x less accurate; give --shape with "
+                                f"the subject's sex")
         elif sex and not figures.get("shape_given"):
             # a model of both sexes (muscle model build --women K) gives a woman's arm only when told: the capture
             # fits no sex (docs/muscle.md, "Women in the capture": 516 without --shape 7.38 mm, with sex=female 2.83)

@@ -1,6 +1,8 @@
 """``benchmarks.muscle_floor`` (the model's floor against the training set) and ``benchmarks.muscle_sequences``
 (capture settings side by side on held-out sequences): their parts that the measurements rest on."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -101,13 +103,26 @@ def test_muscle_sequences_no_shape_fits_the_shape(flag, known, suffix, tmp_path,
     given = []
     monkeypatch.setattr(bm, "_template", lambda: None)
     monkeypatch.setattr(bm, "truth_template", lambda subject: None)
-    monkeypatch.setattr(bm, "shape_of", lambda subject: "measured")
+    monkeypatch.setattr(seq, "typed_shape", lambda subject: "measured")
     monkeypatch.setattr(energy, "work_model", lambda work, template: None)
     monkeypatch.setattr(seq, "session_of", lambda work, s, n, f, fps=30.0: ("subject", "session"))
+    captured = SimpleNamespace(shape=SimpleNamespace(sex=0.0), sex_fit={"chosen": "female"} if flag else None)
     monkeypatch.setattr(bm, "capture_and_score", lambda *a, known_shape: given.append(known_shape) or (
-        None, {k: 1.0 for k in seq.KEYS}))
+        captured, {k: 1.0 for k in seq.KEYS}))
     seq.main(["--work", str(tmp_path), "--session", "516:0", "--frames", "2", "--variant", "default", *flag])
     assert given == [known]
     row = json.loads((tmp_path / f"seq_516_s0_2_default{suffix}.json").read_text())
     assert row["variant"] == "default" + (" (no --shape)" if flag else "")
     assert ("(no --shape)" in capsys.readouterr().out) == bool(flag)
+    assert row["sex"] == 0.0 and row["sex_fit"] == captured.sex_fit  # the run record: the sex used, its evidence
+
+
+@pytest.mark.parametrize("gender, sex", [(0.89, 1.0), (0.5, 1.0), (0.07, 0.0), (0.49, 0.0)])
+def test_muscle_sequences_gives_the_sex_as_a_user_types_it(gender, sex):
+    """The runner's measured shape carries ``sex=male|female`` (MakeHuman's gender rounded), not the fractional
+    gender: 508's 0.89 gave a man 11 % of a woman's offset in a model that knows women (docs/muscle.md)."""
+    from benchmarks.muscle_sequences import typed_shape
+
+    subject = SimpleNamespace(bmi=22.0, muscularity=0.5, height_m=1.7, arm_length_m=0.5, gender=gender)
+    shape = typed_shape(subject)
+    assert shape.sex == sex and (shape.bmi, shape.height_m, shape.arm_length_m) == (22.0, 1.7, 0.5)

@@ -162,7 +162,10 @@ def test_every_option_reaches_the_step_it_names(scene, monkeypatch):
                        tracker_arm_length_weight=50.0, huber_m=0.001, sequence_rounds=1, sequence_smooth_weight=7.0,
                        sequence_huber_m=0.003, sequence_max_nfev=2, sequence_fit_root=True,
                        sequence_depth_huber_only=False,  # not the default: the option must reach the fit
-                       sequence_tracker_weight=15.0, smooth_weight=6.0, body_rest_shape=False, pose_refit=False)
+                       sequence_tracker_weight=15.0, smooth_weight=6.0, body_rest_shape=False, pose_refit=False,
+                       sex_from_depth=False)
+    # (the tiny model knows a woman: one sex, the steps called once; the sex from the depth is
+    # tests/muscle/test_women_model.py's and tests/reliability/test_mus11y_sex_from_depth.py's)
     # (the model's regressed rest arm and joints: the body rest shape's wiring is test_body_rest_shape.py's and
     # test_sequence_stage_stop_mutants.py's)
     # the tracker's shoulder moves 4 mm a frame: the start is frame 0's

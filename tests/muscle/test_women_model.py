@@ -93,3 +93,32 @@ def test_a_womans_capture_is_nearer_the_truth_with_the_mixed_model(two_models, w
                                                          known_shape=shape), session, truth)["median_mm"]
                for model in two_models[:2]]
     assert medians[1] < medians[0] - 2.0, medians  # the same model twice (--women ignored): equal
+
+
+@pytest.fixture(scope="module")
+def womans_session(woman, tmp_path_factory):
+    """8 frames of her Kinect v2 session on the 2k template (elbow flexion, noise seed 0)."""
+    from bodystudio.capture.session import open_session
+
+    path = tmp_path_factory.mktemp("woman") / "S"
+    syn.synth_arm_session(path, subject=woman[0], n_frames=8, resolution="2k")
+    return open_session(path)
+
+
+def test_a_woman_captured_without_her_shape_is_taken_as_a_woman(two_models, woman, womans_session):
+    """No --shape, a model that knows women: the capture is run as a man and as a woman and keeps the sex whose
+    sequence fit explains the held-out frames' depth better (``CaptureOptions.sex_from_depth``); hers is the woman's,
+    nearer her truth than the capture taken as a man (the capture before the sex fit, ``sex_from_depth=False``)."""
+    from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
+    from bodystudio.muscle.evaluate import evaluate_arm_capture
+
+    _, _, truth = woman
+    mixed = two_models[1]
+    fitted = capture_arm_sequence(womans_session, mixed, truth, CaptureOptions(mode="model"))
+    male = capture_arm_sequence(womans_session, mixed, truth, CaptureOptions(mode="model", sex_from_depth=False))
+    fit = fitted.sex_fit
+    assert fitted.shape.sex == 0.0 and fit["chosen"] == "female" and not fit["ambiguous"], fit
+    assert fit["energy_mm"]["female"] < fit["energy_mm"]["male"] - 0.1, fit
+    assert male.shape.sex == 1.0 and male.sex_fit is None
+    medians = [evaluate_arm_capture(c, womans_session, truth)["median_mm"] for c in (fitted, male)]
+    assert medians[0] < medians[1] - 1.0, medians
