@@ -3,11 +3,11 @@
 format's fast tests against each."""
 # usage (from the repository root): [PLANT_ONLY="name;name"] python docs/mutation/capture-session-plant.py [TEST_FILE ...]
 import os
-import shutil
-import subprocess
 import sys
 
-src_root = os.getcwd()
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from plant import replay  # noqa: E402
+
 work = os.environ.get("PLANT_WORK", "/work/wt-mutCC-work/session-plant")
 S = "bodystudio/capture/session.py"
 mutants = [
@@ -89,23 +89,5 @@ mutants = [
 ]
 tests = sys.argv[1:] or ["tests/capture/test_session_format_mutants.py", "tests/capture/test_session_writer_mutants.py",
                          "tests/capture/test_session.py", "tests/capture/test_session_bodies.py"]
-if os.path.exists(work):
-    shutil.rmtree(work)
-os.makedirs(work)
-for d in ("bodystudio", "tests"):
-    shutil.copytree(os.path.join(src_root, d), os.path.join(work, d), ignore=shutil.ignore_patterns("__pycache__"))
-shutil.copy2(os.path.join(src_root, "pyproject.toml"), work)
-clean = open(os.path.join(work, S)).read()
-env = {**os.environ, "PYTHONPATH": work, "NUMBA_CACHE_DIR": os.path.join(work, ".numba")}
-killed = 0
 only = [n for n in os.environ.get("PLANT_ONLY", "").split(";") if n]  # re-run these names only (";"-separated)
-for old, new, name in [("import", "import", "clean")] + [m for m in mutants if not only or m[2] in only]:
-    assert clean.count(old) >= 1, name
-    open(os.path.join(work, S), "w").write(clean.replace(old, new, 1))
-    r = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-m", "not slow", *tests],
-                       cwd=work, capture_output=True, text=True, env=env)
-    first = next((ln for ln in r.stdout.splitlines() if ln.startswith("FAILED")), "")
-    killed += bool(r.returncode) and name != "clean"
-    print(f"{name}: {'killed' if r.returncode else 'survived'} {first[:150]}", flush=True)
-    open(os.path.join(work, S), "w").write(clean)
-print(f"{killed} / {len(mutants)} killed")
+replay(S, [m for m in mutants if not only or m[2] in only], tests, work, unique=False, pytest_args=("-m", "not slow"))

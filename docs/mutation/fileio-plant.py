@@ -3,11 +3,11 @@ tests (``atomic_path``, ``atomic_write`` and ``_native_stderr_captured`` are ``@
 generators: mutmut gives them no mutant)."""
 # usage (from the repository root): python docs/mutation/fileio-plant.py [TEST ...]
 import os
-import shutil
-import subprocess
 import sys
 
-src_root = os.getcwd()
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from plant import replay  # noqa: E402
+
 work = "/work/wt-mutBB-work/fileio-plant"
 F = "bodystudio/fileio.py"
 FULL_1 = ('        if disk_full(exc):\n            raise OutputSpaceError(path, exc.strerror or "no space left on '
@@ -53,21 +53,4 @@ mutants = [
     ("    with _stderr_lock:\n", "    with contextlib.nullcontext():\n", "capture: no lock between threads"),
 ]
 tests = sys.argv[1:] or ["tests/reliability/test_fileio_mutants.py", "tests/test_fileio.py"]
-if os.path.exists(work):
-    shutil.rmtree(work)
-os.makedirs(work)
-for d in ("bodystudio", "tests"):
-    shutil.copytree(os.path.join(src_root, d), os.path.join(work, d), ignore=shutil.ignore_patterns("__pycache__"))
-shutil.copy2(os.path.join(src_root, "pyproject.toml"), work)
-clean = open(os.path.join(work, F)).read()
-killed = 0
-for old, new, name in [(FULL_1, FULL_1, "clean")] + mutants:
-    assert clean.count(old) == 1, name
-    open(os.path.join(work, F), "w").write(clean.replace(old, new))
-    r = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests], cwd=work,
-                       capture_output=True, text=True, env={**os.environ, "PYTHONPATH": work})
-    first = next((ln for ln in r.stdout.splitlines() if ln.startswith("FAILED")), "")
-    killed += bool(r.returncode) and name != "clean"
-    print(f"{name}: {'killed' if r.returncode else 'survived'} {first[:150]}", flush=True)
-open(os.path.join(work, F), "w").write(clean)
-print(f"{killed} / {len(mutants)} killed")
+replay(F, mutants, tests, work)

@@ -3,11 +3,11 @@
 not move statements)."""
 # usage (from the repository root): python docs/mutation/runfolder-plant.py [TEST ...]
 import os
-import shutil
-import subprocess
 import sys
 
-src_root = os.getcwd()
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from plant import replay  # noqa: E402
+
 work = "/work/wt-mutBB-work/runfolder-plant"
 F = "bodystudio/runfolder.py"
 BODY = ("    previous = _HOLDING[0]\n    _HOLDING[0] = True\n    try:\n        yield\n    finally:\n"
@@ -44,21 +44,4 @@ mutants = [
 ]
 tests = sys.argv[1:] or ["tests/reliability/test_runfolder_mutants.py",
                          "tests/reliability/test_runfolder_staging_mutants.py"]
-if os.path.exists(work):
-    shutil.rmtree(work)
-os.makedirs(work)
-for d in ("bodystudio", "tests"):
-    shutil.copytree(os.path.join(src_root, d), os.path.join(work, d), ignore=shutil.ignore_patterns("__pycache__"))
-shutil.copy2(os.path.join(src_root, "pyproject.toml"), work)
-clean = open(os.path.join(work, F)).read()
-killed = 0
-for old, new, name in [(BODY, BODY, "clean")] + mutants:
-    assert clean.count(old) == 1, name
-    open(os.path.join(work, F), "w").write(clean.replace(old, new))
-    r = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests], cwd=work,
-                       capture_output=True, text=True, env={**os.environ, "PYTHONPATH": work})
-    first = next((ln for ln in r.stdout.splitlines() if ln.startswith("FAILED")), "")
-    killed += bool(r.returncode) and name != "clean"
-    print(f"{name}: {'killed' if r.returncode else 'survived'} {first[:150]}", flush=True)
-open(os.path.join(work, F), "w").write(clean)
-print(f"{killed} / {len(mutants)} killed")
+replay(F, mutants, tests, work)
