@@ -2,11 +2,12 @@
 the ``cached_property`` ``Camera.monotonic_radius``, the call sites) by hand in a scratch copy and run the fold tests."""
 # usage (from the repository root): python docs/mutation/capture-render-mir12t-plant.py [TEST_FILE ...]
 import os
-import shutil
 import subprocess
 import sys
 
-src_root = os.getcwd()
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from plant import scratch_tree  # noqa: E402
+
 work = "/work/wt-mutAA-work/render-fold-plant"
 R, C = "bodystudio/capture/render.py", "bodystudio/geometry/camera.py"
 K = "        beyond[i] = min(xc * xc + yc * yc - r2_max * zc * zc, zc)"
@@ -58,12 +59,7 @@ mutants = [
     (C, "        return distortion_monotonic_radius(self.dist)", '        return float("inf")', "Camera: never folds"),
 ]
 tests = sys.argv[1:] or ["tests/capture/test_render_fold_mutants.py", "tests/capture/test_render_fold.py"]
-if os.path.exists(work):
-    shutil.rmtree(work)
-os.makedirs(work)
-for d in ("bodystudio", "tests"):
-    shutil.copytree(os.path.join(src_root, d), os.path.join(work, d), ignore=shutil.ignore_patterns("__pycache__"))
-shutil.copy2(os.path.join(src_root, "pyproject.toml"), work)
+scratch_tree(work)
 clean = {f: open(os.path.join(work, f)).read() for f in (R, C)}
 env = {**os.environ, "PYTHONPATH": work, "NUMBA_CACHE_DIR": os.path.join(work, ".numba")}
 killed = 0
