@@ -88,6 +88,8 @@ def test_local_worker_cap_is_four_per_core(monkeypatch):
     assert max_local_workers() == 12
     monkeypatch.setattr(os, "cpu_count", lambda: None)  # unknown: one core
     assert max_local_workers() == 4
+    with pytest.raises(InputError, match=r"^--workers 5: at most 4 on this machine \(1 cores; "):
+        resolve_scheduler(None, 5)
 
 
 def test_resolve_scheduler(monkeypatch):
@@ -196,13 +198,18 @@ class _Future:
 
 
 class _Bar:
+    def __init__(self, log, enabled):
+        self.log = log
+        log.append(("enabled", enabled))
+
     def __enter__(self):
         return self
 
     def __exit__(self, *exc):
         return False
 
-    def add_task(self, *a, **k):
+    def add_task(self, describe, **k):
+        self.log.append(("describe", describe))
         return 0
 
     def advance(self, task):
@@ -218,7 +225,8 @@ def client(monkeypatch):
     import bodystudio.capture.session as cs
 
     monkeypatch.setattr(distributed, "as_completed", lambda futures, loop=None: iter(futures))
-    monkeypatch.setattr(cs, "progress_bar", lambda enabled: _Bar())
+    bars = []
+    monkeypatch.setattr(cs, "progress_bar", lambda enabled: _Bar(bars, enabled))
     calls = []
 
     def submit(fn, *args, key, pure):
@@ -228,7 +236,7 @@ def client(monkeypatch):
         except Exception as exc:  # noqa: BLE001 - a failing unit, as dask hands it back
             return _Future(exc)
 
-    return SimpleNamespace(loop=None, dashboard_link=None, submit=submit, calls=calls)
+    return SimpleNamespace(loop=None, dashboard_link=None, submit=submit, calls=calls, bars=bars)
 
 
 # ---------------------------------------------------------------------------------------------- reconstruction
@@ -237,8 +245,8 @@ FRAMES = [0, 1, 2, 3, 4, 5, 6]
 PLAYERS = {0: 7, 1: 7, 2: 7, 3: 9, 4: 9, 5: 9, 6: 9}  # the tracker renamed the subject at frame 3
 
 
-def _files():
-    return {"calibration/cameras.json": "c", **{f"cam0/{f:05d}.png": f"img{f}" for f in FRAMES}}
+def _files(frames=FRAMES):
+    return {"calibration/cameras.json": "c", **{f"cam0/{f:05d}.png": f"img{f}" for f in frames}}
 
 
 @pytest.fixture
@@ -250,23 +258,31 @@ def studio(monkeypatch, tmp_path):
     path = tmp_path / "s"
     path.mkdir()
     state = SimpleNamespace(path=path, files=_files(), kinect="kinect-calibration", chunks=[], judged=[],
-                            fail_frame=None, subject_calls=[], length_calls=[])
+                            fail_frame=None, subject_calls=[], length_calls=[], frame_ids=list(FRAMES),
+                            locks=[])
 
     def open_session(p):
         assert Path(p) == path
-        return SimpleNamespace(path=Path(p), frame_ids=list(FRAMES), files=dict(state.files),
+        return SimpleNamespace(path=Path(p), frame_ids=list(state.frame_ids), files=dict(state.files),
                                cameras=("C0", "C1"), kinect=state.kinect)
 
     def run_subject(session, selected, joints, player=None):
+        assert session.path == path  # the opened session
         state.subject_calls.append((list(selected), joints, player))
-        return {f: PLAYERS[f] for f in selected} if joints == "tracker" else None
+        return {f: PLAYERS.get(f, 9) for f in selected} if joints == "tracker" else None
 
     def run_bone_lengths(session, selected, joints, joints_path, subject=None):
+        assert session.path == path
         state.length_calls.append((list(selected), joints, joints_path, subject))
         return [0.5, 0.25]
 
     def reconstruct_frames(session, writer, selected, cameras, sensor, params, solver, template, joints,
                            joints_path, warm_start, refine_pose, score, accept_implausible, bone_lengths, subject):
+        from bodystudio.reconstruct.sequence import reconstruction_layout
+
+        assert session.path == path
+        lock = reconstruction_layout(path).lock  # the client holds the run's lock while the chunks run
+        state.locks.append(json.loads(lock.read_text())["command"] if lock.is_file() else None)
         state.chunks.append({"frames": selected, "cameras": cameras, "sensor": sensor, "params": params,
                              "solver": solver, "template": template, "joints": joints, "joints_path": joints_path,
                              "warm_start": warm_start, "refine_pose": refine_pose, "score": score,
@@ -345,6 +361,12 @@ def test_reconstruct_batch_publishes_the_chunks_as_the_single_run(studio, client
     assert run["run"]["command"] == "bodystudio reconstruct (batch)" and run["run"]["producer"] == {"template": "2k"}
     assert sorted(run["run"]["files"]) == ["frames.json"] + [f"meshes/{f:05d}.ply" for f in selected]
     assert not (run_dir / ".lock").exists() and not list(run_dir.glob(".*staging*"))
+    assert studio.locks == ["bodystudio reconstruct (batch)"] * 2
+    assert client.bars == [("enabled", False), ("describe", "rapid skin gs 2k (chunks of 4)")]
+    rec = json.loads((run_dir / "chunks" / "record.json").read_text())["units"]
+    assert {n: (e["output"], e["frames"]) for n, e in rec.items()} == {
+        "00001-00004": (str(run_dir / "chunks" / "00001-00004"), [1, 2, 3, 4]),
+        "00005-00006": (str(run_dir / "chunks" / "00005-00006"), [5, 6])}
 
     # a re-run of the same command skips both chunks; a changed frame redoes its chunk only
     client.calls.clear()
@@ -366,8 +388,9 @@ def test_reconstruct_batch_without_the_tracker_or_the_sequence_lengths(studio, c
     studio.kinect = None
     opts = ReconstructOptions(template="2k", joints="file", joints_path="/j", bone_lengths="frame",
                               refine_pose=False, score=False, solver="jacobi")
-    summary, _ = batch.reconstruct_batch(studio.path, client, opts, chunk=3)
+    summary, _ = batch.reconstruct_batch(studio.path, client, opts, chunk=3, progress=True)
     assert summary == {"frames": FRAMES} and studio.length_calls == []
+    assert studio.judged[0][2] is False and client.bars[0] == ("enabled", True)
     assert [c["frames"] for c in studio.chunks] == [[0, 1, 2], [3, 4, 5], [6]]
     assert {(c["subject"], c["bone_lengths"], c["joints_path"], c["sensor"], c["refine_pose"], c["score"],
              c["solver"], c["params"].constraints) for c in studio.chunks} == {
@@ -382,6 +405,46 @@ def test_reconstruct_batch_without_the_tracker_or_the_sequence_lengths(studio, c
     batch.reconstruct_batch(studio.path, client, ReconstructOptions(template="2k", joints="hull"), chunk=7)
     batch.reconstruct_batch(studio.path, client, ReconstructOptions(template="2k", lengths=(1.0,)), chunk=7)
     assert studio.length_calls == [] and [c["bone_lengths"] for c in studio.chunks[-2:]] == ["sequence", (1.0,)]
+    batch.reconstruct_batch(studio.path, client, ReconstructOptions(template="2k", joints="file", joints_path="/j"),
+                            chunk=7)
+    assert studio.length_calls == [(FRAMES, "file", "/j", None)]
+
+
+def test_reconstruct_batch_default_and_smallest_chunks(studio, client):
+    studio.frame_ids = list(range(12))
+    studio.files = _files(studio.frame_ids)
+    batch.reconstruct_batch(studio.path, client, ReconstructOptions(template="2k"))  # chunks of 10 by default
+    assert [c["frames"] for c in studio.chunks] == [list(range(10)), [10, 11]]
+    studio.chunks.clear()
+    _, report = batch.reconstruct_batch(studio.path, client, ReconstructOptions(template="2k"), frames="3:5", chunk=1)
+    assert [c["frames"] for c in studio.chunks] == [[3], [4]] and list(report.status) == ["00003-00003",
+                                                                                         "00004-00004"]
+
+
+def test_assembly_copies_where_it_cannot_link_and_names_a_broken_unit(studio, client, monkeypatch):
+    batch.reconstruct_batch(studio.path, client, _options(), chunk=4)
+    from bodystudio.reconstruct.sequence import reconstruction_layout
+
+    layout = reconstruction_layout(studio.path)
+    units = [{"name": n, "root": layout.root / "chunks" / n, "frames": fr} for n, fr in (("00000-00003", [0, 1, 2, 3]),
+                                                                             ("00004-00006", [4, 5, 6]))]
+
+    def no_link(src, dst):
+        raise OSError(18, "Invalid cross-device link")
+
+    monkeypatch.setattr(os, "link", no_link)
+    studio.judged.clear()
+    records = batch._assemble_reconstruction(layout, units, _options(), FRAMES, 4)  # defaults: no session, strict
+    assert [r["frame"] for r in records] == FRAMES
+    assert studio.judged == [(FRAMES, studio.path, False)]  # the session is the run folder's parent
+    for f in FRAMES:
+        mesh = layout.root / f"meshes/{f:05d}.ply"
+        assert mesh.read_bytes() == f"mesh {f}".encode() and os.stat(mesh).st_nlink == 1  # a copy
+    unit_json = units[1]["root"] / "unit.json"
+    unit_json.write_text("{")
+    with pytest.raises(Exception) as err:  # noqa: PT011 - FileFormatError, its one line checked
+        batch._assemble_reconstruction(layout, units, _options(), FRAMES, 4)
+    assert str(err.value).startswith(f"{unit_json}: not a valid batch unit record (")
 
 
 def test_a_failed_chunk_is_named_and_nothing_is_assembled(studio, client):
@@ -444,11 +507,15 @@ def test_reconstruct_chunk_discards_a_killed_attempts_leftover(studio, tmp_path)
     layout.staging.mkdir(parents=True)
     (layout.staging / "meshes").mkdir()
     (layout.staging / "meshes" / "00009.ply").write_bytes(b"half written")
+    import time
+
+    t0 = time.perf_counter()
     out = batch.reconstruct_chunk(str(studio.path), (2, 3), _options(), str(root), "abc")
-    assert out["frames"] == [2, 3] and out["pid"] == os.getpid() and out["seconds"] >= 0
+    assert out["frames"] == [2, 3] and out["pid"] == os.getpid() and 0 <= out["seconds"] <= time.perf_counter() - t0
     assert sorted(p.name for p in (root / "meshes").iterdir()) == ["00002.ply", "00003.ply"]
     assert studio.chunks[0]["subject"] is None and studio.chunks[0]["frames"] == [2, 3]
-    assert json.loads((root / "unit.json").read_text())["run"]["command"] == "bodystudio reconstruct (batch unit)"
+    run = json.loads((root / "unit.json").read_text())["run"]
+    assert run["command"] == "bodystudio reconstruct (batch unit)" and run["producer"] == {"session": str(studio.path)}
     batch.reconstruct_chunk(str(studio.path), [4], _options(), str(tmp_path / "c2"), "d", [["4", 9]])
     assert studio.chunks[1]["subject"] == {4: 9}
 
@@ -459,10 +526,12 @@ def test_reconstruct_chunk_discards_a_killed_attempts_leftover(studio, tmp_path)
 def arm(monkeypatch):
     import bodystudio.muscle.capture as mc
 
-    state = SimpleNamespace(captures=[], fail=set())
+    state = SimpleNamespace(captures=[], fail=set(), out=None, locks=[])
 
     def capture_session_arm(session_path, model, mode, resolution, side, frames, shape, sequence_fit,
                             for_extension):
+        lock = None if state.out is None else state.out / ".batch.lock"
+        state.locks.append(json.loads(lock.read_text())["command"] if lock and lock.is_file() else None)
         state.captures.append((Path(session_path).name, model, mode, resolution, side, frames, shape, sequence_fit,
                                for_extension))
         if Path(session_path).name in state.fail:
@@ -474,7 +543,7 @@ def arm(monkeypatch):
 
     monkeypatch.setattr(mc, "capture_session_arm", capture_session_arm)
     monkeypatch.setattr(mc, "write_arm_capture_files", write_arm_capture_files)
-    monkeypatch.setattr(mc, "session_fps", lambda p: 25.0)
+    monkeypatch.setattr(mc, "session_fps", lambda p: 25.0 if Path(p).name != "seq60" else 60.0)
     return state
 
 
@@ -487,12 +556,14 @@ def test_muscle_batch_captures_each_sequence_with_its_options(arm, client, tmp_p
         s.mkdir(parents=True)
     model = tmp_path / "arm.npz"
     model.write_bytes(b"model")
-    out = tmp_path / "out"
+    out = arm.out = tmp_path / "out"
     options = MuscleOptions(mode="full", resolution="low", side="left", frames=5, model=str(model),
                             sequence_fit=False, for_extension=True)
     shape = {"bmi": 22.0, "muscularity": 0.5, "height_m": 1.8, "arm_length_m": 0.6}
-    report = batch.muscle_batch([str(s) for s in sessions], out, client, options, shapes=[shape, None], setup=None)
+    report = batch.muscle_batch([str(s) for s in sessions], out, client, options, shapes=[shape, None], setup=print)
     assert report.status == {"s1": "done", "s2": "done"}
+    assert arm.locks == ["bodystudio muscle capture (batch)"] * 2  # the batch's lock held while units run
+    assert client.bars == [("enabled", False), ("describe", "arm capture (full) of 2 sequences")]
     assert arm.captures == [
         ("s1", str(model), "full", "low", "left", 5, ArmShapeParams(**shape), False, True),
         ("s2", str(model), "full", "low", "left", 5, None, False, True)]
@@ -502,7 +573,7 @@ def test_muscle_batch_captures_each_sequence_with_its_options(arm, client, tmp_p
         opts = replace(options, shape=sh)
         sha = sequence_inputs_sha256(s, opts, sha256_file(model))
         assert (name, pure) == ("capture_unit", False)
-        assert args == (str(s.resolve()), str(out / s.name), opts, sha, None)
+        assert args == (str(s.resolve()), str(out / s.name), opts, sha, print)
         assert re.fullmatch(rf"capture-{s.name}-{sha[:12]}-[0-9a-f]{{8}}", key)
         manifest = json.loads((out / s.name / "unit.json").read_text())
         assert manifest["unit"] == {"inputs_sha256": sha, "session": str(s.resolve()), "pid": os.getpid()}
@@ -515,6 +586,9 @@ def test_muscle_batch_captures_each_sequence_with_its_options(arm, client, tmp_p
     assert {n: (e["session"], e["output"]) for n, e in rec.items()} == {
         s.name: (str(s.resolve()), str(out / s.name)) for s in sessions}
     assert not (out / ".batch.lock").exists()
+    with pytest.raises(InputError) as err:
+        batch.muscle_batch(sessions, model, client, options)
+    assert str(err.value).startswith(f"--out {model}: exists and is a file")
     # the same command again skips both; another model redoes both
     client.calls.clear()
     report = batch.muscle_batch(sessions, out, client, options, shapes=[shape, None])
@@ -537,10 +611,14 @@ def test_capture_unit_runs_setup_first_and_discards_a_leftover(arm, tmp_path):
     (unit_layout(root).staging / "arm.glb").write_bytes(b"half")
     order = []
     arm_before = len(arm.captures)
-    out = batch.capture_unit(str(tmp_path / "seq"), str(root), MuscleOptions(mode="nicp"), "sha",
+    import time
+
+    t0 = time.perf_counter()
+    out = batch.capture_unit(str(tmp_path / "seq60"), str(root), MuscleOptions(mode="nicp"), "sha",
                              lambda: order.append(len(arm.captures)))
-    assert order == [arm_before] and out["frames"] == 3 and out["pid"] == os.getpid() and out["seconds"] >= 0
-    assert (root / "arm.glb").read_bytes() == b"seq 25.0" and unit_is_complete(unit_layout(root), "sha")
+    assert order == [arm_before] and out["frames"] == 3 and out["pid"] == os.getpid()
+    assert 0 <= out["seconds"] <= time.perf_counter() - t0
+    assert (root / "arm.glb").read_bytes() == b"seq60 60.0" and unit_is_complete(unit_layout(root), "sha")
 
 
 def test_muscle_batch_refuses_bad_options(arm, client, tmp_path):
@@ -581,11 +659,108 @@ def test_rig_unit_commits_the_rig_then_its_unit_record(monkeypatch, tmp_path):
         return {"fit_err_mm_median": 1.5}
 
     monkeypatch.setattr(cli_rig, "rig_to_files", rig_to_files)
+    import time
+
     order = []
+    t0 = time.perf_counter()
     out = batch.rig_unit(str(tmp_path / "bob.ply"), str(glb), "2k", "sha1", lambda: order.append(len(calls)))
     assert order == [0] and calls == [(tmp_path / "bob.ply", glb, "2k")]
-    assert out["fit_err_mm_median"] == 1.5 and out["seconds"] >= 0
+    assert out["fit_err_mm_median"] == 1.5 and 0 <= out["seconds"] <= time.perf_counter() - t0
     run_id = json.loads(rig_layout(glb).manifest_path.read_text())["run"]["run_id"]
     assert json.loads((glb.parent / ".batch" / "bob.json").read_text()) == {
         "inputs_sha256": "sha1", "scan": str(tmp_path / "bob.ply"), "run_id": run_id, "pid": os.getpid()}
     assert batch.rig_is_complete(glb, "sha1")
+
+
+# ---------------------------------------------------------------------------------------------- batch_client
+
+class _Cluster:
+    def __init__(self, log, **kw):
+        self.log, self.kw = log, kw
+        log.append(("cluster", kw))
+
+    def close(self):
+        self.log.append(("cluster closed",))
+
+
+class _Client:
+    def __init__(self, log, versions, target, **kw):
+        self.log, self.versions = log, versions
+        if isinstance(target, str) and "unreachable" in target:
+            raise OSError("Timed out trying to connect to tcp://unreachable:1 after 5 s\nmore")
+        if isinstance(target, str) and "silent" in target:
+            raise TimeoutError()
+        log.append(("client", target if isinstance(target, str) else "cluster", kw))
+
+    def run(self, fn):
+        self.log.append(("run", fn.__name__))
+        return dict(self.versions)
+
+    def register_plugin(self, plugin):
+        self.log.append(("plugin", plugin.name))
+
+    def close(self):
+        self.log.append(("client closed",))
+
+
+@pytest.fixture
+def dask_stand_in(monkeypatch):
+    import distributed
+
+    state = SimpleNamespace(log=[], versions={"w1": batch.__version__})
+    monkeypatch.setattr(distributed, "LocalCluster", lambda **kw: _Cluster(state.log, **kw))
+    monkeypatch.setattr(distributed, "Client", lambda target, **kw: _Client(state.log, state.versions, target, **kw))
+    monkeypatch.setattr(os, "cpu_count", lambda: 3)
+    monkeypatch.delenv(batch.ENV_SCHEDULER, raising=False)
+    return state
+
+
+def _local(n):
+    return ("cluster", {"n_workers": n, "threads_per_worker": 1, "processes": True, "env": batch.WORKER_ENV,
+                        "dashboard_address": ":0", "silence_logs": 40})
+
+
+def test_batch_client_starts_a_local_cluster_no_larger_than_the_batch(dask_stand_in):
+    import logging
+
+    steps = [("client", "cluster", {"set_as_default": False}), ("plugin", "bodystudio-exit-with-client"),
+             ("run", "_worker_version"), ("plugin", "bodystudio-main-thread-imports")]
+    for kw, n in (({}, 3), ({"workers": 2}, 2), ({"units": 2}, 2), ({"workers": 5, "units": 4}, 4),
+                  ({"units": 0}, 1), ({"workers": 1, "units": 9}, 1)):
+        dask_stand_in.log.clear()
+        with batch.batch_client(**kw) as client:
+            assert isinstance(client, _Client)
+            assert dask_stand_in.log == [_local(n)] + steps, kw
+        assert dask_stand_in.log[-2:] == [("client closed",), ("cluster closed",)]
+    assert logging.getLogger("distributed").level == logging.WARNING
+    assert logging.getLogger("distributed.http.proxy").level == logging.WARNING
+    assert batch.WORKER_ENV == {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                                "OPENBLAS_NUM_THREADS": "1", "VECLIB_MAXIMUM_THREADS": "1"}
+    dask_stand_in.log.clear()
+    with pytest.raises(RuntimeError, match="unit failed"), batch.batch_client(workers=2):
+        raise RuntimeError("unit failed")
+    assert dask_stand_in.log[-2:] == [("client closed",), ("cluster closed",)]  # closed also on an error
+
+
+def test_batch_client_connects_to_a_scheduler_and_checks_versions(dask_stand_in, monkeypatch):
+    with batch.batch_client("tcp://h:1") as client:
+        assert isinstance(client, _Client)
+    assert dask_stand_in.log == [("client", "tcp://h:1", {"timeout": "5.0s", "set_as_default": False}),
+                                 ("run", "_worker_version"), ("plugin", "bodystudio-main-thread-imports"),
+                                 ("client closed",)]
+    with pytest.raises(InputError) as err, batch.batch_client("tcp://unreachable:1"):
+        pass
+    assert str(err.value) == ("--scheduler tcp://unreachable:1: cannot reach the scheduler (Timed out trying to "
+                              "connect to tcp://unreachable:1 after 5 s); start one with `dask scheduler` or leave "
+                              "the option out for a local cluster")
+    monkeypatch.setenv(batch.ENV_SCHEDULER, "tcp://silent:2")
+    with pytest.raises(InputError) as err, batch.batch_client():
+        pass
+    assert str(err.value).startswith(f"${batch.ENV_SCHEDULER} tcp://silent:2: cannot reach the scheduler "
+                                     "(TimeoutError); start one")
+    monkeypatch.delenv(batch.ENV_SCHEDULER)
+    dask_stand_in.versions = {"w1": batch.__version__, "w2": "0.0.1"}
+    dask_stand_in.log.clear()
+    with pytest.raises(InputError, match="1 of 2 workers run bodystudio 0.0.1"), batch.batch_client(workers=2):
+        pass
+    assert dask_stand_in.log[-2:] == [("client closed",), ("cluster closed",)]
