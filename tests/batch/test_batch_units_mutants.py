@@ -764,3 +764,29 @@ def test_batch_client_connects_to_a_scheduler_and_checks_versions(dask_stand_in,
     with pytest.raises(InputError, match="1 of 2 workers run bodystudio 0.0.1"), batch.batch_client(workers=2):
         pass
     assert dask_stand_in.log[-2:] == [("client closed",), ("cluster closed",)]
+
+
+def test_a_second_capture_batch_on_the_same_folder_is_refused_naming_it(arm, client, tmp_path):
+    """Another live process (a child of this test: never the test's parent, which under mutmut is mutmut) holds
+    the output folder's batch lock."""
+    import socket
+    import subprocess
+    import sys
+
+    from bodystudio.runfolder import _process_start
+
+    s = tmp_path / "s1"
+    s.mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (out / ".batch.lock").write_text(json.dumps({"pid": child.pid, "host": socket.gethostname(), "command": "w",
+                                                     "start": _process_start(child.pid), "since": "now"}))
+        with pytest.raises(OutputLockedError) as err:
+            batch.muscle_batch([s], out, client, MuscleOptions(mode="nicp"))
+        assert str(err.value).startswith(f"{out}: being written by pid {child.pid} ")
+    finally:
+        child.kill()
+        child.wait()
+    assert client.calls == []
