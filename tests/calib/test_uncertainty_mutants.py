@@ -53,8 +53,27 @@ def test_parameter_covariance_weighted_is_s2_times_the_inverse_weighted_normal_m
 
 @pytest.mark.parametrize("n", [2, 3])
 def test_parameter_covariance_without_redundancy_is_infinite(n):
-    cov, s2 = parameter_covariance(np.eye(n, 3), np.ones(n))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no 0 / 0 on the way
+        cov, s2 = parameter_covariance(np.eye(n, 3), np.zeros(n))  # n <= p: an exact fit, residuals 0
     assert s2 == np.inf and cov.shape == (3, 3) and np.all(cov == np.inf)
+
+
+def test_parameter_covariance_with_one_redundant_observation_and_its_rcond():
+    J = np.array([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0]])
+    r = np.array([0.5, -0.25, 0.125])
+    cov, s2 = parameter_covariance(J, r)  # one degree of freedom
+    assert s2 == pytest.approx(0.25 + 0.0625 + 0.015625)
+    np.testing.assert_allclose(cov, s2 * np.linalg.inv(J.T @ J), rtol=1e-12)
+    twin = np.c_[J[:, :1], J[:, :1]]  # two copies of one column: only their sum is observed
+    rcond = 1e-6
+    cov, s2 = parameter_covariance(twin, r, rcond=rcond)
+    # Jacobi-scaled normal matrix 2 * [[1, 1], [1, 1]] / 2: eigenvalues 0 and 2, scale 1 / sqrt(2)
+    u, v = np.array([1.0, 1.0]) / np.sqrt(2), np.array([1.0, -1.0]) / np.sqrt(2)
+    expected = s2 * (np.outer(u, u) / 2 + np.outer(v, v) / (rcond * 2)) / 2
+    np.testing.assert_allclose(cov, expected, rtol=1e-9)
 
 
 def test_normal_matrix_inverse_is_the_inverse_of_a_badly_scaled_matrix():
@@ -173,8 +192,16 @@ def test_propagated_covariance_is_g_sigma_g_with_the_closed_form_jacobian():
         assert np.allclose(steps[2 * k], np.eye(4)[k] * h, rtol=1e-6, atol=0)
         assert np.allclose(steps[2 * k + 1], -np.eye(4)[k] * h, rtol=1e-6, atol=0)
     assert len(seen) == 1 + 6 + 1
-    _, inf_y = propagated_covariance(lambda v: v[:2] * 2.0, x[:2], np.diag([np.inf, 1.0]))
-    assert inf_y[0, 0] == np.inf
+    y_int, cov_int = propagated_covariance(fun, [2, -3000, 1, 7], cov)  # integer parameters are stepped too
+    G1 = np.array([[-3000, 2, 0, 0], [0, 1 / 1000, np.cos(1.0), 0], [4, 0, 0, 1]])
+    np.testing.assert_allclose(cov_int, G1 @ cov @ G1.T, rtol=1e-6, atol=1e-12)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an unobservable (inf) or huge variance is reported, not warned about
+        _, inf_y = propagated_covariance(lambda v: v[:2] * 2.0, x[:2], np.diag([np.inf, 1.0]))
+        _, huge_y = propagated_covariance(lambda v: v * 1e200, np.array([1.0]), np.array([[1e300]]))
+    assert inf_y[0, 0] == np.inf and huge_y[0, 0] == np.inf
 
 
 def test_camera_quantities_centre_and_rotation_error():
@@ -242,8 +269,11 @@ def test_coverage_advice_words():
     five = [[0, 0, 1000], [0, 1000, 1000], [1000, 0, 0]]
     assert coverage_advice(_coverage(five)) == ("add views with the board in top-left, top-centre, middle-left, "
                                                 "bottom-centre of the image")
-    exactly_two_pct = [[2, 98, 0], [0, 0, 0], [0, 0, 0]]  # 2 / 100 is not under 2 %
-    assert "top-left" not in coverage_advice(_coverage(exactly_two_pct))
+    exactly_two_pct = [[2, 14, 12], [12, 12, 12], [12, 12, 12]]  # 2 / 100 is not under 2 %
+    assert coverage_advice(_coverage(exactly_two_pct)) == "add tilted views that other cameras see too"
+    one_of_few = [[1, 5, 5], [5, 5, 5], [5, 5, 5]]  # one corner of 41 (2.4 %) is not lacking
+    assert coverage_advice(_coverage(one_of_few)) == "add tilted views that other cameras see too"
+    assert coverage_advice(_coverage(full, median=0.0549)).startswith("hold the board closer (one view covers 5 % ")
     assert coverage_advice(_coverage(full, median=0.05, n_views=3)) == (
         "hold the board closer (one view covers 5 % of the image); add tilted views (only 3)")
     assert coverage_advice(_coverage(full, median=0.08, n_views=6)) == "add tilted views that other cameras see too"
@@ -365,11 +395,21 @@ def test_coverage_image_tiles():
             CameraUncertainty("B", 1, 1, 1, 1, 0.1, 9.0, np.eye(3), 0.1,
                               CameraCoverage(np.zeros((2, 3), int), 0.0, 0.0, 0.0, 0, np.zeros((3, 3), int)),
                               "uncertain", "B: fix")]
+    import warnings
+
+    g1 = np.zeros((2, 3), int)
+    g1[1, 1] = 1  # its largest count is 1: full green
+    cams.append(CameraUncertainty("C", 1, 1, 1, 1, 0.1, 1.0, np.eye(3), 0.1,
+                                  CameraCoverage(g1, 1 / 6, 0.0, 0.0, 1, np.zeros((3, 3), int)), "ok", ""))
     cell = 5
-    img = coverage_image(CalibrationUncertainty(cams, 0.3), cell_px=cell)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no division by zero or NaN cast on the way
+        img = coverage_image(CalibrationUncertainty(cams, 0.3), cell_px=cell)
+        default = coverage_image(CalibrationUncertainty(cams[:1], 0.3))
     th, tw = 2 * cell + 6 + 22, 3 * cell + 6 + 8
-    assert img.dtype == np.uint8 and img.shape == (th, 2 * tw, 3)
-    for k, (g, frame) in enumerate(((g0, (200, 200, 200)), (np.zeros((2, 3), int), (0, 0, 255)))):
+    assert img.dtype == np.uint8 and img.shape == (th, 3 * tw, 3)
+    assert default.shape == (2 * 16 + 28, 3 * 16 + 14, 3)  # 16 px cells by default
+    for k, (g, frame) in enumerate(((g0, (200, 200, 200)), (np.zeros((2, 3), int), (0, 0, 255)), (g1, (200,) * 3))):
         tile = img[:, k * tw:(k + 1) * tw]
         ref = np.full((th, tw, 3), 255, np.uint8)  # white label band and margins
         ref[18:th - 4, 4:tw - 4] = frame
@@ -378,6 +418,6 @@ def test_coverage_image_tiles():
                 level = np.log1p(g[r, c]) / np.log1p(max(g.max(), 1))
                 colour = (0, int(60 + 195 * level), 0) if g[r, c] else (40, 0, 40)
                 ref[21 + r * cell:21 + (r + 1) * cell, 7 + c * cell:7 + (c + 1) * cell] = colour
-        cv2.putText(ref, "AB"[k], (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
-        assert np.abs(tile.astype(int) - ref).max() <= 1, k  # uint8 truncation of the green level
+        cv2.putText(ref, "ABC"[k], (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        assert np.array_equal(tile, ref), k
     assert img[21, 7, 1] == 125 and img[21 + cell, 7 + 2 * cell, 1] == 255  # 1 corner: log 2 / log 8; 7: full
