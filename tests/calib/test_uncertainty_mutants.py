@@ -143,8 +143,10 @@ def _problem(seed, t_px, s_px=0.3, n_views=6, per_view=5):
     return J, r, B
 
 
-def test_view_effect_covariance_is_the_sandwich_of_its_moment_estimates():
+@pytest.mark.parametrize("scale", [1.0, 1e-3])  # a small basis: det of the moment equations ~1e-12, still solved
+def test_view_effect_covariance_is_the_sandwich_of_its_moment_estimates(scale):
     J, r, B = _problem(1, t_px=1.0)
+    B = B * scale
     s2_ref, t2_ref, Bd = _dense_view_effect(J, r, B)
     assert s2_ref > 0 and t2_ref > 0
     cov, s2, t2 = view_effect_covariance(J, r, B)
@@ -171,6 +173,13 @@ def test_view_effect_covariance_without_a_basis_or_redundancy():
     np.testing.assert_allclose(cov, s2 * np.linalg.inv(J.T @ J), rtol=1e-9)
     cov, s2, t2 = view_effect_covariance(J[:3], r[:3], sp.csc_matrix((3, 4)))
     assert s2 == np.inf and t2 == 0.0 and cov.shape == (3, 3) and np.all(cov == np.inf)
+    cov, s2, t2 = view_effect_covariance(J[:4], r[:4], sp.csc_matrix((4, 0)))  # one degree of freedom
+    assert s2 == pytest.approx((r[:4] @ r[:4]) / 1, rel=1e-12) and t2 == 0.0  # the residuals as given
+    twin = np.c_[J[:, :1], J[:, :1]]  # only the sum of the two parameters is observed
+    cov, s2, _ = view_effect_covariance(twin, r, sp.csc_matrix((8, 0)), rcond=1e-6)
+    A = twin.T @ twin  # Jacobi scale 1 / sqrt(a), scaled matrix [[1, 1], [1, 1]]
+    u, v = np.array([1.0, 1.0]) / np.sqrt(2), np.array([1.0, -1.0]) / np.sqrt(2)
+    np.testing.assert_allclose(cov, s2 * (np.outer(u, u) / 2 + np.outer(v, v) / 2e-6) / A[0, 0], rtol=1e-9)
 
 
 def test_propagated_covariance_is_g_sigma_g_with_the_closed_form_jacobian():
@@ -243,6 +252,16 @@ def test_corner_coverage_by_hand():
     poly = np.array([[0, 0], [700, -5], [639, 479], [10, 50]], float)
     area = 0.5 * abs(sum(poly[i, 0] * poly[i - 1, 1] - poly[i - 1, 0] * poly[i, 1] for i in range(4)))
     assert cov.hull_fraction == pytest.approx(area / (640 * 480))
+    assert cov.grid.dtype.kind == "i" and cov.regions.dtype.kind == "i"  # counts: integers in the report
+    # far outside the image on every side: clipped into the border cells, never wrapped around
+    far = corner_coverage(np.array([[-300.0, -400.0], [2000.0, 3000.0], [-300.0, 3000.0]]), np.zeros(3, int), 640, 480,
+                          grid=(3, 4))
+    assert far.grid.tolist() == [[1, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 1]]
+    assert far.regions.tolist() == [[1, 0, 0], [0, 0, 0], [1, 0, 1]]
+    # three views: the median of their own hulls (a view's hull is of its corners only)
+    tri = np.array([[0, 0], [64, 0], [0, 48], [0, 0], [128, 0], [0, 96], [0, 0], [320, 0], [0, 240]], float)
+    three = corner_coverage(tri, np.repeat([0, 1, 2], 3), 640, 480)
+    assert three.median_view_fraction == pytest.approx(0.5 * 128 * 96 / (640 * 480))
     two = corner_coverage(uv[:2], view_of[:2], 640, 480)
     assert two.hull_fraction == 0.0 and two.median_view_fraction == 0.0 and two.grid.shape == (6, 8)
     none = corner_coverage(np.zeros((0, 2)), np.zeros(0, int), 640, 480)
@@ -304,11 +323,11 @@ def _quantities_cov(*blocks):
 
 
 def test_camera_verdicts_sigmas_and_thresholds():
-    intr = np.array([[1000.0, 1000.0, 320.0, 240.0], [800.0, -400.0, 300.0, 200.0], [500.0, 500.0, 1.0, 1.0]])
+    intr = np.array([[1000.0, 2000.0, 320.0, 240.0], [800.0, -400.0, 300.0, 200.0], [500.0, 500.0, 1.0, 1.0]])
     centre0 = np.array([[1e-6, 2e-7, 0.0], [2e-7, 4e-6, 0.0], [0.0, 0.0, 4e-6]])  # trace 9 mm^2: 3 mm
     rot0 = np.diag([np.radians(0.1) ** 2, 0.0, 0.0])
     blocks = [_block([4.0, 1.0, 0.25, 9.0], centre0, rot0),
-              _block([1.0, 4.0, -1.0, np.inf], np.diag([1e-6, 0, 0]), np.zeros((3, 3))),  # fy 2 / 400 = 0.5 %
+              _block([1.0, 4.0, -1.0, np.inf], np.diag([0.25e-6, 0, 0]), np.zeros((3, 3))),  # fy 2 / 400 = 0.5 %
               _block([np.nan, 0, 0, 0], np.diag([np.inf, 0, 0]), np.diag([np.nan, 0, 0]))]
     covs = [_coverage([[5] * 3] * 3, fraction=f) for f in (0.25, 0.5, 0.125)]
     out = camera_verdicts(["a", "b", "c"], intr, _quantities_cov(*blocks), covs)
@@ -321,12 +340,17 @@ def test_camera_verdicts_sigmas_and_thresholds():
     assert a.advice == ("a: centre sigma 3.0 mm, corners cover 25 % of the image: add tilted views that other "
                         "cameras see too")
     assert b.cx_sigma_px == 0.0 and b.cy_sigma_px == np.inf  # a negative variance (round-off) is 0; inf stays
-    assert b.focal_sigma_pct == pytest.approx(0.5) and b.center_sigma_mm == pytest.approx(1.0)
+    assert b.focal_sigma_pct == pytest.approx(0.5) and b.center_sigma_mm == pytest.approx(0.5)
     assert b.rot_sigma_deg == 0.0 and b.verdict == "ok" and b.advice == ""  # 0.5 % is within 0.5 %
     assert c.fx_sigma_px == np.inf and c.center_sigma_mm == np.inf and c.rot_sigma_deg == np.inf
     assert c.focal_sigma_pct == np.inf and c.verdict == "uncertain"
     assert c.advice == ("c: centre sigma inf mm, focal sigma inf %, corners cover 12 % of the image: add tilted "
                         "views that other cameras see too")
+    # a non-finite covariance between two axes: the sigma is unknown (inf), even with finite variances
+    d = _block([1.0, 1.0, 1.0, 1.0], np.diag([1e-6, 1e-6, 1e-6]), np.diag([1e-6, 1e-6, 1e-6]))
+    d[4, 5] = d[5, 4] = d[7, 8] = d[8, 7] = np.inf
+    (dd,) = camera_verdicts(["d"], intr[:1], _quantities_cov(d), covs[:1])
+    assert dd.center_sigma_mm == np.inf and dd.rot_sigma_deg == np.inf
     # the thresholds are inclusive and can be given
     loose = camera_verdicts(["a"], intr[:1], _quantities_cov(blocks[0]), covs[:1],
                             max_center_sigma_mm=a.center_sigma_mm, max_focal_sigma_pct=0.1)
