@@ -94,14 +94,28 @@ def test_normal_matrix_inverse_keeps_an_unobservable_direction_hugely_uncertain(
     assert default[0, 0] == pytest.approx(0.25 * (0.25 + 0.25 / 1e-15), rel=1e-6)
 
 
+def test_normal_matrix_inverse_of_an_unevenly_scaled_rank_deficient_matrix():
+    """A = D M D, M with unit diagonal and eigenvalues 0, 1, 2: the Jacobi scaling recovers M exactly, the
+    unobservable direction gets 1 / (rcond x 2), the largest eigenvalue (not the middle one)."""
+    D = np.diag([0.5, 3.0, 0.1])  # scales below and above 1
+    M = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    rcond = 1e-6
+    w, u = np.array([1.0, 1.0, 0.0]) / np.sqrt(2), np.array([1.0, -1.0, 0.0]) / np.sqrt(2)
+    e3 = np.array([0.0, 0.0, 1.0])
+    inv_m = np.outer(w, w) / 2 + np.outer(e3, e3) + np.outer(u, u) / (rcond * 2)
+    Dinv = np.linalg.inv(D)
+    np.testing.assert_allclose(normal_matrix_inverse(D @ M @ D, rcond), Dinv @ inv_m @ Dinv, rtol=1e-9)
+
+
 def test_view_error_basis_by_hand():
-    uv = np.array([[0.0, 0.0], [4.0, 0.0], [10.0, 10.0], [0.0, 3.0], [12.0, 10.0], [50.0, 50.0]])
-    view_of = np.array([5, 5, 2, 5, 2, 9])  # views 2, 5, 9 -> columns 0-3, 4-7, 8-11
-    B = view_error_basis(uv.ravel(), view_of)
-    assert isinstance(B, sp.csc_matrix) and B.shape == (12, 12)
-    ref = np.zeros((12, 12))
-    for col, v in enumerate((2, 5, 9)):
-        idx = [i for i in range(6) if view_of[i] == v]
+    uv = np.array([[0.0, 0.0], [4.0, 0.0], [10.0, 10.0], [0.0, 3.0], [12.0, 10.0], [50.0, 50.0], [7.0, 7.0],
+                   [7.5, 7.0]])
+    view_of = np.array([5, 5, 2, 5, 2, 9, 11, 11])  # views 2, 5, 9, 11 -> columns 0-3, 4-7, 8-11, 12-15
+    B = view_error_basis(uv.ravel(), view_of)  # view 11: two corners half a pixel apart, scaled to unit RMS too
+    assert isinstance(B, sp.csc_matrix) and B.shape == (16, 16)
+    ref = np.zeros((16, 16))
+    for col, v in enumerate((2, 5, 9, 11)):
+        idx = [i for i in range(8) if view_of[i] == v]
         c = uv[idx].mean(0)
         rms = np.sqrt(np.mean([np.sum((uv[i] - c) ** 2) for i in idx]))
         for i in idx:
