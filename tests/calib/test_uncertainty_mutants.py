@@ -215,6 +215,8 @@ def test_propagated_covariance_is_g_sigma_g_with_the_closed_form_jacobian():
         assert np.allclose(steps[2 * k], np.eye(4)[k] * h, rtol=1e-6, atol=0)
         assert np.allclose(steps[2 * k + 1], -np.eye(4)[k] * h, rtol=1e-6, atol=0)
     assert len(seen) == 1 + 6 + 1
+    y_const, _ = propagated_covariance(lambda v: [3, 4], x, cov)  # a value of integers comes back as floats
+    assert y_const.dtype == np.float64 and y_const.tolist() == [3.0, 4.0]
     y_int, cov_int = propagated_covariance(fun, [2, -3000, 1, 7], cov)  # integer parameters are stepped too
     G1 = np.array([[-3000, 2, 0, 0], [0, 1 / 1000, np.cos(1.0), 0], [4, 0, 0, 1]])
     np.testing.assert_allclose(cov_int, G1 @ cov @ G1.T, rtol=1e-6, atol=1e-12)
