@@ -1,0 +1,59 @@
+"""Plant bugs by hand in a scratch copy of batch.py and run its tests: in ``batch_client`` (a
+``@contextlib.contextmanager`` generator: mutmut gives it no mutant) and the module constants the client uses."""
+# usage (from the repository root): python docs/mutation/batch-plant.py [TEST ...]
+import os
+import shutil
+import subprocess
+import sys
+
+src_root = os.getcwd()
+work = "/work/wt-mutFF-work/batch-plant"
+F = "bodystudio/batch.py"
+mutants = [
+    ("        if units is not None:\n            n = max(1, min(n, int(units)))\n", "",
+     "no cap at the batch's units"),
+    ("n = max(1, min(n, int(units)))", "n = max(1, max(n, int(units)))", "cap: min -> max"),
+    ("n = max(1, min(n, int(units)))", "n = min(n, int(units))", "no floor of one worker"),
+    ("n = workers or os.cpu_count() or 1", "n = os.cpu_count() or 1", "--workers ignored"),
+    ("threads_per_worker=1, processes=True", "threads_per_worker=2, processes=True", "two threads per worker"),
+    ("threads_per_worker=1, processes=True", "threads_per_worker=1, processes=False", "threads, not processes"),
+    ("env=dict(WORKER_ENV)", "env=None", "thread pools not pinned"),
+    ('dashboard_address=":0"', 'dashboard_address=":8787"', "a fixed dashboard port"),
+    ("        client.register_plugin(_exit_with_client_plugin())\n", "", "workers outlive a killed client"),
+    ("        check_worker_versions(client.run(_worker_version))\n", "", "worker versions not checked"),
+    ("        client.register_plugin(_main_thread_imports_plugin())\n", "", "no main-thread imports"),
+    ("        client.close()\n        if cluster is not None:", "        if cluster is not None:",
+     "client not closed"),
+    ("        if cluster is not None:\n            cluster.close()\n", "", "cluster not closed"),
+    ("    try:\n        check_worker_versions(client.run(_worker_version))\n        client.register_plugin("
+     "_main_thread_imports_plugin())\n        yield client\n    finally:\n",
+     "    if True:\n        check_worker_versions(client.run(_worker_version))\n        client.register_plugin("
+     "_main_thread_imports_plugin())\n        yield client\n    if True:\n", "not closed on an error"),
+    ('timeout=f"{CONNECT_TIMEOUT_S}s", set_as_default=False', 'timeout=f"{CONNECT_TIMEOUT_S}s", set_as_default=True',
+     "the client made the default"),
+    ("CONNECT_TIMEOUT_S = 5.0", "CONNECT_TIMEOUT_S = 60.0", "a minute to fail on an unreachable scheduler"),
+    ("reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__", "reason = str(exc)",
+     "the whole multi-line error in the one line"),
+    ("    for name in (\"distributed\", \"distributed.http.proxy\"):\n        logging.getLogger(name)"
+     ".setLevel(logging.WARNING)\n", "", "distributed's INFO lines in the output"),
+    ('"OMP_NUM_THREADS": "1"', '"OMP_NUM_THREADS": "2"', "OpenMP not pinned"),
+]
+tests = sys.argv[1:] or ["tests/batch/test_batch_units_mutants.py"]
+if os.path.exists(work):
+    shutil.rmtree(work)
+os.makedirs(work)
+for d in ("bodystudio", "tests"):
+    shutil.copytree(os.path.join(src_root, d), os.path.join(work, d), ignore=shutil.ignore_patterns("__pycache__"))
+shutil.copy2(os.path.join(src_root, "pyproject.toml"), work)
+clean = open(os.path.join(work, F)).read()
+killed = 0
+for old, new, name in [("CONNECT_TIMEOUT_S", "CONNECT_TIMEOUT_S", "clean")] + mutants:
+    assert clean.count(old) >= 1, name
+    open(os.path.join(work, F), "w").write(clean.replace(old, new, 1))
+    r = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests], cwd=work,
+                       capture_output=True, text=True, env={**os.environ, "PYTHONPATH": work})
+    first = next((ln for ln in r.stdout.splitlines() if ln.startswith("FAILED")), "")
+    killed += bool(r.returncode) and name != "clean"
+    print(f"{name}: {'killed' if r.returncode else 'survived'} {first[:150]}", flush=True)
+open(os.path.join(work, F), "w").write(clean)
+print(f"{killed} / {len(mutants)} killed")
