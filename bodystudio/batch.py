@@ -182,7 +182,7 @@ def resolve_scheduler(scheduler: str | None, workers: int | None) -> str | None:
         raise InputError("--scheduler and --workers: give one (--workers starts a local cluster)")
     if address is not None and workers is not None:
         return None  # --workers asks for a local cluster over the environment's address
-    if address is not None and not re.match(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/]+(:\d+)?/?$", address):
+    if address is not None and not re.fullmatch(r"(tcp|tls|inproc|ucx|ws|wss)://[^\s/]+(:\d+)?/?", address):
         src = "--scheduler" if scheduler else f"${ENV_SCHEDULER}"
         raise InputError(f"{src} {address!r}: not a scheduler address; give tcp://HOST:PORT (e.g. tcp://10.0.0.5:8786)")
     return address

@@ -167,3 +167,14 @@ def test_batch_rig_out_onto_the_scans_folder(scans, capsys):
     (scans / "b.glb").write_bytes(b"glTF")
     run_bad(["batch", "rig", scans, "--out", scans], capsys, "is the scans folder")
     assert sorted(p.name for p in scans.iterdir()) == ["a.ply", "b.glb"]
+
+
+@pytest.mark.parametrize("address", ["tcp://10.0.0.5:8786\n", "tcp://10.0.0.5:8786\nrest"])
+def test_a_scheduler_address_with_a_line_break_is_refused(address, monkeypatch):
+    """mutFF's note: the address rule ended in ``$``, which matches before a final newline, so
+    ``"tcp://h:1\\n"`` (an address read from a file with its line end) passed for a scheduler address."""
+    monkeypatch.delenv("BODYSTUDIO_SCHEDULER", raising=False)
+    with pytest.raises(InputError, match="not a scheduler address"):
+        resolve_scheduler(address, None)
+    assert resolve_scheduler("tcp://10.0.0.5:8786", None) == "tcp://10.0.0.5:8786"
+    assert resolve_scheduler("tls://node-3.lab:8786/", None) == "tls://node-3.lab:8786/"
