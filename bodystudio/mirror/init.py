@@ -160,6 +160,13 @@ TRUNK_REFIT_ROUNDS = 2
 #: chest came out 16 mm small and its hips 17 mm wide, and the Eq. 4 displacement of a -17 cm / -15 kg edit 4.6 mm
 #: off the truth's (0.8 on 42, the same subject upright). ``mirror init --unpose-posture`` (mir12v, docs/mirror.md).
 UNPOSE_POSTURE_BONES: tuple[str, ...] = ()
+#: From the second pass on, the init's coefficients move this fraction of the way to each pass's Eq. 2 fit (1: the
+#: fit itself, the paper's). mir12x, docs/mirror.md.
+PASS_RELAXATION = 1.0
+#: Every pass pools the same subset of each frame's depth points (False: a fresh random subset per pass). mir12x.
+FIXED_POOL = False
+#: Seed of the fixed pool's per-point keys (with the frame number).
+POOL_KEY_SEED = 0
 #: The bones ``--unpose-posture`` centres (MIR12q's: the bones whose static bend the run's E_trunk shrinks).
 POSTURE_BONES = ("spine_02", "neck_01", "head")
 
@@ -548,7 +555,10 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  unpose_refine_steps: int = UNPOSE_REFINE_STEPS,
                                  bone_length_weight: float = BONE_LENGTH_WEIGHT,
                                  trunk_refit: bool = False,
-                                 unpose_posture_bones=UNPOSE_POSTURE_BONES) -> SourceBody:
+                                 unpose_posture_bones=UNPOSE_POSTURE_BONES,
+                                 pass_relaxation: float = PASS_RELAXATION,
+                                 fixed_pool: bool = FIXED_POOL,
+                                 pooled_points: int = MAX_POOLED_POINTS) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -569,8 +579,17 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     (:func:`refit_trunk_joints` over the fitted frames; MIR12r). ``unpose_posture_bones`` (names): from the third
     pass on, the refined unposing holds those trunk bones at the subject's static posture, the mean of the previous
     pass's refined poses (:func:`session_posture`), instead of at rest (:data:`UNPOSE_POSTURE_BONES`).
+    ``pass_relaxation`` (0, 1]: from the second pass on, the coefficients move only this fraction of the way to the
+    pass's Eq. 2 fit (:data:`PASS_RELAXATION`; 1: the fit itself). ``fixed_pool``: every pass pools the same depth
+    points of each frame (a fixed random key per point) instead of a fresh random subset (:data:`FIXED_POOL`);
+    ``pooled_points``: how many (:data:`MAX_POOLED_POINTS`).
     """
     model = check_model(model)
+    if not (np.isfinite(pass_relaxation) and 0.0 < pass_relaxation <= 1.0):
+        raise InputError(f"pass_relaxation must be in (0, 1] (1: each pass takes its own fit), got {pass_relaxation!r}")
+    if isinstance(pooled_points, bool) or not isinstance(pooled_points, (int, np.integer)) or pooled_points < 1:
+        raise InputError(f"pooled_points must be an integer >= 1 (the depth points of one Eq. 2 fit), "
+                         f"got {pooled_points!r}")
     unpose_posture_bones = tuple(unpose_posture_bones)
     unknown = sorted(set(unpose_posture_bones) - set(model.bone_names))
     if unknown:
@@ -607,7 +626,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         posture = session_posture(body.skeleton, refined_poses, unpose_posture_bones) \
             if unpose_posture_bones and refined_poses else None
         refined_poses = []
-        pooled, matches, seen, joints0 = [], [], [], []
+        pooled, matches, seen, joints0, keys = [], [], [], [], []
         plan = None
         if pass_ > 0 and unpose_refine_steps > 0 and depth_camera is not None:
             from bodystudio.mirror.refine import refine_plan
@@ -626,6 +645,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             if ok.sum() >= MIN_POINTS:
                 pooled.append(cloud.points[ok])
                 matches.append(cloud.correspondence[ok])
+                keys.append(np.random.default_rng([POOL_KEY_SEED, int(o.frame)]).random(len(ok))[ok])
                 seen.append(cloud.candidates)
                 if pass_ > 0 and o.version == obs[0][0].version:
                     joints0.append(unposed_kinect_joints(o.joints, o.tracked, cloud.body.skeleton, cloud.pose,
@@ -634,15 +654,17 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             raise InputError("no frame's depth points lie on a body fitted to the Kinect joints: "
                              "check that the depth and the joints come from the same sensor calibration")
         P0, k0 = np.concatenate(pooled), np.concatenate(matches)
-        if len(P0) > MAX_POOLED_POINTS:
-            pick = rng.choice(len(P0), MAX_POOLED_POINTS, replace=False)
+        if len(P0) > pooled_points:
+            pick = np.sort(np.argsort(np.concatenate(keys), kind="stable")[:pooled_points]) if fixed_pool \
+                else rng.choice(len(P0), pooled_points, replace=False)
             P0, k0 = P0[pick], k0[pick]
-        coeffs, residual = fit_shape(P0, model, coeffs, candidates=np.unique(np.concatenate(seen)), correspondence=k0,
+        fitted, residual = fit_shape(P0, model, coeffs, candidates=np.unique(np.concatenate(seen)), correspondence=k0,
                                      iterations=ICP_ITERATIONS[min(pass_, len(ICP_ITERATIONS) - 1)],
                                      joints_default=np.array(joints0) if joints0 else None,
                                      joint_weight=joint_weight, version=obs[0][0].version, trim_m=trim_m,
                                      point_sigma_m=point_sigma_m, return_residual=True, bone_lengths=bone_lengths,
                                      bone_length_weight=length_weight)
+        coeffs = coeffs + pass_relaxation * (fitted - coeffs) if pass_ > 0 else fitted
         skeleton = refit_skeleton(model, coeffs)
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,
                          vertex_ids=model.vertex_ids)
