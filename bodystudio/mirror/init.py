@@ -165,6 +165,8 @@ UNPOSE_POSTURE_BONES: tuple[str, ...] = ()
 PASS_RELAXATION = 1.0
 #: Every pass pools the same subset of each frame's depth points (False: a fresh random subset per pass). mir12x.
 FIXED_POOL = False
+#: Every pass pools every depth point, each weighted MAX_POOLED_POINTS / N (False: a subset). mir12x.
+WEIGHTED_POOL = False
 #: Seed of the fixed pool's per-point keys (with the frame number).
 POOL_KEY_SEED = 0
 #: The bones ``--unpose-posture`` centres (MIR12q's: the bones whose static bend the run's E_trunk shrinks).
@@ -341,7 +343,8 @@ def unposed_kinect_joints(joints, tracked, skeleton: Skeleton, pose, version: st
 def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, candidates=None,
               correspondence=None, joints_default=None, joint_weight: float = 0.0, version: str = "v2",
               iterations: int = 4, symmetric: bool = False, point_sigma_m: float = POINT_SIGMA_M, trim_m: float = 0.05,
-              return_residual: bool = False, bone_lengths=None, bone_length_weight: float = 0.0):
+              return_residual: bool = False, bone_lengths=None, bone_length_weight: float = 0.0,
+              point_weight: float = 1.0):
     """Coefficients minimising Eq. 2, ``sum_i |p_i - v_k(i)(alpha)|^2``, for a cloud in the default pose.
 
     ``k(i)`` is the closest vertex (among ``candidates``, e.g. the vertices the sensor saw) and is
@@ -352,7 +355,8 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
     expectation. Pairs farther than ``trim_m`` after the first match are dropped as outliers. With
     ``return_residual`` also returns the median point-to-vertex distance (metres) of the final fit.
     ``bone_lengths`` (len(:data:`BONE_PAIRS`),) measured joint distances (NaN: not measured) are matched with
-    ``bone_length_weight`` (one number, or one per pair) each (:func:`bone_length_rows`).
+    ``bone_length_weight`` (one number, or one per pair) each (:func:`bone_length_rows`). ``point_weight``: the
+    weight of one depth point (1: as the prior and the joints assume; a pool of N points weighted M / N weighs as M).
     """
     P = np.asarray(points_default, dtype=np.float64)
     finite = np.all(np.isfinite(P), axis=1)
@@ -399,9 +403,10 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
         # Normal equations of Eq. 2 accumulated per vertex (a vertex matched by several points adds
         # its k x k Gram matrix once per match), so no (3M, k) design matrix is formed.
         n = len(model.mean)
-        counts = np.bincount(mk, minlength=n).astype(np.float64)
+        counts = point_weight * np.bincount(mk, minlength=n).astype(np.float64)
         S = np.zeros((n, 3))
         np.add.at(S, mk, Pk - model.mean[mk])
+        S *= point_weight
         AtA = np.zeros((k + 3, k + 3))
         AtA[:k, :k] = (counts @ gram.reshape(n, -1)).reshape(k, k)
         AtA[:k, k:] = np.einsum("knd,n->kd", basis, counts)
@@ -558,7 +563,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  unpose_posture_bones=UNPOSE_POSTURE_BONES,
                                  pass_relaxation: float = PASS_RELAXATION,
                                  fixed_pool: bool = FIXED_POOL,
-                                 pooled_points: int = MAX_POOLED_POINTS) -> SourceBody:
+                                 pooled_points: int = MAX_POOLED_POINTS,
+                                 weighted_pool: bool = WEIGHTED_POOL) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -582,7 +588,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     ``pass_relaxation`` (0, 1]: from the second pass on, the coefficients move only this fraction of the way to the
     pass's Eq. 2 fit (:data:`PASS_RELAXATION`; 1: the fit itself). ``fixed_pool``: every pass pools the same depth
     points of each frame (a fixed random key per point) instead of a fresh random subset (:data:`FIXED_POOL`);
-    ``pooled_points``: how many (:data:`MAX_POOLED_POINTS`).
+    ``pooled_points``: how many (:data:`MAX_POOLED_POINTS`). ``weighted_pool``: every pass pools every point instead,
+    each weighted ``pooled_points`` / N, so the fit weighs its data against the prior and the joints as the subset
+    did, without the subset's sampling noise (:data:`WEIGHTED_POOL`).
     """
     model = check_model(model)
     if not (np.isfinite(pass_relaxation) and 0.0 < pass_relaxation <= 1.0):
@@ -654,7 +662,10 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             raise InputError("no frame's depth points lie on a body fitted to the Kinect joints: "
                              "check that the depth and the joints come from the same sensor calibration")
         P0, k0 = np.concatenate(pooled), np.concatenate(matches)
-        if len(P0) > pooled_points:
+        point_weight = 1.0
+        if len(P0) > pooled_points and weighted_pool:
+            point_weight = pooled_points / len(P0)
+        elif len(P0) > pooled_points:
             pick = np.sort(np.argsort(np.concatenate(keys), kind="stable")[:pooled_points]) if fixed_pool \
                 else rng.choice(len(P0), pooled_points, replace=False)
             P0, k0 = P0[pick], k0[pick]
@@ -663,7 +674,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                      joints_default=np.array(joints0) if joints0 else None,
                                      joint_weight=joint_weight, version=obs[0][0].version, trim_m=trim_m,
                                      point_sigma_m=point_sigma_m, return_residual=True, bone_lengths=bone_lengths,
-                                     bone_length_weight=length_weight)
+                                     bone_length_weight=length_weight, point_weight=point_weight)
         coeffs = coeffs + pass_relaxation * (fitted - coeffs) if pass_ > 0 else fitted
         skeleton = refit_skeleton(model, coeffs)
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,

@@ -8,7 +8,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bodystudio.errors import InputError
 from bodystudio.mirror import init as init_mod
 from bodystudio.mirror.init import initialise_from_observations
 from tests.mirror.test_init_unposing_wiring import _frame, _model_2k, _pose
@@ -27,7 +26,7 @@ def _run(monkeypatch, frames, **options):
     unposing's points replaced by the frame's own (so the pooled rows are comparable between passes)."""
     model, eye, obs = frames
     original = init_mod.transform_to_default_pose
-    pooled = []
+    pooled, weights = [], []
 
     def unposed(P, *args, **kw):
         cloud = original(P, *args, **kw)
@@ -35,16 +34,18 @@ def _run(monkeypatch, frames, **options):
 
     def fit(P0, m, coeffs, **kw):
         pooled.append(np.array(P0))
+        weights.append(kw["point_weight"])
         return np.full(m.n_components, 0.1 * len(pooled)) * m.stddev, 0.004
 
     monkeypatch.setattr(init_mod, "transform_to_default_pose", unposed)
     monkeypatch.setattr(init_mod, "fit_shape", fit)
     body = initialise_from_observations(obs, model, view_point=eye, passes=4, floor_y=None, **options)
+    _run.weights = weights
     return body.coeffs / model.stddev, pooled
 
 
 def test_defaults_are_the_papers_passes():
-    assert init_mod.PASS_RELAXATION == 1.0 and init_mod.FIXED_POOL is False
+    assert init_mod.PASS_RELAXATION == 1.0 and init_mod.FIXED_POOL is False and init_mod.WEIGHTED_POOL is False
 
 
 def test_relaxation_moves_the_coefficients_part_of_the_way(monkeypatch, frames):
@@ -68,14 +69,32 @@ def test_the_fixed_pool_takes_the_same_points_every_pass(monkeypatch, frames):
     assert not np.array_equal(pooled[1], pooled[2])
     _, pooled = _run(monkeypatch, frames, fixed_pool=True, pooled_points=10 ** 6)
     assert len(pooled[0]) == sum(len(o.points) for o in frames[2])
+    assert _run.weights == [1.0] * 4
 
 
-@pytest.mark.parametrize("options, message", [
-    (dict(pass_relaxation=0.0), r"pass_relaxation must be in \(0, 1\]"),
-    (dict(pass_relaxation=float("nan")), r"pass_relaxation must be in \(0, 1\]"),
-    (dict(pooled_points=0), r"pooled_points must be an integer >= 1"),
-])
-def test_bad_settling_options_are_refused(frames, options, message):
-    model, eye, obs = frames
-    with pytest.raises(InputError, match=message):
-        initialise_from_observations(obs, model, view_point=eye, **options)
+def test_the_weighted_pool_fits_every_point_weighted_as_the_subset(monkeypatch, frames):
+    """``weighted_pool``: every point of both frames in every pass, each weighted 200 / N (so the pool weighs
+    against the prior as 200 points); fewer points than ``pooled_points``: weight 1."""
+    n = sum(len(o.points) for o in frames[2])
+    _, pooled = _run(monkeypatch, frames, weighted_pool=True, pooled_points=200)
+    assert [len(p) for p in pooled] == [n] * 4
+    np.testing.assert_allclose(_run.weights, 200 / n, rtol=1e-12)
+    _run(monkeypatch, frames, weighted_pool=True, pooled_points=10 ** 6)
+    assert _run.weights == [1.0] * 4
+
+
+def test_point_weight_is_the_points_multiplicity(frames):
+    """Eq. 2 on a noisy cloud of a known body, with the shape prior and the joints: every point given twice and
+    weighted 0.5 is the fit of the points given once (to 1e-9 of a standard deviation); weighted 1 it is not (the
+    prior then weighs half as much)."""
+    model = frames[0]
+    rng = np.random.default_rng(3)
+    truth = rng.normal(0.0, 1.0, model.n_components) * model.stddev
+    ids = rng.choice(len(model.mean), 400, replace=False)
+    P = model.vertices(truth)[ids] + rng.normal(0.0, 0.01, (400, 3))
+    once = init_mod.fit_shape(P, model, correspondence=ids, iterations=2)
+    twice = init_mod.fit_shape(np.vstack([P, P]), model, correspondence=np.concatenate([ids, ids]), iterations=2,
+                               point_weight=0.5)
+    np.testing.assert_allclose(twice / model.stddev, once / model.stddev, atol=1e-9)
+    plain = init_mod.fit_shape(np.vstack([P, P]), model, correspondence=np.concatenate([ids, ids]), iterations=2)
+    assert np.abs(plain - once).max() / model.stddev.max() > 1e-4
