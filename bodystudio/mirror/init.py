@@ -165,6 +165,19 @@ TRUNK_REFIT_ROUNDS = 2
 #: chest came out 16 mm small and its hips 17 mm wide, and the Eq. 4 displacement of a -17 cm / -15 kg edit 4.6 mm
 #: off the truth's (0.8 on 42, the same subject upright). ``mirror init --unpose-posture`` (mir12v, docs/mirror.md).
 UNPOSE_POSTURE_BONES: tuple[str, ...] = ()
+#: From the second pass on, the init's coefficients move this fraction of the way to each pass's Eq. 2 fit (1: the
+#: fit itself, the paper's). mir12x, docs/mirror.md.
+PASS_RELAXATION = 1.0
+#: Every pass pools the same subset of each frame's depth points (False: a fresh random subset per pass). mir12x.
+FIXED_POOL = False
+#: Every pass pools every depth point, each weighted MAX_POOLED_POINTS / N (False: a fresh random subset per pass,
+#: whose sampling noise moved the Eq. 4 displacement error 1-4 mm from pass to pass). On 16 sessions the error's range
+#: over passes 4-8 1.60 / 1.06 -> 0.28 / 0.35 mm (tuning / held out), its mean 2.25 / 1.89 -> 1.82 / 1.72, warp_iou
+#: +0.0011 on average; but it rises on 6 of 12 held-out sessions and the fit costs 2.2 -> 5.3 s CPU: off (mir12x,
+#: docs/mirror.md).
+WEIGHTED_POOL = False
+#: Seed of the fixed pool's per-point keys (with the frame number).
+POOL_KEY_SEED = 0
 #: The bones ``--unpose-posture`` centres (MIR12q's: the bones whose static bend the run's E_trunk shrinks).
 POSTURE_BONES = ("spine_02", "neck_01", "head")
 
@@ -339,7 +352,8 @@ def unposed_kinect_joints(joints, tracked, skeleton: Skeleton, pose, version: st
 def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, candidates=None,
               correspondence=None, joints_default=None, joint_weight: float = 0.0, version: str = "v2",
               iterations: int = 4, symmetric: bool = False, point_sigma_m: float = POINT_SIGMA_M, trim_m: float = 0.05,
-              return_residual: bool = False, bone_lengths=None, bone_length_weight: float = 0.0):
+              return_residual: bool = False, bone_lengths=None, bone_length_weight: float = 0.0,
+              point_weight: float = 1.0):
     """Coefficients minimising Eq. 2, ``sum_i |p_i - v_k(i)(alpha)|^2``, for a cloud in the default pose.
 
     ``k(i)`` is the closest vertex (among ``candidates``, e.g. the vertices the sensor saw) and is
@@ -350,7 +364,8 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
     expectation. Pairs farther than ``trim_m`` after the first match are dropped as outliers. With
     ``return_residual`` also returns the median point-to-vertex distance (metres) of the final fit.
     ``bone_lengths`` (len(:data:`BONE_PAIRS`),) measured joint distances (NaN: not measured) are matched with
-    ``bone_length_weight`` (one number, or one per pair) each (:func:`bone_length_rows`).
+    ``bone_length_weight`` (one number, or one per pair) each (:func:`bone_length_rows`). ``point_weight``: the
+    weight of one depth point (1: as the prior and the joints assume; a pool of N points weighted M / N weighs as M).
     """
     P = np.asarray(points_default, dtype=np.float64)
     finite = np.all(np.isfinite(P), axis=1)
@@ -397,9 +412,10 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
         # Normal equations of Eq. 2 accumulated per vertex (a vertex matched by several points adds
         # its k x k Gram matrix once per match), so no (3M, k) design matrix is formed.
         n = len(model.mean)
-        counts = np.bincount(mk, minlength=n).astype(np.float64)
+        counts = point_weight * np.bincount(mk, minlength=n).astype(np.float64)
         S = np.zeros((n, 3))
         np.add.at(S, mk, Pk - model.mean[mk])
+        S *= point_weight
         AtA = np.zeros((k + 3, k + 3))
         AtA[:k, :k] = (counts @ gram.reshape(n, -1)).reshape(k, k)
         AtA[:k, k:] = np.einsum("knd,n->kd", basis, counts)
@@ -554,7 +570,11 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  bone_length_weight: float = BONE_LENGTH_WEIGHT,
                                  trunk_refit: bool = False,
                                  unpose_posture_bones=UNPOSE_POSTURE_BONES,
-                                 frame_choice: str | None = None) -> SourceBody:
+                                 frame_choice: str | None = None,
+                                 pass_relaxation: float = PASS_RELAXATION,
+                                 fixed_pool: bool = FIXED_POOL,
+                                 pooled_points: int = MAX_POOLED_POINTS,
+                                 weighted_pool: bool = WEIGHTED_POOL) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -576,8 +596,19 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     (:func:`refit_trunk_joints` over the fitted frames; MIR12r). ``unpose_posture_bones`` (names): from the third
     pass on, the refined unposing holds those trunk bones at the subject's static posture, the mean of the previous
     pass's refined poses (:func:`session_posture`), instead of at rest (:data:`UNPOSE_POSTURE_BONES`).
+    ``pass_relaxation`` (0, 1]: from the second pass on, the coefficients move only this fraction of the way to the
+    pass's Eq. 2 fit (:data:`PASS_RELAXATION`; 1: the fit itself). ``fixed_pool``: every pass pools the same depth
+    points of each frame (a fixed random key per point) instead of a fresh random subset (:data:`FIXED_POOL`);
+    ``pooled_points``: how many (:data:`MAX_POOLED_POINTS`). ``weighted_pool``: every pass pools every point instead,
+    each weighted ``pooled_points`` / N, so the fit weighs its data against the prior and the joints as the subset
+    did, without the subset's sampling noise (:data:`WEIGHTED_POOL`).
     """
     model = check_model(model)
+    if not (np.isfinite(pass_relaxation) and 0.0 < pass_relaxation <= 1.0):
+        raise InputError(f"pass_relaxation must be in (0, 1] (1: each pass takes its own fit), got {pass_relaxation!r}")
+    if isinstance(pooled_points, bool) or not isinstance(pooled_points, (int, np.integer)) or pooled_points < 1:
+        raise InputError(f"pooled_points must be an integer >= 1 (the depth points of one Eq. 2 fit), "
+                         f"got {pooled_points!r}")
     unpose_posture_bones = tuple(unpose_posture_bones)
     unknown = sorted(set(unpose_posture_bones) - set(model.bone_names))
     if unknown:
@@ -620,7 +651,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         posture = session_posture(body.skeleton, refined_poses, unpose_posture_bones) \
             if unpose_posture_bones and refined_poses else None
         refined_poses = []
-        pooled, matches, seen, joints0 = [], [], [], []
+        pooled, matches, seen, joints0, keys = [], [], [], [], []
         plan = None
         if pass_ > 0 and unpose_refine_steps > 0 and depth_camera is not None:
             from bodystudio.mirror.refine import refine_plan
@@ -639,6 +670,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             if ok.sum() >= MIN_POINTS:
                 pooled.append(cloud.points[ok])
                 matches.append(cloud.correspondence[ok])
+                keys.append(np.random.default_rng([POOL_KEY_SEED, int(o.frame)]).random(len(ok))[ok])
                 seen.append(cloud.candidates)
                 if pass_ > 0 and o.version == obs[0][0].version:
                     joints0.append(unposed_kinect_joints(o.joints, o.tracked, cloud.body.skeleton, cloud.pose,
@@ -647,15 +679,20 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             raise InputError("no frame's depth points lie on a body fitted to the Kinect joints: "
                              "check that the depth and the joints come from the same sensor calibration")
         P0, k0 = np.concatenate(pooled), np.concatenate(matches)
-        if len(P0) > MAX_POOLED_POINTS:
-            pick = rng.choice(len(P0), MAX_POOLED_POINTS, replace=False)
+        point_weight = 1.0
+        if len(P0) > pooled_points and weighted_pool:
+            point_weight = pooled_points / len(P0)
+        elif len(P0) > pooled_points:
+            pick = np.sort(np.argsort(np.concatenate(keys), kind="stable")[:pooled_points]) if fixed_pool \
+                else rng.choice(len(P0), pooled_points, replace=False)
             P0, k0 = P0[pick], k0[pick]
-        coeffs, residual = fit_shape(P0, model, coeffs, candidates=np.unique(np.concatenate(seen)), correspondence=k0,
+        fitted, residual = fit_shape(P0, model, coeffs, candidates=np.unique(np.concatenate(seen)), correspondence=k0,
                                      iterations=ICP_ITERATIONS[min(pass_, len(ICP_ITERATIONS) - 1)],
                                      joints_default=np.array(joints0) if joints0 else None,
                                      joint_weight=joint_weight, version=obs[0][0].version, trim_m=trim_m,
                                      point_sigma_m=point_sigma_m, return_residual=True, bone_lengths=bone_lengths,
-                                     bone_length_weight=length_weight)
+                                     bone_length_weight=length_weight, point_weight=point_weight)
+        coeffs = coeffs + pass_relaxation * (fitted - coeffs) if pass_ > 0 else fitted
         skeleton = refit_skeleton(model, coeffs)
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,
                          vertex_ids=model.vertex_ids)
