@@ -38,3 +38,10 @@ def test_an_unknown_frame_choice_is_refused_by_name(bad):
     with pytest.raises(InputError, match=rf"^frame_choice must be 'first' or 'spread', got {bad!r}$"):
         init_mod.initialise_from_observations(_observations([MAX_POINTS] * 3), _model_2k(), passes=1,
                                               frame_choice=bad)
+
+
+def test_first_ranks_by_point_count_then_by_order(monkeypatch):
+    """5 frames of half MAX_POINTS, then 20 that reach it: "first" leaves out the 5 smaller ones and of the 20 tied
+    ones keeps the first 15 (a stable ranking): frames 5..19."""
+    obs = _observations([MAX_POINTS // 2] * 5 + [MAX_POINTS + 100] * 20)
+    assert _fitted(monkeypatch, obs) == [3 * i for i in range(5, 20)]
