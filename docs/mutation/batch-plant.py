@@ -2,11 +2,11 @@
 ``@contextlib.contextmanager`` generator: mutmut gives it no mutant) and the module constants the client uses."""
 # usage (from the repository root): python docs/mutation/batch-plant.py [TEST ...]
 import os
-import shutil
-import subprocess
 import sys
 
-src_root = os.getcwd()
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from plant import replay  # noqa: E402
+
 work = "/work/wt-mutFF-work/batch-plant"
 F = "bodystudio/batch.py"
 mutants = [
@@ -39,21 +39,4 @@ mutants = [
     ('"OMP_NUM_THREADS": "1"', '"OMP_NUM_THREADS": "2"', "OpenMP not pinned"),
 ]
 tests = sys.argv[1:] or ["tests/batch/test_batch_units_mutants.py"]
-if os.path.exists(work):
-    shutil.rmtree(work)
-os.makedirs(work)
-for d in ("bodystudio", "tests"):
-    shutil.copytree(os.path.join(src_root, d), os.path.join(work, d), ignore=shutil.ignore_patterns("__pycache__"))
-shutil.copy2(os.path.join(src_root, "pyproject.toml"), work)
-clean = open(os.path.join(work, F)).read()
-killed = 0
-for old, new, name in [("CONNECT_TIMEOUT_S", "CONNECT_TIMEOUT_S", "clean")] + mutants:
-    assert clean.count(old) >= 1, name
-    open(os.path.join(work, F), "w").write(clean.replace(old, new, 1))
-    r = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests], cwd=work,
-                       capture_output=True, text=True, env={**os.environ, "PYTHONPATH": work})
-    first = next((ln for ln in r.stdout.splitlines() if ln.startswith("FAILED")), "")
-    killed += bool(r.returncode) and name != "clean"
-    print(f"{name}: {'killed' if r.returncode else 'survived'} {first[:150]}", flush=True)
-open(os.path.join(work, F), "w").write(clean)
-print(f"{killed} / {len(mutants)} killed")
+replay(F, mutants, tests, work, unique=False)
