@@ -670,7 +670,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             if ok.sum() >= MIN_POINTS:
                 pooled.append(cloud.points[ok])
                 matches.append(cloud.correspondence[ok])
-                keys.append(np.random.default_rng([POOL_KEY_SEED, int(o.frame)]).random(len(ok))[ok])
+                if fixed_pool:  # each point's fixed key (the option's; off: no keys drawn)
+                    keys.append(np.random.default_rng([POOL_KEY_SEED, int(o.frame)]).random(len(ok))[ok])
                 seen.append(cloud.candidates)
                 if pass_ > 0 and o.version == obs[0][0].version:
                     joints0.append(unposed_kinect_joints(o.joints, o.tracked, cloud.body.skeleton, cloud.pose,
