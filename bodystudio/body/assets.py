@@ -134,7 +134,9 @@ def _cache_problem(folder: Path) -> str | None:
         files = data["files"]
         hashes = data.get("file_sha256")
         mtimes = data.get("verified_mtime_ns", {})
-    except (json.JSONDecodeError, KeyError, TypeError, OSError, UnicodeDecodeError):
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError, OSError, UnicodeDecodeError):
+        return "unreadable manifest"
+    if not (isinstance(files, dict) and isinstance(hashes, dict | None) and isinstance(mtimes, dict)):
         return "unreadable manifest"
     stale = []
     for rel, size in files.items():
@@ -234,7 +236,16 @@ def _read_target(path: Path) -> np.ndarray:
     rows = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not rows:
         return np.zeros((0, 4))
-    return np.loadtxt(rows, dtype=np.float64, ndmin=2)
+    try:
+        table = np.loadtxt(rows, dtype=np.float64, ndmin=2)
+    except ValueError as exc:
+        table, why = None, str(exc).splitlines()[0]
+    else:
+        why = f"{table.shape[1]} numbers a row"
+    if table is None or table.shape[1] != 4:
+        raise AssetError(f"{path}: not a MakeHuman target (rows of a vertex index and an x y z offset; {why}); "
+                         "delete the asset cache and rerun 'make setup'")
+    return table
 
 
 def compile_targets(data_dir: Path, out: Path) -> None:
