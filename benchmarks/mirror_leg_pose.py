@@ -1,10 +1,10 @@
 """Where the run's leg pose goes wrong on a mirror session, and what the true legs would buy (mir12aa).
 
-Usage: PYTHONPATH=. python benchmarks/mirror_leg_pose.py [--stride 2] [--out DIR] [--untwist-feet] SESSION [...]
+Usage: PYTHONPATH=. python benchmarks/mirror_leg_pose.py [--stride 2] [--out DIR] [--feet-twisted] SESSION [...]
 
 Per synthetic mirror session (with ``gt/mirror``): ``run_mirror`` as ``mirror_refine_end_to_end.py --runs refine``
-does (every tracked frame, ramp 0; ``--untwist-feet``: with ``run.UNTWIST_FEET``), recording each frame's untwisted IK
-pose and the pose the bodies are posed with (refined, upright root); then
+does (every tracked frame, ramp 0; ``--feet-twisted``: ``run.UNTWIST_FEET`` off, the run before mir12aa),
+recording each frame's untwisted IK pose and the pose the bodies are posed with (refined, upright root); then
 
 * per leg bone (thighs, calves, feet) the swing and twist error (degrees) of the IK and of the run's pose against
   the true pose, over all frames, the frames side-on to the sensor (the true root's yaw within 25 degrees of 90)
@@ -176,7 +176,8 @@ def main() -> None:
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--stride", type=int, default=2, help="every n-th recorded frame is replayed with the swaps")
     parser.add_argument("--out", type=Path, default=None, help="folder for the run folders (default: a temporary one)")
-    parser.add_argument("--untwist-feet", action="store_true", help="the run with run.UNTWIST_FEET (mir12aa)")
+    parser.add_argument("--feet-twisted", action="store_true",
+                        help="the run with run.UNTWIST_FEET off (the IK's warm-started foot twist, before mir12aa)")
     args = parser.parse_args()
     if args.stride < 1:
         parser.error(f"--stride {args.stride}: give 1 or more")
@@ -194,7 +195,7 @@ def main() -> None:
         for path, session, body in opened:
             run_dir = out / f"{path.name}_legs"
             record: dict = {}
-            run_module.UNTWIST_FEET = args.untwist_feet or feet
+            run_module.UNTWIST_FEET = feet and not args.feet_twisted
             try:
                 with recorded_poses(record):
                     run_mirror(session, session.metadata["edits"], None, side_by_side=False, progress=False,

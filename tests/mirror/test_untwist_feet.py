@@ -1,6 +1,6 @@
 """The feet's twist in the run's IK (mir12aa): the IK, warm-started frame to frame, turns each foot by the smallest
 rotation onto its new direction (ankle to FootLeft / FootRight), so a foot swinging round a loop gathers twist as the
-limbs did before MIR12p; ``run.UNTWIST_FEET`` untwists the feet too (``track.UNTWIST_FEET_BONES``)."""
+limbs did before MIR12p; ``run.UNTWIST_FEET`` (on by default) untwists the feet too (``track.UNTWIST_FEET_BONES``)."""
 
 import numpy as np
 import pytest
@@ -54,11 +54,12 @@ def _foot_loop(skeleton, side="l", cone_deg=20.0, loops=3, frames=91):
     return truth
 
 
-def test_the_feet_are_untwisted_only_when_asked(monkeypatch):
+def test_the_run_untwists_the_feet_by_default(monkeypatch):
     assert UNTWIST_FEET_BONES == ("foot_l", "foot_r")
-    assert run_mod.UNTWIST_FEET is False and run_mod.untwist_bones() == run_mod.UNTWIST_BONES == UNTWIST_BONES
-    monkeypatch.setattr(run_mod, "UNTWIST_FEET", True)
+    assert run_mod.UNTWIST_FEET is True and run_mod.UNTWIST_BONES == UNTWIST_BONES
     assert run_mod.untwist_bones() == UNTWIST_BONES + ("foot_l", "foot_r")
+    monkeypatch.setattr(run_mod, "UNTWIST_FEET", False)  # the run before mir12aa
+    assert run_mod.untwist_bones() == UNTWIST_BONES
 
 
 def test_untwisting_the_feet_moves_no_joint_and_keeps_the_toes(skeleton):
