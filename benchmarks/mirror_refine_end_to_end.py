@@ -12,7 +12,8 @@ bodies registered to the outline, ``run.REGISTER_OUTLINE_ONE_PLAYER``; ``refine-
 running mean posture of spine_02, neck_01 and head, ``run.POSTURE_BONES``, MIR12q; ``refine-registered-posture``: both
 options, MIR12r; ``refine-root-kept``: the target skeleton keeps the source's root, ``reshape.TARGET_ROOT = "source"``,
 before MIR12s; ``refine-upright``: the bodies posed with an upright root, ``run.UPRIGHT_ROOT``, MIR12s;
-``refine-root-kept-upright``: both), then
+``refine-root-kept-upright``: both; ``refine-untwist-feet``: the feet untwisted too, ``run.UNTWIST_FEET``,
+mir12aa's default; ``refine-feet-twisted``: the IK's warm-started foot twist kept, before mir12aa), then
 ``evaluate_mirror`` on each; prints one JSON line per run with the scores and the per-step median milliseconds
 (wall, so only comparable at one load).
 """
@@ -57,9 +58,11 @@ def _refine_as(run: str, weights: dict | None = None):
     target_root = reshape.TARGET_ROOT
     if run in ("refine-root-kept", "refine-root-kept-upright"):  # the source's root kept (before MIR12s)
         reshape.TARGET_ROOT = "source"
+    upright, feet = run_module.UPRIGHT_ROOT, run_module.UNTWIST_FEET
     if run == "refine-twisted":  # the IK's warm-started limb twist (before MIR12p)
-        run_module.UNTWIST_BONES = ()
-    upright = run_module.UPRIGHT_ROOT
+        run_module.UNTWIST_BONES, run_module.UNTWIST_FEET = (), False
+    if run in ("refine-untwist-feet", "refine-feet-twisted"):  # the IK's feet untwisted as its limbs or not (mir12aa)
+        run_module.UNTWIST_FEET = run == "refine-untwist-feet"
     if run in ("refine-upright", "refine-root-kept-upright"):  # the root's tilt moved into the pelvis (MIR12s)
         run_module.UPRIGHT_ROOT = True
     if run in ("refine-registered", "refine-registered-posture"):  # the bodies registered to the outline (MIR12p)
@@ -77,7 +80,7 @@ def _refine_as(run: str, weights: dict | None = None):
         run_module.UNTWIST_BONES, run_module.REGISTER_OUTLINE_ONE_PLAYER = untwist, register
         run_module.POSTURE_BONES = posture
         reshape.TARGET_ROOT = target_root
-        run_module.UPRIGHT_ROOT = upright
+        run_module.UPRIGHT_ROOT, run_module.UNTWIST_FEET = upright, feet
 
 
 def main() -> None:
@@ -92,7 +95,7 @@ def main() -> None:
                         choices=["ik", "refine", "refine-no-trunk", "refine-2-steps", "refine-no-edge",
                                  "refine-before-mir12h", "refine-weights", "refine-twisted", "refine-registered",
                                  "refine-posture", "refine-registered-posture", "refine-root-kept", "refine-upright",
-                                 "refine-root-kept-upright"],
+                                 "refine-root-kept-upright", "refine-untwist-feet", "refine-feet-twisted"],
                         help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
                              "or with two Gauss-Newton steps, or without the warp's edge clamp (MIR12g's A/Bs)")
     parser.add_argument("--weights", default="", help="refine-weights: RefineWeights fields, e.g. depth_samples=2000")

@@ -104,6 +104,17 @@ POSTURE_WINDOW = 30
 #: The limbs whose twist each frame's IK pose drops before the refinement and the bodies
 #: (:func:`bodystudio.mirror.track.untwisted_pose`; () keeps the IK's warm-started twist, as before MIR12p).
 UNTWIST_BONES = _track.UNTWIST_BONES
+#: True: the feet are untwisted too (:data:`bodystudio.mirror.track.UNTWIST_FEET_BONES`, after UNTWIST_BONES): the
+#: IK's warm-started foot twist drifts on a walk as the limbs' did before MIR12p. mir12aa: the feet's twist error on
+#: the ten walking sessions 4.2 -> 1.6 degrees, warp_iou 52 / 57 (tuning) +0.0002 / +0.0001, +0.0000 to +0.0007 on the
+#: 14 held-out sessions but 43 (-0.00001), 48 (240 frames) the most; 0.02 ms a frame and actor (docs/mirror.md).
+UNTWIST_FEET = True
+
+
+def untwist_bones() -> tuple[str, ...]:
+    """The bones each frame's IK pose is untwisted at in the run: :data:`UNTWIST_BONES`, plus the feet with
+    :data:`UNTWIST_FEET`."""
+    return tuple(UNTWIST_BONES) + (_track.UNTWIST_FEET_BONES if UNTWIST_FEET else ())
 #: True: the bodies are posed with the root turned about the vertical only, its tilt moved into the pelvis
 #: (:func:`bodystudio.mirror.track.upright_root`: the source's posed vertices stay, the target's no longer turn with
 #: the root's tilt, a gauge of the source fit). MIR12s: end to end 52 0.9287 -> 0.9338, 41 / 42 / 43 +0.0005 /
@@ -703,7 +714,8 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
             try:
                 pose = ik_pose(a.body.skeleton, tracked.positions, tracked.tracked, sensor.version,
                                previous=a.previous)
-                poses.append(untwisted_pose(a.body.skeleton, pose, UNTWIST_BONES) if UNTWIST_BONES else pose)
+                untwist = untwist_bones()
+                poses.append(untwisted_pose(a.body.skeleton, pose, untwist) if untwist else pose)
             except BodyStudioError as exc:
                 warning = f"tracking failed: {exc}" if not several else f"tracking player {a.player} failed: {exc}"
                 break

@@ -667,6 +667,11 @@ def skin_source_and_target(source_vertices: np.ndarray, target_vertices: np.ndar
 #: walking left arm drifted from -4 to -25 degrees of twist in 84 frames, a long live run without bound).
 UNTWIST_BONES = ("upperarm_l", "lowerarm_l", "upperarm_r", "lowerarm_r", "thigh_l", "calf_l", "thigh_r", "calf_r")
 
+#: The feet, which the IK turns the same way (one Kinect target each, FootLeft / FootRight, warm-started): on the
+#: walking sessions their twist drifts as the limbs' did (mir12aa: session 52's right foot 7.7 degrees off the truth's
+#: twist on average, up to 14; 1.3 on average untwisted). ``run.UNTWIST_FEET`` adds them to the run's untwisting.
+UNTWIST_FEET_BONES = ("foot_l", "foot_r")
+
 
 def untwisted_pose(skeleton: Skeleton, pose: Pose, bones=UNTWIST_BONES) -> Pose:
     """``pose`` with each of ``bones`` turned about its own axis to no twist against its parent: its local rotation

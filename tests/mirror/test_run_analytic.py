@@ -333,6 +333,7 @@ class _Frames:
     def __init__(self, spec):
         self.spec = spec  # index -> dict(kind=..., ...)
         self.ik_calls, self.bodies = [], []
+        self.untwisted_with = set()  # the bone lists the run untwists the IK's poses at
 
     def read(self, session, i):
         s = self.spec[i]
@@ -416,7 +417,8 @@ def _session_inputs(monkeypatch, spec, ramp_frames=3, fail=(), frames=None, play
     monkeypatch.setattr(track_mod, "ik_pose", f.ik)
 
     def untwisted(skeleton, pose, bones):  # MIR12p: the IK's limbs untwisted on the body's skeleton, marked "u"
-        assert skeleton == "sk" and bones == run_mod.UNTWIST_BONES
+        assert skeleton == "sk"
+        f.untwisted_with.add(tuple(bones))
         return "u" + pose
 
     monkeypatch.setattr(track_mod, "untwisted_pose", untwisted)
@@ -469,12 +471,29 @@ def test_session_inputs_warn_per_frame_and_ramp_the_edit(monkeypatch):
     assert ok[0].dst_uv[0, 0] == pytest.approx(4.0) and ok[0].src_uv[0, 0] == 1.0
     np.testing.assert_array_equal(ok[0].depth_color, np.full((CH, CW), 0.8))
     assert all(o.dense == "dense" for o in ok)  # the default correspondence is the dense one, passed on
-    # the IK is warm-started from the last successful pose, untwisted
+    # the IK is warm-started from the last successful pose, untwisted at the run's limbs (MIR12p)
     assert f.ik_calls == [(4.0, None), (5.0, "upose4"), (6.0, "upose5"), (7.0, "upose5"), (8.0, "upose7")]
+    assert f.untwisted_with == {run_mod.UNTWIST_BONES + ("foot_l", "foot_r")}  # and the feet (mir12aa)
     # masks: the person, the other players
     assert out[4].person_mask.sum() == 16 and out[4].others_mask.sum() == 4
     assert not (out[4].person_mask & out[4].others_mask).any()
     assert out[4].rgb[0, 0, 0] == 4 and set(out[4].timings_ms) == {"read", "register", "ik", "bodies", "pairs"}
+
+
+def test_session_inputs_untwist_the_feet_unless_told_not_to(monkeypatch):
+    """mir12aa: ``run.UNTWIST_FEET`` (on by default) adds the feet to the limbs each IK pose is untwisted at."""
+    from bodystudio.mirror import track as track_mod
+
+    assert run_mod.UNTWIST_FEET is True
+    _, f = _session_inputs(monkeypatch, {0: {}, 1: {}}, ramp_frames=1)
+    assert f.untwisted_with == {run_mod.UNTWIST_BONES + track_mod.UNTWIST_FEET_BONES}
+    assert f.ik_calls == [(0.0, None), (1.0, "upose0")]
+    monkeypatch.setattr(run_mod, "UNTWIST_BONES", ())  # the feet alone
+    _, f = _session_inputs(monkeypatch, {0: {}}, ramp_frames=1)
+    assert f.untwisted_with == {("foot_l", "foot_r")}
+    monkeypatch.setattr(run_mod, "UNTWIST_FEET", False)  # neither: the IK's pose as it is
+    _, f = _session_inputs(monkeypatch, {0: {}, 1: {}}, ramp_frames=1)
+    assert f.untwisted_with == set() and f.ik_calls == [(0.0, None), (1.0, "pose0")]
 
 
 def test_session_inputs_ramp_zero_and_unreadable_frames(monkeypatch):
