@@ -19,8 +19,9 @@ unposing of those bones is worth. ``--shadow DIR --name NAME.npz`` writes the or
 the default init's) as ``DIR/<session>/mirror/NAME.npz`` in a shadow of the session
 (``mirror_init_variants.shadow_session``: nothing is written into the session), for
 ``benchmarks/mirror_refine_end_to_end.py --runs refine --source NAME.npz --out OUT DIR/<session>``.
-Example (docs/mirror.md, mir12z): ``--true-swing calf_l calf_r --shadow W --name calves.npz S57``: 57's posed error
-15.4 -> 4.6 mm, mass +3.30 -> +1.12 kg, end to end 0.9464 -> 0.9539.
+Example (docs/mirror.md, mir12z): ``S57 --true-swing calf_l calf_r --shadow W --name calves.npz`` (the sessions
+first: ``--true-swing`` takes every name after it): 57's posed error 15.4 -> 4.6 mm, mass +3.30 -> +1.12 kg, end to
+end 0.9464 -> 0.9539.
 """
 
 from __future__ import annotations
