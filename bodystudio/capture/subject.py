@@ -78,9 +78,10 @@ class SubjectFollower:
     lost, and two crossing actors can swap ids); where none is that near, the body holding the subject's current id,
     when ``step_m`` is None (the behaviour of reconstruct and muscle capture) or it lies within
     ``max(follow_m, jump_m) + step_m * missed`` of the last joints (``missed``: frames since the subject was last
-    seen), and never one within ``follow_m`` of another person's joints in the frame before (``others``: the SDK gave
-    that person the subject's id while the subject was lost; rel6b: reconstruct and muscle capture, which take the
-    id holder at any distance, followed the bystander from then on);
+    seen), and never one within ``follow_m`` of another person's joints in the frame before (``others``: a body of
+    another id, followed as long as it stays; the SDK gave that person the subject's id while the subject was lost;
+    rel6b: reconstruct and muscle capture, which take the id holder at any distance, followed the bystander from then
+    on);
     otherwise the frame has no subject (None). ``player`` follows the id the subject holds, ``last`` its last
     tracked body."""
 
@@ -114,8 +115,12 @@ class SubjectFollower:
         return near
 
     def see_others(self, bodies: Sequence[dict], mine: dict | None) -> None:
-        """Remember this frame's bodies other than the subject's (``mine``) for :meth:`candidates` in the next."""
-        self.others = [b for b in bodies if b is not mine]
+        """Remember this frame's other people for :meth:`candidates` in the next: the bodies other than the subject's
+        (``mine``) that hold another id, or stand where another person stood a frame before (a body refused only for
+        the speed limit while holding the subject's id may be the subject coming back: not marked)."""
+        prev = self.others
+        self.others = [b for b in bodies if b is not mine and (b["player"] != self.player or any(
+            body_distance_m(b, o) <= self.follow_m for o in prev))]
 
     def take(self, body: dict | None) -> dict | None:
         """Record this frame's subject (None: not found) and return it."""

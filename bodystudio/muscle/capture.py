@@ -1119,15 +1119,17 @@ def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
     from bodystudio.capture.subject import follow_subject, frame_bodies
 
     want = TRACKER_JOINTS[side]
-    rows, gaps = [], []
+    rows, gaps, absent = [], [], {}
     # the first frame's person, followed (a second person coming into view with a lower player id is not taken)
-    subject = follow_subject(frame_bodies(session.frame(fid)) for fid in ids)
-    for fid, joints in zip(ids, subject, strict=True):
+    bodies = [frame_bodies(session.frame(fid)) for fid in ids]
+    for fid, joints, others in zip(ids, follow_subject(bodies), bodies, strict=True):
         arm = None
         if joints is not None and all(n in joints["names"] for n in want):
             arm = np.asarray(joints["positions"], np.float64)[[joints["names"].index(n) for n in want]]
         if arm is None or not np.all(np.isfinite(arm)):
             gaps.append(fid)
+            if joints is None and others:  # people tracked, the subject not among them
+                absent[fid] = sorted(b["player"] for b in others)
         else:
             rows.append(arm)
     if not rows:
@@ -1135,6 +1137,13 @@ def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
     if gaps:
         before = list(ids).index(gaps[0])
         fix = f", or capture the {before} frames before it (--frames {before})" if before else ""
+        if gaps[0] in absent:  # rel6b: the tracker gave the lost subject's id to someone else
+            players = absent[gaps[0]]
+            raise SessionError(f"{Path(session.path) / stream_path('kinect_joints', gaps[0])}: the capture's subject "
+                               f"(the first frame's person, followed by its joints) is not tracked in {len(gaps)} of "
+                               f"{len(ids)} frames (first {gaps[0]}, where the tracker reports "
+                               f"player{'s' if len(players) > 1 else ''} {', '.join(map(str, players))}: another "
+                               f"person); the arm capture needs the subject in every frame{fix}")
         raise SessionError(f"{Path(session.path) / stream_path('kinect_joints', gaps[0])}: the body tracker's "
                            f"{', '.join(want)} are missing or null in {len(gaps)} of {len(ids)} frames (first "
                            f"{gaps[0]}); the arm capture needs them in every frame or in none: re-export the joints "

@@ -43,14 +43,15 @@ def _body(player, x=0.0):
 SUBJECT_X, BYSTANDER_X = 0.0, 0.85
 
 
-def _frames(case, n=6, at=3):
-    """Bodies per frame: subject player 1 and bystander player 2, from ``at`` on the ``case``."""
+def _frames(case, n=6, at=3, lost=1):
+    """Bodies per frame: subject player 1 and bystander player 2, from ``at`` on the ``case`` (``lost``: the subject
+    not tracked in ``lost`` frames from ``at``)."""
     out = []
     for f in range(n):
         subject, bystander = _body(1, SUBJECT_X + 0.01 * f), _body(2, BYSTANDER_X)
         if case in ("swap", "lost") and f >= at:
             subject["player"], bystander["player"] = 2, 1
-        out.append([bystander] if case == "lost" and f == at else [subject, bystander])
+        out.append([bystander] if case == "lost" and at <= f < at + lost else [subject, bystander])
     return out
 
 
@@ -64,6 +65,8 @@ def test_the_follower_never_takes_a_bystander_given_the_lost_subjects_id():
     xs = [_x(b) for b in S.follow_subject(_frames("lost"))]
     assert xs == [0.0, 0.01, 0.02, None, 0.04, 0.05]
     assert S.subject_players(_frames("lost")) == [1, 1, 1, None, 2, 2]
+    # lost for two frames: the bystander is followed as the other person (it stands where it stood)
+    assert [_x(b) for b in S.follow_subject(_frames("lost", lost=2))] == [0.0, 0.01, 0.02, None, None, 0.05]
     # a swap while both are tracked: followed by the joints (held, rel6a)
     assert [_x(b) for b in S.follow_subject(_frames("swap"))] == [0.0, 0.01, 0.02, 0.03, 0.04, 0.05]
     # one person whose skeleton jumps 2 m under its id (a tracker glitch): still the id holder at any distance, as
@@ -113,8 +116,10 @@ def test_the_arm_capture_refuses_the_frame_without_its_subject():
     from bodystudio.muscle.capture import session_arm_tracker
 
     s = _Session(_frames("lost"), path=Path("S"))
-    with pytest.raises(SessionError, match=r"^S/kinect/joints/00003.json: the body tracker's ShoulderLeft, ElbowLeft, "
-                       r"WristLeft are missing or null in 1 of 6 frames \(first 3\)"):
+    with pytest.raises(SessionError, match=r"^S/kinect/joints/00003.json: the capture's subject \(the first frame's "
+                       r"person, followed by its joints\) is not tracked in 1 of 6 frames \(first 3, where the tracker "
+                       r"reports player 1: another person\); the arm capture needs the subject in every frame, or "
+                       r"capture the 3 frames before it \(--frames 3\)$"):
         session_arm_tracker(s, s.frame_ids, "left")
     arm = session_arm_tracker(_Session(_frames("swap")), list(range(6)), "left")
     assert np.allclose(np.median(arm[:, :, 0], axis=1), 0.01 * np.arange(6))
