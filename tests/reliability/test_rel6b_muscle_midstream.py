@@ -53,3 +53,23 @@ def test_a_depth_map_of_another_size_names_its_file(scene):
     with pytest.raises(InputError, match=r"^S/kinect/depth/00011.png: depth map is 256x212 but the depth camera "):
         capture_arm_frames([plate, half], camera, template, None, CaptureOptions(mode="nicp"), frame_ids=[10, 11],
                            depth_sources=["S/kinect/depth/00010.png", "S/kinect/depth/00011.png"])
+
+
+def test_a_killed_captures_staging_folder_is_removed_by_the_next_capture(tmp_path):
+    """SIGKILL during the write left ``.OUT.staging-PID`` beside the output for ever (audit: the kill left no output,
+    the rerun captured); the next write into that place removes it, and leaves a running writer's alone."""
+    import os
+    import subprocess
+    import sys
+
+    from bodystudio.muscle.export import staged_output_folder
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    killed = tmp_path / f".capture.staging-{int(dead.stdout)}"
+    running = tmp_path / f".capture.staging-{os.getppid()}"
+    for folder in (killed, running):
+        folder.mkdir()
+        (folder / "meshes").mkdir()
+    with staged_output_folder(tmp_path / "capture") as stage:
+        (stage / "params.json").write_text("{}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["capture", running.name])
