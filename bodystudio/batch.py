@@ -182,7 +182,7 @@ def resolve_scheduler(scheduler: str | None, workers: int | None) -> str | None:
         raise InputError("--scheduler and --workers: give one (--workers starts a local cluster)")
     if address is not None and workers is not None:
         return None  # --workers asks for a local cluster over the environment's address
-    if address is not None and not re.fullmatch(r"(tcp|tls|inproc|ucx|ws|wss)://[^\s/]+(:\d+)?/?", address):
+    if address is not None and not _SCHEDULER_ADDRESS.fullmatch(address):
         src = "--scheduler" if scheduler else f"${ENV_SCHEDULER}"
         raise InputError(f"{src} {address!r}: not a scheduler address; give tcp://HOST:PORT (e.g. tcp://10.0.0.5:8786)")
     return address
@@ -385,11 +385,17 @@ def chunk_frames(frames: list[int], chunk: int) -> list[list[int]]:
     return [frames[i:i + chunk] for i in range(0, len(frames), chunk)]
 
 
+#: A Dask scheduler address: PROTOCOL://HOST[:PORT][/]. The host has no ':' outside IPv6 brackets and no control
+#: character, the port ASCII digits: before (rel6b) ``[^\s/]+(:\d+)?`` let the host take ``host:٨٧٨٦`` (a port
+#: in other digits) and a NUL, which reached dask.
+_SCHEDULER_ADDRESS = re.compile(r"(tcp|tls|inproc|ucx|ws|wss)://(\[[0-9A-Fa-f:.]+\]|[^\s/:\x00-\x1f\x7f]+)(:[0-9]+)?/?")
+
+
 def chunk_name(frames: list[int]) -> str:
     return f"{frames[0]:05d}-{frames[-1]:05d}"
 
 
-_FRAME_NUMBER = re.compile(r"(?<!\d)(\d{5})(?!\d)")
+_FRAME_NUMBER = re.compile(r"(?<![0-9])([0-9]{5})(?![0-9])")
 
 
 def chunk_inputs_sha256(session_files: dict[str, str], all_frames: list[int], frames: list[int],

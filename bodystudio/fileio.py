@@ -27,6 +27,13 @@ from bodystudio.errors import FileFormatError, InputError, OutputSpaceError, dis
 log = logging.getLogger(__name__)
 
 
+def is_frame_number(text: str) -> bool:
+    """Whether ``text`` (a file stem) is a frame number: ASCII digits only. ``str.isdigit`` also accepts '²'
+    (which ``int`` then refuses with a traceback) and other scripts' digits ('٠٠٠٠١', which ``int`` reads as 1:
+    a second file for frame 1, silently taken instead of ``00001.png``) (rel6b)."""
+    return text.isascii() and text.isdigit()
+
+
 def _umask_mode() -> int:
     """Permissions a plain ``open(path, "w")`` would give (mkstemp's temp files are 0600)."""
     mask = os.umask(0)

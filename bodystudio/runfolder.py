@@ -119,6 +119,11 @@ def _process_alive(pid: int) -> bool:
     return True
 
 
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine (a zombie, killed and not yet reaped, does not)."""
+    return _process_alive(int(pid))
+
+
 def read_lock(path: Path) -> dict | None:
     """The lock's holder ``{pid, host, start, command, since}``, or None for a missing or unreadable lock."""
     try:

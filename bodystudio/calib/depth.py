@@ -23,6 +23,7 @@ from bodystudio.calib.board import CharucoBoardSpec, board_corners
 from bodystudio.calib.render import board_pose_facing, render_board_depth, render_board_view, visible_corners, write_png
 from bodystudio.calib.world import rigid, rigid_inverse, rvec_t_to_rigid
 from bodystudio.errors import SessionError
+from bodystudio.fileio import is_frame_number
 from bodystudio.geometry.camera import Camera, RGBDSensor
 
 log = logging.getLogger(__name__)
@@ -257,7 +258,7 @@ def detect_rgbd_capture(folder, spec: CharucoBoardSpec, min_corners: int = 6) ->
         raise SessionError(f"{folder}: no kinect/rgb and kinect/depth folders; record the boards with the Kinect too")
     frames, views = [], []
     for rgb in sorted(rgb_dir.glob("*.png")):
-        if not rgb.stem.isdigit():
+        if not is_frame_number(rgb.stem):
             continue
         depth_path = depth_dir / rgb.name
         if not depth_path.is_file():

@@ -15,6 +15,7 @@ import numpy as np
 
 from bodystudio.calib.board import CharucoBoardSpec, detect_charuco, read_image_grey
 from bodystudio.errors import SessionError
+from bodystudio.fileio import is_frame_number
 
 log = logging.getLogger(__name__)
 
@@ -96,7 +97,7 @@ def capture_images(folder: str | os.PathLike) -> dict[str, dict[int, Path]]:
     for sub in sorted(p for p in folder.iterdir() if p.is_dir() and p.name not in ("gt",)):
         frames = {}
         for img in sorted(sub.iterdir()):
-            if img.suffix.lower() in IMAGE_SUFFIXES and img.stem.isdigit():
+            if img.suffix.lower() in IMAGE_SUFFIXES and is_frame_number(img.stem):
                 frames[int(img.stem)] = img
         if frames:
             images[sub.name] = frames

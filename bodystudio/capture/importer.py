@@ -29,6 +29,7 @@ import numpy as np
 
 from bodystudio.capture.session import Session, SessionWriter, load_kinect_calibration, open_session
 from bodystudio.errors import FileFormatError, InputError
+from bodystudio.fileio import is_frame_number
 from bodystudio.opencv_yaml import check_opencv_yaml, opencv_matrix
 
 log = logging.getLogger(__name__)
@@ -136,8 +137,15 @@ def _easymocap_rig(fi, fe, intri: Path, extri: Path, image_sizes, default_size):
         else:
             raise FileFormatError(f"{intri}: no image size for camera {name} (W_{name}/H_{name}) and no frames "
                                   "to take it from; add them or import with --images/--videos")
+        safe = _safe_name(name)
+        if safe in cams:  # 'cam 1' and 'cam_1' were one camera, the other's calibration silently dropped
+            other = next(n for n in names if _safe_name(n) == safe)
+            if other == name:
+                raise FileFormatError(f"{intri}: camera {name!r} is listed twice in 'names'; list each camera once")
+            raise FileFormatError(f"{intri}: cameras {other!r} and {name!r} both become {safe!r} as folder names; "
+                                  "rename one (letters, digits, _ . -)")
         try:
-            cams[_safe_name(name)] = check_intrinsics(Camera(_safe_name(name), K, dist, R, T, *size))
+            cams[safe] = check_intrinsics(Camera(safe, K, dist, R, T, *size))
         except InputError as exc:
             raise FileFormatError(f"{intri}: {exc}") from None
     if not cams:
@@ -195,8 +203,14 @@ def _write_extri(fs, cam):
     fs.write(f"T_{cam.name}", np.asarray(cam.t)[:, None])
 
 
+#: A camera name the session format takes as a folder name (``capture.session._NAME``).
+_CAMERA_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+
+
 def _safe_name(name: str) -> str:
-    return name if re.match(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$", name) else re.sub(r"[^A-Za-z0-9_.-]", "_", name)
+    """``name`` when the session takes it as a folder name, else with every other character made '_' (a full match:
+    ``^...$`` matched ``'cam1\\n'``, which the session writer then refused; rel6b)."""
+    return name if _CAMERA_NAME.fullmatch(name) else re.sub(r"[^A-Za-z0-9_.-]", "_", name)
 
 
 # ---------------------------------------------------------------------------------------------- frame sources
@@ -215,7 +229,9 @@ def frame_order(path: Path) -> list:
     """Sort key of a frame file: its name with each run of digits compared as a number, so that a recorder's
     unpadded ``frame_9.png, frame_10.png`` keep their order (by plain name ``frame_10`` came before ``frame_2``:
     frames out of time order, exit 0); zero-padded names sort as by plain name."""
-    return [(0, int(part), part) if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", path.name)]
+    # ASCII digits only: '²' is isdigit() but not int() (rel6b)
+    return [(0, int(part), part) if is_frame_number(part) else (1, 0, part)
+            for part in re.split(r"([0-9]+)", path.name)]
 
 
 def image_files(folder: Path) -> list[Path]:

@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 
 from bodystudio.errors import FileFormatError, SessionError
-from bodystudio.fileio import atomic_write, read_json, sha256_file
+from bodystudio.fileio import atomic_write, is_frame_number, read_json, sha256_file
 from bodystudio.runfolder import (
     OutputLockedError,
     RunLayout,
@@ -692,7 +692,7 @@ class Session:
         frame_files = {}
         for rel in self.files:
             stem = rel.rsplit("/", 1)[-1].split(".", 1)[0]
-            if stem.isdigit() and "/background/" not in rel:
+            if is_frame_number(stem) and "/background/" not in rel:
                 frame_files.setdefault(int(stem), 0)
                 frame_files[int(stem)] += 1
         for frame in self.frame_ids:

@@ -78,7 +78,10 @@ class SubjectFollower:
     lost, and two crossing actors can swap ids); where none is that near, the body holding the subject's current id,
     when ``step_m`` is None (the behaviour of reconstruct and muscle capture) or it lies within
     ``max(follow_m, jump_m) + step_m * missed`` of the last joints (``missed``: frames since the subject was last
-    seen);
+    seen), and never one within ``follow_m`` of another person's joints in the frame before (``others``: a body of
+    another id, followed as long as it stays; the SDK gave that person the subject's id while the subject was lost;
+    rel6b: reconstruct and muscle capture, which take the id holder at any distance, followed the bystander from then
+    on);
     otherwise the frame has no subject (None). ``player`` follows the id the subject holds, ``last`` its last
     tracked body."""
 
@@ -88,6 +91,7 @@ class SubjectFollower:
         self.chosen = player is not None
         self.last: dict | None = None
         self.missed = 0
+        self.others: list[dict] = []  # the other people's bodies in the frame before
 
     def candidates(self, bodies: Sequence[dict]) -> list[tuple[int, float, int]]:
         """``(tier, distance m, index)`` of the bodies that may be the subject, best first: tier 0 the bodies within
@@ -103,10 +107,20 @@ class SubjectFollower:
         holder = next((k for k, b in enumerate(bodies) if b["player"] == self.player), None)
         if holder is not None and all(k != holder for _, _, k in near):
             reach = np.inf if self.step_m is None else max(self.follow_m, self.jump_m) + self.step_m * self.missed
+            # another person where they stood a frame before, now holding the subject's id: not the subject
+            other = any(body_distance_m(bodies[holder], o) <= self.follow_m for o in self.others)
             # no joint in common with the last ones (all NaN): nothing tells it apart, the id decides
-            if dist[holder] <= reach or not np.isfinite(dist[holder]):
+            if not other and (dist[holder] <= reach or not np.isfinite(dist[holder])):
                 near.append((1, dist[holder], holder))
         return near
+
+    def see_others(self, bodies: Sequence[dict], mine: dict | None) -> None:
+        """Remember this frame's other people for :meth:`candidates` in the next: the bodies other than the subject's
+        (``mine``) that hold another id, or stand where another person stood a frame before (a body refused only for
+        the speed limit while holding the subject's id may be the subject coming back: not marked)."""
+        prev = self.others
+        self.others = [b for b in bodies if b is not mine and (b["player"] != self.player or any(
+            body_distance_m(b, o) <= self.follow_m for o in prev))]
 
     def take(self, body: dict | None) -> dict | None:
         """Record this frame's subject (None: not found) and return it."""
@@ -124,7 +138,9 @@ class SubjectFollower:
         if not self.chosen and bodies:
             self.player, self.chosen = first_player(bodies), True
         best = self.candidates(bodies)
-        return self.take(bodies[best[0][2]] if best else None)
+        mine = bodies[best[0][2]] if best else None
+        self.see_others(bodies, mine)
+        return self.take(mine)
 
 
 def follow_subjects(followers: Sequence[SubjectFollower], bodies: Sequence[dict]) -> list[dict | None]:
@@ -138,6 +154,8 @@ def follow_subjects(followers: Sequence[SubjectFollower], bodies: Sequence[dict]
         if found[j] is None and k not in used:
             found[j] = bodies[k]
             used.add(k)
+    for f, b in zip(followers, found, strict=True):
+        f.see_others(bodies, b)
     return [f.take(b) for f, b in zip(followers, found, strict=True)]
 
 

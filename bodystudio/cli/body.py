@@ -18,12 +18,15 @@ def parse_assignments(items: list[str] | None, what: str) -> dict[str, float]:
     for item in items or []:
         name, sep, value = item.partition("=")
         try:
-            if not sep or not name:
+            if not sep or not name.strip():
                 raise ValueError
-            out[name.strip()] = float(value)
+            value = float(value)
         except ValueError:
             raise InputError(f"{what} {item!r} is not NAME=VALUE with a number, "
                              "e.g. upperarm-fat-decr-incr=0.5") from None
+        if name.strip() in out:  # the last value silently won (rel6b)
+            raise InputError(f"{what} {name.strip()}: given twice; give each once")
+        out[name.strip()] = value
     return out
 
 

@@ -315,6 +315,8 @@ def _parse_shape(text: str):
         name = name.strip()
         if not eq or name not in names:
             raise InputError(f"--shape {text!r}: names are {', '.join(names)} (sex optional: male | female)")
+        if name in values:  # 'bmi=20,bmi=31' captured with BMI 31, the 20 dropped without a word (rel6b)
+            raise InputError(f"--shape {text!r}: {name} is given twice; give each once")
         if name == "sex":
             values[name] = parse_sex(value, f"--shape {text!r}")
             continue

@@ -82,18 +82,61 @@ def frame_bodies_or_none(session, i) -> list[dict]:
         return []
 
 
-def session_segment_lengths(session, player: int = 1, frames=None, max_frames: int = CHECK_FRAMES
-                            ) -> tuple[np.ndarray, str | None, int]:
+def followed_players(session, players, frames=None) -> dict[int, tuple[int | None, ...]]:
+    """The Kinect id each of ``players`` (the ids they hold at their first tracked frame) holds in each of ``frames``
+    (default the session's), followed by its joints as ``mirror run`` follows its actors
+    (:func:`bodystudio.capture.subject.follow_subjects`, the id holder within the
+    :data:`~bodystudio.capture.subject.SUBJECT_STEP_M` reach); None where an actor is not found. A frame whose joints
+    cannot be read is left out (the run passes it through without following). Joints files only (0.2 ms a frame,
+    two actors, load 12).
+
+    rel6b: the checks read player N by its id; after the SDK renumbered the actor for most of a session they measured
+    the other actor (refused a right source body, or took the other person's skeleton and mask edges)."""
+    from bodystudio.capture.subject import SUBJECT_STEP_M, SubjectFollower, follow_subjects
+
+    followers = [SubjectFollower(int(p), step_m=SUBJECT_STEP_M) for p in players]
+    out: dict[int, tuple[int | None, ...]] = {}
+    for i in (session.frame_ids if frames is None else frames):
+        try:
+            bodies = session.frame(int(i)).kinect_bodies or []
+        except BodyStudioError:
+            continue
+        # the run's record of a body (run._tracked_record), in the order it reads them (by id)
+        records = sorted(({"player": int(b["player"]), "names": b["names"], "positions": b["positions"]}
+                          for b in bodies), key=lambda b: b["player"])
+        out[int(i)] = tuple(None if f is None else int(f["player"]) for f in follow_subjects(followers, records))
+    return out
+
+
+def actor_ids(session, player: int = 1, frames=None) -> dict[int, int | None]:
+    """``{frame: the id the actor holds}`` for one actor (:func:`followed_players`)."""
+    return {i: ids[0] for i, ids in followed_players(session, [player], frames).items()}
+
+
+def _id_in_frame(i, player, tracked_as) -> int | None:
+    """The id to read in frame ``i``: the actor's followed id (``tracked_as``), else ``player`` itself."""
+    if tracked_as is None:
+        return int(player)
+    pid = tracked_as.get(int(i))
+    return None if pid is None else int(pid)
+
+
+def session_segment_lengths(session, player: int = 1, frames=None, max_frames: int = CHECK_FRAMES,
+                            tracked_as: dict[int, int | None] | None = None) -> tuple[np.ndarray, str | None, int]:
     """Per segment, the median over the session's frames of the tracked lengths of ``player``; the joint set's
     version (the first known set read; frames with an unknown or another set are skipped) and the number of
-    frames measured."""
-    ids = list(session.frame_ids if frames is None else frames)
+    frames measured. ``tracked_as`` (:func:`actor_ids`): the id the actor holds in each frame, read instead of
+    ``player`` (frames it leaves out or maps to None are skipped; ``frames`` default: its frames)."""
+    ids = list((session.frame_ids if tracked_as is None else tracked_as) if frames is None else frames)
     if len(ids) > max_frames:
         ids = [ids[int(round(k))] for k in np.linspace(0, len(ids) - 1, max_frames)]
     rows, version = [], None
     for i in ids:
+        pid = _id_in_frame(i, player, tracked_as)
+        if pid is None:
+            continue
         for body in frame_bodies_or_none(session, i):
-            if int(body["player"]) != int(player):
+            if int(body["player"]) != pid:
                 continue
             names = list(body["names"])
             v = "v2" if names == kinect_joint_names("v2") else "v1" if names == kinect_joint_names("v1") else None
@@ -109,11 +152,13 @@ def session_segment_lengths(session, player: int = 1, frames=None, max_frames: i
     return med, version, len(rows)
 
 
-def source_body_agreement(body, session, player: int = 1, frames=None) -> dict:
+def source_body_agreement(body, session, player: int = 1, frames=None,
+                          tracked_as: dict[int, int | None] | None = None) -> dict:
     """How well the source body's skeleton fits the actor the session tracks: ``mismatch`` (median over the
     segments of |log(session / source length)|), ``scale`` (median ratio: a body of another stature shows
-    here), the per-segment ``ratios`` and the ``frames`` measured. ``mismatch`` is NaN without tracked joints."""
-    seen, version, n = session_segment_lengths(session, player, frames)
+    here), the per-segment ``ratios`` and the ``frames`` measured. ``mismatch`` is NaN without tracked joints.
+    ``tracked_as``: the actor's id per frame (:func:`actor_ids`; None: ``player`` by its id)."""
+    seen, version, n = session_segment_lengths(session, player, frames, tracked_as=tracked_as)
     if version is None or n == 0:
         return {"mismatch": float("nan"), "scale": float("nan"), "ratios": {}, "frames": 0}
     mine = source_segment_lengths(body.skeleton, version)
@@ -126,14 +171,17 @@ def source_body_agreement(body, session, player: int = 1, frames=None) -> dict:
             "ratios": {k: float(r) for k, r in zip(names, ratio, strict=True)}, "frames": n}
 
 
-def check_source_body(body, session, player: int = 1, accept_implausible: bool = False, source=None) -> dict:
+def check_source_body(body, session, player: int = 1, accept_implausible: bool = False, source=None,
+                      tracked_as: dict[int, int | None] | None = None) -> dict:
     """:func:`source_body_agreement` as ``mirror run``'s verdict (``ok``, ``warnings``, ``problems``); raises
     :class:`~bodystudio.errors.ImplausibleResultError` (one line: the source file and the fix) on a body of
     another person unless ``accept_implausible``. A session without tracked joints of ``player`` is judged
-    elsewhere (the run refuses it), so it passes here with ``mismatch`` NaN."""
-
-
-    report = source_body_agreement(body, session, player)
+    elsewhere (the run refuses it), so it passes here with ``mismatch`` NaN. The actor is ``player`` at its first
+    tracked frame, followed as the run follows it (``tracked_as``, default :func:`actor_ids` over the session)."""
+    if tracked_as is None:
+        tracked_as = actor_ids(session, player)
+    report = source_body_agreement(body, session, player, tracked_as=tracked_as)
+    report["renumbered_frames"] = sum(1 for p in tracked_as.values() if p is not None and p != int(player))
     report.update({"mismatch_warn": SOURCE_MISMATCH_WARN, "mismatch_refuse": SOURCE_MISMATCH_REFUSE,
                    "warnings": [], "problems": []})
     mismatch = report["mismatch"]
@@ -159,17 +207,21 @@ INIT_MIN_SEEN = 0.5
 BORDER_PX = 8
 
 
-def init_coverage(session, frames, player: int = 1) -> dict:
+def init_coverage(session, frames, player: int = 1, tracked_as: dict[int, int | None] | None = None) -> dict:
     """What the init (§4) saw of the actor in its ``frames``: per joint group of
     :data:`INIT_REQUIRED_JOINTS` the share of frames in which all its joints were tracked, and the share of
-    frames in which the player mask touches the depth image's edge (``cut``, per edge)."""
+    frames in which the player mask touches the depth image's edge (``cut``, per edge). ``tracked_as``: the
+    actor's id per frame (:func:`actor_ids`; None: ``player`` by its id)."""
     frames = [int(f) for f in frames]
     seen = {g: 0 for g in INIT_REQUIRED_JOINTS}
     cut = {"top": 0, "bottom": 0, "left": 0, "right": 0}
     n = 0
     for i in frames:
+        pid = _id_in_frame(i, player, tracked_as)
+        if pid is None:
+            continue
         frame = session.frame(i)
-        bodies = [b for b in frame_bodies_or_none(session, i) if int(b["player"]) == int(player)]
+        bodies = [b for b in frame_bodies_or_none(session, i) if int(b["player"]) == pid]
         if not bodies:
             continue
         n += 1
@@ -183,7 +235,7 @@ def init_coverage(session, frames, player: int = 1) -> dict:
         except BodyStudioError:  # a damaged mask: the frame's edges are not known
             mask = None
         if mask is not None:
-            mine = np.asarray(mask) == int(player)
+            mine = np.asarray(mask) == pid
             for edge, line in (("top", mine[0]), ("bottom", mine[-1]), ("left", mine[:, 0]), ("right", mine[:, -1])):
                 if np.count_nonzero(line) >= BORDER_PX:
                     cut[edge] += 1
@@ -197,9 +249,13 @@ def check_init(session, frames, player: int = 1) -> dict:
     than :data:`INIT_MIN_SEEN` of the init frames or the actor was cut by an image edge in most of them (the
     source body's missing part is then the statistical model's guess). A warning, not a refusal: measured on
     subject 5, legs out of view below the knees (or the hips) in every init frame moved the fitted stature by
-    +5 (+16) mm and the mass by -2.2 (-0.7) kg, subject 3 below the knees -8 mm and -0.7 kg (docs/mirror.md)."""
-
-    report = init_coverage(session, frames, player)
+    +5 (+16) mm and the mass by -2.2 (-0.7) kg, subject 3 below the knees -8 mm and -0.7 kg (docs/mirror.md).
+    The actor is ``player`` at the session's first tracked frame, followed up to the last of ``frames`` as the init
+    follows it (:func:`actor_ids`; rel6b: read by id, a swap measured the other actor)."""
+    frames = [int(f) for f in frames]
+    last = max(frames, default=-1)
+    tracked_as = actor_ids(session, player, [f for f in session.frame_ids if int(f) <= last])
+    report = init_coverage(session, frames, player, tracked_as)
     warnings = []
     missing = [g for g, v in report["seen"].items() if v < INIT_MIN_SEEN]
     cut = [e for e, v in report["cut"].items() if v >= INIT_MIN_SEEN]
@@ -257,13 +313,17 @@ def registration_offset(rgb: np.ndarray, mask: np.ndarray, radius_px: int = REGI
     return shifts[k][0], shifts[k][1], float(score[k] / max(zero, 1e-9))
 
 
-def depth_color_registration(session, player: int = 1, n_frames: int = REGISTRATION_FRAMES) -> dict:
+def depth_color_registration(session, player: int = 1, n_frames: int = REGISTRATION_FRAMES,
+                             tracked_as: dict[int, int | None] | None = None) -> dict:
     """:func:`registration_offset` over up to ``n_frames`` frames with ``player`` tracked: the per-frame shifts, their
-    median ``offset_px`` (length of the median shift) and ``shift`` (median dx, dy)."""
+    median ``offset_px`` (length of the median shift) and ``shift`` (median dx, dy). ``tracked_as``: the actor's id
+    per frame (:func:`actor_ids`; None: ``player`` by its id over the session's frames)."""
     from bodystudio.mirror.frames import register_depth_to_color
 
-    with_player = [i for i in session.frame_ids
-                   if any(int(b["player"]) == int(player) for b in frame_bodies_or_none(session, i))]
+    ids = session.frame_ids if tracked_as is None else list(tracked_as)
+    pids = {int(i): _id_in_frame(i, player, tracked_as) for i in ids}
+    with_player = [i for i in ids if pids[int(i)] is not None
+                   and any(int(b["player"]) == pids[int(i)] for b in frame_bodies_or_none(session, i))]
     if not with_player:
         return {"offset_px": float("nan"), "shift": None, "frames": []}
     picks = sorted({with_player[int(round(k))] for k in np.linspace(0, len(with_player) - 1,
@@ -278,11 +338,12 @@ def depth_color_registration(session, player: int = 1, n_frames: int = REGISTRAT
             _, players_c = register_depth_to_color(depth, players, session.kinect)
         except BodyStudioError:
             continue
-        mask = players_c == int(player)
+        mask = players_c == pids[int(i)]
         if np.count_nonzero(mask) < 500 or mask.shape != rgb.shape[:2]:
             continue
         dx, dy, gain = registration_offset(rgb, mask)
-        rows.append({"frame": int(i), "dx": int(dx), "dy": int(dy), "edge_gain": round(gain, 3)})
+        rows.append({"frame": int(i), "player": pids[int(i)], "dx": int(dx), "dy": int(dy),
+                     "edge_gain": round(gain, 3)})
         images.append((rgb, mask))
     if not rows:
         return {"offset_px": float("nan"), "shift": None, "frames": []}
@@ -296,13 +357,14 @@ def depth_color_registration(session, player: int = 1, n_frames: int = REGISTRAT
     return out
 
 
-def check_registration(session, player: int = 1, accept_implausible: bool = False) -> dict:
+def check_registration(session, player: int = 1, accept_implausible: bool = False,
+                       tracked_as: dict[int, int | None] | None = None) -> dict:
     """:func:`depth_color_registration` as ``mirror run``'s verdict; raises
     :class:`~bodystudio.errors.ImplausibleResultError` above :data:`REGISTRATION_REFUSE_PX` unless
-    ``accept_implausible``."""
-
-
-    report = depth_color_registration(session, player)
+    ``accept_implausible``. The actor followed as the run follows it (``tracked_as``, default :func:`actor_ids`)."""
+    if tracked_as is None:
+        tracked_as = actor_ids(session, player)
+    report = depth_color_registration(session, player, tracked_as=tracked_as)
     report.update({"warn_px": REGISTRATION_WARN_PX, "refuse_px": REGISTRATION_REFUSE_PX, "warnings": [],
                    "problems": []})
     offset = report["offset_px"]

@@ -908,12 +908,18 @@ def run_mirror(session, edits: dict[str, float], out_video, source=None, side_by
     first = bodies[0] if several else bodies
     plausibility = None
     if live is None and hasattr(first, "skeleton"):  # live: the frames are not recorded yet
-        from bodystudio.mirror.plausibility import check_registration, check_source_body
+        from bodystudio.mirror.plausibility import check_registration, check_source_body, followed_players
+
+        # each actor followed over the run's frames as the run follows them (rel6b: the checks read player N by its
+        # id, and after the SDK renumbered the actor they measured the other one)
+        followed = followed_players(session, players, ids)
+        tracked = {p: {i: f[k] for i, f in followed.items()} for k, p in enumerate(players)}
 
         def _verdicts(b, p, src):
             return {"source_body": check_source_body(b, session, p, accept_implausible,
-                                                     src if isinstance(src, (str, os.PathLike)) else None),
-                    "registration": check_registration(session, p, accept_implausible)}
+                                                     src if isinstance(src, (str, os.PathLike)) else None,
+                                                     tracked_as=tracked[p]),
+                    "registration": check_registration(session, p, accept_implausible, tracked_as=tracked[p])}
 
         if several:
             plausibility = {str(p): _verdicts(b, p, src) for p, b, src in zip(players, bodies, sources, strict=True)}
@@ -974,7 +980,10 @@ class _ArrivedFrames:
         return (self.root / stream_path("kinect_rgb", int(frame))).is_file()
 
     def __iter__(self):
-        return iter(sorted(int(p.stem) for p in (self.root / "kinect" / "rgb").glob("*.png") if p.stem.isdigit()))
+        from bodystudio.fileio import is_frame_number
+
+        return iter(sorted(int(p.stem) for p in (self.root / "kinect" / "rgb").glob("*.png")
+                           if is_frame_number(p.stem)))
 
 
 def live_session(folder: str | Path):

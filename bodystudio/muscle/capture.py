@@ -51,7 +51,7 @@ from scipy.spatial import cKDTree
 from bodystudio.errors import FileFormatError, InputError, SessionError
 from bodystudio.geometry.mesh import vertex_normals
 from bodystudio.muscle.arm import ArmPose, ArmTemplate, pose_arm
-from bodystudio.muscle.depth import DepthCleanupOptions, clean_depth, depth_point_cloud
+from bodystudio.muscle.depth import DepthCleanupOptions, clean_depth, depth_point_cloud, segment_by_distance
 from bodystudio.muscle.nicp import (
     CorrespondenceFilters,
     NicpOptions,
@@ -640,7 +640,8 @@ def sequence_options(options: CaptureOptions, tracker_joints: np.ndarray) -> Cap
 
 def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, model=None,
                        options: CaptureOptions = CaptureOptions(), tracker_joints: np.ndarray | None = None,
-                       frame_ids: list | None = None, known_shape=None, fps: float = CAPTURE_FPS) -> ArmCapture:
+                       frame_ids: list | None = None, known_shape=None, fps: float = CAPTURE_FPS,
+                       depth_sources: list[str] | None = None) -> ArmCapture:
     """The Arm-Muscle Capture pipeline on depth maps (metres, 0 = none) of one depth ``camera``.
 
     ``tracker_joints`` (T, 3, 3): shoulder, elbow, wrist per frame from the body tracker (world). The
@@ -650,7 +651,8 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     ``known_shape`` (ArmShapeParams): the subject's measured BMI, muscularity, height and arm length
     (the paper's Table 1 lists them per subject); only the torso placement is then fitted.
     ``fps``: the recording's frame rate; the options' temporal fields are times at 30 fps
-    (:func:`options_at_frame_rate`; a rate below 10 fps is refused).
+    (:func:`options_at_frame_rate`; a rate below 10 fps is refused). ``depth_sources``: each depth map's file, named
+    in the errors (default "depth frame N").
     """
     o = options_at_frame_rate(options, fps)
     if o.mode != "nicp" and model is None:
@@ -683,10 +685,17 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     clouds = []
     for k, d in enumerate(depths):
         t0 = time.perf_counter()
-        dc = clean_depth(d, o.depth, source=f"depth frame {ids[k]}")
-        P, N = depth_point_cloud(dc, camera, source=f"depth frame {ids[k]}")
+        source = f"depth frame {ids[k]}" if depth_sources is None else str(depth_sources[k])
+        if k and np.ndim(d) == 2 and np.count_nonzero(segment_by_distance(d, o.depth.near_m, o.depth.far_m)) \
+                < o.depth.min_pixels:
+            # the frames before had the arm: it left the view (rel6b: "move the subject to about 1 m" misled)
+            raise InputError(f"{source}: no arm in the {o.depth.near_m:g}-{o.depth.far_m:g} m depth window in frame "
+                             f"{ids[k]}, though the {k} frame(s) before had it: the arm left the view; capture the "
+                             f"first {k} frames (--frames {k}) or record the arm in view throughout")
+        dc = clean_depth(d, o.depth, source=source)
+        P, N = depth_point_cloud(dc, camera, source=source)
         if len(P) < o.depth.min_pixels:
-            raise InputError(f"depth frame {ids[k]}: {len(P)} usable depth points; no arm in range")
+            raise InputError(f"{source}: {len(P)} usable depth points; no arm in range")
         clouds.append((P, N))
         timer.add("depth", t0)
 
@@ -1089,7 +1098,7 @@ def model_visible_vertices(vertices: np.ndarray, faces: np.ndarray, camera, tole
 def capture_arm_sequence(session, model, template: ArmTemplate, options: CaptureOptions = CaptureOptions(),
                          frames: slice | None = None, known_shape=None) -> ArmCapture:
     """Capture the arm of a Kinect session (``bodystudio.capture.session``), Sec. 4-7 of Arm-Muscle Capture."""
-    from bodystudio.capture.session import stream_fingerprint
+    from bodystudio.capture.session import stream_fingerprint, stream_path
 
     sensor = session.kinect
     if sensor is None:
@@ -1103,7 +1112,9 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
             raise SessionError(f"{session.path}: frame {fid} has no Kinect depth image")
         depths.append(d)
     tracker = session_arm_tracker(session, ids, template.side)
-    capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids), known_shape, fps)
+    sources = [Path(session.path) / stream_path("kinect_depth", fid) for fid in ids]
+    capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids), known_shape, fps,
+                                 depth_sources=sources)
     capture.session_path = str(Path(session.path).resolve())
     capture.source_fingerprint = stream_fingerprint(session, "kinect_depth", ids)
     return capture
@@ -1119,15 +1130,17 @@ def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
     from bodystudio.capture.subject import follow_subject, frame_bodies
 
     want = TRACKER_JOINTS[side]
-    rows, gaps = [], []
+    rows, gaps, absent = [], [], {}
     # the first frame's person, followed (a second person coming into view with a lower player id is not taken)
-    subject = follow_subject(frame_bodies(session.frame(fid)) for fid in ids)
-    for fid, joints in zip(ids, subject, strict=True):
+    bodies = [frame_bodies(session.frame(fid)) for fid in ids]
+    for fid, joints, others in zip(ids, follow_subject(bodies), bodies, strict=True):
         arm = None
         if joints is not None and all(n in joints["names"] for n in want):
             arm = np.asarray(joints["positions"], np.float64)[[joints["names"].index(n) for n in want]]
         if arm is None or not np.all(np.isfinite(arm)):
             gaps.append(fid)
+            if joints is None and others:  # people tracked, the subject not among them
+                absent[fid] = sorted(b["player"] for b in others)
         else:
             rows.append(arm)
     if not rows:
@@ -1135,6 +1148,13 @@ def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
     if gaps:
         before = list(ids).index(gaps[0])
         fix = f", or capture the {before} frames before it (--frames {before})" if before else ""
+        if gaps[0] in absent:  # rel6b: the tracker gave the lost subject's id to someone else
+            players = absent[gaps[0]]
+            raise SessionError(f"{Path(session.path) / stream_path('kinect_joints', gaps[0])}: the capture's subject "
+                               f"(the first frame's person, followed by its joints) is not tracked in {len(gaps)} of "
+                               f"{len(ids)} frames (first {gaps[0]}, where the tracker reports "
+                               f"player{'s' if len(players) > 1 else ''} {', '.join(map(str, players))}: another "
+                               f"person); the arm capture needs the subject in every frame{fix}")
         raise SessionError(f"{Path(session.path) / stream_path('kinect_joints', gaps[0])}: the body tracker's "
                            f"{', '.join(want)} are missing or null in {len(gaps)} of {len(ids)} frames (first "
                            f"{gaps[0]}); the arm capture needs them in every frame or in none: re-export the joints "

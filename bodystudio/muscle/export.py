@@ -214,6 +214,19 @@ def check_new_output(path: str | Path, what: str = "output") -> Path:
     return check_output_file(path, what)
 
 
+def _remove_dead_staging(out: Path) -> None:
+    """Remove the staging folders beside ``out`` of processes that no longer run (a SIGKILLed capture's
+    ``.NAME.staging-PID`` stayed for ever, rel6b); a running writer's is left alone."""
+    import glob
+
+    from bodystudio.runfolder import process_alive
+
+    for old in out.parent.glob(f".{glob.escape(out.name)}.staging-*"):
+        pid = old.name.rpartition("-")[2]
+        if pid.isascii() and pid.isdigit() and int(pid) != os.getpid() and not process_alive(int(pid)):
+            shutil.rmtree(old, ignore_errors=True)
+
+
 @contextlib.contextmanager
 def staged_output_folder(out: str | Path, what: str = "output folder") -> Iterator[Path]:
     """Yield an empty staging folder beside ``out``; on success rename it to ``out`` (the commit point).
@@ -224,6 +237,7 @@ def staged_output_folder(out: str | Path, what: str = "output folder") -> Iterat
     """
     out = check_new_output(out, what)
     out.parent.mkdir(parents=True, exist_ok=True)
+    _remove_dead_staging(out)
     staging = out.parent / f".{out.name}.staging-{os.getpid()}"
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir()

@@ -45,6 +45,8 @@ def parse_reshape(text: str) -> dict[str, float]:
         key = ATTRIBUTE_ALIASES.get(name.strip(), name.strip())
         if not sep:
             raise InputError(f"--reshape {item!r}: expected NAME=DELTA, e.g. stature=+0.05,mass=-5")
+        if key in out:  # 'stature=0.05,stature_m=-0.05': the last one silently won (rel6b)
+            raise InputError(f"--reshape {text!r}: {key} is given twice; give each attribute once")
         try:
             out[key] = float(value)
         except ValueError:

@@ -472,7 +472,8 @@ def test_depth_color_registration_is_the_median_shift_over_the_frames():
     assert r["shift"] == [float(np.median(dxs)), float(np.median([row["dy"] for row in r["frames"]]))]
     assert r["offset_px"] == pytest.approx(math.hypot(*r["shift"]))
     assert -6 <= r["shift"][0] <= -4
-    assert all(set(row) == {"frame", "dx", "dy", "edge_gain"} for row in r["frames"])
+    # the id each frame's mask was read under (rel6b: the actor followed, tests/reliability/test_rel6b_*)
+    assert all(set(row) == {"frame", "player", "dx", "dy", "edge_gain"} and row["player"] == 1 for row in r["frames"])
     g = P.registration_offset(*_scene((5, 0)))[2]
     assert r["frames"][1]["edge_gain"] == round(g, 3) and round(g, 3) != round(g, 4)
     assert P.depth_color_registration(s)["frames"][0]["frame"] == 0 and len(P.depth_color_registration(s)["frames"]) \
@@ -540,7 +541,8 @@ def test_check_registration_warns_and_refuses_with_the_calibration_file(caplog):
 @pytest.mark.parametrize("offset, verdict", [(4.0, "ok"), (4.01, "warn"), (6.0, "warn"), (6.01, "refuse")])
 def test_registration_boundaries(monkeypatch, offset, verdict):
     monkeypatch.setattr(P, "depth_color_registration",
-                        lambda session, player=1: {"offset_px": offset, "shift": [offset, 0.0], "frames": [{}]})
+                        lambda session, player=1, tracked_as=None: {"offset_px": offset, "shift": [offset, 0.0],
+                                                                    "frames": [{}]})
     r = P.check_registration(_Session({}, path="S"), accept_implausible=True)
     assert bool(r["problems"]) == (verdict == "refuse") and bool(r["warnings"]) == (verdict == "warn")
 
@@ -548,7 +550,7 @@ def test_registration_boundaries(monkeypatch, offset, verdict):
 def test_check_registration_of_another_player(monkeypatch):
     seen = []
     monkeypatch.setattr(P, "depth_color_registration",
-                        lambda session, player=1: seen.append(player) or {"offset_px": 0.0, "shift": [0.0, 0.0],
-                                                                          "frames": []})
+                        lambda session, player=1, tracked_as=None: seen.append(player)
+                        or {"offset_px": 0.0, "shift": [0.0, 0.0], "frames": []})
     P.check_registration(_Session({}), player=3)
     assert seen == [3]

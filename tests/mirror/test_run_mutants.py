@@ -290,10 +290,16 @@ def _several_players(tmp_path, monkeypatch, sizes=(5, 5)):
     monkeypatch.setattr(run_mod, "mirror_stream", lambda *a, **kw: got.update(stream=a) or "DOC")
     monkeypatch.setattr(init, "source_fingerprint", lambda b: f"fp{b.p}")
     monkeypatch.setattr(frames, "recording_fingerprint", lambda s, ids: f"rec{list(ids)}")
+    # each actor followed over the run's frames (rel6b): here every frame's ids as given, recorded per check
+    monkeypatch.setattr(plausibility, "followed_players",
+                        lambda s, players, ids: {i: tuple(10 * p + i for p in players) for i in ids})
+    got["tracked"] = []
     monkeypatch.setattr(plausibility, "check_source_body",
-                        lambda b, s, p, accept, src: got["body"].append((b.p, s, p, accept, src)) or {"b": p})
+                        lambda b, s, p, accept, src, tracked_as: got["body"].append((b.p, s, p, accept, src))
+                        or got["tracked"].append((p, tracked_as)) or {"b": p})
     monkeypatch.setattr(plausibility, "check_registration",
-                        lambda s, p, accept: got["reg"].append((s, p, accept)) or {"r": p})
+                        lambda s, p, accept, tracked_as: got["reg"].append((s, p, accept))
+                        or got["tracked"].append((p, tracked_as)) or {"r": p})
     return session, got, bodies
 
 
@@ -335,6 +341,8 @@ def test_run_mirror_several_players_are_checked_loaded_and_recorded(tmp_path, mo
                                         "1": {"source_body": {"b": 1}, "registration": {"r": 1}}}
     assert got["body"] == [(2, session, 2, True, None), (1, session, 1, True, None)]
     assert got["reg"] == [(session, 2, True), (session, 1, True)]
+    # each check gets its own player's followed ids over the run's frames
+    assert got["tracked"] == [(2, {1: 21, 2: 22}), (2, {1: 21, 2: 22}), (1, {1: 11, 2: 12}), (1, {1: 11, 2: 12})]
 
     # the files given: loaded as given, and their paths reach the plausibility check (a string path too)
     got["load"].clear(), got["body"].clear()

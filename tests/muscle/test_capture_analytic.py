@@ -579,9 +579,9 @@ def _fake_session(n=3, joints=True, side_names=("ShoulderLeft", "ElbowLeft", "Wr
 def test_capture_arm_sequence_reads_depth_and_tracker_joints(monkeypatch):
     seen = {}
 
-    def fake_frames(depths, camera, template, model, options, tracker, ids, known, fps):
+    def fake_frames(depths, camera, template, model, options, tracker, ids, known, fps, depth_sources=None):
         seen.update(depths=depths, camera=camera, tracker=tracker, ids=ids, known=known, options=options, model=model,
-                    template=template, fps=fps)
+                    template=template, fps=fps, depth_sources=depth_sources)
         return ArmCapture(np.zeros((len(depths), 1, 3)), np.zeros((0, 3)), [], None, (1.0, np.eye(3), np.zeros(3)),
                           options.mode, "k")
 

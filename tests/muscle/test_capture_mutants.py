@@ -144,7 +144,7 @@ def test_capture_arm_sequence_keeps_the_fingerprint_of_the_frames_it_read(monkey
     monkeypatch.setattr(session_mod, "stream_fingerprint",
                         lambda session, stream, ids: asked.append((session.path, stream, list(ids)))
                         or f"{stream}:{list(ids)}")
-    monkeypatch.setattr(cap_mod, "capture_arm_frames", lambda depths, *a: ArmCapture(
+    monkeypatch.setattr(cap_mod, "capture_arm_frames", lambda depths, *a, **kw: ArmCapture(
         np.zeros((len(depths), 1, 3)), np.zeros((0, 3)), [], None, (1.0, np.eye(3), np.zeros(3)), "nicp", "k"))
     session = SimpleNamespace(path="/tmp/fake-session", kinect=SimpleNamespace(depth="CAM"), frame_ids=[0, 1, 2, 3],
                               frame=lambda f: SimpleNamespace(kinect_depth_m=np.zeros((2, 2)), kinect_joints=None))
