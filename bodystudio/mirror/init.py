@@ -629,7 +629,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  pass_relaxation: float = PASS_RELAXATION,
                                  fixed_pool: bool = FIXED_POOL,
                                  pooled_points: int = MAX_POOLED_POINTS,
-                                 weighted_pool: bool = WEIGHTED_POOL) -> SourceBody:
+                                 weighted_pool: bool = WEIGHTED_POOL, pool_seed: int = 0) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -656,7 +656,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     points of each frame (a fixed random key per point) instead of a fresh random subset (:data:`FIXED_POOL`);
     ``pooled_points``: how many (:data:`MAX_POOLED_POINTS`). ``weighted_pool``: every pass pools every point instead,
     each weighted ``pooled_points`` / N, so the fit weighs its data against the prior and the joints as the subset
-    did, without the subset's sampling noise (:data:`WEIGHTED_POOL`).
+    did, without the subset's sampling noise (:data:`WEIGHTED_POOL`). ``pool_seed``: the seed of the random subsets
+    (0, the default: ``mirror init``'s; other seeds measure how much the fit owes to the draw, mir12y).
     """
     model = check_model(model)
     if not (np.isfinite(pass_relaxation) and 0.0 < pass_relaxation <= 1.0):
@@ -664,6 +665,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     if isinstance(pooled_points, bool) or not isinstance(pooled_points, (int, np.integer)) or pooled_points < 1:
         raise InputError(f"pooled_points must be an integer >= 1 (the depth points of one Eq. 2 fit), "
                          f"got {pooled_points!r}")
+    if isinstance(pool_seed, bool) or not isinstance(pool_seed, (int, np.integer)) or pool_seed < 0:
+        raise InputError(f"pool_seed must be an integer >= 0 (the seed of the random depth-point subsets), "
+                         f"got {pool_seed!r}")
     unpose_posture_bones = tuple(unpose_posture_bones)
     unknown = sorted(set(unpose_posture_bones) - set(model.bone_names))
     if unknown:
@@ -695,7 +699,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         obs = [obs[i] for i in best]
     body = model.body(np.zeros(model.n_components))
     coeffs = np.zeros(model.n_components)
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(pool_seed)
     bone_lengths, length_weight = None, 0.0
     if bone_length_weight > 0:
         bone_lengths, n_frames = kinect_bone_lengths(observations, obs[0][0].version)
