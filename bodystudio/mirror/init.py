@@ -31,6 +31,9 @@ closest-vertex distances). Deviations from the paper, each measured (docs/mirror
   falls from 11.1 to 7.5 mm on 9 sessions (MIR12i).
 * Optionally (``bone_length_weight``, off by default; MIR12o) the SDK's joint distances (bone lengths, shoulder and
   hip width), averaged over the init frames, are matched too: pose-free, so without the unposing's error.
+* Every pass fits every pooled point, weighted so the pool weighs as :data:`MAX_POOLED_POINTS` (not a fresh random
+  subset per pass, whose draw moved the result), and from the third pass on the unposing holds the trunk at the
+  subject's own posture (:data:`WEIGHTED_POOL`, :data:`UNPOSE_POSTURE_BONES`; the default since mir12y).
 
 The skeleton is refitted by Eq. 3 (each joint moves with the mean displacement of the vertices around it).
 """
@@ -165,7 +168,9 @@ TRUNK_REFIT_ROUNDS = 2
 #: frame, and the shape fit takes up what is left of it: on 52 (a 5 degree stoop at spine_02) the fitted body's
 #: chest came out 16 mm small and its hips 17 mm wide, and the Eq. 4 displacement of a -17 cm / -15 kg edit 4.6 mm
 #: off the truth's (0.8 on 42, the same subject upright). ``mirror init --unpose-posture`` (mir12v, docs/mirror.md).
-UNPOSE_POSTURE_BONES: tuple[str, ...] = ()
+#: The default since mir12y, with :data:`WEIGHTED_POOL`: settled, the two lower the Eq. 4 displacement error below
+#: main's expected value over 8 random draws (held out 1.79 -> 1.68 mm, 9 of 12 sessions lower; docs/mirror.md).
+UNPOSE_POSTURE_BONES: tuple[str, ...] = ("spine_02", "neck_01", "head")
 #: From the second pass on, the init's coefficients move this fraction of the way to each pass's Eq. 2 fit (1: the
 #: fit itself, the paper's). mir12x, docs/mirror.md.
 PASS_RELAXATION = 1.0
@@ -175,8 +180,10 @@ FIXED_POOL = False
 #: whose sampling noise moved the Eq. 4 displacement error 1-4 mm from pass to pass). On 16 sessions the error's range
 #: over passes 4-8 1.60 / 1.06 -> 0.28 / 0.35 mm (tuning / held out), its mean 2.25 / 1.89 -> 1.82 / 1.72, warp_iou
 #: +0.0011 on average; but it rises on 6 of 12 held-out sessions and the fit costs 2.2 -> 5.3 s CPU: off (mir12x,
-#: docs/mirror.md).
-WEIGHTED_POOL = False
+#: docs/mirror.md). The default since mir12y, with :data:`UNPOSE_POSTURE_BONES`: the fit's matchings made cheap (the
+#: init 1.7 s CPU on 52), and measured against main's init over 8 random draws per session instead of one (the held-out
+#: displacement error 1.79 -> 1.68 mm; docs/mirror.md).
+WEIGHTED_POOL = True
 #: Seed of the fixed pool's per-point keys (with the frame number).
 POOL_KEY_SEED = 0
 #: The bones ``--unpose-posture`` centres (MIR12q's: the bones whose static bend the run's E_trunk shrinks).
@@ -967,13 +974,13 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
                            n_frames: int = DEFAULT_INIT_FRAMES, passes: int = INIT_PASSES,
                            silhouette_shape: bool = False,
                            bone_length_weight: float = BONE_LENGTH_WEIGHT, trunk_refit: bool = False,
-                           unpose_posture: bool = False) -> SourceBody:
+                           unpose_posture: bool | None = None) -> SourceBody:
     """§4 on a mirror session: the source body of ``player`` from up to ``n_frames`` frames (~3 s at 30 fps);
     ``silhouette_shape``: then refined against :data:`SILHOUETTE_FRAMES` frames' silhouettes (MIR12c);
     ``bone_length_weight`` > 0: the SDK's joint distances enter the fit (:data:`BONE_LENGTH_WEIGHT`, MIR12o);
     ``trunk_refit``: the skeleton's trunk joints moved onto the SDK's (:func:`refit_trunk_joints`, MIR12r);
     ``unpose_posture``: the refined unposing holds :data:`POSTURE_BONES` at the subject's own static posture
-    (:func:`session_posture`, mir12v); off: :data:`UNPOSE_POSTURE_BONES`."""
+    (:func:`session_posture`, mir12v), False: the rest pose; None: :data:`UNPOSE_POSTURE_BONES` (on since mir12y)."""
     if model is None:
         from bodystudio.body.statistical import load_statistical_model
 
@@ -984,7 +991,8 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
                                         depth_camera=sensor.depth, camera=sensor.color if silhouette_shape else None,
                                         silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0,
                                         bone_length_weight=bone_length_weight, trunk_refit=trunk_refit,
-                                        unpose_posture_bones=POSTURE_BONES if unpose_posture else UNPOSE_POSTURE_BONES)
+                                        unpose_posture_bones=UNPOSE_POSTURE_BONES if unpose_posture is None
+                                        else POSTURE_BONES if unpose_posture else ())
 
 
 # --- persistence -----------------------------------------------------------------------------------
