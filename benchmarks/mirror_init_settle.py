@@ -1,18 +1,19 @@
 """Does ``mirror init`` settle? The Eq. 4 displacement error, stature and mass after every pass (mir12x).
 
-Usage: PYTHONPATH=. python benchmarks/mirror_init_settle.py [--passes 8] [--variants main weighted fixed relaxed]
-[--seeds 0 1 2 ...] [--write NAME.npz] SESSION [SESSION ...]
+Usage: PYTHONPATH=. python benchmarks/mirror_init_settle.py SESSION [SESSION ...] [--passes 8]
+[--variants main weighted fixed relaxed] [--write NAME.npz] [--seeds 0 1 2 ...]
 
 Per synthetic mirror session (with ``gt/mirror/actors.npz``), player 1's init from the session's own observations
 (``mirror init``'s frames) run for ``--passes`` passes per variant; the coefficients after pass k are what
-``passes=k`` returns (nothing in a pass depends on the pass count). Variants: ``main`` (a fresh random subset of
-MAX_POOLED_POINTS depth points per pass), ``weighted`` (``weighted_pool``: every point, each weighted
-MAX_POOLED_POINTS / N), ``fixed`` (``fixed_pool``: the same subset every pass), ``relaxed`` (``pass_relaxation=0.5``
-with the fixed pool), ``posture`` / ``weighted-posture`` (mir12v's ``--unpose-posture`` bones, alone / with the weighted
-pool). Printed per session and variant: the error of the Eq. 4 displacement ``B(c_T) - B(c_S)`` against
-the truth's (mean over vertices, mm) after each pass, the stature (mm) and mass (kg) errors after each pass, and the
-CPU seconds of the whole init. ``--write NAME.npz``: the first variant's body of ``--passes`` passes saved as
-``SESSION/mirror/NAME.npz`` (for ``benchmarks/mirror_refine_end_to_end.py --source``; run it on a session copy).
+``passes=k`` returns (nothing in a pass depends on the pass count). Variants: ``main`` (main's init before mir12y: a
+fresh random subset of MAX_POOLED_POINTS depth points per pass), ``weighted`` (``weighted_pool``: every point, each
+weighted MAX_POOLED_POINTS / N), ``fixed`` (``fixed_pool``: the same subset every pass), ``relaxed``
+(``pass_relaxation=0.5`` with the fixed pool), ``posture`` / ``weighted-posture`` (mir12v's ``--unpose-posture`` bones,
+alone / with the weighted pool; the latter ``mirror init``'s default since mir12y). Printed per session and variant:
+the error of the Eq. 4 displacement ``B(c_T) - B(c_S)`` against the truth's (mean over vertices, mm) after each pass,
+the stature (mm) and mass (kg) errors after each pass, and the CPU seconds of the whole init. ``--write NAME.npz``: the
+first variant's body of ``--passes`` passes saved as ``SESSION/mirror/NAME.npz`` (for
+``benchmarks/mirror_refine_end_to_end.py --source``; run it on a session copy).
 ``--seeds`` (mir12y): each variant that draws random subsets is run once per ``pool_seed`` (0: ``mirror init``'s
 draw), and a ``summary`` line per session and variant gives the mean, standard deviation, min and max over the seeds
 of the last pass's displacement error, stature and mass errors (a variant that draws nothing runs once).
@@ -27,10 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-VARIANTS = {"main": {}, "weighted": {"weighted_pool": True}, "fixed": {"fixed_pool": True},
-            "relaxed": {"fixed_pool": True, "pass_relaxation": 0.5},
+# every variant spelled out in full: the default changed to "weighted-posture" (mir12y), "main" stays main's old init
+_PLAIN = {"weighted_pool": False, "unpose_posture_bones": ()}
+VARIANTS = {"main": _PLAIN, "weighted": {**_PLAIN, "weighted_pool": True}, "fixed": {**_PLAIN, "fixed_pool": True},
+            "relaxed": {**_PLAIN, "fixed_pool": True, "pass_relaxation": 0.5},
             "weighted-posture": {"weighted_pool": True, "unpose_posture_bones": ("spine_02", "neck_01", "head")},
-            "posture": {"unpose_posture_bones": ("spine_02", "neck_01", "head")}}
+            "posture": {**_PLAIN, "unpose_posture_bones": ("spine_02", "neck_01", "head")}}
 
 
 def main() -> None:
