@@ -5,7 +5,8 @@ Usage: PYTHONPATH=. python benchmarks/mirror_init_posture.py [--bones spine_02 n
 SESSION [SESSION ...]
 
 Per synthetic mirror session (with ``gt/mirror/actors.npz``), player 1's init from the session's own observations
-(``mirror init``'s frames), once as ``mirror init`` does it and once with ``unpose_posture_bones`` (``--bones``,
+(``mirror init``'s frames), once as ``mirror init`` does it without the posture bones (``main``; since mir12y with
+the weighted pool) and once with ``unpose_posture_bones`` (``--bones``,
 default :data:`bodystudio.mirror.init.POSTURE_BONES`); printed per body: the error of the Eq. 4 displacement
 ``B(c_T) - B(c_S)`` of the session's edits against the ground truth's (mean over vertices, mm: what the warp's target
 inherits from the fitted shape), the rest vertex error with the mean offset removed, and the model's stature, mass,
@@ -79,7 +80,7 @@ def main() -> None:
         edits = session.metadata["edits"]
         obs, sensor = init_mod.collect_observations(session, None, 1, init_mod.DEFAULT_INIT_FRAMES)
         kw = dict(view_point=sensor.depth.center, depth_camera=sensor.depth)
-        plain = init_mod.initialise_from_observations(obs, model, **kw)
+        plain = init_mod.initialise_from_observations(obs, model, unpose_posture_bones=(), **kw)
         held, seen = _held_init(init_mod, obs, model, tuple(args.bones), kw)
         last = seen[-1][0] if seen else None
         posture = {}

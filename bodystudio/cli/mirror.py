@@ -35,10 +35,10 @@ def init(
     trunk_refit: bool = typer.Option(False, "--trunk-refit/--no-trunk-refit",
                                      help="move the skeleton's trunk joints (SpineMid, SpineShoulder, Neck) onto the "
                                           "SDK's, unposed by the refined pose (~1 s CPU more; docs/mirror.md MIR12r)"),
-    unpose_posture: bool = typer.Option(False, "--unpose-posture/--no-unpose-posture",
-                                        help="unpose each init frame with the spine, neck and head held at the "
-                                             "subject's own static posture (a stoop), not upright (docs/mirror.md "
-                                             "mir12v)"),
+    unpose_posture: bool | None = typer.Option(None, "--unpose-posture/--no-unpose-posture",
+                                               help="unpose each init frame with the spine, neck and head held at "
+                                                    "the subject's own static posture (a stoop), not upright (the "
+                                                    "default since mir12y; docs/mirror.md mir12v)"),
     force: bool = typer.Option(False, "--force", help="replace an existing source body (a mirror run made "
                                "from the old one then no longer matches: eval mirror refuses it until re-run)"),
 ) -> None:
@@ -50,6 +50,7 @@ def init(
     from bodystudio.mirror.init import (
         DEFAULT_INIT_FRAMES,
         SILHOUETTE_FRAMES,
+        UNPOSE_POSTURE_BONES,
         initialise_source_body,
         save_source_body,
     )
@@ -86,7 +87,8 @@ def init(
                # how many silhouettes the shape was refined against (SILHOUETTE_FRAMES spread over the frames used,
                # fewer when fewer frames were): `silhouette_shape: true` alone read as the full refinement
                "silhouette_frames": min(SILHOUETTE_FRAMES, len(source.frames_used)) if silhouette_shape else 0,
-               "trunk_refit": trunk_refit, "unpose_posture": unpose_posture, "frames_used": list(source.frames_used),
+               "trunk_refit": trunk_refit, "frames_used": list(source.frames_used),
+               "unpose_posture": bool(UNPOSE_POSTURE_BONES) if unpose_posture is None else unpose_posture,
                "residual_mm": round(source.residual_mm, 2),
                "stature_m": round(measured["stature_m"], 4), "mass_kg": round(measured["mass_kg"], 2),
                "coverage": {"seen": coverage["seen"], "cut": coverage["cut"]}, "warnings": coverage["warnings"]}

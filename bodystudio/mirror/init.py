@@ -31,6 +31,9 @@ closest-vertex distances). Deviations from the paper, each measured (docs/mirror
   falls from 11.1 to 7.5 mm on 9 sessions (MIR12i).
 * Optionally (``bone_length_weight``, off by default; MIR12o) the SDK's joint distances (bone lengths, shoulder and
   hip width), averaged over the init frames, are matched too: pose-free, so without the unposing's error.
+* Every pass fits every pooled point, weighted so the pool weighs as :data:`MAX_POOLED_POINTS` (not a fresh random
+  subset per pass, whose draw moved the result), and from the third pass on the unposing holds the trunk at the
+  subject's own posture (:data:`WEIGHTED_POOL`, :data:`UNPOSE_POSTURE_BONES`; the default since mir12y).
 
 The skeleton is refitted by Eq. 3 (each joint moves with the mean displacement of the vertices around it).
 """
@@ -44,6 +47,7 @@ from functools import cached_property, lru_cache
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from bodystudio.body.kinect import KINECT_JOINT_SETS, kinect_joint_names
@@ -164,7 +168,9 @@ TRUNK_REFIT_ROUNDS = 2
 #: frame, and the shape fit takes up what is left of it: on 52 (a 5 degree stoop at spine_02) the fitted body's
 #: chest came out 16 mm small and its hips 17 mm wide, and the Eq. 4 displacement of a -17 cm / -15 kg edit 4.6 mm
 #: off the truth's (0.8 on 42, the same subject upright). ``mirror init --unpose-posture`` (mir12v, docs/mirror.md).
-UNPOSE_POSTURE_BONES: tuple[str, ...] = ()
+#: The default since mir12y, with :data:`WEIGHTED_POOL`: settled, the two lower the Eq. 4 displacement error below
+#: main's expected value over 8 random draws (held out 1.79 -> 1.68 mm, 9 of 12 sessions lower; docs/mirror.md).
+UNPOSE_POSTURE_BONES: tuple[str, ...] = ("spine_02", "neck_01", "head")
 #: From the second pass on, the init's coefficients move this fraction of the way to each pass's Eq. 2 fit (1: the
 #: fit itself, the paper's). mir12x, docs/mirror.md.
 PASS_RELAXATION = 1.0
@@ -174,8 +180,10 @@ FIXED_POOL = False
 #: whose sampling noise moved the Eq. 4 displacement error 1-4 mm from pass to pass). On 16 sessions the error's range
 #: over passes 4-8 1.60 / 1.06 -> 0.28 / 0.35 mm (tuning / held out), its mean 2.25 / 1.89 -> 1.82 / 1.72, warp_iou
 #: +0.0011 on average; but it rises on 6 of 12 held-out sessions and the fit costs 2.2 -> 5.3 s CPU: off (mir12x,
-#: docs/mirror.md).
-WEIGHTED_POOL = False
+#: docs/mirror.md). The default since mir12y, with :data:`UNPOSE_POSTURE_BONES`: the fit's matchings made cheap (the
+#: init 1.7 s CPU on 52), and measured against main's init over 8 random draws per session instead of one (the held-out
+#: displacement error 1.79 -> 1.68 mm; docs/mirror.md).
+WEIGHTED_POOL = True
 #: Seed of the fixed pool's per-point keys (with the frame number).
 POOL_KEY_SEED = 0
 #: The bones ``--unpose-posture`` centres (MIR12q's: the bones whose static bend the run's E_trunk shrinks).
@@ -367,6 +375,8 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
     ``bone_length_weight`` (one number, or one per pair) each (:func:`bone_length_rows`). ``point_weight``: the
     weight of one depth point (1: as the prior and the joints assume; a pool of N points weighted M / N weighs as M).
     """
+    from bodystudio.mirror.refine import _one_blas_thread
+
     P = np.asarray(points_default, dtype=np.float64)
     finite = np.all(np.isfinite(P), axis=1)
     P = P[finite]
@@ -389,17 +399,20 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
         sw = np.sqrt(joint_weight)
         joint_rows = (sw * np.hstack([Jb[:, j].reshape(k, -1).T, np.tile(np.eye(3), (len(j), 1))]),
                       sw * (Jd[f, j] - Jm[j]).ravel())
+        with _one_blas_thread():  # the joints' normal equations do not change between re-matchings: formed once
+            joint_rows = (joint_rows[0].T @ joint_rows[0], joint_rows[0].T @ joint_rows[1])
     data_tree = cKDTree(P) if symmetric else None
     length_weights = None
     if bone_lengths is not None and np.any(np.asarray(bone_length_weight) > 0):
         length_weights = np.broadcast_to(np.asarray(bone_length_weight, dtype=np.float64), (len(BONE_PAIRS),))
+    match_cache: dict = {}  # the closest-vertex query reused between the re-matchings (closest_vertex_matches)
     for it in range(iterations):
         V = model.vertices(c)
         if it == 0 and given is not None:
             m = given
             keep = m >= 0
         else:
-            d, m = cKDTree(V[cand] + t).query(P)
+            d, m = closest_vertex_matches(P, V[cand] + t, match_cache)
             m = cand[m]
             keep = d <= (np.inf if it == 0 else trim_m)
         Pk, mk = P[keep], m[keep]
@@ -413,18 +426,17 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
         # its k x k Gram matrix once per match), so no (3M, k) design matrix is formed.
         n = len(model.mean)
         counts = point_weight * np.bincount(mk, minlength=n).astype(np.float64)
-        S = np.zeros((n, 3))
-        np.add.at(S, mk, Pk - model.mean[mk])
-        S *= point_weight
+        S = point_weight * np.stack([np.bincount(mk, col, minlength=n) for col in (Pk - model.mean[mk]).T], axis=1)
         AtA = np.zeros((k + 3, k + 3))
-        AtA[:k, :k] = (counts @ gram.reshape(n, -1)).reshape(k, k)
+        with _one_blas_thread():  # (n,) @ (n, k * k) crosses OpenBLAS's threading threshold: its threads spin
+            AtA[:k, :k] = (counts @ gram.reshape(n, -1)).reshape(k, k)
         AtA[:k, k:] = np.einsum("knd,n->kd", basis, counts)
         AtA[k:, :k] = AtA[:k, k:].T
         AtA[k:, k:] = counts.sum() * np.eye(3)
         Atb = np.concatenate([np.einsum("knd,nd->k", basis, S), S.sum(0)])
         if joint_rows is not None:
-            AtA += joint_rows[0].T @ joint_rows[0]
-            Atb += joint_rows[0].T @ joint_rows[1]
+            AtA += joint_rows[0]
+            Atb += joint_rows[1]
         if length_weights is not None:
             A_len, b_len, rows = bone_length_rows(model, c, bone_lengths, version)
             AtA[:k, :k] += (A_len.T * length_weights[rows]) @ A_len
@@ -432,8 +444,58 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
         AtA[np.arange(k), np.arange(k)] += prior
         x = np.linalg.solve(AtA, Atb)
         c, t = x[:k], x[k:]
-        residual = float(np.median(np.linalg.norm(P[keep] - t - model.vertices(c)[m[keep]], axis=1)))
+        if return_residual and it == iterations - 1:
+            residual = float(np.median(np.linalg.norm(P[keep] - t - model.vertices(c)[m[keep]], axis=1)))
     return (c, residual) if return_residual else c
+
+
+@njit(cache=True)
+def _closest_of_kept(P, V, near):
+    """Each point's closest vertex among its kept ones ``near`` (N, k): (distance, vertex index)."""
+    d = np.empty(len(P))
+    m = np.empty(len(P), dtype=near.dtype)
+    for i in range(len(P)):
+        best, arg = np.inf, near[i, 0]
+        for j in range(near.shape[1]):
+            v = near[i, j]
+            e = (P[i, 0] - V[v, 0]) ** 2 + (P[i, 1] - V[v, 1]) ** 2 + (P[i, 2] - V[v, 2]) ** 2
+            if e < best:
+                best, arg = e, v
+        d[i], m[i] = np.sqrt(best), arg
+    return d, m
+
+
+#: Candidate vertices kept per point between re-matchings of the Eq. 2 fit (:func:`closest_vertex_matches`).
+MATCH_NEIGHBOURS = 4
+
+
+def closest_vertex_matches(points, vertices, cache: dict | None = None, neighbours: int = MATCH_NEIGHBOURS):
+    """Each point's closest vertex ``(distance, index)``, as ``cKDTree(vertices).query(points)``, Eq. 2's ``k(i)``.
+
+    ``cache`` (a dict this function fills) carries the last full query between the re-matchings of one fit: a
+    later call with as many vertices checks only each point's ``neighbours`` closest vertices of that query. A
+    vertex outside them was at least ``reach`` (the distance to the farthest of them) away then, and is at least
+    ``reach - moved`` now (``moved``: the most any vertex has moved since), so a point whose nearest kept vertex is
+    no farther than that has it for its closest vertex (the same answer, up to ties); the other points are queried
+    again, and when more than a quarter are, the whole query is redone and cached. mir12y: the weighted pool's ~35 000
+    points re-matched 120 times cost 13 ms a query (docs/mirror.md).
+    """
+    P = np.asarray(points, dtype=np.float64)
+    V = np.asarray(vertices, dtype=np.float64)
+    if cache is not None and cache.get("vertices") is not None and len(cache["vertices"]) == len(V):
+        moved = float(np.sqrt(((V - cache["vertices"]) ** 2).sum(axis=1).max()))
+        d, m = _closest_of_kept(P, V, cache["near"])
+        stale = d > cache["reach"] - moved
+        if stale.sum() <= len(P) // 4:
+            if stale.any():
+                d[stale], m[stale] = cKDTree(V).query(P[stale])
+            return d, m
+    tree = cKDTree(V)
+    if cache is None or neighbours < 2 or len(V) < neighbours:
+        return tree.query(P)
+    dk, near = tree.query(P, k=neighbours)
+    cache.update(vertices=V.copy(), near=near, reach=dk[:, -1])
+    return dk[:, 0], near[:, 0]
 
 
 @lru_cache(maxsize=4)
@@ -574,7 +636,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  pass_relaxation: float = PASS_RELAXATION,
                                  fixed_pool: bool = FIXED_POOL,
                                  pooled_points: int = MAX_POOLED_POINTS,
-                                 weighted_pool: bool = WEIGHTED_POOL) -> SourceBody:
+                                 weighted_pool: bool = WEIGHTED_POOL, pool_seed: int = 0) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -601,7 +663,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     points of each frame (a fixed random key per point) instead of a fresh random subset (:data:`FIXED_POOL`);
     ``pooled_points``: how many (:data:`MAX_POOLED_POINTS`). ``weighted_pool``: every pass pools every point instead,
     each weighted ``pooled_points`` / N, so the fit weighs its data against the prior and the joints as the subset
-    did, without the subset's sampling noise (:data:`WEIGHTED_POOL`).
+    did, without the subset's sampling noise (:data:`WEIGHTED_POOL`). ``pool_seed``: the seed of the random subsets
+    (0, the default: ``mirror init``'s; other seeds measure how much the fit owes to the draw, mir12y).
     """
     model = check_model(model)
     if not (np.isfinite(pass_relaxation) and 0.0 < pass_relaxation <= 1.0):
@@ -609,6 +672,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     if isinstance(pooled_points, bool) or not isinstance(pooled_points, (int, np.integer)) or pooled_points < 1:
         raise InputError(f"pooled_points must be an integer >= 1 (the depth points of one Eq. 2 fit), "
                          f"got {pooled_points!r}")
+    if isinstance(pool_seed, bool) or not isinstance(pool_seed, (int, np.integer)) or pool_seed < 0:
+        raise InputError(f"pool_seed must be an integer >= 0 (the seed of the random depth-point subsets), "
+                         f"got {pool_seed!r}")
     unpose_posture_bones = tuple(unpose_posture_bones)
     unknown = sorted(set(unpose_posture_bones) - set(model.bone_names))
     if unknown:
@@ -640,7 +706,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         obs = [obs[i] for i in best]
     body = model.body(np.zeros(model.n_components))
     coeffs = np.zeros(model.n_components)
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(pool_seed)
     bone_lengths, length_weight = None, 0.0
     if bone_length_weight > 0:
         bone_lengths, n_frames = kinect_bone_lengths(observations, obs[0][0].version)
@@ -908,13 +974,13 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
                            n_frames: int = DEFAULT_INIT_FRAMES, passes: int = INIT_PASSES,
                            silhouette_shape: bool = False,
                            bone_length_weight: float = BONE_LENGTH_WEIGHT, trunk_refit: bool = False,
-                           unpose_posture: bool = False) -> SourceBody:
+                           unpose_posture: bool | None = None) -> SourceBody:
     """§4 on a mirror session: the source body of ``player`` from up to ``n_frames`` frames (~3 s at 30 fps);
     ``silhouette_shape``: then refined against :data:`SILHOUETTE_FRAMES` frames' silhouettes (MIR12c);
     ``bone_length_weight`` > 0: the SDK's joint distances enter the fit (:data:`BONE_LENGTH_WEIGHT`, MIR12o);
     ``trunk_refit``: the skeleton's trunk joints moved onto the SDK's (:func:`refit_trunk_joints`, MIR12r);
     ``unpose_posture``: the refined unposing holds :data:`POSTURE_BONES` at the subject's own static posture
-    (:func:`session_posture`, mir12v); off: :data:`UNPOSE_POSTURE_BONES`."""
+    (:func:`session_posture`, mir12v), False: the rest pose; None: :data:`UNPOSE_POSTURE_BONES` (on since mir12y)."""
     if model is None:
         from bodystudio.body.statistical import load_statistical_model
 
@@ -925,7 +991,8 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
                                         depth_camera=sensor.depth, camera=sensor.color if silhouette_shape else None,
                                         silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0,
                                         bone_length_weight=bone_length_weight, trunk_refit=trunk_refit,
-                                        unpose_posture_bones=POSTURE_BONES if unpose_posture else UNPOSE_POSTURE_BONES)
+                                        unpose_posture_bones=UNPOSE_POSTURE_BONES if unpose_posture is None
+                                        else POSTURE_BONES if unpose_posture else ())
 
 
 # --- persistence -----------------------------------------------------------------------------------

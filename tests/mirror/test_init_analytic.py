@@ -821,9 +821,12 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
     assert calls["silhouettes"] is False and calls["silhouette"] == (None, 0)  # MIR12c's refinement off by default
     assert calls["bone_length_weight"] == 0.0  # MIR12o's joint distances off by default
     assert calls["trunk_refit"] is False  # MIR12r's trunk refit off by default
-    assert calls["unpose_posture_bones"] == () == init_mod.UNPOSE_POSTURE_BONES  # mir12v's posture off by default
+    # mir12v's posture: on by default since mir12y, off when asked
+    assert calls["unpose_posture_bones"] == ("spine_02", "neck_01", "head") == init_mod.UNPOSE_POSTURE_BONES
     init_mod.initialise_source_body(session, model, unpose_posture=True)
     assert calls["unpose_posture_bones"] == ("spine_02", "neck_01", "head") == init_mod.POSTURE_BONES
+    init_mod.initialise_source_body(session, model, unpose_posture=False)
+    assert calls["unpose_posture_bones"] == ()
     init_mod.initialise_source_body(session, model, bone_length_weight=1.5)
     assert calls["bone_length_weight"] == 1.5
     init_mod.initialise_source_body(session, model, trunk_refit=True)
@@ -1016,7 +1019,8 @@ def test_initialisation_pools_at_most_max_pooled_points_with_a_fixed_seed(monkey
     monkeypatch.setattr(init_mod, "transform_to_default_pose", tdp)
     monkeypatch.setattr(init_mod, "fit_shape", lambda P0, m, c, **kw: pooled.append(P0) or (np.zeros(m.n_components),
                                                                                             0.0))
-    initialise_from_observations(obs, model, view_point=eye, passes=1, max_frames=7)
+    # the random subset (the weighted pool, the default since mir12y, pools every point: test_init_pass_settle.py)
+    initialise_from_observations(obs, model, view_point=eye, passes=1, max_frames=7, weighted_pool=False)
     everything = np.concatenate(seen)
     assert len(everything) > MAX_POOLED_POINTS and len(pooled[0]) == MAX_POOLED_POINTS
     pick = np.random.default_rng(0).choice(len(everything), MAX_POOLED_POINTS, replace=False)

@@ -39,13 +39,15 @@ def _run(monkeypatch, frames, **options):
 
     monkeypatch.setattr(init_mod, "transform_to_default_pose", unposed)
     monkeypatch.setattr(init_mod, "fit_shape", fit)
+    options.setdefault("weighted_pool", False)  # the subsets' options (the weighted pool is the default since mir12y)
     body = initialise_from_observations(obs, model, view_point=eye, passes=4, floor_y=None, **options)
     _run.weights = weights
     return body.coeffs / model.stddev, pooled
 
 
 def test_defaults_are_the_papers_passes():
-    assert init_mod.PASS_RELAXATION == 1.0 and init_mod.FIXED_POOL is False and init_mod.WEIGHTED_POOL is False
+    assert init_mod.PASS_RELAXATION == 1.0 and init_mod.FIXED_POOL is False
+    assert init_mod.WEIGHTED_POOL is True  # the default since mir12y
 
 
 def test_relaxation_moves_the_coefficients_part_of_the_way(monkeypatch, frames):

@@ -70,8 +70,9 @@ def test_unknown_posture_bones_are_refused(model_6k):
         initialise_from_observations([], model_6k, unpose_posture_bones=("spine_9",))
 
 
-def test_off_by_default():
-    assert UNPOSE_POSTURE_BONES == () and POSTURE_BONES == ("spine_02", "neck_01", "head")
+def test_on_by_default():
+    """The default since mir12y (with the weighted pool, docs/mirror.md)."""
+    assert UNPOSE_POSTURE_BONES == POSTURE_BONES == ("spine_02", "neck_01", "head")
 
 
 @pytest.mark.parametrize("bones", [("spine_02", "head"), ()])

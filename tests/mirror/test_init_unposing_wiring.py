@@ -157,6 +157,7 @@ def _wired(monkeypatch, model, passes=3, **kw):
     monkeypatch.setattr(init_mod, "refined_init_pose", refined)
     monkeypatch.setattr(init_mod, "transform_to_default_pose", tdp)
     monkeypatch.setattr(init_mod, "fit_shape", fit)
+    kw.setdefault("unpose_posture_bones", ())  # the posture (default since mir12y): test_init_unpose_posture.py
     initialise_from_observations(obs, model, view_point=eye, passes=passes, **kw)
     return obs, calls
 

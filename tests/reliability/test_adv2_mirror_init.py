@@ -68,8 +68,8 @@ def test_trunk_refit_with_too_few_frames_keeps_the_skeleton(mirror_session, tmp_
 
 def test_unpose_posture_with_one_actor_frame_writes_a_summary_that_says_so(mirror_session, tmp_path, capfd):
     """`mirror init --unpose-posture` (mir12v) on a copy of the 12-frame session (one actor frame read: the posture is
-    that frame's own): exit 0, `unpose_posture: true` in the summary (false without it), the body loads and is
-    finite."""
+    that frame's own): exit 0, `unpose_posture: true` in the summary (false with `--no-unpose-posture`, true with
+    neither: the default since mir12y), the body loads and is finite."""
     import shutil
 
     import numpy as np
@@ -79,11 +79,12 @@ def test_unpose_posture_with_one_actor_frame_writes_a_summary_that_says_so(mirro
     copy = tmp_path / "s"
     shutil.copytree(mirror_session, copy)
     shutil.rmtree(copy / "mirror", ignore_errors=True)
-    for flag in ("--no-unpose-posture", "--unpose-posture"):
-        result = run_inprocess(["mirror", "init", copy, "--resolution", "2k", flag, "--force"], capfd)
+    for flag in ("--no-unpose-posture", "--unpose-posture", None):
+        result = run_inprocess(["mirror", "init", copy, "--resolution", "2k", *([flag] if flag else []), "--force"],
+                               capfd)
         assert_clean_error(result, 0, "")
         summary = json.loads((copy / "mirror" / "source_body.json").read_text())
-        assert summary["unpose_posture"] is (flag == "--unpose-posture") and len(summary["frames_used"]) == 1
+        assert summary["unpose_posture"] is (flag != "--no-unpose-posture") and len(summary["frames_used"]) == 1
         body = load_source_body(copy / "mirror" / "source_body.npz")
         assert np.all(np.isfinite(body.vertices)) and np.all(np.isfinite(body.coeffs))
 

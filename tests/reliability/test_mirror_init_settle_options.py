@@ -1,5 +1,6 @@
-"""The init's settling options (mir12x: ``pass_relaxation``, ``pooled_points``, ``fixed_pool``, ``weighted_pool`` of
-``initialise_from_observations``) refuse a bad value with one line naming it and the fix, before any work."""
+"""The init's settling options (mir12x: ``pass_relaxation``, ``pooled_points``, ``fixed_pool``, ``weighted_pool``;
+mir12y: ``pool_seed`` of ``initialise_from_observations``) refuse a bad value with one line
+naming it and the fix, before any work."""
 
 import numpy as np
 import pytest
@@ -22,6 +23,9 @@ def model():
     (dict(pooled_points=0), r"pooled_points must be an integer >= 1 \(the depth points of one Eq. 2 fit\), got 0"),
     (dict(pooled_points=2.5), r"pooled_points must be an integer >= 1"),
     (dict(pooled_points=True), r"pooled_points must be an integer >= 1"),
+    (dict(pool_seed=-1), r"pool_seed must be an integer >= 0 \(the seed of the random depth-point subsets\), got -1"),
+    (dict(pool_seed=1.0), r"pool_seed must be an integer >= 0"),
+    (dict(pool_seed=False), r"pool_seed must be an integer >= 0"),
 ])
 def test_bad_settling_options_are_refused(model, options, message):
     with pytest.raises(InputError, match=message) as err:
