@@ -171,17 +171,18 @@ def sensor_to_studio(color: Camera, spec: CharucoBoardSpec, views: list[RGBDBoar
                      board_to_world: list[np.ndarray]) -> np.ndarray:
     """World->colour-camera 4x4 transform from one PnP of every board corner (world coordinates from the
     studio calibration's board poses) against the Kinect colour detections."""
-    P, uv = [], []
-    for v, T in zip(views, board_to_world, strict=True):
-        if np.isfinite(T[0, 0]):
+    P, uv, shared = [], [], []
+    for k, (v, T) in enumerate(zip(views, board_to_world, strict=True)):
+        if np.all(np.isfinite(T)):  # NaN: a pose the studio did not see
             P.append(board_corners(spec)[v.corner_ids] @ T[:3, :3].T + T[:3, 3])
             uv.append(v.corners_px)
+            shared.append(k)
     if not P:
         raise SessionError("no Kinect colour view shares a board pose with the studio cameras; capture boards "
                            "seen by the Kinect and the studio at the same time")
     P, uv = np.concatenate(P), np.concatenate(uv)
-    # Start from the first view's planar pose, then refine on all (non-coplanar) points.
-    first = color_board_pose(views[0], color, spec) @ rigid_inverse(board_to_world[0])
+    # Start from the first shared view's planar pose, then refine on all (non-coplanar) points.
+    first = color_board_pose(views[shared[0]], color, spec) @ rigid_inverse(board_to_world[shared[0]])
     rvec, tvec = cv2.Rodrigues(first[:3, :3])[0], first[:3, 3].reshape(3, 1).copy()
     ok, rvec, tvec = cv2.solvePnP(P, uv, color.K, color.dist, rvec, tvec, useExtrinsicGuess=True)
     return rvec_t_to_rigid(rvec, tvec)
