@@ -117,8 +117,10 @@ def calibrate(session_or_folder: Path = typer.Argument(..., help="session (with 
     for option, target in (("--easymocap", easymocap), ("--colmap", colmap)):
         if target is not None and target.exists() and not target.is_dir():
             raise InputError(f"{option} {target}: is a file; give a folder for the exported model")
-        if target is not None:
-            check_output_destination(target / "x", f"{option} folder")
+        # the files the export writes there (a probe named otherwise refused a folder holding a folder of that name)
+        for name in (() if target is None else ("intri.yml", "extri.yml") if option == "--easymocap"
+                     else ("cameras.txt", "images.txt", "points3D.txt")):
+            check_output_destination(target / name, f"{option} folder")
     rejected = out.with_name(out.stem + ".rejected.json")
     rejected_png = out.with_name(out.stem + ".rejected.coverage.png")
     # cameras.json, its coverage map, the exports and the report (written last, with their sha256) appear
