@@ -272,6 +272,11 @@ def init_spies(tmp_path, monkeypatch):
     spies = InitSpies(tmp_path / "sess")
     spies.session.path.mkdir()
     spies.real_initialise = init_mod.initialise_source_body
+    # the CLI leaves --unpose-posture to the API's default (False before mir12y; None = the posture bones' default
+    # since, main c3872cc): the summary records the setting used
+    default = inspect.signature(init_mod.initialise_source_body).parameters["unpose_posture"].default
+    spies.unpose_default = default
+    spies.unpose_used = bool(getattr(init_mod, "UNPOSE_POSTURE_BONES", ())) if default is None else default
     monkeypatch.setattr(session_mod, "open_session", spies.open_session)
     monkeypatch.setattr(statistical, "load_statistical_model", spies.load_model)
     monkeypatch.setattr(init_mod, "initialise_source_body", spies.initialise)
@@ -288,7 +293,8 @@ def test_init_defaults_reach_the_api(init_spies):
     assert init_spies.calls["model"] == [("6k", False)]
     ((sess, model, kwargs),) = init_spies.calls["init"]
     assert sess is init_spies.session and model is init_spies.model
-    assert kwargs == dict(player=1, n_frames=90, silhouette_shape=False, trunk_refit=False, unpose_posture=False)
+    assert kwargs == dict(player=1, n_frames=90, silhouette_shape=False, trunk_refit=False,
+                          unpose_posture=init_spies.unpose_default)
     api = inspect.signature(init_spies.real_initialise).parameters
     for name in ("player", "n_frames", "silhouette_shape", "trunk_refit", "unpose_posture"):
         assert kwargs[name] == api[name].default, name
@@ -297,7 +303,7 @@ def test_init_defaults_reach_the_api(init_spies):
     ((path, source, player),) = init_spies.calls["save"]
     assert path.name == "source_body.npz" and player == 1 and source is init_spies.source
     expected = {"source_body": "mirror/source_body.npz", "player": 1, "resolution": "6k", "silhouette_shape": False,
-                "silhouette_frames": 0, "trunk_refit": False, "unpose_posture": False,
+                "silhouette_frames": 0, "trunk_refit": False, "unpose_posture": init_spies.unpose_used,
                 "frames_used": [4, 5, 6, 7, 8, 9, 10, 11], "residual_mm": 12.35, "stature_m": 1.2346,
                 "mass_kg": 70.13, "coverage": {"seen": 0.9, "cut": 0.125}, "warnings": ["arms cut"]}
     assert json.loads(res.stdout) == expected
@@ -329,6 +335,15 @@ def test_init_every_option_reaches_the_api(init_spies):
     assert printed["silhouette_frames"] == 6  # SILHOUETTE_FRAMES of the 8 frames used
     assert json.loads((s / "mirror" / "source_body_player2.json").read_text())["player"] == 2
     assert not (s / "mirror" / "source_body.npz").exists()
+
+
+def test_init_no_unpose_posture(init_spies):
+    res = _invoke(["mirror", "init", init_spies.session.path, "--no-unpose-posture", "--no-trunk-refit",
+                   "--no-silhouette-shape"])
+    assert res.exit_code == 0, (res.output, res.exception)
+    assert init_spies.calls["init"][0][2] == dict(player=1, n_frames=90, silhouette_shape=False, trunk_refit=False,
+                                                  unpose_posture=False)
+    assert json.loads(res.stdout)["unpose_posture"] is False
 
 
 def test_init_silhouette_frames_are_at_most_the_frames_used(tmp_path, monkeypatch, init_spies):
