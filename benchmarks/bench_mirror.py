@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from benchmarks.timing import markdown_table
-from bodystudio.mirror.run import CORRESPONDENCE, MLS_ALPHA, MLS_RADIUS_PX
+from bodystudio.mirror.run import CORRESPONDENCE, MLS_ALPHA, MLS_RADIUS_PX, untwist_bones
 
 
 def _median_ms(fn, repeats: int) -> tuple[float, float]:
@@ -210,7 +210,8 @@ def _session_side(quick: bool) -> tuple[list[str], float | None, float | None, d
             init.time_init_and_track(observations, model, view_point=session.kinect.depth.center, track_frames=1,
                                      depth_camera=session.kinect.depth)
         track = init.time_init_and_track(observations, model, view_point=session.kinect.depth.center,
-                                         track_frames=30, depth_camera=session.kinect.depth)
+                                         track_frames=30, depth_camera=session.kinect.depth,
+                                         untwist_bones=untwist_bones())  # the run's (mir12aa: the feet too)
         last = frames.read_mirror_frame(session, session.frame_ids[-1])
         register = _median_ms(lambda: frames.register_depth_to_color(last.depth_m, last.player, session.kinect),
                               5)

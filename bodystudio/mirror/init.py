@@ -1074,13 +1074,14 @@ def load_source_body(path: str | Path, model: StatisticalBodyModel | None = None
 # --- timing for benchmarks/bench_mirror.py ---------------------------------------------------------
 
 def time_init_and_track(observations, model: StatisticalBodyModel, view_point=None, track_frames: int = 90,
-                        passes: int = INIT_PASSES, depth_camera=None) -> dict:
+                        passes: int = INIT_PASSES, depth_camera=None, untwist_bones=UNTWIST_BONES) -> dict:
     """Timings of the initialisation over ``observations`` and of the per-frame tracking, for benchmarks/.
 
     Returns wall-clock and CPU (``time.process_time``, immune to other processes on a shared machine)
     seconds of :func:`initialise_from_observations`, and per-frame milliseconds of ``ik_pose`` with
-    ``untwisted_pose`` as the run calls them (warm-started on the fitted skeleton, the observations' joints cycled to
-    ``track_frames`` frames), of skinning the source body, and of posing the source and target body in one pass
+    ``untwisted_pose`` at ``untwist_bones`` as the run calls them (the run's: ``run.untwist_bones()``; warm-started
+    on the fitted skeleton, the observations' joints cycled to ``track_frames`` frames), of skinning the source body,
+    and of posing the source and target body in one pass
     (the run's ``posed_source_and_target``): ``{"init_s", "init_cpu_s", "init_frames", "ik_ms", "ik_cpu_ms", "skin_ms",
     "skin_cpu_ms", "bodies_ms", "bodies_cpu_ms"}`` (the per-frame figures are means over the frames).
     """
@@ -1094,7 +1095,7 @@ def time_init_and_track(observations, model: StatisticalBodyModel, view_point=No
     previous = None
     for o in frames:  # as the run: its limbs untwisted, the next frame warm-started by that (MIR12p)
         previous = untwisted_pose(source.skeleton, ik_pose(source.skeleton, o.joints, o.tracked, o.version, previous),
-                                  UNTWIST_BONES)
+                                  untwist_bones)
         poses.append(previous)
     ik_s, ik_cpu_s = time.perf_counter() - w0, time.process_time() - c0
     w0, c0 = time.perf_counter(), time.process_time()
