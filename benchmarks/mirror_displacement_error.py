@@ -47,7 +47,7 @@ def record(session, untwist: bool, player: int = 1, posture_bones=()) -> dict:
     from bodystudio.mirror.foreground import refine_foreground
     from bodystudio.mirror.frames import point_cloud, read_mirror_frame, register_depth_to_color
     from bodystudio.mirror.refine import TWIST_BONES, refine_plan, refine_pose, updated_posture
-    from bodystudio.mirror.run import POSTURE_WINDOW, UNTWIST_BONES, load_source, refine_steps, refine_weights
+    from bodystudio.mirror.run import POSTURE_WINDOW, load_source, refine_steps, refine_weights, untwist_bones
     from bodystudio.mirror.track import ik_pose, untwisted_pose
 
     body, model = load_source(session)
@@ -77,7 +77,7 @@ def record(session, untwist: bool, player: int = 1, posture_bones=()) -> dict:
         background = update_background(background, frame.rgb, fg | (players_c > 0))
         ik = ik_pose(sk, tracked.positions, tracked.tracked, session.kinect.version, previous=previous)
         if untwist:
-            ik = untwisted_pose(sk, ik, UNTWIST_BONES)
+            ik = untwisted_pose(sk, ik, untwist_bones())  # as the run (the feet too since mir12aa)
         previous = ik
         # the same IK on the true rest skeleton: what the fitted skeleton adds to the IK's error (MIR12q)
         previous_true = ik_pose(true_sk, tracked.positions, tracked.tracked, session.kinect.version,

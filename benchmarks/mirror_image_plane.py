@@ -65,10 +65,10 @@ def score(session, rows, stride: int = 2, player: int = 1, per_frame=None) -> di
         MLS_RADIUS_PX,
         N_HANDLES,
         RIM_COS,
-        UNTWIST_BONES,
         load_source,
         refine_steps,
         refine_weights,
+        untwist_bones,
     )
     from bodystudio.mirror.track import ik_pose, untwisted_pose
     from bodystudio.mirror.warp import mls_warp_field, warp_foreground, warp_pairs
@@ -103,8 +103,8 @@ def score(session, rows, stride: int = 2, player: int = 1, per_frame=None) -> di
         fg = refine_foreground(frame.rgb, person, depth_c, background=background)
         background = update_background(background, frame.rgb, fg | (players_c > 0))
         ik = ik_pose(sk, tracked.positions, tracked.tracked, session.kinect.version, previous=previous)
-        if UNTWIST_BONES:  # as the run (MIR12p)
-            ik = untwisted_pose(sk, ik, UNTWIST_BONES)
+        if untwist_bones():  # as the run (MIR12p; the feet too since mir12aa)
+            ik = untwisted_pose(sk, ik, untwist_bones())
         previous = ik
         pose = refine_pose(plan, sk, ik, camera, fg, tracked.positions, tracked.tracked, points, others,
                            session.kinect.version, iterations=refine_steps(1), weights=refine_weights(1))
