@@ -8,12 +8,12 @@ Per synthetic mirror session (with ``gt/mirror/actors.npz``), player 1's init fr
 ``passes=k`` returns (nothing in a pass depends on the pass count). Variants: ``main`` (a fresh random subset of
 MAX_POOLED_POINTS depth points per pass), ``weighted`` (``weighted_pool``: every point, each weighted
 MAX_POOLED_POINTS / N), ``fixed`` (``fixed_pool``: the same subset every pass), ``relaxed`` (``pass_relaxation=0.5``
-with the fixed pool), ``posture`` / ``weighted-posture`` (mir12v's ``--unpose-posture`` bones, alone / with the weighted
-pool). Printed per session and variant: the error of the Eq. 4 displacement ``B(c_T) - B(c_S)`` against
-the truth's (mean over vertices, mm) after each pass, the stature (mm) and mass (kg) errors after each pass, and the
-CPU seconds of the whole init. ``--write NAME.npz``: the first variant's body of ``--passes`` passes saved as
-``SESSION/mirror/NAME.npz`` (for ``benchmarks/mirror_refine_end_to_end.py --source``; run it on a session copy).
-"""
+with the fixed pool), ``posture`` / ``weighted-posture`` (mir12v's ``--unpose-posture`` bones, alone / with the
+weighted pool), ``splay`` (mir12ab's ``leg_splay``). Printed per session and variant: the error of the Eq. 4
+displacement ``B(c_T) - B(c_S)`` against the truth's (mean over vertices, mm) after each pass, the stature (mm) and
+mass (kg) errors after each pass, and the CPU seconds of the whole init. ``--write NAME.npz``: the first variant's
+body of ``--passes`` passes saved as ``SESSION/mirror/NAME.npz`` (for ``benchmarks/mirror_refine_end_to_end.py
+--source``; run it on a session copy)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,8 @@ import numpy as np
 VARIANTS = {"main": {}, "weighted": {"weighted_pool": True}, "fixed": {"fixed_pool": True},
             "relaxed": {"fixed_pool": True, "pass_relaxation": 0.5},
             "weighted-posture": {"weighted_pool": True, "unpose_posture_bones": ("spine_02", "neck_01", "head")},
-            "posture": {"unpose_posture_bones": ("spine_02", "neck_01", "head")}}
+            "posture": {"unpose_posture_bones": ("spine_02", "neck_01", "head")},
+            "splay": {"leg_splay": True}}
 
 
 def main() -> None:

@@ -180,6 +180,13 @@ WEIGHTED_POOL = False
 POOL_KEY_SEED = 0
 #: The bones ``--unpose-posture`` centres (MIR12q's: the bones whose static bend the run's E_trunk shrinks).
 POSTURE_BONES = ("spine_02", "neck_01", "head")
+#: Lower legs :func:`leg_splay_basis` turns about each knee: (the calf bone, the bones below the knee it carries).
+LEG_SPLAY_CHAINS = (("calf_l", ("calf_l", "foot_l", "ball_l")), ("calf_r", ("calf_r", "foot_r", "ball_r")))
+#: Prior of the legs' free rest rotations in Eq. 2 (radians, each axis): ~6 degrees, twice the splay mir12z found.
+LEG_SPLAY_SIGMA_RAD = 0.1
+#: The legs' rest rotations solved with the shape as nuisance parameters (``initialise_from_observations``'s
+#: ``leg_splay``; off, mir12ab).
+LEG_SPLAY = False
 
 
 @dataclass(frozen=True, eq=False)
@@ -353,7 +360,8 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
               correspondence=None, joints_default=None, joint_weight: float = 0.0, version: str = "v2",
               iterations: int = 4, symmetric: bool = False, point_sigma_m: float = POINT_SIGMA_M, trim_m: float = 0.05,
               return_residual: bool = False, bone_lengths=None, bone_length_weight: float = 0.0,
-              point_weight: float = 1.0):
+              point_weight: float = 1.0, free_basis=None, free_joint_basis=None,
+              free_sigma: float = LEG_SPLAY_SIGMA_RAD):
     """Coefficients minimising Eq. 2, ``sum_i |p_i - v_k(i)(alpha)|^2``, for a cloud in the default pose.
 
     ``k(i)`` is the closest vertex (among ``candidates``, e.g. the vertices the sensor saw) and is
@@ -366,6 +374,9 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
     ``bone_lengths`` (len(:data:`BONE_PAIRS`),) measured joint distances (NaN: not measured) are matched with
     ``bone_length_weight`` (one number, or one per pair) each (:func:`bone_length_rows`). ``point_weight``: the
     weight of one depth point (1: as the prior and the joints assume; a pool of N points weighted M / N weighs as M).
+    ``free_basis`` (m, n, 3): m more displacement directions of the rest body solved with the coefficients (their
+    Kinect joints' ``free_joint_basis`` (m, J, 3)), each with a Gaussian prior of ``free_sigma``, and left out of the
+    returned coefficients: nuisance parameters the data may use instead of the shape (:func:`leg_splay_basis`).
     """
     P = np.asarray(points_default, dtype=np.float64)
     finite = np.all(np.isfinite(P), axis=1)
@@ -393,8 +404,13 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
     length_weights = None
     if bone_lengths is not None and np.any(np.asarray(bone_length_weight) > 0):
         length_weights = np.broadcast_to(np.asarray(bone_length_weight, dtype=np.float64), (len(BONE_PAIRS),))
+    free = None if free_basis is None else np.asarray(free_basis, dtype=np.float64)
+    if free is not None and (free.ndim != 3 or free.shape[1:] != model.mean.shape or not np.all(np.isfinite(free))):
+        raise InputError(f"free_basis must be finite (m, {len(model.mean)}, 3) displacement columns of the model's "
+                         f"rest vertices (leg_splay_basis), got shape {free.shape}")
+    delta = np.zeros(0 if free is None else len(free))
     for it in range(iterations):
-        V = model.vertices(c)
+        V = model.vertices(c) if free is None else model.vertices(c) + np.tensordot(delta, free, axes=1)
         if it == 0 and given is not None:
             m = given
             keep = m >= 0
@@ -430,10 +446,66 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
             AtA[:k, :k] += (A_len.T * length_weights[rows]) @ A_len
             Atb[:k] += (A_len.T * length_weights[rows]) @ b_len
         AtA[np.arange(k), np.arange(k)] += prior
+        if free is not None:
+            AtA, Atb = _with_free_columns(AtA, Atb, basis, free, counts, S, joint_rows, free_joint_basis,
+                                          joints_default, joint_weight, len(Jm) if joint_rows is not None else 0,
+                                          point_sigma_m ** 2 / free_sigma ** 2)
         x = np.linalg.solve(AtA, Atb)
-        c, t = x[:k], x[k:]
-        residual = float(np.median(np.linalg.norm(P[keep] - t - model.vertices(c)[m[keep]], axis=1)))
+        c, t, delta = x[:k], x[k:k + 3], x[k + 3:]
+        V = model.vertices(c) if free is None else model.vertices(c) + np.tensordot(delta, free, axes=1)
+        residual = float(np.median(np.linalg.norm(P[keep] - t - V[m[keep]], axis=1)))
     return (c, residual) if return_residual else c
+
+
+def _with_free_columns(AtA, Atb, basis, free, counts, S, joint_rows, free_joint_basis, joints_default,
+                       joint_weight, n_joints, free_prior):
+    """Eq. 2's normal equations (coefficients, translation) extended by the ``free`` displacement columns (m, n, 3)
+    (:func:`fit_shape`'s ``free_basis``): the unknowns become (coefficients, translation, free amounts)."""
+    k, m = len(basis), len(free)
+    n_old = len(AtA)
+    out = np.zeros((n_old + m, n_old + m))
+    out[:n_old, :n_old] = AtA
+    F_c = free * counts[None, :, None]
+    out[:k, n_old:] = np.einsum("knd,mnd->km", basis, F_c)
+    out[k:k + 3, n_old:] = F_c.sum(1).T
+    out[n_old:, n_old:] = np.einsum("mnd,lnd->ml", free, F_c) + free_prior * np.eye(m)
+    b = np.concatenate([Atb, np.einsum("mnd,nd->m", free, S)])
+    if joint_rows is not None and free_joint_basis is not None:
+        Jd = np.asarray(joints_default, dtype=np.float64).reshape(-1, n_joints, 3)
+        _, j = np.nonzero(np.all(np.isfinite(Jd), axis=2))
+        A_free = np.sqrt(joint_weight) * np.asarray(free_joint_basis, dtype=np.float64)[:, j].reshape(m, -1).T
+        out[:n_old, n_old:] += joint_rows[0].T @ A_free
+        out[n_old:, n_old:] += A_free.T @ A_free
+        b[n_old:] += A_free.T @ joint_rows[1]
+    out[n_old:, :n_old] = out[:n_old, n_old:].T
+    return out, b
+
+
+def leg_splay_basis(vertices: np.ndarray, weights: np.ndarray, skeleton: Skeleton, version: str = "v2",
+                    chains=LEG_SPLAY_CHAINS) -> tuple[np.ndarray, np.ndarray]:
+    """The rest body's lower legs turned about their knees, linearised: per leg two columns (about the body's forward
+    axis z: the splay; about its sideways axis x: the calf forward / back), ``w(v) (a x (v - knee))`` with ``w`` the
+    skin weight of the bones below the knee; returns the vertex columns (2L, n, 3) and the Kinect joints'
+    (2L, J, 3) (the bone ends below the knee turned the same way).
+
+    A rest calf splayed out and a posed calf turned in by the IK give the same posed surface (mir12z): with these
+    columns free in Eq. 2 (:func:`fit_shape`'s ``free_basis``) the unposed cloud's splay is taken up by them rather
+    than by the shape coefficients, whose population ties a wide splay to wide hips and mass."""
+    V = np.asarray(vertices, dtype=np.float64)
+    names = list(skeleton.bone_names)
+    cols, joint_cols = [], []
+    base = skeleton_kinect_joints(skeleton, skeleton.heads, skeleton.tails, version)
+    for calf, below in chains:
+        knee = skeleton.heads[names.index(calf)]
+        idx = [names.index(b) for b in below]
+        w = np.asarray(weights)[:, idx].sum(1)
+        for axis in (np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])):
+            cols.append(w[:, None] * np.cross(axis, V - knee))
+            heads, tails = skeleton.heads.copy(), skeleton.tails.copy()
+            heads[idx] += np.cross(axis, heads[idx] - knee)
+            tails[idx] += np.cross(axis, tails[idx] - knee)
+            joint_cols.append(skeleton_kinect_joints(skeleton, heads, tails, version) - base)
+    return np.array(cols), np.array(joint_cols)
 
 
 @lru_cache(maxsize=4)
@@ -574,7 +646,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  pass_relaxation: float = PASS_RELAXATION,
                                  fixed_pool: bool = FIXED_POOL,
                                  pooled_points: int = MAX_POOLED_POINTS,
-                                 weighted_pool: bool = WEIGHTED_POOL) -> SourceBody:
+                                 weighted_pool: bool = WEIGHTED_POOL,
+                                 leg_splay: bool = LEG_SPLAY) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -601,7 +674,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     points of each frame (a fixed random key per point) instead of a fresh random subset (:data:`FIXED_POOL`);
     ``pooled_points``: how many (:data:`MAX_POOLED_POINTS`). ``weighted_pool``: every pass pools every point instead,
     each weighted ``pooled_points`` / N, so the fit weighs its data against the prior and the joints as the subset
-    did, without the subset's sampling noise (:data:`WEIGHTED_POOL`).
+    did, without the subset's sampling noise (:data:`WEIGHTED_POOL`). ``leg_splay``: each pass's Eq. 2 also solves a
+    small rest rotation of each lower leg about its knee (:func:`leg_splay_basis`), dropped from the result, so that
+    the unposed cloud's calf splay is not fitted by the shape coefficients (:data:`LEG_SPLAY`; mir12ab).
     """
     model = check_model(model)
     if not (np.isfinite(pass_relaxation) and 0.0 < pass_relaxation <= 1.0):
@@ -609,6 +684,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     if isinstance(pooled_points, bool) or not isinstance(pooled_points, (int, np.integer)) or pooled_points < 1:
         raise InputError(f"pooled_points must be an integer >= 1 (the depth points of one Eq. 2 fit), "
                          f"got {pooled_points!r}")
+    if not isinstance(leg_splay, (bool, np.bool_)):
+        raise InputError(f"leg_splay must be True or False (the legs' rest rotations solved with the shape), "
+                         f"got {leg_splay!r}")
     unpose_posture_bones = tuple(unpose_posture_bones)
     unknown = sorted(set(unpose_posture_bones) - set(model.bone_names))
     if unknown:
@@ -687,12 +765,16 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             pick = np.sort(np.argsort(np.concatenate(keys), kind="stable")[:pooled_points]) if fixed_pool \
                 else rng.choice(len(P0), pooled_points, replace=False)
             P0, k0 = P0[pick], k0[pick]
+        free = (None, None)
+        if leg_splay:
+            free = leg_splay_basis(body.vertices, model.weights, body.skeleton, obs[0][0].version, LEG_SPLAY_CHAINS)
         fitted, residual = fit_shape(P0, model, coeffs, candidates=np.unique(np.concatenate(seen)), correspondence=k0,
                                      iterations=ICP_ITERATIONS[min(pass_, len(ICP_ITERATIONS) - 1)],
                                      joints_default=np.array(joints0) if joints0 else None,
                                      joint_weight=joint_weight, version=obs[0][0].version, trim_m=trim_m,
                                      point_sigma_m=point_sigma_m, return_residual=True, bone_lengths=bone_lengths,
-                                     bone_length_weight=length_weight, point_weight=point_weight)
+                                     bone_length_weight=length_weight, point_weight=point_weight,
+                                     free_basis=free[0], free_joint_basis=free[1], free_sigma=LEG_SPLAY_SIGMA_RAD)
         coeffs = coeffs + pass_relaxation * (fitted - coeffs) if pass_ > 0 else fitted
         skeleton = refit_skeleton(model, coeffs)
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,
