@@ -128,6 +128,8 @@ def main(argv=None) -> int:
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--true-swing", nargs="+", default=[], metavar="BONE")
     parser.add_argument("--leg-splay", action="store_true", help="the init's leg_splay option (mir12ab)")
+    parser.add_argument("--knee-hinge-weight", type=float, default=0.0,
+                        help="the init's knee_hinge_weight option (mir12ab; 0: off)")
     parser.add_argument("--shadow", type=Path, default=None)
     parser.add_argument("--name", default=None)
     args = parser.parse_args(argv)
@@ -149,7 +151,8 @@ def main(argv=None) -> int:
         actors = np.load(path / "gt" / "mirror" / "actors.npz")
         obs, sensor = init_mod.collect_observations(session, None, 1, init_mod.DEFAULT_INIT_FRAMES)
         fitted, seen = recorded_init(init_mod, obs, model, sensor, path, actors, tuple(args.true_swing),
-                                      **({"leg_splay": True} if args.leg_splay else {}))
+                                      **({"leg_splay": True} if args.leg_splay else {}),
+                                      knee_hinge_weight=args.knee_hinge_weight)
         last = seen[-len(fitted.frames_used):]
         table = {"ik": [], "refined": []}
         for body, o, pose in last:

@@ -187,6 +187,8 @@ LEG_SPLAY_SIGMA_RAD = 0.1
 #: The legs' rest rotations solved with the shape as nuisance parameters (``initialise_from_observations``'s
 #: ``leg_splay``; off, mir12ab).
 LEG_SPLAY = False
+#: Weight of each leg's knee-hinge splay row in Eq. 2 (:func:`knee_hinge_splay_rows`), in depth points; 0: off.
+KNEE_HINGE_WEIGHT = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -361,7 +363,7 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
               iterations: int = 4, symmetric: bool = False, point_sigma_m: float = POINT_SIGMA_M, trim_m: float = 0.05,
               return_residual: bool = False, bone_lengths=None, bone_length_weight: float = 0.0,
               point_weight: float = 1.0, free_basis=None, free_joint_basis=None,
-              free_sigma: float = LEG_SPLAY_SIGMA_RAD):
+              free_sigma: float = LEG_SPLAY_SIGMA_RAD, coeff_rows=None):
     """Coefficients minimising Eq. 2, ``sum_i |p_i - v_k(i)(alpha)|^2``, for a cloud in the default pose.
 
     ``k(i)`` is the closest vertex (among ``candidates``, e.g. the vertices the sensor saw) and is
@@ -377,6 +379,8 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
     ``free_basis`` (m, n, 3): m more displacement directions of the rest body solved with the coefficients (their
     Kinect joints' ``free_joint_basis`` (m, J, 3)), each with a Gaussian prior of ``free_sigma``, and left out of the
     returned coefficients: nuisance parameters the data may use instead of the shape (:func:`leg_splay_basis`).
+    ``coeff_rows`` ``(A (r, k), b (r,))``: more weighted linear rows ``A c = b`` on the coefficients
+    (:func:`knee_hinge_splay_rows`).
     """
     P = np.asarray(points_default, dtype=np.float64)
     finite = np.all(np.isfinite(P), axis=1)
@@ -446,6 +450,9 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
             AtA[:k, :k] += (A_len.T * length_weights[rows]) @ A_len
             Atb[:k] += (A_len.T * length_weights[rows]) @ b_len
         AtA[np.arange(k), np.arange(k)] += prior
+        if coeff_rows is not None:
+            AtA[:k, :k] += coeff_rows[0].T @ coeff_rows[0]
+            Atb[:k] += coeff_rows[0].T @ coeff_rows[1]
         if free is not None:
             AtA, Atb = _with_free_columns(AtA, Atb, basis, free, counts, S, joint_rows, free_joint_basis,
                                           joints_default, joint_weight, len(Jm) if joint_rows is not None else 0,
@@ -506,6 +513,41 @@ def leg_splay_basis(vertices: np.ndarray, weights: np.ndarray, skeleton: Skeleto
             tails[idx] += np.cross(axis, tails[idx] - knee)
             joint_cols.append(skeleton_kinect_joints(skeleton, heads, tails, version) - base)
     return np.array(cols), np.array(joint_cols)
+
+
+def knee_hinge_splay_rows(model: StatisticalBodyModel, skeleton: Skeleton, poses, version: str = "v2",
+                          weight: float = KNEE_HINGE_WEIGHT, legs=(("calf_l", "KneeLeft", "AnkleLeft"),
+                                                                  ("calf_r", "KneeRight", "AnkleRight"))):
+    """Eq. 2 rows holding each rest calf's component along its knee's hinge axis at the one the frames measure.
+
+    A knee turns about one axis fixed in the thigh (the rig's: the calf bone's rest x axis), so the calf's direction
+    brought back by the thigh's transform alone, ``S_thigh^-1 S_calf d``, has the same component along that axis in
+    every frame whatever the flexion: the rest calf's own. ``poses`` (the frames' refined poses of ``skeleton``) aim
+    each calf at the SDK's ankle, so the mean of that component over the frames measures the true rest splay, which
+    the unposing of one frame cannot tell from a pose (mir12z). Returns ``(A, b)`` with one row per leg,
+    ``sqrt(weight) a . (Ankle(c) - Knee(c)) = sqrt(weight) m L`` (the model's Kinect joints are linear in c; ``L`` the
+    calf's current length), for :func:`fit_shape`'s ``coeff_rows``."""
+    Jm, Jb = _model_kinect_joints(model, version)
+    names = kinect_joint_names(version)
+    rows, rhs = [], []
+    for calf, knee_name, ankle_name in legs:
+        b = skeleton.index(calf)
+        thigh = int(skeleton.parents[b])
+        axis = skeleton.rest_rotations[b][:, 0]
+        d = (skeleton.tails[b] - skeleton.heads[b]) / max(skeleton.lengths[b], 1e-9)
+        measured = []
+        for pose in poses:
+            S = skinning_transforms(skeleton, pose)
+            u = S[thigh, :3, :3].T @ (S[b, :3, :3] @ d)
+            measured.append(float(axis @ u))
+        if not measured:
+            continue
+        ka, kk = names.index(_kinect_name(ankle_name, version)), names.index(_kinect_name(knee_name, version))
+        rows.append(np.sqrt(weight) * (Jb[:, ka] - Jb[:, kk]) @ axis)
+        rhs.append(np.sqrt(weight) * (np.median(measured) * skeleton.lengths[b] - (Jm[ka] - Jm[kk]) @ axis))
+    if not rows:
+        return None
+    return np.array(rows), np.array(rhs)
 
 
 @lru_cache(maxsize=4)
@@ -647,7 +689,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  fixed_pool: bool = FIXED_POOL,
                                  pooled_points: int = MAX_POOLED_POINTS,
                                  weighted_pool: bool = WEIGHTED_POOL,
-                                 leg_splay: bool = LEG_SPLAY) -> SourceBody:
+                                 leg_splay: bool = LEG_SPLAY,
+                                 knee_hinge_weight: float = KNEE_HINGE_WEIGHT) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -684,6 +727,10 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     if isinstance(pooled_points, bool) or not isinstance(pooled_points, (int, np.integer)) or pooled_points < 1:
         raise InputError(f"pooled_points must be an integer >= 1 (the depth points of one Eq. 2 fit), "
                          f"got {pooled_points!r}")
+    if isinstance(knee_hinge_weight, bool) or not isinstance(knee_hinge_weight, (int, float, np.integer, np.floating)) \
+            or not (np.isfinite(knee_hinge_weight) and knee_hinge_weight >= 0):
+        raise InputError(f"knee_hinge_weight must be a finite number >= 0 (0: no knee-hinge splay rows), "
+                         f"got {knee_hinge_weight!r}")
     if not isinstance(leg_splay, (bool, np.bool_)):
         raise InputError(f"leg_splay must be True or False (the legs' rest rotations solved with the shape), "
                          f"got {leg_splay!r}")
@@ -774,7 +821,10 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                      joint_weight=joint_weight, version=obs[0][0].version, trim_m=trim_m,
                                      point_sigma_m=point_sigma_m, return_residual=True, bone_lengths=bone_lengths,
                                      bone_length_weight=length_weight, point_weight=point_weight,
-                                     free_basis=free[0], free_joint_basis=free[1], free_sigma=LEG_SPLAY_SIGMA_RAD)
+                                     free_basis=free[0], free_joint_basis=free[1], free_sigma=LEG_SPLAY_SIGMA_RAD,
+                                     coeff_rows=knee_hinge_splay_rows(model, body.skeleton, refined_poses,
+                                                                      obs[0][0].version, knee_hinge_weight)
+                                     if knee_hinge_weight > 0 and refined_poses else None)
         coeffs = coeffs + pass_relaxation * (fitted - coeffs) if pass_ > 0 else fitted
         skeleton = refit_skeleton(model, coeffs)
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,

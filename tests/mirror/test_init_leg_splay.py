@@ -63,3 +63,43 @@ def test_initialisation_with_leg_splay_still_recovers_stature_and_mass(walk_scen
     # the default's bounds in test_init.py (6.4 mm, 1.1 kg measured there)
     assert abs(m["stature_m"] - walk_scene.truth["stature_m"]) < 0.0095
     assert abs(m["mass_kg"] - walk_scene.truth["mass_kg"]) < 2.0
+
+
+def _hinge_poses(skeleton, eps_rad, flexions, rng):
+    """Poses whose calves turn about their rest x axis (the knee's hinge) by ``flexions`` after a fixed abduction
+    ``eps_rad`` about their z axis, the thighs and root turned at random."""
+    from scipy.spatial.transform import Rotation
+
+    from bodystudio.body.pose import Pose
+
+    poses = []
+    for theta in flexions:
+        rot = np.zeros((skeleton.n_bones, 3))
+        for bone in ("Root", "thigh_l", "thigh_r"):
+            rot[skeleton.index(bone)] = rng.normal(0.0, 0.4, 3)
+        calf = (Rotation.from_rotvec([theta, 0.0, 0.0]) * Rotation.from_rotvec([0.0, 0.0, eps_rad])).as_rotvec()
+        rot[skeleton.index("calf_l")] = calf
+        rot[skeleton.index("calf_r")] = calf
+        poses.append(Pose(rot, np.zeros(3)))
+    return poses
+
+
+def test_knee_hinge_rows_measure_the_static_abduction_at_any_flexion(model_6k):
+    from bodystudio.body.kinect import kinect_joint_names
+    from bodystudio.mirror.init import _model_kinect_joints, knee_hinge_splay_rows
+
+    sk = model_6k.skeleton(np.zeros(model_6k.n_components))
+    Jm, _ = _model_kinect_joints(model_6k, "v2")
+    names = kinect_joint_names("v2")
+    rng = np.random.default_rng(3)
+    for eps, flexions in ((0.05, (0.1, 0.6, 1.2)), (-0.03, (0.0, 0.9))):
+        A, b = knee_hinge_splay_rows(model_6k, sk, _hinge_poses(sk, eps, flexions, rng), "v2", weight=4.0)
+        assert A.shape == (2, model_6k.n_components)
+        for row, (calf, knee, ankle) in enumerate((("calf_l", "KneeLeft", "AnkleLeft"),
+                                                   ("calf_r", "KneeRight", "AnkleRight"))):
+            i = sk.index(calf)
+            axis = sk.rest_rotations[i][:, 0]
+            target = b[row] / 2.0 + (Jm[names.index(ankle)] - Jm[names.index(knee)]) @ axis
+            # the rest calf held at the abduction every frame shows, whatever the knee's flexion and the thigh's turn
+            np.testing.assert_allclose(target, -np.sin(eps) * sk.lengths[i], atol=1e-9)
+    assert knee_hinge_splay_rows(model_6k, sk, [], "v2", weight=4.0) is None
