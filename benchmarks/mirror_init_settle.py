@@ -9,7 +9,8 @@ Per synthetic mirror session (with ``gt/mirror/actors.npz``), player 1's init fr
 fresh random subset of MAX_POOLED_POINTS depth points per pass), ``weighted`` (``weighted_pool``: every point, each
 weighted MAX_POOLED_POINTS / N), ``fixed`` (``fixed_pool``: the same subset every pass), ``relaxed``
 (``pass_relaxation=0.5`` with the fixed pool), ``posture`` / ``weighted-posture`` (mir12v's ``--unpose-posture`` bones,
-alone / with the weighted pool; the latter ``mirror init``'s default since mir12y). Printed per session and variant:
+alone / with the weighted pool; the latter ``mirror init``'s default since mir12y), ``splay`` (mir12ab's
+``leg_splay`` on main's old init). Printed per session and variant:
 the error of the Eq. 4 displacement ``B(c_T) - B(c_S)`` against the truth's (mean over vertices, mm) after each pass,
 the stature (mm) and mass (kg) errors after each pass, and the CPU seconds of the whole init. ``--write NAME.npz``: the
 first variant's body of ``--passes`` passes saved as ``SESSION/mirror/NAME.npz`` (for
@@ -33,7 +34,8 @@ _PLAIN = {"weighted_pool": False, "unpose_posture_bones": ()}
 VARIANTS = {"main": _PLAIN, "weighted": {**_PLAIN, "weighted_pool": True}, "fixed": {**_PLAIN, "fixed_pool": True},
             "relaxed": {**_PLAIN, "fixed_pool": True, "pass_relaxation": 0.5},
             "weighted-posture": {"weighted_pool": True, "unpose_posture_bones": ("spine_02", "neck_01", "head")},
-            "posture": {**_PLAIN, "unpose_posture_bones": ("spine_02", "neck_01", "head")}}
+            "posture": {**_PLAIN, "unpose_posture_bones": ("spine_02", "neck_01", "head")},
+            "splay": {**_PLAIN, "leg_splay": True}}
 
 
 def main() -> None:

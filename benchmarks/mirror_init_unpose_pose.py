@@ -1,7 +1,7 @@
 """Which bones of the pose ``mirror init`` unposes each frame with are wrong, and what each costs the fit (mir12z).
 
 Usage: PYTHONPATH=. python benchmarks/mirror_init_unpose_pose.py SESSION [SESSION ...]
-       [--true-swing BONE [BONE ...]] [--shadow DIR --name NAME.npz]
+       [--true-swing BONE [BONE ...]] [--leg-splay] [--shadow DIR --name NAME.npz]
 
 Per synthetic mirror session (with ``gt/mirror``), player 1's init from ``mirror init``'s observations
 (:func:`bodystudio.mirror.init.initialise_from_observations`, the defaults), recording the pose each fitted frame is
@@ -13,16 +13,15 @@ mean over frames). Then the init's scores (``mirror_init_posture.init_scores``: 
 vertex error, stature, mass, chest and hip girth) and the **posed** error (the fitted body posed by the true pose
 against the true posed vertices, every 8th frame from the actor's first; the source silhouette the warp starts from).
 
-``--true-swing BONES`` re-runs the init with those bones' directions taken from the truth in every unposing pose (their
-twist, and every other bone, the refined pose's; ``mirror_pose_oracle.oracle_swing``): an oracle of what a right
-unposing of those bones is worth. ``--shadow DIR --name NAME.npz`` writes the oracle's body (without ``--true-swing``,
-the default init's) as ``DIR/<session>/mirror/NAME.npz`` in a shadow of the session
-(``mirror_init_variants.shadow_session``: nothing is written into the session), for
-``benchmarks/mirror_refine_end_to_end.py --runs refine --source NAME.npz --out OUT DIR/<session>``.
-Example (docs/mirror.md, mir12z): ``S57 --true-swing calf_l calf_r --shadow W --name calves.npz`` (the sessions
-first: ``--true-swing`` takes every name after it): 57's posed error 15.4 -> 4.6 mm, mass +3.30 -> +1.12 kg, end to
-end 0.9464 -> 0.9539.
-"""
+``--true-swing BONES`` re-runs the init with those bones' directions taken from the truth in every unposing pose
+(their twist, and every other bone, the refined pose's; ``mirror_pose_oracle.oracle_swing``): an oracle of what a
+right unposing of those bones is worth. ``--shadow DIR --name NAME.npz`` writes the oracle's body (without
+``--true-swing``, the default init's; with ``--leg-splay`` the init's ``leg_splay`` option, mir12ab) as
+``DIR/<session>/mirror/NAME.npz`` in a shadow of the session (``mirror_init_variants.shadow_session``: nothing is
+written into the session), for ``benchmarks/mirror_refine_end_to_end.py --runs refine --source NAME.npz --out OUT
+DIR/<session>``. Example (docs/mirror.md, mir12z): ``S57 --true-swing calf_l calf_r --shadow W --name calves.npz``
+(the sessions first: ``--true-swing`` takes every name after it): 57's posed error 15.4 -> 4.6 mm, mass +3.30 -> +1.12
+kg, end to end 0.9464 -> 0.9539."""
 
 from __future__ import annotations
 
@@ -91,7 +90,7 @@ def posed_error_mm(model, coeffs, session: Path, actors, frames) -> float:
     return 1000.0 * float(np.mean(err))
 
 
-def recorded_init(init_mod, obs, model, sensor, session: Path, actors, true_swing=()):
+def recorded_init(init_mod, obs, model, sensor, session: Path, actors, true_swing=(), **options):
     """The default init of ``obs``, and every ``(body, observation, pose)`` it unposed by, in order; with
     ``true_swing`` (bone names) those bones' directions replaced by the truth's in each pose."""
     from benchmarks.mirror_pose_oracle import oracle_swing, pose_from_world, world_rotations
@@ -111,7 +110,7 @@ def recorded_init(init_mod, obs, model, sensor, session: Path, actors, true_swin
     init_mod.refined_init_pose = recorded
     try:
         fitted = init_mod.initialise_from_observations(obs, model, view_point=sensor.depth.center,
-                                                       depth_camera=sensor.depth)
+                                                       depth_camera=sensor.depth, **options)
     finally:
         init_mod.refined_init_pose = original
     return fitted, seen
@@ -128,6 +127,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--true-swing", nargs="+", default=[], metavar="BONE")
+    parser.add_argument("--leg-splay", action="store_true", help="the init's leg_splay option (mir12ab)")
+    parser.add_argument("--knee-hinge-weight", type=float, default=0.0,
+                        help="the init's knee_hinge_weight option (mir12ab; 0: off)")
     parser.add_argument("--shadow", type=Path, default=None)
     parser.add_argument("--name", default=None)
     args = parser.parse_args(argv)
@@ -148,7 +150,9 @@ def main(argv=None) -> int:
         session = open_session(path)
         actors = np.load(path / "gt" / "mirror" / "actors.npz")
         obs, sensor = init_mod.collect_observations(session, None, 1, init_mod.DEFAULT_INIT_FRAMES)
-        fitted, seen = recorded_init(init_mod, obs, model, sensor, path, actors, tuple(args.true_swing))
+        fitted, seen = recorded_init(init_mod, obs, model, sensor, path, actors, tuple(args.true_swing),
+                                      **({"leg_splay": True} if args.leg_splay else {}),
+                                      knee_hinge_weight=args.knee_hinge_weight)
         last = seen[-len(fitted.frames_used):]
         table = {"ik": [], "refined": []}
         for body, o, pose in last:

@@ -188,6 +188,15 @@ WEIGHTED_POOL = True
 POOL_KEY_SEED = 0
 #: The bones ``--unpose-posture`` centres (MIR12q's: the bones whose static bend the run's E_trunk shrinks).
 POSTURE_BONES = ("spine_02", "neck_01", "head")
+#: Lower legs :func:`leg_splay_basis` turns about each knee: (the calf bone, the bones below the knee it carries).
+LEG_SPLAY_CHAINS = (("calf_l", ("calf_l", "foot_l", "ball_l")), ("calf_r", ("calf_r", "foot_r", "ball_r")))
+#: Prior of the legs' free rest rotations in Eq. 2 (radians, each axis): ~6 degrees, twice the splay mir12z found.
+LEG_SPLAY_SIGMA_RAD = 0.1
+#: The legs' rest rotations solved with the shape as nuisance parameters (``initialise_from_observations``'s
+#: ``leg_splay``; off, mir12ab).
+LEG_SPLAY = False
+#: Weight of each leg's knee-hinge splay row in Eq. 2 (:func:`knee_hinge_splay_rows`), in depth points; 0: off.
+KNEE_HINGE_WEIGHT = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -361,7 +370,8 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
               correspondence=None, joints_default=None, joint_weight: float = 0.0, version: str = "v2",
               iterations: int = 4, symmetric: bool = False, point_sigma_m: float = POINT_SIGMA_M, trim_m: float = 0.05,
               return_residual: bool = False, bone_lengths=None, bone_length_weight: float = 0.0,
-              point_weight: float = 1.0):
+              point_weight: float = 1.0, free_basis=None, free_joint_basis=None,
+              free_sigma: float = LEG_SPLAY_SIGMA_RAD, coeff_rows=None):
     """Coefficients minimising Eq. 2, ``sum_i |p_i - v_k(i)(alpha)|^2``, for a cloud in the default pose.
 
     ``k(i)`` is the closest vertex (among ``candidates``, e.g. the vertices the sensor saw) and is
@@ -374,6 +384,11 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
     ``bone_lengths`` (len(:data:`BONE_PAIRS`),) measured joint distances (NaN: not measured) are matched with
     ``bone_length_weight`` (one number, or one per pair) each (:func:`bone_length_rows`). ``point_weight``: the
     weight of one depth point (1: as the prior and the joints assume; a pool of N points weighted M / N weighs as M).
+    ``free_basis`` (m, n, 3): m more displacement directions of the rest body solved with the coefficients (their
+    Kinect joints' ``free_joint_basis`` (m, J, 3)), each with a Gaussian prior of ``free_sigma``, and left out of the
+    returned coefficients: nuisance parameters the data may use instead of the shape (:func:`leg_splay_basis`).
+    ``coeff_rows`` ``(A (r, k), b (r,))``: more weighted linear rows ``A c = b`` on the coefficients
+    (:func:`knee_hinge_splay_rows`).
     """
     from bodystudio.mirror.refine import _one_blas_thread
 
@@ -391,7 +406,7 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
     prior = point_sigma_m ** 2 / model.stddev ** 2
     t = np.zeros(3)
     residual = np.inf
-    joint_rows = None
+    joint_rows = joint_design = None
     if joints_default is not None and joint_weight > 0:
         Jm, Jb = _model_kinect_joints(model, version)
         Jd = np.asarray(joints_default, dtype=np.float64).reshape(-1, len(Jm), 3)  # (frames, J, 3)
@@ -399,6 +414,7 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
         sw = np.sqrt(joint_weight)
         joint_rows = (sw * np.hstack([Jb[:, j].reshape(k, -1).T, np.tile(np.eye(3), (len(j), 1))]),
                       sw * (Jd[f, j] - Jm[j]).ravel())
+        joint_design = joint_rows  # the rows themselves, for the free columns' cross terms (_with_free_columns)
         with _one_blas_thread():  # the joints' normal equations do not change between re-matchings: formed once
             joint_rows = (joint_rows[0].T @ joint_rows[0], joint_rows[0].T @ joint_rows[1])
     data_tree = cKDTree(P) if symmetric else None
@@ -406,8 +422,13 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
     if bone_lengths is not None and np.any(np.asarray(bone_length_weight) > 0):
         length_weights = np.broadcast_to(np.asarray(bone_length_weight, dtype=np.float64), (len(BONE_PAIRS),))
     match_cache: dict = {}  # the closest-vertex query reused between the re-matchings (closest_vertex_matches)
+    free = None if free_basis is None else np.asarray(free_basis, dtype=np.float64)
+    if free is not None and (free.ndim != 3 or free.shape[1:] != model.mean.shape or not np.all(np.isfinite(free))):
+        raise InputError(f"free_basis must be finite (m, {len(model.mean)}, 3) displacement columns of the model's "
+                         f"rest vertices (leg_splay_basis), got shape {free.shape}")
+    delta = np.zeros(0 if free is None else len(free))
     for it in range(iterations):
-        V = model.vertices(c)
+        V = model.vertices(c) if free is None else model.vertices(c) + np.tensordot(delta, free, axes=1)
         if it == 0 and given is not None:
             m = given
             keep = m >= 0
@@ -442,10 +463,18 @@ def fit_shape(points_default, model: StatisticalBodyModel, init_coeffs=None, can
             AtA[:k, :k] += (A_len.T * length_weights[rows]) @ A_len
             Atb[:k] += (A_len.T * length_weights[rows]) @ b_len
         AtA[np.arange(k), np.arange(k)] += prior
+        if coeff_rows is not None:
+            AtA[:k, :k] += coeff_rows[0].T @ coeff_rows[0]
+            Atb[:k] += coeff_rows[0].T @ coeff_rows[1]
+        if free is not None:
+            AtA, Atb = _with_free_columns(AtA, Atb, basis, free, counts, S, joint_design, free_joint_basis,
+                                          joints_default, joint_weight, len(Jm) if joint_rows is not None else 0,
+                                          point_sigma_m ** 2 / free_sigma ** 2)
         x = np.linalg.solve(AtA, Atb)
-        c, t = x[:k], x[k:]
+        c, t, delta = x[:k], x[k:k + 3], x[k + 3:]
         if return_residual and it == iterations - 1:
-            residual = float(np.median(np.linalg.norm(P[keep] - t - model.vertices(c)[m[keep]], axis=1)))
+            V = model.vertices(c) if free is None else model.vertices(c) + np.tensordot(delta, free, axes=1)
+            residual = float(np.median(np.linalg.norm(P[keep] - t - V[m[keep]], axis=1)))
     return (c, residual) if return_residual else c
 
 
@@ -496,6 +525,92 @@ def closest_vertex_matches(points, vertices, cache: dict | None = None, neighbou
     dk, near = tree.query(P, k=neighbours)
     cache.update(vertices=V.copy(), near=near, reach=dk[:, -1])
     return dk[:, 0], near[:, 0]
+
+
+def _with_free_columns(AtA, Atb, basis, free, counts, S, joint_rows, free_joint_basis, joints_default,
+                       joint_weight, n_joints, free_prior):
+    """Eq. 2's normal equations (coefficients, translation) extended by the ``free`` displacement columns (m, n, 3)
+    (:func:`fit_shape`'s ``free_basis``): the unknowns become (coefficients, translation, free amounts)."""
+    k, m = len(basis), len(free)
+    n_old = len(AtA)
+    out = np.zeros((n_old + m, n_old + m))
+    out[:n_old, :n_old] = AtA
+    F_c = free * counts[None, :, None]
+    out[:k, n_old:] = np.einsum("knd,mnd->km", basis, F_c)
+    out[k:k + 3, n_old:] = F_c.sum(1).T
+    out[n_old:, n_old:] = np.einsum("mnd,lnd->ml", free, F_c) + free_prior * np.eye(m)
+    b = np.concatenate([Atb, np.einsum("mnd,nd->m", free, S)])
+    if joint_rows is not None and free_joint_basis is not None:
+        Jd = np.asarray(joints_default, dtype=np.float64).reshape(-1, n_joints, 3)
+        _, j = np.nonzero(np.all(np.isfinite(Jd), axis=2))
+        A_free = np.sqrt(joint_weight) * np.asarray(free_joint_basis, dtype=np.float64)[:, j].reshape(m, -1).T
+        out[:n_old, n_old:] += joint_rows[0].T @ A_free
+        out[n_old:, n_old:] += A_free.T @ A_free
+        b[n_old:] += A_free.T @ joint_rows[1]
+    out[n_old:, :n_old] = out[:n_old, n_old:].T
+    return out, b
+
+
+def leg_splay_basis(vertices: np.ndarray, weights: np.ndarray, skeleton: Skeleton, version: str = "v2",
+                    chains=LEG_SPLAY_CHAINS) -> tuple[np.ndarray, np.ndarray]:
+    """The rest body's lower legs turned about their knees, linearised: per leg two columns (about the body's forward
+    axis z: the splay; about its sideways axis x: the calf forward / back), ``w(v) (a x (v - knee))`` with ``w`` the
+    skin weight of the bones below the knee; returns the vertex columns (2L, n, 3) and the Kinect joints'
+    (2L, J, 3) (the bone ends below the knee turned the same way).
+
+    A rest calf splayed out and a posed calf turned in by the IK give the same posed surface (mir12z): with these
+    columns free in Eq. 2 (:func:`fit_shape`'s ``free_basis``) the unposed cloud's splay is taken up by them rather
+    than by the shape coefficients, whose population ties a wide splay to wide hips and mass."""
+    V = np.asarray(vertices, dtype=np.float64)
+    names = list(skeleton.bone_names)
+    cols, joint_cols = [], []
+    base = skeleton_kinect_joints(skeleton, skeleton.heads, skeleton.tails, version)
+    for calf, below in chains:
+        knee = skeleton.heads[names.index(calf)]
+        idx = [names.index(b) for b in below]
+        w = np.asarray(weights)[:, idx].sum(1)
+        for axis in (np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])):
+            cols.append(w[:, None] * np.cross(axis, V - knee))
+            heads, tails = skeleton.heads.copy(), skeleton.tails.copy()
+            heads[idx] += np.cross(axis, heads[idx] - knee)
+            tails[idx] += np.cross(axis, tails[idx] - knee)
+            joint_cols.append(skeleton_kinect_joints(skeleton, heads, tails, version) - base)
+    return np.array(cols), np.array(joint_cols)
+
+
+def knee_hinge_splay_rows(model: StatisticalBodyModel, skeleton: Skeleton, poses, version: str = "v2",
+                          weight: float = KNEE_HINGE_WEIGHT, legs=(("calf_l", "KneeLeft", "AnkleLeft"),
+                                                                  ("calf_r", "KneeRight", "AnkleRight"))):
+    """Eq. 2 rows holding each rest calf's component along its knee's hinge axis at the one the frames measure.
+
+    A knee turns about one axis fixed in the thigh (the rig's: the calf bone's rest x axis), so the calf's direction
+    brought back by the thigh's transform alone, ``S_thigh^-1 S_calf d``, has the same component along that axis in
+    every frame whatever the flexion: the rest calf's own. ``poses`` (the frames' refined poses of ``skeleton``) aim
+    each calf at the SDK's ankle, so the mean of that component over the frames measures the true rest splay, which
+    the unposing of one frame cannot tell from a pose (mir12z). Returns ``(A, b)`` with one row per leg,
+    ``sqrt(weight) a . (Ankle(c) - Knee(c)) = sqrt(weight) m L`` (the model's Kinect joints are linear in c; ``L`` the
+    calf's current length), for :func:`fit_shape`'s ``coeff_rows``."""
+    Jm, Jb = _model_kinect_joints(model, version)
+    names = kinect_joint_names(version)
+    rows, rhs = [], []
+    for calf, knee_name, ankle_name in legs:
+        b = skeleton.index(calf)
+        thigh = int(skeleton.parents[b])
+        axis = skeleton.rest_rotations[b][:, 0]
+        d = (skeleton.tails[b] - skeleton.heads[b]) / max(skeleton.lengths[b], 1e-9)
+        measured = []
+        for pose in poses:
+            S = skinning_transforms(skeleton, pose)
+            u = S[thigh, :3, :3].T @ (S[b, :3, :3] @ d)
+            measured.append(float(axis @ u))
+        if not measured:
+            continue
+        ka, kk = names.index(_kinect_name(ankle_name, version)), names.index(_kinect_name(knee_name, version))
+        rows.append(np.sqrt(weight) * (Jb[:, ka] - Jb[:, kk]) @ axis)
+        rhs.append(np.sqrt(weight) * (np.median(measured) * skeleton.lengths[b] - (Jm[ka] - Jm[kk]) @ axis))
+    if not rows:
+        return None
+    return np.array(rows), np.array(rhs)
 
 
 @lru_cache(maxsize=4)
@@ -636,7 +751,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  pass_relaxation: float = PASS_RELAXATION,
                                  fixed_pool: bool = FIXED_POOL,
                                  pooled_points: int = MAX_POOLED_POINTS,
-                                 weighted_pool: bool = WEIGHTED_POOL, pool_seed: int = 0) -> SourceBody:
+                                 weighted_pool: bool = WEIGHTED_POOL, pool_seed: int = 0,
+                                 leg_splay: bool = LEG_SPLAY,
+                                 knee_hinge_weight: float = KNEE_HINGE_WEIGHT) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -664,7 +781,12 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     ``pooled_points``: how many (:data:`MAX_POOLED_POINTS`). ``weighted_pool``: every pass pools every point instead,
     each weighted ``pooled_points`` / N, so the fit weighs its data against the prior and the joints as the subset
     did, without the subset's sampling noise (:data:`WEIGHTED_POOL`). ``pool_seed``: the seed of the random subsets
-    (0, the default: ``mirror init``'s; other seeds measure how much the fit owes to the draw, mir12y).
+    (0, the default: ``mirror init``'s; other seeds measure how much the fit owes to the draw, mir12y). ``leg_splay``:
+    each pass's Eq. 2 also solves a small rest rotation of each lower leg about its knee (:func:`leg_splay_basis`),
+    dropped from the result, so that the unposed cloud's calf splay is not fitted by the shape coefficients
+    (:data:`LEG_SPLAY`; mir12ab). ``knee_hinge_weight`` > 0: from the second pass on, each leg's rest splay is also
+    held at what the knee's hinge measures over the previous pass's refined poses (:func:`knee_hinge_splay_rows`,
+    :data:`KNEE_HINGE_WEIGHT`; mir12ab).
     """
     model = check_model(model)
     if not (np.isfinite(pass_relaxation) and 0.0 < pass_relaxation <= 1.0):
@@ -675,6 +797,13 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     if isinstance(pool_seed, bool) or not isinstance(pool_seed, (int, np.integer)) or pool_seed < 0:
         raise InputError(f"pool_seed must be an integer >= 0 (the seed of the random depth-point subsets), "
                          f"got {pool_seed!r}")
+    if isinstance(knee_hinge_weight, bool) or not isinstance(knee_hinge_weight, (int, float, np.integer, np.floating)) \
+            or not (np.isfinite(knee_hinge_weight) and knee_hinge_weight >= 0):
+        raise InputError(f"knee_hinge_weight must be a finite number >= 0 (0: no knee-hinge splay rows), "
+                         f"got {knee_hinge_weight!r}")
+    if not isinstance(leg_splay, (bool, np.bool_)):
+        raise InputError(f"leg_splay must be True or False (the legs' rest rotations solved with the shape), "
+                         f"got {leg_splay!r}")
     unpose_posture_bones = tuple(unpose_posture_bones)
     unknown = sorted(set(unpose_posture_bones) - set(model.bone_names))
     if unknown:
@@ -753,12 +882,19 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             pick = np.sort(np.argsort(np.concatenate(keys), kind="stable")[:pooled_points]) if fixed_pool \
                 else rng.choice(len(P0), pooled_points, replace=False)
             P0, k0 = P0[pick], k0[pick]
+        free = (None, None)
+        if leg_splay:
+            free = leg_splay_basis(body.vertices, model.weights, body.skeleton, obs[0][0].version, LEG_SPLAY_CHAINS)
         fitted, residual = fit_shape(P0, model, coeffs, candidates=np.unique(np.concatenate(seen)), correspondence=k0,
                                      iterations=ICP_ITERATIONS[min(pass_, len(ICP_ITERATIONS) - 1)],
                                      joints_default=np.array(joints0) if joints0 else None,
                                      joint_weight=joint_weight, version=obs[0][0].version, trim_m=trim_m,
                                      point_sigma_m=point_sigma_m, return_residual=True, bone_lengths=bone_lengths,
-                                     bone_length_weight=length_weight, point_weight=point_weight)
+                                     bone_length_weight=length_weight, point_weight=point_weight,
+                                     free_basis=free[0], free_joint_basis=free[1], free_sigma=LEG_SPLAY_SIGMA_RAD,
+                                     coeff_rows=knee_hinge_splay_rows(model, body.skeleton, refined_poses,
+                                                                      obs[0][0].version, knee_hinge_weight)
+                                     if knee_hinge_weight > 0 and refined_poses else None)
         coeffs = coeffs + pass_relaxation * (fitted - coeffs) if pass_ > 0 else fitted
         skeleton = refit_skeleton(model, coeffs)
         body = BodyModel(model.vertices(coeffs), model.faces, skeleton, model.weights, model.resolution, model.rig,
