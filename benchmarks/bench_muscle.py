@@ -182,9 +182,14 @@ def amberg_anchor(session, template, truth, first_frame: np.ndarray):
 
 
 def shape_of(subject):
+    """The subject's measured shape as ``muscle capture --shape`` takes it from a user: BMI, muscularity, height, arm
+    length and ``sex=male|female`` (1 / 0: MakeHuman's fractional gender rounded, as ``muscle_sequences.typed_shape``
+    since mus11y; before, the fraction: 501's 0.96 set the body-space prior's gender mean to 0.96 where a user's
+    ``sex=male`` sets 0.95, and 502's 0.048 took 4.8 % of a man in a model that knows women)."""
     from bodystudio.muscle.model import ArmShapeParams
 
-    return ArmShapeParams(subject.bmi, subject.muscularity, subject.height_m, subject.arm_length_m, sex=subject.gender)
+    return ArmShapeParams(subject.bmi, subject.muscularity, subject.height_m, subject.arm_length_m,
+                          sex=1.0 if subject.gender >= 0.5 else 0.0)
 
 
 def _fmt(x, digits=2):

@@ -344,6 +344,10 @@ def model_build(
     poses: int = typer.Option(24, "--poses", help="posed meshes per subject"),
     regularization: float = typer.Option(1.0, "--regularization", help="Tikhonov weight of Eq. 6-10"),
     seed: int = typer.Option(0, "--seed", help="training subjects and poses"),
+    sex_slopes: bool = typer.Option(False, "--sex-slopes", help="the women's own slopes: the shape term's interaction "
+                                    "(1 - sex) x z(BMI, muscularity, height, arm length), learned from the training "
+                                    "women (needs --women > 0; off: the slopes shared by both sexes; docs/muscle.md, "
+                                    "\"Women's own slopes\")"),
 ) -> None:
     """Learn the statistical arm model (§6.1) from the synthetic high-fidelity training dataset."""
     from bodystudio.muscle.model import learn_arm_model, save_arm_model
@@ -360,16 +364,22 @@ def model_build(
     check_range("--poses", poses, 1, 500)
     check_range("--regularization", regularization, 0.0, 1e6)
     check_range("--seed", seed, 0, 2**31 - 1)
+    if sex_slopes and women == 0:
+        raise InputError("--sex-slopes: the women's own slopes are learned from the training women; give --women > 0 "
+                         "(or leave --sex-slopes out)")
+    if sex_slopes and regularization == 0:
+        raise InputError("--sex-slopes --regularization 0: the women's own slopes need a regularization > 0")
     if out.suffix.lower() != ".npz":
         raise InputError(f"--out {out}: an arm model is a .npz file")
     from bodystudio.muscle.export import check_new_output
 
     check_new_output(out, "model file")
     samples, _ = training_dataset(resolution, subjects, shapes, poses, seed, side, n_women=women)
-    model = learn_arm_model(samples, _arm_template(resolution, side), regularization)
+    model = learn_arm_model(samples, _arm_template(resolution, side), regularization, sex_slopes=sex_slopes)
     save_arm_model(out, model)
-    typer.echo(f"wrote {out}: {len(model.subjects)} subjects ({subjects} men, {women} women), {len(samples)} meshes, "
-               f"template {model.template_key}")
+    slopes = ", the women's own slopes" if sex_slopes else ""
+    typer.echo(f"wrote {out}: {len(model.subjects)} subjects ({subjects} men, {women} women{slopes}), "
+               f"{len(samples)} meshes, template {model.template_key}")
 
 
 @model_app.command("extend")
@@ -512,7 +522,7 @@ def model_info(model_path: Path = typer.Argument(..., metavar="MODEL", help="arm
 
     model = load_arm_model(model_path)
     info = {"template_key": model.template_key, "version": model.version, "n_vertices": model.n_vertices,
-            "regularization": model.regularization, "shape_form": model.shape_form,
+            "regularization": model.regularization, "shape_form": model.shape_form, "sex_slopes": model.sex_slopes,
             **({"body_weight": model.body_weight} if model.shape_form == "body" else {}),
             "n_subjects": len(model.subjects),
             "shape_range": model.shape_range() if model.subjects else {}, "subjects": model.subjects}

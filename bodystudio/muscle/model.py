@@ -9,7 +9,8 @@
 * ``d_theta`` (Eq. 6-7): shape displacements, per-vertex linear regression on BMI, muscularity,
   height, arm length (standardised, Tikhonov-regularised) and sex (a female indicator, ``1 - sex``;
   the paper's Table 1 lists every subject's sex) of the training subjects' base-pose meshes minus
-  ``v_base + d_l``. The paper's training set is all male, so the female column is zero there and its
+  ``v_base + d_l`` (optionally with the women's own slopes, the interaction ``(1 - sex) z``:
+  ``sex_slopes``). The paper's training set is all male, so the female column is zero there and its
   coefficient stays zero until women are added (dataset extension); a subject of unknown sex is
   taken as male, which is what the original model describes;
 * ``d_rho`` (Eq. 10): pose displacements, per-vertex linear regression on the 9 joint-angle
@@ -82,6 +83,11 @@ SEX_NAMES = {"male": 1.0, "m": 1.0, "female": 0.0, "f": 0.0}
 # Tikhonov weight of the sex column: measured on ground-truth extensions (docs/muscle.md), 1.0 -> 0.1
 # takes the held-out out-of-range change from -23 % to -29 %.
 SEX_REGULARIZATION = 0.1
+# The women's own slopes (``ArmModel.sex_slopes``, ``muscle model build --sex-slopes``): the shape term's interaction
+# ``(1 - sex) z`` (one column per shape number, Tikhonov weight ``regularization`` as the shared slopes'), so a woman's
+# arm follows her BMI, muscularity, height and arm length with slopes of its own rather than the men's. Off by default
+# (docs/muscle.md, "Women's own slopes").
+SEX_SLOPES = False
 # Where a captured subject's shape row comes from (dataset extension): "mesh", its captured rest mesh as it is; "body",
 # that mesh's nearest arm of the body model's shape space (:func:`body_space_rest_mesh`), which puts the subject's
 # shoulder where the body model's joint regressor puts it in that skin and the vertices where the body model lays
@@ -248,7 +254,8 @@ class ArmModel:
     length_basis: np.ndarray  # (k, 3n) PCA eigenvectors e_j of the population arms
     length_coeffs: np.ndarray  # (2, k) PCA weights = [1, z(arm length)] @ length_coeffs
     joint_coeffs: np.ndarray  # (5, 9) rest joints = [1, z(shape)] @ joint_coeffs
-    shape_coeffs: np.ndarray  # (6, 3n) d_theta = [1, z(SHAPE_NAMES), 1 - sex] @ shape_coeffs
+    shape_coeffs: np.ndarray  # (6, 3n) d_theta = [1, z(SHAPE_NAMES), 1 - sex] @ shape_coeffs ((10, 3n) with
+    # ``sex_slopes``: the design row continued by (1 - sex) z(SHAPE_NAMES))
     pose_coeffs: np.ndarray  # (10, 3n) d_rho = [1, 9 joint-angle coordinates] @ pose_coeffs
     param_center: np.ndarray  # (4,) z(x) = (x - center) / scale, order SHAPE_NAMES
     param_scale: np.ndarray  # (4,)
@@ -272,6 +279,8 @@ class ArmModel:
     # The body form's weight macro (:data:`BODY_WEIGHT_CHOICES`): "bmi", solved from the BMI (``body_coeffs``' weight
     # column zero); "regressed", Eq. 7 on its inputs.
     body_weight: str = "regressed"
+    # The women's own slopes (:data:`SEX_SLOPES`): the shape term's design continued by ``(1 - sex) z``.
+    sex_slopes: bool = SEX_SLOPES
 
     @property
     def n_vertices(self) -> int:
@@ -318,16 +327,32 @@ def tikhonov_from_normal_equations(xtx: np.ndarray, xty: np.ndarray, q: float,
     return np.linalg.solve(xtx + reg, xty)
 
 
-def shape_design(model: ArmModel, rows: np.ndarray) -> np.ndarray:
-    """Design rows ``[1, z(bmi, muscularity, height, arm length), 1 - sex]`` of Eq. 6 for ``rows`` (R, 5)."""
+def _sex_design(model: ArmModel, rows: np.ndarray) -> np.ndarray:
+    """Eq. 6's design rows ``[1, z(bmi, muscularity, height, arm length), 1 - sex]`` (R, 6) for ``rows`` (R, 5)."""
     rows = np.atleast_2d(np.asarray(rows, dtype=np.float64))
     return np.c_[np.ones(len(rows)), _z(model, rows[:, :4]), 1.0 - rows[:, 4]]
+
+
+def shape_design(model: ArmModel, rows: np.ndarray) -> np.ndarray:
+    """Design rows of Eq. 6 for ``rows`` (R, 5): ``[1, z(bmi, muscularity, height, arm length), 1 - sex]``, continued
+    with ``model.sex_slopes`` by the women's own slopes ``(1 - sex) z`` (R, 10): a man's row (sex 1) is unchanged."""
+    X = _sex_design(model, rows)
+    if not model.sex_slopes:
+        return X
+    return np.c_[X, X[:, 5:6] * X[:, 1:5]]
+
+
+def shape_column_weights(model: ArmModel) -> np.ndarray:
+    """Eq. 7's Tikhonov weight of each :func:`shape_design` column after the intercept's: ``regularization`` for the
+    four slopes, ``sex_regularization`` for the female column, ``regularization`` for the women's own slopes."""
+    q = np.r_[np.full(SHAPE_REGRESSORS, model.regularization), model.sex_regularization]
+    return np.r_[q, np.full(SHAPE_REGRESSORS, model.regularization)] if model.sex_slopes else q
 
 
 def fit_shape_coefficients(model: ArmModel, rows: np.ndarray, residuals: np.ndarray) -> np.ndarray:
     """Eq. 7: Tikhonov regression of the base-pose residuals on :func:`shape_design` (sex column weighted apart)."""
     X = shape_design(model, rows)
-    q = np.r_[np.full(X.shape[1] - 1, model.regularization), model.sex_regularization]
+    q = np.r_[0.0, shape_column_weights(model)]
     return tikhonov_from_normal_equations(X.T @ X, X.T @ residuals, 0.0, column_weights=q)
 
 
@@ -374,8 +399,9 @@ def _body_parameters(space: BodyShapeSpace, body_weight: str, u: np.ndarray, bmi
 
 
 def body_form_design(model: ArmModel, rows: np.ndarray) -> np.ndarray:
-    """Design rows (R, 7) of the body form's parameter regression: :func:`shape_design`, ``z(bmi) z(muscularity)``."""
-    X = shape_design(model, rows)
+    """Design rows (R, 7) of the body form's parameter regression: Eq. 6's six columns, ``z(bmi) z(muscularity)`` (the
+    women's own slopes, ``sex_slopes``, enter the body form's linear residual term only)."""
+    X = _sex_design(model, rows)
     return np.c_[X, X[:, 1] * X[:, 2]]
 
 
@@ -643,11 +669,15 @@ def _check_samples(samples: list[ArmSample], n: int) -> None:
 
 def learn_arm_model(samples: list[ArmSample], template: ArmTemplate, regularization: float = 1.0,
                     population_size: int = 40, population_seed: int = 114, source: str = "training",
-                    sex_regularization: float = SEX_REGULARIZATION) -> ArmModel:
-    """Learn the model of Eq. 6-10 from training meshes (several subjects, base pose + other poses)."""
+                    sex_regularization: float = SEX_REGULARIZATION, sex_slopes: bool = SEX_SLOPES) -> ArmModel:
+    """Learn the model of Eq. 6-10 from training meshes (several subjects, base pose + other poses); ``sex_slopes``:
+    the shape term with the women's own slopes (:func:`shape_design`)."""
     _check_samples(samples, template.n_vertices)
     if regularization < 0:
         raise InputError(f"regularization={regularization} must be >= 0")
+    if sex_slopes and not regularization > 0:  # the women's slopes of a set without women: q = 0 leaves them singular
+        raise InputError(f"regularization={regularization}: the women's own slopes (sex_slopes) need a regularization "
+                         "> 0")
     if not sex_regularization > 0:  # the sex column of an all-male set is zero: q = 0 leaves it singular
         raise InputError(f"sex_regularization={sex_regularization} must be > 0")
     popV, popJ, popP = population_arms(template.resolution, template.side, population_size, population_seed)
@@ -666,10 +696,10 @@ def learn_arm_model(samples: list[ArmSample], template: ArmTemplate, regularizat
     joint_coeffs = tikhonov_from_normal_equations(joint_xtx, joint_xty, regularization)
     model = ArmModel(template.key, template.faces.copy(), template.part_weights.copy(), template.arm_mask.copy(),
                      base.reshape(-1, 3), E, length_coeffs, joint_coeffs,
-                     np.zeros((2 + SHAPE_REGRESSORS, X.shape[1])), np.zeros((10, X.shape[1])), center, scale,
-                     float(regularization),
+                     np.zeros((2 + SHAPE_REGRESSORS * (2 if sex_slopes else 1), X.shape[1])),
+                     np.zeros((10, X.shape[1])), center, scale, float(regularization),
                      np.zeros((0, 5)), np.zeros((0, X.shape[1])), np.zeros((10, 10)), np.zeros((10, X.shape[1])),
-                     joint_xtx, joint_xty, sex_regularization=float(sex_regularization))
+                     joint_xtx, joint_xty, sex_regularization=float(sex_regularization), sex_slopes=bool(sex_slopes))
     return _add_subjects(model, samples, prior=None, source=source)
 
 
@@ -816,6 +846,8 @@ def save_arm_model(path: str | os.PathLike, model: ArmModel) -> None:
     header = {"format": MODEL_FORMAT, "version": MODEL_VERSION, "template_key": model.template_key,
               "regularization": model.regularization, "sex_regularization": model.sex_regularization,
               "subjects": model.subjects, "shape_form": model.shape_form}
+    if model.sex_slopes:  # written only when on: the files of models without them stay as they were
+        header["sex_slopes"] = True
     body = {}
     if model.shape_form == "body":
         body = {"shape_params": model.shape_params, "body_coeffs": model.body_coeffs}
@@ -857,7 +889,11 @@ def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None)
     if isinstance(sex_q, bool) or not isinstance(sex_q, (int, float)) or not 0 < sex_q < np.inf:
         raise FileFormatError(f"{path}: arm model sex_regularization {sex_q!r} is not a positive number; "
                               "rebuild the model")
-    if arrays["shape_coeffs"].shape[0] != 2 + SHAPE_REGRESSORS or arrays["shape_rows"].shape[1:] != (5,) \
+    sex_slopes = header.get("sex_slopes", False)
+    if not isinstance(sex_slopes, bool):
+        raise FileFormatError(f"{path}: arm model sex_slopes {sex_slopes!r} is not true or false; rebuild the model")
+    if arrays["shape_coeffs"].shape[0] != 2 + SHAPE_REGRESSORS * (2 if sex_slopes else 1) \
+            or arrays["shape_rows"].shape[1:] != (5,) \
             or len(arrays["shape_rows"]) != len(arrays["shape_residuals"]):
         raise FileFormatError(f"{path}: arm model shape arrays are inconsistent; rebuild the model")
     if arrays["pose_coeffs"].shape != (10, 3 * n) or arrays["shape_coeffs"].shape[1:] != (3 * n,) \
@@ -883,7 +919,7 @@ def load_arm_model(path: str | os.PathLike, template: ArmTemplate | None = None)
     model = ArmModel(header["template_key"], **{k: arrays[k] for k in _ARRAYS if k != "arm_mask"},
                      arm_mask=arrays["arm_mask"].astype(bool), regularization=float(header["regularization"]),
                      subjects=list(header.get("subjects", [])), version=MODEL_VERSION,
-                     sex_regularization=float(sex_q), shape_form=form, **body)
+                     sex_regularization=float(sex_q), shape_form=form, sex_slopes=sex_slopes, **body)
     if form == "body":
         saved = (header.get("body_space") or {}).get("local_targets")
         space = body_space_for_model(model)

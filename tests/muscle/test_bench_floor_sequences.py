@@ -121,8 +121,12 @@ def test_muscle_sequences_no_shape_fits_the_shape(flag, known, suffix, tmp_path,
 def test_muscle_sequences_gives_the_sex_as_a_user_types_it(gender, sex):
     """The runner's measured shape carries ``sex=male|female`` (MakeHuman's gender rounded), not the fractional
     gender: 508's 0.89 gave a man 11 % of a woman's offset in a model that knows women (docs/muscle.md)."""
+    from benchmarks.bench_muscle import shape_of
     from benchmarks.muscle_sequences import typed_shape
 
     subject = SimpleNamespace(bmi=22.0, muscularity=0.5, height_m=1.7, arm_length_m=0.5, gender=gender)
     shape = typed_shape(subject)
     assert shape.sex == sex and (shape.bmi, shape.height_m, shape.arm_length_m) == (22.0, 1.7, 0.5)
+    # the benchmark's own steps (compare, extension, pronation) give the same typed sex (mus11z; 502's 0.048 was
+    # passed as it is)
+    assert shape_of(subject) == shape

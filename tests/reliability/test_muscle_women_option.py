@@ -36,7 +36,7 @@ def test_model_build_passes_the_women_on(tmp_path, capsys, monkeypatch, args, me
 
     asked = []
     monkeypatch.setattr(syn, "training_dataset", lambda *a, **k: asked.append((a, k)) or ([], []))
-    monkeypatch.setattr(model_mod, "learn_arm_model", lambda samples, template, q: SimpleNamespace(
+    monkeypatch.setattr(model_mod, "learn_arm_model", lambda samples, template, q, sex_slopes: SimpleNamespace(
         subjects=[0] * (men + women), template_key="stub"))
     monkeypatch.setattr(model_mod, "save_arm_model", lambda path, model: path.write_text(json.dumps(model.subjects)))
     monkeypatch.setattr("bodystudio.cli.muscle._arm_template", lambda resolution, side: None)
