@@ -50,22 +50,29 @@ def studio(tmp_path_factory):
 
 def _plant(studio, tmp_path, name, change_mask, change_bodies):
     """A copy of the clean session with frame PLANTED's player mask and joints changed (manifest restamped)."""
-    import cv2
-
     s = tmp_path / name
     shutil.copytree(studio / "clean", s)
-    rel = f"kinect/player/{PLANTED:05d}.png"
-    mask = cv2.imread(str(s / rel), cv2.IMREAD_UNCHANGED)
-    assert set(np.unique(mask)) == {0, 1, 2}
-    cv2.imwrite(str(s / rel), change_mask(mask))
-    restamp(s, rel)
-    rel = f"kinect/joints/{PLANTED:05d}.json"
-    data = json.loads((s / rel).read_text())
-    data["bodies"] = change_bodies(data["bodies"])
-    first = min(data["bodies"], key=lambda b: b["player"])  # the single-body fields: the lowest id's
-    data.update({k: first[k] for k in ("names", "positions", "tracked")})
-    (s / rel).write_text(json.dumps(data))
-    restamp(s, rel)
+    return _plant_in_place(s, change_mask, change_bodies, [PLANTED])
+
+
+def _plant_in_place(s, change_mask, change_bodies, frames):
+    """The session copy ``s`` with the player mask and joints of ``frames`` changed (manifest restamped; rel6b's
+    test file plants with it too)."""
+    import cv2
+
+    for i in frames:
+        rel = f"kinect/player/{i:05d}.png"
+        mask = cv2.imread(str(s / rel), cv2.IMREAD_UNCHANGED)
+        assert set(np.unique(mask)) == {0, 1, 2}
+        cv2.imwrite(str(s / rel), change_mask(mask))
+        restamp(s, rel)
+        rel = f"kinect/joints/{i:05d}.json"
+        data = json.loads((s / rel).read_text())
+        data["bodies"] = change_bodies(data["bodies"])
+        first = min(data["bodies"], key=lambda b: b["player"])  # the single-body fields: the lowest id's
+        data.update({k: first[k] for k in ("names", "positions", "tracked")})
+        (s / rel).write_text(json.dumps(data))
+        restamp(s, rel)
     return s
 
 

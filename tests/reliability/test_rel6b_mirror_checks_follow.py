@@ -13,14 +13,12 @@ the ground truth (no ``mirror init``); copies with the ids planted from frame 11
 
 from __future__ import annotations
 
-import json
 import shutil
 
-import numpy as np
 import pytest
 
-from bodystudio.capture.faults import restamp
 from bodystudio.errors import ImplausibleResultError
+from tests.reliability.test_rel6a_mirror import _plant_in_place, _swap, _swap_bodies
 
 ACTOR_FRAMES = [10, 11, 12, 13]
 PLANTED = [11, 12, 13]
@@ -48,36 +46,6 @@ def _plant(studio, tmp_path, name, change_mask, change_bodies, frames=PLANTED):
     s = tmp_path / name
     shutil.copytree(studio / "clean", s)
     return _plant_in_place(s, change_mask, change_bodies, frames)
-
-
-def _plant_in_place(s, change_mask, change_bodies, frames):
-    """The session copy ``s`` with the player mask and joints of ``frames`` changed (manifest restamped)."""
-    import cv2
-
-    for i in frames:
-        rel = f"kinect/player/{i:05d}.png"
-        mask = cv2.imread(str(s / rel), cv2.IMREAD_UNCHANGED)
-        assert set(np.unique(mask)) == {0, 1, 2}
-        cv2.imwrite(str(s / rel), change_mask(mask))
-        restamp(s, rel)
-        rel = f"kinect/joints/{i:05d}.json"
-        data = json.loads((s / rel).read_text())
-        data["bodies"] = change_bodies(data["bodies"])
-        first = min(data["bodies"], key=lambda b: b["player"])  # the single-body fields: the lowest id's
-        data.update({k: first[k] for k in ("names", "positions", "tracked")})
-        (s / rel).write_text(json.dumps(data))
-        restamp(s, rel)
-    return s
-
-
-def _swap(mask):
-    out = mask.copy()
-    out[mask == 1], out[mask == 2] = 2, 1
-    return out
-
-
-def _swap_bodies(bodies):
-    return [{**b, "player": 3 - b["player"]} for b in bodies]
 
 
 @pytest.fixture(scope="module")
