@@ -129,8 +129,8 @@ def build_spies(monkeypatch):
         calls["template"].append((resolution, side))
         return "TEMPLATE"
 
-    def learn(samples, tmpl, regularization):
-        calls["learn"].append((samples, tmpl, regularization))
+    def learn(samples, tmpl, regularization, sex_slopes=None):
+        calls["learn"].append((samples, tmpl, regularization, sex_slopes))
         calls["model"] = SimpleNamespace(subjects=["a"] * 15, template_key="6k-left-abc")
         return calls["model"]
 
@@ -151,9 +151,19 @@ def test_model_build_defaults(tmp_path, build_spies):
     assert res.exit_code == 0, (res.output, res.exception)
     assert build_spies["dataset"] == [(("6k", 10, 3, 24, 0, "left"), {"n_women": 5})]
     assert build_spies["template"] == [("6k", "left")]
-    assert build_spies["learn"] == [(["s"] * 11, "TEMPLATE", 1.0)]
+    assert build_spies["learn"] == [(["s"] * 11, "TEMPLATE", 1.0, False)]
     assert build_spies["save"] == [(out, build_spies["model"])]
     assert res.stdout == f"wrote {out}: 15 subjects (10 men, 5 women), 11 meshes, template 6k-left-abc\n"
+
+
+def test_model_build_sex_slopes(tmp_path, build_spies):
+    """mus11z's ``--sex-slopes`` reaches ``learn_arm_model`` and the line says so."""
+    out = tmp_path / "m.npz"
+    res = _invoke(["muscle", "model", "build", "--out", out, "--women", "10", "--sex-slopes"])
+    assert res.exit_code == 0, (res.output, res.exception)
+    assert build_spies["learn"] == [(["s"] * 11, "TEMPLATE", 1.0, True)]
+    assert res.stdout == (f"wrote {out}: 15 subjects (10 men, 10 women, the women's own slopes), 11 meshes, "
+                          "template 6k-left-abc\n")
 
 
 def test_model_build_every_option(tmp_path, build_spies):
@@ -164,7 +174,7 @@ def test_model_build_every_option(tmp_path, build_spies):
     assert res.exit_code == 0, (res.output, res.exception)
     assert build_spies["dataset"] == [(("2k", 60, 10, 500, 7, "right"), {"n_women": 40})]
     assert build_spies["template"] == [("2k", "right")]
-    assert build_spies["learn"][0][2] == 1e6
+    assert build_spies["learn"][0][2:] == (1e6, False)
     assert "(60 men, 40 women)" in res.stdout
     res = _invoke(["muscle", "model", "build", "--out", tmp_path / "n.npz", "--subjects", "2", "--women", "0",
                    "--shapes", "1", "--poses", "1", "--regularization", "0", "--resolution", "full", "--seed",
@@ -223,7 +233,7 @@ def test_model_info(tmp_path, monkeypatch, form, n_subjects):
 
     subjects = [{"name": f"s{k}"} for k in range(n_subjects)]
     model = SimpleNamespace(template_key="6k-left-x", version=3, n_vertices=812, regularization=0.5,
-                            shape_form=form, body_weight=0.25, subjects=subjects,
+                            shape_form=form, sex_slopes=n_subjects == 2, body_weight=0.25, subjects=subjects,
                             shape_range=lambda: {"bmi": [20.0, 28.0]})
     seen = []
     monkeypatch.setattr(model_mod, "load_arm_model", lambda p: seen.append(p) or model)
@@ -231,7 +241,8 @@ def test_model_info(tmp_path, monkeypatch, form, n_subjects):
     assert res.exit_code == 0, (res.output, res.exception)
     assert seen == [tmp_path / "m.npz"]
     expected = {"template_key": "6k-left-x", "version": 3, "n_vertices": 812, "regularization": 0.5,
-                "shape_form": form, **({"body_weight": 0.25} if form == "body" else {}), "n_subjects": n_subjects,
+                "shape_form": form, "sex_slopes": n_subjects == 2, **({"body_weight": 0.25} if form == "body" else {}),
+                "n_subjects": n_subjects,
                 "shape_range": {"bmi": [20.0, 28.0]} if n_subjects else {}, "subjects": subjects}
     assert json.loads(res.stdout) == expected
     assert list(json.loads(res.stdout)) == list(expected)
