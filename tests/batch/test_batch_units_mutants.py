@@ -501,17 +501,31 @@ def test_reconstruct_batch_refuses_chunk_depth_and_an_interrupted_write(studio, 
     assert client.calls == [] and not (studio.path / "reconstruct" / ".lock").exists()
 
 
-def test_reconstruct_chunk_discards_a_killed_attempts_leftover(studio, tmp_path):
+@pytest.fixture
+def clock(monkeypatch):
+    """A stand-in for the batch module's ``time.perf_counter``: 100.0, then 1.25 s more at each call; returns the
+    readings, so a unit's ``seconds`` is checked as its clock's last reading minus its first (no wall clock)."""
+    import time as real_time
+
+    readings = []
+
+    def perf_counter():
+        readings.append(100.0 + 1.25 * len(readings))
+        return readings[-1]
+
+    monkeypatch.setattr(batch, "time", SimpleNamespace(perf_counter=perf_counter, sleep=real_time.sleep,
+                                                       gmtime=real_time.gmtime, strftime=real_time.strftime))
+    return readings
+
+
+def test_reconstruct_chunk_discards_a_killed_attempts_leftover(studio, tmp_path, clock):
     root = tmp_path / "chunk"
     layout = unit_layout(root)
     layout.staging.mkdir(parents=True)
     (layout.staging / "meshes").mkdir()
     (layout.staging / "meshes" / "00009.ply").write_bytes(b"half written")
-    import time
-
-    t0 = time.perf_counter()
     out = batch.reconstruct_chunk(str(studio.path), (2, 3), _options(), str(root), "abc")
-    assert out["frames"] == [2, 3] and out["pid"] == os.getpid() and 0 <= out["seconds"] <= time.perf_counter() - t0
+    assert out["frames"] == [2, 3] and out["pid"] == os.getpid() and out["seconds"] == clock[-1] - clock[0] > 0
     assert sorted(p.name for p in (root / "meshes").iterdir()) == ["00002.ply", "00003.ply"]
     assert studio.chunks[0]["subject"] is None and studio.chunks[0]["frames"] == [2, 3]
     run = json.loads((root / "unit.json").read_text())["run"]
@@ -605,19 +619,16 @@ def test_muscle_batch_captures_each_sequence_with_its_options(arm, client, tmp_p
     assert [c[1][2].shape for c in client.calls[-2:]] == [None, None]
 
 
-def test_capture_unit_runs_setup_first_and_discards_a_leftover(arm, tmp_path):
+def test_capture_unit_runs_setup_first_and_discards_a_leftover(arm, tmp_path, clock):
     root = tmp_path / "u"
     unit_layout(root).staging.mkdir(parents=True)
     (unit_layout(root).staging / "arm.glb").write_bytes(b"half")
     order = []
     arm_before = len(arm.captures)
-    import time
-
-    t0 = time.perf_counter()
     out = batch.capture_unit(str(tmp_path / "seq60"), str(root), MuscleOptions(mode="nicp"), "sha",
                              lambda: order.append(len(arm.captures)))
     assert order == [arm_before] and out["frames"] == 3 and out["pid"] == os.getpid()
-    assert 0 <= out["seconds"] <= time.perf_counter() - t0
+    assert out["seconds"] == clock[-1] - clock[0] > 0
     assert (root / "arm.glb").read_bytes() == b"seq60 60.0" and unit_is_complete(unit_layout(root), "sha")
 
 
@@ -642,7 +653,7 @@ def test_muscle_batch_refuses_bad_options(arm, client, tmp_path):
 
 # ---------------------------------------------------------------------------------------------- rig unit
 
-def test_rig_unit_commits_the_rig_then_its_unit_record(monkeypatch, tmp_path):
+def test_rig_unit_commits_the_rig_then_its_unit_record(monkeypatch, tmp_path, clock):
     import bodystudio.cli.rig as cli_rig
     from bodystudio.rig.export import rig_layout
 
@@ -659,13 +670,10 @@ def test_rig_unit_commits_the_rig_then_its_unit_record(monkeypatch, tmp_path):
         return {"fit_err_mm_median": 1.5}
 
     monkeypatch.setattr(cli_rig, "rig_to_files", rig_to_files)
-    import time
-
     order = []
-    t0 = time.perf_counter()
     out = batch.rig_unit(str(tmp_path / "bob.ply"), str(glb), "2k", "sha1", lambda: order.append(len(calls)))
     assert order == [0] and calls == [(tmp_path / "bob.ply", glb, "2k")]
-    assert out["fit_err_mm_median"] == 1.5 and 0 <= out["seconds"] <= time.perf_counter() - t0
+    assert out["fit_err_mm_median"] == 1.5 and out["seconds"] == clock[-1] - clock[0] > 0
     run_id = json.loads(rig_layout(glb).manifest_path.read_text())["run"]["run_id"]
     assert json.loads((glb.parent / ".batch" / "bob.json").read_text()) == {
         "inputs_sha256": "sha1", "scan": str(tmp_path / "bob.ply"), "run_id": run_id, "pid": os.getpid()}
