@@ -34,13 +34,18 @@ PLANTED = 11
 
 @pytest.fixture(scope="module")
 def studio(tmp_path_factory):
+    return _two_actor_studio(tmp_path_factory.mktemp("rel6a_subject"), subject_seed=7, n_frames=12)
+
+
+def _two_actor_studio(root, subject_seed, n_frames):
+    """``root/clean``: a two-actor v1 mirror session standing still; ``root/body1.npz``: actor 1's true shape as
+    its source body (standing in for mirror init's fit). rel6b's test file builds its studio with it too."""
     from bodystudio.body.statistical import load_statistical_model
     from bodystudio.mirror import synthetic
     from bodystudio.mirror.init import SourceBody, refit_skeleton, save_source_body
 
-    root = tmp_path_factory.mktemp("rel6a_subject")
-    session = synthetic.synth_mirror_session(root / "clean", 7, n_frames=12, actors=2, edits={"taller": 0.16},
-                                             version="v1", motion="a_pose", walk_in=False)
+    session = synthetic.synth_mirror_session(root / "clean", subject_seed, n_frames=n_frames, actors=2,
+                                             edits={"taller": 0.16}, version="v1", motion="a_pose", walk_in=False)
     model = load_statistical_model("6k", progress=False)
     c = session.gt_mirror_actors["source_coeffs"][0]  # actor 1's true shape stands in for mirror init's fit
     save_source_body(root / "body1.npz", SourceBody(c, model.vertices(c), refit_skeleton(model, c), (10,), 0.0),

@@ -18,7 +18,7 @@ import shutil
 import pytest
 
 from bodystudio.errors import ImplausibleResultError
-from tests.reliability.test_rel6a_mirror import _plant_in_place, _swap, _swap_bodies
+from tests.reliability.test_rel6a_mirror import _plant_in_place, _swap, _swap_bodies, _two_actor_studio
 
 ACTOR_FRAMES = [10, 11, 12, 13]
 PLANTED = [11, 12, 13]
@@ -27,18 +27,7 @@ LEGS = ("KneeLeft", "KneeRight", "AnkleLeft", "AnkleRight")
 
 @pytest.fixture(scope="module")
 def studio(tmp_path_factory):
-    from bodystudio.body.statistical import load_statistical_model
-    from bodystudio.mirror import synthetic
-    from bodystudio.mirror.init import SourceBody, refit_skeleton, save_source_body
-
-    root = tmp_path_factory.mktemp("rel6b_checks")
-    session = synthetic.synth_mirror_session(root / "clean", 5, n_frames=14, actors=2, edits={"taller": 0.16},
-                                             version="v1", motion="a_pose", walk_in=False)
-    model = load_statistical_model("6k", progress=False)
-    c = session.gt_mirror_actors["source_coeffs"][0]  # actor 1's true shape stands in for mirror init's fit
-    save_source_body(root / "body1.npz", SourceBody(c, model.vertices(c), refit_skeleton(model, c), (10,), 0.0),
-                     player=1)
-    return root
+    return _two_actor_studio(tmp_path_factory.mktemp("rel6b_checks"), subject_seed=5, n_frames=14)
 
 
 def _plant(studio, tmp_path, name, change_mask, change_bodies, frames=PLANTED):
