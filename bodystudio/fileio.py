@@ -277,6 +277,26 @@ def _native_stderr_captured() -> Iterator[list[str]]:
             os.close(saved)
 
 
+@contextlib.contextmanager
+def native_stderr_captured() -> Iterator[list[str]]:
+    """What C libraries (FFmpeg inside OpenCV, libjpeg) write to file descriptor 2 while the block runs, kept off
+    the terminal (a user error is one line) and yielded as a list holding the text once the block ends."""
+    with _native_stderr_captured() as out:
+        yield out
+
+
+#: FFmpeg's log prefix, ``[mjpeg @ 0x55a5...] `` (the codec or demuxer and an address).
+_FFMPEG_LOG_PREFIX = re.compile(r"^\[[\w,.-]+ @ 0x[0-9a-f]+\]\s*")
+
+
+def ffmpeg_message(captured: list[str]) -> str | None:
+    """The first FFmpeg log line of :func:`native_stderr_captured`'s text, without its ``[codec @ 0x...]`` prefix."""
+    for line in "".join(captured).splitlines():
+        if _FFMPEG_LOG_PREFIX.match(line.strip()):
+            return _FFMPEG_LOG_PREFIX.sub("", line.strip())
+    return None
+
+
 def decode_image(data: bytes, source: str | os.PathLike, flags: int | None = None) -> np.ndarray:
     """Decode image bytes with OpenCV, treating any libjpeg/libpng warning as an error naming ``source``,
     except a PNG colour-profile warning on an intact chunk (:func:`colour_profile_warning`; logged).

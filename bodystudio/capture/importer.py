@@ -266,16 +266,52 @@ class ImageFolderSource:
 
 
 class VideoSource:
-    """The frames of one camera as a video file, decoded in order with cv2.VideoCapture."""
+    """The frames of one camera as a video file, decoded in order with cv2.VideoCapture.
+
+    The frames are counted, and their presentation times read, by decoding the file once when it is opened: the
+    header's frame count is an estimate (duration x rate) in Matroska/WebM and wrong in a variable-rate or truncated
+    recording (a good 10-frame VFR video whose header said 17 was refused as "truncated or damaged"; adv5).
+    ``times_s`` are the container's frame times (s, from 0)."""
 
     def __init__(self, path: Path):
         self.where = path
-        self.capture = cv2.VideoCapture(str(path))
-        if not self.capture.isOpened():
+        self.header_frames = 0
+        self.times_s, message = self._frame_times(path)
+        self.n = len(self.times_s)
+        why = f" ({message})" if message else ""
+        if self.n == 0:
+            raise FileFormatError(f"{path}: the video has no frames that decode{why} (an audio-only, empty or damaged "
+                                  "recording); give the camera's video")
+        if self.header_frames > self.n:
+            log.warning("%s: %d frames decode but the header says %d (a truncated recording or a variable frame "
+                        "rate%s); using the %d", path, self.n, self.header_frames, f": {message}" if message else "",
+                        self.n)
+        self.capture = self._open(path)
+        self.next = 0
+
+    def _open(self, path: Path) -> cv2.VideoCapture:
+        from bodystudio.fileio import native_stderr_captured
+
+        with native_stderr_captured():  # FFmpeg's demuxer chatter: the error is one line
+            capture = cv2.VideoCapture(str(path))
+        if not capture.isOpened():
             raise FileFormatError(f"{path}: cannot open the video (unsupported codec or not a video); "
                                   "convert it (e.g. ffmpeg -c:v mjpeg) or export an image folder")
-        self.n = int(self.capture.get(cv2.CAP_PROP_FRAME_COUNT))
-        self.next = 0
+        return capture
+
+    def _frame_times(self, path: Path) -> tuple[np.ndarray, str | None]:
+        from bodystudio.fileio import ffmpeg_message, native_stderr_captured
+
+        capture = self._open(path)
+        try:
+            self.header_frames = max(0, int(capture.get(cv2.CAP_PROP_FRAME_COUNT)))
+            times = []
+            with native_stderr_captured() as captured:
+                while capture.grab():
+                    times.append(capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0)
+        finally:
+            capture.release()
+        return np.asarray(times, np.float64), ffmpeg_message(captured)
 
     def __len__(self) -> int:
         return self.n
@@ -283,19 +319,58 @@ class VideoSource:
     def read(self, k: int) -> tuple[np.ndarray, str]:
         if k < self.next:
             raise ValueError("video frames must be read in increasing order")
-        while self.next < k:
-            if not self.capture.grab():
-                break
-            self.next += 1
-        ok, image = self.capture.read() if self.next == k else (False, None)
+        from bodystudio.fileio import native_stderr_captured
+
+        with native_stderr_captured():  # counted when opened: what FFmpeg says now was said then
+            while self.next < k:
+                if not self.capture.grab():
+                    break
+                self.next += 1
+            ok, image = self.capture.read() if self.next == k else (False, None)
         self.next += 1
         if not ok or image is None:
-            raise FileFormatError(f"{self.where}: frame {k} cannot be decoded (the video has {self.n} frames "
-                                  "by its header); the file is truncated or damaged")
+            raise FileFormatError(f"{self.where}: frame {k} cannot be decoded (the video had {self.n} frames when "
+                                  "it was opened); the file changed or is damaged")
         return cv2.cvtColor(image, cv2.COLOR_BGR2RGB), f"{self.where} frame {k}"
 
     def close(self) -> None:
         self.capture.release()
+
+
+#: Frame periods within this fraction of the median are one constant rate (the container's rounding, a camera's
+#: clock jitter); a period further off is a dropped or held frame of a variable-rate recording.
+VIDEO_PERIOD_TOLERANCE = 0.25
+
+
+def check_video_rates(sources: dict, paired: bool = True) -> None:
+    """Refuse videos that frame-index synchronisation would pair wrongly (adv5): cameras recording at different
+    rates (a 30 fps and a 15 fps camera: session frame 20 paired 0.67 s with 1.33 s), or a camera whose frame times
+    are not evenly spaced (a phone's variable frame rate, a dropped frame: every later frame paired with another
+    camera's later one). Both imported with exit 0 before; the fix is a timestamps folder."""
+    rates = {}
+    for name, source in sources.items():
+        times = getattr(source, "times_s", None)
+        if times is None or len(times) < 2:
+            continue
+        periods = np.diff(times)
+        median = float(np.median(periods))
+        if median <= 0:
+            continue
+        off = np.abs(periods - median) > VIDEO_PERIOD_TOLERANCE * median
+        rates[name] = 1.0 / median if np.any(off) else (len(times) - 1) / float(times[-1] - times[0])
+        if paired and np.any(off):
+            k = int(np.argmax(off)) + 1
+            raise FileFormatError(f"{source.where}: variable frame rate (frame {k} comes {1e3 * periods[k - 1]:.0f} "
+                                  f"ms after frame {k - 1}, the median period is {1e3 * median:.0f} ms); frames "
+                                  "paired by index would be recorded at different times; give --timestamps with "
+                                  "each camera's frame times")
+    if len(rates) > 1:
+        first, *rest = rates
+        for name in rest:
+            if abs(rates[name] - rates[first]) > 0.01 * rates[first]:
+                raise FileFormatError(f"{sources[name].where}: {rates[name]:.3g} fps but {sources[first].where} is "
+                                      f"{rates[first]:.3g} fps; frames paired by index would be recorded at "
+                                      "different times; give --timestamps with each camera's frame times")
 
 
 def camera_sources(root: Path, names: list[str], videos: bool):
@@ -648,6 +723,7 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
             raise FileFormatError(f"{sources[worst].where}: {counts[worst]} frames but {sources[names[0]].where} has "
                                   f"{counts[names[0]]}; give a timestamps folder to synchronise, or --frames "
                                   f"{n_common} to use the first frames")
+        check_video_rates(sources, paired=len(sources) > 1 or tum is not None)
         plan = [{n: k for n in names} for k in range(n_common)]
         frame_times = None
     else:
@@ -695,6 +771,10 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
                         [p[0] for p in tum_pairs] if tum_pairs is not None and plan is None else None,
                         Path(timestamps) / f"{names[0]}.txt" if frame_times is not None else tum / "depth.txt"
                         if tum is not None else None)
+    if fps is None and plan is not None and frame_times is None and videos is not None:
+        # the videos' own frame times (a 15 fps webcam's video imported without metadata.fps was read as 30 fps:
+        # the arm capture's filters twice as wide in seconds, the mirror video twice as fast; adv5)
+        fps = video_fps(sources[names[0]].times_s[:total], sources[names[0]].where)
     if fps is not None:  # readers assume 30 without it: a 15 fps recording's mirror video played twice as fast
         metadata["fps"] = fps
     try:
@@ -759,6 +839,21 @@ def recording_fps(frame_times, source: Path | None = None) -> float | None:
     return round(fps, 3)
 
 
+def video_fps(times_s: np.ndarray, source: Path) -> float | None:
+    """A video's frame rate from its frame times (s): frames over the time they span when evenly spaced (Matroska's
+    millisecond times put a 15 fps video's median period at 67 ms: 14.925 fps), else :func:`recording_fps`'s median
+    period; None with fewer than two frames or no times (a backend that reads 0 for every frame)."""
+    if len(times_s) < 2:
+        return None
+    periods = np.diff(times_s)
+    median = float(np.median(periods))
+    if median <= 0:
+        return None
+    if np.all(np.abs(periods - median) <= VIDEO_PERIOD_TOLERANCE * median):
+        return recording_fps([0.0, (times_s[-1] - times_s[0]) / (len(times_s) - 1)], source)
+    return recording_fps(times_s, source)
+
+
 def _cameras_for_import(cameras, frame_root, videos, sensor):
     from bodystudio.geometry.camera import CameraRig
 
@@ -791,6 +886,11 @@ def _frame_sizes(root: Path, videos: bool) -> dict[str, tuple[int, int]]:
 
 def _check_size(image: np.ndarray, camera, where: str) -> None:
     h, w = image.shape[:2]
+    if (w, h) == (camera.height, camera.width) and w != h:
+        raise FileFormatError(f"{where}: image is {w}x{h}, turned 90 degrees against the calibration of {camera.name} "
+                              f"({camera.width}x{camera.height}; a phone video's rotation flag or a photo's EXIF "
+                              "orientation, which the reader applies); calibrate on frames read the same way, or "
+                              "drop the flag (ffmpeg -display_rotation 0 -i IN -c copy OUT)")
     if (w, h) != (camera.width, camera.height):
         raise FileFormatError(f"{where}: image is {w}x{h} but the calibration of {camera.name} says "
                               f"{camera.width}x{camera.height}; use the matching calibration or frames")

@@ -426,8 +426,14 @@ def test_images_are_read_as_rgb_and_sizes_are_checked(tmp_path):
     assert grey.shape == (H, W)
     cam = _cam("c", (0, 1, 3), 10.0)
     imp._check_size(np.zeros((48, 64)), cam, "x.png")
-    with _raises(FileFormatError, "x.png: image is 48x64 but the calibration of c says 64x48; use the matching "
+    with _raises(FileFormatError, "x.png: image is 64x64 but the calibration of c says 64x48; use the matching "
                                   "calibration or frames"):
+        imp._check_size(np.zeros((64, 64, 3)), cam, "x.png")
+    # the transposed size is a rotation flag the reader applied (adv5)
+    with _raises(FileFormatError, "x.png: image is 48x64, turned 90 degrees against the calibration of c (64x48; a "
+                                  "phone video's rotation flag or a photo's EXIF orientation, which the reader "
+                                  "applies); calibrate on frames read the same way, or drop the flag (ffmpeg "
+                                  "-display_rotation 0 -i IN -c copy OUT)"):
         imp._check_size(np.zeros((64, 48, 3)), cam, "x.png")
 
 
@@ -627,8 +633,8 @@ def test_a_video_is_read_in_order_and_a_missing_frame_is_named(tmp_path):
         src.read(2)
     src.close()
     src = imp.VideoSource(tmp_path / "a.avi")
-    with _raises(FileFormatError, f"{tmp_path / 'a.avi'}: frame 5 cannot be decoded (the video has 3 frames by its "
-                                  "header); the file is truncated or damaged"):
+    with _raises(FileFormatError, f"{tmp_path / 'a.avi'}: frame 5 cannot be decoded (the video had 3 frames when "
+                                  "it was opened); the file changed or is damaged"):
         src.read(5)
     src.close()
     assert imp._frame_sizes(tmp_path, videos=True) == {"a": (W, H)}
