@@ -523,6 +523,32 @@ def depth_scale_of(raw: np.ndarray, source: str, depth_scale: float | None, defa
                           "(units per metre)")
 
 
+def check_depth_unit(raw: np.ndarray, source: Path, scale: float, first: Path, first_dtype, explicit: bool) -> None:
+    """Refuse a depth frame in another format or unit than the frame the unit was taken from (``first``): a
+    float frame after 16-bit ones was divided by the 16-bit scale (metres read as 1/5000 m), a frame in
+    millimetres after TUM units stored 5x short, both with exit 0 (adv5). Only a frame that another unit makes
+    plausible (and its own does not) is refused: a frame of a far wall stays."""
+    if raw.dtype != first_dtype:
+        raise FileFormatError(f"{source}: depth stored as {raw.dtype} but {first} as {first_dtype}; export every "
+                              "depth frame of the recording in one format")
+    if explicit or raw.dtype.kind == "f":
+        return
+    valid = raw[raw > 0]
+    if valid.size == 0:
+        return
+    median = float(np.median(valid))
+    lo, hi = PLAUSIBLE_DEPTH_M
+    if lo <= median / scale <= hi:
+        return
+    units = {TUM_DEPTH_SCALE: "TUM units", 1000.0: "millimetres", 1.0: "metres"}
+    others = [other for other in units if other != scale and lo <= median / other <= hi]
+    if len(others) == 1:
+        other = others[0]
+        raise FileFormatError(f"{source}: depth looks like {units[other]} (median {median / other:.2f} m; "
+                              f"{median / scale:.2f} m at {scale:g} per metre) but {first} was read at {scale:g} per "
+                              "metre; export every depth frame of the recording in one unit")
+
+
 # ---------------------------------------------------------------------------------------------- joints
 
 JOINT_FRAMES = ("studio", "kinect-sdk")
@@ -762,7 +788,7 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
             raise FileFormatError(f"{where}: {available} {what} but the recording has {index[-1] + 1} frames; "
                                   + (f"pass --frames {fitting}" if fitting else "give one per recorded frame"))
 
-    scale = None
+    scale, scale_frame = None, None
     metadata = {"generator": "bodystudio capture import", "inputs": {
         k: str(v) for k, v in dict(cameras=cameras, images=images, videos=videos, timestamps=timestamps,
                                    backgrounds=backgrounds, tum=tum, kinect_calibration=kinect_calibration,
@@ -795,11 +821,15 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
                     _, depth_file, rgb_file = tum_pairs[i]
                     raw = read_image_file(tum / depth_file, cv2.IMREAD_UNCHANGED)
                     if scale is None:
-                        scale = depth_scale_of(raw, str(tum / depth_file), depth_scale)
-                    elif raw.dtype.kind != "f" and raw.dtype != np.uint16:
-                        depth_scale_of(raw, str(tum / depth_file), depth_scale)
+                        found = depth_scale_of(raw, str(tum / depth_file), depth_scale)
+                        # a blank first frame (a Kinect's first frames often are) says nothing about the unit: the
+                        # TUM default it gave was kept for every later frame, millimetres stored 5x short, exit 0
+                        if depth_scale is not None or raw.dtype.kind == "f" or np.any(raw > 0):
+                            scale, scale_frame = found, (tum / depth_file, raw.dtype)
+                    else:
+                        check_depth_unit(raw, tum / depth_file, scale, *scale_frame, explicit=depth_scale is not None)
                     _check_size(raw, sensor.depth, str(tum / depth_file))
-                    writer.write_kinect_depth(i, raw.astype(np.float64) / scale)
+                    writer.write_kinect_depth(i, raw.astype(np.float64) / (scale or TUM_DEPTH_SCALE))
                     color = read_image_file(tum / rgb_file)
                     _check_size(color, sensor.color, str(tum / rgb_file))
                     writer.write_kinect_rgb(i, color)
