@@ -528,6 +528,8 @@ def check_depth_unit(raw: np.ndarray, source: Path, scale: float, first: Path, f
     float frame after 16-bit ones was divided by the 16-bit scale (metres read as 1/5000 m), a frame in
     millimetres after TUM units stored 5x short, both with exit 0 (adv5). Only a frame that another unit makes
     plausible (and its own does not) is refused: a frame of a far wall stays."""
+    if raw.dtype.kind != "f" and raw.dtype != np.uint16:
+        depth_scale_of(raw, str(source), None)  # 8-bit depth: its own refusal
     if raw.dtype != first_dtype:
         raise FileFormatError(f"{source}: depth stored as {raw.dtype} but {first} as {first_dtype}; export every "
                               "depth frame of the recording in one format")
