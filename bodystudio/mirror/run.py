@@ -647,7 +647,9 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
         timings, cpu = {}, {}
         t, c = time.perf_counter(), time.process_time()
         try:
-            frame = read_mirror_frame(session, int(i))
+            frame = (read_arriving_frame(session, int(i)) if isinstance(getattr(session, "manifest", {}).get("files"),
+                                                                        _ExistingFiles)
+                     else read_mirror_frame(session, int(i)))
         except BodyStudioError as exc:
             rgb = _colour_or_none(session, int(i), camera)  # a damaged depth / mask / joints file: its own colour
             if rgb is None:  # the colour itself unreadable: the last frame's, as a live mirror shows
@@ -1003,6 +1005,35 @@ def live_session(folder: str | Path):
     manifest = {"files": _ExistingFiles(folder), "frames": _ArrivedFrames(folder), "cameras": [], "streams": [],
                 "metadata": {}}
     return Session(folder, manifest)
+
+
+#: ``--live``: a frame's file modified this recently may still be being written by the recorder (s).
+LIVE_WRITE_SETTLE_S = 0.3
+
+
+def read_arriving_frame(session, i: int, settle_s: float = LIVE_WRITE_SETTLE_S, poll_s: float = 0.02):
+    """Frame ``i`` of a live folder (:func:`live_session`) as :func:`~bodystudio.mirror.frames.read_mirror_frame`
+    reads it, read again while it fails and one of its files was modified within ``settle_s`` (the recorder is still
+    writing it); once its files have been quiet that long the error stands (a damaged frame). Before, a colour PNG
+    read half-written was "unreadable" and the previous frame's colour was shown in its place with a warning, though
+    the frame was complete a moment later (adv5)."""
+    from bodystudio.capture.session import stream_path
+    from bodystudio.mirror.frames import read_mirror_frame
+
+    root = Path(session.path)
+    while True:
+        try:
+            return read_mirror_frame(session, i)
+        except BodyStudioError:
+            newest = 0.0
+            for stream in ("kinect_rgb", "kinect_depth", "kinect_player", "kinect_joints"):
+                try:
+                    newest = max(newest, (root / stream_path(stream, i)).stat().st_mtime)
+                except OSError:
+                    continue
+            if time.time() - newest > settle_s:
+                raise
+            time.sleep(poll_s)
 
 
 def live_frame_ids(folder: str | Path, timeout_s: float = 5.0, poll_s: float = 0.02,
