@@ -265,6 +265,45 @@ class ImageFolderSource:
         pass
 
 
+def open_video(path: Path) -> cv2.VideoCapture:
+    """``cv2.VideoCapture`` of a video file, FFmpeg's demuxer chatter kept off the terminal (an error is one line)."""
+    from bodystudio.fileio import native_stderr_captured
+
+    with native_stderr_captured():
+        capture = cv2.VideoCapture(str(path))
+    if not capture.isOpened():
+        raise FileFormatError(f"{path}: cannot open the video (unsupported codec or not a video); "
+                              "convert it (e.g. ffmpeg -c:v mjpeg) or export an image folder")
+    return capture
+
+
+def video_frame_times(path: Path) -> tuple[np.ndarray, int, str | None]:
+    """The presentation time (s) of every frame of a video that decodes, by decoding it once; with the header's
+    frame count (an estimate in Matroska / WebM) and FFmpeg's first complaint (None if it had none)."""
+    from bodystudio.fileio import ffmpeg_message, native_stderr_captured
+
+    capture = open_video(path)
+    try:
+        header_frames = max(0, int(capture.get(cv2.CAP_PROP_FRAME_COUNT)))
+        times = []
+        with native_stderr_captured() as captured:
+            while capture.grab():
+                times.append(capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0)
+    finally:
+        capture.release()
+    return np.asarray(times, np.float64), header_frames, ffmpeg_message(captured)
+
+
+def video_rate_varies(times_s: np.ndarray) -> bool:
+    """Whether a video's frame periods stray from their median by more than :data:`VIDEO_PERIOD_TOLERANCE` (a
+    phone's variable frame rate, a dropped or held frame)."""
+    if len(times_s) < 3:
+        return False
+    periods = np.diff(times_s)
+    median = float(np.median(periods))
+    return median > 0 and bool(np.any(np.abs(periods - median) > VIDEO_PERIOD_TOLERANCE * median))
+
+
 class VideoSource:
     """The frames of one camera as a video file, decoded in order with cv2.VideoCapture.
 
@@ -290,28 +329,11 @@ class VideoSource:
         self.next = 0
 
     def _open(self, path: Path) -> cv2.VideoCapture:
-        from bodystudio.fileio import native_stderr_captured
-
-        with native_stderr_captured():  # FFmpeg's demuxer chatter: the error is one line
-            capture = cv2.VideoCapture(str(path))
-        if not capture.isOpened():
-            raise FileFormatError(f"{path}: cannot open the video (unsupported codec or not a video); "
-                                  "convert it (e.g. ffmpeg -c:v mjpeg) or export an image folder")
-        return capture
+        return open_video(path)
 
     def _frame_times(self, path: Path) -> tuple[np.ndarray, str | None]:
-        from bodystudio.fileio import ffmpeg_message, native_stderr_captured
-
-        capture = self._open(path)
-        try:
-            self.header_frames = max(0, int(capture.get(cv2.CAP_PROP_FRAME_COUNT)))
-            times = []
-            with native_stderr_captured() as captured:
-                while capture.grab():
-                    times.append(capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0)
-        finally:
-            capture.release()
-        return np.asarray(times, np.float64), ffmpeg_message(captured)
+        times, self.header_frames, message = video_frame_times(path)
+        return times, message
 
     def __len__(self) -> int:
         return self.n

@@ -322,7 +322,9 @@ def source_frames(fit, fit_dir: str | os.PathLike | None = None):
     next_k = 0
     fail = f"{source}: cannot read the video"
     try:
-        gen = imageio_ffmpeg.read_frames(str(source))
+        from bodystudio.garment.person import VIDEO_READ_OPTIONS
+
+        gen = imageio_ffmpeg.read_frames(str(source), output_params=list(VIDEO_READ_OPTIONS))
         meta = next(gen)
         w, h = meta["size"]
         for i, raw in enumerate(gen):

@@ -112,15 +112,49 @@ def source_fingerprint(source, frame_ids, camera: str | None = None) -> str | No
     return None if digest is None else f"session:{digest}"
 
 
+#: FFmpeg output options of every read of a garment fit's video (the fit and the render must number its frames alike):
+#: each decoded frame once. By default the pipe is constant-rate: a phone's variable-rate clip (10 frames over 1.7 s)
+#: came out as 19 frames, held ones repeated, at the stream's nominal "30 fps", exit 0 (adv5).
+VIDEO_READ_OPTIONS = ("-fps_mode", "passthrough")
+
+
+def video_frame_rate(path: Path, n_frames: int, nominal_fps: float, whole: bool = True) -> float:
+    """A video's frame rate from its frames' times (:func:`bodystudio.capture.importer.video_fps`: frames over their
+    span when steady, one over the median period when not, with a warning), else ``nominal_fps`` (FFmpeg's stream
+    line) when OpenCV does not decode the same ``n_frames`` (at least as many when not ``whole``: a range of the
+    clip, whose rate is the clip's)."""
+    from bodystudio.capture.importer import video_fps, video_frame_times, video_rate_varies
+    from bodystudio.errors import BodyStudioError
+
+    try:
+        times, _, _ = video_frame_times(path)
+    except BodyStudioError:
+        return nominal_fps
+    if len(times) != n_frames and (whole or len(times) < n_frames):
+        return nominal_fps
+    try:
+        fps = video_fps(times, path)
+    except BodyStudioError:
+        return nominal_fps
+    if fps is None:
+        return nominal_fps
+    if video_rate_varies(times):
+        log.warning("%s: variable frame rate (frame periods %.0f-%.0f ms); each frame is fitted once, the output "
+                    "plays at the median rate %.3g fps", path, 1e3 * np.diff(times).min(), 1e3 * np.diff(times).max(),
+                    fps)
+    return fps
+
+
 def read_video(path: str | os.PathLike, frames: str | None = None) -> tuple[np.ndarray, float]:
-    """(n, H, W, 3) uint8 RGB frames of a video file (imageio-ffmpeg) and its frame rate."""
+    """(n, H, W, 3) uint8 RGB frames of a video file (imageio-ffmpeg, each decoded frame once) and its frame rate
+    (:func:`video_frame_rate`)."""
     import imageio_ffmpeg
 
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such video file or session folder")
     try:
-        reader = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24")
+        reader = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24", output_params=list(VIDEO_READ_OPTIONS))
         meta = next(reader)
         width, height = meta["size"]
         fps = float(meta.get("fps") or 30.0)
@@ -140,6 +174,7 @@ def read_video(path: str | os.PathLike, frames: str | None = None) -> tuple[np.n
         raise FileFormatError(f"{path}: unreadable video ({first}); pass a video file ffmpeg can decode") from None
     if not out:
         raise FileFormatError(f"{path}: the video has no frames; pass a video with the actor in it")
+    fps = video_frame_rate(path, len(out), fps, whole=stop is None)
     fps = checked_fps(fps, str(path), "re-encode the video at its real rate (ffmpeg -r 30)")
     images = np.stack(out)
     return images[parse_frame_range(frames, len(images), str(path))], fps
