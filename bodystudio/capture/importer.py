@@ -132,6 +132,7 @@ def _easymocap_rig(fi, fe, intri: Path, extri: Path, image_sizes, default_size):
             size = _image_size(w.real(), h.real(), intri, name)
         elif image_sizes and name in image_sizes:
             size = image_sizes[name]
+            check_principal_point_centred(K, size, intri, name)
         elif default_size is not None:
             size = default_size
         else:
@@ -151,6 +152,31 @@ def _easymocap_rig(fi, fe, intri: Path, extri: Path, image_sizes, default_size):
     if not cams:
         raise FileFormatError(f"{intri}: the 'names' list is empty; list the cameras")
     return CameraRig(cams)
+
+
+#: How far (a fraction of the side) a lens's principal point may lie from the image centre before an image size taken
+#: from the frames is doubted (calibrated cameras: a few %; K of 1920x1080 on 1280x720 frames: 25 %; a 4:3 portrait
+#: K on landscape frames: 17 %).
+MAX_PRINCIPAL_POINT_OFFSET = 0.15
+
+
+def check_principal_point_centred(K: np.ndarray, size: tuple[int, int], source: Path, name: str) -> None:
+    """Refuse an EasyMocap camera without ``W_``/``H_`` whose frames (``size``, w x h) are not the size its ``K`` was
+    calibrated at: K's principal point far from the frames' centre. K of a 1920x1080 calibration on 1280x720 frames
+    (principal point (960, 540) inside the image) or on a phone's portrait frames was taken with exit 0, every pixel
+    ray wrong (adv5)."""
+    w, h = size
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+    off = max(abs(cx - w / 2) / w, abs(cy - h / 2) / h)
+    if off <= MAX_PRINCIPAL_POINT_OFFSET:
+        return
+    turned = max(abs(cx - h / 2) / h, abs(cy - w / 2) / w) <= MAX_PRINCIPAL_POINT_OFFSET
+    likely = (f"the frames are turned 90 degrees against it ({h}x{w})" if turned
+              else f"it is for about {2 * cx:.0f}x{2 * cy:.0f} images")
+    raise FileFormatError(f"{source}: camera {name} has no W_{name}/H_{name} and its frames are {w}x{h}, but K's "
+                          f"principal point ({cx:g}, {cy:g}) is {100 * off:.0f} % of the image off their centre (a "
+                          f"lens's lies within a few %): {likely}; calibrate at the frames' size and orientation, or "
+                          f"add W_{name}/H_{name} to intri.yml")
 
 
 def _image_size(w: float, h: float, source: Path, name: str) -> tuple[int, int]:

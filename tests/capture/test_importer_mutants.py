@@ -323,8 +323,14 @@ def test_easymocap_cameras_read_back_with_the_rodrigues_vector_first(tmp_path):
     assert np.isclose(np.linalg.det(R), 1.0)
     # sizes from the frames, else the default
     folder = _easymocap(tmp_path / "e", [a, b], sizes=False)
-    rig = imp.load_studio_cameras(folder, {"a": (64, 48), "b": (32, 24)})
-    assert (rig["b"].width, rig["b"].height) == (32, 24)
+    rig = imp.load_studio_cameras(folder, {"a": (64, 48), "b": (66, 50)})
+    assert (rig["b"].width, rig["b"].height) == (66, 50)
+    # frames of another size than K's (its principal point far off their centre) are refused (adv5)
+    with _raises(FileFormatError, f"{folder / 'intri.yml'}: camera b has no W_b/H_b and its frames are 32x24, but K's "
+                                  "principal point (31.5, 23.5) is 48 % of the image off their centre (a lens's lies "
+                                  "within a few %): it is for about 63x47 images; calibrate at the frames' size and "
+                                  "orientation, or add W_b/H_b to intri.yml"):
+        imp.load_studio_cameras(folder, {"a": (64, 48), "b": (32, 24)})
     rig = imp.load_easymocap_cameras(folder / "intri.yml", folder / "extri.yml", {"a": (64, 48)}, (63, 47))
     assert (rig["a"].width, rig["b"].width, rig["b"].height) == (64, 63, 47)
     with _raises(FileFormatError, f"{folder / 'intri.yml'}: no image size for camera a (W_a/H_a) and no frames to "
