@@ -441,6 +441,40 @@ def camera_sources(root: Path, names: list[str], videos: bool):
     return sources
 
 
+def file_frame_number(path: Path) -> int | None:
+    """The frame number a recorder wrote into a file name: the last run of ASCII digits of its stem, else None."""
+    runs = re.findall(r"[0-9]+", path.stem)
+    return int(runs[-1]) if runs else None
+
+
+def check_frame_numbers(sources: dict, n_frames: int) -> None:
+    """Refuse image folders paired by order whose file names say the pairs are of different frames: numbered files
+    whose numbers drift apart between two cameras (a dropped frame each: ``cam_a`` without 3, ``cam_b`` without 4,
+    five files each, paired 4 with 3 from there on, exit 0 before; adv5). A constant offset (one camera's counter
+    started at 100) is no drift; numbers that mostly do not step by one are no frame counter and are not compared."""
+    numbered = {}
+    for name, source in sources.items():
+        files = getattr(source, "files", None)
+        if files is None:
+            return
+        numbers = [file_frame_number(f) for f in files[:n_frames]]
+        if any(n is None for n in numbers):
+            return
+        numbered[name] = np.asarray(numbers, np.int64)
+        if len(numbers) > 1 and np.median(np.diff(numbered[name])) != 1:
+            return  # not a frame counter (a phone's IMG_20240101_120003 times, every other frame kept)
+    names = list(numbered)
+    first = numbered[names[0]]
+    for name in names[1:]:
+        drift = numbered[name] - first
+        if np.any(drift != drift[0]):
+            k = int(np.argmax(drift != drift[0]))
+            raise FileFormatError(f"{sources[name].files[k]}: paired by order with {sources[names[0]].files[k].name} "
+                                  f"of {names[0]}, but their frame numbers drift apart from there ({numbered[name][k]} "
+                                  f"and {first[k]}, {drift[0]} apart before): a frame dropped by one camera; remove "
+                                  "the frames not every camera has, or give --timestamps")
+
+
 def read_timestamps(path: Path) -> np.ndarray:
     """Frame times in seconds, one per non-comment line (first column)."""
     if not path.is_file():
@@ -800,6 +834,7 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
                                   f"{counts[names[0]]}; give a timestamps folder to synchronise, or --frames "
                                   f"{n_common} to use the first frames")
         check_video_rates(sources, paired=len(sources) > 1 or tum is not None)
+        check_frame_numbers(sources, min(n_common, n_frames or n_common))
         plan = [{n: k for n in names} for k in range(n_common)]
         frame_times = None
     else:
