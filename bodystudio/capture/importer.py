@@ -835,6 +835,9 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
                                   f"{n_common} to use the first frames")
         check_video_rates(sources, paired=len(sources) > 1 or tum is not None)
         check_frame_numbers(sources, min(n_common, n_frames or n_common))
+        for name, masks_of in mask_sources.items():  # a mask folder missing one frame's mask, one more at the end
+            check_frame_numbers({name: sources[name], f"{name} (masks)": masks_of},
+                                min(n_common, n_frames or n_common, len(masks_of)))
         plan = [{n: k for n in names} for k in range(n_common)]
         frame_times = None
     else:

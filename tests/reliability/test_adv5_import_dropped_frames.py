@@ -65,3 +65,12 @@ def test_names_that_are_not_frame_counters_are_not_compared(tmp_path, capfd):
     root = _recording(tmp_path, {"cam_a": [120000, 120003, 120007], "cam_b": [120001, 120003, 120009]},
                       "IMG_20240101_{}.png")
     assert_clean_error(_run(root, capfd), 0, "")
+
+
+def test_a_mask_folder_missing_a_frames_mask_is_not_paired_past_it(tmp_path, capfd):
+    root = _recording(tmp_path, {"cam_a": [0, 1, 2, 3]})
+    (root / "masks" / "cam_a").mkdir(parents=True)
+    for n in (0, 1, 3, 4):  # no mask for frame 2, one for a frame 4 that was not imported
+        cv2.imwrite(str(root / "masks" / "cam_a" / f"{n:05d}.png"), np.full((H, W), 255, np.uint8))
+    result = _run(root, capfd, "--masks", root / "masks")
+    assert_clean_error(result, 2, f"{root / 'masks' / 'cam_a' / '00003.png'}: paired by order with 00002.png of cam_a")
