@@ -303,21 +303,29 @@ def open_video(path: Path) -> cv2.VideoCapture:
     return capture
 
 
-def video_frame_times(path: Path) -> tuple[np.ndarray, int, str | None]:
+def video_frame_times(path: Path) -> tuple[np.ndarray, int, str | None, list[tuple[int, str]]]:
     """The presentation time (s) of every frame of a video that decodes, by decoding it once; with the header's
-    frame count (an estimate in Matroska / WebM) and FFmpeg's first complaint (None if it had none)."""
+    frame count (an estimate in Matroska / WebM), FFmpeg's first complaint (None if it had none) and the frames it
+    complained while decoding (index, message; a frame-threaded decoder may name a frame a few late)."""
     from bodystudio.fileio import ffmpeg_message, native_stderr_captured
 
     capture = open_video(path)
+    times, complaints, last = [], [], None
     try:
         header_frames = max(0, int(capture.get(cv2.CAP_PROP_FRAME_COUNT)))
-        times = []
-        with native_stderr_captured() as captured:
-            while capture.grab():
-                times.append(capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0)
+        while True:
+            with native_stderr_captured() as captured:
+                ok = capture.grab()
+            said = ffmpeg_message(captured)
+            if not ok:
+                last = said
+                break
+            times.append(capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0)
+            if said:
+                complaints.append((len(times) - 1, said))
     finally:
         capture.release()
-    return np.asarray(times, np.float64), header_frames, ffmpeg_message(captured)
+    return np.asarray(times, np.float64), header_frames, complaints[0][1] if complaints else last, complaints
 
 
 def video_rate_varies(times_s: np.ndarray) -> bool:
@@ -344,6 +352,11 @@ class VideoSource:
         self.times_s, message = self._frame_times(path)
         self.n = len(self.times_s)
         why = f" ({message})" if message else ""
+        if self.complaints:  # a frame decoded with errors (an MJPEG frame with a damaged scan): passed on, named
+            k, said = self.complaints[0]
+            log.warning("%s: FFmpeg reported %r decoding frame %d%s; it may be damaged: check it or re-export the "
+                        "recording", path, said, k, f" (and {len(self.complaints) - 1} more frames)"
+                        if len(self.complaints) > 1 else "")
         if self.n == 0:
             raise FileFormatError(f"{path}: the video has no frames that decode{why} (an audio-only, empty or damaged "
                                   "recording); give the camera's video")
@@ -358,7 +371,7 @@ class VideoSource:
         return open_video(path)
 
     def _frame_times(self, path: Path) -> tuple[np.ndarray, str | None]:
-        times, self.header_frames, message = video_frame_times(path)
+        times, self.header_frames, message, self.complaints = video_frame_times(path)
         return times, message
 
     def __len__(self) -> int:

@@ -127,7 +127,7 @@ def video_frame_rate(path: Path, n_frames: int, nominal_fps: float, whole: bool 
     from bodystudio.errors import BodyStudioError
 
     try:
-        times, _, _ = video_frame_times(path)
+        times = video_frame_times(path)[0]
     except BodyStudioError:
         return nominal_fps
     if len(times) != n_frames and (whole or len(times) < n_frames):

@@ -149,3 +149,26 @@ def test_a_video_without_frames_is_one_line(tmp_path, capfd, clips, kind):
     result, out, folder = _import(tmp_path, capfd, clips, {"cam_a": f"{kind}.mkv"})
     assert_clean_error(result, 2, f"{folder / 'cam_a.mkv'}: ")
     assert not out.exists()
+
+
+def test_a_frame_ffmpeg_complains_about_is_named(tmp_path, capfd, caplog, clips):
+    """An MJPEG frame with a damaged scan decodes (partly grey) with no error: the import passes it on with a warning
+    naming the frame (before: nothing said; a damaged still image is refused, but a video frame cannot be left out
+    without shifting its camera against the others)."""
+    import imageio_ffmpeg
+
+    rng = np.random.default_rng(0)  # noise frames: big JPEG scans, so the damage lands in one (frame 2)
+    proc = subprocess.Popen([imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt",
+                             "rgb24", "-s", f"{W}x{H}", "-r", "10", "-i", "-", "-c:v", "mjpeg", "-q:v", "2",
+                             str(tmp_path / "noise.avi")], stdin=subprocess.PIPE)
+    for _ in range(10):
+        proc.stdin.write(rng.integers(0, 256, (H, W, 3), dtype=np.uint8).tobytes())
+    proc.stdin.close()
+    assert proc.wait() == 0
+    data = bytearray((tmp_path / "noise.avi").read_bytes())
+    at = int(0.3 * len(data))
+    data[at:at + 200] = bytes(200)  # FFmpeg says nothing about most damage (zeros are valid entropy codes)
+    (clips / "damaged.avi").write_bytes(bytes(data))
+    result, out, folder = _import(tmp_path, capfd, clips, {"cam_a": "damaged.avi"})
+    assert_clean_error(result, 0, "")
+    assert f"{folder / 'cam_a.avi'}: FFmpeg reported" in caplog.text and "decoding frame 2;" in caplog.text
