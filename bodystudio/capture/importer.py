@@ -677,6 +677,9 @@ def load_joints(path: str | os.PathLike) -> JointTrack:
         files = sorted(path.glob("*.json"), key=frame_order)
         if not files:
             raise FileFormatError(f"{path}: no per-frame joint JSON files")
+        numbers = [file_frame_number(f) for f in files]
+        if None not in numbers:  # per-frame files named by frame number
+            check_joint_frame_numbers(numbers, path, [f.name for f in files])
         per_frame = [_joint_frame(json_or_error(f), f) for f in files]
         names = per_frame[0][0]
         for (n, _, _), f in zip(per_frame, files, strict=True):
@@ -733,6 +736,19 @@ def check_joints_frame(track: JointTrack, sensor, joints_frame: str, source: Pat
                           "the --kinect-calibration")
 
 
+def check_joint_frame_numbers(numbers: list[int], source: Path, names: list[str] | None = None) -> None:
+    """Refuse tracker joints whose frame numbers jump (a frame the tracker wrote nothing for): joints go to the
+    recording's frames in order, so every later frame's joints went to the frame before its own; the count refusal
+    that followed suggested the ``--frames`` that did exactly that, exit 0 (adv5)."""
+    gaps = np.flatnonzero(np.diff(np.asarray(numbers, np.int64)) != 1)
+    if gaps.size:
+        k = int(gaps[0])
+        what = f"{names[k]} to {names[k + 1]}" if names else f"frame {numbers[k]} to frame {numbers[k + 1]}"
+        raise FileFormatError(f"{source}: the joint frames jump from {what}; joints go to the recording's frames in "
+                              "order, so each later frame's would go to an earlier frame: give one entry per "
+                              "recorded frame (tracked 0 where the body was lost)")
+
+
 def json_or_error(path: Path):
     if not path.is_file():  # a pipe would block the read forever
         raise FileFormatError(f"{path}: not a regular file")
@@ -763,7 +779,14 @@ def _joints_csv(path: Path) -> JointTrack:
     if not rows or not need <= set(rows[0]):
         raise FileFormatError(f"{path}: CSV needs a header with columns frame,joint,x,y,z[,tracked]")
     names = list(dict.fromkeys(r["joint"] for r in rows))
-    frames = sorted({int(r["frame"]) for r in rows})
+    numbers = []
+    for line, r in enumerate(rows, 2):
+        try:
+            numbers.append(int(r["frame"]))
+        except (TypeError, ValueError):  # '1.5', '' or a missing cell: a traceback before (adv5)
+            raise FileFormatError(f"{path}:{line}: frame {r['frame']!r} is not a whole frame number") from None
+    frames = sorted(set(numbers))
+    check_joint_frame_numbers(frames, path)
     index = {f: i for i, f in enumerate(frames)}
     pos = np.full((len(frames), len(names), 3), np.nan)
     tracked = np.zeros((len(frames), len(names)), bool)

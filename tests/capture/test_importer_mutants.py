@@ -168,15 +168,15 @@ def test_joints_frame_check_refuses_joints_given_in_the_other_frame():
 def test_joints_from_a_folder_of_frames_in_natural_order(tmp_path):
     d = tmp_path / "joints"
     d.mkdir()
-    for k, name in ((10, "f10.json"), (9, "f9.json"), (2, "f2.json")):
+    for k, name in ((10, "f10.json"), (9, "f9.json"), (8, "f8.json")):  # numbers without a gap (adv5)
         (d / name).write_text(json.dumps({"names": ["a", "b"], "positions": [[k, 0, 0], [0, k, 0]],
                                           "tracked": [True, k != 9]}))
     (d / "notes.txt").write_text("x")
     track = imp.load_joints(d)
     assert track.names == ["a", "b"] and track.positions.shape == (3, 2, 3)
-    assert track.positions[:, 0, 0].tolist() == [2, 9, 10] and track.tracked.tolist() == [[1, 1], [1, 0], [1, 1]]
+    assert track.positions[:, 0, 0].tolist() == [8, 9, 10] and track.tracked.tolist() == [[1, 1], [1, 0], [1, 1]]
     (d / "f11.json").write_text(json.dumps({"joints": {"a": [1, 2, 3], "c": [0, 0, 1]}}))
-    with _raises(FileFormatError, f"{d / 'f11.json'}: joint names differ from f2.json; every frame needs the same "
+    with _raises(FileFormatError, f"{d / 'f11.json'}: joint names differ from f8.json; every frame needs the same "
                                   "joints"):
         imp.load_joints(d)
     (d / "f11.json").write_text(json.dumps({"joints": {"a": [11, 2, 3], "b": [0, 0, 1]}}))
@@ -251,8 +251,8 @@ def test_json_or_error_names_the_file(tmp_path):
 def test_joints_csv_rows_tracked_words_and_refusals(tmp_path):
     p = tmp_path / "J.CSV"
     p.write_text("frame,joint,x,y,z,tracked\n"
-                 "7,head,0,1.5,0.1,1\n7,neck,0,1.4,0,FALSE\n3,neck,1,2,3, no \n3,head,4,5,6,yes\n"
-                 "12,head,0,0,0,0\n12,neck,1,1,1,true\n")
+                 "4,head,0,1.5,0.1,1\n4,neck,0,1.4,0,FALSE\n3,neck,1,2,3, no \n3,head,4,5,6,yes\n"
+                 "5,head,0,0,0,0\n5,neck,1,1,1,true\n")
     track = imp.load_joints(p)
     assert track.names == ["head", "neck"]
     assert track.positions.tolist() == [[[4, 5, 6], [1, 2, 3]], [[0, 1.5, 0.1], [0, 1.4, 0]], [[0, 0, 0], [1, 1, 1]]]
@@ -268,6 +268,12 @@ def test_joints_csv_rows_tracked_words_and_refusals(tmp_path):
         imp.load_joints(p)
     p.write_text("frame,joint,x,y,z\n0,a,1,2,3\n1,a,1,2,3\n1,b,1,2,3\n")
     with _raises(FileFormatError, f"{p}: frame 0 has no row for joint b"):
+        imp.load_joints(p)
+    # a frame the tracker wrote nothing for (adv5): the later joints would go to the frame before theirs
+    p.write_text("frame,joint,x,y,z\n0,a,1,2,3\n2,a,1,2,3\n")
+    with _raises(FileFormatError, f"{p}: the joint frames jump from frame 0 to frame 2; joints go to the recording's "
+                                  "frames in order, so each later frame's would go to an earlier frame: give one entry "
+                                  "per recorded frame (tracked 0 where the body was lost)"):
         imp.load_joints(p)
 
 

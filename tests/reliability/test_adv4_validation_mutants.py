@@ -146,9 +146,9 @@ def test_image_files_and_joint_folders_in_frame_order(tmp_path):
         image_files(images)
     joints = tmp_path / "joints"
     joints.mkdir()
-    for k in (10, 9, 100):
+    for k in (10, 9, 11):  # numbers without a gap (adv5 refuses one); 10 sorts before 9 by plain name
         (joints / f"{k}.json").write_text(json.dumps({"names": ["Head"], "positions": [[k / 100, 1.0, 0.0]]}))
-    assert load_joints(joints).positions[:, 0, 0].tolist() == [0.09, 0.1, 1.0]
+    assert load_joints(joints).positions[:, 0, 0].tolist() == [0.09, 0.1, 0.11]
 
 
 # --- the session manifest's frame order -----------------------------------------------------------------------------
