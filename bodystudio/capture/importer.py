@@ -618,6 +618,26 @@ def depth_scale_of(raw: np.ndarray, source: str, depth_scale: float | None, defa
                           "(units per metre)")
 
 
+#: The median depth (m) a stated ``--depth-scale`` must give a frame: any depth camera's working range, wide enough
+#: for sensors other than the Kinect, narrow enough to catch a factor of 1000 (metres read as mm, mm as metres).
+STATED_DEPTH_M = (0.1, 20.0)
+
+
+def check_stated_depth_scale(raw: np.ndarray, source: Path, depth_scale: float) -> None:
+    """Refuse a ``--depth-scale`` that puts a frame's median depth outside :data:`STATED_DEPTH_M`: float depth in
+    millimetres with ``--depth-scale 1`` (2000 m) raised a ValueError traceback when stored, and metres read at 1000
+    per metre (2 mm) were stored as no depth, exit 0 (adv5)."""
+    finite = raw[np.isfinite(raw) & (raw > 0)] if raw.dtype.kind == "f" else raw[raw > 0]
+    if finite.size == 0:
+        return
+    median = float(np.median(finite)) / depth_scale
+    lo, hi = STATED_DEPTH_M
+    if not lo <= median <= hi:
+        raise FileFormatError(f"{source}: at --depth-scale {depth_scale:g} the median depth is {median:g} m, no depth "
+                              f"camera's ({lo:g}-{hi:g} m); pass the units per metre the file is stored in (metres: "
+                              "1, millimetres: 1000, TUM: 5000)")
+
+
 def check_depth_unit(raw: np.ndarray, source: Path, scale: float, first: Path, first_dtype, explicit: bool) -> None:
     """Refuse a depth frame in another format or unit than the frame the unit was taken from (``first``): a
     float frame after 16-bit ones was divided by the 16-bit scale (metres read as 1/5000 m), a frame in
@@ -953,6 +973,8 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
                     else:
                         check_depth_unit(raw, tum / depth_file, scale, *scale_frame, explicit=depth_scale is not None)
                     _check_size(raw, sensor.depth, str(tum / depth_file))
+                    if depth_scale is not None:
+                        check_stated_depth_scale(raw, tum / depth_file, depth_scale)
                     writer.write_kinect_depth(i, raw.astype(np.float64) / (scale or TUM_DEPTH_SCALE))
                     color = read_image_file(tum / rgb_file)
                     _check_size(color, sensor.color, str(tum / rgb_file))

@@ -92,3 +92,14 @@ def test_an_8_bit_frame_after_16_bit_ones_is_refused(tmp_path, capfd, explicit):
     result, out, tum = _import(tmp_path, capfd, [TUM_2M, np.full((H, W), 40, np.uint8)], *extra)
     assert_clean_error(result, 2, f"{tum / 'depth' / '1.png'}: depth ")
     assert not out.exists()
+
+
+@pytest.mark.parametrize(("depth", "scale", "median"), [(2000.0, "1", "2000 m"), (2.0, "1000", "0.002 m")],
+                         ids=["millimetres_as_metres", "metres_as_millimetres"])
+def test_a_stated_scale_no_depth_camera_could_have_is_refused(tmp_path, capfd, depth, scale, median):
+    """Before: float millimetres at ``--depth-scale 1`` raised a ValueError traceback when stored (2000 m does not fit
+    16-bit millimetres); float metres at 1000 per metre (2 mm) were stored as no depth, exit 0."""
+    frames = [np.full((H, W), depth, np.float32)] * 2
+    result, out, tum = _import(tmp_path, capfd, frames, "--depth-scale", scale, suffixes={0: ".tiff", 1: ".tiff"})
+    assert_clean_error(result, 2, f"{tum / 'depth' / '0.tiff'}: at --depth-scale {scale} the median depth is {median}")
+    assert not out.exists()
