@@ -241,14 +241,32 @@ def _safe_name(name: str) -> str:
 
 # ---------------------------------------------------------------------------------------------- frame sources
 
+#: A 16-bit colour frame whose brightest value is below this uses 12 bits or fewer (a machine-vision camera's Mono12 /
+#: RGB12 stored right-aligned): read as 8 bits (the top byte) it is nearly black.
+MIN_16BIT_PEAK = 4096
+
+
 def read_image_file(path: Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
-    """Read an image (RGB for colour); an unreadable file raises a one-line FileFormatError naming it."""
+    """Read an image (RGB for colour); an unreadable file raises a one-line FileFormatError naming it.
+
+    Colour frames are 8-bit: a 16-bit one keeps its top byte (as OpenCV's colour read), unless its brightest value
+    is below :data:`MIN_16BIT_PEAK`: a 12-bit camera's right-aligned data read that way peaked at 15 of 255 (a
+    black frame, exit 0; adv5), and is refused; so is a floating-point colour image (0..1 read as 0 and 1)."""
     from bodystudio.fileio import read_image
 
-    image = read_image(path, flags)
-    if flags == cv2.IMREAD_COLOR:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-    return image
+    if flags != cv2.IMREAD_COLOR:
+        return read_image(path, flags)
+    image = read_image(path, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    if image.dtype == np.uint16:
+        peak = int(image.max(initial=0))
+        if 0 < peak < MIN_16BIT_PEAK:
+            raise FileFormatError(f"{path}: 16-bit image whose brightest value is {peak} (12 bits or fewer used): read "
+                                  "as 8 bits it is nearly black; export 8-bit frames or scale the data to 16 bits "
+                                  "(x16 for 12-bit)")
+        image = (image >> 8).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise FileFormatError(f"{path}: {image.dtype} colour image; export 8- or 16-bit frames")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
 def frame_order(path: Path) -> list:
