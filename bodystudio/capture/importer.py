@@ -421,7 +421,7 @@ class VideoSource:
 VIDEO_PERIOD_TOLERANCE = 0.25
 
 
-def check_video_rates(sources: dict, paired: bool = True) -> None:
+def check_video_rates(sources: dict, paired: bool = True, n_frames: int | None = None) -> None:
     """Refuse videos that frame-index synchronisation would pair wrongly (adv5): cameras recording at different
     rates (a 30 fps and a 15 fps camera: session frame 20 paired 0.67 s with 1.33 s), or a camera whose frame times
     are not evenly spaced (a phone's variable frame rate, a dropped frame: every later frame paired with another
@@ -429,6 +429,7 @@ def check_video_rates(sources: dict, paired: bool = True) -> None:
     rates = {}
     for name, source in sources.items():
         times = getattr(source, "times_s", None)
+        times = None if times is None else times[:n_frames]  # the frames imported
         if times is None or len(times) < 2:
             continue
         periods = np.diff(times)
@@ -907,11 +908,11 @@ def import_recording(out: str | os.PathLike, cameras: str | os.PathLike | None =
             raise FileFormatError(f"{sources[worst].where}: {counts[worst]} frames but {sources[names[0]].where} has "
                                   f"{counts[names[0]]}; give a timestamps folder to synchronise, or --frames "
                                   f"{n_common} to use the first frames")
-        check_video_rates(sources, paired=len(sources) > 1 or tum is not None)
-        check_frame_numbers(sources, min(n_common, n_frames or n_common))
+        n_imported = min(n_common, n_frames or n_common)
+        check_video_rates(sources, paired=len(sources) > 1 or tum is not None, n_frames=n_imported)
+        check_frame_numbers(sources, n_imported)
         for name, masks_of in mask_sources.items():  # a mask folder missing one frame's mask, one more at the end
-            check_frame_numbers({name: sources[name], f"{name} (masks)": masks_of},
-                                min(n_common, n_frames or n_common, len(masks_of)))
+            check_frame_numbers({name: sources[name], f"{name} (masks)": masks_of}, min(n_imported, len(masks_of)))
         plan = [{n: k for n in names} for k in range(n_common)]
         frame_times = None
     else:

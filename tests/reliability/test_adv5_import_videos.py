@@ -118,6 +118,10 @@ def test_a_variable_rate_video_alone_imports_and_is_not_paired_with_another(tmp_
                                       {"cam_a": "vfr.mkv", "cam_b": "fps10.mkv"}, *extra)
         assert_clean_error(result, 2, f"{folder / 'cam_a.mkv'}: variable frame rate (frame 6 comes 300 ms after")
         assert not out.exists()
+    # the steady first six frames pair
+    result, out, _ = _import(tmp_path / "steady", capfd, clips, {"cam_a": "vfr.mkv", "cam_b": "fps10.mkv"},
+                             "--frames", "6")
+    assert_clean_error(result, 0, "")
 
 
 def test_a_cut_off_last_frame_imports_the_frames_that_decode(tmp_path, capfd, caplog, clips):
