@@ -13,7 +13,9 @@ running mean posture of spine_02, neck_01 and head, ``run.POSTURE_BONES``, MIR12
 options, MIR12r; ``refine-root-kept``: the target skeleton keeps the source's root, ``reshape.TARGET_ROOT = "source"``,
 before MIR12s; ``refine-upright``: the bodies posed with an upright root, ``run.UPRIGHT_ROOT``, MIR12s;
 ``refine-root-kept-upright``: both; ``refine-untwist-feet``: the feet untwisted too, ``run.UNTWIST_FEET``,
-mir12aa's default; ``refine-feet-twisted``: the IK's warm-started foot twist kept, before mir12aa), then
+mir12aa's default; ``refine-feet-twisted``: the IK's warm-started foot twist kept, before mir12aa;
+``refine-pelvis-lean``: E_upright, the pelvis's lean held near upright, ``run.PELVIS_TILT_RAD =
+refine.PELVIS_TILT_RAD``, mir12ad's option), then
 ``evaluate_mirror`` on each; prints one JSON line per run with the scores and the per-step median milliseconds
 (wall, so only comparable at one load).
 """
@@ -59,6 +61,9 @@ def _refine_as(run: str, weights: dict | None = None):
     if run in ("refine-root-kept", "refine-root-kept-upright"):  # the source's root kept (before MIR12s)
         reshape.TARGET_ROOT = "source"
     upright, feet = run_module.UPRIGHT_ROOT, run_module.UNTWIST_FEET
+    lean = run_module.PELVIS_TILT_RAD
+    if run == "refine-pelvis-lean":  # E_upright: the pelvis's lean held near upright (mir12ad)
+        run_module.PELVIS_TILT_RAD = refine.PELVIS_TILT_RAD
     if run == "refine-twisted":  # the IK's warm-started limb twist (before MIR12p)
         run_module.UNTWIST_BONES, run_module.UNTWIST_FEET = (), False
     if run in ("refine-untwist-feet", "refine-feet-twisted"):  # the IK's feet untwisted as its limbs or not (mir12aa)
@@ -81,6 +86,7 @@ def _refine_as(run: str, weights: dict | None = None):
         run_module.POSTURE_BONES = posture
         reshape.TARGET_ROOT = target_root
         run_module.UPRIGHT_ROOT, run_module.UNTWIST_FEET = upright, feet
+        run_module.PELVIS_TILT_RAD = lean
 
 
 def main() -> None:
@@ -95,7 +101,8 @@ def main() -> None:
                         choices=["ik", "refine", "refine-no-trunk", "refine-2-steps", "refine-no-edge",
                                  "refine-before-mir12h", "refine-weights", "refine-twisted", "refine-registered",
                                  "refine-posture", "refine-registered-posture", "refine-root-kept", "refine-upright",
-                                 "refine-root-kept-upright", "refine-untwist-feet", "refine-feet-twisted"],
+                                 "refine-root-kept-upright", "refine-untwist-feet", "refine-feet-twisted",
+                                 "refine-pelvis-lean"],
                         help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
                              "or with two Gauss-Newton steps, or without the warp's edge clamp (MIR12g's A/Bs)")
     parser.add_argument("--weights", default="", help="refine-weights: RefineWeights fields, e.g. depth_samples=2000")

@@ -133,6 +133,17 @@ BONE_PAIRS = (("ShoulderLeft", "ShoulderRight"), ("ShoulderLeft", "ElbowLeft"), 
 #: Eq. 4 target's displacement, steep in some source coefficient directions, lost a held-out session's
 #: warp_iou (46: -0.003), so it stays off.
 BONE_LENGTH_WEIGHT = 0.0
+#: The pairs of :data:`BONE_PAIRS` that stand between the floor and the top of the head: thighs, shins, spine, neck and
+#: head (mir12ad). A fit that leaves the stature to the depth points and the unposed joints can get a subject's shins
+#: short (54: the fitted shins 12.9 mm short of the truth, the SDK's mean 1.8 / 4.0 mm; stature -10.5 mm), and these
+#: distances carry no unposing error. With ``bone_length_weight=3.0`` (:data:`STATURE_BONE_LENGTH_WEIGHT`) on these
+#: pairs alone the 16 synthetic sessions' Eq. 4 displacement error and rest error fall (docs/mirror.md, mir12ad).
+STATURE_BONE_PAIRS = (("HipLeft", "KneeLeft"), ("KneeLeft", "AnkleLeft"), ("HipRight", "KneeRight"),
+                      ("KneeRight", "AnkleRight"), ("SpineBase", "SpineShoulder"), ("SpineShoulder", "Neck"),
+                      ("Neck", "Head"))
+STATURE_BONE_LENGTH_WEIGHT = 3.0
+#: Which pairs of :data:`BONE_PAIRS` the joint-distance term matches when ``bone_length_weight`` > 0 (None: all).
+BONE_LENGTH_PAIRS: tuple | None = None
 #: Outlier rejections of the initialisation, both measured from the *current shape estimate* (the mean body
 #: in the first pass): a depth point farther than INIT_CORRESPONDENCE_M from the posed B^D is not used, and
 #: in Eq. 2 a pair farther than FIT_TRIM_M after the first matching is dropped. With the tight values first
@@ -629,6 +640,21 @@ def _model_kinect_joints(model: StatisticalBodyModel, version: str) -> tuple[np.
     return mean, basis
 
 
+def selected_bone_pairs(pairs) -> np.ndarray:
+    """(len(:data:`BONE_PAIRS`),) bool: which pairs the joint-distance term matches, from ``pairs`` (None: all; else
+    pairs of Kinect joint names, each one of :data:`BONE_PAIRS` in either order; an unknown pair is an InputError)."""
+    if pairs is None:
+        return np.ones(len(BONE_PAIRS), bool)
+    known = {frozenset(p): i for i, p in enumerate(BONE_PAIRS)}
+    keep = np.zeros(len(BONE_PAIRS), bool)
+    for p in pairs:
+        if isinstance(p, str) or len(tuple(p)) != 2 or frozenset(p) not in known:
+            raise InputError(f"bone_length_pairs: {p!r} is not a pair of init.BONE_PAIRS; use pairs such as "
+                             f"{BONE_PAIRS[6]} (init.STATURE_BONE_PAIRS) or None for all")
+        keep[known[frozenset(p)]] = True
+    return keep
+
+
 def bone_pair_indices(version: str) -> np.ndarray:
     """(len(BONE_PAIRS), 2) joint indices of each pair in ``version``'s joint set, -1 where it has no such joint
     (Kinect v1 has no Neck)."""
@@ -753,7 +779,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  pooled_points: int = MAX_POOLED_POINTS,
                                  weighted_pool: bool = WEIGHTED_POOL, pool_seed: int = 0,
                                  leg_splay: bool = LEG_SPLAY,
-                                 knee_hinge_weight: float = KNEE_HINGE_WEIGHT) -> SourceBody:
+                                 knee_hinge_weight: float = KNEE_HINGE_WEIGHT,
+                                 bone_length_pairs=BONE_LENGTH_PAIRS) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -786,7 +813,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     dropped from the result, so that the unposed cloud's calf splay is not fitted by the shape coefficients
     (:data:`LEG_SPLAY`; mir12ab). ``knee_hinge_weight`` > 0: from the second pass on, each leg's rest splay is also
     held at what the knee's hinge measures over the previous pass's refined poses (:func:`knee_hinge_splay_rows`,
-    :data:`KNEE_HINGE_WEIGHT`; mir12ab).
+    :data:`KNEE_HINGE_WEIGHT`; mir12ab). ``bone_length_pairs``: which of :data:`BONE_PAIRS` the joint-distance term
+    matches (None: all; :data:`STATURE_BONE_PAIRS`: the thighs, shins, spine, neck and head, mir12ad).
     """
     model = check_model(model)
     if not (np.isfinite(pass_relaxation) and 0.0 < pass_relaxation <= 1.0):
@@ -815,6 +843,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     if not (np.isfinite(bone_length_weight) and bone_length_weight >= 0):
         raise InputError(f"bone_length_weight must be a finite number >= 0 (0: no joint distances), "
                          f"got {bone_length_weight!r}")
+    keep_pairs = selected_bone_pairs(bone_length_pairs)
     observations = list(observations)
     obs = []
     for o in observations:
@@ -839,7 +868,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     bone_lengths, length_weight = None, 0.0
     if bone_length_weight > 0:
         bone_lengths, n_frames = kinect_bone_lengths(observations, obs[0][0].version)
-        length_weight = bone_length_weight * n_frames
+        bone_lengths = np.where(keep_pairs, bone_lengths, np.nan)  # a NaN pair gives no row
+        length_weight = bone_length_weight * np.where(keep_pairs, n_frames, 0)
     residual = np.nan
     refined_poses: list = []  # the previous pass's refined poses: the subject's static posture
     for pass_ in range(max(1, passes)):
@@ -1110,13 +1140,14 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
                            n_frames: int = DEFAULT_INIT_FRAMES, passes: int = INIT_PASSES,
                            silhouette_shape: bool = False,
                            bone_length_weight: float = BONE_LENGTH_WEIGHT, trunk_refit: bool = False,
-                           unpose_posture: bool | None = None) -> SourceBody:
+                           unpose_posture: bool | None = None, bone_length_pairs=BONE_LENGTH_PAIRS) -> SourceBody:
     """§4 on a mirror session: the source body of ``player`` from up to ``n_frames`` frames (~3 s at 30 fps);
     ``silhouette_shape``: then refined against :data:`SILHOUETTE_FRAMES` frames' silhouettes (MIR12c);
     ``bone_length_weight`` > 0: the SDK's joint distances enter the fit (:data:`BONE_LENGTH_WEIGHT`, MIR12o);
     ``trunk_refit``: the skeleton's trunk joints moved onto the SDK's (:func:`refit_trunk_joints`, MIR12r);
     ``unpose_posture``: the refined unposing holds :data:`POSTURE_BONES` at the subject's own static posture
-    (:func:`session_posture`, mir12v), False: the rest pose; None: :data:`UNPOSE_POSTURE_BONES` (on since mir12y)."""
+    (:func:`session_posture`, mir12v), False: the rest pose; None: :data:`UNPOSE_POSTURE_BONES` (on since mir12y);
+    ``bone_length_pairs``: which joint distances (None: all; :data:`STATURE_BONE_PAIRS`, mir12ad)."""
     if model is None:
         from bodystudio.body.statistical import load_statistical_model
 
@@ -1128,7 +1159,8 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
                                         silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0,
                                         bone_length_weight=bone_length_weight, trunk_refit=trunk_refit,
                                         unpose_posture_bones=UNPOSE_POSTURE_BONES if unpose_posture is None
-                                        else POSTURE_BONES if unpose_posture else ())
+                                        else POSTURE_BONES if unpose_posture else (),
+                                        bone_length_pairs=bone_length_pairs)
 
 
 # --- persistence -----------------------------------------------------------------------------------

@@ -68,6 +68,9 @@ TRUNK_AND_LIMB_BONES = ("spine_01", "spine_02", "neck_01", "clavicle_l", "clavic
 TRUNK_BONES = ("spine_01", "spine_02", "spine_03", "neck_01", "head", "clavicle_l", "clavicle_r")
 #: E_trunk's scale: 16 degrees of bend count as one (a weak pull; 2-8 degrees measured no better on the warp).
 TRUNK_RAD = float(np.radians(16.0))
+#: A scale for :attr:`RefineWeights.pelvis_tilt_rad` that the run can switch on (``run.PELVIS_TILT_RAD``): 1.5 degrees
+#: of the pelvis's lean count as one (mir12ad, docs/mirror.md).
+PELVIS_TILT_RAD = float(np.radians(1.5))
 #: Gauss-Newton steps per frame: on MIR-SYNTH 41 / 42 one step scores the warp as well as two or three
 #: (warp_iou 0.913 / 0.894 against 0.913 / 0.894 / 0.912 / 0.894) at half the cost (docs/mirror.md).
 ITERATIONS = 1
@@ -108,6 +111,13 @@ class RefineWeights:
     # in radians (16 degrees; None: no such term). On MIR-SYNTH 41 / 42 / 43 it takes spine_01's swing error from
     # 6-9 to 1.5-1.8 degrees and the displacement error from 7.7 / 8.3 / 6.7 to 5.6 / 6.7 / 5.0 mm (MIR12g)
     trunk_rad: float | None = TRUNK_RAD
+    # E_upright (mir12ad): the pelvis's forward / backward lean off the vertical (:func:`pelvis_lean`; a turn about the
+    # vertical and a sideways tilt are free), this scale in radians; None (the default): no such term. The root's
+    # rotation is the only thing in the plan that tilts the pelvis, and with E_trunk holding the spine near rest a
+    # stooping person's bend went into a forward lean of the pelvis instead (52: +3 degrees), which turns the
+    # shorter target's trunk and legs with it (:data:`PELVIS_TILT_RAD`). Holding the sideways tilt too measured worse
+    # (52 +0.0004 against +0.0008 end to end).
+    pelvis_tilt_rad: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -591,6 +601,31 @@ def trunk_bends(M: np.ndarray, world: np.ndarray, rest_rotations: np.ndarray, pa
     return np.einsum("nkj,nj->nk", axes, b)
 
 
+def pelvis_tilt(world_rotation: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """(3,) the tilt of a bone's world rotation (rest-world to posed-world axes) off the vertical: the rotation
+    vector (world axes, perpendicular to ``up``) of the smallest turn taking ``up`` onto ``world_rotation @ up``,
+    i.e. the swing of the swing-twist split about ``up``; a turn about ``up`` alone gives 0. A world turn ``w`` about
+    an axis perpendicular to ``up`` adds ``w`` to it to first order (E_upright's residual, mir12ad)."""
+    u = np.asarray(up, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    d = np.asarray(world_rotation, dtype=np.float64) @ u
+    n = np.cross(u, d)
+    s = np.linalg.norm(n)
+    return n * (np.arctan2(s, float(u @ d)) / max(s, 1e-12))
+
+
+def pelvis_lean(world_rotation: np.ndarray, up=(0.0, 1.0, 0.0), lateral=(1.0, 0.0, 0.0)) -> tuple[float, np.ndarray]:
+    """The forward / backward lean of a bone's world rotation: the component of its tilt (:func:`pelvis_tilt`) about
+    its own ``lateral`` axis (rest-world, the body's left) turned into the world and laid horizontal, and that unit
+    axis (world). A sideways tilt and a turn about ``up`` give 0 (mir12ad's E_upright)."""
+    u = np.asarray(up, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    a = np.asarray(world_rotation, dtype=np.float64) @ np.asarray(lateral, dtype=np.float64)
+    a = a - (a @ u) * u
+    a = a / max(np.linalg.norm(a), 1e-12)
+    return float(a @ pelvis_tilt(world_rotation, up)), a
+
+
 def posture_directions(skeleton: Skeleton, pose: Pose) -> np.ndarray:
     """(B, 3) each bone's posed direction in its parent's frame, in rest-world axes (``W_p^T d_j``; the root: its
     rest direction): what :func:`trunk_bends` bends from, averaged over frames a subject's static posture."""
@@ -813,6 +848,11 @@ def refine_pose(plan: _RefinePlan, skeleton: Skeleton, pose: Pose, camera, foreg
     other twist, is the IK's. ``iterations`` Gauss-Newton steps from ``pose``. ``posture`` (B, 3): where E_trunk
     holds each trunk bone (its direction in the parent's frame, :func:`posture_directions`); None: the rest pose.
     """
+    tilt = weights.pelvis_tilt_rad
+    if tilt is not None and (isinstance(tilt, bool) or not isinstance(tilt, (int, float, np.integer, np.floating))
+                             or not (np.isfinite(tilt) and tilt > 0)):
+        raise InputError(f"refine_pose: pelvis_tilt_rad must be a positive number of radians (the pelvis tilt that "
+                         f"counts as one) or None for no such term, got {tilt!r}")
     if posture is not None and np.shape(posture) != (skeleton.n_bones, 3):
         raise InputError(f"refine_pose: posture of shape {np.shape(posture)}; give one direction per bone, "
                          f"({skeleton.n_bones}, 3) (refine.posture_directions), or None for the rest pose")
@@ -868,6 +908,8 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
     if weights.trunk_rad is not None:  # positions among the swing bones
         names = [skeleton.bone_names[b] for b in bones[1:]]
         trunk = np.array([names.index(n) for n in TRUNK_BONES if n in names], int)
+    pelvis = skeleton.bone_names.index("pelvis") if weights.pelvis_tilt_rad is not None \
+        and "pelvis" in skeleton.bone_names else None
     for _ in range(max(0, int(iterations))):
         M, transforms = _forward_kinematics(plan, parents, pose)
         world, heads, axes = _bone_frames(M, rest_rotations, bones)
@@ -948,6 +990,10 @@ def _refine_pose(plan, skeleton, pose, camera, foreground, kinect_positions, tra
             cols = (6 + 2 * trunk[:, None] + np.arange(2)).ravel()
             H[cols, cols] += 1.0 / weights.trunk_rad**2
             grad[cols] += bend.ravel() / weights.trunk_rad**2
+        if pelvis is not None:  # E_upright: the root's world turn about the lateral axis leans the pelvis 1:1
+            lean, axis = pelvis_lean(world[pelvis])
+            H[3:6, 3:6] += np.outer(axis, axis) / weights.pelvis_tilt_rad**2
+            grad[3:6] += axis * lean / weights.pelvis_tilt_rad**2
         try:
             delta = -np.linalg.solve(H, grad)
         except np.linalg.LinAlgError:

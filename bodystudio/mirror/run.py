@@ -120,6 +120,11 @@ def untwist_bones() -> tuple[str, ...]:
 #: the root's tilt, a gauge of the source fit). MIR12s: end to end 52 0.9287 -> 0.9338, 41 / 42 / 43 +0.0005 /
 #: +0.0001 / +0.0007, 13 of 14 sessions hold or gain, 48 -0.0002; 0.03 ms a frame and actor (docs/mirror.md).
 UPRIGHT_ROOT = True
+#: E_upright's scale in the run's pose refinement (:attr:`bodystudio.mirror.refine.RefineWeights.pelvis_tilt_rad`,
+#: radians; e.g. :data:`bodystudio.mirror.refine.PELVIS_TILT_RAD`): the pelvis held near upright, so that a stooping
+#: person's bend goes into the spine rather than into a tilt of the pelvis that turns the target with it. None (the
+#: default): off (mir12ad, docs/mirror.md).
+PELVIS_TILT_RAD: float | None = None
 
 
 def refine_steps(n_players: int) -> int:
@@ -132,9 +137,10 @@ def refine_weights(n_players: int):
     players: :data:`REFINE_DEPTH_SAMPLES_ONE_PLAYER` depth points for one, the defaults for several."""
     from bodystudio.mirror.refine import RefineWeights
 
+    tilt = {"pelvis_tilt_rad": PELVIS_TILT_RAD} if PELVIS_TILT_RAD is not None else {}
     if int(n_players) == 1:
-        return RefineWeights(depth_samples=REFINE_DEPTH_SAMPLES_ONE_PLAYER)
-    return RefineWeights()
+        return RefineWeights(depth_samples=REFINE_DEPTH_SAMPLES_ONE_PLAYER, **tilt)
+    return RefineWeights(**tilt)
 
 
 @dataclass(frozen=True, eq=False)

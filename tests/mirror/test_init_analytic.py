@@ -801,8 +801,9 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
         return ["obs"], session.kinect
 
     def fit(obs, m, view_point=None, passes=3, camera=None, silhouette_frames=0, depth_camera=None,
-            bone_length_weight=None, trunk_refit=None, unpose_posture_bones=None):
+            bone_length_weight=None, trunk_refit=None, unpose_posture_bones=None, bone_length_pairs="unset"):
         calls["fit"] = (obs, m, view_point, passes)
+        calls["bone_length_pairs"] = bone_length_pairs
         calls["trunk_refit"] = trunk_refit
         calls["unpose_posture_bones"] = unpose_posture_bones
         calls["silhouette"] = (camera, silhouette_frames)
@@ -820,6 +821,7 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
     assert calls["depth_camera"] is session.kinect.depth  # the refined unposing's camera (MIR12i)
     assert calls["silhouettes"] is False and calls["silhouette"] == (None, 0)  # MIR12c's refinement off by default
     assert calls["bone_length_weight"] == 0.0  # MIR12o's joint distances off by default
+    assert calls["bone_length_pairs"] is None  # every pair when the term is asked for (mir12ad's pairs: an option)
     assert calls["trunk_refit"] is False  # MIR12r's trunk refit off by default
     # mir12v's posture: on by default since mir12y, off when asked
     assert calls["unpose_posture_bones"] == ("spine_02", "neck_01", "head") == init_mod.UNPOSE_POSTURE_BONES
@@ -829,6 +831,9 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
     assert calls["unpose_posture_bones"] == ()
     init_mod.initialise_source_body(session, model, bone_length_weight=1.5)
     assert calls["bone_length_weight"] == 1.5
+    init_mod.initialise_source_body(session, model, bone_length_weight=3.0,
+                                    bone_length_pairs=init_mod.STATURE_BONE_PAIRS)
+    assert calls["bone_length_weight"] == 3.0 and calls["bone_length_pairs"] == init_mod.STATURE_BONE_PAIRS
     init_mod.initialise_source_body(session, model, trunk_refit=True)
     assert calls["trunk_refit"] is True
     init_mod.initialise_source_body(session, model)
