@@ -158,3 +158,51 @@ def test_shape_given_twice_is_refused_sex_too():
         assert str(err.value) == f"--shape {text!r}: {name} is given twice; give each once"
     shape = _parse_shape("sex=female," + base)
     assert (shape.bmi, shape.muscularity, shape.height_m, shape.arm_length_m) == (20, 0.3, 1.7, 0.6)
+
+
+def test_resolve_scheduler_workers_bounds_and_both_given(monkeypatch):
+    from bodystudio import batch
+
+    monkeypatch.delenv(batch.ENV_SCHEDULER, raising=False)
+    assert batch.resolve_scheduler(None, 1) is None and batch.resolve_scheduler(None, None) is None
+    monkeypatch.setattr(batch, "max_local_workers", lambda: 2)
+    for cores, shown in ((4, 4), (None, 1)):
+        monkeypatch.setattr(batch.os, "cpu_count", lambda c=cores: c)
+        with pytest.raises(InputError) as err:
+            batch.resolve_scheduler(None, 3)
+        assert str(err.value) == (f"--workers 3: at most 2 on this machine ({shown} cores; single-threaded workers "
+                                  f"beyond {batch.WORKERS_PER_CORE} per core only share them and each holds its own "
+                                  "memory); give fewer, or --scheduler for a cluster of several machines")
+    assert batch.resolve_scheduler(None, 2) is None
+    with pytest.raises(InputError) as err:
+        batch.resolve_scheduler("tcp://h:1", 2)
+    assert str(err.value) == "--scheduler and --workers: give one (--workers starts a local cluster)"
+    # the environment's address with --workers: a local cluster; alone: the address, checked as $BODYSTUDIO_SCHEDULER
+    monkeypatch.setenv(batch.ENV_SCHEDULER, "tcp://h:1")
+    assert batch.resolve_scheduler(None, 2) is None and batch.resolve_scheduler(None, None) == "tcp://h:1"
+    monkeypatch.setenv(batch.ENV_SCHEDULER, "tcp://h:")
+    with pytest.raises(InputError) as err:
+        batch.resolve_scheduler(None, None)
+    assert str(err.value) == (f"${batch.ENV_SCHEDULER} 'tcp://h:': not a scheduler address; give tcp://HOST:PORT "
+                              "(e.g. tcp://10.0.0.5:8786)")
+
+
+def test_local_splits_at_the_first_equals_sign():
+    from bodystudio.cli.body import parse_assignments
+
+    with pytest.raises(InputError) as err:
+        parse_assignments(["a=b=1"], "--local")
+    assert str(err.value) == "--local 'a=b=1' is not NAME=VALUE with a number, e.g. upperarm-fat-decr-incr=0.5"
+
+
+def test_reshape_refusals_word_for_word():
+    from bodystudio.rig.reshape import parse_reshape
+
+    for text, line in (("stature", "--reshape 'stature': expected NAME=DELTA, e.g. stature=+0.05,mass=-5"),
+                       ("mass=1=2", "--reshape 'mass=1=2': '1=2' is not a number"),
+                       ("mass=x", "--reshape 'mass=x': 'x' is not a number"),
+                       (" , ,", "--reshape is empty; e.g. stature=+0.05,mass=-5"),
+                       ("", "--reshape is empty; e.g. stature=+0.05,mass=-5")):
+        with pytest.raises(InputError) as err:
+            parse_reshape(text)
+        assert str(err.value) == line
