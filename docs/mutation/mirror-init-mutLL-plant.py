@@ -2,8 +2,9 @@
 constants and regular expressions, the stale-match bugs the brief names, the changed lines inside the long
 ``session_inputs`` / ``run_mirror`` / ``initialise_source_body``) in a scratch copy and run the given tests.
 
-usage (from the repository root): python docs/mutation/mirror-init-mutLL-plant.py [--before] [WORK]
-``--before``: each mutant against the tests that existed before mutLL (the new files left out)."""
+usage (from the repository root): python docs/mutation/mirror-init-mutLL-plant.py [WORK]
+Each mutant runs first against the tests that existed before mutLL ("killed before"), and when those pass against
+the new files too ("killed by the new tests" / "survived")."""
 import os
 import subprocess
 import sys
@@ -11,9 +12,7 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from plant import scratch_tree  # noqa: E402
 
-before = "--before" in sys.argv
-args = [a for a in sys.argv[1:] if a != "--before"]
-work = args[0] if args else "/work/wt-mutLL-work/plant"
+work = sys.argv[1] if len(sys.argv) > 1 else "/work/wt-mutLL-work/plant"
 INIT, RUN, TRACK = "bodystudio/mirror/init.py", "bodystudio/mirror/run.py", "bodystudio/mirror/track.py"
 BATCH, IMP = "bodystudio/batch.py", "bodystudio/capture/importer.py"
 NEW_INIT = "tests/mirror/test_init_eq2_reference_mutants.py"
@@ -155,17 +154,22 @@ def run(tests):
                            *tests], cwd=work, capture_output=True, text=True, env=env)
 
 
-r = run(sorted({t for m in mutants for t in (m[4] if before else m[4] + m[5])}))
+r = run(sorted({t for m in mutants for t in m[4] + m[5]}))
 print(f"clean: {'FAILED' if r.returncode else 'passed'}", flush=True)
-killed = 0
+before = after = 0
 for f, old, new, name, old_tests, new_tests in mutants:
     assert clean[f].count(old) == 1, name
     open(os.path.join(work, f), "w").write(clean[f].replace(old, new, 1))
     try:
-        r = run(old_tests if before else new_tests + old_tests)
+        r = run(old_tests)
+        verdict = "killed before"
+        if not r.returncode:
+            r = run(new_tests) if new_tests else r
+            verdict = "killed by the new tests" if r.returncode else "survived"
     finally:
         open(os.path.join(work, f), "w").write(clean[f])
     first = next((ln for ln in r.stdout.splitlines() if ln.startswith("FAILED")), "")
-    killed += bool(r.returncode)
-    print(f"{name}: {'killed' if r.returncode else 'survived'} {first[:150]}", flush=True)
-print(f"{killed} / {len(mutants)} killed")
+    before += verdict == "killed before"
+    after += verdict != "survived"
+    print(f"{name}: {verdict} {first[:150]}", flush=True)
+print(f"before {before} / {len(mutants)}, after {after} / {len(mutants)} killed")

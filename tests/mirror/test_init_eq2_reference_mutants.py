@@ -95,8 +95,10 @@ def test_first_query_fills_the_cache_with_each_points_four_nearest():
         d, m = closest_vertex_matches(P, V[:n_vertices], cache1, neighbours=neighbours)
         np.testing.assert_array_equal(m, _brute(P, V[:n_vertices])[1])
         assert cache1 == {}
-    d, m = closest_vertex_matches(P, V[:4], {}, neighbours=4)  # exactly as many vertices as neighbours: cached
+    cache4: dict = {}
+    d, m = closest_vertex_matches(P, V[:4], cache4, neighbours=4)  # exactly as many vertices as neighbours: cached
     np.testing.assert_array_equal(m, _brute(P, V[:4])[1])
+    assert cache4["near"].shape == (300, 4)
 
 
 def _stale_case():
@@ -398,7 +400,9 @@ def _hinge_poses(sk, eps_list, flexion=0.7, seed=0):
 
 def test_knee_hinge_rows_are_the_models_calf_along_the_hinge_axis_at_the_median_over_frames():
     model = _model_2k()
-    sk = model.skeleton(np.zeros(model.n_components))
+    # a fitted body's skeleton, not the mean's: the mean calf's own Kinect segment then has a component along this
+    # skeleton's hinge axis, which the rows' right-hand side takes off
+    sk = model.skeleton(_planted_coeffs(model, seed=4, scale=1.0))
     Jm, Jb = _model_kinect_joints(model, "v2")
     names = list(init_mod.kinect_joint_names("v2"))
     eps_list = [0.02, 0.09, -0.04, 0.2]  # median 0.055, mean 0.0675
@@ -410,7 +414,12 @@ def test_knee_hinge_rows_are_the_models_calf_along_the_hinge_axis_at_the_median_
         ka, kk = names.index(ankle), names.index(knee)
         np.testing.assert_allclose(A[row], 1.5 * (Jb[:, ka] - Jb[:, kk]) @ axis, rtol=0, atol=1e-12)
         measured = np.median([-np.sin(e) for e in eps_list]) * sk.lengths[i]
+        assert abs((Jm[ka] - Jm[kk]) @ axis) > 1e-4
         np.testing.assert_allclose(b[row], 1.5 * (measured - (Jm[ka] - Jm[kk]) @ axis), rtol=0, atol=1e-9)
+    # the default joint set is v2
+    A2, b2 = knee_hinge_splay_rows(model, sk, _hinge_poses(sk, eps_list), weight=2.25)
+    np.testing.assert_array_equal(A2, A)
+    np.testing.assert_array_equal(b2, b)
     # one leg only
     A1, b1 = knee_hinge_splay_rows(model, sk, _hinge_poses(sk, eps_list), "v2", weight=2.25,
                                    legs=(("calf_r", "KneeRight", "AnkleRight"),))

@@ -70,6 +70,8 @@ def test_followed_players_follow_a_swap_by_the_joints():
     assert out == {0: (1,), 1: (1,), 2: (2,)} and s.reads == [0, 1, 2]
     assert P.actor_ids(_swap_session(), 2) == {0: 2, 1: 2, 2: 1, 3: 1, 4: 1, 5: 2}
     assert P.actor_ids(_swap_session()) == {0: 1, 1: 1, 2: 2, 3: 2, 4: 2, 5: 1}
+    # frames given: the follower starts there (id 1 in frame 2 is actor 2, followed from then on)
+    assert P.actor_ids(_swap_session(), 1, [2, 3, 5]) == {2: 1, 3: 1, 5: 2}
 
 
 def test_followed_players_use_the_mirrors_speed_limit_and_the_other_person_rule():
@@ -112,6 +114,10 @@ def test_segment_lengths_read_the_followed_id_and_skip_the_frames_without_the_ac
     s = _swap_session()
     _, _, n = P.session_segment_lengths(s, 1, frames=[0, 2], tracked_as={0: 1, 1: 1, 2: 2})
     assert n == 2 and s.reads == [0, 2]
+    # the frames spread over are tracked_as's (the actor's 10 of a 100-frame session), not the session's
+    s = _Session({i: _frame(_a1(1, 0)) for i in range(100)})
+    _, _, n = P.session_segment_lengths(s, 1, max_frames=5, tracked_as={i: 1 for i in range(90, 100)})
+    assert n == 5 and s.reads == [90, 92, 94, 97, 99]
 
 
 def test_source_body_check_follows_the_actor_and_counts_the_renumbered_frames():
@@ -122,8 +128,8 @@ def test_source_body_check_follows_the_actor_and_counts_the_renumbered_frames():
     r2 = P.check_source_body(SimpleNamespace(skeleton=_skeleton(1.5)), _swap_session(), 2, True)
     assert r2["renumbered_frames"] == 3 and r2["mismatch"] == pytest.approx(0.0, abs=1e-12)
     # given tracked_as: used as it is (None entries not counted as renumbered)
-    r3 = P.check_source_body(body, _swap_session(), 1, tracked_as={0: 1, 1: None, 2: 2})
-    assert r3["renumbered_frames"] == 1 and r3["frames"] == 2 and r3["mismatch"] == pytest.approx(0.0, abs=1e-12)
+    r3 = P.check_source_body(body, _swap_session(), 1, tracked_as={0: 1, 1: None, 2: 2, 3: 2})
+    assert r3["renumbered_frames"] == 2 and r3["frames"] == 3 and r3["mismatch"] == pytest.approx(0.0, abs=1e-12)
     a = P.source_body_agreement(SimpleNamespace(skeleton=_skeleton(1.5)), _swap_session(), 1,
                                 tracked_as={2: 1, 3: 1})  # id 1 is actor 2 there
     assert a["frames"] == 2 and a["scale"] == pytest.approx(1.0) and a["mismatch"] == pytest.approx(0.0, abs=1e-12)
@@ -189,5 +195,9 @@ def test_registration_reads_the_followed_actors_mask():
     # tracked_as given: its frames only, None skipped
     r = P.depth_color_registration(_reg_swap_session(), 1, tracked_as={1: 1, 2: None, 3: 2})
     assert [(row["frame"], row["player"], row["dx"]) for row in r["frames"]] == [(1, 1, 0), (3, 2, 0)]
+    # actor 2 followed by default: its shifted outline in every frame, 5 px (a warning, under the 6 px refusal)
+    r = P.check_registration(_reg_swap_session(), 2)
+    assert [(row["player"], row["dx"]) for row in r["frames"]] == [(2, -5), (2, -5), (1, -5), (1, -5)]
+    assert r["offset_px"] == 5.0 and r["ok"] and len(r["warnings"]) == 1
     r = P.check_registration(_reg_swap_session(), 2, tracked_as={0: 2, 3: 1})
     assert [(row["frame"], row["player"], row["dx"]) for row in r["frames"]] == [(0, 2, -5), (3, 1, -5)]
