@@ -80,7 +80,7 @@ mutants = [  # (file, old, new, name, tests before, tests after)
     (INIT, "LEG_SPLAY_SIGMA_RAD = 0.1", "LEG_SPLAY_SIGMA_RAD = 0.2", "default: free prior 0.2 rad", OLD_INIT,
      [NEW_DEFAULTS]),
     (INIT, '("calf_r", ("calf_r", "foot_r", "ball_r")))', '("calf_r", ("calf_r", "foot_r")))',
-     "LEG_SPLAY_CHAINS: the right ball left out", OLD_INIT, [NEW_INIT]),
+     "LEG_SPLAY_CHAINS: the right ball left out", OLD_INIT, [NEW_INIT, NEW_DEFAULTS]),
     (INIT, SRC, "                                        else POSTURE_BONES)", "initialise_source_body: False as True",
      OLD_INIT, [NEW_DEFAULTS]),
     (INIT, "unpose_posture_bones=UNPOSE_POSTURE_BONES if unpose_posture is None",
