@@ -1,7 +1,8 @@
 """Which bones of the pose ``mirror init`` unposes each frame with are wrong, and what each costs the fit (mir12z).
 
 Usage: PYTHONPATH=. python benchmarks/mirror_init_unpose_pose.py SESSION [SESSION ...]
-       [--true-swing BONE [BONE ...]] [--leg-splay] [--shadow DIR --name NAME.npz]
+       [--true-swing BONE [BONE ...]] [--leg-splay] [--knee-hinge-weight W [--knee-hinge-from sdk]]
+       [--shadow DIR --name NAME.npz]
 
 Per synthetic mirror session (with ``gt/mirror``), player 1's init from ``mirror init``'s observations
 (:func:`bodystudio.mirror.init.initialise_from_observations`, the defaults), recording the pose each fitted frame is
@@ -130,6 +131,9 @@ def main(argv=None) -> int:
     parser.add_argument("--leg-splay", action="store_true", help="the init's leg_splay option (mir12ab)")
     parser.add_argument("--knee-hinge-weight", type=float, default=0.0,
                         help="the init's knee_hinge_weight option (mir12ab; 0: off)")
+    parser.add_argument("--knee-hinge-from", choices=("refined", "sdk"), default="refined",
+                        help="where the knee hinge's rows come from (the init's knee_hinge_from; mir12ac: sdk, the "
+                             "SDK joints' rest knee angle)")
     parser.add_argument("--shadow", type=Path, default=None)
     parser.add_argument("--name", default=None)
     args = parser.parse_args(argv)
@@ -152,7 +156,7 @@ def main(argv=None) -> int:
         obs, sensor = init_mod.collect_observations(session, None, 1, init_mod.DEFAULT_INIT_FRAMES)
         fitted, seen = recorded_init(init_mod, obs, model, sensor, path, actors, tuple(args.true_swing),
                                       **({"leg_splay": True} if args.leg_splay else {}),
-                                      knee_hinge_weight=args.knee_hinge_weight)
+                                      knee_hinge_weight=args.knee_hinge_weight, knee_hinge_from=args.knee_hinge_from)
         last = seen[-len(fitted.frames_used):]
         table = {"ik": [], "refined": []}
         for body, o, pose in last:

@@ -197,6 +197,13 @@ LEG_SPLAY_SIGMA_RAD = 0.1
 LEG_SPLAY = False
 #: Weight of each leg's knee-hinge splay row in Eq. 2 (:func:`knee_hinge_splay_rows`), in depth points; 0: off.
 KNEE_HINGE_WEIGHT = 0.0
+#: Where the knee hinge's rows come from (``initialise_from_observations``'s ``knee_hinge_from``): "refined" (each
+#: pass's refined poses against that pass's body, :func:`knee_hinge_splay_rows`, mir12ab) or "sdk" (the rest knee
+#: angle of the SDK's joints, :func:`sdk_knee_angle`, held in every pass, :func:`knee_angle_rows`, mir12ac).
+KNEE_HINGE_FROM = "refined"
+#: ``knee_hinge_from="sdk"``: frames whose SDK knee bends more than this (degrees) are left out of the knee angle's
+#: mean (the synthetic walk's knee is not a pure hinge: ~2 % of its flexion turns about the calf's forward axis).
+KNEE_ANGLE_MAX_FLEXION_DEG = 20.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -613,6 +620,91 @@ def knee_hinge_splay_rows(model: StatisticalBodyModel, skeleton: Skeleton, poses
     return np.array(rows), np.array(rhs)
 
 
+def _knee_angle(hip, knee, ankle, lateral, side: float) -> float:
+    """The knee's varus / valgus angle (radians, + the calf further out than the thigh): the calf direction's
+    component along the lateral axis made normal to the thigh, ``asin(a . c)``; ``side`` +1 for the left leg (the
+    body's left is ``lateral``), -1 for the right."""
+    t = (knee - hip) / max(np.linalg.norm(knee - hip), 1e-12)
+    c = (ankle - knee) / max(np.linalg.norm(ankle - knee), 1e-12)
+    a = lateral - (lateral @ t) * t
+    a /= max(np.linalg.norm(a), 1e-12)
+    return side * float(np.arcsin(np.clip(a @ c, -1.0, 1.0)))
+
+
+#: The legs of the knee angle: (side, Kinect hip, knee, ankle); side +1 for the body's left (+x at rest).
+KNEE_ANGLE_LEGS = ((1.0, "HipLeft", "KneeLeft", "AnkleLeft"), (-1.0, "HipRight", "KneeRight", "AnkleRight"))
+
+
+def sdk_knee_angle(observations, version: str, max_flexion_deg: float = KNEE_ANGLE_MAX_FLEXION_DEG):
+    """The subject's rest knee angle (radians) from the SDK's joints of every observation, and its standard error.
+
+    Per frame and leg: the calf's (knee to ankle) component along the pelvis's lateral axis (HipRight to HipLeft)
+    made normal to the thigh (hip to knee), ``asin`` of it: a knee turns about one axis across the thigh, so this
+    angle is the rest one at any flexion, from the joints alone (no body's rest calf in it, unlike the IK's hinge
+    measurement, :func:`knee_hinge_rest_directions`). The mean over both legs and the frames whose knee bends less
+    than ``max_flexion_deg`` (the SDK's 1 cm per joint gives ~3.5 degrees per frame; the synthetic walk's flexed
+    knee also turns a little about the calf's forward axis). None, None when no frame tracks both legs."""
+    names = kinect_joint_names(version)
+    values = []
+    for o in observations:
+        if o.version != version:
+            continue
+        K = np.asarray(o.joints, dtype=np.float64)
+        ok = np.asarray(o.tracked, bool) & np.all(np.isfinite(K), axis=1)
+        idx = [[names.index(_kinect_name(n, version)) for n in leg[1:]] for leg in KNEE_ANGLE_LEGS]
+        if not all(ok[i] for leg in idx for i in leg):
+            continue
+        lateral = K[idx[0][0]] - K[idx[1][0]]
+        lateral /= max(np.linalg.norm(lateral), 1e-12)
+        for (side, *_), (h, k, a) in zip(KNEE_ANGLE_LEGS, idx, strict=True):
+            t, c = K[k] - K[h], K[a] - K[k]
+            flexion = np.degrees(np.arccos(np.clip(t @ c / max(np.linalg.norm(t) * np.linalg.norm(c), 1e-12), -1, 1)))
+            if flexion < max_flexion_deg:
+                values.append(_knee_angle(K[h], K[k], K[a], lateral, side))
+    if not values:
+        return None, None
+    v = np.asarray(values)
+    return float(v.mean()), float(v.std() / np.sqrt(len(v)))
+
+
+def model_knee_angles(model: StatisticalBodyModel, coeffs, version: str = "v2") -> np.ndarray:
+    """The rest knee angle (radians) of each leg of :data:`KNEE_ANGLE_LEGS` of the model's Kinect joints at
+    ``coeffs`` (the body's left +x)."""
+    Jm, Jb = _model_kinect_joints(model, version)
+    P = Jm + np.tensordot(np.asarray(coeffs, dtype=np.float64), Jb, axes=1)
+    names = kinect_joint_names(version)
+    lateral = np.array([1.0, 0.0, 0.0])
+    return np.array([_knee_angle(*(P[names.index(_kinect_name(n, version))] for n in leg[1:]), lateral, leg[0])
+                     for leg in KNEE_ANGLE_LEGS])
+
+
+def knee_angle_rows(model: StatisticalBodyModel, coeffs, target_rad: float, version: str = "v2",
+                    weight: float = KNEE_HINGE_WEIGHT, step_m: float = 1e-5):
+    """Eq. 2 rows holding each leg's rest knee angle of the model's Kinect joints at ``target_rad``, linearised at
+    ``coeffs``: ``sqrt(weight) L g . (c - c0) = sqrt(weight) L (target - k(c0))`` with ``g`` the angle's gradient
+    (the joints are linear in the coefficients; the angle's derivative by the joints numerically) and ``L`` the
+    calf's length, so that ``weight`` counts as :func:`knee_hinge_splay_rows`' (an ankle's sideways metres)."""
+    Jm, Jb = _model_kinect_joints(model, version)
+    c0 = np.asarray(coeffs, dtype=np.float64)
+    P = Jm + np.tensordot(c0, Jb, axes=1)
+    names = kinect_joint_names(version)
+    lateral = np.array([1.0, 0.0, 0.0])
+    rows, rhs = [], []
+    for side, *leg in KNEE_ANGLE_LEGS:
+        idx = [names.index(_kinect_name(n, version)) for n in leg]
+        k0 = _knee_angle(*P[idx], lateral, side)
+        grad = np.zeros(len(c0))
+        for j, i in enumerate(idx):
+            for d in range(3):
+                Q = P[idx].copy()
+                Q[j, d] += step_m
+                grad += (_knee_angle(*Q, lateral, side) - k0) / step_m * Jb[:, i, d]
+        length = float(np.linalg.norm(P[idx[2]] - P[idx[1]]))
+        rows.append(np.sqrt(weight) * length * grad)
+        rhs.append(np.sqrt(weight) * length * (target_rad - k0 + grad @ c0))
+    return np.array(rows), np.array(rhs)
+
+
 @lru_cache(maxsize=4)
 def _vertex_gram(model: StatisticalBodyModel) -> np.ndarray:
     """Per-vertex Gram matrices ``basis[:, v] basis[:, v]^T`` (n, k, k) of the shape basis."""
@@ -753,7 +845,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  pooled_points: int = MAX_POOLED_POINTS,
                                  weighted_pool: bool = WEIGHTED_POOL, pool_seed: int = 0,
                                  leg_splay: bool = LEG_SPLAY,
-                                 knee_hinge_weight: float = KNEE_HINGE_WEIGHT) -> SourceBody:
+                                 knee_hinge_weight: float = KNEE_HINGE_WEIGHT,
+                                 knee_hinge_from: str = KNEE_HINGE_FROM) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -786,7 +879,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     dropped from the result, so that the unposed cloud's calf splay is not fitted by the shape coefficients
     (:data:`LEG_SPLAY`; mir12ab). ``knee_hinge_weight`` > 0: from the second pass on, each leg's rest splay is also
     held at what the knee's hinge measures over the previous pass's refined poses (:func:`knee_hinge_splay_rows`,
-    :data:`KNEE_HINGE_WEIGHT`; mir12ab).
+    :data:`KNEE_HINGE_WEIGHT`; mir12ab). ``knee_hinge_from="sdk"``: those rows instead hold each leg's rest knee angle
+    at the one the SDK's hip, knee and ankle give over every observation (:func:`sdk_knee_angle`), in every pass from
+    the first (:func:`knee_angle_rows`, :data:`KNEE_HINGE_FROM`; mir12ac).
     """
     model = check_model(model)
     if not (np.isfinite(pass_relaxation) and 0.0 < pass_relaxation <= 1.0):
@@ -801,6 +896,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             or not (np.isfinite(knee_hinge_weight) and knee_hinge_weight >= 0):
         raise InputError(f"knee_hinge_weight must be a finite number >= 0 (0: no knee-hinge splay rows), "
                          f"got {knee_hinge_weight!r}")
+    if knee_hinge_from not in ("refined", "sdk"):
+        raise InputError(f"knee_hinge_from must be 'refined' (the previous pass's refined poses) or 'sdk' (the SDK "
+                         f"joints' knee angle), got {knee_hinge_from!r}")
     if not isinstance(leg_splay, (bool, np.bool_)):
         raise InputError(f"leg_splay must be True or False (the legs' rest rotations solved with the shape), "
                          f"got {leg_splay!r}")
@@ -840,6 +938,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     if bone_length_weight > 0:
         bone_lengths, n_frames = kinect_bone_lengths(observations, obs[0][0].version)
         length_weight = bone_length_weight * n_frames
+    knee_target = None  # knee_hinge_from "sdk": the SDK's rest knee angle, the rows re-linearised every pass
+    if knee_hinge_weight > 0 and knee_hinge_from == "sdk":
+        knee_target, _ = sdk_knee_angle(observations, obs[0][0].version)
     residual = np.nan
     refined_poses: list = []  # the previous pass's refined poses: the subject's static posture
     for pass_ in range(max(1, passes)):
@@ -882,6 +983,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             pick = np.sort(np.argsort(np.concatenate(keys), kind="stable")[:pooled_points]) if fixed_pool \
                 else rng.choice(len(P0), pooled_points, replace=False)
             P0, k0 = P0[pick], k0[pick]
+        hinge_rows = None if knee_target is None else \
+            knee_angle_rows(model, coeffs, knee_target, obs[0][0].version, knee_hinge_weight)
         free = (None, None)
         if leg_splay:
             free = leg_splay_basis(body.vertices, model.weights, body.skeleton, obs[0][0].version, LEG_SPLAY_CHAINS)
@@ -892,8 +995,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                      point_sigma_m=point_sigma_m, return_residual=True, bone_lengths=bone_lengths,
                                      bone_length_weight=length_weight, point_weight=point_weight,
                                      free_basis=free[0], free_joint_basis=free[1], free_sigma=LEG_SPLAY_SIGMA_RAD,
-                                     coeff_rows=knee_hinge_splay_rows(model, body.skeleton, refined_poses,
-                                                                      obs[0][0].version, knee_hinge_weight)
+                                     coeff_rows=hinge_rows if knee_hinge_from == "sdk" else
+                                     knee_hinge_splay_rows(model, body.skeleton, refined_poses,
+                                                           obs[0][0].version, knee_hinge_weight)
                                      if knee_hinge_weight > 0 and refined_poses else None)
         coeffs = coeffs + pass_relaxation * (fitted - coeffs) if pass_ > 0 else fitted
         skeleton = refit_skeleton(model, coeffs)
