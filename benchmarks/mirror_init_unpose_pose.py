@@ -129,9 +129,9 @@ def main(argv=None) -> int:
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--true-swing", nargs="+", default=[], metavar="BONE")
     parser.add_argument("--leg-splay", action="store_true", help="the init's leg_splay option (mir12ab)")
-    parser.add_argument("--knee-hinge-weight", type=float, default=0.0,
-                        help="the init's knee_hinge_weight option (mir12ab; 0: off)")
-    parser.add_argument("--knee-hinge-from", choices=("refined", "sdk"), default="refined",
+    parser.add_argument("--knee-hinge-weight", type=float, default=None,
+                        help="the init's knee_hinge_weight option (mir12ab; 0: off; default: the init's)")
+    parser.add_argument("--knee-hinge-from", choices=("refined", "sdk"), default=None,
                         help="where the knee hinge's rows come from (the init's knee_hinge_from; mir12ac: sdk, the "
                              "SDK joints' rest knee angle)")
     parser.add_argument("--shadow", type=Path, default=None)
@@ -154,9 +154,12 @@ def main(argv=None) -> int:
         session = open_session(path)
         actors = np.load(path / "gt" / "mirror" / "actors.npz")
         obs, sensor = init_mod.collect_observations(session, None, 1, init_mod.DEFAULT_INIT_FRAMES)
+        weight = init_mod.KNEE_HINGE_WEIGHT if args.knee_hinge_weight is None else args.knee_hinge_weight
+        source = init_mod.KNEE_HINGE_FROM if args.knee_hinge_from is None else args.knee_hinge_from
         fitted, seen = recorded_init(init_mod, obs, model, sensor, path, actors, tuple(args.true_swing),
                                       **({"leg_splay": True} if args.leg_splay else {}),
-                                      knee_hinge_weight=args.knee_hinge_weight, knee_hinge_from=args.knee_hinge_from)
+                                      knee_hinge_weight=weight, knee_hinge_from=source,
+                                      knee_frames=init_mod.knee_joint_frames(session, obs) if source == "sdk" else None)
         last = seen[-len(fitted.frames_used):]
         table = {"ik": [], "refined": []}
         for body, o, pose in last:

@@ -34,6 +34,10 @@ closest-vertex distances). Deviations from the paper, each measured (docs/mirror
 * Every pass fits every pooled point, weighted so the pool weighs as :data:`MAX_POOLED_POINTS` (not a fresh random
   subset per pass, whose draw moved the result), and from the third pass on the unposing holds the trunk at the
   subject's own posture (:data:`WEIGHTED_POOL`, :data:`UNPOSE_POSTURE_BONES`; the default since mir12y).
+* Every pass also holds each leg's rest knee angle (the calf's splay against the thigh) at the one the SDK's hip, knee
+  and ankle give over every frame of the init's window (:func:`sdk_knee_angle`, :func:`knee_angle_rows`): the unposing
+  makes any rest calf self-consistent, and the population carries a splayed calf into the hips and the mass
+  (:data:`KNEE_HINGE_FROM`; the default since mir12ac).
 
 The skeleton is refitted by Eq. 3 (each joint moves with the mean displacement of the vertices around it).
 """
@@ -195,12 +199,13 @@ LEG_SPLAY_SIGMA_RAD = 0.1
 #: The legs' rest rotations solved with the shape as nuisance parameters (``initialise_from_observations``'s
 #: ``leg_splay``; off, mir12ab).
 LEG_SPLAY = False
-#: Weight of each leg's knee-hinge splay row in Eq. 2 (:func:`knee_hinge_splay_rows`), in depth points; 0: off.
-KNEE_HINGE_WEIGHT = 0.0
+#: Weight of each leg's knee-hinge row in Eq. 2 (:func:`knee_hinge_splay_rows`, :func:`knee_angle_rows`), in depth
+#: points; 0: off. 3000 with ``KNEE_HINGE_FROM = "sdk"``: the default since mir12ac (docs/mirror.md).
+KNEE_HINGE_WEIGHT = 3000.0
 #: Where the knee hinge's rows come from (``initialise_from_observations``'s ``knee_hinge_from``): "refined" (each
 #: pass's refined poses against that pass's body, :func:`knee_hinge_splay_rows`, mir12ab) or "sdk" (the rest knee
 #: angle of the SDK's joints, :func:`sdk_knee_angle`, held in every pass, :func:`knee_angle_rows`, mir12ac).
-KNEE_HINGE_FROM = "refined"
+KNEE_HINGE_FROM = "sdk"
 #: ``knee_hinge_from="sdk"``: frames whose SDK knee bends more than this (degrees) are left out of the knee angle's
 #: mean (the synthetic walk's knee is not a pure hinge: ~2 % of its flexion turns about the calf's forward axis).
 KNEE_ANGLE_MAX_FLEXION_DEG = 20.0
@@ -667,6 +672,52 @@ def sdk_knee_angle(observations, version: str, max_flexion_deg: float = KNEE_ANG
     return float(v.mean()), float(v.std() / np.sqrt(len(v)))
 
 
+@dataclass(frozen=True, eq=False)
+class KinectJointFrame:
+    """One frame's SDK joints of the actor without its depth: the knee angle's frames (:func:`knee_joint_frames`)."""
+
+    frame: int
+    joints: np.ndarray  # (J, 3), NaN where not tracked
+    tracked: np.ndarray  # (J,)
+    version: str
+
+
+#: :func:`knee_joint_frames`: a body is the actor's when its joints lie within this (median, metres) of the joints of
+#: the observation nearest in time (a person walks ~5 cm a frame; another person stands further off).
+KNEE_FRAME_REACH_M = 0.25
+
+
+def knee_joint_frames(session, observations, reach_m: float = KNEE_FRAME_REACH_M) -> list[KinectJointFrame]:
+    """The actor's SDK joints in every frame from the first observation's to the last's, for :func:`sdk_knee_angle`:
+    the observations read every :data:`INIT_FRAME_STRIDE`-th frame for the depth, the joints files of the frames
+    between cost little, and the SDK's noise is drawn afresh every frame (mir12ac: the knee angle's error over the
+    16 sessions 0.60 -> 0.26 degrees rms). In each frame the body nearest (median joint distance) to the joints of
+    the observation nearest in time, within ``reach_m``, whatever its player id (the SDK renumbers, rel6a)."""
+    obs = sorted(observations, key=lambda o: o.frame)
+    if not obs:
+        return []
+    when = np.array([o.frame for o in obs])
+    out = []
+    for i in session.frame_ids:
+        if i < when[0] or i > when[-1]:
+            continue
+        near = obs[int(np.argmin(np.abs(when - i)))]
+        best, best_d = None, reach_m
+        for body in session.frame(i).kinect_bodies or []:
+            P = np.asarray(body["positions"], dtype=np.float64)
+            if P.shape != np.shape(near.joints):
+                continue
+            d = np.linalg.norm(P - near.joints, axis=1)
+            d = d[np.isfinite(d)]
+            if len(d) and np.median(d) < best_d:
+                best, best_d = body, float(np.median(d))
+        if best is not None:
+            P = np.asarray(best["positions"], dtype=np.float64)
+            out.append(KinectJointFrame(int(i), P, np.asarray(best["tracked"], bool) & np.all(np.isfinite(P), axis=1),
+                                        near.version))
+    return out
+
+
 def model_knee_angles(model: StatisticalBodyModel, coeffs, version: str = "v2") -> np.ndarray:
     """The rest knee angle (radians) of each leg of :data:`KNEE_ANGLE_LEGS` of the model's Kinect joints at
     ``coeffs`` (the body's left +x)."""
@@ -846,7 +897,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  weighted_pool: bool = WEIGHTED_POOL, pool_seed: int = 0,
                                  leg_splay: bool = LEG_SPLAY,
                                  knee_hinge_weight: float = KNEE_HINGE_WEIGHT,
-                                 knee_hinge_from: str = KNEE_HINGE_FROM) -> SourceBody:
+                                 knee_hinge_from: str = KNEE_HINGE_FROM, knee_frames=None) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -881,7 +932,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     held at what the knee's hinge measures over the previous pass's refined poses (:func:`knee_hinge_splay_rows`,
     :data:`KNEE_HINGE_WEIGHT`; mir12ab). ``knee_hinge_from="sdk"``: those rows instead hold each leg's rest knee angle
     at the one the SDK's hip, knee and ankle give over every observation (:func:`sdk_knee_angle`), in every pass from
-    the first (:func:`knee_angle_rows`, :data:`KNEE_HINGE_FROM`; mir12ac).
+    the first (:func:`knee_angle_rows`, :data:`KNEE_HINGE_FROM`; mir12ac); ``knee_frames``: the frames of SDK joints
+    that angle is measured on instead (:func:`knee_joint_frames`: every frame of the init's window).
     """
     model = check_model(model)
     if not (np.isfinite(pass_relaxation) and 0.0 < pass_relaxation <= 1.0):
@@ -899,6 +951,15 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     if knee_hinge_from not in ("refined", "sdk"):
         raise InputError(f"knee_hinge_from must be 'refined' (the previous pass's refined poses) or 'sdk' (the SDK "
                          f"joints' knee angle), got {knee_hinge_from!r}")
+    if knee_frames is not None:
+        try:
+            knee_frames = list(knee_frames)
+        except TypeError:
+            knee_frames = [knee_frames]
+        bad = [f for f in knee_frames if not all(hasattr(f, a) for a in ("joints", "tracked", "version"))]
+        if bad:
+            raise InputError(f"knee_frames must be frames of SDK joints with joints, tracked and version "
+                             f"(knee_joint_frames(session, observations)), got a {type(bad[0]).__name__}")
     if not isinstance(leg_splay, (bool, np.bool_)):
         raise InputError(f"leg_splay must be True or False (the legs' rest rotations solved with the shape), "
                          f"got {leg_splay!r}")
@@ -940,7 +1001,7 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         length_weight = bone_length_weight * n_frames
     knee_target = None  # knee_hinge_from "sdk": the SDK's rest knee angle, the rows re-linearised every pass
     if knee_hinge_weight > 0 and knee_hinge_from == "sdk":
-        knee_target, _ = sdk_knee_angle(observations, obs[0][0].version)
+        knee_target, _ = sdk_knee_angle(observations if knee_frames is None else knee_frames, obs[0][0].version)
     residual = np.nan
     refined_poses: list = []  # the previous pass's refined poses: the subject's static posture
     for pass_ in range(max(1, passes)):
@@ -1227,12 +1288,13 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
         model = load_statistical_model("6k", progress=False)
     model = check_model(model)
     obs, sensor = collect_observations(session, frames, player, n_frames, silhouettes=silhouette_shape)
+    knee_frames = knee_joint_frames(session, obs) if KNEE_HINGE_FROM == "sdk" and KNEE_HINGE_WEIGHT > 0 else None
     return initialise_from_observations(obs, model, view_point=sensor.depth.center, passes=passes,
                                         depth_camera=sensor.depth, camera=sensor.color if silhouette_shape else None,
                                         silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0,
                                         bone_length_weight=bone_length_weight, trunk_refit=trunk_refit,
                                         unpose_posture_bones=UNPOSE_POSTURE_BONES if unpose_posture is None
-                                        else POSTURE_BONES if unpose_posture else ())
+                                        else POSTURE_BONES if unpose_posture else (), knee_frames=knee_frames)
 
 
 # --- persistence -----------------------------------------------------------------------------------

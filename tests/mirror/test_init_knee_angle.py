@@ -112,12 +112,55 @@ def test_initialisation_holds_the_sdk_knee_angle(walk_scene, model_6k, monkeypat
         return rows(model, coeffs, target, version, weight)
 
     monkeypatch.setattr(init_mod, "knee_angle_rows", spy)
+    knee_frames = walk_scene.observations[1::2]  # the frames the angle is measured on, when given
     source = init_mod.initialise_from_observations(walk_scene.observations, model_6k,
                                                    view_point=walk_scene.sensor.depth.center,
-                                                   knee_hinge_weight=3000.0, knee_hinge_from="sdk")
-    target, _ = sdk_knee_angle(walk_scene.observations, "v2")
+                                                   knee_hinge_weight=3000.0, knee_hinge_from="sdk",
+                                                   knee_frames=knee_frames)
+    target, _ = sdk_knee_angle(knee_frames, "v2")
+    assert target != sdk_knee_angle(walk_scene.observations, "v2")[0]
     assert len(seen) == init_mod.INIT_PASSES and np.allclose(seen, target)  # every pass, the first too
     np.testing.assert_allclose(model_knee_angles(model_6k, source.coeffs).mean(), target, atol=np.radians(0.1))
     m = model_6k.measure(source.coeffs)
     assert abs(m["stature_m"] - walk_scene.truth["stature_m"]) < 0.0095
     assert abs(m["mass_kg"] - walk_scene.truth["mass_kg"]) < 2.0
+
+
+class _Frame:
+    def __init__(self, bodies):
+        self.kinect_bodies = bodies
+
+
+class _Session:
+    """Joints files only: frame ``i`` holds ``bodies[i]`` (None: no joints file)."""
+
+    def __init__(self, bodies):
+        self.bodies = bodies
+        self.frame_ids = list(range(len(bodies)))
+
+    def frame(self, i):
+        return _Frame(self.bodies[i])
+
+
+def test_knee_joint_frames_follow_the_actor_through_every_frame_of_the_window():
+    rng = np.random.default_rng(4)
+    actor = [_frame(0.01, (0.1, 0.2), rng).joints for _ in range(12)]
+    walk = np.linspace(0.0, 0.3, 12)  # 3 cm a frame
+    tracked = np.ones(len(NAMES), bool)
+    bodies = []
+    for i in range(12):
+        A = actor[i] - actor[i][0] + [walk[i], 0.0, 2.0]
+        other = A + [1.0, 0.0, 0.0]  # another person a metre off, who takes the actor's id from frame 6 (rel6a)
+        ids = (1, 2) if i < 6 else (2, 1)
+        bodies.append([{"player": ids[0], "positions": A, "tracked": tracked},
+                       {"player": ids[1], "positions": other, "tracked": tracked}])
+    bodies[8] = None  # a frame without a joints file
+    obs = [SimpleNamespace(frame=f, joints=bodies[f][0]["positions"], tracked=tracked, version="v2")
+           for f in (2, 5, 9)]
+    frames = init_mod.knee_joint_frames(_Session(bodies), obs)
+    # frames 2-9 (the observations' window) but 8; each the actor's joints, whichever id it has
+    assert [f.frame for f in frames] == [2, 3, 4, 5, 6, 7, 9]
+    for f in frames:
+        np.testing.assert_array_equal(f.joints, bodies[f.frame][0]["positions"])
+        assert f.version == "v2" and f.tracked.all()
+    assert init_mod.knee_joint_frames(_Session(bodies), []) == []

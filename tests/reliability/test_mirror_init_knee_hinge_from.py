@@ -36,3 +36,11 @@ def test_the_benchmark_refuses_an_unknown_knee_hinge_source(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--knee-hinge-from: invalid choice: 'ik'" in err and "'sdk'" in err
     assert not (tmp_path / "W").exists()
+
+
+@pytest.mark.parametrize("frames", [3, [np.zeros((25, 3))], "frames"])
+def test_bad_knee_frames_are_refused(model, frames):
+    with pytest.raises(InputError, match=r"knee_frames must be frames of SDK joints with joints, tracked and version "
+                                         r"\(knee_joint_frames\(session, observations\)\), got a") as err:
+        initialise_from_observations([], model, view_point=np.zeros(3), knee_frames=frames)
+    assert "\n" not in str(err.value)
