@@ -645,10 +645,11 @@ def sdk_knee_angle(observations, version: str, max_flexion_deg: float = KNEE_ANG
 
     Per frame and leg: the calf's (knee to ankle) component along the pelvis's lateral axis (HipRight to HipLeft)
     made normal to the thigh (hip to knee), ``asin`` of it: a knee turns about one axis across the thigh, so this
-    angle is the rest one at any flexion, from the joints alone (no body's rest calf in it, unlike the IK's hinge
-    measurement, :func:`knee_hinge_rest_directions`). The mean over both legs and the frames whose knee bends less
-    than ``max_flexion_deg`` (the SDK's 1 cm per joint gives ~3.5 degrees per frame; the synthetic walk's flexed
-    knee also turns a little about the calf's forward axis). None, None when no frame tracks both legs."""
+    angle is the rest one at any flexion, from the joints alone (no body's rest calf in it, unlike the hinge measured
+    with a body's poses, :func:`knee_hinge_splay_rows`; docs/mirror.md, mir12ac). The mean over both legs and the
+    frames whose knee bends less than ``max_flexion_deg`` (the SDK's 1 cm per joint gives ~3.5 degrees per frame; the
+    synthetic walk's flexed knee also turns a little about the calf's forward axis). None, None when no frame tracks
+    both legs."""
     names = kinect_joint_names(version)
     values = []
     for o in observations:
