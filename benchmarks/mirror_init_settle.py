@@ -58,6 +58,7 @@ def main() -> None:
         actors = np.load(Path(path) / "gt" / "mirror" / "actors.npz")
         edits = session.metadata["edits"]
         obs, sensor = init_mod.collect_observations(session, None, 1, init_mod.DEFAULT_INIT_FRAMES)
+        knee_frames = init_mod.knee_joint_frames(session, obs)  # as `mirror init` (mir12ac)
         for variant in args.variants:
             draws = args.seeds if not VARIANTS[variant].get("weighted_pool") else args.seeds[:1]
             last = []
@@ -73,7 +74,8 @@ def main() -> None:
                     start = time.process_time()
                     body = init_mod.initialise_from_observations(obs, model, view_point=sensor.depth.center,
                                                                  depth_camera=sensor.depth, passes=args.passes,
-                                                                 pool_seed=seed, **VARIANTS[variant])
+                                                                 pool_seed=seed, knee_frames=knee_frames,
+                                                                 **VARIANTS[variant])
                     cpu_s = time.process_time() - start
                 finally:
                     init_mod.refit_skeleton = refit

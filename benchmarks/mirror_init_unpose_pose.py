@@ -1,7 +1,8 @@
 """Which bones of the pose ``mirror init`` unposes each frame with are wrong, and what each costs the fit (mir12z).
 
 Usage: PYTHONPATH=. python benchmarks/mirror_init_unpose_pose.py SESSION [SESSION ...]
-       [--true-swing BONE [BONE ...]] [--leg-splay] [--shadow DIR --name NAME.npz]
+       [--true-swing BONE [BONE ...]] [--leg-splay] [--knee-hinge-weight W [--knee-hinge-from sdk]]
+       [--shadow DIR --name NAME.npz]
 
 Per synthetic mirror session (with ``gt/mirror``), player 1's init from ``mirror init``'s observations
 (:func:`bodystudio.mirror.init.initialise_from_observations`, the defaults), recording the pose each fitted frame is
@@ -128,8 +129,11 @@ def main(argv=None) -> int:
     parser.add_argument("sessions", nargs="+", type=Path)
     parser.add_argument("--true-swing", nargs="+", default=[], metavar="BONE")
     parser.add_argument("--leg-splay", action="store_true", help="the init's leg_splay option (mir12ab)")
-    parser.add_argument("--knee-hinge-weight", type=float, default=0.0,
-                        help="the init's knee_hinge_weight option (mir12ab; 0: off)")
+    parser.add_argument("--knee-hinge-weight", type=float, default=None,
+                        help="the init's knee_hinge_weight option (mir12ab; 0: off; default: the init's)")
+    parser.add_argument("--knee-hinge-from", choices=("refined", "sdk"), default=None,
+                        help="where the knee hinge's rows come from (the init's knee_hinge_from; mir12ac: sdk, the "
+                             "SDK joints' rest knee angle)")
     parser.add_argument("--shadow", type=Path, default=None)
     parser.add_argument("--name", default=None)
     args = parser.parse_args(argv)
@@ -150,9 +154,12 @@ def main(argv=None) -> int:
         session = open_session(path)
         actors = np.load(path / "gt" / "mirror" / "actors.npz")
         obs, sensor = init_mod.collect_observations(session, None, 1, init_mod.DEFAULT_INIT_FRAMES)
+        weight = init_mod.KNEE_HINGE_WEIGHT if args.knee_hinge_weight is None else args.knee_hinge_weight
+        source = init_mod.KNEE_HINGE_FROM if args.knee_hinge_from is None else args.knee_hinge_from
         fitted, seen = recorded_init(init_mod, obs, model, sensor, path, actors, tuple(args.true_swing),
                                       **({"leg_splay": True} if args.leg_splay else {}),
-                                      knee_hinge_weight=args.knee_hinge_weight)
+                                      knee_hinge_weight=weight, knee_hinge_from=source,
+                                      knee_frames=init_mod.knee_joint_frames(session, obs) if source == "sdk" else None)
         last = seen[-len(fitted.frames_used):]
         table = {"ik": [], "refined": []}
         for body, o, pose in last:

@@ -81,6 +81,7 @@ def main() -> None:
         SourceBody,
         collect_observations,
         initialise_from_observations,
+        knee_joint_frames,
     )
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -108,13 +109,14 @@ def main() -> None:
             print(json.dumps({"session": p.name, "written": args.name,
                               **score(model, body, actors, s.metadata["edits"])}))
             continue
-        data[p] = (*collect_observations(s, None, 1, DEFAULT_INIT_FRAMES), actors, s.metadata["edits"])
+        obs, sensor = collect_observations(s, None, 1, DEFAULT_INIT_FRAMES)
+        data[p] = (obs, sensor, actors, s.metadata["edits"], knee_joint_frames(s, obs))  # as `mirror init` (mir12ac)
     for v in variants if data else []:
         rows = []
         t0 = time.process_time()
-        for p, (obs, sensor, actors, edits) in data.items():
+        for p, (obs, sensor, actors, edits, knee_frames) in data.items():
             body = initialise_from_observations(obs, model, view_point=sensor.depth.center, depth_camera=sensor.depth,
-                                                **v)
+                                                knee_frames=knee_frames, **v)
             rows.append({"session": p.name, **score(model, body, actors, edits)})
             if args.shadow is not None and v is variants[-1]:
                 write_source(shadow_session(p, args.shadow), args.name, body, model)

@@ -34,6 +34,10 @@ closest-vertex distances). Deviations from the paper, each measured (docs/mirror
 * Every pass fits every pooled point, weighted so the pool weighs as :data:`MAX_POOLED_POINTS` (not a fresh random
   subset per pass, whose draw moved the result), and from the third pass on the unposing holds the trunk at the
   subject's own posture (:data:`WEIGHTED_POOL`, :data:`UNPOSE_POSTURE_BONES`; the default since mir12y).
+* Every pass also holds each leg's rest knee angle (the calf's splay against the thigh) at the one the SDK's hip, knee
+  and ankle give over every frame of the init's window (:func:`sdk_knee_angle`, :func:`knee_angle_rows`): the unposing
+  makes any rest calf self-consistent, and the population carries a splayed calf into the hips and the mass
+  (:data:`KNEE_HINGE_FROM`; the default since mir12ac).
 
 The skeleton is refitted by Eq. 3 (each joint moves with the mean displacement of the vertices around it).
 """
@@ -206,8 +210,16 @@ LEG_SPLAY_SIGMA_RAD = 0.1
 #: The legs' rest rotations solved with the shape as nuisance parameters (``initialise_from_observations``'s
 #: ``leg_splay``; off, mir12ab).
 LEG_SPLAY = False
-#: Weight of each leg's knee-hinge splay row in Eq. 2 (:func:`knee_hinge_splay_rows`), in depth points; 0: off.
-KNEE_HINGE_WEIGHT = 0.0
+#: Weight of each leg's knee-hinge row in Eq. 2 (:func:`knee_hinge_splay_rows`, :func:`knee_angle_rows`), in depth
+#: points; 0: off. 3000 with ``KNEE_HINGE_FROM = "sdk"``: the default since mir12ac (docs/mirror.md).
+KNEE_HINGE_WEIGHT = 3000.0
+#: Where the knee hinge's rows come from (``initialise_from_observations``'s ``knee_hinge_from``): "refined" (each
+#: pass's refined poses against that pass's body, :func:`knee_hinge_splay_rows`, mir12ab) or "sdk" (the rest knee
+#: angle of the SDK's joints, :func:`sdk_knee_angle`, held in every pass, :func:`knee_angle_rows`, mir12ac).
+KNEE_HINGE_FROM = "sdk"
+#: ``knee_hinge_from="sdk"``: frames whose SDK knee bends more than this (degrees) are left out of the knee angle's
+#: mean (the synthetic walk's knee is not a pure hinge: ~2 % of its flexion turns about the calf's forward axis).
+KNEE_ANGLE_MAX_FLEXION_DEG = 20.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -624,6 +636,138 @@ def knee_hinge_splay_rows(model: StatisticalBodyModel, skeleton: Skeleton, poses
     return np.array(rows), np.array(rhs)
 
 
+def _knee_angle(hip, knee, ankle, lateral, side: float) -> float:
+    """The knee's varus / valgus angle (radians, + the calf further out than the thigh): the calf direction's
+    component along the lateral axis made normal to the thigh, ``asin(a . c)``; ``side`` +1 for the left leg (the
+    body's left is ``lateral``), -1 for the right."""
+    t = (knee - hip) / max(np.linalg.norm(knee - hip), 1e-12)
+    c = (ankle - knee) / max(np.linalg.norm(ankle - knee), 1e-12)
+    a = lateral - (lateral @ t) * t
+    a /= max(np.linalg.norm(a), 1e-12)
+    return side * float(np.arcsin(np.clip(a @ c, -1.0, 1.0)))
+
+
+#: The legs of the knee angle: (side, Kinect hip, knee, ankle); side +1 for the body's left (+x at rest).
+KNEE_ANGLE_LEGS = ((1.0, "HipLeft", "KneeLeft", "AnkleLeft"), (-1.0, "HipRight", "KneeRight", "AnkleRight"))
+
+
+def sdk_knee_angle(observations, version: str, max_flexion_deg: float = KNEE_ANGLE_MAX_FLEXION_DEG):
+    """The subject's rest knee angle (radians) from the SDK's joints of every observation, and its standard error.
+
+    Per frame and leg: the calf's (knee to ankle) component along the pelvis's lateral axis (HipRight to HipLeft)
+    made normal to the thigh (hip to knee), ``asin`` of it: a knee turns about one axis across the thigh, so this
+    angle is the rest one at any flexion, from the joints alone (no body's rest calf in it, unlike the hinge measured
+    with a body's poses, :func:`knee_hinge_splay_rows`; docs/mirror.md, mir12ac). The mean over both legs and the
+    frames whose knee bends less than ``max_flexion_deg`` (the SDK's 1 cm per joint gives ~3.5 degrees per frame; the
+    synthetic walk's flexed knee also turns a little about the calf's forward axis). None, None when no frame tracks
+    both legs."""
+    names = kinect_joint_names(version)
+    values = []
+    for o in observations:
+        if o.version != version:
+            continue
+        K = np.asarray(o.joints, dtype=np.float64)
+        ok = np.asarray(o.tracked, bool) & np.all(np.isfinite(K), axis=1)
+        idx = [[names.index(_kinect_name(n, version)) for n in leg[1:]] for leg in KNEE_ANGLE_LEGS]
+        if not all(ok[i] for leg in idx for i in leg):
+            continue
+        lateral = K[idx[0][0]] - K[idx[1][0]]
+        lateral /= max(np.linalg.norm(lateral), 1e-12)
+        for (side, *_), (h, k, a) in zip(KNEE_ANGLE_LEGS, idx, strict=True):
+            t, c = K[k] - K[h], K[a] - K[k]
+            flexion = np.degrees(np.arccos(np.clip(t @ c / max(np.linalg.norm(t) * np.linalg.norm(c), 1e-12), -1, 1)))
+            if flexion < max_flexion_deg:
+                values.append(_knee_angle(K[h], K[k], K[a], lateral, side))
+    if not values:
+        return None, None
+    v = np.asarray(values)
+    return float(v.mean()), float(v.std() / np.sqrt(len(v)))
+
+
+@dataclass(frozen=True, eq=False)
+class KinectJointFrame:
+    """One frame's SDK joints of the actor without its depth: the knee angle's frames (:func:`knee_joint_frames`)."""
+
+    frame: int
+    joints: np.ndarray  # (J, 3), NaN where not tracked
+    tracked: np.ndarray  # (J,)
+    version: str
+
+
+#: :func:`knee_joint_frames`: a body is the actor's when its joints lie within this (median, metres) of the joints of
+#: the observation nearest in time (a person walks ~5 cm a frame; another person stands further off).
+KNEE_FRAME_REACH_M = 0.25
+
+
+def knee_joint_frames(session, observations, reach_m: float = KNEE_FRAME_REACH_M) -> list[KinectJointFrame]:
+    """The actor's SDK joints in every frame from the first observation's to the last's, for :func:`sdk_knee_angle`:
+    the observations read every :data:`INIT_FRAME_STRIDE`-th frame for the depth, the joints files of the frames
+    between cost little, and the SDK's noise is drawn afresh every frame (mir12ac: the knee angle's error over the
+    16 sessions 0.60 -> 0.26 degrees rms). In each frame the body nearest (median joint distance) to the joints of
+    the observation nearest in time, within ``reach_m``, whatever its player id (the SDK renumbers, rel6a)."""
+    obs = sorted(observations, key=lambda o: o.frame)
+    if not obs:
+        return []
+    when = np.array([o.frame for o in obs])
+    out = []
+    for i in session.frame_ids:
+        if i < when[0] or i > when[-1]:
+            continue
+        near = obs[int(np.argmin(np.abs(when - i)))]
+        best, best_d = None, reach_m
+        for body in session.frame(i).kinect_bodies or []:
+            P = np.asarray(body["positions"], dtype=np.float64)
+            if P.shape != np.shape(near.joints):
+                continue
+            d = np.linalg.norm(P - near.joints, axis=1)
+            d = d[np.isfinite(d)]
+            if len(d) and np.median(d) < best_d:
+                best, best_d = body, float(np.median(d))
+        if best is not None:
+            P = np.asarray(best["positions"], dtype=np.float64)
+            out.append(KinectJointFrame(int(i), P, np.asarray(best["tracked"], bool) & np.all(np.isfinite(P), axis=1),
+                                        near.version))
+    return out
+
+
+def model_knee_angles(model: StatisticalBodyModel, coeffs, version: str = "v2") -> np.ndarray:
+    """The rest knee angle (radians) of each leg of :data:`KNEE_ANGLE_LEGS` of the model's Kinect joints at
+    ``coeffs`` (the body's left +x)."""
+    Jm, Jb = _model_kinect_joints(model, version)
+    P = Jm + np.tensordot(np.asarray(coeffs, dtype=np.float64), Jb, axes=1)
+    names = kinect_joint_names(version)
+    lateral = np.array([1.0, 0.0, 0.0])
+    return np.array([_knee_angle(*(P[names.index(_kinect_name(n, version))] for n in leg[1:]), lateral, leg[0])
+                     for leg in KNEE_ANGLE_LEGS])
+
+
+def knee_angle_rows(model: StatisticalBodyModel, coeffs, target_rad: float, version: str = "v2",
+                    weight: float = KNEE_HINGE_WEIGHT, step_m: float = 1e-5):
+    """Eq. 2 rows holding each leg's rest knee angle of the model's Kinect joints at ``target_rad``, linearised at
+    ``coeffs``: ``sqrt(weight) L g . (c - c0) = sqrt(weight) L (target - k(c0))`` with ``g`` the angle's gradient
+    (the joints are linear in the coefficients; the angle's derivative by the joints numerically) and ``L`` the
+    calf's length, so that ``weight`` counts as :func:`knee_hinge_splay_rows`' (an ankle's sideways metres)."""
+    Jm, Jb = _model_kinect_joints(model, version)
+    c0 = np.asarray(coeffs, dtype=np.float64)
+    P = Jm + np.tensordot(c0, Jb, axes=1)
+    names = kinect_joint_names(version)
+    lateral = np.array([1.0, 0.0, 0.0])
+    rows, rhs = [], []
+    for side, *leg in KNEE_ANGLE_LEGS:
+        idx = [names.index(_kinect_name(n, version)) for n in leg]
+        k0 = _knee_angle(*P[idx], lateral, side)
+        grad = np.zeros(len(c0))
+        for j, i in enumerate(idx):
+            for d in range(3):
+                Q = P[idx].copy()
+                Q[j, d] += step_m
+                grad += (_knee_angle(*Q, lateral, side) - k0) / step_m * Jb[:, i, d]
+        length = float(np.linalg.norm(P[idx[2]] - P[idx[1]]))
+        rows.append(np.sqrt(weight) * length * grad)
+        rhs.append(np.sqrt(weight) * length * (target_rad - k0 + grad @ c0))
+    return np.array(rows), np.array(rhs)
+
+
 @lru_cache(maxsize=4)
 def _vertex_gram(model: StatisticalBodyModel) -> np.ndarray:
     """Per-vertex Gram matrices ``basis[:, v] basis[:, v]^T`` (n, k, k) of the shape basis."""
@@ -780,7 +924,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                  weighted_pool: bool = WEIGHTED_POOL, pool_seed: int = 0,
                                  leg_splay: bool = LEG_SPLAY,
                                  knee_hinge_weight: float = KNEE_HINGE_WEIGHT,
-                                 bone_length_pairs=BONE_LENGTH_PAIRS) -> SourceBody:
+                                 bone_length_pairs=BONE_LENGTH_PAIRS,
+                                 knee_hinge_from: str = KNEE_HINGE_FROM, knee_frames=None) -> SourceBody:
     """§4 over several frames: per-frame transform + pooled Eq. 2 fit; ``passes`` - 1 refinements; Eq. 3.
 
     ``observations`` are :class:`InitObservation`; points within ``floor_margin_m`` of the floor
@@ -815,6 +960,10 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
     held at what the knee's hinge measures over the previous pass's refined poses (:func:`knee_hinge_splay_rows`,
     :data:`KNEE_HINGE_WEIGHT`; mir12ab). ``bone_length_pairs``: which of :data:`BONE_PAIRS` the joint-distance term
     matches (None: all; :data:`STATURE_BONE_PAIRS`: the thighs, shins, spine, neck and head, mir12ad).
+    ``knee_hinge_from="sdk"``: those rows instead hold each leg's rest knee angle
+    at the one the SDK's hip, knee and ankle give over every observation (:func:`sdk_knee_angle`), in every pass from
+    the first (:func:`knee_angle_rows`, :data:`KNEE_HINGE_FROM`; mir12ac); ``knee_frames``: the frames of SDK joints
+    that angle is measured on instead (:func:`knee_joint_frames`: every frame of the init's window).
     """
     model = check_model(model)
     if not (np.isfinite(pass_relaxation) and 0.0 < pass_relaxation <= 1.0):
@@ -829,6 +978,18 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             or not (np.isfinite(knee_hinge_weight) and knee_hinge_weight >= 0):
         raise InputError(f"knee_hinge_weight must be a finite number >= 0 (0: no knee-hinge splay rows), "
                          f"got {knee_hinge_weight!r}")
+    if knee_hinge_from not in ("refined", "sdk"):
+        raise InputError(f"knee_hinge_from must be 'refined' (the previous pass's refined poses) or 'sdk' (the SDK "
+                         f"joints' knee angle), got {knee_hinge_from!r}")
+    if knee_frames is not None:
+        try:
+            knee_frames = list(knee_frames)
+        except TypeError:
+            knee_frames = [knee_frames]
+        bad = [f for f in knee_frames if not all(hasattr(f, a) for a in ("joints", "tracked", "version"))]
+        if bad:
+            raise InputError(f"knee_frames must be frames of SDK joints with joints, tracked and version "
+                             f"(knee_joint_frames(session, observations)), got a {type(bad[0]).__name__}")
     if not isinstance(leg_splay, (bool, np.bool_)):
         raise InputError(f"leg_splay must be True or False (the legs' rest rotations solved with the shape), "
                          f"got {leg_splay!r}")
@@ -870,6 +1031,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
         bone_lengths, n_frames = kinect_bone_lengths(observations, obs[0][0].version)
         bone_lengths = np.where(keep_pairs, bone_lengths, np.nan)  # a NaN pair gives no row
         length_weight = bone_length_weight * np.where(keep_pairs, n_frames, 0)
+    knee_target = None  # knee_hinge_from "sdk": the SDK's rest knee angle, the rows re-linearised every pass
+    if knee_hinge_weight > 0 and knee_hinge_from == "sdk":
+        knee_target, _ = sdk_knee_angle(observations if knee_frames is None else knee_frames, obs[0][0].version)
     residual = np.nan
     refined_poses: list = []  # the previous pass's refined poses: the subject's static posture
     for pass_ in range(max(1, passes)):
@@ -912,6 +1076,8 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
             pick = np.sort(np.argsort(np.concatenate(keys), kind="stable")[:pooled_points]) if fixed_pool \
                 else rng.choice(len(P0), pooled_points, replace=False)
             P0, k0 = P0[pick], k0[pick]
+        hinge_rows = None if knee_target is None else \
+            knee_angle_rows(model, coeffs, knee_target, obs[0][0].version, knee_hinge_weight)
         free = (None, None)
         if leg_splay:
             free = leg_splay_basis(body.vertices, model.weights, body.skeleton, obs[0][0].version, LEG_SPLAY_CHAINS)
@@ -922,8 +1088,9 @@ def initialise_from_observations(observations, model: StatisticalBodyModel, view
                                      point_sigma_m=point_sigma_m, return_residual=True, bone_lengths=bone_lengths,
                                      bone_length_weight=length_weight, point_weight=point_weight,
                                      free_basis=free[0], free_joint_basis=free[1], free_sigma=LEG_SPLAY_SIGMA_RAD,
-                                     coeff_rows=knee_hinge_splay_rows(model, body.skeleton, refined_poses,
-                                                                      obs[0][0].version, knee_hinge_weight)
+                                     coeff_rows=hinge_rows if knee_hinge_from == "sdk" else
+                                     knee_hinge_splay_rows(model, body.skeleton, refined_poses,
+                                                           obs[0][0].version, knee_hinge_weight)
                                      if knee_hinge_weight > 0 and refined_poses else None)
         coeffs = coeffs + pass_relaxation * (fitted - coeffs) if pass_ > 0 else fitted
         skeleton = refit_skeleton(model, coeffs)
@@ -1154,13 +1321,14 @@ def initialise_source_body(session, model: StatisticalBodyModel | None = None, f
         model = load_statistical_model("6k", progress=False)
     model = check_model(model)
     obs, sensor = collect_observations(session, frames, player, n_frames, silhouettes=silhouette_shape)
+    knee_frames = knee_joint_frames(session, obs) if KNEE_HINGE_FROM == "sdk" and KNEE_HINGE_WEIGHT > 0 else None
     return initialise_from_observations(obs, model, view_point=sensor.depth.center, passes=passes,
                                         depth_camera=sensor.depth, camera=sensor.color if silhouette_shape else None,
                                         silhouette_frames=SILHOUETTE_FRAMES if silhouette_shape else 0,
                                         bone_length_weight=bone_length_weight, trunk_refit=trunk_refit,
                                         unpose_posture_bones=UNPOSE_POSTURE_BONES if unpose_posture is None
                                         else POSTURE_BONES if unpose_posture else (),
-                                        bone_length_pairs=bone_length_pairs)
+                                        bone_length_pairs=bone_length_pairs, knee_frames=knee_frames)
 
 
 # --- persistence -----------------------------------------------------------------------------------

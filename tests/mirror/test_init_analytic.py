@@ -801,9 +801,11 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
         return ["obs"], session.kinect
 
     def fit(obs, m, view_point=None, passes=3, camera=None, silhouette_frames=0, depth_camera=None,
-            bone_length_weight=None, trunk_refit=None, unpose_posture_bones=None, bone_length_pairs="unset"):
+            bone_length_weight=None, trunk_refit=None, unpose_posture_bones=None, bone_length_pairs="unset",
+            knee_frames=None):
         calls["fit"] = (obs, m, view_point, passes)
         calls["bone_length_pairs"] = bone_length_pairs
+        calls["knee_frames"] = knee_frames
         calls["trunk_refit"] = trunk_refit
         calls["unpose_posture_bones"] = unpose_posture_bones
         calls["silhouette"] = (camera, silhouette_frames)
@@ -813,8 +815,10 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
 
     monkeypatch.setattr(init_mod, "collect_observations", collect)
     monkeypatch.setattr(init_mod, "initialise_from_observations", fit)
+    monkeypatch.setattr(init_mod, "knee_joint_frames", lambda session, obs: ("joints of", obs))
     session = _Session(3)
     assert init_mod.initialise_source_body(session, model, frames=[1], player=2, n_frames=5, passes=1) == "source"
+    assert calls["knee_frames"] == ("joints of", ["obs"])  # mir12ac: the knee angle over the window's joints files
     assert calls["collect"] == ([1], 2, 5)
     assert calls["fit"][0] == ["obs"] and calls["fit"][1] is model and calls["fit"][3] == 1
     np.testing.assert_array_equal(calls["fit"][2], [0.0, 1.0, 3.0])
@@ -836,6 +840,10 @@ def test_initialise_source_body_passes_the_depth_camera_and_passes(monkeypatch, 
     assert calls["bone_length_weight"] == 3.0 and calls["bone_length_pairs"] == init_mod.STATURE_BONE_PAIRS
     init_mod.initialise_source_body(session, model, trunk_refit=True)
     assert calls["trunk_refit"] is True
+    monkeypatch.setattr(init_mod, "KNEE_HINGE_WEIGHT", 0.0)  # no knee rows: no joints files read
+    init_mod.initialise_source_body(session, model)
+    assert calls["knee_frames"] is None
+    monkeypatch.setattr(init_mod, "KNEE_HINGE_WEIGHT", 3000.0)
     init_mod.initialise_source_body(session, model)
     assert calls["collect"] == (None, 1, init_mod.DEFAULT_INIT_FRAMES) and calls["fit"][3] == init_mod.INIT_PASSES == 5
     session.kinect.color = "colour camera"
@@ -909,6 +917,7 @@ def test_initialise_source_body_loads_the_6k_model_by_default(monkeypatch, model
     monkeypatch.setattr(init_mod, "collect_observations", lambda *a, **kw: (["obs"], SimpleNamespace(
         depth=SimpleNamespace(center=np.zeros(3)))))
     monkeypatch.setattr(init_mod, "initialise_from_observations", lambda obs, m, view_point=None, passes=3, **kw: m)
+    monkeypatch.setattr(init_mod, "knee_joint_frames", lambda session, obs: [])
     assert init_mod.initialise_source_body(SimpleNamespace()) is model
     assert asked == [("6k", False)]
 

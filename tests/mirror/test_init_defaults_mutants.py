@@ -14,11 +14,13 @@ from tests.mirror.test_init_pass_settle import frames  # noqa: F401  (the module
 
 def test_the_measured_defaults():
     sig = inspect.signature(initialise_from_observations).parameters
-    # mir12y: the weighted pool with the posture bones is the default; mir12ab's options off
+    # mir12y: the weighted pool with the posture bones is the default; mir12ab's leg splay off; mir12ac: the knee
+    # angle rows on, from the SDK's joints
     assert init_mod.WEIGHTED_POOL is True and sig["weighted_pool"].default is True
     assert init_mod.UNPOSE_POSTURE_BONES == ("spine_02", "neck_01", "head")
     assert init_mod.LEG_SPLAY is False and sig["leg_splay"].default is False
-    assert init_mod.KNEE_HINGE_WEIGHT == 0.0 and sig["knee_hinge_weight"].default == 0.0
+    assert init_mod.KNEE_HINGE_WEIGHT == 3000.0 and sig["knee_hinge_weight"].default == 3000.0
+    assert init_mod.KNEE_HINGE_FROM == "sdk" and sig["knee_hinge_from"].default == "sdk"
     assert sig["pool_seed"].default == 0
     assert init_mod.LEG_SPLAY_SIGMA_RAD == 0.1
     assert inspect.signature(init_mod.fit_shape).parameters["free_sigma"].default == 0.1
@@ -35,6 +37,8 @@ def _fits(monkeypatch, frames, passes=3, refine=False, **options):  # noqa: F811
 
     model, eye, obs = frames
     calls, hinge = [], []
+    options.setdefault("knee_hinge_weight", 0.0)  # mir12ab's rows from the refined poses: mir12ac's default is off here
+    options.setdefault("knee_hinge_from", "refined")
 
     def fit(P0, m, coeffs, **kw):
         calls.append(kw)
@@ -78,7 +82,7 @@ def test_knee_hinge_rows_from_the_previous_pass_refined_poses(monkeypatch, frame
         assert m is model and version == "v2" and weight == 2.5 and len(poses) == 2
         c = np.full(model.n_components, 0.1 * k) * model.stddev
         np.testing.assert_allclose(skeleton.heads, refit_skeleton(model, c).heads, rtol=0, atol=1e-12)
-    # weight 0 (the default): no rows, whatever the poses
+    # weight 0: no rows, whatever the poses
     _, calls, hinge = _fits(monkeypatch, frames, passes=3, refine=True)
     assert hinge == [] and all(kw["coeff_rows"] is None for kw in calls)
     # no refinement (no depth camera): no poses, no rows
