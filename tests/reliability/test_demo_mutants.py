@@ -192,6 +192,10 @@ def test_print_measurements_table_by_hand():
     text = console.export_text()
     lines = [ln for ln in text.splitlines() if ln.strip()]
     assert lines[0].strip() == "body measurements (lengths in m, mass in kg)"
+    narrow = Console(record=True, width=50)
+    demo._print_measurements(narrow, {"subject_02": {"gender": 0.5, "stature_m": 1.7, "mass_kg": 70.0,
+                                                     "chest_m": 0.9, "waist_m": 0.8, "hip_m": 1.0}})
+    assert "│ subject_02 │" in narrow.export_text()  # the body's name is never wrapped
     header = lines[2].replace("┃", " ").split()
     assert header == ["body", "gender", "stature", "mass", "arm", "n"]
     female = lines[4].replace("│", " ").split()
@@ -256,7 +260,7 @@ def test_body_screenshots_paths_bones_and_scenes(tmp_path, monkeypatch):
     shots = _spy(mp, "bodystudio.viewer.scene.save_screenshot")
     scenes = iter([rigged, skeleton])
     scene = _spy(mp, "bodystudio.viewer.views.scene_for_avatar", fn=lambda *a, **k: next(scenes))
-    female = SimpleNamespace(skeleton=SimpleNamespace(bone_names=["root", "upperarm_l", "x"]))
+    female = SimpleNamespace(skeleton=SimpleNamespace(bone_names=["root", "spine", "upperarm_l"]))
     ctx = _ctx(tmp_path)
     ctx.previews = {"female": female, "male": "M"}
     demo._body_screenshots(ctx)
@@ -411,7 +415,7 @@ class RunWriterSpy:
         return False
 
 
-def _rig_spies(mp, scores, bone_names=("root", "upperarm_l")):
+def _rig_spies(mp, scores, bone_names=("root", "spine", "upperarm_l")):
     RunWriterSpy.made = []
     scan = SimpleNamespace(n_vertices=19876)
     report = SimpleNamespace(as_dict=lambda: {"units": "m"}, to_canonical="TO_CANONICAL")
