@@ -47,7 +47,7 @@ def _spy(mp, target, ret=None, fn=None):
 
 def _help(args) -> str:
     res = _invoke([*args, "--help"])
-    return " ".join(res.stdout.replace("│", " ").split())
+    return " " + " ".join(res.stdout.replace("│", " ").split()) + " "
 
 
 @pytest.fixture(autouse=True)
@@ -147,7 +147,7 @@ def test_body_export_help():
                    "pose JSON (axis-angle 'rotations' or MPFB 'bone_rotations')", "full | 6k | 2k",
                    "game_engine | default | default_no_toes | cmu_mb", "lbs | dqs",
                    "Build a body from phenotype and local modifiers, optionally pose it, and write the mesh."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ body info
@@ -199,7 +199,7 @@ def test_body_info_help():
     text = _help(["body", "info"])
     for phrase in ("list the local modifier names", "rig whose joints are counted",
                    "Vertex, face and joint counts of each template resolution, and the default body's stature."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ body measure
@@ -238,7 +238,7 @@ def test_body_measure_help():
     for phrase in ("rest-pose body mesh in bodystudio's topology (full, 6k or 2k template)",
                    "full | 6k | 2k (default: detected from the vertex count)",
                    "Print the mesh's stature, mass, chest/waist/hip girths, arm and leg length as JSON."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ body assets
@@ -266,7 +266,7 @@ def test_body_assets(assets_api, monkeypatch):
     monkeypatch.setenv("BODYSTUDIO_MAKEHUMAN_DIR", "")
     _invoke(["body", "assets", "--force"])
     assert len(assets_api.fetch.calls) == 2
-    assert "download and extract again" in _help(["body", "assets"])
+    assert " download and extract again " in _help(["body", "assets"])
 
 
 # ------------------------------------------------------------------------------------------------ synth mirror
@@ -346,7 +346,7 @@ def test_synth_mirror_help():
                    "edit: stature change (m)", "edit: mass change (kg)", "edit: muscularity change (model units)",
                    "edit: chest girth change (m)", "edit: waist girth change (m)", "edit: hip girth change (m)",
                    "actors walk in (else appear in place)", "progress bar on a terminal"):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ recover
@@ -357,6 +357,6 @@ def test_recover_prints_each_line(monkeypatch):
     assert res.exit_code == 0, (res.output, res.exception)
     assert rec.calls == [((Path("x.glb"),), {})] and res.stdout == "finished a\ndiscarded b\n"
     text = _help(["recover"])
-    assert "session or reconstruct folder, avatar .glb, or cameras.json whose write was interrupted" in text
-    assert ("Complete a write killed after its commit point, or discard one killed before it (the previous result "
-            "stays).") in text
+    assert " session or reconstruct folder, avatar .glb, or cameras.json whose write was interrupted " in text
+    assert (" Complete a write killed after its commit point, or discard one killed before it (the previous result "
+            "stays). ") in text

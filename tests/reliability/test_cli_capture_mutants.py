@@ -51,7 +51,7 @@ class Session:
 
 def _help(args) -> str:
     res = _invoke([*args, "--help"])
-    return " ".join(res.stdout.replace("│", " ").split())
+    return " " + " ".join(res.stdout.replace("│", " ").split()) + " "
 
 
 @pytest.fixture(autouse=True)
@@ -109,7 +109,7 @@ def test_synth_session_help():
                    "simulated Kinect: v1, v2 or none", "studio camera image size WxH", "camera sensor and Kinect noise",
                    "motion variation, noise and background texture", "body template resolution: full, 6k, 2k",
                    "Render a synthetic studio session with ground truth (meshes, joints, poses, masks)."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ capture import
@@ -164,7 +164,7 @@ def test_import_help():
                    "depth units per metre (TUM: 5000)", "tracker joints: JSON folder, .json or .csv",
                    "import at most this many frames", "existing silhouettes: one image folder per camera",
                    "studio, or kinect-sdk (camera space)"):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ silhouettes
@@ -214,7 +214,7 @@ def test_silhouettes_help():
     for phrase in ("chromaticity-distortion threshold (normalised)", "morphological closing kernel (px, 0 = none)",
                    "morphological opening kernel (px, 0 = none)",
                    "Segment the subject by background subtraction and write cam_NN/mask/ (prints JSON, IoU if GT)."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 def test_eval_silhouettes(monkeypatch):
@@ -259,7 +259,7 @@ def test_recover_line_and_refusal(monkeypatch):
 
 
 def test_verify_recover_help():
-    assert "Check every file of a session against the manifest's sha256." in _help(["capture", "verify"])
-    assert "Finish or discard a write that was interrupted (power loss, kill)." in _help(["capture", "recover"])
-    assert "IoU of the session's masks against its ground-truth masks (JSON)." in _help(["eval", "silhouettes"])
+    assert " Check every file of a session against the manifest's sha256. " in _help(["capture", "verify"])
+    assert " Finish or discard a write that was interrupted (power loss, kill). " in _help(["capture", "recover"])
+    assert " IoU of the session's masks against its ground-truth masks (JSON). " in _help(["eval", "silhouettes"])
 

@@ -73,7 +73,7 @@ def test_eval_mirror_help():
                    "run folder of `bodystudio mirror run` (default SESSION/mirror/run)",
                    "Score a mirror run against the session's ground truth: init, tracking, foreground, warp, "
                    "PSNR/SSIM, timings."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ eval garment
@@ -102,7 +102,7 @@ def test_eval_garment_help():
                    "Score a garment fit against the synthetic session's ground truth (JSON): stature, joints, "
                    "light, albedo, silhouette IoU, ms per frame; plus the composite's scores when "
                    "DIR/render/render.json exists."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 def test_eval_group_lists_its_commands():
@@ -139,8 +139,8 @@ def test_eval_reconstruct_without_some_figures(tmp_path, monkeypatch):
 
 def test_eval_reconstruct_help():
     text = _help(["eval", "reconstruct"])
-    assert "session folder with a reconstruct/ result" in text
-    assert "Score SESSION/reconstruct/ meshes against ground truth; prints JSON." in text
+    assert " session folder with a reconstruct/ result " in f" {text} "
+    assert " Score SESSION/reconstruct/ meshes against ground truth; prints JSON. " in f" {text} "
 
 
 # ------------------------------------------------------------------------------------------------ eval rig
@@ -179,7 +179,7 @@ def test_eval_rig_help():
     text = _help(["eval", "rig"])
     for phrase in ("avatar .glb written by bodystudio rig", "ground-truth folder OUT.gt/ of the synthetic scan",
                    "Score a rigged avatar against its synthetic scan's ground truth; prints JSON."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 def test_eval_commands_are_one_module_each():

@@ -110,7 +110,7 @@ def test_synth_garment_help():
                    "target garment: tights | skirt | tshirt | longsleeve", "target cloth: stripes | checks | print | "
                    "plain", "walk | arm_flex | turn | arms_raise | a_pose", "camera image WIDTHxHEIGHT",
                    "light, colours, motion variation and sensor noise", "no sensor noise"):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ garment fit
@@ -183,7 +183,7 @@ def test_garment_fit_help():
                    "focal length in pixels (default: a 40 deg vertical field of view)",
                    "skip the final shape refinement against every frame's silhouette",
                    "thickness of the actor's worn clothes in mm (0-30; the shape refinement's allowance)"):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ garment render
@@ -249,4 +249,4 @@ def test_garment_render_help():
                    "cloth pattern: stripes | checks | print | plain", "output video (.mp4)",
                    "skip the optical-flow motion correction (§7.1)", "skip the silhouette RBF warp (§7.2)",
                    "no depth compositing: the garment over everything", "cloth colours"):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase

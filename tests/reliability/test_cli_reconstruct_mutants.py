@@ -308,8 +308,32 @@ def test_help_states_the_defaults():
                    "outer iterations No (contour re-matching), 1..100", "inner solver iterations Ni, 1..1000",
                    "contour search range tau (pixels), 1..500", "silhouette weight width alpha (pixels), 1..1000",
                    "frames per work unit on a cluster (default 10)", "Kinect player id (1-6)",
-                   "Deform the template to every frame's silhouettes (Rapid Skin); writes SESSION/reconstruct/."):
-        assert phrase in text, phrase
+                   "Deform the template to every frame's silhouettes (Rapid Skin); writes SESSION/reconstruct/.",
+                   "capture session folder", "tracker (session Kinect joints) | file | hull (visual hull)",
+                   "folder of NNNNN.json joint files for --joints file", "silhouette, depth or silhouette,depth",
+                   "frame range A:B (B exclusive)", "carry the shape over from earlier frames",
+                   "refine the joints' pose by an articulated fit to the silhouettes' visual hull before deforming "
+                   "(--no-refine-pose: the paper's init)",
+                   "sequence (default: one set of bone lengths per run, the median of the tracked lengths over its "
+                   "frames) | frame (each frame's tracked lengths, which jitter)",
+                   "smooth the tracked joints over time: a line fitted through each joint's positions within this "
+                   "many frames (0: off; 2 measured better on 30 fps sessions; sequential path only)",
+                   "score against ground truth when the session has it",
+                   "start each frame from the previous frame's pose fitted to its silhouettes, re-initialising from "
+                   "the joints on a lost track (default --no-tracking: every frame from its joints, measured more "
+                   "accurate)",
+                   "run chunks on this dask scheduler (tcp://HOST:8786; default $BODYSTUDIO_SCHEDULER)",
+                   "run chunks on a local cluster of N worker processes",
+                   "on a cluster: redo every chunk, also unchanged ones",
+                   "the accurate setting (reconstruct.presets.A…",  # rich cuts the long word
+                   "tracking, joint smoothing 2 and the shape prior, the whole body's depth in the pose refinement "
+                   "and a torso hold, each with its guard; "
+                   "measured with --constraints silhouette,depth (docs/reconstruct.md); sequential path only",
+                   "Kinect player id (1-6) of the person to reconstruct (default: the lowest id of the first frame "
+                   "with a tracked body); followed over the run, recorded in run.json (subject_player)",
+                   "write the result even when its self-check finds a camera the fit cannot explain (silhouette IoU "
+                   "< 0.75) or depth that does not fit the body (docs/reconstruct.md)"):
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 def test_accurate_keywords_match_the_presets_module():

@@ -261,7 +261,7 @@ def test_rig_help():
                    "model template: 6k, 13k (or 2k)", "skin weight transfer: harmonic or barycentric",
                    "--texture", "--vertex-colors", "-o", "also write a BVH of sample poses on the avatar's skeleton",
                    "Rig a body scan: fit the body model, transfer skeleton and skin weights, export glTF."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ synth scan

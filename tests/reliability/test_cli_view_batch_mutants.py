@@ -196,7 +196,7 @@ def test_view_help():
                    "render offscreen to this PNG and exit", "write a standalone HTML page of the scene and exit",
                    "window / screenshot size WxH", "show the Kinect point cloud (sessions, arm captures)",
                    "Open a session, mesh, scan or avatar in the 3D viewer (or save a screenshot / HTML page)."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ report
@@ -218,7 +218,7 @@ def test_report_line_and_options(monkeypatch):
     for phrase in ("a run folder (e.g. the demo's output) or a session folder", "the report page to write (.html)",
                    "leave out the embedded 3D view",
                    "Write one self-contained HTML report: metrics tables, plots, screenshots and a 3D view."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
 
 
 # ------------------------------------------------------------------------------------------------ batch rig
@@ -321,4 +321,4 @@ def test_batch_rig_help():
                    "local cluster of N single-threaded worker processes (default: one per core)",
                    "redo every scan, also those already rigged",
                    "Rig every scan of a folder on a dask cluster; resumable (unchanged scans are skipped)."):
-        assert phrase in text, phrase
+        assert f" {phrase} " in f" {text} ", phrase
