@@ -100,6 +100,8 @@ def test_synth_session_refusals(synth_spy):
     for opt in ("--subject-seed", "--seed"):
         assert _invoke(["synth", "session", "s", opt, "-1"]).exit_code == 2
     assert not synth_spy.calls
+    assert _invoke(["synth", "session", "s", "--subject-seed", "0", "--seed", "0"]).exit_code == 0
+    assert synth_spy.calls[0][0][4] == 0 and synth_spy.calls[0][0][8] == 0
 
 
 def test_synth_session_help():

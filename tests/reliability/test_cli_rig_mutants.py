@@ -315,3 +315,5 @@ def test_synth_scan_refusals(synth_api, out, setup, message):
 def test_synth_scan_refuses_a_negative_subject(synth_api):
     res = _invoke(["synth", "scan", "s.ply", "--subject-seed", "-1"])
     assert res.exit_code == 2 and synth_api.log == []
+    res = _invoke(["synth", "scan", "s.ply", "--subject-seed", "0"])
+    assert res.exit_code == 0 and synth_api.log[0] == ("scan", (0, "a", 100_000, 1.0, True))
