@@ -135,10 +135,11 @@ def test_stage_bodies_builds_exports_and_measures(tmp_path, monkeypatch):
         k = next(values)
         return {"stature_m": 1.6 + k / 10 + 0.123456, "mass_kg": 60.0 + k, "muscularity": 0.5}
 
-    _spy(mp, "bodystudio.body.measure.measure_body", fn=measure)
+    measured_bodies = _spy(mp, "bodystudio.body.measure.measure_body", fn=measure)
     printed = _spy(mp, "bodystudio.demo._print_measurements")
     shots = _spy(mp, "bodystudio.demo._body_screenshots")
     ctx = _ctx(tmp_path)
+    ctx.console = "CONSOLE"
     summary = demo.stage_bodies(ctx)
     folder = ctx.out / "bodies"
     assert summary == f"5 bodies exported to {folder} and measured"
@@ -159,7 +160,8 @@ def test_stage_bodies_builds_exports_and_measures(tmp_path, monkeypatch):
                     "muscularity": 0.5} for k, (n, g) in enumerate(zip(names, genders, strict=True))}
     assert measured["bodies"] == expected
     assert measured["bodies"]["female"]["stature_m"] == 1.7235
-    assert printed.calls == [((None, expected), {})]
+    assert printed.calls == [(("CONSOLE", expected), {})]
+    assert [a[0] for a, _ in measured_bodies.calls] == list(ctx.bodies.values())  # the full-resolution bodies
     assert shots.calls == [((ctx,), {})]
     assert ctx.progress.tasks == [("bodies", 5)] and ctx.progress.advanced == ["task1"] * 5
 
