@@ -83,8 +83,8 @@ def cluster(monkeypatch, seq):
     monkeypatch.setattr(batch, "reconstruct_batch", record("batch", ({"frames": 25, "median_mm": 9.0}, "REPORT")))
     monkeypatch.setattr(cli_batch, "print_cluster", record("print_cluster"))
     monkeypatch.setattr(cli_batch, "print_report", record("print_report"))
-    monkeypatch.setattr(session_mod, "open_session",
-                        record("open", SimpleNamespace(frame_ids=list(range(100, 125)))))
+    ns.opened = SimpleNamespace(frame_ids=list(range(100, 125)))
+    monkeypatch.setattr(session_mod, "open_session", record("open", ns.opened))
     monkeypatch.setattr(sequence, "run_subject", record("subject"))
     return ns
 
@@ -254,7 +254,7 @@ def test_cluster_defaults(cluster, seq):
     assert cluster.log == [
         ("resolve", (None, 3), {}),
         ("open", (Path("s"),), {}),
-        ("subject", (cluster.log[2][1][0], list(range(100, 125)), "tracker", None), {}),
+        ("subject", (cluster.opened, list(range(100, 125)), "tracker", None), {}),
         ("client", None, 3, 3),
         ("print_cluster", ("CLIENT",), {}),
         ("batch", (Path("s"), "CLIENT", opts), dict(frames=None, chunk=10, force=False, progress=True,
@@ -293,6 +293,9 @@ def test_cluster_units_round_up_and_the_player_is_passed(cluster, seq):
     assert cluster.log[5][2]["player"] == 4 and cluster.log[5][2]["chunk"] == 7
     res = _invoke(["reconstruct", "s", "--chunk", "5"])
     assert cluster.log[-5] == ("client", None, None, 5)
+    res = _invoke(["reconstruct", "s", "--workers", "2", "--frames", "100:121"])  # 21 frames, 10 per unit
+    assert cluster.log[-5] == ("client", None, 2, 3) and cluster.log[-3][2]["chunk"] == 10
+    assert cluster.log[-6][1][0] is cluster.opened
 
 
 def test_cluster_frames_refused_before_the_cluster(cluster, seq):
