@@ -146,6 +146,9 @@ def test_rig_defaults(rig_api):
                                         "stage_seconds": {"fit": 2.5}}
     assert res.stdout == "wrote a.glb (6002 vertices, 3 bones, fit 2.3 mm, 2.5 s)\n"
     assert res.stderr == ""
+    stages = ["load", "fit", "skeleton", "weights", "export"]  # no reshape asked: no reshape task
+    assert rig_api.progress == [("add", s, {"total": 1}) for s in stages] + [
+        ("update", s, {"completed": 1}) for s in ("load", "fit", "skeleton", "weights", "export")]
 
 
 def test_rig_progress_tasks_and_columns(rig_api):
@@ -171,6 +174,8 @@ def test_rig_progress_shows_on_a_terminal_only_when_asked(rig_api, monkeypatch):
     assert rig_api.progress_init[1]["disable"] is True
     rig_to_files(Path("scan.ply"), Path("b.glb"), show_progress=True)
     assert rig_api.progress_init[1]["disable"] is False
+    res = _invoke(["rig", "scan.ply", "--out", "c.glb"])  # the command asks for the bar
+    assert res.exit_code == 0 and rig_api.progress_init[1]["disable"] is False
 
 
 def test_rig_every_option(rig_api):
@@ -203,6 +208,9 @@ def test_rig_to_files_returns_the_description_with_its_seconds(rig_api):
     from bodystudio.cli.rig import rig_to_files
 
     desc = rig_to_files(Path("scan.ply"), Path("a.glb"))
+    (w,) = Writer.made
+    assert w.inputs == {"scan": "scan.ply", "template": "6k", "texture": False}
+    assert rig_api.log[-1] == ("write_rig", w, Path("a.glb"), rig_api.avatar, False, None, None)
     assert desc == {"n_vertices": 6002, "bones": ["a", "b", "c"], "fit_err_mm_median": 2.345,
                     "plausibility": {"verdict": "plausible", "warnings": []}, "seconds": 2.5}
     assert rig_api.log[1] == ("template", "6k") and rig_api.log[2][3] == "harmonic"
@@ -251,6 +259,14 @@ def test_rig_refuses_to_write_over_its_inputs(rig_api):
     Path("s.bvh").write_text("x")
     _refused(_invoke(["rig", "s.bvh", "--out", "a.glb", "--bvh", "s.bvh"]),
              "--bvh s.bvh: is the scan; writing it would replace that input, choose another path")
+    assert rig_api.log == []
+
+
+def test_rig_refuses_a_bvh_that_is_the_avatar(rig_api):
+    Path("a.glb").write_bytes(b"glTF")
+    Path("a.bvh").symlink_to("a.glb")
+    _refused(_invoke(["rig", "scan.ply", "--out", "a.glb", "--bvh", "a.bvh"]),
+             "--bvh a.bvh: is --out; writing it would replace that input, choose another path")
     assert rig_api.log == []
 
 
