@@ -265,3 +265,18 @@ def test_verify_recover_help():
     assert " Finish or discard a write that was interrupted (power loss, kill). " in _help(["capture", "recover"])
     assert " IoU of the session's masks against its ground-truth masks (JSON). " in _help(["eval", "silhouettes"])
 
+
+
+def test_silhouettes_refuses_a_read_only_session_before_segmenting(seg_spy, monkeypatch):
+    """The masks are written into the session: a session on a read-only mount is refused, naming it."""
+    import errno
+
+    import bodystudio.fileio as fileio
+
+    def read_only(*args, **kwargs):
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(fileio.tempfile, "mkstemp", read_only)
+    _refused(_invoke(["capture", "silhouettes", "s"]),
+             "session s: cannot write in s (Read-only file system); choose a writable place")
+    assert not seg_spy.calls
