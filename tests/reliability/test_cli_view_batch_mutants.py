@@ -245,17 +245,21 @@ def batch_api(monkeypatch):
     ns = SimpleNamespace(log=[], report=Report())
     Path("scans").mkdir()
 
+    ns.client = SimpleNamespace(scheduler_info=lambda: {"address": "tcp://x:1", "workers": {"w1": 1, "w2": 2}})
+    ns.dashboard = []
+
     @contextmanager
     def client(scheduler, workers, units=None):
         ns.log.append(("client", scheduler, workers, units))
-        yield SimpleNamespace(scheduler_info=lambda: {"address": "tcp://x:1", "workers": {"w1": 1, "w2": 2}})
+        yield ns.client
 
     monkeypatch.setattr(batch, "batch_client", client)
     monkeypatch.setattr(batch, "list_scans", lambda d: ns.log.append(("list", d)) or ["a.ply", "b.ply", "c.ply"])
     monkeypatch.setattr(batch, "resolve_scheduler", lambda s, w: ns.log.append(("resolve", s, w)))
-    monkeypatch.setattr(batch, "dashboard_link", lambda c: "http://x:8787/status")
+    monkeypatch.setattr(batch, "dashboard_link", lambda c: ns.dashboard.append(c) or "http://x:8787/status")
 
     def rig_batch(scans_dir, out, client, **kw):
+        assert client is ns.client
         ns.log.append(("rig", scans_dir, out, kw))
         return ns.report
 
@@ -275,7 +279,16 @@ def test_batch_rig_defaults_and_printed_lines(batch_api):
     assert ("batch rig scans: 1 done, 1 unchanged (skipped), 1 failed in 20.1 s; record out/batch.json") in text
     assert "unit status seconds / error" in text
     assert "a done 12.3" in text and "b skipped" in text and "c failed" in text
-    assert res.stdout == ""
+    rows = [ln.replace("│", " ").split() for ln in err.splitlines() if "│" in ln]
+    assert rows == [["a", "done", "12.3"], ["b", "skipped"], ["c", "failed"]]  # no time, no error: empty
+    assert res.stdout == "" and batch_api.dashboard == [batch_api.client]
+
+
+def test_batch_rig_accepts_each_template(batch_api):
+    for template in ("6k", "13k", "2k"):
+        res = _invoke(["batch", "rig", "scans", "--out", f"out{template}", "--template", template])
+        assert res.exit_code == 0, (res.output, res.exception)
+        assert batch_api.log[-1][3]["template"] == template
 
 
 def test_batch_rig_options_and_failure(batch_api):
