@@ -294,3 +294,47 @@ def test_eval_calib_defaults_options_and_json(tmp_path, scorers):
     code, out, err = _run("eval", "calib", tmp_path / "e.json", tmp_path / "g.json", "--kinect", tmp_path / "k.json")
     assert code == 2 and out == "" and err == ("error: --kinect needs the estimated and the ground-truth "
                                                "calibration.json: give it twice\n")
+
+
+@pytest.mark.parametrize("option, name", [("--easymocap", "intri.yml"), ("--easymocap", "extri.yml"),
+                                          ("--colmap", "cameras.txt"), ("--colmap", "images.txt"),
+                                          ("--colmap", "points3D.txt")])
+def test_calibrate_refuses_an_export_folder_whose_file_is_a_folder(tmp_path, api, option, name):
+    """Each file the export writes is checked before the run: a folder in its place is refused, naming it."""
+    cap = _capture(tmp_path / "cap")
+    target = tmp_path / "model"
+    (target / name).mkdir(parents=True)
+    code, stdout, stderr = _run("calibrate", cap, "--out", tmp_path / "est" / "c.json", option, target)
+    assert (code, stdout) == (2, "")
+    assert stderr == f"error: {option} folder {target / name}: is a folder; give a file path\n"
+    assert api.log == [] and not (tmp_path / "est").exists()
+    # a folder of another export's file name is not in the way (the COLMAP check refuses other files itself)
+    if option == "--easymocap":
+        (tmp_path / "m2" / "images.txt").mkdir(parents=True)
+        code, stdout, stderr = _run("calibrate", cap, "--out", tmp_path / "est" / "c.json", option, tmp_path / "m2")
+        assert code == 0, stderr
+
+
+def test_calibrate_progress_goes_to_stderr_and_only_on_a_terminal(tmp_path, api, monkeypatch):
+    import bodystudio.cli.calib as calib_cli
+
+    made = []
+    base = calib_cli.Progress
+
+    class Recording(base):
+        def __init__(self, *columns, **kwargs):
+            made.append((columns, kwargs))
+            super().__init__(*columns, **kwargs)
+
+    monkeypatch.setattr(calib_cli, "Progress", Recording)
+    cap = _capture(tmp_path / "cap")
+    assert _run("calibrate", cap, "--out", tmp_path / "a" / "c.json")[0] == 0
+    (columns, kwargs), = made
+    assert [type(c).__name__ for c in columns] == ["TextColumn", "BarColumn", "MofNCompleteColumn",
+                                                   "TimeElapsedColumn"]
+    assert columns[0].text_format == "{task.description}"
+    assert kwargs == {"console": calib_cli.console, "transient": True, "disable": True}
+    assert calib_cli.console.stderr is True
+    monkeypatch.setattr(type(calib_cli.console), "is_terminal", property(lambda self: True))
+    assert _run("calibrate", cap, "--out", tmp_path / "b" / "c.json")[0] == 0
+    assert made[1][1]["disable"] is False
