@@ -44,7 +44,7 @@ class Uncertainty:
         self.cams = {"cam_00": SimpleNamespace(center_sigma_mm=0.1234, focal_sigma_pct=0.01234,
                                                coverage=SimpleNamespace(fraction=0.456), verdict="ok"),
                      "cam_01": SimpleNamespace(center_sigma_mm=3.456, focal_sigma_pct=0.6789,
-                                               coverage=SimpleNamespace(fraction=0.1), verdict="uncertain")}
+                                               coverage=SimpleNamespace(fraction=0.7), verdict="uncertain")}
 
     @property
     def ok(self):
@@ -78,6 +78,7 @@ def api(monkeypatch):
         return ["o"] * 17, {"cam_00": {"frames": 1}}
 
     def solve(obs, spec, options):
+        assert spec.squares_x == 5 and spec.squares_y == 4  # the board read from board.json
         ns.log.append(("solve", len(obs), options.distortion_terms, options.floor_frame, options.reference_camera))
         return SimpleNamespace(
             report=lambda: {"cameras": {"cam_00": {"n_views": 3, "n_corners": 40, "n_outliers": 1,
@@ -99,6 +100,7 @@ def api(monkeypatch):
 
     def export(kind):
         def write(folder, rig):
+            assert sorted(rig) == ["cam_00", "cam_01"] and rig["cam_00"].fx == 800.04  # the calibrated rig
             ns.log.append((kind, Path(folder).name))
             Path(folder).mkdir(parents=True, exist_ok=True)
             (Path(folder) / f"{kind}.txt").write_text(kind)
@@ -144,8 +146,9 @@ def test_calibrate_publishes_the_rig_its_coverage_and_the_report(tmp_path, api):
     assert report["run"]["producer"] == {"capture": str(cap)}
     rows = [ln.replace("│", " ").split() for ln in stdout.splitlines() if "│" in ln]
     assert rows[0] == ["cam_00", "3", "40", "1", "0.123", "800.0", "801.1", "0.12", "0.012", "46", "ok"]
-    assert rows[1] == ["cam_01", "2", "30", "2", "0.500", "700.0", "700.0", "3.46", "0.679", "10", "uncertain"]
-    assert rows[2] == ["all", "17", "3", "0.457", "ok"]
+    assert rows[1] == ["cam_01", "2", "30", "2", "0.500", "700.0", "700.0", "3.46", "0.679", "70", "uncertain"]
+    cells = [[c.strip() for c in ln.split("│")[1:-1]] for ln in stdout.splitlines() if "│" in ln]
+    assert cells[2] == ["all", "", "17", "3", "0.457", "", "", "", "", "", "ok"]  # each figure in its column
     title = " ".join(ln.strip() for ln in stdout.splitlines()[:next(k for k, ln in enumerate(stdout.splitlines())
                                                                      if "┏" in ln)])
     assert title == "calibration: 17 corners, 3 outliers, 1.2 s, world = floor board"
@@ -169,6 +172,23 @@ def test_calibrate_exports_in_the_same_run(tmp_path, api):
     report = json.loads((tmp_path / "est" / "cameras.report.json").read_text())
     assert set(report["run"]["files"]) >= {"cameras.json", "cameras.coverage.png", "../emc/easymocap.txt",
                                            "../cm/colmap.txt"}
+
+
+def test_accepted_warnings_are_printed_as_given(tmp_path, api, monkeypatch):
+    """Advice is plain text: no markup, no highlighting, never wrapped (on a colour terminal too)."""
+    from rich.console import Console
+
+    import bodystudio.cli.calib as calib_cli
+
+    api.ok = False
+    long = "cam_01: [bold]12 views[/bold] of 40 cover the image's corners; capture " + "more " * 12 + "views"
+    monkeypatch.setattr(Uncertainty, "advice", lambda self: [long])
+    monkeypatch.setattr(calib_cli, "console", Console(stderr=True, force_terminal=True, color_system="standard",
+                                                      width=60))
+    cap = _capture(tmp_path / "cap")
+    code, stdout, stderr = _run("calibrate", cap, "--out", tmp_path / "est" / "c.json", "--accept-uncertain")
+    assert code == 0, stderr
+    assert f"warning: {long}\n" in stderr and "\x1b[" not in stderr.split("warning:")[1].split("\n")[0]
 
 
 def test_an_uncertain_rig_writes_only_its_rejected_report(tmp_path, api):
