@@ -24,7 +24,7 @@ def demo(
     from bodystudio.fileio import check_output_folder
 
     check_output_folder(out, "demo --out")
-    report, stages = run_demo(out, cameras, frames, _parse_size(resolution), with_3d=not no_3d,
+    report, stages = run_demo(out, cameras, frames, _parse_size(resolution, "--resolution"), with_3d=not no_3d,
                               skip=tuple(skip or ()))
     typer.echo(f"report: {report.resolve()}")
     check_demo(out, report, stages)

@@ -75,13 +75,14 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def _parse_size(size: str) -> tuple[int, int]:
+def _parse_size(size: str, option: str = "--size") -> tuple[int, int]:
+    """``WxH`` -> (w, h), each 64..8192; a refusal names ``option`` (the command's own option name)."""
     try:
         w, h = (int(v) for v in size.lower().split("x"))
         if w < 64 or h < 64 or w > 8192 or h > 8192:
             raise ValueError
     except ValueError:
-        raise InputError(f"--size {size!r} is not WxH between 64 and 8192, e.g. 1024x768") from None
+        raise InputError(f"{option} {size!r} is not WxH between 64 and 8192, e.g. 1024x768") from None
     return w, h
 
 
