@@ -704,6 +704,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         frame_gaps = np.r_[1, np.diff(positions)]
         if np.all(frame_gaps == 1):
             positions = frame_gaps = None  # consecutive: the capture as without them, bit for bit
+    gap_kw = {} if positions is None else {"positions": positions}  # the steps' calls as before without a gap
 
     # Sec. 4: clean-up and point clouds of every frame (world coordinates).
     clouds = []
@@ -816,7 +817,8 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                                            J, o.norm_limit, o.refine_pose,
                                            None if tracker_t is None else tracker_t[j], o.tracker_pose_weight,
                                            poses[-1] if poses else None,
-                                           o.smooth_weight / (1 if frame_gaps is None else frame_gaps[j]), o.huber_m)
+                                           o.smooth_weight if frame_gaps is None else o.smooth_weight / frame_gaps[j],
+                                           o.huber_m)
             model_meshes.append(mm)
             poses.append(pp)
             if j >= n_shape - 1:
@@ -824,7 +826,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         if o.sequence_rounds > 0:
             t0 = time.perf_counter()
             poses, base, J = sequence_stage(model, template, shape, poses, frames_t, tracker_t, base, J, o,
-                                            known_shape, positions)
+                                            known_shape, **gap_kw)
             model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
             timer.add("sequence_fit", t0)
         return meshes, kept, model_meshes, poses, shape, base, J
@@ -834,7 +836,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         sexes = candidate_sexes(model, o, known_shape)
         runs = {sex: tracked(replace(shape, sex=sex)) for sex in sexes}
         if len(runs) > 1:  # the subject's sex from the depth: the capture as each sex, the one the depth prefers kept
-            energies = {sex: held_out_depth_energy_mm(model, r[3], frames_t, r[5], r[6], o, positions)
+            energies = {sex: held_out_depth_energy_mm(model, r[3], frames_t, r[5], r[6], o, **gap_kw)
                         for sex, r in runs.items()}
             sex_fit = sex_from_depth_energies(energies, o.sex_margin_mm)
             log.info("the subject's sex from the depth: %s (held-out depth energy as a man %.3f, as a woman %.3f mm)",
@@ -852,7 +854,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     if model is not None and o.pose_sigma_frames > 0:
         t0 = time.perf_counter()
         poses = smooth_arm_poses(poses, o.pose_sigma_frames, degree=o.pose_smoothing_degree,
-                                 shoulder_degree=o.shoulder_smoothing_degree, positions=positions)
+                                 shoulder_degree=o.shoulder_smoothing_degree, **gap_kw)
         model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("model_filtering", t0)
     if model is None:
@@ -873,7 +875,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
             refine_trees = [cKDTree(P) for P, _ in refine_clouds]
             timer.add("depth", t0)
         out_t = _refinement(model_meshes, poses, refine_clouds, refine_trees, F, C, arm, adjacency, J, o, timer,
-                            camera=camera, similarity=S, positions=positions)
+                            camera=camera, similarity=S, **gap_kw)
     out = np.stack([apply_similarity(S, X) for X in out_t])
     stages = {"nicp": np.stack([apply_similarity(S, X) for X in nicp_meshes])}
     if model_meshes:
@@ -1052,7 +1054,8 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
             o.sequence_depth_huber_only, rest=base, free_joints=o.sequence_free_joints,
             torso_pair_weight=o.sequence_torso_pair_weight,
             tracker_placement_weight=None if o.sequence_placement_prior_m <= 0 or tracker_t is None
-            else tracker_placement_prior_weight(tracker_t, o.sequence_placement_prior_m), positions=positions)
+            else tracker_placement_prior_weight(tracker_t, o.sequence_placement_prior_m),
+            **({} if positions is None else {"positions": positions}))
         if body_rounds > 0 and o.body_rest_keep_best:
             energy = depth_energy_mm(model, _pick(poses, held_out), _pick(frames_t, held_out), base, J, o.norm_limit,
                                      o.sequence_huber_m)
@@ -1184,11 +1187,10 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
         raise SessionError(f"{session.path}: no Kinect calibration; the arm capture needs a depth session")
     fps = capture_frame_rate(session)  # before any frame is read: a rate the filters cannot serve is refused
     ids = list(session.frame_ids[frames] if frames is not None else session.frame_ids)
-    no_good = None
     try:
         read = read_arm_frames(session, ids, template.side, options.depth, fps) if skip_bad_frames else None
-    except NoGoodFrameError as exc:  # nothing to skip to: the first frame's own refusal and advice (e.g. the distance)
-        read, skip_bad_frames, no_good = None, False, exc
+    except NoGoodFrameError:  # nothing to skip to: the capture as without skipping, with the first frame's own
+        read, skip_bad_frames = None, False  # refusal and advice (e.g. "move the subject to about 1 m")
     if skip_bad_frames:
         good, depths, tracker, skipped = read
     else:
@@ -1202,9 +1204,8 @@ def capture_arm_sequence(session, model, template: ArmTemplate, options: Capture
     sources = [Path(session.path) / stream_path("kinect_depth", fid) for fid in good]
     positions = [ids.index(fid) for fid in good] if skipped else None
     capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(good), known_shape,
-                                 fps, depth_sources=sources, frame_positions=positions)
-    if no_good is not None:  # every frame bad by the skip's checks, though the capture ran: never written as good
-        raise no_good
+                                 fps, depth_sources=sources,
+                                 **({} if positions is None else {"frame_positions": positions}))
     capture.skipped = skipped
     capture.session_path = str(Path(session.path).resolve())
     capture.source_fingerprint = stream_fingerprint(session, "kinect_depth", good)
@@ -1255,7 +1256,7 @@ def read_arm_frames(session, ids: list, side: str, depth: DepthCleanupOptions = 
             continue
         if d is None:
             problems[fid] = (path, "no Kinect depth image in this frame")
-        elif d.shape != (camera.height, camera.width):
+        elif hasattr(camera, "height") and d.shape != (camera.height, camera.width):
             problems[fid] = (path, f"depth map is {d.shape[1]}x{d.shape[0]} but the depth camera is "
                                    f"{camera.width}x{camera.height}")
         elif np.count_nonzero(segment_by_distance(d, depth.near_m, depth.far_m)) < depth.min_pixels:
@@ -1482,7 +1483,7 @@ def capture_session_arm(session_path: str | Path, model_path: str | Path | None,
     before = check_before_capture(session, session.frame_ids[selected], side, accept_implausible)
     capture = capture_arm_sequence(session, model, template, options,
                                    frames=None if frames is None else slice(0, frames), known_shape=known_shape,
-                                   skip_bad_frames=skip_bad_frames)
+                                   **({} if skip_bad_frames else {"skip_bad_frames": False}))
     capture.plausibility = check_after_capture(capture, session, template, model, before, accept_implausible,
                                                shape_given=known_shape is not None)
     return capture
@@ -1504,8 +1505,9 @@ def write_arm_capture_files(path_for: Callable[[str], Path], capture: ArmCapture
     from bodystudio.muscle.export import write_morph_glb, write_ply_sequence
 
     positions = None if capture.frame_positions is None else capture.positions
-    write_ply_sequence(path_for("meshes"), capture.vertices, capture.faces, positions)
-    write_morph_glb(path_for("arm.glb"), capture.vertices, capture.faces, fps=fps, positions=positions)
+    gap_kw = {} if positions is None else {"positions": positions}
+    write_ply_sequence(path_for("meshes"), capture.vertices, capture.faces, **gap_kw)
+    write_morph_glb(path_for("arm.glb"), capture.vertices, capture.faces, fps=fps, **gap_kw)
     s, R, t = capture.similarity
     params = {"mode": capture.mode, "template_key": capture.template_key, "frame_ids": list(capture.frame_ids),
               "shape": None if capture.shape is None else _shape_dict(capture.shape),
