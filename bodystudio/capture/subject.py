@@ -86,18 +86,23 @@ class SubjectFollower:
     tracked body."""
 
     def __init__(self, player: int | None = None, follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None,
-                 jump_m: float = SUBJECT_JUMP_M):
+                 jump_m: float = SUBJECT_JUMP_M, jumped_is_other: bool = False):
         self.player, self.follow_m, self.step_m, self.jump_m = player, float(follow_m), step_m, float(jump_m)
+        self.jumped_is_other = bool(jumped_is_other)
         self.chosen = player is not None
         self.last: dict | None = None
         self.missed = 0
         self.others: list[dict] = []  # the other people's bodies in the frame before
+        # the id holder refused in the last frame for lying beyond the reach: {"player", "distance_m", "reach_m",
+        # "body"} (None: no such refusal)
+        self.refused: dict | None = None
 
     def candidates(self, bodies: Sequence[dict]) -> list[tuple[int, float, int]]:
         """``(tier, distance m, index)`` of the bodies that may be the subject, best first: tier 0 the bodies within
         ``follow_m`` of its last joints (nearest first; before it was ever seen, the body holding its id), tier 1
         the body holding its id farther away (only within the ``step_m`` reach when that is set, or when it shares no
         finite joint with the last ones)."""
+        self.refused = None
         if not self.chosen:
             return []
         if self.last is None:
@@ -112,6 +117,9 @@ class SubjectFollower:
             # no joint in common with the last ones (all NaN): nothing tells it apart, the id decides
             if not other and (dist[holder] <= reach or not np.isfinite(dist[holder])):
                 near.append((1, dist[holder], holder))
+            elif not other:
+                self.refused = {"player": bodies[holder]["player"], "distance_m": float(dist[holder]),
+                                "reach_m": float(reach), "body": bodies[holder]}
         return near
 
     def see_others(self, bodies: Sequence[dict], mine: dict | None) -> None:
@@ -119,8 +127,19 @@ class SubjectFollower:
         (``mine``) that hold another id, or stand where another person stood a frame before (a body refused only for
         the speed limit while holding the subject's id may be the subject coming back: not marked)."""
         prev = self.others
-        self.others = [b for b in bodies if b is not mine and (b["player"] != self.player or any(
+        jumped = self.refused["body"] if self.jumped_is_other and self.refused is not None else None
+        self.others = [b for b in bodies if b is not mine and (b["player"] != self.player or b is jumped or any(
             body_distance_m(b, o) <= self.follow_m for o in prev))]
+
+    def lost_reason(self) -> str:
+        """Why the last frame had no subject though its id was held (rel7a), as a clause for the callers' messages
+        (``""`` when the id holder was not refused for its distance)."""
+        r = self.refused
+        if r is None:
+            return ""
+        frames = max(self.missed, 1)  # the frames since the subject was last seen, this one included
+        return (f"; player {r['player']} holds the subject's id {r['distance_m']:.2f} m from its last joints, farther "
+                f"than the {r['reach_m']:.2f} m the subject moves in {frames} frame{'s' if frames > 1 else ''}")
 
     def take(self, body: dict | None) -> dict | None:
         """Record this frame's subject (None: not found) and return it."""
@@ -159,21 +178,32 @@ def follow_subjects(followers: Sequence[SubjectFollower], bodies: Sequence[dict]
     return [f.take(b) for f, b in zip(followers, found, strict=True)]
 
 
+def stage_follower(player: int | None = None, follow_m: float = SUBJECT_FOLLOW_M,
+                   step_m: float | None = SUBJECT_STEP_M) -> SubjectFollower:
+    """The follower of ``reconstruct`` and ``muscle capture`` (rel7a): the id holder only within the subject's reach
+    (``SUBJECT_JUMP_M`` + ``step_m`` per missed frame, the mirror's speed limit), and an id holder refused for its
+    distance is another person from then on (followed as one while it stays), so a lost subject's id given to a
+    bystander who was not tracked the frame before is never taken, however long the subject stays lost. Before, these
+    stages took the id holder at any distance (``step_m`` None). ``step_m`` None: that old rule."""
+    return SubjectFollower(player, follow_m, step_m, jumped_is_other=step_m is not None)
+
+
 def follow_subject(bodies_by_frame: Iterable[Sequence[dict]], player: int | None = None,
-                   follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None) -> Iterator[dict | None]:
+                   follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = SUBJECT_STEP_M,
+                   ) -> Iterator[dict | None]:
     """The subject's body in each frame of ``bodies_by_frame`` (each a list of bodies, :func:`frame_bodies`),
     lazily: frames are read only as far as the caller iterates. ``player``: the subject's id; None chooses it at the
     first frame with a body (:func:`first_player`). A frame yields the body nearest the subject's last joints within
     ``follow_m`` (:func:`body_distance_m`), whose id the subject keeps from then on, else the body holding the
-    subject's id (within the ``step_m`` reach when given, :class:`SubjectFollower`), otherwise None (the subject is
-    not in the frame)."""
-    follower = SubjectFollower(player, follow_m, step_m)
+    subject's id within the subject's reach (:func:`stage_follower`; ``step_m`` None: at any distance), otherwise
+    None (the subject is not in the frame)."""
+    follower = stage_follower(player, follow_m, step_m)
     for bodies in bodies_by_frame:
         yield follower.follow(bodies)
 
 
 def subject_players(bodies_by_frame: Iterable[Sequence[dict]], player: int | None = None,
-                    follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None) -> list[int | None]:
+                    follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = SUBJECT_STEP_M) -> list[int | None]:
     """The subject's player id in each frame (:func:`follow_subject`; None where the subject is not tracked)."""
     return [None if body is None else body["player"]
             for body in follow_subject(bodies_by_frame, player, follow_m, step_m)]
@@ -189,13 +219,19 @@ def subject_body(frame, player: int | None) -> dict | None:
 
 
 def session_subject(session, frame_ids: Sequence[int], player: int | None = None,
-                    step_m: float | None = None) -> dict[int, int | None]:
-    """``{frame id: the subject's player id}`` over a run's frames (:func:`subject_players`, read from each frame's
+                    step_m: float | None = SUBJECT_STEP_M, reasons: dict | None = None) -> dict[int, int | None]:
+    """``{frame id: the subject's player id}`` over a run's frames (:func:`stage_follower`, read from each frame's
     ``kinect/joints``; None where the subject is absent). Computed once per run: a batch chunk that starts after a
-    second person came into view gets the run's subject, not the lowest id of its own first frame."""
-    ids = list(frame_ids)
-    return dict(zip(ids, subject_players((frame_bodies(session.frame(f)) for f in ids), player, step_m=step_m),
-                    strict=True))
+    second person came into view gets the run's subject, not the lowest id of its own first frame. ``reasons``: filled
+    with ``{frame: SubjectFollower.lost_reason()}`` where the subject is absent."""
+    follower = stage_follower(player, step_m=step_m)
+    out: dict[int, int | None] = {}
+    for f in frame_ids:
+        body = follower.follow(frame_bodies(session.frame(f)))
+        out[f] = None if body is None else body["player"]
+        if body is None and reasons is not None:
+            reasons[f] = follower.lost_reason()
+    return out
 
 
 def absent_frames(players: dict[int, int | None], session) -> list[int]:

@@ -116,6 +116,11 @@ def capture(
                                             "self-check finds it implausible (depth in another unit, the other arm "
                                             "facing the sensor, the arm out of the depth window); the verdict goes "
                                             "to OUT/plausibility.json"),
+    skip_bad_frames: bool = typer.Option(True, "--skip-bad-frames/--no-skip-bad-frames", help="skip a frame whose "
+                                         "depth image cannot be read or shows no arm, or whose tracker joints are "
+                                         "missing, with a warning (named in params.json skipped_frames, no mesh "
+                                         "there); refused beyond 25 % of the frames or 5 in a row at 30 fps. "
+                                         "--no-skip-bad-frames: the first bad frame refuses the capture"),
 ) -> None:
     """Capture the arm of a depth session (Arm-Muscle Capture §4-7): per-frame meshes, joint angles, shape.
 
@@ -159,6 +164,9 @@ def capture(
         if accept_implausible:
             raise InputError("--accept-implausible is for a single capture; a batch refuses an implausible "
                              "sequence in its report: capture that SESSION on its own to accept it")
+        if not skip_bad_frames:
+            raise InputError("--no-skip-bad-frames is for a single capture; a batch skips bad frames (named in each "
+                             "unit's params.json): capture that SESSION on its own to refuse them")
         _capture_batch(session_paths, out, model_path, mode, resolution, side, frames, shapes or None, scheduler,
                        workers, force, not no_sequence_fit, for_extension)
         return
@@ -168,16 +176,20 @@ def capture(
     check_new_output(out, "arm capture folder")
     result = capture_session_arm(session_paths[0], model_path, mode, resolution, side, frames,
                                  shapes[0] if shapes else None, sequence_fit=not no_sequence_fit,
-                                 for_extension=for_extension, accept_implausible=accept_implausible)
+                                 for_extension=for_extension, accept_implausible=accept_implausible,
+                                 skip_bad_frames=skip_bad_frames)
     fps = session_fps(session_paths[0])
     write_arm_capture(out, result, fps=fps)
+    for s in result.skipped:
+        typer.echo(f"warning: {s['file']}: frame {s['frame']} skipped ({s['why']}); no mesh for it", err=True)
     for line in (result.plausibility or {}).get("warnings", []):
         typer.echo(f"warning: {line}", err=True)
     if result.sex_fit is not None:
         e = result.sex_fit["energy_mm"]
         typer.echo(f"the subject's sex from the depth: {result.sex_fit['chosen']} (held-out depth energy as a man "
                    f"{e['male']:.3f} mm, as a woman {e['female']:.3f} mm; params.json sex_fit)")
-    typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}), {result.ms_per_frame:.0f} ms per frame")
+    gaps = f", {len(result.skipped)} skipped (params.json skipped_frames)" if result.skipped else ""
+    typer.echo(f"wrote {out}: {result.n_frames} frames ({mode}){gaps}, {result.ms_per_frame:.0f} ms per frame")
 
 
 def _check_frame_rates(session_paths) -> None:

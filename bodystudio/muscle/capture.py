@@ -587,6 +587,11 @@ class ArmCapture:
     plausibility: dict | None = None
     # the subject's sex chosen from the depth (no --shape, a model that knows women): :func:`sex_from_depth_energies`
     sex_fit: dict | None = None
+    # rel7a: each captured frame's position in the captured range (None: 0..T-1, nothing skipped), and the frames
+    # skipped as bad (:func:`read_arm_frames`): ``[{"frame", "position", "file", "why"}]``; a skipped frame has no
+    # mesh and no pose (never a neighbour's copy)
+    frame_positions: list | None = None
+    skipped: list = field(default_factory=list)
 
     @property
     def n_frames(self) -> int:
@@ -595,6 +600,11 @@ class ArmCapture:
     @property
     def ms_per_frame(self) -> float:
         return float(sum(self.timings_ms.values()) / max(self.n_frames, 1))
+
+    @property
+    def positions(self) -> list[int]:
+        """Each captured frame's position in the captured range (its mesh is ``meshes/{position:05d}.ply``)."""
+        return list(range(self.n_frames)) if self.frame_positions is None else [int(p) for p in self.frame_positions]
 
     def is_from(self, session) -> bool | None:
         """Whether ``session`` holds the recording this was captured from (its captured frames' depth files
@@ -641,7 +651,8 @@ def sequence_options(options: CaptureOptions, tracker_joints: np.ndarray) -> Cap
 def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, model=None,
                        options: CaptureOptions = CaptureOptions(), tracker_joints: np.ndarray | None = None,
                        frame_ids: list | None = None, known_shape=None, fps: float = CAPTURE_FPS,
-                       depth_sources: list[str] | None = None) -> ArmCapture:
+                       depth_sources: list[str] | None = None, frame_positions: list[int] | None = None,
+                       ) -> ArmCapture:
     """The Arm-Muscle Capture pipeline on depth maps (metres, 0 = none) of one depth ``camera``.
 
     ``tracker_joints`` (T, 3, 3): shoulder, elbow, wrist per frame from the body tracker (world). The
@@ -653,6 +664,11 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     ``fps``: the recording's frame rate; the options' temporal fields are times at 30 fps
     (:func:`options_at_frame_rate`; a rate below 10 fps is refused). ``depth_sources``: each depth map's file, named
     in the errors (default "depth frame N").
+    ``frame_positions``: each depth map's frame number in the recording (increasing) when bad frames were skipped
+    (:func:`read_arm_frames`, rel7a); the temporal filters then weigh neighbours by their distance in recorded frames
+    (Eq. 13-14's window, the refinement detail's, the pose smoothing, the sequence fit's second differences), the
+    previous-frame prior of the frame after a gap is weakened by the gap (a random walk's variance grows with it),
+    and that frame's non-rigid ICP starts from the mesh before the gap (logged). None: consecutive frames.
     """
     o = options_at_frame_rate(options, fps)
     if o.mode != "nicp" and model is None:
@@ -680,6 +696,15 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         base, J = template.vertices, template.joints
     adjacency = vertex_neighbourhoods(F, len(base), rings=2)
     ids = list(range(len(depths))) if frame_ids is None else list(frame_ids)
+    positions = frame_gaps = None
+    if frame_positions is not None:
+        positions = np.asarray(frame_positions, np.int64)
+        if positions.shape != (len(depths),) or np.any(np.diff(positions) < 1):
+            raise InputError(f"frame_positions: {len(depths)} increasing frame numbers, one per depth map")
+        frame_gaps = np.r_[1, np.diff(positions)]
+        if np.all(frame_gaps == 1):
+            positions = frame_gaps = None  # consecutive: the capture as without them, bit for bit
+    gap_kw = {} if positions is None else {"positions": positions}  # the steps' calls as before without a gap
 
     # Sec. 4: clean-up and point clouds of every frame (world coordinates).
     clouds = []
@@ -779,6 +804,9 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         meshes, kept, model_meshes, poses = list(nicp_meshes), list(kept_masks), [], []
         for j in range(n_frames):
             if j >= n_shape:
+                if frame_gaps is not None and frame_gaps[j] > 1:
+                    log.info("frame %s: non-rigid ICP starts from frame %s's model mesh, %d frames before (skipped "
+                             "frames between)", ids[j], ids[j - 1], frame_gaps[j])
                 system = arap_system(model_meshes[-1], F)
                 X, pairs = nonrigid_icp(system, F, model_meshes[-1], *clouds_t[j], C, arm, adjacency, o.nicp,
                                         tree=trees[j])
@@ -788,7 +816,9 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
             mm, pp = model_based_filtering(model, shape, root, meshes[j], base, W, kept[j], frames_t[j],
                                            J, o.norm_limit, o.refine_pose,
                                            None if tracker_t is None else tracker_t[j], o.tracker_pose_weight,
-                                           poses[-1] if poses else None, o.smooth_weight, o.huber_m)
+                                           poses[-1] if poses else None,
+                                           o.smooth_weight if frame_gaps is None else o.smooth_weight / frame_gaps[j],
+                                           o.huber_m)
             model_meshes.append(mm)
             poses.append(pp)
             if j >= n_shape - 1:
@@ -796,7 +826,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         if o.sequence_rounds > 0:
             t0 = time.perf_counter()
             poses, base, J = sequence_stage(model, template, shape, poses, frames_t, tracker_t, base, J, o,
-                                            known_shape)
+                                            known_shape, **gap_kw)
             model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
             timer.add("sequence_fit", t0)
         return meshes, kept, model_meshes, poses, shape, base, J
@@ -806,7 +836,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
         sexes = candidate_sexes(model, o, known_shape)
         runs = {sex: tracked(replace(shape, sex=sex)) for sex in sexes}
         if len(runs) > 1:  # the subject's sex from the depth: the capture as each sex, the one the depth prefers kept
-            energies = {sex: held_out_depth_energy_mm(model, r[3], frames_t, r[5], r[6], o)
+            energies = {sex: held_out_depth_energy_mm(model, r[3], frames_t, r[5], r[6], o, **gap_kw)
                         for sex, r in runs.items()}
             sex_fit = sex_from_depth_energies(energies, o.sex_margin_mm)
             log.info("the subject's sex from the depth: %s (held-out depth energy as a man %.3f, as a woman %.3f mm)",
@@ -824,7 +854,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     if model is not None and o.pose_sigma_frames > 0:
         t0 = time.perf_counter()
         poses = smooth_arm_poses(poses, o.pose_sigma_frames, degree=o.pose_smoothing_degree,
-                                 shoulder_degree=o.shoulder_smoothing_degree)
+                                 shoulder_degree=o.shoulder_smoothing_degree, **gap_kw)
         model_meshes = [skeleton_model_mesh(model, p, base, J, o.norm_limit) for p in poses]
         timer.add("model_filtering", t0)
     if model is None:
@@ -845,7 +875,7 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
             refine_trees = [cKDTree(P) for P, _ in refine_clouds]
             timer.add("depth", t0)
         out_t = _refinement(model_meshes, poses, refine_clouds, refine_trees, F, C, arm, adjacency, J, o, timer,
-                            camera=camera, similarity=S)
+                            camera=camera, similarity=S, **gap_kw)
     out = np.stack([apply_similarity(S, X) for X in out_t])
     stages = {"nicp": np.stack([apply_similarity(S, X) for X in nicp_meshes])}
     if model_meshes:
@@ -855,17 +885,36 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
     return ArmCapture(out, F, poses, shape, S, o.mode, template.key, timer.ms, ids, stages=stages,
                       joints=None if model is None else np.asarray(J, np.float64),
                       regressed_joints=None if model is None else np.asarray(model_joints(model, shape), np.float64),
-                      sex_fit=sex_fit)
+                      sex_fit=sex_fit, frame_positions=None if frame_positions is None else
+                      [int(p) for p in frame_positions])
+
+
+def every_nth_frame(n: int, stride: int, start: int = 0, positions: np.ndarray | None = None):
+    """The frames ``start, start + stride, ...`` of a sequence of ``n``: a slice, or with ``positions`` (the frames'
+    recorded numbers when frames were skipped, rel7a) the indices of the frames whose recorded number is
+    ``start`` modulo ``stride``, so a skipped frame drops out of the sample and the others stay the clean capture's
+    (a slice over the captured frames shifted every sample after a gap)."""
+    if positions is None:
+        return slice(start, None, stride)
+    return [k for k in range(n) if positions[k] % stride == start]
+
+
+def _pick(items, which):
+    """``items[which]`` for a slice, or the listed indices (a list or an array)."""
+    if isinstance(which, slice):
+        return items[which]
+    return items[np.asarray(which, np.int64)] if isinstance(items, np.ndarray) else [items[k] for k in which]
 
 
 def held_out_depth_energy_mm(model, poses: list[ArmPose], frames_t: list[DepthFrame], rest: np.ndarray,
-                              joints: np.ndarray, o: CaptureOptions) -> float:
+                              joints: np.ndarray, o: CaptureOptions, positions: np.ndarray | None = None) -> float:
     """The depth energy (``refine.depth_energy_mm``) of the model meshes on the frames the rest-shape fit leaves out
     (every ``o.body_rest_frame_stride``-th from its middle; all with a stride of 1), their grazing pairs dropped as in
     the sequence fit: the figure the rest-shape rounds keep their best by, here the evidence between two sexes."""
     stride = o.body_rest_frame_stride
-    held_out = slice(stride // 2, None, stride) if stride > 1 else slice(None)
-    return depth_energy_mm(model, poses[held_out], facing_frames(frames_t, o.sequence_min_facing_cos)[held_out], rest,
+    held_out = every_nth_frame(len(poses), stride, stride // 2, positions) if stride > 1 else slice(None)
+    return depth_energy_mm(model, _pick(poses, held_out), _pick(facing_frames(frames_t, o.sequence_min_facing_cos),
+                                                                held_out), rest,
                            joints, o.norm_limit, o.sequence_huber_m)
 
 
@@ -954,7 +1003,8 @@ def facing_frames(frames: list[DepthFrame], min_facing_cos: float) -> list[Depth
 
 def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], frames_t: list[DepthFrame],
                    tracker_t: np.ndarray | None, base: np.ndarray, J: np.ndarray, o: CaptureOptions,
-                   known_shape=None) -> tuple[list[ArmPose], np.ndarray, np.ndarray]:
+                   known_shape=None, positions: np.ndarray | None = None,
+                   ) -> tuple[list[ArmPose], np.ndarray, np.ndarray]:
     """Model-based tracking of the whole sequence (Sec. 6.2 over every frame) after the per-frame fit, in the
     template's space: the sequence fit, with the rest shape of ``o.personal_rounds`` / ``o.body_rest_shape``
     alternated with it. Returns the poses, the rest mesh and the rest joints the model meshes are built on."""
@@ -971,24 +1021,26 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
     rest_frames = facing_frames(frames_t, o.body_rest_min_facing_cos)
     frames_t = facing_frames(frames_t, o.sequence_min_facing_cos)
     best = None
-    held_out = slice(o.body_rest_frame_stride // 2, None, o.body_rest_frame_stride) if o.body_rest_frame_stride > 1 \
-        else slice(None)
+    stride = o.body_rest_frame_stride
+    held_out = every_nth_frame(len(poses), stride, stride // 2, positions) if stride > 1 else slice(None)
     for r in range(max(o.personal_rounds, body_rounds) + 1):
         # the depth's spread at the current poses (round 0: the per-frame stage's, on the projected rest arm)
         seq_tw = sequence_tracker_weight(o, model, poses, frames_t, base, J if r > 0 else J_model, tracker_t)
         if r > 0 and body_rounds > 0:  # poses -> the body model's rest shape and skeleton -> poses
-            sub = slice(None, None, o.body_rest_frame_stride)
+            sub = every_nth_frame(len(poses), o.body_rest_frame_stride, 0, positions)
             common = (o.body_rest_prior_weight, o.norm_limit, o.sequence_huber_m, o.body_rest_iterations)
             length = (None if known_shape is None else known_shape.arm_length_m, o.body_rest_arm_length_weight)
-            tracked = None if tracker_t is None else tracker_t[sub]
+            tracked = None if tracker_t is None else _pick(tracker_t, sub)
             rest_tw = seq_tw if o.body_rest_tracker_weight is None else o.body_rest_tracker_weight
             if o.body_rest_fit_poses:
                 body_x, shift, _ = fit_body_rest_shape_and_poses(
-                    space, model, poses[sub], rest_frames[sub], body_x, anchor, prior_mean, prior_sigma, *common,
+                    space, model, _pick(poses, sub), _pick(rest_frames, sub), body_x, anchor, prior_mean, prior_sigma,
+                    *common,
                     *length, tracked, rest_tw, o.body_rest_angle_damping)
             else:
                 body_x, shift = fit_body_rest_shape(
-                    space, model, poses[sub], rest_frames[sub], body_x, anchor, prior_mean, prior_sigma, *common,
+                    space, model, _pick(poses, sub), _pick(rest_frames, sub), body_x, anchor, prior_mean, prior_sigma,
+                    *common,
                     o.body_rest_fit_placement, *length, tracked, rest_tw)
             base, J_model = space.rest_and_joints(body_x, anchor)
             poses = [_shifted(p, shift) for p in poses]
@@ -1002,9 +1054,10 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
             o.sequence_depth_huber_only, rest=base, free_joints=o.sequence_free_joints,
             torso_pair_weight=o.sequence_torso_pair_weight,
             tracker_placement_weight=None if o.sequence_placement_prior_m <= 0 or tracker_t is None
-            else tracker_placement_prior_weight(tracker_t, o.sequence_placement_prior_m))
+            else tracker_placement_prior_weight(tracker_t, o.sequence_placement_prior_m),
+            **({} if positions is None else {"positions": positions}))
         if body_rounds > 0 and o.body_rest_keep_best:
-            energy = depth_energy_mm(model, poses[held_out], frames_t[held_out], base, J, o.norm_limit,
+            energy = depth_energy_mm(model, _pick(poses, held_out), _pick(frames_t, held_out), base, J, o.norm_limit,
                                      o.sequence_huber_m)
             log.info("rest-shape round %d: depth energy %.3f mm", r, energy)
             if best is not None and energy >= best[0]:
@@ -1014,13 +1067,14 @@ def sequence_stage(model, template: ArmTemplate, shape, poses: list[ArmPose], fr
 
 
 def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, joints, o: CaptureOptions, timer,
-                camera=None, similarity=None):
+                camera=None, similarity=None, positions=None):
     """Sec. 7 over the sequence: per-frame correspondences, Eq. 13-14 averaging, Sec. 7.2 weights, last ARAP.
 
     ``o.refine_visible_only`` (needs ``camera`` and the Sec. 5.1 ``similarity``): pairs of vertices the model mesh
     itself hides from the sensor are dropped (:func:`model_visible_vertices`). ``o.refine_unseen_hold``: the vertices
     with no pair that face away from the sensor (:func:`hold_seen_vertices`) are held to the model mesh
-    (``refine.unseen_hold_weights``).
+    (``refine.unseen_hold_weights``). ``positions``: the frames' recorded numbers when frames were skipped (the
+    windows then in recorded frames: :func:`refinement_windows`).
     """
     t0 = time.perf_counter()
     vecs, valid, seen = [], [], []
@@ -1044,7 +1098,12 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
     for i, M in enumerate(model_meshes):
         lo, hi = max(i - r, 0), min(i + r, n - 1)
         idx = list(range(lo, hi + 1))
-        if r == 1:  # the paper's i-1, i, i+1 (at a sequence end: the frame and its one neighbour)
+        if positions is not None:  # skipped frames (rel7a): the captured neighbours at their offsets in recorded
+            # frames (Eq. 14's weight falls with them: 0.14 at two frames, 0.01 at three); a wider window (faster than
+            # 30 fps) keeps those within its r recorded frames
+            idx = [j for j in idx if r == 1 or abs(positions[j] - positions[i]) <= r]
+            deltas = [int(positions[j] - positions[i]) for j in idx] if len(idx) > 1 else None
+        elif r == 1:  # the paper's i-1, i, i+1 (at a sequence end: the frame and its one neighbour)
             if len(idx) == 2:
                 idx = [i, hi if hi != i else lo]
             deltas = None
@@ -1066,8 +1125,15 @@ def _refinement(model_meshes, poses, clouds_t, trees, F, C, arm, adjacency, join
         g = np.exp(-(k ** 2) / (2.0 * o.detail_sigma_frames ** 2))
         smoothed = []
         for i in range(n):
-            idx = np.clip(i + k, 0, n - 1)
-            smoothed.append(model_meshes[i] + np.tensordot(g / g.sum(), D[idx], axes=1))
+            if positions is None:
+                idx, gi = np.clip(i + k, 0, n - 1), g
+            else:  # skipped frames: the offsets that land on a captured frame (beyond an end: the end, as above)
+                at = np.clip(positions[i] + k, positions[0], positions[-1])
+                j = np.searchsorted(positions, at)
+                j = np.minimum(j, n - 1)
+                here = positions[j] == at
+                idx, gi = j[here], g[here]
+            smoothed.append(model_meshes[i] + np.tensordot(gi / gi.sum(), D[idx], axes=1))
         out = smoothed
     timer.add("refinement", t0)
     return out
@@ -1095,29 +1161,223 @@ def model_visible_vertices(vertices: np.ndarray, faces: np.ndarray, camera, tole
     return visible_vertices(vertices, faces, camera, tolerance_m)
 
 
+#: rel7a: the share of a capture's frames that may be skipped as bad (:func:`read_arm_frames`); more, and the capture
+#: is refused. Chosen, not measured at that share: 1, 3 and a run of 5 bad frames in 200 of seq_501 captured the good
+#: frames within 0.08 mm (median) of the clean capture on them (docs/muscle.md, "Bad frames skipped (rel7a)"); the
+#: rest-shape fit samples every 4th recorded frame and the sequence fit's prior needs most of the recording.
+MAX_SKIPPED_FRACTION = 0.25
+#: ... and the longest run of consecutive bad frames, in seconds (at 30 fps: 5 frames). The pose smoothing's Gaussian
+#: (sigma 5 frames) and the sequence fit's second-difference prior bridge a gap this long on the arm's quasi-static
+#: motion (the measured run of 5: 2.016 mm against 2.084 on the same frames); longer was not measured and leaves the
+#: frame after it to start from a pose more than 1/6 s old.
+MAX_SKIPPED_RUN_S = 5.0 / CAPTURE_FPS
+
+
 def capture_arm_sequence(session, model, template: ArmTemplate, options: CaptureOptions = CaptureOptions(),
-                         frames: slice | None = None, known_shape=None) -> ArmCapture:
-    """Capture the arm of a Kinect session (``bodystudio.capture.session``), Sec. 4-7 of Arm-Muscle Capture."""
+                         frames: slice | None = None, known_shape=None, skip_bad_frames: bool = True) -> ArmCapture:
+    """Capture the arm of a Kinect session (``bodystudio.capture.session``), Sec. 4-7 of Arm-Muscle Capture.
+
+    ``skip_bad_frames`` (rel7a): a frame whose depth image cannot be read or shows no arm, or whose tracker joints
+    of the subject are missing, is skipped with a warning and listed in ``capture.skipped``
+    (:func:`read_arm_frames`); too many is refused. False: the first bad frame refuses the capture."""
     from bodystudio.capture.session import stream_fingerprint, stream_path
 
     sensor = session.kinect
     if sensor is None:
         raise SessionError(f"{session.path}: no Kinect calibration; the arm capture needs a depth session")
     fps = capture_frame_rate(session)  # before any frame is read: a rate the filters cannot serve is refused
-    ids = session.frame_ids[frames] if frames is not None else session.frame_ids
-    depths = []
-    for fid in ids:
-        d = session.frame(fid).kinect_depth_m
-        if d is None:
-            raise SessionError(f"{session.path}: frame {fid} has no Kinect depth image")
-        depths.append(d)
-    tracker = session_arm_tracker(session, ids, template.side)
-    sources = [Path(session.path) / stream_path("kinect_depth", fid) for fid in ids]
-    capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(ids), known_shape, fps,
-                                 depth_sources=sources)
+    ids = list(session.frame_ids[frames] if frames is not None else session.frame_ids)
+    try:
+        read = read_arm_frames(session, ids, template.side, options.depth, fps) if skip_bad_frames else None
+    except NoGoodFrameError:  # nothing to skip to: the capture as without skipping, with the first frame's own
+        read, skip_bad_frames = None, False  # refusal and advice (e.g. "move the subject to about 1 m")
+    if skip_bad_frames:
+        good, depths, tracker, skipped = read
+    else:
+        good, skipped, depths = ids, [], []
+        for fid in ids:
+            d = session.frame(fid).kinect_depth_m
+            if d is None:
+                raise SessionError(f"{session.path}: frame {fid} has no Kinect depth image")
+            depths.append(d)
+        tracker = session_arm_tracker(session, ids, template.side)
+    sources = [Path(session.path) / stream_path("kinect_depth", fid) for fid in good]
+    positions = [ids.index(fid) for fid in good] if skipped else None
+    capture = capture_arm_frames(depths, sensor.depth, template, model, options, tracker, list(good), known_shape,
+                                 fps, depth_sources=sources,
+                                 **({} if positions is None else {"frame_positions": positions}))
+    capture.skipped = skipped
     capture.session_path = str(Path(session.path).resolve())
-    capture.source_fingerprint = stream_fingerprint(session, "kinect_depth", ids)
+    capture.source_fingerprint = stream_fingerprint(session, "kinect_depth", good)
     return capture
+
+
+class NoGoodFrameError(SessionError):
+    """No frame of the capture is good (:func:`check_skipped_frames`): :func:`capture_arm_sequence` then refuses as
+    without skipping, with the first frame's own message and advice."""
+
+
+def _frame_problem(exc: Exception, path: Path) -> str:
+    """The why of a bad frame: the error's text without its leading file name (the record names the file)."""
+    text = str(exc)
+    return text[len(f"{path}: "):] if text.startswith(f"{path}: ") else text
+
+
+def read_arm_frames(session, ids: list, side: str, depth: DepthCleanupOptions = DepthCleanupOptions(),
+                    fps: float = CAPTURE_FPS) -> tuple[list, list[np.ndarray], np.ndarray | None, list[dict]]:
+    """The frames of ``ids`` the arm capture can use, the bad ones skipped (rel7a): ``(good ids, their depth maps
+    (metres), their tracker shoulder / elbow / wrist (T, 3, 3) or None, skipped)``.
+
+    A frame is bad when its depth image cannot be read (truncated, not 16-bit, none), is not the depth camera's
+    size, or shows fewer than ``depth.min_pixels`` pixels in the depth window (the arm left the view), or when the
+    subject's shoulder, elbow or wrist of ``side`` is missing or null in its joints file, or the subject is not
+    among its tracked people (:func:`session_arm_tracker_rows`); a session whose tracker gives no joints at all is
+    captured from the depth alone, as before. ``skipped``: ``[{"frame", "position" (in ``ids``), "file", "why"}]``,
+    each logged as a warning.
+
+    Refused (SessionError naming the first bad frame's file, the frames and the fix) when nothing is left, when more
+    than :data:`MAX_SKIPPED_FRACTION` of the frames are bad, or when a run of consecutive bad frames lasts longer
+    than :data:`MAX_SKIPPED_RUN_S` at ``fps``: the temporal filters cannot bridge it."""
+    from bodystudio.capture.session import stream_path
+    from bodystudio.errors import BodyStudioError
+    from bodystudio.muscle.depth import segment_by_distance
+
+    camera = session.kinect.depth
+    rows, tracker_problems = session_arm_tracker_rows(session, ids, side)
+    use_tracker = any(r is not None for r in rows.values())
+    problems: dict = {}
+    depths: dict = {}
+    for fid in ids:
+        path = Path(session.path) / stream_path("kinect_depth", fid)
+        try:
+            d = session.frame(fid).kinect_depth_m
+        except BodyStudioError as exc:
+            problems[fid] = (path, _frame_problem(exc, path))
+            continue
+        if d is None:
+            problems[fid] = (path, "no Kinect depth image in this frame")
+        elif hasattr(camera, "height") and d.shape != (camera.height, camera.width):
+            problems[fid] = (path, f"depth map is {d.shape[1]}x{d.shape[0]} but the depth camera is "
+                                   f"{camera.width}x{camera.height}")
+        elif np.count_nonzero(segment_by_distance(d, depth.near_m, depth.far_m)) < depth.min_pixels:
+            problems[fid] = (path, f"no arm in the {depth.near_m:g}-{depth.far_m:g} m depth window")
+        elif use_tracker and fid in tracker_problems:
+            problems[fid] = tracker_problems[fid]
+        else:
+            depths[fid] = d
+    skipped = [{"frame": int(fid), "position": k, "file": str(problems[fid][0]), "why": problems[fid][1]}
+               for k, fid in enumerate(ids) if fid in problems]
+    check_skipped_frames(skipped, len(ids), fps, session.path)
+    for s in skipped:
+        log.warning("%s: frame %d skipped: %s", s["file"], s["frame"], s["why"])
+    good = [fid for fid in ids if fid not in problems]
+    tracker = np.stack([rows[fid] for fid in good]) if use_tracker else None
+    return good, [depths[fid] for fid in good], tracker, skipped
+
+
+def _frame_ranges(frames: list[int]) -> str:
+    """``[3, 4, 5, 9]`` -> ``3-5, 9``."""
+    out, start = [], None
+    for k, f in enumerate(frames):
+        if start is None:
+            start = f
+        if k + 1 == len(frames) or frames[k + 1] != f + 1:
+            out.append(str(start) if start == f else f"{start}-{f}")
+            start = None
+    return ", ".join(out)
+
+
+def longest_run(positions: list[int]) -> tuple[int, int]:
+    """The longest run of consecutive numbers in the increasing ``positions``: ``(its length, its first)``;
+    ``(0, -1)`` when empty."""
+    best, first, start, n = (0, -1), None, None, 0
+    for k, p in enumerate(positions):
+        if k and p == positions[k - 1] + 1:
+            n += 1
+        else:
+            start, n = p, 1
+        if n > best[0]:
+            best = (n, start)
+    del first
+    return best
+
+
+def ids_at(skipped: list[dict], position: int) -> int:
+    """The frame id of the skipped record at ``position``."""
+    return next(s["frame"] for s in skipped if s["position"] == position)
+
+
+def check_skipped_frames(skipped: list[dict], n_frames: int, fps: float, session_path) -> None:
+    """Refuse (SessionError, one line) a capture whose skipped frames (:func:`read_arm_frames`) exceed the bounds:
+    every frame, more than :data:`MAX_SKIPPED_FRACTION`, or a run longer than :data:`MAX_SKIPPED_RUN_S`. The fix
+    names the first frames that keep within them (``--frames N``) where there are some."""
+    if not skipped:
+        return
+    positions = [s["position"] for s in skipped]
+    run, run_start = longest_run(positions)
+    max_run = max(1, int(np.floor(MAX_SKIPPED_RUN_S * fps + 1e-9)))
+    first = skipped[0]
+    what = (f"{first['file']}: frame {first['frame']} cannot be captured ({first['why']})"
+            + (f", nor {len(skipped) - 1} more of the {n_frames} frames (frames "
+               f"{_frame_ranges([s['frame'] for s in skipped])})" if len(skipped) > 1 else ""))
+    if len(skipped) == n_frames:
+        raise NoGoodFrameError(f"{what}: no frame of {session_path} can be captured")
+    too_many = len(skipped) > MAX_SKIPPED_FRACTION * n_frames
+    if not too_many and run <= max_run:
+        return
+
+    def fits(n):  # the first n frames within both bounds, with a good one
+        head = [p for p in positions if p < n]  # ... ending on a good frame
+        return (n - 1 not in head and len(head) <= MAX_SKIPPED_FRACTION * n
+                and longest_run(head)[0] <= max_run)
+
+    keep = next((n for n in range(n_frames - 1, 0, -1) if fits(n)), 0)
+    why = (f"bad frames: {len(skipped)} of {n_frames}, more than the {MAX_SKIPPED_FRACTION:.0%} the capture skips"
+           if too_many else f"{run} bad frames in a row from frame {ids_at(skipped, run_start)}, more than the "
+           f"{max_run} ({1000 * MAX_SKIPPED_RUN_S:.0f} ms) the temporal filters bridge")
+    fix = f"capture the first {keep} frames (--frames {keep}), or " if keep else ""
+    raise SessionError(f"{what}; {why}: {fix}re-export the bad frames")
+
+
+def session_arm_tracker_rows(session, ids, side: str) -> tuple[dict, dict]:
+    """The body tracker's shoulder, elbow and wrist of ``side`` of the capture's subject (the first frame's person,
+    followed by its joints: :func:`bodystudio.capture.subject.follow_subject`) per frame of ``ids``:
+    ``({frame: (3, 3) or None}, {frame: (joints file, why)})``, the second for the frames without them (the joints
+    missing or null, or the subject not tracked while someone else is)."""
+    from bodystudio.capture.session import stream_path
+    from bodystudio.capture.subject import frame_bodies, stage_follower
+
+    want = TRACKER_JOINTS[side]
+    rows, problems = {}, {}
+    follower = stage_follower()
+    for fid in ids:
+        path = Path(session.path) / stream_path("kinect_joints", fid)
+        try:
+            bodies = frame_bodies(session.frame(fid))
+        except Exception as exc:  # an unreadable joints file: this frame's problem
+            from bodystudio.errors import BodyStudioError
+
+            if not isinstance(exc, BodyStudioError):
+                raise
+            rows[fid], problems[fid] = None, (path, _frame_problem(exc, path))
+            follower.follow([])
+            continue
+        joints = follower.follow(bodies)
+        arm = None
+        if joints is not None and all(n in joints["names"] for n in want):
+            arm = np.asarray(joints["positions"], np.float64)[[joints["names"].index(n) for n in want]]
+        if arm is None or not np.all(np.isfinite(arm)):
+            rows[fid] = None
+            if joints is None and bodies:
+                players = sorted(b["player"] for b in bodies)
+                problems[fid] = (path, f"the capture's subject is not tracked (the tracker reports player"
+                                       f"{'s' if len(players) > 1 else ''} {', '.join(map(str, players))}: another "
+                                       f"person{follower.lost_reason()})")
+            else:
+                problems[fid] = (path, f"the body tracker's {', '.join(want)} are missing or null")
+        else:
+            rows[fid] = arm
+    return rows, problems
 
 
 def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
@@ -1180,7 +1440,7 @@ def session_arm_choice(session, resolution: str | None = None, side: str | None 
 def capture_session_arm(session_path: str | Path, model_path: str | Path | None, mode: str = "full",
                         resolution: str | None = None, side: str | None = None, frames: int | None = None,
                         known_shape=None, sequence_fit: bool = True, for_extension: bool = False,
-                        accept_implausible: bool = False) -> ArmCapture:
+                        accept_implausible: bool = False, skip_bad_frames: bool = True) -> ArmCapture:
     """``bodystudio muscle capture SESSION``: the session opened, the arm template chosen
     (:func:`session_arm_choice`), the model read, the first ``frames`` frames captured (Sec. 4-7).
     ``for_extension``: the capture setting for extending a model (:data:`EXTENSION_CAPTURE`).
@@ -1190,7 +1450,9 @@ def capture_session_arm(session_path: str | Path, model_path: str | Path | None,
 
     The capture checks itself (:mod:`bodystudio.muscle.plausibility`): depth in another unit, the other arm
     facing the sensor, the arm beyond the depth window, a fit that does not explain the depth raise
-    ImplausibleResultError unless ``accept_implausible``; the verdict is kept in ``capture.plausibility``."""
+    ImplausibleResultError unless ``accept_implausible``; the verdict is kept in ``capture.plausibility``.
+    ``skip_bad_frames``: a bad frame is skipped and listed (:func:`read_arm_frames`) rather than refusing the
+    capture (rel7a)."""
     from bodystudio.body import build_body
     from bodystudio.capture.session import open_session
     from bodystudio.muscle.arm import arm_template
@@ -1220,7 +1482,8 @@ def capture_session_arm(session_path: str | Path, model_path: str | Path | None,
     selected = slice(0, frames) if frames is not None else slice(None)
     before = check_before_capture(session, session.frame_ids[selected], side, accept_implausible)
     capture = capture_arm_sequence(session, model, template, options,
-                                   frames=None if frames is None else slice(0, frames), known_shape=known_shape)
+                                   frames=None if frames is None else slice(0, frames), known_shape=known_shape,
+                                   **({} if skip_bad_frames else {"skip_bad_frames": False}))
     capture.plausibility = check_after_capture(capture, session, template, model, before, accept_implausible,
                                                shape_given=known_shape is not None)
     return capture
@@ -1241,8 +1504,10 @@ def write_arm_capture_files(path_for: Callable[[str], Path], capture: ArmCapture
     from bodystudio.fileio import write_json
     from bodystudio.muscle.export import write_morph_glb, write_ply_sequence
 
-    write_ply_sequence(path_for("meshes"), capture.vertices, capture.faces)
-    write_morph_glb(path_for("arm.glb"), capture.vertices, capture.faces, fps=fps)
+    positions = None if capture.frame_positions is None else capture.positions
+    gap_kw = {} if positions is None else {"positions": positions}
+    write_ply_sequence(path_for("meshes"), capture.vertices, capture.faces, **gap_kw)
+    write_morph_glb(path_for("arm.glb"), capture.vertices, capture.faces, fps=fps, **gap_kw)
     s, R, t = capture.similarity
     params = {"mode": capture.mode, "template_key": capture.template_key, "frame_ids": list(capture.frame_ids),
               "shape": None if capture.shape is None else _shape_dict(capture.shape),
@@ -1254,12 +1519,17 @@ def write_arm_capture_files(path_for: Callable[[str], Path], capture: ArmCapture
               "regressed_joints": None if capture.regressed_joints is None
               else np.asarray(capture.regressed_joints, float).tolist(),
               "sex_fit": capture.sex_fit}
+    if capture.skipped or capture.frame_positions is not None:  # rel7a: the frames skipped as bad, no mesh there
+        params["frame_positions"] = capture.positions
+        params["skipped_frames"] = list(capture.skipped)
     write_json(path_for("params.json"), params)
     if capture.plausibility is not None:
         write_json(path_for("plausibility.json"), capture.plausibility)
-    write_json(path_for("manifest.json"), {"format": "bodystudio-arm-capture", "version": 1,
-                                           "n_frames": capture.n_frames, "meshes": "meshes/NNNNN.ply",
-                                           "params": "params.json"})
+    manifest = {"format": "bodystudio-arm-capture", "version": 1, "n_frames": capture.n_frames,
+                "meshes": "meshes/NNNNN.ply", "params": "params.json"}
+    if positions is not None:  # the mesh files are numbered by recorded frame; a skipped frame has none
+        manifest["missing_meshes"] = sorted(set(range(positions[-1] + 1)) - set(positions))
+    write_json(path_for("manifest.json"), manifest)
 
 
 def _shape_dict(shape) -> dict:
@@ -1299,7 +1569,16 @@ def load_arm_capture(folder: str | Path) -> ArmCapture:
     try:
         params = json.loads(p.read_text())
         n = int(json.loads((folder / "manifest.json").read_text())["n_frames"])
-        meshes = [load_mesh(folder / "meshes" / f"{k:05d}.ply") for k in range(n)]
+        positions = params.get("frame_positions")
+        if positions is not None:
+            positions = [int(k) for k in positions]
+            if len(positions) != n or any(b <= a for a, b in zip(positions, positions[1:], strict=False)):
+                raise ValueError(f"frame_positions: {n} increasing frame numbers expected")
+        skipped = params.get("skipped_frames") or []
+        if not isinstance(skipped, list) or not all(isinstance(x, dict) and {"frame", "file", "why"} <= set(x)
+                                                    for x in skipped):
+            raise ValueError("skipped_frames is not a list of {frame, file, why} records")
+        meshes = [load_mesh(folder / "meshes" / f"{k:05d}.ply") for k in (positions or range(n))]
         sim = params["similarity"]
         S = (float(sim["scale"]), np.asarray(sim["R"], float).reshape(3, 3), np.asarray(sim["t"], float).reshape(3))
         poses = [None if d is None else ArmPose.from_dict(d, str(p)) for d in params["poses"]]
@@ -1323,7 +1602,7 @@ def load_arm_capture(folder: str | Path) -> ArmCapture:
     return ArmCapture(V, F, poses, shape, S, params.get("mode", "full"), params.get("template_key", ""),
                       dict(params.get("timings_ms", {})), list(params.get("frame_ids", range(n))),
                       params.get("session"), joints=joints, source_fingerprint=params.get("session_fingerprint"),
-                      regressed_joints=regressed, sex_fit=sex_fit)
+                      regressed_joints=regressed, sex_fit=sex_fit, frame_positions=positions, skipped=skipped)
 
 
 __all__ = ["CAPTURE_FPS", "EXTENSION_CAPTURE", "MIN_CAPTURE_FPS", "MODES", "ArmCapture", "CaptureOptions",

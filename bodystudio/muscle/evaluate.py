@@ -67,8 +67,10 @@ def _true_joints(template: ArmTemplate, pose: ArmPose) -> np.ndarray:
 
 
 def score_arm_sequence(estimate: np.ndarray, truth: np.ndarray, template: ArmTemplate, visible: np.ndarray,
-                       true_joints: np.ndarray) -> dict:
-    """Error figures of an estimated sequence (T, n, 3) against the truth (T, n, 3), both in metres."""
+                       true_joints: np.ndarray, positions: list[int] | None = None) -> dict:
+    """Error figures of an estimated sequence (T, n, 3) against the truth (T, n, 3), both in metres. ``positions``:
+    the frames' recorded numbers when frames were skipped (rel7a); the jitter then counts only three consecutive
+    recorded frames (an acceleration across a gap is no frame-to-frame jitter)."""
     X = np.asarray(estimate, np.float64)
     G = np.asarray(truth, np.float64)
     if X.shape != G.shape:
@@ -87,9 +89,13 @@ def score_arm_sequence(estimate: np.ndarray, truth: np.ndarray, template: ArmTem
     surf = np.concatenate([surface_distances(x, g, template.faces, arm) for x, g in zip(X, G, strict=True)]) * 1000.0
     out["surface_median_mm"] = float(np.median(surf))
     out["surface_p90_mm"] = float(np.percentile(surf, 90))
-    if len(X) >= 3:
-        acc = np.linalg.norm(X[2:] - 2 * X[1:-1] + X[:-2], axis=2)[:, arm].mean()
-        acc_true = np.linalg.norm(G[2:] - 2 * G[1:-1] + G[:-2], axis=2)[:, arm].mean()
+    triple = np.ones(max(len(X) - 2, 0), bool)
+    if positions is not None and len(X) >= 3:
+        p = np.asarray(positions)
+        triple = (p[1:-1] - p[:-2] == 1) & (p[2:] - p[1:-1] == 1)
+    if len(X) >= 3 and triple.any():
+        acc = np.linalg.norm(X[2:] - 2 * X[1:-1] + X[:-2], axis=2)[triple][:, arm].mean()
+        acc_true = np.linalg.norm(G[2:] - 2 * G[1:-1] + G[:-2], axis=2)[triple][:, arm].mean()
         out["jitter_mm"] = 1000.0 * float(acc - acc_true)
     else:
         out["jitter_mm"] = float("nan")
@@ -141,9 +147,14 @@ def evaluate_arm_capture(capture, session, template: ArmTemplate) -> dict:
         raise InputError(f"capture is on template {capture.template_key}, the session's template is "
                          f"{template.key}; capture with the session's resolution and side")
     G, vis, joints = session_ground_truth(session, template, list(capture.frame_ids))
-    out = score_arm_sequence(capture.vertices, G, template, vis, joints)
+    skipped = list(getattr(capture, "skipped", None) or [])
+    out = score_arm_sequence(capture.vertices, G, template, vis, joints,
+                             None if getattr(capture, "frame_positions", None) is None else capture.positions)
     out["ms_per_frame"] = capture.ms_per_frame
     out["mode"] = capture.mode
+    if skipped:  # rel7a: the figures are over the captured frames; the skipped ones are named
+        out["n_skipped"] = len(skipped)
+        out["skipped_frames"] = [int(s["frame"]) for s in skipped]
     return out
 
 

@@ -66,18 +66,24 @@ def _validate_sequence(frames: np.ndarray, faces: np.ndarray, fps: float) -> tup
     return frames, faces.astype(np.int64)
 
 
-def one_hot_weights_track(n_frames: int, fps: float = DEFAULT_FPS) -> tuple[np.ndarray, np.ndarray]:
-    """Key times ``k / fps`` and the one-hot weights of frame ``k`` at key ``k``: ``((T,), (T, T))``."""
-    return np.arange(n_frames, dtype=np.float32) / np.float32(fps), np.eye(n_frames, dtype=np.float32)
+def one_hot_weights_track(n_frames: int, fps: float = DEFAULT_FPS,
+                          positions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Key times ``k / fps`` and the one-hot weights of frame ``k`` at key ``k``: ``((T,), (T, T))``. ``positions``:
+    each frame's number in the recording when frames were skipped (rel7a): its key at ``position / fps``, so the
+    animation keeps the recording's timing (a player blends the two frames around a gap)."""
+    k = np.arange(n_frames) if positions is None else np.asarray(positions)
+    return k.astype(np.float32) / np.float32(fps), np.eye(n_frames, dtype=np.float32)
 
 
 def write_morph_glb(path: str | Path, frames: np.ndarray, faces: np.ndarray, fps: float = DEFAULT_FPS,
-                    colors: np.ndarray | None = None, name: str = "arm", normals: bool = True) -> None:
+                    colors: np.ndarray | None = None, name: str = "arm", normals: bool = True,
+                    positions: list[int] | None = None) -> None:
     """Write a sequence of meshes in one topology as a glTF 2.0 binary with morph-target animation (atomically).
 
     ``frames`` (T, n, 3) metres, y-up (glTF's frame); ``faces`` (m, 3); ``colors`` optional (n, 3) uint8
     vertex colours of the base mesh. ``normals`` adds per-target normal displacements (correct shading
-    of the bulges in players that use them; doubles the size).
+    of the bulges in players that use them; doubles the size). ``positions``: each frame's number in the recording
+    (increasing) when frames were skipped: its key time and target name (:func:`one_hot_weights_track`).
     """
     import pygltflib as g
 
@@ -124,10 +130,11 @@ def write_morph_glb(path: str | Path, frames: np.ndarray, faces: np.ndarray, fps
                                    g.VEC3, g.ARRAY_BUFFER)
         targets.append(target)
     indices = add(faces.astype(np.uint32).ravel(), g.UNSIGNED_INT, g.SCALAR, g.ELEMENT_ARRAY_BUFFER)
-    times, weights = one_hot_weights_track(T, fps)
+    numbers = _frame_positions(positions, T)
+    times, weights = one_hot_weights_track(T, fps, numbers)
     t_acc = add(times, g.FLOAT, g.SCALAR, None, minmax=True)
     w_acc = add(weights.ravel(), g.FLOAT, g.SCALAR, None)
-    names = [f"frame_{k:05d}" for k in range(T)]
+    names = [f"frame_{k:05d}" for k in numbers]
     prim = g.Primitive(attributes=attrs, indices=indices, material=0, targets=targets)
     gltf = g.GLTF2(
         asset=g.Asset(version="2.0", generator="bodystudio muscle"),
@@ -188,15 +195,27 @@ def read_morph_glb(path: str | Path) -> MorphSequence:
     return MorphSequence(base, faces, targets, times, weights, names)
 
 
-def write_ply_sequence(folder: str | Path, frames: np.ndarray, faces: np.ndarray) -> list[Path]:
+def _frame_positions(positions, n_frames: int) -> list[int]:
+    if positions is None:
+        return list(range(n_frames))
+    out = [int(p) for p in positions]
+    if len(out) != n_frames or any(b <= a for a, b in zip(out, out[1:], strict=False)) or (out and out[0] < 0):
+        raise InputError(f"frame positions {out[:5]}...: one increasing number >= 0 per frame ({n_frames})")
+    return out
+
+
+def write_ply_sequence(folder: str | Path, frames: np.ndarray, faces: np.ndarray,
+                       positions: list[int] | None = None) -> list[Path]:
     """Write frame ``k`` as ``folder/NNNNN.ply`` (one topology, atomically per file); returns the paths.
+    ``positions``: each frame's number in the recording when frames were skipped (rel7a): the file of a skipped frame
+    is absent, so a mesh is never taken for its neighbour's frame.
 
     Whole-sequence atomicity is the caller's: write into a staging folder and rename it.
     """
     frames, faces = _validate_sequence(frames, faces, DEFAULT_FPS)
     folder = Path(folder)
     paths = []
-    for k, V in enumerate(frames):
+    for k, V in zip(_frame_positions(positions, len(frames)), frames, strict=True):
         p = folder / f"{k:05d}.ply"
         save_mesh(p, Mesh(V, faces))
         paths.append(p)

@@ -219,16 +219,26 @@ def session_checks(session, frame_ids: list, side: str) -> dict:
     if session.kinect is None:
         return {}
     from bodystudio.capture.subject import follow_subject, frame_bodies
+    from bodystudio.errors import BodyStudioError
 
     camera = session.kinect.depth
     ratios, geometry = [], {}
     frames = [session.frame(fid) for fid in frame_ids[:RATIO_FRAMES]]
+
+    def readable(read):  # a bad frame is the capture's to skip and name (rel7a), not these checks' to refuse
+        try:
+            return read()
+        except BodyStudioError:
+            return None
+
     # the capture's person (the first frame's, followed: capture.session_arm_tracker)
-    for frame, joints in zip(frames, follow_subject(frame_bodies(f) for f in frames), strict=True):
+    bodies = [readable(lambda f=f: frame_bodies(f)) or [] for f in frames]
+    for frame, joints in zip(frames, follow_subject(bodies), strict=True):
         mine = tracked_arm(joints, side)
-        if mine is None or frame.kinect_depth_m is None:
+        depth = None if mine is None else readable(lambda f=frame: f.kinect_depth_m)
+        if mine is None or depth is None or depth.shape != (camera.height, camera.width):
             continue
-        ratios.extend(depth_to_tracker_ratio(frame.kinect_depth_m, camera, mine).tolist())
+        ratios.extend(depth_to_tracker_ratio(depth, camera, mine).tolist())
         if not geometry:
             for s in ("left", "right"):
                 J = tracked_arm(joints, s)

@@ -448,7 +448,8 @@ def model_based_filtering(model, shape, root: np.ndarray, deformed: np.ndarray, 
 
 
 def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: int | None = None,
-                     degree: int = 0, shoulder_degree: int | None = None) -> list[ArmPose]:
+                     degree: int = 0, shoulder_degree: int | None = None,
+                     positions: np.ndarray | None = None) -> list[ArmPose]:
     """Joint angles averaged over neighbouring frames with Gaussian weights (the Eq. 13-14 window on poses).
 
     Arm motion is quasi-static (Sec. 3), so frame-to-frame changes beyond a smooth trajectory are
@@ -464,11 +465,17 @@ def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: in
     window is cut short; a window of fewer than ``degree + 2`` frames falls back to the mean.
     ``shoulder_degree`` (None: ``degree``) is the shoulder rotation's own degree: the shoulder moves slowly, so the
     mean's bias is small there and its lower noise wins (the fifteenth pass).
+    ``positions`` (T,) ints: each pose's frame number in the recording when frames were skipped (rel7a: a bad frame
+    is no pose); the window and its weights are then in recorded frames, so a neighbour across a gap counts as far
+    as it lies in time. None: consecutive frames.
     """
     if sigma_frames <= 0 or len(poses) < 3:
         return list(poses)
     radius = max(2, int(np.ceil(2.0 * sigma_frames))) if radius is None else radius
     A = np.stack([p.angles for p in poses])
+    if positions is not None and np.any(np.diff(np.asarray(positions)) != 1):
+        return _smooth_arm_poses_at(poses, A, sigma_frames, radius, degree, shoulder_degree,
+                                    np.asarray(positions, np.int64))
     degrees = (degree if shoulder_degree is None else shoulder_degree, degree, degree)
 
     def window_row(k, w, d):
@@ -485,6 +492,27 @@ def smooth_arm_poses(poses: list[ArmPose], sigma_frames: float = 1.5, radius: in
         k = np.arange(lo, hi) - i
         w = np.exp(-(k ** 2) / (2.0 * sigma_frames ** 2))
         rows = {d: window_row(k, w, d) for d in set(degrees)}
+        out.append(ArmPose(p.root, np.stack([rows[d] @ A[lo:hi, j] for j, d in enumerate(degrees)])))
+    return out
+
+
+def _smooth_arm_poses_at(poses, A, sigma_frames, radius, degree, shoulder_degree, positions):
+    """:func:`smooth_arm_poses` over poses at recorded frame ``positions`` with gaps: the window holds the poses
+    within ``radius`` recorded frames, each weighted by its distance in frames."""
+    degrees = (degree if shoulder_degree is None else shoulder_degree, degree, degree)
+    out = []
+    for i, p in enumerate(poses):
+        lo = int(np.searchsorted(positions, positions[i] - radius, "left"))
+        hi = int(np.searchsorted(positions, positions[i] + radius, "right"))
+        k = (positions[lo:hi] - positions[i]).astype(np.float64)
+        w = np.exp(-(k ** 2) / (2.0 * sigma_frames ** 2))
+        rows = {}
+        for d in set(degrees):
+            if d > 0 and len(k) >= d + 2:
+                V = np.vander(k, d + 1, increasing=True)
+                rows[d] = np.linalg.solve(V.T @ (w[:, None] * V), (V * w[:, None]).T)[0]
+            else:
+                rows[d] = w / w.sum()
         out.append(ArmPose(p.root, np.stack([rows[d] @ A[lo:hi, j] for j, d in enumerate(degrees)])))
     return out
 
@@ -537,6 +565,7 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
                               free_joints: tuple[bool, bool, bool] = (True, True, True),
                               start_joints: np.ndarray | None = None, torso_pair_weight: float = 1.0,
                               tracker_placement_weight: float | None = None,
+                              positions: np.ndarray | None = None,
                               ) -> tuple[list[ArmPose], np.ndarray]:
     """:func:`fit_arm_sequence` with the subject's skeleton as shared unknowns of the whole sequence.
 
@@ -567,6 +596,10 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
     the per-frame noise informs the angles and bones only), and the placement is tied to the tracker's
     sequence-mean shoulder by one prior of this weight per coordinate (:func:`tracker_placement_prior_weight`
     gives it from the tracker's measured noise).
+    ``positions`` (T,) ints: each pose's recorded frame when frames were skipped (rel7a); the second-difference
+    prior is then the second divided difference over the real frame spacing (h1, h2), scaled by
+    ``2 / (h1 + h2) * sqrt((h1 + h2) / 2)`` (the spline's energy over the span), which is the plain
+    ``a[k-1] - 2 a[k] + a[k+1]`` for consecutive frames. None: consecutive frames.
     Returns the poses and the fitted rest joints (3, 3); the forearm twist of each frame is kept about the
     new forearm axis.
     """
@@ -660,7 +693,7 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
                         r.append(np.sqrt(tracker_weight) * (P - tj).ravel())
             a = x[n0:].reshape(T, 4)
             if T > 2:
-                r.append(lever * (a[:-2] - 2 * a[1:-1] + a[2:]).ravel())
+                r.append(lever * second_differences(a, positions).ravel())
             if s0:
                 r.append(np.sqrt(skeleton_prior_weight) * x[r0:n0])
             if mean_prior:  # the fit's posed shoulder (shared root: the same in every frame) vs the tracker's mean
@@ -671,6 +704,20 @@ def fit_arm_sequence_skeleton(model, shape, poses: list[ArmPose], frames: list[D
         scale = np.r_[np.full(r0, 0.01), np.full(s0, 0.01), np.full(4 * T, 0.05)]
         x = least_squares(fun, x, jac_sparsity=Jac, method="trf", x_scale=scale, max_nfev=max_nfev, **loss).x
     return unpack(x), skeleton(x)
+
+
+def second_differences(a: np.ndarray, positions: np.ndarray | None = None) -> np.ndarray:
+    """The sequence fit's second differences of per-frame values ``a`` (T, ...): ``a[k-1] - 2 a[k] + a[k+1]``
+    (T - 2, ...). ``positions`` (T,) the frames' recorded numbers when frames were skipped (rel7a): the second divided
+    difference over the real spacing h1, h2 times ``2 / (h1 + h2) * sqrt((h1 + h2) / 2)`` (a smoothing spline's
+    energy over the span), which is the plain one where the frames are consecutive; zero on a motion linear in time
+    across a gap, which the plain one would count as a kink."""
+    a = np.asarray(a, np.float64)
+    if positions is None or not np.any(np.diff(np.asarray(positions)) != 1):
+        return a[:-2] - 2 * a[1:-1] + a[2:]
+    h = np.diff(np.asarray(positions, np.float64)).reshape(-1, *([1] * (a.ndim - 1)))
+    h1, h2 = h[:-1], h[1:]
+    return 2.0 / (h1 + h2) * np.sqrt((h1 + h2) / 2.0) * ((a[2:] - a[1:-1]) / h2 - (a[1:-1] - a[:-2]) / h1)
 
 
 def tracker_placement_prior_weight(tracker_joints: np.ndarray, length_m: float) -> float:

@@ -249,7 +249,8 @@ def run_subject(session, selected, joints: str, player: int | None = None) -> di
 
     if joints != "tracker":
         return None
-    subject = session_subject(session, selected, player)
+    reasons: dict = {}
+    subject = session_subject(session, selected, player, reasons=reasons)
     gone = absent_frames(subject, session)
     if gone:
         chosen = next((p for p in subject.values() if p is not None), player)
@@ -261,7 +262,8 @@ def run_subject(session, selected, joints: str, player: int | None = None) -> di
         raise SessionError(f"{session.path / stream_path('kinect_joints', gone[0])}: the run's subject (player "
                            f"{chosen}, {how}) is not tracked in {len(gone)} of {len(selected)} frames (first "
                            f"{gone[0]}, where the tracker reports player{'s' if len(others) > 1 else ''} "
-                           f"{', '.join(map(str, others))}: another person); {fix}, choose the person with "
+                           f"{', '.join(map(str, others))}: another person{reasons.get(gone[0], '')}); {fix}, "
+                           "choose the person with "
                            "--player N, or use --joints hull")
     return subject
 

@@ -215,13 +215,16 @@ def _frames():
 
 
 def test_follow_subject_passes_follow_m_and_step_m():
-    assert [b is not None for b in S.follow_subject(_frames())] == [True, True, True]  # step_m None: the id rules
+    assert [b is not None for b in S.follow_subject(_frames(), step_m=None)] == [True, True, True]  # the id rules
+    # the default since rel7a: the stages' follower, the id holder within the subject's reach (stage_follower)
+    assert [b is not None for b in S.follow_subject(_frames())] == [True, False, False]
     assert [b is not None for b in S.follow_subject(_frames(), step_m=0.1)] == [True, False, False]
     far = [[_body(1, 0.0)], [_body(4, 0.5)]]
     assert list(S.follow_subject(far, follow_m=0.5))[1]["player"] == 4
     assert list(S.follow_subject(far))[1] is None
     assert S.subject_players(_frames(), step_m=0.1) == [1, None, None]
-    assert S.subject_players(_frames()) == [1, 1, 1]
+    assert S.subject_players(_frames(), step_m=None) == [1, 1, 1]
+    assert S.subject_players(_frames()) == [1, None, None]
     assert S.subject_players(far, 1, 0.5) == [1, 4]
 
 
@@ -229,5 +232,6 @@ def test_session_subject_passes_step_m():
     frames = {10 + k: SimpleNamespace(kinect_bodies=bodies) for k, bodies in enumerate(_frames())}
     session = SimpleNamespace(frame=lambda f: frames[f])
     assert S.session_subject(session, [10, 11, 12], step_m=0.1) == {10: 1, 11: None, 12: None}
-    assert S.session_subject(session, [10, 11, 12]) == {10: 1, 11: 1, 12: 1}
+    assert S.session_subject(session, [10, 11, 12], step_m=None) == {10: 1, 11: 1, 12: 1}
+    assert S.session_subject(session, [10, 11, 12]) == {10: 1, 11: None, 12: None}
     assert S.session_subject(session, [10, 11, 12], 1, 0.1) == {10: 1, 11: None, 12: None}

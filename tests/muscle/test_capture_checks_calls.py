@@ -37,7 +37,7 @@ def _stand_ins(monkeypatch, n_frames=5, gt_side="right", before_raises=False):
     monkeypatch.setattr(arm_mod, "arm_template", lambda body, side: f"{body}-{side}")
     monkeypatch.setattr(model_mod, "load_arm_model", lambda path, template: f"model-{path}")
 
-    def sequence(s, model, template, options, frames=None, known_shape=None):
+    def sequence(s, model, template, options, frames=None, known_shape=None, skip_bad_frames=True):
         log.append(("capture", (s, model, template), {"frames": frames, "known_shape": known_shape}))
         return SimpleNamespace(name="CAPTURE", plausibility=None)
 
@@ -109,8 +109,8 @@ def _capture(plaus):
 def test_the_verdict_is_written_as_plausibility_json_when_there_is_one(tmp_path, monkeypatch):
     import bodystudio.muscle.export as export
 
-    monkeypatch.setattr(export, "write_ply_sequence", lambda path, V, F: None)
-    monkeypatch.setattr(export, "write_morph_glb", lambda path, V, F, fps=30.0: None)
+    monkeypatch.setattr(export, "write_ply_sequence", lambda path, V, F, positions=None: None)
+    monkeypatch.setattr(export, "write_morph_glb", lambda path, V, F, fps=30.0, positions=None: None)
     verdict = {"ok": True, "warnings": ["w"], "problems": [], "figures": {"depth_to_tracker_ratio": 0.97}}
     cap_mod.write_arm_capture_files(lambda rel: tmp_path / "a" / rel, _capture(verdict))
     assert json.loads((tmp_path / "a" / "plausibility.json").read_text()) == verdict

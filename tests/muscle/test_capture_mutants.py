@@ -148,7 +148,9 @@ def test_capture_arm_sequence_keeps_the_fingerprint_of_the_frames_it_read(monkey
         np.zeros((len(depths), 1, 3)), np.zeros((0, 3)), [], None, (1.0, np.eye(3), np.zeros(3)), "nicp", "k"))
     session = SimpleNamespace(path="/tmp/fake-session", kinect=SimpleNamespace(depth="CAM"), frame_ids=[0, 1, 2, 3],
                               frame=lambda f: SimpleNamespace(kinect_depth_m=np.zeros((2, 2)), kinect_joints=None))
-    c = cap_mod.capture_arm_sequence(session, None, SimpleNamespace(side="left"), frames=slice(1, 3))
+    # the stand-in session has no depth camera to check the frames against: the path that reads every frame as it is
+    c = cap_mod.capture_arm_sequence(session, None, SimpleNamespace(side="left"), frames=slice(1, 3),
+                                     skip_bad_frames=False)
     assert c.source_fingerprint == "kinect_depth:[1, 2]" and asked == [("/tmp/fake-session", "kinect_depth", [1, 2])]
 
 
@@ -162,7 +164,8 @@ def test_the_capture_for_extension_sets_the_extension_options_and_needs_the_sequ
     monkeypatch.setattr(session_mod, "open_session", lambda p: session)
     seen = {}
     monkeypatch.setattr(cap_mod, "capture_arm_sequence",
-                        lambda s, model, template, options, frames=None, known_shape=None: seen.update(o=options)
+                        lambda s, model, template, options, frames=None, known_shape=None, skip_bad_frames=True:
+                        seen.update(o=options)
                         or SimpleNamespace())
     stub_capture_checks(monkeypatch)
     cap_mod.capture_session_arm("S", tiny_arm_model_path, mode="model", for_extension=True)

@@ -164,3 +164,54 @@ def run_bad(args, capsys, phrase):
     assert len(err.splitlines()) == 1 and "Traceback" not in err, err
     assert phrase in err, err
     return err
+
+
+@dataclass
+class Rel7aArm:
+    """rel7a's 8-frame 2k arm session ``clean``, a copy ``planted`` with two bad frames (frame 2's depth PNG truncated;
+    frame 5: the subject lost and a bystander, not tracked before, given its id 0.85 m aside; the subject back under
+    id 2 from frame 6 with the bystander beside it), and both captured without the model (``cap_clean``,
+    ``cap_planted``; ``planted_stderr``: what the planted capture printed there)."""
+
+    clean: Path
+    planted: Path
+    cap_clean: Path
+    cap_planted: Path
+    planted_stderr: str
+
+
+REL7A_BYSTANDER_DX = 0.85
+
+
+@pytest.fixture(scope="session")
+def rel7a_arm(tmp_path_factory) -> Rel7aArm:
+    import contextlib
+    import io
+    import json
+
+    from bodystudio.capture.faults import restamp
+    from bodystudio.muscle.synthetic import synth_arm_session
+
+    root = tmp_path_factory.mktemp("rel7a_arm")
+    clean, planted = root / "S", root / "P"
+    synth_arm_session(clean, subject_seed=501, n_frames=8, resolution="2k")
+    shutil.copytree(clean, planted)
+    rel = "kinect/depth/00002.png"
+    data = (planted / rel).read_bytes()
+    (planted / rel).write_bytes(data[: len(data) // 2])
+    restamp(planted, rel)
+    for f in range(5, 8):
+        rel = f"kinect/joints/{f:05d}.json"
+        joints = json.loads((planted / rel).read_text())
+        me = {k: joints[k] for k in ("names", "positions", "tracked")}
+        other = {"player": 1, "names": joints["names"], "tracked": joints["tracked"],
+                 "positions": [[x + REL7A_BYSTANDER_DX, y, z] for x, y, z in joints["positions"]]}
+        joints.update({k: other[k] for k in ("names", "positions", "tracked")})
+        joints["bodies"] = [other] if f == 5 else [other, {"player": 2, **me}]
+        (planted / rel).write_text(json.dumps(joints))
+        restamp(planted, rel)
+    _build(["muscle", "capture", clean, "--out", root / "cap_S", "--no-model"])
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        _build(["muscle", "capture", planted, "--out", root / "cap_P", "--no-model"])
+    return Rel7aArm(clean, planted, root / "cap_S", root / "cap_P", err.getvalue())

@@ -52,11 +52,17 @@ def _drop_wrist(data):
 
 @pytest.mark.parametrize("change", [_null_arm, _drop_wrist], ids=["null", "absent"])
 def test_arm_joints_lost_in_one_frame_are_refused(arm_session, tmp_path, capfd, change):
+    """Since rel7a a bad frame is skipped (tests/reliability/test_rel7a_*.py); --no-skip-bad-frames keeps this
+    refusal, and by default one bad frame of three is more than the 25 % the capture skips."""
     S, out = tmp_path / "S", tmp_path / "cap"
     _plant(arm_session, S, 1, change)
-    result = run_inprocess(["muscle", "capture", S, "--out", out, "--no-model"], capfd)
+    result = run_inprocess(["muscle", "capture", S, "--out", out, "--no-model", "--no-skip-bad-frames"], capfd)
     assert_clean_error(result, 2, "missing or null in 1 of 3 frames")
     assert "kinect/joints/00001.json" in result.stderr and "--frames 1" in result.stderr
+    assert not out.exists()
+    result = run_inprocess(["muscle", "capture", S, "--out", out, "--no-model"], capfd)
+    assert_clean_error(result, 2, "bad frames: 1 of 3, more than the 25% the capture skips")
+    assert "kinect/joints/00001.json: frame 1 cannot be captured" in result.stderr and "--frames 1" in result.stderr
     assert not out.exists()
 
 

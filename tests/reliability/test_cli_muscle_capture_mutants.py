@@ -45,6 +45,7 @@ class Spies:
                       "scheduler": [], "client": [], "batch": [], "cluster": [], "report": []}
         self.plausibility = {"warnings": ["depth in cm?", "arm cut"]}
         self.sex_fit = None
+        self.skipped = []  # the frames the capture skipped as bad (rel7a)
         self.frames = {}  # session path -> frame count (open_session); missing: unreadable
         self.errors = []
 
@@ -52,7 +53,7 @@ class Spies:
     def capture_session_arm(self, *args, **kwargs):
         self.calls["capture"].append((args, kwargs))
         self.result = SimpleNamespace(plausibility=self.plausibility, sex_fit=self.sex_fit, n_frames=7,
-                                      ms_per_frame=123.6)
+                                      ms_per_frame=123.6, skipped=self.skipped)
         return self.result
 
     def session_fps(self, path):
@@ -143,11 +144,11 @@ def test_single_capture_defaults(spies, tmp_path):
     assert res.exit_code == 0, (res.output, res.exception)
     ((args, kwargs),) = spies.calls["capture"]
     assert args == (tmp_path / "S", spies.model, "full", None, None, None, None)
-    assert kwargs == dict(sequence_fit=True, for_extension=False, accept_implausible=False)
+    assert kwargs == dict(sequence_fit=True, for_extension=False, accept_implausible=False, skip_bad_frames=True)
     import inspect
 
     api = inspect.signature(spies.real_capture).parameters
-    for name in ("sequence_fit", "for_extension", "accept_implausible"):
+    for name in ("sequence_fit", "for_extension", "accept_implausible", "skip_bad_frames"):
         assert kwargs[name] == api[name].default, name
     assert spies.calls["fps"] == [tmp_path / "S"]
     assert spies.calls["write"] == [(out, spies.result, 15.0)]
@@ -167,7 +168,7 @@ def test_single_capture_every_option(spies, tmp_path):
     ((args, kwargs),) = spies.calls["capture"]
     assert args[:6] == (tmp_path / "S", spies.model, "model", "2k", "right", 12)
     assert _same_shape(args[6], _shape(sex=0.0))
-    assert kwargs == dict(sequence_fit=False, for_extension=False, accept_implausible=True)
+    assert kwargs == dict(sequence_fit=False, for_extension=False, accept_implausible=True, skip_bad_frames=True)
     assert res.stdout == ("the subject's sex from the depth: female (held-out depth energy as a man 1.235 mm, as a "
                           f"woman 0.988 mm; params.json sex_fit)\nwrote {out}: 7 frames (model), 124 ms per frame\n")
     assert res.stderr == ""
@@ -185,7 +186,27 @@ def test_single_capture_no_model_and_for_extension(spies, tmp_path):
     assert res.exit_code == 0, (res.output, res.exception)
     args, kwargs = spies.calls["capture"][1]
     assert args[2] == "full" and _same_shape(args[6], _shape(20.0, 1.0, 2.3, 0.3, 1.0))
-    assert kwargs == dict(sequence_fit=True, for_extension=True, accept_implausible=False)
+    assert kwargs == dict(sequence_fit=True, for_extension=True, accept_implausible=False, skip_bad_frames=True)
+
+
+def test_single_capture_skipped_frames_and_no_skip_bad_frames(spies, tmp_path):
+    """rel7a: the skipped frames are warned about one line each (file, frame, why) and counted in the summary;
+    --no-skip-bad-frames reaches the API; a batch refuses it (each unit skips, as the default)."""
+    spies.plausibility = None
+    spies.skipped = [{"frame": 4, "position": 4, "file": "S/kinect/depth/00004.png", "why": "unreadable image"}]
+    res = _invoke([tmp_path / "S", "--out", tmp_path / "a", "--model", spies.model])
+    assert res.exit_code == 0, (res.output, res.exception)
+    assert res.stderr == "warning: S/kinect/depth/00004.png: frame 4 skipped (unreadable image); no mesh for it\n"
+    assert res.stdout == f"wrote {tmp_path / 'a'}: 7 frames (full), 1 skipped (params.json skipped_frames), 124 ms " \
+        "per frame\n"
+    res = _invoke([tmp_path / "S", "--out", tmp_path / "b", "--model", spies.model, "--no-skip-bad-frames"])
+    assert res.exit_code == 0, (res.output, res.exception)
+    assert spies.calls["capture"][1][1]["skip_bad_frames"] is False
+    res = _invoke([tmp_path / "S", tmp_path / "T", "--out", tmp_path / "c", "--model", spies.model,
+                   "--no-skip-bad-frames"])
+    _refused(res, "--no-skip-bad-frames is for a single capture; a batch skips bad frames (named in each unit's "
+                  "params.json): capture that SESSION on its own to refuse them")
+    assert len(spies.calls["capture"]) == 2 and not spies.calls["batch"]
 
 
 M = "{model}"
