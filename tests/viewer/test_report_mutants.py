@@ -81,6 +81,15 @@ def _page(text: str) -> _Node:
     return _Tree(text).root
 
 
+def _stray_text(root: _Node) -> list[str]:
+    """Text outside any heading, caption, cell or paragraph: the page's own words never float loose."""
+    loose = [p for p in root.parts if isinstance(p, str) and p.strip()]
+    for div in root.find_all("div"):
+        if div.attrs.get("class") in ("grid", "scroll"):  # the report's own containers (the 3D view's have words)
+            loose += [p for p in div.parts if isinstance(p, str) and p.strip()]
+    return loose
+
+
 def _tables(root: _Node) -> list[dict]:
     """Each ``<h3>title</h3><div><table>`` of the page: title, header cells, rows of (text, class)."""
     out = []
@@ -182,6 +191,14 @@ def test_tables_from_json_names_places_and_summarises_every_value():
     # a map of records that is empty or holds a non-record is walked, not tabled
     walked = rp.tables_from_json("w.json", {"m": {"a": {"x": 1}, "b": 2}})
     assert [(t.title, t.rows) for t in walked] == [("w.json / m", [["b", 2]]), ("w.json / m / a", [["x", 1]])]
+    # an empty record and a record holding a list are not records: walked, not tabled
+    assert rp.tables_from_json("w.json", {"m": {"a": {}, "b": {}}}) == []
+    walked = rp.tables_from_json("w.json", {"m": {"a": {"x": [1.0]}, "b": {"x": [2.0]}}})
+    assert [(t.title, t.rows) for t in walked] == [("w.json / m / a", [["x (n=1)", "mean 1, min 1, max 1"]]),
+                                                   ("w.json / m / b", [["x (n=1)", "mean 2, min 2, max 2"]])]
+    big = {f"c{k:03d}": {"v": k} for k in range(rp.MAX_ROWS + 5)}
+    (t,) = rp.tables_from_json("b.json", {"cams": big})
+    assert len(t.rows) == rp.MAX_ROWS and t.rows[-1] == [f"c{rp.MAX_ROWS - 1:03d}", rp.MAX_ROWS - 1]
 
 
 def test_series_and_frame_records_find_every_path():
@@ -195,7 +212,7 @@ def test_series_and_frame_records_find_every_path():
     per_frame = {"frames": [{"frame_id": 3, "e": 1.0}, {"frame_id": 4, "e": 2.0}],
                  "other": [{"frame": 1}, {"x": 2}],
                  "by_id": {"7": {"err": 1.0}, "12": {"err": 3.0}}, "bad": {"7": {"err": 1.0}, "x": {"err": 2}},
-                 "lists": {"1": [1.0], "2": [2.0]}}
+                 "lists": {"1": [1.0], "2": [2.0]}, "empty": {"1": {}, "2": {}}}
     found = rp._frame_records(per_frame)
     assert found == [("frames", per_frame["frames"]),
                      ("by_id", [{"frame": 7, "err": 1.0}, {"frame": 12, "err": 3.0}])]
@@ -689,6 +706,7 @@ def test_strips_and_scores_html_shows_each_score_and_the_raw_json():
     strips = [("x frame 1", _png(_strip(1))), ("x frame <2>", _png(_strip(2)))]
     scores = {"iou": 0.912345, "per": {"a": 1, "b": None}, "label": "ok"}
     root = _page("\n".join(rp._strips_and_scores_html("x <s>", strips, scores, "eval mirror")))
+    assert _stray_text(root) == []
     assert root.find_all("h3")[0].text() == "x <s>"
     figs = _figures(root)
     assert [(a, c) for a, _, c in figs] == [("x frame 1", "x frame 1"), ("x frame <2>", "x frame <2>")]
@@ -710,6 +728,7 @@ def test_mirror_and_garment_html_sections():
     m = [rp.MirrorSection("s1", [("s1 frame 1", _png(_strip(1)))], {"iou": 0.5}, "a <note>"),
          rp.MirrorSection("s2", [], None, None)]
     root = _page(rp._mirror_html(m))
+    assert _stray_text(root) == []
     assert [h.text() for h in root.find_all("h2")] == ["Mirror: before / after"]
     assert [h.text() for h in root.find_all("h3")] == ["s1", "s1: eval mirror", "s2"]
     metas = [p.text() for p in root.find_all("p") if p.attrs.get("class") == "meta"]
@@ -718,6 +737,7 @@ def test_mirror_and_garment_html_sections():
     g = [rp.GarmentSection("f1", [("f1 frame 0", _png(_strip(0)))], {"psnr": 30.0}, ["n1 <x>", "n2"]),
          rp.GarmentSection("f2", [], None, [])]
     root = _page(rp._garment_html(g))
+    assert _stray_text(root) == []
     assert [h.text() for h in root.find_all("h2")] == ["Garment: before / after"]
     assert [h.text() for h in root.find_all("h3")] == ["f1", "f1: eval garment", "f2"]
     notes = [p.text() for p in root.find_all("p") if p.attrs.get("class") == "meta garment-note"]
@@ -742,15 +762,28 @@ def _garment_stand_ins(monkeypatch, now_ids=None, fit_result=None, composite_res
             return dict(value)
         return call
 
-    monkeypatch.setattr(ge, "scored_run_ids", lambda fit_dir: dict(now_ids or {}))
-    monkeypatch.setattr(ge, "fit_errors", result(fit_result or {}))
-    monkeypatch.setattr(gc, "composite_errors", result(composite_result or {}))
+    def run_ids(fit_dir):
+        assert fit_dir.name == "fit"
+        return dict(now_ids or {})
+
+    def fit_errors(fit, session):
+        assert (fit, session) == ("F", "s")
+        return result(fit_result or {})()
+
+    def composite_errors(fit_dir, session):
+        assert (fit_dir.name, session) == ("fit", "s")
+        return result(composite_result or {})()
+
+    monkeypatch.setattr(ge, "scored_run_ids", run_ids)
+    monkeypatch.setattr(ge, "fit_errors", fit_errors)
+    monkeypatch.setattr(gc, "composite_errors", composite_errors)
 
 
 def _gview(tmp_path, saved=None, session="s", render="r", **extra):
     from types import SimpleNamespace
 
-    return SimpleNamespace(saved_scores=saved, fit_dir=tmp_path / "fit", session=session, fit="F", render=render,
+    fit_dir = tmp_path / "fit" if tmp_path.name != "fit" else tmp_path
+    return SimpleNamespace(saved_scores=saved, fit_dir=fit_dir, session=session, fit="F", render=render,
                            notes=extra.get("notes", []), has_source=extra.get("has_source", True),
                            frame_ids=extra.get("frame_ids", [0, 4]), strip_shape=extra.get("strip_shape", (6, 10, 3)))
 
@@ -814,7 +847,7 @@ def test_garment_sections_strips_notes_and_scores(monkeypatch, tmp_path):
         return ["P"]
 
     def missing(view, fid, panel_list):
-        assert panel_list == ["P"]
+        assert panel_list == ["P"] and view in views.values()
         return {0: ["truth"], 9: ["truth", "input"]}.get(fid, [])
 
     monkeypatch.setattr(vg, "open_garment_view", open_view)
@@ -822,7 +855,11 @@ def test_garment_sections_strips_notes_and_scores(monkeypatch, tmp_path):
     monkeypatch.setattr(vg, "input_frames", inputs)
     monkeypatch.setattr(vg, "before_after_panels", panels)
     monkeypatch.setattr(vg, "missing_panels", missing)
-    monkeypatch.setattr(vg, "before_after_strip", lambda view, fid, frames: _strip(fid, view.strip_shape))
+    def strip(view, fid, frames):
+        assert frames == ({} if view.frame_ids == [3] else {f: f"frame {f}" for f in view.frame_ids})
+        return _strip(fid, view.strip_shape)
+
+    monkeypatch.setattr(vg, "before_after_strip", strip)
     sections = rp.garment_sections(root)
     assert [s.name for s in sections] == ["a_ok", "b_broken", "c_big", "d_no_frames", "e_gone"]
     assert asked == [rp.GARMENT_FRAMES] * 4 and rp.GARMENT_FRAMES == 3
@@ -869,7 +906,7 @@ def _scene_stand_ins(monkeypatch, kinds):
         return _Plotter(str(name))
 
     monkeypatch.setattr(vv, "build_view", build)
-    monkeypatch.setattr(vv, "session_payload", lambda data, plotter: {"session": data})
+    monkeypatch.setattr(vv, "session_payload", lambda data, plotter: {"session": data, "plotter": plotter.name})
     monkeypatch.setattr(rp, "render_image", lambda plotter: f"still of {plotter.name}")
     monkeypatch.setattr(rp, "scene_payload", lambda plotter: {"scene": plotter.name})
     monkeypatch.setattr(rp, "_garment_scene", lambda root: kinds.get(("garment", str(root))))
@@ -893,17 +930,18 @@ def test_default_scene_picks_arm_garment_session_run_avatar_then_mesh(monkeypatc
         _write(sess / name / "session.json")
     kinds[str(sess / "a")] = "session"
     plotter, payload, still = rp.default_scene(sess)
-    assert (plotter.name, payload, still) == (str(sess / "a"), {"session": "data of a"}, f"still of {sess / 'a'}")
+    assert (plotter.name, payload, still) == (str(sess / "a"), {"session": "data of a", "plotter": str(sess / "a")},
+                                              f"still of {sess / 'a'}")
     run = tmp_path / "run"
     _write(run / "run.json")
     kinds[str(run)] = "mirror"
     plotter, payload, still = rp.default_scene(run)
     assert (plotter.name, payload, still) == (str(run), {"scene": str(run)}, f"still of {run}")
     meshes = tmp_path / "meshes"
-    for rel in ("b.ply", "a.obj", "c.GLB", "notes.txt", "cam_0/z.ply"):
+    for rel in ("b.ply", "a.obj", "c.GLB", "notes.txt", "x/cam_0/z.ply"):
         _write(meshes / rel)
     kinds[str(meshes / "c.GLB")] = "avatar"
-    kinds[str(meshes / "cam_0" / "z.ply")] = "avatar"
+    kinds[str(meshes / "x" / "cam_0" / "z.ply")] = "avatar"  # inside a camera stream: never picked
     plotter, payload, still = rp.default_scene(meshes)
     assert (plotter.name, payload, still) == (str(meshes / "c.GLB"), {"scene": str(meshes / "c.GLB")},
                                               f"still of {meshes / 'c.GLB'}")
@@ -945,13 +983,14 @@ def test_garment_scene_is_the_first_fit_that_opens(monkeypatch, tmp_path, caplog
         return plotter
 
     monkeypatch.setattr(vg, "scene_for_garment", scene)
-    monkeypatch.setattr(vg, "garment_payload", lambda view, plotter, dressed: {"v": view, "d": dressed})
+    monkeypatch.setattr(vg, "garment_payload", lambda view, plotter, dressed: {"v": view, "d": dressed,
+                                                                              "p": plotter.name})
     monkeypatch.setattr(rp, "render_image", lambda plotter: f"still {plotter.name}")
     with caplog.at_level(logging.WARNING, logger="bodystudio.viewer.report"):
         plotter, payload, still = rp._garment_scene(tmp_path)
     assert plotter.name == "view b / dressed view b" and still == "still view b / dressed view b"
-    assert payload == {"v": "view b", "d": "dressed view b"} and len(made) == 1
-    assert f"{tmp_path / 'a'}: no 3D view of the garment fit (damaged)" in caplog.text
+    assert payload == {"v": "view b", "d": "dressed view b", "p": plotter.name} and len(made) == 1
+    assert [r.getMessage() for r in caplog.records] == [f"{tmp_path / 'a'}: no 3D view of the garment fit (damaged)"]
     assert rp._garment_scene(tmp_path / "a") is None
 
 
@@ -991,6 +1030,7 @@ def test_write_report_page_holds_each_section_in_order_with_the_inputs_numbers(m
     assert seen == [("mirror", root), ("garment", root)]
     text = out.read_text()
     page = _page(text)
+    assert _stray_text(page.find_all("body")[0]) == []
     assert page.find_all("title")[0].text() == "My <report>" and page.find_all("h1")[0].text() == "My <report>"
     meta = [p.text() for p in page.find_all("p") if p.attrs.get("class") == "meta"][0]
     m = re.fullmatch(re.escape(str(root.resolve())) + r" \u00b7 (\d{4}-\d\d-\d\d \d\d:\d\d) UTC", meta)
