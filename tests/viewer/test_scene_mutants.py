@@ -359,3 +359,31 @@ def test_render_refuses_an_empty_or_a_blank_view(tmp_path):
         sc.save_screenshot(plotter, tmp_path / "x.png")
     assert not (tmp_path / "x.png").exists()
     plotter.close()
+
+
+def test_frame_slider_snaps_to_the_nearest_frame_and_keys_step_within_the_ends():
+    from types import SimpleNamespace
+
+    shown, values, keys, renders = [], [], {}, []
+    rep = SimpleNamespace(SetValue=values.append)
+    made = {}
+
+    def add_slider_widget(callback, rng, value, **kw):
+        made.update(callback=callback, rng=rng, value=value, kw=kw)
+        return SimpleNamespace(GetRepresentation=lambda: rep)
+
+    plotter = SimpleNamespace(add_slider_widget=add_slider_widget, add_key_event=lambda k, f: keys.__setitem__(k, f),
+                              render=lambda: renders.append(1))
+    assert sc.add_frame_slider(plotter, iter([10, 20, 40]), 1, shown.append) is plotter
+    assert (made["rng"], made["value"]) == ([10, 40], 20)
+    assert made["kw"] == dict(title="frame", fmt="%.0f", pointa=(0.25, 0.92), pointb=(0.75, 0.92), style="modern")
+    made["callback"](29.0)  # nearer 20 than 40
+    made["callback"](31.0)
+    assert shown == [1, 2]
+    keys["n"]()  # already at the last frame: stays
+    keys["p"]()
+    keys["p"]()
+    keys["p"]()  # at the first: stays
+    assert shown == [1, 2, 2, 1, 0, 0] and values == [40, 20, 10, 10] and len(renders) == 4
+    keys["n"]()
+    assert shown[-1] == 1 and values[-1] == 20
