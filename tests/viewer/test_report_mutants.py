@@ -196,6 +196,9 @@ def test_tables_from_json_names_places_and_summarises_every_value():
     walked = rp.tables_from_json("w.json", {"m": {"a": {"x": [1.0]}, "b": {"x": [2.0]}}})
     assert [(t.title, t.rows) for t in walked] == [("w.json / m / a", [["x (n=1)", "mean 1, min 1, max 1"]]),
                                                    ("w.json / m / b", [["x (n=1)", "mean 2, min 2, max 2"]])]
+    assert rp.tables_from_json("e.json", {"e": []}) == []  # an empty list is no series (no mean of nothing)
+    (t,) = rp.tables_from_json("o.json", {"cams": {"only": {"rms": 1.0}}})  # a map of one record is a table too
+    assert (t.title, t.columns, t.rows) == ("o.json / cams", ["name", "rms"], [["only", 1.0]])
     big = {f"c{k:03d}": {"v": k} for k in range(rp.MAX_ROWS + 5)}
     (t,) = rp.tables_from_json("b.json", {"cams": big})
     assert len(t.rows) == rp.MAX_ROWS and t.rows[-1] == [f"c{rp.MAX_ROWS - 1:03d}", rp.MAX_ROWS - 1]
