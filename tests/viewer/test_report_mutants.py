@@ -87,6 +87,9 @@ def _stray_text(root: _Node) -> list[str]:
     for div in root.find_all("div"):
         if div.attrs.get("class") in ("grid", "scroll"):  # the report's own containers (the 3D view's have words)
             loose += [p for p in div.parts if isinstance(p, str) and p.strip()]
+    for tag in ("table", "thead", "tbody", "tr", "ul", "body"):
+        for node in root.find_all(tag):
+            loose += [p for p in node.parts if isinstance(p, str) and p.strip()]
     return loose
 
 
@@ -230,6 +233,7 @@ def test_fmt_and_table_html_show_each_value_and_escape_text():
     assert rp._fmt("<a&b>") == "&lt;a&amp;b&gt;"
     t = rp.Table("T <1>", ["k<", "v"], [["a<b", 1.23456], ["n", float("nan")], ["i", 3], ["s", "x&y"]])
     text = rp._table_html(t)
+    assert _stray_text(_page(text)) == []
     (parsed,) = _tables(_page(text))
     assert parsed == {"title": "T <1>", "columns": ["k<", "v"],
                       "rows": [[("a<b", "t"), ("1.235", None)], [("n", "t"), ("n/a", None)],
@@ -278,6 +282,10 @@ def _capture_figures(monkeypatch) -> list[dict]:
             "xticklabels": [t.get_text() for t in ax.get_xticklabels()],
             "xtick_rotation": [t.get_rotation() for t in ax.get_xticklabels()][:1],
             "xtick_size": [t.get_fontsize() for t in ax.get_xticklabels()][:1],
+            "ytick_rotation": [t.get_rotation() for t in ax.get_yticklabels()][:1],
+            "ytick_size": [t.get_fontsize() for t in ax.get_yticklabels()][:1],
+            "line_colors": [tuple(np.round(__import__("matplotlib").colors.to_rgba(ln.get_color()), 3))
+                            for ln in ax.get_lines()],
             "xlabel": ax.get_xlabel(), "ylabel": ax.get_ylabel(), "yscale": ax.get_yscale(),
             "legend": None if ax.get_legend() is None else
             ([t.get_text() for t in ax.get_legend().get_texts()], ax.get_legend().get_texts()[0].get_fontsize()),
@@ -349,8 +357,11 @@ def test_convergence_plots_and_their_log_scale(monkeypatch):
     assert np.array_equal(x, [0, 1, 2, 3]) and np.array_equal(y, [100, 10, 2, 1]) and marker == "."
     assert drawn[0]["xlabel"] == "iteration" and drawn[0]["title"] == "solver convergence: s.json solve.energy_history"
     drawn.clear()
-    rp.plots_from_json("t.json", {"cost": [20.0, 1.0, 1.0]})
-    assert drawn[0]["yscale"] == "linear"  # a ratio of exactly 20 stays linear
+    rp.plots_from_json("t.json", {"cost": [20.0, 1.0, 1.0], "a": {"b": {"loss": [30.0, 20.0, 10.0]}},
+                                  "small_cost": [0.9, 0.5, 0.01]})
+    # a ratio of exactly 20 stays linear; 3 (large values) linear; 90 (values under 1) logarithmic
+    assert [f["yscale"] for f in drawn] == ["linear", "linear", "log"]
+    assert [f["ylabel"] for f in drawn] == ["cost", "loss", "small_cost"]  # the last key of a deep path
 
 
 def test_residual_and_error_histograms_and_per_camera_bars(monkeypatch):
@@ -378,6 +389,7 @@ def test_residual_and_error_histograms_and_per_camera_bars(monkeypatch):
     assert bars["ylabel"] == "reproj" and bars["title"] == "calibration residuals: c.json reproj"
     assert bars["bar_colors"] == {(0.29, 0.498, 0.71, 1.0)}
     assert bars["xtick_rotation"] == [45.0] and bars["xtick_size"] == [8.0]
+    assert bars["ytick_rotation"] == [0.0] and bars["ytick_size"] != [8.0]  # only the camera names turn
 
 
 def test_plots_per_file_stop_at_the_cap(monkeypatch):
@@ -396,6 +408,7 @@ def test_error_histogram_counts_and_marks_the_mean(monkeypatch):
     assert fig["bar_colors"] == {(0.753, 0.314, 0.302, 1.0)}
     ((label, x, _y, _m, style),) = fig["lines"]
     assert np.allclose(x, err.mean()) and style == "--" and label == "mean 5.0 mm"
+    assert fig["line_colors"] == [(0.0, 0.0, 0.0, 1.0)]  # black
     assert (fig["xlabel"], fig["ylabel"], fig["legend"]) == ("error (mm)", "vertices", (["mean 5.0 mm"], 8.0))
 
 
@@ -469,11 +482,14 @@ def test_sessions_and_garment_fit_folders_under_a_root(tmp_path):
     assert rp._sessions_under(tmp_path) == [tmp_path / "a", tmp_path / "b"]
     assert rp._sessions_under(tmp_path / "a") == [tmp_path / "a"]
     g = tmp_path / "g"
-    for rel in ("f1", "x/y/f2", "x/y/z/w/f3", ".h/f4", "cam_0/f5", "k/kinect/f6"):
+    for rel in ("f1", "x/y/f2", "x/y/z/w/f3", ".h/f4", "cam_0/f5", "k/kinect/f6", "x/y/z/f7", "k/.h/f8",
+                "f1/sub/f9"):
         _write(g / rel / "fit.json")
-    assert rp.garment_fit_dirs(g) == [g / "f1", g / "x" / "y" / "f2"]
-    assert rp.garment_fit_dirs(g / "f1") == [g / "f1"]
-    assert rp.garment_fit_dirs(g / "x" / "y" / "z") == [g / "x" / "y" / "z" / "w" / "f3"]
+    assert rp.garment_fit_dirs(g) == [g / "f1", g / "f1" / "sub" / "f9", g / "x" / "y" / "f2"]
+    assert rp.garment_fit_dirs(g / "f1") == [g / "f1"]  # a fit folder is its own fit, not those inside it
+    (g / "f1" / "plain").mkdir()
+    assert rp.garment_fit_dirs(g / "f1" / "plain") == []  # a folder inside a fit is not its render
+    assert rp.garment_fit_dirs(g / "x" / "y" / "z") == [g / "x" / "y" / "z" / "f7", g / "x" / "y" / "z" / "w" / "f3"]
     render = g / "f1" / "render"
     _write(render / "render.json", json.dumps({"format": "bodystudio-garment-render"}))
     from bodystudio.viewer.garment import is_garment_render
@@ -512,8 +528,16 @@ def _stand_in_session(monkeypatch, tmp_path, recon: dict, gt_frames: set, frame_
     gt = _square_gt()
     session = SimpleNamespace(path=tmp_path / "sess", frame_ids=list(frame_ids),
                               frame=lambda fid: SimpleNamespace(gt_mesh=gt if fid in gt_frames else None))
-    monkeypatch.setattr(cs, "open_session", lambda p: session)
-    monkeypatch.setattr(vv, "reconstructed_mesh_path", lambda path, fid: recon.get(fid))
+    def open_session(p):
+        assert p == tmp_path / "sess"
+        return session
+
+    def mesh_path(path, fid):
+        assert path == session.path
+        return recon.get(fid)
+
+    monkeypatch.setattr(cs, "open_session", open_session)
+    monkeypatch.setattr(vv, "reconstructed_mesh_path", mesh_path)
     return session
 
 
@@ -580,10 +604,15 @@ def _mirror_stand_ins(monkeypatch, tmp_path, views, scores_of=None, fingerprints
         return view.frame_ids
 
     monkeypatch.setattr(vm, "mirror_frames", frames)
-    monkeypatch.setattr(vm, "before_after_strip", lambda view, fid: _strip(fid))
+    def strip(view, fid):
+        assert fid in view.frame_ids
+        return _strip(fid)
+
+    monkeypatch.setattr(vm, "before_after_strip", strip)
     monkeypatch.setattr(vm, "open_mirror_view", lambda p: views[str(p)])
 
     def evaluate(session, run_dir):
+        assert str(run_dir).startswith(session.path)
         result = (scores_of or {})[str(run_dir)]
         if isinstance(result, Exception):
             raise result
@@ -1005,7 +1034,7 @@ def _report_folder(tmp_path):
 
     root = tmp_path / "run <x>"
     write_json(root / "calib" / "report.json", {"reproj_rms_px": 0.3141592, "cameras": {
-        "c0": {"rms_px": 0.25, "n": 10}, "c1": {"rms_px": 0.5, "n": 12}}})
+        "c0": {"rms_px": 0.25, "n": 10}, "c1": {"rms_px": 0.5, "n": 12}}, "reproj": {"c0": 0.25, "c1": 0.5}})
     write_json(root / "rig" / "eval.json", {"energy_history": [9.0, 3.0, 1.0], "joint_error_mm": 12.5})
     (root / "bad.json").write_text("{nope")
     (root / "shots").mkdir()
@@ -1021,15 +1050,33 @@ def _sections(monkeypatch, mirrors=(), garments=()):
     return seen
 
 
-def test_write_report_page_holds_each_section_in_order_with_the_inputs_numbers(monkeypatch, tmp_path):
+def test_write_report_page_holds_each_section_in_order_with_the_inputs_numbers(monkeypatch, tmp_path, caplog):
+    import logging
+    import time
+
     root = _report_folder(tmp_path)
+    monkeypatch.setenv("TZ", "Asia/Kolkata")  # the stamp says UTC: local time must not leak in
+    time.tzset()
     mirrors = [rp.MirrorSection("ms", [("ms frame 1", _png(_strip(1)))], {"iou": 0.75}, None)]
     garments = [rp.GarmentSection("gs", [("gs frame 2", _png(_strip(2)))], None, ["g note"])]
     seen = _sections(monkeypatch, mirrors, garments)
     payload = {"objects": [], "camera": {}, "colorBars": []}
     out = tmp_path / "page.HTML"
-    result = rp.write_report(root, out, scenes=[("first <view>", payload), ("", payload)],
-                             notes=["stage <a> ran", "stage b"], title="My <report>")
+    handed = []
+    monkeypatch.setattr(rp, "scene_payload", lambda plotter: handed.append(plotter) or {"objects": [{"name": "p"}]})
+    plotter = _Plotter("given")
+    try:
+        with caplog.at_level(logging.INFO, logger="bodystudio.viewer.report"):
+            result = rp.write_report(root, out, scenes=[("", payload), ("second <view>", plotter)],
+                                     notes=["stage <a> ran", "stage b"], title="My <report>")
+    finally:
+        monkeypatch.delenv("TZ")
+        time.tzset()
+    assert handed == [plotter]
+    messages = [(r.levelname, r.getMessage()) for r in caplog.records]
+    assert messages[0][0] == "WARNING" and messages[0][1].startswith(
+        f"{root / 'bad.json'}: skipped, not valid JSON (Expecting property name enclosed in double quotes")
+    assert messages[-1] == ("INFO", f"wrote {out}")
     assert seen == [("mirror", root), ("garment", root)]
     text = out.read_text()
     page = _page(text)
@@ -1045,24 +1092,31 @@ def test_write_report_page_holds_each_section_in_order_with_the_inputs_numbers(m
     assert [h.text() for h in page.find_all("h2")] == ["3D view", "Mirror: before / after", "Garment: before / after",
                                                        "Screenshots", "Plots", "Metrics"]
     assert [c.attrs["id"] for c in page.find_all("canvas")] == ["view3d_0", "view3d_1"]
-    assert "first <view>" in [h.text() for h in page.find_all("h3")]
-    data = [s for s in page.find_all("script") if s.attrs.get("id") == "view3d_0-data"][0]
-    assert json.loads(data.text())["objects"] == []
+    assert [h.text() for h in page.find_all("h3")][0] == "second <view>"  # the first view has no caption
+    data = {s.attrs.get("id"): s.text() for s in page.find_all("script") if s.attrs.get("id")}
+    assert json.loads(data["view3d_0-data"])["objects"] == []
+    assert json.loads(data["view3d_1-data"])["objects"] == [{"name": "p"}]
+    from bodystudio.viewer.webgl import VIEWER_CSS
+
+    assert page.find_all("style")[0].text() == VIEWER_CSS + rp.REPORT_CSS
     figs = _figures(page)
     caps = [c for _, _, c in figs]
     assert caps[:4] == ["ms frame 1", "gs frame 2", "shots/a.png", "shots/b.png"]
     assert np.array_equal(figs[2][1], _strip(10)) and np.array_equal(figs[3][1], _strip(11))
-    assert caps[4:] == ["Solver convergence (rig/eval.json: energy_history)"] and figs[4][0] == caps[4]
+    assert caps[4:] == ["Calibration residuals (calib/report.json: reproj)",
+                        "Solver convergence (rig/eval.json: energy_history)"] and figs[4][0] == caps[4]
     assert figs[4][1].shape[:2] == (360, 640)
     tables = {t["title"]: t for t in _tables(page)}
     assert tables["calib/report.json"]["rows"] == [[("reproj_rms_px", "t"), ("0.3142", None)]]
+    assert tables["calib/report.json / reproj"]["rows"] == [[("c0", "t"), ("0.25", None)], [("c1", "t"), ("0.5", None)]]
     assert tables["calib/report.json / cameras"]["rows"] == [[("c0", "t"), ("0.25", None), ("10", None)],
                                                              [("c1", "t"), ("0.5", None), ("12", None)]]
     assert tables["rig/eval.json"]["rows"] == [[("energy_history (n=3)", "t"), ("mean 4.333, min 1, max 9", "t")],
                                                [("joint_error_mm", "t"), ("12.5", None)]]
     assert tables["ms: eval mirror"]["rows"] == [[("iou", "t"), ("0.75", None)]]
     assert result.path == out and result.has_3d and result.mirrors == mirrors and result.garments == garments
-    assert [t.title for t in result.tables] == ["calib/report.json", "calib/report.json / cameras", "rig/eval.json"]
+    assert [t.title for t in result.tables] == ["calib/report.json", "calib/report.json / cameras",
+                                                "calib/report.json / reproj", "rig/eval.json"]
     assert [p.title for p in result.plots] == caps[4:]
     assert [n for n, _ in result.screenshots] == ["shots/a.png", "shots/b.png"]
     assert text.endswith("</body></html>\n") and text.startswith("<!DOCTYPE html>")
@@ -1074,6 +1128,7 @@ def test_write_report_default_scene_still_only_without_screenshots(monkeypatch, 
     plotters = []
 
     def scene(root):
+        assert root == tmp_path / "r"
         plotters.append(_Plotter("p"))
         return plotters[-1], {"objects": [{"name": "body"}]}, _strip(7)
 
@@ -1123,6 +1178,7 @@ def test_write_report_refusals_and_an_empty_metrics_section(monkeypatch, tmp_pat
     result = rp.write_report(empty, tmp_path / "n.htm", notes=["only a note"])
     page = _page((tmp_path / "n.htm").read_text())
     assert [p.text() for p in page.find_all("p")][-1] == "No metrics JSON found under this folder."
+    assert _stray_text(page) == []
     assert result.tables == [] and [li.text() for li in page.find_all("li")] == ["only a note"]
     (empty / "bad.json").write_text("[1, 2")  # a metrics file that does not parse still counts as found
     result = rp.write_report(empty, tmp_path / "m.html")
@@ -1146,3 +1202,20 @@ def test_write_report_reads_the_sessions_under_the_folder(monkeypatch, tmp_path)
     assert asked == [root / "s1", root / "s2"]
     assert [p.title for p in result.plots] == ["plot s1", "plot s2"]
     assert [t["title"] for t in _tables(_page((tmp_path / "r.html").read_text()))] == ["table s1", "table s2"]
+
+
+@pytest.mark.parametrize("only", ["shots", "garments", "mirrors", "plots", "tables"])
+def test_write_report_needs_only_one_thing_to_show(monkeypatch, tmp_path, only):
+    mirrors = [rp.MirrorSection("m", [], None, "no run")] if only == "mirrors" else []
+    garments = [rp.GarmentSection("g", [], None, ["no fit"])] if only == "garments" else []
+    _sections(monkeypatch, mirrors, garments)
+    root = tmp_path / "r"
+    root.mkdir()
+    if only == "shots":
+        (root / "a.png").write_bytes(_png(_strip(1)))
+    if only in ("plots", "tables"):
+        _write(root / "s" / "session.json")
+        plot, table = rp.Plot("p", _png(_strip(2))), rp.Table("t", ["a"], [[1]])
+        monkeypatch.setattr(rp, "session_figures", lambda p: ([plot], []) if only == "plots" else ([], [table]))
+    result = rp.write_report(root, tmp_path / "r.html", with_3d=False)
+    assert len(getattr(result, {"shots": "screenshots"}.get(only, only))) == 1
