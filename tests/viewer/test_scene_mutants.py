@@ -153,6 +153,9 @@ def test_vertex_errors_are_millimetres_to_the_nearest_surface_point():
     pts = np.array([[0.1, 0.2, 0.003], [0.0, 0.0, -0.25], [3.0, 0.0, 0.0], [2.0, 2.0, 0.0]])
     expected = [3.0, 250.0, 1000.0, 0.0]  # above, below, beside the edge (x = 2), on the corner
     assert np.allclose(sc.vertex_errors_mm(pts, plane), expected, atol=1e-9)
+    p32 = np.array([[0.1, 0.2, 0.0031], [0.3, -0.7, -0.0123]], np.float32)  # float32 points: measured in float64
+    got = sc.vertex_errors_mm(p32, plane)
+    assert got.dtype == np.float64 and np.array_equal(got, 1000.0 * np.abs(p32[:, 2].astype(np.float64)))
 
 
 def test_error_map_scale_is_zero_to_the_98th_percentile_and_its_bar():
@@ -304,6 +307,11 @@ def test_floor_title_and_key_help():
     sc.add_key_help(plotter)
     texts = {name: a for name, a in plotter.renderer.actors.items() if name in ("title", "key-help")}
     assert set(texts) == {"title", "key-help"}
+    assert np.allclose(plotter.renderer.actors["floor"].GetProperty().GetColor(), (0.45, 0.45, 0.5), atol=1 / 255)
+    # pyvista's corner text: font size // 2 as the scale factor (9 -> 4, 11 -> 5), white
+    assert texts["key-help"].GetLinearFontScaleFactor() == 4 and texts["title"].GetLinearFontScaleFactor() == 5
+    assert texts["key-help"].GetTextProperty().GetColor() == (1.0, 1.0, 1.0)
+    assert texts["title"].GetTextProperty().GetColor() == (1.0, 1.0, 1.0)
     assert texts["key-help"].GetText(0) == sc.KEY_HELP and texts["title"].GetText(2) == "T"
     plotter.close()
 
@@ -375,6 +383,11 @@ def test_frame_slider_snaps_to_the_nearest_frame_and_keys_step_within_the_ends()
     plotter = SimpleNamespace(add_slider_widget=add_slider_widget, add_key_event=lambda k, f: keys.__setitem__(k, f),
                               render=lambda: renders.append(1))
     assert sc.add_frame_slider(plotter, iter([10, 20, 40]), 1, shown.append) is plotter
+    keys["n"]()  # a key before any slider move steps from the start frame
+    assert shown == [2] and values == [40]
+    shown.clear()
+    values.clear()
+    renders.clear()
     assert (made["rng"], made["value"]) == ([10, 40], 20)
     assert made["kw"] == dict(title="frame", fmt="%.0f", pointa=(0.25, 0.92), pointb=(0.75, 0.92), style="modern")
     made["callback"](29.0)  # nearer 20 than 40
