@@ -141,6 +141,17 @@ def test_add_mesh_uses_vertex_colours_only_when_one_per_vertex():
     assert np.array_equal(c.point_data["rgb"], rgb[:, :3])
     assert plotter.renderer.actors["c"].GetProperty().GetOpacity() == 0.4
     assert plotter.renderer.actors["c"].GetMapper().GetScalarVisibility()
+    # the colours go to the screen as they are (not through a colour map), smoothly shaded
+    assert plotter.renderer.actors["c"].GetMapper().GetColorModeAsString() == "Default"
+    for name in ("c", "p", "d"):
+        assert plotter.renderer.actors[name].GetProperty().GetInterpolationAsString() == "Phong"
+    assert plotter.renderer.actors["p"].GetProperty().GetOpacity() == 1.0
+    sc.add_mesh(plotter, Mesh(V4, F2), name="half", opacity=0.5)
+    assert plotter.renderer.actors["half"].GetProperty().GetOpacity() == 0.5
+    sc.add_mesh(plotter, Mesh(V4, F2, vertex_colors=rgb[:, :3].astype(np.int64)), name="i")
+    assert _actor_data(plotter, "i").point_data["rgb"].dtype == np.uint8
+    sc.add_mesh(plotter, Mesh(V4, F2))
+    assert "mesh" in plotter.renderer.actors
     assert not plotter.renderer.actors["p"].GetMapper().GetScalarVisibility()
     assert np.allclose(plotter.renderer.actors["p"].GetProperty().GetColor(), (0.2, 0.4, 0.6), atol=1 / 255)
     assert np.allclose(plotter.renderer.actors["d"].GetProperty().GetColor(), sc.MESH_COLOR, atol=1 / 255)
@@ -165,6 +176,16 @@ def test_error_map_scale_is_zero_to_the_98th_percentile_and_its_bar():
     sc.add_error_map(plotter, mesh, err.reshape(-1, 1), name="e")
     mapper = plotter.renderer.actors["e"].GetMapper()
     assert np.allclose(mapper.GetScalarRange(), (0.0, np.percentile(err, 98)))
+    import matplotlib
+
+    lut = mapper.GetLookupTable()
+    turbo = matplotlib.colormaps["turbo"].resampled(256)
+    assert lut.GetNumberOfTableValues() == 256
+    for k in (0, 60, 128, 200, 255):  # the turbo scale, low end dark blue, high end dark red
+        assert np.allclose(lut.GetTableValue(k)[:3], turbo(k)[:3], atol=1 / 255)
+    assert plotter.renderer.actors["e"].GetProperty().GetInterpolationAsString() == "Phong"
+    sc.add_error_map(plotter, mesh, err)
+    assert "error" in plotter.renderer.actors
     assert np.array_equal(_actor_data(plotter, "e").point_data["error (mm)"], err)
     bar = plotter.scalar_bars["error (mm)"]
     assert bar.GetTitle() == "error (mm)" and bar.GetLabelFormat() == "%.1f" and bar.GetNumberOfLabels() == 5
@@ -190,6 +211,13 @@ def test_skin_weights_show_one_bones_column_on_zero_to_one():
     assert np.array_equal(_actor_data(plotter, "w").point_data["weight b"], W[:, 1])
     assert np.allclose(plotter.renderer.actors["w"].GetMapper().GetScalarRange(), (0.0, 1.0))
     assert plotter.scalar_bars["weight b"].GetLabelFormat() == "%.2f"
+    import matplotlib
+
+    lut = plotter.renderer.actors["w"].GetMapper().GetLookupTable()
+    cool = matplotlib.colormaps["coolwarm"].resampled(256)
+    for k in (0, 128, 255):
+        assert np.allclose(lut.GetTableValue(k)[:3], cool(k)[:3], atol=1 / 255)
+    assert plotter.renderer.actors["w"].GetProperty().GetInterpolationAsString() == "Phong"
     with pytest.raises(InputError) as exc:
         sc.add_skin_weights(plotter, Mesh(V4, F2), W, ("a", "b", "c"), "d")
     assert str(exc.value) == "unknown bone 'd'; valid bones: a, b, c"
