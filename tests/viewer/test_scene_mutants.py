@@ -208,6 +208,8 @@ def test_skin_weights_show_one_bones_column_on_zero_to_one():
     plotter = sc.make_plotter(window_size=SIZE)
     W = np.array([[1.0, 0.0, 0.0], [0.2, 0.7, 0.1], [0.0, 0.5, 0.5], [0.0, 0.0, 1.0]])
     sc.add_skin_weights(plotter, Mesh(V4, F2), W, ["a", "b", "c"], "b", name="w")
+    sc.add_skin_weights(plotter, Mesh(V4, F2), W, ["a", "b", "c"], "a")
+    assert "weights" in plotter.renderer.actors
     assert np.array_equal(_actor_data(plotter, "w").point_data["weight b"], W[:, 1])
     assert np.allclose(plotter.renderer.actors["w"].GetMapper().GetScalarRange(), (0.0, 1.0))
     assert plotter.scalar_bars["weight b"].GetLabelFormat() == "%.2f"
@@ -247,6 +249,11 @@ def test_skeleton_tubes_follow_the_bones_and_joints_sit_on_the_heads():
         assert np.linalg.norm(joints - head, axis=1).min() < 0.02
     assert np.allclose(plotter.renderer.actors["sk-bones"].GetProperty().GetColor(), sc.BONE_COLOR, atol=1 / 255)
     assert np.allclose(plotter.renderer.actors["sk-joints"].GetProperty().GetColor(), sc.JOINT_COLOR, atol=1 / 255)
+    assert len(tube) == 2 * 2 * 8 * 2  # 8 sides at each end of each bone, once more for the caps
+    assert len(joints) == 2 * (10 * (10 - 2) + 2)  # a 10 x 10 sphere on each head
+    sc.add_skeleton(plotter, heads, tails)
+    default = np.asarray(_actor_data(plotter, "skeleton-bones").points)
+    assert np.allclose(np.abs(default[:, 0]).max(), 0.5 + 0.008, atol=1e-4)  # the default radius is 8 mm
     n = len(plotter.renderer.actors)
     sc.add_skeleton(plotter, np.zeros((0, 3)), np.zeros((0, 3)))
     assert len(plotter.renderer.actors) == n
@@ -257,15 +264,21 @@ def test_point_cloud_drops_non_finite_points_and_keeps_matching_colours():
     plotter = sc.make_plotter(window_size=SIZE)
     pts = np.array([[0.0, 0.0, 0.0], [np.nan, 0, 0], [1.0, 0.0, 0.0], [0.0, np.inf, 0.0], [2.0, 0.0, 0.0]])
     rgb = np.array([[1, 2, 3], [4, 5, 6], [7, 8, 9]], np.uint8)
-    sc.add_point_cloud(plotter, pts, rgb, point_size=5.0, name="c")
+    rgba = np.c_[rgb, [9, 9, 9]].astype(np.int64)
+    sc.add_point_cloud(plotter, pts.astype(np.float32), rgba, point_size=6.0, name="c")
     data = _actor_data(plotter, "c")
-    assert np.array_equal(data.points, pts[[0, 2, 4]]) and np.array_equal(data.point_data["rgb"], rgb)
+    assert np.array_equal(data.points, pts[[0, 2, 4]].astype(np.float32)) and data.points.dtype == np.float64
+    assert np.array_equal(data.point_data["rgb"], rgb) and data.point_data["rgb"].dtype == np.uint8
+    assert plotter.renderer.actors["c"].GetMapper().GetColorModeAsString() == "Default"
     prop = plotter.renderer.actors["c"].GetProperty()
-    assert prop.GetPointSize() == 5.0 and prop.GetRepresentation() == 0
+    assert prop.GetPointSize() == 6.0 and prop.GetRepresentation() == 0
     sc.add_point_cloud(plotter, pts, rgb[:2], name="d", color=(0.1, 0.5, 0.9))
     assert not plotter.renderer.actors["d"].GetMapper().GetScalarVisibility()
     assert np.allclose(plotter.renderer.actors["d"].GetProperty().GetColor(), (0.1, 0.5, 0.9), atol=1 / 255)
     assert plotter.renderer.actors["d"].GetProperty().GetPointSize() == 3.0
+    assert plotter.renderer.actors["d"].GetProperty().GetRepresentation() == 0
+    sc.add_point_cloud(plotter, pts)
+    assert "cloud" in plotter.renderer.actors
     n = len(plotter.renderer.actors)
     sc.add_point_cloud(plotter, np.full((2, 3), np.nan))
     assert len(plotter.renderer.actors) == n
@@ -304,6 +317,14 @@ def test_camera_frustum_lines_and_image_texture():
     assert np.allclose(_actor_data(plotter, "camera-c").points[1:], _camera().frustum(0.05, 0.35)[4:])
     sc.add_camera(plotter, _camera(), name="named")
     assert "named" in plotter.renderer.actors
+    assert np.allclose(_actor_data(plotter, "named").points[1:], _camera().frustum(0.05, 0.35)[4:])
+    texture = plotter.renderer.actors["camera-k-image"].GetTexture()
+    import pyvista as pv
+
+    tex = pv.wrap(texture.GetInput())
+    nx, ny, _ = tex.dimensions
+    pixels = np.asarray(tex.active_scalars).reshape(ny, nx, -1)[::-1, :, :3]
+    assert np.array_equal(pixels, np.repeat(image[:, :, None], 3, axis=2))  # the picture, top row first
     plotter.close()
 
 
@@ -318,6 +339,8 @@ def test_rgb_image_turns_masks_floats_and_greys_into_rgb():
     out = sc._rgb_image(rgba)
     assert np.array_equal(out, rgba[..., :3]) and out.flags["C_CONTIGUOUS"] and out.dtype == np.uint8
     assert sc._rgb_image(np.array([[1.0]], np.float32))[0, 0, 2] == 255
+    assert np.array_equal(sc._rgb_image(np.array([[0.0, 1.0, 2.0]]))[0, :, 0], [0, 1, 2])  # over 1: already 0-255
+    assert np.array_equal(sc._rgb_image(np.array([[0, 1]], np.uint8))[0, :, 0], [0, 1])  # integers are not scaled
     assert np.array_equal(sc._rgb_image(np.array([[7]], np.uint16)), [[[7, 7, 7]]])
 
 
