@@ -253,7 +253,7 @@ def test_skeleton_tubes_follow_the_bones_and_joints_sit_on_the_heads():
     assert len(joints) == 2 * (10 * (10 - 2) + 2)  # a 10 x 10 sphere on each head
     sc.add_skeleton(plotter, heads, tails)
     default = np.asarray(_actor_data(plotter, "skeleton-bones").points)
-    assert np.allclose(np.abs(default[:, 0]).max(), 0.5 + 0.008, atol=1e-4)  # the default radius is 8 mm
+    assert np.isclose(np.abs(default[:, 2]).max(), 0.008, atol=1e-6)  # the default radius is 8 mm
     n = len(plotter.renderer.actors)
     sc.add_skeleton(plotter, np.zeros((0, 3)), np.zeros((0, 3)))
     assert len(plotter.renderer.actors) == n
