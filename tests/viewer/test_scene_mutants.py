@@ -104,7 +104,7 @@ def test_frame_front_box_fit_puts_the_front_face_on_the_window_edge(bounds, wind
 
 def test_frame_front_sphere_fit_and_default_bounds():
     plotter = sc.make_plotter(window_size=SIZE)
-    bounds = np.array([[0.0, 0.0, 0.0], [0.6, 0.8, 0.0]])  # radius 0.5
+    bounds = np.array([[1.0, 1.0, 1.0], [1.6, 1.8, 1.0]])  # radius 0.5
     sc.frame_front(plotter, bounds, direction=(0.3, 0.6, 1.0), margin=0.75, fit="sphere")
     center = bounds.mean(0)
     offset = np.asarray(plotter.camera.position) - center
@@ -115,9 +115,13 @@ def test_frame_front_sphere_fit_and_default_bounds():
     assert np.isclose(np.linalg.norm(offset), 1.1 * 1e-3 / np.sin(np.radians(plotter.camera.view_angle) / 2))
     sc.frame_front(plotter, np.zeros((2, 3)))  # box fit of a point: the 1 mm floor too
     assert np.isclose(np.linalg.norm(plotter.camera.position), 1.1 * 1e-3)
-    sc.add_mesh(plotter, Mesh(V4 + [3.0, 1.0, 0.0], F2))
+    deep = V4 + [3.0, 1.0, 0.0]
+    deep[2:, 2] = 0.4
+    sc.add_mesh(plotter, Mesh(deep, F2))
     sc.frame_front(plotter)
-    assert np.allclose(plotter.camera.focal_point, [3.0, 1.0, 0.0])
+    assert np.allclose(plotter.camera.focal_point, [3.0, 1.0, 0.2])  # the scene's box, near to far
+    sc.frame_front(plotter, np.array([[0, 0, 0], [1, 2, 0]]), direction=(0, 0, 1))  # integers are fine
+    assert np.allclose(plotter.camera.focal_point, [0.5, 1.0, 0.0])
     plotter.close()
 
 
@@ -380,7 +384,7 @@ def test_visible_points_count_only_shown_actors():
     plotter.close()
 
 
-def test_screenshot_pixels_at_projected_points(tmp_path):
+def test_screenshot_pixels_at_projected_points(tmp_path, caplog):
     from PIL import Image
 
     plotter = sc.make_plotter(window_size=SIZE)
@@ -388,7 +392,11 @@ def test_screenshot_pixels_at_projected_points(tmp_path):
     plotter.add_mesh(sc.polydata(V4, F2), scalars=red, rgb=True, lighting=False, name="quad")
     sc.frame_front(plotter, np.array([[-1.0, -1.0, 0.0], [1.0, 1.0, 0.0]]))
     out = tmp_path / "s.PNG"
-    img = sc.save_screenshot(plotter, out)
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="bodystudio.viewer.scene"):
+        img = sc.save_screenshot(plotter, out)
+    assert [r.getMessage() for r in caplog.records] == [f"wrote {out} (400x300)"]
     assert img.shape == (SIZE[1], SIZE[0], 3) and img.dtype == np.uint8
     assert np.array_equal(np.asarray(Image.open(out).convert("RGB")), img)
     inside = sc.project_to_screen(plotter, np.array([[0.0, 0.0, 0.0], [0.4, 0.4, 0.0], [-0.4, -0.3, 0.0]]))
@@ -401,6 +409,21 @@ def test_screenshot_pixels_at_projected_points(tmp_path):
     with pytest.raises(InputError) as exc:
         sc.save_screenshot(plotter, tmp_path / "s.jpg")
     assert str(exc.value) == f"{tmp_path / 's.jpg'}: screenshots are PNG; give a path ending in .png"
+    plotter.close()
+
+
+@pytest.mark.parametrize("offset, blank", [(3, False), (2, True)])
+def test_a_view_within_two_levels_of_the_background_is_blank(offset, blank):
+    plotter = sc.make_plotter(window_size=(64, 48))
+    colour = np.tile(np.array(sc.BACKGROUND_RGB, np.uint8) + np.array([0, 0, offset], np.uint8), (4, 1))
+    plotter.add_mesh(sc.polydata(V4 * 10, F2), scalars=colour, rgb=True, lighting=False, name="quad")
+    sc.frame_front(plotter, np.array([[-1.0, -1.0, 0.0], [1.0, 1.0, 0.0]]))
+    if blank:
+        with pytest.raises(sc.EmptySceneError):
+            sc.render_image(plotter)
+    else:
+        img = sc.render_image(plotter)
+        assert np.abs(img.astype(int) - sc.BACKGROUND_RGB).max() == offset
     plotter.close()
 
 
