@@ -196,7 +196,7 @@ class _Sensor:
         return np.c_[uv * 0.01, d]
 
 
-def _session(tmp_path, frame_ids=(1, 2, 3), gt_frames=(1, 2, 3), kinect=True, cameras=2):
+def _stand_in_session(tmp_path, frame_ids=(1, 2, 3), gt_frames=(1, 2, 3), kinect=True, cameras=2):
     cams = [_cam(f"c{k}", [2.0 * k - 1.0, 1.0, 4.0]) for k in range(cameras)]
     image = np.full((12, 700, 3), 90, np.uint8)
     mask = np.ones((12, 700), bool)
@@ -218,7 +218,7 @@ def test_downsample_and_kinect_points():
     assert np.array_equal(vw._downsample(img), img[::3, ::3])  # ceil(700 / 320) = 3
     assert np.array_equal(vw._downsample(img[:, :320]), img[:, :320])
     assert np.array_equal(vw._downsample(img[:, :321]), img[:, :321][::2, ::2])
-    s = _session(Path("."))
+    s = _stand_in_session(Path("."))
     depth = np.zeros((15, 16))
     depth[0, 7] = 1.5
     depth[7, 14] = 2.5
@@ -232,7 +232,7 @@ def test_downsample_and_kinect_points():
     vw.kinect_points(s, SimpleNamespace(kinect_depth_m=depth), stride=2)
     assert s.kinect.asked[-1][0].tolist() == [[4.0, 2.0]] and s.kinect.asked[-1][1].tolist() == [3.0]
     assert vw.kinect_points(s, SimpleNamespace(kinect_depth_m=None)).shape == (0, 3)
-    s2 = _session(Path("."), kinect=False)
+    s2 = _stand_in_session(Path("."), kinect=False)
     assert vw.kinect_points(s2, SimpleNamespace(kinect_depth_m=depth)).shape == (0, 3)
 
 
@@ -257,7 +257,7 @@ def test_session_bounds():
 
 
 def test_scene_for_frame_layers_replace_the_previous_frame(monkeypatch, tmp_path):
-    s = _session(tmp_path, gt_frames=(1, 2))
+    s = _stand_in_session(tmp_path, gt_frames=(1, 2))
     recon = {1: tmp_path / "r1.ply", 3: tmp_path / "r3.ply"}
     save_mesh(recon[1], Mesh(V4 + [0.0, 0.0, 0.015], F2))
     save_mesh(recon[3], Mesh(V4 + [0.0, 0.0, 0.5], F2))
@@ -296,7 +296,7 @@ def test_scene_for_frame_layers_replace_the_previous_frame(monkeypatch, tmp_path
 
 def test_scene_for_session_frusta_title_and_framing(monkeypatch, tmp_path):
     monkeypatch.setattr(vw, "reconstructed_mesh_path", lambda path, fid: None)
-    s = _session(tmp_path)
+    s = _stand_in_session(tmp_path)
     plotter = vw.scene_for_session(s, plotter=sc.make_plotter(window_size=SIZE))
     names = set(plotter.renderer.actors)
     assert {"camera-c0", "camera-c1", "floor", "kinect"} <= names
@@ -317,7 +317,7 @@ def test_scene_for_session_frusta_title_and_framing(monkeypatch, tmp_path):
     assert np.allclose(plotter.camera.position, _framed_like(box, direction=(0.3, 0.6, 1.0), margin=0.75,
                                                              fit="sphere"))
     plotter.close()
-    one = _session(tmp_path, frame_ids=(4,), gt_frames=(), kinect=False, cameras=0)
+    one = _stand_in_session(tmp_path, frame_ids=(4,), gt_frames=(), kinect=False, cameras=0)
     plotter = vw.scene_for_session(one, 4, plotter=sc.make_plotter(window_size=SIZE), title="mine")
     assert "frustum-kinect" not in plotter.renderer.actors
     assert _texts(plotter) == {"title": "mine", "key-help": sc.KEY_HELP}
@@ -325,13 +325,13 @@ def test_scene_for_session_frusta_title_and_framing(monkeypatch, tmp_path):
                                                              margin=0.75, fit="sphere"))
     plotter.close()
     with pytest.raises(SessionError) as exc:
-        vw.scene_for_session(_session(tmp_path, frame_ids=()), plotter=sc.make_plotter(window_size=SIZE))
+        vw.scene_for_session(_stand_in_session(tmp_path, frame_ids=()), plotter=sc.make_plotter(window_size=SIZE))
     assert str(exc.value) == f"{tmp_path / 'sess'}: the session has no frames; regenerate or re-import it"
 
 
 def test_time_slider_shows_the_picked_frame(monkeypatch, tmp_path):
     monkeypatch.setattr(vw, "reconstructed_mesh_path", lambda path, fid: None)
-    s = _session(tmp_path, frame_ids=(5, 7, 9), gt_frames=(5, 7, 9))
+    s = _stand_in_session(tmp_path, frame_ids=(5, 7, 9), gt_frames=(5, 7, 9))
     got = {}
 
     def slider(plotter, ids, start, show):
@@ -348,7 +348,7 @@ def test_time_slider_shows_the_picked_frame(monkeypatch, tmp_path):
     vw.add_time_slider(plotter, s, frame_id=8)
     assert got["start"] == 0
     got.clear()
-    vw.add_time_slider(plotter, _session(tmp_path, frame_ids=(5,)))
+    vw.add_time_slider(plotter, _stand_in_session(tmp_path, frame_ids=(5,)))
     assert got == {}
     plotter.close()
 
@@ -360,7 +360,7 @@ def test_session_payload_exports_evenly_spaced_frames_and_opens_at_the_nearest(m
         recon[fid] = tmp_path / f"r{fid}.ply"
         save_mesh(recon[fid], Mesh(V4 + [0.0, 0.0, 0.02], F2))
     monkeypatch.setattr(vw, "reconstructed_mesh_path", lambda path, fid: recon.get(fid))
-    s = _session(tmp_path, frame_ids=ids, gt_frames=set(ids))
+    s = _stand_in_session(tmp_path, frame_ids=ids, gt_frames=set(ids))
     plotter = vw.scene_for_session(s, plotter=sc.make_plotter(window_size=SIZE))
     payload = vw.session_payload(s, plotter, max_frames=5, start=121)
     picked = [ids[int(round(k))] for k in np.linspace(0, 29, 5)]
@@ -381,7 +381,7 @@ def test_session_payload_exports_evenly_spaced_frames_and_opens_at_the_nearest(m
     assert none["colorBars"] == []
     assert len(vw.session_payload(s, plotter)["frames"]) == vw.MAX_HTML_FRAMES == 12
     plotter.close()
-    bare = _session(tmp_path, frame_ids=(1,), gt_frames=(), kinect=False, cameras=0)
+    bare = _stand_in_session(tmp_path, frame_ids=(1,), gt_frames=(), kinect=False, cameras=0)
     with pytest.raises(sc.EmptySceneError) as exc:
         vw.session_payload(bare, sc.make_plotter(window_size=SIZE))
     assert str(exc.value) == f"{tmp_path / 'sess'}: nothing to export; the session has no cameras or meshes"
