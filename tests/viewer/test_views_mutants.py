@@ -80,7 +80,10 @@ def test_open_viewable_kinds_and_one_line_refusals(monkeypatch, tmp_path):
     sess = tmp_path / "holder" / "sess"
     sess.mkdir(parents=True)
     (sess / "session.json").write_text("{}")
-    for path, kind in ((arm, "arm"), (fit, "garment"), (run, "mirror"), (sess, "session")):
+    render = tmp_path / "render"
+    render.mkdir()
+    (render / "render.json").write_text('{"format": "bodystudio-garment-render"}')
+    for path, kind in ((arm, "arm"), (fit, "garment"), (run, "mirror"), (sess, "session"), (render, "garment")):
         item = vw.open_viewable(str(path))
         assert (item.path, item.kind, item.data) == (path, kind, (kind, path))
     with pytest.raises(SessionError) as exc:
@@ -106,13 +109,15 @@ def test_open_viewable_kinds_and_one_line_refusals(monkeypatch, tmp_path):
                               f"mesh file ({suffixes})")
     save_mesh(tmp_path / "m.PLY", Mesh(V4, F2))
     item = vw.open_viewable(tmp_path / "m.PLY")
-    assert item.kind == "mesh" and np.allclose(item.data.vertices, V4)
+    assert item.kind == "mesh" and np.allclose(item.data.vertices, V4) and item.path == tmp_path / "m.PLY"
     save_mesh(tmp_path / "plain.glb", Mesh(V4, F2))
     assert vw.open_viewable(tmp_path / "plain.glb").kind == "mesh"
     monkeypatch.setattr(vw, "glb_has_skin", lambda p: True)
     monkeypatch.setattr(vw, "load_avatar", lambda p: ("avatar", p))
     item = vw.open_viewable(tmp_path / "plain.glb")
-    assert (item.kind, item.data) == ("avatar", ("avatar", tmp_path / "plain.glb"))
+    assert (item.path, item.kind, item.data) == (tmp_path / "plain.glb", "avatar", ("avatar", tmp_path / "plain.glb"))
+    (tmp_path / "a.gltf").write_text("{}")
+    assert vw.open_viewable(tmp_path / "a.gltf").kind == "avatar"
     assert vw.open_viewable(tmp_path / "m.PLY").kind == "mesh"  # only a glTF can be an avatar
 
 
@@ -138,9 +143,13 @@ def test_scene_for_mesh_with_a_reference_colours_by_distance_and_frames_the_mesh
     assert "error" not in plotter.renderer.actors and _texts(plotter) == {}
     assert np.allclose(_points(plotter, "mesh"), wide.vertices)
     plotter.close()
-    plotter = vw.scene_for_mesh(wide, sc.make_plotter(window_size=SIZE), floor=False)
-    assert "floor" not in plotter.renderer.actors
+    given = sc.make_plotter(window_size=SIZE)
+    plotter = vw.scene_for_mesh(wide, given, floor=False)
+    assert plotter is given and "floor" not in plotter.renderer.actors
     plotter.close()
+    own = vw.scene_for_mesh(wide)
+    assert "mesh" in own.renderer.actors and list(own.window_size) == list(sc.WINDOW_SIZE)
+    own.close()
 
 
 def _avatar():
@@ -164,9 +173,13 @@ def test_scene_for_avatar_layers():
     assert "skeleton-bones" not in plotter.renderer.actors and "mesh" not in plotter.renderer.actors
     assert _texts(plotter) == {}
     plotter.close()
-    plotter = vw.scene_for_avatar(av, sc.make_plotter(window_size=SIZE), skeleton=False)
-    assert np.isclose(plotter.renderer.actors["mesh"].GetProperty().GetOpacity(), 1.0)
+    given = sc.make_plotter(window_size=SIZE)
+    plotter = vw.scene_for_avatar(av, given, skeleton=False)
+    assert plotter is given and np.isclose(plotter.renderer.actors["mesh"].GetProperty().GetOpacity(), 1.0)
     plotter.close()
+    own = vw.scene_for_avatar(av)
+    assert "mesh" in own.renderer.actors and list(own.window_size) == list(sc.WINDOW_SIZE)
+    own.close()
 
 
 # --- sessions -------------------------------------------------------------------------------------------------------
@@ -225,10 +238,12 @@ def test_downsample_and_kinect_points():
     depth[14, 0] = -1.0
     depth[3, 3] = 9.0  # on neither grid
     depth[2, 4] = 3.0  # on the stride-2 grid only
+    depth[14, 7] = 0.5  # any depth above zero counts
     pts = vw.kinect_points(s, SimpleNamespace(kinect_depth_m=depth))
     (uv, d), = s.kinect.asked
-    assert uv.tolist() == [[7.0, 0.0], [14.0, 7.0]] and d.tolist() == [1.5, 2.5] and uv.dtype == np.float64
-    assert np.allclose(pts, [[0.07, 0.0, 1.5], [0.14, 0.07, 2.5]])
+    assert uv.tolist() == [[7.0, 0.0], [14.0, 7.0], [7.0, 14.0]] and d.tolist() == [1.5, 2.5, 0.5]
+    assert uv.dtype == np.float64
+    assert np.allclose(pts, [[0.07, 0.0, 1.5], [0.14, 0.07, 2.5], [0.07, 0.14, 0.5]])
     vw.kinect_points(s, SimpleNamespace(kinect_depth_m=depth), stride=2)
     assert s.kinect.asked[-1][0].tolist() == [[4.0, 2.0]] and s.kinect.asked[-1][1].tolist() == [3.0]
     assert vw.kinect_points(s, SimpleNamespace(kinect_depth_m=None)).shape == (0, 3)
@@ -236,7 +251,7 @@ def test_downsample_and_kinect_points():
     assert vw.kinect_points(s2, SimpleNamespace(kinect_depth_m=depth)).shape == (0, 3)
 
 
-def test_reconstructed_mesh_path_in_a_folder_without_a_run(tmp_path):
+def test_reconstructed_mesh_path_in_a_folder_without_a_run(tmp_path, monkeypatch):
     sess = tmp_path / "s"
     sess.mkdir()
     assert vw.reconstructed_mesh_path(sess, 3) is None
@@ -249,6 +264,17 @@ def test_reconstructed_mesh_path_in_a_folder_without_a_run(tmp_path):
     assert vw.reconstructed_mesh_path(sess, 13) == rec / "frame_00013.ply"
     assert vw.reconstructed_mesh_path(sess, 4) == rec / "z" / "frame_00004.obj"
     assert vw.reconstructed_mesh_path(sess, 5) is None
+    import bodystudio.reconstruct.sequence as rs
+
+    (rec / "run.json").write_text("{}")  # a run: its manifest decides, checked by read_reconstruction
+    asked = []
+
+    def read(session_path, frame):
+        asked.append((session_path, frame))
+        return {}, {frame: rec / f"run_{frame}.ply"}
+
+    monkeypatch.setattr(rs, "read_reconstruction", read)
+    assert vw.reconstructed_mesh_path(sess, 3) == rec / "run_3.ply" and asked == [(sess, 3)]
 
 
 def test_session_bounds():
@@ -261,14 +287,20 @@ def test_scene_for_frame_layers_replace_the_previous_frame(monkeypatch, tmp_path
     recon = {1: tmp_path / "r1.ply", 3: tmp_path / "r3.ply"}
     save_mesh(recon[1], Mesh(V4 + [0.0, 0.0, 0.015], F2))
     save_mesh(recon[3], Mesh(V4 + [0.0, 0.0, 0.5], F2))
-    monkeypatch.setattr(vw, "reconstructed_mesh_path", lambda path, fid: recon.get(fid))
+    def mesh_path(path, fid):
+        assert path == s.path
+        return recon.get(fid)
+
+    monkeypatch.setattr(vw, "reconstructed_mesh_path", mesh_path)
     plotter = sc.make_plotter(window_size=SIZE)
+    sc.add_error_map(plotter, Mesh(V4, F2), np.arange(4.0), name="static", title="static (mm)")
     vw.scene_for_frame(s, 1, plotter)
     names = set(plotter.renderer.actors)
     assert {"gt", "recon", "kinect", "gt-skeleton-bones", "gt-skeleton-joints", "camera-c0", "camera-c0-image"} <= names
     assert "camera-c1-image" not in names and "error (mm)" in plotter.scalar_bars
     assert np.allclose(_data(plotter, "recon").point_data["error (mm)"], 5.0, atol=1e-4)  # 15 mm vs the gt at 10 mm
     assert np.isclose(plotter.renderer.actors["gt"].GetProperty().GetOpacity(), 0.25)
+    assert np.allclose(plotter.renderer.actors["gt"].GetProperty().GetColor(), sc.GT_COLOR, atol=1 / 255)
     assert np.allclose(_points(plotter, "camera-c0-image"), _cam("c0", [-1.0, 1.0, 4.0]).frustum(0, vw.FRUSTUM_M)[4:])
     assert _data(plotter, "camera-c0-image") is not None
     cloud = plotter.renderer.actors["kinect"]
@@ -282,6 +314,8 @@ def test_scene_for_frame_layers_replace_the_previous_frame(monkeypatch, tmp_path
     assert "gt-skeleton-bones" not in names and "error (mm)" not in plotter.scalar_bars
     assert np.allclose(_points(plotter, "gt"), V4 + [0.0, 0.0, 0.02])
     assert np.isclose(plotter.renderer.actors["gt"].GetProperty().GetOpacity(), 1.0)
+    assert np.allclose(plotter.renderer.actors["gt"].GetProperty().GetColor(), sc.GT_COLOR, atol=1 / 255)
+    assert "static (mm)" in plotter.scalar_bars  # only the frame's own bar goes
     vw.scene_for_frame(s, 3, plotter, images="none", cloud=False)
     names = set(plotter.renderer.actors)
     assert "gt" not in names and "kinect" not in names and not any(n.endswith("-image") for n in names)
