@@ -298,6 +298,8 @@ def test_scene_for_frame_layers_replace_the_previous_frame(monkeypatch, tmp_path
     names = set(plotter.renderer.actors)
     assert {"gt", "recon", "kinect", "gt-skeleton-bones", "gt-skeleton-joints", "camera-c0", "camera-c0-image"} <= names
     assert "camera-c1-image" not in names and "error (mm)" in plotter.scalar_bars
+    bones = _points(plotter, "gt-skeleton-bones")
+    assert np.isclose(np.abs(bones[:, 0]).max(), 0.005, atol=1e-6)  # 5 mm bones around x = 0
     assert np.allclose(_data(plotter, "recon").point_data["error (mm)"], 5.0, atol=1e-4)  # 15 mm vs the gt at 10 mm
     assert np.isclose(plotter.renderer.actors["gt"].GetProperty().GetOpacity(), 0.25)
     assert np.allclose(plotter.renderer.actors["gt"].GetProperty().GetColor(), sc.GT_COLOR, atol=1 / 255)
@@ -331,9 +333,11 @@ def test_scene_for_frame_layers_replace_the_previous_frame(monkeypatch, tmp_path
 def test_scene_for_session_frusta_title_and_framing(monkeypatch, tmp_path):
     monkeypatch.setattr(vw, "reconstructed_mesh_path", lambda path, fid: None)
     s = _stand_in_session(tmp_path)
-    plotter = vw.scene_for_session(s, plotter=sc.make_plotter(window_size=SIZE))
+    given = sc.make_plotter(window_size=SIZE)
+    plotter = vw.scene_for_session(s, plotter=given)
+    assert plotter is given
     names = set(plotter.renderer.actors)
-    assert {"camera-c0", "camera-c1", "floor", "kinect"} <= names
+    assert {"camera-c0", "camera-c1", "floor", "kinect", "gt-skeleton-bones"} <= names
     # the Kinect's frustum (magenta lines from the sensor) is still there after the frame's "kinect" cloud was
     # added: pyvista drops every actor named "kinect-..." when one named "kinect" is added (it was "kinect-frustum")
     lines = [n for n in names if n not in ("title", "key-help") and len(_points(plotter, n)) == 5]
@@ -350,6 +354,11 @@ def test_scene_for_session_frusta_title_and_framing(monkeypatch, tmp_path):
     box = np.array([np.minimum(gt.min(0), [-1.0, 1.0, 4.0]), np.maximum(gt.max(0), [1.0, 1.0, 4.0])])
     assert np.allclose(plotter.camera.position, _framed_like(box, direction=(0.3, 0.6, 1.0), margin=0.75,
                                                              fit="sphere"))
+    plotter.close()
+    plotter = vw.scene_for_session(s, 2)
+    assert np.allclose(_points(plotter, "gt"), V4 + [0.0, 0.0, 0.02]) and list(plotter.window_size) == list(
+        sc.WINDOW_SIZE)
+    assert _texts(plotter)["title"] == "sess  frame 2"
     plotter.close()
     one = _stand_in_session(tmp_path, frame_ids=(4,), gt_frames=(), kinect=False, cameras=0)
     plotter = vw.scene_for_session(one, 4, plotter=sc.make_plotter(window_size=SIZE), title="mine")
