@@ -343,6 +343,7 @@ def test_scene_for_session_frusta_title_and_framing(monkeypatch, tmp_path):
     lines = [n for n in names if n not in ("title", "key-help") and len(_points(plotter, n)) == 5]
     frusta = [n for n in lines if np.allclose(_points(plotter, n)[0], [0.0, 1.0, 3.0])]
     assert frusta == ["frustum-kinect"]
+    assert np.allclose(_points(plotter, "frustum-kinect")[1:], _cam("k", [0.0, 1.0, 3.0]).frustum(0, vw.FRUSTUM_M)[4:])
     assert np.allclose(plotter.renderer.actors[frusta[0]].GetProperty().GetColor(), vw.KINECT_COLOR, atol=1 / 255)
     assert np.allclose(_points(plotter, "camera-c1")[1:], _cam("c", [1.0, 1.0, 4.0]).frustum(0, vw.FRUSTUM_M)[4:])
     assert np.allclose(_points(plotter, "gt"), V4 + [0.0, 0.0, 0.01])  # the first frame
@@ -359,6 +360,19 @@ def test_scene_for_session_frusta_title_and_framing(monkeypatch, tmp_path):
     assert np.allclose(_points(plotter, "gt"), V4 + [0.0, 0.0, 0.02]) and list(plotter.window_size) == list(
         sc.WINDOW_SIZE)
     assert _texts(plotter)["title"] == "sess  frame 2"
+    plotter.close()
+    plotter = vw.scene_for_session(s, plotter=sc.make_plotter(window_size=SIZE), cloud=False, skeleton=False)
+    assert "kinect" not in plotter.renderer.actors and "gt-skeleton-bones" not in plotter.renderer.actors
+    plotter.close()
+    two = _stand_in_session(tmp_path, frame_ids=(1, 2))
+    plotter = vw.scene_for_session(two, plotter=sc.make_plotter(window_size=SIZE))
+    assert _texts(plotter)["key-help"].endswith("\nslider or n / p: next / previous frame")
+    plotter.close()
+    no_cams = _stand_in_session(tmp_path, frame_ids=(4,), gt_frames=(4,), kinect=False, cameras=0)
+    plotter = vw.scene_for_session(no_cams, plotter=sc.make_plotter(window_size=SIZE))
+    gt = V4 + [0.0, 0.0, 0.04]
+    box = np.array([gt.min(0), gt.max(0)])  # the ground truth alone: no camera widens it
+    assert np.allclose(plotter.camera.position, _framed_like(box, direction=(0.3, 0.6, 1.0), margin=0.75, fit="sphere"))
     plotter.close()
     one = _stand_in_session(tmp_path, frame_ids=(4,), gt_frames=(), kinect=False, cameras=0)
     plotter = vw.scene_for_session(one, 4, plotter=sc.make_plotter(window_size=SIZE), title="mine")
@@ -386,10 +400,16 @@ def test_time_slider_shows_the_picked_frame(monkeypatch, tmp_path):
     assert vw.add_time_slider(plotter, s, frame_id=9) is plotter
     assert got["ids"] == [5, 7, 9] and got["start"] == 2
     got["show"](1)
+    assert {"kinect", "gt-skeleton-bones", "camera-c0-image"} <= set(plotter.renderer.actors)  # the defaults
     assert np.allclose(_points(plotter, "gt"), V4 + [0.0, 0.0, 0.07])
     assert _texts(plotter)["title"] == "sess  frame 7"
-    vw.add_time_slider(plotter, s, frame_id=8)
+    vw.add_time_slider(plotter, s, frame_id=8, images="mask", cloud=False, skeleton=False)
     assert got["start"] == 0
+    got["show"](2)
+    names = set(plotter.renderer.actors)
+    assert "kinect" not in names and "gt-skeleton-bones" not in names and "camera-c1-image" in names
+    vw.add_time_slider(plotter, _stand_in_session(tmp_path, frame_ids=(5, 6)))
+    assert got["ids"] == [5, 6]
     got.clear()
     vw.add_time_slider(plotter, _stand_in_session(tmp_path, frame_ids=(5,)))
     assert got == {}
@@ -411,7 +431,12 @@ def test_session_payload_exports_evenly_spaced_frames_and_opens_at_the_nearest(m
     assert payload["start"] == 3  # 122 is the exported frame nearest 121
     static = {o["name"] for o in payload["objects"]}
     assert "gt" not in static and {"camera-c0", "floor"} <= static
-    assert {o["name"] for o in payload["frames"][0]["objects"]} >= {"gt", "recon", "kinect"}
+    assert {o["name"] for o in payload["frames"][0]["objects"]} >= {"gt", "recon", "kinect", "gt-skeleton-bones"}
+    assert not {o["name"] for o in payload["frames"][0]["objects"]} & {"floor", "camera-c0"}  # statics once
+    bare_layers = vw.session_payload(s, plotter, frame_ids=[101, 102], cloud=False, skeleton=False)
+    for f in bare_layers["frames"]:
+        assert not {o["name"] for o in f["objects"]} & {"kinect", "gt-skeleton-bones", "gt-skeleton-joints"}
+    assert "kinect" not in plotter.renderer.actors and "gt-skeleton-bones" not in plotter.renderer.actors
     assert np.allclose(_points(plotter, "gt"), V4 + [0.0, 0.0, 0.01 * 122])  # left at the opening frame
     # the opening frame has no error map: the first exported frame that has one gives the bar
     assert payload["colorBars"] == payload["frames"][0]["colorBars"]
