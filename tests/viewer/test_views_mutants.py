@@ -449,6 +449,11 @@ def test_session_payload_exports_evenly_spaced_frames_and_opens_at_the_nearest(m
         assert not {o["name"] for o in f["objects"]} & {"kinect", "gt-skeleton-bones", "gt-skeleton-joints"}
     assert "kinect" not in plotter.renderer.actors and "gt-skeleton-bones" not in plotter.renderer.actors
     plotter.close()
+    cams_only = _stand_in_session(tmp_path, frame_ids=(1, 2), gt_frames=(), kinect=False)
+    p2 = vw.scene_for_session(cams_only, plotter=sc.make_plotter(window_size=SIZE), images="none")
+    only_static = vw.session_payload(cams_only, p2, images="none")  # frames without layers still export
+    assert only_static["objects"] and not any(f["objects"] for f in only_static["frames"])
+    p2.close()
     bare = _stand_in_session(tmp_path, frame_ids=(1,), gt_frames=(), kinect=False, cameras=0)
     with pytest.raises(sc.EmptySceneError) as exc:
         vw.session_payload(bare, sc.make_plotter(window_size=SIZE))
