@@ -497,3 +497,49 @@ def test_build_view_refuses_options_of_another_kind_and_dispatches(monkeypatch, 
     assert calls[-1] == ("mesh", "data mesh", None, "x.mesh")
     with pytest.raises(BodyStudioError):
         vw.build_view(tmp_path / "missing.ply")
+
+
+def test_build_view_hands_each_kind_its_scene_with_the_plotter_frame_and_options(monkeypatch, tmp_path):
+    import bodystudio.viewer.arm as va
+    import bodystudio.viewer.garment as vg
+    import bodystudio.viewer.mirror as vm
+
+    calls = []
+    made = []
+    monkeypatch.setattr(sc, "make_plotter", lambda off_screen, window_size: made.append(SimpleNamespace()) or made[-1])
+    rec = lambda name: lambda *a, **k: calls.append((name, a, k))  # noqa: E731
+    monkeypatch.setattr(vw, "scene_for_session", rec("session"))
+    monkeypatch.setattr(vw, "add_time_slider", rec("slider"))
+    monkeypatch.setattr(vw, "scene_for_avatar", rec("avatar"))
+    monkeypatch.setattr(vw, "scene_for_mesh", rec("mesh"))
+    monkeypatch.setattr(va, "scene_for_arm_sequence", rec("arm"))
+    monkeypatch.setattr(va, "add_arm_time_slider", rec("arm-slider"))
+    monkeypatch.setattr(vm, "scene_for_mirror", rec("mirror"))
+    monkeypatch.setattr(vg, "dress_fitted_body", lambda data: ("dressed", data))
+    monkeypatch.setattr(vg, "scene_for_garment", rec("garment"))
+    monkeypatch.setattr(vg, "add_garment_time_slider", rec("garment-slider"))
+    item = lambda kind: vw.Viewable(tmp_path / f"x.{kind}", kind, f"data {kind}")  # noqa: E731
+    for kind in ("arm", "mirror", "garment", "session"):
+        calls.clear()
+        assert vw.build_view(item(kind), frame=7, images="mask", cloud=False) is made[-1]
+        p = made[-1]
+        expected = {
+            "arm": [("arm", ("data arm", 7, p), {"cloud": False})],
+            "mirror": [("mirror", ("data mirror", 7, p), {})],
+            "garment": [("garment", ("data garment", 7, p), {"dressed": ("dressed", "data garment")})],
+            "session": [("session", ("data session", 7, p), {"images": "mask", "cloud": False})]}[kind]
+        assert calls == expected
+        calls.clear()
+        vw.build_view(item(kind), frame=7, images="mask", cloud=False, off_screen=False)
+        p = made[-1]
+        sliders = {
+            "arm": [("arm-slider", (p, "data arm"), {"cloud": False, "frame_id": 7})],
+            "mirror": [],
+            "garment": [("garment-slider", (p, "data garment", 7, ("dressed", "data garment")), {})],
+            "session": [("slider", (p, "data session"), {"images": "mask", "cloud": False, "frame_id": 7})]}[kind]
+        assert calls[1:] == sliders
+    calls.clear()
+    vw.build_view(item("avatar"))
+    vw.build_view(item("mesh"))
+    assert calls == [("avatar", ("data avatar", made[-2]), {"bone": None, "title": "x.avatar"}),
+                     ("mesh", ("data mesh", made[-1]), {"reference": None, "title": "x.mesh"})]
