@@ -434,6 +434,7 @@ def test_session_payload_exports_evenly_spaced_frames_and_opens_at_the_nearest(m
     assert {o["name"] for o in payload["frames"][0]["objects"]} >= {"gt", "recon", "kinect", "gt-skeleton-bones"}
     assert not {o["name"] for o in payload["frames"][0]["objects"]} & {"floor", "camera-c0"}  # statics once
     assert np.allclose(_points(plotter, "gt"), V4 + [0.0, 0.0, 0.01 * 122])  # left at the opening frame
+    assert {"kinect", "gt-skeleton-bones"} <= set(plotter.renderer.actors)  # with all its layers
     # the opening frame has no error map: the first exported frame that has one gives the bar
     assert payload["colorBars"] == payload["frames"][0]["colorBars"]
     assert payload["colorBars"][0]["title"] == "error (mm)"
