@@ -62,6 +62,7 @@ def test_cells_and_segments_by_hand():
     empty = wg._segments(np.array([1, 0]), closed=True)
     assert empty.shape == (0, 2) and empty.dtype == np.int64
     assert wg._cell_arrays(np.array([], dtype=np.int64)) == []
+    assert wg._segments(np.array([1, 5, 2, 0, 1]), closed=False).tolist() == [[0, 1]]  # a lone vertex is skipped
 
 
 def _frustum_camera(name="c0"):
@@ -152,6 +153,11 @@ def test_scene_payload_wireframe_and_line_only_meshes():
     plotter.add_mesh(pv.PolyData(V4, lines=np.array([3, 0, 1, 2])), name="polyline")
     plotter.add_mesh(pv.PolyData(V4[:2]), name="verts")
     plotter.add_mesh(sc.polydata(V4, F2), style="points", point_size=7, name="pts")
+    both = pv.PolyData(V4)  # a vertex per point, and a line
+    both.lines = np.array([2, 0, 1])
+    plotter.add_mesh(both, name="both")
+    plotter.add_mesh(pv.Cube().cast_to_unstructured_grid(), name="ug")
+    sc.add_point_cloud(plotter, V4[:1], name="one")
     objects = {o["name"]: o for o in wg.scene_payload(plotter)["objects"]}
     wire = _buf(objects["wire"]["indices"], "<u4").reshape(-1, 2)
     assert wire.tolist() == [[0, 1], [1, 2], [2, 0], [0, 2], [2, 3], [3, 0]]
@@ -160,6 +166,10 @@ def test_scene_payload_wireframe_and_line_only_meshes():
     assert objects["polyline"]["count"] == 4
     assert objects["verts"]["mode"] == "points" and "indices" not in objects["verts"] and objects["verts"]["count"] == 0
     assert objects["pts"]["mode"] == "points" and objects["pts"]["pointSize"] == 7.0 and "count" not in objects["pts"]
+    assert objects["both"]["mode"] == "lines" and _buf(objects["both"]["indices"], "<u4").tolist() == [0, 1]
+    ug = objects["ug"]  # not a PolyData: its surface, triangulated
+    assert ug["mode"] == "triangles" and ug["count"] == 6 * 2 * 3 and ug["n"] >= 8
+    assert objects["one"]["n"] == 1 and objects["one"]["mode"] == "points"
     plotter.close()
 
 
@@ -168,12 +178,23 @@ def test_actor_colors_follow_the_mapper_range_and_single_colours_have_none():
     values = np.array([1.0, 3.0, 5.0, 9.0])
     pd = sc.polydata(V4, F2)
     pd.point_data["v"] = values
-    plotter.add_mesh(pd, scalars="v", cmap="turbo", clim=[1.0, 9.0], name="v", show_scalar_bar=False)
+    plotter.add_mesh(pd, scalars="v", cmap="turbo", clim=[1.0, 9.0], name="v", scalar_bar_args={"title": "v bar"})
     plotter.add_mesh(sc.polydata(V4, F2), color="red", name="plain")
     objects = {o["name"]: o for o in wg.scene_payload(plotter)["objects"]}
     got = _buf(objects["v"]["colors"], np.uint8).reshape(-1, 3)
     assert np.abs(got - _turbo(values, 1.0, 9.0)).max() <= 1.0
     assert "colors" not in objects["plain"]
+    import matplotlib
+
+    (bar,) = wg.scene_payload(plotter)["colorBars"]
+    assert (bar["title"], bar["min"], bar["max"]) == ("v bar", 1.0, 9.0)
+    turbo = matplotlib.colormaps["turbo"].resampled(256)
+    idx = np.minimum((np.arange(32) / 31 * 256).astype(int), 255)  # 32 samples from the low to the high end
+    expected = np.array([turbo(i)[:3] for i in idx]) * 255
+    assert np.abs(np.array(bar["colors"]) - expected).max() <= 1.0
+    lut = plotter.renderer.actors["v"].GetMapper().GetLookupTable()
+    for k, entry in ((0, 0), (-1, 255)):  # the ends are the table's own colours in 0-255
+        assert bar["colors"][k] == [int(round(255 * c)) for c in lut.GetTableValue(entry)[:3]]
     plotter.close()
 
 
