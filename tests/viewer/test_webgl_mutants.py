@@ -267,7 +267,10 @@ def test_viewer_fragment_embeds_the_payload_and_a_frame_slider():
     assert t.find("div", **{"class": "bs-bar"}) and "bodystudioMount(\"v_1\");" in text
     assert t.text[t.find("div", **{"class": "bs-help"})[0][0]] == (
         "drag: rotate, shift+drag: pan, wheel: zoom, double-click: reset")
-    one = _Tree(wg.viewer_fragment({"objects": [], "frames": [{"id": 1, "objects": []}]}, "w"))
+    one_text = wg.viewer_fragment({"objects": [], "frames": [{"id": 1, "objects": []}]}, "w")
+    assert one_text.split('double-click: reset</div></div>\n', 1)[1].startswith('<script type="application/json"')
+    assert text.split('double-click: reset</div></div>\n', 1)[1].startswith('<div class="bs-frames">')
+    one = _Tree(one_text)
     assert one.find("input") == [] and one.find("div", **{"class": "bs-bar"}) == []
     k0 = _Tree(wg.viewer_fragment({"objects": [], "frames": [{"id": 5, "objects": []}, {"id": 6, "objects": []}]}, "w"))
     assert k0.find("input")[0][1]["value"] == "0" and k0.text[k0.find("span", id="w-frame-label")[0][0]] == "5"
@@ -276,7 +279,7 @@ def test_viewer_fragment_embeds_the_payload_and_a_frame_slider():
     assert str(exc.value) == "view id 'bad-id' must be an identifier"
 
 
-def test_scene_html_page_and_its_atomic_save(tmp_path):
+def test_scene_html_page_and_its_atomic_save(tmp_path, caplog):
     plotter, *_ = _scene()
     payload = {"objects": [{"name": "given"}], "camera": {}}
     page = wg.scene_html(plotter, "T <1>", payload)
@@ -286,6 +289,10 @@ def test_scene_html_page_and_its_atomic_save(tmp_path):
     assert json.loads(t.text[k])["objects"] == [{"name": "given"}]
     assert page.startswith('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">')
     assert wg.VIEWER_CSS in page and wg.STATUS_JS in page and wg.VIEWER_JS in page and page.endswith("</html>\n")
+    css = "body{margin:0;background:#1d1e23;color:#eee;font-family:sans-serif}h1{font-size:16px;margin:8px 12px}"
+    assert t.text[t.find("style")[0][0]] == wg.VIEWER_CSS + css
+    bare = _Tree(wg.page_head("x"))
+    assert bare.text[bare.find("style")[0][0]] == wg.VIEWER_CSS
     own = wg.scene_html(plotter)
     (k, _), = _Tree(own).find("script", id="view3d-data")
     assert {o["name"] for o in json.loads(_Tree(own).text[k + 0])["objects"]} >= {"heat", "floor"}
@@ -293,6 +300,13 @@ def test_scene_html_page_and_its_atomic_save(tmp_path):
     out = wg.save_scene_html(plotter, tmp_path / "v.HTM", "T", payload)
     assert out == tmp_path / "v.HTM" and out.read_text() == wg.scene_html(plotter, "T", payload)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["v.HTM"]
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="bodystudio.viewer.webgl"):
+        saved = wg.save_scene_html(plotter, tmp_path / "w.html")
+    text = saved.read_text()
+    assert text == wg.scene_html(plotter)  # the plotter's own scene, titled "bodystudio view"
+    assert [r.getMessage() for r in caplog.records] == [f"wrote {saved} ({len(text) / 1e6:.1f} MB)"]
     with pytest.raises(InputError) as exc:
         wg.save_scene_html(plotter, tmp_path / "v.txt")
     assert str(exc.value) == f"{tmp_path / 'v.txt'}: HTML export needs a path ending in .html"
