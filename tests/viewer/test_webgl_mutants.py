@@ -248,6 +248,7 @@ def test_share_repeated_indices_stores_each_long_array_once():
     assert payload["objects"][0]["indices"] == long_a and "shared" not in payload  # the input is left alone
     assert wg.share_repeated_indices({"objects": []}) == {"objects": [], "shared": {}}
     assert "frames" not in wg.share_repeated_indices({"objects": []})
+    assert wg.share_repeated_indices({"camera": 1}) == {"camera": 1, "objects": [], "shared": {}}
 
 
 def test_viewer_fragment_embeds_the_payload_and_a_frame_slider():
@@ -267,6 +268,10 @@ def test_viewer_fragment_embeds_the_payload_and_a_frame_slider():
     assert t.find("div", **{"class": "bs-bar"}) and "bodystudioMount(\"v_1\");" in text
     assert t.text[t.find("div", **{"class": "bs-help"})[0][0]] == (
         "drag: rotate, shift+drag: pan, wheel: zoom, double-click: reset")
+    two_bars = {"objects": [], "colorBars": [{"title": t, "min": 0.0, "max": 1.0, "colors": [[1, 1, 1]]} for t in "ab"]}
+    tb = _Tree(wg.viewer_fragment(two_bars, "b"))
+    (k, _), = tb.find("div", **{"class": "bs-view"})
+    assert not tb.text.get(k, "").strip() and len(tb.find("div", **{"class": "bs-bar"})) == 2  # no loose text
     one_text = wg.viewer_fragment({"objects": [], "frames": [{"id": 1, "objects": []}]}, "w")
     assert one_text.split('double-click: reset</div></div>\n', 1)[1].startswith('<script type="application/json"')
     assert text.split('double-click: reset</div></div>\n', 1)[1].startswith('<div class="bs-frames">')
