@@ -195,6 +195,10 @@ def test_actor_colors_follow_the_mapper_range_and_single_colours_have_none():
     lut = plotter.renderer.actors["v"].GetMapper().GetLookupTable()
     for k, entry in ((0, 0), (-1, 255)):  # the ends are the table's own colours in 0-255
         assert bar["colors"][k] == [int(round(255 * c)) for c in lut.GetTableValue(entry)[:3]]
+    for colour, v in zip(bar["colors"], np.linspace(1.0, 9.0, 32), strict=True):  # each sample, 8 bits exactly
+        rgb = [0.0, 0.0, 0.0]
+        lut.GetColor(v, rgb)
+        assert colour == [int(round(255 * c)) for c in rgb]
     plotter.close()
 
 
