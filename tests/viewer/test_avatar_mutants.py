@@ -16,15 +16,17 @@ import pytest
 from bodystudio.errors import FileFormatError
 from bodystudio.viewer import avatar as av
 
-V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0], [0.5, 2.0, 0.25]])
+V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0], [0.5, 2.0, 0.25], [1.0, 2.0, 0.5]])
 F = np.array([[0, 1, 2], [0, 2, 3], [3, 2, 4]])
-J = np.array([[0, 1, 0, 0], [1, 2, 0, 0], [2, 0, 0, 0], [1, 0, 0, 0], [2, 1, 0, 0]], np.uint16)
-W = np.array([[0.75, 0.25, 0, 0], [0.5, 0.5, 0, 0], [1, 0, 0, 0], [1, 0, 0, 0], [0.6, 0.4, 0, 0]], np.float32)
+J = np.array([[0, 1, 0, 0], [1, 2, 0, 0], [2, 0, 0, 0], [1, 0, 0, 0], [2, 1, 0, 0], [0, 0, 0, 0]], np.uint16)
+# the last row sums to 0.5: the reader renormalises every vertex's weights
+W = np.array([[0.75, 0.25, 0, 0], [0.5, 0.5, 0, 0], [1, 0, 0, 0], [1, 0, 0, 0], [0.6, 0.4, 0, 0], [0.5, 0, 0, 0]],
+             np.float32)
 HEADS = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 1.5, 0.5]])
 
 
 def _glb(path, *, interleave=False, normalized=False, indices=True, ibm=True, names=("root", None, "tip"),
-         mesh_node=None, primitives=1, joints_beyond=False, drop=None):
+         mesh_node=None, primitives=1, joints_beyond=False, drop=None, quantized=False):
     import pygltflib as g
 
     blobs, views, accs = [], [], []
@@ -40,10 +42,12 @@ def _glb(path, *, interleave=False, normalized=False, indices=True, ibm=True, na
 
     prims = []
     for _ in range(primitives):
-        if interleave:  # positions interleaved with 4 padding floats: a 28-byte stride
-            inter = np.c_[V.astype(np.float32), np.full((len(V), 4), 7.0, np.float32)]
-            pos = add(inter, 5126, "VEC3", 34962, stride=28)
+        if interleave:  # positions after 4 padding floats in each 28-byte row: a stride and an accessor offset
+            inter = np.c_[np.full((len(V), 4), 7.0, np.float32), V.astype(np.float32)]
+            pos = add(inter, 5126, "VEC3", 34962, stride=28, byteOffset=16)
             accs[pos].count = len(V)
+        elif quantized:  # normalized int16 positions (KHR_mesh_quantization): V / 4 in [-1, 1]
+            pos = add(np.round(V / 4 * 32767).astype(np.int16).repeat(1, 0), 5122, "VEC3", 34962, normalized=True)
         else:
             pos = add(V.astype(np.float32), 5126, "VEC3", 34962)
         idx = add(F.astype(np.uint32).ravel(), 5125, "SCALAR", 34963) if indices else None
@@ -89,12 +93,14 @@ def _weights(w=W) -> np.ndarray:
 def test_round_trip_of_positions_faces_weights_bones_and_names(tmp_path):
     a = av.load_avatar(_glb(tmp_path / "a.glb"))
     assert np.allclose(a.mesh.vertices, V) and np.array_equal(a.mesh.faces, F)
+    q = av.load_avatar(_glb(tmp_path / "q.glb", quantized=True))
+    assert np.allclose(q.mesh.vertices, V / 4, atol=1e-4)  # normalized integers are divided by their max
     assert np.allclose(a.weights, _weights(), atol=1e-7)
     assert np.allclose(a.heads, HEADS, atol=1e-6)
     assert a.parents.tolist() == [-1, 0, 1] and a.bone_names == ("root", "joint1", "tip") and a.n_bones == 3
     # a bone's tail is its first child's head; the leaf extends its parent's direction by half
     assert np.allclose(a.tails, [[0.0, 1.0, 0.0], [0.0, 1.5, 0.5], [0.0, 1.75, 0.75]], atol=1e-6)
-    assert a.dominant_bone.tolist() == [0, 1, 2, 1, 2]
+    assert a.dominant_bone.tolist() == [0, 1, 2, 1, 2, 0]
 
 
 def test_layouts_glTF_allows(tmp_path):
@@ -103,9 +109,11 @@ def test_layouts_glTF_allows(tmp_path):
     assert np.array_equal(a.mesh.faces, F)
     assert np.allclose(a.weights, _weights(np.round(W * 255) / 255), atol=1e-9)  # normalized uint8 / 255
     assert np.allclose(a.heads, HEADS, atol=1e-9)  # from the joint nodes' world transforms
-    two = av.load_avatar(_glb(tmp_path / "c.glb", primitives=2))
-    assert np.allclose(two.mesh.vertices, np.r_[V, V]) and np.array_equal(two.mesh.faces, np.r_[F, F + len(V)])
-    assert np.allclose(two.weights, np.r_[_weights(), _weights()], atol=1e-7)
+    three = av.load_avatar(_glb(tmp_path / "c.glb", primitives=3))
+    n = len(V)
+    assert np.allclose(three.mesh.vertices, np.r_[V, V, V])
+    assert np.array_equal(three.mesh.faces, np.r_[F, F + n, F + 2 * n])
+    assert np.allclose(three.weights, np.r_[_weights(), _weights(), _weights()], atol=1e-7)
 
 
 def test_no_indices_means_consecutive_triangles(tmp_path):
@@ -113,12 +121,12 @@ def test_no_indices_means_consecutive_triangles(tmp_path):
 
     path = _glb(tmp_path / "d.glb", indices=False)
     gltf = g.GLTF2().load(str(path))
-    gltf.accessors[0].count = 3  # the first three positions: one triangle
-    for k in (1, 2):
-        gltf.accessors[k].count = 3
-    gltf.save_binary(str(path))
     a = av.load_avatar(path)
-    assert np.array_equal(a.mesh.faces, [[0, 1, 2]]) and np.allclose(a.mesh.vertices, V[:3])
+    assert np.array_equal(a.mesh.faces, [[0, 1, 2], [3, 4, 5]]) and np.allclose(a.mesh.vertices, V)
+    gltf = g.GLTF2().load(str(path))
+    gltf.nodes[0].skin = None  # a skin nobody uses is not an avatar
+    gltf.save_binary(str(tmp_path / "unskinned.glb"))
+    assert not av.glb_has_skin(tmp_path / "unskinned.glb")
 
 
 def test_the_mesh_nodes_matrix_or_trs_moves_the_vertices(tmp_path):
@@ -171,6 +179,7 @@ def test_as_avatar_from_a_body_a_rig_or_bare_bones():
     body = SimpleNamespace(skeleton=sk, weights=[[1.0, 0.0]], vertices=V[:3], faces=F[:1])
     b = av.as_avatar(body)
     assert b.bone_names == ("r", "c") and np.array_equal(b.tails, HEADS[1:]) and np.array_equal(b.mesh.faces, F[:1])
+    assert np.array_equal(b.heads, HEADS[:2])
     assert b.parents.tolist() == [-1, 0] and np.array_equal(b.weights, [[1.0, 0.0]])
     R = np.tile(np.eye(3), (3, 1, 1))
     R[2] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]  # bone 2's y axis points along +z
@@ -178,8 +187,37 @@ def test_as_avatar_from_a_body_a_rig_or_bare_bones():
                           mesh="m", bone_names=["a", "b", "c"], weights=[[1, 0, 0]])
     r = av.as_avatar(rig)
     assert np.allclose(r.tails, HEADS + [[0, 1.0, 0], [0, 0.5, 0], [0, 0, 2.0]]) and r.heads.dtype == np.float64
+    assert (r.mesh, r.bone_names, r.parents.tolist(), r.weights.tolist()) == ("m", ("a", "b", "c"), [-1, 0, 1],
+                                                                             [[1, 0, 0]])
+    plain = av.as_avatar(SimpleNamespace(heads=HEADS, parents=[-1, 0, 1], mesh="m", bone_names="abc",
+                                         weights=[[1, 0, 0]]))  # no bind rotations at all
+    assert np.allclose(plain.tails, [[0.0, 1.0, 0.0], [0.0, 1.5, 0.5], [0.0, 1.75, 0.75]])
     bare = av.as_avatar(SimpleNamespace(heads=HEADS, parents=[-1, 0, 1], mesh="m", bone_names=["a", "b", "c"],
                                         weights=[[1, 0, 0]], bind_rotations=R, bone_lengths=None))
     assert np.allclose(bare.tails, [[0.0, 1.0, 0.0], [0.0, 1.5, 0.5], [0.0, 1.75, 0.75]])
     forest = av._tails_from_children(np.array([[0.0, 0, 0], [1.0, 0, 0]]), np.array([-1, -1]))
     assert np.array_equal(forest, [[0.0, 0, 0], [1.0, 0, 0]])  # a lone root keeps a zero-length bone
+    leaf = av._tails_from_children(np.array([[0.0, 0, 0], [0.0, 1, 0]]), np.array([-1, 0]))
+    assert np.array_equal(leaf[1], [0.0, 1.5, 0.0])  # a leaf whose parent is bone 0 extends it too
+
+
+def test_gltf_with_an_external_buffer_and_without_it(tmp_path):
+    import pygltflib as g
+
+    glb = _glb(tmp_path / "e.glb")
+    gltf = g.GLTF2().load(str(glb))
+    gltf.convert_buffers(g.BufferFormat.BINFILE)
+    gltf.save(str(tmp_path / "e.gltf"))
+    a = av.load_avatar(tmp_path / "e.gltf")
+    assert np.allclose(a.mesh.vertices, V) and np.allclose(a.weights, _weights(), atol=1e-7)
+    (bin_file,) = [p for p in tmp_path.iterdir() if p.suffix == ".bin"]
+    bin_file.unlink()
+    with pytest.raises(FileFormatError) as exc:
+        av.load_avatar(tmp_path / "e.gltf")
+    assert str(exc.value) == (f"{tmp_path / 'e.gltf'}: cannot read its buffer {bin_file.name!r}; keep the .bin file "
+                              "beside the .gltf")
+    (tmp_path / "junk.glb").write_bytes(b"not a gltf at all")
+    with pytest.raises(FileFormatError) as exc:
+        av.load_avatar(tmp_path / "junk.glb")
+    assert str(exc.value) == (f"{tmp_path / 'junk.glb'}: cannot read glTF (OSError: Unable to load binary gltf file. "
+                              "Header does not appear to be valid glb format.)")
