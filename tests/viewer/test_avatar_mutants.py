@@ -98,6 +98,7 @@ def test_round_trip_of_positions_faces_weights_bones_and_names(tmp_path):
     assert np.allclose(a.weights, _weights(), atol=1e-7)
     assert np.allclose(a.heads, HEADS, atol=1e-6)
     assert a.parents.tolist() == [-1, 0, 1] and a.bone_names == ("root", "joint1", "tip") and a.n_bones == 3
+    assert a.parents.dtype.kind == "i" and a.mesh.faces.dtype.kind == "i"  # indices stay integers
     # a bone's tail is its first child's head; the leaf extends its parent's direction by half
     assert np.allclose(a.tails, [[0.0, 1.0, 0.0], [0.0, 1.5, 0.5], [0.0, 1.75, 0.75]], atol=1e-6)
     assert a.dominant_bone.tolist() == [0, 1, 2, 1, 2, 0]
@@ -191,6 +192,9 @@ def test_as_avatar_from_a_body_a_rig_or_bare_bones():
                                                                              [[1, 0, 0]])
     plain = av.as_avatar(SimpleNamespace(heads=HEADS, parents=[-1, 0, 1], mesh="m", bone_names="abc",
                                          weights=[[1, 0, 0]]))  # no bind rotations at all
+    half = av.as_avatar(SimpleNamespace(heads=[[0, 0, 0], [0, 1, 0]], parents=[-1, 0], mesh="m", bone_names="ab",
+                                        weights=[[1, 0]], bind_rotations=R[:2]))  # rotations without lengths
+    assert half.heads.dtype == np.float64 and np.allclose(half.tails, [[0, 1, 0], [0, 1.5, 0]])
     assert np.allclose(plain.tails, [[0.0, 1.0, 0.0], [0.0, 1.5, 0.5], [0.0, 1.75, 0.75]])
     bare = av.as_avatar(SimpleNamespace(heads=HEADS, parents=[-1, 0, 1], mesh="m", bone_names=["a", "b", "c"],
                                         weights=[[1, 0, 0]], bind_rotations=R, bone_lengths=None))
