@@ -219,7 +219,7 @@ def scene_for_session(session, frame_id: int | None = None, plotter=None, images
     for cam in session.cameras:  # frusta stay when frames change
         sc.add_camera(plotter, cam, None, far=FRUSTUM_M)
     if session.kinect is not None:
-        sc.add_camera(plotter, session.kinect.depth, None, far=FRUSTUM_M, color=KINECT_COLOR, name="kinect-frustum")
+        sc.add_camera(plotter, session.kinect.depth, None, far=FRUSTUM_M, color=KINECT_COLOR, name="frustum-kinect")
     scene_for_frame(session, frame_id, plotter, images, cloud, skeleton)
     gt = session.frame(frame_id).gt_mesh
     sc.add_floor(plotter, _session_bounds(session, gt).mean(0), size=4.0)
