@@ -411,13 +411,14 @@ def population_shape_prior(model, sex: float, arm_length_m: float | None) -> tup
     are of it), and their height as the height-to-arm-length ratio's mean and spread times ``arm_length_m`` (the body
     tracker's arm length: a person's height follows the arm's, 3.57-3.60 x on the synthetic women, which the arm's
     depth does not show; without it the height's own mean and spread). The arm length gets no prior (sigma inf: the
-    tracker holds it). Returns ``(mean (4,), sigma (4,))``."""
+    tracker holds it), and nothing does with fewer than two training subjects (no spread to take). Returns
+    ``(mean (4,), sigma (4,))``."""
     rows = np.unique(np.asarray(model.shape_rows, np.float64), axis=0)
     if rows.shape[1] > 4:
         same = np.abs(rows[:, 4] - round(float(sex))) < 0.5
         rows = rows[same] if same.sum() >= 2 else rows
     if len(rows) < 2:
-        raise InputError("the shape prior needs at least two training subjects in the model")
+        return np.full(4, np.nan), np.full(4, np.inf)
     mean = np.r_[rows[:, :3].mean(axis=0), np.nan]
     sigma = np.r_[rows[:, :3].std(axis=0, ddof=1), np.inf]
     if arm_length_m is not None:

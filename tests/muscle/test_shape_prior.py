@@ -39,8 +39,8 @@ def test_the_prior_is_the_training_subjects_of_the_sex_and_the_height_follows_th
     one = SimpleNamespace(shape_rows=ROWS[:9])
     np.testing.assert_allclose(refine.population_shape_prior(one, 0.0, None)[0][:3],
                                ROWS[:9:3, :3].mean(axis=0), rtol=1e-12)
-    with pytest.raises(InputError, match="two training subjects"):
-        refine.population_shape_prior(SimpleNamespace(shape_rows=ROWS[:3]), 1.0, None)
+    # one training subject: no spread, no prior
+    assert np.isinf(refine.population_shape_prior(SimpleNamespace(shape_rows=ROWS[:3]), 1.0, 0.5)[1]).all()
 
 
 def test_the_prior_pulls_the_fit_in_units_of_its_spread(model_case):  # noqa: F811
