@@ -269,11 +269,12 @@ class CaptureOptions:
     # subjects of the run's sex, the height from the tracker's arm length), this weight per parameter in its spreads
     # (0: off, the paper's unregularised fit). Without it the 8 frames' fit moved with the noise seed (518: BMI 24.3 /
     # 23.4, height 1.607 / 1.475 m at seeds 0 / 1, true 20.4 / 1.582; 512 height 1.647 / 1.574, true 1.567): the arm's
-    # depth hardly sees BMI, muscularity or height. Weight 0.1 (the fit then stays within 0.01 of the prior's BMI at
-    # 0.01-1, chosen on 518 / 512's shape fits alone). Measured end to end (docs/muscle.md mus12a; no --shape, mixed
-    # model, 200 frames), median / p90 mm, off -> 0.1: 518:1 5.61 / 11.32 -> 2.06 / 4.86, 522:0 (held out) 4.40 / 9.40
-    # -> 3.36 / 5.15, 516:2 3.74 / 7.27 -> 3.46 / 6.35, 512:1 3.09 / 6.00 -> 3.39 / 5.54; men (100 frames) 501:0
-    # 2.74 / 4.80 -> 2.38 / 4.39, 507:0 4.54 / 7.92 -> 3.63 / 6.38. A given shape (--shape) is not touched.
+    # depth hardly sees BMI, muscularity or height. Weight 0.1: the smallest at which the seeds' fits agree (0.1 and 1
+    # within 0.1 BMI of each other; chosen on 518 / 512's shape fits alone). Measured end to end (docs/muscle.md
+    # mus12a; no --shape, mixed model, 200 frames), median / p90 mm, off -> 0.1: 518:0 3.51 / 5.68 -> 2.12 / 3.94,
+    # 518:1 5.61 / 11.32 -> 2.06 / 4.86 (518:2 2.21 / 3.97), 522:0 (held out) 4.40 / 9.40 -> 3.36 / 5.15, 516:2 3.74 /
+    # 7.27 -> 3.46 / 6.35, 512:1 3.09 / 6.00 -> 3.39 / 5.54; men (100 frames) 501:0 2.74 / 4.80 -> 2.38 / 4.39, 507:0
+    # 4.54 / 7.92 -> 3.63 / 6.38. A given shape (--shape) is not touched.
     shape_prior_weight: float = 0.1
     # Model-based tracking of the whole sequence after the per-frame fit (``refine.fit_arm_sequence``): the
     # torso placement and every frame's angles solved together (0 rounds: off).
