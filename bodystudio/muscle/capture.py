@@ -80,6 +80,7 @@ from bodystudio.muscle.refine import (
     initial_arm_pose_from_joints,
     model_based_filtering,
     noise_weighted_tracker_weight,
+    population_shape_prior,
     posed_joints,
     procrustes_part_transforms,
     refine_surface,
@@ -264,6 +265,17 @@ class CaptureOptions:
     # (true 0.492 / 0.515 / 0.474), median 6.11 / 7.81 / 11.50 -> 6.35 / 7.79 / 11.23 mm, p90 12.69 / 16.68 /
     # 21.90 -> 10.66 / 14.09 / 21.13 mm; 3000 (nearly fixed) no better.
     tracker_arm_length_weight: float = 100.0
+    # Fitted shape only: the shape fit's population prior (``refine.population_shape_prior``: the model's training
+    # subjects of the run's sex, the height from the tracker's arm length), this weight per parameter in its spreads
+    # (0: off, the paper's unregularised fit). Without it the 8 frames' fit moved with the noise seed (518: BMI 24.3 /
+    # 23.4, height 1.607 / 1.475 m at seeds 0 / 1, true 20.4 / 1.582; 512 height 1.647 / 1.574, true 1.567): the arm's
+    # depth hardly sees BMI, muscularity or height. Weight 0.1: the smallest at which the seeds' fits agree (0.1 and 1
+    # within 0.1 BMI of each other; chosen on 518 / 512's shape fits alone). Measured end to end (docs/muscle.md
+    # mus12a; no --shape, mixed model, 200 frames), median / p90 mm, off -> 0.1: 518:0 3.51 / 5.68 -> 2.12 / 3.94,
+    # 518:1 5.61 / 11.32 -> 2.06 / 4.86 (518:2 2.21 / 3.97), 522:0 (held out) 4.40 / 9.40 -> 3.36 / 5.15, 516:2 3.74 /
+    # 7.27 -> 3.46 / 6.35, 512:1 3.09 / 6.00 -> 3.39 / 5.54; men (100 frames) 501:0 2.74 / 4.80 -> 2.38 / 4.39, 507:0
+    # 4.54 / 7.92 -> 3.63 / 6.38. A given shape (--shape) is not touched.
+    shape_prior_weight: float = 0.1
     # Model-based tracking of the whole sequence after the per-frame fit (``refine.fit_arm_sequence``): the
     # torso placement and every frame's angles solved together (0 rounds: off).
     # Robust (Huber, scale in metres) residuals in the per-frame pose and shape/root fits (0: plain least
@@ -505,6 +517,9 @@ class CaptureOptions:
             raise InputError(f"pose_sigma_frames must be >= 0 (0: no smoothing), got {self.pose_sigma_frames}")
         if not self.sequence_pinned_se_m >= 0:
             raise InputError(f"sequence_pinned_se_m must be >= 0, got {self.sequence_pinned_se_m}")
+        if not self.shape_prior_weight >= 0:
+            raise InputError(f"shape_prior_weight must be >= 0 (0: no prior on the fitted shape), got "
+                             f"{self.shape_prior_weight}")
         if not self.sex_margin_mm >= 0:
             raise InputError(f"sex_margin_mm must be >= 0 (the held-out depth energies' difference below which the sex "
                              f"from the depth is ambiguous), got {self.sex_margin_mm}")
@@ -785,7 +800,9 @@ def capture_arm_frames(depths: list[np.ndarray], camera, template: ArmTemplate, 
                 tracker_joints=None if tracker_t is None else tracker_t[:n_shape],
                 tracker_weight=o.tracker_weight if known_shape is None else o.tracker_root_weight,
                 fixed_shape=known_shape is not None, arm_length=tracked_arm_length,
-                arm_length_weight=o.tracker_arm_length_weight * n_frames, huber_m=o.huber_m)
+                arm_length_weight=o.tracker_arm_length_weight * n_frames, huber_m=o.huber_m,
+                prior=None if known_shape is not None or o.shape_prior_weight <= 0 else
+                (*population_shape_prior(model, start.sex, tracked_arm_length), o.shape_prior_weight))
             base, J = model_rest_vertices(model, shape), model_joints(model, shape)
             fit_poses = [model_based_filtering(model, shape, root, nicp_meshes[j], base, W, kept_masks[j],
                                                frames_t[j], J, o.norm_limit, o.refine_pose,

@@ -334,7 +334,8 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
                          initial=None, nicp_weight: float = 0.0, rounds: int = 2,
                          tracker_joints: np.ndarray | None = None, tracker_weight: float = 1.0,
                          fixed_shape: bool = False, arm_length: float | None = None,
-                         arm_length_weight: float = 0.0, huber_m: float = 0.0) -> tuple:
+                         arm_length_weight: float = 0.0, huber_m: float = 0.0,
+                         prior: tuple | None = None) -> tuple:
     """Shape parameters (BMI, muscularity, height, arm length) of the sequence, fitted once (Sec. 6.2).
 
     Least squares over the given frames of the model mesh ``model_mesh(model, shape, pose_k)`` against
@@ -349,6 +350,8 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
     (the tracker's chain length averaged over the sequence) holds the arm-length parameter with
     ``arm_length_weight``. With
     ``fixed_shape`` (measured parameters in ``initial``) only the root is fitted (three unknowns, no bounds).
+    ``prior`` ``(mean (4,), sigma (4,), weight)`` (:func:`population_shape_prior`; the paper fits none) adds
+    ``sqrt(weight) (x - mean) / sigma`` for each parameter of finite ``sigma``.
     Returns ``(ArmShapeParams, root (4, 4))``.
     """
     from bodystudio.muscle.model import ArmShapeParams, model_joints, model_mesh
@@ -386,6 +389,10 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
                     r.append(np.sqrt(tracker_weight) * (posed - tj).ravel())
             if arm_length is not None and arm_length_weight > 0:
                 r.append(np.sqrt(arm_length_weight) * np.atleast_1d(x[3] - arm_length))
+            if prior is not None:
+                mean, sigma, weight = prior
+                held = np.isfinite(sigma)
+                r.append(np.sqrt(weight) * (x[:4][held] - mean[held]) / sigma[held])
             return np.concatenate(r)
 
         loss = dict(loss="huber", f_scale=huber_m) if huber_m > 0 else {}
@@ -396,6 +403,28 @@ def fit_shape_parameters(model, meshes: list[np.ndarray], poses: list[ArmPose], 
         x = least_squares(fun, x, bounds=(np.r_[lo, -big], np.r_[hi, big]),
                           x_scale=np.r_[np.maximum(hi - lo, 1e-3) / 4, np.full(3, 0.01)], max_nfev=30, **loss).x
     return ArmShapeParams.from_vector(x[:4], sex), root_of(x)
+
+
+def population_shape_prior(model, sex: float, arm_length_m: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """The Sec. 6.2 shape fit's prior from the model's training population (the paper's fit has none): the mean and
+    spread of the BMI and muscularity of the training subjects of ``sex`` (rounded; all of them when fewer than two
+    are of it), and their height as the height-to-arm-length ratio's mean and spread times ``arm_length_m`` (the body
+    tracker's arm length: a person's height follows the arm's, 3.57-3.60 x on the synthetic women, which the arm's
+    depth does not show; without it the height's own mean and spread). The arm length gets no prior (sigma inf: the
+    tracker holds it), and nothing does with fewer than two training subjects (no spread to take). Returns
+    ``(mean (4,), sigma (4,))``."""
+    rows = np.unique(np.asarray(model.shape_rows, np.float64), axis=0)
+    if rows.shape[1] > 4:
+        same = np.abs(rows[:, 4] - round(float(sex))) < 0.5
+        rows = rows[same] if same.sum() >= 2 else rows
+    if len(rows) < 2:
+        return np.full(4, np.nan), np.full(4, np.inf)
+    mean = np.r_[rows[:, :3].mean(axis=0), np.nan]
+    sigma = np.r_[rows[:, :3].std(axis=0, ddof=1), np.inf]
+    if arm_length_m is not None:
+        ratio = rows[:, 2] / rows[:, 3]
+        mean[2], sigma[2] = ratio.mean() * arm_length_m, ratio.std(ddof=1) * arm_length_m
+    return mean, np.maximum(sigma, 1e-6)
 
 
 def _shape_bounds(model, initial):

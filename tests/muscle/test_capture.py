@@ -392,7 +392,9 @@ def test_known_shape_is_used_as_given(arm_session_2k, arm_model_2k, arm_template
 
 
 def test_fitted_arm_length_follows_the_tracker(arm_session_2k, arm_model_2k, arm_training_2k):
-    """Without measured parameters the arm length is held near the tracker's chain length (all frames)."""
+    """Without measured parameters the arm length is held near the tracker's chain length (all frames). The shape
+    prior is off here (mus12a: it places the height by the tracker's arm length, which then pulls the arm length
+    too: 5.9 / 6.6 mm without / with this term at weight 0.1): the test isolates the arm-length term."""
     from bodystudio.muscle.arm import arm_template
     from bodystudio.muscle.capture import CaptureOptions, capture_arm_sequence
     from bodystudio.muscle.synthetic import session_arm_subject, subject_body
@@ -402,7 +404,8 @@ def test_fitted_arm_length_follows_the_tracker(arm_session_2k, arm_model_2k, arm
     err = {}
     for w in (0.0, 100.0):
         cap = capture_arm_sequence(arm_session_2k, arm_model_2k, template,
-                                   CaptureOptions(mode="model", shape_frames=3, tracker_arm_length_weight=w),
+                                   CaptureOptions(mode="model", shape_frames=3, tracker_arm_length_weight=w,
+                                                  shape_prior_weight=0.0),
                                    frames=slice(0, 3))
         err[w] = abs(cap.shape.arm_length_m - true)
     # Measured (2k, 3 frames, subject 2): 11.3 mm short without the tracker's length, 5.7 mm with it.
