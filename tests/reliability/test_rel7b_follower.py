@@ -150,3 +150,33 @@ def test_regain_takes_no_one_out_of_reach_or_another_person():
     got = [S.follow_subjects([a, b], bodies) for bodies in two]
     assert [tuple(None if x is None else x["player"] for x in g) for g in got] == \
         [(1, 2), (1, 2), (None, 2), (None, 2), (None, 2), (3, 2)]
+
+
+def test_mirror_run_passes_the_bystanders_frames_through_with_a_warning(monkeypatch):
+    """``mirror.run.session_inputs`` (the run's loop, its frame reader and body steps stood in by
+    tests/mirror/test_run_analytic.py's harness) on rel7a's walk-in: before, frames 6-10 reshaped the bystander as
+    player 1 (``tracked_as`` (1,), pairs from its pose); now they pass through with the run's warning, the first naming
+    the bystander's distance, and the actor is reshaped again under id 2 from frame 11."""
+    from tests.mirror import test_run_analytic as T
+
+    walk = _walk_in()
+
+    def read(self, session, i):
+        bodies = tuple(SimpleNamespace(player=b["player"], names=tuple(b["names"]), positions=b["positions"],
+                                       tracked=b["tracked"]) for b in walk[i])
+        player = np.zeros((T.CH, T.CW), np.uint8)
+        for b in bodies:  # the actor's pixels left, the bystander's right
+            player[(slice(2, 6), slice(4, 8)) if np.median(b.positions[:, 0]) < 0.5 else (slice(8, 10),
+                                                                                         slice(12, 14))] = b.player
+        return SimpleNamespace(rgb=np.full((T.CH, T.CW, 3), i, np.uint8), depth_m=np.ones((T.CH, T.CW)),
+                               player=player, seen=(slice(None), slice(0, T.CW)), bodies=bodies,
+                               body=lambda p: next((b for b in bodies if b.player == p), None))
+
+    monkeypatch.setattr(T._Frames, "read", read)
+    out, _ = T._session_inputs(monkeypatch, {i: {} for i in range(len(walk))}, ramp_frames=0)
+    assert [o.tracked_as for o in out] == [(1,)] * 3 + [(None,)] * 8 + [(2,)] * 3
+    assert all(o.warning is None and o.src_uv is not None for o in out[:3] + out[11:])
+    assert all(o.subject_missing and o.src_uv is None and "player 1 is not among the tracked bodies (players 1)"
+               in o.warning and o.warning.endswith("the frame passes through unchanged") for o in out[3:11])
+    assert "player 1 holds the subject's id 0.83 m from its last joints, farther than the 0.60 m" in out[3].warning
+    assert not out[11].person_mask[8:10, 12:14].any() and out[11].person_mask[2:6, 4:8].all()
