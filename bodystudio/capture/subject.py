@@ -58,6 +58,12 @@ def first_player(bodies: Sequence[dict]) -> int | None:
     return min((b["player"] for b in bodies), default=None)
 
 
+#: How fast (metres per second, median over the joints) a person moves at most: 3 m/s, a run across the studio.
+#: The follower's reach grows by this times the frame interval per frame the subject was missed
+#: (:func:`subject_step_m`; rel7b: before, 0.1 m a frame at any frame rate, 1.5 m/s at 15 fps).
+SUBJECT_SPEED_M_S = 3.0
+#: The frame rate a session without ``metadata.fps`` was recorded at (the readers' assumption).
+DEFAULT_FPS = 30.0
 #: How far (metres, median over the joints) a person moves at most between two frames at 30 fps (3 m/s). The
 #: mirror (:class:`SubjectFollower` with ``step_m``) takes a body holding the subject's id only within
 #: ``jump_m + step_m * (frames the subject was missed)`` of its last joints: further, it is another person the SDK
@@ -67,6 +73,34 @@ SUBJECT_STEP_M = 0.1
 #: flips; session 46's synthetic walk-in lands 0.43 m at frame 44, and a 0.3 m reach dropped 2 of its frames), and
 #: less than two people stand apart (the two-actor sessions: ~1.0 m).
 SUBJECT_JUMP_M = 0.6
+
+
+def subject_step_m(fps: float | None = None, stride: int = 1) -> float:
+    """How far the subject moves at most between two followed frames, ``stride`` frames apart at ``fps``:
+    :data:`SUBJECT_SPEED_M_S` times the interval (None: :data:`DEFAULT_FPS`). :data:`SUBJECT_STEP_M` times
+    ``stride`` at 30 fps exactly (the rel7a figures unchanged); ValueError for a rate that is no positive number."""
+    rate = DEFAULT_FPS if fps is None else float(fps)
+    if isinstance(fps, bool) or not np.isfinite(rate) or rate <= 0:
+        raise ValueError(f"frame rate {fps!r} is not a positive number of frames per second")
+    return SUBJECT_STEP_M * max(int(stride), 1) * (DEFAULT_FPS / rate)
+
+
+def session_step_m(session, stride: int = 1) -> float:
+    """:func:`subject_step_m` at ``session``'s recorded frame rate (``metadata.fps``; 30 without one, as the readers
+    assume). A rate that is no number in 1..240 fps is refused naming session.json (InputError)."""
+    from pathlib import Path
+
+    from bodystudio.errors import InputError
+
+    metadata = getattr(session, "metadata", None)
+    fps = metadata.get("fps") if isinstance(metadata, dict) else None
+    if fps is None:
+        return subject_step_m(None, stride)
+    ok = isinstance(fps, int | float) and not isinstance(fps, bool) and 1.0 <= float(fps) <= 240.0
+    if not ok:
+        raise InputError(f"{Path(session.path) / 'session.json'}: metadata.fps {fps!r} is not a frame rate in "
+                         "1..240; fix it or re-import the recording (bodystudio capture import records it)")
+    return subject_step_m(float(fps), stride)
 
 
 class SubjectFollower:
@@ -83,12 +117,19 @@ class SubjectFollower:
     rel6b: reconstruct and muscle capture, which take the id holder at any distance, followed the bystander from then
     on);
     otherwise the frame has no subject (None). ``player`` follows the id the subject holds, ``last`` its last
-    tracked body."""
+    tracked body.
+
+    ``regain`` (rel7b, with ``step_m``): while the subject is missed, a body of another id lying within
+    ``follow_m + step_m * missed`` of its last joints is the subject tracked again under a new id, when it stood
+    nowhere near another person in the frame before (a body nobody else held: the SDK's new track of the subject);
+    tier 2, after the bodies near its last joints and the id holder. Without it a subject that moved more than
+    ``follow_m`` while lost and came back under a new id was never found again."""
 
     def __init__(self, player: int | None = None, follow_m: float = SUBJECT_FOLLOW_M, step_m: float | None = None,
-                 jump_m: float = SUBJECT_JUMP_M, jumped_is_other: bool = False):
+                 jump_m: float = SUBJECT_JUMP_M, jumped_is_other: bool = False, regain: bool = False):
         self.player, self.follow_m, self.step_m, self.jump_m = player, float(follow_m), step_m, float(jump_m)
         self.jumped_is_other = bool(jumped_is_other)
+        self.regain = bool(regain) and step_m is not None
         self.chosen = player is not None
         self.last: dict | None = None
         self.missed = 0
@@ -120,6 +161,12 @@ class SubjectFollower:
             elif not other:
                 self.refused = {"player": bodies[holder]["player"], "distance_m": float(dist[holder]),
                                 "reach_m": float(reach), "body": bodies[holder]}
+        if self.regain and self.missed > 0:
+            radius = self.follow_m + self.step_m * self.missed
+            taken = {k for _, _, k in near}
+            near += sorted((2, d, k) for k, d in enumerate(dist) if k not in taken and k != holder
+                           and self.follow_m < d <= radius
+                           and not any(body_distance_m(bodies[k], o) <= self.follow_m for o in self.others))
         return near
 
     def see_others(self, bodies: Sequence[dict], mine: dict | None) -> None:
@@ -179,13 +226,21 @@ def follow_subjects(followers: Sequence[SubjectFollower], bodies: Sequence[dict]
 
 
 def stage_follower(player: int | None = None, follow_m: float = SUBJECT_FOLLOW_M,
-                   step_m: float | None = SUBJECT_STEP_M) -> SubjectFollower:
-    """The follower of ``reconstruct`` and ``muscle capture`` (rel7a): the id holder only within the subject's reach
-    (``SUBJECT_JUMP_M`` + ``step_m`` per missed frame, the mirror's speed limit), and an id holder refused for its
-    distance is another person from then on (followed as one while it stays), so a lost subject's id given to a
-    bystander who was not tracked the frame before is never taken, however long the subject stays lost. Before, these
-    stages took the id holder at any distance (``step_m`` None). ``step_m`` None: that old rule."""
-    return SubjectFollower(player, follow_m, step_m, jumped_is_other=step_m is not None)
+                   step_m: float | None = SUBJECT_STEP_M, regain: bool = True) -> SubjectFollower:
+    """The follower of ``reconstruct``, ``muscle capture`` (rel7a) and the mirror (rel7b): the id holder only within
+    the subject's reach (``SUBJECT_JUMP_M`` + ``step_m`` per missed frame, the speed limit; :func:`session_step_m`
+    gives ``step_m`` at the session's frame rate), and an id holder refused for its distance is another person from
+    then on (followed as one while it stays), so a lost subject's id given to a bystander who was not tracked the
+    frame before is never taken, however long the subject stays lost. ``regain``: a lost subject is found again under
+    a new id within ``follow_m + step_m * missed`` (:class:`SubjectFollower`). Before rel7a these stages took the id
+    holder at any distance (``step_m`` None: that old rule, without ``regain``)."""
+    return SubjectFollower(player, follow_m, step_m, jumped_is_other=step_m is not None, regain=regain)
+
+
+def session_follower(session, player: int | None = None, stride: int = 1) -> SubjectFollower:
+    """:func:`stage_follower` at ``session``'s frame rate (:func:`session_step_m`, frames ``stride`` apart): the one
+    follower of ``reconstruct``, ``muscle capture`` and the mirror's run, init and checks (rel7b)."""
+    return stage_follower(player, step_m=session_step_m(session, stride))
 
 
 def follow_subject(bodies_by_frame: Iterable[Sequence[dict]], player: int | None = None,
@@ -219,12 +274,13 @@ def subject_body(frame, player: int | None) -> dict | None:
 
 
 def session_subject(session, frame_ids: Sequence[int], player: int | None = None,
-                    step_m: float | None = SUBJECT_STEP_M, reasons: dict | None = None) -> dict[int, int | None]:
+                    step_m: float | None | str = "session", reasons: dict | None = None) -> dict[int, int | None]:
     """``{frame id: the subject's player id}`` over a run's frames (:func:`stage_follower`, read from each frame's
     ``kinect/joints``; None where the subject is absent). Computed once per run: a batch chunk that starts after a
     second person came into view gets the run's subject, not the lowest id of its own first frame. ``reasons``: filled
-    with ``{frame: SubjectFollower.lost_reason()}`` where the subject is absent."""
-    follower = stage_follower(player, step_m=step_m)
+    with ``{frame: SubjectFollower.lost_reason()}`` where the subject is absent. ``step_m`` "session": the step at the
+    session's frame rate (:func:`session_step_m`)."""
+    follower = stage_follower(player, step_m=session_step_m(session) if step_m == "session" else step_m)
     out: dict[int, int | None] = {}
     for f in frame_ids:
         body = follower.follow(frame_bodies(session.frame(f)))

@@ -1236,7 +1236,7 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
     if sensor is None:
         raise InputError(f"{session.path}: no Kinect calibration (kinect/calibration.json); "
                          "the mirror needs a Kinect RGB-D session")
-    from bodystudio.capture.subject import SUBJECT_STEP_M, SubjectFollower
+    from bodystudio.capture.subject import session_follower
     from bodystudio.mirror.compose import update_background
     from bodystudio.mirror.foreground import refine_foreground
     from bodystudio.mirror.frames import point_cloud, read_mirror_frame, register_depth_to_color
@@ -1254,7 +1254,7 @@ def collect_observations(session, frames=None, player: int = 1, n_frames: int = 
     # the actor is ``player`` where first tracked, then followed by its joints over the frames read (a person moves
     # step_m a frame, ``stride`` frames between two reads): the SDK renumbers a person it lost, crossing actors swap
     # ids, and the init must not fit the person who holds the id after a swap (rel6a)
-    follower = SubjectFollower(player, step_m=SUBJECT_STEP_M * max(int(stride), 1))
+    follower = session_follower(session, player, stride)
     for i in ids:
         if frames is None and first is not None:
             if i >= first + n_frames:

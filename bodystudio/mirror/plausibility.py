@@ -85,16 +85,16 @@ def frame_bodies_or_none(session, i) -> list[dict]:
 def followed_players(session, players, frames=None) -> dict[int, tuple[int | None, ...]]:
     """The Kinect id each of ``players`` (the ids they hold at their first tracked frame) holds in each of ``frames``
     (default the session's), followed by its joints as ``mirror run`` follows its actors
-    (:func:`bodystudio.capture.subject.follow_subjects`, the id holder within the
-    :data:`~bodystudio.capture.subject.SUBJECT_STEP_M` reach); None where an actor is not found. A frame whose joints
+    (:func:`bodystudio.capture.subject.follow_subjects` with the run's
+    :func:`~bodystudio.capture.subject.stage_follower`); None where an actor is not found. A frame whose joints
     cannot be read is left out (the run passes it through without following). Joints files only (0.2 ms a frame,
     two actors, load 12).
 
     rel6b: the checks read player N by its id; after the SDK renumbered the actor for most of a session they measured
     the other actor (refused a right source body, or took the other person's skeleton and mask edges)."""
-    from bodystudio.capture.subject import SUBJECT_STEP_M, SubjectFollower, follow_subjects
+    from bodystudio.capture.subject import follow_subjects, session_follower
 
-    followers = [SubjectFollower(int(p), step_m=SUBJECT_STEP_M) for p in players]
+    followers = [session_follower(session, int(p)) for p in players]
     out: dict[int, tuple[int | None, ...]] = {}
     for i in (session.frame_ids if frames is None else frames):
         try:

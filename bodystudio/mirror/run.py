@@ -603,10 +603,11 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     with a warning, as for one player.
 
     Each player is the id given at its first tracked frame and then followed by its joints
-    (:class:`bodystudio.capture.subject.SubjectFollower` with :data:`~bodystudio.capture.subject.SUBJECT_STEP_M`):
+    (:func:`bodystudio.capture.subject.stage_follower` at the session's frame rate, the stages' rule since rel7b):
     the SDK renumbers a person it lost and two crossing actors can swap ids, so the frame's body nearest the player's
     last joints (within 0.3 m) is the player under whatever id it holds, and a body holding the player's id farther
-    than a skeleton jumps in a frame (0.6 m, plus 0.1 m per frame the player was missed) is someone else. A run of
+    than a skeleton jumps in a frame (0.6 m, plus 3 m/s times the time the player was missed) is someone else, and
+    stays someone else while it stays (rel7b: before, it was taken once the reach had grown past it). A run of
     one player whose subject is not found while the tracker reports other people passes the frame through with a
     warning (``subject_missing``); a bystander is never reshaped in the subject's place.
 
@@ -630,13 +631,13 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
     bodies = tuple(body) if several else (body,)
     if len(bodies) != len(players) or not players:
         raise InputError(f"session_inputs: {len(players)} players but {len(bodies)} source bodies")
-    from bodystudio.capture.subject import SUBJECT_STEP_M, SubjectFollower, follow_subjects
+    from bodystudio.capture.subject import follow_subjects, session_follower
 
     actors = []
     for p, b in zip(players, bodies, strict=True):
         c_target = target_coeffs(model, b.coeffs, edits)
         actors.append(_Actor(p, b, c_target, model.vertices(c_target),
-                             follower=SubjectFollower(p, step_m=SUBJECT_STEP_M)))
+                             follower=session_follower(session, p)))
     camera = sensor.color
     if refine:
         from bodystudio.mirror.frames import point_cloud
@@ -702,7 +703,8 @@ def session_inputs(session, body, model, edits: dict[str, float], player=1, ramp
                     if not several:
                         warning = (f"player {a.player}{held} is not among the tracked bodies (players "
                                    f"{', '.join(str(b.player) for b in frame.bodies)}): the run's subject is not "
-                                   "found near its last joints; the frame passes through unchanged")
+                                   f"found near its last joints{a.follower.lost_reason()}; the frame passes through "
+                                   "unchanged")
                         break
                 continue  # left out of the frame, as a player out of view
             mine = person if not several else players_c == pid

@@ -1362,11 +1362,11 @@ def session_arm_tracker_rows(session, ids, side: str) -> tuple[dict, dict]:
     ``({frame: (3, 3) or None}, {frame: (joints file, why)})``, the second for the frames without them (the joints
     missing or null, or the subject not tracked while someone else is)."""
     from bodystudio.capture.session import stream_path
-    from bodystudio.capture.subject import frame_bodies, stage_follower
+    from bodystudio.capture.subject import frame_bodies, session_follower
 
     want = TRACKER_JOINTS[side]
     rows, problems = {}, {}
-    follower = stage_follower()
+    follower = session_follower(session)
     for fid in ids:
         path = Path(session.path) / stream_path("kinect_joints", fid)
         try:
@@ -1404,13 +1404,13 @@ def session_arm_tracker(session, ids, side: str) -> np.ndarray | None:
     a traceback, and an absent one dropped the tracker from every frame, which left the fit without its hold on
     the arm and the self-check blaming the calibration or the arm side."""
     from bodystudio.capture.session import stream_path
-    from bodystudio.capture.subject import follow_subject, frame_bodies
+    from bodystudio.capture.subject import follow_subject, frame_bodies, session_step_m
 
     want = TRACKER_JOINTS[side]
     rows, gaps, absent = [], [], {}
     # the first frame's person, followed (a second person coming into view with a lower player id is not taken)
     bodies = [frame_bodies(session.frame(fid)) for fid in ids]
-    for fid, joints, others in zip(ids, follow_subject(bodies), bodies, strict=True):
+    for fid, joints, others in zip(ids, follow_subject(bodies, step_m=session_step_m(session)), bodies, strict=True):
         arm = None
         if joints is not None and all(n in joints["names"] for n in want):
             arm = np.asarray(joints["positions"], np.float64)[[joints["names"].index(n) for n in want]]

@@ -69,7 +69,7 @@ def test_a_bystander_given_the_lost_subjects_id_is_not_followed():
     # lost for 8 frames: the reach grows to 0.6 + 0.8 m, but the id holder refused once stays another person
     assert [_x(b) for b in S.follow_subject(_walk_in(n=14, lost=8))] == [0.0, 0.01, 0.02] + [None] * 8 + \
         [0.11, 0.12, 0.13]
-    # the mirror's rule (the speed limit alone) takes it once the reach passes its 0.83 m, after three missed frames
+    # the mirror's rule before rel7b (the speed limit alone, still the class default) takes it after three missed frames
     mirror = S.SubjectFollower(step_m=S.SUBJECT_STEP_M)
     assert [_x(mirror.follow(b)) for b in _walk_in(n=14, lost=8)][3:7] == [None, None, None, 0.85]
 
