@@ -153,8 +153,10 @@ def main() -> None:
     parser.add_argument("--posture", action="store_true", help="E_trunk centred on the running mean posture")
     args = parser.parse_args()
     session = open_session(args.session)
-    rec = record(session, untwist=not args.twisted,
-                 posture_bones=("spine_02", "neck_01", "head") if args.posture else ())
+    from bodystudio.mirror.run import POSTURE_BONES
+
+    rec = record(session, untwist=not args.twisted,  # the run's running posture (on since mir12ae) or MIR12q's
+                 posture_bones=("spine_02", "neck_01", "head") if args.posture else POSTURE_BONES)
     body, model = load_source(session)
     sk = body.skeleton
     c_t = target_coeffs(model, body.coeffs, session.metadata["edits"])
