@@ -15,7 +15,8 @@ first, middle and last frame). MIR12q: the mean error (bias) of the trunk bones'
 rest axes (x: to the body's left, a positive x a forward lean; y: a yaw to the left) for the IK, the run and the IK
 on the true rest skeleton (what the fitted skeleton adds), and the
 share of the displacement error that is the same in every frame (the norm of its mean over frames, in the true
-root's axes); ``--posture``: E_trunk centred on the run's running mean posture (``run.POSTURE_BONES``, MIR12q).
+root's axes); ``--posture``: E_trunk centred on the running mean posture of MIR12q's bones (the run's own
+``run.POSTURE_BONES`` are used without it: the same three since mir12ae, () before).
 """
 
 from __future__ import annotations
