@@ -15,7 +15,8 @@ first, middle and last frame). MIR12q: the mean error (bias) of the trunk bones'
 rest axes (x: to the body's left, a positive x a forward lean; y: a yaw to the left) for the IK, the run and the IK
 on the true rest skeleton (what the fitted skeleton adds), and the
 share of the displacement error that is the same in every frame (the norm of its mean over frames, in the true
-root's axes); ``--posture``: E_trunk centred on the run's running mean posture (``run.POSTURE_BONES``, MIR12q).
+root's axes); ``--posture``: E_trunk centred on the running mean posture of MIR12q's bones (the run's own
+``run.POSTURE_BONES`` are used without it: the same three since mir12ae, () before).
 """
 
 from __future__ import annotations
@@ -153,8 +154,10 @@ def main() -> None:
     parser.add_argument("--posture", action="store_true", help="E_trunk centred on the running mean posture")
     args = parser.parse_args()
     session = open_session(args.session)
-    rec = record(session, untwist=not args.twisted,
-                 posture_bones=("spine_02", "neck_01", "head") if args.posture else ())
+    from bodystudio.mirror.run import POSTURE_BONES
+
+    rec = record(session, untwist=not args.twisted,  # the run's running posture (on since mir12ae) or MIR12q's
+                 posture_bones=("spine_02", "neck_01", "head") if args.posture else POSTURE_BONES)
     body, model = load_source(session)
     sk = body.skeleton
     c_t = target_coeffs(model, body.coeffs, session.metadata["edits"])

@@ -15,7 +15,8 @@ before MIR12s; ``refine-upright``: the bodies posed with an upright root, ``run.
 ``refine-root-kept-upright``: both; ``refine-untwist-feet``: the feet untwisted too, ``run.UNTWIST_FEET``,
 mir12aa's default; ``refine-feet-twisted``: the IK's warm-started foot twist kept, before mir12aa;
 ``refine-pelvis-lean``: E_upright, the pelvis's lean held near upright, ``run.PELVIS_TILT_RAD =
-refine.PELVIS_TILT_RAD``, mir12ad's option), then
+refine.PELVIS_TILT_RAD``, mir12ad's option; the default since mir12ae); ``refine-before-mir12ae``: neither E_upright
+nor the running posture (``run.PELVIS_TILT_RAD = None``, ``run.POSTURE_BONES = ()``: main before mir12ae), then
 ``evaluate_mirror`` on each; prints one JSON line per run with the scores and the per-step median milliseconds
 (wall, so only comparable at one load).
 """
@@ -64,6 +65,8 @@ def _refine_as(run: str, weights: dict | None = None):
     lean = run_module.PELVIS_TILT_RAD
     if run == "refine-pelvis-lean":  # E_upright: the pelvis's lean held near upright (mir12ad)
         run_module.PELVIS_TILT_RAD = refine.PELVIS_TILT_RAD
+    if run == "refine-before-mir12ae":  # neither E_upright nor the running posture (the run before mir12ae)
+        run_module.PELVIS_TILT_RAD, run_module.POSTURE_BONES = None, ()
     if run == "refine-twisted":  # the IK's warm-started limb twist (before MIR12p)
         run_module.UNTWIST_BONES, run_module.UNTWIST_FEET = (), False
     if run in ("refine-untwist-feet", "refine-feet-twisted"):  # the IK's feet untwisted as its limbs or not (mir12aa)
@@ -102,7 +105,7 @@ def main() -> None:
                                  "refine-before-mir12h", "refine-weights", "refine-twisted", "refine-registered",
                                  "refine-posture", "refine-registered-posture", "refine-root-kept", "refine-upright",
                                  "refine-root-kept-upright", "refine-untwist-feet", "refine-feet-twisted",
-                                 "refine-pelvis-lean"],
+                                 "refine-pelvis-lean", "refine-before-mir12ae"],
                         help="the runs per session: the IK pose, the refined pose, the refined pose without E_trunk "
                              "or with two Gauss-Newton steps, or without the warp's edge clamp (MIR12g's A/Bs)")
     parser.add_argument("--weights", default="", help="refine-weights: RefineWeights fields, e.g. depth_samples=2000")

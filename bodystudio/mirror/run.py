@@ -98,8 +98,10 @@ REGISTER_OUTLINE_ONE_PLAYER = True
 #: Trunk bones whose E_trunk centre follows the run's own running mean of their bend (the subject's static posture,
 #: :func:`bodystudio.mirror.refine.updated_posture`, over POSTURE_WINDOW frames) instead of the rest pose; () holds
 #: them at the rest pose. MIR12q: displacement error 42 / 41 / 43 / 52 / 53 3.30 / 2.87 / 2.70 / 5.68 / 2.87 ->
-#: 3.26 / 2.95 / 2.62 / 5.24 / 2.85 mm with the three below: off (docs/mirror.md).
-POSTURE_BONES: tuple[str, ...] = ()
+#: 3.26 / 2.95 / 2.62 / 5.24 / 2.85 mm with the three below (off then). mir12ae: on, with :data:`PELVIS_TILT_RAD`
+#: (the two together, on the settled init's bodies with the SDK knee angle): end to end 52 0.9463 -> 0.9484, the 15
+#: held-out sessions -0.0003 to +0.0009 (docs/mirror.md, "Session 52 through the run's pose").
+POSTURE_BONES: tuple[str, ...] = ("spine_02", "neck_01", "head")
 POSTURE_WINDOW = 30
 #: The limbs whose twist each frame's IK pose drops before the refinement and the bodies
 #: (:func:`bodystudio.mirror.track.untwisted_pose`; () keeps the IK's warm-started twist, as before MIR12p).
@@ -122,9 +124,10 @@ def untwist_bones() -> tuple[str, ...]:
 UPRIGHT_ROOT = True
 #: E_upright's scale in the run's pose refinement (:attr:`bodystudio.mirror.refine.RefineWeights.pelvis_tilt_rad`,
 #: radians; e.g. :data:`bodystudio.mirror.refine.PELVIS_TILT_RAD`): the pelvis held near upright, so that a stooping
-#: person's bend goes into the spine rather than into a tilt of the pelvis that turns the target with it. None (the
-#: default): off (mir12ad, docs/mirror.md).
-PELVIS_TILT_RAD: float | None = None
+#: person's bend goes into the spine rather than into a tilt of the pelvis that turns the target with it; None: off
+#: (mir12ad). The default since mir12ae, 1.5 degrees (= ``refine.PELVIS_TILT_RAD``), with :data:`POSTURE_BONES`:
+#: the stoop E_upright keeps out of the pelvis is held in the spine at the subject's own posture (docs/mirror.md).
+PELVIS_TILT_RAD: float | None = float(np.radians(1.5))
 
 
 def refine_steps(n_players: int) -> int:

@@ -128,6 +128,7 @@ def test_the_run_registers_one_players_bodies_and_pairs_them_again(monkeypatch, 
         b.skeleton = SimpleNamespace(parents=f"parents{b.p}")
     monkeypatch.setattr(refine_mod, "refine_plan", lambda *a, **kw: "plan")
     monkeypatch.setattr(refine_mod, "refine_pose", lambda *args, **kw: args[2])
+    monkeypatch.setattr(refine_mod, "updated_posture", lambda posture, *a, **kw: posture)  # stand-in skeletons
     monkeypatch.setattr(frames_mod, "point_cloud", lambda frame, sensor, p: np.array([[0.0, 0.5, 2.0]]))
     dense = SimpleNamespace(source_mask="mask", source_depth="depth", origin=(1, 2))
     original = run_mod.frame_pairs

@@ -35,6 +35,7 @@ def test_session_inputs_pass_the_steps_to_every_refinement(monkeypatch, several)
         return args[2]
 
     monkeypatch.setattr(refine_mod, "refine_pose", refine_pose)
+    monkeypatch.setattr(refine_mod, "updated_posture", lambda posture, *a, **kw: posture)  # stand-in poses
     players, bodies = ([1, 2], [b1, b2]) if several else (1, b1)
     for o in run_mod.session_inputs(session, bodies, model, {"taller": 1.0}, players, 2, [0, 5], refine=True):
         if o.late_pairs is not None:
@@ -48,8 +49,9 @@ def test_one_player_gets_more_depth_points_several_the_default():
 
     assert RefineWeights().depth_samples == 400  # refine_pose's own default (init, oracle scripts) is unchanged
     assert run_mod.REFINE_DEPTH_SAMPLES_ONE_PLAYER == 2000
-    assert run_mod.refine_weights(1) == RefineWeights(depth_samples=2000)
-    assert all(run_mod.refine_weights(n) == RefineWeights() for n in (2, 3))
+    tilt = run_mod.PELVIS_TILT_RAD  # E_upright, the run's since mir12ae (test_mirror_refine_pelvis_tilt_options)
+    assert run_mod.refine_weights(1) == RefineWeights(depth_samples=2000, pelvis_tilt_rad=tilt)
+    assert all(run_mod.refine_weights(n) == RefineWeights(pelvis_tilt_rad=tilt) for n in (2, 3))
 
 
 @pytest.mark.parametrize("several", [False, True])
@@ -72,6 +74,7 @@ def test_session_inputs_pass_the_weights_to_every_refinement(monkeypatch, severa
         return args[2]
 
     monkeypatch.setattr(refine_mod, "refine_pose", refine_pose)
+    monkeypatch.setattr(refine_mod, "updated_posture", lambda posture, *a, **kw: posture)  # stand-in poses
     players, bodies = ([1, 2], [b1, b2]) if several else (1, b1)
     for o in run_mod.session_inputs(session, bodies, model, {"taller": 1.0}, players, 2, [0, 5], refine=True):
         if o.late_pairs is not None:

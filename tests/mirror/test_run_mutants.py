@@ -573,8 +573,7 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
 
     def refine_pose(plan, skeleton, pose, camera, fg, positions, tracked, points, occluders, version, iterations,
                     weights, posture=None):
-        assert posture is None  # E_trunk at the rest pose unless run.POSTURE_BONES (MIR12q, off)
-        refined.append(dict(plan=plan, skeleton=skeleton, pose=pose, camera=camera, fg=fg.copy(),
+        refined.append(dict(plan=plan, skeleton=skeleton, pose=pose, camera=camera, fg=fg.copy(), posture=posture,
                             joints=positions[0, 0], tracked=tracked, points=points, occluders=occluders.copy(),
                             version=version, iterations=iterations, depth_samples=weights.depth_samples))
         if pose == "pose2.5":
@@ -584,6 +583,13 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
         return pose + "+r"
 
     monkeypatch.setattr(refine_mod, "refine_pose", refine_pose)
+    postures = []  # E_trunk's centre: each player's running posture of its refined poses (run.POSTURE_BONES, mir12ae)
+
+    def updated_posture(posture, skeleton, pose, frames, window, bones):
+        postures.append((posture, skeleton, pose, frames, window, bones))
+        return f"posture{frames}:{pose}"
+
+    monkeypatch.setattr(refine_mod, "updated_posture", updated_posture)
     players, bodies = ([1, 2], [b1, b2]) if several else (1, b1)
     out = list(run_mod.session_inputs(session, bodies, model, {"taller": 1.0}, players, 2, [0, 5], refine=True))
     assert [p[3] for p in plans] == (["sk1", "sk2"] if several else ["sk1"])
@@ -601,6 +607,10 @@ def test_session_inputs_refine_each_pose_against_its_own_foreground(monkeypatch,
     assert [r["plan"] for r in refined] == (["plan1", "plan2"] if several else ["plan1"])
     assert [r["pose"] for r in refined] == (["pose1.0", "pose2.0"] if several else ["pose1.0"])
     assert [r["joints"] for r in refined] == ([10.0, 20.0] if several else [10.0])
+    # the first refinement of each player holds the trunk at rest, and its refined pose starts the running posture
+    assert [r["posture"] for r in refined] == ([None, None] if several else [None])
+    assert postures == [(None, sk, p + "+r", 1, run_mod.POSTURE_WINDOW, ("spine_02", "neck_01", "head"))
+                        for sk, p in ((("sk1", "pose1.0"), ("sk2", "pose2.0")) if several else (("sk1", "pose1.0"),))]
     r1 = refined[0]
     assert r1["skeleton"] == "sk1" and r1["camera"] is session.kinect.color and r1["version"] == "v2"
     # two Gauss-Newton steps when the run reshapes one player, one each for several (MIR12k, run.refine_steps)

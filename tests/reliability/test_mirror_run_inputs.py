@@ -137,7 +137,7 @@ def test_a_player_is_never_paired_with_another_players_body(sessions, tmp_path, 
 
 def test_a_posture_of_the_wrong_shape_is_a_one_line_error():
     """MIR12q: ``refine_pose(posture=)`` (E_trunk's centre, one direction per bone) refuses another shape before any
-    work, naming the shape it wants; the run's option (``run.POSTURE_BONES``) is off by default."""
+    work, naming the shape it wants; the run's option (``run.POSTURE_BONES``) is on by default since mir12ae."""
     from types import SimpleNamespace
 
     import numpy as np
@@ -149,4 +149,4 @@ def test_a_posture_of_the_wrong_shape_is_a_one_line_error():
     skeleton = SimpleNamespace(n_bones=53)
     with pytest.raises(InputError, match=r"\(53, 3\)"):
         refine_pose(None, skeleton, None, None, np.zeros((4, 4), bool), posture=np.zeros((52, 3)))
-    assert run.POSTURE_BONES == ()
+    assert run.POSTURE_BONES == ("spine_02", "neck_01", "head")  # on since mir12ae
