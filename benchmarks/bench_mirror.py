@@ -232,13 +232,15 @@ def _session_side(quick: bool) -> tuple[list[str], float | None, float | None, d
             lines.append(f"`--refine-pose`, {players} player{'s' if players > 1 else ''} reshaped: the pose "
                          f"refinement {ms[0]:.1f} ms CPU ({ms[1]:.1f} wall) per frame and player, {steps} "
                          f"Gauss-Newton step{'s' if steps > 1 else ''} (the mean shape posed by the IK against the "
-                         "player mask, depth and joints of the last frame).")
+                         "player mask, depth and joints of the last frame; with the run's pelvis-lean prior and its "
+                         "running posture, updated after the frame).")
     return (lines, register[0], track["ik_cpu_ms"] + track["bodies_cpu_ms"], refine_ms or None)
 
 
 def _refine_pose_ms(session, model, frame, frames, iterations: int = 1, weights=None) -> tuple[float, float] | None:
     """CPU and wall ms of :func:`bodystudio.mirror.refine.refine_pose` (``iterations`` Gauss-Newton steps, the run's
-    ``weights`` where given) on ``frame`` (None without the module)."""
+    ``weights`` where given, E_trunk centred on the run's running posture and that posture updated after it, as
+    ``run_mirror`` does) on ``frame`` (None without the module)."""
     import importlib
 
     try:
@@ -259,11 +261,21 @@ def _refine_pose_ms(session, model, frame, frames, iterations: int = 1, weights=
     points = frames.point_cloud(frame, sensor, 1)
     plan = refine.refine_plan(body.vertices, body.faces, body.weights, body.skeleton, sensor.version,
                               twist_bones=refine.TWIST_BONES)  # the run's plan (MIR12h)
-    return _median_ms(lambda: refine.refine_pose(plan, body.skeleton, pose, sensor.color, players == 1,
-                                                 tracked.positions, tracked.tracked, points[points[:, 1] > 0.02],
-                                                 (players > 0) & (players != 1), sensor.version,
-                                                 iterations=iterations,
-                                                 **({} if weights is None else {"weights": weights})), 7)
+    from bodystudio.mirror import run as run_mod
+
+    # the run's running posture (mir12ae: E_trunk centred on it, updated after every refined frame)
+    bones, window = run_mod.POSTURE_BONES, run_mod.POSTURE_WINDOW
+    posture = refine.updated_posture(None, body.skeleton, pose, 1, window, bones) if bones else None
+
+    def refined():
+        refined_pose = refine.refine_pose(plan, body.skeleton, pose, sensor.color, players == 1, tracked.positions,
+                                          tracked.tracked, points[points[:, 1] > 0.02],
+                                          (players > 0) & (players != 1), sensor.version, iterations=iterations,
+                                          posture=posture, **({} if weights is None else {"weights": weights}))
+        if bones:
+            refine.updated_posture(posture, body.skeleton, refined_pose, 2, window, bones)
+
+    return _median_ms(refined, 7)
 
 
 def run(quick: bool = False) -> str:
