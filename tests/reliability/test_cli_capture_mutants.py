@@ -13,29 +13,11 @@ import inspect
 from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
-from bodystudio.errors import InputError
-
-
-def _invoke(args):
-    from bodystudio.cli.main import app
-
-    return CliRunner().invoke(app, [str(a) for a in args])
-
-
-def _refused(res, message):
-    assert isinstance(res.exception, InputError), (res.exit_code, res.output, res.exception)
-    assert str(res.exception) == message
-
-
-class Spy:
-    def __init__(self, ret=None, fn=None):
-        self.calls, self.ret, self.fn = [], ret, fn
-
-    def __call__(self, *args, **kwargs):
-        self.calls.append((args, kwargs))
-        return self.fn(*args, **kwargs) if self.fn is not None else self.ret
+from tests.reliability.cli_spies import Spy
+from tests.reliability.cli_spies import help_text as _help
+from tests.reliability.cli_spies import invoke as _invoke
+from tests.reliability.cli_spies import refused as _refused
 
 
 class Session:
@@ -47,11 +29,6 @@ class Session:
 
     def verify(self):
         return 42
-
-
-def _help(args) -> str:
-    res = _invoke([*args, "--help"])
-    return " " + " ".join(res.stdout.replace("│", " ").split()) + " "
 
 
 @pytest.fixture(autouse=True)

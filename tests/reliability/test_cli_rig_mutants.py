@@ -13,20 +13,9 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from typer.testing import CliRunner
 
-from bodystudio.errors import InputError
-
-
-def _invoke(args):
-    from bodystudio.cli.main import app
-
-    return CliRunner().invoke(app, [str(a) for a in args])
-
-
-def _refused(res, message):
-    assert isinstance(res.exception, InputError), (res.exit_code, res.output, res.exception)
-    assert str(res.exception) == message
+from tests.reliability.cli_spies import invoke as _invoke
+from tests.reliability.cli_spies import refused as _refused
 
 
 class Clock:

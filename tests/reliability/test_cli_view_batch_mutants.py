@@ -13,35 +13,11 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from typer.testing import CliRunner
 
 from bodystudio.errors import InputError
-
-
-def _invoke(args):
-    from bodystudio.cli.main import app
-
-    return CliRunner().invoke(app, [str(a) for a in args])
-
-
-def _refused(res, message):
-    assert isinstance(res.exception, InputError), (res.exit_code, res.output, res.exception)
-    assert str(res.exception) == message
-
-
-class Spy:
-    def __init__(self, ret=None, fn=None):
-        self.calls, self.ret, self.fn = [], ret, fn
-
-    def __call__(self, *args, **kwargs):
-        self.calls.append((args, kwargs))
-        return self.fn(*args, **kwargs) if self.fn is not None else self.ret
-
-
-def _spy(mp, target, ret=None, fn=None):
-    s = Spy(ret, fn)
-    mp.setattr(target, s)
-    return s
+from tests.reliability.cli_spies import invoke as _invoke
+from tests.reliability.cli_spies import refused as _refused
+from tests.reliability.cli_spies import spy as _spy
 
 
 def _help(args) -> str:
