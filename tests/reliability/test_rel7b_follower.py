@@ -25,20 +25,9 @@ import pytest
 
 from bodystudio.capture import subject as S
 from bodystudio.errors import InputError
+from tests.reliability.test_rel6b_subject_lost import _body  # one v2 skeleton standing at x
 
 BYSTANDER_DX = 0.85
-
-
-def _names():
-    from bodystudio.body.kinect import kinect_joint_names
-
-    return kinect_joint_names("v2")
-
-
-def _body(player, x=0.0):
-    names = _names()
-    pos = np.array([[x, 0.05 * k, 1.0] for k in range(len(names))])
-    return {"player": player, "names": names, "positions": pos, "tracked": np.ones(len(names), bool)}
 
 
 class _Session:
