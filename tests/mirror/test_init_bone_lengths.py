@@ -162,6 +162,23 @@ def test_initialisation_passes_the_mean_distances_with_their_frame_counts(model,
     from bodystudio.mirror import init as init_mod
 
     assert BONE_LENGTH_WEIGHT == 0.0
+    J, obs, seen = _recorded_bone_length_fits(model, monkeypatch)
+    init_mod.initialise_from_observations(obs, model, passes=1, max_frames=4, bone_length_weight=2.0)
+    lengths, weight = seen[0]
+    np.testing.assert_allclose(lengths, _distances(J), atol=1e-9)
+    np.testing.assert_allclose(weight, np.full(len(BONE_PAIRS), 2.0 * 12))  # 12 observations, 4 fitted
+    init_mod.initialise_from_observations(obs, model, passes=1, max_frames=4)
+    assert seen[1] == (None, 0.0)
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="bone_length_weight must be a finite number >= 0"):
+            init_mod.initialise_from_observations(obs, model, passes=1, bone_length_weight=bad)
+
+
+def _recorded_bone_length_fits(model, monkeypatch):
+    """A planted body's joints, 12 observations of its vertices, and the list each ``fit_shape`` call then appends
+    its ``(bone_lengths, bone_length_weight)`` to (the fit and the default-pose transform stood in)."""
+    from bodystudio.mirror import init as init_mod
+
     c = _planted(model, seed=6, scale=1.0)
     J = _joints(model, c)
     V = model.vertices(c)
@@ -175,15 +192,7 @@ def test_initialisation_passes_the_mean_distances_with_their_frame_counts(model,
 
     monkeypatch.setattr(init_mod, "fit_shape", fake_fit)
     monkeypatch.setattr(init_mod, "transform_to_default_pose", _all_points_matched)
-    init_mod.initialise_from_observations(obs, model, passes=1, max_frames=4, bone_length_weight=2.0)
-    lengths, weight = seen[0]
-    np.testing.assert_allclose(lengths, _distances(J), atol=1e-9)
-    np.testing.assert_allclose(weight, np.full(len(BONE_PAIRS), 2.0 * 12))  # 12 observations, 4 fitted
-    init_mod.initialise_from_observations(obs, model, passes=1, max_frames=4)
-    assert seen[1] == (None, 0.0)
-    for bad in (-1.0, float("nan"), float("inf")):
-        with pytest.raises(InputError, match="bone_length_weight must be a finite number >= 0"):
-            init_mod.initialise_from_observations(obs, model, passes=1, bone_length_weight=bad)
+    return J, obs, seen
 
 
 def _all_points_matched(P, joints, body, tracked=None, version="v2", details=False, **kwargs):

@@ -13,15 +13,14 @@ import pytest
 
 from bodystudio.errors import InputError
 from bodystudio.mirror import init as init_mod
-from bodystudio.mirror.init import BONE_PAIRS, STATURE_BONE_PAIRS, InitObservation, selected_bone_pairs
+from bodystudio.mirror.init import BONE_PAIRS, STATURE_BONE_PAIRS, selected_bone_pairs
 from tests.mirror.test_init_bone_lengths import (
-    _all_points_matched,
     _distances,
-    _frames,
     _front_torso_fit,
     _joints,
     _model_2k,
     _planted,
+    _recorded_bone_length_fits,
 )
 
 
@@ -42,19 +41,7 @@ def test_the_selection_names_pairs_of_bone_pairs_in_either_order():
 
 
 def test_the_init_passes_only_the_selected_pairs(model, monkeypatch):
-    c = _planted(model, seed=6, scale=1.0)
-    J = _joints(model, c)
-    V = model.vertices(c)
-    frames = _frames(J, 12, 0.0, seed=4)
-    obs = [InitObservation(o.frame, V[::3] + [0.0, 0.0, 2.0], o.joints, o.tracked, "v2") for o in frames]
-    seen = []
-
-    def fake_fit(P, model, *args, **kwargs):
-        seen.append((kwargs.get("bone_lengths"), kwargs.get("bone_length_weight")))
-        return (np.zeros(model.n_components), 0.01)
-
-    monkeypatch.setattr(init_mod, "fit_shape", fake_fit)
-    monkeypatch.setattr(init_mod, "transform_to_default_pose", _all_points_matched)
+    J, obs, seen = _recorded_bone_length_fits(model, monkeypatch)
     keep = selected_bone_pairs(STATURE_BONE_PAIRS)
     init_mod.initialise_from_observations(obs, model, passes=1, max_frames=4, bone_length_weight=3.0,
                                           bone_length_pairs=STATURE_BONE_PAIRS)
