@@ -20,6 +20,7 @@ import pytest
 
 import bodystudio.demo as demo
 from bodystudio.errors import BodyStudioError, InputError
+from tests.reliability.cli_spies import spy as _spy
 
 # Every module a spy reaches into (and the demo's own imports), imported before any spy stands: a module imported
 # for the first time while a spy stands (monkeypatch imports a dotted target's module) binds the spy for good
@@ -41,23 +42,6 @@ _SPIED_MODULES = (
 )
 for _name in _SPIED_MODULES:
     importlib.import_module(_name)
-
-
-class Spy:
-    """A stand-in recording each call's arguments; returns ``ret`` or ``fn(*args, **kwargs)``."""
-
-    def __init__(self, ret=None, fn=None):
-        self.calls, self.ret, self.fn = [], ret, fn
-
-    def __call__(self, *args, **kwargs):
-        self.calls.append((args, kwargs))
-        return self.fn(*args, **kwargs) if self.fn is not None else self.ret
-
-
-def _spy(mp, target: str, ret=None, fn=None) -> Spy:
-    s = Spy(ret, fn)
-    mp.setattr(target, s)
-    return s
 
 
 class Plotter:
