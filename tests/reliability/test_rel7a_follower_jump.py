@@ -17,8 +17,6 @@ Hand-made bodies, stand-in sessions and rel7a's 8-frame 2k arm session (``confte
 from __future__ import annotations
 
 import json
-from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -26,23 +24,14 @@ import pytest
 from bodystudio.capture import subject as S
 from bodystudio.errors import SessionError
 from tests.reliability.test_rel6b_subject_lost import _body  # one v2 skeleton standing at x
-
-BYSTANDER_DX = 0.85
+from tests.reliability.test_rel7b_follower import _Session  # a stand-in session of bodies per frame
+from tests.reliability.test_rel7b_follower import _walk_in as rel7b_walk_in
 
 
 def _walk_in(n=8, at=3, lost=3):
     """The subject (player 1, walking +0.01 m a frame) alone; lost in frames ``at`` .. ``at + lost - 1`` while a
     bystander never tracked before is found 0.85 m aside and given id 1; then the subject back under id 2."""
-    out = []
-    for f in range(n):
-        me = _body(1, 0.01 * f)
-        if f < at:
-            out.append([me])
-        elif f < at + lost:
-            out.append([_body(1, BYSTANDER_DX)])
-        else:
-            out.append([_body(1, BYSTANDER_DX), {**me, "player": 2}])
-    return out
+    return rel7b_walk_in(n, at, lost)
 
 
 def _x(body):
@@ -72,18 +61,6 @@ def test_the_subjects_own_motion_and_glitches_within_the_reach_are_followed():
     assert [_x(b) for b in S.follow_subject(glitch)] == [0.0, 0.5, 0.0]
     far = [[_body(1, 0.0)], [_body(1, 2.0)], [_body(1, 0.0)]]
     assert [_x(b) for b in S.follow_subject(far)] == [0.0, None, 0.0]
-
-
-class _Session:
-    def __init__(self, bodies_by_frame, path="S"):
-        self.path = Path(path)
-        self.frames = {f: SimpleNamespace(frame_id=f, kinect_bodies=b,
-                                          kinect_joints=min(b, key=lambda x: x["player"]) if b else None)
-                       for f, b in enumerate(bodies_by_frame)}
-        self.frame_ids = list(self.frames)
-
-    def frame(self, i):
-        return self.frames[i]
 
 
 def test_reconstruct_refuses_the_bystander_naming_its_distance():
