@@ -29,9 +29,9 @@ def _arm(fid):
     return np.array([[0.1, 0.2, 0.9], [0.3, 0.1, 0.9], [0.5, 0.0, 0.9]]) + 0.001 * (fid - 100)
 
 
-def _depth(fid):
+def _depth(fid, far=False):
     d = np.full((H, W), 0.9)
-    if fid == 107:  # the arm out of the 0.5-1.3 m window
+    if far or fid == 107:  # the arm out of the 0.5-1.3 m window
         d[:] = 3.0
     elif fid == 113:  # exactly min_pixels (200) in the window: good
         d[:] = 3.0
@@ -51,7 +51,7 @@ class _Frame:
             raise SessionError(f"{self.session.path}/kinect/depth/00103.png: truncated PNG")
         if self.fid == 111:
             return None
-        return self.session.depths.setdefault(self.fid, _depth(self.fid))
+        return self.session.depths.setdefault(self.fid, _depth(self.fid, self.session.far))
 
     @property
     def kinect_joints(self):
@@ -64,12 +64,12 @@ class _Frame:
 
 
 class _Session:
-    def __init__(self, path="S", tracked=True, height=True, frame_ids=IDS):
-        self.path, self.tracked, self.depths = path, tracked, {}
+    def __init__(self, path="S", tracked=True, height=True, frame_ids=IDS, far=False, fps=None):
+        self.path, self.tracked, self.depths, self.far = path, tracked, {}, far
         depth = SimpleNamespace(width=W, height=H) if height else SimpleNamespace()
         self.kinect = SimpleNamespace(depth=depth)
         self.frame_ids = np.asarray(frame_ids)
-        self.metadata = {}
+        self.metadata = {} if fps is None else {"fps": fps}
 
     def frame(self, fid):
         return _Frame(self, int(fid))
@@ -262,3 +262,94 @@ def test_capture_arm_sequence_hands_on_the_recorded_numbers(monkeypatch):
     seen.clear()
     out = capture.capture_arm_sequence(_Session(), None, template, frames=slice(0, 3))
     assert "frame_positions" not in seen and seen["frame_ids"] == [100, 101, 102] and out.skipped == []
+
+
+def _spy_capture(monkeypatch):
+    import bodystudio.capture.session as session_module
+    import bodystudio.muscle.capture as capture
+
+    seen = {}
+
+    def spy(depths, camera, template, model, options, tracker, frame_ids, known_shape, fps, depth_sources=None,
+            **kw):
+        seen.update(depths=depths, camera=camera, template=template, model=model, options=options, tracker=tracker,
+                    frame_ids=frame_ids, known_shape=known_shape, fps=fps, **kw)
+        return SimpleNamespace()
+
+    monkeypatch.setattr(capture, "capture_arm_frames", spy)
+    monkeypatch.setattr(session_module, "stream_fingerprint", lambda s, stream, ids: (s, stream, list(ids)))
+    return capture, seen
+
+
+def test_capture_arm_sequence_hands_on_its_inputs_the_rate_and_refuses_without_a_kinect(monkeypatch):
+    from bodystudio.muscle.capture import CaptureOptions
+
+    capture, seen = _spy_capture(monkeypatch)
+    template, model, options, shape = SimpleNamespace(side=SIDE), object(), CaptureOptions(), object()
+    s = _Session(fps=60.0)
+    rates = []
+    real = capture.read_arm_frames
+    monkeypatch.setattr(capture, "read_arm_frames", lambda *a, **k: rates.append(a[1:] + tuple(k.values()))
+                        or real(*a, **k))
+    out = capture.capture_arm_sequence(s, model, template, options, known_shape=shape)
+    assert seen["fps"] == 60.0 and rates == [(IDS, SIDE, options.depth, 60.0)]
+    assert seen["camera"] is s.kinect.depth and seen["template"] is template and seen["model"] is model
+    assert seen["options"] is options and seen["known_shape"] is shape
+    assert out.source_fingerprint[0] is s
+    none = _Session()
+    none.kinect = None
+    with pytest.raises(SessionError) as e:
+        capture.capture_arm_sequence(none, None, template)
+    assert str(e.value) == "S: no Kinect calibration; the arm capture needs a depth session"
+
+
+def test_capture_arm_sequence_without_skipping_reads_every_frame_and_the_tracker(monkeypatch):
+    capture, seen = _spy_capture(monkeypatch)
+    template = SimpleNamespace(side=SIDE)
+    s = _Session(frame_ids=[100, 101, 102, 104])
+    out = capture.capture_arm_sequence(s, None, template, skip_bad_frames=False)
+    assert seen["frame_ids"] == [100, 101, 102, 104] and "frame_positions" not in seen and out.skipped == []
+    assert all(d is s.depths[f] for d, f in zip(seen["depths"], [100, 101, 102, 104], strict=True))
+    np.testing.assert_allclose(seen["tracker"], np.stack([_arm(f) for f in (100, 101, 102, 104)]), atol=0)
+    # frames 106-111, half bad by the skip's checks: not skipped, refused at the first without depth
+    with pytest.raises(SessionError) as e:
+        capture.capture_arm_sequence(_Session(), None, template, frames=slice(6, 12), skip_bad_frames=False)
+    assert str(e.value) == "S: frame 111 has no Kinect depth image"
+
+
+def test_capture_arm_sequence_with_no_good_frame_runs_as_without_skipping(monkeypatch):
+    """Every frame shows no arm in the window: nothing to skip to, so the capture runs on every frame as it did
+    before skipping (its own refusal comes from the capture's steps, with the advice on the distance)."""
+    capture, seen = _spy_capture(monkeypatch)
+    s = _Session(far=True, frame_ids=[100, 101, 102])
+    out = capture.capture_arm_sequence(s, None, SimpleNamespace(side=SIDE))
+    assert seen["frame_ids"] == [100, 101, 102] and "frame_positions" not in seen and out.skipped == []
+    assert all(d is s.depths[f] for d, f in zip(seen["depths"], [100, 101, 102], strict=True))
+    np.testing.assert_allclose(seen["tracker"], np.stack([_arm(f) for f in (100, 101, 102)]), atol=0)
+
+
+def test_read_arm_frames_with_no_good_frame_names_the_session():
+    from bodystudio.muscle.capture import NoGoodFrameError, read_arm_frames
+
+    with pytest.raises(NoGoodFrameError, match=r"no frame of Sx can be captured$"):
+        read_arm_frames(_Session(path="Sx", far=True, frame_ids=[100, 101]), [100, 101], SIDE)
+
+
+def test_the_first_frames_that_keep_within_the_bounds_edge_cases(monkeypatch):
+    import bodystudio.muscle.capture as capture
+
+    # a run of exactly 5 kept in the first frames, a run of 6 later: keep the frames up to the second run
+    bad = list(range(10, 15)) + list(range(30, 36))
+    assert _brute_keep(bad, 60, 5) == 30
+    with pytest.raises(SessionError, match=r"capture the first 30 frames \(--frames 30\)"):
+        capture.check_skipped_frames(_skipped(bad), 60, 30.0, "S")
+    # 11 bad of 43 (over 25 %): the first frames kept are fewer than the recording's
+    bad = list(range(0, 41, 4))
+    keep = _brute_keep(bad, 43, 5)
+    assert keep == 40
+    with pytest.raises(SessionError, match=rf"bad frames: 11 of 43, .* capture the first {keep} frames"):
+        capture.check_skipped_frames(_skipped(bad), 43, 30.0, "S")
+    # the bound in milliseconds as the constant says (2 s at 3 fps: 6 frames)
+    monkeypatch.setattr(capture, "MAX_SKIPPED_RUN_S", 2.0)
+    with pytest.raises(SessionError, match=r"7 bad frames in a row from frame 20, more than the 6 \(2000 ms\)"):
+        capture.check_skipped_frames(_skipped(range(20, 27)), 60, 3.0, "S")
