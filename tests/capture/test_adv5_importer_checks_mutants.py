@@ -239,3 +239,100 @@ def test_depth_unit_of_a_later_frame_against_the_first():
     check_depth_unit(np.array([2000.0], np.float32), Path("d/1.exr"), 1.0, first, np.dtype(np.float32), False)
     with pytest.raises(FileFormatError, match=r"^d/1.png: depth must be a 16-bit PNG, got uint8"):
         check_depth_unit(np.array([0, 200], np.uint8), Path("d/1.png"), 5000.0, first, np.uint16, False)
+
+
+# --- the first run's survivors (each case at the edge that tells the mutant apart) ---
+
+
+def test_principal_point_turn_and_percent_edges():
+    from bodystudio.capture.importer import check_principal_point_centred
+
+    K = np.array([[500.0, 0, 330], [0, 500, 245], [0, 0, 1]])  # for 660x490 turned: 10 / 640, 5 / 480 off
+    with pytest.raises(FileFormatError, match=r"is 19 % of the image off .* the frames are turned 90 degrees"):
+        check_principal_point_centred(K, (480, 640), SRC, "phone")
+    K = np.array([[500.0, 0, 416], [0, 500, 240], [0, 0, 1]])  # turned: 96 / 640 = 15 % exactly
+    with pytest.raises(FileFormatError, match=r"the frames are turned 90 degrees against it \(640x480\)"):
+        check_principal_point_centred(K, (480, 640), SRC, "phone")
+    K = np.array([[500.0, 0, 110], [0, 500, 50], [0, 0, 1]])
+    with pytest.raises(FileFormatError, match=r"\(110, 50\) is 60 % of the image off"):
+        check_principal_point_centred(K, (100, 100), SRC, "c")
+
+
+def test_video_rate_edges():
+    from bodystudio.capture.importer import check_video_rates, video_fps, video_rate_varies
+
+    assert video_rate_varies(np.array([0.0, 0.1, 0.3]))  # three frames are enough
+    assert not video_rate_varies(np.array([0.0, 0.5, 1.0, 1.625]))  # 1.25 x the median exactly, in binary
+    assert not video_rate_varies(np.array([0.0, 0.0, 0.0, 0.0, 1.0]))  # a median of 0: no rate
+    assert video_fps(np.array([0.0, 0.5, 1.0, 1.625]), SRC) == round(3 / 1.625, 3)  # even on the bound: the span
+    check_video_rates({"a": _video("a.mp4", [0.0, 0.5, 1.0, 1.625])})
+    with pytest.raises(FileFormatError, match=r"^b.mp4: 15 fps but a.mp4 is 30 fps"):  # two frames are a rate
+        check_video_rates({"a": _video("a.mp4", np.arange(10) / 30.0), "b": _video("b.mp4", [0.0, 1 / 15])})
+    with pytest.raises(FileFormatError, match=r"^b.mp4: 15 fps but a.mp4 is 30 fps"):  # a camera without times
+        check_video_rates({"a": _video("a.mp4", np.arange(10) / 30.0), "z": _video("z.mp4", np.zeros(4)),
+                           "y": SimpleNamespace(where="y"), "b": _video("b.mp4", np.arange(5) / 15.0)})
+    with pytest.raises(FileFormatError) as e:
+        check_video_rates({"a": _video("a.mp4", [0.0, 0.7, 1.4, 2.1, 3.5])})
+    assert "(frame 4 comes 1400 ms after frame 3, the median period is 700 ms)" in str(e.value)
+    # an even camera's rate is its frames over their span (here 5 / 0.54 s), not one over the median period
+    with pytest.raises(FileFormatError, match=r"^b.mp4: 9.26 fps but a.mp4 is 10 fps"):
+        check_video_rates({"a": _video("a.mp4", 2.0 + np.arange(6) / 10.0),
+                           "b": _video("b.mp4", [0.0, 0.1, 0.2, 0.3, 0.42, 0.54])})
+    check_video_rates({"a": _video("a.mp4", np.arange(101) / 100.0),  # 100 and 101 fps: 1 % apart exactly
+                       "b": _video("b.mp4", np.arange(102) / 101.0)})
+
+
+def test_video_fps_and_recording_fps_edges():
+    from bodystudio.capture.importer import recording_fps, video_fps
+
+    with pytest.raises(FileFormatError, match=r"^rec/intri.yml: the median frame period 33 s"):
+        video_fps(np.array([0.0, 33.0, 66.0]), SRC)
+    with pytest.raises(FileFormatError, match=r"^rec/intri.yml: the median frame period 33 s"):
+        video_fps(np.array([0.0, 33.0, 66.0, 130.0]), SRC)
+    with pytest.raises(FileFormatError):
+        recording_fps([0.0, 1 / 240.5])
+    assert recording_fps([0.0, 0.0334]) == 29.94
+
+
+def test_frame_numbers_edges():
+    from bodystudio.capture.importer import check_frame_numbers, check_joint_frame_numbers
+
+    a = _folder([f"{k:05d}.png" for k in (0, 1, 2, 3, 4)])
+    b = _folder([f"{k:05d}.png" for k in (0, 2, 3, 4, 5)])
+    check_frame_numbers({"a": a, "b": b}, 1)
+    with pytest.raises(FileFormatError) as e:
+        check_frame_numbers({"a": a, "b": b}, 5)
+    assert str(e.value).startswith("cam/00002.png: paired by order with 00001.png of a, but their frame numbers drift "
+                                   "apart from there (2 and 1, 0 apart before)")
+    check_frame_numbers({"e": _folder(["00000.png", "00002.png"]), "a": a}, 2)  # two frames two apart: no counter
+    with pytest.raises(FileFormatError, match=r"jump from b.json to c.json;"):
+        check_joint_frame_numbers([0, 1, 3], Path("j"), ["a.json", "b.json", "c.json"])
+
+
+def test_depth_edges():
+    from bodystudio.capture.importer import check_depth_unit, check_stated_depth_scale
+
+    check_stated_depth_scale(np.array([1.0, np.inf]), Path("d.exr"), 1.0)  # inf is no depth
+    check_stated_depth_scale(np.array([0.5, 0.5, 25.0]), Path("d.exr"), 1.0)  # sub-unit floats count
+    with pytest.raises(FileFormatError, match=r"median depth is 0.001 m"):
+        check_stated_depth_scale(np.array([1, 1, 1, 5000], np.uint16), Path("d.png"), 1000.0)
+    first, f1 = Path("d/0.png"), Path("d/1.png")
+    with pytest.raises(FileFormatError, match=r"^d/1.png: depth looks like metres \(median 1.00 m;"):
+        check_depth_unit(np.array([1, 1, 1, 10000], np.uint16), f1, 5000.0, first, np.uint16, False)
+    with pytest.raises(FileFormatError, match=r"looks like millimetres \(median 2.00 m;"):
+        check_depth_unit(np.array([0, 2000], np.uint16), f1, 5000.0, first, np.uint16, False)  # one pixel
+    check_depth_unit(np.array([4500], np.uint16), f1, 1000.0, first, np.uint16, False)  # 4.5 m as mm: inclusive
+    with pytest.raises(FileFormatError, match=r"looks like TUM units \(median 0.90 m; 4.50 m at 1000"):
+        check_depth_unit(np.array([4504], np.uint16), f1, 1000.0, first, np.uint16, False)
+    with pytest.raises(FileFormatError) as e:
+        check_depth_unit(np.array([2, 2], np.uint16), f1, 5000.0, first, np.uint16, False)
+    assert str(e.value).startswith("d/1.png: depth looks like metres (median 2.00 m; 0.00 m at 5000 per metre)")
+    with pytest.raises(FileFormatError, match=r"looks like millimetres \(median 0.50 m;"):
+        check_depth_unit(np.array([500], np.uint16), f1, 5000.0, first, np.uint16, False)
+    check_depth_unit(np.array([4500], np.uint16), f1, 1.0, first, np.uint16, False)  # TUM 0.9 and mm 4.5: ambiguous
+
+
+def test_subject_pixels_of_a_two_level_mask():
+    from bodystudio.capture.importer import subject_pixels
+
+    np.testing.assert_array_equal(subject_pixels(np.array([[0, 1, 2]], np.uint8)), [[False, False, True]])
