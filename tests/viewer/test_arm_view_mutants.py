@@ -94,6 +94,16 @@ def test_depth_points_are_those_within_8_cm_of_the_arms_box(kinect):
     assert calls[-1][1:] == (10, 5)
 
 
+def test_depth_points_on_the_box_are_kept(monkeypatch):
+    import bodystudio.viewer.views as vw
+
+    v = _view(session=SimpleNamespace(frame=lambda fid: fid))
+    lo = v.vertices[1].min(0) - va.DEPTH_MARGIN_M
+    hi = v.vertices[1].max(0) + va.DEPTH_MARGIN_M
+    monkeypatch.setattr(vw, "kinect_points", lambda session, frame, stride=7: np.stack([lo, hi]))
+    np.testing.assert_array_equal(va.arm_depth_points(v, 1), np.stack([lo, hi]))
+
+
 def test_arm_frame_layers_error_colours_truth_and_depth(kinect):
     session, _ = kinect
     v = _view(session=session)
@@ -118,9 +128,13 @@ def test_arm_frame_layers_error_colours_truth_and_depth(kinect):
     np.testing.assert_allclose(_data(p, "arm").points, v.vertices[1])
     np.testing.assert_allclose(_data(p, "truth-arm").points, v.truth[1])
     assert "other" in p.renderer.actors
-    # no truth, no cloud: the plain arm alone; the old truth, depth and bar gone
+    # no truth, no cloud: the plain arm alone; the old truth, depth and bar gone, another bar kept
+    from bodystudio.geometry.mesh import Mesh
+
+    sc.add_error_map(p, Mesh(QUAD, F2), OFF_MM, title="other (mm)", name="other-map")
     va.scene_for_arm_frame(_view(truth=False, session=session), 0, p, cloud=False)
     assert {"truth-arm", "depth"}.isdisjoint(p.renderer.actors) and "error (mm)" not in p.scalar_bars
+    assert "other (mm)" in p.scalar_bars
     np.testing.assert_allclose(_data(p, "arm").points, QUAD)
     np.testing.assert_allclose(p.renderer.actors["arm"].GetProperty().GetColor(), sc.MESH_COLOR, atol=1 / 255)
     p.close()
@@ -129,7 +143,9 @@ def test_arm_frame_layers_error_colours_truth_and_depth(kinect):
 def test_arm_sequence_title_key_help_and_framing(kinect):
     session, _ = kinect
     v = _view(session=session)
-    p = va.scene_for_arm_sequence(v, 13, plotter=sc.make_plotter(window_size=SIZE), cloud=False)
+    given = sc.make_plotter(window_size=SIZE)
+    p = va.scene_for_arm_sequence(v, 13, plotter=given, cloud=False)
+    assert p is given
     assert "depth" not in p.renderer.actors
     np.testing.assert_allclose(_data(p, "arm").points, v.vertices[3])
     assert _text(p, "title") == "armcap  frame 13  median error (all vertices) 2.5 mm"
@@ -149,6 +165,9 @@ def test_arm_sequence_title_key_help_and_framing(kinect):
     p = va.scene_for_arm_sequence(one, key_help=False, plotter=sc.make_plotter(window_size=SIZE))
     assert _text(p, "key-help") is None
     p.close()
+    p = va.scene_for_arm_sequence(_view(ids=(7, 8), session=session), cloud=False)
+    assert _text(p, "key-help") == sc.KEY_HELP + "\nslider or n / p: next / previous frame"
+    p.close()
 
 
 def test_time_slider_draws_the_chosen_frame(monkeypatch, kinect):
@@ -156,7 +175,7 @@ def test_time_slider_draws_the_chosen_frame(monkeypatch, kinect):
     seen = {}
 
     def slider(plotter, ids, start, show):
-        seen.update(ids=list(ids), start=start, show=show)
+        seen.update(plotter=plotter, ids=list(ids), start=start, show=show)
         return "slid"
 
     monkeypatch.setattr(sc, "add_frame_slider", slider)
@@ -164,11 +183,12 @@ def test_time_slider_draws_the_chosen_frame(monkeypatch, kinect):
     assert va.add_arm_time_slider(p, _view(ids=(3,))) is p and not seen
     v = _view(session=session)
     assert va.add_arm_time_slider(p, v, frame_id=12) == "slid"
-    assert seen["ids"] == list(IDS) and seen["start"] == 2
+    assert seen["ids"] == list(IDS) and seen["start"] == 2 and seen["plotter"] is p
     seen["show"](4)
     np.testing.assert_allclose(_data(p, "arm").points, v.vertices[4])
     assert "depth" in p.renderer.actors
     assert _text(p, "title") == "armcap  frame 14  median error (all vertices) 2.5 mm"
+    assert va.add_arm_time_slider(p, _view(ids=(7, 9))) == "slid" and seen["ids"] == [7, 9]
     va.add_arm_time_slider(p, v, cloud=False)
     assert seen["start"] == 0
     seen["show"](1)
@@ -185,7 +205,8 @@ def test_payload_frames_by_linspace_and_the_opening_frame(monkeypatch, kinect):
     def payload(plotter, include=None, exclude=(), allow_empty=False):
         arm = _data(plotter, "arm").points.copy()
         calls.append((include, exclude, allow_empty, "depth" in plotter.renderer.actors))
-        return {"objects": [arm], "colorBars": [float(arm[0, 0])], "camera": "cam"}
+        bars = [float(arm[0, 0])] if include is not None else "statics' own"
+        return {"objects": [arm], "colorBars": bars, "camera": "cam"}
 
     monkeypatch.setattr(wg, "scene_payload", payload)
     v = _view(session=session)
@@ -256,7 +277,8 @@ def test_open_arm_view_reads_the_session_truth_and_mask(monkeypatch, caplog):
         return SimpleNamespace(arm_mask=np.array([True, True, False, True]))
 
     cap = {"c": _capture()}
-    monkeypatch.setattr(mc, "load_arm_capture", lambda p: cap["c"])
+    loaded = []
+    monkeypatch.setattr(mc, "load_arm_capture", lambda p: loaded.append(p) or cap["c"])
     monkeypatch.setattr(cs, "open_session", session)
     monkeypatch.setattr(ms, "session_arm_template", template)
     v = va.open_arm_view("caps/a")
@@ -264,7 +286,7 @@ def test_open_arm_view_reads_the_session_truth_and_mask(monkeypatch, caplog):
     assert v.vertices is cap["c"].vertices and v.faces is F2 and v.session.path == "S"
     np.testing.assert_allclose(v.truth, np.stack([QUAD + 0.002, QUAD + 0.012]))
     np.testing.assert_array_equal(v.arm_mask, [True, True, False, True])
-    assert opened == ["S"] and templates == ["S"]
+    assert opened == ["S"] and templates == ["S"] and loaded == [Path("caps/a")]
     v = va.open_arm_view("caps/a", session_path="S1")  # the given session over the recorded one; frame 6 not in it
     assert opened[-1] == "S1" and v.truth is None and v.arm_mask is None and v.session.path == "S1"
     v = va.open_arm_view("caps/a", session_path="small")  # ground truth of another topology
@@ -272,6 +294,7 @@ def test_open_arm_view_reads_the_session_truth_and_mask(monkeypatch, caplog):
     with caplog.at_level(logging.WARNING):
         v = va.open_arm_view("caps/a", session_path="gone")
     assert v.session is None and v.truth is None
+    assert [r.name for r in caplog.records if r.levelno == logging.WARNING] == ["bodystudio.viewer.arm"]
     assert [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING] == [
         "caps/a: its session is not readable (gone: no session.json); showing the capture alone"]
     cap["c"] = _capture(session_path=None)
