@@ -148,3 +148,81 @@ def test_knee_angle_rows_are_the_linearised_angle_scaled_by_the_calf(monkeypatch
     # the default weight is KNEE_HINGE_WEIGHT
     A2, _ = init_mod.knee_angle_rows(None, c0, 0.05)
     np.testing.assert_allclose(A2, A * np.sqrt(init_mod.KNEE_HINGE_WEIGHT) / 20.0, rtol=1e-12)
+
+
+# --- the first run's survivors ---
+
+
+def test_sdk_knee_angle_goes_on_past_skipped_frames_and_takes_a_straight_leg():
+    lost = _legs(0.2, 0.2)
+    tracked = np.isfinite(lost).all(axis=1)
+    tracked[IX["KneeRight"]] = False
+    straight = _legs(0.0, 0.03)  # a left leg whose thigh . calf rounds to 1.0000000000000002: clipped, 0 degrees
+    t = np.array([-0.535669373161111, 0.36159505490948474, 1.3040000451301372])
+    c = np.array([-0.8539881348987823, 0.5764710509926761, 2.0788953452331893])
+    assert t @ c / (np.linalg.norm(t) * np.linalg.norm(c)) > 1.0
+    straight[IX["KneeLeft"]] = straight[IX["HipLeft"]] + t
+    straight[IX["AnkleLeft"]] = straight[IX["KneeLeft"]] + c
+    obs = [_obs(_legs(0.5, 0.5), version="v1"), _obs(lost, tracked=tracked), _obs(_legs(0.04, 0.06)), _obs(straight)]
+    mean, _ = init_mod.sdk_knee_angle(obs, "v2")
+    assert mean == pytest.approx(np.mean([0.04, 0.06, 0.0, 0.03]), abs=1e-9)
+
+
+def test_sdk_knee_angle_of_tilted_thighs_against_the_docstrings_angle():
+    rng = np.random.default_rng(7)
+    legs = ((1, "HipLeft", "KneeLeft", "AnkleLeft"), (-1, "HipRight", "KneeRight", "AnkleRight"))
+    frames, want = [], []
+    for _ in range(4):
+        K = np.full((len(NAMES), 3), np.nan)
+        for side, h, k, a in legs:
+            K[IX[h]] = [0.1 * side, 0.0, 0.0] + 0.02 * rng.normal(size=3)
+            K[IX[k]] = K[IX[h]] + [0.08 * side, -0.4, 0.1] + 0.02 * rng.normal(size=3)  # a thigh out and forward
+            K[IX[a]] = K[IX[k]] + 0.9 * (K[IX[k]] - K[IX[h]]) + [0.03 * side, 0.0, 0.0]
+        lateral = K[IX["HipLeft"]] - K[IX["HipRight"]]
+        for side, h, k, a in legs:
+            t = (K[IX[k]] - K[IX[h]]) / np.linalg.norm(K[IX[k]] - K[IX[h]])
+            c = (K[IX[a]] - K[IX[k]]) / np.linalg.norm(K[IX[a]] - K[IX[k]])
+            n = lateral - (lateral @ t) * t
+            want.append(side * np.arcsin(n @ c / np.linalg.norm(n)))
+        frames.append(_obs(K))
+    mean, _ = init_mod.sdk_knee_angle(frames, "v2")
+    assert mean == pytest.approx(np.mean(want), abs=1e-12)
+    assert abs(np.mean(want)) > 0.01
+
+
+def test_sdk_knee_angle_flexion_limit_is_strict():
+    K = _legs(0.0, 0.0, flex_left=np.radians(25))
+    t, c = K[IX["KneeLeft"]] - K[IX["HipLeft"]], K[IX["AnkleLeft"]] - K[IX["KneeLeft"]]
+    flexion = np.degrees(np.arccos(np.clip(t @ c / (np.linalg.norm(t) * np.linalg.norm(c)), -1, 1)))
+    K[IX["AnkleRight"]] = K[IX["KneeRight"]] + [-0.4 * np.sin(0.05), -0.4 * np.cos(0.05), 0.0]
+    mean, _ = init_mod.sdk_knee_angle([_obs(K)], "v2", max_flexion_deg=flexion)
+    assert mean == pytest.approx(0.05, abs=1e-12)  # the leg bent exactly to the limit is left out
+
+
+def test_knee_joint_frames_edges():
+    K0 = np.zeros((4, 3))
+    K0[:, 1] = [0.0, 0.5, 1.0, 1.5]
+    obs = [_obs(K0, version="a", frame=10), _obs(K0 + [1.0, 0, 0], version="b", frame=12),
+           _obs(K0 + [2.0, 0, 0], version="c", frame=14)]
+    nulls = {"player": 3, "positions": [[None, None, None]] + (K0[1:] + [0.0625, 0, 0]).tolist(),
+             "tracked": [1, 1, 0, 1]}
+    frames = {10: [_body(np.zeros((3, 3)), 4), nulls], 11: [], 12: [_body(K0, dx=1.0)],
+              13: [_body(K0, dx=1.5)], 14: [_body(K0, dx=2.0)]}
+    session = SimpleNamespace(frame_ids=[10, 11, 12, 13, 14],
+                              frame=lambda i: SimpleNamespace(kinect_bodies=frames[int(i)]))
+    out = init_mod.knee_joint_frames(session, obs)
+    assert [f.frame for f in out] == [10, 12, 14]  # 13 is 0.5 m off both 12's and 14's joints
+    assert out[0].tracked.dtype == bool
+    np.testing.assert_array_equal(out[0].tracked, [False, True, False, True])
+    assert np.isnan(out[0].joints[0]).all() and out[0].joints.dtype == np.float64
+    assert [f.version for f in out] == ["a", "b", "c"]
+
+
+def test_knee_angle_rows_read_the_models_joints_of_the_version(monkeypatch):
+    seen = []
+    Jm = np.nan_to_num(_legs(0.04, -0.02))
+    monkeypatch.setattr(init_mod, "_model_kinect_joints", lambda model, version: seen.append((model, version))
+                        or (Jm, np.zeros((2, len(NAMES), 3))))
+    model = object()
+    init_mod.knee_angle_rows(model, [0.0, 0.0], 0.0, version="v2")
+    assert seen == [(model, "v2")]
