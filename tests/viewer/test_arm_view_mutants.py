@@ -45,8 +45,7 @@ def _text(plotter, name):
     return None if actor is None else next(actor.GetText(k) for k in range(4) if actor.GetText(k))
 
 
-@pytest.fixture()
-def kinect(monkeypatch):
+def _kinect(monkeypatch):
     """``views.kinect_points`` replaced: the points of each frame, around the arm and beyond its 8 cm margin."""
     import bodystudio.viewer.views as vw
 
@@ -80,7 +79,8 @@ def test_index_errors_and_title():
     assert va._title(_view(truth=False, arm_mask=np.ones(4, bool)), 4) == "armcap  frame 14"
 
 
-def test_depth_points_are_those_within_8_cm_of_the_arms_box(kinect):
+def test_depth_points_are_those_within_8_cm_of_the_arms_box(monkeypatch):
+    kinect = _kinect(monkeypatch)
     session, calls = kinect
     assert va.arm_depth_points(_view(), 1).shape == (0, 3)
     v = _view(session=session)
@@ -104,7 +104,8 @@ def test_depth_points_on_the_box_are_kept(monkeypatch):
     np.testing.assert_array_equal(va.arm_depth_points(v, 1), np.stack([lo, hi]))
 
 
-def test_arm_frame_layers_error_colours_truth_and_depth(kinect):
+def test_arm_frame_layers_error_colours_truth_and_depth(monkeypatch):
+    kinect = _kinect(monkeypatch)
     session, _ = kinect
     v = _view(session=session)
     p = sc.make_plotter(window_size=SIZE)
@@ -140,7 +141,8 @@ def test_arm_frame_layers_error_colours_truth_and_depth(kinect):
     p.close()
 
 
-def test_arm_sequence_title_key_help_and_framing(kinect):
+def test_arm_sequence_title_key_help_and_framing(monkeypatch):
+    kinect = _kinect(monkeypatch)
     session, _ = kinect
     v = _view(session=session)
     given = sc.make_plotter(window_size=SIZE)
@@ -170,7 +172,8 @@ def test_arm_sequence_title_key_help_and_framing(kinect):
     p.close()
 
 
-def test_time_slider_draws_the_chosen_frame(monkeypatch, kinect):
+def test_time_slider_draws_the_chosen_frame(monkeypatch):
+    kinect = _kinect(monkeypatch)
     session, _ = kinect
     seen = {}
 
@@ -196,7 +199,8 @@ def test_time_slider_draws_the_chosen_frame(monkeypatch, kinect):
     p.close()
 
 
-def test_payload_frames_by_linspace_and_the_opening_frame(monkeypatch, kinect):
+def test_payload_frames_by_linspace_and_the_opening_frame(monkeypatch):
+    kinect = _kinect(monkeypatch)
     import bodystudio.viewer.webgl as wg
 
     session, _ = kinect
