@@ -140,3 +140,26 @@ def test_source_path_relative_to_the_fit_when_not_found_as_given(tmp_path, monke
     assert vg._source_path(fit, Path("fits/F")) == Path("here.mp4")
     assert vg._source_path(SimpleNamespace(source="gone.mp4"), Path("fits/F")) == Path("fits/F/gone.mp4")
     assert vg._source_path(SimpleNamespace(source="/abs/gone.mp4"), Path("fits/F")) == Path("/abs/gone.mp4")
+
+
+# --- the first run's survivors ---
+
+
+def test_light_arrows_scale_to_the_brightest_below_one_and_keep_ties_in_order():
+    _, v, _ = vg.light_arrows(_lights([[0, 1, 0]], [[0.1, 0.1, 0.05]]), [0, 0, 0])
+    np.testing.assert_allclose(v, [[0, vg.ARROW_M, 0]])  # the brightest is ARROW_M long whatever its power
+    d = np.tile(np.eye(3)[:2], (20, 1))
+    c = np.tile([[0.5, 0.5, 0.5], [1.0, 0.5, 0.5]], (20, 1))  # 40 lights, 20 tied at each power
+    starts, _, power = vg.light_arrows(_lights(d, c), [0, 0, 0], offset_m=1.0, max_arrows=40)
+    np.testing.assert_array_equal(power, [2.0] * 20 + [1.5] * 20)
+    np.testing.assert_array_equal(starts, d[list(range(1, 40, 2)) + list(range(0, 40, 2))])  # the file's order
+
+
+def test_light_origin_with_the_body_off_the_floor():
+    V = np.array([[0.0, 1.0, 0.0], [2.0, 3.0, 2.0]])
+    np.testing.assert_allclose(vg.light_origin(V), [1.0, 2.4, 1.0])
+
+
+def test_garment_frames_refuse_a_fitted_list_of_another_length():
+    with pytest.raises(ValueError):
+        vg.garment_frames(_gview([1, 2, 3], [True, True]))
