@@ -37,10 +37,11 @@ def _setup(monkeypatch, tmp_path, fails, times, mtimes):
         p.write_bytes(b"x")
         os.utime(p, (t, t))
     errors = [FileFormatError(f"frame 3 unreadable ({k})") for k in range(fails)]
-    calls = []
+    calls, sessions = [], []
 
     def read(session, i):
         calls.append(i)
+        sessions.append(session)
         if errors:
             raise errors.pop(0)
         return "frame"
@@ -48,12 +49,15 @@ def _setup(monkeypatch, tmp_path, fails, times, mtimes):
     monkeypatch.setattr(mf, "read_mirror_frame", read)
     clock = _Clock(times)
     monkeypatch.setattr(mr, "time", clock)
-    return mr, SimpleNamespace(path=str(tmp_path)), calls, clock
+    session = SimpleNamespace(path=str(tmp_path))
+    session.read_by = sessions
+    return mr, session, calls, clock
 
 
 def test_a_frame_read_whole_at_once(monkeypatch, tmp_path):
     mr, s, calls, clock = _setup(monkeypatch, tmp_path, 0, [], {})
     assert mr.read_arriving_frame(s, 3) == "frame" and calls == [3] and clock.slept == []
+    assert s.read_by == [s]
 
 
 def test_a_frame_still_written_is_read_again_until_it_decodes(monkeypatch, tmp_path):
