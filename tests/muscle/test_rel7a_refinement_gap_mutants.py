@@ -41,6 +41,10 @@ def _run(monkeypatch, positions, numbers=None, **options):
         "correspondence_weights": lambda *a: np.ones(N_V),
         "refine_surface": lambda M, F, c, w, data_weight, iterations, hold=None: M + 1000.0 * M[0, 0],
     }
+    def never(*a, **k):
+        raise AssertionError("called with its option off")
+
+    stub.update(edge_on_pairs=never, unseen_hold_weights=never, model_visible_vertices=never)
     for name, fn in stub.items():
         monkeypatch.setattr(cap, name, fn)
     o = replace(cap.CaptureOptions(), refine_visible_only=False, refine_min_facing_cos=0.0, refine_unseen_hold=0.0,
@@ -149,7 +153,7 @@ def test_each_frame_hands_its_own_inputs_to_the_steps(monkeypatch):
     clouds = [(f"P{k}", f"N{k}") for k in range(n)]
     trees = [f"T{k}" for k in range(n)]
     poses = [f"pose{k}" for k in range(n)]
-    o = replace(cap.CaptureOptions(), refine_visible_only=True, refine_min_facing_cos=0.25, refine_unseen_hold=2.0,
+    o = replace(cap.CaptureOptions(), refine_visible_only=True, refine_min_facing_cos=0.25, refine_unseen_hold=0.5,
                 detail_sigma_frames=0.0)
     log = []
     frame = {id(m): k for k, m in enumerate(meshes)}
@@ -167,7 +171,7 @@ def test_each_frame_hands_its_own_inputs_to_the_steps(monkeypatch):
         return SimpleNamespace(kept=np.array([True, True, True]), k=k)
 
     def filt(M, Nv, pairs, C_, arm_, adj_, filters):
-        assert C_ is C and arm_ is arm and adj_ is adjacency and filters is o.nicp.filters
+        assert M is meshes[pairs.k] and C_ is C and arm_ is arm and adj_ is adjacency and filters is o.nicp.filters
         assert Nv[0, 0] == 10.0 + pairs.k
         return pairs
 
@@ -193,6 +197,8 @@ def test_each_frame_hands_its_own_inputs_to_the_steps(monkeypatch):
 
     def tcc(vecs, valid, sigma, *deltas):
         log.append(("valid", [v.tolist() for v in valid], sigma))
+        for v, ok in zip(vecs, valid, strict=True):  # the point-to-plane vector where a pair is kept, 0 elsewhere
+            assert v.dtype == np.float64 and v[:, 0].tolist() == ok.astype(float).tolist() and ok.any()
         return np.full((N_V, 3), 7.0), np.array([True, False, False])
 
     def weights(c, Nv, M, pj, ok, radius, gain):
@@ -201,7 +207,8 @@ def test_each_frame_hands_its_own_inputs_to_the_steps(monkeypatch):
         return np.full(N_V, 0.5)
 
     def hold_w(M, mask, strength, band):
-        assert mask.tolist() == [True, False, True] and (strength, band) == (2.0, o.refine_unseen_band_m)
+        assert M is meshes[k_of(M)] and mask.tolist() == [True, False, True]
+        assert (strength, band) == (0.5, o.refine_unseen_band_m)
         return "hold"
 
     def solve(M, F_, c, w, data_weight, iterations, hold=None):
@@ -211,7 +218,7 @@ def test_each_frame_hands_its_own_inputs_to_the_steps(monkeypatch):
 
     for name, fn in {"vertex_normals": normals, "closest_point_correspondences": cpc, "filter_correspondences": filt,
                      "model_visible_vertices": visible, "apply_similarity": similarity, "edge_on_pairs": edge_on,
-                     "plane_targets": lambda M, pairs: M + 1.0, "hold_seen_vertices": seen,
+                     "plane_targets": lambda M, pairs: M + 1.0 + 0 * pairs.k, "hold_seen_vertices": seen,
                      "time_consistent_correspondences": tcc,
                      "correspondence_weights": weights, "unseen_hold_weights": hold_w, "refine_surface": solve}.items():
         monkeypatch.setattr(cap, name, fn)
