@@ -155,3 +155,20 @@ def test_fitted_scene_poses_the_frames_body_and_garment(monkeypatch):
     assert vg.fitted_scene(view, 6).body_colors is None
     fit.albedo = np.zeros(4)  # all black: no division by zero
     assert vg.fitted_scene(view, 6).body_colors.tolist() == [0, 0, 0, 0]
+
+
+def test_fitted_scene_colours_of_a_dim_albedo(monkeypatch):
+    import bodystudio.body.skinning as sk
+    import bodystudio.garment.garments as gg
+
+    V = np.zeros((4, 3))
+    body = SimpleNamespace(faces=[[0, 1, 2]], skeleton="s", pose=lambda pose: (V, None))
+    fit = SimpleNamespace(frame_ids=[1], fitted=[True], pose=lambda i: 0.0, albedo=np.array([0.0, 0.15, 0.5, 0.5]),
+                          body=lambda: body)
+    view = SimpleNamespace(fit=fit, fit_dir=Path("F"), render=None, session=None)
+    monkeypatch.setattr(gg, "pose_garment", lambda g, b, p: None)
+    monkeypatch.setattr(sk, "posed_joints", lambda skel, p: (None, None))
+    # the 99th percentile is 0.5, below 1: the brightest still white; 0.3 of it is 76.5 -> 76 (255, not 256, steps)
+    assert vg.fitted_scene(view, 1, garment="g").body_colors.tolist() == [0, 76, 255, 255]
+    fit.albedo = np.array([-0.25, 0.0, 0.5, 0.5])  # below zero: black, not wrapped round
+    assert vg.fitted_scene(view, 1, garment="g").body_colors.tolist() == [0, 0, 255, 255]
