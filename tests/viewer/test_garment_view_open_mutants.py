@@ -30,8 +30,7 @@ def _folder(tmp_path, render=True, eval_text=None, source="S"):
     return fit
 
 
-@pytest.fixture()
-def readers(monkeypatch):
+def _readers(monkeypatch):
     import bodystudio.capture.session as cs
     import bodystudio.garment.composite as gc
     import bodystudio.garment.fitfile as gf
@@ -60,7 +59,8 @@ def readers(monkeypatch):
     return seen
 
 
-def test_open_garment_view_reads_every_part(tmp_path, readers, monkeypatch):
+def test_open_garment_view_reads_every_part(tmp_path, monkeypatch):
+    readers = _readers(monkeypatch)
     fit = _folder(tmp_path, eval_text='{"iou": 0.9}')
     (tmp_path / "S").mkdir()
     monkeypatch.chdir(tmp_path)
@@ -71,7 +71,8 @@ def test_open_garment_view_reads_every_part(tmp_path, readers, monkeypatch):
     assert v.render_dir == fit / "render" and v.name == "fit" and v.has_source
 
 
-def test_open_garment_view_notes_what_is_missing(tmp_path, readers, monkeypatch):
+def test_open_garment_view_notes_what_is_missing(tmp_path, monkeypatch):
+    readers = _readers(monkeypatch)
     monkeypatch.chdir(tmp_path)
     fit = _folder(tmp_path, render=False, eval_text="[1]")
     v = vg.open_garment_view(str(fit))
@@ -95,7 +96,8 @@ def test_open_garment_view_notes_what_is_missing(tmp_path, readers, monkeypatch)
     assert v.session is None and v.has_source and v.notes == ("render not shown: render.json: damaged",)
 
 
-def test_open_garment_view_refuses_a_folder_without_a_fit(tmp_path, readers):
+def test_open_garment_view_refuses_a_folder_without_a_fit(tmp_path, monkeypatch):
+    _readers(monkeypatch)
     with pytest.raises(SessionError) as e:
         vg.open_garment_view(tmp_path)
     assert str(e.value) == (f"{tmp_path}: not a garment fit folder (no fit.json); run 'bodystudio garment fit VIDEO "
