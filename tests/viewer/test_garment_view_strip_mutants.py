@@ -142,3 +142,14 @@ def test_dress_fitted_body_uses_the_garment_choice(tmp_path, monkeypatch):
     monkeypatch.setattr(gg, "dress", lambda body, *a: (body, a))
     v = _view(tmp_path, None, render={"garment": "dress", "texture": "dots", "seed": 4, "texture_size": 16})
     assert vg.dress_fitted_body(v) == ("body", ("body", ("dress", "dots", 16, 4)))
+
+
+def test_a_short_video_read_and_a_session_without_a_target(tmp_path, monkeypatch):
+    import bodystudio.garment.composite as gc
+
+    monkeypatch.setattr(gc, "source_frames", lambda stub, fit_dir: [_img(1)])
+    with pytest.raises(ValueError):  # a frame the video did not give is never paired with another
+        vg.input_frames(_view(tmp_path), [2, 3])
+    s = _session()
+    s.gt_garment = None  # frames with target renders, but not a garment session: no truth
+    assert vg.truth_frame(_view(tmp_path, s), 2) is None
