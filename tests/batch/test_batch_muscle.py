@@ -99,10 +99,12 @@ def test_changed_input_redoes_only_that_sequence(arm_sessions, cluster, tmp_path
 
 
 def test_corrupt_sequence_fails_alone(arm_sessions, cluster, tmp_path):
+    """Two of s1's four depth frames truncated: more than the capture skips (rel7a: 25 %), so s1 fails, alone."""
     sessions = _copies(arm_sessions, tmp_path)
-    depth = sessions[1] / "kinect" / "depth" / "00001.png"
-    good = depth.read_bytes()
-    depth.write_bytes(good[: len(good) // 2])  # a truncated depth frame
+    depth, depth2 = (sessions[1] / "kinect" / "depth" / f"{i:05d}.png" for i in (1, 2))
+    good, good2 = depth.read_bytes(), depth2.read_bytes()
+    depth.write_bytes(good[: len(good) // 2])  # truncated depth frames
+    depth2.write_bytes(good2[: len(good2) // 2])
     out = tmp_path / "out"
     report = muscle_batch(sessions, out, cluster, MuscleOptions(mode="nicp"))
     assert report.status == {"s0": "done", "s1": "failed", "s2": "done"}
@@ -120,9 +122,10 @@ def test_corrupt_sequence_fails_alone(arm_sessions, cluster, tmp_path):
     assert report.status == {"s0": "skipped", "s1": "failed", "s2": "skipped"}
     assert _mtimes(out) == before
 
-    # the frame repaired (same manifest, so the same inputs sha256): the failed sequence is run again, not
+    # the frames repaired (same manifest, so the same inputs sha256): the failed sequence is run again, not
     # answered with the earlier task's error (each submission has its own dask key)
     depth.write_bytes(good)
+    depth2.write_bytes(good2)
     report = muscle_batch(sessions, out, cluster, MuscleOptions(mode="nicp"))
     assert report.status == {"s0": "skipped", "s1": "done", "s2": "skipped"}, report.errors
     assert load_arm_capture(out / "s1").n_frames == 4
@@ -206,3 +209,16 @@ def test_each_sequence_gets_its_own_measured_shape(arm_sessions, tiny_arm_model_
         assert load_arm_capture(out / name).shape == shape
     with pytest.raises(Exception, match="2 measured shapes for 1 sessions"):
         muscle_batch(sessions[:1], tmp_path / "out2", cluster, options, shapes=[None, None])
+
+
+def test_one_bad_frame_is_skipped_in_a_batch_not_the_sequence(arm_sessions, cluster, tmp_path):
+    """rel7a in a batch: one truncated depth frame of s1 (1 of 4) is skipped and recorded, s1 still done."""
+    sessions = _copies(arm_sessions, tmp_path, ("s1",))
+    depth = sessions[0] / "kinect" / "depth" / "00001.png"
+    depth.write_bytes(depth.read_bytes()[:100])
+    out = tmp_path / "out"
+    report = muscle_batch(sessions, out, cluster, MuscleOptions(mode="nicp"))
+    assert report.status == {"s1": "done"}, report.errors
+    params = json.loads((out / "s1" / "params.json").read_text())
+    assert [s["frame"] for s in params["skipped_frames"]] == [1]
+    assert not (out / "s1" / "meshes" / "00001.ply").exists() and (out / "s1" / "meshes" / "00002.ply").exists()
