@@ -15,15 +15,9 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from typer.testing import CliRunner
 
 from bodystudio.errors import InputError
-
-
-def _invoke(args):
-    from bodystudio.cli.main import app
-
-    return CliRunner().invoke(app, [str(a) for a in args])
+from tests.reliability.cli_spies import invoke as _invoke
 
 
 def _refused(res, message):
